@@ -1,0 +1,204 @@
+"""Parameters of the obstacle-detection pipeline, validated on construction.
+
+Every parameter of the seed thesis (chapter 4) is here under a descriptive name; the seed's own
+name is given in each field's description. Defaults reproduce the seed's Table 4.2; presets
+reproduce Tables 4.2 and 4.3. Units are metres and radians unless a name says otherwise.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """Pinhole intrinsics of the depth camera [pixels].
+
+    The seed (section 4.3.2, Table 4.1) uses one focal length f for both axes; ROS CameraInfo
+    gives fx and fy separately, so both are kept.
+    """
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+
+    def __post_init__(self) -> None:
+        for name in ('fx', 'fy', 'cx', 'cy'):
+            value = getattr(self, name)
+            if not math.isfinite(value):
+                raise ValueError(f'intrinsics {name}={value!r} is not a finite number')
+        if self.fx <= 0.0 or self.fy <= 0.0:
+            raise ValueError(
+                f'intrinsics focal lengths must be > 0, got fx={self.fx!r}, fy={self.fy!r}')
+
+
+#: Seed Table 4.1: Kinect v2 intrinsics used when no CameraInfo is known (f = 580, cx = 200,
+#: cy = 130, calibrated for the DIML 480x270 depth frames).
+SEED_TABLE_4_1 = Intrinsics(fx=580.0, fy=580.0, cx=200.0, cy=130.0)
+
+#: Typical Kinect v2 SD depth intrinsics (512x424), used by the scene generator.
+KINECT_V2_SD = Intrinsics(fx=365.0, fy=365.0, cx=256.0, cy=212.0)
+KINECT_V2_SD_SIZE = (512, 424)  # (width, height) [px]
+
+
+def _describe(text: str, **limits: Any) -> dict[str, Any]:
+    return {'description': text, **limits}
+
+
+@dataclass(frozen=True)
+class DetectorParams:
+    """All parameters of the pipeline; construction raises ValueError naming a bad value.
+
+    Field metadata holds a ``description`` (with the seed's name) and the allowed range
+    (``min``/``max``, inclusive unless ``open_min``/``open_max``), which the ROS node turns
+    into parameter descriptors.
+    """
+
+    # -- crop (seed 4.3.1 "Cropping step") [px]
+    crop_top_px: int = field(default=0, metadata=_describe(
+        'Crop: rows removed at the top border (seed 4.3.1 cropping step) [px]', min=0, max=2000))
+    crop_bottom_px: int = field(default=0, metadata=_describe(
+        'Crop: rows removed at the bottom border [px]', min=0, max=2000))
+    crop_left_px: int = field(default=0, metadata=_describe(
+        'Crop: columns removed at the left border [px]', min=0, max=2000))
+    crop_right_px: int = field(default=0, metadata=_describe(
+        'Crop: columns removed at the right border [px]', min=0, max=2000))
+    # -- median filter (seed 4.3.1 "Filtering step")
+    median_kernel: int = field(default=17, metadata=_describe(
+        'Median filter size K (KxK window, odd; 1 = off). Seed 4.3.1: K=17, 9, 7', min=1, max=31,
+        step=2))
+    # -- camera mount: ground frame = REP 103 body frame on the ground under the camera
+    camera_height_m: float = field(default=0.6, metadata=_describe(
+        'Height of the depth camera optical centre above the ground [m]', min=0.0, max=5.0,
+        open_min=True))
+    camera_pitch_rad: float = field(default=0.0, metadata=_describe(
+        'Camera pitch, positive looks down (seed: level camera, 0) [rad]',
+        min=-math.pi / 2, max=math.pi / 2, open_min=True, open_max=True))
+    camera_roll_rad: float = field(default=0.0, metadata=_describe(
+        'Camera roll about the optical axis, positive tilts the image clockwise [rad]',
+        min=-math.pi / 2, max=math.pi / 2, open_min=True, open_max=True))
+    # -- region of interest (seed 4.3.3), ground frame
+    max_range_m: float = field(default=2.0, metadata=_describe(
+        'ROI: forward range kept in front of the robot (seed 4.3.3: 2 m) [m]', min=0.0, max=20.0,
+        open_min=True))
+    min_range_m: float = field(default=0.0, metadata=_describe(
+        'ROI: points closer than this forward distance are dropped [m]', min=0.0, max=20.0))
+    lateral_limit_m: float = field(default=2.0, metadata=_describe(
+        'ROI: half-width kept left and right of the robot [m]', min=0.0, max=20.0,
+        open_min=True))
+    tdbg_m: float = field(default=-0.1, metadata=_describe(
+        'ROI: TDBG, tolerated distance below the ground (seed: -0.1, negative ramps) [m]',
+        min=-5.0, max=0.0))
+    smar_m: float = field(default=0.8, metadata=_describe(
+        'ROI: SMAR, margin kept above the sensor height (seed: 0.8) [m]', min=-5.0, max=5.0))
+    # -- voxel grid (seed 4.3.4)
+    voxel_x_m: float = field(default=0.025, metadata=_describe(
+        'Voxel grid Vx, size along the forward axis (seed: 25 mm) [m]', min=0.001, max=1.0))
+    voxel_y_m: float = field(default=0.025, metadata=_describe(
+        'Voxel grid Vy, size along the lateral axis (seed: 25 mm) [m]', min=0.001, max=1.0))
+    voxel_z_m: float = field(default=0.025, metadata=_describe(
+        'Voxel grid Vz, size along the vertical axis (seed: 25 mm) [m]', min=0.001, max=1.0))
+    # -- normals and slope test (seed 4.3.5)
+    normal_neighbours: int = field(default=10, metadata=_describe(
+        'N: nearest neighbours (the point itself included) whose covariance gives the normal '
+        '(seed Table 4.2: 10)', min=3, max=400))
+    max_slope_rad: float = field(default=math.pi / 6, metadata=_describe(
+        'theta: maximum passable slope; obstacle where |n.up| < cos(theta) '
+        '(seed Table 4.2: pi/6)', min=0.0, max=math.pi / 2, open_min=True, open_max=True))
+    validation_neighbours: int = field(default=12, metadata=_describe(
+        'N1: an obstacle point stays one only if its N1 nearest neighbours (itself excluded) are '
+        'obstacles too; 0 = no validation (seed Table 4.2: 12)', min=0, max=400))
+    # -- costmap (seed 4.3.6), ground plane, x forward from the camera foot, centred in y
+    costmap_resolution_m: float = field(default=0.05, metadata=_describe(
+        'Costmap cell size [m/cell]', min=0.005, max=1.0))
+    costmap_length_m: float = field(default=2.0, metadata=_describe(
+        'Costmap extent forward of the camera foot point [m]', min=0.0, max=50.0,
+        open_min=True))
+    costmap_width_m: float = field(default=4.0, metadata=_describe(
+        'Costmap extent across, centred on the camera [m]', min=0.0, max=50.0, open_min=True))
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            _check_field(f.name, value, f.type, f.metadata)
+        if self.median_kernel % 2 != 1:
+            raise ValueError(f'median_kernel={self.median_kernel} must be odd (K x K median)')
+        if self.min_range_m >= self.max_range_m:
+            raise ValueError(
+                f'min_range_m={self.min_range_m} must be below max_range_m={self.max_range_m}')
+        if self.camera_height_m + self.smar_m <= self.tdbg_m:
+            raise ValueError(
+                f'smar_m={self.smar_m} leaves an empty height band above tdbg_m={self.tdbg_m} '
+                f'for camera_height_m={self.camera_height_m}')
+
+    # Derived values -------------------------------------------------------------------------
+    @property
+    def voxel_size_m(self) -> tuple[float, float, float]:
+        """(Vx, Vy, Vz) [m]."""
+        return (self.voxel_x_m, self.voxel_y_m, self.voxel_z_m)
+
+    @property
+    def cos_max_slope(self) -> float:
+        """cos(theta), the slope-test threshold on |n.up|."""
+        return math.cos(self.max_slope_rad)
+
+    @property
+    def max_height_m(self) -> float:
+        """Top of the region of interest above the ground: camera height + SMAR [m]."""
+        return self.camera_height_m + self.smar_m
+
+    def replace(self, **changes: Any) -> 'DetectorParams':
+        """Return a validated copy with some fields changed (raises ValueError)."""
+        unknown = set(changes) - {f.name for f in dataclasses.fields(self)}
+        if unknown:
+            raise ValueError(f'unknown parameter(s): {", ".join(sorted(unknown))}')
+        return dataclasses.replace(self, **changes)
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain ``{name: value}`` of every field."""
+        return dataclasses.asdict(self)
+
+
+def _check_field(name: str, value: Any, type_name: Any, meta: Any) -> None:
+    is_int = type_name in ('int', int)
+    if is_int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ValueError(f'{name}={value!r} must be an integer')
+    else:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ValueError(f'{name}={value!r} must be a number')
+        if not math.isfinite(value):
+            raise ValueError(f'{name}={value!r} must be finite')
+    low, high = meta.get('min'), meta.get('max')
+    if low is not None and (value < low or (meta.get('open_min') and value == low)):
+        bound = '>' if meta.get('open_min') else '>='
+        raise ValueError(f'{name}={value!r} out of range: must be {bound} {low}')
+    if high is not None and (value > high or (meta.get('open_max') and value == high)):
+        bound = '<' if meta.get('open_max') else '<='
+        raise ValueError(f'{name}={value!r} out of range: must be {bound} {high}')
+
+
+def table_4_2(**overrides: Any) -> DetectorParams:
+    """Seed Table 4.2 (DIML indoor scenes): theta = pi/6, N1 = 12, N = 10, TDBG = -0.1,
+    SMAR = 0.8, range 2 m, voxels 25 mm, K = 17 (seed figure 4.8)."""
+    base = dict(max_slope_rad=math.pi / 6, validation_neighbours=12, normal_neighbours=10,
+                tdbg_m=-0.1, smar_m=0.8, max_range_m=2.0, median_kernel=17)
+    base.update(overrides)
+    return DetectorParams(**base)
+
+
+def table_4_3(**overrides: Any) -> DetectorParams:
+    """Seed Table 4.3 (corridor video, 512x424): theta = pi/3, N1 = 7, N = 5, TDBG = -0.1,
+    SMAR = 0.8, range 1 m (seed figure 4.27), K = 7 (seed figure 4.11)."""
+    base = dict(max_slope_rad=math.pi / 3, validation_neighbours=7, normal_neighbours=5,
+                tdbg_m=-0.1, smar_m=0.8, max_range_m=1.0, median_kernel=7,
+                costmap_length_m=1.0)
+    base.update(overrides)
+    return DetectorParams(**base)
+
+
+PRESETS = {'table_4_2': table_4_2, 'table_4_3': table_4_3}
