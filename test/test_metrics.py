@@ -1,0 +1,103 @@
+"""Metrics against confusion counts worked out by hand."""
+
+import math
+
+import numpy as np
+import pytest
+
+from obstacle_detection import metrics
+from obstacle_detection.metrics import (CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN, Confusion,
+                                        GT_NO_RETURN, GT_OBSTACLE, GT_TRAVERSABLE, LABEL_GROUND,
+                                        LABEL_NO_RETURN, LABEL_OBSTACLE, LABEL_OUTSIDE_ROI)
+
+
+def test_confusion_counts_of_two_bool_arrays():
+    predicted = np.array([1, 1, 0, 0, 1, 0], dtype=bool)
+    truth = np.array([1, 0, 1, 0, 1, 0], dtype=bool)
+    assert metrics.confusion(predicted, truth) == Confusion(tp=2, fp=1, fn=1, tn=2)
+
+
+def test_scores_from_counts():
+    c = Confusion(tp=6, fp=2, fn=3, tn=9)
+    assert c.precision == pytest.approx(6 / 8)
+    assert c.recall == pytest.approx(6 / 9)
+    assert c.f1 == pytest.approx(12 / 17)
+    assert c.iou == pytest.approx(6 / 11)
+    assert c.false_alarm_rate == pytest.approx(2 / 11)
+    assert c.accuracy == pytest.approx(15 / 20)
+
+
+def test_undefined_ratios_are_nan():
+    c = Confusion(tp=0, fp=0, fn=0, tn=5)
+    assert math.isnan(c.precision) and math.isnan(c.recall) and math.isnan(c.f1)
+    assert c.false_alarm_rate == 0.0
+
+
+def test_confusions_add_up():
+    assert Confusion(1, 2, 3, 4) + Confusion(10, 20, 30, 40) == Confusion(11, 22, 33, 44)
+
+
+def test_negative_count_rejected():
+    with pytest.raises(ValueError, match='fp=-1'):
+        Confusion(tp=0, fp=-1)
+
+
+def test_pixel_confusion_excludes_no_return_and_unpredicted_pixels():
+    # Columns: truth obstacle/traversable/no return; rows: pipeline calls.
+    pipeline = np.array([
+        [LABEL_OBSTACLE, LABEL_OBSTACLE, LABEL_OBSTACLE],
+        [LABEL_GROUND, LABEL_GROUND, LABEL_GROUND],
+        [LABEL_NO_RETURN, LABEL_OUTSIDE_ROI, LABEL_OBSTACLE],
+        [LABEL_OBSTACLE, LABEL_GROUND, LABEL_OUTSIDE_ROI],
+    ], dtype=np.uint8)
+    truth = np.array([
+        [GT_OBSTACLE, GT_TRAVERSABLE, GT_NO_RETURN],
+        [GT_OBSTACLE, GT_TRAVERSABLE, GT_NO_RETURN],
+        [GT_OBSTACLE, GT_OBSTACLE, GT_NO_RETURN],
+        [GT_OBSTACLE, GT_OBSTACLE, GT_TRAVERSABLE],
+    ], dtype=np.uint8)
+    # Evaluated: rows 0-1 cols 0-1, row 3 cols 0-1 -> 6 pixels.
+    # tp: (0,0), (3,0); fp: (0,1); fn: (1,0), (3,1); tn: (1,1).
+    assert metrics.pixel_confusion(pipeline, truth) == Confusion(tp=2, fp=1, fn=2, tn=1)
+
+
+def test_pixel_confusion_shape_mismatch():
+    with pytest.raises(ValueError, match=r'\(2, 2\)'):
+        metrics.pixel_confusion(np.zeros((2, 2), np.uint8), np.zeros((2, 3), np.uint8))
+
+
+def test_cell_confusion_on_hand_made_grids():
+    o, f, u = CELL_OCCUPIED, CELL_FREE, CELL_UNKNOWN
+    truth = np.array([[o, o, f, u],
+                      [f, f, o, u],
+                      [u, o, f, f]], dtype=np.int8)
+    predicted = np.array([[o, f, o, o],
+                          [f, o, u, u],
+                          [o, o, f, u]], dtype=np.int8)
+    # Known truth cells: 9. tp: (0,0), (2,1) = 2; fp: (0,2), (1,1) = 2;
+    # fn: (0,1), (1,2) [pred unknown counts as negative] = 2; tn: (1,0), (2,2), (2,3) = 3.
+    c = metrics.cell_confusion(predicted, truth)
+    assert c == Confusion(tp=2, fp=2, fn=2, tn=3)
+    assert c.iou == pytest.approx(2 / 6)
+    assert c.false_alarm_rate == pytest.approx(2 / 5)
+
+
+def test_truth_grid_occupied_wins_over_free():
+    obstacle = np.array([[0.12, 0.01, 0.3]], dtype=np.float32)
+    traversable = np.array([[0.11, 0.02, 0.0], [0.31, -0.04, 0.0], [5.0, 0.0, 0.0]],
+                           dtype=np.float32)
+    # Origin (0, -0.1), 0.1 m cells, 3 x 4 grid: obstacle cell ix=1, iy=1; free ix=3, iy=0.
+    grid = metrics.truth_grid(obstacle, traversable, (0.0, -0.1), 0.1, (3, 4))
+    expected = np.full((3, 4), CELL_UNKNOWN, np.int8)
+    expected[1, 1] = CELL_OCCUPIED
+    expected[0, 3] = CELL_FREE
+    np.testing.assert_array_equal(grid, expected)
+
+
+def test_truth_points_keeps_finite_roi_points():
+    points = np.zeros((2, 2, 3), np.float32)
+    points[0, 1] = np.nan
+    labels = np.array([[GT_OBSTACLE, GT_OBSTACLE], [GT_TRAVERSABLE, GT_OBSTACLE]], np.uint8)
+    roi = np.array([[True, True], [True, False]])
+    obstacle, traversable = metrics.truth_points(points, labels, roi)
+    assert obstacle.shape == (1, 3) and traversable.shape == (1, 3)
