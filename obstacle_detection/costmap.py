@@ -1,0 +1,82 @@
+"""Costmap generation (seed section 4.3.6): obstacles projected onto the ground plane.
+
+The grid uses nav_msgs/OccupancyGrid's layout: ``data[row, col]`` with the row along the
+ground frame's y axis and the column along x, row-major, cell (0, 0) at ``origin_xy_m``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .params import DetectorParams
+
+CELL_OCCUPIED = 100  #: an obstacle point fell in the cell
+CELL_FREE = 0        #: only traversable ground was seen in the cell
+CELL_UNKNOWN = -1    #: nothing was seen in the cell
+
+
+@dataclass(frozen=True)
+class Costmap:
+    """A 2-D grid in the ground plane.
+
+    data: (ny, nx) int8 with CELL_* values; resolution_m [m/cell]; origin_xy_m: ground-frame
+    (x, y) [m] of the outer corner of cell (0, 0) (its minimum x and y).
+    """
+
+    data: np.ndarray
+    resolution_m: float
+    origin_xy_m: tuple[float, float]
+
+    @property
+    def width(self) -> int:
+        """Number of cells along x (columns)."""
+        return int(self.data.shape[1])
+
+    @property
+    def height(self) -> int:
+        """Number of cells along y (rows)."""
+        return int(self.data.shape[0])
+
+    def cell_of(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(row, col, inside) for ground-frame points xy (M, 2) or (M, 3) [m]."""
+        col = np.floor((xy[:, 0] - self.origin_xy_m[0]) / self.resolution_m).astype(np.int64)
+        row = np.floor((xy[:, 1] - self.origin_xy_m[1]) / self.resolution_m).astype(np.int64)
+        inside = (col >= 0) & (col < self.width) & (row >= 0) & (row < self.height)
+        return row, col, inside
+
+    def cell_centres(self) -> tuple[np.ndarray, np.ndarray]:
+        """Ground-frame x (nx,) and y (ny,) of the cell centres [m]."""
+        x = self.origin_xy_m[0] + (np.arange(self.width) + 0.5) * self.resolution_m
+        y = self.origin_xy_m[1] + (np.arange(self.height) + 0.5) * self.resolution_m
+        return x, y
+
+
+def costmap_geometry(params: DetectorParams) -> tuple[tuple[float, float], int, int]:
+    """(origin_xy_m, nx, ny) of the grid: x from 0 forward, y centred on the camera."""
+    res = params.costmap_resolution_m
+    nx = max(1, int(np.ceil(params.costmap_length_m / res - 1e-9)))
+    ny = max(1, int(np.ceil(params.costmap_width_m / res - 1e-9)))
+    origin = (0.0, -0.5 * ny * res)
+    return origin, nx, ny
+
+
+def build_costmap(obstacle_points: np.ndarray, ground_points: np.ndarray,
+                  params: DetectorParams) -> Costmap:
+    """Project points orthogonally onto the ground plane (seed: p(x, y, z) -> p(x, y)).
+
+    obstacle_points, ground_points: (M, 3) ground frame [m]. Cells hit by an obstacle point are
+    CELL_OCCUPIED, cells hit only by ground points CELL_FREE, the rest CELL_UNKNOWN. Points
+    outside the grid are ignored.
+    """
+    origin, nx, ny = costmap_geometry(params)
+    grid = Costmap(np.full((ny, nx), CELL_UNKNOWN, dtype=np.int8),
+                   params.costmap_resolution_m, origin)
+    flat = grid.data.reshape(-1)
+    for points, value in ((ground_points, CELL_FREE), (obstacle_points, CELL_OCCUPIED)):
+        if points.shape[0] == 0:
+            continue
+        row, col, inside = grid.cell_of(points)
+        flat[row[inside] * nx + col[inside]] = value
+    return grid

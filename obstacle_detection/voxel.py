@@ -1,0 +1,75 @@
+"""Voxel-grid downsampling (seed section 4.3.4): one centroid per occupied voxel."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Largest dense voxel lattice [cells] indexed directly; larger extents fall back to sorting.
+_DENSE_LIMIT = 16_000_000
+
+
+@dataclass(frozen=True)
+class VoxelGrid:
+    """Result of :func:`voxel_downsample`.
+
+    centroids: (V, 3) float32, mean of the points in each occupied voxel [m].
+    point_voxel: (M,) int64, for every input point the row of its voxel in ``centroids``.
+    counts: (V,) int64, points per voxel.
+    voxel_ijk: (V, 3) int64, integer voxel coordinates ``floor(p / size)``.
+    """
+
+    centroids: np.ndarray
+    point_voxel: np.ndarray
+    counts: np.ndarray
+    voxel_ijk: np.ndarray
+
+
+def voxel_downsample(points: np.ndarray, voxel_size_m: tuple[float, float, float],
+                     ) -> VoxelGrid:
+    """Replace the points of every occupied voxel by their centroid.
+
+    points: (M, 3) float32 [m]. Voxels are the cells ``[i*Vx, (i+1)*Vx) x [j*Vy, ...) x ...``
+    of a lattice anchored at the frame origin, so a point's voxel does not depend on the other
+    points. Voxels are ordered by their linear index (x slowest, z fastest), so the output is
+    deterministic. An empty input gives empty arrays.
+    """
+    size = np.asarray(voxel_size_m, dtype=np.float64)
+    if size.shape != (3,) or np.any(size <= 0.0):
+        raise ValueError(f'voxel size {voxel_size_m!r} must be three positive numbers')
+    pts = np.asarray(points)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise ValueError(f'points must have shape (M, 3), got {pts.shape}')
+    if pts.shape[0] == 0:
+        return VoxelGrid(np.zeros((0, 3), np.float32), np.zeros(0, np.int64),
+                         np.zeros(0, np.int64), np.zeros((0, 3), np.int64))
+
+    ijk = np.floor(pts / size.astype(pts.dtype)).astype(np.int64)
+    low = ijk.min(axis=0)
+    dims = ijk.max(axis=0) - low + 1
+    rel = ijk - low
+    keys = (rel[:, 0] * dims[1] + rel[:, 1]) * dims[2] + rel[:, 2]
+    n_cells = int(dims[0] * dims[1] * dims[2])
+
+    if n_cells <= _DENSE_LIMIT:
+        occupied = np.zeros(n_cells, dtype=bool)
+        occupied[keys] = True
+        cell_keys = np.flatnonzero(occupied)
+        lookup = np.cumsum(occupied, dtype=np.int64)
+        lookup -= 1
+        point_voxel = lookup[keys]
+    else:
+        cell_keys, point_voxel = np.unique(keys, return_inverse=True)
+    n_vox = cell_keys.size
+
+    counts = np.bincount(point_voxel, minlength=n_vox)
+    centroids = np.empty((n_vox, 3), dtype=np.float32)
+    for axis in range(3):
+        sums = np.bincount(point_voxel, weights=pts[:, axis], minlength=n_vox)
+        centroids[:, axis] = sums / counts
+    vox_ijk = np.empty((n_vox, 3), dtype=np.int64)
+    rest, vox_ijk[:, 2] = np.divmod(cell_keys, dims[2])
+    vox_ijk[:, 0], vox_ijk[:, 1] = np.divmod(rest, dims[1])
+    vox_ijk += low
+    return VoxelGrid(centroids, point_voxel, counts, vox_ijk)

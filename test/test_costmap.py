@@ -1,0 +1,39 @@
+"""Costmap: projection of points onto the ground grid."""
+
+import numpy as np
+
+from obstacle_detection.costmap import (CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN, build_costmap,
+                                        costmap_geometry)
+from obstacle_detection.params import DetectorParams
+
+P = DetectorParams(costmap_resolution_m=0.1, costmap_length_m=2.0, costmap_width_m=1.0)
+
+
+def test_geometry_from_params():
+    origin, nx, ny = costmap_geometry(P)
+    assert (nx, ny) == (20, 10)
+    assert origin == (0.0, -0.5)
+
+
+def test_points_fall_in_the_right_cells():
+    obstacles = np.array([[1.05, 0.05, 0.3], [1.05, 0.05, 0.9], [0.01, -0.49, 0.2]], np.float32)
+    ground = np.array([[1.05, 0.05, 0.0], [1.55, -0.25, 0.01], [5.0, 0.0, 0.0]], np.float32)
+    grid = build_costmap(obstacles, ground, P)
+    assert grid.data.shape == (10, 20) and grid.data.dtype == np.int8
+    assert grid.data[5, 10] == CELL_OCCUPIED      # obstacle wins over ground in one cell
+    assert grid.data[0, 0] == CELL_OCCUPIED
+    assert grid.data[2, 15] == CELL_FREE          # y = -0.25 -> row 2, x = 1.55 -> col 15
+    assert (grid.data == CELL_OCCUPIED).sum() == 2
+    assert (grid.data == CELL_FREE).sum() == 1    # the point at x = 5 m is off the grid
+    assert (grid.data == CELL_UNKNOWN).sum() == 200 - 3
+    row, col, inside = grid.cell_of(obstacles)
+    np.testing.assert_array_equal(row, [5, 5, 0])
+    np.testing.assert_array_equal(col, [10, 10, 0])
+    assert inside.all()
+
+
+def test_cell_centres():
+    grid = build_costmap(np.zeros((0, 3)), np.zeros((0, 3)), P)
+    x, y = grid.cell_centres()
+    assert x[0] == 0.05 and np.isclose(y[0], -0.45)
+    assert (grid.data == CELL_UNKNOWN).all()
