@@ -31,14 +31,19 @@ def neighbourhood_covariance(points: np.ndarray, neighbours: np.ndarray) -> np.n
     """Covariance (V, 3, 3) float64 of each point's neighbours (seed: C = 1/N sum (p-p̄)(p-p̄)ᵀ).
 
     points: (V, 3) [m]; neighbours: (V, N) indices into points. Coordinates are taken
-    relative to each query point before summing, which keeps float64 sums exact enough for
-    millimetre-scale variances far from the origin.
+    relative to each query point before summing, so float32 sums stay exact enough for
+    millimetre-scale spreads far from the origin; only the six distinct entries are summed.
     """
-    rel = points[neighbours].astype(np.float64)
-    rel -= points[:, None, :].astype(np.float64)
-    mean = rel.mean(axis=1)
-    cov = np.einsum('vki,vkj->vij', rel, rel, optimize=False) / neighbours.shape[1]
-    cov -= mean[:, :, None] * mean[:, None, :]
+    n_nb = neighbours.shape[1]
+    pts_t = np.ascontiguousarray(points.T, dtype=np.float32)      # (3, V)
+    rel = pts_t[:, neighbours]                                     # (3, V, N)
+    rel -= pts_t[:, :, None]
+    mean = rel.sum(axis=2) / np.float32(n_nb)                      # (3, V)
+    cov = np.empty((points.shape[0], 3, 3), dtype=np.float64)
+    for a, b in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)):
+        second = np.einsum('vk,vk->v', rel[a], rel[b]) / np.float32(n_nb)
+        cov[:, a, b] = second - mean[a] * mean[b]
+        cov[:, b, a] = cov[:, a, b]
     return cov
 
 
