@@ -1,0 +1,1 @@
+"""Obstacle detection from depth images (seed thesis chapter 4): pipeline, conversions, node."""

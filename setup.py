@@ -1,0 +1,33 @@
+"""Install the obstacle_detection ament_python package (colcon runs this file)."""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = 'obstacle_detection'
+
+setup(
+    name=PACKAGE,
+    version='0.1.0',
+    packages=find_packages(include=[PACKAGE, f'{PACKAGE}.*']),
+    data_files=[
+        # ament index marker: lets `ros2 run` / `ros2 pkg` find the package.
+        ('share/ament_index/resource_index/packages', [f'resource/{PACKAGE}']),
+        (f'share/{PACKAGE}', ['package.xml']),
+        (f'share/{PACKAGE}/params', sorted(glob('params/*.yaml'))),
+    ],
+    # ROS convention: runtime dependencies come from package.xml (rosdep), not from pip, so a
+    # colcon build against system numpy/scipy/OpenCV keeps working.
+    install_requires=['setuptools'],
+    zip_safe=True,
+    maintainer='Seed 4227b6c9 maintainers',
+    maintainer_email='maintainers@users.noreply.h-seed-4227b6c9.example',
+    description='Depth image to obstacle cloud and ground-plane costmap (ROS 2 node).',
+    license='Apache-2.0',
+    extras_require={'test': ['pytest']},
+    entry_points={
+        'console_scripts': [
+            'detector = obstacle_detection.node:main',
+        ],
+    },
+)
