@@ -1,0 +1,185 @@
+"""Tests of tools/bag_play.py: a bag replayed on loopback DDS reaches a subscriber intact."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rclpy
+import ros_env
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from sensor_msgs.msg import CameraInfo, Image
+
+from obstacle_detection.conversions import image_to_array
+from obstacle_detection.params import Intrinsics
+from tools import bag_convert, bag_play
+
+REPO = Path(__file__).resolve().parents[1]
+N_FRAMES = 6
+RATE_HZ = 30.0
+DEPTH = bag_convert.DEFAULT_DEPTH_TOPIC
+INFO = bag_convert.DEFAULT_INFO_TOPIC
+RELIABLE = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+
+
+def frame_depth(k: int) -> np.ndarray:
+    """(24, 32) uint16 frame whose every pixel encodes k, so order is checkable."""
+    return np.full((24, 32), 1000 + k, dtype=np.uint16) + np.arange(32, dtype=np.uint16)
+
+
+@pytest.fixture(scope='module')
+def bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A converted bag of N_FRAMES depth + camera-info frames at 30 Hz."""
+    import cv2
+
+    root = tmp_path_factory.mktemp('play')
+    (root / 'depth').mkdir()
+    for k in range(N_FRAMES):
+        cv2.imwrite(str(root / 'depth' / f'{k:03d}.png'), frame_depth(k))
+    (root / 'k.yaml').write_text('fx: 30.0\nfy: 30.0\ncx: 16.0\ncy: 12.0\n')
+    source = bag_convert.folder_frames(root / 'depth', intrinsics_path=root / 'k.yaml',
+                                       rate_hz=RATE_HZ, start_s=50.0)
+    bag_convert.write_frames(source, root / 'bag', bag_convert.BagOptions(progress=False))
+    return root / 'bag'
+
+
+@pytest.fixture(scope='module')
+def env(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, str]]:
+    """Loopback DDS environment of this module, applied to this process too."""
+    environment = ros_env.loopback_env('test_bag_play',
+                                       log_dir=tmp_path_factory.mktemp('ros_log'))
+    old = ros_env.apply(environment)
+    yield environment
+    ros_env.restore(old)
+
+
+@pytest.fixture()
+def context(env: dict[str, str]) -> Iterator[rclpy.context.Context]:
+    ctx = rclpy.context.Context()
+    rclpy.init(context=ctx)
+    yield ctx
+    ctx.try_shutdown()
+
+
+class Recorder:
+    """Subscribes to topics and keeps every message received, in order."""
+
+    def __init__(self, context: rclpy.context.Context, topics: dict[str, type],
+                 qos: QoSProfile) -> None:
+        self.node = Node('play_recorder', context=context)
+        self.received: dict[str, list] = {topic: [] for topic in topics}
+        for topic, msg_type in topics.items():
+            self.node.create_subscription(
+                msg_type, topic, lambda msg, t=topic: self.received[t].append(msg), qos)
+        self.executor = SingleThreadedExecutor(context=context)
+        self.executor.add_node(self.node)
+
+    def spin_until(self, done, timeout_s: float) -> None:
+        deadline = time.monotonic() + timeout_s
+        while not done() and time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+
+
+def stamps_s(messages: list) -> list[float]:
+    return [m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in messages]
+
+
+def test_cli_replays_every_frame_in_order_with_remap(bag: Path, env: dict[str, str],
+                                                      context: rclpy.context.Context) -> None:
+    recorder = Recorder(context, {'/cam/depth': Image, INFO: CameraInfo}, RELIABLE)
+    try:
+        player = subprocess.Popen(
+            [sys.executable, str(REPO / 'tools' / 'bag_play.py'), str(bag), '--reliable',
+             '--quiet', '--remap', f'{DEPTH}:=/cam/depth', '--wait-for-subscribers', '2',
+             '--wait-timeout', '20'],
+            env=env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        recorder.spin_until(lambda: player.poll() is not None, 30.0)
+        recorder.spin_until(lambda: len(recorder.received['/cam/depth']) >= N_FRAMES, 2.0)
+        out, err = player.communicate(timeout=10)
+        assert player.returncode == 0, err
+        assert f'/cam/depth: {N_FRAMES}' in out
+        depth = recorder.received['/cam/depth']
+        assert len(depth) == N_FRAMES
+        assert len(recorder.received[INFO]) == N_FRAMES
+        for k, msg in enumerate(depth):
+            np.testing.assert_array_equal(image_to_array(msg), frame_depth(k))
+        np.testing.assert_allclose(stamps_s(depth), 50.0 + np.arange(N_FRAMES) / RATE_HZ,
+                                   atol=1e-9)
+    finally:
+        recorder.close()
+
+
+def test_library_loops_offset_and_timing(bag: Path, context: rclpy.context.Context) -> None:
+    recorder = Recorder(context, {DEPTH: Image}, RELIABLE)
+    arrivals: list[float] = []
+    publisher_node = Node('player_under_test', context=context)
+    options = bag_play.PlayOptions(topics=(DEPTH,), rate=0.5, loops=2,
+                                   start_offset_s=2.5 / RATE_HZ, reliable=True,
+                                   wait_for_subscribers=1, wait_timeout_s=20.0, progress=False)
+    player = bag_play.Player(publisher_node, bag, options)
+    stats: list[bag_play.PlayStats] = []
+
+    def run() -> None:
+        player.wait_for_subscribers()
+        stats.append(player.play(on_publish=lambda topic, t: arrivals.append(time.monotonic())))
+
+    thread = threading.Thread(target=run)
+    try:
+        thread.start()
+        played = N_FRAMES - 3  # frames 3, 4, 5 are at or after the 2.5-frame offset
+        recorder.spin_until(lambda: len(recorder.received[DEPTH]) >= 2 * played, 20.0)
+        thread.join(timeout=10)
+        got = [int(image_to_array(m)[0, 0]) - 1000 for m in recorder.received[DEPTH]]
+        assert got == [3, 4, 5, 3, 4, 5]
+        assert stats[0].loops == 2 and stats[0].published[DEPTH] == 6
+        # Half speed: 1/15 s between frames of one loop (generous bounds for a busy machine).
+        gaps = np.diff(arrivals[:played])
+        assert np.all(gaps > 0.8 * 2 / RATE_HZ)
+        assert np.all(gaps < 0.3)
+    finally:
+        thread.join(timeout=10)
+        player.close()
+        publisher_node.destroy_node()
+        recorder.close()
+
+
+def test_sensor_data_qos_by_default(bag: Path, context: rclpy.context.Context) -> None:
+    node = Node('qos_probe', context=context)
+    player = bag_play.Player(node, bag, bag_play.PlayOptions(progress=False))
+    try:
+        infos = node.get_publishers_info_by_topic(DEPTH)
+        assert [i.qos_profile.reliability for i in infos] == [qos_profile_sensor_data.reliability]
+    finally:
+        player.close()
+        node.destroy_node()
+
+
+@pytest.mark.parametrize(('args', 'named'), [
+    (['--topics', '/nope'], '/nope'),
+    (['--remap', 'bad'], 'bad'),
+    (['--remap', '/not/played:=/x'], '/not/played'),
+    (['--start-offset', '100'], 'no messages'),
+    (['--rate', '0'], '--rate'),
+])
+def test_bad_options(bag: Path, args: list[str], named: str,
+                     capsys: pytest.CaptureFixture[str], env: dict[str, str]) -> None:
+    assert bag_play.main([str(bag), *args, '--quiet']) == 1
+    assert named in capsys.readouterr().err
+
+
+def test_missing_bag(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                     env: dict[str, str]) -> None:
+    assert bag_play.main([str(tmp_path / 'none')]) == 1
+    assert str(tmp_path / 'none') in capsys.readouterr().err
