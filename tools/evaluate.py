@@ -1,0 +1,199 @@
+#!/usr/bin/env python3
+"""Score the obstacle detector against ground truth: per scenario and overall.
+
+Runs the pipeline over labelled frames, the committed scenario suite (tools/scenarios.json:
+scene generator, fixed seeds) and/or labelled folders (``depth/*.png`` 16-bit mm,
+``labels/*.png`` 8-bit 0/1/2, ``intrinsics.yaml`` with the camera mount), and prints a table
+for people and one JSON line for machines (the last line of stdout, or ``--json FILE``).
+
+Examples::
+
+    python tools/evaluate.py                                  # suite, seed Table 4.2
+    python tools/evaluate.py --preset table_4_3 --scene corridor --scene people
+    python tools/evaluate.py --params-file params/corridor.yaml --refiner refiner.json
+    python tools/evaluate.py --folder recordings/lab_run --pictures /tmp/pics
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import sys
+from pathlib import Path
+from typing import Any, Iterable, Sequence
+
+if __package__ in (None, ''):  # run as a script: make the repository root importable
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from obstacle_detection import evaluation  # noqa: E402
+from obstacle_detection.params import PRESETS, DetectorParams  # noqa: E402
+
+DEFAULT_SCENARIOS = Path(__file__).resolve().parent / 'scenarios.json'
+
+
+def parse_assignment(text: str) -> tuple[str, str]:
+    """``key=value`` -> (key, value); argparse type for ``--set``."""
+    key, sep, value = text.partition('=')
+    if not sep or not key.strip() or not value.strip():
+        raise argparse.ArgumentTypeError(f'expected key=value, got {text!r}')
+    return key.strip(), value.strip()
+
+
+def add_common_arguments(parser: argparse.ArgumentParser) -> None:
+    """Frame-source and parameter options shared by evaluate, sweep and train_refiner."""
+    parser.add_argument('--scenarios', type=Path, default=DEFAULT_SCENARIOS,
+                        help='scenario list (JSON) [default: tools/scenarios.json]')
+    parser.add_argument('--scene', action='append', metavar='NAME',
+                        help='evaluate only this scenario (repeatable) [default: all]')
+    parser.add_argument('--folder', action='append', type=Path, metavar='DIR',
+                        help='a labelled folder (depth/, labels/, intrinsics.yaml); '
+                             'repeatable; given alone, the suite is skipped unless --scene')
+    parser.add_argument('--max-frames', type=int, metavar='N',
+                        help='at most N frames per scenario/folder, evenly spread')
+    parser.add_argument('--preset', choices=sorted(PRESETS), default='table_4_2',
+                        help='base parameters: seed Table 4.2 or 4.3 [default: table_4_2]')
+    parser.add_argument('--params-file', type=Path, metavar='YAML',
+                        help='node parameter file applied on top of the preset')
+    parser.add_argument('--set', action='append', type=parse_assignment, default=[],
+                        metavar='KEY=VALUE',
+                        help='override one parameter (field name, theta_deg, N, N1, K, '
+                             'voxel_m, ...); repeatable')
+
+
+def base_params(args: argparse.Namespace) -> DetectorParams:
+    """Preset, then parameter file, then ``--set`` overrides (ValueError on a bad one)."""
+    params = PRESETS[args.preset]()
+    if args.params_file is not None:
+        params = evaluation.load_params_file(args.params_file, params)
+    if args.set:
+        params = evaluation.apply_overrides(params, dict(args.set))
+    return params
+
+
+def frame_sources(args: argparse.Namespace,
+                  ) -> list[tuple[str, int, Iterable[evaluation.LabelledFrame]]]:
+    """(name, frame count, lazy frames) for each scenario and folder selected by the options."""
+    sources: list[tuple[str, int, Iterable[evaluation.LabelledFrame]]] = []
+    if args.max_frames is not None and args.max_frames < 1:
+        raise ValueError(f'--max-frames={args.max_frames} must be >= 1')
+    if args.scene or not args.folder:
+        scenarios = evaluation.select_scenarios(evaluation.load_scenarios(args.scenarios),
+                                                args.scene)
+        for scenario in scenarios:
+            count = scenario.frame_count
+            if args.max_frames is not None:
+                count = min(count, args.max_frames)
+            sources.append((scenario.name, count,
+                            _lazy(evaluation.scenario_frames, scenario,
+                                  max_frames=args.max_frames)))
+    for folder in args.folder or []:
+        count = len(evaluation.subsample(sorted((folder / 'depth').glob('*.png')),
+                                         args.max_frames))
+        sources.append((folder.name, count,
+                        _lazy(evaluation.load_labelled_folder, folder,
+                              max_frames=args.max_frames)))
+    return sources
+
+
+class _lazy:
+    """An iterable that calls ``function(*args, **kwargs)`` only when iterated."""
+
+    def __init__(self, function: Any, *args: Any, **kwargs: Any) -> None:
+        self._call = (function, args, kwargs)
+
+    def __iter__(self) -> Any:
+        function, args, kwargs = self._call
+        return iter(function(*args, **kwargs))
+
+
+def _progress(total: int, label: str) -> Any:
+    done = itertools.count(1)
+
+    def on_frame(frame: evaluation.LabelledFrame, result: Any,
+                 score: evaluation.FrameScore) -> None:
+        print(f'{label} [{next(done)}/{total}] {frame.scenario} {frame.frame_id}: '
+              f'cell F1 {evaluation.format_score(score.cell.f1)}, '
+              f'{score.total_ms:.0f} ms', file=sys.stderr, flush=True)
+    return on_frame
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command-line interface."""
+    parser = argparse.ArgumentParser(
+        prog='evaluate.py', description=__doc__.split('\n\n')[0],
+        epilog=evaluation.SCORE_DEFINITIONS, formatter_class=argparse.RawTextHelpFormatter)
+    add_common_arguments(parser)
+    parser.add_argument('--refiner', type=Path, metavar='MODEL',
+                        help='also score the seed-4.5 logistic refinement of this model '
+                             '(JSON from tools/train_refiner.py)')
+    parser.add_argument('--json', metavar='FILE',
+                        help="write the JSON report to FILE instead of printing it as the last "
+                             "line ('-': print only the JSON line, table to stderr)")
+    parser.add_argument('--pictures', type=Path, metavar='DIR',
+                        help='also save one PNG per frame (depth + obstacles, costmap, '
+                             'comparison with the truth)')
+    parser.add_argument('--quiet', action='store_true', help='no per-frame progress lines')
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point; returns the exit code (0 ok, 2 bad input)."""
+    args = build_parser().parse_args(argv)
+    try:
+        params = base_params(args)
+        sources = frame_sources(args)
+        refiner = None
+        if args.refiner is not None:
+            from obstacle_detection.refine import LogisticRefiner
+            refiner = LogisticRefiner.load(args.refiner)
+    except (ValueError, OSError) as exc:
+        print(f'evaluate.py: error: {exc}', file=sys.stderr)
+        return 2
+    total = sum(count for _, count, _ in sources)
+    callbacks = []
+    if not args.quiet:
+        callbacks.append(_progress(total, 'evaluate'))
+    if args.pictures is not None:
+        callbacks.append(_picture_writer(args.pictures, refiner))
+    frames = itertools.chain.from_iterable(frames for _, _, frames in sources)
+    label = args.preset + (f' + {args.params_file}' if args.params_file else '')
+    try:
+        report = evaluation.evaluate_frames(
+            frames, params, label=label, refiner=refiner,
+            refiner_name=str(args.refiner) if args.refiner else None,
+            on_frame=lambda f, r, s: [cb(f, r, s) for cb in callbacks])
+    except (ValueError, OSError) as exc:
+        print(f'evaluate.py: error: {exc}', file=sys.stderr)
+        return 2
+    table_stream = sys.stderr if args.json == '-' else sys.stdout
+    print(f'parameters: {label}; {report.overall.frames} frames in {report.seconds:.1f} s',
+          file=table_stream)
+    print(evaluation.format_table(report), file=table_stream)
+    if refiner is not None:
+        print(f'\nrefined by {args.refiner} (seed 4.5 logistic regression):', file=table_stream)
+        print(evaluation.format_table(report, refined=True), file=table_stream)
+    line = json.dumps(report.as_dict(), sort_keys=True)
+    if args.json in (None, '-'):
+        print(line)
+    else:
+        Path(args.json).write_text(line + '\n', encoding='utf-8')
+    return 0
+
+
+def _picture_writer(folder: Path, refiner: Any) -> Any:
+    from obstacle_detection import pictures
+
+    def on_frame(frame: evaluation.LabelledFrame, result: Any,
+                 score: evaluation.FrameScore) -> None:
+        name = f'{frame.scenario}_{frame.frame_id}'.replace(' ', '_').replace('/', '_')
+        caption = (f'{frame.scenario} {frame.frame_id}: cell F1 '
+                   f'{evaluation.format_score(score.cell.f1)}, pixel F1 '
+                   f'{evaluation.format_score(score.pixel.f1)}')
+        pictures.write_png(folder / f'{name}.png', pictures.side_by_side(
+            result, caption=caption, truth_labels=frame.truth_labels))
+    return on_frame
+
+
+if __name__ == '__main__':
+    sys.exit(main())
