@@ -1,0 +1,144 @@
+"""Side-by-side pictures, contact sheets, heatmaps and tools/pictures.py."""
+
+import cv2
+import numpy as np
+import pytest
+from rosbags.rosbag2 import Writer
+from rosbags.typesys import Stores, get_typestore
+
+from obstacle_detection import evaluation, pictures
+from obstacle_detection.metrics import LABEL_OBSTACLE
+from obstacle_detection.overlay import OBSTACLE_RGB, render_overlay
+from obstacle_detection.params import table_4_2
+from obstacle_detection.pipeline import Detector
+from tools import pictures as pictures_tool
+
+SIZE = (160, 132)
+
+
+@pytest.fixture(scope='module')
+def corridor():
+    scenario = evaluation.Scenario('corridor', 'corridor', seeds=(0,))
+    frame = next(evaluation.scenario_frames(scenario, size=SIZE))
+    result = Detector(frame.params(table_4_2())).process(frame.depth, frame.intrinsics)
+    return frame, result
+
+
+def test_overlay_half_has_the_frame_size_and_marks_obstacles(corridor):
+    frame, result = corridor
+    image = pictures.side_by_side(result, caption='corridor seed 0')
+    height, width = frame.depth.shape
+    assert image.dtype == np.uint8 and image.shape[0] > height and image.shape[1] > width
+    overlay = image[:height, :width]
+    np.testing.assert_array_equal(overlay, render_overlay(result.depth_m, result.labels))
+    obstacle = result.labels == LABEL_OBSTACLE
+    assert obstacle.any() and (~obstacle).any()
+    assert (overlay[obstacle] == OBSTACLE_RGB).all()
+    others = overlay[~obstacle].astype(int)
+    assert (others[:, 0] == others[:, 1]).all() and (others[:, 1] == others[:, 2]).all()
+
+
+def test_truth_panel_colours_hits_false_alarms_and_misses():
+    labels = np.array([[3, 3, 2, 2]], np.uint8)
+    truth = np.array([[2, 1, 2, 1]], np.uint8)
+    image = pictures.truth_comparison(labels, truth, np.ones((1, 4), np.float32))
+    assert tuple(image[0, 0]) == pictures.HIT_RGB
+    assert tuple(image[0, 1]) == pictures.FALSE_ALARM_RGB
+    assert tuple(image[0, 2]) == pictures.MISS_RGB
+    assert len(set(image[0, 3])) == 1  # grey
+
+
+def test_png_written_and_read_back(tmp_path, corridor):
+    _, result = corridor
+    image = pictures.side_by_side(result, caption='x', truth_labels=corridor[0].truth_labels)
+    path = tmp_path / 'sub' / 'frame.png'
+    pictures.write_png(path, image)
+    back = cv2.cvtColor(cv2.imread(str(path)), cv2.COLOR_BGR2RGB)
+    np.testing.assert_array_equal(back, image)
+
+
+def test_contact_sheet_grid_size():
+    images = [np.full((50, 100, 3), i * 40, np.uint8) for i in range(5)]
+    sheet = pictures.contact_sheet(images, labels=[f'#{i}' for i in range(5)], columns=3,
+                                   thumb_width=60)
+    assert sheet.shape[1] == 3 * (60 + 6)
+    assert sheet.shape[0] % 2 == 0 and sheet.shape[0] >= 2 * 30
+
+
+def test_heatmap_refuses_mismatched_labels():
+    with pytest.raises(ValueError, match='2 y labels'):
+        pictures.heatmap(np.zeros((3, 2)), ['a', 'b'], ['1', '2'])
+
+
+def test_tool_draws_a_scene_frame(tmp_path, capsys):
+    out = tmp_path / 'corridor.png'
+    assert pictures_tool.main(['--scene', 'ramps', '--out', str(out), '--no-truth']) == 0
+    image = cv2.imread(str(out))
+    assert image is not None and image.shape[0] > 424 and image.shape[1] > 512
+
+
+def test_tool_draws_a_depth_png_with_intrinsics(tmp_path, corridor):
+    frame, _ = corridor
+    cv2.imwrite(str(tmp_path / 'd.png'), frame.depth)
+    evaluation.write_camera_yaml(tmp_path / 'intrinsics.yaml', frame.intrinsics,
+                                 frame.height_m, frame.pitch_rad, frame.roll_rad)
+    out = tmp_path / 'd_out.png'
+    assert pictures_tool.main(['--depth', str(tmp_path / 'd.png'), '--intrinsics',
+                               str(tmp_path / 'intrinsics.yaml'), '--out', str(out)]) == 0
+    image = cv2.imread(str(out))
+    assert image.shape[1] > SIZE[0]
+
+
+def _write_bag(path, frame, count):
+    store = get_typestore(Stores.ROS2_JAZZY)
+    Image = store.types['sensor_msgs/msg/Image']
+    Info = store.types['sensor_msgs/msg/CameraInfo']
+    Header = store.types['std_msgs/msg/Header']
+    Time = store.types['builtin_interfaces/msg/Time']
+    Roi = store.types['sensor_msgs/msg/RegionOfInterest']
+    height, width = frame.depth.shape
+    intr = frame.intrinsics
+    with Writer(path, version=9) as writer:
+        image_conn = writer.add_connection('/depth', Image.__msgtype__, typestore=store)
+        info_conn = writer.add_connection('/info', Info.__msgtype__, typestore=store)
+        for k in range(count):
+            header = Header(stamp=Time(sec=k, nanosec=0), frame_id='camera')
+            info = Info(header=header, height=height, width=width, distortion_model='plumb_bob',
+                        d=np.zeros(5), k=np.array([intr.fx, 0, intr.cx, 0, intr.fy, intr.cy,
+                                                   0, 0, 1.0]),
+                        r=np.eye(3).reshape(-1), p=np.zeros(12), binning_x=0, binning_y=0,
+                        roi=Roi(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False))
+            image = Image(header=header, height=height, width=width, encoding='16UC1',
+                          is_bigendian=0, step=2 * width,
+                          data=np.frombuffer(frame.depth.astype('<u2').tobytes(), np.uint8))
+            stamp = (k + 1) * 10**9
+            writer.write(info_conn, stamp, store.serialize_cdr(info, Info.__msgtype__))
+            writer.write(image_conn, stamp + 1, store.serialize_cdr(image, Image.__msgtype__))
+
+
+def test_bag_frames_carry_depth_and_camera_info(tmp_path, corridor):
+    frame, _ = corridor
+    _write_bag(tmp_path / 'bag', frame, 3)
+    frames = list(pictures.bag_frames(tmp_path / 'bag', '/depth', '/info', every=2))
+    assert len(frames) == 2
+    np.testing.assert_array_equal(frames[0].depth, frame.depth)
+    assert frames[0].intrinsics.fx == pytest.approx(frame.intrinsics.fx)
+
+
+def test_tool_draws_a_contact_sheet_of_a_bag(tmp_path, corridor):
+    frame, _ = corridor
+    _write_bag(tmp_path / 'bag', frame, 2)
+    out = tmp_path / 'sheet.png'
+    assert pictures_tool.main(['--bag', str(tmp_path / 'bag'), '--depth-topic', '/depth',
+                               '--info-topic', '/info', '--height', str(frame.height_m),
+                               '--out', str(out), '--frames-dir', str(tmp_path / 'each'),
+                               '--thumb-width', '200']) == 0
+    assert cv2.imread(str(out)).shape[1] == 2 * (200 + 6)
+    assert len(list((tmp_path / 'each').glob('*.png'))) == 2
+
+
+def test_tool_reports_a_missing_topic(tmp_path, corridor, capsys):
+    _write_bag(tmp_path / 'bag', corridor[0], 1)
+    assert pictures_tool.main(['--bag', str(tmp_path / 'bag'), '--depth-topic', '/nope',
+                               '--out', str(tmp_path / 'x.png')]) == 2
+    assert "no topic '/nope'" in capsys.readouterr().err
