@@ -1,0 +1,81 @@
+"""tools/sweep.py: the best-of-grid rule, a tiny real sweep, and the command."""
+
+import argparse
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from obstacle_detection import evaluation
+from obstacle_detection.params import table_4_2
+from tools import sweep
+
+NAN = float('nan')
+
+
+def test_best_of_grid_on_a_hand_made_grid():
+    scores = np.array([[0.2, 0.7, NAN],
+                       [0.9, 0.1, 0.9]])
+    assert sweep.best_of_grid(scores) == (1, 0)  # first of the tied 0.9s, NaN ignored
+    assert sweep.best_of_grid(scores, higher_is_better=False) == (1, 1)
+
+
+def test_best_of_an_all_nan_grid_is_none():
+    assert sweep.best_of_grid(np.full((2, 2), NAN)) is None
+
+
+def test_axis_parsing():
+    axis = sweep.parse_axis('theta_deg=15, 20,30')
+    assert axis == sweep.Axis('theta_deg', ('15', '20', '30'))
+    with pytest.raises(argparse.ArgumentTypeError, match="'abc' is not a number"):
+        sweep.parse_axis('N=3,abc')
+
+
+@pytest.fixture(scope='module')
+def small_frames():
+    scenario = evaluation.Scenario('corridor', 'corridor', seeds=(0,))
+    return list(evaluation.scenario_frames(scenario, size=(128, 106)))
+
+
+def test_tiny_sweep_best_is_the_argmax_of_its_own_scores(small_frames):
+    x = sweep.Axis('theta_deg', ('10', '30', '80'))
+    y = sweep.Axis('N', ('5', '10'))
+    result = sweep.run_sweep(small_frames, table_4_2(), x, y, 'cell_f1')
+    grid = result.grids['corridor']
+    assert grid.shape == (2, 3) and np.isfinite(grid).all()
+    row, col = result.best('corridor')
+    assert grid[row, col] == np.nanmax(grid)
+    # Each cell is what a plain evaluation with that setting gives.
+    params = sweep.settings_params(table_4_2(), x, y, row, col)
+    report = evaluation.evaluate_frames(small_frames, params)
+    assert report.scenes['corridor'].cell.f1 == pytest.approx(grid[row, col])
+
+
+def test_invalid_setting_is_nan_not_an_error(small_frames):
+    x = sweep.Axis('K', ('4', '5'))  # an even median kernel is refused by DetectorParams
+    result = sweep.run_sweep(small_frames, table_4_2(), x, None)
+    assert np.isnan(result.grids['overall'][0, 0]) and np.isfinite(result.grids['overall'][0, 1])
+    assert result.best('overall') == (0, 1)
+
+
+def test_command_prints_grid_names_best_and_saves_heatmap(tmp_path, capsys):
+    out = tmp_path / 'heat.png'
+    strip = tmp_path / 'strip.png'
+    data = tmp_path / 'grid.json'
+    code = sweep.main(['--x', 'theta_deg=20,60', '--y', 'N1=0,12', '--scene', 'ramps',
+                       '--out', str(out), '--strip', 'x', '--strip-out', str(strip),
+                       '--json', str(data)])
+    assert code == 0
+    text = capsys.readouterr().out
+    assert 'best setting per scenario' in text and 'ramps' in text
+    saved = json.loads(data.read_text())
+    grid = np.array(saved['grids']['ramps'], dtype=float)
+    row, col = np.unravel_index(np.nanargmax(grid), grid.shape)
+    assert saved['best']['ramps'] == {'theta_deg': ['20', '60'][col], 'N1': ['0', '12'][row]}
+    assert cv2.imread(str(out)) is not None and cv2.imread(str(strip)) is not None
+
+
+def test_command_refuses_an_unknown_axis(capsys):
+    assert sweep.main(['--x', 'Q=1,2', '--scene', 'corridor']) == 2
+    assert "unknown parameter 'Q'" in capsys.readouterr().err

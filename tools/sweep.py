@@ -1,0 +1,303 @@
+#!/usr/bin/env python3
+"""Parameter sweep: score a grid of settings on the scenario suite and draw it as a heatmap.
+
+The seed chose theta, N, N1 and K "by trial" (figures 4.18 and 4.19 show three values each);
+this tool makes the trial a command. Choose one or two axes, every other parameter stays at
+the preset (plus ``--params-file`` / ``--set``)::
+
+    python tools/sweep.py --x theta_deg=15,20,30,45 --y N=3,5,10,20
+    python tools/sweep.py --x N1=0,4,8,12 --y K=1,5,9,17 --metric pixel_f1 --out n1_k.png
+    python tools/sweep.py --x voxel_m=0.015,0.025,0.04 --scene corridor --strip x
+
+Axis names: any DetectorParams field, a ``..._deg`` variant of a ``..._rad`` field, the seed's
+names theta_deg, N, N1, K, TDBG, SMAR, and voxel_m (all three voxel sizes). The grid of the
+chosen metric is printed (overall, and per scenario with ``--per-scene``), the best setting per
+scenario is named, and a PNG heatmap per scenario plus overall is saved (``--out``).
+Frames are subsampled (``--max-frames``, default 1 per scenario) and rendered once.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Sequence
+
+if __package__ in (None, ''):  # run as a script: make the repository root importable
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import numpy as np  # noqa: E402
+
+from obstacle_detection import evaluation  # noqa: E402
+from obstacle_detection.params import DetectorParams  # noqa: E402
+from tools.evaluate import add_common_arguments, base_params, frame_sources  # noqa: E402
+
+#: metric name -> (confusion kind, score attribute, higher is better)
+METRICS: dict[str, tuple[str, str, bool]] = {
+    'cell_f1': ('cell', 'f1', True),
+    'cell_iou': ('cell', 'iou', True),
+    'cell_precision': ('cell', 'precision', True),
+    'cell_recall': ('cell', 'recall', True),
+    'cell_false_alarm': ('cell', 'false_alarm_rate', False),
+    'pixel_f1': ('pixel', 'f1', True),
+    'pixel_precision': ('pixel', 'precision', True),
+    'pixel_recall': ('pixel', 'recall', True),
+    'pixel_false_alarm': ('pixel', 'false_alarm_rate', False),
+}
+
+
+@dataclass(frozen=True)
+class Axis:
+    """One sweep axis: a parameter name (as typed) and its values (as typed)."""
+
+    name: str
+    values: tuple[str, ...]
+
+
+def parse_axis(text: str) -> Axis:
+    """``name=v1,v2,...`` -> Axis (argparse type)."""
+    name, sep, values = text.partition('=')
+    items = tuple(v.strip() for v in values.split(',') if v.strip())
+    if not sep or not name.strip() or not items:
+        raise argparse.ArgumentTypeError(f'expected name=v1,v2,..., got {text!r}')
+    for value in items:
+        try:
+            float(value)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f'{name}: {value!r} is not a number') from None
+    return Axis(name.strip(), items)
+
+
+def best_of_grid(scores: np.ndarray, *, higher_is_better: bool = True,
+                 ) -> tuple[int, int] | None:
+    """(row, col) of the best finite score of a 2-D grid; ties go to the first in row-major
+    order; None when no score is finite."""
+    grid = np.asarray(scores, dtype=np.float64)
+    if grid.ndim != 2:
+        raise ValueError(f'scores must be 2-D, got shape {grid.shape}')
+    finite = np.isfinite(grid)
+    if not finite.any():
+        return None
+    fill = -np.inf if higher_is_better else np.inf
+    masked = np.where(finite, grid, fill)
+    flat = int(np.argmax(masked) if higher_is_better else np.argmin(masked))
+    return divmod(flat, grid.shape[1])
+
+
+@dataclass
+class SweepResult:
+    """Scores of every setting: ``grids[scene]`` (ny, nx) float, NaN for an invalid setting."""
+
+    x: Axis
+    y: Axis | None
+    metric: str
+    grids: dict[str, np.ndarray]
+
+    def setting(self, row: int, col: int) -> dict[str, str]:
+        """The parameter values of grid cell (row, col)."""
+        out = {self.x.name: self.x.values[col]}
+        if self.y is not None:
+            out[self.y.name] = self.y.values[row]
+        return out
+
+    def best(self, scene: str) -> tuple[int, int] | None:
+        """(row, col) of the best setting of one scene ('overall' included)."""
+        return best_of_grid(self.grids[scene], higher_is_better=METRICS[self.metric][2])
+
+
+def settings_params(base: DetectorParams, x: Axis, y: Axis | None, row: int, col: int,
+                    ) -> DetectorParams:
+    """``base`` with the (row, col) setting applied (ValueError when it is invalid)."""
+    changes = {x.name: x.values[col]}
+    if y is not None:
+        changes[y.name] = y.values[row]
+    return evaluation.apply_overrides(base, changes)
+
+
+def run_sweep(frames: Sequence[evaluation.LabelledFrame], base: DetectorParams, x: Axis,
+              y: Axis | None, metric: str = 'cell_f1', *, log: Any = None) -> SweepResult:
+    """Evaluate every setting of the grid on ``frames`` (already rendered)."""
+    if metric not in METRICS:
+        raise ValueError(f'unknown metric {metric!r}; known: {", ".join(METRICS)}')
+    kind, attr, _ = METRICS[metric]
+    ny, nx = (len(y.values) if y is not None else 1), len(x.values)
+    scenes = list(dict.fromkeys(f.scenario for f in frames)) + ['overall']
+    grids = {s: np.full((ny, nx), np.nan) for s in scenes}
+    for i, (row, col) in enumerate(np.ndindex(ny, nx), start=1):
+        label = ' '.join(f'{k}={v}' for k, v in
+                         SweepResult(x, y, metric, grids).setting(row, col).items())
+        started = time.perf_counter()
+        try:
+            params = settings_params(base, x, y, row, col)
+        except ValueError as exc:
+            if log:
+                log(f'[{i}/{ny * nx}] {label}: invalid ({exc})')
+            continue
+        report = evaluation.evaluate_frames(frames, params)
+        for name, summary in [*report.scenes.items(), ('overall', report.overall)]:
+            grids[name][row, col] = getattr(getattr(summary, kind), attr)
+        if log:
+            log(f'[{i}/{ny * nx}] {label}: {metric} '
+                f'{evaluation.format_score(grids["overall"][row, col])} '
+                f'({time.perf_counter() - started:.1f} s)')
+    return SweepResult(x, y, metric, grids)
+
+
+def format_grid(result: SweepResult, scene: str) -> str:
+    """The grid of one scene as text: rows = y values, columns = x values; best marked '*'."""
+    grid = result.grids[scene]
+    best = result.best(scene)
+    y_name = result.y.name if result.y is not None else ''
+    y_values = result.y.values if result.y is not None else ('',)
+    width = max(8, *(len(v) + 2 for v in result.x.values))
+    first = max(len(y_name), *(len(v) for v in y_values), len(result.x.name) + 3) + 1
+    lines = [f'{scene}: {result.metric}',
+             f'{y_name + " / " + result.x.name if y_name else result.x.name:<{first}}'
+             + ''.join(f'{v:>{width}}' for v in result.x.values)]
+    for row, y_value in enumerate(y_values):
+        cells = []
+        for col in range(len(result.x.values)):
+            mark = '*' if best == (row, col) else ' '
+            cells.append(f'{evaluation.format_score(grid[row, col]) + mark:>{width}}')
+        lines.append(f'{y_value:<{first}}' + ''.join(cells))
+    return '\n'.join(lines)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command-line interface."""
+    parser = argparse.ArgumentParser(prog='sweep.py', description=__doc__.split('\n\n')[0],
+                                     epilog=evaluation.SCORE_DEFINITIONS,
+                                     formatter_class=argparse.RawTextHelpFormatter)
+    parser.add_argument('--x', type=parse_axis, required=True, metavar='NAME=V1,V2,...',
+                        help='first axis (columns), e.g. theta_deg=15,20,30,45')
+    parser.add_argument('--y', type=parse_axis, metavar='NAME=V1,V2,...',
+                        help='second axis (rows), e.g. N=3,5,10,20 [default: none]')
+    parser.add_argument('--metric', choices=sorted(METRICS), default='cell_f1',
+                        help='score to grid and maximise (false alarms: minimise) '
+                             '[default: cell_f1]')
+    add_common_arguments(parser)
+    parser.set_defaults(max_frames=1)
+    parser.add_argument('--per-scene', action='store_true',
+                        help='print the grid of every scenario, not only the overall one')
+    parser.add_argument('--out', type=Path, default=Path('sweep.png'),
+                        help='heatmap PNG (one panel per scenario + overall) '
+                             '[default: sweep.png]')
+    parser.add_argument('--strip', choices=('x', 'y'),
+                        help='also save a strip of overlays of the first frame, one per value '
+                             'of this axis (the other axis at its overall best)')
+    parser.add_argument('--strip-out', type=Path, default=Path('sweep_strip.png'),
+                        help='strip PNG [default: sweep_strip.png]')
+    parser.add_argument('--json', type=Path, metavar='FILE', help='also write the grids as JSON')
+    return parser
+
+
+def _log(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point; returns the exit code (0 ok, 2 bad input)."""
+    args = build_parser().parse_args(argv)
+    if args.strip == 'y' and args.y is None:
+        print('sweep.py: error: --strip y needs --y', file=sys.stderr)
+        return 2
+    try:
+        base = base_params(args)
+        for axis in (args.x, args.y):  # an unknown axis name fails now, not per cell
+            if axis is not None:
+                try:
+                    evaluation.apply_overrides(base, {axis.name: axis.values[0]})
+                except ValueError as exc:
+                    if 'unknown parameter' in str(exc):
+                        raise
+        started = time.perf_counter()
+        frames = [f for _, _, source in frame_sources(args) for f in source]
+        if not frames:
+            raise ValueError('no frames selected')
+        _log(f'rendered {len(frames)} frames in {time.perf_counter() - started:.1f} s; '
+             f'{len(args.x.values) * (len(args.y.values) if args.y else 1)} settings')
+        result = run_sweep(frames, base, args.x, args.y, args.metric, log=_log)
+    except (ValueError, OSError) as exc:
+        print(f'sweep.py: error: {exc}', file=sys.stderr)
+        return 2
+
+    scenes = list(result.grids)
+    shown = scenes if args.per_scene else ['overall']
+    print(f'parameters: {args.preset}; {len(frames)} frames; '
+          f'{"higher" if METRICS[args.metric][2] else "lower"} is better; * = best')
+    for scene in shown:
+        print(format_grid(result, scene))
+        print()
+    print('best setting per scenario:')
+    width = max(len(s) for s in scenes)
+    for scene in scenes:
+        best = result.best(scene)
+        if best is None:
+            print(f'  {scene:<{width}}  (no valid score)')
+            continue
+        setting = ', '.join(f'{k}={v}' for k, v in result.setting(*best).items())
+        print(f'  {scene:<{width}}  {setting}: {args.metric} '
+              f'{evaluation.format_score(result.grids[scene][best])}')
+
+    try:
+        from obstacle_detection import pictures
+        panels = [pictures.heatmap(
+            result.grids[s], list(args.x.values),
+            list(args.y.values) if args.y else [''], title=f'{s}: {args.metric}',
+            x_name=args.x.name, y_name=args.y.name if args.y else '', best=result.best(s))
+            for s in scenes]
+        pictures.write_png(args.out, pictures.tile(panels, columns=3))
+        print(f'heatmap: {args.out}')
+        if args.strip:
+            _write_strip(args, base, frames[0], result)
+            print(f'strip: {args.strip_out}')
+        if args.json:
+            data = {'metric': args.metric, 'preset': args.preset, 'frames': len(frames),
+                    'x': {'name': args.x.name, 'values': list(args.x.values)},
+                    'y': ({'name': args.y.name, 'values': list(args.y.values)}
+                          if args.y else None),
+                    'grids': {s: [[None if math.isnan(v) else v for v in row]
+                                  for row in g.tolist()] for s, g in result.grids.items()},
+                    'best': {s: result.setting(*b) if (b := result.best(s)) else None
+                             for s in scenes}}
+            args.json.write_text(json.dumps(data) + '\n', encoding='utf-8')
+    except (ValueError, OSError) as exc:
+        print(f'sweep.py: error: {exc}', file=sys.stderr)
+        return 2
+    return 0
+
+
+def _write_strip(args: argparse.Namespace, base: DetectorParams,
+                 frame: evaluation.LabelledFrame, result: SweepResult) -> None:
+    """Overlays of one frame for each value of the strip axis, the other axis at its best."""
+    from obstacle_detection import pictures
+    from obstacle_detection.pipeline import Detector
+
+    best = result.best('overall') or (0, 0)
+    images, labels = [], []
+    along_x = args.strip == 'x'
+    count = len(args.x.values) if along_x else len(args.y.values)
+    for i in range(count):
+        row, col = (best[0], i) if along_x else (i, best[1])
+        setting = ', '.join(f'{k}={v}' for k, v in result.setting(row, col).items())
+        try:
+            params = frame.params(settings_params(base, args.x, args.y, row, col))
+        except ValueError:
+            continue
+        detection = Detector(params).process(frame.depth, frame.intrinsics,
+                                             depth_scale=frame.depth_scale)
+        pixel, cell = evaluation.score_frame(frame, detection, params)
+        images.append(pictures.side_by_side(detection, caption=f'{frame.scenario} '
+                                            f'{frame.frame_id}: {setting}'))
+        labels.append(f'{setting}: cell F1 {evaluation.format_score(cell.f1)}, '
+                      f'pixel F1 {evaluation.format_score(pixel.f1)}')
+    pictures.write_png(args.strip_out, pictures.contact_sheet(
+        images, labels=labels, columns=len(images), thumb_width=420))
+
+
+if __name__ == '__main__':
+    sys.exit(main())
