@@ -234,14 +234,16 @@ def bag_frames(path: str | Path, depth_topic: str, info_topic: str | None = None
 def heatmap(scores: np.ndarray, x_labels: Sequence[str], y_labels: Sequence[str], *,
             title: str = '', x_name: str = '', y_name: str = '', vmin: float = 0.0,
             vmax: float = 1.0, best: tuple[int, int] | None = None,
-            cell_px: int = 64) -> np.ndarray:
+            values: np.ndarray | None = None, cell_px: int = 64) -> np.ndarray:
     """A score grid drawn as a coloured table with the value written in each cell.
 
     scores: (ny, nx) float, NaN = not run / invalid (drawn grey, '-'); row 0 is drawn at the
     top; colours: OpenCV's viridis from ``vmin`` (dark) to ``vmax`` (yellow); best: (row, col)
-    outlined in red. Returns RGB uint8.
+    outlined in red; values: numbers to write instead of ``scores`` (e.g. when the colour
+    shows 1 - a false-alarm rate). Returns RGB uint8.
     """
     scores = np.asarray(scores, dtype=np.float64)
+    values = scores if values is None else np.asarray(values, dtype=np.float64)
     if scores.ndim != 2 or scores.shape != (len(y_labels), len(x_labels)):
         raise ValueError(f'scores shape {scores.shape} does not match {len(y_labels)} y labels '
                          f'and {len(x_labels)} x labels')
@@ -263,7 +265,7 @@ def heatmap(scores: np.ndarray, x_labels: Sequence[str], y_labels: Sequence[str]
             value = scores[r, c]
             colour = (170, 170, 170) if np.isnan(value) else tuple(int(v) for v in colours[r, c])
             cv2.rectangle(image, (x0, y0), (x0 + cell_px - 1, y0 + cell_px - 1), colour, -1)
-            text = '-' if np.isnan(value) else f'{value:.2f}'
+            text = '-' if np.isnan(values[r, c]) else f'{values[r, c]:.2f}'
             tw, th = _text_size(text, 0.45)
             ink = (0, 0, 0) if np.isnan(value) or scaled[r, c] > 0.6 else (255, 255, 255)
             cv2.putText(image, text, (x0 + (cell_px - tw) // 2, y0 + (cell_px + th) // 2 - 3),

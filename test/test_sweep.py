@@ -79,3 +79,12 @@ def test_command_prints_grid_names_best_and_saves_heatmap(tmp_path, capsys):
 def test_command_refuses_an_unknown_axis(capsys):
     assert sweep.main(['--x', 'Q=1,2', '--scene', 'corridor']) == 2
     assert "unknown parameter 'Q'" in capsys.readouterr().err
+
+
+def test_scene_without_truth_obstacles_is_ranked_by_false_alarms():
+    x = sweep.Axis('theta_deg', ('10', '60'))
+    result = sweep.SweepResult(
+        x, None, 'cell_f1', grids={'floor': np.array([[0.0, NAN]])},
+        false_alarms={'floor': np.array([[0.3, 0.0]])}, positives={'floor': 0})
+    assert result.ranking('floor')[1] == 'cell_false_alarm'
+    assert result.best('floor') == (0, 1)

@@ -23,7 +23,7 @@ import json
 import math
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -90,12 +90,26 @@ def best_of_grid(scores: np.ndarray, *, higher_is_better: bool = True,
 
 @dataclass
 class SweepResult:
-    """Scores of every setting: ``grids[scene]`` (ny, nx) float, NaN for an invalid setting."""
+    """Scores of every setting: ``grids[scene]`` (ny, nx) float, NaN for an invalid setting.
+
+    false_alarms[scene]: the false-alarm rate of the metric's kind (pixel or cell) per setting;
+    positives[scene]: obstacle pixels/cells in the truth. A scene without any (an empty floor)
+    has no meaningful F1 or recall, so it is ranked by its false-alarm rate instead.
+    """
 
     x: Axis
     y: Axis | None
     metric: str
     grids: dict[str, np.ndarray]
+    false_alarms: dict[str, np.ndarray] = field(default_factory=dict)
+    positives: dict[str, int] = field(default_factory=dict)
+
+    def ranking(self, scene: str) -> tuple[np.ndarray, str, bool]:
+        """(grid, metric name, higher is better) used to rank the settings of one scene."""
+        kind, attr, higher = METRICS[self.metric]
+        if self.positives.get(scene, 1) == 0 and attr != 'false_alarm_rate':
+            return self.false_alarms[scene], f'{kind}_false_alarm', False
+        return self.grids[scene], self.metric, higher
 
     def setting(self, row: int, col: int) -> dict[str, str]:
         """The parameter values of grid cell (row, col)."""
@@ -106,7 +120,8 @@ class SweepResult:
 
     def best(self, scene: str) -> tuple[int, int] | None:
         """(row, col) of the best setting of one scene ('overall' included)."""
-        return best_of_grid(self.grids[scene], higher_is_better=METRICS[self.metric][2])
+        grid, _, higher = self.ranking(scene)
+        return best_of_grid(grid, higher_is_better=higher)
 
 
 def settings_params(base: DetectorParams, x: Axis, y: Axis | None, row: int, col: int,
@@ -127,6 +142,8 @@ def run_sweep(frames: Sequence[evaluation.LabelledFrame], base: DetectorParams, 
     ny, nx = (len(y.values) if y is not None else 1), len(x.values)
     scenes = list(dict.fromkeys(f.scenario for f in frames)) + ['overall']
     grids = {s: np.full((ny, nx), np.nan) for s in scenes}
+    false_alarms = {s: np.full((ny, nx), np.nan) for s in scenes}
+    positives: dict[str, int] = {}
     for i, (row, col) in enumerate(np.ndindex(ny, nx), start=1):
         label = ' '.join(f'{k}={v}' for k, v in
                          SweepResult(x, y, metric, grids).setting(row, col).items())
@@ -139,23 +156,26 @@ def run_sweep(frames: Sequence[evaluation.LabelledFrame], base: DetectorParams, 
             continue
         report = evaluation.evaluate_frames(frames, params)
         for name, summary in [*report.scenes.items(), ('overall', report.overall)]:
-            grids[name][row, col] = getattr(getattr(summary, kind), attr)
+            confusion = getattr(summary, kind)
+            grids[name][row, col] = getattr(confusion, attr)
+            false_alarms[name][row, col] = confusion.false_alarm_rate
+            positives[name] = confusion.tp + confusion.fn
         if log:
             log(f'[{i}/{ny * nx}] {label}: {metric} '
                 f'{evaluation.format_score(grids["overall"][row, col])} '
                 f'({time.perf_counter() - started:.1f} s)')
-    return SweepResult(x, y, metric, grids)
+    return SweepResult(x, y, metric, grids, false_alarms, positives)
 
 
 def format_grid(result: SweepResult, scene: str) -> str:
     """The grid of one scene as text: rows = y values, columns = x values; best marked '*'."""
-    grid = result.grids[scene]
+    grid, metric, _ = result.ranking(scene)
     best = result.best(scene)
     y_name = result.y.name if result.y is not None else ''
     y_values = result.y.values if result.y is not None else ('',)
     width = max(8, *(len(v) + 2 for v in result.x.values))
     first = max(len(y_name), *(len(v) for v in y_values), len(result.x.name) + 3) + 1
-    lines = [f'{scene}: {result.metric}',
+    lines = [f'{scene}: {metric}',
              f'{y_name + " / " + result.x.name if y_name else result.x.name:<{first}}'
              + ''.join(f'{v:>{width}}' for v in result.x.values)]
     for row, y_value in enumerate(y_values):
@@ -239,17 +259,23 @@ def main(argv: Sequence[str] | None = None) -> int:
         if best is None:
             print(f'  {scene:<{width}}  (no valid score)')
             continue
+        grid, metric, _ = result.ranking(scene)
         setting = ', '.join(f'{k}={v}' for k, v in result.setting(*best).items())
-        print(f'  {scene:<{width}}  {setting}: {args.metric} '
-              f'{evaluation.format_score(result.grids[scene][best])}')
+        note = ' (no obstacle in the truth)' if metric != args.metric else ''
+        print(f'  {scene:<{width}}  {setting}: {metric} '
+              f'{evaluation.format_score(grid[best])}{note}')
 
     try:
         from obstacle_detection import pictures
-        panels = [pictures.heatmap(
-            result.grids[s], list(args.x.values),
-            list(args.y.values) if args.y else [''], title=f'{s}: {args.metric}',
-            x_name=args.x.name, y_name=args.y.name if args.y else '', best=result.best(s))
-            for s in scenes]
+        panels = []
+        for scene in scenes:
+            grid, metric, higher = result.ranking(scene)
+            panels.append(pictures.heatmap(
+                grid if higher else 1.0 - grid, list(args.x.values),
+                list(args.y.values) if args.y else [''],
+                title=f'{scene}: {metric}' + ('' if higher else ' (colour: 1 - value)'),
+                x_name=args.x.name, y_name=args.y.name if args.y else '',
+                best=result.best(scene), values=grid))
         pictures.write_png(args.out, pictures.tile(panels, columns=3))
         print(f'heatmap: {args.out}')
         if args.strip:
