@@ -111,3 +111,44 @@ def test_voxel_votes_are_majorities():
     mask = np.array([[True, True, True, False], [False, True, False, True]])
     np.testing.assert_array_equal(refine.voxel_votes(pixel_voxel, mask, 4),
                                   [True, False, True, False])
+
+
+def _small_scene_result(name='corridor', seed=0):
+    from obstacle_detection import evaluation
+    from obstacle_detection.params import table_4_2
+    from obstacle_detection.pipeline import Detector
+    frame = next(evaluation.scenario_frames(evaluation.Scenario(name, name, seeds=(seed,)),
+                                            size=(160, 132)))
+    params = frame.params(table_4_2())
+    return frame, params, Detector(params).process(frame.depth, frame.intrinsics)
+
+
+def test_refining_with_the_rule_based_mask_gives_the_rule_based_costmap():
+    _, params, result = _small_scene_result()
+    refined = refine.refine_result(result, refine.obstacle_mask(result), params)
+    np.testing.assert_array_equal(refined.voxel_is_obstacle, result.voxel_is_obstacle)
+    np.testing.assert_array_equal(refined.costmap.data, result.costmap.data)
+    np.testing.assert_array_equal(refined.labels, result.labels)
+    assert refined.obstacle_points.shape == result.obstacle_points.shape
+
+
+def test_refined_costmap_follows_the_refined_pixels():
+    _, params, result = _small_scene_result()
+    nothing = np.zeros(result.labels.shape, dtype=bool)
+    refined = refine.refine_result(result, nothing, params)
+    assert refined.obstacle_points.shape[0] == 0
+    assert not (refined.costmap.data == 100).any()
+    assert not (refined.labels == LABEL_OBSTACLE).any()
+
+
+def test_train_tool_prints_rule_based_and_refined_scores(tmp_path, capsys):
+    from tools import train_refiner
+    out = tmp_path / 'model.json'
+    code = train_refiner.main(['--scene', 'corridor', '--scene', 'people', '--scene', 'ramps',
+                               '--max-frames', '1', '--train-frames', '1',
+                               '--max-pixels', '5000', '--out', str(out)])
+    assert code == 0
+    text = capsys.readouterr().out
+    assert 'rule-based' in text and 'refined' in text and 'accuracy' in text
+    model = LogisticRefiner.load(out)
+    assert model.coefficients[1] < 0  # steeper surface (smaller |n.up|) -> more likely obstacle
