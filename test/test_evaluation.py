@@ -175,3 +175,11 @@ def test_truth_obstacles_exist_in_every_suite_scene_but_the_empty_floor():
         frame = next(evaluation.scenario_frames(scenario, max_frames=1, size=(64, 53)))
         has_obstacle = bool(np.any(frame.truth_labels == GT_OBSTACLE))
         assert has_obstacle == (scenario.scene != 'pitched_floor'), scenario.name
+
+
+@pytest.mark.parametrize('name, preset', [('corridor.yaml', 'table_4_2'),
+                                          ('corridor_video.yaml', 'table_4_3')])
+def test_shipped_parameter_files_reproduce_the_presets(name, preset):
+    from obstacle_detection.params import PRESETS
+    path = SUITE.parents[1] / 'params' / name
+    assert evaluation.load_params_file(path) == PRESETS[preset]()
