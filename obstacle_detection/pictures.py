@@ -21,7 +21,7 @@ from typing import Any, Iterator, Sequence
 import cv2
 import numpy as np
 
-from .metrics import GT_NO_RETURN, GT_OBSTACLE, LABEL_GROUND, LABEL_OBSTACLE
+from .metrics import CELL_OCCUPIED, GT_NO_RETURN, GT_OBSTACLE, LABEL_GROUND, LABEL_OBSTACLE
 from .overlay import render_costmap, render_overlay
 from .params import Intrinsics
 
@@ -111,7 +111,7 @@ def side_by_side(result: Any, *, caption: str = '', truth_labels: np.ndarray | N
         row.extend([panel, gap])
     top = np.hstack(row[:-1])
     n_pixels = int(np.count_nonzero(labels == LABEL_OBSTACLE))
-    occupied = int(np.count_nonzero(np.asarray(costmap.data) == 100))
+    occupied = int(np.count_nonzero(np.asarray(costmap.data) == CELL_OCCUPIED))
     total_ms = float(result.timings_ms.get('total', float('nan')))
     stats = (f'{n_pixels} obstacle px, {int(result.obstacle_points.shape[0])} obstacle voxels, '
              f'{occupied} occupied cells, {total_ms:.0f} ms')

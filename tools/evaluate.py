@@ -158,11 +158,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         callbacks.append(_picture_writer(args.pictures, refiner))
     frames = itertools.chain.from_iterable(frames for _, _, frames in sources)
     label = args.preset + (f' + {args.params_file}' if args.params_file else '')
+
+    def on_frame(frame: evaluation.LabelledFrame, result: Any,
+                 score: evaluation.FrameScore) -> None:
+        for callback in callbacks:
+            callback(frame, result, score)
+
     try:
         report = evaluation.evaluate_frames(
             frames, params, label=label, refiner=refiner,
-            refiner_name=str(args.refiner) if args.refiner else None,
-            on_frame=lambda f, r, s: [cb(f, r, s) for cb in callbacks])
+            refiner_name=str(args.refiner) if args.refiner else None, on_frame=on_frame)
     except (ValueError, OSError) as exc:
         print(f'evaluate.py: error: {exc}', file=sys.stderr)
         return 2
