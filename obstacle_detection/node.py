@@ -1,0 +1,434 @@
+"""The ROS 2 node: depth frames in, obstacle cloud and ground-plane costmap out.
+
+Run: ``ros2 run obstacle_detection detector --ros-args --params-file params/corridor.yaml``.
+
+Topics (relative names, remappable):
+
+- in  ``depth/image_raw`` (sensor_msgs/Image, 16UC1 [mm] or 32FC1 [m]) and
+  ``depth/camera_info`` (sensor_msgs/CameraInfo, intrinsics from K); sensor-data QoS (best
+  effort), reliable when ``reliable_input`` is true.
+- out (reliable): ``obstacles/points`` (PointCloud2 x, y, z float32 in ``cloud_frame_id``),
+  ``obstacles/costmap`` (OccupancyGrid in the z = 0 plane of ``costmap_frame_id``),
+  ``obstacles/ground_points`` (if ``publish_ground``), ``obstacles/overlay`` (rgb8 Image in the
+  input's frame, if ``publish_overlay``) and ``~/processing_time_ms`` (std_msgs/Float64).
+
+The default output frame ``base_footprint`` is the pipeline's ground frame: x forward, y left,
+z up, origin on the ground right under the camera (a robot whose base_footprint is elsewhere
+remaps or sets the frame ids and publishes the transform).
+
+Frames never queue behind a slow pipeline: the subscription callback only keeps the newest
+message (an older pending one is dropped and counted) and a worker thread processes it. The
+node holds no algorithm: it converts the message, calls ``Detector.process`` and publishes the
+messages of ``conversions.result_to_messages``.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import rclpy
+import rclpy.logging
+from nav_msgs.msg import OccupancyGrid
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import (
+    DurabilityPolicy,
+    HistoryPolicy,
+    QoSProfile,
+    ReliabilityPolicy,
+    qos_profile_sensor_data,
+)
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from std_msgs.msg import Float64
+
+from .conversions import (
+    DEPTH_ENCODINGS,
+    ImageFormatError,
+    camera_info_to_intrinsics,
+    image_to_array,
+    result_to_messages,
+)
+from .params import Intrinsics
+from .pipeline import Detector
+from .ros_params import ALL_PARAMS, detector_params_from_ros, fallback_intrinsics_from_ros
+
+NODE_NAME = 'obstacle_detector'
+#: Minimum interval between two warnings about the same kind of bad input [s].
+WARN_THROTTLE_S = 5.0
+_OUTPUT_QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE,
+                         history=HistoryPolicy.KEEP_LAST, durability=DurabilityPolicy.VOLATILE)
+_RELIABLE_INPUT_QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE,
+                                 history=HistoryPolicy.KEEP_LAST,
+                                 durability=DurabilityPolicy.VOLATILE)
+
+
+class LatestSlot:
+    """A one-item mailbox: ``put`` replaces a pending item (counted as dropped)."""
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._item: Any = None
+        self._closed = False
+        self.dropped = 0
+
+    def put(self, item: Any) -> bool:
+        """Store ``item`` as the newest; True if an unprocessed older item was dropped."""
+        with self._cond:
+            dropped = self._item is not None
+            if dropped:
+                self.dropped += 1
+            self._item = item
+            self._cond.notify()
+        return dropped
+
+    def take(self, timeout: float | None = None) -> Any:
+        """Remove and return the pending item, waiting up to ``timeout`` s; None if none."""
+        with self._cond:
+            self._cond.wait_for(lambda: self._item is not None or self._closed, timeout)
+            item, self._item = self._item, None
+            return item
+
+    def close(self) -> None:
+        """Wake every waiting ``take``."""
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+
+
+class FrameStats:
+    """Thread-safe frame counters and processing times since the last ``take_period``."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self.total_processed = self.total_dropped = 0
+        self._reset(time.monotonic())
+
+    def _reset(self, now: float) -> None:
+        self._since = now
+        self.processed = self.dropped = self.skipped = self.errors = 0
+        self.sum_ms = 0.0
+
+    def add_processed(self, elapsed_ms: float) -> None:
+        """Count one published frame that took ``elapsed_ms``."""
+        with self._lock:
+            self.processed += 1
+            self.total_processed += 1
+            self.sum_ms += elapsed_ms
+
+    def add_dropped(self) -> None:
+        """Count one frame replaced by a newer one before it was processed."""
+        with self._lock:
+            self.dropped += 1
+            self.total_dropped += 1
+
+    def add_skipped(self) -> None:
+        """Count one frame skipped for bad input."""
+        with self._lock:
+            self.skipped += 1
+
+    def add_error(self) -> None:
+        """Count one frame lost to an unexpected exception."""
+        with self._lock:
+            self.errors += 1
+
+    def take_period(self) -> dict[str, float]:
+        """Return the counters since the last call, then reset them.
+
+        Keys: processed, dropped, skipped, errors, mean_ms, fps, period_s.
+        """
+        now = time.monotonic()
+        with self._lock:
+            period = max(now - self._since, 1e-9)
+            snapshot = {'processed': self.processed, 'dropped': self.dropped,
+                        'skipped': self.skipped,
+                        'errors': self.errors, 'period_s': period,
+                        'mean_ms': self.sum_ms / self.processed if self.processed else 0.0,
+                        'fps': self.processed / period}
+            self._reset(now)
+        return snapshot
+
+
+@dataclass(frozen=True)
+class NodeConfig:
+    """Everything a frame needs, validated and swapped as one reference on a parameter set."""
+
+    detector: Detector
+    cloud_frame_id: str
+    costmap_frame_id: str
+    publish_ground: bool
+    publish_overlay: bool
+    use_fallback_intrinsics: bool
+    fallback_intrinsics: Intrinsics
+    stats_period_s: float
+
+
+def build_config(values: dict[str, Any]) -> NodeConfig:
+    """NodeConfig from ``{ros_name: value}`` of every parameter; ValueError naming a bad one."""
+    for name in ('cloud_frame_id', 'costmap_frame_id'):
+        if not str(values[name]).strip():
+            raise ValueError(f'{name} must not be empty')
+    return NodeConfig(
+        detector=Detector(detector_params_from_ros(values)),
+        cloud_frame_id=str(values['cloud_frame_id']),
+        costmap_frame_id=str(values['costmap_frame_id']),
+        publish_ground=bool(values['publish_ground']),
+        publish_overlay=bool(values['publish_overlay']),
+        use_fallback_intrinsics=bool(values['use_fallback_intrinsics']),
+        fallback_intrinsics=fallback_intrinsics_from_ros(values),
+        stats_period_s=float(values['stats_period_s']))
+
+
+@dataclass(frozen=True)
+class _CameraState:
+    """The newest CameraInfo: image size and intrinsics, or why it is unusable."""
+
+    width: int
+    height: int
+    intrinsics: Intrinsics | None
+    error: str | None
+
+
+def _has_valid_depth(depth: np.ndarray) -> bool:
+    if depth.dtype.kind == 'f':
+        return bool(np.any(np.isfinite(depth) & (depth > 0.0)))
+    return bool(np.any(depth > 0))
+
+
+class DetectorNode(Node):
+    """Subscribes to a depth camera, runs the pipeline, publishes obstacles and a costmap."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(NODE_NAME, **kwargs)
+        for spec in ALL_PARAMS:
+            self.declare_parameter(spec.name, spec.default, spec.descriptor())
+        try:
+            self._config = build_config(self._parameter_values())
+        except ValueError:
+            self.destroy_node()
+            raise
+        self.stats = FrameStats()
+        self._slot = LatestSlot()
+        self._camera: _CameraState | None = None
+        self._warn_loggers: dict[str, Any] = {}
+        self._stop = threading.Event()
+
+        reliable = bool(self.get_parameter('reliable_input').value)
+        in_qos = _RELIABLE_INPUT_QOS if reliable else qos_profile_sensor_data
+        self._depth_sub = self.create_subscription(Image, 'depth/image_raw', self._on_depth,
+                                                   in_qos)
+        self._info_sub = self.create_subscription(CameraInfo, 'depth/camera_info',
+                                                  self._on_camera_info, in_qos)
+        self._points_pub = self.create_publisher(PointCloud2, 'obstacles/points', _OUTPUT_QOS)
+        self._costmap_pub = self.create_publisher(OccupancyGrid, 'obstacles/costmap',
+                                                  _OUTPUT_QOS)
+        self._ground_pub = self.create_publisher(PointCloud2, 'obstacles/ground_points',
+                                                 _OUTPUT_QOS)
+        self._overlay_pub = self.create_publisher(Image, 'obstacles/overlay', _OUTPUT_QOS)
+        self._time_pub = self.create_publisher(Float64, '~/processing_time_ms', _OUTPUT_QOS)
+
+        self._stats_timer = None
+        self._restart_stats_timer(self._config.stats_period_s)
+        self.add_on_set_parameters_callback(self._validate_parameters)
+        self.add_post_set_parameters_callback(self._apply_parameters)
+
+        self._worker = threading.Thread(target=self._work, name='obstacle_detector_worker',
+                                        daemon=True)
+        self._worker.start()
+        self.get_logger().info(
+            f'ready: {self._depth_sub.topic_name} + {self._info_sub.topic_name} '
+            f'({"reliable" if reliable else "sensor-data"} QoS) -> '
+            f'{self._points_pub.topic_name}, {self._costmap_pub.topic_name}; '
+            f'frames {self._config.cloud_frame_id!r}/{self._config.costmap_frame_id!r}')
+
+    # -- parameters -------------------------------------------------------------------------
+    def _parameter_values(self, changes: list[Parameter] | None = None) -> dict[str, Any]:
+        values = {spec.name: self.get_parameter(spec.name).value for spec in ALL_PARAMS}
+        for parameter in changes or ():
+            values[parameter.name] = parameter.value
+        return values
+
+    @property
+    def config(self) -> NodeConfig:
+        """The configuration the next frame will use."""
+        return self._config
+
+    def _validate_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
+        # No side effect here: another callback may still refuse the set.
+        try:
+            build_config(self._parameter_values(parameters))
+        except ValueError as error:
+            return SetParametersResult(successful=False, reason=str(error))
+        return SetParametersResult(successful=True)
+
+    def _apply_parameters(self, parameters: list[Parameter]) -> None:
+        old_period = self._config.stats_period_s
+        self._config = build_config(self._parameter_values())  # validated just before
+        if self._config.stats_period_s != old_period:
+            self._restart_stats_timer(self._config.stats_period_s)
+        changed = ', '.join(f'{p.name}={p.value!r}' for p in parameters)
+        self.get_logger().info(f'parameters updated, next frame uses: {changed}')
+
+    def _restart_stats_timer(self, period_s: float) -> None:
+        if self._stats_timer is not None:
+            self.destroy_timer(self._stats_timer)
+            self._stats_timer = None
+        if period_s > 0.0:
+            self.stats.take_period()
+            self._stats_timer = self.create_timer(period_s, self._log_stats)
+
+    # -- callbacks (executor thread): store only --------------------------------------------
+    def _on_depth(self, msg: Image) -> None:
+        if self._slot.put(msg):
+            self.stats.add_dropped()
+
+    def _on_camera_info(self, msg: CameraInfo) -> None:
+        try:
+            intrinsics, error = camera_info_to_intrinsics(msg), None
+        except ValueError as exc:
+            intrinsics, error = None, str(exc)
+        self._camera = _CameraState(int(msg.width), int(msg.height), intrinsics, error)
+
+    def _log_stats(self) -> None:
+        period = self.stats.take_period()
+        self.get_logger().info(
+            f'{period["processed"]} frames processed in {period["period_s"]:.1f} s '
+            f'({period["fps"]:.1f} fps), mean {period["mean_ms"]:.1f} ms/frame; '
+            f'{period["dropped"]} dropped (a newer frame came first), '
+            f'{period["skipped"]} skipped (bad input), {period["errors"]} errors')
+
+    # -- worker thread ------------------------------------------------------------------------
+    def _work(self) -> None:
+        while not self._stop.is_set():
+            msg = self._slot.take(timeout=0.5)
+            if msg is not None and not self._stop.is_set():
+                self.handle_frame(msg)
+
+    def _warn_skip(self, kind: str, text: str) -> None:
+        """Warn about a skipped frame; each kind of problem is throttled on its own."""
+        self.stats.add_skipped()
+        logger = self._warn_loggers.get(kind)
+        if logger is None:
+            # rclpy throttles per logger object and call site: one logger per kind keeps an
+            # unknown encoding from hiding a size mismatch.
+            logger = self._warn_loggers[kind] = rclpy.logging.get_logger(
+                self.get_logger().name)
+        logger.warning(f'skipping depth frame: {text}', throttle_duration_sec=WARN_THROTTLE_S)
+
+    def _frame_intrinsics(self, msg: Image, config: NodeConfig) -> Intrinsics | None:
+        camera = self._camera
+        if camera is None:
+            if config.use_fallback_intrinsics:
+                return config.fallback_intrinsics
+            self._warn_skip('no_camera_info', 'no CameraInfo received yet on '
+                            f'{self._info_sub.topic_name} (set use_fallback_intrinsics to use '
+                            'fallback_fx/fy/cx/cy)')
+            return None
+        if camera.intrinsics is None:
+            self._warn_skip('camera_info', str(camera.error))
+            return None
+        if camera.width and camera.height and (camera.width, camera.height) != (msg.width,
+                                                                                 msg.height):
+            self._warn_skip('size', f'image is {msg.width}x{msg.height} but CameraInfo is '
+                            f'{camera.width}x{camera.height}')
+            return None
+        return camera.intrinsics
+
+    def handle_frame(self, msg: Image) -> bool:
+        """Process one depth Image and publish its outputs; False if the frame was skipped.
+
+        Never raises: bad input is warned about (throttled), an unexpected exception is logged
+        as an error (throttled), and the next frame is processed as usual.
+        """
+        start = time.perf_counter()
+        config = self._config
+        if msg.encoding not in DEPTH_ENCODINGS:
+            self._warn_skip('encoding', f'unsupported encoding {msg.encoding!r} (expected '
+                            f'{", ".join(DEPTH_ENCODINGS)})')
+            return False
+        try:
+            depth = image_to_array(msg)
+        except ImageFormatError as error:
+            self._warn_skip('layout', str(error))
+            return False
+        intrinsics = self._frame_intrinsics(msg, config)
+        if intrinsics is None:
+            return False
+        if not _has_valid_depth(depth):
+            self._warn_skip('no_depth', 'no valid depth pixel (every pixel is 0, NaN or inf)')
+            return False
+        try:
+            result = config.detector.process(depth, intrinsics)
+            messages = result_to_messages(
+                result, stamp=msg.header.stamp, cloud_frame_id=config.cloud_frame_id,
+                costmap_frame_id=config.costmap_frame_id, image_frame_id=msg.header.frame_id,
+                with_ground=config.publish_ground, with_overlay=config.publish_overlay)
+        except ValueError as error:
+            self._warn_skip('pipeline', str(error))
+            return False
+        except Exception as error:  # noqa: BLE001 - the node must survive any frame
+            self.stats.add_error()
+            self.get_logger().error(f'pipeline failed on a frame, skipping it: '
+                                    f'{type(error).__name__}: {error}',
+                                    throttle_duration_sec=WARN_THROTTLE_S)
+            return False
+        try:
+            self._points_pub.publish(messages['obstacles'])
+            self._costmap_pub.publish(messages['costmap'])
+            if 'ground' in messages:
+                self._ground_pub.publish(messages['ground'])
+            if 'overlay' in messages:
+                self._overlay_pub.publish(messages['overlay'])
+            elapsed_ms = (time.perf_counter() - start) * 1e3
+            self._time_pub.publish(Float64(data=elapsed_ms))
+        except Exception as error:  # noqa: BLE001 - e.g. the context shut down meanwhile
+            if self.context.ok():
+                self.get_logger().error(f'publishing failed: {type(error).__name__}: {error}',
+                                        throttle_duration_sec=WARN_THROTTLE_S)
+            return False
+        self.stats.add_processed(elapsed_ms)
+        stages = ', '.join(f'{k} {v:.1f}' for k, v in result.timings_ms.items()
+                           if k != 'total')
+        self.get_logger().debug(
+            f'frame {msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d}: '
+            f'{result.obstacle_points.shape[0]} obstacle points, {elapsed_ms:.1f} ms '
+            f'(pipeline {result.timings_ms.get("total", 0.0):.1f} ms: {stages})')
+        return True
+
+    def close(self) -> None:
+        """Stop the worker thread (call before ``destroy_node``)."""
+        self._stop.set()
+        self._slot.close()
+        if self._worker.is_alive() and self._worker is not threading.current_thread():
+            self._worker.join(timeout=10.0)
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point of ``ros2 run obstacle_detection detector``; returns the exit code."""
+    rclpy.init(args=args)
+    try:
+        node = DetectorNode()
+    except (ValueError, ParameterException) as error:
+        rclpy.logging.get_logger(NODE_NAME).fatal(f'invalid parameters: {error}')
+        rclpy.try_shutdown()
+        return 1
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.close()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
