@@ -10,11 +10,17 @@ from builtin_interfaces.msg import Time
 from nav_msgs.msg import OccupancyGrid
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
 
-from obstacle_detection.conversions import (ImageFormatError, array_to_image,
-                                            camera_info_to_intrinsics, costmap_to_occupancy_grid,
-                                            image_to_array, intrinsics_to_camera_info,
-                                            pointcloud2_to_points, points_to_pointcloud2,
-                                            result_to_messages)
+from obstacle_detection.conversions import (
+    ImageFormatError,
+    array_to_image,
+    camera_info_to_intrinsics,
+    costmap_to_occupancy_grid,
+    image_to_array,
+    intrinsics_to_camera_info,
+    pointcloud2_to_points,
+    points_to_pointcloud2,
+    result_to_messages,
+)
 from obstacle_detection.costmap import CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN, Costmap
 from obstacle_detection.overlay import OBSTACLE_RGB
 from obstacle_detection.params import KINECT_V2_SD, Intrinsics
@@ -39,7 +45,7 @@ def _depth_array(dtype: type, shape: tuple[int, int] = (5, 7)) -> np.ndarray:
 
 
 def _wire_image(array: np.ndarray, encoding: str, *, big_endian: bool, padding: int) -> Image:
-    """An Image built by hand: explicit byte order and ``padding`` junk bytes per row."""
+    """Build an Image by hand: explicit byte order and ``padding`` junk bytes per row."""
     height, width = array.shape
     wire = array.astype(array.dtype.newbyteorder('>' if big_endian else '<'))
     rows = wire.view(np.uint8).reshape(height, -1)

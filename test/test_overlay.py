@@ -6,11 +6,22 @@ import numpy as np
 import pytest
 
 from obstacle_detection.costmap import CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN, Costmap
-from obstacle_detection.overlay import (FREE_RGB, OBSTACLE_RGB, OCCUPIED_RGB, ROBOT_RGB,
-                                        UNKNOWN_RGB, costmap_pixel_of, render_costmap,
-                                        render_overlay)
-from obstacle_detection.pipeline import (LABEL_GROUND, LABEL_NO_RETURN, LABEL_OBSTACLE,
-                                         LABEL_OUTSIDE_ROI)
+from obstacle_detection.overlay import (
+    FREE_RGB,
+    OBSTACLE_RGB,
+    OCCUPIED_RGB,
+    ROBOT_RGB,
+    UNKNOWN_RGB,
+    costmap_pixel_of,
+    render_costmap,
+    render_overlay,
+)
+from obstacle_detection.pipeline import (
+    LABEL_GROUND,
+    LABEL_NO_RETURN,
+    LABEL_OBSTACLE,
+    LABEL_OUTSIDE_ROI,
+)
 
 
 def _frame() -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,520 @@
+"""The detector node through real rclpy and real DDS (loopback only).
+
+The node runs once per module as a subprocess (``detector --ros-args --params-file
+params/corridor.yaml``); a probe node in this process publishes synthetic corridor frames with
+their CameraInfo and checks what comes back against ``Detector.process`` on the same frame. The
+last tests build DetectorNode in-process, in a ROS domain of their own, to check the parameter
+mapping and the error paths directly.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import rclpy
+import ros_env
+from builtin_interfaces.msg import Time
+from nav_msgs.msg import OccupancyGrid
+from rcl_interfaces.msg import ParameterType
+from rcl_interfaces.srv import GetParameters, SetParameters
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter, parameter_dict_from_yaml_file, parameter_value_to_python
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from std_msgs.msg import Float64
+
+from obstacle_detection.conversions import (
+    array_to_image,
+    intrinsics_to_camera_info,
+    pointcloud2_to_points,
+)
+from obstacle_detection.costmap import CELL_OCCUPIED
+from obstacle_detection.node import DetectorNode, LatestSlot
+from obstacle_detection.params import Intrinsics, table_4_2, table_4_3
+from obstacle_detection.pipeline import DetectionResult, Detector
+from obstacle_detection.ros_params import ALL_PARAMS, detector_params_from_ros
+from obstacle_detection.scenes import GT_OBSTACLE, SceneFrame, render_scene
+
+REPO = ros_env.REPO_ROOT
+CORRIDOR_YAML = REPO / 'params' / 'corridor.yaml'
+NODE = '/obstacle_detector'
+START_TIMEOUT_S = 60.0
+REPLY_TIMEOUT_S = 20.0
+RELIABLE = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
+
+
+def _yaml_values(path: Path) -> dict[str, Any]:
+    """{name: python value} of a params file, parsed by rclpy as the node's rcl does."""
+    parsed = parameter_dict_from_yaml_file(str(path), target_nodes=['obstacle_detector'])
+    return {name: parameter_value_to_python(msg.value) for name, msg in parsed.items()}
+
+
+def _detector_command() -> list[str]:
+    """Return the venv's console script (``pip install -e .``), else ``python -m``."""
+    script = Path(sys.executable).with_name('detector')
+    if script.is_file():
+        return [str(script)]
+    found = shutil.which('detector')
+    return [found] if found else [sys.executable, '-m', 'obstacle_detection.node']
+
+
+def _stamp_key(stamp: Time) -> tuple[int, int]:
+    return (stamp.sec, stamp.nanosec)
+
+
+class NodeUnderTest:
+    """The detector subprocess, its log lines, and a probe node talking to it."""
+
+    def __init__(self, tmp: Path) -> None:
+        self.tmp = tmp
+        self.env = ros_env.loopback_env(__name__, log_dir=tmp / 'ros_log')
+        self._old_env = ros_env.apply(self.env)
+        command = _detector_command() + [
+            '--ros-args', '--params-file', str(CORRIDOR_YAML),
+            '-p', 'reliable_input:=true', '-p', 'publish_ground:=true',
+            '-p', 'stats_period_s:=1.0', '--log-level', 'obstacle_detector:=debug']
+        self.process = subprocess.Popen(command, env=self.env, cwd=tmp, stdout=subprocess.PIPE,
+                                        stderr=subprocess.STDOUT, text=True)
+        self.lines: list[str] = []
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
+        self.node = rclpy.create_node('node_test_probe', context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.depth_pub = self.node.create_publisher(Image, 'depth/image_raw', RELIABLE)
+        self.info_pub = self.node.create_publisher(CameraInfo, 'depth/camera_info', RELIABLE)
+        self.received: dict[str, dict[tuple[int, int], Any]] = {}
+        self.times_ms: list[float] = []
+        self._subs = [self._subscribe(PointCloud2, 'obstacles/points', 'obstacles'),
+                      self._subscribe(OccupancyGrid, 'obstacles/costmap', 'costmap'),
+                      self._subscribe(PointCloud2, 'obstacles/ground_points', 'ground'),
+                      self._subscribe(Image, 'obstacles/overlay', 'overlay'),
+                      self.node.create_subscription(
+                          Float64, f'{NODE}/processing_time_ms',
+                          lambda msg: self.times_ms.append(msg.data), RELIABLE)]
+        self.set_client = self.node.create_client(SetParameters, f'{NODE}/set_parameters')
+        self.get_client = self.node.create_client(GetParameters, f'{NODE}/get_parameters')
+        self._next_sec = 100
+
+    def _read(self) -> None:
+        for line in self.process.stdout:
+            self.lines.append(line)
+
+    def _subscribe(self, msg_type: type, topic: str, key: str) -> Any:
+        store = self.received.setdefault(key, {})
+        return self.node.create_subscription(
+            msg_type, topic, lambda msg: store.__setitem__(_stamp_key(msg.header.stamp), msg),
+            RELIABLE)
+
+    def log(self, start: int = 0) -> str:
+        return ''.join(self.lines[start:])
+
+    def spin_until(self, done: Callable[[], bool], timeout: float) -> bool:
+        """Spin the probe until ``done()`` or the deadline; never sleeps blindly."""
+        deadline = time.monotonic() + timeout
+        while not done():
+            if time.monotonic() > deadline or self.process.poll() is not None:
+                return done()
+            self.executor.spin_once(timeout_sec=0.05)
+        return True
+
+    def wait_for_log(self, text: str, start: int, timeout: float = REPLY_TIMEOUT_S) -> bool:
+        return self.spin_until(lambda: text in self.log(start), timeout)
+
+    def next_stamp(self) -> Time:
+        self._next_sec += 1
+        return Time(sec=self._next_sec, nanosec=250)
+
+    def send(self, image: Image, info: CameraInfo | None) -> Time:
+        """Publish ``info`` (if any), let it arrive first, then ``image`` with a new stamp."""
+        stamp = self.next_stamp()
+        if info is not None:
+            info.header.stamp = stamp
+            self.info_pub.publish(info)
+            self.spin_until(lambda: False, 0.2)
+        image.header.stamp = stamp
+        self.depth_pub.publish(image)
+        return stamp
+
+    def outputs(self, stamp: Time, keys: tuple[str, ...] = ('obstacles', 'costmap'),
+                timeout: float = REPLY_TIMEOUT_S) -> dict[str, Any] | None:
+        key = _stamp_key(stamp)
+        got = self.spin_until(lambda: all(key in self.received[k] for k in keys), timeout)
+        return {k: self.received[k][key] for k in keys} if got else None
+
+    def call(self, client: Any, request: Any) -> Any:
+        assert self.spin_until(lambda: client.service_is_ready(), REPLY_TIMEOUT_S)
+        future = client.call_async(request)
+        assert self.spin_until(future.done, REPLY_TIMEOUT_S), 'no reply from the node'
+        return future.result()
+
+    def set_parameter(self, name: str, value: Any) -> Any:
+        request = SetParameters.Request(parameters=[Parameter(name, value=value)
+                                                    .to_parameter_msg()])
+        return self.call(self.set_client, request).results[0]
+
+    def get_parameter(self, name: str) -> Any:
+        reply = self.call(self.get_client, GetParameters.Request(names=[name]))
+        return parameter_value_to_python(reply.values[0])
+
+    def close(self) -> None:
+        try:
+            self.executor.shutdown(timeout_sec=1.0)
+            self.node.destroy_node()
+            rclpy.try_shutdown(context=self.context)
+        finally:
+            if self.process.poll() is None:
+                self.process.send_signal(signal.SIGINT)
+                try:
+                    self.process.wait(timeout=15)
+                except subprocess.TimeoutExpired:
+                    self.process.kill()
+                    self.process.wait(timeout=10)
+            self._reader.join(timeout=5)
+            (self.tmp / 'detector.log').write_text(self.log())  # for a post-mortem
+            ros_env.restore(self._old_env)
+
+
+@pytest.fixture(scope='module')
+def scene() -> SceneFrame:
+    params = table_4_2()
+    return render_scene('corridor', seed=3, height_m=params.camera_height_m,
+                        pitch_rad=params.camera_pitch_rad, roll_rad=params.camera_roll_rad)
+
+
+def _depth_image(frame: SceneFrame) -> Image:
+    return array_to_image(frame.depth_mm, stamp=Time(), frame_id='depth_optical')
+
+
+def _camera_info(frame: SceneFrame) -> CameraInfo:
+    width, height = frame.size
+    return intrinsics_to_camera_info(frame.intrinsics, width, height, stamp=Time(),
+                                     frame_id='depth_optical')
+
+
+@pytest.fixture(scope='module')
+def detector(tmp_path_factory: pytest.TempPathFactory,
+             scene: SceneFrame) -> Iterator[NodeUnderTest]:
+    """Start the node once; before any CameraInfo it gets one frame (and must skip it)."""
+    harness = NodeUnderTest(tmp_path_factory.mktemp('node'))
+    try:
+        assert harness.wait_for_log('ready:', 0, START_TIMEOUT_S), harness.log()
+        matched = harness.spin_until(
+            lambda: (harness.depth_pub.get_subscription_count() > 0
+                     and harness.info_pub.get_subscription_count() > 0
+                     and all(s.get_publisher_count() > 0 for s in harness._subs[:2])),
+            START_TIMEOUT_S)
+        assert matched, 'the probe and the node did not discover each other'
+        start = len(harness.lines)
+        harness.send(_depth_image(scene), None)
+        harness.no_camera_info_logged = harness.wait_for_log('no CameraInfo received yet',
+                                                             start)
+        yield harness
+    finally:
+        harness.close()
+
+
+@pytest.fixture(scope='module')
+def corridor_params() -> Any:
+    return detector_params_from_ros(_yaml_values(CORRIDOR_YAML))
+
+
+def _sorted_rows(points: np.ndarray) -> np.ndarray:
+    return points[np.lexsort(points.T[::-1])]
+
+
+def _good_frame(detector: NodeUnderTest, scene: SceneFrame,
+                keys: tuple[str, ...] = ('obstacles', 'costmap')) -> dict[str, Any]:
+    """Send the scene frame with its CameraInfo (retried: the first may race) -> outputs."""
+    for _ in range(3):
+        out = detector.outputs(detector.send(_depth_image(scene), _camera_info(scene)), keys)
+        if out is not None:
+            return out
+    pytest.fail('no output for a good frame:\n' + detector.log())
+
+
+def _assert_matches(out: dict[str, Any], expected: DetectionResult) -> None:
+    points = pointcloud2_to_points(out['obstacles'])
+    assert points.shape == expected.obstacle_points.shape
+    np.testing.assert_array_equal(_sorted_rows(points), _sorted_rows(expected.obstacle_points))
+    grid = out['costmap']
+    cells = np.asarray(grid.data, np.int8).reshape(grid.info.height, grid.info.width)
+    np.testing.assert_array_equal(cells, expected.costmap.data)
+    assert grid.info.origin.position.x == pytest.approx(expected.costmap.origin_xy_m[0])
+    assert grid.info.origin.position.y == pytest.approx(expected.costmap.origin_xy_m[1])
+
+
+def test_frame_before_any_camera_info_is_skipped_with_a_warning(
+        detector: NodeUnderTest) -> None:
+    assert detector.no_camera_info_logged, detector.log()
+
+
+def test_node_sockets_bind_loopback_only(detector: NodeUnderTest) -> None:
+    addresses = ros_env.udp_sockets_of(detector.process.pid)
+    if addresses is None:
+        pytest.skip('ss is not installed')
+    assert addresses, 'no UDP socket found for the node process'
+    assert all(a.startswith('127.0.0.1:') for a in addresses), addresses
+
+
+def test_cloud_and_grid_match_the_pipeline(detector: NodeUnderTest, scene: SceneFrame,
+                                           corridor_params: Any) -> None:
+    expected = Detector(corridor_params).process(scene.depth_mm, scene.intrinsics)
+
+    out = _good_frame(detector, scene, ('obstacles', 'costmap', 'ground', 'overlay'))
+
+    _assert_matches(out, expected)
+    assert out['obstacles'].header.frame_id == 'base_footprint'
+    assert out['costmap'].header.frame_id == 'base_footprint'
+    assert out['overlay'].header.frame_id == 'depth_optical'
+    np.testing.assert_array_equal(_sorted_rows(pointcloud2_to_points(out['ground'])),
+                                  _sorted_rows(expected.ground_points))
+
+
+def test_occupied_cells_are_where_the_boxes_and_walls_are(
+        detector: NodeUnderTest, scene: SceneFrame) -> None:
+    grid = _good_frame(detector, scene)['costmap']
+    cells = np.asarray(grid.data, np.int8).reshape(grid.info.height, grid.info.width)
+    truth = scene.points_ground[scene.labels == GT_OBSTACLE]
+    col = np.floor((truth[:, 0] - grid.info.origin.position.x) / grid.info.resolution)
+    row = np.floor((truth[:, 1] - grid.info.origin.position.y) / grid.info.resolution)
+    inside = (col >= 0) & (col < grid.info.width) & (row >= 0) & (row < grid.info.height)
+    near_truth = np.zeros(cells.shape, bool)
+    for dr in (-1, 0, 1):  # a one-cell tolerance for voxel centroids on a cell border
+        for dc in (-1, 0, 1):
+            r = np.clip(row[inside].astype(int) + dr, 0, grid.info.height - 1)
+            c = np.clip(col[inside].astype(int) + dc, 0, grid.info.width - 1)
+            near_truth[r, c] = True
+    occupied = cells == CELL_OCCUPIED
+    assert occupied.sum() >= 10
+    assert (occupied & near_truth).sum() >= 0.9 * occupied.sum()
+
+
+def test_processing_time_is_published(detector: NodeUnderTest, scene: SceneFrame) -> None:
+    _good_frame(detector, scene)
+    assert detector.spin_until(lambda: len(detector.times_ms) > 0, REPLY_TIMEOUT_S)
+    assert all(t > 0.0 for t in detector.times_ms)
+
+
+def test_statistics_and_per_frame_debug_are_logged(detector: NodeUnderTest,
+                                                   scene: SceneFrame) -> None:
+    _good_frame(detector, scene)
+    assert detector.wait_for_log('frames processed in', 0), detector.log()
+    assert 'obstacle points,' in detector.log(), detector.log()
+
+
+def test_a_burst_of_frames_is_not_queued(detector: NodeUnderTest, scene: SceneFrame) -> None:
+    _good_frame(detector, scene)  # the node holds a good CameraInfo
+    start = len(detector.lines)
+    stamps = [detector.send(_depth_image(scene), None) for _ in range(5)]
+
+    # The newest frame is always processed; older pending ones may be dropped, never queued.
+    assert detector.outputs(stamps[-1]) is not None, detector.log(start)
+    answered = sum(_stamp_key(s) in detector.received['obstacles'] for s in stamps)
+    if answered < len(stamps):  # the stats log must account for the dropped frames
+        assert detector.spin_until(lambda: re.search(r'[1-9]\d* dropped', detector.log(start)),
+                                   REPLY_TIMEOUT_S), detector.log(start)
+
+
+def _bad_cases(scene: SceneFrame) -> list[tuple[str, Image, CameraInfo, str]]:
+    good_info = _camera_info(scene)
+    height, width = scene.depth_mm.shape
+    rgb = array_to_image(np.zeros((height, width, 3), np.uint8), stamp=Time(),
+                         frame_id='depth_optical')
+    odd = _depth_image(scene)
+    odd.data = bytes(odd.data)[:-1]
+    small = array_to_image(scene.depth_mm[::2, ::2].copy(), stamp=Time(),
+                           frame_id='depth_optical')
+    zero_focal = _camera_info(scene)
+    zero_focal.k = [0.0] * 9
+    nan = array_to_image(np.full((height, width), np.nan, np.float32), stamp=Time(),
+                         frame_id='depth_optical')
+    return [
+        ('unknown encoding', rgb, good_info, "unsupported encoding 'rgb8'"),
+        ('odd byte count', odd, good_info, f'data has {2 * width * height - 1} bytes'),
+        ('size differs from CameraInfo', small, good_info,
+         f'image is {width // 2}x{height // 2} but CameraInfo is {width}x{height}'),
+        ('zero focal length', _depth_image(scene), zero_focal,
+         'focal lengths must be > 0'),
+        ('all-NaN frame', nan, good_info, 'no valid depth pixel'),
+    ]
+
+
+def test_bad_inputs_are_logged_and_survived(detector: NodeUnderTest, scene: SceneFrame,
+                                            corridor_params: Any) -> None:
+    expected = Detector(corridor_params).process(scene.depth_mm, scene.intrinsics)
+    for name, image, info, message in _bad_cases(scene):
+        start = len(detector.lines)
+        stamp = detector.send(image, info)
+        assert detector.wait_for_log(message, start), f'{name}: not logged\n{detector.log()}'
+        assert _stamp_key(stamp) not in detector.received['obstacles'], name
+        assert detector.process.poll() is None, f'{name}: the node died\n{detector.log()}'
+        _assert_matches(_good_frame(detector, scene), expected)
+    assert 'Traceback' not in detector.log()
+
+
+def test_parameter_update_changes_the_next_result(detector: NodeUnderTest, scene: SceneFrame,
+                                                  corridor_params: Any) -> None:
+    result = detector.set_parameter('max_range_m', 1.3)
+    try:
+        assert result.successful, result.reason
+        expected = Detector(corridor_params.replace(max_range_m=1.3)).process(
+            scene.depth_mm, scene.intrinsics)
+        out = _good_frame(detector, scene)
+        _assert_matches(out, expected)
+        assert pointcloud2_to_points(out['obstacles'])[:, 0].max() <= 1.3
+    finally:
+        assert detector.set_parameter('max_range_m', corridor_params.max_range_m).successful
+
+
+def test_degree_parameter_reaches_the_pipeline_in_radians(
+        detector: NodeUnderTest, scene: SceneFrame, corridor_params: Any) -> None:
+    result = detector.set_parameter('max_slope_deg', 50.0)
+    try:
+        assert result.successful, result.reason
+        expected = Detector(corridor_params.replace(max_slope_rad=math.radians(50.0))).process(
+            scene.depth_mm, scene.intrinsics)
+        _assert_matches(_good_frame(detector, scene), expected)
+    finally:
+        assert detector.set_parameter('max_slope_deg', 30.0).successful
+
+
+def test_even_median_kernel_is_refused_and_the_old_value_kept(
+        detector: NodeUnderTest) -> None:
+    result = detector.set_parameter('median_kernel', 4)
+
+    assert not result.successful
+    assert 'median_kernel=4 must be odd' in result.reason
+    assert detector.get_parameter('median_kernel') == 17
+
+
+def test_out_of_range_value_is_refused_by_the_descriptor(detector: NodeUnderTest) -> None:
+    result = detector.set_parameter('max_slope_deg', 95.0)
+
+    assert not result.successful
+    assert detector.get_parameter('max_slope_deg') == 30.0
+
+
+# -- in-process node, in a ROS domain of its own ----------------------------------------------
+@pytest.fixture(scope='module')
+def local_context() -> Iterator[rclpy.Context]:
+    env = ros_env.loopback_env(__name__ + ':in-process')
+    old = ros_env.apply(env)
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=int(env['ROS_DOMAIN_ID']),
+               signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        yield context
+    finally:
+        rclpy.try_shutdown(context=context)
+        ros_env.restore(old)
+
+
+@pytest.fixture
+def local_node(local_context: rclpy.Context) -> Iterator[DetectorNode]:
+    node = DetectorNode(context=local_context,
+                        cli_args=['--ros-args', '--params-file', str(CORRIDOR_YAML)])
+    try:
+        yield node
+    finally:
+        node.close()
+        node.destroy_node()
+
+
+@pytest.mark.parametrize(('file_name', 'preset'), [('corridor.yaml', table_4_2),
+                                                    ('corridor_video.yaml', table_4_3)])
+def test_params_file_equals_seed_table(local_context: rclpy.Context, file_name: str,
+                                       preset: Callable[[], Any]) -> None:
+    path = REPO / 'params' / file_name
+    assert detector_params_from_ros(_yaml_values(path)) == preset()
+    node = DetectorNode(context=local_context,
+                        cli_args=['--ros-args', '--params-file', str(path)])
+    try:
+        assert node.config.detector.params == preset()
+    finally:
+        node.close()
+        node.destroy_node()
+
+
+def test_set_parameters_validates_without_side_effects(local_node: DetectorNode) -> None:
+    before = local_node.config
+
+    result = local_node.set_parameters([Parameter('median_kernel', value=4)])[0]
+
+    assert not result.successful and 'median_kernel=4 must be odd' in result.reason
+    assert local_node.get_parameter('median_kernel').value == 17
+    assert local_node.config is before
+
+
+def test_set_parameters_applies_to_the_next_frame(local_node: DetectorNode) -> None:
+    result = local_node.set_parameters([Parameter('max_slope_deg', value=45.0),
+                                        Parameter('validation_neighbours', value=3)])
+
+    assert all(r.successful for r in result)
+    params = local_node.config.detector.params
+    assert params.max_slope_rad == math.radians(45.0) and params.validation_neighbours == 3
+
+
+def test_zero_fallback_focal_length_is_refused(local_node: DetectorNode) -> None:
+    result = local_node.set_parameters([Parameter('fallback_fx', value=0.0)])[0]
+    assert not result.successful and 'focal lengths must be > 0' in result.reason
+
+
+def test_unexpected_pipeline_exception_is_survived(local_node: DetectorNode,
+                                                   monkeypatch: pytest.MonkeyPatch,
+                                                   scene: SceneFrame) -> None:
+    local_node.set_parameters([Parameter('use_fallback_intrinsics', value=True),
+                               Parameter('fallback_fx', value=scene.intrinsics.fx),
+                               Parameter('fallback_fy', value=scene.intrinsics.fy),
+                               Parameter('fallback_cx', value=scene.intrinsics.cx),
+                               Parameter('fallback_cy', value=scene.intrinsics.cy)])
+    assert local_node.config.fallback_intrinsics == Intrinsics(
+        scene.intrinsics.fx, scene.intrinsics.fy, scene.intrinsics.cx, scene.intrinsics.cy)
+
+    def boom(*args: Any, **kwargs: Any) -> None:
+        raise RuntimeError('boom')
+
+    monkeypatch.setattr(local_node.config.detector, 'process', boom)
+    assert not local_node.handle_frame(_depth_image(scene))
+    assert local_node.stats.errors == 1
+    monkeypatch.undo()
+    assert local_node.handle_frame(_depth_image(scene))
+    assert local_node.stats.total_processed == 1
+
+
+def test_latest_slot_keeps_only_the_newest() -> None:
+    slot = LatestSlot()
+    assert slot.take(timeout=0.0) is None
+    assert not slot.put('a')
+    assert slot.put('b') and slot.put('c')
+
+    assert slot.take(timeout=0.0) == 'c'
+    assert slot.dropped == 2
+    assert slot.take(timeout=0.0) is None
+
+
+def test_every_parameter_has_a_description_and_numbers_a_range(
+        local_node: DetectorNode) -> None:
+    names = [spec.name for spec in ALL_PARAMS]
+    for descriptor in local_node.describe_parameters(names):
+        assert descriptor.description, descriptor.name
+        if descriptor.type == ParameterType.PARAMETER_DOUBLE:
+            assert len(descriptor.floating_point_range) == 1, descriptor.name
+        if descriptor.type == ParameterType.PARAMETER_INTEGER:
+            assert len(descriptor.integer_range) == 1, descriptor.name
+    assert local_node.describe_parameter('reliable_input').read_only

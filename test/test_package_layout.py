@@ -1,0 +1,140 @@
+"""The package installs where ``ros2 run`` looks, and the installed ``detector`` starts.
+
+The build repeats what colcon's ament_python build runs (``setup.py egg_info build install
+--single-version-externally-managed``) into a temporary prefix, without colcon.
+"""
+
+from __future__ import annotations
+
+import re
+import signal
+import subprocess
+import sys
+import sysconfig
+import threading
+import time
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import pytest
+import ros_env
+
+REPO = ros_env.REPO_ROOT
+PACKAGE = 'obstacle_detection'
+EXEC_DEPENDS = {'rclpy', 'sensor_msgs', 'nav_msgs', 'std_msgs', 'geometry_msgs',
+                'python3-numpy', 'python3-scipy', 'python3-opencv'}
+
+
+def _package_xml() -> ET.Element:
+    return ET.parse(REPO / 'package.xml').getroot()
+
+
+def test_package_xml_is_format_3_ament_python() -> None:
+    root = _package_xml()
+    assert root.tag == 'package' and root.get('format') == '3'
+    assert root.findtext('name') == PACKAGE
+    assert root.findtext('export/build_type') == 'ament_python'
+    assert root.findtext('license') and root.find('maintainer').get('email')
+
+
+def test_package_xml_declares_dependencies() -> None:
+    root = _package_xml()
+    exec_depends = {e.text for e in root.findall('exec_depend')}
+    assert EXEC_DEPENDS <= exec_depends
+    assert 'python3-pytest' in {e.text for e in root.findall('test_depend')}
+
+
+def test_setup_py_version_matches_package_xml() -> None:
+    version = re.search(r"version='([^']+)'", (REPO / 'setup.py').read_text()).group(1)
+    assert version == _package_xml().findtext('version')
+
+
+@pytest.fixture(scope='module')
+def prefix(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Build an install prefix the way colcon's ament_python build does."""
+    tmp = tmp_path_factory.mktemp('colcon')
+    build, install = tmp / 'build', tmp / 'install'
+    build.mkdir()
+    command = [sys.executable, 'setup.py', '--quiet',
+               'egg_info', '--egg-base', str(build),
+               'build', '--build-base', str(build / 'build'),
+               'install', '--prefix', str(install), '--record', str(build / 'install.log'),
+               '--single-version-externally-managed']
+    done = subprocess.run(command, cwd=REPO, capture_output=True, text=True, timeout=300,
+                          check=False)
+    assert done.returncode == 0, done.stdout + done.stderr
+    return install
+
+
+def _site_packages(prefix: Path) -> Path:
+    relative = Path(sysconfig.get_path('purelib')).relative_to(sysconfig.get_path('data'))
+    return prefix / relative
+
+
+@pytest.mark.parametrize('relative', [
+    'lib/obstacle_detection/detector',
+    'share/obstacle_detection/package.xml',
+    'share/obstacle_detection/params/corridor.yaml',
+    'share/obstacle_detection/params/corridor_video.yaml',
+    'share/ament_index/resource_index/packages/obstacle_detection',
+])
+def test_installed_where_ros2_run_looks(prefix: Path, relative: str) -> None:
+    assert (prefix / relative).is_file()
+
+
+def test_installed_python_package(prefix: Path) -> None:
+    installed = _site_packages(prefix) / PACKAGE
+    assert (installed / 'node.py').is_file() and (installed / 'pipeline.py').is_file()
+
+
+def _wait_for_line(process: subprocess.Popen, lines: list[str], pattern: str,
+                   timeout: float) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if any(pattern in line for line in lines):
+            return True
+        if process.poll() is not None:
+            time.sleep(0.2)  # let the reader thread catch the last lines
+            return any(pattern in line for line in lines)
+        time.sleep(0.05)
+    return False
+
+
+def test_installed_detector_starts_and_stops_on_sigint(prefix: Path, tmp_path: Path) -> None:
+    env = ros_env.loopback_env('test_package_layout', log_dir=tmp_path / 'ros_log')
+    site = str(_site_packages(prefix))
+    env['PYTHONPATH'] = site  # the installed copy first; the venv's own site-packages follow
+    probe = 'import obstacle_detection.node as n; print(n.__file__)'
+    which = subprocess.run([sys.executable, '-c', probe], env=env, cwd=tmp_path,
+                           capture_output=True, text=True, timeout=60, check=False)
+    assert which.stdout.strip().startswith(site), which.stdout + which.stderr
+
+    params = prefix / 'share/obstacle_detection/params/corridor.yaml'
+    process = subprocess.Popen(
+        [str(prefix / 'lib/obstacle_detection/detector'), '--ros-args', '--params-file',
+         str(params)], env=env, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+        text=True)
+    lines: list[str] = []
+    reader = threading.Thread(target=lambda: lines.extend(process.stdout), daemon=True)
+    reader.start()
+    try:
+        assert _wait_for_line(process, lines, 'ready:', timeout=60), ''.join(lines)
+        process.send_signal(signal.SIGINT)
+        assert process.wait(timeout=30) == 0, ''.join(lines)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait(timeout=10)
+        reader.join(timeout=5)
+    assert not any('Traceback' in line for line in lines), ''.join(lines)
+
+
+def test_parameter_table_lists_every_parameter_with_its_range() -> None:
+    from obstacle_detection.ros_params import ALL_PARAMS
+    from tools.param_table import parameter_table
+
+    rows = parameter_table().splitlines()[2:]
+
+    assert [row.split('|')[1].strip(' `') for row in rows] == [s.name for s in ALL_PARAMS]
+    slope = next(row for row in rows if row.startswith('| `max_slope_deg`'))
+    assert '| 30 | 60 | (0, 90) |' in slope
