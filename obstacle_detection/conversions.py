@@ -63,7 +63,7 @@ def _stamped_header(stamp: Time, frame_id: str) -> Header:
 
 
 def _byte_view(data: Any) -> np.ndarray:
-    """A flat uint8 view of a message's ``data`` (bytes, array.array, ndarray or a list)."""
+    """Return a flat uint8 view of a message's ``data`` (bytes, array.array, ndarray or a list)."""
     try:
         return np.frombuffer(data, dtype=np.uint8)
     except TypeError:  # a plain sequence of ints
@@ -155,7 +155,7 @@ def camera_info_to_intrinsics(msg: Any) -> Intrinsics:
 
 def intrinsics_to_camera_info(intrinsics: Intrinsics, width: int, height: int, *, stamp: Time,
                               frame_id: str) -> CameraInfo:
-    """A CameraInfo for an undistorted pinhole camera (K, P, identity R, zero plumb_bob D)."""
+    """Build a CameraInfo of an undistorted pinhole camera (K, P, identity R, zero D)."""
     fx, fy, cx, cy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
     return CameraInfo(
         header=_stamped_header(stamp, frame_id), width=int(width), height=int(height),
@@ -166,7 +166,7 @@ def intrinsics_to_camera_info(intrinsics: Intrinsics, width: int, height: int, *
 
 
 def points_to_pointcloud2(points: np.ndarray, *, stamp: Time, frame_id: str) -> PointCloud2:
-    """An unorganised PointCloud2 (height 1) with float32 fields x, y, z, little-endian.
+    """Build an unorganised PointCloud2 (height 1) of float32 x, y, z, little-endian.
 
     points: (N, 3) [m] in ``frame_id``; N may be 0. ``is_dense`` is True when every coordinate is
     finite.
@@ -209,7 +209,7 @@ def pointcloud2_to_points(msg: Any) -> np.ndarray:
 
 def costmap_to_occupancy_grid(costmap: Costmap, *, stamp: Time,
                               frame_id: str) -> OccupancyGrid:
-    """An OccupancyGrid of the costmap, lying in the ground plane of ``frame_id``.
+    """Build an OccupancyGrid of the costmap, lying in the ground plane of ``frame_id``.
 
     info: resolution [m/cell], width = nx, height = ny, origin at the costmap's ``origin_xy_m``
     (the outer corner of cell (0, 0)), z = 0, identity orientation. data: row-major int8 cells

@@ -31,7 +31,7 @@ ROBOT_RGB = (220, 0, 0)
 
 def render_overlay(depth_m: np.ndarray, labels: np.ndarray, *,
                    max_depth_m: float | None = None) -> np.ndarray:
-    """The depth frame as grey with obstacle pixels marked (the seed's figures 4.22-4.27).
+    """Draw the depth frame in grey with obstacle pixels marked (the seed's figures 4.22-4.27).
 
     depth_m: (H, W) float [m], 0 / NaN / inf = no return. labels: (H, W) pipeline LABEL_* values;
     pixels labelled LABEL_OBSTACLE are drawn OBSTACLE_RGB. Other valid pixels are grey, dark near
@@ -71,7 +71,7 @@ def costmap_pixel_of(costmap: Costmap, x_m: float, y_m: float, *,
 
 
 def render_costmap(costmap: Costmap, *, scale: int = 4, draw_robot: bool = True) -> np.ndarray:
-    """The costmap seen from above, x (forward) up and y (left) to the left.
+    """Draw the costmap seen from above, x (forward) up and y (left) to the left.
 
     Each cell becomes ``scale x scale`` pixels: OCCUPIED_RGB for 100, FREE_RGB for 0, a blend
     for 1..99, UNKNOWN_RGB for -1. If ``draw_robot``, a ROBOT_RGB disc marks the ground-frame
