@@ -11,6 +11,7 @@ Supported depth encodings (REP 118): ``16UC1`` / ``mono16`` in millimetres (0 = 
 
 from __future__ import annotations
 
+import array
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -223,7 +224,8 @@ def costmap_to_occupancy_grid(costmap: Costmap, *, stamp: Time,
     info = MapMetaData(map_load_time=stamp, resolution=float(costmap.resolution_m),
                        width=int(data.shape[1]), height=int(data.shape[0]), origin=origin)
     grid = OccupancyGrid(header=_stamped_header(stamp, frame_id), info=info)
-    grid.data = data.reshape(-1)  # an int8 array is copied as a block, not element by element
+    # array.array('b') is stored as is; a numpy array or a list would be converted per element.
+    grid.data = array.array('b', data.tobytes())
     return grid
 
 
