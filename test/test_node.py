@@ -518,3 +518,16 @@ def test_every_parameter_has_a_description_and_numbers_a_range(
         if descriptor.type == ParameterType.PARAMETER_INTEGER:
             assert len(descriptor.integer_range) == 1, descriptor.name
     assert local_node.describe_parameter('reliable_input').read_only
+
+
+def test_invalid_params_file_stops_the_node_with_the_message(tmp_path: Path) -> None:
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text(CORRIDOR_YAML.read_text().replace('median_kernel: 17', 'median_kernel: 4'))
+    env = ros_env.loopback_env(__name__ + ':bad-file', log_dir=tmp_path / 'ros_log')
+
+    done = subprocess.run(_detector_command() + ['--ros-args', '--params-file', str(bad)],
+                          env=env, cwd=tmp_path, capture_output=True, text=True, timeout=60,
+                          check=False)
+
+    assert done.returncode == 1
+    assert 'invalid parameters: median_kernel=4 must be odd' in done.stdout + done.stderr
