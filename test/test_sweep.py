@@ -88,3 +88,16 @@ def test_scene_without_truth_obstacles_is_ranked_by_false_alarms():
         false_alarms={'floor': np.array([[0.3, 0.0]])}, positives={'floor': 0})
     assert result.ranking('floor')[1] == 'cell_false_alarm'
     assert result.best('floor') == (0, 1)
+
+
+def test_full_grid_best_names_every_axis_and_projection_is_the_best(small_frames):
+    x = sweep.Axis('theta_deg', ('20', '70'))
+    also = (sweep.Axis('N1', ('0', '12')),)
+    result = sweep.run_sweep(small_frames, table_4_2(), x, None, 'cell_f1', also=also)
+    grid = result.grids['overall']
+    assert grid.shape == (1, 2, 2)
+    best = result.best('overall')
+    assert grid[best] == np.nanmax(grid)
+    assert set(result.setting(*best)) == {'theta_deg', 'N1'}
+    np.testing.assert_allclose(sweep.project(grid), np.nanmax(grid, axis=2))
+    assert f'{np.nanmax(grid):.3f}*' in sweep.format_grid(result, 'overall')
