@@ -29,8 +29,13 @@ Choices made here (the seed leaves them open):
   penalty (not on the intercept) keeps the fit finite on separable data.
 
 The refined detection (:func:`refine_result`) keeps the pipeline's voxels: a voxel is an
-obstacle when more than half of its pixels are predicted obstacle, and the costmap is rebuilt
-from those voxels with ``costmap.build_costmap``.
+obstacle candidate when more than half of its pixels are predicted obstacle; the seed's
+validation step (an obstacle stays one only if its N1 nearest voxels are candidates too, as in
+the rule-based pipeline) then removes isolated candidates, and the costmap is rebuilt from the
+remaining obstacle voxels with ``costmap.build_costmap``. The refined pixel labels are the
+model's per-pixel decisions (what the seed's accuracy measures). Without the validation step
+the scattered pixel errors on the floor each mark a whole costmap cell: on the scenario suite
+the refined costmap then has several times the rule-based cell false alarms.
 """
 
 from __future__ import annotations
@@ -377,7 +382,8 @@ class RefinedResult:
 
     labels: (H, W) uint8 ``LABEL_*`` (the pipeline's, with pixels that have a voxel relabelled
     GROUND/OBSTACLE by the refiner); obstacle_mask: (H, W) bool refined obstacle pixels;
-    voxel_is_obstacle: (V,) bool, majority vote of each voxel's pixels; obstacle_points (O, 3)
+    voxel_is_obstacle: (V,) bool, majority vote of each voxel's pixels, then validated;
+    obstacle_points (O, 3)
     and ground_points (G, 3) float32 voxel centroids, ground frame [m]; costmap: a
     ``costmap.Costmap`` built from them.
     """
@@ -400,16 +406,20 @@ def voxel_votes(pixel_voxel: np.ndarray, mask: np.ndarray, n_voxels: int) -> np.
     return 2.0 * positive > total
 
 
-def refine_result(result: Any, refined_mask: np.ndarray, params: DetectorParams,
-                  ) -> RefinedResult:
+def refine_result(result: Any, refined_mask: np.ndarray, params: DetectorParams, *,
+                  validate: bool = True) -> RefinedResult:
     """Turn refined obstacle pixels into labels, obstacle voxels and a costmap.
 
     result: the ``DetectionResult`` the mask was predicted from; refined_mask: (H, W) bool from
     :meth:`LogisticRefiner.predict_labels`; params: the detector's parameters (costmap
-    geometry). Obstacle voxels are those most of whose pixels are refined obstacles; the other
-    voxels are ground; ``costmap.build_costmap`` rasterises both.
+    geometry, N1). Obstacle voxels are those most of whose pixels are refined obstacles and,
+    when ``validate``, whose ``params.validation_neighbours`` nearest voxels are such too (the
+    seed's validation step); the other voxels are ground; ``costmap.build_costmap`` rasterises
+    both.
     """
-    from .costmap import build_costmap  # the costmap module is optional for the fit itself
+    # Imported here: the fit and the model file need neither the costmap nor the k-NN.
+    from .costmap import build_costmap
+    from .normals import nearest_neighbours, validate_obstacles
 
     pixel_voxel = np.asarray(result.pixel_voxel)
     mask = np.asarray(refined_mask, dtype=bool) & (pixel_voxel >= 0)
@@ -418,6 +428,10 @@ def refine_result(result: Any, refined_mask: np.ndarray, params: DetectorParams,
     labels[has] = np.where(mask[has], LABEL_OBSTACLE, LABEL_GROUND)
     voxel_points = np.asarray(result.voxel_points, dtype=np.float32).reshape(-1, 3)
     is_obstacle = voxel_votes(pixel_voxel, mask, voxel_points.shape[0])
+    n1 = params.validation_neighbours
+    if validate and n1 > 0 and is_obstacle.any():
+        neighbours = nearest_neighbours(voxel_points, min(n1 + 1, voxel_points.shape[0]))
+        is_obstacle = validate_obstacles(is_obstacle, neighbours, n1)
     obstacle_points = voxel_points[is_obstacle]
     ground_points = voxel_points[~is_obstacle]
     costmap = build_costmap(obstacle_points, ground_points, params)

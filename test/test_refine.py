@@ -125,7 +125,8 @@ def _small_scene_result(name='corridor', seed=0):
 
 def test_refining_with_the_rule_based_mask_gives_the_rule_based_costmap():
     _, params, result = _small_scene_result()
-    refined = refine.refine_result(result, refine.obstacle_mask(result), params)
+    refined = refine.refine_result(result, refine.obstacle_mask(result), params,
+                                   validate=False)
     np.testing.assert_array_equal(refined.voxel_is_obstacle, result.voxel_is_obstacle)
     np.testing.assert_array_equal(refined.costmap.data, result.costmap.data)
     np.testing.assert_array_equal(refined.labels, result.labels)
@@ -152,3 +153,17 @@ def test_train_tool_prints_rule_based_and_refined_scores(tmp_path, capsys):
     assert 'rule-based' in text and 'refined' in text and 'accuracy' in text
     model = LogisticRefiner.load(out)
     assert model.coefficients[1] < 0  # steeper surface (smaller |n.up|) -> more likely obstacle
+
+
+def test_validation_drops_isolated_refined_voxels():
+    _, params, result = _small_scene_result()
+    rule = refine.obstacle_mask(result)
+    speckled = rule.copy()
+    ground_pixels = np.flatnonzero((result.pixel_voxel >= 0).reshape(-1) & ~rule.reshape(-1))
+    lonely_voxel = result.pixel_voxel.reshape(-1)[ground_pixels[len(ground_pixels) // 2]]
+    speckled[result.pixel_voxel == lonely_voxel] = True  # one floor voxel turned obstacle
+    plain = refine.refine_result(result, speckled, params, validate=False)
+    checked = refine.refine_result(result, speckled, params)
+    assert plain.voxel_is_obstacle[lonely_voxel]
+    assert not checked.voxel_is_obstacle[lonely_voxel]
+    assert not (checked.voxel_is_obstacle & ~plain.voxel_is_obstacle).any()
