@@ -83,6 +83,52 @@ def to_ground(points_optical: np.ndarray, params: DetectorParams) -> np.ndarray:
     return out
 
 
+def ground_rays(shape: tuple[int, int], intrinsics: Intrinsics, params: DetectorParams,
+                ) -> np.ndarray:
+    """Ground-frame direction of every pixel's ray, scaled so that depth 1 m travels it.
+
+    Returns (3, H*W) float32: ``p_ground = depth * rays[:, pixel] + (0, 0, height)`` is the
+    back-projection (seed 4.3.2) followed by the camera mount, for a flat pixel index.
+    """
+    ru, rv = pixel_rays(shape, intrinsics)
+    rot = mount_rotation(params.camera_pitch_rad, params.camera_roll_rad).astype(np.float32)
+    height, width = shape
+    rays = np.empty((3, height, width), dtype=np.float32)
+    for axis in range(3):
+        rays[axis] = (rot[axis, 0] * ru[None, :] + rot[axis, 1] * rv[:, None]
+                      + rot[axis, 2])
+    return rays.reshape(3, -1)
+
+
+def ground_points_in_roi(depth_m: np.ndarray, rays: np.ndarray, params: DetectorParams,
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Back-project a whole depth image into the ground frame and keep the ROI.
+
+    depth_m: (H, W) float32, 0 = no return; rays: from :func:`ground_rays`.
+    Returns ``(points, roi_index, valid)``: points (M, 3) float32 ground frame [m] of the
+    pixels inside the region of interest (a view with contiguous columns), roi_index (M,)
+    int64 their flat pixel indices, valid (H*W,) bool the pixels with a depth.
+    Same ROI as :func:`roi_mask`, computed on the image without a per-point gather.
+    """
+    z = depth_m.reshape(-1)
+    valid = z > 0.0
+    gx = z * rays[0]
+    keep = valid & (gx >= np.float32(params.min_range_m))
+    keep &= gx <= np.float32(params.max_range_m)
+    gy = z * rays[1]
+    keep &= np.abs(gy) <= np.float32(params.lateral_limit_m)
+    gz = z * rays[2]
+    gz += np.float32(params.camera_height_m)
+    keep &= gz >= np.float32(params.tdbg_m)
+    keep &= gz <= np.float32(params.max_height_m)
+    roi_index = np.flatnonzero(keep)
+    cols = np.empty((3, roi_index.size), dtype=np.float32)
+    np.take(gx, roi_index, out=cols[0])
+    np.take(gy, roi_index, out=cols[1])
+    np.take(gz, roi_index, out=cols[2])
+    return cols.T, roi_index, valid
+
+
 def roi_mask(points_ground: np.ndarray, params: DetectorParams) -> np.ndarray:
     """Seed 4.3.3 region of interest: (M,) bool, True for points kept.
 

@@ -112,6 +112,10 @@ class DetectorParams:
     validation_neighbours: int = field(default=12, metadata=_describe(
         'N1: an obstacle point stays one only if its N1 nearest neighbours (itself excluded) are '
         'obstacles too; 0 = no validation (seed Table 4.2: 12)', min=0, max=400))
+    max_ground_height_m: float = field(default=0.0, metadata=_describe(
+        'Not in the seed: flat voxels higher than this above the ground are obstacles too '
+        '(box and table tops, which the slope test calls ground); it also marks the high part '
+        'of a passable ramp. 0 = off, the seed method [m]', min=0.0, max=5.0))
     # -- costmap (seed 4.3.6), ground plane, x forward from the camera foot, centred in y
     costmap_resolution_m: float = field(default=0.05, metadata=_describe(
         'Costmap cell size [m/cell]', min=0.005, max=1.0))

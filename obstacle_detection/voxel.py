@@ -30,10 +30,11 @@ def voxel_downsample(points: np.ndarray, voxel_size_m: tuple[float, float, float
                      ) -> VoxelGrid:
     """Replace the points of every occupied voxel by their centroid.
 
-    points: (M, 3) float32 [m]. Voxels are the cells ``[i*Vx, (i+1)*Vx) x [j*Vy, ...) x ...``
-    of a lattice anchored at the frame origin, so a point's voxel does not depend on the other
-    points. Voxels are ordered by their linear index (x slowest, z fastest), so the output is
-    deterministic. An empty input gives empty arrays.
+    points: (M, 3) float32 [m] (a view with contiguous columns, ``cols.T``, is fastest).
+    Voxels are the cells ``[i*Vx, (i+1)*Vx) x [j*Vy, ...) x ...`` of a lattice anchored at
+    the frame origin, so a point's voxel does not depend on the other points. Voxels are
+    ordered by their linear index (x slowest, z fastest), so the output is deterministic.
+    An empty input gives empty arrays.
     """
     size = np.asarray(voxel_size_m, dtype=np.float64)
     if size.shape != (3,) or np.any(size <= 0.0):
@@ -45,28 +46,33 @@ def voxel_downsample(points: np.ndarray, voxel_size_m: tuple[float, float, float
         return VoxelGrid(np.zeros((0, 3), np.float32), np.zeros(0, np.int64),
                          np.zeros(0, np.int64), np.zeros((0, 3), np.int64))
 
-    ijk = np.floor(pts / size.astype(pts.dtype)).astype(np.int64)
-    low = ijk.min(axis=0)
-    dims = ijk.max(axis=0) - low + 1
-    rel = ijk - low
-    keys = (rel[:, 0] * dims[1] + rel[:, 1]) * dims[2] + rel[:, 2]
+    cols = np.ascontiguousarray(pts.T)
+    ijk = [np.floor(cols[a] / cols.dtype.type(size[a])).astype(np.int64) for a in range(3)]
+    low = np.array([c.min() for c in ijk])
+    dims = np.array([c.max() for c in ijk]) - low + 1
+    keys = ijk[0] - low[0]
+    keys *= dims[1]
+    keys += ijk[1] - low[1]
+    keys *= dims[2]
+    keys += ijk[2] - low[2]
     n_cells = int(dims[0] * dims[1] * dims[2])
 
     if n_cells <= _DENSE_LIMIT:
         occupied = np.zeros(n_cells, dtype=bool)
         occupied[keys] = True
         cell_keys = np.flatnonzero(occupied)
-        lookup = np.cumsum(occupied, dtype=np.int64)
-        lookup -= 1
+        lookup = np.empty(n_cells, dtype=np.int64)  # read only where occupied
+        lookup[cell_keys] = np.arange(cell_keys.size)
         point_voxel = lookup[keys]
     else:
         cell_keys, point_voxel = np.unique(keys, return_inverse=True)
+        point_voxel = point_voxel.reshape(-1)
     n_vox = cell_keys.size
 
     counts = np.bincount(point_voxel, minlength=n_vox)
     centroids = np.empty((n_vox, 3), dtype=np.float32)
     for axis in range(3):
-        sums = np.bincount(point_voxel, weights=pts[:, axis], minlength=n_vox)
+        sums = np.bincount(point_voxel, weights=cols[axis], minlength=n_vox)
         centroids[:, axis] = sums / counts
     vox_ijk = np.empty((n_vox, 3), dtype=np.int64)
     rest, vox_ijk[:, 2] = np.divmod(cell_keys, dims[2])
