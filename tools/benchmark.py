@@ -1,0 +1,149 @@
+#!/usr/bin/env python3
+"""Benchmark the detection pipeline: per-stage and total milliseconds, frames per second.
+
+Frames come from the ray-cast scene generator (rendered once before timing). Every
+configuration (frame size x median kernel K) runs the same number of frames, cycling over the
+named scenes. The run is pinned to one thread: BLAS/OpenMP thread counts are set to 1 before
+numpy is imported, OpenCV gets ``cv2.setNumThreads(1)``, the k-d tree is queried with
+``workers=1``, and the process is pinned to one CPU with ``os.sched_setaffinity`` (where the
+platform has it). Peak memory is the process's maximum resident set size.
+
+Prints a table for people and one line starting with ``JSON `` for machines.
+
+    python tools/benchmark.py                 # 100 frames per configuration
+    python tools/benchmark.py --frames 300 --preset table_4_3
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ('OMP_NUM_THREADS', 'OPENBLAS_NUM_THREADS', 'MKL_NUM_THREADS'):
+    os.environ[_var] = '1'
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import platform  # noqa: E402
+import resource  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+
+from obstacle_detection.params import KINECT_V2_SD, PRESETS, Intrinsics  # noqa: E402
+from obstacle_detection.pipeline import STAGES, Detector  # noqa: E402
+from obstacle_detection.scenes import render_scene, scene_params  # noqa: E402
+
+#: (label, (width, height), intrinsics). 960x540 is the Kinect v2 colour stream at half size.
+SIZES = {
+    '512x424': ((512, 424), KINECT_V2_SD),
+    '960x540': ((960, 540), Intrinsics(fx=540.7, fy=540.7, cx=479.75, cy=269.75)),
+}
+DEFAULT_SCENES = ('corridor', 'people', 'ramps', 'farm_row')
+
+
+def pin_one_cpu() -> str:
+    """Pin this process to one CPU; return a description for the report."""
+    cv2.setNumThreads(1)
+    if hasattr(os, 'sched_setaffinity'):
+        cpu = min(os.sched_getaffinity(0))
+        os.sched_setaffinity(0, {cpu})
+        return f'pinned to CPU {cpu}; BLAS/OpenMP/OpenCV threads = 1; k-d tree workers = 1'
+    return 'not pinned (no sched_setaffinity); BLAS/OpenMP/OpenCV threads = 1'
+
+
+def run_config(scenes: tuple[str, ...], size_label: str, kernel: int, frames: int,
+               preset: str, distinct: int) -> dict:
+    """Time ``frames`` frames of one configuration; return the statistics."""
+    (width, height), intr = SIZES[size_label]
+    rendered = []
+    for name in scenes:
+        for seed in range(distinct):
+            frame = render_scene(name, seed=seed, intrinsics=intr, size=(width, height))
+            params = scene_params(frame, PRESETS[preset](median_kernel=kernel))
+            rendered.append((frame, Detector(params)))
+    Detector(rendered[0][1].params).process(rendered[0][0].depth_mm, rendered[0][0].intrinsics)
+    per_stage = {stage: [] for stage in (*STAGES, 'total')}
+    voxels, obstacles = [], []
+    wall_start = time.perf_counter()
+    for i in range(frames):
+        frame, detector = rendered[i % len(rendered)]
+        result = detector.process(frame.depth_mm, frame.intrinsics)
+        for stage, ms in result.timings_ms.items():
+            per_stage[stage].append(ms)
+        voxels.append(result.voxel_points.shape[0])
+        obstacles.append(result.obstacle_points.shape[0])
+    wall = time.perf_counter() - wall_start
+    stats = {stage: {'median_ms': float(np.median(v)), 'p90_ms': float(np.percentile(v, 90))}
+             for stage, v in per_stage.items()}
+    return {
+        'size': size_label, 'kernel': kernel, 'preset': preset, 'frames': frames,
+        'scenes': list(scenes), 'stages': stats,
+        'fps': frames / wall,
+        'voxels_median': float(np.median(voxels)),
+        'obstacle_points_median': float(np.median(obstacles)),
+    }
+
+
+def format_table(results: list[dict]) -> str:
+    """A fixed-width table: one row per stage, one column pair per configuration."""
+    heads = [f"{r['size']} K={r['kernel']}" for r in results]
+    lines = ['stage          ' + ''.join(f'{h:>22}' for h in heads),
+             '               ' + ''.join(f'{"median ms":>12}{"p90 ms":>10}' for _ in heads)]
+    for stage in (*STAGES, 'total'):
+        row = f'{stage:<15}'
+        for r in results:
+            s = r['stages'][stage]
+            row += f"{s['median_ms']:>12.2f}{s['p90_ms']:>10.2f}"
+        lines.append(row)
+    lines.append('fps (wall)     ' + ''.join(f"{r['fps']:>22.1f}" for r in results))
+    lines.append('voxels (median)' + ''.join(f"{r['voxels_median']:>22.0f}" for r in results))
+    return '\n'.join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the benchmark; print the table and one JSON line."""
+    parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    parser.add_argument('--frames', type=int, default=100, help='frames per configuration')
+    parser.add_argument('--preset', choices=sorted(PRESETS), default='table_4_2')
+    parser.add_argument('--scenes', default=','.join(DEFAULT_SCENES),
+                        help='comma-separated scene names')
+    parser.add_argument('--sizes', default=','.join(SIZES), help='comma-separated sizes')
+    parser.add_argument('--kernels', default='5,17', help='comma-separated median kernels K')
+    parser.add_argument('--distinct', type=int, default=3,
+                        help='distinct seeds rendered per scene (frames cycle over them)')
+    args = parser.parse_args(argv)
+    if args.frames < 1:
+        parser.error('--frames must be >= 1')
+    sizes = args.sizes.split(',')
+    unknown = [s for s in sizes if s not in SIZES]
+    if unknown:
+        parser.error(f'unknown size(s) {unknown}; choose from {list(SIZES)}')
+    scenes = tuple(args.scenes.split(','))
+    kernels = [int(k) for k in args.kernels.split(',')]
+    pinning = pin_one_cpu()
+    print(f'# {pinning}', flush=True)
+    results = []
+    for size_label in sizes:
+        for kernel in kernels:
+            print(f'# {size_label} K={kernel}: {args.frames} frames ...', file=sys.stderr,
+                  flush=True)
+            results.append(run_config(scenes, size_label, kernel, args.frames, args.preset,
+                                      args.distinct))
+    peak_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    print(f'# preset {args.preset}, scenes {", ".join(scenes)}, {args.frames} frames each; '
+          f'{platform.processor() or platform.machine()}, Python {platform.python_version()}, '
+          f'numpy {np.__version__}, OpenCV {cv2.__version__}')
+    print(format_table(results))
+    print(f'peak memory (max RSS): {peak_mib:.0f} MiB')
+    print('JSON ' + json.dumps({'pinning': pinning, 'peak_rss_mib': round(peak_mib, 1),
+                                'results': results}))
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,27 @@
+#!/usr/bin/env bash
+# Create (or refresh) the project's virtual environment .venv with the pinned ROS 2 Jazzy
+# wheels and the Python dependencies, and install this package into it (editable).
+# Idempotent: a second run only checks. Needs Python 3.11 (the Jazzy wheels are built for it).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+PY=${PYTHON:-}
+if [ -z "$PY" ]; then
+  if command -v python3.11 >/dev/null 2>&1; then PY=python3.11; else PY=python3; fi
+fi
+if ! "$PY" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))'; then
+  echo "setup_venv.sh: the ROS 2 Jazzy wheels need Python 3.11; $PY is $("$PY" -V 2>&1)." >&2
+  echo "Set PYTHON=/path/to/python3.11, or use a ROS 2 Jazzy install with colcon (README)." >&2
+  exit 1
+fi
+if [ ! -x .venv/bin/python ]; then
+  "$PY" -m venv .venv
+fi
+stamp=.venv/.installed-$(cat requirements.txt setup.py | sha1sum | cut -c1-12)
+if [ ! -f "$stamp" ]; then
+  .venv/bin/python -m pip install --quiet --upgrade pip
+  .venv/bin/python -m pip install --quiet -r requirements.txt
+  .venv/bin/python -m pip install --quiet --no-deps -e .
+  rm -f .venv/.installed-*
+  touch "$stamp"
+fi
+echo "setup_venv.sh: .venv ready ($(.venv/bin/python -V))" >&2
