@@ -1,0 +1,272 @@
+"""Tests for obstacle_detection.depth: decode, crop, exact median filter (vs. scipy)."""
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from obstacle_detection import depth
+from obstacle_detection.depth import (
+    MEDIAN_MODE,
+    DepthFormatError,
+    crop_borders,
+    decode_depth,
+    median_filter,
+)
+
+ODD_K = list(range(1, 18, 2))
+# Odd sizes, sizes smaller than K (down to 1 x 1) and one larger image.
+SIZES = [(1, 1), (1, 6), (5, 1), (3, 4), (8, 13), (17, 16), (23, 31), (41, 38)]
+
+
+def scipy_median(img: np.ndarray, k: int) -> np.ndarray:
+    return ndimage.median_filter(img, size=k, mode=MEDIAN_MODE)
+
+
+def depth_mm_image(rng: np.random.Generator, shape: tuple[int, int],
+                   zero_fraction: float = 0.3) -> np.ndarray:
+    """uint16 mm frame: a smooth ramp with noise, zero (no return) pixels and zero blocks."""
+    h, w = shape
+    ramp = 800 + 3000 * np.linspace(0, 1, h)[:, None] + 40 * np.linspace(0, 1, w)[None, :]
+    mm = np.rint(ramp + rng.normal(0, 15, shape)).astype(np.uint16)
+    mm[rng.random(shape) < zero_fraction] = 0
+    mm[h // 3:h // 2, w // 4:w // 2] = 0
+    return mm
+
+
+def random_images(rng: np.random.Generator, shape: tuple[int, int]) -> dict[str, np.ndarray]:
+    """Named test images of one shape covering every median code path."""
+    n = shape[0] * shape[1]
+    arbitrary_values = rng.normal(2.0, 1.5, size=max(n // 3, 1)).astype(np.float32)
+    return {
+        'uint16_full_range': rng.integers(0, 65536, size=shape).astype(np.uint16),
+        'uint16_small_range': rng.integers(0, 200, size=shape).astype(np.uint16),
+        'float32_mm_many_zeros': decode_depth(depth_mm_image(rng, shape, 0.45)),
+        # arbitrary floats (not millimetres), some negative, <= 65536 distinct values
+        'float32_arbitrary': rng.choice(arbitrary_values, size=shape),
+    }
+
+
+# --------------------------------------------------------------------------- decode
+
+
+def test_decode_uint16_millimetres() -> None:
+    raw = np.array([[0, 1, 1000], [1500, 4500, 65535]], dtype=np.uint16)
+    out = decode_depth(raw)
+    assert out.dtype == np.float32 and out.shape == raw.shape and out.flags.c_contiguous
+    expected = np.array([[0.0, 0.001, 1.0], [1.5, 4.5, 65.535]], dtype=np.float32)
+    np.testing.assert_array_equal(out, expected)
+
+
+def test_decode_uint16_tum_scale_and_big_endian() -> None:
+    raw = np.array([[0, 5000, 12345]], dtype=np.uint16)
+    np.testing.assert_allclose(decode_depth(raw, depth_scale=5000),
+                               [[0.0, 1.0, 2.469]], rtol=1e-7)
+    big_endian = raw.astype('>u2')
+    np.testing.assert_array_equal(decode_depth(big_endian, depth_scale=5000),
+                                  decode_depth(raw, depth_scale=5000))
+
+
+@pytest.mark.parametrize('dtype', [np.float32, np.float64])
+def test_decode_float_invalid_values_become_zero(dtype) -> None:
+    raw = np.array([[0.0, np.nan, np.inf, -np.inf], [-0.5, -0.0, 1.25, 3.0]], dtype=dtype)
+    out = decode_depth(raw)
+    assert out.dtype == np.float32 and out.flags.c_contiguous
+    np.testing.assert_array_equal(out, [[0, 0, 0, 0], [0, 0, 1.25, 3.0]])
+    assert not np.signbit(out).any()   # -0.0 is normalised to +0.0 as well
+    assert raw[0, 1] != raw[0, 1]      # input untouched (still NaN)
+
+
+def test_decode_float64_beyond_float32_range_is_no_return() -> None:
+    out = decode_depth(np.array([[1e300, 2.5]]))
+    np.testing.assert_array_equal(out, [[0.0, 2.5]])
+
+
+def test_decode_returns_contiguous_copy_of_a_view() -> None:
+    base = np.arange(24, dtype=np.float32).reshape(4, 6) / 10
+    view = base[:, ::2]
+    out = decode_depth(view)
+    assert out.flags.c_contiguous and not np.shares_memory(out, base)
+    np.testing.assert_array_equal(out, view)
+
+
+@pytest.mark.parametrize('dtype', [np.int8, np.uint8, np.bool_, np.complex64, np.int16,
+                                   np.int32, np.float16])
+def test_decode_rejects_bad_dtype(dtype) -> None:
+    with pytest.raises(DepthFormatError, match=np.dtype(dtype).name):
+        decode_depth(np.zeros((2, 3), dtype=dtype))
+
+
+@pytest.mark.parametrize('shape', [(5,), (2, 3, 1), (0, 4), (3, 0), ()])
+def test_decode_rejects_bad_shape(shape) -> None:
+    with pytest.raises(DepthFormatError, match=r'shape \(' + ', ?'.join(map(str, shape))):
+        decode_depth(np.zeros(shape, dtype=np.uint16))
+
+
+def test_decode_format_error_is_a_value_error() -> None:
+    assert issubclass(DepthFormatError, ValueError)
+
+
+def test_decode_rejects_bad_scale() -> None:
+    raw = np.ones((2, 2), np.uint16)
+    for scale in (0, -1000, np.nan, np.inf):
+        with pytest.raises(ValueError, match='depth_scale'):
+            decode_depth(raw, depth_scale=scale)
+    with pytest.raises(DepthFormatError, match='uint16'):
+        decode_depth(np.ones((2, 2), np.float32), depth_scale=1000)
+
+
+# --------------------------------------------------------------------------- crop
+
+
+def test_crop_boundaries_exact() -> None:
+    img = np.arange(1, 7 * 9 + 1, dtype=np.float32).reshape(7, 9)
+    out = crop_borders(img, 1, 2, 3, 4)
+    assert out.shape == img.shape and out.dtype == img.dtype and out.flags.c_contiguous
+    assert not np.shares_memory(out, img)
+    kept = np.zeros(img.shape, bool)
+    kept[1:7 - 2, 3:9 - 4] = True
+    np.testing.assert_array_equal(out[kept], img[kept])
+    assert (out[~kept] == 0).all()
+    # just inside kept, just outside zeroed
+    assert out[1, 3] == img[1, 3] and out[4, 4] == img[4, 4]
+    assert out[0, 3] == 0 and out[5, 3] == 0 and out[1, 2] == 0 and out[1, 5] == 0
+
+
+def test_crop_zero_margins_is_a_copy() -> None:
+    img = np.ones((3, 4), np.float32)
+    out = crop_borders(img, 0, 0, 0, 0)
+    np.testing.assert_array_equal(out, img)
+    assert not np.shares_memory(out, img)
+
+
+@pytest.mark.parametrize('margins', [(3, 0, 0, 0), (0, 3, 0, 0), (2, 1, 0, 0), (0, 0, 5, 0),
+                                     (0, 0, 0, 5), (0, 0, 2, 3), (100, 100, 100, 100)])
+def test_crop_covering_whole_image_gives_zeros(margins) -> None:
+    out = crop_borders(np.ones((3, 5), np.float32), *margins)
+    assert out.shape == (3, 5) and not out.any()
+
+
+def test_crop_rejects_negative_margin() -> None:
+    with pytest.raises(ValueError, match='left'):
+        crop_borders(np.ones((3, 3), np.float32), 0, 0, -1, 0)
+
+
+# --------------------------------------------------------------------------- median
+
+
+@pytest.mark.parametrize('shape', SIZES)
+def test_median_equals_scipy(shape) -> None:
+    rng = np.random.default_rng(sum(shape))
+    for name, img in random_images(rng, shape).items():
+        for k in ODD_K:
+            out = median_filter(img, k)
+            assert out.dtype == img.dtype and out.shape == img.shape, name
+            assert out.flags.c_contiguous, name
+            np.testing.assert_array_equal(out, scipy_median(img, k), err_msg=f'{name} K={k}')
+
+
+@pytest.mark.parametrize('k', [3, 7, 17])
+def test_median_network_path_directly(k) -> None:
+    """The sorting network itself on raw uint16, float32, float64 and int32 images."""
+    rng = np.random.default_rng(k)
+    for shape in [(2, 3), (19, 29), (33, 20)]:
+        for img in (rng.integers(0, 65536, shape).astype(np.uint16),
+                    rng.normal(0, 1, shape).astype(np.float32),
+                    rng.normal(0, 1, shape),
+                    rng.integers(-5, 5, shape).astype(np.int32)):
+            np.testing.assert_array_equal(depth._network_median(img, k), scipy_median(img, k))
+
+
+def test_median_float32_with_more_than_65536_distinct_values() -> None:
+    rng = np.random.default_rng(7)
+    img = rng.random((300, 260), dtype=np.float32)
+    assert np.unique(img).size > 65536
+    for k in (5, 9):
+        np.testing.assert_array_equal(median_filter(img, k), scipy_median(img, k))
+
+
+def test_median_other_dtypes() -> None:
+    rng = np.random.default_rng(3)
+    imgs = [rng.integers(0, 256, (20, 25)).astype(np.uint8),
+            decode_depth(depth_mm_image(rng, (20, 25))).astype(np.float64),
+            rng.normal(0, 1, (20, 25)),
+            rng.integers(-1000, 1000, (20, 25)).astype(np.int16)]
+    for img in imgs:
+        for k in (3, 5, 9, 15):
+            np.testing.assert_array_equal(median_filter(img, k), scipy_median(img, k),
+                                          err_msg=f'{img.dtype} K={k}')
+
+
+def test_median_inf_and_nan_match_scipy() -> None:
+    rng = np.random.default_rng(11)
+    img = decode_depth(depth_mm_image(rng, (15, 18)))
+    img[2, 3] = np.inf
+    for k in (3, 7):
+        np.testing.assert_array_equal(median_filter(img, k), scipy_median(img, k))
+    img[5, 5] = np.nan   # delegated to scipy
+    np.testing.assert_array_equal(median_filter(img, 5), scipy_median(img, 5))
+
+
+def test_median_realistic_frame_size() -> None:
+    rng = np.random.default_rng(5)
+    img = decode_depth(depth_mm_image(rng, (424, 512), 0.05))
+    for k in (5, 17):
+        np.testing.assert_array_equal(median_filter(img, k), scipy_median(img, k))
+
+
+def test_median_k1_is_a_copy() -> None:
+    img = np.arange(12, dtype=np.float32).reshape(3, 4)
+    out = median_filter(img, 1)
+    np.testing.assert_array_equal(out, img)
+    assert not np.shares_memory(out, img)
+
+
+def test_median_fills_isolated_pepper_zero() -> None:
+    img = np.full((9, 11), 1.5, np.float32)
+    img[4, 5] = 0.0
+    for k in (3, 5, 7):
+        np.testing.assert_array_equal(median_filter(img, k), np.full_like(img, 1.5))
+
+
+def test_median_removes_isolated_valid_pixel_among_zeros() -> None:
+    img = np.zeros((9, 9), np.float32)
+    img[4, 4] = 2.0
+    assert not median_filter(img, 3).any()
+
+
+def test_median_does_not_modify_input() -> None:
+    rng = np.random.default_rng(2)
+    img = decode_depth(depth_mm_image(rng, (20, 20)))
+    before = img.copy()
+    median_filter(img, 7)
+    np.testing.assert_array_equal(img, before)
+
+
+@pytest.mark.parametrize('k', [0, -1, -3, 2, 4, 16])
+def test_median_rejects_bad_kernel(k) -> None:
+    with pytest.raises(ValueError, match='odd'):
+        median_filter(np.ones((5, 5), np.float32), k)
+
+
+def test_median_rejects_non_integer_kernel() -> None:
+    with pytest.raises(TypeError):
+        median_filter(np.ones((5, 5), np.float32), 3.0)
+
+
+@pytest.mark.parametrize('img', [np.ones((5,), np.float32), np.ones((0, 3), np.float32),
+                                 np.ones((2, 2, 2), np.float32), np.ones((3, 3), bool),
+                                 np.ones((3, 3), np.complex64)])
+def test_median_rejects_bad_image(img) -> None:
+    with pytest.raises(DepthFormatError, match=r'shape|dtype'):
+        median_filter(img, 3)
+
+
+def test_median_decoded_frames_take_the_millimetre_key_path() -> None:
+    rng = np.random.default_rng(4)
+    frame = decode_depth(depth_mm_image(rng, (30, 40)))
+    keys, values = depth._order_keys(frame)
+    assert values is depth._depth_lut(depth.MM_PER_M, 'float32')
+    np.testing.assert_array_equal(np.take(values, keys), frame)
+    tum = decode_depth(depth_mm_image(rng, (30, 40)), depth_scale=5000)  # rank path
+    for k in (7, 11):
+        np.testing.assert_array_equal(median_filter(tum, k), scipy_median(tum, k))
