@@ -354,9 +354,11 @@ PARAM_ALIASES = {'theta': 'max_slope_rad', 'N': 'normal_neighbours',
 
 
 def apply_overrides(base: DetectorParams, overrides: dict[str, Any]) -> DetectorParams:
-    """``base`` with overrides by field name, seed alias (theta, N, N1, K, TDBG, SMAR), a
-    ``<field>`` with ``_deg`` instead of ``_rad`` (degrees), or ``voxel_m``/``voxel``/
-    ``voxel_mm`` (all three voxel sizes). Raises ValueError naming an unknown key or bad value.
+    """Return ``base`` with some parameters changed, by name (values may be strings).
+
+    Keys: a field name, a seed alias (theta, N, N1, K, TDBG, SMAR), a ``<field>`` with
+    ``_deg`` instead of ``_rad`` (degrees), or ``voxel_m``/``voxel``/``voxel_mm`` (all three
+    voxel sizes). Raises ValueError naming an unknown key or a bad value.
     """
     fields = set(base.as_dict())
     changes: dict[str, Any] = {}

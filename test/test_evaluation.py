@@ -114,7 +114,7 @@ def test_labelled_folder_with_bad_label_value(tmp_path):
 
 
 class _RecordingRefiner:
-    """Stands in for a LogisticRefiner: predicts the truth-free rule-based mask, logs calls."""
+    """A stand-in LogisticRefiner: predicts the rule-based mask and logs its inputs."""
 
     def __init__(self):
         self.previous = []

@@ -77,8 +77,10 @@ def parse_axis(text: str) -> Axis:
 
 def best_of_grid(scores: np.ndarray, *, higher_is_better: bool = True,
                  ) -> tuple[int, ...] | None:
-    """Index of the best finite score of a grid (2-D: (row, col)); ties go to the first in
-    row-major order; None when no score is finite."""
+    """Index of the best finite score of a grid (2-D: (row, col)).
+
+    Ties go to the first in row-major order; None when no score is finite.
+    """
     grid = np.asarray(scores, dtype=np.float64)
     if grid.ndim < 1:
         raise ValueError(f'scores must be a grid, got shape {grid.shape}')
