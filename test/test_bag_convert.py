@@ -1,4 +1,4 @@
-"""Tests of tools/bag_convert.py: every layout converts, reads back intact, bad input fails cleanly."""
+"""Tests of tools/bag_convert.py: each layout converts and reads back intact; bad input fails."""
 
 from __future__ import annotations
 
@@ -130,9 +130,10 @@ def test_folder_round_trip(tmp_path: Path, depths: list[np.ndarray], storage: st
     root = make_folder(tmp_path / 'data', depths)
     yaml_path = write_intrinsics(tmp_path / 'camera.yaml')
     bag = tmp_path / 'out'
-    code, out, _ = run(['folder', str(root / 'depth'), str(bag), '--color-dir', str(root / 'color'),
-                        '--intrinsics', str(yaml_path), '--rate', '10', '--start-time', '100',
-                        '--storage', storage, '--color-encoding', encoding], capsys)
+    code, out, _ = run(['folder', str(root / 'depth'), str(bag), '--color-dir',
+                        str(root / 'color'), '--intrinsics', str(yaml_path), '--rate', '10',
+                        '--start-time', '100', '--storage', storage, '--color-encoding',
+                        encoding], capsys)
     assert code == 0
     assert 'frames: 4 depth' in out
     assert [p.suffix for p in bag.iterdir() if p.name != 'metadata.yaml'] == [

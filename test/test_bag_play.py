@@ -19,7 +19,6 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image
 
 from obstacle_detection.conversions import image_to_array
-from obstacle_detection.params import Intrinsics
 from tools import bag_convert, bag_play
 
 REPO = Path(__file__).resolve().parents[1]

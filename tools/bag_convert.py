@@ -292,7 +292,8 @@ def _require_dir(path: Path, what: str) -> None:
         raise ConvertError(f'{path}: {what} folder not found')
 
 
-def _optional_intrinsics(path: Path | None) -> tuple[Intrinsics | None, str, tuple[int, int] | None]:
+def _optional_intrinsics(path: Path | None
+                         ) -> tuple[Intrinsics | None, str, tuple[int, int] | None]:
     if path is None:
         return None, '', None
     intr, size = load_intrinsics(path)

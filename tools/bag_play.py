@@ -72,7 +72,8 @@ class PlayOptions:
         if not (math.isfinite(self.start_offset_s) and self.start_offset_s >= 0):
             raise PlayError(f'--start-offset must be >= 0 s, got {self.start_offset_s}')
         if self.wait_for_subscribers < 0:
-            raise PlayError(f'--wait-for-subscribers must be >= 0, got {self.wait_for_subscribers}')
+            raise PlayError('--wait-for-subscribers must be >= 0, got '
+                            f'{self.wait_for_subscribers}')
 
 
 @dataclasses.dataclass
