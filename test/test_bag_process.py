@@ -1,0 +1,344 @@
+"""Tests of tools/bag_process.py: offline output equals the node's messages for the same frames."""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+from builtin_interfaces.msg import Time
+from rclpy.serialization import deserialize_message, serialize_message
+from rosbags.rosbag2 import Reader, Writer
+from rosbags.typesys import Stores, get_typestore
+from nav_msgs.msg import OccupancyGrid
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+
+from obstacle_detection.conversions import (array_to_image, intrinsics_to_camera_info,
+                                            result_to_messages)
+from obstacle_detection.params import KINECT_V2_SD, Intrinsics
+from obstacle_detection.pipeline import Detector
+from obstacle_detection.ros_params import detector_params_from_ros
+from obstacle_detection.scenes import render_scene
+from tools import bag_convert, bag_process
+
+REPO = Path(__file__).resolve().parents[1]
+JAZZY = get_typestore(Stores.ROS2_JAZZY)
+DEPTH = bag_convert.DEFAULT_DEPTH_TOPIC
+INFO = bag_convert.DEFAULT_INFO_TOPIC
+SIZE = (128, 106)  # a quarter of the Kinect v2 SD image
+INTR = Intrinsics(KINECT_V2_SD.fx / 4, KINECT_V2_SD.fy / 4, KINECT_V2_SD.cx / 4,
+                  KINECT_V2_SD.cy / 4)
+FRAME_ID = 'kinect2_ir_optical_frame'
+T0_NS = 1_700_000_000_000_000_000
+PERIOD_NS = 33_333_333
+#: Parameters of the tests: the node's format, small kernels for a small image.
+PARAMS_YAML = """\
+obstacle_detector:
+  ros__parameters:
+    median_kernel: 5
+    normal_neighbours: 8
+    validation_neighbours: 6
+    max_range_m: 2.5
+    costmap_length_m: 2.5
+    cloud_frame_id: base_link
+    publish_ground: true
+    publish_overlay: true
+"""
+PARAM_VALUES = {'median_kernel': 5, 'normal_neighbours': 8, 'validation_neighbours': 6,
+                'max_range_m': 2.5, 'costmap_length_m': 2.5}
+OUTPUT_TOPICS = {'obstacles': '/obstacles/points', 'costmap': '/obstacles/costmap',
+                 'ground': '/obstacles/ground_points', 'overlay': '/obstacles/overlay'}
+OUTPUT_TYPES = {'/obstacles/points': PointCloud2, '/obstacles/costmap': OccupancyGrid,
+                '/obstacles/ground_points': PointCloud2, '/obstacles/overlay': Image}
+
+
+def to_time(ns: int) -> Time:
+    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+def frames() -> list[np.ndarray]:
+    return [render_scene(name, seed=k, intrinsics=INTR, size=SIZE).depth_mm
+            for k, name in enumerate(('corridor', 'people', 'corridor'))]
+
+
+def write_bag(path: Path, items: list[tuple[str, int, object]]) -> None:
+    """A rosbag2 with (topic, bag timestamp, rclpy message) items, in the order given."""
+    with Writer(path, version=9) as writer:
+        conns = {}
+        for topic, _, msg in items:
+            if topic not in conns:
+                msgtype = type(msg).__module__.split('.')[0] + '/msg/' + type(msg).__name__
+                conns[topic] = writer.add_connection(topic, msgtype, typestore=JAZZY)
+        for topic, timestamp, msg in items:
+            writer.write(conns[topic], timestamp, serialize_message(msg))
+
+
+def read_raw(path: Path) -> dict[str, list[tuple[int, bytes]]]:
+    topics: dict[str, list[tuple[int, bytes]]] = {}
+    with Reader(path) as reader:
+        for conn, timestamp, raw in reader.messages():
+            topics.setdefault(conn.topic, []).append((timestamp, bytes(raw)))
+    return topics
+
+
+def frame_messages(depths: list[np.ndarray], intr: Intrinsics = INTR
+                   ) -> list[tuple[str, int, object]]:
+    items: list[tuple[str, int, object]] = []
+    for k, depth in enumerate(depths):
+        t = T0_NS + k * PERIOD_NS
+        info = intrinsics_to_camera_info(intr, SIZE[0], SIZE[1], stamp=to_time(t),
+                                         frame_id=FRAME_ID)
+        items.append((INFO, t, info))
+        items.append((DEPTH, t, array_to_image(depth, stamp=to_time(t), frame_id=FRAME_ID)))
+    return items
+
+
+def expected_outputs(depth: np.ndarray, intr: Intrinsics, t: int) -> dict[str, object]:
+    """The messages result_to_messages gives in-process for one frame, as they read back.
+
+    A serialization round trip stores float32 fields (OccupancyGrid's resolution) as float32,
+    so the in-process messages are compared after one.
+    """
+    detector = Detector(detector_params_from_ros(PARAM_VALUES))
+    messages = result_to_messages(
+        detector.process(depth, intr), stamp=to_time(t), cloud_frame_id='base_link',
+        costmap_frame_id='base_footprint', image_frame_id=FRAME_ID, with_ground=True,
+        with_overlay=True)
+    return {key: deserialize_message(serialize_message(msg), type(msg))
+            for key, msg in messages.items()}
+
+
+def decoded(topic: str, raw: bytes) -> object:
+    """The rclpy message of a serialized output.
+
+    Messages are compared field by field, not as bytes: rclpy leaves CDR padding bytes
+    uninitialised, so equal messages may serialize to different bytes.
+    """
+    return deserialize_message(raw, OUTPUT_TYPES[topic])
+
+
+@pytest.fixture(scope='module')
+def depths() -> list[np.ndarray]:
+    return frames()
+
+
+@pytest.fixture(scope='module')
+def params_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp('params') / 'params.yaml'
+    path.write_text(PARAMS_YAML)
+    return path
+
+
+@pytest.fixture(scope='module')
+def processed(tmp_path_factory: pytest.TempPathFactory, depths: list[np.ndarray],
+              params_file: Path) -> tuple[Path, Path, str]:
+    """(input bag, output bag, stdout) of one offline run over the frames."""
+    root = tmp_path_factory.mktemp('process')
+    write_bag(root / 'in', frame_messages(depths))
+    out = subprocess.run(
+        [sys.executable, str(REPO / 'tools' / 'bag_process.py'), str(root / 'in'),
+         str(root / 'out'), '--params-file', str(params_file)],
+        cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    return root / 'in', root / 'out', out.stdout
+
+
+def test_outputs_equal_result_to_messages_in_process(
+        processed: tuple[Path, Path, str], depths: list[np.ndarray]) -> None:
+    _, out_bag, _ = processed
+    got = read_raw(out_bag)
+    for key, topic in OUTPUT_TOPICS.items():
+        assert len(got[topic]) == len(depths)
+    for k, depth in enumerate(depths):
+        t = T0_NS + k * PERIOD_NS
+        want = expected_outputs(depth, INTR, t)
+        for key, topic in OUTPUT_TOPICS.items():
+            timestamp, raw = got[topic][k]
+            assert timestamp == t
+            assert decoded(topic, raw) == want[key], f'{topic} of frame {k} differs'
+
+
+def test_inputs_are_copied_unchanged(processed: tuple[Path, Path, str]) -> None:
+    in_bag, out_bag, _ = processed
+    source, copy = read_raw(in_bag), read_raw(out_bag)
+    for topic in (DEPTH, INFO):
+        assert copy[topic] == source[topic]
+
+
+def test_output_stamps_and_types_read_back(processed: tuple[Path, Path, str]) -> None:
+    _, out_bag, stdout = processed
+    with Reader(out_bag) as reader:
+        types = {c.topic: c.msgtype for c in reader.connections}
+        for conn, timestamp, raw in reader.messages():
+            msg = JAZZY.deserialize_cdr(raw, conn.msgtype)
+            assert msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec == timestamp
+    assert types['/obstacles/points'] == 'sensor_msgs/msg/PointCloud2'
+    assert types['/obstacles/costmap'] == 'nav_msgs/msg/OccupancyGrid'
+    assert types['/obstacles/overlay'] == 'sensor_msgs/msg/Image'
+    assert 'frame     0 @ 1700000000.000000000:' in stdout
+    assert 'processed 3, skipped 0' in stdout
+
+
+def test_latest_camera_info_before_each_frame(tmp_path: Path, depths: list[np.ndarray],
+                                              params_file: Path,
+                                              capsys: pytest.CaptureFixture[str]) -> None:
+    other = Intrinsics(INTR.fx * 1.2, INTR.fy * 1.2, INTR.cx + 3, INTR.cy - 2)
+    t = [T0_NS + k * PERIOD_NS for k in range(3)]
+    stamp = [to_time(x) for x in t]
+    info = [intrinsics_to_camera_info(i, SIZE[0], SIZE[1], stamp=s, frame_id=FRAME_ID)
+            for i, s in ((INTR, stamp[0]), (other, stamp[1]))]
+    items = [
+        (DEPTH, t[0], array_to_image(depths[0], stamp=stamp[0], frame_id=FRAME_ID)),
+        (INFO, t[0] + 1, info[0]),  # after frame 0: frame 0 has no camera info
+        (DEPTH, t[1], array_to_image(depths[1], stamp=stamp[1], frame_id=FRAME_ID)),
+        (DEPTH, t[2], array_to_image(depths[2], stamp=stamp[2], frame_id=FRAME_ID)),
+        (INFO, t[2], info[1]),  # written after, same bag time as frame 2: counts as before it
+    ]
+    write_bag(tmp_path / 'in', items)
+    code = bag_process.main([str(tmp_path / 'in'), str(tmp_path / 'out'), '--params-file',
+                             str(params_file)])
+    out = capsys.readouterr().out
+    assert code == 0
+    assert 'skipped 1: no camera info recorded before the frame' in out
+    got = read_raw(tmp_path / 'out')
+    assert [ts for ts, _ in got['/obstacles/costmap']] == [t[1], t[2]]
+    points = [decoded('/obstacles/points', raw) for _, raw in got['/obstacles/points']]
+    assert points[0] == expected_outputs(depths[1], INTR, t[1])['obstacles']
+    assert points[1] == expected_outputs(depths[2], other, t[2])['obstacles']
+    assert points[0] != expected_outputs(depths[1], other, t[1])['obstacles']
+
+
+def test_load_params_file_matches_node_format(params_file: Path) -> None:
+    values = bag_process.load_params_file(params_file)
+    assert values['median_kernel'] == 5 and values['publish_ground'] is True
+    config = bag_process.config_from_values(values, str(params_file))
+    assert config.detector.params == detector_params_from_ros(PARAM_VALUES)
+    corridor = bag_process.load_params_file(REPO / 'params' / 'corridor.yaml')
+    assert bag_process.config_from_values(corridor, 'corridor').detector.params.median_kernel \
+        == 17
+
+
+@pytest.mark.parametrize(('text', 'match'), [
+    ('obstacle_detector:\n  ros__parameters:\n    voxel_x_m: 1\n', "voxel_x_m.*float"),
+    ('obstacle_detector:\n  ros__parameters:\n    no_such: 1\n', "unknown parameter 'no_such'"),
+    ('other_node:\n  ros__parameters: {}\n', 'no "obstacle_detector"'),
+    ('obstacle_detector:\n  ros__parameters:\n    median_kernel: 4\n', 'median_kernel'),
+])
+def test_bad_params_file(tmp_path: Path, text: str, match: str, depths: list[np.ndarray],
+                         capsys: pytest.CaptureFixture[str]) -> None:
+    write_bag(tmp_path / 'in', frame_messages(depths[:1]))
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text(text)
+    code = bag_process.main([str(tmp_path / 'in'), str(tmp_path / 'out'), '--params-file',
+                             str(bad)])
+    err = capsys.readouterr().err
+    assert code == 1
+    assert str(bad) in err
+    assert re.search(match, err)
+    assert not (tmp_path / 'out').exists()
+
+
+def test_bad_bags(tmp_path: Path, depths: list[np.ndarray],
+                  capsys: pytest.CaptureFixture[str]) -> None:
+    missing = tmp_path / 'missing'
+    assert bag_process.main([str(missing), str(tmp_path / 'out')]) == 1
+    assert str(missing) in capsys.readouterr().err
+    write_bag(tmp_path / 'in', frame_messages(depths[:1]))
+    assert bag_process.main([str(tmp_path / 'in'), str(tmp_path / 'out'), '--depth-topic',
+                             '/nope']) == 1
+    err = capsys.readouterr().err
+    assert '/nope' in err and DEPTH in err
+    (tmp_path / 'exists').mkdir()
+    assert bag_process.main([str(tmp_path / 'in'), str(tmp_path / 'exists')]) == 1
+    assert str(tmp_path / 'exists') in capsys.readouterr().err
+    assert list((tmp_path / 'exists').iterdir()) == []
+    assert not list(tmp_path.glob('.*partial*'))
+
+
+# -------------------------------------------------------------------------------------------
+# The running node gives the same messages as the offline run.
+
+
+@pytest.fixture()
+def node_env(tmp_path: Path) -> Iterator[dict[str, str]]:
+    import ros_env
+
+    env = ros_env.loopback_env('test_bag_process', log_dir=tmp_path / 'ros_log')
+    env['PYTHONPATH'] = os.pathsep.join([str(REPO), env.get('PYTHONPATH', '')])
+    old = ros_env.apply(env)
+    yield env
+    ros_env.restore(old)
+
+
+def test_running_node_publishes_the_offline_messages(
+        processed: tuple[Path, Path, str], params_file: Path, node_env: dict[str, str],
+        tmp_path: Path) -> None:
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+    in_bag, out_bag, _ = processed
+    offline = read_raw(out_bag)
+    inputs = read_raw(in_bag)
+    log = (tmp_path / 'node.log').open('w')
+    node_proc = subprocess.Popen(
+        [sys.executable, '-m', 'obstacle_detection.node', '--ros-args', '--params-file',
+         str(params_file), '-p', 'reliable_input:=true', '-r', f'depth/image_raw:={DEPTH}',
+         '-r', f'depth/camera_info:={INFO}'],
+        cwd=REPO, env=node_env, stdout=log, stderr=subprocess.STDOUT)
+    context = rclpy.context.Context()
+    rclpy.init(context=context)
+    node = Node('node_equality_probe', context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+    received: dict[str, list[bytes]] = {topic: [] for topic in OUTPUT_TOPICS.values()}
+    try:
+        subs = [node.create_subscription(OUTPUT_TYPES[topic], topic,
+                                         lambda m, t=topic: received[t].append(m), reliable)
+                for topic in OUTPUT_TOPICS.values()]
+        depth_pub = node.create_publisher(Image, DEPTH, reliable)
+        info_pub = node.create_publisher(CameraInfo, INFO, reliable)
+
+        def spin_until(done, timeout_s: float) -> bool:
+            deadline = time.monotonic() + timeout_s
+            while not done():
+                if time.monotonic() > deadline or node_proc.poll() is not None:
+                    return False
+                executor.spin_once(timeout_sec=0.05)
+            return True
+
+        assert spin_until(lambda: depth_pub.get_subscription_count() and
+                          info_pub.get_subscription_count() and
+                          all(s.get_publisher_count() for s in subs), 30.0), 'no node'
+        for k, ((_, info_raw), (_, depth_raw)) in enumerate(zip(inputs[INFO], inputs[DEPTH])):
+            info_pub.publish(info_raw)
+            spin_until(lambda: False, 0.2)  # let the node take the camera info first
+            depth_pub.publish(depth_raw)
+            assert spin_until(lambda: all(len(v) > k for v in received.values()), 30.0), \
+                f'no output for frame {k}'
+        for topic, messages in received.items():
+            assert messages == [decoded(topic, raw) for _, raw in offline[topic]], topic
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        context.try_shutdown()
+        node_proc.terminate()
+        node_proc.wait(timeout=10)
+        log.close()
+
+
+def test_deserialized_offline_messages_are_rclpy_readable(processed: tuple[Path, Path, str]
+                                                          ) -> None:
+    _, out_bag, _ = processed
+    got = read_raw(out_bag)
+    grid = deserialize_message(got['/obstacles/costmap'][0][1], OccupancyGrid)
+    assert grid.header.frame_id == 'base_footprint'
+    assert grid.info.width > 0 and len(grid.data) == grid.info.width * grid.info.height

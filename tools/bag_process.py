@@ -1,0 +1,368 @@
+#!/usr/bin/env python3
+"""Run the obstacle detector over a whole rosbag2 bag offline, as fast as the machine allows.
+
+No DDS and no ROS graph: every depth frame of the bag goes through the same code as the node
+(``Detector.process`` then ``conversions.result_to_messages``, with the node's parameters read
+from its ``--params-file`` YAML), paired with the latest camera info recorded at or before it.
+The output bag holds every input message unchanged plus, per processed frame, the obstacle cloud
+(``<namespace>/points``), the costmap (``<namespace>/costmap``) and, if asked or set in the
+params file, the ground cloud (``<namespace>/ground_points``) and the overlay image
+(``<namespace>/overlay``); each output carries the source depth image's header stamp and bag
+timestamp. Frames the node would skip (no camera info, size mismatch, unsupported encoding, no
+valid depth) are skipped and counted with the reason.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import io
+import statistics
+import sys
+from collections import Counter
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+if __package__ in (None, ''):  # run as a script: make the repository root importable
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import numpy as np  # noqa: E402
+import yaml  # noqa: E402
+from rclpy.serialization import deserialize_message, serialize_message  # noqa: E402
+from rosbags.rosbag2 import Reader, ReaderError, Writer, WriterError  # noqa: E402
+from rosbags.typesys import Stores, get_typestore  # noqa: E402
+from sensor_msgs.msg import CameraInfo, Image  # noqa: E402
+
+from obstacle_detection.conversions import (DEPTH_ENCODINGS, ImageFormatError,  # noqa: E402
+                                            camera_info_to_intrinsics, image_to_array,
+                                            result_to_messages)
+from obstacle_detection.node import NODE_NAME, NodeConfig, build_config  # noqa: E402
+from obstacle_detection.params import Intrinsics  # noqa: E402
+from obstacle_detection.ros_params import ALL_PARAMS, SPECS_BY_NAME  # noqa: E402
+from tools.bag_convert import (BAG_VERSION, DEFAULT_DEPTH_TOPIC,  # noqa: E402
+                               DEFAULT_INFO_TOPIC, STORAGES, ConvertError, staged_output)
+from tools.progress import Progress  # noqa: E402
+
+DEFAULT_NAMESPACE = '/obstacles'
+#: result_to_messages key -> (topic below the namespace, message type).
+OUTPUTS = {
+    'obstacles': ('points', 'sensor_msgs/msg/PointCloud2'),
+    'costmap': ('costmap', 'nav_msgs/msg/OccupancyGrid'),
+    'ground': ('ground_points', 'sensor_msgs/msg/PointCloud2'),
+    'overlay': ('overlay', 'sensor_msgs/msg/Image'),
+}
+
+
+class ProcessError(Exception):
+    """Bad input, parameters or output; the message names the file."""
+
+
+def load_params_file(path: Path) -> dict[str, Any]:
+    """All node parameter values: defaults updated with a ``--params-file`` YAML.
+
+    The file has the node's format (``obstacle_detector: ros__parameters: {...}``; ``/**`` and
+    ``/obstacle_detector`` sections are read too). As for the node, a value must have its
+    parameter's type (write 1.0, not 1, for a floating-point one).
+
+    Raises:
+        ProcessError: naming the file and the parameter.
+    """
+    values: dict[str, Any] = {spec.name: spec.default for spec in ALL_PARAMS}
+    try:
+        data = yaml.safe_load(path.read_text())
+    except OSError as err:
+        raise ProcessError(f'{path}: cannot read params file ({err.strerror})') from err
+    except yaml.YAMLError as err:
+        raise ProcessError(f'{path}: not valid YAML ({err})') from err
+    if not isinstance(data, dict):
+        raise ProcessError(f'{path}: expected "{NODE_NAME}: ros__parameters: ..."')
+    sections = [data[key] for key in ('/**', NODE_NAME, f'/{NODE_NAME}') if key in data]
+    if not sections:
+        raise ProcessError(f'{path}: no "{NODE_NAME}" (or "/**") section')
+    for section in sections:
+        params = section.get('ros__parameters') if isinstance(section, dict) else None
+        if not isinstance(params, dict):
+            raise ProcessError(f'{path}: a section lacks "ros__parameters"')
+        for name, value in params.items():
+            spec = SPECS_BY_NAME.get(name)
+            if spec is None:
+                raise ProcessError(f'{path}: unknown parameter {name!r}')
+            want = type(spec.default)
+            if type(value) is not want:
+                raise ProcessError(f'{path}: parameter {name!r} must be a {want.__name__}, '
+                                   f'got {value!r}')
+            values[name] = value
+    return values
+
+
+def config_from_values(values: Mapping[str, Any], origin: str) -> NodeConfig:
+    """The node's configuration (detector, frames, switches) from parameter values."""
+    try:
+        return build_config(dict(values))
+    except ValueError as err:
+        raise ProcessError(f'{origin}: {err}') from err
+
+
+@dataclasses.dataclass
+class FrameReport:
+    """One processed (or skipped) depth frame."""
+
+    index: int
+    stamp_ns: int
+    obstacle_points: int = 0
+    timings_ms: dict[str, float] = dataclasses.field(default_factory=dict)
+    skipped: str | None = None
+
+
+@dataclasses.dataclass
+class ProcessSummary:
+    """What an offline run did."""
+
+    output: Path
+    frames: int = 0
+    processed: int = 0
+    skipped: Counter[str] = dataclasses.field(default_factory=Counter)
+    total_ms: list[float] = dataclasses.field(default_factory=list)
+    wall_s: float = 0.0
+    topics: dict[str, int] = dataclasses.field(default_factory=dict)
+
+    def lines(self) -> list[str]:
+        """Return the summary as printable lines."""
+        out = [f'wrote {self.output}',
+               f'  depth frames: {self.frames}, processed {self.processed}, '
+               f'skipped {sum(self.skipped.values())}']
+        out.extend(f'    skipped {count}: {reason}' for reason, count in self.skipped.items())
+        if self.total_ms:
+            rate = self.processed / self.wall_s if self.wall_s > 0 else 0.0
+            out.append(f'  pipeline time per frame: mean {statistics.fmean(self.total_ms):.1f} ms,'
+                       f' median {statistics.median(self.total_ms):.1f} ms, '
+                       f'max {max(self.total_ms):.1f} ms; {rate:.1f} frames/s overall '
+                       f'({self.wall_s:.2f} s)')
+        out.extend(f'  {topic}: {count} messages' for topic, count in self.topics.items())
+        return out
+
+
+def _time_msg(stamp: Any) -> Any:
+    from builtin_interfaces.msg import Time
+    return Time(sec=int(stamp.sec), nanosec=int(stamp.nanosec))
+
+
+def frame_intrinsics(depth: Image, info: CameraInfo | None, config: NodeConfig
+                     ) -> tuple[Intrinsics | None, str | None]:
+    """The intrinsics the node would use for ``depth``, or why it would skip the frame."""
+    if info is None:
+        if config.use_fallback_intrinsics:
+            return config.fallback_intrinsics, None
+        return None, 'no camera info recorded before the frame'
+    try:
+        intrinsics = camera_info_to_intrinsics(info)
+    except ValueError as err:
+        return None, str(err)
+    if info.width and info.height and (info.width, info.height) != (depth.width, depth.height):
+        return None, (f'image is {depth.width}x{depth.height} but the camera info is '
+                      f'{info.width}x{info.height}')
+    return intrinsics, None
+
+
+def process_frame(depth: Image, info: CameraInfo | None, config: NodeConfig, *,
+                  with_ground: bool, with_overlay: bool) -> tuple[dict[str, Any] | None, Any, str]:
+    """Run one depth message through the node's steps.
+
+    Returns (messages from result_to_messages, the DetectionResult, '') or (None, None, the
+    reason the node would skip the frame).
+    """
+    if depth.encoding not in DEPTH_ENCODINGS:
+        return None, None, f'unsupported encoding {depth.encoding!r}'
+    try:
+        array = image_to_array(depth)
+    except ImageFormatError as err:
+        return None, None, str(err)
+    intrinsics, reason = frame_intrinsics(depth, info, config)
+    if intrinsics is None:
+        return None, None, str(reason)
+    valid = (np.isfinite(array) & (array > 0)) if array.dtype.kind == 'f' else array > 0
+    if not valid.any():
+        return None, None, 'no valid depth pixel'
+    try:
+        result = config.detector.process(array, intrinsics)
+    except ValueError as err:
+        return None, None, str(err)
+    messages = result_to_messages(
+        result, stamp=depth.header.stamp, cloud_frame_id=config.cloud_frame_id,
+        costmap_frame_id=config.costmap_frame_id, image_frame_id=depth.header.frame_id,
+        with_ground=with_ground, with_overlay=with_overlay)
+    return messages, result, ''
+
+
+def _grouped_by_timestamp(messages: Iterator[tuple[Any, int, bytes]], info_topic: str
+                          ) -> Iterator[tuple[Any, int, bytes]]:
+    """Messages in bag order, camera infos first among those with the same timestamp."""
+    group: list[tuple[Any, int, bytes]] = []
+    for item in messages:
+        if group and item[1] != group[0][1]:
+            yield from sorted(group, key=lambda m: m[0].topic != info_topic)
+            group = []
+        group.append(item)
+    yield from sorted(group, key=lambda m: m[0].topic != info_topic)
+
+
+def process_bag(src: Path, output: Path, config: NodeConfig, *,
+                depth_topic: str = DEFAULT_DEPTH_TOPIC, info_topic: str = DEFAULT_INFO_TOPIC,
+                namespace: str = DEFAULT_NAMESPACE, with_ground: bool = False,
+                with_overlay: bool = False, storage: str = 'sqlite3', progress: bool = True,
+                on_frame: Callable[[FrameReport], None] | None = None) -> ProcessSummary:
+    """Process every depth frame of ``src`` and write inputs + outputs to ``output``.
+
+    Raises:
+        ProcessError: naming the bag when it cannot be read or written, lacks the depth topic,
+            or the output exists. Nothing is left at ``output`` then.
+    """
+    import time
+
+    if not src.exists():
+        raise ProcessError(f'{src}: bag not found')
+    namespace = '/' + namespace.strip('/') if namespace.strip('/') else ''
+    summary = ProcessSummary(output=output)
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    wanted = ['obstacles', 'costmap'] + (['ground'] if with_ground else []) + (
+        ['overlay'] if with_overlay else [])
+    began = time.perf_counter()
+    try:
+        with Reader(src) as reader:
+            topics = {c.topic: c.msgtype for c in reader.connections}
+            for topic, msgtype in ((depth_topic, 'sensor_msgs/msg/Image'),
+                                   (info_topic, 'sensor_msgs/msg/CameraInfo')):
+                if topic not in topics and topic == depth_topic:
+                    images = sorted(t for t, m in topics.items() if m == msgtype)
+                    raise ProcessError(f'{src}: no depth topic {topic} (its {msgtype} topics: '
+                                       f'{", ".join(images) or "none"}; use --depth-topic)')
+                if topic in topics and topics[topic] != msgtype:
+                    raise ProcessError(f'{src}: {topic} has type {topics[topic]}, not {msgtype}')
+            outputs = {key: namespace + '/' + OUTPUTS[key][0] for key in wanted}
+            if clash := sorted(set(outputs.values()) & set(topics)):
+                raise ProcessError(f'{src}: already has {", ".join(clash)}; choose another '
+                                   '--namespace')
+            n_depth = sum(c.msgcount for c in reader.connections if c.topic == depth_topic)
+            with staged_output(output) as staging, \
+                    Writer(staging, version=BAG_VERSION, storage_plugin=STORAGES[storage]) \
+                    as writer:
+                copies = {}
+                for conn in reader.connections:
+                    # Keep the recorded definition; older bags lack the hash: take Jazzy's.
+                    known = bool(conn.msgdef.data and conn.digest)
+                    copies[conn.id] = writer.add_connection(
+                        conn.topic, conn.msgtype,
+                        msgdef=conn.msgdef.data if known else None,
+                        rihs01=conn.digest if known else None,
+                        typestore=None if known else typestore,
+                        serialization_format=getattr(conn.ext, 'serialization_format', 'cdr'),
+                        offered_qos_profiles=getattr(conn.ext, 'offered_qos_profiles', ()))
+                out_conns = {key: writer.add_connection(outputs[key], OUTPUTS[key][1],
+                                                        typestore=typestore) for key in wanted}
+                counts: Counter[str] = Counter()
+                info: CameraInfo | None = None
+                bar = Progress(n_depth, 'processing', stream=None if progress else io.StringIO())
+                with bar:
+                    for conn, timestamp, raw in _grouped_by_timestamp(reader.messages(),
+                                                                      info_topic):
+                        writer.write(copies[conn.id], timestamp, raw)
+                        counts[conn.topic] += 1
+                        if conn.topic == info_topic:
+                            info = deserialize_message(bytes(raw), CameraInfo)
+                            continue
+                        if conn.topic != depth_topic:
+                            continue
+                        depth = deserialize_message(bytes(raw), Image)
+                        report = FrameReport(summary.frames, timestamp)
+                        summary.frames += 1
+                        messages, result, reason = process_frame(
+                            depth, info, config, with_ground=with_ground,
+                            with_overlay=with_overlay)
+                        if messages is None:
+                            report.skipped = reason
+                            summary.skipped[reason] += 1
+                        else:
+                            for key in wanted:
+                                writer.write(out_conns[key], timestamp,
+                                             serialize_message(messages[key]))
+                                counts[outputs[key]] += 1
+                            report.obstacle_points = int(result.obstacle_points.shape[0])
+                            report.timings_ms = dict(result.timings_ms)
+                            summary.processed += 1
+                            summary.total_ms.append(result.timings_ms.get('total', 0.0))
+                        bar.update()
+                        if on_frame is not None:
+                            on_frame(report)
+    except ConvertError as err:
+        raise ProcessError(str(err)) from err
+    except ReaderError as err:
+        raise ProcessError(f'{src}: cannot read bag ({err})') from err
+    except WriterError as err:
+        raise ProcessError(f'{output}: cannot write bag ({err})') from err
+    summary.wall_s = time.perf_counter() - began
+    summary.topics = dict(sorted(counts.items()))
+    return summary
+
+
+def format_report(report: FrameReport) -> str:
+    """One line of per-frame timing."""
+    stamp = f'{report.stamp_ns // 1_000_000_000}.{report.stamp_ns % 1_000_000_000:09d}'
+    if report.skipped:
+        return f'frame {report.index:5d} @ {stamp}: skipped ({report.skipped})'
+    stages = ' '.join(f'{k}={v:.1f}' for k, v in report.timings_ms.items() if k != 'total')
+    return (f'frame {report.index:5d} @ {stamp}: {report.obstacle_points:6d} obstacle points, '
+            f'{report.timings_ms.get("total", 0.0):6.1f} ms ({stages})')
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Return the command-line parser."""
+    parser = argparse.ArgumentParser(
+        prog='bag_process.py', description=__doc__.split('\n\n')[0],
+        epilog='Example: python tools/bag_process.py in_bag out_bag --params-file '
+               'params/corridor.yaml --overlay')
+    parser.add_argument('bag', type=Path, help='input rosbag2 folder')
+    parser.add_argument('output', type=Path, help='rosbag2 folder to create (must not exist)')
+    parser.add_argument('--params-file', type=Path,
+                        help="the node's parameter YAML (default: the node's defaults)")
+    parser.add_argument('--depth-topic', default=DEFAULT_DEPTH_TOPIC, help='(%(default)s)')
+    parser.add_argument('--info-topic', default=DEFAULT_INFO_TOPIC, help='(%(default)s)')
+    parser.add_argument('--namespace', default=DEFAULT_NAMESPACE,
+                        help='prefix of the output topics (default %(default)s)')
+    parser.add_argument('--ground', action='store_true',
+                        help='also write the ground cloud (or publish_ground in the params)')
+    parser.add_argument('--overlay', action='store_true',
+                        help='also write overlay images (or publish_overlay in the params)')
+    parser.add_argument('--storage', choices=sorted(STORAGES), default='sqlite3',
+                        help='output storage (default %(default)s)')
+    parser.add_argument('--quiet', action='store_true',
+                        help='no per-frame lines (a progress bar on a terminal instead)')
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Process a bag; return the exit code (0 success, 1 bad input, 2 bad usage)."""
+    args = build_parser().parse_args(argv)
+    try:
+        if args.params_file is not None:
+            values = load_params_file(args.params_file)
+            origin = str(args.params_file)
+        else:
+            values, origin = {spec.name: spec.default for spec in ALL_PARAMS}, 'defaults'
+        config = config_from_values(values, origin)
+        summary = process_bag(
+            args.bag, args.output, config, depth_topic=args.depth_topic,
+            info_topic=args.info_topic, namespace=args.namespace,
+            with_ground=args.ground or config.publish_ground,
+            with_overlay=args.overlay or config.publish_overlay, storage=args.storage,
+            progress=args.quiet,  # the bar only when per-frame lines are off
+            on_frame=None if args.quiet else lambda r: print(format_report(r), flush=True))
+    except ProcessError as err:
+        print(f'error: {err}', file=sys.stderr)
+        return 1
+    print('\n'.join(summary.lines()))
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
