@@ -1,0 +1,432 @@
+#!/usr/bin/env python3
+"""The bundled demo: a recorded-looking depth sequence through the running detector node.
+
+Steps, all into one output folder (default ``out/demo``):
+
+1. render a short sequence of the scene generator (30 frames of 'person_walking' at the Kinect v2
+   SD size) as a folder of 16-bit depth PNGs plus an intrinsics YAML (``input/``);
+2. convert it to a rosbag2 with the converter (``input_bag/``, Kinect v2 driver topics);
+3. start the detector node (``python -m obstacle_detection.node --ros-args --params-file
+   params/corridor.yaml``, its inputs remapped to the bag's topics; log in ``node.log``);
+4. replay the bag into it with the player, while a recorder in this process subscribes to
+   what the node publishes and writes it to ``results_bag/``;
+5. save, per saved frame, the node's overlay (depth with obstacle pixels red), the costmap and
+   both side by side (``pictures/``), plus a contact sheet (``demo_sheet.png``).
+
+DDS stays on the loopback interface (``tools/fastdds_loopback.xml``) in a ROS domain of the
+demo's own. Exit code 0 when the node produced output, 1 (with the reason) otherwise.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+if __package__ in (None, ''):  # run as a script: make the repository root importable
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+
+from tools import bag_convert, bag_play  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+LOOPBACK_PROFILE = REPO / 'tools' / 'fastdds_loopback.xml'
+DEFAULT_PARAMS = REPO / 'params' / 'corridor.yaml'
+MARKER = '.obstacle_detection_demo'
+#: The node's outputs (after its default names) -> message type name.
+OUTPUT_TOPICS = {
+    '/obstacles/points': 'sensor_msgs/msg/PointCloud2',
+    '/obstacles/costmap': 'nav_msgs/msg/OccupancyGrid',
+    '/obstacles/overlay': 'sensor_msgs/msg/Image',
+    '/obstacle_detector/processing_time_ms': 'std_msgs/msg/Float64',
+}
+
+
+class DemoError(Exception):
+    """The demo could not run or the node produced nothing; the message says why."""
+
+
+def loopback_env(domain_id: int, base: dict[str, str] | None = None) -> dict[str, str]:
+    """An environment keeping DDS on 127.0.0.1 in ROS domain ``domain_id``."""
+    env = dict(os.environ if base is None else base)
+    env.update({
+        'FASTDDS_DEFAULT_PROFILES_FILE': str(LOOPBACK_PROFILE),
+        'FASTRTPS_DEFAULT_PROFILES_FILE': str(LOOPBACK_PROFILE),  # the name Fast DDS 2.14 reads
+        'RMW_IMPLEMENTATION': 'rmw_fastrtps_cpp',
+        'ROS_DOMAIN_ID': str(domain_id),
+    })
+    for name in ('ROS_LOCALHOST_ONLY', 'ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_STATIC_PEERS'):
+        env.pop(name, None)
+    return env
+
+
+def prepare_output(folder: Path) -> None:
+    """Create ``folder``, or empty it if an earlier demo made it; refuse any other folder."""
+    if folder.exists():
+        if not folder.is_dir():
+            raise DemoError(f'{folder}: exists and is not a folder')
+        if any(folder.iterdir()) and not (folder / MARKER).exists():
+            raise DemoError(f'{folder}: exists and was not made by the demo; choose another '
+                            '--output')
+        shutil.rmtree(folder)
+    folder.mkdir(parents=True)
+    (folder / MARKER).write_text('made by tools/demo.py; emptied when the demo runs again\n')
+
+
+def render_sequence(folder: Path, scene: str, frames: int, seed: int) -> tuple[Path, Path, Any]:
+    """Write the frames as 16-bit PNGs [mm] and a camera YAML; return (dir, yaml, frame 0)."""
+    from obstacle_detection.params import KINECT_V2_SD, KINECT_V2_SD_SIZE
+    from obstacle_detection.scenes import render_scene
+
+    depth_dir = folder / 'depth'
+    depth_dir.mkdir(parents=True)
+    first = None
+    for k in range(frames):
+        frame = render_scene(scene, seed=seed, intrinsics=KINECT_V2_SD, size=KINECT_V2_SD_SIZE,
+                             frame_index=k)
+        first = frame if first is None else first
+        if not cv2.imwrite(str(depth_dir / f'{scene}_{k:04d}.png'), frame.depth_mm):
+            raise DemoError(f'{depth_dir}: cannot write depth PNGs')
+    intr = KINECT_V2_SD
+    camera = folder / 'camera.yaml'
+    camera.write_text(f'# Kinect v2 SD camera of the rendered scene\nfx: {intr.fx}\n'
+                      f'fy: {intr.fy}\ncx: {intr.cx}\ncy: {intr.cy}\n'
+                      f'width: {KINECT_V2_SD_SIZE[0]}\nheight: {KINECT_V2_SD_SIZE[1]}\n')
+    return depth_dir, camera, first
+
+
+class Recorder:
+    """Subscribes (raw) to the node's outputs and keeps every message with its arrival time."""
+
+    def __init__(self, node: Any) -> None:
+        """Create one reliable raw subscription per output topic on ``node``."""
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+        qos = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+        self.messages: dict[str, list[tuple[int, bytes]]] = {t: [] for t in OUTPUT_TOPICS}
+        self.last_arrival = time.monotonic()
+        self.subscriptions = [
+            node.create_subscription(bag_play.message_class(msgtype), topic,
+                                     lambda raw, t=topic: self._keep(t, raw), qos, raw=True)
+            for topic, msgtype in OUTPUT_TOPICS.items()]
+
+    def _keep(self, topic: str, raw: bytes) -> None:
+        self.messages[topic].append((time.time_ns(), raw))
+        self.last_arrival = time.monotonic()
+
+    def matched(self) -> bool:
+        """Whether the node's cloud and costmap publishers are matched."""
+        return all(s.get_publisher_count() for s in self.subscriptions[:2])
+
+    def count(self, topic: str = '/obstacles/costmap') -> int:
+        """Messages received on ``topic``."""
+        return len(self.messages[topic])
+
+
+def write_results_bag(path: Path, recorder: Recorder) -> None:
+    """Write what the node published: header stamps as bag time (arrival time if none)."""
+    from rclpy.serialization import deserialize_message
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    with Writer(path, version=bag_convert.BAG_VERSION) as writer:
+        for topic, msgtype in OUTPUT_TOPICS.items():
+            if not recorder.messages[topic]:
+                continue
+            conn = writer.add_connection(topic, msgtype, typestore=typestore)
+            cls = bag_play.message_class(msgtype)
+            for arrival, raw in recorder.messages[topic]:
+                msg = deserialize_message(raw, cls)
+                header = getattr(msg, 'header', None)
+                stamp = (header.stamp.sec * 1_000_000_000 + header.stamp.nanosec
+                         if header is not None else arrival)
+                writer.write(conn, stamp, raw)
+
+
+def _overlay_array(msg: Any) -> np.ndarray:
+    """(H, W, 3) uint8 RGB of an rgb8 Image message."""
+    rows = np.frombuffer(msg.data, dtype=np.uint8).reshape(msg.height, msg.step)
+    return rows[:, :msg.width * 3].reshape(msg.height, msg.width, 3)
+
+
+def _costmap_of(grid: Any) -> Any:
+    from obstacle_detection.costmap import Costmap
+
+    data = np.frombuffer(grid.data, dtype=np.int8).reshape(grid.info.height, grid.info.width)
+    return Costmap(data=data.copy(), resolution_m=float(grid.info.resolution),
+                   origin_xy_m=(grid.info.origin.position.x, grid.info.origin.position.y))
+
+
+def save_pictures(folder: Path, recorder: Recorder, every: int) -> list[Path]:
+    """Save overlay, costmap and side-by-side PNGs of every ``every``-th frame; a contact sheet.
+
+    Frames are matched across topics by header stamp. Returns the side-by-side paths.
+    """
+    from nav_msgs.msg import OccupancyGrid
+    from rclpy.serialization import deserialize_message
+    from sensor_msgs.msg import Image, PointCloud2
+
+    from obstacle_detection.overlay import render_costmap
+    from obstacle_detection.pictures import caption_band, contact_sheet, write_png
+
+    def by_stamp(topic: str, cls: type) -> dict[tuple[int, int], Any]:
+        out = {}
+        for _, raw in recorder.messages[topic]:
+            msg = deserialize_message(raw, cls)
+            out[(msg.header.stamp.sec, msg.header.stamp.nanosec)] = msg
+        return out
+
+    grids = by_stamp('/obstacles/costmap', OccupancyGrid)
+    overlays = by_stamp('/obstacles/overlay', Image)
+    clouds = by_stamp('/obstacles/points', PointCloud2)
+    saved: list[Path] = []
+    panels: list[np.ndarray] = []
+    labels: list[str] = []
+    for k, stamp in enumerate(sorted(grids)):
+        if k % every or stamp not in overlays:
+            continue
+        overlay = _overlay_array(overlays[stamp])
+        costmap = _costmap_of(grids[stamp])
+        height, width = overlay.shape[:2]
+        scale = max(1, min(height // max(costmap.width, 1), width // max(costmap.height, 1)))
+        grid_rgb = render_costmap(costmap, scale=scale)
+        pad = np.full((height, grid_rgb.shape[1], 3), 255, dtype=np.uint8)
+        top = (height - min(height, grid_rgb.shape[0])) // 2
+        pad[top:top + grid_rgb.shape[0]] = grid_rgb[:height]
+        gap = np.full((height, 6, 3), 255, dtype=np.uint8)
+        row = np.hstack([overlay, gap, pad])
+        cloud = clouds.get(stamp)
+        points = int(cloud.width * cloud.height) if cloud is not None else 0
+        occupied = int(np.count_nonzero(costmap.data == 100))
+        caption = [f'frame {k}, stamp {stamp[0]}.{stamp[1]:09d}: {points} obstacle points, '
+                   f'{occupied} occupied cells',
+                   'left: depth, obstacles red | right: costmap, occupied blue, x forward up']
+        picture = np.vstack([row, caption_band(caption, row.shape[1])])
+        name = f'frame_{k:04d}'
+        write_png(folder / 'pictures' / f'overlay_{k:04d}.png', overlay)
+        write_png(folder / 'pictures' / f'costmap_{k:04d}.png', grid_rgb)
+        write_png(folder / 'pictures' / f'{name}.png', picture)
+        saved.append(folder / 'pictures' / f'{name}.png')
+        panels.append(picture)
+        labels.append(name)
+    if panels:
+        write_png(folder / 'demo_sheet.png', contact_sheet(panels, labels=labels, columns=3))
+    return saved
+
+
+def _node_command(params: Path, frame: Any, *, reliable: bool) -> list[str]:
+    """The detector node, inputs remapped to the bag's topics, mount of the rendered scene."""
+    import math
+
+    return [sys.executable, '-m', 'obstacle_detection.node', '--ros-args',
+            '--params-file', str(params),
+            '-r', f'depth/image_raw:={bag_convert.DEFAULT_DEPTH_TOPIC}',
+            '-r', f'depth/camera_info:={bag_convert.DEFAULT_INFO_TOPIC}',
+            '-p', 'publish_overlay:=true', '-p', 'stats_period_s:=1.0',
+            '-p', f'camera_height_m:={float(frame.height_m)!r}',
+            '-p', f'camera_pitch_deg:={round(math.degrees(frame.pitch_rad), 9)!r}',
+            '-p', f'camera_roll_deg:={round(math.degrees(frame.roll_rad), 9)!r}',
+            '-p', f'reliable_input:={"true" if reliable else "false"}']
+
+
+def _stop(process: subprocess.Popen) -> None:
+    """Stop the node with Ctrl-C, as a user would; kill it if it does not stop."""
+    if process.poll() is not None:
+        return
+    process.send_signal(signal.SIGINT)
+    try:
+        process.wait(timeout=10)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        process.wait(timeout=5)
+
+
+def _log_tail(path: Path, lines: int = 15) -> str:
+    try:
+        return '\n'.join(path.read_text(errors='replace').splitlines()[-lines:])
+    except OSError:
+        return '(no log)'
+
+
+def run_demo(args: argparse.Namespace) -> int:
+    """Run every step; raise DemoError when one fails."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+
+    began = time.monotonic()
+    out: Path = args.output
+    prepare_output(out)
+    print(f'[1/5] rendering {args.frames} frames of {args.scene!r} into {out / "input"}')
+    depth_dir, camera, first = render_sequence(out / 'input', args.scene, args.frames, args.seed)
+
+    print(f'[2/5] converting them to a rosbag2: {out / "input_bag"}')
+    source = bag_convert.folder_frames(depth_dir, intrinsics_path=camera, rate_hz=30.0,
+                                       start_s=round(time.time(), 3))
+    summary = bag_convert.write_frames(source, out / 'input_bag',
+                                       bag_convert.BagOptions(progress=not args.quiet))
+    print('\n'.join('      ' + line for line in summary.lines()[1:4]))
+
+    env = loopback_env(args.domain_id)
+    os.environ.update({k: env[k] for k in ('FASTDDS_DEFAULT_PROFILES_FILE',
+                                           'FASTRTPS_DEFAULT_PROFILES_FILE',
+                                           'RMW_IMPLEMENTATION', 'ROS_DOMAIN_ID')})
+    for name in ('ROS_LOCALHOST_ONLY', 'ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_STATIC_PEERS'):
+        os.environ.pop(name, None)
+    child_env = dict(env, PYTHONPATH=os.pathsep.join(
+        p for p in (str(REPO), env.get('PYTHONPATH', '')) if p), PYTHONUNBUFFERED='1',
+        RCUTILS_COLORIZED_OUTPUT='0', ROS_LOG_DIR=str(out / 'ros_log'))
+    command = _node_command(args.params, first, reliable=not args.best_effort)
+    print(f'[3/5] starting the detector node (ROS_DOMAIN_ID={args.domain_id}, loopback only; '
+          f'log: {out / "node.log"}):\n      {" ".join(command[1:])}')
+    with (out / 'node.log').open('w') as log:
+        node_process = subprocess.Popen(command, cwd=REPO, env=child_env, stdout=log,
+                                        stderr=subprocess.STDOUT)
+    context = rclpy.context.Context()
+    rclpy.init(context=context)
+    node = Node('demo_recorder', context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    player = None
+    thread = None
+    stop = threading.Event()
+    try:
+        recorder = Recorder(node)
+        options = bag_play.PlayOptions(rate=args.rate, reliable=not args.best_effort,
+                                       wait_for_subscribers=2,
+                                       wait_timeout_s=args.timeout, progress=False)
+        player = bag_play.Player(node, out / 'input_bag', options)
+        deadline = time.monotonic() + args.timeout
+        while not (recorder.matched() and player.subscription_count() >= 2):
+            if node_process.poll() is not None:
+                raise DemoError(f'the detector node exited with code {node_process.returncode}'
+                                f' before subscribing; its log ({out / "node.log"}):\n'
+                                + _log_tail(out / 'node.log'))
+            if time.monotonic() > deadline:
+                raise DemoError(f'the detector node did not connect within {args.timeout:g} s;'
+                                f' its log ({out / "node.log"}):\n' + _log_tail(out / 'node.log'))
+            executor.spin_once(timeout_sec=0.05)
+        settle = time.monotonic() + 0.5  # let the node's side of the match settle too
+        while time.monotonic() < settle:
+            executor.spin_once(timeout_sec=0.05)
+
+        print(f'[4/5] replaying {summary.frames} frames at {30.0 * args.rate:g} Hz into the node')
+        stats: list[bag_play.PlayStats] = []
+        thread = threading.Thread(target=lambda: stats.append(player.play(stop)), daemon=True)
+        thread.start()
+        while thread.is_alive():
+            executor.spin_once(timeout_sec=0.05)
+            if node_process.poll() is not None:
+                stop.set()
+        # Let the last frames come out: until every output of every frame arrived, or
+        # nothing new came for 3 s (frames the node dropped never come).
+        while (min(map(recorder.count, OUTPUT_TOPICS)) < summary.frames
+               and time.monotonic() - recorder.last_arrival < 3.0
+               and node_process.poll() is None):
+            executor.spin_once(timeout_sec=0.05)
+    finally:
+        stop.set()
+        if thread is not None:
+            thread.join(timeout=5)
+        if player is not None:
+            player.close()
+        executor.shutdown()
+        node.destroy_node()
+        context.try_shutdown()
+        _stop(node_process)
+
+    received = recorder.count()
+    if received == 0:
+        raise DemoError(f'the detector node published nothing for {summary.frames} frames; '
+                        f'its log ({out / "node.log"}):\n' + _log_tail(out / 'node.log'))
+    print(f'[5/5] writing what the node published: {out / "results_bag"}; pictures: '
+          f'{out / "pictures"}')
+    write_results_bag(out / 'results_bag', recorder)
+    saved = save_pictures(out, recorder, args.save_every)
+
+    from rclpy.serialization import deserialize_message
+    from std_msgs.msg import Float64
+
+    times = [deserialize_message(raw, Float64).data
+             for _, raw in recorder.messages['/obstacle_detector/processing_time_ms']]
+    sent = stats[0].published.get(bag_convert.DEFAULT_DEPTH_TOPIC, 0) if stats else 0
+    print()
+    print(f'demo done in {time.monotonic() - began:.1f} s; everything is in {out}/')
+    print(f'  depth frames sent: {sent}, results received: {received} costmaps, '
+          f'{recorder.count("/obstacles/points")} obstacle clouds, '
+          f'{recorder.count("/obstacles/overlay")} overlays')
+    if times:
+        print(f'  node processing time: mean {np.mean(times):.1f} ms, max {np.max(times):.1f} ms '
+              f'per frame')
+    if received < sent:
+        print(f'  {sent - received} frame(s) had no output: the node keeps only the newest '
+              'frame when one arrives while it is busy (see node.log)'
+              + ('; best-effort frames may also be lost in transit' if args.best_effort else '')
+              + f'; a lower --rate (now {args.rate:g}) gives it more time')
+    print(f'  pictures: {len(saved)} side-by-side frames in {out / "pictures"}, '
+          f'contact sheet {out / "demo_sheet.png"}')
+    print(f'  bags: {out / "input_bag"} (input), {out / "results_bag"} (node output)')
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Return the command-line parser."""
+    from obstacle_detection.scenes import SCENE_NAMES
+
+    parser = argparse.ArgumentParser(prog='demo.py', description=__doc__.split('\n\n')[0])
+    parser.add_argument('--output', type=Path, default=Path('out/demo'),
+                        help='folder for everything the demo writes (default %(default)s; '
+                             'emptied if an earlier demo made it)')
+    parser.add_argument('--scene', choices=SCENE_NAMES, default='person_walking',
+                        help='scene of the generator (default %(default)s)')
+    parser.add_argument('--frames', type=int, default=30, help='frames (default %(default)s)')
+    parser.add_argument('--seed', type=int, default=0, help='scene seed (default %(default)s)')
+    parser.add_argument('--params', type=Path, default=DEFAULT_PARAMS,
+                        help='node params file (default params/corridor.yaml); the camera '
+                             'mount is set to the rendered scene\'s')
+    parser.add_argument('--rate', type=float, default=0.25,
+                        help='replay speed factor of the 30 Hz sequence (default %(default)s)')
+    parser.add_argument('--best-effort', action='store_true',
+                        help="replay with the camera's sensor-data QoS (best effort) instead of "
+                             'reliable; large frames over UDP may then be lost')
+    parser.add_argument('--save-every', type=int, default=5,
+                        help='save pictures of one frame in N (default %(default)s)')
+    parser.add_argument('--domain-id', type=int, default=100 + os.getpid() % 101,
+                        help='ROS_DOMAIN_ID of the demo (default: 100-200 from the process id)')
+    parser.add_argument('--timeout', type=float, default=30.0,
+                        help='seconds to wait for the node to connect (default %(default)s)')
+    parser.add_argument('--quiet', action='store_true', help='no progress bars')
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the demo; return the exit code (0 success, 1 failure, 2 bad usage)."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.frames < 1 or args.save_every < 1:
+        parser.error('--frames and --save-every must be >= 1')
+    if not 0 <= args.domain_id <= 232:
+        parser.error(f'--domain-id must be in 0..232, got {args.domain_id}')
+    if not args.params.is_file():
+        print(f'error: {args.params}: params file not found', file=sys.stderr)
+        return 1
+    try:
+        return run_demo(args)
+    except (DemoError, bag_convert.ConvertError, bag_play.PlayError) as err:
+        print(f'error: {err}', file=sys.stderr)
+        return 1
+
+
+if __name__ == '__main__':
+    sys.exit(main())
