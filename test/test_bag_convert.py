@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import cv2
@@ -17,6 +18,7 @@ from obstacle_detection.conversions import image_to_array
 from obstacle_detection.params import KINECT_V2_SD, Intrinsics
 from obstacle_detection.scenes import render_scene
 from tools import bag_convert
+from tools.progress import Progress
 
 INTR = Intrinsics(60.0, 61.0, 40.0, 29.5)
 SIZE = (80, 60)  # width, height
@@ -486,3 +488,27 @@ def test_load_intrinsics_formats(tmp_path: Path) -> None:
     bad.write_text('fx: 0\nfy: 1\ncx: 1\ncy: 1\n')
     with pytest.raises(bag_convert.ConvertError, match='bad.yaml'):
         bag_convert.load_intrinsics(bad)
+
+
+class _Tty(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def test_progress_is_quiet_off_a_terminal_except_the_final_line() -> None:
+    stream = io.StringIO()
+    with Progress(3, 'work', stream=stream) as bar:
+        for _ in range(3):
+            bar.update()
+            assert stream.getvalue() == ''
+    assert stream.getvalue().startswith('work [') and stream.getvalue().count('\n') == 1
+    assert '3/3' in stream.getvalue()
+
+
+def test_progress_redraws_on_a_terminal_and_marks_a_stop() -> None:
+    stream = _Tty()
+    with pytest.raises(RuntimeError), Progress(2, 'work', stream=stream) as bar:
+        bar.update()
+        raise RuntimeError('boom')
+    text = stream.getvalue()
+    assert text.startswith('\rwork [') and '1/2' in text and text.endswith('(stopped)\n')

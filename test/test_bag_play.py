@@ -171,6 +171,7 @@ def test_sensor_data_qos_by_default(bag: Path, context: rclpy.context.Context) -
     (['--remap', '/not/played:=/x'], '/not/played'),
     (['--start-offset', '100'], 'no messages'),
     (['--rate', '0'], '--rate'),
+    (['--loops', '-1'], '--loops'),
 ])
 def test_bad_options(bag: Path, args: list[str], named: str,
                      capsys: pytest.CaptureFixture[str], env: dict[str, str]) -> None:

@@ -163,7 +163,9 @@ class Summary:
     def lines(self) -> list[str]:
         """Return the summary as printable lines."""
         out = [f'wrote {self.output}']
-        if self.size is not None:
+        if self.size is None:  # a bag conversion: no frames of our own
+            out.append(f'  {self.messages} messages; duration {self.duration_s:.3f} s')
+        else:
             out.append(f'  frames: {self.frames} depth ({self.size[0]}x{self.size[1]}, 16UC1 mm), '
                        f'{self.color_frames} with colour; duration {self.duration_s:.3f} s')
         if self.intrinsics is not None:
@@ -171,10 +173,9 @@ class Summary:
             out.append(f'  intrinsics: fx={i.fx:g} fy={i.fy:g} cx={i.cx:g} cy={i.cy:g}')
         for topic, count in self.topics.items():
             out.append(f'  {topic}: {count} messages')
-        dropped = sum(self.dropped.values())
-        out.append(f'  dropped pairs: {dropped}')
-        for reason, count in self.dropped.items():
-            out.append(f'    {count}: {reason}')
+        if self.size is not None:
+            out.append(f'  dropped pairs: {sum(self.dropped.values())}')
+            out.extend(f'    {count}: {reason}' for reason, count in self.dropped.items())
         out.extend(f'  note: {note}' for note in self.notes)
         return out
 

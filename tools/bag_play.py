@@ -68,7 +68,7 @@ class PlayOptions:
         if not (math.isfinite(self.rate) and self.rate > 0):
             raise PlayError(f'--rate must be a positive factor, got {self.rate}')
         if self.loops < 0:
-            raise PlayError(f'--loop count must be >= 0 (0 = forever), got {self.loops}')
+            raise PlayError(f'--loops must be >= 0 (0 = until stopped), got {self.loops}')
         if not (math.isfinite(self.start_offset_s) and self.start_offset_s >= 0):
             raise PlayError(f'--start-offset must be >= 0 s, got {self.start_offset_s}')
         if self.wait_for_subscribers < 0:
@@ -279,19 +279,24 @@ def build_parser() -> argparse.ArgumentParser:
     """Return the command-line parser."""
     parser = argparse.ArgumentParser(
         prog='bag_play.py', description=__doc__.split('\n\n')[0],
-        epilog='Example: python tools/bag_play.py out/demo/input_bag --rate 0.5 --loop '
-               '--remap /kinect2/sd/image_depth_rect:=/camera/depth/image_raw')
+        epilog='Example (into a detector started with default topic names): python '
+               'tools/bag_play.py out/demo/input_bag --rate 0.5 --loop '
+               '--remap /kinect2/sd/image_depth_rect:=/depth/image_raw '
+               '--remap /kinect2/sd/camera_info:=/depth/camera_info')
     parser.add_argument('bag', type=Path, help='rosbag2 folder (sqlite3 or mcap)')
     parser.add_argument('--topics', nargs='+', default=(), metavar='TOPIC',
                         help='publish only these topics (default: all)')
     parser.add_argument('--rate', type=float, default=1.0,
                         help='speed factor, 2 = twice as fast (default %(default)s)')
-    parser.add_argument('--loop', type=int, nargs='?', const=0, default=1, metavar='N',
-                        help='play N times; without N, until Ctrl-C (default: once)')
+    parser.add_argument('--loop', action='store_true', help='play again and again until Ctrl-C')
+    parser.add_argument('--loops', type=int, default=1, metavar='N',
+                        help='play N times (default %(default)s; 0 = like --loop)')
     parser.add_argument('--start-offset', type=float, default=0.0, metavar='SECONDS',
                         help='start this many seconds into the bag (default %(default)s)')
     parser.add_argument('--reliable', action='store_true',
-                        help='publish with reliable QoS (default: sensor data, best effort)')
+                        help='publish with reliable QoS (default: sensor data, best effort; '
+                             'over UDP, best-effort frames of 400 kB can be lost, reliable '
+                             'ones are resent; the subscriber must then be reliable too)')
     parser.add_argument('--remap', action='append', default=[], metavar='OLD:=NEW',
                         help='publish topic OLD as NEW (repeatable)')
     parser.add_argument('--wait-for-subscribers', type=int, default=0, metavar='N',
@@ -308,7 +313,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         options = PlayOptions(
-            topics=tuple(args.topics), rate=args.rate, loops=args.loop,
+            topics=tuple(args.topics), rate=args.rate, loops=0 if args.loop else args.loops,
             start_offset_s=args.start_offset, reliable=args.reliable,
             remap=parse_remap(args.remap), wait_for_subscribers=args.wait_for_subscribers,
             wait_timeout_s=args.wait_timeout, progress=not args.quiet)
