@@ -441,7 +441,9 @@ def local_node(local_context: rclpy.Context) -> Iterator[DetectorNode]:
 def test_params_file_equals_seed_table(local_context: rclpy.Context, file_name: str,
                                        preset: Callable[[], Any]) -> None:
     path = REPO / 'params' / file_name
-    assert detector_params_from_ros(_yaml_values(path)) == preset()
+    values = _yaml_values(path)
+    assert set(values) == {spec.name for spec in ALL_PARAMS}  # the file shows every parameter
+    assert detector_params_from_ros(values) == preset()
     node = DetectorNode(context=local_context,
                         cli_args=['--ros-args', '--params-file', str(path)])
     try:
