@@ -58,6 +58,7 @@ from .conversions import (
 )
 from .params import Intrinsics
 from .pipeline import Detector
+from .refine import LogisticRefiner, RefinedDetector
 from .ros_params import ALL_PARAMS, detector_params_from_ros, fallback_intrinsics_from_ros
 
 NODE_NAME = 'obstacle_detector'
@@ -160,7 +161,7 @@ class FrameStats:
 class NodeConfig:
     """Everything a frame needs, validated and swapped as one reference on a parameter set."""
 
-    detector: Detector
+    detector: Detector | RefinedDetector
     cloud_frame_id: str
     costmap_frame_id: str
     publish_ground: bool
@@ -170,13 +171,30 @@ class NodeConfig:
     stats_period_s: float
 
 
+def build_detector(values: dict[str, Any]) -> Detector | RefinedDetector:
+    """The pipeline, refined when ``refiner_model_file`` names a model; ValueError if bad.
+
+    Shared by the node and the offline bag tool, so that both run the same detector.
+    """
+    detector = Detector(detector_params_from_ros(values))
+    model_file = str(values.get('refiner_model_file', '')).strip()
+    if not model_file:
+        return detector
+    try:
+        refiner = LogisticRefiner.load(model_file)
+    except OSError as error:
+        raise ValueError(f'refiner_model_file {model_file!r}: {error.strerror or error}') \
+            from error
+    return RefinedDetector(detector, refiner)
+
+
 def build_config(values: dict[str, Any]) -> NodeConfig:
     """NodeConfig from ``{ros_name: value}`` of every parameter; ValueError naming a bad one."""
     for name in ('cloud_frame_id', 'costmap_frame_id'):
         if not str(values[name]).strip():
             raise ValueError(f'{name} must not be empty')
     return NodeConfig(
-        detector=Detector(detector_params_from_ros(values)),
+        detector=build_detector(values),
         cloud_frame_id=str(values['cloud_frame_id']),
         costmap_frame_id=str(values['costmap_frame_id']),
         publish_ground=bool(values['publish_ground']),

@@ -40,8 +40,10 @@ the refined costmap then has several times the rule-based cell false alarms.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -436,3 +438,44 @@ def refine_result(result: Any, refined_mask: np.ndarray, params: DetectorParams,
     ground_points = voxel_points[~is_obstacle]
     costmap = build_costmap(obstacle_points, ground_points, params)
     return RefinedResult(labels, mask, is_obstacle, obstacle_points, ground_points, costmap)
+
+
+class RefinedDetector:
+    """A ``Detector`` followed by the learned refinement, for a stream of frames.
+
+    Keeps the previous frame's rule-based obstacle mask (the seed's V_{t-1}); a frame of
+    another size starts afresh. ``process`` returns a ``DetectionResult`` whose labels,
+    obstacle and ground points, voxel flags and costmap are the refined ones, with a 'refine'
+    stage in ``timings_ms``; everything else (normals, depth, pixel_voxel) is the pipeline's.
+    The node and the offline bag tool both use it when a model file is named.
+    """
+
+    def __init__(self, detector: Any, refiner: LogisticRefiner) -> None:
+        self.detector = detector
+        self.refiner = refiner
+        self._previous: np.ndarray | None = None
+
+    @property
+    def params(self) -> DetectorParams:
+        """The wrapped detector's parameters."""
+        return self.detector.params
+
+    def process(self, depth: np.ndarray, intrinsics: Any = None, *,
+                depth_scale: float | None = None) -> Any:
+        """Run the pipeline on one frame, then refine it (see :class:`RefinedDetector`)."""
+        result = self.detector.process(depth, intrinsics, depth_scale=depth_scale)
+        start = time.perf_counter()
+        previous = self._previous
+        if previous is not None and previous.shape != result.labels.shape:
+            previous = None
+        mask = self.refiner.predict_labels(result, previous)
+        refined = refine_result(result, mask, self.params)
+        self._previous = obstacle_mask(result)
+        timings = dict(result.timings_ms)
+        total = timings.pop('total', 0.0)
+        timings['refine'] = (time.perf_counter() - start) * 1e3
+        timings['total'] = total + timings['refine']
+        return dataclasses.replace(
+            result, labels=refined.labels, obstacle_points=refined.obstacle_points,
+            ground_points=refined.ground_points, costmap=refined.costmap,
+            voxel_is_obstacle=refined.voxel_is_obstacle, timings_ms=timings)

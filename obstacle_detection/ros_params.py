@@ -152,6 +152,10 @@ NODE_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec('fallback_cy', SEED_TABLE_4_1.cy,
               'Fallback principal point cy (seed Table 4.1: Centery = 130) [px]',
               -100000.0, 100000.0),
+    ParamSpec('refiner_model_file', '',
+              'Not in the seed as a default: a model file from tools/train_refiner.py (seed '
+              'section 4.5 logistic regression on slope, depth gradient and the previous '
+              "frame's obstacles) refines each frame; '' = rule-based only"),
     ParamSpec('stats_period_s', 10.0,
               'Period of the info log with frames processed, dropped, mean time and fps; '
               '0 = off [s]', 0.0, 3600.0),

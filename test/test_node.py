@@ -533,3 +533,23 @@ def test_invalid_params_file_stops_the_node_with_the_message(tmp_path: Path) -> 
 
     assert done.returncode == 1
     assert 'invalid parameters: median_kernel=4 must be odd' in done.stdout + done.stderr
+
+
+def test_refiner_model_file_is_validated_and_used(local_node: DetectorNode, tmp_path: Path,
+                                                 scene: SceneFrame) -> None:
+    from obstacle_detection.refine import LogisticRefiner, RefinedDetector
+
+    missing = tmp_path / 'missing.json'
+    result = local_node.set_parameters([Parameter('refiner_model_file', value=str(missing))])[0]
+    assert not result.successful and 'missing.json' in result.reason
+    assert isinstance(local_node.config.detector, Detector)
+
+    # a model that calls every pixel with a voxel an obstacle: the costmap must follow it
+    everything = LogisticRefiner((50.0,) + (0.0,) * 9, (0.0,) * 9, (1.0,) * 9)
+    path = tmp_path / 'refiner.json'
+    everything.save(path)
+    assert local_node.set_parameters([Parameter('refiner_model_file', value=str(path))])[0] \
+        .successful
+    assert isinstance(local_node.config.detector, RefinedDetector)
+    out = local_node.config.detector.process(scene.depth_mm, scene.intrinsics)
+    assert (out.voxel_is_obstacle.mean() > 0.9) and 'refine' in out.timings_ms

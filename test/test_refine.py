@@ -167,3 +167,23 @@ def test_validation_drops_isolated_refined_voxels():
     assert plain.voxel_is_obstacle[lonely_voxel]
     assert not checked.voxel_is_obstacle[lonely_voxel]
     assert not (checked.voxel_is_obstacle & ~plain.voxel_is_obstacle).any()
+
+
+def test_refined_detector_uses_the_previous_rule_based_mask():
+    from obstacle_detection.pipeline import Detector
+    frame, params, first = _small_scene_result()
+    # a model that predicts exactly "the pixel was an obstacle in the previous frame" (e4 is
+    # offset (0, 0)): so the first frame stands in for itself, later frames copy the previous
+    copy_previous = LogisticRefiner((-20.0,) + (0.0,) * 5 + (40.0,) + (0.0,) * 3,
+                                    (0.0,) * 9, (1.0,) * 9)
+    assert FEATURE_NAMES[5] == 'e4_prev(+0,+0)'
+    stream = refine.RefinedDetector(Detector(params), copy_previous)
+    out1 = stream.process(frame.depth, frame.intrinsics)
+    np.testing.assert_array_equal(out1.labels == LABEL_OBSTACLE, refine.obstacle_mask(first))
+    assert 'refine' in out1.timings_ms and out1.timings_ms['total'] >= out1.timings_ms['refine']
+    empty = np.zeros_like(frame.depth)
+    out2 = stream.process(empty, frame.intrinsics)      # nothing to label in an empty frame
+    assert not (out2.labels == LABEL_OBSTACLE).any()
+    out3 = stream.process(frame.depth, frame.intrinsics)  # previous mask: the empty frame's
+    assert not (out3.labels == LABEL_OBSTACLE).any()
+    assert out3.obstacle_points.shape[0] == 0
