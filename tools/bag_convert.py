@@ -284,7 +284,11 @@ def default_intrinsics(view: str, size: tuple[int, int]) -> tuple[Intrinsics, st
 
 
 def stamp_ns(seconds: float) -> int:
-    """Seconds to integer nanoseconds (rounded)."""
+    """Seconds to integer nanoseconds (rounded).
+
+    Frame stamps are ``stamp_ns(start) + stamp_ns(i / rate)``: adding in integers keeps the
+    frame spacing exact to the nanosecond even for a start near the current epoch.
+    """
     return int(round(seconds * 1e9))
 
 
@@ -357,7 +361,8 @@ def diml_frames(sequence: Path, *, depth_kind: str = 'raw', intrinsics_path: Pat
         color = _files_with_suffix(color_dir, DIML_COLOR[1])
         _pair_by_key(depth, color, depth_dir, color_dir)
     intr, origin, size = _optional_intrinsics(intrinsics_path)
-    frames = [Frame(stamp_ns(start_s + frames_index[key] / rate_hz), path, color.get(key))
+    start_ns = stamp_ns(start_s)
+    frames = [Frame(start_ns + stamp_ns(frames_index[key] / rate_hz), path, color.get(key))
               for key, path in sorted(depth.items(), key=lambda kv: frames_index[kv[0]])]
     notes = [f'DIML has no timestamps: frames stamped from their number at {rate_hz:g} Hz']
     if with_color and not color_dir.is_dir():
@@ -401,7 +406,8 @@ def diml_sample_frames(root: Path, *, resolution: str = 'LR',
             color = _files_with_suffix(color_dir, DIML_SAMPLE_COLOR[1])
             _pair_by_key(depth, color, depth_dir, color_dir)
         for key, path in depth.items():
-            frames.append(Frame(stamp_ns(start_s + len(frames) / rate_hz), path, color.get(key)))
+            stamp = stamp_ns(start_s) + stamp_ns(len(frames) / rate_hz)
+            frames.append(Frame(stamp, path, color.get(key)))
     intr, origin, size = _optional_intrinsics(intrinsics_path)
     notes = [f'DIML samples have no timestamps: stamped in file order at {rate_hz:g} Hz']
     return FrameSource(frames, intr, origin, size, default_view='color', notes=notes)
@@ -426,7 +432,7 @@ def folder_frames(depth_dir: Path, *, color_dir: Path | None = None,
                                f'holds {len(found)} colour images; they must match one to one')
         color = list(found)
     intr, origin, size = _optional_intrinsics(intrinsics_path)
-    frames = [Frame(stamp_ns(start_s + k / rate_hz), d, c)
+    frames = [Frame(stamp_ns(start_s) + stamp_ns(k / rate_hz), d, c)
               for k, (d, c) in enumerate(zip(depth, color))]
     return FrameSource(frames, intr, origin, size)
 

@@ -273,7 +273,7 @@ def run_demo(args: argparse.Namespace) -> int:
 
     print(f'[2/5] converting them to a rosbag2: {out / "input_bag"}')
     source = bag_convert.folder_frames(depth_dir, intrinsics_path=camera, rate_hz=30.0,
-                                       start_s=round(time.time(), 3))
+                                       start_s=float(int(time.time())))
     summary = bag_convert.write_frames(source, out / 'input_bag',
                                        bag_convert.BagOptions(progress=not args.quiet))
     print('\n'.join('      ' + line for line in summary.lines()[1:4]))
