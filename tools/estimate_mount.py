@@ -1,0 +1,136 @@
+#!/usr/bin/env python3
+r"""Estimate the camera mount (height, pitch, roll) of a depth frame from the floor in view.
+
+Prints the mount and the share of points on the floor plane, and optionally writes it as a
+node parameter file fragment (``--params-out``, for ``--params-file`` of the node and tools)
+and as a camera YAML with the intrinsics (``--camera-yaml-out``, for ``tools/pictures.py
+--depth FILE --intrinsics YAML``)::
+
+    python tools/estimate_mount.py --depth depth.png --depth-scale 5000 \
+        --intrinsics 535.4,539.2,320.1,247.6 --params-out mount.yaml
+
+Depth files: 16-bit single-channel PNG or PGM (read by OpenCV, which honours the PGM's
+big-endian byte order), ``--depth-scale`` units per metre (1000 = millimetres, 5000 = TUM).
+Point the camera at open floor: a hidden floor under a large table gives the table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+from typing import Sequence
+
+if __package__ in (None, ''):  # run as a script: make the repository root importable
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+
+from obstacle_detection.depth import decode_depth  # noqa: E402
+from obstacle_detection.mount import MountEstimate, estimate_mount  # noqa: E402
+from obstacle_detection.params import Intrinsics  # noqa: E402
+
+
+def parse_intrinsics(text: str) -> Intrinsics:
+    """``fx,fy,cx,cy`` [px] -> Intrinsics (argparse type)."""
+    try:
+        values = [float(v) for v in text.split(',')]
+        if len(values) != 4:
+            raise ValueError(f'4 values needed, got {len(values)}')
+        return Intrinsics(*values)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f'expected fx,fy,cx,cy, got {text!r}: {exc}') from None
+
+
+def read_depth(path: str | Path) -> np.ndarray:
+    """(H, W) uint16 depth of a 16-bit single-channel PNG or PGM (ValueError otherwise)."""
+    depth = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if depth is None:
+        raise ValueError(f'{path}: cannot read the image')
+    if depth.dtype != np.uint16 or depth.ndim != 2:
+        raise ValueError(f'{path}: a depth image must be 16-bit single channel, got '
+                         f'{depth.dtype} with shape {depth.shape}')
+    return depth
+
+
+def params_yaml(estimate: MountEstimate, node_name: str = 'obstacle_detector') -> str:
+    """Node parameter file fragment holding the mount (angles in degrees, as the node's)."""
+    return (f'# camera mount from the floor plane ({estimate.inlier_fraction:.0%} of the points '
+            f'on it), tools/estimate_mount.py\n'
+            f'{node_name}:\n'
+            f'  ros__parameters:\n'
+            f'    camera_height_m: {estimate.height_m:.4f}\n'
+            f'    camera_pitch_deg: {estimate.pitch_deg:.3f}\n'
+            f'    camera_roll_deg: {estimate.roll_deg:.3f}\n')
+
+
+def camera_yaml(estimate: MountEstimate, intrinsics: Intrinsics, depth_scale: float) -> str:
+    """Camera YAML (``evaluation.read_camera_yaml``): intrinsics, depth scale and the mount."""
+    return (f'# intrinsics [px] and the camera mount estimated from the floor\n'
+            f'fx: {intrinsics.fx!r}\nfy: {intrinsics.fy!r}\n'
+            f'cx: {intrinsics.cx!r}\ncy: {intrinsics.cy!r}\n'
+            f'depth_scale: {float(depth_scale)!r}\n'
+            f'camera_height_m: {estimate.height_m:.4f}\n'
+            f'camera_pitch_deg: {estimate.pitch_deg:.3f}\n'
+            f'camera_roll_deg: {estimate.roll_deg:.3f}\n')
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Return the command-line parser."""
+    parser = argparse.ArgumentParser(prog='estimate_mount.py',
+                                     description=__doc__.split('\n\n')[0],
+                                     formatter_class=argparse.RawTextHelpFormatter)
+    parser.add_argument('--depth', type=Path, required=True, metavar='FILE',
+                        help='16-bit depth PNG or PGM')
+    parser.add_argument('--depth-scale', type=float, default=1000.0, metavar='UNITS',
+                        help='depth units per metre [default: 1000, mm; TUM: 5000]')
+    parser.add_argument('--intrinsics', type=parse_intrinsics, required=True,
+                        metavar='FX,FY,CX,CY', help='pinhole intrinsics of the depth image [px]')
+    parser.add_argument('--max-range', type=float, default=4.0, metavar='M',
+                        help='ignore points deeper than this [m, default: 4]')
+    parser.add_argument('--inlier', type=float, default=0.02, metavar='M',
+                        help='distance to the plane of a floor point [m, default: 0.02]')
+    parser.add_argument('--prior-pitch-deg', type=float, metavar='DEG',
+                        help='expected pitch, for a camera looking down more than ~60 deg')
+    parser.add_argument('--seed', type=int, default=0, help='RANSAC seed [default: 0]')
+    parser.add_argument('--params-out', type=Path, metavar='YAML',
+                        help='write a node parameter file fragment with the mount')
+    parser.add_argument('--camera-yaml-out', type=Path, metavar='YAML',
+                        help='write intrinsics, depth scale and mount (pictures.py '
+                             '--intrinsics)')
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point; returns the exit code (0 ok, 2 bad input or no floor found)."""
+    args = build_parser().parse_args(argv)
+    try:
+        if not (math.isfinite(args.depth_scale) and args.depth_scale > 0.0):
+            raise ValueError(f'--depth-scale={args.depth_scale} must be > 0')
+        depth_m = decode_depth(read_depth(args.depth), depth_scale=args.depth_scale)
+        prior = None if args.prior_pitch_deg is None else math.radians(args.prior_pitch_deg)
+        estimate = estimate_mount(depth_m, args.intrinsics, max_range_m=args.max_range,
+                                  inlier_m=args.inlier, seed=args.seed, prior_pitch_rad=prior)
+        if args.params_out is not None:
+            args.params_out.parent.mkdir(parents=True, exist_ok=True)
+            args.params_out.write_text(params_yaml(estimate), encoding='utf-8')
+        if args.camera_yaml_out is not None:
+            args.camera_yaml_out.parent.mkdir(parents=True, exist_ok=True)
+            args.camera_yaml_out.write_text(
+                camera_yaml(estimate, args.intrinsics, args.depth_scale), encoding='utf-8')
+    except (ValueError, OSError) as exc:
+        print(f'estimate_mount.py: error: {exc}', file=sys.stderr)
+        return 2
+    print(f'{args.depth}: height {estimate.height_m:.3f} m, pitch {estimate.pitch_deg:.2f} deg, '
+          f'roll {estimate.roll_deg:.2f} deg; floor holds {estimate.inlier_fraction:.1%} of '
+          f'{estimate.n_points} points within {args.max_range:g} m')
+    for path in (args.params_out, args.camera_yaml_out):
+        if path is not None:
+            print(f'wrote {path}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
