@@ -389,55 +389,22 @@ def apply_overrides(base: DetectorParams, overrides: dict[str, Any]) -> Detector
 
 def load_params_file(path: str | Path, base: DetectorParams | None = None,
                      ) -> DetectorParams:
-    """Detector parameters from a ROS 2 node parameter file.
+    """Detector parameters from a node parameter file (the node's ``--params-file`` format).
 
-    Reads the first ``ros__parameters`` mapping found (``/**:``, ``node_name:`` or nested
-    namespaces), or a flat mapping. Keys that are detector parameters (names, aliases, ``_deg``
-    variants, see :func:`apply_overrides`) are applied on ``base`` (default: Table 4.2); other
-    keys (topics, QoS, frames) are ignored. Raises ValueError for a bad value.
+    The pipeline parameters the file sets are applied on ``base`` (default: Table 4.2); the
+    node's own parameters (frames, output switches, QoS) are ignored. The file is read by
+    ``ros_params.read_params_file``, as the offline bag tool reads it. Raises ValueError
+    naming the file and the bad value.
     """
-    import yaml  # PyYAML ships with ROS 2
+    from .ros_params import detector_params_from_ros, pipeline_params_to_ros, read_params_file
 
-    data = yaml.safe_load(Path(path).read_text(encoding='utf-8')) or {}
-
-    def find(node: Any) -> dict[str, Any] | None:
-        if isinstance(node, dict):
-            if 'ros__parameters' in node and isinstance(node['ros__parameters'], dict):
-                return node['ros__parameters']
-            for value in node.values():
-                found = find(value)
-                if found is not None:
-                    return found
-        return None
-
-    values = find(data)
-    if values is None:
-        values = data if isinstance(data, dict) else {}
-    flat: dict[str, Any] = {}
-
-    def flatten(node: dict[str, Any], prefix: str = '') -> None:
-        for key, value in node.items():
-            if isinstance(value, dict):
-                flatten(value, f'{prefix}{key}.')
-            else:
-                flat[f'{prefix}{key}'] = value
-
-    flatten(values)
-    base = base if base is not None else PRESETS['table_4_2']()
-    overrides: dict[str, Any] = {}
-    for key, value in flat.items():
-        short = key.rsplit('.', 1)[-1]
-        if short == 'preset' and isinstance(value, str) and value in PRESETS:
-            base = PRESETS[value]()
-            continue
-        try:
-            apply_overrides(base, {short: value})
-        except ValueError as exc:
-            if str(exc).startswith('unknown parameter'):
-                continue
-            raise ValueError(f'{path}: {exc}') from exc
-        overrides[short] = value
-    return apply_overrides(base, overrides)
+    values = pipeline_params_to_ros(base if base is not None else PRESETS['table_4_2']())
+    values.update({name: value for name, value in read_params_file(path).items()
+                   if name in values})
+    try:
+        return detector_params_from_ros(values)
+    except ValueError as exc:
+        raise ValueError(f'{path}: {exc}') from exc
 
 
 # --------------------------------------------------------------------------------------------

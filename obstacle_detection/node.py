@@ -59,9 +59,9 @@ from .conversions import (
 from .params import Intrinsics
 from .pipeline import Detector
 from .refine import LogisticRefiner, RefinedDetector
-from .ros_params import ALL_PARAMS, detector_params_from_ros, fallback_intrinsics_from_ros
+from .ros_params import (ALL_PARAMS, NODE_NAME, detector_params_from_ros,
+                         fallback_intrinsics_from_ros)
 
-NODE_NAME = 'obstacle_detector'
 #: Minimum interval between two warnings about the same kind of bad input [s].
 WARN_THROTTLE_S = 5.0
 _OUTPUT_QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE,

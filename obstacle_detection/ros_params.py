@@ -16,13 +16,19 @@ import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
+
+import yaml
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
 
 from .params import SEED_TABLE_4_1, DetectorParams, Intrinsics
 
 ParamValue = bool | int | float | str
+
+#: The node's name: the section of a ``--params-file`` it reads.
+NODE_NAME = 'obstacle_detector'
 
 #: DetectorParams fields exposed in degrees -> their ROS parameter name.
 DEGREE_FIELDS = {
@@ -188,3 +194,47 @@ def fallback_intrinsics_from_ros(values: Mapping[str, Any]) -> Intrinsics:
     """Build the fallback Intrinsics from fallback_fx/fy/cx/cy (ValueError on a zero focal)."""
     return Intrinsics(fx=float(values['fallback_fx']), fy=float(values['fallback_fy']),
                       cx=float(values['fallback_cx']), cy=float(values['fallback_cy']))
+
+
+class ParamsFileError(ValueError):
+    """A ``--params-file`` that cannot be read, or that names or types a parameter wrongly."""
+
+
+def read_params_file(path: str | Path) -> dict[str, ParamValue]:
+    """The parameter values a node parameter file sets: ``{ros_name: value}``.
+
+    The file has the ``--params-file`` format (``obstacle_detector: ros__parameters: {...}``;
+    ``/**`` and ``/obstacle_detector`` sections are read too, in that order). Unlike the node,
+    which ignores undeclared names, an unknown name is an error here (a typo would otherwise
+    go unnoticed); as for the node, a value must have its parameter's type (1.0, not 1, for a
+    floating-point one). Only the names in the file are returned. Raises ParamsFileError
+    naming the file and the parameter; the values themselves are validated by
+    :func:`detector_params_from_ros`.
+    """
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text(encoding='utf-8'))
+    except OSError as err:
+        raise ParamsFileError(f'{path}: cannot read params file ({err.strerror})') from err
+    except yaml.YAMLError as err:
+        raise ParamsFileError(f'{path}: not valid YAML ({err})') from err
+    if not isinstance(data, dict):
+        raise ParamsFileError(f'{path}: expected "{NODE_NAME}: ros__parameters: ..."')
+    sections = [data[key] for key in ('/**', NODE_NAME, f'/{NODE_NAME}') if key in data]
+    if not sections:
+        raise ParamsFileError(f'{path}: no "{NODE_NAME}" (or "/**") section')
+    values: dict[str, ParamValue] = {}
+    for section in sections:
+        params = section.get('ros__parameters') if isinstance(section, dict) else None
+        if not isinstance(params, dict):
+            raise ParamsFileError(f'{path}: a section lacks "ros__parameters"')
+        for name, value in params.items():
+            spec = SPECS_BY_NAME.get(name)
+            if spec is None:
+                raise ParamsFileError(f'{path}: unknown parameter {name!r}')
+            want = type(spec.default)
+            if type(value) is not want:
+                raise ParamsFileError(f'{path}: parameter {name!r} must be a {want.__name__}, '
+                                      f'got {value!r}')
+            values[name] = value
+    return values

@@ -9,7 +9,7 @@ import pytest
 
 from obstacle_detection import evaluation, metrics, scenes
 from obstacle_detection.metrics import Confusion, GT_OBSTACLE
-from obstacle_detection.params import table_4_2
+from obstacle_detection.params import table_4_2, table_4_3
 from tools import evaluate
 
 SUITE = Path(__file__).resolve().parents[1] / 'tools' / 'scenarios.json'
@@ -63,10 +63,14 @@ def test_overrides_refuse_unknown_names_and_fractional_counts():
 def test_node_parameter_file(tmp_path):
     path = tmp_path / 'node.yaml'
     path.write_text('/**:\n  ros__parameters:\n    max_slope_deg: 45.0\n'
-                    '    normal_neighbours: 5\n    depth_topic: /camera/depth\n')
+                    '    normal_neighbours: 5\n    publish_ground: true\n')
     p = evaluation.load_params_file(path)
     assert p.max_slope_rad == pytest.approx(math.pi / 4)
     assert p.normal_neighbours == 5
+    assert evaluation.load_params_file(path, table_4_3()).median_kernel == 7   # on the base
+    path.write_text('/**:\n  ros__parameters:\n    depth_topic: /camera/depth\n')
+    with pytest.raises(ValueError, match="unknown parameter 'depth_topic'"):
+        evaluation.load_params_file(path)
 
 
 def test_truth_grid_uses_the_costmap_binning():

@@ -28,7 +28,6 @@ if __package__ in (None, ''):  # run as a script: make the repository root impor
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
-import yaml  # noqa: E402
 from rclpy.serialization import deserialize_message, serialize_message  # noqa: E402
 from rosbags.rosbag2 import Reader, ReaderError, Writer, WriterError  # noqa: E402
 from rosbags.typesys import Stores, get_typestore  # noqa: E402
@@ -37,9 +36,10 @@ from sensor_msgs.msg import CameraInfo, Image  # noqa: E402
 from obstacle_detection.conversions import (DEPTH_ENCODINGS, ImageFormatError,  # noqa: E402
                                             camera_info_to_intrinsics, image_to_array,
                                             result_to_messages)
-from obstacle_detection.node import NODE_NAME, NodeConfig, build_config  # noqa: E402
+from obstacle_detection.node import NodeConfig, build_config  # noqa: E402
 from obstacle_detection.params import Intrinsics  # noqa: E402
-from obstacle_detection.ros_params import ALL_PARAMS, SPECS_BY_NAME  # noqa: E402
+from obstacle_detection.ros_params import (ALL_PARAMS, ParamsFileError,  # noqa: E402
+                                           read_params_file)
 from tools.bag_convert import (BAG_VERSION, DEFAULT_DEPTH_TOPIC,  # noqa: E402
                                DEFAULT_INFO_TOPIC, STORAGES, ConvertError, staged_output)
 from tools.progress import Progress  # noqa: E402
@@ -61,38 +61,16 @@ class ProcessError(Exception):
 def load_params_file(path: Path) -> dict[str, Any]:
     """All node parameter values: defaults updated with a ``--params-file`` YAML.
 
-    The file has the node's format (``obstacle_detector: ros__parameters: {...}``; ``/**`` and
-    ``/obstacle_detector`` sections are read too). As for the node, a value must have its
-    parameter's type (write 1.0, not 1, for a floating-point one).
+    See :func:`obstacle_detection.ros_params.read_params_file` for the format.
 
     Raises:
         ProcessError: naming the file and the parameter.
     """
     values: dict[str, Any] = {spec.name: spec.default for spec in ALL_PARAMS}
     try:
-        data = yaml.safe_load(path.read_text())
-    except OSError as err:
-        raise ProcessError(f'{path}: cannot read params file ({err.strerror})') from err
-    except yaml.YAMLError as err:
-        raise ProcessError(f'{path}: not valid YAML ({err})') from err
-    if not isinstance(data, dict):
-        raise ProcessError(f'{path}: expected "{NODE_NAME}: ros__parameters: ..."')
-    sections = [data[key] for key in ('/**', NODE_NAME, f'/{NODE_NAME}') if key in data]
-    if not sections:
-        raise ProcessError(f'{path}: no "{NODE_NAME}" (or "/**") section')
-    for section in sections:
-        params = section.get('ros__parameters') if isinstance(section, dict) else None
-        if not isinstance(params, dict):
-            raise ProcessError(f'{path}: a section lacks "ros__parameters"')
-        for name, value in params.items():
-            spec = SPECS_BY_NAME.get(name)
-            if spec is None:
-                raise ProcessError(f'{path}: unknown parameter {name!r}')
-            want = type(spec.default)
-            if type(value) is not want:
-                raise ProcessError(f'{path}: parameter {name!r} must be a {want.__name__}, '
-                                   f'got {value!r}')
-            values[name] = value
+        values.update(read_params_file(path))
+    except ParamsFileError as err:
+        raise ProcessError(str(err)) from err
     return values
 
 
