@@ -19,8 +19,10 @@ import subprocess
 import zlib
 from pathlib import Path
 
+from tools import dds_env
+
 REPO_ROOT = Path(__file__).resolve().parents[1]
-LOOPBACK_PROFILE = REPO_ROOT / 'tools' / 'fastdds_loopback.xml'
+LOOPBACK_PROFILE = dds_env.LOOPBACK_PROFILE
 DOMAIN_MIN, DOMAIN_MAX = 100, 200  # inclusive; well inside Fast DDS's 0..232
 
 _VARIABLES = ('FASTDDS_DEFAULT_PROFILES_FILE', 'FASTRTPS_DEFAULT_PROFILES_FILE',
@@ -43,21 +45,12 @@ def loopback_env(salt: str = '', *, base: dict[str, str] | None = None,
     ROS_LOG_DIR for rcl's log files (None leaves it as is). Output is unbuffered so a test can
     read a subprocess's log lines as they come.
     """
-    env = dict(os.environ if base is None else base)
-    profile = str(LOOPBACK_PROFILE)
+    env = dds_env.loopback_env(domain_id(salt), base)
     env.update({
-        'FASTDDS_DEFAULT_PROFILES_FILE': profile,
-        'FASTRTPS_DEFAULT_PROFILES_FILE': profile,
-        'RMW_IMPLEMENTATION': 'rmw_fastrtps_cpp',
-        'ROS_DOMAIN_ID': str(domain_id(salt)),
         'PYTHONUNBUFFERED': '1',
         'RCUTILS_LOGGING_BUFFERED_STREAM': '0',
         'RCUTILS_COLORIZED_OUTPUT': '0',
     })
-    # These would override the profile's locators in ways the profile does not expect.
-    env.pop('ROS_LOCALHOST_ONLY', None)
-    env.pop('ROS_AUTOMATIC_DISCOVERY_RANGE', None)
-    env.pop('ROS_STATIC_PEERS', None)
     if log_dir is not None:
         env['ROS_LOG_DIR'] = str(log_dir)
     return env

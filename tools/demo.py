@@ -38,9 +38,9 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 from tools import bag_convert, bag_play  # noqa: E402
+from tools.dds_env import loopback_env  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
-LOOPBACK_PROFILE = REPO / 'tools' / 'fastdds_loopback.xml'
 DEFAULT_PARAMS = REPO / 'params' / 'corridor.yaml'
 MARKER = '.obstacle_detection_demo'
 #: The node's outputs (after its default names) -> message type name.
@@ -54,20 +54,6 @@ OUTPUT_TOPICS = {
 
 class DemoError(Exception):
     """The demo could not run or the node produced nothing; the message says why."""
-
-
-def loopback_env(domain_id: int, base: dict[str, str] | None = None) -> dict[str, str]:
-    """An environment keeping DDS on 127.0.0.1 in ROS domain ``domain_id``."""
-    env = dict(os.environ if base is None else base)
-    env.update({
-        'FASTDDS_DEFAULT_PROFILES_FILE': str(LOOPBACK_PROFILE),
-        'FASTRTPS_DEFAULT_PROFILES_FILE': str(LOOPBACK_PROFILE),  # the name Fast DDS 2.14 reads
-        'RMW_IMPLEMENTATION': 'rmw_fastrtps_cpp',
-        'ROS_DOMAIN_ID': str(domain_id),
-    })
-    for name in ('ROS_LOCALHOST_ONLY', 'ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_STATIC_PEERS'):
-        env.pop(name, None)
-    return env
 
 
 def prepare_output(folder: Path) -> None:
