@@ -68,7 +68,7 @@ class LabelledFrame:
     sequence_key: str | None = None  # frames sharing a key form a time sequence, in order
 
     def params(self, base: DetectorParams) -> DetectorParams:
-        """``base`` with this frame's camera mount."""
+        """Return ``base`` with this frame's camera mount."""
         return base.replace(camera_height_m=float(self.height_m),
                             camera_pitch_rad=float(self.pitch_rad),
                             camera_roll_rad=float(self.roll_rad))
@@ -165,7 +165,7 @@ def load_scenarios(path: str | Path) -> list[Scenario]:
 
 def select_scenarios(scenarios: Sequence[Scenario], names: Iterable[str] | None,
                      ) -> list[Scenario]:
-    """The scenarios named (all when ``names`` is None); ValueError for an unknown name."""
+    """Return the scenarios named (all when ``names`` is None); ValueError for an unknown name."""
     if names is None:
         return list(scenarios)
     by_name = {s.name: s for s in scenarios}
@@ -412,7 +412,7 @@ def load_params_file(path: str | Path, base: DetectorParams | None = None,
 
 
 def truth_costmap(frame: LabelledFrame, params: DetectorParams) -> np.ndarray:
-    """The truth grid (ny, nx) int8 of a frame in the pipeline's costmap geometry.
+    """Return the truth grid (ny, nx) int8 of a frame in the pipeline's costmap geometry.
 
     The true points of ``GT_OBSTACLE`` pixels inside the region of interest make cells
     occupied; cells with only ``GT_TRAVERSABLE`` points are free (see :mod:`metrics`). The
@@ -524,7 +524,7 @@ class DetectorCache:
         self._detectors: dict[DetectorParams, Any] = {}
 
     def get(self, params: DetectorParams) -> Any:
-        """The detector for ``params``."""
+        """Return the detector for ``params``."""
         from .pipeline import Detector
 
         if params not in self._detectors:
@@ -589,7 +589,7 @@ _COLUMNS = (('px P', 'pixel', 'precision'), ('px R', 'pixel', 'recall'),
 
 
 def format_table(report: Report, *, refined: bool = False) -> str:
-    """A fixed-width table: one row per scenario and an 'overall' row.
+    """Return a fixed-width table: one row per scenario and an 'overall' row.
 
     Columns: frames; pixel precision (px P), recall (px R), F1, false-alarm rate (px FA);
     costmap-cell precision, recall, F1, IoU, false-alarm rate; mean pipeline time [ms].

@@ -85,27 +85,27 @@ class Confusion:
 
     @property
     def precision(self) -> float:
-        """tp / (tp + fp); NaN when nothing was predicted positive."""
+        """Precision tp / (tp + fp); NaN when nothing was predicted positive."""
         return _ratio(self.tp, self.tp + self.fp)
 
     @property
     def recall(self) -> float:
-        """tp / (tp + fn); NaN when the truth has no positive."""
+        """Recall tp / (tp + fn); NaN when the truth has no positive."""
         return _ratio(self.tp, self.tp + self.fn)
 
     @property
     def f1(self) -> float:
-        """2 tp / (2 tp + fp + fn); NaN when there is neither a positive nor a prediction."""
+        """F1 score 2 tp / (2 tp + fp + fn); NaN without any positive or prediction."""
         return _ratio(2 * self.tp, 2 * self.tp + self.fp + self.fn)
 
     @property
     def iou(self) -> float:
-        """tp / (tp + fp + fn), the Jaccard index of the positive class."""
+        """IoU tp / (tp + fp + fn), the Jaccard index of the positive class."""
         return _ratio(self.tp, self.tp + self.fp + self.fn)
 
     @property
     def false_alarm_rate(self) -> float:
-        """fp / (fp + tn): the share of true negatives (traversable) predicted positive."""
+        """False-alarm rate fp / (fp + tn): the share of true negatives predicted positive."""
         return _ratio(self.fp, self.fp + self.tn)
 
     @property
@@ -120,7 +120,7 @@ class Confusion:
                 'accuracy': self.accuracy}
 
     def as_dict(self) -> dict[str, float]:
-        """Counts and scores in one flat dict (JSON-ready; NaN stays NaN)."""
+        """Return counts and scores in one flat dict (JSON-ready; NaN stays NaN)."""
         return {'tp': self.tp, 'fp': self.fp, 'fn': self.fn, 'tn': self.tn, **self.scores()}
 
 
@@ -228,5 +228,5 @@ def truth_grid(obstacle_points: np.ndarray, traversable_points: np.ndarray,
 
 
 def format_score(value: float, digits: int = 3) -> str:
-    """A ratio as text, '-' when not defined (NaN)."""
+    """Return a ratio as text, '-' when not defined (NaN)."""
     return '-' if value is None or math.isnan(value) else f'{value:.{digits}f}'

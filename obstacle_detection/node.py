@@ -172,7 +172,7 @@ class NodeConfig:
 
 
 def build_detector(values: dict[str, Any]) -> Detector | RefinedDetector:
-    """The pipeline, refined when ``refiner_model_file`` names a model; ValueError if bad.
+    """Return the pipeline, refined when ``refiner_model_file`` names a model; ValueError if bad.
 
     Shared by the node and the offline bag tool, so that both run the same detector.
     """

@@ -11,7 +11,7 @@ from scipy.spatial import cKDTree
 
 
 def nearest_neighbours(points: np.ndarray, k: int) -> np.ndarray:
-    """Indices (V, k) int64 of the k nearest points of every point, nearest first.
+    """Return indices (V, k) int64 of the k nearest points of every point, nearest first.
 
     points: (V, 3) float32 [m]. The point itself is among its own neighbours (first, at
     distance 0). Exact Euclidean search with a k-d tree on one thread. If there are fewer
@@ -48,7 +48,7 @@ def neighbourhood_covariance(points: np.ndarray, neighbours: np.ndarray) -> np.n
 
 
 def smallest_eigenvectors(cov: np.ndarray) -> np.ndarray:
-    """Unit eigenvector (V, 3) float64 of the smallest eigenvalue of symmetric 3x3 matrices.
+    """Return unit eigenvector (V, 3) float64 of the smallest eigenvalue of symmetric 3x3 matrices.
 
     Closed form, vectorised: the eigenvalues come from the trigonometric solution of the
     characteristic cubic; the eigenvector of the smallest one is the longest of the three
@@ -96,7 +96,7 @@ def smallest_eigenvectors(cov: np.ndarray) -> np.ndarray:
 
 
 def estimate_normals(points: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
-    """Unit normals (V, 3) float32: smallest-eigenvalue eigenvector of each neighbourhood.
+    """Return unit normals (V, 3) float32: smallest-eigenvalue eigenvector of each neighbourhood.
 
     neighbours: (V, N) indices from :func:`nearest_neighbours`, the point itself included.
     """

@@ -187,8 +187,11 @@ def _check_field(name: str, value: Any, type_name: Any, meta: Any) -> None:
 
 
 def table_4_2(**overrides: Any) -> DetectorParams:
-    """Seed Table 4.2 (DIML indoor scenes): theta = pi/6, N1 = 12, N = 10, TDBG = -0.1,
-    SMAR = 0.8, range 2 m, voxels 25 mm, K = 17 (seed figure 4.8)."""
+    """Return the seed's Table 4.2 parameters (DIML indoor scenes), with overrides.
+
+    theta = pi/6, N1 = 12, N = 10, TDBG = -0.1, SMAR = 0.8, range 2 m, voxels 25 mm,
+    K = 17 (seed figure 4.8).
+    """
     base = dict(max_slope_rad=math.pi / 6, validation_neighbours=12, normal_neighbours=10,
                 tdbg_m=-0.1, smar_m=0.8, max_range_m=2.0, median_kernel=17)
     base.update(overrides)
@@ -196,8 +199,11 @@ def table_4_2(**overrides: Any) -> DetectorParams:
 
 
 def table_4_3(**overrides: Any) -> DetectorParams:
-    """Seed Table 4.3 (corridor video, 512x424): theta = pi/3, N1 = 7, N = 5, TDBG = -0.1,
-    SMAR = 0.8, range 1 m (seed figure 4.27), K = 7 (seed figure 4.11)."""
+    """Return the seed's Table 4.3 parameters (corridor video, 512x424), with overrides.
+
+    theta = pi/3, N1 = 7, N = 5, TDBG = -0.1, SMAR = 0.8, range 1 m (seed figure 4.27),
+    K = 7 (seed figure 4.11).
+    """
     base = dict(max_slope_rad=math.pi / 3, validation_neighbours=7, normal_neighbours=5,
                 tdbg_m=-0.1, smar_m=0.8, max_range_m=1.0, median_kernel=7,
                 costmap_length_m=1.0)

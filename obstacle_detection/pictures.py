@@ -88,7 +88,7 @@ def truth_comparison(labels: np.ndarray, truth_labels: np.ndarray,
 def side_by_side(result: Any, *, caption: str = '', truth_labels: np.ndarray | None = None,
                  max_depth_m: float | None = None, labels: np.ndarray | None = None,
                  costmap: Any = None, extra_lines: Sequence[str] = ()) -> np.ndarray:
-    """The panel picture of one ``DetectionResult``.
+    """Return the panel picture of one ``DetectionResult``.
 
     Layout: ``[overlay (H x W) | costmap | truth comparison (optional)]`` over a caption band.
     The overlay occupies exactly rows ``0:H`` and columns ``0:W`` of the returned image.
@@ -124,7 +124,7 @@ def side_by_side(result: Any, *, caption: str = '', truth_labels: np.ndarray | N
 
 def contact_sheet(images: Sequence[np.ndarray], *, labels: Sequence[str] | None = None,
                   columns: int = 4, thumb_width: int = 400) -> np.ndarray:
-    """A grid of thumbnails (RGB), each scaled to ``thumb_width`` with an optional label below.
+    """Return a grid of RGB thumbnails, each ``thumb_width`` wide with an optional label below.
 
     Returns (rows * cell_h, columns * thumb_width, 3) uint8 RGB (white padding).
     """
@@ -235,7 +235,7 @@ def heatmap(scores: np.ndarray, x_labels: Sequence[str], y_labels: Sequence[str]
             title: str = '', x_name: str = '', y_name: str = '', vmin: float = 0.0,
             vmax: float = 1.0, best: tuple[int, int] | None = None,
             values: np.ndarray | None = None, cell_px: int = 64) -> np.ndarray:
-    """A score grid drawn as a coloured table with the value written in each cell.
+    """Return a score grid drawn as a coloured table with the value written in each cell.
 
     scores: (ny, nx) float, NaN = not run / invalid (drawn grey, '-'); row 0 is drawn at the
     top; colours: OpenCV's viridis from ``vmin`` (dark) to ``vmax`` (yellow); best: (row, col)

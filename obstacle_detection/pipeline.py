@@ -36,8 +36,9 @@ class DetectionResult:
     labels (H, W) uint8: LABEL_* per pixel. costmap: the ground-plane grid.
     timings_ms: per stage (STAGES order) and 'total' [ms].
     voxel_points (V, 3); voxel_normals (V, 3) unit; voxel_slope_obstacle (V,) bool, the slope
-    test (and the optional height rule, ``max_ground_height_m``) before validation; voxel_is_obstacle (V,) bool after validation; pixel_voxel (H, W) int32, the
-    voxel of each pixel or -1; depth_m (H, W) float32, the filtered depth the points came from.
+    test (and the optional height rule, ``max_ground_height_m``) before validation;
+    voxel_is_obstacle (V,) bool after validation; pixel_voxel (H, W) int32, the voxel of each
+    pixel or -1; depth_m (H, W) float32, the filtered depth the points came from.
     """
 
     obstacle_points: np.ndarray

@@ -201,7 +201,7 @@ class ParamsFileError(ValueError):
 
 
 def read_params_file(path: str | Path) -> dict[str, ParamValue]:
-    """The parameter values a node parameter file sets: ``{ros_name: value}``.
+    """Return the parameter values a node parameter file sets: ``{ros_name: value}``.
 
     The file has the ``--params-file`` format (``obstacle_detector: ros__parameters: {...}``;
     ``/**`` and ``/obstacle_detector`` sections are read too, in that order). Unlike the node,

@@ -77,11 +77,11 @@ class Rays:
     dz: np.ndarray
 
     def window(self, rows: slice, cols: slice) -> 'Rays':
-        """The rays of an image window (views of 2-D direction arrays)."""
+        """Return the rays of an image window (views of 2-D direction arrays)."""
         return Rays(self.origin, self.dx[rows, cols], self.dy[rows, cols], self.dz[rows, cols])
 
     def flat(self, index: np.ndarray) -> 'Rays':
-        """The rays at flat indices ``index`` (copies, 1-D)."""
+        """Return the rays at flat indices ``index`` (copies, 1-D)."""
         return Rays(self.origin, self.dx.reshape(-1)[index], self.dy.reshape(-1)[index],
                     self.dz.reshape(-1)[index])
 
@@ -125,7 +125,7 @@ def _check_finite(owner: str, **values: float) -> None:
 
 
 def _plane_t(offset: float, rate: np.ndarray) -> np.ndarray:
-    """t solving ``offset + t * rate = 0``; inf where parallel or not in front of the camera."""
+    """Return t solving ``offset + t * rate = 0``; inf if parallel or behind the camera."""
     with np.errstate(divide='ignore', invalid='ignore'):
         t = np.divide(-offset, rate)
     t[~(t > _EPS_T)] = np.inf
@@ -256,13 +256,13 @@ class Box:
     @classmethod
     def on_floor(cls, x_m: float, y_m: float, size_x_m: float, size_y_m: float,
                  size_z_m: float, **kwargs: bool) -> 'Box':
-        """A box standing on z = 0, centred on (x_m, y_m), of the given sizes [m]."""
+        """Return a box standing on z = 0, centred on (x_m, y_m), of the given sizes [m]."""
         _check_positive('Box', size_x_m=size_x_m, size_y_m=size_y_m, size_z_m=size_z_m)
         return cls((x_m - size_x_m / 2, y_m - size_y_m / 2, 0.0),
                    (x_m + size_x_m / 2, y_m + size_y_m / 2, size_z_m), **kwargs)
 
     def bounds(self) -> Bounds:
-        """The box itself."""
+        """Return the box itself."""
         return self.min_m, self.max_m
 
     def intersect(self, rays: Rays) -> tuple[np.ndarray, LabelValue]:
@@ -581,7 +581,7 @@ class SceneFrame:
 
 
 def scene_params(frame: SceneFrame, base: DetectorParams | None = None) -> DetectorParams:
-    """``base`` (default ``DetectorParams()``) with the frame's camera mount."""
+    """Return ``base`` (default ``DetectorParams()``) with the frame's camera mount."""
     return (base or DetectorParams()).replace(camera_height_m=frame.height_m,
                                               camera_pitch_rad=frame.pitch_rad,
                                               camera_roll_rad=frame.roll_rad)
@@ -819,7 +819,7 @@ SCENE_NAMES: tuple[str, ...] = tuple(_BUILDERS)
 
 
 def build_scene(name: str, *, seed: int = 0, frame_index: int = 0) -> Scene:
-    """The named scene's primitives and default mount; positions jitter with ``seed``.
+    """Return the named scene's primitives and default mount; positions jitter with ``seed``.
 
     Only 'person_walking' depends on ``frame_index``: a person about 2 m ahead walks from left
     to right (ground y decreasing, image column increasing) at ``WALK_SPEED_M_S``, one frame

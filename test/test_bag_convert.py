@@ -36,7 +36,7 @@ def scene_depth(k: int) -> np.ndarray:
 
 
 def fake_color(depth: np.ndarray, k: int) -> np.ndarray:
-    """A (H, W, 3) uint8 BGR picture, different per channel and per frame."""
+    """Return a (H, W, 3) uint8 BGR picture, different per channel and per frame."""
     grey = (depth // 20).astype(np.uint8)
     return np.dstack([grey, 255 - grey, np.full_like(grey, 10 * k)])
 
@@ -161,7 +161,7 @@ def test_folder_topic_and_frame_options(tmp_path: Path, depths: list[np.ndarray]
 
 
 def make_diml(seq: Path, depths: list[np.ndarray], numbers: list[int]) -> None:
-    """A DIML/CVL sequence folder: col, raw_png, up_png, warp_png with the release's names."""
+    """Write a DIML/CVL sequence folder: col, raw_png, up_png, warp_png, the release's names."""
     for folder in ('col', 'raw_png', 'up_png', 'warp_png'):
         (seq / folder).mkdir(parents=True)
     for k, (depth, n) in enumerate(zip(depths, numbers)):
@@ -230,7 +230,7 @@ def test_diml_sample_subset_takes_chosen_resolution(tmp_path: Path, depths: list
 
 
 def make_tum(root: Path, depths: list[np.ndarray]) -> tuple[list[np.ndarray], list[int]]:
-    """A TUM-format sequence: depth in 5000 units/m; colour 10 ms later, none for frame 2.
+    """Return a TUM-format sequence: depth in 5000 units/m; colour 10 ms later, none for frame 2.
 
     Returns the expected depth in millimetres and the expected stamps [ns].
     """

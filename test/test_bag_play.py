@@ -36,7 +36,7 @@ def frame_depth(k: int) -> np.ndarray:
 
 @pytest.fixture(scope='module')
 def bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A converted bag of N_FRAMES depth + camera-info frames at 30 Hz."""
+    """Return a converted bag of N_FRAMES depth + camera-info frames at 30 Hz."""
     import cv2
 
     root = tmp_path_factory.mktemp('play')

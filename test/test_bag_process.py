@@ -68,7 +68,7 @@ def frames() -> list[np.ndarray]:
 
 
 def write_bag(path: Path, items: list[tuple[str, int, object]]) -> None:
-    """A rosbag2 with (topic, bag timestamp, rclpy message) items, in the order given."""
+    """Return a rosbag2 with (topic, bag timestamp, rclpy message) items, in the order given."""
     with Writer(path, version=9) as writer:
         conns = {}
         for topic, _, msg in items:
@@ -100,7 +100,7 @@ def frame_messages(depths: list[np.ndarray], intr: Intrinsics = INTR
 
 
 def expected_outputs(depth: np.ndarray, intr: Intrinsics, t: int) -> dict[str, object]:
-    """The messages result_to_messages gives in-process for one frame, as they read back.
+    """Return the messages result_to_messages gives in-process for one frame, as they read back.
 
     A serialization round trip stores float32 fields (OccupancyGrid's resolution) as float32,
     so the in-process messages are compared after one.
@@ -115,7 +115,7 @@ def expected_outputs(depth: np.ndarray, intr: Intrinsics, t: int) -> dict[str, o
 
 
 def decoded(topic: str, raw: bytes) -> object:
-    """The rclpy message of a serialized output.
+    """Return the rclpy message of a serialized output.
 
     Messages are compared field by field, not as bytes: rclpy leaves CDR padding bytes
     uninitialised, so equal messages may serialize to different bytes.

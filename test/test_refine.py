@@ -36,7 +36,7 @@ def test_fit_rejects_mismatched_input():
 
 
 def _fake_result(rng, height=12, width=16):
-    """A DetectionResult-like object: a voxel per 2x2 block, random normals and depth."""
+    """Return a DetectionResult-like object: a voxel per 2x2 block, random normals and depth."""
     rows, cols = np.mgrid[0:height, 0:width]
     pixel_voxel = (rows // 2) * (width // 2) + cols // 2
     pixel_voxel[0, :] = -1  # a row without voxels

@@ -17,7 +17,7 @@ QHD = Intrinsics(fx=540.0, fy=540.0, cx=479.5, cy=269.5)   # another camera, 960
 
 
 def wall_scene(distance_m: float, *, dark: bool = False) -> Scene:
-    """A floor and a wide wall across the view at x = distance_m, level camera."""
+    """Return a floor and a wide wall across the view at x = distance_m, level camera."""
     return Scene('wall', (Floor(), Wall(distance_m, 6.0, distance_m, -6.0, 0.0, 3.0,
                                         dark=dark)), height_m=HEIGHT_M)
 

@@ -104,7 +104,7 @@ def parse_remap(items: Sequence[str]) -> dict[str, str]:
 
 
 def message_class(msgtype: str) -> type:
-    """The rclpy message class for a bag type name like ``sensor_msgs/msg/Image``."""
+    """Return the rclpy message class for a bag type name like ``sensor_msgs/msg/Image``."""
     package, _, name = msgtype.rpartition('/')
     try:
         return getattr(importlib.import_module(package.replace('/', '.')), name)
@@ -191,7 +191,7 @@ class Player:
         self.reader.close()
 
     def subscription_count(self) -> int:
-        """Matched subscriptions summed over the played topics."""
+        """Return matched subscriptions summed over the played topics."""
         return sum(p.get_subscription_count() for p in self.publishers.values())
 
     def wait_for_subscribers(self, stop: threading.Event | None = None) -> None:

@@ -75,7 +75,7 @@ def load_params_file(path: Path) -> dict[str, Any]:
 
 
 def config_from_values(values: Mapping[str, Any], origin: str) -> NodeConfig:
-    """The node's configuration (detector, frames, switches) from parameter values."""
+    """Return the node's configuration (detector, frames, switches) from parameter values."""
     try:
         return build_config(dict(values))
     except ValueError as err:
@@ -128,7 +128,7 @@ def _time_msg(stamp: Any) -> Any:
 
 def frame_intrinsics(depth: Image, info: CameraInfo | None, config: NodeConfig
                      ) -> tuple[Intrinsics | None, str | None]:
-    """The intrinsics the node would use for ``depth``, or why it would skip the frame."""
+    """Return the intrinsics the node would use for ``depth``, or why it would skip the frame."""
     if info is None:
         if config.use_fallback_intrinsics:
             return config.fallback_intrinsics, None

@@ -90,7 +90,7 @@ def run_config(scenes: tuple[str, ...], size_label: str, kernel: int, frames: in
 
 
 def format_table(results: list[dict]) -> str:
-    """A fixed-width table: one row per stage, one column pair per configuration."""
+    """Return a fixed-width table: one row per stage, one column pair per configuration."""
     heads = [f"{r['size']} K={r['kernel']}" for r in results]
     lines = ['stage          ' + ''.join(f'{h:>22}' for h in heads),
              '               ' + ''.join(f'{"median ms":>12}{"p90 ms":>10}' for _ in heads)]

@@ -212,7 +212,7 @@ def save_pictures(folder: Path, recorder: Recorder, every: int) -> list[Path]:
 
 
 def _node_command(params: Path, frame: Any, *, reliable: bool) -> list[str]:
-    """The detector node, inputs remapped to the bag's topics, mount of the rendered scene."""
+    """Return the detector node command: inputs remapped to the bag's, the scene's mount."""
     import math
 
     return [sys.executable, '-m', 'obstacle_detection.node', '--ros-args',

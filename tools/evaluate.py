@@ -119,7 +119,7 @@ def _progress(total: int, label: str) -> Any:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The command-line interface."""
+    """Return the command-line interface."""
     parser = argparse.ArgumentParser(
         prog='evaluate.py', description=__doc__.split('\n\n')[0],
         epilog=evaluation.SCORE_DEFINITIONS, formatter_class=argparse.RawTextHelpFormatter)

@@ -136,7 +136,7 @@ class SweepResult:
         return self.grids[scene], self.metric, higher
 
     def setting(self, *index: int) -> dict[str, str]:
-        """The parameter values of grid cell ``index`` = (row, col, *extra)."""
+        """Return the parameter values of grid cell ``index`` = (row, col, *extra)."""
         return setting_of(self.x, self.y, self.also, tuple(index))
 
     def best(self, scene: str) -> tuple[int, ...] | None:
@@ -164,7 +164,7 @@ def setting_of(x: Axis, y: Axis | None, also: Sequence[Axis], index: tuple[int, 
 
 def settings_params(base: DetectorParams, x: Axis, y: Axis | None, *index: int,
                     also: Sequence[Axis] = ()) -> DetectorParams:
-    """``base`` with the setting of grid cell ``index`` applied (ValueError when invalid)."""
+    """Return ``base`` with grid cell ``index``'s setting applied (ValueError when invalid)."""
     return evaluation.apply_overrides(base, setting_of(x, y, also, tuple(index)))
 
 
@@ -208,7 +208,7 @@ def run_sweep(frames: Sequence[evaluation.LabelledFrame], base: DetectorParams, 
 
 
 def format_grid(result: SweepResult, scene: str) -> str:
-    """The grid of one scene as text: rows = y values, columns = x values; best marked '*'.
+    """Return the grid of one scene as text: rows = y values, columns = x values; best marked '*'.
 
     With ``also`` axes each cell shows the best score over them.
     """
@@ -235,7 +235,7 @@ def format_grid(result: SweepResult, scene: str) -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The command-line interface."""
+    """Return the command-line interface."""
     parser = argparse.ArgumentParser(prog='sweep.py', description=__doc__.split('\n\n')[0],
                                      epilog=evaluation.SCORE_DEFINITIONS,
                                      formatter_class=argparse.RawTextHelpFormatter)

@@ -57,7 +57,7 @@ def comparison_table(rule_pixel: Confusion, rule_cell: Confusion, refined_pixel:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The command-line interface."""
+    """Return the command-line interface."""
     parser = argparse.ArgumentParser(prog='train_refiner.py',
                                      description=__doc__.split('\n\n')[0],
                                      formatter_class=argparse.RawTextHelpFormatter)
