@@ -1,0 +1,26 @@
+"""The README stays true to the code: its parameter table is the generated one."""
+
+from pathlib import Path
+
+from tools import param_table
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def test_readme_parameter_table_is_the_generated_one():
+    readme = (REPO / 'README.md').read_text(encoding='utf-8')
+    expected = param_table.with_table(readme, param_table.parameter_table())
+    assert readme == expected, 'run: python tools/param_table.py --readme'
+
+
+def test_with_table_replaces_only_between_the_markers():
+    text = f'intro\n{param_table.README_BEGIN}\nold\n{param_table.README_END}\nrest\n'
+    out = param_table.with_table(text, '| new |\n')
+    assert out == f'intro\n{param_table.README_BEGIN}\n| new |\n{param_table.README_END}\nrest\n'
+
+
+def test_ci_runs_the_readme_test_command():
+    readme = (REPO / 'README.md').read_text(encoding='utf-8')
+    ci = (REPO / '.ci' / 'run').read_text(encoding='utf-8')
+    command = 'bash tools/setup_venv.sh && .venv/bin/python -m pytest -v'
+    assert command in readme and command in ci
