@@ -14,7 +14,7 @@ setup(
         # ament index marker: lets `ros2 run` / `ros2 pkg` find the package.
         ('share/ament_index/resource_index/packages', [f'resource/{PACKAGE}']),
         (f'share/{PACKAGE}', ['package.xml']),
-        (f'share/{PACKAGE}/params', sorted(glob('params/*.yaml'))),
+        (f'share/{PACKAGE}/params', sorted(glob('params/*.yaml') + glob('params/*.json'))),
     ],
     # ROS convention: runtime dependencies come from package.xml (rosdep), not from pip, so a
     # colcon build against system numpy/scipy/OpenCV keeps working.
