@@ -1,5 +1,7 @@
 """Side-by-side pictures, contact sheets, heatmaps and tools/pictures.py."""
 
+import math
+
 import cv2
 import numpy as np
 import pytest
@@ -9,8 +11,9 @@ from rosbags.typesys import Stores, get_typestore
 from obstacle_detection import evaluation, pictures
 from obstacle_detection.metrics import LABEL_OBSTACLE
 from obstacle_detection.overlay import OBSTACLE_RGB, render_overlay
-from obstacle_detection.params import table_4_2
+from obstacle_detection.params import KINECT_V2_SD, KINECT_V2_SD_SIZE, table_4_2
 from obstacle_detection.pipeline import Detector
+from obstacle_detection.scenes import render_scene
 from tools import pictures as pictures_tool
 
 SIZE = (160, 132)
@@ -142,3 +145,70 @@ def test_tool_reports_a_missing_topic(tmp_path, corridor, capsys):
     assert pictures_tool.main(['--bag', str(tmp_path / 'bag'), '--depth-topic', '/nope',
                                '--out', str(tmp_path / 'x.png')]) == 2
     assert "no topic '/nope'" in capsys.readouterr().err
+
+
+@pytest.fixture(scope='module')
+def tilted_floor(tmp_path_factory):
+    """A flat floor seen from a tilted, rolled mount, as a 16-bit PNG [mm] + its intrinsics."""
+    # full size: smaller frames have too few points per voxel for the noise at Table 4.2
+    intrinsics = KINECT_V2_SD
+    frame = render_scene('flat_floor', height_m=0.9, pitch_rad=math.radians(30),
+                         roll_rad=math.radians(4))
+    path = tmp_path_factory.mktemp('tilted') / 'floor.png'
+    assert cv2.imwrite(str(path), frame.depth_mm)
+    return path, ','.join(repr(v) for v in (intrinsics.fx, intrinsics.fy, intrinsics.cx,
+                                           intrinsics.cy))
+
+
+def _red_pixels(path, height, width):
+    rgb = cv2.cvtColor(cv2.imread(str(path)), cv2.COLOR_BGR2RGB)
+    return int(np.count_nonzero((rgb[:height, :width] == OBSTACLE_RGB).all(axis=-1))), rgb
+
+
+def test_tool_estimates_the_mount_of_a_depth_png(tmp_path, tilted_floor, capsys):
+    depth, intrinsics = tilted_floor
+    width, height = KINECT_V2_SD_SIZE
+    # the preset's mount is not the camera's: the tilted floor comes out as obstacles
+    assert pictures_tool.main(['--depth', str(depth), '--intrinsics', intrinsics,
+                               '--out', str(tmp_path / 'preset.png')]) == 0
+    red, preset = _red_pixels(tmp_path / 'preset.png', height, width)
+    assert red > 200
+    capsys.readouterr()
+    assert pictures_tool.main(['--depth', str(depth), '--intrinsics', intrinsics,
+                               '--estimate-mount', '--out', str(tmp_path / 'est.png')]) == 0
+    red, estimated = _red_pixels(tmp_path / 'est.png', height, width)
+    assert red == 0
+    assert estimated.shape[0] > preset.shape[0]  # one more caption line: the estimate
+    err = capsys.readouterr().err
+    assert 'mount estimated from the floor: h 0.90 m, pitch 30.0 deg, roll 4.0 deg' in err
+
+
+def test_tool_estimate_is_in_the_caption_and_explicit_mount_wins(tilted_floor):
+    depth, intrinsics = tilted_floor
+    args = pictures_tool.build_parser().parse_args(
+        ['--depth', str(depth), '--intrinsics', intrinsics, '--estimate-mount',
+         '--depth-scale', '1000', '--height', '1.2', '--out', 'x.png'])
+    job = pictures_tool.depth_job(args, table_4_2())
+    assert job.params.camera_height_m == 1.2
+    assert job.params.camera_pitch_rad == pytest.approx(math.radians(30), abs=0.01)
+    assert job.params.camera_roll_rad == pytest.approx(math.radians(4), abs=0.01)
+    assert job.depth_scale == 1000.0
+    assert job.extra_lines[0].startswith('mount estimated from the floor: h 0.90 m')
+    assert job.extra_lines[0].endswith('--height given instead')
+
+
+def test_tool_estimate_mount_needs_intrinsics(tmp_path, tilted_floor, capsys):
+    depth, _ = tilted_floor
+    assert pictures_tool.main(['--depth', str(depth), '--estimate-mount',
+                               '--out', str(tmp_path / 'x.png')]) == 2
+    assert '--estimate-mount needs the intrinsics' in capsys.readouterr().err
+    assert not (tmp_path / 'x.png').exists()
+
+
+def test_tool_reports_a_frame_without_a_floor(tmp_path, tilted_floor, capsys):
+    depth, intrinsics = tilted_floor
+    assert pictures_tool.main(['--depth', str(depth), '--intrinsics', intrinsics,
+                               '--depth-scale', '100', '--estimate-mount',
+                               '--out', str(tmp_path / 'x.png')]) == 2  # all beyond 4 m
+    assert 'cannot estimate the mount: too few points' in capsys.readouterr().err
+
