@@ -1,4 +1,4 @@
-"""Side-by-side pictures, contact sheets, heatmaps and tools/pictures.py."""
+"""Side-by-side pictures, contact sheets, heatmaps, tools/pictures.py, tools/readme_pictures.py."""
 
 import math
 
@@ -15,6 +15,7 @@ from obstacle_detection.params import KINECT_V2_SD, KINECT_V2_SD_SIZE, table_4_2
 from obstacle_detection.pipeline import Detector
 from obstacle_detection.scenes import render_scene
 from tools import pictures as pictures_tool
+from tools import readme_pictures
 
 SIZE = (160, 132)
 
@@ -212,3 +213,34 @@ def test_tool_reports_a_frame_without_a_floor(tmp_path, tilted_floor, capsys):
                                '--out', str(tmp_path / 'x.png')]) == 2  # all beyond 4 m
     assert 'cannot estimate the mount: too few points' in capsys.readouterr().err
 
+
+def test_readme_pictures_are_made_again(tmp_path, capsys):
+    out = tmp_path / 'out'
+    assert readme_pictures.main(['--out-dir', str(out),
+                                 '--real-dir', str(tmp_path / 'no_such_dir')]) == 0
+    corridor = cv2.imread(str(out / 'corridor.png'))
+    sheet = cv2.imread(str(out / 'person_walking_sheet.png'))
+    width, height = KINECT_V2_SD_SIZE
+    # overlay, costmap and truth panels over a caption band
+    assert corridor.shape[0] > height and corridor.shape[1] > 2 * width + 2 * 6
+    assert sheet.shape[1] == 3 * (400 + 6)  # frames 0, 15, ..., 75: two rows of three
+    assert sheet.shape[0] > 2 * 400 * height / (2 * width)
+    assert sorted(p.name for p in out.iterdir()) == ['corridor.png', 'person_walking_sheet.png']
+    assert 'no real frames' in capsys.readouterr().err
+
+
+def test_readme_real_pictures_skip_missing_frames(tmp_path, tilted_floor, capsys, monkeypatch):
+    monkeypatch.setattr(readme_pictures, 'SYNTHETIC', {})
+    real = tmp_path / 'real'
+    (real / 'tum_office').mkdir(parents=True)
+    depth_mm = cv2.imread(str(tilted_floor[0]), cv2.IMREAD_UNCHANGED)
+    tum = np.minimum(depth_mm.astype(np.uint32) * 5, 65535).astype(np.uint16)  # 1/5000 m
+    assert cv2.imwrite(str(real / 'tum_office' / 'depth.png'), tum)
+    out = tmp_path / 'out'
+    assert readme_pictures.main(['--out-dir', str(out), '--real-dir', str(real)]) == 0
+    assert [p.name for p in out.iterdir()] == ['real_tum_office.png']
+    image = cv2.imread(str(out / 'real_tum_office.png'))
+    assert image.shape[1] == readme_pictures.REAL_WIDTH_PX
+    err = capsys.readouterr().err
+    assert 'real_tum_fr2_desk.png skipped' in err and 'real_dining_room.png skipped' in err
+    assert 'mount estimated from the floor' in err

@@ -1,0 +1,178 @@
+#!/usr/bin/env python3
+"""Make every picture of the README again, from the repository's own code.
+
+Synthetic pictures (always), drawn by ``tools/pictures.py`` exactly as its command line does:
+
+- ``corridor.png``: the corridor scene, Table 4.2 preset, with the ground-truth panel;
+- ``person_walking_sheet.png``: frames 0, 15, ..., 75 of the person_walking sequence, no truth,
+  3 columns of 400 px thumbnails.
+
+Real-frame pictures (when the real frames are there, ``--real-dir``, by default the
+repository's sibling ``../shared/data/real``; skipped with a warning otherwise), each a column
+of panels scaled to 860 px wide, the camera mount estimated from the floor
+(``--estimate-mount``), ``table_4_2(median_kernel=5)``:
+
+- ``real_tum_office.png``: TUM fr3 office at range 2 m (the preset's) above range 4 m;
+- ``real_tum_fr2_desk.png``: TUM fr2 desk at range 4 m, the seed method above the same with
+  the height rule ``max_ground_height_m=0.1``;
+- ``real_dining_room.png``: dining room frames 1 and 4 at range 4 m.
+
+::
+
+    python tools/readme_pictures.py                      # into tools/readme/
+    python tools/readme_pictures.py --out-dir /tmp/pics --real-dir ~/data/real
+
+The captions give the pipeline time of the machine that ran it, so a new run changes those
+few pixels and nothing else.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+if __package__ in (None, ''):  # run as a script: make the repository root importable
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+
+from obstacle_detection import pictures  # noqa: E402
+from tools import pictures as pictures_tool  # noqa: E402
+
+REPOSITORY = Path(__file__).resolve().parents[1]
+DEFAULT_OUT_DIR = REPOSITORY / 'tools' / 'readme'
+DEFAULT_REAL_DIR = REPOSITORY.parent / 'shared' / 'data' / 'real'
+#: Width of the real-frame pictures [px] (keeps each PNG well under 200 KB).
+REAL_WIDTH_PX = 860
+
+#: ``tools/pictures.py`` arguments of the synthetic pictures (file name -> arguments).
+SYNTHETIC = {
+    'corridor.png': ['--scene', 'corridor', '--preset', 'table_4_2'],
+    'person_walking_sheet.png': ['--scene', 'person_walking', '--frames', '0:90:15',
+                                 '--no-truth', '--thumb-width', '400', '--columns', '3'],
+}
+
+# Intrinsics fx,fy,cx,cy [px] and depth units per metre of the real frames (their README).
+_TUM_FR3 = ('535.4,539.2,320.1,247.6', '5000')
+_TUM_FR2 = ('520.9,521.0,325.1,249.7', '5000')
+_DINING = ('518.0,519.0,325.5,253.5', '1000')
+_TABLE_4_2_K5 = ['--preset', 'table_4_2', '--set', 'median_kernel=5']
+_FAR = ['--set', 'max_range_m=4.0', '--set', 'costmap_length_m=4.0']
+
+
+@dataclass(frozen=True)
+class Panel:
+    """One real depth frame drawn with its mount estimated from the floor."""
+
+    depth: str  # path under the real-frames folder
+    camera: tuple[str, str]  # (fx,fy,cx,cy, depth units per metre)
+    caption: str
+    options: tuple[str, ...]  # further tools/pictures.py arguments (parameters)
+
+    def argv(self, real_dir: Path) -> list[str]:
+        """The ``tools/pictures.py`` arguments that draw this panel (``--out`` unused)."""
+        intrinsics, scale = self.camera
+        return ['--depth', str(real_dir / self.depth), '--intrinsics', intrinsics,
+                '--depth-scale', scale, '--estimate-mount', *self.options,
+                '--caption', self.caption, '--out', '-']
+
+
+#: The real-frame pictures: file name -> panels, top to bottom.
+REAL = {
+    'real_tum_office.png': (
+        Panel('tum_office/depth.png', _TUM_FR3, 'TUM fr3 office: Table 4.2, K=5, range 2 m',
+              (*_TABLE_4_2_K5,)),
+        Panel('tum_office/depth.png', _TUM_FR3, 'TUM fr3 office: Table 4.2, K=5, range 4 m',
+              (*_TABLE_4_2_K5, *_FAR)),
+    ),
+    'real_tum_fr2_desk.png': (
+        Panel('tum_fr2_desk/depth_1.png', _TUM_FR2,
+              'TUM fr2 desk: Table 4.2, K=5, range 4 m (the seed method)', (*_TABLE_4_2_K5, *_FAR)),
+        Panel('tum_fr2_desk/depth_1.png', _TUM_FR2,
+              'TUM fr2 desk: same + height rule max_ground_height_m=0.1 (not in the seed)',
+              (*_TABLE_4_2_K5, *_FAR, '--set', 'max_ground_height_m=0.1')),
+    ),
+    'real_dining_room.png': tuple(
+        Panel(f'dining_room/depth_{i}.pgm', _DINING,
+              f'dining room {i}: Table 4.2, K=5, range 4 m', (*_TABLE_4_2_K5, *_FAR))
+        for i in (1, 4)),
+}
+
+
+def recompress(path: Path) -> None:
+    """Encode a PNG again at zlib level 9 (``pictures.write_png`` uses OpenCV's fast default).
+
+    Lossless: the pixels stay; the README pictures take about a third less room.
+    """
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image is None or not cv2.imwrite(str(path), image, [cv2.IMWRITE_PNG_COMPRESSION, 9]):
+        raise OSError(f'could not compress {path}')
+    print(f'compressed {path} to {path.stat().st_size // 1024} KB')
+
+
+def real_picture(panels: Sequence[Panel], real_dir: Path,
+                 width: int = REAL_WIDTH_PX) -> np.ndarray:
+    """(h, width, 3) uint8 RGB: the panels drawn by ``tools/pictures.py``, one above the other.
+
+    The column (narrower panels padded white on the right) is scaled as a whole to ``width``.
+    Raises ValueError / OSError / KeyError as ``tools.pictures.render`` does.
+    """
+    parser = pictures_tool.build_parser()
+    images = [image for panel in panels
+              for _, image in pictures_tool.render(parser.parse_args(panel.argv(real_dir)))]
+    column = pictures.tile(images, columns=1)
+    # a contact sheet of one image is that image scaled, with a 6 px margin right and below
+    return pictures.contact_sheet([column], columns=1, thumb_width=width - 6)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Return the command-line parser."""
+    parser = argparse.ArgumentParser(prog='readme_pictures.py',
+                                     description=__doc__.split('\n\n')[0])
+    parser.add_argument('--out-dir', type=Path, default=DEFAULT_OUT_DIR, metavar='DIR',
+                        help='where the PNGs go [default: tools/readme]')
+    parser.add_argument('--real-dir', type=Path, default=DEFAULT_REAL_DIR, metavar='DIR',
+                        help='the real frames (tum_office/, tum_fr2_desk/, dining_room/) '
+                             '[default: ../shared/data/real beside the repository]')
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point; returns the exit code (0 ok, 2 a picture could not be made)."""
+    args = build_parser().parse_args(argv)
+    try:
+        for name, options in SYNTHETIC.items():
+            out = args.out_dir / name
+            code = pictures_tool.main([*options, '--out', str(out)])
+            if code:
+                return code
+            recompress(out)
+    except OSError as exc:
+        print(f'readme_pictures.py: error: {exc}', file=sys.stderr)
+        return 2
+    if not args.real_dir.is_dir():
+        print(f'readme_pictures.py: warning: no real frames in {args.real_dir}; the real-frame '
+              f'pictures ({", ".join(REAL)}) are left as they are', file=sys.stderr)
+        return 0
+    for name, panels in REAL.items():
+        missing = sorted({p.depth for p in panels if not (args.real_dir / p.depth).is_file()})
+        if missing:
+            print(f'readme_pictures.py: warning: {name} skipped, missing in {args.real_dir}: '
+                  f'{", ".join(missing)}', file=sys.stderr)
+            continue
+        out = args.out_dir / name
+        try:
+            pictures.write_png(out, real_picture(panels, args.real_dir))
+            recompress(out)
+        except (ValueError, OSError, KeyError) as exc:
+            print(f'readme_pictures.py: error: {name}: {exc}', file=sys.stderr)
+            return 2
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
