@@ -150,7 +150,7 @@ def test_tool_reports_a_missing_topic(tmp_path, corridor, capsys):
 
 @pytest.fixture(scope='module')
 def tilted_floor(tmp_path_factory):
-    """A flat floor seen from a tilted, rolled mount, as a 16-bit PNG [mm] + its intrinsics."""
+    """Write a flat floor seen from a tilted, rolled mount: a 16-bit PNG [mm], its intrinsics."""
     # full size: smaller frames have too few points per voxel for the noise at Table 4.2
     intrinsics = KINECT_V2_SD
     frame = render_scene('flat_floor', height_m=0.9, pitch_rad=math.radians(30),

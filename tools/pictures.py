@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Draw what the detector saw, without ROS: depth with obstacles marked + costmap, as PNG.
+r"""Draw what the detector saw, without ROS: depth with obstacles marked + costmap, as PNG.
 
 One frame gives one picture (the seed's figures 4.22-4.27 beside figure 4.23, with a caption:
 frame, obstacle count, time); several frames (a sequence, a labelled folder, a bag) give a
@@ -93,7 +93,7 @@ def _mount(args: argparse.Namespace, params: DetectorParams) -> DetectorParams:
 
 
 def jobs(args: argparse.Namespace, base: DetectorParams) -> Iterator[_Job]:
-    """The frames to draw, from whichever source the options name."""
+    """Return the frames to draw, from whichever source the options name."""
     if args.scene is not None:
         mount = {k: v for k, v in (('height_m', args.height), ('pitch_deg', args.pitch_deg),
                                    ('roll_deg', args.roll_deg)) if v is not None}
@@ -119,7 +119,7 @@ def jobs(args: argparse.Namespace, base: DetectorParams) -> Iterator[_Job]:
 
 
 def depth_job(args: argparse.Namespace, base: DetectorParams) -> _Job:
-    """The frame of ``--depth``: intrinsics, depth scale and mount from the options.
+    """Return the frame of ``--depth``: intrinsics, depth scale and mount from the options.
 
     Mount: the camera YAML's, or with ``--estimate-mount`` the floor's (which needs the
     intrinsics), then ``--height`` / ``--pitch-deg`` / ``--roll-deg``. Depth scale:
@@ -163,7 +163,7 @@ def depth_job(args: argparse.Namespace, base: DetectorParams) -> _Job:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The command-line interface."""
+    """Return the command-line interface."""
     parser = argparse.ArgumentParser(prog='pictures.py', description=__doc__.split('\n\n')[0],
                                      formatter_class=argparse.RawTextHelpFormatter)
     source = parser.add_mutually_exclusive_group(required=True)

@@ -74,7 +74,7 @@ class Panel:
     options: tuple[str, ...]  # further tools/pictures.py arguments (parameters)
 
     def argv(self, real_dir: Path) -> list[str]:
-        """The ``tools/pictures.py`` arguments that draw this panel (``--out`` unused)."""
+        """Return the ``tools/pictures.py`` arguments that draw this panel (``--out`` unused)."""
         intrinsics, scale = self.camera
         return ['--depth', str(real_dir / self.depth), '--intrinsics', intrinsics,
                 '--depth-scale', scale, '--estimate-mount', *self.options,
@@ -91,7 +91,8 @@ REAL = {
     ),
     'real_tum_fr2_desk.png': (
         Panel('tum_fr2_desk/depth_1.png', _TUM_FR2,
-              'TUM fr2 desk: Table 4.2, K=5, range 4 m (the seed method)', (*_TABLE_4_2_K5, *_FAR)),
+              'TUM fr2 desk: Table 4.2, K=5, range 4 m (the seed method)',
+              (*_TABLE_4_2_K5, *_FAR)),
         Panel('tum_fr2_desk/depth_1.png', _TUM_FR2,
               'TUM fr2 desk: same + height rule max_ground_height_m=0.1 (not in the seed)',
               (*_TABLE_4_2_K5, *_FAR, '--set', 'max_ground_height_m=0.1')),
