@@ -175,7 +175,7 @@ class DepthFrame:
 
 
 def read_depth_png(path: str | Path) -> np.ndarray:
-    """(H, W) uint16 depth of a 16-bit single-channel PNG (ValueError otherwise)."""
+    """Return the (H, W) uint16 depth of a 16-bit one-channel PNG or PGM (ValueError if not)."""
     depth = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if depth is None:
         raise ValueError(f'{path}: cannot read the image')

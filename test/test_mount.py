@@ -9,6 +9,7 @@ import pytest
 from obstacle_detection import evaluation, geometry, mount
 from obstacle_detection.costmap import CELL_OCCUPIED
 from obstacle_detection.params import KINECT_V2_SD, Intrinsics, table_4_2
+from obstacle_detection.pictures import read_depth_png
 from obstacle_detection.pipeline import LABEL_GROUND, LABEL_OBSTACLE, Detector
 from obstacle_detection.scenes import Box, Floor, Scene, Wall, render, render_scene
 from tools import estimate_mount as tool
@@ -161,7 +162,7 @@ def intrinsics_arg(intr):
 def test_opencv_reads_a_16_bit_pgm_big_endian(tmp_path, tilted_frame):
     path = tmp_path / 'depth.pgm'
     write_big_endian_pgm(path, tilted_frame.depth_mm)
-    np.testing.assert_array_equal(tool.read_depth(path), tilted_frame.depth_mm)
+    np.testing.assert_array_equal(read_depth_png(path), tilted_frame.depth_mm)
 
 
 @pytest.mark.parametrize('suffix, scale', [('png', 5000.0), ('pgm', 1000.0)])

@@ -25,12 +25,12 @@ from typing import Sequence
 if __package__ in (None, ''):  # run as a script: make the repository root importable
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import cv2  # noqa: E402
-import numpy as np  # noqa: E402
 
 from obstacle_detection.depth import decode_depth  # noqa: E402
 from obstacle_detection.mount import MountEstimate, estimate_mount  # noqa: E402
 from obstacle_detection.params import Intrinsics  # noqa: E402
+from obstacle_detection.pictures import read_depth_png  # noqa: E402
+from obstacle_detection.ros_params import NODE_NAME  # noqa: E402
 
 
 def parse_intrinsics(text: str) -> Intrinsics:
@@ -44,18 +44,7 @@ def parse_intrinsics(text: str) -> Intrinsics:
         raise argparse.ArgumentTypeError(f'expected fx,fy,cx,cy, got {text!r}: {exc}') from None
 
 
-def read_depth(path: str | Path) -> np.ndarray:
-    """(H, W) uint16 depth of a 16-bit single-channel PNG or PGM (ValueError otherwise)."""
-    depth = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if depth is None:
-        raise ValueError(f'{path}: cannot read the image')
-    if depth.dtype != np.uint16 or depth.ndim != 2:
-        raise ValueError(f'{path}: a depth image must be 16-bit single channel, got '
-                         f'{depth.dtype} with shape {depth.shape}')
-    return depth
-
-
-def params_yaml(estimate: MountEstimate, node_name: str = 'obstacle_detector') -> str:
+def params_yaml(estimate: MountEstimate, node_name: str = NODE_NAME) -> str:
     """Node parameter file fragment holding the mount (angles in degrees, as the node's)."""
     return (f'# camera mount from the floor plane ({estimate.inlier_fraction:.0%} of the points '
             f'on it), tools/estimate_mount.py\n'
@@ -109,7 +98,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         if not (math.isfinite(args.depth_scale) and args.depth_scale > 0.0):
             raise ValueError(f'--depth-scale={args.depth_scale} must be > 0')
-        depth_m = decode_depth(read_depth(args.depth), depth_scale=args.depth_scale)
+        depth_m = decode_depth(read_depth_png(args.depth), depth_scale=args.depth_scale)
         prior = None if args.prior_pitch_deg is None else math.radians(args.prior_pitch_deg)
         estimate = estimate_mount(depth_m, args.intrinsics, max_range_m=args.max_range,
                                   inlier_m=args.inlier, seed=args.seed, prior_pitch_rad=prior)
