@@ -12,6 +12,7 @@ from obstacle_detection.depth import (
     decode_depth,
     median_filter,
 )
+from obstacle_detection.scenes import render_scene
 
 ODD_K = list(range(1, 18, 2))
 # Odd sizes, sizes smaller than K (down to 1 x 1) and one larger image.
@@ -270,3 +271,119 @@ def test_median_decoded_frames_take_the_millimetre_key_path() -> None:
     tum = decode_depth(depth_mm_image(rng, (30, 40)), depth_scale=5000)  # rank path
     for k in (7, 11):
         np.testing.assert_array_equal(median_filter(tum, k), scipy_median(tum, k))
+
+
+# --------------------------------------------------------------------------- median: two-pass
+
+
+def scene_mm(name: str, seed: int = 0) -> np.ndarray:
+    return render_scene(name, seed=seed).depth_mm
+
+
+@pytest.mark.parametrize('name, k', [('corridor', 7), ('corridor', 17), ('farm_row', 9),
+                                     ('farm_row', 17), ('step_down', 17)])
+def test_median_kinect_frames_equal_scipy(name, k) -> None:
+    """Full 512 x 424 frames, uint16 mm and float32 m (as the scene makes it, not LUT)."""
+    frame = render_scene(name, seed=3)
+    for img in (frame.depth_mm, frame.depth_m):
+        out = median_filter(img, k)
+        assert out.dtype == img.dtype and out.flags.c_contiguous
+        np.testing.assert_array_equal(out, scipy_median(img, k), err_msg=str(img.dtype))
+
+
+@pytest.mark.parametrize('name, k', [('people', 17), ('ramps', 19), ('dark_materials', 17)])
+def test_median_two_pass_runs_and_is_exact(name, k) -> None:
+    """The coarse + fine 8-bit passes handle Kinect frames (no network fallback)."""
+    keys = scene_mm(name)
+    out = depth._two_pass_median(keys, k)
+    assert out is not None and out.dtype == np.uint16 and out.flags.c_contiguous
+    np.testing.assert_array_equal(out, scipy_median(keys, k))
+
+
+@pytest.mark.parametrize('k', [21, 31])
+def test_median_large_kernels_on_frame_crops(k) -> None:
+    keys = scene_mm('people', seed=1)[60:260, 100:420]
+    np.testing.assert_array_equal(median_filter(keys, k), scipy_median(keys, k))
+    metres = keys.astype(np.float32) * np.float32(1e-3)
+    np.testing.assert_array_equal(median_filter(metres, k), scipy_median(metres, k))
+
+
+@pytest.mark.parametrize('shape', [(1, 1), (1, 40), (40, 1), (5, 7), (17, 17), (18, 16),
+                                   (23, 31), (70, 45), (33, 300)])
+def test_median_two_pass_small_and_odd_sizes(shape) -> None:
+    """Images smaller than K, thin strips and sizes that are not tile multiples."""
+    rng = np.random.default_rng(sum(shape))
+    keys = depth_mm_image(rng, shape, 0.3)
+    keys[0, 0] = 4500                       # 13-bit keys: the coarse shift is 5
+    for k in (17, 21, 31):
+        np.testing.assert_array_equal(median_filter(keys, k), scipy_median(keys, k),
+                                      err_msg=f'K={k}')
+
+
+def test_median_two_pass_depth_edges_and_steep_ramps() -> None:
+    """Tiles spanning several 256 mm groups (edges), thin bands along rows and columns."""
+    yy, xx = np.mgrid[0:300, 0:400]
+    checker = np.where(((yy // 40) + (xx // 56)) % 2 == 0, 800, 4000)
+    ramp_x = 500 + 15 * xx                           # 15 mm per column
+    ramp_y = 600 + 12 * yy                           # 12 mm per row
+    rng = np.random.default_rng(9)
+    for base in (checker, ramp_x, np.minimum(ramp_y, 9000)):
+        keys = np.clip(base + rng.normal(0, 12, base.shape), 0, 65535).astype(np.uint16)
+        keys[rng.random(keys.shape) < 0.2] = 0
+        out = depth._two_pass_median(keys, 17)
+        assert out is not None
+        np.testing.assert_array_equal(out, scipy_median(keys, 17))
+
+
+def test_median_two_pass_zero_level_resolution() -> None:
+    """Zeros resolve from the coarse pass only when no other key shares their level."""
+    rng = np.random.default_rng(12)
+    keys = depth_mm_image(rng, (90, 120), 0.6)   # mostly zeros: many zero medians
+    keys[0, 0] = 4000
+    np.testing.assert_array_equal(depth._two_pass_median(keys, 17), scipy_median(keys, 17))
+    keys[rng.random(keys.shape) < 0.05] = 7      # a key in the zero level: no shortcut
+    np.testing.assert_array_equal(depth._two_pass_median(keys, 17), scipy_median(keys, 17))
+    offset = np.where(keys == 0, 1000, keys + 1500).astype(np.uint16)   # lowest key 1000
+    np.testing.assert_array_equal(depth._two_pass_median(offset, 17),
+                                  scipy_median(offset, 17))
+    flat = np.full((30, 40), 1234, np.uint16)     # one key value: no fine pass at all
+    np.testing.assert_array_equal(depth._two_pass_median(flat, 17), flat)
+
+
+def test_median_two_pass_falls_back_on_noise() -> None:
+    """Full-range noise spans every 256-key group in every tile: the network takes over."""
+    rng = np.random.default_rng(13)
+    noise = rng.integers(0, 65536, (60, 80)).astype(np.uint16)
+    assert depth._two_pass_median(noise, 17) is None
+    np.testing.assert_array_equal(median_filter(noise, 17), scipy_median(noise, 17))
+
+
+def test_median_image_larger_than_the_largest_tile() -> None:
+    yy, xx = np.mgrid[0:300, 0:700]
+    rng = np.random.default_rng(14)
+    keys = (700 + 3 * yy + 2 * xx + rng.normal(0, 10, yy.shape)).astype(np.uint16)
+    np.testing.assert_array_equal(median_filter(keys, 17), scipy_median(keys, 17))
+
+
+def test_order_keys_accepts_any_rounding_of_millimetres() -> None:
+    """float32(mm) * 1e-3 (not decode_depth's rounding) still maps to the mm keys."""
+    frame = render_scene('corridor')
+    metres = frame.depth_m
+    assert not np.array_equal(metres, decode_depth(frame.depth_mm))
+    keys, values = depth._order_keys(metres)
+    np.testing.assert_array_equal(keys, frame.depth_mm)
+    np.testing.assert_array_equal(np.take(values, keys), metres)
+    tum = decode_depth(frame.depth_mm, depth_scale=5000)
+    keys, values = depth._order_keys(tum)
+    assert values is depth._depth_lut(5000.0, 'float32')
+    np.testing.assert_array_equal(keys, frame.depth_mm)
+
+
+def test_order_keys_rejects_colliding_values() -> None:
+    """Two values rounding to the same millimetre must not share a key (rank fallback)."""
+    img = np.array([[1.0, 1.0002, 1.0004], [2.0, 0.0, 1.0001]], np.float32)
+    keys, values = depth._order_keys(img)
+    np.testing.assert_array_equal(np.take(values, keys), img)
+    assert np.unique(keys).size == np.unique(img).size
+    order = np.argsort(img, axis=None, kind='stable')
+    assert (np.diff(keys.ravel()[order].astype(int)) >= 0).all()
