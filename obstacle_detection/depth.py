@@ -184,10 +184,11 @@ def median_filter(depth_m: np.ndarray, k: int) -> np.ndarray:
       to the network. The cost depends on the scene: steep depth gradients (walls seen at
       a grazing angle, the far floor) need thin tiles whose margins are filtered too.
 
-    One thread, 512 x 424 Kinect-like frames (``scenes.render_scene``, float32 m), timed on
-    a busy 2-core machine: K=5 0.5 ms, K=7 about 4-6 ms, K=9 6-10 ms, K=17 12-15 ms on
-    flat floors and 18-22 ms on corridor / farm-row scenes, K=31 18-30 ms (scipy: 0.1 s at
-    K=7, 0.5 s at K=17, 1.4 s at K=31).
+    One thread, 512 x 424 Kinect-like frames (``scenes.render_scene``, float32 m), on a
+    shared 2-core machine (absolute times varied up to 2x with the other jobs): K=5 0.6 ms,
+    K=7 3.5-6.5 ms, K=9 6-10 ms, K=17 10-14 ms on floor scenes and 17-21 ms on corridor and
+    farm-row scenes (the network alone: 25-35 ms), K=31 18-30 ms. scipy takes 0.1 s at K=7,
+    0.5 s at K=17 and 1.4 s at K=31.
 
     Args:
         depth_m: (H, W) image: float32 metres (pipeline format), uint16, or any other real
@@ -312,7 +313,9 @@ def _order_keys(arr: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
 # tiles follow depth bands (floor: rows; walls: columns). All tiles of one shape go through
 # one medianBlur call, stacked into a tall mosaic; a tile's windows never leave its own block,
 # so blocks do not interact. Pixels whose level holds a single key value (the lowest level,
-# with 0 = no return, in depth images) need no fine pass.
+# with 0 = no return, in depth images) need no fine pass. Sparse keys of 8192 and more are
+# replaced by their rank among the distinct keys first, so that a few far outliers (65535)
+# do not widen the levels of all the others.
 
 #: Smallest K for the two-pass method: below 17, cv2.medianBlur switches to its O(K)
 #: algorithm on images under a megapixel and the sorting network is faster.
@@ -323,6 +326,9 @@ _FINE_LEVELS = 4
 #: Fall back to the sorting network when the fine pass would filter more than this many
 #: times the image area (data with a wide spread of values in every tile, e.g. noise).
 _FINE_MAX_AREA = 8.0
+_ALL_BITS = (1 << 64) - 1
+#: Keys from this value up are ranked first if they are sparse (see _two_pass_median).
+_COMPACT_FROM = 1 << 13
 
 
 def _two_pass_median(keys: np.ndarray, k: int) -> np.ndarray | None:
@@ -334,6 +340,16 @@ def _two_pass_median(keys: np.ndarray, k: int) -> np.ndarray | None:
     h, w = keys.shape
     r = k // 2
     kmin, kmax = int(keys.min()), int(keys.max())
+    if kmax >= _COMPACT_FROM:
+        # Sparse large keys (e.g. a few 65535 "far" codes above mm depths) would make the
+        # coarse levels wide; rank the distinct keys instead when that saves a bit.
+        present = np.zeros(kmax + 1, bool)
+        present[keys.reshape(-1)] = True
+        values = np.flatnonzero(present)
+        if (values.size - 1).bit_length() < kmax.bit_length():
+            rank = (np.cumsum(present, dtype=np.int32) - 1).astype(np.uint16)
+            med = _two_pass_median(np.take(rank, keys), k)
+            return None if med is None else np.take(values.astype(np.uint16), med)
     shift = max(0, kmax.bit_length() - 8)
     leaf, n_lev = _FINE_LEAF, _FINE_LEVELS
     # Smallest multiple of leaf * 2**i that covers each side, i <= n_lev.
@@ -353,25 +369,21 @@ def _two_pass_median(keys: np.ndarray, k: int) -> np.ndarray | None:
     if not np.any((keys > kmin) & (keys < (lowest + 1) << shift)):
         resolved = level == lowest
 
-    # Per leaf tile, over the pixels that need the fine pass: lowest and highest level, and
-    # (shift <= 6) the set of occupied aligned groups as a bit mask.
-    lvl_hi = np.full((ph, pw), -1, np.int16)
-    lvl_hi[:h, :w] = level
-    lvl_lo = np.full((ph, pw), 256, np.int16)
+    # Per leaf tile, over the pixels that need the fine pass: lowest and highest level
+    # (lo > hi: none), and (shift <= 6) the aligned groups from lo's to hi's as a bit mask.
+    lvl_lo = np.full((ph, pw), 255, np.uint8)
     lvl_lo[:h, :w] = level
+    lvl_hi = np.zeros((ph, pw), np.uint8)
+    lvl_hi[:h, :w] = level
+    if resolved is not None:                 # resolved pixels are at the lowest level
+        np.copyto(lvl_lo[:h, :w], np.uint8(255), where=resolved)
+        np.copyto(lvl_hi[:h, :w], np.uint8(0), where=resolved)
+    lo = _leaf_reduce(np.minimum, lvl_lo, leaf).astype(np.int32)
+    hi = _leaf_reduce(np.maximum, lvl_hi, leaf).astype(np.int32)
     bits = None
     if shift <= 6:
-        bits = np.zeros((ph, pw), np.uint64)
-        bits[:h, :w] = np.left_shift(np.uint64(1), (level >> (8 - shift)).astype(np.uint64))
-    if resolved is not None:
-        lvl_hi[:h, :w][resolved] = -1
-        lvl_lo[:h, :w][resolved] = 256
-        if bits is not None:
-            bits[:h, :w][resolved] = 0
-    leaves = (_leaf_reduce(np.minimum, lvl_lo, leaf).astype(np.int32),
-              _leaf_reduce(np.maximum, lvl_hi, leaf).astype(np.int32),
-              None if bits is None else _leaf_reduce(np.bitwise_or, bits, leaf))
-    area, shapes = _plan_tiles(*leaves, leaf, n_y, n_x, r, 256 >> shift)
+        bits = _leaf_groups(lvl_lo, lvl_hi, lo, hi, leaf, 8 - shift)
+    area, shapes = _plan_tiles(lo, hi, bits, leaf, n_y, n_x, r, 256 >> shift)
     if area > _FINE_MAX_AREA * h * w:
         return None
     out = np.empty((ph, pw), np.uint16)
@@ -389,6 +401,31 @@ def _leaf_reduce(op: np.ufunc, img: np.ndarray, leaf: int) -> np.ndarray:
     return op.reduce([rows[:, i::leaf] for i in range(leaf)])
 
 
+def _leaf_groups(lvl_lo: np.ndarray, lvl_hi: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                 leaf: int, group_shift: int) -> np.ndarray:
+    """Return the (Ly, Lx) uint64 mask of aligned groups (level >> group_shift) per leaf.
+
+    ``lvl_lo``, ``lvl_hi``: (PH, PW) uint8 levels with 255 / 0 where no fine pass is needed;
+    ``lo``, ``hi``: their (Ly, Lx) leaf minima / maxima. Groups from lo's to hi's are set;
+    leaves where that range has a group in between are checked pixel by pixel, as a depth
+    edge can leave it empty.
+    """
+    g_lo = (lo >> group_shift).astype(np.uint64)
+    g_hi = (np.maximum(hi, 0) >> group_shift).astype(np.uint64)
+    one = np.uint64(1)
+    bits = (np.uint64(_ALL_BITS) >> (np.uint64(63) - g_hi)) & ~((one << g_lo) - one)
+    bits[hi < lo] = 0
+    iy, ix = np.nonzero((hi >= lo) & (g_hi > g_lo + one))
+    if iy.size:
+        shape = (lo.shape[0], leaf, lo.shape[1], leaf)
+        tile_lo = lvl_lo.reshape(shape)[iy, :, ix, :]
+        tile_hi = lvl_hi.reshape(shape)[iy, :, ix, :]
+        px = np.left_shift(one, (tile_hi >> group_shift).astype(np.uint64))
+        px[tile_lo != tile_hi] = 0           # pixels that need no fine pass
+        bits[iy, ix] = np.bitwise_or.reduce(px.reshape(iy.size, -1), axis=1)
+    return bits
+
+
 def _popcount(x: np.ndarray) -> np.ndarray:
     """Return the number of set bits of each element of uint64 ``x`` as int32 (any numpy)."""
     as_bytes = np.ascontiguousarray(x).view(np.uint8).reshape(x.shape + (8,))
@@ -397,7 +434,7 @@ def _popcount(x: np.ndarray) -> np.ndarray:
 
 def _passes(lo: np.ndarray, hi: np.ndarray, bits: np.ndarray | None,
             span: int) -> tuple[np.ndarray, np.ndarray | None]:
-    """Return (fine passes per tile, aligned mask or None); 0 passes where hi < lo."""
+    """Return (fine passes per tile, use-aligned mask or None); 0 passes where hi < lo."""
     unaligned = (hi - lo) // span + 1
     np.maximum(unaligned, 0, out=unaligned)
     if bits is None:
@@ -411,9 +448,10 @@ def _plan_tiles(lo: np.ndarray, hi: np.ndarray, bits: np.ndarray | None, leaf: i
                 n_x: int, r: int, span: int) -> tuple[int, list]:
     """Choose the fine-pass tiles of :func:`_two_pass_median`.
 
-    ``lo``, ``hi``: (Ly, Lx) int32 lowest / highest level per leaf tile (256 / -1 where no
+    ``lo``, ``hi``: (Ly, Lx) int32 lowest / highest level per leaf tile (lo > hi where no
     pixel needs the fine pass), Ly a multiple of 2**n_y, Lx of 2**n_x; ``bits``: (Ly, Lx)
-    uint64 occupied aligned groups, or None; ``span``: levels per fine pass. Returns
+    uint64 mask of the aligned groups that may occur, or None; ``span``: levels per fine
+    pass. Returns
     (filtered area [px], [((rows, cols), (tile row index, tile column index), lo, hi, bits
     or None) per tile shape]).
     """
@@ -459,7 +497,7 @@ def _plan_tiles(lo: np.ndarray, hi: np.ndarray, bits: np.ndarray | None, leaf: i
                 if sel.any():
                     down = np.repeat(sel, 2, axis=axis)
                     active[child] = active[child] | down if child in active else down
-            keep &= stats[a, b][1] >= 0
+            keep &= stats[a, b][1] >= stats[a, b][0]
             if keep.any():
                 shapes.append(((leaf << a, leaf << b), np.nonzero(keep),
                                *(None if x is None else x[keep] for x in stats[a, b])))
@@ -471,7 +509,7 @@ def _fine_pass(padded: np.ndarray, levels: np.ndarray, out: np.ndarray, shape: t
                bits: np.ndarray | None, k: int, shift: int) -> None:
     """Fine pass of :func:`_two_pass_median` over the chosen tiles of one shape.
 
-    ``padded``: (PH + 2R, PW + 2R) replicate-padded uint16 keys; ``levels``: (PH, PW) int16
+    ``padded``: (PH + 2R, PW + 2R) replicate-padded uint16 keys; ``levels``: (PH, PW) uint8
     coarse level per pixel (any value where resolved); ``out``: (PH, PW) uint16, written on
     the tiles; ``shape``: (rows, cols) of a tile [px]; ``tiles``: (tile row index, tile
     column index) of the n tiles; ``lo``, ``hi``, ``bits``: (n,) their level range and

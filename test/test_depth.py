@@ -387,3 +387,14 @@ def test_order_keys_rejects_colliding_values() -> None:
     assert np.unique(keys).size == np.unique(img).size
     order = np.argsort(img, axis=None, kind='stable')
     assert (np.diff(keys.ravel()[order].astype(int)) >= 0).all()
+
+
+def test_median_two_pass_with_sparse_far_outliers() -> None:
+    """65535 codes above mm depths (scattered and a patch): the keys are ranked first."""
+    keys = scene_mm('corridor', seed=5)[:240, :320].copy()
+    rng = np.random.default_rng(15)
+    keys[rng.random(keys.shape) < 0.01] = 65535
+    keys[100:160, 200:260] = 65535
+    out = depth._two_pass_median(keys, 17)
+    assert out is not None
+    np.testing.assert_array_equal(out, scipy_median(keys, 17))
