@@ -370,7 +370,7 @@ def _two_pass_median(keys: np.ndarray, k: int) -> np.ndarray | None:
         resolved = level == lowest
 
     # Per leaf tile, over the pixels that need the fine pass: lowest and highest level
-    # (lo > hi: none), and (shift <= 6) the aligned groups from lo's to hi's as a bit mask.
+    # (lo > hi: none), and (shift <= 6) the occupied aligned groups as a bit mask.
     lvl_lo = np.full((ph, pw), 255, np.uint8)
     lvl_lo[:h, :w] = level
     lvl_hi = np.zeros((ph, pw), np.uint8)
