@@ -2,9 +2,9 @@
 
 Usage: ``python tools/param_table.py [--output FILE | --readme [README.md]]``. The table is
 generated from ``obstacle_detection.ros_params`` (itself built from DetectorParams' field
-metadata), so it cannot drift from what the node declares. Columns: the ROS name, type, the default (seed Table
-4.2 for the pipeline), the Table 4.3 value where it differs (``params/corridor_video.yaml``), the
-allowed range, and the description.
+metadata), so it cannot drift from what the node declares. Columns: the ROS name, type, the
+default (seed Table 4.2 for the pipeline), the Table 4.3 value where it differs
+(``params/corridor_video.yaml``), the allowed range, and the description.
 """
 
 from __future__ import annotations
