@@ -46,6 +46,7 @@ def test_demo_end_to_end_writes_bags_and_pictures(tmp_path: Path) -> None:
     assert picture.shape[0] > 424 and picture.shape[1] > 512  # overlay + costmap + caption
     assert (out / 'demo_sheet.png').is_file()
     assert (out / 'node.log').read_text().count('ready:') == 1
+    assert list((out / 'ros_log').glob('*.log'))  # the node's rcl log, in the output folder
 
     again = run_demo(tmp_path, '--frames', '2', '--save-every', '1')  # re-runnable
     assert again.returncode == 0, again.stderr

@@ -252,7 +252,7 @@ def run_demo(args: argparse.Namespace) -> int:
     from rclpy.node import Node
 
     began = time.monotonic()
-    out: Path = args.output
+    out: Path = args.output.resolve()  # absolute: the node runs with another working directory
     prepare_output(out)
     print(f'[1/5] rendering {args.frames} frames of {args.scene!r} into {out / "input"}')
     depth_dir, camera, first = render_sequence(out / 'input', args.scene, args.frames, args.seed)
@@ -348,7 +348,7 @@ def run_demo(args: argparse.Namespace) -> int:
              for _, raw in recorder.messages['/obstacle_detector/processing_time_ms']]
     sent = stats[0].published.get(bag_convert.DEFAULT_DEPTH_TOPIC, 0) if stats else 0
     print()
-    print(f'demo done in {time.monotonic() - began:.1f} s; everything is in {out}/')
+    print(f'demo done in {time.monotonic() - began:.1f} s; everything is in {args.output}/')
     print(f'  depth frames sent: {sent}, results received: {received} costmaps, '
           f'{recorder.count("/obstacles/points")} obstacle clouds, '
           f'{recorder.count("/obstacles/overlay")} overlays')
