@@ -16,6 +16,8 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
+from . import jit_median
+
 __all__ = [
     'MEDIAN_MODE',
     'MM_PER_M',
@@ -171,6 +173,10 @@ def median_filter(depth_m: np.ndarray, k: int) -> np.ndarray:
       millisecond. Other data get their rank among the distinct values (``np.unique``,
       about 6 ms per 512 x 424 frame) if there are at most 65536; more run the sorting
       network on the raw values (slower). Keys all below 256 use one 8-bit medianBlur.
+    - K = 7 .. 31 with numba (:mod:`jit_median`, unless ``OBSTACLE_DETECTION_NO_JIT=1``):
+      the sorting network below, turned by 90 degrees and compiled, on row chunks that stay
+      in the CPU cache (float32 metres are keyed by one compiled pass). Data independent.
+      Without numba, or switched off, the paths below run.
     - K = 7 .. 15: an exact min/max sorting network on whole images: every vertical
       K-window is sorted, and the sorted columns are merged with Batcher's odd-even merge,
       sharing work between neighbouring output columns and dropping values that can no
@@ -185,10 +191,11 @@ def median_filter(depth_m: np.ndarray, k: int) -> np.ndarray:
       a grazing angle, the far floor) need thin tiles whose margins are filtered too.
 
     One thread, 512 x 424 Kinect-like frames (``scenes.render_scene``, float32 m), on a
-    shared 2-core machine (absolute times varied up to 2x with the other jobs): K=5 0.6 ms,
-    K=7 3.5-6.5 ms, K=9 6-10 ms, K=17 10-14 ms on floor scenes and 17-21 ms on corridor and
-    farm-row scenes (the network alone: 25-35 ms), K=31 18-30 ms. scipy takes 0.1 s at K=7,
-    0.5 s at K=17 and 1.4 s at K=31.
+    shared 2-core machine (absolute times varied up to 2x with the other jobs): K=5 0.6 ms.
+    Compiled: K=7 1.2 ms, K=9 1.8 ms, K=17 5.8 ms, K=31 about 20 ms, on every scene.
+    Without numba: K=7 3.5-6.5 ms, K=9 6-10 ms, K=17 10-14 ms on floor scenes and 17-21 ms
+    on corridor and farm-row scenes (the network alone: 25-35 ms), K=31 18-30 ms. scipy
+    takes 0.1 s at K=7, 0.5 s at K=17 and 1.4 s at K=31.
 
     Args:
         depth_m: (H, W) image: float32 metres (pipeline format), uint16, or any other real
@@ -224,11 +231,17 @@ def median_filter(depth_m: np.ndarray, k: int) -> np.ndarray:
         med = _cv_median(keys.astype(np.uint8), k).astype(np.uint16)
     elif k <= 5:
         med = _cv_median(keys, k)
+    elif k <= _JIT_MAX_K and jit_median.enabled():
+        med = jit_median.network_median(keys, _jit_program(k))
     elif k >= _TWO_PASS_MIN_K:
         med = _two_pass_median(keys, k)
     if med is None:
         med = _network_median(keys, k)
-    return med if values is None else np.take(values, med)
+    if values is None:
+        return med
+    if values.dtype == np.float32 and jit_median.enabled():
+        return jit_median.take(values, med)
+    return np.take(values, med)
 
 
 def _check_kernel(k: int) -> int:
@@ -265,6 +278,11 @@ def _order_keys(arr: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
     """
     if arr.dtype == np.uint16:
         return arr, None
+    if arr.dtype == np.float32 and jit_median.enabled():
+        for units_per_m in _KEY_UNITS_PER_M:   # one compiled pass each
+            found = jit_median.quantised_keys(arr, units_per_m)
+            if found is not None:
+                return found
     if arr.dtype.kind == 'f' and arr.dtype.itemsize in (4, 8):
         lo, hi = arr.min(), arr.max()
         for units_per_m in _KEY_UNITS_PER_M:
@@ -316,6 +334,11 @@ def _order_keys(arr: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
 # with 0 = no return, in depth images) need no fine pass. Sparse keys of 8192 and more are
 # replaced by their rank among the distinct keys first, so that a few far outliers (65535)
 # do not widen the levels of all the others.
+
+#: Largest K run by the compiled network (:mod:`jit_median`) when it is enabled; larger K
+#: use the two-pass method. Up to here the network is faster on every scene measured (at
+#: K = 25 .. 31 the two-pass method is faster on floor scenes but much slower on walls).
+_JIT_MAX_K = 31
 
 #: Smallest K for the two-pass method: below 17, cv2.medianBlur switches to its O(K)
 #: algorithm on images under a megapixel and the sorting network is faster.
@@ -728,6 +751,92 @@ def _median_programs(k: int, tile: int) -> tuple[tuple, tuple]:
                                 forget=True)
     leaves2 = [('col', c, i) for c in range(-r, tile + r) for i in range(k)]
     return _compile(net1, out1, leaves1), _compile(net2, out2, leaves2)
+
+
+def _compile_fused(net: _Net, outputs: dict, leaves: list) -> tuple[np.ndarray, int, dict]:
+    """Dead-code-eliminate and register-allocate a network as fused compare-exchanges.
+
+    Like :func:`_compile`, but each instruction computes both min and max of its operands
+    (rows (lo, hi, a, b), -1 for a result nobody uses) and never writes a register it reads,
+    as :func:`jit_median.assemble_program` requires. Returns (code (m, 4) int64, number of
+    scratch registers, {x: [register of each output value]}).
+    """
+    leaf_reg = {leaf: i for i, leaf in enumerate(leaves)}
+    keep = [v for vals in outputs.values() for v in vals]
+    needed: set[int] = set()
+    stack = [v for v in keep if isinstance(v, int)]
+    while stack:
+        v = stack.pop()
+        if v in needed:
+            continue
+        needed.add(v)
+        stack.extend(u for u in net.ops[v][1:] if isinstance(u, int))
+    # exchange() appends min then max of the same operands: fuse the pairs still needed.
+    order = sorted(needed)
+    instrs = []
+    pos = 0
+    while pos < len(order):
+        v = order[pos]
+        is_min, a, b = net.ops[v]
+        if (is_min and pos + 1 < len(order) and order[pos + 1] == v + 1
+                and net.ops[v + 1] == (False, a, b)):
+            instrs.append((v, v + 1, a, b))
+            pos += 2
+        else:
+            instrs.append((v, None, a, b) if is_min else (None, v, a, b))
+            pos += 1
+    last_use: dict[object, int] = {}
+    for pos, (_, _, a, b) in enumerate(instrs):
+        last_use[a] = last_use[b] = pos
+    kept = set(keep)
+    reg: dict[object, int] = dict(leaf_reg)
+    free: list[int] = []
+    n_buf = 0
+    code = []
+    for pos, (v_lo, v_hi, a, b) in enumerate(instrs):
+        row = [-1, -1, reg[a], reg[b]]
+        for slot, v in enumerate((v_lo, v_hi)):
+            if v is None:
+                continue
+            if free:
+                row[slot] = free.pop()
+            else:
+                row[slot] = len(leaves) + n_buf
+                n_buf += 1
+            reg[v] = row[slot]
+        code.append(row)
+        # Operands are released only after the results got their registers: no aliasing.
+        for u in {a, b}:
+            if isinstance(u, int) and last_use[u] == pos and u not in kept:
+                free.append(reg[u])
+    out_regs = {x: [reg[v] for v in vals] for x, vals in outputs.items()}
+    return np.array(code, np.int64).reshape(-1, 4), n_buf, out_regs
+
+
+def _jit_tile(k: int) -> int:
+    """Output rows per band of the compiled network for K (the fastest, measured)."""
+    return 4 if k <= 7 else 8 if k <= 19 else 16
+
+
+@functools.lru_cache(maxsize=8)
+def _jit_program(k: int) -> jit_median.NetworkProgram:
+    """Build (once per K) the compiled-median program: rows sorted as runs, runs merged.
+
+    The networks are those of :func:`_median_programs` turned by 90 degrees (the median of a
+    square window does not care): phase 1 sorts each horizontal K-run of a padded row,
+    phase 2 merges the K runs of ``tile`` consecutive output rows.
+    """
+    r = k // 2
+    tile = _jit_tile(k)
+    net1, out1 = _tiled_network(k, 1, lambda c: [('px', c)], forget=False)
+    code1, n_buf1, regs1 = _compile_fused(net1, out1, [('px', c) for c in range(-r, r + 1)])
+    net2, out2 = _tiled_network(k, tile, lambda c: [('run', c, i) for i in range(k)],
+                                forget=True)
+    leaves2 = [('run', c, i) for c in range(-r, tile + r) for i in range(k)]
+    code2, n_buf2, regs2 = _compile_fused(net2, out2, leaves2)
+    return jit_median.assemble_program(
+        k, tile, (code1, n_buf1, regs1[0]),
+        (code2, n_buf2, [regs2[t][0] for t in range(tile)]))
 
 
 def _run(program: tuple, leaves: list, shape: tuple, dtype: np.dtype) -> tuple[list, dict]:

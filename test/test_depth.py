@@ -1,10 +1,15 @@
-"""Tests for obstacle_detection.depth: decode, crop, exact median filter (vs. scipy)."""
+"""Tests for obstacle_detection.depth: decode, crop, exact median filter (vs. scipy).
+
+The median tests that take the ``median_path`` fixture run twice: through the compiled network
+of :mod:`obstacle_detection.jit_median` ('jit', skipped without numba) and through the numpy /
+OpenCV code (``OBSTACLE_DETECTION_NO_JIT=1``).
+"""
 
 import numpy as np
 import pytest
 from scipy import ndimage
 
-from obstacle_detection import depth
+from obstacle_detection import depth, jit_median
 from obstacle_detection.depth import (
     MEDIAN_MODE,
     DepthFormatError,
@@ -21,6 +26,30 @@ SIZES = [(1, 1), (1, 6), (5, 1), (3, 4), (8, 13), (17, 16), (23, 31), (41, 38)]
 
 def scipy_median(img: np.ndarray, k: int) -> np.ndarray:
     return ndimage.median_filter(img, size=k, mode=MEDIAN_MODE)
+
+
+_SCIPY_CACHE: dict = {}
+
+
+def scipy_median_cached(key: tuple, img: np.ndarray, k: int) -> np.ndarray:
+    """Return scipy's median of a full frame, computed once for both median paths."""
+    if (key, k) not in _SCIPY_CACHE:
+        _SCIPY_CACHE[key, k] = scipy_median(img, k)
+    return _SCIPY_CACHE[key, k]
+
+
+@pytest.fixture(params=['jit', 'numpy'])
+def median_path(request, monkeypatch) -> str:
+    """Run the test with the compiled median ('jit') or with the numpy / OpenCV code."""
+    if request.param == 'jit':
+        if not jit_median.AVAILABLE:
+            pytest.skip('numba is not installed')
+        monkeypatch.delenv(jit_median.NO_JIT_ENV, raising=False)
+        assert jit_median.enabled()
+    else:
+        monkeypatch.setenv(jit_median.NO_JIT_ENV, '1')
+        assert not jit_median.enabled()
+    return request.param
 
 
 def depth_mm_image(rng: np.random.Generator, shape: tuple[int, int],
@@ -156,7 +185,7 @@ def test_crop_rejects_negative_margin() -> None:
 
 
 @pytest.mark.parametrize('shape', SIZES)
-def test_median_equals_scipy(shape) -> None:
+def test_median_equals_scipy(shape, median_path) -> None:
     rng = np.random.default_rng(sum(shape))
     for name, img in random_images(rng, shape).items():
         for k in ODD_K:
@@ -178,7 +207,7 @@ def test_median_network_path_directly(k) -> None:
             np.testing.assert_array_equal(depth._network_median(img, k), scipy_median(img, k))
 
 
-def test_median_float32_with_more_than_65536_distinct_values() -> None:
+def test_median_float32_with_more_than_65536_distinct_values(median_path) -> None:
     rng = np.random.default_rng(7)
     img = rng.random((300, 260), dtype=np.float32)
     assert np.unique(img).size > 65536
@@ -186,7 +215,7 @@ def test_median_float32_with_more_than_65536_distinct_values() -> None:
         np.testing.assert_array_equal(median_filter(img, k), scipy_median(img, k))
 
 
-def test_median_other_dtypes() -> None:
+def test_median_other_dtypes(median_path) -> None:
     rng = np.random.default_rng(3)
     imgs = [rng.integers(0, 256, (20, 25)).astype(np.uint8),
             decode_depth(depth_mm_image(rng, (20, 25))).astype(np.float64),
@@ -198,7 +227,7 @@ def test_median_other_dtypes() -> None:
                                           err_msg=f'{img.dtype} K={k}')
 
 
-def test_median_inf_and_nan_match_scipy() -> None:
+def test_median_inf_and_nan_match_scipy(median_path) -> None:
     rng = np.random.default_rng(11)
     img = decode_depth(depth_mm_image(rng, (15, 18)))
     img[2, 3] = np.inf
@@ -208,34 +237,35 @@ def test_median_inf_and_nan_match_scipy() -> None:
     np.testing.assert_array_equal(median_filter(img, 5), scipy_median(img, 5))
 
 
-def test_median_realistic_frame_size() -> None:
+def test_median_realistic_frame_size(median_path) -> None:
     rng = np.random.default_rng(5)
     img = decode_depth(depth_mm_image(rng, (424, 512), 0.05))
     for k in (5, 17):
-        np.testing.assert_array_equal(median_filter(img, k), scipy_median(img, k))
+        np.testing.assert_array_equal(median_filter(img, k),
+                                      scipy_median_cached(('ramp', 5), img, k))
 
 
-def test_median_k1_is_a_copy() -> None:
+def test_median_k1_is_a_copy(median_path) -> None:
     img = np.arange(12, dtype=np.float32).reshape(3, 4)
     out = median_filter(img, 1)
     np.testing.assert_array_equal(out, img)
     assert not np.shares_memory(out, img)
 
 
-def test_median_fills_isolated_pepper_zero() -> None:
+def test_median_fills_isolated_pepper_zero(median_path) -> None:
     img = np.full((9, 11), 1.5, np.float32)
     img[4, 5] = 0.0
     for k in (3, 5, 7):
         np.testing.assert_array_equal(median_filter(img, k), np.full_like(img, 1.5))
 
 
-def test_median_removes_isolated_valid_pixel_among_zeros() -> None:
+def test_median_removes_isolated_valid_pixel_among_zeros(median_path) -> None:
     img = np.zeros((9, 9), np.float32)
     img[4, 4] = 2.0
     assert not median_filter(img, 3).any()
 
 
-def test_median_does_not_modify_input() -> None:
+def test_median_does_not_modify_input(median_path) -> None:
     rng = np.random.default_rng(2)
     img = decode_depth(depth_mm_image(rng, (20, 20)))
     before = img.copy()
@@ -262,12 +292,15 @@ def test_median_rejects_bad_image(img) -> None:
         median_filter(img, 3)
 
 
-def test_median_decoded_frames_take_the_millimetre_key_path() -> None:
+def test_median_decoded_frames_take_the_millimetre_key_path(median_path) -> None:
     rng = np.random.default_rng(4)
-    frame = decode_depth(depth_mm_image(rng, (30, 40)))
+    mm = depth_mm_image(rng, (30, 40))
+    frame = decode_depth(mm)
     keys, values = depth._order_keys(frame)
-    assert values is depth._depth_lut(depth.MM_PER_M, 'float32')
+    np.testing.assert_array_equal(keys, mm)       # millimetres, not ranks
     np.testing.assert_array_equal(np.take(values, keys), frame)
+    if median_path == 'numpy':
+        assert values is depth._depth_lut(depth.MM_PER_M, 'float32')
     tum = decode_depth(depth_mm_image(rng, (30, 40)), depth_scale=5000)  # rank path
     for k in (7, 11):
         np.testing.assert_array_equal(median_filter(tum, k), scipy_median(tum, k))
@@ -282,13 +315,14 @@ def scene_mm(name: str, seed: int = 0) -> np.ndarray:
 
 @pytest.mark.parametrize('name, k', [('corridor', 7), ('corridor', 17), ('farm_row', 9),
                                      ('farm_row', 17), ('step_down', 17)])
-def test_median_kinect_frames_equal_scipy(name, k) -> None:
+def test_median_kinect_frames_equal_scipy(name, k, median_path) -> None:
     """Full 512 x 424 frames, uint16 mm and float32 m (as the scene makes it, not LUT)."""
     frame = render_scene(name, seed=3)
     for img in (frame.depth_mm, frame.depth_m):
         out = median_filter(img, k)
         assert out.dtype == img.dtype and out.flags.c_contiguous
-        np.testing.assert_array_equal(out, scipy_median(img, k), err_msg=str(img.dtype))
+        np.testing.assert_array_equal(out, scipy_median_cached((name, 3, img.dtype.name), img, k),
+                                      err_msg=str(img.dtype))
 
 
 @pytest.mark.parametrize('name, k', [('people', 17), ('ramps', 19), ('dark_materials', 17)])
@@ -301,7 +335,7 @@ def test_median_two_pass_runs_and_is_exact(name, k) -> None:
 
 
 @pytest.mark.parametrize('k', [21, 31])
-def test_median_large_kernels_on_frame_crops(k) -> None:
+def test_median_large_kernels_on_frame_crops(k, median_path) -> None:
     keys = scene_mm('people', seed=1)[60:260, 100:420]
     np.testing.assert_array_equal(median_filter(keys, k), scipy_median(keys, k))
     metres = keys.astype(np.float32) * np.float32(1e-3)
@@ -310,7 +344,7 @@ def test_median_large_kernels_on_frame_crops(k) -> None:
 
 @pytest.mark.parametrize('shape', [(1, 1), (1, 40), (40, 1), (5, 7), (17, 17), (18, 16),
                                    (23, 31), (70, 45), (33, 300)])
-def test_median_two_pass_small_and_odd_sizes(shape) -> None:
+def test_median_two_pass_small_and_odd_sizes(shape, median_path) -> None:
     """Images smaller than K, thin strips and sizes that are not tile multiples."""
     rng = np.random.default_rng(sum(shape))
     keys = depth_mm_image(rng, shape, 0.3)
@@ -358,14 +392,14 @@ def test_median_two_pass_falls_back_on_noise() -> None:
     np.testing.assert_array_equal(median_filter(noise, 17), scipy_median(noise, 17))
 
 
-def test_median_image_larger_than_the_largest_tile() -> None:
+def test_median_image_larger_than_the_largest_tile(median_path) -> None:
     yy, xx = np.mgrid[0:300, 0:700]
     rng = np.random.default_rng(14)
     keys = (700 + 3 * yy + 2 * xx + rng.normal(0, 10, yy.shape)).astype(np.uint16)
     np.testing.assert_array_equal(median_filter(keys, 17), scipy_median(keys, 17))
 
 
-def test_order_keys_accepts_any_rounding_of_millimetres() -> None:
+def test_order_keys_accepts_any_rounding_of_millimetres(median_path) -> None:
     """float32(mm) * 1e-3 (not decode_depth's rounding) still maps to the mm keys."""
     frame = render_scene('corridor')
     metres = frame.depth_m
@@ -375,11 +409,13 @@ def test_order_keys_accepts_any_rounding_of_millimetres() -> None:
     np.testing.assert_array_equal(np.take(values, keys), metres)
     tum = decode_depth(frame.depth_mm, depth_scale=5000)
     keys, values = depth._order_keys(tum)
-    assert values is depth._depth_lut(5000.0, 'float32')
     np.testing.assert_array_equal(keys, frame.depth_mm)
+    np.testing.assert_array_equal(np.take(values, keys), tum)
+    if median_path == 'numpy':
+        assert values is depth._depth_lut(5000.0, 'float32')
 
 
-def test_order_keys_rejects_colliding_values() -> None:
+def test_order_keys_rejects_colliding_values(median_path) -> None:
     """Two values rounding to the same millimetre must not share a key (rank fallback)."""
     img = np.array([[1.0, 1.0002, 1.0004], [2.0, 0.0, 1.0001]], np.float32)
     keys, values = depth._order_keys(img)
@@ -398,3 +434,128 @@ def test_median_two_pass_with_sparse_far_outliers() -> None:
     out = depth._two_pass_median(keys, 17)
     assert out is not None
     np.testing.assert_array_equal(out, scipy_median(keys, 17))
+
+
+# --------------------------------------------------------------------------- median: compiled
+
+needs_numba = pytest.mark.skipif(not jit_median.AVAILABLE, reason='numba is not installed')
+
+
+@needs_numba
+@pytest.mark.parametrize('name, k', [('people', 7), ('ramps', 9), ('pitched_floor', 13),
+                                     ('dark_materials', 17), ('step_down', 21)])
+def test_jit_median_kinect_frames_equal_scipy(name, k, monkeypatch) -> None:
+    """Full 512 x 424 frames through the compiled network, uint16 mm and float32 m.
+
+    scipy runs once, on the millimetres: the scene's metres are ``float32(mm) * 1e-3``, a
+    non-decreasing map, and the median of an odd count commutes with any such map, so scipy's
+    median of the metres is the same map applied to its median of the millimetres.
+    """
+    monkeypatch.delenv(jit_median.NO_JIT_ENV, raising=False)
+    frame = render_scene(name, seed=7)
+    expected_mm = scipy_median(frame.depth_mm, k)
+    out_mm = median_filter(frame.depth_mm, k)
+    np.testing.assert_array_equal(out_mm, expected_mm)
+    out_m = median_filter(frame.depth_m, k)
+    assert out_m.dtype == np.float32 and out_m.flags.c_contiguous
+    np.testing.assert_array_equal(out_m, expected_mm.astype(np.float32) * np.float32(1e-3))
+
+
+@needs_numba
+@pytest.mark.parametrize('k', [7, 9, 17, 21])
+def test_jit_network_chunk_and_band_edges(k) -> None:
+    """Widths around the 64-pixel lanes and 512-pixel chunks, heights around the bands."""
+    rng = np.random.default_rng(k)
+    program = depth._jit_program(k)
+    for h, w in [(1, 1), (1, 65), (3, 64), (4, 63), (5, 511), (9, 512), (17, 513), (6, 1100),
+                 (33, 20), (2, 1030)]:
+        for keys in (rng.integers(0, 65536, (h, w)).astype(np.uint16),
+                     rng.integers(0, 3, (h, w)).astype(np.uint16)):       # many ties
+            out = jit_median.network_median(keys, program)
+            assert out.dtype == np.uint16 and out.flags.c_contiguous
+            np.testing.assert_array_equal(out, scipy_median(keys, k), err_msg=f'{h}x{w}')
+
+
+@needs_numba
+def test_jit_network_constant_and_extreme_keys() -> None:
+    for value in (0, 1, 65535):
+        keys = np.full((20, 30), value, np.uint16)
+        np.testing.assert_array_equal(
+            jit_median.network_median(keys, depth._jit_program(9)), keys)
+    keys = np.zeros((40, 50), np.uint16)
+    keys[::2, ::3] = 65535
+    np.testing.assert_array_equal(jit_median.network_median(keys, depth._jit_program(7)),
+                                  scipy_median(keys, 7))
+
+
+@needs_numba
+def test_jit_median_runs_for_k_7_to_31_only(monkeypatch) -> None:
+    monkeypatch.delenv(jit_median.NO_JIT_ENV, raising=False)
+    calls = []
+    real = jit_median.network_median
+
+    def spy(keys, program):
+        calls.append(program.k)
+        return real(keys, program)
+
+    monkeypatch.setattr(jit_median, 'network_median', spy)
+    keys = np.random.default_rng(0).integers(0, 5000, (40, 45)).astype(np.uint16)
+    for k in (3, 5, 7, 9, 17, 31, 33):
+        np.testing.assert_array_equal(median_filter(keys, k), scipy_median(keys, k))
+    assert calls == [7, 9, 17, 31]
+    monkeypatch.setenv(jit_median.NO_JIT_ENV, '1')
+    median_filter(keys, 9)
+    assert calls == [7, 9, 17, 31]
+
+
+@pytest.mark.parametrize('value, on', [(None, True), ('', True), ('0', True), ('1', False),
+                                       ('yes', False)])
+def test_jit_enabled_follows_the_environment(value, on, monkeypatch) -> None:
+    if value is None:
+        monkeypatch.delenv(jit_median.NO_JIT_ENV, raising=False)
+    else:
+        monkeypatch.setenv(jit_median.NO_JIT_ENV, value)
+    assert jit_median.enabled() is (on and jit_median.AVAILABLE)
+
+
+def test_jit_warm_up(monkeypatch) -> None:
+    monkeypatch.setenv(jit_median.NO_JIT_ENV, '1')
+    assert jit_median.warm_up(17) == 0.0
+    monkeypatch.delenv(jit_median.NO_JIT_ENV)
+    seconds = jit_median.warm_up(17)
+    assert seconds >= 0.0 and (seconds > 0.0) is jit_median.AVAILABLE
+
+
+@needs_numba
+def test_jit_quantised_keys() -> None:
+    frame = render_scene('farm_row')
+    keys, values = jit_median.quantised_keys(frame.depth_m, 1000.0)
+    np.testing.assert_array_equal(keys, frame.depth_mm)
+    np.testing.assert_array_equal(np.take(values, keys), frame.depth_m)
+    np.testing.assert_array_equal(jit_median.take(values, keys), frame.depth_m)
+    # Rounds like np.rint, ties to even: halves i + 0.5 for i % 4 in (0, 1) -> 0, 2, 4, 6, ...
+    i = np.arange(400)
+    ties = ((i[i % 4 < 2] + 0.5) / 2).astype(np.float32)
+    keys, _ = jit_median.quantised_keys(ties[None, :], 2.0)
+    np.testing.assert_array_equal(keys[0], np.rint(ties * 2))
+    for bad in (-0.001, np.nan, 65.6):                       # negative, NaN, beyond 16 bits
+        img = np.full((3, 4), 1.5, np.float32)
+        img[1, 2] = bad
+        assert jit_median.quantised_keys(img, 1000.0) is None
+    collide = np.array([[1.0, 1.0002]], np.float32)          # one mm, two values
+    assert jit_median.quantised_keys(collide, 1000.0) is None
+
+
+@pytest.mark.parametrize('k', [3, 7, 9, 17, 21])
+def test_fused_network_code_never_writes_its_operands(k) -> None:
+    """The compiled interpreter vectorises only when results do not overlap operands."""
+    program = depth._jit_program(k) if k >= 7 else None
+    r = k // 2
+    net, outputs = depth._tiled_network(k, 4, lambda c: [('run', c, i) for i in range(k)],
+                                        forget=True)
+    leaves = [('run', c, i) for c in range(-r, 4 + r) for i in range(k)]
+    code, _, _ = depth._compile_fused(net, outputs, leaves)
+    codes = [code] if program is None else [code, *program.code1, *program.code2]
+    for c in codes:
+        assert not ((c[:, :2, None] == c[:, None, 2:]) & (c[:, :2, None] >= 0)).any()
+        assert ((c[:, 0] >= 0) | (c[:, 1] >= 0)).all() and (c[:, 2:] >= 0).all()

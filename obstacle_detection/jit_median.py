@@ -1,0 +1,357 @@
+"""Compiled (numba) sorting-network median for :func:`obstacle_detection.depth.median_filter`.
+
+numba is an optional accelerator: when it imports (``AVAILABLE``) and the environment variable
+``OBSTACLE_DETECTION_NO_JIT`` is unset, empty or ``0`` (:func:`enabled`),
+:func:`~obstacle_detection.depth.median_filter` runs the exact K x K median of uint16 keys
+for K >= 7 through :func:`network_median`; otherwise the numpy / OpenCV code of
+:mod:`obstacle_detection.depth` runs unchanged. Both are exact (equal to
+``scipy.ndimage.median_filter(mode='nearest')``), so they give identical results.
+
+Method: the min/max network that :mod:`obstacle_detection.depth` builds (every horizontal
+K-run is sorted, then the K sorted runs of each window are merged across rows, ``tile``
+output rows sharing their common runs, values that can no longer be the median dropped) is run
+by a small interpreter on rows of ``chunk`` (<= 512) pixels instead of whole images, so the
+working set stays in the CPU cache. Every instruction is a fused compare-exchange
+``(lo, hi) = (min(a, b), max(a, b))`` on vectors whose outputs never overlap its inputs, which
+lets the compiler vectorise it (16 uint16 lanes per AVX2 operation). The sorted runs of the
+last ``tile + K - 1`` padded rows live in a ring of registers, so each run is sorted once.
+Float depth in metres is keyed to millimetres by one compiled pass (:func:`quantised_keys`).
+
+The kernels are compiled on first use (a few seconds) and cached on disk (``cache=True``);
+call :func:`warm_up` at start-up to pay that before the first frame. They run on one thread.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from typing import NamedTuple
+
+import cv2
+import numpy as np
+
+try:
+    import numba
+except (ImportError, OSError):  # not installed, or built for another numpy / llvm
+    numba = None
+
+__all__ = ['AVAILABLE', 'NO_JIT_ENV', 'NetworkProgram', 'assemble_program', 'enabled',
+           'network_median', 'quantised_keys', 'take', 'warm_up']
+
+#: True when numba imported and the compiled kernels can run.
+AVAILABLE: bool = numba is not None
+
+#: Environment variable that, set to anything but '' or '0', turns the compiled path off (for
+#: tests and comparisons); it is read on every call.
+NO_JIT_ENV = 'OBSTACLE_DETECTION_NO_JIT'
+
+#: The interpreter processes ``blocks * _LANES`` pixels of a row per instruction.
+_LANES = 64
+#: Most pixels per row chunk: larger chunks cost fewer instruction dispatches, smaller ones
+#: keep the register file (about 250 to 650 rows of ``chunk`` uint16 for K = 7 .. 17) in cache.
+_MAX_CHUNK = 512
+
+
+def enabled() -> bool:
+    """Return True when the compiled median runs: numba is there and not switched off."""
+    return AVAILABLE and os.environ.get(NO_JIT_ENV, '').strip() in ('', '0')
+
+
+def _jit(func):
+    """Compile ``func`` with numba (cached on disk) when numba is there; else leave it as is."""
+    if numba is None:
+        return func
+    return numba.njit(cache=True, nogil=True, boundscheck=False)(func)
+
+
+# --------------------------------------------------------------------------- kernels
+
+
+@_jit
+def _run(code, mem, blocks):  # pragma: no cover - compiled
+    """Execute fused compare-exchange instructions on vectors of ``blocks * 64`` lanes.
+
+    ``code``: (m, 4) int64 rows (lo, hi, a, b) of element offsets into the flat uint16
+    ``mem``: ``mem[lo:lo + n] = min(mem[a:a + n], mem[b:b + n])`` and the max into hi (-1: not
+    needed); the written vectors never overlap the read ones.
+    """
+    # Unsigned offsets: numba then needs no negative-index handling, and the loops vectorise
+    # (the compiler checks at run time that the vectors do not overlap).
+    n = np.uint64(blocks) * np.uint64(64)
+    for p in range(code.shape[0]):
+        lo = np.uint64(code[p, 0])
+        hi = np.uint64(code[p, 1])
+        a = np.uint64(code[p, 2])
+        b = np.uint64(code[p, 3])
+        if code[p, 1] < 0:
+            for j in range(n):
+                x = mem[a + j]
+                y = mem[b + j]
+                mem[lo + j] = x if x < y else y
+        elif code[p, 0] < 0:
+            for j in range(n):
+                x = mem[a + j]
+                y = mem[b + j]
+                mem[hi + j] = y if x < y else x
+        else:
+            for j in range(n):
+                x = mem[a + j]
+                y = mem[b + j]
+                mem[lo + j] = x if x < y else y
+                mem[hi + j] = y if x < y else x
+
+
+@_jit
+def _addresses(code, chunk, n_regs):  # pragma: no cover - compiled
+    """Turn the register numbers of ``code`` into element offsets (int64, -1 stays -1).
+
+    Register i < n_regs starts at i * chunk; i >= n_regs is the row buffer after the
+    registers, shifted by i - n_regs pixels.
+    """
+    out = np.empty(code.shape, np.int64)
+    flat_in = code.reshape(-1)
+    flat_out = out.reshape(-1)
+    for i in range(flat_in.size):
+        reg = np.int64(flat_in[i])
+        if reg < 0:
+            flat_out[i] = -1
+        elif reg < n_regs:
+            flat_out[i] = reg * chunk
+        else:
+            flat_out[i] = n_regs * chunk + reg - n_regs
+    return out
+
+
+@_jit
+def _median_kernel(padded, h, w, k, tile, blocks, code1, code2, out2,
+                   n_regs):  # pragma: no cover - compiled
+    """Run a :class:`NetworkProgram` over a replicate-padded uint16 key image.
+
+    ``padded``: (bands * tile + 2R, chunks * chunk + 2R) uint16, the (h, w) keys padded by
+    R = k // 2 with their edge values (and beyond, to whole bands and chunks). Returns the
+    (h, w) uint16 median.
+    """
+    r = k // 2
+    rows = tile + 2 * r
+    chunk = blocks * 64
+    # Registers, then one padded row segment (phase 1 reads its k shifts in place). They
+    # start on a cache line: vector loads that straddle two lines cost up to 1.5x.
+    size = n_regs * chunk + chunk + 2 * r
+    raw = np.empty(size + 32, np.uint16)
+    skip = (-raw.ctypes.data % 64) // 2
+    mem = raw[skip:skip + size]
+    row = n_regs * chunk
+    addr1 = _addresses(code1, chunk, n_regs)
+    addr2 = _addresses(code2, chunk, n_regs)
+    out = np.empty((h, w), np.uint16)
+    n_bands = (h + tile - 1) // tile
+    n_phase = code2.shape[0]
+    for x0 in range(0, w, chunk):
+        width = min(chunk, w - x0)
+        for band in range(n_bands):
+            y0 = band * tile
+            # Sort the horizontal runs of the padded rows this band adds to the ring.
+            for c in range(0 if band == 0 else 2 * r, rows):
+                py = y0 + c
+                mem[row:row + chunk + 2 * r] = padded[py, x0:x0 + chunk + 2 * r]
+                _run(addr1[py % rows], mem, blocks)
+            # Merge them into the medians of the band's rows.
+            phase = band % n_phase
+            _run(addr2[phase], mem, blocks)
+            for t in range(min(tile, h - y0)):
+                start = out2[phase, t] * chunk
+                out[y0 + t, x0:x0 + width] = mem[start:start + width]
+    return out
+
+
+@_jit
+def _quantise_kernel(flat, scale, keys, values):  # pragma: no cover - compiled
+    """Key each value of float32 ``flat`` by ``rint(value * scale)``; False on a failure.
+
+    Fails (returns False) on a key outside 0..65535 (or NaN) and on a key that two different
+    values share. ``keys``: (n,) uint16 out; ``values``: (65536,) float32 zeros in, out the
+    value of each key that occurs.
+    """
+    # Branch-free passes (they vectorise): keys and their range, scatter, check. Rounding to
+    # nearest (ties to even) by adding and removing 2**23, exact for 0 <= x < 2**23.
+    magic = np.float32(8388608.0)
+    top = np.float32(65535.0)
+    good = True
+    for i in range(flat.size):
+        x = flat[i] * scale
+        good &= (x >= np.float32(0.0)) & (x < np.float32(65535.5))   # False for NaN
+        keys[i] = np.uint16((min(max(x, np.float32(0.0)), top) + magic) - magic)
+    if not good:
+        return False
+    for i in range(flat.size):
+        values[keys[i]] = flat[i]
+    same = True
+    for i in range(flat.size):
+        same &= values[keys[i]] == flat[i]
+    return same
+
+
+@_jit
+def _take_kernel(values, keys, out):  # pragma: no cover - compiled
+    """``out[i] = values[keys[i]]`` for flat arrays (uint16 keys)."""
+    for i in range(keys.size):
+        out[i] = values[keys[i]]
+
+
+def quantised_keys(depth: np.ndarray,
+                   units_per_m: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """Map a quantised depth image to uint16 keys with the same order, in one pass.
+
+    Args:
+        depth: (H, W) float32 depth [m] (or any non-negative float32 values).
+        units_per_m: quantisation step: key = rint(value * units_per_m) (float32 arithmetic).
+
+    Returns:
+        ``(keys, values)``: keys (H, W) uint16 and values (65536,) float32 with
+        ``values[keys] == depth`` exactly; the map value -> key is non-decreasing and one to
+        one on the values present, so it keeps their order. None when a value is negative,
+        NaN or too large for 16 bits, or two different values round to one key.
+    """
+    flat = np.ascontiguousarray(depth, np.float32).reshape(-1)
+    keys = np.empty(flat.size, np.uint16)
+    values = np.zeros(1 << 16, np.float32)
+    if not _quantise_kernel(flat, np.float32(units_per_m), keys, values):
+        return None
+    return keys.reshape(depth.shape), values
+
+
+def take(values: np.ndarray, keys: np.ndarray) -> np.ndarray:
+    """Return ``values[keys]`` for (n,) float32 values and (H, W) uint16 keys (= ``np.take``)."""
+    out = np.empty(keys.shape, values.dtype)
+    _take_kernel(values, np.ascontiguousarray(keys).reshape(-1), out.reshape(-1))
+    return out
+
+
+# --------------------------------------------------------------------------- programs
+
+
+class NetworkProgram(NamedTuple):
+    """A sorting-network median program for :func:`network_median`, for one K and tile.
+
+    Register file layout: a ring of ``tile + K - 1`` slots of K registers (the sorted
+    horizontal runs of consecutive padded rows, rank i of slot s in register s * K + i), then
+    phase-1 scratch, then phase-2 scratch (``n_regs`` registers in all). Register numbers
+    ``n_regs + s`` stand for the padded row being sorted, shifted by s pixels (phase 1 reads
+    its K leaves there in place). Code rows are (lo, hi, a, b), -1 for a result not needed.
+    """
+
+    k: int
+    tile: int                 #: output rows per band
+    code1: np.ndarray         #: (ring slots, m1, 4) int32 phase 1, writing into each slot
+    code2: np.ndarray         #: (phases, m2, 4) int32 phase 2 per ring phase of a band
+    out2: np.ndarray          #: (phases, tile) int32 register of each output row's median
+    n_regs: int
+
+
+def assemble_program(k: int, tile: int, phase1: tuple, phase2: tuple) -> NetworkProgram:
+    """Lay out two register-level networks on the register file of :func:`network_median`.
+
+    Args:
+        k: window size K (odd, >= 3).
+        tile: output rows per band (1 <= tile <= K).
+        phase1: ``(code, n_buf, outputs)`` sorting one horizontal run: code (m, 4) int
+            (lo, hi, a, b) with -1 for an unused lo / hi, registers 0..K-1 the pixels at
+            horizontal offsets -R..R, K.. scratch; outputs: the K registers of the sorted run.
+        phase2: ``(code, n_buf, outputs)`` merging runs into ``tile`` medians: registers
+            (c + R) * K + i are rank i of the run of relative row c (-R <= c < tile + R), the
+            rest scratch; outputs: the ``tile`` median registers, row by row.
+
+    In both, a written register is never an input of the same instruction.
+    """
+    r = k // 2
+    rows = tile + 2 * r
+    code1, n_buf1, outs1 = phase1
+    code2, n_buf2, outs2 = phase2
+    code1 = np.asarray(code1, np.int64).reshape(-1, 4)
+    code2 = np.asarray(code2, np.int64).reshape(-1, 4)
+    scratch1 = rows * k
+    scratch2 = scratch1 + n_buf1
+    n_regs = scratch2 + n_buf2
+    n_leaves2 = rows * k
+    outs1 = np.asarray(outs1)
+    if (outs1 < k).any():
+        raise ValueError('phase-1 outputs must be computed registers')
+
+    # Phase 1 for ring slot s: the k leaves are the row buffer shifted by 0..K-1 (registers
+    # n_regs + shift); the sorted outputs land in the slot (free while this row is sorted: it
+    # held a row no later band needs).
+    out_rank = np.full(k + n_buf1, -1)
+    out_rank[outs1] = np.arange(k)
+    reg1 = np.arange(k + n_buf1)
+    base1 = np.where(reg1 < k, n_regs + reg1, scratch1 + reg1 - k)
+    slots = []
+    for s in range(rows):
+        phys = np.where(out_rank >= 0, s * k + out_rank, base1)
+        slots.append(_relocate(code1, phys))
+
+    # Phase 2 for each ring phase: band b starts at padded row b * tile, slot of row c is
+    # (b * tile + c) % rows, which repeats every rows / gcd(rows, tile) bands.
+    period = rows // math.gcd(rows, tile)
+    reg2 = np.arange(n_leaves2 + n_buf2)
+    phases, outs = [], []
+    for phase in range(period):
+        c, i = np.divmod(np.minimum(reg2, n_leaves2 - 1), k)
+        leaf = ((phase * tile + c) % rows) * k + i
+        phys = np.where(reg2 < n_leaves2, leaf, scratch2 + reg2 - n_leaves2)
+        phases.append(_relocate(code2, phys))
+        outs.append(phys[np.asarray(outs2)])
+    return NetworkProgram(k, tile, np.stack(slots), np.stack(phases),
+                          np.asarray(outs, np.int32), n_regs)
+
+
+def _relocate(code: np.ndarray, phys: np.ndarray) -> np.ndarray:
+    """Map register numbers through ``phys``; an unused output (-1) stays -1."""
+    out = np.where(code >= 0, phys[np.maximum(code, 0)], -1)
+    return np.ascontiguousarray(out, np.int32)
+
+
+def network_median(keys: np.ndarray, program: NetworkProgram) -> np.ndarray:
+    """Exact 'nearest'-mode K x K median of uint16 keys by a compiled network program.
+
+    Args:
+        keys: (H, W) uint16 image.
+        program: from :func:`assemble_program` (:mod:`obstacle_detection.depth` builds and
+            caches one per K).
+
+    Returns:
+        (H, W) uint16 C-contiguous median, equal to
+        ``scipy.ndimage.median_filter(keys, size=K, mode='nearest')``.
+    """
+    if not AVAILABLE:
+        raise RuntimeError('numba is not available')
+    h, w = keys.shape
+    k, tile = program.k, program.tile
+    r = k // 2
+    n_chunks = -(-w // _MAX_CHUNK)
+    blocks = -(-w // (n_chunks * _LANES))      # lanes per chunk / 64, as even as possible
+    chunk = blocks * _LANES
+    bands = -(-h // tile)
+    padded = cv2.copyMakeBorder(np.ascontiguousarray(keys, np.uint16), r, r + bands * tile - h,
+                                r, r + n_chunks * chunk - w, cv2.BORDER_REPLICATE)
+    return _median_kernel(padded, h, w, k, tile, blocks, program.code1, program.code2,
+                          program.out2, program.n_regs)
+
+
+def warm_up(kernel_size: int = 17) -> float:
+    """Compile (or load from the on-disk cache) the kernels; return the seconds it took.
+
+    Also builds the network program for ``kernel_size`` (the detector's median K), so the
+    first frame pays neither. A no-op returning 0.0 when :func:`enabled` is False.
+    """
+    if not enabled():
+        return 0.0
+    from obstacle_detection import depth   # depth imports this module
+
+    start = time.perf_counter()
+    millimetres = np.random.default_rng(0).integers(0, 4000, (24, 40)).astype(np.uint16)
+    metres = millimetres.astype(np.float32) * np.float32(1e-3)   # the key conversion kernels
+    for k in sorted({7, kernel_size}):
+        depth.median_filter(millimetres, k)
+        depth.median_filter(metres, k)
+    return time.perf_counter() - start
