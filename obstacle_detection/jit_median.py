@@ -17,8 +17,15 @@ lets the compiler vectorise it (16 uint16 lanes per AVX2 operation). The sorted 
 last ``tile + K - 1`` padded rows live in a ring of registers, so each run is sorted once.
 Float depth in metres is keyed to millimetres by one compiled pass (:func:`quantised_keys`).
 
-The kernels are compiled on first use (a few seconds) and cached on disk (``cache=True``);
-call :func:`warm_up` at start-up to pay that before the first frame. They run on one thread.
+Alternatives measured on 512 x 424 Kinect-like frames (one thread): Huang's sliding
+histogram (two-level, snake order, median tracked incrementally) took 8.6 ms at K=7 and 13 ms
+at K=17, dominated by walking the median across the histogram at depth edges; the same
+network tiled in 2-D (blocks of outputs per lane, about 30 % fewer operations at K=17) lost
+what it saved to unaligned loads and data reshuffling below K=21 (5.1 vs 5.3 ms at K=17).
+
+The kernels are compiled on first use (about 3 s) and cached on disk (``cache=True``; then
+0.2 s); call :func:`warm_up` at start-up to pay that before the first frame. They run on one
+thread.
 """
 
 from __future__ import annotations
