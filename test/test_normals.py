@@ -1,4 +1,8 @@
-"""Normals, slope test and validation against geometry whose answer is known."""
+"""Normals, slope test and validation against geometry whose answer is known.
+
+Every test runs twice: on the numpy/scipy path and on the compiled (numba) path, which is
+skipped where numba is not installed.
+"""
 
 import math
 
@@ -6,9 +10,21 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from obstacle_detection.normals import (estimate_normals, nearest_neighbours,
-                                        smallest_eigenvectors, slope_obstacles,
+from obstacle_detection import jit_knn
+from obstacle_detection.normals import (NO_JIT_ENV, _nearest_neighbours_scipy, estimate_normals,
+                                        nearest_neighbours, neighbourhood_covariance,
+                                        smallest_eigenvectors, slope_obstacles, use_jit,
                                         validate_obstacles)
+
+
+@pytest.fixture(autouse=True, params=['numpy', 'jit'])
+def kernel_path(request, monkeypatch):
+    """Run the test on one path: numpy/scipy (``OBSTACLE_DETECTION_NO_JIT=1``) or numba."""
+    if request.param == 'jit' and not jit_knn.AVAILABLE:
+        pytest.skip('numba is not installed')
+    monkeypatch.setenv(NO_JIT_ENV, '1' if request.param == 'numpy' else '0')
+    assert use_jit() == (request.param == 'jit')
+    return request.param
 
 
 def plane_points(normal, n=400, seed=0, spread=1.0, noise=0.0):
@@ -120,3 +136,59 @@ def test_single_query_serves_both_stages():
     nb = nearest_neighbours(pts, 13)
     _, ref = cKDTree(pts).query(pts, k=10)
     np.testing.assert_array_equal(np.sort(nb[:, :10], axis=1), np.sort(ref, axis=1))
+
+
+def brute_force_order(points, k):
+    """Neighbours by (squared float64 distance, index), the point itself first."""
+    p = points.astype(np.float64)
+    out = []
+    for i in range(p.shape[0]):
+        diff = p - p[i]
+        d2 = (diff[:, 0] * diff[:, 0] + diff[:, 1] * diff[:, 1]) + diff[:, 2] * diff[:, 2]
+        d2[i] = -1.0
+        out.append(np.lexsort((np.arange(p.shape[0]), d2))[:k])
+    return np.array(out)
+
+
+def test_equal_distances_are_ordered_by_index_self_first():
+    """A lattice (many exact ties) and duplicated points give one well-defined answer."""
+    axis = np.arange(6, dtype=np.float32) * np.float32(0.025)
+    lattice = np.stack(np.meshgrid(axis, axis, axis), -1).reshape(-1, 3)
+    rng = np.random.default_rng(9)
+    twins = rng.uniform(0, 1, (80, 3)).astype(np.float32)
+    for pts in (lattice, np.vstack([twins, twins])):
+        ref = brute_force_order(pts, 13)
+        np.testing.assert_array_equal(nearest_neighbours(pts, 13), ref)
+        np.testing.assert_array_equal(_nearest_neighbours_scipy(pts, 13), ref)
+
+
+def test_covariance_sums_in_column_order_in_float64():
+    """The covariance equals a per-point loop summing the neighbours in order, bit for bit."""
+    rng = np.random.default_rng(12)
+    pts = (rng.normal(0, 0.02, (60, 3)) + [3000.0, -2000.0, 1.0]).astype(np.float32)
+    nb = _nearest_neighbours_scipy(pts, 10)
+    cov = neighbourhood_covariance(pts, nb)
+    for i in range(pts.shape[0]):
+        rel = pts[nb[i]].astype(np.float64) - pts[i].astype(np.float64)
+        sums = rel[0].copy()
+        second = np.outer(rel[0], rel[0])
+        for t in range(1, 10):
+            sums += rel[t]
+            second += np.outer(rel[t], rel[t])
+        mean = sums / 10
+        np.testing.assert_array_equal(cov[i], second / 10 - np.outer(mean, mean))
+    # millimetre spreads kilometres from the origin keep their precision
+    ref = np.stack([np.cov(pts[nb[i]].astype(np.float64).T, bias=True) for i in range(60)])
+    np.testing.assert_allclose(cov, ref, rtol=1e-9, atol=1e-15)
+
+
+def test_paths_agree_on_normals():
+    """The compiled and the numpy normals are the same (to the last bit where libm agrees)."""
+    if not jit_knn.AVAILABLE:
+        pytest.skip('numba is not installed')
+    rng = np.random.default_rng(13)
+    pts = rng.normal(0, 1, (500, 3)).astype(np.float32) * np.float32([1.0, 0.6, 0.05])
+    nb = _nearest_neighbours_scipy(pts, 10)
+    numpy_normals = smallest_eigenvectors(neighbourhood_covariance(pts, nb)).astype(np.float32)
+    np.testing.assert_allclose(jit_knn.normals_from_neighbours(pts, nb, 10), numpy_normals,
+                               atol=1e-6)
