@@ -45,7 +45,10 @@ def _jit(func):
     """Compile ``func`` with numba (cached on disk) when numba is there; else leave it as is."""
     if numba is None:
         return func
-    return numba.njit(cache=True, nogil=True)(func)
+    try:
+        return numba.njit(cache=True, nogil=True)(func)
+    except RuntimeError:  # no writable cache directory: compile in memory on each start
+        return numba.njit(cache=False, nogil=True)(func)
 
 
 # --------------------------------------------------------------------------- grid k-NN kernel
