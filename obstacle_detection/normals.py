@@ -29,7 +29,7 @@ _PAIR_B = np.array([0, 1, 2, 1, 2, 2])
 
 def use_jit() -> bool:
     """Return True when the compiled kernels run: numba imported and not switched off."""
-    return jit_knn.AVAILABLE and os.environ.get(NO_JIT_ENV, '') in ('', '0')
+    return jit_knn.AVAILABLE and os.environ.get(NO_JIT_ENV, '').strip() in ('', '0')
 
 
 def nearest_neighbours(points: np.ndarray, k: int) -> np.ndarray:
