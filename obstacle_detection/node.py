@@ -257,6 +257,9 @@ class DetectorNode(Node):
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
 
+        seconds = self._config.detector.warm_up()
+        if seconds > 0.05:
+            self.get_logger().info(f'numba kernels compiled or loaded in {seconds:.1f} s')
         self._worker = threading.Thread(target=self._work, name='obstacle_detector_worker',
                                         daemon=True)
         self._worker.start()
@@ -288,7 +291,9 @@ class DetectorNode(Node):
 
     def _apply_parameters(self, parameters: list[Parameter]) -> None:
         old_period = self._config.stats_period_s
-        self._config = build_config(self._parameter_values())  # validated just before
+        config = build_config(self._parameter_values())  # validated just before
+        config.detector.warm_up()  # a new median K builds its sorting network here, not in a frame
+        self._config = config
         if self._config.stats_period_s != old_period:
             self._restart_stats_timer(self._config.stats_period_s)
         changed = ', '.join(f'{p.name}={p.value!r}' for p in parameters)

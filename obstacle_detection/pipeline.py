@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import geometry
+from . import geometry, jit_knn, jit_median
 from .costmap import Costmap, build_costmap
 from .depth import crop_borders, decode_depth, median_filter
 from .normals import estimate_normals, nearest_neighbours, slope_obstacles, validate_obstacles
@@ -79,6 +79,17 @@ class Detector:
         self.params = params if params is not None else DetectorParams()
         self._ray_key: tuple | None = None
         self._ray_cache: np.ndarray | None = None
+
+    def warm_up(self) -> float:
+        """Compile (or load from numba's disk cache) the optional JIT kernels; return seconds.
+
+        The median kernel is prepared for this detector's K. Without numba it does nothing.
+        Call it before the first frame (the node does at start-up) so no frame pays for it.
+        """
+        start = time.perf_counter()
+        jit_median.warm_up(self.params.median_kernel)
+        jit_knn.warm_up()
+        return time.perf_counter() - start
 
     def _rays(self, shape: tuple[int, int], intr: Intrinsics) -> np.ndarray:
         """Ground-frame pixel rays, computed once per image size and intrinsics."""

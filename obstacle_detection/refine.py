@@ -460,6 +460,10 @@ class RefinedDetector:
         """The wrapped detector's parameters."""
         return self.detector.params
 
+    def warm_up(self) -> float:
+        """Prepare the wrapped detector's JIT kernels (see ``Detector.warm_up``)."""
+        return self.detector.warm_up()
+
     def process(self, depth: np.ndarray, intrinsics: Any = None, *,
                 depth_scale: float | None = None) -> Any:
         """Run the pipeline on one frame, then refine it (see :class:`RefinedDetector`)."""
