@@ -5,8 +5,9 @@ Frames come from the ray-cast scene generator (rendered once before timing). Eve
 configuration (frame size x median kernel K) runs the same number of frames, cycling over the
 named scenes. The run is pinned to one thread: BLAS/OpenMP thread counts are set to 1 before
 numpy is imported, OpenCV gets ``cv2.setNumThreads(1)``, the k-d tree is queried with
-``workers=1``, and the process is pinned to one CPU with ``os.sched_setaffinity`` (where the
-platform has it). Peak memory is the process's maximum resident set size.
+``workers=1``, the optional numba kernels are single-threaded, and the process is pinned to one
+CPU with ``os.sched_setaffinity`` (where the platform has it). Peak memory is the process's
+maximum resident set size. ``OBSTACLE_DETECTION_NO_JIT=1`` times the numpy/scipy path.
 
 Prints a table for people and one line starting with ``JSON `` for machines.
 
@@ -34,6 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
+from obstacle_detection.normals import use_jit  # noqa: E402
 from obstacle_detection.params import KINECT_V2_SD, PRESETS, Intrinsics  # noqa: E402
 from obstacle_detection.pipeline import STAGES, Detector  # noqa: E402
 from obstacle_detection.scenes import render_scene, scene_params  # noqa: E402
@@ -52,8 +54,19 @@ def pin_one_cpu() -> str:
     if hasattr(os, 'sched_setaffinity'):
         cpu = min(os.sched_getaffinity(0))
         os.sched_setaffinity(0, {cpu})
-        return f'pinned to CPU {cpu}; BLAS/OpenMP/OpenCV threads = 1; k-d tree workers = 1'
-    return 'not pinned (no sched_setaffinity); BLAS/OpenMP/OpenCV threads = 1'
+        return (f'pinned to CPU {cpu}; BLAS/OpenMP/OpenCV threads = 1; k-d tree workers = 1; '
+                f'{jit_description()}')
+    return ('not pinned (no sched_setaffinity); BLAS/OpenMP/OpenCV threads = 1; '
+            f'{jit_description()}')
+
+
+def jit_description() -> str:
+    """Say whether the optional numba kernels run (they are single-threaded) or numpy/scipy."""
+    if use_jit():
+        import numba
+        return (f'numba {numba.__version__} kernels (one thread) for the median K >= 7, k-NN '
+                'and normals')
+    return 'numpy/scipy path (numba missing or OBSTACLE_DETECTION_NO_JIT=1)'
 
 
 def run_config(scenes: tuple[str, ...], size_label: str, kernel: int, frames: int,
@@ -66,7 +79,8 @@ def run_config(scenes: tuple[str, ...], size_label: str, kernel: int, frames: in
             frame = render_scene(name, seed=seed, intrinsics=intr, size=(width, height))
             params = scene_params(frame, PRESETS[preset](median_kernel=kernel))
             rendered.append((frame, Detector(params)))
-    Detector(rendered[0][1].params).process(rendered[0][0].depth_mm, rendered[0][0].intrinsics)
+    rendered[0][1].warm_up()  # numba kernels compiled or loaded before timing
+    rendered[0][1].process(rendered[0][0].depth_mm, rendered[0][0].intrinsics)
     per_stage = {stage: [] for stage in (*STAGES, 'total')}
     voxels, obstacles = [], []
     wall_start = time.perf_counter()
