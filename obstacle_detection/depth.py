@@ -699,6 +699,19 @@ def _tiled_network(k: int, tile: int, column: object, forget: bool) -> tuple[_Ne
     return net, outputs
 
 
+def _live_ops(net: _Net, keep: list) -> set[int]:
+    """Return the operations of ``net`` that the values in ``keep`` depend on (dead-code pass)."""
+    needed: set[int] = set()
+    stack = [v for v in keep if isinstance(v, int)]
+    while stack:
+        v = stack.pop()
+        if v in needed:
+            continue
+        needed.add(v)
+        stack.extend(u for u in net.ops[v][1:] if isinstance(u, int))
+    return needed
+
+
 def _compile(net: _Net, outputs: dict, leaves: list) -> tuple[list, int, dict]:
     """Dead-code-eliminate and register-allocate a network.
 
@@ -708,14 +721,7 @@ def _compile(net: _Net, outputs: dict, leaves: list) -> tuple[list, int, dict]:
     """
     leaf_reg = {leaf: i for i, leaf in enumerate(leaves)}
     keep = [v for vals in outputs.values() for v in vals]
-    needed: set[int] = set()
-    stack = [v for v in keep if isinstance(v, int)]
-    while stack:
-        v = stack.pop()
-        if v in needed:
-            continue
-        needed.add(v)
-        stack.extend(u for u in net.ops[v][1:] if isinstance(u, int))
+    needed = _live_ops(net, keep)
     order = sorted(needed)
     last_use: dict[object, int] = {}
     for pos, v in enumerate(order):
@@ -764,14 +770,7 @@ def _compile_fused(net: _Net, outputs: dict, leaves: list) -> tuple[np.ndarray, 
     """
     leaf_reg = {leaf: i for i, leaf in enumerate(leaves)}
     keep = [v for vals in outputs.values() for v in vals]
-    needed: set[int] = set()
-    stack = [v for v in keep if isinstance(v, int)]
-    while stack:
-        v = stack.pop()
-        if v in needed:
-            continue
-        needed.add(v)
-        stack.extend(u for u in net.ops[v][1:] if isinstance(u, int))
+    needed = _live_ops(net, keep)
     # exchange() appends min then max of the same operands: fuse the pairs still needed.
     order = sorted(needed)
     instrs = []
