@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import geometry, jit_knn, jit_median
+from . import geometry, jit_knn, jit_median, jit_voxel
 from .costmap import Costmap, build_costmap
 from .depth import crop_borders, decode_depth, median_filter
 from .normals import estimate_normals, nearest_neighbours, slope_obstacles, validate_obstacles
@@ -89,6 +89,7 @@ class Detector:
         start = time.perf_counter()
         jit_median.warm_up(self.params.median_kernel)
         jit_knn.warm_up()
+        jit_voxel.warm_up()
         return time.perf_counter() - start
 
     def _rays(self, shape: tuple[int, int], intr: Intrinsics) -> np.ndarray:
@@ -123,10 +124,15 @@ class Detector:
         clock.lap('median')
 
         rays = self._rays(depth_m.shape, intr)
-        pts, pix_roi, valid = geometry.ground_points_in_roi(depth_m, rays, p)
-        clock.lap('back_project')
-
-        grid = voxel_downsample(pts, p.voxel_size_m)
+        compiled = jit_voxel.enabled()
+        if compiled:   # same points, voxels and labels as the numpy path below
+            proj = jit_voxel.project_roi(depth_m, rays, p, reuse=True)
+            clock.lap('back_project')
+            grid = jit_voxel.voxelise(proj)
+        else:
+            pts, pix_roi, valid = geometry.ground_points_in_roi(depth_m, rays, p)
+            clock.lap('back_project')
+            grid = voxel_downsample(pts, p.voxel_size_m)
         centroids = grid.centroids
         clock.lap('voxel')
         k = max(p.normal_neighbours, p.validation_neighbours + 1)
@@ -146,14 +152,18 @@ class Detector:
         costmap = build_costmap(obstacle_points, ground_points, p)
         clock.lap('costmap')
 
-        shape = depth_m.shape
-        labels = np.zeros(shape, dtype=np.uint8)
-        flat_labels = labels.reshape(-1)
-        flat_labels[valid] = LABEL_OUTSIDE_ROI
-        flat_labels[pix_roi] = np.where(is_obstacle[grid.point_voxel], LABEL_OBSTACLE,
-                                        LABEL_GROUND).astype(np.uint8)
-        pixel_voxel = np.full(shape, -1, dtype=np.int32)
-        pixel_voxel.reshape(-1)[pix_roi] = grid.point_voxel
+        if compiled:
+            labels, pixel_voxel = proj.labels, proj.pixel_voxel
+            jit_voxel.label_pixels(labels, pixel_voxel, is_obstacle)
+        else:
+            shape = depth_m.shape
+            labels = np.zeros(shape, dtype=np.uint8)
+            flat_labels = labels.reshape(-1)
+            flat_labels[valid] = LABEL_OUTSIDE_ROI
+            flat_labels[pix_roi] = np.where(is_obstacle[grid.point_voxel], LABEL_OBSTACLE,
+                                            LABEL_GROUND).astype(np.uint8)
+            pixel_voxel = np.full(shape, -1, dtype=np.int32)
+            pixel_voxel.reshape(-1)[pix_roi] = grid.point_voxel
         clock.lap('labels')
         return DetectionResult(
             obstacle_points=obstacle_points, ground_points=ground_points, labels=labels,

@@ -6,6 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import jit_voxel
+
 #: Largest dense voxel lattice [cells] indexed directly; larger extents fall back to sorting.
 _DENSE_LIMIT = 16_000_000
 
@@ -34,7 +36,8 @@ def voxel_downsample(points: np.ndarray, voxel_size_m: tuple[float, float, float
     Voxels are the cells ``[i*Vx, (i+1)*Vx) x [j*Vy, ...) x ...`` of a lattice anchored at
     the frame origin, so a point's voxel does not depend on the other points. Voxels are
     ordered by their linear index (x slowest, z fastest), so the output is deterministic.
-    An empty input gives empty arrays.
+    An empty input gives empty arrays. Runs the compiled kernel
+    (:func:`.jit_voxel.voxel_downsample`, same result) when :func:`.jit_voxel.enabled`.
     """
     size = np.asarray(voxel_size_m, dtype=np.float64)
     if size.shape != (3,) or np.any(size <= 0.0):
@@ -42,6 +45,18 @@ def voxel_downsample(points: np.ndarray, voxel_size_m: tuple[float, float, float
     pts = np.asarray(points)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise ValueError(f'points must have shape (M, 3), got {pts.shape}')
+    if pts.shape[0] and jit_voxel.enabled():
+        grid = jit_voxel.voxel_downsample(pts, voxel_size_m)
+        if grid is not None:
+            return grid
+    return voxel_downsample_numpy(pts, voxel_size_m)
+
+
+def voxel_downsample_numpy(points: np.ndarray, voxel_size_m: tuple[float, float, float],
+                           ) -> VoxelGrid:
+    """:func:`voxel_downsample` in numpy (the reference the compiled kernel matches)."""
+    size = np.asarray(voxel_size_m, dtype=np.float64)
+    pts = np.asarray(points)
     if pts.shape[0] == 0:
         return VoxelGrid(np.zeros((0, 3), np.float32), np.zeros(0, np.int64),
                          np.zeros(0, np.int64), np.zeros((0, 3), np.int64))

@@ -1,0 +1,165 @@
+"""The compiled back-projection / ROI / voxel grid (optional numba) against the numpy path."""
+
+import math
+
+import numpy as np
+import pytest
+
+from obstacle_detection import geometry, jit_voxel
+from obstacle_detection.depth import crop_borders, decode_depth, median_filter
+from obstacle_detection.params import DetectorParams, Intrinsics, table_4_2, table_4_3
+from obstacle_detection.pipeline import Detector
+from obstacle_detection.scenes import render_scene, scene_params
+from obstacle_detection.voxel import voxel_downsample, voxel_downsample_numpy
+
+pytestmark = pytest.mark.skipif(not jit_voxel.AVAILABLE, reason='numba is not installed')
+
+GRID_FIELDS = ('centroids', 'point_voxel', 'counts', 'voxel_ijk')
+
+
+def assert_same_grid(expected, got):
+    for name in GRID_FIELDS:
+        a, b = getattr(expected, name), getattr(got, name)
+        assert a.dtype == b.dtype and a.shape == b.shape, name
+        np.testing.assert_array_equal(a, b, err_msg=name)
+
+
+def assert_same_frame(depth_m, rays, params):
+    """Check numpy ROI + voxel_downsample == project_roi + voxelise, bit for bit."""
+    pts, pix, valid = geometry.ground_points_in_roi(depth_m, rays, params)
+    for reuse in (False, True):
+        proj = jit_voxel.project_roi(depth_m, rays, params, reuse=reuse)
+        np.testing.assert_array_equal(proj.points, pts)
+        assert proj.points.dtype == np.float32
+        np.testing.assert_array_equal(proj.pixel_index, pix)
+        flat = proj.labels.reshape(-1)
+        np.testing.assert_array_equal(flat != 0, valid)
+        np.testing.assert_array_equal(np.flatnonzero(flat == 2), pix)
+        grid = jit_voxel.voxelise(proj)
+        expected = voxel_downsample_numpy(pts, params.voxel_size_m)
+        assert_same_grid(expected, grid)
+        pixel_voxel = np.full(depth_m.size, -1, np.int32)
+        pixel_voxel[pix] = expected.point_voxel
+        np.testing.assert_array_equal(proj.pixel_voxel.reshape(-1), pixel_voxel)
+    got = jit_voxel.ground_points_in_roi(depth_m, rays, params)
+    for a, b in zip((pts, pix, valid), got):
+        np.testing.assert_array_equal(a, b)
+    return pts.shape[0]
+
+
+@pytest.mark.parametrize('dtype', [np.float32, np.float64])
+def test_voxel_downsample_matches_numpy_on_random_clouds(dtype):
+    rng = np.random.default_rng(5)
+    for n, spread, size in [(1, 1.0, (0.1, 0.1, 0.1)), (7, 0.05, (0.025,) * 3),
+                            (5000, 2.0, (0.2, 0.25, 0.3)), (20000, 3.0, (0.025, 0.03, 0.05))]:
+        pts = rng.uniform(-spread, spread, (n, 3)).astype(dtype)
+        got = jit_voxel.voxel_downsample(pts, size)
+        assert got is not None
+        assert_same_grid(voxel_downsample_numpy(pts, size), got)
+        assert_same_grid(voxel_downsample_numpy(pts, size), voxel_downsample(pts, size))
+
+
+def test_voxel_downsample_points_on_voxel_boundaries():
+    size = (0.025, 0.05, 0.1)
+    steps = np.arange(-8, 9)
+    pts = np.stack(np.meshgrid(steps * np.float32(0.025), steps * np.float32(0.05),
+                               steps * np.float32(0.1)), -1).reshape(-1, 3).astype(np.float32)
+    pts = np.vstack([pts, np.nextafter(pts, np.float32(-np.inf)),
+                     np.nextafter(pts, np.float32(np.inf))])
+    assert_same_grid(voxel_downsample_numpy(pts, size), jit_voxel.voxel_downsample(pts, size))
+
+
+def test_voxel_downsample_falls_back_when_the_lattice_is_huge_or_nan():
+    pts = np.array([[0.0, 0.0, 0.0], [1e4, 1e4, 1e4]], np.float32)
+    assert jit_voxel.voxel_downsample(pts, (0.01,) * 3) is None
+    assert_same_grid(voxel_downsample_numpy(pts, (0.01,) * 3), voxel_downsample(pts, (0.01,) * 3))
+    assert jit_voxel.voxel_downsample(np.array([[np.nan, 0, 0]], np.float32), (0.1,) * 3) is None
+
+
+@pytest.mark.parametrize('preset', [table_4_2, table_4_3])
+@pytest.mark.parametrize('name', ['corridor', 'people', 'ramps', 'farm_row', 'step_down',
+                                  'pitched_floor'])
+def test_scene_frames_match_numpy(name, preset):
+    frame = render_scene(name, seed=1)
+    params = scene_params(frame, preset())
+    depth = decode_depth(frame.depth_mm)
+    if params.median_kernel > 1:
+        depth = median_filter(depth, 5)
+    rays = geometry.ground_rays(depth.shape, frame.intrinsics, params)
+    kept = assert_same_frame(depth, rays, params)
+    assert kept > 1000 or preset is table_4_3   # 4.3's 1 m range may see nothing
+
+
+@pytest.mark.parametrize('pitch_deg, roll_deg, crop', [(0.0, 0.0, (0, 0, 0, 0)),
+                                                       (25.0, 4.0, (20, 30, 10, 40)),
+                                                       (-5.0, -8.0, (0, 100, 60, 0))])
+def test_mount_and_crop_match_numpy(pitch_deg, roll_deg, crop):
+    frame = render_scene('corridor', pitch_rad=math.radians(pitch_deg),
+                         roll_rad=math.radians(roll_deg))
+    params = scene_params(frame, table_4_2(crop_top_px=crop[0], crop_bottom_px=crop[1],
+                                           crop_left_px=crop[2], crop_right_px=crop[3]))
+    depth = crop_borders(decode_depth(frame.depth_mm), *crop)
+    rays = geometry.ground_rays(depth.shape, frame.intrinsics, params)
+    assert_same_frame(depth, rays, params)
+
+
+def test_empty_and_all_outside_frames():
+    params = DetectorParams(camera_height_m=0.5, max_range_m=2.0)
+    intr = Intrinsics(fx=50.0, fy=50.0, cx=8.0, cy=6.0)
+    rays = geometry.ground_rays((12, 16), intr, params)
+    for depth in (np.zeros((12, 16), np.float32), np.full((12, 16), 9.0, np.float32)):
+        assert assert_same_frame(depth, rays, params) == 0
+        proj = jit_voxel.project_roi(depth, rays, params)
+        assert jit_voxel.voxelise(proj).centroids.shape == (0, 3)
+        assert (proj.pixel_voxel == -1).all()
+
+
+def test_roi_and_voxel_boundaries_and_negative_coordinates():
+    """Depths chosen so that points land exactly on the ROI bounds and voxel faces."""
+    params = DetectorParams(camera_height_m=0.5, max_range_m=2.0, min_range_m=0.5,
+                            lateral_limit_m=1.0, tdbg_m=-0.1, smar_m=0.8)
+    h, w = 40, 60
+    rng = np.random.default_rng(9)
+    # Arbitrary float32 rays (any mount), then depths that hit chosen ground coordinates.
+    rays = rng.uniform(-1.0, 1.0, (3, h * w)).astype(np.float32)
+    rays[0] = np.abs(rays[0]) + np.float32(0.05)
+    targets = np.concatenate([
+        np.float32([0.5, 2.0, 0.525, 1.0, 1.975, 0.75]),
+        rng.choice(np.arange(18, 82, dtype=np.float32) * np.float32(0.025), h * w - 6)])
+    depth = (targets / rays[0]).astype(np.float32)
+    # nudge by an ulp either way so that some products hit the bound exactly, some not
+    depth = np.where(rng.random(h * w) < 0.3, np.nextafter(depth, np.float32(0)), depth)
+    depth[::17] = 0.0
+    depth = depth.reshape(h, w)
+    m = assert_same_frame(depth, rays, params)
+    pts, _, _ = geometry.ground_points_in_roi(depth, rays, params)
+    assert m > 100 and (pts[:, 1] < 0).any() and (pts[:, 2] < 0).any()
+    on_bound = (pts[:, 0] == np.float32(0.5)) | (pts[:, 0] == np.float32(2.0))
+    assert on_bound.any()
+    on_face = pts[:, 0] / np.float32(0.025) == np.floor(pts[:, 0] / np.float32(0.025))
+    assert on_face.sum() > 10
+
+
+def test_roi_lattice_holds_the_bounds():
+    params = DetectorParams()
+    bounds = jit_voxel._roi_bounds(params)
+    size = np.asarray(params.voxel_size_m, np.float32)
+    low, dims = jit_voxel._roi_lattice(bounds, size)
+    assert (dims > 0).all()
+    assert low[1] == math.floor(-params.lateral_limit_m / 0.025)
+
+
+@pytest.mark.parametrize('name', ['corridor', 'people', 'farm_row'])
+def test_pipeline_identical_with_and_without_jit(name, monkeypatch):
+    frame = render_scene(name, seed=2)
+    params = scene_params(frame, table_4_2())
+    jit = Detector(params).process(frame.depth_mm, frame.intrinsics)
+    monkeypatch.setenv(jit_voxel.NO_JIT_ENV, '1')
+    ref = Detector(params).process(frame.depth_mm, frame.intrinsics)
+    for field in ('obstacle_points', 'ground_points', 'labels', 'voxel_points',
+                  'voxel_normals', 'voxel_is_obstacle', 'voxel_slope_obstacle', 'pixel_voxel'):
+        a, b = getattr(ref, field), getattr(jit, field)
+        assert a.dtype == b.dtype, field
+        np.testing.assert_array_equal(a, b, err_msg=field)
+    np.testing.assert_array_equal(ref.costmap.data, jit.costmap.data)
+    assert ref.costmap.origin_xy_m == jit.costmap.origin_xy_m
