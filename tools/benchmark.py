@@ -64,8 +64,8 @@ def jit_description() -> str:
     """Say whether the optional numba kernels run (they are single-threaded) or numpy/scipy."""
     if use_jit():
         import numba
-        return (f'numba {numba.__version__} kernels (one thread) for the median K >= 7, k-NN '
-                'and normals')
+        return (f'numba {numba.__version__} kernels (one thread): back-projection and voxel '
+                'grid, median K >= 7, k-NN, normals, labels')
     return 'numpy/scipy path (numba missing or OBSTACLE_DETECTION_NO_JIT=1)'
 
 
