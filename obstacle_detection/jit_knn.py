@@ -23,13 +23,7 @@ import math
 
 import numpy as np
 
-try:
-    import numba
-except (ImportError, OSError):  # not installed, or built for another numpy / llvm
-    numba = None
-
-#: True when numba imported and the compiled kernels can run.
-AVAILABLE: bool = numba is not None
+from .jit_support import AVAILABLE, jit as _jit
 
 #: Largest dense cell table [cells]; a larger grid looks its cells up in a hash table.
 _DENSE_CELLS_LIMIT = 1 << 22
@@ -39,16 +33,6 @@ _HASH_MULTIPLIER = -7046029254386353131
 _CROWDING_PER_NEIGHBOUR = 0.5
 #: Most cells along one grid axis, so linear cell keys fit comfortably in int64.
 _MAX_AXIS_CELLS = 1 << 20
-
-
-def _jit(func):
-    """Compile ``func`` with numba (cached on disk) when numba is there; else leave it as is."""
-    if numba is None:
-        return func
-    try:
-        return numba.njit(cache=True, nogil=True)(func)
-    except RuntimeError:  # no writable cache directory: compile in memory on each start
-        return numba.njit(cache=False, nogil=True)(func)
 
 
 # --------------------------------------------------------------------------- grid k-NN kernel

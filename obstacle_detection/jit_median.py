@@ -31,45 +31,22 @@ thread.
 from __future__ import annotations
 
 import math
-import os
 import time
 from typing import NamedTuple
 
 import cv2
 import numpy as np
 
-try:
-    import numba
-except (ImportError, OSError):  # not installed, or built for another numpy / llvm
-    numba = None
+from .jit_support import AVAILABLE, NO_JIT_ENV, enabled, jit as _jit
 
 __all__ = ['AVAILABLE', 'NO_JIT_ENV', 'NetworkProgram', 'assemble_program', 'enabled',
            'network_median', 'quantised_keys', 'take', 'warm_up']
-
-#: True when numba imported and the compiled kernels can run.
-AVAILABLE: bool = numba is not None
-
-#: Environment variable that, set to anything but '' or '0', turns the compiled path off (for
-#: tests and comparisons); it is read on every call.
-NO_JIT_ENV = 'OBSTACLE_DETECTION_NO_JIT'
 
 #: The interpreter processes ``blocks * _LANES`` pixels of a row per instruction.
 _LANES = 64
 #: Most pixels per row chunk: larger chunks cost fewer instruction dispatches, smaller ones
 #: keep the register file (about 250 to 650 rows of ``chunk`` uint16 for K = 7 .. 17) in cache.
 _MAX_CHUNK = 512
-
-
-def enabled() -> bool:
-    """Return True when the compiled median runs: numba is there and not switched off."""
-    return AVAILABLE and os.environ.get(NO_JIT_ENV, '').strip() in ('', '0')
-
-
-def _jit(func):
-    """Compile ``func`` with numba (cached on disk) when numba is there; else leave it as is."""
-    if numba is None:
-        return func
-    return numba.njit(cache=True, nogil=True, boundscheck=False)(func)
 
 
 # --------------------------------------------------------------------------- kernels

@@ -25,7 +25,6 @@ call :func:`warm_up` at start-up to pay that before the first frame. They run on
 
 from __future__ import annotations
 
-import os
 import threading
 from typing import NamedTuple
 
@@ -33,39 +32,15 @@ import numpy as np
 
 from .params import DetectorParams
 
-try:
-    import numba
-except (ImportError, OSError):  # not installed, or built for another numpy / llvm
-    numba = None
+from .jit_support import AVAILABLE, NO_JIT_ENV, enabled, jit as _jit
 
 __all__ = ['AVAILABLE', 'NO_JIT_ENV', 'Projection', 'enabled', 'ground_points_in_roi',
            'label_pixels', 'project_roi', 'voxel_downsample', 'voxelise', 'warm_up']
-
-#: True when numba imported and the compiled kernels can run.
-AVAILABLE: bool = numba is not None
-
-#: Environment variable that, set to anything but '' or '0', turns the compiled path off.
-NO_JIT_ENV = 'OBSTACLE_DETECTION_NO_JIT'
 
 #: Most lattice cells [cells] of the byte map (as the numpy path's dense limit).
 _DENSE_LIMIT = 16_000_000
 #: Largest |voxel index| handled; beyond it (or NaN) the numpy path runs.
 _MAX_INDEX = float(1 << 40)
-
-
-def enabled() -> bool:
-    """Return True when the compiled kernels run: numba is there and not switched off."""
-    return AVAILABLE and os.environ.get(NO_JIT_ENV, '').strip() in ('', '0')
-
-
-def _jit(func):
-    """Compile ``func`` with numba (cached on disk) when numba is there; else leave it as is."""
-    if numba is None:
-        return func
-    try:
-        return numba.njit(cache=True, nogil=True, boundscheck=False)(func)
-    except RuntimeError:  # no writable cache directory: compile in memory on each start
-        return numba.njit(cache=False, nogil=True, boundscheck=False)(func)
 
 
 # --------------------------------------------------------------------------- kernels

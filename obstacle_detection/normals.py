@@ -12,15 +12,12 @@ normals (the same float64 operations in the same order).
 
 from __future__ import annotations
 
-import os
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from . import jit_knn
-
-#: Set to 1 to run the numpy/scipy code even when numba is installed (tests, comparisons).
-NO_JIT_ENV = 'OBSTACLE_DETECTION_NO_JIT'
+from . import jit_knn, jit_support
+from .jit_support import NO_JIT_ENV  # noqa: F401 - re-exported: the switch of this module
 
 # The six distinct entries of a symmetric 3 x 3 matrix: (0,0) (0,1) (0,2) (1,1) (1,2) (2,2).
 _PAIR_A = np.array([0, 0, 0, 1, 1, 2])
@@ -29,7 +26,7 @@ _PAIR_B = np.array([0, 1, 2, 1, 2, 2])
 
 def use_jit() -> bool:
     """Return True when the compiled kernels run: numba imported and not switched off."""
-    return jit_knn.AVAILABLE and os.environ.get(NO_JIT_ENV, '').strip() in ('', '0')
+    return jit_support.enabled()
 
 
 def nearest_neighbours(points: np.ndarray, k: int) -> np.ndarray:
