@@ -286,18 +286,26 @@ class LogisticRefiner:
                    tuple(sorted(info.items())))
 
     # -- prediction ----------------------------------------------------------------------
-    def predict_proba(self, features: np.ndarray) -> np.ndarray:
-        """(M,) float64 probability of obstacle for raw features (M, 9)."""
+    def _log_odds(self, features: np.ndarray) -> np.ndarray:
+        """(M,) float64 linear predictor a0 + sum a_j x_j of raw features (M, 9)."""
         x = np.asarray(features, dtype=np.float64)
         if x.ndim != 2 or x.shape[1] != len(FEATURE_NAMES):
             raise ValueError(f'features shape {x.shape}, expected (M, {len(FEATURE_NAMES)})')
         w = np.asarray(self.coefficients)
-        z = w[0] + ((x - np.asarray(self.feature_mean)) / np.asarray(self.feature_scale)) @ w[1:]
-        return _sigmoid(z)
+        scaled = (x - np.asarray(self.feature_mean)) / np.asarray(self.feature_scale)
+        return w[0] + scaled @ w[1:]
+
+    def predict_proba(self, features: np.ndarray) -> np.ndarray:
+        """(M,) float64 probability of obstacle for raw features (M, 9)."""
+        return _sigmoid(self._log_odds(features))
 
     def predict(self, features: np.ndarray) -> np.ndarray:
-        """(M,) bool obstacle decision for raw features (M, 9)."""
-        return self.predict_proba(features) > self.threshold
+        """(M,) bool obstacle decision for raw features (M, 9).
+
+        sigmoid(z) > threshold is decided as z > logit(threshold): the same decision without
+        two exponentials per pixel (the threshold lies in (0, 1)).
+        """
+        return self._log_odds(features) > math.log(self.threshold / (1.0 - self.threshold))
 
     def predict_labels(self, result: Any, previous_mask: np.ndarray | None = None,
                        ) -> np.ndarray:
