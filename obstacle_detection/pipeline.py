@@ -37,8 +37,10 @@ class DetectionResult:
     timings_ms: per stage (STAGES order) and 'total' [ms].
     voxel_points (V, 3); voxel_normals (V, 3) unit; voxel_slope_obstacle (V,) bool, the slope
     test (and the optional height rule, ``max_ground_height_m``) before validation;
-    voxel_is_obstacle (V,) bool after validation; pixel_voxel (H, W) int32, the voxel of each
-    pixel or -1; depth_m (H, W) float32, the filtered depth the points came from.
+    voxel_is_obstacle (V,) bool after validation; voxel_neighbours (V, k) int64, the k-NN query
+    that served the normals and the validation (k = max(N, N1 + 1) clipped to V, nearest first,
+    the voxel itself first); pixel_voxel (H, W) int32, the voxel of each pixel or -1;
+    depth_m (H, W) float32, the filtered depth the points came from.
     """
 
     obstacle_points: np.ndarray
@@ -50,6 +52,7 @@ class DetectionResult:
     voxel_normals: np.ndarray
     voxel_slope_obstacle: np.ndarray
     voxel_is_obstacle: np.ndarray
+    voxel_neighbours: np.ndarray
     pixel_voxel: np.ndarray
     depth_m: np.ndarray
     intrinsics: Intrinsics = field(default=SEED_TABLE_4_1)
@@ -169,4 +172,4 @@ class Detector:
             obstacle_points=obstacle_points, ground_points=ground_points, labels=labels,
             costmap=costmap, timings_ms=clock.finish(), voxel_points=centroids,
             voxel_normals=normals, voxel_slope_obstacle=steep, voxel_is_obstacle=is_obstacle,
-            pixel_voxel=pixel_voxel, depth_m=depth_m, intrinsics=intr)
+            voxel_neighbours=neighbours, pixel_voxel=pixel_voxel, depth_m=depth_m, intrinsics=intr)

@@ -440,7 +440,11 @@ def refine_result(result: Any, refined_mask: np.ndarray, params: DetectorParams,
     is_obstacle = voxel_votes(pixel_voxel, mask, voxel_points.shape[0])
     n1 = params.validation_neighbours
     if validate and n1 > 0 and is_obstacle.any():
-        neighbours = nearest_neighbours(voxel_points, min(n1 + 1, voxel_points.shape[0]))
+        # the pipeline's own k-NN query serves when it asked for enough neighbours
+        neighbours = getattr(result, 'voxel_neighbours', None)
+        wanted = min(n1 + 1, voxel_points.shape[0])
+        if neighbours is None or neighbours.shape[1] < wanted:
+            neighbours = nearest_neighbours(voxel_points, wanted)
         is_obstacle = validate_obstacles(is_obstacle, neighbours, n1)
     obstacle_points = voxel_points[is_obstacle]
     ground_points = voxel_points[~is_obstacle]

@@ -248,7 +248,8 @@ def _result() -> DetectionResult:
         timings_ms={'total': 1.0}, voxel_points=np.concatenate([obstacles, ground]),
         voxel_normals=np.zeros((15, 3), np.float32),
         voxel_slope_obstacle=np.arange(15) < 6, voxel_is_obstacle=np.arange(15) < 6,
-        pixel_voxel=np.full((3, 4), -1, np.int32), depth_m=depth, intrinsics=KINECT_V2_SD)
+        voxel_neighbours=np.arange(15)[:, None], pixel_voxel=np.full((3, 4), -1, np.int32),
+        depth_m=depth, intrinsics=KINECT_V2_SD)
 
 
 def test_result_to_messages_minimal() -> None:

@@ -187,3 +187,23 @@ def test_refined_detector_uses_the_previous_rule_based_mask():
     out3 = stream.process(frame.depth, frame.intrinsics)  # previous mask: the empty frame's
     assert not (out3.labels == LABEL_OBSTACLE).any()
     assert out3.obstacle_points.shape[0] == 0
+
+
+def test_refined_validation_reuses_the_pipeline_neighbours(monkeypatch):
+    _, params, result = _small_scene_result()
+    import dataclasses
+
+    from obstacle_detection import normals
+    mask = refine.obstacle_mask(result)
+    # without the pipeline's neighbours, refine_result queries them itself
+    bare = dataclasses.replace(result, voxel_neighbours=np.zeros((len(result.voxel_points), 0),
+                                                                 dtype=np.int64))
+    expected = refine.refine_result(bare, mask, params)
+
+    def no_second_query(*args, **kwargs):
+        raise AssertionError('the pipeline already queried the neighbours')
+
+    monkeypatch.setattr(normals, 'nearest_neighbours', no_second_query)
+    again = refine.refine_result(result, mask, params)
+    np.testing.assert_array_equal(again.voxel_is_obstacle, expected.voxel_is_obstacle)
+    np.testing.assert_array_equal(again.costmap.data, expected.costmap.data)
