@@ -23,7 +23,7 @@ import math
 
 import numpy as np
 
-from .jit_support import AVAILABLE, jit as _jit
+from .jit_support import AVAILABLE, enabled, jit as _jit
 
 #: Largest dense cell table [cells]; a larger grid looks its cells up in a hash table.
 _DENSE_CELLS_LIMIT = 1 << 22
@@ -727,7 +727,7 @@ def warm_up() -> None:
     The first compilation takes a few seconds; call this once at start-up so the first frame
     does not pay it.
     """
-    if not AVAILABLE:
+    if not enabled():   # no numba, switched off, or compiling on another thread
         return
     rng = np.random.default_rng(0)
     pts = rng.uniform(0.0, 0.1, (40, 3)).astype(np.float32)

@@ -9,6 +9,8 @@ to anything but '' or '0', the numpy/scipy code runs with the same results.
 from __future__ import annotations
 
 import os
+import threading
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -25,9 +27,87 @@ AVAILABLE: bool = numba is not None
 NO_JIT_ENV = 'OBSTACLE_DETECTION_NO_JIT'
 
 
+#: Open unless a background compilation (:func:`compile_in_background`) is under way: while it
+#: is closed, every caller but the compiling thread takes the numpy path (same results).
+_kernels_ready = threading.Event()
+_kernels_ready.set()
+_compiling = threading.local()
+
+
+def switched_off() -> bool:
+    """Return True when ``OBSTACLE_DETECTION_NO_JIT`` asks for the numpy path."""
+    return os.environ.get(NO_JIT_ENV, '').strip() not in ('', '0')
+
+
+def compiling() -> bool:
+    """Return True while a background compilation keeps the other threads on numpy."""
+    return not _kernels_ready.is_set()
+
+
 def enabled() -> bool:
-    """Return True when the compiled kernels run: numba is there and not switched off."""
-    return AVAILABLE and os.environ.get(NO_JIT_ENV, '').strip() in ('', '0')
+    """Return True when the compiled kernels run: numba is there and not switched off.
+
+    False on every thread but the compiling one while :func:`compile_in_background` runs, so
+    no caller blocks on numba's compile lock or runs a half-loaded kernel.
+    """
+    if not AVAILABLE or switched_off():
+        return False
+    return _kernels_ready.is_set() or getattr(_compiling, 'active', False)
+
+
+class BackgroundCompile:
+    """A compilation running on a daemon thread; see :func:`compile_in_background`."""
+
+    def __init__(self, warm_up: Callable[[], Any],
+                 on_done: Callable[['BackgroundCompile'], None] | None) -> None:
+        self.seconds: float | None = None   #: wall time of the compilation, once done
+        self.error: BaseException | None = None   #: what it raised, if it failed
+        self._warm_up = warm_up
+        self._on_done = on_done
+        self._done = threading.Event()
+        self._thread = threading.Thread(target=self._run, name='numba_compile', daemon=True)
+
+    def _run(self) -> None:
+        _compiling.active = True
+        start = time.perf_counter()
+        try:
+            self._warm_up()
+        except BaseException as error:  # noqa: BLE001 - reported through self.error
+            self.error = error
+        finally:
+            _compiling.active = False
+            self.seconds = time.perf_counter() - start
+            if self.error is None:
+                _kernels_ready.set()   # a failed compile keeps the numpy path
+            self._done.set()
+            if self._on_done is not None:
+                self._on_done(self)
+
+    def done(self) -> bool:
+        """Return True once the compilation finished (or failed)."""
+        return self._done.is_set()
+
+    def wait(self, timeout: float | None = None) -> bool:
+        """Wait for the end of the compilation; return True if it ended."""
+        return self._done.wait(timeout)
+
+
+def compile_in_background(warm_up: Callable[[], Any], *,
+                          on_done: Callable[[BackgroundCompile], None] | None = None
+                          ) -> BackgroundCompile | None:
+    """Run ``warm_up`` (which compiles or loads the kernels) on a daemon thread.
+
+    Until it returns, :func:`enabled` is False for every other thread: they run the numpy path,
+    whose results are the same, instead of waiting for a first compilation (30 s and more on a
+    small machine). ``on_done`` is called on that thread at the end. Returns None, starting
+    nothing, when the compiled path is off (no numba, or the NO_JIT switch).
+    """
+    if not enabled():
+        return None
+    job = BackgroundCompile(warm_up, on_done)
+    _kernels_ready.clear()
+    job._thread.start()
+    return job
 
 
 def jit(func: Callable[..., Any]) -> Callable[..., Any]:

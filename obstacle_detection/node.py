@@ -47,8 +47,9 @@ from rclpy.qos import (
     qos_profile_sensor_data,
 )
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
-from std_msgs.msg import Float64
+from std_msgs.msg import Float64, String
 
+from . import jit_support
 from .conversions import (
     DEPTH_ENCODINGS,
     ImageFormatError,
@@ -66,6 +67,12 @@ from .ros_params import (ALL_PARAMS, NODE_NAME, detector_params_from_ros,
 WARN_THROTTLE_S = 5.0
 _OUTPUT_QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE,
                          history=HistoryPolicy.KEEP_LAST, durability=DurabilityPolicy.VOLATILE)
+#: ~/status: latched (transient local), so a late subscriber still gets the last state.
+_STATUS_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         history=HistoryPolicy.KEEP_LAST,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+#: First word of every ~/status message once the node processes frames.
+STATUS_READY = 'ready'
 _RELIABLE_INPUT_QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE,
                                  history=HistoryPolicy.KEEP_LAST,
                                  durability=DurabilityPolicy.VOLATILE)
@@ -238,12 +245,16 @@ class DetectorNode(Node):
         self._warn_loggers: dict[str, Any] = {}
         self._stop = threading.Event()
 
+        self._status_pub = self.create_publisher(String, '~/status', _STATUS_QOS)
+        # Compiled kernels: a first compilation takes 20-40 s on a small machine, loading them
+        # from numba's cache well under a second. Either way it runs on a thread of its own;
+        # frames meanwhile take the numpy path (identical results, slower), so the node is
+        # ready as soon as it subscribes and never stalls or drops a frame while compiling.
+        self._compile_started = time.monotonic()
+        self._compile = jit_support.compile_in_background(self._config.detector.warm_up,
+                                                          on_done=self._on_compiled)
         reliable = bool(self.get_parameter('reliable_input').value)
         in_qos = _RELIABLE_INPUT_QOS if reliable else qos_profile_sensor_data
-        self._depth_sub = self.create_subscription(Image, 'depth/image_raw', self._on_depth,
-                                                   in_qos)
-        self._info_sub = self.create_subscription(CameraInfo, 'depth/camera_info',
-                                                  self._on_camera_info, in_qos)
         self._points_pub = self.create_publisher(PointCloud2, 'obstacles/points', _OUTPUT_QOS)
         self._costmap_pub = self.create_publisher(OccupancyGrid, 'obstacles/costmap',
                                                   _OUTPUT_QOS)
@@ -257,17 +268,55 @@ class DetectorNode(Node):
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
 
-        seconds = self._config.detector.warm_up()
-        if seconds > 0.05:
-            self.get_logger().info(f'numba kernels compiled or loaded in {seconds:.1f} s')
         self._worker = threading.Thread(target=self._work, name='obstacle_detector_worker',
                                         daemon=True)
         self._worker.start()
+        # Subscribe last: a publisher that sees the match finds a node able to process.
+        self._depth_sub = self.create_subscription(Image, 'depth/image_raw', self._on_depth,
+                                                   in_qos)
+        self._info_sub = self.create_subscription(CameraInfo, 'depth/camera_info',
+                                                  self._on_camera_info, in_qos)
         self.get_logger().info(
             f'ready: {self._depth_sub.topic_name} + {self._info_sub.topic_name} '
             f'({"reliable" if reliable else "sensor-data"} QoS) -> '
             f'{self._points_pub.topic_name}, {self._costmap_pub.topic_name}; '
-            f'frames {self._config.cloud_frame_id!r}/{self._config.costmap_frame_id!r}')
+            f'frames {self._config.cloud_frame_id!r}/{self._config.costmap_frame_id!r}; '
+            f'{self.compute_path()}')
+        self._publish_status()
+
+    # -- start-up: compiled kernels -----------------------------------------------------------
+    def compute_path(self) -> str:
+        """Say which code processes the frames now (numba kernels or numpy) and why."""
+        if not jit_support.AVAILABLE:
+            return 'numpy path (numba is not installed; see README, Dependencies)'
+        if jit_support.switched_off():
+            return f'numpy path ({jit_support.NO_JIT_ENV} is set)'
+        job = self._compile
+        if job is not None and job.error is not None:
+            return (f'numpy path (compiling the numba kernels failed: '
+                    f'{type(job.error).__name__}: {job.error})')
+        if jit_support.compiling():
+            return ('numpy path while the numba kernels compile or load in the background '
+                    '(a first compilation takes about 20-40 s; same results, slower)')
+        return 'compiled numba kernels'
+
+    def _on_compiled(self, job: jit_support.BackgroundCompile) -> None:
+        # Runs on the compile thread; the node may already be shutting down.
+        try:
+            if job.error is not None:
+                self.get_logger().error(f'now on the {self.compute_path()}')
+            else:
+                self.get_logger().info(
+                    f'numba kernels compiled or loaded from the cache in {job.seconds:.1f} s; '
+                    'frames now take the compiled path')
+            self._publish_status()
+        except Exception:  # noqa: BLE001 - a node destroyed meanwhile has no logger or publisher
+            pass
+
+    def _publish_status(self) -> None:
+        """Publish the latched ~/status line: 'ready: <which code processes the frames>'."""
+        if self.context.ok():
+            self._status_pub.publish(String(data=f'{STATUS_READY}: {self.compute_path()}'))
 
     # -- parameters -------------------------------------------------------------------------
     def _parameter_values(self, changes: list[Parameter] | None = None) -> dict[str, Any]:
@@ -292,7 +341,9 @@ class DetectorNode(Node):
     def _apply_parameters(self, parameters: list[Parameter]) -> None:
         old_period = self._config.stats_period_s
         config = build_config(self._parameter_values())  # validated just before
-        config.detector.warm_up()  # a new median K builds its sorting network here, not in a frame
+        # A new median K builds its sorting network here, not in a frame (a no-op while the
+        # first compilation still runs: the frames are on the numpy path meanwhile).
+        config.detector.warm_up()
         self._config = config
         if self._config.stats_period_s != old_period:
             self._restart_stats_timer(self._config.stats_period_s)

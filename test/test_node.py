@@ -31,11 +31,12 @@ from rcl_interfaces.msg import ParameterType
 from rcl_interfaces.srv import GetParameters, SetParameters
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter, parameter_dict_from_yaml_file, parameter_value_to_python
-from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
-from std_msgs.msg import Float64
+from std_msgs.msg import Float64, String
 
+from obstacle_detection import jit_support
 from obstacle_detection.conversions import (
     array_to_image,
     intrinsics_to_camera_info,
@@ -54,6 +55,10 @@ NODE = '/obstacle_detector'
 START_TIMEOUT_S = 60.0
 REPLY_TIMEOUT_S = 20.0
 RELIABLE = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
+STATUS_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
+#: A first numba compilation takes 20-40 s on a 2-core machine, longer when it is busy.
+COMPILE_TIMEOUT_S = 300.0
 
 
 def _yaml_values(path: Path) -> dict[str, Any]:
@@ -78,9 +83,11 @@ def _stamp_key(stamp: Time) -> tuple[int, int]:
 class NodeUnderTest:
     """The detector subprocess, its log lines, and a probe node talking to it."""
 
-    def __init__(self, tmp: Path) -> None:
+    def __init__(self, tmp: Path, *, salt: str = '',
+                 extra_env: dict[str, str] | None = None) -> None:
         self.tmp = tmp
-        self.env = ros_env.loopback_env(__name__, log_dir=tmp / 'ros_log')
+        self.env = ros_env.loopback_env(__name__ + salt, log_dir=tmp / 'ros_log')
+        self.env.update(extra_env or {})
         self._old_env = ros_env.apply(self.env)
         command = _detector_command() + [
             '--ros-args', '--params-file', str(CORRIDOR_YAML),
@@ -100,13 +107,17 @@ class NodeUnderTest:
         self.info_pub = self.node.create_publisher(CameraInfo, 'depth/camera_info', RELIABLE)
         self.received: dict[str, dict[tuple[int, int], Any]] = {}
         self.times_ms: list[float] = []
+        self.statuses: list[str] = []
         self._subs = [self._subscribe(PointCloud2, 'obstacles/points', 'obstacles'),
                       self._subscribe(OccupancyGrid, 'obstacles/costmap', 'costmap'),
                       self._subscribe(PointCloud2, 'obstacles/ground_points', 'ground'),
                       self._subscribe(Image, 'obstacles/overlay', 'overlay'),
                       self.node.create_subscription(
                           Float64, f'{NODE}/processing_time_ms',
-                          lambda msg: self.times_ms.append(msg.data), RELIABLE)]
+                          lambda msg: self.times_ms.append(msg.data), RELIABLE),
+                      self.node.create_subscription(
+                          String, f'{NODE}/status', lambda msg: self.statuses.append(msg.data),
+                          STATUS_QOS)]
         self.set_client = self.node.create_client(SetParameters, f'{NODE}/set_parameters')
         self.get_client = self.node.create_client(GetParameters, f'{NODE}/get_parameters')
         self._next_sec = 100
@@ -284,6 +295,36 @@ def test_cloud_and_grid_match_the_pipeline(detector: NodeUnderTest, scene: Scene
     assert out['overlay'].header.frame_id == 'depth_optical'
     np.testing.assert_array_equal(_sorted_rows(pointcloud2_to_points(out['ground'])),
                                   _sorted_rows(expected.ground_points))
+
+
+def test_status_says_ready_and_which_code_runs(detector: NodeUnderTest) -> None:
+    assert detector.spin_until(lambda: bool(detector.statuses), REPLY_TIMEOUT_S)
+    assert detector.statuses[-1].startswith('ready: ')
+
+
+@pytest.mark.skipif(not jit_support.enabled(), reason='numba is not installed or switched off')
+def test_cold_numba_cache_answers_at_once_then_switches_to_the_kernels(
+        tmp_path: Path, scene: SceneFrame, corridor_params: Any) -> None:
+    """An empty numba cache: frames are answered (numpy path) while the kernels compile."""
+    expected = Detector(corridor_params).process(scene.depth_mm, scene.intrinsics)
+    cold = NodeUnderTest(tmp_path, salt='cold',
+                         extra_env={'NUMBA_CACHE_DIR': str(tmp_path / 'empty_numba_cache')})
+    try:
+        assert cold.spin_until(lambda: bool(cold.statuses), START_TIMEOUT_S), cold.log()
+        assert cold.statuses[0].startswith('ready: numpy path while the numba kernels compile')
+        assert cold.spin_until(lambda: cold.depth_pub.get_subscription_count() > 0
+                               and all(s.get_publisher_count() > 0 for s in cold._subs[:2]),
+                               START_TIMEOUT_S)
+        _assert_matches(_good_frame(cold, scene), expected)
+
+        assert cold.spin_until(lambda: 'compiled' in cold.statuses[-1], COMPILE_TIMEOUT_S), (
+            cold.statuses, cold.log())
+        assert cold.statuses[-1] == 'ready: compiled numba kernels'
+        assert 'numba kernels compiled or loaded from the cache in' in cold.log()
+        _assert_matches(_good_frame(cold, scene), expected)
+    finally:
+        cold.close()
+    assert list((tmp_path / 'empty_numba_cache').rglob('*.nbi'))   # the cache was filled
 
 
 def test_occupied_cells_are_where_the_boxes_and_walls_are(
