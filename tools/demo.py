@@ -13,6 +13,11 @@ Steps, all into one output folder (default ``out/demo``):
 5. save, per saved frame, the node's overlay (depth with obstacle pixels red), the costmap and
    both side by side (``pictures/``), plus a contact sheet (``demo_sheet.png``).
 
+The replay starts only when the node says it is ready (its latched ``~/status`` topic), not when
+its subscription is matched. Everything is written into ``<output>.partial`` and moved to
+``<output>`` only when the demo succeeded, so a failed run leaves the previous result in place
+(the failed run's files go to ``<output>.failed``, for its ``node.log``).
+
 DDS stays on the loopback interface (``tools/fastdds_loopback.xml``) in a ROS domain of the
 demo's own. Exit code 0 when the node produced output, 1 (with the reason) otherwise.
 """
@@ -56,17 +61,52 @@ class DemoError(Exception):
     """The demo could not run or the node produced nothing; the message says why."""
 
 
-def prepare_output(folder: Path) -> None:
-    """Create ``folder``, or empty it if an earlier demo made it; refuse any other folder."""
+def _check_demo_folder(folder: Path) -> None:
+    """Refuse ``folder`` if it exists and was not made by the demo."""
     if folder.exists():
         if not folder.is_dir():
             raise DemoError(f'{folder}: exists and is not a folder')
         if any(folder.iterdir()) and not (folder / MARKER).exists():
             raise DemoError(f'{folder}: exists and was not made by the demo; choose another '
                             '--output')
+
+
+def prepare_output(folder: Path) -> None:
+    """Create ``folder``, or empty it if an earlier demo made it; refuse any other folder."""
+    _check_demo_folder(folder)
+    if folder.exists():
         shutil.rmtree(folder)
     folder.mkdir(parents=True)
     (folder / MARKER).write_text('made by tools/demo.py; emptied when the demo runs again\n')
+
+
+def staging_folders(output: Path) -> tuple[Path, Path]:
+    """Return (work, failed): where a run writes, and where a failed run's files are kept."""
+    return (output.with_name(output.name + '.partial'),
+            output.with_name(output.name + '.failed'))
+
+
+def publish_output(work: Path, output: Path) -> None:
+    """Replace ``output`` (a demo folder, or absent) with the finished ``work`` folder."""
+    _check_demo_folder(output)
+    old = output.with_name(output.name + '.old')
+    if old.exists():
+        shutil.rmtree(old)
+    if output.exists():
+        output.rename(old)
+    work.rename(output)
+    if old.exists():
+        shutil.rmtree(old)
+
+
+def keep_failed(work: Path, failed: Path) -> None:
+    """Move a failed run's ``work`` folder to ``failed`` (replacing an older failure)."""
+    if not work.exists():
+        return
+    if failed.exists():
+        _check_demo_folder(failed)
+        shutil.rmtree(failed)
+    work.rename(failed)
 
 
 def render_sequence(folder: Path, scene: str, frames: int, seed: int) -> tuple[Path, Path, Any]:
@@ -246,14 +286,55 @@ def _log_tail(path: Path, lines: int = 15) -> str:
 
 
 def run_demo(args: argparse.Namespace) -> int:
-    """Run every step; raise DemoError when one fails."""
+    """Run every step into ``<output>.partial``; move it to ``<output>`` only on success.
+
+    Raises DemoError when a step fails; the failed run's files are then in
+    ``<output>.failed`` and the previous ``<output>`` is untouched.
+    """
+    began = time.monotonic()
+    final: Path = args.output.resolve()  # absolute: the node runs with another working directory
+    _check_demo_folder(final)
+    work, failed = staging_folders(final)
+    _check_demo_folder(work)
+    prepare_output(work)
+    try:
+        report = _run_steps(args, work, failed)
+    except BaseException:
+        keep_failed(work, failed)
+        raise
+    publish_output(work, final)
+    if failed.exists() and (failed / MARKER).exists():
+        shutil.rmtree(failed)   # an older failure, now superseded
+    print()
+    print(f'demo done in {time.monotonic() - began:.1f} s; everything is in {args.output}/')
+    for line in report:
+        print(line.replace(str(work), str(final)))
+    return 0
+
+
+def _wait_until_ready(executor: Any, status: list[str], player: Any, node_process: Any,
+                      timeout_s: float, log_hint: Path, log_path: Path) -> None:
+    """Spin until the node's ~/status says ready and the player's topics are matched."""
+    deadline = time.monotonic() + timeout_s
+    while not (status and status[-1].startswith('ready') and player.subscription_count() >= 2):
+        if node_process.poll() is not None:
+            raise DemoError(f'the detector node exited with code {node_process.returncode}'
+                            f' before it was ready; its log ({log_hint}):\n'
+                            + _log_tail(log_path))
+        if time.monotonic() > deadline:
+            raise DemoError(f'the detector node did not say it was ready within {timeout_s:g} s'
+                            f' (--timeout); its log ({log_hint}):\n' + _log_tail(log_path))
+        executor.spin_once(timeout_sec=0.05)
+
+
+def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
+    """Run the demo's steps into ``out``; return the summary lines to print."""
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import String
 
-    began = time.monotonic()
-    out: Path = args.output.resolve()  # absolute: the node runs with another working directory
-    prepare_output(out)
     print(f'[1/5] rendering {args.frames} frames of {args.scene!r} into {out / "input"}')
     depth_dir, camera, first = render_sequence(out / 'input', args.scene, args.frames, args.seed)
 
@@ -289,20 +370,18 @@ def run_demo(args: argparse.Namespace) -> int:
     stop = threading.Event()
     try:
         recorder = Recorder(node)
+        status: list[str] = []
+        node.create_subscription(String, '/obstacle_detector/status',
+                                 lambda msg: status.append(msg.data),
+                                 QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                                            durability=DurabilityPolicy.TRANSIENT_LOCAL))
         options = bag_play.PlayOptions(rate=args.rate, reliable=not args.best_effort,
                                        wait_for_subscribers=2,
                                        wait_timeout_s=args.timeout, progress=False)
         player = bag_play.Player(node, out / 'input_bag', options)
-        deadline = time.monotonic() + args.timeout
-        while not (recorder.matched() and player.subscription_count() >= 2):
-            if node_process.poll() is not None:
-                raise DemoError(f'the detector node exited with code {node_process.returncode}'
-                                f' before subscribing; its log ({out / "node.log"}):\n'
-                                + _log_tail(out / 'node.log'))
-            if time.monotonic() > deadline:
-                raise DemoError(f'the detector node did not connect within {args.timeout:g} s;'
-                                f' its log ({out / "node.log"}):\n' + _log_tail(out / 'node.log'))
-            executor.spin_once(timeout_sec=0.05)
+        _wait_until_ready(executor, status, player, node_process, args.timeout,
+                          failed / 'node.log', out / 'node.log')
+        print(f'      node {status[-1]}')
         settle = time.monotonic() + 0.5  # let the node's side of the match settle too
         while time.monotonic() < settle:
             executor.spin_once(timeout_sec=0.05)
@@ -335,7 +414,7 @@ def run_demo(args: argparse.Namespace) -> int:
     received = recorder.count()
     if received == 0:
         raise DemoError(f'the detector node published nothing for {summary.frames} frames; '
-                        f'its log ({out / "node.log"}):\n' + _log_tail(out / 'node.log'))
+                        f'its log ({failed / "node.log"}):\n' + _log_tail(out / 'node.log'))
     print(f'[5/5] writing what the node published: {out / "results_bag"}; pictures: '
           f'{out / "pictures"}')
     write_results_bag(out / 'results_bag', recorder)
@@ -347,23 +426,24 @@ def run_demo(args: argparse.Namespace) -> int:
     times = [deserialize_message(raw, Float64).data
              for _, raw in recorder.messages['/obstacle_detector/processing_time_ms']]
     sent = stats[0].published.get(bag_convert.DEFAULT_DEPTH_TOPIC, 0) if stats else 0
-    print()
-    print(f'demo done in {time.monotonic() - began:.1f} s; everything is in {args.output}/')
-    print(f'  depth frames sent: {sent}, results received: {received} costmaps, '
-          f'{recorder.count("/obstacles/points")} obstacle clouds, '
-          f'{recorder.count("/obstacles/overlay")} overlays')
+    report = [f'  depth frames sent: {sent}, results received: {received} costmaps, '
+              f'{recorder.count("/obstacles/points")} obstacle clouds, '
+              f'{recorder.count("/obstacles/overlay")} overlays']
     if times:
-        print(f'  node processing time: mean {np.mean(times):.1f} ms, max {np.max(times):.1f} ms '
-              f'per frame')
+        report.append(f'  node processing time: mean {np.mean(times):.1f} ms, '
+                      f'max {np.max(times):.1f} ms per frame')
+    if status:
+        report.append(f'  the node ended on the {status[-1].split(": ", 1)[-1]}')
     if received < sent:
-        print(f'  {sent - received} frame(s) had no output: the node keeps only the newest '
-              'frame when one arrives while it is busy (see node.log)'
-              + ('; best-effort frames may also be lost in transit' if args.best_effort else '')
-              + f'; a lower --rate (now {args.rate:g}) gives it more time')
-    print(f'  pictures: {len(saved)} side-by-side frames in {out / "pictures"}, '
-          f'contact sheet {out / "demo_sheet.png"}')
-    print(f'  bags: {out / "input_bag"} (input), {out / "results_bag"} (node output)')
-    return 0
+        report.append(
+            f'  {sent - received} frame(s) had no output: the node keeps only the newest '
+            'frame when one arrives while it is busy (see node.log)'
+            + ('; best-effort frames may also be lost in transit' if args.best_effort else '')
+            + f'; a lower --rate (now {args.rate:g}) gives it more time')
+    report.append(f'  pictures: {len(saved)} side-by-side frames in {out / "pictures"}, '
+                  f'contact sheet {out / "demo_sheet.png"}')
+    report.append(f'  bags: {out / "input_bag"} (input), {out / "results_bag"} (node output)')
+    return report
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -372,8 +452,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     parser = argparse.ArgumentParser(prog='demo.py', description=__doc__.split('\n\n')[0])
     parser.add_argument('--output', type=Path, default=Path('out/demo'),
-                        help='folder for everything the demo writes (default %(default)s; '
-                             'emptied if an earlier demo made it)')
+                        help='folder for everything the demo writes (default %(default)s); '
+                             'replaced only when the demo succeeds')
     parser.add_argument('--scene', choices=SCENE_NAMES, default='person_walking',
                         help='scene of the generator (default %(default)s)')
     parser.add_argument('--frames', type=int, default=30, help='frames (default %(default)s)')
@@ -391,7 +471,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--domain-id', type=int, default=100 + os.getpid() % 101,
                         help='ROS_DOMAIN_ID of the demo (default: 100-200 from the process id)')
     parser.add_argument('--timeout', type=float, default=30.0,
-                        help='seconds to wait for the node to connect (default %(default)s)')
+                        help='seconds to wait for the node to say it is ready on its ~/status '
+                             'topic (default %(default)s)')
     parser.add_argument('--quiet', action='store_true', help='no progress bars')
     return parser
 
