@@ -28,11 +28,13 @@ import sys
 import threading
 import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import rclpy
 import rclpy.logging
+import rclpy.utilities
 from nav_msgs.msg import OccupancyGrid
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.exceptions import ParameterException
@@ -61,7 +63,8 @@ from .params import Intrinsics
 from .pipeline import Detector
 from .refine import LogisticRefiner, RefinedDetector
 from .ros_params import (ALL_PARAMS, NODE_NAME, detector_params_from_ros,
-                         fallback_intrinsics_from_ros)
+                         fallback_intrinsics_from_ros, params_file_problems,
+                         params_files_in_args)
 
 #: Minimum interval between two warnings about the same kind of bad input [s].
 WARN_THROTTLE_S = 5.0
@@ -484,15 +487,73 @@ class DetectorNode(Node):
             self._worker.join(timeout=10.0)
 
 
+def help_text() -> str:
+    """Return ``detector --help``: usage, topics and every parameter with its range."""
+    lines = [
+        'usage: detector [-h] [--ros-args --params-file FILE [-p NAME:=VALUE] [-r FROM:=TO] ...]',
+        '',
+        'ROS 2 node "obstacle_detector": depth image -> obstacle cloud and ground-plane costmap.',
+        '',
+        'topics (relative names; remap with -r):',
+        '  in   depth/image_raw          sensor_msgs/Image, 16UC1/mono16 [mm] or 32FC1 [m]',
+        '  in   depth/camera_info        sensor_msgs/CameraInfo (intrinsics from K)',
+        '  out  obstacles/points         sensor_msgs/PointCloud2 of obstacle points',
+        '  out  obstacles/costmap        nav_msgs/OccupancyGrid: 100 occupied, 0 free, -1 unknown',
+        '  out  obstacles/ground_points  sensor_msgs/PointCloud2, if publish_ground',
+        '  out  obstacles/overlay        sensor_msgs/Image rgb8, if publish_overlay',
+        '  out  ~/processing_time_ms     std_msgs/Float64 per frame',
+        '  out  ~/status                 std_msgs/String, latched: "ready: <which code runs>"',
+        '',
+        f'parameters (section "{NODE_NAME}:" or "/**:" of a --params-file; name  type  default'
+        '  range):',
+    ]
+    for spec in ALL_PARAMS:
+        default = repr(spec.default) if isinstance(spec.default, str) else str(spec.default)
+        head = f'  {spec.name}  {spec.type_name}  {default}'
+        if spec.range_text:
+            head += f'  {spec.range_text}'
+        if spec.read_only:
+            head += '  read-only'
+        lines += [head, f'      {spec.description}']
+    lines += ['', 'example: detector --ros-args --params-file params/corridor.yaml '
+              '-r depth/image_raw:=/kinect2/sd/image_depth_rect '
+              '-r depth/camera_info:=/kinect2/sd/camera_info']
+    return '\n'.join(lines)
+
+
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``ros2 run obstacle_detection detector``; returns the exit code."""
-    rclpy.init(args=args)
+    argv = list(sys.argv if args is None else args)
+    files = params_files_in_args(argv)
+    for path in files:   # rcl would end in a raw RCLError traceback
+        problems = [p for p in params_file_problems(path)
+                    if 'cannot read' in p or 'not valid YAML' in p]
+        if problems or not Path(path).is_file():
+            print(f'detector: error: {problems[0] if problems else f"{path}: not a file"}',
+                  file=sys.stderr)
+            return 1
+    try:
+        own = rclpy.utilities.remove_ros_args(argv)[1:]
+        if '-h' in own or '--help' in own:
+            print(help_text())
+            return 0
+        if own:
+            print(f'detector: error: unrecognized arguments: {" ".join(own)} (node options go '
+                  'after --ros-args; see detector --help)', file=sys.stderr)
+            return 2
+        rclpy.init(args=argv)
+    except Exception as error:  # noqa: BLE001 - rcl's own wording of a bad --ros-args
+        print(f'detector: error: {type(error).__name__}: {error}', file=sys.stderr)
+        return 2
     try:
         node = DetectorNode()
     except (ValueError, ParameterException) as error:
         rclpy.logging.get_logger(NODE_NAME).fatal(f'invalid parameters: {error}')
         rclpy.try_shutdown()
         return 1
+    for path in files:
+        for problem in params_file_problems(path, node.get_fully_qualified_name()):
+            node.get_logger().warning(problem)
     try:
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):

@@ -13,7 +13,9 @@ table) and tests use it without a ROS graph.
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import math
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -198,6 +200,73 @@ def fallback_intrinsics_from_ros(values: Mapping[str, Any]) -> Intrinsics:
 
 class ParamsFileError(ValueError):
     """A ``--params-file`` that cannot be read, or that names or types a parameter wrongly."""
+
+
+def params_files_in_args(args: list[str]) -> list[str]:
+    """Return the ``--params-file`` paths of a command line's ``--ros-args`` blocks, in order."""
+    files, in_ros = [], False
+    for i, token in enumerate(args):
+        if token == '--ros-args':
+            in_ros = True
+        elif token == '--':
+            in_ros = False
+        elif in_ros and token == '--params-file' and i + 1 < len(args):
+            files.append(args[i + 1])
+    return files
+
+
+def _section_applies(key: str, node_fqn: str) -> bool:
+    """Whether a params-file section key (``/**``, ``name``, ``/ns/*``...) names the node."""
+    pattern = '/' + str(key).lstrip('/')
+    tokens = []
+    for part in pattern.strip('/').split('/'):
+        if part == '**':
+            tokens.append('(/[^/]+)*')
+        else:
+            tokens.append('/' + re.escape(part).replace(r'\*', '[^/]+'))
+    return re.fullmatch(''.join(tokens), node_fqn) is not None
+
+
+def params_file_problems(path: str | Path, node_fqn: str = f'/{NODE_NAME}') -> list[str]:
+    """Return what the node would silently ignore in a params file, one sentence each.
+
+    rcl applies the sections whose key names the node (``obstacle_detector``, ``/**``, ...) and
+    the node ignores names it did not declare; both are most often typos (``detector:`` for
+    ``obstacle_detector:``, ``max_slope:`` for ``max_slope_deg:``). The offline tools refuse
+    such a file (:func:`read_params_file`); the node warns with these sentences. A file that
+    cannot be read or parsed gives one problem too.
+    """
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text(encoding='utf-8'))
+    except OSError as err:
+        return [f'{path}: cannot read params file ({err.strerror})']
+    except yaml.YAMLError as err:
+        return [f'{path}: not valid YAML ({" ".join(str(err).split())})']
+    if not isinstance(data, dict):
+        return [f'{path}: expected "{NODE_NAME}: ros__parameters: ..."']
+    problems, applied = [], 0
+    for key, section in data.items():
+        params = section.get('ros__parameters') if isinstance(section, dict) else None
+        if not _section_applies(str(key), node_fqn):
+            count = len(params) if isinstance(params, dict) else 0
+            problems.append(f'{path}: section {key!r} does not name this node ({node_fqn}); '
+                            f'its {count} parameter(s) are ignored (use "{NODE_NAME}:" or '
+                            '"/**:")')
+            continue
+        applied += 1
+        if not isinstance(params, dict):
+            problems.append(f'{path}: section {key!r} lacks "ros__parameters"')
+            continue
+        for name in params:
+            if name not in SPECS_BY_NAME:
+                close = difflib.get_close_matches(str(name), SPECS_BY_NAME, n=1)
+                hint = f' (did you mean {close[0]!r}?)' if close else ''
+                problems.append(f'{path}: unknown parameter {name!r} is ignored{hint}; '
+                                '`detector --help` lists the parameters')
+    if not applied and not problems:
+        problems.append(f'{path}: no section for this node ({node_fqn})')
+    return problems
 
 
 def read_params_file(path: str | Path) -> dict[str, ParamValue]:

@@ -14,7 +14,7 @@ pytestmark = pytest.mark.skipif(not jit_support.enabled(),
 
 @pytest.fixture
 def fresh_gate(monkeypatch: pytest.MonkeyPatch) -> threading.Event:
-    """A gate of this test's own, so a failed compilation cannot leak into other tests."""
+    """Give this test a gate of its own, so a failed compilation cannot leak out."""
     gate = threading.Event()
     gate.set()
     monkeypatch.setattr(jit_support, '_kernels_ready', gate)

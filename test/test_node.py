@@ -46,7 +46,11 @@ from obstacle_detection.costmap import CELL_OCCUPIED
 from obstacle_detection.node import DetectorNode, LatestSlot
 from obstacle_detection.params import Intrinsics, table_4_2, table_4_3
 from obstacle_detection.pipeline import DetectionResult, Detector
-from obstacle_detection.ros_params import ALL_PARAMS, detector_params_from_ros
+from obstacle_detection.ros_params import (
+    ALL_PARAMS,
+    detector_params_from_ros,
+    params_file_problems,
+)
 from obstacle_detection.scenes import GT_OBSTACLE, SceneFrame, render_scene
 
 REPO = ros_env.REPO_ROOT
@@ -574,6 +578,93 @@ def test_invalid_params_file_stops_the_node_with_the_message(tmp_path: Path) -> 
 
     assert done.returncode == 1
     assert 'invalid parameters: median_kernel=4 must be odd' in done.stdout + done.stderr
+
+
+def _run_detector(tmp_path: Path, *args: str, salt: str) -> subprocess.CompletedProcess:
+    env = ros_env.loopback_env(__name__ + salt, log_dir=tmp_path / 'ros_log')
+    return subprocess.run(_detector_command() + list(args), env=env, cwd=tmp_path,
+                          capture_output=True, text=True, timeout=60, check=False)
+
+
+def test_help_lists_every_parameter_and_starts_no_node(tmp_path: Path) -> None:
+    done = _run_detector(tmp_path, '--help', salt=':help')
+
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.startswith('usage: detector')
+    for spec in ALL_PARAMS:
+        line = next(ln for ln in done.stdout.splitlines() if ln.startswith(f'  {spec.name}  '))
+        assert spec.type_name in line and spec.range_text in line
+        assert spec.description in done.stdout
+    assert 'ready' not in done.stderr and not list((tmp_path / 'ros_log').glob('*'))
+
+
+@pytest.mark.parametrize('content, expected', [
+    (None, 'cannot read params file (No such file or directory)'),
+    ('obstacle_detector: [\n', 'not valid YAML'),
+])
+def test_unreadable_params_file_is_one_clear_line(tmp_path: Path, content: str | None,
+                                                  expected: str) -> None:
+    path = tmp_path / 'params.yaml'
+    if content is not None:
+        path.write_text(content)
+
+    done = _run_detector(tmp_path, '--ros-args', '--params-file', str(path), salt=':unread')
+
+    assert done.returncode == 1
+    assert done.stderr.count('\n') == 1 and 'Traceback' not in done.stderr, done.stderr
+    assert done.stderr.startswith(f'detector: error: {path}: {expected}')
+
+
+@pytest.mark.parametrize('key, applies', [
+    ('obstacle_detector', True), ('/obstacle_detector', True), ('/**', True),
+    ('/**/obstacle_detector', True), ('/*', True), ('detector', False),
+    ('/robot/obstacle_detector', False), ('obstacle_detection', False)])
+def test_params_file_sections_are_matched_as_rcl_does(tmp_path: Path, key: str,
+                                                      applies: bool) -> None:
+    path = tmp_path / 'p.yaml'
+    path.write_text(f'{key}:\n  ros__parameters:\n    median_kernel: 5\n')
+
+    problems = params_file_problems(path)
+
+    assert problems == ([] if applies else [
+        f"{path}: section '{key}' does not name this node (/obstacle_detector); its 1 "
+        'parameter(s) are ignored (use "obstacle_detector:" or "/**:")'])
+
+
+def test_params_file_problems_name_unknown_parameters(tmp_path: Path) -> None:
+    path = tmp_path / 'p.yaml'
+    path.write_text('/**:\n  ros__parameters:\n    median_kernel: 5\n    voxl_x_m: 0.02\n'
+                    '    zzz: 1\n')
+
+    problems = params_file_problems(path)
+
+    assert params_file_problems(CORRIDOR_YAML) == []
+    assert problems == [
+        f"{path}: unknown parameter 'voxl_x_m' is ignored (did you mean 'voxel_x_m'?); "
+        '`detector --help` lists the parameters',
+        f"{path}: unknown parameter 'zzz' is ignored; `detector --help` lists the parameters"]
+
+
+def test_node_warns_about_a_params_file_it_would_ignore(tmp_path: Path) -> None:
+    wrong = tmp_path / 'wrong.yaml'
+    wrong.write_text('detector:\n  ros__parameters:\n    median_kernel: 5\n'
+                     'obstacle_detector:\n  ros__parameters:\n    max_slope: 20.0\n')
+    env = ros_env.loopback_env(__name__ + ':wrong-file', log_dir=tmp_path / 'ros_log')
+    process = subprocess.Popen(_detector_command() + ['--ros-args', '--params-file', str(wrong)],
+                               env=env, cwd=tmp_path, stdout=subprocess.PIPE,
+                               stderr=subprocess.STDOUT, text=True)
+    lines: list[str] = []
+    try:
+        for line in process.stdout:
+            lines.append(line)
+            if 'did you mean' in line:
+                break
+    finally:
+        process.send_signal(signal.SIGINT)
+        process.wait(timeout=15)
+    log = ''.join(lines)
+    assert "section 'detector' does not name this node (/obstacle_detector); its 1 " in log
+    assert "unknown parameter 'max_slope' is ignored (did you mean 'max_slope_deg'?)" in log
 
 
 def test_refiner_model_file_is_validated_and_used(local_node: DetectorNode, tmp_path: Path,

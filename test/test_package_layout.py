@@ -138,3 +138,13 @@ def test_parameter_table_lists_every_parameter_with_its_range() -> None:
     assert [row.split('|')[1].strip(' `') for row in rows] == [s.name for s in ALL_PARAMS]
     slope = next(row for row in rows if row.startswith('| `max_slope_deg`'))
     assert '| 30 | 60 | (0, 90) |' in slope
+
+
+def test_requirements_name_the_jazzy_wheels_only() -> None:
+    """The ROS wheels are pinned by their ros-jazzy-* names, which can only ever be Jazzy."""
+    lines = [line.split('#')[0].strip() for line in
+             (REPO / 'requirements.txt').read_text().splitlines()]
+    ros = [line for line in lines if line.startswith('ros-')]
+    assert {line.split('==')[0] for line in ros} == {
+        'ros-jazzy-rclpy', 'ros-jazzy-common-interfaces', 'ros-jazzy-rmw-fastrtps-cpp'}
+    assert all('==' in line for line in ros), ros
