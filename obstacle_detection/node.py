@@ -38,7 +38,7 @@ import rclpy.utilities
 from nav_msgs.msg import OccupancyGrid
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import (
@@ -74,6 +74,8 @@ _OUTPUT_QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE,
 _STATUS_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                          history=HistoryPolicy.KEEP_LAST,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
+#: rcl_interfaces/ParameterType values (NOT_SET .. STRING_ARRAY).
+_PARAMETER_TYPES = frozenset(range(0, 10))
 #: First word of every ~/status message once the node processes frames.
 STATUS_READY = 'ready'
 _RELIABLE_INPUT_QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE,
@@ -237,6 +239,7 @@ class DetectorNode(Node):
         super().__init__(NODE_NAME, **kwargs)
         for spec in ALL_PARAMS:
             self.declare_parameter(spec.name, spec.default, spec.descriptor())
+        self._guard_parameter_services()
         try:
             self._config = build_config(self._parameter_values())
         except ValueError:
@@ -286,6 +289,78 @@ class DetectorNode(Node):
             f'frames {self._config.cloud_frame_id!r}/{self._config.costmap_frame_id!r}; '
             f'{self.compute_path()}')
         self._publish_status()
+
+    # -- parameter services: no request may kill the node ------------------------------------
+    def _guard_parameter_services(self) -> None:
+        """Check parameter requests before rclpy's service callbacks see them.
+
+        rclpy's ``Parameter.from_parameter_msg`` raises on a ``ParameterValue.type`` it does
+        not know (10, 200...) inside the service callback; the exception leaves ``spin`` and
+        the node dies. Such requests, and names the node did not declare (the empty name
+        included), are answered with a refusal and its reason instead; every other parameter
+        service keeps rclpy's behaviour behind a catch-all.
+        """
+        for service in self.services:
+            name = service.srv_name.rsplit('/', 1)[-1]
+            if name == 'set_parameters':
+                service.callback = self._set_parameters_service
+            elif name == 'set_parameters_atomically':
+                service.callback = self._set_parameters_atomically_service
+            elif name in ('get_parameters', 'get_parameter_types', 'describe_parameters',
+                          'list_parameters'):
+                service.callback = self._guarded(service.callback, name)
+
+    def _guarded(self, callback: Any, name: str) -> Any:
+        def call(request: Any, response: Any) -> Any:
+            try:
+                return callback(request, response)
+            except Exception as error:  # noqa: BLE001 - a request must never end the node
+                self._warn_request(name, f'{type(error).__name__}: {error}')
+                return type(response)()
+        return call
+
+    def _warn_request(self, service: str, text: str) -> None:
+        self._throttled_logger(f'service:{service}').warning(
+            f'refused a malformed {service} request: {text}',
+            throttle_duration_sec=WARN_THROTTLE_S)
+
+    def _parameter_msg_problem(self, msg: Any) -> str | None:
+        """Return why a ``rcl_interfaces/Parameter`` cannot be applied, or None."""
+        if not msg.name or not self.has_parameter(msg.name):
+            return (f'parameter {msg.name!r} is not declared by this node '
+                    '(detector --help lists the parameters)')
+        if msg.value.type not in _PARAMETER_TYPES:
+            return (f'parameter {msg.name!r}: ParameterValue.type {msg.value.type} is not a '
+                    f'parameter type (valid: {min(_PARAMETER_TYPES)}..{max(_PARAMETER_TYPES)})')
+        return None
+
+    def _set_one(self, msg: Any) -> SetParametersResult:
+        problem = self._parameter_msg_problem(msg)
+        if problem is None:
+            try:
+                return self.set_parameters_atomically([Parameter.from_parameter_msg(msg)])
+            except Exception as error:  # noqa: BLE001 - refused, with rclpy's reason
+                problem = f'parameter {msg.name!r}: {type(error).__name__}: {error}'
+        self._warn_request('set_parameters', problem)
+        return SetParametersResult(successful=False, reason=problem)
+
+    def _set_parameters_service(self, request: Any, response: Any) -> Any:
+        response.results = [self._set_one(msg) for msg in request.parameters]
+        return response
+
+    def _set_parameters_atomically_service(self, request: Any, response: Any) -> Any:
+        problems = [p for p in map(self._parameter_msg_problem, request.parameters) if p]
+        if not problems:
+            try:
+                response.result = self.set_parameters_atomically(
+                    [Parameter.from_parameter_msg(msg) for msg in request.parameters])
+                return response
+            except Exception as error:  # noqa: BLE001 - refused, with rclpy's reason
+                problems = [f'{type(error).__name__}: {error}']
+        reason = '; '.join(problems)
+        self._warn_request('set_parameters_atomically', reason)
+        response.result = SetParametersResult(successful=False, reason=reason)
+        return response
 
     # -- start-up: compiled kernels -----------------------------------------------------------
     def compute_path(self) -> str:
@@ -388,16 +463,21 @@ class DetectorNode(Node):
             if msg is not None and not self._stop.is_set():
                 self.handle_frame(msg)
 
+    def _throttled_logger(self, kind: str) -> Any:
+        """Return the logger of one kind of problem, throttled on its own."""
+        # rclpy throttles per logger object and call site: one logger per kind keeps an unknown
+        # encoding from hiding a size mismatch.
+        logger = self._warn_loggers.get(kind)
+        if logger is None:
+            logger = self._warn_loggers[kind] = rclpy.logging.get_logger(
+                self.get_logger().name)
+        return logger
+
     def _warn_skip(self, kind: str, text: str) -> None:
         """Warn about a skipped frame; each kind of problem is throttled on its own."""
         self.stats.add_skipped()
-        logger = self._warn_loggers.get(kind)
-        if logger is None:
-            # rclpy throttles per logger object and call site: one logger per kind keeps an
-            # unknown encoding from hiding a size mismatch.
-            logger = self._warn_loggers[kind] = rclpy.logging.get_logger(
-                self.get_logger().name)
-        logger.warning(f'skipping depth frame: {text}', throttle_duration_sec=WARN_THROTTLE_S)
+        self._throttled_logger(kind).warning(f'skipping depth frame: {text}',
+                                             throttle_duration_sec=WARN_THROTTLE_S)
 
     def _frame_intrinsics(self, msg: Image, config: NodeConfig) -> Intrinsics | None:
         camera = self._camera
@@ -487,6 +567,24 @@ class DetectorNode(Node):
             self._worker.join(timeout=10.0)
 
 
+def spin_forever(node: DetectorNode) -> None:
+    """Spin until shutdown; an exception escaping a callback is logged, never fatal."""
+    executor = SingleThreadedExecutor(context=node.context)
+    executor.add_node(node)
+    logger = rclpy.logging.get_logger(f'{node.get_logger().name}.executor')
+    try:
+        while node.context.ok():
+            try:
+                executor.spin_once(timeout_sec=0.5)
+            except (KeyboardInterrupt, ExternalShutdownException):
+                raise
+            except Exception as error:  # noqa: BLE001 - the node must outlive any callback
+                logger.error(f'a callback raised {type(error).__name__}: {error}; '
+                             'the node goes on', throttle_duration_sec=WARN_THROTTLE_S)
+    finally:
+        executor.shutdown(timeout_sec=1.0)
+
+
 def help_text() -> str:
     """Return ``detector --help``: usage, topics and every parameter with its range."""
     lines = [
@@ -555,7 +653,7 @@ def main(args: list[str] | None = None) -> int:
         for problem in params_file_problems(path, node.get_fully_qualified_name()):
             node.get_logger().warning(problem)
     try:
-        rclpy.spin(node)
+        spin_forever(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

@@ -28,7 +28,14 @@ import ros_env
 from builtin_interfaces.msg import Time
 from nav_msgs.msg import OccupancyGrid
 from rcl_interfaces.msg import ParameterType
-from rcl_interfaces.srv import GetParameters, SetParameters
+from rcl_interfaces.msg import Parameter as ParameterMsg
+from rcl_interfaces.msg import ParameterValue
+from rcl_interfaces.srv import (
+    GetParameters,
+    ListParameters,
+    SetParameters,
+    SetParametersAtomically,
+)
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter, parameter_dict_from_yaml_file, parameter_value_to_python
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -123,6 +130,9 @@ class NodeUnderTest:
                           String, f'{NODE}/status', lambda msg: self.statuses.append(msg.data),
                           STATUS_QOS)]
         self.set_client = self.node.create_client(SetParameters, f'{NODE}/set_parameters')
+        self.atomic_client = self.node.create_client(SetParametersAtomically,
+                                                     f'{NODE}/set_parameters_atomically')
+        self.list_client = self.node.create_client(ListParameters, f'{NODE}/list_parameters')
         self.get_client = self.node.create_client(GetParameters, f'{NODE}/get_parameters')
         self._next_sec = 100
 
@@ -437,6 +447,33 @@ def test_degree_parameter_reaches_the_pipeline_in_radians(
         _assert_matches(_good_frame(detector, scene), expected)
     finally:
         assert detector.set_parameter('max_slope_deg', 30.0).successful
+
+
+@pytest.mark.parametrize('name, value_type, reason', [
+    ('median_kernel', 200, 'ParameterValue.type 200 is not a parameter type'),
+    ('max_slope_deg', 10, 'ParameterValue.type 10 is not a parameter type'),
+    ('', 2, "parameter '' is not declared by this node"),
+    ('no_such_parameter', 2, "parameter 'no_such_parameter' is not declared by this node"),
+])
+def test_malformed_parameter_requests_are_refused_and_the_node_goes_on(
+        detector: NodeUnderTest, scene: SceneFrame, corridor_params: Any, name: str,
+        value_type: int, reason: str) -> None:
+    """These requests made rclpy's parameter service raise, and the node exit."""
+    msg = ParameterMsg(name=name, value=ParameterValue(type=value_type, integer_value=5))
+
+    single = detector.call(detector.set_client, SetParameters.Request(parameters=[msg]))
+    atomic = detector.call(detector.atomic_client,
+                           SetParametersAtomically.Request(parameters=[msg]))
+
+    assert [r.successful for r in single.results] == [False]
+    assert reason in single.results[0].reason
+    assert not atomic.result.successful and reason in atomic.result.reason
+    assert detector.process.poll() is None
+    listed = detector.call(detector.list_client, ListParameters.Request()).result.names
+    assert '' not in listed and 'no_such_parameter' not in listed   # nothing was created
+    assert {spec.name for spec in ALL_PARAMS} <= set(listed)
+    out = _good_frame(detector, scene)   # the next frame is answered, as before
+    _assert_matches(out, Detector(corridor_params).process(scene.depth_mm, scene.intrinsics))
 
 
 def test_even_median_kernel_is_refused_and_the_old_value_kept(
