@@ -12,6 +12,7 @@ Supported depth encodings (REP 118): ``16UC1`` / ``mono16`` in millimetres (0 = 
 from __future__ import annotations
 
 import array
+import math
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -152,6 +153,76 @@ def camera_info_to_intrinsics(msg: Any) -> Intrinsics:
         return Intrinsics(fx=float(k[0]), fy=float(k[4]), cx=float(k[2]), cy=float(k[5]))
     except ValueError as error:
         raise ValueError(f'CameraInfo K is not a usable pinhole model: {error}') from error
+
+
+#: Field of view a depth camera can have [deg]: focal lengths outside it are a bad CameraInfo.
+PLAUSIBLE_FOV_DEG = (5.0, 170.0)
+#: How far the principal point may lie outside the image, as a share of its size.
+PRINCIPAL_POINT_MARGIN = 0.25
+#: Depths any depth sensor of this class returns [m]: near limit, far limit.
+PLAUSIBLE_DEPTH_M = (0.05, 20.0)
+#: A frame is implausible when less than this share of its valid pixels lies in that band.
+PLAUSIBLE_SHARE = 0.5
+
+
+def intrinsics_problem(intrinsics: Intrinsics, width: int, height: int) -> str | None:
+    """Say why intrinsics cannot belong to a ``width`` x ``height`` depth camera, or None.
+
+    Checks: a non-zero image size (without it, frames cannot be checked against the
+    CameraInfo), focal lengths giving a field of view within PLAUSIBLE_FOV_DEG on both axes
+    (fx = 1e300 or 1e-300 are refused, not turned into phantom points or an underflow), and
+    a principal point within PRINCIPAL_POINT_MARGIN of the image.
+    """
+    if width <= 0 or height <= 0:
+        return (f'CameraInfo image size is {width}x{height}: a depth camera has a size, '
+                'needed to check frames against it')
+    low_deg, high_deg = PLAUSIBLE_FOV_DEG
+    for axis, focal, size in (('fx', intrinsics.fx, width), ('fy', intrinsics.fy, height)):
+        fov = 2.0 * math.degrees(math.atan2(size / 2.0, focal))
+        if not low_deg <= fov <= high_deg:
+            return (f'CameraInfo {axis}={focal:g} px gives a {fov:.3g} deg field of view over '
+                    f'{size} px ({"too narrow" if fov < low_deg else "too wide"}), outside '
+                    f'the {low_deg:g}-{high_deg:g} deg of any depth camera')
+    margin = PRINCIPAL_POINT_MARGIN
+    for axis, centre, size in (('cx', intrinsics.cx, width), ('cy', intrinsics.cy, height)):
+        if not -margin * size <= centre <= (1.0 + margin) * size:
+            return (f'CameraInfo principal point {axis}={centre:g} px lies far outside the '
+                    f'{width}x{height} image')
+    return None
+
+
+def depth_problem(depth: np.ndarray) -> str | None:
+    """Say why a decoded depth frame cannot be real depth, or None.
+
+    depth: (H, W) uint16 [mm] or float32 [m], as :func:`image_to_array` returns. Looks at every
+    fourth pixel of every fourth row; a frame is refused when less than PLAUSIBLE_SHARE of its
+    valid (finite, > 0) values lie within PLAUSIBLE_DEPTH_M: millimetres sent as 32FC1 metres,
+    a wrong ``is_bigendian``, random bytes. A frame with no valid value is not judged here.
+    """
+    sample = depth[::4, ::4]
+    if sample.dtype.kind == 'f':
+        metres = sample[np.isfinite(sample) & (sample > 0)].astype(np.float64)
+        unit = '32FC1 [m]'
+    else:
+        metres = sample[sample > 0].astype(np.float64) * 1e-3
+        unit = '16UC1 [mm]'
+    if metres.size == 0:
+        return None
+    near, far = PLAUSIBLE_DEPTH_M
+    share = float(np.count_nonzero((metres >= near) & (metres <= far))) / metres.size
+    if share >= PLAUSIBLE_SHARE:
+        return None
+    median = float(np.median(metres))
+    if sample.dtype.kind == 'f' and median > 50.0:
+        guess = '; it looks like millimetres sent as 32FC1 metres'
+    elif sample.dtype.kind != 'f' and median > far:
+        guess = '; is_bigendian may be wrong, or the values are not millimetres'
+    elif median < near:
+        guess = '; the values look too small for the unit (metres sent as 16UC1?)'
+    else:
+        guess = ''
+    return (f'implausible depth for {unit}: only {100.0 * share:.0f} % of the valid pixels '
+            f'lie within {near:g}-{far:g} m (median {median:.4g} m){guess}')
 
 
 def intrinsics_to_camera_info(intrinsics: Intrinsics, width: int, height: int, *, stamp: Time,

@@ -24,6 +24,8 @@ messages of ``conversions.result_to_messages``.
 
 from __future__ import annotations
 
+import collections
+import re
 import sys
 import threading
 import time
@@ -56,7 +58,9 @@ from .conversions import (
     DEPTH_ENCODINGS,
     ImageFormatError,
     camera_info_to_intrinsics,
+    depth_problem,
     image_to_array,
+    intrinsics_problem,
     result_to_messages,
 )
 from .params import Intrinsics
@@ -181,6 +185,7 @@ class NodeConfig:
     use_fallback_intrinsics: bool
     fallback_intrinsics: Intrinsics
     stats_period_s: float
+    camera_info_tolerance_ns: int = 20_000_000
 
 
 def build_detector(values: dict[str, Any]) -> Detector | RefinedDetector:
@@ -213,17 +218,43 @@ def build_config(values: dict[str, Any]) -> NodeConfig:
         publish_overlay=bool(values['publish_overlay']),
         use_fallback_intrinsics=bool(values['use_fallback_intrinsics']),
         fallback_intrinsics=fallback_intrinsics_from_ros(values),
-        stats_period_s=float(values['stats_period_s']))
+        stats_period_s=float(values['stats_period_s']),
+        camera_info_tolerance_ns=round(float(values['camera_info_tolerance_s']) * 1e9))
 
 
 @dataclass(frozen=True)
 class _CameraState:
-    """The newest CameraInfo: image size and intrinsics, or why it is unusable."""
+    """One CameraInfo: its stamp, image size and intrinsics, or why it is unusable."""
 
     width: int
     height: int
     intrinsics: Intrinsics | None
     error: str | None
+    stamp_ns: int = 0
+
+    def same_camera(self, other: '_CameraState') -> bool:
+        """Whether two CameraInfos describe the same camera (size, intrinsics, error)."""
+        return ((self.width, self.height, self.intrinsics, self.error)
+                == (other.width, other.height, other.intrinsics, other.error))
+
+
+#: _camera_for's answer when the frame must be skipped (the reason is already logged).
+_SKIP = _CameraState(0, 0, None, 'skip')
+#: CameraInfos kept for matching depth frames by stamp (a second at 30 Hz).
+CAMERA_INFO_HISTORY = 30
+
+
+def _problem_kind(prefix: str, text: str) -> str:
+    """Return the throttling key of a problem: its text without the numbers.
+
+    Each kind of problem is throttled on its own; the same problem with other values is not
+    repeated within the throttle period.
+    """
+    return f'{prefix}:{re.sub(r"[-+]?[0-9][0-9.e+-]*", "#", text)}'
+
+
+def _stamp_ns(stamp: Any) -> int:
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 
 
 def _has_valid_depth(depth: np.ndarray) -> bool:
@@ -247,7 +278,8 @@ class DetectorNode(Node):
             raise
         self.stats = FrameStats()
         self._slot = LatestSlot()
-        self._camera: _CameraState | None = None
+        self._cameras: collections.deque[_CameraState] = collections.deque(
+            maxlen=CAMERA_INFO_HISTORY)
         self._warn_loggers: dict[str, Any] = {}
         self._stop = threading.Event()
 
@@ -442,11 +474,14 @@ class DetectorNode(Node):
             self.stats.add_dropped()
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
+        width, height = int(msg.width), int(msg.height)
         try:
             intrinsics, error = camera_info_to_intrinsics(msg), None
+            error = intrinsics_problem(intrinsics, width, height)
         except ValueError as exc:
             intrinsics, error = None, str(exc)
-        self._camera = _CameraState(int(msg.width), int(msg.height), intrinsics, error)
+        self._cameras.append(_CameraState(width, height, intrinsics if error is None else None,
+                                          error, _stamp_ns(msg.header.stamp)))
 
     def _log_stats(self) -> None:
         period = self.stats.take_period()
@@ -479,20 +514,50 @@ class DetectorNode(Node):
         self._throttled_logger(kind).warning(f'skipping depth frame: {text}',
                                              throttle_duration_sec=WARN_THROTTLE_S)
 
+    def _camera_for(self, msg: Image, config: NodeConfig) -> _CameraState | None:
+        """Return the CameraInfo of a frame: the nearest stamp within the tolerance, or below.
+
+        When no CameraInfo is that close, the newest one serves if every recent CameraInfo
+        describes the same camera (a camera that publishes one, latched, or whose info stamps
+        differ from its image stamps); otherwise the frame is skipped: its intrinsics are not
+        known.
+        """
+        cameras = list(self._cameras)
+        if not cameras:
+            return None
+        stamp = _stamp_ns(msg.header.stamp)
+        nearest = min(cameras, key=lambda c: abs(c.stamp_ns - stamp))
+        if abs(nearest.stamp_ns - stamp) <= config.camera_info_tolerance_ns:
+            return nearest
+        if all(c.same_camera(cameras[-1]) for c in cameras):
+            return cameras[-1]
+        self._warn_skip('camera_info_stamp', (
+            f'no CameraInfo within camera_info_tolerance_s '
+            f'({config.camera_info_tolerance_ns * 1e-9:g} s) of the frame stamp (nearest '
+            f'{abs(nearest.stamp_ns - stamp) * 1e-9:.3f} s away) while the recent CameraInfos '
+            'disagree'))
+        return _SKIP
+
     def _frame_intrinsics(self, msg: Image, config: NodeConfig) -> Intrinsics | None:
-        camera = self._camera
+        camera = self._camera_for(msg, config)
+        if camera is _SKIP:
+            return None
         if camera is None:
             if config.use_fallback_intrinsics:
+                self._throttled_logger('fallback').info(
+                    'no CameraInfo yet: using the fallback intrinsics fx='
+                    f'{config.fallback_intrinsics.fx:g} fy={config.fallback_intrinsics.fy:g} '
+                    f'cx={config.fallback_intrinsics.cx:g} cy={config.fallback_intrinsics.cy:g}',
+                    throttle_duration_sec=WARN_THROTTLE_S)
                 return config.fallback_intrinsics
             self._warn_skip('no_camera_info', 'no CameraInfo received yet on '
                             f'{self._info_sub.topic_name} (set use_fallback_intrinsics to use '
                             'fallback_fx/fy/cx/cy)')
             return None
         if camera.intrinsics is None:
-            self._warn_skip('camera_info', str(camera.error))
+            self._warn_skip(_problem_kind('camera_info', str(camera.error)), str(camera.error))
             return None
-        if camera.width and camera.height and (camera.width, camera.height) != (msg.width,
-                                                                                 msg.height):
+        if (camera.width, camera.height) != (msg.width, msg.height):
             self._warn_skip('size', f'image is {msg.width}x{msg.height} but CameraInfo is '
                             f'{camera.width}x{camera.height}')
             return None
@@ -520,6 +585,12 @@ class DetectorNode(Node):
             return False
         if not _has_valid_depth(depth):
             self._warn_skip('no_depth', 'no valid depth pixel (every pixel is 0, NaN or inf)')
+            return False
+        problem = depth_problem(depth)
+        if problem is not None:
+            self._warn_skip(_problem_kind('depth', problem),
+                            f'{problem} (encoding {msg.encoding!r}, '
+                            f'is_bigendian={bool(msg.is_bigendian)})')
             return False
         try:
             result = config.detector.process(depth, intrinsics)

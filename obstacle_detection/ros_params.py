@@ -148,6 +148,10 @@ NODE_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec('use_fallback_intrinsics', False,
               'Use fallback_fx/fy/cx/cy while no CameraInfo has arrived (else frames are '
               'skipped until one arrives)'),
+    ParamSpec('camera_info_tolerance_s', 0.02,
+              'A depth frame uses the CameraInfo whose stamp is nearest to its own within this '
+              'tolerance (the newest one when the camera publishes a single CameraInfo, or when '
+              'all recent ones agree) [s]', 0.0, 10.0),
     ParamSpec('fallback_fx', SEED_TABLE_4_1.fx,
               'Fallback focal length fx (seed Table 4.1: f = 580) [px]', 0.0, 100000.0,
               open_low=True),

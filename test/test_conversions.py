@@ -15,7 +15,9 @@ from obstacle_detection.conversions import (
     array_to_image,
     camera_info_to_intrinsics,
     costmap_to_occupancy_grid,
+    depth_problem,
     image_to_array,
+    intrinsics_problem,
     intrinsics_to_camera_info,
     pointcloud2_to_points,
     points_to_pointcloud2,
@@ -278,3 +280,61 @@ def test_result_to_messages_with_ground_and_overlay() -> None:
         'rgb8', 'cam', 4, 3)
     rgb = np.frombuffer(bytes(overlay.data), np.uint8).reshape(3, 4, 3)
     assert tuple(rgb[1, 2]) == OBSTACLE_RGB
+
+
+# -- plausibility of CameraInfo and depth (issue: plausible-looking nonsense is refused) ------
+KINECT = Intrinsics(fx=365.0, fy=365.0, cx=256.0, cy=212.0)
+
+
+def test_kinect_intrinsics_are_plausible() -> None:
+    assert intrinsics_problem(KINECT, 512, 424) is None
+
+
+@pytest.mark.parametrize('intrinsics, size, expected', [
+    (Intrinsics(fx=1e300, fy=1e300, cx=256.0, cy=212.0), (512, 424),
+     'fx=1e+300 px gives a 2.93e-296 deg field of view'),   # 2 atan(256 / 1e300)
+    (Intrinsics(fx=1e-300, fy=1e-300, cx=256.0, cy=212.0), (512, 424),
+     'fx=1e-300 px gives a 180 deg field of view'),
+    (KINECT, (0, 0), 'CameraInfo image size is 0x0'),
+    (Intrinsics(fx=365.0, fy=365.0, cx=5000.0, cy=212.0), (512, 424),
+     'principal point cx=5000 px lies far outside the 512x424 image'),
+    (Intrinsics(fx=365.0, fy=365.0, cx=256.0, cy=-300.0), (512, 424),
+     'principal point cy=-300 px'),
+])
+def test_implausible_intrinsics_are_named(intrinsics: Intrinsics, size: tuple[int, int],
+                                          expected: str) -> None:
+    problem = intrinsics_problem(intrinsics, *size)
+    assert problem is not None and expected in problem
+
+
+def test_real_depth_is_plausible_in_both_encodings() -> None:
+    rng = np.random.default_rng(0)
+    mm = rng.integers(500, 4500, (424, 512)).astype(np.uint16)
+    mm[::7] = 0
+    assert depth_problem(mm) is None
+    metres = mm.astype(np.float32) * np.float32(1e-3)
+    metres[::5] = np.nan
+    assert depth_problem(metres) is None
+    assert depth_problem(np.zeros((4, 4), np.uint16)) is None   # no valid pixel: not judged here
+
+
+def test_millimetres_sent_as_metres_are_refused_with_the_guess() -> None:
+    mm = np.full((424, 512), 1500.0, np.float32)
+    problem = depth_problem(mm)
+    assert problem is not None
+    assert 'median 1500 m' in problem and 'millimetres sent as 32FC1 metres' in problem
+
+
+def test_a_wrong_byte_order_is_refused() -> None:
+    mm = np.random.default_rng(1).integers(500, 4500, (424, 512)).astype(np.uint16)
+    swapped = mm.byteswap()   # what a wrong is_bigendian flag decodes to
+    problem = depth_problem(swapped)
+    assert problem is not None and 'is_bigendian may be wrong' in problem
+    assert depth_problem(mm) is None
+
+
+def test_random_bytes_are_refused() -> None:
+    noise = np.random.default_rng(2).integers(0, 65536, (424, 512)).astype(np.uint16)
+    assert depth_problem(noise) is not None
+    floats = np.random.default_rng(3).integers(0, 2**32, (424, 512), dtype=np.uint64)
+    assert depth_problem(floats.astype(np.uint32).view(np.float32)) is not None

@@ -399,6 +399,16 @@ def _bad_cases(scene: SceneFrame) -> list[tuple[str, Image, CameraInfo, str]]:
     zero_focal.k = [0.0] * 9
     nan = array_to_image(np.full((height, width), np.nan, np.float32), stamp=Time(),
                          frame_id='depth_optical')
+    huge_focal = _camera_info(scene)
+    huge_focal.k = [1e300, 0.0, 256.0, 0.0, 1e300, 212.0, 0.0, 0.0, 1.0]
+    tiny_focal = _camera_info(scene)
+    tiny_focal.k = [1e-300, 0.0, 256.0, 0.0, 1e-300, 212.0, 0.0, 0.0, 1.0]
+    no_size = _camera_info(scene)
+    no_size.width = no_size.height = 0
+    mm_as_metres = array_to_image(scene.depth_mm.astype(np.float32), stamp=Time(),
+                                  frame_id='depth_optical')
+    wrong_order = _depth_image(scene)
+    wrong_order.is_bigendian = not wrong_order.is_bigendian
     return [
         ('unknown encoding', rgb, good_info, "unsupported encoding 'rgb8'"),
         ('odd byte count', odd, good_info, f'data has {2 * width * height - 1} bytes'),
@@ -407,6 +417,12 @@ def _bad_cases(scene: SceneFrame) -> list[tuple[str, Image, CameraInfo, str]]:
         ('zero focal length', _depth_image(scene), zero_focal,
          'focal lengths must be > 0'),
         ('all-NaN frame', nan, good_info, 'no valid depth pixel'),
+        ('focal length 1e300', _depth_image(scene), huge_focal, 'CameraInfo fx=1e+300 px'),
+        ('focal length 1e-300', _depth_image(scene), tiny_focal, 'CameraInfo fx=1e-300 px'),
+        ('0 x 0 CameraInfo', _depth_image(scene), no_size, 'CameraInfo image size is 0x0'),
+        ('millimetres as 32FC1', mm_as_metres, good_info,
+         'it looks like millimetres sent as 32FC1 metres'),
+        ('wrong byte-order flag', wrong_order, good_info, 'is_bigendian may be wrong'),
     ]
 
 
@@ -421,6 +437,44 @@ def test_bad_inputs_are_logged_and_survived(detector: NodeUnderTest, scene: Scen
         assert detector.process.poll() is None, f'{name}: the node died\n{detector.log()}'
         _assert_matches(_good_frame(detector, scene), expected)
     assert 'Traceback' not in detector.log()
+
+
+def test_camera_info_is_matched_to_the_frame_by_stamp(
+        detector: NodeUnderTest, scene: SceneFrame, corridor_params: Any) -> None:
+    """Under load a frame is processed after newer CameraInfos came: it keeps its own."""
+    own = detector.next_stamp()
+    newer = Time(sec=own.sec + 1, nanosec=own.nanosec)
+    between = Time(sec=own.sec, nanosec=own.nanosec + 500_000_000)
+    detector.next_stamp()
+    info = _camera_info(scene)
+    info.header.stamp = own
+    other = _camera_info(scene)
+    other.k = [300.0, 0.0, 250.0, 0.0, 300.0, 200.0, 0.0, 0.0, 1.0]
+    other.header.stamp = newer
+    detector.info_pub.publish(info)
+    detector.info_pub.publish(other)
+    detector.spin_until(lambda: False, 0.3)
+
+    image = _depth_image(scene)
+    image.header.stamp = own
+    detector.depth_pub.publish(image)
+    out = detector.outputs(own)
+    assert out is not None, detector.log()
+    _assert_matches(out, Detector(corridor_params).process(scene.depth_mm, scene.intrinsics))
+
+    start = len(detector.lines)
+    image.header.stamp = between
+    detector.depth_pub.publish(image)
+    assert detector.wait_for_log('no CameraInfo within camera_info_tolerance_s', start)
+    assert detector.outputs(between, timeout=1.0) is None
+
+    image.header.stamp = newer
+    detector.depth_pub.publish(image)
+    out = detector.outputs(newer)
+    assert out is not None, detector.log()
+    _assert_matches(out, Detector(corridor_params).process(
+        scene.depth_mm, Intrinsics(fx=300.0, fy=300.0, cx=250.0, cy=200.0)))
+    _good_frame(detector, scene)   # back to the usual stream
 
 
 def test_parameter_update_changes_the_next_result(detector: NodeUnderTest, scene: SceneFrame,
