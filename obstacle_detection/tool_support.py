@@ -193,13 +193,16 @@ def intrinsics_warning(intrinsics: Intrinsics, shape: tuple[int, int]) -> str | 
 
 
 def depth_unit_warning(depth: np.ndarray, depth_scale: float | None,
-                       option: str = '--depth-scale') -> str | None:
+                       option: str = '--depth-scale', *,
+                       out_of_range_m: float | None = None) -> str | None:
     """Return a warning when integer depth read at ``depth_scale`` units/m looks like another unit.
 
     depth: (H, W) integer depth (0 = no return); depth_scale: units per metre (None = 1000).
-    The frame looks wrong when its median valid depth lies outside PLAUSIBLE_MEDIAN_DEPTH_M;
-    the warning then names the median and the known scale (KNOWN_DEPTH_SCALES) that brings
-    it nearest to 2 m. None for float depth (metres), an empty frame, or a plausible one.
+    The frame looks wrong when its median valid depth lies outside PLAUSIBLE_MEDIAN_DEPTH_M,
+    or, with ``out_of_range_m`` (a caller found too few points within this range), when
+    another known scale would bring the median nearer 2 m. The warning names the median and
+    the known scale (KNOWN_DEPTH_SCALES) that brings it nearest to 2 m. None for float depth
+    (metres), an empty frame, or a plausible one.
     """
     arr = np.asarray(depth)
     if arr.dtype.kind not in 'ui':
@@ -211,15 +214,21 @@ def depth_unit_warning(depth: np.ndarray, depth_scale: float | None,
     median_units = float(np.median(valid))
     median_m = median_units / scale
     low, high = PLAUSIBLE_MEDIAN_DEPTH_M
+    fits = [s for s in KNOWN_DEPTH_SCALES if low <= median_units / s <= high]
+    best = min(fits, key=lambda s: abs(math.log(median_units / s / 2.0)), default=None)
     if low <= median_m <= high:
-        return None
-    fits = [s for s in KNOWN_DEPTH_SCALES if low <= median_units / s <= high and s != scale]
-    text = (f'the depth looks like another unit: read at {scale:g} units/m its median is '
-            f'{median_m:.2f} m, {"beyond" if median_m > high else "below"} what a depth camera '
-            f'sees indoors ({low:g}-{high:g} m)')
-    if fits:
-        best = min(fits, key=lambda s: abs(math.log(median_units / s / 2.0)))
-        text += (f'; with {option} {best:g} ({KNOWN_DEPTH_SCALES[best]}) it would be '
+        if out_of_range_m is None or best is None or best == scale:
+            return None
+        return (f'read at {scale:g} units/m the depth\'s median is {median_m:.2f} m and little '
+                f'of it lies within {out_of_range_m:g} m: if the depth is in another unit, '
+                f'{option} {best:g} ({KNOWN_DEPTH_SCALES[best]}) would make its median '
+                f'{median_units / best:.2f} m')
+    else:
+        text = (f'the depth looks like another unit: read at {scale:g} units/m its median is '
+                f'{median_m:.2f} m, {"beyond" if median_m > high else "below"} what a depth '
+                f'camera sees indoors ({low:g}-{high:g} m)')
+    if best is not None and best != scale:
+        text += (f'; with {option} {best:g} ({KNOWN_DEPTH_SCALES[best]}) the median would be '
                  f'{median_units / best:.2f} m')
     return text
 
