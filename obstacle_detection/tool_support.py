@@ -48,7 +48,7 @@ MOUNT_HEIGHT_TOLERANCE_M = 0.15
 MOUNT_ANGLE_TOLERANCE_DEG = 5.0
 
 
-class ToolError(Exception):
+class ToolError(ValueError):
     """Bad input to a tool (exit 1); ``str()`` is ``<path>: <problem>``."""
 
     def __init__(self, path: str | Path, problem: str) -> None:
@@ -57,8 +57,11 @@ class ToolError(Exception):
         self.problem = problem
 
 
-class UsageError(Exception):
-    """Options that do not go together or name nothing known (exit 2, as argparse)."""
+class UsageError(ValueError):
+    """Options that do not go together or name nothing known (exit 2, as argparse).
+
+    A ValueError, so that callers catching bad values catch it too.
+    """
 
 
 def report_error(prog: str, error: BaseException, stream: TextIO | None = None) -> int:

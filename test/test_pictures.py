@@ -1,6 +1,7 @@
 """Side-by-side pictures, contact sheets, heatmaps, tools/pictures.py, tools/readme_pictures.py."""
 
 import math
+import re
 
 import cv2
 import numpy as np
@@ -14,8 +15,9 @@ from obstacle_detection.overlay import OBSTACLE_RGB, render_overlay
 from obstacle_detection.params import KINECT_V2_SD, KINECT_V2_SD_SIZE, table_4_2
 from obstacle_detection.pipeline import Detector
 from obstacle_detection.scenes import render_scene
+from obstacle_detection import tool_support
+from tools import bag_convert, bag_process, readme_pictures
 from tools import pictures as pictures_tool
-from tools import readme_pictures
 
 SIZE = (160, 132)
 
@@ -93,7 +95,7 @@ def test_tool_draws_a_depth_png_with_intrinsics(tmp_path, corridor):
     assert image.shape[1] > SIZE[0]
 
 
-def _write_bag(path, frame, count):
+def _write_bag(path, frame, count, depth_topic='/depth', info_topic='/info'):
     store = get_typestore(Stores.ROS2_JAZZY)
     Image = store.types['sensor_msgs/msg/Image']
     Info = store.types['sensor_msgs/msg/CameraInfo']
@@ -103,8 +105,9 @@ def _write_bag(path, frame, count):
     height, width = frame.depth.shape
     intr = frame.intrinsics
     with Writer(path, version=9) as writer:
-        image_conn = writer.add_connection('/depth', Image.__msgtype__, typestore=store)
-        info_conn = writer.add_connection('/info', Info.__msgtype__, typestore=store)
+        image_conn = writer.add_connection(depth_topic, Image.__msgtype__, typestore=store)
+        info_conn = (writer.add_connection(info_topic, Info.__msgtype__, typestore=store)
+                     if info_topic else None)
         for k in range(count):
             header = Header(stamp=Time(sec=k, nanosec=0), frame_id='camera')
             info = Info(header=header, height=height, width=width, distortion_model='plumb_bob',
@@ -116,7 +119,8 @@ def _write_bag(path, frame, count):
                           is_bigendian=0, step=2 * width,
                           data=np.frombuffer(frame.depth.astype('<u2').tobytes(), np.uint8))
             stamp = (k + 1) * 10**9
-            writer.write(info_conn, stamp, store.serialize_cdr(info, Info.__msgtype__))
+            if info_conn is not None:
+                writer.write(info_conn, stamp, store.serialize_cdr(info, Info.__msgtype__))
             writer.write(image_conn, stamp + 1, store.serialize_cdr(image, Image.__msgtype__))
 
 
@@ -144,8 +148,51 @@ def test_tool_draws_a_contact_sheet_of_a_bag(tmp_path, corridor):
 def test_tool_reports_a_missing_topic(tmp_path, corridor, capsys):
     _write_bag(tmp_path / 'bag', corridor[0], 1)
     assert pictures_tool.main(['--bag', str(tmp_path / 'bag'), '--depth-topic', '/nope',
-                               '--out', str(tmp_path / 'x.png')]) == 2
-    assert "no topic '/nope'" in capsys.readouterr().err
+                               '--out', str(tmp_path / 'x.png')]) == 1
+    err = capsys.readouterr().err
+    assert err == (f"error: {tmp_path / 'bag'}: no topic '/nope'; its sensor_msgs/msg/Image "
+                   'topics: /depth (use --depth-topic)\n')
+
+
+def test_tool_bag_defaults_are_the_bag_tools_and_camera_info_is_found_by_type(
+        tmp_path, corridor, capsys):
+    # a bag written by bag_convert has the default depth topic; its CameraInfo topic here has
+    # another name: found by its type, not replaced by the seed's Table 4.1 intrinsics
+    frame, _ = corridor
+    _write_bag(tmp_path / 'bag', frame, 2, depth_topic=tool_support.DEFAULT_DEPTH_TOPIC,
+               info_topic='/camera/depth/camera_info')
+    args = pictures_tool.build_parser().parse_args(['--bag', str(tmp_path / 'bag'), '--out',
+                                                    'x.png'])
+    jobs = list(pictures_tool.jobs(args, table_4_2()))
+    assert len(jobs) == 2
+    assert jobs[0].intrinsics.fx == pytest.approx(frame.intrinsics.fx)
+    assert jobs[0].intrinsics.cx == pytest.approx(frame.intrinsics.cx)
+    assert any('CameraInfo on /camera/depth/camera_info (found by type' in line
+               for line in jobs[0].extra_lines)
+    assert bag_convert.DEFAULT_DEPTH_TOPIC == tool_support.DEFAULT_DEPTH_TOPIC
+    assert bag_process.build_parser().parse_args(['a', 'b']).depth_topic == \
+        args.depth_topic == tool_support.DEFAULT_DEPTH_TOPIC
+
+
+def test_tool_bag_without_camera_info_says_it_uses_the_fallback(tmp_path, corridor, capsys):
+    frame, _ = corridor
+    _write_bag(tmp_path / 'bag', frame, 1, info_topic=None)
+    assert pictures_tool.main(['--bag', str(tmp_path / 'bag'), '--depth-topic', '/depth',
+                               '--height', str(frame.height_m), '--out',
+                               str(tmp_path / 'x.png')]) == 0
+    err = capsys.readouterr().err
+    assert ("warning: no intrinsics (none: the bag has no CameraInfo topic): using the seed's "
+            'Table 4.1 fallback (fx 580 fy 580 cx 200 cy 130 px)') in err
+
+
+def test_tool_bag_path_that_is_not_a_bag_is_one_line(tmp_path, capsys):
+    (tmp_path / 'pngs').mkdir()
+    assert pictures_tool.main(['--bag', str(tmp_path / 'pngs'), '--out',
+                               str(tmp_path / 'x.png')]) == 1
+    assert capsys.readouterr().err == (
+        f'error: {tmp_path / "pngs"}: not a bag: no metadata.yaml in the folder; expected a '
+        'rosbag2 folder (holding metadata.yaml) or a ROS 1 .bag file\n')
+    assert not (tmp_path / 'x.png').exists()
 
 
 @pytest.fixture(scope='module')
@@ -174,13 +221,20 @@ def test_tool_estimates_the_mount_of_a_depth_png(tmp_path, tilted_floor, capsys)
                                '--out', str(tmp_path / 'preset.png')]) == 0
     red, preset = _red_pixels(tmp_path / 'preset.png', height, width)
     assert red > 200
-    capsys.readouterr()
+    # ... and it is said, with what the floor says and the command that estimates the mount
+    err = capsys.readouterr().err
+    assert re.search(r'warning: the floor in view \(\d+% of the points\) puts the camera at '
+                     r'height 0\.90 m, pitch 30\.0 deg, roll 4\.0 deg, but the mount used is '
+                     r'height 0\.60 m, pitch 0\.0 deg, roll 0\.0 deg', err)
+    assert f'python tools/estimate_mount.py --depth {depth} --depth-scale 1000' in err
+    assert "mount: height 0.60 m, pitch 0.0 deg, roll 0.0 deg (the table_4_2 preset's " \
+        'default: no mount given); depth 1000 units/m (millimetres, the default' in err
     assert pictures_tool.main(['--depth', str(depth), '--intrinsics', intrinsics,
                                '--estimate-mount', '--out', str(tmp_path / 'est.png')]) == 0
     red, estimated = _red_pixels(tmp_path / 'est.png', height, width)
     assert red == 0
-    assert estimated.shape[0] > preset.shape[0]  # one more caption line: the estimate
     err = capsys.readouterr().err
+    assert 'warning' not in err
     assert 'mount estimated from the floor: h 0.90 m, pitch 30.0 deg, roll 4.0 deg' in err
 
 
@@ -210,8 +264,10 @@ def test_tool_reports_a_frame_without_a_floor(tmp_path, tilted_floor, capsys):
     depth, intrinsics = tilted_floor
     assert pictures_tool.main(['--depth', str(depth), '--intrinsics', intrinsics,
                                '--depth-scale', '100', '--estimate-mount',
-                               '--out', str(tmp_path / 'x.png')]) == 2  # all beyond 4 m
-    assert 'cannot estimate the mount: too few points' in capsys.readouterr().err
+                               '--out', str(tmp_path / 'x.png')]) == 1  # all beyond 4 m
+    err = capsys.readouterr().err
+    assert 'cannot estimate the mount: too few points' in err
+    assert err.startswith('error: ') and err.count('\n') == 1
 
 
 def test_readme_pictures_are_made_again(tmp_path, capsys):
@@ -244,3 +300,49 @@ def test_readme_real_pictures_skip_missing_frames(tmp_path, tilted_floor, capsys
     err = capsys.readouterr().err
     assert 'real_tum_fr2_desk.png skipped' in err and 'real_dining_room.png skipped' in err
     assert 'mount estimated from the floor' in err
+
+
+def test_tool_warns_when_the_depth_looks_like_another_unit(tmp_path, tilted_floor, capsys):
+    depth, intrinsics = tilted_floor
+    depth_mm = cv2.imread(str(depth), cv2.IMREAD_UNCHANGED)
+    tum = np.minimum(depth_mm.astype(np.uint32) * 5, 65535).astype(np.uint16)  # 1/5000 m
+    assert cv2.imwrite(str(tmp_path / 'tum.png'), tum)
+    assert pictures_tool.main(['--depth', str(tmp_path / 'tum.png'), '--intrinsics', intrinsics,
+                               '--out', str(tmp_path / 'x.png')]) == 0
+    err = capsys.readouterr().err
+    median_m = float(np.median(depth_mm[depth_mm > 0])) / 1000
+    assert f"warning: read at 1000 units/m the depth's median is {5 * median_m:.2f} m and " \
+        'little of it lies within 4 m: if the depth is in another unit, --depth-scale 5000 ' \
+        f'(TUM RGB-D format, 0.2 mm) would make its median {median_m:.2f} m' in err
+
+
+def _plain_folder(path, tilted_floor, count=2):
+    depth, intrinsics = tilted_floor
+    path.mkdir()
+    depth_mm = cv2.imread(str(depth), cv2.IMREAD_UNCHANGED)
+    for k in range(count):
+        assert cv2.imwrite(str(path / f'frame_{k:03d}.png'), depth_mm)
+    assert cv2.imwrite(str(path / 'colour.png'), np.zeros((8, 8, 3), np.uint8))  # not depth
+    return intrinsics
+
+
+def test_tool_draws_a_plain_folder_of_depth_pngs(tmp_path, tilted_floor, capsys):
+    intrinsics = _plain_folder(tmp_path / 'pngs', tilted_floor)
+    out = tmp_path / 'sheet.png'
+    assert pictures_tool.main(['--folder', str(tmp_path / 'pngs'), '--intrinsics', intrinsics,
+                               '--no-truth', '--estimate-mount', '--out', str(out),
+                               '--thumb-width', '200']) == 0
+    assert cv2.imread(str(out)).shape[1] == 2 * (200 + 6)  # two frames, the colour skipped
+    err = capsys.readouterr().err
+    assert 'skipped 1 image(s) that are not 16-bit depth: colour.png' in err
+    assert 'mount estimated from the floor: h 0.90 m, pitch 30.0 deg, roll 4.0 deg' in err
+    assert 'frame_000.png: 0 obstacle voxels' in err and 'frame_001.png: 0 obstacle voxels' in err
+
+
+def test_tool_plain_folder_needs_intrinsics(tmp_path, tilted_floor, capsys):
+    _plain_folder(tmp_path / 'pngs', tilted_floor, count=1)
+    assert pictures_tool.main(['--folder', str(tmp_path / 'pngs'), '--no-truth', '--out',
+                               str(tmp_path / 'x.png')]) == 1
+    assert capsys.readouterr().err == (
+        f'error: {tmp_path / "pngs"}: no intrinsics: the folder has no intrinsics.yaml; give '
+        '--intrinsics FX,FY,CX,CY or a camera YAML\n')
