@@ -10,8 +10,10 @@ from rosbags.rosbag2 import Writer
 from rosbags.typesys import Stores, get_typestore
 
 from obstacle_detection import evaluation, pictures
-from obstacle_detection.metrics import LABEL_OBSTACLE
-from obstacle_detection.overlay import OBSTACLE_RGB, render_overlay
+from obstacle_detection.metrics import LABEL_GROUND, LABEL_OBSTACLE, LABEL_OUTSIDE_ROI
+from obstacle_detection.costmap import CELL_OCCUPIED, CELL_UNKNOWN, Costmap, costmap_geometry
+from obstacle_detection.overlay import (MIN_GREY, NO_RETURN_RGB, OBSTACLE_RGB, OCCUPIED_RGB,
+                                       ROBOT_RGB, UNKNOWN_RGB, render_overlay)
 from obstacle_detection.params import KINECT_V2_SD, KINECT_V2_SD_SIZE, table_4_2
 from obstacle_detection.pipeline import Detector
 from obstacle_detection.scenes import render_scene
@@ -36,12 +38,18 @@ def test_overlay_half_has_the_frame_size_and_marks_obstacles(corridor):
     height, width = frame.depth.shape
     assert image.dtype == np.uint8 and image.shape[0] > height and image.shape[1] > width
     overlay = image[:height, :width]
-    np.testing.assert_array_equal(overlay, render_overlay(result.depth_m, result.labels))
+    np.testing.assert_array_equal(overlay, pictures.depth_overlay(result.depth_m, result.labels))
     obstacle = result.labels == LABEL_OBSTACLE
     assert obstacle.any() and (~obstacle).any()
     assert (overlay[obstacle] == OBSTACLE_RGB).all()
-    others = overlay[~obstacle].astype(int)
-    assert (others[:, 0] == others[:, 1]).all() and (others[:, 1] == others[:, 2]).all()
+    # outside the region of interest: the plain depth grey; ground inside it: tinted green
+    plain = render_overlay(result.depth_m, result.labels)
+    outside = result.labels == LABEL_OUTSIDE_ROI
+    ground = result.labels == LABEL_GROUND
+    assert outside.any() and ground.any()
+    np.testing.assert_array_equal(overlay[outside], plain[outside])
+    tint = overlay[ground].astype(int)
+    assert (tint[:, 1] > tint[:, 0]).all() and (tint[:, 1] > tint[:, 2]).all()
 
 
 def test_truth_panel_colours_hits_false_alarms_and_misses():
@@ -249,7 +257,7 @@ def test_tool_estimate_is_in_the_caption_and_explicit_mount_wins(tilted_floor):
     assert job.params.camera_roll_rad == pytest.approx(math.radians(4), abs=0.01)
     assert job.depth_scale == 1000.0
     assert job.extra_lines[0].startswith('mount estimated from the floor: h 0.90 m')
-    assert job.extra_lines[0].endswith('--height given instead')
+    assert '--height given instead' in job.extra_lines[0]
 
 
 def test_tool_estimate_mount_needs_intrinsics(tmp_path, tilted_floor, capsys):
@@ -346,3 +354,112 @@ def test_tool_plain_folder_needs_intrinsics(tmp_path, tilted_floor, capsys):
     assert capsys.readouterr().err == (
         f'error: {tmp_path / "pngs"}: no intrinsics: the folder has no intrinsics.yaml; give '
         '--intrinsics FX,FY,CX,CY or a camera YAML\n')
+
+
+# --------------------------------------------------------------------------------------------
+# Pictures a robotics user reads without the README: metre axes, camera, view, legend
+
+
+def _empty_costmap(params):
+    origin, nx, ny = costmap_geometry(params)
+    return Costmap(np.full((ny, nx), CELL_UNKNOWN, np.int8), params.costmap_resolution_m,
+                   origin)
+
+
+def test_costmap_panel_axes_are_in_metres_from_the_camera():
+    params = table_4_2()  # 2 m forward, 4 m across, 5 cm cells
+    costmap = _empty_costmap(params)
+    data = costmap.data.copy()
+    ix = int((1.02 - costmap.origin_xy_m[0]) / costmap.resolution_m)
+    iy = int((0.52 - costmap.origin_xy_m[1]) / costmap.resolution_m)
+    data[iy, ix] = CELL_OCCUPIED  # the cell x 1.00-1.05 m, y 0.50-0.55 m
+    costmap = Costmap(data, costmap.resolution_m, costmap.origin_xy_m)
+    scale = 5  # 100 px per metre
+    panel = pictures.costmap_panel(costmap, scale=scale)
+    robot = np.argwhere((panel == ROBOT_RGB).all(axis=-1))
+    apex_row = robot[:, 0].min()
+    apex_col = int(round(robot[robot[:, 0] == apex_row][:, 1].mean()))
+    occupied = np.argwhere((panel == OCCUPIED_RGB).all(axis=-1))
+    # the camera marker's apex is the ground-frame origin: the cell lies 1.00 m ahead of it
+    # (its near edge) and 0.50 m to its left (its right edge), at 100 px per metre
+    assert apex_row - (occupied[:, 0].max() + 1) == 100
+    assert apex_col - (occupied[:, 1].max() + 1) == 50
+    # ticks every 0.5 m on the forward axis, left of the grid (the grid spans y 2 .. -2 m)
+    grid_left = apex_col - 200
+    tick_col = grid_left - 4
+    for k in range(5):
+        assert tuple(panel[apex_row - 50 * k, tick_col]) == pictures.AXIS_RGB
+    assert tuple(panel[apex_row - 25, tick_col]) == pictures.BACKGROUND_RGB
+    # ... and every metre across, below it (y = 2, 1, -1, -2 m; 0 is under the camera)
+    ticks = np.flatnonzero((panel[apex_row + 3] == pictures.AXIS_RGB).all(axis=-1))
+    assert {grid_left + 100 * k for k in (0, 1, 3, 4)} <= set(ticks)
+    assert grid_left + 50 not in set(ticks)
+
+
+def test_floor_in_view_starts_where_the_lowest_ray_meets_the_floor():
+    params = table_4_2()  # level camera 0.6 m up
+    costmap = _empty_costmap(params)
+    intr = KINECT_V2_SD
+    width, height = KINECT_V2_SD_SIZE
+    seen = pictures.floor_in_view(costmap, params, intr, (height, width))
+    xs, ys = costmap.cell_centres()
+    # the lowest pixel row sees the floor at x = h * fy / (H - cy); straight ahead (y ~ 0)
+    near_x = params.camera_height_m * intr.fy / (height - intr.cy)
+    centre = np.argmin(np.abs(ys))
+    np.testing.assert_array_equal(seen[centre], xs >= near_x)
+    # at 1.9 m the view is as wide as the image: |y| < x (u - cx) / fx at the borders
+    column = np.argmin(np.abs(xs - 1.9))
+    half_left, half_right = xs[column] * intr.cx / intr.fx, xs[column] * (width - intr.cx) / \
+        intr.fx
+    inside = (ys < half_left - 0.03) & (ys > -half_right + 0.03)
+    outside = (ys > half_left + 0.03) | (ys < -half_right - 0.03)
+    assert seen[inside, column].all() and not seen[outside, column].any()
+
+
+def test_costmap_panel_hatches_cells_outside_the_region_of_interest():
+    params = table_4_2(max_range_m=1.0)  # the grid still reaches 2 m: its far half is outside
+    costmap = _empty_costmap(params)
+    plain = pictures.costmap_panel(costmap, scale=4)
+    hatched = pictures.costmap_panel(costmap, scale=4, params=params)
+    changed = np.argwhere((plain != hatched).any(axis=-1))
+    robot = np.argwhere((plain == ROBOT_RGB).all(axis=-1))
+    apex_row = robot[:, 0].min()
+    # 80 px per metre: only rows more than 1 m ahead of the camera change
+    assert changed.size and (changed[:, 0] < apex_row - 80).all()
+    assert ((hatched[changed[:, 0], changed[:, 1]] == pictures.HATCH_RGB).all(axis=-1)).all()
+
+
+def test_depth_colour_bar_grows_brighter_with_depth():
+    bar = pictures.depth_colour_bar(4.0, 400)
+    row = bar[10, :, 0].astype(int)
+    first = np.flatnonzero(row == MIN_GREY)[0]
+    ramp = row[first:first + 300]
+    assert (np.diff(ramp) >= 0).all() and ramp[-1] > ramp[0] + 150
+
+
+def test_picture_has_a_legend_for_every_colour(corridor):
+    frame, result = corridor
+    params = frame.params(table_4_2())
+    bare = pictures.side_by_side(result, params=params, with_legend=False,
+                                 truth_labels=frame.truth_labels)
+    image = pictures.side_by_side(result, params=params, truth_labels=frame.truth_labels)
+    height = frame.depth.shape[0]
+    assert image.shape[0] > bare.shape[0]
+    below = image[height:]
+    for colour in (OBSTACLE_RGB, pictures.GROUND_RGB, NO_RETURN_RGB, OCCUPIED_RGB,
+                   UNKNOWN_RGB, ROBOT_RGB, pictures.VIEW_EDGE_RGB, pictures.HATCH_RGB,
+                   pictures.HIT_RGB, pictures.FALSE_ALARM_RGB, pictures.MISS_RGB):
+        assert (below == colour).all(axis=-1).any(), colour
+
+
+def test_contact_sheet_has_one_legend_under_the_thumbnails(tmp_path):
+    out = tmp_path / 'sheet.png'
+    assert pictures_tool.main(['--scene', 'person_walking', '--frames', '0:2', '--no-truth',
+                               '--thumb-width', '300', '--columns', '2', '--out',
+                               str(out)]) == 0
+    sheet = cv2.cvtColor(cv2.imread(str(out)), cv2.COLOR_BGR2RGB)
+    rows = np.flatnonzero((sheet == pictures.VIEW_EDGE_RGB).all(axis=-1).any(axis=1))
+    legend_rows = np.flatnonzero((sheet == pictures.GROUND_RGB).all(axis=-1).any(axis=1))
+    # the full-size legend (its swatches exactly coloured) lies below every thumbnail
+    assert sheet.shape[1] == 2 * 306 and legend_rows.size and rows.size
+    assert legend_rows.max() > sheet.shape[0] - 120

@@ -172,7 +172,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not args.quiet:
         callbacks.append(_progress(total, 'evaluate'))
     if args.pictures is not None:
-        callbacks.append(_picture_writer(args.pictures, refiner))
+        callbacks.append(_picture_writer(args.pictures, refiner, params))
     frames = itertools.chain.from_iterable(frames for _, _, frames in sources)
     label = args.preset + ''.join(f' + {path}' for path in args.params_file)
 
@@ -202,7 +202,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
-def _picture_writer(folder: Path, refiner: Any) -> Any:
+def _picture_writer(folder: Path, refiner: Any, base: DetectorParams) -> Any:
     from obstacle_detection import pictures
 
     def on_frame(frame: evaluation.LabelledFrame, result: Any,
@@ -212,7 +212,8 @@ def _picture_writer(folder: Path, refiner: Any) -> Any:
                    f'{evaluation.format_score(score.cell.f1)}, pixel F1 '
                    f'{evaluation.format_score(score.pixel.f1)}')
         pictures.write_png(folder / f'{name}.png', pictures.side_by_side(
-            result, caption=caption, truth_labels=frame.truth_labels))
+            result, caption=caption, truth_labels=frame.truth_labels,
+            params=frame.params(base)))
     return on_frame
 
 

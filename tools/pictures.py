@@ -259,10 +259,11 @@ class _RealFrames:
                         ValueError(check.reason), depth, scale)
                     if hint:
                         warnings.append(hint)
-        lines.insert(1, f'mount: {tool_support.mount_text(params)} ({self.mount_origin})'
-                     + unit)
         if self.estimate_line is not None:
-            lines.insert(0, self.estimate_line)
+            lines.insert(0, self.estimate_line + unit)
+        else:
+            lines.insert(1, f'mount: {tool_support.mount_text(params)} ({self.mount_origin})'
+                         + unit)
         self.first = False
         lines.extend(f'warning: {text}' for text in warnings)
         return _Job(name, depth, intrinsics, params, depth_scale, truth_labels, sequence,
@@ -449,11 +450,24 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def render(args: argparse.Namespace) -> list[tuple[str, np.ndarray]]:
-    """(caption, RGB picture) of every frame the parsed options name, in order.
+@dataclass
+class _Detected:
+    """One frame run through the pipeline, ready to draw."""
 
-    Also writes ``--frames-dir`` and reports each frame on stderr; raises ValueError,
-    OSError or KeyError on bad input.
+    job: _Job
+    caption: str
+    result: object
+    labels: np.ndarray | None
+    costmap: object
+    truth: np.ndarray | None
+
+
+def detect(args: argparse.Namespace) -> list[_Detected]:
+    """Run the pipeline (and the refiner) over every frame the parsed options name, in order.
+
+    Reports each frame on stderr, with what was used (intrinsics, scale, mount) and the
+    warnings; raises UsageError for options that do not go together, ValueError, OSError or
+    KeyError on bad input.
     """
     from obstacle_detection import refine
     from obstacle_detection.pipeline import Detector
@@ -467,7 +481,7 @@ def render(args: argparse.Namespace) -> list[tuple[str, np.ndarray]]:
                                       'are millimetres, 32FC1 metres)')
     base = base_params(args)
     refiner = refine.LogisticRefiner.load(args.refiner) if args.refiner else None
-    drawn: list[tuple[str, np.ndarray]] = []
+    detected: list[_Detected] = []
     said: set[str] = set()
     previous: np.ndarray | None = None
     for job in jobs(args, base):
@@ -484,38 +498,84 @@ def render(args: argparse.Namespace) -> list[tuple[str, np.ndarray]]:
             caption += f' (refined by {args.refiner.name})'
         previous = refine.obstacle_mask(result)
         truth = None if args.no_truth else job.truth_labels
-        image = pictures.side_by_side(result, caption=caption, truth_labels=truth,
-                                      labels=labels, costmap=costmap,
-                                      extra_lines=job.extra_lines)
-        if args.frames_dir is not None:
-            safe = job.name.replace(' ', '_').replace('/', '_').replace('#', '')
-            pictures.write_png(args.frames_dir / f'{len(drawn):04d}_{safe}.png', image)
-        drawn.append((caption, image))
+        detected.append(_Detected(job, caption, result, labels, costmap, truth))
         print(f'{caption}: {int(result.obstacle_points.shape[0])} obstacle voxels, '
               f'{result.timings_ms["total"]:.0f} ms', file=sys.stderr)
         for line in job.extra_lines:  # what was used: said once, again when it changes
             if line not in said:
                 print(line if line.startswith('warning: ') else f'  {line}', file=sys.stderr)
                 said.add(line)
-    if not drawn:
+    if not detected:
         raise ValueError('no frames to draw')
-    return drawn
+    return detected
+
+
+def draw(frame: _Detected, *, with_legend: bool = True,
+         max_depth_m: float | None = None) -> np.ndarray:
+    """Return the picture of one detected frame (``pictures.side_by_side``)."""
+    return pictures.side_by_side(frame.result, caption=frame.caption,
+                                 truth_labels=frame.truth, labels=frame.labels,
+                                 costmap=frame.costmap, extra_lines=frame.job.extra_lines,
+                                 params=frame.job.params, with_legend=with_legend,
+                                 max_depth_m=max_depth_m)
+
+
+def _write_frames_dir(args: argparse.Namespace, detected: Sequence[_Detected]) -> None:
+    if args.frames_dir is None:
+        return
+    for i, frame in enumerate(detected):
+        safe = frame.job.name.replace(' ', '_').replace('/', '_').replace('#', '')
+        pictures.write_png(args.frames_dir / f'{i:04d}_{safe}.png', draw(frame))
+
+
+def render(args: argparse.Namespace) -> list[tuple[str, np.ndarray]]:
+    """(caption, RGB picture with its legends) of every frame the parsed options name.
+
+    Also writes ``--frames-dir``; raises as :func:`detect`.
+    """
+    detected = detect(args)
+    _write_frames_dir(args, detected)
+    return [(frame.caption, draw(frame)) for frame in detected]
+
+
+def sheet(args: argparse.Namespace, detected: Sequence[_Detected]) -> np.ndarray:
+    """Return the contact sheet of several frames, with one full-size legend underneath.
+
+    The thumbnails share one depth shading (the farthest depth of all frames is white), so
+    the legend's colour bar holds for every one of them.
+    """
+    farthest = 0.0
+    for frame in detected:
+        depth = np.asarray(frame.result.depth_m)
+        valid = np.isfinite(depth) & (depth > 0)
+        if valid.any():
+            farthest = max(farthest, float(depth[valid].max()))
+    farthest = farthest or 1.0
+    images = [draw(frame, with_legend=False, max_depth_m=farthest) for frame in detected]
+    grid = pictures.contact_sheet(images, labels=[f.caption for f in detected],
+                                  columns=args.columns, thumb_width=args.thumb_width)
+    truth = any(f.truth is not None for f in detected)
+    parts = 3 if truth else 2
+    widths = [(grid.shape[1] - (parts - 1) * 6) // parts] * parts
+    legend = pictures.legend_row(widths, farthest, truth=truth, params=detected[0].job.params)
+    legend = np.pad(legend, ((0, 0), (0, grid.shape[1] - legend.shape[1]), (0, 0)),
+                    constant_values=255)
+    return np.vstack([grid, legend])
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (0 ok, 1 bad input, 2 bad usage)."""
     args = build_parser().parse_args(argv)
     try:
-        drawn = render(args)
-        if len(drawn) == 1:
-            pictures.write_png(args.out, drawn[0][1])
+        detected = detect(args)
+        _write_frames_dir(args, detected)
+        if len(detected) == 1:
+            pictures.write_png(args.out, draw(detected[0]))
         else:
-            names, images = zip(*drawn)
-            pictures.write_png(args.out, pictures.contact_sheet(
-                images, labels=names, columns=args.columns, thumb_width=args.thumb_width))
+            pictures.write_png(args.out, sheet(args, detected))
     except (tool_support.UsageError, ValueError, OSError, KeyError) as exc:
         return tool_support.report_error('pictures.py', exc)
-    print(f'wrote {args.out} ({len(drawn)} frame{"s" if len(drawn) > 1 else ""})')
+    print(f'wrote {args.out} ({len(detected)} frame{"s" if len(detected) > 1 else ""})')
     return 0
 
 

@@ -383,7 +383,7 @@ def _write_strip(args: argparse.Namespace, base: DetectorParams,
                                              depth_scale=frame.depth_scale)
         pixel, cell = evaluation.score_frame(frame, detection, params)
         images.append(pictures.side_by_side(detection, caption=f'{frame.scenario} '
-                                            f'{frame.frame_id}: {setting}'))
+                                            f'{frame.frame_id}: {setting}', params=params))
         labels.append(f'{setting}: cell F1 {evaluation.format_score(cell.f1)}, '
                       f'pixel F1 {evaluation.format_score(pixel.f1)}')
     if not images:
