@@ -311,3 +311,17 @@ def read_params_file(path: str | Path) -> dict[str, ParamValue]:
                                       f'got {value!r}')
             values[name] = value
     return values
+
+
+def read_params_files(paths: list[str | Path] | tuple[str | Path, ...]
+                      ) -> dict[str, ParamValue]:
+    """Return the values several node parameter files set, merged in order as ROS does.
+
+    ``--params-file a.yaml --params-file b.yaml``: a parameter both set takes b's value, one
+    only a sets keeps a's. Each file is read by :func:`read_params_file` (ParamsFileError
+    naming the file).
+    """
+    values: dict[str, ParamValue] = {}
+    for path in paths:
+        values.update(read_params_file(path))
+    return values

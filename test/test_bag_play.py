@@ -170,21 +170,36 @@ def test_sensor_data_qos_by_default(bag: Path, context: rclpy.context.Context) -
         node.destroy_node()
 
 
-@pytest.mark.parametrize(('args', 'named'), [
-    (['--topics', '/nope'], '/nope'),
-    (['--remap', 'bad'], 'bad'),
-    (['--remap', '/not/played:=/x'], '/not/played'),
-    (['--start-offset', '100'], 'no messages'),
-    (['--rate', '0'], '--rate'),
-    (['--loops', '-1'], '--loops'),
+@pytest.mark.parametrize(('args', 'named', 'code'), [
+    (['--topics', '/nope'], '/nope', 1),
+    (['--remap', 'bad'], 'bad', 2),
+    (['--remap', '/not/played:=/x'], '/not/played', 1),
+    (['--start-offset', '100'], 'no messages', 1),
+    (['--rate', '0'], '--rate', 2),
+    (['--loops', '-1'], '--loops', 2),
 ])
-def test_bad_options(bag: Path, args: list[str], named: str,
+def test_bad_options(bag: Path, args: list[str], named: str, code: int,
                      capsys: pytest.CaptureFixture[str], env: dict[str, str]) -> None:
-    assert bag_play.main([str(bag), *args, '--quiet']) == 1
-    assert named in capsys.readouterr().err
+    # a bad bag or topic is bad input (1), a value no bag could take a usage error (2)
+    assert bag_play.main([str(bag), *args, '--quiet']) == code
+    err = capsys.readouterr().err
+    assert named in err
+    assert err.count('\n') == 1 and err.startswith('bag_play.py: error: ' if code == 2
+                                                    else f'error: {bag}')
 
 
 def test_missing_bag(tmp_path: Path, capsys: pytest.CaptureFixture[str],
                      env: dict[str, str]) -> None:
     assert bag_play.main([str(tmp_path / 'none')]) == 1
     assert str(tmp_path / 'none') in capsys.readouterr().err
+
+
+def test_a_folder_that_is_not_a_bag_is_one_line(tmp_path: Path,
+                                                capsys: pytest.CaptureFixture[str],
+                                                env: dict[str, str]) -> None:
+    (tmp_path / 'pictures').mkdir()
+    (tmp_path / 'pictures' / 'a.png').write_bytes(b'')
+    assert bag_play.main([str(tmp_path / 'pictures')]) == 1
+    err = capsys.readouterr().err
+    assert err == (f'error: {tmp_path / "pictures"}: not a bag: no metadata.yaml in the folder;'
+                   ' expected a rosbag2 folder (holding metadata.yaml)\n')

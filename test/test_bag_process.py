@@ -356,3 +356,95 @@ def test_deserialized_offline_messages_are_rclpy_readable(processed: tuple[Path,
     grid = deserialize_message(got['/obstacles/costmap'][0][1], OccupancyGrid)
     assert grid.header.frame_id == 'base_footprint'
     assert grid.info.width > 0 and len(grid.data) == grid.info.width * grid.info.height
+
+
+def test_several_params_files_are_merged_in_order(tmp_path: Path) -> None:
+    # as ROS: a later file wins for a parameter both set, the others keep the earlier values
+    first = tmp_path / 'first.yaml'
+    first.write_text('obstacle_detector:\n  ros__parameters:\n    median_kernel: 5\n'
+                     '    max_range_m: 3.0\n')
+    second = tmp_path / 'second.yaml'
+    second.write_text('obstacle_detector:\n  ros__parameters:\n    median_kernel: 7\n'
+                      '    camera_height_m: 1.25\n')
+    values = bag_process.load_params_file([first, second])
+    assert (values['median_kernel'], values['max_range_m'], values['camera_height_m']) == (
+        7, 3.0, 1.25)
+    args = bag_process.build_parser().parse_args(
+        ['in', 'out', '--params-file', str(first), '--params-file', str(second)])
+    assert args.params_file == [first, second]
+
+
+def test_merged_params_files_reach_the_output(tmp_path: Path, depths: list[np.ndarray],
+                                              params_file: Path,
+                                              capsys: pytest.CaptureFixture[str]) -> None:
+    # the second file changes the range: the output equals a run with both values
+    write_bag(tmp_path / 'in', frame_messages(depths[:1]))
+    shorter = tmp_path / 'shorter.yaml'
+    shorter.write_text('obstacle_detector:\n  ros__parameters:\n    max_range_m: 1.5\n')
+    assert bag_process.main([str(tmp_path / 'in'), str(tmp_path / 'out'), '--quiet',
+                             '--params-file', str(params_file), '--params-file',
+                             str(shorter)]) == 0
+    got = read_raw(tmp_path / 'out')
+    points = decoded('/obstacles/points', got['/obstacles/points'][0][1])
+    values = dict(PARAM_VALUES, max_range_m=1.5)
+    result = Detector(detector_params_from_ros(values)).process(depths[0], INTR)
+    cloud = np.frombuffer(bytes(points.data), np.float32).reshape(-1, 3)
+    assert cloud.shape[0] == result.obstacle_points.shape[0] > 0
+    assert cloud[:, 0].max() <= 1.5 + 1e-6
+
+
+def test_a_folder_that_is_not_a_bag_is_one_clear_line(tmp_path: Path,
+                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    folder = tmp_path / 'frames'
+    folder.mkdir()
+    (folder / 'depth.png').write_bytes(b'')
+    assert bag_process.main([str(folder), str(tmp_path / 'out')]) == 1
+    captured = capsys.readouterr()
+    assert captured.err == (f'error: {folder}: not a bag: no metadata.yaml in the folder; '
+                            'expected a rosbag2 folder (holding metadata.yaml)\n')
+    assert not (tmp_path / 'out').exists()
+    ros1 = tmp_path / 'old.bag'
+    ros1.write_bytes(b'#ROSBAG V2.0\n')
+    assert bag_process.main([str(ros1), str(tmp_path / 'out')]) == 1
+    assert 'a ROS 1 bag: convert it first with tools/bag_convert.py ros1' in \
+        capsys.readouterr().err
+
+
+def test_camera_info_is_found_by_type(tmp_path: Path, depths: list[np.ndarray],
+                                      capsys: pytest.CaptureFixture[str]) -> None:
+    # the camera info is on a topic of another name: found by its type, and said so
+    items = [('/cam/camera_info' if topic == INFO else topic, t, msg)
+             for topic, t, msg in frame_messages(depths[:2])]
+    write_bag(tmp_path / 'in', items)
+    assert bag_process.main([str(tmp_path / 'in'), str(tmp_path / 'out'), '--quiet']) == 0
+    out = capsys.readouterr().out
+    assert 'depth frames: 2, processed 2, skipped 0' in out
+    assert 'intrinsics: CameraInfo on /cam/camera_info (found by type' in out
+    assert "camera mount: height 0.60 m, pitch 0.0 deg, roll 0.0 deg (the node's defaults" in out
+    # an --info-topic that is not a CameraInfo is refused, naming the bag
+    assert bag_process.main([str(tmp_path / 'in'), str(tmp_path / 'out2'), '--info-topic',
+                             DEPTH]) == 1
+    assert f'error: {tmp_path / "in"}: {DEPTH} has type sensor_msgs/msg/Image' in \
+        capsys.readouterr().err
+
+
+def test_a_mount_far_from_the_floor_is_a_warning(tmp_path: Path,
+                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    # a flat floor seen from 1.2 m, processed with the node's default mount (0.6 m, level)
+    floor = render_scene('flat_floor', seed=0, intrinsics=INTR, size=SIZE, height_m=1.2,
+                         pitch_rad=np.radians(25.0)).depth_mm
+    write_bag(tmp_path / 'in', frame_messages([floor]))
+    assert bag_process.main([str(tmp_path / 'in'), str(tmp_path / 'out'), '--quiet']) == 0
+    err = capsys.readouterr().err
+    assert re.search(r'warning: first frame: the floor in view .* puts the camera at height '
+                     r'1\.2\d m, pitch 2[45]\.\d deg', err)
+    assert 'but the mount used is height 0.60 m, pitch 0.0 deg' in err
+    mount = tmp_path / 'mount.yaml'
+    mount.write_text('obstacle_detector:\n  ros__parameters:\n    camera_height_m: 1.2\n'
+                     '    camera_pitch_deg: 25.0\n')
+    assert bag_process.main([str(tmp_path / 'in'), str(tmp_path / 'out2'), '--quiet',
+                             '--params-file', str(mount)]) == 0
+    captured = capsys.readouterr()
+    assert 'warning' not in captured.err
+    assert f'camera mount: height 1.20 m, pitch 25.0 deg, roll 0.0 deg ({mount})' in \
+        captured.out

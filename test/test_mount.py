@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from obstacle_detection import evaluation, geometry, mount
+from obstacle_detection import evaluation, geometry, mount, tool_support
 from obstacle_detection.costmap import CELL_OCCUPIED
 from obstacle_detection.params import KINECT_V2_SD, Intrinsics, table_4_2
 from obstacle_detection.pictures import read_depth_png
@@ -197,15 +197,54 @@ def test_cli_reports_a_missing_floor(tmp_path, capsys):
     path = tmp_path / 'wall.png'
     cv2.imwrite(str(path), frame.depth_mm)
     assert tool.main(['--depth', str(path), '--intrinsics',
-                      intrinsics_arg(frame.intrinsics)]) == 2
-    assert 'no plausible floor' in capsys.readouterr().err
+                      intrinsics_arg(frame.intrinsics)]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith(f'error: {path}: cannot estimate the mount: no plausible floor')
+    assert err.count('\n') == 1
 
 
 def test_cli_refuses_an_8_bit_image(tmp_path, capsys):
     path = tmp_path / 'colour.png'
     cv2.imwrite(str(path), np.zeros((8, 8, 3), np.uint8))
-    assert tool.main(['--depth', str(path), '--intrinsics', '1,1,4,4']) == 2
+    assert tool.main(['--depth', str(path), '--intrinsics', '1,1,4,4']) == 1
     assert '16-bit single channel' in capsys.readouterr().err
+
+
+def test_cli_says_when_the_depth_looks_like_another_unit(tmp_path, capsys, tilted_frame):
+    # the frame in TUM units (5000 per metre) read as millimetres: 5 times too deep
+    tum = np.round(tilted_frame.depth_mm.astype(np.float64) * 5.0).astype(np.uint16)
+    path = tmp_path / 'tum.png'
+    assert cv2.imwrite(str(path), tum)
+    argv = ['--depth', str(path), '--intrinsics', intrinsics_arg(tilted_frame.intrinsics)]
+    assert tool.main(argv) == 1
+    err = capsys.readouterr().err
+    assert err.startswith(f'error: {path}: cannot estimate the mount: too few points')
+    median_mm = float(np.median(tilted_frame.depth_mm[tilted_frame.depth_mm > 0]))
+    assert '--depth-scale 5000 (TUM RGB-D format, 0.2 mm)' in err
+    assert f'{median_mm / 1000:.2f} m' in err  # the median at the suggested scale
+    # with the suggested scale it works
+    assert tool.main([*argv, '--depth-scale', '5000']) == 0
+    assert 'height 0.75' in capsys.readouterr().out
+
+
+def test_unit_warning_names_the_scale_that_fits():
+    metres = np.full((4, 4), 2.5)
+    assert tool_support.depth_unit_warning((metres * 1000).astype(np.uint16), 1000) is None
+    text = tool_support.depth_unit_warning((metres * 5000).astype(np.uint16), None)
+    assert 'its median is 12.50 m' in text and '--depth-scale 5000' in text and '2.50 m' in text
+    text = tool_support.depth_unit_warning((metres * 1000).astype(np.uint16), 10000)
+    assert 'its median is 0.25 m, below' in text and '--depth-scale 1000' in text
+    # plausible, but nothing within the range a caller needs: another scale is suggested
+    far = (np.full((4, 4), 1.5) * 5000).astype(np.uint16)
+    assert tool_support.depth_unit_warning(far, 1000) is None
+    text = tool_support.depth_unit_warning(far, 1000, out_of_range_m=4.0)
+    assert 'little of it lies within 4 m' in text and 'would make its median 1.50 m' in text
+    assert tool_support.depth_unit_warning(metres.astype(np.float32), 1000) is None
+
+
+def test_cli_rejects_a_bad_depth_scale_as_usage(capsys):
+    assert tool.main(['--depth', 'x.png', '--intrinsics', '1,1,4,4', '--depth-scale', '0']) == 2
+    assert capsys.readouterr().err.startswith('estimate_mount.py: error: argument --depth-scale')
 
 
 def test_cli_rejects_malformed_intrinsics(capsys):

@@ -1,6 +1,7 @@
 """Side-by-side pictures, contact sheets, heatmaps, tools/pictures.py, tools/readme_pictures.py."""
 
 import math
+import re
 
 import cv2
 import numpy as np
@@ -9,13 +10,16 @@ from rosbags.rosbag2 import Writer
 from rosbags.typesys import Stores, get_typestore
 
 from obstacle_detection import evaluation, pictures
-from obstacle_detection.metrics import LABEL_OBSTACLE
-from obstacle_detection.overlay import OBSTACLE_RGB, render_overlay
+from obstacle_detection.metrics import LABEL_GROUND, LABEL_OBSTACLE, LABEL_OUTSIDE_ROI
+from obstacle_detection.costmap import CELL_OCCUPIED, CELL_UNKNOWN, Costmap, costmap_geometry
+from obstacle_detection.overlay import (MIN_GREY, NO_RETURN_RGB, OBSTACLE_RGB, OCCUPIED_RGB,
+                                       ROBOT_RGB, UNKNOWN_RGB, render_overlay)
 from obstacle_detection.params import KINECT_V2_SD, KINECT_V2_SD_SIZE, table_4_2
 from obstacle_detection.pipeline import Detector
 from obstacle_detection.scenes import render_scene
+from obstacle_detection import tool_support
+from tools import bag_convert, bag_process, readme_pictures
 from tools import pictures as pictures_tool
-from tools import readme_pictures
 
 SIZE = (160, 132)
 
@@ -34,12 +38,18 @@ def test_overlay_half_has_the_frame_size_and_marks_obstacles(corridor):
     height, width = frame.depth.shape
     assert image.dtype == np.uint8 and image.shape[0] > height and image.shape[1] > width
     overlay = image[:height, :width]
-    np.testing.assert_array_equal(overlay, render_overlay(result.depth_m, result.labels))
+    np.testing.assert_array_equal(overlay, pictures.depth_overlay(result.depth_m, result.labels))
     obstacle = result.labels == LABEL_OBSTACLE
     assert obstacle.any() and (~obstacle).any()
     assert (overlay[obstacle] == OBSTACLE_RGB).all()
-    others = overlay[~obstacle].astype(int)
-    assert (others[:, 0] == others[:, 1]).all() and (others[:, 1] == others[:, 2]).all()
+    # outside the region of interest: the plain depth grey; ground inside it: tinted green
+    plain = render_overlay(result.depth_m, result.labels)
+    outside = result.labels == LABEL_OUTSIDE_ROI
+    ground = result.labels == LABEL_GROUND
+    assert outside.any() and ground.any()
+    np.testing.assert_array_equal(overlay[outside], plain[outside])
+    tint = overlay[ground].astype(int)
+    assert (tint[:, 1] > tint[:, 0]).all() and (tint[:, 1] > tint[:, 2]).all()
 
 
 def test_truth_panel_colours_hits_false_alarms_and_misses():
@@ -93,7 +103,7 @@ def test_tool_draws_a_depth_png_with_intrinsics(tmp_path, corridor):
     assert image.shape[1] > SIZE[0]
 
 
-def _write_bag(path, frame, count):
+def _write_bag(path, frame, count, depth_topic='/depth', info_topic='/info'):
     store = get_typestore(Stores.ROS2_JAZZY)
     Image = store.types['sensor_msgs/msg/Image']
     Info = store.types['sensor_msgs/msg/CameraInfo']
@@ -103,8 +113,9 @@ def _write_bag(path, frame, count):
     height, width = frame.depth.shape
     intr = frame.intrinsics
     with Writer(path, version=9) as writer:
-        image_conn = writer.add_connection('/depth', Image.__msgtype__, typestore=store)
-        info_conn = writer.add_connection('/info', Info.__msgtype__, typestore=store)
+        image_conn = writer.add_connection(depth_topic, Image.__msgtype__, typestore=store)
+        info_conn = (writer.add_connection(info_topic, Info.__msgtype__, typestore=store)
+                     if info_topic else None)
         for k in range(count):
             header = Header(stamp=Time(sec=k, nanosec=0), frame_id='camera')
             info = Info(header=header, height=height, width=width, distortion_model='plumb_bob',
@@ -116,7 +127,8 @@ def _write_bag(path, frame, count):
                           is_bigendian=0, step=2 * width,
                           data=np.frombuffer(frame.depth.astype('<u2').tobytes(), np.uint8))
             stamp = (k + 1) * 10**9
-            writer.write(info_conn, stamp, store.serialize_cdr(info, Info.__msgtype__))
+            if info_conn is not None:
+                writer.write(info_conn, stamp, store.serialize_cdr(info, Info.__msgtype__))
             writer.write(image_conn, stamp + 1, store.serialize_cdr(image, Image.__msgtype__))
 
 
@@ -144,8 +156,51 @@ def test_tool_draws_a_contact_sheet_of_a_bag(tmp_path, corridor):
 def test_tool_reports_a_missing_topic(tmp_path, corridor, capsys):
     _write_bag(tmp_path / 'bag', corridor[0], 1)
     assert pictures_tool.main(['--bag', str(tmp_path / 'bag'), '--depth-topic', '/nope',
-                               '--out', str(tmp_path / 'x.png')]) == 2
-    assert "no topic '/nope'" in capsys.readouterr().err
+                               '--out', str(tmp_path / 'x.png')]) == 1
+    err = capsys.readouterr().err
+    assert err == (f"error: {tmp_path / 'bag'}: no topic '/nope'; its sensor_msgs/msg/Image "
+                   'topics: /depth (use --depth-topic)\n')
+
+
+def test_tool_bag_defaults_are_the_bag_tools_and_camera_info_is_found_by_type(
+        tmp_path, corridor, capsys):
+    # a bag written by bag_convert has the default depth topic; its CameraInfo topic here has
+    # another name: found by its type, not replaced by the seed's Table 4.1 intrinsics
+    frame, _ = corridor
+    _write_bag(tmp_path / 'bag', frame, 2, depth_topic=tool_support.DEFAULT_DEPTH_TOPIC,
+               info_topic='/camera/depth/camera_info')
+    args = pictures_tool.build_parser().parse_args(['--bag', str(tmp_path / 'bag'), '--out',
+                                                    'x.png'])
+    jobs = list(pictures_tool.jobs(args, table_4_2()))
+    assert len(jobs) == 2
+    assert jobs[0].intrinsics.fx == pytest.approx(frame.intrinsics.fx)
+    assert jobs[0].intrinsics.cx == pytest.approx(frame.intrinsics.cx)
+    assert any('CameraInfo on /camera/depth/camera_info (found by type' in line
+               for line in jobs[0].extra_lines)
+    assert bag_convert.DEFAULT_DEPTH_TOPIC == tool_support.DEFAULT_DEPTH_TOPIC
+    assert bag_process.build_parser().parse_args(['a', 'b']).depth_topic == \
+        args.depth_topic == tool_support.DEFAULT_DEPTH_TOPIC
+
+
+def test_tool_bag_without_camera_info_says_it_uses_the_fallback(tmp_path, corridor, capsys):
+    frame, _ = corridor
+    _write_bag(tmp_path / 'bag', frame, 1, info_topic=None)
+    assert pictures_tool.main(['--bag', str(tmp_path / 'bag'), '--depth-topic', '/depth',
+                               '--height', str(frame.height_m), '--out',
+                               str(tmp_path / 'x.png')]) == 0
+    err = capsys.readouterr().err
+    assert ("warning: no intrinsics (none: the bag has no CameraInfo topic): using the seed's "
+            'Table 4.1 fallback (fx 580 fy 580 cx 200 cy 130 px)') in err
+
+
+def test_tool_bag_path_that_is_not_a_bag_is_one_line(tmp_path, capsys):
+    (tmp_path / 'pngs').mkdir()
+    assert pictures_tool.main(['--bag', str(tmp_path / 'pngs'), '--out',
+                               str(tmp_path / 'x.png')]) == 1
+    assert capsys.readouterr().err == (
+        f'error: {tmp_path / "pngs"}: not a bag: no metadata.yaml in the folder; expected a '
+        'rosbag2 folder (holding metadata.yaml) or a ROS 1 .bag file\n')
+    assert not (tmp_path / 'x.png').exists()
 
 
 @pytest.fixture(scope='module')
@@ -174,13 +229,20 @@ def test_tool_estimates_the_mount_of_a_depth_png(tmp_path, tilted_floor, capsys)
                                '--out', str(tmp_path / 'preset.png')]) == 0
     red, preset = _red_pixels(tmp_path / 'preset.png', height, width)
     assert red > 200
-    capsys.readouterr()
+    # ... and it is said, with what the floor says and the command that estimates the mount
+    err = capsys.readouterr().err
+    assert re.search(r'warning: the floor in view \(\d+% of the points\) puts the camera at '
+                     r'height 0\.90 m, pitch 30\.0 deg, roll 4\.0 deg, but the mount used is '
+                     r'height 0\.60 m, pitch 0\.0 deg, roll 0\.0 deg', err)
+    assert f'python tools/estimate_mount.py --depth {depth} --depth-scale 1000' in err
+    assert "mount: height 0.60 m, pitch 0.0 deg, roll 0.0 deg (the table_4_2 preset's " \
+        'default: no mount given); depth 1000 units/m (millimetres, the default' in err
     assert pictures_tool.main(['--depth', str(depth), '--intrinsics', intrinsics,
                                '--estimate-mount', '--out', str(tmp_path / 'est.png')]) == 0
     red, estimated = _red_pixels(tmp_path / 'est.png', height, width)
     assert red == 0
-    assert estimated.shape[0] > preset.shape[0]  # one more caption line: the estimate
     err = capsys.readouterr().err
+    assert 'warning' not in err
     assert 'mount estimated from the floor: h 0.90 m, pitch 30.0 deg, roll 4.0 deg' in err
 
 
@@ -195,7 +257,7 @@ def test_tool_estimate_is_in_the_caption_and_explicit_mount_wins(tilted_floor):
     assert job.params.camera_roll_rad == pytest.approx(math.radians(4), abs=0.01)
     assert job.depth_scale == 1000.0
     assert job.extra_lines[0].startswith('mount estimated from the floor: h 0.90 m')
-    assert job.extra_lines[0].endswith('--height given instead')
+    assert '--height given instead' in job.extra_lines[0]
 
 
 def test_tool_estimate_mount_needs_intrinsics(tmp_path, tilted_floor, capsys):
@@ -210,8 +272,10 @@ def test_tool_reports_a_frame_without_a_floor(tmp_path, tilted_floor, capsys):
     depth, intrinsics = tilted_floor
     assert pictures_tool.main(['--depth', str(depth), '--intrinsics', intrinsics,
                                '--depth-scale', '100', '--estimate-mount',
-                               '--out', str(tmp_path / 'x.png')]) == 2  # all beyond 4 m
-    assert 'cannot estimate the mount: too few points' in capsys.readouterr().err
+                               '--out', str(tmp_path / 'x.png')]) == 1  # all beyond 4 m
+    err = capsys.readouterr().err
+    assert 'cannot estimate the mount: too few points' in err
+    assert err.startswith('error: ') and err.count('\n') == 1
 
 
 def test_readme_pictures_are_made_again(tmp_path, capsys):
@@ -244,3 +308,158 @@ def test_readme_real_pictures_skip_missing_frames(tmp_path, tilted_floor, capsys
     err = capsys.readouterr().err
     assert 'real_tum_fr2_desk.png skipped' in err and 'real_dining_room.png skipped' in err
     assert 'mount estimated from the floor' in err
+
+
+def test_tool_warns_when_the_depth_looks_like_another_unit(tmp_path, tilted_floor, capsys):
+    depth, intrinsics = tilted_floor
+    depth_mm = cv2.imread(str(depth), cv2.IMREAD_UNCHANGED)
+    tum = np.minimum(depth_mm.astype(np.uint32) * 5, 65535).astype(np.uint16)  # 1/5000 m
+    assert cv2.imwrite(str(tmp_path / 'tum.png'), tum)
+    assert pictures_tool.main(['--depth', str(tmp_path / 'tum.png'), '--intrinsics', intrinsics,
+                               '--out', str(tmp_path / 'x.png')]) == 0
+    err = capsys.readouterr().err
+    median_m = float(np.median(depth_mm[depth_mm > 0])) / 1000
+    assert f"warning: read at 1000 units/m the depth's median is {5 * median_m:.2f} m and " \
+        'little of it lies within 4 m: if the depth is in another unit, --depth-scale 5000 ' \
+        f'(TUM RGB-D format, 0.2 mm) would make its median {median_m:.2f} m' in err
+
+
+def _plain_folder(path, tilted_floor, count=2):
+    depth, intrinsics = tilted_floor
+    path.mkdir()
+    depth_mm = cv2.imread(str(depth), cv2.IMREAD_UNCHANGED)
+    for k in range(count):
+        assert cv2.imwrite(str(path / f'frame_{k:03d}.png'), depth_mm)
+    assert cv2.imwrite(str(path / 'colour.png'), np.zeros((8, 8, 3), np.uint8))  # not depth
+    return intrinsics
+
+
+def test_tool_draws_a_plain_folder_of_depth_pngs(tmp_path, tilted_floor, capsys):
+    intrinsics = _plain_folder(tmp_path / 'pngs', tilted_floor)
+    out = tmp_path / 'sheet.png'
+    assert pictures_tool.main(['--folder', str(tmp_path / 'pngs'), '--intrinsics', intrinsics,
+                               '--no-truth', '--estimate-mount', '--out', str(out),
+                               '--thumb-width', '200']) == 0
+    assert cv2.imread(str(out)).shape[1] == 2 * (200 + 6)  # two frames, the colour skipped
+    err = capsys.readouterr().err
+    assert 'skipped 1 image(s) that are not 16-bit depth: colour.png' in err
+    assert 'mount estimated from the floor: h 0.90 m, pitch 30.0 deg, roll 4.0 deg' in err
+    assert 'frame_000.png: 0 obstacle voxels' in err and 'frame_001.png: 0 obstacle voxels' in err
+
+
+def test_tool_plain_folder_needs_intrinsics(tmp_path, tilted_floor, capsys):
+    _plain_folder(tmp_path / 'pngs', tilted_floor, count=1)
+    assert pictures_tool.main(['--folder', str(tmp_path / 'pngs'), '--no-truth', '--out',
+                               str(tmp_path / 'x.png')]) == 1
+    assert capsys.readouterr().err == (
+        f'error: {tmp_path / "pngs"}: no intrinsics: the folder has no intrinsics.yaml; give '
+        '--intrinsics FX,FY,CX,CY or a camera YAML\n')
+
+
+# --------------------------------------------------------------------------------------------
+# Pictures a robotics user reads without the README: metre axes, camera, view, legend
+
+
+def _empty_costmap(params):
+    origin, nx, ny = costmap_geometry(params)
+    return Costmap(np.full((ny, nx), CELL_UNKNOWN, np.int8), params.costmap_resolution_m,
+                   origin)
+
+
+def test_costmap_panel_axes_are_in_metres_from_the_camera():
+    params = table_4_2()  # 2 m forward, 4 m across, 5 cm cells
+    costmap = _empty_costmap(params)
+    data = costmap.data.copy()
+    ix = int((1.02 - costmap.origin_xy_m[0]) / costmap.resolution_m)
+    iy = int((0.52 - costmap.origin_xy_m[1]) / costmap.resolution_m)
+    data[iy, ix] = CELL_OCCUPIED  # the cell x 1.00-1.05 m, y 0.50-0.55 m
+    costmap = Costmap(data, costmap.resolution_m, costmap.origin_xy_m)
+    scale = 5  # 100 px per metre
+    panel = pictures.costmap_panel(costmap, scale=scale)
+    robot = np.argwhere((panel == ROBOT_RGB).all(axis=-1))
+    apex_row = robot[:, 0].min()
+    apex_col = int(round(robot[robot[:, 0] == apex_row][:, 1].mean()))
+    occupied = np.argwhere((panel == OCCUPIED_RGB).all(axis=-1))
+    # the camera marker's apex is the ground-frame origin: the cell lies 1.00 m ahead of it
+    # (its near edge) and 0.50 m to its left (its right edge), at 100 px per metre
+    assert apex_row - (occupied[:, 0].max() + 1) == 100
+    assert apex_col - (occupied[:, 1].max() + 1) == 50
+    # ticks every 0.5 m on the forward axis, left of the grid (the grid spans y 2 .. -2 m)
+    grid_left = apex_col - 200
+    tick_col = grid_left - 4
+    for k in range(5):
+        assert tuple(panel[apex_row - 50 * k, tick_col]) == pictures.AXIS_RGB
+    assert tuple(panel[apex_row - 25, tick_col]) == pictures.BACKGROUND_RGB
+    # ... and every metre across, below it (y = 2, 1, -1, -2 m; 0 is under the camera)
+    ticks = np.flatnonzero((panel[apex_row + 3] == pictures.AXIS_RGB).all(axis=-1))
+    assert {grid_left + 100 * k for k in (0, 1, 3, 4)} <= set(ticks)
+    assert grid_left + 50 not in set(ticks)
+
+
+def test_floor_in_view_starts_where_the_lowest_ray_meets_the_floor():
+    params = table_4_2()  # level camera 0.6 m up
+    costmap = _empty_costmap(params)
+    intr = KINECT_V2_SD
+    width, height = KINECT_V2_SD_SIZE
+    seen = pictures.floor_in_view(costmap, params, intr, (height, width))
+    xs, ys = costmap.cell_centres()
+    # the lowest pixel row sees the floor at x = h * fy / (H - cy); straight ahead (y ~ 0)
+    near_x = params.camera_height_m * intr.fy / (height - intr.cy)
+    centre = np.argmin(np.abs(ys))
+    np.testing.assert_array_equal(seen[centre], xs >= near_x)
+    # at 1.9 m the view is as wide as the image: |y| < x (u - cx) / fx at the borders
+    column = np.argmin(np.abs(xs - 1.9))
+    half_left, half_right = xs[column] * intr.cx / intr.fx, xs[column] * (width - intr.cx) / \
+        intr.fx
+    inside = (ys < half_left - 0.03) & (ys > -half_right + 0.03)
+    outside = (ys > half_left + 0.03) | (ys < -half_right - 0.03)
+    assert seen[inside, column].all() and not seen[outside, column].any()
+
+
+def test_costmap_panel_hatches_cells_outside_the_region_of_interest():
+    params = table_4_2(max_range_m=1.0)  # the grid still reaches 2 m: its far half is outside
+    costmap = _empty_costmap(params)
+    plain = pictures.costmap_panel(costmap, scale=4)
+    hatched = pictures.costmap_panel(costmap, scale=4, params=params)
+    changed = np.argwhere((plain != hatched).any(axis=-1))
+    robot = np.argwhere((plain == ROBOT_RGB).all(axis=-1))
+    apex_row = robot[:, 0].min()
+    # 80 px per metre: only rows more than 1 m ahead of the camera change
+    assert changed.size and (changed[:, 0] < apex_row - 80).all()
+    assert ((hatched[changed[:, 0], changed[:, 1]] == pictures.HATCH_RGB).all(axis=-1)).all()
+
+
+def test_depth_colour_bar_grows_brighter_with_depth():
+    bar = pictures.depth_colour_bar(4.0, 400)
+    row = bar[10, :, 0].astype(int)
+    first = np.flatnonzero(row == MIN_GREY)[0]
+    ramp = row[first:first + 300]
+    assert (np.diff(ramp) >= 0).all() and ramp[-1] > ramp[0] + 150
+
+
+def test_picture_has_a_legend_for_every_colour(corridor):
+    frame, result = corridor
+    params = frame.params(table_4_2())
+    bare = pictures.side_by_side(result, params=params, with_legend=False,
+                                 truth_labels=frame.truth_labels)
+    image = pictures.side_by_side(result, params=params, truth_labels=frame.truth_labels)
+    height = frame.depth.shape[0]
+    assert image.shape[0] > bare.shape[0]
+    below = image[height:]
+    for colour in (OBSTACLE_RGB, pictures.GROUND_RGB, NO_RETURN_RGB, OCCUPIED_RGB,
+                   UNKNOWN_RGB, ROBOT_RGB, pictures.VIEW_EDGE_RGB, pictures.HATCH_RGB,
+                   pictures.HIT_RGB, pictures.FALSE_ALARM_RGB, pictures.MISS_RGB):
+        assert (below == colour).all(axis=-1).any(), colour
+
+
+def test_contact_sheet_has_one_legend_under_the_thumbnails(tmp_path):
+    out = tmp_path / 'sheet.png'
+    assert pictures_tool.main(['--scene', 'person_walking', '--frames', '0:2', '--no-truth',
+                               '--thumb-width', '300', '--columns', '2', '--out',
+                               str(out)]) == 0
+    sheet = cv2.cvtColor(cv2.imread(str(out)), cv2.COLOR_BGR2RGB)
+    rows = np.flatnonzero((sheet == pictures.VIEW_EDGE_RGB).all(axis=-1).any(axis=1))
+    legend_rows = np.flatnonzero((sheet == pictures.GROUND_RGB).all(axis=-1).any(axis=1))
+    # the full-size legend (its swatches exactly coloured) lies below every thumbnail
+    assert sheet.shape[1] == 2 * 306 and legend_rows.size and rows.size
+    assert legend_rows.max() > sheet.shape[0] - 120

@@ -1,5 +1,6 @@
 """The README stays true to the code: its parameter table is the generated one."""
 
+import re
 from pathlib import Path
 
 from tools import param_table
@@ -24,3 +25,15 @@ def test_ci_runs_the_readme_test_command():
     ci = (REPO / '.ci' / 'run').read_text(encoding='utf-8')
     command = 'bash tools/setup_venv.sh && .venv/bin/python -m pytest -v'
     assert command in readme and command in ci
+
+
+def test_readme_commands_use_the_venv_and_nothing_outside_the_clone():
+    # the system's bare `python` lacks OpenCV and the ROS wheels; ../shared is not in a clone
+    readme = (REPO / 'README.md').read_text(encoding='utf-8')
+    bare = [line for line in readme.splitlines()
+            if re.search(r'(^|[\s`(])python (tools/|-m )', line)]
+    assert bare == []
+    assert '../shared' not in readme
+    for link in re.findall(r'\]\(([^)#]+)\)', readme):
+        if '://' not in link:
+            assert (REPO / link).exists(), link

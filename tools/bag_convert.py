@@ -62,13 +62,15 @@ from rclpy.serialization import serialize_message  # noqa: E402
 from rosbags.rosbag2 import StoragePlugin, Writer, WriterError  # noqa: E402
 from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
+from obstacle_detection import tool_support  # noqa: E402
 from obstacle_detection.conversions import array_to_image, intrinsics_to_camera_info  # noqa: E402
 from obstacle_detection.params import KINECT_V2_SD, KINECT_V2_SD_SIZE, Intrinsics  # noqa: E402
 from tools.progress import Progress  # noqa: E402
 
-DEFAULT_DEPTH_TOPIC = '/kinect2/sd/image_depth_rect'
-DEFAULT_INFO_TOPIC = '/kinect2/sd/camera_info'
-DEFAULT_COLOR_TOPIC = '/kinect2/sd/image_color_rect'
+# The one set of default topic names of every tool (tool_support), kept here under their names.
+DEFAULT_DEPTH_TOPIC = tool_support.DEFAULT_DEPTH_TOPIC
+DEFAULT_INFO_TOPIC = tool_support.DEFAULT_INFO_TOPIC
+DEFAULT_COLOR_TOPIC = tool_support.DEFAULT_COLOR_TOPIC
 DEFAULT_FRAME_ID = 'kinect2_ir_optical_frame'
 BAG_VERSION = 9
 STORAGES = {'sqlite3': StoragePlugin.SQLITE3, 'mcap': StoragePlugin.MCAP}
@@ -852,8 +854,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             source = sources[args.source]()
             summary = write_frames(source, args.output, options_from_args(args))
     except ConvertError as err:
-        print(f'error: {err}', file=sys.stderr)
-        return 1
+        return tool_support.report_error('bag_convert.py', err)
     print('\n'.join(summary.lines()))
     return 0
 

@@ -32,6 +32,7 @@ if __package__ in (None, ''):  # run as a script: make the repository root impor
 
 from rosbags.rosbag2 import Reader, ReaderError  # noqa: E402
 
+from obstacle_detection import tool_support  # noqa: E402
 from tools.progress import Progress  # noqa: E402
 
 #: How long to sleep at most between checks for a stop request [s].
@@ -40,6 +41,10 @@ _POLL_S = 0.05
 
 class PlayError(Exception):
     """The bag or the options cannot be played; the message names the bag or topic."""
+
+
+class PlayUsageError(PlayError):
+    """An option value that cannot work whatever the bag (exit 2, as argparse)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -66,13 +71,13 @@ class PlayOptions:
     def __post_init__(self) -> None:
         """Validate the values, naming the bad one."""
         if not (math.isfinite(self.rate) and self.rate > 0):
-            raise PlayError(f'--rate must be a positive factor, got {self.rate}')
+            raise PlayUsageError(f'--rate must be a positive factor, got {self.rate}')
         if self.loops < 0:
-            raise PlayError(f'--loops must be >= 0 (0 = until stopped), got {self.loops}')
+            raise PlayUsageError(f'--loops must be >= 0 (0 = until stopped), got {self.loops}')
         if not (math.isfinite(self.start_offset_s) and self.start_offset_s >= 0):
-            raise PlayError(f'--start-offset must be >= 0 s, got {self.start_offset_s}')
+            raise PlayUsageError(f'--start-offset must be >= 0 s, got {self.start_offset_s}')
         if self.wait_for_subscribers < 0:
-            raise PlayError('--wait-for-subscribers must be >= 0, got '
+            raise PlayUsageError('--wait-for-subscribers must be >= 0, got '
                             f'{self.wait_for_subscribers}')
 
 
@@ -98,7 +103,7 @@ def parse_remap(items: Sequence[str]) -> dict[str, str]:
     for item in items:
         old, sep, new = item.partition(':=')
         if not sep or not old or not new:
-            raise PlayError(f'--remap expects old:=new, got {item!r}')
+            raise PlayUsageError(f'--remap expects old:=new, got {item!r}')
         remap[old] = new
     return remap
 
@@ -118,8 +123,10 @@ def open_bag(bag: Path, options: PlayOptions) -> tuple[Reader, list[Any]]:
     Raises:
         PlayError: naming the bag when it is missing or unreadable, or lacks a topic.
     """
-    if not bag.exists():
-        raise PlayError(f'{bag}: bag not found')
+    try:
+        tool_support.check_bag_path(bag, ros1=False)
+    except tool_support.ToolError as err:
+        raise PlayError(str(err)) from err
     try:
         reader = Reader(bag)
         reader.open()
@@ -308,8 +315,15 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _report(err: PlayError) -> int:
+    """Print the error line; return 2 for a bad option value, 1 for a bad bag."""
+    if isinstance(err, PlayUsageError):
+        return tool_support.report_error('bag_play.py', tool_support.UsageError(str(err)))
+    return tool_support.report_error('bag_play.py', err)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Play a bag; return the exit code (0 done or interrupted, 1 error, 2 bad usage)."""
+    """Play a bag; return the exit code (0 done or interrupted, 1 bad bag, 2 bad usage)."""
     args = build_parser().parse_args(argv)
     try:
         options = PlayOptions(
@@ -325,8 +339,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             opened[0].close()
             raise
     except PlayError as err:
-        print(f'error: {err}', file=sys.stderr)
-        return 1
+        return _report(err)
 
     import rclpy
     from rclpy.node import Node
@@ -342,8 +355,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             player.wait_for_subscribers()
         stats = player.play()
     except PlayError as err:
-        print(f'error: {err}', file=sys.stderr)
-        return 1
+        return _report(err)
     except KeyboardInterrupt:
         print('interrupted', file=sys.stderr)
         return 0

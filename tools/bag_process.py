@@ -33,13 +33,14 @@ from rosbags.rosbag2 import Reader, ReaderError, Writer, WriterError  # noqa: E4
 from rosbags.typesys import Stores, get_typestore  # noqa: E402
 from sensor_msgs.msg import CameraInfo, Image  # noqa: E402
 
+from obstacle_detection import tool_support  # noqa: E402
 from obstacle_detection.conversions import (DEPTH_ENCODINGS, ImageFormatError,  # noqa: E402
                                             camera_info_to_intrinsics, image_to_array,
                                             result_to_messages)
 from obstacle_detection.node import NodeConfig, build_config  # noqa: E402
 from obstacle_detection.params import Intrinsics  # noqa: E402
 from obstacle_detection.ros_params import (ALL_PARAMS, ParamsFileError,  # noqa: E402
-                                           read_params_file)
+                                           read_params_files)
 from tools.bag_convert import (BAG_VERSION, DEFAULT_DEPTH_TOPIC,  # noqa: E402
                                DEFAULT_INFO_TOPIC, STORAGES, ConvertError, staged_output)
 from tools.progress import Progress  # noqa: E402
@@ -58,17 +59,19 @@ class ProcessError(Exception):
     """Bad input, parameters or output; the message names the file."""
 
 
-def load_params_file(path: Path) -> dict[str, Any]:
-    """All node parameter values: defaults updated with a ``--params-file`` YAML.
+def load_params_file(path: Path | Sequence[Path]) -> dict[str, Any]:
+    """All node parameter values: defaults updated with one or more ``--params-file`` YAMLs.
 
-    See :func:`obstacle_detection.ros_params.read_params_file` for the format.
+    Several files are merged in order, as ROS does (a later file wins for a parameter both
+    set). See :func:`obstacle_detection.ros_params.read_params_file` for the format.
 
     Raises:
         ProcessError: naming the file and the parameter.
     """
     values: dict[str, Any] = {spec.name: spec.default for spec in ALL_PARAMS}
+    paths = [path] if isinstance(path, (str, Path)) else list(path)
     try:
-        values.update(read_params_file(path))
+        values.update(read_params_files(paths))
     except ParamsFileError as err:
         raise ProcessError(str(err)) from err
     return values
@@ -104,13 +107,22 @@ class ProcessSummary:
     total_ms: list[float] = dataclasses.field(default_factory=list)
     wall_s: float = 0.0
     topics: dict[str, int] = dataclasses.field(default_factory=dict)
+    info_topic: str | None = None
+    info_how: str = ''
+    mount: str = ''
+    mount_warning: str | None = None
 
     def lines(self) -> list[str]:
         """Return the summary as printable lines."""
         out = [f'wrote {self.output}',
+               f'  intrinsics: CameraInfo on {self.info_topic} ({self.info_how})'
+               if self.info_topic else f'  intrinsics: none recorded ({self.info_how})',
+               f'  camera mount: {self.mount}',
                f'  depth frames: {self.frames}, processed {self.processed}, '
                f'skipped {sum(self.skipped.values())}']
         out.extend(f'    skipped {count}: {reason}' for reason, count in self.skipped.items())
+        if self.mount_warning:
+            out.append(f'  warning: {self.mount_warning}')
         if self.total_ms:
             rate = self.processed / self.wall_s if self.wall_s > 0 else 0.0
             out.append(f'  pipeline time per frame: mean {statistics.fmean(self.total_ms):.1f} ms,'
@@ -186,11 +198,19 @@ def _grouped_by_timestamp(messages: Iterator[tuple[Any, int, bytes]], info_topic
 
 
 def process_bag(src: Path, output: Path, config: NodeConfig, *,
-                depth_topic: str = DEFAULT_DEPTH_TOPIC, info_topic: str = DEFAULT_INFO_TOPIC,
+                depth_topic: str = DEFAULT_DEPTH_TOPIC, info_topic: str | None = None,
                 namespace: str = DEFAULT_NAMESPACE, with_ground: bool = False,
                 with_overlay: bool = False, storage: str = 'sqlite3', progress: bool = True,
-                on_frame: Callable[[FrameReport], None] | None = None) -> ProcessSummary:
+                on_frame: Callable[[FrameReport], None] | None = None,
+                mount_origin: str = 'the parameters') -> ProcessSummary:
     """Process every depth frame of ``src`` and write inputs + outputs to ``output``.
+
+    info_topic: the depth's CameraInfo topic; None finds it by type
+    (``tool_support.choose_info_topic``: the default topic, else the CameraInfo topic beside
+    the depth topic, else the only one). The summary says which was used, and which camera
+    mount (from ``mount_origin``); the floor of the first processed frame is compared with that
+    mount (``tool_support.check_mount``) and a disagreement is a warning on stderr and in the
+    summary.
 
     Raises:
         ProcessError: naming the bag when it cannot be read or written, lacks the depth topic,
@@ -198,10 +218,13 @@ def process_bag(src: Path, output: Path, config: NodeConfig, *,
     """
     import time
 
-    if not src.exists():
-        raise ProcessError(f'{src}: bag not found')
+    try:
+        tool_support.check_bag_path(src, ros1=False)
+    except tool_support.ToolError as err:
+        raise ProcessError(str(err)) from err
     namespace = '/' + namespace.strip('/') if namespace.strip('/') else ''
     summary = ProcessSummary(output=output)
+    summary.mount = f'{tool_support.mount_text(config.detector.params)} ({mount_origin})'
     typestore = get_typestore(Stores.ROS2_JAZZY)
     wanted = ['obstacles', 'costmap'] + (['ground'] if with_ground else []) + (
         ['overlay'] if with_overlay else [])
@@ -209,14 +232,21 @@ def process_bag(src: Path, output: Path, config: NodeConfig, *,
     try:
         with Reader(src) as reader:
             topics = {c.topic: c.msgtype for c in reader.connections}
-            for topic, msgtype in ((depth_topic, 'sensor_msgs/msg/Image'),
-                                   (info_topic, 'sensor_msgs/msg/CameraInfo')):
-                if topic not in topics and topic == depth_topic:
-                    images = sorted(t for t, m in topics.items() if m == msgtype)
-                    raise ProcessError(f'{src}: no depth topic {topic} (its {msgtype} topics: '
-                                       f'{", ".join(images) or "none"}; use --depth-topic)')
-                if topic in topics and topics[topic] != msgtype:
-                    raise ProcessError(f'{src}: {topic} has type {topics[topic]}, not {msgtype}')
+            msgtype = tool_support.IMAGE_TYPE
+            if depth_topic not in topics:
+                images = sorted(t for t, m in topics.items() if m == msgtype)
+                raise ProcessError(f'{src}: no depth topic {depth_topic} (its {msgtype} topics: '
+                                   f'{", ".join(images) or "none"}; use --depth-topic)')
+            if topics[depth_topic] != msgtype:
+                raise ProcessError(f'{src}: {depth_topic} has type {topics[depth_topic]}, '
+                                   f'not {msgtype}')
+            try:
+                info_topic, how = tool_support.choose_info_topic(topics, depth_topic,
+                                                                 info_topic)
+            except ValueError as err:
+                raise ProcessError(f'{src}: {err}') from err
+            summary.info_topic = info_topic
+            summary.info_how = how
             outputs = {key: namespace + '/' + OUTPUTS[key][0] for key in wanted}
             if clash := sorted(set(outputs.values()) & set(topics)):
                 raise ProcessError(f'{src}: already has {", ".join(clash)}; choose another '
@@ -265,6 +295,8 @@ def process_bag(src: Path, output: Path, config: NodeConfig, *,
                                 writer.write(out_conns[key], timestamp,
                                              serialize_message(messages[key]))
                                 counts[outputs[key]] += 1
+                            if summary.processed == 0:
+                                _check_first_mount(result, config, summary)
                             report.obstacle_points = int(result.obstacle_points.shape[0])
                             report.timings_ms = dict(result.timings_ms)
                             summary.processed += 1
@@ -281,6 +313,17 @@ def process_bag(src: Path, output: Path, config: NodeConfig, *,
     summary.wall_s = time.perf_counter() - began
     summary.topics = dict(sorted(counts.items()))
     return summary
+
+
+def _check_first_mount(result: Any, config: NodeConfig, summary: ProcessSummary) -> None:
+    """Compare the floor of the first processed frame with the mount; warn on stderr."""
+    check = tool_support.check_mount(
+        result.depth_m, result.intrinsics, config.detector.params,
+        fix='a --params-file setting camera_height_m, camera_pitch_deg and camera_roll_deg '
+            '(tools/estimate_mount.py --params-out writes one from a depth frame)')
+    if check.warning:
+        summary.mount_warning = f'first frame: {check.warning}'
+        tool_support.warn(summary.mount_warning)
 
 
 def format_report(report: FrameReport) -> str:
@@ -301,10 +344,14 @@ def build_parser() -> argparse.ArgumentParser:
                'params/corridor.yaml --overlay')
     parser.add_argument('bag', type=Path, help='input rosbag2 folder')
     parser.add_argument('output', type=Path, help='rosbag2 folder to create (must not exist)')
-    parser.add_argument('--params-file', type=Path,
-                        help="the node's parameter YAML (default: the node's defaults)")
+    parser.add_argument('--params-file', type=Path, action='append', default=[],
+                        metavar='YAML',
+                        help="the node's parameter YAML (default: the node's defaults); "
+                             'repeatable, merged in order as ROS does (a later file wins)')
     parser.add_argument('--depth-topic', default=DEFAULT_DEPTH_TOPIC, help='(%(default)s)')
-    parser.add_argument('--info-topic', default=DEFAULT_INFO_TOPIC, help='(%(default)s)')
+    parser.add_argument('--info-topic',
+                        help=f'CameraInfo topic (default: {DEFAULT_INFO_TOPIC}, else the bag\'s '
+                             'CameraInfo topic found by type)')
     parser.add_argument('--namespace', default=DEFAULT_NAMESPACE,
                         help='prefix of the output topics (default %(default)s)')
     parser.add_argument('--ground', action='store_true',
@@ -318,13 +365,22 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _sets_mount(values: Mapping[str, Any], files: Sequence[Path]) -> bool:
+    """Whether one of the params files sets a camera mount parameter."""
+    names = ('camera_height_m', 'camera_pitch_deg', 'camera_roll_deg')
+    try:
+        return any(name in read_params_files(list(files)) for name in names)
+    except ParamsFileError:
+        return False
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Process a bag; return the exit code (0 success, 1 bad input, 2 bad usage)."""
     args = build_parser().parse_args(argv)
     try:
-        if args.params_file is not None:
+        if args.params_file:
             values = load_params_file(args.params_file)
-            origin = str(args.params_file)
+            origin = ', '.join(str(p) for p in args.params_file)
         else:
             values, origin = {spec.name: spec.default for spec in ALL_PARAMS}, 'defaults'
         config = config_from_values(values, origin)
@@ -334,10 +390,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             with_ground=args.ground or config.publish_ground,
             with_overlay=args.overlay or config.publish_overlay, storage=args.storage,
             progress=args.quiet,  # the bar only when per-frame lines are off
-            on_frame=None if args.quiet else lambda r: print(format_report(r), flush=True))
+            on_frame=None if args.quiet else lambda r: print(format_report(r), flush=True),
+            mount_origin=origin if args.params_file and _sets_mount(values, args.params_file)
+            else "the node's defaults: no params file sets it")
     except ProcessError as err:
-        print(f'error: {err}', file=sys.stderr)
-        return 1
+        return tool_support.report_error('bag_process.py', err)
     print('\n'.join(summary.lines()))
     return 0
 

@@ -26,6 +26,7 @@ if __package__ in (None, ''):  # run as a script: make the repository root impor
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
+from obstacle_detection import tool_support  # noqa: E402
 from obstacle_detection.depth import decode_depth  # noqa: E402
 from obstacle_detection.mount import MountEstimate, estimate_mount  # noqa: E402
 from obstacle_detection.params import Intrinsics  # noqa: E402
@@ -93,15 +94,31 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point; returns the exit code (0 ok, 2 bad input or no floor found)."""
+    """Entry point; returns the exit code (0 ok, 1 bad input or no floor found, 2 bad usage).
+
+    When the depth looks like another unit than ``--depth-scale`` (its median far outside
+    what a depth camera sees), the error or a warning says so and names the scale that fits.
+    """
     args = build_parser().parse_args(argv)
+    if not (math.isfinite(args.depth_scale) and args.depth_scale > 0.0):
+        return tool_support.report_error('estimate_mount.py', tool_support.UsageError(
+            f'argument --depth-scale: {args.depth_scale} must be > 0'))
+    unit_warning = None
     try:
-        if not (math.isfinite(args.depth_scale) and args.depth_scale > 0.0):
-            raise ValueError(f'--depth-scale={args.depth_scale} must be > 0')
-        depth_m = decode_depth(read_depth_png(args.depth), depth_scale=args.depth_scale)
+        raw = read_depth_png(args.depth)
+        unit_warning = tool_support.depth_unit_warning(raw, args.depth_scale)
+        depth_m = decode_depth(raw, depth_scale=args.depth_scale)
         prior = None if args.prior_pitch_deg is None else math.radians(args.prior_pitch_deg)
-        estimate = estimate_mount(depth_m, args.intrinsics, max_range_m=args.max_range,
-                                  inlier_m=args.inlier, seed=args.seed, prior_pitch_rad=prior)
+        try:
+            estimate = estimate_mount(depth_m, args.intrinsics, max_range_m=args.max_range,
+                                      inlier_m=args.inlier, seed=args.seed,
+                                      prior_pitch_rad=prior)
+        except ValueError as exc:
+            if unit_warning is None and str(exc).startswith('too few points'):
+                unit_warning = tool_support.depth_unit_warning(
+                    raw, args.depth_scale, out_of_range_m=args.max_range)
+            reason = f'{exc}; {unit_warning}' if unit_warning else str(exc)
+            raise ValueError(f'{args.depth}: cannot estimate the mount: {reason}') from None
         if args.params_out is not None:
             args.params_out.parent.mkdir(parents=True, exist_ok=True)
             args.params_out.write_text(params_yaml(estimate), encoding='utf-8')
@@ -110,8 +127,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             args.camera_yaml_out.write_text(
                 camera_yaml(estimate, args.intrinsics, args.depth_scale), encoding='utf-8')
     except (ValueError, OSError) as exc:
-        print(f'estimate_mount.py: error: {exc}', file=sys.stderr)
-        return 2
+        return tool_support.report_error('estimate_mount.py', exc)
+    if unit_warning:
+        tool_support.warn(f'{args.depth}: {unit_warning}')
     print(f'{args.depth}: height {estimate.height_m:.3f} m, pitch {estimate.pitch_deg:.2f} deg, '
           f'roll {estimate.roll_deg:.2f} deg; floor holds {estimate.inlier_fraction:.1%} of '
           f'{estimate.n_points} points within {args.max_range:g} m')

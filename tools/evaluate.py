@@ -26,7 +26,7 @@ from typing import Any, Iterable, Sequence
 if __package__ in (None, ''):  # run as a script: make the repository root importable
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from obstacle_detection import evaluation  # noqa: E402
+from obstacle_detection import evaluation, tool_support  # noqa: E402
 from obstacle_detection.params import PRESETS, DetectorParams  # noqa: E402
 
 DEFAULT_SCENARIOS = Path(__file__).resolve().parent / 'scenarios.json'
@@ -53,8 +53,9 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
                         help='at most N frames per scenario/folder, evenly spread')
     parser.add_argument('--preset', choices=sorted(PRESETS), default='table_4_2',
                         help='base parameters: seed Table 4.2 or 4.3 [default: table_4_2]')
-    parser.add_argument('--params-file', type=Path, metavar='YAML',
-                        help='node parameter file applied on top of the preset')
+    parser.add_argument('--params-file', type=Path, metavar='YAML', action='append',
+                        default=[], help='node parameter file applied on top of the preset; '
+                                         'repeatable, merged in order')
     parser.add_argument('--set', action='append', type=parse_assignment, default=[],
                         metavar='KEY=VALUE',
                         help='override one parameter (field name, theta_deg, N, N1, K, '
@@ -64,11 +65,28 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
 def base_params(args: argparse.Namespace) -> DetectorParams:
     """Preset, then parameter file, then ``--set`` overrides (ValueError on a bad one)."""
     params = PRESETS[args.preset]()
-    if args.params_file is not None:
-        params = evaluation.load_params_file(args.params_file, params)
+    files = args.params_file if isinstance(args.params_file, list) else (
+        [] if args.params_file is None else [args.params_file])
+    for path in files:  # several files apply in order, as ROS merges them
+        params = evaluation.load_params_file(path, params)
     if args.set:
-        params = evaluation.apply_overrides(params, dict(args.set))
+        try:
+            params = evaluation.apply_overrides(params, dict(args.set))
+        except ValueError as exc:
+            raise tool_support.UsageError(f'argument --set: {exc}') from None
     return params
+
+
+#: Errors about the command line rather than a file: exit 2 (tool_support).
+USAGE_PREFIXES = ('unknown scenario', 'unknown parameter', '--')
+
+
+def report_error(prog: str, exc: Exception) -> int:
+    """Print the error line; unknown names and bad option values are usage errors (2)."""
+    if not isinstance(exc, (OSError, tool_support.UsageError)) and \
+            str(exc).startswith(USAGE_PREFIXES):
+        exc = tool_support.UsageError(str(exc))
+    return tool_support.report_error(prog, exc)
 
 
 def frame_sources(args: argparse.Namespace,
@@ -138,7 +156,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point; returns the exit code (0 ok, 2 bad input)."""
+    """Entry point; returns the exit code (0 ok, 1 bad input, 2 bad usage)."""
     args = build_parser().parse_args(argv)
     try:
         params = base_params(args)
@@ -148,16 +166,15 @@ def main(argv: Sequence[str] | None = None) -> int:
             from obstacle_detection.refine import LogisticRefiner
             refiner = LogisticRefiner.load(args.refiner)
     except (ValueError, OSError) as exc:
-        print(f'evaluate.py: error: {exc}', file=sys.stderr)
-        return 2
+        return report_error('evaluate.py', exc)
     total = sum(count for _, count, _ in sources)
     callbacks = []
     if not args.quiet:
         callbacks.append(_progress(total, 'evaluate'))
     if args.pictures is not None:
-        callbacks.append(_picture_writer(args.pictures, refiner))
+        callbacks.append(_picture_writer(args.pictures, refiner, params))
     frames = itertools.chain.from_iterable(frames for _, _, frames in sources)
-    label = args.preset + (f' + {args.params_file}' if args.params_file else '')
+    label = args.preset + ''.join(f' + {path}' for path in args.params_file)
 
     def on_frame(frame: evaluation.LabelledFrame, result: Any,
                  score: evaluation.FrameScore) -> None:
@@ -169,8 +186,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             frames, params, label=label, refiner=refiner,
             refiner_name=str(args.refiner) if args.refiner else None, on_frame=on_frame)
     except (ValueError, OSError) as exc:
-        print(f'evaluate.py: error: {exc}', file=sys.stderr)
-        return 2
+        return report_error('evaluate.py', exc)
     table_stream = sys.stderr if args.json == '-' else sys.stdout
     print(f'parameters: {label}; {report.overall.frames} frames in {report.seconds:.1f} s',
           file=table_stream)
@@ -186,7 +202,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
-def _picture_writer(folder: Path, refiner: Any) -> Any:
+def _picture_writer(folder: Path, refiner: Any, base: DetectorParams) -> Any:
     from obstacle_detection import pictures
 
     def on_frame(frame: evaluation.LabelledFrame, result: Any,
@@ -196,7 +212,8 @@ def _picture_writer(folder: Path, refiner: Any) -> Any:
                    f'{evaluation.format_score(score.cell.f1)}, pixel F1 '
                    f'{evaluation.format_score(score.pixel.f1)}')
         pictures.write_png(folder / f'{name}.png', pictures.side_by_side(
-            result, caption=caption, truth_labels=frame.truth_labels))
+            result, caption=caption, truth_labels=frame.truth_labels,
+            params=frame.params(base)))
     return on_frame
 
 

@@ -40,7 +40,7 @@ if __package__ in (None, ''):  # run as a script: make the repository root impor
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from obstacle_detection import pictures  # noqa: E402
+from obstacle_detection import pictures, tool_support  # noqa: E402
 from tools import pictures as pictures_tool  # noqa: E402
 
 REPOSITORY = Path(__file__).resolve().parents[1]
@@ -143,7 +143,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point; returns the exit code (0 ok, 2 a picture could not be made)."""
+    """Entry point; returns the exit code (0 ok, 1 a picture could not be made)."""
     args = build_parser().parse_args(argv)
     try:
         for name, options in SYNTHETIC.items():
@@ -153,8 +153,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 return code
             recompress(out)
     except OSError as exc:
-        print(f'readme_pictures.py: error: {exc}', file=sys.stderr)
-        return 2
+        return tool_support.report_error('readme_pictures.py', exc)
     if not args.real_dir.is_dir():
         print(f'readme_pictures.py: warning: no real frames in {args.real_dir}; the real-frame '
               f'pictures ({", ".join(REAL)}) are left as they are', file=sys.stderr)
@@ -170,8 +169,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             pictures.write_png(out, real_picture(panels, args.real_dir))
             recompress(out)
         except (ValueError, OSError, KeyError) as exc:
-            print(f'readme_pictures.py: error: {name}: {exc}', file=sys.stderr)
-            return 2
+            return tool_support.report_error('readme_pictures.py', exc)
     return 0
 
 

@@ -37,7 +37,8 @@ import numpy as np  # noqa: E402
 
 from obstacle_detection import evaluation  # noqa: E402
 from obstacle_detection.params import DetectorParams  # noqa: E402
-from tools.evaluate import add_common_arguments, base_params, frame_sources  # noqa: E402
+from tools.evaluate import (add_common_arguments, base_params, frame_sources,  # noqa: E402
+                            report_error)
 
 #: metric name -> (confusion kind, score attribute, higher is better)
 METRICS: dict[str, tuple[str, str, bool]] = {
@@ -271,7 +272,7 @@ def _log(text: str) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point; returns the exit code (0 ok, 2 bad input)."""
+    """Entry point; returns the exit code (0 ok, 1 bad input, 2 bad usage)."""
     args = build_parser().parse_args(argv)
     if args.strip == 'y' and args.y is None:
         print('sweep.py: error: --strip y needs --y', file=sys.stderr)
@@ -294,8 +295,7 @@ def main(argv: Sequence[str] | None = None) -> int:
              f'{int(np.prod(grid_shape(args.x, args.y, also)))} settings')
         result = run_sweep(frames, base, args.x, args.y, args.metric, also=also, log=_log)
     except (ValueError, OSError) as exc:
-        print(f'sweep.py: error: {exc}', file=sys.stderr)
-        return 2
+        return report_error('sweep.py', exc)
 
     scenes = list(result.grids)
     shown = scenes if args.per_scene else ['overall']
@@ -336,8 +336,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                              for s in scenes}}
             args.json.write_text(json.dumps(data) + '\n', encoding='utf-8')
     except (ValueError, OSError) as exc:
-        print(f'sweep.py: error: {exc}', file=sys.stderr)
-        return 2
+        return report_error('sweep.py', exc)
     return 0
 
 
@@ -384,7 +383,7 @@ def _write_strip(args: argparse.Namespace, base: DetectorParams,
                                              depth_scale=frame.depth_scale)
         pixel, cell = evaluation.score_frame(frame, detection, params)
         images.append(pictures.side_by_side(detection, caption=f'{frame.scenario} '
-                                            f'{frame.frame_id}: {setting}'))
+                                            f'{frame.frame_id}: {setting}', params=params))
         labels.append(f'{setting}: cell F1 {evaluation.format_score(cell.f1)}, '
                       f'pixel F1 {evaluation.format_score(pixel.f1)}')
     if not images:
