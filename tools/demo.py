@@ -194,17 +194,43 @@ def _costmap_of(grid: Any) -> Any:
                    origin_xy_m=(grid.info.origin.position.x, grid.info.origin.position.y))
 
 
-def save_pictures(folder: Path, recorder: Recorder, every: int) -> list[Path]:
+def _legends(widths: tuple[int, int], params: Any) -> np.ndarray:
+    """Return the legend row under a demo picture: the node's overlay, the costmap panel."""
+    from obstacle_detection.overlay import (NO_RETURN_RGB, OBSTACLE_RGB, OCCUPIED_RGB,
+                                            ROBOT_RGB, FREE_RGB, UNKNOWN_RGB)
+    from obstacle_detection.pictures import BACKGROUND_RGB, HATCH_RGB, VIEW_EDGE_RGB, legend
+
+    left = legend('obstacles/overlay (camera view)', [
+        ('box', OBSTACLE_RGB, 'obstacle pixel'),
+        ('box', (160, 160, 160), 'other depth: dark near, white far'),
+        ('box', NO_RETURN_RGB, 'no return')], widths[0])
+    right = legend('obstacles/costmap, top view [m]', [
+        ('box', OCCUPIED_RGB, 'occupied (100)'), ('box', FREE_RGB, 'free (0)'),
+        ('box', UNKNOWN_RGB, 'unknown (-1)'),
+        ('hatch', HATCH_RGB, 'outside the region of interest'),
+        ('line', VIEW_EDGE_RGB, "edge of the floor in the camera's view"),
+        ('triangle', ROBOT_RGB, 'camera foot point, facing +x')], widths[1])
+    height = max(left.shape[0], right.shape[0])
+    blocks = [np.vstack([b, np.full((height - b.shape[0], b.shape[1], 3), BACKGROUND_RGB,
+                                    np.uint8)]) for b in (left, right)]
+    return np.hstack([blocks[0], np.full((height, 6, 3), 255, np.uint8), blocks[1]])
+
+
+def save_pictures(folder: Path, recorder: Recorder, every: int, params: Any = None,
+                  intrinsics: Any = None) -> list[Path]:
     """Save overlay, costmap and side-by-side PNGs of every ``every``-th frame; a contact sheet.
 
-    Frames are matched across topics by header stamp. Returns the side-by-side paths.
+    Frames are matched across topics by header stamp. The costmap panel has metre axes, the
+    camera, the region of interest (hatched outside) and the floor in view when ``params``
+    (the node's DetectorParams) and ``intrinsics`` are given; each picture has a legend.
+    Returns the side-by-side paths.
     """
     from nav_msgs.msg import OccupancyGrid
     from rclpy.serialization import deserialize_message
     from sensor_msgs.msg import Image, PointCloud2
 
-    from obstacle_detection.overlay import render_costmap
-    from obstacle_detection.pictures import caption_band, contact_sheet, write_png
+    from obstacle_detection.pictures import (caption_band, contact_sheet, costmap_panel,
+                                             write_png)
 
     def by_stamp(topic: str, cls: type) -> dict[tuple[int, int], Any]:
         out = {}
@@ -225,20 +251,24 @@ def save_pictures(folder: Path, recorder: Recorder, every: int) -> list[Path]:
         overlay = _overlay_array(overlays[stamp])
         costmap = _costmap_of(grids[stamp])
         height, width = overlay.shape[:2]
-        scale = max(1, min(height // max(costmap.width, 1), width // max(costmap.height, 1)))
-        grid_rgb = render_costmap(costmap, scale=scale)
-        pad = np.full((height, grid_rgb.shape[1], 3), 255, dtype=np.uint8)
-        top = (height - min(height, grid_rgb.shape[0])) // 2
-        pad[top:top + grid_rgb.shape[0]] = grid_rgb[:height]
-        gap = np.full((height, 6, 3), 255, dtype=np.uint8)
-        row = np.hstack([overlay, gap, pad])
+        scale = max(1, min((height - 60) // max(costmap.width, 1),
+                           width // max(costmap.height, 1)))
+        grid_rgb = costmap_panel(costmap, scale=scale, params=params, intrinsics=intrinsics,
+                                 image_shape=(height, width))
+        rows = max(height, grid_rgb.shape[0])
+        left = np.full((rows, width, 3), 255, dtype=np.uint8)
+        left[:height] = overlay
+        pad = np.full((rows, grid_rgb.shape[1], 3), 255, dtype=np.uint8)
+        pad[:grid_rgb.shape[0]] = grid_rgb
+        gap = np.full((rows, 6, 3), 255, dtype=np.uint8)
+        row = np.hstack([left, gap, pad])
         cloud = clouds.get(stamp)
         points = int(cloud.width * cloud.height) if cloud is not None else 0
         occupied = int(np.count_nonzero(costmap.data == 100))
         caption = [f'frame {k}, stamp {stamp[0]}.{stamp[1]:09d}: {points} obstacle points, '
-                   f'{occupied} occupied cells',
-                   'left: depth, obstacles red | right: costmap, occupied blue, x forward up']
-        picture = np.vstack([row, caption_band(caption, row.shape[1])])
+                   f'{occupied} occupied cells']
+        picture = np.vstack([row, caption_band(caption, row.shape[1]),
+                             _legends((width, grid_rgb.shape[1]), params)])
         name = f'frame_{k:04d}'
         write_png(folder / 'pictures' / f'overlay_{k:04d}.png', overlay)
         write_png(folder / 'pictures' / f'costmap_{k:04d}.png', grid_rgb)
@@ -249,6 +279,18 @@ def save_pictures(folder: Path, recorder: Recorder, every: int) -> list[Path]:
     if panels:
         write_png(folder / 'demo_sheet.png', contact_sheet(panels, labels=labels, columns=3))
     return saved
+
+
+def _scene_params(path: Path, frame: Any) -> Any:
+    """Return the node's pipeline parameters: the params file, the rendered scene's mount."""
+    import dataclasses
+
+    from obstacle_detection.evaluation import load_params_file
+
+    params = load_params_file(path)
+    return dataclasses.replace(params, camera_height_m=float(frame.height_m),
+                               camera_pitch_rad=float(frame.pitch_rad),
+                               camera_roll_rad=float(frame.roll_rad))
 
 
 def _node_command(params: Path, frame: Any, *, reliable: bool) -> list[str]:
@@ -418,7 +460,8 @@ def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
     print(f'[5/5] writing what the node published: {out / "results_bag"}; pictures: '
           f'{out / "pictures"}')
     write_results_bag(out / 'results_bag', recorder)
-    saved = save_pictures(out, recorder, args.save_every)
+    saved = save_pictures(out, recorder, args.save_every, _scene_params(args.params, first),
+                          first.intrinsics)
 
     from rclpy.serialization import deserialize_message
     from std_msgs.msg import Float64
