@@ -25,6 +25,8 @@ messages of ``conversions.result_to_messages``.
 from __future__ import annotations
 
 import collections
+import ctypes
+import gc
 import re
 import sys
 import threading
@@ -244,6 +246,15 @@ _SKIP = _CameraState(0, 0, None, 'skip')
 CAMERA_INFO_HISTORY = 30
 
 
+def _release_memory() -> None:
+    """Hand freed heap memory back to the operating system (glibc's malloc_trim)."""
+    gc.collect()
+    try:
+        ctypes.CDLL('libc.so.6').malloc_trim(0)
+    except (OSError, AttributeError):   # not glibc: the allocator keeps it for reuse
+        pass
+
+
 def _problem_kind(prefix: str, text: str) -> str:
     """Return the throttling key of a problem: its text without the numbers.
 
@@ -455,6 +466,7 @@ class DetectorNode(Node):
         # first compilation still runs: the frames are on the numpy path meanwhile).
         config.detector.warm_up()
         self._config = config
+        _release_memory()   # a large grid or cloud of the old configuration goes back to the OS
         if self._config.stats_period_s != old_period:
             self._restart_stats_timer(self._config.stats_period_s)
         changed = ', '.join(f'{p.name}={p.value!r}' for p in parameters)
