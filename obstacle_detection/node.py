@@ -27,6 +27,7 @@ from __future__ import annotations
 import collections
 import ctypes
 import gc
+import math
 import re
 import sys
 import threading
@@ -52,6 +53,7 @@ from rclpy.qos import (
     ReliabilityPolicy,
     qos_profile_sensor_data,
 )
+from diagnostic_msgs.msg import DiagnosticArray
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from std_msgs.msg import Float64, String
 
@@ -65,6 +67,8 @@ from .conversions import (
     intrinsics_problem,
     result_to_messages,
 )
+from .diagnostics import Context as DiagnosticsContext
+from .diagnostics import HealthWindow, diagnostic_array, health_status
 from .params import Intrinsics
 from .pipeline import Detector
 from .refine import LogisticRefiner, RefinedDetector
@@ -82,6 +86,11 @@ _STATUS_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
 #: rcl_interfaces/ParameterType values (NOT_SET .. STRING_ARRAY).
 _PARAMETER_TYPES = frozenset(range(0, 10))
+#: /diagnostics: reliable, as diagnostic_updater publishes it, about once a second.
+_DIAGNOSTICS_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                              history=HistoryPolicy.KEEP_LAST,
+                              durability=DurabilityPolicy.VOLATILE)
+DIAGNOSTICS_PERIOD_S = 1.0
 #: First word of every ~/status message once the node processes frames.
 STATUS_READY = 'ready'
 _RELIABLE_INPUT_QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE,
@@ -314,6 +323,13 @@ class DetectorNode(Node):
 
         self._stats_timer = None
         self._restart_stats_timer(self._config.stats_period_s)
+        self._health = HealthWindow()
+        self._started = time.monotonic()
+        self._last_frame_id = ''
+        self._diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics',
+                                                      _DIAGNOSTICS_QOS)
+        self._diagnostics_timer = self.create_timer(DIAGNOSTICS_PERIOD_S,
+                                                    self._publish_diagnostics)
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
 
@@ -439,6 +455,43 @@ class DetectorNode(Node):
         if self.context.ok():
             self._status_pub.publish(String(data=f'{STATUS_READY}: {self.compute_path()}'))
 
+    # -- diagnostics ---------------------------------------------------------------------------
+    def _camera_info_text(self) -> tuple[str, bool]:
+        """Describe the intrinsics source for /diagnostics; True when frames can use it."""
+        config = self._config
+        cameras = list(self._cameras)
+        if cameras:
+            camera = cameras[-1]
+            if camera.intrinsics is None:
+                return f'CameraInfo on {self._info_sub.topic_name} unusable: {camera.error}', \
+                    config.use_fallback_intrinsics
+            intr = camera.intrinsics
+            return (f'CameraInfo on {self._info_sub.topic_name}: {camera.width}x{camera.height}'
+                    f', fx={intr.fx:g} fy={intr.fy:g} cx={intr.cx:g} cy={intr.cy:g}'), True
+        if config.use_fallback_intrinsics:
+            intr = config.fallback_intrinsics
+            return (f'fallback parameters (no CameraInfo yet): fx={intr.fx:g} fy={intr.fy:g} '
+                    f'cx={intr.cx:g} cy={intr.cy:g}'), True
+        return f'none: no CameraInfo received on {self._info_sub.topic_name}', False
+
+    def _mount_text(self) -> str:
+        params = self._config.detector.params
+        return (f'parameters: height {params.camera_height_m:g} m, pitch '
+                f'{math.degrees(params.camera_pitch_rad):.3g} deg, roll '
+                f'{math.degrees(params.camera_roll_rad):.3g} deg')
+
+    def _publish_diagnostics(self) -> None:
+        camera_info, usable = self._camera_info_text()
+        path = self.compute_path()
+        context = DiagnosticsContext(
+            uptime_s=time.monotonic() - self._started, depth_topic=self._depth_sub.topic_name,
+            camera_info=camera_info, camera_info_usable=usable, code_path=path,
+            compiled=path == 'compiled numba kernels', mount=self._mount_text())
+        status = health_status(self._health.take(), context, hardware_id=self._last_frame_id)
+        if self.context.ok():
+            self._diagnostics_pub.publish(
+                diagnostic_array(status, self.get_clock().now().to_msg()))
+
     # -- parameters -------------------------------------------------------------------------
     def _parameter_values(self, changes: list[Parameter] | None = None) -> dict[str, Any]:
         values = {spec.name: self.get_parameter(spec.name).value for spec in ALL_PARAMS}
@@ -482,8 +535,10 @@ class DetectorNode(Node):
 
     # -- callbacks (executor thread): store only --------------------------------------------
     def _on_depth(self, msg: Image) -> None:
+        self._health.received()
         if self._slot.put(msg):
             self.stats.add_dropped()
+            self._health.dropped()
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
         width, height = int(msg.width), int(msg.height)
@@ -523,6 +578,7 @@ class DetectorNode(Node):
     def _warn_skip(self, kind: str, text: str) -> None:
         """Warn about a skipped frame; each kind of problem is throttled on its own."""
         self.stats.add_skipped()
+        self._health.skipped(kind.split(':', 1)[0])
         self._throttled_logger(kind).warning(f'skipping depth frame: {text}',
                                              throttle_duration_sec=WARN_THROTTLE_S)
 
@@ -615,6 +671,7 @@ class DetectorNode(Node):
             return False
         except Exception as error:  # noqa: BLE001 - the node must survive any frame
             self.stats.add_error()
+            self._health.error()
             self.get_logger().error(f'pipeline failed on a frame, skipping it: '
                                     f'{type(error).__name__}: {error}',
                                     throttle_duration_sec=WARN_THROTTLE_S)
@@ -634,6 +691,8 @@ class DetectorNode(Node):
                                         throttle_duration_sec=WARN_THROTTLE_S)
             return False
         self.stats.add_processed(elapsed_ms)
+        self._health.processed(elapsed_ms)
+        self._last_frame_id = msg.header.frame_id
         stages = ', '.join(f'{k} {v:.1f}' for k, v in result.timings_ms.items()
                            if k != 'total')
         self.get_logger().debug(

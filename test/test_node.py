@@ -26,6 +26,7 @@ import pytest
 import rclpy
 import ros_env
 from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from nav_msgs.msg import OccupancyGrid
 from rcl_interfaces.msg import ParameterType
 from rcl_interfaces.msg import Parameter as ParameterMsg
@@ -61,6 +62,7 @@ from obstacle_detection.ros_params import (
 from obstacle_detection.scenes import GT_OBSTACLE, SceneFrame, render_scene
 
 REPO = ros_env.REPO_ROOT
+OK, ERROR = DiagnosticStatus.OK, DiagnosticStatus.ERROR
 CORRIDOR_YAML = REPO / 'params' / 'corridor.yaml'
 NODE = '/obstacle_detector'
 START_TIMEOUT_S = 60.0
@@ -693,6 +695,50 @@ def _run_detector(tmp_path: Path, *args: str, salt: str) -> subprocess.Completed
     env = ros_env.loopback_env(__name__ + salt, log_dir=tmp_path / 'ros_log')
     return subprocess.run(_detector_command() + list(args), env=env, cwd=tmp_path,
                           capture_output=True, text=True, timeout=60, check=False)
+
+
+def test_diagnostics_report_each_fault_at_its_level(tmp_path: Path, scene: SceneFrame) -> None:
+    """/diagnostics over DDS: no frame, no CameraInfo, mostly bad frames, healthy, silence."""
+    node = NodeUnderTest(tmp_path, salt='diag')
+    reports: list[Any] = []
+    node.node.create_subscription(DiagnosticArray, '/diagnostics',
+                                  lambda msg: reports.extend(msg.status), RELIABLE)
+
+    def stream(image: Image, info: CameraInfo | None, seconds: float) -> None:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            node.send(image, info)     # about 5 Hz (send waits 0.2 s after a CameraInfo)
+            node.spin_until(lambda: False, 0.05 if info is None else 0.0)
+
+    def level_after(text: str, timeout: float = 10.0) -> tuple[int, str]:
+        start = len(reports)
+        assert node.spin_until(lambda: any(text in r.message for r in reports[start:]),
+                               timeout), [r.message for r in reports[-5:]]
+        found = next(r for r in reports[start:] if text in r.message)
+        return found.level, found.message
+
+    try:
+        assert node.spin_until(lambda: bool(node.statuses), START_TIMEOUT_S), node.log()
+        assert level_after('no depth frame received on /depth/image_raw yet')[0] == ERROR
+        stream(_depth_image(scene), None, 2.5)
+        assert level_after('no usable CameraInfo', 1.0) == (
+            ERROR, 'depth frames arrive but no usable CameraInfo (none: no CameraInfo '
+                   'received on /depth/camera_info)')
+        stream(_depth_image(scene), _camera_info(scene), 2.5)
+        assert node.spin_until(lambda: reports[-1].level == OK, 10.0), reports[-1].message
+        assert reports[-1].message.endswith('frames/s processed')
+        values = {kv.key: kv.value for kv in reports[-1].values}
+        assert values['intrinsics'].startswith('CameraInfo on /depth/camera_info: 512x424')
+        assert values['code path'] == 'compiled numba kernels'
+        assert reports[-1].hardware_id == 'depth_optical'
+        bad = _depth_image(scene)
+        bad.encoding = 'rgb8'
+        stream(bad, _camera_info(scene), 2.5)
+        level, message = level_after('skipped for bad input', 1.0)
+        assert level == ERROR and '(encoding ' in message
+        assert level_after('no depth frame for', 5.0)[0] == ERROR
+    finally:
+        node.close()
 
 
 def test_help_lists_every_parameter_and_starts_no_node(tmp_path: Path) -> None:

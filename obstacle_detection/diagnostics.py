@@ -1,0 +1,170 @@
+"""The node's health on ``/diagnostics``: counters per period and the level they mean.
+
+Pure Python plus the ``diagnostic_msgs`` message types (no rclpy), so the rules are tested
+without a ROS graph. The node feeds a :class:`HealthWindow` from its callbacks and worker, and
+once a second publishes :func:`health_status` as a ``diagnostic_msgs/DiagnosticArray``, where
+rqt_robot_monitor and the diagnostic aggregator look first when a sensor pipeline misbehaves.
+
+Levels (thresholds over the last period, about a second):
+
+- ERROR: no depth frame for ``NO_FRAME_ERROR_S`` (2 s); frames arrive but no usable CameraInfo
+  (and no fallback); more than ``SKIPPED_ERROR_SHARE`` (50 %) of the frames skipped for bad
+  input; the pipeline raised on a frame.
+- WARN: some frames skipped; more than ``DROPPED_WARN_SHARE`` (20 %) replaced by a newer frame
+  before processing (the node does not keep up); the numpy path while the compiled kernels
+  build, or because they failed.
+- OK otherwise.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+
+NO_FRAME_ERROR_S = 2.0
+SKIPPED_ERROR_SHARE = 0.5
+DROPPED_WARN_SHARE = 0.2
+STATUS_NAME = 'obstacle_detector: depth obstacle detection'
+
+OK, WARN, ERROR = DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR
+
+
+@dataclass
+class Period:
+    """What happened between two reports."""
+
+    seconds: float = 0.0
+    received: int = 0
+    processed: int = 0
+    dropped: int = 0
+    errors: int = 0
+    skipped: Counter = field(default_factory=Counter)
+    times_ms: list[float] = field(default_factory=list)
+    since_last_frame_s: float | None = None   #: None: no frame since the node started
+
+
+class HealthWindow:
+    """Thread-safe counters of one reporting period (callbacks and worker add, a timer takes)."""
+
+    def __init__(self, now: float | None = None) -> None:
+        self._lock = threading.Lock()
+        self._start = time.monotonic() if now is None else now
+        self._last_frame: float | None = None
+        self._period = Period()
+
+    def received(self, now: float | None = None) -> None:
+        """Count one depth frame received."""
+        with self._lock:
+            self._period.received += 1
+            self._last_frame = time.monotonic() if now is None else now
+
+    def processed(self, elapsed_ms: float) -> None:
+        """Count one frame processed and published in ``elapsed_ms``."""
+        with self._lock:
+            self._period.processed += 1
+            self._period.times_ms.append(elapsed_ms)
+
+    def dropped(self) -> None:
+        """Count one frame replaced by a newer one before it was processed."""
+        with self._lock:
+            self._period.dropped += 1
+
+    def skipped(self, reason: str) -> None:
+        """Count one frame skipped for bad input, by reason (a short key)."""
+        with self._lock:
+            self._period.skipped[reason] += 1
+
+    def error(self) -> None:
+        """Count one frame lost to an unexpected exception."""
+        with self._lock:
+            self._period.errors += 1
+
+    def take(self, now: float | None = None) -> Period:
+        """Return the period since the last call and start a new one."""
+        now = time.monotonic() if now is None else now
+        with self._lock:
+            period, self._period = self._period, Period()
+            period.seconds = max(now - self._start, 1e-9)
+            self._start = now
+            if self._last_frame is not None:
+                period.since_last_frame_s = now - self._last_frame
+        return period
+
+
+@dataclass(frozen=True)
+class Context:
+    """What the node knows besides the counters."""
+
+    uptime_s: float
+    depth_topic: str
+    camera_info: str           #: e.g. 'CameraInfo 512x424 fx=365 ...', 'none yet', 'fallback'
+    camera_info_usable: bool
+    code_path: str             #: the node's compute_path()
+    compiled: bool
+    mount: str                 #: where the camera mount comes from, and its values
+    floor_correction: str = ''  #: the per-frame floor refinement, when there is one
+
+
+def _level_and_message(period: Period, ctx: Context) -> tuple[int, str]:
+    frames = period.received
+    skipped = sum(period.skipped.values())
+    if period.since_last_frame_s is None:
+        if ctx.uptime_s >= NO_FRAME_ERROR_S:
+            return ERROR, f'no depth frame received on {ctx.depth_topic} yet'
+    elif period.since_last_frame_s >= NO_FRAME_ERROR_S:
+        return ERROR, (f'no depth frame for {period.since_last_frame_s:.1f} s on '
+                       f'{ctx.depth_topic}')
+    if frames and not ctx.camera_info_usable:
+        return ERROR, f'depth frames arrive but no usable CameraInfo ({ctx.camera_info})'
+    if frames and skipped > SKIPPED_ERROR_SHARE * frames:
+        reasons = ', '.join(f'{k} {v}' for k, v in period.skipped.most_common())
+        return ERROR, f'{skipped} of {frames} frames skipped for bad input ({reasons})'
+    if period.errors:
+        return ERROR, f'the pipeline failed on {period.errors} frame(s) (see the log)'
+    if skipped:
+        reasons = ', '.join(f'{k} {v}' for k, v in period.skipped.most_common())
+        return WARN, f'{skipped} of {frames} frames skipped for bad input ({reasons})'
+    if frames and period.dropped > DROPPED_WARN_SHARE * frames:
+        return WARN, (f'{period.dropped} of {frames} frames replaced before processing: the '
+                      'node does not keep up with the camera')
+    if not ctx.compiled:
+        return WARN, ctx.code_path
+    return OK, f'{period.processed / period.seconds:.1f} frames/s processed'
+
+
+def health_status(period: Period, ctx: Context, *, hardware_id: str = '') -> DiagnosticStatus:
+    """Return the DiagnosticStatus of one period: level, one-line message, key/values."""
+    level, message = _level_and_message(period, ctx)
+    times = sorted(period.times_ms)
+    values = {
+        'input rate [Hz]': f'{period.received / period.seconds:.1f}',
+        'processed rate [Hz]': f'{period.processed / period.seconds:.1f}',
+        'processing mean [ms]': f'{sum(times) / len(times):.1f}' if times else '-',
+        'processing max [ms]': f'{times[-1]:.1f}' if times else '-',
+        'dropped (newer frame came first)': str(period.dropped),
+        'skipped (bad input)': str(sum(period.skipped.values())),
+        'errors': str(period.errors),
+        'seconds since the last frame': (f'{period.since_last_frame_s:.1f}'
+                                         if period.since_last_frame_s is not None else 'never'),
+        'intrinsics': ctx.camera_info,
+        'mount': ctx.mount,
+        'code path': ctx.code_path,
+    }
+    for reason, count in sorted(period.skipped.items()):
+        values[f'skipped: {reason}'] = str(count)
+    if ctx.floor_correction:
+        values['floor correction'] = ctx.floor_correction
+    return DiagnosticStatus(level=level, name=STATUS_NAME, message=message,
+                            hardware_id=hardware_id,
+                            values=[KeyValue(key=k, value=v) for k, v in values.items()])
+
+
+def diagnostic_array(status: DiagnosticStatus, stamp: object) -> DiagnosticArray:
+    """Wrap one status in the array message ``/diagnostics`` carries, stamped ``stamp``."""
+    msg = DiagnosticArray(status=[status])
+    msg.header.stamp = stamp
+    return msg
