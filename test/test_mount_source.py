@@ -1,0 +1,118 @@
+"""Tests of the camera mount from TF (obstacle_detection.mount_source) with a tf2 stand-in."""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+import pytest
+
+from obstacle_detection.geometry import OPTICAL_TO_BODY, mount_rotation
+from obstacle_detection.mount_source import (
+    Mount,
+    MountSource,
+    mount_from_rotation,
+    mount_from_transform,
+    quaternion_matrix,
+)
+
+
+def _rz(a: float) -> np.ndarray:
+    return np.array([[math.cos(a), -math.sin(a), 0], [math.sin(a), math.cos(a), 0], [0, 0, 1]])
+
+
+def _quaternion(rotation: np.ndarray) -> tuple[float, float, float, float]:
+    """(x, y, z, w) of a rotation matrix (w > 0 branch; fine for these test angles)."""
+    w = math.sqrt(1.0 + np.trace(rotation)) / 2.0
+    return ((rotation[2, 1] - rotation[1, 2]) / (4 * w),
+            (rotation[0, 2] - rotation[2, 0]) / (4 * w),
+            (rotation[1, 0] - rotation[0, 1]) / (4 * w), w)
+
+
+def _transform(mount_rotation_matrix: np.ndarray, xyz: tuple[float, float, float]) -> Any:
+    x, y, z, w = _quaternion(mount_rotation_matrix)
+    return SimpleNamespace(transform=SimpleNamespace(
+        translation=SimpleNamespace(x=xyz[0], y=xyz[1], z=xyz[2]),
+        rotation=SimpleNamespace(x=x, y=y, z=z, w=w)))
+
+
+def test_a_level_forward_camera_is_the_optical_to_body_rotation() -> None:
+    mount = mount_from_rotation(OPTICAL_TO_BODY, (0.2, 0.1, 0.6))
+    assert mount == Mount(0.2, 0.1, 0.6, 0.0, 0.0, 0.0)
+
+
+@pytest.mark.parametrize('yaw_deg, pitch_deg, roll_deg', [
+    (10.0, 0.0, 0.0), (0.0, 20.0, 0.0), (0.0, 0.0, -3.0), (10.0, 25.0, 3.0), (-90.0, 5.0, 1.0)])
+def test_angles_come_back_in_the_pipelines_convention(yaw_deg: float, pitch_deg: float,
+                                                      roll_deg: float) -> None:
+    yaw, pitch, roll = map(math.radians, (yaw_deg, pitch_deg, roll_deg))
+    rotation = _rz(yaw) @ mount_rotation(pitch, roll)     # the pipeline's pitch and roll
+    mount = mount_from_transform(_transform(rotation, (0.2, 0.1, 0.6)))
+    assert (mount.yaw_rad, mount.pitch_rad, mount.roll_rad) == pytest.approx(
+        (yaw, pitch, roll), abs=1e-9)
+    assert (mount.x_m, mount.y_m, mount.z_m) == pytest.approx((0.2, 0.1, 0.6))
+
+
+def test_a_zero_quaternion_is_refused() -> None:
+    with pytest.raises(ValueError, match='not a rotation'):
+        quaternion_matrix(0.0, 0.0, 0.0, 0.0)
+
+
+class StandInBuffer:
+    """What the node uses of tf2_ros.Buffer: lookup_transform, which may fail."""
+
+    def __init__(self, transform: Any = None) -> None:
+        self.transform = transform
+        self.calls: list[tuple[str, str]] = []
+
+    def lookup_transform(self, target: str, source: str, time: Any, timeout: Any) -> Any:
+        self.calls.append((target, source))
+        if self.transform is None:
+            raise LookupError(f'"{target}" passed to lookupTransform argument target_frame '
+                              'does not exist')
+        return self.transform
+
+
+FALLBACK = Mount(0.0, 0.0, 0.6, 0.0, 0.0, 0.0)
+
+
+def test_the_transform_is_used_and_cached_for_a_static_mount() -> None:
+    buffer = StandInBuffer(_transform(_rz(math.radians(10)) @ OPTICAL_TO_BODY,
+                                      (0.2, 0.1, 0.5)))
+    source = MountSource(buffer, 'base_footprint', static=True)
+    first = source.mount_for('kinect2_ir_optical_frame', None, FALLBACK)
+    again = source.mount_for('kinect2_ir_optical_frame', None, FALLBACK)
+    assert first == again and first.yaw_rad == pytest.approx(math.radians(10))
+    assert buffer.calls == [('base_footprint', 'kinect2_ir_optical_frame')]   # looked up once
+    assert source.source == 'TF base_footprint <- kinect2_ir_optical_frame (static, cached)'
+    assert source.last_problem is None
+
+
+def test_a_moving_mount_is_looked_up_per_frame() -> None:
+    buffer = StandInBuffer(_transform(OPTICAL_TO_BODY, (0.0, 0.0, 0.7)))
+    source = MountSource(buffer, 'base_link', static=False)
+    source.mount_for('cam', None, FALLBACK)
+    source.mount_for('cam', None, FALLBACK)
+    assert len(buffer.calls) == 2
+
+
+def test_a_failed_lookup_falls_back_and_says_why_then_a_late_transform_is_taken() -> None:
+    buffer = StandInBuffer(None)
+    source = MountSource(buffer, 'base_footprint')
+    assert source.mount_for('cam', None, FALLBACK) is FALLBACK
+    assert source.source == 'parameters (TF lookup failed)'
+    assert 'no TF base_footprint <- cam (LookupError' in source.last_problem
+    assert 'using the mount parameters' in source.last_problem
+
+    buffer.transform = _transform(OPTICAL_TO_BODY, (0.3, 0.0, 0.4))   # the TF arrives late
+    late = source.mount_for('cam', None, FALLBACK)
+    assert late == Mount(0.3, 0.0, 0.4, 0.0, 0.0, 0.0) and source.last_problem is None
+
+
+def test_without_a_buffer_or_a_frame_id_the_parameters_are_used() -> None:
+    assert MountSource(None, 'base_footprint').mount_for('cam', None, FALLBACK) is FALLBACK
+    source = MountSource(StandInBuffer(_transform(OPTICAL_TO_BODY, (0, 0, 1))), 'base')
+    assert source.mount_for('', None, FALLBACK) is FALLBACK
+    assert 'no frame_id' in source.last_problem
