@@ -481,7 +481,7 @@ def compressed_items(items: list[tuple[str, int, object]], suffix: str,
                      compress: Callable[[np.ndarray], tuple[str, bytes]],
                      damage: Callable[[int, bytes], bytes] = lambda k, data: data
                      ) -> list[tuple[str, int, object]]:
-    """The same bag items with each raw depth Image replaced by a CompressedImage of it."""
+    """Return the bag items with each raw depth Image replaced by a CompressedImage of it."""
     out: list[tuple[str, int, object]] = []
     for topic, t, msg in items:
         if topic == DEPTH:
@@ -494,7 +494,7 @@ def compressed_items(items: list[tuple[str, int, object]], suffix: str,
 
 
 def output_messages(bag: Path) -> dict[str, list[tuple[int, object]]]:
-    """The output topics of a processed bag: (bag timestamp, rclpy message) per frame."""
+    """Return the output topics of a processed bag: (bag timestamp, message) per frame."""
     got = read_raw(bag)
     return {topic: [(t, decoded(topic, raw)) for t, raw in got.get(topic, [])]
             for topic in OUTPUT_TOPICS.values()}
