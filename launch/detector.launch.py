@@ -1,10 +1,12 @@
 """Launch the obstacle detector on a robot (ROS 2 launch file, installed by setup.py).
 
-    ros2 launch obstacle_detection detector.launch.py                 # Kinect v2, corridor.yaml
-    ros2 launch obstacle_detection detector.launch.py camera:=generic \\
+    ros2 launch obstacle_detection detector.launch.py            # Kinect v2, corridor.yaml
+    ros2 launch obstacle_detection detector.launch.py camera:=generic
         depth_topic:=/camera/depth/image_rect_raw camera_info_topic:=/camera/depth/camera_info
-    ros2 launch obstacle_detection detector.launch.py params_file:=/path/mine.yaml \\
-        publish_ground:=true                                          # for a Nav2 clearing source
+    ros2 launch obstacle_detection detector.launch.py params_file:=/path/mine.yaml
+        publish_ground:=true                                     # for a Nav2 clearing source
+
+(each command on one line).
 
 Arguments (``ros2 launch ... --show-args`` lists them):
 

@@ -169,7 +169,7 @@ def test_nav2_sources_are_the_nodes_clouds() -> None:
 
 
 def _lowest_obstacle_m(params: dict[str, Any]) -> float:
-    """The lowest z of a detector point: TDBG, or the drop view of the robot-level rules."""
+    """Return the lowest z of a detector point: TDBG, or the robot-level rules' drop view."""
     lowest = float(params['tdbg_m'])
     if params.get('robot_level') and 'drop_view_m' in params:
         lowest = min(lowest, -float(params['drop_view_m']))
