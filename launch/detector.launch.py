@@ -23,15 +23,12 @@ Arguments (``ros2 launch ... --show-args`` lists them):
   file section must then name the node with it (``/<namespace>/obstacle_detector:``) or be
   ``/**:``.
 
-The constants below are plain literals so that tests can read them without the ``launch``
-packages (which the pip-installed ROS wheels do not include).
+The ``launch`` packages (not among the pip-installed ROS wheels) are imported only where
+the launch description is built, so tests import this file and run :func:`node_settings`.
 """
 
-from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, OpaqueFunction
-from launch.substitutions import LaunchConfiguration
-from launch_ros.actions import Node
-from launch_ros.substitutions import FindPackageShare
+from typing import Any
+
 
 PACKAGE = 'obstacle_detection'
 EXECUTABLE = 'detector'
@@ -41,6 +38,9 @@ DEFAULT_PARAMS_FILE = 'params/corridor.yaml'
 #: The node's input topics (relative names, as it subscribes).
 DEPTH_INPUT = 'depth/image_raw'
 INFO_INPUT = 'depth/camera_info'
+#: image_transport's compressed topics under a depth topic: remapped along with it, so that a
+#: node subscribing to ``depth/image_raw/compressedDepth`` (CompressedImage) follows the preset.
+TRANSPORT_SUFFIXES = ('compressedDepth', 'compressed')
 #: Camera preset -> (depth topic, camera info topic) the inputs are remapped to.
 CAMERA_PRESETS = {
     'kinect2': ('/kinect2/sd/image_depth_rect', '/kinect2/sd/camera_info'),
@@ -63,30 +63,49 @@ ARGUMENTS = [
 ]
 
 
-def _detector(context: object) -> list:
-    """Build the detector Node from the launch arguments' values."""
-    def value(name: str) -> str:
-        return LaunchConfiguration(name).perform(context)
+def node_settings(values: dict[str, str], share_dir: str) -> dict[str, Any]:
+    """Return the detector Node's keyword arguments for the launch arguments' ``values``.
 
-    params_file = value('params_file') or FindPackageShare(PACKAGE).perform(context) + (
-        '/' + DEFAULT_PARAMS_FILE)
-    depth_topic, info_topic = CAMERA_PRESETS[value('camera')]
-    depth_topic = value('depth_topic') or depth_topic
-    info_topic = value('camera_info_topic') or info_topic
-    overrides = {}
-    if value('use_tf') == 'true':
+    values: argument name -> value (strings, as launch gives them; missing ones take their
+    ARGUMENTS default). share_dir: the package's installed share folder. Plain data, so tests
+    run it without the ``launch`` packages. Raises ValueError naming an unknown camera preset.
+    """
+    values = {name: default for name, default, _, _ in ARGUMENTS} | dict(values)
+    if values['camera'] not in CAMERA_PRESETS:
+        raise ValueError(f'camera:={values["camera"]} is not a preset: expected one of '
+                         f'{", ".join(CAMERA_PRESETS)}')
+    params_file = values['params_file'] or f'{share_dir}/{DEFAULT_PARAMS_FILE}'
+    depth_topic, info_topic = CAMERA_PRESETS[values['camera']]
+    depth_topic = values['depth_topic'] or depth_topic
+    info_topic = values['camera_info_topic'] or info_topic
+    overrides: dict[str, bool] = {}
+    if values['use_tf'] == 'true':
         overrides['use_tf'] = True
-    if value('publish_ground'):
-        overrides['publish_ground'] = value('publish_ground') == 'true'
-    return [Node(
-        package=PACKAGE, executable=EXECUTABLE, name=NODE_NAME, namespace=value('namespace'),
-        parameters=[params_file, overrides] if overrides else [params_file],
-        remappings=[(DEPTH_INPUT, depth_topic), (INFO_INPUT, info_topic)],
-        output='screen', emulate_tty=True)]
+    if values['publish_ground']:
+        overrides['publish_ground'] = values['publish_ground'] == 'true'
+    remaps = [(DEPTH_INPUT, depth_topic), (INFO_INPUT, info_topic)] + [
+        (f'{DEPTH_INPUT}/{suffix}', f'{depth_topic}/{suffix}') for suffix in TRANSPORT_SUFFIXES]
+    return {'package': PACKAGE, 'executable': EXECUTABLE, 'name': NODE_NAME,
+            'namespace': values['namespace'],
+            'parameters': [params_file, overrides] if overrides else [params_file],
+            'remappings': remaps, 'output': 'screen', 'emulate_tty': True}
 
 
-def generate_launch_description() -> LaunchDescription:
-    """Declare the arguments and the detector node."""
+def _detector(context: Any) -> list:
+    """Build the detector Node from the launch arguments' values (an OpaqueFunction)."""
+    from launch.substitutions import LaunchConfiguration
+    from launch_ros.actions import Node
+    from launch_ros.substitutions import FindPackageShare
+
+    values = {name: LaunchConfiguration(name).perform(context) for name, *_ in ARGUMENTS}
+    return [Node(**node_settings(values, FindPackageShare(PACKAGE).perform(context)))]
+
+
+def generate_launch_description() -> Any:
+    """Declare the arguments and the detector node (a launch.LaunchDescription)."""
+    from launch import LaunchDescription
+    from launch.actions import DeclareLaunchArgument, OpaqueFunction
+
     declared = [DeclareLaunchArgument(name, default_value=default, choices=choices,
                                       description=description)
                 for name, default, choices, description in ARGUMENTS]

@@ -1,8 +1,9 @@
 """The launch file and the Nav2 costmap example agree with the node, setup.py and corridor.yaml.
 
-There is no ``launch`` package in the pip-installed ROS wheels, so the launch file is checked
-as source: it compiles, its constants (read with ``ast``) name the installed executable and
-files and the node's topics. The Nav2 YAML is parsed and compared with the node's topic names
+There is no ``launch`` package in the pip-installed ROS wheels: the launch file imports it only
+where it builds the launch description, so it is imported here and its ``node_settings`` (the
+detector Node's arguments from the launch arguments) run; what it names must be installed by
+setup.py and be the node's topics. The Nav2 YAML is parsed and compared with the node's topic names
 and with params/corridor.yaml; the detector's clouds of rendered scenes pass the obstacle
 layer's height and range filters (as Nav2 Jazzy's ObservationBuffer and ObstacleLayer apply
 them).
@@ -11,12 +12,14 @@ them).
 from __future__ import annotations
 
 import ast
+import importlib.util
 import math
 import py_compile
 import subprocess
 import sys
 import sysconfig
 from pathlib import Path
+from types import ModuleType
 from typing import Any
 
 import numpy as np
@@ -24,6 +27,7 @@ import pytest
 import yaml
 
 from obstacle_detection import tool_support
+from obstacle_detection.compressed_depth import TRANSPORT_SUFFIXES
 from obstacle_detection.ros_params import NODE_NAME
 from obstacle_detection.scenes import render_scene
 from tools import bag_process
@@ -35,18 +39,12 @@ CORRIDOR = REPO / 'params' / 'corridor.yaml'
 PACKAGE = 'obstacle_detection'
 
 
-def _launch_constants() -> dict[str, Any]:
-    """Module-level ``NAME = <literal>`` assignments of the launch file."""
-    tree = ast.parse(LAUNCH.read_text(encoding='utf-8'))
-    constants = {}
-    for node in tree.body:
-        if isinstance(node, ast.Assign) and len(node.targets) == 1 \
-                and isinstance(node.targets[0], ast.Name):
-            try:
-                constants[node.targets[0].id] = ast.literal_eval(node.value)
-            except ValueError:
-                continue
-    return constants
+def _launch_module() -> ModuleType:
+    """Import the launch file (it imports the ``launch`` packages only when launched)."""
+    spec = importlib.util.spec_from_file_location('detector_launch', LAUNCH)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def _node_topics(method: str) -> dict[str, str]:
@@ -88,35 +86,69 @@ def test_launch_file_compiles_and_defines_the_entry_point(tmp_path: Path) -> Non
 
 
 def test_launch_arguments_and_their_choices() -> None:
-    constants = _launch_constants()
-    arguments = {name: (default, choices) for name, default, choices, _ in
-                 constants['ARGUMENTS']}
+    launch = _launch_module()
+    arguments = {name: (default, choices) for name, default, choices, _ in launch.ARGUMENTS}
 
     assert {'params_file', 'use_tf', 'camera', 'publish_ground'} <= set(arguments)
-    assert set(arguments['camera'][1]) == set(constants['CAMERA_PRESETS']) == {'kinect2',
-                                                                               'generic'}
+    assert set(arguments['camera'][1]) == set(launch.CAMERA_PRESETS) == {'kinect2', 'generic'}
     for name, (default, choices) in arguments.items():
         assert choices is None or default in choices, name
 
 
-def test_kinect2_preset_remaps_the_node_inputs_to_kinect2_bridge() -> None:
-    constants = _launch_constants()
+def test_kinect2_default_remaps_the_node_inputs_to_kinect2_bridge() -> None:
+    launch = _launch_module()
     subscriptions = _node_topics('subscription')
+    depth, info = tool_support.DEFAULT_DEPTH_TOPIC, tool_support.DEFAULT_INFO_TOPIC
 
-    assert subscriptions[constants['DEPTH_INPUT']] == 'Image'
-    assert subscriptions[constants['INFO_INPUT']] == 'CameraInfo'
-    assert constants['CAMERA_PRESETS']['kinect2'] == (tool_support.DEFAULT_DEPTH_TOPIC,
-                                                      tool_support.DEFAULT_INFO_TOPIC)
-    assert constants['CAMERA_PRESETS']['generic'] == (constants['DEPTH_INPUT'],
-                                                      constants['INFO_INPUT'])
+    settings = launch.node_settings({}, '/opt/share/obstacle_detection')
+
+    assert subscriptions == {'depth/image_raw': 'Image', 'depth/camera_info': 'CameraInfo'}
+    assert sorted(settings['remappings']) == sorted(
+        [('depth/image_raw', depth), ('depth/camera_info', info)]
+        + [(f'depth/image_raw/{suffix}', f'{depth}/{suffix}') for suffix in TRANSPORT_SUFFIXES])
+    assert settings['parameters'] == ['/opt/share/obstacle_detection/params/corridor.yaml']
+    assert (settings['package'], settings['executable'], settings['name'],
+            settings['namespace']) == (PACKAGE, 'detector', NODE_NAME, '')
+
+
+def test_generic_camera_keeps_the_node_names_unless_topics_are_given() -> None:
+    launch = _launch_module()
+
+    plain = launch.node_settings({'camera': 'generic'}, '/s')
+    given = launch.node_settings({'camera': 'generic', 'depth_topic': '/cam/depth',
+                                  'camera_info_topic': '/cam/info'}, '/s')
+
+    assert ('depth/image_raw', 'depth/image_raw') in plain['remappings']
+    assert ('depth/camera_info', 'depth/camera_info') in plain['remappings']
+    assert ('depth/image_raw', '/cam/depth') in given['remappings']
+    assert ('depth/image_raw/compressedDepth', '/cam/depth/compressedDepth') in \
+        given['remappings']
+    assert ('depth/camera_info', '/cam/info') in given['remappings']
+
+
+@pytest.mark.parametrize(('values', 'parameters'), [
+    ({}, ['mine.yaml']),
+    ({'use_tf': 'true'}, ['mine.yaml', {'use_tf': True}]),
+    ({'publish_ground': 'true'}, ['mine.yaml', {'publish_ground': True}]),
+    ({'publish_ground': 'false', 'use_tf': 'true'},
+     ['mine.yaml', {'use_tf': True, 'publish_ground': False}]),
+])
+def test_use_tf_and_publish_ground_override_the_params_file_only_when_given(
+        values: dict[str, str], parameters: list) -> None:
+    settings = _launch_module().node_settings({'params_file': 'mine.yaml', **values}, '/s')
+
+    assert settings['parameters'] == parameters
+
+
+def test_an_unknown_camera_preset_is_refused_by_name() -> None:
+    with pytest.raises(ValueError, match='camera:=realsense is not a preset'):
+        _launch_module().node_settings({'camera': 'realsense'}, '/s')
 
 
 def test_launch_node_name_is_the_params_files_section() -> None:
-    constants = _launch_constants()
     corridor = yaml.safe_load(CORRIDOR.read_text(encoding='utf-8'))
 
-    assert constants['NODE_NAME'] == NODE_NAME and list(corridor) == [NODE_NAME]
-    assert constants['PACKAGE'] == PACKAGE
+    assert _launch_module().NODE_NAME == NODE_NAME and list(corridor) == [NODE_NAME]
 
 
 @pytest.fixture(scope='module')
@@ -137,11 +169,11 @@ def prefix(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def test_everything_the_launch_file_names_is_installed(prefix: Path) -> None:
-    constants = _launch_constants()
-    share = prefix / 'share' / constants['PACKAGE']
+    share = prefix / 'share' / PACKAGE
+    settings = _launch_module().node_settings({}, str(share))
 
-    assert (prefix / 'lib' / constants['PACKAGE'] / constants['EXECUTABLE']).is_file()
-    assert (share / constants['DEFAULT_PARAMS_FILE']).is_file()
+    assert (prefix / 'lib' / settings['package'] / settings['executable']).is_file()
+    assert Path(settings['parameters'][0]).is_file()
     assert (share / 'launch' / LAUNCH.name).read_bytes() == LAUNCH.read_bytes()
     assert (share / 'params' / NAV2.name).read_bytes() == NAV2.read_bytes()
     relative = Path(sysconfig.get_path('purelib')).relative_to(sysconfig.get_path('data'))
