@@ -3,17 +3,22 @@
 from __future__ import annotations
 
 import io
+import struct
+from collections.abc import Callable
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
+from builtin_interfaces.msg import Time as RclTime
 from rclpy.serialization import deserialize_message
 from rosbags.rosbag1 import Writer as Writer1
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import CameraInfo, Image
 
+from obstacle_detection.compressed_depth import (array_to_compressed_depth,
+                                                 compressed_depth_to_array)
 from obstacle_detection.conversions import image_to_array
 from obstacle_detection.params import KINECT_V2_SD, Intrinsics
 from obstacle_detection.scenes import render_scene
@@ -358,6 +363,164 @@ def test_ros1_topic_selection(tmp_path: Path, capsys: pytest.CaptureFixture[str]
     code, _, err = run(['ros1', str(src), str(tmp_path / 'out2'), '--topics', '/c'], capsys)
     assert code == 1
     assert '/c' in err
+
+
+# -------------------------------------------------------------------------------------------
+# ROS 1 bags with compressed depth (iai_kinect2's .../compressed, image_transport's
+# .../compressedDepth)
+
+KINECT2_DEPTH = '/kinect2/sd/image_depth_rect'
+KINECT2_INFO = '/kinect2/sd/camera_info'
+ROS1_T0_NS = 1_600_000_000_000_000_000
+
+
+def iai_tiff(depth: np.ndarray) -> tuple[str, bytes]:
+    """iai_kinect2's depth/compressed with its default use_png: false: header + TIFF."""
+    return '16UC1; compressedDepth', struct.pack('<iff', 0, 0.0, 0.0) + cv2.imencode(
+        '.tif', depth)[1].tobytes()
+
+
+def compressed_depth_png(depth: np.ndarray) -> tuple[str, bytes]:
+    """compressed_depth_image_transport's depth/compressedDepth: header + PNG."""
+    msg = array_to_compressed_depth(depth, RclTime(), 'f')
+    return msg.format, bytes(msg.data)
+
+
+def write_ros1_kinect2(path: Path, depths: list[np.ndarray], intr: Intrinsics, *,
+                       depth_topic: str = KINECT2_DEPTH,
+                       compress: Callable[[np.ndarray], tuple[str, bytes]] | None = None,
+                       also_raw: bool = False, jpeg_color: bool = False) -> list[int]:
+    """Write a ROS 1 bag as kinect2_bridge records it; return the frames' stamps [ns].
+
+    Per frame a CameraInfo and the depth: a raw 16UC1 Image, or with ``compress`` a
+    CompressedImage of (format, data) = compress(depth); ``also_raw`` records the raw Image on
+    KINECT2_DEPTH too; ``jpeg_color`` adds a colour CompressedImage (bgr8 jpeg).
+    """
+    noetic = get_typestore(Stores.ROS1_NOETIC)
+    types = noetic.types
+    header_t, time_t = types['std_msgs/msg/Header'], types['builtin_interfaces/msg/Time']
+    stamps = [ROS1_T0_NS + k * 33_333_333 for k in range(len(depths))]
+    k_matrix = np.array([intr.fx, 0, intr.cx, 0, intr.fy, intr.cy, 0, 0, 1])
+    p_matrix = np.array([intr.fx, 0, intr.cx, 0, 0, intr.fy, intr.cy, 0, 0, 0, 1, 0])
+    with Writer1(path) as writer:
+        def conn(topic: str, msgtype: str) -> object:
+            return writer.add_connection(topic, msgtype, typestore=noetic)
+        info_c = conn(KINECT2_INFO, 'sensor_msgs/msg/CameraInfo')
+        depth_c = conn(depth_topic, 'sensor_msgs/msg/CompressedImage' if compress
+                       else 'sensor_msgs/msg/Image')
+        raw_c = conn(KINECT2_DEPTH, 'sensor_msgs/msg/Image') if also_raw else None
+        color_c = conn('/kinect2/sd/image_color_rect/compressed',
+                       'sensor_msgs/msg/CompressedImage') if jpeg_color else None
+        for k, (depth, stamp) in enumerate(zip(depths, stamps)):
+            header = header_t(seq=k, stamp=time_t(sec=stamp // 10**9, nanosec=stamp % 10**9),
+                              frame_id='kinect2_ir_optical_frame')
+            h, w = depth.shape
+            raw = types['sensor_msgs/msg/Image'](
+                header=header, height=h, width=w, encoding='16UC1', is_bigendian=0, step=2 * w,
+                data=depth.view(np.uint8).reshape(-1))
+            info = types['sensor_msgs/msg/CameraInfo'](
+                header=header, height=h, width=w, distortion_model='plumb_bob', D=np.zeros(5),
+                K=k_matrix, R=np.eye(3).ravel(), P=p_matrix, binning_x=0, binning_y=0,
+                roi=types['sensor_msgs/msg/RegionOfInterest'](
+                    x_offset=0, y_offset=0, height=0, width=0, do_rectify=False))
+            items = [(info_c, info)]
+            if compress is None:
+                items.append((depth_c, raw))
+            else:
+                fmt, data = compress(depth)
+                items.append((depth_c, types['sensor_msgs/msg/CompressedImage'](
+                    header=header, format=fmt, data=np.frombuffer(data, np.uint8))))
+            if raw_c is not None:
+                items.append((raw_c, raw))
+            if color_c is not None:
+                jpeg = cv2.imencode('.jpg', fake_color(depth, k))[1].reshape(-1)
+                items.append((color_c, types['sensor_msgs/msg/CompressedImage'](
+                    header=header, format='bgr8; jpeg compressed bgr8', data=jpeg)))
+            for c, msg in items:
+                writer.write(c, stamp, noetic.serialize_ros1(msg, msg.__msgtype__))
+    return stamps
+
+
+@pytest.mark.parametrize(('suffix', 'compress'), [
+    ('compressed', iai_tiff), ('compressedDepth', compressed_depth_png)])
+def test_ros1_compressed_depth_is_kept_and_named(
+        tmp_path: Path, depths: list[np.ndarray], suffix: str,
+        compress: Callable[[np.ndarray], tuple[str, bytes]],
+        capsys: pytest.CaptureFixture[str]) -> None:
+    topic = f'{KINECT2_DEPTH}/{suffix}'
+    stamps = write_ros1_kinect2(tmp_path / 'k.bag', depths, INTR, depth_topic=topic,
+                                compress=compress)
+
+    code, out, _ = run(['ros1', str(tmp_path / 'k.bag'), str(tmp_path / 'out')], capsys)
+
+    assert code == 0
+    assert f'note: {topic}: compressed depth' in out and f'--depth-topic {topic}' in out
+    got = read_bag(tmp_path / 'out')
+    assert KINECT2_DEPTH not in got
+    assert [t for t, _ in got[topic]] == stamps
+    for (_, msg), depth in zip(got[topic], depths, strict=True):
+        np.testing.assert_array_equal(compressed_depth_to_array(msg), depth)
+
+
+@pytest.mark.parametrize(('suffix', 'compress'), [
+    ('compressed', iai_tiff), ('compressedDepth', compressed_depth_png)])
+def test_ros1_decompress_depth_writes_the_raw_images(
+        tmp_path: Path, depths: list[np.ndarray], suffix: str,
+        compress: Callable[[np.ndarray], tuple[str, bytes]],
+        capsys: pytest.CaptureFixture[str]) -> None:
+    topic = f'{KINECT2_DEPTH}/{suffix}'
+    stamps = write_ros1_kinect2(tmp_path / 'k.bag', depths, INTR, depth_topic=topic,
+                                compress=compress, jpeg_color=True)
+
+    code, out, err = run(['ros1', str(tmp_path / 'k.bag'), str(tmp_path / 'out'),
+                          '--decompress-depth'], capsys)
+
+    assert code == 0, err
+    assert f'decoded to sensor_msgs/Image on {KINECT2_DEPTH}' in out
+    assert f'{KINECT2_DEPTH}: {len(depths)} messages' in out
+    got = read_bag(tmp_path / 'out')
+    assert topic not in got
+    assert sorted(got) == sorted([KINECT2_DEPTH, KINECT2_INFO,
+                                  '/kinect2/sd/image_color_rect/compressed'])  # jpeg is kept
+    for (t, msg), depth, stamp in zip(got[KINECT2_DEPTH], depths, stamps, strict=True):
+        assert t == stamp == stamp_of(msg)
+        assert (msg.encoding, msg.header.frame_id) == ('16UC1', 'kinect2_ir_optical_frame')
+        np.testing.assert_array_equal(image_to_array(msg), depth)
+
+
+def test_ros1_corrupt_compressed_frame_is_left_out_and_said(
+        tmp_path: Path, depths: list[np.ndarray], capsys: pytest.CaptureFixture[str]) -> None:
+    def truncated_second(depth: np.ndarray) -> tuple[str, bytes]:
+        fmt, data = compressed_depth_png(depth)
+        return fmt, data[:-40] if depth is depths[1] else data
+
+    write_ros1_kinect2(tmp_path / 'k.bag', depths, INTR,
+                       depth_topic=f'{KINECT2_DEPTH}/compressedDepth', compress=truncated_second)
+
+    code, out, err = run(['ros1', str(tmp_path / 'k.bag'), str(tmp_path / 'out'),
+                          '--decompress-depth'], capsys)
+
+    assert code == 0
+    assert (f'1 frame(s) of {KINECT2_DEPTH}/compressedDepth not decoded, left out: corrupt '
+            'PNG: truncated') in out
+    assert 'not decoded' in err
+    got = read_bag(tmp_path / 'out')[KINECT2_DEPTH]
+    assert [stamp_of(m) for _, m in got] == [ROS1_T0_NS + k * 33_333_333 for k in (0, 2, 3)]
+
+
+def test_ros1_decompress_refuses_to_write_a_raw_topic_twice(
+        tmp_path: Path, depths: list[np.ndarray], capsys: pytest.CaptureFixture[str]) -> None:
+    write_ros1_kinect2(tmp_path / 'k.bag', depths[:1], INTR,
+                       depth_topic=f'{KINECT2_DEPTH}/compressed', compress=iai_tiff,
+                       also_raw=True)
+
+    code, _, err = run(['ros1', str(tmp_path / 'k.bag'), str(tmp_path / 'out'),
+                        '--decompress-depth'], capsys)
+
+    assert code == 1
+    assert err.count('\n') == 1 and err.startswith(f'error: {tmp_path / "k.bag"}: ')
+    assert f'{KINECT2_DEPTH} would be written twice' in err
+    assert not (tmp_path / 'out').exists()
 
 
 # -------------------------------------------------------------------------------------------

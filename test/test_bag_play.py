@@ -16,7 +16,8 @@ import ros_env
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
-from sensor_msgs.msg import CameraInfo, Image
+from builtin_interfaces.msg import Time
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
 from obstacle_detection.conversions import image_to_array
 from tools import bag_convert, bag_play
@@ -203,3 +204,39 @@ def test_a_folder_that_is_not_a_bag_is_one_line(tmp_path: Path,
     err = capsys.readouterr().err
     assert err == (f'error: {tmp_path / "pictures"}: not a bag: no metadata.yaml in the folder;'
                    ' expected a rosbag2 folder (holding metadata.yaml)\n')
+
+
+def test_compressed_depth_topic_is_played_and_decodes(tmp_path: Path,
+                                                      context: rclpy.context.Context) -> None:
+    # a compressedDepth topic is played as recorded: the subscriber decodes the same frames
+    from rclpy.serialization import serialize_message
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    from obstacle_detection.compressed_depth import (array_to_compressed_depth,
+                                                     compressed_depth_to_array)
+
+    topic = f'{DEPTH}/compressedDepth'
+    with Writer(tmp_path / 'bag', version=9) as writer:
+        conn = writer.add_connection(topic, 'sensor_msgs/msg/CompressedImage',
+                                     typestore=get_typestore(Stores.ROS2_JAZZY))
+        for k in range(3):
+            msg = array_to_compressed_depth(frame_depth(k), Time(sec=60 + k), 'cam')
+            writer.write(conn, (60 + k) * 10**9 // 30, serialize_message(msg))
+    recorder = Recorder(context, {topic: CompressedImage}, RELIABLE)
+    node = Node('compressed_player', context=context)
+    player = bag_play.Player(node, tmp_path / 'bag', bag_play.PlayOptions(
+        reliable=True, wait_for_subscribers=1, wait_timeout_s=20.0, progress=False))
+    try:
+        player.wait_for_subscribers()
+        stats = player.play()
+        recorder.spin_until(lambda: len(recorder.received[topic]) >= 3, 10.0)
+        assert stats.published[topic] == 3
+        got = recorder.received[topic]
+        assert [m.format for m in got] == ['16UC1; compressedDepth png'] * 3
+        for k, msg in enumerate(got):
+            np.testing.assert_array_equal(compressed_depth_to_array(msg), frame_depth(k))
+    finally:
+        player.close()
+        node.destroy_node()
+        recorder.close()

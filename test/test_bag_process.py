@@ -7,9 +7,10 @@ import re
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from builtin_interfaces.msg import Time
@@ -17,10 +18,11 @@ from rclpy.serialization import deserialize_message, serialize_message
 from rosbags.rosbag2 import Reader, Writer
 from rosbags.typesys import Stores, get_typestore
 from nav_msgs.msg import OccupancyGrid
-from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 
-from obstacle_detection.conversions import (array_to_image, intrinsics_to_camera_info,
-                                            result_to_messages)
+from obstacle_detection.compressed_depth import array_to_compressed_depth
+from obstacle_detection.conversions import (array_to_image, image_to_array,
+                                            intrinsics_to_camera_info, result_to_messages)
 from obstacle_detection.params import KINECT_V2_SD, Intrinsics
 from obstacle_detection.pipeline import Detector
 from obstacle_detection.ros_params import detector_params_from_ros
@@ -448,3 +450,160 @@ def test_a_mount_far_from_the_floor_is_a_warning(tmp_path: Path,
     assert 'warning' not in captured.err
     assert f'camera mount: height 1.20 m, pitch 25.0 deg, roll 0.0 deg ({mount})' in \
         captured.out
+
+
+# --------------------------------------------------------------------------------------------
+# Compressed depth topics: the same outputs as the raw depth of the same frames
+
+
+def _iai_tiff(depth: np.ndarray) -> tuple[str, bytes]:
+    """iai_kinect2's depth/compressed (use_png: false): ConfigHeader + TIFF."""
+    return '16UC1; compressedDepth', bytes(12) + cv2.imencode('.tif', depth)[1].tobytes()
+
+
+def _headerless_png(depth: np.ndarray) -> tuple[str, bytes]:
+    """image_transport's compressed plugin on a 16UC1 image: a PNG, no header."""
+    return '16UC1; png compressed', cv2.imencode('.png', depth)[1].tobytes()
+
+
+def _compressed_depth(depth: np.ndarray) -> tuple[str, bytes]:
+    """compressed_depth_image_transport's compressedDepth: ConfigHeader + PNG."""
+    msg = array_to_compressed_depth(depth, Time(), 'f')
+    return msg.format, bytes(msg.data)
+
+
+COMPRESSIONS = {'compressedDepth': ('compressedDepth', _compressed_depth),
+                'iai_kinect2 tiff': ('compressed', _iai_tiff),
+                'png': ('compressed', _headerless_png)}
+
+
+def compressed_items(items: list[tuple[str, int, object]], suffix: str,
+                     compress: Callable[[np.ndarray], tuple[str, bytes]],
+                     damage: Callable[[int, bytes], bytes] = lambda k, data: data
+                     ) -> list[tuple[str, int, object]]:
+    """Return the bag items with each raw depth Image replaced by a CompressedImage of it."""
+    out: list[tuple[str, int, object]] = []
+    for topic, t, msg in items:
+        if topic == DEPTH:
+            fmt, data = compress(image_to_array(msg))
+            msg = CompressedImage(header=msg.header, format=fmt,
+                                  data=damage(len(out), data))
+            topic = f'{DEPTH}/{suffix}'
+        out.append((topic, t, msg))
+    return out
+
+
+def output_messages(bag: Path) -> dict[str, list[tuple[int, object]]]:
+    """Return the output topics of a processed bag: (bag timestamp, message) per frame."""
+    got = read_raw(bag)
+    return {topic: [(t, decoded(topic, raw)) for t, raw in got.get(topic, [])]
+            for topic in OUTPUT_TOPICS.values()}
+
+
+@pytest.mark.parametrize('kind', sorted(COMPRESSIONS))
+def test_compressed_depth_bag_gives_the_raw_bags_outputs(
+        tmp_path: Path, depths: list[np.ndarray], params_file: Path, kind: str,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    suffix, compress = COMPRESSIONS[kind]
+    assert max(int(d.max()) for d in depths) <= 10000  # within compressedDepth's 10 m
+    items = frame_messages(depths)
+    write_bag(tmp_path / 'raw', items)
+    write_bag(tmp_path / 'compressed', compressed_items(items, suffix, compress))
+    common = ['--params-file', str(params_file), '--quiet']
+
+    assert bag_process.main([str(tmp_path / 'raw'), str(tmp_path / 'raw_out'), *common]) == 0
+    assert bag_process.main([str(tmp_path / 'compressed'), str(tmp_path / 'compressed_out'),
+                             *common, '--depth-topic', f'{DEPTH}/{suffix}']) == 0
+
+    out = capsys.readouterr().out
+    assert (f'depth: {DEPTH}/{suffix} (sensor_msgs/msg/CompressedImage, decoded by '
+            'compressed_depth)') in out
+    assert f'intrinsics: CameraInfo on {INFO} (the default topic)' in out
+    raw_out = output_messages(tmp_path / 'raw_out')
+    compressed_out = output_messages(tmp_path / 'compressed_out')
+    for topic in OUTPUT_TOPICS.values():
+        assert len(raw_out[topic]) == len(depths)
+        assert compressed_out[topic] == raw_out[topic], f'{topic} differs'
+
+
+def test_ros1_iai_kinect2_compressed_bag_gives_the_raw_bags_outputs(
+        tmp_path: Path, depths: list[np.ndarray], params_file: Path) -> None:
+    # ROS 1 bags as kinect2_bridge records them: raw depth, or its .../compressed (TIFF)
+    from test_bag_convert import write_ros1_kinect2
+
+    compressed_topic = f'{DEPTH}/compressed'
+    write_ros1_kinect2(tmp_path / 'raw.bag', depths, INTR)
+    write_ros1_kinect2(tmp_path / 'compressed.bag', depths, INTR,
+                       depth_topic=compressed_topic, compress=_iai_tiff)
+    convert = ['ros1', '--quiet']
+    assert bag_convert.main([*convert, str(tmp_path / 'raw.bag'), str(tmp_path / 'raw')]) == 0
+    assert bag_convert.main([*convert, str(tmp_path / 'compressed.bag'),
+                             str(tmp_path / 'kept')]) == 0
+    assert bag_convert.main([*convert, str(tmp_path / 'compressed.bag'),
+                             str(tmp_path / 'decoded'), '--decompress-depth']) == 0
+    common = ['--params-file', str(params_file), '--quiet']
+
+    for name, extra in (('raw', []), ('kept', ['--depth-topic', compressed_topic]),
+                        ('decoded', [])):
+        assert bag_process.main([str(tmp_path / name), str(tmp_path / f'{name}_out'),
+                                 *common, *extra]) == 0
+
+    want = output_messages(tmp_path / 'raw_out')
+    assert all(len(want[topic]) == len(depths) for topic in OUTPUT_TOPICS.values())
+    assert output_messages(tmp_path / 'kept_out') == want
+    assert output_messages(tmp_path / 'decoded_out') == want
+
+
+def test_a_corrupt_compressed_frame_is_skipped_with_the_reason(
+        tmp_path: Path, depths: list[np.ndarray], params_file: Path,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    def truncate_second(index: int, data: bytes) -> bytes:
+        return data[:-50] if index == 3 else data  # items: info, depth, info, depth, ...
+
+    write_bag(tmp_path / 'in', compressed_items(frame_messages(depths), 'compressedDepth',
+                                                _compressed_depth, truncate_second))
+
+    assert bag_process.main([str(tmp_path / 'in'), str(tmp_path / 'out'), '--params-file',
+                             str(params_file), '--quiet', '--depth-topic',
+                             f'{DEPTH}/compressedDepth']) == 0
+
+    out = capsys.readouterr().out
+    assert 'depth frames: 3, processed 2, skipped 1' in out
+    assert re.search(r'skipped 1: corrupt PNG: truncated in its .* chunk', out)
+    got = output_messages(tmp_path / 'out')
+    assert [t for t, _ in got['/obstacles/points']] == [T0_NS, T0_NS + 2 * PERIOD_NS]
+
+
+def test_compressed_topic_named_in_the_missing_topic_error(
+        tmp_path: Path, depths: list[np.ndarray], capsys: pytest.CaptureFixture[str]) -> None:
+    write_bag(tmp_path / 'in', compressed_items(frame_messages(depths[:1]), 'compressedDepth',
+                                                _compressed_depth))
+
+    assert bag_process.main([str(tmp_path / 'in'), str(tmp_path / 'out')]) == 1
+
+    assert capsys.readouterr().err == (
+        f'error: {tmp_path / "in"}: no depth topic {DEPTH} (its sensor_msgs/msg/Image or '
+        f'sensor_msgs/msg/CompressedImage topics: {DEPTH}/compressedDepth; use '
+        '--depth-topic)\n')
+
+
+def test_camera_info_is_found_beside_the_raw_topic_of_a_compressed_one(
+        tmp_path: Path, depths: list[np.ndarray], capsys: pytest.CaptureFixture[str]) -> None:
+    items = []
+    for topic, t, msg in compressed_items(frame_messages(depths[:2]), 'compressedDepth',
+                                          _compressed_depth):
+        if topic == INFO:
+            items.append(('/cam/color/camera_info', t, msg))  # a second CameraInfo topic
+            topic = '/cam/depth/camera_info'
+        else:
+            topic = '/cam/depth/image_raw/compressedDepth'
+        items.append((topic, t, msg))
+    write_bag(tmp_path / 'in', items)
+
+    assert bag_process.main([str(tmp_path / 'in'), str(tmp_path / 'out'), '--quiet',
+                             '--depth-topic', '/cam/depth/image_raw/compressedDepth']) == 0
+
+    out = capsys.readouterr().out
+    assert ('intrinsics: CameraInfo on /cam/depth/camera_info (found by type beside '
+            '/cam/depth/image_raw)') in out
+    assert 'depth frames: 2, processed 2, skipped 0' in out

@@ -28,7 +28,13 @@ Sources (one sub-command each):
     images), sorted by name and stamped ``start + k / rate``.
 ``ros1``
     A ROS 1 bag (e.g. from the iai_kinect2 driver): every message (or those of ``--topics``)
-    is converted to its ROS 2 Jazzy type and written with its topic, stamp and data.
+    is converted to its ROS 2 Jazzy type and written with its topic, stamp and data. Compressed
+    depth (``sensor_msgs/CompressedImage`` such as iai_kinect2's
+    ``/kinect2/sd/image_depth_rect/compressed`` or image_transport's ``.../compressedDepth``)
+    is kept as it is, for ``bag_process.py --depth-topic``, and named in the summary; with
+    ``--decompress-depth`` it is decoded instead (``obstacle_detection.compressed_depth``,
+    16UC1 exactly) and written as a raw ``sensor_msgs/Image`` on the raw topic (``.../compressed``
+    -> ``...``), which the node and every tool read.
 
 Output: a rosbag2 folder (``--storage sqlite3`` by default, or ``mcap``) with, per frame, a
 ``sensor_msgs/Image`` depth (16UC1, millimetres), a ``sensor_msgs/CameraInfo`` and, when
@@ -50,6 +56,7 @@ import sys
 from collections import Counter
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
+from typing import Any
 
 if __package__ in (None, ''):  # run as a script: make the repository root importable
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -63,6 +70,10 @@ from rosbags.rosbag2 import StoragePlugin, Writer, WriterError  # noqa: E402
 from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
 from obstacle_detection import tool_support  # noqa: E402
+from obstacle_detection.compressed_depth import (COMPRESSED_IMAGE_TYPE,  # noqa: E402
+                                                 CompressedDepthError,
+                                                 compressed_depth_to_array, parse_format,
+                                                 raw_topic)
 from obstacle_detection.conversions import array_to_image, intrinsics_to_camera_info  # noqa: E402
 from obstacle_detection.params import KINECT_V2_SD, KINECT_V2_SD_SIZE, Intrinsics  # noqa: E402
 from tools.progress import Progress  # noqa: E402
@@ -687,11 +698,21 @@ def write_frames(source: FrameSource, output: Path, options: BagOptions) -> Summ
 
 
 def convert_ros1(src: Path, output: Path, *, storage: str = 'sqlite3',
-                 topics: Sequence[str] = (), progress: bool = True) -> Summary:
+                 topics: Sequence[str] = (), progress: bool = True,
+                 decompress_depth: bool = False) -> Summary:
     """Convert a ROS 1 bag to rosbag2, every message to its ROS 2 Jazzy type.
 
     Topics, bag timestamps, header stamps, frame ids and data are kept; ROS 1 only fields
     (``Header.seq``) are dropped and renamed fields (``CameraInfo.D`` -> ``d``) carried over.
+    A CompressedImage topic whose first message's format names a depth encoding
+    (``compressed_depth.parse_format``) is compressed depth: named in the summary's notes and,
+    with ``decompress_depth``, decoded and written as ``sensor_msgs/Image`` on its raw topic
+    (``raw_topic``); a frame that cannot be decoded is left out, counted in the notes and
+    warned about.
+
+    Raises:
+        ConvertError: naming the bag: unreadable, not ROS 1, no such topic, or (with
+            ``decompress_depth``) a raw topic that is recorded too.
     """
     # Imported here: only this conversion needs them.
     from rosbags.convert.converter import create_connections_converters
@@ -700,9 +721,11 @@ def convert_ros1(src: Path, output: Path, *, storage: str = 'sqlite3',
     if not src.is_file():
         raise ConvertError(f'{src}: ROS 1 bag not found')
     summary = Summary(output=output)
+    noetic = get_typestore(Stores.ROS1_NOETIC)
+    jazzy = get_typestore(Stores.ROS2_JAZZY)
     with staged_output(output) as staging:
         try:
-            with AnyReader([src], default_typestore=get_typestore(Stores.ROS1_NOETIC)) as reader:
+            with AnyReader([src], default_typestore=noetic) as reader:
                 if reader.is2:
                     raise ConvertError(f'{src}: not a ROS 1 bag (expected a .bag file)')
                 connections = [c for c in reader.connections if not topics or c.topic in topics]
@@ -710,30 +733,94 @@ def convert_ros1(src: Path, output: Path, *, storage: str = 'sqlite3',
                     raise ConvertError(f'{src}: has no topic {", ".join(missing)}')
                 if not connections:
                     raise ConvertError(f'{src}: contains no messages')
+                depth = _compressed_depth_topics(reader, connections, noetic)
+                for topic, fmt in sorted(depth.items()):
+                    summary.notes.append(
+                        f'{topic}: compressed depth ({fmt!r}); '
+                        + (f'decoded to sensor_msgs/Image on {raw_topic(topic)}'
+                           if decompress_depth else
+                           f'bag_process.py --depth-topic {topic} reads it (or convert with '
+                           '--decompress-depth)'))
+                decoded = set(depth) if decompress_depth else set()
+                targets = Counter(raw_topic(t) for t in decoded)
+                if clash := sorted(t for t, n in targets.items() if n > 1 or t in (
+                        {c.topic for c in connections} - decoded)):
+                    raise ConvertError(
+                        f'{src}: {", ".join(clash)} would be written twice by '
+                        '--decompress-depth (recorded raw too, or from two compressed topics); '
+                        'choose one with --topics')
                 total = sum(c.msgcount for c in connections)
                 with Writer(staging, version=BAG_VERSION,
                             storage_plugin=STORAGES[storage]) as writer:
+                    kept = [c for c in connections if c.topic not in decoded]
                     # rosbags prints which types it migrates; keep stdout for our summary.
                     with contextlib.redirect_stdout(io.StringIO()):
                         connmap, convmap = create_connections_converters(
-                            connections, get_typestore(Stores.ROS2_JAZZY), reader, writer)
+                            kept, jazzy, reader, writer) if kept else ({}, {})
+                    raw_conns = {t: writer.add_connection(raw_topic(t), tool_support.IMAGE_TYPE,
+                                                          typestore=jazzy)
+                                 for t in sorted(decoded)}
                     counts: Counter[str] = Counter()
+                    failed: Counter[tuple[str, str]] = Counter()
                     with Progress(total, 'converting',
                                   stream=None if progress else io.StringIO()) as bar:
                         for conn, timestamp, data in reader.messages(connections=connections):
+                            bar.update()
+                            if conn.topic in decoded:
+                                image, reason = _decoded_depth(data, noetic)
+                                if image is None:
+                                    failed[(conn.topic, reason)] += 1
+                                    continue
+                                writer.write(raw_conns[conn.topic], timestamp, image)
+                                counts[raw_topic(conn.topic)] += 1
+                                continue
                             writer.write(connmap[(conn.id, conn.owner)], timestamp,
                                          convmap[conn.msgtype](data))
                             counts[conn.topic] += 1
-                            bar.update()
                 summary.duration_s = (reader.end_time - reader.start_time) / 1e9
         except AnyReaderError as err:
             raise ConvertError(f'{src}: cannot read ROS 1 bag ({err})') from err
         except WriterError as err:
             raise ConvertError(f'{output}: cannot write bag ({err})') from err
+    for (topic, reason), count in sorted(failed.items()):
+        note = f'{count} frame(s) of {topic} not decoded, left out: {reason}'
+        summary.notes.append(note)
+        _warn(note)
     summary.topics = dict(sorted(counts.items()))
     summary.messages = sum(counts.values())
     summary.frames = max(counts.values(), default=0)
     return summary
+
+
+def _compressed_depth_topics(reader: Any, connections: Sequence[Any],
+                             typestore: Any) -> dict[str, str]:
+    """Map each CompressedImage topic holding depth to its first message's format."""
+    found: dict[str, str] = {}
+    for conn in connections:
+        if conn.msgtype != COMPRESSED_IMAGE_TYPE or conn.msgcount == 0 or conn.topic in found:
+            continue
+        _, _, data = next(iter(reader.messages(connections=[conn])))
+        fmt = str(typestore.deserialize_ros1(data, COMPRESSED_IMAGE_TYPE).format)
+        try:
+            parse_format(fmt)
+        except CompressedDepthError:
+            continue  # colour (jpeg, png of bgr8, ...): not depth
+        found[conn.topic] = fmt
+    return found
+
+
+def _decoded_depth(data: bytes, typestore: Any) -> tuple[bytes | None, str]:
+    """Decode one ROS 1 CompressedImage of depth into a serialized ROS 2 Image, or say why not."""
+    msg = typestore.deserialize_ros1(data, COMPRESSED_IMAGE_TYPE)
+    try:
+        array = compressed_depth_to_array(msg)
+        encoding = parse_format(msg.format)[0]
+    except CompressedDepthError as err:
+        return None, str(err)
+    stamp = Time(sec=int(msg.header.stamp.sec), nanosec=int(msg.header.stamp.nanosec))
+    image = array_to_image(array, stamp=stamp, frame_id=str(msg.header.frame_id),
+                           encoding=encoding)
+    return serialize_message(image), ''
 
 
 # --------------------------------------------------------------------------------------------
@@ -816,6 +903,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('output', type=Path, help='rosbag2 folder to create (must not exist)')
     p.add_argument('--topics', nargs='+', default=(), metavar='TOPIC',
                    help='convert only these topics (default: all)')
+    p.add_argument('--decompress-depth', action='store_true',
+                   help='write compressed depth topics (.../compressed, .../compressedDepth) '
+                        'as raw sensor_msgs/Image on their raw topic (.../compressed -> ...)')
     return parser
 
 
@@ -849,7 +939,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         if args.source == 'ros1':
             summary = convert_ros1(args.bag, args.output, storage=args.storage,
-                                   topics=args.topics, progress=not args.quiet)
+                                   topics=args.topics, progress=not args.quiet,
+                                   decompress_depth=args.decompress_depth)
         else:
             source = sources[args.source]()
             summary = write_frames(source, args.output, options_from_args(args))

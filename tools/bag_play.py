@@ -7,7 +7,10 @@ recorded (scaled by ``--rate``), from ``--start-offset`` seconds into the bag, o
 ``--loop``-ed. Publishers use the sensor-data QoS profile (best effort, keep last 5), as a camera
 driver does, unless ``--reliable``. ``--remap old:=new`` renames topics;
 ``--wait-for-subscribers N`` waits until N subscriptions, summed over the played topics, are
-matched (2 for the detector node: depth and camera info).
+matched (2 for the detector node: depth and camera info). Every message type plays as
+recorded, compressed depth too (``sensor_msgs/CompressedImage`` on ``.../compressedDepth`` or
+iai_kinect2's ``.../compressed``); a subscriber that takes raw depth only gets it from a bag
+converted with ``bag_convert.py ros1 --decompress-depth``.
 
 Every process that calls ``rclpy.init()`` here should run with the loopback Fast DDS profile
 (``tools/fastdds_loopback.xml``) and a ROS_DOMAIN_ID of its own; see the README.

@@ -10,6 +10,12 @@ params file, the ground cloud (``<namespace>/ground_points``) and the overlay im
 (``<namespace>/overlay``); each output carries the source depth image's header stamp and bag
 timestamp. Frames the node would skip (no camera info, size mismatch, unsupported encoding, no
 valid depth) are skipped and counted with the reason.
+
+The depth topic may be a raw ``sensor_msgs/Image`` or a ``sensor_msgs/CompressedImage``
+(image_transport's ``.../compressedDepth``, iai_kinect2's ``.../compressed``): compressed frames
+are decoded by ``obstacle_detection.compressed_depth`` into the array the raw image gives (16UC1
+exactly), so both give the same outputs; a frame that cannot be decoded is skipped with the
+reason (corrupt PNG, bad header, ...).
 """
 
 from __future__ import annotations
@@ -31,12 +37,14 @@ import numpy as np  # noqa: E402
 from rclpy.serialization import deserialize_message, serialize_message  # noqa: E402
 from rosbags.rosbag2 import Reader, ReaderError, Writer, WriterError  # noqa: E402
 from rosbags.typesys import Stores, get_typestore  # noqa: E402
-from sensor_msgs.msg import CameraInfo, Image  # noqa: E402
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image  # noqa: E402
 
 from obstacle_detection import tool_support  # noqa: E402
+from obstacle_detection.compressed_depth import (COMPRESSED_IMAGE_TYPE,  # noqa: E402
+                                                 depth_message_to_array, is_compressed_image,
+                                                 raw_topic)
 from obstacle_detection.conversions import (DEPTH_ENCODINGS, ImageFormatError,  # noqa: E402
-                                            camera_info_to_intrinsics, image_to_array,
-                                            result_to_messages)
+                                            camera_info_to_intrinsics, result_to_messages)
 from obstacle_detection.node import NodeConfig, build_config  # noqa: E402
 from obstacle_detection.params import Intrinsics  # noqa: E402
 from obstacle_detection.ros_params import (ALL_PARAMS, ParamsFileError,  # noqa: E402
@@ -53,6 +61,8 @@ OUTPUTS = {
     'ground': ('ground_points', 'sensor_msgs/msg/PointCloud2'),
     'overlay': ('overlay', 'sensor_msgs/msg/Image'),
 }
+#: Message types a depth topic may have -> rclpy class.
+DEPTH_TYPES = {tool_support.IMAGE_TYPE: Image, COMPRESSED_IMAGE_TYPE: CompressedImage}
 
 
 class ProcessError(Exception):
@@ -109,12 +119,13 @@ class ProcessSummary:
     topics: dict[str, int] = dataclasses.field(default_factory=dict)
     info_topic: str | None = None
     info_how: str = ''
+    depth: str = ''
     mount: str = ''
     mount_warning: str | None = None
 
     def lines(self) -> list[str]:
         """Return the summary as printable lines."""
-        out = [f'wrote {self.output}',
+        out = [f'wrote {self.output}', *([f'  depth: {self.depth}'] if self.depth else []),
                f'  intrinsics: CameraInfo on {self.info_topic} ({self.info_how})'
                if self.info_topic else f'  intrinsics: none recorded ({self.info_how})',
                f'  camera mount: {self.mount}',
@@ -138,9 +149,9 @@ def _time_msg(stamp: Any) -> Any:
     return Time(sec=int(stamp.sec), nanosec=int(stamp.nanosec))
 
 
-def frame_intrinsics(depth: Image, info: CameraInfo | None, config: NodeConfig
+def frame_intrinsics(shape: tuple[int, int], info: CameraInfo | None, config: NodeConfig
                      ) -> tuple[Intrinsics | None, str | None]:
-    """Return the intrinsics the node would use for ``depth``, or why it would skip the frame."""
+    """Return the intrinsics the node would use for a (H, W) frame, or why it would skip it."""
     if info is None:
         if config.use_fallback_intrinsics:
             return config.fallback_intrinsics, None
@@ -149,26 +160,28 @@ def frame_intrinsics(depth: Image, info: CameraInfo | None, config: NodeConfig
         intrinsics = camera_info_to_intrinsics(info)
     except ValueError as err:
         return None, str(err)
-    if info.width and info.height and (info.width, info.height) != (depth.width, depth.height):
-        return None, (f'image is {depth.width}x{depth.height} but the camera info is '
+    height, width = shape
+    if info.width and info.height and (info.width, info.height) != (width, height):
+        return None, (f'image is {width}x{height} but the camera info is '
                       f'{info.width}x{info.height}')
     return intrinsics, None
 
 
-def process_frame(depth: Image, info: CameraInfo | None, config: NodeConfig, *,
-                  with_ground: bool, with_overlay: bool) -> tuple[dict[str, Any] | None, Any, str]:
-    """Run one depth message through the node's steps.
+def process_frame(depth: Image | CompressedImage, info: CameraInfo | None, config: NodeConfig,
+                  *, with_ground: bool,
+                  with_overlay: bool) -> tuple[dict[str, Any] | None, Any, str]:
+    """Run one depth message (raw or compressed) through the node's steps.
 
     Returns (messages from result_to_messages, the DetectionResult, '') or (None, None, the
     reason the node would skip the frame).
     """
-    if depth.encoding not in DEPTH_ENCODINGS:
+    if not is_compressed_image(depth) and depth.encoding not in DEPTH_ENCODINGS:
         return None, None, f'unsupported encoding {depth.encoding!r}'
     try:
-        array = image_to_array(depth)
+        array = depth_message_to_array(depth)
     except ImageFormatError as err:
         return None, None, str(err)
-    intrinsics, reason = frame_intrinsics(depth, info, config)
+    intrinsics, reason = frame_intrinsics(array.shape, info, config)
     if intrinsics is None:
         return None, None, str(reason)
     valid = (np.isfinite(array) & (array > 0)) if array.dtype.kind == 'f' else array > 0
@@ -205,9 +218,11 @@ def process_bag(src: Path, output: Path, config: NodeConfig, *,
                 mount_origin: str = 'the parameters') -> ProcessSummary:
     """Process every depth frame of ``src`` and write inputs + outputs to ``output``.
 
-    info_topic: the depth's CameraInfo topic; None finds it by type
+    depth_topic: a ``sensor_msgs/Image`` or ``sensor_msgs/CompressedImage`` topic (decoded by
+    ``compressed_depth``). info_topic: the depth's CameraInfo topic; None finds it by type
     (``tool_support.choose_info_topic``: the default topic, else the CameraInfo topic beside
-    the depth topic, else the only one). The summary says which was used, and which camera
+    the depth topic, or beside its raw topic for a ``.../compressed(Depth)`` one, else the
+    only one). The summary says which was used, and which camera
     mount (from ``mount_origin``); the floor of the first processed frame is compared with that
     mount (``tool_support.check_mount``) and a disagreement is a warning on stderr and in the
     summary.
@@ -232,16 +247,19 @@ def process_bag(src: Path, output: Path, config: NodeConfig, *,
     try:
         with Reader(src) as reader:
             topics = {c.topic: c.msgtype for c in reader.connections}
-            msgtype = tool_support.IMAGE_TYPE
+            kinds = ' or '.join(DEPTH_TYPES)
             if depth_topic not in topics:
-                images = sorted(t for t, m in topics.items() if m == msgtype)
-                raise ProcessError(f'{src}: no depth topic {depth_topic} (its {msgtype} topics: '
+                images = sorted(t for t, m in topics.items() if m in DEPTH_TYPES)
+                raise ProcessError(f'{src}: no depth topic {depth_topic} (its {kinds} topics: '
                                    f'{", ".join(images) or "none"}; use --depth-topic)')
-            if topics[depth_topic] != msgtype:
+            if topics[depth_topic] not in DEPTH_TYPES:
                 raise ProcessError(f'{src}: {depth_topic} has type {topics[depth_topic]}, '
-                                   f'not {msgtype}')
+                                   f'not {kinds}')
+            depth_class = DEPTH_TYPES[topics[depth_topic]]
+            summary.depth = f'{depth_topic} ({topics[depth_topic]}' + (
+                ', decoded by compressed_depth)' if depth_class is CompressedImage else ')')
             try:
-                info_topic, how = tool_support.choose_info_topic(topics, depth_topic,
+                info_topic, how = tool_support.choose_info_topic(topics, raw_topic(depth_topic),
                                                                  info_topic)
             except ValueError as err:
                 raise ProcessError(f'{src}: {err}') from err
@@ -281,7 +299,7 @@ def process_bag(src: Path, output: Path, config: NodeConfig, *,
                             continue
                         if conn.topic != depth_topic:
                             continue
-                        depth = deserialize_message(bytes(raw), Image)
+                        depth = deserialize_message(bytes(raw), depth_class)
                         report = FrameReport(summary.frames, timestamp)
                         summary.frames += 1
                         messages, result, reason = process_frame(
@@ -348,7 +366,9 @@ def build_parser() -> argparse.ArgumentParser:
                         metavar='YAML',
                         help="the node's parameter YAML (default: the node's defaults); "
                              'repeatable, merged in order as ROS does (a later file wins)')
-    parser.add_argument('--depth-topic', default=DEFAULT_DEPTH_TOPIC, help='(%(default)s)')
+    parser.add_argument('--depth-topic', default=DEFAULT_DEPTH_TOPIC,
+                        help='depth topic: a sensor_msgs/Image, or a CompressedImage such as '
+                             '.../compressed or .../compressedDepth (default %(default)s)')
     parser.add_argument('--info-topic',
                         help=f'CameraInfo topic (default: {DEFAULT_INFO_TOPIC}, else the bag\'s '
                              'CameraInfo topic found by type)')
