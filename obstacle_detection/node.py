@@ -54,10 +54,11 @@ from rclpy.qos import (
     qos_profile_sensor_data,
 )
 from diagnostic_msgs.msg import DiagnosticArray
-from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 from std_msgs.msg import Float64, String
 
 from . import jit_support
+from .compressed_depth import compressed_depth_to_array, is_compressed_image
 from .conversions import (
     DEPTH_ENCODINGS,
     ImageFormatError,
@@ -91,6 +92,12 @@ _DIAGNOSTICS_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
                               history=HistoryPolicy.KEEP_LAST,
                               durability=DurabilityPolicy.VOLATILE)
 DIAGNOSTICS_PERIOD_S = 1.0
+#: depth_transport -> (message type, topic): image_transport's names for the depth stream.
+DEPTH_TRANSPORTS = {
+    'raw': (Image, 'depth/image_raw'),
+    'compressedDepth': (CompressedImage, 'depth/image_raw/compressedDepth'),
+    'compressed': (CompressedImage, 'depth/image_raw/compressed'),
+}
 #: First word of every ~/status message once the node processes frames.
 STATUS_READY = 'ready'
 _RELIABLE_INPUT_QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE,
@@ -221,6 +228,10 @@ def build_config(values: dict[str, Any]) -> NodeConfig:
     for name in ('cloud_frame_id', 'costmap_frame_id'):
         if not str(values[name]).strip():
             raise ValueError(f'{name} must not be empty')
+    transport = values.get('depth_transport', 'raw')
+    if transport not in DEPTH_TRANSPORTS:
+        raise ValueError(f'depth_transport={transport!r} must be one of '
+                         f'{", ".join(map(repr, DEPTH_TRANSPORTS))}')
     return NodeConfig(
         detector=build_detector(values),
         cloud_frame_id=str(values['cloud_frame_id']),
@@ -271,6 +282,13 @@ def _problem_kind(prefix: str, text: str) -> str:
     repeated within the throttle period.
     """
     return f'{prefix}:{re.sub(r"[-+]?[0-9][0-9.e+-]*", "#", text)}'
+
+
+def _depth_format(msg: Any) -> str:
+    """Describe a depth message's format for a warning."""
+    if is_compressed_image(msg):
+        return f'CompressedImage format {msg.format!r}'
+    return f'encoding {msg.encoding!r}, is_bigendian={bool(msg.is_bigendian)}'
 
 
 def _stamp_ns(stamp: Any) -> int:
@@ -337,7 +355,9 @@ class DetectorNode(Node):
                                         daemon=True)
         self._worker.start()
         # Subscribe last: a publisher that sees the match finds a node able to process.
-        self._depth_sub = self.create_subscription(Image, 'depth/image_raw', self._on_depth,
+        transport = str(self.get_parameter('depth_transport').value)
+        depth_type, depth_topic = DEPTH_TRANSPORTS[transport]
+        self._depth_sub = self.create_subscription(depth_type, depth_topic, self._on_depth,
                                                    in_qos)
         self._info_sub = self.create_subscription(CameraInfo, 'depth/camera_info',
                                                   self._on_camera_info, in_qos)
@@ -606,7 +626,8 @@ class DetectorNode(Node):
             'disagree'))
         return _SKIP
 
-    def _frame_intrinsics(self, msg: Image, config: NodeConfig) -> Intrinsics | None:
+    def _frame_intrinsics(self, msg: Any, shape: tuple[int, ...],
+                          config: NodeConfig) -> Intrinsics | None:
         camera = self._camera_for(msg, config)
         if camera is _SKIP:
             return None
@@ -625,8 +646,9 @@ class DetectorNode(Node):
         if camera.intrinsics is None:
             self._warn_skip(_problem_kind('camera_info', str(camera.error)), str(camera.error))
             return None
-        if (camera.width, camera.height) != (msg.width, msg.height):
-            self._warn_skip('size', f'image is {msg.width}x{msg.height} but CameraInfo is '
+        height, width = shape[:2]
+        if (camera.width, camera.height) != (width, height):
+            self._warn_skip('size', f'image is {width}x{height} but CameraInfo is '
                             f'{camera.width}x{camera.height}')
             return None
         return camera.intrinsics
@@ -639,16 +661,17 @@ class DetectorNode(Node):
         """
         start = time.perf_counter()
         config = self._config
-        if msg.encoding not in DEPTH_ENCODINGS:
+        compressed = is_compressed_image(msg)
+        if not compressed and msg.encoding not in DEPTH_ENCODINGS:
             self._warn_skip('encoding', f'unsupported encoding {msg.encoding!r} (expected '
                             f'{", ".join(DEPTH_ENCODINGS)})')
             return False
         try:
-            depth = image_to_array(msg)
+            depth = compressed_depth_to_array(msg) if compressed else image_to_array(msg)
         except ImageFormatError as error:
-            self._warn_skip('layout', str(error))
+            self._warn_skip('compressed' if compressed else 'layout', str(error))
             return False
-        intrinsics = self._frame_intrinsics(msg, config)
+        intrinsics = self._frame_intrinsics(msg, depth.shape, config)
         if intrinsics is None:
             return False
         if not _has_valid_depth(depth):
@@ -657,8 +680,7 @@ class DetectorNode(Node):
         problem = depth_problem(depth)
         if problem is not None:
             self._warn_skip(_problem_kind('depth', problem),
-                            f'{problem} (encoding {msg.encoding!r}, '
-                            f'is_bigendian={bool(msg.is_bigendian)})')
+                            f'{problem} ({_depth_format(msg)})')
             return False
         try:
             result = config.detector.process(depth, intrinsics)

@@ -148,6 +148,11 @@ NODE_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec('use_fallback_intrinsics', False,
               'Use fallback_fx/fy/cx/cy while no CameraInfo has arrived (else frames are '
               'skipped until one arrives)'),
+    ParamSpec('depth_transport', 'raw',
+              "Depth input: 'raw' (sensor_msgs/Image on depth/image_raw), 'compressedDepth' "
+              "(CompressedImage on depth/image_raw/compressedDepth, image_transport's PNG "
+              "codec) or 'compressed' (depth/image_raw/compressed, e.g. iai_kinect2's); read "
+              'at start-up', read_only=True),
     ParamSpec('camera_info_tolerance_s', 0.02,
               'A depth frame uses the CameraInfo whose stamp is nearest to its own within this '
               'tolerance (the newest one when the camera publishes a single CameraInfo, or when '

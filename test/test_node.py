@@ -41,10 +41,11 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter, parameter_dict_from_yaml_file, parameter_value_to_python
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
-from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 from std_msgs.msg import Float64, String
 
 from obstacle_detection import jit_support
+from obstacle_detection.compressed_depth import array_to_compressed_depth
 from obstacle_detection.conversions import (
     array_to_image,
     intrinsics_to_camera_info,
@@ -97,7 +98,8 @@ class NodeUnderTest:
     """The detector subprocess, its log lines, and a probe node talking to it."""
 
     def __init__(self, tmp: Path, *, salt: str = '',
-                 extra_env: dict[str, str] | None = None) -> None:
+                 extra_env: dict[str, str] | None = None,
+                 extra_args: tuple[str, ...] = ()) -> None:
         self.tmp = tmp
         self.env = ros_env.loopback_env(__name__ + salt, log_dir=tmp / 'ros_log')
         self.env.update(extra_env or {})
@@ -105,7 +107,8 @@ class NodeUnderTest:
         command = _detector_command() + [
             '--ros-args', '--params-file', str(CORRIDOR_YAML),
             '-p', 'reliable_input:=true', '-p', 'publish_ground:=true',
-            '-p', 'stats_period_s:=1.0', '--log-level', 'obstacle_detector:=debug']
+            '-p', 'stats_period_s:=1.0', '--log-level', 'obstacle_detector:=debug',
+            *extra_args]
         self.process = subprocess.Popen(command, env=self.env, cwd=tmp, stdout=subprocess.PIPE,
                                         stderr=subprocess.STDOUT, text=True)
         self.lines: list[str] = []
@@ -737,6 +740,42 @@ def test_diagnostics_report_each_fault_at_its_level(tmp_path: Path, scene: Scene
         level, message = level_after('skipped for bad input', 1.0)
         assert level == ERROR and '(encoding ' in message
         assert level_after('no depth frame for', 5.0)[0] == ERROR
+    finally:
+        node.close()
+
+
+def test_compressed_depth_input_gives_the_raw_frames_outputs(
+        tmp_path: Path, scene: SceneFrame, corridor_params: Any) -> None:
+    """depth_transport compressedDepth: PNG-compressed 16UC1 frames, bit-identical depth."""
+    node = NodeUnderTest(tmp_path, salt='compressed',
+                         extra_args=('-p', 'depth_transport:=compressedDepth'))
+    try:
+        compressed_pub = node.node.create_publisher(
+            CompressedImage, 'depth/image_raw/compressedDepth', RELIABLE)
+        assert node.spin_until(lambda: compressed_pub.get_subscription_count() > 0
+                               and all(s.get_publisher_count() > 0 for s in node._subs[:2]),
+                               START_TIMEOUT_S), node.log()
+        expected = Detector(corridor_params).process(scene.depth_mm, scene.intrinsics)
+        for _ in range(3):
+            stamp = node.next_stamp()
+            info = _camera_info(scene)
+            info.header.stamp = stamp
+            node.info_pub.publish(info)
+            node.spin_until(lambda: False, 0.2)
+            compressed_pub.publish(array_to_compressed_depth(scene.depth_mm, stamp,
+                                                             'depth_optical'))
+            out = node.outputs(stamp)
+            if out is not None:
+                break
+        assert out is not None, node.log()
+        _assert_matches(out, expected)
+
+        start = len(node.lines)
+        broken = array_to_compressed_depth(scene.depth_mm, node.next_stamp(), 'depth_optical')
+        broken.data = bytes(broken.data)[:200]
+        compressed_pub.publish(broken)
+        assert node.wait_for_log('skipping depth frame: ', start), node.log()
+        assert node.process.poll() is None
     finally:
         node.close()
 
