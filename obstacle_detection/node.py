@@ -32,7 +32,7 @@ import re
 import sys
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -70,10 +70,11 @@ from .conversions import (
 )
 from .diagnostics import Context as DiagnosticsContext
 from .diagnostics import HealthWindow, diagnostic_array, health_status
+from .mount_source import Mount, MountSource
 from .params import Intrinsics
 from .pipeline import Detector
 from .refine import LogisticRefiner, RefinedDetector
-from .ros_params import (ALL_PARAMS, NODE_NAME, detector_params_from_ros,
+from .ros_params import (ALL_PARAMS, NODE_NAME, SPECS_BY_NAME, detector_params_from_ros,
                          fallback_intrinsics_from_ros, params_file_problems,
                          params_files_in_args)
 
@@ -204,6 +205,32 @@ class NodeConfig:
     fallback_intrinsics: Intrinsics
     stats_period_s: float
     camera_info_tolerance_ns: int = 20_000_000
+    values: dict[str, Any] = field(default_factory=dict)   #: the ROS values it was built from
+
+    def mount(self) -> Mount:
+        """Return the mount the parameters give (the fallback when TF has none)."""
+        values = self.values
+        return Mount(x_m=float(values.get('camera_x_m', 0.0)),
+                     y_m=float(values.get('camera_y_m', 0.0)),
+                     z_m=float(values.get('camera_height_m', 0.6)),
+                     roll_rad=math.radians(float(values.get('camera_roll_deg', 0.0))),
+                     pitch_rad=math.radians(float(values.get('camera_pitch_deg', 0.0))),
+                     yaw_rad=math.radians(float(values.get('camera_yaw_deg', 0.0))))
+
+    def detector_for(self, mount: Mount) -> Detector | RefinedDetector:
+        """Return the detector with the camera mounted as ``mount`` (ValueError if not)."""
+        values = dict(self.values, camera_height_m=mount.z_m,
+                      camera_roll_deg=math.degrees(mount.roll_rad),
+                      camera_pitch_deg=math.degrees(mount.pitch_rad))
+        extra = {'camera_x_m': mount.x_m, 'camera_y_m': mount.y_m,
+                 'camera_yaw_deg': math.degrees(mount.yaw_rad)}
+        for name, value in extra.items():
+            if name in SPECS_BY_NAME:
+                values[name] = value
+            elif abs(value) > 1e-6:
+                raise ValueError(f'this pipeline has no {name}: the camera must sit above the '
+                                 f'base frame origin, facing forward ({mount.describe()})')
+        return build_detector(values)
 
 
 def build_detector(values: dict[str, Any]) -> Detector | RefinedDetector:
@@ -241,7 +268,8 @@ def build_config(values: dict[str, Any]) -> NodeConfig:
         use_fallback_intrinsics=bool(values['use_fallback_intrinsics']),
         fallback_intrinsics=fallback_intrinsics_from_ros(values),
         stats_period_s=float(values['stats_period_s']),
-        camera_info_tolerance_ns=round(float(values['camera_info_tolerance_s']) * 1e9))
+        camera_info_tolerance_ns=round(float(values['camera_info_tolerance_s']) * 1e9),
+        values=dict(values))
 
 
 @dataclass(frozen=True)
@@ -304,7 +332,12 @@ def _has_valid_depth(depth: np.ndarray) -> bool:
 class DetectorNode(Node):
     """Subscribes to a depth camera, runs the pipeline, publishes obstacles and a costmap."""
 
-    def __init__(self, **kwargs: Any) -> None:
+    def __init__(self, *, tf_buffer: Any = None, **kwargs: Any) -> None:
+        """Declare the parameters, build the detector, subscribe.
+
+        tf_buffer: an object with ``tf2_ros.Buffer``'s ``lookup_transform`` (tests give a
+        stand-in); None creates a real one when ``use_tf`` is set and tf2_ros is importable.
+        """
         super().__init__(NODE_NAME, **kwargs)
         for spec in ALL_PARAMS:
             self.declare_parameter(spec.name, spec.default, spec.descriptor())
@@ -316,6 +349,9 @@ class DetectorNode(Node):
             raise
         self.stats = FrameStats()
         self._slot = LatestSlot()
+        self._mount_source = self._make_mount_source(tf_buffer)
+        self._mount_cache: tuple[NodeConfig, Mount, Any] | None = None
+        self._mount_said = ''
         self._cameras: collections.deque[_CameraState] = collections.deque(
             maxlen=CAMERA_INFO_HISTORY)
         self._warn_loggers: dict[str, Any] = {}
@@ -475,6 +511,61 @@ class DetectorNode(Node):
         if self.context.ok():
             self._status_pub.publish(String(data=f'{STATUS_READY}: {self.compute_path()}'))
 
+    # -- the camera mount: parameters or TF ------------------------------------------------------
+    def _make_mount_source(self, tf_buffer: Any) -> MountSource:
+        target = str(self.get_parameter('cloud_frame_id').value)
+        if not bool(self.get_parameter('use_tf').value):
+            self.get_logger().info(
+                f'camera mount from the parameters ({self._config.mount().describe()})')
+            return MountSource(None, target)
+        timeout = float(self.get_parameter('tf_timeout_s').value)
+        static = bool(self.get_parameter('tf_static_mount').value)
+        if tf_buffer is None:
+            try:
+                import tf2_ros
+            except ImportError:
+                self.get_logger().warning(
+                    'use_tf is set but tf2_ros is not importable (no ROS 2 installation?): the '
+                    f'camera mount comes from the parameters ({self._config.mount().describe()})')
+                return MountSource(None, target)
+            tf_buffer = tf2_ros.Buffer()
+            self._tf_listener = tf2_ros.TransformListener(tf_buffer, self)
+        self.get_logger().info(f'camera mount from TF: {target} <- the depth image frame_id'
+                               f'{" (static: looked up once)" if static else ""}; until '
+                               'then from the parameters')
+        return MountSource(tf_buffer, target, static=static, timeout_s=timeout)
+
+    def _detector_for(self, msg: Any, config: NodeConfig) -> Any:
+        """Return the frame's detector: the configured one, or one mounted where TF says."""
+        source = self._mount_source
+        if source.buffer is None:
+            return config.detector
+        from rclpy.duration import Duration
+        from rclpy.time import Time as RclpyTime
+
+        fallback = config.mount()
+        mount = source.mount_for(msg.header.frame_id, RclpyTime.from_msg(msg.header.stamp),
+                                 fallback, duration=lambda s: Duration(seconds=s))
+        if source.last_problem is not None:
+            self._throttled_logger('mount').warning(source.last_problem,
+                                                    throttle_duration_sec=WARN_THROTTLE_S)
+        said = f'{source.source}: {mount.describe()}'
+        if said != self._mount_said and source.last_problem is None:
+            self.get_logger().info(f'camera mount from {said}')
+        self._mount_said = said
+        if mount == fallback:
+            return config.detector
+        cache = self._mount_cache
+        if cache is not None and cache[0] is config and cache[1] == mount:
+            return cache[2]
+        try:
+            detector = config.detector_for(mount)
+        except ValueError as error:
+            self._warn_skip('mount', f'the mount from TF cannot be used: {error}')
+            return None
+        self._mount_cache = (config, mount, detector)
+        return detector
+
     # -- diagnostics ---------------------------------------------------------------------------
     def _camera_info_text(self) -> tuple[str, bool]:
         """Describe the intrinsics source for /diagnostics; True when frames can use it."""
@@ -495,10 +586,8 @@ class DetectorNode(Node):
         return f'none: no CameraInfo received on {self._info_sub.topic_name}', False
 
     def _mount_text(self) -> str:
-        params = self._config.detector.params
-        return (f'parameters: height {params.camera_height_m:g} m, pitch '
-                f'{math.degrees(params.camera_pitch_rad):.3g} deg, roll '
-                f'{math.degrees(params.camera_roll_rad):.3g} deg')
+        return self._mount_said or f'parameters: {self._config.mount().describe()}'
+
 
     def _publish_diagnostics(self) -> None:
         camera_info, usable = self._camera_info_text()
@@ -682,8 +771,11 @@ class DetectorNode(Node):
             self._warn_skip(_problem_kind('depth', problem),
                             f'{problem} ({_depth_format(msg)})')
             return False
+        detector = self._detector_for(msg, config)
+        if detector is None:
+            return False
         try:
-            result = config.detector.process(depth, intrinsics)
+            result = detector.process(depth, intrinsics)
             messages = result_to_messages(
                 result, stamp=msg.header.stamp, cloud_frame_id=config.cloud_frame_id,
                 costmap_frame_id=config.costmap_frame_id, image_frame_id=msg.header.frame_id,

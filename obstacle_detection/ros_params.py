@@ -148,6 +148,17 @@ NODE_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec('use_fallback_intrinsics', False,
               'Use fallback_fx/fy/cx/cy while no CameraInfo has arrived (else frames are '
               'skipped until one arrives)'),
+    ParamSpec('use_tf', False,
+              'Take the camera mount from TF: the transform cloud_frame_id <- the depth '
+              "image's frame_id, at the image stamp; the mount parameters are the fallback "
+              '(said in a throttled warning). Needs tf2_ros (a ROS 2 installation); read at '
+              'start-up', read_only=True),
+    ParamSpec('tf_timeout_s', 0.05,
+              'Longest wait for a TF lookup before a frame falls back to the mount parameters '
+              '[s]', 0.0, 1.0),
+    ParamSpec('tf_static_mount', True,
+              'The camera is bolted to the robot: look its transform up once and keep it '
+              '(false: look it up for every frame, e.g. a pan-tilt head)'),
     ParamSpec('depth_transport', 'raw',
               "Depth input: 'raw' (sensor_msgs/Image on depth/image_raw), 'compressedDepth' "
               "(CompressedImage on depth/image_raw/compressedDepth, image_transport's PNG "

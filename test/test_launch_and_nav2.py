@@ -56,6 +56,11 @@ def _node_topics(method: str) -> dict[str, str]:
                 and call.func.attr == f'create_{method}' and len(call.args) >= 2 \
                 and isinstance(call.args[1], ast.Constant) and isinstance(call.args[0], ast.Name):
             topics[call.args[1].value] = call.args[0].id
+    if method == 'subscription':   # the depth topic follows depth_transport (raw by default)
+        from obstacle_detection.node import DEPTH_TRANSPORTS
+
+        msg_type, topic = DEPTH_TRANSPORTS['raw']
+        topics[topic] = msg_type.__name__
     return topics
 
 

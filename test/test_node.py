@@ -9,6 +9,7 @@ mapping and the error paths directly.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 import shutil
@@ -52,6 +53,7 @@ from obstacle_detection.conversions import (
     pointcloud2_to_points,
 )
 from obstacle_detection.costmap import CELL_OCCUPIED
+from obstacle_detection.geometry import mount_rotation
 from obstacle_detection.node import DetectorNode, LatestSlot
 from obstacle_detection.params import Intrinsics, table_4_2, table_4_3
 from obstacle_detection.pipeline import DetectionResult, Detector
@@ -620,6 +622,91 @@ def test_set_parameters_validates_without_side_effects(local_node: DetectorNode)
     assert not result.successful and 'median_kernel=4 must be odd' in result.reason
     assert local_node.get_parameter('median_kernel').value == 17
     assert local_node.config is before
+
+
+def _tf_node(context: rclpy.Context, buffer: Any) -> DetectorNode:
+    return DetectorNode(context=context, tf_buffer=buffer, cli_args=[
+        '--ros-args', '--params-file', str(CORRIDOR_YAML), '-p', 'use_tf:=true'])
+
+
+def _publish_frame(node: DetectorNode, frame: SceneFrame,
+                   monkeypatch: pytest.MonkeyPatch) -> list[OccupancyGrid]:
+    grids: list[OccupancyGrid] = []
+    monkeypatch.setattr(node._costmap_pub, 'publish', grids.append)
+    node._on_camera_info(_camera_info(frame))
+    assert node.handle_frame(_depth_image(frame))
+    return grids
+
+
+def test_use_tf_takes_the_mount_from_the_transform(
+        local_context: rclpy.Context, corridor_params: Any,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The parameters say 0.6 m and level; TF says 0.8 m and 20 deg down: TF wins."""
+    from test_mount_source import StandInBuffer, _transform
+
+    frame = render_scene('corridor', seed=3, height_m=0.8, pitch_rad=math.radians(20.0))
+    buffer = StandInBuffer(_transform(mount_rotation(math.radians(20.0), 0.0),
+                                      (0.0, 0.0, 0.8)))
+    node = _tf_node(local_context, buffer)
+    try:
+        grids = _publish_frame(node, frame, monkeypatch)
+        expected = Detector(dataclasses.replace(
+            corridor_params, camera_height_m=0.8, camera_pitch_rad=math.radians(20.0))
+        ).process(frame.depth_mm, frame.intrinsics)
+        cells = np.asarray(grids[0].data, np.int8).reshape(expected.costmap.data.shape)
+        np.testing.assert_array_equal(cells, expected.costmap.data)
+        assert buffer.calls == [('base_footprint', 'depth_optical')]
+        assert node._mount_said.startswith('TF base_footprint <- depth_optical: x 0.000 m')
+    finally:
+        node.close()
+        node.destroy_node()
+
+
+def test_use_tf_falls_back_to_the_parameters_then_takes_a_late_transform(
+        local_context: rclpy.Context, corridor_params: Any,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    from test_mount_source import StandInBuffer, _transform
+
+    frame = render_scene('corridor', seed=3, height_m=0.6)
+    buffer = StandInBuffer(None)
+    node = _tf_node(local_context, buffer)
+    try:
+        grids = _publish_frame(node, frame, monkeypatch)
+        level = Detector(corridor_params).process(frame.depth_mm, frame.intrinsics)
+        np.testing.assert_array_equal(
+            np.asarray(grids[0].data, np.int8).reshape(level.costmap.data.shape),
+            level.costmap.data)
+        assert 'using the mount parameters' in node._mount_source.last_problem
+        assert node._mount_source.source == 'parameters (TF lookup failed)'
+
+        buffer.transform = _transform(mount_rotation(math.radians(10.0), 0.0), (0, 0, 0.7))
+        grids = _publish_frame(node, frame, monkeypatch)
+        tilted = Detector(dataclasses.replace(
+            corridor_params, camera_height_m=0.7, camera_pitch_rad=math.radians(10.0))
+        ).process(frame.depth_mm, frame.intrinsics)
+        np.testing.assert_array_equal(
+            np.asarray(grids[0].data, np.int8).reshape(tilted.costmap.data.shape),
+            tilted.costmap.data)
+        assert node._mount_source.last_problem is None
+    finally:
+        node.close()
+        node.destroy_node()
+
+
+def test_use_tf_without_tf2_says_so_and_uses_the_parameters(
+        local_context: rclpy.Context) -> None:
+    try:
+        import tf2_ros  # noqa: F401
+        pytest.skip('tf2_ros is installed here: the real Buffer is used')
+    except ImportError:
+        pass
+    node = DetectorNode(context=local_context, cli_args=[
+        '--ros-args', '--params-file', str(CORRIDOR_YAML), '-p', 'use_tf:=true'])
+    try:
+        assert node._mount_source.buffer is None
+    finally:
+        node.close()
+        node.destroy_node()
 
 
 def test_set_parameters_applies_to_the_next_frame(local_node: DetectorNode) -> None:
