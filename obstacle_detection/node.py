@@ -899,22 +899,23 @@ def main(args: list[str] | None = None) -> int:
     except Exception as error:  # noqa: BLE001 - rcl's own wording of a bad --ros-args
         print(f'detector: error: {type(error).__name__}: {error}', file=sys.stderr)
         return 2
+    node = None
     try:
-        node = DetectorNode()
-    except (ValueError, ParameterException) as error:
-        rclpy.logging.get_logger(NODE_NAME).fatal(f'invalid parameters: {error}')
-        rclpy.try_shutdown()
-        return 1
-    for path in files:
-        for problem in params_file_problems(path, node.get_fully_qualified_name()):
-            node.get_logger().warning(problem)
-    try:
+        try:
+            node = DetectorNode()
+        except (ValueError, ParameterException) as error:
+            rclpy.logging.get_logger(NODE_NAME).fatal(f'invalid parameters: {error}')
+            return 1
+        for path in files:
+            for problem in params_file_problems(path, node.get_fully_qualified_name()):
+                node.get_logger().warning(problem)
         spin_forever(node)
     except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        pass   # Ctrl-C at any point of the start-up or the run: a clean stop
     finally:
-        node.close()
-        node.destroy_node()
+        if node is not None:
+            node.close()
+            node.destroy_node()
         rclpy.try_shutdown()
     return 0
 
