@@ -54,18 +54,20 @@ class FusionParams:
     [m/cell]. hit_log_odds (> 0) is added to a cell a frame sees occupied, miss_log_odds
     (< 0) to one it sees free; the sum is clamped to [min_log_odds, max_log_odds]. A cell is
     published occupied when its log-odds >= occupied_log_odds, free when <= free_log_odds,
-    unknown between. With the defaults an obstacle is marked at its first hit (0.85 >= 0.5),
-    a cell at the upper clamp clears after 8 frames of ground ((3.5 - 0.5) / 0.4 = 7.5), and a
-    single false hit on known free ground (-2 + 0.85) never shows. max_jump_m, max_jump_deg:
-    a pose change between two consecutive frames beyond either is an odometry reset.
+    unknown between. With the defaults (chosen on the sequences, see the README) an obstacle
+    is marked at its first hit on an unknown cell (1.0 >= 0.5) and at the second on ground
+    seen free (-1 + 2 = 1), a cell at the upper clamp clears after 5 frames of seen ground
+    (2.4 - 5 * 0.4 = 0.4 < 0.5), and one false hit on free ground never shows (-1 + 1 = 0).
+    max_jump_m, max_jump_deg: a pose change between two consecutive frames beyond either is
+    an odometry reset.
     """
 
     size_m: float = 4.0
     resolution_m: float = 0.05
-    hit_log_odds: float = 0.85
+    hit_log_odds: float = 1.0
     miss_log_odds: float = -0.4
-    min_log_odds: float = -2.0
-    max_log_odds: float = 3.5
+    min_log_odds: float = -1.0
+    max_log_odds: float = 2.4
     occupied_log_odds: float = 0.5
     free_log_odds: float = -0.2
     max_jump_m: float = 0.5

@@ -79,24 +79,42 @@ def test_log_odds_update_matches_hand_computation():
 
 def test_state_thresholds_and_frame_counts():
     p = FusionParams()
-    assert p.frames_to_mark() == 1           # 0.85 >= 0.5
-    assert p.frames_to_clear() == 8          # 3.5 - 8 * 0.4 = 0.3 < 0.5, 7 frames leave 0.7
+    assert p.frames_to_mark() == 1           # 1.0 >= 0.5
+    assert p.frames_to_clear() == 5          # 2.4 - 5 * 0.4 = 0.4 < 0.5, 4 frames leave 0.8
     assert FusionParams(hit_log_odds=0.3).frames_to_mark() == 2
+    assert FusionParams(max_log_odds=3.5, hit_log_odds=0.85).frames_to_clear() == 8
 
 
 def test_seen_ground_clears_a_cell_after_the_computed_number_of_frames():
-    grid = FusedGrid()
+    params = FusionParams()
+    grid = FusedGrid(params)
     point = (1.025, 0.125)   # a cell centre 1 m ahead
     pose = (0.0, 0.0, 0.0)
-    for _ in range(6):                       # 6 hits: at the clamp, 3.5
+    for _ in range(5):                       # 1, 2, 2.4 (clamped), 2.4, 2.4
         grid.update(frame_grid([point]), pose)
-    assert grid.log_odds[world_cell(grid, point)] == pytest.approx(3.5)
+    assert grid.log_odds[world_cell(grid, point)] == pytest.approx(2.4)
     free = frame_grid(free_all=True)         # the person left: ground seen in every cell
-    for k in range(1, 9):
+    for k in range(1, 7):
         grid.update(free, pose)
         state = grid.cell_states()[world_cell(grid, point)]
-        assert (state == CELL_OCCUPIED) == (k < FusionParams().frames_to_clear())
-    assert grid.log_odds[world_cell(grid, point)] == pytest.approx(3.5 - 8 * 0.4, abs=1e-6)
+        assert (state == CELL_OCCUPIED) == (k < 5)
+        np.testing.assert_allclose(grid.log_odds[world_cell(grid, point)], 2.4 - 0.4 * k,
+                                   atol=1e-6)
+    assert grid.cell_states()[world_cell(grid, point)] == CELL_UNKNOWN   # -0.0: undecided
+    for _ in range(2):
+        grid.update(free, pose)
+    assert grid.cell_states()[world_cell(grid, point)] == CELL_FREE      # -0.8
+
+
+def test_a_false_hit_on_seen_ground_does_not_show():
+    grid = FusedGrid()
+    point, pose = (1.225, -0.425), (0.0, 0.0, 0.0)
+    for _ in range(4):
+        grid.update(frame_grid(free_all=True), pose)                     # -1.0 (clamped)
+    grid.update(frame_grid([point], free_all=True), pose)                # one false hit: 0
+    assert grid.cell_states()[world_cell(grid, point)] != CELL_OCCUPIED
+    grid.update(frame_grid([point], free_all=True), pose)                # a real one: 1.0
+    assert grid.cell_states()[world_cell(grid, point)] == CELL_OCCUPIED
 
 
 def test_unknown_cells_keep_their_evidence():
@@ -138,7 +156,7 @@ def test_a_fixed_world_obstacle_stays_in_its_world_cell_while_the_robot_moves_an
         row, col = world_cell(grid, point)
         assert (col + grid.origin_cell[0], row + grid.origin_cell[1]) == world
         # every hit landed in that one world cell: its log-odds is the hand sum
-        assert grid.log_odds[row, col] == pytest.approx(min(seen * 0.85, 3.5), abs=1e-5)
+        assert grid.log_odds[row, col] == pytest.approx(min(seen * 1.0, 2.4), abs=1e-5)
         occupied = np.argwhere(grid.cell_states() == CELL_OCCUPIED)
         assert (np.abs(occupied - [row, col]).max(axis=1) <= 1).all()  # splat: a neighbour
     assert grid.pose[2] == pytest.approx(math.radians(60.0))
@@ -198,7 +216,7 @@ def test_no_odometry_fuses_in_place_and_says_so_once():
     second = grid.update(frame_grid([point]), None)
     assert second.in_place and second.message == ''
     # in place at the odom origin: the base frame is the odom frame
-    assert grid.log_odds[world_cell(grid, point)] == pytest.approx(1.7)
+    assert grid.log_odds[world_cell(grid, point)] == pytest.approx(2.0)
     back = grid.update(frame_grid([]), (0.0, 0.0, 0.0))
     assert not back.in_place and 'odometry received' in back.message
 
@@ -213,7 +231,7 @@ def test_odometry_lost_midway_fuses_at_the_last_pose_and_loses_nothing():
     assert update.in_place and update.cells_forgotten == 0
     np.testing.assert_allclose(update.pose, pose)
     assert update.shift_cells == (0, 0)
-    assert grid.log_odds[world_cell(grid, point)] == pytest.approx(1.7)
+    assert grid.log_odds[world_cell(grid, point)] == pytest.approx(2.0)
     changed = np.argwhere(grid.log_odds != before)
     assert (np.abs(changed - world_cell(grid, point)).max(axis=1) <= 1).all()
 
