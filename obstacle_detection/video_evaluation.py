@@ -17,7 +17,8 @@ What is measured (``VIDEO_SCORE_DEFINITIONS`` says it for the tool's help):
   the per-frame costmap's cells against the same single-frame truth (the fair comparison);
   per-frame F1 vs the area: the per-frame grid in the fused window against the area's truth;
 - flicker: cells whose occupied state changes between two consecutive frames while nothing
-  moved or appeared near them (no cell within 0.1 m changed its truth), over the cells the
+  moved or appeared near them (no cell within 2 cells changed its truth in the last 10
+  frames: a grid catching up with a change is not flicker), over the cells the
   grid knows at the later frame; a fused cell counts when it was known (not unknown) at the
   earlier frame, a per-frame cell when it was seen in both;
 - frames until marked: for each run of frames in which a cell's truth is occupied, the
@@ -57,8 +58,10 @@ from .sequences import SceneSequence, SequenceFrame
 BLIND_ZONE_X_M = (0.0, 0.5)
 BLIND_ZONE_HALF_WIDTH_M = 0.3
 
-#: Flicker counts a cell only when no cell within this many cells changed its truth.
+#: Flicker counts a cell only when no cell within STILL_RADIUS_CELLS changed its truth in the
+#: last STILL_FRAMES frames (nothing moved or appeared near it).
 STILL_RADIUS_CELLS = 2
+STILL_FRAMES = 10
 
 #: The issue's targets [frames at 30 Hz]: a new obstacle marked, a vacated cell cleared.
 MARK_BUDGET_FRAMES = 3
@@ -376,6 +379,7 @@ def score_sequence(name: str, observations: Sequence[Observation],
     fusion_ms: list[float] = []
     resets = in_place = 0
     previous: dict[str, np.ndarray] = {}
+    last_change = np.full(lattice.shape, -STILL_FRAMES - 1, dtype=np.int64)
     sheet_at = set(np.linspace(0, total - 1, sheet_frames).round().astype(int).tolist()) \
         if sheet_frames > 0 else set()
     thumbs: list[np.ndarray] = []
@@ -414,8 +418,10 @@ def score_sequence(name: str, observations: Sequence[Observation],
         fused_view = grid.values_at(odom_xy).reshape(bx.shape)
         conf['fused_view'] += metrics.cell_confusion(fused_view, obs.truth_costmap)
         # flicker
+        moved = _dilate(truth_area != truth_prev, STILL_RADIUS_CELLS)
+        last_change[moved] = step
         if previous:
-            static = ~_dilate(truth_area != truth_prev, STILL_RADIUS_CELLS)
+            static = step - last_change > STILL_FRAMES
             for key, now, was_known in (
                     ('fused', fused_world, previous['fused'] != CELL_UNKNOWN),
                     ('per_frame', per_frame_world,
