@@ -27,7 +27,7 @@ def floor_points(spacing=RES):
 
 
 def observe(index, pose, obstacles, *, false_hits=()):
-    """A perfect detector with a Kinect-like view: 0.5-2 m ahead, |y| <= 2 m, no occlusion."""
+    """Observe like a perfect detector with a Kinect-like view: 0.5-2 m ahead, |y| <= 2 m."""
     c, s = math.cos(pose[2]), math.sin(pose[2])
 
     def to_base(points):
