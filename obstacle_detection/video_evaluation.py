@@ -285,13 +285,13 @@ def _panel(grid: np.ndarray, truth: np.ndarray, pose: tuple[float, float, float]
     contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     cv2.drawContours(image, contours, -1, (230, 120, 0), 1)
     col, row = costmap_pixel_of(costmap, pose[0], pose[1], scale=scale)
-    size = 3 * scale
-    heading = np.array([-math.sin(pose[2]), -math.cos(pose[2])])   # image (col, row) of +x
-    side = np.array([heading[1], -heading[0]])
-    tip = np.array([col, row]) + heading * size
-    tail = np.array([col, row]) - heading * size * 0.6
-    triangle = np.array([tip, tail + side * size * 0.6, tail - side * size * 0.6])
-    cv2.fillPoly(image, [triangle.round().astype(np.int32)], ROBOT_RGB, cv2.LINE_AA)
+    # the robot: a disc on its base origin and a line along its heading (+x)
+    centre = np.array([col, row])
+    nose = centre + 5 * scale * np.array([-math.sin(pose[2]), -math.cos(pose[2])])
+    cv2.line(image, tuple(int(v) for v in centre.round()), tuple(int(v) for v in nose.round()),
+             ROBOT_RGB, 2, cv2.LINE_AA)
+    cv2.circle(image, tuple(int(v) for v in centre.round()), max(3, scale + 1), ROBOT_RGB, -1,
+               cv2.LINE_AA)
     return image
 
 
@@ -357,7 +357,8 @@ def score_sequence(name: str, observations: Sequence[Observation],
 
     fusion: the fused grid's parameters; use_odometry: False fuses every frame in place (a
     replayed bag without odometry); sheet_frames: when > 0, draw a contact sheet of that many
-    moments (per-frame | fused, truth obstacles outlined in orange, the robot in red).
+    moments (per-frame | fused, truth obstacles outlined in orange, the robot a red disc with
+    a line along its heading).
     """
     fusion = fusion if fusion is not None else FusionParams()
     if not observations:
