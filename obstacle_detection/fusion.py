@@ -32,6 +32,7 @@ should log something, a message (once per change of state, not every frame).
 from __future__ import annotations
 
 import math
+import threading
 from collections import deque
 from dataclasses import dataclass
 
@@ -446,6 +447,7 @@ class PoseBuffer:
     (linear in x, y, shortest way in yaw) between the two poses around the stamp, holds the
     newest one for a frame up to ``max_age_s`` newer than it (odometry late), and returns
     (None, reason) for a frame beyond that, older than the buffer, or before any odometry.
+    Thread-safe: the odometry callback may add while the frame worker reads.
     """
 
     def __init__(self, max_age_s: float = 0.2, capacity: int = 256) -> None:
@@ -455,13 +457,16 @@ class PoseBuffer:
             raise ValueError(f'PoseBuffer: capacity={capacity!r} must be >= 2')
         self.max_age_s = float(max_age_s)
         self._items: deque[tuple[float, Pose]] = deque(maxlen=int(capacity))
+        self._lock = threading.Lock()
 
     def __len__(self) -> int:
-        return len(self._items)
+        with self._lock:
+            return len(self._items)
 
     def clear(self) -> None:
         """Forget every pose (an odometry reset seen by the node)."""
-        self._items.clear()
+        with self._lock:
+            self._items.clear()
 
     def add(self, stamp_s: float, pose: Pose) -> str:
         """Store a pose; return '' or why it was refused (not finite, older than the newest)."""
@@ -470,30 +475,37 @@ class PoseBuffer:
             return problem
         if not math.isfinite(stamp_s):
             return f'stamp {stamp_s!r} is not finite'
-        if self._items and stamp_s <= self._items[-1][0]:
-            return (f'odometry stamp {stamp_s:.3f} s not newer than the last one '
-                    f'({self._items[-1][0]:.3f} s)')
-        self._items.append((float(stamp_s), tuple(float(v) for v in pose)))  # type: ignore
+        with self._lock:
+            if self._items and stamp_s <= self._items[-1][0]:
+                return (f'odometry stamp {stamp_s:.3f} s not newer than the last one '
+                        f'({self._items[-1][0]:.3f} s)')
+            self._items.append((float(stamp_s), tuple(float(v) for v in pose)))  # type: ignore
         return ''
 
     def pose_at(self, stamp_s: float) -> tuple[Pose | None, str]:
         """(pose at ``stamp_s``, '') or (None, why there is none)."""
-        if not self._items:
+        with self._lock:
+            items = list(self._items)
+        return self._interpolate(items, stamp_s)
+
+    def _interpolate(self, items: list[tuple[float, Pose]], stamp_s: float,
+                     ) -> tuple[Pose | None, str]:
+        if not items:
             return None, 'no odometry received'
-        newest_s, newest = self._items[-1]
+        newest_s, newest = items[-1]
         if stamp_s >= newest_s:
             late = stamp_s - newest_s
             if late <= self.max_age_s:
                 return newest, ''
             return None, (f'odometry late: the newest pose is {late:.3f} s older than the '
                           f'frame (limit {self.max_age_s:g} s)')
-        oldest_s = self._items[0][0]
+        oldest_s = items[0][0]
         if stamp_s < oldest_s:
             return None, (f'frame {oldest_s - stamp_s:.3f} s older than the oldest odometry '
                           f'pose kept')
-        stamps = np.fromiter((item[0] for item in self._items), dtype=np.float64)
+        stamps = np.fromiter((item[0] for item in items), dtype=np.float64)
         i = int(np.searchsorted(stamps, stamp_s, side='right'))  # stamps[i-1] <= t < stamps[i]
-        (t0, a), (t1, b) = self._items[i - 1], self._items[i]
+        (t0, a), (t1, b) = items[i - 1], items[i]
         w = (stamp_s - t0) / (t1 - t0)
         yaw = a[2] + w * _wrap_angle(b[2] - a[2])
         return (a[0] + w * (b[0] - a[0]), a[1] + w * (b[1] - a[1]), _wrap_angle(yaw)), ''
