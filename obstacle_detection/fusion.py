@@ -374,13 +374,16 @@ class FusedGrid:
         return max(0, before - int(np.count_nonzero(moved)))
 
     def update(self, costmap: Costmap, pose: Pose | None, *,
-               pose_stamp_s: float | None = None) -> FusionUpdate:
+               pose_stamp_s: float | None = None, no_pose_reason: str = '') -> FusionUpdate:
         """Fuse one frame's costmap (base frame) taken at base pose ``pose`` in odom.
 
         pose: (x [m], y [m], yaw [rad]) or None (no odometry: fuse in place at the last pose
         used, or at the odom origin before any). pose_stamp_s: the pose's time [s]; a pose
-        older than the last one used is ignored (fused in place). Raises ValueError when
-        ``costmap`` is not a 2-D int8 grid with a positive resolution.
+        older than the last one used is ignored (fused in place). no_pose_reason: why
+        ``pose`` is None, for the message (e.g. :meth:`PoseBuffer.pose_at`'s reason; default
+        'no odometry'). Fusing in place is said once per cause (missing, invalid or old pose)
+        until a pose is used again. Raises ValueError when ``costmap`` is not a 2-D int8 grid
+        with a positive resolution.
         """
         data = np.asarray(costmap.data)
         if data.ndim != 2 or data.dtype != np.int8:
@@ -389,14 +392,17 @@ class FusedGrid:
         if not (math.isfinite(costmap.resolution_m) and costmap.resolution_m > 0.0):
             raise ValueError(f'costmap resolution_m={costmap.resolution_m!r} must be > 0')
         p = self.params
-        reason = _check_pose(pose) if pose is not None else 'no odometry'
+        if pose is None:
+            kind, reason = 'missing', no_pose_reason or 'no odometry'
+        else:
+            kind, reason = 'invalid', _check_pose(pose)
         if not reason and pose_stamp_s is not None and self._pose_stamp_s is not None and \
                 pose_stamp_s < self._pose_stamp_s:
+            kind = 'old'
             reason = (f'odometry pose {self._pose_stamp_s - pose_stamp_s:.3f} s older than '
                       f'the last one used')
         message, warning, reset, forgotten = '', False, False, 0
-        if reason:   # fuse in place
-            kind = reason.split(' ', 1)[0]   # 'no', 'pose' or 'odometry': log once per kind
+        if reason:   # fuse in place; say so once per kind of cause
             used = self._pose if self._pose is not None else (0.0, 0.0, 0.0)
             if kind != self._in_place_kind:
                 message = f'fused costmap: {reason}: fusing in place'

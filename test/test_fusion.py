@@ -222,6 +222,21 @@ def test_no_odometry_fuses_in_place_and_says_so_once():
     assert not back.in_place and 'odometry received' in back.message
 
 
+def test_the_reason_for_a_missing_pose_is_reported_once():
+    grid = FusedGrid()
+    buffer = PoseBuffer(max_age_s=0.1)
+    buffer.add(0.0, (0.2, 0.0, 0.0))
+    grid.update(frame_grid([]), *buffer.pose_at(0.0)[:1], pose_stamp_s=0.0)
+    pose, why = buffer.pose_at(0.5)                       # odometry stopped 0.5 s ago
+    update = grid.update(frame_grid([]), pose, no_pose_reason=why)
+    assert update.in_place and update.reason == why and 'late' in update.message
+    again = grid.update(frame_grid([]), None, no_pose_reason='no odometry received')
+    assert again.in_place and again.message == ''          # the same cause: said once
+    invalid = grid.update(frame_grid([]), (0.2, float('nan'), 0.0))
+    assert 'not finite' in invalid.message                 # another cause: said
+    assert grid.pose == (0.2, 0.0, 0.0)
+
+
 def test_odometry_lost_midway_fuses_at_the_last_pose_and_loses_nothing():
     grid = FusedGrid()
     point = (1.525, 0.275)

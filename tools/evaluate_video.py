@@ -70,7 +70,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help='fuse every frame in place (as without odometry)')
     parser.add_argument('--sheet', type=Path, metavar='PNG',
                         help='write a contact sheet of per-frame and fused grids over time '
-                             '(one row per sequence)')
+                             '(the sequences one under the other)')
     parser.add_argument('--sheet-frames', type=int, default=4, metavar='N',
                         help='moments per sequence on the sheet [default: 4]')
     parser.add_argument('--json', metavar='FILE',
