@@ -18,12 +18,12 @@ What is measured (``VIDEO_SCORE_DEFINITIONS`` says it for the tool's help):
   per-frame F1 vs the area: the per-frame grid in the fused window against the area's truth;
 - flicker: cells whose occupied state changes between two consecutive frames while nothing
   moved or appeared near them (no cell within 2 cells changed its truth in the last 10
-  frames: a grid catching up with a change is not flicker), over the cells the
-  grid knows at the later frame; a fused cell counts when it was known (not unknown) at the
-  earlier frame, a per-frame cell when it was seen in both;
-- frames until marked: for each run of frames in which a cell's truth is occupied, the
-  number of frames up to and including the first where the grid marks it (1 = at once);
-  frames until cleared: for each run in which a formerly occupied cell is seen free, up to
+  frames: a grid catching up with a change is not flicker), over the cells the grid knows
+  at the later frame; a fused cell counts when it was known (not unknown) at the earlier
+  frame, a per-frame cell when it was seen in both;
+- frames until marked: for each run of frames in which a cell of the fused window has an
+  occupied truth, the number of frames up to and including the first where the grid marks
+  it (1 = at once); frames until cleared: for each run in which a formerly occupied cell is seen free, up to
   the first frame the grid no longer marks it (counted when the grid marked it before). Only
   runs the detector saw steadily count (it marked the cell, or saw it free, in each of the
   run's first 3 frames for a mark, 10 for a clearing): fusion cannot be faster than the
@@ -433,14 +433,17 @@ def score_sequence(name: str, observations: Sequence[Observation],
                 flicker[key].append(np.count_nonzero(changed & static & was_known)
                                     / max(known, 1))
         # frames until marked / cleared
-        occupied_truth = (truth_area == CELL_OCCUPIED).reshape(-1)
+        # (runs only inside the fused window: what lies farther is not the grid's to mark)
+        in_window = np.zeros(lattice.shape, dtype=bool)
+        in_window[rows, cols] = True
+        occupied_truth = ((truth_area == CELL_OCCUPIED) & in_window).reshape(-1)
         marked = {'fused': (fused_world == CELL_OCCUPIED).reshape(-1),
                   'per_frame': (per_frame_world == CELL_OCCUPIED).reshape(-1)}
         mark.step(step, occupied_truth, occupied_truth, marked, marked['per_frame'])
         vacated = ((truth_area == CELL_FREE) & (truth_prev == CELL_OCCUPIED)).reshape(-1)
         was_marked = {k: (previous[k] == CELL_OCCUPIED).reshape(-1) if previous
                       else np.zeros(truth_area.size, bool) for k in names}
-        clear.step(step, (truth_area == CELL_FREE).reshape(-1), vacated,
+        clear.step(step, ((truth_area == CELL_FREE) & in_window).reshape(-1), vacated,
                    {k: ~v for k, v in marked.items()},
                    (per_frame_world == CELL_FREE).reshape(-1), eligible=was_marked)
         # blind-zone memory, with the true pose

@@ -27,7 +27,8 @@ if __package__ in (None, ''):  # run as a script: make the repository root impor
 
 from obstacle_detection import evaluation, tool_support  # noqa: E402
 from obstacle_detection.fusion import FusionParams  # noqa: E402
-from obstacle_detection.sequences import SEQUENCE_NAMES, SceneSequence  # noqa: E402
+from obstacle_detection.sequences import (PERFECT_ODOMETRY, SEQUENCE_NAMES,  # noqa: E402
+                                          OdometryModel, SceneSequence)
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_PARAMS = REPO / 'params' / 'corridor.yaml'
@@ -68,6 +69,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help='only the first N frames of each sequence')
     parser.add_argument('--no-odometry', action='store_true',
                         help='fuse every frame in place (as without odometry)')
+    parser.add_argument('--exact-odometry', action='store_true',
+                        help='odometry without drift or noise (the true poses)')
     parser.add_argument('--sheet', type=Path, metavar='PNG',
                         help='write a contact sheet of per-frame and fused grids over time '
                              '(the sequences one under the other)')
@@ -105,7 +108,9 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     reports = []
     for name in args.sequence or SEQUENCE_NAMES:
-        sequence = SceneSequence(name, seed=args.seed)
+        sequence = SceneSequence(name, seed=args.seed,
+                                 odometry=PERFECT_ODOMETRY if args.exact_odometry
+                                 else OdometryModel())
 
         def progress(index: int, total: int, name: str = name) -> None:
             if not args.quiet and (index + 1 == total or (index + 1) % 30 == 0):
