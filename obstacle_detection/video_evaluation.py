@@ -23,8 +23,9 @@ What is measured (``VIDEO_SCORE_DEFINITIONS`` says it for the tool's help):
   frame, a per-frame cell when it was seen in both;
 - frames until marked: for each run of frames in which a cell of the fused window has an
   occupied truth, the number of frames up to and including the first where the grid marks
-  it (1 = at once); frames until cleared: for each run in which a formerly occupied cell is seen free, up to
-  the first frame the grid no longer marks it (counted when the grid marked it before). Only
+  it (1 = at once); frames until cleared: for each run in which a formerly occupied cell is
+  seen free, up to the first frame the grid no longer marks it (counted when the grid marked
+  it before). Only
   runs the detector saw steadily count (it marked the cell, or saw it free, in each of the
   run's first 3 frames for a mark, 10 for a clearing): fusion cannot be faster than the
   detector. A steady run that ends unmarked (uncleared) is *missed* when it lasted at least
