@@ -640,20 +640,39 @@ def _check_render_args(seed: int, size: tuple[int, int], frame_index: int) -> No
         raise ValueError(f'size={size!r} must be (width, height), positive ints')
 
 
+def _posed_rays(rays: Rays, rot: np.ndarray, pose: tuple[float, float, float],
+                ) -> tuple[Rays, np.ndarray]:
+    """Move base-frame rays and rotation to a robot at ``pose`` (x, y, yaw) in the scene."""
+    x, y, yaw = (float(v) for v in pose)
+    if not all(math.isfinite(v) for v in (x, y, yaw)):
+        raise ValueError(f'pose={pose!r} must be finite (x [m], y [m], yaw [rad])')
+    c, s = math.cos(yaw), math.sin(yaw)
+    ox, oy, oz = rays.origin
+    yaw_rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return Rays((x + c * ox - s * oy, y + s * ox + c * oy, oz), c * rays.dx - s * rays.dy,
+                s * rays.dx + c * rays.dy, rays.dz), yaw_rot @ rot
+
+
 def render(scene: Scene, *, seed: int = 0, intrinsics: Intrinsics = KINECT_V2_SD,
            size: tuple[int, int] = KINECT_V2_SD_SIZE, noise: bool | NoiseModel = True,
-           frame_index: int = 0) -> SceneFrame:
+           frame_index: int = 0, pose: tuple[float, float, float] | None = None,
+           ) -> SceneFrame:
     """Ray-cast ``scene`` from its mount and apply the sensor model (see module docstring).
 
     noise: True for ``KINECT_V2_NOISE``, False for ``EXACT``, or a ``NoiseModel``. The noise
     generator is seeded by ``(seed, frame_index)``: equal arguments give equal frames.
-    size: (width, height) [px].
+    size: (width, height) [px]. pose: the robot's base frame in the scene's frame, (x [m],
+    y [m], yaw [rad]) (a sequence's world, e.g. odom); None = the scene frame is the base
+    frame. The primitives stay where they are in the scene; ``points_ground`` is always in
+    the robot's base frame.
     """
     _check_render_args(seed, size, frame_index)
     model = noise if isinstance(noise, NoiseModel) else (KINECT_V2_NOISE if noise else EXACT)
     width, height = size
     size = (int(width), int(height))
     rays, rot = camera_rays(intrinsics, size, scene.height_m, scene.pitch_rad, scene.roll_rad)
+    if pose is not None:
+        rays, rot = _posed_rays(rays, rot, pose)
 
     best_t = np.full((height, width), np.inf)
     hit_index = np.full((height, width), -1, dtype=np.int16)
@@ -681,6 +700,12 @@ def render(scene: Scene, *, seed: int = 0, intrinsics: Intrinsics = KINECT_V2_SD
     points = np.empty((height, width, 3), dtype=np.float32)
     for k, (o, d) in enumerate(zip(rays.origin, (rays.dx, rays.dy, rays.dz))):
         points[:, :, k] = o + t_or_nan * d
+    if pose is not None:   # scene frame -> the robot's base frame
+        c, s = math.cos(float(pose[2])), math.sin(float(pose[2]))
+        px = points[:, :, 0] - np.float32(pose[0])
+        py = points[:, :, 1] - np.float32(pose[1])
+        points[:, :, 0] = np.float32(c) * px + np.float32(s) * py
+        points[:, :, 1] = np.float32(-s) * px + np.float32(c) * py
 
     rng = np.random.default_rng([int(seed), int(frame_index), 0x4015E])
     measured_mm = depth_true * 1e3

@@ -1,0 +1,517 @@
+"""The fused local costmap: per-frame costmaps accumulated over time in the odometry frame.
+
+Each frame's costmap (:class:`.costmap.Costmap`, robot base frame, cells 100 / 0 / -1) is
+evidence about the cells it saw: an occupied cell adds ``hit_log_odds`` to the log-odds of the
+odometry-frame cell it covers, a free cell (ground seen) adds ``miss_log_odds`` (negative), an
+unknown cell adds nothing; the sum is clamped to ``[min_log_odds, max_log_odds]``. So an
+obstacle stays marked after it leaves the view or enters the sensor's blind zone (a Kinect v2
+sees nothing closer than 0.5 m), and a cell clears once the ground is seen where the obstacle
+was (a person who walked away).
+
+The grid is a square window of the odometry frame (``odom``) centred on the robot: cell
+(row, col) covers ``x in origin_x + [col, col + 1) * res``, ``y in origin_y + [row, row + 1)
+* res`` (OccupancyGrid layout, as :mod:`.costmap`), its origin a whole multiple of the
+resolution. When the robot moves, the window scrolls by whole cells; cells that leave it are
+forgotten, new ones start unknown (log-odds 0). A frame is moved into the window by sampling
+its costmap at the base-frame position of every window cell centre (nearest cell), and its
+occupied cells are also splatted (each occupied cell centre marks the window cell it falls in),
+so that no obstacle cell is lost between the two lattices when the robot has turned. All numpy,
+no per-cell Python loop.
+
+Odometry: ``FusedGrid.update(costmap, pose)`` takes the base pose in odom, (x [m], y [m],
+yaw [rad]), at the frame's time (:class:`PoseBuffer` interpolates it from the odometry
+messages). ``pose=None`` (no odometry: a static camera, a bag without odometry) fuses in place
+at the last pose used. A pose older than the last one used is ignored (fused in place). A pose
+that jumps farther than ``max_jump_m`` / ``max_jump_deg`` from the last one in one frame is an
+odometry reset: the map is re-anchored on the new pose as if the robot had stood still (its
+evidence is kept relative to the robot; only cells the re-anchored window no longer covers are
+lost). Each update returns a :class:`FusionUpdate` that says what happened and, when the node
+should log something, a message (once per change of state, not every frame).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from .costmap import CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN, Costmap
+
+#: Largest window side [cells]: 2000 x 2000 float32 log-odds are 16 MB.
+MAX_CELLS_PER_SIDE = 2000
+
+#: A pose: base frame in odom, (x [m], y [m], yaw [rad]).
+Pose = tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class FusionParams:
+    """Parameters of the fused costmap (log-odds evidence per frame, window geometry).
+
+    size_m: side of the square window centred on the robot [m]; resolution_m: cell size
+    [m/cell]. hit_log_odds (> 0) is added to a cell a frame sees occupied, miss_log_odds
+    (< 0) to one it sees free; the sum is clamped to [min_log_odds, max_log_odds]. A cell is
+    published occupied when its log-odds >= occupied_log_odds, free when <= free_log_odds,
+    unknown between. With the defaults (chosen on the sequences, see the README) an obstacle
+    is marked at its first hit on an unknown cell (1.0 >= 0.5) and at the second on ground
+    seen free (-1 + 2 = 1), a cell at the upper clamp clears after 5 frames of seen ground
+    (2.4 - 5 * 0.4 = 0.4 < 0.5), and one false hit on free ground never shows (-1 + 1 = 0).
+    max_jump_m, max_jump_deg: a pose change between two consecutive frames beyond either is
+    an odometry reset.
+    """
+
+    size_m: float = 4.0
+    resolution_m: float = 0.05
+    hit_log_odds: float = 1.0
+    miss_log_odds: float = -0.4
+    min_log_odds: float = -1.0
+    max_log_odds: float = 2.4
+    occupied_log_odds: float = 0.5
+    free_log_odds: float = -0.2
+    max_jump_m: float = 0.5
+    max_jump_deg: float = 45.0
+
+    def __post_init__(self) -> None:
+        for name in ('size_m', 'resolution_m', 'hit_log_odds', 'miss_log_odds',
+                     'min_log_odds', 'max_log_odds', 'occupied_log_odds', 'free_log_odds',
+                     'max_jump_m', 'max_jump_deg'):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or \
+                    not math.isfinite(value):
+                raise ValueError(f'FusionParams: {name}={value!r} must be a finite number')
+        for name in ('size_m', 'resolution_m', 'hit_log_odds', 'max_log_odds', 'max_jump_m',
+                     'max_jump_deg'):
+            if not getattr(self, name) > 0.0:
+                raise ValueError(f'FusionParams: {name}={getattr(self, name)!r} must be > 0')
+        for name in ('miss_log_odds', 'min_log_odds'):
+            if not getattr(self, name) < 0.0:
+                raise ValueError(f'FusionParams: {name}={getattr(self, name)!r} must be < 0')
+        if self.resolution_m > self.size_m:
+            raise ValueError(f'FusionParams: resolution_m={self.resolution_m!r} must not '
+                             f'exceed size_m={self.size_m!r}')
+        if self.cells > MAX_CELLS_PER_SIDE:
+            raise ValueError(f'FusionParams: size_m={self.size_m!r} at resolution_m='
+                             f'{self.resolution_m!r} is {self.cells} cells a side, more than '
+                             f'{MAX_CELLS_PER_SIDE}')
+        if not self.min_log_odds <= self.free_log_odds < 0.0:
+            raise ValueError(f'FusionParams: free_log_odds={self.free_log_odds!r} must be in '
+                             f'[min_log_odds={self.min_log_odds!r}, 0)')
+        if not 0.0 < self.occupied_log_odds <= self.max_log_odds:
+            raise ValueError(f'FusionParams: occupied_log_odds={self.occupied_log_odds!r} '
+                             f'must be in (0, max_log_odds={self.max_log_odds!r}]')
+        if self.max_jump_deg > 180.0:
+            raise ValueError(f'FusionParams: max_jump_deg={self.max_jump_deg!r} must be '
+                             f'<= 180')
+
+    @property
+    def cells(self) -> int:
+        """Cells per side of the window."""
+        return max(1, int(math.ceil(self.size_m / self.resolution_m - 1e-9)))
+
+    def frames_to_mark(self) -> int:
+        """Frames of hits that mark a cell that was unknown (log-odds 0)."""
+        return int(math.ceil(self.occupied_log_odds / self.hit_log_odds - 1e-9))
+
+    def frames_to_clear(self) -> int:
+        """Frames of seen ground that clear a cell at the upper clamp."""
+        return int(math.floor((self.max_log_odds - self.occupied_log_odds)
+                              / -self.miss_log_odds + 1e-9)) + 1
+
+
+@dataclass(frozen=True)
+class FusionUpdate:
+    """What one :meth:`FusedGrid.update` did, for the node's log and diagnostics.
+
+    pose: the base pose in odom the frame was fused at. in_place: no usable pose came with
+    the frame (``reason`` says why) and it was fused at the last pose used. shift_cells:
+    (columns, rows) the window scrolled. cells_forgotten: cells holding evidence that left
+    the window (scrolled out, or not covered after a reset). reset: an odometry jump
+    re-anchored the map. hit_cells, miss_cells: window cells the frame marked occupied /
+    free. message: a line for the log when the state changed (odometry lost, back, reset,
+    an old pose), '' otherwise; warning: True when that line is a warning.
+    """
+
+    pose: Pose
+    in_place: bool
+    shift_cells: tuple[int, int]
+    cells_forgotten: int
+    reset: bool
+    hit_cells: int
+    miss_cells: int
+    reason: str = ''
+    message: str = ''
+    warning: bool = False
+
+
+def _wrap_angle(angle_rad: float) -> float:
+    """Angle wrapped into [-pi, pi) [rad]."""
+    return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
+    """Yaw [rad] (rotation about z) of a unit quaternion, e.g. nav_msgs/Odometry's orientation.
+
+    For a robot on the floor (roll = pitch = 0) this is its heading; otherwise the heading of
+    its x axis projected on the floor.
+    """
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def compose_poses(a: Pose, b: Pose) -> Pose:
+    """Pose ``b`` (given in the frame of pose ``a``) expressed in ``a``'s parent frame.
+
+    E.g. odom->base_link from odometry composed with base_link->base_footprint of the
+    costmap (from TF or the mount) gives the costmap frame's pose in odom.
+    """
+    c, s = math.cos(a[2]), math.sin(a[2])
+    return (a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], _wrap_angle(a[2] + b[2]))
+
+
+def _check_pose(pose: object) -> str:
+    """'' when ``pose`` is a usable (x, y, yaw), else what is wrong with it."""
+    try:
+        values = [float(v) for v in pose]  # type: ignore[union-attr]
+    except (TypeError, ValueError):
+        return f'pose {pose!r} is not (x, y, yaw)'
+    if len(values) != 3:
+        return f'pose {pose!r} is not (x, y, yaw)'
+    if not all(math.isfinite(v) for v in values):
+        return f'pose {tuple(values)!r} is not finite'
+    return ''
+
+
+def frame_evidence(costmap: Costmap, pose: Pose, origin_cell: tuple[int, int],
+                   cells: tuple[int, int], resolution_m: float,
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Where a per-frame costmap puts evidence in an odom window: (hit, miss) (ny, nx) bool.
+
+    costmap: the frame's grid in the base frame; pose: base in odom (x, y, yaw); the window's
+    cell (0, 0) is odom-lattice cell ``origin_cell`` = (column, row), i.e. its corner is at
+    ``origin_cell * resolution_m``; cells = (nx, ny). A window cell is a miss when its centre,
+    moved into the base frame, falls in a free cell of the costmap, and a hit when it falls in
+    an occupied one or when the centre of an occupied costmap cell falls in it (splat). hit
+    and miss never overlap.
+    """
+    nx, ny = cells
+    res = float(resolution_m)
+    x, y, yaw = (float(v) for v in pose)
+    c, s = math.cos(yaw), math.sin(yaw)
+    # window cell centres relative to the robot, odom axes
+    dx = (origin_cell[0] + np.arange(nx) + 0.5) * res - x
+    dy = (origin_cell[1] + np.arange(ny) + 0.5) * res - y
+    # into the base frame: R(-yaw) (p - t), then the costmap's cell indices
+    fres = float(costmap.resolution_m)
+    fx0, fy0 = (float(v) for v in costmap.origin_xy_m)
+    col = np.floor((np.add.outer(s * dy, c * dx) - fx0) / fres).astype(np.int64)
+    row = np.floor((np.add.outer(c * dy, -s * dx) - fy0) / fres).astype(np.int64)
+    fny, fnx = costmap.data.shape
+    inside = (col >= 0) & (col < fnx) & (row >= 0) & (row < fny)
+    value = np.full((ny, nx), CELL_UNKNOWN, dtype=np.int8)
+    value[inside] = costmap.data[row[inside], col[inside]]
+    hit = value == CELL_OCCUPIED
+    miss = value == CELL_FREE
+    # splat the occupied cells' centres so that none falls between window cell centres
+    occ_row, occ_col = np.nonzero(costmap.data == CELL_OCCUPIED)
+    if occ_row.size:
+        bx = fx0 + (occ_col + 0.5) * fres
+        by = fy0 + (occ_row + 0.5) * fres
+        wc = np.floor((x + c * bx - s * by) / res).astype(np.int64) - origin_cell[0]
+        wr = np.floor((y + s * bx + c * by) / res).astype(np.int64) - origin_cell[1]
+        ok = (wc >= 0) & (wc < nx) & (wr >= 0) & (wr < ny)
+        hit[wr[ok], wc[ok]] = True
+        miss[wr[ok], wc[ok]] = False
+    return hit, miss
+
+
+def _shifted(grid: np.ndarray, d_col: int, d_row: int) -> np.ndarray:
+    """Return the window content after its origin moved by (d_col, d_row) cells.
+
+    new[r, c] = old[r + d_row, c + d_col]; cells from outside the old window are 0.
+    """
+    ny, nx = grid.shape
+    out = np.zeros_like(grid)
+    if abs(d_col) >= nx or abs(d_row) >= ny:
+        return out
+    src_r = slice(max(d_row, 0), ny + min(d_row, 0))
+    dst_r = slice(max(-d_row, 0), ny - max(d_row, 0))
+    src_c = slice(max(d_col, 0), nx + min(d_col, 0))
+    dst_c = slice(max(-d_col, 0), nx - max(d_col, 0))
+    out[dst_r, dst_c] = grid[src_r, src_c]
+    return out
+
+
+class FusedGrid:
+    """A rolling log-odds grid centred on the robot in the odometry frame.
+
+    ``update(costmap, pose)`` per frame, then ``to_costmap()`` for the OccupancyGrid (frame
+    odom). Not thread-safe: call it from one thread (the node's worker).
+    """
+
+    def __init__(self, params: FusionParams | None = None) -> None:
+        self.params = params if params is not None else FusionParams()
+        n = self.params.cells
+        self._log_odds = np.zeros((n, n), dtype=np.float32)
+        self._origin_cell = (-(n // 2), -(n // 2))   # robot at the odom origin until a pose
+        self._pose: Pose | None = None          # last pose used (None: none yet)
+        self._pose_stamp_s: float | None = None
+        self._in_place_kind: str | None = None   # why the last frame fused in place, '' if not
+        self._frames = 0
+
+    # -- geometry ---------------------------------------------------------------------------
+
+    @property
+    def resolution_m(self) -> float:
+        """Cell size [m/cell]."""
+        return self.params.resolution_m
+
+    @property
+    def origin_cell(self) -> tuple[int, int]:
+        """Odom-lattice (column, row) of the window's cell (0, 0)."""
+        return self._origin_cell
+
+    @property
+    def origin_xy_m(self) -> tuple[float, float]:
+        """Odom (x, y) of the outer corner of cell (0, 0) [m] (the OccupancyGrid origin)."""
+        res = self.params.resolution_m
+        return (self._origin_cell[0] * res, self._origin_cell[1] * res)
+
+    @property
+    def pose(self) -> Pose | None:
+        """The last pose a frame was fused at (None before the first frame)."""
+        return self._pose
+
+    @property
+    def log_odds(self) -> np.ndarray:
+        """(n, n) float32 log-odds per cell (a read-only view)."""
+        view = self._log_odds.view()
+        view.flags.writeable = False
+        return view
+
+    def _centred_origin(self, x_m: float, y_m: float) -> tuple[int, int]:
+        """Window origin cell that puts the odom point (x, y) in the centre cell."""
+        res = self.params.resolution_m
+        half = self.params.cells // 2
+        return (int(math.floor(x_m / res)) - half, int(math.floor(y_m / res)) - half)
+
+    def cell_of(self, xy_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(row, col, inside) of odom points xy (M, 2) [m] in the window."""
+        xy_m = np.asarray(xy_m, dtype=np.float64).reshape(-1, 2)
+        res = self.params.resolution_m
+        col = np.floor(xy_m[:, 0] / res).astype(np.int64) - self._origin_cell[0]
+        row = np.floor(xy_m[:, 1] / res).astype(np.int64) - self._origin_cell[1]
+        n = self.params.cells
+        return row, col, (col >= 0) & (col < n) & (row >= 0) & (row < n)
+
+    # -- output -----------------------------------------------------------------------------
+
+    def cell_states(self) -> np.ndarray:
+        """(n, n) int8: 100 occupied, 0 free, -1 unknown, from the log-odds thresholds."""
+        p = self.params
+        out = np.full(self._log_odds.shape, CELL_UNKNOWN, dtype=np.int8)
+        out[self._log_odds <= p.free_log_odds] = CELL_FREE
+        out[self._log_odds >= p.occupied_log_odds] = CELL_OCCUPIED
+        return out
+
+    def to_costmap(self) -> Costmap:
+        """Return the fused grid as a :class:`Costmap` in odom (publish it in frame ``odom``)."""
+        return Costmap(self.cell_states(), self.params.resolution_m, self.origin_xy_m)
+
+    def values_at(self, xy_m: np.ndarray) -> np.ndarray:
+        """(M,) int8 cell states at odom points xy (M, 2) [m]; -1 outside the window."""
+        row, col, inside = self.cell_of(xy_m)
+        out = np.full(row.shape, CELL_UNKNOWN, dtype=np.int8)
+        out[inside] = self.cell_states()[row[inside], col[inside]]
+        return out
+
+    # -- update -----------------------------------------------------------------------------
+
+    def clear(self) -> None:
+        """Forget all evidence and the pose (a parameter change, a new map)."""
+        self._log_odds[:] = 0.0
+        self._pose = None
+        self._pose_stamp_s = None
+        self._in_place_kind = None
+
+    def _scroll_to(self, origin: tuple[int, int]) -> tuple[tuple[int, int], int]:
+        """Move the window's origin to ``origin``; return (shift, cells with evidence lost)."""
+        d_col = origin[0] - self._origin_cell[0]
+        d_row = origin[1] - self._origin_cell[1]
+        if d_col == 0 and d_row == 0:
+            return (0, 0), 0
+        before = int(np.count_nonzero(self._log_odds))
+        self._log_odds = _shifted(self._log_odds, d_col, d_row)
+        self._origin_cell = origin
+        return (d_col, d_row), before - int(np.count_nonzero(self._log_odds))
+
+    def _reanchor(self, old: Pose, new: Pose) -> int:
+        """Re-express the map in a new odom frame where the robot is at ``new`` (was ``old``).
+
+        Assumes the robot did not move across the jump: each new window cell takes the
+        log-odds of the old cell at the same place relative to the robot (nearest cell).
+        Returns the number of cells with evidence before minus after (cells lost).
+        """
+        n = self.params.cells
+        res = self.params.resolution_m
+        origin = self._centred_origin(new[0], new[1])
+        centres = (np.arange(n) + 0.5) * res
+        gx = origin[0] * res + centres - new[0]       # (n,) new odom, relative to the robot
+        gy = origin[1] * res + centres - new[1]
+        d_yaw = old[2] - new[2]
+        c, s = math.cos(d_yaw), math.sin(d_yaw)
+        old_x = old[0] + np.add.outer(-s * gy, c * gx)   # (n, n): [row, col]
+        old_y = old[1] + np.add.outer(c * gy, s * gx)
+        col = np.floor(old_x / res).astype(np.int64) - self._origin_cell[0]
+        row = np.floor(old_y / res).astype(np.int64) - self._origin_cell[1]
+        inside = (col >= 0) & (col < n) & (row >= 0) & (row < n)
+        before = int(np.count_nonzero(self._log_odds))
+        moved = np.zeros_like(self._log_odds)
+        moved[inside] = self._log_odds[row[inside], col[inside]]
+        self._log_odds = moved
+        self._origin_cell = origin
+        return max(0, before - int(np.count_nonzero(moved)))
+
+    def update(self, costmap: Costmap, pose: Pose | None, *,
+               pose_stamp_s: float | None = None, no_pose_reason: str = '') -> FusionUpdate:
+        """Fuse one frame's costmap (base frame) taken at base pose ``pose`` in odom.
+
+        pose: (x [m], y [m], yaw [rad]) or None (no odometry: fuse in place at the last pose
+        used, or at the odom origin before any). pose_stamp_s: the pose's time [s]; a pose
+        older than the last one used is ignored (fused in place). no_pose_reason: why
+        ``pose`` is None, for the message (e.g. :meth:`PoseBuffer.pose_at`'s reason; default
+        'no odometry'). Fusing in place is said once per cause (missing, invalid or old pose)
+        until a pose is used again. Raises ValueError when ``costmap`` is not a 2-D int8 grid
+        with a positive resolution.
+        """
+        data = np.asarray(costmap.data)
+        if data.ndim != 2 or data.dtype != np.int8:
+            raise ValueError(f'costmap data must be a 2-D int8 grid, got {data.dtype} '
+                             f'{data.shape}')
+        if not (math.isfinite(costmap.resolution_m) and costmap.resolution_m > 0.0):
+            raise ValueError(f'costmap resolution_m={costmap.resolution_m!r} must be > 0')
+        p = self.params
+        if pose is None:
+            kind, reason = 'missing', no_pose_reason or 'no odometry'
+        else:
+            kind, reason = 'invalid', _check_pose(pose)
+        if not reason and pose_stamp_s is not None and self._pose_stamp_s is not None and \
+                pose_stamp_s < self._pose_stamp_s:
+            kind = 'old'
+            reason = (f'odometry pose {self._pose_stamp_s - pose_stamp_s:.3f} s older than '
+                      f'the last one used')
+        message, warning, reset, forgotten = '', False, False, 0
+        if reason:   # fuse in place; say so once per kind of cause
+            used = self._pose if self._pose is not None else (0.0, 0.0, 0.0)
+            if kind != self._in_place_kind:
+                message = f'fused costmap: {reason}: fusing in place'
+                warning = True
+            self._in_place_kind = kind
+            if self._pose is None:
+                self._origin_cell = self._centred_origin(0.0, 0.0)
+        else:
+            used = (float(pose[0]), float(pose[1]), _wrap_angle(float(pose[2])))
+            if self._in_place_kind:
+                message = 'fused costmap: odometry received, the map follows it'
+            self._in_place_kind = ''
+            if self._pose is not None:
+                jump_m = math.hypot(used[0] - self._pose[0], used[1] - self._pose[1])
+                jump_deg = abs(math.degrees(_wrap_angle(used[2] - self._pose[2])))
+                if jump_m > p.max_jump_m or jump_deg > p.max_jump_deg:
+                    reset = True
+                    forgotten = self._reanchor(self._pose, used)
+                    reason = (f'odometry jumped {jump_m:.2f} m, {jump_deg:.1f} deg in one '
+                              f'frame (limits {p.max_jump_m:g} m, {p.max_jump_deg:g} deg)')
+                    message = (f'fused costmap: {reason}: odometry reset, map re-anchored '
+                               f'on the new pose ({forgotten} cells lost)')
+                    warning = True
+            if pose_stamp_s is not None:
+                self._pose_stamp_s = float(pose_stamp_s)
+        shift, scrolled_out = (0, 0), 0
+        if not reset:
+            shift, scrolled_out = self._scroll_to(self._centred_origin(used[0], used[1]))
+        self._pose = used
+        n = p.cells
+        hit, miss = frame_evidence(costmap, used, self._origin_cell, (n, n), p.resolution_m)
+        grid = self._log_odds
+        grid[hit] += np.float32(p.hit_log_odds)
+        grid[miss] += np.float32(p.miss_log_odds)
+        np.clip(grid, np.float32(p.min_log_odds), np.float32(p.max_log_odds), out=grid)
+        self._frames += 1
+        return FusionUpdate(pose=used, in_place=bool(reason) and not reset, shift_cells=shift,
+                            cells_forgotten=forgotten + scrolled_out, reset=reset,
+                            hit_cells=int(np.count_nonzero(hit)),
+                            miss_cells=int(np.count_nonzero(miss)), reason=reason,
+                            message=message, warning=warning)
+
+
+class PoseBuffer:
+    """Recent odometry poses by time; gives the pose at a frame's stamp.
+
+    ``add(stamp_s, pose)`` from the odometry callback; ``pose_at(stamp_s)`` interpolates
+    (linear in x, y, shortest way in yaw) between the two poses around the stamp, holds the
+    newest one for a frame up to ``max_age_s`` newer than it (odometry late), and returns
+    (None, reason) for a frame beyond that, older than the buffer, or before any odometry.
+    Thread-safe: the odometry callback may add while the frame worker reads.
+    """
+
+    def __init__(self, max_age_s: float = 0.2, capacity: int = 256) -> None:
+        if not (math.isfinite(max_age_s) and max_age_s >= 0.0):
+            raise ValueError(f'PoseBuffer: max_age_s={max_age_s!r} must be a number >= 0')
+        if capacity < 2:
+            raise ValueError(f'PoseBuffer: capacity={capacity!r} must be >= 2')
+        self.max_age_s = float(max_age_s)
+        self._items: deque[tuple[float, Pose]] = deque(maxlen=int(capacity))
+        self._lock = threading.Lock()
+
+    def __len__(self) -> int:
+        with self._lock:
+            return len(self._items)
+
+    def clear(self) -> None:
+        """Forget every pose (an odometry reset seen by the node)."""
+        with self._lock:
+            self._items.clear()
+
+    def add(self, stamp_s: float, pose: Pose) -> str:
+        """Store a pose; return '' or why it was refused (not finite, older than the newest)."""
+        problem = _check_pose(pose)
+        if problem:
+            return problem
+        if not math.isfinite(stamp_s):
+            return f'stamp {stamp_s!r} is not finite'
+        with self._lock:
+            if self._items and stamp_s <= self._items[-1][0]:
+                return (f'odometry stamp {stamp_s:.3f} s not newer than the last one '
+                        f'({self._items[-1][0]:.3f} s)')
+            self._items.append((float(stamp_s), tuple(float(v) for v in pose)))  # type: ignore
+        return ''
+
+    def pose_at(self, stamp_s: float) -> tuple[Pose | None, str]:
+        """(pose at ``stamp_s``, '') or (None, why there is none)."""
+        with self._lock:
+            items = list(self._items)
+        return self._interpolate(items, stamp_s)
+
+    def _interpolate(self, items: list[tuple[float, Pose]], stamp_s: float,
+                     ) -> tuple[Pose | None, str]:
+        if not items:
+            return None, 'no odometry received'
+        newest_s, newest = items[-1]
+        if stamp_s >= newest_s:
+            late = stamp_s - newest_s
+            if late <= self.max_age_s:
+                return newest, ''
+            return None, (f'odometry late: the newest pose is {late:.3f} s older than the '
+                          f'frame (limit {self.max_age_s:g} s)')
+        oldest_s = items[0][0]
+        if stamp_s < oldest_s:
+            return None, (f'frame {oldest_s - stamp_s:.3f} s older than the oldest odometry '
+                          f'pose kept')
+        stamps = np.fromiter((item[0] for item in items), dtype=np.float64)
+        i = int(np.searchsorted(stamps, stamp_s, side='right'))  # stamps[i-1] <= t < stamps[i]
+        (t0, a), (t1, b) = items[i - 1], items[i]
+        w = (stamp_s - t0) / (t1 - t0)
+        yaw = a[2] + w * _wrap_angle(b[2] - a[2])
+        return (a[0] + w * (b[0] - a[0]), a[1] + w * (b[1] - a[1]), _wrap_angle(yaw)), ''

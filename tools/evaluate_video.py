@@ -1,0 +1,152 @@
+#!/usr/bin/env python3
+"""Score the fused costmap over scene sequences, side by side with the per-frame costmap.
+
+Renders each sequence (obstacle_detection/sequences.py: a robot driving past boxes and a
+table, a person crossing in front of a standing robot), runs the detector on every frame with
+the parameter file (default params/corridor.yaml) and fuses the costmaps at the odometry pose.
+Prints a table for people and one JSON line for machines (the last line of stdout, or
+``--json FILE``); ``--sheet`` draws a contact sheet of per-frame and fused grids over time.
+
+Examples::
+
+    python tools/evaluate_video.py
+    python tools/evaluate_video.py --sequence person_crossing --no-odometry
+    python tools/evaluate_video.py --sheet tools/readme/fused_costmap.png
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Sequence
+
+if __package__ in (None, ''):  # run as a script: make the repository root importable
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from obstacle_detection import evaluation, tool_support  # noqa: E402
+from obstacle_detection.fusion import FusionParams  # noqa: E402
+from obstacle_detection.sequences import (PERFECT_ODOMETRY, SEQUENCE_NAMES,  # noqa: E402
+                                          OdometryModel, SceneSequence)
+
+REPO = Path(__file__).resolve().parents[1]
+DEFAULT_PARAMS = REPO / 'params' / 'corridor.yaml'
+PROG = 'evaluate_video.py'
+
+
+def parse_assignment(text: str) -> tuple[str, float]:
+    """``key=value`` with a number -> (key, value); argparse type for ``--fusion``."""
+    key, sep, value = text.partition('=')
+    try:
+        number = float(value)
+    except ValueError:
+        number = None
+    if not sep or not key.strip() or number is None:
+        raise argparse.ArgumentTypeError(f'expected key=number, got {text!r}')
+    return key.strip(), number
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Return the command-line interface."""
+    from obstacle_detection.video_evaluation import VIDEO_SCORE_DEFINITIONS
+
+    parser = argparse.ArgumentParser(
+        prog=PROG, description=__doc__.split('\n\n')[0],
+        epilog='What is measured:\n' + VIDEO_SCORE_DEFINITIONS,
+        formatter_class=argparse.RawTextHelpFormatter)
+    parser.add_argument('--sequence', action='append', choices=SEQUENCE_NAMES,
+                        help='evaluate only this sequence (repeatable) [default: all]')
+    parser.add_argument('--params-file', type=Path, default=DEFAULT_PARAMS, metavar='YAML',
+                        help='detector parameter file [default: params/corridor.yaml]')
+    parser.add_argument('--fusion', action='append', type=parse_assignment, default=[],
+                        metavar='KEY=NUMBER',
+                        help='a FusionParams field (size_m, resolution_m, hit_log_odds, '
+                             'miss_log_odds, min_log_odds, max_log_odds, occupied_log_odds, '
+                             'free_log_odds, max_jump_m, max_jump_deg); repeatable')
+    parser.add_argument('--seed', type=int, default=0, help='sequence seed [default: 0]')
+    parser.add_argument('--frames', type=int, metavar='N',
+                        help='only the first N frames of each sequence')
+    parser.add_argument('--no-odometry', action='store_true',
+                        help='fuse every frame in place (as without odometry)')
+    parser.add_argument('--exact-odometry', action='store_true',
+                        help='odometry without drift or noise (the true poses)')
+    parser.add_argument('--sheet', type=Path, metavar='PNG',
+                        help='write a contact sheet of per-frame and fused grids over time '
+                             '(the sequences one under the other)')
+    parser.add_argument('--sheet-frames', type=int, default=4, metavar='N',
+                        help='moments per sequence on the sheet [default: 4]')
+    parser.add_argument('--json', metavar='FILE',
+                        help='write the JSON report to FILE instead of printing it last')
+    parser.add_argument('--quiet', action='store_true', help='no progress lines')
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point; returns the exit code (0 ok, 1 bad input, 2 bad usage)."""
+    args = build_parser().parse_args(argv)
+    try:
+        if args.frames is not None and args.frames < 1:
+            raise tool_support.UsageError(f'argument --frames: {args.frames} must be >= 1')
+        if args.sheet_frames < 1:
+            raise tool_support.UsageError(
+                f'argument --sheet-frames: {args.sheet_frames} must be >= 1')
+        if args.seed < 0:
+            raise tool_support.UsageError(f'argument --seed: {args.seed} must be >= 0')
+        try:
+            fusion = FusionParams(**dict(args.fusion))
+        except TypeError as exc:
+            raise tool_support.UsageError(f'argument --fusion: {exc}') from None
+        except ValueError as exc:
+            raise tool_support.UsageError(f'argument --fusion: {exc}') from None
+        params = evaluation.load_params_file(args.params_file)
+        if args.sheet is not None and args.sheet.suffix.lower() != '.png':
+            raise tool_support.ToolError(args.sheet, 'the contact sheet must be a .png file')
+    except (ValueError, OSError) as exc:
+        return tool_support.report_error(PROG, exc)
+    from obstacle_detection.video_evaluation import evaluate_sequence, format_table
+
+    reports = []
+    for name in args.sequence or SEQUENCE_NAMES:
+        sequence = SceneSequence(name, seed=args.seed,
+                                 odometry=PERFECT_ODOMETRY if args.exact_odometry
+                                 else OdometryModel())
+
+        def progress(index: int, total: int, name: str = name) -> None:
+            if not args.quiet and (index + 1 == total or (index + 1) % 30 == 0):
+                print(f'{PROG}: {name} frame {index + 1}/{total}', file=sys.stderr,
+                      flush=True)
+
+        reports.append(evaluate_sequence(
+            sequence, params, fusion, stop=args.frames, use_odometry=not args.no_odometry,
+            sheet_frames=args.sheet_frames if args.sheet is not None else 0,
+            on_frame=progress))
+    print(f'detector: {args.params_file}; fusion: {fusion}')
+    print(format_table(reports))
+    if args.sheet is not None:
+        import numpy as np
+
+        from obstacle_detection.pictures import write_png
+        sheets = [r.sheet for r in reports if r.sheet is not None]
+        width = max(s.shape[1] for s in sheets)
+        rows = [np.pad(s, ((0, 0), (0, width - s.shape[1]), (0, 0)), constant_values=255)
+                for s in sheets]
+        try:
+            write_png(args.sheet, np.vstack(rows))
+        except OSError as exc:
+            return tool_support.report_error(PROG, exc)
+        print(f'contact sheet: {args.sheet}')
+    line = json.dumps({'fusion': fusion.__dict__,
+                       'sequences': [r.as_dict() for r in reports]}, sort_keys=True)
+    if args.json is None:
+        print(line)
+    else:
+        try:
+            Path(args.json).write_text(line + '\n', encoding='utf-8')
+        except OSError as exc:
+            return tool_support.report_error(PROG, exc)
+    return tool_support.EXIT_OK
+
+
+if __name__ == '__main__':
+    sys.exit(main())
