@@ -40,7 +40,7 @@ import numpy as np
 import rclpy
 import rclpy.logging
 import rclpy.utilities
-from nav_msgs.msg import OccupancyGrid
+from nav_msgs.msg import OccupancyGrid, Odometry
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
@@ -63,6 +63,7 @@ from .conversions import (
     DEPTH_ENCODINGS,
     ImageFormatError,
     camera_info_to_intrinsics,
+    costmap_to_occupancy_grid,
     depth_problem,
     image_to_array,
     intrinsics_problem,
@@ -70,6 +71,7 @@ from .conversions import (
 )
 from .diagnostics import Context as DiagnosticsContext
 from .diagnostics import HealthWindow, diagnostic_array, health_status
+from .fusion import FusedGrid, FusionParams, PoseBuffer, yaw_from_quaternion
 from .mount_source import Mount, MountSource
 from .params import Intrinsics
 from .pipeline import Detector
@@ -99,6 +101,9 @@ DEPTH_TRANSPORTS = {
     'compressedDepth': (CompressedImage, 'depth/image_raw/compressedDepth'),
     'compressed': (CompressedImage, 'depth/image_raw/compressed'),
 }
+#: Odometry: reliable, a short history (the pose buffer interpolates between messages).
+_ODOM_QOS = QoSProfile(depth=20, reliability=ReliabilityPolicy.RELIABLE,
+                       history=HistoryPolicy.KEEP_LAST, durability=DurabilityPolicy.VOLATILE)
 #: First word of every ~/status message once the node processes frames.
 STATUS_READY = 'ready'
 _RELIABLE_INPUT_QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE,
@@ -205,6 +210,8 @@ class NodeConfig:
     fallback_intrinsics: Intrinsics
     stats_period_s: float
     camera_info_tolerance_ns: int = 20_000_000
+    fusion: FusionParams | None = None      #: None: no fused costmap
+    odom_frame: str = 'odom'
     values: dict[str, Any] = field(default_factory=dict)   #: the ROS values it was built from
 
     def mount(self) -> Mount:
@@ -252,7 +259,7 @@ def build_detector(values: dict[str, Any]) -> Detector | RefinedDetector:
 
 def build_config(values: dict[str, Any]) -> NodeConfig:
     """NodeConfig from ``{ros_name: value}`` of every parameter; ValueError naming a bad one."""
-    for name in ('cloud_frame_id', 'costmap_frame_id'):
+    for name in ('cloud_frame_id', 'costmap_frame_id', 'odom_frame'):
         if not str(values[name]).strip():
             raise ValueError(f'{name} must not be empty')
     transport = values.get('depth_transport', 'raw')
@@ -269,6 +276,10 @@ def build_config(values: dict[str, Any]) -> NodeConfig:
         fallback_intrinsics=fallback_intrinsics_from_ros(values),
         stats_period_s=float(values['stats_period_s']),
         camera_info_tolerance_ns=round(float(values['camera_info_tolerance_s']) * 1e9),
+        fusion=(FusionParams(size_m=float(values['fused_size_m']),
+                             resolution_m=float(values['fused_resolution_m']))
+                if values.get('fuse') else None),
+        odom_frame=str(values.get('odom_frame', 'odom')),
         values=dict(values))
 
 
@@ -374,6 +385,13 @@ class DetectorNode(Node):
                                                  _OUTPUT_QOS)
         self._overlay_pub = self.create_publisher(Image, 'obstacles/overlay', _OUTPUT_QOS)
         self._time_pub = self.create_publisher(Float64, '~/processing_time_ms', _OUTPUT_QOS)
+        self._fused_pub = self.create_publisher(OccupancyGrid, 'obstacles/fused_costmap',
+                                                _OUTPUT_QOS)
+        self._poses = PoseBuffer()
+        self._fused: FusedGrid | None = None
+        self._odom_sub = self.create_subscription(
+            Odometry, str(self.get_parameter('odom_topic').value), self._on_odometry,
+            _ODOM_QOS)
 
         self._stats_timer = None
         self._restart_stats_timer(self._config.stats_period_s)
@@ -659,6 +677,35 @@ class DetectorNode(Node):
         self._cameras.append(_CameraState(width, height, intrinsics if error is None else None,
                                           error, _stamp_ns(msg.header.stamp)))
 
+    def _on_odometry(self, msg: Odometry) -> None:
+        pose = msg.pose.pose
+        q = pose.orientation
+        problem = self._poses.add(_stamp_ns(msg.header.stamp) * 1e-9, (
+            pose.position.x, pose.position.y, yaw_from_quaternion(q.x, q.y, q.z, q.w)))
+        if problem:
+            self._throttled_logger('odometry').warning(
+                f'odometry on {self._odom_sub.topic_name} refused: {problem}',
+                throttle_duration_sec=WARN_THROTTLE_S)
+
+    def _fuse(self, result: Any, msg: Any, config: NodeConfig) -> OccupancyGrid | None:
+        """Fuse the frame's costmap; return the fused OccupancyGrid to publish (or None)."""
+        if config.fusion is None:
+            self._fused = None
+            return None
+        if self._fused is None or self._fused.params != config.fusion:
+            self._fused = FusedGrid(config.fusion)
+        stamp_s = _stamp_ns(msg.header.stamp) * 1e-9
+        pose, why = self._poses.pose_at(stamp_s)
+        if pose is None and not why:
+            why = f'no odometry on {self._odom_sub.topic_name}'
+        update = self._fused.update(result.costmap, pose, pose_stamp_s=stamp_s,
+                                    no_pose_reason=why)
+        if update.message:
+            log = self.get_logger()
+            (log.warning if update.warning else log.info)(f'fused costmap: {update.message}')
+        return costmap_to_occupancy_grid(self._fused.to_costmap(), stamp=msg.header.stamp,
+                                         frame_id=config.odom_frame)
+
     def _log_stats(self) -> None:
         period = self.stats.take_period()
         self.get_logger().info(
@@ -797,6 +844,9 @@ class DetectorNode(Node):
                 self._ground_pub.publish(messages['ground'])
             if 'overlay' in messages:
                 self._overlay_pub.publish(messages['overlay'])
+            fused = self._fuse(result, msg, config)
+            if fused is not None:
+                self._fused_pub.publish(fused)
             elapsed_ms = (time.perf_counter() - start) * 1e3
             self._time_pub.publish(Float64(data=elapsed_ms))
         except Exception as error:  # noqa: BLE001 - e.g. the context shut down meanwhile

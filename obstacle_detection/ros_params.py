@@ -148,6 +148,17 @@ NODE_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec('use_fallback_intrinsics', False,
               'Use fallback_fx/fy/cx/cy while no CameraInfo has arrived (else frames are '
               'skipped until one arrives)'),
+    ParamSpec('fuse', False,
+              'Also publish obstacles/fused_costmap: the per-frame costmaps fused over time '
+              '(log-odds) in a rolling window centred on the robot in odom_frame, moved by the '
+              'odometry on odom_topic (without odometry: fused in place, said once)'),
+    ParamSpec('odom_topic', 'odom',
+              'nav_msgs/Odometry of the robot base in odom_frame, for the fused costmap'),
+    ParamSpec('odom_frame', 'odom', 'Frame of obstacles/fused_costmap (the odometry frame)'),
+    ParamSpec('fused_size_m', 4.0,
+              'Side of the fused costmap window, centred on the robot [m]', 0.5, 100.0),
+    ParamSpec('fused_resolution_m', 0.05, 'Cell size of the fused costmap [m/cell]', 0.01,
+              1.0),
     ParamSpec('use_tf', False,
               'Take the camera mount from TF: the transform cloud_frame_id <- the depth '
               "image's frame_id, at the image stamp; the mount parameters are the fallback "

@@ -709,6 +709,44 @@ def test_use_tf_without_tf2_says_so_and_uses_the_parameters(
         node.destroy_node()
 
 
+def test_fused_costmap_follows_the_odometry_and_keeps_what_it_saw(
+        local_context: rclpy.Context, monkeypatch: pytest.MonkeyPatch) -> None:
+    """fuse: obstacles/fused_costmap in odom, moved by nav_msgs/Odometry; per-frame unchanged."""
+    from nav_msgs.msg import Odometry
+
+    node = DetectorNode(context=local_context, cli_args=[
+        '--ros-args', '--params-file', str(CORRIDOR_YAML), '-p', 'fuse:=true',
+        '-p', 'fused_size_m:=6.0'])
+    fused: list[OccupancyGrid] = []
+    monkeypatch.setattr(node._fused_pub, 'publish', fused.append)
+    frame = render_scene('corridor', seed=3)
+    try:
+        grids = _publish_frame(node, frame, monkeypatch)    # no odometry yet: in place
+        assert len(fused) == 1 and fused[0].header.frame_id == 'odom'
+        assert fused[0].info.width == fused[0].info.height == 120     # 6 m at 5 cm
+        first = np.asarray(fused[0].data, np.int8)
+        assert (first == CELL_OCCUPIED).sum() >= (np.asarray(grids[0].data) == 100).sum() // 2
+
+        for sec, x in ((200, 0.0), (201, 1.0)):          # the robot drives 1 m forward
+            odom = Odometry()
+            odom.header.stamp = Time(sec=sec)
+            odom.pose.pose.position.x = x
+            odom.pose.pose.orientation.w = 1.0
+            node._on_odometry(odom)
+        image = _depth_image(frame)
+        image.header.stamp = Time(sec=201)
+        info = _camera_info(frame)
+        info.header.stamp = Time(sec=201)
+        node._on_camera_info(info)
+        assert node.handle_frame(image)
+        moved = fused[-1]
+        assert moved.info.origin.position.x == pytest.approx(1.0 - 3.0)   # centred on x = 1 m
+        assert (np.asarray(moved.data, np.int8) == CELL_OCCUPIED).any()
+    finally:
+        node.close()
+        node.destroy_node()
+
+
 def test_set_parameters_applies_to_the_next_frame(local_node: DetectorNode) -> None:
     result = local_node.set_parameters([Parameter('max_slope_deg', value=45.0),
                                         Parameter('validation_neighbours', value=3)])
