@@ -177,7 +177,9 @@ def roi_cells(costmap: Any, params: Any) -> np.ndarray:
 
 def costmap_panel(costmap: Any, *, scale: int = 4, params: Any = None,
                   intrinsics: Intrinsics | None = None,
-                  image_shape: tuple[int, int] | None = None) -> np.ndarray:
+                  image_shape: tuple[int, int] | None = None,
+                  robot_pose: tuple[float, float, float] = (0.0, 0.0, 0.0),
+                  axis_names: tuple[str, str] = ('x forward [m]', 'y left [m]')) -> np.ndarray:
     """Return the costmap seen from above with metre axes, the camera and its view.
 
     The grid is ``overlay.render_costmap`` (x forward up, y left to the left, ``scale`` px per
@@ -185,7 +187,9 @@ def costmap_panel(costmap: Any, *, scale: int = 4, params: Any = None,
     triangle at x = y = 0 is the camera's foot point, pointing forward. With ``params``, cells
     outside the region of interest are hatched; with ``params``, ``intrinsics`` and
     ``image_shape`` too, a magenta line bounds the floor the camera can see (unknown cells
-    outside it were never in view). Returns RGB uint8.
+    outside it were never in view). robot_pose: (x, y, yaw) of the triangle in the grid's frame
+    (a fused grid in odom: the robot's pose there); axis_names: the axes' labels. Returns RGB
+    uint8.
     """
     grid = render_costmap(costmap, scale=scale, draw_robot=False)
     if params is not None:
@@ -212,7 +216,7 @@ def costmap_panel(costmap: Any, *, scale: int = 4, params: Any = None,
     px_per_m = scale / res
     x0, y0 = costmap.origin_xy_m
     x1, y1 = x0 + costmap.width * res, y0 + costmap.height * res
-    _put(panel, 'x forward [m]', (2, line_h + 2))
+    _put(panel, axis_names[0], (2, line_h + 2))
     for x in _ticks(x0, x1, _nice_step(x1 - x0, px_per_m, 3 * line_h)):
         row = top + round((x1 - x) * px_per_m)
         cv2.line(panel, (left - 5, row), (left - 1, row), AXIS_RGB, 1)
@@ -222,12 +226,18 @@ def costmap_panel(costmap: Any, *, scale: int = 4, params: Any = None,
         col = left + round((y1 - y) * px_per_m)
         cv2.line(panel, (col, top + grid_h), (col, top + grid_h + 4), AXIS_RGB, 1)
         _put(panel, f'{y:g}', (col, tick_y), anchor='centre')
-    _put(panel, 'y left [m]', (left + grid_w // 2, tick_y + line_h + 4), anchor='centre')
-    # the camera's foot point, pointing forward (up); below the grid when x = 0 is its edge
-    col = left + (y1 - 0.0) * px_per_m
-    row = top + (x1 - 0.0) * px_per_m
-    triangle = np.array([[col, row], [col - marker * 0.6, row + marker],
-                         [col + marker * 0.6, row + marker]]).round().astype(np.int32)
+    _put(panel, axis_names[1], (left + grid_w // 2, tick_y + line_h + 4), anchor='centre')
+    # the camera's foot point (or the robot), its tip pointing along its heading (x forward is
+    # up, y left is left); below the grid when x = 0 is its edge
+    rx, ry, yaw = robot_pose
+    col = left + (y1 - ry) * px_per_m
+    row = top + (x1 - rx) * px_per_m
+    ahead = np.array([-math.sin(yaw), -math.cos(yaw)])      # (d col, d row) of the heading
+    side = np.array([ahead[1], -ahead[0]])
+    tip = np.array([col, row])
+    base = tip - marker * ahead
+    triangle = np.array([tip, base + 0.6 * marker * side,
+                         base - 0.6 * marker * side]).round().astype(np.int32)
     cv2.fillPoly(panel, [triangle], ROBOT_RGB, cv2.LINE_AA)
     return panel
 

@@ -675,3 +675,41 @@ def test_progress_redraws_on_a_terminal_and_marks_a_stop() -> None:
         raise RuntimeError('boom')
     text = stream.getvalue()
     assert text.startswith('\rwork [') and '1/2' in text and text.endswith('(stopped)\n')
+
+
+def test_frames_with_a_pose_carry_odometry_and_the_processor_keeps_it(
+        tmp_path: Path, depths: list[np.ndarray]) -> None:
+    import dataclasses
+    import math
+
+    from nav_msgs.msg import Odometry
+
+    from tools import bag_process
+
+    root = make_folder(tmp_path / 'data', depths, with_color=False)
+    source = bag_convert.folder_frames(root / 'depth', intrinsics_path=write_intrinsics(
+        tmp_path / 'camera.yaml'), rate_hz=10.0, start_s=100.0)
+    poses = [(0.1 * k, -0.05 * k, math.radians(10.0 * k)) for k in range(len(depths))]
+    source.frames = [dataclasses.replace(f, pose=p) for f, p in zip(source.frames, poses)]
+    summary = bag_convert.write_frames(source, tmp_path / 'bag',
+                                       bag_convert.BagOptions(progress=False))
+    assert summary.topics['/odom'] == len(depths)
+
+    def odometry(bag: Path) -> list[tuple[int, tuple[float, float, float]]]:
+        with Reader(bag) as reader:
+            conns = [c for c in reader.connections if c.topic == '/odom']
+            out = []
+            for _, stamp, raw in reader.messages(connections=conns):
+                msg = deserialize_message(bytes(raw), Odometry)
+                q = msg.pose.pose.orientation
+                out.append((stamp, (msg.pose.pose.position.x, msg.pose.pose.position.y,
+                                    2.0 * math.atan2(q.z, q.w))))
+            return out
+
+    written = odometry(tmp_path / 'bag')
+    assert [s for s, _ in written] == [100_000_000_000 + k * 100_000_000 for k in range(4)]
+    for (_, got), want in zip(written, poses):
+        assert got == pytest.approx(want, abs=1e-12)
+    assert bag_process.main([str(tmp_path / 'bag'), str(tmp_path / 'processed'),
+                             '--quiet']) == 0
+    assert odometry(tmp_path / 'processed') == written

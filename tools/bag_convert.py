@@ -83,6 +83,8 @@ DEFAULT_DEPTH_TOPIC = tool_support.DEFAULT_DEPTH_TOPIC
 DEFAULT_INFO_TOPIC = tool_support.DEFAULT_INFO_TOPIC
 DEFAULT_COLOR_TOPIC = tool_support.DEFAULT_COLOR_TOPIC
 DEFAULT_FRAME_ID = 'kinect2_ir_optical_frame'
+#: Odometry of frames that carry a pose (nav_msgs/Odometry, base_footprint in odom).
+DEFAULT_ODOM_TOPIC = '/odom'
 BAG_VERSION = 9
 STORAGES = {'sqlite3': StoragePlugin.SQLITE3, 'mcap': StoragePlugin.MCAP}
 
@@ -123,6 +125,9 @@ class Frame:
     stamp_ns: int
     depth_path: Path
     color_path: Path | None = None
+    #: the robot base pose in odom at the frame, (x [m], y [m], yaw [rad]): written as
+    #: nav_msgs/Odometry on BagOptions.odom_topic (None: no odometry for this frame)
+    pose: tuple[float, float, float] | None = None
 
 
 @dataclasses.dataclass
@@ -154,6 +159,7 @@ class BagOptions:
     color_topic: str = DEFAULT_COLOR_TOPIC
     frame_id: str = DEFAULT_FRAME_ID
     color_encoding: str = 'bgr8'
+    odom_topic: str = DEFAULT_ODOM_TOPIC
     with_color: bool = True
     progress: bool = True
 
@@ -604,8 +610,9 @@ def staged_output(output: Path) -> Iterator[Path]:
 class FrameBagWriter:
     """Write depth, camera-info and colour messages of frames to an open rosbag2 Writer."""
 
-    def __init__(self, writer: Writer, options: BagOptions, *, color: bool) -> None:
-        """Add the connections (color: whether a colour topic is wanted)."""
+    def __init__(self, writer: Writer, options: BagOptions, *, color: bool,
+                 odometry: bool = False) -> None:
+        """Add the connections (color, odometry: whether those topics are wanted)."""
         typestore = get_typestore(Stores.ROS2_JAZZY)
         self.options = options
         self.depth = writer.add_connection(options.depth_topic, 'sensor_msgs/msg/Image',
@@ -614,7 +621,25 @@ class FrameBagWriter:
                                           typestore=typestore)
         self.color = (writer.add_connection(options.color_topic, 'sensor_msgs/msg/Image',
                                             typestore=typestore) if color else None)
+        self.odom = (writer.add_connection(options.odom_topic, 'nav_msgs/msg/Odometry',
+                                           typestore=typestore) if odometry else None)
         self.writer = writer
+
+    def write_odometry(self, stamp: int, pose: tuple[float, float, float]) -> int:
+        """Write the base pose in odom at bag time ``stamp`` [ns]; return 1 (or 0: no topic)."""
+        if self.odom is None:
+            return 0
+        from nav_msgs.msg import Odometry
+
+        msg = Odometry()
+        msg.header.stamp = to_time(stamp)
+        msg.header.frame_id = 'odom'
+        msg.child_frame_id = 'base_footprint'
+        msg.pose.pose.position.x, msg.pose.pose.position.y = float(pose[0]), float(pose[1])
+        msg.pose.pose.orientation.z = math.sin(pose[2] / 2.0)
+        msg.pose.pose.orientation.w = math.cos(pose[2] / 2.0)
+        self.writer.write(self.odom, stamp, serialize_message(msg))
+        return 1
 
     def write(self, stamp: int, depth_mm: np.ndarray, intr: Intrinsics,
               color: np.ndarray | None) -> int:
@@ -664,7 +689,9 @@ def write_frames(source: FrameSource, output: Path, options: BagOptions) -> Summ
         try:
             with Writer(staging, version=BAG_VERSION,
                         storage_plugin=STORAGES[options.storage]) as writer:
-                frame_writer = FrameBagWriter(writer, options, color=with_color)
+                with_odometry = any(f.pose is not None for f in source.frames)
+                frame_writer = FrameBagWriter(writer, options, color=with_color,
+                                              odometry=with_odometry)
                 bar = Progress(len(source.frames), 'converting',
                                stream=None if options.progress else io.StringIO())
                 with bar:
@@ -679,12 +706,18 @@ def write_frames(source: FrameSource, output: Path, options: BagOptions) -> Summ
                         if with_color and frame.color_path is not None:
                             color = read_color(frame.color_path, options.color_encoding)
                             summary.color_frames += 1
+                        if frame.pose is not None:
+                            summary.messages += frame_writer.write_odometry(frame.stamp_ns,
+                                                                            frame.pose)
+                            summary.topics[options.odom_topic] = (
+                                summary.topics.get(options.odom_topic, 0) + 1)
                         summary.messages += frame_writer.write(frame.stamp_ns, depth, intr, color)
                         summary.frames += 1
                         bar.update()
         except WriterError as err:
             raise ConvertError(f'{output}: cannot write bag ({err})') from err
-    summary.topics = {options.depth_topic: summary.frames, options.info_topic: summary.frames}
+    summary.topics = {options.depth_topic: summary.frames, options.info_topic: summary.frames,
+                      **summary.topics}
     if with_color:
         summary.topics[options.color_topic] = summary.color_frames
     stamps = [f.stamp_ns for f in source.frames]
