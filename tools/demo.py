@@ -54,7 +54,10 @@ OUTPUT_TOPICS = {
     '/obstacles/costmap': 'nav_msgs/msg/OccupancyGrid',
     '/obstacles/overlay': 'sensor_msgs/msg/Image',
     '/obstacle_detector/processing_time_ms': 'std_msgs/msg/Float64',
+    '/obstacles/fused_costmap': 'nav_msgs/msg/OccupancyGrid',
 }
+#: Frames a second the demo replays at, unless --rate says otherwise.
+DEMO_FPS = 7.5
 
 
 class DemoError(Exception):
@@ -109,17 +112,35 @@ def keep_failed(work: Path, failed: Path) -> None:
     work.rename(failed)
 
 
-def render_sequence(folder: Path, scene: str, frames: int, seed: int) -> tuple[Path, Path, Any]:
-    """Write the frames as 16-bit PNGs [mm] and a camera YAML; return (dir, yaml, frame 0)."""
+def render_sequence(folder: Path, scene: str, frames: int, seed: int, step: int = 1
+                    ) -> tuple[Path, Path, Any, list[tuple[float, float, float]] | None]:
+    """Write the frames as 16-bit PNGs [mm] and a camera YAML.
+
+    scene: a scene of the generator (a static camera) or a sequence with a known trajectory
+    (every ``step``-th frame of it). Returns (depth folder, camera YAML, the first SceneFrame,
+    the odometry pose of each frame or None for a static scene).
+    """
     from obstacle_detection.params import KINECT_V2_SD, KINECT_V2_SD_SIZE
     from obstacle_detection.scenes import render_scene
+    from obstacle_detection.sequences import SEQUENCE_NAMES, SceneSequence
 
     depth_dir = folder / 'depth'
     depth_dir.mkdir(parents=True)
     first = None
-    for k in range(frames):
-        frame = render_scene(scene, seed=seed, intrinsics=KINECT_V2_SD, size=KINECT_V2_SD_SIZE,
-                             frame_index=k)
+    poses: list[tuple[float, float, float]] | None = None
+    if scene in SEQUENCE_NAMES:
+        sequence = SceneSequence(scene, seed=seed)
+        indices = range(0, min(len(sequence), frames * step), step)
+        poses = []
+        rendered = []
+        for index in indices:
+            item = sequence.frame(index)
+            poses.append(item.pose_odom)
+            rendered.append(item.frame)
+    else:
+        rendered = (render_scene(scene, seed=seed, intrinsics=KINECT_V2_SD,
+                                 size=KINECT_V2_SD_SIZE, frame_index=k) for k in range(frames))
+    for k, frame in enumerate(rendered):
         first = frame if first is None else first
         if not cv2.imwrite(str(depth_dir / f'{scene}_{k:04d}.png'), frame.depth_mm):
             raise DemoError(f'{depth_dir}: cannot write depth PNGs')
@@ -128,7 +149,7 @@ def render_sequence(folder: Path, scene: str, frames: int, seed: int) -> tuple[P
     camera.write_text(f'# Kinect v2 SD camera of the rendered scene\nfx: {intr.fx}\n'
                       f'fy: {intr.fy}\ncx: {intr.cx}\ncy: {intr.cy}\n'
                       f'width: {KINECT_V2_SD_SIZE[0]}\nheight: {KINECT_V2_SD_SIZE[1]}\n')
-    return depth_dir, camera, first
+    return depth_dir, camera, first, poses
 
 
 class Recorder:
@@ -194,7 +215,7 @@ def _costmap_of(grid: Any) -> Any:
                    origin_xy_m=(grid.info.origin.position.x, grid.info.origin.position.y))
 
 
-def _legends(widths: tuple[int, int], params: Any) -> np.ndarray:
+def _legends(widths: Sequence[int], params: Any) -> np.ndarray:
     """Return the legend row under a demo picture: the node's overlay, the costmap panel."""
     from obstacle_detection.overlay import (NO_RETURN_RGB, OBSTACLE_RGB, OCCUPIED_RGB,
                                             ROBOT_RGB, FREE_RGB, UNKNOWN_RGB)
@@ -210,19 +231,31 @@ def _legends(widths: tuple[int, int], params: Any) -> np.ndarray:
         ('hatch', HATCH_RGB, 'outside the region of interest'),
         ('line', VIEW_EDGE_RGB, "edge of the floor in the camera's view"),
         ('triangle', ROBOT_RGB, 'camera foot point, facing +x')], widths[1])
-    height = max(left.shape[0], right.shape[0])
-    blocks = [np.vstack([b, np.full((height - b.shape[0], b.shape[1], 3), BACKGROUND_RGB,
-                                    np.uint8)]) for b in (left, right)]
-    return np.hstack([blocks[0], np.full((height, 6, 3), 255, np.uint8), blocks[1]])
+    parts = [left, right]
+    if len(widths) > 2:
+        parts.append(legend('obstacles/fused_costmap, odom [m]', [
+            ('box', OCCUPIED_RGB, 'occupied: seen often enough'), ('box', FREE_RGB, 'free'),
+            ('box', UNKNOWN_RGB, 'unknown / not sure'),
+            ('triangle', ROBOT_RGB, 'robot at its odometry pose')], widths[2]))
+    height = max(b.shape[0] for b in parts)
+    blocks = []
+    for block in parts:
+        blocks += [np.vstack([block, np.full((height - block.shape[0], block.shape[1], 3),
+                                             BACKGROUND_RGB, np.uint8)]),
+                   np.full((height, 6, 3), 255, np.uint8)]
+    return np.hstack(blocks[:-1])
 
 
 def save_pictures(folder: Path, recorder: Recorder, every: int, params: Any = None,
-                  intrinsics: Any = None) -> list[Path]:
+                  intrinsics: Any = None,
+                  poses: dict[tuple[int, int], Any] | None = None) -> list[Path]:
     """Save overlay, costmap and side-by-side PNGs of every ``every``-th frame; a contact sheet.
 
     Frames are matched across topics by header stamp. The costmap panel has metre axes, the
     camera, the region of interest (hatched outside) and the floor in view when ``params``
-    (the node's DetectorParams) and ``intrinsics`` are given; each picture has a legend.
+    (the node's DetectorParams) and ``intrinsics`` are given; the fused costmap (odom) beside
+    it when the node published one, the robot at its odometry pose (``poses`` by stamp); each
+    picture has a legend.
     Returns the side-by-side paths.
     """
     from nav_msgs.msg import OccupancyGrid
@@ -242,6 +275,7 @@ def save_pictures(folder: Path, recorder: Recorder, every: int, params: Any = No
     grids = by_stamp('/obstacles/costmap', OccupancyGrid)
     overlays = by_stamp('/obstacles/overlay', Image)
     clouds = by_stamp('/obstacles/points', PointCloud2)
+    fused = by_stamp('/obstacles/fused_costmap', OccupancyGrid)
     saved: list[Path] = []
     panels: list[np.ndarray] = []
     labels: list[str] = []
@@ -261,14 +295,29 @@ def save_pictures(folder: Path, recorder: Recorder, every: int, params: Any = No
         pad = np.full((rows, grid_rgb.shape[1], 3), 255, dtype=np.uint8)
         pad[:grid_rgb.shape[0]] = grid_rgb
         gap = np.full((rows, 6, 3), 255, dtype=np.uint8)
-        row = np.hstack([left, gap, pad])
+        panels_row = [left, gap, pad]
+        widths = [width, grid_rgb.shape[1]]
+        if stamp in fused:
+            grid = _costmap_of(fused[stamp])
+            fused_scale = max(1, (height - 60) // max(grid.height, 1))
+            fused_rgb = costmap_panel(grid, scale=fused_scale,
+                                      robot_pose=(poses or {}).get(stamp) or (0.0, 0.0, 0.0),
+                                      axis_names=('x [m], odom', 'y [m], odom'))
+            rows = max(rows, fused_rgb.shape[0])
+            panels_row = [np.vstack([p, np.full((rows - p.shape[0], p.shape[1], 3), 255,
+                                                np.uint8)]) for p in panels_row]
+            fused_pad = np.full((rows, fused_rgb.shape[1], 3), 255, dtype=np.uint8)
+            fused_pad[:fused_rgb.shape[0]] = fused_rgb
+            panels_row += [np.full((rows, 6, 3), 255, dtype=np.uint8), fused_pad]
+            widths.append(fused_rgb.shape[1])
+        row = np.hstack(panels_row)
         cloud = clouds.get(stamp)
         points = int(cloud.width * cloud.height) if cloud is not None else 0
         occupied = int(np.count_nonzero(costmap.data == 100))
         caption = [f'frame {k}, stamp {stamp[0]}.{stamp[1]:09d}: {points} obstacle points, '
                    f'{occupied} occupied cells']
         picture = np.vstack([row, caption_band(caption, row.shape[1]),
-                             _legends((width, grid_rgb.shape[1]), params)])
+                             _legends(widths, params)])
         name = f'frame_{k:04d}'
         write_png(folder / 'pictures' / f'overlay_{k:04d}.png', overlay)
         write_png(folder / 'pictures' / f'costmap_{k:04d}.png', grid_rgb)
@@ -293,8 +342,12 @@ def _scene_params(path: Path, frame: Any) -> Any:
                                camera_roll_rad=float(frame.roll_rad))
 
 
-def _node_command(params: Path, frame: Any, *, reliable: bool) -> list[str]:
-    """Return the detector node command: inputs remapped to the bag's, the scene's mount."""
+def _node_command(params: Path, frame: Any, *, reliable: bool, odom_topic: str) -> list[str]:
+    """Return the detector node command: inputs remapped to the bag's, the scene's mount.
+
+    The fused costmap is on, moved by the bag's odometry (a static scene has none: it fuses
+    in place, as the node says in its log).
+    """
     import math
 
     return [sys.executable, '-m', 'obstacle_detection.node', '--ros-args',
@@ -305,7 +358,8 @@ def _node_command(params: Path, frame: Any, *, reliable: bool) -> list[str]:
             '-p', f'camera_height_m:={float(frame.height_m)!r}',
             '-p', f'camera_pitch_deg:={round(math.degrees(frame.pitch_rad), 9)!r}',
             '-p', f'camera_roll_deg:={round(math.degrees(frame.roll_rad), 9)!r}',
-            '-p', f'reliable_input:={"true" if reliable else "false"}']
+            '-p', f'reliable_input:={"true" if reliable else "false"}',
+            '-p', 'fuse:=true', '-p', f'odom_topic:={odom_topic}']
 
 
 def _stop(process: subprocess.Popen) -> None:
@@ -377,12 +431,25 @@ def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from std_msgs.msg import String
 
-    print(f'[1/5] rendering {args.frames} frames of {args.scene!r} into {out / "input"}')
-    depth_dir, camera, first = render_sequence(out / 'input', args.scene, args.frames, args.seed)
+    import dataclasses
+
+    from obstacle_detection.sequences import SEQUENCE_NAMES, SEQUENCE_RATE_HZ
+
+    step = args.step if args.scene in SEQUENCE_NAMES else 1
+    print(f'[1/5] rendering {args.frames} frames of {args.scene!r}'
+          f'{f" (every {step}th, with odometry)" if step > 1 else ""} into {out / "input"}')
+    depth_dir, camera, first, poses = render_sequence(out / 'input', args.scene, args.frames,
+                                                      args.seed, step)
+    bag_hz = SEQUENCE_RATE_HZ / step
+    rate = args.rate if args.rate is not None else DEMO_FPS / bag_hz
 
     print(f'[2/5] converting them to a rosbag2: {out / "input_bag"}')
-    source = bag_convert.folder_frames(depth_dir, intrinsics_path=camera, rate_hz=30.0,
+    source = bag_convert.folder_frames(depth_dir, intrinsics_path=camera, rate_hz=bag_hz,
                                        start_s=float(int(time.time())))
+    if poses is not None:
+        source.frames = [dataclasses.replace(f, pose=p) for f, p in zip(source.frames, poses)]
+    pose_by_stamp = ({(f.stamp_ns // 1_000_000_000, f.stamp_ns % 1_000_000_000): f.pose
+                      for f in source.frames} if poses is not None else {})
     summary = bag_convert.write_frames(source, out / 'input_bag',
                                        bag_convert.BagOptions(progress=not args.quiet))
     print('\n'.join('      ' + line for line in summary.lines()[1:4]))
@@ -396,7 +463,8 @@ def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
     child_env = dict(env, PYTHONPATH=os.pathsep.join(
         p for p in (str(REPO), env.get('PYTHONPATH', '')) if p), PYTHONUNBUFFERED='1',
         RCUTILS_COLORIZED_OUTPUT='0', ROS_LOG_DIR=str(out / 'ros_log'))
-    command = _node_command(args.params, first, reliable=not args.best_effort)
+    command = _node_command(args.params, first, reliable=not args.best_effort,
+                            odom_topic=bag_convert.DEFAULT_ODOM_TOPIC)
     print(f'[3/5] starting the detector node (ROS_DOMAIN_ID={args.domain_id}, loopback only; '
           f'log: {out / "node.log"}):\n      {" ".join(command[1:])}')
     with (out / 'node.log').open('w') as log:
@@ -417,7 +485,7 @@ def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
                                  lambda msg: status.append(msg.data),
                                  QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                                             durability=DurabilityPolicy.TRANSIENT_LOCAL))
-        options = bag_play.PlayOptions(rate=args.rate, reliable=not args.best_effort,
+        options = bag_play.PlayOptions(rate=rate, reliable=not args.best_effort,
                                        wait_for_subscribers=2,
                                        wait_timeout_s=args.timeout, progress=False)
         player = bag_play.Player(node, out / 'input_bag', options)
@@ -428,7 +496,7 @@ def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
         while time.monotonic() < settle:
             executor.spin_once(timeout_sec=0.05)
 
-        print(f'[4/5] replaying {summary.frames} frames at {30.0 * args.rate:g} Hz into the node')
+        print(f'[4/5] replaying {summary.frames} frames at {bag_hz * rate:g} Hz into the node')
         stats: list[bag_play.PlayStats] = []
         thread = threading.Thread(target=lambda: stats.append(player.play(stop)), daemon=True)
         thread.start()
@@ -461,7 +529,7 @@ def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
           f'{out / "pictures"}')
     write_results_bag(out / 'results_bag', recorder)
     saved = save_pictures(out, recorder, args.save_every, _scene_params(args.params, first),
-                          first.intrinsics)
+                          first.intrinsics, pose_by_stamp)
 
     from rclpy.serialization import deserialize_message
     from std_msgs.msg import Float64
@@ -482,7 +550,7 @@ def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
             f'  {sent - received} frame(s) had no output: the node keeps only the newest '
             'frame when one arrives while it is busy (see node.log)'
             + ('; best-effort frames may also be lost in transit' if args.best_effort else '')
-            + f'; a lower --rate (now {args.rate:g}) gives it more time')
+            + f'; a lower --rate (now {rate:g}) gives it more time')
     report.append(f'  pictures: {len(saved)} side-by-side frames in {out / "pictures"}, '
                   f'contact sheet {out / "demo_sheet.png"}')
     report.append(f'  bags: {out / "input_bag"} (input), {out / "results_bag"} (node output)')
@@ -492,20 +560,28 @@ def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
 def build_parser() -> argparse.ArgumentParser:
     """Return the command-line parser."""
     from obstacle_detection.scenes import SCENE_NAMES
+    from obstacle_detection.sequences import SEQUENCE_NAMES
 
     parser = argparse.ArgumentParser(prog='demo.py', description=__doc__.split('\n\n')[0])
     parser.add_argument('--output', type=Path, default=Path('out/demo'),
                         help='folder for everything the demo writes (default %(default)s); '
                              'replaced only when the demo succeeds')
-    parser.add_argument('--scene', choices=SCENE_NAMES, default='person_walking',
-                        help='scene of the generator (default %(default)s)')
+    parser.add_argument('--scene', choices=(*SEQUENCE_NAMES, *SCENE_NAMES),
+                        default='drive_past_boxes',
+                        help='a sequence with odometry (the robot drives or a person crosses; '
+                             'the fused costmap follows it) or a scene of the generator seen '
+                             'from a still camera (default %(default)s)')
+    parser.add_argument('--step', type=int, default=10,
+                        help='of a sequence (30 Hz), take every N-th frame (default '
+                             '%(default)s)')
     parser.add_argument('--frames', type=int, default=30, help='frames (default %(default)s)')
     parser.add_argument('--seed', type=int, default=0, help='scene seed (default %(default)s)')
     parser.add_argument('--params', type=Path, default=DEFAULT_PARAMS,
                         help='node params file (default params/corridor.yaml); the camera '
                              'mount is set to the rendered scene\'s')
-    parser.add_argument('--rate', type=float, default=0.25,
-                        help='replay speed factor of the 30 Hz sequence (default %(default)s)')
+    parser.add_argument('--rate', type=float, default=None,
+                        help='replay speed factor of the recorded timing (default: frames at '
+                             f'{DEMO_FPS:g} Hz)')
     parser.add_argument('--best-effort', action='store_true',
                         help="replay with the camera's sensor-data QoS (best effort) instead of "
                              'reliable; large frames over UDP may then be lost')
@@ -524,8 +600,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the demo; return the exit code (0 success, 1 failure, 2 bad usage)."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    if args.frames < 1 or args.save_every < 1:
-        parser.error('--frames and --save-every must be >= 1')
+    if args.frames < 1 or args.save_every < 1 or args.step < 1:
+        parser.error('--frames, --step and --save-every must be >= 1')
+    if args.rate is not None and not args.rate > 0:
+        parser.error(f'--rate must be > 0, got {args.rate:g}')
     if not 0 <= args.domain_id <= 232:
         parser.error(f'--domain-id must be in 0..232, got {args.domain_id}')
     if not args.params.is_file():
