@@ -11,6 +11,7 @@ import math
 
 import numpy as np
 
+from . import jit_traversal
 from .params import DetectorParams, Intrinsics
 
 #: Optical frame (x right, y down, z forward) -> level body frame (x forward, y left, z up).
@@ -92,6 +93,8 @@ def ground_rays(shape: tuple[int, int], intrinsics: Intrinsics, params: Detector
     """
     ru, rv = pixel_rays(shape, intrinsics)
     rot = mount_rotation(params.camera_pitch_rad, params.camera_roll_rad).astype(np.float32)
+    if jit_traversal.enabled():   # the same float32 operations, compiled (per frame when the
+        return jit_traversal.ground_rays(ru, rv, rot)   # floor is refined)
     height, width = shape
     rays = np.empty((3, height, width), dtype=np.float32)
     for axis in range(3):

@@ -1,0 +1,204 @@
+"""The floor plane from the data: a per-frame refinement of the configured camera mount.
+
+A height rule needs the floor within a couple of centimetres, and a configured mount is rarely
+that good. :func:`fit_floor` looks at a 1-in-16 pixel subsample back-projected through the
+configured mount, keeps the points near the configured floor (within ``floor_max_offset_m``
+plus ``floor_max_tilt_deg`` times their distance), and fits a plane ``z = a x + b y + c`` to
+them: a fixed-seed RANSAC over plane hypotheses (vectorised), then two least-squares refits on
+the inliers. The fit is accepted only when it is bounded around the mount (tilt and offset
+within the limits) and supported by at least ``floor_min_points`` samples; otherwise the
+configured mount is kept and the result says why. An accepted plane becomes a corrected mount
+(height, pitch, roll) for the whole frame, so the ground frame's z = 0 is the seen floor.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .geometry import mount_rotation
+from .params import DetectorParams
+
+#: Pixel subsample step (rows and columns) of the floor fit.
+SAMPLE_STEP = 4
+#: RANSAC plane hypotheses per frame (fixed seed: the same frame gives the same fit).
+HYPOTHESES = 48
+#: Most samples that score the hypotheses (an even subsample of the floor samples).
+SCORE_POINTS = 800
+#: Inlier band of the RANSAC and of the first refit [m]; the second refit uses half of it.
+INLIER_BAND_M = 0.03
+#: Floor samples are taken up to this far beyond the forward range [m] (a high camera sees the
+#: floor only far away).
+FIT_RANGE_MARGIN_M = 1.0
+
+
+@dataclass(frozen=True)
+class FloorFit:
+    """The mount used for one frame and how it was found.
+
+    refined: True when the floor fit was accepted. height_m, pitch_rad, roll_rad: the mount
+    the frame was processed with (the configured one when not refined). d_height_m,
+    d_pitch_deg, d_roll_deg: the correction (used minus configured). samples: floor samples
+    the fit used (inliers), 0 when no fit was tried. reason: why the configured mount was kept
+    ('' when refined, 'off' when refine_floor is false).
+    """
+
+    refined: bool
+    height_m: float
+    pitch_rad: float
+    roll_rad: float
+    d_height_m: float = 0.0
+    d_pitch_deg: float = 0.0
+    d_roll_deg: float = 0.0
+    samples: int = 0
+    reason: str = ''
+
+    def summary(self) -> str:
+        """One line for a log: the correction, or why there is none."""
+        if not self.refined:
+            return f'floor: configured mount kept ({self.reason})'
+        return (f'floor: height {self.height_m:.3f} m ({self.d_height_m:+.3f}), pitch '
+                f'{math.degrees(self.pitch_rad):.2f} deg ({self.d_pitch_deg:+.2f}), roll '
+                f'{math.degrees(self.roll_rad):.2f} deg ({self.d_roll_deg:+.2f}), '
+                f'{self.samples} samples')
+
+
+def configured(params: DetectorParams, reason: str) -> FloorFit:
+    """Return the configured mount, not refined, with the reason."""
+    return FloorFit(False, params.camera_height_m, params.camera_pitch_rad,
+                    params.camera_roll_rad, reason=reason)
+
+
+def sample_rays(rays: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(3, M) float32: the rays of the 1-in-SAMPLE_STEP^2 pixel subsample (contiguous copy)."""
+    height, width = shape
+    sub = rays.reshape(3, height, width)[:, ::SAMPLE_STEP, ::SAMPLE_STEP]
+    return np.ascontiguousarray(sub.reshape(3, -1))
+
+
+def floor_samples(depth_m: np.ndarray, sub_rays: np.ndarray,
+                  params: DetectorParams) -> np.ndarray:
+    """Subsampled points (3, M) float64 near the configured floor, in the configured frame.
+
+    sub_rays: :func:`sample_rays` of the configured mount's ground rays.
+    """
+    depth = depth_m[::SAMPLE_STEP, ::SAMPLE_STEP].reshape(-1)
+    keep = np.flatnonzero(depth > 0.0)   # NaN compares false: no return never counts
+    d = depth[keep].astype(np.float64)
+    x = d * sub_rays[0, keep]
+    y = d * sub_rays[1, keep]
+    z = d * sub_rays[2, keep]
+    z += params.camera_height_m
+    band = np.hypot(x, y)
+    band *= math.tan(params.floor_max_tilt_rad)
+    band += params.floor_max_offset_m + 0.02
+    near = np.abs(z) <= band
+    near &= (x >= params.min_range_m) & (x <= params.max_range_m + FIT_RANGE_MARGIN_M)
+    near &= np.abs(y) <= params.lateral_limit_m
+    return np.stack((x[near], y[near], z[near]))
+
+
+def _lstsq_plane(pts: np.ndarray) -> np.ndarray:
+    """Fit the least-squares plane z = a x + b y + c to pts (3, M); return (a, b, c).
+
+    The normal equations, centred on the mean (well conditioned for a few thousand points).
+    """
+    mean = pts.mean(axis=1)
+    c = pts - mean[:, None]
+    sxx, sxy, syy = np.dot(c[0], c[0]), np.dot(c[0], c[1]), np.dot(c[1], c[1])
+    sxz, syz = np.dot(c[0], c[2]), np.dot(c[1], c[2])
+    det = sxx * syy - sxy * sxy
+    if not abs(det) > 1e-12:
+        return np.array([0.0, 0.0, mean[2]])
+    a = (sxz * syy - syz * sxy) / det
+    b = (syz * sxx - sxz * sxy) / det
+    return np.array([a, b, mean[2] - a * mean[0] - b * mean[1]])
+
+
+def _ransac_plane(pts: np.ndarray, params: DetectorParams) -> np.ndarray | None:
+    """Return (a, b, c) of the bounded hypothesis with most samples within INLIER_BAND_M.
+
+    pts (3, M). Hypotheses tilted more than ``floor_max_tilt_rad`` or offset more than
+    ``floor_max_offset_m`` from the configured floor are not considered (a ramp, the floor
+    beyond a drop); None when none is left. At most SCORE_POINTS samples score them.
+    """
+    rng = np.random.default_rng(0)
+    tri = pts[:, rng.integers(0, pts.shape[1], size=(3, HYPOTHESES))]    # (3 axes, 3, h)
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0], axis=0)   # (3, h)
+    good = np.abs(normal[2]) > 1e-9
+    if not good.any():
+        return None
+    normal, p0 = normal[:, good], tri[:, 0, good]
+    a = -normal[0] / normal[2]
+    b = -normal[1] / normal[2]
+    c = p0[2] - a * p0[0] - b * p0[1]
+    bounded = np.hypot(a, b) <= math.tan(params.floor_max_tilt_rad)
+    bounded &= np.abs(c) <= params.floor_max_offset_m
+    if not bounded.any():
+        return None
+    a, b, c = a[bounded], b[bounded], c[bounded]
+    sp = pts[:, ::max(1, pts.shape[1] // SCORE_POINTS)]
+    resid = sp[2][None, :] - (a[:, None] * sp[0][None, :] + b[:, None] * sp[1][None, :]
+                              + c[:, None])
+    score = np.count_nonzero(np.abs(resid) <= INLIER_BAND_M, axis=1)
+    best = int(np.argmax(score))
+    return np.array([a[best], b[best], c[best]])
+
+
+def fit_floor(depth_m: np.ndarray, sub_rays: np.ndarray, params: DetectorParams) -> FloorFit:
+    """Fit the floor plane of one frame and return the mount to process it with.
+
+    depth_m: (H, W) float32 [m], 0 = no return; sub_rays: :func:`sample_rays` of the
+    configured mount's ground rays.
+    """
+    if not params.refine_floor:
+        return configured(params, 'off')
+    pts = floor_samples(depth_m, sub_rays, params)
+    if pts.shape[1] < params.floor_min_points:
+        return configured(params, f'{pts.shape[1]} floor samples < floor_min_points='
+                                  f'{params.floor_min_points}')
+    coef = _ransac_plane(pts, params)
+    if coef is None:
+        return configured(params, 'no floor plane within floor_max_tilt_deg and '
+                                  'floor_max_offset_m of the mount')
+    inliers = pts
+    for band in (INLIER_BAND_M, 0.5 * INLIER_BAND_M):
+        resid = pts[2] - (coef[0] * pts[0] + coef[1] * pts[1] + coef[2])
+        inliers = pts[:, np.abs(resid) <= band]
+        if inliers.shape[1] < params.floor_min_points:
+            return configured(params, f'{inliers.shape[1]} floor inliers < floor_min_points='
+                                      f'{params.floor_min_points}')
+        coef = _lstsq_plane(inliers)
+    a, b, c = (float(v) for v in coef)
+    tilt = math.atan(math.hypot(a, b))
+    if tilt > params.floor_max_tilt_rad:
+        return configured(params, f'fitted floor tilted {math.degrees(tilt):.1f} deg > '
+                                  f'floor_max_tilt_deg')
+    if abs(c) > params.floor_max_offset_m:
+        return configured(params, f'fitted floor offset {c:+.3f} m beyond floor_max_offset_m')
+    return _corrected_mount(params, a, b, c, inliers.shape[1])
+
+
+def _corrected_mount(params: DetectorParams, a: float, b: float, c: float,
+                     samples: int) -> FloorFit:
+    """Return the mount whose ground frame has the plane z = a x + b y + c as z = 0."""
+    norm = math.sqrt(a * a + b * b + 1.0)
+    n = np.array([-a, -b, 1.0]) / norm             # floor "up" in the configured frame
+    height = (params.camera_height_m - c) / norm    # camera (0, 0, h) above the plane
+    # the configured frame's rotation followed by the smallest rotation taking n to +z
+    axis = np.cross(n, [0.0, 0.0, 1.0])
+    s, cos_angle = float(np.linalg.norm(axis)), float(n[2])
+    rot_c = np.eye(3)
+    if s > 0.0:
+        k = axis / s
+        kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+        rot_c = rot_c + s * kx + (1.0 - cos_angle) * (kx @ kx)
+    total = rot_c @ mount_rotation(params.camera_pitch_rad, params.camera_roll_rad)
+    body = total @ np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
+    pitch = -math.asin(max(-1.0, min(1.0, float(body[2, 0]))))
+    roll = math.atan2(float(body[2, 1]), float(body[2, 2]))
+    return FloorFit(True, height, pitch, roll, d_height_m=height - params.camera_height_m,
+                    d_pitch_deg=math.degrees(pitch - params.camera_pitch_rad),
+                    d_roll_deg=math.degrees(roll - params.camera_roll_rad), samples=samples)

@@ -1,0 +1,205 @@
+"""Compiled (numba) kernels of the robot-level stages (optional; same results as numpy).
+
+:func:`ground_rays` equals :func:`obstacle_detection.geometry.ground_rays` (the same float32
+operations per pixel, in the same order); :func:`traverse` equals the numpy path of
+:func:`obstacle_detection.traversal.traversable_ground` (the same grid, the same reachable
+set, the same layered nearest-ground rule, the same float operations); :func:`drop_mask` equals
+:func:`obstacle_detection.traversal.drop_edge_mask`. The tests compare them bit for bit.
+When numba is missing or ``OBSTACLE_DETECTION_NO_JIT`` is set, :func:`enabled` is False and
+the numpy code runs instead. Kernels import nothing of ours but :mod:`.jit_support`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .jit_support import AVAILABLE, NO_JIT_ENV, enabled, jit as _jit
+
+__all__ = ['AVAILABLE', 'NO_JIT_ENV', 'drop_mask', 'enabled', 'ground_rays', 'traverse',
+           'warm_up']
+
+
+@_jit
+def _rays_kernel(ru, rv, rot, out):  # pragma: no cover - compiled
+    """Fill out (3, H, W) float32 = rot[a, 0] * ru[j] + rot[a, 1] * rv[i] + rot[a, 2]."""
+    for a in range(3):
+        r0, r1, r2 = rot[a, 0], rot[a, 1], rot[a, 2]
+        for i in range(rv.size):
+            t = r1 * rv[i]
+            for j in range(ru.size):
+                out[a, i, j] = (r0 * ru[j] + t) + r2
+
+
+def ground_rays(ru: np.ndarray, rv: np.ndarray, rot: np.ndarray) -> np.ndarray:
+    """(3, H*W) float32 ground rays from the per-column/per-row slopes and the float32 mount."""
+    out = np.empty((3, rv.size, ru.size), np.float32)
+    _rays_kernel(ru, rv, rot, out)
+    return out.reshape(3, -1)
+
+
+@_jit
+def _traverse_kernel(points, steep, size, step_up, step_down, up32, down32, robot32,
+                     obstacle, above, height, reached_v):  # pragma: no cover - compiled
+    """Run the numpy path of traversal.traversable_ground cell by cell (see that module)."""
+    n = points.shape[0]
+    ix = np.empty(n, np.int64)
+    iy = np.empty(n, np.int64)
+    for v in range(n):
+        ix[v] = np.int64(np.floor(points[v, 0] / size))
+        iy[v] = np.int64(np.floor(points[v, 1] / size))
+    x0, y0 = ix.min(), iy.min()
+    nx = ix.max() - x0 + 1
+    ny = iy.max() - y0 + 1
+    key = np.empty(n, np.int64)
+    surface = np.full(nx * ny, np.inf)
+    for v in range(n):
+        k = (ix[v] - x0) * ny + (iy[v] - y0)
+        key[v] = k
+        if not steep[v]:
+            z = np.float64(points[v, 2])
+            if z < surface[k]:
+                surface[k] = z
+    n_cells = nx * ny
+    # reach: breadth-first from the seeds through allowed steps (8 neighbours)
+    reached = np.zeros(n_cells, np.bool_)
+    queue = np.empty(n_cells, np.int64)
+    tail = 0
+    for c in range(n_cells):
+        s = surface[c]
+        if s != np.inf and s >= -step_down and s <= step_up:
+            reached[c] = True
+            queue[tail] = c
+            tail += 1
+    head = 0
+    while head < tail:
+        c = queue[head]
+        head += 1
+        cx, cy = c // ny, c % ny
+        sa = surface[c]
+        for dx in range(-1, 2):
+            for dy in range(-1, 2):
+                if dx == 0 and dy == 0:
+                    continue
+                bx, by = cx + dx, cy + dy
+                if bx < 0 or bx >= nx or by < 0 or by >= ny:
+                    continue
+                b = bx * ny + by
+                if reached[b] or surface[b] == np.inf:
+                    continue
+                rise = surface[b] - sa
+                if rise <= step_up and -rise <= step_down:
+                    reached[b] = True
+                    queue[tail] = b
+                    tail += 1
+    # local ground: reached cells their surface, the others the largest ground of the
+    # neighbours filled in the previous layers (layer by layer, 8 neighbours)
+    ground = np.zeros(n_cells)
+    if tail > 0:
+        done = reached.copy()
+        for c in range(n_cells):
+            if reached[c]:
+                ground[c] = surface[c]
+        frontier = queue[:tail].copy()
+        cand = np.empty(n_cells, np.int64)
+        mark = np.zeros(n_cells, np.bool_)
+        while frontier.size > 0:
+            m = 0
+            for c in frontier:
+                cx, cy = c // ny, c % ny
+                for dx in range(-1, 2):
+                    for dy in range(-1, 2):
+                        bx, by = cx + dx, cy + dy
+                        if bx < 0 or bx >= nx or by < 0 or by >= ny:
+                            continue
+                        b = bx * ny + by
+                        if not done[b] and not mark[b]:
+                            mark[b] = True
+                            cand[m] = b
+                            m += 1
+            for i in range(m):
+                b = cand[i]
+                bx, by = b // ny, b % ny
+                best = -np.inf
+                for dx in range(-1, 2):
+                    for dy in range(-1, 2):
+                        ax, ay = bx + dx, by + dy
+                        if ax < 0 or ax >= nx or ay < 0 or ay >= ny:
+                            continue
+                        a = ax * ny + ay
+                        if done[a] and ground[a] > best:
+                            best = ground[a]
+                ground[b] = best
+            for i in range(m):
+                done[cand[i]] = True
+                mark[cand[i]] = False
+            frontier = cand[:m].copy()
+    for v in range(n):
+        k = key[v]
+        h = np.float32(np.float64(points[v, 2]) - ground[k])
+        height[v] = h
+        above[v] = h > robot32
+        obstacle[v] = (h > up32 and not above[v]) or h < -down32
+        reached_v[v] = reached[k]
+
+
+def traverse(points: np.ndarray, steep: np.ndarray, size_m: float, step_up_m: float,
+             step_down_m: float, robot_height_m: float,
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(obstacle, above, height float32, reached) per voxel; see traversal.traversable_ground."""
+    n = points.shape[0]
+    obstacle = np.empty(n, np.bool_)
+    above = np.empty(n, np.bool_)
+    height = np.empty(n, np.float32)
+    reached = np.empty(n, np.bool_)
+    _traverse_kernel(np.ascontiguousarray(points, np.float32),
+                     np.ascontiguousarray(steep, np.bool_), np.float32(size_m),
+                     float(step_up_m), float(step_down_m), np.float32(step_up_m),
+                     np.float32(step_down_m), np.float32(robot_height_m),
+                     obstacle, above, height, reached)
+    return obstacle, above, height, reached
+
+
+@_jit
+def _drop_kernel(depth, rz, h, down, up, rows, out):  # pragma: no cover - compiled
+    """Fill out (H, W) bool: drop-edge pixels (see traversal.drop_edge_mask)."""
+    height, width = depth.shape
+    for i in range(height):
+        for j in range(width):
+            out[i, j] = False
+            d = depth[i, j]
+            if not d > 0.0:
+                continue
+            zp = d * rz[i, j] + h
+            if not zp < -down:
+                continue
+            for k in range(1, rows + 1):
+                if i + k >= height:
+                    break
+                dq = depth[i + k, j]
+                if not dq > 0.0:
+                    continue
+                zq = dq * rz[i + k, j] + h
+                if zq >= -down and zq <= up and zq - zp > down:
+                    out[i, j] = True
+                    break
+
+
+def drop_mask(depth_m: np.ndarray, rz: np.ndarray, height_m: float, step_down_m: float,
+              step_up_m: float, rows: int) -> np.ndarray:
+    """(H, W) bool drop-edge pixels; equals traversal.drop_edge_mask."""
+    out = np.empty(depth_m.shape, np.bool_)
+    _drop_kernel(np.ascontiguousarray(depth_m, np.float32),
+                 np.ascontiguousarray(rz, np.float32).reshape(depth_m.shape),
+                 np.float32(height_m), np.float32(step_down_m), np.float32(step_up_m),
+                 int(rows), out)
+    return out
+
+
+def warm_up() -> None:
+    """Compile (or load from the disk cache) the kernels on tiny inputs."""
+    if not enabled():
+        return
+    ground_rays(np.zeros(2, np.float32), np.zeros(2, np.float32), np.eye(3, dtype=np.float32))
+    pts = np.array([[0.1, 0.0, 0.0], [0.2, 0.1, 0.3]], np.float32)
+    traverse(pts, np.array([False, True]), 0.05, 0.05, 0.05, 1.0)
+    drop_mask(np.ones((4, 2), np.float32), -np.ones((4, 2), np.float32), 0.5, 0.05, 0.05, 3)

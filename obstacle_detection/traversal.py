@@ -1,0 +1,225 @@
+"""Robot-level traversability (not in the seed): connectivity, step height, drops.
+
+The seed calls a voxel ground when its normal is within theta of vertical. A robot cannot drive
+onto a box top, a table or a curb, however flat, nor off a drop; it can cross a door sill and
+climb a passable ramp to its landing. After the normals, :func:`traversable_ground` decides:
+
+1. A 2.5-D grid of cells (twice the voxel size) over the voxels. The *surface* of a cell is its
+   lowest voxel that passed the slope test (under a table the floor, where it is seen).
+2. Seeds: cells whose surface lies on the floor plane, within ``[-max_step_down_m,
+   max_step_height_m]`` of z = 0 (the floor plane refined per frame, :mod:`.floor`).
+3. Ground is grown from the seeds to the 8 neighbouring cells through steps of at most
+   ``max_step_height_m`` up and ``max_step_down_m`` down (a directed graph, one breadth-first
+   search in scipy): ramps no steeper than theta and their landings are reached, box and table
+   tops, curbs and the floor beyond a drop are not.
+4. The local ground of a reached cell is its surface; the others take it from the reached
+   cells, grown outward layer by layer (the largest of the neighbours filled before); a
+   voxel's height is taken above its cell's local ground. Obstacle: higher than
+   ``max_step_height_m`` and not above ``robot_height_m`` (a wall, but not its foot; a box top),
+   or lower than ``-max_step_down_m`` (the floor beyond a drop). Above the robot: not an
+   obstacle.
+
+:func:`drop_edges` marks a drop whose lower floor is out of view or out of range: a pixel whose
+ray passed the floor plane (its point lies more than the step down below it) right above pixels
+that see the floor, within the range, marks where its ray crossed the floor plane.
+All vectorised, or compiled (:mod:`.jit_traversal`, same results); no per-point Python loop.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import breadth_first_order
+
+from . import jit_traversal
+from .params import DetectorParams
+
+#: The 8 neighbours of a cell as (dx, dy); the search adds both directions of each pair.
+_HALF_NEIGHBOURHOOD = ((1, 0), (0, 1), (1, 1), (1, -1))
+#: Rows below an over-the-edge pixel searched for the floor it passed [px].
+DROP_EDGE_ROWS = 3
+
+
+@dataclass(frozen=True)
+class Traversal:
+    """Robot-level decision per voxel.
+
+    is_obstacle: (V,) bool before the seed's N1 validation; above_robot: (V,) bool;
+    height_m: (V,) float32 height above the local ground [m]; reached: (V,) bool, the voxel's
+    cell was reached from the floor; cell_size_m: the grid's cell size [m].
+    """
+
+    is_obstacle: np.ndarray
+    above_robot: np.ndarray
+    height_m: np.ndarray
+    reached: np.ndarray
+    cell_size_m: float
+
+
+def cell_size(params: DetectorParams) -> float:
+    """Cell size of the traversability grid [m]: twice the larger horizontal voxel size."""
+    return 2.0 * max(params.voxel_x_m, params.voxel_y_m)
+
+
+def traversable_ground(points: np.ndarray, steep: np.ndarray,
+                       params: DetectorParams) -> Traversal:
+    """Decide obstacles at robot level.
+
+    points: (V, 3) float32 voxel centroids, ground frame [m]; steep: (V,) bool, the seed's
+    slope test (True = steeper than theta). Runs :func:`.jit_traversal.traverse` when
+    :func:`.jit_traversal.enabled` (same result).
+    """
+    size = cell_size(params)
+    if points.shape[0] == 0:
+        empty = np.zeros(0, bool)
+        return Traversal(empty, empty, np.zeros(0, np.float32), empty, size)
+    if jit_traversal.enabled():
+        out = jit_traversal.traverse(points, steep, size, params.max_step_height_m,
+                                     params.max_step_down_m, params.robot_height_m)
+    else:
+        out = traverse_numpy(points, steep, size, params.max_step_height_m,
+                             params.max_step_down_m, params.robot_height_m)
+    return Traversal(*out, size)
+
+
+def traverse_numpy(points: np.ndarray, steep: np.ndarray, size_m: float, step_up_m: float,
+                   step_down_m: float, robot_height_m: float,
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(obstacle, above, height float32, reached) per voxel, in numpy (the reference)."""
+    size = np.float32(size_m)
+    ix = np.floor(points[:, 0] / size).astype(np.int64)
+    iy = np.floor(points[:, 1] / size).astype(np.int64)
+    ix -= ix.min()
+    iy -= iy.min()
+    nx, ny = int(ix.max()) + 1, int(iy.max()) + 1
+    key = ix * ny + iy
+    z = points[:, 2].astype(np.float64)
+
+    surface = np.full(nx * ny, np.inf)
+    flat = ~steep
+    np.minimum.at(surface, key[flat], z[flat])
+    has = np.isfinite(surface)
+    seeds = has & (surface >= -step_down_m) & (surface <= step_up_m)
+    reached = _grow(surface.reshape(nx, ny), has.reshape(nx, ny), seeds, step_up_m,
+                    step_down_m)
+    ground = _local_ground(surface.reshape(nx, ny), reached.reshape(nx, ny)).reshape(-1)
+    height = (z - ground[key]).astype(np.float32)
+    above = height > np.float32(robot_height_m)
+    obstacle = (height > np.float32(step_up_m)) & ~above
+    obstacle |= height < -np.float32(step_down_m)
+    return obstacle, above, height, reached[key]
+
+
+def _neighbour_views(arr: np.ndarray, fill: float | bool) -> list[np.ndarray]:
+    """Return the 8 neighbours' values of every cell (views of a padded copy)."""
+    nx, ny = arr.shape
+    pad = np.full((nx + 2, ny + 2), fill, dtype=arr.dtype)
+    pad[1:-1, 1:-1] = arr
+    return [pad[1 + dx:1 + dx + nx, 1 + dy:1 + dy + ny]
+            for dx in (-1, 0, 1) for dy in (-1, 0, 1) if dx or dy]
+
+
+def _local_ground(surface: np.ndarray, reached: np.ndarray) -> np.ndarray:
+    """Ground height (nx, ny) of every cell: its surface where reached, else grown outward.
+
+    Layer by layer (8 neighbours), a cell gets the largest ground among its neighbours filled
+    in the previous layers. No reached cell: the floor plane, 0.
+    """
+    if not reached.any():
+        return np.zeros(surface.shape)
+    ground = np.where(reached, surface, 0.0)
+    done = reached.copy()
+    while not done.all():
+        filled = [np.where(d, g, -np.inf) for d, g in zip(_neighbour_views(done, False),
+                                                          _neighbour_views(ground, 0.0))]
+        best = np.max(filled, axis=0)
+        new = ~done & (best > -np.inf)
+        ground[new] = best[new]
+        done |= new
+    return ground
+
+
+def _grow(surface: np.ndarray, has: np.ndarray, seeds: np.ndarray, step_up: float,
+          step_down: float) -> np.ndarray:
+    """Cells (nx * ny,) bool reachable from the seeds through allowed steps (8-connected)."""
+    nx, ny = surface.shape
+    index = np.arange(nx * ny).reshape(nx, ny)
+    src, dst = [], []
+    for dx, dy in _HALF_NEIGHBOURHOOD:
+        xs = slice(0, nx - dx)
+        ys = slice(max(0, -dy), ny - max(0, dy))
+        xt = slice(dx, nx)
+        yt = slice(max(0, dy), ny - max(0, -dy))
+        a_has, b_has = has[xs, ys], has[xt, yt]
+        with np.errstate(invalid='ignore'):               # inf - inf where no surface
+            rise = surface[xt, yt] - surface[xs, ys]      # a -> b
+        both = a_has & b_has
+        a_idx, b_idx = index[xs, ys], index[xt, yt]
+        forward = both & (rise <= step_up) & (-rise <= step_down)
+        backward = both & (-rise <= step_up) & (rise <= step_down)
+        src += [a_idx[forward], b_idx[backward]]
+        dst += [b_idx[forward], a_idx[backward]]
+    source = nx * ny                                      # a virtual node linked to the seeds
+    seed_idx = np.flatnonzero(seeds)
+    src.append(np.full(seed_idx.size, source))
+    dst.append(seed_idx)
+    rows, cols = np.concatenate(src), np.concatenate(dst)
+    graph = csr_matrix((np.ones(rows.size, np.int8), (rows, cols)),
+                       shape=(source + 1, source + 1))
+    order = breadth_first_order(graph, source, directed=True, return_predecessors=False)
+    reached = np.zeros(source + 1, bool)
+    reached[order] = True
+    return reached[:source]
+
+
+def drop_edge_mask(depth_m: np.ndarray, rz: np.ndarray, height_m: float, step_down_m: float,
+                   step_up_m: float, rows: int = DROP_EDGE_ROWS) -> np.ndarray:
+    """(H, W) bool: pixels whose ray passed the floor plane right above seen floor.
+
+    depth_m (H, W) float32 [m] (0/NaN no return: never marks); rz (H*W,) or (H, W) float32,
+    the z component of the ground rays; height_m: camera height. A pixel passed the floor when
+    its point lies more than ``step_down_m`` below z = 0; it is an edge when one of the
+    ``rows`` pixels below it sees the floor (z within ``[-step_down_m, step_up_m]``) more than
+    ``step_down_m`` above its own point. float32 arithmetic, as the compiled kernel.
+    """
+    if jit_traversal.enabled():
+        return jit_traversal.drop_mask(depth_m, rz, height_m, step_down_m, step_up_m, rows)
+    h, w = depth_m.shape
+    d = depth_m.astype(np.float32, copy=False)
+    valid = d > 0.0
+    with np.errstate(invalid='ignore'):
+        z = np.where(valid, d * rz.reshape(h, w) + np.float32(height_m), np.float32(np.nan))
+    down = np.float32(step_down_m)
+    passed = z < -down                                   # NaN (no return) compares false
+    floor = (z >= -down) & (z <= np.float32(step_up_m))
+    edge = np.zeros((h, w), bool)
+    for k in range(1, rows + 1):
+        if k >= h:
+            break
+        edge[:-k] |= passed[:-k] & floor[k:] & (z[k:] - z[:-k] > down)
+    return edge
+
+
+def drop_edges(depth_m: np.ndarray, rays: np.ndarray, height_m: float,
+               params: DetectorParams) -> tuple[np.ndarray, np.ndarray]:
+    """Where the floor ends: the floor-plane crossings of the :func:`drop_edge_mask` rays.
+
+    depth_m: (H, W) float32 [m]; rays: (3, H*W) ground rays of the frame's mount; height_m:
+    the camera height of that mount. Returns ``(points, pixels)``: (D, 3) float32 points where
+    those rays crossed z = 0, inside the forward range and lateral limit [m], and (D,) int64
+    their flat pixel indices.
+    """
+    edge = drop_edge_mask(depth_m, rays[2], height_m, params.max_step_down_m,
+                          params.max_step_height_m)
+    pixels = np.flatnonzero(edge)
+    if pixels.size == 0:
+        return np.zeros((0, 3), np.float32), pixels
+    t = np.float32(height_m) / -rays[2, pixels]           # rz < 0: the ray goes down
+    x = t * rays[0, pixels]
+    y = t * rays[1, pixels]
+    keep = (x >= np.float32(params.min_range_m)) & (x <= np.float32(params.max_range_m))
+    keep &= np.abs(y) <= np.float32(params.lateral_limit_m)
+    pts = np.stack((x[keep], y[keep], np.zeros(int(keep.sum()), np.float32)), axis=1)
+    return pts.astype(np.float32), pixels[keep]
