@@ -24,9 +24,9 @@ from .params import DetectorParams
 #: Pixel subsample step (rows and columns) of the floor fit.
 SAMPLE_STEP = 4
 #: RANSAC plane hypotheses per frame (fixed seed: the same frame gives the same fit).
-HYPOTHESES = 48
+HYPOTHESES = 128
 #: Most samples that score the hypotheses (an even subsample of the floor samples).
-SCORE_POINTS = 800
+SCORE_POINTS = 600
 #: Inlier band of the RANSAC and of the first refit [m]; the second refit uses half of it.
 INLIER_BAND_M = 0.03
 #: Floor samples are taken up to this far beyond the forward range [m] (a high camera sees the
@@ -117,28 +117,28 @@ def _lstsq_plane(pts: np.ndarray) -> np.ndarray:
     return np.array([a, b, mean[2] - a * mean[0] - b * mean[1]])
 
 
-def _ransac_plane(pts: np.ndarray, params: DetectorParams) -> np.ndarray | None:
+def _ransac_plane(pts: np.ndarray, params: DetectorParams) -> np.ndarray:
     """Return (a, b, c) of the bounded hypothesis with most samples within INLIER_BAND_M.
 
     pts (3, M). Hypotheses tilted more than ``floor_max_tilt_rad`` or offset more than
     ``floor_max_offset_m`` from the configured floor are not considered (a ramp, the floor
-    beyond a drop); None when none is left. At most SCORE_POINTS samples score them.
+    beyond a drop); the configured floor (0, 0, 0) always is. At most SCORE_POINTS samples
+    score them.
     """
     rng = np.random.default_rng(0)
     tri = pts[:, rng.integers(0, pts.shape[1], size=(3, HYPOTHESES))]    # (3 axes, 3, h)
     normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0], axis=0)   # (3, h)
     good = np.abs(normal[2]) > 1e-9
-    if not good.any():
-        return None
     normal, p0 = normal[:, good], tri[:, 0, good]
     a = -normal[0] / normal[2]
     b = -normal[1] / normal[2]
     c = p0[2] - a * p0[0] - b * p0[1]
     bounded = np.hypot(a, b) <= math.tan(params.floor_max_tilt_rad)
     bounded &= np.abs(c) <= params.floor_max_offset_m
-    if not bounded.any():
-        return None
-    a, b, c = a[bounded], b[bounded], c[bounded]
+    # the configured floor itself is always a candidate
+    a = np.append(a[bounded], 0.0)
+    b = np.append(b[bounded], 0.0)
+    c = np.append(c[bounded], 0.0)
     sp = pts[:, ::max(1, pts.shape[1] // SCORE_POINTS)]
     resid = sp[2][None, :] - (a[:, None] * sp[0][None, :] + b[:, None] * sp[1][None, :]
                               + c[:, None])
@@ -160,9 +160,6 @@ def fit_floor(depth_m: np.ndarray, sub_rays: np.ndarray, params: DetectorParams)
         return configured(params, f'{pts.shape[1]} floor samples < floor_min_points='
                                   f'{params.floor_min_points}')
     coef = _ransac_plane(pts, params)
-    if coef is None:
-        return configured(params, 'no floor plane within floor_max_tilt_deg and '
-                                  'floor_max_offset_m of the mount')
     inliers = pts
     for band in (INLIER_BAND_M, 0.5 * INLIER_BAND_M):
         resid = pts[2] - (coef[0] * pts[0] + coef[1] * pts[1] + coef[2])

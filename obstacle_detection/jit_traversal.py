@@ -15,8 +15,8 @@ import numpy as np
 
 from .jit_support import AVAILABLE, NO_JIT_ENV, enabled, jit as _jit
 
-__all__ = ['AVAILABLE', 'NO_JIT_ENV', 'drop_mask', 'enabled', 'ground_rays', 'traverse',
-           'warm_up']
+__all__ = ['AVAILABLE', 'NO_JIT_ENV', 'drop_mask', 'drop_smeared', 'enabled', 'ground_rays',
+           'traverse', 'warm_up']
 
 
 @_jit
@@ -195,6 +195,23 @@ def drop_mask(depth_m: np.ndarray, rz: np.ndarray, height_m: float, step_down_m:
     return out
 
 
+@_jit
+def _smear_kernel(filtered, raw, ratio):  # pragma: no cover - compiled
+    """Zero the pixels whose filtered depth left the measured one (traversal.drop_smeared)."""
+    height, width = filtered.shape
+    for i in range(height):
+        for j in range(width):
+            r = raw[i, j]
+            f = filtered[i, j]
+            if not r > 0.0 or abs(f - r) > ratio * f:
+                filtered[i, j] = 0.0
+
+
+def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float) -> None:
+    """In place: equals the numpy path of traversal.drop_smeared (float32 arithmetic)."""
+    _smear_kernel(filtered, raw, np.float32(max_shift))
+
+
 def warm_up() -> None:
     """Compile (or load from the disk cache) the kernels on tiny inputs."""
     if not enabled():
@@ -203,3 +220,4 @@ def warm_up() -> None:
     pts = np.array([[0.1, 0.0, 0.0], [0.2, 0.1, 0.3]], np.float32)
     traverse(pts, np.array([False, True]), 0.05, 0.05, 0.05, 1.0)
     drop_mask(np.ones((4, 2), np.float32), -np.ones((4, 2), np.float32), 0.5, 0.05, 0.05, 3)
+    drop_smeared(np.ones((2, 2), np.float32), np.ones((2, 2), np.float32), 0.03)

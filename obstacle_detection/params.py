@@ -116,9 +116,10 @@ class DetectorParams:
         'N1: an obstacle point stays one only if its N1 nearest neighbours (itself excluded) are '
         'obstacles too; 0 = no validation (seed Table 4.2: 12)', min=0, max=400))
     max_ground_height_m: float = field(default=0.0, metadata=_describe(
-        'Not in the seed: flat voxels higher than this above the ground are obstacles too '
-        '(box and table tops, which the slope test calls ground); it also marks the high part '
-        'of a passable ramp. 0 = off, the seed method [m]', min=0.0, max=5.0))
+        'Not in the seed, slope-only mode (robot_level false; robot level supersedes it): '
+        'flat voxels higher than this above the ground are obstacles too (box and table tops, '
+        'which the slope test calls ground); it also marks the high part of a passable ramp. '
+        '0 = off, the seed method [m]', min=0.0, max=5.0))
     # -- robot level (not in the seed): traversability by connectivity, step height and drops
     robot_level: bool = field(default=True, metadata=_describe(
         'Not in the seed: robot-level traversability. Ground is grown from the floor plane '
@@ -134,6 +135,12 @@ class DetectorParams:
     robot_height_m: float = field(default=1.0, metadata=_describe(
         'Robot level: surfaces higher than this above the local ground do not block the robot '
         '[m]', min=0.0, max=5.0, open_min=True))
+    max_filter_shift: float = field(default=0.03, metadata=_describe(
+        'Robot level: a pixel whose median-filtered depth moved more than this fraction of '
+        'its depth away from the measured one is dropped (the filter smeared a depth edge onto '
+        'it: flying and edge pixels), and so are holes the filter filled (no return never '
+        'marks anything). 0 = keep every filtered pixel, as the seed',
+        min=0.0, max=1.0))
     drop_view_m: float = field(default=1.0, metadata=_describe(
         'Robot level: the region of interest reaches this far below the ground (instead of '
         'TDBG) so that the floor beyond a drop is seen [m]', min=0.0, max=5.0))

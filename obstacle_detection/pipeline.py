@@ -1,7 +1,7 @@
 """The whole per-frame pipeline of the seed (chapter 4) behind one call.
 
 ``Detector(params).process(depth, intrinsics)`` runs: decode -> crop -> K x K median ->
-[floor plane fit] -> back-projection and camera mount with the region of interest -> voxel grid
+[drop the pixels the median smeared across depth edges] -> [floor plane fit] -> back-projection and camera mount with the region of interest -> voxel grid
 -> k-NN -> normals -> slope test -> [robot-level traversal, drop edges] -> validation ->
 costmap, and returns a :class:`DetectionResult`. The bracketed stages are not in the seed; they
 run when ``refine_floor`` / ``robot_level`` are on (:mod:`.floor`, :mod:`.traversal`). The
@@ -28,10 +28,10 @@ LABEL_OUTSIDE_ROI = 1  #: a 3-D point outside the region of interest
 LABEL_GROUND = 2       #: in a voxel that passed the slope test (traversable)
 LABEL_OBSTACLE = 3     #: in a voxel that is a validated obstacle
 
-STAGES = ('decode', 'crop', 'median', 'floor', 'back_project', 'voxel', 'knn', 'normals',
-          'slope', 'traversal', 'drops', 'validation', 'costmap', 'labels')
+STAGES = ('decode', 'crop', 'median', 'smear', 'floor', 'back_project', 'voxel', 'knn',
+          'normals', 'slope', 'traversal', 'drops', 'validation', 'costmap', 'labels')
 #: The stages that are not the seed's (robot level and the floor fit).
-NEW_STAGES = ('floor', 'traversal', 'drops')
+NEW_STAGES = ('smear', 'floor', 'traversal', 'drops')
 
 
 @dataclass(frozen=True)
@@ -139,9 +139,13 @@ class Detector:
             depth_m = crop_borders(depth_m, p.crop_top_px, p.crop_bottom_px,
                                    p.crop_left_px, p.crop_right_px)
         clock.lap('crop')
+        raw_m = depth_m
         if p.median_kernel > 1:
             depth_m = median_filter(depth_m, p.median_kernel)
         clock.lap('median')
+        if p.robot_level and p.median_kernel > 1:
+            depth_m = traversal.drop_smeared(depth_m, raw_m, p.max_filter_shift)
+        clock.lap('smear')
 
         rays = self._rays(depth_m.shape, intr)
         fit = fit_floor(depth_m, self._sub_rays, p)

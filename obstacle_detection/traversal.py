@@ -174,6 +174,27 @@ def _grow(surface: np.ndarray, has: np.ndarray, seeds: np.ndarray, step_up: floa
     return reached[:source]
 
 
+def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float) -> np.ndarray:
+    """Set to 0 (no return) the pixels the median filter moved by more than max_shift.
+
+    filtered, raw: (H, W) float32 [m], the median-filtered and the measured depth. A pixel
+    whose filtered depth differs from its measured one by more than ``max_shift`` times the
+    filtered depth took its value from another surface across a depth edge (or was a flying
+    pixel): it is dropped. So is a pixel without a measured depth (0 or NaN) that the filter
+    filled: no return never marks anything. Returns ``filtered`` (modified in place).
+    Compiled when numba is there (same result).
+    """
+    if max_shift <= 0.0:
+        return filtered
+    if jit_traversal.enabled():
+        jit_traversal.drop_smeared(filtered, raw, max_shift)
+        return filtered
+    with np.errstate(invalid='ignore'):
+        bad = ~(raw > 0.0) | (np.abs(filtered - raw) > np.float32(max_shift) * filtered)
+    filtered[bad] = 0.0
+    return filtered
+
+
 def drop_edge_mask(depth_m: np.ndarray, rz: np.ndarray, height_m: float, step_down_m: float,
                    step_up_m: float, rows: int = DROP_EDGE_ROWS) -> np.ndarray:
     """(H, W) bool: pixels whose ray passed the floor plane right above seen floor.
