@@ -1,9 +1,10 @@
 """The whole per-frame pipeline of the seed (chapter 4) behind one call.
 
 ``Detector(params).process(depth, intrinsics)`` runs: decode -> crop -> K x K median ->
-[drop the pixels the median smeared across depth edges] -> [floor plane fit] -> back-projection and camera mount with the region of interest -> voxel grid
--> k-NN -> normals -> slope test -> [robot-level traversal, drop edges] -> validation ->
-costmap, and returns a :class:`DetectionResult`. The bracketed stages are not in the seed; they
+[drop the pixels the median smeared across depth edges] -> [floor plane fit] ->
+back-projection and camera mount with the region of interest -> voxel grid -> k-NN ->
+normals -> slope test -> [robot-level traversal, drop edges] -> validation -> costmap, and
+returns a :class:`DetectionResult`. The bracketed stages are not in the seed; they
 run when ``refine_floor`` / ``robot_level`` are on (:mod:`.floor`, :mod:`.traversal`). The
 per-pixel labels follow the same decision as the costmap.
 """
