@@ -1,11 +1,12 @@
 """The floor plane from the data: a per-frame refinement of the configured camera mount.
 
 A height rule needs the floor within a couple of centimetres, and a configured mount is rarely
-that good. :func:`fit_floor` looks at a 1-in-16 pixel subsample back-projected through the
+that good. :func:`fit_floor` looks at a grid of about 6000 pixels back-projected through the
 configured mount, keeps the points near the configured floor (within ``floor_max_offset_m``
 plus ``floor_max_tilt_deg`` times their distance), and fits a plane ``z = a x + b y + c`` to
-them: a fixed-seed RANSAC over plane hypotheses (vectorised), then two least-squares refits on
-the inliers. The fit is accepted only when it is bounded around the mount (tilt and offset
+them: a fixed-seed RANSAC over plane hypotheses (vectorised; one point of each triplet from
+the far, middle and near third of the samples), then least-squares refits on the inliers of
+narrowing bands. The fit is accepted only when it is bounded around the mount (tilt and offset
 within the limits) and supported by at least ``floor_min_points`` samples; otherwise the
 configured mount is kept and the result says why. An accepted plane becomes a corrected mount
 (height, pitch, roll) for the whole frame, so the ground frame's z = 0 is the seen floor.
@@ -21,14 +22,23 @@ import numpy as np
 from .geometry import mount_rotation
 from .params import DetectorParams
 
-#: Pixel subsample step (rows and columns) of the floor fit.
-SAMPLE_STEP = 4
+#: About this many pixels (an even grid) are sampled for the floor fit.
+SAMPLE_PIXELS = 6000
+
+
+def sample_step(shape: tuple[int, int]) -> int:
+    """Row and column step of the sampled pixel grid for an (H, W) image."""
+    return max(1, round(math.sqrt(shape[0] * shape[1] / SAMPLE_PIXELS)))
 #: RANSAC plane hypotheses per frame (fixed seed: the same frame gives the same fit).
-HYPOTHESES = 128
+HYPOTHESES = 96
 #: Most samples that score the hypotheses (an even subsample of the floor samples).
-SCORE_POINTS = 600
-#: Inlier band of the RANSAC and of the first refit [m]; the second refit uses half of it.
+SCORE_POINTS = 480
+#: Hypotheses scored at once (keeps each temporary well under 128 kB).
+SCORE_CHUNK = 32
+#: Inlier band of the RANSAC [m].
 INLIER_BAND_M = 0.03
+#: Inlier bands of the least-squares refits that follow, in order [m].
+REFIT_BANDS_M = (0.03, 0.02, 0.015)
 #: Floor samples are taken up to this far beyond the forward range [m] (a high camera sees the
 #: floor only far away).
 FIT_RANGE_MARGIN_M = 1.0
@@ -72,9 +82,10 @@ def configured(params: DetectorParams, reason: str) -> FloorFit:
 
 
 def sample_rays(rays: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """(3, M) float32: the rays of the 1-in-SAMPLE_STEP^2 pixel subsample (contiguous copy)."""
+    """Return (3, M) float32: the rays of the sampled pixel grid (a contiguous copy)."""
     height, width = shape
-    sub = rays.reshape(3, height, width)[:, ::SAMPLE_STEP, ::SAMPLE_STEP]
+    step = sample_step(shape)
+    sub = rays.reshape(3, height, width)[:, ::step, ::step]
     return np.ascontiguousarray(sub.reshape(3, -1))
 
 
@@ -84,7 +95,8 @@ def floor_samples(depth_m: np.ndarray, sub_rays: np.ndarray,
 
     sub_rays: :func:`sample_rays` of the configured mount's ground rays.
     """
-    depth = depth_m[::SAMPLE_STEP, ::SAMPLE_STEP].reshape(-1)
+    step = sample_step(depth_m.shape)
+    depth = depth_m[::step, ::step].reshape(-1)
     keep = np.flatnonzero(depth > 0.0)   # NaN compares false: no return never counts
     d = depth[keep].astype(np.float64)
     x = d * sub_rays[0, keep]
@@ -126,7 +138,11 @@ def _ransac_plane(pts: np.ndarray, params: DetectorParams) -> np.ndarray:
     score them.
     """
     rng = np.random.default_rng(0)
-    tri = pts[:, rng.integers(0, pts.shape[1], size=(3, HYPOTHESES))]    # (3 axes, 3, h)
+    # one point from each third of the samples (image row order: far, middle, near for a
+    # camera above the floor): well-conditioned triplets
+    third = pts.shape[1] // 3
+    picks = rng.integers(0, third, size=(3, HYPOTHESES)) + (np.arange(3) * third)[:, None]
+    tri = pts[:, picks]                                                  # (3 axes, 3, h)
     normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0], axis=0)   # (3, h)
     good = np.abs(normal[2]) > 1e-9
     normal, p0 = normal[:, good], tri[:, 0, good]
@@ -139,10 +155,15 @@ def _ransac_plane(pts: np.ndarray, params: DetectorParams) -> np.ndarray:
     a = np.append(a[bounded], 0.0)
     b = np.append(b[bounded], 0.0)
     c = np.append(c[bounded], 0.0)
-    sp = pts[:, ::max(1, pts.shape[1] // SCORE_POINTS)]
-    resid = sp[2][None, :] - (a[:, None] * sp[0][None, :] + b[:, None] * sp[1][None, :]
-                              + c[:, None])
-    score = np.count_nonzero(np.abs(resid) <= INLIER_BAND_M, axis=1)
+    sp = np.ascontiguousarray(pts[:, ::max(1, pts.shape[1] // SCORE_POINTS)])
+    score = np.empty(a.size, np.int64)
+    for start in range(0, a.size, SCORE_CHUNK):   # small temporaries: no page faults
+        part = slice(start, start + SCORE_CHUNK)
+        resid = a[part, None] * sp[0]
+        resid += b[part, None] * sp[1]
+        resid += c[part, None]
+        resid -= sp[2]
+        score[part] = np.count_nonzero(np.abs(resid, out=resid) <= INLIER_BAND_M, axis=1)
     best = int(np.argmax(score))
     return np.array([a[best], b[best], c[best]])
 
@@ -161,7 +182,7 @@ def fit_floor(depth_m: np.ndarray, sub_rays: np.ndarray, params: DetectorParams)
                                   f'{params.floor_min_points}')
     coef = _ransac_plane(pts, params)
     inliers = pts
-    for band in (INLIER_BAND_M, 0.5 * INLIER_BAND_M):
+    for band in REFIT_BANDS_M:
         resid = pts[2] - (coef[0] * pts[0] + coef[1] * pts[1] + coef[2])
         inliers = pts[:, np.abs(resid) <= band]
         if inliers.shape[1] < params.floor_min_points:
