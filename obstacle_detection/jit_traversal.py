@@ -196,20 +196,31 @@ def drop_mask(depth_m: np.ndarray, rz: np.ndarray, height_m: float, step_down_m:
 
 
 @_jit
-def _smear_kernel(filtered, raw, ratio):  # pragma: no cover - compiled
-    """Zero the pixels whose filtered depth left the measured one (traversal.drop_smeared)."""
+def _smear_kernel(filtered, raw, ratio, jump):  # pragma: no cover - compiled
+    """Zero the pixels traversal.drop_smeared drops, with the same float32 operations."""
     height, width = filtered.shape
     for i in range(height):
         for j in range(width):
             r = raw[i, j]
             f = filtered[i, j]
-            if not r > 0.0 or abs(f - r) > ratio * f:
+            drop = not r > 0.0 or abs(f - r) > ratio * f
+            if not drop and 0 < j < width - 1:
+                a, b = raw[i, j - 1], raw[i, j + 1]
+                da, db = a - r, b - r
+                lim = jump * r
+                drop = da * db < 0.0 and abs(da) > lim and abs(db) > lim and a > 0.0 and b > 0.0
+            if not drop and 0 < i < height - 1:
+                a, b = raw[i - 1, j], raw[i + 1, j]
+                da, db = a - r, b - r
+                lim = jump * r
+                drop = da * db < 0.0 and abs(da) > lim and abs(db) > lim and a > 0.0 and b > 0.0
+            if drop:
                 filtered[i, j] = 0.0
 
 
-def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float) -> None:
+def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float, jump: float) -> None:
     """In place: equals the numpy path of traversal.drop_smeared (float32 arithmetic)."""
-    _smear_kernel(filtered, raw, np.float32(max_shift))
+    _smear_kernel(filtered, raw, np.float32(max_shift), np.float32(jump))
 
 
 def warm_up() -> None:
@@ -220,4 +231,4 @@ def warm_up() -> None:
     pts = np.array([[0.1, 0.0, 0.0], [0.2, 0.1, 0.3]], np.float32)
     traverse(pts, np.array([False, True]), 0.05, 0.05, 0.05, 1.0)
     drop_mask(np.ones((4, 2), np.float32), -np.ones((4, 2), np.float32), 0.5, 0.05, 0.05, 3)
-    drop_smeared(np.ones((2, 2), np.float32), np.ones((2, 2), np.float32), 0.03)
+    drop_smeared(np.ones((3, 3), np.float32), np.ones((3, 3), np.float32), 0.03, 0.05)
