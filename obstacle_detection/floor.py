@@ -32,7 +32,7 @@ def sample_step(shape: tuple[int, int]) -> int:
 #: RANSAC plane hypotheses per frame (fixed seed: the same frame gives the same fit).
 HYPOTHESES = 96
 #: Most samples that score the hypotheses (an even subsample of the floor samples).
-SCORE_POINTS = 480
+SCORE_POINTS = 1000
 #: Hypotheses scored at once (keeps each temporary well under 128 kB).
 SCORE_CHUNK = 32
 #: Inlier band of the RANSAC [m].
@@ -134,8 +134,8 @@ def _ransac_plane(pts: np.ndarray, params: DetectorParams) -> np.ndarray:
 
     pts (3, M). Hypotheses tilted more than ``floor_max_tilt_rad`` or offset more than
     ``floor_max_offset_m`` from the configured floor are not considered (a ramp, the floor
-    beyond a drop); the configured floor (0, 0, 0) always is. At most SCORE_POINTS samples
-    score them.
+    beyond a drop); the configured floor (0, 0, 0) and the level plane at the most common
+    sample height always are. At most SCORE_POINTS samples score them.
     """
     rng = np.random.default_rng(0)
     # one point from each third of the samples (image row order: far, middle, near for a
@@ -151,10 +151,14 @@ def _ransac_plane(pts: np.ndarray, params: DetectorParams) -> np.ndarray:
     c = p0[2] - a * p0[0] - b * p0[1]
     bounded = np.hypot(a, b) <= math.tan(params.floor_max_tilt_rad)
     bounded &= np.abs(c) <= params.floor_max_offset_m
-    # the configured floor itself is always a candidate
-    a = np.append(a[bounded], 0.0)
-    b = np.append(b[bounded], 0.0)
-    c = np.append(c[bounded], 0.0)
+    # the configured floor itself is always a candidate, and so is the level plane through
+    # the most common sample height (the floor under a mount wrong in height only)
+    bins = np.arange(-params.floor_max_offset_m, params.floor_max_offset_m + 0.011, 0.01)
+    hist, edges = np.histogram(pts[2], bins=bins)
+    mode = 0.5 * (edges[int(np.argmax(hist))] + edges[int(np.argmax(hist)) + 1])
+    a = np.append(a[bounded], (0.0, 0.0))
+    b = np.append(b[bounded], (0.0, 0.0))
+    c = np.append(c[bounded], (0.0, mode))
     sp = np.ascontiguousarray(pts[:, ::max(1, pts.shape[1] // SCORE_POINTS)])
     score = np.empty(a.size, np.int64)
     for start in range(0, a.size, SCORE_CHUNK):   # small temporaries: no page faults

@@ -203,7 +203,22 @@ def _smear_kernel(filtered, raw, ratio, jump):  # pragma: no cover - compiled
         for j in range(width):
             r = raw[i, j]
             f = filtered[i, j]
-            drop = not r > 0.0 or abs(f - r) > ratio * f
+            if not r > 0.0:   # a filled hole: kept inside a surface only
+                lim = ratio * f
+                seen = False
+                agree = True
+                for di, dj in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+                    ni, nj = i + di, j + dj
+                    if 0 <= ni < height and 0 <= nj < width:
+                        nb = raw[ni, nj]
+                        if nb > 0.0:
+                            seen = True
+                            if not abs(nb - f) <= lim:
+                                agree = False
+                if not (seen and agree):
+                    filtered[i, j] = 0.0
+                continue
+            drop = abs(f - r) > ratio * f
             if not drop and 0 < j < width - 1:
                 a, b = raw[i, j - 1], raw[i, j + 1]
                 da, db = a - r, b - r

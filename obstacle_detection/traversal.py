@@ -184,8 +184,10 @@ def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float) -> np.
 
     - a pixel whose filtered depth differs from its measured one by more than ``max_shift``
       times the filtered depth (the filter brought it a value from across a depth edge);
-    - a pixel without a measured depth (0 or NaN) that the filter filled: no return never
-      marks anything;
+    - a pixel without a measured depth (0 or NaN) that the filter filled, unless it has a
+      measured 4-neighbour and all of them lie within ``max_shift`` of the filled depth (a
+      dropout inside a surface is filled; a hole at a depth edge, where the filter could only
+      guess, is not: no return never marks anything);
     - a mixed ("flying") pixel: its measured depth lies between those of its two neighbours
       along a row or a column, more than ``FLYING_JUMP`` of its depth from each, as a
       time-of-flight sensor returns at a depth edge.
@@ -198,8 +200,21 @@ def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float) -> np.
     if jit_traversal.enabled():
         jit_traversal.drop_smeared(filtered, raw, max_shift, FLYING_JUMP)
         return filtered
+    ratio = np.float32(max_shift)
+    h, w = raw.shape
     with np.errstate(invalid='ignore'):
-        bad = ~(raw > 0.0) | (np.abs(filtered - raw) > np.float32(max_shift) * filtered)
+        hole = ~(raw > 0.0)
+        bad = ~hole & (np.abs(filtered - raw) > ratio * filtered)
+        lim = ratio * filtered
+        seen = np.zeros((h, w), bool)
+        agree = np.ones((h, w), bool)
+        pad = np.zeros((h + 2, w + 2), np.float32)
+        pad[1:-1, 1:-1] = np.where(hole, np.float32(0.0), raw)
+        for nb in (pad[:-2, 1:-1], pad[2:, 1:-1], pad[1:-1, :-2], pad[1:-1, 2:]):
+            valid = nb > 0.0
+            seen |= valid
+            agree &= ~valid | (np.abs(nb - filtered) <= lim)
+        bad |= hole & ~(seen & agree)
         jump = np.float32(FLYING_JUMP)
         for a, c, b, out in ((raw[:, :-2], raw[:, 1:-1], raw[:, 2:], bad[:, 1:-1]),
                              (raw[:-2], raw[1:-1], raw[2:], bad[1:-1])):

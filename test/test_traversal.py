@@ -39,7 +39,7 @@ def cells(result, x0, x1, y0, y1):
 
 
 def seen(values):
-    """The cells that were seen (not unknown)."""
+    """Return the cells that were seen (not unknown)."""
     return values[values != CELL_UNKNOWN]
 
 
