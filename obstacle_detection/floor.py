@@ -1,15 +1,17 @@
 """The floor plane from the data: a per-frame refinement of the configured camera mount.
 
 A height rule needs the floor within a couple of centimetres, and a configured mount is rarely
-that good. :func:`fit_floor` looks at a grid of about 6000 pixels back-projected through the
+that good. :func:`fit_floor` looks at a grid of about 3000 pixels back-projected through the
 configured mount, keeps the points near the configured floor (within ``floor_max_offset_m``
-plus ``floor_max_tilt_deg`` times their distance), and fits a plane ``z = a x + b y + c`` to
-them: a fixed-seed RANSAC over plane hypotheses (vectorised; one point of each triplet from
-the far, middle and near third of the samples), then least-squares refits on the inliers of
-narrowing bands. The fit is accepted only when it is bounded around the mount (tilt and offset
-within the limits) and supported by at least ``floor_min_points`` samples; otherwise the
-configured mount is kept and the result says why. An accepted plane becomes a corrected mount
-(height, pitch, roll) for the whole frame, so the ground frame's z = 0 is the seen floor.
+plus ``floor_max_tilt_deg`` times their distance) whose surface faces up (a normal from the
+neighbouring grid points within 30 deg of vertical: walls and box sides drop out), and fits
+a plane ``z = a x + b y + c`` to them: a fixed-seed RANSAC over plane hypotheses (vectorised;
+one point of each triplet from the far, middle and near third of the samples), then
+least-squares refits of the best two on the inliers of narrowing bands, keeping the one most
+samples support. The fit is accepted only when it is bounded around the mount (tilt and
+offset within the limits) and supported by at least ``floor_min_points`` samples; otherwise
+the configured mount is kept and the result says why. An accepted plane becomes a corrected
+mount (height, pitch, roll) for the whole frame, so the ground frame's z = 0 is the seen floor.
 """
 
 from __future__ import annotations
@@ -23,22 +25,27 @@ from .geometry import mount_rotation
 from .params import DetectorParams
 
 #: About this many pixels (an even grid) are sampled for the floor fit.
-SAMPLE_PIXELS = 6000
+SAMPLE_PIXELS = 3000
 
 
 def sample_step(shape: tuple[int, int]) -> int:
     """Row and column step of the sampled pixel grid for an (H, W) image."""
     return max(1, round(math.sqrt(shape[0] * shape[1] / SAMPLE_PIXELS)))
 #: RANSAC plane hypotheses per frame (fixed seed: the same frame gives the same fit).
-HYPOTHESES = 96
+HYPOTHESES = 64
 #: Most samples that score the hypotheses (an even subsample of the floor samples).
-SCORE_POINTS = 1000
-#: Hypotheses scored at once (keeps each temporary well under 128 kB).
-SCORE_CHUNK = 32
+SCORE_POINTS = 2000
+#: Hypotheses scored at once (keeps each temporary under 128 kB).
+SCORE_CHUNK = 16
+#: The best hypotheses that are refined by least squares; the best refined one is kept.
+REFINED_HYPOTHESES = 2
 #: Inlier band of the RANSAC [m].
 INLIER_BAND_M = 0.03
 #: Inlier bands of the least-squares refits that follow, in order [m].
-REFIT_BANDS_M = (0.03, 0.02, 0.015)
+REFIT_BANDS_M = (0.03, 0.015)
+#: A floor sample's local normal (from its grid neighbours) is within acos(sqrt(.)) of
+#: vertical: 30 deg (the mount may be 5 deg off, the normals of neighbouring samples are noisy).
+FACING_UP_COS2 = math.cos(math.radians(30.0)) ** 2
 #: Floor samples are taken up to this far beyond the forward range [m] (a high camera sees the
 #: floor only far away).
 FIT_RANGE_MARGIN_M = 1.0
@@ -96,19 +103,27 @@ def floor_samples(depth_m: np.ndarray, sub_rays: np.ndarray,
     sub_rays: :func:`sample_rays` of the configured mount's ground rays.
     """
     step = sample_step(depth_m.shape)
-    depth = depth_m[::step, ::step].reshape(-1)
-    keep = np.flatnonzero(depth > 0.0)   # NaN compares false: no return never counts
-    d = depth[keep].astype(np.float64)
-    x = d * sub_rays[0, keep]
-    y = d * sub_rays[1, keep]
-    z = d * sub_rays[2, keep]
-    z += params.camera_height_m
-    band = np.hypot(x, y)
-    band *= math.tan(params.floor_max_tilt_rad)
-    band += params.floor_max_offset_m + 0.02
-    near = np.abs(z) <= band
-    near &= (x >= params.min_range_m) & (x <= params.max_range_m + FIT_RANGE_MARGIN_M)
-    near &= np.abs(y) <= params.lateral_limit_m
+    grid = depth_m[::step, ::step]
+    gh, gw = grid.shape
+    with np.errstate(invalid='ignore'):
+        d = np.where(grid > 0.0, grid, np.nan).astype(np.float64)   # no return: NaN
+    r = sub_rays.reshape(3, gh, gw)
+    pts = np.stack((d * r[0], d * r[1], d * r[2] + params.camera_height_m))
+    # a local normal from the right and the lower neighbour on the grid: floor samples face
+    # up (walls, box sides and flying pixels do not); NaN (no return) drops out
+    du = pts[:, :-1, 1:] - pts[:, :-1, :-1]
+    dv = pts[:, 1:, :-1] - pts[:, :-1, :-1]
+    nx = du[1] * dv[2] - du[2] * dv[1]
+    ny = du[2] * dv[0] - du[0] * dv[2]
+    nz = du[0] * dv[1] - du[1] * dv[0]
+    x, y, z = pts[0, :-1, :-1], pts[1, :-1, :-1], pts[2, :-1, :-1]
+    with np.errstate(invalid='ignore'):
+        facing_up = nz * nz >= (nx * nx + ny * ny + nz * nz) * FACING_UP_COS2
+        band = np.hypot(x, y) * math.tan(params.floor_max_tilt_rad)
+        band += params.floor_max_offset_m + 0.02
+        near = facing_up & (np.abs(z) <= band)
+        near &= (x >= params.min_range_m) & (x <= params.max_range_m + FIT_RANGE_MARGIN_M)
+        near &= np.abs(y) <= params.lateral_limit_m
     return np.stack((x[near], y[near], z[near]))
 
 
@@ -130,12 +145,13 @@ def _lstsq_plane(pts: np.ndarray) -> np.ndarray:
 
 
 def _ransac_plane(pts: np.ndarray, params: DetectorParams) -> np.ndarray:
-    """Return (a, b, c) of the bounded hypothesis with most samples within INLIER_BAND_M.
+    """Return (k, 3): (a, b, c) of the bounded hypotheses with most samples in INLIER_BAND_M.
 
     pts (3, M). Hypotheses tilted more than ``floor_max_tilt_rad`` or offset more than
     ``floor_max_offset_m`` from the configured floor are not considered (a ramp, the floor
     beyond a drop); the configured floor (0, 0, 0) and the level plane at the most common
-    sample height always are. At most SCORE_POINTS samples score them.
+    sample height always are. At most SCORE_POINTS samples score them; the best
+    REFINED_HYPOTHESES are returned, best first.
     """
     rng = np.random.default_rng(0)
     # one point from each third of the samples (image row order: far, middle, near for a
@@ -168,8 +184,8 @@ def _ransac_plane(pts: np.ndarray, params: DetectorParams) -> np.ndarray:
         resid += c[part, None]
         resid -= sp[2]
         score[part] = np.count_nonzero(np.abs(resid, out=resid) <= INLIER_BAND_M, axis=1)
-    best = int(np.argmax(score))
-    return np.array([a[best], b[best], c[best]])
+    best = np.argsort(-score, kind='stable')[:REFINED_HYPOTHESES]
+    return np.stack((a[best], b[best], c[best]), axis=1)
 
 
 def fit_floor(depth_m: np.ndarray, sub_rays: np.ndarray, params: DetectorParams) -> FloorFit:
@@ -184,15 +200,24 @@ def fit_floor(depth_m: np.ndarray, sub_rays: np.ndarray, params: DetectorParams)
     if pts.shape[1] < params.floor_min_points:
         return configured(params, f'{pts.shape[1]} floor samples < floor_min_points='
                                   f'{params.floor_min_points}')
-    coef = _ransac_plane(pts, params)
-    inliers = pts
-    for band in REFIT_BANDS_M:
+    best = None   # (inliers in the last band, coefficients, samples of the last refit)
+    for coef in _ransac_plane(pts, params):   # each refined on narrowing bands
+        used = 0
+        for band in REFIT_BANDS_M:
+            resid = pts[2] - (coef[0] * pts[0] + coef[1] * pts[1] + coef[2])
+            inliers = pts[:, np.abs(resid) <= band]
+            used = inliers.shape[1]
+            if used < 3:
+                break
+            coef = _lstsq_plane(inliers)
         resid = pts[2] - (coef[0] * pts[0] + coef[1] * pts[1] + coef[2])
-        inliers = pts[:, np.abs(resid) <= band]
-        if inliers.shape[1] < params.floor_min_points:
-            return configured(params, f'{inliers.shape[1]} floor inliers < floor_min_points='
-                                      f'{params.floor_min_points}')
-        coef = _lstsq_plane(inliers)
+        support = int(np.count_nonzero(np.abs(resid) <= REFIT_BANDS_M[-1]))
+        if best is None or support > best[0]:
+            best = (support, coef, used)
+    support, coef, used = best
+    if used < params.floor_min_points:
+        return configured(params, f'{used} floor inliers < floor_min_points='
+                                  f'{params.floor_min_points}')
     a, b, c = (float(v) for v in coef)
     tilt = math.atan(math.hypot(a, b))
     if tilt > params.floor_max_tilt_rad:
@@ -200,7 +225,7 @@ def fit_floor(depth_m: np.ndarray, sub_rays: np.ndarray, params: DetectorParams)
                                   f'floor_max_tilt_deg')
     if abs(c) > params.floor_max_offset_m:
         return configured(params, f'fitted floor offset {c:+.3f} m beyond floor_max_offset_m')
-    return _corrected_mount(params, a, b, c, inliers.shape[1])
+    return _corrected_mount(params, a, b, c, used)
 
 
 def _corrected_mount(params: DetectorParams, a: float, b: float, c: float,

@@ -154,8 +154,8 @@ class DetectorParams:
     floor_max_offset_m: float = field(default=0.1, metadata=_describe(
         'Floor refinement: largest height offset of the fitted floor from the configured '
         'mount [m]', min=0.0, max=1.0))
-    floor_min_points: int = field(default=200, metadata=_describe(
-        'Floor refinement: fewest floor samples (of about 6000 pixels on a grid) for a fit; '
+    floor_min_points: int = field(default=60, metadata=_describe(
+        'Floor refinement: fewest floor samples (of about 3000 pixels on a grid) for a fit; '
         'fewer keep the configured mount', min=3, max=100000))
     # -- costmap (seed 4.3.6), ground plane, x forward from the camera foot, centred in y
     costmap_resolution_m: float = field(default=0.05, metadata=_describe(
