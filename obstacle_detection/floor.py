@@ -33,6 +33,9 @@ def sample_step(shape: tuple[int, int]) -> int:
     return max(1, round(math.sqrt(shape[0] * shape[1] / SAMPLE_PIXELS)))
 #: RANSAC plane hypotheses per frame (fixed seed: the same frame gives the same fit).
 HYPOTHESES = 64
+#: Where in each third of the samples the triplet points are taken (fixed: the same frame
+#: gives the same fit).
+_PICKS = np.random.default_rng(0).random((3, HYPOTHESES))
 #: Most samples that score the hypotheses (an even subsample of the floor samples).
 SCORE_POINTS = 2000
 #: Hypotheses scored at once (keeps each temporary under 128 kB).
@@ -153,25 +156,27 @@ def _ransac_plane(pts: np.ndarray, params: DetectorParams) -> np.ndarray:
     sample height always are. At most SCORE_POINTS samples score them; the best
     REFINED_HYPOTHESES are returned, best first.
     """
-    rng = np.random.default_rng(0)
     # one point from each third of the samples (image row order: far, middle, near for a
     # camera above the floor): well-conditioned triplets
     third = pts.shape[1] // 3
-    picks = rng.integers(0, third, size=(3, HYPOTHESES)) + (np.arange(3) * third)[:, None]
-    tri = pts[:, picks]                                                  # (3 axes, 3, h)
-    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0], axis=0)   # (3, h)
-    good = np.abs(normal[2]) > 1e-9
-    normal, p0 = normal[:, good], tri[:, 0, good]
-    a = -normal[0] / normal[2]
-    b = -normal[1] / normal[2]
+    picks = (_PICKS * third).astype(np.int64) + np.arange(3)[:, None] * third
+    p0, p1, p2 = pts[:, picks[0]], pts[:, picks[1]], pts[:, picks[2]]   # (3, h) each
+    u, v = p1 - p0, p2 - p0
+    nx = u[1] * v[2] - u[2] * v[1]
+    ny = u[2] * v[0] - u[0] * v[2]
+    nz = u[0] * v[1] - u[1] * v[0]
+    good = np.abs(nz) > 1e-9
+    nz = np.where(good, nz, 1.0)
+    a, b = -nx / nz, -ny / nz
     c = p0[2] - a * p0[0] - b * p0[1]
-    bounded = np.hypot(a, b) <= math.tan(params.floor_max_tilt_rad)
+    bounded = good & (a * a + b * b <= math.tan(params.floor_max_tilt_rad) ** 2)
     bounded &= np.abs(c) <= params.floor_max_offset_m
     # the configured floor itself is always a candidate, and so is the level plane through
-    # the most common sample height (the floor under a mount wrong in height only)
-    bins = np.arange(-params.floor_max_offset_m, params.floor_max_offset_m + 0.011, 0.01)
-    hist, edges = np.histogram(pts[2], bins=bins)
-    mode = 0.5 * (edges[int(np.argmax(hist))] + edges[int(np.argmax(hist)) + 1])
+    # the most common sample height in 1 cm bins (the floor under a mount wrong in height)
+    offset = params.floor_max_offset_m
+    near = np.abs(pts[2]) <= offset
+    counts = np.bincount(np.floor((pts[2][near] + offset) * 100.0).astype(np.int64))
+    mode = (int(np.argmax(counts)) + 0.5) * 0.01 - offset if counts.size else 0.0
     a = np.append(a[bounded], (0.0, 0.0))
     b = np.append(b[bounded], (0.0, 0.0))
     c = np.append(c[bounded], (0.0, mode))

@@ -196,46 +196,55 @@ def drop_mask(depth_m: np.ndarray, rz: np.ndarray, height_m: float, step_down_m:
 
 
 @_jit
-def _smear_kernel(filtered, raw, ratio, jump):  # pragma: no cover - compiled
-    """Zero the pixels traversal.drop_smeared drops, with the same float32 operations."""
+def _mixed(a, r, b, lim):  # pragma: no cover - compiled
+    """Return r lies between a and b, more than lim from each (both measured)."""
+    da = a - r
+    db = b - r
+    return (da * db < 0.0) & (abs(da) > lim) & (abs(db) > lim) & (a > 0.0) & (b > 0.0)
+
+
+@_jit
+def _smear_kernel(filtered, raw, ratio, jump, bad):  # pragma: no cover - compiled
+    """Zero the pixels traversal.drop_smeared drops, with the same float32 operations.
+
+    bad (H, W) bool scratch. Simple passes without data-dependent branches (they vectorise).
+    """
     height, width = filtered.shape
-    for i in range(height):
+    for i in range(height):         # moved by the filter (holes are decided below)
         for j in range(width):
             r = raw[i, j]
             f = filtered[i, j]
-            if not r > 0.0:   # a filled hole: kept inside a surface only
+            bad[i, j] = (r > 0.0) & (abs(f - r) > ratio * f)
+    for i in range(height):         # mixed along a row
+        for j in range(1, width - 1):
+            r = raw[i, j]
+            bad[i, j] |= (r > 0.0) & _mixed(raw[i, j - 1], r, raw[i, j + 1], jump * r)
+    for i in range(1, height - 1):  # mixed along a column
+        for j in range(width):
+            r = raw[i, j]
+            bad[i, j] |= (r > 0.0) & _mixed(raw[i - 1, j], r, raw[i + 1, j], jump * r)
+    for i in range(height):
+        for j in range(width):
+            if not raw[i, j] > 0.0:     # a filled hole: kept inside a surface only
+                f = filtered[i, j]
                 lim = ratio * f
                 seen = False
                 agree = True
-                for di, dj in ((-1, 0), (1, 0), (0, -1), (0, 1)):
-                    ni, nj = i + di, j + dj
+                for ni, nj in ((i - 1, j), (i + 1, j), (i, j - 1), (i, j + 1)):
                     if 0 <= ni < height and 0 <= nj < width:
                         nb = raw[ni, nj]
                         if nb > 0.0:
                             seen = True
-                            if not abs(nb - f) <= lim:
-                                agree = False
-                if not (seen and agree):
-                    filtered[i, j] = 0.0
-                continue
-            drop = abs(f - r) > ratio * f
-            if not drop and 0 < j < width - 1:
-                a, b = raw[i, j - 1], raw[i, j + 1]
-                da, db = a - r, b - r
-                lim = jump * r
-                drop = da * db < 0.0 and abs(da) > lim and abs(db) > lim and a > 0.0 and b > 0.0
-            if not drop and 0 < i < height - 1:
-                a, b = raw[i - 1, j], raw[i + 1, j]
-                da, db = a - r, b - r
-                lim = jump * r
-                drop = da * db < 0.0 and abs(da) > lim and abs(db) > lim and a > 0.0 and b > 0.0
-            if drop:
+                            agree &= abs(nb - f) <= lim
+                bad[i, j] = not (seen and agree)
+            if bad[i, j]:
                 filtered[i, j] = 0.0
 
 
 def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float, jump: float) -> None:
     """In place: equals the numpy path of traversal.drop_smeared (float32 arithmetic)."""
-    _smear_kernel(filtered, raw, np.float32(max_shift), np.float32(jump))
+    bad = np.empty(filtered.shape, np.bool_)
+    _smear_kernel(filtered, raw, np.float32(max_shift), np.float32(jump), bad)
 
 
 def warm_up() -> None:
