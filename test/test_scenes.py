@@ -8,9 +8,9 @@ import pytest
 from obstacle_detection import scenes
 from obstacle_detection.geometry import back_project, to_ground
 from obstacle_detection.params import DetectorParams, Intrinsics, KINECT_V2_SD
-from obstacle_detection.scenes import (Box, Cylinder, Floor, GT_NO_RETURN, GT_OBSTACLE,
-                                       GT_TRAVERSABLE, NoiseModel, Ramp, Scene, StepDown, Wall,
-                                       render, render_scene, scene_params)
+from obstacle_detection.scenes import (Box, Cylinder, Floor, GT_ABOVE_ROBOT, GT_NO_RETURN,
+                                       GT_OBSTACLE, GT_TRAVERSABLE, NoiseModel, Ramp, Scene,
+                                       StepDown, Wall, render, render_scene, scene_params)
 
 HEIGHT_M = 0.6
 QHD = Intrinsics(fx=540.0, fy=540.0, cx=479.5, cy=269.5)   # another camera, 960x540
@@ -99,7 +99,12 @@ def test_wall_straight_ahead(distance_m):
     on_wall = frame.hit_index == 1
     # a fronto-parallel plane has the same depth in every pixel
     np.testing.assert_allclose(frame.depth_true_m[on_wall], distance_m, rtol=1e-6)
-    assert np.all(frame.labels[on_wall] == GT_OBSTACLE)
+    assert np.all(frame.labels_seed[on_wall] == GT_OBSTACLE)
+    # robot level: the wall is an obstacle up to the robot's height (1 m), above it not
+    high = frame.points_ground[..., 2] > 1.0
+    assert np.all(frame.labels[on_wall & ~high] == GT_OBSTACLE)
+    assert np.all(frame.labels[on_wall & high] == GT_ABOVE_ROBOT)
+    assert (on_wall & high).any()
 
 
 def test_box_faces_are_obstacle():
