@@ -779,6 +779,63 @@ def format_table(report: Report, *, refined: bool = False) -> str:
     return '\n'.join(lines)
 
 
+#: Issue 9's targets for the robot-level suite (``params/corridor.yaml``).
+ROBOT_TARGETS = {'cell_f1': 0.9, 'false_alarm_rate': 0.01, 'passable_free': 0.97}
+
+
+def _share(hits: int, total: int) -> str:
+    return f'{hits}/{total}' if total else '-'
+
+
+def format_robot_table(report: Report) -> str:
+    """Return the robot-level table: one row per scenario, an 'overall' row, the targets.
+
+    Columns: frames; exact-cell F1; false alarms as % of the free truth cells (FA %); named
+    obstacle objects found (>= 50 % of their visible cells occupied) out of those seen, per
+    frame; share of the passable named surfaces' (ramp, landing, sill) free truth cells left
+    free (pass %); drops marked out of those seen; pixel F1; mean pipeline time [ms]. Then the
+    missed objects and unmarked drops by name and frame, and each target met or not.
+    """
+    width = max([len('overall')] + [len(n) for n in report.scenes]) + 1
+    head = (f'{"scenario":<{width}} {"frames":>6} {"cell F1":>7} {"FA %":>6} {"objects":>8} '
+            f'{"pass %":>6} {"drops":>6} {"px F1":>6} {"ms":>6}')
+    lines = [head, '-' * len(head)]
+    rows = list(report.scenes.values()) + [report.overall]
+    for i, summary in enumerate(rows):
+        if i == len(rows) - 1:
+            lines.append('-' * len(head))
+        found, counted, _ = summary.objects_found()
+        marked, drops, _ = summary.drops_marked()
+        fa = summary.cell.false_alarm_rate
+        passable = summary.passable_free()
+        lines.append(
+            f'{summary.name:<{width}} {summary.frames:>6} {format_score(summary.cell.f1):>7} '
+            f'{"-" if math.isnan(fa) else f"{100 * fa:.2f}":>6} {_share(found, counted):>8} '
+            f'{"-" if math.isnan(passable) else f"{100 * passable:.1f}":>6} '
+            f'{_share(marked, drops):>6} {format_score(summary.pixel.f1):>6} '
+            f'{summary.mean_ms:>6.1f}')
+    overall = report.overall
+    found, counted, missed = overall.objects_found()
+    marked, drops, unmarked = overall.drops_marked()
+    if missed:
+        lines.append('missed objects: ' + ', '.join(missed))
+    if unmarked:
+        lines.append('unmarked drops: ' + ', '.join(unmarked))
+    passable = overall.passable_free()
+    checks = (
+        (f'cell F1 >= {ROBOT_TARGETS["cell_f1"]}',
+         overall.cell.f1 >= ROBOT_TARGETS['cell_f1']),
+        (f'FA <= {100 * ROBOT_TARGETS["false_alarm_rate"]:g} %',
+         overall.cell.false_alarm_rate <= ROBOT_TARGETS['false_alarm_rate']),
+        ('every object found', found == counted),
+        (f'pass >= {100 * ROBOT_TARGETS["passable_free"]:g} %',
+         math.isnan(passable) or passable >= ROBOT_TARGETS['passable_free']),
+        ('every drop marked', marked == drops))
+    lines.append('targets: ' + ', '.join(f'{name} {"yes" if ok else "NO"}'
+                                         for name, ok in checks))
+    return '\n'.join(lines)
+
+
 #: README-ready text on what the scores count.
 SCORE_DEFINITIONS = """\
 What counts (obstacle = positive class; scores pool the counts of all frames of a row):
@@ -791,6 +848,13 @@ What counts (obstacle = positive class; scores pool the counts of all frames of 
          unknown pipeline cells count as 'not obstacle'.
   P precision tp/(tp+fp), R recall tp/(tp+fn), F1 2tp/(2tp+fp+fn), IoU tp/(tp+fp+fn),
   FA false-alarm rate fp/(fp+tn): share of traversable truth marked obstacle. '-' = undefined.
+Robot-level suite (--suite robot): the truth is the robot-level one (box, table and shelf tops,
+  curbs, the lower floor beyond a drop are obstacles; ramps to a landing, sills traversable;
+  surfaces above the robot count as free); the truth grid keeps the forward range and lateral
+  limits of the ROI but no height band, and marks the cells where the floor ends at a drop.
+  objects: named obstacles found (>= 50 % of their visible cells occupied) / seen (>= 3 cells),
+  per frame; pass %: free truth cells of the passable named surfaces left free; drops: drops
+  whose edge cells are marked (>= 50 % within one cell) / seen. Flying pixels are not scored.
 """
 
 

@@ -1079,20 +1079,20 @@ def _corridor(rng: np.random.Generator, frame_index: int) -> Scene:
     left, right, _ = _corridor_walls(rng)
     boxes = (
         Box.on_floor(0.9 + rng.uniform(0.0, 0.1), 0.25 + rng.uniform(-0.05, 0.05),
-                     0.3, 0.3, 0.25 + rng.uniform(0.0, 0.05)),
+                     0.3, 0.3, 0.25 + rng.uniform(0.0, 0.05), name='box_1'),
         Box.on_floor(1.4 + rng.uniform(-0.05, 0.05), -0.3 + rng.uniform(-0.05, 0.05),
-                     0.4, 0.3, 0.45 + rng.uniform(0.0, 0.05)),
+                     0.4, 0.3, 0.45 + rng.uniform(0.0, 0.05), name='box_2'),
         Box.on_floor(1.85 + rng.uniform(-0.05, 0.05), 0.2 + rng.uniform(-0.05, 0.05),
-                     0.25, 0.25, 0.2 + rng.uniform(0.0, 0.05)),
+                     0.25, 0.25, 0.2 + rng.uniform(0.0, 0.05), name='box_3'),
     )
     return Scene('corridor', (Floor(), left, right) + boxes)
 
 
 def _ramps(rng: np.random.Generator, frame_index: int) -> Scene:
     gentle = Ramp(x_start_m=1.1 + rng.uniform(-0.05, 0.05), y_center_m=0.45, width_m=0.7,
-                  length_m=1.5, slope_rad=math.radians(15.0))
+                  length_m=1.5, slope_rad=math.radians(15.0), name='ramp')
     steep = Ramp(x_start_m=1.2 + rng.uniform(-0.05, 0.05), y_center_m=-0.45, width_m=0.7,
-                 length_m=0.8, slope_rad=math.radians(45.0))
+                 length_m=0.8, slope_rad=math.radians(45.0), name='steep_ramp')
     return Scene('ramps', (Floor(), gentle, steep))
 
 
@@ -1101,8 +1101,9 @@ def _people(rng: np.random.Generator, frame_index: int) -> Scene:
     slots = [(1.6, 0.6), (2.2, -0.5), (3.0, 0.1)]
     people = tuple(
         Cylinder(x + rng.uniform(-0.1, 0.1), y + rng.uniform(-0.1, 0.1),
-                 radius_m=0.2 + rng.uniform(-0.02, 0.02), height_m=1.7 + rng.uniform(-0.1, 0.1))
-        for x, y in slots[:count])
+                 radius_m=0.2 + rng.uniform(-0.02, 0.02), height_m=1.7 + rng.uniform(-0.1, 0.1),
+                 name=f'person_{i + 1}')
+        for i, (x, y) in enumerate(slots[:count]))
     return Scene('people', (Floor(),) + people)
 
 
@@ -1110,12 +1111,12 @@ def _farm_row(rng: np.random.Generator, frame_index: int) -> Scene:
     ground = Floor(bump_amplitude_m=0.03, bump_wavelength_m=1.5,
                    bump_phase_rad=tuple(float(p) for p in rng.uniform(0, 2 * math.pi, 3)))
     trunks = []
-    for row_y in (0.75, -0.75):
+    for side, row_y in (('left', 0.75), ('right', -0.75)):
         for i in range(7):
             trunks.append(Cylinder(1.0 + 0.8 * i + rng.uniform(-0.05, 0.05),
                                    row_y + rng.uniform(-0.05, 0.05),
                                    radius_m=0.1 + rng.uniform(-0.02, 0.02), height_m=1.6,
-                                   base_z_m=-0.1))
+                                   base_z_m=-0.1, name=f'trunk_{side}_{i + 1}'))
     return Scene('farm_row', (ground,) + tuple(trunks))
 
 
@@ -1128,8 +1129,8 @@ def _flat_floor(rng: np.random.Generator, frame_index: int) -> Scene:
 
 
 def _step_down(rng: np.random.Generator, frame_index: int) -> Scene:
-    step = StepDown(x_m=1.25 + rng.uniform(-0.03, 0.03), depth_m=0.3)
-    box = Box.on_floor(0.9, -0.35 + rng.uniform(-0.05, 0.05), 0.25, 0.3, 0.3)
+    step = StepDown(x_m=1.25 + rng.uniform(-0.03, 0.03), depth_m=0.3, name='drop')
+    box = Box.on_floor(0.9, -0.35 + rng.uniform(-0.05, 0.05), 0.25, 0.3, 0.3, name='box')
     return Scene('step_down', (step, box))
 
 
@@ -1137,9 +1138,9 @@ def _dark_materials(rng: np.random.Generator, frame_index: int) -> Scene:
     left, right, _ = _corridor_walls(rng, dark=True)
     boxes = (
         Box.on_floor(1.1 + rng.uniform(-0.05, 0.05), 0.2 + rng.uniform(-0.05, 0.05),
-                     0.35, 0.35, 0.4, dark=True),
+                     0.35, 0.35, 0.4, dark=True, name='dark_box'),
         Box.on_floor(1.6 + rng.uniform(-0.05, 0.05), -0.3 + rng.uniform(-0.05, 0.05),
-                     0.3, 0.3, 0.3),
+                     0.3, 0.3, 0.3, name='box'),
     )
     return Scene('dark_materials', (Floor(), left, right) + boxes)
 
@@ -1151,8 +1152,121 @@ def _person_walking(rng: np.random.Generator, frame_index: int) -> Scene:
     walked = 0.6 + rng.uniform(-0.05, 0.05) + WALK_SPEED_M_S * frame_index / WALK_FRAME_RATE_HZ
     y = WALK_SPAN_M / 2 - walked % WALK_SPAN_M
     wall = Wall(3.6, 4.0, 3.6, -4.0, 0.0, 2.5)
-    person = Cylinder(x, y, radius_m=0.2, height_m=1.75)
+    person = Cylinder(x, y, radius_m=0.2, height_m=1.75, name='person')
     return Scene('person_walking', (Floor(), wall, person))
+
+
+# -- issue 9 scenes: robot-level obstacles (flat tops, overhangs, drops, steps)
+
+def table(x_m: float, y_m: float, size_x_m: float, size_y_m: float, height_m: float, *,
+          top_m: float = 0.03, leg_m: float = 0.04, name: str = 'table',
+          dark: bool = False) -> tuple[Box, ...]:
+    """Return a table: a top ``top_m`` thick whose upper face is ``height_m`` up, four legs.
+
+    Centred on (x_m, y_m), sizes [m]; every part carries ``name``.
+    """
+    _check_positive('table', size_x_m=size_x_m, size_y_m=size_y_m, height_m=height_m,
+                    top_m=top_m, leg_m=leg_m)
+    if not (top_m < height_m and 2 * leg_m < min(size_x_m, size_y_m)):
+        raise ValueError(f'table {name!r}: top_m={top_m!r} must be below height_m='
+                         f'{height_m!r} and two legs of {leg_m!r} narrower than the top')
+    hx, hy = size_x_m / 2, size_y_m / 2
+    parts = [Box((x_m - hx, y_m - hy, height_m - top_m), (x_m + hx, y_m + hy, height_m),
+                 dark=dark, name=name)]
+    for sx in (-1.0, 1.0):
+        for sy in (-1.0, 1.0):
+            cx, cy = x_m + sx * (hx - leg_m / 2), y_m + sy * (hy - leg_m / 2)
+            parts.append(Box((cx - leg_m / 2, cy - leg_m / 2, 0.0),
+                             (cx + leg_m / 2, cy + leg_m / 2, height_m - top_m),
+                             dark=dark, name=name))
+    return tuple(parts)
+
+
+def chair(x_m: float, y_m: float, *, seat_m: float = 0.42, seat_height_m: float = 0.46,
+          back_height_m: float = 0.9, name: str = 'chair', dark: bool = False,
+          ) -> tuple[Box, ...]:
+    """Return a chair centred on (x_m, y_m): a square seat on four legs, its back at +x."""
+    parts = table(x_m, y_m, seat_m, seat_m, seat_height_m, top_m=0.03, leg_m=0.03, name=name,
+                  dark=dark)
+    half = seat_m / 2
+    back = Box((x_m + half - 0.03, y_m - half, seat_height_m),
+               (x_m + half, y_m + half, back_height_m), dark=dark, name=name)
+    return parts + (back,)
+
+
+def _office(rng: np.random.Generator, frame_index: int, *, dark: bool = False) -> Scene:
+    def jitter() -> float:
+        return float(rng.uniform(-0.04, 0.04))
+
+    walls = (Wall(2.7, 2.5, 2.7, -2.5, 0.0, 2.5, dark=dark),
+             Wall(-1.0, 1.5 + jitter(), 2.7, 1.5, 0.0, 2.5))
+    boxes = (Box.on_floor(1.25 + jitter(), 0.65 + jitter(), 0.3, 0.3, 0.3, dark=dark,
+                          name='box_small'),
+             Box.on_floor(1.75 + jitter(), -0.85 + jitter(), 0.4, 0.35, 0.45,
+                          name='box_large'))
+    furniture = (table(1.8 + jitter(), 0.1 + jitter(), 0.6, 0.7, 0.72)
+                 + chair(1.15 + jitter(), -0.3 + jitter(), dark=dark))
+    return Scene('dark_office' if dark else 'office', (Floor(),) + walls + boxes + furniture)
+
+
+def _dark_office(rng: np.random.Generator, frame_index: int) -> Scene:
+    return _office(rng, frame_index, dark=True)
+
+
+def _ramp_landing(rng: np.random.Generator, frame_index: int) -> Scene:
+    x0 = 1.1 + rng.uniform(-0.05, 0.05)
+    ramp = Ramp(x_start_m=x0, y_center_m=0.35, width_m=0.8, length_m=0.6,
+                slope_rad=math.radians(10.0), name='ramp')
+    landing = Box((x0 + ramp.length_m, -0.05, 0.0), (x0 + ramp.length_m + 1.5, 0.75,
+                                                     ramp.top_height_m), name='landing')
+    steep = Ramp(x_start_m=1.25 + rng.uniform(-0.05, 0.05), y_center_m=-0.6, width_m=0.5,
+                 length_m=0.35, slope_rad=math.radians(40.0), name='steep_ramp')
+    return Scene('ramp_landing', (Floor(), ramp, landing, steep))
+
+
+def _dock_edge(rng: np.random.Generator, frame_index: int) -> Scene:
+    edge = StepDown(x_m=1.45 + rng.uniform(-0.05, 0.05), depth_m=0.3, name='dock_edge')
+    return Scene('dock_edge', (edge,))
+
+
+def _dock_edge_high(rng: np.random.Generator, frame_index: int) -> Scene:
+    edge = StepDown(x_m=1.3 + rng.uniform(-0.05, 0.05), depth_m=0.3, name='dock_edge')
+    return Scene('dock_edge_high', (edge,), height_m=1.0, pitch_rad=math.radians(25.0))
+
+
+def _curb_sill(rng: np.random.Generator, frame_index: int) -> Scene:
+    x = 1.35 + rng.uniform(-0.05, 0.05)
+    curb = Box((x, -1.2, 0.0), (x + 0.15, -0.15, 0.10), name='curb')
+    sill = Box((x + 0.05, 0.1, 0.0), (x + 0.13, 0.9, 0.03), name='sill')
+    return Scene('curb_sill', (Floor(), curb, sill))
+
+
+def _shelf(rng: np.random.Generator, frame_index: int) -> Scene:
+    x = 1.3 + rng.uniform(-0.05, 0.05)
+    board = Box((x, -0.45, 0.33), (x + 0.35, 0.45, 0.35), name='shelf')
+    panels = (Box((x, -0.47, 0.0), (x + 0.35, -0.45, 0.35), name='shelf'),
+              Box((x, 0.45, 0.0), (x + 0.35, 0.47, 0.35), name='shelf'))
+    overhang = Box((1.2, 0.7, 1.15), (1.8, 1.3, 1.2), name='overhang')
+    return Scene('shelf', (Floor(), board) + panels + (overhang,))
+
+
+def _orchard(rng: np.random.Generator, frame_index: int) -> Scene:
+    ground = Floor(bump_amplitude_m=0.03, bump_wavelength_m=1.2,
+                   bump_phase_rad=tuple(float(p) for p in rng.uniform(0, 2 * math.pi, 3)))
+    trunks = []
+    for side, row_y in (('left', 0.85), ('right', -0.85)):
+        for i in range(6):
+            trunks.append(Cylinder(1.2 + 0.9 * i + rng.uniform(-0.05, 0.05),
+                                   row_y + rng.uniform(-0.05, 0.05),
+                                   radius_m=0.08 + rng.uniform(-0.02, 0.02), height_m=1.9,
+                                   base_z_m=-0.1, name=f'trunk_{side}_{i + 1}'))
+    bushes = (Cylinder(1.5 + rng.uniform(-0.05, 0.05), -0.25 + rng.uniform(-0.05, 0.05),
+                       radius_m=0.22, height_m=0.35 + rng.uniform(0.0, 0.1), base_z_m=-0.05,
+                       name='bush_1'),
+              Cylinder(1.85 + rng.uniform(-0.05, 0.05), 0.4 + rng.uniform(-0.05, 0.05),
+                       radius_m=0.18, height_m=0.3 + rng.uniform(0.0, 0.1), base_z_m=-0.05,
+                       name='bush_2'))
+    return Scene('orchard', (ground,) + tuple(trunks) + bushes)
 
 
 _BUILDERS: dict[str, Callable[[np.random.Generator, int], Scene]] = {
@@ -1165,6 +1279,14 @@ _BUILDERS: dict[str, Callable[[np.random.Generator, int], Scene]] = {
     'step_down': _step_down,
     'dark_materials': _dark_materials,
     'person_walking': _person_walking,
+    'office': _office,
+    'dark_office': _dark_office,
+    'ramp_landing': _ramp_landing,
+    'dock_edge': _dock_edge,
+    'dock_edge_high': _dock_edge_high,
+    'curb_sill': _curb_sill,
+    'shelf': _shelf,
+    'orchard': _orchard,
 }
 
 #: Names accepted by ``build_scene`` and ``render_scene``.

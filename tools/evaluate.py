@@ -12,6 +12,7 @@ Examples::
     python tools/evaluate.py --preset table_4_3 --scene corridor --scene people
     python tools/evaluate.py --params-file params/corridor.yaml --refiner refiner.json
     python tools/evaluate.py --folder recordings/lab_run --pictures /tmp/pics
+    python tools/evaluate.py --suite robot --params-file params/corridor.yaml  # issue 9
 """
 
 from __future__ import annotations
@@ -30,6 +31,9 @@ from obstacle_detection import evaluation  # noqa: E402
 from obstacle_detection.params import PRESETS, DetectorParams  # noqa: E402
 
 DEFAULT_SCENARIOS = Path(__file__).resolve().parent / 'scenarios.json'
+#: The committed suites: the seed's (slope-only truth) and the robot-level one (issue 9).
+SUITES = {'seed': DEFAULT_SCENARIOS,
+          'robot': Path(__file__).resolve().parent / 'scenarios_robot.json'}
 
 
 def parse_assignment(text: str) -> tuple[str, str]:
@@ -42,8 +46,14 @@ def parse_assignment(text: str) -> tuple[str, str]:
 
 def add_common_arguments(parser: argparse.ArgumentParser) -> None:
     """Frame-source and parameter options shared by evaluate, sweep and train_refiner."""
-    parser.add_argument('--scenarios', type=Path, default=DEFAULT_SCENARIOS,
-                        help='scenario list (JSON) [default: tools/scenarios.json]')
+    parser.add_argument('--suite', choices=sorted(SUITES), default='seed',
+                        help="committed scenario suite: 'seed' (tools/scenarios.json, the "
+                             "seed's slope-only truth) or 'robot' (tools/scenarios_robot.json, "
+                             'robot-level truth, time-of-flight noise) [default: seed]')
+    parser.add_argument('--scenarios', type=Path, default=None,
+                        help='scenario list (JSON) instead of the suite\'s')
+    parser.add_argument('--truth', choices=sorted(evaluation.TRUTH_KINDS),
+                        help="score against this truth instead of the scenarios' own")
     parser.add_argument('--scene', action='append', metavar='NAME',
                         help='evaluate only this scenario (repeatable) [default: all]')
     parser.add_argument('--folder', action='append', type=Path, metavar='DIR',
@@ -78,15 +88,17 @@ def frame_sources(args: argparse.Namespace,
     if args.max_frames is not None and args.max_frames < 1:
         raise ValueError(f'--max-frames={args.max_frames} must be >= 1')
     if args.scene or not args.folder:
-        scenarios = evaluation.select_scenarios(evaluation.load_scenarios(args.scenarios),
-                                                args.scene)
+        path = args.scenarios if args.scenarios is not None else SUITES[args.suite]
+        scenarios = evaluation.select_scenarios(evaluation.load_scenarios(path), args.scene)
+        rules = base_params(args)
         for scenario in scenarios:
             count = scenario.frame_count
             if args.max_frames is not None:
                 count = min(count, args.max_frames)
             sources.append((scenario.name, count,
                             _lazy(evaluation.scenario_frames, scenario,
-                                  max_frames=args.max_frames)))
+                                  max_frames=args.max_frames, rules=rules,
+                                  truth=args.truth)))
     for folder in args.folder or []:
         count = len(evaluation.subsample(sorted((folder / 'depth').glob('*.png')),
                                          args.max_frames))
@@ -175,6 +187,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(f'parameters: {label}; {report.overall.frames} frames in {report.seconds:.1f} s',
           file=table_stream)
     print(evaluation.format_table(report), file=table_stream)
+    if report.overall.robot is not None:
+        print('\nrobot level (issue 9):', file=table_stream)
+        print(evaluation.format_robot_table(report), file=table_stream)
     if refiner is not None:
         print(f'\nrefined by {args.refiner} (seed 4.5 logistic regression):', file=table_stream)
         print(evaluation.format_table(report, refined=True), file=table_stream)
