@@ -1,10 +1,28 @@
 """Ray-cast depth frames with a ground-truth label per pixel (tests, benchmark, demo).
 
 A scene is a tuple of primitives (floor, boxes, wall segments, ramps, vertical cylinders, a step
-down) in the ground frame (x forward, y left, z up, origin on the ground under the camera) seen
-from a camera mounted at a height, pitch and roll. Every pixel's ray is intersected with every
-primitive at once (numpy, no per-pixel loop); the nearest hit wins and gives the pixel its true
-depth, its true ground-frame point and its label (``GT_TRAVERSABLE`` or ``GT_OBSTACLE``).
+down; tables and chairs are made of boxes) in the ground frame (x forward, y left, z up, origin
+on the ground under the camera) seen from a camera mounted at a height, pitch and roll. Every
+pixel's ray is intersected with every primitive at once (numpy, no per-pixel loop); the nearest
+hit wins and gives the pixel its true depth, its true ground-frame point, the index of the
+primitive hit (``object_ids``; primitives may carry a ``name``, those of one name form one
+object) and two labels:
+
+* ``labels``, the robot-level truth (issue 9), computed from the primitives' geometry with
+  ``TruthRules`` (theta, step up, step down, robot height; read from detector parameters when
+  given). Each primitive offers its drivable patches (``walk_patches``: the floor, box and cap
+  tops, ramps no steeper than theta, both floors of a step down); a breadth-first search from
+  the patch under the robot over patches that touch with a height difference within a step up
+  or down finds the reachable ones. A hit on a reachable patch is ``GT_TRAVERSABLE``, as is
+  every hit on a primitive no higher than a step whose patches are all reachable (a door sill,
+  its sides too); a hit higher than the robot above the reachable ground under it is
+  ``GT_ABOVE_ROBOT``; every other hit is ``GT_OBSTACLE`` (walls, box and table tops and
+  undersides, legs, curbs, too-steep ramps, people, trunks, the lower floor beyond a drop).
+  ``drop_edge`` flags the reachable ground within ``DROP_EDGE_BAND_M`` of a drop: the truth
+  costmap marks where the floor ends.
+* ``labels_seed``, the seed's slope-only truth: each primitive's own ``traversable`` flag
+  (boxes are obstacles, a ramp is ground up to its ``max_passable_slope_rad``, the lower floor
+  of a step down deeper than its ``max_drop_m`` is an obstacle).
 
 Rays use ``obstacle_detection.geometry.mount_transform``, the pipeline's own convention: the ray
 of pixel (u, v) has the optical direction ``((u - cx)/fx, (v - cy)/fy, 1)``, ground-frame
@@ -12,19 +30,28 @@ direction ``R @`` that and origin ``(0, 0, height)``. Because the optical z comp
 ray parameter t of a hit is its depth (optical z) in metres.
 
 Sensor model (``NoiseModel``, Kinect v2 like; all draws from one generator seeded by
-``(seed, frame_index)``):
+``(seed, frame_index)``, vectorised):
 
+0. time-of-flight flying pixels (``KINECT_V2_TOF_NOISE``; off in the default model): a pixel
+   within one pixel of a depth edge (true depths in its 3 x 3 window differ by more than
+   5 cm and 8 % of the nearest) becomes a mix of the nearest and farthest depth of its window
+   with probability 50 %, 25 % two pixels away (5 x 5 window). A flying pixel is not a
+   surface: both labels are ``GT_NO_RETURN`` there (not scored), ``flying`` flags it, and
+   ``points_ground`` keeps the ray's true hit;
 1. Gaussian depth noise ``sigma(z) = sigma_base + sigma_quad * (z - z_ref)^2`` with defaults
-   1.5 mm + 1.5 mm/m^2 * (z - 0.5 m)^2 (1.5 mm at 0.5 m, 4.9 mm at 2 m, 25.5 mm at 4.5 m);
+   1.5 mm + 1.5 mm/m^2 * (z - 0.5 m)^2 (1.5 mm at 0.5 m, 4.9 mm at 2 m, 25.5 mm at 4.5 m),
+   times ``dark_sigma_factor`` on a ``dark`` primitive (2 in the time-of-flight model);
 2. millimetre quantisation (``depth_mm`` is uint16, rounded to nearest);
 3. no return outside the valid band: quantised depth below 0.5 m or above 4.5 m becomes 0;
 4. pepper dropouts: each pixel is set to 0 with probability 0.75 %, or 40 % on a primitive
-   flagged ``dark`` (low-reflectance material);
+   flagged ``dark`` (low-reflectance material), plus ``far_dropout_rate`` reached at 4.5 m,
+   linearly from 3 m (10 % in the time-of-flight model);
 5. an invalid border: the outer 4 pixel rows and columns are 0.
 
 ``noise=False`` keeps only steps 2 and 3 (exact depth, millimetre quantised, valid band).
-``labels`` is ``GT_NO_RETURN`` wherever ``depth_mm`` is 0 and the hit primitive's label
-elsewhere; ``depth_true_m`` and ``points_ground`` are always the noise-free hit.
+``labels`` and ``labels_seed`` are ``GT_NO_RETURN`` wherever ``depth_mm`` is 0 or the pixel
+flies, the hit's label elsewhere; ``depth_true_m`` and ``points_ground`` are always the
+noise-free hit.
 """
 
 from __future__ import annotations

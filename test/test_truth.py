@@ -20,7 +20,7 @@ def exact(primitives, *, height_m=0.6, pitch_deg=0.0, rules=None):
 
 
 def on(frame, index, *, z=None, tol=1e-3):
-    """Returned pixels of primitive ``index`` (at height z within tol, if given)."""
+    """Return the returned pixels of primitive ``index`` (at height z within tol, if given)."""
     mask = (frame.object_ids == index) & (frame.depth_mm > 0)
     if z is not None:
         mask &= np.abs(frame.points_ground[..., 2] - z) < tol
