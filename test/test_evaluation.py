@@ -298,3 +298,15 @@ def test_evaluate_robot_suite_prints_the_robot_table(tmp_path, capsys):
     assert report['scenes']['dock_edge']['robot']['drops'] == 1
     assert report['scenes']['curb_sill']['robot']['objects'] == 1     # the curb
     assert report['overall']['robot']['passable_free'] is not None      # the sill
+
+
+def test_evaluate_prints_the_seed_presets_beside_the_robot_suite(tmp_path, capsys):
+    out = tmp_path / 'report.json'
+    code = evaluate.main(['--suite', 'robot', '--scene', 'curb_sill', '--max-frames', '1',
+                          '--beside-seed', 'table_4_3', '--json', str(out), '--quiet'])
+    assert code == 0
+    assert 'beside it, the seed suite' in capsys.readouterr().out
+    beside = json.loads(out.read_text())['beside_seed']
+    assert list(beside) == ['table_4_3']
+    suite = evaluation.load_scenarios(SUITE)
+    assert beside['table_4_3']['frames'] == len(suite)      # one frame per seed scenario

@@ -13,6 +13,8 @@ Examples::
     python tools/evaluate.py --params-file params/corridor.yaml --refiner refiner.json
     python tools/evaluate.py --folder recordings/lab_run --pictures /tmp/pics
     python tools/evaluate.py --suite robot --params-file params/corridor.yaml  # issue 9
+    python tools/evaluate.py --suite robot --params-file params/corridor.yaml \
+        --beside-seed table_4_2 --beside-seed table_4_3
 """
 
 from __future__ import annotations
@@ -146,7 +148,33 @@ def build_parser() -> argparse.ArgumentParser:
                         help='also save one PNG per frame (depth + obstacles, costmap, '
                              'comparison with the truth)')
     parser.add_argument('--quiet', action='store_true', help='no per-frame progress lines')
+    parser.add_argument('--beside-seed', action='append', choices=sorted(PRESETS), default=[],
+                        metavar='PRESET',
+                        help='also score this preset on the seed suite (tools/scenarios.json, '
+                             'slope-only truth) and print its overall row beside; repeatable')
     return parser
+
+
+def seed_suite_rows(presets: Sequence[str], max_frames: int | None,
+                    ) -> list[tuple[str, evaluation.SceneSummary]]:
+    """Overall summaries of the seed suite for each preset (frames rendered once)."""
+    frames = [frame for scenario in evaluation.load_scenarios(SUITES['seed'])
+              for frame in evaluation.scenario_frames(scenario, max_frames=max_frames)]
+    return [(name, evaluation.evaluate_frames(frames, PRESETS[name](), label=name).overall)
+            for name in presets]
+
+
+def format_seed_rows(rows: Sequence[tuple[str, evaluation.SceneSummary]]) -> str:
+    """Return the seed-suite rows: preset, frames, pixel F1, cell F1, cell FA (fractions)."""
+    width = max([len('preset')] + [len(name) for name, _ in rows]) + 1
+    head = f'{"preset":<{width}} {"frames":>6} {"px F1":>7} {"cell F1":>7} {"cell FA":>7}'
+    lines = [head, '-' * len(head)]
+    for name, summary in rows:
+        lines.append(f'{name:<{width}} {summary.frames:>6} '
+                     f'{evaluation.format_score(summary.pixel.f1):>7} '
+                     f'{evaluation.format_score(summary.cell.f1):>7} '
+                     f'{evaluation.format_score(summary.cell.false_alarm_rate):>7}')
+    return '\n'.join(lines)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -193,7 +221,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     if refiner is not None:
         print(f'\nrefined by {args.refiner} (seed 4.5 logistic regression):', file=table_stream)
         print(evaluation.format_table(report, refined=True), file=table_stream)
-    line = json.dumps(report.as_dict(), sort_keys=True)
+    data = report.as_dict()
+    if args.beside_seed:
+        try:
+            rows = seed_suite_rows(args.beside_seed, args.max_frames)
+        except (ValueError, OSError) as exc:
+            print(f'evaluate.py: error: {exc}', file=sys.stderr)
+            return 2
+        print('\nbeside it, the seed suite (tools/scenarios.json, slope-only truth), overall:',
+              file=table_stream)
+        print(format_seed_rows(rows), file=table_stream)
+        data['beside_seed'] = {name: summary.as_dict() for name, summary in rows}
+    line = json.dumps(data, sort_keys=True)
     if args.json in (None, '-'):
         print(line)
     else:
