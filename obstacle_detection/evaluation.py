@@ -3,14 +3,19 @@
 Labelled frames come from two sources:
 
 * the scene generator (``obstacle_detection.scenes``), through a scenario list such as the
-  committed ``tools/scenarios.json`` (fixed seeds, so numbers are comparable across versions);
+  committed ``tools/scenarios.json`` (fixed seeds, so numbers are comparable across versions;
+  scored against the seed's slope-only truth ``labels_seed``) or ``tools/scenarios_robot.json``
+  (issue 9: scored against the robot-level truth ``labels``, with the time-of-flight sensor
+  model; :func:`robot_score` adds named objects found, passable surfaces left free and drops
+  marked);
 * a *labelled folder* on disk, for recorded sequences with per-pixel labels::
 
       my_sequence/
         intrinsics.yaml     fx, fy, cx, cy [px]; camera_height_m; camera_pitch_deg (or _rad);
                             camera_roll_deg (or _rad); optional depth_scale [m per unit]
         depth/000000.png    16-bit depth [mm] (0 = no return)
-        labels/000000.png   8-bit labels: 0 no return, 1 traversable, 2 obstacle
+        labels/000000.png   8-bit labels: 0 no return, 1 traversable, 2 obstacle,
+                            3 above the robot (robot-level truth: scored as free)
 
   Frames pair up by file name, sorted. ``intrinsics.yaml`` may instead be a ROS camera
   calibration file (``camera_matrix: {data: [fx, 0, cx, 0, fy, cy, 0, 0, 1]}``) with the mount
@@ -345,9 +350,9 @@ def load_labelled_folder(path: str | Path, *, max_frames: int | None = None,
         if labels is None or labels.dtype != np.uint8 or labels.shape != depth.shape:
             raise ValueError(f'{root / "labels" / depth_file.name}: not an 8-bit PNG of the '
                              f'depth size {depth.shape[::-1]}')
-        if labels.max(initial=0) > metrics.GT_OBSTACLE:
+        if labels.max(initial=0) > metrics.GT_ABOVE_ROBOT:
             raise ValueError(f'{root / "labels" / depth_file.name}: label value '
-                             f'{int(labels.max())} (allowed 0, 1, 2)')
+                             f'{int(labels.max())} (allowed 0, 1, 2, 3)')
         points = truth_points_from_depth(depth.astype(np.float32) * np.float32(scale),
                                          camera['intrinsics'], camera['height_m'],
                                          camera['pitch_rad'], camera['roll_rad'])

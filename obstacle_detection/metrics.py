@@ -22,6 +22,10 @@ Costmap-cell level
     pipeline's cell is ``CELL_OCCUPIED``; a free or unknown pipeline cell counts as negative
     (an obstacle the pipeline never saw is a miss).
 
+Robot-level truth (issue 9) adds the label ``GT_ABOVE_ROBOT``: a surface above the robot is
+not an obstacle, so its pixels are negatives and its points count as free in the truth grid (a
+cell under an overhang above the robot is free, marking it is a false alarm).
+
 Scores from a confusion (tp, fp, fn, tn): precision tp/(tp+fp), recall tp/(tp+fn),
 F1 2 tp/(2 tp+fp+fn), IoU tp/(tp+fp+fn), false-alarm rate fp/(fp+tn) (the share of traversable
 truth marked as obstacle), accuracy (tp+tn)/total. A ratio with a zero denominator is NaN
