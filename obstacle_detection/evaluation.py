@@ -472,6 +472,10 @@ def truth_roi(frame: LabelledFrame, params: DetectorParams) -> np.ndarray:
     return roi.reshape(frame.truth_labels.shape)
 
 
+#: Neighbouring obstacle samples of one surface at most this far apart span it [m].
+MAX_SURFACE_GAP_M = 0.5
+
+
 def truth_costmap(frame: LabelledFrame, params: DetectorParams,
                   roi: np.ndarray | None = None) -> np.ndarray:
     """Return the truth grid (ny, nx) int8 of a frame in the pipeline's costmap geometry.
@@ -479,7 +483,10 @@ def truth_costmap(frame: LabelledFrame, params: DetectorParams,
     The true points of ``GT_OBSTACLE`` pixels inside the region of interest make cells
     occupied; cells with only ``GT_TRAVERSABLE`` (or ``GT_ABOVE_ROBOT``) points are free (see
     :mod:`metrics`). Robot-level truth also marks the cells of the reachable ground at a
-    drop's edge (``drop_edge``: where the floor ends). The pipeline's own ``build_costmap``
+    drop's edge (``drop_edge``: where the floor ends), and leaves unscored (unknown) the
+    cells between neighbouring samples of one obstacle surface that no sample fell in (a
+    surface seen at a grazing angle, ``metrics.surface_gap_points``, up to
+    ``MAX_SURFACE_GAP_M`` apart). The pipeline's own ``build_costmap``
     rasterises them, so both grids bin points identically. roi: :func:`truth_roi`, if known.
     """
     from .costmap import build_costmap
@@ -489,7 +496,21 @@ def truth_costmap(frame: LabelledFrame, params: DetectorParams,
     marked = frame.drop_edge if frame.truth == 'robot' else None
     obstacle, traversable = metrics.truth_points(frame.truth_points, frame.truth_labels, roi,
                                                  marked)
-    return build_costmap(obstacle, traversable, params).data
+    grid = build_costmap(obstacle, traversable, params).data
+    if frame.truth == 'robot' and frame.object_ids is not None:
+        # A surface seen at a grazing angle (a table's underside) is sampled in sparse rows:
+        # the cells between its samples are neither known free nor sampled: not scored.
+        from .costmap import costmap_geometry
+
+        origin, nx, ny = costmap_geometry(params)
+        res = params.costmap_resolution_m
+        gaps = metrics.surface_gap_points(
+            frame.truth_points, frame.object_ids,
+            roi & (frame.truth_labels == metrics.GT_OBSTACLE), step_m=res / 2,
+            max_gap_m=MAX_SURFACE_GAP_M)
+        covered = metrics.point_cells(gaps, origin, res, (ny, nx))
+        grid[covered & (grid != metrics.CELL_OCCUPIED)] = metrics.CELL_UNKNOWN
+    return grid
 
 
 #: A named object counts (found or missed) only with at least this many visible cells.

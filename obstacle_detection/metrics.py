@@ -296,3 +296,38 @@ def free_share(predicted_grid: np.ndarray, cells: np.ndarray) -> tuple[int, int]
     if free.shape != cells.shape:
         raise ValueError(f'grid shape {free.shape} differs from cells shape {cells.shape}')
     return int(np.count_nonzero(free & cells)), int(np.count_nonzero(cells))
+
+
+def surface_gap_points(points_ground: np.ndarray, object_ids: np.ndarray, mask: np.ndarray,
+                       *, step_m: float, max_gap_m: float) -> np.ndarray:
+    """Points (M, 3) float64 [m] filling the gaps between neighbouring samples of a surface.
+
+    Two 4-neighbour pixels, both in ``mask``, that hit the same object (``object_ids`` >= 0,
+    equal) and lie more than ``step_m`` but at most ``max_gap_m`` apart span a piece of that
+    surface the pixel grid sampled sparsely (a table's underside seen at a grazing angle): the
+    segment between them is sampled at most ``step_m`` apart (end points excluded). points_ground:
+    (H, W, 3) ground frame, NaN where no hit.
+    """
+    if not (0.0 < step_m <= max_gap_m and math.isfinite(max_gap_m)):
+        raise ValueError(f'need 0 < step_m={step_m!r} <= max_gap_m={max_gap_m!r}')
+    points = np.asarray(points_ground, dtype=np.float64)
+    ids = np.asarray(object_ids)
+    mask = np.asarray(mask, dtype=bool) & (ids >= 0)
+    starts, ends = [], []
+    for a, b in (((slice(None), slice(None, -1)), (slice(None), slice(1, None))),
+                 ((slice(None, -1), slice(None)), (slice(1, None), slice(None)))):
+        pair = mask[a] & mask[b] & (ids[a] == ids[b])
+        pa, pb = points[a][pair], points[b][pair]
+        with np.errstate(invalid='ignore'):
+            gap = np.linalg.norm(pb - pa, axis=1)
+        keep = (gap > step_m) & (gap <= max_gap_m)
+        starts.append(pa[keep])
+        ends.append(pb[keep])
+    start, end = np.concatenate(starts), np.concatenate(ends)
+    if start.shape[0] == 0:
+        return np.zeros((0, 3))
+    # count - 1 inner points per segment: spacing gap / count <= max_gap_m / count <= step_m
+    count = int(math.ceil(max_gap_m / step_m))
+    fractions = np.arange(1, count) / count
+    dense = start[:, None, :] + fractions[None, :, None] * (end - start)[:, None, :]
+    return dense.reshape(-1, 3)

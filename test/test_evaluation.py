@@ -310,3 +310,23 @@ def test_evaluate_prints_the_seed_presets_beside_the_robot_suite(tmp_path, capsy
     assert list(beside) == ['table_4_3']
     suite = evaluation.load_scenarios(SUITE)
     assert beside['table_4_3']['frames'] == len(suite)      # one frame per seed scenario
+
+
+def test_robot_truth_leaves_the_gaps_of_a_grazing_underside_unscored():
+    # a table top 0.72 m up seen from 0.6 m: its underside is sampled in rows ~0.1 m apart
+    frame = _robot_frame('office', size=scenes.KINECT_V2_SD_SIZE)
+    params = frame.params(table_4_2())
+    grid = evaluation.truth_costmap(frame, params)
+    from obstacle_detection.costmap import costmap_geometry
+    origin, nx, ny = costmap_geometry(params)
+    top = next(p for p in scenes.build_scene('office', seed=0).primitives
+               if p.name == 'table')
+    (x0, y0, _), (x1, y1, _) = top.bounds()
+    res = params.costmap_resolution_m
+    x1 = min(x1, params.max_range_m - 0.1)    # inside the range, where the truth has points
+    cols = slice(int((x0 - origin[0]) / res) + 1, int((x1 - origin[0]) / res) - 1)
+    rows = slice(int((y0 - origin[1]) / res) + 1, int((y1 - origin[1]) / res) - 1)
+    under = grid[rows, cols]
+    cols_sum = (under == metrics.CELL_OCCUPIED).any(axis=0)
+    assert 0 < cols_sum.sum() < cols_sum.size        # sampled rows only
+    assert not (under == metrics.CELL_FREE).all(axis=0).any()   # no column known free

@@ -146,3 +146,19 @@ def test_occupied_and_free_share_with_and_without_tolerance():
     assert metrics.free_share(grid, cells) == (1, 3)
     with pytest.raises(ValueError, match='differs'):
         metrics.free_share(grid, cells[:2])
+
+
+def test_surface_gap_points_fill_sparse_samples_of_one_surface_only():
+    points = np.array([[[0.0, 0.0, 0.5], [0.3, 0.0, 0.5], [0.32, 0.0, 0.5], [1.5, 0.0, 0.5]]])
+    ids = np.array([[4, 4, 4, 4]], np.int16)
+    mask = np.ones((1, 4), bool)
+    gaps = metrics.surface_gap_points(points, ids, mask, step_m=0.05, max_gap_m=0.5)
+    # only the first pair: 0.3 m apart (the second is closer than a step, the third too far)
+    x = np.sort(gaps[:, 0])
+    assert x.size == 9 and x.min() > 0.0 and x.max() < 0.3
+    assert np.all(np.diff(x) <= 0.05) and np.all(gaps[:, 1:] == [0.0, 0.5])
+    ids[0, 1] = 5   # another object: no surface between them
+    assert metrics.surface_gap_points(points, ids, mask, step_m=0.05,
+                                      max_gap_m=0.5).shape == (0, 3)
+    with pytest.raises(ValueError, match='step_m'):
+        metrics.surface_gap_points(points, ids, mask, step_m=0.0, max_gap_m=0.5)
