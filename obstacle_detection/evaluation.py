@@ -559,8 +559,9 @@ def robot_score(frame: LabelledFrame, predicted_grid: np.ndarray, params: Detect
     names = frame.object_names
     for name in dict.fromkeys(n for n in names if n):
         ids = [i for i, n in enumerate(names) if n == name]
-        mine = seen & np.isin(frame.object_ids, ids)
-        if (edge & mine).any():
+        everywhere = np.isin(frame.object_ids, ids)
+        mine = seen & everywhere
+        if (edge & everywhere).any():   # a drop, even with its edge out of range
             cells = metrics.point_cells(frame.truth_points[edge & mine], origin, res, (ny, nx))
             hits, total = metrics.occupied_share(predicted_grid, cells,
                                                  tolerance_cells=DROP_TOLERANCE_CELLS)
