@@ -38,8 +38,9 @@ def ground_rays(ru: np.ndarray, rv: np.ndarray, rot: np.ndarray) -> np.ndarray:
 
 
 @_jit
-def _traverse_kernel(points, steep, size, step_up, step_down, up32, down32, robot32,
-                     obstacle, above, height, reached_v):  # pragma: no cover - compiled
+def _traverse_kernel(points, steep, size, step_up, step_down, up32, down32, robot32, layer,
+                     min_support, obstacle, above, height,
+                     reached_v):  # pragma: no cover - compiled
     """Run the numpy path of traversal.traversable_ground cell by cell (see that module)."""
     n = points.shape[0]
     ix = np.empty(n, np.int64)
@@ -52,21 +53,35 @@ def _traverse_kernel(points, steep, size, step_up, step_down, up32, down32, robo
     ny = iy.max() - y0 + 1
     key = np.empty(n, np.int64)
     surface = np.full(nx * ny, np.inf)
+    low = np.full(nx * ny, np.inf)
+    high = np.full(nx * ny, -np.inf)
     for v in range(n):
         k = (ix[v] - x0) * ny + (iy[v] - y0)
         key[v] = k
-        if not steep[v]:
-            z = np.float64(points[v, 2])
-            if z < surface[k]:
-                surface[k] = z
+        z = np.float64(points[v, 2])
+        if not steep[v] and z < surface[k]:
+            surface[k] = z
+        if z < low[k]:
+            low[k] = z
+        if z > high[k]:
+            high[k] = z
     n_cells = nx * ny
+    support = np.zeros(n_cells, np.int64)
+    for v in range(n):
+        k = key[v]
+        if not steep[v] and np.float64(points[v, 2]) <= surface[k] + layer:
+            support[k] += 1
+    passable = np.empty(n_cells, np.bool_)
+    for c in range(n_cells):
+        passable[c] = (surface[c] != np.inf and high[c] - low[c] <= step_up
+                       and support[c] >= min_support)
     # reach: breadth-first from the seeds through allowed steps (8 neighbours)
     reached = np.zeros(n_cells, np.bool_)
     queue = np.empty(n_cells, np.int64)
     tail = 0
     for c in range(n_cells):
         s = surface[c]
-        if s != np.inf and s >= -step_down and s <= step_up:
+        if passable[c] and s >= -step_down and s <= step_up:
             reached[c] = True
             queue[tail] = c
             tail += 1
@@ -84,7 +99,7 @@ def _traverse_kernel(points, steep, size, step_up, step_down, up32, down32, robo
                 if bx < 0 or bx >= nx or by < 0 or by >= ny:
                     continue
                 b = bx * ny + by
-                if reached[b] or surface[b] == np.inf:
+                if reached[b] or not passable[b]:
                     continue
                 rise = surface[b] - sa
                 if rise <= step_up and -rise <= step_down:
@@ -143,7 +158,7 @@ def _traverse_kernel(points, steep, size, step_up, step_down, up32, down32, robo
 
 
 def traverse(points: np.ndarray, steep: np.ndarray, size_m: float, step_up_m: float,
-             step_down_m: float, robot_height_m: float,
+             step_down_m: float, robot_height_m: float, layer_m: float, min_support: int = 3,
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(obstacle, above, height float32, reached) per voxel; see traversal.traversable_ground."""
     n = points.shape[0]
@@ -154,7 +169,8 @@ def traverse(points: np.ndarray, steep: np.ndarray, size_m: float, step_up_m: fl
     _traverse_kernel(np.ascontiguousarray(points, np.float32),
                      np.ascontiguousarray(steep, np.bool_), np.float32(size_m),
                      float(step_up_m), float(step_down_m), np.float32(step_up_m),
-                     np.float32(step_down_m), np.float32(robot_height_m),
+                     np.float32(step_down_m), np.float32(robot_height_m), float(layer_m),
+                     int(min_support),
                      obstacle, above, height, reached)
     return obstacle, above, height, reached
 
@@ -253,6 +269,6 @@ def warm_up() -> None:
         return
     ground_rays(np.zeros(2, np.float32), np.zeros(2, np.float32), np.eye(3, dtype=np.float32))
     pts = np.array([[0.1, 0.0, 0.0], [0.2, 0.1, 0.3]], np.float32)
-    traverse(pts, np.array([False, True]), 0.05, 0.05, 0.05, 1.0)
+    traverse(pts, np.array([False, True]), 0.05, 0.05, 0.05, 1.0, 0.025)
     drop_mask(np.ones((4, 2), np.float32), -np.ones((4, 2), np.float32), 0.5, 0.05, 0.05, 3)
     drop_smeared(np.ones((3, 3), np.float32), np.ones((3, 3), np.float32), 0.03, 0.05)

@@ -5,10 +5,13 @@ onto a box top, a table or a curb, however flat, nor off a drop; it can cross a 
 climb a passable ramp to its landing. After the normals, :func:`traversable_ground` decides:
 
 1. A 2.5-D grid of cells (twice the voxel size) over the voxels. The *surface* of a cell is its
-   lowest voxel that passed the slope test (under a table the floor, where it is seen).
-2. Seeds: cells whose surface lies on the floor plane, within ``[-max_step_down_m,
+   lowest voxel that passed the slope test (under a table the floor, where it is seen). A
+   cell is *passable* when it has a surface held by at least ``MIN_SURFACE_VOXELS`` flat
+   voxels within one voxel height (flying or stray voxels make no floor) and its voxels span
+   no more than ``max_step_height_m`` in height (no step, wall foot or curb face inside it).
+2. Seeds: passable cells whose surface lies on the floor plane, within ``[-max_step_down_m,
    max_step_height_m]`` of z = 0 (the floor plane refined per frame, :mod:`.floor`).
-3. Ground is grown from the seeds to the 8 neighbouring cells through steps of at most
+3. Ground is grown from the seeds to the 8 neighbouring passable cells through steps of at most
    ``max_step_height_m`` up and ``max_step_down_m`` down (a directed graph, one breadth-first
    search in scipy): ramps no steeper than theta and their landings are reached, box and table
    tops, curbs and the floor beyond a drop are not.
@@ -38,6 +41,9 @@ from .params import DetectorParams
 
 #: The 8 neighbours of a cell as (dx, dy); the search adds both directions of each pair.
 _HALF_NEIGHBOURHOOD = ((1, 0), (0, 1), (1, 1), (1, -1))
+#: Flat voxels a cell's surface needs within one voxel height (of the 4 a 2 x 2 voxel cell
+#: holds) to pass the robot on: a few stray or flying voxels do not make a floor.
+MIN_SURFACE_VOXELS = 3
 #: Rows below an over-the-edge pixel searched for the floor it passed [px].
 DROP_EDGE_ROWS = 3
 #: A pixel between its two neighbours (row or column) and this share of its depth away from
@@ -80,15 +86,16 @@ def traversable_ground(points: np.ndarray, steep: np.ndarray,
         return Traversal(empty, empty, np.zeros(0, np.float32), empty, size)
     if jit_traversal.enabled():
         out = jit_traversal.traverse(points, steep, size, params.max_step_height_m,
-                                     params.max_step_down_m, params.robot_height_m)
+                                     params.max_step_down_m, params.robot_height_m,
+                                     params.voxel_z_m, MIN_SURFACE_VOXELS)
     else:
         out = traverse_numpy(points, steep, size, params.max_step_height_m,
-                             params.max_step_down_m, params.robot_height_m)
+                             params.max_step_down_m, params.robot_height_m, params.voxel_z_m)
     return Traversal(*out, size)
 
 
 def traverse_numpy(points: np.ndarray, steep: np.ndarray, size_m: float, step_up_m: float,
-                   step_down_m: float, robot_height_m: float,
+                   step_down_m: float, robot_height_m: float, layer_m: float,
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(obstacle, above, height float32, reached) per voxel, in numpy (the reference)."""
     size = np.float32(size_m)
@@ -103,9 +110,18 @@ def traverse_numpy(points: np.ndarray, steep: np.ndarray, size_m: float, step_up
     surface = np.full(nx * ny, np.inf)
     flat = ~steep
     np.minimum.at(surface, key[flat], z[flat])
-    has = np.isfinite(surface)
-    seeds = has & (surface >= -step_down_m) & (surface <= step_up_m)
-    reached = _grow(surface.reshape(nx, ny), has.reshape(nx, ny), seeds, step_up_m,
+    low = np.full(nx * ny, np.inf)
+    high = np.full(nx * ny, -np.inf)
+    np.minimum.at(low, key, z)
+    np.maximum.at(high, key, z)
+    # a cell can be driven through when it has a surface, well supported (not a few stray
+    # or flying voxels), and no step inside it
+    on_surface = flat & (z <= surface[key] + layer_m)
+    support = np.bincount(key[on_surface], minlength=nx * ny)
+    passable = np.isfinite(surface) & (high - low <= step_up_m)
+    passable &= support >= MIN_SURFACE_VOXELS
+    seeds = passable & (surface >= -step_down_m) & (surface <= step_up_m)
+    reached = _grow(surface.reshape(nx, ny), passable.reshape(nx, ny), seeds, step_up_m,
                     step_down_m)
     ground = _local_ground(surface.reshape(nx, ny), reached.reshape(nx, ny)).reshape(-1)
     height = (z - ground[key]).astype(np.float32)

@@ -283,8 +283,8 @@ def test_traversal_kernels_equal_numpy(monkeypatch):
     pts = rng.uniform([0.0, -1.0, -0.4], [2.0, 1.0, 1.5], size=(3000, 3)).astype(np.float32)
     pts[:1500, 2] = rng.normal(0.0, 0.01, 1500)                 # a floor
     steep = rng.random(3000) < 0.3
-    got = jit_traversal.traverse(pts, steep, 0.05, 0.05, 0.04, 1.0)
-    want = traversal.traverse_numpy(pts, steep, 0.05, 0.05, 0.04, 1.0)
+    got = jit_traversal.traverse(pts, steep, 0.05, 0.05, 0.04, 1.0, 0.025)
+    want = traversal.traverse_numpy(pts, steep, 0.05, 0.05, 0.04, 1.0, 0.025)
     for a, b in zip(got, want):
         np.testing.assert_array_equal(a, b)
     depth = rng.uniform(0.5, 4.0, size=(60, 80)).astype(np.float32)
