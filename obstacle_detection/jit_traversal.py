@@ -212,33 +212,22 @@ def drop_mask(depth_m: np.ndarray, rz: np.ndarray, height_m: float, step_down_m:
 
 
 @_jit
-def _mixed(a, r, b, lim):  # pragma: no cover - compiled
-    """Return r lies between a and b, more than lim from each (both measured)."""
-    da = a - r
-    db = b - r
-    return (da * db < 0.0) & (abs(da) > lim) & (abs(db) > lim) & (a > 0.0) & (b > 0.0)
-
-
-@_jit
-def _smear_kernel(filtered, raw, ratio, jump, bad):  # pragma: no cover - compiled
+def _smear_kernel(filtered, raw, near, far, planar, ratio, jump,
+                  bad):  # pragma: no cover - compiled
     """Zero the pixels traversal.drop_smeared drops, with the same float32 operations.
 
-    bad (H, W) bool scratch. Simple passes without data-dependent branches (they vectorise).
+    raw: measured depth with 0 for no return; near, far: its 5 x 5 window range; bad (H, W)
+    bool scratch.
     """
     height, width = filtered.shape
-    for i in range(height):         # moved by the filter (holes are decided below)
+    for i in range(height):         # moved by the filter, or mixed (holes decided below)
         for j in range(width):
             r = raw[i, j]
             f = filtered[i, j]
-            bad[i, j] = (r > 0.0) & (abs(f - r) > ratio * f)
-    for i in range(height):         # mixed along a row
-        for j in range(1, width - 1):
-            r = raw[i, j]
-            bad[i, j] |= (r > 0.0) & _mixed(raw[i, j - 1], r, raw[i, j + 1], jump * r)
-    for i in range(1, height - 1):  # mixed along a column
-        for j in range(width):
-            r = raw[i, j]
-            bad[i, j] |= (r > 0.0) & _mixed(raw[i - 1, j], r, raw[i + 1, j], jump * r)
+            lim = jump * r
+            bad[i, j] = (r > 0.0) & ((abs(f - r) > ratio * f)
+                                     | ((r - near[i, j] > lim) & (far[i, j] - r > lim)
+                                        & ~planar[i, j]))
     for i in range(height):
         for j in range(width):
             if not raw[i, j] > 0.0:     # a filled hole: kept inside a surface only
@@ -257,10 +246,12 @@ def _smear_kernel(filtered, raw, ratio, jump, bad):  # pragma: no cover - compil
                 filtered[i, j] = 0.0
 
 
-def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float, jump: float) -> None:
+def drop_smeared(filtered: np.ndarray, raw: np.ndarray, near: np.ndarray, far: np.ndarray,
+                 planar: np.ndarray, max_shift: float, jump: float) -> None:
     """In place: equals the numpy path of traversal.drop_smeared (float32 arithmetic)."""
     bad = np.empty(filtered.shape, np.bool_)
-    _smear_kernel(filtered, raw, np.float32(max_shift), np.float32(jump), bad)
+    _smear_kernel(filtered, raw, near, far, planar, np.float32(max_shift), np.float32(jump),
+                  bad)
 
 
 def warm_up() -> None:
@@ -271,4 +262,5 @@ def warm_up() -> None:
     pts = np.array([[0.1, 0.0, 0.0], [0.2, 0.1, 0.3]], np.float32)
     traverse(pts, np.array([False, True]), 0.05, 0.05, 0.05, 1.0, 0.025)
     drop_mask(np.ones((4, 2), np.float32), -np.ones((4, 2), np.float32), 0.5, 0.05, 0.05, 3)
-    drop_smeared(np.ones((3, 3), np.float32), np.ones((3, 3), np.float32), 0.03, 0.05)
+    one = np.ones((3, 3), np.float32)
+    drop_smeared(one.copy(), one, one, one, one > 0, 0.03, 0.05)

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import breadth_first_order
@@ -46,9 +47,14 @@ _HALF_NEIGHBOURHOOD = ((1, 0), (0, 1), (1, 1), (1, -1))
 MIN_SURFACE_VOXELS = 3
 #: Rows below an over-the-edge pixel searched for the floor it passed [px].
 DROP_EDGE_ROWS = 3
-#: A pixel between its two neighbours (row or column) and this share of its depth away from
-#: each is a mixed (flying) pixel (a floor row to row at 4.5 m, 0.6 m up, changes ~2 %).
+#: A pixel this share of its depth away from both the nearest and the farthest depth of its
+#: window is a mixed (flying) pixel (a floor seen 0.6 m up changes ~2 % over two rows).
 FLYING_JUMP = 0.05
+#: Largest second difference of the inverse depth, as a share of it, of a pixel on a plane.
+PLANAR_TOLERANCE = 0.02
+#: Window of the flying-pixel test [px]: time-of-flight mixed pixels lie up to two pixels
+#: from the depth edge.
+FLYING_WINDOW_PX = 5
 
 
 @dataclass(frozen=True)
@@ -193,6 +199,39 @@ def _grow(surface: np.ndarray, has: np.ndarray, seeds: np.ndarray, step_up: floa
     return reached[:source]
 
 
+def depth_window_range(raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest and farthest measured depth (H, W) float32 in each pixel's 5 x 5 window [m].
+
+    Pixels without a return take no part (a window without any gives inf / 0). OpenCV's
+    erode/dilate, shared by the numpy and the compiled path.
+    """
+    valid = raw > 0.0
+    kernel = np.ones((FLYING_WINDOW_PX, FLYING_WINDOW_PX), np.uint8)
+    near = cv2.erode(np.where(valid, raw, np.float32(np.inf)), kernel,
+                     borderType=cv2.BORDER_REPLICATE)
+    far = cv2.dilate(np.where(valid, raw, np.float32(0.0)), kernel,
+                     borderType=cv2.BORDER_REPLICATE)
+    return near, far
+
+
+def _planar(raw: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the pixel lies on a plane with its row and column neighbours.
+
+    A plane's inverse depth is affine in the pixel coordinates, so its second differences
+    vanish (a floor or a table's underside seen at a grazing angle); a mixed pixel's do not.
+    Within ``PLANAR_TOLERANCE`` of the pixel's inverse depth, all four neighbours measured.
+    """
+    with np.errstate(divide='ignore', invalid='ignore'):
+        inv = np.where(raw > 0.0, np.float32(1.0) / raw, np.float32(np.nan))
+    tol = np.float32(PLANAR_TOLERANCE) * inv
+    out = np.zeros(raw.shape, bool)
+    with np.errstate(invalid='ignore'):
+        row = np.abs(inv[:, :-2] + inv[:, 2:] - np.float32(2.0) * inv[:, 1:-1])
+        col = np.abs(inv[:-2, :] + inv[2:, :] - np.float32(2.0) * inv[1:-1, :])
+        out[1:-1, 1:-1] = (row[1:-1] <= tol[1:-1, 1:-1]) & (col[:, 1:-1] <= tol[1:-1, 1:-1])
+    return out
+
+
 def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float) -> np.ndarray:
     """Set to 0 (no return) the pixels that do not stand for a surface seen there.
 
@@ -204,17 +243,23 @@ def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float) -> np.
       measured 4-neighbour and all of them lie within ``max_shift`` of the filled depth (a
       dropout inside a surface is filled; a hole at a depth edge, where the filter could only
       guess, is not: no return never marks anything);
-    - a mixed ("flying") pixel: its measured depth lies between those of its two neighbours
-      along a row or a column, more than ``FLYING_JUMP`` of its depth from each, as a
-      time-of-flight sensor returns at a depth edge.
+    - a mixed ("flying") pixel: its measured depth lies more than ``FLYING_JUMP`` of it away
+      from both the nearest and the farthest depth of its 5 x 5 window, between the two
+      surfaces of a depth edge, as a time-of-flight sensor returns up to two pixels from it,
+      and not on a plane with its neighbours (a surface seen at a grazing angle is kept).
 
     Returns ``filtered`` (modified in place); ``max_shift`` <= 0 changes nothing. Compiled
     when numba is there (same result).
     """
     if max_shift <= 0.0:
         return filtered
+    raw = np.ascontiguousarray(raw, np.float32)
+    with np.errstate(invalid='ignore'):
+        raw = np.where(raw > 0.0, raw, np.float32(0.0))        # NaN: no return
+        near, far = depth_window_range(raw)
     if jit_traversal.enabled():
-        jit_traversal.drop_smeared(filtered, raw, max_shift, FLYING_JUMP)
+        jit_traversal.drop_smeared(filtered, raw, near, far, _planar(raw), max_shift,
+                                   FLYING_JUMP)
         return filtered
     ratio = np.float32(max_shift)
     h, w = raw.shape
@@ -225,19 +270,15 @@ def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float) -> np.
         seen = np.zeros((h, w), bool)
         agree = np.ones((h, w), bool)
         pad = np.zeros((h + 2, w + 2), np.float32)
-        pad[1:-1, 1:-1] = np.where(hole, np.float32(0.0), raw)
+        pad[1:-1, 1:-1] = raw
         for nb in (pad[:-2, 1:-1], pad[2:, 1:-1], pad[1:-1, :-2], pad[1:-1, 2:]):
             valid = nb > 0.0
             seen |= valid
             agree &= ~valid | (np.abs(nb - filtered) <= lim)
         bad |= hole & ~(seen & agree)
-        jump = np.float32(FLYING_JUMP)
-        for a, c, b, out in ((raw[:, :-2], raw[:, 1:-1], raw[:, 2:], bad[:, 1:-1]),
-                             (raw[:-2], raw[1:-1], raw[2:], bad[1:-1])):
-            da, db = a - c, b - c
-            lim = jump * c
-            out |= (da * db < 0.0) & (np.abs(da) > lim) & (np.abs(db) > lim) & (a > 0.0) & (
-                b > 0.0)
+        lim = np.float32(FLYING_JUMP) * raw
+        between = ~hole & (raw - near > lim) & (far - raw > lim)
+        bad |= between & ~_planar(raw)
     filtered[bad] = 0.0
     return filtered
 
