@@ -220,14 +220,12 @@ def _smear_kernel(filtered, raw, near, far, planar, ratio, jump,
     bool scratch.
     """
     height, width = filtered.shape
-    for i in range(height):         # moved by the filter, or mixed (holes decided below)
+    for i in range(height):         # mixed pixels (holes decided below)
         for j in range(width):
             r = raw[i, j]
-            f = filtered[i, j]
             lim = jump * r
-            bad[i, j] = (r > 0.0) & ((abs(f - r) > ratio * f)
-                                     | ((r - near[i, j] > lim) & (far[i, j] - r > lim)
-                                        & ~planar[i, j]))
+            bad[i, j] = (r > 0.0) & (r - near[i, j] > lim) & (far[i, j] - r > lim) & \
+                ~planar[i, j]
     for i in range(height):
         for j in range(width):
             if not raw[i, j] > 0.0:     # a filled hole: kept inside a surface only
@@ -242,6 +240,8 @@ def _smear_kernel(filtered, raw, near, far, planar, ratio, jump,
                             seen = True
                             agree &= abs(nb - f) <= lim
                 bad[i, j] = not (seen and agree)
+            elif abs(filtered[i, j] - raw[i, j]) > ratio * filtered[i, j]:
+                filtered[i, j] = raw[i, j]    # moved across an edge: the measured depth back
             if bad[i, j]:
                 filtered[i, j] = 0.0
 

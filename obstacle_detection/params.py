@@ -137,9 +137,10 @@ class DetectorParams:
         '[m]', min=0.0, max=5.0, open_min=True))
     max_filter_shift: float = field(default=0.1, metadata=_describe(
         'Robot level: a pixel whose median-filtered depth moved more than this fraction of '
-        'its depth away from the measured one is dropped (the filter smeared a depth edge onto '
-        'it: flying and edge pixels), and so are holes the filter filled (no return never '
-        'marks anything). 0 = keep every filtered pixel, as the seed',
+        'its depth away from the measured one takes the measured depth back (the filter '
+        'smeared a depth edge onto it); holes filled across an edge and mixed (flying) pixels '
+        'are dropped (no return never marks anything). 0 = the filtered depth as is, as the '
+        'seed',
         min=0.0, max=1.0))
     drop_view_m: float = field(default=1.0, metadata=_describe(
         'Robot level: the region of interest reaches this far below the ground (instead of '

@@ -233,12 +233,14 @@ def _planar(raw: np.ndarray) -> np.ndarray:
 
 
 def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float) -> np.ndarray:
-    """Set to 0 (no return) the pixels that do not stand for a surface seen there.
+    """Undo what the median filter smeared across depth edges; drop what is no surface.
 
-    filtered, raw: (H, W) float32 [m], the median-filtered and the measured depth. Dropped:
+    filtered, raw: (H, W) float32 [m], the median-filtered and the measured depth. A pixel
+    whose filtered depth differs from its measured one by more than ``max_shift`` times the
+    filtered depth got its value from across a depth edge (it would fatten the near object
+    into free space, or erase a thin one such as a table's edge): it takes its measured depth
+    back. Dropped (set to 0, no return):
 
-    - a pixel whose filtered depth differs from its measured one by more than ``max_shift``
-      times the filtered depth (the filter brought it a value from across a depth edge);
     - a pixel without a measured depth (0 or NaN) that the filter filled, unless it has a
       measured 4-neighbour and all of them lie within ``max_shift`` of the filled depth (a
       dropout inside a surface is filled; a hole at a depth edge, where the filter could only
@@ -265,7 +267,7 @@ def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float) -> np.
     h, w = raw.shape
     with np.errstate(invalid='ignore'):
         hole = ~(raw > 0.0)
-        bad = ~hole & (np.abs(filtered - raw) > ratio * filtered)
+        moved = ~hole & (np.abs(filtered - raw) > ratio * filtered)
         lim = ratio * filtered
         seen = np.zeros((h, w), bool)
         agree = np.ones((h, w), bool)
@@ -275,10 +277,11 @@ def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float) -> np.
             valid = nb > 0.0
             seen |= valid
             agree &= ~valid | (np.abs(nb - filtered) <= lim)
-        bad |= hole & ~(seen & agree)
+        bad = hole & ~(seen & agree)
         lim = np.float32(FLYING_JUMP) * raw
         between = ~hole & (raw - near > lim) & (far - raw > lim)
         bad |= between & ~_planar(raw)
+    filtered[moved] = raw[moved]
     filtered[bad] = 0.0
     return filtered
 
