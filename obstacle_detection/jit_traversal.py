@@ -177,11 +177,11 @@ def traverse(points: np.ndarray, steep: np.ndarray, size_m: float, step_up_m: fl
 
 @_jit
 def _drop_kernel(depth, rz, h, down, up, rows, out):  # pragma: no cover - compiled
-    """Fill out (H, W) bool: drop-edge pixels (see traversal.drop_edge_mask)."""
+    """Fill out (H, W) int8: drop-edge row offsets (see traversal.drop_edge_mask)."""
     height, width = depth.shape
     for i in range(height):
         for j in range(width):
-            out[i, j] = False
+            out[i, j] = 0
             d = depth[i, j]
             if not d > 0.0:
                 continue
@@ -196,14 +196,14 @@ def _drop_kernel(depth, rz, h, down, up, rows, out):  # pragma: no cover - compi
                     continue
                 zq = dq * rz[i + k, j] + h
                 if zq >= -down and zq <= up and zq - zp > down:
-                    out[i, j] = True
+                    out[i, j] = k
                     break
 
 
 def drop_mask(depth_m: np.ndarray, rz: np.ndarray, height_m: float, step_down_m: float,
               step_up_m: float, rows: int) -> np.ndarray:
-    """(H, W) bool drop-edge pixels; equals traversal.drop_edge_mask."""
-    out = np.empty(depth_m.shape, np.bool_)
+    """(H, W) int8 drop-edge row offsets; equals traversal.drop_edge_mask."""
+    out = np.empty(depth_m.shape, np.int8)
     _drop_kernel(np.ascontiguousarray(depth_m, np.float32),
                  np.ascontiguousarray(rz, np.float32).reshape(depth_m.shape),
                  np.float32(height_m), np.float32(step_down_m), np.float32(step_up_m),

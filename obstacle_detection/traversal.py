@@ -24,7 +24,7 @@ climb a passable ramp to its landing. After the normals, :func:`traversable_grou
 
 :func:`drop_edges` marks a drop whose lower floor is out of view or out of range: a pixel whose
 ray passed the floor plane (its point lies more than the step down below it) right above pixels
-that see the floor, within the range, marks where its ray crossed the floor plane.
+that see the floor marks the cell where that floor ends, when it lies within the range.
 All vectorised, or compiled (:mod:`.jit_traversal`, same results); no per-point Python loop.
 """
 
@@ -288,13 +288,15 @@ def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float) -> np.
 
 def drop_edge_mask(depth_m: np.ndarray, rz: np.ndarray, height_m: float, step_down_m: float,
                    step_up_m: float, rows: int = DROP_EDGE_ROWS) -> np.ndarray:
-    """(H, W) bool: pixels whose ray passed the floor plane right above seen floor.
+    """(H, W) int8: for a pixel whose ray passed the floor plane right above seen floor, the
+    number of rows (1 to ``rows``) down to the floor pixel where the floor ends; else 0.
 
     depth_m (H, W) float32 [m] (0/NaN no return: never marks); rz (H*W,) or (H, W) float32,
     the z component of the ground rays; height_m: camera height. A pixel passed the floor when
     its point lies more than ``step_down_m`` below z = 0; it is an edge when one of the
     ``rows`` pixels below it sees the floor (z within ``[-step_down_m, step_up_m]``) more than
-    ``step_down_m`` above its own point. float32 arithmetic, as the compiled kernel.
+    ``step_down_m`` above its own point (the nearest such row is given). float32 arithmetic,
+    as the compiled kernel.
     """
     if jit_traversal.enabled():
         return jit_traversal.drop_mask(depth_m, rz, height_m, step_down_m, step_up_m, rows)
@@ -306,32 +308,36 @@ def drop_edge_mask(depth_m: np.ndarray, rz: np.ndarray, height_m: float, step_do
     down = np.float32(step_down_m)
     passed = z < -down                                   # NaN (no return) compares false
     floor = (z >= -down) & (z <= np.float32(step_up_m))
-    edge = np.zeros((h, w), bool)
+    edge = np.zeros((h, w), np.int8)
     for k in range(1, rows + 1):
         if k >= h:
             break
-        edge[:-k] |= passed[:-k] & floor[k:] & (z[k:] - z[:-k] > down)
+        hit = passed[:-k] & floor[k:] & (z[k:] - z[:-k] > down) & (edge[:-k] == 0)
+        edge[:-k][hit] = k
     return edge
 
 
 def drop_edges(depth_m: np.ndarray, rays: np.ndarray, height_m: float,
                params: DetectorParams) -> tuple[np.ndarray, np.ndarray]:
-    """Where the floor ends: the floor-plane crossings of the :func:`drop_edge_mask` rays.
+    """Where the floor ends at a drop: the last floor seen below the rays that passed it.
 
     depth_m: (H, W) float32 [m]; rays: (3, H*W) ground rays of the frame's mount; height_m:
-    the camera height of that mount. Returns ``(points, pixels)``: (D, 3) float32 points where
-    those rays crossed z = 0, inside the forward range and lateral limit [m], and (D,) int64
-    their flat pixel indices.
+    the camera height of that mount. Returns ``(points, pixels)``: (D, 3) float32 ground
+    points of the floor pixels where the floor ends (:func:`drop_edge_mask`), inside the
+    forward range and lateral limit [m] (the cells the costmap marks), and (D,) int64 the flat
+    indices of the pixels that saw past the edge (the lower floor, or anything beyond it).
     """
     edge = drop_edge_mask(depth_m, rays[2], height_m, params.max_step_down_m,
                           params.max_step_height_m)
     pixels = np.flatnonzero(edge)
     if pixels.size == 0:
         return np.zeros((0, 3), np.float32), pixels
-    t = np.float32(height_m) / -rays[2, pixels]           # rz < 0: the ray goes down
-    x = t * rays[0, pixels]
-    y = t * rays[1, pixels]
+    floor_px = pixels + edge.reshape(-1)[pixels].astype(np.int64) * depth_m.shape[1]
+    d = depth_m.reshape(-1)[floor_px]
+    x = d * rays[0, floor_px]
+    y = d * rays[1, floor_px]
+    z = d * rays[2, floor_px] + np.float32(height_m)
     keep = (x >= np.float32(params.min_range_m)) & (x <= np.float32(params.max_range_m))
     keep &= np.abs(y) <= np.float32(params.lateral_limit_m)
-    pts = np.stack((x[keep], y[keep], np.zeros(int(keep.sum()), np.float32)), axis=1)
+    pts = np.stack((x[keep], y[keep], z[keep]), axis=1)
     return pts.astype(np.float32), pixels[keep]

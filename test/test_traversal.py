@@ -141,11 +141,13 @@ def test_drop_with_the_lower_floor_beyond_the_range_is_marked_where_the_floor_en
     frame, params, robot = run([step])
     assert robot.drop_points.shape[0] > 50
     edge = robot.drop_points
-    assert np.all(edge[:, 0] >= 1.6) and np.all(edge[:, 0] <= 1.6 + 0.05)
-    # one marked cell per column of cells across the view at the edge
-    at_edge = cells(robot, 1.6, 1.65, -0.5, 0.5)
+    assert np.all(edge[:, 0] <= 1.6) and np.all(edge[:, 0] >= 1.6 - 0.05)
+    # the cells where the floor ends, across the view, are marked
+    at_edge = cells(robot, 1.55, 1.6, -0.5, 0.5)
     assert (at_edge == CELL_OCCUPIED).mean() > 0.9
     assert occupied_share(cells(robot, 0.6, 1.5, -0.5, 0.5)) == 0.0
+    assert (frame.points_ground.reshape(-1, 3)[robot.labels.reshape(-1) == LABEL_OBSTACLE, 0]
+            > 1.6).all()                      # the pixels that saw past the edge are labelled
     # no return beyond the edge: nothing is marked
     depth = frame.depth_mm.copy()
     depth[frame.points_ground[..., 0] > 1.6] = 0
@@ -321,7 +323,7 @@ def test_drop_edge_needs_a_jump_and_seen_floor():
     depth = np.full((10, 1), 1.0, np.float32)            # z = 0.5 - 0.5 = 0: floor
     depth[:5] = 2.0                                       # z = -0.4: passed the floor plane
     mask = traversal.drop_edge_mask(depth, rz, 0.5, 0.05, 0.05)
-    assert mask[:, 0].tolist() == [False, False, True, True, True] + [False] * 5
+    assert mask[:, 0].tolist() == [0, 0, 3, 2, 1] + [0] * 5     # rows down to the floor end
     depth[5:] = 0.0                                       # no return below: nothing
     assert not traversal.drop_edge_mask(depth, rz, 0.5, 0.05, 0.05).any()
     depth[5:] = 1.08                                      # a gentle dip, no jump: nothing
