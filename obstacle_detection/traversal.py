@@ -288,8 +288,10 @@ def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float) -> np.
 
 def drop_edge_mask(depth_m: np.ndarray, rz: np.ndarray, height_m: float, step_down_m: float,
                    step_up_m: float, rows: int = DROP_EDGE_ROWS) -> np.ndarray:
-    """(H, W) int8: for a pixel whose ray passed the floor plane right above seen floor, the
-    number of rows (1 to ``rows``) down to the floor pixel where the floor ends; else 0.
+    """Return (H, W) int8: rows down to where the floor ends, for rays that passed it; else 0.
+
+    For a pixel whose ray passed the floor plane right above seen floor: the number of rows
+    (1 to ``rows``) down to the floor pixel where the floor ends.
 
     depth_m (H, W) float32 [m] (0/NaN no return: never marks); rz (H*W,) or (H, W) float32,
     the z component of the ground rays; height_m: camera height. A pixel passed the floor when
