@@ -3,10 +3,10 @@
 Usage: ``python tools/param_table.py [--output FILE | --readme [README.md]]``. The table is
 generated from ``obstacle_detection.ros_params`` (itself built from DetectorParams' field
 metadata), so it cannot drift from what the node declares. Columns: the ROS name, type, the
-default (``params/corridor.yaml``: Table 4.2's values with the robot-level rules), the values
-of the seed presets where they differ (``params/seed_table_4_2.yaml``,
-``params/seed_table_4_3.yaml``: the seed method exactly), the allowed range, and the
-description.
+default (``params/corridor.yaml``: Table 4.2's values with the robot-level rules), the value
+of the seed's Table 4.3 preset where it differs (``params/seed_table_4_3.yaml``, the seed
+method exactly), the allowed range, and the description. The seed's Table 4.2 preset
+(``params/seed_table_4_2.yaml``) is the default with ``robot_level`` and ``refine_floor`` off.
 """
 
 from __future__ import annotations
@@ -15,12 +15,11 @@ import argparse
 import sys
 from pathlib import Path
 
-from obstacle_detection.params import table_4_2, table_4_3
+from obstacle_detection.params import table_4_3
 from obstacle_detection.ros_params import ALL_PARAMS, ParamSpec, pipeline_params_to_ros
 
-HEADER = ('| Parameter | Type | Default (`corridor.yaml`) | Seed Table 4.2 | Seed Table 4.3 '
-          '| Range | Description |\n'
-          '| --- | --- | --- | --- | --- | --- | --- |')
+HEADER = ('| Parameter | Type | Default (`corridor.yaml`) | Seed Table 4.3 | Range '
+          '| Description |\n| --- | --- | --- | --- | --- | --- |')
 
 
 def _format_value(value: object) -> str:
@@ -48,8 +47,8 @@ def _row(spec: ParamSpec, *presets: dict[str, object]) -> str:
 
 def parameter_table() -> str:
     """Return the Markdown table of every ROS parameter of the node, one row each."""
-    seeds = (pipeline_params_to_ros(table_4_2()), pipeline_params_to_ros(table_4_3()))
-    return '\n'.join([HEADER, *(_row(spec, *seeds) for spec in ALL_PARAMS)]) + '\n'
+    seed = pipeline_params_to_ros(table_4_3())
+    return '\n'.join([HEADER, *(_row(spec, seed) for spec in ALL_PARAMS)]) + '\n'
 
 
 #: The README's table stands between these two lines.
