@@ -38,8 +38,8 @@ HYPOTHESES = 64
 _PICKS = np.random.default_rng(0).random((3, HYPOTHESES))
 #: Most samples that score the hypotheses (an even subsample of the floor samples).
 SCORE_POINTS = 2000
-#: Hypotheses scored at once (keeps each temporary under 128 kB).
-SCORE_CHUNK = 16
+#: Hypotheses scored at once (float32: keeps each temporary under 128 kB).
+SCORE_CHUNK = 32
 #: The best hypotheses that are refined by least squares; the best refined one is kept.
 REFINED_HYPOTHESES = 2
 #: Inlier band of the RANSAC [m].
@@ -180,13 +180,14 @@ def _ransac_plane(pts: np.ndarray, params: DetectorParams) -> np.ndarray:
     a = np.append(a[bounded], (0.0, 0.0))
     b = np.append(b[bounded], (0.0, 0.0))
     c = np.append(c[bounded], (0.0, mode))
-    sp = np.ascontiguousarray(pts[:, ::max(1, pts.shape[1] // SCORE_POINTS)])
+    sp = pts[:, ::max(1, pts.shape[1] // SCORE_POINTS)].astype(np.float32)
+    a32, b32, c32 = a.astype(np.float32), b.astype(np.float32), c.astype(np.float32)
     score = np.empty(a.size, np.int64)
     for start in range(0, a.size, SCORE_CHUNK):   # small temporaries: no page faults
         part = slice(start, start + SCORE_CHUNK)
-        resid = a[part, None] * sp[0]
-        resid += b[part, None] * sp[1]
-        resid += c[part, None]
+        resid = a32[part, None] * sp[0]
+        resid += b32[part, None] * sp[1]
+        resid += c32[part, None]
         resid -= sp[2]
         score[part] = np.count_nonzero(np.abs(resid, out=resid) <= INLIER_BAND_M, axis=1)
     best = np.argsort(-score, kind='stable')[:REFINED_HYPOTHESES]

@@ -13,10 +13,15 @@ from __future__ import annotations
 
 import numpy as np
 
+import threading
+
 from .jit_support import AVAILABLE, NO_JIT_ENV, enabled, jit as _jit
 
+#: Per-thread buffers reused across frames (fresh large arrays cost page faults).
+_SCRATCH = threading.local()
+
 __all__ = ['AVAILABLE', 'NO_JIT_ENV', 'drop_mask', 'drop_smeared', 'enabled', 'ground_rays',
-           'traverse', 'warm_up']
+           'holes_to_inf', 'traverse', 'warm_up']
 
 
 @_jit
@@ -212,46 +217,80 @@ def drop_mask(depth_m: np.ndarray, rz: np.ndarray, height_m: float, step_down_m:
 
 
 @_jit
-def _smear_kernel(filtered, raw, near, far, planar, ratio, jump,
-                  bad):  # pragma: no cover - compiled
-    """Zero the pixels traversal.drop_smeared drops, with the same float32 operations.
+def _inf_kernel(raw, out):  # pragma: no cover - compiled
+    """Copy raw into out with inf where there is no return (raw <= 0)."""
+    flat_in = raw.reshape(-1)
+    flat_out = out.reshape(-1)
+    for k in range(flat_in.size):
+        r = flat_in[k]
+        flat_out[k] = r if r > 0.0 else np.float32(np.inf)
 
-    raw: measured depth with 0 for no return; near, far: its 5 x 5 window range; bad (H, W)
-    bool scratch.
+
+def holes_to_inf(raw: np.ndarray) -> np.ndarray:
+    """Return ``np.where(raw > 0, raw, inf)`` (float32) in a per-thread buffer, compiled."""
+    buf = getattr(_SCRATCH, 'inf', None)
+    if buf is None or buf.shape != raw.shape:
+        buf = np.empty(raw.shape, np.float32)
+        _SCRATCH.inf = buf
+    _inf_kernel(np.ascontiguousarray(raw, np.float32), buf)
+    return buf
+
+
+@_jit
+def _planar_at(raw, i, j, tol_ratio):  # pragma: no cover - compiled
+    """Return traversal._planar at (i, j): inverse-depth second differences within tolerance."""
+    height, width = raw.shape
+    if i < 1 or j < 1 or i >= height - 1 or j >= width - 1:
+        return False
+    r, a, b, c, d = raw[i, j], raw[i, j - 1], raw[i, j + 1], raw[i - 1, j], raw[i + 1, j]
+    if not (r > 0.0 and a > 0.0 and b > 0.0 and c > 0.0 and d > 0.0):
+        return False
+    one = np.float32(1.0)
+    two = np.float32(2.0)
+    inv = one / r
+    tol = tol_ratio * inv
+    row = abs(one / a + one / b - two * inv)
+    col = abs(one / c + one / d - two * inv)
+    return row <= tol and col <= tol
+
+
+@_jit
+def _smear_kernel(filtered, raw, near, far, ratio, jump, tol_ratio):  # pragma: no cover
+    """Apply traversal.drop_smeared in place, with the same float32 operations.
+
+    raw: measured depth with 0 for no return; near, far: its 5 x 5 window range.
     """
     height, width = filtered.shape
-    for i in range(height):         # mixed pixels (holes decided below)
-        for j in range(width):
-            r = raw[i, j]
-            lim = jump * r
-            bad[i, j] = (r > 0.0) & (r - near[i, j] > lim) & (far[i, j] - r > lim) & \
-                ~planar[i, j]
     for i in range(height):
         for j in range(width):
-            if not raw[i, j] > 0.0:     # a filled hole: kept inside a surface only
-                f = filtered[i, j]
-                lim = ratio * f
-                seen = False
-                agree = True
-                for ni, nj in ((i - 1, j), (i + 1, j), (i, j - 1), (i, j + 1)):
-                    if 0 <= ni < height and 0 <= nj < width:
-                        nb = raw[ni, nj]
-                        if nb > 0.0:
-                            seen = True
-                            agree &= abs(nb - f) <= lim
-                bad[i, j] = not (seen and agree)
-            elif abs(filtered[i, j] - raw[i, j]) > ratio * filtered[i, j]:
-                filtered[i, j] = raw[i, j]    # moved across an edge: the measured depth back
-            if bad[i, j]:
+            r = raw[i, j]
+            f = filtered[i, j]
+            if r > 0.0:
+                lim = jump * r
+                if r - near[i, j] > lim and far[i, j] - r > lim and \
+                        not _planar_at(raw, i, j, tol_ratio):
+                    filtered[i, j] = 0.0          # a mixed (flying) pixel
+                elif abs(f - r) > ratio * f:
+                    filtered[i, j] = r            # moved across an edge: the measured depth
+                continue
+            lim = ratio * f                       # a filled hole: kept inside a surface only
+            seen = False
+            agree = True
+            for ni, nj in ((i - 1, j), (i + 1, j), (i, j - 1), (i, j + 1)):
+                if 0 <= ni < height and 0 <= nj < width:
+                    nb = raw[ni, nj]
+                    if nb > 0.0:
+                        seen = True
+                        agree &= abs(nb - f) <= lim
+            if not (seen and agree):
                 filtered[i, j] = 0.0
 
 
 def drop_smeared(filtered: np.ndarray, raw: np.ndarray, near: np.ndarray, far: np.ndarray,
-                 planar: np.ndarray, max_shift: float, jump: float) -> None:
+                 max_shift: float, jump: float, planar_tolerance: float) -> None:
     """In place: equals the numpy path of traversal.drop_smeared (float32 arithmetic)."""
-    bad = np.empty(filtered.shape, np.bool_)
-    _smear_kernel(filtered, raw, near, far, planar, np.float32(max_shift), np.float32(jump),
-                  bad)
+    _smear_kernel(filtered, raw, near, far, np.float32(max_shift), np.float32(jump),
+                  np.float32(planar_tolerance))
 
 
 def warm_up() -> None:
@@ -263,4 +302,5 @@ def warm_up() -> None:
     traverse(pts, np.array([False, True]), 0.05, 0.05, 0.05, 1.0, 0.025)
     drop_mask(np.ones((4, 2), np.float32), -np.ones((4, 2), np.float32), 0.5, 0.05, 0.05, 3)
     one = np.ones((3, 3), np.float32)
-    drop_smeared(one.copy(), one, one, one, one > 0, 0.03, 0.05)
+    drop_smeared(one.copy(), one, one, one, 0.03, 0.05, 0.02)
+    holes_to_inf(one)

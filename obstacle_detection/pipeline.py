@@ -150,13 +150,15 @@ class Detector:
 
         rays = self._rays(depth_m.shape, intr)
         fit = fit_floor(depth_m, self._sub_rays, p)
-        run = p   # the parameters of this frame: the fitted mount, the robot-level ROI
+        frame_changes: dict = {}   # this frame's parameters: fitted mount, robot-level ROI
         if fit.refined:
-            run = p.replace(camera_height_m=fit.height_m, camera_pitch_rad=fit.pitch_rad,
-                            camera_roll_rad=fit.roll_rad)
-            rays = geometry.ground_rays(depth_m.shape, intr, run)
+            frame_changes.update(camera_height_m=fit.height_m, camera_pitch_rad=fit.pitch_rad,
+                                 camera_roll_rad=fit.roll_rad)
         if p.robot_level and -p.drop_view_m < p.tdbg_m:
-            run = run.replace(tdbg_m=-p.drop_view_m)
+            frame_changes['tdbg_m'] = -p.drop_view_m
+        run = p.replace(**frame_changes) if frame_changes else p
+        if fit.refined:
+            rays = geometry.ground_rays(depth_m.shape, intr, run)
         clock.lap('floor')
         compiled = jit_voxel.enabled()
         if compiled:   # same points, voxels and labels as the numpy path below

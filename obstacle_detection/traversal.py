@@ -202,15 +202,17 @@ def _grow(surface: np.ndarray, has: np.ndarray, seeds: np.ndarray, step_up: floa
 def depth_window_range(raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Nearest and farthest measured depth (H, W) float32 in each pixel's 5 x 5 window [m].
 
-    Pixels without a return take no part (a window without any gives inf / 0). OpenCV's
-    erode/dilate, shared by the numpy and the compiled path.
+    raw: 0 = no return (as :func:`.depth.decode_depth` gives; no NaN). Pixels without a
+    return take no part (a window without any gives inf / 0). OpenCV's erode/dilate, shared
+    by the numpy and the compiled path.
     """
-    valid = raw > 0.0
     kernel = np.ones((FLYING_WINDOW_PX, FLYING_WINDOW_PX), np.uint8)
-    near = cv2.erode(np.where(valid, raw, np.float32(np.inf)), kernel,
-                     borderType=cv2.BORDER_REPLICATE)
-    far = cv2.dilate(np.where(valid, raw, np.float32(0.0)), kernel,
-                     borderType=cv2.BORDER_REPLICATE)
+    if jit_traversal.enabled():
+        holes_far = jit_traversal.holes_to_inf(raw)
+    else:
+        holes_far = np.where(raw > 0.0, raw, np.float32(np.inf))
+    near = cv2.erode(holes_far, kernel, borderType=cv2.BORDER_REPLICATE)
+    far = cv2.dilate(raw, kernel, borderType=cv2.BORDER_REPLICATE)   # no return is 0
     return near, far
 
 
@@ -235,7 +237,8 @@ def _planar(raw: np.ndarray) -> np.ndarray:
 def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float) -> np.ndarray:
     """Undo what the median filter smeared across depth edges; drop what is no surface.
 
-    filtered, raw: (H, W) float32 [m], the median-filtered and the measured depth. A pixel
+    filtered, raw: (H, W) float32 [m], the median-filtered and the measured depth (0 = no
+    return, as :func:`.depth.decode_depth` gives). A pixel
     whose filtered depth differs from its measured one by more than ``max_shift`` times the
     filtered depth got its value from across a depth edge (it would fatten the near object
     into free space, or erase a thin one such as a table's edge): it takes its measured depth
@@ -256,12 +259,10 @@ def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float) -> np.
     if max_shift <= 0.0:
         return filtered
     raw = np.ascontiguousarray(raw, np.float32)
-    with np.errstate(invalid='ignore'):
-        raw = np.where(raw > 0.0, raw, np.float32(0.0))        # NaN: no return
-        near, far = depth_window_range(raw)
+    near, far = depth_window_range(raw)
     if jit_traversal.enabled():
-        jit_traversal.drop_smeared(filtered, raw, near, far, _planar(raw), max_shift,
-                                   FLYING_JUMP)
+        jit_traversal.drop_smeared(filtered, raw, near, far, max_shift, FLYING_JUMP,
+                                   PLANAR_TOLERANCE)
         return filtered
     ratio = np.float32(max_shift)
     h, w = raw.shape
