@@ -35,11 +35,25 @@ def _rays_kernel(ru, rv, rot, out):  # pragma: no cover - compiled
                 out[a, i, j] = (r0 * ru[j] + t) + r2
 
 
-def ground_rays(ru: np.ndarray, rv: np.ndarray, rot: np.ndarray) -> np.ndarray:
-    """(3, H*W) float32 ground rays from the per-column/per-row slopes and the float32 mount."""
-    out = np.empty((3, rv.size, ru.size), np.float32)
-    _rays_kernel(ru, rv, rot, out)
-    return out.reshape(3, -1)
+def ground_rays(ru: np.ndarray, rv: np.ndarray, rot: np.ndarray,
+                out: np.ndarray | None = None) -> np.ndarray:
+    """(3, H*W) float32 ground rays from the per-column/per-row slopes and the float32 mount.
+
+    out: a (3, H*W) float32 array to fill (reused across frames spares page faults).
+    """
+    if out is None or out.shape != (3, rv.size * ru.size) or out.dtype != np.float32:
+        out = np.empty((3, rv.size * ru.size), np.float32)
+    _rays_kernel(ru, rv, rot, out.reshape(3, rv.size, ru.size))
+    return out
+
+
+def scratch(name: str, shape: tuple[int, ...], dtype) -> np.ndarray:
+    """Return a per-thread buffer of this shape and dtype, reused across frames."""
+    buf = getattr(_SCRATCH, name, None)
+    if buf is None or buf.shape != shape or buf.dtype != dtype:
+        buf = np.empty(shape, dtype)
+        setattr(_SCRATCH, name, buf)
+    return buf
 
 
 @_jit
@@ -228,10 +242,7 @@ def _inf_kernel(raw, out):  # pragma: no cover - compiled
 
 def holes_to_inf(raw: np.ndarray) -> np.ndarray:
     """Return ``np.where(raw > 0, raw, inf)`` (float32) in a per-thread buffer, compiled."""
-    buf = getattr(_SCRATCH, 'inf', None)
-    if buf is None or buf.shape != raw.shape:
-        buf = np.empty(raw.shape, np.float32)
-        _SCRATCH.inf = buf
+    buf = scratch('inf', raw.shape, np.float32)
     _inf_kernel(np.ascontiguousarray(raw, np.float32), buf)
     return buf
 

@@ -157,8 +157,10 @@ class Detector:
         if p.robot_level and -p.drop_view_m < p.tdbg_m:
             frame_changes['tdbg_m'] = -p.drop_view_m
         run = p.replace(**frame_changes) if frame_changes else p
-        if fit.refined:
-            rays = geometry.ground_rays(depth_m.shape, intr, run)
+        if fit.refined:   # the fitted mount's rays, into a per-thread buffer when compiled
+            buf = (jit_traversal.scratch('frame_rays', rays.shape, np.float32)
+                   if jit_traversal.enabled() else None)
+            rays = geometry.ground_rays(depth_m.shape, intr, run, out=buf)
         clock.lap('floor')
         compiled = jit_voxel.enabled()
         if compiled:   # same points, voxels and labels as the numpy path below

@@ -207,12 +207,16 @@ def depth_window_range(raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     by the numpy and the compiled path.
     """
     kernel = np.ones((FLYING_WINDOW_PX, FLYING_WINDOW_PX), np.uint8)
-    if jit_traversal.enabled():
+    if jit_traversal.enabled():   # the same values, into buffers reused across frames
         holes_far = jit_traversal.holes_to_inf(raw)
+        near = jit_traversal.scratch('near', raw.shape, np.float32)
+        far = jit_traversal.scratch('far', raw.shape, np.float32)
     else:
         holes_far = np.where(raw > 0.0, raw, np.float32(np.inf))
-    near = cv2.erode(holes_far, kernel, borderType=cv2.BORDER_REPLICATE)
-    far = cv2.dilate(raw, kernel, borderType=cv2.BORDER_REPLICATE)   # no return is 0
+        near = np.empty(raw.shape, np.float32)
+        far = np.empty(raw.shape, np.float32)
+    cv2.erode(holes_far, kernel, dst=near, borderType=cv2.BORDER_REPLICATE)
+    cv2.dilate(raw, kernel, dst=far, borderType=cv2.BORDER_REPLICATE)   # no return is 0
     return near, far
 
 
