@@ -340,3 +340,12 @@ def test_robot_truth_leaves_the_gaps_of_a_grazing_underside_unscored():
     cols_sum = (under == metrics.CELL_OCCUPIED).any(axis=0)
     assert 0 < cols_sum.sum() < cols_sum.size        # sampled rows only
     assert not (under == metrics.CELL_FREE).all(axis=0).any()   # no column known free
+
+
+def test_truth_option_scores_the_seed_suite_at_robot_level(tmp_path, capsys):
+    out = tmp_path / 'report.json'
+    assert evaluate.main(['--scene', 'step_down', '--max-frames', '1', '--truth', 'robot',
+                          '--json', str(out), '--quiet']) == 0
+    assert 'robot level' in capsys.readouterr().out
+    robot = json.loads(out.read_text())['scenes']['step_down']['robot']
+    assert robot['drops'] == 1 and robot['objects'] == 1      # the drop and the box
