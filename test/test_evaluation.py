@@ -182,8 +182,18 @@ def test_truth_obstacles_exist_in_every_suite_scene_but_the_empty_floor():
         assert has_obstacle == (scenario.scene != 'pitched_floor'), scenario.name
 
 
-@pytest.mark.parametrize('name, preset', [('corridor.yaml', 'table_4_2'),
-                                          ('corridor_video.yaml', 'table_4_3')])
+def _shipped_parameter_files():
+    """(file, preset) pairs: the navigation default, the seed tables (issue 9 adds files)."""
+    from obstacle_detection.params import PRESETS
+    folder = SUITE.parents[1] / 'params'
+    pairs = [('corridor.yaml', 'corridor' if 'corridor' in PRESETS else 'table_4_2'),
+             ('corridor_video.yaml', 'table_4_3')]
+    pairs += [(f'seed_{name}.yaml', name) for name in ('table_4_2', 'table_4_3')
+              if (folder / f'seed_{name}.yaml').is_file()]
+    return pairs
+
+
+@pytest.mark.parametrize('name, preset', _shipped_parameter_files())
 def test_shipped_parameter_files_reproduce_the_presets(name, preset):
     from obstacle_detection.params import PRESETS
     path = SUITE.parents[1] / 'params' / name
@@ -330,3 +340,12 @@ def test_robot_truth_leaves_the_gaps_of_a_grazing_underside_unscored():
     cols_sum = (under == metrics.CELL_OCCUPIED).any(axis=0)
     assert 0 < cols_sum.sum() < cols_sum.size        # sampled rows only
     assert not (under == metrics.CELL_FREE).all(axis=0).any()   # no column known free
+
+
+def test_truth_option_scores_the_seed_suite_at_robot_level(tmp_path, capsys):
+    out = tmp_path / 'report.json'
+    assert evaluate.main(['--scene', 'step_down', '--max-frames', '1', '--truth', 'robot',
+                          '--json', str(out), '--quiet']) == 0
+    assert 'robot level' in capsys.readouterr().out
+    robot = json.loads(out.read_text())['scenes']['step_down']['robot']
+    assert robot['drops'] == 1 and robot['objects'] == 1      # the drop and the box

@@ -1,9 +1,12 @@
 #!/usr/bin/env python3
 """Score the obstacle detector against ground truth: per scenario and overall.
 
-Runs the pipeline over labelled frames, the committed scenario suite (tools/scenarios.json:
-scene generator, fixed seeds) and/or labelled folders (``depth/*.png`` 16-bit mm,
-``labels/*.png`` 8-bit 0/1/2, ``intrinsics.yaml`` with the camera mount), and prints a table
+Runs the pipeline over labelled frames, a committed scenario suite (scene generator, fixed
+seeds: ``--suite seed``, tools/scenarios.json, scored against the seed's slope-only truth, or
+``--suite robot``, tools/scenarios_robot.json, scored against the robot-level truth of issue 9
+with time-of-flight sensor artefacts, which adds a table of objects found, passable surfaces
+left free and drops marked) and/or labelled folders (``depth/*.png`` 16-bit mm,
+``labels/*.png`` 8-bit 0/1/2/3, ``intrinsics.yaml`` with the camera mount), and prints a table
 for people and one JSON line for machines (the last line of stdout, or ``--json FILE``).
 
 Examples::
