@@ -1,0 +1,53 @@
+"""The robot-level suite (tools/scenarios_robot.json) with params/corridor.yaml: figures held.
+
+Measured (README, Accuracy): overall cell F1 0.902, false alarms 2.28 % of free cells, 44 of 44
+named objects found, passable ramps and landing 100 % free, 3 of 3 drops marked; the seed's
+Table 4.2 scores cell F1 0.40 on the same truth. The floors below sit a little under the
+measurement so that the test holds the result without failing on last-digit differences
+between machines (float summation order in BLAS, OpenCV builds): cell F1 >= 0.88 (issue 9
+asks for 0.9), false alarms <= 3 % (issue 9 asks for 1 %: not reached, see the README), and the
+all-or-nothing checks exactly: every object found, every drop marked, >= 97 % passable free.
+"""
+
+from pathlib import Path
+
+import pytest
+
+from obstacle_detection import evaluation
+from obstacle_detection.params import table_4_2
+from obstacle_detection.ros_params import detector_params_from_ros, read_params_file
+
+REPO = Path(__file__).resolve().parents[1]
+SUITE = REPO / 'tools' / 'scenarios_robot.json'
+
+
+def run_suite(params):
+    """Evaluate every scenario of the robot-level suite; return the overall summary."""
+    frames = (frame for scenario in evaluation.load_scenarios(SUITE)
+              for frame in evaluation.scenario_frames(scenario))
+    return evaluation.evaluate_frames(frames, params).overall
+
+
+@pytest.fixture(scope='module')
+def corridor_overall():
+    params = detector_params_from_ros(read_params_file(REPO / 'params' / 'corridor.yaml'))
+    assert params.robot_level and params.refine_floor
+    return run_suite(params)
+
+
+def test_corridor_yaml_holds_the_robot_level_figures(corridor_overall):
+    cell = corridor_overall.cell
+    assert cell.f1 >= 0.88
+    assert cell.false_alarm_rate <= 0.03
+    found, counted, missed = corridor_overall.objects_found()
+    assert counted >= 40 and found == counted, missed
+    marked, drops, unmarked = corridor_overall.drops_marked()
+    assert drops >= 3 and marked == drops, unmarked
+    assert corridor_overall.passable_free() >= 0.97
+
+
+def test_the_seed_method_does_not(corridor_overall):
+    seed = run_suite(table_4_2())
+    assert seed.cell.f1 < corridor_overall.cell.f1 - 0.3      # flat tops, curbs, drops
+    marked, drops, _ = seed.drops_marked()
+    assert marked < drops
