@@ -135,7 +135,7 @@ class DetectorParams:
     robot_height_m: float = field(default=1.0, metadata=_describe(
         'Robot level: surfaces higher than this above the local ground do not block the robot '
         '[m]', min=0.0, max=5.0, open_min=True))
-    max_filter_shift: float = field(default=0.1, metadata=_describe(
+    max_filter_shift: float = field(default=0.02, metadata=_describe(
         'Robot level: a pixel whose median-filtered depth moved more than this fraction of '
         'its depth away from the measured one takes the measured depth back (the filter '
         'smeared a depth edge onto it); holes filled across an edge and mixed (flying) pixels '
