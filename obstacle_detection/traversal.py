@@ -48,8 +48,9 @@ MIN_SURFACE_VOXELS = 3
 #: Rows below an over-the-edge pixel searched for the floor it passed [px].
 DROP_EDGE_ROWS = 3
 #: A pixel this share of its depth away from both the nearest and the farthest depth of its
-#: window is a mixed (flying) pixel (a floor seen 0.6 m up changes ~2 % over two rows).
-FLYING_JUMP = 0.05
+#: window is a mixed (flying) pixel, unless it lies on a plane with its neighbours (a floor
+#: seen 0.6 m up at 4 m changes ~2 % a row: such planes are kept, see _planar).
+FLYING_JUMP = 0.03
 #: Largest second difference of the inverse depth, as a share of it, of a pixel on a plane.
 PLANAR_TOLERANCE = 0.02
 #: Window of the flying-pixel test [px]: time-of-flight mixed pixels lie up to two pixels

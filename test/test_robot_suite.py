@@ -1,12 +1,11 @@
 """The robot-level suite (tools/scenarios_robot.json) with params/corridor.yaml: figures held.
 
-Measured (README, Accuracy): overall cell F1 0.942, false alarms 1.32 % of free cells, 44 of 44
+Measured (README, Accuracy): overall cell F1 0.941, false alarms 0.87 % of free cells, 44 of 44
 named objects found, passable ramps and landing 99.9 % free, 3 of 3 drops marked; the seed's
-Table 4.2 scores cell F1 0.40 on the same truth. The floors below sit a little under the
-measurement so that the test holds the result without failing on last-digit differences
-between machines (float summation order in BLAS, OpenCV builds): cell F1 >= 0.92 (issue 9
-asks for 0.9), false alarms <= 2 % (issue 9 asks for 1 %: not reached, see the README), and the
-all-or-nothing checks exactly: every object found, every drop marked, >= 97 % passable free.
+Table 4.2 scores cell F1 0.40 on the same truth. The floors are issue 9's own targets (cell F1
+>= 0.9, false alarms <= 1 %, every object found, every drop marked, >= 97 % passable free):
+the measurement clears them by 0.04 and 0.13 points, enough for last-digit differences
+between machines (float summation order in BLAS, OpenCV builds), not for a real regression.
 """
 
 from pathlib import Path
@@ -37,8 +36,8 @@ def corridor_overall():
 
 def test_corridor_yaml_holds_the_robot_level_figures(corridor_overall):
     cell = corridor_overall.cell
-    assert cell.f1 >= 0.92
-    assert cell.false_alarm_rate <= 0.02
+    assert cell.f1 >= 0.9
+    assert cell.false_alarm_rate <= 0.01
     found, counted, missed = corridor_overall.objects_found()
     assert counted >= 40 and found == counted, missed
     marked, drops, unmarked = corridor_overall.drops_marked()
