@@ -69,6 +69,12 @@ def score(depth_m: np.ndarray, intr: Intrinsics, params) -> tuple[int, int, int,
             int((standing & marked).sum()), mount)
 
 
+def _with_path(path: Path, err: Exception) -> str:
+    """Return the error's message, led by the path unless it already names it."""
+    text = str(err)
+    return text if text.startswith(str(path)) else f'{path}: {text}'
+
+
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry: print the per-frame and total shares."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -82,7 +88,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         params = load_params_file(args.params_file, corridor())
     except (OSError, ValueError) as err:
-        print(f'error: {args.params_file}: {err}', file=sys.stderr)
+        print(f'error: {_with_path(args.params_file, err)}', file=sys.stderr)
         return 1
     overrides = {}
     for item in args.set:
@@ -103,7 +109,7 @@ def main(argv: list[str] | None = None) -> int:
                 depth = decode_depth(read_depth_png(path), depth_scale=scale)
                 counts = score(depth, intr, params)
             except (OSError, ValueError) as err:
-                print(f'error: {path}: {err}', file=sys.stderr)
+                print(f'error: {_with_path(path, err)}', file=sys.stderr)
                 return 1
             totals += counts[:4]
             print(f'{folder}/{name}: floor marked {counts[1]}/{counts[0]} '
