@@ -3,14 +3,19 @@
 Labelled frames come from two sources:
 
 * the scene generator (``obstacle_detection.scenes``), through a scenario list such as the
-  committed ``tools/scenarios.json`` (fixed seeds, so numbers are comparable across versions);
+  committed ``tools/scenarios.json`` (fixed seeds, so numbers are comparable across versions;
+  scored against the seed's slope-only truth ``labels_seed``) or ``tools/scenarios_robot.json``
+  (issue 9: scored against the robot-level truth ``labels``, with the time-of-flight sensor
+  model; :func:`robot_score` adds named objects found, passable surfaces left free and drops
+  marked);
 * a *labelled folder* on disk, for recorded sequences with per-pixel labels::
 
       my_sequence/
         intrinsics.yaml     fx, fy, cx, cy [px]; camera_height_m; camera_pitch_deg (or _rad);
                             camera_roll_deg (or _rad); optional depth_scale [m per unit]
         depth/000000.png    16-bit depth [mm] (0 = no return)
-        labels/000000.png   8-bit labels: 0 no return, 1 traversable, 2 obstacle
+        labels/000000.png   8-bit labels: 0 no return, 1 traversable, 2 obstacle,
+                            3 above the robot (robot-level truth: scored as free)
 
   Frames pair up by file name, sorted. ``intrinsics.yaml`` may instead be a ROS camera
   calibration file (``camera_matrix: {data: [fx, 0, cx, 0, fy, cy, 0, 0, 1]}``) with the mount
@@ -40,6 +45,13 @@ from .params import KINECT_V2_SD, KINECT_V2_SD_SIZE, PRESETS, DetectorParams, In
 SCENARIO_FORMAT_VERSION = 1
 
 _MOUNT_KEYS = ('height_m', 'pitch_deg', 'roll_deg')
+#: Ground truths a scenario is scored against: the seed's slope-only labels
+#: (``SceneFrame.labels_seed``) or the robot-level ones (``SceneFrame.labels``, issue 9).
+TRUTH_KINDS = ('seed', 'robot')
+#: Sensor models by name (``scenes.NOISE_MODELS``): 'kinect_v2' (the generator's default, the
+#: seed suite's), 'kinect_v2_tof' with time-of-flight artefacts (flying pixels, more noise and
+#: dropouts on dark and far surfaces; the robot suite's), 'exact'.
+NOISE_NAMES = ('kinect_v2', 'kinect_v2_tof', 'exact')
 
 
 # --------------------------------------------------------------------------------------------
@@ -66,6 +78,10 @@ class LabelledFrame:
     roll_rad: float
     depth_scale: float | None = None
     sequence_key: str | None = None  # frames sharing a key form a time sequence, in order
+    truth: str = 'seed'  # 'seed': slope-only labels; 'robot': robot-level labels (issue 9)
+    object_ids: np.ndarray | None = None   # (H, W) int16 primitive hit, -1 none (generator)
+    object_names: tuple[str, ...] = ()     # name per primitive id ('' = unnamed)
+    drop_edge: np.ndarray | None = None    # (H, W) bool reachable ground at a drop's edge
 
     def params(self, base: DetectorParams) -> DetectorParams:
         """Return ``base`` with this frame's camera mount."""
@@ -89,10 +105,18 @@ class Scenario:
     frames: tuple[int, ...] | None = None
     mount: tuple[tuple[str, float], ...] = ()
     description: str = ''
+    truth: str = 'seed'
+    noise: str = 'kinect_v2'
 
     def __post_init__(self) -> None:
         if not self.name:
             raise ValueError('scenario name must not be empty')
+        if self.truth not in TRUTH_KINDS:
+            raise ValueError(f'scenario {self.name!r}: truth={self.truth!r} (allowed: '
+                             f'{", ".join(TRUTH_KINDS)})')
+        if self.noise not in NOISE_NAMES:
+            raise ValueError(f'scenario {self.name!r}: noise={self.noise!r} (allowed: '
+                             f'{", ".join(NOISE_NAMES)})')
         if not self.seeds:
             raise ValueError(f'scenario {self.name!r}: seeds must not be empty')
         unknown = {k for k, _ in self.mount} - set(_MOUNT_KEYS)
@@ -123,15 +147,16 @@ class Scenario:
         return out
 
 
-def scenario_from_dict(entry: dict[str, Any]) -> Scenario:
+def scenario_from_dict(entry: dict[str, Any], defaults: dict[str, Any] | None = None,
+                       ) -> Scenario:
     """Build a :class:`Scenario` from one JSON entry (raises ValueError naming the problem).
 
     ``frames`` may be a list of indices or ``{"start": a, "stop": b, "step": c}`` (stop
-    excluded).
+    excluded). ``defaults``: the list's own ``truth`` and ``noise`` for entries without them.
     """
     if not isinstance(entry, dict):
         raise ValueError(f'scenario entry {entry!r} is not an object')
-    known = {'name', 'scene', 'seeds', 'frames', 'mount', 'description'}
+    known = {'name', 'scene', 'seeds', 'frames', 'mount', 'description', 'truth', 'noise'}
     unknown = set(entry) - known
     if unknown:
         raise ValueError(f'scenario {entry.get("name")!r}: unknown key(s) '
@@ -147,15 +172,22 @@ def scenario_from_dict(entry: dict[str, Any]) -> Scenario:
         seeds=tuple(int(s) for s in entry.get('seeds', [0])),
         frames=None if frames is None else tuple(int(f) for f in frames),
         mount=tuple(sorted((str(k), float(v)) for k, v in entry.get('mount', {}).items())),
-        description=str(entry.get('description', '')))
+        description=str(entry.get('description', '')),
+        truth=str(entry.get('truth', (defaults or {}).get('truth', 'seed'))),
+        noise=str(entry.get('noise', (defaults or {}).get('noise', 'kinect_v2'))))
 
 
 def load_scenarios(path: str | Path) -> list[Scenario]:
-    """Read a scenario list (JSON: ``{"version": 1, "scenarios": [...]}``)."""
+    """Read a scenario list (JSON: ``{"version": 1, "scenarios": [...]}``).
+
+    Optional list-level keys ``truth`` ('seed' or 'robot', default 'seed') and ``noise`` (a
+    name in ``NOISE_NAMES``, default 'kinect_v2') apply to entries without their own.
+    """
     data = json.loads(Path(path).read_text(encoding='utf-8'))
     if not isinstance(data, dict) or data.get('version') != SCENARIO_FORMAT_VERSION:
         raise ValueError(f'{path}: not a version {SCENARIO_FORMAT_VERSION} scenario list')
-    scenarios = [scenario_from_dict(e) for e in data.get('scenarios', [])]
+    defaults = {k: data[k] for k in ('truth', 'noise') if k in data}
+    scenarios = [scenario_from_dict(e, defaults) for e in data.get('scenarios', [])]
     names = [s.name for s in scenarios]
     duplicates = sorted({n for n in names if names.count(n) > 1})
     if duplicates:
@@ -178,16 +210,21 @@ def select_scenarios(scenarios: Sequence[Scenario], names: Iterable[str] | None,
 
 
 def scenario_frames(scenario: Scenario, *, max_frames: int | None = None,
-                    size: tuple[int, int] | None = None) -> Iterator[LabelledFrame]:
+                    size: tuple[int, int] | None = None, rules: Any = None,
+                    truth: str | None = None) -> Iterator[LabelledFrame]:
     """Render the frames of one scenario with the scene generator.
 
     max_frames: keep at most this many, spread evenly over the scenario (None = all);
     size: (width, height) [px], None = the generator's default (Kinect v2 SD, 512 x 424); a
     smaller size scales the Kinect v2 intrinsics with the width (same field of view), which
-    makes quick tests.
+    makes quick tests. rules: ``scenes.TruthRules`` or detector parameters for the robot-level
+    truth (None = the defaults); truth: 'seed' or 'robot', None = the scenario's own.
     """
     from . import scenes  # the generator is only needed for synthetic frames
 
+    truth = scenario.truth if truth is None else truth
+    if truth not in TRUTH_KINDS:
+        raise ValueError(f'truth={truth!r} (allowed: {", ".join(TRUTH_KINDS)})')
     jobs = [(seed, index) for seed in scenario.seeds
             for index in (scenario.frames if scenario.frames is not None else (0,))]
     jobs = subsample(jobs, max_frames)
@@ -196,14 +233,19 @@ def scenario_frames(scenario: Scenario, *, max_frames: int | None = None,
         kwargs['size'] = (int(size[0]), int(size[1]))
         kwargs['intrinsics'] = scaled_intrinsics(KINECT_V2_SD, size[0] / KINECT_V2_SD_SIZE[0])
     for seed, index in jobs:
-        frame = scenes.render_scene(scenario.scene, seed=seed, frame_index=index, **kwargs)
+        frame = scenes.render_scene(scenario.scene, seed=seed, frame_index=index,
+                                    noise=scenes.NOISE_MODELS[scenario.noise], rules=rules,
+                                    **kwargs)
         frame_id = f'seed {seed}' + (f' frame {index}' if scenario.is_sequence else '')
         yield LabelledFrame(
             scenario=scenario.name, frame_id=frame_id, depth=frame.depth_mm,
-            intrinsics=frame.intrinsics, truth_labels=frame.labels,
+            intrinsics=frame.intrinsics,
+            truth_labels=frame.labels if truth == 'robot' else frame.labels_seed,
             truth_points=frame.points_ground, height_m=frame.height_m,
             pitch_rad=frame.pitch_rad, roll_rad=frame.roll_rad,
-            sequence_key=f'{scenario.name}/{seed}' if scenario.is_sequence else None)
+            sequence_key=f'{scenario.name}/{seed}' if scenario.is_sequence else None,
+            truth=truth, object_ids=frame.object_ids, object_names=frame.object_names,
+            drop_edge=frame.drop_edge)
 
 
 def scaled_intrinsics(intrinsics: Intrinsics, factor: float) -> Intrinsics:
@@ -308,9 +350,9 @@ def load_labelled_folder(path: str | Path, *, max_frames: int | None = None,
         if labels is None or labels.dtype != np.uint8 or labels.shape != depth.shape:
             raise ValueError(f'{root / "labels" / depth_file.name}: not an 8-bit PNG of the '
                              f'depth size {depth.shape[::-1]}')
-        if labels.max(initial=0) > metrics.GT_OBSTACLE:
+        if labels.max(initial=0) > metrics.GT_ABOVE_ROBOT:
             raise ValueError(f'{root / "labels" / depth_file.name}: label value '
-                             f'{int(labels.max())} (allowed 0, 1, 2)')
+                             f'{int(labels.max())} (allowed 0, 1, 2, 3)')
         points = truth_points_from_depth(depth.astype(np.float32) * np.float32(scale),
                                          camera['intrinsics'], camera['height_m'],
                                          camera['pitch_rad'], camera['roll_rad'])
@@ -411,22 +453,135 @@ def load_params_file(path: str | Path, base: DetectorParams | None = None,
 # Scoring
 
 
-def truth_costmap(frame: LabelledFrame, params: DetectorParams) -> np.ndarray:
-    """Return the truth grid (ny, nx) int8 of a frame in the pipeline's costmap geometry.
+def truth_roi(frame: LabelledFrame, params: DetectorParams) -> np.ndarray:
+    """(H, W) bool: pixels whose true point the truth costmap counts.
 
-    The true points of ``GT_OBSTACLE`` pixels inside the region of interest make cells
-    occupied; cells with only ``GT_TRAVERSABLE`` points are free (see :mod:`metrics`). The
-    pipeline's own ``build_costmap`` rasterises them, so both grids bin points identically.
+    Seed truth: the pipeline's region of interest (``geometry.roi_mask``). Robot-level truth:
+    the forward range and lateral limits only; no height band, since a drop's lower floor
+    (below TDBG) is an obstacle and what is above the robot is labelled so.
     """
-    from .costmap import build_costmap
-
     flat = frame.truth_points.reshape(-1, 3)
     finite = np.isfinite(flat).all(axis=1)
     roi = np.zeros(flat.shape[0], dtype=bool)
-    roi[finite] = geometry.roi_mask(flat[finite], params)
-    obstacle, traversable = metrics.truth_points(frame.truth_points, frame.truth_labels,
-                                                 roi.reshape(frame.truth_labels.shape))
-    return build_costmap(obstacle, traversable, params).data
+    if frame.truth == 'robot':
+        x, y = flat[finite, 0], flat[finite, 1]
+        roi[finite] = ((x >= params.min_range_m) & (x <= params.max_range_m)
+                       & (np.abs(y) <= params.lateral_limit_m))
+    else:
+        roi[finite] = geometry.roi_mask(flat[finite], params)
+    return roi.reshape(frame.truth_labels.shape)
+
+
+#: Neighbouring obstacle samples of one surface at most this far apart span it [m].
+MAX_SURFACE_GAP_M = 0.5
+
+
+def truth_costmap(frame: LabelledFrame, params: DetectorParams,
+                  roi: np.ndarray | None = None) -> np.ndarray:
+    """Return the truth grid (ny, nx) int8 of a frame in the pipeline's costmap geometry.
+
+    The true points of ``GT_OBSTACLE`` pixels inside the region of interest make cells
+    occupied; cells with only ``GT_TRAVERSABLE`` (or ``GT_ABOVE_ROBOT``) points are free (see
+    :mod:`metrics`). Robot-level truth also marks the cells of the reachable ground at a
+    drop's edge (``drop_edge``: where the floor ends), and leaves unscored (unknown) the
+    cells between neighbouring samples of one obstacle surface that no sample fell in (a
+    surface seen at a grazing angle, ``metrics.surface_gap_points``, up to
+    ``MAX_SURFACE_GAP_M`` apart). The pipeline's own ``build_costmap``
+    rasterises them, so both grids bin points identically. roi: :func:`truth_roi`, if known.
+    """
+    from .costmap import build_costmap
+
+    if roi is None:
+        roi = truth_roi(frame, params)
+    marked = frame.drop_edge if frame.truth == 'robot' else None
+    obstacle, traversable = metrics.truth_points(frame.truth_points, frame.truth_labels, roi,
+                                                 marked)
+    grid = build_costmap(obstacle, traversable, params).data
+    if frame.truth == 'robot' and frame.object_ids is not None:
+        # A surface seen at a grazing angle (a table's underside) is sampled in sparse rows:
+        # the cells between its samples are neither known free nor sampled: not scored.
+        from .costmap import costmap_geometry
+
+        origin, nx, ny = costmap_geometry(params)
+        res = params.costmap_resolution_m
+        gaps = metrics.surface_gap_points(
+            frame.truth_points, frame.object_ids,
+            roi & (frame.truth_labels == metrics.GT_OBSTACLE), step_m=res / 2,
+            max_gap_m=MAX_SURFACE_GAP_M)
+        covered = metrics.point_cells(gaps, origin, res, (ny, nx))
+        grid[covered & (grid != metrics.CELL_OCCUPIED)] = metrics.CELL_UNKNOWN
+    return grid
+
+
+#: A named object counts (found or missed) only with at least this many visible cells.
+MIN_OBJECT_CELLS = 3
+#: An object is found when at least this share of its visible cells is occupied.
+FOUND_SHARE = 0.5
+#: A drop is marked when at least this share of its edge cells has an occupied cell within
+#: ``DROP_TOLERANCE_CELLS`` cells.
+DROP_MARKED_SHARE = 0.5
+DROP_TOLERANCE_CELLS = 1
+
+
+@dataclass
+class RobotScore:
+    """Robot-level checks of one frame (issue 9), each entry ``(name, hits, cells)``.
+
+    objects: named obstacle objects, hits = visible cells occupied; passable: named
+    traversable objects (ramp, landing, sill), hits = their free truth cells left free;
+    drops: named drops, hits = edge cells marked (within ``DROP_TOLERANCE_CELLS``).
+    """
+
+    objects: list[tuple[str, int, int]] = field(default_factory=list)
+    passable: list[tuple[str, int, int]] = field(default_factory=list)
+    drops: list[tuple[str, int, int]] = field(default_factory=list)
+
+
+def robot_score(frame: LabelledFrame, predicted_grid: np.ndarray, params: DetectorParams,
+                truth_grid: np.ndarray, roi: np.ndarray) -> RobotScore:
+    """Named objects found, passable surfaces left free and drops marked in one frame.
+
+    Primitives of one name form one object; an object whose returned, in-range pixels are
+    mostly ``GT_OBSTACLE`` is an obstacle (its visible cells: those its obstacle points fall
+    in), otherwise passable (its cells: those its traversable points fall in that are free in
+    the truth). A named primitive with ``drop_edge`` pixels is a drop (its cells: those of the
+    edge pixels). Objects with fewer than ``MIN_OBJECT_CELLS`` cells are left out.
+    """
+    from .costmap import costmap_geometry
+
+    score = RobotScore()
+    if frame.object_ids is None or not frame.object_names:
+        return score
+    origin, nx, ny = costmap_geometry(params)
+    res = params.costmap_resolution_m
+    seen = roi & (frame.truth_labels != metrics.GT_NO_RETURN)
+    edge = frame.drop_edge if frame.drop_edge is not None else np.zeros(seen.shape, bool)
+    names = frame.object_names
+    for name in dict.fromkeys(n for n in names if n):
+        ids = [i for i, n in enumerate(names) if n == name]
+        everywhere = np.isin(frame.object_ids, ids)
+        mine = seen & everywhere
+        if (edge & everywhere).any():   # a drop, even with its edge out of range
+            cells = metrics.point_cells(frame.truth_points[edge & mine], origin, res, (ny, nx))
+            hits, total = metrics.occupied_share(predicted_grid, cells,
+                                                 tolerance_cells=DROP_TOLERANCE_CELLS)
+            if total >= MIN_OBJECT_CELLS:
+                score.drops.append((name, hits, total))
+            continue
+        obstacle = mine & (frame.truth_labels == metrics.GT_OBSTACLE)
+        traversable = mine & (frame.truth_labels == metrics.GT_TRAVERSABLE)
+        if np.count_nonzero(obstacle) >= np.count_nonzero(traversable):
+            cells = metrics.point_cells(frame.truth_points[obstacle], origin, res, (ny, nx))
+            hits, total = metrics.occupied_share(predicted_grid, cells)
+            if total >= MIN_OBJECT_CELLS:
+                score.objects.append((name, hits, total))
+        else:
+            cells = metrics.point_cells(frame.truth_points[traversable], origin, res, (ny, nx))
+            cells &= truth_grid == metrics.CELL_FREE
+            hits, total = metrics.free_share(predicted_grid, cells)
+            if total >= MIN_OBJECT_CELLS:
+                score.passable.append((name, hits, total))
+    return score
 
 
 @dataclass
@@ -441,6 +596,7 @@ class FrameScore:
     total_ms: float
     refined_pixel: Confusion | None = None
     refined_cell: Confusion | None = None
+    robot: RobotScore | None = None
 
 
 def score_frame(frame: LabelledFrame, result: Any, params: DetectorParams,
@@ -463,6 +619,7 @@ class SceneSummary:
     total_ms: list[float] = field(default_factory=list)
     refined_pixel: Confusion | None = None
     refined_cell: Confusion | None = None
+    robot: RobotScore | None = None   # every frame's robot-level entries, in order
 
     def add(self, score: FrameScore) -> None:
         """Pool one frame's counts."""
@@ -470,6 +627,13 @@ class SceneSummary:
         self.pixel += score.pixel
         self.cell += score.cell
         self.total_ms.append(score.total_ms)
+        if score.robot is not None:
+            self.robot = self.robot or RobotScore()
+            tag = f'{score.scenario} {score.frame_id}'
+            for mine, theirs in ((self.robot.objects, score.robot.objects),
+                                 (self.robot.passable, score.robot.passable),
+                                 (self.robot.drops, score.robot.drops)):
+                mine.extend((f'{name} ({tag})', hits, cells) for name, hits, cells in theirs)
         if score.refined_pixel is not None and score.refined_cell is not None:
             self.refined_pixel = (self.refined_pixel or Confusion()) + score.refined_pixel
             self.refined_cell = (self.refined_cell or Confusion()) + score.refined_cell
@@ -479,6 +643,24 @@ class SceneSummary:
         """Mean pipeline time per frame [ms]."""
         return float(np.mean(self.total_ms)) if self.total_ms else math.nan
 
+    def objects_found(self) -> tuple[int, int, list[str]]:
+        """Return (objects found, objects counted, names of the missed ones) over the frames."""
+        entries = self.robot.objects if self.robot else []
+        missed = [name for name, hits, cells in entries if hits < FOUND_SHARE * cells]
+        return len(entries) - len(missed), len(entries), missed
+
+    def passable_free(self) -> float:
+        """Share of the passable named objects' free truth cells left free (NaN: none)."""
+        entries = self.robot.passable if self.robot else []
+        cells = sum(c for _, _, c in entries)
+        return sum(h for _, h, _ in entries) / cells if cells else math.nan
+
+    def drops_marked(self) -> tuple[int, int, list[str]]:
+        """Return (drops marked, drops counted, names of the unmarked ones) over the frames."""
+        entries = self.robot.drops if self.robot else []
+        missed = [name for name, hits, cells in entries if hits < DROP_MARKED_SHARE * cells]
+        return len(entries) - len(missed), len(entries), missed
+
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready scores (NaN becomes None)."""
         out: dict[str, Any] = {'frames': self.frames, 'mean_ms': _json_number(self.mean_ms),
@@ -487,6 +669,12 @@ class SceneSummary:
         if self.refined_pixel is not None and self.refined_cell is not None:
             out['refined'] = {'pixel': _json_dict(self.refined_pixel.as_dict()),
                               'cell': _json_dict(self.refined_cell.as_dict())}
+        if self.robot is not None:
+            found, counted, missed = self.objects_found()
+            marked, drops, unmarked = self.drops_marked()
+            out['robot'] = {'objects_found': found, 'objects': counted, 'missed': missed,
+                            'passable_free': _json_number(self.passable_free()),
+                            'drops_marked': marked, 'drops': drops, 'unmarked': unmarked}
         return out
 
 
@@ -555,11 +743,14 @@ def evaluate_frames(frames: Iterable[LabelledFrame], base: DetectorParams, *,
         params = frame.params(base)
         result = cache.get(params).process(frame.depth, frame.intrinsics,
                                            depth_scale=frame.depth_scale)
-        grid = truth_costmap(frame, params)
+        roi = truth_roi(frame, params)
+        grid = truth_costmap(frame, params, roi)
         pixel, cell = score_frame(frame, result, params, grid)
         score = FrameScore(frame.scenario, frame.frame_id, pixel, cell,
                            int(result.obstacle_points.shape[0]),
                            float(result.timings_ms.get('total', math.nan)))
+        if frame.truth == 'robot':
+            score.robot = robot_score(frame, result.costmap.data, params, grid, roi)
         if refiner is not None:
             prev_mask = None
             if frame.sequence_key is not None and previous[0] == frame.sequence_key:
@@ -615,6 +806,63 @@ def format_table(report: Report, *, refined: bool = False) -> str:
     return '\n'.join(lines)
 
 
+#: Issue 9's targets for the robot-level suite (``params/corridor.yaml``).
+ROBOT_TARGETS = {'cell_f1': 0.9, 'false_alarm_rate': 0.01, 'passable_free': 0.97}
+
+
+def _share(hits: int, total: int) -> str:
+    return f'{hits}/{total}' if total else '-'
+
+
+def format_robot_table(report: Report) -> str:
+    """Return the robot-level table: one row per scenario, an 'overall' row, the targets.
+
+    Columns: frames; exact-cell F1; false alarms as % of the free truth cells (FA %); named
+    obstacle objects found (>= 50 % of their visible cells occupied) out of those seen, per
+    frame; share of the passable named surfaces' (ramp, landing, sill) free truth cells left
+    free (pass %); drops marked out of those seen; pixel F1; mean pipeline time [ms]. Then the
+    missed objects and unmarked drops by name and frame, and each target met or not.
+    """
+    width = max([len('overall')] + [len(n) for n in report.scenes]) + 1
+    head = (f'{"scenario":<{width}} {"frames":>6} {"cell F1":>7} {"FA %":>6} {"objects":>8} '
+            f'{"pass %":>6} {"drops":>6} {"px F1":>6} {"ms":>6}')
+    lines = [head, '-' * len(head)]
+    rows = list(report.scenes.values()) + [report.overall]
+    for i, summary in enumerate(rows):
+        if i == len(rows) - 1:
+            lines.append('-' * len(head))
+        found, counted, _ = summary.objects_found()
+        marked, drops, _ = summary.drops_marked()
+        fa = summary.cell.false_alarm_rate
+        passable = summary.passable_free()
+        lines.append(
+            f'{summary.name:<{width}} {summary.frames:>6} {format_score(summary.cell.f1):>7} '
+            f'{"-" if math.isnan(fa) else f"{100 * fa:.2f}":>6} {_share(found, counted):>8} '
+            f'{"-" if math.isnan(passable) else f"{100 * passable:.1f}":>6} '
+            f'{_share(marked, drops):>6} {format_score(summary.pixel.f1):>6} '
+            f'{summary.mean_ms:>6.1f}')
+    overall = report.overall
+    found, counted, missed = overall.objects_found()
+    marked, drops, unmarked = overall.drops_marked()
+    if missed:
+        lines.append('missed objects: ' + ', '.join(missed))
+    if unmarked:
+        lines.append('unmarked drops: ' + ', '.join(unmarked))
+    passable = overall.passable_free()
+    checks = (
+        (f'cell F1 >= {ROBOT_TARGETS["cell_f1"]}',
+         overall.cell.f1 >= ROBOT_TARGETS['cell_f1']),
+        (f'FA <= {100 * ROBOT_TARGETS["false_alarm_rate"]:g} %',
+         overall.cell.false_alarm_rate <= ROBOT_TARGETS['false_alarm_rate']),
+        ('every object found', found == counted),
+        (f'pass >= {100 * ROBOT_TARGETS["passable_free"]:g} %',
+         math.isnan(passable) or passable >= ROBOT_TARGETS['passable_free']),
+        ('every drop marked', marked == drops))
+    lines.append('targets: ' + ', '.join(f'{name} {"yes" if ok else "NO"}'
+                                         for name, ok in checks))
+    return '\n'.join(lines)
+
+
 #: README-ready text on what the scores count.
 SCORE_DEFINITIONS = """\
 What counts (obstacle = positive class; scores pool the counts of all frames of a row):
@@ -627,6 +875,13 @@ What counts (obstacle = positive class; scores pool the counts of all frames of 
          unknown pipeline cells count as 'not obstacle'.
   P precision tp/(tp+fp), R recall tp/(tp+fn), F1 2tp/(2tp+fp+fn), IoU tp/(tp+fp+fn),
   FA false-alarm rate fp/(fp+tn): share of traversable truth marked obstacle. '-' = undefined.
+Robot-level suite (--suite robot): the truth is the robot-level one (box, table and shelf tops,
+  curbs, the lower floor beyond a drop are obstacles; ramps to a landing, sills traversable;
+  surfaces above the robot count as free); the truth grid keeps the forward range and lateral
+  limits of the ROI but no height band, and marks the cells where the floor ends at a drop.
+  objects: named obstacles found (>= 50 % of their visible cells occupied) / seen (>= 3 cells),
+  per frame; pass %: free truth cells of the passable named surfaces left free; drops: drops
+  whose edge cells are marked (>= 50 % within one cell) / seen. Flying pixels are not scored.
 """
 
 

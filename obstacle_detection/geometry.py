@@ -11,6 +11,7 @@ import math
 
 import numpy as np
 
+from . import jit_traversal
 from .params import DetectorParams, Intrinsics
 
 #: Optical frame (x right, y down, z forward) -> level body frame (x forward, y left, z up).
@@ -84,14 +85,17 @@ def to_ground(points_optical: np.ndarray, params: DetectorParams) -> np.ndarray:
 
 
 def ground_rays(shape: tuple[int, int], intrinsics: Intrinsics, params: DetectorParams,
-                ) -> np.ndarray:
+                out: np.ndarray | None = None) -> np.ndarray:
     """Ground-frame direction of every pixel's ray, scaled so that depth 1 m travels it.
 
     Returns (3, H*W) float32: ``p_ground = depth * rays[:, pixel] + (0, 0, height)`` is the
     back-projection (seed 4.3.2) followed by the camera mount, for a flat pixel index.
+    out: a (3, H*W) float32 array the compiled path fills instead of a new one.
     """
     ru, rv = pixel_rays(shape, intrinsics)
     rot = mount_rotation(params.camera_pitch_rad, params.camera_roll_rad).astype(np.float32)
+    if jit_traversal.enabled():   # the same float32 operations, compiled (per frame when the
+        return jit_traversal.ground_rays(ru, rv, rot, out)   # floor is refined)
     height, width = shape
     rays = np.empty((3, height, width), dtype=np.float32)
     for axis in range(3):

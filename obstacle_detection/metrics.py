@@ -22,6 +22,10 @@ Costmap-cell level
     pipeline's cell is ``CELL_OCCUPIED``; a free or unknown pipeline cell counts as negative
     (an obstacle the pipeline never saw is a miss).
 
+Robot-level truth (issue 9) adds the label ``GT_ABOVE_ROBOT``: a surface above the robot is
+not an obstacle, so its pixels are negatives and its points count as free in the truth grid (a
+cell under an overhang above the robot is free, marking it is a false alarm).
+
 Scores from a confusion (tp, fp, fn, tn): precision tp/(tp+fp), recall tp/(tp+fn),
 F1 2 tp/(2 tp+fp+fn), IoU tp/(tp+fp+fn), false-alarm rate fp/(fp+tn) (the share of traversable
 truth marked as obstacle), accuracy (tp+tn)/total. A ratio with a zero denominator is NaN
@@ -41,6 +45,8 @@ import numpy as np
 GT_NO_RETURN = 0
 GT_TRAVERSABLE = 1
 GT_OBSTACLE = 2
+#: Robot-level truth only: a surface above the robot; not an obstacle, a free point in cells.
+GT_ABOVE_ROBOT = 3
 
 #: Pipeline labels (mirrors ``obstacle_detection.pipeline``; kept here so this module imports
 #: nothing but numpy).
@@ -187,18 +193,26 @@ def cell_confusion(predicted_grid: np.ndarray, truth_grid: np.ndarray) -> Confus
 
 
 def truth_points(points_ground: np.ndarray, truth_labels: np.ndarray, roi: np.ndarray,
-                 ) -> tuple[np.ndarray, np.ndarray]:
+                 marked: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Split true hit points into (obstacle (O, 3), traversable (T, 3)) float32 [m].
 
     points_ground: (H, W, 3) ground frame, NaN where no hit; truth_labels (H, W) ``GT_*``;
     roi: (H, W) bool, True for pixels whose true point lies in the region of interest. Only
-    finite points inside the region of interest are returned.
+    finite points inside the region of interest are returned. ``GT_ABOVE_ROBOT`` points count
+    as traversable (a cell under an overhang above the robot is free). marked: (H, W) bool,
+    pixels with a surface whose points count as obstacles whatever their label (the reachable
+    ground at a drop's edge), None = none.
     """
     flat = np.asarray(points_ground, dtype=np.float32).reshape(-1, 3)
     labels = np.asarray(truth_labels).reshape(-1)
     keep = np.asarray(roi, dtype=bool).reshape(-1) & np.isfinite(flat).all(axis=1)
-    obstacle = flat[keep & (labels == GT_OBSTACLE)]
-    traversable = flat[keep & (labels == GT_TRAVERSABLE)]
+    is_obstacle = labels == GT_OBSTACLE
+    if marked is not None:
+        is_obstacle = is_obstacle | (np.asarray(marked, dtype=bool).reshape(-1)
+                                     & (labels != GT_NO_RETURN))
+    obstacle = flat[keep & is_obstacle]
+    traversable = flat[keep & ~is_obstacle
+                       & ((labels == GT_TRAVERSABLE) | (labels == GT_ABOVE_ROBOT))]
     return obstacle, traversable
 
 
@@ -230,3 +244,90 @@ def truth_grid(obstacle_points: np.ndarray, traversable_points: np.ndarray,
 def format_score(value: float, digits: int = 3) -> str:
     """Return a ratio as text, '-' when not defined (NaN)."""
     return '-' if value is None or math.isnan(value) else f'{value:.{digits}f}'
+
+
+def point_cells(points: np.ndarray, origin_xy_m: tuple[float, float], resolution_m: float,
+                shape: tuple[int, int]) -> np.ndarray:
+    """(ny, nx) bool: the grid cells that points (M, 3) or (M, 2) [m] fall in.
+
+    Binning as in :func:`truth_grid` (floor of the offset over the cell size); points outside
+    the grid are dropped.
+    """
+    if resolution_m <= 0.0 or not math.isfinite(resolution_m):
+        raise ValueError(f'resolution_m={resolution_m!r} must be a positive number')
+    ny, nx = shape
+    cells = np.zeros((ny, nx), dtype=bool)
+    points = np.asarray(points, dtype=np.float64)
+    points = points.reshape(-1, points.shape[-1] if points.ndim > 1 else 3)
+    ix = np.floor((points[:, 0] - origin_xy_m[0]) / resolution_m)
+    iy = np.floor((points[:, 1] - origin_xy_m[1]) / resolution_m)
+    inside = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
+    cells[iy[inside].astype(np.intp), ix[inside].astype(np.intp)] = True
+    return cells
+
+
+def occupied_share(predicted_grid: np.ndarray, cells: np.ndarray, *,
+                   tolerance_cells: int = 0) -> tuple[int, int]:
+    """(cells marked, cells) of a set of cells: how many are ``CELL_OCCUPIED`` in the grid.
+
+    tolerance_cells: a cell also counts as marked when an occupied cell lies within this many
+    cells of it (Chebyshev distance; 0 = the cell itself).
+    """
+    occupied = np.asarray(predicted_grid) == CELL_OCCUPIED
+    cells = np.asarray(cells, dtype=bool)
+    if occupied.shape != cells.shape:
+        raise ValueError(f'grid shape {occupied.shape} differs from cells shape {cells.shape}')
+    if tolerance_cells > 0:
+        k = int(tolerance_cells)
+        padded = np.pad(occupied, k)
+        grown = np.zeros_like(occupied)
+        ny, nx = occupied.shape
+        for dy in range(2 * k + 1):
+            for dx in range(2 * k + 1):
+                grown |= padded[dy:dy + ny, dx:dx + nx]
+        occupied = grown
+    return int(np.count_nonzero(occupied & cells)), int(np.count_nonzero(cells))
+
+
+def free_share(predicted_grid: np.ndarray, cells: np.ndarray) -> tuple[int, int]:
+    """(cells free, cells) of a set of cells: how many are ``CELL_FREE`` in the grid."""
+    free = np.asarray(predicted_grid) == CELL_FREE
+    cells = np.asarray(cells, dtype=bool)
+    if free.shape != cells.shape:
+        raise ValueError(f'grid shape {free.shape} differs from cells shape {cells.shape}')
+    return int(np.count_nonzero(free & cells)), int(np.count_nonzero(cells))
+
+
+def surface_gap_points(points_ground: np.ndarray, object_ids: np.ndarray, mask: np.ndarray,
+                       *, step_m: float, max_gap_m: float) -> np.ndarray:
+    """Points (M, 3) float64 [m] filling the gaps between neighbouring samples of a surface.
+
+    Two 4-neighbour pixels, both in ``mask``, that hit the same object (``object_ids`` >= 0,
+    equal) and lie more than ``step_m`` but at most ``max_gap_m`` apart span a piece of that
+    surface the pixel grid sampled sparsely (a table's underside seen at a grazing angle): the
+    segment between them is sampled at most ``step_m`` apart (end points excluded). points_ground:
+    (H, W, 3) ground frame, NaN where no hit.
+    """
+    if not (0.0 < step_m <= max_gap_m and math.isfinite(max_gap_m)):
+        raise ValueError(f'need 0 < step_m={step_m!r} <= max_gap_m={max_gap_m!r}')
+    points = np.asarray(points_ground, dtype=np.float64)
+    ids = np.asarray(object_ids)
+    mask = np.asarray(mask, dtype=bool) & (ids >= 0)
+    starts, ends = [], []
+    for a, b in (((slice(None), slice(None, -1)), (slice(None), slice(1, None))),
+                 ((slice(None, -1), slice(None)), (slice(1, None), slice(None)))):
+        pair = mask[a] & mask[b] & (ids[a] == ids[b])
+        pa, pb = points[a][pair], points[b][pair]
+        with np.errstate(invalid='ignore'):
+            gap = np.linalg.norm(pb - pa, axis=1)
+        keep = (gap > step_m) & (gap <= max_gap_m)
+        starts.append(pa[keep])
+        ends.append(pb[keep])
+    start, end = np.concatenate(starts), np.concatenate(ends)
+    if start.shape[0] == 0:
+        return np.zeros((0, 3))
+    # count - 1 inner points per segment: spacing gap / count <= max_gap_m / count <= step_m
+    count = int(math.ceil(max_gap_m / step_m))
+    fractions = np.arange(1, count) / count
+    dense = start[:, None, :] + fractions[None, :, None] * (end - start)[:, None, :]
+    return dense.reshape(-1, 3)

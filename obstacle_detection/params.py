@@ -1,8 +1,11 @@
 """Parameters of the obstacle-detection pipeline, validated on construction.
 
 Every parameter of the seed thesis (chapter 4) is here under a descriptive name; the seed's own
-name is given in each field's description. Defaults reproduce the seed's Table 4.2; presets
-reproduce Tables 4.2 and 4.3. Units are metres and radians unless a name says otherwise.
+name is given in each field's description. Defaults are the seed's Table 4.2 values with the
+robot-level rules on (``robot_level``, floor refinement; not in the seed); the presets
+:func:`table_4_2` and :func:`table_4_3` are the seed method exactly (slope only), and
+:func:`corridor` is the navigation default. Units are metres and radians unless a name says
+otherwise.
 """
 
 from __future__ import annotations
@@ -113,9 +116,48 @@ class DetectorParams:
         'N1: an obstacle point stays one only if its N1 nearest neighbours (itself excluded) are '
         'obstacles too; 0 = no validation (seed Table 4.2: 12)', min=0, max=400))
     max_ground_height_m: float = field(default=0.0, metadata=_describe(
-        'Not in the seed: flat voxels higher than this above the ground are obstacles too '
-        '(box and table tops, which the slope test calls ground); it also marks the high part '
-        'of a passable ramp. 0 = off, the seed method [m]', min=0.0, max=5.0))
+        'Not in the seed, slope-only mode (robot_level false; robot level supersedes it): '
+        'flat voxels higher than this above the ground are obstacles too (box and table tops, '
+        'which the slope test calls ground); it also marks the high part of a passable ramp. '
+        '0 = off, the seed method [m]', min=0.0, max=5.0))
+    # -- robot level (not in the seed): traversability by connectivity, step height and drops
+    robot_level: bool = field(default=True, metadata=_describe(
+        'Not in the seed: robot-level traversability. Ground is grown from the floor plane '
+        'through steps <= max_step_height_m up / max_step_down_m down and slopes <= theta; '
+        'other surfaces inside the robot height band (box and table tops, curbs) and drops are '
+        'obstacles. false = the seed slope-only rule'))
+    max_step_height_m: float = field(default=0.05, metadata=_describe(
+        'Robot level: largest step up the robot drives over (door sill) [m]', min=0.0,
+        max=1.0))
+    max_step_down_m: float = field(default=0.05, metadata=_describe(
+        'Robot level: largest step down the robot drives over; lower ground is a drop [m]',
+        min=0.0, max=1.0))
+    robot_height_m: float = field(default=1.0, metadata=_describe(
+        'Robot level: surfaces higher than this above the local ground do not block the robot '
+        '[m]', min=0.0, max=5.0, open_min=True))
+    max_filter_shift: float = field(default=0.02, metadata=_describe(
+        'Robot level: a pixel whose median-filtered depth moved more than this fraction of '
+        'its depth away from the measured one takes the measured depth back (the filter '
+        'smeared a depth edge onto it); holes filled across an edge and mixed (flying) pixels '
+        'are dropped (no return never marks anything). 0 = the filtered depth as is, as the '
+        'seed',
+        min=0.0, max=1.0))
+    drop_view_m: float = field(default=1.0, metadata=_describe(
+        'Robot level: the region of interest reaches this far below the ground (instead of '
+        'TDBG) so that the floor beyond a drop is seen [m]', min=0.0, max=5.0))
+    refine_floor: bool = field(default=True, metadata=_describe(
+        'Not in the seed: fit the floor plane to each frame (bounded by floor_max_tilt_deg and '
+        'floor_max_offset_m around the configured mount; the mount is used when too little '
+        'floor is seen)'))
+    floor_max_tilt_rad: float = field(default=math.radians(5.0), metadata=_describe(
+        'Floor refinement: largest tilt of the fitted floor from the configured mount [rad]',
+        min=0.0, max=math.radians(20.0)))
+    floor_max_offset_m: float = field(default=0.1, metadata=_describe(
+        'Floor refinement: largest height offset of the fitted floor from the configured '
+        'mount [m]', min=0.0, max=1.0))
+    floor_min_points: int = field(default=60, metadata=_describe(
+        'Floor refinement: fewest floor samples (of about 3000 pixels on a grid) for a fit; '
+        'fewer keep the configured mount', min=3, max=100000))
     # -- costmap (seed 4.3.6), ground plane, x forward from the camera foot, centred in y
     costmap_resolution_m: float = field(default=0.05, metadata=_describe(
         'Costmap cell size [m/cell]', min=0.005, max=1.0))
@@ -134,6 +176,11 @@ class DetectorParams:
         if self.min_range_m >= self.max_range_m:
             raise ValueError(
                 f'min_range_m={self.min_range_m} must be below max_range_m={self.max_range_m}')
+        if self.max_step_height_m >= self.robot_height_m:
+            raise ValueError(
+                f'max_step_height_m={self.max_step_height_m} must be below '
+                f'robot_height_m={self.robot_height_m} (a step the robot drives over cannot '
+                f'be taller than the robot)')
         if self.camera_height_m + self.smar_m <= self.tdbg_m:
             raise ValueError(
                 f'smar_m={self.smar_m} leaves an empty height band above tdbg_m={self.tdbg_m} '
@@ -168,6 +215,10 @@ class DetectorParams:
 
 
 def _check_field(name: str, value: Any, type_name: Any, meta: Any) -> None:
+    if type_name in ('bool', bool):
+        if not isinstance(value, bool):
+            raise ValueError(f'{name}={value!r} must be true or false')
+        return
     is_int = type_name in ('int', int)
     if is_int:
         if isinstance(value, bool) or not isinstance(value, int):
@@ -186,14 +237,19 @@ def _check_field(name: str, value: Any, type_name: Any, meta: Any) -> None:
         raise ValueError(f'{name}={value!r} out of range: must be {bound} {high}')
 
 
+#: What the robot-level additions are set to in the seed presets: off, the seed method exactly.
+SEED_METHOD = dict(robot_level=False, refine_floor=False)
+
+
 def table_4_2(**overrides: Any) -> DetectorParams:
-    """Return the seed's Table 4.2 parameters (DIML indoor scenes), with overrides.
+    """Return the seed's Table 4.2 parameters (DIML indoor scenes), the seed method exactly.
 
     theta = pi/6, N1 = 12, N = 10, TDBG = -0.1, SMAR = 0.8, range 2 m, voxels 25 mm,
-    K = 17 (seed figure 4.8).
+    K = 17 (seed figure 4.8); slope only (``robot_level=False``, no floor refinement).
+    ``params/seed_table_4_2.yaml``.
     """
     base = dict(max_slope_rad=math.pi / 6, validation_neighbours=12, normal_neighbours=10,
-                tdbg_m=-0.1, smar_m=0.8, max_range_m=2.0, median_kernel=17)
+                tdbg_m=-0.1, smar_m=0.8, max_range_m=2.0, median_kernel=17, **SEED_METHOD)
     base.update(overrides)
     return DetectorParams(**base)
 
@@ -202,13 +258,23 @@ def table_4_3(**overrides: Any) -> DetectorParams:
     """Return the seed's Table 4.3 parameters (corridor video, 512x424), with overrides.
 
     theta = pi/3, N1 = 7, N = 5, TDBG = -0.1, SMAR = 0.8, range 1 m (seed figure 4.27),
-    K = 7 (seed figure 4.11).
+    K = 7 (seed figure 4.11); slope only. ``params/seed_table_4_3.yaml`` (and its older name
+    ``params/corridor_video.yaml``).
     """
     base = dict(max_slope_rad=math.pi / 3, validation_neighbours=7, normal_neighbours=5,
                 tdbg_m=-0.1, smar_m=0.8, max_range_m=1.0, median_kernel=7,
-                costmap_length_m=1.0)
+                costmap_length_m=1.0, **SEED_METHOD)
     base.update(overrides)
     return DetectorParams(**base)
 
 
-PRESETS = {'table_4_2': table_4_2, 'table_4_3': table_4_3}
+def corridor(**overrides: Any) -> DetectorParams:
+    """Return the navigation default, ``params/corridor.yaml``.
+
+    Table 4.2's values for the seed's parameters, with the robot-level rules and the floor
+    refinement on (as in ``DetectorParams()``).
+    """
+    return table_4_2(**{'robot_level': True, 'refine_floor': True, **overrides})
+
+
+PRESETS = {'table_4_2': table_4_2, 'table_4_3': table_4_3, 'corridor': corridor}

@@ -2,7 +2,8 @@
 
 Every DetectorParams field becomes one ROS parameter of the same name, except the three angles,
 which a person writes in degrees (DESIGN.md): ``max_slope_rad`` -> ``max_slope_deg``,
-``camera_pitch_rad`` -> ``camera_pitch_deg``, ``camera_roll_rad`` -> ``camera_roll_deg``.
+``camera_pitch_rad`` -> ``camera_pitch_deg``, ``camera_roll_rad`` -> ``camera_roll_deg``,
+``floor_max_tilt_rad`` -> ``floor_max_tilt_deg``.
 Descriptions and ranges come from the dataclass's field metadata. The node's own parameters
 (frames, output switches, QoS, intrinsics fallback, statistics) follow.
 
@@ -37,6 +38,7 @@ DEGREE_FIELDS = {
     'max_slope_rad': 'max_slope_deg',
     'camera_pitch_rad': 'camera_pitch_deg',
     'camera_roll_rad': 'camera_roll_deg',
+    'floor_max_tilt_rad': 'floor_max_tilt_deg',
 }
 
 _ROS_TYPES = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEGER,

@@ -182,9 +182,170 @@ def test_truth_obstacles_exist_in_every_suite_scene_but_the_empty_floor():
         assert has_obstacle == (scenario.scene != 'pitched_floor'), scenario.name
 
 
-@pytest.mark.parametrize('name, preset', [('corridor.yaml', 'table_4_2'),
-                                          ('corridor_video.yaml', 'table_4_3')])
+def _shipped_parameter_files():
+    """(file, preset) pairs: the navigation default, the seed tables (issue 9 adds files)."""
+    from obstacle_detection.params import PRESETS
+    folder = SUITE.parents[1] / 'params'
+    pairs = [('corridor.yaml', 'corridor' if 'corridor' in PRESETS else 'table_4_2'),
+             ('corridor_video.yaml', 'table_4_3')]
+    pairs += [(f'seed_{name}.yaml', name) for name in ('table_4_2', 'table_4_3')
+              if (folder / f'seed_{name}.yaml').is_file()]
+    return pairs
+
+
+@pytest.mark.parametrize('name, preset', _shipped_parameter_files())
 def test_shipped_parameter_files_reproduce_the_presets(name, preset):
     from obstacle_detection.params import PRESETS
     path = SUITE.parents[1] / 'params' / name
     assert evaluation.load_params_file(path) == PRESETS[preset]()
+
+
+# -- the robot-level suite (issue 9) ----------------------------------------------------------
+
+ROBOT_SUITE = SUITE.parent / 'scenarios_robot.json'
+
+
+def _robot_frame(name, size=SMALL):
+    scenario = next(s for s in evaluation.load_scenarios(ROBOT_SUITE) if s.name == name)
+    return next(evaluation.scenario_frames(scenario, size=size, max_frames=1))
+
+
+def test_robot_suite_covers_the_issue_scenes_with_robot_truth_and_tof_noise():
+    scenarios = evaluation.load_scenarios(ROBOT_SUITE)
+    assert {s.scene for s in scenarios} <= set(scenes.SCENE_NAMES)
+    for needed in ('office', 'dark_office', 'ramp_landing', 'dock_edge', 'dock_edge_high',
+                   'curb_sill', 'shelf', 'orchard', 'corridor', 'step_down'):
+        assert needed in {s.scene for s in scenarios}
+    assert all(s.truth == 'robot' and s.noise == 'kinect_v2_tof' for s in scenarios)
+    assert any(dict(s.mount).get('pitch_deg') and dict(s.mount).get('roll_deg')
+               for s in scenarios)
+    # the seed suite keeps its truth and sensor model
+    assert all(s.truth == 'seed' and s.noise == 'kinect_v2'
+               for s in evaluation.load_scenarios(SUITE))
+
+
+def test_seed_suite_frames_carry_the_slope_only_truth():
+    frame = _corridor_frame()
+    rendered = scenes.render_scene('corridor', seed=0, size=SMALL, intrinsics=frame.intrinsics)
+    np.testing.assert_array_equal(frame.truth_labels, rendered.labels_seed)
+    assert frame.truth == 'seed'
+    assert not (frame.truth_labels == metrics.GT_ABOVE_ROBOT).any()
+    robot = next(evaluation.scenario_frames(evaluation.Scenario('corridor', 'corridor'),
+                                            size=SMALL, truth='robot'))
+    np.testing.assert_array_equal(robot.truth_labels, rendered.labels)
+
+
+def test_scenario_with_unknown_truth_or_noise_is_refused():
+    with pytest.raises(ValueError, match="truth='both'"):
+        evaluation.scenario_from_dict({'name': 'a', 'scene': 'corridor', 'truth': 'both'})
+    with pytest.raises(ValueError, match="noise='loud'"):
+        evaluation.scenario_from_dict({'name': 'a', 'scene': 'corridor', 'noise': 'loud'})
+
+
+def test_robot_truth_grid_marks_the_drop_edge_and_the_lower_floor():
+    frame = _robot_frame('dock_edge_high')
+    params = frame.params(table_4_2())
+    grid = evaluation.truth_costmap(frame, params)
+    from obstacle_detection.costmap import costmap_geometry
+    origin, nx, ny = costmap_geometry(params)
+    x_edge = next(p.x_m for p in scenes.build_scene('dock_edge_high', seed=0).primitives)
+    x_centres = origin[0] + (np.arange(nx) + 0.5) * params.costmap_resolution_m
+    occupied = grid == metrics.CELL_OCCUPIED
+    edge_col = int(np.floor((x_edge - 1e-3 - origin[0]) / params.costmap_resolution_m))
+    assert occupied[:, edge_col].sum() > 10                         # where the floor ends
+    assert occupied[:, x_centres > x_edge + 0.3].sum() > 50         # the lower floor, < TDBG
+    assert not occupied[:, x_centres < x_edge - 0.1].any()          # the dock is free
+    assert (grid[:, x_centres < x_edge - 0.1] == metrics.CELL_FREE).sum() > 50
+
+
+@pytest.mark.parametrize('name', ['office', 'ramp_landing', 'dock_edge', 'curb_sill'])
+def test_robot_checks_of_a_perfect_and_of_a_blind_costmap(name):
+    frame = _robot_frame(name)
+    params = frame.params(table_4_2())
+    roi = evaluation.truth_roi(frame, params)
+    truth = evaluation.truth_costmap(frame, params, roi)
+    perfect = evaluation.robot_score(frame, truth, params, truth, roi)
+    blind = evaluation.robot_score(frame, np.full_like(truth, metrics.CELL_FREE), params,
+                                   truth, roi)
+    entries = perfect.objects + perfect.passable + perfect.drops
+    assert entries
+    assert all(hits == cells for _, hits, cells in entries)
+    assert all(hits == 0 for _, hits, _ in blind.objects + blind.drops)
+    assert all(hits == cells for _, hits, cells in blind.passable)
+    kinds = {'office': 'objects', 'ramp_landing': 'passable', 'dock_edge': 'drops',
+             'curb_sill': 'passable'}
+    assert getattr(perfect, kinds[name])
+    if name == 'office':
+        assert {n for n, _, _ in perfect.objects} == {'box_small', 'box_large', 'table', 'chair'}
+    if name == 'ramp_landing':
+        assert {n for n, _, _ in perfect.passable} == {'ramp', 'landing'}
+        assert {n for n, _, _ in perfect.objects} == {'steep_ramp'}
+
+
+def test_robot_summary_pools_found_objects_passable_cells_and_drops():
+    summary = evaluation.SceneSummary('x')
+    for frame_id, robot in (('0', evaluation.RobotScore([('box', 3, 4), ('table', 1, 4)],
+                                                        [('ramp', 9, 10)], [('drop', 2, 4)])),
+                            ('1', evaluation.RobotScore([('box', 2, 4)], [('ramp', 10, 10)],
+                                                        [('drop', 1, 4)]))):
+        summary.add(evaluation.FrameScore('x', frame_id, Confusion(), Confusion(), 0, 1.0,
+                                          robot=robot))
+    assert summary.objects_found() == (2, 3, ['table (x 0)'])
+    assert summary.passable_free() == pytest.approx(19 / 20)
+    assert summary.drops_marked() == (1, 2, ['drop (x 1)'])
+    data = summary.as_dict()['robot']
+    assert data['objects_found'] == 2 and data['unmarked'] == ['drop (x 1)']
+
+
+def test_evaluate_robot_suite_prints_the_robot_table(tmp_path, capsys):
+    out = tmp_path / 'report.json'
+    code = evaluate.main(['--suite', 'robot', '--scene', 'dock_edge', '--scene', 'curb_sill',
+                          '--json', str(out), '--quiet'])
+    assert code == 0
+    table = capsys.readouterr().out
+    assert 'robot level' in table and 'objects' in table and 'targets:' in table
+    report = json.loads(out.read_text())
+    assert report['scenes']['dock_edge']['robot']['drops'] == 1
+    assert report['scenes']['curb_sill']['robot']['objects'] == 1     # the curb
+    assert report['overall']['robot']['passable_free'] is not None      # the sill
+
+
+def test_evaluate_prints_the_seed_presets_beside_the_robot_suite(tmp_path, capsys):
+    out = tmp_path / 'report.json'
+    code = evaluate.main(['--suite', 'robot', '--scene', 'curb_sill', '--max-frames', '1',
+                          '--beside-seed', 'table_4_3', '--json', str(out), '--quiet'])
+    assert code == 0
+    assert 'beside it, the seed suite' in capsys.readouterr().out
+    beside = json.loads(out.read_text())['beside_seed']
+    assert list(beside) == ['table_4_3']
+    suite = evaluation.load_scenarios(SUITE)
+    assert beside['table_4_3']['frames'] == len(suite)      # one frame per seed scenario
+
+
+def test_robot_truth_leaves_the_gaps_of_a_grazing_underside_unscored():
+    # a table top 0.72 m up seen from 0.6 m: its underside is sampled in rows ~0.1 m apart
+    frame = _robot_frame('office', size=scenes.KINECT_V2_SD_SIZE)
+    params = frame.params(table_4_2())
+    grid = evaluation.truth_costmap(frame, params)
+    from obstacle_detection.costmap import costmap_geometry
+    origin, nx, ny = costmap_geometry(params)
+    top = next(p for p in scenes.build_scene('office', seed=0).primitives
+               if p.name == 'table')
+    (x0, y0, _), (x1, y1, _) = top.bounds()
+    res = params.costmap_resolution_m
+    x1 = min(x1, params.max_range_m - 0.1)    # inside the range, where the truth has points
+    cols = slice(int((x0 - origin[0]) / res) + 1, int((x1 - origin[0]) / res) - 1)
+    rows = slice(int((y0 - origin[1]) / res) + 1, int((y1 - origin[1]) / res) - 1)
+    under = grid[rows, cols]
+    cols_sum = (under == metrics.CELL_OCCUPIED).any(axis=0)
+    assert 0 < cols_sum.sum() < cols_sum.size        # sampled rows only
+    assert not (under == metrics.CELL_FREE).all(axis=0).any()   # no column known free
+
+
+def test_truth_option_scores_the_seed_suite_at_robot_level(tmp_path, capsys):
+    out = tmp_path / 'report.json'
+    assert evaluate.main(['--scene', 'step_down', '--max-frames', '1', '--truth', 'robot',
+                          '--json', str(out), '--quiet']) == 0
+    assert 'robot level' in capsys.readouterr().out
+    robot = json.loads(out.read_text())['scenes']['step_down']['robot']
+    assert robot['drops'] == 1 and robot['objects'] == 1      # the drop and the box

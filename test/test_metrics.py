@@ -101,3 +101,64 @@ def test_truth_points_keeps_finite_roi_points():
     roi = np.array([[True, True], [True, False]])
     obstacle, traversable = metrics.truth_points(points, labels, roi)
     assert obstacle.shape == (1, 3) and traversable.shape == (1, 3)
+
+
+# -- robot-level helpers (issue 9) ------------------------------------------------------------
+
+def test_above_robot_points_count_free_and_marked_points_occupied():
+    points = np.array([[[0.1, 0.1, 1.5], [0.3, 0.1, 0.0]],
+                       [[0.1, 0.3, 0.0], [0.3, 0.3, 0.2]]], np.float32)
+    labels = np.array([[metrics.GT_ABOVE_ROBOT, GT_TRAVERSABLE],
+                       [GT_TRAVERSABLE, GT_OBSTACLE]], np.uint8)
+    roi = np.ones((2, 2), bool)
+    marked = np.array([[False, True], [False, False]])
+    obstacle, traversable = metrics.truth_points(points, labels, roi, marked)
+    np.testing.assert_allclose(obstacle[:, :2], [[0.3, 0.1], [0.3, 0.3]], rtol=1e-6)
+    np.testing.assert_allclose(traversable[:, :2], [[0.1, 0.1], [0.1, 0.3]], rtol=1e-6)
+    grid = metrics.truth_grid(obstacle, traversable, (0.0, 0.0), 0.2, (2, 2))
+    np.testing.assert_array_equal(grid, [[CELL_FREE, CELL_OCCUPIED], [CELL_FREE, CELL_OCCUPIED]])
+    # a marked pixel without a return is not a point
+    labels[0, 1] = GT_NO_RETURN
+    obstacle, _ = metrics.truth_points(points, labels, roi, marked)
+    assert obstacle.shape == (1, 3)
+
+
+def test_point_cells_bins_like_the_truth_grid():
+    points = np.array([[0.05, 0.05, 0.0], [0.25, 0.15, 0.0], [0.99, 0.0, 0.0],
+                       [-0.01, 0.0, 0.0]])
+    cells = metrics.point_cells(points, (0.0, 0.0), 0.1, (2, 3))
+    expected = np.zeros((2, 3), bool)
+    expected[0, 0] = expected[1, 2] = True
+    np.testing.assert_array_equal(cells, expected)
+    with pytest.raises(ValueError, match='resolution_m'):
+        metrics.point_cells(points, (0.0, 0.0), 0.0, (2, 3))
+
+
+def test_occupied_and_free_share_with_and_without_tolerance():
+    grid = np.full((3, 4), CELL_UNKNOWN, np.int8)
+    grid[0, 0] = CELL_OCCUPIED
+    grid[2, 3] = CELL_FREE
+    cells = np.zeros((3, 4), bool)
+    cells[0, 0] = cells[1, 1] = cells[2, 3] = True
+    assert metrics.occupied_share(grid, cells) == (1, 3)
+    assert metrics.occupied_share(grid, cells, tolerance_cells=1) == (2, 3)   # (1, 1) touches
+    assert metrics.occupied_share(grid, cells, tolerance_cells=3) == (3, 3)
+    assert metrics.free_share(grid, cells) == (1, 3)
+    with pytest.raises(ValueError, match='differs'):
+        metrics.free_share(grid, cells[:2])
+
+
+def test_surface_gap_points_fill_sparse_samples_of_one_surface_only():
+    points = np.array([[[0.0, 0.0, 0.5], [0.3, 0.0, 0.5], [0.32, 0.0, 0.5], [1.5, 0.0, 0.5]]])
+    ids = np.array([[4, 4, 4, 4]], np.int16)
+    mask = np.ones((1, 4), bool)
+    gaps = metrics.surface_gap_points(points, ids, mask, step_m=0.05, max_gap_m=0.5)
+    # only the first pair: 0.3 m apart (the second is closer than a step, the third too far)
+    x = np.sort(gaps[:, 0])
+    assert x.size == 9 and x.min() > 0.0 and x.max() < 0.3
+    assert np.all(np.diff(x) <= 0.05) and np.all(gaps[:, 1:] == [0.0, 0.5])
+    ids[0, 1] = 5   # another object: no surface between them
+    assert metrics.surface_gap_points(points, ids, mask, step_m=0.05,
+                                      max_gap_m=0.5).shape == (0, 3)
+    with pytest.raises(ValueError, match='step_m'):
+        metrics.surface_gap_points(points, ids, mask, step_m=0.0, max_gap_m=0.5)

@@ -5,12 +5,12 @@ import math
 
 import pytest
 
-from obstacle_detection.params import (SEED_TABLE_4_1, DetectorParams, Intrinsics, table_4_2,
-                                       table_4_3)
+from obstacle_detection.params import (SEED_TABLE_4_1, DetectorParams, Intrinsics, corridor,
+                                       table_4_2, table_4_3)
 
 
 def test_defaults_are_seed_table_4_2():
-    p = DetectorParams()
+    p = DetectorParams(robot_level=False, refine_floor=False)
     assert p == table_4_2()
     assert p.max_slope_rad == pytest.approx(math.pi / 6)
     assert (p.validation_neighbours, p.normal_neighbours) == (12, 10)
@@ -43,6 +43,18 @@ def test_table_4_1_fallback_intrinsics():
     ({'crop_top_px': True}, r'crop_top_px=True must be an integer'),
     ({'min_range_m': 3.0}, r'min_range_m=3.0 must be below max_range_m'),
     ({'tdbg_m': 0.5}, r'tdbg_m=0.5 out of range'),
+    ({'max_step_height_m': 1.0}, r'max_step_height_m=1.0 must be below robot_height_m=1.0'),
+    ({'max_step_height_m': 0.3, 'robot_height_m': 0.2},
+     r'max_step_height_m=0.3 must be below robot_height_m=0.2'),
+    ({'max_step_height_m': -0.01}, r'max_step_height_m=-0.01 out of range: must be >= 0'),
+    ({'max_step_down_m': -0.05}, r'max_step_down_m=-0.05 out of range: must be >= 0'),
+    ({'robot_height_m': 0.0}, r'robot_height_m=0.0 out of range: must be > 0'),
+    ({'robot_height_m': -1.0}, r'robot_height_m=-1.0 out of range'),
+    ({'drop_view_m': -0.5}, r'drop_view_m=-0.5 out of range'),
+    ({'floor_max_offset_m': -0.1}, r'floor_max_offset_m=-0.1 out of range'),
+    ({'floor_max_tilt_rad': -0.1}, r'floor_max_tilt_rad=-0.1 out of range'),
+    ({'robot_level': 1}, r'robot_level=1 must be true or false'),
+    ({'refine_floor': 'yes'}, r"refine_floor='yes' must be true or false"),
 ])
 def test_bad_values_raise_naming_the_value(change, pattern):
     with pytest.raises(ValueError, match=pattern):
@@ -63,7 +75,20 @@ def test_params_are_frozen_and_replace_validates():
 def test_every_field_has_description_and_range():
     for f in dataclasses.fields(DetectorParams):
         assert f.metadata['description'], f.name
-        assert 'min' in f.metadata and 'max' in f.metadata, f.name
+        if f.type not in ('bool', bool):   # a switch has no range
+            assert 'min' in f.metadata and 'max' in f.metadata, f.name
+
+
+def test_navigation_default_is_table_4_2_with_the_robot_level_rules():
+    p = DetectorParams()
+    assert p == corridor()
+    assert p.robot_level and p.refine_floor
+    assert (p.max_step_height_m, p.max_step_down_m, p.robot_height_m) == (0.05, 0.05, 1.0)
+    seed_fields = {f.name for f in dataclasses.fields(DetectorParams)} - {
+        'robot_level', 'refine_floor'}
+    assert all(getattr(p, name) == getattr(table_4_2(), name) for name in seed_fields)
+    assert not table_4_2().robot_level and not table_4_3().robot_level
+    assert not table_4_2().refine_floor and not table_4_3().refine_floor
 
 
 @pytest.mark.parametrize('bad', [dict(fx=0.0), dict(fy=-1.0), dict(cx=float('nan'))])

@@ -32,6 +32,8 @@ def run(frame, **overrides):
 def truth_cells(frame, params, primitive=None):
     """Truth grid of a frame; with ``primitive``, only that primitive's visible vertical faces.
 
+    The seed's slope-only truth (``labels_seed``): these tests run the seed preset.
+
     A box's top is flat, so the seed's slope test calls it ground by design; the per-primitive
     truth leaves it out (the whole-frame truth keeps it, and the F1 below pays for it).
     """
@@ -44,7 +46,7 @@ def truth_cells(frame, params, primitive=None):
         roi &= frame.hit_index == primitive
         top = getattr(frame.primitives[primitive], 'max_m', (0.0, 0.0, np.inf))[2]
         roi &= ~(frame.points_ground[..., 2] > top - 1e-3)
-    obstacle, free = metrics.truth_points(frame.points_ground, frame.labels, roi)
+    obstacle, free = metrics.truth_points(frame.points_ground, frame.labels_seed, roi)
     return build_costmap(obstacle, free, params).data
 
 
@@ -106,7 +108,7 @@ def test_labels_agree_with_voxels_and_depth():
                                   result.voxel_is_obstacle[pv[in_roi]])
     assert (labels == LABEL_OUTSIDE_ROI).any()
     # obstacle pixels are mostly true obstacles
-    truth = frame.labels[labels == LABEL_OBSTACLE]
+    truth = frame.labels_seed[labels == LABEL_OBSTACLE]   # the seed's slope-only truth
     assert (truth == GT_OBSTACLE).mean() > 0.9
     # validated obstacles are a subset of the slope test's
     assert not (result.voxel_is_obstacle & ~result.voxel_slope_obstacle).any()

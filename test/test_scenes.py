@@ -8,9 +8,9 @@ import pytest
 from obstacle_detection import scenes
 from obstacle_detection.geometry import back_project, to_ground
 from obstacle_detection.params import DetectorParams, Intrinsics, KINECT_V2_SD
-from obstacle_detection.scenes import (Box, Cylinder, Floor, GT_NO_RETURN, GT_OBSTACLE,
-                                       GT_TRAVERSABLE, NoiseModel, Ramp, Scene, StepDown, Wall,
-                                       render, render_scene, scene_params)
+from obstacle_detection.scenes import (Box, Cylinder, Floor, GT_ABOVE_ROBOT, GT_NO_RETURN,
+                                       GT_OBSTACLE, GT_TRAVERSABLE, NoiseModel, Ramp, Scene,
+                                       StepDown, Wall, render, render_scene, scene_params)
 
 HEIGHT_M = 0.6
 QHD = Intrinsics(fx=540.0, fy=540.0, cx=479.5, cy=269.5)   # another camera, 960x540
@@ -99,7 +99,12 @@ def test_wall_straight_ahead(distance_m):
     on_wall = frame.hit_index == 1
     # a fronto-parallel plane has the same depth in every pixel
     np.testing.assert_allclose(frame.depth_true_m[on_wall], distance_m, rtol=1e-6)
-    assert np.all(frame.labels[on_wall] == GT_OBSTACLE)
+    assert np.all(frame.labels_seed[on_wall] == GT_OBSTACLE)
+    # robot level: the wall is an obstacle up to the robot's height (1 m), above it not
+    high = frame.points_ground[..., 2] > 1.0
+    assert np.all(frame.labels[on_wall & ~high] == GT_OBSTACLE)
+    assert np.all(frame.labels[on_wall & high] == GT_ABOVE_ROBOT)
+    assert (on_wall & high).any()
 
 
 def test_box_faces_are_obstacle():
@@ -361,3 +366,100 @@ def test_bad_render_arguments(kwargs, match):
 def test_bad_primitives(make, match):
     with pytest.raises(ValueError, match=match):
         make()
+
+
+# -- time-of-flight artefacts (issue 9) -------------------------------------------------------
+
+FLYING_ONLY = NoiseModel(depth_sigma_base_mm=0.0, depth_sigma_quad_mm_per_m2=0.0,
+                         dropout_rate=0.0, dark_dropout_rate=0.0, border_px=0,
+                         flying_pixel_rate=1.0)
+
+
+def box_before_wall() -> Scene:
+    """Return a box 1.5 m ahead in front of a wall at 3 m: depth edges around the box."""
+    return Scene('edges', (Floor(), Wall(3.0, 5.0, 3.0, -5.0, 0.0, 3.0),
+                           Box.on_floor(1.5, 0.0, 0.4, 0.4, 0.8)), height_m=HEIGHT_M)
+
+
+def window_range(depth: np.ndarray, hit: np.ndarray, size: int):
+    """Nearest and farthest true depth in each pixel's size x size window (reference loop)."""
+    h, w = depth.shape
+    r = size // 2
+    near = np.full(depth.shape, np.inf)
+    far = np.zeros(depth.shape)
+    for dy in range(-r, r + 1):
+        for dx in range(-r, r + 1):
+            ys = np.clip(np.arange(h) + dy, 0, h - 1)
+            xs = np.clip(np.arange(w) + dx, 0, w - 1)
+            d = depth[np.ix_(ys, xs)]
+            ok = hit[np.ix_(ys, xs)]
+            near = np.minimum(near, np.where(ok, d, np.inf))
+            far = np.maximum(far, np.where(ok, d, 0.0))
+    return near, far
+
+
+def test_flying_pixels_lie_between_foreground_and_background_at_edges_only():
+    frame = render(box_before_wall(), noise=FLYING_ONLY, seed=3)
+    true = frame.depth_true_m.astype(np.float64)
+    hit = frame.object_ids >= 0
+    near, far = window_range(true, hit, 5)
+    measured = frame.depth_mm.astype(np.float64) * 1e-3
+    flying = frame.flying
+    assert flying.sum() > 200
+    # between the nearest and farthest surface of its window, mostly off its own surface
+    assert np.all(measured[flying] >= near[flying] - 1e-3)
+    assert np.all(measured[flying] <= far[flying] + 1e-3)
+    assert np.median(np.abs(measured[flying] - true[flying])) > 0.05
+    # only where a depth edge is within 2 px (jump above 5 cm and 8 % of the near depth)
+    edge = far - near > np.maximum(0.05, 0.08 * near)
+    assert np.all(edge[flying])
+    # the box's silhouette against the wall 1.5 m behind: every pixel next to it flies
+    near3, far3 = window_range(true, hit, 3)
+    ring1 = hit & (far3 - near3 > 1.0)
+    assert ring1.sum() > 100 and np.all(flying[ring1])
+    # elsewhere the depth is exact, and flying pixels are not scored
+    np.testing.assert_allclose(measured[~flying & hit], true[~flying & hit], atol=6e-4)
+    assert np.all(frame.labels[flying] == GT_NO_RETURN)
+    assert np.all(frame.hit_labels[flying] != GT_NO_RETURN)
+
+
+def test_flying_pixels_are_deterministic_per_seed_and_frame_and_about_half_next_to_edges():
+    model = scenes.KINECT_V2_TOF_NOISE
+    a = render(box_before_wall(), noise=model, seed=5, frame_index=2)
+    b = render(box_before_wall(), noise=model, seed=5, frame_index=2)
+    c = render(box_before_wall(), noise=model, seed=5, frame_index=3)
+    np.testing.assert_array_equal(a.flying, b.flying)
+    np.testing.assert_array_equal(a.depth_mm, b.depth_mm)
+    assert (a.flying != c.flying).any()
+    near, far = window_range(a.depth_true_m.astype(np.float64), a.object_ids >= 0, 3)
+    ring1 = (a.object_ids >= 0) & (far - near > 1.0) & (a.depth_mm > 0)
+    assert 0.4 < a.flying[ring1].mean() < 0.6
+
+
+def test_dark_surfaces_are_noisier():
+    model = NoiseModel(dropout_rate=0.0, dark_dropout_rate=0.0, dark_sigma_factor=2.0)
+    spreads = []
+    for dark in (False, True):
+        frame = render(wall_scene(2.0, dark=dark), noise=model, seed=1)
+        on_wall = (frame.object_ids == 1) & (frame.depth_mm > 0)
+        spreads.append(np.std(frame.depth_mm[on_wall] * 1e-3 - frame.depth_true_m[on_wall]))
+    assert spreads[1] == pytest.approx(2.0 * spreads[0], rel=0.05)
+
+
+def test_far_surfaces_drop_more_returns():
+    model = NoiseModel(depth_sigma_base_mm=0.0, depth_sigma_quad_mm_per_m2=0.0,
+                       dropout_rate=0.0075, far_dropout_rate=0.1, border_px=0)
+    lost = []
+    for distance in (2.0, 4.4):
+        frame = render(wall_scene(distance), noise=model, seed=2)
+        lost.append(np.mean(frame.depth_mm[frame.object_ids == 1] == 0))
+    assert lost[0] == pytest.approx(0.0075, abs=0.002)
+    expected = 0.0075 + 0.1 * (4.4 - 3.0) / 1.5
+    assert lost[1] == pytest.approx(expected, abs=0.01)
+
+
+def test_default_noise_has_no_time_of_flight_artefacts():
+    frame = render(box_before_wall(), seed=3)
+    assert not frame.flying.any()
+    frame = render(box_before_wall(), noise=scenes.NOISE_MODELS['kinect_v2_tof'], seed=3)
+    assert frame.flying.any()

@@ -1,9 +1,12 @@
 #!/usr/bin/env python3
 """Score the obstacle detector against ground truth: per scenario and overall.
 
-Runs the pipeline over labelled frames, the committed scenario suite (tools/scenarios.json:
-scene generator, fixed seeds) and/or labelled folders (``depth/*.png`` 16-bit mm,
-``labels/*.png`` 8-bit 0/1/2, ``intrinsics.yaml`` with the camera mount), and prints a table
+Runs the pipeline over labelled frames, a committed scenario suite (scene generator, fixed
+seeds: ``--suite seed``, tools/scenarios.json, scored against the seed's slope-only truth, or
+``--suite robot``, tools/scenarios_robot.json, scored against the robot-level truth of issue 9
+with time-of-flight sensor artefacts, which adds a table of objects found, passable surfaces
+left free and drops marked) and/or labelled folders (``depth/*.png`` 16-bit mm,
+``labels/*.png`` 8-bit 0/1/2/3, ``intrinsics.yaml`` with the camera mount), and prints a table
 for people and one JSON line for machines (the last line of stdout, or ``--json FILE``).
 
 Examples::
@@ -12,6 +15,9 @@ Examples::
     python tools/evaluate.py --preset table_4_3 --scene corridor --scene people
     python tools/evaluate.py --params-file params/corridor.yaml --refiner refiner.json
     python tools/evaluate.py --folder recordings/lab_run --pictures /tmp/pics
+    python tools/evaluate.py --suite robot --params-file params/corridor.yaml  # issue 9
+    python tools/evaluate.py --suite robot --params-file params/corridor.yaml \
+        --beside-seed table_4_2 --beside-seed table_4_3
 """
 
 from __future__ import annotations
@@ -30,6 +36,9 @@ from obstacle_detection import evaluation, tool_support  # noqa: E402
 from obstacle_detection.params import PRESETS, DetectorParams  # noqa: E402
 
 DEFAULT_SCENARIOS = Path(__file__).resolve().parent / 'scenarios.json'
+#: The committed suites: the seed's (slope-only truth) and the robot-level one (issue 9).
+SUITES = {'seed': DEFAULT_SCENARIOS,
+          'robot': Path(__file__).resolve().parent / 'scenarios_robot.json'}
 
 
 def parse_assignment(text: str) -> tuple[str, str]:
@@ -42,8 +51,14 @@ def parse_assignment(text: str) -> tuple[str, str]:
 
 def add_common_arguments(parser: argparse.ArgumentParser) -> None:
     """Frame-source and parameter options shared by evaluate, sweep and train_refiner."""
-    parser.add_argument('--scenarios', type=Path, default=DEFAULT_SCENARIOS,
-                        help='scenario list (JSON) [default: tools/scenarios.json]')
+    parser.add_argument('--suite', choices=sorted(SUITES), default='seed',
+                        help="committed scenario suite: 'seed' (tools/scenarios.json, the "
+                             "seed's slope-only truth) or 'robot' (tools/scenarios_robot.json, "
+                             'robot-level truth, time-of-flight noise) [default: seed]')
+    parser.add_argument('--scenarios', type=Path, default=None,
+                        help='scenario list (JSON) instead of the suite\'s')
+    parser.add_argument('--truth', choices=sorted(evaluation.TRUTH_KINDS),
+                        help="score against this truth instead of the scenarios' own")
     parser.add_argument('--scene', action='append', metavar='NAME',
                         help='evaluate only this scenario (repeatable) [default: all]')
     parser.add_argument('--folder', action='append', type=Path, metavar='DIR',
@@ -96,15 +111,17 @@ def frame_sources(args: argparse.Namespace,
     if args.max_frames is not None and args.max_frames < 1:
         raise ValueError(f'--max-frames={args.max_frames} must be >= 1')
     if args.scene or not args.folder:
-        scenarios = evaluation.select_scenarios(evaluation.load_scenarios(args.scenarios),
-                                                args.scene)
+        path = args.scenarios if args.scenarios is not None else SUITES[args.suite]
+        scenarios = evaluation.select_scenarios(evaluation.load_scenarios(path), args.scene)
+        rules = base_params(args)
         for scenario in scenarios:
             count = scenario.frame_count
             if args.max_frames is not None:
                 count = min(count, args.max_frames)
             sources.append((scenario.name, count,
                             _lazy(evaluation.scenario_frames, scenario,
-                                  max_frames=args.max_frames)))
+                                  max_frames=args.max_frames, rules=rules,
+                                  truth=args.truth)))
     for folder in args.folder or []:
         count = len(evaluation.subsample(sorted((folder / 'depth').glob('*.png')),
                                          args.max_frames))
@@ -152,7 +169,33 @@ def build_parser() -> argparse.ArgumentParser:
                         help='also save one PNG per frame (depth + obstacles, costmap, '
                              'comparison with the truth)')
     parser.add_argument('--quiet', action='store_true', help='no per-frame progress lines')
+    parser.add_argument('--beside-seed', action='append', choices=sorted(PRESETS), default=[],
+                        metavar='PRESET',
+                        help='also score this preset on the seed suite (tools/scenarios.json, '
+                             'slope-only truth) and print its overall row beside; repeatable')
     return parser
+
+
+def seed_suite_rows(presets: Sequence[str], max_frames: int | None,
+                    ) -> list[tuple[str, evaluation.SceneSummary]]:
+    """Overall summaries of the seed suite for each preset (frames rendered once)."""
+    frames = [frame for scenario in evaluation.load_scenarios(SUITES['seed'])
+              for frame in evaluation.scenario_frames(scenario, max_frames=max_frames)]
+    return [(name, evaluation.evaluate_frames(frames, PRESETS[name](), label=name).overall)
+            for name in presets]
+
+
+def format_seed_rows(rows: Sequence[tuple[str, evaluation.SceneSummary]]) -> str:
+    """Return the seed-suite rows: preset, frames, pixel F1, cell F1, cell FA (fractions)."""
+    width = max([len('preset')] + [len(name) for name, _ in rows]) + 1
+    head = f'{"preset":<{width}} {"frames":>6} {"px F1":>7} {"cell F1":>7} {"cell FA":>7}'
+    lines = [head, '-' * len(head)]
+    for name, summary in rows:
+        lines.append(f'{name:<{width}} {summary.frames:>6} '
+                     f'{evaluation.format_score(summary.pixel.f1):>7} '
+                     f'{evaluation.format_score(summary.cell.f1):>7} '
+                     f'{evaluation.format_score(summary.cell.false_alarm_rate):>7}')
+    return '\n'.join(lines)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -191,10 +234,24 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(f'parameters: {label}; {report.overall.frames} frames in {report.seconds:.1f} s',
           file=table_stream)
     print(evaluation.format_table(report), file=table_stream)
+    if report.overall.robot is not None:
+        print('\nrobot level (issue 9):', file=table_stream)
+        print(evaluation.format_robot_table(report), file=table_stream)
     if refiner is not None:
         print(f'\nrefined by {args.refiner} (seed 4.5 logistic regression):', file=table_stream)
         print(evaluation.format_table(report, refined=True), file=table_stream)
-    line = json.dumps(report.as_dict(), sort_keys=True)
+    data = report.as_dict()
+    if args.beside_seed:
+        try:
+            rows = seed_suite_rows(args.beside_seed, args.max_frames)
+        except (ValueError, OSError) as exc:
+            print(f'evaluate.py: error: {exc}', file=sys.stderr)
+            return 2
+        print('\nbeside it, the seed suite (tools/scenarios.json, slope-only truth), overall:',
+              file=table_stream)
+        print(format_seed_rows(rows), file=table_stream)
+        data['beside_seed'] = {name: summary.as_dict() for name, summary in rows}
+    line = json.dumps(data, sort_keys=True)
     if args.json in (None, '-'):
         print(line)
     else:

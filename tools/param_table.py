@@ -3,8 +3,10 @@
 Usage: ``python tools/param_table.py [--output FILE | --readme [README.md]]``. The table is
 generated from ``obstacle_detection.ros_params`` (itself built from DetectorParams' field
 metadata), so it cannot drift from what the node declares. Columns: the ROS name, type, the
-default (seed Table 4.2 for the pipeline), the Table 4.3 value where it differs
-(``params/corridor_video.yaml``), the allowed range, and the description.
+default (``params/corridor.yaml``: Table 4.2's values with the robot-level rules), the value
+of the seed's Table 4.3 preset where it differs (``params/seed_table_4_3.yaml``, the seed
+method exactly), the allowed range, and the description. The seed's Table 4.2 preset
+(``params/seed_table_4_2.yaml``) is the default with ``robot_level`` and ``refine_floor`` off.
 """
 
 from __future__ import annotations
@@ -16,8 +18,8 @@ from pathlib import Path
 from obstacle_detection.params import table_4_3
 from obstacle_detection.ros_params import ALL_PARAMS, ParamSpec, pipeline_params_to_ros
 
-HEADER = ('| Parameter | Type | Default (Table 4.2) | Table 4.3 | Range | Description |\n'
-          '| --- | --- | --- | --- | --- | --- |')
+HEADER = ('| Parameter | Type | Default (`corridor.yaml`) | Seed Table 4.3 | Range '
+          '| Description |\n| --- | --- | --- | --- | --- | --- |')
 
 
 def _format_value(value: object) -> str:
@@ -30,21 +32,23 @@ def _format_value(value: object) -> str:
     return str(value)
 
 
-def _row(spec: ParamSpec, video: dict[str, object]) -> str:
-    other = video.get(spec.name, spec.default)
-    other_text = _format_value(other) if other != spec.default else ''
+def _row(spec: ParamSpec, *presets: dict[str, object]) -> str:
+    others = []
+    for preset in presets:
+        other = preset.get(spec.name, spec.default)
+        others.append(_format_value(other) if other != spec.default else '')
     range_text = spec.range_text
     if spec.read_only:
         range_text = (range_text + ' ' if range_text else '') + 'read-only'
     description = spec.description.replace('|', '\\|')
     return (f'| `{spec.name}` | {spec.type_name} | {_format_value(spec.default)} | '
-            f'{other_text} | {range_text} | {description} |')
+            f'{" | ".join(others)} | {range_text} | {description} |')
 
 
 def parameter_table() -> str:
     """Return the Markdown table of every ROS parameter of the node, one row each."""
-    video = pipeline_params_to_ros(table_4_3())
-    return '\n'.join([HEADER, *(_row(spec, video) for spec in ALL_PARAMS)]) + '\n'
+    seed = pipeline_params_to_ros(table_4_3())
+    return '\n'.join([HEADER, *(_row(spec, seed) for spec in ALL_PARAMS)]) + '\n'
 
 
 #: The README's table stands between these two lines.

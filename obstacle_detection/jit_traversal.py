@@ -1,0 +1,317 @@
+"""Compiled (numba) kernels of the robot-level stages (optional; same results as numpy).
+
+:func:`ground_rays` equals :func:`obstacle_detection.geometry.ground_rays` (the same float32
+operations per pixel, in the same order); :func:`traverse` equals the numpy path of
+:func:`obstacle_detection.traversal.traversable_ground` (the same grid, the same reachable
+set, the same layered nearest-ground rule, the same float operations); :func:`drop_mask` equals
+:func:`obstacle_detection.traversal.drop_edge_mask`. The tests compare them bit for bit.
+When numba is missing or ``OBSTACLE_DETECTION_NO_JIT`` is set, :func:`enabled` is False and
+the numpy code runs instead. Kernels import nothing of ours but :mod:`.jit_support`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+import threading
+
+from .jit_support import AVAILABLE, NO_JIT_ENV, enabled, jit as _jit
+
+#: Per-thread buffers reused across frames (fresh large arrays cost page faults).
+_SCRATCH = threading.local()
+
+__all__ = ['AVAILABLE', 'NO_JIT_ENV', 'drop_mask', 'drop_smeared', 'enabled', 'ground_rays',
+           'holes_to_inf', 'traverse', 'warm_up']
+
+
+@_jit
+def _rays_kernel(ru, rv, rot, out):  # pragma: no cover - compiled
+    """Fill out (3, H, W) float32 = rot[a, 0] * ru[j] + rot[a, 1] * rv[i] + rot[a, 2]."""
+    for a in range(3):
+        r0, r1, r2 = rot[a, 0], rot[a, 1], rot[a, 2]
+        for i in range(rv.size):
+            t = r1 * rv[i]
+            for j in range(ru.size):
+                out[a, i, j] = (r0 * ru[j] + t) + r2
+
+
+def ground_rays(ru: np.ndarray, rv: np.ndarray, rot: np.ndarray,
+                out: np.ndarray | None = None) -> np.ndarray:
+    """(3, H*W) float32 ground rays from the per-column/per-row slopes and the float32 mount.
+
+    out: a (3, H*W) float32 array to fill (reused across frames spares page faults).
+    """
+    if out is None or out.shape != (3, rv.size * ru.size) or out.dtype != np.float32:
+        out = np.empty((3, rv.size * ru.size), np.float32)
+    _rays_kernel(ru, rv, rot, out.reshape(3, rv.size, ru.size))
+    return out
+
+
+def scratch(name: str, shape: tuple[int, ...], dtype) -> np.ndarray:
+    """Return a per-thread buffer of this shape and dtype, reused across frames."""
+    buf = getattr(_SCRATCH, name, None)
+    if buf is None or buf.shape != shape or buf.dtype != dtype:
+        buf = np.empty(shape, dtype)
+        setattr(_SCRATCH, name, buf)
+    return buf
+
+
+@_jit
+def _traverse_kernel(points, steep, size, step_up, step_down, up32, down32, robot32, layer,
+                     min_support, obstacle, above, height,
+                     reached_v):  # pragma: no cover - compiled
+    """Run the numpy path of traversal.traversable_ground cell by cell (see that module)."""
+    n = points.shape[0]
+    ix = np.empty(n, np.int64)
+    iy = np.empty(n, np.int64)
+    for v in range(n):
+        ix[v] = np.int64(np.floor(points[v, 0] / size))
+        iy[v] = np.int64(np.floor(points[v, 1] / size))
+    x0, y0 = ix.min(), iy.min()
+    nx = ix.max() - x0 + 1
+    ny = iy.max() - y0 + 1
+    key = np.empty(n, np.int64)
+    surface = np.full(nx * ny, np.inf)
+    low = np.full(nx * ny, np.inf)
+    high = np.full(nx * ny, -np.inf)
+    for v in range(n):
+        k = (ix[v] - x0) * ny + (iy[v] - y0)
+        key[v] = k
+        z = np.float64(points[v, 2])
+        if not steep[v] and z < surface[k]:
+            surface[k] = z
+        if z < low[k]:
+            low[k] = z
+        if z > high[k]:
+            high[k] = z
+    n_cells = nx * ny
+    support = np.zeros(n_cells, np.int64)
+    for v in range(n):
+        k = key[v]
+        if not steep[v] and np.float64(points[v, 2]) <= surface[k] + layer:
+            support[k] += 1
+    passable = np.empty(n_cells, np.bool_)
+    for c in range(n_cells):
+        passable[c] = (surface[c] != np.inf and high[c] - low[c] <= step_up
+                       and support[c] >= min_support)
+    # reach: breadth-first from the seeds through allowed steps (8 neighbours)
+    reached = np.zeros(n_cells, np.bool_)
+    queue = np.empty(n_cells, np.int64)
+    tail = 0
+    for c in range(n_cells):
+        s = surface[c]
+        if passable[c] and s >= -step_down and s <= step_up:
+            reached[c] = True
+            queue[tail] = c
+            tail += 1
+    head = 0
+    while head < tail:
+        c = queue[head]
+        head += 1
+        cx, cy = c // ny, c % ny
+        sa = surface[c]
+        for dx in range(-1, 2):
+            for dy in range(-1, 2):
+                if dx == 0 and dy == 0:
+                    continue
+                bx, by = cx + dx, cy + dy
+                if bx < 0 or bx >= nx or by < 0 or by >= ny:
+                    continue
+                b = bx * ny + by
+                if reached[b] or not passable[b]:
+                    continue
+                rise = surface[b] - sa
+                if rise <= step_up and -rise <= step_down:
+                    reached[b] = True
+                    queue[tail] = b
+                    tail += 1
+    # local ground: reached cells their surface, the others the largest ground of the
+    # neighbours filled in the previous layers (layer by layer, 8 neighbours)
+    ground = np.zeros(n_cells)
+    if tail > 0:
+        done = reached.copy()
+        for c in range(n_cells):
+            if reached[c]:
+                ground[c] = surface[c]
+        frontier = queue[:tail].copy()
+        cand = np.empty(n_cells, np.int64)
+        mark = np.zeros(n_cells, np.bool_)
+        while frontier.size > 0:
+            m = 0
+            for c in frontier:
+                cx, cy = c // ny, c % ny
+                for dx in range(-1, 2):
+                    for dy in range(-1, 2):
+                        bx, by = cx + dx, cy + dy
+                        if bx < 0 or bx >= nx or by < 0 or by >= ny:
+                            continue
+                        b = bx * ny + by
+                        if not done[b] and not mark[b]:
+                            mark[b] = True
+                            cand[m] = b
+                            m += 1
+            for i in range(m):
+                b = cand[i]
+                bx, by = b // ny, b % ny
+                best = -np.inf
+                for dx in range(-1, 2):
+                    for dy in range(-1, 2):
+                        ax, ay = bx + dx, by + dy
+                        if ax < 0 or ax >= nx or ay < 0 or ay >= ny:
+                            continue
+                        a = ax * ny + ay
+                        if done[a] and ground[a] > best:
+                            best = ground[a]
+                ground[b] = best
+            for i in range(m):
+                done[cand[i]] = True
+                mark[cand[i]] = False
+            frontier = cand[:m].copy()
+    for v in range(n):
+        k = key[v]
+        h = np.float32(np.float64(points[v, 2]) - ground[k])
+        height[v] = h
+        above[v] = h > robot32
+        obstacle[v] = (h > up32 and not above[v]) or h < -down32
+        reached_v[v] = reached[k]
+
+
+def traverse(points: np.ndarray, steep: np.ndarray, size_m: float, step_up_m: float,
+             step_down_m: float, robot_height_m: float, layer_m: float, min_support: int = 3,
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(obstacle, above, height float32, reached) per voxel; see traversal.traversable_ground."""
+    n = points.shape[0]
+    obstacle = np.empty(n, np.bool_)
+    above = np.empty(n, np.bool_)
+    height = np.empty(n, np.float32)
+    reached = np.empty(n, np.bool_)
+    _traverse_kernel(np.ascontiguousarray(points, np.float32),
+                     np.ascontiguousarray(steep, np.bool_), np.float32(size_m),
+                     float(step_up_m), float(step_down_m), np.float32(step_up_m),
+                     np.float32(step_down_m), np.float32(robot_height_m), float(layer_m),
+                     int(min_support),
+                     obstacle, above, height, reached)
+    return obstacle, above, height, reached
+
+
+@_jit
+def _drop_kernel(depth, rz, h, down, up, rows, out):  # pragma: no cover - compiled
+    """Fill out (H, W) int8: drop-edge row offsets (see traversal.drop_edge_mask)."""
+    height, width = depth.shape
+    for i in range(height):
+        for j in range(width):
+            out[i, j] = 0
+            d = depth[i, j]
+            if not d > 0.0:
+                continue
+            zp = d * rz[i, j] + h
+            if not zp < -down:
+                continue
+            for k in range(1, rows + 1):
+                if i + k >= height:
+                    break
+                dq = depth[i + k, j]
+                if not dq > 0.0:
+                    continue
+                zq = dq * rz[i + k, j] + h
+                if zq >= -down and zq <= up and zq - zp > down:
+                    out[i, j] = k
+                    break
+
+
+def drop_mask(depth_m: np.ndarray, rz: np.ndarray, height_m: float, step_down_m: float,
+              step_up_m: float, rows: int) -> np.ndarray:
+    """(H, W) int8 drop-edge row offsets; equals traversal.drop_edge_mask."""
+    out = np.empty(depth_m.shape, np.int8)
+    _drop_kernel(np.ascontiguousarray(depth_m, np.float32),
+                 np.ascontiguousarray(rz, np.float32).reshape(depth_m.shape),
+                 np.float32(height_m), np.float32(step_down_m), np.float32(step_up_m),
+                 int(rows), out)
+    return out
+
+
+@_jit
+def _inf_kernel(raw, out):  # pragma: no cover - compiled
+    """Copy raw into out with inf where there is no return (raw <= 0)."""
+    flat_in = raw.reshape(-1)
+    flat_out = out.reshape(-1)
+    for k in range(flat_in.size):
+        r = flat_in[k]
+        flat_out[k] = r if r > 0.0 else np.float32(np.inf)
+
+
+def holes_to_inf(raw: np.ndarray) -> np.ndarray:
+    """Return ``np.where(raw > 0, raw, inf)`` (float32) in a per-thread buffer, compiled."""
+    buf = scratch('inf', raw.shape, np.float32)
+    _inf_kernel(np.ascontiguousarray(raw, np.float32), buf)
+    return buf
+
+
+@_jit
+def _planar_at(raw, i, j, tol_ratio):  # pragma: no cover - compiled
+    """Return traversal._planar at (i, j): inverse-depth second differences within tolerance."""
+    height, width = raw.shape
+    if i < 1 or j < 1 or i >= height - 1 or j >= width - 1:
+        return False
+    r, a, b, c, d = raw[i, j], raw[i, j - 1], raw[i, j + 1], raw[i - 1, j], raw[i + 1, j]
+    if not (r > 0.0 and a > 0.0 and b > 0.0 and c > 0.0 and d > 0.0):
+        return False
+    one = np.float32(1.0)
+    two = np.float32(2.0)
+    inv = one / r
+    tol = tol_ratio * inv
+    row = abs(one / a + one / b - two * inv)
+    col = abs(one / c + one / d - two * inv)
+    return row <= tol and col <= tol
+
+
+@_jit
+def _smear_kernel(filtered, raw, near, far, ratio, jump, tol_ratio):  # pragma: no cover
+    """Apply traversal.drop_smeared in place, with the same float32 operations.
+
+    raw: measured depth with 0 for no return; near, far: its 5 x 5 window range.
+    """
+    height, width = filtered.shape
+    for i in range(height):
+        for j in range(width):
+            r = raw[i, j]
+            f = filtered[i, j]
+            if r > 0.0:
+                lim = jump * r
+                if r - near[i, j] > lim and far[i, j] - r > lim and \
+                        not _planar_at(raw, i, j, tol_ratio):
+                    filtered[i, j] = 0.0          # a mixed (flying) pixel
+                elif abs(f - r) > ratio * f:
+                    filtered[i, j] = r            # moved across an edge: the measured depth
+                continue
+            lim = ratio * f                       # a filled hole: kept inside a surface only
+            seen = False
+            agree = True
+            for ni, nj in ((i - 1, j), (i + 1, j), (i, j - 1), (i, j + 1)):
+                if 0 <= ni < height and 0 <= nj < width:
+                    nb = raw[ni, nj]
+                    if nb > 0.0:
+                        seen = True
+                        agree &= abs(nb - f) <= lim
+            if not (seen and agree):
+                filtered[i, j] = 0.0
+
+
+def drop_smeared(filtered: np.ndarray, raw: np.ndarray, near: np.ndarray, far: np.ndarray,
+                 max_shift: float, jump: float, planar_tolerance: float) -> None:
+    """In place: equals the numpy path of traversal.drop_smeared (float32 arithmetic)."""
+    _smear_kernel(filtered, raw, near, far, np.float32(max_shift), np.float32(jump),
+                  np.float32(planar_tolerance))
+
+
+def warm_up() -> None:
+    """Compile (or load from the disk cache) the kernels on tiny inputs."""
+    if not enabled():
+        return
+    ground_rays(np.zeros(2, np.float32), np.zeros(2, np.float32), np.eye(3, dtype=np.float32))
+    pts = np.array([[0.1, 0.0, 0.0], [0.2, 0.1, 0.3]], np.float32)
+    traverse(pts, np.array([False, True]), 0.05, 0.05, 0.05, 1.0, 0.025)
+    drop_mask(np.ones((4, 2), np.float32), -np.ones((4, 2), np.float32), 0.5, 0.05, 0.05, 3)
+    one = np.ones((3, 3), np.float32)
+    drop_smeared(one.copy(), one, one, one, 0.03, 0.05, 0.02)
+    holes_to_inf(one)

@@ -1,0 +1,343 @@
+"""Robot-level traversability, drops and the floor fit against geometry with a known answer.
+
+Scenes are built from the generator's primitives (Box, Wall, Ramp, StepDown, Floor) and
+rendered without noise unless a test says otherwise, so what is an obstacle is known from the
+geometry alone. Cells are 5 cm (the costmap's default); each test looks at cells well inside
+the object it asks about, and checks that the seed's slope-only preset (``table_4_2``) gets it
+wrong where the robot-level rule is meant to differ (the test has teeth).
+"""
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from obstacle_detection import evaluation, floor, geometry, jit_traversal, traversal
+from obstacle_detection.costmap import CELL_OCCUPIED, CELL_UNKNOWN
+from obstacle_detection.params import corridor, table_4_2
+from obstacle_detection.pipeline import LABEL_GROUND, LABEL_OBSTACLE, Detector
+from obstacle_detection.scenes import (Box, Floor, Ramp, Scene, StepDown, Wall, render,
+                                       render_scene, scene_params)
+
+
+SCENARIOS = Path(__file__).resolve().parent.parent / 'tools' / 'scenarios.json'
+
+
+def run(primitives, *, height=0.6, pitch_deg=0.0, noise=False, preset=corridor,
+        seed=0, **overrides):
+    """Render the primitives from the mount and run the detector; (frame, params, result)."""
+    scene = Scene('test', tuple(primitives), height_m=height,
+                  pitch_rad=math.radians(pitch_deg))
+    frame = render(scene, seed=seed, noise=noise)
+    params = scene_params(frame, preset(median_kernel=5, **overrides))
+    return frame, params, Detector(params).process(frame.depth_mm, frame.intrinsics)
+
+
+def cells(result, x0, x1, y0, y1):
+    """Costmap values of the cells whose centres lie in [x0, x1] x [y0, y1] [m]."""
+    xs, ys = result.costmap.cell_centres()
+    cols = (xs >= x0) & (xs <= x1)
+    rows = (ys >= y0) & (ys <= y1)
+    return result.costmap.data[np.ix_(rows, cols)]
+
+
+def seen(values):
+    """Return the cells that were seen (not unknown)."""
+    return values[values != CELL_UNKNOWN]
+
+
+def occupied_share(values):
+    """Share of the seen cells that are occupied (nan when none was seen)."""
+    v = seen(values)
+    return float(np.mean(v == CELL_OCCUPIED)) if v.size else math.nan
+
+
+def test_box_top_is_an_obstacle_not_ground():
+    box = Box.on_floor(1.3, 0.0, 0.4, 0.4, 0.25)      # top at 0.25 m, seen from 0.6 m
+    _, _, robot = run([Floor(), box], pitch_deg=15.0)
+    _, _, seed = run([Floor(), box], pitch_deg=15.0, preset=table_4_2)
+    top = (1.15, 1.45, -0.15, 0.15)                 # cells inside the top, off its edges
+    assert seen(cells(robot, *top)).size >= 20
+    assert occupied_share(cells(robot, *top)) == 1.0
+    assert occupied_share(cells(seed, *top)) < 0.5   # the seed calls the flat top ground
+    # the floor around it stays free
+    assert occupied_share(cells(robot, 0.6, 1.0, -0.6, 0.6)) == 0.0
+
+
+def test_ramp_and_its_landing_are_free_a_steep_ramp_is_not():
+    slope = math.radians(15.0)
+    run_m = 0.6
+    top = run_m * math.tan(slope)
+    ramp = Ramp(x_start_m=0.9, y_center_m=0.0, width_m=0.8, length_m=run_m, slope_rad=slope)
+    landing = Box((0.9 + run_m, -0.4, 0.0), (2.6, 0.4, top), traversable=True)
+    _, _, robot = run([Floor(), ramp, landing], pitch_deg=10.0)
+    inside = cells(robot, 0.95, 1.95, -0.3, 0.3)     # ramp and landing, off the side edges
+    assert seen(inside).size >= 150
+    assert occupied_share(inside) <= 0.03            # >= 97 % free
+    # a 45 deg ramp is not climbable: its cells above the step height are obstacles
+    steep = Ramp(x_start_m=0.9, y_center_m=0.0, width_m=0.8, length_m=0.4,
+                 slope_rad=math.radians(45.0))
+    _, _, blocked = run([Floor(), steep], pitch_deg=10.0)
+    assert occupied_share(cells(blocked, 1.0, 1.25, -0.3, 0.3)) == 1.0
+
+
+def test_door_sill_is_free_a_curb_is_occupied():
+    sill = Box.on_floor(1.3, 0.0, 0.06, 1.2, 0.03)    # 3 cm: below the 5 cm step height
+    _, _, robot = run([Floor(), sill])
+    around = cells(robot, 1.2, 1.4, -0.5, 0.5)
+    assert seen(around).size >= 30 and occupied_share(around) == 0.0
+    curb = Box.on_floor(1.35, 0.0, 0.3, 1.2, 0.10)    # 10 cm: a step the robot cannot take
+    _, _, robot = run([Floor(), curb])
+    on_curb = cells(robot, 1.25, 1.45, -0.5, 0.5)
+    assert seen(on_curb).size >= 30 and occupied_share(on_curb) == 1.0
+    _, _, seed = run([Floor(), curb], preset=table_4_2)
+    assert occupied_share(cells(seed, 1.25, 1.45, -0.5, 0.5)) < 0.5   # its top is flat
+
+
+def test_shelf_is_an_obstacle_and_the_floor_seen_under_it_is_ground():
+    # a board 0.4-0.43 m up, seen from a camera 0.3 m up: the floor under it is in view
+    shelf = Box((1.3, -0.5, 0.40), (1.7, 0.5, 0.43))
+    frame, _, robot = run([Floor(), shelf], height=0.3)
+    under = cells(robot, 1.35, 1.5, -0.4, 0.4)     # (farther, the board is seen too grazing)
+    assert seen(under).size >= 40 and occupied_share(under) == 1.0
+    x = frame.points_ground[..., 0]
+    hit_shelf = (frame.hit_index == 1) & (x < 1.5)
+    hit_floor_under = (frame.hit_index == 0) & (x > 1.35) & (x < 1.65) & (
+        np.abs(frame.points_ground[..., 1]) < 0.4)
+    assert hit_floor_under.sum() > 200 and hit_shelf.sum() > 200
+    labels = robot.labels
+    assert np.mean(labels[hit_floor_under] == LABEL_GROUND) > 0.97
+    assert np.mean(labels[hit_shelf] == LABEL_OBSTACLE) > 0.9
+    _, _, seed = run([Floor(), shelf], height=0.3, preset=table_4_2)
+    assert np.mean(seed.labels[hit_shelf] == LABEL_OBSTACLE) < 0.5   # flat: ground to it
+
+
+def test_overhang_above_the_robot_is_not_marked():
+    overhang = Box((1.2, -0.6, 1.15), (1.8, 0.6, 1.25))    # above robot_height_m = 1.0
+    frame, _, robot = run([Floor(), overhang])
+    assert (frame.hit_index == 1).sum() > 500              # it is in view
+    under = cells(robot, 1.25, 1.75, -0.5, 0.5)
+    assert seen(under).size >= 40 and occupied_share(under) == 0.0
+    assert not (robot.labels[frame.hit_index == 1] == LABEL_OBSTACLE).any()
+    # the same board below a taller robot blocks it
+    _, _, tall = run([Floor(), overhang], robot_height_m=1.5)
+    assert occupied_share(cells(tall, 1.25, 1.75, -0.5, 0.5)) > 0.5
+
+
+def test_drop_with_the_lower_floor_inside_the_range_is_marked():
+    step = StepDown(x_m=1.2, depth_m=0.3)
+    frame, _, robot = run([step], pitch_deg=15.0)
+    beyond = cells(robot, 1.5, 1.95, -0.5, 0.5)            # lower floor, inside the 2 m range
+    assert seen(beyond).size >= 40 and occupied_share(beyond) == 1.0
+    assert occupied_share(cells(robot, 0.6, 1.1, -0.5, 0.5)) == 0.0   # upper floor free
+    _, _, seed = run([step], pitch_deg=15.0, preset=table_4_2)
+    assert occupied_share(cells(seed, 1.5, 1.95, -0.5, 0.5)) == 0.0 or \
+        np.isnan(occupied_share(cells(seed, 1.5, 1.95, -0.5, 0.5)))   # the seed cannot see it
+
+
+def test_drop_with_the_lower_floor_beyond_the_range_is_marked_where_the_floor_ends():
+    step = StepDown(x_m=1.6, depth_m=1.0)     # lower floor seen only from about 2.9 m on
+    frame, params, robot = run([step])
+    assert robot.drop_points.shape[0] > 50
+    edge = robot.drop_points
+    assert np.all(edge[:, 0] <= 1.6) and np.all(edge[:, 0] >= 1.6 - 0.05)
+    # the cells where the floor ends, across the view, are marked
+    at_edge = cells(robot, 1.55, 1.6, -0.5, 0.5)
+    assert (at_edge == CELL_OCCUPIED).mean() > 0.9
+    assert occupied_share(cells(robot, 0.6, 1.5, -0.5, 0.5)) == 0.0
+    assert (frame.points_ground.reshape(-1, 3)[robot.labels.reshape(-1) == LABEL_OBSTACLE, 0]
+            > 1.6).all()                      # the pixels that saw past the edge are labelled
+    # no return beyond the edge: nothing is marked
+    depth = frame.depth_mm.copy()
+    depth[frame.points_ground[..., 0] > 1.6] = 0
+    quiet = Detector(params).process(depth, frame.intrinsics)
+    assert quiet.drop_points.shape[0] == 0
+    assert not (quiet.costmap.data == CELL_OCCUPIED).any()
+
+
+def test_flying_pixels_between_a_box_and_the_wall_behind_are_not_marked():
+    box = Box.on_floor(1.2, 0.0, 0.3, 0.3, 0.5)
+    wall = Wall(3.5, -3.0, 3.5, 3.0)
+    frame, params, _ = run([Floor(), box, wall])
+    depth = frame.depth_mm.astype(np.float32)
+    on_box = frame.hit_index == 1
+    # mixed pixels: the column beside the box's left and right silhouette takes depths
+    # between the box and the wall behind it, as a time-of-flight sensor gives at edges
+    rows = np.flatnonzero(on_box.any(axis=1))
+    cols = np.flatnonzero(on_box.any(axis=0))
+    flying = np.zeros_like(on_box)
+    for col in (cols[0] - 1, cols[-1] + 1):
+        flying[rows, col] = ~on_box[rows, col]
+    box_depth = np.median(depth[on_box])
+    depth[flying] = 0.5 * (box_depth + depth[flying])
+    assert flying.sum() > 50
+    result = Detector(params).process(depth.astype(np.uint16), frame.intrinsics)
+    truth_free = ~on_box & (frame.hit_index != 2)
+    flying_points = frame.points_ground[flying & truth_free]
+    assert not (result.labels[flying] == LABEL_OBSTACLE).any()
+    # the cells beside the box (floor only) stay free
+    beside = np.concatenate([cells(result, 1.1, 1.3, 0.25, 0.5).ravel(),
+                             cells(result, 1.1, 1.3, -0.5, -0.25).ravel()])
+    assert seen(beside).size >= 10 and occupied_share(beside) == 0.0
+    assert flying_points.shape[0] > 0
+
+
+@pytest.mark.parametrize('error', [dict(pitch=3.0), dict(pitch=-3.0), dict(roll=3.0),
+                                   dict(roll=-3.0), dict(height=0.05), dict(height=-0.05)])
+def test_mount_errors_are_absorbed_by_the_floor_fit(error):
+    scenario = next(s for s in evaluation.load_scenarios(SCENARIOS) if s.name == 'corridor')
+    frame = list(evaluation.scenario_frames(scenario))[1]
+    params = corridor(camera_height_m=frame.height_m, camera_pitch_rad=frame.pitch_rad,
+                      camera_roll_rad=frame.roll_rad)
+    truth = evaluation.truth_costmap(frame, params) == CELL_OCCUPIED
+    exact = Detector(params).process(frame.depth, frame.intrinsics).costmap.data
+    wrong = params.replace(
+        camera_pitch_rad=params.camera_pitch_rad + math.radians(error.get('pitch', 0.0)),
+        camera_roll_rad=params.camera_roll_rad + math.radians(error.get('roll', 0.0)),
+        camera_height_m=params.camera_height_m + error.get('height', 0.0))
+
+    def f1(data, against=truth):
+        a = data == CELL_OCCUPIED
+        return 2 * np.sum(a & against) / (np.sum(a) + np.sum(against))
+
+    fitted = Detector(wrong).process(frame.depth, frame.intrinsics)
+    assert fitted.floor.refined
+    assert f1(exact) > 0.9
+    assert abs(f1(fitted.costmap.data) - f1(exact)) <= 0.02     # the same costmap quality
+    assert f1(fitted.costmap.data, exact == CELL_OCCUPIED) >= 0.95   # and nearly the same cells
+    # the correction it reports undoes the error
+    assert fitted.floor.d_pitch_deg == pytest.approx(-error.get('pitch', 0.0), abs=0.3)
+    assert fitted.floor.d_roll_deg == pytest.approx(-error.get('roll', 0.0), abs=0.3)
+    assert fitted.floor.d_height_m == pytest.approx(-error.get('height', 0.0), abs=0.01)
+    if 'height' not in error:   # without the fit a 3 deg error ruins the costmap
+        unfitted = Detector(wrong.replace(refine_floor=False)).process(frame.depth,
+                                                                        frame.intrinsics)
+        assert f1(unfitted.costmap.data) < f1(exact) - 0.05
+
+
+def test_floor_fit_falls_back_to_the_mount_and_says_why():
+    frame = render_scene('corridor', seed=1)
+    params = scene_params(frame, corridor())
+    blank = np.zeros_like(frame.depth_mm)
+    result = Detector(params).process(blank, frame.intrinsics)
+    assert not result.floor.refined and 'floor_min_points' in result.floor.reason
+    assert result.floor.height_m == params.camera_height_m
+    off = Detector(params.replace(refine_floor=False)).process(frame.depth_mm,
+                                                                frame.intrinsics)
+    assert not off.floor.refined and off.floor.reason == 'off'
+    # a floor 20 deg off the mount is not believed (beyond floor_max_tilt_deg): no fit moves
+    # the mount by more than the bound
+    tilted = Detector(params.replace(camera_pitch_rad=math.radians(20.0))).process(
+        frame.depth_mm, frame.intrinsics)
+    assert abs(tilted.floor.d_pitch_deg) <= 5.0 and abs(tilted.floor.d_roll_deg) <= 5.0
+
+
+def test_seed_presets_ignore_the_robot_level_parameters():
+    frame = render_scene('corridor', seed=0)
+    base = scene_params(frame, table_4_2(median_kernel=5))
+    ref = Detector(base).process(frame.depth_mm, frame.intrinsics)
+    other = Detector(base.replace(max_step_height_m=0.2, robot_height_m=0.5,
+                                  max_filter_shift=0.5)).process(frame.depth_mm,
+                                                                 frame.intrinsics)
+    np.testing.assert_array_equal(ref.costmap.data, other.costmap.data)
+    np.testing.assert_array_equal(ref.labels, other.labels)
+    assert ref.drop_points.shape[0] == 0 and not ref.floor.refined
+
+
+def test_labels_follow_the_costmap_decision():
+    frame, _, result = run([Floor(), Box.on_floor(1.3, 0.0, 0.4, 0.4, 0.25)], noise=True)
+    obstacle_voxels = np.unique(result.pixel_voxel[result.labels == LABEL_OBSTACLE])
+    obstacle_voxels = obstacle_voxels[obstacle_voxels >= 0]
+    assert result.voxel_is_obstacle[obstacle_voxels].all()
+    ground_voxels = np.unique(result.pixel_voxel[result.labels == LABEL_GROUND])
+    assert not result.voxel_is_obstacle[ground_voxels].any()
+    row, col, inside = result.costmap.cell_of(result.voxel_points[obstacle_voxels])
+    assert (result.costmap.data[row[inside], col[inside]] == CELL_OCCUPIED).all()
+
+
+# -- the compiled kernels equal the numpy path -----------------------------------------------
+
+jit_only = pytest.mark.skipif(not jit_traversal.AVAILABLE, reason='numba is not installed')
+
+
+@jit_only
+@pytest.mark.parametrize('name', ['corridor', 'ramps', 'step_down'])
+def test_robot_level_pipeline_identical_with_and_without_jit(name, monkeypatch):
+    frame = render_scene(name, seed=2)
+    params = scene_params(frame, corridor())
+    jit = Detector(params).process(frame.depth_mm, frame.intrinsics)
+    monkeypatch.setenv(jit_traversal.NO_JIT_ENV, '1')
+    ref = Detector(params).process(frame.depth_mm, frame.intrinsics)
+    for field in ('obstacle_points', 'ground_points', 'labels', 'voxel_points',
+                  'voxel_is_obstacle', 'voxel_slope_obstacle', 'voxel_height_m',
+                  'drop_points', 'depth_m'):
+        a, b = getattr(ref, field), getattr(jit, field)
+        assert a.dtype == b.dtype, field
+        np.testing.assert_array_equal(a, b, err_msg=field)
+    np.testing.assert_array_equal(ref.costmap.data, jit.costmap.data)
+    assert ref.floor == jit.floor
+
+
+@jit_only
+def test_traversal_kernels_equal_numpy(monkeypatch):
+    rng = np.random.default_rng(5)
+    pts = rng.uniform([0.0, -1.0, -0.4], [2.0, 1.0, 1.5], size=(3000, 3)).astype(np.float32)
+    pts[:1500, 2] = rng.normal(0.0, 0.01, 1500)                 # a floor
+    steep = rng.random(3000) < 0.3
+    got = jit_traversal.traverse(pts, steep, 0.05, 0.05, 0.04, 1.0, 0.025)
+    want = traversal.traverse_numpy(pts, steep, 0.05, 0.05, 0.04, 1.0, 0.025)
+    for a, b in zip(got, want):
+        np.testing.assert_array_equal(a, b)
+    depth = rng.uniform(0.5, 4.0, size=(60, 80)).astype(np.float32)
+    depth[rng.random(depth.shape) < 0.1] = 0.0
+    depth[5, 5] = np.nan
+    rz = rng.uniform(-0.6, 0.1, size=depth.shape).astype(np.float32)
+    got = jit_traversal.drop_mask(depth, rz, 0.6, 0.05, 0.05, 3)
+    monkeypatch.setenv(jit_traversal.NO_JIT_ENV, '1')
+    want = traversal.drop_edge_mask(depth, rz, 0.6, 0.05, 0.05, 3)
+    np.testing.assert_array_equal(got, want)
+    assert want.any()
+    raw = depth.copy()
+    filtered = raw + rng.normal(0, 0.05, raw.shape).astype(np.float32)
+    a = traversal.drop_smeared(filtered.copy(), raw, 0.03)
+    monkeypatch.delenv(jit_traversal.NO_JIT_ENV)
+    b = traversal.drop_smeared(filtered.copy(), raw, 0.03)
+    np.testing.assert_array_equal(a, b)
+    intr = frame_intrinsics()
+    params = corridor(camera_pitch_rad=0.2, camera_roll_rad=-0.05)
+    jit_rays = geometry.ground_rays((424, 512), intr, params)
+    monkeypatch.setenv(jit_traversal.NO_JIT_ENV, '1')
+    np.testing.assert_array_equal(jit_rays, geometry.ground_rays((424, 512), intr, params))
+
+
+def frame_intrinsics():
+    """Kinect v2 SD intrinsics of the generator."""
+    from obstacle_detection.params import KINECT_V2_SD
+    return KINECT_V2_SD
+
+
+def test_drop_edge_needs_a_jump_and_seen_floor():
+    # a column looking down at a floor that ends: rows 0-4 passed it, rows 5-9 see it
+    rz = np.full((10, 1), -0.5, np.float32)
+    depth = np.full((10, 1), 1.0, np.float32)            # z = 0.5 - 0.5 = 0: floor
+    depth[:5] = 2.0                                       # z = -0.4: passed the floor plane
+    mask = traversal.drop_edge_mask(depth, rz, 0.5, 0.05, 0.05)
+    assert mask[:, 0].tolist() == [0, 0, 3, 2, 1] + [0] * 5     # rows down to the floor end
+    depth[5:] = 0.0                                       # no return below: nothing
+    assert not traversal.drop_edge_mask(depth, rz, 0.5, 0.05, 0.05).any()
+    depth[5:] = 1.08                                      # a gentle dip, no jump: nothing
+    depth[:5] = 1.12
+    assert not traversal.drop_edge_mask(depth, rz, 0.5, 0.05, 0.05).any()
+
+
+def test_floor_samples_ignore_no_return():
+    frame = render_scene('flat_floor', seed=0)
+    params = scene_params(frame, corridor())
+    depth = frame.depth_m
+    depth[:, :256] = np.nan
+    depth[:, 256:300] = 0.0
+    rays = geometry.ground_rays(depth.shape, frame.intrinsics, params)
+    pts = floor.floor_samples(depth, floor.sample_rays(rays, depth.shape), params)
+    assert pts.shape[1] > 100 and np.isfinite(pts).all()
+    assert np.abs(pts[2]).max() < 0.05

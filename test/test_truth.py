@@ -1,0 +1,197 @@
+"""The robot-level ground truth (issue 9) against scenes whose answer is known by construction."""
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from obstacle_detection.params import DetectorParams
+from obstacle_detection.scenes import (Box, Cylinder, Floor, GT_ABOVE_ROBOT, GT_NO_RETURN,
+                                       GT_OBSTACLE, GT_TRAVERSABLE, DROP_EDGE_BAND_M, Ramp,
+                                       Scene, StepDown, TruthRules, chair, render, render_scene,
+                                       table)
+
+
+def exact(primitives, *, height_m=0.6, pitch_deg=0.0, rules=None):
+    """Render primitives without noise from a camera at height_m, pitched pitch_deg down."""
+    return render(Scene('t', tuple(primitives), height_m=height_m,
+                        pitch_rad=math.radians(pitch_deg)), noise=False, rules=rules)
+
+
+def on(frame, index, *, z=None, tol=1e-3):
+    """Return the returned pixels of primitive ``index`` (at height z within tol, if given)."""
+    mask = (frame.object_ids == index) & (frame.depth_mm > 0)
+    if z is not None:
+        mask &= np.abs(frame.points_ground[..., 2] - z) < tol
+    return mask
+
+
+def test_box_top_is_an_obstacle_and_the_floor_around_it_traversable():
+    frame = exact([Floor(), Box.on_floor(1.5, 0.0, 0.4, 0.4, 0.3)])
+    top = on(frame, 1, z=0.3)
+    assert top.sum() > 200
+    assert np.all(frame.labels[top] == GT_OBSTACLE)
+    assert np.all(frame.labels[on(frame, 1)] == GT_OBSTACLE)
+    assert np.all(frame.labels[on(frame, 0)] == GT_TRAVERSABLE)
+
+
+def test_landing_reached_by_a_passable_ramp_is_traversable_and_unreached_it_is_not():
+    ramp = Ramp(x_start_m=1.1, y_center_m=0.0, width_m=0.8, length_m=0.6,
+                slope_rad=math.radians(10.0))
+    rise = ramp.top_height_m
+    landing = Box((1.7, -0.4, 0.0), (3.0, 0.4, rise))
+    with_ramp = exact([Floor(), ramp, landing])
+    top = on(with_ramp, 2, z=rise)
+    assert top.sum() > 200
+    assert np.all(with_ramp.labels[top] == GT_TRAVERSABLE)
+    assert np.all(with_ramp.labels[on(with_ramp, 1)] == GT_TRAVERSABLE)
+    # the same platform without its ramp is 0.106 m up: more than a step, an obstacle
+    alone = exact([Floor(), landing])
+    assert np.all(alone.labels[on(alone, 1, z=rise)] == GT_OBSTACLE)
+    # and behind a ramp steeper than theta it is unreachable too
+    steep = Ramp(x_start_m=1.6, y_center_m=0.0, width_m=0.8, length_m=0.1,
+                 slope_rad=math.atan(rise / 0.1))
+    assert steep.slope_rad > math.radians(30.0)
+    blocked = exact([Floor(), steep, landing])
+    assert np.all(blocked.labels[on(blocked, 2, z=rise)] == GT_OBSTACLE)
+    assert np.all(blocked.labels[on(blocked, 1)] == GT_OBSTACLE)
+
+
+def test_ramp_traversability_follows_theta_of_the_rules():
+    ramp = Ramp(x_start_m=1.1, y_center_m=0.0, width_m=0.8, length_m=1.0,
+                slope_rad=math.radians(15.0))
+    assert np.all(exact([Floor(), ramp]).labels[on(exact([Floor(), ramp]), 1)] == GT_TRAVERSABLE)
+    strict = exact([Floor(), ramp], rules=TruthRules(max_slope_rad=math.radians(10.0)))
+    assert on(strict, 1).sum() > 1000
+    assert np.all(strict.labels[on(strict, 1)] == GT_OBSTACLE)
+    assert np.all(strict.labels_seed[on(strict, 1)] == GT_TRAVERSABLE)   # the seed: 15 < 30
+
+
+def test_sill_is_traversable_sides_included_and_a_curb_is_an_obstacle():
+    sill = Box((1.4, -0.5, 0.0), (1.48, 0.5, 0.03))
+    curb = Box((1.4, -0.5, 0.0), (1.55, 0.5, 0.10))
+    frame = exact([Floor(), sill])
+    assert on(frame, 1).sum() > 50
+    assert np.all(frame.labels[on(frame, 1)] == GT_TRAVERSABLE)
+    frame = exact([Floor(), curb])
+    assert on(frame, 1, z=0.10).sum() > 50
+    assert np.all(frame.labels[on(frame, 1)] == GT_OBSTACLE)
+
+
+def test_step_height_is_a_rule():
+    step = Box((1.4, -0.5, 0.0), (1.6, 0.5, 0.04))
+    assert np.all(exact([Floor(), step]).labels[on(exact([Floor(), step]), 1)]
+                  == GT_TRAVERSABLE)
+    strict = exact([Floor(), step], rules=TruthRules(max_step_height_m=0.03))
+    assert np.all(strict.labels[on(strict, 1)] == GT_OBSTACLE)
+
+
+def test_shelf_board_is_an_obstacle_and_the_floor_under_it_traversable():
+    board = Box((1.2, -0.5, 0.35), (1.6, 0.5, 0.37))
+    frame = exact([Floor(), board], height_m=0.2)   # a low camera sees under the board
+    underside = on(frame, 1, z=0.35)
+    assert underside.sum() > 200
+    assert np.all(frame.labels[on(frame, 1)] == GT_OBSTACLE)
+    x, y = frame.points_ground[..., 0], frame.points_ground[..., 1]
+    under = on(frame, 0) & (x > 1.2) & (x < 1.6) & (np.abs(y) < 0.5)
+    assert under.sum() > 200
+    assert np.all(frame.labels[under] == GT_TRAVERSABLE)
+
+
+def test_table_top_underside_and_legs_are_obstacles():
+    parts = table(1.6, 0.0, 0.6, 0.8, 0.72)
+    frame = exact((Floor(),) + parts)
+    ids = range(1, 1 + len(parts))
+    hits = np.isin(frame.object_ids, list(ids)) & (frame.depth_mm > 0)
+    assert on(frame, 1, z=0.69).sum() > 100       # the underside, seen from 0.6 m
+    assert np.all(frame.labels[hits] == GT_OBSTACLE)
+    assert set(frame.object_names[1:]) == {'table'}
+    seat = chair(1.2, 0.0)
+    assert {p.name for p in seat} == {'chair'} and len(seat) == 6
+
+
+def test_overhang_above_the_robot_is_not_an_obstacle():
+    overhang = Box((1.2, -0.6, 1.15), (1.8, 0.6, 1.2))
+    frame = exact([Floor(), overhang])
+    assert on(frame, 1).sum() > 200
+    assert np.all(frame.labels[on(frame, 1)] == GT_ABOVE_ROBOT)
+    assert np.all(frame.labels_seed[on(frame, 1)] == GT_OBSTACLE)
+    taller = exact([Floor(), overhang], rules=TruthRules(robot_height_m=1.5))
+    assert np.all(taller.labels[on(taller, 1)] == GT_OBSTACLE)
+
+
+def test_height_above_the_robot_is_measured_from_the_ground_under_the_point():
+    # a post standing on a landing 0.4 m up (reached by a ramp): 1.0 m above the landing is
+    # 1.4 m above the floor
+    ramp = Ramp(x_start_m=0.5, y_center_m=0.0, width_m=2.0, length_m=1.5,
+                slope_rad=math.atan(0.4 / 1.5))
+    landing = Box((2.0, -1.0, 0.0), (4.0, 1.0, 0.4))
+    post = Cylinder(2.5, 0.0, radius_m=0.1, height_m=1.5, base_z_m=0.4)
+    frame = exact([Floor(), ramp, landing, post], height_m=1.0)
+    z = frame.points_ground[..., 2]
+    hits = on(frame, 3)
+    assert (hits & (z > 1.1) & (z < 1.35)).sum() > 20
+    assert np.all(frame.labels[hits & (z < 1.39)] == GT_OBSTACLE)
+    assert np.all(frame.labels[hits & (z > 1.41)] == GT_ABOVE_ROBOT)
+
+
+def test_lower_floor_beyond_a_drop_is_an_obstacle_and_its_edge_is_flagged():
+    frame = exact([StepDown(x_m=1.3, depth_m=0.3)], height_m=1.0, pitch_deg=25.0)
+    x = frame.points_ground[..., 0]
+    z = frame.points_ground[..., 2]
+    returned = frame.depth_mm > 0
+    lower = returned & (z < -0.29)
+    upper = returned & (z > -1e-6)
+    assert lower.sum() > 1000 and upper.sum() > 1000
+    assert np.all(frame.labels[lower] == GT_OBSTACLE)
+    assert np.all(frame.labels[upper] == GT_TRAVERSABLE)
+    edge = frame.drop_edge & returned
+    assert edge.sum() > 100
+    assert np.all(upper[edge])
+    assert np.all(x[edge] >= 1.3 - DROP_EDGE_BAND_M - 1e-6) and np.all(x[edge] <= 1.3 + 1e-6)
+    assert not (upper & ~frame.drop_edge & (x > 1.3 - DROP_EDGE_BAND_M + 1e-3)).any()
+
+
+def test_a_small_step_down_is_driven_over():
+    frame = exact([StepDown(x_m=1.3, depth_m=0.03)], height_m=1.0, pitch_deg=25.0)
+    returned = frame.depth_mm > 0
+    assert np.all(frame.labels[returned] == GT_TRAVERSABLE)
+    assert not frame.drop_edge.any()
+
+
+def test_bumpy_ground_is_traversable_and_a_low_bush_an_obstacle():
+    frame = render_scene('orchard', seed=0, noise=False)
+    names = np.array(frame.object_names + ('',))[frame.object_ids]
+    returned = frame.depth_mm > 0
+    assert np.all(frame.labels[returned & (frame.object_ids == 0)] == GT_TRAVERSABLE)
+    bush = returned & np.char.startswith(names, 'bush')
+    assert bush.sum() > 500
+    assert np.all(frame.labels[bush] == GT_OBSTACLE)
+
+
+def test_rules_from_params_read_present_fields_and_default_the_others():
+    assert TruthRules.from_params(SimpleNamespace()) == TruthRules()
+    rules = TruthRules.from_params(SimpleNamespace(max_step_height_m=0.08, robot_height_m=1.4))
+    assert (rules.max_step_height_m, rules.robot_height_m) == (0.08, 1.4)
+    rules = TruthRules.from_params(DetectorParams().replace(max_slope_rad=0.3))
+    assert rules.max_slope_rad == 0.3
+    with pytest.raises(ValueError, match='robot_height_m'):
+        TruthRules(robot_height_m=0.0)
+    with pytest.raises(ValueError, match='max_step_down_m'):
+        TruthRules(max_step_down_m=-0.1)
+
+
+@pytest.mark.parametrize('name', ['office', 'dark_office', 'ramp_landing', 'dock_edge',
+                                  'dock_edge_high', 'curb_sill', 'shelf', 'orchard'])
+def test_new_scenes_keep_labels_consistent_with_depth(name):
+    frame = render_scene(name, seed=1)
+    np.testing.assert_array_equal(frame.labels == GT_NO_RETURN, frame.depth_mm == 0)
+    np.testing.assert_array_equal(frame.labels_seed == GT_NO_RETURN, frame.depth_mm == 0)
+    assert frame.object_ids.dtype == np.int16
+    assert any(frame.object_names)
+    # every named object within the 2 m range is in view
+    seen = {frame.object_names[i] for i in np.unique(frame.object_ids[frame.depth_mm > 0])}
+    near = {p.name for p in frame.primitives
+            if p.name and (p.bounds() is None or p.bounds()[0][0] < 2.0)}
+    assert near and near <= seen
