@@ -398,6 +398,7 @@ class DetectorNode(Node):
         self._health = HealthWindow()
         self._started = time.monotonic()
         self._last_frame_id = ''
+        self._floor_text = ''
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics',
                                                       _DIAGNOSTICS_QOS)
         self._diagnostics_timer = self.create_timer(DIAGNOSTICS_PERIOD_S,
@@ -613,7 +614,8 @@ class DetectorNode(Node):
         context = DiagnosticsContext(
             uptime_s=time.monotonic() - self._started, depth_topic=self._depth_sub.topic_name,
             camera_info=camera_info, camera_info_usable=usable, code_path=path,
-            compiled=path == 'compiled numba kernels', mount=self._mount_text())
+            compiled=path == 'compiled numba kernels', mount=self._mount_text(),
+            floor_correction=self._floor_text)
         status = health_status(self._health.take(), context, hardware_id=self._last_frame_id)
         if self.context.ok():
             self._diagnostics_pub.publish(
@@ -712,7 +714,8 @@ class DetectorNode(Node):
             f'{period["processed"]} frames processed in {period["period_s"]:.1f} s '
             f'({period["fps"]:.1f} fps), mean {period["mean_ms"]:.1f} ms/frame; '
             f'{period["dropped"]} dropped (a newer frame came first), '
-            f'{period["skipped"]} skipped (bad input), {period["errors"]} errors')
+            f'{period["skipped"]} skipped (bad input), {period["errors"]} errors'
+            + (f'; last {self._floor_text}' if self._floor_text else ''))
 
     # -- worker thread ------------------------------------------------------------------------
     def _work(self) -> None:
@@ -857,6 +860,8 @@ class DetectorNode(Node):
         self.stats.add_processed(elapsed_ms)
         self._health.processed(elapsed_ms)
         self._last_frame_id = msg.header.frame_id
+        floor = getattr(result, 'floor', None)
+        self._floor_text = floor.summary() if floor is not None else ''
         stages = ', '.join(f'{k} {v:.1f}' for k, v in result.timings_ms.items()
                            if k != 'total')
         self.get_logger().debug(

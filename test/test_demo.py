@@ -41,11 +41,13 @@ def test_demo_end_to_end_writes_bags_and_pictures(tmp_path: Path) -> None:
     assert 'node processing time: mean' in done.stdout
     with Reader(out / 'input_bag') as reader:
         assert {c.topic: c.msgcount for c in reader.connections} == {
-            '/kinect2/sd/image_depth_rect': 10, '/kinect2/sd/camera_info': 10}
+            '/kinect2/sd/image_depth_rect': 10, '/kinect2/sd/camera_info': 10,
+            '/odom': 10}   # the default sequence carries its odometry
     with Reader(out / 'results_bag') as reader:
         counts = {c.topic: c.msgcount for c in reader.connections}
     assert counts['/obstacles/costmap'] >= 1
     assert counts['/obstacles/points'] == counts['/obstacles/costmap']
+    assert counts['/obstacles/fused_costmap'] == counts['/obstacles/costmap']
     pictures = sorted((out / 'pictures').glob('frame_*.png'))
     assert pictures, done.stdout
     picture = cv2.imread(str(pictures[0]))

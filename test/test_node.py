@@ -55,7 +55,7 @@ from obstacle_detection.conversions import (
 from obstacle_detection.costmap import CELL_OCCUPIED
 from obstacle_detection.geometry import mount_rotation
 from obstacle_detection.node import DetectorNode, LatestSlot
-from obstacle_detection.params import Intrinsics, table_4_2, table_4_3
+from obstacle_detection.params import PRESETS, Intrinsics, table_4_2, table_4_3
 from obstacle_detection.pipeline import DetectionResult, Detector
 from obstacle_detection.ros_params import (
     ALL_PARAMS,
@@ -597,9 +597,11 @@ def local_node(local_context: rclpy.Context) -> Iterator[DetectorNode]:
         node.destroy_node()
 
 
-@pytest.mark.parametrize(('file_name', 'preset'), [('corridor.yaml', table_4_2),
+@pytest.mark.parametrize(('file_name', 'preset'), [('corridor.yaml', PRESETS['corridor']),
+                                                    ('seed_table_4_2.yaml', table_4_2),
+                                                    ('seed_table_4_3.yaml', table_4_3),
                                                     ('corridor_video.yaml', table_4_3)])
-def test_params_file_equals_seed_table(local_context: rclpy.Context, file_name: str,
+def test_params_file_equals_its_preset(local_context: rclpy.Context, file_name: str,
                                        preset: Callable[[], Any]) -> None:
     path = REPO / 'params' / file_name
     values = _yaml_values(path)
@@ -858,6 +860,7 @@ def test_diagnostics_report_each_fault_at_its_level(tmp_path: Path, scene: Scene
         values = {kv.key: kv.value for kv in reports[-1].values}
         assert values['intrinsics'].startswith('CameraInfo on /depth/camera_info: 512x424')
         assert values['code path'] == 'compiled numba kernels'
+        assert values['floor correction'].startswith('floor: ')   # the per-frame floor fit
         assert reports[-1].hardware_id == 'depth_optical'
         bad = _depth_image(scene)
         bad.encoding = 'rgb8'

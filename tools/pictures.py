@@ -279,7 +279,8 @@ def jobs(args: argparse.Namespace, base: DetectorParams) -> Iterator[_Job]:
         scenario = evaluation.Scenario(
             name=args.scene, scene=args.scene, seeds=(args.seed,),
             frames=tuple(args.frames) if args.frames is not None else None,
-            mount=tuple(sorted(mount_values.items())))
+            mount=tuple(sorted(mount_values.items())),
+            truth=args.truth or ('robot' if getattr(base, 'robot_level', False) else 'seed'))
         for frame in evaluation.scenario_frames(scenario, max_frames=args.max_frames):
             yield _Job(f'{frame.scenario} {frame.frame_id}', frame.depth, frame.intrinsics,
                        frame.params(base), truth_labels=frame.truth_labels,
@@ -396,6 +397,10 @@ def build_parser() -> argparse.ArgumentParser:
                                      formatter_class=argparse.RawTextHelpFormatter)
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument('--scene', help='a scene of the generator (scenes.SCENE_NAMES)')
+    parser.add_argument('--truth', choices=('robot', 'seed'),
+                        help="a scene's ground truth: 'robot' (box tops, drops obstacles; "
+                             "the default for robot-level parameters) or 'seed' (slope only; "
+                             'the default for the seed presets)')
     source.add_argument('--depth', type=Path, metavar='PNG',
                         help='a 16-bit depth PNG or PGM (see --depth-scale)')
     source.add_argument('--folder', type=Path, metavar='DIR',

@@ -3,19 +3,19 @@
 
 Synthetic pictures (always), drawn by ``tools/pictures.py`` exactly as its command line does:
 
-- ``corridor.png``: the corridor scene, Table 4.2 preset, with the ground-truth panel;
+- ``corridor.png``: the corridor scene, the default (``params/corridor.yaml``, robot level),
+  with the robot-level ground-truth panel;
 - ``person_walking_sheet.png``: frames 0, 15, ..., 75 of the person_walking sequence, no truth,
   3 columns of 400 px thumbnails.
 
 Real-frame pictures (when the real frames are there, ``--real-dir``, by default the
 repository's sibling ``../shared/data/real``; skipped with a warning otherwise), each a column
 of panels scaled to 860 px wide, the camera mount estimated from the floor
-(``--estimate-mount``), ``table_4_2(median_kernel=5)``:
+(``--estimate-mount``), the default configuration (robot level) at range 4 m:
 
-- ``real_tum_office.png``: TUM fr3 office at range 2 m (the preset's) above range 4 m;
-- ``real_tum_fr2_desk.png``: TUM fr2 desk at range 4 m, the seed method above the same with
-  the height rule ``max_ground_height_m=0.1``;
-- ``real_dining_room.png``: dining room frames 1 and 4 at range 4 m.
+- ``real_tum_office.png``: TUM fr3 office, the seed method (Table 4.2, K = 5) above the default;
+- ``real_tum_fr2_desk.png``: TUM fr2 desk, the seed method above the default;
+- ``real_dining_room.png``: dining room frames 1 and 4, the default.
 
 ::
 
@@ -51,7 +51,7 @@ REAL_WIDTH_PX = 860
 
 #: ``tools/pictures.py`` arguments of the synthetic pictures (file name -> arguments).
 SYNTHETIC = {
-    'corridor.png': ['--scene', 'corridor', '--preset', 'table_4_2'],
+    'corridor.png': ['--scene', 'corridor', '--preset', 'corridor'],
     'person_walking_sheet.png': ['--scene', 'person_walking', '--frames', '0:90:15',
                                  '--no-truth', '--thumb-width', '400', '--columns', '3'],
 }
@@ -61,6 +61,7 @@ _TUM_FR3 = ('535.4,539.2,320.1,247.6', '5000')
 _TUM_FR2 = ('520.9,521.0,325.1,249.7', '5000')
 _DINING = ('518.0,519.0,325.5,253.5', '1000')
 _TABLE_4_2_K5 = ['--preset', 'table_4_2', '--set', 'median_kernel=5']
+_DEFAULT = ['--preset', 'corridor']
 _FAR = ['--set', 'max_range_m=4.0', '--set', 'costmap_length_m=4.0']
 
 
@@ -84,22 +85,25 @@ class Panel:
 #: The real-frame pictures: file name -> panels, top to bottom.
 REAL = {
     'real_tum_office.png': (
-        Panel('tum_office/depth.png', _TUM_FR3, 'TUM fr3 office: Table 4.2, K=5, range 2 m',
-              (*_TABLE_4_2_K5,)),
-        Panel('tum_office/depth.png', _TUM_FR3, 'TUM fr3 office: Table 4.2, K=5, range 4 m',
+        Panel('tum_office/depth.png', _TUM_FR3,
+              'TUM fr3 office: the seed method (Table 4.2, K=5), range 4 m',
               (*_TABLE_4_2_K5, *_FAR)),
+        Panel('tum_office/depth.png', _TUM_FR3,
+              'TUM fr3 office: the default, corridor.yaml (robot level), range 4 m',
+              (*_DEFAULT, *_FAR)),
     ),
     'real_tum_fr2_desk.png': (
         Panel('tum_fr2_desk/depth_1.png', _TUM_FR2,
-              'TUM fr2 desk: Table 4.2, K=5, range 4 m (the seed method)',
+              'TUM fr2 desk: the seed method (Table 4.2, K=5), range 4 m',
               (*_TABLE_4_2_K5, *_FAR)),
         Panel('tum_fr2_desk/depth_1.png', _TUM_FR2,
-              'TUM fr2 desk: same + height rule max_ground_height_m=0.1 (not in the seed)',
-              (*_TABLE_4_2_K5, *_FAR, '--set', 'max_ground_height_m=0.1')),
+              'TUM fr2 desk: the default, corridor.yaml (robot level), range 4 m',
+              (*_DEFAULT, *_FAR)),
     ),
     'real_dining_room.png': tuple(
         Panel(f'dining_room/depth_{i}.pgm', _DINING,
-              f'dining room {i}: Table 4.2, K=5, range 4 m', (*_TABLE_4_2_K5, *_FAR))
+              f'dining room {i}: the default, corridor.yaml (robot level), range 4 m',
+              (*_DEFAULT, *_FAR))
         for i in (1, 4)),
 }
 
