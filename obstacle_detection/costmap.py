@@ -54,11 +54,15 @@ class Costmap:
 
 
 def costmap_geometry(params: DetectorParams) -> tuple[tuple[float, float], int, int]:
-    """(origin_xy_m, nx, ny) of the grid: x from 0 forward, y centred on the camera."""
+    """(origin_xy_m, nx, ny) of the grid, in the base frame.
+
+    x from the camera's foot point (camera_x_m; 0 for a camera above the base origin) forward,
+    y centred on the camera (camera_y_m).
+    """
     res = params.costmap_resolution_m
     nx = max(1, int(np.ceil(params.costmap_length_m / res - 1e-9)))
     ny = max(1, int(np.ceil(params.costmap_width_m / res - 1e-9)))
-    origin = (0.0, -0.5 * ny * res)
+    origin = (0.0 + params.camera_x_m, -0.5 * ny * res + params.camera_y_m)
     return origin, nx, ny
 
 

@@ -144,3 +144,24 @@ def roi_mask(points_ground: np.ndarray, params: DetectorParams) -> np.ndarray:
     keep &= np.abs(y) <= params.lateral_limit_m
     keep &= (z >= params.tdbg_m) & (z <= params.max_height_m)
     return keep
+
+
+def to_base_frame(points: np.ndarray, params: DetectorParams) -> np.ndarray:
+    """Move ground-frame points (origin under the camera) into the robot's base frame.
+
+    points: (M, 3) float32 [m], x forward, y left, z up on the ground under the camera. The
+    camera sits at (camera_x_m, camera_y_m) turned by camera_yaw_rad in the base frame:
+    ``p_base = R_z(yaw) p + (x, y, 0)``. A camera at the base origin facing forward (the
+    default) returns the points unchanged (the same array).
+    """
+    x, y, yaw = params.camera_x_m, params.camera_y_m, params.camera_yaw_rad
+    if x == 0.0 and y == 0.0 and yaw == 0.0:
+        return points
+    c, s = math.cos(yaw), math.sin(yaw)
+    out = np.empty_like(points)
+    px, py = points[:, 0].astype(np.float64), points[:, 1].astype(np.float64)
+    out[:, 0] = c * px - s * py + x
+    out[:, 1] = s * px + c * py + y
+    out[:, 2] = points[:, 2]
+    return out
+

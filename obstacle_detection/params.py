@@ -84,6 +84,15 @@ class DetectorParams:
     camera_roll_rad: float = field(default=0.0, metadata=_describe(
         'Camera roll about the optical axis, positive tilts the image clockwise [rad]',
         min=-math.pi / 2, max=math.pi / 2, open_min=True, open_max=True))
+    camera_x_m: float = field(default=0.0, metadata=_describe(
+        'Not in the seed: camera position ahead of the base frame origin (x forward); the '
+        'outputs are in the base frame [m]', min=-5.0, max=5.0))
+    camera_y_m: float = field(default=0.0, metadata=_describe(
+        'Not in the seed: camera position left of the base frame origin (y left) [m]',
+        min=-5.0, max=5.0))
+    camera_yaw_rad: float = field(default=0.0, metadata=_describe(
+        'Not in the seed: camera heading in the base frame, positive turns it to the left '
+        '(about z up) [rad]', min=-math.pi, max=math.pi))
     # -- region of interest (seed 4.3.3), ground frame
     max_range_m: float = field(default=2.0, metadata=_describe(
         'ROI: forward range kept in front of the robot (seed 4.3.3: 2 m) [m]', min=0.0, max=20.0,

@@ -203,6 +203,9 @@ class Detector:
         if drop_points.shape[0]:
             obstacle_points = np.concatenate((obstacle_points, drop_points))
         ground_points = centroids[~is_obstacle]
+        # outputs in the robot's base frame (the camera's x, y and yaw on the robot)
+        obstacle_points = geometry.to_base_frame(obstacle_points, p)
+        ground_points = geometry.to_base_frame(ground_points, p)
         costmap = build_costmap(obstacle_points, ground_points, p)
         clock.lap('costmap')
 

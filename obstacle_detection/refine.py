@@ -429,6 +429,7 @@ def refine_result(result: Any, refined_mask: np.ndarray, params: DetectorParams,
     """
     # Imported here: the fit and the model file need neither the costmap nor the k-NN.
     from .costmap import build_costmap
+    from .geometry import to_base_frame
     from .normals import nearest_neighbours, validate_obstacles
 
     pixel_voxel = np.asarray(result.pixel_voxel)
@@ -446,8 +447,8 @@ def refine_result(result: Any, refined_mask: np.ndarray, params: DetectorParams,
         if neighbours is None or neighbours.shape[1] < wanted:
             neighbours = nearest_neighbours(voxel_points, wanted)
         is_obstacle = validate_obstacles(is_obstacle, neighbours, n1)
-    obstacle_points = voxel_points[is_obstacle]
-    ground_points = voxel_points[~is_obstacle]
+    obstacle_points = to_base_frame(voxel_points[is_obstacle], params)
+    ground_points = to_base_frame(voxel_points[~is_obstacle], params)
     costmap = build_costmap(obstacle_points, ground_points, params)
     return RefinedResult(labels, mask, is_obstacle, obstacle_points, ground_points, costmap)
 

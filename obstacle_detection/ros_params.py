@@ -39,6 +39,7 @@ DEGREE_FIELDS = {
     'camera_pitch_rad': 'camera_pitch_deg',
     'camera_roll_rad': 'camera_roll_deg',
     'floor_max_tilt_rad': 'floor_max_tilt_deg',
+    'camera_yaw_rad': 'camera_yaw_deg',
 }
 
 _ROS_TYPES = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEGER,

@@ -643,22 +643,29 @@ def _publish_frame(node: DetectorNode, frame: SceneFrame,
 def test_use_tf_takes_the_mount_from_the_transform(
         local_context: rclpy.Context, corridor_params: Any,
         monkeypatch: pytest.MonkeyPatch) -> None:
-    """The parameters say 0.6 m and level; TF says 0.8 m and 20 deg down: TF wins."""
-    from test_mount_source import StandInBuffer, _transform
+    """Take the mount from TF, and the outputs land in the base frame where it puts them.
+
+    The parameters: 0.6 m, level, at the origin; TF: x 0.2, y 0.1, 0.8 m up, yaw 10 deg,
+    20 deg down.
+    """
+    from test_mount_source import StandInBuffer, _rz, _transform
 
     frame = render_scene('corridor', seed=3, height_m=0.8, pitch_rad=math.radians(20.0))
-    buffer = StandInBuffer(_transform(mount_rotation(math.radians(20.0), 0.0),
-                                      (0.0, 0.0, 0.8)))
+    buffer = StandInBuffer(_transform(
+        _rz(math.radians(10.0)) @ mount_rotation(math.radians(20.0), 0.0), (0.2, 0.1, 0.8)))
     node = _tf_node(local_context, buffer)
     try:
         grids = _publish_frame(node, frame, monkeypatch)
         expected = Detector(dataclasses.replace(
-            corridor_params, camera_height_m=0.8, camera_pitch_rad=math.radians(20.0))
+            corridor_params, camera_height_m=0.8, camera_pitch_rad=math.radians(20.0),
+            camera_x_m=0.2, camera_y_m=0.1, camera_yaw_rad=math.radians(10.0))
         ).process(frame.depth_mm, frame.intrinsics)
         cells = np.asarray(grids[0].data, np.int8).reshape(expected.costmap.data.shape)
         np.testing.assert_array_equal(cells, expected.costmap.data)
+        assert grids[0].info.origin.position.x == pytest.approx(0.2)
         assert buffer.calls == [('base_footprint', 'depth_optical')]
-        assert node._mount_said.startswith('TF base_footprint <- depth_optical: x 0.000 m')
+        assert node._mount_said.startswith(
+            'TF base_footprint <- depth_optical: x 0.200 m, y 0.100 m')
     finally:
         node.close()
         node.destroy_node()

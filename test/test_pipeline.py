@@ -171,3 +171,33 @@ def test_crop_removes_border_pixels():
     assert (labels[:, :20] == LABEL_NO_RETURN).all()
     assert (labels[:, -10:] == LABEL_NO_RETURN).all()
     assert (labels[30:-5, 20:-10] != LABEL_NO_RETURN).mean() > 0.5
+
+
+def test_outputs_are_in_the_base_frame_of_a_camera_off_the_base_origin() -> None:
+    """A box 1 m ahead of a camera at x = 0.2 m, y = 0.1 m, yaw = 10 deg on the robot."""
+    import dataclasses
+
+    from obstacle_detection.params import PRESETS
+    from obstacle_detection.scenes import Box, Floor, Scene, render
+
+    frame = render(Scene('box_ahead', (Floor(), Box.on_floor(1.05, 0.0, 0.1, 0.3, 0.5))),
+                   seed=1)
+    at_origin = PRESETS['corridor']()
+    mounted = dataclasses.replace(at_origin, camera_x_m=0.2, camera_y_m=0.1,
+                                  camera_yaw_rad=math.radians(10.0))
+    here = Detector(at_origin).process(frame.depth_mm, frame.intrinsics)
+    there = Detector(mounted).process(frame.depth_mm, frame.intrinsics)
+
+    c, s = math.cos(math.radians(10.0)), math.sin(math.radians(10.0))
+    expected = here.obstacle_points.astype(np.float64) @ np.array(
+        [[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]]) + np.array([0.2, 0.1, 0.0])
+    np.testing.assert_allclose(there.obstacle_points, expected, atol=1e-6)
+    # the box's front face, x = 1.0 m ahead of the camera, is at R(10 deg) (1.0, 0) + (0.2,
+    # 0.1) = (1.185, 0.274) m in the base frame: that cell is occupied, its camera-frame twin
+    # (1.0, 0.0) is not when the camera is off the origin.
+    row, col, inside = there.costmap.cell_of(np.array([[0.2 + c, 0.1 + s, 0.0]]))
+    assert inside[0] and there.costmap.data[row[0], col[0]] == CELL_OCCUPIED
+    assert there.costmap.origin_xy_m[0] == pytest.approx(0.2)
+    assert there.costmap.origin_xy_m[1] == pytest.approx(0.1 - 2.0)
+    row, col, inside = there.costmap.cell_of(np.array([[1.0, -0.1, 0.0]]))
+    assert not inside[0] or there.costmap.data[row[0], col[0]] != CELL_OCCUPIED
