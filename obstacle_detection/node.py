@@ -698,6 +698,8 @@ class DetectorNode(Node):
             self._fused = FusedGrid(config.fusion)
         stamp_s = _stamp_ns(msg.header.stamp) * 1e-9
         pose, why = self._poses.pose_at(stamp_s)
+        if pose is None and len(self._poses) == 0 and self._mount_source.buffer is not None:
+            pose, why = self._odom_pose_from_tf(msg, config)
         if pose is None and not why:
             why = f'no odometry on {self._odom_sub.topic_name}'
         update = self._fused.update(result.costmap, pose, pose_stamp_s=stamp_s,
@@ -707,6 +709,23 @@ class DetectorNode(Node):
             (log.warning if update.warning else log.info)(f'fused costmap: {update.message}')
         return costmap_to_occupancy_grid(self._fused.to_costmap(), stamp=msg.header.stamp,
                                          frame_id=config.odom_frame)
+
+    def _odom_pose_from_tf(self, msg: Any, config: NodeConfig) -> tuple[Any, str]:
+        """Return the base pose in odom from TF (odom_frame <- cloud_frame_id), and why not."""
+        from rclpy.duration import Duration
+        from rclpy.time import Time as RclpyTime
+
+        source = self._mount_source
+        try:
+            transform = source.buffer.lookup_transform(
+                config.odom_frame, config.cloud_frame_id, RclpyTime.from_msg(msg.header.stamp),
+                Duration(seconds=source.timeout_s))
+            t, q = transform.transform.translation, transform.transform.rotation
+            return (float(t.x), float(t.y), yaw_from_quaternion(q.x, q.y, q.z, q.w)), ''
+        except Exception as error:  # noqa: BLE001 - tf2's exceptions are not importable here
+            return None, (f'no odometry on {self._odom_sub.topic_name} and no TF '
+                          f'{config.odom_frame} <- {config.cloud_frame_id} '
+                          f'({type(error).__name__})')
 
     def _log_stats(self) -> None:
         period = self.stats.take_period()

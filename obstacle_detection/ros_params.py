@@ -154,7 +154,8 @@ NODE_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec('fuse', False,
               'Also publish obstacles/fused_costmap: the per-frame costmaps fused over time '
               '(log-odds) in a rolling window centred on the robot in odom_frame, moved by the '
-              'odometry on odom_topic (without odometry: fused in place, said once)'),
+              'odometry on odom_topic, or by TF odom_frame <- cloud_frame_id when use_tf and '
+              'no odometry comes (neither: fused in place, said once)'),
     ParamSpec('odom_topic', 'odom',
               'nav_msgs/Odometry of the robot base in odom_frame, for the fused costmap'),
     ParamSpec('odom_frame', 'odom', 'Frame of obstacles/fused_costmap (the odometry frame)'),
