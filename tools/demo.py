@@ -381,6 +381,29 @@ def _log_tail(path: Path, lines: int = 15) -> str:
         return '(no log)'
 
 
+def _why_no_output(log_path: Path, best_effort: bool, rate: float) -> str:
+    """Say from the node's log why frames had no output: skipped (and why) or dropped."""
+    import re
+
+    text = log_path.read_text(errors='replace') if log_path.is_file() else ''
+    dropped = sum(int(n) for n in re.findall(r'(\d+) dropped \(a newer frame', text))
+    skipped = sum(int(n) for n in re.findall(r'(\d+) skipped \(bad input\)', text))
+    reasons = sorted(set(re.findall(r'skipping depth frame: ([^(\n]*)', text)))
+    parts = []
+    if skipped:
+        why = '; '.join(r.strip() for r in reasons)
+        if any('no valid depth pixel' in r for r in reasons):
+            why += (': a camera closer than 0.5 m to a wall sees nothing, the Kinect v2\'s '
+                    'blind zone')
+        parts.append(f'{skipped} skipped by the node ({why})')
+    if dropped:
+        parts.append(f'{dropped} replaced by a newer frame while the node was busy (a lower '
+                     f'--rate, now {rate:g}, gives it more time)')
+    if best_effort:
+        parts.append('best-effort frames may also be lost in transit')
+    return '; '.join(parts) or 'see node.log'
+
+
 def run_demo(args: argparse.Namespace) -> int:
     """Run every step into ``<output>.partial``; move it to ``<output>`` only on success.
 
@@ -546,11 +569,8 @@ def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
     if status:
         report.append(f'  the node ended on the {status[-1].split(": ", 1)[-1]}')
     if received < sent:
-        report.append(
-            f'  {sent - received} frame(s) had no output: the node keeps only the newest '
-            'frame when one arrives while it is busy (see node.log)'
-            + ('; best-effort frames may also be lost in transit' if args.best_effort else '')
-            + f'; a lower --rate (now {rate:g}) gives it more time')
+        report.append(f'  {sent - received} frame(s) had no output: '
+                      + _why_no_output(out / 'node.log', args.best_effort, rate))
     report.append(f'  pictures: {len(saved)} side-by-side frames in {out / "pictures"}, '
                   f'contact sheet {out / "demo_sheet.png"}')
     report.append(f'  bags: {out / "input_bag"} (input), {out / "results_bag"} (node output)')
