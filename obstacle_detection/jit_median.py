@@ -53,21 +53,23 @@ _MAX_CHUNK = 512
 
 
 @_jit
-def _run(code, mem, blocks):  # pragma: no cover - compiled
+def _run(code, mem, start, blocks):  # pragma: no cover - compiled
     """Execute fused compare-exchange instructions on vectors of ``blocks * 64`` lanes.
 
     ``code``: (m, 4) int64 rows (lo, hi, a, b) of element offsets into the flat uint16
-    ``mem``: ``mem[lo:lo + n] = min(mem[a:a + n], mem[b:b + n])`` and the max into hi (-1: not
-    needed); the written vectors never overlap the read ones.
+    ``mem``, shifted by ``start`` lanes: ``mem[lo + start:lo + start + n] = min(mem[a +
+    start:...], mem[b + start:...])`` and the max into hi (-1: not needed); the written
+    vectors never overlap the read ones.
     """
     # Unsigned offsets: numba then needs no negative-index handling, and the loops vectorise
     # (the compiler checks at run time that the vectors do not overlap).
     n = np.uint64(blocks) * np.uint64(64)
+    s = np.uint64(start)
     for p in range(code.shape[0]):
-        lo = np.uint64(code[p, 0])
-        hi = np.uint64(code[p, 1])
-        a = np.uint64(code[p, 2])
-        b = np.uint64(code[p, 3])
+        lo = np.uint64(code[p, 0]) + s
+        hi = np.uint64(code[p, 1]) + s
+        a = np.uint64(code[p, 2]) + s
+        b = np.uint64(code[p, 3]) + s
         if code[p, 1] < 0:
             for j in range(n):
                 x = mem[a + j]
@@ -108,13 +110,15 @@ def _addresses(code, chunk, n_regs):  # pragma: no cover - compiled
 
 
 @_jit
-def _median_kernel(padded, h, w, k, tile, blocks, code1, code2, out2,
-                   n_regs):  # pragma: no cover - compiled
+def _median_kernel(padded, h, w, k, tile, blocks, code1, code2, out2, n_regs, need,
+                   fill):  # pragma: no cover - compiled
     """Run a :class:`NetworkProgram` over a replicate-padded uint16 key image.
 
     ``padded``: (bands * tile + 2R, chunks * chunk + 2R) uint16, the (h, w) keys padded by
-    R = k // 2 with their edge values (and beyond, to whole bands and chunks). Returns the
-    (h, w) uint16 median.
+    R = k // 2 with their edge values (and beyond, to whole bands and chunks). ``need``:
+    (h, w) uint8, 0 where the median is known to be ``fill`` (the merge phase skips the
+    64-lane blocks of a band at either end of a row chunk whose outputs all are), or (0, 0)
+    to compute every output. Returns the (h, w) uint16 median.
     """
     r = k // 2
     rows = tile + 2 * r
@@ -131,21 +135,42 @@ def _median_kernel(padded, h, w, k, tile, blocks, code1, code2, out2,
     out = np.empty((h, w), np.uint16)
     n_bands = (h + tile - 1) // tile
     n_phase = code2.shape[0]
+    check = need.shape[0] > 0
     for x0 in range(0, w, chunk):
         width = min(chunk, w - x0)
         for band in range(n_bands):
             y0 = band * tile
+            n_rows = min(tile, h - y0)
             # Sort the horizontal runs of the padded rows this band adds to the ring.
             for c in range(0 if band == 0 else 2 * r, rows):
                 py = y0 + c
                 mem[row:row + chunk + 2 * r] = padded[py, x0:x0 + chunk + 2 * r]
-                _run(addr1[py % rows], mem, blocks)
-            # Merge them into the medians of the band's rows.
-            phase = band % n_phase
-            _run(addr2[phase], mem, blocks)
-            for t in range(min(tile, h - y0)):
-                start = out2[phase, t] * chunk
-                out[y0 + t, x0:x0 + width] = mem[start:start + width]
+                _run(addr1[py % rows], mem, 0, blocks)
+            # Lanes [first, last] hold every output of the band not known to be `fill`.
+            first, last = 0, width - 1
+            if check:
+                first, last = width, -1
+                for t in range(n_rows):
+                    lane = 0                  # scans stop at the first needed lane
+                    while lane < first and not need[y0 + t, x0 + lane]:
+                        lane += 1
+                    first = lane if lane < first else first
+                    lane = width - 1
+                    while lane > last and not need[y0 + t, x0 + lane]:
+                        lane -= 1
+                    last = lane if lane > last else last
+            start = (first // 64) * 64
+            stop = min(-(-(last + 1) // 64) * 64, width)
+            if last >= first:
+                # Merge the runs into the medians of the band's rows.
+                phase = band % n_phase
+                _run(addr2[phase], mem, start, -(-(stop - start) // 64))
+            for t in range(n_rows):
+                out[y0 + t, x0:x0 + start] = fill
+                if last >= first:
+                    src = out2[phase, t] * chunk
+                    out[y0 + t, x0 + start:x0 + stop] = mem[src + start:src + stop]
+                out[y0 + t, x0 + max(stop, start):x0 + width] = fill
     return out
 
 
@@ -306,9 +331,14 @@ def network_median(keys: np.ndarray, program: NetworkProgram) -> np.ndarray:
     Returns:
         (H, W) uint16 C-contiguous median, equal to
         ``scipy.ndimage.median_filter(keys, size=K, mode='nearest')``.
+
+    Where more than half of a window is the smallest key of the image (0 = no return in
+    depth images), the median is that key: one box count finds those pixels, and the merge
+    phase skips the lanes at either end of a row chunk that hold only such outputs.
     """
     if not AVAILABLE:
         raise RuntimeError('numba is not available')
+    keys = np.ascontiguousarray(keys, np.uint16)
     h, w = keys.shape
     k, tile = program.k, program.tile
     r = k // 2
@@ -316,10 +346,25 @@ def network_median(keys: np.ndarray, program: NetworkProgram) -> np.ndarray:
     blocks = -(-w // (n_chunks * _LANES))      # lanes per chunk / 64, as even as possible
     chunk = blocks * _LANES
     bands = -(-h // tile)
-    padded = cv2.copyMakeBorder(np.ascontiguousarray(keys, np.uint16), r, r + bands * tile - h,
+    fill, need = _known_lowest(keys, k)
+    padded = cv2.copyMakeBorder(keys, r, r + bands * tile - h,
                                 r, r + n_chunks * chunk - w, cv2.BORDER_REPLICATE)
     return _median_kernel(padded, h, w, k, tile, blocks, program.code1, program.code2,
-                          program.out2, program.n_regs)
+                          program.out2, program.n_regs, need, fill)
+
+
+def _known_lowest(keys: np.ndarray, k: int) -> tuple[int, np.ndarray]:
+    """Return (lowest key, need): need (H, W) uint8 is 0 where the median is that key.
+
+    The K x K median ('nearest' border) is the lowest key v exactly when more than
+    K * K // 2 of the window's keys equal v: a count by ``cv2.boxFilter`` on the replicated
+    border (the image's edge pixels count as often as scipy's 'nearest' mode repeats them).
+    """
+    lowest = int(keys.min())
+    is_lowest = keys == lowest
+    count = cv2.boxFilter(is_lowest.view(np.uint8), cv2.CV_16U, (k, k), normalize=False,
+                          borderType=cv2.BORDER_REPLICATE)
+    return lowest, (count <= k * k // 2).view(np.uint8)
 
 
 def warm_up(kernel_size: int = 17) -> float:

@@ -559,3 +559,71 @@ def test_fused_network_code_never_writes_its_operands(k) -> None:
     for c in codes:
         assert not ((c[:, :2, None] == c[:, None, 2:]) & (c[:, :2, None] >= 0)).any()
         assert ((c[:, 0] >= 0) | (c[:, 1] >= 0)).all() and (c[:, 2:] >= 0).all()
+
+
+@needs_numba
+@pytest.mark.parametrize('lowest', [0, 1000])
+def test_jit_lowest_key_count_marks_exactly_the_lowest_medians(lowest) -> None:
+    """The median is the lowest key iff more than K*K // 2 window keys equal it, borders too."""
+    rng = np.random.default_rng(16 + lowest)
+    for shape in [(1, 1), (3, 4), (6, 40), (45, 70)]:
+        keys = rng.integers(lowest + 1, lowest + 3000, shape).astype(np.uint16)
+        keys[rng.random(shape) < 0.55] = lowest
+        keys[0, 0] = lowest                     # a corner repeated (R + 1)**2 times
+        for k in (7, 17):
+            fill, need = jit_median._known_lowest(keys, k)
+            assert fill == lowest
+            expected = scipy_median(keys, k) != lowest
+            np.testing.assert_array_equal(need.astype(bool), expected, err_msg=f'{shape} K={k}')
+
+
+@needs_numba
+@pytest.mark.parametrize('k', [7, 17, 31])
+def test_jit_network_skipped_lanes_and_bands_are_exact(k) -> None:
+    """Rows, bands and 64-lane blocks whose medians are all the lowest key are not merged.
+
+    No-return (0) areas at both ends of the row chunks, in whole bands and in the middle of
+    a row, valid patches one lane wide at a chunk edge, ties and 65535 outliers; also with a
+    lowest key that is not 0.
+    """
+    rng = np.random.default_rng(k)
+    program = depth._jit_program(k)
+    h, w = 70, 1100                             # three row chunks of 384 lanes
+    base = rng.integers(1000, 4500, (h, w)).astype(np.uint16)
+    base[rng.random((h, w)) < 0.1] = 65535
+    base[:, 600:640] = 2000                     # ties
+    layouts = []
+    zeros = base.copy()
+    zeros[:, :200] = 0                          # left end of chunk 0
+    zeros[:, 300:460] = 0                       # end of chunk 0, start of chunk 1
+    zeros[:, 1000:] = 0                         # right end of the last chunk
+    zeros[:24, :] = 0                           # whole bands at the top
+    zeros[rng.random((h, w)) < 0.3] = 0         # pepper
+    layouts.append(zeros)
+    sliver = np.zeros((h, w), np.uint16)
+    sliver[30:50, 383:384] = 3000               # one lane at a chunk edge
+    sliver[60:, 767:769] = 65535
+    layouts.append(sliver)
+    layouts.append(np.where(zeros == 0, 700, zeros).astype(np.uint16))   # lowest key 700
+    for keys in layouts:
+        fill, need = jit_median._known_lowest(keys, k)
+        assert need.shape == keys.shape and not need.all()     # something is skipped
+        out = jit_median.network_median(keys, program)
+        assert out.dtype == np.uint16 and out.flags.c_contiguous
+        np.testing.assert_array_equal(out, scipy_median(keys, k))
+
+
+@needs_numba
+def test_jit_median_mostly_no_return_frames(monkeypatch) -> None:
+    """Float metres as the pipeline passes them: large no-return areas, K = 9 and 17."""
+    monkeypatch.delenv(jit_median.NO_JIT_ENV, raising=False)
+    frame = render_scene('ramps', seed=2)
+    metres = frame.depth_m.copy()
+    metres[:, 400:] = 0.0
+    mm = frame.depth_mm.copy()
+    mm[:, 400:] = 0
+    for k in (9, 17):
+        expected = scipy_median(mm, k)
+        np.testing.assert_array_equal(median_filter(mm, k), expected)
+        np.testing.assert_array_equal(median_filter(metres, k),
+                                      expected.astype(np.float32) * np.float32(1e-3))
