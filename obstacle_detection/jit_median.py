@@ -30,13 +30,16 @@ thread.
 
 from __future__ import annotations
 
+import functools
 import math
+import threading
 import time
 from typing import NamedTuple
 
 import cv2
 import numpy as np
 
+from . import jit_support
 from .jit_support import AVAILABLE, NO_JIT_ENV, enabled, jit as _jit
 
 __all__ = ['AVAILABLE', 'NO_JIT_ENV', 'NetworkProgram', 'assemble_program', 'enabled',
@@ -44,6 +47,12 @@ __all__ = ['AVAILABLE', 'NO_JIT_ENV', 'NetworkProgram', 'assemble_program', 'ena
 
 #: The interpreter processes ``blocks * _LANES`` pixels of a row per instruction.
 _LANES = 64
+#: Pixels per vector of the in-register kernels: 32 uint16, one 512-bit (two 256-bit) register.
+_REG_LANES = 32
+#: Largest K whose networks run in registers (:func:`register_kernel`). Their machine code is
+#: generated per K at the first call and not cached on disk: about 1 s at K = 9, 3 s at 17,
+#: 8 s at 21; larger K would take longer and spill more, so they keep the interpreter.
+REGISTER_MAX_K = 21
 #: Most pixels per row chunk: larger chunks cost fewer instruction dispatches, smaller ones
 #: keep the register file (about 250 to 650 rows of ``chunk`` uint16 for K = 7 .. 17) in cache.
 _MAX_CHUNK = 512
@@ -161,9 +170,9 @@ def _median_kernel(padded, h, w, k, tile, blocks, code1, code2, out2, n_regs, ne
                     last = lane if lane > last else last
             start = (first // 64) * 64
             stop = min(-(-(last + 1) // 64) * 64, width)
+            phase = band % n_phase
             if last >= first:
                 # Merge the runs into the medians of the band's rows.
-                phase = band % n_phase
                 _run(addr2[phase], mem, start, -(-(stop - start) // 64))
             for t in range(n_rows):
                 out[y0 + t, x0:x0 + start] = fill
@@ -256,6 +265,8 @@ class NetworkProgram(NamedTuple):
     code2: np.ndarray         #: (phases, m2, 4) int32 phase 2 per ring phase of a band
     out2: np.ndarray          #: (phases, tile) int32 register of each output row's median
     n_regs: int
+    net1: tuple = ()          #: phase 1 as given: ((m1, 4) int64 code, (K,) sorted outputs)
+    net2: tuple = ()          #: phase 2 as given: ((m2, 4) int64 code, (tile,) medians)
 
 
 def assemble_program(k: int, tile: int, phase1: tuple, phase2: tuple) -> NetworkProgram:
@@ -311,7 +322,9 @@ def assemble_program(k: int, tile: int, phase1: tuple, phase2: tuple) -> Network
         phases.append(_relocate(code2, phys))
         outs.append(phys[np.asarray(outs2)])
     return NetworkProgram(k, tile, np.stack(slots), np.stack(phases),
-                          np.asarray(outs, np.int32), n_regs)
+                          np.asarray(outs, np.int32), n_regs,
+                          (code1, np.asarray(outs1, np.int64)),
+                          (code2, np.asarray(outs2, np.int64)))
 
 
 def _relocate(code: np.ndarray, phys: np.ndarray) -> np.ndarray:
@@ -320,13 +333,177 @@ def _relocate(code: np.ndarray, phys: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(out, np.int32)
 
 
-def network_median(keys: np.ndarray, program: NetworkProgram) -> np.ndarray:
+# --------------------------------------------------------------------------- in registers
+
+
+def _network_intrinsic(code: np.ndarray, n_leaves: int, outputs: np.ndarray) -> object:
+    """Return a numba intrinsic ``net(mem, leaf_at, out_at, j)`` running a network in registers.
+
+    The network (``code`` rows (lo, hi, a, b), registers < ``n_leaves`` its leaves, the others
+    intermediate values, -1 an unused result) becomes straight-line LLVM code on vectors of
+    :data:`_REG_LANES` uint16: leaf l is loaded from ``mem[leaf_at[l] + j:... + 32]`` at its
+    first use, every compare-exchange is an unsigned min / max of two SSA values (no memory
+    traffic but the compiler's own spills, which stay in the L1 cache), and output t is stored
+    to ``mem[out_at[t] + j:... + 32]``. Loads and stores may be unaligned.
+    """
+    from llvmlite import ir
+    from numba import types
+    from numba.extending import intrinsic
+
+    rows = [tuple(int(v) for v in row) for row in np.asarray(code).reshape(-1, 4)]
+    outs = [int(v) for v in outputs]
+
+    @intrinsic
+    def net(typingctx, mem_t, leaf_t, out_t, j_t):  # pragma: no cover - compile time
+        sig = types.void(mem_t, leaf_t, out_t, j_t)
+
+        def codegen(context, builder, signature, args):
+            mem, leaf_at, out_at, j = args
+            data = context.make_array(signature.args[0])(context, builder, mem).data
+            leaf_ptr = context.make_array(signature.args[1])(context, builder, leaf_at).data
+            out_ptr = context.make_array(signature.args[2])(context, builder, out_at).data
+            i64 = ir.IntType(64)
+            vec_ptr = ir.VectorType(ir.IntType(16), _REG_LANES).as_pointer()
+
+            def address(table, index):
+                offset = builder.load(builder.gep(table, [ir.Constant(i64, index)]))
+                return builder.bitcast(builder.gep(data, [builder.add(offset, j)]), vec_ptr)
+
+            values = {}
+
+            def value(reg):
+                if reg not in values:        # only leaves are missing: load at first use
+                    values[reg] = builder.load(address(leaf_ptr, reg), align=2)
+                return values[reg]
+
+            for lo, hi, a, b in rows:
+                x, y = value(a), value(b)
+                less = builder.icmp_unsigned('<', x, y)
+                if lo >= 0:
+                    values[lo] = builder.select(less, x, y)
+                if hi >= 0:
+                    values[hi] = builder.select(less, y, x)
+            for t, reg in enumerate(outs):
+                builder.store(value(reg), address(out_ptr, t), align=2)
+            return context.get_dummy_value()
+
+        return sig, codegen
+
+    return net
+
+
+_REGISTER_KERNELS: dict = {}
+_REGISTER_LOCK = threading.Lock()
+
+
+def register_kernel(program: NetworkProgram) -> object:
+    """Return the compiled in-register median kernel of ``program`` (built once per program).
+
+    Phase 1 (sorting the horizontal runs of each padded row into the ring) and phase 2
+    (merging them into the medians of a band) run as straight-line vector code
+    (:func:`_network_intrinsic`) on 32 pixels at a time, in the same order and on the same
+    ring as the interpreter of :func:`_median_kernel`, whose result it equals. numba compiles
+    it at the first call (not cached on disk: the code depends on the program's data).
+    """
+    key = (program.k, program.tile, hash(program.net1[0].tobytes()),
+           hash(program.net2[0].tobytes()))
+    with _REGISTER_LOCK:
+        kernel = _REGISTER_KERNELS.get(key)
+        if kernel is None:
+            kernel = _REGISTER_KERNELS[key] = _make_register_kernel(program)
+    return kernel
+
+
+def _make_register_kernel(program: NetworkProgram) -> object:
+    """Build (uncompiled) the numba kernel of :func:`register_kernel`."""
+    k, tile = program.k, program.tile
+    rows = tile + 2 * (k // 2)
+    code1, outs1 = program.net1
+    code2, outs2 = program.net2
+    net1 = _network_intrinsic(code1, k, outs1)
+    net2 = _network_intrinsic(code2, rows * k, outs2)
+    lanes = _REG_LANES
+
+    def kernel(padded, h, w, chunk, row, leaf1, out1, leaf2, out2, need,
+               fill):  # pragma: no cover - compiled
+        r = k // 2
+        size = row + chunk + 2 * r
+        raw = np.empty(size + 32, np.uint16)
+        skip = (-raw.ctypes.data % 64) // 2       # registers start on a cache line
+        mem = raw[skip:skip + size]
+        out = np.empty((h, w), np.uint16)
+        n_bands = (h + tile - 1) // tile
+        n_phase = leaf2.shape[0]
+        check = need.shape[0] > 0
+        for x0 in range(0, w, chunk):
+            width = min(chunk, w - x0)
+            for band in range(n_bands):
+                y0 = band * tile
+                n_rows = min(tile, h - y0)
+                for c in range(0 if band == 0 else 2 * r, rows):
+                    py = y0 + c
+                    mem[row:row + chunk + 2 * r] = padded[py, x0:x0 + chunk + 2 * r]
+                    for j in range(0, chunk, lanes):
+                        net1(mem, leaf1, out1[py % rows], j)
+                first, last = 0, width - 1
+                if check:
+                    first, last = width, -1
+                    for t in range(n_rows):
+                        lane = 0                  # scans stop at the first needed lane
+                        while lane < first and not need[y0 + t, x0 + lane]:
+                            lane += 1
+                        first = lane if lane < first else first
+                        lane = width - 1
+                        while lane > last and not need[y0 + t, x0 + lane]:
+                            lane -= 1
+                        last = lane if lane > last else last
+                start = (first // 64) * 64
+                stop = min(-(-(last + 1) // 64) * 64, width)
+                if last >= first:
+                    for j in range(start, start + -(-(stop - start) // 64) * 64, lanes):
+                        net2(mem, leaf2[band % n_phase], out2, j)
+                for t in range(n_rows):
+                    out[y0 + t, x0:x0 + start] = fill
+                    if last >= first:
+                        src = out2[t]
+                        out[y0 + t, x0 + start:x0 + stop] = mem[src + start:src + stop]
+                    out[y0 + t, x0 + max(stop, start):x0 + width] = fill
+        return out
+
+    return jit_support.numba.njit(nogil=True, boundscheck=False)(kernel)
+
+
+def _register_tables(program: NetworkProgram, chunk: int) -> tuple:
+    """Element offsets of the in-register kernel's ring, outputs and row for one chunk width.
+
+    Layout: ring slot s, rank i at (s * K + i) * chunk; the band's medians after the ring;
+    then the padded row segment (phase 1 reads its K shifts in place). Returns (row, leaf1,
+    out1, leaf2, out2): leaf1 (K,) the shifts, out1 (slots, K) where each slot's sorted run
+    goes, leaf2 (phases, slots * K) the ring register of each phase-2 leaf, out2 (tile,).
+    """
+    k, tile = program.k, program.tile
+    rows = tile + 2 * (k // 2)
+    ring = rows * k
+    row = (ring + tile) * chunk
+    leaf1 = row + np.arange(k, dtype=np.int64)
+    out1 = np.arange(ring, dtype=np.int64).reshape(rows, k) * chunk
+    period = rows // math.gcd(rows, tile)
+    c, i = np.divmod(np.arange(ring, dtype=np.int64), k)
+    leaf2 = np.stack([((phase * tile + c) % rows) * k + i for phase in range(period)]) * chunk
+    out2 = (ring + np.arange(tile, dtype=np.int64)) * chunk
+    return row, leaf1, out1, np.ascontiguousarray(leaf2), out2
+
+
+def network_median(keys: np.ndarray, program: NetworkProgram, *,
+                   in_registers: bool | None = None) -> np.ndarray:
     """Exact 'nearest'-mode K x K median of uint16 keys by a compiled network program.
 
     Args:
         keys: (H, W) uint16 image.
         program: from :func:`assemble_program` (:mod:`obstacle_detection.depth` builds and
             caches one per K).
+        in_registers: run the in-register kernel (:func:`register_kernel`) rather than the
+            interpreter; None (default) does for K <= :data:`REGISTER_MAX_K`. Same result.
 
     Returns:
         (H, W) uint16 C-contiguous median, equal to
@@ -349,6 +526,11 @@ def network_median(keys: np.ndarray, program: NetworkProgram) -> np.ndarray:
     fill, need = _known_lowest(keys, k)
     padded = cv2.copyMakeBorder(keys, r, r + bands * tile - h,
                                 r, r + n_chunks * chunk - w, cv2.BORDER_REPLICATE)
+    if in_registers is None:
+        in_registers = k <= REGISTER_MAX_K and bool(program.net1)
+    if in_registers:
+        return register_kernel(program)(padded, h, w, chunk,
+                                        *_register_tables(program, chunk), need, fill)
     return _median_kernel(padded, h, w, k, tile, blocks, program.code1, program.code2,
                           program.out2, program.n_regs, need, fill)
 
