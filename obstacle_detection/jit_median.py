@@ -30,7 +30,6 @@ thread.
 
 from __future__ import annotations
 
-import functools
 import math
 import threading
 import time
