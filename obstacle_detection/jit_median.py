@@ -336,14 +336,15 @@ def _relocate(code: np.ndarray, phys: np.ndarray) -> np.ndarray:
 
 
 def _network_intrinsic(code: np.ndarray, n_leaves: int, outputs: np.ndarray) -> object:
-    """Return a numba intrinsic ``net(mem, leaf_at, out_at, j)`` running a network in registers.
+    """Return a numba intrinsic ``net(src, leaf_at, i, dst, out_at, j)``: a network in registers.
 
     The network (``code`` rows (lo, hi, a, b), registers < ``n_leaves`` its leaves, the others
     intermediate values, -1 an unused result) becomes straight-line LLVM code on vectors of
-    :data:`_REG_LANES` uint16: leaf l is loaded from ``mem[leaf_at[l] + j:... + 32]`` at its
-    first use, every compare-exchange is an unsigned min / max of two SSA values (no memory
-    traffic but the compiler's own spills, which stay in the L1 cache), and output t is stored
-    to ``mem[out_at[t] + j:... + 32]``. Loads and stores may be unaligned.
+    :data:`_REG_LANES` uint16 (1-D arrays ``src`` and ``dst``): leaf l is loaded from
+    ``src[leaf_at[l] + i:... + 32]`` at its first use, every compare-exchange is an unsigned
+    min / max of two SSA values (no memory traffic but the compiler's own spills, which stay
+    in the L1 cache), and output t is stored to ``dst[out_at[t] + j:... + 32]``. Loads and
+    stores may be unaligned.
     """
     from llvmlite import ir
     from numba import types
@@ -353,26 +354,27 @@ def _network_intrinsic(code: np.ndarray, n_leaves: int, outputs: np.ndarray) -> 
     outs = [int(v) for v in outputs]
 
     @intrinsic
-    def net(typingctx, mem_t, leaf_t, out_t, j_t):  # pragma: no cover - compile time
-        sig = types.void(mem_t, leaf_t, out_t, j_t)
+    def net(typingctx, src_t, leaf_t, i_t, dst_t, out_t, j_t):  # pragma: no cover - compile
+        sig = types.void(src_t, leaf_t, i_t, dst_t, out_t, j_t)
 
         def codegen(context, builder, signature, args):
-            mem, leaf_at, out_at, j = args
-            data = context.make_array(signature.args[0])(context, builder, mem).data
-            leaf_ptr = context.make_array(signature.args[1])(context, builder, leaf_at).data
-            out_ptr = context.make_array(signature.args[2])(context, builder, out_at).data
+            src, leaf_at, i, dst, out_at, j = args
+            arrays = [context.make_array(signature.args[n])(context, builder, args[n]).data
+                      for n in (0, 1, 3, 4)]
+            src_ptr, leaf_ptr, dst_ptr, out_ptr = arrays
             i64 = ir.IntType(64)
             vec_ptr = ir.VectorType(ir.IntType(16), _REG_LANES).as_pointer()
 
-            def address(table, index):
+            def address(base, table, index, shift):
                 offset = builder.load(builder.gep(table, [ir.Constant(i64, index)]))
-                return builder.bitcast(builder.gep(data, [builder.add(offset, j)]), vec_ptr)
+                return builder.bitcast(builder.gep(base, [builder.add(offset, shift)]),
+                                       vec_ptr)
 
             values = {}
 
             def value(reg):
                 if reg not in values:        # only leaves are missing: load at first use
-                    values[reg] = builder.load(address(leaf_ptr, reg), align=2)
+                    values[reg] = builder.load(address(src_ptr, leaf_ptr, reg, i), align=2)
                 return values[reg]
 
             for lo, hi, a, b in rows:
@@ -383,7 +385,7 @@ def _network_intrinsic(code: np.ndarray, n_leaves: int, outputs: np.ndarray) -> 
                 if hi >= 0:
                     values[hi] = builder.select(less, y, x)
             for t, reg in enumerate(outs):
-                builder.store(value(reg), address(out_ptr, t), align=2)
+                builder.store(value(reg), address(dst_ptr, out_ptr, t, j), align=2)
             return context.get_dummy_value()
 
         return sig, codegen
@@ -423,10 +425,12 @@ def _make_register_kernel(program: NetworkProgram) -> object:
     net2 = _network_intrinsic(code2, rows * k, outs2)
     lanes = _REG_LANES
 
-    def kernel(padded, h, w, chunk, row, leaf1, out1, leaf2, out2, need,
+    def kernel(padded, h, w, chunk, leaf1, out1, leaf2, out2, need,
                fill):  # pragma: no cover - compiled
         r = k // 2
-        size = row + chunk + 2 * r
+        size = out2[-1] + chunk
+        flat = padded.reshape(padded.size)        # phase 1 reads the padded rows in place
+        step = padded.shape[1]
         raw = np.empty(size + 32, np.uint16)
         skip = (-raw.ctypes.data % 64) // 2       # registers start on a cache line
         mem = raw[skip:skip + size]
@@ -441,9 +445,8 @@ def _make_register_kernel(program: NetworkProgram) -> object:
                 n_rows = min(tile, h - y0)
                 for c in range(0 if band == 0 else 2 * r, rows):
                     py = y0 + c
-                    mem[row:row + chunk + 2 * r] = padded[py, x0:x0 + chunk + 2 * r]
                     for j in range(0, chunk, lanes):
-                        net1(mem, leaf1, out1[py % rows], j)
+                        net1(flat, leaf1, py * step + x0 + j, mem, out1[py % rows], j)
                 first, last = 0, width - 1
                 if check:
                     first, last = width, -1
@@ -460,7 +463,7 @@ def _make_register_kernel(program: NetworkProgram) -> object:
                 stop = min(-(-(last + 1) // 64) * 64, width)
                 if last >= first:
                     for j in range(start, start + -(-(stop - start) // 64) * 64, lanes):
-                        net2(mem, leaf2[band % n_phase], out2, j)
+                        net2(mem, leaf2[band % n_phase], j, mem, out2, j)
                 for t in range(n_rows):
                     out[y0 + t, x0:x0 + start] = fill
                     if last >= first:
@@ -473,24 +476,23 @@ def _make_register_kernel(program: NetworkProgram) -> object:
 
 
 def _register_tables(program: NetworkProgram, chunk: int) -> tuple:
-    """Element offsets of the in-register kernel's ring, outputs and row for one chunk width.
+    """Element offsets of the in-register kernel's ring and outputs for one chunk width.
 
-    Layout: ring slot s, rank i at (s * K + i) * chunk; the band's medians after the ring;
-    then the padded row segment (phase 1 reads its K shifts in place). Returns (row, leaf1,
-    out1, leaf2, out2): leaf1 (K,) the shifts, out1 (slots, K) where each slot's sorted run
-    goes, leaf2 (phases, slots * K) the ring register of each phase-2 leaf, out2 (tile,).
+    Layout: ring slot s, rank i at (s * K + i) * chunk; the band's medians after the ring.
+    Returns (leaf1, out1, leaf2, out2): leaf1 (K,) the shifts of a padded row that phase 1
+    sorts, out1 (slots, K) where each slot's sorted run goes, leaf2 (phases, slots * K) the
+    ring register of each phase-2 leaf, out2 (tile,) the medians.
     """
     k, tile = program.k, program.tile
     rows = tile + 2 * (k // 2)
     ring = rows * k
-    row = (ring + tile) * chunk
-    leaf1 = row + np.arange(k, dtype=np.int64)
+    leaf1 = np.arange(k, dtype=np.int64)
     out1 = np.arange(ring, dtype=np.int64).reshape(rows, k) * chunk
     period = rows // math.gcd(rows, tile)
     c, i = np.divmod(np.arange(ring, dtype=np.int64), k)
     leaf2 = np.stack([((phase * tile + c) % rows) * k + i for phase in range(period)]) * chunk
     out2 = (ring + np.arange(tile, dtype=np.int64)) * chunk
-    return row, leaf1, out1, np.ascontiguousarray(leaf2), out2
+    return leaf1, out1, np.ascontiguousarray(leaf2), out2
 
 
 def network_median(keys: np.ndarray, program: NetworkProgram, *,
