@@ -814,8 +814,13 @@ def _compile_fused(net: _Net, outputs: dict, leaves: list) -> tuple[np.ndarray, 
 
 
 def _jit_tile(k: int) -> int:
-    """Output rows per band of the compiled network for K (the fastest, measured)."""
-    return 4 if k <= 7 else 8 if k <= 19 else 16
+    """Output rows per band of the compiled network for K (the fastest, measured).
+
+    8 for the in-register kernels (K <= :data:`jit_median.REGISTER_MAX_K`; 4 rows cost
+    1.4-1.7x more at K = 7 and 13, 16 rows as much at K = 17 and 21 but twice the compile
+    time), 16 for the interpreter at larger K.
+    """
+    return 8 if k <= jit_median.REGISTER_MAX_K else 16
 
 
 @functools.lru_cache(maxsize=8)

@@ -273,7 +273,7 @@ def assemble_program(k: int, tile: int, phase1: tuple, phase2: tuple) -> Network
 
     Args:
         k: window size K (odd, >= 3).
-        tile: output rows per band (1 <= tile <= K).
+        tile: output rows per band (>= 1).
         phase1: ``(code, n_buf, outputs)`` sorting one horizontal run: code (m, 4) int
             (lo, hi, a, b) with -1 for an unused lo / hi, registers 0..K-1 the pixels at
             horizontal offsets -R..R, K.. scratch; outputs: the K registers of the sorted run.

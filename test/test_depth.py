@@ -627,3 +627,56 @@ def test_jit_median_mostly_no_return_frames(monkeypatch) -> None:
         np.testing.assert_array_equal(median_filter(mm, k), expected)
         np.testing.assert_array_equal(median_filter(metres, k),
                                       expected.astype(np.float32) * np.float32(1e-3))
+
+
+@needs_numba
+@pytest.mark.parametrize('k', [7, 9, 17])
+def test_jit_in_register_kernel_equals_interpreter_and_scipy(k) -> None:
+    """The generated straight-line kernel and the interpreter run the same program.
+
+    Widths around the 32-pixel vectors, 64-lane blocks and 512-pixel chunks, heights around
+    the 8-row bands; full-range keys, ties, 65535 outliers, all-equal and all-zero windows.
+    """
+    rng = np.random.default_rng(100 + k)
+    program = depth._jit_program(k)
+    assert program.tile == 8
+    for h, w in [(1, 1), (2, 31), (7, 33), (8, 64), (9, 95), (17, 512), (3, 513), (25, 1100)]:
+        full = rng.integers(0, 65536, (h, w)).astype(np.uint16)
+        ties = rng.integers(0, 3, (h, w)).astype(np.uint16)
+        depth_like = rng.integers(900, 1100, (h, w)).astype(np.uint16)
+        depth_like[rng.random((h, w)) < 0.4] = 0
+        depth_like[rng.random((h, w)) < 0.02] = 65535
+        for keys in (full, ties, depth_like, np.zeros((h, w), np.uint16),
+                     np.full((h, w), 65535, np.uint16)):
+            expected = scipy_median(keys, k)
+            for in_registers in (True, False):
+                out = jit_median.network_median(keys, program, in_registers=in_registers)
+                assert out.dtype == np.uint16 and out.flags.c_contiguous
+                np.testing.assert_array_equal(out, expected,
+                                              err_msg=f'{h}x{w} in_registers={in_registers}')
+
+
+@needs_numba
+def test_jit_in_register_kernel_runs_for_k_up_to_21(monkeypatch) -> None:
+    """K <= REGISTER_MAX_K runs in registers, larger K through the interpreter."""
+    calls = []
+    real = jit_median.register_kernel
+
+    def spy(program):
+        calls.append(program.k)
+        return real(program)
+
+    monkeypatch.setattr(jit_median, 'register_kernel', spy)
+    keys = np.random.default_rng(1).integers(0, 5000, (30, 70)).astype(np.uint16)
+    for k in (7, jit_median.REGISTER_MAX_K, jit_median.REGISTER_MAX_K + 2):
+        out = jit_median.network_median(keys, depth._jit_program(k))
+        np.testing.assert_array_equal(out, scipy_median(keys, k))
+    assert calls == [7, jit_median.REGISTER_MAX_K]
+
+
+@needs_numba
+def test_jit_warm_up_compiles_the_in_register_kernel(monkeypatch) -> None:
+    monkeypatch.delenv(jit_median.NO_JIT_ENV, raising=False)
+    jit_median.warm_up(9)
+    kernel = jit_median.register_kernel(depth._jit_program(9))
+    assert kernel.signatures        # compiled: the first frame does not pay for it
