@@ -174,9 +174,12 @@ def median_filter(depth_m: np.ndarray, k: int) -> np.ndarray:
       about 6 ms per 512 x 424 frame) if there are at most 65536; more run the sorting
       network on the raw values (slower). Keys all below 256 use one 8-bit medianBlur.
     - K = 7 .. 31 with numba (:mod:`jit_median`, unless ``OBSTACLE_DETECTION_NO_JIT=1``):
-      the sorting network below, turned by 90 degrees and compiled, on row chunks that stay
-      in the CPU cache (float32 metres are keyed by one compiled pass). Data independent.
-      Without numba, or switched off, the paths below run.
+      the sorting network below, turned by 90 degrees and compiled, on row chunks (float32
+      metres are keyed by one compiled pass): for K <= 21 as straight-line vector code whose
+      values stay in registers, for larger K by an interpreter. Data independent, except
+      that outputs whose window holds more than K*K // 2 copies of the lowest key (0 = no
+      return) are that key and skip the merge phase. Without numba, or switched off, the
+      paths below run.
     - K = 7 .. 15: an exact min/max sorting network on whole images: every vertical
       K-window is sorted, and the sorted columns are merged with Batcher's odd-even merge,
       sharing work between neighbouring output columns and dropping values that can no

@@ -9,23 +9,39 @@ for K >= 7 through :func:`network_median`; otherwise the numpy / OpenCV code of
 
 Method: the min/max network that :mod:`obstacle_detection.depth` builds (every horizontal
 K-run is sorted, then the K sorted runs of each window are merged across rows, ``tile``
-output rows sharing their common runs, values that can no longer be the median dropped) is run
-by a small interpreter on rows of ``chunk`` (<= 512) pixels instead of whole images, so the
-working set stays in the CPU cache. Every instruction is a fused compare-exchange
-``(lo, hi) = (min(a, b), max(a, b))`` on vectors whose outputs never overlap its inputs, which
-lets the compiler vectorise it (16 uint16 lanes per AVX2 operation). The sorted runs of the
-last ``tile + K - 1`` padded rows live in a ring of registers, so each run is sorted once.
-Float depth in metres is keyed to millimetres by one compiled pass (:func:`quantised_keys`).
+output rows sharing their common runs, values that can no longer be the median dropped) runs
+on rows of ``chunk`` (<= 512) pixels. The sorted runs of the last ``tile + K - 1`` padded
+rows live in a ring of registers, so each run is sorted once. Float depth in metres is keyed
+to millimetres by one compiled pass (:func:`quantised_keys`).
+
+- K <= :data:`REGISTER_MAX_K` (21): each network is generated as straight-line vector code
+  (a numba intrinsic emitting LLVM IR, :func:`register_kernel`) on 32 pixels at a time:
+  every compare-exchange is an unsigned min and max of values held in vector registers, so
+  only the sorted runs and the medians go through memory. It is compiled at the first call
+  (about 1 s at K = 9, 3 s at K = 17, 8 s at K = 21, more on a busy machine; not cached on
+  disk, as the code is the program's data): :func:`warm_up` pays that before the first frame.
+- Larger K: a small interpreter (:func:`_median_kernel`) runs fused compare-exchange
+  instructions ``(lo, hi) = (min(a, b), max(a, b))`` on vectors of ``chunk`` pixels in a
+  register file in memory (vectorised by the compiler); every instruction loads two vectors
+  and stores two, from a file of about 650 KB at K = 17 that lives in the L2 cache, which
+  bounds it at about 80 cycles a pixel at K = 17 (4.3 ms for the merge phase at 512 x 424,
+  1.8 ms in registers).
+
+Both skip the merge phase for the 64-pixel blocks at either end of a band's row chunk whose
+outputs are all the image's lowest key (0 = no return in depth images): that is the median
+exactly when more than K * K // 2 window keys equal it, which one box count finds.
 
 Alternatives measured on 512 x 424 Kinect-like frames (one thread): Huang's sliding
 histogram (two-level, snake order, median tracked incrementally) took 8.6 ms at K=7 and 13 ms
 at K=17, dominated by walking the median across the histogram at depth edges; the same
 network tiled in 2-D (blocks of outputs per lane, about 30 % fewer operations at K=17) lost
-what it saved to unaligned loads and data reshuffling below K=21 (5.1 vs 5.3 ms at K=17).
+what it saved to unaligned loads and data reshuffling below K=21 (5.1 vs 5.3 ms at K=17);
+straight-line Python source for the whole network exhausted numba's compiler (over 20 GB at
+K = 17), hence the intrinsic; the interpreter with 8-bit registers gained only 1.4x; OpenCV's
+8-bit O(1) histogram median (cv2.medianBlur) alone takes 6-8 ms at K = 17 here.
 
-The kernels are compiled on first use (about 3 s) and cached on disk (``cache=True``; then
-0.2 s); call :func:`warm_up` at start-up to pay that before the first frame. They run on one
-thread.
+The interpreter's kernels are compiled on first use (about 3 s) and cached on disk
+(``cache=True``; then 0.2 s). All kernels run on one thread.
 """
 
 from __future__ import annotations
@@ -33,6 +49,7 @@ from __future__ import annotations
 import math
 import threading
 import time
+import warnings
 from typing import NamedTuple
 
 import cv2
@@ -395,6 +412,9 @@ def _network_intrinsic(code: np.ndarray, n_leaves: int, outputs: np.ndarray) -> 
 
 _REGISTER_KERNELS: dict = {}
 _REGISTER_LOCK = threading.Lock()
+#: Why the in-register kernels could not be compiled, if they could not (then, said once by
+#: a warning, :func:`network_median` runs the interpreter).
+_REGISTER_FAILED: list[str] = []
 
 
 def register_kernel(program: NetworkProgram) -> object:
@@ -527,11 +547,20 @@ def network_median(keys: np.ndarray, program: NetworkProgram, *,
     fill, need = _known_lowest(keys, k)
     padded = cv2.copyMakeBorder(keys, r, r + bands * tile - h,
                                 r, r + n_chunks * chunk - w, cv2.BORDER_REPLICATE)
-    if in_registers is None:
-        in_registers = k <= REGISTER_MAX_K and bool(program.net1)
+    automatic = in_registers is None
+    if automatic:
+        in_registers = k <= REGISTER_MAX_K and bool(program.net1) and not _REGISTER_FAILED
     if in_registers:
-        return register_kernel(program)(padded, h, w, chunk,
-                                        *_register_tables(program, chunk), need, fill)
+        tables = _register_tables(program, chunk)
+        try:
+            return register_kernel(program)(padded, h, w, chunk, *tables, need, fill)
+        except Exception as error:  # noqa: BLE001 - code generation by another numba
+            if not automatic:
+                raise
+            _REGISTER_FAILED.append(repr(error))
+            warnings.warn(f'the in-register median kernels failed to compile ({error!r}); '
+                          f'the slower interpreter runs instead (same results)',
+                          RuntimeWarning, stacklevel=2)
     return _median_kernel(padded, h, w, k, tile, blocks, program.code1, program.code2,
                           program.out2, program.n_regs, need, fill)
 

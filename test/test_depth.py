@@ -5,6 +5,8 @@ of :mod:`obstacle_detection.jit_median` ('jit', skipped without numba) and throu
 OpenCV code (``OBSTACLE_DETECTION_NO_JIT=1``).
 """
 
+import warnings
+
 import numpy as np
 import pytest
 from scipy import ndimage
@@ -680,3 +682,23 @@ def test_jit_warm_up_compiles_the_in_register_kernel(monkeypatch) -> None:
     jit_median.warm_up(9)
     kernel = jit_median.register_kernel(depth._jit_program(9))
     assert kernel.signatures        # compiled: the first frame does not pay for it
+
+
+@needs_numba
+def test_jit_in_register_compile_failure_is_said_and_falls_back(monkeypatch) -> None:
+    """A numba that cannot generate the kernel: one warning, then the interpreter, same result."""
+    def broken(program):
+        raise RuntimeError('no code generation here')
+
+    monkeypatch.setattr(jit_median, 'register_kernel', broken)
+    monkeypatch.setattr(jit_median, '_REGISTER_FAILED', [])
+    keys = np.random.default_rng(2).integers(0, 5000, (20, 30)).astype(np.uint16)
+    program = depth._jit_program(9)
+    with pytest.warns(RuntimeWarning, match='in-register median kernels failed'):
+        out = jit_median.network_median(keys, program)
+    np.testing.assert_array_equal(out, scipy_median(keys, 9))
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')           # said once
+        np.testing.assert_array_equal(jit_median.network_median(keys, program), out)
+    with pytest.raises(RuntimeError, match='no code generation'):
+        jit_median.network_median(keys, program, in_registers=True)
