@@ -574,20 +574,21 @@ def test_jit_lowest_key_count_marks_exactly_the_lowest_medians(lowest) -> None:
         keys[0, 0] = lowest                     # a corner repeated (R + 1)**2 times
         for k in (7, 17):
             fill, need = jit_median._known_lowest(keys, k)
-            assert fill == lowest
+            assert fill == lowest and need.shape == shape
             expected = scipy_median(keys, k) != lowest
             np.testing.assert_array_equal(need.astype(bool), expected, err_msg=f'{shape} K={k}')
 
 
 @needs_numba
 @pytest.mark.parametrize('k', [7, 17, 31])
-def test_jit_network_skipped_lanes_and_bands_are_exact(k) -> None:
+def test_jit_network_skipped_lanes_and_bands_are_exact(k, monkeypatch) -> None:
     """Rows, bands and 64-lane blocks whose medians are all the lowest key are not merged.
 
     No-return (0) areas at both ends of the row chunks, in whole bands and in the middle of
     a row, valid patches one lane wide at a chunk edge, ties and 65535 outliers; also with a
-    lowest key that is not 0.
+    lowest key that is not 0. Both kernels; skipping forced on (as with >= 40 % no return).
     """
+    monkeypatch.setattr(jit_median, '_SKIP_MIN_FRACTION', 0.0)
     rng = np.random.default_rng(k)
     program = depth._jit_program(k)
     h, w = 70, 1100                             # three row chunks of 384 lanes
@@ -610,9 +611,24 @@ def test_jit_network_skipped_lanes_and_bands_are_exact(k) -> None:
     for keys in layouts:
         fill, need = jit_median._known_lowest(keys, k)
         assert need.shape == keys.shape and not need.all()     # something is skipped
-        out = jit_median.network_median(keys, program)
-        assert out.dtype == np.uint16 and out.flags.c_contiguous
-        np.testing.assert_array_equal(out, scipy_median(keys, k))
+        expected = scipy_median(keys, k)
+        for in_registers in (k <= jit_median.REGISTER_MAX_K, False):
+            out = jit_median.network_median(keys, program, in_registers=in_registers)
+            assert out.dtype == np.uint16 and out.flags.c_contiguous
+            np.testing.assert_array_equal(out, expected)
+
+
+@needs_numba
+def test_jit_lowest_key_count_only_when_it_can_pay() -> None:
+    """Under 40 % of the keys at the lowest value: no count, every output is merged."""
+    keys = np.full((40, 60), 1500, np.uint16)
+    keys[:, :20] = 0                            # 33 % no return: medians 0 on the left
+    fill, need = jit_median._known_lowest(keys, 7)
+    assert fill == 0 and need.shape == (0, 0)
+    np.testing.assert_array_equal(jit_median.network_median(keys, depth._jit_program(7)),
+                                  scipy_median(keys, 7))
+    keys[:, :30] = 0                            # 50 %: counted
+    assert jit_median._known_lowest(keys, 7)[1].shape == keys.shape
 
 
 @needs_numba
