@@ -17,9 +17,11 @@ to millimetres by one compiled pass (:func:`quantised_keys`).
 - K <= :data:`REGISTER_MAX_K` (21): each network is generated as straight-line vector code
   (a numba intrinsic emitting LLVM IR, :func:`register_kernel`) on 32 pixels at a time:
   every compare-exchange is an unsigned min and max of values held in vector registers, so
-  only the sorted runs and the medians go through memory. It is compiled at the first call
-  (about 1 s at K = 9, 3 s at K = 17, 8 s at K = 21, more on a busy machine; not cached on
-  disk, as the code is the program's data): :func:`warm_up` pays that before the first frame.
+  only the sorted runs and the medians go through memory. Its source, with the program's
+  networks as literals, is written once to a module file named by a digest (numba's cache
+  directory, else ``__pycache__``), so numba caches it on disk like the other kernels: the
+  first compilation takes about 1 s at K = 9, 3 s at K = 17, 8 s at K = 21 (2-4x that on a
+  busy machine), later processes load it in under a second (:func:`warm_up`).
 - Larger K: a small interpreter (:func:`_median_kernel`) runs fused compare-exchange
   instructions ``(lo, hi) = (min(a, b), max(a, b))`` on vectors of ``chunk`` pixels in a
   register file in memory (vectorised by the compiler); every instruction loads two vectors
@@ -40,22 +42,26 @@ straight-line Python source for the whole network exhausted numba's compiler (ov
 K = 17), hence the intrinsic; the interpreter with 8-bit registers gained only 1.4x; OpenCV's
 8-bit O(1) histogram median (cv2.medianBlur) alone takes 6-8 ms at K = 17 here.
 
-The interpreter's kernels are compiled on first use (about 3 s) and cached on disk
-(``cache=True``; then 0.2 s). All kernels run on one thread.
+The kernels are compiled on first use (the interpreter's about 3 s) and cached on disk
+(``cache=True``; then 0.2 s each). All kernels run on one thread.
 """
 
 from __future__ import annotations
 
+import hashlib
+import importlib.util
 import math
+import os
+import sys
 import threading
 import time
 import warnings
+from pathlib import Path
 from typing import NamedTuple
 
 import cv2
 import numpy as np
 
-from . import jit_support
 from .jit_support import AVAILABLE, NO_JIT_ENV, enabled, jit as _jit
 
 __all__ = ['AVAILABLE', 'NO_JIT_ENV', 'NetworkProgram', 'assemble_program', 'enabled',
@@ -70,8 +76,8 @@ _SKIP_MIN_FRACTION = 0.4
 #: Pixels per vector of the in-register kernels: 32 uint16, one 512-bit (two 256-bit) register.
 _REG_LANES = 32
 #: Largest K whose networks run in registers (:func:`register_kernel`). Their machine code is
-#: generated per K at the first call and not cached on disk: about 1 s at K = 9, 3 s at 17,
-#: 8 s at 21; larger K would take longer and spill more, so they keep the interpreter.
+#: generated per K (first compilation about 1 s at K = 9, 3 s at 17, 8 s at 21, then cached
+#: on disk); larger K would take longer and spill more, so they keep the interpreter.
 REGISTER_MAX_K = 21
 #: Most pixels per row chunk: larger chunks cost fewer instruction dispatches, smaller ones
 #: keep the register file (about 250 to 650 rows of ``chunk`` uint16 for K = 7 .. 17) in cache.
@@ -428,7 +434,7 @@ def register_kernel(program: NetworkProgram) -> object:
     (merging them into the medians of a band) run as straight-line vector code
     (:func:`_network_intrinsic`) on 32 pixels at a time, in the same order and on the same
     ring as the interpreter of :func:`_median_kernel`, whose result it equals. numba compiles
-    it at the first call (not cached on disk: the code depends on the program's data).
+    it at the first call, or loads it from its disk cache (:func:`_make_register_kernel`).
     """
     key = (program.k, program.tile, hash(program.net1[0].tobytes()),
            hash(program.net2[0].tobytes()))
@@ -440,63 +446,119 @@ def register_kernel(program: NetworkProgram) -> object:
 
 
 def _make_register_kernel(program: NetworkProgram) -> object:
-    """Build (uncompiled) the numba kernel of :func:`register_kernel`."""
+    """Build (uncompiled) the numba kernel of :func:`register_kernel`.
+
+    Its source (:data:`_KERNEL_SOURCE` with the program's networks as literals) is written
+    to a file named by a digest of this module and of the program, so that numba caches the
+    compiled kernel on disk like the others (``cache=True``): a later process loads it in
+    well under a second instead of compiling it again. Without a writable directory it is
+    compiled in memory at each start.
+    """
     k, tile = program.k, program.tile
-    rows = tile + 2 * (k // 2)
-    code1, outs1 = program.net1
-    code2, outs2 = program.net2
-    net1 = _network_intrinsic(code1, k, outs1)
-    net2 = _network_intrinsic(code2, rows * k, outs2)
-    lanes = _REG_LANES
+    (code1, outs1), (code2, outs2) = program.net1, program.net2
+    fields = {'k': k, 'tile': tile, 'lanes': _REG_LANES,
+              'code1': np.asarray(code1, np.int64).reshape(-1).tolist(),
+              'outs1': np.asarray(outs1, np.int64).tolist(),
+              'code2': np.asarray(code2, np.int64).reshape(-1).tolist(),
+              'outs2': np.asarray(outs2, np.int64).tolist()}
+    body = _KERNEL_SOURCE.format(**fields)
+    digest = hashlib.sha1((Path(__file__).read_bytes().hex() + body).encode()).hexdigest()[:16]
+    name = f'median_k{k}_t{tile}_{digest}'
+    for directory in _kernel_directories():
+        path = directory / f'{name}.py'
+        try:
+            if not path.exists():
+                directory.mkdir(parents=True, exist_ok=True)
+                partial = directory / f'.{name}.{os.getpid()}.tmp'
+                partial.write_text(body.replace('cache=CACHE', 'cache=True'))
+                os.replace(partial, path)
+        except OSError:
+            continue
+        spec = importlib.util.spec_from_file_location(f'obstacle_detection._{name}', path)
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[spec.name] = module
+        spec.loader.exec_module(module)
+        return module.kernel
+    namespace: dict = {}
+    exec(compile(body.replace('cache=CACHE', 'cache=False'), f'<{name}>', 'exec'),  # noqa: S102
+         namespace)
+    return namespace['kernel']
 
-    def kernel(padded, h, w, chunk, leaf1, out1, leaf2, out2, need,
-               fill):  # pragma: no cover - compiled
-        r = k // 2
-        size = out2[-1] + chunk
-        flat = padded.reshape(padded.size)        # phase 1 reads the padded rows in place
-        step = padded.shape[1]
-        raw = np.empty(size + 32, np.uint16)
-        skip = (-raw.ctypes.data % 64) // 2       # registers start on a cache line
-        mem = raw[skip:skip + size]
-        out = np.empty((h, w), np.uint16)
-        n_bands = (h + tile - 1) // tile
-        n_phase = leaf2.shape[0]
-        check = need.shape[0] > 0
-        for x0 in range(0, w, chunk):
-            width = min(chunk, w - x0)
-            for band in range(n_bands):
-                y0 = band * tile
-                n_rows = min(tile, h - y0)
-                for c in range(0 if band == 0 else 2 * r, rows):
-                    py = y0 + c
-                    for j in range(0, chunk, lanes):
-                        net1(flat, leaf1, py * step + x0 + j, mem, out1[py % rows], j)
-                first, last = 0, width - 1
-                if check:
-                    first, last = width, -1
-                    for t in range(n_rows):
-                        lane = 0                  # scans stop at the first needed lane
-                        while lane < first and not need[y0 + t, x0 + lane]:
-                            lane += 1
-                        first = lane if lane < first else first
-                        lane = width - 1
-                        while lane > last and not need[y0 + t, x0 + lane]:
-                            lane -= 1
-                        last = lane if lane > last else last
-                start = (first // 64) * 64
-                stop = min(-(-(last + 1) // 64) * 64, width)
-                if last >= first:
-                    for j in range(start, start + -(-(stop - start) // 64) * 64, lanes):
-                        net2(mem, leaf2[band % n_phase], j, mem, out2, j)
+
+def _kernel_directories() -> list[Path]:
+    """Where generated kernel sources may go: numba's cache directory, else __pycache__."""
+    found = []
+    if os.environ.get('NUMBA_CACHE_DIR'):
+        found.append(Path(os.environ['NUMBA_CACHE_DIR']) / 'obstacle_detection_median')
+    found.append(Path(__file__).resolve().parent / '__pycache__' / 'median_kernels')
+    return found
+
+
+#: Source of one in-register kernel (a module of its own, see :func:`_make_register_kernel`).
+_KERNEL_SOURCE = '''"""In-register K x K median, generated by obstacle_detection.jit_median."""
+
+import numpy as np
+
+from obstacle_detection import jit_median
+from obstacle_detection.jit_support import numba
+
+K = {k}
+TILE = {tile}
+ROWS = TILE + 2 * (K // 2)
+LANES = {lanes}
+NET1 = jit_median._network_intrinsic(np.array({code1}, np.int64), K,
+                                     np.array({outs1}, np.int64))
+NET2 = jit_median._network_intrinsic(np.array({code2}, np.int64), ROWS * K,
+                                     np.array({outs2}, np.int64))
+
+
+@numba.njit(cache=CACHE, nogil=True, boundscheck=False)
+def kernel(padded, h, w, chunk, leaf1, out1, leaf2, out2, need, fill):
+    r = K // 2
+    size = out2[-1] + chunk
+    flat = padded.reshape(padded.size)        # phase 1 reads the padded rows in place
+    step = padded.shape[1]
+    raw = np.empty(size + 32, np.uint16)
+    skip = (-raw.ctypes.data % 64) // 2       # registers start on a cache line
+    mem = raw[skip:skip + size]
+    out = np.empty((h, w), np.uint16)
+    n_bands = (h + TILE - 1) // TILE
+    n_phase = leaf2.shape[0]
+    check = need.shape[0] > 0
+    for x0 in range(0, w, chunk):
+        width = min(chunk, w - x0)
+        for band in range(n_bands):
+            y0 = band * TILE
+            n_rows = min(TILE, h - y0)
+            for c in range(0 if band == 0 else 2 * r, ROWS):
+                py = y0 + c
+                for j in range(0, chunk, LANES):
+                    NET1(flat, leaf1, py * step + x0 + j, mem, out1[py % ROWS], j)
+            first, last = 0, width - 1
+            if check:
+                first, last = width, -1
                 for t in range(n_rows):
-                    out[y0 + t, x0:x0 + start] = fill
-                    if last >= first:
-                        src = out2[t]
-                        out[y0 + t, x0 + start:x0 + stop] = mem[src + start:src + stop]
-                    out[y0 + t, x0 + max(stop, start):x0 + width] = fill
-        return out
-
-    return jit_support.numba.njit(nogil=True, boundscheck=False)(kernel)
+                    lane = 0                  # scans stop at the first needed lane
+                    while lane < first and not need[y0 + t, x0 + lane]:
+                        lane += 1
+                    first = lane if lane < first else first
+                    lane = width - 1
+                    while lane > last and not need[y0 + t, x0 + lane]:
+                        lane -= 1
+                    last = lane if lane > last else last
+            start = (first // 64) * 64
+            stop = min(-(-(last + 1) // 64) * 64, width)
+            if last >= first:
+                for j in range(start, start + -(-(stop - start) // 64) * 64, LANES):
+                    NET2(mem, leaf2[band % n_phase], j, mem, out2, j)
+            for t in range(n_rows):
+                out[y0 + t, x0:x0 + start] = fill
+                if last >= first:
+                    src = out2[t]
+                    out[y0 + t, x0 + start:x0 + stop] = mem[src + start:src + stop]
+                out[y0 + t, x0 + max(stop, start):x0 + width] = fill
+    return out
+'''
 
 
 def _register_tables(program: NetworkProgram, chunk: int) -> tuple:

@@ -7,6 +7,7 @@ OpenCV code (``OBSTACLE_DETECTION_NO_JIT=1``).
 
 import warnings
 
+import cv2
 import numpy as np
 import pytest
 from scipy import ndimage
@@ -718,3 +719,31 @@ def test_jit_in_register_compile_failure_is_said_and_falls_back(monkeypatch) -> 
         np.testing.assert_array_equal(jit_median.network_median(keys, program), out)
     with pytest.raises(RuntimeError, match='no code generation'):
         jit_median.network_median(keys, program, in_registers=True)
+
+
+@needs_numba
+def test_jit_in_register_kernel_source_is_written_for_the_disk_cache(tmp_path,
+                                                                     monkeypatch) -> None:
+    """The generated kernel module goes to a writable directory, for numba's disk cache.
+
+    With none, it is compiled in memory. Both give scipy's median.
+    """
+    program = depth._jit_program(7)
+    keys = np.random.default_rng(3).integers(0, 4000, (12, 50)).astype(np.uint16)
+    keys[:, :30] = 0
+    tables = jit_median._register_tables(program, 64)
+    r = 3
+    padded = cv2.copyMakeBorder(keys, r, r + 4, r, r + 14, cv2.BORDER_REPLICATE)
+    fill, need = jit_median._known_lowest(keys, 7)
+    monkeypatch.setattr(jit_median, '_kernel_directories', lambda: [tmp_path / 'kernels'])
+    kernel = jit_median._make_register_kernel(program)
+    written = list((tmp_path / 'kernels').glob('median_k7_t8_*.py'))
+    assert len(written) == 1 and 'cache=True' in written[0].read_text()
+    np.testing.assert_array_equal(kernel(padded, 12, 50, 64, *tables, need, fill),
+                                  scipy_median(keys, 7))
+    blocked = tmp_path / 'a_file'
+    blocked.write_text('not a directory')
+    monkeypatch.setattr(jit_median, '_kernel_directories', lambda: [blocked / 'kernels'])
+    kernel = jit_median._make_register_kernel(program)
+    np.testing.assert_array_equal(kernel(padded, 12, 50, 64, *tables, need, fill),
+                                  scipy_median(keys, 7))
