@@ -195,8 +195,9 @@ def median_filter(depth_m: np.ndarray, k: int) -> np.ndarray:
 
     One thread, 512 x 424 Kinect-like frames (``scenes.render_scene``, float32 m), on a
     shared 2-core machine (absolute times varied up to 2x with the other jobs): K=5 0.6 ms.
-    Compiled: K=7 0.9-1.3 ms, K=9 1.5-1.8 ms, K=13 3 ms, K=17 5-6 ms, K=21 8-9 ms, K=31
-    20-21 ms, on every scene (uint16 mm input is 0.1-0.4 ms faster than float32 m).
+    Compiled: K=7 0.8 ms, K=9 1.0 ms, K=13 1.5 ms, K=17 1.7-3.0 ms (1.7 with the most no
+    return, ramps; 3.0 on corridor frames), K=21 3.5-4.5 ms in registers; K=31 18-21 ms
+    through the interpreter (uint16 mm input is 0.2-0.3 ms faster than float32 m).
     Without numba: K=7 3.5-6.5 ms, K=9 6-10 ms, K=17 10-14 ms on floor scenes and 17-21 ms
     on corridor and farm-row scenes (the network alone: 25-35 ms), K=31 18-30 ms. scipy
     takes 0.1 s at K=7, 0.5 s at K=17 and 1.4 s at K=31.
