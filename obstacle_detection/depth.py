@@ -174,9 +174,12 @@ def median_filter(depth_m: np.ndarray, k: int) -> np.ndarray:
       about 6 ms per 512 x 424 frame) if there are at most 65536; more run the sorting
       network on the raw values (slower). Keys all below 256 use one 8-bit medianBlur.
     - K = 7 .. 31 with numba (:mod:`jit_median`, unless ``OBSTACLE_DETECTION_NO_JIT=1``):
-      the sorting network below, turned by 90 degrees and compiled, on row chunks that stay
-      in the CPU cache (float32 metres are keyed by one compiled pass). Data independent.
-      Without numba, or switched off, the paths below run.
+      the sorting network below, turned by 90 degrees and compiled, on row chunks (float32
+      metres are keyed by one compiled pass): for K <= 21 as straight-line vector code whose
+      values stay in registers, for larger K by an interpreter. Data independent, except
+      that outputs whose window holds more than K*K // 2 copies of the lowest key (0 = no
+      return) are that key and skip the merge phase. Without numba, or switched off, the
+      paths below run.
     - K = 7 .. 15: an exact min/max sorting network on whole images: every vertical
       K-window is sorted, and the sorted columns are merged with Batcher's odd-even merge,
       sharing work between neighbouring output columns and dropping values that can no
@@ -192,8 +195,9 @@ def median_filter(depth_m: np.ndarray, k: int) -> np.ndarray:
 
     One thread, 512 x 424 Kinect-like frames (``scenes.render_scene``, float32 m), on a
     shared 2-core machine (absolute times varied up to 2x with the other jobs): K=5 0.6 ms.
-    Compiled: K=7 0.9-1.3 ms, K=9 1.5-1.8 ms, K=13 3 ms, K=17 5-6 ms, K=21 8-9 ms, K=31
-    20-21 ms, on every scene (uint16 mm input is 0.1-0.4 ms faster than float32 m).
+    Compiled: K=7 0.8 ms, K=9 1.0 ms, K=13 1.5 ms, K=17 1.7-3.0 ms (1.7 with the most no
+    return, ramps; 3.0 on corridor frames), K=21 3.5-4.5 ms in registers; K=31 18-21 ms
+    through the interpreter (uint16 mm input is 0.2-0.3 ms faster than float32 m).
     Without numba: K=7 3.5-6.5 ms, K=9 6-10 ms, K=17 10-14 ms on floor scenes and 17-21 ms
     on corridor and farm-row scenes (the network alone: 25-35 ms), K=31 18-30 ms. scipy
     takes 0.1 s at K=7, 0.5 s at K=17 and 1.4 s at K=31.
@@ -814,8 +818,13 @@ def _compile_fused(net: _Net, outputs: dict, leaves: list) -> tuple[np.ndarray, 
 
 
 def _jit_tile(k: int) -> int:
-    """Output rows per band of the compiled network for K (the fastest, measured)."""
-    return 4 if k <= 7 else 8 if k <= 19 else 16
+    """Output rows per band of the compiled network for K (the fastest, measured).
+
+    8 for the in-register kernels (K <= :data:`jit_median.REGISTER_MAX_K`; 4 rows cost
+    1.4-1.7x more at K = 7 and 13, 16 rows as much at K = 17 and 21 but twice the compile
+    time), 16 for the interpreter at larger K.
+    """
+    return 8 if k <= jit_median.REGISTER_MAX_K else 16
 
 
 @functools.lru_cache(maxsize=8)

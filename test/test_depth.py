@@ -5,6 +5,9 @@ of :mod:`obstacle_detection.jit_median` ('jit', skipped without numba) and throu
 OpenCV code (``OBSTACLE_DETECTION_NO_JIT=1``).
 """
 
+import warnings
+
+import cv2
 import numpy as np
 import pytest
 from scipy import ndimage
@@ -559,3 +562,188 @@ def test_fused_network_code_never_writes_its_operands(k) -> None:
     for c in codes:
         assert not ((c[:, :2, None] == c[:, None, 2:]) & (c[:, :2, None] >= 0)).any()
         assert ((c[:, 0] >= 0) | (c[:, 1] >= 0)).all() and (c[:, 2:] >= 0).all()
+
+
+@needs_numba
+@pytest.mark.parametrize('lowest', [0, 1000])
+def test_jit_lowest_key_count_marks_exactly_the_lowest_medians(lowest) -> None:
+    """The median is the lowest key iff more than K*K // 2 window keys equal it, borders too."""
+    rng = np.random.default_rng(16 + lowest)
+    for shape in [(1, 1), (3, 4), (6, 40), (45, 70)]:
+        keys = rng.integers(lowest + 1, lowest + 3000, shape).astype(np.uint16)
+        keys[rng.random(shape) < 0.55] = lowest
+        keys[0, 0] = lowest                     # a corner repeated (R + 1)**2 times
+        for k in (7, 17):
+            fill, need = jit_median._known_lowest(keys, k)
+            assert fill == lowest and need.shape == shape
+            expected = scipy_median(keys, k) != lowest
+            np.testing.assert_array_equal(need.astype(bool), expected, err_msg=f'{shape} K={k}')
+
+
+@needs_numba
+@pytest.mark.parametrize('k', [7, 17, 31])
+def test_jit_network_skipped_lanes_and_bands_are_exact(k, monkeypatch) -> None:
+    """Rows, bands and 64-lane blocks whose medians are all the lowest key are not merged.
+
+    No-return (0) areas at both ends of the row chunks, in whole bands and in the middle of
+    a row, valid patches one lane wide at a chunk edge, ties and 65535 outliers; also with a
+    lowest key that is not 0. Both kernels; skipping forced on (as with >= 40 % no return).
+    """
+    monkeypatch.setattr(jit_median, '_SKIP_MIN_FRACTION', 0.0)
+    rng = np.random.default_rng(k)
+    program = depth._jit_program(k)
+    h, w = 70, 1100                             # three row chunks of 384 lanes
+    base = rng.integers(1000, 4500, (h, w)).astype(np.uint16)
+    base[rng.random((h, w)) < 0.1] = 65535
+    base[:, 600:640] = 2000                     # ties
+    layouts = []
+    zeros = base.copy()
+    zeros[:, :200] = 0                          # left end of chunk 0
+    zeros[:, 300:460] = 0                       # end of chunk 0, start of chunk 1
+    zeros[:, 1000:] = 0                         # right end of the last chunk
+    zeros[:24, :] = 0                           # whole bands at the top
+    zeros[rng.random((h, w)) < 0.3] = 0         # pepper
+    layouts.append(zeros)
+    sliver = np.zeros((h, w), np.uint16)
+    sliver[30:50, 383:384] = 3000               # one lane at a chunk edge
+    sliver[60:, 767:769] = 65535
+    layouts.append(sliver)
+    layouts.append(np.where(zeros == 0, 700, zeros).astype(np.uint16))   # lowest key 700
+    for keys in layouts:
+        fill, need = jit_median._known_lowest(keys, k)
+        assert need.shape == keys.shape and not need.all()     # something is skipped
+        expected = scipy_median(keys, k)
+        for in_registers in (k <= jit_median.REGISTER_MAX_K, False):
+            out = jit_median.network_median(keys, program, in_registers=in_registers)
+            assert out.dtype == np.uint16 and out.flags.c_contiguous
+            np.testing.assert_array_equal(out, expected)
+
+
+@needs_numba
+def test_jit_lowest_key_count_only_when_it_can_pay() -> None:
+    """Under 40 % of the keys at the lowest value: no count, every output is merged."""
+    keys = np.full((40, 60), 1500, np.uint16)
+    keys[:, :20] = 0                            # 33 % no return: medians 0 on the left
+    fill, need = jit_median._known_lowest(keys, 7)
+    assert fill == 0 and need.shape == (0, 0)
+    np.testing.assert_array_equal(jit_median.network_median(keys, depth._jit_program(7)),
+                                  scipy_median(keys, 7))
+    keys[:, :30] = 0                            # 50 %: counted
+    assert jit_median._known_lowest(keys, 7)[1].shape == keys.shape
+
+
+@needs_numba
+def test_jit_median_mostly_no_return_frames(monkeypatch) -> None:
+    """Float metres as the pipeline passes them: large no-return areas, K = 9 and 17."""
+    monkeypatch.delenv(jit_median.NO_JIT_ENV, raising=False)
+    frame = render_scene('ramps', seed=2)
+    metres = frame.depth_m.copy()
+    metres[:, 400:] = 0.0
+    mm = frame.depth_mm.copy()
+    mm[:, 400:] = 0
+    for k in (9, 17):
+        expected = scipy_median(mm, k)
+        np.testing.assert_array_equal(median_filter(mm, k), expected)
+        np.testing.assert_array_equal(median_filter(metres, k),
+                                      expected.astype(np.float32) * np.float32(1e-3))
+
+
+@needs_numba
+@pytest.mark.parametrize('k', [7, 9, 17])
+def test_jit_in_register_kernel_equals_interpreter_and_scipy(k) -> None:
+    """The generated straight-line kernel and the interpreter run the same program.
+
+    Widths around the 32-pixel vectors, 64-lane blocks and 512-pixel chunks, heights around
+    the 8-row bands; full-range keys, ties, 65535 outliers, all-equal and all-zero windows.
+    """
+    rng = np.random.default_rng(100 + k)
+    program = depth._jit_program(k)
+    assert program.tile == 8
+    for h, w in [(1, 1), (2, 31), (7, 33), (8, 64), (9, 95), (17, 512), (3, 513), (25, 1100)]:
+        full = rng.integers(0, 65536, (h, w)).astype(np.uint16)
+        ties = rng.integers(0, 3, (h, w)).astype(np.uint16)
+        depth_like = rng.integers(900, 1100, (h, w)).astype(np.uint16)
+        depth_like[rng.random((h, w)) < 0.4] = 0
+        depth_like[rng.random((h, w)) < 0.02] = 65535
+        for keys in (full, ties, depth_like, np.zeros((h, w), np.uint16),
+                     np.full((h, w), 65535, np.uint16)):
+            expected = scipy_median(keys, k)
+            for in_registers in (True, False):
+                out = jit_median.network_median(keys, program, in_registers=in_registers)
+                assert out.dtype == np.uint16 and out.flags.c_contiguous
+                np.testing.assert_array_equal(out, expected,
+                                              err_msg=f'{h}x{w} in_registers={in_registers}')
+
+
+@needs_numba
+def test_jit_in_register_kernel_runs_for_k_up_to_21(monkeypatch) -> None:
+    """K <= REGISTER_MAX_K runs in registers, larger K through the interpreter."""
+    calls = []
+    real = jit_median.register_kernel
+
+    def spy(program):
+        calls.append(program.k)
+        return real(program)
+
+    monkeypatch.setattr(jit_median, 'register_kernel', spy)
+    keys = np.random.default_rng(1).integers(0, 5000, (30, 70)).astype(np.uint16)
+    for k in (7, jit_median.REGISTER_MAX_K, jit_median.REGISTER_MAX_K + 2):
+        out = jit_median.network_median(keys, depth._jit_program(k))
+        np.testing.assert_array_equal(out, scipy_median(keys, k))
+    assert calls == [7, jit_median.REGISTER_MAX_K]
+
+
+@needs_numba
+def test_jit_warm_up_compiles_the_in_register_kernel(monkeypatch) -> None:
+    monkeypatch.delenv(jit_median.NO_JIT_ENV, raising=False)
+    jit_median.warm_up(9)
+    kernel = jit_median.register_kernel(depth._jit_program(9))
+    assert kernel.signatures        # compiled: the first frame does not pay for it
+
+
+@needs_numba
+def test_jit_in_register_compile_failure_is_said_and_falls_back(monkeypatch) -> None:
+    """A numba that cannot generate the kernel: one warning, then the interpreter, same result."""
+    def broken(program):
+        raise RuntimeError('no code generation here')
+
+    monkeypatch.setattr(jit_median, 'register_kernel', broken)
+    monkeypatch.setattr(jit_median, '_REGISTER_FAILED', [])
+    keys = np.random.default_rng(2).integers(0, 5000, (20, 30)).astype(np.uint16)
+    program = depth._jit_program(9)
+    with pytest.warns(RuntimeWarning, match='in-register median kernels failed'):
+        out = jit_median.network_median(keys, program)
+    np.testing.assert_array_equal(out, scipy_median(keys, 9))
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')           # said once
+        np.testing.assert_array_equal(jit_median.network_median(keys, program), out)
+    with pytest.raises(RuntimeError, match='no code generation'):
+        jit_median.network_median(keys, program, in_registers=True)
+
+
+@needs_numba
+def test_jit_in_register_kernel_source_is_written_for_the_disk_cache(tmp_path,
+                                                                     monkeypatch) -> None:
+    """The generated kernel module goes to a writable directory, for numba's disk cache.
+
+    With none, it is compiled in memory. Both give scipy's median.
+    """
+    program = depth._jit_program(7)
+    keys = np.random.default_rng(3).integers(0, 4000, (12, 50)).astype(np.uint16)
+    keys[:, :30] = 0
+    tables = jit_median._register_tables(program, 64)
+    r = 3
+    padded = cv2.copyMakeBorder(keys, r, r + 4, r, r + 14, cv2.BORDER_REPLICATE)
+    fill, need = jit_median._known_lowest(keys, 7)
+    monkeypatch.setattr(jit_median, '_kernel_directories', lambda: [tmp_path / 'kernels'])
+    kernel = jit_median._make_register_kernel(program)
+    written = list((tmp_path / 'kernels').glob('median_k7_t8_*.py'))
+    assert len(written) == 1 and 'cache=True' in written[0].read_text()
+    np.testing.assert_array_equal(kernel(padded, 12, 50, 64, *tables, need, fill),
+                                  scipy_median(keys, 7))
+    blocked = tmp_path / 'a_file'
+    blocked.write_text('not a directory')
+    monkeypatch.setattr(jit_median, '_kernel_directories', lambda: [blocked / 'kernels'])
+    kernel = jit_median._make_register_kernel(program)
+    np.testing.assert_array_equal(kernel(padded, 12, 50, 64, *tables, need, fill),
+                                  scipy_median(keys, 7))
