@@ -644,9 +644,15 @@ class DetectorNode(Node):
     def _apply_parameters(self, parameters: list[Parameter]) -> None:
         old_period = self._config.stats_period_s
         config = build_config(self._parameter_values())  # validated just before
-        # A new median K builds its sorting network here, not in a frame (a no-op while the
-        # first compilation still runs: the frames are on the numpy path meanwhile).
-        config.detector.warm_up()
+        # A new median K compiles its kernel (seconds for a K never used before) on a thread
+        # of its own, not in this callback nor in a frame: frames take the numpy path
+        # meanwhile. Nothing starts while a compilation already runs, or without numba.
+        if not jit_support.compiling():
+            job = jit_support.compile_in_background(config.detector.warm_up,
+                                                    on_done=self._on_compiled)
+            if job is not None:
+                self._compile = job
+                self._publish_status()
         self._config = config
         _release_memory()   # a large grid or cloud of the old configuration goes back to the OS
         if self._config.stats_period_s != old_period:
