@@ -109,6 +109,7 @@ class NodeUnderTest:
         command = _detector_command() + [
             '--ros-args', '--params-file', str(CORRIDOR_YAML),
             '-p', 'reliable_input:=true', '-p', 'publish_ground:=true',
+            '-p', 'publish_overlay:=true',
             '-p', 'stats_period_s:=1.0', '--log-level', 'obstacle_detector:=debug',
             *extra_args]
         self.process = subprocess.Popen(command, env=self.env, cwd=tmp, stdout=subprocess.PIPE,
