@@ -304,6 +304,224 @@ def drop_smeared(filtered: np.ndarray, raw: np.ndarray, near: np.ndarray, far: n
                   np.float32(planar_tolerance))
 
 
+@_jit
+def _has_nan(raw):  # pragma: no cover - compiled
+    """Return True when raw holds a NaN."""
+    flat = raw.reshape(-1)
+    found = False
+    for k in range(flat.size):
+        found |= flat[k] != flat[k]
+    return found
+
+
+@_jit
+def _inverse_row(row, out):  # pragma: no cover - compiled
+    """Fill out with 1 / row where row > 0 (1 elsewhere: such a pixel is never planar)."""
+    one = np.float32(1.0)
+    zero = np.float32(0.0)
+    for j in range(row.size):
+        r = row[j]
+        out[j] = one / (r if r > zero else one)
+
+
+@_jit
+def _smear_pixel(filtered, raw, i, j, near, far, ratio, jump, tol_ratio):  # pragma: no cover
+    """Return the new filtered depth at (i, j): _smear_kernel's rule, window range given."""
+    height, width = raw.shape
+    zero = np.float32(0.0)
+    r = raw[i, j]
+    f = filtered[i, j]
+    if r > zero:
+        lim = jump * r
+        if r - near > lim and far - r > lim and not _planar_at(raw, i, j, tol_ratio):
+            return zero
+        if abs(f - r) > ratio * f:
+            return r
+        return f
+    lim = ratio * f
+    seen = False
+    agree = True
+    if i > 0:
+        nb = raw[i - 1, j]
+        if nb > zero:
+            seen = True
+            agree &= abs(nb - f) <= lim
+    if i + 1 < height:
+        nb = raw[i + 1, j]
+        if nb > zero:
+            seen = True
+            agree &= abs(nb - f) <= lim
+    if j > 0:
+        nb = raw[i, j - 1]
+        if nb > zero:
+            seen = True
+            agree &= abs(nb - f) <= lim
+    if j + 1 < width:
+        nb = raw[i, j + 1]
+        if nb > zero:
+            seen = True
+            agree &= abs(nb - f) <= lim
+    return f if (seen and agree) else zero
+
+
+@_jit
+def _planar_row(left, mid, right, up, dn, iu, il, im, ir, idn, tol_ratio,
+                out):  # pragma: no cover - compiled
+    """Fill out with _planar_at along a row (depths, inverse depths: pixel, 4 neighbours)."""
+    zero = np.float32(0.0)
+    two = np.float32(2.0)
+    for j in range(out.size):
+        inv = im[j]
+        tol = tol_ratio * inv
+        row = abs(il[j] + ir[j] - two * inv)
+        col = abs(iu[j] + idn[j] - two * inv)
+        ok = (left[j] > zero) & (right[j] > zero) & (up[j] > zero) & (dn[j] > zero)
+        ok &= mid[j] > zero
+        out[j] = ok & (row <= tol) & (col <= tol)
+
+
+@_jit
+def _keep_row(left, right, up, dn, f_row, ratio, out):  # pragma: no cover - compiled
+    """Fill out: a filled hole keeps its depth (a measured 4-neighbour, all within ratio)."""
+    zero = np.float32(0.0)
+    for j in range(out.size):
+        f = f_row[j]
+        lim = ratio * f
+        a = left[j]
+        b = right[j]
+        c = up[j]
+        d = dn[j]
+        seen = (a > zero) | (b > zero) | (c > zero) | (d > zero)
+        bad = ((a > zero) & (abs(a - f) > lim)) | ((b > zero) & (abs(b - f) > lim))
+        bad |= ((c > zero) & (abs(c - f) > lim)) | ((d > zero) & (abs(d - f) > lim))
+        out[j] = seen & ~bad
+
+
+@_jit
+def _decide_row(r_row, f_row, near, far, planar, keep, ratio, jump,
+                ):  # pragma: no cover - compiled
+    """Apply _smear_kernel's rule along a row, in place, the masks of the row given."""
+    zero = np.float32(0.0)
+    for j in range(r_row.size):
+        r = r_row[j]
+        f = f_row[j]
+        lim = jump * r
+        fly = (r - near[j] > lim) & (far[j] - r > lim) & ~planar[j]
+        moved = abs(f - r) > ratio * f
+        v = f
+        v = r if moved else v
+        v = zero if fly else v
+        w = f if keep[j] else zero
+        f_row[j] = v if r > zero else w
+
+
+@_jit
+def _smear5_kernel(filtered, raw, ratio, jump, tol_ratio, col_lo, col_hi, row_lo, row_hi,
+                   inv3, zeros, planar, keep):  # pragma: no cover - compiled
+    """_smear_kernel with its 5 x 5 window range computed on the way, row by row.
+
+    The window range is the window clipped to the image (what OpenCV's erode/dilate with a
+    replicated border give): the nearest measured depth (inf without any) and the farthest (0
+    without any): a column pass into col_lo/col_hi, a row pass into row_lo/row_hi. The inverse
+    depths of the rows i - 1, i, i + 1 rotate through inv3. Then branch-free passes over the
+    row's inner columns (planar, keep, decide; the compiler vectorises them) and the scalar
+    rule at the 2 border columns each side. raw: no NaN (the caller checks); zeros: (W,) 0.
+    """
+    height, width = filtered.shape
+    inf = np.float32(np.inf)
+    zero = np.float32(0.0)
+    half = 2
+    _inverse_row(raw[0], inv3[0])
+    if height > 1:
+        _inverse_row(raw[1], inv3[1])
+    n = width - 4
+    for i in range(height):
+        if i >= 1 and i + 1 < height:
+            _inverse_row(raw[i + 1], inv3[(i + 1) % 3])
+        i0 = max(0, i - half)
+        i1 = min(height, i + half + 1)
+        r0 = raw[i0]
+        for j in range(width):
+            v = r0[j]
+            col_lo[j] = v if v > zero else inf
+            col_hi[j] = v if v > zero else zero
+        for k in range(i0 + 1, i1):
+            rk = raw[k]
+            for j in range(width):
+                v = rk[j]
+                m = v if v > zero else inf
+                lo = col_lo[j]
+                col_lo[j] = m if m < lo else lo
+                hi = col_hi[j]
+                col_hi[j] = v if v > hi else hi
+        for j in range(n):
+            a = col_lo[j]
+            b = col_lo[j + 1]
+            c = col_lo[j + 2]
+            d = col_lo[j + 3]
+            e = col_lo[j + 4]
+            m = a if a < b else b
+            m = c if c < m else m
+            m = d if d < m else m
+            row_lo[j] = e if e < m else m
+            a = col_hi[j]
+            b = col_hi[j + 1]
+            c = col_hi[j + 2]
+            d = col_hi[j + 3]
+            e = col_hi[j + 4]
+            m = a if a > b else b
+            m = c if c > m else m
+            m = d if d > m else m
+            row_hi[j] = e if e > m else m
+        rr = raw[i]
+        fr = filtered[i]
+        up = raw[i - 1] if i > 0 else zeros
+        dn = raw[i + 1] if i + 1 < height else zeros
+        iu = inv3[(i - 1) % 3]
+        im = inv3[i % 3]
+        idn = inv3[(i + 1) % 3]
+        for e in range(4):   # border columns: the scalar rule on the clipped window
+            j = e if e < 2 else width - 4 + e
+            if j < 0 or j >= width or (e >= 2 and width - 4 + e < 2):
+                continue
+            near = inf
+            far = zero
+            for k in range(max(0, j - half), min(width, j + half + 1)):
+                near = min(near, col_lo[k])
+                far = max(far, col_hi[k])
+            fr[j] = _smear_pixel(filtered, raw, i, j, near, far, ratio, jump, tol_ratio)
+        if n <= 0:
+            continue
+        _planar_row(rr[1:n + 1], rr[2:n + 2], rr[3:n + 3], up[2:n + 2], dn[2:n + 2],
+                    iu[2:n + 2], im[1:n + 1], im[2:n + 2], im[3:n + 3], idn[2:n + 2], tol_ratio,
+                    planar[:n])
+        _keep_row(rr[1:n + 1], rr[3:n + 3], up[2:n + 2], dn[2:n + 2], fr[2:n + 2], ratio,
+                  keep[:n])
+        _decide_row(rr[2:n + 2], fr[2:n + 2], row_lo[:n], row_hi[:n], planar[:n], keep[:n],
+                    ratio, jump)
+
+
+def drop_smeared_fused(filtered: np.ndarray, raw: np.ndarray, max_shift: float, jump: float,
+                       planar_tolerance: float) -> bool:
+    """In place, as :func:`drop_smeared` with the 5 x 5 window range of traversal's numpy path.
+
+    filtered, raw: (H, W) float32 C-contiguous. Returns False, changing nothing, when raw
+    holds a NaN (the caller then takes OpenCV's window range, whose NaN handling is its own).
+    """
+    if _has_nan(raw):
+        return False
+    width = raw.shape[1]
+    row = (width,)
+    zeros = scratch('zeros', row, np.float32)
+    zeros[:] = 0.0
+    _smear5_kernel(filtered, raw, np.float32(max_shift), np.float32(jump),
+                   np.float32(planar_tolerance), scratch('col_lo', row, np.float32),
+                   scratch('col_hi', row, np.float32), scratch('row_lo', row, np.float32),
+                   scratch('row_hi', row, np.float32), scratch('inv3', (3, width), np.float32),
+                   zeros, scratch('planar', row, np.bool_), scratch('keep', row, np.bool_))
+    return True
+
+
 def warm_up() -> None:
     """Compile (or load from the disk cache) the kernels on tiny inputs."""
     if not enabled():
@@ -314,4 +532,6 @@ def warm_up() -> None:
     drop_mask(np.ones((4, 2), np.float32), -np.ones((4, 2), np.float32), 0.5, 0.05, 0.05, 3)
     one = np.ones((3, 3), np.float32)
     drop_smeared(one.copy(), one, one, one, 0.03, 0.05, 0.02)
+    drop_smeared_fused(np.ones((6, 6), np.float32), np.ones((6, 6), np.float32), 0.03, 0.05,
+                       0.02)
     holes_to_inf(one)

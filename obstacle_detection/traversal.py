@@ -264,6 +264,11 @@ def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float) -> np.
     if max_shift <= 0.0:
         return filtered
     raw = np.ascontiguousarray(raw, np.float32)
+    if (jit_traversal.enabled() and FLYING_WINDOW_PX == 5 and filtered.flags.c_contiguous
+            and filtered.dtype == np.float32 and filtered.shape == raw.shape
+            and jit_traversal.drop_smeared_fused(filtered, raw, max_shift, FLYING_JUMP,
+                                                 PLANAR_TOLERANCE)):
+        return filtered   # one compiled pass, the window range on the way (same result)
     near, far = depth_window_range(raw)
     if jit_traversal.enabled():
         jit_traversal.drop_smeared(filtered, raw, near, far, max_shift, FLYING_JUMP,

@@ -341,3 +341,32 @@ def test_floor_samples_ignore_no_return():
     pts = floor.floor_samples(depth, floor.sample_rays(rays, depth.shape), params)
     assert pts.shape[1] > 100 and np.isfinite(pts).all()
     assert np.abs(pts[2]).max() < 0.05
+
+
+@jit_only
+@pytest.mark.parametrize('shape', [(1, 1), (2, 3), (3, 5), (5, 4), (7, 9), (60, 80)])
+def test_fused_smear_kernel_equals_numpy(shape, monkeypatch):
+    # the compiled pass computes the 5 x 5 window range itself (no OpenCV): every image size,
+    # the borders, holes, flying pixels between two surfaces and planar grazing floors
+    rng = np.random.default_rng(shape[0] * 100 + shape[1])
+    raw = rng.choice(np.float32([1.0, 2.0, 4.0]), size=shape).astype(np.float32)
+    raw += rng.normal(0.0, 0.02, shape).astype(np.float32)
+    raw[rng.random(shape) < 0.15] = 0.0
+    rows = np.arange(shape[0], dtype=np.float32)[:, None]
+    raw[:, :shape[1] // 3] = 1.0 / (0.2 + 0.01 * rows)          # a plane: 1/depth affine
+    filtered = raw + rng.normal(0.0, 0.08, shape).astype(np.float32)
+    filtered[rng.random(shape) < 0.1] = 0.0
+    got = traversal.drop_smeared(filtered.copy(), raw, 0.03)
+    monkeypatch.setenv(jit_traversal.NO_JIT_ENV, '1')
+    want = traversal.drop_smeared(filtered.copy(), raw, 0.03)
+    np.testing.assert_array_equal(got, want)
+    assert got.tobytes() == want.tobytes()
+
+
+@jit_only
+def test_fused_smear_kernel_changes_nothing_on_nan():
+    raw = np.ones((6, 6), np.float32)
+    raw[2, 2] = np.nan
+    filtered = np.full((6, 6), 1.5, np.float32)
+    assert not jit_traversal.drop_smeared_fused(filtered, raw, 0.03, 0.03, 0.02)
+    assert (filtered == 1.5).all()
