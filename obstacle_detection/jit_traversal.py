@@ -11,9 +11,10 @@ the numpy code runs instead. Kernels import nothing of ours but :mod:`.jit_suppo
 
 from __future__ import annotations
 
-import numpy as np
-
+import math
 import threading
+
+import numpy as np
 
 from .jit_support import AVAILABLE, NO_JIT_ENV, enabled, jit as _jit
 
@@ -522,6 +523,209 @@ def drop_smeared_fused(filtered: np.ndarray, raw: np.ndarray, max_shift: float, 
     return True
 
 
+@_jit
+def _floor_samples_kernel(depth, step, rays, height, tan_tilt, band0, min_x, max_x, max_y,
+                          facing_cos2, out):  # pragma: no cover - compiled
+    """Fill out (3, M) float64 with floor.floor_samples' points; return how many.
+
+    depth: (H, W) float32, sampled every ``step`` pixels; rays: (3, gh * gw) float32 of the
+    sampled grid. The same float64 operations as the numpy path, point by point.
+    """
+    gh = (depth.shape[0] + step - 1) // step
+    gw = (depth.shape[1] + step - 1) // step
+    nan = np.nan
+    m = 0
+    for gi in range(gh - 1):
+        for gj in range(gw - 1):
+            k = gi * gw + gj
+            d = np.float64(depth[gi * step, gj * step])
+            if not d > 0.0:
+                continue
+            dr = np.float64(depth[gi * step, (gj + 1) * step])
+            dr = dr if dr > 0.0 else nan
+            dd = np.float64(depth[(gi + 1) * step, gj * step])
+            dd = dd if dd > 0.0 else nan
+            x = d * np.float64(rays[0, k])
+            y = d * np.float64(rays[1, k])
+            z = d * np.float64(rays[2, k]) + height
+            kr = k + 1
+            kd = k + gw
+            du0 = dr * np.float64(rays[0, kr]) - x
+            du1 = dr * np.float64(rays[1, kr]) - y
+            du2 = (dr * np.float64(rays[2, kr]) + height) - z
+            dv0 = dd * np.float64(rays[0, kd]) - x
+            dv1 = dd * np.float64(rays[1, kd]) - y
+            dv2 = (dd * np.float64(rays[2, kd]) + height) - z
+            nx = du1 * dv2 - du2 * dv1
+            ny = du2 * dv0 - du0 * dv2
+            nz = du0 * dv1 - du1 * dv0
+            if not nz * nz >= (nx * nx + ny * ny + nz * nz) * facing_cos2:
+                continue
+            band = math.hypot(x, y) * tan_tilt
+            band += band0
+            if abs(z) <= band and x >= min_x and x <= max_x and abs(y) <= max_y:
+                out[0, m] = x
+                out[1, m] = y
+                out[2, m] = z
+                m += 1
+    return m
+
+
+@_jit
+def _ransac_kernel(pts, picks, tan_tilt2, offset, band32, score_points, out,
+                   ):  # pragma: no cover - compiled
+    """Fill out (k, 3) with floor._ransac_plane's best k hypotheses (same float operations).
+
+    pts: (3, M) float64 floor samples; picks: (3, h) float64 in [0, 1), where in each third
+    of the samples the triplet points are taken; band32: the float32 inlier band.
+    """
+    n = pts.shape[1]
+    h = picks.shape[1]
+    third = n // 3
+    a = np.empty(h + 2)
+    b = np.empty(h + 2)
+    c = np.empty(h + 2)
+    used = 0
+    for t in range(h):
+        i0 = np.int64(picks[0, t] * third)
+        i1 = np.int64(picks[1, t] * third) + third
+        i2 = np.int64(picks[2, t] * third) + 2 * third
+        u0 = pts[0, i1] - pts[0, i0]
+        u1 = pts[1, i1] - pts[1, i0]
+        u2 = pts[2, i1] - pts[2, i0]
+        v0 = pts[0, i2] - pts[0, i0]
+        v1 = pts[1, i2] - pts[1, i0]
+        v2 = pts[2, i2] - pts[2, i0]
+        nx = u1 * v2 - u2 * v1
+        ny = u2 * v0 - u0 * v2
+        nz = u0 * v1 - u1 * v0
+        if not abs(nz) > 1e-9:
+            continue
+        ha = -nx / nz
+        hb = -ny / nz
+        hc = pts[2, i0] - ha * pts[0, i0] - hb * pts[1, i0]
+        if ha * ha + hb * hb <= tan_tilt2 and abs(hc) <= offset:
+            a[used] = ha
+            b[used] = hb
+            c[used] = hc
+            used += 1
+    # the configured floor, and the level plane through the most common sample height
+    n_bins = 0
+    for i in range(n):
+        z = pts[2, i]
+        if abs(z) <= offset:
+            n_bins = max(n_bins, np.int64(np.floor((z + offset) * 100.0)) + 1)
+    mode = 0.0
+    if n_bins > 0:
+        counts = np.zeros(n_bins, np.int64)
+        for i in range(n):
+            z = pts[2, i]
+            if abs(z) <= offset:
+                counts[np.int64(np.floor((z + offset) * 100.0))] += 1
+        mode = (np.argmax(counts) + 0.5) * 0.01 - offset
+    a[used] = 0.0
+    b[used] = 0.0
+    c[used] = 0.0
+    a[used + 1] = 0.0
+    b[used + 1] = 0.0
+    c[used + 1] = mode
+    used += 2
+    stride = max(1, n // score_points)
+    ns = (n + stride - 1) // stride
+    sx = np.empty(ns, np.float32)
+    sy = np.empty(ns, np.float32)
+    sz = np.empty(ns, np.float32)
+    for i in range(ns):
+        sx[i] = np.float32(pts[0, i * stride])
+        sy[i] = np.float32(pts[1, i * stride])
+        sz[i] = np.float32(pts[2, i * stride])
+    score = np.empty(used, np.int64)
+    for t in range(used):
+        a32 = np.float32(a[t])
+        b32 = np.float32(b[t])
+        c32 = np.float32(c[t])
+        count = 0
+        for i in range(ns):
+            r = a32 * sx[i]
+            r += b32 * sy[i]
+            r += c32
+            r -= sz[i]
+            count += abs(r) <= band32
+        score[t] = count
+    for k in range(out.shape[0]):   # the best first; ties: the earlier hypothesis
+        best = -1
+        for t in range(used):
+            if score[t] >= 0 and (best < 0 or score[t] > score[best]):
+                best = t
+        out[k, 0] = a[best]
+        out[k, 1] = b[best]
+        out[k, 2] = c[best]
+        score[best] = -1
+
+
+@_jit
+def _band_kernel(pts, a, b, c, band, out):  # pragma: no cover - compiled
+    """Copy the samples within band of z = a x + b y + c into out[:m] (M, 3); return m."""
+    m = 0
+    for i in range(pts.shape[1]):
+        resid = pts[2, i] - (a * pts[0, i] + b * pts[1, i] + c)
+        if abs(resid) <= band:
+            out[m, 0] = pts[0, i]
+            out[m, 1] = pts[1, i]
+            out[m, 2] = pts[2, i]
+            m += 1
+    return m
+
+
+@_jit
+def _band_count(pts, a, b, c, band):  # pragma: no cover - compiled
+    """Return how many samples lie within band of z = a x + b y + c."""
+    m = 0
+    for i in range(pts.shape[1]):
+        resid = pts[2, i] - (a * pts[0, i] + b * pts[1, i] + c)
+        m += abs(resid) <= band
+    return m
+
+
+def floor_samples(depth_m: np.ndarray, step: int, sub_rays: np.ndarray, height_m: float,
+                  tan_tilt: float, band0_m: float, min_x_m: float, max_x_m: float,
+                  max_y_m: float, facing_cos2: float) -> np.ndarray:
+    """(3, M) float64: floor.floor_samples' points, compiled (a fresh array)."""
+    gh = (depth_m.shape[0] + step - 1) // step
+    gw = (depth_m.shape[1] + step - 1) // step
+    buf = scratch('floor_samples', (3, max(1, (gh - 1) * (gw - 1))), np.float64)
+    m = _floor_samples_kernel(np.ascontiguousarray(depth_m, np.float32), step,
+                              np.ascontiguousarray(sub_rays, np.float32), float(height_m),
+                              float(tan_tilt), float(band0_m), float(min_x_m), float(max_x_m),
+                              float(max_y_m), float(facing_cos2), buf)
+    return buf[:, :m].copy()
+
+
+def ransac_plane(pts: np.ndarray, picks: np.ndarray, tan_tilt2: float, offset_m: float,
+                 band_m: float, score_points: int, k: int) -> np.ndarray:
+    """(k, 3) float64: floor._ransac_plane's best hypotheses, compiled."""
+    out = np.empty((k, 3))
+    _ransac_kernel(pts, picks, float(tan_tilt2), float(offset_m), np.float32(band_m),
+                   int(score_points), out)
+    return out
+
+
+def in_band(pts: np.ndarray, a: float, b: float, c: float, band_m: float) -> np.ndarray:
+    """(3, m) float64: the samples pts (3, M) within band_m of z = a x + b y + c (a copy).
+
+    Laid out as numpy's ``pts[:, mask]`` is (the transpose of an (m, 3) C array): the sums
+    over it (mean, dot) then run in the same order, to the bit.
+    """
+    buf = scratch('floor_band', (pts.shape[1], 3), np.float64)
+    m = _band_kernel(pts, float(a), float(b), float(c), float(band_m), buf)
+    return buf[:m].copy().T
+
+
+def count_in_band(pts: np.ndarray, a: float, b: float, c: float, band_m: float) -> int:
+    """How many samples pts (3, M) lie within band_m of z = a x + b y + c."""
+    return int(_band_count(pts, float(a), float(b), float(c), float(band_m)))
+
+
 def warm_up() -> None:
     """Compile (or load from the disk cache) the kernels on tiny inputs."""
     if not enabled():
@@ -535,3 +739,11 @@ def warm_up() -> None:
     drop_smeared_fused(np.ones((6, 6), np.float32), np.ones((6, 6), np.float32), 0.03, 0.05,
                        0.02)
     holes_to_inf(one)
+    rng = np.random.default_rng(0)
+    depth = rng.uniform(0.5, 3.0, (12, 12)).astype(np.float32)
+    rays = rng.uniform(-1.0, 1.0, (3, 36)).astype(np.float32)
+    pts = floor_samples(depth, 2, rays, 0.5, 0.1, 0.12, 0.0, 3.0, 2.0, 0.75)
+    pts = rng.uniform(-0.05, 0.05, (3, 30))
+    ransac_plane(pts, rng.random((3, 4)), 0.01, 0.1, 0.03, 2000, 2)
+    in_band(pts, 0.0, 0.0, 0.0, 0.03)
+    count_in_band(pts, 0.0, 0.0, 0.0, 0.03)
