@@ -220,6 +220,82 @@ def _drop_kernel(depth, rz, h, down, up, rows, out):  # pragma: no cover - compi
                     break
 
 
+@_jit
+def _z_row(depth_row, rz_row, h, out):  # pragma: no cover - compiled
+    """Fill out with the height of each pixel's point (NaN without a return), float32."""
+    nan = np.float32(np.nan)
+    zero = np.float32(0.0)
+    for j in range(out.size):
+        d = depth_row[j]
+        z = d * rz_row[j] + h
+        out[j] = z if d > zero else nan
+
+
+@_jit
+def _edge_row(zp, zq, k, down, up, edge):  # pragma: no cover - compiled
+    """Where edge is still 0 and zp passed the floor, set k if zq (k rows below) is the floor.
+
+    Returns how many pixels of the row got k.
+    """
+    count = 0
+    for j in range(edge.size):
+        a = zp[j]
+        b = zq[j]
+        hit = (a < -down) & (b >= -down) & (b <= up) & (b - a > down) & (edge[j] == 0)
+        edge[j] = k if hit else edge[j]
+        count += hit
+    return count
+
+
+@_jit
+def _drop_pixels_kernel(depth, rz, h, down, up, rows, zring, edge, pix_out,
+                        k_out):  # pragma: no cover - compiled
+    """Fill pix_out/k_out with the pixels drop_mask marks and their offsets; return how many.
+
+    The same float32 heights and tests as _drop_kernel, row by row: the heights of rows i to
+    i + rows rotate through zring (rows + 1, W), edge (W,) int8 is row i's mask.
+    """
+    height, width = depth.shape
+    ring = rows + 1
+    for i in range(min(height, ring)):
+        _z_row(depth[i], rz[i], h, zring[i % ring])
+    m = 0
+    for i in range(height):
+        if i > 0 and i + rows < height:
+            _z_row(depth[i + rows], rz[i + rows], h, zring[(i + rows) % ring])
+        zp = zring[i % ring]
+        for j in range(width):
+            edge[j] = 0
+        found = 0
+        for k in range(1, rows + 1):
+            if i + k >= height:
+                break
+            found += _edge_row(zp, zring[(i + k) % ring], np.int8(k), down, up, edge)
+        if found == 0:
+            continue
+        for j in range(width):
+            if edge[j] != 0:
+                pix_out[m] = i * width + j
+                k_out[m] = edge[j]
+                m += 1
+    return m
+
+
+def drop_pixels(depth_m: np.ndarray, rz: np.ndarray, height_m: float, step_down_m: float,
+                step_up_m: float, rows: int) -> tuple[np.ndarray, np.ndarray]:
+    """(flat pixel indices int64, offsets int8) of drop_mask's nonzero pixels, in order."""
+    height, width = depth_m.shape
+    pix = scratch('drop_pix', (height * width,), np.int64)
+    offsets = scratch('drop_k', (height * width,), np.int8)
+    m = _drop_pixels_kernel(np.ascontiguousarray(depth_m, np.float32),
+                            np.ascontiguousarray(rz, np.float32).reshape(depth_m.shape),
+                            np.float32(height_m), np.float32(step_down_m),
+                            np.float32(step_up_m), int(rows),
+                            scratch('drop_z', (int(rows) + 1, width), np.float32),
+                            scratch('drop_edge', (width,), np.int8), pix, offsets)
+    return pix[:m].copy(), offsets[:m].copy()
+
+
 def drop_mask(depth_m: np.ndarray, rz: np.ndarray, height_m: float, step_down_m: float,
               step_up_m: float, rows: int) -> np.ndarray:
     """(H, W) int8 drop-edge row offsets; equals traversal.drop_edge_mask."""
@@ -734,6 +810,7 @@ def warm_up() -> None:
     pts = np.array([[0.1, 0.0, 0.0], [0.2, 0.1, 0.3]], np.float32)
     traverse(pts, np.array([False, True]), 0.05, 0.05, 0.05, 1.0, 0.025)
     drop_mask(np.ones((4, 2), np.float32), -np.ones((4, 2), np.float32), 0.5, 0.05, 0.05, 3)
+    drop_pixels(np.ones((4, 2), np.float32), -np.ones(8, np.float32), 0.5, 0.05, 0.05, 3)
     one = np.ones((3, 3), np.float32)
     drop_smeared(one.copy(), one, one, one, 0.03, 0.05, 0.02)
     drop_smeared_fused(np.ones((6, 6), np.float32), np.ones((6, 6), np.float32), 0.03, 0.05,

@@ -370,3 +370,21 @@ def test_fused_smear_kernel_changes_nothing_on_nan():
     filtered = np.full((6, 6), 1.5, np.float32)
     assert not jit_traversal.drop_smeared_fused(filtered, raw, 0.03, 0.03, 0.02)
     assert (filtered == 1.5).all()
+
+
+@jit_only
+@pytest.mark.parametrize('shape', [(1, 1), (2, 5), (4, 3), (60, 80)])
+def test_drop_pixels_kernel_equals_the_numpy_mask(shape, monkeypatch):
+    rng = np.random.default_rng(shape[0] + 7 * shape[1])
+    depth = rng.uniform(0.5, 2.5, size=shape).astype(np.float32)
+    depth[rng.random(shape) < 0.1] = 0.0
+    depth.reshape(-1)[::17] = np.nan
+    rz = rng.uniform(-0.6, 0.1, size=shape).astype(np.float32)
+    pixels, offsets = jit_traversal.drop_pixels(depth, rz.reshape(-1), 0.6, 0.05, 0.05, 3)
+    monkeypatch.setenv(jit_traversal.NO_JIT_ENV, '1')
+    mask = traversal.drop_edge_mask(depth, rz, 0.6, 0.05, 0.05, 3)
+    np.testing.assert_array_equal(pixels, np.flatnonzero(mask))
+    np.testing.assert_array_equal(offsets, mask.reshape(-1)[np.flatnonzero(mask)])
+    assert pixels.dtype == np.int64
+    if shape == (60, 80):
+        assert pixels.size > 10 and set(offsets.tolist()) == {1, 2, 3}
