@@ -221,63 +221,57 @@ def _drop_kernel(depth, rz, h, down, up, rows, out):  # pragma: no cover - compi
 
 
 @_jit
-def _z_row(depth_row, rz_row, h, out):  # pragma: no cover - compiled
-    """Fill out with the height of each pixel's point (NaN without a return), float32."""
+def _z_row(depth_row, rz_row, h, down, out):  # pragma: no cover - compiled
+    """Fill out with the heights of the row's points (NaN without a return), float32.
+
+    Returns how many lie more than ``down`` below the floor (passed it).
+    """
     nan = np.float32(np.nan)
     zero = np.float32(0.0)
+    passed = 0
     for j in range(out.size):
         d = depth_row[j]
         z = d * rz_row[j] + h
-        out[j] = z if d > zero else nan
+        z = z if d > zero else nan
+        out[j] = z
+        passed += z < -down
+    return passed
 
 
 @_jit
-def _edge_row(zp, zq, k, down, up, edge):  # pragma: no cover - compiled
-    """Where edge is still 0 and zp passed the floor, set k if zq (k rows below) is the floor.
-
-    Returns how many pixels of the row got k.
-    """
-    count = 0
-    for j in range(edge.size):
-        a = zp[j]
-        b = zq[j]
-        hit = (a < -down) & (b >= -down) & (b <= up) & (b - a > down) & (edge[j] == 0)
-        edge[j] = k if hit else edge[j]
-        count += hit
-    return count
-
-
-@_jit
-def _drop_pixels_kernel(depth, rz, h, down, up, rows, zring, edge, pix_out,
+def _drop_pixels_kernel(depth, rz, h, down, up, rows, zring, passed, pix_out,
                         k_out):  # pragma: no cover - compiled
     """Fill pix_out/k_out with the pixels drop_mask marks and their offsets; return how many.
 
-    The same float32 heights and tests as _drop_kernel, row by row: the heights of rows i to
-    i + rows rotate through zring (rows + 1, W), edge (W,) int8 is row i's mask.
+    The same float32 heights and tests as _drop_kernel: the heights of rows i to i + rows
+    rotate through zring (rows + 1, W), passed (H,) counts each row's pixels below the floor;
+    only the rows with some are searched.
     """
     height, width = depth.shape
     ring = rows + 1
     for i in range(min(height, ring)):
-        _z_row(depth[i], rz[i], h, zring[i % ring])
+        passed[i] = _z_row(depth[i], rz[i], h, down, zring[i % ring])
     m = 0
     for i in range(height):
         if i > 0 and i + rows < height:
-            _z_row(depth[i + rows], rz[i + rows], h, zring[(i + rows) % ring])
+            passed[i + rows] = _z_row(depth[i + rows], rz[i + rows], h, down,
+                                      zring[(i + rows) % ring])
+        if passed[i] == 0:
+            continue
         zp = zring[i % ring]
         for j in range(width):
-            edge[j] = 0
-        found = 0
-        for k in range(1, rows + 1):
-            if i + k >= height:
-                break
-            found += _edge_row(zp, zring[(i + k) % ring], np.int8(k), down, up, edge)
-        if found == 0:
-            continue
-        for j in range(width):
-            if edge[j] != 0:
-                pix_out[m] = i * width + j
-                k_out[m] = edge[j]
-                m += 1
+            a = zp[j]
+            if not a < -down:
+                continue
+            for k in range(1, rows + 1):
+                if i + k >= height:
+                    break
+                b = zring[(i + k) % ring, j]
+                if b >= -down and b <= up and b - a > down:
+                    pix_out[m] = i * width + j
+                    k_out[m] = k
+                    m += 1
+                    break
     return m
 
 
@@ -292,7 +286,7 @@ def drop_pixels(depth_m: np.ndarray, rz: np.ndarray, height_m: float, step_down_
                             np.float32(height_m), np.float32(step_down_m),
                             np.float32(step_up_m), int(rows),
                             scratch('drop_z', (int(rows) + 1, width), np.float32),
-                            scratch('drop_edge', (width,), np.int8), pix, offsets)
+                            scratch('drop_passed', (height,), np.int64), pix, offsets)
     return pix[:m].copy(), offsets[:m].copy()
 
 
