@@ -469,6 +469,24 @@ def _keep_row(left, right, up, dn, f_row, ratio, out):  # pragma: no cover - com
 
 
 @_jit
+def _count_row(r_row, f_row, near, far, jump):  # pragma: no cover - compiled
+    """Return how many pixels of the row are flying candidates, and how many holes are filled.
+
+    A candidate lies more than jump of its depth from both ends of its window range (it is
+    flying unless planar); a filled hole has no measured depth but a filtered one.
+    """
+    zero = np.float32(0.0)
+    flying = 0
+    filled = 0
+    for j in range(r_row.size):
+        r = r_row[j]
+        lim = jump * r
+        flying += (r > zero) & (r - near[j] > lim) & (far[j] - r > lim)
+        filled += (r <= zero) & (f_row[j] > zero)
+    return flying, filled
+
+
+@_jit
 def _decide_row(r_row, f_row, near, far, planar, keep, ratio, jump,
                 ):  # pragma: no cover - compiled
     """Apply _smear_kernel's rule along a row, in place, the masks of the row given."""
@@ -563,11 +581,16 @@ def _smear5_kernel(filtered, raw, ratio, jump, tol_ratio, col_lo, col_hi, row_lo
             fr[j] = _smear_pixel(filtered, raw, i, j, near, far, ratio, jump, tol_ratio)
         if n <= 0:
             continue
-        _planar_row(rr[1:n + 1], rr[2:n + 2], rr[3:n + 3], up[2:n + 2], dn[2:n + 2],
-                    iu[2:n + 2], im[1:n + 1], im[2:n + 2], im[3:n + 3], idn[2:n + 2], tol_ratio,
-                    planar[:n])
-        _keep_row(rr[1:n + 1], rr[3:n + 3], up[2:n + 2], dn[2:n + 2], fr[2:n + 2], ratio,
-                  keep[:n])
+        flying, filled = _count_row(rr[2:n + 2], fr[2:n + 2], row_lo[:n], row_hi[:n], jump)
+        if flying:   # else planar is not looked at
+            _planar_row(rr[1:n + 1], rr[2:n + 2], rr[3:n + 3], up[2:n + 2], dn[2:n + 2],
+                        iu[2:n + 2], im[1:n + 1], im[2:n + 2], im[3:n + 3], idn[2:n + 2],
+                        tol_ratio, planar[:n])
+        if filled:
+            _keep_row(rr[1:n + 1], rr[3:n + 3], up[2:n + 2], dn[2:n + 2], fr[2:n + 2], ratio,
+                      keep[:n])
+        else:        # no hole was filled: each hole stays empty
+            keep[:n] = False
         _decide_row(rr[2:n + 2], fr[2:n + 2], row_lo[:n], row_hi[:n], planar[:n], keep[:n],
                     ratio, jump)
 
