@@ -388,3 +388,33 @@ def test_drop_pixels_kernel_equals_the_numpy_mask(shape, monkeypatch):
     assert pixels.dtype == np.int64
     if shape == (60, 80):
         assert pixels.size > 10 and set(offsets.tolist()) == {1, 2, 3}
+
+
+_WARM_UP_CHECK = """
+from obstacle_detection import jit_traversal
+from obstacle_detection.params import corridor
+from obstacle_detection.pipeline import Detector
+from obstacle_detection.scenes import render_scene, scene_params
+frame = render_scene('step_down', seed=1)
+detector = Detector(scene_params(frame, corridor()))
+detector.warm_up()
+kernels = {name: k for name, k in vars(jit_traversal).items() if hasattr(k, 'signatures')}
+before = {name: len(k.signatures) for name, k in kernels.items()}
+result = detector.process(frame.depth_mm, frame.intrinsics)
+assert result.floor.refined and result.drop_points.shape[0] > 0
+after = {name: len(k.signatures) for name, k in kernels.items()}
+print(sorted(name for name in kernels if after[name] != before[name]))
+"""
+
+
+@jit_only
+def test_warm_up_compiles_every_robot_level_kernel_a_frame_uses():
+    # the node compiles in the background (Detector.warm_up); a frame must then find every
+    # kernel of the smear pass, the floor fit, the traversal and the drops ready (a fresh
+    # process: nothing compiled by other tests)
+    import subprocess
+    import sys
+    run = subprocess.run([sys.executable, '-c', _WARM_UP_CHECK], capture_output=True,
+                         text=True, timeout=600)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.strip() == '[]', f'compiled during the frame: {run.stdout}'
