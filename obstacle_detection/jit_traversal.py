@@ -469,6 +469,50 @@ def _keep_row(left, right, up, dn, f_row, ratio, out):  # pragma: no cover - com
 
 
 @_jit
+def _column_step(row, col_lo, col_hi):  # pragma: no cover - compiled
+    """Take one more row into the column pass: nearest measured depth (inf: none), farthest."""
+    zero = np.float32(0.0)
+    inf = np.float32(np.inf)
+    for j in range(row.size):
+        v = row[j]
+        m = v if v > zero else inf
+        lo = col_lo[j]
+        col_lo[j] = m if m < lo else lo
+        hi = col_hi[j]
+        col_hi[j] = v if v > hi else hi
+
+
+@_jit
+def _min5(col, out, n):  # pragma: no cover - compiled
+    """out[j] = min(col[j:j + 5]) for j < n."""
+    for j in range(n):
+        a = col[j]
+        b = col[j + 1]
+        c = col[j + 2]
+        d = col[j + 3]
+        e = col[j + 4]
+        m = a if a < b else b
+        m = c if c < m else m
+        m = d if d < m else m
+        out[j] = e if e < m else m
+
+
+@_jit
+def _max5(col, out, n):  # pragma: no cover - compiled
+    """out[j] = max(col[j:j + 5]) for j < n."""
+    for j in range(n):
+        a = col[j]
+        b = col[j + 1]
+        c = col[j + 2]
+        d = col[j + 3]
+        e = col[j + 4]
+        m = a if a > b else b
+        m = c if c > m else m
+        m = d if d > m else m
+        out[j] = e if e > m else m
+
+
+@_jit
 def _count_row(r_row, f_row, near, far, jump):  # pragma: no cover - compiled
     """Return how many pixels of the row are flying candidates, and how many holes are filled.
 
@@ -529,39 +573,17 @@ def _smear5_kernel(filtered, raw, ratio, jump, tol_ratio, col_lo, col_hi, row_lo
             _inverse_row(raw[i + 1], inv3[(i + 1) % 3])
         i0 = max(0, i - half)
         i1 = min(height, i + half + 1)
+        # col_lo/col_hi (W + 4,): the column pass in [2, W + 2), neutral pads (inf, 0) around,
+        # so that the row pass's 5 taps give the window clipped to the image at the borders
         r0 = raw[i0]
         for j in range(width):
             v = r0[j]
-            col_lo[j] = v if v > zero else inf
-            col_hi[j] = v if v > zero else zero
+            col_lo[j + 2] = v if v > zero else inf
+            col_hi[j + 2] = v if v > zero else zero
         for k in range(i0 + 1, i1):
-            rk = raw[k]
-            for j in range(width):
-                v = rk[j]
-                m = v if v > zero else inf
-                lo = col_lo[j]
-                col_lo[j] = m if m < lo else lo
-                hi = col_hi[j]
-                col_hi[j] = v if v > hi else hi
-        for j in range(n):
-            a = col_lo[j]
-            b = col_lo[j + 1]
-            c = col_lo[j + 2]
-            d = col_lo[j + 3]
-            e = col_lo[j + 4]
-            m = a if a < b else b
-            m = c if c < m else m
-            m = d if d < m else m
-            row_lo[j] = e if e < m else m
-            a = col_hi[j]
-            b = col_hi[j + 1]
-            c = col_hi[j + 2]
-            d = col_hi[j + 3]
-            e = col_hi[j + 4]
-            m = a if a > b else b
-            m = c if c > m else m
-            m = d if d > m else m
-            row_hi[j] = e if e > m else m
+            _column_step(raw[k], col_lo[2:width + 2], col_hi[2:width + 2])
+        _min5(col_lo, row_lo, width)
+        _max5(col_hi, row_hi, width)
         rr = raw[i]
         fr = filtered[i]
         up = raw[i - 1] if i > 0 else zeros
@@ -569,19 +591,16 @@ def _smear5_kernel(filtered, raw, ratio, jump, tol_ratio, col_lo, col_hi, row_lo
         iu = inv3[(i - 1) % 3]
         im = inv3[i % 3]
         idn = inv3[(i + 1) % 3]
-        for e in range(4):   # border columns: the scalar rule on the clipped window
+        for e in range(4):   # border columns: the scalar rule
             j = e if e < 2 else width - 4 + e
             if j < 0 or j >= width or (e >= 2 and width - 4 + e < 2):
                 continue
-            near = inf
-            far = zero
-            for k in range(max(0, j - half), min(width, j + half + 1)):
-                near = min(near, col_lo[k])
-                far = max(far, col_hi[k])
-            fr[j] = _smear_pixel(filtered, raw, i, j, near, far, ratio, jump, tol_ratio)
+            fr[j] = _smear_pixel(filtered, raw, i, j, row_lo[j], row_hi[j], ratio, jump,
+                                 tol_ratio)
         if n <= 0:
             continue
-        flying, filled = _count_row(rr[2:n + 2], fr[2:n + 2], row_lo[:n], row_hi[:n], jump)
+        flying, filled = _count_row(rr[2:n + 2], fr[2:n + 2], row_lo[2:n + 2],
+                                    row_hi[2:n + 2], jump)
         if flying:   # else planar is not looked at
             _planar_row(rr[1:n + 1], rr[2:n + 2], rr[3:n + 3], up[2:n + 2], dn[2:n + 2],
                         iu[2:n + 2], im[1:n + 1], im[2:n + 2], im[3:n + 3], idn[2:n + 2],
@@ -591,8 +610,8 @@ def _smear5_kernel(filtered, raw, ratio, jump, tol_ratio, col_lo, col_hi, row_lo
                       keep[:n])
         else:        # no hole was filled: each hole stays empty
             keep[:n] = False
-        _decide_row(rr[2:n + 2], fr[2:n + 2], row_lo[:n], row_hi[:n], planar[:n], keep[:n],
-                    ratio, jump)
+        _decide_row(rr[2:n + 2], fr[2:n + 2], row_lo[2:n + 2], row_hi[2:n + 2], planar[:n],
+                    keep[:n], ratio, jump)
 
 
 def drop_smeared_fused(filtered: np.ndarray, raw: np.ndarray, max_shift: float, jump: float,
@@ -608,10 +627,14 @@ def drop_smeared_fused(filtered: np.ndarray, raw: np.ndarray, max_shift: float, 
     row = (width,)
     zeros = scratch('zeros', row, np.float32)
     zeros[:] = 0.0
+    col_lo = scratch('col_lo', (width + 4,), np.float32)
+    col_hi = scratch('col_hi', (width + 4,), np.float32)
+    col_lo[:2] = col_lo[-2:] = np.inf   # neutral pads of the row pass (never written)
+    col_hi[:2] = col_hi[-2:] = 0.0
     _smear5_kernel(filtered, raw, np.float32(max_shift), np.float32(jump),
-                   np.float32(planar_tolerance), scratch('col_lo', row, np.float32),
-                   scratch('col_hi', row, np.float32), scratch('row_lo', row, np.float32),
-                   scratch('row_hi', row, np.float32), scratch('inv3', (3, width), np.float32),
+                   np.float32(planar_tolerance), col_lo, col_hi,
+                   scratch('row_lo', row, np.float32), scratch('row_hi', row, np.float32),
+                   scratch('inv3', (3, width), np.float32),
                    zeros, scratch('planar', row, np.bool_), scratch('keep', row, np.bool_))
     return True
 
