@@ -144,7 +144,7 @@ def _lstsq_plane(pts: np.ndarray) -> np.ndarray:
 
     The normal equations, centred on the mean (well conditioned for a few thousand points).
     """
-    mean = pts.mean(axis=1)
+    mean = np.add.reduce(pts, axis=1) / pts.shape[1]   # pts.mean(axis=1), its overhead spared
     c = pts - mean[:, None]
     sxx, sxy, syy = np.dot(c[0], c[0]), np.dot(c[0], c[1]), np.dot(c[1], c[1])
     sxz, syz = np.dot(c[0], c[2]), np.dot(c[1], c[2])
@@ -156,9 +156,13 @@ def _lstsq_plane(pts: np.ndarray) -> np.ndarray:
     return np.array([a, b, mean[2] - a * mean[0] - b * mean[1]])
 
 
-def _in_band(pts: np.ndarray, coef: np.ndarray, band_m: float) -> np.ndarray:
-    """(3, m) float64: the samples pts (3, M) within band_m of z = coef . (x, y, 1)."""
-    if jit_traversal.enabled():
+def _in_band(pts: np.ndarray, coef: np.ndarray, band_m: float,
+             compiled: bool | None = None) -> np.ndarray:
+    """(3, m) float64: the samples pts (3, M) within band_m of z = coef . (x, y, 1).
+
+    compiled: run the kernel (None: when :func:`.jit_traversal.enabled`).
+    """
+    if jit_traversal.enabled() if compiled is None else compiled:
         return jit_traversal.in_band(pts, coef[0], coef[1], coef[2], band_m)
     resid = pts[2] - (coef[0] * pts[0] + coef[1] * pts[1] + coef[2])
     return pts[:, np.abs(resid) <= band_m]
@@ -169,15 +173,17 @@ def _same(a: np.ndarray, b: np.ndarray) -> bool:
     return a.shape == b.shape and a.tobytes() == b.tobytes()
 
 
-def _count_in_band(pts: np.ndarray, coef: np.ndarray, band_m: float) -> int:
+def _count_in_band(pts: np.ndarray, coef: np.ndarray, band_m: float,
+                   compiled: bool | None = None) -> int:
     """How many samples pts (3, M) lie within band_m of z = coef . (x, y, 1)."""
-    if jit_traversal.enabled():
+    if jit_traversal.enabled() if compiled is None else compiled:
         return jit_traversal.count_in_band(pts, coef[0], coef[1], coef[2], band_m)
     resid = pts[2] - (coef[0] * pts[0] + coef[1] * pts[1] + coef[2])
     return int(np.count_nonzero(np.abs(resid) <= band_m))
 
 
-def _ransac_plane(pts: np.ndarray, params: DetectorParams) -> np.ndarray:
+def _ransac_plane(pts: np.ndarray, params: DetectorParams,
+                  compiled: bool | None = None) -> np.ndarray:
     """Return (k, 3): (a, b, c) of the bounded hypotheses with most samples in INLIER_BAND_M.
 
     pts (3, M). Hypotheses tilted more than ``floor_max_tilt_rad`` or offset more than
@@ -185,9 +191,9 @@ def _ransac_plane(pts: np.ndarray, params: DetectorParams) -> np.ndarray:
     beyond a drop); the configured floor (0, 0, 0) and the level plane at the most common
     sample height always are. At most SCORE_POINTS samples score them; the best
     REFINED_HYPOTHESES are returned, best first. Compiled when :func:`.jit_traversal.enabled`
-    (the same hypotheses, scores and order).
+    (the same hypotheses, scores and order); compiled: None asks it.
     """
-    if jit_traversal.enabled():
+    if jit_traversal.enabled() if compiled is None else compiled:
         return jit_traversal.ransac_plane(pts, _PICKS, math.tan(params.floor_max_tilt_rad) ** 2,
                                           params.floor_max_offset_m, INLIER_BAND_M,
                                           SCORE_POINTS, REFINED_HYPOTHESES)
@@ -243,12 +249,13 @@ def fit_floor(depth_m: np.ndarray, sub_rays: np.ndarray, params: DetectorParams)
                                   f'{params.floor_min_points}')
     best = None   # (inliers in the last band, coefficients, samples of the last refit)
     refits: list[list[np.ndarray]] = []   # the inliers of each refit of the earlier hypotheses
-    for coef in _ransac_plane(pts, params):   # each refined on narrowing bands
+    compiled = jit_traversal.enabled()
+    for coef in _ransac_plane(pts, params, compiled):   # each refined on narrowing bands
         used = 0
         stages: list[np.ndarray] = []
         repeated = False
         for stage, band in enumerate(REFIT_BANDS_M):
-            inliers = _in_band(pts, coef, band)
+            inliers = _in_band(pts, coef, band, compiled)
             used = inliers.shape[1]
             if used < 3:
                 break
@@ -262,7 +269,7 @@ def fit_floor(depth_m: np.ndarray, sub_rays: np.ndarray, params: DetectorParams)
         refits.append(stages)
         if repeated:
             continue
-        support = _count_in_band(pts, coef, REFIT_BANDS_M[-1])
+        support = _count_in_band(pts, coef, REFIT_BANDS_M[-1], compiled)
         if best is None or support > best[0]:
             best = (support, coef, used)
     support, coef, used = best
@@ -302,7 +309,7 @@ def _corrected_mount(params: DetectorParams, a: float, b: float, c: float,
     # axis = n x (0, 0, 1) with np.cross's operations (its Python overhead spared)
     n0, n1, n2 = float(n[0]), float(n[1]), float(n[2])
     axis = np.array([n1 * 1.0 - n2 * 0.0, n2 * 0.0 - n0 * 1.0, n0 * 0.0 - n1 * 0.0])
-    s, cos_angle = float(np.linalg.norm(axis)), n2
+    s, cos_angle = math.sqrt(float(axis.dot(axis))), n2   # np.linalg.norm's operations
     rot_c = np.eye(3)
     if s > 0.0:
         k = axis / s
