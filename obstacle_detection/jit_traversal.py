@@ -614,6 +614,15 @@ def _smear5_kernel(filtered, raw, ratio, jump, tol_ratio, col_lo, col_hi, row_lo
                     keep[:n], ratio, jump)
 
 
+def _smear5_buffers(width: int) -> tuple[np.ndarray, ...]:
+    """The row buffers of _smear5_kernel for images this wide (pads and zeros set once)."""
+    col_lo = np.full(width + 4, np.inf, np.float32)   # neutral pads of the row pass: the
+    col_hi = np.zeros(width + 4, np.float32)          # kernel writes [2, W + 2) only
+    return (col_lo, col_hi, np.empty(width, np.float32), np.empty(width, np.float32),
+            np.empty((3, width), np.float32), np.zeros(width, np.float32),
+            np.empty(width, np.bool_), np.empty(width, np.bool_))
+
+
 def drop_smeared_fused(filtered: np.ndarray, raw: np.ndarray, max_shift: float, jump: float,
                        planar_tolerance: float) -> bool:
     """In place, as :func:`drop_smeared` with the 5 x 5 window range of traversal's numpy path.
@@ -623,19 +632,12 @@ def drop_smeared_fused(filtered: np.ndarray, raw: np.ndarray, max_shift: float, 
     """
     if _has_nan(raw):
         return False
-    width = raw.shape[1]
-    row = (width,)
-    zeros = scratch('zeros', row, np.float32)
-    zeros[:] = 0.0
-    col_lo = scratch('col_lo', (width + 4,), np.float32)
-    col_hi = scratch('col_hi', (width + 4,), np.float32)
-    col_lo[:2] = col_lo[-2:] = np.inf   # neutral pads of the row pass (never written)
-    col_hi[:2] = col_hi[-2:] = 0.0
+    bufs = getattr(_SCRATCH, 'smear5', None)
+    if bufs is None or bufs[0].size != raw.shape[1] + 4:
+        bufs = _smear5_buffers(raw.shape[1])
+        _SCRATCH.smear5 = bufs
     _smear5_kernel(filtered, raw, np.float32(max_shift), np.float32(jump),
-                   np.float32(planar_tolerance), col_lo, col_hi,
-                   scratch('row_lo', row, np.float32), scratch('row_hi', row, np.float32),
-                   scratch('inv3', (3, width), np.float32),
-                   zeros, scratch('planar', row, np.bool_), scratch('keep', row, np.bool_))
+                   np.float32(planar_tolerance), *bufs)
     return True
 
 
