@@ -615,7 +615,7 @@ def _smear5_kernel(filtered, raw, ratio, jump, tol_ratio, col_lo, col_hi, row_lo
 
 
 def _smear5_buffers(width: int) -> tuple[np.ndarray, ...]:
-    """The row buffers of _smear5_kernel for images this wide (pads and zeros set once)."""
+    """Return the row buffers of _smear5_kernel for images this wide (pads, zeros set)."""
     col_lo = np.full(width + 4, np.inf, np.float32)   # neutral pads of the row pass: the
     col_hi = np.zeros(width + 4, np.float32)          # kernel writes [2, W + 2) only
     return (col_lo, col_hi, np.empty(width, np.float32), np.empty(width, np.float32),
