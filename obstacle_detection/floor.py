@@ -16,11 +16,13 @@ mount (height, pitch, roll) for the whole frame, so the ground frame's z = 0 is 
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from . import jit_traversal
 from .geometry import mount_rotation
 from .params import DetectorParams
 
@@ -103,9 +105,16 @@ def floor_samples(depth_m: np.ndarray, sub_rays: np.ndarray,
                   params: DetectorParams) -> np.ndarray:
     """Subsampled points (3, M) float64 near the configured floor, in the configured frame.
 
-    sub_rays: :func:`sample_rays` of the configured mount's ground rays.
+    sub_rays: :func:`sample_rays` of the configured mount's ground rays. Compiled when
+    :func:`.jit_traversal.enabled` (the same points, the same float64 operations).
     """
     step = sample_step(depth_m.shape)
+    if jit_traversal.enabled():
+        return jit_traversal.floor_samples(
+            depth_m, step, sub_rays, params.camera_height_m,
+            math.tan(params.floor_max_tilt_rad), params.floor_max_offset_m + 0.02,
+            params.min_range_m, params.max_range_m + FIT_RANGE_MARGIN_M,
+            params.lateral_limit_m, FACING_UP_COS2)
     grid = depth_m[::step, ::step]
     gh, gw = grid.shape
     with np.errstate(invalid='ignore'):
@@ -135,7 +144,7 @@ def _lstsq_plane(pts: np.ndarray) -> np.ndarray:
 
     The normal equations, centred on the mean (well conditioned for a few thousand points).
     """
-    mean = pts.mean(axis=1)
+    mean = np.add.reduce(pts, axis=1) / pts.shape[1]   # pts.mean(axis=1), its overhead spared
     c = pts - mean[:, None]
     sxx, sxy, syy = np.dot(c[0], c[0]), np.dot(c[0], c[1]), np.dot(c[1], c[1])
     sxz, syz = np.dot(c[0], c[2]), np.dot(c[1], c[2])
@@ -147,15 +156,47 @@ def _lstsq_plane(pts: np.ndarray) -> np.ndarray:
     return np.array([a, b, mean[2] - a * mean[0] - b * mean[1]])
 
 
-def _ransac_plane(pts: np.ndarray, params: DetectorParams) -> np.ndarray:
+def _in_band(pts: np.ndarray, coef: np.ndarray, band_m: float,
+             compiled: bool | None = None) -> np.ndarray:
+    """(3, m) float64: the samples pts (3, M) within band_m of z = coef . (x, y, 1).
+
+    compiled: run the kernel (None: when :func:`.jit_traversal.enabled`).
+    """
+    if jit_traversal.enabled() if compiled is None else compiled:
+        return jit_traversal.in_band(pts, coef[0], coef[1], coef[2], band_m)
+    resid = pts[2] - (coef[0] * pts[0] + coef[1] * pts[1] + coef[2])
+    return pts[:, np.abs(resid) <= band_m]
+
+
+def _same(a: np.ndarray, b: np.ndarray) -> bool:
+    """Return True when a and b hold the same values, bit for bit, in the same shape."""
+    return a.shape == b.shape and a.tobytes() == b.tobytes()
+
+
+def _count_in_band(pts: np.ndarray, coef: np.ndarray, band_m: float,
+                   compiled: bool | None = None) -> int:
+    """How many samples pts (3, M) lie within band_m of z = coef . (x, y, 1)."""
+    if jit_traversal.enabled() if compiled is None else compiled:
+        return jit_traversal.count_in_band(pts, coef[0], coef[1], coef[2], band_m)
+    resid = pts[2] - (coef[0] * pts[0] + coef[1] * pts[1] + coef[2])
+    return int(np.count_nonzero(np.abs(resid) <= band_m))
+
+
+def _ransac_plane(pts: np.ndarray, params: DetectorParams,
+                  compiled: bool | None = None) -> np.ndarray:
     """Return (k, 3): (a, b, c) of the bounded hypotheses with most samples in INLIER_BAND_M.
 
     pts (3, M). Hypotheses tilted more than ``floor_max_tilt_rad`` or offset more than
     ``floor_max_offset_m`` from the configured floor are not considered (a ramp, the floor
     beyond a drop); the configured floor (0, 0, 0) and the level plane at the most common
     sample height always are. At most SCORE_POINTS samples score them; the best
-    REFINED_HYPOTHESES are returned, best first.
+    REFINED_HYPOTHESES are returned, best first. Compiled when :func:`.jit_traversal.enabled`
+    (the same hypotheses, scores and order); compiled: None asks it.
     """
+    if jit_traversal.enabled() if compiled is None else compiled:
+        return jit_traversal.ransac_plane(pts, _PICKS, math.tan(params.floor_max_tilt_rad) ** 2,
+                                          params.floor_max_offset_m, INLIER_BAND_M,
+                                          SCORE_POINTS, REFINED_HYPOTHESES)
     # one point from each third of the samples (image row order: far, middle, near for a
     # camera above the floor): well-conditioned triplets
     third = pts.shape[1] // 3
@@ -207,17 +248,28 @@ def fit_floor(depth_m: np.ndarray, sub_rays: np.ndarray, params: DetectorParams)
         return configured(params, f'{pts.shape[1]} floor samples < floor_min_points='
                                   f'{params.floor_min_points}')
     best = None   # (inliers in the last band, coefficients, samples of the last refit)
-    for coef in _ransac_plane(pts, params):   # each refined on narrowing bands
+    refits: list[list[np.ndarray]] = []   # the inliers of each refit of the earlier hypotheses
+    compiled = jit_traversal.enabled()
+    for coef in _ransac_plane(pts, params, compiled):   # each refined on narrowing bands
         used = 0
-        for band in REFIT_BANDS_M:
-            resid = pts[2] - (coef[0] * pts[0] + coef[1] * pts[1] + coef[2])
-            inliers = pts[:, np.abs(resid) <= band]
+        stages: list[np.ndarray] = []
+        repeated = False
+        for stage, band in enumerate(REFIT_BANDS_M):
+            inliers = _in_band(pts, coef, band, compiled)
             used = inliers.shape[1]
             if used < 3:
                 break
+            # the same inliers as an earlier hypothesis at this stage: the same refits follow,
+            # the same plane and support, which did not beat the best (skipped, same result)
+            repeated = any(len(done) > stage and _same(done[stage], inliers) for done in refits)
+            if repeated:
+                break
+            stages.append(inliers)
             coef = _lstsq_plane(inliers)
-        resid = pts[2] - (coef[0] * pts[0] + coef[1] * pts[1] + coef[2])
-        support = int(np.count_nonzero(np.abs(resid) <= REFIT_BANDS_M[-1]))
+        refits.append(stages)
+        if repeated:
+            continue
+        support = _count_in_band(pts, coef, REFIT_BANDS_M[-1], compiled)
         if best is None or support > best[0]:
             best = (support, coef, used)
     support, coef, used = best
@@ -234,22 +286,37 @@ def fit_floor(depth_m: np.ndarray, sub_rays: np.ndarray, params: DetectorParams)
     return _corrected_mount(params, a, b, c, used)
 
 
+#: Optical axes (x right, y down, z forward) in body axes (x forward, y left, z up).
+_BODY_FROM_OPTICAL = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
+_BODY_FROM_OPTICAL.flags.writeable = False
+
+
+@functools.lru_cache(maxsize=16)
+def _mount_rotation(pitch_rad: float, roll_rad: float) -> np.ndarray:
+    """:func:`.geometry.mount_rotation`, kept per configured mount (read-only)."""
+    rot = mount_rotation(pitch_rad, roll_rad)
+    rot.flags.writeable = False
+    return rot
+
+
 def _corrected_mount(params: DetectorParams, a: float, b: float, c: float,
                      samples: int) -> FloorFit:
     """Return the mount whose ground frame has the plane z = a x + b y + c as z = 0."""
     norm = math.sqrt(a * a + b * b + 1.0)
     n = np.array([-a, -b, 1.0]) / norm             # floor "up" in the configured frame
     height = (params.camera_height_m - c) / norm    # camera (0, 0, h) above the plane
-    # the configured frame's rotation followed by the smallest rotation taking n to +z
-    axis = np.cross(n, [0.0, 0.0, 1.0])
-    s, cos_angle = float(np.linalg.norm(axis)), float(n[2])
+    # the configured frame's rotation followed by the smallest rotation taking n to +z;
+    # axis = n x (0, 0, 1) with np.cross's operations (its Python overhead spared)
+    n0, n1, n2 = float(n[0]), float(n[1]), float(n[2])
+    axis = np.array([n1 * 1.0 - n2 * 0.0, n2 * 0.0 - n0 * 1.0, n0 * 0.0 - n1 * 0.0])
+    s, cos_angle = math.sqrt(float(axis.dot(axis))), n2   # np.linalg.norm's operations
     rot_c = np.eye(3)
     if s > 0.0:
         k = axis / s
         kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
         rot_c = rot_c + s * kx + (1.0 - cos_angle) * (kx @ kx)
-    total = rot_c @ mount_rotation(params.camera_pitch_rad, params.camera_roll_rad)
-    body = total @ np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
+    total = rot_c @ _mount_rotation(params.camera_pitch_rad, params.camera_roll_rad)
+    body = total @ _BODY_FROM_OPTICAL
     pitch = -math.asin(max(-1.0, min(1.0, float(body[2, 0]))))
     roll = math.atan2(float(body[2, 1]), float(body[2, 2]))
     return FloorFit(True, height, pitch, roll, d_height_m=height - params.camera_height_m,

@@ -264,6 +264,11 @@ def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float) -> np.
     if max_shift <= 0.0:
         return filtered
     raw = np.ascontiguousarray(raw, np.float32)
+    if (jit_traversal.enabled() and FLYING_WINDOW_PX == 5 and filtered.flags.c_contiguous
+            and filtered.dtype == np.float32 and filtered.shape == raw.shape
+            and jit_traversal.drop_smeared_fused(filtered, raw, max_shift, FLYING_JUMP,
+                                                 PLANAR_TOLERANCE)):
+        return filtered   # one compiled pass, the window range on the way (same result)
     near, far = depth_window_range(raw)
     if jit_traversal.enabled():
         jit_traversal.drop_smeared(filtered, raw, near, far, max_shift, FLYING_JUMP,
@@ -335,12 +340,18 @@ def drop_edges(depth_m: np.ndarray, rays: np.ndarray, height_m: float,
     forward range and lateral limit [m] (the cells the costmap marks), and (D,) int64 the flat
     indices of the pixels that saw past the edge (the lower floor, or anything beyond it).
     """
-    edge = drop_edge_mask(depth_m, rays[2], height_m, params.max_step_down_m,
-                          params.max_step_height_m)
-    pixels = np.flatnonzero(edge)
+    if jit_traversal.enabled():   # the marked pixels and their offsets straight away
+        pixels, offsets = jit_traversal.drop_pixels(depth_m, rays[2], height_m,
+                                                    params.max_step_down_m,
+                                                    params.max_step_height_m, DROP_EDGE_ROWS)
+    else:
+        edge = drop_edge_mask(depth_m, rays[2], height_m, params.max_step_down_m,
+                              params.max_step_height_m)
+        pixels = np.flatnonzero(edge)
+        offsets = edge.reshape(-1)[pixels]
     if pixels.size == 0:
         return np.zeros((0, 3), np.float32), pixels
-    floor_px = pixels + edge.reshape(-1)[pixels].astype(np.int64) * depth_m.shape[1]
+    floor_px = pixels + offsets.astype(np.int64) * depth_m.shape[1]
     d = depth_m.reshape(-1)[floor_px]
     x = d * rays[0, floor_px]
     y = d * rays[1, floor_px]

@@ -341,3 +341,80 @@ def test_floor_samples_ignore_no_return():
     pts = floor.floor_samples(depth, floor.sample_rays(rays, depth.shape), params)
     assert pts.shape[1] > 100 and np.isfinite(pts).all()
     assert np.abs(pts[2]).max() < 0.05
+
+
+@jit_only
+@pytest.mark.parametrize('shape', [(1, 1), (2, 3), (3, 5), (5, 4), (7, 9), (60, 80)])
+def test_fused_smear_kernel_equals_numpy(shape, monkeypatch):
+    # the compiled pass computes the 5 x 5 window range itself (no OpenCV): every image size,
+    # the borders, holes, flying pixels between two surfaces and planar grazing floors
+    rng = np.random.default_rng(shape[0] * 100 + shape[1])
+    raw = rng.choice(np.float32([1.0, 2.0, 4.0]), size=shape).astype(np.float32)
+    raw += rng.normal(0.0, 0.02, shape).astype(np.float32)
+    raw[rng.random(shape) < 0.15] = 0.0
+    rows = np.arange(shape[0], dtype=np.float32)[:, None]
+    raw[:, :shape[1] // 3] = 1.0 / (0.2 + 0.01 * rows)          # a plane: 1/depth affine
+    filtered = raw + rng.normal(0.0, 0.08, shape).astype(np.float32)
+    filtered[rng.random(shape) < 0.1] = 0.0
+    got = traversal.drop_smeared(filtered.copy(), raw, 0.03)
+    monkeypatch.setenv(jit_traversal.NO_JIT_ENV, '1')
+    want = traversal.drop_smeared(filtered.copy(), raw, 0.03)
+    np.testing.assert_array_equal(got, want)
+    assert got.tobytes() == want.tobytes()
+
+
+@jit_only
+def test_fused_smear_kernel_changes_nothing_on_nan():
+    raw = np.ones((6, 6), np.float32)
+    raw[2, 2] = np.nan
+    filtered = np.full((6, 6), 1.5, np.float32)
+    assert not jit_traversal.drop_smeared_fused(filtered, raw, 0.03, 0.03, 0.02)
+    assert (filtered == 1.5).all()
+
+
+@jit_only
+@pytest.mark.parametrize('shape', [(1, 1), (2, 5), (4, 3), (60, 80)])
+def test_drop_pixels_kernel_equals_the_numpy_mask(shape, monkeypatch):
+    rng = np.random.default_rng(shape[0] + 7 * shape[1])
+    depth = rng.uniform(0.5, 2.5, size=shape).astype(np.float32)
+    depth[rng.random(shape) < 0.1] = 0.0
+    depth.reshape(-1)[::17] = np.nan
+    rz = rng.uniform(-0.6, 0.1, size=shape).astype(np.float32)
+    pixels, offsets = jit_traversal.drop_pixels(depth, rz.reshape(-1), 0.6, 0.05, 0.05, 3)
+    monkeypatch.setenv(jit_traversal.NO_JIT_ENV, '1')
+    mask = traversal.drop_edge_mask(depth, rz, 0.6, 0.05, 0.05, 3)
+    np.testing.assert_array_equal(pixels, np.flatnonzero(mask))
+    np.testing.assert_array_equal(offsets, mask.reshape(-1)[np.flatnonzero(mask)])
+    assert pixels.dtype == np.int64
+    if shape == (60, 80):
+        assert pixels.size > 10 and set(offsets.tolist()) == {1, 2, 3}
+
+
+_WARM_UP_CHECK = """
+from obstacle_detection import jit_traversal
+from obstacle_detection.params import corridor
+from obstacle_detection.pipeline import Detector
+from obstacle_detection.scenes import render_scene, scene_params
+frame = render_scene('step_down', seed=1)
+detector = Detector(scene_params(frame, corridor()))
+detector.warm_up()
+kernels = {name: k for name, k in vars(jit_traversal).items() if hasattr(k, 'signatures')}
+before = {name: len(k.signatures) for name, k in kernels.items()}
+result = detector.process(frame.depth_mm, frame.intrinsics)
+assert result.floor.refined and result.drop_points.shape[0] > 0
+after = {name: len(k.signatures) for name, k in kernels.items()}
+print(sorted(name for name in kernels if after[name] != before[name]))
+"""
+
+
+@jit_only
+def test_warm_up_compiles_every_robot_level_kernel_a_frame_uses():
+    # the node compiles in the background (Detector.warm_up); a frame must then find every
+    # kernel of the smear pass, the floor fit, the traversal and the drops ready (a fresh
+    # process: nothing compiled by other tests)
+    import subprocess
+    import sys
+    run = subprocess.run([sys.executable, '-c', _WARM_UP_CHECK], capture_output=True,
+                         text=True, timeout=600)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.strip() == '[]', f'compiled during the frame: {run.stdout}'
