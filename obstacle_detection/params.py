@@ -218,6 +218,23 @@ class DetectorParams:
             raise ValueError(f'unknown parameter(s): {", ".join(sorted(unknown))}')
         return dataclasses.replace(self, **changes)
 
+    def with_frame_mount(self, **changes: float) -> 'DetectorParams':
+        """Return a copy with this frame's fitted mount or ROI floor set, not validated again.
+
+        For the pipeline's per frame changes only (camera_height_m, camera_pitch_rad,
+        camera_roll_rad from the floor fit, which keeps them within floor_max_offset_m and
+        floor_max_tilt_rad of this validated mount; tdbg_m = -drop_view_m, a validated
+        value): :meth:`replace` validates all the fields again, which costs more than the
+        copy itself, every frame.
+        """
+        allowed = {'camera_height_m', 'camera_pitch_rad', 'camera_roll_rad', 'tdbg_m'}
+        if not set(changes) <= allowed:
+            raise ValueError(f'with_frame_mount changes only {", ".join(sorted(allowed))}')
+        out = object.__new__(DetectorParams)
+        out.__dict__.update(self.__dict__)
+        out.__dict__.update({name: float(value) for name, value in changes.items()})
+        return out
+
     def as_dict(self) -> dict[str, Any]:
         """Plain ``{name: value}`` of every field."""
         return dataclasses.asdict(self)

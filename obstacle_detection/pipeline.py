@@ -156,7 +156,7 @@ class Detector:
                                  camera_roll_rad=fit.roll_rad)
         if p.robot_level and -p.drop_view_m < p.tdbg_m:
             frame_changes['tdbg_m'] = -p.drop_view_m
-        run = p.replace(**frame_changes) if frame_changes else p
+        run = p.with_frame_mount(**frame_changes) if frame_changes else p
         if fit.refined:   # the fitted mount's rays, into a per-thread buffer when compiled
             buf = (jit_traversal.scratch('frame_rays', rays.shape, np.float32)
                    if jit_traversal.enabled() else None)

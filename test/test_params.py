@@ -97,3 +97,14 @@ def test_intrinsics_reject_bad_values(bad):
     values.update(bad)
     with pytest.raises(ValueError, match='intrinsics'):
         Intrinsics(**values)
+
+
+def test_with_frame_mount_equals_a_validated_replace() -> None:
+    params = DetectorParams()
+    changes = dict(camera_height_m=0.63, camera_pitch_rad=0.02, camera_roll_rad=-0.01,
+                   tdbg_m=-1.0)
+    fast = params.with_frame_mount(**changes)
+    assert fast == params.replace(**changes) and hash(fast) == hash(params.replace(**changes))
+    assert params.camera_height_m == 0.6     # the original is untouched
+    with pytest.raises(ValueError, match='changes only'):
+        params.with_frame_mount(max_range_m=3.0)
