@@ -855,6 +855,7 @@ class DetectorNode(Node):
                 result, stamp=msg.header.stamp, cloud_frame_id=config.cloud_frame_id,
                 costmap_frame_id=config.costmap_frame_id, image_frame_id=msg.header.frame_id,
                 with_ground=config.publish_ground, with_overlay=config.publish_overlay)
+            fused = self._fuse(result, msg, config)
         except ValueError as error:
             self._warn_skip('pipeline', str(error))
             return False
@@ -872,7 +873,6 @@ class DetectorNode(Node):
                 self._ground_pub.publish(messages['ground'])
             if 'overlay' in messages:
                 self._overlay_pub.publish(messages['overlay'])
-            fused = self._fuse(result, msg, config)
             if fused is not None:
                 self._fused_pub.publish(fused)
             elapsed_ms = (time.perf_counter() - start) * 1e3
