@@ -22,6 +22,9 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from obstacle_detection.conversions import image_to_array
 from tools import bag_convert, bag_play
 
+#: Starts processes or a DDS graph: deselect with -m "not integration" (README, tests).
+pytestmark = pytest.mark.integration
+
 REPO = Path(__file__).resolve().parents[1]
 N_FRAMES = 6
 RATE_HZ = 30.0

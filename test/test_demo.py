@@ -14,6 +14,9 @@ from rosbags.rosbag2 import Reader
 
 from tools import demo
 
+#: Starts processes or a DDS graph: deselect with -m "not integration" (README, tests).
+pytestmark = pytest.mark.integration
+
 REPO = Path(__file__).resolve().parents[1]
 
 

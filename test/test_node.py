@@ -64,6 +64,9 @@ from obstacle_detection.ros_params import (
 )
 from obstacle_detection.scenes import GT_OBSTACLE, SceneFrame, render_scene
 
+#: Starts processes or a DDS graph: deselect with -m "not integration" (README, tests).
+pytestmark = pytest.mark.integration
+
 REPO = ros_env.REPO_ROOT
 OK, ERROR = DiagnosticStatus.OK, DiagnosticStatus.ERROR
 CORRIDOR_YAML = REPO / 'params' / 'corridor.yaml'

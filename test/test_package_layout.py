@@ -19,6 +19,9 @@ from pathlib import Path
 import pytest
 import ros_env
 
+#: Starts processes or a DDS graph: deselect with -m "not integration" (README, tests).
+pytestmark = pytest.mark.integration
+
 REPO = ros_env.REPO_ROOT
 PACKAGE = 'obstacle_detection'
 EXEC_DEPENDS = {'rclpy', 'sensor_msgs', 'nav_msgs', 'std_msgs', 'geometry_msgs',
