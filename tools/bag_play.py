@@ -193,9 +193,23 @@ class Player:
         self.total = sum(c.msgcount for c in self.connections) if not options.start_offset_s \
             else None
 
-    def close(self) -> None:
-        """Close the bag and destroy the publishers."""
+    def close(self, ack_timeout_s: float = 3.0) -> None:
+        """Close the bag and destroy the publishers.
+
+        A reliable publisher first waits (at most ``ack_timeout_s`` in all) until its matched
+        subscriptions acknowledged what it sent: destroyed at once, the last messages, still
+        in its history, are lost (a replay that ends right after its last frame lost it).
+        """
+        from rclpy.duration import Duration
+
+        deadline = time.monotonic() + ack_timeout_s
         for publisher in self.publishers.values():
+            left = deadline - time.monotonic()
+            if left > 0:
+                try:
+                    publisher.wait_for_all_acked(Duration(seconds=left))
+                except Exception:  # noqa: BLE001 - a context shut down: nothing to wait for
+                    pass
             self.node.destroy_publisher(publisher)
         self.publishers = {}
         self.reader.close()
