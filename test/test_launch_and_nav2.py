@@ -15,8 +15,6 @@ import ast
 import importlib.util
 import math
 import py_compile
-import subprocess
-import sys
 import sysconfig
 from pathlib import Path
 from types import ModuleType
@@ -154,23 +152,6 @@ def test_launch_node_name_is_the_params_files_section() -> None:
     corridor = yaml.safe_load(CORRIDOR.read_text(encoding='utf-8'))
 
     assert _launch_module().NODE_NAME == NODE_NAME and list(corridor) == [NODE_NAME]
-
-
-@pytest.fixture(scope='module')
-def prefix(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """Install the package the way colcon's ament_python build does (see test_package_layout)."""
-    tmp = tmp_path_factory.mktemp('colcon')
-    build, install = tmp / 'build', tmp / 'install'
-    build.mkdir()
-    command = [sys.executable, 'setup.py', '--quiet',
-               'egg_info', '--egg-base', str(build),
-               'build', '--build-base', str(build / 'build'),
-               'install', '--prefix', str(install), '--record', str(build / 'install.log'),
-               '--single-version-externally-managed']
-    done = subprocess.run(command, cwd=REPO, capture_output=True, text=True, timeout=300,
-                          check=False)
-    assert done.returncode == 0, done.stdout + done.stderr
-    return install
 
 
 def test_everything_the_launch_file_names_is_installed(prefix: Path) -> None:

@@ -52,23 +52,6 @@ def test_setup_py_version_matches_package_xml() -> None:
     assert version == _package_xml().findtext('version')
 
 
-@pytest.fixture(scope='module')
-def prefix(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """Build an install prefix the way colcon's ament_python build does."""
-    tmp = tmp_path_factory.mktemp('colcon')
-    build, install = tmp / 'build', tmp / 'install'
-    build.mkdir()
-    command = [sys.executable, 'setup.py', '--quiet',
-               'egg_info', '--egg-base', str(build),
-               'build', '--build-base', str(build / 'build'),
-               'install', '--prefix', str(install), '--record', str(build / 'install.log'),
-               '--single-version-externally-managed']
-    done = subprocess.run(command, cwd=REPO, capture_output=True, text=True, timeout=300,
-                          check=False)
-    assert done.returncode == 0, done.stdout + done.stderr
-    return install
-
-
 def _site_packages(prefix: Path) -> Path:
     relative = Path(sysconfig.get_path('purelib')).relative_to(sysconfig.get_path('data'))
     return prefix / relative
