@@ -10,6 +10,9 @@ setup(
     name=PACKAGE,
     version='0.1.0',
     packages=find_packages(include=[PACKAGE, f'{PACKAGE}.*']),
+    # the loopback Fast DDS profile and the committed scenario suites
+    package_data={f'{PACKAGE}.ros': ['fastdds_loopback.xml'],
+                  f'{PACKAGE}.evaluation': ['scenarios.json', 'scenarios_robot.json']},
     data_files=[
         # ament index marker: lets `ros2 run` / `ros2 pkg` find the package.
         ('share/ament_index/resource_index/packages', [f'resource/{PACKAGE}']),
@@ -30,7 +33,7 @@ setup(
     extras_require={'test': ['pytest']},
     entry_points={
         'console_scripts': [
-            'detector = obstacle_detection.node:main',
+            'detector = obstacle_detection.ros.node:main',
         ],
     },
 )

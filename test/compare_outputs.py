@@ -2,7 +2,7 @@
 """Compare the detector's outputs of this tree with those of another commit, bit for bit.
 
 Not a test (pytest does not collect it): the check issue 9's speed work was held to. Every
-frame of the robot-level suite (tools/scenarios_robot.json, the default configuration
+frame of the robot-level suite (``evaluation.SUITES['robot']``, the default configuration
 params/corridor.yaml with each frame's mount) at K = 5 and K = 17, and the benchmark's frames
 (corridor, people, ramps, farm_row; seeds 0-2; 512x424 and 960x540), are processed by both
 trees, each frame twice in a row (buffers reused across frames must not leak into results);
@@ -35,13 +35,13 @@ _FIELDS = ('obstacle_points', 'ground_points', 'labels', 'voxel_points', 'voxel_
 
 def _jobs():
     """Yield (name, depth, intrinsics, params) of every frame compared."""
-    from obstacle_detection import evaluation
-    from obstacle_detection.params import KINECT_V2_SD, PRESETS, Intrinsics
-    from obstacle_detection.ros_params import detector_params_from_ros, read_params_file
-    from obstacle_detection.scenes import render_scene, scene_params
+    from obstacle_detection.evaluation import runner as evaluation
+    from obstacle_detection.pipeline.params import KINECT_V2_SD, PRESETS, Intrinsics
+    from obstacle_detection.ros.parameters import detector_params_from_ros, read_params_file
+    from obstacle_detection.sim.scenes import render_scene, scene_params
 
     base = detector_params_from_ros(read_params_file(REPO / 'params' / 'corridor.yaml'))
-    for scenario in evaluation.load_scenarios(REPO / 'tools' / 'scenarios_robot.json'):
+    for scenario in evaluation.load_scenarios(evaluation.SUITES['robot']):
         for frame in evaluation.scenario_frames(scenario):
             params = frame.params(base)
             for k in (5, 17):
@@ -63,7 +63,7 @@ def digest(out: Path) -> int:
     """Process every frame with the obstacle_detection on sys.path; write {key: sha256}."""
     import numpy as np
 
-    from obstacle_detection.pipeline import Detector
+    from obstacle_detection.pipeline.detector import Detector
 
     jobs = list(_jobs())
     Detector(jobs[0][3]).warm_up()

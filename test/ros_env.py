@@ -1,9 +1,9 @@
 """Loopback-only DDS environment for tests that start rclpy in-process or in a subprocess.
 
 Every process that calls ``rclpy.init()`` must keep DDS on 127.0.0.1: the Fast DDS profile
-``tools/fastdds_loopback.xml`` under both environment variable names (the Fast DDS 2.14 of the
-ROS wheels reads only the FASTRTPS one), rmw_fastrtps_cpp, and a ROS domain of its own so that
-test modules and other people's runs on this machine never see each other.
+``obstacle_detection/ros/fastdds_loopback.xml`` under both environment variable names (the
+Fast DDS 2.14 of the ROS wheels reads only the FASTRTPS one), rmw_fastrtps_cpp, and a ROS domain of
+its own so that test modules and other people's runs on this machine never see each other.
 
 Use::
 
@@ -19,7 +19,7 @@ import subprocess
 import zlib
 from pathlib import Path
 
-from tools import dds_env
+from obstacle_detection.ros import dds_env
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 LOOPBACK_PROFILE = dds_env.LOOPBACK_PROFILE

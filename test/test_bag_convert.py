@@ -17,13 +17,13 @@ from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import CameraInfo, Image
 
-from obstacle_detection.compressed_depth import (array_to_compressed_depth,
+from obstacle_detection.ros.compressed_depth import (array_to_compressed_depth,
                                                  compressed_depth_to_array)
-from obstacle_detection.conversions import image_to_array
-from obstacle_detection.params import KINECT_V2_SD, Intrinsics
-from obstacle_detection.scenes import render_scene
+from obstacle_detection.ros.conversions import image_to_array
+from obstacle_detection.pipeline.params import KINECT_V2_SD, Intrinsics
+from obstacle_detection.sim.scenes import render_scene
 from tools import bag_convert
-from tools.progress import Progress
+from obstacle_detection.cli.progress import Progress
 
 INTR = Intrinsics(60.0, 61.0, 40.0, 29.5)
 SIZE = (80, 60)  # width, height

@@ -19,7 +19,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from builtin_interfaces.msg import Time
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
-from obstacle_detection.conversions import image_to_array
+from obstacle_detection.ros.conversions import image_to_array
 from tools import bag_convert, bag_play
 
 #: Starts processes or a DDS graph: deselect with -m "not integration" (README, tests).
@@ -216,7 +216,7 @@ def test_compressed_depth_topic_is_played_and_decodes(tmp_path: Path,
     from rosbags.rosbag2 import Writer
     from rosbags.typesys import Stores, get_typestore
 
-    from obstacle_detection.compressed_depth import (array_to_compressed_depth,
+    from obstacle_detection.ros.compressed_depth import (array_to_compressed_depth,
                                                      compressed_depth_to_array)
 
     topic = f'{DEPTH}/compressedDepth'

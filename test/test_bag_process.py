@@ -20,13 +20,13 @@ from rosbags.typesys import Stores, get_typestore
 from nav_msgs.msg import OccupancyGrid
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 
-from obstacle_detection.compressed_depth import array_to_compressed_depth
-from obstacle_detection.conversions import (array_to_image, image_to_array,
+from obstacle_detection.ros.compressed_depth import array_to_compressed_depth
+from obstacle_detection.ros.conversions import (array_to_image, image_to_array,
                                             intrinsics_to_camera_info, result_to_messages)
-from obstacle_detection.params import KINECT_V2_SD, Intrinsics
-from obstacle_detection.pipeline import Detector
-from obstacle_detection.ros_params import detector_params_from_ros
-from obstacle_detection.scenes import render_scene
+from obstacle_detection.pipeline.params import KINECT_V2_SD, Intrinsics
+from obstacle_detection.pipeline.detector import Detector
+from obstacle_detection.ros.parameters import detector_params_from_ros
+from obstacle_detection.sim.scenes import render_scene
 from tools import bag_convert, bag_process
 
 REPO = Path(__file__).resolve().parents[1]
@@ -291,7 +291,7 @@ def test_running_node_publishes_the_offline_messages(
     inputs = read_raw(in_bag)
     log = (tmp_path / 'node.log').open('w')
     node_proc = subprocess.Popen(
-        [sys.executable, '-m', 'obstacle_detection.node', '--ros-args', '--params-file',
+        [sys.executable, '-m', 'obstacle_detection.ros.node', '--ros-args', '--params-file',
          str(params_file), '-p', 'reliable_input:=true', '-r', f'depth/image_raw:={DEPTH}',
          '-r', f'depth/camera_info:={INFO}'],
         cwd=REPO, env=node_env, stdout=log, stderr=subprocess.STDOUT)

@@ -13,7 +13,7 @@ from rclpy.serialization import serialize_message
 from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import CompressedImage
 
-from obstacle_detection.compressed_depth import (
+from obstacle_detection.ros.compressed_depth import (
     CONFIG_HEADER_SIZE,
     CompressedDepthError,
     array_to_compressed_depth,
@@ -24,7 +24,7 @@ from obstacle_detection.compressed_depth import (
     quantisation_error_bound_m,
     raw_topic,
 )
-from obstacle_detection.conversions import ImageFormatError, array_to_image, image_to_array
+from obstacle_detection.ros.conversions import ImageFormatError, array_to_image, image_to_array
 
 STAMP = Time(sec=1700000000, nanosec=123456789)
 RNG_SEED = 20261201

@@ -10,7 +10,7 @@ from builtin_interfaces.msg import Time
 from nav_msgs.msg import OccupancyGrid
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
 
-from obstacle_detection.conversions import (
+from obstacle_detection.ros.conversions import (
     ImageFormatError,
     array_to_image,
     camera_info_to_intrinsics,
@@ -23,10 +23,10 @@ from obstacle_detection.conversions import (
     points_to_pointcloud2,
     result_to_messages,
 )
-from obstacle_detection.costmap import CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN, Costmap
-from obstacle_detection.overlay import OBSTACLE_RGB
-from obstacle_detection.params import KINECT_V2_SD, Intrinsics
-from obstacle_detection.pipeline import LABEL_GROUND, LABEL_OBSTACLE, DetectionResult
+from obstacle_detection.pipeline.costmap import CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN, Costmap
+from obstacle_detection.viz.overlay import OBSTACLE_RGB
+from obstacle_detection.pipeline.params import KINECT_V2_SD, Intrinsics
+from obstacle_detection.pipeline.detector import LABEL_GROUND, LABEL_OBSTACLE, DetectionResult
 
 STAMP = Time(sec=1234, nanosec=567)
 RNG_SEED = 20240611

@@ -1,7 +1,8 @@
-"""Tests for obstacle_detection.depth: decode, crop, exact median filter (vs. scipy).
+"""Tests for obstacle_detection.pipeline.depth: decode, crop, exact median filter (vs. scipy).
 
 The median tests that take the ``median_path`` fixture run twice: through the compiled network
-of :mod:`obstacle_detection.jit_median` ('jit', skipped without numba) and through the numpy /
+of :mod:`obstacle_detection.pipeline._compiled.median` ('jit', skipped without numba) and
+through the numpy /
 OpenCV code (``OBSTACLE_DETECTION_NO_JIT=1``).
 """
 
@@ -12,15 +13,16 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from obstacle_detection import depth, jit_median
-from obstacle_detection.depth import (
+from obstacle_detection.pipeline import depth
+from obstacle_detection.pipeline._compiled import median as jit_median
+from obstacle_detection.pipeline.depth import (
     MEDIAN_MODE,
     DepthFormatError,
     crop_borders,
     decode_depth,
     median_filter,
 )
-from obstacle_detection.scenes import render_scene
+from obstacle_detection.sim.scenes import render_scene
 
 ODD_K = list(range(1, 18, 2))
 # Odd sizes, sizes smaller than K (down to 1 x 1) and one larger image.

@@ -1,4 +1,4 @@
-"""Tests of the /diagnostics rules (obstacle_detection.diagnostics) on hand-made periods."""
+"""Tests of the /diagnostics rules (obstacle_detection.ros.diagnostics) on hand-made periods."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ from collections import Counter
 
 import pytest
 
-from obstacle_detection.diagnostics import (
+from obstacle_detection.ros.diagnostics import (
     ERROR,
     OK,
     WARN,

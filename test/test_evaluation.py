@@ -7,12 +7,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from obstacle_detection import evaluation, metrics, scenes
-from obstacle_detection.metrics import Confusion, GT_OBSTACLE
-from obstacle_detection.params import table_4_2, table_4_3
+from obstacle_detection.evaluation import runner as evaluation, metrics
+from obstacle_detection.sim import scenes
+from obstacle_detection.evaluation.metrics import Confusion, GT_OBSTACLE
+from obstacle_detection.pipeline.params import table_4_2, table_4_3
 from tools import evaluate
 
-SUITE = Path(__file__).resolve().parents[1] / 'tools' / 'scenarios.json'
+REPO = Path(__file__).resolve().parents[1]
+SUITE = evaluation.SUITES['seed']
 SMALL = (256, 212)  # half the Kinect v2 SD size: same field of view, a quarter of the pixels
 
 
@@ -77,12 +79,12 @@ def test_truth_grid_uses_the_costmap_binning():
     frame = _corridor_frame()
     params = frame.params(table_4_2())
     grid = evaluation.truth_costmap(frame, params)
-    from obstacle_detection.costmap import costmap_geometry
+    from obstacle_detection.pipeline.costmap import costmap_geometry
     origin, nx, ny = costmap_geometry(params)
     flat = frame.truth_points.reshape(-1, 3)
     finite = np.isfinite(flat).all(axis=1)
     roi = np.zeros(flat.shape[0], bool)
-    from obstacle_detection import geometry
+    from obstacle_detection.pipeline import geometry
     roi[finite] = geometry.roi_mask(flat[finite], params)
     obstacle, traversable = metrics.truth_points(frame.truth_points, frame.truth_labels,
                                                  roi.reshape(frame.truth_labels.shape))
@@ -184,8 +186,8 @@ def test_truth_obstacles_exist_in_every_suite_scene_but_the_empty_floor():
 
 def _shipped_parameter_files():
     """(file, preset) pairs: the navigation default, the seed tables (issue 9 adds files)."""
-    from obstacle_detection.params import PRESETS
-    folder = SUITE.parents[1] / 'params'
+    from obstacle_detection.pipeline.params import PRESETS
+    folder = REPO / 'params'
     pairs = [('corridor.yaml', 'corridor' if 'corridor' in PRESETS else 'table_4_2'),
              ('corridor_video.yaml', 'table_4_3')]
     pairs += [(f'seed_{name}.yaml', name) for name in ('table_4_2', 'table_4_3')
@@ -195,14 +197,14 @@ def _shipped_parameter_files():
 
 @pytest.mark.parametrize('name, preset', _shipped_parameter_files())
 def test_shipped_parameter_files_reproduce_the_presets(name, preset):
-    from obstacle_detection.params import PRESETS
-    path = SUITE.parents[1] / 'params' / name
+    from obstacle_detection.pipeline.params import PRESETS
+    path = REPO / 'params' / name
     assert evaluation.load_params_file(path) == PRESETS[preset]()
 
 
 # -- the robot-level suite (issue 9) ----------------------------------------------------------
 
-ROBOT_SUITE = SUITE.parent / 'scenarios_robot.json'
+ROBOT_SUITE = evaluation.SUITES['robot']
 
 
 def _robot_frame(name, size=SMALL):
@@ -246,7 +248,7 @@ def test_robot_truth_grid_marks_the_drop_edge_and_the_lower_floor():
     frame = _robot_frame('dock_edge_high')
     params = frame.params(table_4_2())
     grid = evaluation.truth_costmap(frame, params)
-    from obstacle_detection.costmap import costmap_geometry
+    from obstacle_detection.pipeline.costmap import costmap_geometry
     origin, nx, ny = costmap_geometry(params)
     x_edge = next(p.x_m for p in scenes.build_scene('dock_edge_high', seed=0).primitives)
     x_centres = origin[0] + (np.arange(nx) + 0.5) * params.costmap_resolution_m
@@ -327,7 +329,7 @@ def test_robot_truth_leaves_the_gaps_of_a_grazing_underside_unscored():
     frame = _robot_frame('office', size=scenes.KINECT_V2_SD_SIZE)
     params = frame.params(table_4_2())
     grid = evaluation.truth_costmap(frame, params)
-    from obstacle_detection.costmap import costmap_geometry
+    from obstacle_detection.pipeline.costmap import costmap_geometry
     origin, nx, ny = costmap_geometry(params)
     top = next(p for p in scenes.build_scene('office', seed=0).primitives
                if p.name == 'table')

@@ -1,8 +1,8 @@
 """The floor fit's compiled path and its shortcuts give the numpy path's fit, to the bit.
 
-On the robot-level suite's frames (tools/scenarios_robot.json: every scene, a pitched and
-rolled mount, time-of-flight noise), with the K = 5 median the default configuration uses:
-the floor samples, the RANSAC hypotheses kept, and the fitted mount (``FloorFit``) are
+On the robot-level suite's frames (obstacle_detection/evaluation/scenarios_robot.json: every scene,
+a pitched and rolled mount, time-of-flight noise), with the K = 5 median the default configuration
+uses: the floor samples, the RANSAC hypotheses kept, and the fitted mount (``FloorFit``) are
 compared bit for bit between the numba kernels and numpy; and the fit, which skips refining a
 hypothesis whose inliers an earlier one already refined, is compared with every hypothesis
 refined in full (the plain loop, written out below).
@@ -15,9 +15,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from obstacle_detection import evaluation, floor, jit_traversal
-from obstacle_detection.pipeline import Detector
-from obstacle_detection.ros_params import detector_params_from_ros, read_params_file
+from obstacle_detection.evaluation import runner as evaluation
+from obstacle_detection.pipeline import floor
+from obstacle_detection.pipeline._compiled import traversal as jit_traversal
+from obstacle_detection.pipeline.detector import Detector
+from obstacle_detection.ros.parameters import detector_params_from_ros, read_params_file
 
 REPO = Path(__file__).resolve().parents[1]
 jit_only = pytest.mark.skipif(not jit_traversal.AVAILABLE, reason='numba is not installed')
@@ -28,7 +30,7 @@ def suite_inputs():
     """(name, filtered depth, sampled rays, params) of one frame per robot-suite scenario."""
     base = detector_params_from_ros(read_params_file(REPO / 'params' / 'corridor.yaml'))
     out = []
-    for scenario in evaluation.load_scenarios(REPO / 'tools' / 'scenarios_robot.json'):
+    for scenario in evaluation.load_scenarios(evaluation.SUITES['robot']):
         frame = next(evaluation.scenario_frames(scenario, max_frames=1))
         params = frame.params(base)
         detector = Detector(params)
@@ -115,7 +117,7 @@ def test_skipping_repeated_refits_keeps_the_fit(compiled, monkeypatch):
 
 def test_corrected_mount_of_a_known_plane():
     # the floor z = 0.1 x - 0.05 = the configured frame pitched by atan(0.1) more, 5 cm lower
-    from obstacle_detection.params import corridor
+    from obstacle_detection.pipeline.params import corridor
     params = corridor(camera_height_m=0.6, camera_pitch_rad=math.radians(10.0),
                       camera_roll_rad=0.0)
     fit = floor._corrected_mount(params, 0.1, 0.0, -0.05, 500)

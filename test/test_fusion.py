@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from obstacle_detection.costmap import CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN, Costmap
-from obstacle_detection.fusion import (FusedGrid, FusionParams, PoseBuffer, compose_poses,
+from obstacle_detection.pipeline.costmap import CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN, Costmap
+from obstacle_detection.pipeline.fusion import (FusedGrid, FusionParams, PoseBuffer, compose_poses,
                                        frame_evidence, yaw_from_quaternion)
 
 RES = 0.05

@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from obstacle_detection import geometry
-from obstacle_detection.params import DetectorParams, Intrinsics
+from obstacle_detection.pipeline import geometry
+from obstacle_detection.pipeline.params import DetectorParams, Intrinsics
 
 INTR = Intrinsics(fx=500.0, fy=400.0, cx=3.0, cy=2.0)
 

@@ -4,9 +4,10 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from obstacle_detection import jit_knn, normals
-from obstacle_detection.pipeline import Detector
-from obstacle_detection.scenes import render_scene, scene_params
+from obstacle_detection.pipeline._compiled import knn as jit_knn
+from obstacle_detection.pipeline import normals
+from obstacle_detection.pipeline.detector import Detector
+from obstacle_detection.sim.scenes import render_scene, scene_params
 
 pytestmark = pytest.mark.skipif(not jit_knn.AVAILABLE, reason='numba is not installed')
 

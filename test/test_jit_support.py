@@ -6,7 +6,7 @@ import threading
 
 import pytest
 
-from obstacle_detection import jit_support
+from obstacle_detection.pipeline import jit as jit_support
 
 pytestmark = pytest.mark.skipif(not jit_support.enabled(),
                                 reason='numba is not installed or switched off')

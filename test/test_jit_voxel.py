@@ -5,12 +5,13 @@ import math
 import numpy as np
 import pytest
 
-from obstacle_detection import geometry, jit_voxel
-from obstacle_detection.depth import crop_borders, decode_depth, median_filter
-from obstacle_detection.params import DetectorParams, Intrinsics, table_4_2, table_4_3
-from obstacle_detection.pipeline import Detector
-from obstacle_detection.scenes import render_scene, scene_params
-from obstacle_detection.voxel import voxel_downsample, voxel_downsample_numpy
+from obstacle_detection.pipeline import geometry
+from obstacle_detection.pipeline._compiled import voxel as jit_voxel
+from obstacle_detection.pipeline.depth import crop_borders, decode_depth, median_filter
+from obstacle_detection.pipeline.params import DetectorParams, Intrinsics, table_4_2, table_4_3
+from obstacle_detection.pipeline.detector import Detector
+from obstacle_detection.sim.scenes import render_scene, scene_params
+from obstacle_detection.pipeline.voxel import voxel_downsample, voxel_downsample_numpy
 
 pytestmark = pytest.mark.skipif(not jit_voxel.AVAILABLE, reason='numba is not installed')
 

@@ -24,10 +24,10 @@ import numpy as np
 import pytest
 import yaml
 
-from obstacle_detection import tool_support
-from obstacle_detection.compressed_depth import TRANSPORT_SUFFIXES
-from obstacle_detection.ros_params import NODE_NAME
-from obstacle_detection.scenes import render_scene
+from obstacle_detection.cli import support as tool_support
+from obstacle_detection.ros.compressed_depth import TRANSPORT_SUFFIXES
+from obstacle_detection.ros.parameters import NODE_NAME
+from obstacle_detection.sim.scenes import render_scene
 from tools import bag_process
 
 REPO = Path(__file__).resolve().parents[1]
@@ -47,7 +47,7 @@ def _launch_module() -> ModuleType:
 
 def _node_topics(method: str) -> dict[str, str]:
     """Topic -> message type of the node's ``create_<method>`` calls, read from node.py."""
-    tree = ast.parse((REPO / 'obstacle_detection' / 'node.py').read_text(encoding='utf-8'))
+    tree = ast.parse((REPO / 'obstacle_detection' / 'ros' / 'node.py').read_text(encoding='utf-8'))
     topics = {}
     for call in ast.walk(tree):
         if isinstance(call, ast.Call) and isinstance(call.func, ast.Attribute) \
@@ -55,7 +55,7 @@ def _node_topics(method: str) -> dict[str, str]:
                 and isinstance(call.args[1], ast.Constant) and isinstance(call.args[0], ast.Name):
             topics[call.args[1].value] = call.args[0].id
     if method == 'subscription':   # the depth topic follows depth_transport (raw by default)
-        from obstacle_detection.node import DEPTH_TRANSPORTS
+        from obstacle_detection.ros.node import DEPTH_TRANSPORTS
 
         msg_type, topic = DEPTH_TRANSPORTS['raw']
         topics[topic] = msg_type.__name__
@@ -163,7 +163,7 @@ def test_everything_the_launch_file_names_is_installed(prefix: Path) -> None:
     assert (share / 'launch' / LAUNCH.name).read_bytes() == LAUNCH.read_bytes()
     assert (share / 'params' / NAV2.name).read_bytes() == NAV2.read_bytes()
     relative = Path(sysconfig.get_path('purelib')).relative_to(sysconfig.get_path('data'))
-    assert (prefix / relative / PACKAGE / 'compressed_depth.py').is_file()
+    assert (prefix / relative / PACKAGE / 'ros' / 'compressed_depth.py').is_file()
 
 
 # --------------------------------------------------------------------------------------------

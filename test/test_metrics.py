@@ -5,10 +5,11 @@ import math
 import numpy as np
 import pytest
 
-from obstacle_detection import metrics
-from obstacle_detection.metrics import (CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN, Confusion,
-                                        GT_NO_RETURN, GT_OBSTACLE, GT_TRAVERSABLE, LABEL_GROUND,
-                                        LABEL_NO_RETURN, LABEL_OBSTACLE, LABEL_OUTSIDE_ROI)
+from obstacle_detection.evaluation import metrics
+from obstacle_detection.evaluation.metrics import (CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN,
+                                                   Confusion, GT_NO_RETURN, GT_OBSTACLE,
+                                                   GT_TRAVERSABLE, LABEL_GROUND, LABEL_NO_RETURN,
+                                                   LABEL_OBSTACLE, LABEL_OUTSIDE_ROI)
 
 
 def test_confusion_counts_of_two_bool_arrays():

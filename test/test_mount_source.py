@@ -1,4 +1,4 @@
-"""Tests of the camera mount from TF (obstacle_detection.mount_source) with a tf2 stand-in."""
+"""Tests of the camera mount from TF (obstacle_detection.ros.mount_source) with a tf2 stand-in."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from obstacle_detection.geometry import OPTICAL_TO_BODY, mount_rotation
-from obstacle_detection.mount_source import (
+from obstacle_detection.pipeline.geometry import OPTICAL_TO_BODY, mount_rotation
+from obstacle_detection.ros.mount_source import (
     Mount,
     MountSource,
     mount_from_rotation,

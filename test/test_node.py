@@ -45,24 +45,24 @@ from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 from std_msgs.msg import Float64, String
 
-from obstacle_detection import jit_support
-from obstacle_detection.compressed_depth import array_to_compressed_depth
-from obstacle_detection.conversions import (
+from obstacle_detection.pipeline import jit as jit_support
+from obstacle_detection.ros.compressed_depth import array_to_compressed_depth
+from obstacle_detection.ros.conversions import (
     array_to_image,
     intrinsics_to_camera_info,
     pointcloud2_to_points,
 )
-from obstacle_detection.costmap import CELL_OCCUPIED
-from obstacle_detection.geometry import mount_rotation
-from obstacle_detection.node import DetectorNode, LatestSlot
-from obstacle_detection.params import PRESETS, Intrinsics, table_4_2, table_4_3
-from obstacle_detection.pipeline import DetectionResult, Detector
-from obstacle_detection.ros_params import (
+from obstacle_detection.pipeline.costmap import CELL_OCCUPIED
+from obstacle_detection.pipeline.geometry import mount_rotation
+from obstacle_detection.ros.node import DetectorNode, LatestSlot
+from obstacle_detection.pipeline.params import PRESETS, Intrinsics, table_4_2, table_4_3
+from obstacle_detection.pipeline.detector import DetectionResult, Detector
+from obstacle_detection.ros.parameters import (
     ALL_PARAMS,
     detector_params_from_ros,
     params_file_problems,
 )
-from obstacle_detection.scenes import GT_OBSTACLE, SceneFrame, render_scene
+from obstacle_detection.sim.scenes import GT_OBSTACLE, SceneFrame, render_scene
 
 #: Starts processes or a DDS graph: deselect with -m "not integration" (README, tests).
 pytestmark = pytest.mark.integration
@@ -92,7 +92,7 @@ def _detector_command() -> list[str]:
     if script.is_file():
         return [str(script)]
     found = shutil.which('detector')
-    return [found] if found else [sys.executable, '-m', 'obstacle_detection.node']
+    return [found] if found else [sys.executable, '-m', 'obstacle_detection.ros.node']
 
 
 def _stamp_key(stamp: Time) -> tuple[int, int]:
@@ -1034,7 +1034,7 @@ def test_node_warns_about_a_params_file_it_would_ignore(tmp_path: Path) -> None:
 
 def test_refiner_model_file_is_validated_and_used(local_node: DetectorNode, tmp_path: Path,
                                                  scene: SceneFrame) -> None:
-    from obstacle_detection.refine import LogisticRefiner, RefinedDetector
+    from obstacle_detection.pipeline.refine import LogisticRefiner, RefinedDetector
 
     missing = tmp_path / 'missing.json'
     result = local_node.set_parameters([Parameter('refiner_model_file', value=str(missing))])[0]

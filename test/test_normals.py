@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from obstacle_detection import jit_knn
-from obstacle_detection.normals import (NO_JIT_ENV, _nearest_neighbours_scipy, estimate_normals,
-                                        nearest_neighbours, neighbourhood_covariance,
-                                        smallest_eigenvectors, slope_obstacles, use_jit,
-                                        validate_obstacles)
+from obstacle_detection.pipeline._compiled import knn as jit_knn
+from obstacle_detection.pipeline.normals import (NO_JIT_ENV, _nearest_neighbours_scipy,
+                                                 estimate_normals, nearest_neighbours,
+                                                 neighbourhood_covariance, smallest_eigenvectors,
+                                                 slope_obstacles, use_jit, validate_obstacles)
 
 
 @pytest.fixture(autouse=True, params=['numpy', 'jit'])

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from obstacle_detection.costmap import CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN, Costmap
-from obstacle_detection.overlay import (
+from obstacle_detection.pipeline.costmap import CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN, Costmap
+from obstacle_detection.viz.overlay import (
     FREE_RGB,
     OBSTACLE_RGB,
     OCCUPIED_RGB,
@@ -16,7 +16,7 @@ from obstacle_detection.overlay import (
     render_costmap,
     render_overlay,
 )
-from obstacle_detection.pipeline import (
+from obstacle_detection.pipeline.detector import (
     LABEL_GROUND,
     LABEL_NO_RETURN,
     LABEL_OBSTACLE,

@@ -70,7 +70,11 @@ def test_installed_where_ros2_run_looks(prefix: Path, relative: str) -> None:
 
 def test_installed_python_package(prefix: Path) -> None:
     installed = _site_packages(prefix) / PACKAGE
-    assert (installed / 'node.py').is_file() and (installed / 'pipeline.py').is_file()
+    assert (installed / 'ros' / 'node.py').is_file()
+    assert (installed / 'pipeline' / 'detector.py').is_file()
+    # package data: the loopback DDS profile and the committed scenario suites
+    assert (installed / 'ros' / 'fastdds_loopback.xml').is_file()
+    assert (installed / 'evaluation' / 'scenarios_robot.json').is_file()
 
 
 def _wait_for_line(process: subprocess.Popen, lines: list[str], pattern: str,
@@ -90,7 +94,7 @@ def test_installed_detector_starts_and_stops_on_sigint(prefix: Path, tmp_path: P
     env = ros_env.loopback_env('test_package_layout', log_dir=tmp_path / 'ros_log')
     site = str(_site_packages(prefix))
     env['PYTHONPATH'] = site  # the installed copy first; the venv's own site-packages follow
-    probe = 'import obstacle_detection.node as n; print(n.__file__)'
+    probe = 'import obstacle_detection.ros.node as n; print(n.__file__)'
     which = subprocess.run([sys.executable, '-c', probe], env=env, cwd=tmp_path,
                            capture_output=True, text=True, timeout=60, check=False)
     assert which.stdout.strip().startswith(site), which.stdout + which.stderr
@@ -116,7 +120,7 @@ def test_installed_detector_starts_and_stops_on_sigint(prefix: Path, tmp_path: P
 
 
 def test_parameter_table_lists_every_parameter_with_its_range() -> None:
-    from obstacle_detection.ros_params import ALL_PARAMS
+    from obstacle_detection.ros.parameters import ALL_PARAMS
     from tools.param_table import parameter_table
 
     rows = parameter_table().splitlines()[2:]

@@ -5,8 +5,8 @@ import math
 
 import pytest
 
-from obstacle_detection.params import (SEED_TABLE_4_1, DetectorParams, Intrinsics, corridor,
-                                       table_4_2, table_4_3)
+from obstacle_detection.pipeline.params import (SEED_TABLE_4_1, DetectorParams, Intrinsics,
+                                                corridor, table_4_2, table_4_3)
 
 
 def test_defaults_are_seed_table_4_2():

@@ -9,15 +9,17 @@ import pytest
 from rosbags.rosbag2 import Writer
 from rosbags.typesys import Stores, get_typestore
 
-from obstacle_detection import evaluation, pictures
-from obstacle_detection.metrics import LABEL_GROUND, LABEL_OBSTACLE, LABEL_OUTSIDE_ROI
-from obstacle_detection.costmap import CELL_OCCUPIED, CELL_UNKNOWN, Costmap, costmap_geometry
-from obstacle_detection.overlay import (MIN_GREY, NO_RETURN_RGB, OBSTACLE_RGB, OCCUPIED_RGB,
+from obstacle_detection.evaluation import runner as evaluation
+from obstacle_detection.viz import pictures
+from obstacle_detection.evaluation.metrics import LABEL_GROUND, LABEL_OBSTACLE, LABEL_OUTSIDE_ROI
+from obstacle_detection.pipeline.costmap import (CELL_OCCUPIED, CELL_UNKNOWN, Costmap,
+                                                 costmap_geometry)
+from obstacle_detection.viz.overlay import (MIN_GREY, NO_RETURN_RGB, OBSTACLE_RGB, OCCUPIED_RGB,
                                        ROBOT_RGB, UNKNOWN_RGB, render_overlay)
-from obstacle_detection.params import KINECT_V2_SD, KINECT_V2_SD_SIZE, table_4_2
-from obstacle_detection.pipeline import Detector
-from obstacle_detection.scenes import render_scene
-from obstacle_detection import tool_support
+from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE, table_4_2
+from obstacle_detection.pipeline.detector import Detector
+from obstacle_detection.sim.scenes import render_scene
+from obstacle_detection.cli import support as tool_support
 from tools import bag_convert, bag_process, readme_pictures
 from tools import pictures as pictures_tool
 

@@ -5,13 +5,14 @@ import math
 import numpy as np
 import pytest
 
-from obstacle_detection import geometry, metrics
-from obstacle_detection.costmap import CELL_OCCUPIED, CELL_UNKNOWN, build_costmap
-from obstacle_detection.depth import DepthFormatError
-from obstacle_detection.params import SEED_TABLE_4_1, table_4_2
-from obstacle_detection.pipeline import (LABEL_GROUND, LABEL_NO_RETURN, LABEL_OBSTACLE,
+from obstacle_detection.pipeline import geometry
+from obstacle_detection.evaluation import metrics
+from obstacle_detection.pipeline.costmap import CELL_OCCUPIED, CELL_UNKNOWN, build_costmap
+from obstacle_detection.pipeline.depth import DepthFormatError
+from obstacle_detection.pipeline.params import SEED_TABLE_4_1, table_4_2
+from obstacle_detection.pipeline.detector import (LABEL_GROUND, LABEL_NO_RETURN, LABEL_OBSTACLE,
                                          LABEL_OUTSIDE_ROI, STAGES, Detector)
-from obstacle_detection.scenes import GT_OBSTACLE, render_scene, scene_params
+from obstacle_detection.sim.scenes import GT_OBSTACLE, render_scene, scene_params
 
 #: Costmap F1 floor on the corridor scene with the seed's Table 4.2 (K = 5). The detector
 #: marks the walls and box sides; it misses the cells whose only obstacle surface is a box
@@ -177,8 +178,8 @@ def test_outputs_are_in_the_base_frame_of_a_camera_off_the_base_origin() -> None
     """A box 1 m ahead of a camera at x = 0.2 m, y = 0.1 m, yaw = 10 deg on the robot."""
     import dataclasses
 
-    from obstacle_detection.params import PRESETS
-    from obstacle_detection.scenes import Box, Floor, Scene, render
+    from obstacle_detection.pipeline.params import PRESETS
+    from obstacle_detection.sim.scenes import Box, Floor, Scene, render
 
     frame = render(Scene('box_ahead', (Floor(), Box.on_floor(1.05, 0.0, 0.1, 0.3, 0.5))),
                    seed=1)

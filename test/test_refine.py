@@ -5,9 +5,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from obstacle_detection import refine
-from obstacle_detection.metrics import LABEL_GROUND, LABEL_NO_RETURN, LABEL_OBSTACLE
-from obstacle_detection.refine import FEATURE_NAMES, LogisticRefiner, ModelFileError
+from obstacle_detection.pipeline import refine
+from obstacle_detection.evaluation.metrics import LABEL_GROUND, LABEL_NO_RETURN, LABEL_OBSTACLE
+from obstacle_detection.pipeline.refine import FEATURE_NAMES, LogisticRefiner, ModelFileError
 
 
 def _known_model_data(n=20000, seed=0):
@@ -114,9 +114,9 @@ def test_voxel_votes_are_majorities():
 
 
 def _small_scene_result(name='corridor', seed=0):
-    from obstacle_detection import evaluation
-    from obstacle_detection.params import table_4_2
-    from obstacle_detection.pipeline import Detector
+    from obstacle_detection.evaluation import runner as evaluation
+    from obstacle_detection.pipeline.params import table_4_2
+    from obstacle_detection.pipeline.detector import Detector
     frame = next(evaluation.scenario_frames(evaluation.Scenario(name, name, seeds=(seed,)),
                                             size=(160, 132)))
     params = frame.params(table_4_2())
@@ -170,7 +170,7 @@ def test_validation_drops_isolated_refined_voxels():
 
 
 def test_refined_detector_uses_the_previous_rule_based_mask():
-    from obstacle_detection.pipeline import Detector
+    from obstacle_detection.pipeline.detector import Detector
     frame, params, first = _small_scene_result()
     # a model that predicts exactly "the pixel was an obstacle in the previous frame" (e4 is
     # offset (0, 0)): so the first frame stands in for itself, later frames copy the previous
@@ -193,7 +193,7 @@ def test_refined_validation_reuses_the_pipeline_neighbours(monkeypatch):
     _, params, result = _small_scene_result()
     import dataclasses
 
-    from obstacle_detection import normals
+    from obstacle_detection.pipeline import normals
     mask = refine.obstacle_mask(result)
     # without the pipeline's neighbours, refine_result queries them itself
     bare = dataclasses.replace(result, voxel_neighbours=np.zeros((len(result.voxel_points), 0),

@@ -1,4 +1,4 @@
-"""The robot-level suite (tools/scenarios_robot.json) with params/corridor.yaml: figures held.
+"""The robot-level suite (scenarios_robot.json) with params/corridor.yaml: figures held.
 
 Measured (README, Accuracy): overall cell F1 0.941, false alarms 0.87 % of free cells, 44 of 44
 named objects found, passable ramps and landing 99.9 % free, 3 of 3 drops marked; the seed's
@@ -12,12 +12,12 @@ from pathlib import Path
 
 import pytest
 
-from obstacle_detection import evaluation
-from obstacle_detection.params import table_4_2
-from obstacle_detection.ros_params import detector_params_from_ros, read_params_file
+from obstacle_detection.evaluation import runner as evaluation
+from obstacle_detection.pipeline.params import table_4_2
+from obstacle_detection.ros.parameters import detector_params_from_ros, read_params_file
 
 REPO = Path(__file__).resolve().parents[1]
-SUITE = REPO / 'tools' / 'scenarios_robot.json'
+SUITE = evaluation.SUITES['robot']
 
 
 def run_suite(params):

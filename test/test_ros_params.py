@@ -6,8 +6,8 @@ from typing import Any
 
 import pytest
 
-from obstacle_detection.params import DetectorParams
-from obstacle_detection.ros_params import (
+from obstacle_detection.pipeline.params import DetectorParams
+from obstacle_detection.ros.parameters import (
     FRAME_VOXELS_BOUND,
     MAX_COSTMAP_CELLS,
     MAX_NEIGHBOUR_ENTRIES,

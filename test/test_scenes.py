@@ -5,10 +5,10 @@ import math
 import numpy as np
 import pytest
 
-from obstacle_detection import scenes
-from obstacle_detection.geometry import back_project, to_ground
-from obstacle_detection.params import DetectorParams, Intrinsics, KINECT_V2_SD
-from obstacle_detection.scenes import (Box, Cylinder, Floor, GT_ABOVE_ROBOT, GT_NO_RETURN,
+from obstacle_detection.sim import scenes
+from obstacle_detection.pipeline.geometry import back_project, to_ground
+from obstacle_detection.pipeline.params import DetectorParams, Intrinsics, KINECT_V2_SD
+from obstacle_detection.sim.scenes import (Box, Cylinder, Floor, GT_ABOVE_ROBOT, GT_NO_RETURN,
                                        GT_OBSTACLE, GT_TRAVERSABLE, NoiseModel, Ramp, Scene,
                                        StepDown, Wall, render, render_scene, scene_params)
 

@@ -7,8 +7,8 @@ import cv2
 import numpy as np
 import pytest
 
-from obstacle_detection import evaluation
-from obstacle_detection.params import table_4_2
+from obstacle_detection.evaluation import runner as evaluation
+from obstacle_detection.pipeline.params import table_4_2
 from tools import sweep
 
 NAN = float('nan')

@@ -8,20 +8,21 @@ wrong where the robot-level rule is meant to differ (the test has teeth).
 """
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from obstacle_detection import evaluation, floor, geometry, jit_traversal, traversal
-from obstacle_detection.costmap import CELL_OCCUPIED, CELL_UNKNOWN
-from obstacle_detection.params import corridor, table_4_2
-from obstacle_detection.pipeline import LABEL_GROUND, LABEL_OBSTACLE, Detector
-from obstacle_detection.scenes import (Box, Floor, Ramp, Scene, StepDown, Wall, render,
+from obstacle_detection.evaluation import runner as evaluation
+from obstacle_detection.pipeline import floor, geometry, traversal
+from obstacle_detection.pipeline._compiled import traversal as jit_traversal
+from obstacle_detection.pipeline.costmap import CELL_OCCUPIED, CELL_UNKNOWN
+from obstacle_detection.pipeline.params import corridor, table_4_2
+from obstacle_detection.pipeline.detector import LABEL_GROUND, LABEL_OBSTACLE, Detector
+from obstacle_detection.sim.scenes import (Box, Floor, Ramp, Scene, StepDown, Wall, render,
                                        render_scene, scene_params)
 
 
-SCENARIOS = Path(__file__).resolve().parent.parent / 'tools' / 'scenarios.json'
+SCENARIOS = evaluation.SUITES['seed']
 
 
 def run(primitives, *, height=0.6, pitch_deg=0.0, noise=False, preset=corridor,
@@ -313,7 +314,7 @@ def test_traversal_kernels_equal_numpy(monkeypatch):
 
 def frame_intrinsics():
     """Kinect v2 SD intrinsics of the generator."""
-    from obstacle_detection.params import KINECT_V2_SD
+    from obstacle_detection.pipeline.params import KINECT_V2_SD
     return KINECT_V2_SD
 
 
@@ -391,10 +392,10 @@ def test_drop_pixels_kernel_equals_the_numpy_mask(shape, monkeypatch):
 
 
 _WARM_UP_CHECK = """
-from obstacle_detection import jit_traversal
-from obstacle_detection.params import corridor
-from obstacle_detection.pipeline import Detector
-from obstacle_detection.scenes import render_scene, scene_params
+from obstacle_detection.pipeline._compiled import traversal as jit_traversal
+from obstacle_detection.pipeline.params import corridor
+from obstacle_detection.pipeline.detector import Detector
+from obstacle_detection.sim.scenes import render_scene, scene_params
 frame = render_scene('step_down', seed=1)
 detector = Detector(scene_params(frame, corridor()))
 detector.warm_up()

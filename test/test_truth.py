@@ -6,8 +6,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from obstacle_detection.params import DetectorParams
-from obstacle_detection.scenes import (Box, Cylinder, Floor, GT_ABOVE_ROBOT, GT_NO_RETURN,
+from obstacle_detection.pipeline.params import DetectorParams
+from obstacle_detection.sim.scenes import (Box, Cylinder, Floor, GT_ABOVE_ROBOT, GT_NO_RETURN,
                                        GT_OBSTACLE, GT_TRAVERSABLE, DROP_EDGE_BAND_M, Ramp,
                                        Scene, StepDown, TruthRules, chair, render, render_scene,
                                        table)

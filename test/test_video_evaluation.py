@@ -8,10 +8,10 @@ import sys
 import numpy as np
 import pytest
 
-from obstacle_detection.costmap import build_costmap
-from obstacle_detection.fusion import FusionParams
-from obstacle_detection.params import DetectorParams
-from obstacle_detection.video_evaluation import Observation, RunTracker, score_sequence
+from obstacle_detection.pipeline.costmap import build_costmap
+from obstacle_detection.pipeline.fusion import FusionParams
+from obstacle_detection.pipeline.params import DetectorParams
+from obstacle_detection.evaluation.video import Observation, RunTracker, score_sequence
 
 RES = 0.0625   # a power of two: poses on the lattice stay exact
 PARAMS = DetectorParams(costmap_resolution_m=RES)

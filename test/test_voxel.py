@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from obstacle_detection.voxel import voxel_downsample
+from obstacle_detection.pipeline.voxel import voxel_downsample
 
 
 def test_centroids_of_hand_made_points():

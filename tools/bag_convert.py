@@ -32,7 +32,7 @@ Sources (one sub-command each):
     depth (``sensor_msgs/CompressedImage`` such as iai_kinect2's
     ``/kinect2/sd/image_depth_rect/compressed`` or image_transport's ``.../compressedDepth``)
     is kept as it is, for ``bag_process.py --depth-topic``, and named in the summary; with
-    ``--decompress-depth`` it is decoded instead (``obstacle_detection.compressed_depth``,
+    ``--decompress-depth`` it is decoded instead (``obstacle_detection.ros.compressed_depth``,
     16UC1 exactly) and written as a raw ``sensor_msgs/Image`` on the raw topic (``.../compressed``
     -> ``...``), which the node and every tool read.
 
@@ -69,14 +69,14 @@ from rclpy.serialization import serialize_message  # noqa: E402
 from rosbags.rosbag2 import StoragePlugin, Writer, WriterError  # noqa: E402
 from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
-from obstacle_detection import tool_support  # noqa: E402
-from obstacle_detection.compressed_depth import (COMPRESSED_IMAGE_TYPE,  # noqa: E402
+from obstacle_detection.cli import support as tool_support  # noqa: E402
+from obstacle_detection.ros.compressed_depth import (COMPRESSED_IMAGE_TYPE,  # noqa: E402
                                                  CompressedDepthError,
                                                  compressed_depth_to_array, parse_format,
                                                  raw_topic)
-from obstacle_detection.conversions import array_to_image, intrinsics_to_camera_info  # noqa: E402
-from obstacle_detection.params import KINECT_V2_SD, KINECT_V2_SD_SIZE, Intrinsics  # noqa: E402
-from tools.progress import Progress  # noqa: E402
+from obstacle_detection.ros.conversions import array_to_image, intrinsics_to_camera_info  # noqa: E402
+from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE, Intrinsics  # noqa: E402
+from obstacle_detection.cli.progress import Progress  # noqa: E402
 
 # The one set of default topic names of every tool (tool_support), kept here under their names.
 DEFAULT_DEPTH_TOPIC = tool_support.DEFAULT_DEPTH_TOPIC

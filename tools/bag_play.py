@@ -13,7 +13,7 @@ iai_kinect2's ``.../compressed``); a subscriber that takes raw depth only gets i
 converted with ``bag_convert.py ros1 --decompress-depth``.
 
 Every process that calls ``rclpy.init()`` here should run with the loopback Fast DDS profile
-(``tools/fastdds_loopback.xml``) and a ROS_DOMAIN_ID of its own; see the README.
+(``obstacle_detection/ros/fastdds_loopback.xml``) and a ROS_DOMAIN_ID of its own; see the README.
 """
 
 from __future__ import annotations
@@ -35,8 +35,8 @@ if __package__ in (None, ''):  # run as a script: make the repository root impor
 
 from rosbags.rosbag2 import Reader, ReaderError  # noqa: E402
 
-from obstacle_detection import tool_support  # noqa: E402
-from tools.progress import Progress  # noqa: E402
+from obstacle_detection.cli import support as tool_support  # noqa: E402
+from obstacle_detection.cli.progress import Progress  # noqa: E402
 
 #: How long to sleep at most between checks for a stop request [s].
 _POLL_S = 0.05

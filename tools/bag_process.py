@@ -13,7 +13,8 @@ valid depth) are skipped and counted with the reason.
 
 The depth topic may be a raw ``sensor_msgs/Image`` or a ``sensor_msgs/CompressedImage``
 (image_transport's ``.../compressedDepth``, iai_kinect2's ``.../compressed``): compressed frames
-are decoded by ``obstacle_detection.compressed_depth`` into the array the raw image gives (16UC1
+are decoded by ``obstacle_detection.ros.compressed_depth`` into the array the raw image gives
+(16UC1
 exactly), so both give the same outputs; a frame that cannot be decoded is skipped with the
 reason (corrupt PNG, bad header, ...).
 """
@@ -39,19 +40,19 @@ from rosbags.rosbag2 import Reader, ReaderError, Writer, WriterError  # noqa: E4
 from rosbags.typesys import Stores, get_typestore  # noqa: E402
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image  # noqa: E402
 
-from obstacle_detection import tool_support  # noqa: E402
-from obstacle_detection.compressed_depth import (COMPRESSED_IMAGE_TYPE,  # noqa: E402
+from obstacle_detection.cli import support as tool_support  # noqa: E402
+from obstacle_detection.ros.compressed_depth import (COMPRESSED_IMAGE_TYPE,  # noqa: E402
                                                  depth_message_to_array, is_compressed_image,
                                                  raw_topic)
-from obstacle_detection.conversions import (DEPTH_ENCODINGS, ImageFormatError,  # noqa: E402
+from obstacle_detection.ros.conversions import (DEPTH_ENCODINGS, ImageFormatError,  # noqa: E402
                                             camera_info_to_intrinsics, result_to_messages)
-from obstacle_detection.node import NodeConfig, build_config  # noqa: E402
-from obstacle_detection.params import Intrinsics  # noqa: E402
-from obstacle_detection.ros_params import (ALL_PARAMS, ParamsFileError,  # noqa: E402
+from obstacle_detection.ros.node import NodeConfig, build_config  # noqa: E402
+from obstacle_detection.pipeline.params import Intrinsics  # noqa: E402
+from obstacle_detection.ros.parameters import (ALL_PARAMS, ParamsFileError,  # noqa: E402
                                            read_params_files)
 from tools.bag_convert import (BAG_VERSION, DEFAULT_DEPTH_TOPIC,  # noqa: E402
                                DEFAULT_INFO_TOPIC, STORAGES, ConvertError, staged_output)
-from tools.progress import Progress  # noqa: E402
+from obstacle_detection.cli.progress import Progress  # noqa: E402
 
 DEFAULT_NAMESPACE = '/obstacles'
 #: result_to_messages key -> (topic below the namespace, message type).
@@ -73,7 +74,7 @@ def load_params_file(path: Path | Sequence[Path]) -> dict[str, Any]:
     """All node parameter values: defaults updated with one or more ``--params-file`` YAMLs.
 
     Several files are merged in order, as ROS does (a later file wins for a parameter both
-    set). See :func:`obstacle_detection.ros_params.read_params_file` for the format.
+    set). See :func:`obstacle_detection.ros.parameters.read_params_file` for the format.
 
     Raises:
         ProcessError: naming the file and the parameter.

@@ -38,10 +38,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from obstacle_detection.normals import use_jit  # noqa: E402
-from obstacle_detection.params import KINECT_V2_SD, PRESETS, Intrinsics  # noqa: E402
-from obstacle_detection.pipeline import NEW_STAGES, STAGES, Detector  # noqa: E402
-from obstacle_detection.scenes import render_scene, scene_params  # noqa: E402
+from obstacle_detection.pipeline.normals import use_jit  # noqa: E402
+from obstacle_detection.pipeline.params import KINECT_V2_SD, PRESETS, Intrinsics  # noqa: E402
+from obstacle_detection.pipeline.detector import NEW_STAGES, STAGES, Detector  # noqa: E402
+from obstacle_detection.sim.scenes import render_scene, scene_params  # noqa: E402
 
 #: (label, (width, height), intrinsics). 960x540 is the Kinect v2 colour stream at half size.
 SIZES = {

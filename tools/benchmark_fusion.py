@@ -30,9 +30,10 @@ if __package__ in (None, ''):  # run as a script: make the repository root impor
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from obstacle_detection import evaluation, tool_support  # noqa: E402
-from obstacle_detection.fusion import FusedGrid, FusionParams  # noqa: E402
-from obstacle_detection.sequences import SceneSequence  # noqa: E402
+from obstacle_detection.evaluation import runner as evaluation  # noqa: E402
+from obstacle_detection.cli import support as tool_support  # noqa: E402
+from obstacle_detection.pipeline.fusion import FusedGrid, FusionParams  # noqa: E402
+from obstacle_detection.sim.sequences import SceneSequence  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 PROG = 'benchmark_fusion.py'
@@ -83,7 +84,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ValueError, OSError) as exc:
         return tool_support.report_error(PROG, exc)
     pinning = pin_one_cpu()
-    from obstacle_detection.video_evaluation import observe_sequence
+    from obstacle_detection.evaluation.video import observe_sequence
 
     sequence = SceneSequence('drive_past_boxes')
     print(f'{PROG}: running the detector on {len(sequence)} frames...', file=sys.stderr,

@@ -6,7 +6,7 @@ Steps, all into one output folder (default ``out/demo``):
 1. render a short sequence of the scene generator (30 frames of 'person_walking' at the Kinect v2
    SD size) as a folder of 16-bit depth PNGs plus an intrinsics YAML (``input/``);
 2. convert it to a rosbag2 with the converter (``input_bag/``, Kinect v2 driver topics);
-3. start the detector node (``python -m obstacle_detection.node --ros-args --params-file
+3. start the detector node (``python -m obstacle_detection.ros.node --ros-args --params-file
    params/corridor.yaml``, its inputs remapped to the bag's topics; log in ``node.log``);
 4. replay the bag into it with the player, while a recorder in this process subscribes to
    what the node publishes and writes it to ``results_bag/``;
@@ -18,8 +18,8 @@ its subscription is matched. Everything is written into ``<output>.partial`` and
 ``<output>`` only when the demo succeeded, so a failed run leaves the previous result in place
 (the failed run's files go to ``<output>.failed``, for its ``node.log``).
 
-DDS stays on the loopback interface (``tools/fastdds_loopback.xml``) in a ROS domain of the
-demo's own. Exit code 0 when the node produced output, 1 (with the reason) otherwise.
+DDS stays on the loopback interface (``obstacle_detection/ros/fastdds_loopback.xml``) in a ROS
+domain of the demo's own. Exit code 0 when the node produced output, 1 (with the reason) otherwise.
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 from tools import bag_convert, bag_play  # noqa: E402
-from tools.dds_env import loopback_env  # noqa: E402
+from obstacle_detection.ros.dds_env import loopback_env  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_PARAMS = REPO / 'params' / 'corridor.yaml'
@@ -120,9 +120,9 @@ def render_sequence(folder: Path, scene: str, frames: int, seed: int, step: int 
     (every ``step``-th frame of it). Returns (depth folder, camera YAML, the first SceneFrame,
     the odometry pose of each frame or None for a static scene).
     """
-    from obstacle_detection.params import KINECT_V2_SD, KINECT_V2_SD_SIZE
-    from obstacle_detection.scenes import render_scene
-    from obstacle_detection.sequences import SEQUENCE_NAMES, SceneSequence
+    from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE
+    from obstacle_detection.sim.scenes import render_scene
+    from obstacle_detection.sim.sequences import SEQUENCE_NAMES, SceneSequence
 
     depth_dir = folder / 'depth'
     depth_dir.mkdir(parents=True)
@@ -208,7 +208,7 @@ def _overlay_array(msg: Any) -> np.ndarray:
 
 
 def _costmap_of(grid: Any) -> Any:
-    from obstacle_detection.costmap import Costmap
+    from obstacle_detection.pipeline.costmap import Costmap
 
     data = np.frombuffer(grid.data, dtype=np.int8).reshape(grid.info.height, grid.info.width)
     return Costmap(data=data.copy(), resolution_m=float(grid.info.resolution),
@@ -217,9 +217,9 @@ def _costmap_of(grid: Any) -> Any:
 
 def _legends(widths: Sequence[int], params: Any) -> np.ndarray:
     """Return the legend row under a demo picture: the node's overlay, the costmap panel."""
-    from obstacle_detection.overlay import (NO_RETURN_RGB, OBSTACLE_RGB, OCCUPIED_RGB,
+    from obstacle_detection.viz.overlay import (NO_RETURN_RGB, OBSTACLE_RGB, OCCUPIED_RGB,
                                             ROBOT_RGB, FREE_RGB, UNKNOWN_RGB)
-    from obstacle_detection.pictures import BACKGROUND_RGB, HATCH_RGB, VIEW_EDGE_RGB, legend
+    from obstacle_detection.viz.pictures import BACKGROUND_RGB, HATCH_RGB, VIEW_EDGE_RGB, legend
 
     left = legend('obstacles/overlay (camera view)', [
         ('box', OBSTACLE_RGB, 'obstacle pixel'),
@@ -262,7 +262,7 @@ def save_pictures(folder: Path, recorder: Recorder, every: int, params: Any = No
     from rclpy.serialization import deserialize_message
     from sensor_msgs.msg import Image, PointCloud2
 
-    from obstacle_detection.pictures import (caption_band, contact_sheet, costmap_panel,
+    from obstacle_detection.viz.pictures import (caption_band, contact_sheet, costmap_panel,
                                              write_png)
 
     def by_stamp(topic: str, cls: type) -> dict[tuple[int, int], Any]:
@@ -334,7 +334,7 @@ def _scene_params(path: Path, frame: Any) -> Any:
     """Return the node's pipeline parameters: the params file, the rendered scene's mount."""
     import dataclasses
 
-    from obstacle_detection.evaluation import load_params_file
+    from obstacle_detection.evaluation.runner import load_params_file
 
     params = load_params_file(path)
     return dataclasses.replace(params, camera_height_m=float(frame.height_m),
@@ -350,7 +350,7 @@ def _node_command(params: Path, frame: Any, *, reliable: bool, odom_topic: str) 
     """
     import math
 
-    return [sys.executable, '-m', 'obstacle_detection.node', '--ros-args',
+    return [sys.executable, '-m', 'obstacle_detection.ros.node', '--ros-args',
             '--params-file', str(params),
             '-r', f'depth/image_raw:={bag_convert.DEFAULT_DEPTH_TOPIC}',
             '-r', f'depth/camera_info:={bag_convert.DEFAULT_INFO_TOPIC}',
@@ -456,7 +456,7 @@ def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
 
     import dataclasses
 
-    from obstacle_detection.sequences import SEQUENCE_NAMES, SEQUENCE_RATE_HZ
+    from obstacle_detection.sim.sequences import SEQUENCE_NAMES, SEQUENCE_RATE_HZ
 
     step = args.step if args.scene in SEQUENCE_NAMES else 1
     print(f'[1/5] rendering {args.frames} frames of {args.scene!r}'
@@ -579,8 +579,8 @@ def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
 
 def build_parser() -> argparse.ArgumentParser:
     """Return the command-line parser."""
-    from obstacle_detection.scenes import SCENE_NAMES
-    from obstacle_detection.sequences import SEQUENCE_NAMES
+    from obstacle_detection.sim.scenes import SCENE_NAMES
+    from obstacle_detection.sim.sequences import SEQUENCE_NAMES
 
     parser = argparse.ArgumentParser(prog='demo.py', description=__doc__.split('\n\n')[0])
     parser.add_argument('--output', type=Path, default=Path('out/demo'),

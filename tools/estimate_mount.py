@@ -26,12 +26,12 @@ if __package__ in (None, ''):  # run as a script: make the repository root impor
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
-from obstacle_detection import tool_support  # noqa: E402
-from obstacle_detection.depth import decode_depth  # noqa: E402
-from obstacle_detection.mount import MountEstimate, estimate_mount  # noqa: E402
-from obstacle_detection.params import Intrinsics  # noqa: E402
-from obstacle_detection.pictures import read_depth_png  # noqa: E402
-from obstacle_detection.ros_params import NODE_NAME  # noqa: E402
+from obstacle_detection.cli import support as tool_support  # noqa: E402
+from obstacle_detection.pipeline.depth import decode_depth  # noqa: E402
+from obstacle_detection.pipeline.mount import MountEstimate, estimate_mount  # noqa: E402
+from obstacle_detection.pipeline.params import Intrinsics  # noqa: E402
+from obstacle_detection.viz.pictures import read_depth_png  # noqa: E402
+from obstacle_detection.ros.parameters import NODE_NAME  # noqa: E402
 
 
 def parse_intrinsics(text: str) -> Intrinsics:

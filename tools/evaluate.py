@@ -2,8 +2,8 @@
 """Score the obstacle detector against ground truth: per scenario and overall.
 
 Runs the pipeline over labelled frames, a committed scenario suite (scene generator, fixed
-seeds: ``--suite seed``, tools/scenarios.json, scored against the seed's slope-only truth, or
-``--suite robot``, tools/scenarios_robot.json, scored against the robot-level truth of issue 9
+seeds: ``--suite seed``, scenarios.json, scored against the seed's slope-only truth, or
+``--suite robot``, scenarios_robot.json, scored against the robot-level truth of issue 9
 with time-of-flight sensor artefacts, which adds a table of objects found, passable surfaces
 left free and drops marked) and/or labelled folders (``depth/*.png`` 16-bit mm,
 ``labels/*.png`` 8-bit 0/1/2/3, ``intrinsics.yaml`` with the camera mount), and prints a table
@@ -32,13 +32,12 @@ from typing import Any, Iterable, Sequence
 if __package__ in (None, ''):  # run as a script: make the repository root importable
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from obstacle_detection import evaluation, tool_support  # noqa: E402
-from obstacle_detection.params import PRESETS, DetectorParams  # noqa: E402
+from obstacle_detection.evaluation import runner as evaluation  # noqa: E402
+from obstacle_detection.cli import support as tool_support
+from obstacle_detection.pipeline.params import PRESETS, DetectorParams  # noqa: E402
 
-DEFAULT_SCENARIOS = Path(__file__).resolve().parent / 'scenarios.json'
-#: The committed suites: the seed's (slope-only truth) and the robot-level one (issue 9).
-SUITES = {'seed': DEFAULT_SCENARIOS,
-          'robot': Path(__file__).resolve().parent / 'scenarios_robot.json'}
+SUITES = evaluation.SUITES
+DEFAULT_SCENARIOS = SUITES['seed']
 
 
 def parse_assignment(text: str) -> tuple[str, str]:
@@ -52,8 +51,8 @@ def parse_assignment(text: str) -> tuple[str, str]:
 def add_common_arguments(parser: argparse.ArgumentParser) -> None:
     """Frame-source and parameter options shared by evaluate, sweep and train_refiner."""
     parser.add_argument('--suite', choices=sorted(SUITES), default='seed',
-                        help="committed scenario suite: 'seed' (tools/scenarios.json, the "
-                             "seed's slope-only truth) or 'robot' (tools/scenarios_robot.json, "
+                        help="committed scenario suite: 'seed' (scenarios.json, the "
+                             "seed's slope-only truth) or 'robot' (scenarios_robot.json, "
                              'robot-level truth, time-of-flight noise) [default: seed]')
     parser.add_argument('--scenarios', type=Path, default=None,
                         help='scenario list (JSON) instead of the suite\'s')
@@ -171,7 +170,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--quiet', action='store_true', help='no per-frame progress lines')
     parser.add_argument('--beside-seed', action='append', choices=sorted(PRESETS), default=[],
                         metavar='PRESET',
-                        help='also score this preset on the seed suite (tools/scenarios.json, '
+                        help='also score this preset on the seed suite (scenarios.json, '
                              'slope-only truth) and print its overall row beside; repeatable')
     return parser
 
@@ -206,7 +205,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         sources = frame_sources(args)
         refiner = None
         if args.refiner is not None:
-            from obstacle_detection.refine import LogisticRefiner
+            from obstacle_detection.pipeline.refine import LogisticRefiner
             refiner = LogisticRefiner.load(args.refiner)
     except (ValueError, OSError) as exc:
         return report_error('evaluate.py', exc)
@@ -247,7 +246,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         except (ValueError, OSError) as exc:
             print(f'evaluate.py: error: {exc}', file=sys.stderr)
             return 2
-        print('\nbeside it, the seed suite (tools/scenarios.json, slope-only truth), overall:',
+        print('\nbeside it, the seed suite (scenarios.json, slope-only truth), overall:',
               file=table_stream)
         print(format_seed_rows(rows), file=table_stream)
         data['beside_seed'] = {name: summary.as_dict() for name, summary in rows}
@@ -260,7 +259,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _picture_writer(folder: Path, refiner: Any, base: DetectorParams) -> Any:
-    from obstacle_detection import pictures
+    from obstacle_detection.viz import pictures
 
     def on_frame(frame: evaluation.LabelledFrame, result: Any,
                  score: evaluation.FrameScore) -> None:

@@ -25,9 +25,10 @@ from typing import Sequence
 if __package__ in (None, ''):  # run as a script: make the repository root importable
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from obstacle_detection import evaluation, tool_support  # noqa: E402
-from obstacle_detection.fusion import FusionParams  # noqa: E402
-from obstacle_detection.sequences import (PERFECT_ODOMETRY, SEQUENCE_NAMES,  # noqa: E402
+from obstacle_detection.evaluation import runner as evaluation  # noqa: E402
+from obstacle_detection.cli import support as tool_support
+from obstacle_detection.pipeline.fusion import FusionParams  # noqa: E402
+from obstacle_detection.sim.sequences import (PERFECT_ODOMETRY, SEQUENCE_NAMES,  # noqa: E402
                                           OdometryModel, SceneSequence)
 
 REPO = Path(__file__).resolve().parents[1]
@@ -49,7 +50,7 @@ def parse_assignment(text: str) -> tuple[str, float]:
 
 def build_parser() -> argparse.ArgumentParser:
     """Return the command-line interface."""
-    from obstacle_detection.video_evaluation import VIDEO_SCORE_DEFINITIONS
+    from obstacle_detection.evaluation.video import VIDEO_SCORE_DEFINITIONS
 
     parser = argparse.ArgumentParser(
         prog=PROG, description=__doc__.split('\n\n')[0],
@@ -104,7 +105,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise tool_support.ToolError(args.sheet, 'the contact sheet must be a .png file')
     except (ValueError, OSError) as exc:
         return tool_support.report_error(PROG, exc)
-    from obstacle_detection.video_evaluation import evaluate_sequence, format_table
+    from obstacle_detection.evaluation.video import evaluate_sequence, format_table
 
     reports = []
     for name in args.sequence or SEQUENCE_NAMES:
@@ -126,7 +127,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.sheet is not None:
         import numpy as np
 
-        from obstacle_detection.pictures import write_png
+        from obstacle_detection.viz.pictures import write_png
         sheets = [r.sheet for r in reports if r.sheet is not None]
         width = max(s.shape[1] for s in sheets)
         rows = [np.pad(s, ((0, 0), (0, width - s.shape[1]), (0, 0)), constant_values=255)

@@ -1,8 +1,8 @@
 #!/usr/bin/env python3
 """Latency and throughput of the running detector node through DDS, as a camera would feed it.
 
-Three processes on this machine, all on loopback DDS (``tools/fastdds_loopback.xml``) in a ROS
-domain of the benchmark's own:
+Three processes on this machine, all on loopback DDS
+(``obstacle_detection/ros/fastdds_loopback.xml``) in a ROS domain of the benchmark's own:
 
 1. the detector node (``detector --ros-args --params-file FILE``, plus ``--set`` overrides);
 2. a publisher that sends pre-rendered 512x424 depth frames of a scene (16UC1 + CameraInfo,
@@ -37,7 +37,7 @@ if __package__ in (None, ''):  # run as a script: make the repository root impor
 
 import numpy as np  # noqa: E402
 
-from tools.dds_env import loopback_env  # noqa: E402
+from obstacle_detection.ros.dds_env import loopback_env  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_PARAMS = REPO / 'params' / 'corridor.yaml'
@@ -55,8 +55,8 @@ def _publish(frames_file: Path, rate_hz: float, duration_s: float, reliable: boo
     from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
     from sensor_msgs.msg import CameraInfo, Image
 
-    from obstacle_detection.conversions import array_to_image, intrinsics_to_camera_info
-    from obstacle_detection.params import Intrinsics
+    from obstacle_detection.ros.conversions import array_to_image, intrinsics_to_camera_info
+    from obstacle_detection.pipeline.params import Intrinsics
 
     data = np.load(frames_file)
     depth = data['depth_mm']
@@ -109,7 +109,7 @@ def _publish(frames_file: Path, rate_hz: float, duration_s: float, reliable: boo
 
 # ------------------------------------------------------------------------------ the node
 def _node_command(params: Path, overrides: Sequence[str]) -> list[str]:
-    command = [sys.executable, '-m', 'obstacle_detection.node', '--ros-args',
+    command = [sys.executable, '-m', 'obstacle_detection.ros.node', '--ros-args',
                '--params-file', str(params), '-p', 'stats_period_s:=10.0']
     for item in overrides:
         command += ['-p', item]
@@ -146,9 +146,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from std_msgs.msg import Float64, String
 
-    from obstacle_detection.params import KINECT_V2_SD, KINECT_V2_SD_SIZE
-    from obstacle_detection.scenes import render_scene
-    from tools.progress import Progress
+    from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE
+    from obstacle_detection.sim.scenes import render_scene
+    from obstacle_detection.cli.progress import Progress
 
     work = Path(tempfile.mkdtemp(prefix='latency_bench_'))
     frames = [render_scene(args.scene, seed=0, intrinsics=KINECT_V2_SD,

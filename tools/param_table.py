@@ -1,7 +1,7 @@
 """Print the node's parameters as a Markdown table (for the README), from their descriptors.
 
 Usage: ``python tools/param_table.py [--output FILE | --readme [README.md]]``. The table is
-generated from ``obstacle_detection.ros_params`` (itself built from DetectorParams' field
+generated from ``obstacle_detection.ros.parameters`` (itself built from DetectorParams' field
 metadata), so it cannot drift from what the node declares. Columns: the ROS name, type, the
 default (``params/corridor.yaml``: Table 4.2's values with the robot-level rules), the value
 of the seed's Table 4.3 preset where it differs (``params/seed_table_4_3.yaml``, the seed
@@ -15,8 +15,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from obstacle_detection.params import table_4_3
-from obstacle_detection.ros_params import ALL_PARAMS, ParamSpec, pipeline_params_to_ros
+from obstacle_detection.pipeline.params import table_4_3
+from obstacle_detection.ros.parameters import ALL_PARAMS, ParamSpec, pipeline_params_to_ros
 
 HEADER = ('| Parameter | Type | Default (`corridor.yaml`) | Seed Table 4.3 | Range '
           '| Description |\n| --- | --- | --- | --- | --- | --- |')

@@ -17,7 +17,8 @@ contact sheet of thumbnails, and ``--frames-dir`` keeps every full-size picture 
 Frames with ground truth (scenes, labelled folders) get a third panel comparing the obstacle
 pixels with the truth (hit red, false alarm orange, miss blue) unless ``--no-truth``.
 A depth file whose camera mount is unknown can be drawn with ``--estimate-mount``: the mount
-comes from the floor in view (``obstacle_detection.mount.estimate_mount``) and is written in
+comes from the floor in view (``obstacle_detection.pipeline.mount.estimate_mount``) and is
+written in
 the caption.
 """
 
@@ -36,9 +37,12 @@ if __package__ in (None, ''):  # run as a script: make the repository root impor
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from obstacle_detection import evaluation, mount, pictures, tool_support  # noqa: E402
-from obstacle_detection.depth import decode_depth  # noqa: E402
-from obstacle_detection.params import (PRESETS, SEED_TABLE_4_1, DetectorParams,  # noqa: E402
+from obstacle_detection.evaluation import runner as evaluation  # noqa: E402
+from obstacle_detection.pipeline import mount
+from obstacle_detection.viz import pictures
+from obstacle_detection.cli import support as tool_support
+from obstacle_detection.pipeline.depth import decode_depth  # noqa: E402
+from obstacle_detection.pipeline.params import (PRESETS, SEED_TABLE_4_1, DetectorParams,  # noqa: E402
                                        Intrinsics)
 from tools.estimate_mount import parse_intrinsics  # noqa: E402
 from tools.evaluate import base_params, parse_assignment  # noqa: E402
@@ -474,8 +478,8 @@ def detect(args: argparse.Namespace) -> list[_Detected]:
     warnings; raises UsageError for options that do not go together, ValueError, OSError or
     KeyError on bad input.
     """
-    from obstacle_detection import refine
-    from obstacle_detection.pipeline import Detector
+    from obstacle_detection.pipeline import refine
+    from obstacle_detection.pipeline.detector import Detector
 
     if args.scene is not None and (args.estimate_mount or args.depth_scale is not None
                                    or args.intrinsics is not None):

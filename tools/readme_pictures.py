@@ -40,7 +40,8 @@ if __package__ in (None, ''):  # run as a script: make the repository root impor
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from obstacle_detection import pictures, tool_support  # noqa: E402
+from obstacle_detection.viz import pictures  # noqa: E402
+from obstacle_detection.cli import support as tool_support
 from tools import pictures as pictures_tool  # noqa: E402
 
 REPOSITORY = Path(__file__).resolve().parents[1]

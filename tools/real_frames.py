@@ -1,7 +1,7 @@
 """Score the detector on the real frames of ../shared/data/real (no labels: heights decide).
 
 Usage: ``python tools/real_frames.py [--data DIR] [--params-file YAML] [--set KEY=VALUE ...]``.
-For each frame the camera mount is fitted to the floor (:func:`obstacle_detection.mount.
+For each frame the camera mount is fitted to the floor (:func:`obstacle_detection.pipeline.mount.
 estimate_mount`, as ``tools/estimate_mount.py`` does), the detector runs with the parameter
 file (default ``params/corridor.yaml``) and that mount, and two shares are printed, over the
 pixels whose measured point lies inside the region of interest (forward range, lateral
@@ -26,13 +26,13 @@ if __package__ in (None, ''):  # run as a script: make the repository root impor
 
 import numpy as np  # noqa: E402
 
-from obstacle_detection import geometry  # noqa: E402
-from obstacle_detection.depth import decode_depth  # noqa: E402
-from obstacle_detection.evaluation import apply_overrides, load_params_file  # noqa: E402
-from obstacle_detection.mount import estimate_mount  # noqa: E402
-from obstacle_detection.params import Intrinsics, corridor  # noqa: E402
-from obstacle_detection.pictures import read_depth_png  # noqa: E402
-from obstacle_detection.pipeline import LABEL_OBSTACLE, Detector  # noqa: E402
+from obstacle_detection.pipeline import geometry  # noqa: E402
+from obstacle_detection.pipeline.depth import decode_depth  # noqa: E402
+from obstacle_detection.evaluation.runner import apply_overrides, load_params_file  # noqa: E402
+from obstacle_detection.pipeline.mount import estimate_mount  # noqa: E402
+from obstacle_detection.pipeline.params import Intrinsics, corridor  # noqa: E402
+from obstacle_detection.viz.pictures import read_depth_png  # noqa: E402
+from obstacle_detection.pipeline.detector import LABEL_OBSTACLE, Detector  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 

@@ -35,8 +35,8 @@ if __package__ in (None, ''):  # run as a script: make the repository root impor
 
 import numpy as np  # noqa: E402
 
-from obstacle_detection import evaluation  # noqa: E402
-from obstacle_detection.params import DetectorParams  # noqa: E402
+from obstacle_detection.evaluation import runner as evaluation  # noqa: E402
+from obstacle_detection.pipeline.params import DetectorParams  # noqa: E402
 from tools.evaluate import (add_common_arguments, base_params, frame_sources,  # noqa: E402
                             report_error)
 
@@ -342,7 +342,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _write_heatmaps(args: argparse.Namespace, result: SweepResult) -> None:
     """One heatmap panel per scenario and overall, tiled into ``args.out``."""
-    from obstacle_detection import pictures
+    from obstacle_detection.viz import pictures
 
     panels = []
     for scene in result.grids:
@@ -363,8 +363,8 @@ def _write_heatmaps(args: argparse.Namespace, result: SweepResult) -> None:
 def _write_strip(args: argparse.Namespace, base: DetectorParams,
                  frame: evaluation.LabelledFrame, result: SweepResult) -> None:
     """Overlays of one frame for each value of the strip axis, the others at the best."""
-    from obstacle_detection import pictures
-    from obstacle_detection.pipeline import Detector
+    from obstacle_detection.viz import pictures
+    from obstacle_detection.pipeline.detector import Detector
 
     best = result.best('overall') or (0,) * len(result.shape)
     images, labels = [], []

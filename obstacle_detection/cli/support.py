@@ -1,0 +1,277 @@
+"""What the command-line tools share: default topics, error lines and exit codes, data checks.
+
+Exit codes, the same in every tool (and as the README says): 0 success, 1 bad input (a file,
+folder or bag that cannot be used; one ``error: <path>: <problem>`` line on stderr),
+2 usage error (as argparse: ``<prog>: error: <problem>``).
+
+The data checks never change what a tool computes: they say which intrinsics, depth scale and
+camera mount are used and warn when the data disagrees with them (a depth whose values look
+like another unit, a floor far from where the mount puts it), with the option that fixes it.
+No ROS import here.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TextIO
+
+import numpy as np
+
+from obstacle_detection.pipeline.params import DetectorParams, Intrinsics
+
+EXIT_OK = 0
+EXIT_BAD_INPUT = 1
+EXIT_USAGE = 2
+
+#: One set of default topic names for every tool: the iai_kinect2 driver's SD (512x424) topics.
+DEFAULT_DEPTH_TOPIC = '/kinect2/sd/image_depth_rect'
+DEFAULT_INFO_TOPIC = '/kinect2/sd/camera_info'
+DEFAULT_COLOR_TOPIC = '/kinect2/sd/image_color_rect'
+IMAGE_TYPE = 'sensor_msgs/msg/Image'
+CAMERA_INFO_TYPE = 'sensor_msgs/msg/CameraInfo'
+
+#: Depth units per metre of the usual 16-bit depth formats, and what they are.
+KNOWN_DEPTH_SCALES: dict[float, str] = {
+    1000.0: 'millimetres (Kinect, RealSense, ROS 16UC1)',
+    5000.0: 'TUM RGB-D format, 0.2 mm',
+    10000.0: '0.1 mm',
+    100.0: 'centimetres',
+}
+#: Median depth [m] of a plausible indoor RGB-D frame (structured light / time of flight).
+PLAUSIBLE_MEDIAN_DEPTH_M = (0.3, 8.0)
+#: A mount differing from the floor in view by more than this is reported.
+MOUNT_HEIGHT_TOLERANCE_M = 0.15
+MOUNT_ANGLE_TOLERANCE_DEG = 5.0
+
+
+class ToolError(ValueError):
+    """Bad input to a tool (exit 1); ``str()`` is ``<path>: <problem>``."""
+
+    def __init__(self, path: str | Path, problem: str) -> None:
+        super().__init__(f'{path}: {problem}')
+        self.path = path
+        self.problem = problem
+
+
+class UsageError(ValueError):
+    """Options that do not go together or name nothing known (exit 2, as argparse).
+
+    A ValueError, so that callers catching bad values catch it too.
+    """
+
+
+def report_error(prog: str, error: BaseException, stream: TextIO | None = None) -> int:
+    """Print the one error line of ``error`` and return the exit code it calls for.
+
+    UsageError: ``<prog>: error: <message>``, 2. Anything else (ToolError, ValueError,
+    OSError naming a path): ``error: <message>``, 1.
+    """
+    stream = sys.stderr if stream is None else stream
+    if isinstance(error, UsageError):
+        print(f'{prog}: error: {error}', file=stream)
+        return EXIT_USAGE
+    text = str(error)
+    if isinstance(error, OSError) and error.filename is not None and error.strerror:
+        text = f'{error.filename}: {error.strerror}'
+    elif isinstance(error, KeyError) and error.args:
+        text = str(error.args[0])
+    print(f'error: {text}', file=stream)
+    return EXIT_BAD_INPUT
+
+
+def warn(text: str, stream: TextIO | None = None) -> None:
+    """Print one ``warning: ...`` line on stderr."""
+    print(f'warning: {text}', file=sys.stderr if stream is None else stream)
+
+
+# --------------------------------------------------------------------------------------------
+# Bags
+
+
+def check_bag_path(path: str | Path, *, ros1: bool = True) -> None:
+    """Raise ToolError unless ``path`` looks like a bag the rosbags library can open.
+
+    A rosbag2 bag is a folder holding ``metadata.yaml``; a ROS 1 bag a ``.bag`` file (accepted
+    when ``ros1``). The message names the path and what was expected.
+    """
+    path = Path(path)
+    expected = ('a rosbag2 folder (holding metadata.yaml)'
+                + (' or a ROS 1 .bag file' if ros1 else ''))
+    if not path.exists():
+        raise ToolError(path, f'no such file or folder; expected {expected}')
+    if path.is_dir():
+        if not (path / 'metadata.yaml').is_file():
+            inner = sorted(p.parent.name for p in path.glob('*/metadata.yaml'))
+            hint = f' (its sub-folder{"s" if len(inner) > 1 else ""} {", ".join(inner)} ' \
+                   f'{"are bags" if len(inner) > 1 else "is one"})' if inner else ''
+            raise ToolError(path, f'not a bag: no metadata.yaml in the folder; expected '
+                                  f'{expected}{hint}')
+        return
+    if path.suffix in ('.db3', '.mcap'):
+        raise ToolError(path, f'a rosbag2 storage file: give its folder {path.parent} (the '
+                              'one holding metadata.yaml)')
+    if not ros1:
+        what = 'a ROS 1 bag: convert it first with tools/bag_convert.py ros1' \
+            if path.suffix == '.bag' else f'not a bag; expected {expected}'
+        raise ToolError(path, what)
+    if path.suffix != '.bag':
+        raise ToolError(path, f'not a bag; expected {expected}')
+
+
+def choose_info_topic(topics: Mapping[str, str], depth_topic: str,
+                      requested: str | None = None) -> tuple[str | None, str]:
+    """Pick the CameraInfo topic of a bag's depth topic: ``(topic or None, how it was found)``.
+
+    topics: ``{topic: message type}``. requested: the user's ``--info-topic`` (must exist and
+    be a CameraInfo: ValueError otherwise). Without it: ``DEFAULT_INFO_TOPIC`` when the bag has
+    it, else the CameraInfo topic beside the depth topic (same parent namespace), else the only
+    CameraInfo topic, else the one sharing the longest prefix with the depth topic. None when
+    the bag has no CameraInfo topic.
+    """
+    infos = sorted(t for t, kind in topics.items() if kind == CAMERA_INFO_TYPE)
+    if requested is not None:
+        if requested not in topics:
+            raise ValueError(f'no topic {requested!r} (its CameraInfo topics: '
+                             f'{", ".join(infos) or "none"})')
+        if topics[requested] != CAMERA_INFO_TYPE:
+            raise ValueError(f'{requested} has type {topics[requested]}, not {CAMERA_INFO_TYPE}')
+        return requested, 'given'
+    if not infos:
+        return None, 'the bag has no CameraInfo topic'
+    if DEFAULT_INFO_TOPIC in infos:
+        return DEFAULT_INFO_TOPIC, 'the default topic'
+    parent = depth_topic.rsplit('/', 1)[0]
+    beside = [t for t in infos if t.rsplit('/', 1)[0] == parent]
+    if len(beside) == 1:
+        return beside[0], f'found by type beside {depth_topic}'
+    if len(infos) == 1:
+        return infos[0], 'found by type (the only CameraInfo topic)'
+
+    def shared(topic: str) -> int:
+        return len(_common_prefix(topic, depth_topic))
+    best = max(infos, key=shared)
+    return best, f'found by type (of {", ".join(infos)}, the nearest to {depth_topic})'
+
+
+def _common_prefix(a: str, b: str) -> str:
+    n = 0
+    while n < min(len(a), len(b)) and a[n] == b[n]:
+        n += 1
+    return a[:n]
+
+
+# --------------------------------------------------------------------------------------------
+# Saying what is used, checking it against the data
+
+
+def intrinsics_text(intrinsics: Intrinsics) -> str:
+    """``fx 535.4 fy 539.2 cx 320.1 cy 247.6 px``."""
+    return (f'fx {intrinsics.fx:g} fy {intrinsics.fy:g} cx {intrinsics.cx:g} '
+            f'cy {intrinsics.cy:g} px')
+
+
+def mount_text(params: DetectorParams) -> str:
+    """``height 0.60 m, pitch 0.0 deg, roll 0.0 deg`` of the parameters' camera mount."""
+    return (f'height {params.camera_height_m:.2f} m, pitch '
+            f'{math.degrees(params.camera_pitch_rad):.1f} deg, roll '
+            f'{math.degrees(params.camera_roll_rad):.1f} deg')
+
+
+def intrinsics_warning(intrinsics: Intrinsics, shape: tuple[int, int]) -> str | None:
+    """Why these intrinsics do not fit an (H, W) image (principal point far off centre), or None.
+
+    A principal point more than a quarter of the image from its centre is not a calibration
+    of this camera (real ones are within a few percent).
+    """
+    height, width = shape
+    if abs(intrinsics.cx - width / 2) > width / 4 or abs(intrinsics.cy - height / 2) > height / 4:
+        return (f'the principal point ({intrinsics.cx:g}, {intrinsics.cy:g}) is far from the '
+                f'centre ({width / 2:g}, {height / 2:g}) of the {width}x{height} image: these '
+                'intrinsics are not this camera\'s')
+    return None
+
+
+def depth_unit_warning(depth: np.ndarray, depth_scale: float | None,
+                       option: str = '--depth-scale', *,
+                       out_of_range_m: float | None = None) -> str | None:
+    """Return a warning when integer depth read at ``depth_scale`` units/m looks like another unit.
+
+    depth: (H, W) integer depth (0 = no return); depth_scale: units per metre (None = 1000).
+    The frame looks wrong when its median valid depth lies outside PLAUSIBLE_MEDIAN_DEPTH_M,
+    or, with ``out_of_range_m`` (a caller found too few points within this range), when
+    another known scale would bring the median nearer 2 m. The warning names the median and
+    the known scale (KNOWN_DEPTH_SCALES) that brings it nearest to 2 m. None for float depth
+    (metres), an empty frame, or a plausible one.
+    """
+    arr = np.asarray(depth)
+    if arr.dtype.kind not in 'ui':
+        return None
+    valid = arr[arr > 0]
+    if valid.size == 0:
+        return None
+    scale = 1000.0 if depth_scale is None else float(depth_scale)
+    median_units = float(np.median(valid))
+    median_m = median_units / scale
+    low, high = PLAUSIBLE_MEDIAN_DEPTH_M
+    fits = [s for s in KNOWN_DEPTH_SCALES if low <= median_units / s <= high]
+    best = min(fits, key=lambda s: abs(math.log(median_units / s / 2.0)), default=None)
+    if low <= median_m <= high:
+        if out_of_range_m is None or best is None or best == scale:
+            return None
+        return (f'read at {scale:g} units/m the depth\'s median is {median_m:.2f} m and little '
+                f'of it lies within {out_of_range_m:g} m: if the depth is in another unit, '
+                f'{option} {best:g} ({KNOWN_DEPTH_SCALES[best]}) would make its median '
+                f'{median_units / best:.2f} m')
+    else:
+        text = (f'the depth looks like another unit: read at {scale:g} units/m its median is '
+                f'{median_m:.2f} m, {"beyond" if median_m > high else "below"} what a depth '
+                f'camera sees indoors ({low:g}-{high:g} m)')
+    if best is not None and best != scale:
+        text += (f'; with {option} {best:g} ({KNOWN_DEPTH_SCALES[best]}) the median would be '
+                 f'{median_units / best:.2f} m')
+    return text
+
+
+@dataclass(frozen=True)
+class MountCheck:
+    """The floor found in a frame compared with the mount in use.
+
+    estimate: the floor's mount (``mount.MountEstimate``) or None when no floor was found
+    (``reason`` says why); warning: set when the mount in use is far from the floor's.
+    """
+
+    estimate: object | None
+    warning: str | None = None
+    reason: str = ''
+
+
+def check_mount(depth_m: np.ndarray, intrinsics: Intrinsics, params: DetectorParams,
+                fix: str = '--estimate-mount') -> MountCheck:
+    """Find the floor (``mount.estimate_mount``, RANSAC) and compare it with the params' mount.
+
+    Warns when the camera height differs by more than MOUNT_HEIGHT_TOLERANCE_M or the pitch or
+    roll by more than MOUNT_ANGLE_TOLERANCE_DEG: the floor is then tilted or shifted in the
+    ground frame and bands of it are marked as obstacles or cut by the region of interest.
+    fix: the option or command that applies the floor's mount, quoted in the warning.
+    """
+    from obstacle_detection.pipeline.mount import estimate_mount
+
+    try:
+        estimate = estimate_mount(depth_m, intrinsics)
+    except ValueError as exc:
+        return MountCheck(None, reason=str(exc))
+    d_height = abs(estimate.height_m - params.camera_height_m)
+    d_pitch = abs(estimate.pitch_deg - math.degrees(params.camera_pitch_rad))
+    d_roll = abs(estimate.roll_deg - math.degrees(params.camera_roll_rad))
+    if (d_height <= MOUNT_HEIGHT_TOLERANCE_M and d_pitch <= MOUNT_ANGLE_TOLERANCE_DEG
+            and d_roll <= MOUNT_ANGLE_TOLERANCE_DEG):
+        return MountCheck(estimate)
+    warning = (f'the floor in view ({estimate.inlier_fraction:.0%} of the points) puts the '
+               f'camera at height {estimate.height_m:.2f} m, pitch {estimate.pitch_deg:.1f} deg, '
+               f'roll {estimate.roll_deg:.1f} deg, but the mount used is {mount_text(params)}: '
+               f'the floor will be marked as obstacles or cut off; use {fix}')
+    return MountCheck(estimate, warning)

@@ -1,0 +1,334 @@
+"""Accuracy of the detector against ground truth: pixel and costmap-cell confusion counts.
+
+The seed thesis tuned its parameters "by trial" and named a ground truth as future work; these
+functions turn a detection into numbers. Everything here is plain numpy on label arrays and
+grids; nothing runs the pipeline.
+
+What counts (the same text is printed by ``tools/evaluate.py --help``):
+
+Pixel level
+    The positive class is "obstacle". A pixel is *evaluated* when the ground truth saw a surface
+    there (truth label not ``GT_NO_RETURN``) **and** the pipeline made a call on it (pipeline
+    label ``LABEL_GROUND`` or ``LABEL_OBSTACLE``). Pixels without depth after filtering
+    (``LABEL_NO_RETURN``) and pixels outside the region of interest (``LABEL_OUTSIDE_ROI``) carry
+    no prediction and are left out. Predicted positive: pipeline label ``LABEL_OBSTACLE``; true
+    positive: truth label ``GT_OBSTACLE``.
+
+Costmap-cell level
+    The truth grid has the pipeline's costmap geometry (same origin, resolution and size). A cell
+    is occupied in the truth when the noise-free hit point of at least one ``GT_OBSTACLE`` pixel
+    inside the region of interest falls in it, free when only ``GT_TRAVERSABLE`` points fall in
+    it, unknown otherwise. Unknown truth cells are not evaluated. Predicted positive: the
+    pipeline's cell is ``CELL_OCCUPIED``; a free or unknown pipeline cell counts as negative
+    (an obstacle the pipeline never saw is a miss).
+
+Robot-level truth (issue 9) adds the label ``GT_ABOVE_ROBOT``: a surface above the robot is
+not an obstacle, so its pixels are negatives and its points count as free in the truth grid (a
+cell under an overhang above the robot is free, marking it is a false alarm).
+
+Scores from a confusion (tp, fp, fn, tn): precision tp/(tp+fp), recall tp/(tp+fn),
+F1 2 tp/(2 tp+fp+fn), IoU tp/(tp+fp+fn), false-alarm rate fp/(fp+tn) (the share of traversable
+truth marked as obstacle), accuracy (tp+tn)/total. A ratio with a zero denominator is NaN
+("not defined": e.g. recall on a frame without obstacles). Scores over several frames are
+computed from the summed counts (micro average), never by averaging per-frame ratios.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Ground-truth labels of the scene generator and of labelled folders (see
+#: ``obstacle_detection.sim.scenes``): no surface hit, traversable ground, obstacle.
+GT_NO_RETURN = 0
+GT_TRAVERSABLE = 1
+GT_OBSTACLE = 2
+#: Robot-level truth only: a surface above the robot; not an obstacle, a free point in cells.
+GT_ABOVE_ROBOT = 3
+
+#: Pipeline labels (mirrors ``obstacle_detection.pipeline.detector``; kept here so this module
+#: imports
+#: nothing but numpy).
+LABEL_NO_RETURN = 0
+LABEL_OUTSIDE_ROI = 1
+LABEL_GROUND = 2
+LABEL_OBSTACLE = 3
+
+#: Costmap cell values (mirrors ``obstacle_detection.pipeline.costmap``).
+CELL_UNKNOWN = -1
+CELL_FREE = 0
+CELL_OCCUPIED = 100
+
+
+def _ratio(num: int, den: int) -> float:
+    return num / den if den > 0 else math.nan
+
+
+@dataclass(frozen=True)
+class Confusion:
+    """Binary confusion counts, obstacle = positive. Add two with ``+`` to pool frames."""
+
+    tp: int = 0
+    fp: int = 0
+    fn: int = 0
+    tn: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ('tp', 'fp', 'fn', 'tn'):
+            value = getattr(self, name)
+            if value < 0:
+                raise ValueError(f'confusion count {name}={value!r} must be >= 0')
+
+    def __add__(self, other: 'Confusion') -> 'Confusion':
+        return Confusion(self.tp + other.tp, self.fp + other.fp, self.fn + other.fn,
+                         self.tn + other.tn)
+
+    @property
+    def total(self) -> int:
+        """Number of evaluated samples."""
+        return self.tp + self.fp + self.fn + self.tn
+
+    @property
+    def precision(self) -> float:
+        """Precision tp / (tp + fp); NaN when nothing was predicted positive."""
+        return _ratio(self.tp, self.tp + self.fp)
+
+    @property
+    def recall(self) -> float:
+        """Recall tp / (tp + fn); NaN when the truth has no positive."""
+        return _ratio(self.tp, self.tp + self.fn)
+
+    @property
+    def f1(self) -> float:
+        """F1 score 2 tp / (2 tp + fp + fn); NaN without any positive or prediction."""
+        return _ratio(2 * self.tp, 2 * self.tp + self.fp + self.fn)
+
+    @property
+    def iou(self) -> float:
+        """IoU tp / (tp + fp + fn), the Jaccard index of the positive class."""
+        return _ratio(self.tp, self.tp + self.fp + self.fn)
+
+    @property
+    def false_alarm_rate(self) -> float:
+        """False-alarm rate fp / (fp + tn): the share of true negatives predicted positive."""
+        return _ratio(self.fp, self.fp + self.tn)
+
+    @property
+    def accuracy(self) -> float:
+        """(tp + tn) / total."""
+        return _ratio(self.tp + self.tn, self.total)
+
+    def scores(self) -> dict[str, float]:
+        """All ratios by name (precision, recall, f1, iou, false_alarm_rate, accuracy)."""
+        return {'precision': self.precision, 'recall': self.recall, 'f1': self.f1,
+                'iou': self.iou, 'false_alarm_rate': self.false_alarm_rate,
+                'accuracy': self.accuracy}
+
+    def as_dict(self) -> dict[str, float]:
+        """Return counts and scores in one flat dict (JSON-ready; NaN stays NaN)."""
+        return {'tp': self.tp, 'fp': self.fp, 'fn': self.fn, 'tn': self.tn, **self.scores()}
+
+
+def confusion(predicted: np.ndarray, truth: np.ndarray,
+              evaluated: np.ndarray | None = None) -> Confusion:
+    """Confusion counts of two boolean arrays of one shape, over the ``evaluated`` entries.
+
+    predicted, truth: bool arrays (any shape, equal); evaluated: bool mask of the same shape,
+    None = all entries.
+    """
+    predicted = np.asarray(predicted, dtype=bool)
+    truth = np.asarray(truth, dtype=bool)
+    if predicted.shape != truth.shape:
+        raise ValueError(
+            f'predicted shape {predicted.shape} differs from truth shape {truth.shape}')
+    if evaluated is not None:
+        evaluated = np.asarray(evaluated, dtype=bool)
+        if evaluated.shape != truth.shape:
+            raise ValueError(
+                f'evaluated mask shape {evaluated.shape} differs from truth shape {truth.shape}')
+        predicted = predicted[evaluated]
+        truth = truth[evaluated]
+    tp = int(np.count_nonzero(predicted & truth))
+    fp = int(np.count_nonzero(predicted & ~truth))
+    fn = int(np.count_nonzero(~predicted & truth))
+    tn = int(predicted.size - tp - fp - fn)
+    return Confusion(tp, fp, fn, tn)
+
+
+def pixel_evaluated(pipeline_labels: np.ndarray, truth_labels: np.ndarray) -> np.ndarray:
+    """(H, W) bool: pixels the pixel-level scores count (truth saw a surface, pipeline called)."""
+    pipeline_labels = np.asarray(pipeline_labels)
+    truth_labels = np.asarray(truth_labels)
+    if pipeline_labels.shape != truth_labels.shape:
+        raise ValueError(f'pipeline labels shape {pipeline_labels.shape} differs from truth '
+                         f'labels shape {truth_labels.shape}')
+    called = (pipeline_labels == LABEL_GROUND) | (pipeline_labels == LABEL_OBSTACLE)
+    return called & (truth_labels != GT_NO_RETURN)
+
+
+def pixel_confusion(pipeline_labels: np.ndarray, truth_labels: np.ndarray) -> Confusion:
+    """Pixel-level confusion of obstacle pixels (see the module docstring for what counts).
+
+    pipeline_labels: (H, W) uint8 ``LABEL_*``; truth_labels: (H, W) uint8 ``GT_*``.
+    """
+    evaluated = pixel_evaluated(pipeline_labels, truth_labels)
+    return confusion(np.asarray(pipeline_labels) == LABEL_OBSTACLE,
+                     np.asarray(truth_labels) == GT_OBSTACLE, evaluated)
+
+
+def cell_confusion(predicted_grid: np.ndarray, truth_grid: np.ndarray) -> Confusion:
+    """Costmap-cell confusion: truth cells ``CELL_UNKNOWN`` are skipped.
+
+    predicted_grid, truth_grid: (ny, nx) int8 grids with ``CELL_*`` values of one geometry.
+    A predicted cell is positive when ``CELL_OCCUPIED``; free and unknown are negative.
+    """
+    predicted_grid = np.asarray(predicted_grid)
+    truth_grid = np.asarray(truth_grid)
+    if predicted_grid.shape != truth_grid.shape:
+        raise ValueError(f'predicted grid shape {predicted_grid.shape} differs from truth grid '
+                         f'shape {truth_grid.shape}')
+    return confusion(predicted_grid == CELL_OCCUPIED, truth_grid == CELL_OCCUPIED,
+                     truth_grid != CELL_UNKNOWN)
+
+
+def truth_points(points_ground: np.ndarray, truth_labels: np.ndarray, roi: np.ndarray,
+                 marked: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Split true hit points into (obstacle (O, 3), traversable (T, 3)) float32 [m].
+
+    points_ground: (H, W, 3) ground frame, NaN where no hit; truth_labels (H, W) ``GT_*``;
+    roi: (H, W) bool, True for pixels whose true point lies in the region of interest. Only
+    finite points inside the region of interest are returned. ``GT_ABOVE_ROBOT`` points count
+    as traversable (a cell under an overhang above the robot is free). marked: (H, W) bool,
+    pixels with a surface whose points count as obstacles whatever their label (the reachable
+    ground at a drop's edge), None = none.
+    """
+    flat = np.asarray(points_ground, dtype=np.float32).reshape(-1, 3)
+    labels = np.asarray(truth_labels).reshape(-1)
+    keep = np.asarray(roi, dtype=bool).reshape(-1) & np.isfinite(flat).all(axis=1)
+    is_obstacle = labels == GT_OBSTACLE
+    if marked is not None:
+        is_obstacle = is_obstacle | (np.asarray(marked, dtype=bool).reshape(-1)
+                                     & (labels != GT_NO_RETURN))
+    obstacle = flat[keep & is_obstacle]
+    traversable = flat[keep & ~is_obstacle
+                       & ((labels == GT_TRAVERSABLE) | (labels == GT_ABOVE_ROBOT))]
+    return obstacle, traversable
+
+
+def truth_grid(obstacle_points: np.ndarray, traversable_points: np.ndarray,
+               origin_xy_m: tuple[float, float], resolution_m: float, shape: tuple[int, int],
+               ) -> np.ndarray:
+    """Rasterise true points into a (ny, nx) int8 grid of ``CELL_*`` values.
+
+    Cell (row iy, column ix) covers ``origin + [ix, ix+1) * res`` in x and
+    ``origin + [iy, iy+1) * res`` in y (ground frame [m]); points outside the grid are dropped.
+    A cell with an obstacle point is occupied, one with only traversable points free, others
+    unknown. This mirrors the pipeline's costmap binning (floor of the offset over the cell
+    size); ``evaluation.truth_costmap`` uses the pipeline's own ``build_costmap`` instead when
+    it is available so that both grids bin points the same way.
+    """
+    if resolution_m <= 0.0 or not math.isfinite(resolution_m):
+        raise ValueError(f'resolution_m={resolution_m!r} must be a positive number')
+    ny, nx = shape
+    grid = np.full((ny, nx), CELL_UNKNOWN, dtype=np.int8)
+    for points, value in ((traversable_points, CELL_FREE), (obstacle_points, CELL_OCCUPIED)):
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        ix = np.floor((points[:, 0] - origin_xy_m[0]) / resolution_m)
+        iy = np.floor((points[:, 1] - origin_xy_m[1]) / resolution_m)
+        inside = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
+        grid[iy[inside].astype(np.intp), ix[inside].astype(np.intp)] = value
+    return grid
+
+
+def format_score(value: float, digits: int = 3) -> str:
+    """Return a ratio as text, '-' when not defined (NaN)."""
+    return '-' if value is None or math.isnan(value) else f'{value:.{digits}f}'
+
+
+def point_cells(points: np.ndarray, origin_xy_m: tuple[float, float], resolution_m: float,
+                shape: tuple[int, int]) -> np.ndarray:
+    """(ny, nx) bool: the grid cells that points (M, 3) or (M, 2) [m] fall in.
+
+    Binning as in :func:`truth_grid` (floor of the offset over the cell size); points outside
+    the grid are dropped.
+    """
+    if resolution_m <= 0.0 or not math.isfinite(resolution_m):
+        raise ValueError(f'resolution_m={resolution_m!r} must be a positive number')
+    ny, nx = shape
+    cells = np.zeros((ny, nx), dtype=bool)
+    points = np.asarray(points, dtype=np.float64)
+    points = points.reshape(-1, points.shape[-1] if points.ndim > 1 else 3)
+    ix = np.floor((points[:, 0] - origin_xy_m[0]) / resolution_m)
+    iy = np.floor((points[:, 1] - origin_xy_m[1]) / resolution_m)
+    inside = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
+    cells[iy[inside].astype(np.intp), ix[inside].astype(np.intp)] = True
+    return cells
+
+
+def occupied_share(predicted_grid: np.ndarray, cells: np.ndarray, *,
+                   tolerance_cells: int = 0) -> tuple[int, int]:
+    """(cells marked, cells) of a set of cells: how many are ``CELL_OCCUPIED`` in the grid.
+
+    tolerance_cells: a cell also counts as marked when an occupied cell lies within this many
+    cells of it (Chebyshev distance; 0 = the cell itself).
+    """
+    occupied = np.asarray(predicted_grid) == CELL_OCCUPIED
+    cells = np.asarray(cells, dtype=bool)
+    if occupied.shape != cells.shape:
+        raise ValueError(f'grid shape {occupied.shape} differs from cells shape {cells.shape}')
+    if tolerance_cells > 0:
+        k = int(tolerance_cells)
+        padded = np.pad(occupied, k)
+        grown = np.zeros_like(occupied)
+        ny, nx = occupied.shape
+        for dy in range(2 * k + 1):
+            for dx in range(2 * k + 1):
+                grown |= padded[dy:dy + ny, dx:dx + nx]
+        occupied = grown
+    return int(np.count_nonzero(occupied & cells)), int(np.count_nonzero(cells))
+
+
+def free_share(predicted_grid: np.ndarray, cells: np.ndarray) -> tuple[int, int]:
+    """(cells free, cells) of a set of cells: how many are ``CELL_FREE`` in the grid."""
+    free = np.asarray(predicted_grid) == CELL_FREE
+    cells = np.asarray(cells, dtype=bool)
+    if free.shape != cells.shape:
+        raise ValueError(f'grid shape {free.shape} differs from cells shape {cells.shape}')
+    return int(np.count_nonzero(free & cells)), int(np.count_nonzero(cells))
+
+
+def surface_gap_points(points_ground: np.ndarray, object_ids: np.ndarray, mask: np.ndarray,
+                       *, step_m: float, max_gap_m: float) -> np.ndarray:
+    """Points (M, 3) float64 [m] filling the gaps between neighbouring samples of a surface.
+
+    Two 4-neighbour pixels, both in ``mask``, that hit the same object (``object_ids`` >= 0,
+    equal) and lie more than ``step_m`` but at most ``max_gap_m`` apart span a piece of that
+    surface the pixel grid sampled sparsely (a table's underside seen at a grazing angle): the
+    segment between them is sampled at most ``step_m`` apart (end points excluded). points_ground:
+    (H, W, 3) ground frame, NaN where no hit.
+    """
+    if not (0.0 < step_m <= max_gap_m and math.isfinite(max_gap_m)):
+        raise ValueError(f'need 0 < step_m={step_m!r} <= max_gap_m={max_gap_m!r}')
+    points = np.asarray(points_ground, dtype=np.float64)
+    ids = np.asarray(object_ids)
+    mask = np.asarray(mask, dtype=bool) & (ids >= 0)
+    starts, ends = [], []
+    for a, b in (((slice(None), slice(None, -1)), (slice(None), slice(1, None))),
+                 ((slice(None, -1), slice(None)), (slice(1, None), slice(None)))):
+        pair = mask[a] & mask[b] & (ids[a] == ids[b])
+        pa, pb = points[a][pair], points[b][pair]
+        with np.errstate(invalid='ignore'):
+            gap = np.linalg.norm(pb - pa, axis=1)
+        keep = (gap > step_m) & (gap <= max_gap_m)
+        starts.append(pa[keep])
+        ends.append(pb[keep])
+    start, end = np.concatenate(starts), np.concatenate(ends)
+    if start.shape[0] == 0:
+        return np.zeros((0, 3))
+    # count - 1 inner points per segment: spacing gap / count <= max_gap_m / count <= step_m
+    count = int(math.ceil(max_gap_m / step_m))
+    fractions = np.arange(1, count) / count
+    dense = start[:, None, :] + fractions[None, :, None] * (end - start)[:, None, :]
+    return dense.reshape(-1, 3)

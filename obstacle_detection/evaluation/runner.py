@@ -1,0 +1,935 @@
+"""Run the detector over labelled frames and score it: the scenario suite runner of the tools.
+
+Labelled frames come from two sources:
+
+* the scene generator (``obstacle_detection.sim.scenes``), through a scenario list such as the
+  committed ``scenarios.json`` beside this module (fixed seeds, so numbers are comparable
+  across versions; scored against the seed's slope-only truth ``labels_seed``) or
+  ``scenarios_robot.json``
+  (issue 9: scored against the robot-level truth ``labels``, with the time-of-flight sensor
+  model; :func:`robot_score` adds named objects found, passable surfaces left free and drops
+  marked);
+* a *labelled folder* on disk, for recorded sequences with per-pixel labels::
+
+      my_sequence/
+        intrinsics.yaml     fx, fy, cx, cy [px]; camera_height_m; camera_pitch_deg (or _rad);
+                            camera_roll_deg (or _rad); optional depth_scale [m per unit]
+        depth/000000.png    16-bit depth [mm] (0 = no return)
+        labels/000000.png   8-bit labels: 0 no return, 1 traversable, 2 obstacle,
+                            3 above the robot (robot-level truth: scored as free)
+
+  Frames pair up by file name, sorted. ``intrinsics.yaml`` may instead be a ROS camera
+  calibration file (``camera_matrix: {data: [fx, 0, cx, 0, fy, cy, 0, 0, 1]}``) with the mount
+  keys added. The true 3-D points of a folder frame are its own depth back-projected through
+  the mount (a recording has no noise-free depth).
+
+What the scores count is defined in :mod:`obstacle_detection.evaluation.metrics`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterable, Iterator, Sequence
+
+import cv2
+import numpy as np
+
+from obstacle_detection.pipeline import geometry
+from . import metrics
+from .metrics import Confusion, format_score
+from obstacle_detection.pipeline.params import (KINECT_V2_SD, KINECT_V2_SD_SIZE, PRESETS,
+                                                DetectorParams, Intrinsics)
+
+#: Version of the scenario-list format read by :func:`load_scenarios`.
+SCENARIO_FORMAT_VERSION = 1
+
+#: The committed suites: the seed's (slope-only truth) and the robot-level one (issue 9).
+SUITES = {'seed': Path(__file__).resolve().parent / 'scenarios.json',
+          'robot': Path(__file__).resolve().parent / 'scenarios_robot.json'}
+
+_MOUNT_KEYS = ('height_m', 'pitch_deg', 'roll_deg')
+#: Ground truths a scenario is scored against: the seed's slope-only labels
+#: (``SceneFrame.labels_seed``) or the robot-level ones (``SceneFrame.labels``, issue 9).
+TRUTH_KINDS = ('seed', 'robot')
+#: Sensor models by name (``scenes.NOISE_MODELS``): 'kinect_v2' (the generator's default, the
+#: seed suite's), 'kinect_v2_tof' with time-of-flight artefacts (flying pixels, more noise and
+#: dropouts on dark and far surfaces; the robot suite's), 'exact'.
+NOISE_NAMES = ('kinect_v2', 'kinect_v2_tof', 'exact')
+
+
+# --------------------------------------------------------------------------------------------
+# Labelled frames
+
+
+@dataclass
+class LabelledFrame:
+    """One depth frame with per-pixel ground truth.
+
+    depth: (H, W) uint16 [mm or 1/depth_scale m] or float32 [m]; truth_labels: (H, W) uint8
+    ``GT_*``; truth_points: (H, W, 3) float32 ground frame [m], NaN where nothing was hit;
+    mount: camera height [m], pitch and roll [rad] (pitch positive looks down).
+    """
+
+    scenario: str
+    frame_id: str
+    depth: np.ndarray
+    intrinsics: Intrinsics
+    truth_labels: np.ndarray
+    truth_points: np.ndarray
+    height_m: float
+    pitch_rad: float
+    roll_rad: float
+    depth_scale: float | None = None
+    sequence_key: str | None = None  # frames sharing a key form a time sequence, in order
+    truth: str = 'seed'  # 'seed': slope-only labels; 'robot': robot-level labels (issue 9)
+    object_ids: np.ndarray | None = None   # (H, W) int16 primitive hit, -1 none (generator)
+    object_names: tuple[str, ...] = ()     # name per primitive id ('' = unnamed)
+    drop_edge: np.ndarray | None = None    # (H, W) bool reachable ground at a drop's edge
+
+    def params(self, base: DetectorParams) -> DetectorParams:
+        """Return ``base`` with this frame's camera mount."""
+        return base.replace(camera_height_m=float(self.height_m),
+                            camera_pitch_rad=float(self.pitch_rad),
+                            camera_roll_rad=float(self.roll_rad))
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """One entry of the scenario suite.
+
+    scene: a name in ``scenes.SCENE_NAMES``; seeds: generator seeds; frames: frame indices for
+    a sequence (None = a still frame, index 0); mount: overrides of the scene's own mount,
+    keys ``height_m``, ``pitch_deg``, ``roll_deg``.
+    """
+
+    name: str
+    scene: str
+    seeds: tuple[int, ...] = (0,)
+    frames: tuple[int, ...] | None = None
+    mount: tuple[tuple[str, float], ...] = ()
+    description: str = ''
+    truth: str = 'seed'
+    noise: str = 'kinect_v2'
+
+    def __post_init__(self) -> None:
+        if not self.name:
+            raise ValueError('scenario name must not be empty')
+        if self.truth not in TRUTH_KINDS:
+            raise ValueError(f'scenario {self.name!r}: truth={self.truth!r} (allowed: '
+                             f'{", ".join(TRUTH_KINDS)})')
+        if self.noise not in NOISE_NAMES:
+            raise ValueError(f'scenario {self.name!r}: noise={self.noise!r} (allowed: '
+                             f'{", ".join(NOISE_NAMES)})')
+        if not self.seeds:
+            raise ValueError(f'scenario {self.name!r}: seeds must not be empty')
+        unknown = {k for k, _ in self.mount} - set(_MOUNT_KEYS)
+        if unknown:
+            raise ValueError(f'scenario {self.name!r}: unknown mount key(s) '
+                             f'{", ".join(sorted(unknown))} (allowed: {", ".join(_MOUNT_KEYS)})')
+
+    @property
+    def is_sequence(self) -> bool:
+        """True when the scenario is a time sequence (frame indices given)."""
+        return self.frames is not None
+
+    @property
+    def frame_count(self) -> int:
+        """Number of frames the scenario renders."""
+        return len(self.seeds) * (len(self.frames) if self.frames is not None else 1)
+
+    def render_kwargs(self) -> dict[str, float]:
+        """Keyword arguments of ``scenes.render_scene`` for the mount overrides."""
+        mount = dict(self.mount)
+        out: dict[str, float] = {}
+        if 'height_m' in mount:
+            out['height_m'] = float(mount['height_m'])
+        if 'pitch_deg' in mount:
+            out['pitch_rad'] = math.radians(mount['pitch_deg'])
+        if 'roll_deg' in mount:
+            out['roll_rad'] = math.radians(mount['roll_deg'])
+        return out
+
+
+def scenario_from_dict(entry: dict[str, Any], defaults: dict[str, Any] | None = None,
+                       ) -> Scenario:
+    """Build a :class:`Scenario` from one JSON entry (raises ValueError naming the problem).
+
+    ``frames`` may be a list of indices or ``{"start": a, "stop": b, "step": c}`` (stop
+    excluded). ``defaults``: the list's own ``truth`` and ``noise`` for entries without them.
+    """
+    if not isinstance(entry, dict):
+        raise ValueError(f'scenario entry {entry!r} is not an object')
+    known = {'name', 'scene', 'seeds', 'frames', 'mount', 'description', 'truth', 'noise'}
+    unknown = set(entry) - known
+    if unknown:
+        raise ValueError(f'scenario {entry.get("name")!r}: unknown key(s) '
+                         f'{", ".join(sorted(unknown))}')
+    if 'name' not in entry or 'scene' not in entry:
+        raise ValueError(f'scenario entry {entry!r} needs "name" and "scene"')
+    frames = entry.get('frames')
+    if isinstance(frames, dict):
+        frames = range(int(frames.get('start', 0)), int(frames['stop']),
+                       int(frames.get('step', 1)))
+    return Scenario(
+        name=str(entry['name']), scene=str(entry['scene']),
+        seeds=tuple(int(s) for s in entry.get('seeds', [0])),
+        frames=None if frames is None else tuple(int(f) for f in frames),
+        mount=tuple(sorted((str(k), float(v)) for k, v in entry.get('mount', {}).items())),
+        description=str(entry.get('description', '')),
+        truth=str(entry.get('truth', (defaults or {}).get('truth', 'seed'))),
+        noise=str(entry.get('noise', (defaults or {}).get('noise', 'kinect_v2'))))
+
+
+def load_scenarios(path: str | Path) -> list[Scenario]:
+    """Read a scenario list (JSON: ``{"version": 1, "scenarios": [...]}``).
+
+    Optional list-level keys ``truth`` ('seed' or 'robot', default 'seed') and ``noise`` (a
+    name in ``NOISE_NAMES``, default 'kinect_v2') apply to entries without their own.
+    """
+    data = json.loads(Path(path).read_text(encoding='utf-8'))
+    if not isinstance(data, dict) or data.get('version') != SCENARIO_FORMAT_VERSION:
+        raise ValueError(f'{path}: not a version {SCENARIO_FORMAT_VERSION} scenario list')
+    defaults = {k: data[k] for k in ('truth', 'noise') if k in data}
+    scenarios = [scenario_from_dict(e, defaults) for e in data.get('scenarios', [])]
+    names = [s.name for s in scenarios]
+    duplicates = sorted({n for n in names if names.count(n) > 1})
+    if duplicates:
+        raise ValueError(f'{path}: duplicate scenario name(s) {", ".join(duplicates)}')
+    return scenarios
+
+
+def select_scenarios(scenarios: Sequence[Scenario], names: Iterable[str] | None,
+                     ) -> list[Scenario]:
+    """Return the scenarios named (all when ``names`` is None); ValueError for an unknown name."""
+    if names is None:
+        return list(scenarios)
+    by_name = {s.name: s for s in scenarios}
+    chosen = []
+    for name in names:
+        if name not in by_name:
+            raise ValueError(f'unknown scenario {name!r}; known: {", ".join(by_name)}')
+        chosen.append(by_name[name])
+    return chosen
+
+
+def scenario_frames(scenario: Scenario, *, max_frames: int | None = None,
+                    size: tuple[int, int] | None = None, rules: Any = None,
+                    truth: str | None = None) -> Iterator[LabelledFrame]:
+    """Render the frames of one scenario with the scene generator.
+
+    max_frames: keep at most this many, spread evenly over the scenario (None = all);
+    size: (width, height) [px], None = the generator's default (Kinect v2 SD, 512 x 424); a
+    smaller size scales the Kinect v2 intrinsics with the width (same field of view), which
+    makes quick tests. rules: ``scenes.TruthRules`` or detector parameters for the robot-level
+    truth (None = the defaults); truth: 'seed' or 'robot', None = the scenario's own.
+    """
+    from obstacle_detection.sim import scenes  # the generator is only needed for synthetic frames
+
+    truth = scenario.truth if truth is None else truth
+    if truth not in TRUTH_KINDS:
+        raise ValueError(f'truth={truth!r} (allowed: {", ".join(TRUTH_KINDS)})')
+    jobs = [(seed, index) for seed in scenario.seeds
+            for index in (scenario.frames if scenario.frames is not None else (0,))]
+    jobs = subsample(jobs, max_frames)
+    kwargs: dict[str, Any] = scenario.render_kwargs()
+    if size is not None:
+        kwargs['size'] = (int(size[0]), int(size[1]))
+        kwargs['intrinsics'] = scaled_intrinsics(KINECT_V2_SD, size[0] / KINECT_V2_SD_SIZE[0])
+    for seed, index in jobs:
+        frame = scenes.render_scene(scenario.scene, seed=seed, frame_index=index,
+                                    noise=scenes.NOISE_MODELS[scenario.noise], rules=rules,
+                                    **kwargs)
+        frame_id = f'seed {seed}' + (f' frame {index}' if scenario.is_sequence else '')
+        yield LabelledFrame(
+            scenario=scenario.name, frame_id=frame_id, depth=frame.depth_mm,
+            intrinsics=frame.intrinsics,
+            truth_labels=frame.labels if truth == 'robot' else frame.labels_seed,
+            truth_points=frame.points_ground, height_m=frame.height_m,
+            pitch_rad=frame.pitch_rad, roll_rad=frame.roll_rad,
+            sequence_key=f'{scenario.name}/{seed}' if scenario.is_sequence else None,
+            truth=truth, object_ids=frame.object_ids, object_names=frame.object_names,
+            drop_edge=frame.drop_edge)
+
+
+def scaled_intrinsics(intrinsics: Intrinsics, factor: float) -> Intrinsics:
+    """Intrinsics of the same camera with images resized by ``factor`` (pixel-centre aware)."""
+    if not factor > 0.0:
+        raise ValueError(f'scale factor={factor!r} must be > 0')
+    return Intrinsics(fx=intrinsics.fx * factor, fy=intrinsics.fy * factor,
+                      cx=(intrinsics.cx + 0.5) * factor - 0.5,
+                      cy=(intrinsics.cy + 0.5) * factor - 0.5)
+
+
+def subsample(items: Sequence[Any], max_items: int | None) -> list[Any]:
+    """At most ``max_items`` of ``items``, evenly spread, first and order kept."""
+    items = list(items)
+    if max_items is None or max_items >= len(items):
+        return items
+    if max_items <= 0:
+        raise ValueError(f'max_items={max_items} must be >= 1')
+    picks = np.unique(np.linspace(0, len(items) - 1, max_items).round().astype(int))
+    return [items[i] for i in picks]
+
+
+# --------------------------------------------------------------------------------------------
+# Labelled folders
+
+
+def read_camera_yaml(path: str | Path) -> dict[str, Any]:
+    """Intrinsics and mount of a labelled folder (see the module docstring).
+
+    Returns ``{'intrinsics': Intrinsics, 'height_m', 'pitch_rad', 'roll_rad', 'depth_scale'}``.
+    Raises ValueError naming a missing or bad key.
+    """
+    import yaml  # PyYAML ships with ROS 2 (rclpy's own dependency)
+
+    data = yaml.safe_load(Path(path).read_text(encoding='utf-8')) or {}
+    if not isinstance(data, dict):
+        raise ValueError(f'{path}: not a YAML mapping')
+    if 'camera_matrix' in data:  # ROS camera calibration file
+        k = data['camera_matrix']['data']
+        intrinsics = Intrinsics(fx=float(k[0]), fy=float(k[4]), cx=float(k[2]), cy=float(k[5]))
+    else:
+        missing = [k for k in ('fx', 'fy', 'cx', 'cy') if k not in data]
+        if missing:
+            raise ValueError(f'{path}: missing intrinsics key(s) {", ".join(missing)}')
+        intrinsics = Intrinsics(*(float(data[k]) for k in ('fx', 'fy', 'cx', 'cy')))
+
+    def angle(name: str) -> float:
+        if f'{name}_rad' in data:
+            return float(data[f'{name}_rad'])
+        return math.radians(float(data.get(f'{name}_deg', 0.0)))
+
+    if 'camera_height_m' not in data:
+        raise ValueError(f'{path}: missing camera_height_m (the mount height above ground)')
+    scale = data.get('depth_scale')
+    return {'intrinsics': intrinsics, 'height_m': float(data['camera_height_m']),
+            'pitch_rad': angle('camera_pitch'), 'roll_rad': angle('camera_roll'),
+            'depth_scale': None if scale is None else float(scale)}
+
+
+def write_camera_yaml(path: str | Path, intrinsics: Intrinsics, height_m: float,
+                      pitch_rad: float, roll_rad: float) -> None:
+    """Write ``intrinsics.yaml`` of a labelled folder (angles in degrees)."""
+    text = (f'# obstacle_detection labelled folder: pinhole intrinsics [px] and camera mount\n'
+            f'fx: {intrinsics.fx!r}\nfy: {intrinsics.fy!r}\n'
+            f'cx: {intrinsics.cx!r}\ncy: {intrinsics.cy!r}\n'
+            f'camera_height_m: {float(height_m)!r}\n'
+            f'camera_pitch_deg: {math.degrees(pitch_rad)!r}\n'
+            f'camera_roll_deg: {math.degrees(roll_rad)!r}\n')
+    Path(path).write_text(text, encoding='utf-8')
+
+
+def truth_points_from_depth(depth_m: np.ndarray, intrinsics: Intrinsics, height_m: float,
+                            pitch_rad: float, roll_rad: float) -> np.ndarray:
+    """(H, W, 3) float32 ground-frame points of a depth image [m], NaN where depth is 0."""
+    params = DetectorParams(camera_height_m=height_m, camera_pitch_rad=pitch_rad,
+                            camera_roll_rad=roll_rad)
+    points, index = geometry.back_project(np.asarray(depth_m, dtype=np.float32), intrinsics)
+    out = np.full((depth_m.size, 3), np.nan, dtype=np.float32)
+    out[index] = geometry.to_ground(points, params)
+    return out.reshape(depth_m.shape + (3,))
+
+
+def load_labelled_folder(path: str | Path, *, max_frames: int | None = None,
+                         name: str | None = None) -> Iterator[LabelledFrame]:
+    """Frames of a labelled folder, in file-name order (a time sequence)."""
+    root = Path(path)
+    camera = read_camera_yaml(root / 'intrinsics.yaml')
+    depth_files = sorted((root / 'depth').glob('*.png'))
+    if not depth_files:
+        raise ValueError(f'{root}: no depth/*.png')
+    missing = [f.name for f in depth_files if not (root / 'labels' / f.name).is_file()]
+    if missing:
+        raise ValueError(f'{root}: no labels/ file for depth/{missing[0]} '
+                         f'({len(missing)} missing)')
+    name = name or root.name
+    scale = camera['depth_scale'] if camera['depth_scale'] is not None else 0.001
+    for depth_file in subsample(depth_files, max_frames):
+        depth = cv2.imread(str(depth_file), cv2.IMREAD_UNCHANGED)
+        labels = cv2.imread(str(root / 'labels' / depth_file.name), cv2.IMREAD_UNCHANGED)
+        if depth is None or depth.dtype != np.uint16 or depth.ndim != 2:
+            raise ValueError(f'{depth_file}: not a single-channel 16-bit PNG')
+        if labels is None or labels.dtype != np.uint8 or labels.shape != depth.shape:
+            raise ValueError(f'{root / "labels" / depth_file.name}: not an 8-bit PNG of the '
+                             f'depth size {depth.shape[::-1]}')
+        if labels.max(initial=0) > metrics.GT_ABOVE_ROBOT:
+            raise ValueError(f'{root / "labels" / depth_file.name}: label value '
+                             f'{int(labels.max())} (allowed 0, 1, 2, 3)')
+        points = truth_points_from_depth(depth.astype(np.float32) * np.float32(scale),
+                                         camera['intrinsics'], camera['height_m'],
+                                         camera['pitch_rad'], camera['roll_rad'])
+        yield LabelledFrame(
+            scenario=name, frame_id=depth_file.stem, depth=depth,
+            intrinsics=camera['intrinsics'], truth_labels=labels, truth_points=points,
+            height_m=camera['height_m'], pitch_rad=camera['pitch_rad'],
+            roll_rad=camera['roll_rad'], depth_scale=camera['depth_scale'], sequence_key=name)
+
+
+def save_labelled_folder(frames: Iterable[LabelledFrame], path: str | Path) -> int:
+    """Write frames (one mount and intrinsics) as a labelled folder; returns the frame count.
+
+    Float depth is written in millimetres. Existing files of the same names are overwritten.
+    """
+    root = Path(path)
+    (root / 'depth').mkdir(parents=True, exist_ok=True)
+    (root / 'labels').mkdir(parents=True, exist_ok=True)
+    count = 0
+    for count, frame in enumerate(frames, start=1):
+        if count == 1:
+            write_camera_yaml(root / 'intrinsics.yaml', frame.intrinsics, frame.height_m,
+                              frame.pitch_rad, frame.roll_rad)
+        depth = frame.depth
+        if depth.dtype != np.uint16:
+            depth = np.clip(np.nan_to_num(depth * 1000.0), 0, 65535).round().astype(np.uint16)
+        cv2.imwrite(str(root / 'depth' / f'{count - 1:06d}.png'), depth)
+        cv2.imwrite(str(root / 'labels' / f'{count - 1:06d}.png'),
+                    frame.truth_labels.astype(np.uint8))
+    return count
+
+
+# --------------------------------------------------------------------------------------------
+# Node parameter files
+
+
+#: Short names people use on command lines and in the seed's tables.
+PARAM_ALIASES = {'theta': 'max_slope_rad', 'N': 'normal_neighbours',
+                 'N1': 'validation_neighbours', 'K': 'median_kernel', 'TDBG': 'tdbg_m',
+                 'SMAR': 'smar_m'}
+
+
+def apply_overrides(base: DetectorParams, overrides: dict[str, Any]) -> DetectorParams:
+    """Return ``base`` with some parameters changed, by name (values may be strings).
+
+    Keys: a field name, a seed alias (theta, N, N1, K, TDBG, SMAR), a ``<field>`` with
+    ``_deg`` instead of ``_rad`` (degrees), or ``voxel_m``/``voxel``/``voxel_mm`` (all three
+    voxel sizes). Raises ValueError naming an unknown key or a bad value.
+    """
+    fields = set(base.as_dict())
+    changes: dict[str, Any] = {}
+    for key, value in overrides.items():
+        name = PARAM_ALIASES.get(key, key)
+        if name in ('voxel', 'voxel_m', 'voxel_mm'):
+            size = float(value) / (1000.0 if name == 'voxel_mm' else 1.0)
+            changes.update(voxel_x_m=size, voxel_y_m=size, voxel_z_m=size)
+            continue
+        if name.endswith('_deg'):
+            name = name[:-4] + '_rad'
+            value = math.radians(float(value))
+        if name == 'theta_rad':
+            name = 'max_slope_rad'
+        if name not in fields:
+            raise ValueError(f'unknown parameter {key!r}')
+        current = getattr(base, name)
+        if isinstance(current, int) and not isinstance(current, bool):
+            as_float = float(value)
+            if as_float != int(as_float):
+                raise ValueError(f'{key}={value!r} must be an integer')
+            value = int(as_float)
+        else:
+            value = float(value)
+        changes[name] = value
+    return base.replace(**changes)
+
+
+def load_params_file(path: str | Path, base: DetectorParams | None = None,
+                     ) -> DetectorParams:
+    """Detector parameters from a node parameter file (the node's ``--params-file`` format).
+
+    The pipeline parameters the file sets are applied on ``base`` (default: Table 4.2); the
+    node's own parameters (frames, output switches, QoS) are ignored. The file is read by
+    ``ros_params.read_params_file``, as the offline bag tool reads it. Raises ValueError
+    naming the file and the bad value.
+    """
+    from obstacle_detection.ros.parameters import (detector_params_from_ros,
+                                                   pipeline_params_to_ros, read_params_file)
+
+    values = pipeline_params_to_ros(base if base is not None else PRESETS['table_4_2']())
+    values.update({name: value for name, value in read_params_file(path).items()
+                   if name in values})
+    try:
+        return detector_params_from_ros(values)
+    except ValueError as exc:
+        raise ValueError(f'{path}: {exc}') from exc
+
+
+# --------------------------------------------------------------------------------------------
+# Scoring
+
+
+def truth_roi(frame: LabelledFrame, params: DetectorParams) -> np.ndarray:
+    """(H, W) bool: pixels whose true point the truth costmap counts.
+
+    Seed truth: the pipeline's region of interest (``geometry.roi_mask``). Robot-level truth:
+    the forward range and lateral limits only; no height band, since a drop's lower floor
+    (below TDBG) is an obstacle and what is above the robot is labelled so.
+    """
+    flat = frame.truth_points.reshape(-1, 3)
+    finite = np.isfinite(flat).all(axis=1)
+    roi = np.zeros(flat.shape[0], dtype=bool)
+    if frame.truth == 'robot':
+        x, y = flat[finite, 0], flat[finite, 1]
+        roi[finite] = ((x >= params.min_range_m) & (x <= params.max_range_m)
+                       & (np.abs(y) <= params.lateral_limit_m))
+    else:
+        roi[finite] = geometry.roi_mask(flat[finite], params)
+    return roi.reshape(frame.truth_labels.shape)
+
+
+#: Neighbouring obstacle samples of one surface at most this far apart span it [m].
+MAX_SURFACE_GAP_M = 0.5
+
+
+def truth_costmap(frame: LabelledFrame, params: DetectorParams,
+                  roi: np.ndarray | None = None) -> np.ndarray:
+    """Return the truth grid (ny, nx) int8 of a frame in the pipeline's costmap geometry.
+
+    The true points of ``GT_OBSTACLE`` pixels inside the region of interest make cells
+    occupied; cells with only ``GT_TRAVERSABLE`` (or ``GT_ABOVE_ROBOT``) points are free (see
+    :mod:`metrics`). Robot-level truth also marks the cells of the reachable ground at a
+    drop's edge (``drop_edge``: where the floor ends), and leaves unscored (unknown) the
+    cells between neighbouring samples of one obstacle surface that no sample fell in (a
+    surface seen at a grazing angle, ``metrics.surface_gap_points``, up to
+    ``MAX_SURFACE_GAP_M`` apart). The pipeline's own ``build_costmap``
+    rasterises them, so both grids bin points identically. roi: :func:`truth_roi`, if known.
+    """
+    from obstacle_detection.pipeline.costmap import build_costmap
+
+    if roi is None:
+        roi = truth_roi(frame, params)
+    marked = frame.drop_edge if frame.truth == 'robot' else None
+    obstacle, traversable = metrics.truth_points(frame.truth_points, frame.truth_labels, roi,
+                                                 marked)
+    grid = build_costmap(obstacle, traversable, params).data
+    if frame.truth == 'robot' and frame.object_ids is not None:
+        # A surface seen at a grazing angle (a table's underside) is sampled in sparse rows:
+        # the cells between its samples are neither known free nor sampled: not scored.
+        from obstacle_detection.pipeline.costmap import costmap_geometry
+
+        origin, nx, ny = costmap_geometry(params)
+        res = params.costmap_resolution_m
+        gaps = metrics.surface_gap_points(
+            frame.truth_points, frame.object_ids,
+            roi & (frame.truth_labels == metrics.GT_OBSTACLE), step_m=res / 2,
+            max_gap_m=MAX_SURFACE_GAP_M)
+        covered = metrics.point_cells(gaps, origin, res, (ny, nx))
+        grid[covered & (grid != metrics.CELL_OCCUPIED)] = metrics.CELL_UNKNOWN
+    return grid
+
+
+#: A named object counts (found or missed) only with at least this many visible cells.
+MIN_OBJECT_CELLS = 3
+#: An object is found when at least this share of its visible cells is occupied.
+FOUND_SHARE = 0.5
+#: A drop is marked when at least this share of its edge cells has an occupied cell within
+#: ``DROP_TOLERANCE_CELLS`` cells.
+DROP_MARKED_SHARE = 0.5
+DROP_TOLERANCE_CELLS = 1
+
+
+@dataclass
+class RobotScore:
+    """Robot-level checks of one frame (issue 9), each entry ``(name, hits, cells)``.
+
+    objects: named obstacle objects, hits = visible cells occupied; passable: named
+    traversable objects (ramp, landing, sill), hits = their free truth cells left free;
+    drops: named drops, hits = edge cells marked (within ``DROP_TOLERANCE_CELLS``).
+    """
+
+    objects: list[tuple[str, int, int]] = field(default_factory=list)
+    passable: list[tuple[str, int, int]] = field(default_factory=list)
+    drops: list[tuple[str, int, int]] = field(default_factory=list)
+
+
+def robot_score(frame: LabelledFrame, predicted_grid: np.ndarray, params: DetectorParams,
+                truth_grid: np.ndarray, roi: np.ndarray) -> RobotScore:
+    """Named objects found, passable surfaces left free and drops marked in one frame.
+
+    Primitives of one name form one object; an object whose returned, in-range pixels are
+    mostly ``GT_OBSTACLE`` is an obstacle (its visible cells: those its obstacle points fall
+    in), otherwise passable (its cells: those its traversable points fall in that are free in
+    the truth). A named primitive with ``drop_edge`` pixels is a drop (its cells: those of the
+    edge pixels). Objects with fewer than ``MIN_OBJECT_CELLS`` cells are left out.
+    """
+    from obstacle_detection.pipeline.costmap import costmap_geometry
+
+    score = RobotScore()
+    if frame.object_ids is None or not frame.object_names:
+        return score
+    origin, nx, ny = costmap_geometry(params)
+    res = params.costmap_resolution_m
+    seen = roi & (frame.truth_labels != metrics.GT_NO_RETURN)
+    edge = frame.drop_edge if frame.drop_edge is not None else np.zeros(seen.shape, bool)
+    names = frame.object_names
+    for name in dict.fromkeys(n for n in names if n):
+        ids = [i for i, n in enumerate(names) if n == name]
+        everywhere = np.isin(frame.object_ids, ids)
+        mine = seen & everywhere
+        if (edge & everywhere).any():   # a drop, even with its edge out of range
+            cells = metrics.point_cells(frame.truth_points[edge & mine], origin, res, (ny, nx))
+            hits, total = metrics.occupied_share(predicted_grid, cells,
+                                                 tolerance_cells=DROP_TOLERANCE_CELLS)
+            if total >= MIN_OBJECT_CELLS:
+                score.drops.append((name, hits, total))
+            continue
+        obstacle = mine & (frame.truth_labels == metrics.GT_OBSTACLE)
+        traversable = mine & (frame.truth_labels == metrics.GT_TRAVERSABLE)
+        if np.count_nonzero(obstacle) >= np.count_nonzero(traversable):
+            cells = metrics.point_cells(frame.truth_points[obstacle], origin, res, (ny, nx))
+            hits, total = metrics.occupied_share(predicted_grid, cells)
+            if total >= MIN_OBJECT_CELLS:
+                score.objects.append((name, hits, total))
+        else:
+            cells = metrics.point_cells(frame.truth_points[traversable], origin, res, (ny, nx))
+            cells &= truth_grid == metrics.CELL_FREE
+            hits, total = metrics.free_share(predicted_grid, cells)
+            if total >= MIN_OBJECT_CELLS:
+                score.passable.append((name, hits, total))
+    return score
+
+
+@dataclass
+class FrameScore:
+    """Scores of one frame: pixel and cell confusions, obstacle count, time."""
+
+    scenario: str
+    frame_id: str
+    pixel: Confusion
+    cell: Confusion
+    obstacle_points: int
+    total_ms: float
+    refined_pixel: Confusion | None = None
+    refined_cell: Confusion | None = None
+    robot: RobotScore | None = None
+
+
+def score_frame(frame: LabelledFrame, result: Any, params: DetectorParams,
+                truth_grid: np.ndarray | None = None) -> tuple[Confusion, Confusion]:
+    """(pixel confusion, cell confusion) of a pipeline result against the frame's truth."""
+    if truth_grid is None:
+        truth_grid = truth_costmap(frame, params)
+    return (metrics.pixel_confusion(result.labels, frame.truth_labels),
+            metrics.cell_confusion(result.costmap.data, truth_grid))
+
+
+@dataclass
+class SceneSummary:
+    """Pooled scores of the frames of one scenario (or of all: name 'overall')."""
+
+    name: str
+    frames: int = 0
+    pixel: Confusion = field(default_factory=Confusion)
+    cell: Confusion = field(default_factory=Confusion)
+    total_ms: list[float] = field(default_factory=list)
+    refined_pixel: Confusion | None = None
+    refined_cell: Confusion | None = None
+    robot: RobotScore | None = None   # every frame's robot-level entries, in order
+
+    def add(self, score: FrameScore) -> None:
+        """Pool one frame's counts."""
+        self.frames += 1
+        self.pixel += score.pixel
+        self.cell += score.cell
+        self.total_ms.append(score.total_ms)
+        if score.robot is not None:
+            self.robot = self.robot or RobotScore()
+            tag = f'{score.scenario} {score.frame_id}'
+            for mine, theirs in ((self.robot.objects, score.robot.objects),
+                                 (self.robot.passable, score.robot.passable),
+                                 (self.robot.drops, score.robot.drops)):
+                mine.extend((f'{name} ({tag})', hits, cells) for name, hits, cells in theirs)
+        if score.refined_pixel is not None and score.refined_cell is not None:
+            self.refined_pixel = (self.refined_pixel or Confusion()) + score.refined_pixel
+            self.refined_cell = (self.refined_cell or Confusion()) + score.refined_cell
+
+    @property
+    def mean_ms(self) -> float:
+        """Mean pipeline time per frame [ms]."""
+        return float(np.mean(self.total_ms)) if self.total_ms else math.nan
+
+    def objects_found(self) -> tuple[int, int, list[str]]:
+        """Return (objects found, objects counted, names of the missed ones) over the frames."""
+        entries = self.robot.objects if self.robot else []
+        missed = [name for name, hits, cells in entries if hits < FOUND_SHARE * cells]
+        return len(entries) - len(missed), len(entries), missed
+
+    def passable_free(self) -> float:
+        """Share of the passable named objects' free truth cells left free (NaN: none)."""
+        entries = self.robot.passable if self.robot else []
+        cells = sum(c for _, _, c in entries)
+        return sum(h for _, h, _ in entries) / cells if cells else math.nan
+
+    def drops_marked(self) -> tuple[int, int, list[str]]:
+        """Return (drops marked, drops counted, names of the unmarked ones) over the frames."""
+        entries = self.robot.drops if self.robot else []
+        missed = [name for name, hits, cells in entries if hits < DROP_MARKED_SHARE * cells]
+        return len(entries) - len(missed), len(entries), missed
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready scores (NaN becomes None)."""
+        out: dict[str, Any] = {'frames': self.frames, 'mean_ms': _json_number(self.mean_ms),
+                               'pixel': _json_dict(self.pixel.as_dict()),
+                               'cell': _json_dict(self.cell.as_dict())}
+        if self.refined_pixel is not None and self.refined_cell is not None:
+            out['refined'] = {'pixel': _json_dict(self.refined_pixel.as_dict()),
+                              'cell': _json_dict(self.refined_cell.as_dict())}
+        if self.robot is not None:
+            found, counted, missed = self.objects_found()
+            marked, drops, unmarked = self.drops_marked()
+            out['robot'] = {'objects_found': found, 'objects': counted, 'missed': missed,
+                            'passable_free': _json_number(self.passable_free()),
+                            'drops_marked': marked, 'drops': drops, 'unmarked': unmarked}
+        return out
+
+
+def _json_number(value: float) -> float | None:
+    return None if isinstance(value, float) and math.isnan(value) else value
+
+
+def _json_dict(values: dict[str, Any]) -> dict[str, Any]:
+    return {k: _json_number(v) for k, v in values.items()}
+
+
+@dataclass
+class Report:
+    """An evaluation: per-scenario summaries in run order, the overall pool, the frames."""
+
+    params: DetectorParams
+    label: str
+    scenes: dict[str, SceneSummary]
+    overall: SceneSummary
+    frames: list[FrameScore]
+    refiner: str | None = None
+    seconds: float = 0.0
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready report (one object; ``tools/evaluate.py`` prints it on one line)."""
+        return {'label': self.label, 'params': self.params.as_dict(), 'refiner': self.refiner,
+                'scenes': {n: s.as_dict() for n, s in self.scenes.items()},
+                'overall': self.overall.as_dict(), 'seconds': round(self.seconds, 2)}
+
+
+class DetectorCache:
+    """One ``pipeline.Detector`` per distinct parameter set (frames differ in their mount)."""
+
+    def __init__(self) -> None:
+        self._detectors: dict[DetectorParams, Any] = {}
+
+    def get(self, params: DetectorParams) -> Any:
+        """Return the detector for ``params``."""
+        from obstacle_detection.pipeline.detector import Detector
+
+        if params not in self._detectors:
+            self._detectors[params] = Detector(params)
+        return self._detectors[params]
+
+
+def evaluate_frames(frames: Iterable[LabelledFrame], base: DetectorParams, *,
+                    label: str = '', refiner: Any = None, refiner_name: str | None = None,
+                    on_frame: Callable[[LabelledFrame, Any, FrameScore], None] | None = None,
+                    ) -> Report:
+    """Run the detector (and optionally a ``refine.LogisticRefiner``) over frames and pool.
+
+    base: detector parameters; each frame's own mount replaces the mount fields. Within a
+    sequence (equal ``sequence_key``, consecutive), the refiner's previous-frame obstacle states
+    are the previous frame's rule-based obstacle pixels; a still frame uses its own.
+    on_frame(frame, result, score) is called after each frame (progress, pictures).
+    """
+    from obstacle_detection.pipeline import refine
+
+    started = time.perf_counter()
+    cache = DetectorCache()
+    scenes: dict[str, SceneSummary] = {}
+    overall = SceneSummary('overall')
+    scores: list[FrameScore] = []
+    previous: tuple[str | None, np.ndarray | None] = (None, None)
+    for frame in frames:
+        params = frame.params(base)
+        result = cache.get(params).process(frame.depth, frame.intrinsics,
+                                           depth_scale=frame.depth_scale)
+        roi = truth_roi(frame, params)
+        grid = truth_costmap(frame, params, roi)
+        pixel, cell = score_frame(frame, result, params, grid)
+        score = FrameScore(frame.scenario, frame.frame_id, pixel, cell,
+                           int(result.obstacle_points.shape[0]),
+                           float(result.timings_ms.get('total', math.nan)))
+        if frame.truth == 'robot':
+            score.robot = robot_score(frame, result.costmap.data, params, grid, roi)
+        if refiner is not None:
+            prev_mask = None
+            if frame.sequence_key is not None and previous[0] == frame.sequence_key:
+                prev_mask = previous[1]
+            mask = refiner.predict_labels(result, prev_mask)
+            refined = refine.refine_result(result, mask, params)
+            score.refined_pixel = metrics.pixel_confusion(refined.labels, frame.truth_labels)
+            score.refined_cell = metrics.cell_confusion(refined.costmap.data, grid)
+        previous = (frame.sequence_key, refine.obstacle_mask(result))
+        scenes.setdefault(frame.scenario, SceneSummary(frame.scenario)).add(score)
+        overall.add(score)
+        scores.append(score)
+        if on_frame is not None:
+            on_frame(frame, result, score)
+    return Report(base, label, scenes, overall, scores, refiner_name,
+                  time.perf_counter() - started)
+
+
+# --------------------------------------------------------------------------------------------
+# Text output
+
+_COLUMNS = (('px P', 'pixel', 'precision'), ('px R', 'pixel', 'recall'),
+            ('px F1', 'pixel', 'f1'), ('px FA', 'pixel', 'false_alarm_rate'),
+            ('cell P', 'cell', 'precision'), ('cell R', 'cell', 'recall'),
+            ('cell F1', 'cell', 'f1'), ('IoU', 'cell', 'iou'),
+            ('cell FA', 'cell', 'false_alarm_rate'))
+
+
+def format_table(report: Report, *, refined: bool = False) -> str:
+    """Return a fixed-width table: one row per scenario and an 'overall' row.
+
+    Columns: frames; pixel precision (px P), recall (px R), F1, false-alarm rate (px FA);
+    costmap-cell precision, recall, F1, IoU, false-alarm rate; mean pipeline time [ms].
+    ``refined=True`` shows the refiner's scores instead (time is the pipeline's).
+    """
+    width = max([len('overall')] + [len(n) for n in report.scenes]) + 1
+    head = f'{"scenario":<{width}} {"frames":>6} ' + ' '.join(
+        f'{c[0]:>7}' for c in _COLUMNS) + f' {"ms":>7}'
+    lines = [head, '-' * len(head)]
+    rows = list(report.scenes.values()) + [report.overall]
+    for i, summary in enumerate(rows):
+        if i == len(rows) - 1:
+            lines.append('-' * len(head))
+        pixel, cell = summary.pixel, summary.cell
+        if refined:
+            pixel = summary.refined_pixel or Confusion()
+            cell = summary.refined_cell or Confusion()
+        confusions = {'pixel': pixel, 'cell': cell}
+        cells = ' '.join(f'{format_score(getattr(confusions[kind], attr)):>7}'
+                         for _, kind, attr in _COLUMNS)
+        lines.append(f'{summary.name:<{width}} {summary.frames:>6} {cells} '
+                     f'{summary.mean_ms:>7.1f}')
+    return '\n'.join(lines)
+
+
+#: Issue 9's targets for the robot-level suite (``params/corridor.yaml``).
+ROBOT_TARGETS = {'cell_f1': 0.9, 'false_alarm_rate': 0.01, 'passable_free': 0.97}
+
+
+def _share(hits: int, total: int) -> str:
+    return f'{hits}/{total}' if total else '-'
+
+
+def format_robot_table(report: Report) -> str:
+    """Return the robot-level table: one row per scenario, an 'overall' row, the targets.
+
+    Columns: frames; exact-cell F1; false alarms as % of the free truth cells (FA %); named
+    obstacle objects found (>= 50 % of their visible cells occupied) out of those seen, per
+    frame; share of the passable named surfaces' (ramp, landing, sill) free truth cells left
+    free (pass %); drops marked out of those seen; pixel F1; mean pipeline time [ms]. Then the
+    missed objects and unmarked drops by name and frame, and each target met or not.
+    """
+    width = max([len('overall')] + [len(n) for n in report.scenes]) + 1
+    head = (f'{"scenario":<{width}} {"frames":>6} {"cell F1":>7} {"FA %":>6} {"objects":>8} '
+            f'{"pass %":>6} {"drops":>6} {"px F1":>6} {"ms":>6}')
+    lines = [head, '-' * len(head)]
+    rows = list(report.scenes.values()) + [report.overall]
+    for i, summary in enumerate(rows):
+        if i == len(rows) - 1:
+            lines.append('-' * len(head))
+        found, counted, _ = summary.objects_found()
+        marked, drops, _ = summary.drops_marked()
+        fa = summary.cell.false_alarm_rate
+        passable = summary.passable_free()
+        lines.append(
+            f'{summary.name:<{width}} {summary.frames:>6} {format_score(summary.cell.f1):>7} '
+            f'{"-" if math.isnan(fa) else f"{100 * fa:.2f}":>6} {_share(found, counted):>8} '
+            f'{"-" if math.isnan(passable) else f"{100 * passable:.1f}":>6} '
+            f'{_share(marked, drops):>6} {format_score(summary.pixel.f1):>6} '
+            f'{summary.mean_ms:>6.1f}')
+    overall = report.overall
+    found, counted, missed = overall.objects_found()
+    marked, drops, unmarked = overall.drops_marked()
+    if missed:
+        lines.append('missed objects: ' + ', '.join(missed))
+    if unmarked:
+        lines.append('unmarked drops: ' + ', '.join(unmarked))
+    passable = overall.passable_free()
+    checks = (
+        (f'cell F1 >= {ROBOT_TARGETS["cell_f1"]}',
+         overall.cell.f1 >= ROBOT_TARGETS['cell_f1']),
+        (f'FA <= {100 * ROBOT_TARGETS["false_alarm_rate"]:g} %',
+         overall.cell.false_alarm_rate <= ROBOT_TARGETS['false_alarm_rate']),
+        ('every object found', found == counted),
+        (f'pass >= {100 * ROBOT_TARGETS["passable_free"]:g} %',
+         math.isnan(passable) or passable >= ROBOT_TARGETS['passable_free']),
+        ('every drop marked', marked == drops))
+    lines.append('targets: ' + ', '.join(f'{name} {"yes" if ok else "NO"}'
+                                         for name, ok in checks))
+    return '\n'.join(lines)
+
+
+#: README-ready text on what the scores count.
+SCORE_DEFINITIONS = """\
+What counts (obstacle = positive class; scores pool the counts of all frames of a row):
+  pixel: evaluated pixels are those where the truth saw a surface (label != no return) AND the
+         pipeline made a call (its label is ground or obstacle; no-depth and outside-ROI pixels
+         are left out). Predicted obstacle = pipeline label OBSTACLE; true = truth OBSTACLE.
+  cell:  truth grid in the costmap's geometry: occupied where a noise-free point of a truth
+         OBSTACLE pixel inside the ROI falls, free where only TRAVERSABLE points fall, unknown
+         (not evaluated) elsewhere. Predicted obstacle = costmap cell OCCUPIED (100); free and
+         unknown pipeline cells count as 'not obstacle'.
+  P precision tp/(tp+fp), R recall tp/(tp+fn), F1 2tp/(2tp+fp+fn), IoU tp/(tp+fp+fn),
+  FA false-alarm rate fp/(fp+tn): share of traversable truth marked obstacle. '-' = undefined.
+Robot-level suite (--suite robot): the truth is the robot-level one (box, table and shelf tops,
+  curbs, the lower floor beyond a drop are obstacles; ramps to a landing, sills traversable;
+  surfaces above the robot count as free); the truth grid keeps the forward range and lateral
+  limits of the ROI but no height band, and marks the cells where the floor ends at a drop.
+  objects: named obstacles found (>= 50 % of their visible cells occupied) / seen (>= 3 cells),
+  per frame; pass %: free truth cells of the passable named surfaces left free; drops: drops
+  whose edge cells are marked (>= 50 % within one cell) / seen. Flying pixels are not scored.
+"""
+
+
+# --------------------------------------------------------------------------------------------
+# Training data for the seed-4.5 refiner
+
+
+def collect_training_samples(frames: Iterable[LabelledFrame], base: DetectorParams, *,
+                             max_pixels_per_frame: int | None = 20000, seed: int = 0,
+                             on_frame: Callable[[LabelledFrame], None] | None = None,
+                             ) -> tuple[np.ndarray, np.ndarray]:
+    """Refiner features and targets of labelled frames: ``(X (M, 9) float64, y (M,) bool)``.
+
+    Each frame runs the detector with ``base`` and its own mount; the previous-frame obstacle
+    states follow :func:`evaluate_frames`' convention (the previous frame of the same sequence,
+    else the frame's own rule-based mask). At most ``max_pixels_per_frame`` samples are drawn
+    per frame (without replacement, seeded) so that large frames do not dominate.
+    """
+    from obstacle_detection.pipeline import refine
+
+    rng = np.random.default_rng(seed)
+    cache = DetectorCache()
+    xs, ys = [], []
+    previous: tuple[str | None, np.ndarray | None] = (None, None)
+    for frame in frames:
+        params = frame.params(base)
+        result = cache.get(params).process(frame.depth, frame.intrinsics,
+                                           depth_scale=frame.depth_scale)
+        prev_mask = None
+        if frame.sequence_key is not None and previous[0] == frame.sequence_key:
+            prev_mask = previous[1]
+        x, y = refine.training_samples(result, frame.truth_labels, prev_mask)
+        if max_pixels_per_frame is not None and y.size > max_pixels_per_frame:
+            pick = rng.choice(y.size, size=max_pixels_per_frame, replace=False)
+            x, y = x[pick], y[pick]
+        xs.append(x)
+        ys.append(y)
+        previous = (frame.sequence_key, refine.obstacle_mask(result))
+        if on_frame is not None:
+            on_frame(frame)
+    if not xs:
+        raise ValueError('no training frames')
+    return np.concatenate(xs), np.concatenate(ys)

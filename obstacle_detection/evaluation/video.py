@@ -1,0 +1,538 @@
+"""Scores of the fused costmap over a sequence, side by side with the per-frame costmap.
+
+For each frame of a :class:`.sequences.SceneSequence`: the detector makes the per-frame
+costmap (base frame), :class:`.fusion.FusedGrid` fuses it at the odometry pose, and the frame's
+ground truth (the noise-free points of the pixels the sensor returned, inside the region of
+interest, as in :mod:`.evaluation`) is moved into odom with the *true* pose. Everything is
+compared on one odom lattice (the fused grid's cells) covering the whole trajectory.
+
+What is measured (``VIDEO_SCORE_DEFINITIONS`` says it for the tool's help):
+
+- truth of the area seen so far: each frame's truth grid overwrites the cells it saw (occupied
+  when an obstacle point falls in the cell, free when only traversable ground does); cells
+  seen once keep their last truth when out of view;
+- fused F1: the fused window against that truth (cells of the window whose truth is known),
+  pooled over frames; per-frame F1: the detector's costmap against its own frame's truth
+  (the single-frame score of tools/evaluate.py); fused F1 in view: the fused grid sampled at
+  the per-frame costmap's cells against the same single-frame truth (the fair comparison);
+  per-frame F1 vs the area: the per-frame grid in the fused window against the area's truth;
+- flicker: cells whose occupied state changes between two consecutive frames while nothing
+  moved or appeared near them (no cell within 2 cells changed its truth in the last 10
+  frames: a grid catching up with a change is not flicker), over the cells the grid knows
+  at the later frame; a fused cell counts when it was known (not unknown) at the earlier
+  frame, a per-frame cell when it was seen in both;
+- frames until marked: for each run of frames in which a cell of the fused window has an
+  occupied truth, the number of frames up to and including the first where the grid marks
+  it (1 = at once); frames until cleared: for each run in which a formerly occupied cell is
+  seen free, up to the first frame the grid no longer marks it (counted when the grid marked
+  it before). Only
+  runs the detector saw steadily count (it marked the cell, or saw it free, in each of the
+  run's first 3 frames for a mark, 10 for a clearing): fusion cannot be faster than the
+  detector. A steady run that ends unmarked (uncleared) is *missed* when it lasted at least
+  those 3 (10) frames;
+- blind-zone memory: truth-occupied cells closer than 0.5 m ahead of the robot (the Kinect v2
+  returns nothing nearer), |y| <= 0.3 m: the share the grid marks, over all frames (and the
+  share with a marked cell within one cell: odometry drift shifts the memory a little).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+
+from obstacle_detection.pipeline import geometry
+from . import metrics
+from obstacle_detection.pipeline.costmap import (CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN, Costmap,
+                                                 build_costmap)
+from obstacle_detection.pipeline.fusion import FusedGrid, FusionParams, frame_evidence
+from .metrics import Confusion
+from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE, DetectorParams
+from obstacle_detection.pipeline.detector import Detector
+from obstacle_detection.sim.scenes import scene_params
+from obstacle_detection.sim.sequences import SceneSequence, SequenceFrame
+
+#: The blind zone of the memory score: ahead of the robot, x in [0, 0.5) m, |y| <= 0.3 m.
+BLIND_ZONE_X_M = (0.0, 0.5)
+BLIND_ZONE_HALF_WIDTH_M = 0.3
+
+#: Flicker counts a cell only when no cell within STILL_RADIUS_CELLS changed its truth in the
+#: last STILL_FRAMES frames (nothing moved or appeared near it).
+STILL_RADIUS_CELLS = 2
+STILL_FRAMES = 10
+
+#: The issue's targets [frames at 30 Hz]: a new obstacle marked, a vacated cell cleared.
+MARK_BUDGET_FRAMES = 3
+CLEAR_BUDGET_FRAMES = 10
+
+VIDEO_SCORE_DEFINITIONS = __doc__.split('What is measured')[1].split('\n', 1)[1]
+
+
+class RunTracker:
+    """Runs of frames per cell (truth occupied, or vacated) and when each grid reacted.
+
+    ``step`` once a frame with: the cells in a run now, the cells whose run may start now,
+    per grid the cells that show the expected reaction (marked, or no longer marked), and the
+    cells where the detector's own frame supports it (marks the cell, or sees it free). Only
+    *steady* runs are scored: the detector supported the reaction in every frame of the run's
+    first ``budget`` frames (all of a shorter run), so a grid could react; the others are
+    counted apart (the detector did not see the change clearly: no fusion can do better).
+    ``report`` gives per grid the frames until the reaction in each steady run that got one (1 =
+    in the run's first frame) and the steady runs missed (no reaction in a run that lasted at
+    least ``budget`` frames).
+    """
+
+    def __init__(self, size: int, names: tuple[str, ...], budget: int) -> None:
+        self.names = names
+        self.budget = int(budget)
+        self.onset = np.full(size, -1, np.int64)
+        self.support = np.zeros(size, np.int64)
+        self.first = {n: np.full(size, -1, np.int64) for n in names}
+        self.eligible = {n: np.zeros(size, bool) for n in names}
+        self.counts: dict[str, list[int]] = {n: [] for n in names}
+        self.missed = {n: 0 for n in names}
+        self.steady_runs = 0
+        self.unsteady_runs = 0
+
+    def _close(self, ended: np.ndarray, t: int) -> None:
+        length = t - self.onset
+        steady = ended & (self.support >= np.minimum(length, self.budget))
+        long_enough = steady & (length >= self.budget)
+        self.steady_runs += int(np.count_nonzero(steady))
+        self.unsteady_runs += int(np.count_nonzero(ended & ~steady))
+        for name in self.names:
+            got = steady & self.eligible[name] & (self.first[name] >= 0)
+            self.counts[name].extend((self.first[name][got] - self.onset[got] + 1).tolist())
+            self.missed[name] += int(np.count_nonzero(
+                long_enough & self.eligible[name] & (self.first[name] < 0)))
+            self.first[name][ended] = -1
+        self.onset[ended] = -1
+        self.support[ended] = 0
+
+    def step(self, t: int, in_run: np.ndarray, start: np.ndarray,
+             reacted: dict[str, np.ndarray], supported: np.ndarray,
+             eligible: dict[str, np.ndarray] | None = None) -> None:
+        """Close runs that ended, open new ones at frame t, record first reactions.
+
+        eligible: per grid, whether a run starting now counts for it (None: all do).
+        """
+        self._close(~in_run & (self.onset >= 0), t)
+        start = start & in_run & (self.onset < 0)
+        self.onset[start] = t
+        for name in self.names:
+            self.eligible[name][start] = True if eligible is None else eligible[name][start]
+            new = in_run & (self.onset >= 0) & (self.first[name] < 0) & reacted[name]
+            self.first[name][new] = t
+        counting = in_run & (self.onset >= 0) & (t - self.onset < self.budget) & supported
+        self.support[counting] += 1
+
+    def finish(self, t_end: int) -> None:
+        """Close every open run at the end of the sequence (frame ``t_end``, excluded)."""
+        self._close(self.onset >= 0, t_end)
+
+    def report(self) -> dict[str, Any]:
+        """Per grid: stats of frames until the reaction and steady runs missed; run counts."""
+        out: dict[str, Any] = {n: {**_stats(self.counts[n]), 'missed': self.missed[n]}
+                               for n in self.names}
+        out['steady_runs'] = self.steady_runs
+        out['unsteady_runs'] = self.unsteady_runs
+        return out
+
+
+def _stats(values: list[int]) -> dict[str, float]:
+    """Count, median, 90th percentile and maximum of frame counts (NaN when empty)."""
+    if not values:
+        return {'runs': 0, 'median': math.nan, 'p90': math.nan, 'max': math.nan}
+    array = np.asarray(values)
+    return {'runs': int(array.size), 'median': float(np.median(array)),
+            'p90': float(np.percentile(array, 90)), 'max': float(array.max())}
+
+
+@dataclass
+class SequenceReport:
+    """Scores of one sequence (see the module docstring); ``as_dict`` for JSON."""
+
+    name: str
+    frames: int
+    fused_area: Confusion
+    per_frame_area: Confusion
+    per_frame: Confusion
+    fused_view: Confusion
+    flicker_fused: list[float]
+    flicker_per_frame: list[float]
+    mark: dict[str, Any]
+    clear: dict[str, Any]
+    blind: dict[str, int]
+    fusion_ms: list[float]
+    resets: int = 0
+    in_place: int = 0
+    sheet: np.ndarray | None = None
+
+    def as_dict(self) -> dict[str, Any]:
+        """Flat JSON-ready numbers (NaN becomes None)."""
+        def num(value: float) -> float | None:
+            return None if value is None or (isinstance(value, float) and math.isnan(value)) \
+                else round(float(value), 4)
+
+        def flick(values: list[float]) -> dict[str, float | None]:
+            arr = np.asarray(values) if values else np.zeros(1)
+            return {'mean_pct': num(100 * arr.mean()), 'p90_pct': num(100 * np.percentile(
+                arr, 90)), 'max_pct': num(100 * arr.max())}
+
+        out: dict[str, Any] = {'sequence': self.name, 'frames': self.frames}
+        for key, conf in (('fused_area', self.fused_area), ('per_frame_area',
+                                                            self.per_frame_area),
+                          ('per_frame', self.per_frame), ('fused_view', self.fused_view)):
+            out[key] = {k: num(v) if isinstance(v, float) else v
+                        for k, v in conf.as_dict().items()}
+        out['flicker_fused'] = flick(self.flicker_fused)
+        out['flicker_per_frame'] = flick(self.flicker_per_frame)
+        for key, runs in (('frames_to_mark', self.mark), ('frames_to_clear', self.clear)):
+            out[key] = {grid: {k: num(v) if isinstance(v, float) else v
+                               for k, v in stats.items()} if isinstance(stats, dict) else stats
+                        for grid, stats in runs.items()}
+        cells = self.blind['cells']
+        out['blind_zone'] = {'cell_frames': cells, **{
+            key: num(self.blind[key] / cells if cells else math.nan)
+            for key in ('fused', 'per_frame', 'fused_near', 'per_frame_near')}}
+        ms = np.asarray(self.fusion_ms) if self.fusion_ms else np.full(1, math.nan)
+        out['fusion_ms'] = {'median': num(float(np.median(ms))),
+                            'p90': num(float(np.percentile(ms, 90)))}
+        out['odometry'] = {'resets': self.resets, 'in_place_frames': self.in_place}
+        return out
+
+
+class _Lattice:
+    """A fixed odom window on the fused grid's lattice that holds the whole trajectory."""
+
+    def __init__(self, poses: list[tuple[float, float, float]], fusion: FusionParams,
+                 margin_m: float) -> None:
+        poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+        res = fusion.resolution_m
+        reach = fusion.size_m / 2 + margin_m
+        lo = np.floor((poses[:, :2].min(axis=0) - reach) / res).astype(int)
+        hi = np.ceil((poses[:, :2].max(axis=0) + reach) / res).astype(int)
+        self.origin_cell = (int(lo[0]), int(lo[1]))
+        self.shape = (int(hi[1] - lo[1]), int(hi[0] - lo[0]))   # (ny, nx)
+        self.res = res
+        xs = (lo[0] + np.arange(self.shape[1]) + 0.5) * res
+        ys = (lo[1] + np.arange(self.shape[0]) + 0.5) * res
+        self.centre_x, self.centre_y = np.meshgrid(xs, ys)
+
+    def window(self, origin_cell: tuple[int, int], n: int) -> tuple[slice, slice]:
+        """(rows, cols) of a fused window with that origin cell and side."""
+        c0 = origin_cell[0] - self.origin_cell[0]
+        r0 = origin_cell[1] - self.origin_cell[1]
+        if c0 < 0 or r0 < 0 or c0 + n > self.shape[1] or r0 + n > self.shape[0]:
+            raise ValueError('the fused window left the evaluation lattice')
+        return slice(r0, r0 + n), slice(c0, c0 + n)
+
+    def evidence_grid(self, costmap: Costmap, pose: tuple[float, float, float]) -> np.ndarray:
+        """Move a per-frame costmap into the lattice: (ny, nx) int8 CELL_* values."""
+        hit, miss = frame_evidence(costmap, pose, self.origin_cell,
+                                   (self.shape[1], self.shape[0]), self.res)
+        grid = np.full(self.shape, CELL_UNKNOWN, dtype=np.int8)
+        grid[miss] = CELL_FREE
+        grid[hit] = CELL_OCCUPIED
+        return grid
+
+    def blind_zone(self, pose: tuple[float, float, float]) -> np.ndarray:
+        """(ny, nx) bool: cells whose centre is in the blind zone of a robot at ``pose``."""
+        dx, dy = self.centre_x - pose[0], self.centre_y - pose[1]
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        ahead, left = c * dx + s * dy, -s * dx + c * dy
+        return (ahead >= BLIND_ZONE_X_M[0]) & (ahead < BLIND_ZONE_X_M[1]) & \
+            (np.abs(left) <= BLIND_ZONE_HALF_WIDTH_M)
+
+
+def truth_points_in_roi(sf: SequenceFrame, params: DetectorParams,
+                        ) -> tuple[np.ndarray, np.ndarray]:
+    """(obstacle (O, 3), traversable (T, 3)) true base-frame points in the region of interest."""
+    flat = sf.frame.points_ground.reshape(-1, 3)
+    finite = np.isfinite(flat).all(axis=1)
+    roi = np.zeros(flat.shape[0], dtype=bool)
+    roi[finite] = geometry.roi_mask(flat[finite], params)
+    return metrics.truth_points(sf.frame.points_ground, sf.frame.labels,
+                                roi.reshape(sf.frame.labels.shape))
+
+
+def _dilate(mask: np.ndarray, radius: int) -> np.ndarray:
+    """Return ``mask`` grown by ``radius`` cells (a square neighbourhood)."""
+    if radius <= 0 or not mask.any():
+        return mask.copy()
+    kernel = np.ones((2 * radius + 1, 2 * radius + 1), np.uint8)
+    return cv2.dilate(mask.astype(np.uint8), kernel).astype(bool)
+
+
+def _to_odom(points: np.ndarray, pose: tuple[float, float, float]) -> np.ndarray:
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    x, y = points[:, 0].astype(np.float64), points[:, 1].astype(np.float64)
+    return np.stack([pose[0] + c * x - s * y, pose[1] + s * x + c * y,
+                     points[:, 2].astype(np.float64)], axis=1)
+
+
+def _panel(grid: np.ndarray, truth: np.ndarray, pose: tuple[float, float, float],
+           origin_xy_m: tuple[float, float], res: float, scale: int) -> np.ndarray:
+    """Draw a window of CELL_* values from above, truth obstacles outlined, the robot."""
+    from obstacle_detection.viz.overlay import ROBOT_RGB, costmap_pixel_of, render_costmap
+
+    costmap = Costmap(grid, res, origin_xy_m)
+    image = render_costmap(costmap, scale=scale, draw_robot=False)
+    mask = (truth == CELL_OCCUPIED).T[::-1, ::-1]
+    mask = np.repeat(np.repeat(mask, scale, axis=0), scale, axis=1).astype(np.uint8)
+    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    cv2.drawContours(image, contours, -1, (230, 120, 0), 1)
+    col, row = costmap_pixel_of(costmap, pose[0], pose[1], scale=scale)
+    # the robot: a disc on its base origin and a line along its heading (+x)
+    centre = np.array([col, row])
+    nose = centre + 5 * scale * np.array([-math.sin(pose[2]), -math.cos(pose[2])])
+    cv2.line(image, tuple(int(v) for v in centre.round()), tuple(int(v) for v in nose.round()),
+             ROBOT_RGB, 2, cv2.LINE_AA)
+    cv2.circle(image, tuple(int(v) for v in centre.round()), max(3, scale + 1), ROBOT_RGB, -1,
+               cv2.LINE_AA)
+    return image
+
+
+@dataclass(frozen=True)
+class Observation:
+    """What one frame of a sequence gives the scoring: the detector's output and the truth.
+
+    index, stamp_s [s]; pose_true, pose_odom: base in odom (x, y, yaw), truth and odometry
+    (None: no odometry for this frame); costmap: the detector's per-frame costmap (base
+    frame); truth_obstacle (O, 3), truth_traversable (T, 3): the frame's true points in the
+    region of interest, base frame [m]; truth_costmap: the frame's truth in the costmap's
+    geometry (int8 CELL_* grid).
+    """
+
+    index: int
+    stamp_s: float
+    pose_true: tuple[float, float, float]
+    pose_odom: tuple[float, float, float] | None
+    costmap: Costmap
+    truth_obstacle: np.ndarray
+    truth_traversable: np.ndarray
+    truth_costmap: np.ndarray
+
+
+def observe_sequence(sequence: SceneSequence, base: DetectorParams, *,
+                     stop: int | None = None, size: tuple[int, int] | None = None,
+                     on_frame: Callable[[int, int], None] | None = None,
+                     ) -> Iterator[Observation]:
+    """Render the frames [0, stop) of ``sequence`` and run the detector on each.
+
+    base: detector parameters (the frame's mount replaces the base mount, as in the scene
+    evaluation); size: render (width, height) [px] with the Kinect v2 intrinsics scaled to it
+    (None = 512 x 424). on_frame(index, total) is called after each frame.
+    """
+    from .runner import scaled_intrinsics
+
+    total = len(sequence) if stop is None else max(1, min(stop, len(sequence)))
+    intrinsics, render_size = KINECT_V2_SD, KINECT_V2_SD_SIZE
+    if size is not None:
+        render_size = (int(size[0]), int(size[1]))
+        intrinsics = scaled_intrinsics(KINECT_V2_SD, size[0] / KINECT_V2_SD_SIZE[0])
+    detector: Detector | None = None
+    for index in range(total):
+        sf = sequence.frame(index, intrinsics=intrinsics, size=render_size)
+        params = scene_params(sf.frame, base)
+        if detector is None or detector.params != params:
+            detector = Detector(params)
+        result = detector.process(sf.frame.depth_mm, sf.frame.intrinsics)
+        obstacle, traversable = truth_points_in_roi(sf, params)
+        truth = build_costmap(obstacle, traversable, params).data
+        yield Observation(index=index, stamp_s=sf.stamp_s, pose_true=sf.pose_true,
+                          pose_odom=sf.pose_odom, costmap=result.costmap,
+                          truth_obstacle=obstacle, truth_traversable=traversable,
+                          truth_costmap=truth)
+        if on_frame is not None:
+            on_frame(index, total)
+
+
+def score_sequence(name: str, observations: Sequence[Observation],
+                   fusion: FusionParams | None = None, *, rate_hz: float = 30.0,
+                   use_odometry: bool = True, sheet_frames: int = 0) -> SequenceReport:
+    """Fuse the observations' costmaps in order and score per-frame and fused grids.
+
+    fusion: the fused grid's parameters; use_odometry: False fuses every frame in place (a
+    replayed bag without odometry); sheet_frames: when > 0, draw a contact sheet of that many
+    moments (per-frame | fused, truth obstacles outlined in orange, the robot a red disc with
+    a line along its heading).
+    """
+    fusion = fusion if fusion is not None else FusionParams()
+    if not observations:
+        raise ValueError(f'{name}: no frame to score')
+    total = len(observations)
+    lattice = _Lattice([o.pose_true for o in observations]
+                       + [o.pose_odom for o in observations if o.pose_odom is not None],
+                       fusion, margin_m=1.0)
+    grid = FusedGrid(fusion)
+    n = fusion.cells
+    truth_area = np.full(lattice.shape, CELL_UNKNOWN, dtype=np.int8)
+    conf = {k: Confusion() for k in ('fused_area', 'per_frame_area', 'per_frame',
+                                     'fused_view')}
+    flicker: dict[str, list[float]] = {'fused': [], 'per_frame': []}
+    names = ('fused', 'per_frame')
+    mark = RunTracker(truth_area.size, names, MARK_BUDGET_FRAMES)
+    clear = RunTracker(truth_area.size, names, CLEAR_BUDGET_FRAMES)
+    blind = {'cells': 0, 'fused': 0, 'per_frame': 0, 'fused_near': 0, 'per_frame_near': 0}
+    fusion_ms: list[float] = []
+    resets = in_place = 0
+    previous: dict[str, np.ndarray] = {}
+    last_change = np.full(lattice.shape, -STILL_FRAMES - 1, dtype=np.int64)
+    sheet_at = set(np.linspace(0, total - 1, sheet_frames).round().astype(int).tolist()) \
+        if sheet_frames > 0 else set()
+    thumbs: list[np.ndarray] = []
+    labels: list[str] = []
+    lattice_origin_m = (lattice.origin_cell[0] * lattice.res,
+                        lattice.origin_cell[1] * lattice.res)
+    for step, obs in enumerate(observations):
+        start = time.perf_counter()
+        update = grid.update(obs.costmap, obs.pose_odom if use_odometry else None)
+        fusion_ms.append((time.perf_counter() - start) * 1e3)
+        resets += update.reset
+        in_place += update.in_place
+        # truth: this frame's cells in odom overwrite the area seen so far
+        seen = metrics.truth_grid(_to_odom(obs.truth_obstacle, obs.pose_true),
+                                  _to_odom(obs.truth_traversable, obs.pose_true),
+                                  lattice_origin_m, lattice.res, lattice.shape)
+        truth_prev = truth_area.copy()
+        truth_area[seen != CELL_UNKNOWN] = seen[seen != CELL_UNKNOWN]
+        # both grids on the lattice
+        rows, cols = lattice.window(grid.origin_cell, n)
+        fused_world = np.full(lattice.shape, CELL_UNKNOWN, dtype=np.int8)
+        states = grid.cell_states()
+        fused_world[rows, cols] = states
+        per_frame_world = lattice.evidence_grid(obs.costmap, update.pose)
+        # F1 scores
+        truth_window = truth_area[rows, cols]
+        conf['fused_area'] += metrics.cell_confusion(states, truth_window)
+        conf['per_frame_area'] += metrics.cell_confusion(per_frame_world[rows, cols],
+                                                         truth_window)
+        conf['per_frame'] += metrics.cell_confusion(obs.costmap.data, obs.truth_costmap)
+        xs, ys = obs.costmap.cell_centres()
+        bx, by = np.meshgrid(xs, ys)
+        c, s = math.cos(update.pose[2]), math.sin(update.pose[2])
+        odom_xy = np.stack([update.pose[0] + c * bx - s * by,
+                            update.pose[1] + s * bx + c * by], axis=-1).reshape(-1, 2)
+        fused_view = grid.values_at(odom_xy).reshape(bx.shape)
+        conf['fused_view'] += metrics.cell_confusion(fused_view, obs.truth_costmap)
+        # flicker
+        moved = _dilate(truth_area != truth_prev, STILL_RADIUS_CELLS)
+        last_change[moved] = step
+        if previous:
+            static = step - last_change > STILL_FRAMES
+            for key, now, was_known in (
+                    ('fused', fused_world, previous['fused'] != CELL_UNKNOWN),
+                    ('per_frame', per_frame_world,
+                     (previous['per_frame'] != CELL_UNKNOWN) & (per_frame_world
+                                                                != CELL_UNKNOWN))):
+                changed = (now == CELL_OCCUPIED) != (previous[key] == CELL_OCCUPIED)
+                known = int(np.count_nonzero(now != CELL_UNKNOWN))
+                flicker[key].append(np.count_nonzero(changed & static & was_known)
+                                    / max(known, 1))
+        # frames until marked / cleared
+        # (runs only inside the fused window: what lies farther is not the grid's to mark)
+        in_window = np.zeros(lattice.shape, dtype=bool)
+        in_window[rows, cols] = True
+        occupied_truth = ((truth_area == CELL_OCCUPIED) & in_window).reshape(-1)
+        marked = {'fused': (fused_world == CELL_OCCUPIED).reshape(-1),
+                  'per_frame': (per_frame_world == CELL_OCCUPIED).reshape(-1)}
+        mark.step(step, occupied_truth, occupied_truth, marked, marked['per_frame'])
+        vacated = ((truth_area == CELL_FREE) & (truth_prev == CELL_OCCUPIED)).reshape(-1)
+        was_marked = {k: (previous[k] == CELL_OCCUPIED).reshape(-1) if previous
+                      else np.zeros(truth_area.size, bool) for k in names}
+        clear.step(step, ((truth_area == CELL_FREE) & in_window).reshape(-1), vacated,
+                   {k: ~v for k, v in marked.items()},
+                   (per_frame_world == CELL_FREE).reshape(-1), eligible=was_marked)
+        # blind-zone memory, with the true pose
+        zone = lattice.blind_zone(obs.pose_true) & (truth_area == CELL_OCCUPIED)
+        blind['cells'] += int(np.count_nonzero(zone))
+        for key, world in (('fused', fused_world), ('per_frame', per_frame_world)):
+            marked_here = world == CELL_OCCUPIED
+            blind[key] += int(np.count_nonzero(zone & marked_here))
+            blind[key + '_near'] += int(np.count_nonzero(zone & _dilate(marked_here, 1)))
+        previous = {'fused': fused_world, 'per_frame': per_frame_world}
+        if step in sheet_at:
+            scale = 3
+            origin = grid.origin_xy_m
+            pair = [_panel(g, truth_window, update.pose, origin, fusion.resolution_m, scale)
+                    for g in (per_frame_world[rows, cols], states)]
+            gap = np.full((pair[0].shape[0], 8, 3), 255, np.uint8)
+            thumbs.append(np.hstack([pair[0], gap, pair[1]]))
+            labels.append(f't = {obs.index / rate_hz:.1f} s (frame {obs.index}): '
+                          f'per-frame | fused')
+    mark.finish(total)
+    clear.finish(total)
+    sheet = None
+    if thumbs:
+        from obstacle_detection.viz.pictures import contact_sheet
+        sheet = contact_sheet(thumbs, labels=labels, columns=4,
+                              thumb_width=thumbs[0].shape[1])
+    return SequenceReport(
+        name=name, frames=total, fused_area=conf['fused_area'],
+        per_frame_area=conf['per_frame_area'], per_frame=conf['per_frame'],
+        fused_view=conf['fused_view'], flicker_fused=flicker['fused'],
+        flicker_per_frame=flicker['per_frame'], mark=mark.report(), clear=clear.report(),
+        blind=blind, fusion_ms=fusion_ms, resets=resets,
+        in_place=in_place, sheet=sheet)
+
+
+def evaluate_sequence(sequence: SceneSequence, base: DetectorParams,
+                      fusion: FusionParams | None = None, *, stop: int | None = None,
+                      size: tuple[int, int] | None = None, sheet_frames: int = 0,
+                      use_odometry: bool = True,
+                      on_frame: Callable[[int, int], None] | None = None) -> SequenceReport:
+    """Observe ``sequence`` (:func:`observe_sequence`) and score it (:func:`score_sequence`)."""
+    observations = list(observe_sequence(sequence, base, stop=stop, size=size,
+                                         on_frame=on_frame))
+    return score_sequence(sequence.name, observations, fusion, rate_hz=sequence.rate_hz,
+                          use_odometry=use_odometry, sheet_frames=sheet_frames)
+
+
+def format_table(reports: list[SequenceReport]) -> str:
+    """Per-frame and fused side by side, one block of rows per sequence (Markdown)."""
+    from .metrics import format_score
+
+    def pct(value: float | None) -> str:
+        return '-' if value is None else f'{value:.2f} %'
+
+    def frames(stats: dict[str, Any]) -> str:
+        if not stats['runs']:
+            return '-'
+        return (f"{stats['median']:g} / {stats['p90']:g} / {stats['max']:g}"
+                f" ({stats['missed']} missed)")
+
+    def share(value: float | None) -> str:
+        return format_score(math.nan if value is None else value)
+
+    lines = ['| sequence | score | per-frame | fused |', '| --- | --- | --- | --- |']
+    for r in reports:
+        d = r.as_dict()
+        mark, clear, blind = d['frames_to_mark'], d['frames_to_clear'], d['blind_zone']
+        rows = [
+            ('cell F1, area seen so far', format_score(r.per_frame_area.f1),
+             format_score(r.fused_area.f1)),
+            ("cell F1, the frame's own view", format_score(r.per_frame.f1),
+             format_score(r.fused_view.f1)),
+            ('flicker, % of seen cells a frame: mean / max',
+             f"{pct(d['flicker_per_frame']['mean_pct'])} / "
+             f"{pct(d['flicker_per_frame']['max_pct'])}",
+             f"{pct(d['flicker_fused']['mean_pct'])} / {pct(d['flicker_fused']['max_pct'])}"),
+            (f"frames until marked: median / p90 / max ({mark['steady_runs']} cells)",
+             frames(mark['per_frame']), frames(mark['fused'])),
+            (f"frames until cleared: median / p90 / max ({clear['steady_runs']} cells)",
+             frames(clear['per_frame']), frames(clear['fused'])),
+            (f"blind zone: obstacle cells marked (within 1 cell), {blind['cell_frames']} "
+             f"cell-frames", f"{share(blind['per_frame'])} ({share(blind['per_frame_near'])})",
+             f"{share(blind['fused'])} ({share(blind['fused_near'])})"),
+            ('fusion [ms a frame]: median / p90', '-',
+             f"{d['fusion_ms']['median']:.2f} / {d['fusion_ms']['p90']:.2f}"),
+        ]
+        for label, per_frame, fused in rows:
+            lines.append(f'| {r.name} | {label} | {per_frame} | {fused} |')
+    return '\n'.join(lines)

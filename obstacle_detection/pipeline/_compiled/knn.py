@@ -1,0 +1,737 @@
+"""Compiled k-nearest neighbours on a uniform grid and fused normals (optional, numba).
+
+numba is an optional accelerator: when it imports,
+:mod:`obstacle_detection.pipeline.normals` runs the
+kernels of this module; when it does not (``AVAILABLE`` is False, e.g. a ROS install without
+python3-numba), the numpy/scipy code runs instead. Both give the same answers:
+
+* :func:`knn_grid` is an exact k-nearest-neighbour search. Squared distances are summed in
+  float64 in the same order as scipy's ``cKDTree`` (``dx^2 + dy^2 + dz^2``), so the distances
+  are bit-identical; the order differs from the k-d tree only between points at exactly equal
+  distance, which this kernel breaks deterministically: the query point first, then by
+  distance, then by smaller index.
+* :func:`normals_from_neighbours` computes the covariance and its smallest-eigenvalue
+  eigenvector with the same operations as ``normals.neighbourhood_covariance`` and
+  ``normals.smallest_eigenvectors``, and hands degenerate rows to the same LAPACK call.
+
+The kernels are compiled on first use (a few seconds) and cached on disk (``cache=True``);
+call :func:`warm_up` at start-up to pay that before the first frame. They run on one thread.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from obstacle_detection.pipeline.jit import AVAILABLE, enabled, jit as _jit
+
+#: Largest dense cell table [cells]; a larger grid looks its cells up in a hash table.
+_DENSE_CELLS_LIMIT = 1 << 22
+#: Fibonacci hashing multiplier (2**64 / golden ratio as a signed int64; products wrap).
+_HASH_MULTIPLIER = -7046029254386353131
+#: Target mean number of other points in a point's grid cell, per neighbour asked for.
+_CROWDING_PER_NEIGHBOUR = 0.5
+#: Most cells along one grid axis, so linear cell keys fit comfortably in int64.
+_MAX_AXIS_CELLS = 1 << 20
+
+
+# --------------------------------------------------------------------------- grid k-NN kernel
+
+@_jit
+def _build_grid(pts, lo, cell, dense):  # pragma: no cover - compiled
+    """Sort points by cell; return the CSR layout and the cell lookup.
+
+    Returns (cell_ijk (n, 3) int64, dims (3,) int64, order (n,) int64 point of each sorted
+    slot, sorted_pts (n, 3) float64, starts, hash_keys, hash_cells). Dense: ``starts`` has
+    ncells + 1 entries, cell c spans ``order[starts[c]:starts[c + 1]]``. Hashed: ``starts``
+    has one entry per occupied cell + 1 and ``hash_keys``/``hash_cells`` map a linear cell key
+    to its occupied-cell number.
+    """
+    n = pts.shape[0]
+    cell_ijk = np.empty((n, 3), np.int64)
+    dims = np.ones(3, np.int64)
+    for i in range(n):
+        for a in range(3):
+            c = np.int64(math.floor((pts[i, a] - lo[a]) / cell[a]))
+            if c < 0:
+                c = 0
+            cell_ijk[i, a] = c
+            if c + 1 > dims[a]:
+                dims[a] = c + 1
+    keys = np.empty(n, np.int64)
+    for i in range(n):
+        keys[i] = (cell_ijk[i, 0] * dims[1] + cell_ijk[i, 1]) * dims[2] + cell_ijk[i, 2]
+
+    order = np.empty(n, np.int64)
+    if dense:
+        ncells = dims[0] * dims[1] * dims[2]
+        starts = np.zeros(ncells + 1, np.int64)
+        for i in range(n):
+            starts[keys[i]] += 1
+        total = 0
+        for c in range(ncells):
+            total += starts[c]
+            starts[c] = total          # end of cell c
+        starts[ncells] = n
+        for i in range(n - 1, -1, -1):  # backwards: stable, starts[c] becomes the beginning
+            starts[keys[i]] -= 1
+            order[starts[keys[i]]] = i
+        hash_keys = np.empty(0, np.int64)
+        hash_cells = np.empty(0, np.int64)
+    else:
+        order[:] = np.argsort(keys, kind='mergesort')
+        n_occ = 0
+        for s in range(n):
+            if s == 0 or keys[order[s]] != keys[order[s - 1]]:
+                n_occ += 1
+        starts = np.empty(n_occ + 1, np.int64)
+        size = 16
+        while size < 2 * n_occ:
+            size *= 2
+        mask = size - 1
+        hash_keys = np.full(size, -1, np.int64)
+        hash_cells = np.empty(size, np.int64)
+        occ = 0
+        for s in range(n):
+            key = keys[order[s]]
+            if s == 0 or key != keys[order[s - 1]]:
+                starts[occ] = s
+                slot = ((key * _HASH_MULTIPLIER) >> 17) & mask
+                while hash_keys[slot] != -1:
+                    slot = (slot + 1) & mask
+                hash_keys[slot] = key
+                hash_cells[slot] = occ
+                occ += 1
+        starts[n_occ] = n
+    sorted_pts = np.empty((n, 3), np.float64)
+    for s in range(n):
+        for a in range(3):
+            sorted_pts[s, a] = pts[order[s], a]
+    return cell_ijk, dims, order, sorted_pts, starts, hash_keys, hash_cells
+
+
+@_jit
+def _axis_gap(offset, below, above, size, slack):  # pragma: no cover - compiled
+    """Smallest distance along one axis from the query to a cell ``offset`` cells away."""
+    if offset > 0:
+        g = (offset - 1) * size + above - slack
+    elif offset < 0:
+        g = (-offset - 1) * size + below - slack
+    else:
+        return 0.0
+    return g if g > 0.0 else 0.0
+
+
+# The kernel below inlines the top-k insertion and the cell lookup by hand: a helper taking
+# arrays costs two atomic reference-count updates per array and call, more than the work.
+
+@_jit
+def _knn_kernel(pts, lo, cell, k, dense, slack, out):  # pragma: no cover - compiled
+    """Exact k nearest neighbours of every point (see :func:`knn_grid`) into ``out`` (n, k).
+
+    Fast path, per occupied cell: the points of its 3 x 3 x 3 block of cells are gathered
+    once; each query of the cell measures them all and keeps those closer than the block's
+    boundary (every such point of the cloud is in the block). If at least k remain, the k
+    nearest are among them, ranked by counting. Otherwise (or when very many remain) the
+    query searches shells of cells of growing Chebyshev radius with an insertion-sorted
+    top-k, pruning cells farther than its k-th best, or scans all points when the cloud is so
+    sparse that the shells would cost more.
+    """
+    n = pts.shape[0]
+    cell_ijk, dims, order, sp, starts, hash_keys, hash_cells = _build_grid(pts, lo, cell, dense)
+    mask = hash_keys.shape[0] - 1
+    best_d = np.empty(k, np.float64)
+    best_i = np.empty(k, np.int64)
+    below = np.empty(3, np.float64)
+    above = np.empty(3, np.float64)
+    # the current block's points, gathered once per cell: coordinates and index
+    block_x = np.empty(n, np.float64)
+    block_y = np.empty(n, np.float64)
+    block_z = np.empty(n, np.float64)
+    block_j = np.empty(n, np.int64)
+    near_d = np.empty(n + 8, np.float64)
+    near_j = np.empty(n + 8, np.int64)
+    top = np.empty(k + 1, np.int64)
+    budget = 2 * n + 512              # cells to look at before a plain scan is cheaper
+    rank_limit = 4 * k + 64           # more near points (a crowded cell): insertion is cheaper
+    last = k - 1
+    group_end = 0
+    m = 0
+    kth2_prev = np.inf                # squared k-th distance of the previous query
+    for s in range(n):                # queries in cell order: neighbouring cells stay cached
+        i = order[s]
+        c0 = cell_ijk[i, 0]
+        c1 = cell_ijk[i, 1]
+        c2 = cell_ijk[i, 2]
+        if s == group_end:            # first point of a new cell: gather its block
+            group_end = s + 1
+            while (group_end < n and cell_ijk[order[group_end], 0] == c0
+                   and cell_ijk[order[group_end], 1] == c1
+                   and cell_ijk[order[group_end], 2] == c2):
+                group_end += 1
+            m = 0
+            for o0 in range(max(c0 - 1, 0), min(c0 + 1, dims[0] - 1) + 1):
+                for o1 in range(max(c1 - 1, 0), min(c1 + 1, dims[1] - 1) + 1):
+                    for o2 in range(max(c2 - 1, 0), min(c2 + 1, dims[2] - 1) + 1):
+                        key = (o0 * dims[1] + o1) * dims[2] + o2
+                        if dense:
+                            begin = starts[key]
+                            end = starts[key + 1]
+                        else:
+                            begin = 0
+                            end = 0
+                            slot = ((key * _HASH_MULTIPLIER) >> 17) & mask
+                            while hash_keys[slot] != -1:
+                                if hash_keys[slot] == key:
+                                    begin = starts[hash_cells[slot]]
+                                    end = starts[hash_cells[slot] + 1]
+                                    break
+                                slot = (slot + 1) & mask
+                        for t in range(begin, end):
+                            block_x[m] = sp[t, 0]
+                            block_y[m] = sp[t, 1]
+                            block_z[m] = sp[t, 2]
+                            block_j[m] = order[t]
+                            m += 1
+        x0 = sp[s, 0]
+        x1 = sp[s, 1]
+        x2 = sp[s, 2]
+        reach = np.inf                # distance to the block's boundary
+        for a in range(3):
+            below[a] = sp[s, a] - (lo[a] + cell_ijk[i, a] * cell[a])
+            above[a] = cell[a] - below[a]
+            reach = min(reach, min(below[a], above[a]) + cell[a] - slack)
+        reach2 = reach * reach if reach > 0.0 else -1.0
+        # First try a radius a little beyond the previous query's k-th neighbour (queries in
+        # cell order are close, so it usually holds k points and fewer others), then reach.
+        radius2 = min(reach2, 1.21 * kth2_prev)
+        n_near = 0
+        for attempt in range(2):
+            n_near = 0
+            for u in range(m):        # branch-free: keep every point within the radius
+                d0 = block_x[u] - x0
+                d1 = block_y[u] - x1
+                d2 = block_z[u] - x2
+                d = d0 * d0 + d1 * d1 + d2 * d2
+                j = block_j[u]
+                near_d[n_near] = -1.0 if j == i else d   # self first, even among duplicates
+                near_j[n_near] = j
+                n_near += d <= radius2
+            if n_near >= k or radius2 == reach2:
+                break
+            radius2 = reach2
+        if k <= n_near <= rank_limit:
+            # rank of each near point by distance; ranks below k are the answer unless
+            # distances tie among them, then ranks by (distance, index) decide. Branch-free:
+            # the comparisons run over a multiple of 8 (padded with inf) and ranks of k or
+            # more land in a spare slot.
+            padded = (n_near + 7) & ~7
+            for v in range(n_near, padded):
+                near_d[v] = np.inf
+            placed = 0
+            rank_sum = 0
+            for v in range(n_near):
+                dv = near_d[v]
+                rank = 0
+                for w in range(padded):
+                    rank += np.int64(near_d[w] < dv)
+                inside = rank < k
+                slot = rank if inside else k
+                top[slot] = near_j[v]
+                kth2_prev = dv if rank == k - 1 else kth2_prev
+                placed += inside
+                rank_sum += rank if inside else 0
+            if placed != k or rank_sum != k * (k - 1) // 2:
+                for v in range(n_near):
+                    dv = near_d[v]
+                    jv = near_j[v]
+                    rank = 0
+                    for w in range(n_near):
+                        rank += (near_d[w] < dv) | ((near_d[w] == dv) & (near_j[w] < jv))
+                    if rank < k:
+                        top[rank] = jv
+                    if rank == k - 1:
+                        kth2_prev = dv
+            for col in range(k):
+                out[i, col] = top[col]
+            continue
+
+        best_d[0] = -1.0              # the query itself comes first, even among duplicates
+        best_i[0] = i
+        count = 1
+        worst = np.inf if k > 1 else -1.0   # k-th best squared distance so far
+        looked = 0
+        r_max = max(max(c0, dims[0] - 1 - c0), max(max(c1, dims[1] - 1 - c1),
+                                                     max(c2, dims[2] - 1 - c2)))
+        scan_all = False
+        for r in range(r_max + 1):
+            if r > 0 and count == k:
+                # every cell of shell r (Chebyshev radius r) lies at least this far away
+                bound = np.inf
+                for a in range(3):
+                    edge = min(below[a], above[a]) + (r - 1) * cell[a] - slack
+                    bound = min(bound, edge)
+                if bound > 0.0 and bound * bound > worst:
+                    break
+            # the grid cells of shell r: within radius r but not r - 1
+            outer = 1
+            inner = 1 if r > 0 else 0
+            for a in range(3):
+                ca = cell_ijk[i, a]
+                outer *= min(r, dims[a] - 1 - ca) + min(r, ca) + 1
+                if r > 0:
+                    inner *= min(r - 1, dims[a] - 1 - ca) + min(r - 1, ca) + 1
+            looked += outer - inner
+            if looked > budget:
+                scan_all = True
+                break
+            lo2 = -min(r, c2)
+            hi2 = min(r, dims[2] - 1 - c2)
+            for o0 in range(-min(r, c0), min(r, dims[0] - 1 - c0) + 1):
+                g0 = _axis_gap(o0, below[0], above[0], cell[0], slack)
+                g0 = g0 * g0
+                if g0 > worst:
+                    continue
+                for o1 in range(-min(r, c1), min(r, dims[1] - 1 - c1) + 1):
+                    g1 = _axis_gap(o1, below[1], above[1], cell[1], slack)
+                    g01 = g0 + g1 * g1
+                    if g01 > worst:
+                        continue
+                    if o0 == -r or o0 == r or o1 == -r or o1 == r:
+                        o2_first = lo2           # a face of the shell: the whole column
+                        o2_step = 1
+                    else:
+                        o2_first = -r            # inside: only the two end cells
+                        o2_step = 2 * r
+                    for o2 in range(o2_first, hi2 + 1, o2_step):
+                        if o2 < lo2:
+                            continue
+                        g2 = _axis_gap(o2, below[2], above[2], cell[2], slack)
+                        if g01 + g2 * g2 > worst:
+                            continue
+                        key = ((c0 + o0) * dims[1] + (c1 + o1)) * dims[2] + (c2 + o2)
+                        if dense:
+                            begin = starts[key]
+                            end = starts[key + 1]
+                        else:
+                            begin = 0
+                            end = 0
+                            slot = ((key * _HASH_MULTIPLIER) >> 17) & mask
+                            while hash_keys[slot] != -1:
+                                if hash_keys[slot] == key:
+                                    begin = starts[hash_cells[slot]]
+                                    end = starts[hash_cells[slot] + 1]
+                                    break
+                                slot = (slot + 1) & mask
+                        for t in range(begin, end):
+                            j = order[t]
+                            d0 = sp[t, 0] - x0
+                            d1 = sp[t, 1] - x1
+                            d2 = sp[t, 2] - x2
+                            d = d0 * d0 + d1 * d1 + d2 * d2
+                            if count == k:
+                                if d > worst or (d == worst and j > best_i[last]) or j == i:
+                                    continue
+                                pos = last
+                            else:
+                                if j == i:
+                                    continue
+                                pos = count
+                                count += 1
+                            while pos > 0 and (best_d[pos - 1] > d or (
+                                    best_d[pos - 1] == d and best_i[pos - 1] > j)):
+                                best_d[pos] = best_d[pos - 1]
+                                best_i[pos] = best_i[pos - 1]
+                                pos -= 1
+                            best_d[pos] = d
+                            best_i[pos] = j
+                            if count == k:
+                                worst = best_d[last]
+        if scan_all:                  # far-apart points: a plain scan is the cheaper search
+            count = 1
+            worst = np.inf
+            for t in range(n):
+                j = order[t]
+                d0 = sp[t, 0] - x0
+                d1 = sp[t, 1] - x1
+                d2 = sp[t, 2] - x2
+                d = d0 * d0 + d1 * d1 + d2 * d2
+                if count == k:
+                    if d > worst or (d == worst and j > best_i[last]) or j == i:
+                        continue
+                    pos = last
+                else:
+                    if j == i:
+                        continue
+                    pos = count
+                    count += 1
+                while pos > 0 and (best_d[pos - 1] > d or (
+                        best_d[pos - 1] == d and best_i[pos - 1] > j)):
+                    best_d[pos] = best_d[pos - 1]
+                    best_i[pos] = best_i[pos - 1]
+                    pos -= 1
+                best_d[pos] = d
+                best_i[pos] = j
+                if count == k:
+                    worst = best_d[last]
+        kth2_prev = best_d[last]
+        for col in range(k):
+            out[i, col] = best_i[col]
+
+
+@_jit
+def _cell_crowding(pts, lo, size, dims, dense):  # pragma: no cover - compiled
+    """Mean number of other points in a point's own cell of an isotropic ``size`` grid.
+
+    Dense: counts over all cells; otherwise the sorted cell keys are counted.
+    """
+    n = pts.shape[0]
+    keys = np.empty(n, np.int64)
+    for i in range(n):
+        key = 0
+        for a in range(3):
+            c = np.int64(math.floor((pts[i, a] - lo[a]) / size))
+            c = min(max(c, 0), dims[a] - 1)
+            key = key * dims[a] + c
+        keys[i] = key
+    total = 0
+    if dense:
+        counts = np.zeros(dims[0] * dims[1] * dims[2], np.int64)
+        for i in range(n):
+            counts[keys[i]] += 1
+        for i in range(n):
+            total += counts[keys[i]]
+    else:
+        keys.sort()
+        run = 1
+        for i in range(1, n + 1):
+            if i < n and keys[i] == keys[i - 1]:
+                run += 1
+            else:
+                total += run * run
+                run = 1
+    return total / n - 1.0
+
+
+# ---------------------------------------------------------------------------- grid planning
+
+@_jit
+def _grid_dims(extent, size):  # pragma: no cover - compiled
+    """Cells (3,) int64 along each axis of an isotropic ``size`` [m] grid over ``extent``."""
+    dims = np.empty(3, np.int64)
+    for a in range(3):
+        dims[a] = np.int64(math.floor(extent[a] / size)) + 1
+    return dims
+
+
+@_jit
+def _crowding(pts, lo, extent, size):  # pragma: no cover - compiled
+    """Mean number of other points in a point's own cell of an isotropic ``size`` grid."""
+    n = pts.shape[0]
+    dims = _grid_dims(extent, size)
+    keys = np.empty(n, np.int64)
+    for i in range(n):
+        key = 0
+        for a in range(3):
+            c = np.int64(math.floor((pts[i, a] - lo[a]) / size))
+            c = min(max(c, 0), dims[a] - 1)
+            key = key * dims[a] + c
+        keys[i] = key
+    total = 0
+    if np.float64(dims[0]) * dims[1] * dims[2] <= 16.0 * n + 65536.0:
+        counts = np.zeros(dims[0] * dims[1] * dims[2], np.int64)
+        for i in range(n):
+            counts[keys[i]] += 1
+        for i in range(n):
+            total += counts[keys[i]]
+    else:                              # too many cells for a table: count sorted runs
+        keys.sort()
+        run = 1
+        for i in range(1, n + 1):
+            if i < n and keys[i] == keys[i - 1]:
+                run += 1
+            else:
+                total += run * run
+                run = 1
+    return total / n - 1.0
+
+
+@_jit
+def _cell_size(pts, lo, extent, k):  # pragma: no cover - compiled
+    """Pick the grid cell [m] so that a point's own cell holds about ``k / 2`` other points.
+
+    Then the 3 x 3 x 3 block around a query's cell holds its k nearest points for nearly all
+    queries, and few others (measured best for k = 5..20 on surfaces and volumes). The mean
+    number of other points in a point's cell grows as ``size ** dim`` with the cloud's local
+    dimension (1 for lines, 2 for surfaces, 3 for volumes): it is counted at two trial sizes
+    and the size giving the target is extrapolated between them. Only speed depends on this
+    choice, never the result.
+    """
+    n = pts.shape[0]
+    target = _CROWDING_PER_NEIGHBOUR * k
+    dim = 0
+    volume = 1.0
+    largest = 0.0
+    for a in range(3):
+        if extent[a] > 0.0:
+            dim += 1
+            volume *= extent[a]
+        largest = max(largest, extent[a])
+    if dim == 0:
+        return 1.0                              # all points coincide: one cell
+    smallest = largest / (_MAX_AXIS_CELLS - 1)
+    size_a = max((volume / n) ** (1.0 / dim), smallest)     # about n cells
+    crowd_a = _crowding(pts, lo, extent, size_a)
+    if crowd_a > 0.0:
+        size_b = size_a * min(max((target / crowd_a) ** (1.0 / dim), 0.5), 4.0)
+    else:
+        size_b = 2.0 * size_a
+    size_b = max(size_b, smallest)
+    crowd_b = _crowding(pts, lo, extent, size_b)
+    slope = float(dim)
+    if crowd_a > 0.0 and crowd_b > 0.0 and size_a != size_b:
+        slope = math.log(crowd_a / crowd_b) / math.log(size_a / size_b)
+        slope = min(max(slope, 1.0), float(dim))
+    size = size_b
+    crowd = crowd_b
+    if crowd_b <= 0.0:
+        size = size_a
+        crowd = crowd_a
+    if crowd > 0.0:
+        size *= (target / crowd) ** (1.0 / slope)
+    else:
+        size *= 2.0                             # every point alone: a very sparse cloud
+    return max(size, smallest)
+
+
+@_jit
+def _knn_all(pts, k, out):  # pragma: no cover - compiled
+    """Plan the grid and run the search; return False (and do nothing) for non-finite points."""
+    n = pts.shape[0]
+    lo = np.empty(3, np.float64)
+    extent = np.empty(3, np.float64)
+    scale = 0.0
+    for a in range(3):
+        low = np.inf
+        high = -np.inf
+        for i in range(n):
+            x = pts[i, a]
+            if not math.isfinite(x):
+                return False
+            low = min(low, x)
+            high = max(high, x)
+        lo[a] = low
+        extent[a] = high - low
+        scale = max(scale, abs(low) + extent[a])
+    size = _cell_size(pts, lo, extent, k)
+    cell = np.full(3, size)
+    dims = _grid_dims(extent, size)
+    dense = np.float64(dims[0]) * dims[1] * dims[2] <= _DENSE_CELLS_LIMIT
+    # cell membership is computed in float64; this margin covers its rounding
+    slack = 1e-9 * (scale + size)
+    _knn_kernel(pts, lo, cell, k, dense, slack, out)
+    return True
+
+
+# ------------------------------------------------------------------------------ public API
+
+def knn_grid(points: np.ndarray, k: int) -> np.ndarray:
+    """Return indices (V, k) int64 of the exact k nearest points of every point, nearest first.
+
+    points: (V, 3) float [m], finite. k is clipped to V. Column 0 is the point itself (also
+    among duplicate points); then the others by increasing Euclidean distance (squared in
+    float64 as scipy's cKDTree computes it), ties broken by the smaller index. The grid sizes
+    itself from the points (no voxel size needed). Raises ValueError for a wrong shape or
+    non-finite coordinates, RuntimeError when numba is not available.
+    """
+    if not AVAILABLE:
+        raise RuntimeError('numba is not available; use normals.nearest_neighbours')
+    pts = np.asarray(points)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise ValueError(f'points must have shape (V, 3), got {pts.shape}')
+    n = pts.shape[0]
+    k = min(int(k), n)
+    if n == 0 or k <= 0:
+        return np.zeros((n, max(k, 0)), dtype=np.int64)
+    if k == 1:
+        return np.arange(n, dtype=np.int64).reshape(n, 1)
+    out = np.empty((n, k), dtype=np.int64)
+    if not _knn_all(np.ascontiguousarray(pts, dtype=np.float64), k, out):
+        raise ValueError('points must be finite (no NaN or inf coordinates)')
+    return out
+
+
+# --------------------------------------------------------------------------- normals kernel
+
+@_jit
+def _normals_kernel(pts, neighbours, n_use, normals, cov_bad, bad):  # pragma: no cover
+    """Covariance and closed-form smallest eigenvector per row (see normals_from_neighbours).
+
+    Every floating-point operation follows ``normals.neighbourhood_covariance`` and
+    ``normals.smallest_eigenvectors`` in the same order (float64, sums over the neighbours in
+    column order), so the two agree bit for bit but for acos / cos, which numpy may take from
+    its own vector library (within an ulp). Writes normals (V, 3) float32; marks degenerate
+    rows in ``bad`` and leaves their six covariance entries in ``cov_bad``. Returns the number
+    of degenerate rows, or -1 (with nothing done) when an index is out of range.
+    """
+    v_count = pts.shape[0]
+    for v in range(v_count):
+        for t in range(n_use):
+            if neighbours[v, t] < 0 or neighbours[v, t] >= v_count:
+                return -1
+    count = np.float64(n_use)
+    two_pi_3 = 2.0 * np.pi / 3.0
+    tiny = np.finfo(np.float64).tiny
+    n_bad = 0
+    for v in range(v_count):
+        px = np.float64(pts[v, 0])
+        py = np.float64(pts[v, 1])
+        pz = np.float64(pts[v, 2])
+        j = neighbours[v, 0]
+        rx = np.float64(pts[j, 0]) - px
+        ry = np.float64(pts[j, 1]) - py
+        rz = np.float64(pts[j, 2]) - pz
+        sx = rx
+        sy = ry
+        sz = rz
+        s00 = rx * rx
+        s01 = rx * ry
+        s02 = rx * rz
+        s11 = ry * ry
+        s12 = ry * rz
+        s22 = rz * rz
+        for t in range(1, n_use):
+            j = neighbours[v, t]
+            rx = np.float64(pts[j, 0]) - px
+            ry = np.float64(pts[j, 1]) - py
+            rz = np.float64(pts[j, 2]) - pz
+            sx += rx
+            sy += ry
+            sz += rz
+            s00 += rx * rx
+            s01 += rx * ry
+            s02 += rx * rz
+            s11 += ry * ry
+            s12 += ry * rz
+            s22 += rz * rz
+        m0 = sx / count
+        m1 = sy / count
+        m2 = sz / count
+        a00 = s00 / count - m0 * m0
+        a01 = s01 / count - m0 * m1
+        a02 = s02 / count - m0 * m2
+        a11 = s11 / count - m1 * m1
+        a12 = s12 / count - m1 * m2
+        a22 = s22 / count - m2 * m2
+
+        q = (a00 + a11 + a22) / 3.0
+        p1 = a01 * a01 + a02 * a02 + a12 * a12
+        b00 = a00 - q
+        b11 = a11 - q
+        b22 = a22 - q
+        p2 = b00 * b00 + b11 * b11 + b22 * b22 + 2.0 * p1
+        p = math.sqrt(p2 / 6.0)
+        safe_p = p if p > 0.0 else 1.0
+        det_b = (b00 * (b11 * b22 - a12 * a12) - a01 * (a01 * b22 - a12 * a02)
+                 + a02 * (a01 * a12 - b11 * a02))
+        r = det_b / (2.0 * (safe_p * safe_p * safe_p))
+        r = min(max(r, -1.0), 1.0)
+        phi = math.acos(r) / 3.0
+        lam = q + 2.0 * p * math.cos(phi + two_pi_3)
+        # rows of C - lam I and their three cross products; keep the longest (first on ties)
+        r00 = a00 - lam
+        r11 = a11 - lam
+        r22 = a22 - lam
+        best_len2 = -1.0
+        bx = 0.0
+        by = 0.0
+        bz = 0.0
+        for c in range(3):
+            if c == 0:    # row0 x row1
+                ux, uy, uz, wx, wy, wz = r00, a01, a02, a01, r11, a12
+            elif c == 1:  # row0 x row2
+                ux, uy, uz, wx, wy, wz = r00, a01, a02, a02, a12, r22
+            else:         # row1 x row2
+                ux, uy, uz, wx, wy, wz = a01, r11, a12, a02, a12, r22
+            cx = uy * wz - uz * wy
+            cy = uz * wx - ux * wz
+            cz = ux * wy - uy * wx
+            len2 = cx * cx + cy * cy + cz * cz
+            if len2 > best_len2:
+                best_len2 = len2
+                bx = cx
+                by = cy
+                bz = cz
+        length = math.sqrt(best_len2)
+        scale = p2 if p2 > tiny else tiny
+        bad[v] = length * length <= 1e-12 * scale * scale
+        if bad[v]:                    # degenerate: the caller asks LAPACK, as numpy does
+            cov_bad[v, 0] = a00
+            cov_bad[v, 1] = a01
+            cov_bad[v, 2] = a02
+            cov_bad[v, 3] = a11
+            cov_bad[v, 4] = a12
+            cov_bad[v, 5] = a22
+            n_bad += 1
+        else:
+            normals[v, 0] = np.float32(bx / length)
+            normals[v, 1] = np.float32(by / length)
+            normals[v, 2] = np.float32(bz / length)
+    return n_bad
+
+
+def normals_from_neighbours(points: np.ndarray, neighbours: np.ndarray, n: int) -> np.ndarray:
+    """Return unit normals (V, 3) float32 from the first n neighbours of every point.
+
+    points: (V, 3) [m], used as float32 like ``normals.neighbourhood_covariance``;
+    neighbours: (V, >= n) int indices into points, the point itself included. The covariance
+    (relative to each query point, float64) and its smallest-eigenvalue eigenvector follow
+    ``normals.neighbourhood_covariance`` and ``normals.smallest_eigenvectors`` operation by
+    operation, so both paths give the same normals. Rows whose smallest eigenvalue is
+    degenerate (a line, coincident points) go to ``numpy.linalg.eigh`` as in the numpy path;
+    any unit vector of that eigenspace is a right answer there. The sign of a normal is
+    arbitrary. Raises ValueError for bad shapes or out-of-range indices.
+    """
+    if not AVAILABLE:
+        raise RuntimeError('numba is not available; use normals.estimate_normals')
+    pts = np.ascontiguousarray(points, dtype=np.float32)
+    nb = np.asarray(neighbours)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise ValueError(f'points must have shape (V, 3), got {pts.shape}')
+    v_count = pts.shape[0]
+    if nb.ndim != 2 or nb.shape[0] != v_count:
+        raise ValueError(f'neighbours must have shape ({v_count}, N), got {nb.shape}')
+    n = int(n)
+    if v_count == 0:
+        return np.zeros((0, 3), dtype=np.float32)
+    if not 1 <= n <= nb.shape[1]:
+        raise ValueError(f'n={n} must be between 1 and the {nb.shape[1]} neighbour columns')
+    if nb.dtype != np.int64:
+        nb = nb.astype(np.int64)
+    normals = np.empty((v_count, 3), dtype=np.float32)
+    cov_bad = np.empty((v_count, 6), dtype=np.float64)    # filled on degenerate rows only
+    bad = np.empty(v_count, dtype=np.bool_)
+    n_bad = _normals_kernel(pts, nb, n, normals, cov_bad, bad)
+    if n_bad < 0:
+        raise ValueError(f'neighbour indices must lie in [0, {v_count})')
+    if n_bad:
+        cov = cov_bad[bad][:, [0, 1, 2, 1, 3, 4, 2, 4, 5]].reshape(-1, 3, 3)
+        _, vecs = np.linalg.eigh(cov)
+        normals[bad] = vecs[:, :, 0]
+    return normals
+
+
+def warm_up() -> None:
+    """Compile (or load from the on-disk cache) every kernel on a tiny cloud; no-op without numba.
+
+    The first compilation takes a few seconds; call this once at start-up so the first frame
+    does not pay it.
+    """
+    if not enabled():   # no numba, switched off, or compiling on another thread
+        return
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(0.0, 0.1, (40, 3)).astype(np.float32)
+    nb = knn_grid(pts, 13)
+    normals_from_neighbours(pts, nb, 10)
+    normals_from_neighbours(pts, nb[:, :10], 10)   # a column slice compiles a second layout

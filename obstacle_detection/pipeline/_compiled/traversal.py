@@ -1,0 +1,869 @@
+"""Compiled (numba) kernels of the robot-level stages (optional; same results as numpy).
+
+:func:`ground_rays` equals :func:`~obstacle_detection.pipeline.geometry.ground_rays`
+(the same float32
+operations per pixel, in the same order); :func:`traverse` equals the numpy path of
+:func:`obstacle_detection.pipeline.traversal.traversable_ground` (the same grid, the same reachable
+set, the same layered nearest-ground rule, the same float operations); :func:`drop_mask` equals
+:func:`obstacle_detection.pipeline.traversal.drop_edge_mask`. The tests compare them bit for bit.
+When numba is missing or ``OBSTACLE_DETECTION_NO_JIT`` is set, :func:`enabled` is False and
+the numpy code runs instead. Kernels import nothing of ours but :mod:`.jit_support`.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+
+import numpy as np
+
+from obstacle_detection.pipeline.jit import AVAILABLE, NO_JIT_ENV, enabled, jit as _jit
+
+#: Per-thread buffers reused across frames (fresh large arrays cost page faults).
+_SCRATCH = threading.local()
+
+__all__ = ['AVAILABLE', 'NO_JIT_ENV', 'drop_mask', 'drop_smeared', 'enabled', 'ground_rays',
+           'holes_to_inf', 'traverse', 'warm_up']
+
+
+@_jit
+def _rays_kernel(ru, rv, rot, out):  # pragma: no cover - compiled
+    """Fill out (3, H, W) float32 = rot[a, 0] * ru[j] + rot[a, 1] * rv[i] + rot[a, 2]."""
+    for a in range(3):
+        r0, r1, r2 = rot[a, 0], rot[a, 1], rot[a, 2]
+        for i in range(rv.size):
+            t = r1 * rv[i]
+            for j in range(ru.size):
+                out[a, i, j] = (r0 * ru[j] + t) + r2
+
+
+def ground_rays(ru: np.ndarray, rv: np.ndarray, rot: np.ndarray,
+                out: np.ndarray | None = None) -> np.ndarray:
+    """(3, H*W) float32 ground rays from the per-column/per-row slopes and the float32 mount.
+
+    out: a (3, H*W) float32 array to fill (reused across frames spares page faults).
+    """
+    if out is None or out.shape != (3, rv.size * ru.size) or out.dtype != np.float32:
+        out = np.empty((3, rv.size * ru.size), np.float32)
+    _rays_kernel(ru, rv, rot, out.reshape(3, rv.size, ru.size))
+    return out
+
+
+def scratch(name: str, shape: tuple[int, ...], dtype) -> np.ndarray:
+    """Return a per-thread buffer of this shape and dtype, reused across frames."""
+    buf = getattr(_SCRATCH, name, None)
+    if buf is None or buf.shape != shape or buf.dtype != dtype:
+        buf = np.empty(shape, dtype)
+        setattr(_SCRATCH, name, buf)
+    return buf
+
+
+@_jit
+def _traverse_kernel(points, steep, size, step_up, step_down, up32, down32, robot32, layer,
+                     min_support, obstacle, above, height,
+                     reached_v):  # pragma: no cover - compiled
+    """Run the numpy path of traversal.traversable_ground cell by cell (see that module)."""
+    n = points.shape[0]
+    ix = np.empty(n, np.int64)
+    iy = np.empty(n, np.int64)
+    for v in range(n):
+        ix[v] = np.int64(np.floor(points[v, 0] / size))
+        iy[v] = np.int64(np.floor(points[v, 1] / size))
+    x0, y0 = ix.min(), iy.min()
+    nx = ix.max() - x0 + 1
+    ny = iy.max() - y0 + 1
+    key = np.empty(n, np.int64)
+    surface = np.full(nx * ny, np.inf)
+    low = np.full(nx * ny, np.inf)
+    high = np.full(nx * ny, -np.inf)
+    for v in range(n):
+        k = (ix[v] - x0) * ny + (iy[v] - y0)
+        key[v] = k
+        z = np.float64(points[v, 2])
+        if not steep[v] and z < surface[k]:
+            surface[k] = z
+        if z < low[k]:
+            low[k] = z
+        if z > high[k]:
+            high[k] = z
+    n_cells = nx * ny
+    support = np.zeros(n_cells, np.int64)
+    for v in range(n):
+        k = key[v]
+        if not steep[v] and np.float64(points[v, 2]) <= surface[k] + layer:
+            support[k] += 1
+    passable = np.empty(n_cells, np.bool_)
+    for c in range(n_cells):
+        passable[c] = (surface[c] != np.inf and high[c] - low[c] <= step_up
+                       and support[c] >= min_support)
+    # reach: breadth-first from the seeds through allowed steps (8 neighbours)
+    reached = np.zeros(n_cells, np.bool_)
+    queue = np.empty(n_cells, np.int64)
+    tail = 0
+    for c in range(n_cells):
+        s = surface[c]
+        if passable[c] and s >= -step_down and s <= step_up:
+            reached[c] = True
+            queue[tail] = c
+            tail += 1
+    head = 0
+    while head < tail:
+        c = queue[head]
+        head += 1
+        cx, cy = c // ny, c % ny
+        sa = surface[c]
+        for dx in range(-1, 2):
+            for dy in range(-1, 2):
+                if dx == 0 and dy == 0:
+                    continue
+                bx, by = cx + dx, cy + dy
+                if bx < 0 or bx >= nx or by < 0 or by >= ny:
+                    continue
+                b = bx * ny + by
+                if reached[b] or not passable[b]:
+                    continue
+                rise = surface[b] - sa
+                if rise <= step_up and -rise <= step_down:
+                    reached[b] = True
+                    queue[tail] = b
+                    tail += 1
+    # local ground: reached cells their surface, the others the largest ground of the
+    # neighbours filled in the previous layers (layer by layer, 8 neighbours)
+    ground = np.zeros(n_cells)
+    if tail > 0:
+        done = reached.copy()
+        for c in range(n_cells):
+            if reached[c]:
+                ground[c] = surface[c]
+        frontier = queue[:tail].copy()
+        cand = np.empty(n_cells, np.int64)
+        mark = np.zeros(n_cells, np.bool_)
+        while frontier.size > 0:
+            m = 0
+            for c in frontier:
+                cx, cy = c // ny, c % ny
+                for dx in range(-1, 2):
+                    for dy in range(-1, 2):
+                        bx, by = cx + dx, cy + dy
+                        if bx < 0 or bx >= nx or by < 0 or by >= ny:
+                            continue
+                        b = bx * ny + by
+                        if not done[b] and not mark[b]:
+                            mark[b] = True
+                            cand[m] = b
+                            m += 1
+            for i in range(m):
+                b = cand[i]
+                bx, by = b // ny, b % ny
+                best = -np.inf
+                for dx in range(-1, 2):
+                    for dy in range(-1, 2):
+                        ax, ay = bx + dx, by + dy
+                        if ax < 0 or ax >= nx or ay < 0 or ay >= ny:
+                            continue
+                        a = ax * ny + ay
+                        if done[a] and ground[a] > best:
+                            best = ground[a]
+                ground[b] = best
+            for i in range(m):
+                done[cand[i]] = True
+                mark[cand[i]] = False
+            frontier = cand[:m].copy()
+    for v in range(n):
+        k = key[v]
+        h = np.float32(np.float64(points[v, 2]) - ground[k])
+        height[v] = h
+        above[v] = h > robot32
+        obstacle[v] = (h > up32 and not above[v]) or h < -down32
+        reached_v[v] = reached[k]
+
+
+def traverse(points: np.ndarray, steep: np.ndarray, size_m: float, step_up_m: float,
+             step_down_m: float, robot_height_m: float, layer_m: float, min_support: int = 3,
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(obstacle, above, height float32, reached) per voxel; see traversal.traversable_ground."""
+    n = points.shape[0]
+    obstacle = np.empty(n, np.bool_)
+    above = np.empty(n, np.bool_)
+    height = np.empty(n, np.float32)
+    reached = np.empty(n, np.bool_)
+    _traverse_kernel(np.ascontiguousarray(points, np.float32),
+                     np.ascontiguousarray(steep, np.bool_), np.float32(size_m),
+                     float(step_up_m), float(step_down_m), np.float32(step_up_m),
+                     np.float32(step_down_m), np.float32(robot_height_m), float(layer_m),
+                     int(min_support),
+                     obstacle, above, height, reached)
+    return obstacle, above, height, reached
+
+
+@_jit
+def _drop_kernel(depth, rz, h, down, up, rows, out):  # pragma: no cover - compiled
+    """Fill out (H, W) int8: drop-edge row offsets (see traversal.drop_edge_mask)."""
+    height, width = depth.shape
+    for i in range(height):
+        for j in range(width):
+            out[i, j] = 0
+            d = depth[i, j]
+            if not d > 0.0:
+                continue
+            zp = d * rz[i, j] + h
+            if not zp < -down:
+                continue
+            for k in range(1, rows + 1):
+                if i + k >= height:
+                    break
+                dq = depth[i + k, j]
+                if not dq > 0.0:
+                    continue
+                zq = dq * rz[i + k, j] + h
+                if zq >= -down and zq <= up and zq - zp > down:
+                    out[i, j] = k
+                    break
+
+
+@_jit
+def _z_row(depth_row, rz_row, h, down, out):  # pragma: no cover - compiled
+    """Fill out with the heights of the row's points (NaN without a return), float32.
+
+    Returns how many lie more than ``down`` below the floor (passed it).
+    """
+    nan = np.float32(np.nan)
+    zero = np.float32(0.0)
+    passed = 0
+    for j in range(out.size):
+        d = depth_row[j]
+        z = d * rz_row[j] + h
+        z = z if d > zero else nan
+        out[j] = z
+        passed += z < -down
+    return passed
+
+
+@_jit
+def _drop_pixels_kernel(depth, rz, h, down, up, rows, zring, passed, pix_out,
+                        k_out):  # pragma: no cover - compiled
+    """Fill pix_out/k_out with the pixels drop_mask marks and their offsets; return how many.
+
+    The same float32 heights and tests as _drop_kernel: the heights of rows i to i + rows
+    rotate through zring (rows + 1, W), passed (H,) counts each row's pixels below the floor;
+    only the rows with some are searched.
+    """
+    height, width = depth.shape
+    ring = rows + 1
+    for i in range(min(height, ring)):
+        passed[i] = _z_row(depth[i], rz[i], h, down, zring[i % ring])
+    m = 0
+    for i in range(height):
+        if i > 0 and i + rows < height:
+            passed[i + rows] = _z_row(depth[i + rows], rz[i + rows], h, down,
+                                      zring[(i + rows) % ring])
+        if passed[i] == 0:
+            continue
+        zp = zring[i % ring]
+        for j in range(width):
+            a = zp[j]
+            if not a < -down:
+                continue
+            for k in range(1, rows + 1):
+                if i + k >= height:
+                    break
+                b = zring[(i + k) % ring, j]
+                if b >= -down and b <= up and b - a > down:
+                    pix_out[m] = i * width + j
+                    k_out[m] = k
+                    m += 1
+                    break
+    return m
+
+
+def drop_pixels(depth_m: np.ndarray, rz: np.ndarray, height_m: float, step_down_m: float,
+                step_up_m: float, rows: int) -> tuple[np.ndarray, np.ndarray]:
+    """(flat pixel indices int64, offsets int8) of drop_mask's nonzero pixels, in order."""
+    height, width = depth_m.shape
+    pix = scratch('drop_pix', (height * width,), np.int64)
+    offsets = scratch('drop_k', (height * width,), np.int8)
+    m = _drop_pixels_kernel(np.ascontiguousarray(depth_m, np.float32),
+                            np.ascontiguousarray(rz, np.float32).reshape(depth_m.shape),
+                            np.float32(height_m), np.float32(step_down_m),
+                            np.float32(step_up_m), int(rows),
+                            scratch('drop_z', (int(rows) + 1, width), np.float32),
+                            scratch('drop_passed', (height,), np.int64), pix, offsets)
+    return pix[:m].copy(), offsets[:m].copy()
+
+
+def drop_mask(depth_m: np.ndarray, rz: np.ndarray, height_m: float, step_down_m: float,
+              step_up_m: float, rows: int) -> np.ndarray:
+    """(H, W) int8 drop-edge row offsets; equals traversal.drop_edge_mask."""
+    out = np.empty(depth_m.shape, np.int8)
+    _drop_kernel(np.ascontiguousarray(depth_m, np.float32),
+                 np.ascontiguousarray(rz, np.float32).reshape(depth_m.shape),
+                 np.float32(height_m), np.float32(step_down_m), np.float32(step_up_m),
+                 int(rows), out)
+    return out
+
+
+@_jit
+def _inf_kernel(raw, out):  # pragma: no cover - compiled
+    """Copy raw into out with inf where there is no return (raw <= 0)."""
+    flat_in = raw.reshape(-1)
+    flat_out = out.reshape(-1)
+    for k in range(flat_in.size):
+        r = flat_in[k]
+        flat_out[k] = r if r > 0.0 else np.float32(np.inf)
+
+
+def holes_to_inf(raw: np.ndarray) -> np.ndarray:
+    """Return ``np.where(raw > 0, raw, inf)`` (float32) in a per-thread buffer, compiled."""
+    buf = scratch('inf', raw.shape, np.float32)
+    _inf_kernel(np.ascontiguousarray(raw, np.float32), buf)
+    return buf
+
+
+@_jit
+def _planar_at(raw, i, j, tol_ratio):  # pragma: no cover - compiled
+    """Return traversal._planar at (i, j): inverse-depth second differences within tolerance."""
+    height, width = raw.shape
+    if i < 1 or j < 1 or i >= height - 1 or j >= width - 1:
+        return False
+    r, a, b, c, d = raw[i, j], raw[i, j - 1], raw[i, j + 1], raw[i - 1, j], raw[i + 1, j]
+    if not (r > 0.0 and a > 0.0 and b > 0.0 and c > 0.0 and d > 0.0):
+        return False
+    one = np.float32(1.0)
+    two = np.float32(2.0)
+    inv = one / r
+    tol = tol_ratio * inv
+    row = abs(one / a + one / b - two * inv)
+    col = abs(one / c + one / d - two * inv)
+    return row <= tol and col <= tol
+
+
+@_jit
+def _smear_kernel(filtered, raw, near, far, ratio, jump, tol_ratio):  # pragma: no cover
+    """Apply traversal.drop_smeared in place, with the same float32 operations.
+
+    raw: measured depth with 0 for no return; near, far: its 5 x 5 window range.
+    """
+    height, width = filtered.shape
+    for i in range(height):
+        for j in range(width):
+            r = raw[i, j]
+            f = filtered[i, j]
+            if r > 0.0:
+                lim = jump * r
+                if r - near[i, j] > lim and far[i, j] - r > lim and \
+                        not _planar_at(raw, i, j, tol_ratio):
+                    filtered[i, j] = 0.0          # a mixed (flying) pixel
+                elif abs(f - r) > ratio * f:
+                    filtered[i, j] = r            # moved across an edge: the measured depth
+                continue
+            lim = ratio * f                       # a filled hole: kept inside a surface only
+            seen = False
+            agree = True
+            for ni, nj in ((i - 1, j), (i + 1, j), (i, j - 1), (i, j + 1)):
+                if 0 <= ni < height and 0 <= nj < width:
+                    nb = raw[ni, nj]
+                    if nb > 0.0:
+                        seen = True
+                        agree &= abs(nb - f) <= lim
+            if not (seen and agree):
+                filtered[i, j] = 0.0
+
+
+def drop_smeared(filtered: np.ndarray, raw: np.ndarray, near: np.ndarray, far: np.ndarray,
+                 max_shift: float, jump: float, planar_tolerance: float) -> None:
+    """In place: equals the numpy path of traversal.drop_smeared (float32 arithmetic)."""
+    _smear_kernel(filtered, raw, near, far, np.float32(max_shift), np.float32(jump),
+                  np.float32(planar_tolerance))
+
+
+@_jit
+def _has_nan(raw):  # pragma: no cover - compiled
+    """Return True when raw holds a NaN."""
+    flat = raw.reshape(-1)
+    found = False
+    for k in range(flat.size):
+        found |= flat[k] != flat[k]
+    return found
+
+
+@_jit
+def _inverse_row(row, out):  # pragma: no cover - compiled
+    """Fill out with 1 / row where row > 0 (1 elsewhere: such a pixel is never planar)."""
+    one = np.float32(1.0)
+    zero = np.float32(0.0)
+    for j in range(row.size):
+        r = row[j]
+        out[j] = one / (r if r > zero else one)
+
+
+@_jit
+def _smear_pixel(filtered, raw, i, j, near, far, ratio, jump, tol_ratio):  # pragma: no cover
+    """Return the new filtered depth at (i, j): _smear_kernel's rule, window range given."""
+    height, width = raw.shape
+    zero = np.float32(0.0)
+    r = raw[i, j]
+    f = filtered[i, j]
+    if r > zero:
+        lim = jump * r
+        if r - near > lim and far - r > lim and not _planar_at(raw, i, j, tol_ratio):
+            return zero
+        if abs(f - r) > ratio * f:
+            return r
+        return f
+    lim = ratio * f
+    seen = False
+    agree = True
+    if i > 0:
+        nb = raw[i - 1, j]
+        if nb > zero:
+            seen = True
+            agree &= abs(nb - f) <= lim
+    if i + 1 < height:
+        nb = raw[i + 1, j]
+        if nb > zero:
+            seen = True
+            agree &= abs(nb - f) <= lim
+    if j > 0:
+        nb = raw[i, j - 1]
+        if nb > zero:
+            seen = True
+            agree &= abs(nb - f) <= lim
+    if j + 1 < width:
+        nb = raw[i, j + 1]
+        if nb > zero:
+            seen = True
+            agree &= abs(nb - f) <= lim
+    return f if (seen and agree) else zero
+
+
+@_jit
+def _planar_row(left, mid, right, up, dn, iu, il, im, ir, idn, tol_ratio,
+                out):  # pragma: no cover - compiled
+    """Fill out with _planar_at along a row (depths, inverse depths: pixel, 4 neighbours)."""
+    zero = np.float32(0.0)
+    two = np.float32(2.0)
+    for j in range(out.size):
+        inv = im[j]
+        tol = tol_ratio * inv
+        row = abs(il[j] + ir[j] - two * inv)
+        col = abs(iu[j] + idn[j] - two * inv)
+        ok = (left[j] > zero) & (right[j] > zero) & (up[j] > zero) & (dn[j] > zero)
+        ok &= mid[j] > zero
+        out[j] = ok & (row <= tol) & (col <= tol)
+
+
+@_jit
+def _keep_row(left, right, up, dn, f_row, ratio, out):  # pragma: no cover - compiled
+    """Fill out: a filled hole keeps its depth (a measured 4-neighbour, all within ratio)."""
+    zero = np.float32(0.0)
+    for j in range(out.size):
+        f = f_row[j]
+        lim = ratio * f
+        a = left[j]
+        b = right[j]
+        c = up[j]
+        d = dn[j]
+        seen = (a > zero) | (b > zero) | (c > zero) | (d > zero)
+        bad = ((a > zero) & (abs(a - f) > lim)) | ((b > zero) & (abs(b - f) > lim))
+        bad |= ((c > zero) & (abs(c - f) > lim)) | ((d > zero) & (abs(d - f) > lim))
+        out[j] = seen & ~bad
+
+
+@_jit
+def _column_step(row, col_lo, col_hi):  # pragma: no cover - compiled
+    """Take one more row into the column pass: nearest measured depth (inf: none), farthest."""
+    zero = np.float32(0.0)
+    inf = np.float32(np.inf)
+    for j in range(row.size):
+        v = row[j]
+        m = v if v > zero else inf
+        lo = col_lo[j]
+        col_lo[j] = m if m < lo else lo
+        hi = col_hi[j]
+        col_hi[j] = v if v > hi else hi
+
+
+@_jit
+def _min5(col, out, n):  # pragma: no cover - compiled
+    """out[j] = min(col[j:j + 5]) for j < n."""
+    for j in range(n):
+        a = col[j]
+        b = col[j + 1]
+        c = col[j + 2]
+        d = col[j + 3]
+        e = col[j + 4]
+        m = a if a < b else b
+        m = c if c < m else m
+        m = d if d < m else m
+        out[j] = e if e < m else m
+
+
+@_jit
+def _max5(col, out, n):  # pragma: no cover - compiled
+    """out[j] = max(col[j:j + 5]) for j < n."""
+    for j in range(n):
+        a = col[j]
+        b = col[j + 1]
+        c = col[j + 2]
+        d = col[j + 3]
+        e = col[j + 4]
+        m = a if a > b else b
+        m = c if c > m else m
+        m = d if d > m else m
+        out[j] = e if e > m else m
+
+
+@_jit
+def _count_row(r_row, f_row, near, far, jump):  # pragma: no cover - compiled
+    """Return how many pixels of the row are flying candidates, and how many holes are filled.
+
+    A candidate lies more than jump of its depth from both ends of its window range (it is
+    flying unless planar); a filled hole has no measured depth but a filtered one.
+    """
+    zero = np.float32(0.0)
+    flying = 0
+    filled = 0
+    for j in range(r_row.size):
+        r = r_row[j]
+        lim = jump * r
+        flying += (r > zero) & (r - near[j] > lim) & (far[j] - r > lim)
+        filled += (r <= zero) & (f_row[j] > zero)
+    return flying, filled
+
+
+@_jit
+def _decide_row(r_row, f_row, near, far, planar, keep, ratio, jump,
+                ):  # pragma: no cover - compiled
+    """Apply _smear_kernel's rule along a row, in place, the masks of the row given."""
+    zero = np.float32(0.0)
+    for j in range(r_row.size):
+        r = r_row[j]
+        f = f_row[j]
+        lim = jump * r
+        fly = (r - near[j] > lim) & (far[j] - r > lim) & ~planar[j]
+        moved = abs(f - r) > ratio * f
+        v = f
+        v = r if moved else v
+        v = zero if fly else v
+        w = f if keep[j] else zero
+        f_row[j] = v if r > zero else w
+
+
+@_jit
+def _smear5_kernel(filtered, raw, ratio, jump, tol_ratio, col_lo, col_hi, row_lo, row_hi,
+                   inv3, zeros, planar, keep):  # pragma: no cover - compiled
+    """_smear_kernel with its 5 x 5 window range computed on the way, row by row.
+
+    The window range is the window clipped to the image (what OpenCV's erode/dilate with a
+    replicated border give): the nearest measured depth (inf without any) and the farthest (0
+    without any): a column pass into col_lo/col_hi, a row pass into row_lo/row_hi. The inverse
+    depths of the rows i - 1, i, i + 1 rotate through inv3. Then branch-free passes over the
+    row's inner columns (planar, keep, decide; the compiler vectorises them) and the scalar
+    rule at the 2 border columns each side. raw: no NaN (the caller checks); zeros: (W,) 0.
+    """
+    height, width = filtered.shape
+    inf = np.float32(np.inf)
+    zero = np.float32(0.0)
+    half = 2
+    _inverse_row(raw[0], inv3[0])
+    if height > 1:
+        _inverse_row(raw[1], inv3[1])
+    n = width - 4
+    for i in range(height):
+        if i >= 1 and i + 1 < height:
+            _inverse_row(raw[i + 1], inv3[(i + 1) % 3])
+        i0 = max(0, i - half)
+        i1 = min(height, i + half + 1)
+        # col_lo/col_hi (W + 4,): the column pass in [2, W + 2), neutral pads (inf, 0) around,
+        # so that the row pass's 5 taps give the window clipped to the image at the borders
+        r0 = raw[i0]
+        for j in range(width):
+            v = r0[j]
+            col_lo[j + 2] = v if v > zero else inf
+            col_hi[j + 2] = v if v > zero else zero
+        for k in range(i0 + 1, i1):
+            _column_step(raw[k], col_lo[2:width + 2], col_hi[2:width + 2])
+        _min5(col_lo, row_lo, width)
+        _max5(col_hi, row_hi, width)
+        rr = raw[i]
+        fr = filtered[i]
+        up = raw[i - 1] if i > 0 else zeros
+        dn = raw[i + 1] if i + 1 < height else zeros
+        iu = inv3[(i - 1) % 3]
+        im = inv3[i % 3]
+        idn = inv3[(i + 1) % 3]
+        for e in range(4):   # border columns: the scalar rule
+            j = e if e < 2 else width - 4 + e
+            if j < 0 or j >= width or (e >= 2 and width - 4 + e < 2):
+                continue
+            fr[j] = _smear_pixel(filtered, raw, i, j, row_lo[j], row_hi[j], ratio, jump,
+                                 tol_ratio)
+        if n <= 0:
+            continue
+        flying, filled = _count_row(rr[2:n + 2], fr[2:n + 2], row_lo[2:n + 2],
+                                    row_hi[2:n + 2], jump)
+        if flying:   # else planar is not looked at
+            _planar_row(rr[1:n + 1], rr[2:n + 2], rr[3:n + 3], up[2:n + 2], dn[2:n + 2],
+                        iu[2:n + 2], im[1:n + 1], im[2:n + 2], im[3:n + 3], idn[2:n + 2],
+                        tol_ratio, planar[:n])
+        if filled:
+            _keep_row(rr[1:n + 1], rr[3:n + 3], up[2:n + 2], dn[2:n + 2], fr[2:n + 2], ratio,
+                      keep[:n])
+        else:        # no hole was filled: each hole stays empty
+            keep[:n] = False
+        _decide_row(rr[2:n + 2], fr[2:n + 2], row_lo[2:n + 2], row_hi[2:n + 2], planar[:n],
+                    keep[:n], ratio, jump)
+
+
+def _smear5_buffers(width: int) -> tuple[np.ndarray, ...]:
+    """Return the row buffers of _smear5_kernel for images this wide (pads, zeros set)."""
+    col_lo = np.full(width + 4, np.inf, np.float32)   # neutral pads of the row pass: the
+    col_hi = np.zeros(width + 4, np.float32)          # kernel writes [2, W + 2) only
+    return (col_lo, col_hi, np.empty(width, np.float32), np.empty(width, np.float32),
+            np.empty((3, width), np.float32), np.zeros(width, np.float32),
+            np.empty(width, np.bool_), np.empty(width, np.bool_))
+
+
+def drop_smeared_fused(filtered: np.ndarray, raw: np.ndarray, max_shift: float, jump: float,
+                       planar_tolerance: float) -> bool:
+    """In place, as :func:`drop_smeared` with the 5 x 5 window range of traversal's numpy path.
+
+    filtered, raw: (H, W) float32 C-contiguous. Returns False, changing nothing, when raw
+    holds a NaN (the caller then takes OpenCV's window range, whose NaN handling is its own).
+    """
+    if _has_nan(raw):
+        return False
+    bufs = getattr(_SCRATCH, 'smear5', None)
+    if bufs is None or bufs[0].size != raw.shape[1] + 4:
+        bufs = _smear5_buffers(raw.shape[1])
+        _SCRATCH.smear5 = bufs
+    _smear5_kernel(filtered, raw, np.float32(max_shift), np.float32(jump),
+                   np.float32(planar_tolerance), *bufs)
+    return True
+
+
+@_jit
+def _floor_samples_kernel(depth, step, rays, height, tan_tilt, band0, min_x, max_x, max_y,
+                          facing_cos2, out):  # pragma: no cover - compiled
+    """Fill out (3, M) float64 with floor.floor_samples' points; return how many.
+
+    depth: (H, W) float32, sampled every ``step`` pixels; rays: (3, gh * gw) float32 of the
+    sampled grid. The same float64 operations as the numpy path, point by point.
+    """
+    gh = (depth.shape[0] + step - 1) // step
+    gw = (depth.shape[1] + step - 1) // step
+    nan = np.nan
+    m = 0
+    for gi in range(gh - 1):
+        for gj in range(gw - 1):
+            k = gi * gw + gj
+            d = np.float64(depth[gi * step, gj * step])
+            if not d > 0.0:
+                continue
+            dr = np.float64(depth[gi * step, (gj + 1) * step])
+            dr = dr if dr > 0.0 else nan
+            dd = np.float64(depth[(gi + 1) * step, gj * step])
+            dd = dd if dd > 0.0 else nan
+            x = d * np.float64(rays[0, k])
+            y = d * np.float64(rays[1, k])
+            z = d * np.float64(rays[2, k]) + height
+            kr = k + 1
+            kd = k + gw
+            du0 = dr * np.float64(rays[0, kr]) - x
+            du1 = dr * np.float64(rays[1, kr]) - y
+            du2 = (dr * np.float64(rays[2, kr]) + height) - z
+            dv0 = dd * np.float64(rays[0, kd]) - x
+            dv1 = dd * np.float64(rays[1, kd]) - y
+            dv2 = (dd * np.float64(rays[2, kd]) + height) - z
+            nx = du1 * dv2 - du2 * dv1
+            ny = du2 * dv0 - du0 * dv2
+            nz = du0 * dv1 - du1 * dv0
+            if not nz * nz >= (nx * nx + ny * ny + nz * nz) * facing_cos2:
+                continue
+            band = math.hypot(x, y) * tan_tilt
+            band += band0
+            if abs(z) <= band and x >= min_x and x <= max_x and abs(y) <= max_y:
+                out[0, m] = x
+                out[1, m] = y
+                out[2, m] = z
+                m += 1
+    return m
+
+
+@_jit
+def _ransac_kernel(pts, picks, tan_tilt2, offset, band32, score_points, out,
+                   ):  # pragma: no cover - compiled
+    """Fill out (k, 3) with floor._ransac_plane's best k hypotheses (same float operations).
+
+    pts: (3, M) float64 floor samples; picks: (3, h) float64 in [0, 1), where in each third
+    of the samples the triplet points are taken; band32: the float32 inlier band.
+    """
+    n = pts.shape[1]
+    h = picks.shape[1]
+    third = n // 3
+    a = np.empty(h + 2)
+    b = np.empty(h + 2)
+    c = np.empty(h + 2)
+    used = 0
+    for t in range(h):
+        i0 = np.int64(picks[0, t] * third)
+        i1 = np.int64(picks[1, t] * third) + third
+        i2 = np.int64(picks[2, t] * third) + 2 * third
+        u0 = pts[0, i1] - pts[0, i0]
+        u1 = pts[1, i1] - pts[1, i0]
+        u2 = pts[2, i1] - pts[2, i0]
+        v0 = pts[0, i2] - pts[0, i0]
+        v1 = pts[1, i2] - pts[1, i0]
+        v2 = pts[2, i2] - pts[2, i0]
+        nx = u1 * v2 - u2 * v1
+        ny = u2 * v0 - u0 * v2
+        nz = u0 * v1 - u1 * v0
+        if not abs(nz) > 1e-9:
+            continue
+        ha = -nx / nz
+        hb = -ny / nz
+        hc = pts[2, i0] - ha * pts[0, i0] - hb * pts[1, i0]
+        if ha * ha + hb * hb <= tan_tilt2 and abs(hc) <= offset:
+            a[used] = ha
+            b[used] = hb
+            c[used] = hc
+            used += 1
+    # the configured floor, and the level plane through the most common sample height
+    n_bins = 0
+    for i in range(n):
+        z = pts[2, i]
+        if abs(z) <= offset:
+            n_bins = max(n_bins, np.int64(np.floor((z + offset) * 100.0)) + 1)
+    mode = 0.0
+    if n_bins > 0:
+        counts = np.zeros(n_bins, np.int64)
+        for i in range(n):
+            z = pts[2, i]
+            if abs(z) <= offset:
+                counts[np.int64(np.floor((z + offset) * 100.0))] += 1
+        mode = (np.argmax(counts) + 0.5) * 0.01 - offset
+    a[used] = 0.0
+    b[used] = 0.0
+    c[used] = 0.0
+    a[used + 1] = 0.0
+    b[used + 1] = 0.0
+    c[used + 1] = mode
+    used += 2
+    stride = max(1, n // score_points)
+    ns = (n + stride - 1) // stride
+    sx = np.empty(ns, np.float32)
+    sy = np.empty(ns, np.float32)
+    sz = np.empty(ns, np.float32)
+    for i in range(ns):
+        sx[i] = np.float32(pts[0, i * stride])
+        sy[i] = np.float32(pts[1, i * stride])
+        sz[i] = np.float32(pts[2, i * stride])
+    score = np.empty(used, np.int64)
+    for t in range(used):
+        a32 = np.float32(a[t])
+        b32 = np.float32(b[t])
+        c32 = np.float32(c[t])
+        count = 0
+        for i in range(ns):
+            r = a32 * sx[i]
+            r += b32 * sy[i]
+            r += c32
+            r -= sz[i]
+            count += abs(r) <= band32
+        score[t] = count
+    for k in range(out.shape[0]):   # the best first; ties: the earlier hypothesis
+        best = -1
+        for t in range(used):
+            if score[t] >= 0 and (best < 0 or score[t] > score[best]):
+                best = t
+        out[k, 0] = a[best]
+        out[k, 1] = b[best]
+        out[k, 2] = c[best]
+        score[best] = -1
+
+
+@_jit
+def _band_kernel(pts, a, b, c, band, out):  # pragma: no cover - compiled
+    """Copy the samples within band of z = a x + b y + c into out[:m] (M, 3); return m."""
+    m = 0
+    for i in range(pts.shape[1]):
+        resid = pts[2, i] - (a * pts[0, i] + b * pts[1, i] + c)
+        if abs(resid) <= band:
+            out[m, 0] = pts[0, i]
+            out[m, 1] = pts[1, i]
+            out[m, 2] = pts[2, i]
+            m += 1
+    return m
+
+
+@_jit
+def _band_count(pts, a, b, c, band):  # pragma: no cover - compiled
+    """Return how many samples lie within band of z = a x + b y + c."""
+    m = 0
+    for i in range(pts.shape[1]):
+        resid = pts[2, i] - (a * pts[0, i] + b * pts[1, i] + c)
+        m += abs(resid) <= band
+    return m
+
+
+def floor_samples(depth_m: np.ndarray, step: int, sub_rays: np.ndarray, height_m: float,
+                  tan_tilt: float, band0_m: float, min_x_m: float, max_x_m: float,
+                  max_y_m: float, facing_cos2: float) -> np.ndarray:
+    """(3, M) float64: floor.floor_samples' points, compiled (a fresh array)."""
+    gh = (depth_m.shape[0] + step - 1) // step
+    gw = (depth_m.shape[1] + step - 1) // step
+    buf = scratch('floor_samples', (3, max(1, (gh - 1) * (gw - 1))), np.float64)
+    m = _floor_samples_kernel(np.ascontiguousarray(depth_m, np.float32), step,
+                              np.ascontiguousarray(sub_rays, np.float32), float(height_m),
+                              float(tan_tilt), float(band0_m), float(min_x_m), float(max_x_m),
+                              float(max_y_m), float(facing_cos2), buf)
+    return buf[:, :m].copy()
+
+
+def ransac_plane(pts: np.ndarray, picks: np.ndarray, tan_tilt2: float, offset_m: float,
+                 band_m: float, score_points: int, k: int) -> np.ndarray:
+    """(k, 3) float64: floor._ransac_plane's best hypotheses, compiled."""
+    out = np.empty((k, 3))
+    _ransac_kernel(pts, picks, float(tan_tilt2), float(offset_m), np.float32(band_m),
+                   int(score_points), out)
+    return out
+
+
+def in_band(pts: np.ndarray, a: float, b: float, c: float, band_m: float) -> np.ndarray:
+    """(3, m) float64: the samples pts (3, M) within band_m of z = a x + b y + c (a copy).
+
+    Laid out as numpy's ``pts[:, mask]`` is (the transpose of an (m, 3) C array): the sums
+    over it (mean, dot) then run in the same order, to the bit.
+    """
+    buf = scratch('floor_band', (pts.shape[1], 3), np.float64)
+    m = _band_kernel(pts, float(a), float(b), float(c), float(band_m), buf)
+    return buf[:m].copy().T
+
+
+def count_in_band(pts: np.ndarray, a: float, b: float, c: float, band_m: float) -> int:
+    """How many samples pts (3, M) lie within band_m of z = a x + b y + c."""
+    return int(_band_count(pts, float(a), float(b), float(c), float(band_m)))
+
+
+def warm_up() -> None:
+    """Compile (or load from the disk cache) the kernels on tiny inputs."""
+    if not enabled():
+        return
+    ground_rays(np.zeros(2, np.float32), np.zeros(2, np.float32), np.eye(3, dtype=np.float32))
+    pts = np.array([[0.1, 0.0, 0.0], [0.2, 0.1, 0.3]], np.float32)
+    traverse(pts, np.array([False, True]), 0.05, 0.05, 0.05, 1.0, 0.025)
+    drop_mask(np.ones((4, 2), np.float32), -np.ones((4, 2), np.float32), 0.5, 0.05, 0.05, 3)
+    drop_pixels(np.ones((4, 2), np.float32), -np.ones(8, np.float32), 0.5, 0.05, 0.05, 3)
+    one = np.ones((3, 3), np.float32)
+    drop_smeared(one.copy(), one, one, one, 0.03, 0.05, 0.02)
+    drop_smeared_fused(np.ones((6, 6), np.float32), np.ones((6, 6), np.float32), 0.03, 0.05,
+                       0.02)
+    holes_to_inf(one)
+    rng = np.random.default_rng(0)
+    depth = rng.uniform(0.5, 3.0, (12, 12)).astype(np.float32)
+    rays = rng.uniform(-1.0, 1.0, (3, 36)).astype(np.float32)
+    pts = floor_samples(depth, 2, rays, 0.5, 0.1, 0.12, 0.0, 3.0, 2.0, 0.75)
+    pts = rng.uniform(-0.05, 0.05, (3, 30))
+    ransac_plane(pts, rng.random((3, 4)), 0.01, 0.1, 0.03, 2000, 2)
+    in_band(pts, 0.0, 0.0, 0.0, 0.03)
+    count_in_band(pts, 0.0, 0.0, 0.0, 0.03)

@@ -1,0 +1,234 @@
+"""The whole per-frame pipeline of the seed (chapter 4) behind one call.
+
+``Detector(params).process(depth, intrinsics)`` runs: decode -> crop -> K x K median ->
+[drop the pixels the median smeared across depth edges] -> [floor plane fit] ->
+back-projection and camera mount with the region of interest -> voxel grid -> k-NN ->
+normals -> slope test -> [robot-level traversal, drop edges] -> validation -> costmap, and
+returns a :class:`DetectionResult`. The bracketed stages are not in the seed; they
+run when ``refine_floor`` / ``robot_level`` are on (:mod:`.floor`, :mod:`.traversal`). The
+per-pixel labels follow the same decision as the costmap.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import geometry, traversal
+from ._compiled import (knn as jit_knn, median as jit_median, traversal as jit_traversal,
+                        voxel as jit_voxel)
+from .costmap import Costmap, build_costmap
+from .depth import crop_borders, decode_depth, median_filter
+from .floor import FloorFit, fit_floor, sample_rays
+from .normals import estimate_normals, nearest_neighbours, slope_obstacles, validate_obstacles
+from .params import SEED_TABLE_4_1, DetectorParams, Intrinsics
+from .voxel import voxel_downsample
+
+LABEL_NO_RETURN = 0    #: no depth (0, NaN, out of sensor range, cropped)
+LABEL_OUTSIDE_ROI = 1  #: a 3-D point outside the region of interest
+LABEL_GROUND = 2       #: in a voxel that passed the slope test (traversable)
+LABEL_OBSTACLE = 3     #: in a voxel that is a validated obstacle
+
+STAGES = ('decode', 'crop', 'median', 'smear', 'floor', 'back_project', 'voxel', 'knn',
+          'normals', 'slope', 'traversal', 'drops', 'validation', 'costmap', 'labels')
+#: The stages that are not the seed's (robot level and the floor fit).
+NEW_STAGES = ('smear', 'floor', 'traversal', 'drops')
+
+
+@dataclass(frozen=True)
+class DetectionResult:
+    """Everything one frame produced. Points are in the ground frame [m], float32.
+
+    obstacle_points (M, 3), ground_points (G, 3): voxel centroids labelled obstacle / ground.
+    labels (H, W) uint8: LABEL_* per pixel. costmap: the ground-plane grid.
+    timings_ms: per stage (STAGES order) and 'total' [ms].
+    voxel_points (V, 3); voxel_normals (V, 3) unit; voxel_slope_obstacle (V,) bool, the rule's
+    decision before validation: the slope test (and the optional height rule,
+    ``max_ground_height_m``), or the robot-level decision when ``robot_level``;
+    voxel_is_obstacle (V,) bool after validation; voxel_neighbours (V, k) int64, the k-NN query
+    that served the normals and the validation (k = max(N, N1 + 1) clipped to V, nearest first,
+    the voxel itself first); pixel_voxel (H, W) int32, the voxel of each pixel or -1;
+    depth_m (H, W) float32, the filtered depth the points came from.
+    floor: the mount the frame was processed with (:class:`FloorFit`; the correction
+    to the configured mount, or why there is none). voxel_height_m (V,) float32: height above
+    the local ground (robot level; the centroid's z otherwise). drop_points (D, 3): where the
+    floor ends at a drop (robot level), also in obstacle_points and the costmap.
+    """
+
+    obstacle_points: np.ndarray
+    ground_points: np.ndarray
+    labels: np.ndarray
+    costmap: Costmap
+    timings_ms: dict[str, float]
+    voxel_points: np.ndarray
+    voxel_normals: np.ndarray
+    voxel_slope_obstacle: np.ndarray
+    voxel_is_obstacle: np.ndarray
+    voxel_neighbours: np.ndarray
+    pixel_voxel: np.ndarray
+    depth_m: np.ndarray
+    intrinsics: Intrinsics = field(default=SEED_TABLE_4_1)
+    floor: FloorFit | None = None
+    voxel_height_m: np.ndarray | None = None
+    drop_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
+
+
+class _Clock:
+    """Accumulates per-stage wall times [ms]."""
+
+    def __init__(self) -> None:
+        self.times: dict[str, float] = {}
+        self._start = self._last = time.perf_counter()
+
+    def lap(self, stage: str) -> None:
+        now = time.perf_counter()
+        self.times[stage] = (now - self._last) * 1e3
+        self._last = now
+
+    def finish(self) -> dict[str, float]:
+        self.times['total'] = (time.perf_counter() - self._start) * 1e3
+        return self.times
+
+
+class Detector:
+    """Runs the pipeline with one :class:`DetectorParams`; holds no per-frame state."""
+
+    def __init__(self, params: DetectorParams | None = None) -> None:
+        self.params = params if params is not None else DetectorParams()
+        self._ray_key: tuple | None = None
+        self._ray_cache: np.ndarray | None = None
+        self._sub_rays: np.ndarray | None = None
+
+    def warm_up(self) -> float:
+        """Compile (or load from numba's disk cache) the optional JIT kernels; return seconds.
+
+        The median kernel is prepared for this detector's K. Without numba it does nothing.
+        Call it before the first frame (the node does at start-up) so no frame pays for it.
+        """
+        start = time.perf_counter()
+        jit_median.warm_up(self.params.median_kernel)
+        jit_knn.warm_up()
+        jit_voxel.warm_up()
+        jit_traversal.warm_up()
+        return time.perf_counter() - start
+
+    def _rays(self, shape: tuple[int, int], intr: Intrinsics) -> np.ndarray:
+        """Ground-frame pixel rays, computed once per image size and intrinsics."""
+        key = (shape, intr)
+        if key != self._ray_key or self._ray_cache is None:
+            self._ray_cache = geometry.ground_rays(shape, intr, self.params)
+            self._sub_rays = sample_rays(self._ray_cache, shape)
+            self._ray_key = key
+        return self._ray_cache
+
+    def process(self, depth: np.ndarray, intrinsics: Intrinsics | None = None, *,
+                depth_scale: float | None = None) -> DetectionResult:
+        """Detect obstacles in one depth frame.
+
+        depth: (H, W) uint16 [mm] (or uint16 in 1/depth_scale m) or float32/float64 [m];
+        0, NaN and inf are "no return". intrinsics: the frame's pinhole model; None uses the
+        seed's Table 4.1 fallback. Raises ``DepthFormatError`` (a ValueError) for a wrong
+        dtype or shape. A frame with no valid point gives an empty result (no obstacle, an
+        all-unknown costmap), not an error.
+        """
+        p = self.params
+        intr = intrinsics if intrinsics is not None else SEED_TABLE_4_1
+        clock = _Clock()
+        depth_m = decode_depth(depth, depth_scale=depth_scale)
+        clock.lap('decode')
+        if p.crop_top_px or p.crop_bottom_px or p.crop_left_px or p.crop_right_px:
+            depth_m = crop_borders(depth_m, p.crop_top_px, p.crop_bottom_px,
+                                   p.crop_left_px, p.crop_right_px)
+        clock.lap('crop')
+        raw_m = depth_m
+        if p.median_kernel > 1:
+            depth_m = median_filter(depth_m, p.median_kernel)
+        clock.lap('median')
+        if p.robot_level and p.median_kernel > 1:
+            depth_m = traversal.drop_smeared(depth_m, raw_m, p.max_filter_shift)
+        clock.lap('smear')
+
+        rays = self._rays(depth_m.shape, intr)
+        fit = fit_floor(depth_m, self._sub_rays, p)
+        frame_changes: dict = {}   # this frame's parameters: fitted mount, robot-level ROI
+        if fit.refined:
+            frame_changes.update(camera_height_m=fit.height_m, camera_pitch_rad=fit.pitch_rad,
+                                 camera_roll_rad=fit.roll_rad)
+        if p.robot_level and -p.drop_view_m < p.tdbg_m:
+            frame_changes['tdbg_m'] = -p.drop_view_m
+        run = p.with_frame_mount(**frame_changes) if frame_changes else p
+        if fit.refined:   # the fitted mount's rays, into a per-thread buffer when compiled
+            buf = (jit_traversal.scratch('frame_rays', rays.shape, np.float32)
+                   if jit_traversal.enabled() else None)
+            rays = geometry.ground_rays(depth_m.shape, intr, run, out=buf)
+        clock.lap('floor')
+        compiled = jit_voxel.enabled()
+        if compiled:   # same points, voxels and labels as the numpy path below
+            proj = jit_voxel.project_roi(depth_m, rays, run, reuse=True)
+            clock.lap('back_project')
+            grid = jit_voxel.voxelise(proj)
+        else:
+            pts, pix_roi, valid = geometry.ground_points_in_roi(depth_m, rays, run)
+            clock.lap('back_project')
+            grid = voxel_downsample(pts, p.voxel_size_m)
+        centroids = grid.centroids
+        clock.lap('voxel')
+        k = max(p.normal_neighbours, p.validation_neighbours + 1)
+        neighbours = nearest_neighbours(centroids, k)
+        clock.lap('knn')
+        n_cols = min(p.normal_neighbours, neighbours.shape[1])
+        normals = estimate_normals(centroids, neighbours[:, :n_cols])
+        clock.lap('normals')
+        steep = slope_obstacles(normals, p.cos_max_slope)
+        if p.max_ground_height_m > 0.0 and not p.robot_level:
+            steep |= centroids[:, 2] > np.float32(p.max_ground_height_m)
+        clock.lap('slope')
+        heights = centroids[:, 2]
+        drop_points = np.zeros((0, 3), np.float32)
+        drop_pixels = np.zeros(0, np.int64)
+        candidates = steep
+        if p.robot_level:
+            trav = traversal.traversable_ground(centroids, steep, p)
+            candidates, heights = trav.is_obstacle, trav.height_m
+            clock.lap('traversal')
+            drop_points, drop_pixels = traversal.drop_edges(depth_m, rays, run.camera_height_m,
+                                                            p)
+            clock.lap('drops')
+        else:
+            clock.lap('traversal')
+            clock.lap('drops')
+        is_obstacle = validate_obstacles(candidates, neighbours, p.validation_neighbours)
+        clock.lap('validation')
+        obstacle_points = centroids[is_obstacle]
+        if drop_points.shape[0]:
+            obstacle_points = np.concatenate((obstacle_points, drop_points))
+        ground_points = centroids[~is_obstacle]
+        # outputs in the robot's base frame (the camera's x, y and yaw on the robot)
+        obstacle_points = geometry.to_base_frame(obstacle_points, p)
+        ground_points = geometry.to_base_frame(ground_points, p)
+        costmap = build_costmap(obstacle_points, ground_points, p)
+        clock.lap('costmap')
+
+        if compiled:
+            labels, pixel_voxel = proj.labels, proj.pixel_voxel
+            jit_voxel.label_pixels(labels, pixel_voxel, is_obstacle)
+        else:
+            shape = depth_m.shape
+            labels = np.zeros(shape, dtype=np.uint8)
+            flat_labels = labels.reshape(-1)
+            flat_labels[valid] = LABEL_OUTSIDE_ROI
+            flat_labels[pix_roi] = np.where(is_obstacle[grid.point_voxel], LABEL_OBSTACLE,
+                                            LABEL_GROUND).astype(np.uint8)
+            pixel_voxel = np.full(shape, -1, dtype=np.int32)
+            pixel_voxel.reshape(-1)[pix_roi] = grid.point_voxel
+        if drop_pixels.size:
+            labels.reshape(-1)[drop_pixels] = LABEL_OBSTACLE
+        clock.lap('labels')
+        return DetectionResult(
+            obstacle_points=obstacle_points, ground_points=ground_points, labels=labels,
+            costmap=costmap, timings_ms=clock.finish(), voxel_points=centroids,
+            voxel_normals=normals, voxel_slope_obstacle=candidates, voxel_is_obstacle=is_obstacle,
+            voxel_neighbours=neighbours, pixel_voxel=pixel_voxel, depth_m=depth_m, intrinsics=intr,
+            floor=fit, voxel_height_m=heights, drop_points=drop_points)

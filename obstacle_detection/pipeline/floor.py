@@ -1,0 +1,324 @@
+"""The floor plane from the data: a per-frame refinement of the configured camera mount.
+
+A height rule needs the floor within a couple of centimetres, and a configured mount is rarely
+that good. :func:`fit_floor` looks at a grid of about 3000 pixels back-projected through the
+configured mount, keeps the points near the configured floor (within ``floor_max_offset_m``
+plus ``floor_max_tilt_deg`` times their distance) whose surface faces up (a normal from the
+neighbouring grid points within 30 deg of vertical: walls and box sides drop out), and fits
+a plane ``z = a x + b y + c`` to them: a fixed-seed RANSAC over plane hypotheses (vectorised;
+one point of each triplet from the far, middle and near third of the samples), then
+least-squares refits of the best two on the inliers of narrowing bands, keeping the one most
+samples support. The fit is accepted only when it is bounded around the mount (tilt and
+offset within the limits) and supported by at least ``floor_min_points`` samples; otherwise
+the configured mount is kept and the result says why. An accepted plane becomes a corrected
+mount (height, pitch, roll) for the whole frame, so the ground frame's z = 0 is the seen floor.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ._compiled import traversal as jit_traversal
+from .geometry import mount_rotation
+from .params import DetectorParams
+
+#: About this many pixels (an even grid) are sampled for the floor fit.
+SAMPLE_PIXELS = 3000
+
+
+def sample_step(shape: tuple[int, int]) -> int:
+    """Row and column step of the sampled pixel grid for an (H, W) image."""
+    return max(1, round(math.sqrt(shape[0] * shape[1] / SAMPLE_PIXELS)))
+#: RANSAC plane hypotheses per frame (fixed seed: the same frame gives the same fit).
+HYPOTHESES = 64
+#: Where in each third of the samples the triplet points are taken (fixed: the same frame
+#: gives the same fit).
+_PICKS = np.random.default_rng(0).random((3, HYPOTHESES))
+#: Most samples that score the hypotheses (an even subsample of the floor samples).
+SCORE_POINTS = 2000
+#: Hypotheses scored at once (float32: keeps each temporary under 128 kB).
+SCORE_CHUNK = 32
+#: The best hypotheses that are refined by least squares; the best refined one is kept.
+REFINED_HYPOTHESES = 2
+#: Inlier band of the RANSAC [m].
+INLIER_BAND_M = 0.03
+#: Inlier bands of the least-squares refits that follow, in order [m].
+REFIT_BANDS_M = (0.03, 0.015)
+#: A floor sample's local normal (from its grid neighbours) is within acos(sqrt(.)) of
+#: vertical: 30 deg (the mount may be 5 deg off, the normals of neighbouring samples are noisy).
+FACING_UP_COS2 = math.cos(math.radians(30.0)) ** 2
+#: Floor samples are taken up to this far beyond the forward range [m] (a high camera sees the
+#: floor only far away).
+FIT_RANGE_MARGIN_M = 1.0
+
+
+@dataclass(frozen=True)
+class FloorFit:
+    """The mount used for one frame and how it was found.
+
+    refined: True when the floor fit was accepted. height_m, pitch_rad, roll_rad: the mount
+    the frame was processed with (the configured one when not refined). d_height_m,
+    d_pitch_deg, d_roll_deg: the correction (used minus configured). samples: floor samples
+    the fit used (inliers), 0 when no fit was tried. reason: why the configured mount was kept
+    ('' when refined, 'off' when refine_floor is false).
+    """
+
+    refined: bool
+    height_m: float
+    pitch_rad: float
+    roll_rad: float
+    d_height_m: float = 0.0
+    d_pitch_deg: float = 0.0
+    d_roll_deg: float = 0.0
+    samples: int = 0
+    reason: str = ''
+
+    def summary(self) -> str:
+        """One line for a log: the correction, or why there is none."""
+        if not self.refined:
+            return f'floor: configured mount kept ({self.reason})'
+        return (f'floor: height {self.height_m:.3f} m ({self.d_height_m:+.3f}), pitch '
+                f'{math.degrees(self.pitch_rad):.2f} deg ({self.d_pitch_deg:+.2f}), roll '
+                f'{math.degrees(self.roll_rad):.2f} deg ({self.d_roll_deg:+.2f}), '
+                f'{self.samples} samples')
+
+
+def configured(params: DetectorParams, reason: str) -> FloorFit:
+    """Return the configured mount, not refined, with the reason."""
+    return FloorFit(False, params.camera_height_m, params.camera_pitch_rad,
+                    params.camera_roll_rad, reason=reason)
+
+
+def sample_rays(rays: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Return (3, M) float32: the rays of the sampled pixel grid (a contiguous copy)."""
+    height, width = shape
+    step = sample_step(shape)
+    sub = rays.reshape(3, height, width)[:, ::step, ::step]
+    return np.ascontiguousarray(sub.reshape(3, -1))
+
+
+def floor_samples(depth_m: np.ndarray, sub_rays: np.ndarray,
+                  params: DetectorParams) -> np.ndarray:
+    """Subsampled points (3, M) float64 near the configured floor, in the configured frame.
+
+    sub_rays: :func:`sample_rays` of the configured mount's ground rays. Compiled when
+    :func:`.jit_traversal.enabled` (the same points, the same float64 operations).
+    """
+    step = sample_step(depth_m.shape)
+    if jit_traversal.enabled():
+        return jit_traversal.floor_samples(
+            depth_m, step, sub_rays, params.camera_height_m,
+            math.tan(params.floor_max_tilt_rad), params.floor_max_offset_m + 0.02,
+            params.min_range_m, params.max_range_m + FIT_RANGE_MARGIN_M,
+            params.lateral_limit_m, FACING_UP_COS2)
+    grid = depth_m[::step, ::step]
+    gh, gw = grid.shape
+    with np.errstate(invalid='ignore'):
+        d = np.where(grid > 0.0, grid, np.nan).astype(np.float64)   # no return: NaN
+    r = sub_rays.reshape(3, gh, gw)
+    pts = np.stack((d * r[0], d * r[1], d * r[2] + params.camera_height_m))
+    # a local normal from the right and the lower neighbour on the grid: floor samples face
+    # up (walls, box sides and flying pixels do not); NaN (no return) drops out
+    du = pts[:, :-1, 1:] - pts[:, :-1, :-1]
+    dv = pts[:, 1:, :-1] - pts[:, :-1, :-1]
+    nx = du[1] * dv[2] - du[2] * dv[1]
+    ny = du[2] * dv[0] - du[0] * dv[2]
+    nz = du[0] * dv[1] - du[1] * dv[0]
+    x, y, z = pts[0, :-1, :-1], pts[1, :-1, :-1], pts[2, :-1, :-1]
+    with np.errstate(invalid='ignore'):
+        facing_up = nz * nz >= (nx * nx + ny * ny + nz * nz) * FACING_UP_COS2
+        band = np.hypot(x, y) * math.tan(params.floor_max_tilt_rad)
+        band += params.floor_max_offset_m + 0.02
+        near = facing_up & (np.abs(z) <= band)
+        near &= (x >= params.min_range_m) & (x <= params.max_range_m + FIT_RANGE_MARGIN_M)
+        near &= np.abs(y) <= params.lateral_limit_m
+    return np.stack((x[near], y[near], z[near]))
+
+
+def _lstsq_plane(pts: np.ndarray) -> np.ndarray:
+    """Fit the least-squares plane z = a x + b y + c to pts (3, M); return (a, b, c).
+
+    The normal equations, centred on the mean (well conditioned for a few thousand points).
+    """
+    mean = np.add.reduce(pts, axis=1) / pts.shape[1]   # pts.mean(axis=1), its overhead spared
+    c = pts - mean[:, None]
+    sxx, sxy, syy = np.dot(c[0], c[0]), np.dot(c[0], c[1]), np.dot(c[1], c[1])
+    sxz, syz = np.dot(c[0], c[2]), np.dot(c[1], c[2])
+    det = sxx * syy - sxy * sxy
+    if not abs(det) > 1e-12:
+        return np.array([0.0, 0.0, mean[2]])
+    a = (sxz * syy - syz * sxy) / det
+    b = (syz * sxx - sxz * sxy) / det
+    return np.array([a, b, mean[2] - a * mean[0] - b * mean[1]])
+
+
+def _in_band(pts: np.ndarray, coef: np.ndarray, band_m: float,
+             compiled: bool | None = None) -> np.ndarray:
+    """(3, m) float64: the samples pts (3, M) within band_m of z = coef . (x, y, 1).
+
+    compiled: run the kernel (None: when :func:`.jit_traversal.enabled`).
+    """
+    if jit_traversal.enabled() if compiled is None else compiled:
+        return jit_traversal.in_band(pts, coef[0], coef[1], coef[2], band_m)
+    resid = pts[2] - (coef[0] * pts[0] + coef[1] * pts[1] + coef[2])
+    return pts[:, np.abs(resid) <= band_m]
+
+
+def _same(a: np.ndarray, b: np.ndarray) -> bool:
+    """Return True when a and b hold the same values, bit for bit, in the same shape."""
+    return a.shape == b.shape and a.tobytes() == b.tobytes()
+
+
+def _count_in_band(pts: np.ndarray, coef: np.ndarray, band_m: float,
+                   compiled: bool | None = None) -> int:
+    """How many samples pts (3, M) lie within band_m of z = coef . (x, y, 1)."""
+    if jit_traversal.enabled() if compiled is None else compiled:
+        return jit_traversal.count_in_band(pts, coef[0], coef[1], coef[2], band_m)
+    resid = pts[2] - (coef[0] * pts[0] + coef[1] * pts[1] + coef[2])
+    return int(np.count_nonzero(np.abs(resid) <= band_m))
+
+
+def _ransac_plane(pts: np.ndarray, params: DetectorParams,
+                  compiled: bool | None = None) -> np.ndarray:
+    """Return (k, 3): (a, b, c) of the bounded hypotheses with most samples in INLIER_BAND_M.
+
+    pts (3, M). Hypotheses tilted more than ``floor_max_tilt_rad`` or offset more than
+    ``floor_max_offset_m`` from the configured floor are not considered (a ramp, the floor
+    beyond a drop); the configured floor (0, 0, 0) and the level plane at the most common
+    sample height always are. At most SCORE_POINTS samples score them; the best
+    REFINED_HYPOTHESES are returned, best first. Compiled when :func:`.jit_traversal.enabled`
+    (the same hypotheses, scores and order); compiled: None asks it.
+    """
+    if jit_traversal.enabled() if compiled is None else compiled:
+        return jit_traversal.ransac_plane(pts, _PICKS, math.tan(params.floor_max_tilt_rad) ** 2,
+                                          params.floor_max_offset_m, INLIER_BAND_M,
+                                          SCORE_POINTS, REFINED_HYPOTHESES)
+    # one point from each third of the samples (image row order: far, middle, near for a
+    # camera above the floor): well-conditioned triplets
+    third = pts.shape[1] // 3
+    picks = (_PICKS * third).astype(np.int64) + np.arange(3)[:, None] * third
+    p0, p1, p2 = pts[:, picks[0]], pts[:, picks[1]], pts[:, picks[2]]   # (3, h) each
+    u, v = p1 - p0, p2 - p0
+    nx = u[1] * v[2] - u[2] * v[1]
+    ny = u[2] * v[0] - u[0] * v[2]
+    nz = u[0] * v[1] - u[1] * v[0]
+    good = np.abs(nz) > 1e-9
+    nz = np.where(good, nz, 1.0)
+    a, b = -nx / nz, -ny / nz
+    c = p0[2] - a * p0[0] - b * p0[1]
+    bounded = good & (a * a + b * b <= math.tan(params.floor_max_tilt_rad) ** 2)
+    bounded &= np.abs(c) <= params.floor_max_offset_m
+    # the configured floor itself is always a candidate, and so is the level plane through
+    # the most common sample height in 1 cm bins (the floor under a mount wrong in height)
+    offset = params.floor_max_offset_m
+    near = np.abs(pts[2]) <= offset
+    counts = np.bincount(np.floor((pts[2][near] + offset) * 100.0).astype(np.int64))
+    mode = (int(np.argmax(counts)) + 0.5) * 0.01 - offset if counts.size else 0.0
+    a = np.append(a[bounded], (0.0, 0.0))
+    b = np.append(b[bounded], (0.0, 0.0))
+    c = np.append(c[bounded], (0.0, mode))
+    sp = pts[:, ::max(1, pts.shape[1] // SCORE_POINTS)].astype(np.float32)
+    a32, b32, c32 = a.astype(np.float32), b.astype(np.float32), c.astype(np.float32)
+    score = np.empty(a.size, np.int64)
+    for start in range(0, a.size, SCORE_CHUNK):   # small temporaries: no page faults
+        part = slice(start, start + SCORE_CHUNK)
+        resid = a32[part, None] * sp[0]
+        resid += b32[part, None] * sp[1]
+        resid += c32[part, None]
+        resid -= sp[2]
+        score[part] = np.count_nonzero(np.abs(resid, out=resid) <= INLIER_BAND_M, axis=1)
+    best = np.argsort(-score, kind='stable')[:REFINED_HYPOTHESES]
+    return np.stack((a[best], b[best], c[best]), axis=1)
+
+
+def fit_floor(depth_m: np.ndarray, sub_rays: np.ndarray, params: DetectorParams) -> FloorFit:
+    """Fit the floor plane of one frame and return the mount to process it with.
+
+    depth_m: (H, W) float32 [m], 0 = no return; sub_rays: :func:`sample_rays` of the
+    configured mount's ground rays.
+    """
+    if not params.refine_floor:
+        return configured(params, 'off')
+    pts = floor_samples(depth_m, sub_rays, params)
+    if pts.shape[1] < params.floor_min_points:
+        return configured(params, f'{pts.shape[1]} floor samples < floor_min_points='
+                                  f'{params.floor_min_points}')
+    best = None   # (inliers in the last band, coefficients, samples of the last refit)
+    refits: list[list[np.ndarray]] = []   # the inliers of each refit of the earlier hypotheses
+    compiled = jit_traversal.enabled()
+    for coef in _ransac_plane(pts, params, compiled):   # each refined on narrowing bands
+        used = 0
+        stages: list[np.ndarray] = []
+        repeated = False
+        for stage, band in enumerate(REFIT_BANDS_M):
+            inliers = _in_band(pts, coef, band, compiled)
+            used = inliers.shape[1]
+            if used < 3:
+                break
+            # the same inliers as an earlier hypothesis at this stage: the same refits follow,
+            # the same plane and support, which did not beat the best (skipped, same result)
+            repeated = any(len(done) > stage and _same(done[stage], inliers) for done in refits)
+            if repeated:
+                break
+            stages.append(inliers)
+            coef = _lstsq_plane(inliers)
+        refits.append(stages)
+        if repeated:
+            continue
+        support = _count_in_band(pts, coef, REFIT_BANDS_M[-1], compiled)
+        if best is None or support > best[0]:
+            best = (support, coef, used)
+    support, coef, used = best
+    if used < params.floor_min_points:
+        return configured(params, f'{used} floor inliers < floor_min_points='
+                                  f'{params.floor_min_points}')
+    a, b, c = (float(v) for v in coef)
+    tilt = math.atan(math.hypot(a, b))
+    if tilt > params.floor_max_tilt_rad:
+        return configured(params, f'fitted floor tilted {math.degrees(tilt):.1f} deg > '
+                                  f'floor_max_tilt_deg')
+    if abs(c) > params.floor_max_offset_m:
+        return configured(params, f'fitted floor offset {c:+.3f} m beyond floor_max_offset_m')
+    return _corrected_mount(params, a, b, c, used)
+
+
+#: Optical axes (x right, y down, z forward) in body axes (x forward, y left, z up).
+_BODY_FROM_OPTICAL = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
+_BODY_FROM_OPTICAL.flags.writeable = False
+
+
+@functools.lru_cache(maxsize=16)
+def _mount_rotation(pitch_rad: float, roll_rad: float) -> np.ndarray:
+    """:func:`.geometry.mount_rotation`, kept per configured mount (read-only)."""
+    rot = mount_rotation(pitch_rad, roll_rad)
+    rot.flags.writeable = False
+    return rot
+
+
+def _corrected_mount(params: DetectorParams, a: float, b: float, c: float,
+                     samples: int) -> FloorFit:
+    """Return the mount whose ground frame has the plane z = a x + b y + c as z = 0."""
+    norm = math.sqrt(a * a + b * b + 1.0)
+    n = np.array([-a, -b, 1.0]) / norm             # floor "up" in the configured frame
+    height = (params.camera_height_m - c) / norm    # camera (0, 0, h) above the plane
+    # the configured frame's rotation followed by the smallest rotation taking n to +z;
+    # axis = n x (0, 0, 1) with np.cross's operations (its Python overhead spared)
+    n0, n1, n2 = float(n[0]), float(n[1]), float(n[2])
+    axis = np.array([n1 * 1.0 - n2 * 0.0, n2 * 0.0 - n0 * 1.0, n0 * 0.0 - n1 * 0.0])
+    s, cos_angle = math.sqrt(float(axis.dot(axis))), n2   # np.linalg.norm's operations
+    rot_c = np.eye(3)
+    if s > 0.0:
+        k = axis / s
+        kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+        rot_c = rot_c + s * kx + (1.0 - cos_angle) * (kx @ kx)
+    total = rot_c @ _mount_rotation(params.camera_pitch_rad, params.camera_roll_rad)
+    body = total @ _BODY_FROM_OPTICAL
+    pitch = -math.asin(max(-1.0, min(1.0, float(body[2, 0]))))
+    roll = math.atan2(float(body[2, 1]), float(body[2, 2]))
+    return FloorFit(True, height, pitch, roll, d_height_m=height - params.camera_height_m,
+                    d_pitch_deg=math.degrees(pitch - params.camera_pitch_rad),
+                    d_roll_deg=math.degrees(roll - params.camera_roll_rad), samples=samples)

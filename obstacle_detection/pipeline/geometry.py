@@ -1,0 +1,167 @@
+"""Back-projection, the camera mount transform and the region of interest.
+
+Frames (DESIGN.md): the depth image is in the camera optical frame (x right, y down, z forward);
+the pipeline works in the ground frame (x forward, y left, z up) whose origin is on the ground
+right under the camera's optical centre.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ._compiled import traversal as jit_traversal
+from .params import DetectorParams, Intrinsics
+
+#: Optical frame (x right, y down, z forward) -> level body frame (x forward, y left, z up).
+OPTICAL_TO_BODY = np.array([[0.0, 0.0, 1.0],
+                            [-1.0, 0.0, 0.0],
+                            [0.0, -1.0, 0.0]])
+
+
+def mount_rotation(pitch_rad: float, roll_rad: float) -> np.ndarray:
+    """Rotation (3, 3) float64 taking optical-frame vectors to ground-frame vectors.
+
+    ``R = R_y(pitch) @ R_x(roll) @ OPTICAL_TO_BODY``. Positive pitch turns the optical axis
+    down towards the ground (a rotation about the ground frame's +y, left, axis); positive roll
+    turns the camera about its optical axis so that the image's right side goes down.
+    """
+    cp, sp = math.cos(pitch_rad), math.sin(pitch_rad)
+    cr, sr = math.cos(roll_rad), math.sin(roll_rad)
+    r_y = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
+    r_x = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
+    return r_y @ r_x @ OPTICAL_TO_BODY
+
+
+def mount_transform(height_m: float, pitch_rad: float, roll_rad: float,
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """(R, t): ``p_ground = R @ p_optical + t`` with t = (0, 0, height) [m]."""
+    return mount_rotation(pitch_rad, roll_rad), np.array([0.0, 0.0, height_m])
+
+
+def pixel_rays(shape: tuple[int, int], intrinsics: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
+    """Per-column and per-row ray slopes: ``x/z = (u - cx)/fx`` (W,), ``y/z = (v - cy)/fy`` (H,).
+
+    These are the seed's section 4.3.2 equations ``x = (j - cx) z / f``, ``y = (i - cy) z / f``
+    with the depth z factored out. float32.
+    """
+    height, width = shape
+    ru = (np.arange(width, dtype=np.float32) - np.float32(intrinsics.cx)) / np.float32(
+        intrinsics.fx)
+    rv = (np.arange(height, dtype=np.float32) - np.float32(intrinsics.cy)) / np.float32(
+        intrinsics.fy)
+    return ru, rv
+
+
+def back_project(depth_m: np.ndarray, intrinsics: Intrinsics,
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Back-project the valid pixels of a depth image into the optical frame.
+
+    depth_m: (H, W) float32 metres, 0 = no return.
+    Returns ``(points, pixel_index)``: points (M, 3) float32 optical frame [m] for the M pixels
+    with depth > 0, and pixel_index (M,) int64, their flat indices into the (H, W) image.
+    """
+    flat = depth_m.reshape(-1)
+    pixel_index = np.flatnonzero(flat > 0.0)
+    z = flat[pixel_index]
+    ru, rv = pixel_rays(depth_m.shape, intrinsics)
+    width = depth_m.shape[1]
+    rows, cols = np.divmod(pixel_index, width)
+    points = np.empty((pixel_index.size, 3), dtype=np.float32)
+    np.multiply(ru[cols], z, out=points[:, 0])
+    np.multiply(rv[rows], z, out=points[:, 1])
+    points[:, 2] = z
+    return points, pixel_index
+
+
+def to_ground(points_optical: np.ndarray, params: DetectorParams) -> np.ndarray:
+    """Optical-frame points (M, 3) -> ground-frame points (M, 3) float32 [m] via the mount."""
+    rot, trans = mount_transform(params.camera_height_m, params.camera_pitch_rad,
+                                 params.camera_roll_rad)
+    out = points_optical @ rot.T.astype(np.float32)
+    out += trans.astype(np.float32)
+    return out
+
+
+def ground_rays(shape: tuple[int, int], intrinsics: Intrinsics, params: DetectorParams,
+                out: np.ndarray | None = None) -> np.ndarray:
+    """Ground-frame direction of every pixel's ray, scaled so that depth 1 m travels it.
+
+    Returns (3, H*W) float32: ``p_ground = depth * rays[:, pixel] + (0, 0, height)`` is the
+    back-projection (seed 4.3.2) followed by the camera mount, for a flat pixel index.
+    out: a (3, H*W) float32 array the compiled path fills instead of a new one.
+    """
+    ru, rv = pixel_rays(shape, intrinsics)
+    rot = mount_rotation(params.camera_pitch_rad, params.camera_roll_rad).astype(np.float32)
+    if jit_traversal.enabled():   # the same float32 operations, compiled (per frame when the
+        return jit_traversal.ground_rays(ru, rv, rot, out)   # floor is refined)
+    height, width = shape
+    rays = np.empty((3, height, width), dtype=np.float32)
+    for axis in range(3):
+        rays[axis] = (rot[axis, 0] * ru[None, :] + rot[axis, 1] * rv[:, None]
+                      + rot[axis, 2])
+    return rays.reshape(3, -1)
+
+
+def ground_points_in_roi(depth_m: np.ndarray, rays: np.ndarray, params: DetectorParams,
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Back-project a whole depth image into the ground frame and keep the ROI.
+
+    depth_m: (H, W) float32, 0 = no return; rays: from :func:`ground_rays`.
+    Returns ``(points, roi_index, valid)``: points (M, 3) float32 ground frame [m] of the
+    pixels inside the region of interest (a view with contiguous columns), roi_index (M,)
+    int64 their flat pixel indices, valid (H*W,) bool the pixels with a depth.
+    Same ROI as :func:`roi_mask`, computed on the image without a per-point gather.
+    """
+    z = depth_m.reshape(-1)
+    valid = z > 0.0
+    gx = z * rays[0]
+    keep = valid & (gx >= np.float32(params.min_range_m))
+    keep &= gx <= np.float32(params.max_range_m)
+    gy = z * rays[1]
+    keep &= np.abs(gy) <= np.float32(params.lateral_limit_m)
+    gz = z * rays[2]
+    gz += np.float32(params.camera_height_m)
+    keep &= gz >= np.float32(params.tdbg_m)
+    keep &= gz <= np.float32(params.max_height_m)
+    roi_index = np.flatnonzero(keep)
+    cols = np.empty((3, roi_index.size), dtype=np.float32)
+    np.take(gx, roi_index, out=cols[0])
+    np.take(gy, roi_index, out=cols[1])
+    np.take(gz, roi_index, out=cols[2])
+    return cols.T, roi_index, valid
+
+
+def roi_mask(points_ground: np.ndarray, params: DetectorParams) -> np.ndarray:
+    """Seed 4.3.3 region of interest: (M,) bool, True for points kept.
+
+    Kept: ``min_range <= x <= max_range``, ``|y| <= lateral_limit``,
+    ``tdbg <= z <= camera_height + smar`` (all bounds inclusive, ground frame [m]).
+    """
+    x, y, z = points_ground[:, 0], points_ground[:, 1], points_ground[:, 2]
+    keep = (x >= params.min_range_m) & (x <= params.max_range_m)
+    keep &= np.abs(y) <= params.lateral_limit_m
+    keep &= (z >= params.tdbg_m) & (z <= params.max_height_m)
+    return keep
+
+
+def to_base_frame(points: np.ndarray, params: DetectorParams) -> np.ndarray:
+    """Move ground-frame points (origin under the camera) into the robot's base frame.
+
+    points: (M, 3) float32 [m], x forward, y left, z up on the ground under the camera. The
+    camera sits at (camera_x_m, camera_y_m) turned by camera_yaw_rad in the base frame:
+    ``p_base = R_z(yaw) p + (x, y, 0)``. A camera at the base origin facing forward (the
+    default) returns the points unchanged (the same array).
+    """
+    x, y, yaw = params.camera_x_m, params.camera_y_m, params.camera_yaw_rad
+    if x == 0.0 and y == 0.0 and yaw == 0.0:
+        return points
+    c, s = math.cos(yaw), math.sin(yaw)
+    out = np.empty_like(points)
+    px, py = points[:, 0].astype(np.float64), points[:, 1].astype(np.float64)
+    out[:, 0] = c * px - s * py + x
+    out[:, 1] = s * px + c * py + y
+    out[:, 2] = points[:, 2]
+    return out
+

@@ -1,0 +1,362 @@
+"""Robot-level traversability (not in the seed): connectivity, step height, drops.
+
+The seed calls a voxel ground when its normal is within theta of vertical. A robot cannot drive
+onto a box top, a table or a curb, however flat, nor off a drop; it can cross a door sill and
+climb a passable ramp to its landing. After the normals, :func:`traversable_ground` decides:
+
+1. A 2.5-D grid of cells (twice the voxel size) over the voxels. The *surface* of a cell is its
+   lowest voxel that passed the slope test (under a table the floor, where it is seen). A
+   cell is *passable* when it has a surface held by at least ``MIN_SURFACE_VOXELS`` flat
+   voxels within one voxel height (flying or stray voxels make no floor) and its voxels span
+   no more than ``max_step_height_m`` in height (no step, wall foot or curb face inside it).
+2. Seeds: passable cells whose surface lies on the floor plane, within ``[-max_step_down_m,
+   max_step_height_m]`` of z = 0 (the floor plane refined per frame, :mod:`.floor`).
+3. Ground is grown from the seeds to the 8 neighbouring passable cells through steps of at most
+   ``max_step_height_m`` up and ``max_step_down_m`` down (a directed graph, one breadth-first
+   search in scipy): ramps no steeper than theta and their landings are reached, box and table
+   tops, curbs and the floor beyond a drop are not.
+4. The local ground of a reached cell is its surface; the others take it from the reached
+   cells, grown outward layer by layer (the largest of the neighbours filled before); a
+   voxel's height is taken above its cell's local ground. Obstacle: higher than
+   ``max_step_height_m`` and not above ``robot_height_m`` (a wall, but not its foot; a box top),
+   or lower than ``-max_step_down_m`` (the floor beyond a drop). Above the robot: not an
+   obstacle.
+
+:func:`drop_edges` marks a drop whose lower floor is out of view or out of range: a pixel whose
+ray passed the floor plane (its point lies more than the step down below it) right above pixels
+that see the floor marks the cell where that floor ends, when it lies within the range.
+All vectorised, or compiled (:mod:`.jit_traversal`, same results); no per-point Python loop.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import breadth_first_order
+
+from ._compiled import traversal as jit_traversal
+from .params import DetectorParams
+
+#: The 8 neighbours of a cell as (dx, dy); the search adds both directions of each pair.
+_HALF_NEIGHBOURHOOD = ((1, 0), (0, 1), (1, 1), (1, -1))
+#: Flat voxels a cell's surface needs within one voxel height (of the 4 a 2 x 2 voxel cell
+#: holds) to pass the robot on: a few stray or flying voxels do not make a floor.
+MIN_SURFACE_VOXELS = 3
+#: Rows below an over-the-edge pixel searched for the floor it passed [px].
+DROP_EDGE_ROWS = 3
+#: A pixel this share of its depth away from both the nearest and the farthest depth of its
+#: window is a mixed (flying) pixel, unless it lies on a plane with its neighbours (a floor
+#: seen 0.6 m up at 4 m changes ~2 % a row: such planes are kept, see _planar).
+FLYING_JUMP = 0.03
+#: Largest second difference of the inverse depth, as a share of it, of a pixel on a plane.
+PLANAR_TOLERANCE = 0.02
+#: Window of the flying-pixel test [px]: time-of-flight mixed pixels lie up to two pixels
+#: from the depth edge.
+FLYING_WINDOW_PX = 5
+
+
+@dataclass(frozen=True)
+class Traversal:
+    """Robot-level decision per voxel.
+
+    is_obstacle: (V,) bool before the seed's N1 validation; above_robot: (V,) bool;
+    height_m: (V,) float32 height above the local ground [m]; reached: (V,) bool, the voxel's
+    cell was reached from the floor; cell_size_m: the grid's cell size [m].
+    """
+
+    is_obstacle: np.ndarray
+    above_robot: np.ndarray
+    height_m: np.ndarray
+    reached: np.ndarray
+    cell_size_m: float
+
+
+def cell_size(params: DetectorParams) -> float:
+    """Cell size of the traversability grid [m]: twice the larger horizontal voxel size."""
+    return 2.0 * max(params.voxel_x_m, params.voxel_y_m)
+
+
+def traversable_ground(points: np.ndarray, steep: np.ndarray,
+                       params: DetectorParams) -> Traversal:
+    """Decide obstacles at robot level.
+
+    points: (V, 3) float32 voxel centroids, ground frame [m]; steep: (V,) bool, the seed's
+    slope test (True = steeper than theta). Runs :func:`.jit_traversal.traverse` when
+    :func:`.jit_traversal.enabled` (same result).
+    """
+    size = cell_size(params)
+    if points.shape[0] == 0:
+        empty = np.zeros(0, bool)
+        return Traversal(empty, empty, np.zeros(0, np.float32), empty, size)
+    if jit_traversal.enabled():
+        out = jit_traversal.traverse(points, steep, size, params.max_step_height_m,
+                                     params.max_step_down_m, params.robot_height_m,
+                                     params.voxel_z_m, MIN_SURFACE_VOXELS)
+    else:
+        out = traverse_numpy(points, steep, size, params.max_step_height_m,
+                             params.max_step_down_m, params.robot_height_m, params.voxel_z_m)
+    return Traversal(*out, size)
+
+
+def traverse_numpy(points: np.ndarray, steep: np.ndarray, size_m: float, step_up_m: float,
+                   step_down_m: float, robot_height_m: float, layer_m: float,
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(obstacle, above, height float32, reached) per voxel, in numpy (the reference)."""
+    size = np.float32(size_m)
+    ix = np.floor(points[:, 0] / size).astype(np.int64)
+    iy = np.floor(points[:, 1] / size).astype(np.int64)
+    ix -= ix.min()
+    iy -= iy.min()
+    nx, ny = int(ix.max()) + 1, int(iy.max()) + 1
+    key = ix * ny + iy
+    z = points[:, 2].astype(np.float64)
+
+    surface = np.full(nx * ny, np.inf)
+    flat = ~steep
+    np.minimum.at(surface, key[flat], z[flat])
+    low = np.full(nx * ny, np.inf)
+    high = np.full(nx * ny, -np.inf)
+    np.minimum.at(low, key, z)
+    np.maximum.at(high, key, z)
+    # a cell can be driven through when it has a surface, well supported (not a few stray
+    # or flying voxels), and no step inside it
+    on_surface = flat & (z <= surface[key] + layer_m)
+    support = np.bincount(key[on_surface], minlength=nx * ny)
+    passable = np.isfinite(surface) & (high - low <= step_up_m)
+    passable &= support >= MIN_SURFACE_VOXELS
+    seeds = passable & (surface >= -step_down_m) & (surface <= step_up_m)
+    reached = _grow(surface.reshape(nx, ny), passable.reshape(nx, ny), seeds, step_up_m,
+                    step_down_m)
+    ground = _local_ground(surface.reshape(nx, ny), reached.reshape(nx, ny)).reshape(-1)
+    height = (z - ground[key]).astype(np.float32)
+    above = height > np.float32(robot_height_m)
+    obstacle = (height > np.float32(step_up_m)) & ~above
+    obstacle |= height < -np.float32(step_down_m)
+    return obstacle, above, height, reached[key]
+
+
+def _neighbour_views(arr: np.ndarray, fill: float | bool) -> list[np.ndarray]:
+    """Return the 8 neighbours' values of every cell (views of a padded copy)."""
+    nx, ny = arr.shape
+    pad = np.full((nx + 2, ny + 2), fill, dtype=arr.dtype)
+    pad[1:-1, 1:-1] = arr
+    return [pad[1 + dx:1 + dx + nx, 1 + dy:1 + dy + ny]
+            for dx in (-1, 0, 1) for dy in (-1, 0, 1) if dx or dy]
+
+
+def _local_ground(surface: np.ndarray, reached: np.ndarray) -> np.ndarray:
+    """Ground height (nx, ny) of every cell: its surface where reached, else grown outward.
+
+    Layer by layer (8 neighbours), a cell gets the largest ground among its neighbours filled
+    in the previous layers. No reached cell: the floor plane, 0.
+    """
+    if not reached.any():
+        return np.zeros(surface.shape)
+    ground = np.where(reached, surface, 0.0)
+    done = reached.copy()
+    while not done.all():
+        filled = [np.where(d, g, -np.inf) for d, g in zip(_neighbour_views(done, False),
+                                                          _neighbour_views(ground, 0.0))]
+        best = np.max(filled, axis=0)
+        new = ~done & (best > -np.inf)
+        ground[new] = best[new]
+        done |= new
+    return ground
+
+
+def _grow(surface: np.ndarray, has: np.ndarray, seeds: np.ndarray, step_up: float,
+          step_down: float) -> np.ndarray:
+    """Cells (nx * ny,) bool reachable from the seeds through allowed steps (8-connected)."""
+    nx, ny = surface.shape
+    index = np.arange(nx * ny).reshape(nx, ny)
+    src, dst = [], []
+    for dx, dy in _HALF_NEIGHBOURHOOD:
+        xs = slice(0, nx - dx)
+        ys = slice(max(0, -dy), ny - max(0, dy))
+        xt = slice(dx, nx)
+        yt = slice(max(0, dy), ny - max(0, -dy))
+        a_has, b_has = has[xs, ys], has[xt, yt]
+        with np.errstate(invalid='ignore'):               # inf - inf where no surface
+            rise = surface[xt, yt] - surface[xs, ys]      # a -> b
+        both = a_has & b_has
+        a_idx, b_idx = index[xs, ys], index[xt, yt]
+        forward = both & (rise <= step_up) & (-rise <= step_down)
+        backward = both & (-rise <= step_up) & (rise <= step_down)
+        src += [a_idx[forward], b_idx[backward]]
+        dst += [b_idx[forward], a_idx[backward]]
+    source = nx * ny                                      # a virtual node linked to the seeds
+    seed_idx = np.flatnonzero(seeds)
+    src.append(np.full(seed_idx.size, source))
+    dst.append(seed_idx)
+    rows, cols = np.concatenate(src), np.concatenate(dst)
+    graph = csr_matrix((np.ones(rows.size, np.int8), (rows, cols)),
+                       shape=(source + 1, source + 1))
+    order = breadth_first_order(graph, source, directed=True, return_predecessors=False)
+    reached = np.zeros(source + 1, bool)
+    reached[order] = True
+    return reached[:source]
+
+
+def depth_window_range(raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest and farthest measured depth (H, W) float32 in each pixel's 5 x 5 window [m].
+
+    raw: 0 = no return (as :func:`.depth.decode_depth` gives; no NaN). Pixels without a
+    return take no part (a window without any gives inf / 0). OpenCV's erode/dilate, shared
+    by the numpy and the compiled path.
+    """
+    kernel = np.ones((FLYING_WINDOW_PX, FLYING_WINDOW_PX), np.uint8)
+    if jit_traversal.enabled():   # the same values, into buffers reused across frames
+        holes_far = jit_traversal.holes_to_inf(raw)
+        near = jit_traversal.scratch('near', raw.shape, np.float32)
+        far = jit_traversal.scratch('far', raw.shape, np.float32)
+    else:
+        holes_far = np.where(raw > 0.0, raw, np.float32(np.inf))
+        near = np.empty(raw.shape, np.float32)
+        far = np.empty(raw.shape, np.float32)
+    cv2.erode(holes_far, kernel, dst=near, borderType=cv2.BORDER_REPLICATE)
+    cv2.dilate(raw, kernel, dst=far, borderType=cv2.BORDER_REPLICATE)   # no return is 0
+    return near, far
+
+
+def _planar(raw: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the pixel lies on a plane with its row and column neighbours.
+
+    A plane's inverse depth is affine in the pixel coordinates, so its second differences
+    vanish (a floor or a table's underside seen at a grazing angle); a mixed pixel's do not.
+    Within ``PLANAR_TOLERANCE`` of the pixel's inverse depth, all four neighbours measured.
+    """
+    with np.errstate(divide='ignore', invalid='ignore'):
+        inv = np.where(raw > 0.0, np.float32(1.0) / raw, np.float32(np.nan))
+    tol = np.float32(PLANAR_TOLERANCE) * inv
+    out = np.zeros(raw.shape, bool)
+    with np.errstate(invalid='ignore'):
+        row = np.abs(inv[:, :-2] + inv[:, 2:] - np.float32(2.0) * inv[:, 1:-1])
+        col = np.abs(inv[:-2, :] + inv[2:, :] - np.float32(2.0) * inv[1:-1, :])
+        out[1:-1, 1:-1] = (row[1:-1] <= tol[1:-1, 1:-1]) & (col[:, 1:-1] <= tol[1:-1, 1:-1])
+    return out
+
+
+def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float) -> np.ndarray:
+    """Undo what the median filter smeared across depth edges; drop what is no surface.
+
+    filtered, raw: (H, W) float32 [m], the median-filtered and the measured depth (0 = no
+    return, as :func:`.depth.decode_depth` gives). A pixel
+    whose filtered depth differs from its measured one by more than ``max_shift`` times the
+    filtered depth got its value from across a depth edge (it would fatten the near object
+    into free space, or erase a thin one such as a table's edge): it takes its measured depth
+    back. Dropped (set to 0, no return):
+
+    - a pixel without a measured depth (0 or NaN) that the filter filled, unless it has a
+      measured 4-neighbour and all of them lie within ``max_shift`` of the filled depth (a
+      dropout inside a surface is filled; a hole at a depth edge, where the filter could only
+      guess, is not: no return never marks anything);
+    - a mixed ("flying") pixel: its measured depth lies more than ``FLYING_JUMP`` of it away
+      from both the nearest and the farthest depth of its 5 x 5 window, between the two
+      surfaces of a depth edge, as a time-of-flight sensor returns up to two pixels from it,
+      and not on a plane with its neighbours (a surface seen at a grazing angle is kept).
+
+    Returns ``filtered`` (modified in place); ``max_shift`` <= 0 changes nothing. Compiled
+    when numba is there (same result).
+    """
+    if max_shift <= 0.0:
+        return filtered
+    raw = np.ascontiguousarray(raw, np.float32)
+    if (jit_traversal.enabled() and FLYING_WINDOW_PX == 5 and filtered.flags.c_contiguous
+            and filtered.dtype == np.float32 and filtered.shape == raw.shape
+            and jit_traversal.drop_smeared_fused(filtered, raw, max_shift, FLYING_JUMP,
+                                                 PLANAR_TOLERANCE)):
+        return filtered   # one compiled pass, the window range on the way (same result)
+    near, far = depth_window_range(raw)
+    if jit_traversal.enabled():
+        jit_traversal.drop_smeared(filtered, raw, near, far, max_shift, FLYING_JUMP,
+                                   PLANAR_TOLERANCE)
+        return filtered
+    ratio = np.float32(max_shift)
+    h, w = raw.shape
+    with np.errstate(invalid='ignore'):
+        hole = ~(raw > 0.0)
+        moved = ~hole & (np.abs(filtered - raw) > ratio * filtered)
+        lim = ratio * filtered
+        seen = np.zeros((h, w), bool)
+        agree = np.ones((h, w), bool)
+        pad = np.zeros((h + 2, w + 2), np.float32)
+        pad[1:-1, 1:-1] = raw
+        for nb in (pad[:-2, 1:-1], pad[2:, 1:-1], pad[1:-1, :-2], pad[1:-1, 2:]):
+            valid = nb > 0.0
+            seen |= valid
+            agree &= ~valid | (np.abs(nb - filtered) <= lim)
+        bad = hole & ~(seen & agree)
+        lim = np.float32(FLYING_JUMP) * raw
+        between = ~hole & (raw - near > lim) & (far - raw > lim)
+        bad |= between & ~_planar(raw)
+    filtered[moved] = raw[moved]
+    filtered[bad] = 0.0
+    return filtered
+
+
+def drop_edge_mask(depth_m: np.ndarray, rz: np.ndarray, height_m: float, step_down_m: float,
+                   step_up_m: float, rows: int = DROP_EDGE_ROWS) -> np.ndarray:
+    """Return (H, W) int8: rows down to where the floor ends, for rays that passed it; else 0.
+
+    For a pixel whose ray passed the floor plane right above seen floor: the number of rows
+    (1 to ``rows``) down to the floor pixel where the floor ends.
+
+    depth_m (H, W) float32 [m] (0/NaN no return: never marks); rz (H*W,) or (H, W) float32,
+    the z component of the ground rays; height_m: camera height. A pixel passed the floor when
+    its point lies more than ``step_down_m`` below z = 0; it is an edge when one of the
+    ``rows`` pixels below it sees the floor (z within ``[-step_down_m, step_up_m]``) more than
+    ``step_down_m`` above its own point (the nearest such row is given). float32 arithmetic,
+    as the compiled kernel.
+    """
+    if jit_traversal.enabled():
+        return jit_traversal.drop_mask(depth_m, rz, height_m, step_down_m, step_up_m, rows)
+    h, w = depth_m.shape
+    d = depth_m.astype(np.float32, copy=False)
+    valid = d > 0.0
+    with np.errstate(invalid='ignore'):
+        z = np.where(valid, d * rz.reshape(h, w) + np.float32(height_m), np.float32(np.nan))
+    down = np.float32(step_down_m)
+    passed = z < -down                                   # NaN (no return) compares false
+    floor = (z >= -down) & (z <= np.float32(step_up_m))
+    edge = np.zeros((h, w), np.int8)
+    for k in range(1, rows + 1):
+        if k >= h:
+            break
+        hit = passed[:-k] & floor[k:] & (z[k:] - z[:-k] > down) & (edge[:-k] == 0)
+        edge[:-k][hit] = k
+    return edge
+
+
+def drop_edges(depth_m: np.ndarray, rays: np.ndarray, height_m: float,
+               params: DetectorParams) -> tuple[np.ndarray, np.ndarray]:
+    """Where the floor ends at a drop: the last floor seen below the rays that passed it.
+
+    depth_m: (H, W) float32 [m]; rays: (3, H*W) ground rays of the frame's mount; height_m:
+    the camera height of that mount. Returns ``(points, pixels)``: (D, 3) float32 ground
+    points of the floor pixels where the floor ends (:func:`drop_edge_mask`), inside the
+    forward range and lateral limit [m] (the cells the costmap marks), and (D,) int64 the flat
+    indices of the pixels that saw past the edge (the lower floor, or anything beyond it).
+    """
+    if jit_traversal.enabled():   # the marked pixels and their offsets straight away
+        pixels, offsets = jit_traversal.drop_pixels(depth_m, rays[2], height_m,
+                                                    params.max_step_down_m,
+                                                    params.max_step_height_m, DROP_EDGE_ROWS)
+    else:
+        edge = drop_edge_mask(depth_m, rays[2], height_m, params.max_step_down_m,
+                              params.max_step_height_m)
+        pixels = np.flatnonzero(edge)
+        offsets = edge.reshape(-1)[pixels]
+    if pixels.size == 0:
+        return np.zeros((0, 3), np.float32), pixels
+    floor_px = pixels + offsets.astype(np.int64) * depth_m.shape[1]
+    d = depth_m.reshape(-1)[floor_px]
+    x = d * rays[0, floor_px]
+    y = d * rays[1, floor_px]
+    z = d * rays[2, floor_px] + np.float32(height_m)
+    keep = (x >= np.float32(params.min_range_m)) & (x <= np.float32(params.max_range_m))
+    keep &= np.abs(y) <= np.float32(params.lateral_limit_m)
+    pts = np.stack((x[keep], y[keep], z[keep]), axis=1)
+    return pts.astype(np.float32), pixels[keep]

@@ -1,0 +1,326 @@
+"""Conversions between ROS messages and the numpy arrays of the pipeline.
+
+This module imports message classes but never rclpy, so the node and the offline bag tools build
+identical messages through the same functions. Readers are duck-typed: they accept rclpy
+messages and rosbags-deserialised messages alike (``data`` as ``bytes``, ``array.array`` or a
+numpy ``uint8`` array; ``k`` as a list, tuple or numpy array).
+
+Supported depth encodings (REP 118): ``16UC1`` / ``mono16`` in millimetres (0 = no return) and
+``32FC1`` in metres (0, NaN or inf = no return), either byte order, rows padded to ``step``.
+"""
+
+from __future__ import annotations
+
+import array
+import math
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from geometry_msgs.msg import Pose
+from nav_msgs.msg import MapMetaData, OccupancyGrid
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
+from std_msgs.msg import Header
+
+from obstacle_detection.viz.overlay import render_overlay
+from obstacle_detection.pipeline.params import Intrinsics
+
+if TYPE_CHECKING:
+    from builtin_interfaces.msg import Time
+
+    from obstacle_detection.pipeline.costmap import Costmap
+    from obstacle_detection.pipeline.detector import DetectionResult
+
+#: Depth encodings the pipeline reads -> (numpy base dtype, channels).
+DEPTH_ENCODINGS: dict[str, tuple[np.dtype, int]] = {
+    '16UC1': (np.dtype(np.uint16), 1),
+    'mono16': (np.dtype(np.uint16), 1),
+    '32FC1': (np.dtype(np.float32), 1),
+}
+
+#: Every encoding ``array_to_image`` writes -> (numpy base dtype, channels).
+IMAGE_ENCODINGS: dict[str, tuple[np.dtype, int]] = {
+    **DEPTH_ENCODINGS,
+    'mono8': (np.dtype(np.uint8), 1),
+    'rgb8': (np.dtype(np.uint8), 3),
+    'bgr8': (np.dtype(np.uint8), 3),
+}
+
+#: Default encoding per (dtype, channels) for ``array_to_image``.
+_DEFAULT_ENCODING = {
+    (np.dtype(np.uint16), 1): '16UC1',
+    (np.dtype(np.float32), 1): '32FC1',
+    (np.dtype(np.uint8), 1): 'mono8',
+    (np.dtype(np.uint8), 3): 'rgb8',
+}
+
+_XYZ_FIELDS = ('x', 'y', 'z')
+
+
+class ImageFormatError(ValueError):
+    """An Image message cannot be read as a depth image (encoding, size or byte count)."""
+
+
+def _stamped_header(stamp: Time, frame_id: str) -> Header:
+    return Header(stamp=stamp, frame_id=frame_id)
+
+
+def _byte_view(data: Any) -> np.ndarray:
+    """Return a flat uint8 view of a message's ``data`` (bytes, array.array, ndarray or a list)."""
+    try:
+        return np.frombuffer(data, dtype=np.uint8)
+    except TypeError:  # a plain sequence of ints
+        return np.asarray(data, dtype=np.uint8).reshape(-1)
+
+
+def image_to_array(msg: Any) -> np.ndarray:
+    """Decode a depth Image message into a native-byte-order array.
+
+    msg: ``sensor_msgs/Image`` (rclpy or rosbags) with encoding ``16UC1``/``mono16`` -> (H, W)
+    uint16 [mm], or ``32FC1`` -> (H, W) float32 [m]. ``is_bigendian`` and the row ``step``
+    (padding at the end of each row) are honoured. The result is a fresh writable array.
+
+    Raises ImageFormatError naming the bad value for an unsupported encoding, an empty image, a
+    step shorter than one row, or a ``data`` length other than ``step * height``.
+    """
+    encoding = str(msg.encoding)
+    if encoding not in DEPTH_ENCODINGS:
+        raise ImageFormatError(
+            f'unsupported depth encoding {encoding!r}: expected one of '
+            f'{", ".join(DEPTH_ENCODINGS)}')
+    base, channels = DEPTH_ENCODINGS[encoding]
+    height, width, step = int(msg.height), int(msg.width), int(msg.step)
+    if height <= 0 or width <= 0:
+        raise ImageFormatError(f'empty image: width={width}, height={height}')
+    row_bytes = width * channels * base.itemsize
+    if step < row_bytes:
+        raise ImageFormatError(
+            f'step={step} is shorter than one row of {width} x {encoding} ({row_bytes} bytes)')
+    buffer = _byte_view(msg.data)
+    if buffer.size != step * height:
+        raise ImageFormatError(
+            f'data has {buffer.size} bytes, expected step * height = {step} * {height} = '
+            f'{step * height}')
+    wire = base.newbyteorder('>' if msg.is_bigendian else '<')
+    rows = buffer.reshape(height, step)[:, :row_bytes]
+    # The copy makes the rows contiguous (drops the padding); astype() then yields native order.
+    pixels = np.ascontiguousarray(rows).view(wire).reshape(height, width)
+    return pixels.astype(base.newbyteorder('='), copy=True)
+
+
+def array_to_image(array: np.ndarray, *, stamp: Time, frame_id: str,
+                   encoding: str | None = None) -> Image:
+    """Build an Image message from an array (little-endian, no row padding).
+
+    array: (H, W) uint16 [mm] (``16UC1``, or ``mono16``), (H, W) float32 [m] (``32FC1``),
+    (H, W) uint8 (``mono8``) or (H, W, 3) uint8 (``rgb8``, or ``bgr8``). encoding: None picks the
+    default for the array's dtype and channel count. Raises ImageFormatError if the array does not
+    fit the encoding.
+    """
+    array = np.asarray(array)
+    if array.ndim not in (2, 3) or (array.ndim == 3 and array.shape[2] not in (1, 3)):
+        raise ImageFormatError(f'cannot make an image from an array of shape {array.shape}')
+    channels = 1 if array.ndim == 2 else array.shape[2]
+    if encoding is None:
+        encoding = _DEFAULT_ENCODING.get((array.dtype.newbyteorder('='), channels))
+        if encoding is None:
+            raise ImageFormatError(
+                f'no image encoding for dtype {array.dtype} with {channels} channel(s)')
+    if encoding not in IMAGE_ENCODINGS:
+        raise ImageFormatError(
+            f'unsupported encoding {encoding!r}: expected one of {", ".join(IMAGE_ENCODINGS)}')
+    base, want_channels = IMAGE_ENCODINGS[encoding]
+    if array.dtype.newbyteorder('=') != base or channels != want_channels:
+        raise ImageFormatError(
+            f'encoding {encoding!r} needs {want_channels} channel(s) of {base}, got '
+            f'{channels} of {array.dtype}')
+    height, width = array.shape[:2]
+    little = np.ascontiguousarray(array, dtype=base.newbyteorder('<'))
+    return Image(
+        header=_stamped_header(stamp, frame_id), height=height, width=width, encoding=encoding,
+        is_bigendian=0, step=width * channels * base.itemsize, data=little.tobytes())
+
+
+def camera_info_to_intrinsics(msg: Any) -> Intrinsics:
+    """Pinhole intrinsics from a CameraInfo's K matrix (row-major 3 x 3) [px].
+
+    fx = K[0], fy = K[4], cx = K[2], cy = K[5]. Raises ValueError (naming the values) for an
+    uncalibrated camera (zero focal length) or non-finite entries.
+    """
+    k = np.asarray(msg.k, dtype=np.float64).reshape(-1)
+    if k.size != 9:
+        raise ValueError(f'CameraInfo K has {k.size} entries, expected 9')
+    try:
+        return Intrinsics(fx=float(k[0]), fy=float(k[4]), cx=float(k[2]), cy=float(k[5]))
+    except ValueError as error:
+        raise ValueError(f'CameraInfo K is not a usable pinhole model: {error}') from error
+
+
+#: Field of view a depth camera can have [deg]: focal lengths outside it are a bad CameraInfo.
+PLAUSIBLE_FOV_DEG = (5.0, 170.0)
+#: How far the principal point may lie outside the image, as a share of its size.
+PRINCIPAL_POINT_MARGIN = 0.25
+#: Depths any depth sensor of this class returns [m]: near limit, far limit.
+PLAUSIBLE_DEPTH_M = (0.05, 20.0)
+#: A frame is implausible when less than this share of its valid pixels lies in that band.
+PLAUSIBLE_SHARE = 0.5
+
+
+def intrinsics_problem(intrinsics: Intrinsics, width: int, height: int) -> str | None:
+    """Say why intrinsics cannot belong to a ``width`` x ``height`` depth camera, or None.
+
+    Checks: a non-zero image size (without it, frames cannot be checked against the
+    CameraInfo), focal lengths giving a field of view within PLAUSIBLE_FOV_DEG on both axes
+    (fx = 1e300 or 1e-300 are refused, not turned into phantom points or an underflow), and
+    a principal point within PRINCIPAL_POINT_MARGIN of the image.
+    """
+    if width <= 0 or height <= 0:
+        return (f'CameraInfo image size is {width}x{height}: a depth camera has a size, '
+                'needed to check frames against it')
+    low_deg, high_deg = PLAUSIBLE_FOV_DEG
+    for axis, focal, size in (('fx', intrinsics.fx, width), ('fy', intrinsics.fy, height)):
+        fov = 2.0 * math.degrees(math.atan2(size / 2.0, focal))
+        if not low_deg <= fov <= high_deg:
+            return (f'CameraInfo {axis}={focal:g} px gives a {fov:.3g} deg field of view over '
+                    f'{size} px ({"too narrow" if fov < low_deg else "too wide"}), outside '
+                    f'the {low_deg:g}-{high_deg:g} deg of any depth camera')
+    margin = PRINCIPAL_POINT_MARGIN
+    for axis, centre, size in (('cx', intrinsics.cx, width), ('cy', intrinsics.cy, height)):
+        if not -margin * size <= centre <= (1.0 + margin) * size:
+            return (f'CameraInfo principal point {axis}={centre:g} px lies far outside the '
+                    f'{width}x{height} image')
+    return None
+
+
+def depth_problem(depth: np.ndarray) -> str | None:
+    """Say why a decoded depth frame cannot be real depth, or None.
+
+    depth: (H, W) uint16 [mm] or float32 [m], as :func:`image_to_array` returns. Looks at every
+    fourth pixel of every fourth row; a frame is refused when less than PLAUSIBLE_SHARE of its
+    valid (finite, > 0) values lie within PLAUSIBLE_DEPTH_M: millimetres sent as 32FC1 metres,
+    a wrong ``is_bigendian``, random bytes. A frame with no valid value is not judged here.
+    """
+    sample = depth[::4, ::4]
+    if sample.dtype.kind == 'f':
+        metres = sample[np.isfinite(sample) & (sample > 0)].astype(np.float64)
+        unit = '32FC1 [m]'
+    else:
+        metres = sample[sample > 0].astype(np.float64) * 1e-3
+        unit = '16UC1 [mm]'
+    if metres.size == 0:
+        return None
+    near, far = PLAUSIBLE_DEPTH_M
+    share = float(np.count_nonzero((metres >= near) & (metres <= far))) / metres.size
+    if share >= PLAUSIBLE_SHARE:
+        return None
+    median = float(np.median(metres))
+    if sample.dtype.kind == 'f' and median > 50.0:
+        guess = '; it looks like millimetres sent as 32FC1 metres'
+    elif sample.dtype.kind != 'f' and median > far:
+        guess = '; is_bigendian may be wrong, or the values are not millimetres'
+    elif median < near:
+        guess = '; the values look too small for the unit (metres sent as 16UC1?)'
+    else:
+        guess = ''
+    return (f'implausible depth for {unit}: only {100.0 * share:.0f} % of the valid pixels '
+            f'lie within {near:g}-{far:g} m (median {median:.4g} m){guess}')
+
+
+def intrinsics_to_camera_info(intrinsics: Intrinsics, width: int, height: int, *, stamp: Time,
+                              frame_id: str) -> CameraInfo:
+    """Build a CameraInfo of an undistorted pinhole camera (K, P, identity R, zero D)."""
+    fx, fy, cx, cy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
+    return CameraInfo(
+        header=_stamped_header(stamp, frame_id), width=int(width), height=int(height),
+        distortion_model='plumb_bob', d=[0.0] * 5,
+        k=[fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0],
+        r=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+        p=[fx, 0.0, cx, 0.0, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0])
+
+
+def points_to_pointcloud2(points: np.ndarray, *, stamp: Time, frame_id: str) -> PointCloud2:
+    """Build an unorganised PointCloud2 (height 1) of float32 x, y, z, little-endian.
+
+    points: (N, 3) [m] in ``frame_id``; N may be 0. ``is_dense`` is True when every coordinate is
+    finite.
+    """
+    points = np.asarray(points)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f'points must have shape (N, 3), got {points.shape}')
+    xyz = np.ascontiguousarray(points, dtype='<f4')
+    itemsize = xyz.dtype.itemsize
+    fields = [PointField(name=name, offset=i * itemsize, datatype=PointField.FLOAT32, count=1)
+              for i, name in enumerate(_XYZ_FIELDS)]
+    point_step = 3 * itemsize
+    count = xyz.shape[0]
+    return PointCloud2(
+        header=_stamped_header(stamp, frame_id), height=1, width=count, fields=fields,
+        is_bigendian=False, point_step=point_step, row_step=point_step * count,
+        data=xyz.tobytes(), is_dense=bool(np.isfinite(xyz).all()))
+
+
+def pointcloud2_to_points(msg: Any) -> np.ndarray:
+    """Read the x, y, z float32 fields of a PointCloud2 into (N, 3) float32 (any layout)."""
+    offsets = {f.name: int(f.offset) for f in msg.fields
+               if f.name in _XYZ_FIELDS and int(f.datatype) == PointField.FLOAT32}
+    missing = [name for name in _XYZ_FIELDS if name not in offsets]
+    if missing:
+        raise ValueError(f'PointCloud2 has no float32 field(s) {", ".join(missing)}')
+    order = '>' if msg.is_bigendian else '<'
+    dtype = np.dtype({'names': list(_XYZ_FIELDS), 'formats': [order + 'f4'] * 3,
+                      'offsets': [offsets[name] for name in _XYZ_FIELDS],
+                      'itemsize': int(msg.point_step)})
+    count = int(msg.width) * int(msg.height)
+    row_step, width = int(msg.row_step), int(msg.width)
+    raw = _byte_view(msg.data)
+    if count == 0:
+        return np.zeros((0, 3), dtype=np.float32)
+    rows = raw[:row_step * int(msg.height)].reshape(int(msg.height), row_step)
+    records = np.ascontiguousarray(rows[:, :width * int(msg.point_step)]).view(dtype).reshape(-1)
+    return np.stack([records[name] for name in _XYZ_FIELDS], axis=1).astype(np.float32)
+
+
+def costmap_to_occupancy_grid(costmap: Costmap, *, stamp: Time,
+                              frame_id: str) -> OccupancyGrid:
+    """Build an OccupancyGrid of the costmap, lying in the ground plane of ``frame_id``.
+
+    info: resolution [m/cell], width = nx, height = ny, origin at the costmap's ``origin_xy_m``
+    (the outer corner of cell (0, 0)), z = 0, identity orientation. data: row-major int8 cells
+    (100 occupied, 0 free, -1 unknown), the same order as ``costmap.data``.
+    """
+    data = np.ascontiguousarray(costmap.data, dtype=np.int8)
+    origin = Pose()
+    origin.position.x = float(costmap.origin_xy_m[0])
+    origin.position.y = float(costmap.origin_xy_m[1])
+    origin.orientation.w = 1.0
+    info = MapMetaData(map_load_time=stamp, resolution=float(costmap.resolution_m),
+                       width=int(data.shape[1]), height=int(data.shape[0]), origin=origin)
+    grid = OccupancyGrid(header=_stamped_header(stamp, frame_id), info=info)
+    # array.array('b') is stored as is; a numpy array or a list would be converted per element.
+    grid.data = array.array('b', data.tobytes())
+    return grid
+
+
+def result_to_messages(result: DetectionResult, *, stamp: Time, cloud_frame_id: str,
+                       costmap_frame_id: str, image_frame_id: str, with_ground: bool = False,
+                       with_overlay: bool = False) -> dict[str, Any]:
+    """All output messages of one pipeline result, stamped with the input's stamp.
+
+    Returns {'obstacles': PointCloud2, 'costmap': OccupancyGrid} plus 'ground' (PointCloud2 of
+    the traversable voxel centroids, in ``cloud_frame_id``) if ``with_ground`` and 'overlay'
+    (rgb8 Image of the filtered depth with obstacle pixels marked, in ``image_frame_id``) if
+    ``with_overlay``. The node and the offline bag tools both call this function.
+    """
+    messages: dict[str, Any] = {
+        'obstacles': points_to_pointcloud2(result.obstacle_points, stamp=stamp,
+                                           frame_id=cloud_frame_id),
+        'costmap': costmap_to_occupancy_grid(result.costmap, stamp=stamp,
+                                             frame_id=costmap_frame_id),
+    }
+    if with_ground:
+        messages['ground'] = points_to_pointcloud2(result.ground_points, stamp=stamp,
+                                                   frame_id=cloud_frame_id)
+    if with_overlay:
+        rgb = render_overlay(result.depth_m, result.labels)
+        messages['overlay'] = array_to_image(rgb, stamp=stamp, frame_id=image_frame_id,
+                                             encoding='rgb8')
+    return messages

@@ -1,0 +1,126 @@
+"""Where the camera mount comes from: the parameters, or TF when it has the transform.
+
+The mount is the camera's pose in the robot's base frame: the transform ``base_frame <-
+optical frame`` (``p_base = R p_optical + t``). Every peer (rtabmap, Nav2's layers, STVL,
+elevation mapping) takes it from TF; here TF is used when ``tf2_ros`` is importable and
+``use_tf`` is set, and the parameters are the fallback, said once (throttled) when used.
+
+No rclpy import at module level: :class:`MountSource` talks to any object with the
+``tf2_ros.Buffer`` interface (``lookup_transform(target, source, time, timeout)``), so the
+node's side is tested with a stand-in where tf2 is not installed (the Jazzy wheels have none).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from obstacle_detection.pipeline.geometry import OPTICAL_TO_BODY
+
+
+@dataclass(frozen=True)
+class Mount:
+    """The camera pose in the base frame: position [m] and roll, pitch, yaw [rad].
+
+    Angles in this package's convention: ``R = R_z(yaw) R_y(pitch) R_x(roll) OPTICAL_TO_BODY``
+    takes optical-frame vectors to the base frame; positive pitch looks down, positive yaw
+    turns the camera to the left.
+    """
+
+    x_m: float = 0.0
+    y_m: float = 0.0
+    z_m: float = 0.6
+    roll_rad: float = 0.0
+    pitch_rad: float = 0.0
+    yaw_rad: float = 0.0
+
+    def describe(self) -> str:
+        """Return one line with the pose in metres and degrees."""
+        return (f'x {self.x_m:.3f} m, y {self.y_m:.3f} m, z {self.z_m:.3f} m, roll '
+                f'{math.degrees(self.roll_rad):.2f} deg, pitch '
+                f'{math.degrees(self.pitch_rad):.2f} deg, yaw '
+                f'{math.degrees(self.yaw_rad):.2f} deg')
+
+
+def quaternion_matrix(x: float, y: float, z: float, w: float) -> np.ndarray:
+    """Rotation matrix (3, 3) of a quaternion (normalised first); ValueError if it is zero."""
+    norm = math.sqrt(x * x + y * y + z * z + w * w)
+    if not norm > 1e-9 or not math.isfinite(norm):
+        raise ValueError(f'quaternion ({x}, {y}, {z}, {w}) is not a rotation')
+    x, y, z, w = x / norm, y / norm, z / norm, w / norm
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def mount_from_rotation(rotation: np.ndarray, translation: Any) -> Mount:
+    """Return the Mount of ``p_base = rotation @ p_optical + translation``."""
+    body = np.asarray(rotation, dtype=np.float64) @ OPTICAL_TO_BODY.T  # R_z R_y R_x
+    yaw = math.atan2(body[1, 0], body[0, 0])
+    pitch = math.asin(max(-1.0, min(1.0, -body[2, 0])))
+    roll = math.atan2(body[2, 1], body[2, 2])
+    tx, ty, tz = (float(v) for v in translation)
+    return Mount(tx, ty, tz, roll, pitch, yaw)
+
+
+def mount_from_transform(transform: Any) -> Mount:
+    """Return the Mount of a ``geometry_msgs/Transform`` (or TransformStamped), base <- optical."""
+    transform = getattr(transform, 'transform', transform)
+    q, t = transform.rotation, transform.translation
+    return mount_from_rotation(quaternion_matrix(q.x, q.y, q.z, q.w), (t.x, t.y, t.z))
+
+
+class MountSource:
+    """Give each frame its mount: TF's transform when it has one, else the parameters.
+
+    buffer: a ``tf2_ros.Buffer`` (or None: parameters only). A transform found once is kept
+    when ``static`` (a camera bolted to the robot) and looked up again per frame otherwise.
+    ``mount_for`` never raises: a failed lookup returns the parameters' mount, and
+    :attr:`last_problem` says why (the node logs it, throttled).
+    """
+
+    def __init__(self, buffer: Any, base_frame: str, *, static: bool = True,
+                 timeout_s: float = 0.05) -> None:
+        self.buffer = buffer
+        self.base_frame = base_frame
+        self.static = static
+        self.timeout_s = timeout_s
+        self._cache: dict[str, Mount] = {}
+        self.last_problem: str | None = None
+        self.source = 'parameters'
+
+    def mount_for(self, frame_id: str, stamp: Any, fallback: Mount,
+                  duration: Any = None) -> Mount:
+        """Return the mount for an image of ``frame_id`` at ``stamp`` (a rclpy Time).
+
+        duration: a callable seconds -> timeout object for ``lookup_transform`` (rclpy's
+        ``Duration(seconds=...)``), None to pass seconds as they are.
+        """
+        self.last_problem = None
+        if self.buffer is None:
+            self.source = 'parameters'
+            return fallback
+        if not frame_id:
+            self.last_problem = 'the depth image has no frame_id to look up in TF'
+            self.source = 'parameters'
+            return fallback
+        if self.static and frame_id in self._cache:
+            self.source = f'TF {self.base_frame} <- {frame_id} (static, cached)'
+            return self._cache[frame_id]
+        timeout = duration(self.timeout_s) if duration is not None else self.timeout_s
+        try:
+            transform = self.buffer.lookup_transform(self.base_frame, frame_id, stamp, timeout)
+            mount = mount_from_transform(transform)
+        except Exception as error:  # noqa: BLE001 - tf2's exceptions are not importable here
+            self.last_problem = (f'no TF {self.base_frame} <- {frame_id} '
+                                 f'({type(error).__name__}: {error}); using the mount '
+                                 'parameters')
+            self.source = 'parameters (TF lookup failed)'
+            return fallback
+        self._cache[frame_id] = mount
+        self.source = f'TF {self.base_frame} <- {frame_id}'
+        return mount

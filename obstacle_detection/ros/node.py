@@ -1,0 +1,1005 @@
+"""The ROS 2 node: depth frames in, obstacle cloud and ground-plane costmap out.
+
+Run: ``ros2 run obstacle_detection detector --ros-args --params-file params/corridor.yaml``.
+
+Topics (relative names, remappable):
+
+- in  ``depth/image_raw`` (sensor_msgs/Image, 16UC1 [mm] or 32FC1 [m]) and
+  ``depth/camera_info`` (sensor_msgs/CameraInfo, intrinsics from K); sensor-data QoS (best
+  effort), reliable when ``reliable_input`` is true.
+- out (reliable): ``obstacles/points`` (PointCloud2 x, y, z float32 in ``cloud_frame_id``),
+  ``obstacles/costmap`` (OccupancyGrid in the z = 0 plane of ``costmap_frame_id``),
+  ``obstacles/ground_points`` (if ``publish_ground``), ``obstacles/overlay`` (rgb8 Image in the
+  input's frame, if ``publish_overlay``) and ``~/processing_time_ms`` (std_msgs/Float64).
+
+The default output frame ``base_footprint`` is the pipeline's ground frame: x forward, y left,
+z up, origin on the ground right under the camera (a robot whose base_footprint is elsewhere
+remaps or sets the frame ids and publishes the transform).
+
+Frames never queue behind a slow pipeline: the subscription callback only keeps the newest
+message (an older pending one is dropped and counted) and a worker thread processes it. The
+node holds no algorithm: it converts the message, calls ``Detector.process`` and publishes the
+messages of ``conversions.result_to_messages``.
+"""
+
+from __future__ import annotations
+
+import collections
+import ctypes
+import gc
+import math
+import re
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import rclpy
+import rclpy.logging
+import rclpy.utilities
+from nav_msgs.msg import OccupancyGrid, Odometry
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import (
+    DurabilityPolicy,
+    HistoryPolicy,
+    QoSProfile,
+    ReliabilityPolicy,
+    qos_profile_sensor_data,
+)
+from diagnostic_msgs.msg import DiagnosticArray
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
+from std_msgs.msg import Float64, String
+
+from obstacle_detection.pipeline import jit as jit_support
+from .compressed_depth import compressed_depth_to_array, is_compressed_image
+from .conversions import (
+    DEPTH_ENCODINGS,
+    ImageFormatError,
+    camera_info_to_intrinsics,
+    costmap_to_occupancy_grid,
+    depth_problem,
+    image_to_array,
+    intrinsics_problem,
+    result_to_messages,
+)
+from .diagnostics import Context as DiagnosticsContext
+from .diagnostics import HealthWindow, diagnostic_array, health_status
+from obstacle_detection.pipeline.fusion import (FusedGrid, FusionParams, PoseBuffer,
+                                                yaw_from_quaternion)
+from .mount_source import Mount, MountSource
+from obstacle_detection.pipeline.params import Intrinsics
+from obstacle_detection.pipeline.detector import Detector
+from obstacle_detection.pipeline.refine import LogisticRefiner, RefinedDetector
+from .parameters import (ALL_PARAMS, NODE_NAME, SPECS_BY_NAME, detector_params_from_ros,
+                         fallback_intrinsics_from_ros, params_file_problems,
+                         params_files_in_args)
+
+#: Minimum interval between two warnings about the same kind of bad input [s].
+WARN_THROTTLE_S = 5.0
+_OUTPUT_QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE,
+                         history=HistoryPolicy.KEEP_LAST, durability=DurabilityPolicy.VOLATILE)
+#: ~/status: latched (transient local), so a late subscriber still gets the last state.
+_STATUS_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         history=HistoryPolicy.KEEP_LAST,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+#: rcl_interfaces/ParameterType values (NOT_SET .. STRING_ARRAY).
+_PARAMETER_TYPES = frozenset(range(0, 10))
+#: /diagnostics: reliable, as diagnostic_updater publishes it, about once a second.
+_DIAGNOSTICS_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                              history=HistoryPolicy.KEEP_LAST,
+                              durability=DurabilityPolicy.VOLATILE)
+DIAGNOSTICS_PERIOD_S = 1.0
+#: depth_transport -> (message type, topic): image_transport's names for the depth stream.
+DEPTH_TRANSPORTS = {
+    'raw': (Image, 'depth/image_raw'),
+    'compressedDepth': (CompressedImage, 'depth/image_raw/compressedDepth'),
+    'compressed': (CompressedImage, 'depth/image_raw/compressed'),
+}
+#: Odometry: reliable, a short history (the pose buffer interpolates between messages).
+_ODOM_QOS = QoSProfile(depth=20, reliability=ReliabilityPolicy.RELIABLE,
+                       history=HistoryPolicy.KEEP_LAST, durability=DurabilityPolicy.VOLATILE)
+#: First word of every ~/status message once the node processes frames.
+STATUS_READY = 'ready'
+_RELIABLE_INPUT_QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE,
+                                 history=HistoryPolicy.KEEP_LAST,
+                                 durability=DurabilityPolicy.VOLATILE)
+
+
+class LatestSlot:
+    """A one-item mailbox: ``put`` replaces a pending item (counted as dropped)."""
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._item: Any = None
+        self._closed = False
+        self.dropped = 0
+
+    def put(self, item: Any) -> bool:
+        """Store ``item`` as the newest; True if an unprocessed older item was dropped."""
+        with self._cond:
+            dropped = self._item is not None
+            if dropped:
+                self.dropped += 1
+            self._item = item
+            self._cond.notify()
+        return dropped
+
+    def take(self, timeout: float | None = None) -> Any:
+        """Remove and return the pending item, waiting up to ``timeout`` s; None if none."""
+        with self._cond:
+            self._cond.wait_for(lambda: self._item is not None or self._closed, timeout)
+            item, self._item = self._item, None
+            return item
+
+    def close(self) -> None:
+        """Wake every waiting ``take``."""
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+
+
+class FrameStats:
+    """Thread-safe frame counters and processing times since the last ``take_period``."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self.total_processed = self.total_dropped = 0
+        self._reset(time.monotonic())
+
+    def _reset(self, now: float) -> None:
+        self._since = now
+        self.processed = self.dropped = self.skipped = self.errors = 0
+        self.sum_ms = 0.0
+
+    def add_processed(self, elapsed_ms: float) -> None:
+        """Count one published frame that took ``elapsed_ms``."""
+        with self._lock:
+            self.processed += 1
+            self.total_processed += 1
+            self.sum_ms += elapsed_ms
+
+    def add_dropped(self) -> None:
+        """Count one frame replaced by a newer one before it was processed."""
+        with self._lock:
+            self.dropped += 1
+            self.total_dropped += 1
+
+    def add_skipped(self) -> None:
+        """Count one frame skipped for bad input."""
+        with self._lock:
+            self.skipped += 1
+
+    def add_error(self) -> None:
+        """Count one frame lost to an unexpected exception."""
+        with self._lock:
+            self.errors += 1
+
+    def take_period(self) -> dict[str, float]:
+        """Return the counters since the last call, then reset them.
+
+        Keys: processed, dropped, skipped, errors, mean_ms, fps, period_s.
+        """
+        now = time.monotonic()
+        with self._lock:
+            period = max(now - self._since, 1e-9)
+            snapshot = {'processed': self.processed, 'dropped': self.dropped,
+                        'skipped': self.skipped,
+                        'errors': self.errors, 'period_s': period,
+                        'mean_ms': self.sum_ms / self.processed if self.processed else 0.0,
+                        'fps': self.processed / period}
+            self._reset(now)
+        return snapshot
+
+
+@dataclass(frozen=True)
+class NodeConfig:
+    """Everything a frame needs, validated and swapped as one reference on a parameter set."""
+
+    detector: Detector | RefinedDetector
+    cloud_frame_id: str
+    costmap_frame_id: str
+    publish_ground: bool
+    publish_overlay: bool
+    use_fallback_intrinsics: bool
+    fallback_intrinsics: Intrinsics
+    stats_period_s: float
+    camera_info_tolerance_ns: int = 20_000_000
+    fusion: FusionParams | None = None      #: None: no fused costmap
+    odom_frame: str = 'odom'
+    values: dict[str, Any] = field(default_factory=dict)   #: the ROS values it was built from
+
+    def mount(self) -> Mount:
+        """Return the mount the parameters give (the fallback when TF has none)."""
+        values = self.values
+        return Mount(x_m=float(values.get('camera_x_m', 0.0)),
+                     y_m=float(values.get('camera_y_m', 0.0)),
+                     z_m=float(values.get('camera_height_m', 0.6)),
+                     roll_rad=math.radians(float(values.get('camera_roll_deg', 0.0))),
+                     pitch_rad=math.radians(float(values.get('camera_pitch_deg', 0.0))),
+                     yaw_rad=math.radians(float(values.get('camera_yaw_deg', 0.0))))
+
+    def detector_for(self, mount: Mount) -> Detector | RefinedDetector:
+        """Return the detector with the camera mounted as ``mount`` (ValueError if not)."""
+        values = dict(self.values, camera_height_m=mount.z_m,
+                      camera_roll_deg=math.degrees(mount.roll_rad),
+                      camera_pitch_deg=math.degrees(mount.pitch_rad))
+        extra = {'camera_x_m': mount.x_m, 'camera_y_m': mount.y_m,
+                 'camera_yaw_deg': math.degrees(mount.yaw_rad)}
+        for name, value in extra.items():
+            if name in SPECS_BY_NAME:
+                values[name] = value
+            elif abs(value) > 1e-6:
+                raise ValueError(f'this pipeline has no {name}: the camera must sit above the '
+                                 f'base frame origin, facing forward ({mount.describe()})')
+        return build_detector(values)
+
+
+def build_detector(values: dict[str, Any]) -> Detector | RefinedDetector:
+    """Return the pipeline, refined when ``refiner_model_file`` names a model; ValueError if bad.
+
+    Shared by the node and the offline bag tool, so that both run the same detector.
+    """
+    detector = Detector(detector_params_from_ros(values))
+    model_file = str(values.get('refiner_model_file', '')).strip()
+    if not model_file:
+        return detector
+    try:
+        refiner = LogisticRefiner.load(model_file)
+    except OSError as error:
+        raise ValueError(f'refiner_model_file {model_file!r}: {error.strerror or error}') \
+            from error
+    return RefinedDetector(detector, refiner)
+
+
+def build_config(values: dict[str, Any]) -> NodeConfig:
+    """NodeConfig from ``{ros_name: value}`` of every parameter; ValueError naming a bad one."""
+    for name in ('cloud_frame_id', 'costmap_frame_id', 'odom_frame'):
+        if not str(values[name]).strip():
+            raise ValueError(f'{name} must not be empty')
+    transport = values.get('depth_transport', 'raw')
+    if transport not in DEPTH_TRANSPORTS:
+        raise ValueError(f'depth_transport={transport!r} must be one of '
+                         f'{", ".join(map(repr, DEPTH_TRANSPORTS))}')
+    return NodeConfig(
+        detector=build_detector(values),
+        cloud_frame_id=str(values['cloud_frame_id']),
+        costmap_frame_id=str(values['costmap_frame_id']),
+        publish_ground=bool(values['publish_ground']),
+        publish_overlay=bool(values['publish_overlay']),
+        use_fallback_intrinsics=bool(values['use_fallback_intrinsics']),
+        fallback_intrinsics=fallback_intrinsics_from_ros(values),
+        stats_period_s=float(values['stats_period_s']),
+        camera_info_tolerance_ns=round(float(values['camera_info_tolerance_s']) * 1e9),
+        fusion=(FusionParams(size_m=float(values['fused_size_m']),
+                             resolution_m=float(values['fused_resolution_m']))
+                if values.get('fuse') else None),
+        odom_frame=str(values.get('odom_frame', 'odom')),
+        values=dict(values))
+
+
+@dataclass(frozen=True)
+class _CameraState:
+    """One CameraInfo: its stamp, image size and intrinsics, or why it is unusable."""
+
+    width: int
+    height: int
+    intrinsics: Intrinsics | None
+    error: str | None
+    stamp_ns: int = 0
+
+    def same_camera(self, other: '_CameraState') -> bool:
+        """Whether two CameraInfos describe the same camera (size, intrinsics, error)."""
+        return ((self.width, self.height, self.intrinsics, self.error)
+                == (other.width, other.height, other.intrinsics, other.error))
+
+
+#: _camera_for's answer when the frame must be skipped (the reason is already logged).
+_SKIP = _CameraState(0, 0, None, 'skip')
+#: CameraInfos kept for matching depth frames by stamp (a second at 30 Hz).
+CAMERA_INFO_HISTORY = 30
+
+
+def _release_memory() -> None:
+    """Hand freed heap memory back to the operating system (glibc's malloc_trim)."""
+    gc.collect()
+    try:
+        ctypes.CDLL('libc.so.6').malloc_trim(0)
+    except (OSError, AttributeError):   # not glibc: the allocator keeps it for reuse
+        pass
+
+
+def _problem_kind(prefix: str, text: str) -> str:
+    """Return the throttling key of a problem: its text without the numbers.
+
+    Each kind of problem is throttled on its own; the same problem with other values is not
+    repeated within the throttle period.
+    """
+    return f'{prefix}:{re.sub(r"[-+]?[0-9][0-9.e+-]*", "#", text)}'
+
+
+def _depth_format(msg: Any) -> str:
+    """Describe a depth message's format for a warning."""
+    if is_compressed_image(msg):
+        return f'CompressedImage format {msg.format!r}'
+    return f'encoding {msg.encoding!r}, is_bigendian={bool(msg.is_bigendian)}'
+
+
+def _stamp_ns(stamp: Any) -> int:
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def _has_valid_depth(depth: np.ndarray) -> bool:
+    if depth.dtype.kind == 'f':
+        return bool(np.any(np.isfinite(depth) & (depth > 0.0)))
+    return bool(np.any(depth > 0))
+
+
+class DetectorNode(Node):
+    """Subscribes to a depth camera, runs the pipeline, publishes obstacles and a costmap."""
+
+    def __init__(self, *, tf_buffer: Any = None, **kwargs: Any) -> None:
+        """Declare the parameters, build the detector, subscribe.
+
+        tf_buffer: an object with ``tf2_ros.Buffer``'s ``lookup_transform`` (tests give a
+        stand-in); None creates a real one when ``use_tf`` is set and tf2_ros is importable.
+        """
+        super().__init__(NODE_NAME, **kwargs)
+        for spec in ALL_PARAMS:
+            self.declare_parameter(spec.name, spec.default, spec.descriptor())
+        self._guard_parameter_services()
+        try:
+            self._config = build_config(self._parameter_values())
+        except ValueError:
+            self.destroy_node()
+            raise
+        self.stats = FrameStats()
+        self._slot = LatestSlot()
+        self._mount_source = self._make_mount_source(tf_buffer)
+        self._mount_cache: tuple[NodeConfig, Mount, Any] | None = None
+        self._mount_said = ''
+        self._cameras: collections.deque[_CameraState] = collections.deque(
+            maxlen=CAMERA_INFO_HISTORY)
+        self._warn_loggers: dict[str, Any] = {}
+        self._stop = threading.Event()
+
+        self._status_pub = self.create_publisher(String, '~/status', _STATUS_QOS)
+        # Compiled kernels: a first compilation takes 20-40 s on a small machine, loading them
+        # from numba's cache well under a second. Either way it runs on a thread of its own;
+        # frames meanwhile take the numpy path (identical results, slower), so the node is
+        # ready as soon as it subscribes and never stalls or drops a frame while compiling.
+        self._compile_started = time.monotonic()
+        self._compile = jit_support.compile_in_background(self._config.detector.warm_up,
+                                                          on_done=self._on_compiled)
+        reliable = bool(self.get_parameter('reliable_input').value)
+        in_qos = _RELIABLE_INPUT_QOS if reliable else qos_profile_sensor_data
+        self._points_pub = self.create_publisher(PointCloud2, 'obstacles/points', _OUTPUT_QOS)
+        self._costmap_pub = self.create_publisher(OccupancyGrid, 'obstacles/costmap',
+                                                  _OUTPUT_QOS)
+        self._ground_pub = self.create_publisher(PointCloud2, 'obstacles/ground_points',
+                                                 _OUTPUT_QOS)
+        self._overlay_pub = self.create_publisher(Image, 'obstacles/overlay', _OUTPUT_QOS)
+        self._time_pub = self.create_publisher(Float64, '~/processing_time_ms', _OUTPUT_QOS)
+        self._fused_pub = self.create_publisher(OccupancyGrid, 'obstacles/fused_costmap',
+                                                _OUTPUT_QOS)
+        self._poses = PoseBuffer()
+        self._fused: FusedGrid | None = None
+        self._odom_sub = self.create_subscription(
+            Odometry, str(self.get_parameter('odom_topic').value), self._on_odometry,
+            _ODOM_QOS)
+
+        self._stats_timer = None
+        self._restart_stats_timer(self._config.stats_period_s)
+        self._health = HealthWindow()
+        self._started = time.monotonic()
+        self._last_frame_id = ''
+        self._floor_text = ''
+        self._diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics',
+                                                      _DIAGNOSTICS_QOS)
+        self._diagnostics_timer = self.create_timer(DIAGNOSTICS_PERIOD_S,
+                                                    self._publish_diagnostics)
+        self.add_on_set_parameters_callback(self._validate_parameters)
+        self.add_post_set_parameters_callback(self._apply_parameters)
+
+        self._worker = threading.Thread(target=self._work, name='obstacle_detector_worker',
+                                        daemon=True)
+        self._worker.start()
+        # Subscribe last: a publisher that sees the match finds a node able to process.
+        transport = str(self.get_parameter('depth_transport').value)
+        depth_type, depth_topic = DEPTH_TRANSPORTS[transport]
+        self._depth_sub = self.create_subscription(depth_type, depth_topic, self._on_depth,
+                                                   in_qos)
+        self._info_sub = self.create_subscription(CameraInfo, 'depth/camera_info',
+                                                  self._on_camera_info, in_qos)
+        self.get_logger().info(
+            f'ready: {self._depth_sub.topic_name} + {self._info_sub.topic_name} '
+            f'({"reliable" if reliable else "sensor-data"} QoS) -> '
+            f'{self._points_pub.topic_name}, {self._costmap_pub.topic_name}; '
+            f'frames {self._config.cloud_frame_id!r}/{self._config.costmap_frame_id!r}; '
+            f'{self.compute_path()}')
+        self._publish_status()
+
+    # -- parameter services: no request may kill the node ------------------------------------
+    def _guard_parameter_services(self) -> None:
+        """Check parameter requests before rclpy's service callbacks see them.
+
+        rclpy's ``Parameter.from_parameter_msg`` raises on a ``ParameterValue.type`` it does
+        not know (10, 200...) inside the service callback; the exception leaves ``spin`` and
+        the node dies. Such requests, and names the node did not declare (the empty name
+        included), are answered with a refusal and its reason instead; every other parameter
+        service keeps rclpy's behaviour behind a catch-all.
+        """
+        for service in self.services:
+            name = service.srv_name.rsplit('/', 1)[-1]
+            if name == 'set_parameters':
+                service.callback = self._set_parameters_service
+            elif name == 'set_parameters_atomically':
+                service.callback = self._set_parameters_atomically_service
+            elif name in ('get_parameters', 'get_parameter_types', 'describe_parameters',
+                          'list_parameters'):
+                service.callback = self._guarded(service.callback, name)
+
+    def _guarded(self, callback: Any, name: str) -> Any:
+        def call(request: Any, response: Any) -> Any:
+            try:
+                return callback(request, response)
+            except Exception as error:  # noqa: BLE001 - a request must never end the node
+                self._warn_request(name, f'{type(error).__name__}: {error}')
+                return type(response)()
+        return call
+
+    def _warn_request(self, service: str, text: str) -> None:
+        self._throttled_logger(f'service:{service}').warning(
+            f'refused a malformed {service} request: {text}',
+            throttle_duration_sec=WARN_THROTTLE_S)
+
+    def _parameter_msg_problem(self, msg: Any) -> str | None:
+        """Return why a ``rcl_interfaces/Parameter`` cannot be applied, or None."""
+        if not msg.name or not self.has_parameter(msg.name):
+            return (f'parameter {msg.name!r} is not declared by this node '
+                    '(detector --help lists the parameters)')
+        if msg.value.type not in _PARAMETER_TYPES:
+            return (f'parameter {msg.name!r}: ParameterValue.type {msg.value.type} is not a '
+                    f'parameter type (valid: {min(_PARAMETER_TYPES)}..{max(_PARAMETER_TYPES)})')
+        return None
+
+    def _set_one(self, msg: Any) -> SetParametersResult:
+        problem = self._parameter_msg_problem(msg)
+        if problem is None:
+            try:
+                return self.set_parameters_atomically([Parameter.from_parameter_msg(msg)])
+            except Exception as error:  # noqa: BLE001 - refused, with rclpy's reason
+                problem = f'parameter {msg.name!r}: {type(error).__name__}: {error}'
+        self._warn_request('set_parameters', problem)
+        return SetParametersResult(successful=False, reason=problem)
+
+    def _set_parameters_service(self, request: Any, response: Any) -> Any:
+        response.results = [self._set_one(msg) for msg in request.parameters]
+        return response
+
+    def _set_parameters_atomically_service(self, request: Any, response: Any) -> Any:
+        problems = [p for p in map(self._parameter_msg_problem, request.parameters) if p]
+        if not problems:
+            try:
+                response.result = self.set_parameters_atomically(
+                    [Parameter.from_parameter_msg(msg) for msg in request.parameters])
+                return response
+            except Exception as error:  # noqa: BLE001 - refused, with rclpy's reason
+                problems = [f'{type(error).__name__}: {error}']
+        reason = '; '.join(problems)
+        self._warn_request('set_parameters_atomically', reason)
+        response.result = SetParametersResult(successful=False, reason=reason)
+        return response
+
+    # -- start-up: compiled kernels -----------------------------------------------------------
+    def compute_path(self) -> str:
+        """Say which code processes the frames now (numba kernels or numpy) and why."""
+        if not jit_support.AVAILABLE:
+            return 'numpy path (numba is not installed; see README, Dependencies)'
+        if jit_support.switched_off():
+            return f'numpy path ({jit_support.NO_JIT_ENV} is set)'
+        job = self._compile
+        if job is not None and job.error is not None:
+            return (f'numpy path (compiling the numba kernels failed: '
+                    f'{type(job.error).__name__}: {job.error})')
+        if jit_support.compiling():
+            return ('numpy path while the numba kernels compile or load in the background '
+                    '(a first compilation takes about 20-40 s; same results, slower)')
+        return 'compiled numba kernels'
+
+    def _on_compiled(self, job: jit_support.BackgroundCompile) -> None:
+        # Runs on the compile thread; the node may already be shutting down.
+        try:
+            if job.error is not None:
+                self.get_logger().error(f'now on the {self.compute_path()}')
+            else:
+                self.get_logger().info(
+                    f'numba kernels compiled or loaded from the cache in {job.seconds:.1f} s; '
+                    'frames now take the compiled path')
+            self._publish_status()
+        except Exception:  # noqa: BLE001 - a node destroyed meanwhile has no logger or publisher
+            pass
+
+    def _publish_status(self) -> None:
+        """Publish the latched ~/status line: 'ready: <which code processes the frames>'."""
+        if self.context.ok():
+            self._status_pub.publish(String(data=f'{STATUS_READY}: {self.compute_path()}'))
+
+    # -- the camera mount: parameters or TF ------------------------------------------------------
+    def _make_mount_source(self, tf_buffer: Any) -> MountSource:
+        target = str(self.get_parameter('cloud_frame_id').value)
+        if not bool(self.get_parameter('use_tf').value):
+            self.get_logger().info(
+                f'camera mount from the parameters ({self._config.mount().describe()})')
+            return MountSource(None, target)
+        timeout = float(self.get_parameter('tf_timeout_s').value)
+        static = bool(self.get_parameter('tf_static_mount').value)
+        if tf_buffer is None:
+            try:
+                import tf2_ros
+            except ImportError:
+                self.get_logger().warning(
+                    'use_tf is set but tf2_ros is not importable (no ROS 2 installation?): the '
+                    f'camera mount comes from the parameters ({self._config.mount().describe()})')
+                return MountSource(None, target)
+            tf_buffer = tf2_ros.Buffer()
+            self._tf_listener = tf2_ros.TransformListener(tf_buffer, self)
+        self.get_logger().info(f'camera mount from TF: {target} <- the depth image frame_id'
+                               f'{" (static: looked up once)" if static else ""}; until '
+                               'then from the parameters')
+        return MountSource(tf_buffer, target, static=static, timeout_s=timeout)
+
+    def _detector_for(self, msg: Any, config: NodeConfig) -> Any:
+        """Return the frame's detector: the configured one, or one mounted where TF says."""
+        source = self._mount_source
+        if source.buffer is None:
+            return config.detector
+        from rclpy.duration import Duration
+        from rclpy.time import Time as RclpyTime
+
+        fallback = config.mount()
+        mount = source.mount_for(msg.header.frame_id, RclpyTime.from_msg(msg.header.stamp),
+                                 fallback, duration=lambda s: Duration(seconds=s))
+        if source.last_problem is not None:
+            self._throttled_logger('mount').warning(source.last_problem,
+                                                    throttle_duration_sec=WARN_THROTTLE_S)
+        said = f'{source.source}: {mount.describe()}'
+        if said != self._mount_said and source.last_problem is None:
+            self.get_logger().info(f'camera mount from {said}')
+        self._mount_said = said
+        if mount == fallback:
+            return config.detector
+        cache = self._mount_cache
+        if cache is not None and cache[0] is config and cache[1] == mount:
+            return cache[2]
+        try:
+            detector = config.detector_for(mount)
+        except ValueError as error:
+            self._warn_skip('mount', f'the mount from TF cannot be used: {error}')
+            return None
+        self._mount_cache = (config, mount, detector)
+        return detector
+
+    # -- diagnostics ---------------------------------------------------------------------------
+    def _camera_info_text(self) -> tuple[str, bool]:
+        """Describe the intrinsics source for /diagnostics; True when frames can use it."""
+        config = self._config
+        cameras = list(self._cameras)
+        if cameras:
+            camera = cameras[-1]
+            if camera.intrinsics is None:
+                return f'CameraInfo on {self._info_sub.topic_name} unusable: {camera.error}', \
+                    config.use_fallback_intrinsics
+            intr = camera.intrinsics
+            return (f'CameraInfo on {self._info_sub.topic_name}: {camera.width}x{camera.height}'
+                    f', fx={intr.fx:g} fy={intr.fy:g} cx={intr.cx:g} cy={intr.cy:g}'), True
+        if config.use_fallback_intrinsics:
+            intr = config.fallback_intrinsics
+            return (f'fallback parameters (no CameraInfo yet): fx={intr.fx:g} fy={intr.fy:g} '
+                    f'cx={intr.cx:g} cy={intr.cy:g}'), True
+        return f'none: no CameraInfo received on {self._info_sub.topic_name}', False
+
+    def _mount_text(self) -> str:
+        return self._mount_said or f'parameters: {self._config.mount().describe()}'
+
+
+    def _publish_diagnostics(self) -> None:
+        camera_info, usable = self._camera_info_text()
+        path = self.compute_path()
+        context = DiagnosticsContext(
+            uptime_s=time.monotonic() - self._started, depth_topic=self._depth_sub.topic_name,
+            camera_info=camera_info, camera_info_usable=usable, code_path=path,
+            compiled=path == 'compiled numba kernels', mount=self._mount_text(),
+            floor_correction=self._floor_text)
+        status = health_status(self._health.take(), context, hardware_id=self._last_frame_id)
+        if self.context.ok():
+            self._diagnostics_pub.publish(
+                diagnostic_array(status, self.get_clock().now().to_msg()))
+
+    # -- parameters -------------------------------------------------------------------------
+    def _parameter_values(self, changes: list[Parameter] | None = None) -> dict[str, Any]:
+        values = {spec.name: self.get_parameter(spec.name).value for spec in ALL_PARAMS}
+        for parameter in changes or ():
+            values[parameter.name] = parameter.value
+        return values
+
+    @property
+    def config(self) -> NodeConfig:
+        """The configuration the next frame will use."""
+        return self._config
+
+    def _validate_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
+        # No side effect here: another callback may still refuse the set.
+        try:
+            build_config(self._parameter_values(parameters))
+        except ValueError as error:
+            return SetParametersResult(successful=False, reason=str(error))
+        return SetParametersResult(successful=True)
+
+    def _apply_parameters(self, parameters: list[Parameter]) -> None:
+        old_period = self._config.stats_period_s
+        config = build_config(self._parameter_values())  # validated just before
+        # A new median K compiles its kernel (seconds for a K never used before) on a thread
+        # of its own, not in this callback nor in a frame: frames take the numpy path
+        # meanwhile. Nothing starts while a compilation already runs, or without numba.
+        if not jit_support.compiling():
+            job = jit_support.compile_in_background(config.detector.warm_up,
+                                                    on_done=self._on_compiled)
+            if job is not None:
+                self._compile = job
+                self._publish_status()
+        self._config = config
+        _release_memory()   # a large grid or cloud of the old configuration goes back to the OS
+        if self._config.stats_period_s != old_period:
+            self._restart_stats_timer(self._config.stats_period_s)
+        changed = ', '.join(f'{p.name}={p.value!r}' for p in parameters)
+        self.get_logger().info(f'parameters updated, next frame uses: {changed}')
+
+    def _restart_stats_timer(self, period_s: float) -> None:
+        if self._stats_timer is not None:
+            self.destroy_timer(self._stats_timer)
+            self._stats_timer = None
+        if period_s > 0.0:
+            self.stats.take_period()
+            self._stats_timer = self.create_timer(period_s, self._log_stats)
+
+    # -- callbacks (executor thread): store only --------------------------------------------
+    def _on_depth(self, msg: Image) -> None:
+        self._health.received()
+        if self._slot.put(msg):
+            self.stats.add_dropped()
+            self._health.dropped()
+
+    def _on_camera_info(self, msg: CameraInfo) -> None:
+        width, height = int(msg.width), int(msg.height)
+        try:
+            intrinsics, error = camera_info_to_intrinsics(msg), None
+            error = intrinsics_problem(intrinsics, width, height)
+        except ValueError as exc:
+            intrinsics, error = None, str(exc)
+        self._cameras.append(_CameraState(width, height, intrinsics if error is None else None,
+                                          error, _stamp_ns(msg.header.stamp)))
+
+    def _on_odometry(self, msg: Odometry) -> None:
+        pose = msg.pose.pose
+        q = pose.orientation
+        problem = self._poses.add(_stamp_ns(msg.header.stamp) * 1e-9, (
+            pose.position.x, pose.position.y, yaw_from_quaternion(q.x, q.y, q.z, q.w)))
+        if problem:
+            self._throttled_logger('odometry').warning(
+                f'odometry on {self._odom_sub.topic_name} refused: {problem}',
+                throttle_duration_sec=WARN_THROTTLE_S)
+
+    def _fuse(self, result: Any, msg: Any, config: NodeConfig) -> OccupancyGrid | None:
+        """Fuse the frame's costmap; return the fused OccupancyGrid to publish (or None)."""
+        if config.fusion is None:
+            self._fused = None
+            return None
+        if self._fused is None or self._fused.params != config.fusion:
+            self._fused = FusedGrid(config.fusion)
+        stamp_s = _stamp_ns(msg.header.stamp) * 1e-9
+        pose, why = self._poses.pose_at(stamp_s)
+        if pose is None and len(self._poses) == 0 and self._mount_source.buffer is not None:
+            pose, why = self._odom_pose_from_tf(msg, config)
+        if pose is None and not why:
+            why = f'no odometry on {self._odom_sub.topic_name}'
+        update = self._fused.update(result.costmap, pose, pose_stamp_s=stamp_s,
+                                    no_pose_reason=why)
+        if update.message:
+            log = self.get_logger()
+            (log.warning if update.warning else log.info)(f'fused costmap: {update.message}')
+        return costmap_to_occupancy_grid(self._fused.to_costmap(), stamp=msg.header.stamp,
+                                         frame_id=config.odom_frame)
+
+    def _odom_pose_from_tf(self, msg: Any, config: NodeConfig) -> tuple[Any, str]:
+        """Return the base pose in odom from TF (odom_frame <- cloud_frame_id), and why not."""
+        from rclpy.duration import Duration
+        from rclpy.time import Time as RclpyTime
+
+        source = self._mount_source
+        try:
+            transform = source.buffer.lookup_transform(
+                config.odom_frame, config.cloud_frame_id, RclpyTime.from_msg(msg.header.stamp),
+                Duration(seconds=source.timeout_s))
+            t, q = transform.transform.translation, transform.transform.rotation
+            return (float(t.x), float(t.y), yaw_from_quaternion(q.x, q.y, q.z, q.w)), ''
+        except Exception as error:  # noqa: BLE001 - tf2's exceptions are not importable here
+            return None, (f'no odometry on {self._odom_sub.topic_name} and no TF '
+                          f'{config.odom_frame} <- {config.cloud_frame_id} '
+                          f'({type(error).__name__})')
+
+    def _log_stats(self) -> None:
+        period = self.stats.take_period()
+        self.get_logger().info(
+            f'{period["processed"]} frames processed in {period["period_s"]:.1f} s '
+            f'({period["fps"]:.1f} fps), mean {period["mean_ms"]:.1f} ms/frame; '
+            f'{period["dropped"]} dropped (a newer frame came first), '
+            f'{period["skipped"]} skipped (bad input), {period["errors"]} errors'
+            + (f'; last {self._floor_text}' if self._floor_text else ''))
+
+    # -- worker thread ------------------------------------------------------------------------
+    def _work(self) -> None:
+        while not self._stop.is_set():
+            msg = self._slot.take(timeout=0.5)
+            if msg is not None and not self._stop.is_set():
+                self.handle_frame(msg)
+
+    def _throttled_logger(self, kind: str) -> Any:
+        """Return the logger of one kind of problem, throttled on its own."""
+        # rclpy throttles per logger object and call site: one logger per kind keeps an unknown
+        # encoding from hiding a size mismatch.
+        logger = self._warn_loggers.get(kind)
+        if logger is None:
+            logger = self._warn_loggers[kind] = rclpy.logging.get_logger(
+                self.get_logger().name)
+        return logger
+
+    def _warn_skip(self, kind: str, text: str) -> None:
+        """Warn about a skipped frame; each kind of problem is throttled on its own."""
+        self.stats.add_skipped()
+        self._health.skipped(kind.split(':', 1)[0])
+        self._throttled_logger(kind).warning(f'skipping depth frame: {text}',
+                                             throttle_duration_sec=WARN_THROTTLE_S)
+
+    def _camera_for(self, msg: Image, config: NodeConfig) -> _CameraState | None:
+        """Return the CameraInfo of a frame: the nearest stamp within the tolerance, or below.
+
+        When no CameraInfo is that close, the newest one serves if every recent CameraInfo
+        describes the same camera (a camera that publishes one, latched, or whose info stamps
+        differ from its image stamps); otherwise the frame is skipped: its intrinsics are not
+        known.
+        """
+        cameras = list(self._cameras)
+        if not cameras:
+            return None
+        stamp = _stamp_ns(msg.header.stamp)
+        nearest = min(cameras, key=lambda c: abs(c.stamp_ns - stamp))
+        if abs(nearest.stamp_ns - stamp) <= config.camera_info_tolerance_ns:
+            return nearest
+        if all(c.same_camera(cameras[-1]) for c in cameras):
+            return cameras[-1]
+        self._warn_skip('camera_info_stamp', (
+            f'no CameraInfo within camera_info_tolerance_s '
+            f'({config.camera_info_tolerance_ns * 1e-9:g} s) of the frame stamp (nearest '
+            f'{abs(nearest.stamp_ns - stamp) * 1e-9:.3f} s away) while the recent CameraInfos '
+            'disagree'))
+        return _SKIP
+
+    def _frame_intrinsics(self, msg: Any, shape: tuple[int, ...],
+                          config: NodeConfig) -> Intrinsics | None:
+        camera = self._camera_for(msg, config)
+        if camera is _SKIP:
+            return None
+        if camera is None:
+            if config.use_fallback_intrinsics:
+                self._throttled_logger('fallback').info(
+                    'no CameraInfo yet: using the fallback intrinsics fx='
+                    f'{config.fallback_intrinsics.fx:g} fy={config.fallback_intrinsics.fy:g} '
+                    f'cx={config.fallback_intrinsics.cx:g} cy={config.fallback_intrinsics.cy:g}',
+                    throttle_duration_sec=WARN_THROTTLE_S)
+                return config.fallback_intrinsics
+            self._warn_skip('no_camera_info', 'no CameraInfo received yet on '
+                            f'{self._info_sub.topic_name} (set use_fallback_intrinsics to use '
+                            'fallback_fx/fy/cx/cy)')
+            return None
+        if camera.intrinsics is None:
+            self._warn_skip(_problem_kind('camera_info', str(camera.error)), str(camera.error))
+            return None
+        height, width = shape[:2]
+        if (camera.width, camera.height) != (width, height):
+            self._warn_skip('size', f'image is {width}x{height} but CameraInfo is '
+                            f'{camera.width}x{camera.height}')
+            return None
+        return camera.intrinsics
+
+    def handle_frame(self, msg: Image) -> bool:
+        """Process one depth Image and publish its outputs; False if the frame was skipped.
+
+        Never raises: bad input is warned about (throttled), an unexpected exception is logged
+        as an error (throttled), and the next frame is processed as usual.
+        """
+        start = time.perf_counter()
+        config = self._config
+        compressed = is_compressed_image(msg)
+        if not compressed and msg.encoding not in DEPTH_ENCODINGS:
+            self._warn_skip('encoding', f'unsupported encoding {msg.encoding!r} (expected '
+                            f'{", ".join(DEPTH_ENCODINGS)})')
+            return False
+        try:
+            depth = compressed_depth_to_array(msg) if compressed else image_to_array(msg)
+        except ImageFormatError as error:
+            self._warn_skip('compressed' if compressed else 'layout', str(error))
+            return False
+        intrinsics = self._frame_intrinsics(msg, depth.shape, config)
+        if intrinsics is None:
+            return False
+        if not _has_valid_depth(depth):
+            self._warn_skip('no_depth', 'no valid depth pixel (every pixel is 0, NaN or inf)')
+            return False
+        problem = depth_problem(depth)
+        if problem is not None:
+            self._warn_skip(_problem_kind('depth', problem),
+                            f'{problem} ({_depth_format(msg)})')
+            return False
+        detector = self._detector_for(msg, config)
+        if detector is None:
+            return False
+        try:
+            result = detector.process(depth, intrinsics)
+            messages = result_to_messages(
+                result, stamp=msg.header.stamp, cloud_frame_id=config.cloud_frame_id,
+                costmap_frame_id=config.costmap_frame_id, image_frame_id=msg.header.frame_id,
+                with_ground=config.publish_ground, with_overlay=config.publish_overlay)
+            fused = self._fuse(result, msg, config)
+        except ValueError as error:
+            self._warn_skip('pipeline', str(error))
+            return False
+        except Exception as error:  # noqa: BLE001 - the node must survive any frame
+            self.stats.add_error()
+            self._health.error()
+            self.get_logger().error(f'pipeline failed on a frame, skipping it: '
+                                    f'{type(error).__name__}: {error}',
+                                    throttle_duration_sec=WARN_THROTTLE_S)
+            return False
+        try:
+            self._points_pub.publish(messages['obstacles'])
+            self._costmap_pub.publish(messages['costmap'])
+            if 'ground' in messages:
+                self._ground_pub.publish(messages['ground'])
+            if 'overlay' in messages:
+                self._overlay_pub.publish(messages['overlay'])
+            if fused is not None:
+                self._fused_pub.publish(fused)
+            elapsed_ms = (time.perf_counter() - start) * 1e3
+            self._time_pub.publish(Float64(data=elapsed_ms))
+        except Exception as error:  # noqa: BLE001 - e.g. the context shut down meanwhile
+            if self.context.ok():
+                self.get_logger().error(f'publishing failed: {type(error).__name__}: {error}',
+                                        throttle_duration_sec=WARN_THROTTLE_S)
+            return False
+        self.stats.add_processed(elapsed_ms)
+        self._health.processed(elapsed_ms)
+        self._last_frame_id = msg.header.frame_id
+        floor = getattr(result, 'floor', None)
+        self._floor_text = floor.summary() if floor is not None else ''
+        stages = ', '.join(f'{k} {v:.1f}' for k, v in result.timings_ms.items()
+                           if k != 'total')
+        self.get_logger().debug(
+            f'frame {msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d}: '
+            f'{result.obstacle_points.shape[0]} obstacle points, {elapsed_ms:.1f} ms '
+            f'(pipeline {result.timings_ms.get("total", 0.0):.1f} ms: {stages})')
+        return True
+
+    def close(self) -> None:
+        """Stop the worker thread (call before ``destroy_node``)."""
+        self._stop.set()
+        self._slot.close()
+        if self._worker.is_alive() and self._worker is not threading.current_thread():
+            self._worker.join(timeout=10.0)
+
+
+def spin_forever(node: DetectorNode) -> None:
+    """Spin until shutdown; an exception escaping a callback is logged, never fatal."""
+    executor = SingleThreadedExecutor(context=node.context)
+    executor.add_node(node)
+    logger = rclpy.logging.get_logger(f'{node.get_logger().name}.executor')
+    try:
+        while node.context.ok():
+            try:
+                executor.spin_once(timeout_sec=0.5)
+            except (KeyboardInterrupt, ExternalShutdownException):
+                raise
+            except Exception as error:  # noqa: BLE001 - the node must outlive any callback
+                logger.error(f'a callback raised {type(error).__name__}: {error}; '
+                             'the node goes on', throttle_duration_sec=WARN_THROTTLE_S)
+    finally:
+        executor.shutdown(timeout_sec=1.0)
+
+
+def help_text() -> str:
+    """Return ``detector --help``: usage, topics and every parameter with its range."""
+    lines = [
+        'usage: detector [-h] [--ros-args --params-file FILE [-p NAME:=VALUE] [-r FROM:=TO] ...]',
+        '',
+        'ROS 2 node "obstacle_detector": depth image -> obstacle cloud and ground-plane costmap.',
+        '',
+        'topics (relative names; remap with -r):',
+        '  in   depth/image_raw          sensor_msgs/Image, 16UC1/mono16 [mm] or 32FC1 [m]',
+        '  in   depth/camera_info        sensor_msgs/CameraInfo (intrinsics from K)',
+        '  out  obstacles/points         sensor_msgs/PointCloud2 of obstacle points',
+        '  out  obstacles/costmap        nav_msgs/OccupancyGrid: 100 occupied, 0 free, -1 unknown',
+        '  out  obstacles/ground_points  sensor_msgs/PointCloud2, if publish_ground',
+        '  out  obstacles/overlay        sensor_msgs/Image rgb8, if publish_overlay',
+        '  out  ~/processing_time_ms     std_msgs/Float64 per frame',
+        '  out  ~/status                 std_msgs/String, latched: "ready: <which code runs>"',
+        '',
+        f'parameters (section "{NODE_NAME}:" or "/**:" of a --params-file; name  type  default'
+        '  range):',
+    ]
+    for spec in ALL_PARAMS:
+        default = repr(spec.default) if isinstance(spec.default, str) else str(spec.default)
+        head = f'  {spec.name}  {spec.type_name}  {default}'
+        if spec.range_text:
+            head += f'  {spec.range_text}'
+        if spec.read_only:
+            head += '  read-only'
+        lines += [head, f'      {spec.description}']
+    lines += ['', 'example: detector --ros-args --params-file params/corridor.yaml '
+              '-r depth/image_raw:=/kinect2/sd/image_depth_rect '
+              '-r depth/camera_info:=/kinect2/sd/camera_info']
+    return '\n'.join(lines)
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point of ``ros2 run obstacle_detection detector``; returns the exit code."""
+    argv = list(sys.argv if args is None else args)
+    files = params_files_in_args(argv)
+    for path in files:   # rcl would end in a raw RCLError traceback
+        problems = [p for p in params_file_problems(path)
+                    if 'cannot read' in p or 'not valid YAML' in p]
+        if problems or not Path(path).is_file():
+            print(f'detector: error: {problems[0] if problems else f"{path}: not a file"}',
+                  file=sys.stderr)
+            return 1
+    try:
+        own = rclpy.utilities.remove_ros_args(argv)[1:]
+        if '-h' in own or '--help' in own:
+            print(help_text())
+            return 0
+        if own:
+            print(f'detector: error: unrecognized arguments: {" ".join(own)} (node options go '
+                  'after --ros-args; see detector --help)', file=sys.stderr)
+            return 2
+        rclpy.init(args=argv)
+    except Exception as error:  # noqa: BLE001 - rcl's own wording of a bad --ros-args
+        print(f'detector: error: {type(error).__name__}: {error}', file=sys.stderr)
+        return 2
+    node = None
+    try:
+        try:
+            node = DetectorNode()
+        except (ValueError, ParameterException) as error:
+            rclpy.logging.get_logger(NODE_NAME).fatal(f'invalid parameters: {error}')
+            return 1
+        for path in files:
+            for problem in params_file_problems(path, node.get_fully_qualified_name()):
+                node.get_logger().warning(problem)
+        spin_forever(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass   # Ctrl-C at any point of the start-up or the run: a clean stop
+    finally:
+        if node is not None:
+            node.close()
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,451 @@
+"""The node's ROS parameters: names, defaults, descriptors, and the map to DetectorParams.
+
+Every DetectorParams field becomes one ROS parameter of the same name, except the three angles,
+which a person writes in degrees (DESIGN.md): ``max_slope_rad`` -> ``max_slope_deg``,
+``camera_pitch_rad`` -> ``camera_pitch_deg``, ``camera_roll_rad`` -> ``camera_roll_deg``,
+``floor_max_tilt_rad`` -> ``floor_max_tilt_deg``.
+Descriptions and ranges come from the dataclass's field metadata. The node's own parameters
+(frames, output switches, QoS, intrinsics fallback, statistics) follow.
+
+This module builds ``rcl_interfaces`` messages but never imports rclpy, so tools (the parameter
+table) and tests use it without a ROS graph.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
+
+from obstacle_detection.pipeline.params import SEED_TABLE_4_1, DetectorParams, Intrinsics
+
+ParamValue = bool | int | float | str
+
+#: The node's name: the section of a ``--params-file`` it reads.
+NODE_NAME = 'obstacle_detector'
+
+#: DetectorParams fields exposed in degrees -> their ROS parameter name.
+DEGREE_FIELDS = {
+    'max_slope_rad': 'max_slope_deg',
+    'camera_pitch_rad': 'camera_pitch_deg',
+    'camera_roll_rad': 'camera_roll_deg',
+    'floor_max_tilt_rad': 'floor_max_tilt_deg',
+    'camera_yaw_rad': 'camera_yaw_deg',
+}
+
+_ROS_TYPES = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEGER,
+              float: ParameterType.PARAMETER_DOUBLE, str: ParameterType.PARAMETER_STRING}
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One ROS parameter of the node.
+
+    ``field`` names the DetectorParams field it sets (None for a node-only parameter);
+    ``degrees`` means the ROS value is in degrees and the field in radians. ``low``/``high`` is
+    the inclusive range given to ROS; ``open_low``/``open_high`` mark a bound that the dataclass
+    itself refuses (with its own message).
+    """
+
+    name: str
+    default: ParamValue
+    description: str
+    low: float | int | None = None
+    high: float | int | None = None
+    read_only: bool = False
+    field: str | None = None
+    degrees: bool = False
+    open_low: bool = False
+    open_high: bool = False
+
+    @property
+    def range_text(self) -> str:
+        """The allowed range as an interval, e.g. ``(0, 90)`` or ``[1, 31]``; '' if none."""
+        if self.low is None or self.high is None:
+            return ''
+        return (f'{"(" if self.open_low else "["}{self.low:g}, '
+                f'{self.high:g}{")" if self.open_high else "]"}')
+
+    @property
+    def type_name(self) -> str:
+        """'bool', 'int', 'float' or 'str'."""
+        return type(self.default).__name__
+
+    def to_field(self, value: ParamValue) -> ParamValue:
+        """Convert a ROS value to the DetectorParams field value (degrees -> radians)."""
+        return math.radians(value) if self.degrees else value
+
+    def descriptor(self) -> ParameterDescriptor:
+        """Build the rcl_interfaces ParameterDescriptor: type, description, range, read-only."""
+        desc = ParameterDescriptor(name=self.name, type=_ROS_TYPES[type(self.default)],
+                                   description=self.description, read_only=self.read_only)
+        if self.low is not None and self.high is not None:
+            if isinstance(self.default, float):
+                desc.floating_point_range = [FloatingPointRange(
+                    from_value=float(self.low), to_value=float(self.high), step=0.0)]
+            elif isinstance(self.default, int) and not isinstance(self.default, bool):
+                # Step 1 even for the odd-only median kernel: an even K reaches the on-set
+                # callback, which refuses it with the dataclass's own message.
+                desc.integer_range = [IntegerRange(
+                    from_value=int(self.low), to_value=int(self.high), step=1)]
+        return desc
+
+
+def _degrees(value: float) -> float:
+    # math.degrees(pi / 6) is 29.999999999999996; a person wrote 30.
+    return round(math.degrees(value), 9)
+
+
+def _pipeline_specs() -> list[ParamSpec]:
+    defaults = DetectorParams()
+    specs = []
+    for f in dataclasses.fields(DetectorParams):
+        meta = f.metadata
+        default = getattr(defaults, f.name)
+        low, high = meta.get('min'), meta.get('max')
+        if f.name in DEGREE_FIELDS:
+            description = meta['description'].replace('[rad]', '[deg]')
+            if not description.endswith('[deg]'):
+                description += ' [deg]'
+            specs.append(ParamSpec(
+                name=DEGREE_FIELDS[f.name], default=_degrees(default), description=description,
+                low=_degrees(low), high=_degrees(high), field=f.name, degrees=True,
+                open_low=bool(meta.get('open_min')), open_high=bool(meta.get('open_max'))))
+            continue
+        if isinstance(default, float):
+            low, high = float(low), float(high)
+        specs.append(ParamSpec(name=f.name, default=default, description=meta['description'],
+                               low=low, high=high, field=f.name,
+                               open_low=bool(meta.get('open_min')),
+                               open_high=bool(meta.get('open_max'))))
+    return specs
+
+
+#: DetectorParams fields as ROS parameters (dataclass field order).
+PIPELINE_PARAMS: tuple[ParamSpec, ...] = tuple(_pipeline_specs())
+
+#: The node's own parameters.
+NODE_PARAMS: tuple[ParamSpec, ...] = (
+    ParamSpec('cloud_frame_id', 'base_footprint',
+              'Frame of obstacles/points and obstacles/ground_points: the ground frame (x '
+              'forward, y left, z up, origin on the ground under the camera)'),
+    ParamSpec('costmap_frame_id', 'base_footprint',
+              'Frame of obstacles/costmap, whose grid lies in its z = 0 plane: the ground frame'),
+    ParamSpec('publish_ground', False,
+              'Also publish the traversable voxels on obstacles/ground_points (lets a costmap '
+              'clear cells)'),
+    ParamSpec('publish_overlay', False,
+              'Also publish obstacles/overlay: rgb8 depth frame with obstacle pixels in red'),
+    ParamSpec('reliable_input', False,
+              'Subscribe to depth and camera_info with reliable QoS instead of sensor-data '
+              '(best effort); read at start-up', read_only=True),
+    ParamSpec('use_fallback_intrinsics', False,
+              'Use fallback_fx/fy/cx/cy while no CameraInfo has arrived (else frames are '
+              'skipped until one arrives)'),
+    ParamSpec('fuse', False,
+              'Also publish obstacles/fused_costmap: the per-frame costmaps fused over time '
+              '(log-odds) in a rolling window centred on the robot in odom_frame, moved by the '
+              'odometry on odom_topic, or by TF odom_frame <- cloud_frame_id when use_tf and '
+              'no odometry comes (neither: fused in place, said once)'),
+    ParamSpec('odom_topic', 'odom',
+              'nav_msgs/Odometry of the robot base in odom_frame, for the fused costmap'),
+    ParamSpec('odom_frame', 'odom', 'Frame of obstacles/fused_costmap (the odometry frame)'),
+    ParamSpec('fused_size_m', 4.0,
+              'Side of the fused costmap window, centred on the robot [m]', 0.5, 100.0),
+    ParamSpec('fused_resolution_m', 0.05, 'Cell size of the fused costmap [m/cell]', 0.01,
+              1.0),
+    ParamSpec('use_tf', False,
+              'Take the camera mount from TF: the transform cloud_frame_id <- the depth '
+              "image's frame_id, at the image stamp; the mount parameters are the fallback "
+              '(said in a throttled warning). Needs tf2_ros (a ROS 2 installation); read at '
+              'start-up', read_only=True),
+    ParamSpec('tf_timeout_s', 0.05,
+              'Longest wait for a TF lookup before a frame falls back to the mount parameters '
+              '[s]', 0.0, 1.0),
+    ParamSpec('tf_static_mount', True,
+              'The camera is bolted to the robot: look its transform up once and keep it '
+              '(false: look it up for every frame, e.g. a pan-tilt head)'),
+    ParamSpec('depth_transport', 'raw',
+              "Depth input: 'raw' (sensor_msgs/Image on depth/image_raw), 'compressedDepth' "
+              "(CompressedImage on depth/image_raw/compressedDepth, image_transport's PNG "
+              "codec) or 'compressed' (depth/image_raw/compressed, e.g. iai_kinect2's); read "
+              'at start-up', read_only=True),
+    ParamSpec('camera_info_tolerance_s', 0.02,
+              'A depth frame uses the CameraInfo whose stamp is nearest to its own within this '
+              'tolerance (the newest one when the camera publishes a single CameraInfo, or when '
+              'all recent ones agree) [s]', 0.0, 10.0),
+    ParamSpec('fallback_fx', SEED_TABLE_4_1.fx,
+              'Fallback focal length fx (seed Table 4.1: f = 580) [px]', 0.0, 100000.0,
+              open_low=True),
+    ParamSpec('fallback_fy', SEED_TABLE_4_1.fy,
+              'Fallback focal length fy (seed Table 4.1: f = 580) [px]', 0.0, 100000.0,
+              open_low=True),
+    ParamSpec('fallback_cx', SEED_TABLE_4_1.cx,
+              'Fallback principal point cx (seed Table 4.1: Centerx = 200) [px]',
+              -100000.0, 100000.0),
+    ParamSpec('fallback_cy', SEED_TABLE_4_1.cy,
+              'Fallback principal point cy (seed Table 4.1: Centery = 130) [px]',
+              -100000.0, 100000.0),
+    ParamSpec('refiner_model_file', '',
+              'Not in the seed as a default: a model file from tools/train_refiner.py (seed '
+              'section 4.5 logistic regression on slope, depth gradient and the previous '
+              "frame's obstacles) refines each frame; '' = rule-based only"),
+    ParamSpec('stats_period_s', 10.0,
+              'Period of the info log with frames processed, dropped, mean time and fps; '
+              '0 = off [s]', 0.0, 3600.0),
+)
+
+ALL_PARAMS: tuple[ParamSpec, ...] = PIPELINE_PARAMS + NODE_PARAMS
+SPECS_BY_NAME: dict[str, ParamSpec] = {spec.name: spec for spec in ALL_PARAMS}
+
+
+def pipeline_params_to_ros(params: DetectorParams) -> dict[str, ParamValue]:
+    """``{ros_name: value}`` of a DetectorParams (radians -> degrees where exposed so)."""
+    values = {}
+    for spec in PIPELINE_PARAMS:
+        value = getattr(params, spec.field)
+        values[spec.name] = _degrees(value) if spec.degrees else value
+    return values
+
+
+#: Resource limits of one parameter set, checked on the combination (README, Parameters).
+#: Costmap cells (e.g. 20 m x 20 m at 1 cm).
+MAX_COSTMAP_CELLS = 4_000_000
+#: Cells of the voxel lattice over the region of interest (its volume / one voxel's).
+MAX_VOXEL_LATTICE = 1_000_000_000
+#: k-NN entries per frame: max(N, N1 + 1) x the voxels a frame can have, at most
+#: min(lattice, FRAME_VOXELS_BOUND) (a 512 x 424 frame without downsampling has 217,088).
+MAX_NEIGHBOUR_ENTRIES = 16_000_000
+FRAME_VOXELS_BOUND = 250_000
+#: Shortest statistics period: at most ten info lines a second [s].
+MIN_STATS_PERIOD_S = 0.1
+
+
+def _range_problem(spec: ParamSpec, value: Any) -> str | None:
+    """Say why a value is outside its parameter's range, in the user's units, or None."""
+    if spec.low is None or spec.high is None or isinstance(value, (bool, str)):
+        return None
+    if not isinstance(value, (int, float)) or not math.isfinite(value):
+        return f'{spec.name}={value!r} must be a finite number'
+    low_bad = value < spec.low or (spec.open_low and value == spec.low)
+    high_bad = value > spec.high or (spec.open_high and value == spec.high)
+    if low_bad or high_bad:
+        unit = ' [deg]' if spec.degrees else ''
+        return f'{spec.name}={value!r} out of range: must be in {spec.range_text}{unit}'
+    return None
+
+
+def budget_problem(values: Mapping[str, Any]) -> str | None:
+    """Say which resource limit a set of ROS parameter values exceeds, or None.
+
+    Each parameter may be within its range while the combination is absurd: a 50 m costmap at
+    5 mm (10^8 cells), N = N1 = 400 neighbours over millimetre voxels (seconds a frame), a
+    statistics line every microsecond. Missing names take their defaults.
+    """
+    def get(name: str) -> Any:
+        return values[name] if name in values else SPECS_BY_NAME[name].default
+
+    res = float(get('costmap_resolution_m'))
+    cells = (math.ceil(float(get('costmap_length_m')) / res)
+             * math.ceil(float(get('costmap_width_m')) / res))
+    if cells > MAX_COSTMAP_CELLS:
+        return (f'costmap_length_m={get("costmap_length_m")!r}, costmap_width_m='
+                f'{get("costmap_width_m")!r} at costmap_resolution_m={res!r} make {cells:,} '
+                f'cells, above the limit of {MAX_COSTMAP_CELLS:,}')
+    depth = float(get('max_range_m')) - float(get('min_range_m'))
+    width = 2.0 * float(get('lateral_limit_m'))
+    height = float(get('camera_height_m')) + float(get('smar_m')) - float(get('tdbg_m'))
+    voxel = float(get('voxel_x_m')) * float(get('voxel_y_m')) * float(get('voxel_z_m'))
+    lattice = max(depth, 0.0) * width * max(height, 0.0) / voxel
+    if lattice > MAX_VOXEL_LATTICE:
+        return (f'voxel_x_m/voxel_y_m/voxel_z_m={get("voxel_x_m")!r}/{get("voxel_y_m")!r}/'
+                f'{get("voxel_z_m")!r} over the region of interest ({depth:g} x {width:g} x '
+                f'{height:g} m) make {lattice:.3g} voxel cells, above the limit of '
+                f'{MAX_VOXEL_LATTICE:.0e}')
+    k = max(int(get('normal_neighbours')), int(get('validation_neighbours')) + 1)
+    entries = k * min(lattice, FRAME_VOXELS_BOUND)
+    if entries > MAX_NEIGHBOUR_ENTRIES:
+        return (f'normal_neighbours={get("normal_neighbours")!r} and validation_neighbours='
+                f'{get("validation_neighbours")!r} ask {k} neighbours for up to '
+                f'{min(lattice, FRAME_VOXELS_BOUND):,.0f} voxels a frame: {entries:,.0f} k-NN '
+                f'entries, above the limit of {MAX_NEIGHBOUR_ENTRIES:,} (fewer neighbours or '
+                'larger voxels)')
+    period = float(get('stats_period_s'))
+    if 0.0 < period < MIN_STATS_PERIOD_S:
+        return (f'stats_period_s={period!r} would log more than {1 / MIN_STATS_PERIOD_S:g} '
+                f'lines a second: use 0 (off) or >= {MIN_STATS_PERIOD_S:g}')
+    return None
+
+
+def _user_names(text: str) -> str:
+    """Write a DetectorParams message in the user's names: radians fields in degrees."""
+    def degrees(match: re.Match[str]) -> str:
+        return f'{DEGREE_FIELDS[match.group(1)]}={_degrees(float(match.group(2)))!r}'
+
+    text = re.sub(r'\b(' + '|'.join(DEGREE_FIELDS) + r')=([-+0-9.e]+)', degrees, text)
+    for field_name, ros_name in DEGREE_FIELDS.items():
+        text = text.replace(field_name, ros_name)
+    return text
+
+
+def detector_params_from_ros(values: Mapping[str, Any]) -> DetectorParams:
+    """DetectorParams from ROS parameter values; missing names take the dataclass defaults.
+
+    Raises ValueError naming the bad value as the user wrote it (``max_slope_deg=90``, not its
+    radians), for a value out of its range, a combination beyond the resource limits
+    (:func:`budget_problem`) or the dataclass's own validation.
+    """
+    for spec in PIPELINE_PARAMS:
+        if spec.name in values:
+            problem = _range_problem(spec, values[spec.name])
+            if problem is not None:
+                raise ValueError(problem)
+    problem = budget_problem(values)
+    if problem is not None:
+        raise ValueError(problem)
+    fields = {spec.field: spec.to_field(values[spec.name])
+              for spec in PIPELINE_PARAMS if spec.name in values}
+    try:
+        return DetectorParams(**fields)
+    except ValueError as error:
+        raise ValueError(_user_names(str(error))) from error
+
+
+def fallback_intrinsics_from_ros(values: Mapping[str, Any]) -> Intrinsics:
+    """Build the fallback Intrinsics from fallback_fx/fy/cx/cy (ValueError on a zero focal)."""
+    return Intrinsics(fx=float(values['fallback_fx']), fy=float(values['fallback_fy']),
+                      cx=float(values['fallback_cx']), cy=float(values['fallback_cy']))
+
+
+class ParamsFileError(ValueError):
+    """A ``--params-file`` that cannot be read, or that names or types a parameter wrongly."""
+
+
+def params_files_in_args(args: list[str]) -> list[str]:
+    """Return the ``--params-file`` paths of a command line's ``--ros-args`` blocks, in order."""
+    files, in_ros = [], False
+    for i, token in enumerate(args):
+        if token == '--ros-args':
+            in_ros = True
+        elif token == '--':
+            in_ros = False
+        elif in_ros and token == '--params-file' and i + 1 < len(args):
+            files.append(args[i + 1])
+    return files
+
+
+def _section_applies(key: str, node_fqn: str) -> bool:
+    """Whether a params-file section key (``/**``, ``name``, ``/ns/*``...) names the node."""
+    pattern = '/' + str(key).lstrip('/')
+    tokens = []
+    for part in pattern.strip('/').split('/'):
+        if part == '**':
+            tokens.append('(/[^/]+)*')
+        else:
+            tokens.append('/' + re.escape(part).replace(r'\*', '[^/]+'))
+    return re.fullmatch(''.join(tokens), node_fqn) is not None
+
+
+def params_file_problems(path: str | Path, node_fqn: str = f'/{NODE_NAME}') -> list[str]:
+    """Return what the node would silently ignore in a params file, one sentence each.
+
+    rcl applies the sections whose key names the node (``obstacle_detector``, ``/**``, ...) and
+    the node ignores names it did not declare; both are most often typos (``detector:`` for
+    ``obstacle_detector:``, ``max_slope:`` for ``max_slope_deg:``). The offline tools refuse
+    such a file (:func:`read_params_file`); the node warns with these sentences. A file that
+    cannot be read or parsed gives one problem too.
+    """
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text(encoding='utf-8'))
+    except OSError as err:
+        return [f'{path}: cannot read params file ({err.strerror})']
+    except yaml.YAMLError as err:
+        return [f'{path}: not valid YAML ({" ".join(str(err).split())})']
+    if not isinstance(data, dict):
+        return [f'{path}: expected "{NODE_NAME}: ros__parameters: ..."']
+    problems, applied = [], 0
+    for key, section in data.items():
+        params = section.get('ros__parameters') if isinstance(section, dict) else None
+        if not _section_applies(str(key), node_fqn):
+            count = len(params) if isinstance(params, dict) else 0
+            problems.append(f'{path}: section {key!r} does not name this node ({node_fqn}); '
+                            f'its {count} parameter(s) are ignored (use "{NODE_NAME}:" or '
+                            '"/**:")')
+            continue
+        applied += 1
+        if not isinstance(params, dict):
+            problems.append(f'{path}: section {key!r} lacks "ros__parameters"')
+            continue
+        for name in params:
+            if name not in SPECS_BY_NAME:
+                close = difflib.get_close_matches(str(name), SPECS_BY_NAME, n=1)
+                hint = f' (did you mean {close[0]!r}?)' if close else ''
+                problems.append(f'{path}: unknown parameter {name!r} is ignored{hint}; '
+                                '`detector --help` lists the parameters')
+    if not applied and not problems:
+        problems.append(f'{path}: no section for this node ({node_fqn})')
+    return problems
+
+
+def read_params_file(path: str | Path) -> dict[str, ParamValue]:
+    """Return the parameter values a node parameter file sets: ``{ros_name: value}``.
+
+    The file has the ``--params-file`` format (``obstacle_detector: ros__parameters: {...}``;
+    ``/**`` and ``/obstacle_detector`` sections are read too, in that order). Unlike the node,
+    which ignores undeclared names, an unknown name is an error here (a typo would otherwise
+    go unnoticed); as for the node, a value must have its parameter's type (1.0, not 1, for a
+    floating-point one). Only the names in the file are returned. Raises ParamsFileError
+    naming the file and the parameter; the values themselves are validated by
+    :func:`detector_params_from_ros`.
+    """
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text(encoding='utf-8'))
+    except OSError as err:
+        raise ParamsFileError(f'{path}: cannot read params file ({err.strerror})') from err
+    except yaml.YAMLError as err:
+        raise ParamsFileError(f'{path}: not valid YAML ({err})') from err
+    if not isinstance(data, dict):
+        raise ParamsFileError(f'{path}: expected "{NODE_NAME}: ros__parameters: ..."')
+    sections = [data[key] for key in ('/**', NODE_NAME, f'/{NODE_NAME}') if key in data]
+    if not sections:
+        raise ParamsFileError(f'{path}: no "{NODE_NAME}" (or "/**") section')
+    values: dict[str, ParamValue] = {}
+    for section in sections:
+        params = section.get('ros__parameters') if isinstance(section, dict) else None
+        if not isinstance(params, dict):
+            raise ParamsFileError(f'{path}: a section lacks "ros__parameters"')
+        for name, value in params.items():
+            spec = SPECS_BY_NAME.get(name)
+            if spec is None:
+                raise ParamsFileError(f'{path}: unknown parameter {name!r}')
+            want = type(spec.default)
+            if type(value) is not want:
+                raise ParamsFileError(f'{path}: parameter {name!r} must be a {want.__name__}, '
+                                      f'got {value!r}')
+            values[name] = value
+    return values
+
+
+def read_params_files(paths: list[str | Path] | tuple[str | Path, ...]
+                      ) -> dict[str, ParamValue]:
+    """Return the values several node parameter files set, merged in order as ROS does.
+
+    ``--params-file a.yaml --params-file b.yaml``: a parameter both set takes b's value, one
+    only a sets keeps a's. Each file is read by :func:`read_params_file` (ParamsFileError
+    naming the file).
+    """
+    values: dict[str, ParamValue] = {}
+    for path in paths:
+        values.update(read_params_file(path))
+    return values

@@ -1,0 +1,248 @@
+"""Scene sequences with a known camera trajectory and its odometry (video tests and demos).
+
+A sequence is a world of primitives in the odometry frame (``odom``: x, y on the floor, z up,
+the robot's start pose at the origin) and a robot driven through it by a velocity profile at
+``rate_hz``. Each frame is ray-cast by :func:`.scenes.render` from the robot's true pose, so
+its ground truth (``labels``, ``points_ground`` in the robot's base frame) is the one of the
+per-frame scenes. Each frame also carries what a wheel odometry would report: the true motion
+increments with a scale error and a little noise (seeded), integrated from the start pose, so
+the fused costmap sees a small drift as on a robot.
+
+Sequences (``SEQUENCE_NAMES``):
+
+- ``drive_past_boxes``: the robot stands 0.5 s, drives 1.65 m forward at 0.5 m/s past a low
+  box on its right and a box on its left, and stops 0.39 m in front of a tall cabinet (inside
+  the Kinect v2's 0.5 m blind zone); it turns left 90 deg on the spot (45 deg/s) and drives
+  1.5 m along a table (legs and a top at 0.72-0.75 m, above the camera) with a box on its
+  right, then stands. Walls close the room. 294 frames at 30 Hz.
+- ``person_crossing``: the robot stands still facing a box; a person (a 0.2 m cylinder)
+  walks in from the left at 1 m/s, stands 1 s in front of the robot 1.6 m away, walks out to
+  the right and leaves. 177 frames at 30 Hz.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numpy as np
+
+from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE, Intrinsics
+from .scenes import Box, Cylinder, Floor, NoiseModel, Primitive, Scene, SceneFrame, Wall, render
+
+#: A pose: base frame in odom, (x [m], y [m], yaw [rad]).
+Pose = tuple[float, float, float]
+
+#: Frame rate of the sequences [Hz].
+SEQUENCE_RATE_HZ = 30.0
+
+
+@dataclass(frozen=True)
+class OdometryModel:
+    """Wheel-odometry errors: per-frame increments scaled and perturbed (seeded).
+
+    distance_scale, yaw_scale: relative errors of travelled distance and turned angle
+    (0.02 = 2 % too long); noise_fraction: standard deviation of the per-frame increment noise
+    as a fraction of the increment's size (no motion, no noise).
+    """
+
+    distance_scale: float = 0.02
+    yaw_scale: float = -0.01
+    noise_fraction: float = 0.05
+
+    def __post_init__(self) -> None:
+        for name in ('distance_scale', 'yaw_scale', 'noise_fraction'):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and abs(value) < 1.0):
+                raise ValueError(f'OdometryModel: {name}={value!r} must be finite, |.| < 1')
+        if self.noise_fraction < 0.0:
+            raise ValueError(f'OdometryModel: noise_fraction={self.noise_fraction!r} must '
+                             f'be >= 0')
+
+
+#: Odometry without error (the odometry pose is the true pose).
+PERFECT_ODOMETRY = OdometryModel(0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class SequenceFrame:
+    """One frame of a sequence: the rendering and both poses.
+
+    index: frame number; stamp_s: its time [s] from the start; pose_true: the robot's base
+    pose in odom (ground truth); pose_odom: what odometry reports at that time; frame: the
+    rendered frame (``points_ground`` in the base frame at pose_true).
+    """
+
+    index: int
+    stamp_s: float
+    pose_true: Pose
+    pose_odom: Pose
+    frame: SceneFrame
+
+
+def _integrate(segments: tuple[tuple[float, float, float], ...], rate_hz: float,
+               ) -> np.ndarray:
+    """(n, 3) true poses at each frame from (duration [s], v [m/s], w [rad/s]) segments.
+
+    The robot starts at the origin facing +x; each frame's pose follows the previous one by
+    one step of the segment's velocities (exact arc for constant v and w).
+    """
+    dt = 1.0 / rate_hz
+    steps = []
+    for duration_s, v, w in segments:
+        steps.extend([(v * dt, w * dt)] * int(round(duration_s * rate_hz)))
+    poses = np.zeros((len(steps) + 1, 3))
+    for i, (ds, dyaw) in enumerate(steps):
+        x, y, yaw = poses[i]
+        mid = yaw + 0.5 * dyaw   # second-order: the chord of the arc
+        poses[i + 1] = (x + ds * math.cos(mid), y + ds * math.sin(mid), yaw + dyaw)
+    return poses
+
+
+def odometry_poses(true_poses: np.ndarray, model: OdometryModel, seed: int) -> np.ndarray:
+    """(n, 3) odometry poses: the true increments, in the robot's frame, with the model's errors.
+
+    Increments (forward, lateral, yaw) between true poses are expressed in the robot frame,
+    scaled by (1 + distance_scale) and (1 + yaw_scale), perturbed by Gaussian noise of
+    ``noise_fraction`` times their size, and integrated from the first true pose.
+    """
+    rng = np.random.default_rng([int(seed), 0x0D0])
+    out = np.empty_like(true_poses)
+    out[0] = true_poses[0]
+    for i in range(1, len(true_poses)):
+        x0, y0, yaw0 = true_poses[i - 1]
+        x1, y1, yaw1 = true_poses[i]
+        c, s = math.cos(yaw0), math.sin(yaw0)
+        fwd = c * (x1 - x0) + s * (y1 - y0)
+        lat = -s * (x1 - x0) + c * (y1 - y0)
+        dyaw = math.remainder(yaw1 - yaw0, 2.0 * math.pi)
+        noise = rng.standard_normal(3) * model.noise_fraction
+        fwd = fwd * (1.0 + model.distance_scale) + noise[0] * abs(fwd)
+        lat = lat * (1.0 + model.distance_scale) + noise[1] * abs(fwd)
+        dyaw = dyaw * (1.0 + model.yaw_scale) + noise[2] * abs(dyaw)
+        ox, oy, oyaw = out[i - 1]
+        c, s = math.cos(oyaw), math.sin(oyaw)
+        out[i] = (ox + c * fwd - s * lat, oy + s * fwd + c * lat, oyaw + dyaw)
+    return out
+
+
+def _table(x0: float, y0: float, x1: float, y1: float, top_z: float = 0.75,
+           thickness: float = 0.03, leg: float = 0.05) -> tuple[Box, ...]:
+    """Return a table: a top from (x0, y0) to (x1, y1) and four square legs at its corners [m]."""
+    legs = tuple(Box((x, y, 0.0), (x + leg, y + leg, top_z - thickness))
+                 for x in (x0, x1 - leg) for y in (y0, y1 - leg))
+    return (Box((x0, y0, top_z - thickness), (x1, y1, top_z)),) + legs
+
+
+# object edges at a quarter cell (5 cm cells) from cell boundaries, so that the truth of a
+# face does not hop between two cells with the noise-free rounding of its points
+_DRIVE_WORLD: tuple[Primitive, ...] = (
+    Floor(),
+    Box((2.0375, -0.3125, 0.0), (2.4375, 0.2875, 1.0)),           # tall cabinet ahead
+    Box((0.8875, -0.8125, 0.0), (1.1875, -0.5125, 0.3)),          # low box, right
+    Box((1.0375, 0.5375, 0.0), (1.3875, 0.8875, 0.45)),           # box, left
+    Box((2.1625, 1.0375, 0.0), (2.4625, 1.3375, 0.35)),           # box right after the turn
+    *_table(0.7375, 1.3375, 1.3375, 2.0375),                      # table left after the turn
+    Wall(-0.8, -1.6125, 3.2125, -1.6125),
+    Wall(3.2125, -1.6125, 3.2125, 2.9125),
+    Wall(3.2125, 2.9125, -0.8, 2.9125),
+    Wall(-0.8, 2.9125, -0.8, -1.6125),
+)
+
+_DRIVE_SEGMENTS = ((0.5, 0.0, 0.0), (3.3, 0.5, 0.0), (0.5, 0.0, 0.0),
+                   (2.0, 0.0, math.radians(45.0)), (3.0, 0.5, 0.0), (0.5, 0.0, 0.0))
+
+#: The person of 'person_crossing': x [m], start and end y [m], speed [m/s], stop [s].
+PERSON_X_M = 1.6
+PERSON_START_Y_M = 1.9
+PERSON_END_Y_M = -2.1
+PERSON_SPEED_M_S = 1.0
+PERSON_STOP_S = 1.0
+_CROSSING_FRAMES = 177
+
+
+def person_y_at(t_s: float) -> float:
+    """Lateral position [m] of the person of 'person_crossing' at time t [s] (stops at y=0)."""
+    to_centre = PERSON_START_Y_M / PERSON_SPEED_M_S
+    if t_s <= to_centre:
+        return PERSON_START_Y_M - PERSON_SPEED_M_S * t_s
+    if t_s <= to_centre + PERSON_STOP_S:
+        return 0.0
+    return max(PERSON_END_Y_M, -PERSON_SPEED_M_S * (t_s - to_centre - PERSON_STOP_S))
+
+
+_CROSSING_STATIC: tuple[Primitive, ...] = (
+    Floor(),
+    Box((1.2375, -0.8125, 0.0), (1.5375, -0.5125, 0.4)),
+    Wall(3.2125, -3.0, 3.2125, 3.0),
+)
+
+
+class SceneSequence:
+    """A named sequence: the world at each frame, the true and odometry poses, renderings."""
+
+    def __init__(self, name: str, *, seed: int = 0,
+                 odometry: OdometryModel = OdometryModel()) -> None:
+        if name not in SEQUENCE_NAMES:
+            raise ValueError(f'unknown sequence {name!r}; known: {", ".join(SEQUENCE_NAMES)}')
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+            raise ValueError(f'seed={seed!r} must be an int >= 0')
+        self.name = name
+        self.seed = int(seed)
+        self.rate_hz = SEQUENCE_RATE_HZ
+        if name == 'drive_past_boxes':
+            self._poses = _integrate(_DRIVE_SEGMENTS, self.rate_hz)
+        else:
+            self._poses = np.zeros((_CROSSING_FRAMES, 3))
+        self._odometry = odometry_poses(self._poses, odometry, self.seed)
+
+    def __len__(self) -> int:
+        return int(self._poses.shape[0])
+
+    def _check_index(self, index: int) -> int:
+        if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or \
+                not 0 <= index < len(self):
+            raise ValueError(f'{self.name}: frame index {index!r} must be in [0, {len(self)})')
+        return int(index)
+
+    def pose_true(self, index: int) -> Pose:
+        """Return the robot's true base pose in odom at frame ``index``."""
+        x, y, yaw = self._poses[self._check_index(index)]
+        return (float(x), float(y), float(yaw))
+
+    def pose_odom(self, index: int) -> Pose:
+        """Return the odometry's base pose in odom at frame ``index`` (with the model's drift)."""
+        x, y, yaw = self._odometry[self._check_index(index)]
+        return (float(x), float(y), float(yaw))
+
+    def scene_at(self, index: int) -> Scene:
+        """Return the world (odom frame) at frame ``index``, with the default 0.6 m level mount."""
+        index = self._check_index(index)
+        if self.name == 'drive_past_boxes':
+            return Scene(self.name, _DRIVE_WORLD)
+        y = person_y_at(index / self.rate_hz)
+        person = Cylinder(PERSON_X_M, y, radius_m=0.2, height_m=1.75)
+        return Scene(self.name, _CROSSING_STATIC + (person,))
+
+    def frame(self, index: int, *, noise: bool | NoiseModel = True,
+              intrinsics: Intrinsics = KINECT_V2_SD,
+              size: tuple[int, int] = KINECT_V2_SD_SIZE) -> SequenceFrame:
+        """Render frame ``index`` from the true pose (noise seeded by (seed, index))."""
+        index = self._check_index(index)
+        pose = self.pose_true(index)
+        rendered = render(self.scene_at(index), seed=self.seed, intrinsics=intrinsics,
+                          size=size, noise=noise, frame_index=index, pose=pose)
+        return SequenceFrame(index=index, stamp_s=index / self.rate_hz, pose_true=pose,
+                             pose_odom=self.pose_odom(index), frame=rendered)
+
+    def frames(self, start: int = 0, stop: int | None = None, step: int = 1, *,
+               noise: bool | NoiseModel = True) -> Iterator[SequenceFrame]:
+        """Render frames ``range(start, stop, step)`` one after the other."""
+        stop = len(self) if stop is None else min(stop, len(self))
+        for index in range(start, stop, step):
+            yield self.frame(index, noise=noise)
+
+
+#: Names accepted by :class:`SceneSequence`.
+SEQUENCE_NAMES: tuple[str, ...] = ('drive_past_boxes', 'person_crossing')

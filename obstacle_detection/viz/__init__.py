@@ -1,0 +1,1 @@
+"""Pictures: label overlays and costmap renderings (:mod:`.overlay`), panels and sheets."""

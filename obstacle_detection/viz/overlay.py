@@ -1,0 +1,98 @@
+"""Pictures of a result: the depth frame with obstacles marked, and the costmap seen from above.
+
+Pure numpy (OpenCV only to draw the robot marker); no ROS import. Both return RGB uint8 images
+ready for ``conversions.array_to_image(..., encoding='rgb8')`` or ``cv2.imwrite`` (after
+RGB -> BGR).
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from obstacle_detection.pipeline.costmap import CELL_UNKNOWN, Costmap
+from obstacle_detection.pipeline.detector import LABEL_OBSTACLE
+
+#: Obstacle pixels in the depth overlay. The seed (figures 4.22-4.27) marks obstacles with black
+#: dots, but black is also its colour for blind spots, so obstacles are drawn in red here.
+OBSTACLE_RGB = (255, 0, 0)
+#: Pixels without a depth return (blind spots) in the depth overlay, as in the seed.
+NO_RETURN_RGB = (0, 0, 0)
+#: Darkest grey used for a valid depth (the nearest point), so that it differs from a blind spot.
+MIN_GREY = 48
+
+#: Costmap colours: occupied cells blue as in the seed's figure 4.21 (the non-navigable area),
+#: free cells white, unknown cells mid grey, and the robot (camera foot point) in red.
+OCCUPIED_RGB = (30, 60, 220)
+FREE_RGB = (255, 255, 255)
+UNKNOWN_RGB = (128, 128, 128)
+ROBOT_RGB = (220, 0, 0)
+
+
+def render_overlay(depth_m: np.ndarray, labels: np.ndarray, *,
+                   max_depth_m: float | None = None) -> np.ndarray:
+    """Draw the depth frame in grey with obstacle pixels marked (the seed's figures 4.22-4.27).
+
+    depth_m: (H, W) float [m], 0 / NaN / inf = no return. labels: (H, W) pipeline LABEL_* values;
+    pixels labelled LABEL_OBSTACLE are drawn OBSTACLE_RGB. Other valid pixels are grey, dark near
+    and bright far (as in the seed's figure 4.1), scaled so that ``max_depth_m`` (None = the
+    frame's farthest valid depth) is white; pixels without a return are black.
+
+    Returns (H, W, 3) uint8 RGB.
+    """
+    depth = np.asarray(depth_m, dtype=np.float32)
+    labels = np.asarray(labels)
+    if depth.ndim != 2 or labels.shape != depth.shape:
+        raise ValueError(f'depth_m {depth.shape} and labels {labels.shape} must be the same '
+                         f'(H, W) shape')
+    valid = np.isfinite(depth) & (depth > 0.0)
+    if max_depth_m is None:
+        max_depth_m = float(depth[valid].max()) if valid.any() else 1.0
+    if not max_depth_m > 0.0:
+        raise ValueError(f'max_depth_m={max_depth_m} must be > 0')
+    scaled = np.clip(np.where(valid, depth, 0.0) / np.float32(max_depth_m), 0.0, 1.0)
+    grey = (MIN_GREY + scaled * (255 - MIN_GREY)).round().astype(np.uint8)
+    grey[~valid] = 0
+    rgb = np.repeat(grey[:, :, np.newaxis], 3, axis=2)
+    rgb[~valid] = NO_RETURN_RGB
+    rgb[labels == LABEL_OBSTACLE] = OBSTACLE_RGB
+    return rgb
+
+
+def costmap_pixel_of(costmap: Costmap, x_m: float, y_m: float, *,
+                     scale: int = 4) -> tuple[float, float]:
+    """(column, row) in ``render_costmap``'s image of the ground-frame point (x, y) [m].
+
+    Fractional: the image's pixel (c, r) covers [c, c + 1) x [r, r + 1).
+    """
+    col_cells = (costmap.origin_xy_m[1] + costmap.height * costmap.resolution_m - y_m)
+    row_cells = (costmap.origin_xy_m[0] + costmap.width * costmap.resolution_m - x_m)
+    return (col_cells / costmap.resolution_m * scale, row_cells / costmap.resolution_m * scale)
+
+
+def render_costmap(costmap: Costmap, *, scale: int = 4, draw_robot: bool = True) -> np.ndarray:
+    """Draw the costmap seen from above, x (forward) up and y (left) to the left.
+
+    Each cell becomes ``scale x scale`` pixels: OCCUPIED_RGB for 100, FREE_RGB for 0, a blend
+    for 1..99, UNKNOWN_RGB for -1. If ``draw_robot``, a ROBOT_RGB disc marks the ground-frame
+    origin (the camera's foot point), clamped into the image when it lies outside the grid.
+
+    Returns (height * scale, width * scale, 3) uint8 RGB, i.e. (nx * scale, ny * scale, 3).
+    """
+    if scale < 1:
+        raise ValueError(f'scale={scale} must be >= 1')
+    data = np.asarray(costmap.data)
+    cost = np.clip(data.astype(np.float32), 0.0, 100.0)[:, :, np.newaxis] / 100.0
+    cells = (np.asarray(FREE_RGB, np.float32) * (1.0 - cost)
+             + np.asarray(OCCUPIED_RGB, np.float32) * cost).round().astype(np.uint8)
+    cells[data <= CELL_UNKNOWN] = UNKNOWN_RGB
+    # data[row = y, col = x] -> image[row = -x, col = -y]: forward up, left to the left.
+    top_view = cells.transpose(1, 0, 2)[::-1, ::-1]
+    image = np.ascontiguousarray(np.repeat(np.repeat(top_view, scale, axis=0), scale, axis=1))
+    if draw_robot:
+        col, row = costmap_pixel_of(costmap, 0.0, 0.0, scale=scale)
+        height, width = image.shape[:2]
+        centre = (int(np.clip(np.floor(col), 0, width - 1)),
+                  int(np.clip(np.floor(row), 0, height - 1)))
+        cv2.circle(image, centre, max(2, scale), ROBOT_RGB, thickness=-1)
+    return image

@@ -1,0 +1,646 @@
+"""Pictures of what the detector saw, without ROS running: PNG panels and contact sheets.
+
+One panel per frame: on the left the depth frame with obstacle pixels marked (the seed's
+figures 4.22-4.27, drawn by ``overlay.render_overlay``), on the right the costmap seen from
+above (figure 4.23, ``overlay.render_costmap``), optionally a third panel comparing the
+obstacle pixels with a ground truth, and a caption band underneath (frame name, obstacle
+count, time). A sequence becomes a contact sheet, a grid of captioned thumbnails.
+
+Frames come from a depth PNG with an intrinsics YAML (``evaluation.read_camera_yaml``), a
+scene of the generator, a labelled folder, or a ROS 2 bag (:func:`bag_frames`).
+
+All images are RGB uint8; :func:`write_png` converts to OpenCV's BGR when writing.
+"""
+
+from __future__ import annotations
+
+import math
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterator, Sequence
+
+import cv2
+import numpy as np
+
+from obstacle_detection.evaluation.metrics import (CELL_OCCUPIED, GT_NO_RETURN, GT_OBSTACLE,
+                                                   LABEL_GROUND, LABEL_OBSTACLE)
+from .overlay import (MIN_GREY, NO_RETURN_RGB, OBSTACLE_RGB, OCCUPIED_RGB, FREE_RGB,
+                      ROBOT_RGB, UNKNOWN_RGB, render_costmap, render_overlay)
+from obstacle_detection.pipeline.params import Intrinsics
+
+#: Background of the caption band and the padding, and its text colour.
+BACKGROUND_RGB = (255, 255, 255)
+TEXT_RGB = (20, 20, 20)
+#: Truth-comparison panel: correctly found obstacle pixels, false alarms, misses.
+HIT_RGB = (220, 0, 0)
+FALSE_ALARM_RGB = (255, 170, 0)
+MISS_RGB = (0, 90, 255)
+
+_FONT = cv2.FONT_HERSHEY_SIMPLEX
+_GAP_PX = 6
+
+
+def _text_size(text: str, scale: float) -> tuple[int, int]:
+    (width, height), baseline = cv2.getTextSize(text, _FONT, scale, 1)
+    return width, height + baseline
+
+
+def caption_band(lines: Sequence[str], width: int, *, scale: float = 0.5) -> np.ndarray:
+    """(h, width, 3) uint8 RGB: the text lines on a white band, left aligned.
+
+    Lines longer than the band are shortened with '...' so that nothing is cut mid-glyph.
+    """
+    line_h = _text_size('Ag', scale)[1] + 4
+    band = np.full((line_h * len(lines) + 6, width, 3), BACKGROUND_RGB, dtype=np.uint8)
+    for i, line in enumerate(lines):
+        text = line
+        while text and _text_size(text, scale)[0] > width - 8:
+            text = text[:-4] + '...' if len(text) > 4 else ''
+        cv2.putText(band, text, (4, 3 + line_h * (i + 1) - 6), _FONT, scale, TEXT_RGB, 1,
+                    cv2.LINE_AA)
+    return band
+
+
+def _pad_to_height(image: np.ndarray, height: int) -> np.ndarray:
+    if image.shape[0] >= height:
+        return image[:height]
+    top = (height - image.shape[0]) // 2
+    out = np.full((height, image.shape[1], 3), BACKGROUND_RGB, dtype=np.uint8)
+    out[top:top + image.shape[0]] = image
+    return out
+
+
+def truth_comparison(labels: np.ndarray, truth_labels: np.ndarray,
+                     depth_m: np.ndarray, *, max_depth_m: float | None = None) -> np.ndarray:
+    """(H, W, 3) uint8 RGB: grey depth with obstacle hits red, false alarms orange, misses blue.
+
+    labels: pipeline ``LABEL_*``; truth_labels: ``GT_*``. A miss is a truth obstacle pixel the
+    pipeline called ground; pixels the pipeline made no call on keep their grey.
+    """
+    base = render_overlay(depth_m, np.zeros_like(labels), max_depth_m=max_depth_m)
+    called = (labels == LABEL_OBSTACLE) | (labels == LABEL_GROUND)
+    truth_obstacle = (truth_labels == GT_OBSTACLE)
+    valid_truth = truth_labels != GT_NO_RETURN
+    predicted = labels == LABEL_OBSTACLE
+    base[predicted & truth_obstacle] = HIT_RGB
+    base[predicted & valid_truth & ~truth_obstacle] = FALSE_ALARM_RGB
+    base[called & ~predicted & truth_obstacle] = MISS_RGB
+    return base
+
+
+#: Depth panel: pixels inside the region of interest that the pipeline called ground are the
+#: depth grey blended with this green (GROUND_TINT of it), so the region's cut is visible.
+GROUND_RGB = (40, 190, 60)
+GROUND_TINT = 0.45
+#: Costmap panel: hatching over cells outside the region of interest, the edge of the floor
+#: the camera can see, axis and tick ink.
+HATCH_RGB = (70, 70, 70)
+VIEW_EDGE_RGB = (200, 0, 200)
+AXIS_RGB = (60, 60, 60)
+_SMALL = 0.42
+
+
+def depth_overlay(depth_m: np.ndarray, labels: np.ndarray, *,
+                  max_depth_m: float | None = None) -> np.ndarray:
+    """(H, W, 3) uint8 RGB: ``overlay.render_overlay`` with the region of interest shown.
+
+    Obstacle pixels red, pixels the pipeline called ground (inside the region of interest)
+    the depth grey tinted green, pixels outside the region the plain depth grey (dark near,
+    bright far), no return black.
+    """
+    rgb = render_overlay(depth_m, labels, max_depth_m=max_depth_m)
+    ground = np.asarray(labels) == LABEL_GROUND
+    tinted = rgb[ground].astype(np.float32) * (1.0 - GROUND_TINT) + \
+        np.asarray(GROUND_RGB, np.float32) * GROUND_TINT
+    rgb[ground] = tinted.round().astype(np.uint8)
+    return rgb
+
+
+def _nice_step(span_m: float, px_per_m: float, min_px: float) -> float:
+    """Smallest of 0.1, 0.2, 0.25, 0.5, 1, 2, 5, 10 m whose ticks are >= min_px apart."""
+    for step in (0.1, 0.2, 0.25, 0.5, 1.0, 2.0, 5.0, 10.0):
+        if step * px_per_m >= min_px:
+            return step
+    return max(span_m, 10.0)
+
+
+def _ticks(low: float, high: float, step: float) -> np.ndarray:
+    first = math.ceil(low / step - 1e-9) * step
+    return np.round(np.arange(first, high + 1e-9, step), 6)
+
+
+def _put(image: np.ndarray, text: str, org: tuple[int, int], *, scale: float = _SMALL,
+         colour: tuple[int, int, int] = TEXT_RGB, anchor: str = 'left') -> None:
+    """Write text with its baseline at org; anchor 'left', 'centre' or 'right'."""
+    width = _text_size(text, scale)[0]
+    x = org[0] - (width if anchor == 'right' else width // 2 if anchor == 'centre' else 0)
+    cv2.putText(image, text, (int(x), int(org[1])), _FONT, scale, colour, 1, cv2.LINE_AA)
+
+
+def _cell_image(mask_yx: np.ndarray, scale: int) -> np.ndarray:
+    """(ny, nx) cell mask -> the (nx * scale, ny * scale) pixel mask of render_costmap."""
+    top = mask_yx.T[::-1, ::-1]
+    return np.repeat(np.repeat(top, scale, axis=0), scale, axis=1)
+
+
+def floor_in_view(costmap: Any, params: Any, intrinsics: Intrinsics,
+                  image_shape: tuple[int, int]) -> np.ndarray:
+    """(ny, nx) bool: cells whose centre, on the ground, the camera sees (inside the image).
+
+    The ground point (x, y, 0) of each cell centre is moved into the optical frame through the
+    mount (``geometry.mount_transform``) and projected with the intrinsics; cells outside the
+    image (below the lower edge of the view, beside it) are the grid's blind cells.
+    """
+    from obstacle_detection.pipeline.geometry import mount_transform
+
+    xs, ys = costmap.cell_centres()
+    grid_x, grid_y = np.meshgrid(xs, ys)  # (ny, nx)
+    rot, trans = mount_transform(params.camera_height_m, params.camera_pitch_rad,
+                                 params.camera_roll_rad)
+    ground = np.stack([grid_x, grid_y, np.zeros_like(grid_x)], axis=-1) - trans
+    optical = ground @ rot  # R^T applied to row vectors
+    z = optical[..., 2]
+    with np.errstate(divide='ignore', invalid='ignore'):
+        u = intrinsics.fx * optical[..., 0] / z + intrinsics.cx
+        v = intrinsics.fy * optical[..., 1] / z + intrinsics.cy
+    height, width = image_shape
+    return (z > 0) & (u >= 0) & (u < width) & (v >= 0) & (v < height)
+
+
+def roi_cells(costmap: Any, params: Any) -> np.ndarray:
+    """(ny, nx) bool: cells whose centre is inside the region of interest's ground footprint."""
+    xs, ys = costmap.cell_centres()
+    inside_x = (xs >= params.min_range_m) & (xs <= params.max_range_m)
+    inside_y = np.abs(ys) <= params.lateral_limit_m
+    return inside_y[:, None] & inside_x[None, :]
+
+
+def costmap_panel(costmap: Any, *, scale: int = 4, params: Any = None,
+                  intrinsics: Intrinsics | None = None,
+                  image_shape: tuple[int, int] | None = None,
+                  robot_pose: tuple[float, float, float] = (0.0, 0.0, 0.0),
+                  axis_names: tuple[str, str] = ('x forward [m]', 'y left [m]')) -> np.ndarray:
+    """Return the costmap seen from above with metre axes, the camera and its view.
+
+    The grid is ``overlay.render_costmap`` (x forward up, y left to the left, ``scale`` px per
+    cell) inside axes ticked in metres: x (forward) on the left, y (left positive) below. A red
+    triangle at x = y = 0 is the camera's foot point, pointing forward. With ``params``, cells
+    outside the region of interest are hatched; with ``params``, ``intrinsics`` and
+    ``image_shape`` too, a magenta line bounds the floor the camera can see (unknown cells
+    outside it were never in view). robot_pose: (x, y, yaw) of the triangle in the grid's frame
+    (a fused grid in odom: the robot's pose there); axis_names: the axes' labels. Returns RGB
+    uint8.
+    """
+    grid = render_costmap(costmap, scale=scale, draw_robot=False)
+    if params is not None:
+        outside = _cell_image(~roi_cells(costmap, params), scale)
+        rows, cols = np.indices(outside.shape)
+        grid[outside & ((rows + cols) % 6 == 0)] = HATCH_RGB
+        if intrinsics is not None and image_shape is not None:
+            seen = _cell_image(floor_in_view(costmap, params, intrinsics, image_shape), scale)
+            contours, _ = cv2.findContours(seen.astype(np.uint8), cv2.RETR_EXTERNAL,
+                                           cv2.CHAIN_APPROX_SIMPLE)
+            cv2.drawContours(grid, contours, -1, VIEW_EDGE_RGB, 2 if scale >= 3 else 1)
+    grid_h, grid_w = grid.shape[:2]
+    line_h = _text_size('Ag', _SMALL)[1]
+    tick_w = _text_size('-10.0', _SMALL)[0]
+    left, top = tick_w + 12, line_h + 8
+    marker = max(6, scale * 2)
+    bottom = marker + 2 * line_h + 12
+    right = _text_size('-10.0', _SMALL)[0] // 2 + 4
+    panel = np.full((top + grid_h + bottom, left + grid_w + right, 3), BACKGROUND_RGB,
+                    dtype=np.uint8)
+    panel[top:top + grid_h, left:left + grid_w] = grid
+    cv2.rectangle(panel, (left - 1, top - 1), (left + grid_w, top + grid_h), AXIS_RGB, 1)
+    res = costmap.resolution_m
+    px_per_m = scale / res
+    x0, y0 = costmap.origin_xy_m
+    x1, y1 = x0 + costmap.width * res, y0 + costmap.height * res
+    _put(panel, axis_names[0], (2, line_h + 2))
+    for x in _ticks(x0, x1, _nice_step(x1 - x0, px_per_m, 3 * line_h)):
+        row = top + round((x1 - x) * px_per_m)
+        cv2.line(panel, (left - 5, row), (left - 1, row), AXIS_RGB, 1)
+        _put(panel, f'{x:g}', (left - 7, row + line_h // 2 - 1), anchor='right')
+    tick_y = top + grid_h + marker + line_h + 4
+    for y in _ticks(y0, y1, _nice_step(y1 - y0, px_per_m, 2.5 * tick_w)):
+        col = left + round((y1 - y) * px_per_m)
+        cv2.line(panel, (col, top + grid_h), (col, top + grid_h + 4), AXIS_RGB, 1)
+        _put(panel, f'{y:g}', (col, tick_y), anchor='centre')
+    _put(panel, axis_names[1], (left + grid_w // 2, tick_y + line_h + 4), anchor='centre')
+    # the camera's foot point (or the robot), its tip pointing along its heading (x forward is
+    # up, y left is left); below the grid when x = 0 is its edge
+    rx, ry, yaw = robot_pose
+    col = left + (y1 - ry) * px_per_m
+    row = top + (x1 - rx) * px_per_m
+    ahead = np.array([-math.sin(yaw), -math.cos(yaw)])      # (d col, d row) of the heading
+    side = np.array([ahead[1], -ahead[0]])
+    tip = np.array([col, row])
+    base = tip - marker * ahead
+    triangle = np.array([tip, base + 0.6 * marker * side,
+                         base - 0.6 * marker * side]).round().astype(np.int32)
+    cv2.fillPoly(panel, [triangle], ROBOT_RGB, cv2.LINE_AA)
+    return panel
+
+
+def _swatch(image: np.ndarray, x: int, y: int, size: int, kind: str,
+            colour: tuple[int, int, int]) -> None:
+    """Draw a legend symbol with its top-left corner at (x, y)."""
+    if kind == 'box':
+        cv2.rectangle(image, (x, y), (x + size, y + size), colour, -1)
+        cv2.rectangle(image, (x, y), (x + size, y + size), AXIS_RGB, 1)
+    elif kind == 'hatch':
+        cv2.rectangle(image, (x, y), (x + size, y + size), UNKNOWN_RGB, -1)
+        for k in range(-size, size, 6):
+            cv2.line(image, (x + max(k, 0), y + max(-k, 0)),
+                     (x + min(size, size + k), y + min(size, size - k)), HATCH_RGB, 1)
+        cv2.rectangle(image, (x, y), (x + size, y + size), AXIS_RGB, 1)
+    elif kind == 'line':
+        cv2.line(image, (x, y + size // 2), (x + size, y + size // 2), colour, 2)
+    elif kind == 'triangle':
+        pts = np.array([[x + size // 2, y], [x, y + size], [x + size, y + size]], np.int32)
+        cv2.fillPoly(image, [pts], colour, cv2.LINE_AA)
+
+
+def legend(title: str, items: Sequence[tuple[str, tuple[int, int, int], str]],
+           width: int) -> np.ndarray:
+    """(h, width, 3) RGB: a bold-ish title line, then symbol + text items wrapped to width.
+
+    items: (kind, colour, text), kind one of 'box', 'hatch', 'line', 'triangle'.
+    """
+    line_h = _text_size('Ag', _SMALL)[1] + 6
+    size = line_h - 8
+    rows: list[list[tuple[str, tuple[int, int, int], str]]] = [[]]
+    used = 4
+    for item in items:
+        need = size + 6 + _text_size(item[2], _SMALL)[0] + 14
+        if rows[-1] and used + need > width:
+            rows.append([])
+            used = 4
+        rows[-1].append(item)
+        used += need
+    band = np.full((line_h * (len(rows) + 1) + 4, width, 3), BACKGROUND_RGB, dtype=np.uint8)
+    _put(band, title, (4, line_h - 5), scale=0.47)
+    _put(band, title, (5, line_h - 5), scale=0.47)
+    for r, row in enumerate(rows):
+        x, y = 4, line_h * (r + 1) + 3
+        for kind, colour, text in row:
+            _swatch(band, x, y, size, kind, colour)
+            _put(band, text, (x + size + 6, y + size))
+            x += size + 6 + _text_size(text, _SMALL)[0] + 14
+    return band
+
+
+def depth_colour_bar(max_depth_m: float, width: int) -> np.ndarray:
+    """(h, width, 3) RGB: the depth grey ramp of ``render_overlay`` ticked in metres.
+
+    Black (no return) on the left, then MIN_GREY at 0 m to white at ``max_depth_m``.
+    """
+    line_h = _text_size('Ag', _SMALL)[1]
+    label = 'depth [m]'
+    left = _text_size(label, _SMALL)[0] + 12
+    bar_w = max(8, width - left - 16)
+    band = np.full((line_h * 2 + 20, width, 3), BACKGROUND_RGB, dtype=np.uint8)
+    ramp = (MIN_GREY + np.linspace(0.0, 1.0, bar_w) * (255 - MIN_GREY)).round()
+    band[4:16, left:left + bar_w] = ramp.astype(np.uint8)[None, :, None]
+    cv2.rectangle(band, (left - 1, 3), (left + bar_w, 16), AXIS_RGB, 1)
+    _put(band, label, (4, 15))
+    px_per_m = bar_w / max_depth_m
+    for d in _ticks(0.0, max_depth_m, _nice_step(max_depth_m, px_per_m, 40)):
+        col = left + min(bar_w - 1, round(d * px_per_m))
+        cv2.line(band, (col, 16), (col, 20), AXIS_RGB, 1)
+        _put(band, f'{d:g}', (col, 20 + line_h + 2), anchor='centre')
+    return band
+
+
+def _wrap(lines: Sequence[str], width: int, scale: float = 0.5) -> list[str]:
+    """Split lines at spaces so that each fits ``width`` px (continuations indented)."""
+    out: list[str] = []
+    for line in lines:
+        words, current = line.split(' '), ''
+        for word in words:
+            trial = f'{current} {word}' if current else word
+            if current and _text_size(trial, scale)[0] > width - 8:
+                out.append(current)
+                current = '    ' + word
+            else:
+                current = trial
+        out.append(current)
+    return out
+
+
+def side_by_side(result: Any, *, caption: str = '', truth_labels: np.ndarray | None = None,
+                 max_depth_m: float | None = None, labels: np.ndarray | None = None,
+                 costmap: Any = None, extra_lines: Sequence[str] = (), params: Any = None,
+                 with_legend: bool = True) -> np.ndarray:
+    """Return the panel picture of one ``DetectionResult``.
+
+    Layout: ``[depth (H x W) | costmap | truth comparison (optional)]``, each with its legend
+    underneath (with_legend), over a caption band. The depth panel (:func:`depth_overlay`)
+    occupies exactly rows ``0:H`` and columns ``0:W`` of the returned image; its legend has a
+    colour bar of the depth in metres. The costmap panel (:func:`costmap_panel`) has metre
+    axes and the camera; with ``params`` (the parameters the result was made with) it also
+    shows the region of interest and the floor in the camera's view.
+    labels / costmap: draw these instead of the result's (e.g. a refined result's).
+    The caption's second line gives the obstacle pixel and voxel counts and the pipeline
+    time; long lines are wrapped. Returns (H + legends + band, W_total, 3) uint8 RGB.
+    """
+    labels = result.labels if labels is None else labels
+    costmap = result.costmap if costmap is None else costmap
+    depth_m = np.asarray(result.depth_m)
+    height, width = depth_m.shape
+    valid = np.isfinite(depth_m) & (depth_m > 0)
+    shown_max = max_depth_m if max_depth_m is not None else (
+        float(depth_m[valid].max()) if valid.any() else 1.0)
+    panels = [depth_overlay(depth_m, labels, max_depth_m=shown_max)]
+    margin_w, margin_h = 70, 80
+    scale = max(1, min((width - margin_w) // max(costmap.height, 1),
+                       (height - margin_h) // max(costmap.width, 1)))
+    intrinsics = getattr(result, 'intrinsics', None)
+    panels.append(_pad_to_height(costmap_panel(
+        costmap, scale=scale, params=params, intrinsics=intrinsics,
+        image_shape=(height, width)), height))
+    if truth_labels is not None:
+        panels.append(truth_comparison(labels, truth_labels, depth_m, max_depth_m=shown_max))
+    gap = np.full((height, _GAP_PX, 3), BACKGROUND_RGB, dtype=np.uint8)
+    row: list[np.ndarray] = []
+    for panel in panels:
+        row.extend([panel, gap])
+    top = np.hstack(row[:-1])
+    parts = [top]
+    if with_legend:
+        parts.append(legend_row([p.shape[1] for p in panels], shown_max,
+                                truth=truth_labels is not None, params=params))
+    n_pixels = int(np.count_nonzero(labels == LABEL_OBSTACLE))
+    occupied = int(np.count_nonzero(np.asarray(costmap.data) == CELL_OCCUPIED))
+    total_ms = float(result.timings_ms.get('total', float('nan')))
+    stats = (f'{n_pixels} obstacle px, {int(result.obstacle_points.shape[0])} obstacle voxels, '
+             f'{occupied} occupied cells, {total_ms:.0f} ms')
+    lines = [line for line in (caption, stats, *extra_lines) if line]
+    parts.append(caption_band(_wrap(lines, top.shape[1]), top.shape[1]))
+    return np.vstack(parts)
+
+
+def _roi_text(params: Any) -> str:
+    if params is None:
+        return 'outside the region of interest'
+    return (f'outside the region of interest (x {params.min_range_m:g}-'
+            f'{params.max_range_m:g} m, |y| <= {params.lateral_limit_m:g} m, z '
+            f'{params.tdbg_m:g} to {params.max_height_m:.2g} m)')
+
+
+def legend_row(widths: Sequence[int], max_depth_m: float, *, truth: bool,
+               params: Any = None) -> np.ndarray:
+    """Return the legends of the panels side by side, padded to one height.
+
+    widths: of the depth, costmap (and truth) panels [px]; max_depth_m: the white end of the
+    depth colour bar; params: name the region of interest and show its hatching.
+    """
+    roi_text = _roi_text(params)
+    depth = np.vstack([
+        legend('depth image (camera view)', [
+            ('box', OBSTACLE_RGB, 'obstacle'),
+            ('box', GROUND_RGB, 'ground (passable)'),
+            ('box', (150, 150, 150), roi_text + ': depth grey'),
+            ('box', NO_RETURN_RGB, 'no return')], widths[0]),
+        depth_colour_bar(max_depth_m, widths[0])])
+    items = [('box', OCCUPIED_RGB, 'occupied'), ('box', FREE_RGB, 'free (ground seen)'),
+             ('box', UNKNOWN_RGB, 'unknown (not seen)')]
+    if params is not None:
+        items += [('hatch', HATCH_RGB, 'outside the region of interest'),
+                  ('line', VIEW_EDGE_RGB, "edge of the floor in the camera's view")]
+    items.append(('triangle', ROBOT_RGB, 'camera (x = y = 0), facing +x'))
+    cells = legend('costmap, top view', items, widths[1])
+    blocks = [depth, cells]
+    if truth:
+        blocks.append(legend('obstacle pixels vs ground truth', [
+            ('box', HIT_RGB, 'hit'), ('box', FALSE_ALARM_RGB, 'false alarm'),
+            ('box', MISS_RGB, 'miss (called ground)')], widths[2]))
+    height = max(b.shape[0] for b in blocks)
+    padded = []
+    for block in blocks:
+        pad = np.full((height - block.shape[0], block.shape[1], 3), BACKGROUND_RGB, np.uint8)
+        padded.extend([np.vstack([block, pad]),
+                       np.full((height, _GAP_PX, 3), BACKGROUND_RGB, np.uint8)])
+    return np.hstack(padded[:-1])
+
+
+def contact_sheet(images: Sequence[np.ndarray], *, labels: Sequence[str] | None = None,
+                  columns: int = 4, thumb_width: int = 400) -> np.ndarray:
+    """Return a grid of RGB thumbnails, each ``thumb_width`` wide with an optional label below.
+
+    Returns (rows * cell_h, columns * thumb_width, 3) uint8 RGB (white padding).
+    """
+    if not images:
+        raise ValueError('contact sheet of no images')
+    if columns < 1 or thumb_width < 8:
+        raise ValueError(f'columns={columns} must be >= 1 and thumb_width={thumb_width} >= 8')
+    thumbs = []
+    for i, image in enumerate(images):
+        h, w = image.shape[:2]
+        thumb_h = max(1, round(h * thumb_width / w))
+        thumb = cv2.resize(image, (thumb_width, thumb_h), interpolation=cv2.INTER_AREA)
+        if labels is not None:
+            thumb = np.vstack([thumb, caption_band([labels[i]], thumb_width, scale=0.45)])
+        thumbs.append(thumb)
+    cell_h = max(t.shape[0] for t in thumbs) + _GAP_PX
+    cell_w = thumb_width + _GAP_PX
+    columns = min(columns, len(thumbs))
+    rows = -(-len(thumbs) // columns)
+    sheet = np.full((rows * cell_h, columns * cell_w, 3), BACKGROUND_RGB, dtype=np.uint8)
+    for i, thumb in enumerate(thumbs):
+        r, c = divmod(i, columns)
+        sheet[r * cell_h:r * cell_h + thumb.shape[0], c * cell_w:c * cell_w + thumb_width] = thumb
+    return sheet
+
+
+def write_png(path: str | Path, rgb: np.ndarray) -> None:
+    """Write an RGB uint8 image as PNG (parent folders created); raises OSError on failure."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(path), cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2BGR)):
+        raise OSError(f'could not write {path}')
+
+
+# --------------------------------------------------------------------------------------------
+# Frames from files and bags
+
+
+@dataclass
+class DepthFrame:
+    """A depth frame to draw: depth (H, W) uint16/float, its intrinsics, a name."""
+
+    name: str
+    depth: np.ndarray
+    intrinsics: Intrinsics | None
+    depth_scale: float | None = None
+    truth_labels: np.ndarray | None = None
+    #: where the intrinsics came from (e.g. ``CameraInfo on /x (found by type)``), '' = none
+    intrinsics_origin: str = ''
+
+
+def read_depth_png(path: str | Path) -> np.ndarray:
+    """Return the (H, W) uint16 depth of a 16-bit one-channel PNG or PGM (ValueError if not)."""
+    depth = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if depth is None:
+        raise ValueError(f'{path}: cannot read the image')
+    if depth.dtype != np.uint16 or depth.ndim != 2:
+        raise ValueError(f'{path}: a depth PNG must be 16-bit single channel, got '
+                         f'{depth.dtype} with shape {depth.shape}')
+    return depth
+
+
+def bag_frames(path: str | Path, depth_topic: str, info_topic: str | None = None, *,
+               every: int = 1, max_frames: int | None = None,
+               find_info_topic: bool = False) -> Iterator[DepthFrame]:
+    """Depth frames of a ROS 2 (or ROS 1) bag, in time order, with the latest camera info.
+
+    depth_topic: sensor_msgs/Image (16UC1 [mm] or 32FC1 [m]); info_topic: its CameraInfo.
+    Without ``info_topic`` and with ``find_info_topic``, the CameraInfo topic is found by type
+    (``tool_support.choose_info_topic``). No CameraInfo topic, or no message before a frame:
+    the frame's intrinsics are None (the caller chooses a fallback and says so); each frame's
+    ``intrinsics_origin`` names the topic. every: keep one frame in ``every``; max_frames: stop
+    after so many. Raises ValueError naming the path when it is not a bag, cannot be read, or
+    lacks the depth topic.
+    """
+    from rosbags.highlevel import AnyReader, AnyReaderError
+    from rosbags.typesys import Stores, get_typestore
+
+    from obstacle_detection.cli.support import check_bag_path
+
+    if every < 1:
+        raise ValueError(f'every={every} must be >= 1')
+    check_bag_path(path)
+    try:
+        reader = AnyReader([Path(path)], default_typestore=get_typestore(Stores.ROS2_JAZZY))
+        reader.open()
+    except AnyReaderError as exc:
+        raise ValueError(f'{path}: cannot read the bag ({exc})') from None
+    try:
+        yield from _bag_frames(reader, path, depth_topic, info_topic, every, max_frames,
+                               find_info_topic)
+    finally:
+        reader.close()
+
+
+def _bag_frames(reader: Any, path: str | Path, depth_topic: str, info_topic: str | None,
+                every: int, max_frames: int | None, find_info_topic: bool
+                ) -> Iterator[DepthFrame]:
+    from obstacle_detection.ros.conversions import camera_info_to_intrinsics, image_to_array
+    from obstacle_detection.cli.support import IMAGE_TYPE, choose_info_topic
+
+    topics = {c.topic: c.msgtype for c in reader.connections}
+    if depth_topic not in topics:
+        images = sorted(t for t, kind in topics.items() if kind == IMAGE_TYPE)
+        raise ValueError(f'{path}: no topic {depth_topic!r}; its {IMAGE_TYPE} topics: '
+                         f'{", ".join(images) or "none"} (use --depth-topic)')
+    how = 'given'
+    if info_topic is None and find_info_topic:
+        info_topic, how = choose_info_topic(topics, depth_topic)
+    elif info_topic is not None:
+        try:
+            choose_info_topic(topics, depth_topic, info_topic)
+        except ValueError as exc:
+            raise ValueError(f'{path}: {exc}') from None
+    wanted = [c for c in reader.connections
+              if c.topic == depth_topic or (info_topic and c.topic == info_topic)]
+    intrinsics: Intrinsics | None = None
+    seen = kept = 0
+    for connection, timestamp, raw in reader.messages(connections=wanted):
+        if connection.topic != depth_topic:
+            intrinsics = camera_info_to_intrinsics(reader.deserialize(raw,
+                                                                      connection.msgtype))
+            continue
+        seen += 1
+        if (seen - 1) % every:
+            continue
+        msg = reader.deserialize(raw, connection.msgtype)
+        stamp = msg.header.stamp
+        origin = (f'CameraInfo on {info_topic} ({how})' if intrinsics is not None
+                  else f'none: no CameraInfo on {info_topic} before the frame'
+                  if info_topic else f'none: {how}')
+        yield DepthFrame(f'{depth_topic} #{seen - 1} t={stamp.sec}.{stamp.nanosec:09d}',
+                         image_to_array(msg), intrinsics, intrinsics_origin=origin)
+        kept += 1
+        if max_frames is not None and kept >= max_frames:
+            return
+
+
+# --------------------------------------------------------------------------------------------
+# Heatmaps of parameter sweeps (seed figures 4.18 and 4.19 as numbers)
+
+
+def heatmap(scores: np.ndarray, x_labels: Sequence[str], y_labels: Sequence[str], *,
+            title: str = '', x_name: str = '', y_name: str = '', vmin: float = 0.0,
+            vmax: float = 1.0, best: tuple[int, int] | None = None,
+            values: np.ndarray | None = None, cell_px: int = 64) -> np.ndarray:
+    """Return a score grid drawn as a coloured table with the value written in each cell.
+
+    scores: (ny, nx) float, NaN = not run / invalid (drawn grey, '-'); row 0 is drawn at the
+    top; colours: OpenCV's viridis from ``vmin`` (dark) to ``vmax`` (yellow); best: (row, col)
+    outlined in red; values: numbers to write instead of ``scores`` (e.g. when the colour
+    shows 1 - a false-alarm rate). Returns RGB uint8.
+    """
+    scores = np.asarray(scores, dtype=np.float64)
+    values = scores if values is None else np.asarray(values, dtype=np.float64)
+    if scores.ndim != 2 or scores.shape != (len(y_labels), len(x_labels)):
+        raise ValueError(f'scores shape {scores.shape} does not match {len(y_labels)} y labels '
+                         f'and {len(x_labels)} x labels')
+    if not vmax > vmin:
+        raise ValueError(f'vmax={vmax} must be above vmin={vmin}')
+    ny, nx = scores.shape
+    scaled = np.clip((np.nan_to_num(scores, nan=vmin) - vmin) / (vmax - vmin), 0.0, 1.0)
+    grey = (scaled * 255).round().astype(np.uint8)
+    colours = cv2.cvtColor(cv2.applyColorMap(grey, cv2.COLORMAP_VIRIDIS), cv2.COLOR_BGR2RGB)
+    label_w = max([_text_size(s, 0.45)[0] for s in y_labels] + [_text_size(y_name, 0.45)[0]])
+    left = label_w + 12
+    top = 2 * (_text_size('Ag', 0.5)[1] + 6)
+    bottom = 2 * (_text_size('Ag', 0.45)[1] + 6)
+    image = np.full((top + ny * cell_px + bottom, max(left + nx * cell_px + 8, 160), 3),
+                    BACKGROUND_RGB, dtype=np.uint8)
+    for r in range(ny):
+        for c in range(nx):
+            y0, x0 = top + r * cell_px, left + c * cell_px
+            value = scores[r, c]
+            colour = (170, 170, 170) if np.isnan(value) else tuple(int(v) for v in colours[r, c])
+            cv2.rectangle(image, (x0, y0), (x0 + cell_px - 1, y0 + cell_px - 1), colour, -1)
+            text = '-' if np.isnan(values[r, c]) else f'{values[r, c]:.2f}'
+            tw, th = _text_size(text, 0.45)
+            ink = (0, 0, 0) if np.isnan(value) or scaled[r, c] > 0.6 else (255, 255, 255)
+            cv2.putText(image, text, (x0 + (cell_px - tw) // 2, y0 + (cell_px + th) // 2 - 3),
+                        _FONT, 0.45, ink, 1, cv2.LINE_AA)
+        tw, th = _text_size(y_labels[r], 0.45)
+        cv2.putText(image, y_labels[r], (left - tw - 6, top + r * cell_px + (cell_px + th) // 2),
+                    _FONT, 0.45, TEXT_RGB, 1, cv2.LINE_AA)
+    for c in range(nx):
+        tw, th = _text_size(x_labels[c], 0.45)
+        cv2.putText(image, x_labels[c],
+                    (left + c * cell_px + (cell_px - tw) // 2, top + ny * cell_px + th + 2),
+                    _FONT, 0.45, TEXT_RGB, 1, cv2.LINE_AA)
+    if best is not None:
+        r, c = best
+        cv2.rectangle(image, (left + c * cell_px, top + r * cell_px),
+                      (left + (c + 1) * cell_px - 1, top + (r + 1) * cell_px - 1),
+                      (230, 0, 0), 3)
+    axis_y = top + ny * cell_px + 2 * (_text_size('Ag', 0.45)[1] + 4)
+    cv2.putText(image, x_name, (left, axis_y), _FONT, 0.45, TEXT_RGB, 1, cv2.LINE_AA)
+    cv2.putText(image, y_name, (4, top - 6), _FONT, 0.45, TEXT_RGB, 1, cv2.LINE_AA)
+    cv2.putText(image, title, (4, _text_size('Ag', 0.5)[1] + 2), _FONT, 0.5, TEXT_RGB, 1,
+                cv2.LINE_AA)
+    return image
+
+
+def tile(images: Sequence[np.ndarray], *, columns: int = 3) -> np.ndarray:
+    """Images (RGB) placed on a grid without scaling, white padding; for heatmap pages."""
+    if not images:
+        raise ValueError('tile of no images')
+    columns = max(1, min(columns, len(images)))
+    cell_h = max(i.shape[0] for i in images) + _GAP_PX
+    cell_w = max(i.shape[1] for i in images) + _GAP_PX
+    rows = -(-len(images) // columns)
+    page = np.full((rows * cell_h, columns * cell_w, 3), BACKGROUND_RGB, dtype=np.uint8)
+    for i, image in enumerate(images):
+        r, c = divmod(i, columns)
+        page[r * cell_h:r * cell_h + image.shape[0], c * cell_w:c * cell_w + image.shape[1]] = \
+            image
+    return page
