@@ -13,6 +13,12 @@ with the same interpreter, compiled (numba) unless ``OBSTACLE_DETECTION_NO_JIT``
 
     .venv/bin/python test/compare_outputs.py 2f8c7d1      # prints one line per difference
 
+Across a change of module paths (the other commit's digest mode cannot run this script's
+imports), save the other tree's digests with its own copy of this script and compare:
+
+    PYTHONPATH=. .venv/bin/python test/compare_outputs.py --digest before.json   # old tree
+    .venv/bin/python test/compare_outputs.py --against before.json               # this tree
+
 Exit status 0 when every output is identical, 1 otherwise (or on an error, one line).
 """
 
@@ -108,9 +114,21 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('commit', nargs='?', help='the commit to compare with')
     parser.add_argument('--digest', type=Path, help=argparse.SUPPRESS)
+    parser.add_argument('--against', type=Path, metavar='JSON',
+                        help='compare with digests saved by --digest instead of a commit')
     args = parser.parse_args(argv)
     if args.digest is not None:
         return digest(args.digest)
+    if args.against is not None:
+        with tempfile.TemporaryDirectory(prefix='compare_outputs_') as tmp:
+            try:
+                _run_digest(REPO, Path(tmp) / 'ours.json')
+                theirs = json.loads(args.against.read_text())
+            except (RuntimeError, OSError, ValueError) as error:
+                print(f'error: {error}')
+                return 1
+            ours = json.loads((Path(tmp) / 'ours.json').read_text())
+        return _report(theirs, ours, str(args.against))
     if not args.commit:
         parser.error('give the commit to compare with')
     with tempfile.TemporaryDirectory(prefix='compare_outputs_') as tmp:
@@ -131,12 +149,17 @@ def main(argv: list[str] | None = None) -> int:
             return 1
         theirs = json.loads((Path(tmp) / 'theirs.json').read_text())
         ours = json.loads((Path(tmp) / 'ours.json').read_text())
+    return _report(theirs, ours, args.commit)
+
+
+def _report(theirs: dict, ours: dict, other: str) -> int:
+    """Print one line per differing output and a summary; 0 when all are identical."""
     keys = sorted(set(theirs) | set(ours))
     differ = [k for k in keys if theirs.get(k) != ours.get(k)]
     for key in differ:
         print(f'differs: {key}')
     frames = len({k.split('|')[0] for k in keys})
-    print(f'{len(keys)} outputs of {frames} frame runs compared with {args.commit}: '
+    print(f'{len(keys)} outputs of {frames} frame runs compared with {other}: '
           f'{len(differ)} differ')
     return 1 if differ else 0
 
