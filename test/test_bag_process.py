@@ -27,12 +27,13 @@ from obstacle_detection.pipeline.params import KINECT_V2_SD, Intrinsics
 from obstacle_detection.pipeline.detector import Detector
 from obstacle_detection.ros.parameters import detector_params_from_ros
 from obstacle_detection.sim.scenes import render_scene
-from tools import bag_convert, bag_process
+from obstacle_detection.ros import bag_writer
+from obstacle_detection.tools import bag_convert, bag_process
 
 REPO = Path(__file__).resolve().parents[1]
 JAZZY = get_typestore(Stores.ROS2_JAZZY)
-DEPTH = bag_convert.DEFAULT_DEPTH_TOPIC
-INFO = bag_convert.DEFAULT_INFO_TOPIC
+DEPTH = bag_writer.DEFAULT_DEPTH_TOPIC
+INFO = bag_writer.DEFAULT_INFO_TOPIC
 SIZE = (128, 106)  # a quarter of the Kinect v2 SD image
 INTR = Intrinsics(KINECT_V2_SD.fx / 4, KINECT_V2_SD.fy / 4, KINECT_V2_SD.cx / 4,
                   KINECT_V2_SD.cy / 4)

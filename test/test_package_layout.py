@@ -121,7 +121,7 @@ def test_installed_detector_starts_and_stops_on_sigint(prefix: Path, tmp_path: P
 
 def test_parameter_table_lists_every_parameter_with_its_range() -> None:
     from obstacle_detection.ros.parameters import ALL_PARAMS
-    from tools.param_table import parameter_table
+    from obstacle_detection.tools.param_table import parameter_table
 
     rows = parameter_table().splitlines()[2:]
 

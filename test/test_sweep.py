@@ -9,7 +9,7 @@ import pytest
 
 from obstacle_detection.evaluation import runner as evaluation
 from obstacle_detection.pipeline.params import table_4_2
-from tools import sweep
+from obstacle_detection.tools import sweep
 
 NAN = float('nan')
 

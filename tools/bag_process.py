@@ -31,28 +31,26 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-if __package__ in (None, ''):  # run as a script: make the repository root importable
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import numpy as np
+from rclpy.serialization import deserialize_message, serialize_message
+from rosbags.rosbag2 import Reader, ReaderError, Writer, WriterError
+from rosbags.typesys import Stores, get_typestore
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
-import numpy as np  # noqa: E402
-from rclpy.serialization import deserialize_message, serialize_message  # noqa: E402
-from rosbags.rosbag2 import Reader, ReaderError, Writer, WriterError  # noqa: E402
-from rosbags.typesys import Stores, get_typestore  # noqa: E402
-from sensor_msgs.msg import CameraInfo, CompressedImage, Image  # noqa: E402
-
-from obstacle_detection.cli import support as tool_support  # noqa: E402
-from obstacle_detection.ros.compressed_depth import (COMPRESSED_IMAGE_TYPE,  # noqa: E402
+from obstacle_detection.cli import support as tool_support
+from obstacle_detection.ros.compressed_depth import (COMPRESSED_IMAGE_TYPE,
                                                  depth_message_to_array, is_compressed_image,
                                                  raw_topic)
-from obstacle_detection.ros.conversions import (DEPTH_ENCODINGS, ImageFormatError,  # noqa: E402
+from obstacle_detection.ros.conversions import (DEPTH_ENCODINGS, ImageFormatError,
                                             camera_info_to_intrinsics, result_to_messages)
-from obstacle_detection.ros.node import NodeConfig, build_config  # noqa: E402
-from obstacle_detection.pipeline.params import Intrinsics  # noqa: E402
-from obstacle_detection.ros.parameters import (ALL_PARAMS, ParamsFileError,  # noqa: E402
+from obstacle_detection.ros.node import NodeConfig, build_config
+from obstacle_detection.pipeline.params import Intrinsics
+from obstacle_detection.ros.parameters import (ALL_PARAMS, ParamsFileError,
                                            read_params_files)
-from tools.bag_convert import (BAG_VERSION, DEFAULT_DEPTH_TOPIC,  # noqa: E402
-                               DEFAULT_INFO_TOPIC, STORAGES, ConvertError, staged_output)
-from obstacle_detection.cli.progress import Progress  # noqa: E402
+from obstacle_detection.evaluation.datasets import ConvertError
+from obstacle_detection.ros.bag_writer import (BAG_VERSION, DEFAULT_DEPTH_TOPIC,
+                                               DEFAULT_INFO_TOPIC, STORAGES, staged_output)
+from obstacle_detection.cli.progress import Progress
 
 DEFAULT_NAMESPACE = '/obstacles'
 #: result_to_messages key -> (topic below the namespace, message type).

@@ -36,14 +36,12 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-if __package__ in (None, ''):  # run as a script: make the repository root importable
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import cv2
+import numpy as np
 
-import cv2  # noqa: E402
-import numpy as np  # noqa: E402
-
-from tools import bag_convert, bag_play  # noqa: E402
-from obstacle_detection.ros.dds_env import loopback_env  # noqa: E402
+from obstacle_detection.evaluation import datasets
+from obstacle_detection.ros import bag_player, bag_writer
+from obstacle_detection.ros.dds_env import loopback_env
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_PARAMS = REPO / 'params' / 'corridor.yaml'
@@ -163,7 +161,7 @@ class Recorder:
         self.messages: dict[str, list[tuple[int, bytes]]] = {t: [] for t in OUTPUT_TOPICS}
         self.last_arrival = time.monotonic()
         self.subscriptions = [
-            node.create_subscription(bag_play.message_class(msgtype), topic,
+            node.create_subscription(bag_player.message_class(msgtype), topic,
                                      lambda raw, t=topic: self._keep(t, raw), qos, raw=True)
             for topic, msgtype in OUTPUT_TOPICS.items()]
 
@@ -187,12 +185,12 @@ def write_results_bag(path: Path, recorder: Recorder) -> None:
     from rosbags.typesys import Stores, get_typestore
 
     typestore = get_typestore(Stores.ROS2_JAZZY)
-    with Writer(path, version=bag_convert.BAG_VERSION) as writer:
+    with Writer(path, version=bag_writer.BAG_VERSION) as writer:
         for topic, msgtype in OUTPUT_TOPICS.items():
             if not recorder.messages[topic]:
                 continue
             conn = writer.add_connection(topic, msgtype, typestore=typestore)
-            cls = bag_play.message_class(msgtype)
+            cls = bag_player.message_class(msgtype)
             for arrival, raw in recorder.messages[topic]:
                 msg = deserialize_message(raw, cls)
                 header = getattr(msg, 'header', None)
@@ -352,8 +350,8 @@ def _node_command(params: Path, frame: Any, *, reliable: bool, odom_topic: str) 
 
     return [sys.executable, '-m', 'obstacle_detection.ros.node', '--ros-args',
             '--params-file', str(params),
-            '-r', f'depth/image_raw:={bag_convert.DEFAULT_DEPTH_TOPIC}',
-            '-r', f'depth/camera_info:={bag_convert.DEFAULT_INFO_TOPIC}',
+            '-r', f'depth/image_raw:={bag_writer.DEFAULT_DEPTH_TOPIC}',
+            '-r', f'depth/camera_info:={bag_writer.DEFAULT_INFO_TOPIC}',
             '-p', 'publish_overlay:=true', '-p', 'stats_period_s:=1.0',
             '-p', f'camera_height_m:={float(frame.height_m)!r}',
             '-p', f'camera_pitch_deg:={round(math.degrees(frame.pitch_rad), 9)!r}',
@@ -467,14 +465,14 @@ def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
     rate = args.rate if args.rate is not None else DEMO_FPS / bag_hz
 
     print(f'[2/5] converting them to a rosbag2: {out / "input_bag"}')
-    source = bag_convert.folder_frames(depth_dir, intrinsics_path=camera, rate_hz=bag_hz,
+    source = datasets.folder_frames(depth_dir, intrinsics_path=camera, rate_hz=bag_hz,
                                        start_s=float(int(time.time())))
     if poses is not None:
         source.frames = [dataclasses.replace(f, pose=p) for f, p in zip(source.frames, poses)]
     pose_by_stamp = ({(f.stamp_ns // 1_000_000_000, f.stamp_ns % 1_000_000_000): f.pose
                       for f in source.frames} if poses is not None else {})
-    summary = bag_convert.write_frames(source, out / 'input_bag',
-                                       bag_convert.BagOptions(progress=not args.quiet))
+    summary = bag_writer.write_frames(source, out / 'input_bag',
+                                       bag_writer.BagOptions(progress=not args.quiet))
     print('\n'.join('      ' + line for line in summary.lines()[1:4]))
 
     env = loopback_env(args.domain_id)
@@ -487,7 +485,7 @@ def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
         p for p in (str(REPO), env.get('PYTHONPATH', '')) if p), PYTHONUNBUFFERED='1',
         RCUTILS_COLORIZED_OUTPUT='0', ROS_LOG_DIR=str(out / 'ros_log'))
     command = _node_command(args.params, first, reliable=not args.best_effort,
-                            odom_topic=bag_convert.DEFAULT_ODOM_TOPIC)
+                            odom_topic=bag_writer.DEFAULT_ODOM_TOPIC)
     print(f'[3/5] starting the detector node (ROS_DOMAIN_ID={args.domain_id}, loopback only; '
           f'log: {out / "node.log"}):\n      {" ".join(command[1:])}')
     with (out / 'node.log').open('w') as log:
@@ -508,10 +506,10 @@ def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
                                  lambda msg: status.append(msg.data),
                                  QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                                             durability=DurabilityPolicy.TRANSIENT_LOCAL))
-        options = bag_play.PlayOptions(rate=rate, reliable=not args.best_effort,
+        options = bag_player.PlayOptions(rate=rate, reliable=not args.best_effort,
                                        wait_for_subscribers=2,
                                        wait_timeout_s=args.timeout, progress=False)
-        player = bag_play.Player(node, out / 'input_bag', options)
+        player = bag_player.Player(node, out / 'input_bag', options)
         _wait_until_ready(executor, status, player, node_process, args.timeout,
                           failed / 'node.log', out / 'node.log')
         print(f'      node {status[-1]}')
@@ -520,7 +518,7 @@ def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
             executor.spin_once(timeout_sec=0.05)
 
         print(f'[4/5] replaying {summary.frames} frames at {bag_hz * rate:g} Hz into the node')
-        stats: list[bag_play.PlayStats] = []
+        stats: list[bag_player.PlayStats] = []
         thread = threading.Thread(target=lambda: stats.append(player.play(stop)), daemon=True)
         thread.start()
         while thread.is_alive():
@@ -559,7 +557,7 @@ def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
 
     times = [deserialize_message(raw, Float64).data
              for _, raw in recorder.messages['/obstacle_detector/processing_time_ms']]
-    sent = stats[0].published.get(bag_convert.DEFAULT_DEPTH_TOPIC, 0) if stats else 0
+    sent = stats[0].published.get(bag_writer.DEFAULT_DEPTH_TOPIC, 0) if stats else 0
     report = [f'  depth frames sent: {sent}, results received: {received} costmaps, '
               f'{recorder.count("/obstacles/points")} obstacle clouds, '
               f'{recorder.count("/obstacles/overlay")} overlays']
@@ -631,7 +629,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
     try:
         return run_demo(args)
-    except (DemoError, bag_convert.ConvertError, bag_play.PlayError) as err:
+    except (DemoError, datasets.ConvertError, bag_player.PlayError) as err:
         print(f'error: {err}', file=sys.stderr)
         return 1
 

@@ -22,27 +22,13 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
-if __package__ in (None, ''):  # run as a script: make the repository root importable
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-
-from obstacle_detection.cli import support as tool_support  # noqa: E402
-from obstacle_detection.pipeline.depth import decode_depth  # noqa: E402
-from obstacle_detection.pipeline.mount import MountEstimate, estimate_mount  # noqa: E402
-from obstacle_detection.pipeline.params import Intrinsics  # noqa: E402
-from obstacle_detection.viz.pictures import read_depth_png  # noqa: E402
-from obstacle_detection.ros.parameters import NODE_NAME  # noqa: E402
-
-
-def parse_intrinsics(text: str) -> Intrinsics:
-    """``fx,fy,cx,cy`` [px] -> Intrinsics (argparse type)."""
-    try:
-        values = [float(v) for v in text.split(',')]
-        if len(values) != 4:
-            raise ValueError(f'4 values needed, got {len(values)}')
-        return Intrinsics(*values)
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(f'expected fx,fy,cx,cy, got {text!r}: {exc}') from None
+from obstacle_detection.cli import support as tool_support
+from obstacle_detection.cli.support import parse_intrinsics
+from obstacle_detection.pipeline.depth import decode_depth
+from obstacle_detection.pipeline.mount import MountEstimate, estimate_mount
+from obstacle_detection.pipeline.params import Intrinsics
+from obstacle_detection.viz.pictures import read_depth_png
+from obstacle_detection.ros.parameters import NODE_NAME
 
 
 def params_yaml(estimate: MountEstimate, node_name: str = NODE_NAME) -> str:

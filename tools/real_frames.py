@@ -21,18 +21,15 @@ import argparse
 import sys
 from pathlib import Path
 
-if __package__ in (None, ''):  # run as a script: make the repository root importable
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+import numpy as np
 
-import numpy as np  # noqa: E402
-
-from obstacle_detection.pipeline import geometry  # noqa: E402
-from obstacle_detection.pipeline.depth import decode_depth  # noqa: E402
-from obstacle_detection.evaluation.runner import apply_overrides, load_params_file  # noqa: E402
-from obstacle_detection.pipeline.mount import estimate_mount  # noqa: E402
-from obstacle_detection.pipeline.params import Intrinsics, corridor  # noqa: E402
-from obstacle_detection.viz.pictures import read_depth_png  # noqa: E402
-from obstacle_detection.pipeline.detector import LABEL_OBSTACLE, Detector  # noqa: E402
+from obstacle_detection.pipeline import geometry
+from obstacle_detection.pipeline.depth import decode_depth
+from obstacle_detection.evaluation.runner import apply_overrides, load_params_file
+from obstacle_detection.pipeline.mount import estimate_mount
+from obstacle_detection.pipeline.params import Intrinsics, corridor
+from obstacle_detection.viz.pictures import read_depth_png
+from obstacle_detection.pipeline.detector import LABEL_OBSTACLE, Detector
 
 REPO = Path(__file__).resolve().parent.parent
 

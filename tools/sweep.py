@@ -30,15 +30,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
-if __package__ in (None, ''):  # run as a script: make the repository root importable
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import numpy as np
 
-import numpy as np  # noqa: E402
-
-from obstacle_detection.evaluation import runner as evaluation  # noqa: E402
-from obstacle_detection.pipeline.params import DetectorParams  # noqa: E402
-from tools.evaluate import (add_common_arguments, base_params, frame_sources,  # noqa: E402
-                            report_error)
+from obstacle_detection.evaluation import runner as evaluation
+from obstacle_detection.pipeline.params import DetectorParams
+from obstacle_detection.cli.evaluation_args import (add_common_arguments, base_params,
+                                                   frame_sources, report_error)
 
 #: metric name -> (confusion kind, score attribute, higher is better)
 METRICS: dict[str, tuple[str, str, bool]] = {

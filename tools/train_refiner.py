@@ -20,13 +20,11 @@ import time
 from pathlib import Path
 from typing import Sequence
 
-if __package__ in (None, ''):  # run as a script: make the repository root importable
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from obstacle_detection.evaluation import runner as evaluation  # noqa: E402
-from obstacle_detection.evaluation.metrics import Confusion, format_score  # noqa: E402
-from obstacle_detection.pipeline.refine import LogisticRefiner  # noqa: E402
-from tools.evaluate import add_common_arguments, base_params, frame_sources  # noqa: E402
+from obstacle_detection.evaluation import runner as evaluation
+from obstacle_detection.evaluation.metrics import Confusion, format_score
+from obstacle_detection.pipeline.refine import LogisticRefiner
+from obstacle_detection.cli.evaluation_args import (add_common_arguments, base_params,
+                                                   frame_sources)
 
 
 def split_frames(frames: Sequence[evaluation.LabelledFrame], train_count: int,

@@ -12,6 +12,7 @@ No ROS import here.
 
 from __future__ import annotations
 
+import argparse
 import math
 import sys
 from collections.abc import Mapping
@@ -166,6 +167,17 @@ def _common_prefix(a: str, b: str) -> str:
 
 # --------------------------------------------------------------------------------------------
 # Saying what is used, checking it against the data
+
+
+def parse_intrinsics(text: str) -> Intrinsics:
+    """``fx,fy,cx,cy`` [px] -> Intrinsics (argparse type)."""
+    try:
+        values = [float(v) for v in text.split(',')]
+        if len(values) != 4:
+            raise ValueError(f'4 values needed, got {len(values)}')
+        return Intrinsics(*values)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f'expected fx,fy,cx,cy, got {text!r}: {exc}') from None
 
 
 def intrinsics_text(intrinsics: Intrinsics) -> str:
