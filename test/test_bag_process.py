@@ -21,6 +21,7 @@ from nav_msgs.msg import OccupancyGrid
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 
 from obstacle_detection.ros.compressed_depth import array_to_compressed_depth
+from obstacle_detection.viz.overlay import render_overlay
 from obstacle_detection.ros.conversions import (array_to_image, image_to_array,
                                             intrinsics_to_camera_info, result_to_messages)
 from obstacle_detection.pipeline.params import KINECT_V2_SD, Intrinsics
@@ -109,10 +110,11 @@ def expected_outputs(depth: np.ndarray, intr: Intrinsics, t: int) -> dict[str, o
     so the in-process messages are compared after one.
     """
     detector = Detector(detector_params_from_ros(PARAM_VALUES))
+    result = detector.process(depth, intr)
     messages = result_to_messages(
-        detector.process(depth, intr), stamp=to_time(t), cloud_frame_id='base_link',
+        result, stamp=to_time(t), cloud_frame_id='base_link',
         costmap_frame_id='base_footprint', image_frame_id=FRAME_ID, with_ground=True,
-        with_overlay=True)
+        overlay_rgb=render_overlay(result.depth_m, result.labels))
     return {key: deserialize_message(serialize_message(msg), type(msg))
             for key, msg in messages.items()}
 

@@ -24,7 +24,7 @@ from obstacle_detection.ros.conversions import (
     result_to_messages,
 )
 from obstacle_detection.pipeline.costmap import CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN, Costmap
-from obstacle_detection.viz.overlay import OBSTACLE_RGB
+from obstacle_detection.viz.overlay import OBSTACLE_RGB, render_overlay
 from obstacle_detection.pipeline.params import KINECT_V2_SD, Intrinsics
 from obstacle_detection.pipeline.detector import LABEL_GROUND, LABEL_OBSTACLE, DetectionResult
 
@@ -269,7 +269,8 @@ def test_result_to_messages_with_ground_and_overlay() -> None:
 
     messages = result_to_messages(result, stamp=STAMP, cloud_frame_id='cloud',
                                   costmap_frame_id='grid', image_frame_id='cam',
-                                  with_ground=True, with_overlay=True)
+                                  with_ground=True,
+                                  overlay_rgb=render_overlay(result.depth_m, result.labels))
 
     assert set(messages) == {'obstacles', 'costmap', 'ground', 'overlay'}
     assert all(m.header.stamp == STAMP for m in messages.values())

@@ -31,7 +31,6 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 from rclpy.serialization import deserialize_message, serialize_message
 from rosbags.rosbag2 import Reader, ReaderError, Writer, WriterError
 from rosbags.typesys import Stores, get_typestore
@@ -39,12 +38,12 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.ros.compressed_depth import (COMPRESSED_IMAGE_TYPE,
-                                                 depth_message_to_array, is_compressed_image,
                                                  raw_topic)
-from obstacle_detection.ros.conversions import (DEPTH_ENCODINGS, ImageFormatError,
-                                            camera_info_to_intrinsics, result_to_messages)
-from obstacle_detection.ros.node import NodeConfig, build_config
-from obstacle_detection.pipeline.params import Intrinsics
+from obstacle_detection.ros.conversions import result_to_messages
+from obstacle_detection.viz.overlay import render_overlay
+from obstacle_detection.ros import frame_gate
+from obstacle_detection.ros.config import NodeConfig, build_config
+from obstacle_detection.ros.frame_gate import CameraState
 from obstacle_detection.ros.parameters import (ALL_PARAMS, ParamsFileError,
                                            read_params_files)
 from obstacle_detection.evaluation.datasets import ConvertError
@@ -121,6 +120,7 @@ class ProcessSummary:
     depth: str = ''
     mount: str = ''
     mount_warning: str | None = None
+    notes: list[str] = dataclasses.field(default_factory=list)
 
     def lines(self) -> list[str]:
         """Return the summary as printable lines."""
@@ -133,6 +133,7 @@ class ProcessSummary:
         out.extend(f'    skipped {count}: {reason}' for reason, count in self.skipped.items())
         if self.mount_warning:
             out.append(f'  warning: {self.mount_warning}')
+        out.extend(f'  note: {note}' for note in self.notes)
         if self.total_ms:
             rate = self.processed / self.wall_s if self.wall_s > 0 else 0.0
             out.append(f'  pipeline time per frame: mean {statistics.fmean(self.total_ms):.1f} ms,'
@@ -148,53 +149,36 @@ def _time_msg(stamp: Any) -> Any:
     return Time(sec=int(stamp.sec), nanosec=int(stamp.nanosec))
 
 
-def frame_intrinsics(shape: tuple[int, int], info: CameraInfo | None, config: NodeConfig
-                     ) -> tuple[Intrinsics | None, str | None]:
-    """Return the intrinsics the node would use for a (H, W) frame, or why it would skip it."""
-    if info is None:
-        if config.use_fallback_intrinsics:
-            return config.fallback_intrinsics, None
-        return None, 'no camera info recorded before the frame'
-    try:
-        intrinsics = camera_info_to_intrinsics(info)
-    except ValueError as err:
-        return None, str(err)
-    height, width = shape
-    if info.width and info.height and (info.width, info.height) != (width, height):
-        return None, (f'image is {width}x{height} but the camera info is '
-                      f'{info.width}x{info.height}')
-    return intrinsics, None
+def process_frame(depth: Image | CompressedImage, camera: CameraState | None,
+                  config: NodeConfig, *, with_ground: bool, with_overlay: bool
+                  ) -> tuple[dict[str, Any] | None, Any, str, str | None]:
+    """Run one depth message (raw or compressed) through the node's gate and pipeline.
 
-
-def process_frame(depth: Image | CompressedImage, info: CameraInfo | None, config: NodeConfig,
-                  *, with_ground: bool,
-                  with_overlay: bool) -> tuple[dict[str, Any] | None, Any, str]:
-    """Run one depth message (raw or compressed) through the node's steps.
-
-    Returns (messages from result_to_messages, the DetectionResult, '') or (None, None, the
-    reason the node would skip the frame).
+    ``camera``: the latest CameraInfo recorded before the frame (None: none yet). Returns
+    (messages from result_to_messages, the DetectionResult, '', a note when the fallback
+    intrinsics were used) or (None, None, the reason the node would skip the frame, None).
     """
-    if not is_compressed_image(depth) and depth.encoding not in DEPTH_ENCODINGS:
-        return None, None, f'unsupported encoding {depth.encoding!r}'
+    array = frame_gate.decode(depth)
+    if isinstance(array, frame_gate.Skip):
+        return None, None, array.reason, None
+    verdict = frame_gate.choose_intrinsics(
+        camera, array.shape, use_fallback=config.use_fallback_intrinsics,
+        fallback=config.fallback_intrinsics, no_camera='no camera info recorded before the frame')
+    if verdict.skip is not None:
+        return None, None, verdict.skip.reason, None
+    skip = frame_gate.check_depth(array, depth)
+    if skip is not None:
+        return None, None, skip.reason, None
     try:
-        array = depth_message_to_array(depth)
-    except ImageFormatError as err:
-        return None, None, str(err)
-    intrinsics, reason = frame_intrinsics(array.shape, info, config)
-    if intrinsics is None:
-        return None, None, str(reason)
-    valid = (np.isfinite(array) & (array > 0)) if array.dtype.kind == 'f' else array > 0
-    if not valid.any():
-        return None, None, 'no valid depth pixel'
-    try:
-        result = config.detector.process(array, intrinsics)
+        result = config.detector.process(array, verdict.intrinsics)
     except ValueError as err:
-        return None, None, str(err)
+        return None, None, str(err), None
     messages = result_to_messages(
         result, stamp=depth.header.stamp, cloud_frame_id=config.cloud_frame_id,
         costmap_frame_id=config.costmap_frame_id, image_frame_id=depth.header.frame_id,
-        with_ground=with_ground, with_overlay=with_overlay)
-    return messages, result, ''
+        with_ground=with_ground,
+        overlay_rgb=render_overlay(result.depth_m, result.labels) if with_overlay else None)
+    return messages, result, '', verdict.note
 
 
 def _grouped_by_timestamp(messages: Iterator[tuple[Any, int, bytes]], info_topic: str
@@ -286,7 +270,7 @@ def process_bag(src: Path, output: Path, config: NodeConfig, *,
                 out_conns = {key: writer.add_connection(outputs[key], OUTPUTS[key][1],
                                                         typestore=typestore) for key in wanted}
                 counts: Counter[str] = Counter()
-                info: CameraInfo | None = None
+                camera: CameraState | None = None
                 bar = Progress(n_depth, 'processing', stream=None if progress else io.StringIO())
                 with bar:
                     for conn, timestamp, raw in _grouped_by_timestamp(reader.messages(),
@@ -294,16 +278,19 @@ def process_bag(src: Path, output: Path, config: NodeConfig, *,
                         writer.write(copies[conn.id], timestamp, raw)
                         counts[conn.topic] += 1
                         if conn.topic == info_topic:
-                            info = deserialize_message(bytes(raw), CameraInfo)
+                            camera = CameraState.from_camera_info(
+                                deserialize_message(bytes(raw), CameraInfo))
                             continue
                         if conn.topic != depth_topic:
                             continue
                         depth = deserialize_message(bytes(raw), depth_class)
                         report = FrameReport(summary.frames, timestamp)
                         summary.frames += 1
-                        messages, result, reason = process_frame(
-                            depth, info, config, with_ground=with_ground,
+                        messages, result, reason, note = process_frame(
+                            depth, camera, config, with_ground=with_ground,
                             with_overlay=with_overlay)
+                        if note is not None and note not in summary.notes:
+                            summary.notes.append(note)
                         if messages is None:
                             report.skipped = reason
                             summary.skipped[reason] += 1

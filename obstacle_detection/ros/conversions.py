@@ -21,7 +21,6 @@ from nav_msgs.msg import MapMetaData, OccupancyGrid
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
 from std_msgs.msg import Header
 
-from obstacle_detection.viz.overlay import render_overlay
 from obstacle_detection.pipeline.params import Intrinsics
 
 if TYPE_CHECKING:
@@ -302,13 +301,15 @@ def costmap_to_occupancy_grid(costmap: Costmap, *, stamp: Time,
 
 def result_to_messages(result: DetectionResult, *, stamp: Time, cloud_frame_id: str,
                        costmap_frame_id: str, image_frame_id: str, with_ground: bool = False,
-                       with_overlay: bool = False) -> dict[str, Any]:
+                       overlay_rgb: np.ndarray | None = None) -> dict[str, Any]:
     """All output messages of one pipeline result, stamped with the input's stamp.
 
     Returns {'obstacles': PointCloud2, 'costmap': OccupancyGrid} plus 'ground' (PointCloud2 of
     the traversable voxel centroids, in ``cloud_frame_id``) if ``with_ground`` and 'overlay'
-    (rgb8 Image of the filtered depth with obstacle pixels marked, in ``image_frame_id``) if
-    ``with_overlay``. The node and the offline bag tools both call this function.
+    (rgb8 Image in ``image_frame_id``) of ``overlay_rgb`` when given: the (H, W, 3) uint8
+    picture the caller drew (``viz.overlay.render_overlay``: the filtered depth with obstacle
+    pixels marked); conversion packs it, it does not draw. The node and the offline bag tools
+    both call this function.
     """
     messages: dict[str, Any] = {
         'obstacles': points_to_pointcloud2(result.obstacle_points, stamp=stamp,
@@ -319,8 +320,7 @@ def result_to_messages(result: DetectionResult, *, stamp: Time, cloud_frame_id: 
     if with_ground:
         messages['ground'] = points_to_pointcloud2(result.ground_points, stamp=stamp,
                                                    frame_id=cloud_frame_id)
-    if with_overlay:
-        rgb = render_overlay(result.depth_m, result.labels)
-        messages['overlay'] = array_to_image(rgb, stamp=stamp, frame_id=image_frame_id,
+    if overlay_rgb is not None:
+        messages['overlay'] = array_to_image(overlay_rgb, stamp=stamp, frame_id=image_frame_id,
                                              encoding='rgb8')
     return messages
