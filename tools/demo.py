@@ -199,51 +199,6 @@ def write_results_bag(path: Path, recorder: Recorder) -> None:
                 writer.write(conn, stamp, raw)
 
 
-def _overlay_array(msg: Any) -> np.ndarray:
-    """(H, W, 3) uint8 RGB of an rgb8 Image message."""
-    rows = np.frombuffer(msg.data, dtype=np.uint8).reshape(msg.height, msg.step)
-    return rows[:, :msg.width * 3].reshape(msg.height, msg.width, 3)
-
-
-def _costmap_of(grid: Any) -> Any:
-    from obstacle_detection.pipeline.costmap import Costmap
-
-    data = np.frombuffer(grid.data, dtype=np.int8).reshape(grid.info.height, grid.info.width)
-    return Costmap(data=data.copy(), resolution_m=float(grid.info.resolution),
-                   origin_xy_m=(grid.info.origin.position.x, grid.info.origin.position.y))
-
-
-def _legends(widths: Sequence[int], params: Any) -> np.ndarray:
-    """Return the legend row under a demo picture: the node's overlay, the costmap panel."""
-    from obstacle_detection.viz.overlay import (NO_RETURN_RGB, OBSTACLE_RGB, OCCUPIED_RGB,
-                                            ROBOT_RGB, FREE_RGB, UNKNOWN_RGB)
-    from obstacle_detection.viz.pictures import BACKGROUND_RGB, HATCH_RGB, VIEW_EDGE_RGB, legend
-
-    left = legend('obstacles/overlay (camera view)', [
-        ('box', OBSTACLE_RGB, 'obstacle pixel'),
-        ('box', (160, 160, 160), 'other depth: dark near, white far'),
-        ('box', NO_RETURN_RGB, 'no return')], widths[0])
-    right = legend('obstacles/costmap, top view [m]', [
-        ('box', OCCUPIED_RGB, 'occupied (100)'), ('box', FREE_RGB, 'free (0)'),
-        ('box', UNKNOWN_RGB, 'unknown (-1)'),
-        ('hatch', HATCH_RGB, 'outside the region of interest'),
-        ('line', VIEW_EDGE_RGB, "edge of the floor in the camera's view"),
-        ('triangle', ROBOT_RGB, 'camera foot point, facing +x')], widths[1])
-    parts = [left, right]
-    if len(widths) > 2:
-        parts.append(legend('obstacles/fused_costmap, odom [m]', [
-            ('box', OCCUPIED_RGB, 'occupied: seen often enough'), ('box', FREE_RGB, 'free'),
-            ('box', UNKNOWN_RGB, 'unknown / not sure'),
-            ('triangle', ROBOT_RGB, 'robot at its odometry pose')], widths[2]))
-    height = max(b.shape[0] for b in parts)
-    blocks = []
-    for block in parts:
-        blocks += [np.vstack([block, np.full((height - block.shape[0], block.shape[1], 3),
-                                             BACKGROUND_RGB, np.uint8)]),
-                   np.full((height, 6, 3), 255, np.uint8)]
-    return np.hstack(blocks[:-1])
-
-
 def save_pictures(folder: Path, recorder: Recorder, every: int, params: Any = None,
                   intrinsics: Any = None,
                   poses: dict[tuple[int, int], Any] | None = None) -> list[Path]:
@@ -260,8 +215,8 @@ def save_pictures(folder: Path, recorder: Recorder, every: int, params: Any = No
     from rclpy.serialization import deserialize_message
     from sensor_msgs.msg import Image, PointCloud2
 
-    from obstacle_detection.viz.pictures import (caption_band, contact_sheet, costmap_panel,
-                                             write_png)
+    from obstacle_detection.ros.conversions import image_to_rgb, occupancy_grid_to_costmap
+    from obstacle_detection.viz.pictures import contact_sheet, node_outputs, write_png
 
     def by_stamp(topic: str, cls: type) -> dict[tuple[int, int], Any]:
         out = {}
@@ -280,42 +235,17 @@ def save_pictures(folder: Path, recorder: Recorder, every: int, params: Any = No
     for k, stamp in enumerate(sorted(grids)):
         if k % every or stamp not in overlays:
             continue
-        overlay = _overlay_array(overlays[stamp])
-        costmap = _costmap_of(grids[stamp])
-        height, width = overlay.shape[:2]
-        scale = max(1, min((height - 60) // max(costmap.width, 1),
-                           width // max(costmap.height, 1)))
-        grid_rgb = costmap_panel(costmap, scale=scale, params=params, intrinsics=intrinsics,
-                                 image_shape=(height, width))
-        rows = max(height, grid_rgb.shape[0])
-        left = np.full((rows, width, 3), 255, dtype=np.uint8)
-        left[:height] = overlay
-        pad = np.full((rows, grid_rgb.shape[1], 3), 255, dtype=np.uint8)
-        pad[:grid_rgb.shape[0]] = grid_rgb
-        gap = np.full((rows, 6, 3), 255, dtype=np.uint8)
-        panels_row = [left, gap, pad]
-        widths = [width, grid_rgb.shape[1]]
-        if stamp in fused:
-            grid = _costmap_of(fused[stamp])
-            fused_scale = max(1, (height - 60) // max(grid.height, 1))
-            fused_rgb = costmap_panel(grid, scale=fused_scale,
-                                      robot_pose=(poses or {}).get(stamp) or (0.0, 0.0, 0.0),
-                                      axis_names=('x [m], odom', 'y [m], odom'))
-            rows = max(rows, fused_rgb.shape[0])
-            panels_row = [np.vstack([p, np.full((rows - p.shape[0], p.shape[1], 3), 255,
-                                                np.uint8)]) for p in panels_row]
-            fused_pad = np.full((rows, fused_rgb.shape[1], 3), 255, dtype=np.uint8)
-            fused_pad[:fused_rgb.shape[0]] = fused_rgb
-            panels_row += [np.full((rows, 6, 3), 255, dtype=np.uint8), fused_pad]
-            widths.append(fused_rgb.shape[1])
-        row = np.hstack(panels_row)
+        overlay = image_to_rgb(overlays[stamp])
+        costmap = occupancy_grid_to_costmap(grids[stamp])
         cloud = clouds.get(stamp)
         points = int(cloud.width * cloud.height) if cloud is not None else 0
         occupied = int(np.count_nonzero(costmap.data == 100))
         caption = [f'frame {k}, stamp {stamp[0]}.{stamp[1]:09d}: {points} obstacle points, '
                    f'{occupied} occupied cells']
-        picture = np.vstack([row, caption_band(caption, row.shape[1]),
-                             _legends(widths, params)])
+        picture, grid_rgb = node_outputs(
+            overlay, costmap, caption=caption, params=params, intrinsics=intrinsics,
+            fused=occupancy_grid_to_costmap(fused[stamp]) if stamp in fused else None,
+            robot_pose=(poses or {}).get(stamp) or (0.0, 0.0, 0.0))
         name = f'frame_{k:04d}'
         write_png(folder / 'pictures' / f'overlay_{k:04d}.png', overlay)
         write_png(folder / 'pictures' / f'costmap_{k:04d}.png', grid_rgb)

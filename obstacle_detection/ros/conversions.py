@@ -86,7 +86,25 @@ def image_to_array(msg: Any) -> np.ndarray:
         raise ImageFormatError(
             f'unsupported depth encoding {encoding!r}: expected one of '
             f'{", ".join(DEPTH_ENCODINGS)}')
-    base, channels = DEPTH_ENCODINGS[encoding]
+    return _pixels(msg, *DEPTH_ENCODINGS[encoding])
+
+
+def image_to_rgb(msg: Any) -> np.ndarray:
+    """Decode an ``rgb8`` or ``bgr8`` Image message (the node's overlay) into (H, W, 3) RGB.
+
+    Raises ImageFormatError as :func:`image_to_array` does.
+    """
+    encoding = str(msg.encoding)
+    if encoding not in ('rgb8', 'bgr8'):
+        raise ImageFormatError(f'unsupported colour encoding {encoding!r}: expected rgb8 or '
+                               'bgr8')
+    rgb = _pixels(msg, *IMAGE_ENCODINGS[encoding])
+    return np.ascontiguousarray(rgb[:, :, ::-1]) if encoding == 'bgr8' else rgb
+
+
+def _pixels(msg: Any, base: np.dtype, channels: int) -> np.ndarray:
+    """(H, W) or (H, W, channels) native-order pixels of an Image; ImageFormatError if bad."""
+    encoding = str(msg.encoding)
     height, width, step = int(msg.height), int(msg.width), int(msg.step)
     if height <= 0 or width <= 0:
         raise ImageFormatError(f'empty image: width={width}, height={height}')
@@ -102,7 +120,8 @@ def image_to_array(msg: Any) -> np.ndarray:
     wire = base.newbyteorder('>' if msg.is_bigendian else '<')
     rows = buffer.reshape(height, step)[:, :row_bytes]
     # The copy makes the rows contiguous (drops the padding); astype() then yields native order.
-    pixels = np.ascontiguousarray(rows).view(wire).reshape(height, width)
+    shape = (height, width) if channels == 1 else (height, width, channels)
+    pixels = np.ascontiguousarray(rows).view(wire).reshape(shape)
     return pixels.astype(base.newbyteorder('='), copy=True)
 
 
@@ -297,6 +316,30 @@ def costmap_to_occupancy_grid(costmap: Costmap, *, stamp: Time,
     # array.array('b') is stored as is; a numpy array or a list would be converted per element.
     grid.data = array.array('b', data.tobytes())
     return grid
+
+
+def occupancy_grid_to_costmap(grid: Any) -> Costmap:
+    """Read an OccupancyGrid back into a Costmap (the inverse of costmap_to_occupancy_grid).
+
+    data: (info.height, info.width) int8 cells; origin: the grid origin's x, y [m] (a rotated
+    origin is not supported: ValueError).
+    """
+    from obstacle_detection.pipeline.costmap import Costmap
+
+    info = grid.info
+    orientation = info.origin.orientation
+    if (orientation.x, orientation.y, orientation.z) != (0.0, 0.0, 0.0):
+        raise ValueError('OccupancyGrid origin is rotated; only an axis-aligned grid is read')
+    try:
+        cells = np.frombuffer(grid.data, dtype=np.int8)
+    except TypeError:  # a plain sequence of ints
+        cells = np.asarray(grid.data, dtype=np.int8).reshape(-1)
+    if cells.size != int(info.width) * int(info.height):
+        raise ValueError(f'OccupancyGrid has {cells.size} cells, expected width * height = '
+                         f'{info.width} * {info.height}')
+    return Costmap(data=cells.reshape(int(info.height), int(info.width)).copy(),
+                   resolution_m=float(info.resolution),
+                   origin_xy_m=(float(info.origin.position.x), float(info.origin.position.y)))
 
 
 def result_to_messages(result: DetectionResult, *, stamp: Time, cloud_frame_id: str,
