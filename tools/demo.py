@@ -118,6 +118,7 @@ def render_sequence(folder: Path, scene: str, frames: int, seed: int, step: int 
     (every ``step``-th frame of it). Returns (depth folder, camera YAML, the first SceneFrame,
     the odometry pose of each frame or None for a static scene).
     """
+    from obstacle_detection.evaluation.camera import camera_yaml_text
     from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE
     from obstacle_detection.sim.scenes import render_scene
     from obstacle_detection.sim.sequences import SEQUENCE_NAMES, SceneSequence
@@ -144,9 +145,8 @@ def render_sequence(folder: Path, scene: str, frames: int, seed: int, step: int 
             raise DemoError(f'{depth_dir}: cannot write depth PNGs')
     intr = KINECT_V2_SD
     camera = folder / 'camera.yaml'
-    camera.write_text(f'# Kinect v2 SD camera of the rendered scene\nfx: {intr.fx}\n'
-                      f'fy: {intr.fy}\ncx: {intr.cx}\ncy: {intr.cy}\n'
-                      f'width: {KINECT_V2_SD_SIZE[0]}\nheight: {KINECT_V2_SD_SIZE[1]}\n')
+    camera.write_text(camera_yaml_text(intr, comment='Kinect v2 SD camera of the rendered scene',
+                                       size=KINECT_V2_SD_SIZE))
     return depth_dir, camera, first, poses
 
 

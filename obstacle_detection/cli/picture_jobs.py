@@ -38,6 +38,7 @@ from obstacle_detection.pipeline import mount
 from obstacle_detection.viz import pictures
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.cli.support import parse_intrinsics
+from obstacle_detection.evaluation.camera import CameraFileError, read_camera_yaml
 from obstacle_detection.pipeline.depth import decode_depth
 from obstacle_detection.pipeline.params import (PRESETS, SEED_TABLE_4_1, DetectorParams,
                                        Intrinsics)
@@ -89,46 +90,17 @@ def parse_camera(text: str) -> Intrinsics | Path:
 def read_camera(path: Path) -> _Camera:
     """Intrinsics, and the depth scale and mount when given, of a camera YAML.
 
-    Keys: ``fx fy cx cy`` (or a ROS calibration's ``camera_matrix``), optional
-    ``depth_scale`` and ``camera_height_m`` (+ ``camera_pitch_deg|rad``,
-    ``camera_roll_deg|rad``): the format of ``tools/estimate_mount.py --camera-yaml-out`` and
-    of a labelled folder's ``intrinsics.yaml``. Raises ToolError naming the file.
+    The format of ``evaluation.camera`` (``tools/estimate_mount.py --camera-yaml-out``, a
+    labelled folder's ``intrinsics.yaml``). Raises ToolError naming the file.
     """
-    import yaml
-
     try:
-        data = yaml.safe_load(path.read_text(encoding='utf-8'))
+        camera = read_camera_yaml(path)
     except OSError as exc:
         raise tool_support.ToolError(path, f'cannot read the camera YAML ({exc.strerror})') \
             from None
-    except yaml.YAMLError as exc:
-        raise tool_support.ToolError(path, f'not valid YAML ({exc})') from None
-    if not isinstance(data, dict):
-        raise tool_support.ToolError(path, 'expected a camera YAML mapping with fx, fy, cx, cy')
-    try:
-        if 'camera_matrix' in data:
-            k = data['camera_matrix']['data']
-            intrinsics = Intrinsics(float(k[0]), float(k[4]), float(k[2]), float(k[5]))
-        else:
-            missing = [k for k in ('fx', 'fy', 'cx', 'cy') if k not in data]
-            if missing:
-                raise ValueError(f'missing intrinsics key(s) {", ".join(missing)}')
-            intrinsics = Intrinsics(*(float(data[k]) for k in ('fx', 'fy', 'cx', 'cy')))
-        scale = data.get('depth_scale')
-        scale = None if scale is None else float(scale)
-        if scale is not None and not (math.isfinite(scale) and scale > 0):
-            raise ValueError(f'depth_scale={scale} must be > 0')
-        mount_values = None
-        if 'camera_height_m' in data:
-            def angle(name: str) -> float:
-                if f'{name}_rad' in data:
-                    return float(data[f'{name}_rad'])
-                return math.radians(float(data.get(f'{name}_deg', 0.0)))
-            mount_values = (float(data['camera_height_m']), angle('camera_pitch'),
-                            angle('camera_roll'))
-    except (ValueError, TypeError, KeyError, IndexError) as exc:
-        raise tool_support.ToolError(path, f'bad camera YAML: {exc}') from None
-    return _Camera(intrinsics, f'from {path}', scale, mount_values)
+    except CameraFileError as exc:
+        raise tool_support.ToolError(path, f'bad camera YAML: {exc.problem}') from None
+    return _Camera(camera.intrinsics, f'from {path}', camera.depth_scale, camera.mount)
 
 
 def camera_of(args: argparse.Namespace) -> _Camera:

@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 import yaml
 
+from obstacle_detection.evaluation.camera import intrinsics_from_mapping, scaled_intrinsics
 from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE, Intrinsics
 
 #: TUM RGB-D benchmark cameras (fx, fy, cx, cy) for 640x480 images, and the ROS default.
@@ -108,36 +109,10 @@ def load_intrinsics(path: Path) -> tuple[Intrinsics, tuple[int, int] | None]:
         raise ConvertError(f'{path}: not valid YAML ({err})') from err
     if not isinstance(data, dict):
         raise ConvertError(f'{path}: expected a mapping with fx, fy, cx, cy')
-    for key in ('intrinsics', 'camera'):
-        if isinstance(data.get(key), dict):
-            data = data[key]
-    size = None
-    if 'camera_matrix' in data:
-        try:
-            k = [float(v) for v in data['camera_matrix']['data']]
-            values = (k[0], k[4], k[2], k[5])
-        except (KeyError, TypeError, ValueError, IndexError) as err:
-            raise ConvertError(f'{path}: camera_matrix must hold 9 numbers in data') from err
-        width, height = data.get('image_width'), data.get('image_height')
-    else:
-        missing = [k for k in ('fx', 'fy', 'cx', 'cy') if k not in data]
-        if missing:
-            raise ConvertError(f'{path}: missing {", ".join(missing)} (need fx, fy, cx, cy)')
-        try:
-            values = tuple(float(data[k]) for k in ('fx', 'fy', 'cx', 'cy'))
-        except (TypeError, ValueError) as err:
-            raise ConvertError(f'{path}: fx, fy, cx, cy must be numbers') from err
-        width, height = data.get('width'), data.get('height')
-    if (width is None) != (height is None):
-        raise ConvertError(f'{path}: give both width and height, or neither')
-    if width is not None:
-        try:
-            size = (int(width), int(height))
-        except (TypeError, ValueError) as err:
-            raise ConvertError(f'{path}: width and height must be integers') from err
-        if size[0] <= 0 or size[1] <= 0:
-            raise ConvertError(f'{path}: width and height must be positive, got {size}')
-    return _intrinsics(path, *values), size
+    try:
+        return intrinsics_from_mapping(data)
+    except ValueError as err:
+        raise ConvertError(f'{path}: {err}') from err
 
 
 def _intrinsics(path: Path, fx: float, fy: float, cx: float, cy: float) -> Intrinsics:
@@ -155,13 +130,6 @@ def _is_number(text: str) -> bool:
     return True
 
 
-def scaled_intrinsics(intr: Intrinsics, from_size: tuple[int, int],
-                      to_size: tuple[int, int]) -> Intrinsics:
-    """Scale intrinsics given for an image of ``from_size`` to ``to_size`` (width, height)."""
-    sx = to_size[0] / from_size[0]
-    sy = to_size[1] / from_size[1]
-    return Intrinsics(intr.fx * sx, intr.fy * sy,
-                      (intr.cx + 0.5) * sx - 0.5, (intr.cy + 0.5) * sy - 0.5)
 
 
 def default_intrinsics(view: str, size: tuple[int, int]) -> tuple[Intrinsics, str]:
@@ -172,7 +140,7 @@ def default_intrinsics(view: str, size: tuple[int, int]) -> tuple[Intrinsics, st
         base, base_size, name = KINECT_V2_COLOR, KINECT_V2_COLOR_SIZE, 'Kinect v2 colour camera'
     if tuple(size) == tuple(base_size):
         return base, f'{name} defaults'
-    return (scaled_intrinsics(base, base_size, size),
+    return (scaled_intrinsics(base, size[0] / base_size[0], size[1] / base_size[1]),
             f'{name} defaults scaled from {base_size[0]}x{base_size[1]} to {size[0]}x{size[1]}')
 
 
