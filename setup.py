@@ -1,13 +1,15 @@
 """Install the obstacle_detection ament_python package (colcon runs this file)."""
 
 from glob import glob
+from pathlib import Path
 
 from setuptools import find_packages, setup
 
 PACKAGE = 'obstacle_detection'
 #: The command lines: tools/<name>.py is installed as the module obstacle_detection.tools.<name>
 #: and as the command <name> (lib/obstacle_detection/<name> for ``ros2 run``, .venv/bin/<name>).
-TOOLS = sorted(path[len('tools/'):-len('.py')] for path in glob('tools/*.py'))
+TOOLS = sorted(Path(path).stem for path in glob('tools/*.py')
+               if not Path(path).name.startswith('_'))
 
 setup(
     name=PACKAGE,

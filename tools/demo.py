@@ -39,12 +39,13 @@ from typing import Any
 import cv2
 import numpy as np
 
+from obstacle_detection.cli import support as tool_support
 from obstacle_detection.evaluation import datasets
 from obstacle_detection.ros import bag_player, bag_writer
 from obstacle_detection.ros.dds_env import loopback_env
 
-REPO = Path(__file__).resolve().parents[1]
-DEFAULT_PARAMS = REPO / 'params' / 'corridor.yaml'
+REPO = tool_support.PACKAGE_ROOT
+DEFAULT_PARAMS = tool_support.package_file('params/corridor.yaml')
 MARKER = '.obstacle_detection_demo'
 #: The node's outputs (after its default names) -> message type name.
 OUTPUT_TOPICS = {

@@ -28,8 +28,7 @@ from obstacle_detection.pipeline.fusion import FusionParams
 from obstacle_detection.sim.sequences import (PERFECT_ODOMETRY, SEQUENCE_NAMES,
                                           OdometryModel, SceneSequence)
 
-REPO = Path(__file__).resolve().parents[1]
-DEFAULT_PARAMS = REPO / 'params' / 'corridor.yaml'
+DEFAULT_PARAMS = tool_support.package_file('params/corridor.yaml')
 PROG = 'evaluate_video.py'
 
 

@@ -34,10 +34,11 @@ from typing import Any
 
 import numpy as np
 
+from obstacle_detection.cli import support as tool_support
 from obstacle_detection.ros.dds_env import loopback_env
 
-REPO = Path(__file__).resolve().parents[1]
-DEFAULT_PARAMS = REPO / 'params' / 'corridor.yaml'
+REPO = tool_support.PACKAGE_ROOT
+DEFAULT_PARAMS = tool_support.package_file('params/corridor.yaml')
 NODE = '/obstacle_detector'
 
 

@@ -41,7 +41,7 @@ from obstacle_detection.viz import pictures
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.cli import picture_jobs
 
-REPOSITORY = Path(__file__).resolve().parents[1]
+REPOSITORY = tool_support.PACKAGE_ROOT
 DEFAULT_OUT_DIR = REPOSITORY / 'tools' / 'readme'
 DEFAULT_REAL_DIR = REPOSITORY.parent / 'shared' / 'data' / 'real'
 #: Width of the real-frame pictures [px] (keeps each PNG well under 200 KB).

@@ -65,6 +65,25 @@ class UsageError(ValueError):
     """
 
 
+#: The folder holding the ``obstacle_detection`` package: the repository root in a checkout
+#: (or an editable install), ``site-packages`` once installed. A child process that must import
+#: this copy of the package gets it on its PYTHONPATH.
+PACKAGE_ROOT = Path(__file__).resolve().parents[2]
+
+
+def package_file(relative: str) -> Path:
+    """Return a file the package ships beside its Python code, e.g. ``params/corridor.yaml``.
+
+    From a checkout, the repository's file; once installed (colcon, pip), the one in
+    ``<prefix>/share/obstacle_detection`` (setup.py's data_files), the prefix being three
+    levels above ``site-packages``. When neither exists the checkout's path is returned, so
+    the error that follows names it.
+    """
+    candidates = [PACKAGE_ROOT / relative,
+                  PACKAGE_ROOT.parents[2] / 'share' / 'obstacle_detection' / relative]
+    return next((path for path in candidates if path.exists()), candidates[0])
+
+
 def report_error(prog: str, error: BaseException, stream: TextIO | None = None) -> int:
     """Print the one error line of ``error`` and return the exit code it calls for.
 
