@@ -100,6 +100,17 @@ def test_installed_param_table_prints_the_parameter_table(prefix: Path, tmp_path
     assert done.stdout.strip() == parameter_table().strip()
 
 
+def test_installed_tools_find_the_installed_parameter_files(prefix: Path, tmp_path: Path) -> None:
+    probe = ('from obstacle_detection.cli.support import package_file; '
+             "print(package_file('params/corridor.yaml'))")
+    done = subprocess.run([sys.executable, '-c', probe], env=_installed_env(prefix, tmp_path),
+                          cwd=tmp_path, capture_output=True, text=True, timeout=60, check=False)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == str(prefix / 'share' / PACKAGE / 'params' / 'corridor.yaml')
+    from obstacle_detection.cli.support import package_file
+    assert package_file('params/corridor.yaml') == REPO / 'params' / 'corridor.yaml'
+
+
 def test_installed_evaluate_reports_a_bad_scene_as_a_usage_error(prefix: Path,
                                                                  tmp_path: Path) -> None:
     command = str(prefix / 'lib' / PACKAGE / 'evaluate')

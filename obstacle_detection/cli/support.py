@@ -79,8 +79,9 @@ def package_file(relative: str) -> Path:
     levels above ``site-packages``. When neither exists the checkout's path is returned, so
     the error that follows names it.
     """
-    candidates = [PACKAGE_ROOT / relative,
-                  PACKAGE_ROOT.parents[2] / 'share' / 'obstacle_detection' / relative]
+    candidates = [PACKAGE_ROOT / relative]
+    if len(PACKAGE_ROOT.parents) > 2:   # <prefix>/lib/pythonX.Y/site-packages
+        candidates.append(PACKAGE_ROOT.parents[2] / 'share' / 'obstacle_detection' / relative)
     return next((path for path in candidates if path.exists()), candidates[0])
 
 
