@@ -43,6 +43,11 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
                              'repeatable; given alone, the suite is skipped unless --scene')
     parser.add_argument('--max-frames', type=int, metavar='N',
                         help='at most N frames per scenario/folder, evenly spread')
+    add_parameter_arguments(parser)
+
+
+def add_parameter_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the detector parameter options: ``--preset``, ``--params-file``, ``--set``."""
     parser.add_argument('--preset', choices=sorted(PRESETS), default='table_4_2',
                         help='base parameters: seed Table 4.2 or 4.3 [default: table_4_2]')
     parser.add_argument('--params-file', type=Path, metavar='YAML', action='append',

@@ -40,9 +40,9 @@ from obstacle_detection.cli import support as tool_support
 from obstacle_detection.cli.support import parse_intrinsics
 from obstacle_detection.evaluation.camera import CameraFileError, read_camera_yaml
 from obstacle_detection.pipeline.depth import decode_depth
-from obstacle_detection.pipeline.params import (PRESETS, SEED_TABLE_4_1, DetectorParams,
+from obstacle_detection.pipeline.params import (SEED_TABLE_4_1, DetectorParams,
                                        Intrinsics)
-from obstacle_detection.cli.evaluation_args import base_params, parse_assignment
+from obstacle_detection.cli.evaluation_args import add_parameter_arguments, base_params
 
 
 @dataclass
@@ -405,12 +405,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--height', type=float, metavar='M', help='camera height [m]')
     parser.add_argument('--pitch-deg', type=float, help='camera pitch, + looks down [deg]')
     parser.add_argument('--roll-deg', type=float, help='camera roll [deg]')
-    parser.add_argument('--preset', choices=sorted(PRESETS), default='table_4_2')
-    parser.add_argument('--params-file', type=Path, metavar='YAML', action='append',
-                        default=[], help='node parameter file applied on top of the preset; '
-                                         'repeatable, merged in order')
-    parser.add_argument('--set', action='append', type=parse_assignment, default=[],
-                        metavar='KEY=VALUE', help='override one parameter; repeatable')
+    add_parameter_arguments(parser)
     parser.add_argument('--refiner', type=Path, metavar='MODEL',
                         help='draw the seed-4.5 refined result of this model instead')
     parser.add_argument('--caption', metavar='TEXT',
