@@ -86,3 +86,17 @@ def test_check_depth_refuses_a_frame_without_valid_depth() -> None:
 def test_problem_kind_ignores_the_numbers() -> None:
     assert frame_gate.problem_kind('depth', 'median 1500.0 m is implausible') == \
         frame_gate.problem_kind('depth', 'median 2.5e3 m is implausible')
+
+
+def test_gate_and_bag_process_load_without_rclpy_or_the_node() -> None:
+    import subprocess
+    import sys
+
+    probe = ('import sys, obstacle_detection.ros.frame_gate, obstacle_detection.ros.config; '
+             "print('rclpy' in sys.modules); "
+             'import obstacle_detection.tools.bag_process; '
+             "print('obstacle_detection.ros.node' in sys.modules, 'rclpy.node' in sys.modules)")
+    done = subprocess.run([sys.executable, '-c', probe], capture_output=True, text=True,
+                          timeout=120, check=False)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ['False', 'False', 'False']
