@@ -29,6 +29,7 @@ from obstacle_detection.pipeline.detector import Detector
 from obstacle_detection.ros.parameters import detector_params_from_ros
 from obstacle_detection.sim.scenes import render_scene
 from obstacle_detection.ros import bag_writer
+from obstacle_detection.ros import bag_processor
 from obstacle_detection.tools import bag_convert, bag_process
 
 REPO = Path(__file__).resolve().parents[1]
@@ -220,12 +221,12 @@ def test_latest_camera_info_before_each_frame(tmp_path: Path, depths: list[np.nd
 
 
 def test_load_params_file_matches_node_format(params_file: Path) -> None:
-    values = bag_process.load_params_file(params_file)
+    values = bag_processor.load_params_file(params_file)
     assert values['median_kernel'] == 5 and values['publish_ground'] is True
-    config = bag_process.config_from_values(values, str(params_file))
+    config = bag_processor.config_from_values(values, str(params_file))
     assert config.detector.params == detector_params_from_ros(PARAM_VALUES)
-    corridor = bag_process.load_params_file(REPO / 'params' / 'corridor.yaml')
-    assert bag_process.config_from_values(corridor, 'corridor').detector.params.median_kernel \
+    corridor = bag_processor.load_params_file(REPO / 'params' / 'corridor.yaml')
+    assert bag_processor.config_from_values(corridor, 'corridor').detector.params.median_kernel \
         == 17
 
 
@@ -371,7 +372,7 @@ def test_several_params_files_are_merged_in_order(tmp_path: Path) -> None:
     second = tmp_path / 'second.yaml'
     second.write_text('obstacle_detector:\n  ros__parameters:\n    median_kernel: 7\n'
                       '    camera_height_m: 1.25\n')
-    values = bag_process.load_params_file([first, second])
+    values = bag_processor.load_params_file([first, second])
     assert (values['median_kernel'], values['max_range_m'], values['camera_height_m']) == (
         7, 3.0, 1.25)
     args = bag_process.build_parser().parse_args(
