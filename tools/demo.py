@@ -42,6 +42,7 @@ import numpy as np
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.evaluation import datasets
 from obstacle_detection.ros import bag_player, bag_writer
+from obstacle_detection.ros.recorder import Recorder, write_bag
 from obstacle_detection.ros.dds_env import loopback_env
 
 REPO = tool_support.PACKAGE_ROOT
@@ -149,55 +150,6 @@ def render_sequence(folder: Path, scene: str, frames: int, seed: int, step: int 
     camera.write_text(camera_yaml_text(intr, comment='Kinect v2 SD camera of the rendered scene',
                                        size=KINECT_V2_SD_SIZE))
     return depth_dir, camera, first, poses
-
-
-class Recorder:
-    """Subscribes (raw) to the node's outputs and keeps every message with its arrival time."""
-
-    def __init__(self, node: Any) -> None:
-        """Create one reliable raw subscription per output topic on ``node``."""
-        from rclpy.qos import QoSProfile, ReliabilityPolicy
-
-        qos = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
-        self.messages: dict[str, list[tuple[int, bytes]]] = {t: [] for t in OUTPUT_TOPICS}
-        self.last_arrival = time.monotonic()
-        self.subscriptions = [
-            node.create_subscription(bag_player.message_class(msgtype), topic,
-                                     lambda raw, t=topic: self._keep(t, raw), qos, raw=True)
-            for topic, msgtype in OUTPUT_TOPICS.items()]
-
-    def _keep(self, topic: str, raw: bytes) -> None:
-        self.messages[topic].append((time.time_ns(), raw))
-        self.last_arrival = time.monotonic()
-
-    def matched(self) -> bool:
-        """Whether the node's cloud and costmap publishers are matched."""
-        return all(s.get_publisher_count() for s in self.subscriptions[:2])
-
-    def count(self, topic: str = '/obstacles/costmap') -> int:
-        """Messages received on ``topic``."""
-        return len(self.messages[topic])
-
-
-def write_results_bag(path: Path, recorder: Recorder) -> None:
-    """Write what the node published: header stamps as bag time (arrival time if none)."""
-    from rclpy.serialization import deserialize_message
-    from rosbags.rosbag2 import Writer
-    from rosbags.typesys import Stores, get_typestore
-
-    typestore = get_typestore(Stores.ROS2_JAZZY)
-    with Writer(path, version=bag_writer.BAG_VERSION) as writer:
-        for topic, msgtype in OUTPUT_TOPICS.items():
-            if not recorder.messages[topic]:
-                continue
-            conn = writer.add_connection(topic, msgtype, typestore=typestore)
-            cls = bag_player.message_class(msgtype)
-            for arrival, raw in recorder.messages[topic]:
-                msg = deserialize_message(raw, cls)
-                header = getattr(msg, 'header', None)
-                stamp = (header.stamp.sec * 1_000_000_000 + header.stamp.nanosec
-                         if header is not None else arrival)
-                writer.write(conn, stamp, raw)
 
 
 def save_pictures(folder: Path, recorder: Recorder, every: int, params: Any = None,
@@ -431,7 +383,7 @@ def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
     thread = None
     stop = threading.Event()
     try:
-        recorder = Recorder(node)
+        recorder = Recorder(node, OUTPUT_TOPICS)
         status: list[str] = []
         node.create_subscription(String, '/obstacle_detector/status',
                                  lambda msg: status.append(msg.data),
@@ -473,13 +425,13 @@ def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
         context.try_shutdown()
         _stop(node_process)
 
-    received = recorder.count()
+    received = recorder.count('/obstacles/costmap')
     if received == 0:
         raise DemoError(f'the detector node published nothing for {summary.frames} frames; '
                         f'its log ({failed / "node.log"}):\n' + _log_tail(out / 'node.log'))
     print(f'[5/5] writing what the node published: {out / "results_bag"}; pictures: '
           f'{out / "pictures"}')
-    write_results_bag(out / 'results_bag', recorder)
+    write_bag(out / 'results_bag', recorder)
     saved = save_pictures(out, recorder, args.save_every, _scene_params(args.params, first),
                           first.intrinsics, pose_by_stamp)
 
