@@ -20,6 +20,7 @@ import time
 from pathlib import Path
 from typing import Sequence
 
+from obstacle_detection.cli.progress import Progress
 from obstacle_detection.evaluation import runner as evaluation
 from obstacle_detection.evaluation.metrics import Confusion, format_score
 from obstacle_detection.pipeline.refine import LogisticRefiner
@@ -88,8 +89,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             x, y, l2=args.l2, preset=args.preset, train_frames=len(train),
             train_scenarios=sorted({f.scenario for f in train}))
         model.save(args.out)
-        report = evaluation.evaluate_frames(held_out, params, refiner=model,
-                                            refiner_name=str(args.out))
+        with Progress(len(held_out), 'scoring the held-out frames') as bar:
+            report = evaluation.evaluate_frames(held_out, params, refiner=model,
+                                                refiner_name=str(args.out),
+                                                on_frame=lambda *_: bar.update())
     except (ValueError, OSError) as exc:
         print(f'train_refiner.py: error: {exc}', file=sys.stderr)
         return 2
