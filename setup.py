@@ -1,15 +1,23 @@
 """Install the obstacle_detection ament_python package (colcon runs this file)."""
 
 from glob import glob
+from pathlib import Path
 
 from setuptools import find_packages, setup
 
 PACKAGE = 'obstacle_detection'
+#: The command lines: tools/<name>.py is installed as the module obstacle_detection.tools.<name>
+#: and as the command <name> (lib/obstacle_detection/<name> for ``ros2 run``, .venv/bin/<name>).
+TOOLS = sorted(Path(path).stem for path in glob('tools/*.py')
+               if not Path(path).name.startswith('_'))
 
 setup(
     name=PACKAGE,
     version='0.1.0',
-    packages=find_packages(include=[PACKAGE, f'{PACKAGE}.*']),
+    packages=[*find_packages(include=[PACKAGE, f'{PACKAGE}.*']), f'{PACKAGE}.tools'],
+    # the command lines stay in tools/ at the top of the package (the package card puts them
+    # there) and install inside the package: no top-level module named `tools`
+    package_dir={f'{PACKAGE}.tools': 'tools'},
     # the loopback Fast DDS profile and the committed scenario suites
     package_data={f'{PACKAGE}.ros': ['fastdds_loopback.xml'],
                   f'{PACKAGE}.evaluation': ['scenarios.json', 'scenarios_robot.json']},
@@ -34,6 +42,7 @@ setup(
     entry_points={
         'console_scripts': [
             'detector = obstacle_detection.ros.node:main',
+            *(f'{name} = {PACKAGE}.tools.{name}:main' for name in TOOLS),
         ],
     },
 )

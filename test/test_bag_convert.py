@@ -22,14 +22,16 @@ from obstacle_detection.ros.compressed_depth import (array_to_compressed_depth,
 from obstacle_detection.ros.conversions import image_to_array
 from obstacle_detection.pipeline.params import KINECT_V2_SD, Intrinsics
 from obstacle_detection.sim.scenes import render_scene
-from tools import bag_convert
+from obstacle_detection.evaluation import datasets
+from obstacle_detection.ros import bag_writer
+from obstacle_detection.tools import bag_convert
 from obstacle_detection.cli.progress import Progress
 
 INTR = Intrinsics(60.0, 61.0, 40.0, 29.5)
 SIZE = (80, 60)  # width, height
-DEPTH = bag_convert.DEFAULT_DEPTH_TOPIC
-INFO = bag_convert.DEFAULT_INFO_TOPIC
-COLOR = bag_convert.DEFAULT_COLOR_TOPIC
+DEPTH = bag_writer.DEFAULT_DEPTH_TOPIC
+INFO = bag_writer.DEFAULT_INFO_TOPIC
+COLOR = bag_writer.DEFAULT_COLOR_TOPIC
 JAZZY = get_typestore(Stores.ROS2_JAZZY)
 ROS_TYPES = {'sensor_msgs/msg/Image': Image, 'sensor_msgs/msg/CameraInfo': CameraInfo}
 
@@ -86,7 +88,7 @@ def check_frames(bag: Path, depths: list[np.ndarray], stamps: list[int], *,
                  encoding: str = 'bgr8') -> None:
     """Every depth value, stamp, encoding and intrinsic of the bag is what was written."""
     topics = read_bag(bag)
-    frame_id = bag_convert.DEFAULT_FRAME_ID
+    frame_id = bag_writer.DEFAULT_FRAME_ID
     size = (depths[0].shape[1], depths[0].shape[0])
     assert len(topics[DEPTH]) == len(topics[INFO]) == len(depths)
     for (t, depth_msg), (t_info, info_msg), want, stamp in zip(
@@ -272,7 +274,7 @@ def test_tum_sequence(tmp_path: Path, depths: list[np.ndarray],
     assert 'dropped pairs: 1' in out
     assert 'no colour frame within 0.02 s' in out
     colors = [fake_color(d, k) if k != 2 else None for k, d in enumerate(depths)]
-    check_frames(bag, expected, stamps, colors=colors, intr=bag_convert.TUM_CAMERAS['fr2'])
+    check_frames(bag, expected, stamps, colors=colors, intr=datasets.TUM_CAMERAS['fr2'])
 
 
 def test_tum_camera_option(tmp_path: Path, depths: list[np.ndarray],
@@ -643,14 +645,14 @@ def test_load_intrinsics_formats(tmp_path: Path) -> None:
                    '  data: [500.0, 0.0, 320.0, 0.0, 501.0, 240.0, 0.0, 0.0, 1.0]\n')
     eth3d = tmp_path / 'calibration.txt'
     eth3d.write_text('726.28 726.28 354.64 186.46\n')
-    assert bag_convert.load_intrinsics(ros) == (Intrinsics(500.0, 501.0, 320.0, 240.0),
+    assert datasets.load_intrinsics(ros) == (Intrinsics(500.0, 501.0, 320.0, 240.0),
                                                 (640, 480))
-    assert bag_convert.load_intrinsics(eth3d) == (Intrinsics(726.28, 726.28, 354.64, 186.46),
+    assert datasets.load_intrinsics(eth3d) == (Intrinsics(726.28, 726.28, 354.64, 186.46),
                                                   None)
     bad = tmp_path / 'bad.yaml'
     bad.write_text('fx: 0\nfy: 1\ncx: 1\ncy: 1\n')
-    with pytest.raises(bag_convert.ConvertError, match='bad.yaml'):
-        bag_convert.load_intrinsics(bad)
+    with pytest.raises(datasets.ConvertError, match='bad.yaml'):
+        datasets.load_intrinsics(bad)
 
 
 class _Tty(io.StringIO):
@@ -684,15 +686,15 @@ def test_frames_with_a_pose_carry_odometry_and_the_processor_keeps_it(
 
     from nav_msgs.msg import Odometry
 
-    from tools import bag_process
+    from obstacle_detection.tools import bag_process
 
     root = make_folder(tmp_path / 'data', depths, with_color=False)
-    source = bag_convert.folder_frames(root / 'depth', intrinsics_path=write_intrinsics(
+    source = datasets.folder_frames(root / 'depth', intrinsics_path=write_intrinsics(
         tmp_path / 'camera.yaml'), rate_hz=10.0, start_s=100.0)
     poses = [(0.1 * k, -0.05 * k, math.radians(10.0 * k)) for k in range(len(depths))]
     source.frames = [dataclasses.replace(f, pose=p) for f, p in zip(source.frames, poses)]
-    summary = bag_convert.write_frames(source, tmp_path / 'bag',
-                                       bag_convert.BagOptions(progress=False))
+    summary = bag_writer.write_frames(source, tmp_path / 'bag',
+                                       bag_writer.BagOptions(progress=False))
     assert summary.topics['/odom'] == len(depths)
 
     def odometry(bag: Path) -> list[tuple[int, tuple[float, float, float]]]:

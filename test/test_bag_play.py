@@ -20,7 +20,9 @@ from builtin_interfaces.msg import Time
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
 from obstacle_detection.ros.conversions import image_to_array
-from tools import bag_convert, bag_play
+from obstacle_detection.evaluation import datasets
+from obstacle_detection.ros import bag_player, bag_writer
+from obstacle_detection.tools import bag_play
 
 #: Starts processes or a DDS graph: deselect with -m "not integration" (README, tests).
 pytestmark = pytest.mark.integration
@@ -28,8 +30,8 @@ pytestmark = pytest.mark.integration
 REPO = Path(__file__).resolve().parents[1]
 N_FRAMES = 6
 RATE_HZ = 30.0
-DEPTH = bag_convert.DEFAULT_DEPTH_TOPIC
-INFO = bag_convert.DEFAULT_INFO_TOPIC
+DEPTH = bag_writer.DEFAULT_DEPTH_TOPIC
+INFO = bag_writer.DEFAULT_INFO_TOPIC
 RELIABLE = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
 
 
@@ -48,9 +50,9 @@ def bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
     for k in range(N_FRAMES):
         cv2.imwrite(str(root / 'depth' / f'{k:03d}.png'), frame_depth(k))
     (root / 'k.yaml').write_text('fx: 30.0\nfy: 30.0\ncx: 16.0\ncy: 12.0\n')
-    source = bag_convert.folder_frames(root / 'depth', intrinsics_path=root / 'k.yaml',
+    source = datasets.folder_frames(root / 'depth', intrinsics_path=root / 'k.yaml',
                                        rate_hz=RATE_HZ, start_s=50.0)
-    bag_convert.write_frames(source, root / 'bag', bag_convert.BagOptions(progress=False))
+    bag_writer.write_frames(source, root / 'bag', bag_writer.BagOptions(progress=False))
     return root / 'bag'
 
 
@@ -128,11 +130,11 @@ def test_library_loops_offset_and_timing(bag: Path, context: rclpy.context.Conte
     recorder = Recorder(context, {DEPTH: Image}, RELIABLE)
     arrivals: list[float] = []
     publisher_node = Node('player_under_test', context=context)
-    options = bag_play.PlayOptions(topics=(DEPTH,), rate=0.5, loops=2,
+    options = bag_player.PlayOptions(topics=(DEPTH,), rate=0.5, loops=2,
                                    start_offset_s=2.5 / RATE_HZ, reliable=True,
                                    wait_for_subscribers=1, wait_timeout_s=20.0, progress=False)
-    player = bag_play.Player(publisher_node, bag, options)
-    stats: list[bag_play.PlayStats] = []
+    player = bag_player.Player(publisher_node, bag, options)
+    stats: list[bag_player.PlayStats] = []
 
     started: list[float] = []
 
@@ -165,7 +167,7 @@ def test_library_loops_offset_and_timing(bag: Path, context: rclpy.context.Conte
 
 def test_sensor_data_qos_by_default(bag: Path, context: rclpy.context.Context) -> None:
     node = Node('qos_probe', context=context)
-    player = bag_play.Player(node, bag, bag_play.PlayOptions(progress=False))
+    player = bag_player.Player(node, bag, bag_player.PlayOptions(progress=False))
     try:
         infos = node.get_publishers_info_by_topic(DEPTH)
         assert [i.qos_profile.reliability for i in infos] == [qos_profile_sensor_data.reliability]
@@ -228,7 +230,7 @@ def test_compressed_depth_topic_is_played_and_decodes(tmp_path: Path,
             writer.write(conn, (60 + k) * 10**9 // 30, serialize_message(msg))
     recorder = Recorder(context, {topic: CompressedImage}, RELIABLE)
     node = Node('compressed_player', context=context)
-    player = bag_play.Player(node, tmp_path / 'bag', bag_play.PlayOptions(
+    player = bag_player.Player(node, tmp_path / 'bag', bag_player.PlayOptions(
         reliable=True, wait_for_subscribers=1, wait_timeout_s=20.0, progress=False))
     try:
         player.wait_for_subscribers()

@@ -21,18 +21,21 @@ from nav_msgs.msg import OccupancyGrid
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 
 from obstacle_detection.ros.compressed_depth import array_to_compressed_depth
+from obstacle_detection.viz.overlay import render_overlay
 from obstacle_detection.ros.conversions import (array_to_image, image_to_array,
                                             intrinsics_to_camera_info, result_to_messages)
 from obstacle_detection.pipeline.params import KINECT_V2_SD, Intrinsics
 from obstacle_detection.pipeline.detector import Detector
 from obstacle_detection.ros.parameters import detector_params_from_ros
 from obstacle_detection.sim.scenes import render_scene
-from tools import bag_convert, bag_process
+from obstacle_detection.ros import bag_writer
+from obstacle_detection.ros import bag_processor
+from obstacle_detection.tools import bag_convert, bag_process
 
 REPO = Path(__file__).resolve().parents[1]
 JAZZY = get_typestore(Stores.ROS2_JAZZY)
-DEPTH = bag_convert.DEFAULT_DEPTH_TOPIC
-INFO = bag_convert.DEFAULT_INFO_TOPIC
+DEPTH = bag_writer.DEFAULT_DEPTH_TOPIC
+INFO = bag_writer.DEFAULT_INFO_TOPIC
 SIZE = (128, 106)  # a quarter of the Kinect v2 SD image
 INTR = Intrinsics(KINECT_V2_SD.fx / 4, KINECT_V2_SD.fy / 4, KINECT_V2_SD.cx / 4,
                   KINECT_V2_SD.cy / 4)
@@ -108,10 +111,11 @@ def expected_outputs(depth: np.ndarray, intr: Intrinsics, t: int) -> dict[str, o
     so the in-process messages are compared after one.
     """
     detector = Detector(detector_params_from_ros(PARAM_VALUES))
+    result = detector.process(depth, intr)
     messages = result_to_messages(
-        detector.process(depth, intr), stamp=to_time(t), cloud_frame_id='base_link',
+        result, stamp=to_time(t), cloud_frame_id='base_link',
         costmap_frame_id='base_footprint', image_frame_id=FRAME_ID, with_ground=True,
-        with_overlay=True)
+        overlay_rgb=render_overlay(result.depth_m, result.labels))
     return {key: deserialize_message(serialize_message(msg), type(msg))
             for key, msg in messages.items()}
 
@@ -217,12 +221,12 @@ def test_latest_camera_info_before_each_frame(tmp_path: Path, depths: list[np.nd
 
 
 def test_load_params_file_matches_node_format(params_file: Path) -> None:
-    values = bag_process.load_params_file(params_file)
+    values = bag_processor.load_params_file(params_file)
     assert values['median_kernel'] == 5 and values['publish_ground'] is True
-    config = bag_process.config_from_values(values, str(params_file))
+    config = bag_processor.config_from_values(values, str(params_file))
     assert config.detector.params == detector_params_from_ros(PARAM_VALUES)
-    corridor = bag_process.load_params_file(REPO / 'params' / 'corridor.yaml')
-    assert bag_process.config_from_values(corridor, 'corridor').detector.params.median_kernel \
+    corridor = bag_processor.load_params_file(REPO / 'params' / 'corridor.yaml')
+    assert bag_processor.config_from_values(corridor, 'corridor').detector.params.median_kernel \
         == 17
 
 
@@ -368,7 +372,7 @@ def test_several_params_files_are_merged_in_order(tmp_path: Path) -> None:
     second = tmp_path / 'second.yaml'
     second.write_text('obstacle_detector:\n  ros__parameters:\n    median_kernel: 7\n'
                       '    camera_height_m: 1.25\n')
-    values = bag_process.load_params_file([first, second])
+    values = bag_processor.load_params_file([first, second])
     assert (values['median_kernel'], values['max_range_m'], values['camera_height_m']) == (
         7, 3.0, 1.25)
     args = bag_process.build_parser().parse_args(

@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 from builtin_interfaces.msg import Time
+from rclpy.serialization import deserialize_message, serialize_message
 from nav_msgs.msg import OccupancyGrid
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
 
@@ -17,14 +18,16 @@ from obstacle_detection.ros.conversions import (
     costmap_to_occupancy_grid,
     depth_problem,
     image_to_array,
+    image_to_rgb,
     intrinsics_problem,
     intrinsics_to_camera_info,
+    occupancy_grid_to_costmap,
     pointcloud2_to_points,
     points_to_pointcloud2,
     result_to_messages,
 )
 from obstacle_detection.pipeline.costmap import CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN, Costmap
-from obstacle_detection.viz.overlay import OBSTACLE_RGB
+from obstacle_detection.viz.overlay import OBSTACLE_RGB, render_overlay
 from obstacle_detection.pipeline.params import KINECT_V2_SD, Intrinsics
 from obstacle_detection.pipeline.detector import LABEL_GROUND, LABEL_OBSTACLE, DetectionResult
 
@@ -240,6 +243,43 @@ def test_occupancy_grid_data_origin_and_size() -> None:
     assert grid.data[1 * 6 + 2] == CELL_OCCUPIED
 
 
+def test_occupancy_grid_reads_back_into_the_same_costmap() -> None:
+    costmap = _costmap()
+    grid = costmap_to_occupancy_grid(costmap, stamp=STAMP, frame_id='base_footprint')
+    wire = deserialize_message(serialize_message(grid), OccupancyGrid)
+
+    for message in (grid, wire):
+        back = occupancy_grid_to_costmap(message)
+        np.testing.assert_array_equal(back.data, costmap.data)
+        assert back.data.dtype == np.int8 and back.origin_xy_m == (0.0, -0.1)
+        assert math.isclose(back.resolution_m, 0.05, rel_tol=1e-7)  # float32 on the wire
+    # a cell placed by its ground coordinates lands in the same cell after the round trip
+    row, col, inside = occupancy_grid_to_costmap(wire).cell_of(np.array([[0.275, -0.025]]))
+    assert inside[0] and (row[0], col[0]) == (1, 5)
+
+
+def test_occupancy_grid_with_a_rotated_origin_or_short_data_is_refused() -> None:
+    grid = costmap_to_occupancy_grid(_costmap(), stamp=STAMP, frame_id='base_footprint')
+    grid.info.origin.orientation.z = 0.7071
+    with pytest.raises(ValueError, match='rotated'):
+        occupancy_grid_to_costmap(grid)
+    short = costmap_to_occupancy_grid(_costmap(), stamp=STAMP, frame_id='base_footprint')
+    short.info.width = 7
+    with pytest.raises(ValueError, match='expected width \\* height = 7 \\* 4'):
+        occupancy_grid_to_costmap(short)
+
+
+@pytest.mark.parametrize('encoding', ['rgb8', 'bgr8'])
+def test_colour_image_round_trip(encoding: str) -> None:
+    rgb = np.arange(3 * 4 * 3, dtype=np.uint8).reshape(3, 4, 3)
+    wire = rgb[:, :, ::-1] if encoding == 'bgr8' else rgb
+    msg = array_to_image(np.ascontiguousarray(wire), stamp=STAMP, frame_id='cam',
+                         encoding=encoding)
+    np.testing.assert_array_equal(image_to_rgb(msg), rgb)
+    with pytest.raises(ImageFormatError, match="unsupported colour encoding '16UC1'"):
+        image_to_rgb(array_to_image(np.zeros((2, 2), np.uint16), stamp=STAMP, frame_id='c'))
+
+
 def _result() -> DetectionResult:
     labels = np.full((3, 4), LABEL_GROUND, dtype=np.uint8)
     labels[1, 2] = LABEL_OBSTACLE
@@ -269,7 +309,8 @@ def test_result_to_messages_with_ground_and_overlay() -> None:
 
     messages = result_to_messages(result, stamp=STAMP, cloud_frame_id='cloud',
                                   costmap_frame_id='grid', image_frame_id='cam',
-                                  with_ground=True, with_overlay=True)
+                                  with_ground=True,
+                                  overlay_rgb=render_overlay(result.depth_m, result.labels))
 
     assert set(messages) == {'obstacles', 'costmap', 'ground', 'overlay'}
     assert all(m.header.stamp == STAMP for m in messages.values())

@@ -12,7 +12,7 @@ import pytest
 import ros_env
 from rosbags.rosbag2 import Reader
 
-from tools import demo
+from obstacle_detection.tools import demo
 
 #: Starts processes or a DDS graph: deselect with -m "not integration" (README, tests).
 pytestmark = pytest.mark.integration

@@ -11,7 +11,7 @@ from obstacle_detection.evaluation import runner as evaluation, metrics
 from obstacle_detection.sim import scenes
 from obstacle_detection.evaluation.metrics import Confusion, GT_OBSTACLE
 from obstacle_detection.pipeline.params import table_4_2, table_4_3
-from tools import evaluate
+from obstacle_detection.tools import evaluate
 
 REPO = Path(__file__).resolve().parents[1]
 SUITE = evaluation.SUITES['seed']

@@ -28,7 +28,7 @@ from obstacle_detection.cli import support as tool_support
 from obstacle_detection.ros.compressed_depth import TRANSPORT_SUFFIXES
 from obstacle_detection.ros.parameters import NODE_NAME
 from obstacle_detection.sim.scenes import render_scene
-from tools import bag_process
+from obstacle_detection.ros import bag_processor
 
 REPO = Path(__file__).resolve().parents[1]
 LAUNCH = REPO / 'launch' / 'detector.launch.py'
@@ -220,9 +220,9 @@ def test_nav2_ranges_and_window_cover_the_corridor_region_of_interest() -> None:
 
 @pytest.mark.parametrize('scene', ['corridor', 'step_down'])
 def test_every_detector_point_passes_the_obstacle_layer_filters(scene: str) -> None:
-    values = bag_process.load_params_file(CORRIDOR)
+    values = bag_processor.load_params_file(CORRIDOR)
     values['publish_ground'] = True
-    config = bag_process.config_from_values(values, str(CORRIDOR))
+    config = bag_processor.config_from_values(values, str(CORRIDOR))
     params = config.detector.params
     frame = render_scene(scene, seed=1, height_m=params.camera_height_m,
                          pitch_rad=params.camera_pitch_rad, roll_rad=params.camera_roll_rad)

@@ -14,7 +14,7 @@ from obstacle_detection.pipeline.params import KINECT_V2_SD, Intrinsics, table_4
 from obstacle_detection.viz.pictures import read_depth_png
 from obstacle_detection.pipeline.detector import LABEL_GROUND, LABEL_OBSTACLE, Detector
 from obstacle_detection.sim.scenes import Box, Floor, Scene, Wall, render, render_scene
-from tools import estimate_mount as tool
+from obstacle_detection.tools import estimate_mount as tool
 
 #: Recovery tolerances on noisy Kinect-v2-like frames (measured errors are below 1 mm and
 #: 0.05 deg; these leave room for noise, not for a wrong convention or plane).

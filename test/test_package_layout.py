@@ -6,6 +6,7 @@ The build repeats what colcon's ament_python build runs (``setup.py egg_info bui
 
 from __future__ import annotations
 
+import ast
 import re
 import signal
 import subprocess
@@ -24,6 +25,10 @@ pytestmark = pytest.mark.integration
 
 REPO = ros_env.REPO_ROOT
 PACKAGE = 'obstacle_detection'
+#: The command lines (tools/<name>.py), installed as ``<name>`` beside ``detector``.
+TOOLS = ('bag_convert', 'bag_play', 'bag_process', 'benchmark', 'benchmark_fusion', 'demo',
+         'estimate_mount', 'evaluate', 'evaluate_video', 'latency_bench', 'param_table',
+         'pictures', 'readme_pictures', 'real_frames', 'sweep', 'train_refiner')
 EXEC_DEPENDS = {'rclpy', 'sensor_msgs', 'nav_msgs', 'std_msgs', 'geometry_msgs',
                 'python3-numpy', 'python3-scipy', 'python3-opencv'}
 
@@ -66,6 +71,86 @@ def _site_packages(prefix: Path) -> Path:
 ])
 def test_installed_where_ros2_run_looks(prefix: Path, relative: str) -> None:
     assert (prefix / relative).is_file()
+
+
+def test_every_tool_is_a_command_where_ros2_run_looks(prefix: Path) -> None:
+    assert sorted(p.stem for p in (REPO / 'tools').glob('[!_]*.py')) == sorted(TOOLS)
+    for name in TOOLS:
+        command = prefix / 'lib' / PACKAGE / name
+        assert command.is_file() and command.stat().st_mode & 0o111, command
+        assert f"'console_scripts', '{name}'" in command.read_text(), command
+        assert (_site_packages(prefix) / PACKAGE / 'tools' / f'{name}.py').is_file(), name
+    # the command lines live inside the package: nothing named `tools` at the top level
+    assert not (_site_packages(prefix) / 'tools').exists()
+
+
+def _installed_env(prefix: Path, tmp_path: Path) -> dict[str, str]:
+    env = ros_env.loopback_env('test_package_layout', log_dir=tmp_path / 'ros_log')
+    env['PYTHONPATH'] = str(_site_packages(prefix))
+    return env
+
+
+def test_installed_param_table_prints_the_parameter_table(prefix: Path, tmp_path: Path) -> None:
+    from obstacle_detection.tools.param_table import parameter_table
+
+    done = subprocess.run([str(prefix / 'lib' / PACKAGE / 'param_table')],
+                          env=_installed_env(prefix, tmp_path), cwd=tmp_path,
+                          capture_output=True, text=True, timeout=120, check=False)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == parameter_table().strip()
+
+
+def test_installed_tools_find_the_installed_parameter_files(prefix: Path, tmp_path: Path) -> None:
+    probe = ('from obstacle_detection.cli.support import package_file; '
+             "print(package_file('params/corridor.yaml'))")
+    done = subprocess.run([sys.executable, '-c', probe], env=_installed_env(prefix, tmp_path),
+                          cwd=tmp_path, capture_output=True, text=True, timeout=60, check=False)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == str(prefix / 'share' / PACKAGE / 'params' / 'corridor.yaml')
+    from obstacle_detection.cli.support import package_file
+    assert package_file('params/corridor.yaml') == REPO / 'params' / 'corridor.yaml'
+
+
+def test_installed_evaluate_reports_a_bad_scene_as_a_usage_error(prefix: Path,
+                                                                 tmp_path: Path) -> None:
+    command = str(prefix / 'lib' / PACKAGE / 'evaluate')
+    env = _installed_env(prefix, tmp_path)
+    helped = subprocess.run([command, '--help'], env=env, cwd=tmp_path, capture_output=True,
+                            text=True, timeout=120, check=False)
+    assert helped.returncode == 0 and helped.stdout.startswith('usage: evaluate'), helped.stderr
+    bad = subprocess.run([command, '--scene', 'no_such_scene'], env=env, cwd=tmp_path,
+                         capture_output=True, text=True, timeout=120, check=False)
+    assert bad.returncode == 2 and bad.stderr.count('\n') == 1, bad.stderr
+    assert 'no_such_scene' in bad.stderr and 'Traceback' not in bad.stderr
+
+
+def test_tools_neither_edit_sys_path_nor_import_each_other() -> None:
+    for path in sorted((REPO / 'tools').glob('*.py')):
+        tree = ast.parse(path.read_text(), str(path))
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Attribute) and node.attr == 'path' and \
+                    isinstance(node.value, ast.Name) and node.value.id == 'sys':
+                raise AssertionError(f'{path.name} uses sys.path')
+            modules = ([a.name for a in node.names] if isinstance(node, ast.Import) else
+                       [node.module or ''] if isinstance(node, ast.ImportFrom) else [])
+            assert not any(m == 'tools' or m.startswith(('tools.', f'{PACKAGE}.tools'))
+                           for m in modules), f'{path.name} imports another tool: {modules}'
+
+
+def test_editable_install_maps_the_tools_into_the_package(tmp_path: Path) -> None:
+    """In the venv (``pip install -e .``), obstacle_detection.tools is the checkout's tools/."""
+    probe = ('import obstacle_detection, obstacle_detection.tools.evaluate as e; '
+             'print(obstacle_detection.__file__); print(e.__file__)')
+    env = {k: v for k, v in ros_env.loopback_env('test_package_layout').items()
+           if k != 'PYTHONPATH'}
+    done = subprocess.run([sys.executable, '-c', probe], env=env, cwd=tmp_path,
+                          capture_output=True, text=True, timeout=60, check=False)
+    package = done.stdout.splitlines()[0] if done.returncode == 0 else ''
+    if not package.startswith(str(REPO)):
+        pytest.skip('obstacle_detection is not installed editable from this checkout')
+    assert done.stdout.splitlines()[1] == str(REPO / 'tools' / 'evaluate.py')
+    command = Path(sys.executable).parent / 'evaluate'
+    assert command.is_file(), 'the venv has no evaluate command: bash tools/setup_venv.sh'
 
 
 def test_installed_python_package(prefix: Path) -> None:
@@ -121,7 +206,7 @@ def test_installed_detector_starts_and_stops_on_sigint(prefix: Path, tmp_path: P
 
 def test_parameter_table_lists_every_parameter_with_its_range() -> None:
     from obstacle_detection.ros.parameters import ALL_PARAMS
-    from tools.param_table import parameter_table
+    from obstacle_detection.tools.param_table import parameter_table
 
     rows = parameter_table().splitlines()[2:]
 

@@ -20,8 +20,10 @@ from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE, 
 from obstacle_detection.pipeline.detector import Detector
 from obstacle_detection.sim.scenes import render_scene
 from obstacle_detection.cli import support as tool_support
-from tools import bag_convert, bag_process, readme_pictures
-from tools import pictures as pictures_tool
+from obstacle_detection.cli import picture_jobs
+from obstacle_detection.ros import bag_writer
+from obstacle_detection.tools import bag_process, readme_pictures
+from obstacle_detection.tools import pictures as pictures_tool
 
 SIZE = (160, 132)
 
@@ -171,15 +173,15 @@ def test_tool_bag_defaults_are_the_bag_tools_and_camera_info_is_found_by_type(
     frame, _ = corridor
     _write_bag(tmp_path / 'bag', frame, 2, depth_topic=tool_support.DEFAULT_DEPTH_TOPIC,
                info_topic='/camera/depth/camera_info')
-    args = pictures_tool.build_parser().parse_args(['--bag', str(tmp_path / 'bag'), '--out',
+    args = picture_jobs.build_parser().parse_args(['--bag', str(tmp_path / 'bag'), '--out',
                                                     'x.png'])
-    jobs = list(pictures_tool.jobs(args, table_4_2()))
+    jobs = list(picture_jobs.jobs(args, table_4_2()))
     assert len(jobs) == 2
     assert jobs[0].intrinsics.fx == pytest.approx(frame.intrinsics.fx)
     assert jobs[0].intrinsics.cx == pytest.approx(frame.intrinsics.cx)
     assert any('CameraInfo on /camera/depth/camera_info (found by type' in line
                for line in jobs[0].extra_lines)
-    assert bag_convert.DEFAULT_DEPTH_TOPIC == tool_support.DEFAULT_DEPTH_TOPIC
+    assert bag_writer.DEFAULT_DEPTH_TOPIC == tool_support.DEFAULT_DEPTH_TOPIC
     assert bag_process.build_parser().parse_args(['a', 'b']).depth_topic == \
         args.depth_topic == tool_support.DEFAULT_DEPTH_TOPIC
 
@@ -250,10 +252,10 @@ def test_tool_estimates_the_mount_of_a_depth_png(tmp_path, tilted_floor, capsys)
 
 def test_tool_estimate_is_in_the_caption_and_explicit_mount_wins(tilted_floor):
     depth, intrinsics = tilted_floor
-    args = pictures_tool.build_parser().parse_args(
+    args = picture_jobs.build_parser().parse_args(
         ['--depth', str(depth), '--intrinsics', intrinsics, '--estimate-mount',
          '--depth-scale', '1000', '--height', '1.2', '--out', 'x.png'])
-    job = pictures_tool.depth_job(args, table_4_2())
+    job = picture_jobs.depth_job(args, table_4_2())
     assert job.params.camera_height_m == 1.2
     assert job.params.camera_pitch_rad == pytest.approx(math.radians(30), abs=0.01)
     assert job.params.camera_roll_rad == pytest.approx(math.radians(4), abs=0.01)

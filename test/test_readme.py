@@ -3,7 +3,7 @@
 import re
 from pathlib import Path
 
-from tools import param_table
+from obstacle_detection.tools import param_table
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -143,7 +143,7 @@ def test_refined_costmap_follows_the_refined_pixels():
 
 
 def test_train_tool_prints_rule_based_and_refined_scores(tmp_path, capsys):
-    from tools import train_refiner
+    from obstacle_detection.tools import train_refiner
     out = tmp_path / 'model.json'
     code = train_refiner.main(['--scene', 'corridor', '--scene', 'people', '--scene', 'ramps',
                                '--max-frames', '1', '--train-frames', '1',

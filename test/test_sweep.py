@@ -9,7 +9,8 @@ import pytest
 
 from obstacle_detection.evaluation import runner as evaluation
 from obstacle_detection.pipeline.params import table_4_2
-from tools import sweep
+from obstacle_detection.evaluation import sweep as grid_search
+from obstacle_detection.tools import sweep
 
 NAN = float('nan')
 
@@ -17,19 +18,19 @@ NAN = float('nan')
 def test_best_of_grid_on_a_hand_made_grid():
     scores = np.array([[0.2, 0.7, NAN],
                        [0.9, 0.1, 0.9]])
-    assert sweep.best_of_grid(scores) == (1, 0)  # first of the tied 0.9s, NaN ignored
-    assert sweep.best_of_grid(scores, higher_is_better=False) == (1, 1)
+    assert grid_search.best_of_grid(scores) == (1, 0)  # first of the tied 0.9s, NaN ignored
+    assert grid_search.best_of_grid(scores, higher_is_better=False) == (1, 1)
 
 
 def test_best_of_an_all_nan_grid_is_none():
-    assert sweep.best_of_grid(np.full((2, 2), NAN)) is None
+    assert grid_search.best_of_grid(np.full((2, 2), NAN)) is None
 
 
 def test_axis_parsing():
-    axis = sweep.parse_axis('theta_deg=15, 20,30')
-    assert axis == sweep.Axis('theta_deg', ('15', '20', '30'))
+    axis = grid_search.parse_axis('theta_deg=15, 20,30')
+    assert axis == grid_search.Axis('theta_deg', ('15', '20', '30'))
     with pytest.raises(argparse.ArgumentTypeError, match="'abc' is not a number"):
-        sweep.parse_axis('N=3,abc')
+        grid_search.parse_axis('N=3,abc')
 
 
 @pytest.fixture(scope='module')
@@ -39,22 +40,22 @@ def small_frames():
 
 
 def test_tiny_sweep_best_is_the_argmax_of_its_own_scores(small_frames):
-    x = sweep.Axis('theta_deg', ('10', '30', '80'))
-    y = sweep.Axis('N', ('5', '10'))
-    result = sweep.run_sweep(small_frames, table_4_2(), x, y, 'cell_f1')
+    x = grid_search.Axis('theta_deg', ('10', '30', '80'))
+    y = grid_search.Axis('N', ('5', '10'))
+    result = grid_search.run_sweep(small_frames, table_4_2(), x, y, 'cell_f1')
     grid = result.grids['corridor']
     assert grid.shape == (2, 3) and np.isfinite(grid).all()
     row, col = result.best('corridor')
     assert grid[row, col] == np.nanmax(grid)
     # Each cell is what a plain evaluation with that setting gives.
-    params = sweep.settings_params(table_4_2(), x, y, row, col)
+    params = grid_search.settings_params(table_4_2(), x, y, row, col)
     report = evaluation.evaluate_frames(small_frames, params)
     assert report.scenes['corridor'].cell.f1 == pytest.approx(grid[row, col])
 
 
 def test_invalid_setting_is_nan_not_an_error(small_frames):
-    x = sweep.Axis('K', ('4', '5'))  # an even median kernel is refused by DetectorParams
-    result = sweep.run_sweep(small_frames, table_4_2(), x, None)
+    x = grid_search.Axis('K', ('4', '5'))  # an even median kernel is refused by DetectorParams
+    result = grid_search.run_sweep(small_frames, table_4_2(), x, None)
     assert np.isnan(result.grids['overall'][0, 0]) and np.isfinite(result.grids['overall'][0, 1])
     assert result.best('overall') == (0, 1)
 
@@ -82,8 +83,8 @@ def test_command_refuses_an_unknown_axis(capsys):
 
 
 def test_scene_without_truth_obstacles_is_ranked_by_false_alarms():
-    x = sweep.Axis('theta_deg', ('10', '60'))
-    result = sweep.SweepResult(
+    x = grid_search.Axis('theta_deg', ('10', '60'))
+    result = grid_search.SweepResult(
         x, None, 'cell_f1', grids={'floor': np.array([[0.0, NAN]])},
         false_alarms={'floor': np.array([[0.3, 0.0]])}, positives={'floor': 0})
     assert result.ranking('floor')[1] == 'cell_false_alarm'
@@ -91,13 +92,13 @@ def test_scene_without_truth_obstacles_is_ranked_by_false_alarms():
 
 
 def test_full_grid_best_names_every_axis_and_projection_is_the_best(small_frames):
-    x = sweep.Axis('theta_deg', ('20', '70'))
-    also = (sweep.Axis('N1', ('0', '12')),)
-    result = sweep.run_sweep(small_frames, table_4_2(), x, None, 'cell_f1', also=also)
+    x = grid_search.Axis('theta_deg', ('20', '70'))
+    also = (grid_search.Axis('N1', ('0', '12')),)
+    result = grid_search.run_sweep(small_frames, table_4_2(), x, None, 'cell_f1', also=also)
     grid = result.grids['overall']
     assert grid.shape == (1, 2, 2)
     best = result.best('overall')
     assert grid[best] == np.nanmax(grid)
     assert set(result.setting(*best)) == {'theta_deg', 'N1'}
-    np.testing.assert_allclose(sweep.project(grid), np.nanmax(grid, axis=2))
-    assert f'{np.nanmax(grid):.3f}*' in sweep.format_grid(result, 'overall')
+    np.testing.assert_allclose(grid_search.project(grid), np.nanmax(grid, axis=2))
+    assert f'{np.nanmax(grid):.3f}*' in grid_search.format_grid(result, 'overall')

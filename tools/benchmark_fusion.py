@@ -21,11 +21,7 @@ import json  # noqa: E402
 import platform  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
-from pathlib import Path  # noqa: E402
 from typing import Sequence  # noqa: E402
-
-if __package__ in (None, ''):  # run as a script: make the repository root importable
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
@@ -35,7 +31,6 @@ from obstacle_detection.cli import support as tool_support  # noqa: E402
 from obstacle_detection.pipeline.fusion import FusedGrid, FusionParams  # noqa: E402
 from obstacle_detection.sim.sequences import SceneSequence  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
 PROG = 'benchmark_fusion.py'
 
 
@@ -80,7 +75,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             fusion = FusionParams(size_m=args.size_m, resolution_m=args.resolution_m)
         except ValueError as exc:
             raise tool_support.UsageError(str(exc)) from None
-        params = evaluation.load_params_file(REPO / 'params' / 'corridor.yaml')
+        params = evaluation.load_params_file(tool_support.package_file('params/corridor.yaml'))
     except (ValueError, OSError) as exc:
         return tool_support.report_error(PROG, exc)
     pinning = pin_one_cpu()

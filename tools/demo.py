@@ -36,17 +36,17 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-if __package__ in (None, ''):  # run as a script: make the repository root importable
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import cv2
+import numpy as np
 
-import cv2  # noqa: E402
-import numpy as np  # noqa: E402
+from obstacle_detection.cli import support as tool_support
+from obstacle_detection.evaluation import datasets
+from obstacle_detection.ros import bag_player, bag_writer
+from obstacle_detection.ros.recorder import Recorder, write_bag
+from obstacle_detection.ros.dds_env import loopback_env
 
-from tools import bag_convert, bag_play  # noqa: E402
-from obstacle_detection.ros.dds_env import loopback_env  # noqa: E402
-
-REPO = Path(__file__).resolve().parents[1]
-DEFAULT_PARAMS = REPO / 'params' / 'corridor.yaml'
+REPO = tool_support.PACKAGE_ROOT
+DEFAULT_PARAMS = tool_support.package_file('params/corridor.yaml')
 MARKER = '.obstacle_detection_demo'
 #: The node's outputs (after its default names) -> message type name.
 OUTPUT_TOPICS = {
@@ -120,6 +120,7 @@ def render_sequence(folder: Path, scene: str, frames: int, seed: int, step: int 
     (every ``step``-th frame of it). Returns (depth folder, camera YAML, the first SceneFrame,
     the odometry pose of each frame or None for a static scene).
     """
+    from obstacle_detection.evaluation.camera import camera_yaml_text
     from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE
     from obstacle_detection.sim.scenes import render_scene
     from obstacle_detection.sim.sequences import SEQUENCE_NAMES, SceneSequence
@@ -146,104 +147,9 @@ def render_sequence(folder: Path, scene: str, frames: int, seed: int, step: int 
             raise DemoError(f'{depth_dir}: cannot write depth PNGs')
     intr = KINECT_V2_SD
     camera = folder / 'camera.yaml'
-    camera.write_text(f'# Kinect v2 SD camera of the rendered scene\nfx: {intr.fx}\n'
-                      f'fy: {intr.fy}\ncx: {intr.cx}\ncy: {intr.cy}\n'
-                      f'width: {KINECT_V2_SD_SIZE[0]}\nheight: {KINECT_V2_SD_SIZE[1]}\n')
+    camera.write_text(camera_yaml_text(intr, comment='Kinect v2 SD camera of the rendered scene',
+                                       size=KINECT_V2_SD_SIZE))
     return depth_dir, camera, first, poses
-
-
-class Recorder:
-    """Subscribes (raw) to the node's outputs and keeps every message with its arrival time."""
-
-    def __init__(self, node: Any) -> None:
-        """Create one reliable raw subscription per output topic on ``node``."""
-        from rclpy.qos import QoSProfile, ReliabilityPolicy
-
-        qos = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
-        self.messages: dict[str, list[tuple[int, bytes]]] = {t: [] for t in OUTPUT_TOPICS}
-        self.last_arrival = time.monotonic()
-        self.subscriptions = [
-            node.create_subscription(bag_play.message_class(msgtype), topic,
-                                     lambda raw, t=topic: self._keep(t, raw), qos, raw=True)
-            for topic, msgtype in OUTPUT_TOPICS.items()]
-
-    def _keep(self, topic: str, raw: bytes) -> None:
-        self.messages[topic].append((time.time_ns(), raw))
-        self.last_arrival = time.monotonic()
-
-    def matched(self) -> bool:
-        """Whether the node's cloud and costmap publishers are matched."""
-        return all(s.get_publisher_count() for s in self.subscriptions[:2])
-
-    def count(self, topic: str = '/obstacles/costmap') -> int:
-        """Messages received on ``topic``."""
-        return len(self.messages[topic])
-
-
-def write_results_bag(path: Path, recorder: Recorder) -> None:
-    """Write what the node published: header stamps as bag time (arrival time if none)."""
-    from rclpy.serialization import deserialize_message
-    from rosbags.rosbag2 import Writer
-    from rosbags.typesys import Stores, get_typestore
-
-    typestore = get_typestore(Stores.ROS2_JAZZY)
-    with Writer(path, version=bag_convert.BAG_VERSION) as writer:
-        for topic, msgtype in OUTPUT_TOPICS.items():
-            if not recorder.messages[topic]:
-                continue
-            conn = writer.add_connection(topic, msgtype, typestore=typestore)
-            cls = bag_play.message_class(msgtype)
-            for arrival, raw in recorder.messages[topic]:
-                msg = deserialize_message(raw, cls)
-                header = getattr(msg, 'header', None)
-                stamp = (header.stamp.sec * 1_000_000_000 + header.stamp.nanosec
-                         if header is not None else arrival)
-                writer.write(conn, stamp, raw)
-
-
-def _overlay_array(msg: Any) -> np.ndarray:
-    """(H, W, 3) uint8 RGB of an rgb8 Image message."""
-    rows = np.frombuffer(msg.data, dtype=np.uint8).reshape(msg.height, msg.step)
-    return rows[:, :msg.width * 3].reshape(msg.height, msg.width, 3)
-
-
-def _costmap_of(grid: Any) -> Any:
-    from obstacle_detection.pipeline.costmap import Costmap
-
-    data = np.frombuffer(grid.data, dtype=np.int8).reshape(grid.info.height, grid.info.width)
-    return Costmap(data=data.copy(), resolution_m=float(grid.info.resolution),
-                   origin_xy_m=(grid.info.origin.position.x, grid.info.origin.position.y))
-
-
-def _legends(widths: Sequence[int], params: Any) -> np.ndarray:
-    """Return the legend row under a demo picture: the node's overlay, the costmap panel."""
-    from obstacle_detection.viz.overlay import (NO_RETURN_RGB, OBSTACLE_RGB, OCCUPIED_RGB,
-                                            ROBOT_RGB, FREE_RGB, UNKNOWN_RGB)
-    from obstacle_detection.viz.pictures import BACKGROUND_RGB, HATCH_RGB, VIEW_EDGE_RGB, legend
-
-    left = legend('obstacles/overlay (camera view)', [
-        ('box', OBSTACLE_RGB, 'obstacle pixel'),
-        ('box', (160, 160, 160), 'other depth: dark near, white far'),
-        ('box', NO_RETURN_RGB, 'no return')], widths[0])
-    right = legend('obstacles/costmap, top view [m]', [
-        ('box', OCCUPIED_RGB, 'occupied (100)'), ('box', FREE_RGB, 'free (0)'),
-        ('box', UNKNOWN_RGB, 'unknown (-1)'),
-        ('hatch', HATCH_RGB, 'outside the region of interest'),
-        ('line', VIEW_EDGE_RGB, "edge of the floor in the camera's view"),
-        ('triangle', ROBOT_RGB, 'camera foot point, facing +x')], widths[1])
-    parts = [left, right]
-    if len(widths) > 2:
-        parts.append(legend('obstacles/fused_costmap, odom [m]', [
-            ('box', OCCUPIED_RGB, 'occupied: seen often enough'), ('box', FREE_RGB, 'free'),
-            ('box', UNKNOWN_RGB, 'unknown / not sure'),
-            ('triangle', ROBOT_RGB, 'robot at its odometry pose')], widths[2]))
-    height = max(b.shape[0] for b in parts)
-    blocks = []
-    for block in parts:
-        blocks += [np.vstack([block, np.full((height - block.shape[0], block.shape[1], 3),
-                                             BACKGROUND_RGB, np.uint8)]),
-                   np.full((height, 6, 3), 255, np.uint8)]
-    return np.hstack(blocks[:-1])
 
 
 def save_pictures(folder: Path, recorder: Recorder, every: int, params: Any = None,
@@ -262,8 +168,8 @@ def save_pictures(folder: Path, recorder: Recorder, every: int, params: Any = No
     from rclpy.serialization import deserialize_message
     from sensor_msgs.msg import Image, PointCloud2
 
-    from obstacle_detection.viz.pictures import (caption_band, contact_sheet, costmap_panel,
-                                             write_png)
+    from obstacle_detection.ros.conversions import image_to_rgb, occupancy_grid_to_costmap
+    from obstacle_detection.viz.pictures import contact_sheet, node_outputs, write_png
 
     def by_stamp(topic: str, cls: type) -> dict[tuple[int, int], Any]:
         out = {}
@@ -282,42 +188,17 @@ def save_pictures(folder: Path, recorder: Recorder, every: int, params: Any = No
     for k, stamp in enumerate(sorted(grids)):
         if k % every or stamp not in overlays:
             continue
-        overlay = _overlay_array(overlays[stamp])
-        costmap = _costmap_of(grids[stamp])
-        height, width = overlay.shape[:2]
-        scale = max(1, min((height - 60) // max(costmap.width, 1),
-                           width // max(costmap.height, 1)))
-        grid_rgb = costmap_panel(costmap, scale=scale, params=params, intrinsics=intrinsics,
-                                 image_shape=(height, width))
-        rows = max(height, grid_rgb.shape[0])
-        left = np.full((rows, width, 3), 255, dtype=np.uint8)
-        left[:height] = overlay
-        pad = np.full((rows, grid_rgb.shape[1], 3), 255, dtype=np.uint8)
-        pad[:grid_rgb.shape[0]] = grid_rgb
-        gap = np.full((rows, 6, 3), 255, dtype=np.uint8)
-        panels_row = [left, gap, pad]
-        widths = [width, grid_rgb.shape[1]]
-        if stamp in fused:
-            grid = _costmap_of(fused[stamp])
-            fused_scale = max(1, (height - 60) // max(grid.height, 1))
-            fused_rgb = costmap_panel(grid, scale=fused_scale,
-                                      robot_pose=(poses or {}).get(stamp) or (0.0, 0.0, 0.0),
-                                      axis_names=('x [m], odom', 'y [m], odom'))
-            rows = max(rows, fused_rgb.shape[0])
-            panels_row = [np.vstack([p, np.full((rows - p.shape[0], p.shape[1], 3), 255,
-                                                np.uint8)]) for p in panels_row]
-            fused_pad = np.full((rows, fused_rgb.shape[1], 3), 255, dtype=np.uint8)
-            fused_pad[:fused_rgb.shape[0]] = fused_rgb
-            panels_row += [np.full((rows, 6, 3), 255, dtype=np.uint8), fused_pad]
-            widths.append(fused_rgb.shape[1])
-        row = np.hstack(panels_row)
+        overlay = image_to_rgb(overlays[stamp])
+        costmap = occupancy_grid_to_costmap(grids[stamp])
         cloud = clouds.get(stamp)
         points = int(cloud.width * cloud.height) if cloud is not None else 0
         occupied = int(np.count_nonzero(costmap.data == 100))
         caption = [f'frame {k}, stamp {stamp[0]}.{stamp[1]:09d}: {points} obstacle points, '
                    f'{occupied} occupied cells']
-        picture = np.vstack([row, caption_band(caption, row.shape[1]),
-                             _legends(widths, params)])
+        picture, grid_rgb = node_outputs(
+            overlay, costmap, caption=caption, params=params, intrinsics=intrinsics,
+            fused=occupancy_grid_to_costmap(fused[stamp]) if stamp in fused else None,
+            robot_pose=(poses or {}).get(stamp) or (0.0, 0.0, 0.0))
         name = f'frame_{k:04d}'
         write_png(folder / 'pictures' / f'overlay_{k:04d}.png', overlay)
         write_png(folder / 'pictures' / f'costmap_{k:04d}.png', grid_rgb)
@@ -352,8 +233,8 @@ def _node_command(params: Path, frame: Any, *, reliable: bool, odom_topic: str) 
 
     return [sys.executable, '-m', 'obstacle_detection.ros.node', '--ros-args',
             '--params-file', str(params),
-            '-r', f'depth/image_raw:={bag_convert.DEFAULT_DEPTH_TOPIC}',
-            '-r', f'depth/camera_info:={bag_convert.DEFAULT_INFO_TOPIC}',
+            '-r', f'depth/image_raw:={bag_writer.DEFAULT_DEPTH_TOPIC}',
+            '-r', f'depth/camera_info:={bag_writer.DEFAULT_INFO_TOPIC}',
             '-p', 'publish_overlay:=true', '-p', 'stats_period_s:=1.0',
             '-p', f'camera_height_m:={float(frame.height_m)!r}',
             '-p', f'camera_pitch_deg:={round(math.degrees(frame.pitch_rad), 9)!r}',
@@ -467,14 +348,14 @@ def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
     rate = args.rate if args.rate is not None else DEMO_FPS / bag_hz
 
     print(f'[2/5] converting them to a rosbag2: {out / "input_bag"}')
-    source = bag_convert.folder_frames(depth_dir, intrinsics_path=camera, rate_hz=bag_hz,
+    source = datasets.folder_frames(depth_dir, intrinsics_path=camera, rate_hz=bag_hz,
                                        start_s=float(int(time.time())))
     if poses is not None:
         source.frames = [dataclasses.replace(f, pose=p) for f, p in zip(source.frames, poses)]
     pose_by_stamp = ({(f.stamp_ns // 1_000_000_000, f.stamp_ns % 1_000_000_000): f.pose
                       for f in source.frames} if poses is not None else {})
-    summary = bag_convert.write_frames(source, out / 'input_bag',
-                                       bag_convert.BagOptions(progress=not args.quiet))
+    summary = bag_writer.write_frames(source, out / 'input_bag',
+                                       bag_writer.BagOptions(progress=not args.quiet))
     print('\n'.join('      ' + line for line in summary.lines()[1:4]))
 
     env = loopback_env(args.domain_id)
@@ -487,7 +368,7 @@ def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
         p for p in (str(REPO), env.get('PYTHONPATH', '')) if p), PYTHONUNBUFFERED='1',
         RCUTILS_COLORIZED_OUTPUT='0', ROS_LOG_DIR=str(out / 'ros_log'))
     command = _node_command(args.params, first, reliable=not args.best_effort,
-                            odom_topic=bag_convert.DEFAULT_ODOM_TOPIC)
+                            odom_topic=bag_writer.DEFAULT_ODOM_TOPIC)
     print(f'[3/5] starting the detector node (ROS_DOMAIN_ID={args.domain_id}, loopback only; '
           f'log: {out / "node.log"}):\n      {" ".join(command[1:])}')
     with (out / 'node.log').open('w') as log:
@@ -502,16 +383,16 @@ def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
     thread = None
     stop = threading.Event()
     try:
-        recorder = Recorder(node)
+        recorder = Recorder(node, OUTPUT_TOPICS)
         status: list[str] = []
         node.create_subscription(String, '/obstacle_detector/status',
                                  lambda msg: status.append(msg.data),
                                  QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                                             durability=DurabilityPolicy.TRANSIENT_LOCAL))
-        options = bag_play.PlayOptions(rate=rate, reliable=not args.best_effort,
+        options = bag_player.PlayOptions(rate=rate, reliable=not args.best_effort,
                                        wait_for_subscribers=2,
                                        wait_timeout_s=args.timeout, progress=False)
-        player = bag_play.Player(node, out / 'input_bag', options)
+        player = bag_player.Player(node, out / 'input_bag', options)
         _wait_until_ready(executor, status, player, node_process, args.timeout,
                           failed / 'node.log', out / 'node.log')
         print(f'      node {status[-1]}')
@@ -520,7 +401,7 @@ def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
             executor.spin_once(timeout_sec=0.05)
 
         print(f'[4/5] replaying {summary.frames} frames at {bag_hz * rate:g} Hz into the node')
-        stats: list[bag_play.PlayStats] = []
+        stats: list[bag_player.PlayStats] = []
         thread = threading.Thread(target=lambda: stats.append(player.play(stop)), daemon=True)
         thread.start()
         while thread.is_alive():
@@ -544,13 +425,13 @@ def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
         context.try_shutdown()
         _stop(node_process)
 
-    received = recorder.count()
+    received = recorder.count('/obstacles/costmap')
     if received == 0:
         raise DemoError(f'the detector node published nothing for {summary.frames} frames; '
                         f'its log ({failed / "node.log"}):\n' + _log_tail(out / 'node.log'))
     print(f'[5/5] writing what the node published: {out / "results_bag"}; pictures: '
           f'{out / "pictures"}')
-    write_results_bag(out / 'results_bag', recorder)
+    write_bag(out / 'results_bag', recorder)
     saved = save_pictures(out, recorder, args.save_every, _scene_params(args.params, first),
                           first.intrinsics, pose_by_stamp)
 
@@ -559,7 +440,7 @@ def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
 
     times = [deserialize_message(raw, Float64).data
              for _, raw in recorder.messages['/obstacle_detector/processing_time_ms']]
-    sent = stats[0].published.get(bag_convert.DEFAULT_DEPTH_TOPIC, 0) if stats else 0
+    sent = stats[0].published.get(bag_writer.DEFAULT_DEPTH_TOPIC, 0) if stats else 0
     report = [f'  depth frames sent: {sent}, results received: {received} costmaps, '
               f'{recorder.count("/obstacles/points")} obstacle clouds, '
               f'{recorder.count("/obstacles/overlay")} overlays']
@@ -631,7 +512,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
     try:
         return run_demo(args)
-    except (DemoError, bag_convert.ConvertError, bag_play.PlayError) as err:
+    except (DemoError, datasets.ConvertError, bag_player.PlayError) as err:
         print(f'error: {err}', file=sys.stderr)
         return 1
 

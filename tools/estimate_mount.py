@@ -22,27 +22,14 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
-if __package__ in (None, ''):  # run as a script: make the repository root importable
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-
-from obstacle_detection.cli import support as tool_support  # noqa: E402
-from obstacle_detection.pipeline.depth import decode_depth  # noqa: E402
-from obstacle_detection.pipeline.mount import MountEstimate, estimate_mount  # noqa: E402
-from obstacle_detection.pipeline.params import Intrinsics  # noqa: E402
-from obstacle_detection.viz.pictures import read_depth_png  # noqa: E402
-from obstacle_detection.ros.parameters import NODE_NAME  # noqa: E402
-
-
-def parse_intrinsics(text: str) -> Intrinsics:
-    """``fx,fy,cx,cy`` [px] -> Intrinsics (argparse type)."""
-    try:
-        values = [float(v) for v in text.split(',')]
-        if len(values) != 4:
-            raise ValueError(f'4 values needed, got {len(values)}')
-        return Intrinsics(*values)
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(f'expected fx,fy,cx,cy, got {text!r}: {exc}') from None
+from obstacle_detection.cli import support as tool_support
+from obstacle_detection.cli.support import parse_intrinsics
+from obstacle_detection.evaluation.camera import camera_yaml_text
+from obstacle_detection.pipeline.depth import decode_depth
+from obstacle_detection.pipeline.mount import MountEstimate, estimate_mount
+from obstacle_detection.pipeline.params import Intrinsics
+from obstacle_detection.viz.pictures import read_depth_png
+from obstacle_detection.ros.parameters import NODE_NAME
 
 
 def params_yaml(estimate: MountEstimate, node_name: str = NODE_NAME) -> str:
@@ -57,14 +44,11 @@ def params_yaml(estimate: MountEstimate, node_name: str = NODE_NAME) -> str:
 
 
 def camera_yaml(estimate: MountEstimate, intrinsics: Intrinsics, depth_scale: float) -> str:
-    """Camera YAML (``evaluation.read_camera_yaml``): intrinsics, depth scale and the mount."""
-    return (f'# intrinsics [px] and the camera mount estimated from the floor\n'
-            f'fx: {intrinsics.fx!r}\nfy: {intrinsics.fy!r}\n'
-            f'cx: {intrinsics.cx!r}\ncy: {intrinsics.cy!r}\n'
-            f'depth_scale: {float(depth_scale)!r}\n'
-            f'camera_height_m: {estimate.height_m:.4f}\n'
-            f'camera_pitch_deg: {estimate.pitch_deg:.3f}\n'
-            f'camera_roll_deg: {estimate.roll_deg:.3f}\n')
+    """Camera YAML (``evaluation.camera``): intrinsics, depth scale and the mount."""
+    return camera_yaml_text(intrinsics, comment='intrinsics [px] and the camera mount estimated '
+                            'from the floor', depth_scale=depth_scale,
+                            height_m=estimate.height_m, pitch_deg=estimate.pitch_deg,
+                            roll_deg=estimate.roll_deg)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -22,17 +22,13 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
-if __package__ in (None, ''):  # run as a script: make the repository root importable
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from obstacle_detection.evaluation import runner as evaluation  # noqa: E402
+from obstacle_detection.evaluation import runner as evaluation
 from obstacle_detection.cli import support as tool_support
-from obstacle_detection.pipeline.fusion import FusionParams  # noqa: E402
-from obstacle_detection.sim.sequences import (PERFECT_ODOMETRY, SEQUENCE_NAMES,  # noqa: E402
+from obstacle_detection.pipeline.fusion import FusionParams
+from obstacle_detection.sim.sequences import (PERFECT_ODOMETRY, SEQUENCE_NAMES,
                                           OdometryModel, SceneSequence)
 
-REPO = Path(__file__).resolve().parents[1]
-DEFAULT_PARAMS = REPO / 'params' / 'corridor.yaml'
+DEFAULT_PARAMS = tool_support.package_file('params/corridor.yaml')
 PROG = 'evaluate_video.py'
 
 

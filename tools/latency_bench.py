@@ -32,15 +32,13 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-if __package__ in (None, ''):  # run as a script: make the repository root importable
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import numpy as np
 
-import numpy as np  # noqa: E402
+from obstacle_detection.cli import support as tool_support
+from obstacle_detection.ros.dds_env import loopback_env
 
-from obstacle_detection.ros.dds_env import loopback_env  # noqa: E402
-
-REPO = Path(__file__).resolve().parents[1]
-DEFAULT_PARAMS = REPO / 'params' / 'corridor.yaml'
+REPO = tool_support.PACKAGE_ROOT
+DEFAULT_PARAMS = tool_support.package_file('params/corridor.yaml')
 NODE = '/obstacle_detector'
 
 

@@ -34,17 +34,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
-if __package__ in (None, ''):  # run as a script: make the repository root importable
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import cv2
+import numpy as np
 
-import cv2  # noqa: E402
-import numpy as np  # noqa: E402
-
-from obstacle_detection.viz import pictures  # noqa: E402
+from obstacle_detection.viz import pictures
 from obstacle_detection.cli import support as tool_support
-from tools import pictures as pictures_tool  # noqa: E402
+from obstacle_detection.cli import picture_jobs
 
-REPOSITORY = Path(__file__).resolve().parents[1]
+REPOSITORY = tool_support.PACKAGE_ROOT
 DEFAULT_OUT_DIR = REPOSITORY / 'tools' / 'readme'
 DEFAULT_REAL_DIR = REPOSITORY.parent / 'shared' / 'data' / 'real'
 #: Width of the real-frame pictures [px] (keeps each PNG well under 200 KB).
@@ -125,11 +122,11 @@ def real_picture(panels: Sequence[Panel], real_dir: Path,
     """(h, width, 3) uint8 RGB: the panels drawn by ``tools/pictures.py``, one above the other.
 
     The column (narrower panels padded white on the right) is scaled as a whole to ``width``.
-    Raises ValueError / OSError / KeyError as ``tools.pictures.render`` does.
+    Raises ValueError / OSError / KeyError as ``obstacle_detection.cli.picture_jobs.render`` does.
     """
-    parser = pictures_tool.build_parser()
+    parser = picture_jobs.build_parser()
     images = [image for panel in panels
-              for _, image in pictures_tool.render(parser.parse_args(panel.argv(real_dir)))]
+              for _, image in picture_jobs.render(parser.parse_args(panel.argv(real_dir)))]
     column = pictures.tile(images, columns=1)
     # a contact sheet of one image is that image scaled, with a 6 px margin right and below
     return pictures.contact_sheet([column], columns=1, thumb_width=width - 6)
@@ -150,14 +147,13 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (0 ok, 1 a picture could not be made)."""
     args = build_parser().parse_args(argv)
+    parser = picture_jobs.build_parser()
     try:
         for name, options in SYNTHETIC.items():
             out = args.out_dir / name
-            code = pictures_tool.main([*options, '--out', str(out)])
-            if code:
-                return code
+            print(picture_jobs.write_pictures(parser.parse_args([*options, '--out', str(out)])))
             recompress(out)
-    except OSError as exc:
+    except (tool_support.UsageError, ValueError, OSError, KeyError) as exc:
         return tool_support.report_error('readme_pictures.py', exc)
     if not args.real_dir.is_dir():
         print(f'readme_pictures.py: warning: no real frames in {args.real_dir}; the real-frame '

@@ -21,20 +21,18 @@ import argparse
 import sys
 from pathlib import Path
 
-if __package__ in (None, ''):  # run as a script: make the repository root importable
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+import numpy as np
 
-import numpy as np  # noqa: E402
+from obstacle_detection.cli import support as tool_support
+from obstacle_detection.pipeline import geometry
+from obstacle_detection.pipeline.depth import decode_depth
+from obstacle_detection.evaluation.runner import apply_overrides, load_params_file
+from obstacle_detection.pipeline.mount import estimate_mount
+from obstacle_detection.pipeline.params import Intrinsics, corridor
+from obstacle_detection.viz.pictures import read_depth_png
+from obstacle_detection.pipeline.detector import LABEL_OBSTACLE, Detector
 
-from obstacle_detection.pipeline import geometry  # noqa: E402
-from obstacle_detection.pipeline.depth import decode_depth  # noqa: E402
-from obstacle_detection.evaluation.runner import apply_overrides, load_params_file  # noqa: E402
-from obstacle_detection.pipeline.mount import estimate_mount  # noqa: E402
-from obstacle_detection.pipeline.params import Intrinsics, corridor  # noqa: E402
-from obstacle_detection.viz.pictures import read_depth_png  # noqa: E402
-from obstacle_detection.pipeline.detector import LABEL_OBSTACLE, Detector  # noqa: E402
-
-REPO = Path(__file__).resolve().parent.parent
+REPO = tool_support.PACKAGE_ROOT
 
 #: The frames of ../shared/data/real/README.md: (folder, files, units per metre, intrinsics).
 FRAMES = (
@@ -80,7 +78,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--data', type=Path, default=REPO.parent / 'shared' / 'data' / 'real',
                         help='folder of the real frames [default: ../shared/data/real]')
-    parser.add_argument('--params-file', type=Path, default=REPO / 'params' / 'corridor.yaml',
+    parser.add_argument('--params-file', type=Path,
+                        default=tool_support.package_file('params/corridor.yaml'),
                         help='node parameter file [default: params/corridor.yaml]')
     parser.add_argument('--set', action='append', default=[], metavar='KEY=VALUE',
                         help='override one parameter (as tools/evaluate.py); repeatable')

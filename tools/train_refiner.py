@@ -20,13 +20,12 @@ import time
 from pathlib import Path
 from typing import Sequence
 
-if __package__ in (None, ''):  # run as a script: make the repository root importable
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from obstacle_detection.evaluation import runner as evaluation  # noqa: E402
-from obstacle_detection.evaluation.metrics import Confusion, format_score  # noqa: E402
-from obstacle_detection.pipeline.refine import LogisticRefiner  # noqa: E402
-from tools.evaluate import add_common_arguments, base_params, frame_sources  # noqa: E402
+from obstacle_detection.cli.progress import Progress
+from obstacle_detection.evaluation import runner as evaluation
+from obstacle_detection.evaluation.metrics import Confusion, format_score
+from obstacle_detection.pipeline.refine import LogisticRefiner
+from obstacle_detection.cli.evaluation_args import (add_common_arguments, base_params,
+                                                   frame_sources)
 
 
 def split_frames(frames: Sequence[evaluation.LabelledFrame], train_count: int,
@@ -90,8 +89,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             x, y, l2=args.l2, preset=args.preset, train_frames=len(train),
             train_scenarios=sorted({f.scenario for f in train}))
         model.save(args.out)
-        report = evaluation.evaluate_frames(held_out, params, refiner=model,
-                                            refiner_name=str(args.out))
+        with Progress(len(held_out), 'scoring the held-out frames') as bar:
+            report = evaluation.evaluate_frames(held_out, params, refiner=model,
+                                                refiner_name=str(args.out),
+                                                on_frame=lambda *_: bar.update())
     except (ValueError, OSError) as exc:
         print(f'train_refiner.py: error: {exc}', file=sys.stderr)
         return 2

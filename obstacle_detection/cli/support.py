@@ -12,6 +12,7 @@ No ROS import here.
 
 from __future__ import annotations
 
+import argparse
 import math
 import sys
 from collections.abc import Mapping
@@ -62,6 +63,26 @@ class UsageError(ValueError):
 
     A ValueError, so that callers catching bad values catch it too.
     """
+
+
+#: The folder holding the ``obstacle_detection`` package: the repository root in a checkout
+#: (or an editable install), ``site-packages`` once installed. A child process that must import
+#: this copy of the package gets it on its PYTHONPATH.
+PACKAGE_ROOT = Path(__file__).resolve().parents[2]
+
+
+def package_file(relative: str) -> Path:
+    """Return a file the package ships beside its Python code, e.g. ``params/corridor.yaml``.
+
+    From a checkout, the repository's file; once installed (colcon, pip), the one in
+    ``<prefix>/share/obstacle_detection`` (setup.py's data_files), the prefix being three
+    levels above ``site-packages``. When neither exists the checkout's path is returned, so
+    the error that follows names it.
+    """
+    candidates = [PACKAGE_ROOT / relative]
+    if len(PACKAGE_ROOT.parents) > 2:   # <prefix>/lib/pythonX.Y/site-packages
+        candidates.append(PACKAGE_ROOT.parents[2] / 'share' / 'obstacle_detection' / relative)
+    return next((path for path in candidates if path.exists()), candidates[0])
 
 
 def report_error(prog: str, error: BaseException, stream: TextIO | None = None) -> int:
@@ -166,6 +187,17 @@ def _common_prefix(a: str, b: str) -> str:
 
 # --------------------------------------------------------------------------------------------
 # Saying what is used, checking it against the data
+
+
+def parse_intrinsics(text: str) -> Intrinsics:
+    """``fx,fy,cx,cy`` [px] -> Intrinsics (argparse type)."""
+    try:
+        values = [float(v) for v in text.split(',')]
+        if len(values) != 4:
+            raise ValueError(f'4 values needed, got {len(values)}')
+        return Intrinsics(*values)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f'expected fx,fy,cx,cy, got {text!r}: {exc}') from None
 
 
 def intrinsics_text(intrinsics: Intrinsics) -> str:

@@ -39,7 +39,9 @@ import cv2
 import numpy as np
 
 from obstacle_detection.pipeline import geometry
+from . import camera as camera_file
 from . import metrics
+from .camera import scaled_intrinsics
 from .metrics import Confusion, format_score
 from obstacle_detection.pipeline.params import (KINECT_V2_SD, KINECT_V2_SD_SIZE, PRESETS,
                                                 DetectorParams, Intrinsics)
@@ -255,13 +257,6 @@ def scenario_frames(scenario: Scenario, *, max_frames: int | None = None,
             drop_edge=frame.drop_edge)
 
 
-def scaled_intrinsics(intrinsics: Intrinsics, factor: float) -> Intrinsics:
-    """Intrinsics of the same camera with images resized by ``factor`` (pixel-centre aware)."""
-    if not factor > 0.0:
-        raise ValueError(f'scale factor={factor!r} must be > 0')
-    return Intrinsics(fx=intrinsics.fx * factor, fy=intrinsics.fy * factor,
-                      cx=(intrinsics.cx + 0.5) * factor - 0.5,
-                      cy=(intrinsics.cy + 0.5) * factor - 0.5)
 
 
 def subsample(items: Sequence[Any], max_items: int | None) -> list[Any]:
@@ -283,45 +278,23 @@ def read_camera_yaml(path: str | Path) -> dict[str, Any]:
     """Intrinsics and mount of a labelled folder (see the module docstring).
 
     Returns ``{'intrinsics': Intrinsics, 'height_m', 'pitch_rad', 'roll_rad', 'depth_scale'}``.
-    Raises ValueError naming a missing or bad key.
+    Raises ValueError naming a missing or bad key (``camera.read_camera_yaml`` reads the file).
     """
-    import yaml  # PyYAML ships with ROS 2 (rclpy's own dependency)
-
-    data = yaml.safe_load(Path(path).read_text(encoding='utf-8')) or {}
-    if not isinstance(data, dict):
-        raise ValueError(f'{path}: not a YAML mapping')
-    if 'camera_matrix' in data:  # ROS camera calibration file
-        k = data['camera_matrix']['data']
-        intrinsics = Intrinsics(fx=float(k[0]), fy=float(k[4]), cx=float(k[2]), cy=float(k[5]))
-    else:
-        missing = [k for k in ('fx', 'fy', 'cx', 'cy') if k not in data]
-        if missing:
-            raise ValueError(f'{path}: missing intrinsics key(s) {", ".join(missing)}')
-        intrinsics = Intrinsics(*(float(data[k]) for k in ('fx', 'fy', 'cx', 'cy')))
-
-    def angle(name: str) -> float:
-        if f'{name}_rad' in data:
-            return float(data[f'{name}_rad'])
-        return math.radians(float(data.get(f'{name}_deg', 0.0)))
-
-    if 'camera_height_m' not in data:
+    camera = camera_file.read_camera_yaml(path)
+    if camera.mount is None:
         raise ValueError(f'{path}: missing camera_height_m (the mount height above ground)')
-    scale = data.get('depth_scale')
-    return {'intrinsics': intrinsics, 'height_m': float(data['camera_height_m']),
-            'pitch_rad': angle('camera_pitch'), 'roll_rad': angle('camera_roll'),
-            'depth_scale': None if scale is None else float(scale)}
+    height_m, pitch_rad, roll_rad = camera.mount
+    return {'intrinsics': camera.intrinsics, 'height_m': height_m, 'pitch_rad': pitch_rad,
+            'roll_rad': roll_rad, 'depth_scale': camera.depth_scale}
 
 
 def write_camera_yaml(path: str | Path, intrinsics: Intrinsics, height_m: float,
                       pitch_rad: float, roll_rad: float) -> None:
     """Write ``intrinsics.yaml`` of a labelled folder (angles in degrees)."""
-    text = (f'# obstacle_detection labelled folder: pinhole intrinsics [px] and camera mount\n'
-            f'fx: {intrinsics.fx!r}\nfy: {intrinsics.fy!r}\n'
-            f'cx: {intrinsics.cx!r}\ncy: {intrinsics.cy!r}\n'
-            f'camera_height_m: {float(height_m)!r}\n'
-            f'camera_pitch_deg: {math.degrees(pitch_rad)!r}\n'
-            f'camera_roll_deg: {math.degrees(roll_rad)!r}\n')
-    Path(path).write_text(text, encoding='utf-8')
+    Path(path).write_text(camera_file.camera_yaml_text(
+        intrinsics, comment='obstacle_detection labelled folder: pinhole intrinsics [px] and '
+        'camera mount', height_m=height_m, pitch_deg=math.degrees(pitch_rad),
+        roll_deg=math.degrees(roll_rad)), encoding='utf-8')
 
 
 def truth_points_from_depth(depth_m: np.ndarray, intrinsics: Intrinsics, height_m: float,

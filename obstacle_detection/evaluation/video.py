@@ -329,7 +329,7 @@ def observe_sequence(sequence: SceneSequence, base: DetectorParams, *,
     evaluation); size: render (width, height) [px] with the Kinect v2 intrinsics scaled to it
     (None = 512 x 424). on_frame(index, total) is called after each frame.
     """
-    from .runner import scaled_intrinsics
+    from .camera import scaled_intrinsics
 
     total = len(sequence) if stop is None else max(1, min(stop, len(sequence)))
     intrinsics, render_size = KINECT_V2_SD, KINECT_V2_SD_SIZE

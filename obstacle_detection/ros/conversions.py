@@ -21,7 +21,6 @@ from nav_msgs.msg import MapMetaData, OccupancyGrid
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
 from std_msgs.msg import Header
 
-from obstacle_detection.viz.overlay import render_overlay
 from obstacle_detection.pipeline.params import Intrinsics
 
 if TYPE_CHECKING:
@@ -87,7 +86,25 @@ def image_to_array(msg: Any) -> np.ndarray:
         raise ImageFormatError(
             f'unsupported depth encoding {encoding!r}: expected one of '
             f'{", ".join(DEPTH_ENCODINGS)}')
-    base, channels = DEPTH_ENCODINGS[encoding]
+    return _pixels(msg, *DEPTH_ENCODINGS[encoding])
+
+
+def image_to_rgb(msg: Any) -> np.ndarray:
+    """Decode an ``rgb8`` or ``bgr8`` Image message (the node's overlay) into (H, W, 3) RGB.
+
+    Raises ImageFormatError as :func:`image_to_array` does.
+    """
+    encoding = str(msg.encoding)
+    if encoding not in ('rgb8', 'bgr8'):
+        raise ImageFormatError(f'unsupported colour encoding {encoding!r}: expected rgb8 or '
+                               'bgr8')
+    rgb = _pixels(msg, *IMAGE_ENCODINGS[encoding])
+    return np.ascontiguousarray(rgb[:, :, ::-1]) if encoding == 'bgr8' else rgb
+
+
+def _pixels(msg: Any, base: np.dtype, channels: int) -> np.ndarray:
+    """(H, W) or (H, W, channels) native-order pixels of an Image; ImageFormatError if bad."""
+    encoding = str(msg.encoding)
     height, width, step = int(msg.height), int(msg.width), int(msg.step)
     if height <= 0 or width <= 0:
         raise ImageFormatError(f'empty image: width={width}, height={height}')
@@ -103,7 +120,8 @@ def image_to_array(msg: Any) -> np.ndarray:
     wire = base.newbyteorder('>' if msg.is_bigendian else '<')
     rows = buffer.reshape(height, step)[:, :row_bytes]
     # The copy makes the rows contiguous (drops the padding); astype() then yields native order.
-    pixels = np.ascontiguousarray(rows).view(wire).reshape(height, width)
+    shape = (height, width) if channels == 1 else (height, width, channels)
+    pixels = np.ascontiguousarray(rows).view(wire).reshape(shape)
     return pixels.astype(base.newbyteorder('='), copy=True)
 
 
@@ -300,15 +318,41 @@ def costmap_to_occupancy_grid(costmap: Costmap, *, stamp: Time,
     return grid
 
 
+def occupancy_grid_to_costmap(grid: Any) -> Costmap:
+    """Read an OccupancyGrid back into a Costmap (the inverse of costmap_to_occupancy_grid).
+
+    data: (info.height, info.width) int8 cells; origin: the grid origin's x, y [m] (a rotated
+    origin is not supported: ValueError).
+    """
+    from obstacle_detection.pipeline.costmap import Costmap
+
+    info = grid.info
+    orientation = info.origin.orientation
+    if (orientation.x, orientation.y, orientation.z) != (0.0, 0.0, 0.0):
+        raise ValueError('OccupancyGrid origin is rotated; only an axis-aligned grid is read')
+    try:
+        cells = np.frombuffer(grid.data, dtype=np.int8)
+    except TypeError:  # a plain sequence of ints
+        cells = np.asarray(grid.data, dtype=np.int8).reshape(-1)
+    if cells.size != int(info.width) * int(info.height):
+        raise ValueError(f'OccupancyGrid has {cells.size} cells, expected width * height = '
+                         f'{info.width} * {info.height}')
+    return Costmap(data=cells.reshape(int(info.height), int(info.width)).copy(),
+                   resolution_m=float(info.resolution),
+                   origin_xy_m=(float(info.origin.position.x), float(info.origin.position.y)))
+
+
 def result_to_messages(result: DetectionResult, *, stamp: Time, cloud_frame_id: str,
                        costmap_frame_id: str, image_frame_id: str, with_ground: bool = False,
-                       with_overlay: bool = False) -> dict[str, Any]:
+                       overlay_rgb: np.ndarray | None = None) -> dict[str, Any]:
     """All output messages of one pipeline result, stamped with the input's stamp.
 
     Returns {'obstacles': PointCloud2, 'costmap': OccupancyGrid} plus 'ground' (PointCloud2 of
     the traversable voxel centroids, in ``cloud_frame_id``) if ``with_ground`` and 'overlay'
-    (rgb8 Image of the filtered depth with obstacle pixels marked, in ``image_frame_id``) if
-    ``with_overlay``. The node and the offline bag tools both call this function.
+    (rgb8 Image in ``image_frame_id``) of ``overlay_rgb`` when given: the (H, W, 3) uint8
+    picture the caller drew (``viz.overlay.render_overlay``: the filtered depth with obstacle
+    pixels marked); conversion packs it, it does not draw. The node and the offline bag tools
+    both call this function.
     """
     messages: dict[str, Any] = {
         'obstacles': points_to_pointcloud2(result.obstacle_points, stamp=stamp,
@@ -319,8 +363,7 @@ def result_to_messages(result: DetectionResult, *, stamp: Time, cloud_frame_id: 
     if with_ground:
         messages['ground'] = points_to_pointcloud2(result.ground_points, stamp=stamp,
                                                    frame_id=cloud_frame_id)
-    if with_overlay:
-        rgb = render_overlay(result.depth_m, result.labels)
-        messages['overlay'] = array_to_image(rgb, stamp=stamp, frame_id=image_frame_id,
+    if overlay_rgb is not None:
+        messages['overlay'] = array_to_image(overlay_rgb, stamp=stamp, frame_id=image_frame_id,
                                              encoding='rgb8')
     return messages

@@ -27,16 +27,12 @@ from __future__ import annotations
 import collections
 import ctypes
 import gc
-import math
-import re
 import sys
 import threading
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import rclpy
 import rclpy.logging
 import rclpy.utilities
@@ -58,27 +54,22 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 from std_msgs.msg import Float64, String
 
 from obstacle_detection.pipeline import jit as jit_support
-from .compressed_depth import compressed_depth_to_array, is_compressed_image
 from .conversions import (
-    DEPTH_ENCODINGS,
-    ImageFormatError,
-    camera_info_to_intrinsics,
     costmap_to_occupancy_grid,
-    depth_problem,
-    image_to_array,
-    intrinsics_problem,
     result_to_messages,
 )
+from . import frame_gate
+from .config import DEPTH_TRANSPORT_TOPICS, NodeConfig, build_config
 from .diagnostics import Context as DiagnosticsContext
+from .frame_gate import CameraState as _CameraState
+from .frame_gate import stamp_ns as _stamp_ns
+from obstacle_detection.viz.overlay import render_overlay
 from .diagnostics import HealthWindow, diagnostic_array, health_status
-from obstacle_detection.pipeline.fusion import (FusedGrid, FusionParams, PoseBuffer,
+from obstacle_detection.pipeline.fusion import (FusedGrid, PoseBuffer,
                                                 yaw_from_quaternion)
 from .mount_source import Mount, MountSource
 from obstacle_detection.pipeline.params import Intrinsics
-from obstacle_detection.pipeline.detector import Detector
-from obstacle_detection.pipeline.refine import LogisticRefiner, RefinedDetector
-from .parameters import (ALL_PARAMS, NODE_NAME, SPECS_BY_NAME, detector_params_from_ros,
-                         fallback_intrinsics_from_ros, params_file_problems,
+from .parameters import (ALL_PARAMS, NODE_NAME, params_file_problems,
                          params_files_in_args)
 
 #: Minimum interval between two warnings about the same kind of bad input [s].
@@ -97,11 +88,8 @@ _DIAGNOSTICS_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
                               durability=DurabilityPolicy.VOLATILE)
 DIAGNOSTICS_PERIOD_S = 1.0
 #: depth_transport -> (message type, topic): image_transport's names for the depth stream.
-DEPTH_TRANSPORTS = {
-    'raw': (Image, 'depth/image_raw'),
-    'compressedDepth': (CompressedImage, 'depth/image_raw/compressedDepth'),
-    'compressed': (CompressedImage, 'depth/image_raw/compressed'),
-}
+DEPTH_TRANSPORTS = {name: (Image if name == 'raw' else CompressedImage, topic)
+                    for name, topic in DEPTH_TRANSPORT_TOPICS.items()}
 #: Odometry: reliable, a short history (the pose buffer interpolates between messages).
 _ODOM_QOS = QoSProfile(depth=20, reliability=ReliabilityPolicy.RELIABLE,
                        history=HistoryPolicy.KEEP_LAST, durability=DurabilityPolicy.VOLATILE)
@@ -198,108 +186,6 @@ class FrameStats:
         return snapshot
 
 
-@dataclass(frozen=True)
-class NodeConfig:
-    """Everything a frame needs, validated and swapped as one reference on a parameter set."""
-
-    detector: Detector | RefinedDetector
-    cloud_frame_id: str
-    costmap_frame_id: str
-    publish_ground: bool
-    publish_overlay: bool
-    use_fallback_intrinsics: bool
-    fallback_intrinsics: Intrinsics
-    stats_period_s: float
-    camera_info_tolerance_ns: int = 20_000_000
-    fusion: FusionParams | None = None      #: None: no fused costmap
-    odom_frame: str = 'odom'
-    values: dict[str, Any] = field(default_factory=dict)   #: the ROS values it was built from
-
-    def mount(self) -> Mount:
-        """Return the mount the parameters give (the fallback when TF has none)."""
-        values = self.values
-        return Mount(x_m=float(values.get('camera_x_m', 0.0)),
-                     y_m=float(values.get('camera_y_m', 0.0)),
-                     z_m=float(values.get('camera_height_m', 0.6)),
-                     roll_rad=math.radians(float(values.get('camera_roll_deg', 0.0))),
-                     pitch_rad=math.radians(float(values.get('camera_pitch_deg', 0.0))),
-                     yaw_rad=math.radians(float(values.get('camera_yaw_deg', 0.0))))
-
-    def detector_for(self, mount: Mount) -> Detector | RefinedDetector:
-        """Return the detector with the camera mounted as ``mount`` (ValueError if not)."""
-        values = dict(self.values, camera_height_m=mount.z_m,
-                      camera_roll_deg=math.degrees(mount.roll_rad),
-                      camera_pitch_deg=math.degrees(mount.pitch_rad))
-        extra = {'camera_x_m': mount.x_m, 'camera_y_m': mount.y_m,
-                 'camera_yaw_deg': math.degrees(mount.yaw_rad)}
-        for name, value in extra.items():
-            if name in SPECS_BY_NAME:
-                values[name] = value
-            elif abs(value) > 1e-6:
-                raise ValueError(f'this pipeline has no {name}: the camera must sit above the '
-                                 f'base frame origin, facing forward ({mount.describe()})')
-        return build_detector(values)
-
-
-def build_detector(values: dict[str, Any]) -> Detector | RefinedDetector:
-    """Return the pipeline, refined when ``refiner_model_file`` names a model; ValueError if bad.
-
-    Shared by the node and the offline bag tool, so that both run the same detector.
-    """
-    detector = Detector(detector_params_from_ros(values))
-    model_file = str(values.get('refiner_model_file', '')).strip()
-    if not model_file:
-        return detector
-    try:
-        refiner = LogisticRefiner.load(model_file)
-    except OSError as error:
-        raise ValueError(f'refiner_model_file {model_file!r}: {error.strerror or error}') \
-            from error
-    return RefinedDetector(detector, refiner)
-
-
-def build_config(values: dict[str, Any]) -> NodeConfig:
-    """NodeConfig from ``{ros_name: value}`` of every parameter; ValueError naming a bad one."""
-    for name in ('cloud_frame_id', 'costmap_frame_id', 'odom_frame'):
-        if not str(values[name]).strip():
-            raise ValueError(f'{name} must not be empty')
-    transport = values.get('depth_transport', 'raw')
-    if transport not in DEPTH_TRANSPORTS:
-        raise ValueError(f'depth_transport={transport!r} must be one of '
-                         f'{", ".join(map(repr, DEPTH_TRANSPORTS))}')
-    return NodeConfig(
-        detector=build_detector(values),
-        cloud_frame_id=str(values['cloud_frame_id']),
-        costmap_frame_id=str(values['costmap_frame_id']),
-        publish_ground=bool(values['publish_ground']),
-        publish_overlay=bool(values['publish_overlay']),
-        use_fallback_intrinsics=bool(values['use_fallback_intrinsics']),
-        fallback_intrinsics=fallback_intrinsics_from_ros(values),
-        stats_period_s=float(values['stats_period_s']),
-        camera_info_tolerance_ns=round(float(values['camera_info_tolerance_s']) * 1e9),
-        fusion=(FusionParams(size_m=float(values['fused_size_m']),
-                             resolution_m=float(values['fused_resolution_m']))
-                if values.get('fuse') else None),
-        odom_frame=str(values.get('odom_frame', 'odom')),
-        values=dict(values))
-
-
-@dataclass(frozen=True)
-class _CameraState:
-    """One CameraInfo: its stamp, image size and intrinsics, or why it is unusable."""
-
-    width: int
-    height: int
-    intrinsics: Intrinsics | None
-    error: str | None
-    stamp_ns: int = 0
-
-    def same_camera(self, other: '_CameraState') -> bool:
-        """Whether two CameraInfos describe the same camera (size, intrinsics, error)."""
-        return ((self.width, self.height, self.intrinsics, self.error)
-                == (other.width, other.height, other.intrinsics, other.error))
-
-
 #: _camera_for's answer when the frame must be skipped (the reason is already logged).
 _SKIP = _CameraState(0, 0, None, 'skip')
 #: CameraInfos kept for matching depth frames by stamp (a second at 30 Hz).
@@ -313,32 +199,6 @@ def _release_memory() -> None:
         ctypes.CDLL('libc.so.6').malloc_trim(0)
     except (OSError, AttributeError):   # not glibc: the allocator keeps it for reuse
         pass
-
-
-def _problem_kind(prefix: str, text: str) -> str:
-    """Return the throttling key of a problem: its text without the numbers.
-
-    Each kind of problem is throttled on its own; the same problem with other values is not
-    repeated within the throttle period.
-    """
-    return f'{prefix}:{re.sub(r"[-+]?[0-9][0-9.e+-]*", "#", text)}'
-
-
-def _depth_format(msg: Any) -> str:
-    """Describe a depth message's format for a warning."""
-    if is_compressed_image(msg):
-        return f'CompressedImage format {msg.format!r}'
-    return f'encoding {msg.encoding!r}, is_bigendian={bool(msg.is_bigendian)}'
-
-
-def _stamp_ns(stamp: Any) -> int:
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
-
-
-def _has_valid_depth(depth: np.ndarray) -> bool:
-    if depth.dtype.kind == 'f':
-        return bool(np.any(np.isfinite(depth) & (depth > 0.0)))
-    return bool(np.any(depth > 0))
 
 
 class DetectorNode(Node):
@@ -677,14 +537,7 @@ class DetectorNode(Node):
             self._health.dropped()
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
-        width, height = int(msg.width), int(msg.height)
-        try:
-            intrinsics, error = camera_info_to_intrinsics(msg), None
-            error = intrinsics_problem(intrinsics, width, height)
-        except ValueError as exc:
-            intrinsics, error = None, str(exc)
-        self._cameras.append(_CameraState(width, height, intrinsics if error is None else None,
-                                          error, _stamp_ns(msg.header.stamp)))
+        self._cameras.append(_CameraState.from_camera_info(msg))
 
     def _on_odometry(self, msg: Odometry) -> None:
         pose = msg.pose.pose
@@ -796,27 +649,17 @@ class DetectorNode(Node):
         camera = self._camera_for(msg, config)
         if camera is _SKIP:
             return None
-        if camera is None:
-            if config.use_fallback_intrinsics:
-                self._throttled_logger('fallback').info(
-                    'no CameraInfo yet: using the fallback intrinsics fx='
-                    f'{config.fallback_intrinsics.fx:g} fy={config.fallback_intrinsics.fy:g} '
-                    f'cx={config.fallback_intrinsics.cx:g} cy={config.fallback_intrinsics.cy:g}',
-                    throttle_duration_sec=WARN_THROTTLE_S)
-                return config.fallback_intrinsics
-            self._warn_skip('no_camera_info', 'no CameraInfo received yet on '
-                            f'{self._info_sub.topic_name} (set use_fallback_intrinsics to use '
-                            'fallback_fx/fy/cx/cy)')
-            return None
-        if camera.intrinsics is None:
-            self._warn_skip(_problem_kind('camera_info', str(camera.error)), str(camera.error))
-            return None
-        height, width = shape[:2]
-        if (camera.width, camera.height) != (width, height):
-            self._warn_skip('size', f'image is {width}x{height} but CameraInfo is '
-                            f'{camera.width}x{camera.height}')
-            return None
-        return camera.intrinsics
+        verdict = frame_gate.choose_intrinsics(
+            camera, shape, use_fallback=config.use_fallback_intrinsics,
+            fallback=config.fallback_intrinsics,
+            no_camera=f'no CameraInfo received yet on {self._info_sub.topic_name} (set '
+                      'use_fallback_intrinsics to use fallback_fx/fy/cx/cy)')
+        if verdict.note is not None:
+            self._throttled_logger('fallback').info(verdict.note,
+                                                    throttle_duration_sec=WARN_THROTTLE_S)
+        if verdict.skip is not None:
+            self._warn_skip(verdict.skip.kind, verdict.skip.reason)
+        return verdict.intrinsics
 
     def handle_frame(self, msg: Image) -> bool:
         """Process one depth Image and publish its outputs; False if the frame was skipped.
@@ -826,26 +669,16 @@ class DetectorNode(Node):
         """
         start = time.perf_counter()
         config = self._config
-        compressed = is_compressed_image(msg)
-        if not compressed and msg.encoding not in DEPTH_ENCODINGS:
-            self._warn_skip('encoding', f'unsupported encoding {msg.encoding!r} (expected '
-                            f'{", ".join(DEPTH_ENCODINGS)})')
-            return False
-        try:
-            depth = compressed_depth_to_array(msg) if compressed else image_to_array(msg)
-        except ImageFormatError as error:
-            self._warn_skip('compressed' if compressed else 'layout', str(error))
+        depth = frame_gate.decode(msg)
+        if isinstance(depth, frame_gate.Skip):
+            self._warn_skip(depth.kind, depth.reason)
             return False
         intrinsics = self._frame_intrinsics(msg, depth.shape, config)
         if intrinsics is None:
             return False
-        if not _has_valid_depth(depth):
-            self._warn_skip('no_depth', 'no valid depth pixel (every pixel is 0, NaN or inf)')
-            return False
-        problem = depth_problem(depth)
-        if problem is not None:
-            self._warn_skip(_problem_kind('depth', problem),
-                            f'{problem} ({_depth_format(msg)})')
+        skip = frame_gate.check_depth(depth, msg)
+        if skip is not None:
+            self._warn_skip(skip.kind, skip.reason)
             return False
         detector = self._detector_for(msg, config)
         if detector is None:
@@ -855,7 +688,9 @@ class DetectorNode(Node):
             messages = result_to_messages(
                 result, stamp=msg.header.stamp, cloud_frame_id=config.cloud_frame_id,
                 costmap_frame_id=config.costmap_frame_id, image_frame_id=msg.header.frame_id,
-                with_ground=config.publish_ground, with_overlay=config.publish_overlay)
+                with_ground=config.publish_ground,
+                overlay_rgb=(render_overlay(result.depth_m, result.labels)
+                             if config.publish_overlay else None))
             fused = self._fuse(result, msg, config)
         except ValueError as error:
             self._warn_skip('pipeline', str(error))

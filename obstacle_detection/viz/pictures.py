@@ -71,6 +71,17 @@ def _pad_to_height(image: np.ndarray, height: int) -> np.ndarray:
     return out
 
 
+def join_panels(panels: Sequence[np.ndarray], *, gap_px: int = _GAP_PX) -> np.ndarray:
+    """Return RGB panels side by side, top-aligned on a white background, ``gap_px`` apart."""
+    height = max(panel.shape[0] for panel in panels)
+    row: list[np.ndarray] = []
+    for panel in panels:
+        pad = np.full((height - panel.shape[0], panel.shape[1], 3), BACKGROUND_RGB, np.uint8)
+        row.extend([np.vstack([panel, pad]),
+                    np.full((height, gap_px, 3), BACKGROUND_RGB, np.uint8)])
+    return np.hstack(row[:-1])
+
+
 def truth_comparison(labels: np.ndarray, truth_labels: np.ndarray,
                      depth_m: np.ndarray, *, max_depth_m: float | None = None) -> np.ndarray:
     """(H, W, 3) uint8 RGB: grey depth with obstacle hits red, false alarms orange, misses blue.
@@ -362,11 +373,7 @@ def side_by_side(result: Any, *, caption: str = '', truth_labels: np.ndarray | N
         image_shape=(height, width)), height))
     if truth_labels is not None:
         panels.append(truth_comparison(labels, truth_labels, depth_m, max_depth_m=shown_max))
-    gap = np.full((height, _GAP_PX, 3), BACKGROUND_RGB, dtype=np.uint8)
-    row: list[np.ndarray] = []
-    for panel in panels:
-        row.extend([panel, gap])
-    top = np.hstack(row[:-1])
+    top = join_panels(panels)
     parts = [top]
     if with_legend:
         parts.append(legend_row([p.shape[1] for p in panels], shown_max,
@@ -416,13 +423,7 @@ def legend_row(widths: Sequence[int], max_depth_m: float, *, truth: bool,
         blocks.append(legend('obstacle pixels vs ground truth', [
             ('box', HIT_RGB, 'hit'), ('box', FALSE_ALARM_RGB, 'false alarm'),
             ('box', MISS_RGB, 'miss (called ground)')], widths[2]))
-    height = max(b.shape[0] for b in blocks)
-    padded = []
-    for block in blocks:
-        pad = np.full((height - block.shape[0], block.shape[1], 3), BACKGROUND_RGB, np.uint8)
-        padded.extend([np.vstack([block, pad]),
-                       np.full((height, _GAP_PX, 3), BACKGROUND_RGB, np.uint8)])
-    return np.hstack(padded[:-1])
+    return join_panels(blocks)
 
 
 def contact_sheet(images: Sequence[np.ndarray], *, labels: Sequence[str] | None = None,
@@ -644,3 +645,56 @@ def tile(images: Sequence[np.ndarray], *, columns: int = 3) -> np.ndarray:
         page[r * cell_h:r * cell_h + image.shape[0], c * cell_w:c * cell_w + image.shape[1]] = \
             image
     return page
+
+
+def node_outputs_legend(widths: Sequence[int]) -> np.ndarray:
+    """Return the legend row under a picture of the node's outputs (:func:`node_outputs`).
+
+    widths: of the overlay and costmap panels [px], and of the fused costmap's when there is
+    one.
+    """
+    left = legend('obstacles/overlay (camera view)', [
+        ('box', OBSTACLE_RGB, 'obstacle pixel'),
+        ('box', (160, 160, 160), 'other depth: dark near, white far'),
+        ('box', NO_RETURN_RGB, 'no return')], widths[0])
+    right = legend('obstacles/costmap, top view [m]', [
+        ('box', OCCUPIED_RGB, 'occupied (100)'), ('box', FREE_RGB, 'free (0)'),
+        ('box', UNKNOWN_RGB, 'unknown (-1)'),
+        ('hatch', HATCH_RGB, 'outside the region of interest'),
+        ('line', VIEW_EDGE_RGB, "edge of the floor in the camera's view"),
+        ('triangle', ROBOT_RGB, 'camera foot point, facing +x')], widths[1])
+    parts = [left, right]
+    if len(widths) > 2:
+        parts.append(legend('obstacles/fused_costmap, odom [m]', [
+            ('box', OCCUPIED_RGB, 'occupied: seen often enough'), ('box', FREE_RGB, 'free'),
+            ('box', UNKNOWN_RGB, 'unknown / not sure'),
+            ('triangle', ROBOT_RGB, 'robot at its odometry pose')], widths[2]))
+    return join_panels(parts)
+
+
+def node_outputs(overlay: np.ndarray, costmap: Any, *, caption: Sequence[str],
+                 params: Any = None, intrinsics: Intrinsics | None = None,
+                 fused: Any = None,
+                 robot_pose: tuple[float, float, float] = (0.0, 0.0, 0.0),
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Return the picture of one frame of the node's outputs, and its costmap panel alone.
+
+    Layout: ``[overlay image | costmap | fused costmap (optional)]`` over a caption band and
+    the legends (:func:`node_outputs_legend`). The costmap panel shows the region of interest
+    and the floor in view when ``params`` (the node's DetectorParams) and ``intrinsics`` are
+    given; the fused costmap (odom axes) the robot at ``robot_pose`` (x [m], y [m], yaw [rad]).
+    """
+    height, width = overlay.shape[:2]
+    scale = max(1, min((height - 60) // max(costmap.width, 1),
+                       width // max(costmap.height, 1)))
+    grid_rgb = costmap_panel(costmap, scale=scale, params=params, intrinsics=intrinsics,
+                             image_shape=(height, width))
+    panels = [overlay, grid_rgb]
+    if fused is not None:
+        fused_scale = max(1, (height - 60) // max(fused.height, 1))
+        panels.append(costmap_panel(fused, scale=fused_scale, robot_pose=robot_pose,
+                                    axis_names=('x [m], odom', 'y [m], odom')))
+    row = join_panels(panels)
+    picture = np.vstack([row, caption_band(caption, row.shape[1]),
+                         node_outputs_legend([p.shape[1] for p in panels])])
+    return picture, grid_rgb

@@ -1,0 +1,124 @@
+"""Command-line options shared by evaluate, sweep, train_refiner and pictures.
+
+The frame sources (committed scenario suites, labelled folders) and the detector parameters
+(preset, parameter files, ``--set`` overrides) are chosen the same way by every evaluation
+command line; this module holds those options and the error report that goes with them.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any, Iterable
+
+from obstacle_detection.cli import support as tool_support
+from obstacle_detection.evaluation import runner as evaluation
+from obstacle_detection.pipeline.params import PRESETS, DetectorParams
+
+SUITES = evaluation.SUITES
+
+
+def parse_assignment(text: str) -> tuple[str, str]:
+    """``key=value`` -> (key, value); argparse type for ``--set``."""
+    key, sep, value = text.partition('=')
+    if not sep or not key.strip() or not value.strip():
+        raise argparse.ArgumentTypeError(f'expected key=value, got {text!r}')
+    return key.strip(), value.strip()
+
+
+def add_common_arguments(parser: argparse.ArgumentParser) -> None:
+    """Frame-source and parameter options shared by evaluate, sweep and train_refiner."""
+    parser.add_argument('--suite', choices=sorted(SUITES), default='seed',
+                        help="committed scenario suite: 'seed' (scenarios.json, the "
+                             "seed's slope-only truth) or 'robot' (scenarios_robot.json, "
+                             'robot-level truth, time-of-flight noise) [default: seed]')
+    parser.add_argument('--scenarios', type=Path, default=None,
+                        help='scenario list (JSON) instead of the suite\'s')
+    parser.add_argument('--truth', choices=sorted(evaluation.TRUTH_KINDS),
+                        help="score against this truth instead of the scenarios' own")
+    parser.add_argument('--scene', action='append', metavar='NAME',
+                        help='evaluate only this scenario (repeatable) [default: all]')
+    parser.add_argument('--folder', action='append', type=Path, metavar='DIR',
+                        help='a labelled folder (depth/, labels/, intrinsics.yaml); '
+                             'repeatable; given alone, the suite is skipped unless --scene')
+    parser.add_argument('--max-frames', type=int, metavar='N',
+                        help='at most N frames per scenario/folder, evenly spread')
+    add_parameter_arguments(parser)
+
+
+def add_parameter_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the detector parameter options: ``--preset``, ``--params-file``, ``--set``."""
+    parser.add_argument('--preset', choices=sorted(PRESETS), default='table_4_2',
+                        help='base parameters: seed Table 4.2 or 4.3 [default: table_4_2]')
+    parser.add_argument('--params-file', type=Path, metavar='YAML', action='append',
+                        default=[], help='node parameter file applied on top of the preset; '
+                                         'repeatable, merged in order')
+    parser.add_argument('--set', action='append', type=parse_assignment, default=[],
+                        metavar='KEY=VALUE',
+                        help='override one parameter (field name, theta_deg, N, N1, K, '
+                             'voxel_m, ...); repeatable')
+
+
+def base_params(args: argparse.Namespace) -> DetectorParams:
+    """Preset, then parameter file, then ``--set`` overrides (ValueError on a bad one)."""
+    params = PRESETS[args.preset]()
+    files = args.params_file if isinstance(args.params_file, list) else (
+        [] if args.params_file is None else [args.params_file])
+    for path in files:  # several files apply in order, as ROS merges them
+        params = evaluation.load_params_file(path, params)
+    if args.set:
+        try:
+            params = evaluation.apply_overrides(params, dict(args.set))
+        except ValueError as exc:
+            raise tool_support.UsageError(f'argument --set: {exc}') from None
+    return params
+
+
+#: Errors about the command line rather than a file: exit 2 (tool_support).
+USAGE_PREFIXES = ('unknown scenario', 'unknown parameter', '--')
+
+
+def report_error(prog: str, exc: Exception) -> int:
+    """Print the error line; unknown names and bad option values are usage errors (2)."""
+    if not isinstance(exc, (OSError, tool_support.UsageError)) and \
+            str(exc).startswith(USAGE_PREFIXES):
+        exc = tool_support.UsageError(str(exc))
+    return tool_support.report_error(prog, exc)
+
+
+def frame_sources(args: argparse.Namespace,
+                  ) -> list[tuple[str, int, Iterable[evaluation.LabelledFrame]]]:
+    """(name, frame count, lazy frames) for each scenario and folder selected by the options."""
+    sources: list[tuple[str, int, Iterable[evaluation.LabelledFrame]]] = []
+    if args.max_frames is not None and args.max_frames < 1:
+        raise ValueError(f'--max-frames={args.max_frames} must be >= 1')
+    if args.scene or not args.folder:
+        path = args.scenarios if args.scenarios is not None else SUITES[args.suite]
+        scenarios = evaluation.select_scenarios(evaluation.load_scenarios(path), args.scene)
+        rules = base_params(args)
+        for scenario in scenarios:
+            count = scenario.frame_count
+            if args.max_frames is not None:
+                count = min(count, args.max_frames)
+            sources.append((scenario.name, count,
+                            LazyFrames(evaluation.scenario_frames, scenario,
+                                  max_frames=args.max_frames, rules=rules,
+                                  truth=args.truth)))
+    for folder in args.folder or []:
+        count = len(evaluation.subsample(sorted((folder / 'depth').glob('*.png')),
+                                         args.max_frames))
+        sources.append((folder.name, count,
+                        LazyFrames(evaluation.load_labelled_folder, folder,
+                              max_frames=args.max_frames)))
+    return sources
+
+
+class LazyFrames:
+    """An iterable that calls ``function(*args, **kwargs)`` only when iterated."""
+
+    def __init__(self, function: Any, *args: Any, **kwargs: Any) -> None:
+        self._call = (function, args, kwargs)
+
+    def __iter__(self) -> Any:
+        function, args, kwargs = self._call
+        return iter(function(*args, **kwargs))

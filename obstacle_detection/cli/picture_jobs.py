@@ -1,0 +1,549 @@
+r"""Draw what the detector saw, without ROS: depth with obstacles marked + costmap, as PNG.
+
+One frame gives one picture (the seed's figures 4.22-4.27 beside figure 4.23, with a caption:
+frame, obstacle count, time); several frames (a sequence, a labelled folder, a bag) give a
+contact sheet of thumbnails, and ``--frames-dir`` keeps every full-size picture too::
+
+    python tools/pictures.py --scene corridor --out corridor.png
+    python tools/pictures.py --scene person_walking --frames 0:84:6 --out walk_sheet.png
+    python tools/pictures.py --depth frame.png --intrinsics intrinsics.yaml --out frame_out.png
+    python tools/pictures.py --depth tum.png --intrinsics 535.4,539.2,320.1,247.6 \\
+        --depth-scale 5000 --estimate-mount --out tum_out.png
+    python tools/pictures.py --folder recordings/lab_run --out lab_sheet.png
+    python tools/pictures.py --bag run.bag --depth-topic /kinect2/sd/image_depth \\
+        --info-topic /kinect2/sd/camera_info --height 0.6 --every 10 --out bag_sheet.png
+
+Frames with ground truth (scenes, labelled folders) get a third panel comparing the obstacle
+pixels with the truth (hit red, false alarm orange, miss blue) unless ``--no-truth``.
+A depth file whose camera mount is unknown can be drawn with ``--estimate-mount``: the mount
+comes from the floor in view (``obstacle_detection.pipeline.mount.estimate_mount``) and is
+written in
+the caption.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator, Sequence
+
+import cv2
+import numpy as np
+
+from obstacle_detection.evaluation import runner as evaluation
+from obstacle_detection.pipeline import mount
+from obstacle_detection.viz import pictures
+from obstacle_detection.cli import support as tool_support
+from obstacle_detection.cli.support import parse_intrinsics
+from obstacle_detection.evaluation.camera import CameraFileError, read_camera_yaml
+from obstacle_detection.pipeline.depth import decode_depth
+from obstacle_detection.pipeline.params import (SEED_TABLE_4_1, DetectorParams,
+                                       Intrinsics)
+from obstacle_detection.cli.evaluation_args import add_parameter_arguments, base_params
+
+
+@dataclass
+class _Job:
+    name: str
+    depth: np.ndarray
+    intrinsics: Intrinsics | None
+    params: DetectorParams
+    depth_scale: float | None = None
+    truth_labels: np.ndarray | None = None
+    sequence: bool = False
+    extra_lines: tuple[str, ...] = ()
+
+
+@dataclass
+class _Camera:
+    """What ``--intrinsics`` gives: intrinsics, a depth scale and a mount when a YAML has them."""
+
+    intrinsics: Intrinsics | None = None
+    origin: str = ''
+    depth_scale: float | None = None
+    mount: tuple[float, float, float] | None = None  # height [m], pitch, roll [rad]
+
+
+def parse_frames(text: str) -> range:
+    """``a:b[:c]`` (stop excluded) or a single index -> range (argparse type)."""
+    try:
+        parts = [int(p) for p in text.split(':')]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'expected start:stop[:step], got {text!r}') from None
+    if len(parts) == 1:
+        return range(parts[0], parts[0] + 1)
+    if len(parts) in (2, 3) and (len(parts) == 2 or parts[2] > 0):
+        return range(*parts)
+    raise argparse.ArgumentTypeError(f'expected start:stop[:step], got {text!r}')
+
+
+def parse_camera(text: str) -> Intrinsics | Path:
+    """``fx,fy,cx,cy`` [px] -> Intrinsics, else the Path of a camera YAML (argparse type)."""
+    if ',' in text and not Path(text).exists():
+        return parse_intrinsics(text)
+    return Path(text)
+
+
+def read_camera(path: Path) -> _Camera:
+    """Intrinsics, and the depth scale and mount when given, of a camera YAML.
+
+    The format of ``evaluation.camera`` (``tools/estimate_mount.py --camera-yaml-out``, a
+    labelled folder's ``intrinsics.yaml``). Raises ToolError naming the file.
+    """
+    try:
+        camera = read_camera_yaml(path)
+    except OSError as exc:
+        raise tool_support.ToolError(path, f'cannot read the camera YAML ({exc.strerror})') \
+            from None
+    except CameraFileError as exc:
+        raise tool_support.ToolError(path, f'bad camera YAML: {exc.problem}') from None
+    return _Camera(camera.intrinsics, f'from {path}', camera.depth_scale, camera.mount)
+
+
+def camera_of(args: argparse.Namespace) -> _Camera:
+    """Return the ``--intrinsics`` option as a _Camera (empty when not given)."""
+    if isinstance(args.intrinsics, Intrinsics):
+        return _Camera(args.intrinsics, 'from --intrinsics')
+    if args.intrinsics is not None:
+        return read_camera(args.intrinsics)
+    return _Camera()
+
+
+def mount_caption(estimate: mount.MountEstimate) -> str:
+    """One caption line giving a mount estimated from the floor."""
+    return (f'mount estimated from the floor: h {estimate.height_m:.2f} m, pitch '
+            f'{estimate.pitch_deg:.1f} deg, roll {estimate.roll_deg:.1f} deg '
+            f'({estimate.inlier_fraction:.0%} on the plane)')
+
+
+def _mount(args: argparse.Namespace, params: DetectorParams) -> DetectorParams:
+    changes: dict[str, float] = {}
+    if args.height is not None:
+        changes['camera_height_m'] = args.height
+    if args.pitch_deg is not None:
+        changes['camera_pitch_rad'] = math.radians(args.pitch_deg)
+    if args.roll_deg is not None:
+        changes['camera_roll_rad'] = math.radians(args.roll_deg)
+    return params.replace(**changes) if changes else params
+
+
+def _given_mount_options(args: argparse.Namespace) -> list[str]:
+    return [f'--{name}' for name, value in (('height', args.height),
+                                            ('pitch-deg', args.pitch_deg),
+                                            ('roll-deg', args.roll_deg)) if value is not None]
+
+
+class _RealFrames:
+    """Turns real depth frames into jobs, saying which intrinsics, scale and mount are used.
+
+    One instance per source (a depth file, a folder, a bag): the mount is estimated
+    (``--estimate-mount``) or checked against the floor on the source's first frame, and a
+    warning is given once per source, not per frame.
+    """
+
+    def __init__(self, args: argparse.Namespace, base: DetectorParams, camera: _Camera,
+                 fix_mount: str) -> None:
+        self.args = args
+        self.camera = camera
+        self.fix_mount = fix_mount
+        self.params = base
+        self.mount_origin = f'the {args.preset} preset\'s default: no mount given'
+        if camera.mount is not None:
+            height, pitch, roll = camera.mount
+            self.params = base.replace(camera_height_m=height, camera_pitch_rad=pitch,
+                                       camera_roll_rad=roll)
+            self.mount_origin = camera.origin
+        given = _given_mount_options(args)
+        if given:
+            self.params = _mount(args, self.params)
+            self.mount_origin = ', '.join(given) + (
+                f' over {camera.origin}' if camera.mount is not None else '')
+        self.first = True
+        self.estimate_line: str | None = None
+
+    @staticmethod
+    def _far_depth_hint(exc: ValueError, depth: np.ndarray, scale: float) -> str | None:
+        """Return a unit hint when no floor was found because too little depth is within 4 m."""
+        if depth.dtype.kind not in 'ui' or not str(exc).startswith('too few points'):
+            return None
+        return tool_support.depth_unit_warning(depth, scale, out_of_range_m=4.0)
+
+    def job(self, name: str, depth: np.ndarray, intrinsics: Intrinsics | None,
+            intrinsics_origin: str, depth_scale: float | None = None,
+            scale_origin: str = '', truth_labels: np.ndarray | None = None,
+            sequence: bool = False) -> _Job:
+        """Return the job of one frame; warnings go to stderr (first frame) and the caption."""
+        lines: list[str] = []
+        warnings: list[str] = []
+        if intrinsics is None:
+            intrinsics = SEED_TABLE_4_1
+            text = tool_support.intrinsics_text(intrinsics)
+            warnings.append(f'no intrinsics ({intrinsics_origin or "none given"}): using the '
+                            f"seed's Table 4.1 fallback ({text}); give --intrinsics "
+                            'FX,FY,CX,CY or a camera YAML')
+            intrinsics_origin = "the seed's Table 4.1 fallback"
+        lines.append(f'intrinsics: {tool_support.intrinsics_text(intrinsics)} '
+                     f'({intrinsics_origin})')
+        if (text := tool_support.intrinsics_warning(intrinsics, depth.shape)) is not None:
+            warnings.append(text)
+        unit = ''
+        unit_warning = None
+        scale = 1000.0 if depth_scale is None else depth_scale
+        if depth.dtype.kind in 'ui':
+            unit = (f'; depth {scale:g} units/m ('
+                    f'{scale_origin or "millimetres, the default: no --depth-scale"})')
+            unit_warning = tool_support.depth_unit_warning(depth, scale)
+            if unit_warning is not None:
+                warnings.append(unit_warning)
+        params = self.params
+        if self.first:
+            depth_m = decode_depth(depth, depth_scale=depth_scale)
+            if self.args.estimate_mount:
+                try:
+                    estimate = mount.estimate_mount(depth_m, intrinsics)
+                except ValueError as exc:
+                    hint = unit_warning or self._far_depth_hint(exc, depth, scale)
+                    raise ValueError(f'{name}: cannot estimate the mount: {exc}'
+                                     + (f'; {hint}' if hint else '')) from None
+                estimated = self.params.replace(camera_height_m=estimate.height_m,
+                                                camera_pitch_rad=estimate.pitch_rad,
+                                                camera_roll_rad=estimate.roll_rad)
+                self.params = _mount(self.args, estimated)
+                self.estimate_line = mount_caption(estimate)
+                given = _given_mount_options(self.args)
+                if given:
+                    self.estimate_line += f'; {", ".join(given)} given instead'
+                self.mount_origin = 'estimated from the floor' + (
+                    ' of the first frame' if sequence else '') + (
+                    f', {", ".join(given)} given instead' if given else '')
+                params = self.params
+            else:
+                check = tool_support.check_mount(depth_m, intrinsics, params,
+                                                 fix=self.fix_mount)
+                if check.warning:
+                    warnings.append(check.warning)
+                elif check.estimate is None:
+                    lines.append(f'mount not checked against the floor: {check.reason}')
+                    hint = None if unit_warning else self._far_depth_hint(
+                        ValueError(check.reason), depth, scale)
+                    if hint:
+                        warnings.append(hint)
+        if self.estimate_line is not None:
+            lines.insert(0, self.estimate_line + unit)
+        else:
+            lines.insert(1, f'mount: {tool_support.mount_text(params)} ({self.mount_origin})'
+                         + unit)
+        self.first = False
+        lines.extend(f'warning: {text}' for text in warnings)
+        return _Job(name, depth, intrinsics, params, depth_scale, truth_labels, sequence,
+                    tuple(lines))
+
+
+def jobs(args: argparse.Namespace, base: DetectorParams) -> Iterator[_Job]:
+    """Return the frames to draw, from whichever source the options name."""
+    if args.scene is not None:
+        mount_values = {k: v for k, v in (('height_m', args.height),
+                                          ('pitch_deg', args.pitch_deg),
+                                          ('roll_deg', args.roll_deg)) if v is not None}
+        scenario = evaluation.Scenario(
+            name=args.scene, scene=args.scene, seeds=(args.seed,),
+            frames=tuple(args.frames) if args.frames is not None else None,
+            mount=tuple(sorted(mount_values.items())),
+            truth=args.truth or ('robot' if getattr(base, 'robot_level', False) else 'seed'))
+        for frame in evaluation.scenario_frames(scenario, max_frames=args.max_frames):
+            yield _Job(f'{frame.scenario} {frame.frame_id}', frame.depth, frame.intrinsics,
+                       frame.params(base), truth_labels=frame.truth_labels,
+                       sequence=scenario.is_sequence)
+    elif args.folder is not None:
+        yield from folder_jobs(args, base)
+    elif args.depth is not None:
+        yield depth_job(args, base)
+    else:
+        real = _RealFrames(args, base, camera_of(args), fix_mount=(
+            '--estimate-mount (the first frame\'s floor), or --height, --pitch-deg and '
+            '--roll-deg'))
+        if real.camera.intrinsics is not None:
+            raise tool_support.UsageError('--intrinsics does not apply to --bag: its '
+                                          'CameraInfo gives them (see --info-topic)')
+        for frame in pictures.bag_frames(args.bag, args.depth_topic, args.info_topic,
+                                         every=args.every, max_frames=args.max_frames,
+                                         find_info_topic=True):
+            yield real.job(frame.name, frame.depth, frame.intrinsics, frame.intrinsics_origin,
+                           sequence=True)
+
+
+def _is_labelled(folder: Path) -> bool:
+    return (folder / 'intrinsics.yaml').is_file() and (folder / 'labels').is_dir() and \
+        (folder / 'depth').is_dir()
+
+
+def folder_jobs(args: argparse.Namespace, base: DetectorParams) -> Iterator[_Job]:
+    """Frames of ``--folder``: a labelled folder, or a plain folder of 16-bit depth images.
+
+    A labelled folder (``depth/``, ``labels/``, ``intrinsics.yaml``) is drawn with its truth
+    (unless ``--no-truth``) as long as no ``--intrinsics`` replaces its camera. Any other
+    folder: the 16-bit PNG/PGM files in it (or in its ``depth/``), sorted by name, with the
+    intrinsics of ``--intrinsics`` (else the folder's ``intrinsics.yaml``), the depth scale of
+    ``--depth-scale`` (else the YAML's, else millimetres) and no truth.
+    """
+    folder: Path = args.folder
+    if not folder.is_dir():
+        raise tool_support.ToolError(folder, 'no such folder; expected a folder of 16-bit '
+                                             'depth PNGs (or a labelled folder)')
+    if _is_labelled(folder) and args.intrinsics is None and args.depth_scale is None:
+        for frame in evaluation.load_labelled_folder(folder, max_frames=args.max_frames):
+            yield _Job(f'{frame.scenario} {frame.frame_id}', frame.depth, frame.intrinsics,
+                       frame.params(base), frame.depth_scale, frame.truth_labels, True)
+        return
+    camera = camera_of(args)
+    if camera.intrinsics is None and (folder / 'intrinsics.yaml').is_file():
+        camera = read_camera(folder / 'intrinsics.yaml')
+    if camera.intrinsics is None:
+        raise tool_support.ToolError(folder, 'no intrinsics: the folder has no '
+                                             'intrinsics.yaml; give --intrinsics FX,FY,CX,CY '
+                                             'or a camera YAML')
+    images = folder / 'depth' if (folder / 'depth').is_dir() else folder
+    files = sorted(p for p in images.iterdir() if p.suffix.lower() in ('.png', '.pgm'))
+    depths = []
+    skipped = []
+    for path in files:
+        depth = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        if depth is None or depth.dtype != np.uint16 or depth.ndim != 2:
+            skipped.append(path.name)
+        else:
+            depths.append((path, depth))
+    if not depths:
+        raise tool_support.ToolError(images, f'no 16-bit single-channel depth PNG or PGM '
+                                             f'({len(files)} image file(s), none 16-bit)')
+    if skipped:
+        print(f'  {images}: skipped {len(skipped)} image(s) that are not 16-bit depth: '
+              f'{", ".join(skipped[:3])}{", ..." if len(skipped) > 3 else ""}', file=sys.stderr)
+    if not args.no_truth:
+        print(f'  {folder}: no ground truth (labels/ with intrinsics.yaml and no '
+              '--intrinsics): drawn without the truth panel', file=sys.stderr)
+    scale, scale_origin = args.depth_scale, '--depth-scale'
+    if scale is None and camera.depth_scale is not None:
+        scale, scale_origin = camera.depth_scale, camera.origin
+    real = _RealFrames(args, base, camera, fix_mount=(
+        '--estimate-mount (the first frame\'s floor), or --height, --pitch-deg and '
+        '--roll-deg'))
+    for path, depth in evaluation.subsample(depths, args.max_frames):
+        yield real.job(path.name, depth, camera.intrinsics, camera.origin, scale,
+                       scale_origin if scale is not None else '', sequence=True)
+
+
+def depth_job(args: argparse.Namespace, base: DetectorParams) -> _Job:
+    """Return the frame of ``--depth``: intrinsics, depth scale and mount from the options.
+
+    Mount: the camera YAML's, or with ``--estimate-mount`` the floor's (which needs the
+    intrinsics), then ``--height`` / ``--pitch-deg`` / ``--roll-deg``; else the preset's,
+    checked against the floor in view (a warning when they disagree). Depth scale:
+    ``--depth-scale``, else the YAML's, else millimetres. Which were used is in the job's
+    caption lines. Raises ValueError (no floor found, a bad file) or UsageError
+    (``--estimate-mount`` without intrinsics).
+    """
+    depth = pictures.read_depth_png(args.depth)
+    camera = camera_of(args)
+    if args.estimate_mount and camera.intrinsics is None:
+        raise tool_support.UsageError('--estimate-mount needs the intrinsics of the depth '
+                                      'image: give --intrinsics YAML or --intrinsics '
+                                      'FX,FY,CX,CY')
+    scale, scale_origin = args.depth_scale, '--depth-scale'
+    if scale is None and camera.depth_scale is not None:
+        scale, scale_origin = camera.depth_scale, camera.origin
+    intr = camera.intrinsics or SEED_TABLE_4_1
+    command = (f'--estimate-mount, or python tools/estimate_mount.py --depth {args.depth} '
+               f'--depth-scale {1000.0 if scale is None else scale:g} --intrinsics '
+               f'{intr.fx:g},{intr.fy:g},{intr.cx:g},{intr.cy:g} --camera-yaml-out camera.yaml')
+    real = _RealFrames(args, base, camera, fix_mount=command)
+    return real.job(args.depth.name, depth, camera.intrinsics, camera.origin, scale,
+                    scale_origin if scale is not None else '')
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Return the command-line interface."""
+    parser = argparse.ArgumentParser(prog='pictures.py', description=__doc__.split('\n\n')[0],
+                                     formatter_class=argparse.RawTextHelpFormatter)
+    source = parser.add_mutually_exclusive_group(required=True)
+    source.add_argument('--scene', help='a scene of the generator (scenes.SCENE_NAMES)')
+    parser.add_argument('--truth', choices=('robot', 'seed'),
+                        help="a scene's ground truth: 'robot' (box tops, drops obstacles; "
+                             "the default for robot-level parameters) or 'seed' (slope only; "
+                             'the default for the seed presets)')
+    source.add_argument('--depth', type=Path, metavar='PNG',
+                        help='a 16-bit depth PNG or PGM (see --depth-scale)')
+    source.add_argument('--folder', type=Path, metavar='DIR',
+                        help='a folder of 16-bit depth PNGs/PGMs (with --intrinsics), or a '
+                             'labelled folder\n(depth/, labels/, intrinsics.yaml: drawn with '
+                             'its truth)')
+    source.add_argument('--bag', type=Path, metavar='PATH',
+                        help='a rosbag2 folder or a ROS 1 .bag file')
+    parser.add_argument('--seed', type=int, default=0, help='scene seed [default: 0]')
+    parser.add_argument('--frames', type=parse_frames, metavar='A:B[:C]',
+                        help='scene frame indices (a sequence such as person_walking)')
+    parser.add_argument('--intrinsics', type=parse_camera, metavar='YAML|FX,FY,CX,CY',
+                        help='intrinsics of --depth / --folder [px], or a camera YAML (fx, fy, '
+                             'cx, cy,\noptional depth_scale and camera_height_m, '
+                             "camera_pitch_deg, camera_roll_deg);\nwithout it the seed's "
+                             'Table 4.1 fallback is used, with a warning')
+    parser.add_argument('--depth-scale', type=float, metavar='UNITS',
+                        help='depth units per metre of --depth / --folder [default: the '
+                             "YAML's, else 1000 (mm);\nTUM RGB-D: 5000]")
+    parser.add_argument('--estimate-mount', action='store_true',
+                        help='camera mount from the floor in view (of the first frame of a '
+                             'folder or bag);\n--height etc. still override it')
+    parser.add_argument('--depth-topic', default=tool_support.DEFAULT_DEPTH_TOPIC,
+                        help=f'bag depth topic [default: {tool_support.DEFAULT_DEPTH_TOPIC}]')
+    parser.add_argument('--info-topic',
+                        help=f'bag CameraInfo topic [default: {tool_support.DEFAULT_INFO_TOPIC}'
+                             ", else the bag's\nCameraInfo topic found by type]")
+    parser.add_argument('--every', type=int, default=1, help='bag: one frame in N')
+    parser.add_argument('--max-frames', type=int, metavar='N', help='at most N frames')
+    parser.add_argument('--height', type=float, metavar='M', help='camera height [m]')
+    parser.add_argument('--pitch-deg', type=float, help='camera pitch, + looks down [deg]')
+    parser.add_argument('--roll-deg', type=float, help='camera roll [deg]')
+    add_parameter_arguments(parser)
+    parser.add_argument('--refiner', type=Path, metavar='MODEL',
+                        help='draw the seed-4.5 refined result of this model instead')
+    parser.add_argument('--caption', metavar='TEXT',
+                        help='first caption line instead of the frame name')
+    parser.add_argument('--no-truth', action='store_true',
+                        help='leave out the comparison with the ground truth')
+    parser.add_argument('--out', type=Path, required=True,
+                        help='PNG: the picture (one frame) or the contact sheet')
+    parser.add_argument('--frames-dir', type=Path, metavar='DIR',
+                        help='also write every frame picture here (several frames)')
+    parser.add_argument('--columns', type=int, default=4, help='contact sheet columns')
+    parser.add_argument('--thumb-width', type=int, default=480,
+                        help='contact sheet thumbnail width [px]')
+    return parser
+
+
+@dataclass
+class _Detected:
+    """One frame run through the pipeline, ready to draw."""
+
+    job: _Job
+    caption: str
+    result: object
+    labels: np.ndarray | None
+    costmap: object
+    truth: np.ndarray | None
+
+
+def detect(args: argparse.Namespace) -> list[_Detected]:
+    """Run the pipeline (and the refiner) over every frame the parsed options name, in order.
+
+    Reports each frame on stderr, with what was used (intrinsics, scale, mount) and the
+    warnings; raises UsageError for options that do not go together, ValueError, OSError or
+    KeyError on bad input.
+    """
+    from obstacle_detection.pipeline import refine
+    from obstacle_detection.pipeline.detector import Detector
+
+    if args.scene is not None and (args.estimate_mount or args.depth_scale is not None
+                                   or args.intrinsics is not None):
+        raise tool_support.UsageError('--estimate-mount, --depth-scale and --intrinsics do not '
+                                      'apply to --scene (the generator knows its camera)')
+    if args.bag is not None and args.depth_scale is not None:
+        raise tool_support.UsageError('--depth-scale does not apply to --bag (16UC1 images '
+                                      'are millimetres, 32FC1 metres)')
+    base = base_params(args)
+    refiner = refine.LogisticRefiner.load(args.refiner) if args.refiner else None
+    detected: list[_Detected] = []
+    said: set[str] = set()
+    previous: np.ndarray | None = None
+    for job in jobs(args, base):
+        result = Detector(job.params).process(job.depth, job.intrinsics,
+                                              depth_scale=job.depth_scale)
+        labels = costmap = None
+        caption = job.name if args.caption is None else args.caption
+        if refiner is not None:
+            prev = previous if job.sequence and previous is not None and \
+                previous.shape == result.labels.shape else None
+            refined = refine.refine_result(result, refiner.predict_labels(result, prev),
+                                           job.params)
+            labels, costmap = refined.labels, refined.costmap
+            caption += f' (refined by {args.refiner.name})'
+        previous = refine.obstacle_mask(result)
+        truth = None if args.no_truth else job.truth_labels
+        detected.append(_Detected(job, caption, result, labels, costmap, truth))
+        print(f'{caption}: {int(result.obstacle_points.shape[0])} obstacle voxels, '
+              f'{result.timings_ms["total"]:.0f} ms', file=sys.stderr)
+        for line in job.extra_lines:  # what was used: said once, again when it changes
+            if line not in said:
+                print(line if line.startswith('warning: ') else f'  {line}', file=sys.stderr)
+                said.add(line)
+    if not detected:
+        raise ValueError('no frames to draw')
+    return detected
+
+
+def draw(frame: _Detected, *, with_legend: bool = True,
+         max_depth_m: float | None = None) -> np.ndarray:
+    """Return the picture of one detected frame (``pictures.side_by_side``)."""
+    return pictures.side_by_side(frame.result, caption=frame.caption,
+                                 truth_labels=frame.truth, labels=frame.labels,
+                                 costmap=frame.costmap, extra_lines=frame.job.extra_lines,
+                                 params=frame.job.params, with_legend=with_legend,
+                                 max_depth_m=max_depth_m)
+
+
+def _write_frames_dir(args: argparse.Namespace, detected: Sequence[_Detected]) -> None:
+    if args.frames_dir is None:
+        return
+    for i, frame in enumerate(detected):
+        safe = frame.job.name.replace(' ', '_').replace('/', '_').replace('#', '')
+        pictures.write_png(args.frames_dir / f'{i:04d}_{safe}.png', draw(frame))
+
+
+def render(args: argparse.Namespace) -> list[tuple[str, np.ndarray]]:
+    """(caption, RGB picture with its legends) of every frame the parsed options name.
+
+    Also writes ``--frames-dir``; raises as :func:`detect`.
+    """
+    detected = detect(args)
+    _write_frames_dir(args, detected)
+    return [(frame.caption, draw(frame)) for frame in detected]
+
+
+def sheet(args: argparse.Namespace, detected: Sequence[_Detected]) -> np.ndarray:
+    """Return the contact sheet of several frames, with one full-size legend underneath.
+
+    The thumbnails share one depth shading (the farthest depth of all frames is white), so
+    the legend's colour bar holds for every one of them.
+    """
+    farthest = 0.0
+    for frame in detected:
+        depth = np.asarray(frame.result.depth_m)
+        valid = np.isfinite(depth) & (depth > 0)
+        if valid.any():
+            farthest = max(farthest, float(depth[valid].max()))
+    farthest = farthest or 1.0
+    images = [draw(frame, with_legend=False, max_depth_m=farthest) for frame in detected]
+    grid = pictures.contact_sheet(images, labels=[f.caption for f in detected],
+                                  columns=args.columns, thumb_width=args.thumb_width)
+    truth = any(f.truth is not None for f in detected)
+    parts = 3 if truth else 2
+    widths = [(grid.shape[1] - (parts - 1) * 6) // parts] * parts
+    legend = pictures.legend_row(widths, farthest, truth=truth, params=detected[0].job.params)
+    legend = np.pad(legend, ((0, 0), (0, grid.shape[1] - legend.shape[1]), (0, 0)),
+                    constant_values=255)
+    return np.vstack([grid, legend])
+
+
+def write_pictures(args: argparse.Namespace) -> str:
+    """Draw the frames ``args`` select and write the PNG(s); return the line to print.
+
+    Raises UsageError, ValueError, OSError or KeyError naming the problem.
+    """
+    detected = detect(args)
+    _write_frames_dir(args, detected)
+    if len(detected) == 1:
+        pictures.write_png(args.out, draw(detected[0]))
+    else:
+        pictures.write_png(args.out, sheet(args, detected))
+    return f'wrote {args.out} ({len(detected)} frame{"s" if len(detected) > 1 else ""})'

@@ -1,0 +1,152 @@
+"""Camera files: the one reader and writer of the camera YAML, and intrinsics scaling.
+
+The camera YAML holds pinhole intrinsics [px] (``fx fy cx cy``, or a ROS calibration's
+``camera_matrix``, optionally nested under ``intrinsics:`` or ``camera:``), optionally the image
+size (``width height``, or ``image_width image_height``), the depth scale (units per metre) and
+the camera mount (``camera_height_m`` with ``camera_pitch_deg|rad`` and ``camera_roll_deg|rad``).
+It is a labelled folder's ``intrinsics.yaml`` (``runner``), the output of
+``tools/estimate_mount.py --camera-yaml-out``, the demo's ``camera.yaml`` and what
+``tools/pictures.py --intrinsics`` and ``tools/bag_convert.py --intrinsics`` read.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from obstacle_detection.pipeline.params import Intrinsics
+
+
+class CameraFileError(ValueError):
+    """A camera file that cannot be used: ``path`` and the ``problem``."""
+
+    def __init__(self, path: str | Path, problem: str) -> None:
+        super().__init__(f'{path}: {problem}')
+        self.path = Path(path)
+        self.problem = problem
+
+
+@dataclass(frozen=True)
+class CameraFile:
+    """What a camera YAML gives: intrinsics, and the size, depth scale and mount when given."""
+
+    intrinsics: Intrinsics
+    size: tuple[int, int] | None = None          #: (width, height) [px]
+    depth_scale: float | None = None             #: depth units per metre
+    mount: tuple[float, float, float] | None = None   #: height [m], pitch [rad], roll [rad]
+
+
+def scaled_intrinsics(intrinsics: Intrinsics, sx: float, sy: float | None = None
+                      ) -> Intrinsics:
+    """Return the intrinsics of the same camera with images resized by ``sx`` (and ``sy``).
+
+    Pixel-centre aware: ``c' = (c + 0.5) * s - 0.5``. ``sy`` defaults to ``sx``.
+    """
+    sy = sx if sy is None else sy
+    for name, factor in (('sx', sx), ('sy', sy)):
+        if not factor > 0.0:
+            raise ValueError(f'scale factor {name}={factor!r} must be > 0')
+    return Intrinsics(fx=intrinsics.fx * sx, fy=intrinsics.fy * sy,
+                      cx=(intrinsics.cx + 0.5) * sx - 0.5,
+                      cy=(intrinsics.cy + 0.5) * sy - 0.5)
+
+
+def intrinsics_from_mapping(data: Mapping[str, Any]
+                            ) -> tuple[Intrinsics, tuple[int, int] | None]:
+    """Return the intrinsics and (width, height), if given, of a camera YAML mapping.
+
+    Raises ValueError saying what is missing or bad.
+    """
+    for key in ('intrinsics', 'camera'):
+        if isinstance(data.get(key), dict):
+            data = data[key]
+    if 'camera_matrix' in data:
+        try:
+            k = [float(v) for v in data['camera_matrix']['data']]
+            values = (k[0], k[4], k[2], k[5])
+        except (KeyError, TypeError, ValueError, IndexError) as err:
+            raise ValueError('camera_matrix must hold 9 numbers in data') from err
+        width, height = data.get('image_width'), data.get('image_height')
+    else:
+        missing = [k for k in ('fx', 'fy', 'cx', 'cy') if k not in data]
+        if missing:
+            raise ValueError(f'missing {", ".join(missing)} (need fx, fy, cx, cy)')
+        try:
+            values = tuple(float(data[k]) for k in ('fx', 'fy', 'cx', 'cy'))
+        except (TypeError, ValueError) as err:
+            raise ValueError('fx, fy, cx, cy must be numbers') from err
+        width, height = data.get('width'), data.get('height')
+    if (width is None) != (height is None):
+        raise ValueError('give both width and height, or neither')
+    size = None
+    if width is not None:
+        try:
+            size = (int(width), int(height))
+        except (TypeError, ValueError) as err:
+            raise ValueError('width and height must be integers') from err
+        if size[0] <= 0 or size[1] <= 0:
+            raise ValueError(f'width and height must be positive, got {size}')
+    return Intrinsics(*values), size
+
+
+def _angle(data: Mapping[str, Any], name: str) -> float:
+    if f'{name}_rad' in data:
+        return float(data[f'{name}_rad'])
+    return math.radians(float(data.get(f'{name}_deg', 0.0)))
+
+
+def camera_from_mapping(data: Any) -> CameraFile:
+    """Return the camera a parsed camera YAML describes; ValueError saying what is bad."""
+    if not isinstance(data, dict):
+        raise ValueError('not a YAML mapping (expected fx, fy, cx, cy, ...)')
+    intrinsics, size = intrinsics_from_mapping(data)
+    try:
+        scale = data.get('depth_scale')
+        scale = None if scale is None else float(scale)
+        mount = None
+        if 'camera_height_m' in data:
+            mount = (float(data['camera_height_m']), _angle(data, 'camera_pitch'),
+                     _angle(data, 'camera_roll'))
+    except (TypeError, ValueError) as err:
+        raise ValueError(f'depth scale and mount must be numbers ({err})') from err
+    if scale is not None and not (math.isfinite(scale) and scale > 0):
+        raise ValueError(f'depth_scale={scale} must be > 0')
+    return CameraFile(intrinsics, size, scale, mount)
+
+
+def read_camera_yaml(path: str | Path) -> CameraFile:
+    """Read a camera YAML (see the module docstring).
+
+    Raises OSError when the file cannot be read, CameraFileError naming it when its content is
+    not a usable camera.
+    """
+    import yaml  # PyYAML ships with ROS 2 (rclpy's own dependency)
+
+    text = Path(path).read_text(encoding='utf-8')
+    try:
+        return camera_from_mapping(yaml.safe_load(text) or {})
+    except yaml.YAMLError as err:
+        raise CameraFileError(path, f'not valid YAML ({err})') from None
+    except ValueError as err:
+        raise CameraFileError(path, str(err)) from None
+
+
+def camera_yaml_text(intrinsics: Intrinsics, *, comment: str,
+                     size: tuple[int, int] | None = None, depth_scale: float | None = None,
+                     height_m: float | None = None, pitch_deg: float = 0.0,
+                     roll_deg: float = 0.0) -> str:
+    """Return a camera YAML: intrinsics [px], then size, depth scale and mount when given."""
+    lines = [f'# {comment}', f'fx: {intrinsics.fx!r}', f'fy: {intrinsics.fy!r}',
+             f'cx: {intrinsics.cx!r}', f'cy: {intrinsics.cy!r}']
+    if size is not None:
+        lines += [f'width: {int(size[0])}', f'height: {int(size[1])}']
+    if depth_scale is not None:
+        lines.append(f'depth_scale: {float(depth_scale)!r}')
+    if height_m is not None:
+        lines += [f'camera_height_m: {float(height_m)!r}',
+                  f'camera_pitch_deg: {float(pitch_deg)!r}',
+                  f'camera_roll_deg: {float(roll_deg)!r}']
+    return '\n'.join(lines) + '\n'

@@ -1,0 +1,418 @@
+"""Recorded RGB-D datasets as frame lists: TUM RGB-D format, DIML/CVL, depth PNG folders.
+
+Each reader returns a :class:`FrameSource`: the frames (stamp, depth PNG, paired colour image,
+optional pose), the camera intrinsics (from a file, a dataset's known camera, or ``None`` = the
+Kinect v2 defaults chosen, loudly, once the image size is known) and what could not be paired.
+``obstacle_detection.ros.bag_writer`` writes a FrameSource as a rosbag2 bag
+(``tools/bag_convert.py``); the layouts are described there.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import re
+import sys
+from collections import Counter
+from pathlib import Path
+
+import cv2
+import numpy as np
+import yaml
+
+from obstacle_detection.evaluation.camera import intrinsics_from_mapping, scaled_intrinsics
+from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE, Intrinsics
+
+#: TUM RGB-D benchmark cameras (fx, fy, cx, cy) for 640x480 images, and the ROS default.
+TUM_CAMERAS: dict[str, Intrinsics] = {
+    'fr1': Intrinsics(517.3, 516.5, 318.6, 255.3),
+    'fr2': Intrinsics(520.9, 521.0, 325.1, 249.7),
+    'fr3': Intrinsics(535.4, 539.2, 320.1, 247.6),
+    'ros': Intrinsics(525.0, 525.0, 319.5, 239.5),
+}
+#: Depth units per metre in the TUM-format benchmarks.
+TUM_DEPTH_UNITS_PER_M = 5000
+#: Nominal Kinect v2 colour camera at 1920x1080 (libfreenect2's factory defaults), used, scaled
+#: to the image size, for depth that DIML warped or upsampled into the colour view when the
+#: user gives no intrinsics.
+KINECT_V2_COLOR = Intrinsics(1081.37, 1081.37, 959.5, 539.5)
+KINECT_V2_COLOR_SIZE = (1920, 1080)
+DIML_DEPTH_KINDS = {  # --depth choice -> (folder, file suffix)
+    'raw': ('raw_png', '_rd.png'),
+    'up': ('up_png', '_ud.png'),
+    'warp': ('warp_png', '_wd.png'),
+}
+DIML_COLOR = ('col', '_c.png')
+DIML_SAMPLE_COLOR = ('color', '_c.png')
+DIML_SAMPLE_DEPTH = ('depth_filled', '_depth_filled.png')
+
+
+class ConvertError(Exception):
+    """Bad input or output for a conversion; the message names the offending file."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Frame:
+    """One depth frame to write, with the colour image paired to it (if any)."""
+
+    stamp_ns: int
+    depth_path: Path
+    color_path: Path | None = None
+    #: the robot base pose in odom at the frame, (x [m], y [m], yaw [rad]): written as
+    #: nav_msgs/Odometry on BagOptions.odom_topic (None: no odometry for this frame)
+    pose: tuple[float, float, float] | None = None
+
+
+@dataclasses.dataclass
+class FrameSource:
+    """What a dataset layout yields: frames, their camera and what could not be paired.
+
+    ``intrinsics`` None means "not given": defaults for the view are chosen (with a warning)
+    once the image size is known. ``size`` is (width, height) from the intrinsics file, checked
+    against the images when given.
+    """
+
+    frames: list[Frame]
+    intrinsics: Intrinsics | None
+    intrinsics_origin: str
+    size: tuple[int, int] | None = None
+    depth_divisor: int = 1
+    default_view: str = 'depth'
+    dropped: Counter[str] = dataclasses.field(default_factory=Counter)
+    notes: list[str] = dataclasses.field(default_factory=list)
+
+
+def load_intrinsics(path: Path) -> tuple[Intrinsics, tuple[int, int] | None]:
+    """Read camera intrinsics from a file.
+
+    Accepted: a YAML mapping with ``fx, fy, cx, cy`` and optionally ``width, height`` (also
+    nested under an ``intrinsics`` or ``camera`` key); a ROS ``camera_info`` YAML
+    (``camera_matrix: {data: [...]}``, ``image_width``, ``image_height``); or an ETH3D
+    ``calibration.txt`` holding ``fx fy cx cy`` on one line.
+
+    Returns:
+        The intrinsics and (width, height) if the file gives them.
+
+    Raises:
+        ConvertError: naming the file when it is missing, unreadable or incomplete.
+    """
+    try:
+        text = path.read_text()
+    except OSError as err:
+        raise ConvertError(f'{path}: cannot read intrinsics file ({err.strerror})') from err
+    numbers = text.split()
+    try:
+        if len(numbers) == 4 and all(_is_number(n) for n in numbers):
+            return _intrinsics(path, *map(float, numbers)), None
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        raise ConvertError(f'{path}: not valid YAML ({err})') from err
+    if not isinstance(data, dict):
+        raise ConvertError(f'{path}: expected a mapping with fx, fy, cx, cy')
+    try:
+        return intrinsics_from_mapping(data)
+    except ValueError as err:
+        raise ConvertError(f'{path}: {err}') from err
+
+
+def _intrinsics(path: Path, fx: float, fy: float, cx: float, cy: float) -> Intrinsics:
+    try:
+        return Intrinsics(fx, fy, cx, cy)
+    except ValueError as err:
+        raise ConvertError(f'{path}: {err}') from err
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+
+
+def default_intrinsics(view: str, size: tuple[int, int]) -> tuple[Intrinsics, str]:
+    """Kinect v2 nominal intrinsics for the depth or colour view, scaled to ``size``."""
+    if view == 'depth':
+        base, base_size, name = KINECT_V2_SD, KINECT_V2_SD_SIZE, 'Kinect v2 depth camera'
+    else:
+        base, base_size, name = KINECT_V2_COLOR, KINECT_V2_COLOR_SIZE, 'Kinect v2 colour camera'
+    if tuple(size) == tuple(base_size):
+        return base, f'{name} defaults'
+    return (scaled_intrinsics(base, size[0] / base_size[0], size[1] / base_size[1]),
+            f'{name} defaults scaled from {base_size[0]}x{base_size[1]} to {size[0]}x{size[1]}')
+
+
+def stamp_ns(seconds: float) -> int:
+    """Seconds to integer nanoseconds (rounded).
+
+    Frame stamps are ``stamp_ns(start) + stamp_ns(i / rate)``: adding in integers keeps the
+    frame spacing exact to the nanosecond even for a start near the current epoch.
+    """
+    return int(round(seconds * 1e9))
+
+
+def _require_dir(path: Path, what: str) -> None:
+    if not path.is_dir():
+        raise ConvertError(f'{path}: {what} folder not found')
+
+
+def _optional_intrinsics(path: Path | None
+                         ) -> tuple[Intrinsics | None, str, tuple[int, int] | None]:
+    if path is None:
+        return None, '', None
+    intr, size = load_intrinsics(path)
+    return intr, f'from {path}', size
+
+
+def _check_rate(rate_hz: float) -> None:
+    if not (math.isfinite(rate_hz) and rate_hz > 0):
+        raise ConvertError(f'--rate must be a positive number of frames per second, got {rate_hz}')
+
+
+def _files_with_suffix(folder: Path, suffix: str) -> dict[str, Path]:
+    """Map the name without ``suffix`` to the path, for files in ``folder`` ending in it."""
+    return {p.name[:-len(suffix)]: p for p in sorted(folder.iterdir())
+            if p.is_file() and p.name.endswith(suffix)}
+
+
+def _pair_by_key(depth: dict[str, Path], color: dict[str, Path], depth_dir: Path,
+                 color_dir: Path) -> None:
+    """Raise unless depth and colour folders hold the same frames."""
+    if len(depth) != len(color):
+        raise ConvertError(f'{depth_dir} holds {len(depth)} depth images but {color_dir} holds '
+                           f'{len(color)} colour images; they must match one to one')
+    for key, path in depth.items():
+        if key not in color:
+            raise ConvertError(f'{path}: no colour image for this depth image in {color_dir}')
+
+
+def diml_frames(sequence: Path, *, depth_kind: str = 'raw', intrinsics_path: Path | None = None,
+                rate_hz: float = 30.0, start_s: float = 0.0,
+                with_color: bool = True) -> FrameSource:
+    """List the frames of one DIML/CVL indoor sequence folder (``<scene>/<date>/<n>``).
+
+    Frame ``i`` (the number before the suffix) is stamped ``start_s + i / rate_hz``.
+    """
+    _check_rate(rate_hz)
+    folder, suffix = DIML_DEPTH_KINDS[depth_kind]
+    depth_dir = sequence / folder
+    if not sequence.is_dir():
+        raise ConvertError(f'{sequence}: DIML sequence folder not found')
+    if not depth_dir.is_dir():
+        found = sorted(p.parent for p in sequence.rglob(folder) if p.is_dir())
+        hint = (f'; sequence folders below it: {", ".join(map(str, found[:5]))}'
+                + (' ...' if len(found) > 5 else '')) if found else ''
+        raise ConvertError(f'{depth_dir}: DIML {depth_kind} depth folder not found '
+                           f'(pass a <scene>/<date>/<n> folder){hint}')
+    depth = _files_with_suffix(depth_dir, suffix)
+    if not depth:
+        raise ConvertError(f'{depth_dir}: no *{suffix} depth images')
+    pattern = re.compile(r'(\d+)$')
+    frames_index: dict[str, int] = {}
+    for key, path in depth.items():
+        match = pattern.search(key)
+        if match is None:
+            raise ConvertError(f'{path}: no frame number before {suffix} in the file name')
+        frames_index[key] = int(match.group(1))
+    color: dict[str, Path] = {}
+    color_dir = sequence / DIML_COLOR[0]
+    if with_color and color_dir.is_dir():
+        color = _files_with_suffix(color_dir, DIML_COLOR[1])
+        _pair_by_key(depth, color, depth_dir, color_dir)
+    intr, origin, size = _optional_intrinsics(intrinsics_path)
+    start_ns = stamp_ns(start_s)
+    frames = [Frame(start_ns + stamp_ns(frames_index[key] / rate_hz), path, color.get(key))
+              for key, path in sorted(depth.items(), key=lambda kv: frames_index[kv[0]])]
+    notes = [f'DIML has no timestamps: frames stamped from their number at {rate_hz:g} Hz']
+    if with_color and not color_dir.is_dir():
+        notes.append(f'{color_dir} not found: no colour written')
+    return FrameSource(frames, intr, origin, size,
+                       default_view='depth' if depth_kind == 'raw' else 'color', notes=notes)
+
+
+def diml_sample_frames(root: Path, *, resolution: str = 'LR',
+                       intrinsics_path: Path | None = None, rate_hz: float = 30.0,
+                       start_s: float = 0.0, with_color: bool = True) -> FrameSource:
+    """List the frames of the DIML sample subset below ``root``.
+
+    ``root`` is a split folder (``.../test``), a resolution folder (``.../test/LR``) or one
+    scene folder holding ``color/`` and ``depth_filled/``. Frames are sorted by scene folder
+    and id and stamped ``start_s + k / rate_hz``.
+    """
+    _check_rate(rate_hz)
+    if not root.is_dir():
+        raise ConvertError(f'{root}: DIML sample folder not found')
+    name = DIML_SAMPLE_DEPTH[0]
+    depth_dirs = sorted({p for p in [root / name, *root.rglob(name)] if p.is_dir()})
+    # Below a split folder both HR and LR exist: keep the chosen one.
+    parts = {part for p in depth_dirs for part in p.relative_to(root).parts}
+    if {'HR', 'LR'} & parts:
+        depth_dirs = [p for p in depth_dirs if resolution in p.relative_to(root).parts]
+        if not depth_dirs:
+            raise ConvertError(f'{root}: no {resolution}/ folder below it')
+    if not depth_dirs:
+        raise ConvertError(f'{root}: no {DIML_SAMPLE_DEPTH[0]}/ folder below it '
+                           f'(expected <split>/{{HR,LR}}/<scene>/{{color,depth_filled}})')
+    frames: list[Frame] = []
+    for depth_dir in depth_dirs:
+        depth = _files_with_suffix(depth_dir, DIML_SAMPLE_DEPTH[1])
+        if not depth:
+            raise ConvertError(f'{depth_dir}: no *{DIML_SAMPLE_DEPTH[1]} depth images')
+        color: dict[str, Path] = {}
+        if with_color:
+            color_dir = depth_dir.parent / DIML_SAMPLE_COLOR[0]
+            _require_dir(color_dir, 'DIML sample colour')
+            color = _files_with_suffix(color_dir, DIML_SAMPLE_COLOR[1])
+            _pair_by_key(depth, color, depth_dir, color_dir)
+        for key, path in depth.items():
+            stamp = stamp_ns(start_s) + stamp_ns(len(frames) / rate_hz)
+            frames.append(Frame(stamp, path, color.get(key)))
+    intr, origin, size = _optional_intrinsics(intrinsics_path)
+    notes = [f'DIML samples have no timestamps: stamped in file order at {rate_hz:g} Hz']
+    return FrameSource(frames, intr, origin, size, default_view='color', notes=notes)
+
+
+def folder_frames(depth_dir: Path, *, color_dir: Path | None = None,
+                  intrinsics_path: Path | None = None, rate_hz: float = 30.0,
+                  start_s: float = 0.0) -> FrameSource:
+    """List a folder of depth PNGs (and a colour folder), sorted by name, stamped by rate."""
+    _check_rate(rate_hz)
+    _require_dir(depth_dir, 'depth')
+    depth = sorted(p for p in depth_dir.iterdir() if p.is_file() and p.suffix.lower() == '.png')
+    if not depth:
+        raise ConvertError(f'{depth_dir}: no .png depth images')
+    color: list[Path | None] = [None] * len(depth)
+    if color_dir is not None:
+        _require_dir(color_dir, 'colour')
+        found = sorted(p for p in color_dir.iterdir()
+                       if p.is_file() and p.suffix.lower() in ('.png', '.jpg', '.jpeg'))
+        if len(found) != len(depth):
+            raise ConvertError(f'{depth_dir} holds {len(depth)} depth images but {color_dir} '
+                               f'holds {len(found)} colour images; they must match one to one')
+        color = list(found)
+    intr, origin, size = _optional_intrinsics(intrinsics_path)
+    frames = [Frame(stamp_ns(start_s) + stamp_ns(k / rate_hz), d, c)
+              for k, (d, c) in enumerate(zip(depth, color))]
+    return FrameSource(frames, intr, origin, size)
+
+
+def read_timestamp_list(path: Path) -> list[tuple[float, str]]:
+    """Read a TUM ``rgb.txt`` / ``depth.txt``: ``timestamp filename`` lines, ``#`` comments."""
+    try:
+        lines = path.read_text().splitlines()
+    except OSError as err:
+        raise ConvertError(f'{path}: cannot read ({err.strerror})') from err
+    entries = []
+    for number, line in enumerate(lines, start=1):
+        line = line.split('#', 1)[0].strip()
+        if not line:
+            continue
+        parts = line.replace(',', ' ').split()
+        if len(parts) < 2 or not _is_number(parts[0]):
+            raise ConvertError(f'{path}:{number}: expected "timestamp filename", got {line!r}')
+        entries.append((float(parts[0]), parts[1]))
+    return sorted(entries)
+
+
+def tum_frames(root: Path, *, camera: str | None = None, intrinsics_path: Path | None = None,
+               max_difference_s: float = 0.02, with_color: bool = True) -> FrameSource:
+    """List the depth frames of a TUM-format sequence, each with its nearest colour frame."""
+    if not root.is_dir():
+        raise ConvertError(f'{root}: sequence folder not found')
+    if not (math.isfinite(max_difference_s) and max_difference_s >= 0):
+        raise ConvertError(f'--max-difference must be >= 0 s, got {max_difference_s}')
+    depth_list = root / 'depth.txt'
+    if not depth_list.is_file():
+        raise ConvertError(f'{depth_list}: not found (expected a TUM-format sequence folder)')
+    depth = read_timestamp_list(depth_list)
+    if not depth:
+        raise ConvertError(f'{depth_list}: lists no depth images')
+    notes: list[str] = []
+    dropped: Counter[str] = Counter()
+    color_for: list[Path | None] = [None] * len(depth)
+    rgb_list = root / 'rgb.txt'
+    if with_color and rgb_list.is_file():
+        rgb = read_timestamp_list(rgb_list)
+        rgb_t = np.array([t for t, _ in rgb])
+        used = set()
+        for k, (t, _) in enumerate(depth):
+            if len(rgb_t) == 0:
+                dropped['rgb.txt lists no colour images'] += 1
+                continue
+            j = int(np.searchsorted(rgb_t, t))
+            best = min((c for c in (j - 1, j) if 0 <= c < len(rgb_t)),
+                       key=lambda c: abs(rgb_t[c] - t))
+            if abs(rgb_t[best] - t) <= max_difference_s:
+                color_for[k] = root / rgb[best][1]
+                used.add(best)
+            else:
+                dropped[f'no colour frame within {max_difference_s:g} s of the depth frame '
+                        '(kept without colour)'] += 1
+        if len(rgb) > len(used):
+            notes.append(f'{len(rgb) - len(used)} colour frames not nearest to any depth frame '
+                         'were not written')
+        notes.append('colour is stamped with the stamp of the depth frame it is paired with')
+    elif with_color:
+        notes.append(f'{rgb_list} not found: no colour written')
+    frames = [Frame(stamp_ns(t), root / name, color_for[k]) for k, (t, name) in enumerate(depth)]
+
+    intr, origin, size = _optional_intrinsics(intrinsics_path)
+    if intr is None and camera is not None:
+        intr, origin = TUM_CAMERAS[camera], f'TUM camera {camera}'
+    if intr is None:
+        match = re.search(r'freiburg([123])', root.resolve().name)
+        calibration = root / 'calibration.txt'
+        if match:
+            name = f'fr{match.group(1)}'
+            intr, origin = TUM_CAMERAS[name], f'TUM camera {name} (from the folder name)'
+        elif calibration.is_file():
+            intr, size = load_intrinsics(calibration)
+            origin = f'from {calibration}'
+        else:
+            intr, origin = TUM_CAMERAS['ros'], 'ROS default camera'
+            warn(f'no intrinsics for {root}: using the ROS default camera fx=fy=525 '
+                  'cx=319.5 cy=239.5; pass --camera fr1|fr2|fr3 or --intrinsics FILE')
+    return FrameSource(frames, intr, origin, size, depth_divisor=TUM_DEPTH_UNITS_PER_M // 1000,
+                       dropped=dropped, notes=notes)
+
+
+def read_depth_png(path: Path, *, divisor: int = 1) -> np.ndarray:
+    """Read a 16-bit single-channel depth PNG; return (H, W) uint16 millimetres.
+
+    ``divisor`` converts other units to millimetres (5 for 5000 units per metre), rounding to
+    the nearest millimetre.
+    """
+    if not path.is_file():
+        raise ConvertError(f'{path}: depth image not found')
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise ConvertError(f'{path}: cannot read depth image (not an image file?)')
+    if image.ndim != 2:
+        raise ConvertError(f'{path}: depth must have one channel, found {image.shape[2]}')
+    if image.dtype != np.uint16:
+        bits = image.dtype.itemsize * 8
+        raise ConvertError(f'{path}: depth must be a 16-bit image in millimetres, '
+                           f'found {bits}-bit ({image.dtype})')
+    if divisor != 1:
+        # (v + divisor // 2) // divisor rounds half up; with divisor 5 there are no ties.
+        image = ((image.astype(np.uint32) + divisor // 2) // divisor).astype(np.uint16)
+    return image
+
+
+def read_color(path: Path, encoding: str) -> np.ndarray:
+    """Read a colour image as (H, W, 3) uint8 in ``encoding`` ('bgr8' or 'rgb8')."""
+    if not path.is_file():
+        raise ConvertError(f'{path}: colour image not found')
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if image is None:
+        raise ConvertError(f'{path}: cannot read colour image')
+    if encoding == 'rgb8':
+        image = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+    return image
+
+
+def warn(text: str) -> None:
+    """Print a warning line on stderr (a default chosen, a frame left out, ...)."""
+    print(f'WARNING: {text}', file=sys.stderr)

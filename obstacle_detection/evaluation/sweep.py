@@ -1,0 +1,213 @@
+"""The parameter sweep's grid search: score every setting of a grid, pick the best, print it.
+
+A sweep has an x axis, optionally a y axis and further ``also`` axes (a full grid); every
+setting is applied on top of a base DetectorParams and scored on already-rendered labelled
+frames (``runner.evaluate_frames``). A setting the parameters refuse is NaN in the grids.
+The command line is ``tools/sweep.py``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+
+from . import runner as evaluation
+from obstacle_detection.pipeline.params import DetectorParams
+
+#: metric name -> (confusion kind, score attribute, higher is better)
+METRICS: dict[str, tuple[str, str, bool]] = {
+    'cell_f1': ('cell', 'f1', True),
+    'cell_iou': ('cell', 'iou', True),
+    'cell_precision': ('cell', 'precision', True),
+    'cell_recall': ('cell', 'recall', True),
+    'cell_false_alarm': ('cell', 'false_alarm_rate', False),
+    'pixel_f1': ('pixel', 'f1', True),
+    'pixel_precision': ('pixel', 'precision', True),
+    'pixel_recall': ('pixel', 'recall', True),
+    'pixel_false_alarm': ('pixel', 'false_alarm_rate', False),
+}
+
+
+@dataclass(frozen=True)
+class Axis:
+    """One sweep axis: a parameter name (as typed) and its values (as typed)."""
+
+    name: str
+    values: tuple[str, ...]
+
+
+def parse_axis(text: str) -> Axis:
+    """``name=v1,v2,...`` -> Axis (argparse type)."""
+    name, sep, values = text.partition('=')
+    items = tuple(v.strip() for v in values.split(',') if v.strip())
+    if not sep or not name.strip() or not items:
+        raise argparse.ArgumentTypeError(f'expected name=v1,v2,..., got {text!r}')
+    for value in items:
+        try:
+            float(value)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f'{name}: {value!r} is not a number') from None
+    return Axis(name.strip(), items)
+
+
+def best_of_grid(scores: np.ndarray, *, higher_is_better: bool = True,
+                 ) -> tuple[int, ...] | None:
+    """Index of the best finite score of a grid (2-D: (row, col)).
+
+    Ties go to the first in row-major order; None when no score is finite.
+    """
+    grid = np.asarray(scores, dtype=np.float64)
+    if grid.ndim < 1:
+        raise ValueError(f'scores must be a grid, got shape {grid.shape}')
+    finite = np.isfinite(grid)
+    if not finite.any():
+        return None
+    fill = -np.inf if higher_is_better else np.inf
+    masked = np.where(finite, grid, fill)
+    flat = int(np.argmax(masked) if higher_is_better else np.argmin(masked))
+    return tuple(int(i) for i in np.unravel_index(flat, grid.shape))
+
+
+def project(scores: np.ndarray, *, higher_is_better: bool = True) -> np.ndarray:
+    """(ny, nx): the best score over the axes after the first two (NaN where all are NaN)."""
+    grid = np.asarray(scores, dtype=np.float64)
+    if grid.ndim == 2:
+        return grid
+    flat = grid.reshape(grid.shape[0], grid.shape[1], -1)
+    fill = -np.inf if higher_is_better else np.inf
+    masked = np.where(np.isfinite(flat), flat, fill)
+    best = masked.max(axis=2) if higher_is_better else masked.min(axis=2)
+    return np.where(np.isfinite(best), best, np.nan)
+
+
+@dataclass
+class SweepResult:
+    """Scores of every setting: ``grids[scene]`` (ny, nx, *extra) float, NaN = invalid setting.
+
+    Axis order: rows = y (one row when there is no y axis), columns = x, then the ``also``
+    axes of a full grid. false_alarms[scene]: the false-alarm rate of the metric's kind (pixel
+    or cell) per setting; positives[scene]: obstacle pixels/cells in the truth. A scene without
+    any (an empty floor) has no meaningful F1 or recall, so it is ranked by its false-alarm rate.
+    """
+
+    x: Axis
+    y: Axis | None
+    metric: str
+    grids: dict[str, np.ndarray]
+    false_alarms: dict[str, np.ndarray] = field(default_factory=dict)
+    positives: dict[str, int] = field(default_factory=dict)
+    also: tuple[Axis, ...] = ()
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        """Grid shape (ny, nx, *extra)."""
+        return grid_shape(self.x, self.y, self.also)
+
+    def ranking(self, scene: str) -> tuple[np.ndarray, str, bool]:
+        """(grid, metric name, higher is better) used to rank the settings of one scene."""
+        kind, attr, higher = METRICS[self.metric]
+        if self.positives.get(scene, 1) == 0 and attr != 'false_alarm_rate':
+            return self.false_alarms[scene], f'{kind}_false_alarm', False
+        return self.grids[scene], self.metric, higher
+
+    def setting(self, *index: int) -> dict[str, str]:
+        """Return the parameter values of grid cell ``index`` = (row, col, *extra)."""
+        return setting_of(self.x, self.y, self.also, tuple(index))
+
+    def best(self, scene: str) -> tuple[int, ...] | None:
+        """Index (row, col, *extra) of the best setting of one scene ('overall' included)."""
+        grid, _, higher = self.ranking(scene)
+        return best_of_grid(grid, higher_is_better=higher)
+
+
+def grid_shape(x: Axis, y: Axis | None, also: Sequence[Axis] = ()) -> tuple[int, ...]:
+    """(ny, nx, *extra) of a sweep; ny = 1 without a y axis."""
+    return (len(y.values) if y is not None else 1, len(x.values),
+            *(len(a.values) for a in also))
+
+
+def setting_of(x: Axis, y: Axis | None, also: Sequence[Axis], index: tuple[int, ...],
+               ) -> dict[str, str]:
+    """``{name: value}`` of grid cell ``index`` = (row, col, *extra)."""
+    out = {x.name: x.values[index[1]]}
+    if y is not None:
+        out[y.name] = y.values[index[0]]
+    for axis, k in zip(also, index[2:]):
+        out[axis.name] = axis.values[k]
+    return out
+
+
+def settings_params(base: DetectorParams, x: Axis, y: Axis | None, *index: int,
+                    also: Sequence[Axis] = ()) -> DetectorParams:
+    """Return ``base`` with grid cell ``index``'s setting applied (ValueError when invalid)."""
+    return evaluation.apply_overrides(base, setting_of(x, y, also, tuple(index)))
+
+
+def run_sweep(frames: Sequence[evaluation.LabelledFrame], base: DetectorParams, x: Axis,
+              y: Axis | None, metric: str = 'cell_f1', *, also: Sequence[Axis] = (),
+              log: Any = None) -> SweepResult:
+    """Evaluate every setting of the grid on ``frames`` (already rendered)."""
+    if metric not in METRICS:
+        raise ValueError(f'unknown metric {metric!r}; known: {", ".join(METRICS)}')
+    kind, attr, _ = METRICS[metric]
+    also = tuple(also)
+    names = [x.name] + ([y.name] if y is not None else []) + [a.name for a in also]
+    if len(set(names)) != len(names):
+        raise ValueError(f'an axis is given twice: {", ".join(names)}')
+    shape = grid_shape(x, y, also)
+    total = int(np.prod(shape))
+    scenes = list(dict.fromkeys(f.scenario for f in frames)) + ['overall']
+    grids = {s: np.full(shape, np.nan) for s in scenes}
+    false_alarms = {s: np.full(shape, np.nan) for s in scenes}
+    positives: dict[str, int] = {}
+    for i, index in enumerate(np.ndindex(*shape), start=1):
+        label = ' '.join(f'{k}={v}' for k, v in setting_of(x, y, also, index).items())
+        started = time.perf_counter()
+        try:
+            params = settings_params(base, x, y, *index, also=also)
+        except ValueError as exc:
+            if log:
+                log(f'[{i}/{total}] {label}: invalid ({exc})')
+            continue
+        report = evaluation.evaluate_frames(frames, params)
+        for name, summary in [*report.scenes.items(), ('overall', report.overall)]:
+            confusion = getattr(summary, kind)
+            grids[name][index] = getattr(confusion, attr)
+            false_alarms[name][index] = confusion.false_alarm_rate
+            positives[name] = confusion.tp + confusion.fn
+        if log:
+            log(f'[{i}/{total}] {label}: {metric} '
+                f'{evaluation.format_score(grids["overall"][index])} '
+                f'({time.perf_counter() - started:.1f} s)')
+    return SweepResult(x, y, metric, grids, false_alarms, positives, also)
+
+
+def format_grid(result: SweepResult, scene: str) -> str:
+    """Return the grid of one scene as text: rows = y values, columns = x values; best marked '*'.
+
+    With ``also`` axes each cell shows the best score over them.
+    """
+    grid, metric, higher = result.ranking(scene)
+    flat = project(grid, higher_is_better=higher)
+    best = result.best(scene)
+    y_name = result.y.name if result.y is not None else ''
+    y_values = result.y.values if result.y is not None else ('',)
+    width = max(8, *(len(v) + 2 for v in result.x.values))
+    first = max(len(y_name), *(len(v) for v in y_values), len(result.x.name) + 3) + 1
+    title = f'{scene}: {metric}'
+    if result.also:
+        title += f' (best over {", ".join(a.name for a in result.also)})'
+    lines = [title,
+             f'{y_name + " / " + result.x.name if y_name else result.x.name:<{first}}'
+             + ''.join(f'{v:>{width}}' for v in result.x.values)]
+    for row, y_value in enumerate(y_values):
+        cells = []
+        for col in range(len(result.x.values)):
+            mark = '*' if best is not None and best[:2] == (row, col) else ' '
+            cells.append(f'{evaluation.format_score(flat[row, col]) + mark:>{width}}')
+        lines.append(f'{y_value:<{first}}' + ''.join(cells))
+    return '\n'.join(lines)

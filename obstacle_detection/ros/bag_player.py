@@ -1,0 +1,283 @@
+"""Replay a rosbag2 bag on a ROS 2 graph: the player behind ``tools/bag_play.py`` and the demo.
+
+A :class:`Player` publishes every message of the chosen topics of a bag with its recorded
+timing (scaled by ``rate``), reliable or best effort, optionally looping, from a node the caller
+owns; :class:`PlayStats` counts what was published.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import math
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+from rosbags.rosbag2 import Reader, ReaderError
+
+from obstacle_detection.cli import support as tool_support
+from obstacle_detection.cli.progress import Progress
+
+#: How long to sleep at most between checks for a stop request [s].
+_POLL_S = 0.05
+
+
+class PlayError(Exception):
+    """The bag or the options cannot be played; the message names the bag or topic."""
+
+
+class PlayUsageError(PlayError):
+    """An option value that cannot work whatever the bag (exit 2, as argparse)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class PlayOptions:
+    """How to play a bag.
+
+    topics: topics to publish (empty: all). rate: speed factor (2.0 = twice as fast).
+    loops: how many times to play (0 = until stopped). start_offset_s: skip this much of the
+    bag's start [s]. reliable: reliable QoS instead of sensor data. remap: bag topic -> published
+    topic. wait_for_subscribers: wait until this many subscriptions (summed over the played
+    topics) are matched, at most wait_timeout_s [s].
+    """
+
+    topics: tuple[str, ...] = ()
+    rate: float = 1.0
+    loops: int = 1
+    start_offset_s: float = 0.0
+    reliable: bool = False
+    remap: dict[str, str] = dataclasses.field(default_factory=dict)
+    wait_for_subscribers: int = 0
+    wait_timeout_s: float = 30.0
+    progress: bool = True
+
+    def __post_init__(self) -> None:
+        """Validate the values, naming the bad one."""
+        if not (math.isfinite(self.rate) and self.rate > 0):
+            raise PlayUsageError(f'--rate must be a positive factor, got {self.rate}')
+        if self.loops < 0:
+            raise PlayUsageError(f'--loops must be >= 0 (0 = until stopped), got {self.loops}')
+        if not (math.isfinite(self.start_offset_s) and self.start_offset_s >= 0):
+            raise PlayUsageError(f'--start-offset must be >= 0 s, got {self.start_offset_s}')
+        if self.wait_for_subscribers < 0:
+            raise PlayUsageError('--wait-for-subscribers must be >= 0, got '
+                            f'{self.wait_for_subscribers}')
+
+
+@dataclasses.dataclass
+class PlayStats:
+    """What was published: messages per published topic, loops played, wall time [s]."""
+
+    published: Counter[str] = dataclasses.field(default_factory=Counter)
+    loops: int = 0
+    wall_s: float = 0.0
+
+    def lines(self) -> list[str]:
+        """Return the summary as printable lines."""
+        total = sum(self.published.values())
+        out = [f'published {total} messages in {self.wall_s:.2f} s ({self.loops} loop(s))']
+        out.extend(f'  {topic}: {count}' for topic, count in sorted(self.published.items()))
+        return out
+
+
+def parse_remap(items: Sequence[str]) -> dict[str, str]:
+    """Parse ``old:=new`` strings into a mapping."""
+    remap = {}
+    for item in items:
+        old, sep, new = item.partition(':=')
+        if not sep or not old or not new:
+            raise PlayUsageError(f'--remap expects old:=new, got {item!r}')
+        remap[old] = new
+    return remap
+
+
+def message_class(msgtype: str) -> type:
+    """Return the rclpy message class for a bag type name like ``sensor_msgs/msg/Image``."""
+    package, _, name = msgtype.rpartition('/')
+    try:
+        return getattr(importlib.import_module(package.replace('/', '.')), name)
+    except (ImportError, AttributeError) as err:
+        raise PlayError(f'message type {msgtype} is not installed ({err})') from err
+
+
+def open_bag(bag: Path, options: PlayOptions) -> tuple[Reader, list[Any]]:
+    """Open ``bag`` and pick the connections to play; the caller closes the reader.
+
+    Raises:
+        PlayError: naming the bag when it is missing or unreadable, or lacks a topic.
+    """
+    try:
+        tool_support.check_bag_path(bag, ros1=False)
+    except tool_support.ToolError as err:
+        raise PlayError(str(err)) from err
+    try:
+        reader = Reader(bag)
+        reader.open()
+    except ReaderError as err:
+        raise PlayError(f'{bag}: cannot read bag ({err})') from err
+    try:
+        known = {c.topic for c in reader.connections}
+        if missing := sorted(set(options.topics) - known):
+            raise PlayError(f'{bag}: has no topic {", ".join(missing)} '
+                            f'(it has {", ".join(sorted(known))})')
+        connections = [c for c in reader.connections
+                       if not options.topics or c.topic in options.topics]
+        if unknown := sorted(set(options.remap) - {c.topic for c in connections}):
+            raise PlayError(f'{bag}: --remap of {", ".join(unknown)}, which is not played')
+        offset_ns = int(round(options.start_offset_s * 1e9))
+        if not any(c.msgcount for c in connections) or (
+                reader.start_time + offset_ns > reader.end_time):
+            raise PlayError(f'{bag}: no messages to play after {options.start_offset_s:g} s '
+                            f'(the bag lasts {(reader.end_time - reader.start_time) / 1e9:g} s)')
+    except BaseException:
+        reader.close()
+        raise
+    return reader, connections
+
+
+class Player:
+    """Publish a bag's messages from an existing rclpy node.
+
+    Messages are streamed from the bag (not loaded at once), in bag-timestamp order.
+    """
+
+    def __init__(self, node: Any, bag: Path, options: PlayOptions, *,
+                 opened: tuple[Reader, list[Any]] | None = None) -> None:
+        """Open the bag (unless ``opened`` by ``open_bag``) and create the publishers.
+
+        Raises:
+            PlayError: the bag cannot be read, a topic or type is unknown.
+        """
+        from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+
+        self.bag = bag
+        self.options = options
+        self.reader, self.connections = opened if opened is not None else open_bag(bag, options)
+        qos = (QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+               if options.reliable else qos_profile_sensor_data)
+        self.node = node
+        self.publishers: dict[tuple[str, str], Any] = {}
+        self.topic_of: dict[str, str] = {}
+        try:
+            for conn in self.connections:
+                topic = options.remap.get(conn.topic, conn.topic)
+                key = (topic, conn.msgtype)
+                if key not in self.publishers:
+                    self.publishers[key] = node.create_publisher(
+                        message_class(conn.msgtype), topic, qos)
+                self.topic_of[conn.topic] = topic
+        except BaseException:
+            self.close()
+            raise
+        self.start_ns = self.reader.start_time + int(round(options.start_offset_s * 1e9))
+        self.total = sum(c.msgcount for c in self.connections) if not options.start_offset_s \
+            else None
+
+    def close(self, ack_timeout_s: float = 3.0) -> None:
+        """Close the bag and destroy the publishers.
+
+        A reliable publisher first waits (at most ``ack_timeout_s`` in all) until its matched
+        subscriptions acknowledged what it sent: destroyed at once, the last messages, still
+        in its history, are lost (a replay that ends right after its last frame lost it).
+        """
+        from rclpy.duration import Duration
+
+        deadline = time.monotonic() + ack_timeout_s
+        for publisher in self.publishers.values():
+            left = deadline - time.monotonic()
+            if left > 0:
+                try:
+                    publisher.wait_for_all_acked(Duration(seconds=left))
+                except Exception:  # noqa: BLE001 - a context shut down: nothing to wait for
+                    pass
+            self.node.destroy_publisher(publisher)
+        self.publishers = {}
+        self.reader.close()
+
+    def subscription_count(self) -> int:
+        """Return matched subscriptions summed over the played topics."""
+        return sum(p.get_subscription_count() for p in self.publishers.values())
+
+    def wait_for_subscribers(self, stop: threading.Event | None = None) -> None:
+        """Block until ``options.wait_for_subscribers`` subscriptions are matched.
+
+        Raises:
+            PlayError: after ``options.wait_timeout_s`` without them.
+        """
+        want = self.options.wait_for_subscribers
+        deadline = time.monotonic() + self.options.wait_timeout_s
+        while self.subscription_count() < want:
+            if stop is not None and stop.is_set():
+                return
+            if time.monotonic() > deadline:
+                raise PlayError(f'{self.bag}: only {self.subscription_count()} of {want} '
+                                f'subscriptions matched after {self.options.wait_timeout_s:g} s')
+            time.sleep(_POLL_S)
+
+    def play(self, stop: threading.Event | None = None,
+             on_publish: Callable[[str, int], None] | None = None) -> PlayStats:
+        """Publish the messages with their recorded spacing; return what was published.
+
+        stop: set it (from another thread) to stop early. on_publish(topic, bag timestamp) is
+        called after each message.
+        """
+        stats = PlayStats()
+        began = time.monotonic()
+        loops = self.options.loops
+        total = self.total * loops if self.total and loops else None
+        gap_s = _loop_gap_s(self.connections, self.reader.duration)
+        bar = Progress(total, 'playing', stream=None if self.options.progress else _Null())
+        with bar:
+            while not loops or stats.loops < loops:
+                if stats.loops and not _sleep_until(
+                        time.monotonic() + gap_s / self.options.rate, stop):
+                    break  # keep one frame's spacing across the loop seam
+                loop_start = time.monotonic()
+                first_t = None
+                for conn, timestamp, raw in self.reader.messages(connections=self.connections,
+                                                                 start=self.start_ns):
+                    first_t = timestamp if first_t is None else first_t
+                    due = loop_start + (timestamp - first_t) / 1e9 / self.options.rate
+                    if not _sleep_until(due, stop):
+                        stats.wall_s = time.monotonic() - began
+                        return stats
+                    topic = self.topic_of[conn.topic]
+                    self.publishers[(topic, conn.msgtype)].publish(bytes(raw))
+                    stats.published[topic] += 1
+                    bar.update()
+                    if on_publish is not None:
+                        on_publish(topic, timestamp)
+                stats.loops += 1
+        stats.wall_s = time.monotonic() - began
+        return stats
+
+
+class _Null:
+    """A stream that drops everything (for a silent progress bar)."""
+
+    def write(self, text: str) -> int:
+        return len(text)
+
+    def flush(self) -> None:
+        pass
+
+
+def _loop_gap_s(connections: Sequence[Any], duration_ns: int) -> float:
+    """Mean spacing of the busiest topic [s], waited between the last and first when looping."""
+    most = max((c.msgcount for c in connections), default=0)
+    return duration_ns / 1e9 / (most - 1) if most > 1 else 0.0
+
+
+def _sleep_until(due: float, stop: threading.Event | None) -> bool:
+    """Sleep until monotonic time ``due``; False if ``stop`` was set meanwhile."""
+    while True:
+        if stop is not None and stop.is_set():
+            return False
+        left = due - time.monotonic()
+        if left <= 0:
+            return True
+        time.sleep(min(left, _POLL_S))

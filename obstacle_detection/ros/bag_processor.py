@@ -1,0 +1,326 @@
+"""Run the detector over a whole rosbag2 bag offline (behind ``tools/bag_process.py``).
+
+No DDS: every depth frame of the bag passes the node's frame gate (``frame_gate``) and
+pipeline (``config.build_config`` from the node's parameter files), paired with the latest
+CameraInfo recorded at or before it; the output bag holds every input message plus the node's
+outputs per processed frame, stamped like the depth image. Skipped frames are counted with the
+reason the node would give.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import statistics
+from collections import Counter
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from rclpy.serialization import deserialize_message, serialize_message
+from rosbags.rosbag2 import Reader, ReaderError, Writer, WriterError
+from rosbags.typesys import Stores, get_typestore
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image
+
+from obstacle_detection.cli import support as tool_support
+from obstacle_detection.ros.compressed_depth import (COMPRESSED_IMAGE_TYPE,
+                                                 raw_topic)
+from obstacle_detection.ros.conversions import result_to_messages
+from obstacle_detection.viz.overlay import render_overlay
+from obstacle_detection.ros import frame_gate
+from obstacle_detection.ros.config import NodeConfig, build_config
+from obstacle_detection.ros.frame_gate import CameraState
+from obstacle_detection.ros.parameters import (ALL_PARAMS, ParamsFileError,
+                                           read_params_files)
+from obstacle_detection.evaluation.datasets import ConvertError
+from obstacle_detection.ros.bag_writer import (BAG_VERSION, DEFAULT_DEPTH_TOPIC,
+                                               STORAGES, staged_output)
+from obstacle_detection.cli.progress import Progress
+
+DEFAULT_NAMESPACE = '/obstacles'
+#: result_to_messages key -> (topic below the namespace, message type).
+OUTPUTS = {
+    'obstacles': ('points', 'sensor_msgs/msg/PointCloud2'),
+    'costmap': ('costmap', 'nav_msgs/msg/OccupancyGrid'),
+    'ground': ('ground_points', 'sensor_msgs/msg/PointCloud2'),
+    'overlay': ('overlay', 'sensor_msgs/msg/Image'),
+}
+#: Message types a depth topic may have -> rclpy class.
+DEPTH_TYPES = {tool_support.IMAGE_TYPE: Image, COMPRESSED_IMAGE_TYPE: CompressedImage}
+
+
+class ProcessError(Exception):
+    """Bad input, parameters or output; the message names the file."""
+
+
+def load_params_file(path: Path | Sequence[Path]) -> dict[str, Any]:
+    """All node parameter values: defaults updated with one or more ``--params-file`` YAMLs.
+
+    Several files are merged in order, as ROS does (a later file wins for a parameter both
+    set). See :func:`obstacle_detection.ros.parameters.read_params_file` for the format.
+
+    Raises:
+        ProcessError: naming the file and the parameter.
+    """
+    values: dict[str, Any] = {spec.name: spec.default for spec in ALL_PARAMS}
+    paths = [path] if isinstance(path, (str, Path)) else list(path)
+    try:
+        values.update(read_params_files(paths))
+    except ParamsFileError as err:
+        raise ProcessError(str(err)) from err
+    return values
+
+
+def config_from_values(values: Mapping[str, Any], origin: str) -> NodeConfig:
+    """Return the node's configuration (detector, frames, switches) from parameter values."""
+    try:
+        return build_config(dict(values))
+    except ValueError as err:
+        raise ProcessError(f'{origin}: {err}') from err
+
+
+@dataclasses.dataclass
+class FrameReport:
+    """One processed (or skipped) depth frame."""
+
+    index: int
+    stamp_ns: int
+    obstacle_points: int = 0
+    timings_ms: dict[str, float] = dataclasses.field(default_factory=dict)
+    skipped: str | None = None
+
+
+@dataclasses.dataclass
+class ProcessSummary:
+    """What an offline run did."""
+
+    output: Path
+    frames: int = 0
+    processed: int = 0
+    skipped: Counter[str] = dataclasses.field(default_factory=Counter)
+    total_ms: list[float] = dataclasses.field(default_factory=list)
+    wall_s: float = 0.0
+    topics: dict[str, int] = dataclasses.field(default_factory=dict)
+    info_topic: str | None = None
+    info_how: str = ''
+    depth: str = ''
+    mount: str = ''
+    mount_warning: str | None = None
+    notes: list[str] = dataclasses.field(default_factory=list)
+
+    def lines(self) -> list[str]:
+        """Return the summary as printable lines."""
+        out = [f'wrote {self.output}', *([f'  depth: {self.depth}'] if self.depth else []),
+               f'  intrinsics: CameraInfo on {self.info_topic} ({self.info_how})'
+               if self.info_topic else f'  intrinsics: none recorded ({self.info_how})',
+               f'  camera mount: {self.mount}',
+               f'  depth frames: {self.frames}, processed {self.processed}, '
+               f'skipped {sum(self.skipped.values())}']
+        out.extend(f'    skipped {count}: {reason}' for reason, count in self.skipped.items())
+        if self.mount_warning:
+            out.append(f'  warning: {self.mount_warning}')
+        out.extend(f'  note: {note}' for note in self.notes)
+        if self.total_ms:
+            rate = self.processed / self.wall_s if self.wall_s > 0 else 0.0
+            out.append(f'  pipeline time per frame: mean {statistics.fmean(self.total_ms):.1f} ms,'
+                       f' median {statistics.median(self.total_ms):.1f} ms, '
+                       f'max {max(self.total_ms):.1f} ms; {rate:.1f} frames/s overall '
+                       f'({self.wall_s:.2f} s)')
+        out.extend(f'  {topic}: {count} messages' for topic, count in self.topics.items())
+        return out
+
+
+def _time_msg(stamp: Any) -> Any:
+    from builtin_interfaces.msg import Time
+    return Time(sec=int(stamp.sec), nanosec=int(stamp.nanosec))
+
+
+def process_frame(depth: Image | CompressedImage, camera: CameraState | None,
+                  config: NodeConfig, *, with_ground: bool, with_overlay: bool
+                  ) -> tuple[dict[str, Any] | None, Any, str, str | None]:
+    """Run one depth message (raw or compressed) through the node's gate and pipeline.
+
+    ``camera``: the latest CameraInfo recorded before the frame (None: none yet). Returns
+    (messages from result_to_messages, the DetectionResult, '', a note when the fallback
+    intrinsics were used) or (None, None, the reason the node would skip the frame, None).
+    """
+    array = frame_gate.decode(depth)
+    if isinstance(array, frame_gate.Skip):
+        return None, None, array.reason, None
+    verdict = frame_gate.choose_intrinsics(
+        camera, array.shape, use_fallback=config.use_fallback_intrinsics,
+        fallback=config.fallback_intrinsics, no_camera='no camera info recorded before the frame')
+    if verdict.skip is not None:
+        return None, None, verdict.skip.reason, None
+    skip = frame_gate.check_depth(array, depth)
+    if skip is not None:
+        return None, None, skip.reason, None
+    try:
+        result = config.detector.process(array, verdict.intrinsics)
+    except ValueError as err:
+        return None, None, str(err), None
+    messages = result_to_messages(
+        result, stamp=depth.header.stamp, cloud_frame_id=config.cloud_frame_id,
+        costmap_frame_id=config.costmap_frame_id, image_frame_id=depth.header.frame_id,
+        with_ground=with_ground,
+        overlay_rgb=render_overlay(result.depth_m, result.labels) if with_overlay else None)
+    return messages, result, '', verdict.note
+
+
+def _grouped_by_timestamp(messages: Iterator[tuple[Any, int, bytes]], info_topic: str
+                          ) -> Iterator[tuple[Any, int, bytes]]:
+    """Messages in bag order, camera infos first among those with the same timestamp."""
+    group: list[tuple[Any, int, bytes]] = []
+    for item in messages:
+        if group and item[1] != group[0][1]:
+            yield from sorted(group, key=lambda m: m[0].topic != info_topic)
+            group = []
+        group.append(item)
+    yield from sorted(group, key=lambda m: m[0].topic != info_topic)
+
+
+def process_bag(src: Path, output: Path, config: NodeConfig, *,
+                depth_topic: str = DEFAULT_DEPTH_TOPIC, info_topic: str | None = None,
+                namespace: str = DEFAULT_NAMESPACE, with_ground: bool = False,
+                with_overlay: bool = False, storage: str = 'sqlite3', progress: bool = True,
+                on_frame: Callable[[FrameReport], None] | None = None,
+                mount_origin: str = 'the parameters') -> ProcessSummary:
+    """Process every depth frame of ``src`` and write inputs + outputs to ``output``.
+
+    depth_topic: a ``sensor_msgs/Image`` or ``sensor_msgs/CompressedImage`` topic (decoded by
+    ``compressed_depth``). info_topic: the depth's CameraInfo topic; None finds it by type
+    (``tool_support.choose_info_topic``: the default topic, else the CameraInfo topic beside
+    the depth topic, or beside its raw topic for a ``.../compressed(Depth)`` one, else the
+    only one). The summary says which was used, and which camera
+    mount (from ``mount_origin``); the floor of the first processed frame is compared with that
+    mount (``tool_support.check_mount``) and a disagreement is a warning on stderr and in the
+    summary.
+
+    Raises:
+        ProcessError: naming the bag when it cannot be read or written, lacks the depth topic,
+            or the output exists. Nothing is left at ``output`` then.
+    """
+    import time
+
+    try:
+        tool_support.check_bag_path(src, ros1=False)
+    except tool_support.ToolError as err:
+        raise ProcessError(str(err)) from err
+    namespace = '/' + namespace.strip('/') if namespace.strip('/') else ''
+    summary = ProcessSummary(output=output)
+    summary.mount = f'{tool_support.mount_text(config.detector.params)} ({mount_origin})'
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    wanted = ['obstacles', 'costmap'] + (['ground'] if with_ground else []) + (
+        ['overlay'] if with_overlay else [])
+    began = time.perf_counter()
+    try:
+        with Reader(src) as reader:
+            topics = {c.topic: c.msgtype for c in reader.connections}
+            kinds = ' or '.join(DEPTH_TYPES)
+            if depth_topic not in topics:
+                images = sorted(t for t, m in topics.items() if m in DEPTH_TYPES)
+                raise ProcessError(f'{src}: no depth topic {depth_topic} (its {kinds} topics: '
+                                   f'{", ".join(images) or "none"}; use --depth-topic)')
+            if topics[depth_topic] not in DEPTH_TYPES:
+                raise ProcessError(f'{src}: {depth_topic} has type {topics[depth_topic]}, '
+                                   f'not {kinds}')
+            depth_class = DEPTH_TYPES[topics[depth_topic]]
+            summary.depth = f'{depth_topic} ({topics[depth_topic]}' + (
+                ', decoded by compressed_depth)' if depth_class is CompressedImage else ')')
+            try:
+                info_topic, how = tool_support.choose_info_topic(topics, raw_topic(depth_topic),
+                                                                 info_topic)
+            except ValueError as err:
+                raise ProcessError(f'{src}: {err}') from err
+            summary.info_topic = info_topic
+            summary.info_how = how
+            outputs = {key: namespace + '/' + OUTPUTS[key][0] for key in wanted}
+            if clash := sorted(set(outputs.values()) & set(topics)):
+                raise ProcessError(f'{src}: already has {", ".join(clash)}; choose another '
+                                   '--namespace')
+            n_depth = sum(c.msgcount for c in reader.connections if c.topic == depth_topic)
+            with staged_output(output) as staging, \
+                    Writer(staging, version=BAG_VERSION, storage_plugin=STORAGES[storage]) \
+                    as writer:
+                copies = {}
+                for conn in reader.connections:
+                    # Keep the recorded definition; older bags lack the hash: take Jazzy's.
+                    known = bool(conn.msgdef.data and conn.digest)
+                    copies[conn.id] = writer.add_connection(
+                        conn.topic, conn.msgtype,
+                        msgdef=conn.msgdef.data if known else None,
+                        rihs01=conn.digest if known else None,
+                        typestore=None if known else typestore,
+                        serialization_format=getattr(conn.ext, 'serialization_format', 'cdr'),
+                        offered_qos_profiles=getattr(conn.ext, 'offered_qos_profiles', ()))
+                out_conns = {key: writer.add_connection(outputs[key], OUTPUTS[key][1],
+                                                        typestore=typestore) for key in wanted}
+                counts: Counter[str] = Counter()
+                camera: CameraState | None = None
+                bar = Progress(n_depth, 'processing', stream=None if progress else io.StringIO())
+                with bar:
+                    for conn, timestamp, raw in _grouped_by_timestamp(reader.messages(),
+                                                                      info_topic):
+                        writer.write(copies[conn.id], timestamp, raw)
+                        counts[conn.topic] += 1
+                        if conn.topic == info_topic:
+                            camera = CameraState.from_camera_info(
+                                deserialize_message(bytes(raw), CameraInfo))
+                            continue
+                        if conn.topic != depth_topic:
+                            continue
+                        depth = deserialize_message(bytes(raw), depth_class)
+                        report = FrameReport(summary.frames, timestamp)
+                        summary.frames += 1
+                        messages, result, reason, note = process_frame(
+                            depth, camera, config, with_ground=with_ground,
+                            with_overlay=with_overlay)
+                        if note is not None and note not in summary.notes:
+                            summary.notes.append(note)
+                        if messages is None:
+                            report.skipped = reason
+                            summary.skipped[reason] += 1
+                        else:
+                            for key in wanted:
+                                writer.write(out_conns[key], timestamp,
+                                             serialize_message(messages[key]))
+                                counts[outputs[key]] += 1
+                            if summary.processed == 0:
+                                _check_first_mount(result, config, summary)
+                            report.obstacle_points = int(result.obstacle_points.shape[0])
+                            report.timings_ms = dict(result.timings_ms)
+                            summary.processed += 1
+                            summary.total_ms.append(result.timings_ms.get('total', 0.0))
+                        bar.update()
+                        if on_frame is not None:
+                            on_frame(report)
+    except ConvertError as err:
+        raise ProcessError(str(err)) from err
+    except ReaderError as err:
+        raise ProcessError(f'{src}: cannot read bag ({err})') from err
+    except WriterError as err:
+        raise ProcessError(f'{output}: cannot write bag ({err})') from err
+    summary.wall_s = time.perf_counter() - began
+    summary.topics = dict(sorted(counts.items()))
+    return summary
+
+
+def _check_first_mount(result: Any, config: NodeConfig, summary: ProcessSummary) -> None:
+    """Compare the floor of the first processed frame with the mount; warn on stderr."""
+    check = tool_support.check_mount(
+        result.depth_m, result.intrinsics, config.detector.params,
+        fix='a --params-file setting camera_height_m, camera_pitch_deg and camera_roll_deg '
+            '(tools/estimate_mount.py --params-out writes one from a depth frame)')
+    if check.warning:
+        summary.mount_warning = f'first frame: {check.warning}'
+        tool_support.warn(summary.mount_warning)
+
+
+def format_report(report: FrameReport) -> str:
+    """One line of per-frame timing."""
+    stamp = f'{report.stamp_ns // 1_000_000_000}.{report.stamp_ns % 1_000_000_000:09d}'
+    if report.skipped:
+        return f'frame {report.index:5d} @ {stamp}: skipped ({report.skipped})'
+    stages = ' '.join(f'{k}={v:.1f}' for k, v in report.timings_ms.items() if k != 'total')
+    return (f'frame {report.index:5d} @ {stamp}: {report.obstacle_points:6d} obstacle points, '
+            f'{report.timings_ms.get("total", 0.0):6.1f} ms ({stages})')

@@ -1,0 +1,381 @@
+"""Write rosbag2 bags: dataset frames on the Kinect v2 driver's topics, or a ROS 1 bag.
+
+:func:`write_frames` writes a :class:`~obstacle_detection.evaluation.datasets.FrameSource` (per
+frame a 16UC1 depth ``Image`` [mm], its ``CameraInfo``, the colour ``Image`` and odometry when
+given, each with the frame's stamp as header stamp and bag timestamp); :func:`convert_ros1`
+converts a ROS 1 bag message by message. Both write into a temporary sibling folder renamed when
+complete (:func:`staged_output`), so a failed run leaves nothing behind. The command line is
+``tools/bag_convert.py``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import io
+import math
+import shutil
+from collections import Counter
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from builtin_interfaces.msg import Time
+from rclpy.serialization import serialize_message
+from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
+from rosbags.typesys import Stores, get_typestore
+
+from obstacle_detection.cli import support as tool_support
+from obstacle_detection.ros.compressed_depth import (COMPRESSED_IMAGE_TYPE,
+                                                 CompressedDepthError,
+                                                 compressed_depth_to_array, parse_format,
+                                                 raw_topic)
+from obstacle_detection.ros.conversions import array_to_image, intrinsics_to_camera_info
+from obstacle_detection.pipeline.params import Intrinsics
+from obstacle_detection.cli.progress import Progress
+from obstacle_detection.evaluation.datasets import (ConvertError, FrameSource, default_intrinsics,
+                                                 read_color, read_depth_png, warn)
+
+# The one set of default topic names of every tool (tool_support), kept here under their names.
+DEFAULT_DEPTH_TOPIC = tool_support.DEFAULT_DEPTH_TOPIC
+DEFAULT_INFO_TOPIC = tool_support.DEFAULT_INFO_TOPIC
+DEFAULT_COLOR_TOPIC = tool_support.DEFAULT_COLOR_TOPIC
+DEFAULT_FRAME_ID = 'kinect2_ir_optical_frame'
+#: Odometry of frames that carry a pose (nav_msgs/Odometry, base_footprint in odom).
+DEFAULT_ODOM_TOPIC = '/odom'
+BAG_VERSION = 9
+STORAGES = {'sqlite3': StoragePlugin.SQLITE3, 'mcap': StoragePlugin.MCAP}
+
+
+@dataclasses.dataclass(frozen=True)
+class BagOptions:
+    """Where and how frames are written."""
+
+    storage: str = 'sqlite3'
+    depth_topic: str = DEFAULT_DEPTH_TOPIC
+    info_topic: str = DEFAULT_INFO_TOPIC
+    color_topic: str = DEFAULT_COLOR_TOPIC
+    frame_id: str = DEFAULT_FRAME_ID
+    color_encoding: str = 'bgr8'
+    odom_topic: str = DEFAULT_ODOM_TOPIC
+    with_color: bool = True
+    progress: bool = True
+
+
+@dataclasses.dataclass
+class Summary:
+    """What a conversion wrote."""
+
+    output: Path
+    frames: int = 0
+    color_frames: int = 0
+    messages: int = 0
+    duration_s: float = 0.0
+    size: tuple[int, int] | None = None
+    intrinsics: Intrinsics | None = None
+    dropped: Counter[str] = dataclasses.field(default_factory=Counter)
+    topics: dict[str, int] = dataclasses.field(default_factory=dict)
+    notes: list[str] = dataclasses.field(default_factory=list)
+
+    def lines(self) -> list[str]:
+        """Return the summary as printable lines."""
+        out = [f'wrote {self.output}']
+        if self.size is None:  # a bag conversion: no frames of our own
+            out.append(f'  {self.messages} messages; duration {self.duration_s:.3f} s')
+        else:
+            out.append(f'  frames: {self.frames} depth ({self.size[0]}x{self.size[1]}, 16UC1 mm), '
+                       f'{self.color_frames} with colour; duration {self.duration_s:.3f} s')
+        if self.intrinsics is not None:
+            i = self.intrinsics
+            out.append(f'  intrinsics: fx={i.fx:g} fy={i.fy:g} cx={i.cx:g} cy={i.cy:g}')
+        for topic, count in self.topics.items():
+            out.append(f'  {topic}: {count} messages')
+        if self.size is not None:
+            out.append(f'  dropped pairs: {sum(self.dropped.values())}')
+            out.extend(f'    {count}: {reason}' for reason, count in self.dropped.items())
+        out.extend(f'  note: {note}' for note in self.notes)
+        return out
+
+
+def to_time(ns: int) -> Time:
+    """Integer nanoseconds to a ``builtin_interfaces/Time``."""
+    sec, nanosec = divmod(int(ns), 1_000_000_000)
+    return Time(sec=sec, nanosec=nanosec)
+
+
+@contextlib.contextmanager
+def staged_output(output: Path) -> Iterator[Path]:
+    """Yield a temporary path beside ``output``; rename it to ``output`` on success.
+
+    On any error the temporary folder is removed, so no half-written bag is left.
+    """
+    if output.exists() or output.is_symlink():
+        raise ConvertError(f'{output}: output already exists; remove it or choose another name')
+    parent = output.parent
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        staging = parent / f'.{output.name}.partial'
+        if staging.exists():
+            shutil.rmtree(staging)
+        staging.mkdir()
+    except OSError as err:
+        raise ConvertError(f'{parent}: cannot create the output ({err.strerror})') from err
+    try:
+        yield staging / output.name
+        if output.exists():
+            raise ConvertError(f'{output}: appeared while converting; not overwriting it')
+        (staging / output.name).rename(output)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+
+
+class FrameBagWriter:
+    """Write depth, camera-info and colour messages of frames to an open rosbag2 Writer."""
+
+    def __init__(self, writer: Writer, options: BagOptions, *, color: bool,
+                 odometry: bool = False) -> None:
+        """Add the connections (color, odometry: whether those topics are wanted)."""
+        typestore = get_typestore(Stores.ROS2_JAZZY)
+        self.options = options
+        self.depth = writer.add_connection(options.depth_topic, 'sensor_msgs/msg/Image',
+                                           typestore=typestore)
+        self.info = writer.add_connection(options.info_topic, 'sensor_msgs/msg/CameraInfo',
+                                          typestore=typestore)
+        self.color = (writer.add_connection(options.color_topic, 'sensor_msgs/msg/Image',
+                                            typestore=typestore) if color else None)
+        self.odom = (writer.add_connection(options.odom_topic, 'nav_msgs/msg/Odometry',
+                                           typestore=typestore) if odometry else None)
+        self.writer = writer
+
+    def write_odometry(self, stamp: int, pose: tuple[float, float, float]) -> int:
+        """Write the base pose in odom at bag time ``stamp`` [ns]; return 1 (or 0: no topic)."""
+        if self.odom is None:
+            return 0
+        from nav_msgs.msg import Odometry
+
+        msg = Odometry()
+        msg.header.stamp = to_time(stamp)
+        msg.header.frame_id = 'odom'
+        msg.child_frame_id = 'base_footprint'
+        msg.pose.pose.position.x, msg.pose.pose.position.y = float(pose[0]), float(pose[1])
+        msg.pose.pose.orientation.z = math.sin(pose[2] / 2.0)
+        msg.pose.pose.orientation.w = math.cos(pose[2] / 2.0)
+        self.writer.write(self.odom, stamp, serialize_message(msg))
+        return 1
+
+    def write(self, stamp: int, depth_mm: np.ndarray, intr: Intrinsics,
+              color: np.ndarray | None) -> int:
+        """Write one frame at bag time ``stamp`` [ns]; return the number of messages."""
+        time = to_time(stamp)
+        frame_id = self.options.frame_id
+        height, width = depth_mm.shape
+        depth_msg = array_to_image(depth_mm, stamp=time, frame_id=frame_id, encoding='16UC1')
+        info_msg = intrinsics_to_camera_info(intr, width, height, stamp=time, frame_id=frame_id)
+        self.writer.write(self.info, stamp, serialize_message(info_msg))
+        self.writer.write(self.depth, stamp, serialize_message(depth_msg))
+        if color is None or self.color is None:
+            return 2
+        color_msg = array_to_image(color, stamp=time, frame_id=frame_id,
+                                   encoding=self.options.color_encoding)
+        self.writer.write(self.color, stamp, serialize_message(color_msg))
+        return 3
+
+
+def write_frames(source: FrameSource, output: Path, options: BagOptions) -> Summary:
+    """Write the frames of ``source`` as a rosbag2 at ``output``.
+
+    Raises:
+        ConvertError: naming the file for an unreadable or wrong-format image, a size change,
+            intrinsics that do not fit the images, or an existing output. Nothing is left at
+            ``output`` then.
+    """
+    if not source.frames:
+        raise ConvertError(f'{output}: no frames to write')
+    first = source.frames[0].depth_path
+    first_depth = read_depth_png(first, divisor=source.depth_divisor)
+    size = (first_depth.shape[1], first_depth.shape[0])
+    if source.size is not None and source.size != size:
+        raise ConvertError(f'{source.intrinsics_origin.removeprefix("from ")}: intrinsics are '
+                           f'for {source.size[0]}x{source.size[1]} images but {first} is '
+                           f'{size[0]}x{size[1]}')
+    intr, origin = source.intrinsics, source.intrinsics_origin
+    if intr is None:
+        intr, origin = default_intrinsics(source.default_view, size)
+        warn(f'no intrinsics given (--intrinsics FILE): using {origin}, fx={intr.fx:.2f} '
+              f'fy={intr.fy:.2f} cx={intr.cx:.2f} cy={intr.cy:.2f}. Obstacle positions are '
+              'only as right as these values.')
+    with_color = options.with_color and any(f.color_path is not None for f in source.frames)
+    summary = Summary(output=output, size=size, intrinsics=intr, dropped=source.dropped.copy(),
+                      notes=[*source.notes, f'intrinsics: {origin}'])
+    with staged_output(output) as staging:
+        try:
+            with Writer(staging, version=BAG_VERSION,
+                        storage_plugin=STORAGES[options.storage]) as writer:
+                with_odometry = any(f.pose is not None for f in source.frames)
+                frame_writer = FrameBagWriter(writer, options, color=with_color,
+                                              odometry=with_odometry)
+                bar = Progress(len(source.frames), 'converting',
+                               stream=None if options.progress else io.StringIO())
+                with bar:
+                    for k, frame in enumerate(source.frames):
+                        depth = first_depth if k == 0 else read_depth_png(
+                            frame.depth_path, divisor=source.depth_divisor)
+                        if depth.shape != first_depth.shape:
+                            raise ConvertError(
+                                f'{frame.depth_path}: {depth.shape[1]}x{depth.shape[0]} but '
+                                f'the first depth image {first} is {size[0]}x{size[1]}')
+                        color = None
+                        if with_color and frame.color_path is not None:
+                            color = read_color(frame.color_path, options.color_encoding)
+                            summary.color_frames += 1
+                        if frame.pose is not None:
+                            summary.messages += frame_writer.write_odometry(frame.stamp_ns,
+                                                                            frame.pose)
+                            summary.topics[options.odom_topic] = (
+                                summary.topics.get(options.odom_topic, 0) + 1)
+                        summary.messages += frame_writer.write(frame.stamp_ns, depth, intr, color)
+                        summary.frames += 1
+                        bar.update()
+        except WriterError as err:
+            raise ConvertError(f'{output}: cannot write bag ({err})') from err
+    summary.topics = {options.depth_topic: summary.frames, options.info_topic: summary.frames,
+                      **summary.topics}
+    if with_color:
+        summary.topics[options.color_topic] = summary.color_frames
+    stamps = [f.stamp_ns for f in source.frames]
+    summary.duration_s = (max(stamps) - min(stamps)) / 1e9
+    if with_color and summary.color_frames and (
+            read_color(next(f.color_path for f in source.frames if f.color_path),
+                       'bgr8').shape[:2] != first_depth.shape):
+        summary.notes.append('colour images differ in size from depth: the colour topic is not '
+                             'registered to the depth image')
+    return summary
+
+
+def convert_ros1(src: Path, output: Path, *, storage: str = 'sqlite3',
+                 topics: Sequence[str] = (), progress: bool = True,
+                 decompress_depth: bool = False) -> Summary:
+    """Convert a ROS 1 bag to rosbag2, every message to its ROS 2 Jazzy type.
+
+    Topics, bag timestamps, header stamps, frame ids and data are kept; ROS 1 only fields
+    (``Header.seq``) are dropped and renamed fields (``CameraInfo.D`` -> ``d``) carried over.
+    A CompressedImage topic whose first message's format names a depth encoding
+    (``compressed_depth.parse_format``) is compressed depth: named in the summary's notes and,
+    with ``decompress_depth``, decoded and written as ``sensor_msgs/Image`` on its raw topic
+    (``raw_topic``); a frame that cannot be decoded is left out, counted in the notes and
+    warned about.
+
+    Raises:
+        ConvertError: naming the bag: unreadable, not ROS 1, no such topic, or (with
+            ``decompress_depth``) a raw topic that is recorded too.
+    """
+    # Imported here: only this conversion needs them.
+    from rosbags.convert.converter import create_connections_converters
+    from rosbags.highlevel import AnyReader, AnyReaderError
+
+    if not src.is_file():
+        raise ConvertError(f'{src}: ROS 1 bag not found')
+    summary = Summary(output=output)
+    noetic = get_typestore(Stores.ROS1_NOETIC)
+    jazzy = get_typestore(Stores.ROS2_JAZZY)
+    with staged_output(output) as staging:
+        try:
+            with AnyReader([src], default_typestore=noetic) as reader:
+                if reader.is2:
+                    raise ConvertError(f'{src}: not a ROS 1 bag (expected a .bag file)')
+                connections = [c for c in reader.connections if not topics or c.topic in topics]
+                if missing := sorted(set(topics) - {c.topic for c in reader.connections}):
+                    raise ConvertError(f'{src}: has no topic {", ".join(missing)}')
+                if not connections:
+                    raise ConvertError(f'{src}: contains no messages')
+                depth = _compressed_depth_topics(reader, connections, noetic)
+                for topic, fmt in sorted(depth.items()):
+                    summary.notes.append(
+                        f'{topic}: compressed depth ({fmt!r}); '
+                        + (f'decoded to sensor_msgs/Image on {raw_topic(topic)}'
+                           if decompress_depth else
+                           f'bag_process.py --depth-topic {topic} reads it (or convert with '
+                           '--decompress-depth)'))
+                decoded = set(depth) if decompress_depth else set()
+                targets = Counter(raw_topic(t) for t in decoded)
+                if clash := sorted(t for t, n in targets.items() if n > 1 or t in (
+                        {c.topic for c in connections} - decoded)):
+                    raise ConvertError(
+                        f'{src}: {", ".join(clash)} would be written twice by '
+                        '--decompress-depth (recorded raw too, or from two compressed topics); '
+                        'choose one with --topics')
+                total = sum(c.msgcount for c in connections)
+                with Writer(staging, version=BAG_VERSION,
+                            storage_plugin=STORAGES[storage]) as writer:
+                    kept = [c for c in connections if c.topic not in decoded]
+                    # rosbags prints which types it migrates; keep stdout for our summary.
+                    with contextlib.redirect_stdout(io.StringIO()):
+                        connmap, convmap = create_connections_converters(
+                            kept, jazzy, reader, writer) if kept else ({}, {})
+                    raw_conns = {t: writer.add_connection(raw_topic(t), tool_support.IMAGE_TYPE,
+                                                          typestore=jazzy)
+                                 for t in sorted(decoded)}
+                    counts: Counter[str] = Counter()
+                    failed: Counter[tuple[str, str]] = Counter()
+                    with Progress(total, 'converting',
+                                  stream=None if progress else io.StringIO()) as bar:
+                        for conn, timestamp, data in reader.messages(connections=connections):
+                            bar.update()
+                            if conn.topic in decoded:
+                                image, reason = _decoded_depth(data, noetic)
+                                if image is None:
+                                    failed[(conn.topic, reason)] += 1
+                                    continue
+                                writer.write(raw_conns[conn.topic], timestamp, image)
+                                counts[raw_topic(conn.topic)] += 1
+                                continue
+                            writer.write(connmap[(conn.id, conn.owner)], timestamp,
+                                         convmap[conn.msgtype](data))
+                            counts[conn.topic] += 1
+                summary.duration_s = (reader.end_time - reader.start_time) / 1e9
+        except AnyReaderError as err:
+            raise ConvertError(f'{src}: cannot read ROS 1 bag ({err})') from err
+        except WriterError as err:
+            raise ConvertError(f'{output}: cannot write bag ({err})') from err
+    for (topic, reason), count in sorted(failed.items()):
+        note = f'{count} frame(s) of {topic} not decoded, left out: {reason}'
+        summary.notes.append(note)
+        warn(note)
+    summary.topics = dict(sorted(counts.items()))
+    summary.messages = sum(counts.values())
+    summary.frames = max(counts.values(), default=0)
+    return summary
+
+
+def _compressed_depth_topics(reader: Any, connections: Sequence[Any],
+                             typestore: Any) -> dict[str, str]:
+    """Map each CompressedImage topic holding depth to its first message's format."""
+    found: dict[str, str] = {}
+    for conn in connections:
+        if conn.msgtype != COMPRESSED_IMAGE_TYPE or conn.msgcount == 0 or conn.topic in found:
+            continue
+        _, _, data = next(iter(reader.messages(connections=[conn])))
+        fmt = str(typestore.deserialize_ros1(data, COMPRESSED_IMAGE_TYPE).format)
+        try:
+            parse_format(fmt)
+        except CompressedDepthError:
+            continue  # colour (jpeg, png of bgr8, ...): not depth
+        found[conn.topic] = fmt
+    return found
+
+
+def _decoded_depth(data: bytes, typestore: Any) -> tuple[bytes | None, str]:
+    """Decode one ROS 1 CompressedImage of depth into a serialized ROS 2 Image, or say why not."""
+    msg = typestore.deserialize_ros1(data, COMPRESSED_IMAGE_TYPE)
+    try:
+        array = compressed_depth_to_array(msg)
+        encoding = parse_format(msg.format)[0]
+    except CompressedDepthError as err:
+        return None, str(err)
+    stamp = Time(sec=int(msg.header.stamp.sec), nanosec=int(msg.header.stamp.nanosec))
+    image = array_to_image(array, stamp=stamp, frame_id=str(msg.header.frame_id),
+                           encoding=encoding)
+    return serialize_message(image), ''
+
+

@@ -1,0 +1,155 @@
+"""The checks a depth frame passes before the pipeline sees it: one gate for node and bag tools.
+
+The node (``DetectorNode.handle_frame``) and the offline processor (``tools/bag_process.py``)
+run every depth message through the same three steps, in this order, so a frame gives the same
+outputs, or is skipped for the same reason, in both:
+
+1. :func:`decode`: the encoding is one the pipeline takes (raw ``Image``) and the message
+   decodes into a depth array (raw or compressed, ``compressed_depth``);
+2. :func:`choose_intrinsics`: the frame's CameraInfo (a :class:`CameraState`) is usable and
+   has the frame's size; without one, the fallback intrinsics serve when allowed, and saying so
+   is part of the answer (``Verdict.note``), never silent;
+3. :func:`check_depth`: the frame holds valid depth, in a plausible range.
+
+Which CameraInfo belongs to a frame is the caller's: the node matches stamps among those it
+received, the bag tool takes the latest recorded before the frame. A refusal is a :class:`Skip`:
+``kind`` is the key the node throttles warnings by (the text without its numbers), ``reason``
+the sentence both print. No rclpy here.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from obstacle_detection.pipeline.params import Intrinsics
+
+from .compressed_depth import compressed_depth_to_array, is_compressed_image
+from .conversions import (DEPTH_ENCODINGS, ImageFormatError, camera_info_to_intrinsics,
+                          depth_problem, image_to_array, intrinsics_problem)
+
+
+@dataclass(frozen=True)
+class Skip:
+    """Why a frame is not processed: a throttling key and the sentence to print."""
+
+    kind: str
+    reason: str
+
+
+@dataclass(frozen=True)
+class CameraState:
+    """One CameraInfo: its stamp, image size and intrinsics, or why it is unusable."""
+
+    width: int
+    height: int
+    intrinsics: Intrinsics | None
+    error: str | None
+    stamp_ns: int = 0
+
+    @classmethod
+    def from_camera_info(cls, msg: Any) -> CameraState:
+        """Read a sensor_msgs/CameraInfo: K as intrinsics, refused when implausible."""
+        width, height = int(msg.width), int(msg.height)
+        try:
+            intrinsics, error = camera_info_to_intrinsics(msg), None
+            error = intrinsics_problem(intrinsics, width, height)
+        except ValueError as exc:
+            intrinsics, error = None, str(exc)
+        return cls(width, height, intrinsics if error is None else None, error,
+                   stamp_ns(msg.header.stamp))
+
+    def same_camera(self, other: CameraState) -> bool:
+        """Whether two CameraInfos describe the same camera (size, intrinsics, error)."""
+        return ((self.width, self.height, self.intrinsics, self.error)
+                == (other.width, other.height, other.intrinsics, other.error))
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """The intrinsics a frame uses, or why it is skipped; ``note`` says a fallback was used."""
+
+    intrinsics: Intrinsics | None = None
+    skip: Skip | None = None
+    note: str | None = None
+
+
+def stamp_ns(stamp: Any) -> int:
+    """Return a builtin_interfaces/Time as integer nanoseconds."""
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def problem_kind(prefix: str, text: str) -> str:
+    """Return the throttling key of a problem: its text without the numbers.
+
+    Each kind of problem is throttled on its own; the same problem with other values is not
+    repeated within the throttle period.
+    """
+    return f'{prefix}:{re.sub(r"[-+]?[0-9][0-9.e+-]*", "#", text)}'
+
+
+def depth_format(msg: Any) -> str:
+    """Describe a depth message's format for a warning."""
+    if is_compressed_image(msg):
+        return f'CompressedImage format {msg.format!r}'
+    return f'encoding {msg.encoding!r}, is_bigendian={bool(msg.is_bigendian)}'
+
+
+def has_valid_depth(depth: np.ndarray) -> bool:
+    """Whether any pixel holds a depth (> 0 and, for float depth, finite)."""
+    if depth.dtype.kind == 'f':
+        return bool(np.any(np.isfinite(depth) & (depth > 0.0)))
+    return bool(np.any(depth > 0))
+
+
+def decode(msg: Any) -> np.ndarray | Skip:
+    """Return the depth array of a raw or compressed depth message, or why not (a Skip)."""
+    compressed = is_compressed_image(msg)
+    if not compressed and msg.encoding not in DEPTH_ENCODINGS:
+        return Skip('encoding', f'unsupported encoding {msg.encoding!r} (expected '
+                                f'{", ".join(DEPTH_ENCODINGS)})')
+    try:
+        return compressed_depth_to_array(msg) if compressed else image_to_array(msg)
+    except ImageFormatError as error:
+        return Skip('compressed' if compressed else 'layout', str(error))
+
+
+def fallback_note(fallback: Intrinsics) -> str:
+    """Return the sentence saying the fallback intrinsics are used."""
+    return ('no CameraInfo yet: using the fallback intrinsics fx='
+            f'{fallback.fx:g} fy={fallback.fy:g} cx={fallback.cx:g} cy={fallback.cy:g}')
+
+
+def choose_intrinsics(camera: CameraState | None, shape: tuple[int, ...], *,
+                      use_fallback: bool, fallback: Intrinsics, no_camera: str) -> Verdict:
+    """Choose the intrinsics of a frame of ``shape`` (H, W, ...) from its CameraInfo.
+
+    ``camera`` None: no CameraInfo yet.
+
+    ``no_camera`` is the reason printed when there is no CameraInfo and no fallback allowed.
+    """
+    if camera is None:
+        if use_fallback:
+            return Verdict(fallback, note=fallback_note(fallback))
+        return Verdict(skip=Skip('no_camera_info', no_camera))
+    if camera.intrinsics is None:
+        return Verdict(skip=Skip(problem_kind('camera_info', str(camera.error)),
+                                 str(camera.error)))
+    height, width = shape[:2]
+    if (camera.width, camera.height) != (width, height):
+        return Verdict(skip=Skip('size', f'image is {width}x{height} but CameraInfo is '
+                                         f'{camera.width}x{camera.height}'))
+    return Verdict(camera.intrinsics)
+
+
+def check_depth(depth: np.ndarray, msg: Any) -> Skip | None:
+    """Why a decoded frame's depth cannot be processed (none valid, implausible), or None."""
+    if not has_valid_depth(depth):
+        return Skip('no_depth', 'no valid depth pixel (every pixel is 0, NaN or inf)')
+    problem = depth_problem(depth)
+    if problem is not None:
+        return Skip(problem_kind('depth', problem), f'{problem} ({depth_format(msg)})')
+    return None

@@ -1,0 +1,102 @@
+"""The frame gate shared by the node and bag_process: each refusal and the fallback note."""
+
+from __future__ import annotations
+
+import numpy as np
+from builtin_interfaces.msg import Time
+
+from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE, Intrinsics
+from obstacle_detection.ros import frame_gate
+from obstacle_detection.ros.conversions import array_to_image, intrinsics_to_camera_info
+
+WIDTH, HEIGHT = KINECT_V2_SD_SIZE
+STAMP = Time(sec=3, nanosec=5)
+
+
+def _camera(width: int = WIDTH, height: int = HEIGHT,
+            intrinsics: Intrinsics = KINECT_V2_SD) -> frame_gate.CameraState:
+    info = intrinsics_to_camera_info(intrinsics, width, height, stamp=STAMP, frame_id='cam')
+    return frame_gate.CameraState.from_camera_info(info)
+
+
+def _choose(camera: frame_gate.CameraState | None, *, use_fallback: bool = False,
+            shape: tuple[int, int] = (HEIGHT, WIDTH)) -> frame_gate.Verdict:
+    return frame_gate.choose_intrinsics(camera, shape, use_fallback=use_fallback,
+                                        fallback=Intrinsics(100.0, 101.0, 50.0, 40.0),
+                                        no_camera='none here')
+
+
+def test_decode_returns_the_depth_of_a_raw_image() -> None:
+    depth = np.arange(12, dtype=np.uint16).reshape(3, 4)
+    decoded = frame_gate.decode(array_to_image(depth, stamp=STAMP, frame_id='cam'))
+    assert isinstance(decoded, np.ndarray)
+    np.testing.assert_array_equal(decoded, depth)
+
+
+def test_decode_refuses_a_colour_encoding() -> None:
+    colour = array_to_image(np.zeros((3, 4, 3), np.uint8), stamp=STAMP, frame_id='cam',
+                            encoding='rgb8')
+    skip = frame_gate.decode(colour)
+    assert isinstance(skip, frame_gate.Skip)
+    assert skip.kind == 'encoding' and "unsupported encoding 'rgb8'" in skip.reason
+
+
+def test_camera_info_gives_its_intrinsics_at_its_size() -> None:
+    camera = _camera()
+    assert camera.intrinsics == KINECT_V2_SD and camera.error is None
+    assert camera.stamp_ns == 3_000_000_005
+    verdict = _choose(camera)
+    assert verdict.intrinsics == KINECT_V2_SD and verdict.skip is None and verdict.note is None
+
+
+def test_a_frame_of_another_size_than_its_camera_info_is_skipped() -> None:
+    verdict = _choose(_camera(), shape=(HEIGHT // 2, WIDTH // 2))
+    assert verdict.intrinsics is None and verdict.skip.kind == 'size'
+    assert verdict.skip.reason == (f'image is {WIDTH // 2}x{HEIGHT // 2} but CameraInfo is '
+                                   f'{WIDTH}x{HEIGHT}')
+
+
+def test_an_implausible_camera_info_is_refused_with_its_problem() -> None:
+    camera = _camera(intrinsics=Intrinsics(1e9, 1e9, 256.0, 212.0))  # field of view ~0 deg
+    assert camera.intrinsics is None and camera.error
+    verdict = _choose(camera)
+    assert verdict.intrinsics is None and verdict.skip.reason == camera.error
+    assert verdict.skip.kind.startswith('camera_info:')
+
+
+def test_without_camera_info_the_fallback_is_used_and_said() -> None:
+    verdict = _choose(None, use_fallback=True)
+    assert verdict.intrinsics == Intrinsics(100.0, 101.0, 50.0, 40.0)
+    assert verdict.note == ('no CameraInfo yet: using the fallback intrinsics fx=100 fy=101 '
+                            'cx=50 cy=40')
+    refused = _choose(None, use_fallback=False)
+    assert refused.intrinsics is None and refused.note is None
+    assert refused.skip == frame_gate.Skip('no_camera_info', 'none here')
+
+
+def test_check_depth_refuses_a_frame_without_valid_depth() -> None:
+    msg = array_to_image(np.zeros((4, 4), np.float32), stamp=STAMP, frame_id='cam')
+    nan = np.full((4, 4), np.nan, np.float32)
+    assert frame_gate.check_depth(nan, msg).kind == 'no_depth'
+    assert frame_gate.check_depth(np.zeros((4, 4), np.uint16), msg).kind == 'no_depth'
+    good = np.full((4, 4), 1.5, np.float32)
+    assert frame_gate.check_depth(good, msg) is None
+
+
+def test_problem_kind_ignores_the_numbers() -> None:
+    assert frame_gate.problem_kind('depth', 'median 1500.0 m is implausible') == \
+        frame_gate.problem_kind('depth', 'median 2.5e3 m is implausible')
+
+
+def test_gate_and_bag_process_load_without_rclpy_or_the_node() -> None:
+    import subprocess
+    import sys
+
+    probe = ('import sys, obstacle_detection.ros.frame_gate, obstacle_detection.ros.config; '
+             "print('rclpy' in sys.modules); "
+             'import obstacle_detection.tools.bag_process; '
+             "print('obstacle_detection.ros.node' in sys.modules, 'rclpy.node' in sys.modules)")
+    done = subprocess.run([sys.executable, '-c', probe], capture_output=True, text=True,
+                          timeout=120, check=False)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ['False', 'False', 'False']
