@@ -26,13 +26,14 @@ if __package__ in (None, ''):  # run as a script: make the repository root impor
 
 import numpy as np  # noqa: E402
 
+from obstacle_detection.labels import LABEL_OBSTACLE  # noqa: E402
 from obstacle_detection.pipeline import geometry  # noqa: E402
 from obstacle_detection.pipeline.depth import decode_depth  # noqa: E402
 from obstacle_detection.evaluation.runner import apply_overrides, load_params_file  # noqa: E402
 from obstacle_detection.pipeline.mount import estimate_mount  # noqa: E402
 from obstacle_detection.pipeline.params import Intrinsics, corridor  # noqa: E402
 from obstacle_detection.viz.pictures import read_depth_png  # noqa: E402
-from obstacle_detection.pipeline.detector import LABEL_OBSTACLE, Detector  # noqa: E402
+from obstacle_detection.pipeline.detector import Detector  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 

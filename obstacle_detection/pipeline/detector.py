@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..labels import LABEL_GROUND, LABEL_OBSTACLE, LABEL_OUTSIDE_ROI
 from . import geometry, traversal
 from ._compiled import (knn as jit_knn, median as jit_median, traversal as jit_traversal,
                         voxel as jit_voxel)
@@ -25,11 +26,6 @@ from .floor import FloorFit, fit_floor, sample_rays
 from .normals import estimate_normals, nearest_neighbours, slope_obstacles, validate_obstacles
 from .params import SEED_TABLE_4_1, DetectorParams, Intrinsics
 from .voxel import voxel_downsample
-
-LABEL_NO_RETURN = 0    #: no depth (0, NaN, out of sensor range, cropped)
-LABEL_OUTSIDE_ROI = 1  #: a 3-D point outside the region of interest
-LABEL_GROUND = 2       #: in a voxel that passed the slope test (traversable)
-LABEL_OBSTACLE = 3     #: in a voxel that is a validated obstacle
 
 STAGES = ('decode', 'crop', 'median', 'smear', 'floor', 'back_project', 'voxel', 'knn',
           'normals', 'slope', 'traversal', 'drops', 'validation', 'costmap', 'labels')
