@@ -20,7 +20,8 @@ to millimetres by one compiled pass (:func:`quantised_keys`).
   networks as literals, is written once to a module file named by a digest (numba's cache
   directory, else ``__pycache__``), so numba caches it on disk like the other kernels: the
   first compilation takes about 1 s at K = 9, 3 s at K = 17, 8 s at K = 21 (2-4x that on a
-  busy machine), later processes load it in under a second (:func:`warm_up`).
+  busy machine), later processes load it in under a second
+  (:func:`obstacle_detection.pipeline.median.warm_up`).
 - Larger K: a small interpreter (:func:`_median_kernel`) runs fused compare-exchange
   instructions ``(lo, hi) = (min(a, b), max(a, b))`` on vectors of ``chunk`` pixels in a
   register file in memory (vectorised by the compiler); every instruction loads two vectors

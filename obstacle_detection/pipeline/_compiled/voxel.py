@@ -19,7 +19,8 @@ key order; one pass over the points then accumulates counts and sums. A lattice 
 ``_DENSE_LIMIT`` cells, or a point whose voxel index does not fit, falls back to numpy.
 
 The kernels are compiled on first use (a few seconds) and cached on disk (``cache=True``);
-call :func:`warm_up` at start-up to pay that before the first frame. They run on one thread.
+call :func:`obstacle_detection.pipeline.voxel.warm_up` at start-up to pay that before the first
+frame. They run on one thread.
 """
 
 from __future__ import annotations
