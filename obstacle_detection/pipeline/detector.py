@@ -17,7 +17,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..labels import LABEL_OBSTACLE
-from . import geometry, median, normals, traversal, voxel
+from . import geometry, median, traversal, voxel
+from . import normals as normals_stage   # a frame's local `normals` are vectors
 from ._compiled import traversal as jit_traversal
 from .costmap import Costmap, build_costmap
 from .depth import crop_borders, decode_depth
@@ -104,7 +105,7 @@ class Detector:
         """
         start = time.perf_counter()
         median.warm_up(self.params.median_kernel)
-        normals.warm_up()
+        normals_stage.warm_up()
         voxel.warm_up()
         jit_traversal.warm_up()
         return time.perf_counter() - start
