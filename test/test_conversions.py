@@ -11,6 +11,8 @@ from rclpy.serialization import deserialize_message, serialize_message
 from nav_msgs.msg import OccupancyGrid
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
 
+from obstacle_detection.labels import (CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN, LABEL_GROUND,
+                                       LABEL_OBSTACLE)
 from obstacle_detection.ros.conversions import (
     ImageFormatError,
     array_to_image,
@@ -26,10 +28,10 @@ from obstacle_detection.ros.conversions import (
     points_to_pointcloud2,
     result_to_messages,
 )
-from obstacle_detection.pipeline.costmap import CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN, Costmap
+from obstacle_detection.pipeline.costmap import Costmap
 from obstacle_detection.viz.overlay import OBSTACLE_RGB, render_overlay
 from obstacle_detection.pipeline.params import KINECT_V2_SD, Intrinsics
-from obstacle_detection.pipeline.detector import LABEL_GROUND, LABEL_OBSTACLE, DetectionResult
+from obstacle_detection.pipeline.detector import DetectionResult
 
 STAMP = Time(sec=1234, nanosec=567)
 RNG_SEED = 20240611

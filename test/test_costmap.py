@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from obstacle_detection.pipeline.costmap import (CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN,
-                                                 build_costmap, costmap_geometry)
+from obstacle_detection.labels import CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN
+from obstacle_detection.pipeline.costmap import build_costmap, costmap_geometry
 from obstacle_detection.pipeline.params import DetectorParams
 
 P = DetectorParams(costmap_resolution_m=0.1, costmap_length_m=2.0, costmap_width_m=1.0)

@@ -1,9 +1,8 @@
-"""Tests for obstacle_detection.pipeline.depth: decode, crop, exact median filter (vs. scipy).
+"""Tests of obstacle_detection.pipeline.depth (decode, crop) and .median (exact, vs. scipy).
 
 The median tests that take the ``median_path`` fixture run twice: through the compiled network
 of :mod:`obstacle_detection.pipeline._compiled.median` ('jit', skipped without numba) and
-through the numpy /
-OpenCV code (``OBSTACLE_DETECTION_NO_JIT=1``).
+through the numpy / OpenCV code (``OBSTACLE_DETECTION_NO_JIT=1``).
 """
 
 import warnings
@@ -13,15 +12,10 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from obstacle_detection.pipeline import depth
+from obstacle_detection.pipeline import depth, jit, median
 from obstacle_detection.pipeline._compiled import median as jit_median
-from obstacle_detection.pipeline.depth import (
-    MEDIAN_MODE,
-    DepthFormatError,
-    crop_borders,
-    decode_depth,
-    median_filter,
-)
+from obstacle_detection.pipeline.depth import DepthFormatError, crop_borders, decode_depth
+from obstacle_detection.pipeline.median import MEDIAN_MODE, median_filter
 from obstacle_detection.sim.scenes import render_scene
 
 ODD_K = list(range(1, 18, 2))
@@ -49,11 +43,11 @@ def median_path(request, monkeypatch) -> str:
     if request.param == 'jit':
         if not jit_median.AVAILABLE:
             pytest.skip('numba is not installed')
-        monkeypatch.delenv(jit_median.NO_JIT_ENV, raising=False)
-        assert jit_median.enabled()
+        monkeypatch.delenv(jit.NO_JIT_ENV, raising=False)
+        assert jit.enabled()
     else:
-        monkeypatch.setenv(jit_median.NO_JIT_ENV, '1')
-        assert not jit_median.enabled()
+        monkeypatch.setenv(jit.NO_JIT_ENV, '1')
+        assert not jit.enabled()
     return request.param
 
 
@@ -209,7 +203,7 @@ def test_median_network_path_directly(k) -> None:
                     rng.normal(0, 1, shape).astype(np.float32),
                     rng.normal(0, 1, shape),
                     rng.integers(-5, 5, shape).astype(np.int32)):
-            np.testing.assert_array_equal(depth._network_median(img, k), scipy_median(img, k))
+            np.testing.assert_array_equal(median._network_median(img, k), scipy_median(img, k))
 
 
 def test_median_float32_with_more_than_65536_distinct_values(median_path) -> None:
@@ -301,11 +295,11 @@ def test_median_decoded_frames_take_the_millimetre_key_path(median_path) -> None
     rng = np.random.default_rng(4)
     mm = depth_mm_image(rng, (30, 40))
     frame = decode_depth(mm)
-    keys, values = depth._order_keys(frame)
+    keys, values = median._order_keys(frame)
     np.testing.assert_array_equal(keys, mm)       # millimetres, not ranks
     np.testing.assert_array_equal(np.take(values, keys), frame)
     if median_path == 'numpy':
-        assert values is depth._depth_lut(depth.MM_PER_M, 'float32')
+        assert values is depth.depth_lut(depth.MM_PER_M, 'float32')
     tum = decode_depth(depth_mm_image(rng, (30, 40)), depth_scale=5000)  # rank path
     for k in (7, 11):
         np.testing.assert_array_equal(median_filter(tum, k), scipy_median(tum, k))
@@ -334,7 +328,7 @@ def test_median_kinect_frames_equal_scipy(name, k, median_path) -> None:
 def test_median_two_pass_runs_and_is_exact(name, k) -> None:
     """The coarse + fine 8-bit passes handle Kinect frames (no network fallback)."""
     keys = scene_mm(name)
-    out = depth._two_pass_median(keys, k)
+    out = median._two_pass_median(keys, k)
     assert out is not None and out.dtype == np.uint16 and out.flags.c_contiguous
     np.testing.assert_array_equal(out, scipy_median(keys, k))
 
@@ -369,7 +363,7 @@ def test_median_two_pass_depth_edges_and_steep_ramps() -> None:
     for base in (checker, ramp_x, np.minimum(ramp_y, 9000)):
         keys = np.clip(base + rng.normal(0, 12, base.shape), 0, 65535).astype(np.uint16)
         keys[rng.random(keys.shape) < 0.2] = 0
-        out = depth._two_pass_median(keys, 17)
+        out = median._two_pass_median(keys, 17)
         assert out is not None
         np.testing.assert_array_equal(out, scipy_median(keys, 17))
 
@@ -379,21 +373,21 @@ def test_median_two_pass_zero_level_resolution() -> None:
     rng = np.random.default_rng(12)
     keys = depth_mm_image(rng, (90, 120), 0.6)   # mostly zeros: many zero medians
     keys[0, 0] = 4000
-    np.testing.assert_array_equal(depth._two_pass_median(keys, 17), scipy_median(keys, 17))
+    np.testing.assert_array_equal(median._two_pass_median(keys, 17), scipy_median(keys, 17))
     keys[rng.random(keys.shape) < 0.05] = 7      # a key in the zero level: no shortcut
-    np.testing.assert_array_equal(depth._two_pass_median(keys, 17), scipy_median(keys, 17))
+    np.testing.assert_array_equal(median._two_pass_median(keys, 17), scipy_median(keys, 17))
     offset = np.where(keys == 0, 1000, keys + 1500).astype(np.uint16)   # lowest key 1000
-    np.testing.assert_array_equal(depth._two_pass_median(offset, 17),
+    np.testing.assert_array_equal(median._two_pass_median(offset, 17),
                                   scipy_median(offset, 17))
     flat = np.full((30, 40), 1234, np.uint16)     # one key value: no fine pass at all
-    np.testing.assert_array_equal(depth._two_pass_median(flat, 17), flat)
+    np.testing.assert_array_equal(median._two_pass_median(flat, 17), flat)
 
 
 def test_median_two_pass_falls_back_on_noise() -> None:
     """Full-range noise spans every 256-key group in every tile: the network takes over."""
     rng = np.random.default_rng(13)
     noise = rng.integers(0, 65536, (60, 80)).astype(np.uint16)
-    assert depth._two_pass_median(noise, 17) is None
+    assert median._two_pass_median(noise, 17) is None
     np.testing.assert_array_equal(median_filter(noise, 17), scipy_median(noise, 17))
 
 
@@ -409,21 +403,21 @@ def test_order_keys_accepts_any_rounding_of_millimetres(median_path) -> None:
     frame = render_scene('corridor')
     metres = frame.depth_m
     assert not np.array_equal(metres, decode_depth(frame.depth_mm))
-    keys, values = depth._order_keys(metres)
+    keys, values = median._order_keys(metres)
     np.testing.assert_array_equal(keys, frame.depth_mm)
     np.testing.assert_array_equal(np.take(values, keys), metres)
     tum = decode_depth(frame.depth_mm, depth_scale=5000)
-    keys, values = depth._order_keys(tum)
+    keys, values = median._order_keys(tum)
     np.testing.assert_array_equal(keys, frame.depth_mm)
     np.testing.assert_array_equal(np.take(values, keys), tum)
     if median_path == 'numpy':
-        assert values is depth._depth_lut(5000.0, 'float32')
+        assert values is depth.depth_lut(5000.0, 'float32')
 
 
 def test_order_keys_rejects_colliding_values(median_path) -> None:
     """Two values rounding to the same millimetre must not share a key (rank fallback)."""
     img = np.array([[1.0, 1.0002, 1.0004], [2.0, 0.0, 1.0001]], np.float32)
-    keys, values = depth._order_keys(img)
+    keys, values = median._order_keys(img)
     np.testing.assert_array_equal(np.take(values, keys), img)
     assert np.unique(keys).size == np.unique(img).size
     order = np.argsort(img, axis=None, kind='stable')
@@ -436,7 +430,7 @@ def test_median_two_pass_with_sparse_far_outliers() -> None:
     rng = np.random.default_rng(15)
     keys[rng.random(keys.shape) < 0.01] = 65535
     keys[100:160, 200:260] = 65535
-    out = depth._two_pass_median(keys, 17)
+    out = median._two_pass_median(keys, 17)
     assert out is not None
     np.testing.assert_array_equal(out, scipy_median(keys, 17))
 
@@ -456,7 +450,7 @@ def test_jit_median_kinect_frames_equal_scipy(name, k, monkeypatch) -> None:
     non-decreasing map, and the median of an odd count commutes with any such map, so scipy's
     median of the metres is the same map applied to its median of the millimetres.
     """
-    monkeypatch.delenv(jit_median.NO_JIT_ENV, raising=False)
+    monkeypatch.delenv(jit.NO_JIT_ENV, raising=False)
     frame = render_scene(name, seed=7)
     expected_mm = scipy_median(frame.depth_mm, k)
     out_mm = median_filter(frame.depth_mm, k)
@@ -471,7 +465,7 @@ def test_jit_median_kinect_frames_equal_scipy(name, k, monkeypatch) -> None:
 def test_jit_network_chunk_and_band_edges(k) -> None:
     """Widths around the 64-pixel lanes and 512-pixel chunks, heights around the bands."""
     rng = np.random.default_rng(k)
-    program = depth._jit_program(k)
+    program = median._jit_program(k)
     for h, w in [(1, 1), (1, 65), (3, 64), (4, 63), (5, 511), (9, 512), (17, 513), (6, 1100),
                  (33, 20), (2, 1030)]:
         for keys in (rng.integers(0, 65536, (h, w)).astype(np.uint16),
@@ -486,16 +480,16 @@ def test_jit_network_constant_and_extreme_keys() -> None:
     for value in (0, 1, 65535):
         keys = np.full((20, 30), value, np.uint16)
         np.testing.assert_array_equal(
-            jit_median.network_median(keys, depth._jit_program(9)), keys)
+            jit_median.network_median(keys, median._jit_program(9)), keys)
     keys = np.zeros((40, 50), np.uint16)
     keys[::2, ::3] = 65535
-    np.testing.assert_array_equal(jit_median.network_median(keys, depth._jit_program(7)),
+    np.testing.assert_array_equal(jit_median.network_median(keys, median._jit_program(7)),
                                   scipy_median(keys, 7))
 
 
 @needs_numba
 def test_jit_median_runs_for_k_7_to_31_only(monkeypatch) -> None:
-    monkeypatch.delenv(jit_median.NO_JIT_ENV, raising=False)
+    monkeypatch.delenv(jit.NO_JIT_ENV, raising=False)
     calls = []
     real = jit_median.network_median
 
@@ -508,26 +502,16 @@ def test_jit_median_runs_for_k_7_to_31_only(monkeypatch) -> None:
     for k in (3, 5, 7, 9, 17, 31, 33):
         np.testing.assert_array_equal(median_filter(keys, k), scipy_median(keys, k))
     assert calls == [7, 9, 17, 31]
-    monkeypatch.setenv(jit_median.NO_JIT_ENV, '1')
+    monkeypatch.setenv(jit.NO_JIT_ENV, '1')
     median_filter(keys, 9)
     assert calls == [7, 9, 17, 31]
 
 
-@pytest.mark.parametrize('value, on', [(None, True), ('', True), ('0', True), ('1', False),
-                                       ('yes', False)])
-def test_jit_enabled_follows_the_environment(value, on, monkeypatch) -> None:
-    if value is None:
-        monkeypatch.delenv(jit_median.NO_JIT_ENV, raising=False)
-    else:
-        monkeypatch.setenv(jit_median.NO_JIT_ENV, value)
-    assert jit_median.enabled() is (on and jit_median.AVAILABLE)
-
-
 def test_jit_warm_up(monkeypatch) -> None:
-    monkeypatch.setenv(jit_median.NO_JIT_ENV, '1')
-    assert jit_median.warm_up(17) == 0.0
-    monkeypatch.delenv(jit_median.NO_JIT_ENV)
-    seconds = jit_median.warm_up(17)
+    monkeypatch.setenv(jit.NO_JIT_ENV, '1')
+    assert median.warm_up(17) == 0.0
+    monkeypatch.delenv(jit.NO_JIT_ENV)
+    seconds = median.warm_up(17)
     assert seconds >= 0.0 and (seconds > 0.0) is jit_median.AVAILABLE
 
 
@@ -554,12 +538,12 @@ def test_jit_quantised_keys() -> None:
 @pytest.mark.parametrize('k', [3, 7, 9, 17, 21])
 def test_fused_network_code_never_writes_its_operands(k) -> None:
     """The compiled interpreter vectorises only when results do not overlap operands."""
-    program = depth._jit_program(k) if k >= 7 else None
+    program = median._jit_program(k) if k >= 7 else None
     r = k // 2
-    net, outputs = depth._tiled_network(k, 4, lambda c: [('run', c, i) for i in range(k)],
+    net, outputs = median._tiled_network(k, 4, lambda c: [('run', c, i) for i in range(k)],
                                         forget=True)
     leaves = [('run', c, i) for c in range(-r, 4 + r) for i in range(k)]
-    code, _, _ = depth._compile_fused(net, outputs, leaves)
+    code, _, _ = median._compile_fused(net, outputs, leaves)
     codes = [code] if program is None else [code, *program.code1, *program.code2]
     for c in codes:
         assert not ((c[:, :2, None] == c[:, None, 2:]) & (c[:, :2, None] >= 0)).any()
@@ -593,7 +577,7 @@ def test_jit_network_skipped_lanes_and_bands_are_exact(k, monkeypatch) -> None:
     """
     monkeypatch.setattr(jit_median, '_SKIP_MIN_FRACTION', 0.0)
     rng = np.random.default_rng(k)
-    program = depth._jit_program(k)
+    program = median._jit_program(k)
     h, w = 70, 1100                             # three row chunks of 384 lanes
     base = rng.integers(1000, 4500, (h, w)).astype(np.uint16)
     base[rng.random((h, w)) < 0.1] = 65535
@@ -628,7 +612,7 @@ def test_jit_lowest_key_count_only_when_it_can_pay() -> None:
     keys[:, :20] = 0                            # 33 % no return: medians 0 on the left
     fill, need = jit_median._known_lowest(keys, 7)
     assert fill == 0 and need.shape == (0, 0)
-    np.testing.assert_array_equal(jit_median.network_median(keys, depth._jit_program(7)),
+    np.testing.assert_array_equal(jit_median.network_median(keys, median._jit_program(7)),
                                   scipy_median(keys, 7))
     keys[:, :30] = 0                            # 50 %: counted
     assert jit_median._known_lowest(keys, 7)[1].shape == keys.shape
@@ -637,7 +621,7 @@ def test_jit_lowest_key_count_only_when_it_can_pay() -> None:
 @needs_numba
 def test_jit_median_mostly_no_return_frames(monkeypatch) -> None:
     """Float metres as the pipeline passes them: large no-return areas, K = 9 and 17."""
-    monkeypatch.delenv(jit_median.NO_JIT_ENV, raising=False)
+    monkeypatch.delenv(jit.NO_JIT_ENV, raising=False)
     frame = render_scene('ramps', seed=2)
     metres = frame.depth_m.copy()
     metres[:, 400:] = 0.0
@@ -659,7 +643,7 @@ def test_jit_in_register_kernel_equals_interpreter_and_scipy(k) -> None:
     the 8-row bands; full-range keys, ties, 65535 outliers, all-equal and all-zero windows.
     """
     rng = np.random.default_rng(100 + k)
-    program = depth._jit_program(k)
+    program = median._jit_program(k)
     assert program.tile == 8
     for h, w in [(1, 1), (2, 31), (7, 33), (8, 64), (9, 95), (17, 512), (3, 513), (25, 1100)]:
         full = rng.integers(0, 65536, (h, w)).astype(np.uint16)
@@ -690,16 +674,16 @@ def test_jit_in_register_kernel_runs_for_k_up_to_21(monkeypatch) -> None:
     monkeypatch.setattr(jit_median, 'register_kernel', spy)
     keys = np.random.default_rng(1).integers(0, 5000, (30, 70)).astype(np.uint16)
     for k in (7, jit_median.REGISTER_MAX_K, jit_median.REGISTER_MAX_K + 2):
-        out = jit_median.network_median(keys, depth._jit_program(k))
+        out = jit_median.network_median(keys, median._jit_program(k))
         np.testing.assert_array_equal(out, scipy_median(keys, k))
     assert calls == [7, jit_median.REGISTER_MAX_K]
 
 
 @needs_numba
 def test_jit_warm_up_compiles_the_in_register_kernel(monkeypatch) -> None:
-    monkeypatch.delenv(jit_median.NO_JIT_ENV, raising=False)
-    jit_median.warm_up(9)
-    kernel = jit_median.register_kernel(depth._jit_program(9))
+    monkeypatch.delenv(jit.NO_JIT_ENV, raising=False)
+    median.warm_up(9)
+    kernel = jit_median.register_kernel(median._jit_program(9))
     assert kernel.signatures        # compiled: the first frame does not pay for it
 
 
@@ -712,7 +696,7 @@ def test_jit_in_register_compile_failure_is_said_and_falls_back(monkeypatch) -> 
     monkeypatch.setattr(jit_median, 'register_kernel', broken)
     monkeypatch.setattr(jit_median, '_REGISTER_FAILED', [])
     keys = np.random.default_rng(2).integers(0, 5000, (20, 30)).astype(np.uint16)
-    program = depth._jit_program(9)
+    program = median._jit_program(9)
     with pytest.warns(RuntimeWarning, match='in-register median kernels failed'):
         out = jit_median.network_median(keys, program)
     np.testing.assert_array_equal(out, scipy_median(keys, 9))
@@ -730,7 +714,7 @@ def test_jit_in_register_kernel_source_is_written_for_the_disk_cache(tmp_path,
 
     With none, it is compiled in memory. Both give scipy's median.
     """
-    program = depth._jit_program(7)
+    program = median._jit_program(7)
     keys = np.random.default_rng(3).integers(0, 4000, (12, 50)).astype(np.uint16)
     keys[:, :30] = 0
     tables = jit_median._register_tables(program, 64)

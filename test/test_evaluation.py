@@ -7,9 +7,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from obstacle_detection.labels import (CELL_FREE, CELL_OCCUPIED, GT_ABOVE_ROBOT, GT_OBSTACLE,
+                                       LABEL_OBSTACLE)
 from obstacle_detection.evaluation import runner as evaluation, metrics
 from obstacle_detection.sim import scenes
-from obstacle_detection.evaluation.metrics import Confusion, GT_OBSTACLE
+from obstacle_detection.evaluation.metrics import Confusion
 from obstacle_detection.pipeline.params import table_4_2, table_4_3
 from obstacle_detection.tools import evaluate
 
@@ -91,7 +93,7 @@ def test_truth_grid_uses_the_costmap_binning():
     reference = metrics.truth_grid(obstacle, traversable, origin, params.costmap_resolution_m,
                                    (ny, nx))
     np.testing.assert_array_equal(grid, reference)
-    assert np.count_nonzero(grid == metrics.CELL_OCCUPIED) > 20
+    assert np.count_nonzero(grid == CELL_OCCUPIED) > 20
 
 
 def test_labelled_folder_round_trip(tmp_path):
@@ -127,7 +129,7 @@ class _RecordingRefiner:
 
     def predict_labels(self, result, previous_mask):
         self.previous.append(previous_mask)
-        return result.labels == metrics.LABEL_OBSTACLE
+        return result.labels == LABEL_OBSTACLE
 
 
 def test_sequence_frames_pass_the_previous_rule_based_mask():
@@ -231,7 +233,7 @@ def test_seed_suite_frames_carry_the_slope_only_truth():
     rendered = scenes.render_scene('corridor', seed=0, size=SMALL, intrinsics=frame.intrinsics)
     np.testing.assert_array_equal(frame.truth_labels, rendered.labels_seed)
     assert frame.truth == 'seed'
-    assert not (frame.truth_labels == metrics.GT_ABOVE_ROBOT).any()
+    assert not (frame.truth_labels == GT_ABOVE_ROBOT).any()
     robot = next(evaluation.scenario_frames(evaluation.Scenario('corridor', 'corridor'),
                                             size=SMALL, truth='robot'))
     np.testing.assert_array_equal(robot.truth_labels, rendered.labels)
@@ -252,12 +254,12 @@ def test_robot_truth_grid_marks_the_drop_edge_and_the_lower_floor():
     origin, nx, ny = costmap_geometry(params)
     x_edge = next(p.x_m for p in scenes.build_scene('dock_edge_high', seed=0).primitives)
     x_centres = origin[0] + (np.arange(nx) + 0.5) * params.costmap_resolution_m
-    occupied = grid == metrics.CELL_OCCUPIED
+    occupied = grid == CELL_OCCUPIED
     edge_col = int(np.floor((x_edge - 1e-3 - origin[0]) / params.costmap_resolution_m))
     assert occupied[:, edge_col].sum() > 10                         # where the floor ends
     assert occupied[:, x_centres > x_edge + 0.3].sum() > 50         # the lower floor, < TDBG
     assert not occupied[:, x_centres < x_edge - 0.1].any()          # the dock is free
-    assert (grid[:, x_centres < x_edge - 0.1] == metrics.CELL_FREE).sum() > 50
+    assert (grid[:, x_centres < x_edge - 0.1] == CELL_FREE).sum() > 50
 
 
 @pytest.mark.parametrize('name', ['office', 'ramp_landing', 'dock_edge', 'curb_sill'])
@@ -267,7 +269,7 @@ def test_robot_checks_of_a_perfect_and_of_a_blind_costmap(name):
     roi = evaluation.truth_roi(frame, params)
     truth = evaluation.truth_costmap(frame, params, roi)
     perfect = evaluation.robot_score(frame, truth, params, truth, roi)
-    blind = evaluation.robot_score(frame, np.full_like(truth, metrics.CELL_FREE), params,
+    blind = evaluation.robot_score(frame, np.full_like(truth, CELL_FREE), params,
                                    truth, roi)
     entries = perfect.objects + perfect.passable + perfect.drops
     assert entries
@@ -339,9 +341,9 @@ def test_robot_truth_leaves_the_gaps_of_a_grazing_underside_unscored():
     cols = slice(int((x0 - origin[0]) / res) + 1, int((x1 - origin[0]) / res) - 1)
     rows = slice(int((y0 - origin[1]) / res) + 1, int((y1 - origin[1]) / res) - 1)
     under = grid[rows, cols]
-    cols_sum = (under == metrics.CELL_OCCUPIED).any(axis=0)
+    cols_sum = (under == CELL_OCCUPIED).any(axis=0)
     assert 0 < cols_sum.sum() < cols_sum.size        # sampled rows only
-    assert not (under == metrics.CELL_FREE).all(axis=0).any()   # no column known free
+    assert not (under == CELL_FREE).all(axis=0).any()   # no column known free
 
 
 def test_truth_option_scores_the_seed_suite_at_robot_level(tmp_path, capsys):

@@ -5,7 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from obstacle_detection.pipeline.costmap import CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN, Costmap
+from obstacle_detection.labels import CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN
+from obstacle_detection.pipeline.costmap import Costmap
 from obstacle_detection.pipeline.fusion import (FusedGrid, FusionParams, PoseBuffer, compose_poses,
                                        frame_evidence, yaw_from_quaternion)
 

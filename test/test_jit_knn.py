@@ -5,7 +5,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from obstacle_detection.pipeline._compiled import knn as jit_knn
-from obstacle_detection.pipeline import normals
+from obstacle_detection.pipeline import jit, normals
 from obstacle_detection.pipeline.detector import Detector
 from obstacle_detection.sim.scenes import render_scene, scene_params
 
@@ -75,7 +75,7 @@ def scene_runs():
             frame = render_scene(name)
             detector = Detector(scene_params(frame))
             for flag in ('0', '1'):
-                mp.setenv(normals.NO_JIT_ENV, flag)
+                mp.setenv(jit.NO_JIT_ENV, flag)
                 runs[name, flag] = detector.process(frame.depth_mm, frame.intrinsics)
     finally:
         mp.undo()
@@ -197,13 +197,6 @@ def test_normals_reject_bad_neighbours():
         jit_knn.normals_from_neighbours(points, np.zeros((4, 2), np.int64), 3)
     with pytest.raises(ValueError, match='shape'):
         jit_knn.normals_from_neighbours(points, np.zeros((3, 2), np.int64), 2)
-
-
-def test_env_var_switches_to_numpy_path(monkeypatch):
-    monkeypatch.setenv(normals.NO_JIT_ENV, '1')
-    assert normals.use_jit() is False
-    monkeypatch.setenv(normals.NO_JIT_ENV, '0')
-    assert normals.use_jit() is True
 
 
 @pytest.mark.parametrize('name', PIPELINE_SCENES)

@@ -1,4 +1,8 @@
-"""Tests of the background compilation gate of jit_support (the node's cold start)."""
+"""Tests of the one compiled/numpy switch (pipeline.jit) and its background compilation gate.
+
+The gate matters for the node's cold start: while the kernels compile on one thread, every
+other thread runs the numpy path.
+"""
 
 from __future__ import annotations
 
@@ -8,8 +12,20 @@ import pytest
 
 from obstacle_detection.pipeline import jit as jit_support
 
-pytestmark = pytest.mark.skipif(not jit_support.enabled(),
-                                reason='numba is not installed or switched off')
+needs_compiled = pytest.mark.skipif(not jit_support.enabled(),
+                                    reason='numba is not installed or switched off')
+
+
+@pytest.mark.parametrize('value, on', [(None, True), ('', True), ('0', True), ('1', False),
+                                       ('yes', False)])
+def test_the_switch_follows_the_environment(value, on, monkeypatch) -> None:
+    """OBSTACLE_DETECTION_NO_JIT set to anything but '' or '0' turns the kernels off."""
+    if value is None:
+        monkeypatch.delenv(jit_support.NO_JIT_ENV, raising=False)
+    else:
+        monkeypatch.setenv(jit_support.NO_JIT_ENV, value)
+    assert jit_support.enabled() is (on and jit_support.AVAILABLE)
+    assert jit_support.switched_off() is not on
 
 
 @pytest.fixture
@@ -21,6 +37,7 @@ def fresh_gate(monkeypatch: pytest.MonkeyPatch) -> threading.Event:
     return gate
 
 
+@needs_compiled
 def test_other_threads_take_the_numpy_path_while_compiling(fresh_gate: threading.Event) -> None:
     release = threading.Event()
     seen_inside: list[bool] = []
@@ -46,6 +63,7 @@ def test_other_threads_take_the_numpy_path_while_compiling(fresh_gate: threading
     assert not jit_support.compiling()
 
 
+@needs_compiled
 def test_a_failed_compilation_keeps_the_numpy_path_and_says_why(
         fresh_gate: threading.Event) -> None:
     finished: list[jit_support.BackgroundCompile] = []
@@ -60,6 +78,7 @@ def test_a_failed_compilation_keeps_the_numpy_path_and_says_why(
     assert not jit_support.enabled()
 
 
+@needs_compiled
 def test_nothing_starts_when_the_compiled_path_is_switched_off(
         fresh_gate: threading.Event, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv(jit_support.NO_JIT_ENV, '1')

@@ -5,13 +5,15 @@ import math
 import numpy as np
 import pytest
 
-from obstacle_detection.pipeline import geometry
+from obstacle_detection.labels import LABEL_GROUND
+from obstacle_detection.pipeline import geometry, jit, voxel
 from obstacle_detection.pipeline._compiled import voxel as jit_voxel
-from obstacle_detection.pipeline.depth import crop_borders, decode_depth, median_filter
+from obstacle_detection.pipeline.depth import crop_borders, decode_depth
+from obstacle_detection.pipeline.median import median_filter
 from obstacle_detection.pipeline.params import DetectorParams, Intrinsics, table_4_2, table_4_3
 from obstacle_detection.pipeline.detector import Detector
 from obstacle_detection.sim.scenes import render_scene, scene_params
-from obstacle_detection.pipeline.voxel import voxel_downsample, voxel_downsample_numpy
+from obstacle_detection.pipeline.voxel import VoxelGrid, voxel_downsample, voxel_downsample_numpy
 
 pytestmark = pytest.mark.skipif(not jit_voxel.AVAILABLE, reason='numba is not installed')
 
@@ -25,25 +27,46 @@ def assert_same_grid(expected, got):
         np.testing.assert_array_equal(a, b, err_msg=name)
 
 
-def assert_same_frame(depth_m, rays, params):
+def project(depth_m, rays, params, reuse=False):
+    """Return the compiled projection of a frame, with the stage's float32 ROI bounds."""
+    return jit_voxel.project_roi(depth_m, rays, voxel.roi_bounds(params), params.voxel_size_m,
+                                 reuse=reuse)
+
+
+def assert_same_frame(depth_m, rays, params, monkeypatch):
     """Check numpy ROI + voxel_downsample == project_roi + voxelise, bit for bit."""
     pts, pix, valid = geometry.ground_points_in_roi(depth_m, rays, params)
     for reuse in (False, True):
-        proj = jit_voxel.project_roi(depth_m, rays, params, reuse=reuse)
+        proj = project(depth_m, rays, params, reuse=reuse)
         np.testing.assert_array_equal(proj.points, pts)
         assert proj.points.dtype == np.float32
         np.testing.assert_array_equal(proj.pixel_index, pix)
         flat = proj.labels.reshape(-1)
         np.testing.assert_array_equal(flat != 0, valid)
-        np.testing.assert_array_equal(np.flatnonzero(flat == 2), pix)
-        grid = jit_voxel.voxelise(proj)
+        np.testing.assert_array_equal(np.flatnonzero(flat == LABEL_GROUND), pix)
+        grid = voxel.voxelise(proj)
         expected = voxel_downsample_numpy(pts, params.voxel_size_m)
         assert_same_grid(expected, grid)
         pixel_voxel = np.full(depth_m.size, -1, np.int32)
         pixel_voxel[pix] = expected.point_voxel
         np.testing.assert_array_equal(proj.pixel_voxel.reshape(-1), pixel_voxel)
-    got = jit_voxel.ground_points_in_roi(depth_m, rays, params)
-    for a, b in zip((pts, pix, valid), got):
+    # The stage's two paths: same points, pixels, voxels and labels.
+    is_obstacle = np.arange(expected.counts.size) % 3 == 0
+    outputs = {}
+    for flag in ('0', '1'):
+        monkeypatch.setenv(jit.NO_JIT_ENV, flag)
+        roi = voxel.points_in_roi(depth_m, rays, params)
+        assert (roi.projection is not None) is (flag == '0')
+        grid = voxel.voxel_grid(roi)
+        outputs[flag] = (roi.points, roi.pixel_index, grid,
+                         *voxel.pixel_labels(roi, grid, is_obstacle))
+    monkeypatch.delenv(jit.NO_JIT_ENV)
+    compiled, numpy_path = outputs['0'], outputs['1']
+    for a, b in zip(compiled[:2], numpy_path[:2]):
+        np.testing.assert_array_equal(a, b)
+    assert_same_grid(numpy_path[2], compiled[2])
+    for a, b in zip(compiled[3:], numpy_path[3:]):
+        assert a.dtype == b.dtype
         np.testing.assert_array_equal(a, b)
     return pts.shape[0]
 
@@ -54,8 +77,7 @@ def test_voxel_downsample_matches_numpy_on_random_clouds(dtype):
     for n, spread, size in [(1, 1.0, (0.1, 0.1, 0.1)), (7, 0.05, (0.025,) * 3),
                             (5000, 2.0, (0.2, 0.25, 0.3)), (20000, 3.0, (0.025, 0.03, 0.05))]:
         pts = rng.uniform(-spread, spread, (n, 3)).astype(dtype)
-        got = jit_voxel.voxel_downsample(pts, size)
-        assert got is not None
+        got = VoxelGrid(*jit_voxel.voxel_downsample(pts, size))
         assert_same_grid(voxel_downsample_numpy(pts, size), got)
         assert_same_grid(voxel_downsample_numpy(pts, size), voxel_downsample(pts, size))
 
@@ -67,7 +89,8 @@ def test_voxel_downsample_points_on_voxel_boundaries():
                                steps * np.float32(0.1)), -1).reshape(-1, 3).astype(np.float32)
     pts = np.vstack([pts, np.nextafter(pts, np.float32(-np.inf)),
                      np.nextafter(pts, np.float32(np.inf))])
-    assert_same_grid(voxel_downsample_numpy(pts, size), jit_voxel.voxel_downsample(pts, size))
+    assert_same_grid(voxel_downsample_numpy(pts, size),
+                     VoxelGrid(*jit_voxel.voxel_downsample(pts, size)))
 
 
 def test_voxel_downsample_falls_back_when_the_lattice_is_huge_or_nan():
@@ -80,42 +103,42 @@ def test_voxel_downsample_falls_back_when_the_lattice_is_huge_or_nan():
 @pytest.mark.parametrize('preset', [table_4_2, table_4_3])
 @pytest.mark.parametrize('name', ['corridor', 'people', 'ramps', 'farm_row', 'step_down',
                                   'pitched_floor'])
-def test_scene_frames_match_numpy(name, preset):
+def test_scene_frames_match_numpy(name, preset, monkeypatch):
     frame = render_scene(name, seed=1)
     params = scene_params(frame, preset())
     depth = decode_depth(frame.depth_mm)
     if params.median_kernel > 1:
         depth = median_filter(depth, 5)
     rays = geometry.ground_rays(depth.shape, frame.intrinsics, params)
-    kept = assert_same_frame(depth, rays, params)
+    kept = assert_same_frame(depth, rays, params, monkeypatch)
     assert kept > 1000 or preset is table_4_3   # 4.3's 1 m range may see nothing
 
 
 @pytest.mark.parametrize('pitch_deg, roll_deg, crop', [(0.0, 0.0, (0, 0, 0, 0)),
                                                        (25.0, 4.0, (20, 30, 10, 40)),
                                                        (-5.0, -8.0, (0, 100, 60, 0))])
-def test_mount_and_crop_match_numpy(pitch_deg, roll_deg, crop):
+def test_mount_and_crop_match_numpy(pitch_deg, roll_deg, crop, monkeypatch):
     frame = render_scene('corridor', pitch_rad=math.radians(pitch_deg),
                          roll_rad=math.radians(roll_deg))
     params = scene_params(frame, table_4_2(crop_top_px=crop[0], crop_bottom_px=crop[1],
                                            crop_left_px=crop[2], crop_right_px=crop[3]))
     depth = crop_borders(decode_depth(frame.depth_mm), *crop)
     rays = geometry.ground_rays(depth.shape, frame.intrinsics, params)
-    assert_same_frame(depth, rays, params)
+    assert_same_frame(depth, rays, params, monkeypatch)
 
 
-def test_empty_and_all_outside_frames():
+def test_empty_and_all_outside_frames(monkeypatch):
     params = DetectorParams(camera_height_m=0.5, max_range_m=2.0)
     intr = Intrinsics(fx=50.0, fy=50.0, cx=8.0, cy=6.0)
     rays = geometry.ground_rays((12, 16), intr, params)
     for depth in (np.zeros((12, 16), np.float32), np.full((12, 16), 9.0, np.float32)):
-        assert assert_same_frame(depth, rays, params) == 0
-        proj = jit_voxel.project_roi(depth, rays, params)
-        assert jit_voxel.voxelise(proj).centroids.shape == (0, 3)
+        assert assert_same_frame(depth, rays, params, monkeypatch) == 0
+        proj = project(depth, rays, params)
+        assert voxel.voxelise(proj).centroids.shape == (0, 3)
         assert (proj.pixel_voxel == -1).all()
 
 
-def test_roi_and_voxel_boundaries_and_negative_coordinates():
+def test_roi_and_voxel_boundaries_and_negative_coordinates(monkeypatch):
     """Depths chosen so that points land exactly on the ROI bounds and voxel faces."""
     params = DetectorParams(camera_height_m=0.5, max_range_m=2.0, min_range_m=0.5,
                             lateral_limit_m=1.0, tdbg_m=-0.1, smar_m=0.8)
@@ -132,7 +155,7 @@ def test_roi_and_voxel_boundaries_and_negative_coordinates():
     depth = np.where(rng.random(h * w) < 0.3, np.nextafter(depth, np.float32(0)), depth)
     depth[::17] = 0.0
     depth = depth.reshape(h, w)
-    m = assert_same_frame(depth, rays, params)
+    m = assert_same_frame(depth, rays, params, monkeypatch)
     pts, _, _ = geometry.ground_points_in_roi(depth, rays, params)
     assert m > 100 and (pts[:, 1] < 0).any() and (pts[:, 2] < 0).any()
     on_bound = (pts[:, 0] == np.float32(0.5)) | (pts[:, 0] == np.float32(2.0))
@@ -143,9 +166,9 @@ def test_roi_and_voxel_boundaries_and_negative_coordinates():
 
 def test_roi_lattice_holds_the_bounds():
     params = DetectorParams()
-    bounds = jit_voxel._roi_bounds(params)
+    bounds = voxel.roi_bounds(params)
     size = np.asarray(params.voxel_size_m, np.float32)
-    low, dims = jit_voxel._roi_lattice(bounds, size)
+    low, dims = jit_voxel.roi_lattice(bounds, size)
     assert (dims > 0).all()
     assert low[1] == math.floor(-params.lateral_limit_m / 0.025)
 
@@ -154,13 +177,13 @@ def test_roi_lattice_holds_the_bounds():
 def test_pipeline_identical_with_and_without_jit(name, monkeypatch):
     frame = render_scene(name, seed=2)
     params = scene_params(frame, table_4_2())
-    jit = Detector(params).process(frame.depth_mm, frame.intrinsics)
-    monkeypatch.setenv(jit_voxel.NO_JIT_ENV, '1')
+    compiled = Detector(params).process(frame.depth_mm, frame.intrinsics)
+    monkeypatch.setenv(jit.NO_JIT_ENV, '1')
     ref = Detector(params).process(frame.depth_mm, frame.intrinsics)
     for field in ('obstacle_points', 'ground_points', 'labels', 'voxel_points',
                   'voxel_normals', 'voxel_is_obstacle', 'voxel_slope_obstacle', 'pixel_voxel'):
-        a, b = getattr(ref, field), getattr(jit, field)
+        a, b = getattr(ref, field), getattr(compiled, field)
         assert a.dtype == b.dtype, field
         np.testing.assert_array_equal(a, b, err_msg=field)
-    np.testing.assert_array_equal(ref.costmap.data, jit.costmap.data)
-    assert ref.costmap.origin_xy_m == jit.costmap.origin_xy_m
+    np.testing.assert_array_equal(ref.costmap.data, compiled.costmap.data)
+    assert ref.costmap.origin_xy_m == compiled.costmap.origin_xy_m

@@ -5,11 +5,11 @@ import math
 import numpy as np
 import pytest
 
+from obstacle_detection.labels import (CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN, GT_ABOVE_ROBOT,
+                                       GT_NO_RETURN, GT_OBSTACLE, GT_TRAVERSABLE, LABEL_GROUND,
+                                       LABEL_NO_RETURN, LABEL_OBSTACLE, LABEL_OUTSIDE_ROI)
 from obstacle_detection.evaluation import metrics
-from obstacle_detection.evaluation.metrics import (CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN,
-                                                   Confusion, GT_NO_RETURN, GT_OBSTACLE,
-                                                   GT_TRAVERSABLE, LABEL_GROUND, LABEL_NO_RETURN,
-                                                   LABEL_OBSTACLE, LABEL_OUTSIDE_ROI)
+from obstacle_detection.evaluation.metrics import Confusion
 
 
 def test_confusion_counts_of_two_bool_arrays():
@@ -109,7 +109,7 @@ def test_truth_points_keeps_finite_roi_points():
 def test_above_robot_points_count_free_and_marked_points_occupied():
     points = np.array([[[0.1, 0.1, 1.5], [0.3, 0.1, 0.0]],
                        [[0.1, 0.3, 0.0], [0.3, 0.3, 0.2]]], np.float32)
-    labels = np.array([[metrics.GT_ABOVE_ROBOT, GT_TRAVERSABLE],
+    labels = np.array([[GT_ABOVE_ROBOT, GT_TRAVERSABLE],
                        [GT_TRAVERSABLE, GT_OBSTACLE]], np.uint8)
     roi = np.ones((2, 2), bool)
     marked = np.array([[False, True], [False, False]])

@@ -6,13 +6,13 @@ import cv2
 import numpy as np
 import pytest
 
+from obstacle_detection.labels import CELL_OCCUPIED, LABEL_GROUND, LABEL_OBSTACLE
 from obstacle_detection.evaluation import runner as evaluation
 from obstacle_detection.pipeline import geometry, mount
 from obstacle_detection.cli import support as tool_support
-from obstacle_detection.pipeline.costmap import CELL_OCCUPIED
 from obstacle_detection.pipeline.params import KINECT_V2_SD, Intrinsics, table_4_2
 from obstacle_detection.viz.pictures import read_depth_png
-from obstacle_detection.pipeline.detector import LABEL_GROUND, LABEL_OBSTACLE, Detector
+from obstacle_detection.pipeline.detector import Detector
 from obstacle_detection.sim.scenes import Box, Floor, Scene, Wall, render, render_scene
 from obstacle_detection.tools import estimate_mount as tool
 

@@ -45,6 +45,7 @@ from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 from std_msgs.msg import Float64, String
 
+from obstacle_detection.labels import CELL_OCCUPIED, GT_OBSTACLE
 from obstacle_detection.pipeline import jit as jit_support
 from obstacle_detection.ros.compressed_depth import array_to_compressed_depth
 from obstacle_detection.ros.conversions import (
@@ -52,7 +53,6 @@ from obstacle_detection.ros.conversions import (
     intrinsics_to_camera_info,
     pointcloud2_to_points,
 )
-from obstacle_detection.pipeline.costmap import CELL_OCCUPIED
 from obstacle_detection.pipeline.geometry import mount_rotation
 from obstacle_detection.ros.node import DetectorNode, LatestSlot
 from obstacle_detection.pipeline.params import PRESETS, Intrinsics, table_4_2, table_4_3
@@ -62,7 +62,7 @@ from obstacle_detection.ros.parameters import (
     detector_params_from_ros,
     params_file_problems,
 )
-from obstacle_detection.sim.scenes import GT_OBSTACLE, SceneFrame, render_scene
+from obstacle_detection.sim.scenes import SceneFrame, render_scene
 
 #: Starts processes or a DDS graph: deselect with -m "not integration" (README, tests).
 pytestmark = pytest.mark.integration

@@ -10,11 +10,12 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+from obstacle_detection.pipeline import jit
 from obstacle_detection.pipeline._compiled import knn as jit_knn
-from obstacle_detection.pipeline.normals import (NO_JIT_ENV, _nearest_neighbours_scipy,
-                                                 estimate_normals, nearest_neighbours,
-                                                 neighbourhood_covariance, smallest_eigenvectors,
-                                                 slope_obstacles, use_jit, validate_obstacles)
+from obstacle_detection.pipeline.normals import (_nearest_neighbours_scipy, estimate_normals,
+                                                 nearest_neighbours, neighbourhood_covariance,
+                                                 smallest_eigenvectors, slope_obstacles,
+                                                 validate_obstacles)
 
 
 @pytest.fixture(autouse=True, params=['numpy', 'jit'])
@@ -22,8 +23,8 @@ def kernel_path(request, monkeypatch):
     """Run the test on one path: numpy/scipy (``OBSTACLE_DETECTION_NO_JIT=1``) or numba."""
     if request.param == 'jit' and not jit_knn.AVAILABLE:
         pytest.skip('numba is not installed')
-    monkeypatch.setenv(NO_JIT_ENV, '1' if request.param == 'numpy' else '0')
-    assert use_jit() == (request.param == 'jit')
+    monkeypatch.setenv(jit.NO_JIT_ENV, '1' if request.param == 'numpy' else '0')
+    assert jit.enabled() == (request.param == 'jit')
     return request.param
 
 

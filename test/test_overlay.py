@@ -5,7 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from obstacle_detection.pipeline.costmap import CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN, Costmap
+from obstacle_detection.labels import (CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN, LABEL_GROUND,
+                                       LABEL_NO_RETURN, LABEL_OBSTACLE, LABEL_OUTSIDE_ROI)
+from obstacle_detection.pipeline.costmap import Costmap
 from obstacle_detection.viz.overlay import (
     FREE_RGB,
     OBSTACLE_RGB,
@@ -15,12 +17,6 @@ from obstacle_detection.viz.overlay import (
     costmap_pixel_of,
     render_costmap,
     render_overlay,
-)
-from obstacle_detection.pipeline.detector import (
-    LABEL_GROUND,
-    LABEL_NO_RETURN,
-    LABEL_OBSTACLE,
-    LABEL_OUTSIDE_ROI,
 )
 
 

@@ -9,11 +9,11 @@ import pytest
 from rosbags.rosbag2 import Writer
 from rosbags.typesys import Stores, get_typestore
 
+from obstacle_detection.labels import (CELL_OCCUPIED, CELL_UNKNOWN, LABEL_GROUND, LABEL_OBSTACLE,
+                                       LABEL_OUTSIDE_ROI)
 from obstacle_detection.evaluation import runner as evaluation
 from obstacle_detection.viz import pictures
-from obstacle_detection.evaluation.metrics import LABEL_GROUND, LABEL_OBSTACLE, LABEL_OUTSIDE_ROI
-from obstacle_detection.pipeline.costmap import (CELL_OCCUPIED, CELL_UNKNOWN, Costmap,
-                                                 costmap_geometry)
+from obstacle_detection.pipeline.costmap import Costmap, costmap_geometry
 from obstacle_detection.viz.overlay import (MIN_GREY, NO_RETURN_RGB, OBSTACLE_RGB, OCCUPIED_RGB,
                                        ROBOT_RGB, UNKNOWN_RGB, render_overlay)
 from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE, table_4_2

@@ -5,14 +5,15 @@ import math
 import numpy as np
 import pytest
 
+from obstacle_detection.labels import (CELL_OCCUPIED, CELL_UNKNOWN, GT_OBSTACLE, LABEL_GROUND,
+                                       LABEL_NO_RETURN, LABEL_OBSTACLE, LABEL_OUTSIDE_ROI)
 from obstacle_detection.pipeline import geometry
 from obstacle_detection.evaluation import metrics
-from obstacle_detection.pipeline.costmap import CELL_OCCUPIED, CELL_UNKNOWN, build_costmap
+from obstacle_detection.pipeline.costmap import build_costmap
 from obstacle_detection.pipeline.depth import DepthFormatError
 from obstacle_detection.pipeline.params import SEED_TABLE_4_1, table_4_2
-from obstacle_detection.pipeline.detector import (LABEL_GROUND, LABEL_NO_RETURN, LABEL_OBSTACLE,
-                                         LABEL_OUTSIDE_ROI, STAGES, Detector)
-from obstacle_detection.sim.scenes import GT_OBSTACLE, render_scene, scene_params
+from obstacle_detection.pipeline.detector import STAGES, Detector
+from obstacle_detection.sim.scenes import render_scene, scene_params
 
 #: Costmap F1 floor on the corridor scene with the seed's Table 4.2 (K = 5). The detector
 #: marks the walls and box sides; it misses the cells whose only obstacle surface is a box

@@ -5,8 +5,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from obstacle_detection.labels import LABEL_GROUND, LABEL_NO_RETURN, LABEL_OBSTACLE
 from obstacle_detection.pipeline import refine
-from obstacle_detection.evaluation.metrics import LABEL_GROUND, LABEL_NO_RETURN, LABEL_OBSTACLE
 from obstacle_detection.pipeline.refine import FEATURE_NAMES, LogisticRefiner, ModelFileError
 
 

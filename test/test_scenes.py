@@ -5,12 +5,12 @@ import math
 import numpy as np
 import pytest
 
+from obstacle_detection.labels import GT_ABOVE_ROBOT, GT_NO_RETURN, GT_OBSTACLE, GT_TRAVERSABLE
 from obstacle_detection.sim import scenes
 from obstacle_detection.pipeline.geometry import back_project, to_ground
 from obstacle_detection.pipeline.params import DetectorParams, Intrinsics, KINECT_V2_SD
-from obstacle_detection.sim.scenes import (Box, Cylinder, Floor, GT_ABOVE_ROBOT, GT_NO_RETURN,
-                                       GT_OBSTACLE, GT_TRAVERSABLE, NoiseModel, Ramp, Scene,
-                                       StepDown, Wall, render, render_scene, scene_params)
+from obstacle_detection.sim.scenes import (Box, Cylinder, Floor, NoiseModel, Ramp, Scene, StepDown,
+                                           Wall, render, render_scene, scene_params)
 
 HEIGHT_M = 0.6
 QHD = Intrinsics(fx=540.0, fy=540.0, cx=479.5, cy=269.5)   # another camera, 960x540

@@ -12,12 +12,12 @@ import math
 import numpy as np
 import pytest
 
+from obstacle_detection.labels import CELL_OCCUPIED, CELL_UNKNOWN, LABEL_GROUND, LABEL_OBSTACLE
 from obstacle_detection.evaluation import runner as evaluation
 from obstacle_detection.pipeline import floor, geometry, traversal
 from obstacle_detection.pipeline._compiled import traversal as jit_traversal
-from obstacle_detection.pipeline.costmap import CELL_OCCUPIED, CELL_UNKNOWN
 from obstacle_detection.pipeline.params import corridor, table_4_2
-from obstacle_detection.pipeline.detector import LABEL_GROUND, LABEL_OBSTACLE, Detector
+from obstacle_detection.pipeline.detector import Detector
 from obstacle_detection.sim.scenes import (Box, Floor, Ramp, Scene, StepDown, Wall, render,
                                        render_scene, scene_params)
 

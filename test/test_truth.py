@@ -6,11 +6,11 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from obstacle_detection.labels import GT_ABOVE_ROBOT, GT_NO_RETURN, GT_OBSTACLE, GT_TRAVERSABLE
 from obstacle_detection.pipeline.params import DetectorParams
-from obstacle_detection.sim.scenes import (Box, Cylinder, Floor, GT_ABOVE_ROBOT, GT_NO_RETURN,
-                                       GT_OBSTACLE, GT_TRAVERSABLE, DROP_EDGE_BAND_M, Ramp,
-                                       Scene, StepDown, TruthRules, chair, render, render_scene,
-                                       table)
+from obstacle_detection.sim.scenes import (Box, Cylinder, Floor, DROP_EDGE_BAND_M, Ramp, Scene,
+                                           StepDown, TruthRules, chair, render, render_scene,
+                                           table)
 
 
 def exact(primitives, *, height_m=0.6, pitch_deg=0.0, rules=None):

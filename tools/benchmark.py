@@ -35,7 +35,7 @@ import time  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from obstacle_detection.pipeline.normals import use_jit  # noqa: E402
+from obstacle_detection.pipeline.jit import enabled as jit_enabled  # noqa: E402
 from obstacle_detection.pipeline.params import KINECT_V2_SD, PRESETS, Intrinsics  # noqa: E402
 from obstacle_detection.pipeline.detector import NEW_STAGES, STAGES, Detector  # noqa: E402
 from obstacle_detection.sim.scenes import render_scene, scene_params  # noqa: E402
@@ -65,7 +65,7 @@ def pin_one_cpu() -> str:
 
 def jit_description() -> str:
     """Say whether the optional numba kernels run (they are single-threaded) or numpy/scipy."""
-    if use_jit():
+    if jit_enabled():
         import numba
         return (f'numba {numba.__version__} kernels (one thread): back-projection and voxel '
                 'grid, median K >= 7, k-NN, normals, labels, rays, smear, traversal, drops')

@@ -30,7 +30,8 @@ from obstacle_detection.evaluation.runner import apply_overrides, load_params_fi
 from obstacle_detection.pipeline.mount import estimate_mount
 from obstacle_detection.pipeline.params import Intrinsics, corridor
 from obstacle_detection.viz.pictures import read_depth_png
-from obstacle_detection.pipeline.detector import LABEL_OBSTACLE, Detector
+from obstacle_detection.labels import LABEL_OBSTACLE
+from obstacle_detection.pipeline.detector import Detector
 
 REPO = tool_support.PACKAGE_ROOT
 

@@ -40,26 +40,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-#: Ground-truth labels of the scene generator and of labelled folders (see
-#: ``obstacle_detection.sim.scenes``): no surface hit, traversable ground, obstacle.
-GT_NO_RETURN = 0
-GT_TRAVERSABLE = 1
-GT_OBSTACLE = 2
-#: Robot-level truth only: a surface above the robot; not an obstacle, a free point in cells.
-GT_ABOVE_ROBOT = 3
+from obstacle_detection.labels import (CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN, GT_ABOVE_ROBOT,
+                                       GT_NO_RETURN, GT_OBSTACLE, GT_TRAVERSABLE, LABEL_GROUND,
+                                       LABEL_OBSTACLE)
 
-#: Pipeline labels (mirrors ``obstacle_detection.pipeline.detector``; kept here so this module
-#: imports
-#: nothing but numpy).
-LABEL_NO_RETURN = 0
-LABEL_OUTSIDE_ROI = 1
-LABEL_GROUND = 2
-LABEL_OBSTACLE = 3
-
-#: Costmap cell values (mirrors ``obstacle_detection.pipeline.costmap``).
-CELL_UNKNOWN = -1
-CELL_FREE = 0
-CELL_OCCUPIED = 100
 
 
 def _ratio(num: int, den: int) -> float:

@@ -38,6 +38,8 @@ from typing import Any, Callable, Iterable, Iterator, Sequence
 import cv2
 import numpy as np
 
+from obstacle_detection.labels import (CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN, GT_ABOVE_ROBOT,
+                                       GT_NO_RETURN, GT_OBSTACLE, GT_TRAVERSABLE)
 from obstacle_detection.pipeline import geometry
 from . import camera as camera_file
 from . import metrics
@@ -330,7 +332,7 @@ def load_labelled_folder(path: str | Path, *, max_frames: int | None = None,
         if labels is None or labels.dtype != np.uint8 or labels.shape != depth.shape:
             raise ValueError(f'{root / "labels" / depth_file.name}: not an 8-bit PNG of the '
                              f'depth size {depth.shape[::-1]}')
-        if labels.max(initial=0) > metrics.GT_ABOVE_ROBOT:
+        if labels.max(initial=0) > GT_ABOVE_ROBOT:
             raise ValueError(f'{root / "labels" / depth_file.name}: label value '
                              f'{int(labels.max())} (allowed 0, 1, 2, 3)')
         points = truth_points_from_depth(depth.astype(np.float32) * np.float32(scale),
@@ -487,10 +489,10 @@ def truth_costmap(frame: LabelledFrame, params: DetectorParams,
         res = params.costmap_resolution_m
         gaps = metrics.surface_gap_points(
             frame.truth_points, frame.object_ids,
-            roi & (frame.truth_labels == metrics.GT_OBSTACLE), step_m=res / 2,
+            roi & (frame.truth_labels == GT_OBSTACLE), step_m=res / 2,
             max_gap_m=MAX_SURFACE_GAP_M)
         covered = metrics.point_cells(gaps, origin, res, (ny, nx))
-        grid[covered & (grid != metrics.CELL_OCCUPIED)] = metrics.CELL_UNKNOWN
+        grid[covered & (grid != CELL_OCCUPIED)] = CELL_UNKNOWN
     return grid
 
 
@@ -535,7 +537,7 @@ def robot_score(frame: LabelledFrame, predicted_grid: np.ndarray, params: Detect
         return score
     origin, nx, ny = costmap_geometry(params)
     res = params.costmap_resolution_m
-    seen = roi & (frame.truth_labels != metrics.GT_NO_RETURN)
+    seen = roi & (frame.truth_labels != GT_NO_RETURN)
     edge = frame.drop_edge if frame.drop_edge is not None else np.zeros(seen.shape, bool)
     names = frame.object_names
     for name in dict.fromkeys(n for n in names if n):
@@ -549,8 +551,8 @@ def robot_score(frame: LabelledFrame, predicted_grid: np.ndarray, params: Detect
             if total >= MIN_OBJECT_CELLS:
                 score.drops.append((name, hits, total))
             continue
-        obstacle = mine & (frame.truth_labels == metrics.GT_OBSTACLE)
-        traversable = mine & (frame.truth_labels == metrics.GT_TRAVERSABLE)
+        obstacle = mine & (frame.truth_labels == GT_OBSTACLE)
+        traversable = mine & (frame.truth_labels == GT_TRAVERSABLE)
         if np.count_nonzero(obstacle) >= np.count_nonzero(traversable):
             cells = metrics.point_cells(frame.truth_points[obstacle], origin, res, (ny, nx))
             hits, total = metrics.occupied_share(predicted_grid, cells)
@@ -558,7 +560,7 @@ def robot_score(frame: LabelledFrame, predicted_grid: np.ndarray, params: Detect
                 score.objects.append((name, hits, total))
         else:
             cells = metrics.point_cells(frame.truth_points[traversable], origin, res, (ny, nx))
-            cells &= truth_grid == metrics.CELL_FREE
+            cells &= truth_grid == CELL_FREE
             hits, total = metrics.free_share(predicted_grid, cells)
             if total >= MIN_OBJECT_CELLS:
                 score.passable.append((name, hits, total))

@@ -46,10 +46,10 @@ from typing import Any
 import cv2
 import numpy as np
 
+from obstacle_detection.labels import CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN
 from obstacle_detection.pipeline import geometry
 from . import metrics
-from obstacle_detection.pipeline.costmap import (CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN, Costmap,
-                                                 build_costmap)
+from obstacle_detection.pipeline.costmap import Costmap, build_costmap
 from obstacle_detection.pipeline.fusion import FusedGrid, FusionParams, frame_evidence
 from .metrics import Confusion
 from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE, DetectorParams

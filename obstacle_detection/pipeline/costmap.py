@@ -10,11 +10,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..labels import CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN
 from .params import DetectorParams
 
-CELL_OCCUPIED = 100  #: an obstacle point fell in the cell
-CELL_FREE = 0        #: only traversable ground was seen in the cell
-CELL_UNKNOWN = -1    #: nothing was seen in the cell
 
 
 @dataclass(frozen=True)

@@ -16,20 +16,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import geometry, traversal
-from ._compiled import (knn as jit_knn, median as jit_median, traversal as jit_traversal,
-                        voxel as jit_voxel)
+from ..labels import LABEL_OBSTACLE
+from . import geometry, median, traversal, voxel
+from . import normals as normals_stage   # a frame's local `normals` are vectors
+from ._compiled import traversal as jit_traversal
 from .costmap import Costmap, build_costmap
-from .depth import crop_borders, decode_depth, median_filter
+from .depth import crop_borders, decode_depth
 from .floor import FloorFit, fit_floor, sample_rays
+from .median import median_filter
 from .normals import estimate_normals, nearest_neighbours, slope_obstacles, validate_obstacles
 from .params import SEED_TABLE_4_1, DetectorParams, Intrinsics
-from .voxel import voxel_downsample
-
-LABEL_NO_RETURN = 0    #: no depth (0, NaN, out of sensor range, cropped)
-LABEL_OUTSIDE_ROI = 1  #: a 3-D point outside the region of interest
-LABEL_GROUND = 2       #: in a voxel that passed the slope test (traversable)
-LABEL_OBSTACLE = 3     #: in a voxel that is a validated obstacle
 
 STAGES = ('decode', 'crop', 'median', 'smear', 'floor', 'back_project', 'voxel', 'knn',
           'normals', 'slope', 'traversal', 'drops', 'validation', 'costmap', 'labels')
@@ -108,9 +104,9 @@ class Detector:
         Call it before the first frame (the node does at start-up) so no frame pays for it.
         """
         start = time.perf_counter()
-        jit_median.warm_up(self.params.median_kernel)
-        jit_knn.warm_up()
-        jit_voxel.warm_up()
+        median.warm_up(self.params.median_kernel)
+        normals_stage.warm_up()
+        voxel.warm_up()
         jit_traversal.warm_up()
         return time.perf_counter() - start
 
@@ -164,15 +160,9 @@ class Detector:
                    if jit_traversal.enabled() else None)
             rays = geometry.ground_rays(depth_m.shape, intr, run, out=buf)
         clock.lap('floor')
-        compiled = jit_voxel.enabled()
-        if compiled:   # same points, voxels and labels as the numpy path below
-            proj = jit_voxel.project_roi(depth_m, rays, run, reuse=True)
-            clock.lap('back_project')
-            grid = jit_voxel.voxelise(proj)
-        else:
-            pts, pix_roi, valid = geometry.ground_points_in_roi(depth_m, rays, run)
-            clock.lap('back_project')
-            grid = voxel_downsample(pts, p.voxel_size_m)
+        roi = voxel.points_in_roi(depth_m, rays, run)
+        clock.lap('back_project')
+        grid = voxel.voxel_grid(roi)
         centroids = grid.centroids
         clock.lap('voxel')
         k = max(p.normal_neighbours, p.validation_neighbours + 1)
@@ -211,18 +201,7 @@ class Detector:
         costmap = build_costmap(obstacle_points, ground_points, p)
         clock.lap('costmap')
 
-        if compiled:
-            labels, pixel_voxel = proj.labels, proj.pixel_voxel
-            jit_voxel.label_pixels(labels, pixel_voxel, is_obstacle)
-        else:
-            shape = depth_m.shape
-            labels = np.zeros(shape, dtype=np.uint8)
-            flat_labels = labels.reshape(-1)
-            flat_labels[valid] = LABEL_OUTSIDE_ROI
-            flat_labels[pix_roi] = np.where(is_obstacle[grid.point_voxel], LABEL_OBSTACLE,
-                                            LABEL_GROUND).astype(np.uint8)
-            pixel_voxel = np.full(shape, -1, dtype=np.int32)
-            pixel_voxel.reshape(-1)[pix_roi] = grid.point_voxel
+        labels, pixel_voxel = voxel.pixel_labels(roi, grid, is_obstacle)
         if drop_pixels.size:
             labels.reshape(-1)[drop_pixels] = LABEL_OBSTACLE
         clock.lap('labels')

@@ -38,7 +38,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .costmap import CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN, Costmap
+from ..labels import CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN
+from .costmap import Costmap
 
 #: Largest window side [cells]: 2000 x 2000 float32 log-odds are 16 MB.
 MAX_CELLS_PER_SIDE = 2000

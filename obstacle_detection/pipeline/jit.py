@@ -1,9 +1,11 @@
-"""What the optional numba kernels share: the import, the compile decorator and the switch.
+"""The one switch between the compiled kernels and the numpy path, and the background compile.
 
-numba is an optional accelerator (README, Dependencies). When it imports, the kernels of
-:mod:`.jit_median`, :mod:`.jit_knn` and :mod:`.jit_voxel` run compiled; when it does not (a ROS
-system without python3-numba), or the environment variable ``OBSTACLE_DETECTION_NO_JIT`` is set
-to anything but '' or '0', the numpy/scipy code runs with the same results.
+numba is an optional accelerator (README, Dependencies). When it imports
+(:data:`AVAILABLE`, from :mod:`._compiled._numba`), the stage modules (:mod:`.median`,
+:mod:`.voxel`, :mod:`.normals`, :mod:`.geometry`, :mod:`.floor`, :mod:`.traversal`) run their
+kernels of :mod:`._compiled`; when it does not (a ROS system without python3-numba), or the
+environment variable ``OBSTACLE_DETECTION_NO_JIT`` is set to anything but '' or '0', they run
+the numpy/scipy code with the same results. Every stage asks :func:`enabled`.
 """
 
 from __future__ import annotations
@@ -14,13 +16,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-try:
-    import numba
-except (ImportError, OSError):  # not installed, or built for another numpy / llvm
-    numba = None
-
-#: True when numba imported and the compiled kernels can run.
-AVAILABLE: bool = numba is not None
+from ._compiled._numba import AVAILABLE, jit  # noqa: F401 - jit: _compiled.traversal imports it here
 
 #: Environment variable that, set to anything but '' or '0', turns the compiled path off (for
 #: tests and comparisons); it is read on every call.
@@ -109,16 +105,3 @@ def compile_in_background(warm_up: Callable[[], Any], *,
     job._thread.start()
     return job
 
-
-def jit(func: Callable[..., Any]) -> Callable[..., Any]:
-    """Compile ``func`` with numba (cached on disk) when numba is there; else leave it as is.
-
-    Single-threaded (no ``parallel``), releasing the GIL; without a writable cache directory
-    the kernel is compiled in memory at each start.
-    """
-    if numba is None:
-        return func
-    try:
-        return numba.njit(cache=True, nogil=True, boundscheck=False)(func)
-    except RuntimeError:
-        return numba.njit(cache=False, nogil=True, boundscheck=False)(func)

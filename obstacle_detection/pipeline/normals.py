@@ -3,7 +3,7 @@
 One k-nearest-neighbour query serves both the normals (N neighbours) and the validation (N1
 neighbours): it asks for ``max(N, N1 + 1)`` neighbours, the point itself first.
 
-The k-NN search and the normals run as compiled kernels (:mod:`.jit_knn`) when numba is
+The k-NN search and the normals run as compiled kernels (:mod:`._compiled.knn`) when numba is
 installed, and with scipy's k-d tree and vectorised numpy otherwise, or when the environment
 variable ``OBSTACLE_DETECTION_NO_JIT=1`` asks for that. Both paths give the same neighbours
 (ties at exactly equal distance: the point itself, then the smaller index) and the same
@@ -16,18 +16,18 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from . import jit
 from ._compiled import knn as jit_knn
-from . import jit as jit_support
-from .jit import NO_JIT_ENV  # noqa: F401 - re-exported: the switch of this module
 
 # The six distinct entries of a symmetric 3 x 3 matrix: (0,0) (0,1) (0,2) (1,1) (1,2) (2,2).
 _PAIR_A = np.array([0, 0, 0, 1, 1, 2])
 _PAIR_B = np.array([0, 1, 2, 1, 2, 2])
 
 
-def use_jit() -> bool:
-    """Return True when the compiled kernels run: numba imported and not switched off."""
-    return jit_support.enabled()
+def warm_up() -> None:
+    """Compile (or load from numba's disk cache) the k-NN and normals kernels, if they run."""
+    if jit.enabled():   # not when switched off, or while another thread compiles
+        jit_knn.warm_up()
 
 
 def nearest_neighbours(points: np.ndarray, k: int) -> np.ndarray:
@@ -35,10 +35,10 @@ def nearest_neighbours(points: np.ndarray, k: int) -> np.ndarray:
 
     points: (V, 3) float32 [m]. The point itself is first (distance 0, also among duplicate
     points); points at exactly equal distance follow in index order. Exact Euclidean search on
-    one thread: a compiled grid search (:func:`.jit_knn.knn_grid`) or scipy's k-d tree, same
+    one thread: a compiled grid search (:func:`._compiled.knn.knn_grid`) or scipy's k-d tree, same
     result. If there are fewer than k points, k is clipped to V.
     """
-    if use_jit():
+    if jit.enabled():
         return jit_knn.knn_grid(points, k)
     return _nearest_neighbours_scipy(points, k)
 
@@ -111,7 +111,7 @@ def smallest_eigenvectors(cov: np.ndarray) -> np.ndarray:
     cross products of the rows of ``C - lambda I`` (the first of equally long ones). Where the
     matrix is (near) isotropic or the smallest eigenvalue is degenerate, ``numpy.linalg.eigh``
     is used for those rows. The sign of each vector is arbitrary: callers use ``|n . up|``.
-    Written operation by operation like the compiled kernel (:mod:`.jit_knn`).
+    Written operation by operation like the compiled kernel (:mod:`._compiled.knn`).
     """
     c = np.asarray(cov, dtype=np.float64)
     a00, a01, a02 = c[:, 0, 0], c[:, 0, 1], c[:, 0, 2]
@@ -164,11 +164,11 @@ def estimate_normals(points: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
     """Return unit normals (V, 3) float32: smallest-eigenvalue eigenvector of each neighbourhood.
 
     neighbours: (V, N) indices from :func:`nearest_neighbours`, the point itself included.
-    Runs the fused compiled kernel when numba is available (see :func:`use_jit`).
+    Runs the fused compiled kernel when numba is available (see :func:`.jit.enabled`).
     """
     if points.shape[0] == 0:
         return np.zeros((0, 3), dtype=np.float32)
-    if use_jit():
+    if jit.enabled():
         return jit_knn.normals_from_neighbours(points, neighbours, neighbours.shape[1])
     cov = neighbourhood_covariance(points, neighbours)
     return smallest_eigenvectors(cov).astype(np.float32)

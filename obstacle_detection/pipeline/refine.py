@@ -51,8 +51,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from obstacle_detection.evaluation.metrics import (GT_NO_RETURN, GT_OBSTACLE, LABEL_GROUND,
-                                                   LABEL_OBSTACLE)
+from ..labels import GT_NO_RETURN, GT_OBSTACLE, LABEL_GROUND, LABEL_OBSTACLE
 from .params import DetectorParams
 
 #: Seed section 4.5 neighbours V_{t-1} as (dx, dy) = (column, row) offsets.

@@ -1,4 +1,11 @@
-"""Voxel-grid downsampling (seed section 4.3.4): one centroid per occupied voxel."""
+"""Voxel-grid downsampling (seed section 4.3.4): one centroid per occupied voxel.
+
+The stage of the frame: :func:`points_in_roi` (back-projection and region of interest),
+:func:`voxel_grid` and, once the voxels are decided, :func:`pixel_labels`. Each runs the
+compiled kernels of :mod:`._compiled.voxel` when :func:`.jit.enabled` (the choice is made
+once per frame, in :func:`points_in_roi`) and the numpy code otherwise; the results are
+bit-identical.
+"""
 
 from __future__ import annotations
 
@@ -6,7 +13,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..labels import LABEL_GROUND, LABEL_OBSTACLE, LABEL_OUTSIDE_ROI
+from . import geometry, jit
 from ._compiled import voxel as jit_voxel
+from .params import DetectorParams, Intrinsics
 
 #: Largest dense voxel lattice [cells] indexed directly; larger extents fall back to sorting.
 _DENSE_LIMIT = 16_000_000
@@ -37,7 +47,7 @@ def voxel_downsample(points: np.ndarray, voxel_size_m: tuple[float, float, float
     the frame origin, so a point's voxel does not depend on the other points. Voxels are
     ordered by their linear index (x slowest, z fastest), so the output is deterministic.
     An empty input gives empty arrays. Runs the compiled kernel
-    (:func:`.jit_voxel.voxel_downsample`, same result) when :func:`.jit_voxel.enabled`.
+    (:func:`._compiled.voxel.voxel_downsample`, same result) when :func:`.jit.enabled`.
     """
     size = np.asarray(voxel_size_m, dtype=np.float64)
     if size.shape != (3,) or np.any(size <= 0.0):
@@ -45,10 +55,10 @@ def voxel_downsample(points: np.ndarray, voxel_size_m: tuple[float, float, float
     pts = np.asarray(points)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise ValueError(f'points must have shape (M, 3), got {pts.shape}')
-    if pts.shape[0] and jit_voxel.enabled():
-        grid = jit_voxel.voxel_downsample(pts, voxel_size_m)
-        if grid is not None:
-            return grid
+    if pts.shape[0] and jit.enabled():
+        fields = jit_voxel.voxel_downsample(pts, voxel_size_m)
+        if fields is not None:
+            return VoxelGrid(*fields)
     return voxel_downsample_numpy(pts, voxel_size_m)
 
 
@@ -94,3 +104,108 @@ def voxel_downsample_numpy(points: np.ndarray, voxel_size_m: tuple[float, float,
     vox_ijk[:, 0], vox_ijk[:, 1] = np.divmod(rest, dims[1])
     vox_ijk += low
     return VoxelGrid(centroids, point_voxel, counts, vox_ijk)
+
+
+# --------------------------------------------------------------------------- the frame stage
+
+@dataclass(frozen=True)
+class RoiPoints:
+    """The points of one depth frame inside the region of interest (:func:`points_in_roi`).
+
+    points: (M, 3) float32 ground frame [m]; pixel_index: (M,) int64 their flat pixel
+    indices; shape: the image's (H, W); voxel_size_m: the voxel size of the frame's params;
+    valid: (H*W,) bool, the pixels with a 3-D point (numpy path; None when compiled);
+    projection: the compiled path's :class:`._compiled.voxel.Projection` (None on numpy).
+    """
+
+    points: np.ndarray
+    pixel_index: np.ndarray
+    shape: tuple[int, int]
+    voxel_size_m: tuple[float, float, float]
+    valid: np.ndarray | None = None
+    projection: jit_voxel.Projection | None = None
+
+
+def roi_bounds(params: DetectorParams) -> np.ndarray:
+    """Return the ROI bounds in float32, as :func:`geometry.ground_points_in_roi` rounds them.
+
+    (min range, max range, lateral limit, camera height, tdbg, max height), the ``bounds`` of
+    :func:`._compiled.voxel.project_roi`.
+    """
+    return np.array([params.min_range_m, params.max_range_m, params.lateral_limit_m,
+                     params.camera_height_m, params.tdbg_m, params.max_height_m], np.float32)
+
+
+def points_in_roi(depth_m: np.ndarray, rays: np.ndarray, params: DetectorParams) -> RoiPoints:
+    """Back-project a depth image through its ground rays and keep the region of interest.
+
+    depth_m: (H, W) float32, 0 = no return; rays: (3, H*W) float32 from
+    :func:`geometry.ground_rays`. Compiled (:func:`._compiled.voxel.project_roi`, its buffers
+    reused by the next frame of the same thread) or :func:`geometry.ground_points_in_roi`:
+    the same points and pixels.
+    """
+    if jit.enabled():
+        proj = jit_voxel.project_roi(depth_m, rays, roi_bounds(params), params.voxel_size_m,
+                                     reuse=True)
+        return RoiPoints(proj.points, proj.pixel_index, depth_m.shape, params.voxel_size_m,
+                         projection=proj)
+    pts, pix_roi, valid = geometry.ground_points_in_roi(depth_m, rays, params)
+    return RoiPoints(pts, pix_roi, depth_m.shape, params.voxel_size_m, valid=valid)
+
+
+def voxelise(proj: jit_voxel.Projection) -> VoxelGrid:
+    """Voxel grid of a compiled :class:`._compiled.voxel.Projection`; fills its pixel_voxel.
+
+    The same :class:`VoxelGrid` as :func:`voxel_downsample` of ``proj.points``.
+    """
+    fields = jit_voxel.voxelise(proj)
+    if fields is not None:
+        return VoxelGrid(*fields)
+    grid = voxel_downsample_numpy(proj.points, proj.voxel_size_m)
+    proj.pixel_voxel.reshape(-1)[proj.pixel_index] = grid.point_voxel
+    return grid
+
+
+def voxel_grid(roi: RoiPoints) -> VoxelGrid:
+    """Return the voxel grid of the frame's points (:func:`voxel_downsample`)."""
+    if roi.projection is not None:
+        return voxelise(roi.projection)
+    return voxel_downsample(roi.points, roi.voxel_size_m)
+
+
+def pixel_labels(roi: RoiPoints, grid: VoxelGrid, is_obstacle: np.ndarray,
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Return (labels (H, W) uint8 LABEL_*, pixel_voxel (H, W) int32 voxel of each pixel or -1).
+
+    is_obstacle: (V,) bool, the voxels' decision. Pixels without a point are
+    LABEL_NO_RETURN, points outside the region LABEL_OUTSIDE_ROI, the others their voxel's
+    LABEL_OBSTACLE or LABEL_GROUND. The compiled path writes into the projection's arrays.
+    """
+    proj = roi.projection
+    if proj is not None:
+        jit_voxel.label_pixels(proj.labels, proj.pixel_voxel, is_obstacle)
+        return proj.labels, proj.pixel_voxel
+    labels = np.zeros(roi.shape, dtype=np.uint8)
+    flat_labels = labels.reshape(-1)
+    flat_labels[roi.valid] = LABEL_OUTSIDE_ROI
+    flat_labels[roi.pixel_index] = np.where(is_obstacle[grid.point_voxel], LABEL_OBSTACLE,
+                                            LABEL_GROUND).astype(np.uint8)
+    pixel_voxel = np.full(roi.shape, -1, dtype=np.int32)
+    pixel_voxel.reshape(-1)[roi.pixel_index] = grid.point_voxel
+    return labels, pixel_voxel
+
+
+def warm_up() -> None:
+    """Compile (or load from the on-disk cache) the voxel kernels on a tiny frame, if they run."""
+    if not jit.enabled():
+        return
+    params = DetectorParams()
+    depth = np.full((6, 8), 1.0, np.float32)
+    depth[0, 0] = 0.0
+    rays = geometry.ground_rays(depth.shape, Intrinsics(fx=5.0, fy=5.0, cx=4.0, cy=3.0), params)
+    roi = points_in_roi(depth, rays, params)
+    grid = voxel_grid(roi)
+    pixel_labels(roi, grid, np.zeros(grid.counts.size, bool))
+    pts = np.random.default_rng(0).uniform(-1.0, 1.0, (20, 3))
+    voxel_downsample(pts.astype(np.float32), (0.1, 0.1, 0.1))
+    voxel_downsample(pts, (0.1, 0.1, 0.1))

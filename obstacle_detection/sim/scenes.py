@@ -65,17 +65,11 @@ from typing import Any, Callable, Protocol, Union
 import cv2
 import numpy as np
 
+from obstacle_detection.labels import GT_ABOVE_ROBOT, GT_NO_RETURN, GT_OBSTACLE, GT_TRAVERSABLE
 from obstacle_detection.pipeline.geometry import mount_transform
 from obstacle_detection.pipeline.params import (DetectorParams, Intrinsics, KINECT_V2_SD,
                                                 KINECT_V2_SD_SIZE)
 
-#: Ground-truth pixel labels: no return (no surface, out of band, dropout, border), traversable
-#: ground, obstacle. Same values as ``obstacle_detection.evaluation.metrics``.
-GT_NO_RETURN = 0
-GT_TRAVERSABLE = 1
-GT_OBSTACLE = 2
-#: Robot-level truth only: a surface higher than the robot above the ground under it.
-GT_ABOVE_ROBOT = 3
 
 #: Hits farther than this ray parameter (depth) [m] count as no hit (the horizon).
 MAX_TRACE_M = 50.0

@@ -10,8 +10,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from obstacle_detection.pipeline.costmap import CELL_UNKNOWN, Costmap
-from obstacle_detection.pipeline.detector import LABEL_OBSTACLE
+from obstacle_detection.labels import CELL_UNKNOWN, LABEL_OBSTACLE
+from obstacle_detection.pipeline.costmap import Costmap
 
 #: Obstacle pixels in the depth overlay. The seed (figures 4.22-4.27) marks obstacles with black
 #: dots, but black is also its colour for blind spots, so obstacles are drawn in red here.

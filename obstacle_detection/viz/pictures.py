@@ -23,8 +23,8 @@ from typing import Any, Iterator, Sequence
 import cv2
 import numpy as np
 
-from obstacle_detection.evaluation.metrics import (CELL_OCCUPIED, GT_NO_RETURN, GT_OBSTACLE,
-                                                   LABEL_GROUND, LABEL_OBSTACLE)
+from obstacle_detection.labels import (CELL_OCCUPIED, GT_NO_RETURN, GT_OBSTACLE, LABEL_GROUND,
+                                       LABEL_OBSTACLE)
 from .overlay import (MIN_GREY, NO_RETURN_RGB, OBSTACLE_RGB, OCCUPIED_RGB, FREE_RGB,
                       ROBOT_RGB, UNKNOWN_RGB, render_costmap, render_overlay)
 from obstacle_detection.pipeline.params import Intrinsics

@@ -1,5 +1,8 @@
-"""Numba kernels of the pipeline stages: leaves that import nothing of ours but each other.
+"""Numba kernels of the pipeline stages: leaves that import nothing of ours back.
 
-Each stage module of :mod:`obstacle_detection.pipeline` chooses between its kernel here and
-its numpy twin through the one switch in :mod:`obstacle_detection.pipeline.jit`.
+A kernel module imports only :mod:`obstacle_detection.labels` and :mod:`._numba` (the numba
+import and the compile decorators), takes arrays and plain values, and returns arrays. Each
+stage module of :mod:`obstacle_detection.pipeline` (median, voxel, normals, ...) chooses
+between its kernels here and its numpy twin through the one switch,
+:func:`obstacle_detection.pipeline.jit.enabled`, and builds its own result types.
 """

@@ -1,9 +1,9 @@
 """Compiled k-nearest neighbours on a uniform grid and fused normals (optional, numba).
 
-numba is an optional accelerator: when it imports,
-:mod:`obstacle_detection.pipeline.normals` runs the
-kernels of this module; when it does not (``AVAILABLE`` is False, e.g. a ROS install without
-python3-numba), the numpy/scipy code runs instead. Both give the same answers:
+numba is an optional accelerator: when :func:`obstacle_detection.pipeline.jit.enabled`, the
+stage module :mod:`obstacle_detection.pipeline.normals` runs the kernels of this module;
+otherwise (no numba, ``AVAILABLE`` False, or the switch off) its numpy/scipy code. Both
+give the same answers:
 
 * :func:`knn_grid` is an exact k-nearest-neighbour search. Squared distances are summed in
   float64 in the same order as scipy's ``cKDTree`` (``dx^2 + dy^2 + dz^2``), so the distances
@@ -24,7 +24,7 @@ import math
 
 import numpy as np
 
-from obstacle_detection.pipeline.jit import AVAILABLE, enabled, jit as _jit
+from ._numba import AVAILABLE, jit as _jit, jit_inline as _jit_inline
 
 #: Largest dense cell table [cells]; a larger grid looks its cells up in a hash table.
 _DENSE_CELLS_LIMIT = 1 << 22
@@ -38,6 +38,12 @@ _MAX_AXIS_CELLS = 1 << 20
 
 # --------------------------------------------------------------------------- grid k-NN kernel
 
+@_jit_inline
+def _hash_slot(key, mask):  # pragma: no cover - compiled
+    """First slot of a linear cell key in the open-addressing table (Fibonacci hashing)."""
+    return ((key * _HASH_MULTIPLIER) >> 17) & mask
+
+
 @_jit
 def _build_grid(pts, lo, cell, dense):  # pragma: no cover - compiled
     """Sort points by cell; return the CSR layout and the cell lookup.
@@ -46,7 +52,7 @@ def _build_grid(pts, lo, cell, dense):  # pragma: no cover - compiled
     slot, sorted_pts (n, 3) float64, starts, hash_keys, hash_cells). Dense: ``starts`` has
     ncells + 1 entries, cell c spans ``order[starts[c]:starts[c + 1]]``. Hashed: ``starts``
     has one entry per occupied cell + 1 and ``hash_keys``/``hash_cells`` map a linear cell key
-    to its occupied-cell number.
+    to its occupied-cell number (see :func:`_hashed_span`).
     """
     n = pts.shape[0]
     cell_ijk = np.empty((n, 3), np.int64)
@@ -97,7 +103,7 @@ def _build_grid(pts, lo, cell, dense):  # pragma: no cover - compiled
             key = keys[order[s]]
             if s == 0 or key != keys[order[s - 1]]:
                 starts[occ] = s
-                slot = ((key * _HASH_MULTIPLIER) >> 17) & mask
+                slot = _hash_slot(key, mask)
                 while hash_keys[slot] != -1:
                     slot = (slot + 1) & mask
                 hash_keys[slot] = key
@@ -112,6 +118,37 @@ def _build_grid(pts, lo, cell, dense):  # pragma: no cover - compiled
 
 
 @_jit
+def _hashed_span(key, starts, hash_keys, hash_cells):  # pragma: no cover - compiled
+    """Return (begin, end): the sorted slots of the points in the cell of linear key ``key``.
+
+    For hashed grids: the cell's number is found in the table of :func:`_build_grid` (an
+    empty span when no point is in the cell). Dense grids index ``starts`` by the key
+    directly; the callers do that inline (a call passing arrays costs reference counting,
+    27 times per gathered block).
+    """
+    mask = hash_keys.shape[0] - 1
+    begin = 0
+    end = 0
+    slot = _hash_slot(key, mask)
+    while hash_keys[slot] != -1:
+        if hash_keys[slot] == key:
+            begin = starts[hash_cells[slot]]
+            end = starts[hash_cells[slot] + 1]
+            break
+        slot = (slot + 1) & mask
+    return begin, end
+
+
+@_jit_inline
+def _squared_distance(a0, a1, a2, x0, x1, x2):  # pragma: no cover - compiled
+    """Squared distance of (a0, a1, a2) to (x0, x1, x2), summed in scipy's order."""
+    d0 = a0 - x0
+    d1 = a1 - x1
+    d2 = a2 - x2
+    return d0 * d0 + d1 * d1 + d2 * d2
+
+
+@_jit
 def _axis_gap(offset, below, above, size, slack):  # pragma: no cover - compiled
     """Smallest distance along one axis from the query to a cell ``offset`` cells away."""
     if offset > 0:
@@ -123,24 +160,227 @@ def _axis_gap(offset, below, above, size, slack):  # pragma: no cover - compiled
     return g if g > 0.0 else 0.0
 
 
-# The kernel below inlines the top-k insertion and the cell lookup by hand: a helper taking
-# arrays costs two atomic reference-count updates per array and call, more than the work.
+@_jit_inline
+def _cell_end(s, order, cell_ijk):  # pragma: no cover - compiled
+    """Return the sorted slot after the last point of the cell of sorted slot ``s``."""
+    i = order[s]
+    end = s + 1
+    while (end < order.shape[0] and cell_ijk[order[end], 0] == cell_ijk[i, 0]
+           and cell_ijk[order[end], 1] == cell_ijk[i, 1]
+           and cell_ijk[order[end], 2] == cell_ijk[i, 2]):
+        end += 1
+    return end
+
+
+@_jit_inline
+def _gather_block(c0, c1, c2, dims, dense, starts, hash_keys, hash_cells, sp, order,
+                  block_x, block_y, block_z, block_j):  # pragma: no cover - compiled
+    """Copy the points of the 3 x 3 x 3 cells around cell (c0, c1, c2) into the block arrays.
+
+    Returns their number m: block_x/y/z[:m] the coordinates, block_j[:m] the point indices.
+    """
+    m = 0
+    for o0 in range(max(c0 - 1, 0), min(c0 + 1, dims[0] - 1) + 1):
+        for o1 in range(max(c1 - 1, 0), min(c1 + 1, dims[1] - 1) + 1):
+            for o2 in range(max(c2 - 1, 0), min(c2 + 1, dims[2] - 1) + 1):
+                key = (o0 * dims[1] + o1) * dims[2] + o2
+                if dense:
+                    begin, end = starts[key], starts[key + 1]
+                else:
+                    begin, end = _hashed_span(key, starts, hash_keys, hash_cells)
+                for t in range(begin, end):
+                    block_x[m] = sp[t, 0]
+                    block_y[m] = sp[t, 1]
+                    block_z[m] = sp[t, 2]
+                    block_j[m] = order[t]
+                    m += 1
+    return m
+
+
+@_jit_inline
+def _near_points(block_x, block_y, block_z, block_j, m, x0, x1, x2, i, radius2, near_d,
+                 near_j):  # pragma: no cover - compiled
+    """Keep the block's points within squared distance ``radius2`` of query i; return how many.
+
+    near_d / near_j get their squared distances (-1 for the query itself, so it comes first
+    even among duplicates) and indices. Branch-free: every point is written, the count moves
+    only for those kept.
+    """
+    n_near = 0
+    for u in range(m):
+        d = _squared_distance(block_x[u], block_y[u], block_z[u], x0, x1, x2)
+        j = block_j[u]
+        near_d[n_near] = -1.0 if j == i else d
+        near_j[n_near] = j
+        n_near += d <= radius2
+    return n_near
+
+
+@_jit_inline
+def _rank_near(near_d, near_j, n_near, k, top, kth2):  # pragma: no cover - compiled
+    """Write the k nearest of the n_near (>= k) near points into top[:k]; return the k-th d2.
+
+    The rank of each point by distance; ranks below k are the answer unless distances tie
+    among them, then ranks by (distance, index) decide. Branch-free: the comparisons run over
+    a multiple of 8 (padded with inf) and ranks of k or more land in a spare slot (top[k]).
+    ``kth2``: returned unchanged if no point has rank k - 1 (cannot happen with n_near >= k).
+    """
+    padded = (n_near + 7) & ~7
+    for v in range(n_near, padded):
+        near_d[v] = np.inf
+    placed = 0
+    rank_sum = 0
+    for v in range(n_near):
+        dv = near_d[v]
+        rank = 0
+        for w in range(padded):
+            rank += np.int64(near_d[w] < dv)
+        inside = rank < k
+        slot = rank if inside else k
+        top[slot] = near_j[v]
+        kth2 = dv if rank == k - 1 else kth2
+        placed += inside
+        rank_sum += rank if inside else 0
+    if placed != k or rank_sum != k * (k - 1) // 2:
+        for v in range(n_near):
+            dv = near_d[v]
+            jv = near_j[v]
+            rank = 0
+            for w in range(n_near):
+                rank += (near_d[w] < dv) | ((near_d[w] == dv) & (near_j[w] < jv))
+            if rank < k:
+                top[rank] = jv
+            if rank == k - 1:
+                kth2 = dv
+    return kth2
+
+
+@_jit_inline
+def _offer_span(begin, end, sp, order, x0, x1, x2, i, best_d, best_i, count, worst,
+                k):  # pragma: no cover - compiled
+    """Offer the sorted points begin .. end - 1 to query i's insertion-sorted top-k.
+
+    best_d / best_i[:count] hold the best so far by (squared distance, index), the query
+    itself excluded (it sits first with distance -1); ``worst`` is the k-th distance once
+    count == k. Returns the new (count, worst).
+    """
+    last = k - 1
+    for t in range(begin, end):
+        j = order[t]
+        d = _squared_distance(sp[t, 0], sp[t, 1], sp[t, 2], x0, x1, x2)
+        if count == k:
+            if d > worst or (d == worst and j > best_i[last]) or j == i:
+                continue
+            pos = last
+        else:
+            if j == i:
+                continue
+            pos = count
+            count += 1
+        while pos > 0 and (best_d[pos - 1] > d or (
+                best_d[pos - 1] == d and best_i[pos - 1] > j)):
+            best_d[pos] = best_d[pos - 1]
+            best_i[pos] = best_i[pos - 1]
+            pos -= 1
+        best_d[pos] = d
+        best_i[pos] = j
+        if count == k:
+            worst = best_d[last]
+    return count, worst
+
+
+@_jit_inline
+def _shell_cells(r, c0, c1, c2, dims):  # pragma: no cover - compiled
+    """Return the number of grid cells within Chebyshev radius r of cell (c0, c1, c2)."""
+    return ((min(r, dims[0] - 1 - c0) + min(r, c0) + 1)
+            * (min(r, dims[1] - 1 - c1) + min(r, c1) + 1)
+            * (min(r, dims[2] - 1 - c2) + min(r, c2) + 1))
+
+
+@_jit_inline
+def _write_row(out, i, src, k):  # pragma: no cover - compiled
+    """out[i, :k] = src[:k]."""
+    for col in range(k):
+        out[i, col] = src[col]
+
+
+@_jit_inline
+def _search_shells(i, x0, x1, x2, c0, c1, c2, below, above, cell, slack, dims, dense, starts,
+                   hash_keys, hash_cells, sp, order, best_d, best_i, k,
+                   budget):  # pragma: no cover - compiled
+    """Search shells of cells of growing Chebyshev radius around query i's cell (c0, c1, c2).
+
+    Fills best_d / best_i (:func:`_offer_span`, the query first), pruning the cells farther
+    than the k-th best. Returns False when more than ``budget`` cells would be looked at (the
+    caller scans all points instead).
+    """
+    best_d[0] = -1.0              # the query itself comes first, even among duplicates
+    best_i[0] = i
+    count = 1
+    worst = np.inf if k > 1 else -1.0   # k-th best squared distance so far
+    looked = 0
+    r_max = max(max(c0, dims[0] - 1 - c0), max(max(c1, dims[1] - 1 - c1),
+                                             max(c2, dims[2] - 1 - c2)))
+    for r in range(r_max + 1):
+        if r > 0 and count == k:
+            # every cell of shell r (Chebyshev radius r) lies at least this far away
+            bound = np.inf
+            for a in range(3):
+                edge = min(below[a], above[a]) + (r - 1) * cell[a] - slack
+                bound = min(bound, edge)
+            if bound > 0.0 and bound * bound > worst:
+                break
+        # the grid cells of shell r: within radius r but not r - 1
+        looked += _shell_cells(r, c0, c1, c2, dims)
+        if r > 0:
+            looked -= _shell_cells(r - 1, c0, c1, c2, dims)
+        if looked > budget:
+            return False
+        lo2 = -min(r, c2)
+        hi2 = min(r, dims[2] - 1 - c2)
+        for o0 in range(-min(r, c0), min(r, dims[0] - 1 - c0) + 1):
+            g0 = _axis_gap(o0, below[0], above[0], cell[0], slack)
+            g0 = g0 * g0
+            if g0 > worst:
+                continue
+            for o1 in range(-min(r, c1), min(r, dims[1] - 1 - c1) + 1):
+                g1 = _axis_gap(o1, below[1], above[1], cell[1], slack)
+                g01 = g0 + g1 * g1
+                if g01 > worst:
+                    continue
+                face = o0 == -r or o0 == r or o1 == -r or o1 == r
+                # a face of the shell: the whole column; inside: only the two end cells
+                for o2 in range(lo2 if face else -r, hi2 + 1, 1 if face else 2 * r):
+                    if o2 < lo2:
+                        continue
+                    g2 = _axis_gap(o2, below[2], above[2], cell[2], slack)
+                    if g01 + g2 * g2 > worst:
+                        continue
+                    key = ((c0 + o0) * dims[1] + (c1 + o1)) * dims[2] + (c2 + o2)
+                    if dense:
+                        begin, end = starts[key], starts[key + 1]
+                    else:
+                        begin, end = _hashed_span(key, starts, hash_keys, hash_cells)
+                    count, worst = _offer_span(begin, end, sp, order, x0, x1, x2, i, best_d,
+                                               best_i, count, worst, k)
+    return True
+
 
 @_jit
 def _knn_kernel(pts, lo, cell, k, dense, slack, out):  # pragma: no cover - compiled
     """Exact k nearest neighbours of every point (see :func:`knn_grid`) into ``out`` (n, k).
 
     Fast path, per occupied cell: the points of its 3 x 3 x 3 block of cells are gathered
-    once; each query of the cell measures them all and keeps those closer than the block's
-    boundary (every such point of the cloud is in the block). If at least k remain, the k
-    nearest are among them, ranked by counting. Otherwise (or when very many remain) the
-    query searches shells of cells of growing Chebyshev radius with an insertion-sorted
-    top-k, pruning cells farther than its k-th best, or scans all points when the cloud is so
-    sparse that the shells would cost more.
+    once (:func:`_gather_block`); each query of the cell measures them all and keeps those
+    closer than the block's boundary (every such point of the cloud is in the block). If at
+    least k remain, the k nearest are among them, ranked by counting (:func:`_rank_near`).
+    Otherwise (or when very many remain) the query searches shells of cells of growing
+    Chebyshev radius with an insertion-sorted top-k (:func:`_search_shells`), pruning cells
+    farther than its k-th best, or scans all points when the cloud is so sparse that the
+    shells would cost more.
     """
     n = pts.shape[0]
     cell_ijk, dims, order, sp, starts, hash_keys, hash_cells = _build_grid(pts, lo, cell, dense)
-    mask = hash_keys.shape[0] - 1
     best_d = np.empty(k, np.float64)
     best_i = np.empty(k, np.int64)
     below = np.empty(3, np.float64)
@@ -155,7 +395,6 @@ def _knn_kernel(pts, lo, cell, k, dense, slack, out):  # pragma: no cover - comp
     top = np.empty(k + 1, np.int64)
     budget = 2 * n + 512              # cells to look at before a plain scan is cheaper
     rank_limit = 4 * k + 64           # more near points (a crowded cell): insertion is cheaper
-    last = k - 1
     group_end = 0
     m = 0
     kth2_prev = np.inf                # squared k-th distance of the previous query
@@ -165,35 +404,9 @@ def _knn_kernel(pts, lo, cell, k, dense, slack, out):  # pragma: no cover - comp
         c1 = cell_ijk[i, 1]
         c2 = cell_ijk[i, 2]
         if s == group_end:            # first point of a new cell: gather its block
-            group_end = s + 1
-            while (group_end < n and cell_ijk[order[group_end], 0] == c0
-                   and cell_ijk[order[group_end], 1] == c1
-                   and cell_ijk[order[group_end], 2] == c2):
-                group_end += 1
-            m = 0
-            for o0 in range(max(c0 - 1, 0), min(c0 + 1, dims[0] - 1) + 1):
-                for o1 in range(max(c1 - 1, 0), min(c1 + 1, dims[1] - 1) + 1):
-                    for o2 in range(max(c2 - 1, 0), min(c2 + 1, dims[2] - 1) + 1):
-                        key = (o0 * dims[1] + o1) * dims[2] + o2
-                        if dense:
-                            begin = starts[key]
-                            end = starts[key + 1]
-                        else:
-                            begin = 0
-                            end = 0
-                            slot = ((key * _HASH_MULTIPLIER) >> 17) & mask
-                            while hash_keys[slot] != -1:
-                                if hash_keys[slot] == key:
-                                    begin = starts[hash_cells[slot]]
-                                    end = starts[hash_cells[slot] + 1]
-                                    break
-                                slot = (slot + 1) & mask
-                        for t in range(begin, end):
-                            block_x[m] = sp[t, 0]
-                            block_y[m] = sp[t, 1]
-                            block_z[m] = sp[t, 2]
-                            block_j[m] = order[t]
-                            m += 1
+            group_end = _cell_end(s, order, cell_ijk)
+            m = _gather_block(c0, c1, c2, dims, dense, starts, hash_keys, hash_cells, sp,
+                              order, block_x, block_y, block_z, block_j)
         x0 = sp[s, 0]
         x1 = sp[s, 1]
         x2 = sp[s, 2]
@@ -206,212 +419,22 @@ def _knn_kernel(pts, lo, cell, k, dense, slack, out):  # pragma: no cover - comp
         # First try a radius a little beyond the previous query's k-th neighbour (queries in
         # cell order are close, so it usually holds k points and fewer others), then reach.
         radius2 = min(reach2, 1.21 * kth2_prev)
-        n_near = 0
-        for attempt in range(2):
-            n_near = 0
-            for u in range(m):        # branch-free: keep every point within the radius
-                d0 = block_x[u] - x0
-                d1 = block_y[u] - x1
-                d2 = block_z[u] - x2
-                d = d0 * d0 + d1 * d1 + d2 * d2
-                j = block_j[u]
-                near_d[n_near] = -1.0 if j == i else d   # self first, even among duplicates
-                near_j[n_near] = j
-                n_near += d <= radius2
-            if n_near >= k or radius2 == reach2:
-                break
-            radius2 = reach2
+        n_near = _near_points(block_x, block_y, block_z, block_j, m, x0, x1, x2, i, radius2,
+                              near_d, near_j)
+        if n_near < k and radius2 != reach2:
+            n_near = _near_points(block_x, block_y, block_z, block_j, m, x0, x1, x2, i,
+                                  reach2, near_d, near_j)
         if k <= n_near <= rank_limit:
-            # rank of each near point by distance; ranks below k are the answer unless
-            # distances tie among them, then ranks by (distance, index) decide. Branch-free:
-            # the comparisons run over a multiple of 8 (padded with inf) and ranks of k or
-            # more land in a spare slot.
-            padded = (n_near + 7) & ~7
-            for v in range(n_near, padded):
-                near_d[v] = np.inf
-            placed = 0
-            rank_sum = 0
-            for v in range(n_near):
-                dv = near_d[v]
-                rank = 0
-                for w in range(padded):
-                    rank += np.int64(near_d[w] < dv)
-                inside = rank < k
-                slot = rank if inside else k
-                top[slot] = near_j[v]
-                kth2_prev = dv if rank == k - 1 else kth2_prev
-                placed += inside
-                rank_sum += rank if inside else 0
-            if placed != k or rank_sum != k * (k - 1) // 2:
-                for v in range(n_near):
-                    dv = near_d[v]
-                    jv = near_j[v]
-                    rank = 0
-                    for w in range(n_near):
-                        rank += (near_d[w] < dv) | ((near_d[w] == dv) & (near_j[w] < jv))
-                    if rank < k:
-                        top[rank] = jv
-                    if rank == k - 1:
-                        kth2_prev = dv
-            for col in range(k):
-                out[i, col] = top[col]
+            kth2_prev = _rank_near(near_d, near_j, n_near, k, top, kth2_prev)
+            _write_row(out, i, top, k)
             continue
-
-        best_d[0] = -1.0              # the query itself comes first, even among duplicates
-        best_i[0] = i
-        count = 1
-        worst = np.inf if k > 1 else -1.0   # k-th best squared distance so far
-        looked = 0
-        r_max = max(max(c0, dims[0] - 1 - c0), max(max(c1, dims[1] - 1 - c1),
-                                                     max(c2, dims[2] - 1 - c2)))
-        scan_all = False
-        for r in range(r_max + 1):
-            if r > 0 and count == k:
-                # every cell of shell r (Chebyshev radius r) lies at least this far away
-                bound = np.inf
-                for a in range(3):
-                    edge = min(below[a], above[a]) + (r - 1) * cell[a] - slack
-                    bound = min(bound, edge)
-                if bound > 0.0 and bound * bound > worst:
-                    break
-            # the grid cells of shell r: within radius r but not r - 1
-            outer = 1
-            inner = 1 if r > 0 else 0
-            for a in range(3):
-                ca = cell_ijk[i, a]
-                outer *= min(r, dims[a] - 1 - ca) + min(r, ca) + 1
-                if r > 0:
-                    inner *= min(r - 1, dims[a] - 1 - ca) + min(r - 1, ca) + 1
-            looked += outer - inner
-            if looked > budget:
-                scan_all = True
-                break
-            lo2 = -min(r, c2)
-            hi2 = min(r, dims[2] - 1 - c2)
-            for o0 in range(-min(r, c0), min(r, dims[0] - 1 - c0) + 1):
-                g0 = _axis_gap(o0, below[0], above[0], cell[0], slack)
-                g0 = g0 * g0
-                if g0 > worst:
-                    continue
-                for o1 in range(-min(r, c1), min(r, dims[1] - 1 - c1) + 1):
-                    g1 = _axis_gap(o1, below[1], above[1], cell[1], slack)
-                    g01 = g0 + g1 * g1
-                    if g01 > worst:
-                        continue
-                    if o0 == -r or o0 == r or o1 == -r or o1 == r:
-                        o2_first = lo2           # a face of the shell: the whole column
-                        o2_step = 1
-                    else:
-                        o2_first = -r            # inside: only the two end cells
-                        o2_step = 2 * r
-                    for o2 in range(o2_first, hi2 + 1, o2_step):
-                        if o2 < lo2:
-                            continue
-                        g2 = _axis_gap(o2, below[2], above[2], cell[2], slack)
-                        if g01 + g2 * g2 > worst:
-                            continue
-                        key = ((c0 + o0) * dims[1] + (c1 + o1)) * dims[2] + (c2 + o2)
-                        if dense:
-                            begin = starts[key]
-                            end = starts[key + 1]
-                        else:
-                            begin = 0
-                            end = 0
-                            slot = ((key * _HASH_MULTIPLIER) >> 17) & mask
-                            while hash_keys[slot] != -1:
-                                if hash_keys[slot] == key:
-                                    begin = starts[hash_cells[slot]]
-                                    end = starts[hash_cells[slot] + 1]
-                                    break
-                                slot = (slot + 1) & mask
-                        for t in range(begin, end):
-                            j = order[t]
-                            d0 = sp[t, 0] - x0
-                            d1 = sp[t, 1] - x1
-                            d2 = sp[t, 2] - x2
-                            d = d0 * d0 + d1 * d1 + d2 * d2
-                            if count == k:
-                                if d > worst or (d == worst and j > best_i[last]) or j == i:
-                                    continue
-                                pos = last
-                            else:
-                                if j == i:
-                                    continue
-                                pos = count
-                                count += 1
-                            while pos > 0 and (best_d[pos - 1] > d or (
-                                    best_d[pos - 1] == d and best_i[pos - 1] > j)):
-                                best_d[pos] = best_d[pos - 1]
-                                best_i[pos] = best_i[pos - 1]
-                                pos -= 1
-                            best_d[pos] = d
-                            best_i[pos] = j
-                            if count == k:
-                                worst = best_d[last]
-        if scan_all:                  # far-apart points: a plain scan is the cheaper search
-            count = 1
-            worst = np.inf
-            for t in range(n):
-                j = order[t]
-                d0 = sp[t, 0] - x0
-                d1 = sp[t, 1] - x1
-                d2 = sp[t, 2] - x2
-                d = d0 * d0 + d1 * d1 + d2 * d2
-                if count == k:
-                    if d > worst or (d == worst and j > best_i[last]) or j == i:
-                        continue
-                    pos = last
-                else:
-                    if j == i:
-                        continue
-                    pos = count
-                    count += 1
-                while pos > 0 and (best_d[pos - 1] > d or (
-                        best_d[pos - 1] == d and best_i[pos - 1] > j)):
-                    best_d[pos] = best_d[pos - 1]
-                    best_i[pos] = best_i[pos - 1]
-                    pos -= 1
-                best_d[pos] = d
-                best_i[pos] = j
-                if count == k:
-                    worst = best_d[last]
-        kth2_prev = best_d[last]
-        for col in range(k):
-            out[i, col] = best_i[col]
-
-
-@_jit
-def _cell_crowding(pts, lo, size, dims, dense):  # pragma: no cover - compiled
-    """Mean number of other points in a point's own cell of an isotropic ``size`` grid.
-
-    Dense: counts over all cells; otherwise the sorted cell keys are counted.
-    """
-    n = pts.shape[0]
-    keys = np.empty(n, np.int64)
-    for i in range(n):
-        key = 0
-        for a in range(3):
-            c = np.int64(math.floor((pts[i, a] - lo[a]) / size))
-            c = min(max(c, 0), dims[a] - 1)
-            key = key * dims[a] + c
-        keys[i] = key
-    total = 0
-    if dense:
-        counts = np.zeros(dims[0] * dims[1] * dims[2], np.int64)
-        for i in range(n):
-            counts[keys[i]] += 1
-        for i in range(n):
-            total += counts[keys[i]]
-    else:
-        keys.sort()
-        run = 1
-        for i in range(1, n + 1):
-            if i < n and keys[i] == keys[i - 1]:
-                run += 1
-            else:
-                total += run * run
-                run = 1
-    return total / n - 1.0
+        if not _search_shells(i, x0, x1, x2, c0, c1, c2, below, above, cell, slack, dims, dense,
+                              starts, hash_keys, hash_cells, sp, order, best_d, best_i, k,
+                              budget):
+            # far-apart points: a plain scan is the cheaper search
+            _offer_span(0, n, sp, order, x0, x1, x2, i, best_d, best_i, 1, np.inf, k)
+        kth2_prev = best_d[k - 1]
+        _write_row(out, i, best_i, k)
 
 
 # ---------------------------------------------------------------------------- grid planning
@@ -728,7 +751,7 @@ def warm_up() -> None:
     The first compilation takes a few seconds; call this once at start-up so the first frame
     does not pay it.
     """
-    if not enabled():   # no numba, switched off, or compiling on another thread
+    if not AVAILABLE:
         return
     rng = np.random.default_rng(0)
     pts = rng.uniform(0.0, 0.1, (40, 3)).astype(np.float32)

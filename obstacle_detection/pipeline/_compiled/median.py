@@ -1,13 +1,12 @@
 """Compiled (numba) sorting-network median for ``median_filter`` (depth).
 
-numba is an optional accelerator: when it imports (``AVAILABLE``) and the environment variable
-``OBSTACLE_DETECTION_NO_JIT`` is unset, empty or ``0`` (:func:`enabled`),
-:func:`~obstacle_detection.pipeline.depth.median_filter` runs the exact K x K median of uint16 keys
-for K >= 7 through :func:`network_median`; otherwise the numpy / OpenCV code of
-:mod:`obstacle_detection.pipeline.depth` runs unchanged. Both are exact (equal to
+numba is an optional accelerator: when :func:`obstacle_detection.pipeline.jit.enabled`,
+:func:`obstacle_detection.pipeline.median.median_filter` runs the exact K x K median of uint16
+keys for K >= 7 through :func:`network_median`; otherwise the numpy / OpenCV code of
+:mod:`obstacle_detection.pipeline.median` runs unchanged. Both are exact (equal to
 ``scipy.ndimage.median_filter(mode='nearest')``), so they give identical results.
 
-Method: the min/max network that :mod:`obstacle_detection.pipeline.depth` builds (every horizontal
+Method: the min/max network that :mod:`obstacle_detection.pipeline.median` builds (every horizontal
 K-run is sorted, then the K sorted runs of each window are merged across rows, ``tile``
 output rows sharing their common runs, values that can no longer be the median dropped) runs
 on rows of ``chunk`` (<= 512) pixels. The sorted runs of the last ``tile + K - 1`` padded
@@ -21,7 +20,8 @@ to millimetres by one compiled pass (:func:`quantised_keys`).
   networks as literals, is written once to a module file named by a digest (numba's cache
   directory, else ``__pycache__``), so numba caches it on disk like the other kernels: the
   first compilation takes about 1 s at K = 9, 3 s at K = 17, 8 s at K = 21 (2-4x that on a
-  busy machine), later processes load it in under a second (:func:`warm_up`).
+  busy machine), later processes load it in under a second
+  (:func:`obstacle_detection.pipeline.median.warm_up`).
 - Larger K: a small interpreter (:func:`_median_kernel`) runs fused compare-exchange
   instructions ``(lo, hi) = (min(a, b), max(a, b))`` on vectors of ``chunk`` pixels in a
   register file in memory (vectorised by the compiler); every instruction loads two vectors
@@ -54,7 +54,6 @@ import math
 import os
 import sys
 import threading
-import time
 import warnings
 from pathlib import Path
 from typing import NamedTuple
@@ -62,10 +61,10 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
-from obstacle_detection.pipeline.jit import AVAILABLE, NO_JIT_ENV, enabled, jit as _jit
+from ._numba import AVAILABLE, jit as _jit
 
-__all__ = ['AVAILABLE', 'NO_JIT_ENV', 'NetworkProgram', 'assemble_program', 'enabled',
-           'network_median', 'quantised_keys', 'take', 'warm_up']
+__all__ = ['AVAILABLE', 'NetworkProgram', 'aligned_registers', 'assemble_program', 'band_lanes',
+           'band_plan', 'network_median', 'quantised_keys', 'take', 'write_band']
 
 #: The interpreter processes ``blocks * _LANES`` pixels of a row per instruction.
 _LANES = 64
@@ -145,6 +144,85 @@ def _addresses(code, chunk, n_regs):  # pragma: no cover - compiled
 
 
 @_jit
+def aligned_registers(size):  # pragma: no cover - compiled
+    """Return an uninitialised (size,) uint16 buffer that starts on a 64-byte cache line.
+
+    Vector loads that straddle two cache lines cost up to 1.5x.
+    """
+    raw = np.empty(size + 32, np.uint16)
+    skip = (-raw.ctypes.data % 64) // 2
+    return raw[skip:skip + size]
+
+
+@_jit
+def band_plan(h, w, chunk, tile, r):  # pragma: no cover - compiled
+    """Return the bands of a median run in order: (n, 5) int64 rows (x0, y0, rows, band, c0).
+
+    Row chunks of ``chunk`` lanes from x0, bands of ``tile`` output rows from y0 (``rows`` of
+    them, fewer in the last band); phase 1 sorts the padded rows y0 + c0 .. y0 + tile + 2r - 1
+    of a band (all of them for the first band of a chunk; then the ring holds the others).
+    """
+    n_bands = (h + tile - 1) // tile
+    n_chunks = (w + chunk - 1) // chunk
+    plan = np.empty((n_chunks * n_bands, 5), np.int64)
+    p = 0
+    for x0 in range(0, w, chunk):
+        for band in range(n_bands):
+            plan[p, 0] = x0
+            plan[p, 1] = band * tile
+            plan[p, 2] = min(tile, h - band * tile)
+            plan[p, 3] = band
+            plan[p, 4] = 0 if band == 0 else 2 * r
+            p += 1
+    return plan
+
+
+@_jit
+def band_lanes(need, y0, x0, n_rows, width):  # pragma: no cover - compiled
+    """Return (first, last, start, stop): the lanes of a band's row chunk the merge must run.
+
+    Lanes [first, last] hold every output of the band not known to be the lowest key;
+    [start, stop) is that span widened to whole 64-lane blocks (clipped to the chunk).
+    ``need``: (h, w) uint8, 0 where the median is known, or (0, 0) to compute every output;
+    the band's rows are y0 .. y0 + n_rows - 1, the chunk's lanes x0 .. x0 + width - 1.
+    last < first when no output is needed. Shared by the interpreter
+    (:func:`_median_kernel`) and the in-register kernels.
+    """
+    first, last = 0, width - 1
+    if need.shape[0] > 0:
+        first, last = width, -1
+        for t in range(n_rows):
+            lane = 0                  # scans stop at the first needed lane
+            while lane < first and not need[y0 + t, x0 + lane]:
+                lane += 1
+            first = lane if lane < first else first
+            lane = width - 1
+            while lane > last and not need[y0 + t, x0 + lane]:
+                lane -= 1
+            last = lane if lane > last else last
+    start = (first // 64) * 64
+    stop = min(-(-(last + 1) // 64) * 64, width)
+    return first, last, start, stop
+
+
+@_jit
+def write_band(out, mem, y0, x0, n_rows, width, lanes, fill, sources,
+               scale):  # pragma: no cover - compiled
+    """Copy a band's medians from the registers into ``out``; ``fill`` outside the merged lanes.
+
+    ``lanes``: (first, last, start, stop) of :func:`band_lanes`; row t of the band is read
+    from ``mem[sources[t] * scale + start:... + stop]``.
+    """
+    first, last, start, stop = lanes
+    for t in range(n_rows):
+        out[y0 + t, x0:x0 + start] = fill
+        if last >= first:
+            src = sources[t] * scale
+            out[y0 + t, x0 + start:x0 + stop] = mem[src + start:src + stop]
+        out[y0 + t, x0 + max(stop, start):x0 + width] = fill
+
+
+@_jit
 def _median_kernel(padded, h, w, k, tile, blocks, code1, code2, out2, n_regs, need,
                    fill):  # pragma: no cover - compiled
     """Run a :class:`NetworkProgram` over a replicate-padded uint16 key image.
@@ -158,54 +236,26 @@ def _median_kernel(padded, h, w, k, tile, blocks, code1, code2, out2, n_regs, ne
     r = k // 2
     rows = tile + 2 * r
     chunk = blocks * 64
-    # Registers, then one padded row segment (phase 1 reads its k shifts in place). They
-    # start on a cache line: vector loads that straddle two lines cost up to 1.5x.
-    size = n_regs * chunk + chunk + 2 * r
-    raw = np.empty(size + 32, np.uint16)
-    skip = (-raw.ctypes.data % 64) // 2
-    mem = raw[skip:skip + size]
+    # Registers, then one padded row segment (phase 1 reads its k shifts in place).
+    mem = aligned_registers(n_regs * chunk + chunk + 2 * r)
     row = n_regs * chunk
     addr1 = _addresses(code1, chunk, n_regs)
     addr2 = _addresses(code2, chunk, n_regs)
     out = np.empty((h, w), np.uint16)
-    n_bands = (h + tile - 1) // tile
-    n_phase = code2.shape[0]
-    check = need.shape[0] > 0
-    for x0 in range(0, w, chunk):
+    plan = band_plan(h, w, chunk, tile, r)
+    for p in range(plan.shape[0]):
+        x0, y0, n_rows = plan[p, 0], plan[p, 1], plan[p, 2]
         width = min(chunk, w - x0)
-        for band in range(n_bands):
-            y0 = band * tile
-            n_rows = min(tile, h - y0)
-            # Sort the horizontal runs of the padded rows this band adds to the ring.
-            for c in range(0 if band == 0 else 2 * r, rows):
-                py = y0 + c
-                mem[row:row + chunk + 2 * r] = padded[py, x0:x0 + chunk + 2 * r]
-                _run(addr1[py % rows], mem, 0, blocks)
-            # Lanes [first, last] hold every output of the band not known to be `fill`.
-            first, last = 0, width - 1
-            if check:
-                first, last = width, -1
-                for t in range(n_rows):
-                    lane = 0                  # scans stop at the first needed lane
-                    while lane < first and not need[y0 + t, x0 + lane]:
-                        lane += 1
-                    first = lane if lane < first else first
-                    lane = width - 1
-                    while lane > last and not need[y0 + t, x0 + lane]:
-                        lane -= 1
-                    last = lane if lane > last else last
-            start = (first // 64) * 64
-            stop = min(-(-(last + 1) // 64) * 64, width)
-            phase = band % n_phase
-            if last >= first:
-                # Merge the runs into the medians of the band's rows.
-                _run(addr2[phase], mem, start, -(-(stop - start) // 64))
-            for t in range(n_rows):
-                out[y0 + t, x0:x0 + start] = fill
-                if last >= first:
-                    src = out2[phase, t] * chunk
-                    out[y0 + t, x0 + start:x0 + stop] = mem[src + start:src + stop]
-                out[y0 + t, x0 + max(stop, start):x0 + width] = fill
+        # Sort the horizontal runs of the padded rows this band adds to the ring.
+        for py in range(y0 + plan[p, 4], y0 + rows):
+            mem[row:row + chunk + 2 * r] = padded[py, x0:x0 + chunk + 2 * r]
+            _run(addr1[py % rows], mem, 0, blocks)
+        lanes = band_lanes(need, y0, x0, n_rows, width)
+        phase = plan[p, 3] % code2.shape[0]
+        if lanes[1] >= lanes[0]:
+            # Merge the runs into the medians of the band's rows.
+            _run(addr2[phase], mem, lanes[2], -(-(lanes[3] - lanes[2]) // 64))
+        write_band(out, mem, y0, x0, n_rows, width, lanes, fill, out2[phase], chunk)
     return out
 
 
@@ -500,7 +550,7 @@ _KERNEL_SOURCE = '''"""In-register K x K median, generated by ._compiled.median.
 import numpy as np
 
 from obstacle_detection.pipeline._compiled import median as jit_median
-from obstacle_detection.pipeline.jit import numba
+from obstacle_detection.pipeline._compiled._numba import numba
 
 K = {k}
 TILE = {tile}
@@ -518,45 +568,22 @@ def kernel(padded, h, w, chunk, leaf1, out1, leaf2, out2, need, fill):
     size = out2[-1] + chunk
     flat = padded.reshape(padded.size)        # phase 1 reads the padded rows in place
     step = padded.shape[1]
-    raw = np.empty(size + 32, np.uint16)
-    skip = (-raw.ctypes.data % 64) // 2       # registers start on a cache line
-    mem = raw[skip:skip + size]
+    mem = jit_median.aligned_registers(size)
     out = np.empty((h, w), np.uint16)
-    n_bands = (h + TILE - 1) // TILE
-    n_phase = leaf2.shape[0]
-    check = need.shape[0] > 0
-    for x0 in range(0, w, chunk):
+    plan = jit_median.band_plan(h, w, chunk, TILE, r)
+    for p in range(plan.shape[0]):
+        x0, y0, n_rows = plan[p, 0], plan[p, 1], plan[p, 2]
+        for py in range(y0 + plan[p, 4], y0 + ROWS):
+            for j in range(0, chunk, LANES):
+                NET1(flat, leaf1, py * step + x0 + j, mem, out1[py % ROWS], j)
         width = min(chunk, w - x0)
-        for band in range(n_bands):
-            y0 = band * TILE
-            n_rows = min(TILE, h - y0)
-            for c in range(0 if band == 0 else 2 * r, ROWS):
-                py = y0 + c
-                for j in range(0, chunk, LANES):
-                    NET1(flat, leaf1, py * step + x0 + j, mem, out1[py % ROWS], j)
-            first, last = 0, width - 1
-            if check:
-                first, last = width, -1
-                for t in range(n_rows):
-                    lane = 0                  # scans stop at the first needed lane
-                    while lane < first and not need[y0 + t, x0 + lane]:
-                        lane += 1
-                    first = lane if lane < first else first
-                    lane = width - 1
-                    while lane > last and not need[y0 + t, x0 + lane]:
-                        lane -= 1
-                    last = lane if lane > last else last
-            start = (first // 64) * 64
-            stop = min(-(-(last + 1) // 64) * 64, width)
-            if last >= first:
-                for j in range(start, start + -(-(stop - start) // 64) * 64, LANES):
-                    NET2(mem, leaf2[band % n_phase], j, mem, out2, j)
-            for t in range(n_rows):
-                out[y0 + t, x0:x0 + start] = fill
-                if last >= first:
-                    src = out2[t]
-                    out[y0 + t, x0 + start:x0 + stop] = mem[src + start:src + stop]
-                out[y0 + t, x0 + max(stop, start):x0 + width] = fill
+        first, last, start, stop = jit_median.band_lanes(need, y0, x0, n_rows, width)
+        if last >= first:
+            leaves = leaf2[plan[p, 3] % leaf2.shape[0]]
+            for j in range(start, start + -(-(stop - start) // 64) * 64, LANES):
+                NET2(mem, leaves, j, mem, out2, j)
+        jit_median.write_band(out, mem, y0, x0, n_rows, width, (first, last, start, stop),
+                              fill, out2, 1)
     return out
 '''
 
@@ -587,8 +614,8 @@ def network_median(keys: np.ndarray, program: NetworkProgram, *,
 
     Args:
         keys: (H, W) uint16 image.
-        program: from :func:`assemble_program` (:mod:`obstacle_detection.pipeline.depth` builds and
-            caches one per K).
+        program: from :func:`assemble_program` (:mod:`obstacle_detection.pipeline.median`
+            builds and caches one per K).
         in_registers: run the in-register kernel (:func:`register_kernel`) rather than the
             interpreter; None (default) does for K <= :data:`REGISTER_MAX_K`. Same result.
 
@@ -648,21 +675,3 @@ def _known_lowest(keys: np.ndarray, k: int) -> tuple[int, np.ndarray]:
                           borderType=cv2.BORDER_REPLICATE)
     return lowest, (count <= k * k // 2).view(np.uint8)
 
-
-def warm_up(kernel_size: int = 17) -> float:
-    """Compile (or load from the on-disk cache) the kernels; return the seconds it took.
-
-    Also builds the network program for ``kernel_size`` (the detector's median K), so the
-    first frame pays neither. A no-op returning 0.0 when :func:`enabled` is False.
-    """
-    if not enabled():
-        return 0.0
-    from obstacle_detection.pipeline import depth   # depth imports this module
-
-    start = time.perf_counter()
-    millimetres = np.random.default_rng(0).integers(0, 4000, (24, 40)).astype(np.uint16)
-    metres = millimetres.astype(np.float32) * np.float32(1e-3)   # the key conversion kernels
-    for k in sorted({7, kernel_size}):
-        depth.median_filter(millimetres, k)
-        depth.median_filter(metres, k)
-    return time.perf_counter() - start

@@ -1,11 +1,10 @@
 """Compiled (numba) back-projection, region of interest and voxel grid (optional).
 
-numba is an optional accelerator: when it imports (``AVAILABLE``) and the environment variable
-``OBSTACLE_DETECTION_NO_JIT`` is unset, empty or ``0`` (:func:`enabled`), the pipeline runs
-:func:`project_roi` and :func:`voxelise` instead of
-:func:`obstacle_detection.pipeline.geometry.ground_points_in_roi` and
-:func:`obstacle_detection.pipeline.voxel.voxel_downsample`, and
-:func:`~obstacle_detection.pipeline.voxel.voxel_downsample` itself runs :func:`voxel_downsample`.
+numba is an optional accelerator: when :func:`obstacle_detection.pipeline.jit.enabled`, the
+stage module :mod:`obstacle_detection.pipeline.voxel` runs :func:`project_roi` and
+:func:`voxelise` instead of :func:`obstacle_detection.pipeline.geometry.ground_points_in_roi`
+and its numpy voxel grid, and its ``voxel_downsample`` runs :func:`voxel_downsample`. This
+module takes and returns arrays; the stage module builds its ``VoxelGrid`` from them.
 
 Both paths give bit-identical results. The kernels repeat the float32 operations of the numpy
 code one by one (``depth * ray``, then ``+ height`` for z; ``floor(x / size)`` in the points'
@@ -20,7 +19,8 @@ key order; one pass over the points then accumulates counts and sums. A lattice 
 ``_DENSE_LIMIT`` cells, or a point whose voxel index does not fit, falls back to numpy.
 
 The kernels are compiled on first use (a few seconds) and cached on disk (``cache=True``);
-call :func:`warm_up` at start-up to pay that before the first frame. They run on one thread.
+call :func:`obstacle_detection.pipeline.voxel.warm_up` at start-up to pay that before the first
+frame. They run on one thread.
 """
 
 from __future__ import annotations
@@ -30,17 +30,21 @@ from typing import NamedTuple
 
 import numpy as np
 
-from obstacle_detection.pipeline.params import DetectorParams
+from obstacle_detection.labels import (LABEL_GROUND, LABEL_NO_RETURN, LABEL_OBSTACLE,
+                                       LABEL_OUTSIDE_ROI)
 
-from obstacle_detection.pipeline.jit import AVAILABLE, NO_JIT_ENV, enabled, jit as _jit
+from ._numba import AVAILABLE, jit as _jit
 
-__all__ = ['AVAILABLE', 'NO_JIT_ENV', 'Projection', 'enabled', 'ground_points_in_roi',
-           'label_pixels', 'project_roi', 'voxel_downsample', 'voxelise', 'warm_up']
+__all__ = ['AVAILABLE', 'Projection', 'label_pixels', 'project_roi', 'roi_lattice',
+           'voxel_downsample', 'voxelise']
 
 #: Most lattice cells [cells] of the byte map (as the numpy path's dense limit).
 _DENSE_LIMIT = 16_000_000
 #: Largest |voxel index| handled; beyond it (or NaN) the numpy path runs.
 _MAX_INDEX = float(1 << 40)
+#: Label of a pixel inside the region of interest until :func:`label_pixels` decides ground or
+#: obstacle (every such pixel has a voxel, so none keeps it).
+_LABEL_KEPT = LABEL_GROUND
 
 
 # --------------------------------------------------------------------------- kernels
@@ -52,9 +56,9 @@ def _project_kernel(depth, rays, bounds, size, low, dims, labels, pixel_voxel, c
 
     depth (n,) float32; rays (3, n) float32; bounds (6,) float32 (min range, max range,
     lateral limit, height, tdbg, max height); size (3,) float32; low, dims (3,) int64 the
-    lattice. Writes labels (n,) uint8 (0 no return, 1 outside, 2 kept), pixel_voxel (n,)
-    int32 = -1, and for the m kept points cols (3, >=m) float32, pix (m,) int64, keys (m,)
-    int64. Returns m, or -1 when a key falls outside the lattice.
+    lattice. Writes labels (n,) uint8 (LABEL_NO_RETURN, LABEL_OUTSIDE_ROI, or _LABEL_KEPT
+    inside), pixel_voxel (n,) int32 = -1, and for the m kept points cols (3, >=m) float32,
+    pix (m,) int64, keys (m,) int64. Returns m, or -1 when a key falls outside the lattice.
     """
     min_x, max_x, lateral = bounds[0], bounds[1], bounds[2]
     height, min_z, max_z = bounds[3], bounds[4], bounds[5]
@@ -62,7 +66,7 @@ def _project_kernel(depth, rays, bounds, size, low, dims, labels, pixel_voxel, c
     for p in range(depth.size):
         z = depth[p]
         if not z > 0.0:
-            labels[p] = 0
+            labels[p] = LABEL_NO_RETURN
             pixel_voxel[p] = -1
             continue
         gx = z * rays[0, p]
@@ -76,7 +80,7 @@ def _project_kernel(depth, rays, bounds, size, low, dims, labels, pixel_voxel, c
             k = np.int64(np.floor(gz / size[2])) - low[2]
             if i < 0 or i >= dims[0] or j < 0 or j >= dims[1] or k < 0 or k >= dims[2]:
                 return -1
-            labels[p] = 2
+            labels[p] = _LABEL_KEPT
             pixel_voxel[p] = -1
             cols[0, m] = gx
             cols[1, m] = gy
@@ -85,7 +89,7 @@ def _project_kernel(depth, rays, bounds, size, low, dims, labels, pixel_voxel, c
             keys[m] = (i * dims[1] + j) * dims[2] + k
             m += 1
         else:
-            labels[p] = 1
+            labels[p] = LABEL_OUTSIDE_ROI
             pixel_voxel[p] = -1
     return m
 
@@ -161,11 +165,11 @@ def _voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_vox
 
 @_jit
 def _label_kernel(labels, pixel_voxel, is_obstacle):  # pragma: no cover - compiled
-    """labels[p] = 3 (obstacle) or 2 (ground) where pixel_voxel[p] >= 0."""
+    """labels[p] = LABEL_OBSTACLE or LABEL_GROUND where pixel_voxel[p] >= 0."""
     for p in range(labels.size):
         v = pixel_voxel[p]
         if v >= 0:
-            labels[p] = 3 if is_obstacle[v] else 2
+            labels[p] = LABEL_OBSTACLE if is_obstacle[v] else LABEL_GROUND
 
 
 # --------------------------------------------------------------------------- wrappers
@@ -175,10 +179,11 @@ class Projection(NamedTuple):
 
     points: (M, 3) float32 ground frame [m] of the pixels in the region of interest (a view
     with contiguous columns); pixel_index: (M,) int64 their flat indices; labels: (H, W) uint8
-    0 no return, 1 outside the region, 2 inside; pixel_voxel: (H, W) int32, -1 (filled in by
-    :func:`voxelise`); keys, low, dims: linear voxel keys (M,) on the lattice ``low``, ``dims``
-    (None when the numpy fallback must number the voxels); voxel_size_m: the voxel size;
-    reuse: points, pixel_index and keys live in per-thread buffers (see :func:`project_roi`).
+    LABEL_NO_RETURN, LABEL_OUTSIDE_ROI or (inside) _LABEL_KEPT; pixel_voxel: (H, W) int32, -1
+    (filled in by :func:`voxelise`); keys, low, dims: linear voxel keys (M,) on the lattice
+    ``low``, ``dims`` (None when the numpy path must number the voxels); voxel_size_m: the
+    voxel size; reuse: points, pixel_index and keys live in per-thread buffers (see
+    :func:`project_roi`).
     """
 
     points: np.ndarray
@@ -208,13 +213,7 @@ def _scratch(name: str, size: int, dtype, zero: bool = False) -> np.ndarray:
     return buf
 
 
-def _roi_bounds(params: DetectorParams) -> np.ndarray:
-    """Return the ROI bounds in float32, as :func:`geometry.ground_points_in_roi` rounds them."""
-    return np.array([params.min_range_m, params.max_range_m, params.lateral_limit_m,
-                     params.camera_height_m, params.tdbg_m, params.max_height_m], np.float32)
-
-
-def _roi_lattice(bounds: np.ndarray, size: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def roi_lattice(bounds: np.ndarray, size: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Voxel lattice (low, dims) int64 holding every point inside the float32 bounds."""
     lo = np.array([bounds[0], -bounds[2], bounds[4]], np.float32)
     hi = np.array([bounds[1], bounds[2], bounds[5]], np.float32)
@@ -223,13 +222,14 @@ def _roi_lattice(bounds: np.ndarray, size: np.ndarray) -> tuple[np.ndarray, np.n
     return low, dims
 
 
-def project_roi(depth_m: np.ndarray, rays: np.ndarray, params: DetectorParams, *,
-                reuse: bool = False) -> Projection:
+def project_roi(depth_m: np.ndarray, rays: np.ndarray, bounds: np.ndarray,
+                voxel_size_m: tuple[float, float, float], *, reuse: bool = False) -> Projection:
     """Back-project a depth image through ground rays, keep the ROI, key the voxels.
 
-    depth_m: (H, W) float32, 0 = no return; rays: (3, H*W) float32 from
-    :func:`geometry.ground_rays`. The points and pixel indices equal those of
-    :func:`geometry.ground_points_in_roi`; the voxels use ``params.voxel_size_m``.
+    depth_m: (H, W) float32, 0 = no return; rays: (3, H*W) float32 ground rays; bounds: (6,)
+    float32 (min range, max range, lateral limit, camera height, tdbg, max height), as
+    :func:`obstacle_detection.pipeline.voxel.roi_bounds` rounds them. The points and pixel
+    indices equal those of :func:`obstacle_detection.pipeline.geometry.ground_points_in_roi`.
     reuse: keep the points, pixel indices and keys in per-thread buffers that the next call
     in the same thread overwrites (the pipeline's choice; faster), instead of fresh arrays.
     """
@@ -239,9 +239,8 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray, params: DetectorParams, *
     n = depth.size
     if rays.shape != (3, n):
         raise ValueError(f'rays must have shape (3, {n}), got {rays.shape}')
-    size = np.asarray(params.voxel_size_m, np.float32)
-    bounds = _roi_bounds(params)
-    low, dims = _roi_lattice(bounds, size)
+    size = np.asarray(voxel_size_m, np.float32)
+    low, dims = roi_lattice(bounds, size)
     n_cells = int(dims[0]) * int(dims[1]) * int(dims[2])
     labels = np.empty(shape, np.uint8)
     pixel_voxel = np.empty(shape, np.int32)
@@ -262,39 +261,27 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray, params: DetectorParams, *
         m = _project_kernel(depth, rays, bounds, size, low, np.full(3, 1 << 62, np.int64),
                             labels.reshape(-1), pixel_voxel.reshape(-1), cols, pix, keys)
         return Projection(cols[:, :m].T, pix[:m], labels, pixel_voxel, None, low, dims,
-                          params.voxel_size_m, reuse)
+                          voxel_size_m, reuse)
     return Projection(cols[:, :m].T, pix[:m], labels, pixel_voxel, keys[:m], low, dims,
-                      params.voxel_size_m, reuse)
+                      voxel_size_m, reuse)
 
 
-def ground_points_in_roi(depth_m: np.ndarray, rays: np.ndarray, params: DetectorParams,
-                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`geometry.ground_points_in_roi` (points, roi_index, valid) by :func:`project_roi`."""
-    proj = project_roi(depth_m, rays, params)
-    return proj.points, proj.pixel_index, proj.labels.reshape(-1) != 0
-
-
-def voxelise(proj: Projection):
+def voxelise(proj: Projection) -> tuple | None:
     """Voxel grid of a :class:`Projection`; fills in ``proj.pixel_voxel``.
 
-    Returns the :class:`~obstacle_detection.pipeline.voxel.VoxelGrid` that
-    :func:`obstacle_detection.pipeline.voxel.voxel_downsample` gives for ``proj.points``.
+    Returns (centroids, point_voxel, counts, voxel_ijk), the fields of the ``VoxelGrid`` that
+    :func:`obstacle_detection.pipeline.voxel.voxel_downsample` gives for ``proj.points``, or
+    None when the numpy path must number the voxels (no keys, or no point): then
+    ``proj.pixel_voxel`` is left to the caller.
     """
-    from obstacle_detection.pipeline.voxel import VoxelGrid, voxel_downsample_numpy
-
-    if proj.keys is None:
-        grid = voxel_downsample_numpy(proj.points, proj.voxel_size_m)
-        proj.pixel_voxel.reshape(-1)[proj.pixel_index] = grid.point_voxel
-        return grid
-    if proj.keys.size == 0:
-        return voxel_downsample_numpy(proj.points, proj.voxel_size_m)
+    if proj.keys is None or proj.keys.size == 0:
+        return None
     n_cells = int(proj.dims[0] * proj.dims[1] * proj.dims[2])
     m = proj.keys.size
     point_voxel = _scratch('point_voxel', m, np.int64)[:m] if proj.reuse else np.empty(m,
                                                                                       np.int64)
-    return VoxelGrid(*_run_voxel_kernel(proj.points.T, proj.keys, n_cells, proj.dims,
-                                        proj.low, proj.pixel_index,
-                                        proj.pixel_voxel.reshape(-1), point_voxel))
+    return _run_voxel_kernel(proj.points.T, proj.keys, n_cells, proj.dims, proj.low,
+                             proj.pixel_index, proj.pixel_voxel.reshape(-1), point_voxel)
 
 
 def _run_voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_voxel):
@@ -305,15 +292,15 @@ def _run_voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point
                          occupied, lookup)
 
 
-def voxel_downsample(points: np.ndarray, voxel_size_m: tuple[float, float, float]):
-    """:func:`obstacle_detection.pipeline.voxel.voxel_downsample` compiled; same VoxelGrid.
+def voxel_downsample(points: np.ndarray, voxel_size_m: tuple[float, float, float]
+                     ) -> tuple | None:
+    """:func:`obstacle_detection.pipeline.voxel.voxel_downsample` compiled.
 
-    points: (M, 3) float32 or float64 (M >= 1) [m]; the size has been validated. Returns
-    None when the numpy path must run (another dtype, a voxel index beyond 2**40 or NaN, or a
-    lattice over ``_DENSE_LIMIT`` cells).
+    points: (M, 3) float32 or float64 (M >= 1) [m]; the size has been validated. Returns the
+    fields (centroids, point_voxel, counts, voxel_ijk) of the same ``VoxelGrid``, or None when
+    the numpy path must run (another dtype, a voxel index beyond 2**40 or NaN, or a lattice
+    over ``_DENSE_LIMIT`` cells).
     """
-    from obstacle_detection.pipeline.voxel import VoxelGrid
-
     if points.dtype not in (np.float32, np.float64) or points.shape[0] == 0:
         return None
     cols = np.ascontiguousarray(points.T)
@@ -331,30 +318,11 @@ def voxel_downsample(points: np.ndarray, voxel_size_m: tuple[float, float, float
     keys += ijk[1] - low[1]
     keys *= dims[2]
     keys += ijk[2] - low[2]
-    return VoxelGrid(*_run_voxel_kernel(cols, keys, n_cells, dims, low, np.zeros(0, np.int64),
-                                        np.zeros(0, np.int32), np.empty(keys.size, np.int64)))
+    return _run_voxel_kernel(cols, keys, n_cells, dims, low, np.zeros(0, np.int64),
+                             np.zeros(0, np.int32), np.empty(keys.size, np.int64))
 
 
 def label_pixels(labels: np.ndarray, pixel_voxel: np.ndarray, is_obstacle: np.ndarray) -> None:
-    """In place: labels (H, W) uint8 of voxel pixels become 3 (obstacle) or 2 (ground)."""
+    """In place: labels (H, W) uint8 of voxel pixels become LABEL_OBSTACLE or LABEL_GROUND."""
     _label_kernel(labels.reshape(-1), pixel_voxel.reshape(-1),
                   np.ascontiguousarray(is_obstacle, np.bool_))
-
-
-def warm_up() -> None:
-    """Compile (or load from the on-disk cache) every kernel on a tiny frame; no-op if off."""
-    if not enabled():
-        return
-    from obstacle_detection.pipeline.geometry import ground_rays
-    from obstacle_detection.pipeline.params import Intrinsics
-
-    params = DetectorParams()
-    depth = np.full((6, 8), 1.0, np.float32)
-    depth[0, 0] = 0.0
-    rays = ground_rays(depth.shape, Intrinsics(fx=5.0, fy=5.0, cx=4.0, cy=3.0), params)
-    proj = project_roi(depth, rays, params, reuse=True)
-    grid = voxelise(proj)
-    label_pixels(proj.labels, proj.pixel_voxel, np.zeros(grid.counts.size, bool))
-    pts = np.random.default_rng(0).uniform(-1.0, 1.0, (20, 3))
-    voxel_downsample(pts.astype(np.float32), (0.1, 0.1, 0.1))
-    voxel_downsample(pts, (0.1, 0.1, 0.1))
