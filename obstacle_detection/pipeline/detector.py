@@ -98,7 +98,7 @@ class Detector:
     def __init__(self, params: DetectorParams | None = None) -> None:
         self.params = params if params is not None else DetectorParams()
         self._ray_key: tuple | None = None
-        self._ray_cache: np.ndarray | None = None
+        self._ray_cache: geometry.GroundRays | None = None
         self._sub_rays: np.ndarray | None = None
 
     def warm_up(self) -> float:
@@ -114,11 +114,11 @@ class Detector:
         jit_traversal.warm_up()
         return time.perf_counter() - start
 
-    def _rays(self, shape: tuple[int, int], intr: Intrinsics) -> np.ndarray:
+    def _rays(self, shape: tuple[int, int], intr: Intrinsics) -> geometry.GroundRays:
         """Ground-frame pixel rays, computed once per image size and intrinsics."""
         key = (shape, intr)
         if key != self._ray_key or self._ray_cache is None:
-            self._ray_cache = geometry.ground_rays(shape, intr, self.params)
+            self._ray_cache = geometry.ray_model(shape, intr, self.params)
             self._sub_rays = sample_rays(self._ray_cache, shape)
             self._ray_key = key
         return self._ray_cache
@@ -159,10 +159,8 @@ class Detector:
         if p.robot_level and -p.drop_view_m < p.tdbg_m:
             frame_changes['tdbg_m'] = -p.drop_view_m
         run = p.with_frame_mount(**frame_changes) if frame_changes else p
-        if fit.refined:   # the fitted mount's rays, into a per-thread buffer when compiled
-            buf = (jit_traversal.scratch('frame_rays', rays.shape, np.float32)
-                   if jit_traversal.enabled() else None)
-            rays = geometry.ground_rays(depth_m.shape, intr, run, out=buf)
+        if fit.refined:   # the fitted mount's rays (no table: computed where they are read)
+            rays = geometry.ray_model(depth_m.shape, intr, run)
         clock.lap('floor')
         compiled = jit_voxel.enabled()
         if compiled:   # same points, voxels and labels as the numpy path below

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._compiled import traversal as jit_traversal
-from .geometry import mount_rotation
+from .geometry import GroundRays, mount_rotation
 from .params import DetectorParams
 
 #: About this many pixels (an even grid) are sampled for the floor fit.
@@ -93,10 +93,16 @@ def configured(params: DetectorParams, reason: str) -> FloorFit:
                     params.camera_roll_rad, reason=reason)
 
 
-def sample_rays(rays: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """Return (3, M) float32: the rays of the sampled pixel grid (a contiguous copy)."""
-    height, width = shape
+def sample_rays(rays: np.ndarray | GroundRays, shape: tuple[int, int]) -> np.ndarray:
+    """Return (3, M) float32: the rays of the sampled pixel grid (a contiguous copy).
+
+    rays: the (3, H*W) table or the :class:`.geometry.GroundRays` of the image (the same
+    values; the table is not made).
+    """
     step = sample_step(shape)
+    if isinstance(rays, GroundRays):
+        return np.ascontiguousarray(rays.subsampled(step).table())
+    height, width = shape
     sub = rays.reshape(3, height, width)[:, ::step, ::step]
     return np.ascontiguousarray(sub.reshape(3, -1))
 

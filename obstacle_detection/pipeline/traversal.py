@@ -38,6 +38,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import breadth_first_order
 
 from ._compiled import traversal as jit_traversal
+from .geometry import GroundRays, ray_table, rays_at
 from .params import DetectorParams
 
 #: The 8 neighbours of a cell as (dx, dy); the search adds both directions of each pair.
@@ -330,32 +331,39 @@ def drop_edge_mask(depth_m: np.ndarray, rz: np.ndarray, height_m: float, step_do
     return edge
 
 
-def drop_edges(depth_m: np.ndarray, rays: np.ndarray, height_m: float,
+def drop_edges(depth_m: np.ndarray, rays: np.ndarray | GroundRays, height_m: float,
                params: DetectorParams) -> tuple[np.ndarray, np.ndarray]:
     """Where the floor ends at a drop: the last floor seen below the rays that passed it.
 
-    depth_m: (H, W) float32 [m]; rays: (3, H*W) ground rays of the frame's mount; height_m:
-    the camera height of that mount. Returns ``(points, pixels)``: (D, 3) float32 ground
-    points of the floor pixels where the floor ends (:func:`drop_edge_mask`), inside the
-    forward range and lateral limit [m] (the cells the costmap marks), and (D,) int64 the flat
-    indices of the pixels that saw past the edge (the lower floor, or anything beyond it).
+    depth_m: (H, W) float32 [m]; rays: the (3, H*W) ground rays of the frame's mount, or its
+    :class:`.geometry.GroundRays` (the same values; the compiled path then computes them row
+    by row, no table); height_m: the camera height of that mount. Returns
+    ``(points, pixels)``: (D, 3) float32 ground points of the floor pixels where the floor
+    ends (:func:`drop_edge_mask`), inside the forward range and lateral limit [m] (the cells
+    the costmap marks), and (D,) int64 the flat indices of the pixels that saw past the edge
+    (the lower floor, or anything beyond it).
     """
+    down, up = params.max_step_down_m, params.max_step_height_m
     if jit_traversal.enabled():   # the marked pixels and their offsets straight away
-        pixels, offsets = jit_traversal.drop_pixels(depth_m, rays[2], height_m,
-                                                    params.max_step_down_m,
-                                                    params.max_step_height_m, DROP_EDGE_ROWS)
+        if isinstance(rays, GroundRays):
+            pixels, offsets = jit_traversal.drop_pixels(depth_m, None, height_m, down, up,
+                                                        DROP_EDGE_ROWS,
+                                                        (rays.ru, rays.rv, rays.rot))
+        else:
+            pixels, offsets = jit_traversal.drop_pixels(depth_m, rays[2], height_m, down, up,
+                                                        DROP_EDGE_ROWS)
     else:
-        edge = drop_edge_mask(depth_m, rays[2], height_m, params.max_step_down_m,
-                              params.max_step_height_m)
+        edge = drop_edge_mask(depth_m, ray_table(rays)[2], height_m, down, up)
         pixels = np.flatnonzero(edge)
         offsets = edge.reshape(-1)[pixels]
     if pixels.size == 0:
         return np.zeros((0, 3), np.float32), pixels
     floor_px = pixels + offsets.astype(np.int64) * depth_m.shape[1]
     d = depth_m.reshape(-1)[floor_px]
-    x = d * rays[0, floor_px]
-    y = d * rays[1, floor_px]
-    z = d * rays[2, floor_px] + np.float32(height_m)
+    ray = rays_at(rays, floor_px)
+    x = d * ray[0]
+    y = d * ray[1]
+    z = d * ray[2] + np.float32(height_m)
     keep = (x >= np.float32(params.min_range_m)) & (x <= np.float32(params.max_range_m))
     keep &= np.abs(y) <= np.float32(params.lateral_limit_m)
     pts = np.stack((x[keep], y[keep], z[keep]), axis=1)

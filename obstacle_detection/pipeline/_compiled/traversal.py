@@ -27,14 +27,22 @@ __all__ = ['AVAILABLE', 'NO_JIT_ENV', 'drop_mask', 'drop_smeared', 'enabled', 'g
 
 
 @_jit
+def _ray_row(ru, rv_i, r0, r1, r2, out):  # pragma: no cover - compiled
+    """Fill out (W,) float32 with one component of a row's ground rays.
+
+    ``(r0 * ru[j] + r1 * rv_i) + r2``: geometry.GroundRays' float32 operations, in order.
+    """
+    t = r1 * rv_i
+    for j in range(ru.size):
+        out[j] = (r0 * ru[j] + t) + r2
+
+
+@_jit
 def _rays_kernel(ru, rv, rot, out):  # pragma: no cover - compiled
     """Fill out (3, H, W) float32 = rot[a, 0] * ru[j] + rot[a, 1] * rv[i] + rot[a, 2]."""
     for a in range(3):
-        r0, r1, r2 = rot[a, 0], rot[a, 1], rot[a, 2]
         for i in range(rv.size):
-            t = r1 * rv[i]
-            for j in range(ru.size):
-                out[a, i, j] = (r0 * ru[j] + t) + r2
+            _ray_row(ru, rv[i], rot[a, 0], rot[a, 1], rot[a, 2], out[a, i])
 
 
 def ground_rays(ru: np.ndarray, rv: np.ndarray, rot: np.ndarray,
@@ -240,24 +248,28 @@ def _z_row(depth_row, rz_row, h, down, out):  # pragma: no cover - compiled
 
 
 @_jit
-def _drop_pixels_kernel(depth, rz, h, down, up, rows, zring, passed, pix_out,
-                        k_out):  # pragma: no cover - compiled
+def _drop_pixels_kernel(depth, rz, ru, rv, rot, h, down, up, rows, zring, rz_row, passed,
+                        pix_out, k_out):  # pragma: no cover - compiled
     """Fill pix_out/k_out with the pixels drop_mask marks and their offsets; return how many.
 
     The same float32 heights and tests as _drop_kernel: the heights of rows i to i + rows
     rotate through zring (rows + 1, W), passed (H,) counts each row's pixels below the floor;
-    only the rows with some are searched.
+    only the rows with some are searched. rz: (H, W) the rays' z, or (0, 0) and each row's
+    computed into rz_row (W,) from ru, rv and rot (geometry.GroundRays), no table read.
     """
     height, width = depth.shape
     ring = rows + 1
-    for i in range(min(height, ring)):
-        passed[i] = _z_row(depth[i], rz[i], h, down, zring[i % ring])
+    from_model = rz.shape[0] == 0
     m = 0
-    for i in range(height):
-        if i > 0 and i + rows < height:
-            passed[i + rows] = _z_row(depth[i + rows], rz[i + rows], h, down,
-                                      zring[(i + rows) % ring])
-        if passed[i] == 0:
+    for i in range(-rows, height):
+        r = i + rows                  # the row that enters the ring
+        if r < height:
+            if from_model:
+                _ray_row(ru, rv[r], rot[2, 0], rot[2, 1], rot[2, 2], rz_row)
+                passed[r] = _z_row(depth[r], rz_row, h, down, zring[r % ring])
+            else:
+                passed[r] = _z_row(depth[r], rz[r], h, down, zring[r % ring])
+        if i < 0 or passed[i] == 0:
             continue
         zp = zring[i % ring]
         for j in range(width):
@@ -276,17 +288,30 @@ def _drop_pixels_kernel(depth, rz, h, down, up, rows, zring, passed, pix_out,
     return m
 
 
-def drop_pixels(depth_m: np.ndarray, rz: np.ndarray, height_m: float, step_down_m: float,
-                step_up_m: float, rows: int) -> tuple[np.ndarray, np.ndarray]:
-    """(flat pixel indices int64, offsets int8) of drop_mask's nonzero pixels, in order."""
+def drop_pixels(depth_m: np.ndarray, rz: np.ndarray | None, height_m: float,
+                step_down_m: float, step_up_m: float, rows: int,
+                model: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """(flat pixel indices int64, offsets int8) of drop_mask's nonzero pixels, in order.
+
+    rz: (H*W,) or (H, W) float32, the z of the ground rays; or None and model: (ru, rv, rot)
+    float32 of geometry.GroundRays, the rays computed row by row (the same values).
+    """
     height, width = depth_m.shape
     pix = scratch('drop_pix', (height * width,), np.int64)
     offsets = scratch('drop_k', (height * width,), np.int8)
-    m = _drop_pixels_kernel(np.ascontiguousarray(depth_m, np.float32),
-                            np.ascontiguousarray(rz, np.float32).reshape(depth_m.shape),
+    if model is None:
+        rz = np.ascontiguousarray(rz, np.float32).reshape(depth_m.shape)
+        empty = np.zeros(0, np.float32)
+        ru, rv, rot = empty, empty, np.zeros((3, 3), np.float32)
+    else:
+        ru, rv, rot = model
+        rz = np.zeros((0, 0), np.float32)
+    m = _drop_pixels_kernel(np.ascontiguousarray(depth_m, np.float32), rz, ru, rv, rot,
                             np.float32(height_m), np.float32(step_down_m),
                             np.float32(step_up_m), int(rows),
                             scratch('drop_z', (int(rows) + 1, width), np.float32),
+                            scratch('drop_rz', (width,), np.float32),
                             scratch('drop_passed', (height,), np.int64), pix, offsets)
     return pix[:m].copy(), offsets[:m].copy()
 
@@ -854,6 +879,8 @@ def warm_up() -> None:
     traverse(pts, np.array([False, True]), 0.05, 0.05, 0.05, 1.0, 0.025)
     drop_mask(np.ones((4, 2), np.float32), -np.ones((4, 2), np.float32), 0.5, 0.05, 0.05, 3)
     drop_pixels(np.ones((4, 2), np.float32), -np.ones(8, np.float32), 0.5, 0.05, 0.05, 3)
+    drop_pixels(np.ones((4, 2), np.float32), None, 0.5, 0.05, 0.05, 3,
+                (np.zeros(2, np.float32), np.zeros(4, np.float32), np.eye(3, dtype=np.float32)))
     one = np.ones((3, 3), np.float32)
     drop_smeared(one.copy(), one, one, one, 0.03, 0.05, 0.02)
     drop_smeared_fused(np.ones((6, 6), np.float32), np.ones((6, 6), np.float32), 0.03, 0.05,

@@ -46,11 +46,13 @@ _MAX_INDEX = float(1 << 40)
 # --------------------------------------------------------------------------- kernels
 
 @_jit
-def _project_kernel(depth, rays, bounds, size, low, dims, labels, pixel_voxel, cols, pix,
-                    keys):  # pragma: no cover - compiled
+def _project_kernel(depth, rays, width, ru, rv, rot, bounds, size, low, dims, labels,
+                    pixel_voxel, cols, pix, keys):  # pragma: no cover - compiled
     """Back-project, keep the region of interest, key the kept points' voxels.
 
-    depth (n,) float32; rays (3, n) float32; bounds (6,) float32 (min range, max range,
+    depth (n,) float32; rays (3, n) float32, or (3, 0) and each pixel's ray computed from ru
+    (W,), rv (H,), rot (3, 3) float32 (geometry.GroundRays: its float32 operations, no table
+    read), width: W (n with a table); bounds (6,) float32 (min range, max range,
     lateral limit, height, tdbg, max height); size (3,) float32; low, dims (3,) int64 the
     lattice. Writes labels (n,) uint8 (0 no return, 1 outside, 2 kept), pixel_voxel (n,)
     int32 = -1, and for the m kept points cols (3, >=m) float32, pix (m,) int64, keys (m,)
@@ -58,35 +60,51 @@ def _project_kernel(depth, rays, bounds, size, low, dims, labels, pixel_voxel, c
     """
     min_x, max_x, lateral = bounds[0], bounds[1], bounds[2]
     height, min_z, max_z = bounds[3], bounds[4], bounds[5]
+    from_model = rays.shape[1] == 0
+    r00, r01, r02 = rot[0, 0], rot[0, 1], rot[0, 2]
+    r10, r11, r12 = rot[1, 0], rot[1, 1], rot[1, 2]
+    r20, r21, r22 = rot[2, 0], rot[2, 1], rot[2, 2]
     m = 0
-    for p in range(depth.size):
-        z = depth[p]
-        if not z > 0.0:
-            labels[p] = 0
-            pixel_voxel[p] = -1
-            continue
-        gx = z * rays[0, p]
-        gy = z * rays[1, p]
-        gz = z * rays[2, p]
-        gz = gz + height
-        if (gx >= min_x and gx <= max_x and abs(gy) <= lateral and gz >= min_z
-                and gz <= max_z):
-            i = np.int64(np.floor(gx / size[0])) - low[0]
-            j = np.int64(np.floor(gy / size[1])) - low[1]
-            k = np.int64(np.floor(gz / size[2])) - low[2]
-            if i < 0 or i >= dims[0] or j < 0 or j >= dims[1] or k < 0 or k >= dims[2]:
-                return -1
-            labels[p] = 2
-            pixel_voxel[p] = -1
-            cols[0, m] = gx
-            cols[1, m] = gy
-            cols[2, m] = gz
-            pix[m] = p
-            keys[m] = (i * dims[1] + j) * dims[2] + k
-            m += 1
+    for i in range(depth.size // width):
+        if from_model:   # the row's share of its rays
+            t0, t1, t2 = r01 * rv[i], r11 * rv[i], r21 * rv[i]
         else:
-            labels[p] = 1
-            pixel_voxel[p] = -1
+            t0 = t1 = t2 = np.float32(0.0)
+        for j in range(width):
+            p = i * width + j
+            z = depth[p]
+            if not z > 0.0:
+                labels[p] = 0
+                pixel_voxel[p] = -1
+                continue
+            if from_model:
+                gx = z * ((r00 * ru[j] + t0) + r02)
+                gy = z * ((r10 * ru[j] + t1) + r12)
+                gz = z * ((r20 * ru[j] + t2) + r22)
+            else:
+                gx = z * rays[0, p]
+                gy = z * rays[1, p]
+                gz = z * rays[2, p]
+            gz = gz + height
+            if (gx >= min_x and gx <= max_x and abs(gy) <= lateral and gz >= min_z
+                    and gz <= max_z):
+                vi = np.int64(np.floor(gx / size[0])) - low[0]
+                vj = np.int64(np.floor(gy / size[1])) - low[1]
+                vk = np.int64(np.floor(gz / size[2])) - low[2]
+                if (vi < 0 or vi >= dims[0] or vj < 0 or vj >= dims[1] or vk < 0
+                        or vk >= dims[2]):
+                    return -1
+                labels[p] = 2
+                pixel_voxel[p] = -1
+                cols[0, m] = gx
+                cols[1, m] = gy
+                cols[2, m] = gz
+                pix[m] = p
+                keys[m] = (vi * dims[1] + vj) * dims[2] + vk
+                m += 1
+            else:
+                labels[p] = 1
+                pixel_voxel[p] = -1
     return m
 
 
@@ -223,22 +241,33 @@ def _roi_lattice(bounds: np.ndarray, size: np.ndarray) -> tuple[np.ndarray, np.n
     return low, dims
 
 
-def project_roi(depth_m: np.ndarray, rays: np.ndarray, params: DetectorParams, *,
+def project_roi(depth_m: np.ndarray, rays, params: DetectorParams, *,
                 reuse: bool = False) -> Projection:
     """Back-project a depth image through ground rays, keep the ROI, key the voxels.
 
     depth_m: (H, W) float32, 0 = no return; rays: (3, H*W) float32 from
-    :func:`geometry.ground_rays`. The points and pixel indices equal those of
+    :func:`geometry.ground_rays`, or a :class:`geometry.GroundRays` (the rays computed on the
+    fly, no table read; the same values). The points and pixel indices equal those of
     :func:`geometry.ground_points_in_roi`; the voxels use ``params.voxel_size_m``.
     reuse: keep the points, pixel indices and keys in per-thread buffers that the next call
     in the same thread overwrites (the pipeline's choice; faster), instead of fresh arrays.
     """
+    from obstacle_detection.pipeline.geometry import GroundRays
+
     shape = depth_m.shape
     depth = np.ascontiguousarray(depth_m, np.float32).reshape(-1)
-    rays = np.ascontiguousarray(rays, np.float32)
     n = depth.size
-    if rays.shape != (3, n):
-        raise ValueError(f'rays must have shape (3, {n}), got {rays.shape}')
+    if isinstance(rays, GroundRays):   # computed on the fly, the same values as its table
+        if rays.shape != shape:
+            raise ValueError(f'rays are for a {rays.shape} image, the depth is {shape}')
+        model = (max(1, shape[1]), rays.ru, rays.rv, rays.rot)
+        rays = np.zeros((3, 0), np.float32)
+    else:
+        rays = np.ascontiguousarray(rays, np.float32)
+        if rays.shape != (3, n):
+            raise ValueError(f'rays must have shape (3, {n}), got {rays.shape}')
+        empty = np.zeros(0, np.float32)
+        model = (max(1, n), empty, empty, np.zeros((3, 3), np.float32))
     size = np.asarray(params.voxel_size_m, np.float32)
     bounds = _roi_bounds(params)
     low, dims = _roi_lattice(bounds, size)
@@ -255,12 +284,13 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray, params: DetectorParams, *
         keys = np.empty(n, np.int64)
     m = -1
     if n_cells <= _DENSE_LIMIT:
-        m = _project_kernel(depth, rays, bounds, size, low, dims, labels.reshape(-1),
+        m = _project_kernel(depth, rays, *model, bounds, size, low, dims, labels.reshape(-1),
                             pixel_voxel.reshape(-1), cols, pix, keys)
     if m < 0:   # lattice too large: points only, numpy numbers the voxels
         dims = np.zeros(3, np.int64)
-        m = _project_kernel(depth, rays, bounds, size, low, np.full(3, 1 << 62, np.int64),
-                            labels.reshape(-1), pixel_voxel.reshape(-1), cols, pix, keys)
+        m = _project_kernel(depth, rays, *model, bounds, size, low,
+                            np.full(3, 1 << 62, np.int64), labels.reshape(-1),
+                            pixel_voxel.reshape(-1), cols, pix, keys)
         return Projection(cols[:, :m].T, pix[:m], labels, pixel_voxel, None, low, dims,
                           params.voxel_size_m, reuse)
     return Projection(cols[:, :m].T, pix[:m], labels, pixel_voxel, keys[:m], low, dims,
@@ -345,7 +375,7 @@ def warm_up() -> None:
     """Compile (or load from the on-disk cache) every kernel on a tiny frame; no-op if off."""
     if not enabled():
         return
-    from obstacle_detection.pipeline.geometry import ground_rays
+    from obstacle_detection.pipeline.geometry import ground_rays, ray_model
     from obstacle_detection.pipeline.params import Intrinsics
 
     params = DetectorParams()
@@ -353,6 +383,8 @@ def warm_up() -> None:
     depth[0, 0] = 0.0
     rays = ground_rays(depth.shape, Intrinsics(fx=5.0, fy=5.0, cx=4.0, cy=3.0), params)
     proj = project_roi(depth, rays, params, reuse=True)
+    project_roi(depth, ray_model(depth.shape, Intrinsics(fx=5.0, fy=5.0, cx=4.0, cy=3.0),
+                                 params), params, reuse=True)
     grid = voxelise(proj)
     label_pixels(proj.labels, proj.pixel_voxel, np.zeros(grid.counts.size, bool))
     pts = np.random.default_rng(0).uniform(-1.0, 1.0, (20, 3))
