@@ -67,6 +67,14 @@ def scratch(name: str, shape: tuple[int, ...], dtype) -> np.ndarray:
 
 
 @_jit
+def _cell(bx, by, nx, ny):  # pragma: no cover - compiled
+    """Return the index of cell (bx, by) of an nx x ny grid (x slowest), or -1 outside it."""
+    if bx < 0 or bx >= nx or by < 0 or by >= ny:
+        return -1
+    return bx * ny + by
+
+
+@_jit
 def _traverse_kernel(points, steep, size, step_up, step_down, up32, down32, robot32, layer,
                      min_support, obstacle, above, height,
                      reached_v):  # pragma: no cover - compiled
@@ -124,11 +132,8 @@ def _traverse_kernel(points, steep, size, step_up, step_down, up32, down32, robo
             for dy in range(-1, 2):
                 if dx == 0 and dy == 0:
                     continue
-                bx, by = cx + dx, cy + dy
-                if bx < 0 or bx >= nx or by < 0 or by >= ny:
-                    continue
-                b = bx * ny + by
-                if reached[b] or not passable[b]:
+                b = _cell(cx + dx, cy + dy, nx, ny)
+                if b < 0 or reached[b] or not passable[b]:
                     continue
                 rise = surface[b] - sa
                 if rise <= step_up and -rise <= step_down:
@@ -152,11 +157,8 @@ def _traverse_kernel(points, steep, size, step_up, step_down, up32, down32, robo
                 cx, cy = c // ny, c % ny
                 for dx in range(-1, 2):
                     for dy in range(-1, 2):
-                        bx, by = cx + dx, cy + dy
-                        if bx < 0 or bx >= nx or by < 0 or by >= ny:
-                            continue
-                        b = bx * ny + by
-                        if not done[b] and not mark[b]:
+                        b = _cell(cx + dx, cy + dy, nx, ny)
+                        if b >= 0 and not done[b] and not mark[b]:
                             mark[b] = True
                             cand[m] = b
                             m += 1
@@ -166,11 +168,8 @@ def _traverse_kernel(points, steep, size, step_up, step_down, up32, down32, robo
                 best = -np.inf
                 for dx in range(-1, 2):
                     for dy in range(-1, 2):
-                        ax, ay = bx + dx, by + dy
-                        if ax < 0 or ax >= nx or ay < 0 or ay >= ny:
-                            continue
-                        a = ax * ny + ay
-                        if done[a] and ground[a] > best:
+                        a = _cell(bx + dx, by + dy, nx, ny)
+                        if a >= 0 and done[a] and ground[a] > best:
                             best = ground[a]
                 ground[b] = best
             for i in range(m):
@@ -509,33 +508,69 @@ def _column_step(row, col_lo, col_hi):  # pragma: no cover - compiled
 
 
 @_jit
-def _min5(col, out, n):  # pragma: no cover - compiled
-    """out[j] = min(col[j:j + 5]) for j < n."""
+def _row_range(col_lo, col_hi, lo_out, hi_out, n):  # pragma: no cover - compiled
+    """Row pass of the window range: lo_out[j] = min(col_lo[j:j + 5]), hi_out likewise max.
+
+    For j < n. Pairs first (min(a, b), min(c, d)): the same values as taking the five in
+    turn (min and max of numbers are exact, in any order).
+    """
     for j in range(n):
-        a = col[j]
-        b = col[j + 1]
-        c = col[j + 2]
-        d = col[j + 3]
-        e = col[j + 4]
-        m = a if a < b else b
-        m = c if c < m else m
-        m = d if d < m else m
-        out[j] = e if e < m else m
+        a = col_lo[j]
+        b = col_lo[j + 1]
+        c = col_lo[j + 2]
+        d = col_lo[j + 3]
+        e = col_lo[j + 4]
+        ab = a if a < b else b
+        cd = c if c < d else d
+        m = ab if ab < cd else cd
+        lo_out[j] = e if e < m else m
+        a = col_hi[j]
+        b = col_hi[j + 1]
+        c = col_hi[j + 2]
+        d = col_hi[j + 3]
+        e = col_hi[j + 4]
+        ab = a if a > b else b
+        cd = c if c > d else d
+        m = ab if ab > cd else cd
+        hi_out[j] = e if e > m else m
 
 
 @_jit
-def _max5(col, out, n):  # pragma: no cover - compiled
-    """out[j] = max(col[j:j + 5]) for j < n."""
-    for j in range(n):
-        a = col[j]
-        b = col[j + 1]
-        c = col[j + 2]
-        d = col[j + 3]
-        e = col[j + 4]
-        m = a if a > b else b
-        m = c if c > m else m
-        m = d if d > m else m
-        out[j] = e if e > m else m
+def _pair_range(upper, lower, lo_out, hi_out):  # pragma: no cover - compiled
+    """Fill lo_out/hi_out with the range of two rows (nearest measured depth, inf: none).
+
+    hi_out: the farthest, 0 without any.
+    """
+    zero = np.float32(0.0)
+    inf = np.float32(np.inf)
+    for j in range(lo_out.size):
+        a = upper[j]
+        b = lower[j]
+        la = a if a > zero else inf
+        lb = b if b > zero else inf
+        ha = a if a > zero else zero
+        hb = b if b > zero else zero
+        lo_out[j] = la if la < lb else lb
+        hi_out[j] = ha if ha > hb else hb
+
+
+@_jit
+def _column_range(lo_a, hi_a, lo_b, hi_b, row, col_lo, col_hi):  # pragma: no cover - compiled
+    """Column pass of a 5-row window: the ranges of two row pairs (a, b) and one more row."""
+    zero = np.float32(0.0)
+    inf = np.float32(np.inf)
+    for j in range(col_lo.size):
+        v = row[j]
+        lv = v if v > zero else inf
+        hv = v if v > zero else zero
+        lo = lo_a[j]
+        lb = lo_b[j]
+        lo = lb if lb < lo else lo
+        col_lo[j] = lv if lv < lo else lo
+        hi = hi_a[j]
+        hb = hi_b[j]
+        hi = hb if hb > hi else hi
+        col_hi[j] = hv if hv > hi else hi
 
 
 @_jit
@@ -576,12 +611,14 @@ def _decide_row(r_row, f_row, near, far, planar, keep, ratio, jump,
 
 @_jit
 def _smear5_kernel(filtered, raw, ratio, jump, tol_ratio, col_lo, col_hi, row_lo, row_hi,
-                   inv3, zeros, planar, keep):  # pragma: no cover - compiled
+                   pair_lo, pair_hi, inv3, zeros, planar, keep):  # pragma: no cover - compiled
     """_smear_kernel with its 5 x 5 window range computed on the way, row by row.
 
     The window range is the window clipped to the image (what OpenCV's erode/dilate with a
     replicated border give): the nearest measured depth (inf without any) and the farthest (0
-    without any): a column pass into col_lo/col_hi, a row pass into row_lo/row_hi. The inverse
+    without any): a column pass into col_lo/col_hi (inside the image, from the range of the
+    rows i - 2, i - 1 and i, i + 1, each pair's kept in the ring pair_lo/pair_hi (3, W), and
+    row i + 2), a row pass into row_lo/row_hi. The inverse
     depths of the rows i - 1, i, i + 1 rotate through inv3. Then branch-free passes over the
     row's inner columns (planar, keep, decide; the compiler vectorises them) and the scalar
     rule at the 2 border columns each side. raw: no NaN (the caller checks); zeros: (W,) 0.
@@ -597,19 +634,25 @@ def _smear5_kernel(filtered, raw, ratio, jump, tol_ratio, col_lo, col_hi, row_lo
     for i in range(height):
         if i >= 1 and i + 1 < height:
             _inverse_row(raw[i + 1], inv3[(i + 1) % 3])
-        i0 = max(0, i - half)
-        i1 = min(height, i + half + 1)
         # col_lo/col_hi (W + 4,): the column pass in [2, W + 2), neutral pads (inf, 0) around,
         # so that the row pass's 5 taps give the window clipped to the image at the borders
-        r0 = raw[i0]
-        for j in range(width):
-            v = r0[j]
-            col_lo[j + 2] = v if v > zero else inf
-            col_hi[j + 2] = v if v > zero else zero
-        for k in range(i0 + 1, i1):
-            _column_step(raw[k], col_lo[2:width + 2], col_hi[2:width + 2])
-        _min5(col_lo, row_lo, width)
-        _max5(col_hi, row_hi, width)
+        inner = i >= half and i + half < height
+        if inner or (i < half and i + half + 1 < height):   # rows i, i + 1, for row i + 2
+            _pair_range(raw[i], raw[i + 1], pair_lo[i % 3], pair_hi[i % 3])
+        if inner:    # rows i - 2 to i + 2: two pairs and row i + 2
+            _column_range(pair_lo[(i - 2) % 3], pair_hi[(i - 2) % 3], pair_lo[i % 3],
+                          pair_hi[i % 3], raw[i + 2], col_lo[2:width + 2],
+                          col_hi[2:width + 2])
+        else:        # the window clipped to the image, row by row
+            i0 = max(0, i - half)
+            r0 = raw[i0]
+            for j in range(width):
+                v = r0[j]
+                col_lo[j + 2] = v if v > zero else inf
+                col_hi[j + 2] = v if v > zero else zero
+            for k in range(i0 + 1, min(height, i + half + 1)):
+                _column_step(raw[k], col_lo[2:width + 2], col_hi[2:width + 2])
+        _row_range(col_lo, col_hi, row_lo, row_hi, width)
         rr = raw[i]
         fr = filtered[i]
         up = raw[i - 1] if i > 0 else zeros
@@ -645,6 +688,7 @@ def _smear5_buffers(width: int) -> tuple[np.ndarray, ...]:
     col_lo = np.full(width + 4, np.inf, np.float32)   # neutral pads of the row pass: the
     col_hi = np.zeros(width + 4, np.float32)          # kernel writes [2, W + 2) only
     return (col_lo, col_hi, np.empty(width, np.float32), np.empty(width, np.float32),
+            np.empty((3, width), np.float32), np.empty((3, width), np.float32),
             np.empty((3, width), np.float32), np.zeros(width, np.float32),
             np.empty(width, np.bool_), np.empty(width, np.bool_))
 
