@@ -29,6 +29,9 @@ def test_model_table_and_pixels_agree_with_the_geometry():
     np.testing.assert_array_equal(table, geometry.ground_rays(SHAPE, KINECT_V2_SD, params))
     pixels = np.array([0, 511, 512, 100 * 512 + 37, SHAPE[0] * SHAPE[1] - 1])
     np.testing.assert_array_equal(model.at(pixels), table[:, pixels])
+    other = corridor(camera_height_m=0.4, camera_pitch_rad=-0.1, camera_roll_rad=0.07)
+    np.testing.assert_array_equal(model.for_mount(other).table(),
+                                  geometry.ground_rays(SHAPE, KINECT_V2_SD, other))
     # the principal point looks along the optical axis: pitched down by the mount's pitch
     intr = Intrinsics(fx=400.0, fy=400.0, cx=10.0, cy=5.0)
     ray = geometry.ray_model((11, 21), intr, corridor(camera_height_m=0.5,

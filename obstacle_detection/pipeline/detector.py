@@ -160,7 +160,7 @@ class Detector:
             frame_changes['tdbg_m'] = -p.drop_view_m
         run = p.with_frame_mount(**frame_changes) if frame_changes else p
         if fit.refined:   # the fitted mount's rays (no table: computed where they are read)
-            rays = geometry.ray_model(depth_m.shape, intr, run)
+            rays = rays.for_mount(run)
         clock.lap('floor')
         compiled = jit_voxel.enabled()
         if compiled:   # same points, voxels and labels as the numpy path below

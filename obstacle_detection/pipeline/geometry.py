@@ -133,6 +133,11 @@ class GroundRays:
             out[axis] = self.rot[axis, 0] * ru + self.rot[axis, 1] * rv + self.rot[axis, 2]
         return out
 
+    def for_mount(self, params: DetectorParams) -> GroundRays:
+        """Return the rays of the same pixels under the params' mount (pitch and roll)."""
+        rot = mount_rotation(params.camera_pitch_rad, params.camera_roll_rad)
+        return GroundRays(self.ru, self.rv, rot.astype(np.float32))
+
     def subsampled(self, step: int) -> GroundRays:
         """Return the rays of every ``step``-th row and column (the same values)."""
         return GroundRays(self.ru[::step], self.rv[::step], self.rot)
@@ -142,8 +147,7 @@ def ray_model(shape: tuple[int, int], intrinsics: Intrinsics,
               params: DetectorParams) -> GroundRays:
     """Return the :class:`GroundRays` of an (H, W) image under the params' mount."""
     ru, rv = pixel_rays(shape, intrinsics)
-    rot = mount_rotation(params.camera_pitch_rad, params.camera_roll_rad).astype(np.float32)
-    return GroundRays(ru, rv, rot)
+    return GroundRays(ru, rv, np.eye(3, dtype=np.float32)).for_mount(params)
 
 
 def ground_rays(shape: tuple[int, int], intrinsics: Intrinsics, params: DetectorParams,
