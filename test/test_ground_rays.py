@@ -54,17 +54,22 @@ def _frame():
 
 
 @jit_only
-def test_projection_from_the_model_equals_the_table():
+@pytest.mark.parametrize('shape', [SHAPE, (7, 9000), (1, 3)])
+def test_projection_from_the_model_equals_the_table(shape):
+    # the rays are computed a band of rows at a time: a partial last band, rows wider than
+    # a band, a tiny image
     params = corridor(**MOUNT)
-    model = geometry.ray_model(SHAPE, KINECT_V2_SD, params)
-    depth = _frame()
+    intr = Intrinsics(fx=365.0, fy=365.0, cx=shape[1] / 2.0, cy=shape[0] / 2.0)
+    model = geometry.ray_model(shape, intr, params)
+    depth = _frame()[:shape[0], :shape[1]] if shape == SHAPE else np.full(shape, 2.0,
+                                                                           np.float32)
     want = jit_voxel.project_roi(depth, model.table(), params)
     got = jit_voxel.project_roi(depth, model, params)
-    assert want.points.shape[0] > 1000
+    assert want.points.shape[0] > (1000 if shape == SHAPE else 0)
     for name in ('points', 'pixel_index', 'labels', 'pixel_voxel', 'keys'):
         np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=name)
     with pytest.raises(ValueError, match='rays are for a'):
-        jit_voxel.project_roi(depth[:-1], model, params)
+        jit_voxel.project_roi(np.zeros((shape[0] + 1, shape[1]), np.float32), model, params)
 
 
 @pytest.mark.parametrize('compiled', [True, False])

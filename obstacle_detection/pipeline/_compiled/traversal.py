@@ -23,11 +23,11 @@ from obstacle_detection.pipeline.jit import AVAILABLE, NO_JIT_ENV, enabled, jit 
 _SCRATCH = threading.local()
 
 __all__ = ['AVAILABLE', 'NO_JIT_ENV', 'drop_mask', 'drop_smeared', 'enabled', 'ground_rays',
-           'holes_to_inf', 'traverse', 'warm_up']
+           'holes_to_inf', 'ray_row', 'traverse', 'warm_up']
 
 
 @_jit
-def _ray_row(ru, rv_i, r0, r1, r2, out):  # pragma: no cover - compiled
+def ray_row(ru, rv_i, r0, r1, r2, out):  # pragma: no cover - compiled
     """Fill out (W,) float32 with one component of a row's ground rays.
 
     ``(r0 * ru[j] + r1 * rv_i) + r2``: geometry.GroundRays' float32 operations, in order.
@@ -42,7 +42,7 @@ def _rays_kernel(ru, rv, rot, out):  # pragma: no cover - compiled
     """Fill out (3, H, W) float32 = rot[a, 0] * ru[j] + rot[a, 1] * rv[i] + rot[a, 2]."""
     for a in range(3):
         for i in range(rv.size):
-            _ray_row(ru, rv[i], rot[a, 0], rot[a, 1], rot[a, 2], out[a, i])
+            ray_row(ru, rv[i], rot[a, 0], rot[a, 1], rot[a, 2], out[a, i])
 
 
 def ground_rays(ru: np.ndarray, rv: np.ndarray, rot: np.ndarray,
@@ -264,7 +264,7 @@ def _drop_pixels_kernel(depth, rz, ru, rv, rot, h, down, up, rows, zring, rz_row
         r = i + rows                  # the row that enters the ring
         if r < height:
             if from_model:
-                _ray_row(ru, rv[r], rot[2, 0], rot[2, 1], rot[2, 2], rz_row)
+                ray_row(ru, rv[r], rot[2, 0], rot[2, 1], rot[2, 2], rz_row)
                 passed[r] = _z_row(depth[r], rz_row, h, down, zring[r % ring])
             else:
                 passed[r] = _z_row(depth[r], rz[r], h, down, zring[r % ring])

@@ -33,6 +33,7 @@ import numpy as np
 from obstacle_detection.pipeline.params import DetectorParams
 
 from obstacle_detection.pipeline.jit import AVAILABLE, NO_JIT_ENV, enabled, jit as _jit
+from obstacle_detection.pipeline._compiled.traversal import ray_row
 
 __all__ = ['AVAILABLE', 'NO_JIT_ENV', 'Projection', 'enabled', 'ground_points_in_roi',
            'label_pixels', 'project_roi', 'voxel_downsample', 'voxelise', 'warm_up']
@@ -41,18 +42,20 @@ __all__ = ['AVAILABLE', 'NO_JIT_ENV', 'Projection', 'enabled', 'ground_points_in
 _DENSE_LIMIT = 16_000_000
 #: Largest |voxel index| handled; beyond it (or NaN) the numpy path runs.
 _MAX_INDEX = float(1 << 40)
+#: Pixels whose rays are computed at once when they are not read from a table (a band of
+#: rows: 3 x 4 B x 8192 = 96 kB, cache resident).
+_RAY_BAND_PX = 8192
 
 
 # --------------------------------------------------------------------------- kernels
 
 @_jit
-def _project_kernel(depth, rays, width, ru, rv, rot, bounds, size, low, dims, labels,
-                    pixel_voxel, cols, pix, keys):  # pragma: no cover - compiled
+def _project_kernel(depth, rays, offset, bounds, size, low, dims, labels, pixel_voxel, cols,
+                    pix, keys):  # pragma: no cover - compiled
     """Back-project, keep the region of interest, key the kept points' voxels.
 
-    depth (n,) float32; rays (3, n) float32, or (3, 0) and each pixel's ray computed from ru
-    (W,), rv (H,), rot (3, 3) float32 (geometry.GroundRays: its float32 operations, no table
-    read), width: W (n with a table); bounds (6,) float32 (min range, max range,
+    depth (n,) float32; rays (3, n) float32; offset: the flat index of depth[0] in the image
+    (pix holds image indices); bounds (6,) float32 (min range, max range,
     lateral limit, height, tdbg, max height); size (3,) float32; low, dims (3,) int64 the
     lattice. Writes labels (n,) uint8 (0 no return, 1 outside, 2 kept), pixel_voxel (n,)
     int32 = -1, and for the m kept points cols (3, >=m) float32, pix (m,) int64, keys (m,)
@@ -60,51 +63,62 @@ def _project_kernel(depth, rays, width, ru, rv, rot, bounds, size, low, dims, la
     """
     min_x, max_x, lateral = bounds[0], bounds[1], bounds[2]
     height, min_z, max_z = bounds[3], bounds[4], bounds[5]
-    from_model = rays.shape[1] == 0
-    r00, r01, r02 = rot[0, 0], rot[0, 1], rot[0, 2]
-    r10, r11, r12 = rot[1, 0], rot[1, 1], rot[1, 2]
-    r20, r21, r22 = rot[2, 0], rot[2, 1], rot[2, 2]
     m = 0
-    for i in range(depth.size // width):
-        if from_model:   # the row's share of its rays
-            t0, t1, t2 = r01 * rv[i], r11 * rv[i], r21 * rv[i]
+    for p in range(depth.size):
+        z = depth[p]
+        if not z > 0.0:
+            labels[p] = 0
+            pixel_voxel[p] = -1
+            continue
+        gx = z * rays[0, p]
+        gy = z * rays[1, p]
+        gz = z * rays[2, p]
+        gz = gz + height
+        if (gx >= min_x and gx <= max_x and abs(gy) <= lateral and gz >= min_z
+                and gz <= max_z):
+            i = np.int64(np.floor(gx / size[0])) - low[0]
+            j = np.int64(np.floor(gy / size[1])) - low[1]
+            k = np.int64(np.floor(gz / size[2])) - low[2]
+            if i < 0 or i >= dims[0] or j < 0 or j >= dims[1] or k < 0 or k >= dims[2]:
+                return -1
+            labels[p] = 2
+            pixel_voxel[p] = -1
+            cols[0, m] = gx
+            cols[1, m] = gy
+            cols[2, m] = gz
+            pix[m] = p + offset
+            keys[m] = (i * dims[1] + j) * dims[2] + k
+            m += 1
         else:
-            t0 = t1 = t2 = np.float32(0.0)
-        for j in range(width):
-            p = i * width + j
-            z = depth[p]
-            if not z > 0.0:
-                labels[p] = 0
-                pixel_voxel[p] = -1
-                continue
-            if from_model:
-                gx = z * ((r00 * ru[j] + t0) + r02)
-                gy = z * ((r10 * ru[j] + t1) + r12)
-                gz = z * ((r20 * ru[j] + t2) + r22)
-            else:
-                gx = z * rays[0, p]
-                gy = z * rays[1, p]
-                gz = z * rays[2, p]
-            gz = gz + height
-            if (gx >= min_x and gx <= max_x and abs(gy) <= lateral and gz >= min_z
-                    and gz <= max_z):
-                vi = np.int64(np.floor(gx / size[0])) - low[0]
-                vj = np.int64(np.floor(gy / size[1])) - low[1]
-                vk = np.int64(np.floor(gz / size[2])) - low[2]
-                if (vi < 0 or vi >= dims[0] or vj < 0 or vj >= dims[1] or vk < 0
-                        or vk >= dims[2]):
-                    return -1
-                labels[p] = 2
-                pixel_voxel[p] = -1
-                cols[0, m] = gx
-                cols[1, m] = gy
-                cols[2, m] = gz
-                pix[m] = p
-                keys[m] = (vi * dims[1] + vj) * dims[2] + vk
-                m += 1
-            else:
-                labels[p] = 1
-                pixel_voxel[p] = -1
+            labels[p] = 1
+            pixel_voxel[p] = -1
+    return m
+
+
+@_jit
+def _project_rays_kernel(depth, ru, rv, rot, chunk, bounds, size, low, dims, labels,
+                         pixel_voxel, cols, pix, keys):  # pragma: no cover - compiled
+    """_project_kernel with the rays computed, not read: geometry.GroundRays (ru, rv, rot).
+
+    The rays of a band of rows are computed into chunk (3, rows * W) float32 (a few
+    cache-resident rows; the same float32 operations as the table), then projected.
+    """
+    width = ru.size
+    band = max(1, chunk.shape[1] // width)
+    m = 0
+    for i0 in range(0, rv.size, band):
+        i1 = min(rv.size, i0 + band)
+        for a in range(3):
+            for i in range(i0, i1):
+                ray_row(ru, rv[i], rot[a, 0], rot[a, 1], rot[a, 2],
+                        chunk[a, (i - i0) * width:(i - i0 + 1) * width])
+        p0, p1 = i0 * width, i1 * width
+        got = _project_kernel(depth[p0:p1], chunk[:, :p1 - p0], p0, bounds, size, low, dims,
+                              labels[p0:p1], pixel_voxel[p0:p1], cols[:, m:], pix[m:],
+                              keys[m:])
+        if got < 0:
+            return -1
+        m += got
     return m
 
 
@@ -260,14 +274,18 @@ def project_roi(depth_m: np.ndarray, rays, params: DetectorParams, *,
     if isinstance(rays, GroundRays):   # computed on the fly, the same values as its table
         if rays.shape != shape:
             raise ValueError(f'rays are for a {rays.shape} image, the depth is {shape}')
-        model = (max(1, shape[1]), rays.ru, rays.rv, rays.rot)
-        rays = np.zeros((3, 0), np.float32)
+        band = max(1, _RAY_BAND_PX // shape[1]) * shape[1]   # whole rows
+        chunk = _scratch('ray_band', 3 * band, np.float32)[:3 * band].reshape(3, band)
+
+        def kernel(*args):
+            return _project_rays_kernel(depth, rays.ru, rays.rv, rays.rot, chunk, *args)
     else:
         rays = np.ascontiguousarray(rays, np.float32)
         if rays.shape != (3, n):
             raise ValueError(f'rays must have shape (3, {n}), got {rays.shape}')
-        empty = np.zeros(0, np.float32)
-        model = (max(1, n), empty, empty, np.zeros((3, 3), np.float32))
+
+        def kernel(*args):
+            return _project_kernel(depth, rays, 0, *args)
     size = np.asarray(params.voxel_size_m, np.float32)
     bounds = _roi_bounds(params)
     low, dims = _roi_lattice(bounds, size)
@@ -284,13 +302,12 @@ def project_roi(depth_m: np.ndarray, rays, params: DetectorParams, *,
         keys = np.empty(n, np.int64)
     m = -1
     if n_cells <= _DENSE_LIMIT:
-        m = _project_kernel(depth, rays, *model, bounds, size, low, dims, labels.reshape(-1),
-                            pixel_voxel.reshape(-1), cols, pix, keys)
+        m = kernel(bounds, size, low, dims, labels.reshape(-1), pixel_voxel.reshape(-1), cols,
+                   pix, keys)
     if m < 0:   # lattice too large: points only, numpy numbers the voxels
         dims = np.zeros(3, np.int64)
-        m = _project_kernel(depth, rays, *model, bounds, size, low,
-                            np.full(3, 1 << 62, np.int64), labels.reshape(-1),
-                            pixel_voxel.reshape(-1), cols, pix, keys)
+        m = kernel(bounds, size, low, np.full(3, 1 << 62, np.int64), labels.reshape(-1),
+                   pixel_voxel.reshape(-1), cols, pix, keys)
         return Projection(cols[:, :m].T, pix[:m], labels, pixel_voxel, None, low, dims,
                           params.voxel_size_m, reuse)
     return Projection(cols[:, :m].T, pix[:m], labels, pixel_voxel, keys[:m], low, dims,
