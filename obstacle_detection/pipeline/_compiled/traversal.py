@@ -508,13 +508,19 @@ def _column_step(row, col_lo, col_hi):  # pragma: no cover - compiled
 
 
 @_jit
-def _row_range(col_lo, col_hi, lo_out, hi_out, n):  # pragma: no cover - compiled
-    """Row pass of the window range: lo_out[j] = min(col_lo[j:j + 5]), hi_out likewise max.
+def _row_range(col_lo, col_hi, r_row, f_row, jump, lo_out, hi_out):  # pragma: no cover
+    """Row pass of the window range, and what the row holds to decide; returns two counts.
 
-    For j < n. Pairs first (min(a, b), min(c, d)): the same values as taking the five in
-    turn (min and max of numbers are exact, in any order).
+    lo_out[j] = min(col_lo[j:j + 5]), hi_out[j] likewise max, pairs first (min(a, b),
+    min(c, d): the same values as taking the five in turn, min and max of numbers are
+    exact in any order). Returns (flying, filled): how many pixels of the row r_row lie more
+    than jump of their depth from both ends of their window range (flying unless planar),
+    and how many holes the filter filled (no measured depth, a filtered one in f_row).
     """
-    for j in range(n):
+    zero = np.float32(0.0)
+    flying = 0
+    filled = 0
+    for j in range(r_row.size):
         a = col_lo[j]
         b = col_lo[j + 1]
         c = col_lo[j + 2]
@@ -523,7 +529,8 @@ def _row_range(col_lo, col_hi, lo_out, hi_out, n):  # pragma: no cover - compile
         ab = a if a < b else b
         cd = c if c < d else d
         m = ab if ab < cd else cd
-        lo_out[j] = e if e < m else m
+        lo = e if e < m else m
+        lo_out[j] = lo
         a = col_hi[j]
         b = col_hi[j + 1]
         c = col_hi[j + 2]
@@ -532,7 +539,13 @@ def _row_range(col_lo, col_hi, lo_out, hi_out, n):  # pragma: no cover - compile
         ab = a if a > b else b
         cd = c if c > d else d
         m = ab if ab > cd else cd
-        hi_out[j] = e if e > m else m
+        hi = e if e > m else m
+        hi_out[j] = hi
+        r = r_row[j]
+        lim = jump * r
+        flying += (r > zero) & (r - lo > lim) & (hi - r > lim)
+        filled += (r <= zero) & (f_row[j] > zero)
+    return flying, filled
 
 
 @_jit
@@ -574,24 +587,6 @@ def _column_range(lo_a, hi_a, lo_b, hi_b, row, col_lo, col_hi):  # pragma: no co
 
 
 @_jit
-def _count_row(r_row, f_row, near, far, jump):  # pragma: no cover - compiled
-    """Return how many pixels of the row are flying candidates, and how many holes are filled.
-
-    A candidate lies more than jump of its depth from both ends of its window range (it is
-    flying unless planar); a filled hole has no measured depth but a filtered one.
-    """
-    zero = np.float32(0.0)
-    flying = 0
-    filled = 0
-    for j in range(r_row.size):
-        r = r_row[j]
-        lim = jump * r
-        flying += (r > zero) & (r - near[j] > lim) & (far[j] - r > lim)
-        filled += (r <= zero) & (f_row[j] > zero)
-    return flying, filled
-
-
-@_jit
 def _decide_row(r_row, f_row, near, far, planar, keep, ratio, jump,
                 ):  # pragma: no cover - compiled
     """Apply _smear_kernel's rule along a row, in place, the masks of the row given."""
@@ -618,22 +613,19 @@ def _smear5_kernel(filtered, raw, ratio, jump, tol_ratio, col_lo, col_hi, row_lo
     replicated border give): the nearest measured depth (inf without any) and the farthest (0
     without any): a column pass into col_lo/col_hi (inside the image, from the range of the
     rows i - 2, i - 1 and i, i + 1, each pair's kept in the ring pair_lo/pair_hi (3, W), and
-    row i + 2), a row pass into row_lo/row_hi. The inverse
-    depths of the rows i - 1, i, i + 1 rotate through inv3. Then branch-free passes over the
-    row's inner columns (planar, keep, decide; the compiler vectorises them) and the scalar
-    rule at the 2 border columns each side. raw: no NaN (the caller checks); zeros: (W,) 0.
+    row i + 2), a row pass into row_lo/row_hi that counts the row's flying candidates and
+    filled holes. The inverse depths of the rows i - 1, i, i + 1 rotate through inv3, computed
+    for the rows with a flying candidate only. Then branch-free passes over the row's inner
+    columns (planar and keep where needed, decide; the compiler vectorises them) and the
+    scalar rule at the 2 border columns each side. raw: no NaN (the caller checks); zeros: (W,) 0.
     """
     height, width = filtered.shape
     inf = np.float32(np.inf)
     zero = np.float32(0.0)
     half = 2
-    _inverse_row(raw[0], inv3[0])
-    if height > 1:
-        _inverse_row(raw[1], inv3[1])
+    inv_of = np.full(3, -1, np.int64)   # the row whose inverse depths each slot of inv3 holds
     n = width - 4
     for i in range(height):
-        if i >= 1 and i + 1 < height:
-            _inverse_row(raw[i + 1], inv3[(i + 1) % 3])
         # col_lo/col_hi (W + 4,): the column pass in [2, W + 2), neutral pads (inf, 0) around,
         # so that the row pass's 5 taps give the window clipped to the image at the borders
         inner = i >= half and i + half < height
@@ -652,9 +644,9 @@ def _smear5_kernel(filtered, raw, ratio, jump, tol_ratio, col_lo, col_hi, row_lo
                 col_hi[j + 2] = v if v > zero else zero
             for k in range(i0 + 1, min(height, i + half + 1)):
                 _column_step(raw[k], col_lo[2:width + 2], col_hi[2:width + 2])
-        _row_range(col_lo, col_hi, row_lo, row_hi, width)
         rr = raw[i]
         fr = filtered[i]
+        flying, filled = _row_range(col_lo, col_hi, rr, fr, jump, row_lo, row_hi)
         up = raw[i - 1] if i > 0 else zeros
         dn = raw[i + 1] if i + 1 < height else zeros
         iu = inv3[(i - 1) % 3]
@@ -668,9 +660,11 @@ def _smear5_kernel(filtered, raw, ratio, jump, tol_ratio, col_lo, col_hi, row_lo
                                  tol_ratio)
         if n <= 0:
             continue
-        flying, filled = _count_row(rr[2:n + 2], fr[2:n + 2], row_lo[2:n + 2],
-                                    row_hi[2:n + 2], jump)
-        if flying:   # else planar is not looked at
+        if flying:   # else planar is not looked at (nor the inverse depths)
+            for k in range(max(0, i - 1), min(height, i + 2)):
+                if inv_of[k % 3] != k:
+                    _inverse_row(raw[k], inv3[k % 3])
+                    inv_of[k % 3] = k
             _planar_row(rr[1:n + 1], rr[2:n + 2], rr[3:n + 3], up[2:n + 2], dn[2:n + 2],
                         iu[2:n + 2], im[1:n + 1], im[2:n + 2], im[3:n + 3], idn[2:n + 2],
                         tol_ratio, planar[:n])

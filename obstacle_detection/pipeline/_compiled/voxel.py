@@ -26,7 +26,7 @@ call :func:`warm_up` at start-up to pay that before the first frame. They run on
 from __future__ import annotations
 
 import threading
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
@@ -34,6 +34,9 @@ from obstacle_detection.pipeline.params import DetectorParams
 
 from obstacle_detection.pipeline.jit import AVAILABLE, NO_JIT_ENV, enabled, jit as _jit
 from obstacle_detection.pipeline._compiled.traversal import ray_row
+
+if TYPE_CHECKING:
+    from obstacle_detection.pipeline.geometry import GroundRays
 
 __all__ = ['AVAILABLE', 'NO_JIT_ENV', 'Projection', 'enabled', 'ground_points_in_roi',
            'label_pixels', 'project_roi', 'voxel_downsample', 'voxelise', 'warm_up']
@@ -255,7 +258,7 @@ def _roi_lattice(bounds: np.ndarray, size: np.ndarray) -> tuple[np.ndarray, np.n
     return low, dims
 
 
-def project_roi(depth_m: np.ndarray, rays, params: DetectorParams, *,
+def project_roi(depth_m: np.ndarray, rays: np.ndarray | GroundRays, params: DetectorParams, *,
                 reuse: bool = False) -> Projection:
     """Back-project a depth image through ground rays, keep the ROI, key the voxels.
 
