@@ -17,6 +17,7 @@ import pytest
 
 from obstacle_detection.evaluation import runner as evaluation
 from obstacle_detection.pipeline import floor
+from obstacle_detection.pipeline.jit import NO_JIT_ENV
 from obstacle_detection.pipeline._compiled import traversal as jit_traversal
 from obstacle_detection.pipeline.detector import Detector
 from obstacle_detection.ros.parameters import detector_params_from_ros, read_params_file
@@ -42,9 +43,9 @@ def suite_inputs():
 def both_paths(monkeypatch, call):
     """Return call() with the compiled kernels, then with numpy."""
     compiled = call()
-    monkeypatch.setenv(jit_traversal.NO_JIT_ENV, '1')
+    monkeypatch.setenv(NO_JIT_ENV, '1')
     reference = call()
-    monkeypatch.delenv(jit_traversal.NO_JIT_ENV)
+    monkeypatch.delenv(NO_JIT_ENV)
     return compiled, reference
 
 
@@ -98,7 +99,7 @@ def fit_every_hypothesis(depth, sub_rays, params):
 @pytest.mark.parametrize('compiled', [False, pytest.param(True, marks=jit_only)])
 def test_skipping_repeated_refits_keeps_the_fit(compiled, monkeypatch):
     if not compiled:
-        monkeypatch.setenv(jit_traversal.NO_JIT_ENV, '1')
+        monkeypatch.setenv(NO_JIT_ENV, '1')
     skipped = 0
     for name, depth, sub_rays, params in suite_inputs():
         best = fit_every_hypothesis(depth, sub_rays, params)

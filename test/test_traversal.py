@@ -15,6 +15,7 @@ import pytest
 from obstacle_detection.labels import CELL_OCCUPIED, CELL_UNKNOWN, LABEL_GROUND, LABEL_OBSTACLE
 from obstacle_detection.evaluation import runner as evaluation
 from obstacle_detection.pipeline import floor, geometry, traversal
+from obstacle_detection.pipeline.jit import NO_JIT_ENV
 from obstacle_detection.pipeline._compiled import traversal as jit_traversal
 from obstacle_detection.pipeline.params import corridor, table_4_2
 from obstacle_detection.pipeline.detector import Detector
@@ -268,7 +269,7 @@ def test_robot_level_pipeline_identical_with_and_without_jit(name, monkeypatch):
     frame = render_scene(name, seed=2)
     params = scene_params(frame, corridor())
     jit = Detector(params).process(frame.depth_mm, frame.intrinsics)
-    monkeypatch.setenv(jit_traversal.NO_JIT_ENV, '1')
+    monkeypatch.setenv(NO_JIT_ENV, '1')
     ref = Detector(params).process(frame.depth_mm, frame.intrinsics)
     for field in ('obstacle_points', 'ground_points', 'labels', 'voxel_points',
                   'voxel_is_obstacle', 'voxel_slope_obstacle', 'voxel_height_m',
@@ -295,20 +296,20 @@ def test_traversal_kernels_equal_numpy(monkeypatch):
     depth[5, 5] = np.nan
     rz = rng.uniform(-0.6, 0.1, size=depth.shape).astype(np.float32)
     got = jit_traversal.drop_mask(depth, rz, 0.6, 0.05, 0.05, 3)
-    monkeypatch.setenv(jit_traversal.NO_JIT_ENV, '1')
+    monkeypatch.setenv(NO_JIT_ENV, '1')
     want = traversal.drop_edge_mask(depth, rz, 0.6, 0.05, 0.05, 3)
     np.testing.assert_array_equal(got, want)
     assert want.any()
     raw = depth.copy()
     filtered = raw + rng.normal(0, 0.05, raw.shape).astype(np.float32)
     a = traversal.drop_smeared(filtered.copy(), raw, 0.03)
-    monkeypatch.delenv(jit_traversal.NO_JIT_ENV)
+    monkeypatch.delenv(NO_JIT_ENV)
     b = traversal.drop_smeared(filtered.copy(), raw, 0.03)
     np.testing.assert_array_equal(a, b)
     intr = frame_intrinsics()
     params = corridor(camera_pitch_rad=0.2, camera_roll_rad=-0.05)
     jit_rays = geometry.ground_rays((424, 512), intr, params)
-    monkeypatch.setenv(jit_traversal.NO_JIT_ENV, '1')
+    monkeypatch.setenv(NO_JIT_ENV, '1')
     np.testing.assert_array_equal(jit_rays, geometry.ground_rays((424, 512), intr, params))
 
 
@@ -358,7 +359,7 @@ def test_fused_smear_kernel_equals_numpy(shape, monkeypatch):
     filtered = raw + rng.normal(0.0, 0.08, shape).astype(np.float32)
     filtered[rng.random(shape) < 0.1] = 0.0
     got = traversal.drop_smeared(filtered.copy(), raw, 0.03)
-    monkeypatch.setenv(jit_traversal.NO_JIT_ENV, '1')
+    monkeypatch.setenv(NO_JIT_ENV, '1')
     want = traversal.drop_smeared(filtered.copy(), raw, 0.03)
     np.testing.assert_array_equal(got, want)
     assert got.tobytes() == want.tobytes()
@@ -382,7 +383,7 @@ def test_drop_pixels_kernel_equals_the_numpy_mask(shape, monkeypatch):
     depth.reshape(-1)[::17] = np.nan
     rz = rng.uniform(-0.6, 0.1, size=shape).astype(np.float32)
     pixels, offsets = jit_traversal.drop_pixels(depth, rz.reshape(-1), 0.6, 0.05, 0.05, 3)
-    monkeypatch.setenv(jit_traversal.NO_JIT_ENV, '1')
+    monkeypatch.setenv(NO_JIT_ENV, '1')
     mask = traversal.drop_edge_mask(depth, rz, 0.6, 0.05, 0.05, 3)
     np.testing.assert_array_equal(pixels, np.flatnonzero(mask))
     np.testing.assert_array_equal(offsets, mask.reshape(-1)[np.flatnonzero(mask)])

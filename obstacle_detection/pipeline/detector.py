@@ -19,7 +19,6 @@ import numpy as np
 from ..labels import LABEL_OBSTACLE
 from . import geometry, median, traversal, voxel
 from . import normals as normals_stage   # a frame's local `normals` are vectors
-from ._compiled import traversal as jit_traversal
 from .costmap import Costmap, build_costmap
 from .depth import crop_borders, decode_depth
 from .floor import FloorFit, fit_floor, sample_rays
@@ -94,7 +93,7 @@ class Detector:
     def __init__(self, params: DetectorParams | None = None) -> None:
         self.params = params if params is not None else DetectorParams()
         self._ray_key: tuple | None = None
-        self._ray_cache: np.ndarray | None = None
+        self._ray_cache: geometry.GroundRays | None = None
         self._sub_rays: np.ndarray | None = None
 
     def warm_up(self) -> float:
@@ -107,14 +106,14 @@ class Detector:
         median.warm_up(self.params.median_kernel)
         normals_stage.warm_up()
         voxel.warm_up()
-        jit_traversal.warm_up()
+        traversal.warm_up()
         return time.perf_counter() - start
 
-    def _rays(self, shape: tuple[int, int], intr: Intrinsics) -> np.ndarray:
+    def _rays(self, shape: tuple[int, int], intr: Intrinsics) -> geometry.GroundRays:
         """Ground-frame pixel rays, computed once per image size and intrinsics."""
         key = (shape, intr)
         if key != self._ray_key or self._ray_cache is None:
-            self._ray_cache = geometry.ground_rays(shape, intr, self.params)
+            self._ray_cache = geometry.ray_model(shape, intr, self.params)
             self._sub_rays = sample_rays(self._ray_cache, shape)
             self._ray_key = key
         return self._ray_cache
@@ -155,10 +154,8 @@ class Detector:
         if p.robot_level and -p.drop_view_m < p.tdbg_m:
             frame_changes['tdbg_m'] = -p.drop_view_m
         run = p.with_frame_mount(**frame_changes) if frame_changes else p
-        if fit.refined:   # the fitted mount's rays, into a per-thread buffer when compiled
-            buf = (jit_traversal.scratch('frame_rays', rays.shape, np.float32)
-                   if jit_traversal.enabled() else None)
-            rays = geometry.ground_rays(depth_m.shape, intr, run, out=buf)
+        if fit.refined:   # the fitted mount's rays (no table: computed where they are read)
+            rays = rays.for_mount(run)
         clock.lap('floor')
         roi = voxel.points_in_roi(depth_m, rays, run)
         clock.lap('back_project')

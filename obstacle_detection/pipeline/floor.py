@@ -22,8 +22,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import jit
 from ._compiled import traversal as jit_traversal
-from .geometry import mount_rotation
+from .geometry import GroundRays, mount_rotation
 from .params import DetectorParams
 
 #: About this many pixels (an even grid) are sampled for the floor fit.
@@ -93,10 +94,16 @@ def configured(params: DetectorParams, reason: str) -> FloorFit:
                     params.camera_roll_rad, reason=reason)
 
 
-def sample_rays(rays: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """Return (3, M) float32: the rays of the sampled pixel grid (a contiguous copy)."""
-    height, width = shape
+def sample_rays(rays: np.ndarray | GroundRays, shape: tuple[int, int]) -> np.ndarray:
+    """Return (3, M) float32: the rays of the sampled pixel grid (a contiguous copy).
+
+    rays: the (3, H*W) table or the :class:`.geometry.GroundRays` of the image (the same
+    values; the table is not made).
+    """
     step = sample_step(shape)
+    if isinstance(rays, GroundRays):
+        return np.ascontiguousarray(rays.subsampled(step).table())
+    height, width = shape
     sub = rays.reshape(3, height, width)[:, ::step, ::step]
     return np.ascontiguousarray(sub.reshape(3, -1))
 
@@ -106,10 +113,10 @@ def floor_samples(depth_m: np.ndarray, sub_rays: np.ndarray,
     """Subsampled points (3, M) float64 near the configured floor, in the configured frame.
 
     sub_rays: :func:`sample_rays` of the configured mount's ground rays. Compiled when
-    :func:`.jit_traversal.enabled` (the same points, the same float64 operations).
+    :func:`.jit.enabled` (the same points, the same float64 operations).
     """
     step = sample_step(depth_m.shape)
-    if jit_traversal.enabled():
+    if jit.enabled():
         return jit_traversal.floor_samples(
             depth_m, step, sub_rays, params.camera_height_m,
             math.tan(params.floor_max_tilt_rad), params.floor_max_offset_m + 0.02,
@@ -160,9 +167,9 @@ def _in_band(pts: np.ndarray, coef: np.ndarray, band_m: float,
              compiled: bool | None = None) -> np.ndarray:
     """(3, m) float64: the samples pts (3, M) within band_m of z = coef . (x, y, 1).
 
-    compiled: run the kernel (None: when :func:`.jit_traversal.enabled`).
+    compiled: run the kernel (None: when :func:`.jit.enabled`).
     """
-    if jit_traversal.enabled() if compiled is None else compiled:
+    if jit.enabled() if compiled is None else compiled:
         return jit_traversal.in_band(pts, coef[0], coef[1], coef[2], band_m)
     resid = pts[2] - (coef[0] * pts[0] + coef[1] * pts[1] + coef[2])
     return pts[:, np.abs(resid) <= band_m]
@@ -176,7 +183,7 @@ def _same(a: np.ndarray, b: np.ndarray) -> bool:
 def _count_in_band(pts: np.ndarray, coef: np.ndarray, band_m: float,
                    compiled: bool | None = None) -> int:
     """How many samples pts (3, M) lie within band_m of z = coef . (x, y, 1)."""
-    if jit_traversal.enabled() if compiled is None else compiled:
+    if jit.enabled() if compiled is None else compiled:
         return jit_traversal.count_in_band(pts, coef[0], coef[1], coef[2], band_m)
     resid = pts[2] - (coef[0] * pts[0] + coef[1] * pts[1] + coef[2])
     return int(np.count_nonzero(np.abs(resid) <= band_m))
@@ -190,10 +197,10 @@ def _ransac_plane(pts: np.ndarray, params: DetectorParams,
     ``floor_max_offset_m`` from the configured floor are not considered (a ramp, the floor
     beyond a drop); the configured floor (0, 0, 0) and the level plane at the most common
     sample height always are. At most SCORE_POINTS samples score them; the best
-    REFINED_HYPOTHESES are returned, best first. Compiled when :func:`.jit_traversal.enabled`
+    REFINED_HYPOTHESES are returned, best first. Compiled when :func:`.jit.enabled`
     (the same hypotheses, scores and order); compiled: None asks it.
     """
-    if jit_traversal.enabled() if compiled is None else compiled:
+    if jit.enabled() if compiled is None else compiled:
         return jit_traversal.ransac_plane(pts, _PICKS, math.tan(params.floor_max_tilt_rad) ** 2,
                                           params.floor_max_offset_m, INLIER_BAND_M,
                                           SCORE_POINTS, REFINED_HYPOTHESES)
@@ -249,7 +256,7 @@ def fit_floor(depth_m: np.ndarray, sub_rays: np.ndarray, params: DetectorParams)
                                   f'{params.floor_min_points}')
     best = None   # (inliers in the last band, coefficients, samples of the last refit)
     refits: list[list[np.ndarray]] = []   # the inliers of each refit of the earlier hypotheses
-    compiled = jit_traversal.enabled()
+    compiled = jit.enabled()
     for coef in _ransac_plane(pts, params, compiled):   # each refined on narrowing bands
         used = 0
         stages: list[np.ndarray] = []

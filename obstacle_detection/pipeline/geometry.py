@@ -11,6 +11,7 @@ import math
 
 import numpy as np
 
+from . import jit
 from ._compiled import traversal as jit_traversal
 from .params import DetectorParams, Intrinsics
 
@@ -84,36 +85,106 @@ def to_ground(points_optical: np.ndarray, params: DetectorParams) -> np.ndarray:
     return out
 
 
+class GroundRays:
+    """Ground-frame rays of every pixel of one mount, kept as their factors (no table).
+
+    The ray of pixel (i, j) is ``(rot[:, 0] * ru[j] + rot[:, 1] * rv[i]) + rot[:, 2]``, in
+    float32 (ru, rv: :func:`pixel_rays`; rot: the mount's rotation in float32), scaled so that
+    depth 1 m travels it: ``p_ground = depth * ray + (0, 0, height)``. The compiled kernels
+    compute it on the fly with these float32 operations (a (3, H*W) table is 2.6 MB at
+    512 x 424, its memory traffic costs more than the arithmetic); :meth:`table` gives the
+    table (kept once made) for the numpy path.
+    """
+
+    __slots__ = ('ru', 'rv', 'rot', '_table')
+
+    def __init__(self, ru: np.ndarray, rv: np.ndarray, rot: np.ndarray) -> None:
+        self.ru = np.ascontiguousarray(ru, np.float32)
+        self.rv = np.ascontiguousarray(rv, np.float32)
+        self.rot = np.ascontiguousarray(rot, np.float32)
+        self._table: np.ndarray | None = None
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(H, W) of the image the rays belong to."""
+        return self.rv.size, self.ru.size
+
+    def table(self, out: np.ndarray | None = None) -> np.ndarray:
+        """Return the (3, H*W) float32 rays of every flat pixel index (made once).
+
+        out: a (3, H*W) float32 array the compiled path fills instead of a new one.
+        """
+        if self._table is None:
+            if jit.enabled():   # the same float32 operations, compiled
+                self._table = jit_traversal.ground_rays(self.ru, self.rv, self.rot, out)
+            else:
+                rays = np.empty((3, self.rv.size, self.ru.size), dtype=np.float32)
+                for axis in range(3):
+                    rays[axis] = (self.rot[axis, 0] * self.ru[None, :]
+                                  + self.rot[axis, 1] * self.rv[:, None] + self.rot[axis, 2])
+                self._table = rays.reshape(3, -1)
+        return self._table
+
+    def at(self, pixels: np.ndarray) -> np.ndarray:
+        """Return the (3, D) float32 rays of the flat pixel indices (D,), as the table has them."""
+        rows, cols = np.divmod(np.asarray(pixels, np.int64), self.ru.size)
+        ru, rv = self.ru[cols], self.rv[rows]
+        out = np.empty((3, ru.size), np.float32)
+        for axis in range(3):
+            out[axis] = self.rot[axis, 0] * ru + self.rot[axis, 1] * rv + self.rot[axis, 2]
+        return out
+
+    def for_mount(self, params: DetectorParams) -> GroundRays:
+        """Return the rays of the same pixels under the params' mount (pitch and roll)."""
+        rot = mount_rotation(params.camera_pitch_rad, params.camera_roll_rad)
+        return GroundRays(self.ru, self.rv, rot.astype(np.float32))
+
+    def subsampled(self, step: int) -> GroundRays:
+        """Return the rays of every ``step``-th row and column (the same values)."""
+        return GroundRays(self.ru[::step], self.rv[::step], self.rot)
+
+
+def ray_model(shape: tuple[int, int], intrinsics: Intrinsics,
+              params: DetectorParams) -> GroundRays:
+    """Return the :class:`GroundRays` of an (H, W) image under the params' mount."""
+    ru, rv = pixel_rays(shape, intrinsics)
+    return GroundRays(ru, rv, np.eye(3, dtype=np.float32)).for_mount(params)
+
+
 def ground_rays(shape: tuple[int, int], intrinsics: Intrinsics, params: DetectorParams,
                 out: np.ndarray | None = None) -> np.ndarray:
     """Ground-frame direction of every pixel's ray, scaled so that depth 1 m travels it.
 
     Returns (3, H*W) float32: ``p_ground = depth * rays[:, pixel] + (0, 0, height)`` is the
-    back-projection (seed 4.3.2) followed by the camera mount, for a flat pixel index.
-    out: a (3, H*W) float32 array the compiled path fills instead of a new one.
+    back-projection (seed 4.3.2) followed by the camera mount, for a flat pixel index (the
+    table of :func:`ray_model`). out: a (3, H*W) float32 array the compiled path fills
+    instead of a new one.
     """
-    ru, rv = pixel_rays(shape, intrinsics)
-    rot = mount_rotation(params.camera_pitch_rad, params.camera_roll_rad).astype(np.float32)
-    if jit_traversal.enabled():   # the same float32 operations, compiled (per frame when the
-        return jit_traversal.ground_rays(ru, rv, rot, out)   # floor is refined)
-    height, width = shape
-    rays = np.empty((3, height, width), dtype=np.float32)
-    for axis in range(3):
-        rays[axis] = (rot[axis, 0] * ru[None, :] + rot[axis, 1] * rv[:, None]
-                      + rot[axis, 2])
-    return rays.reshape(3, -1)
+    return ray_model(shape, intrinsics, params).table(out)
 
 
-def ground_points_in_roi(depth_m: np.ndarray, rays: np.ndarray, params: DetectorParams,
-                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def ray_table(rays: np.ndarray | GroundRays) -> np.ndarray:
+    """Return the (3, H*W) table of rays given as a table or as :class:`GroundRays`."""
+    return rays.table() if isinstance(rays, GroundRays) else rays
+
+
+def rays_at(rays: np.ndarray | GroundRays, pixels: np.ndarray) -> np.ndarray:
+    """Return the (3, D) float32 rays of the flat pixel indices, from a table or a model."""
+    return rays.at(pixels) if isinstance(rays, GroundRays) else rays[:, pixels]
+
+
+def ground_points_in_roi(depth_m: np.ndarray, rays: np.ndarray | GroundRays,
+                         params: DetectorParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Back-project a whole depth image into the ground frame and keep the ROI.
 
-    depth_m: (H, W) float32, 0 = no return; rays: from :func:`ground_rays`.
-    Returns ``(points, roi_index, valid)``: points (M, 3) float32 ground frame [m] of the
-    pixels inside the region of interest (a view with contiguous columns), roi_index (M,)
-    int64 their flat pixel indices, valid (H*W,) bool the pixels with a depth.
+    depth_m: (H, W) float32, 0 = no return; rays: from :func:`ground_rays` (or
+    :class:`GroundRays`). Returns ``(points, roi_index, valid)``: points (M, 3) float32
+    ground frame [m] of the pixels inside the region of interest (a view with contiguous
+    columns), roi_index (M,) int64 their flat pixel indices, valid (H*W,) bool the pixels
+    with a depth.
     Same ROI as :func:`roi_mask`, computed on the image without a per-point gather.
     """
+    rays = ray_table(rays)
     z = depth_m.reshape(-1)
     valid = z > 0.0
     gx = z * rays[0]

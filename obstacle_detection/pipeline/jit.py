@@ -16,7 +16,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from ._compiled._numba import AVAILABLE, jit  # noqa: F401 - jit: _compiled.traversal imports it here
+from ._compiled._numba import AVAILABLE
 
 #: Environment variable that, set to anything but '' or '0', turns the compiled path off (for
 #: tests and comparisons); it is read on every call.

@@ -37,7 +37,9 @@ import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import breadth_first_order
 
+from . import jit
 from ._compiled import traversal as jit_traversal
+from .geometry import GroundRays, ray_table, rays_at
 from .params import DetectorParams
 
 #: The 8 neighbours of a cell as (dx, dy); the search adds both directions of each pair.
@@ -85,13 +87,13 @@ def traversable_ground(points: np.ndarray, steep: np.ndarray,
 
     points: (V, 3) float32 voxel centroids, ground frame [m]; steep: (V,) bool, the seed's
     slope test (True = steeper than theta). Runs :func:`.jit_traversal.traverse` when
-    :func:`.jit_traversal.enabled` (same result).
+    :func:`.jit.enabled` (same result).
     """
     size = cell_size(params)
     if points.shape[0] == 0:
         empty = np.zeros(0, bool)
         return Traversal(empty, empty, np.zeros(0, np.float32), empty, size)
-    if jit_traversal.enabled():
+    if jit.enabled():
         out = jit_traversal.traverse(points, steep, size, params.max_step_height_m,
                                      params.max_step_down_m, params.robot_height_m,
                                      params.voxel_z_m, MIN_SURFACE_VOXELS)
@@ -208,7 +210,7 @@ def depth_window_range(raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     by the numpy and the compiled path.
     """
     kernel = np.ones((FLYING_WINDOW_PX, FLYING_WINDOW_PX), np.uint8)
-    if jit_traversal.enabled():   # the same values, into buffers reused across frames
+    if jit.enabled():   # the same values, into buffers reused across frames
         holes_far = jit_traversal.holes_to_inf(raw)
         near = jit_traversal.scratch('near', raw.shape, np.float32)
         far = jit_traversal.scratch('far', raw.shape, np.float32)
@@ -264,13 +266,13 @@ def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float) -> np.
     if max_shift <= 0.0:
         return filtered
     raw = np.ascontiguousarray(raw, np.float32)
-    if (jit_traversal.enabled() and FLYING_WINDOW_PX == 5 and filtered.flags.c_contiguous
+    if (jit.enabled() and FLYING_WINDOW_PX == 5 and filtered.flags.c_contiguous
             and filtered.dtype == np.float32 and filtered.shape == raw.shape
             and jit_traversal.drop_smeared_fused(filtered, raw, max_shift, FLYING_JUMP,
                                                  PLANAR_TOLERANCE)):
         return filtered   # one compiled pass, the window range on the way (same result)
     near, far = depth_window_range(raw)
-    if jit_traversal.enabled():
+    if jit.enabled():
         jit_traversal.drop_smeared(filtered, raw, near, far, max_shift, FLYING_JUMP,
                                    PLANAR_TOLERANCE)
         return filtered
@@ -311,7 +313,7 @@ def drop_edge_mask(depth_m: np.ndarray, rz: np.ndarray, height_m: float, step_do
     ``step_down_m`` above its own point (the nearest such row is given). float32 arithmetic,
     as the compiled kernel.
     """
-    if jit_traversal.enabled():
+    if jit.enabled():
         return jit_traversal.drop_mask(depth_m, rz, height_m, step_down_m, step_up_m, rows)
     h, w = depth_m.shape
     d = depth_m.astype(np.float32, copy=False)
@@ -330,33 +332,46 @@ def drop_edge_mask(depth_m: np.ndarray, rz: np.ndarray, height_m: float, step_do
     return edge
 
 
-def drop_edges(depth_m: np.ndarray, rays: np.ndarray, height_m: float,
+def drop_edges(depth_m: np.ndarray, rays: np.ndarray | GroundRays, height_m: float,
                params: DetectorParams) -> tuple[np.ndarray, np.ndarray]:
     """Where the floor ends at a drop: the last floor seen below the rays that passed it.
 
-    depth_m: (H, W) float32 [m]; rays: (3, H*W) ground rays of the frame's mount; height_m:
-    the camera height of that mount. Returns ``(points, pixels)``: (D, 3) float32 ground
-    points of the floor pixels where the floor ends (:func:`drop_edge_mask`), inside the
-    forward range and lateral limit [m] (the cells the costmap marks), and (D,) int64 the flat
-    indices of the pixels that saw past the edge (the lower floor, or anything beyond it).
+    depth_m: (H, W) float32 [m]; rays: the (3, H*W) ground rays of the frame's mount, or its
+    :class:`.geometry.GroundRays` (the same values; the compiled path then computes them row
+    by row, no table); height_m: the camera height of that mount. Returns
+    ``(points, pixels)``: (D, 3) float32 ground points of the floor pixels where the floor
+    ends (:func:`drop_edge_mask`), inside the forward range and lateral limit [m] (the cells
+    the costmap marks), and (D,) int64 the flat indices of the pixels that saw past the edge
+    (the lower floor, or anything beyond it).
     """
-    if jit_traversal.enabled():   # the marked pixels and their offsets straight away
-        pixels, offsets = jit_traversal.drop_pixels(depth_m, rays[2], height_m,
-                                                    params.max_step_down_m,
-                                                    params.max_step_height_m, DROP_EDGE_ROWS)
+    down, up = params.max_step_down_m, params.max_step_height_m
+    if jit.enabled():   # the marked pixels and their offsets straight away
+        if isinstance(rays, GroundRays):
+            pixels, offsets = jit_traversal.drop_pixels(depth_m, None, height_m, down, up,
+                                                        DROP_EDGE_ROWS,
+                                                        (rays.ru, rays.rv, rays.rot))
+        else:
+            pixels, offsets = jit_traversal.drop_pixels(depth_m, rays[2], height_m, down, up,
+                                                        DROP_EDGE_ROWS)
     else:
-        edge = drop_edge_mask(depth_m, rays[2], height_m, params.max_step_down_m,
-                              params.max_step_height_m)
+        edge = drop_edge_mask(depth_m, ray_table(rays)[2], height_m, down, up)
         pixels = np.flatnonzero(edge)
         offsets = edge.reshape(-1)[pixels]
     if pixels.size == 0:
         return np.zeros((0, 3), np.float32), pixels
     floor_px = pixels + offsets.astype(np.int64) * depth_m.shape[1]
     d = depth_m.reshape(-1)[floor_px]
-    x = d * rays[0, floor_px]
-    y = d * rays[1, floor_px]
-    z = d * rays[2, floor_px] + np.float32(height_m)
+    ray = rays_at(rays, floor_px)
+    x = d * ray[0]
+    y = d * ray[1]
+    z = d * ray[2] + np.float32(height_m)
     keep = (x >= np.float32(params.min_range_m)) & (x <= np.float32(params.max_range_m))
     keep &= np.abs(y) <= np.float32(params.lateral_limit_m)
     pts = np.stack((x[keep], y[keep], z[keep]), axis=1)
     return pts.astype(np.float32), pixels[keep]
+
+
+def warm_up() -> None:
+    """Compile (or load from the disk cache) the robot-level kernels, if they run."""
+    if jit.enabled():
+        jit_traversal.warm_up()

@@ -136,16 +136,19 @@ def roi_bounds(params: DetectorParams) -> np.ndarray:
                      params.camera_height_m, params.tdbg_m, params.max_height_m], np.float32)
 
 
-def points_in_roi(depth_m: np.ndarray, rays: np.ndarray, params: DetectorParams) -> RoiPoints:
+def points_in_roi(depth_m: np.ndarray, rays: np.ndarray | geometry.GroundRays,
+                  params: DetectorParams) -> RoiPoints:
     """Back-project a depth image through its ground rays and keep the region of interest.
 
     depth_m: (H, W) float32, 0 = no return; rays: (3, H*W) float32 from
-    :func:`geometry.ground_rays`. Compiled (:func:`._compiled.voxel.project_roi`, its buffers
-    reused by the next frame of the same thread) or :func:`geometry.ground_points_in_roi`:
-    the same points and pixels.
+    :func:`geometry.ground_rays`, or a :class:`geometry.GroundRays` (its rays computed on the
+    fly by the compiled path, no table read). Compiled (:func:`._compiled.voxel.project_roi`,
+    its buffers reused by the next frame of the same thread) or
+    :func:`geometry.ground_points_in_roi`: the same points and pixels.
     """
     if jit.enabled():
-        proj = jit_voxel.project_roi(depth_m, rays, roi_bounds(params), params.voxel_size_m,
+        factors = (rays.ru, rays.rv, rays.rot) if isinstance(rays, geometry.GroundRays) else rays
+        proj = jit_voxel.project_roi(depth_m, factors, roi_bounds(params), params.voxel_size_m,
                                      reuse=True)
         return RoiPoints(proj.points, proj.pixel_index, depth_m.shape, params.voxel_size_m,
                          projection=proj)
@@ -204,6 +207,8 @@ def warm_up() -> None:
     depth[0, 0] = 0.0
     rays = geometry.ground_rays(depth.shape, Intrinsics(fx=5.0, fy=5.0, cx=4.0, cy=3.0), params)
     roi = points_in_roi(depth, rays, params)
+    points_in_roi(depth, geometry.ray_model(depth.shape, Intrinsics(fx=5.0, fy=5.0, cx=4.0,
+                                                                    cy=3.0), params), params)
     grid = voxel_grid(roi)
     pixel_labels(roi, grid, np.zeros(grid.counts.size, bool))
     pts = np.random.default_rng(0).uniform(-1.0, 1.0, (20, 3))

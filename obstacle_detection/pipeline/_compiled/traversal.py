@@ -1,13 +1,12 @@
 """Compiled (numba) kernels of the robot-level stages (optional; same results as numpy).
 
-:func:`ground_rays` equals :func:`~obstacle_detection.pipeline.geometry.ground_rays`
-(the same float32
-operations per pixel, in the same order); :func:`traverse` equals the numpy path of
-:func:`obstacle_detection.pipeline.traversal.traversable_ground` (the same grid, the same reachable
-set, the same layered nearest-ground rule, the same float operations); :func:`drop_mask` equals
+:func:`ground_rays` equals :func:`~obstacle_detection.pipeline.geometry.ground_rays` (the same
+float32 operations per pixel, in the same order); :func:`traverse` equals the numpy path of
+:func:`obstacle_detection.pipeline.traversal.traversable_ground` (the same grid, the same
+reachable set, the same layered nearest-ground rule, the same float operations); :func:`drop_mask` equals
 :func:`obstacle_detection.pipeline.traversal.drop_edge_mask`. The tests compare them bit for bit.
-When numba is missing or ``OBSTACLE_DETECTION_NO_JIT`` is set, :func:`enabled` is False and
-the numpy code runs instead. Kernels import nothing of ours but :mod:`.jit_support`.
+The stage modules choose these kernels or their numpy twins through the one switch,
+:func:`obstacle_detection.pipeline.jit.enabled`. Kernels import nothing of ours.
 """
 
 from __future__ import annotations
@@ -17,24 +16,32 @@ import threading
 
 import numpy as np
 
-from obstacle_detection.pipeline.jit import AVAILABLE, NO_JIT_ENV, enabled, jit as _jit
+from ._numba import AVAILABLE, jit as _jit
 
 #: Per-thread buffers reused across frames (fresh large arrays cost page faults).
 _SCRATCH = threading.local()
 
-__all__ = ['AVAILABLE', 'NO_JIT_ENV', 'drop_mask', 'drop_smeared', 'enabled', 'ground_rays',
-           'holes_to_inf', 'traverse', 'warm_up']
+__all__ = ['AVAILABLE', 'drop_mask', 'drop_smeared', 'ground_rays', 'holes_to_inf', 'ray_row',
+           'traverse', 'warm_up']
+
+
+@_jit
+def ray_row(ru, rv_i, r0, r1, r2, out):  # pragma: no cover - compiled
+    """Fill out (W,) float32 with one component of a row's ground rays.
+
+    ``(r0 * ru[j] + r1 * rv_i) + r2``: geometry.GroundRays' float32 operations, in order.
+    """
+    t = r1 * rv_i
+    for j in range(ru.size):
+        out[j] = (r0 * ru[j] + t) + r2
 
 
 @_jit
 def _rays_kernel(ru, rv, rot, out):  # pragma: no cover - compiled
     """Fill out (3, H, W) float32 = rot[a, 0] * ru[j] + rot[a, 1] * rv[i] + rot[a, 2]."""
     for a in range(3):
-        r0, r1, r2 = rot[a, 0], rot[a, 1], rot[a, 2]
         for i in range(rv.size):
-            t = r1 * rv[i]
-            for j in range(ru.size):
-                out[a, i, j] = (r0 * ru[j] + t) + r2
+            ray_row(ru, rv[i], rot[a, 0], rot[a, 1], rot[a, 2], out[a, i])
 
 
 def ground_rays(ru: np.ndarray, rv: np.ndarray, rot: np.ndarray,
@@ -56,6 +63,14 @@ def scratch(name: str, shape: tuple[int, ...], dtype) -> np.ndarray:
         buf = np.empty(shape, dtype)
         setattr(_SCRATCH, name, buf)
     return buf
+
+
+@_jit
+def _cell(bx, by, nx, ny):  # pragma: no cover - compiled
+    """Return the index of cell (bx, by) of an nx x ny grid (x slowest), or -1 outside it."""
+    if bx < 0 or bx >= nx or by < 0 or by >= ny:
+        return -1
+    return bx * ny + by
 
 
 @_jit
@@ -116,11 +131,8 @@ def _traverse_kernel(points, steep, size, step_up, step_down, up32, down32, robo
             for dy in range(-1, 2):
                 if dx == 0 and dy == 0:
                     continue
-                bx, by = cx + dx, cy + dy
-                if bx < 0 or bx >= nx or by < 0 or by >= ny:
-                    continue
-                b = bx * ny + by
-                if reached[b] or not passable[b]:
+                b = _cell(cx + dx, cy + dy, nx, ny)
+                if b < 0 or reached[b] or not passable[b]:
                     continue
                 rise = surface[b] - sa
                 if rise <= step_up and -rise <= step_down:
@@ -144,11 +156,8 @@ def _traverse_kernel(points, steep, size, step_up, step_down, up32, down32, robo
                 cx, cy = c // ny, c % ny
                 for dx in range(-1, 2):
                     for dy in range(-1, 2):
-                        bx, by = cx + dx, cy + dy
-                        if bx < 0 or bx >= nx or by < 0 or by >= ny:
-                            continue
-                        b = bx * ny + by
-                        if not done[b] and not mark[b]:
+                        b = _cell(cx + dx, cy + dy, nx, ny)
+                        if b >= 0 and not done[b] and not mark[b]:
                             mark[b] = True
                             cand[m] = b
                             m += 1
@@ -158,11 +167,8 @@ def _traverse_kernel(points, steep, size, step_up, step_down, up32, down32, robo
                 best = -np.inf
                 for dx in range(-1, 2):
                     for dy in range(-1, 2):
-                        ax, ay = bx + dx, by + dy
-                        if ax < 0 or ax >= nx or ay < 0 or ay >= ny:
-                            continue
-                        a = ax * ny + ay
-                        if done[a] and ground[a] > best:
+                        a = _cell(bx + dx, by + dy, nx, ny)
+                        if a >= 0 and done[a] and ground[a] > best:
                             best = ground[a]
                 ground[b] = best
             for i in range(m):
@@ -240,24 +246,28 @@ def _z_row(depth_row, rz_row, h, down, out):  # pragma: no cover - compiled
 
 
 @_jit
-def _drop_pixels_kernel(depth, rz, h, down, up, rows, zring, passed, pix_out,
-                        k_out):  # pragma: no cover - compiled
+def _drop_pixels_kernel(depth, rz, ru, rv, rot, h, down, up, rows, zring, rz_row, passed,
+                        pix_out, k_out):  # pragma: no cover - compiled
     """Fill pix_out/k_out with the pixels drop_mask marks and their offsets; return how many.
 
     The same float32 heights and tests as _drop_kernel: the heights of rows i to i + rows
     rotate through zring (rows + 1, W), passed (H,) counts each row's pixels below the floor;
-    only the rows with some are searched.
+    only the rows with some are searched. rz: (H, W) the rays' z, or (0, 0) and each row's
+    computed into rz_row (W,) from ru, rv and rot (geometry.GroundRays), no table read.
     """
     height, width = depth.shape
     ring = rows + 1
-    for i in range(min(height, ring)):
-        passed[i] = _z_row(depth[i], rz[i], h, down, zring[i % ring])
+    from_model = rz.shape[0] == 0
     m = 0
-    for i in range(height):
-        if i > 0 and i + rows < height:
-            passed[i + rows] = _z_row(depth[i + rows], rz[i + rows], h, down,
-                                      zring[(i + rows) % ring])
-        if passed[i] == 0:
+    for i in range(-rows, height):
+        r = i + rows                  # the row that enters the ring
+        if r < height:
+            if from_model:
+                ray_row(ru, rv[r], rot[2, 0], rot[2, 1], rot[2, 2], rz_row)
+                passed[r] = _z_row(depth[r], rz_row, h, down, zring[r % ring])
+            else:
+                passed[r] = _z_row(depth[r], rz[r], h, down, zring[r % ring])
+        if i < 0 or passed[i] == 0:
             continue
         zp = zring[i % ring]
         for j in range(width):
@@ -276,17 +286,30 @@ def _drop_pixels_kernel(depth, rz, h, down, up, rows, zring, passed, pix_out,
     return m
 
 
-def drop_pixels(depth_m: np.ndarray, rz: np.ndarray, height_m: float, step_down_m: float,
-                step_up_m: float, rows: int) -> tuple[np.ndarray, np.ndarray]:
-    """(flat pixel indices int64, offsets int8) of drop_mask's nonzero pixels, in order."""
+def drop_pixels(depth_m: np.ndarray, rz: np.ndarray | None, height_m: float,
+                step_down_m: float, step_up_m: float, rows: int,
+                model: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """(flat pixel indices int64, offsets int8) of drop_mask's nonzero pixels, in order.
+
+    rz: (H*W,) or (H, W) float32, the z of the ground rays; or None and model: (ru, rv, rot)
+    float32 of geometry.GroundRays, the rays computed row by row (the same values).
+    """
     height, width = depth_m.shape
     pix = scratch('drop_pix', (height * width,), np.int64)
     offsets = scratch('drop_k', (height * width,), np.int8)
-    m = _drop_pixels_kernel(np.ascontiguousarray(depth_m, np.float32),
-                            np.ascontiguousarray(rz, np.float32).reshape(depth_m.shape),
+    if model is None:
+        rz = np.ascontiguousarray(rz, np.float32).reshape(depth_m.shape)
+        empty = np.zeros(0, np.float32)
+        ru, rv, rot = empty, empty, np.zeros((3, 3), np.float32)
+    else:
+        ru, rv, rot = model
+        rz = np.zeros((0, 0), np.float32)
+    m = _drop_pixels_kernel(np.ascontiguousarray(depth_m, np.float32), rz, ru, rv, rot,
                             np.float32(height_m), np.float32(step_down_m),
                             np.float32(step_up_m), int(rows),
                             scratch('drop_z', (int(rows) + 1, width), np.float32),
+                            scratch('drop_rz', (width,), np.float32),
                             scratch('drop_passed', (height,), np.int64), pix, offsets)
     return pix[:m].copy(), offsets[:m].copy()
 
@@ -484,51 +507,82 @@ def _column_step(row, col_lo, col_hi):  # pragma: no cover - compiled
 
 
 @_jit
-def _min5(col, out, n):  # pragma: no cover - compiled
-    """out[j] = min(col[j:j + 5]) for j < n."""
-    for j in range(n):
-        a = col[j]
-        b = col[j + 1]
-        c = col[j + 2]
-        d = col[j + 3]
-        e = col[j + 4]
-        m = a if a < b else b
-        m = c if c < m else m
-        m = d if d < m else m
-        out[j] = e if e < m else m
+def _row_range(col_lo, col_hi, r_row, f_row, jump, lo_out, hi_out):  # pragma: no cover
+    """Row pass of the window range, and what the row holds to decide; returns two counts.
 
-
-@_jit
-def _max5(col, out, n):  # pragma: no cover - compiled
-    """out[j] = max(col[j:j + 5]) for j < n."""
-    for j in range(n):
-        a = col[j]
-        b = col[j + 1]
-        c = col[j + 2]
-        d = col[j + 3]
-        e = col[j + 4]
-        m = a if a > b else b
-        m = c if c > m else m
-        m = d if d > m else m
-        out[j] = e if e > m else m
-
-
-@_jit
-def _count_row(r_row, f_row, near, far, jump):  # pragma: no cover - compiled
-    """Return how many pixels of the row are flying candidates, and how many holes are filled.
-
-    A candidate lies more than jump of its depth from both ends of its window range (it is
-    flying unless planar); a filled hole has no measured depth but a filtered one.
+    lo_out[j] = min(col_lo[j:j + 5]), hi_out[j] likewise max, pairs first (min(a, b),
+    min(c, d): the same values as taking the five in turn, min and max of numbers are
+    exact in any order). Returns (flying, filled): how many pixels of the row r_row lie more
+    than jump of their depth from both ends of their window range (flying unless planar),
+    and how many holes the filter filled (no measured depth, a filtered one in f_row).
     """
     zero = np.float32(0.0)
     flying = 0
     filled = 0
     for j in range(r_row.size):
+        a = col_lo[j]
+        b = col_lo[j + 1]
+        c = col_lo[j + 2]
+        d = col_lo[j + 3]
+        e = col_lo[j + 4]
+        ab = a if a < b else b
+        cd = c if c < d else d
+        m = ab if ab < cd else cd
+        lo = e if e < m else m
+        lo_out[j] = lo
+        a = col_hi[j]
+        b = col_hi[j + 1]
+        c = col_hi[j + 2]
+        d = col_hi[j + 3]
+        e = col_hi[j + 4]
+        ab = a if a > b else b
+        cd = c if c > d else d
+        m = ab if ab > cd else cd
+        hi = e if e > m else m
+        hi_out[j] = hi
         r = r_row[j]
         lim = jump * r
-        flying += (r > zero) & (r - near[j] > lim) & (far[j] - r > lim)
+        flying += (r > zero) & (r - lo > lim) & (hi - r > lim)
         filled += (r <= zero) & (f_row[j] > zero)
     return flying, filled
+
+
+@_jit
+def _pair_range(upper, lower, lo_out, hi_out):  # pragma: no cover - compiled
+    """Fill lo_out/hi_out with the range of two rows (nearest measured depth, inf: none).
+
+    hi_out: the farthest, 0 without any.
+    """
+    zero = np.float32(0.0)
+    inf = np.float32(np.inf)
+    for j in range(lo_out.size):
+        a = upper[j]
+        b = lower[j]
+        la = a if a > zero else inf
+        lb = b if b > zero else inf
+        ha = a if a > zero else zero
+        hb = b if b > zero else zero
+        lo_out[j] = la if la < lb else lb
+        hi_out[j] = ha if ha > hb else hb
+
+
+@_jit
+def _column_range(lo_a, hi_a, lo_b, hi_b, row, col_lo, col_hi):  # pragma: no cover - compiled
+    """Column pass of a 5-row window: the ranges of two row pairs (a, b) and one more row."""
+    zero = np.float32(0.0)
+    inf = np.float32(np.inf)
+    for j in range(col_lo.size):
+        v = row[j]
+        lv = v if v > zero else inf
+        hv = v if v > zero else zero
+        lo = lo_a[j]
+        lb = lo_b[j]
+        lo = lb if lb < lo else lo
+        col_lo[j] = lv if lv < lo else lo
+        hi = hi_a[j]
+        hb = hi_b[j]
+        hi = hb if hb > hi else hi
+        col_hi[j] = hv if hv > hi else hi
 
 
 @_jit
@@ -551,42 +605,47 @@ def _decide_row(r_row, f_row, near, far, planar, keep, ratio, jump,
 
 @_jit
 def _smear5_kernel(filtered, raw, ratio, jump, tol_ratio, col_lo, col_hi, row_lo, row_hi,
-                   inv3, zeros, planar, keep):  # pragma: no cover - compiled
+                   pair_lo, pair_hi, inv3, zeros, planar, keep):  # pragma: no cover - compiled
     """_smear_kernel with its 5 x 5 window range computed on the way, row by row.
 
     The window range is the window clipped to the image (what OpenCV's erode/dilate with a
     replicated border give): the nearest measured depth (inf without any) and the farthest (0
-    without any): a column pass into col_lo/col_hi, a row pass into row_lo/row_hi. The inverse
-    depths of the rows i - 1, i, i + 1 rotate through inv3. Then branch-free passes over the
-    row's inner columns (planar, keep, decide; the compiler vectorises them) and the scalar
-    rule at the 2 border columns each side. raw: no NaN (the caller checks); zeros: (W,) 0.
+    without any): a column pass into col_lo/col_hi (inside the image, from the range of the
+    rows i - 2, i - 1 and i, i + 1, each pair's kept in the ring pair_lo/pair_hi (3, W), and
+    row i + 2), a row pass into row_lo/row_hi that counts the row's flying candidates and
+    filled holes. The inverse depths of the rows i - 1, i, i + 1 rotate through inv3, computed
+    for the rows with a flying candidate only. Then branch-free passes over the row's inner
+    columns (planar and keep where needed, decide; the compiler vectorises them) and the
+    scalar rule at the 2 border columns each side. raw: no NaN (the caller checks); zeros: (W,) 0.
     """
     height, width = filtered.shape
     inf = np.float32(np.inf)
     zero = np.float32(0.0)
     half = 2
-    _inverse_row(raw[0], inv3[0])
-    if height > 1:
-        _inverse_row(raw[1], inv3[1])
+    inv_of = np.full(3, -1, np.int64)   # the row whose inverse depths each slot of inv3 holds
     n = width - 4
     for i in range(height):
-        if i >= 1 and i + 1 < height:
-            _inverse_row(raw[i + 1], inv3[(i + 1) % 3])
-        i0 = max(0, i - half)
-        i1 = min(height, i + half + 1)
         # col_lo/col_hi (W + 4,): the column pass in [2, W + 2), neutral pads (inf, 0) around,
         # so that the row pass's 5 taps give the window clipped to the image at the borders
-        r0 = raw[i0]
-        for j in range(width):
-            v = r0[j]
-            col_lo[j + 2] = v if v > zero else inf
-            col_hi[j + 2] = v if v > zero else zero
-        for k in range(i0 + 1, i1):
-            _column_step(raw[k], col_lo[2:width + 2], col_hi[2:width + 2])
-        _min5(col_lo, row_lo, width)
-        _max5(col_hi, row_hi, width)
+        inner = i >= half and i + half < height
+        if inner or (i < half and i + half + 1 < height):   # rows i, i + 1, for row i + 2
+            _pair_range(raw[i], raw[i + 1], pair_lo[i % 3], pair_hi[i % 3])
+        if inner:    # rows i - 2 to i + 2: two pairs and row i + 2
+            _column_range(pair_lo[(i - 2) % 3], pair_hi[(i - 2) % 3], pair_lo[i % 3],
+                          pair_hi[i % 3], raw[i + 2], col_lo[2:width + 2],
+                          col_hi[2:width + 2])
+        else:        # the window clipped to the image, row by row
+            i0 = max(0, i - half)
+            r0 = raw[i0]
+            for j in range(width):
+                v = r0[j]
+                col_lo[j + 2] = v if v > zero else inf
+                col_hi[j + 2] = v if v > zero else zero
+            for k in range(i0 + 1, min(height, i + half + 1)):
+                _column_step(raw[k], col_lo[2:width + 2], col_hi[2:width + 2])
         rr = raw[i]
         fr = filtered[i]
+        flying, filled = _row_range(col_lo, col_hi, rr, fr, jump, row_lo, row_hi)
         up = raw[i - 1] if i > 0 else zeros
         dn = raw[i + 1] if i + 1 < height else zeros
         iu = inv3[(i - 1) % 3]
@@ -600,9 +659,11 @@ def _smear5_kernel(filtered, raw, ratio, jump, tol_ratio, col_lo, col_hi, row_lo
                                  tol_ratio)
         if n <= 0:
             continue
-        flying, filled = _count_row(rr[2:n + 2], fr[2:n + 2], row_lo[2:n + 2],
-                                    row_hi[2:n + 2], jump)
-        if flying:   # else planar is not looked at
+        if flying:   # else planar is not looked at (nor the inverse depths)
+            for k in range(max(0, i - 1), min(height, i + 2)):
+                if inv_of[k % 3] != k:
+                    _inverse_row(raw[k], inv3[k % 3])
+                    inv_of[k % 3] = k
             _planar_row(rr[1:n + 1], rr[2:n + 2], rr[3:n + 3], up[2:n + 2], dn[2:n + 2],
                         iu[2:n + 2], im[1:n + 1], im[2:n + 2], im[3:n + 3], idn[2:n + 2],
                         tol_ratio, planar[:n])
@@ -620,6 +681,7 @@ def _smear5_buffers(width: int) -> tuple[np.ndarray, ...]:
     col_lo = np.full(width + 4, np.inf, np.float32)   # neutral pads of the row pass: the
     col_hi = np.zeros(width + 4, np.float32)          # kernel writes [2, W + 2) only
     return (col_lo, col_hi, np.empty(width, np.float32), np.empty(width, np.float32),
+            np.empty((3, width), np.float32), np.empty((3, width), np.float32),
             np.empty((3, width), np.float32), np.zeros(width, np.float32),
             np.empty(width, np.bool_), np.empty(width, np.bool_))
 
@@ -846,14 +908,14 @@ def count_in_band(pts: np.ndarray, a: float, b: float, c: float, band_m: float) 
 
 
 def warm_up() -> None:
-    """Compile (or load from the disk cache) the kernels on tiny inputs."""
-    if not enabled():
-        return
+    """Compile (or load from the disk cache) the kernels on tiny inputs (numba must import)."""
     ground_rays(np.zeros(2, np.float32), np.zeros(2, np.float32), np.eye(3, dtype=np.float32))
     pts = np.array([[0.1, 0.0, 0.0], [0.2, 0.1, 0.3]], np.float32)
     traverse(pts, np.array([False, True]), 0.05, 0.05, 0.05, 1.0, 0.025)
     drop_mask(np.ones((4, 2), np.float32), -np.ones((4, 2), np.float32), 0.5, 0.05, 0.05, 3)
     drop_pixels(np.ones((4, 2), np.float32), -np.ones(8, np.float32), 0.5, 0.05, 0.05, 3)
+    drop_pixels(np.ones((4, 2), np.float32), None, 0.5, 0.05, 0.05, 3,
+                (np.zeros(2, np.float32), np.zeros(4, np.float32), np.eye(3, dtype=np.float32)))
     one = np.ones((3, 3), np.float32)
     drop_smeared(one.copy(), one, one, one, 0.03, 0.05, 0.02)
     drop_smeared_fused(np.ones((6, 6), np.float32), np.ones((6, 6), np.float32), 0.03, 0.05,

@@ -34,6 +34,7 @@ from obstacle_detection.labels import (LABEL_GROUND, LABEL_NO_RETURN, LABEL_OBST
                                        LABEL_OUTSIDE_ROI)
 
 from ._numba import AVAILABLE, jit as _jit
+from .traversal import ray_row
 
 __all__ = ['AVAILABLE', 'Projection', 'label_pixels', 'project_roi', 'roi_lattice',
            'voxel_downsample', 'voxelise']
@@ -45,16 +46,20 @@ _MAX_INDEX = float(1 << 40)
 #: Label of a pixel inside the region of interest until :func:`label_pixels` decides ground or
 #: obstacle (every such pixel has a voxel, so none keeps it).
 _LABEL_KEPT = LABEL_GROUND
+#: Pixels whose rays are computed at once when they are not read from a table (a band of
+#: rows: 3 x 4 B x 8192 = 96 kB, cache resident).
+_RAY_BAND_PX = 8192
 
 
 # --------------------------------------------------------------------------- kernels
 
 @_jit
-def _project_kernel(depth, rays, bounds, size, low, dims, labels, pixel_voxel, cols, pix,
-                    keys):  # pragma: no cover - compiled
+def _project_kernel(depth, rays, offset, bounds, size, low, dims, labels, pixel_voxel, cols,
+                    pix, keys):  # pragma: no cover - compiled
     """Back-project, keep the region of interest, key the kept points' voxels.
 
-    depth (n,) float32; rays (3, n) float32; bounds (6,) float32 (min range, max range,
+    depth (n,) float32; rays (3, n) float32; offset: the flat index of depth[0] in the image
+    (pix holds image indices); bounds (6,) float32 (min range, max range,
     lateral limit, height, tdbg, max height); size (3,) float32; low, dims (3,) int64 the
     lattice. Writes labels (n,) uint8 (LABEL_NO_RETURN, LABEL_OUTSIDE_ROI, or _LABEL_KEPT
     inside), pixel_voxel (n,) int32 = -1, and for the m kept points cols (3, >=m) float32,
@@ -85,12 +90,39 @@ def _project_kernel(depth, rays, bounds, size, low, dims, labels, pixel_voxel, c
             cols[0, m] = gx
             cols[1, m] = gy
             cols[2, m] = gz
-            pix[m] = p
+            pix[m] = p + offset
             keys[m] = (i * dims[1] + j) * dims[2] + k
             m += 1
         else:
             labels[p] = LABEL_OUTSIDE_ROI
             pixel_voxel[p] = -1
+    return m
+
+
+@_jit
+def _project_rays_kernel(depth, ru, rv, rot, chunk, bounds, size, low, dims, labels,
+                         pixel_voxel, cols, pix, keys):  # pragma: no cover - compiled
+    """_project_kernel with the rays computed, not read: geometry.GroundRays (ru, rv, rot).
+
+    The rays of a band of rows are computed into chunk (3, rows * W) float32 (a few
+    cache-resident rows; the same float32 operations as the table), then projected.
+    """
+    width = ru.size
+    band = max(1, chunk.shape[1] // width)
+    m = 0
+    for i0 in range(0, rv.size, band):
+        i1 = min(rv.size, i0 + band)
+        for a in range(3):
+            for i in range(i0, i1):
+                ray_row(ru, rv[i], rot[a, 0], rot[a, 1], rot[a, 2],
+                        chunk[a, (i - i0) * width:(i - i0 + 1) * width])
+        p0, p1 = i0 * width, i1 * width
+        got = _project_kernel(depth[p0:p1], chunk[:, :p1 - p0], p0, bounds, size, low, dims,
+                              labels[p0:p1], pixel_voxel[p0:p1], cols[:, m:], pix[m:],
+                              keys[m:])
+        if got < 0:
+            return -1
+        m += got
     return m
 
 
@@ -222,11 +254,13 @@ def roi_lattice(bounds: np.ndarray, size: np.ndarray) -> tuple[np.ndarray, np.nd
     return low, dims
 
 
-def project_roi(depth_m: np.ndarray, rays: np.ndarray, bounds: np.ndarray,
+def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarray,
                 voxel_size_m: tuple[float, float, float], *, reuse: bool = False) -> Projection:
     """Back-project a depth image through ground rays, keep the ROI, key the voxels.
 
-    depth_m: (H, W) float32, 0 = no return; rays: (3, H*W) float32 ground rays; bounds: (6,)
+    depth_m: (H, W) float32, 0 = no return; rays: (3, H*W) float32 ground rays, or their
+    factors (ru (W,), rv (H,), rot (3, 3)) float32 of ``geometry.GroundRays`` (the rays computed
+    on the fly a band of rows at a time, no table read; the same float32 values); bounds: (6,)
     float32 (min range, max range, lateral limit, camera height, tdbg, max height), as
     :func:`obstacle_detection.pipeline.voxel.roi_bounds` rounds them. The points and pixel
     indices equal those of :func:`obstacle_detection.pipeline.geometry.ground_points_in_roi`.
@@ -235,10 +269,23 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray, bounds: np.ndarray,
     """
     shape = depth_m.shape
     depth = np.ascontiguousarray(depth_m, np.float32).reshape(-1)
-    rays = np.ascontiguousarray(rays, np.float32)
     n = depth.size
-    if rays.shape != (3, n):
-        raise ValueError(f'rays must have shape (3, {n}), got {rays.shape}')
+    if isinstance(rays, tuple):   # factors: computed on the fly, the same values as the table
+        ru, rv, rot = (np.ascontiguousarray(a, np.float32) for a in rays)
+        if (rv.size, ru.size) != shape:
+            raise ValueError(f'rays are for a {(rv.size, ru.size)} image, the depth is {shape}')
+        band = max(1, _RAY_BAND_PX // shape[1]) * shape[1]   # whole rows
+        chunk = _scratch('ray_band', 3 * band, np.float32)[:3 * band].reshape(3, band)
+
+        def kernel(*args):
+            return _project_rays_kernel(depth, ru, rv, rot, chunk, *args)
+    else:
+        rays = np.ascontiguousarray(rays, np.float32)
+        if rays.shape != (3, n):
+            raise ValueError(f'rays must have shape (3, {n}), got {rays.shape}')
+
+        def kernel(*args):
+            return _project_kernel(depth, rays, 0, *args)
     size = np.asarray(voxel_size_m, np.float32)
     low, dims = roi_lattice(bounds, size)
     n_cells = int(dims[0]) * int(dims[1]) * int(dims[2])
@@ -254,12 +301,12 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray, bounds: np.ndarray,
         keys = np.empty(n, np.int64)
     m = -1
     if n_cells <= _DENSE_LIMIT:
-        m = _project_kernel(depth, rays, bounds, size, low, dims, labels.reshape(-1),
-                            pixel_voxel.reshape(-1), cols, pix, keys)
+        m = kernel(bounds, size, low, dims, labels.reshape(-1), pixel_voxel.reshape(-1), cols,
+                   pix, keys)
     if m < 0:   # lattice too large: points only, numpy numbers the voxels
         dims = np.zeros(3, np.int64)
-        m = _project_kernel(depth, rays, bounds, size, low, np.full(3, 1 << 62, np.int64),
-                            labels.reshape(-1), pixel_voxel.reshape(-1), cols, pix, keys)
+        m = kernel(bounds, size, low, np.full(3, 1 << 62, np.int64), labels.reshape(-1),
+                   pixel_voxel.reshape(-1), cols, pix, keys)
         return Projection(cols[:, :m].T, pix[:m], labels, pixel_voxel, None, low, dims,
                           voxel_size_m, reuse)
     return Projection(cols[:, :m].T, pix[:m], labels, pixel_voxel, keys[:m], low, dims,

@@ -1,0 +1,92 @@
+"""Ground rays kept as their factors (geometry.GroundRays) against the (3, H*W) table.
+
+The compiled kernels compute the rays on the fly from the factors; every consumer must give,
+to the bit, what it gives with the materialised table (and the table must hold the rays that
+the mount and the pinhole model say).
+"""
+
+import math
+
+import numpy as np
+import pytest
+
+from obstacle_detection.pipeline import floor, geometry, traversal
+from obstacle_detection.pipeline.jit import NO_JIT_ENV
+from obstacle_detection.pipeline._compiled import traversal as jit_traversal
+from obstacle_detection.pipeline._compiled import voxel as jit_voxel
+from obstacle_detection.pipeline.params import KINECT_V2_SD, Intrinsics, corridor
+
+jit_only = pytest.mark.skipif(not jit_traversal.AVAILABLE, reason='numba is not installed')
+
+SHAPE = (424, 512)
+MOUNT = dict(camera_height_m=0.62, camera_pitch_rad=0.21, camera_roll_rad=-0.04)
+
+
+def test_model_table_and_pixels_agree_with_the_geometry():
+    params = corridor(**MOUNT)
+    model = geometry.ray_model(SHAPE, KINECT_V2_SD, params)
+    table = model.table()
+    assert table.shape == (3, SHAPE[0] * SHAPE[1]) and table.dtype == np.float32
+    np.testing.assert_array_equal(table, geometry.ground_rays(SHAPE, KINECT_V2_SD, params))
+    pixels = np.array([0, 511, 512, 100 * 512 + 37, SHAPE[0] * SHAPE[1] - 1])
+    np.testing.assert_array_equal(model.at(pixels), table[:, pixels])
+    other = corridor(camera_height_m=0.4, camera_pitch_rad=-0.1, camera_roll_rad=0.07)
+    np.testing.assert_array_equal(model.for_mount(other).table(),
+                                  geometry.ground_rays(SHAPE, KINECT_V2_SD, other))
+    # the principal point looks along the optical axis: pitched down by the mount's pitch
+    intr = Intrinsics(fx=400.0, fy=400.0, cx=10.0, cy=5.0)
+    ray = geometry.ray_model((11, 21), intr, corridor(camera_height_m=0.5,
+                                                      camera_pitch_rad=0.3)).at([5 * 21 + 10])
+    np.testing.assert_allclose(ray[:, 0], [math.cos(0.3), 0.0, -math.sin(0.3)], atol=1e-6)
+
+
+def test_sample_rays_from_the_model_equal_those_from_the_table():
+    model = geometry.ray_model(SHAPE, KINECT_V2_SD, corridor(**MOUNT))
+    np.testing.assert_array_equal(floor.sample_rays(model, SHAPE),
+                                  floor.sample_rays(model.table(), SHAPE))
+
+
+def _frame():
+    """Return a random depth image [m] with holes."""
+    rng = np.random.default_rng(3)
+    depth = rng.uniform(0.6, 4.0, SHAPE).astype(np.float32)
+    depth[rng.random(SHAPE) < 0.1] = 0.0
+    return depth
+
+
+@jit_only
+@pytest.mark.parametrize('shape', [SHAPE, (7, 9000), (1, 3)])
+def test_projection_from_the_model_equals_the_table(shape):
+    # the rays are computed a band of rows at a time: a partial last band, rows wider than
+    # a band, a tiny image
+    params = corridor(**MOUNT)
+    intr = Intrinsics(fx=365.0, fy=365.0, cx=shape[1] / 2.0, cy=shape[0] / 2.0)
+    model = geometry.ray_model(shape, intr, params)
+    depth = _frame()[:shape[0], :shape[1]] if shape == SHAPE else np.full(shape, 2.0,
+                                                                           np.float32)
+    want = jit_voxel.project_roi(depth, model.table(), params)
+    got = jit_voxel.project_roi(depth, model, params)
+    assert want.points.shape[0] > (1000 if shape == SHAPE else 0)
+    for name in ('points', 'pixel_index', 'labels', 'pixel_voxel', 'keys'):
+        np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=name)
+    with pytest.raises(ValueError, match='rays are for a'):
+        jit_voxel.project_roi(np.zeros((shape[0] + 1, shape[1]), np.float32), model, params)
+
+
+@pytest.mark.parametrize('compiled', [True, False])
+def test_drop_edges_from_the_model_equal_the_table(compiled, monkeypatch):
+    if compiled and not jit_traversal.AVAILABLE:
+        pytest.skip('numba is not installed')
+    if not compiled:
+        monkeypatch.setenv(NO_JIT_ENV, '1')
+    params = corridor(**MOUNT)
+    model = geometry.ray_model(SHAPE, KINECT_V2_SD, params)
+    # a floor 0.62 m down whose lower half (rows beyond 300) is 0.3 m lower: a drop
+    rz = model.table()[2].reshape(SHAPE)
+    depth = np.where(rz < 0, -0.62 / np.minimum(rz, -1e-3), 0).astype(np.float32)
+    depth[:300] = np.where(rz[:300] < 0, -0.92 / np.minimum(rz[:300], -1e-3), 0)
+    want = traversal.drop_edges(depth, model.table(), 0.62, params)
+    got = traversal.drop_edges(depth, model, 0.62, params)
+    assert want[1].size > 100
+    for a, b in zip(got, want):
+        np.testing.assert_array_equal(a, b)
