@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from obstacle_detection.pipeline import floor, geometry, traversal
+from obstacle_detection.pipeline import floor, geometry, traversal, voxel
 from obstacle_detection.pipeline.jit import NO_JIT_ENV
 from obstacle_detection.pipeline._compiled import traversal as jit_traversal
 from obstacle_detection.pipeline._compiled import voxel as jit_voxel
@@ -64,13 +64,18 @@ def test_projection_from_the_model_equals_the_table(shape):
     model = geometry.ray_model(shape, intr, params)
     depth = _frame()[:shape[0], :shape[1]] if shape == SHAPE else np.full(shape, 2.0,
                                                                            np.float32)
-    want = jit_voxel.project_roi(depth, model.table(), params)
-    got = jit_voxel.project_roi(depth, model, params)
+    bounds, size = voxel.roi_bounds(params), params.voxel_size_m
+    want = jit_voxel.project_roi(depth, model.table(), bounds, size)
+    got = jit_voxel.project_roi(depth, (model.ru, model.rv, model.rot), bounds, size)
     assert want.points.shape[0] > (1000 if shape == SHAPE else 0)
     for name in ('points', 'pixel_index', 'labels', 'pixel_voxel', 'keys'):
         np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=name)
     with pytest.raises(ValueError, match='rays are for a'):
-        jit_voxel.project_roi(np.zeros((shape[0] + 1, shape[1]), np.float32), model, params)
+        jit_voxel.project_roi(np.zeros((shape[0] + 1, shape[1]), np.float32),
+                              (model.ru, model.rv, model.rot), bounds, size)
+    # the stage passes a GroundRays on as its factors: the same projection as the table
+    staged = voxel.points_in_roi(depth, model, params)
+    np.testing.assert_array_equal(staged.points, want.points)
 
 
 @pytest.mark.parametrize('compiled', [True, False])

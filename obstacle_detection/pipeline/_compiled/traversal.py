@@ -3,8 +3,9 @@
 :func:`ground_rays` equals :func:`~obstacle_detection.pipeline.geometry.ground_rays` (the same
 float32 operations per pixel, in the same order); :func:`traverse` equals the numpy path of
 :func:`obstacle_detection.pipeline.traversal.traversable_ground` (the same grid, the same
-reachable set, the same layered nearest-ground rule, the same float operations); :func:`drop_mask` equals
-:func:`obstacle_detection.pipeline.traversal.drop_edge_mask`. The tests compare them bit for bit.
+reachable set, the same layered nearest-ground rule, the same float operations);
+:func:`drop_mask` equals :func:`obstacle_detection.pipeline.traversal.drop_edge_mask`.
+The tests compare them bit for bit.
 The stage modules choose these kernels or their numpy twins through the one switch,
 :func:`obstacle_detection.pipeline.jit.enabled`. Kernels import nothing of ours.
 """
