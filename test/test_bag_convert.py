@@ -23,7 +23,7 @@ from obstacle_detection.ros.conversions import image_to_array
 from obstacle_detection.pipeline.params import KINECT_V2_SD, Intrinsics
 from obstacle_detection.sim.scenes import render_scene
 from obstacle_detection.evaluation import datasets
-from obstacle_detection.ros import bag_writer
+from obstacle_detection.cli import bag_writer
 from obstacle_detection.tools import bag_convert
 from obstacle_detection.cli.progress import Progress
 

@@ -21,7 +21,7 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
 from obstacle_detection.ros.conversions import image_to_array
 from obstacle_detection.evaluation import datasets
-from obstacle_detection.ros import bag_player, bag_writer
+from obstacle_detection.cli import bag_player, bag_writer
 from obstacle_detection.tools import bag_play
 
 #: Starts processes or a DDS graph: deselect with -m "not integration" (README, tests).

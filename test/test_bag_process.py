@@ -28,8 +28,8 @@ from obstacle_detection.pipeline.params import KINECT_V2_SD, Intrinsics
 from obstacle_detection.pipeline.detector import Detector
 from obstacle_detection.ros.parameters import detector_params_from_ros
 from obstacle_detection.sim.scenes import render_scene
-from obstacle_detection.ros import bag_writer
-from obstacle_detection.ros import bag_processor
+from obstacle_detection.cli import bag_writer
+from obstacle_detection.cli import bag_processor
 from obstacle_detection.tools import bag_convert, bag_process
 
 REPO = Path(__file__).resolve().parents[1]

@@ -28,7 +28,7 @@ from obstacle_detection.cli import support as tool_support
 from obstacle_detection.ros.compressed_depth import TRANSPORT_SUFFIXES
 from obstacle_detection.ros.parameters import NODE_NAME
 from obstacle_detection.sim.scenes import render_scene
-from obstacle_detection.ros import bag_processor
+from obstacle_detection.cli import bag_processor
 
 REPO = Path(__file__).resolve().parents[1]
 LAUNCH = REPO / 'launch' / 'detector.launch.py'

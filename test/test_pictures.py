@@ -21,7 +21,7 @@ from obstacle_detection.pipeline.detector import Detector
 from obstacle_detection.sim.scenes import render_scene
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.cli import picture_jobs
-from obstacle_detection.ros import bag_writer
+from obstacle_detection.cli import bag_writer
 from obstacle_detection.tools import bag_process, readme_pictures
 from obstacle_detection.tools import pictures as pictures_tool
 
@@ -139,7 +139,7 @@ def _write_bag(path, frame, count, depth_topic='/depth', info_topic='/info'):
 def test_bag_frames_carry_depth_and_camera_info(tmp_path, corridor):
     frame, _ = corridor
     _write_bag(tmp_path / 'bag', frame, 3)
-    frames = list(pictures.bag_frames(tmp_path / 'bag', '/depth', '/info', every=2))
+    frames = list(picture_jobs.bag_frames(tmp_path / 'bag', '/depth', '/info', every=2))
     assert len(frames) == 2
     np.testing.assert_array_equal(frames[0].depth, frame.depth)
     assert frames[0].intrinsics.fx == pytest.approx(frame.intrinsics.fx)

@@ -54,7 +54,7 @@ from obstacle_detection.cli import support as tool_support
 from obstacle_detection.evaluation.datasets import (DIML_DEPTH_KINDS, TUM_CAMERAS, ConvertError,
                                                     FrameSource, diml_frames, diml_sample_frames,
                                                     folder_frames, tum_frames)
-from obstacle_detection.ros.bag_writer import (DEFAULT_COLOR_TOPIC, DEFAULT_DEPTH_TOPIC,
+from obstacle_detection.cli.bag_writer import (DEFAULT_COLOR_TOPIC, DEFAULT_DEPTH_TOPIC,
                                                DEFAULT_FRAME_ID, DEFAULT_INFO_TOPIC, STORAGES,
                                                BagOptions, convert_ros1, write_frames)
 

@@ -25,7 +25,7 @@ from pathlib import Path
 
 
 from obstacle_detection.cli import support as tool_support
-from obstacle_detection.ros.bag_player import (PlayError, PlayOptions, Player, PlayUsageError,
+from obstacle_detection.cli.bag_player import (PlayError, PlayOptions, Player, PlayUsageError,
                                                message_class, open_bag, parse_remap)
 
 

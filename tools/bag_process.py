@@ -28,12 +28,12 @@ from pathlib import Path
 from typing import Any
 
 from obstacle_detection.cli import support as tool_support
-from obstacle_detection.ros.bag_processor import (DEFAULT_NAMESPACE, ProcessError,
+from obstacle_detection.cli.bag_processor import (DEFAULT_NAMESPACE, ProcessError,
                                                   config_from_values, format_report,
                                                   load_params_file, process_bag)
 from obstacle_detection.ros.parameters import (ALL_PARAMS, ParamsFileError,
                                            read_params_files)
-from obstacle_detection.ros.bag_writer import DEFAULT_DEPTH_TOPIC, DEFAULT_INFO_TOPIC, STORAGES
+from obstacle_detection.cli.bag_writer import DEFAULT_DEPTH_TOPIC, DEFAULT_INFO_TOPIC, STORAGES
 
 
 def build_parser() -> argparse.ArgumentParser:

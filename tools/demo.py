@@ -41,8 +41,8 @@ import numpy as np
 
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.evaluation import datasets
-from obstacle_detection.ros import bag_player, bag_writer
-from obstacle_detection.ros.recorder import Recorder, write_bag
+from obstacle_detection.cli import bag_player, bag_writer
+from obstacle_detection.cli.recorder import Recorder, write_bag
 from obstacle_detection.ros.dds_env import loopback_env
 
 REPO = tool_support.PACKAGE_ROOT

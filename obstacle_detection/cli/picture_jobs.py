@@ -28,7 +28,7 @@ import math
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator, Sequence
+from typing import Any, Iterator, Sequence
 
 import cv2
 import numpy as np
@@ -268,7 +268,7 @@ def jobs(args: argparse.Namespace, base: DetectorParams) -> Iterator[_Job]:
         if real.camera.intrinsics is not None:
             raise tool_support.UsageError('--intrinsics does not apply to --bag: its '
                                           'CameraInfo gives them (see --info-topic)')
-        for frame in pictures.bag_frames(args.bag, args.depth_topic, args.info_topic,
+        for frame in bag_frames(args.bag, args.depth_topic, args.info_topic,
                                          every=args.every, max_frames=args.max_frames,
                                          find_info_topic=True):
             yield real.job(frame.name, frame.depth, frame.intrinsics, frame.intrinsics_origin,
@@ -547,3 +547,100 @@ def write_pictures(args: argparse.Namespace) -> str:
     else:
         pictures.write_png(args.out, sheet(args, detected))
     return f'wrote {args.out} ({len(detected)} frame{"s" if len(detected) > 1 else ""})'
+
+
+# --------------------------------------------------------------------------------------------
+# Frames from bags
+
+
+@dataclass
+class DepthFrame:
+    """A depth frame to draw: depth (H, W) uint16/float, its intrinsics, a name."""
+
+    name: str
+    depth: np.ndarray
+    intrinsics: Intrinsics | None
+    depth_scale: float | None = None
+    truth_labels: np.ndarray | None = None
+    #: where the intrinsics came from (e.g. ``CameraInfo on /x (found by type)``), '' = none
+    intrinsics_origin: str = ''
+
+
+def bag_frames(path: str | Path, depth_topic: str, info_topic: str | None = None, *,
+               every: int = 1, max_frames: int | None = None,
+               find_info_topic: bool = False) -> Iterator[DepthFrame]:
+    """Depth frames of a ROS 2 (or ROS 1) bag, in time order, with the latest camera info.
+
+    depth_topic: sensor_msgs/Image (16UC1 [mm] or 32FC1 [m]); info_topic: its CameraInfo.
+    Without ``info_topic`` and with ``find_info_topic``, the CameraInfo topic is found by type
+    (``tool_support.choose_info_topic``). No CameraInfo topic, or no message before a frame:
+    the frame's intrinsics are None (the caller chooses a fallback and says so); each frame's
+    ``intrinsics_origin`` names the topic. every: keep one frame in ``every``; max_frames: stop
+    after so many. Raises ValueError naming the path when it is not a bag, cannot be read, or
+    lacks the depth topic.
+    """
+    from rosbags.highlevel import AnyReader, AnyReaderError
+    from rosbags.typesys import Stores, get_typestore
+
+    from obstacle_detection.cli.support import check_bag_path
+
+    if every < 1:
+        raise ValueError(f'every={every} must be >= 1')
+    check_bag_path(path)
+    try:
+        reader = AnyReader([Path(path)], default_typestore=get_typestore(Stores.ROS2_JAZZY))
+        reader.open()
+    except AnyReaderError as exc:
+        raise ValueError(f'{path}: cannot read the bag ({exc})') from None
+    try:
+        yield from _bag_frames(reader, path, depth_topic, info_topic, every, max_frames,
+                               find_info_topic)
+    finally:
+        reader.close()
+
+
+def _bag_frames(reader: Any, path: str | Path, depth_topic: str, info_topic: str | None,
+                every: int, max_frames: int | None, find_info_topic: bool
+                ) -> Iterator[DepthFrame]:
+    from obstacle_detection.ros.conversions import camera_info_to_intrinsics, image_to_array
+    from obstacle_detection.cli.support import IMAGE_TYPE, choose_info_topic
+
+    topics = {c.topic: c.msgtype for c in reader.connections}
+    if depth_topic not in topics:
+        images = sorted(t for t, kind in topics.items() if kind == IMAGE_TYPE)
+        raise ValueError(f'{path}: no topic {depth_topic!r}; its {IMAGE_TYPE} topics: '
+                         f'{", ".join(images) or "none"} (use --depth-topic)')
+    how = 'given'
+    if info_topic is None and find_info_topic:
+        info_topic, how = choose_info_topic(topics, depth_topic)
+    elif info_topic is not None:
+        try:
+            choose_info_topic(topics, depth_topic, info_topic)
+        except ValueError as exc:
+            raise ValueError(f'{path}: {exc}') from None
+    wanted = [c for c in reader.connections
+              if c.topic == depth_topic or (info_topic and c.topic == info_topic)]
+    intrinsics: Intrinsics | None = None
+    seen = kept = 0
+    for connection, timestamp, raw in reader.messages(connections=wanted):
+        if connection.topic != depth_topic:
+            intrinsics = camera_info_to_intrinsics(reader.deserialize(raw,
+                                                                      connection.msgtype))
+            continue
+        seen += 1
+        if (seen - 1) % every:
+            continue
+        msg = reader.deserialize(raw, connection.msgtype)
+        stamp = msg.header.stamp
+        origin = (f'CameraInfo on {info_topic} ({how})' if intrinsics is not None
+                  else f'none: no CameraInfo on {info_topic} before the frame'
+                  if info_topic else f'none: {how}')
+        yield DepthFrame(f'{depth_topic} #{seen - 1} t={stamp.sec}.{stamp.nanosec:09d}',
+                         image_to_array(msg), intrinsics, intrinsics_origin=origin)
+        kept += 1
+        if max_frames is not None and kept >= max_frames:
+            return
+
+
+# --------------------------------------------------------------------------------------------
+# Heatmaps of parameter sweeps (seed figures 4.18 and 4.19 as numbers)

@@ -3,7 +3,7 @@
 Each reader returns a :class:`FrameSource`: the frames (stamp, depth PNG, paired colour image,
 optional pose), the camera intrinsics (from a file, a dataset's known camera, or ``None`` = the
 Kinect v2 defaults chosen, loudly, once the image size is known) and what could not be paired.
-``obstacle_detection.ros.bag_writer`` writes a FrameSource as a rosbag2 bag
+``obstacle_detection.cli.bag_writer`` writes a FrameSource as a rosbag2 bag
 (``tools/bag_convert.py``); the layouts are described there.
 """
 

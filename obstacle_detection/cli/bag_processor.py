@@ -33,7 +33,7 @@ from obstacle_detection.ros.frame_gate import CameraState
 from obstacle_detection.ros.parameters import (ALL_PARAMS, ParamsFileError,
                                            read_params_files)
 from obstacle_detection.evaluation.datasets import ConvertError
-from obstacle_detection.ros.bag_writer import (BAG_VERSION, DEFAULT_DEPTH_TOPIC,
+from obstacle_detection.cli.bag_writer import (BAG_VERSION, DEFAULT_DEPTH_TOPIC,
                                                STORAGES, staged_output)
 from obstacle_detection.cli.progress import Progress
 
