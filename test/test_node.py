@@ -345,7 +345,9 @@ def test_cold_numba_cache_answers_at_once_then_switches_to_the_kernels(
         assert cold.spin_until(lambda: 'compiled' in cold.statuses[-1], COMPILE_TIMEOUT_S), (
             cold.statuses, cold.log())
         assert cold.statuses[-1] == 'ready: compiled numba kernels'
-        assert 'numba kernels compiled or loaded from the cache in' in cold.log()
+        # the log line is written beside the status: wait for it rather than race the file
+        assert cold.wait_for_log('numba kernels compiled or loaded from the cache in', 0), \
+            cold.log()
         _assert_matches(_good_frame(cold, scene), expected)
     finally:
         cold.close()
