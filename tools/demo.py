@@ -409,9 +409,12 @@ def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
             if node_process.poll() is not None:
                 stop.set()
         # Let the last frames come out: until every output of every frame arrived, or
-        # nothing new came for 3 s (frames the node dropped never come).
+        # nothing new came for 3 s after the replay ended (frames the node dropped never
+        # come). Counted from the replay's end too: the recorder's clock starts before the
+        # node is ready, so a slow start must not end this wait before the first output.
+        played = time.monotonic()
         while (min(map(recorder.count, OUTPUT_TOPICS)) < summary.frames
-               and time.monotonic() - recorder.last_arrival < 3.0
+               and time.monotonic() - max(recorder.last_arrival, played) < 3.0
                and node_process.poll() is None):
             executor.spin_once(timeout_sec=0.05)
     finally:
