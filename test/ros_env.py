@@ -17,7 +17,10 @@ import os
 import shutil
 import subprocess
 import zlib
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 from obstacle_detection.ros import dds_env
 
@@ -74,6 +77,28 @@ def restore(old: dict[str, str | None]) -> None:
             os.environ.pop(name, None)
         else:
             os.environ[name] = value
+
+
+@contextmanager
+def rclpy_context(salt: str) -> Iterator[Any]:
+    """Yield an rclpy context of this process on loopback DDS, in the domain of ``salt``.
+
+    The DDS variables are applied while it lives (restored after); rclpy's signal handlers
+    are left alone, so pytest keeps its own.
+    """
+    import rclpy
+    from rclpy.signals import SignalHandlerOptions
+
+    env = loopback_env(salt)
+    old = apply(env)
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=int(env['ROS_DOMAIN_ID']),
+               signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        yield context
+    finally:
+        rclpy.try_shutdown(context=context)
+        restore(old)
 
 
 def udp_sockets_of(pid: int) -> list[str] | None:

@@ -580,16 +580,8 @@ def test_out_of_range_value_is_refused_by_the_descriptor(detector: NodeUnderTest
 # -- in-process node, in a ROS domain of its own ----------------------------------------------
 @pytest.fixture(scope='module')
 def local_context() -> Iterator[rclpy.Context]:
-    env = ros_env.loopback_env(__name__ + ':in-process')
-    old = ros_env.apply(env)
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=int(env['ROS_DOMAIN_ID']),
-               signal_handler_options=SignalHandlerOptions.NO)
-    try:
+    with ros_env.rclpy_context(__name__ + ':in-process') as context:
         yield context
-    finally:
-        rclpy.try_shutdown(context=context)
-        ros_env.restore(old)
 
 
 @pytest.fixture

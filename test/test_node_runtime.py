@@ -14,7 +14,6 @@ from collections.abc import Iterator
 import pytest
 import rclpy
 import ros_env
-from rclpy.signals import SignalHandlerOptions
 
 from obstacle_detection.ros.node import DetectorNode, freeze_heap_when_ready, make_executor
 
@@ -24,16 +23,8 @@ pytestmark = pytest.mark.integration
 
 @pytest.fixture(scope='module')
 def context() -> Iterator[rclpy.Context]:
-    env = ros_env.loopback_env(__name__)
-    old = ros_env.apply(env)
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=int(env['ROS_DOMAIN_ID']),
-               signal_handler_options=SignalHandlerOptions.NO)
-    try:
+    with ros_env.rclpy_context(__name__) as ctx:
         yield ctx
-    finally:
-        rclpy.try_shutdown(context=ctx)
-        ros_env.restore(old)
 
 
 def test_executor_raises_a_callback_error_and_goes_on_dispatching(context) -> None:

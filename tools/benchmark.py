@@ -35,6 +35,7 @@ import time  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
+from obstacle_detection.cli import support as tool_support  # noqa: E402
 from obstacle_detection.pipeline.jit import enabled as jit_enabled  # noqa: E402
 from obstacle_detection.pipeline.params import KINECT_V2_SD, PRESETS, Intrinsics  # noqa: E402
 from obstacle_detection.pipeline.detector import NEW_STAGES, STAGES, Detector  # noqa: E402
@@ -49,18 +50,6 @@ DEFAULT_SCENES = ('corridor', 'people', 'ramps', 'farm_row')
 #: Row of the per-frame sum of the stages that are not the seed's (robot level, floor fit).
 NEW_TOTAL = 'new stages'
 
-
-
-def pin_one_cpu() -> str:
-    """Pin this process to one CPU; return a description for the report."""
-    cv2.setNumThreads(1)
-    if hasattr(os, 'sched_setaffinity'):
-        cpu = min(os.sched_getaffinity(0))
-        os.sched_setaffinity(0, {cpu})
-        return (f'pinned to CPU {cpu}; BLAS/OpenMP/OpenCV threads = 1; k-d tree workers = 1; '
-                f'{jit_description()}')
-    return ('not pinned (no sched_setaffinity); BLAS/OpenMP/OpenCV threads = 1; '
-            f'{jit_description()}')
 
 
 def jit_description() -> str:
@@ -145,7 +134,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f'unknown size(s) {unknown}; choose from {list(SIZES)}')
     scenes = tuple(args.scenes.split(','))
     kernels = [int(k) for k in args.kernels.split(',')]
-    pinning = pin_one_cpu()
+    pinning = (f'{tool_support.pin_one_cpu()}; k-d tree workers = 1; '
+               f'{jit_description()}')
     print(f'# {pinning}', flush=True)
     results = []
     for size_label in sizes:

@@ -23,7 +23,6 @@ import sys  # noqa: E402
 import time  # noqa: E402
 from typing import Sequence  # noqa: E402
 
-import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 from obstacle_detection.evaluation import runner as evaluation  # noqa: E402
@@ -32,16 +31,6 @@ from obstacle_detection.pipeline.fusion import FusedGrid, FusionParams  # noqa: 
 from obstacle_detection.sim.sequences import SceneSequence  # noqa: E402
 
 PROG = 'benchmark_fusion.py'
-
-
-def pin_one_cpu() -> str:
-    """Pin the process to one CPU and OpenCV to one thread; return what was done."""
-    cv2.setNumThreads(1)
-    if hasattr(os, 'sched_setaffinity'):
-        cpu = min(os.sched_getaffinity(0))
-        os.sched_setaffinity(0, {cpu})
-        return f'pinned to CPU {cpu}; BLAS/OpenMP/OpenCV threads = 1'
-    return 'not pinned (no sched_setaffinity); BLAS/OpenMP/OpenCV threads = 1'
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -78,7 +67,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         params = evaluation.load_params_file(tool_support.package_file('params/corridor.yaml'))
     except (ValueError, OSError) as exc:
         return tool_support.report_error(PROG, exc)
-    pinning = pin_one_cpu()
+    pinning = tool_support.pin_one_cpu()
     from obstacle_detection.evaluation.video import observe_sequence
 
     sequence = SceneSequence('drive_past_boxes')

@@ -491,8 +491,8 @@ def build_parser() -> argparse.ArgumentParser:
                              'reliable; large frames over UDP may then be lost')
     parser.add_argument('--save-every', type=int, default=5,
                         help='save pictures of one frame in N (default %(default)s)')
-    parser.add_argument('--domain-id', type=int, default=100 + os.getpid() % 101,
-                        help='ROS_DOMAIN_ID of the demo (default: 100-200 from the process id)')
+    tool_support.add_domain_id_option(
+        parser, 'ROS_DOMAIN_ID of the demo, 0-232 (default: 100-200 from the process id)')
     parser.add_argument('--timeout', type=float, default=30.0,
                         help='seconds to wait for the node to say it is ready on its ~/status '
                              'topic (default %(default)s)')
@@ -508,8 +508,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error('--frames, --step and --save-every must be >= 1')
     if args.rate is not None and not args.rate > 0:
         parser.error(f'--rate must be > 0, got {args.rate:g}')
-    if not 0 <= args.domain_id <= 232:
-        parser.error(f'--domain-id must be in 0..232, got {args.domain_id}')
     if not args.params.is_file():
         print(f'error: {args.params}: params file not found', file=sys.stderr)
         return 1

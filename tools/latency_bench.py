@@ -323,8 +323,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help='seconds at the start not counted (default %(default)s)')
     parser.add_argument('--start-timeout', type=float, default=300.0,
                         help='seconds to wait for the node to be ready (default %(default)s)')
-    parser.add_argument('--domain-id', type=int, default=100 + os.getpid() % 101,
-                        help='ROS_DOMAIN_ID (default: 100-200 from the process id)')
+    tool_support.add_domain_id_option(
+        parser, 'ROS_DOMAIN_ID, 0-232 (default: 100-200 from the process id)')
     parser.add_argument('--quiet', action='store_true', help='no progress bar')
     parser.add_argument('--role', choices=('bench', 'publisher'), default='bench',
                         help=argparse.SUPPRESS)
@@ -342,8 +342,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error('--duration, --rate (<= 1000) and --frames must be positive')
     if not 0 <= args.warmup < args.duration:
         parser.error('--warmup must be in [0, --duration)')
-    if not 0 <= args.domain_id <= 232:
-        parser.error(f'--domain-id must be in 0..232, got {args.domain_id}')
     if not args.params.is_file():
         print(f'error: {args.params}: params file not found', file=sys.stderr)
         return 1

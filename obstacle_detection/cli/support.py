@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -307,3 +308,36 @@ def check_mount(depth_m: np.ndarray, intrinsics: Intrinsics, params: DetectorPar
                f'roll {estimate.roll_deg:.1f} deg, but the mount used is {mount_text(params)}: '
                f'the floor will be marked as obstacles or cut off; use {fix}')
     return MountCheck(estimate, warning)
+
+
+def domain_id(text: str) -> int:
+    """Parse a ROS_DOMAIN_ID for argparse: an integer in 0..232 (Fast DDS's port range)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'must be an integer in 0..232, got {text!r}') from None
+    if not 0 <= value <= 232:
+        raise argparse.ArgumentTypeError(f'must be in 0..232, got {value}')
+    return value
+
+
+def add_domain_id_option(parser: argparse.ArgumentParser, help_text: str) -> None:
+    """Add ``--domain-id`` (a ROS domain of the run's own, default 100-200 from the pid)."""
+    parser.add_argument('--domain-id', type=domain_id, default=100 + os.getpid() % 101,
+                        metavar='ID', help=help_text)
+
+
+def pin_one_cpu() -> str:
+    """Pin this process to one CPU and OpenCV to one thread; return what was done.
+
+    The tools that time code call it after setting the BLAS/OpenMP thread variables to 1
+    (before numpy is imported), so the returned text says so too.
+    """
+    import cv2
+
+    cv2.setNumThreads(1)
+    if hasattr(os, 'sched_setaffinity'):
+        cpu = min(os.sched_getaffinity(0))
+        os.sched_setaffinity(0, {cpu})
+        return f'pinned to CPU {cpu}; BLAS/OpenMP/OpenCV threads = 1'
+    return 'not pinned (no sched_setaffinity); BLAS/OpenMP/OpenCV threads = 1'

@@ -1,0 +1,46 @@
+"""What the command lines share (obstacle_detection/cli/support.py): the domain option, pinning."""
+
+import argparse
+import subprocess
+import sys
+
+import pytest
+
+from obstacle_detection.cli import support
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog='tool')
+    support.add_domain_id_option(parser, 'ROS_DOMAIN_ID')
+    return parser
+
+
+@pytest.mark.parametrize('value', ['0', '57', '232'])
+def test_domain_ids_in_range_are_taken(value: str) -> None:
+    assert _parser().parse_args(['--domain-id', value]).domain_id == int(value)
+
+
+def test_the_default_domain_is_one_of_the_runs_own() -> None:
+    assert 100 <= _parser().parse_args([]).domain_id <= 200
+
+
+@pytest.mark.parametrize('value, message', [('233', 'must be in 0..232, got 233'),
+                                            ('-1', 'must be in 0..232, got -1'),
+                                            ('seven', "integer in 0..232, got 'seven'")])
+def test_domain_ids_out_of_range_are_refused_with_the_reason(
+        value: str, message: str, capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        _parser().parse_args(['--domain-id', value])
+    assert exit_info.value.code == 2
+    assert message in capsys.readouterr().err
+
+
+def test_pin_one_cpu_leaves_the_process_on_one_cpu() -> None:
+    # in a child process: pinning the test process would slow every later test
+    code = ('import os; from obstacle_detection.cli import support; '
+            'print(support.pin_one_cpu()); print(len(os.sched_getaffinity(0)))')
+    run = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                         check=True)
+    said, cpus = run.stdout.splitlines()
+    assert said.startswith('pinned to CPU ') and 'OpenCV threads = 1' in said
+    assert cpus == '1'
