@@ -493,9 +493,9 @@ def test_jit_median_runs_for_k_7_to_31_only(monkeypatch) -> None:
     calls = []
     real = jit_median.network_median
 
-    def spy(keys, program):
+    def spy(keys, program, **options):
         calls.append(program.k)
-        return real(keys, program)
+        return real(keys, program, **options)
 
     monkeypatch.setattr(jit_median, 'network_median', spy)
     keys = np.random.default_rng(0).integers(0, 5000, (40, 45)).astype(np.uint16)
@@ -721,15 +721,21 @@ def test_jit_in_register_kernel_source_is_written_for_the_disk_cache(tmp_path,
     r = 3
     padded = cv2.copyMakeBorder(keys, r, r + 4, r, r + 14, cv2.BORDER_REPLICATE)
     fill, need = jit_median._known_lowest(keys, 7)
+
+    def run(kernel):
+        out = np.empty((12, 50), np.uint16)
+        plan = jit_median.band_plan(12, 50, 64, program.tile, r)
+        mem = jit_median.aligned_registers(int(tables[3][-1]) + 64)
+        kernel(padded, 12, 50, 64, *tables, need, fill, plan, out, mem)
+        return out
+
     monkeypatch.setattr(jit_median, '_kernel_directories', lambda: [tmp_path / 'kernels'])
     kernel = jit_median._make_register_kernel(program)
     written = list((tmp_path / 'kernels').glob('median_k7_t8_*.py'))
     assert len(written) == 1 and 'cache=True' in written[0].read_text()
-    np.testing.assert_array_equal(kernel(padded, 12, 50, 64, *tables, need, fill),
-                                  scipy_median(keys, 7))
+    np.testing.assert_array_equal(run(kernel), scipy_median(keys, 7))
     blocked = tmp_path / 'a_file'
     blocked.write_text('not a directory')
     monkeypatch.setattr(jit_median, '_kernel_directories', lambda: [blocked / 'kernels'])
     kernel = jit_median._make_register_kernel(program)
-    np.testing.assert_array_equal(kernel(padded, 12, 50, 64, *tables, need, fill),
-                                  scipy_median(keys, 7))
+    np.testing.assert_array_equal(run(kernel), scipy_median(keys, 7))

@@ -139,7 +139,7 @@ class Detector:
         clock.lap('crop')
         raw_m = depth_m
         if p.median_kernel > 1:
-            depth_m = median_filter(depth_m, p.median_kernel)
+            depth_m = median_filter(depth_m, p.median_kernel, p.compute_threads)
         clock.lap('median')
         if p.robot_level and p.median_kernel > 1:
             depth_m = traversal.drop_smeared(depth_m, raw_m, p.max_filter_shift)
@@ -163,10 +163,10 @@ class Detector:
         centroids = grid.centroids
         clock.lap('voxel')
         k = max(p.normal_neighbours, p.validation_neighbours + 1)
-        neighbours = nearest_neighbours(centroids, k)
+        neighbours = nearest_neighbours(centroids, k, p.compute_threads)
         clock.lap('knn')
         n_cols = min(p.normal_neighbours, neighbours.shape[1])
-        normals = estimate_normals(centroids, neighbours[:, :n_cols])
+        normals = estimate_normals(centroids, neighbours[:, :n_cols], p.compute_threads)
         clock.lap('normals')
         steep = slope_obstacles(normals, p.cos_max_slope)
         if p.max_ground_height_m > 0.0 and not p.robot_level:

@@ -175,6 +175,12 @@ class DetectorParams:
         open_min=True))
     costmap_width_m: float = field(default=4.0, metadata=_describe(
         'Costmap extent across, centred on the camera [m]', min=0.0, max=50.0, open_min=True))
+    # -- execution (not in the seed): the outputs are the same for every value, so it takes no
+    # part in comparing two parameter sets
+    compute_threads: int = field(default=1, compare=False, metadata=_describe(
+        'Not in the seed: threads of the median filter (row bands), the k-NN search and the '
+        'normals (point ranges); the outputs are identical to the bit for every value. '
+        '1 = all on the calling thread', min=1, max=8))
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):

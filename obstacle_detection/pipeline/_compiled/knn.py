@@ -20,7 +20,9 @@ call :func:`warm_up` at start-up to pay that before the first frame. They run on
 
 from __future__ import annotations
 
+import functools
 import math
+from collections.abc import Callable
 
 import numpy as np
 
@@ -379,8 +381,21 @@ def _knn_kernel(pts, lo, cell, k, dense, slack, out):  # pragma: no cover - comp
     farther than its k-th best, or scans all points when the cloud is so sparse that the
     shells would cost more.
     """
-    n = pts.shape[0]
     cell_ijk, dims, order, sp, starts, hash_keys, hash_cells = _build_grid(pts, lo, cell, dense)
+    _knn_queries(lo, cell, k, dense, slack, cell_ijk, dims, order, sp, starts, hash_keys,
+                 hash_cells, 0, pts.shape[0], out)
+
+
+@_jit
+def _knn_queries(lo, cell, k, dense, slack, cell_ijk, dims, order, sp, starts, hash_keys,
+                 hash_cells, s_begin, s_end, out):  # pragma: no cover - compiled
+    """Search the queries of sorted slots s_begin .. s_end - 1 of a :func:`_build_grid` grid.
+
+    Writes their rows of ``out`` only; a query's answer does not depend on the others (the
+    previous query's k-th distance only picks the first radius tried), so the slots can be
+    cut into ranges searched in any order, on any thread.
+    """
+    n = order.shape[0]
     best_d = np.empty(k, np.float64)
     best_i = np.empty(k, np.int64)
     below = np.empty(3, np.float64)
@@ -395,10 +410,10 @@ def _knn_kernel(pts, lo, cell, k, dense, slack, out):  # pragma: no cover - comp
     top = np.empty(k + 1, np.int64)
     budget = 2 * n + 512              # cells to look at before a plain scan is cheaper
     rank_limit = 4 * k + 64           # more near points (a crowded cell): insertion is cheaper
-    group_end = 0
+    group_end = s_begin
     m = 0
     kth2_prev = np.inf                # squared k-th distance of the previous query
-    for s in range(n):                # queries in cell order: neighbouring cells stay cached
+    for s in range(s_begin, s_end):   # queries in cell order: neighbouring cells stay cached
         i = order[s]
         c0 = cell_ijk[i, 0]
         c1 = cell_ijk[i, 1]
@@ -529,8 +544,8 @@ def _cell_size(pts, lo, extent, k):  # pragma: no cover - compiled
 
 
 @_jit
-def _knn_all(pts, k, out):  # pragma: no cover - compiled
-    """Plan the grid and run the search; return False (and do nothing) for non-finite points."""
+def _knn_setup(pts, k):  # pragma: no cover - compiled
+    """Plan the grid: (finite, lo, cell, dense, slack); finite False for non-finite points."""
     n = pts.shape[0]
     lo = np.empty(3, np.float64)
     extent = np.empty(3, np.float64)
@@ -541,7 +556,7 @@ def _knn_all(pts, k, out):  # pragma: no cover - compiled
         for i in range(n):
             x = pts[i, a]
             if not math.isfinite(x):
-                return False
+                return False, lo, extent, False, 0.0
             low = min(low, x)
             high = max(high, x)
         lo[a] = low
@@ -553,13 +568,23 @@ def _knn_all(pts, k, out):  # pragma: no cover - compiled
     dense = np.float64(dims[0]) * dims[1] * dims[2] <= _DENSE_CELLS_LIMIT
     # cell membership is computed in float64; this margin covers its rounding
     slack = 1e-9 * (scale + size)
+    return True, lo, cell, dense, slack
+
+
+@_jit
+def _knn_all(pts, k, out):  # pragma: no cover - compiled
+    """Plan the grid and run the search; return False (and do nothing) for non-finite points."""
+    finite, lo, cell, dense, slack = _knn_setup(pts, k)
+    if not finite:
+        return False
     _knn_kernel(pts, lo, cell, k, dense, slack, out)
     return True
 
 
 # ------------------------------------------------------------------------------ public API
 
-def knn_grid(points: np.ndarray, k: int) -> np.ndarray:
+def knn_grid(points: np.ndarray, k: int, *, parts: int = 1,
+             run_parts: Callable[[list[Callable[[], None]]], None] | None = None) -> np.ndarray:
     """Return indices (V, k) int64 of the exact k nearest points of every point, nearest first.
 
     points: (V, 3) float [m], finite. k is clipped to V. Column 0 is the point itself (also
@@ -567,6 +592,11 @@ def knn_grid(points: np.ndarray, k: int) -> np.ndarray:
     float64 as scipy's cKDTree computes it), ties broken by the smaller index. The grid sizes
     itself from the points (no voxel size needed). Raises ValueError for a wrong shape or
     non-finite coordinates, RuntimeError when numba is not available.
+
+    ``parts`` > 1 builds the grid once and cuts the queries (in grid order) into that many
+    ranges, each writing its own rows; ``run_parts`` is called with their functions (no
+    arguments) and returns once all have run, e.g. on several threads (None: here, in
+    order). The same result.
     """
     if not AVAILABLE:
         raise RuntimeError('numba is not available; use normals.nearest_neighbours')
@@ -580,8 +610,23 @@ def knn_grid(points: np.ndarray, k: int) -> np.ndarray:
     if k == 1:
         return np.arange(n, dtype=np.int64).reshape(n, 1)
     out = np.empty((n, k), dtype=np.int64)
-    if not _knn_all(np.ascontiguousarray(pts, dtype=np.float64), k, out):
+    pts = np.ascontiguousarray(pts, dtype=np.float64)
+    if parts <= 1 or n < 2 * parts:
+        if not _knn_all(pts, k, out):
+            raise ValueError('points must be finite (no NaN or inf coordinates)')
+        return out
+    finite, lo, cell, dense, slack = _knn_setup(pts, k)
+    if not finite:
         raise ValueError('points must be finite (no NaN or inf coordinates)')
+    grid = _build_grid(pts, lo, cell, dense)
+    edges = [n * p // parts for p in range(parts + 1)]
+    calls = [functools.partial(_knn_queries, lo, cell, k, dense, slack, *grid, begin, end, out)
+             for begin, end in zip(edges[:-1], edges[1:])]
+    if run_parts is None:
+        for call in calls:
+            call()
+    else:
+        run_parts(calls)
     return out
 
 
@@ -589,7 +634,16 @@ def knn_grid(points: np.ndarray, k: int) -> np.ndarray:
 
 @_jit
 def _normals_kernel(pts, neighbours, n_use, normals, cov_bad, bad):  # pragma: no cover
-    """Covariance and closed-form smallest eigenvector per row (see normals_from_neighbours).
+    """:func:`_normals_rows` of every row."""
+    return _normals_rows(pts, neighbours, n_use, normals, cov_bad, bad, 0, pts.shape[0])
+
+
+@_jit
+def _normals_rows(pts, neighbours, n_use, normals, cov_bad, bad, v_begin,
+                  v_end):  # pragma: no cover - compiled
+    """Covariance and closed-form smallest eigenvector of rows v_begin .. v_end - 1.
+
+    See normals_from_neighbours; a row's result depends on no other row.
 
     Every floating-point operation follows ``normals.neighbourhood_covariance`` and
     ``normals.smallest_eigenvectors`` in the same order (float64, sums over the neighbours in
@@ -599,7 +653,7 @@ def _normals_kernel(pts, neighbours, n_use, normals, cov_bad, bad):  # pragma: n
     of degenerate rows, or -1 (with nothing done) when an index is out of range.
     """
     v_count = pts.shape[0]
-    for v in range(v_count):
+    for v in range(v_begin, v_end):
         for t in range(n_use):
             if neighbours[v, t] < 0 or neighbours[v, t] >= v_count:
                 return -1
@@ -607,7 +661,7 @@ def _normals_kernel(pts, neighbours, n_use, normals, cov_bad, bad):  # pragma: n
     two_pi_3 = 2.0 * np.pi / 3.0
     tiny = np.finfo(np.float64).tiny
     n_bad = 0
-    for v in range(v_count):
+    for v in range(v_begin, v_end):
         px = np.float64(pts[v, 0])
         py = np.float64(pts[v, 1])
         pz = np.float64(pts[v, 2])
@@ -704,7 +758,10 @@ def _normals_kernel(pts, neighbours, n_use, normals, cov_bad, bad):  # pragma: n
     return n_bad
 
 
-def normals_from_neighbours(points: np.ndarray, neighbours: np.ndarray, n: int) -> np.ndarray:
+def normals_from_neighbours(points: np.ndarray, neighbours: np.ndarray, n: int, *,
+                            parts: int = 1,
+                            run_parts: Callable[[list[Callable[[], None]]], None] | None = None,
+                            ) -> np.ndarray:
     """Return unit normals (V, 3) float32 from the first n neighbours of every point.
 
     points: (V, 3) [m], used as float32 like ``normals.neighbourhood_covariance``;
@@ -714,7 +771,8 @@ def normals_from_neighbours(points: np.ndarray, neighbours: np.ndarray, n: int) 
     operation, so both paths give the same normals. Rows whose smallest eigenvalue is
     degenerate (a line, coincident points) go to ``numpy.linalg.eigh`` as in the numpy path;
     any unit vector of that eigenspace is a right answer there. The sign of a normal is
-    arbitrary. Raises ValueError for bad shapes or out-of-range indices.
+    arbitrary. Raises ValueError for bad shapes or out-of-range indices. ``parts`` and
+    ``run_parts``: the rows cut into ranges, as in :func:`knn_grid`; the same result.
     """
     if not AVAILABLE:
         raise RuntimeError('numba is not available; use normals.estimate_normals')
@@ -735,7 +793,23 @@ def normals_from_neighbours(points: np.ndarray, neighbours: np.ndarray, n: int) 
     normals = np.empty((v_count, 3), dtype=np.float32)
     cov_bad = np.empty((v_count, 6), dtype=np.float64)    # filled on degenerate rows only
     bad = np.empty(v_count, dtype=np.bool_)
-    n_bad = _normals_kernel(pts, nb, n, normals, cov_bad, bad)
+    if parts <= 1 or v_count < 2 * parts:
+        n_bad = _normals_kernel(pts, nb, n, normals, cov_bad, bad)
+    else:
+        counts = [0] * parts
+        edges = [v_count * p // parts for p in range(parts + 1)]
+
+        def rows(part: int) -> None:
+            counts[part] = _normals_rows(pts, nb, n, normals, cov_bad, bad, edges[part],
+                                         edges[part + 1])
+
+        calls = [functools.partial(rows, part) for part in range(parts)]
+        if run_parts is None:
+            for call in calls:
+                call()
+        else:
+            run_parts(calls)
+        n_bad = -1 if min(counts) < 0 else sum(counts)
     if n_bad < 0:
         raise ValueError(f'neighbour indices must lie in [0, {v_count})')
     if n_bad:

@@ -48,6 +48,7 @@ The kernels are compiled on first use (the interpreter's about 3 s) and cached o
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import importlib.util
 import math
@@ -55,8 +56,9 @@ import os
 import sys
 import threading
 import warnings
+from collections.abc import Callable
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
@@ -563,14 +565,9 @@ NET2 = jit_median._network_intrinsic(np.array({code2}, np.int64), ROWS * K,
 
 
 @numba.njit(cache=CACHE, nogil=True, boundscheck=False)
-def kernel(padded, h, w, chunk, leaf1, out1, leaf2, out2, need, fill):
-    r = K // 2
-    size = out2[-1] + chunk
+def kernel(padded, h, w, chunk, leaf1, out1, leaf2, out2, need, fill, plan, out, mem):
     flat = padded.reshape(padded.size)        # phase 1 reads the padded rows in place
     step = padded.shape[1]
-    mem = jit_median.aligned_registers(size)
-    out = np.empty((h, w), np.uint16)
-    plan = jit_median.band_plan(h, w, chunk, TILE, r)
     for p in range(plan.shape[0]):
         x0, y0, n_rows = plan[p, 0], plan[p, 1], plan[p, 2]
         for py in range(y0 + plan[p, 4], y0 + ROWS):
@@ -584,7 +581,6 @@ def kernel(padded, h, w, chunk, leaf1, out1, leaf2, out2, need, fill):
                 NET2(mem, leaves, j, mem, out2, j)
         jit_median.write_band(out, mem, y0, x0, n_rows, width, (first, last, start, stop),
                               fill, out2, 1)
-    return out
 '''
 
 
@@ -609,7 +605,9 @@ def _register_tables(program: NetworkProgram, chunk: int) -> tuple:
 
 
 def network_median(keys: np.ndarray, program: NetworkProgram, *,
-                   in_registers: bool | None = None) -> np.ndarray:
+                   in_registers: bool | None = None, parts: int = 1,
+                   run_parts: Callable[[list[Callable[[], None]]], None] | None = None,
+                   ) -> np.ndarray:
     """Exact 'nearest'-mode K x K median of uint16 keys by a compiled network program.
 
     Args:
@@ -618,6 +616,12 @@ def network_median(keys: np.ndarray, program: NetworkProgram, *,
             builds and caches one per K).
         in_registers: run the in-register kernel (:func:`register_kernel`) rather than the
             interpreter; None (default) does for K <= :data:`REGISTER_MAX_K`. Same result.
+        parts: the in-register kernel's bands of output rows are cut into this many runs of
+            consecutive bands, each writing its own rows of the output (the first band of a
+            run sorts all its rows into the ring, the others only their new ones): the same
+            result whoever runs them, in any order.
+        run_parts: called with the list of ``parts`` functions (no arguments) and returns once
+            all have run, e.g. on several threads; None runs them in order here.
 
     Returns:
         (H, W) uint16 C-contiguous median, equal to
@@ -646,7 +650,23 @@ def network_median(keys: np.ndarray, program: NetworkProgram, *,
     if in_registers:
         tables = _register_tables(program, chunk)
         try:
-            return register_kernel(program)(padded, h, w, chunk, *tables, need, fill)
+            kernel = register_kernel(program)
+            plan = band_plan(h, w, chunk, tile, r)
+            out = np.empty((h, w), np.uint16)
+            size = int(tables[3][-1]) + chunk   # the ring and the band's medians
+            runs = []
+            for begin, end in _plan_runs(plan, parts):
+                run = plan[begin:end].copy()
+                run[0, 4] = 0                 # the run's first band fills the whole ring
+                runs.append(functools.partial(_run_register_kernel, kernel, size,
+                                              (padded, h, w, chunk, *tables, need, fill, run,
+                                               out)))
+            if len(runs) == 1 or run_parts is None:
+                for call in runs:
+                    call()
+            else:
+                run_parts(runs)
+            return out
         except Exception as error:  # noqa: BLE001 - code generation by another numba
             if not automatic:
                 raise
@@ -656,6 +676,29 @@ def network_median(keys: np.ndarray, program: NetworkProgram, *,
                           RuntimeWarning, stacklevel=2)
     return _median_kernel(padded, h, w, k, tile, blocks, program.code1, program.code2,
                           program.out2, program.n_regs, need, fill)
+
+
+_scratch = threading.local()
+
+
+def _run_register_kernel(kernel: Any, size: int, args: tuple) -> None:
+    """Run an in-register kernel on this thread's ring buffer of ``size`` registers.
+
+    The buffer is kept for the thread's next call: a fresh one would cost its page faults at
+    every call (0.1-0.2 ms at 512 x 424), and two threads faulting at once wait on each other.
+    """
+    mem = getattr(_scratch, 'mem', None)
+    if mem is None or mem.shape[0] < size:
+        mem = _scratch.mem = aligned_registers(size)
+    kernel(*args, mem[:size])
+
+
+def _plan_runs(plan: np.ndarray, parts: int) -> list[tuple[int, int]]:
+    """Cut the rows of a :func:`band_plan` into at most ``parts`` runs of near-equal length."""
+    count = plan.shape[0]
+    parts = max(1, min(int(parts), count))
+    edges = [count * p // parts for p in range(parts + 1)]
+    return [(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
 
 
 def _known_lowest(keys: np.ndarray, k: int) -> tuple[int, np.ndarray]:

@@ -1,0 +1,186 @@
+"""Run the parts of one stage on more than one thread, with the one-thread result.
+
+``DetectorParams.compute_threads`` = n > 1 cuts the heaviest stages into parts whose results do
+not depend on who computes them or in which order: the K x K median into bands of output rows
+(:func:`.median.median_filter`), the k-nearest-neighbour search and the normals into ranges of
+query points (:mod:`.normals`). Each part writes its own rows of an output array that the
+caller made, so the result equals the one-thread result bit for bit.
+
+The compiled kernels release the GIL, so the parts run at the same time on a multi-core
+machine. :func:`run_parts` hands them to a small persistent pool of daemon threads and takes a
+share itself: every thread takes the next part nobody has taken yet, so a pool thread that is
+slow to wake (waking an idle virtual CPU costs 0.1-0.3 ms here) or kept off the CPU by another
+process delays the stage by at most the part it holds.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import itertools
+import operator
+import os
+import queue
+import threading
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+
+__all__ = ['MAX_THREADS', 'check_threads', 'part_bounds', 'run_parts']
+
+#: Most threads a stage may use (the range of ``compute_threads``).
+MAX_THREADS = 8
+#: How long the calling thread polls, once its parts are done, for the last part of another
+#: thread before it blocks [s]; blocking costs a wake-up (0.1-0.3 ms on a virtual machine).
+_POLL_S = 0.004
+
+
+class _Batch:
+    """The parts of one stage; each thread takes the next part nobody has taken (see run_parts)."""
+
+    def __init__(self, parts: list[Callable[[], Any]]) -> None:
+        self.parts = parts
+        self.errors: list[BaseException | None] = [None] * len(parts)
+        self._next = itertools.count()     # next() on a count is atomic under the GIL
+        self._left = len(parts)
+        self._lock = threading.Lock()
+        self.done = threading.Event()
+
+    def work(self) -> None:
+        """Run parts nobody has taken until none is left."""
+        while True:
+            index = next(self._next)
+            if index >= len(self.parts):
+                return
+            try:
+                self.parts[index]()
+            except BaseException as error:  # noqa: BLE001 - raised again by run_parts
+                self.errors[index] = error
+            with self._lock:
+                self._left -= 1
+                if self._left == 0:
+                    self.done.set()
+
+
+def _current_cpu_function() -> Callable[[], int] | None:
+    """Return glibc's ``sched_getcpu`` (the CPU the calling thread runs on), or None."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        function = libc.sched_getcpu
+    except (OSError, AttributeError):
+        return None
+    function.restype = ctypes.c_int
+    function.argtypes = []
+    return function if function() >= 0 else None
+
+
+class _Pool:
+    """Daemon threads that each take batches from one queue and work on them.
+
+    Linux wakes a sleeping thread on the CPU of the thread that woke it when that CPU looks
+    idle, as it does at the start of a frame after the gap between frames: the helper then
+    shares the caller's CPU until the load balancer moves it, milliseconds later, and the
+    stage takes as long as on one thread (measured: a 30 Hz median on two threads was no
+    faster than on one). So, on machines with more CPUs than the helpers need, the helpers
+    may run anywhere but on the caller's CPU, updated when the caller moves.
+    """
+
+    def __init__(self) -> None:
+        self._tasks: queue.SimpleQueue[_Batch] = queue.SimpleQueue()
+        self._threads: list[threading.Thread] = []
+        self._native_ids: list[int] = []
+        self._lock = threading.Lock()
+        self._current_cpu = _current_cpu_function()
+        self._kept_off: int | None = None    # the CPU the helpers are kept off
+
+    def _serve(self) -> None:
+        _local.in_pool = True
+        while True:
+            self._tasks.get().work()
+
+    def _keep_off_caller_cpu(self) -> None:
+        if self._current_cpu is None:
+            return
+        cpu = self._current_cpu()
+        if cpu == self._kept_off or cpu < 0:
+            return
+        try:
+            allowed = os.sched_getaffinity(0) - {cpu}
+            if not allowed:
+                return
+            for native_id in self._native_ids:
+                os.sched_setaffinity(native_id, allowed)
+        except OSError:      # a thread that is gone, or affinity not permitted: best effort
+            return
+        self._kept_off = cpu
+
+    def submit(self, batch: _Batch, helpers: int) -> None:
+        """Let ``helpers`` pool threads work on ``batch`` (started when first needed)."""
+        with self._lock:
+            while len(self._threads) < helpers:
+                started = threading.Event()
+                thread = threading.Thread(target=self._start, args=(started,), daemon=True,
+                                          name=f'obstacle_detection_part{len(self._threads)}')
+                thread.start()
+                started.wait()
+                self._threads.append(thread)
+                self._native_ids.append(thread.native_id)
+                self._kept_off = None
+            self._keep_off_caller_cpu()
+        for _ in range(helpers):
+            self._tasks.put(batch)
+
+    def _start(self, started: threading.Event) -> None:
+        started.set()
+        self._serve()
+
+
+_pool = _Pool()
+_local = threading.local()
+
+
+def check_threads(threads: Any) -> int:
+    """Return ``threads`` as an int in [1, MAX_THREADS]; TypeError / ValueError otherwise."""
+    if isinstance(threads, (bool, np.bool_)):
+        raise TypeError(f'compute_threads must be an integer, got {threads!r}')
+    threads = operator.index(threads)
+    if not 1 <= threads <= MAX_THREADS:
+        raise ValueError(f'compute_threads={threads} out of range: must be in [1, {MAX_THREADS}]')
+    return threads
+
+
+def part_bounds(count: int, parts: int) -> list[tuple[int, int]]:
+    """Cut ``range(count)`` into at most ``parts`` contiguous, non-empty, near-equal ranges."""
+    parts = max(1, min(int(parts), int(count)))
+    edges = [count * p // parts for p in range(parts + 1)]
+    return [(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+
+
+def run_parts(parts: Sequence[Callable[[], Any]], threads: int) -> None:
+    """Call every function of ``parts`` on up to ``threads`` threads; return when all returned.
+
+    The calling thread and ``threads - 1`` pool threads take the parts in list order, each the
+    next one not yet taken. The first exception (in list order) is raised again once every
+    part has returned. One thread, one part, or a call from a pool thread (a pool never waits
+    on itself) runs the parts one after the other on the calling thread.
+    """
+    parts = list(parts)
+    helpers = min(check_threads(threads), len(parts)) - 1
+    if helpers <= 0 or getattr(_local, 'in_pool', False):
+        for part in parts:
+            part()
+        return
+    batch = _Batch(parts)
+    _pool.submit(batch, helpers)
+    batch.work()
+    if not batch.done.is_set():
+        # the last part is another thread's: poll a little (GIL released by the sleep), then
+        # block; a blocked thread costs a wake-up on a virtual machine
+        deadline = time.perf_counter() + _POLL_S
+        while not batch.done.is_set() and time.perf_counter() < deadline:
+            time.sleep(0)
+        batch.done.wait()
+    for error in batch.errors:
+        if error is not None:
+            raise error
