@@ -20,9 +20,9 @@ from ..labels import LABEL_OBSTACLE
 from . import geometry, median, traversal, voxel
 from . import normals as normals_stage   # a frame's local `normals` are vectors
 from .costmap import Costmap, build_costmap
-from .depth import crop_borders, decode_depth
+from .depth import MM_PER_M, crop_borders, decode_depth, depth_lut
 from .floor import FloorFit, fit_floor, sample_rays
-from .median import median_filter
+from .median import median_filter, median_of_codes
 from .normals import estimate_normals, nearest_neighbours, slope_obstacles, validate_obstacles
 from .params import SEED_TABLE_4_1, DetectorParams, Intrinsics
 
@@ -68,6 +68,14 @@ class DetectionResult:
     floor: FloorFit | None = None
     voxel_height_m: np.ndarray | None = None
     drop_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
+
+
+def _uint16_codes(depth: np.ndarray) -> np.ndarray | None:
+    """Return a uint16 depth image in native byte order, C-contiguous; None for other input."""
+    arr = np.asarray(depth)
+    if arr.dtype.kind != 'u' or arr.dtype.itemsize != 2 or arr.ndim != 2:
+        return None
+    return np.ascontiguousarray(arr, dtype=np.uint16)
 
 
 class _Clock:
@@ -133,12 +141,20 @@ class Detector:
         clock = _Clock()
         depth_m = decode_depth(depth, depth_scale=depth_scale)
         clock.lap('decode')
+        # uint16 input: the median runs on its codes (the same result, see median_of_codes)
+        codes = _uint16_codes(depth) if p.median_kernel > 1 else None
         if p.crop_top_px or p.crop_bottom_px or p.crop_left_px or p.crop_right_px:
-            depth_m = crop_borders(depth_m, p.crop_top_px, p.crop_bottom_px,
-                                   p.crop_left_px, p.crop_right_px)
+            crop = (p.crop_top_px, p.crop_bottom_px, p.crop_left_px, p.crop_right_px)
+            depth_m = crop_borders(depth_m, *crop)
+            if codes is not None:
+                codes = crop_borders(codes, *crop)
         clock.lap('crop')
         raw_m = depth_m
-        if p.median_kernel > 1:
+        if codes is not None:
+            scale = MM_PER_M if depth_scale is None else float(depth_scale)
+            depth_m = median_of_codes(codes, p.median_kernel, depth_lut(scale),
+                                      p.compute_threads)
+        elif p.median_kernel > 1:
             depth_m = median_filter(depth_m, p.median_kernel, p.compute_threads)
         clock.lap('median')
         if p.robot_level and p.median_kernel > 1:

@@ -21,7 +21,7 @@ from . import jit, parallel
 from ._compiled import median as jit_median
 from .depth import MM_PER_M, DepthFormatError, check_image, depth_lut
 
-__all__ = ['MEDIAN_MODE', 'median_filter', 'warm_up']
+__all__ = ['MEDIAN_MODE', 'median_filter', 'median_of_codes', 'warm_up']
 
 #: Border mode of :func:`median_filter`, as a ``scipy.ndimage`` mode: the image is extended
 #: by repeating its edge pixels (OpenCV ``BORDER_REPLICATE``). Unlike 'constant' it adds no
@@ -140,6 +140,22 @@ def median_filter(depth_m: np.ndarray, k: int, threads: int = 1) -> np.ndarray:
     if values.dtype == np.float32 and jit.enabled():
         return jit_median.take(values, med)
     return np.take(values, med)
+
+
+def median_of_codes(codes: np.ndarray, k: int, table: np.ndarray,
+                    threads: int = 1) -> np.ndarray:
+    """Return ``median_filter(table[codes], k)`` computed on the codes, then looked up.
+
+    codes: (H, W) uint16 raw depth (e.g. millimetres); table: (65536,) float32, the codes'
+    depths in metres (:func:`.depth.depth_lut`), non-decreasing. The K x K median commutes
+    with a non-decreasing map (the middle value of the window stays the middle value), so
+    this equals the median of the decoded image to the bit, without mapping the decoded
+    depths back to keys and the median's keys to depths (0.3-0.5 ms at 512 x 424).
+    """
+    med = median_filter(codes, k, threads)
+    if table.dtype == np.float32 and jit.enabled():
+        return jit_median.take(table, med)
+    return np.take(table, med)
 
 
 def _check_kernel(k: int) -> int:

@@ -1,0 +1,214 @@
+"""Stages on several threads (compute_threads) give the one-thread result to the bit."""
+
+import os
+import threading
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from obstacle_detection.pipeline import jit, median, normals, parallel
+from obstacle_detection.pipeline._compiled import knn as jit_knn
+from obstacle_detection.pipeline._compiled import median as jit_median
+from obstacle_detection.pipeline.depth import decode_depth, depth_lut
+from obstacle_detection.pipeline.detector import Detector
+from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE, corridor
+from obstacle_detection.sim.scenes import render_scene
+
+compiled = pytest.mark.skipif(not jit_median.AVAILABLE, reason='numba is not installed')
+
+
+@pytest.fixture(autouse=True)
+def _compiled_path(monkeypatch):
+    monkeypatch.delenv(jit.NO_JIT_ENV, raising=False)
+
+
+# ------------------------------------------------------------------------------ run_parts
+
+def test_run_parts_runs_every_part_once_on_up_to_n_threads() -> None:
+    seen: list[tuple[int, int]] = []
+    lock = threading.Lock()
+
+    def part(index: int) -> None:
+        with lock:
+            seen.append((index, threading.get_ident()))
+
+    for threads in (1, 2, 3):
+        seen.clear()
+        parallel.run_parts([lambda i=i: part(i) for i in range(7)], threads)
+        assert sorted(i for i, _ in seen) == list(range(7))
+        assert len({ident for _, ident in seen}) <= threads
+    seen.clear()
+    parallel.run_parts([lambda i=i: part(i) for i in range(5)], 1)
+    assert {ident for _, ident in seen} == {threading.get_ident()}
+
+
+def test_run_parts_raises_the_first_error_after_all_parts_ran() -> None:
+    done = []
+
+    def fails(text: str) -> None:
+        done.append(text)
+        raise ValueError(text)
+
+    parts = [lambda: done.append('a'), lambda: fails('first'), lambda: done.append('c'),
+             lambda: fails('second')]
+    with pytest.raises(ValueError, match='first'):
+        parallel.run_parts(parts, 2)
+    assert sorted(done) == ['a', 'c', 'first', 'second']
+    parallel.run_parts([lambda: done.append('next')], 2)      # the pool still works
+    assert done[-1] == 'next'
+
+
+def test_run_parts_from_a_pool_thread_runs_them_there() -> None:
+    inner: list[int] = []
+    started = threading.Event()
+    outer_thread: list[int] = []
+
+    def outer() -> None:
+        # a pool thread that waited for the pool could wait for itself: it runs them in turn
+        outer_thread.append(threading.get_ident())
+        started.set()
+        parallel.run_parts([lambda: inner.append(threading.get_ident())] * 3, 2)
+
+    def first() -> None:          # the calling thread takes this part and waits for outer
+        assert started.wait(10.0)
+
+    parallel.run_parts([first, outer], 2)
+    assert outer_thread and outer_thread[0] != threading.get_ident()
+    assert inner == [outer_thread[0]] * 3
+
+
+@pytest.mark.parametrize('bad, error', [(0, ValueError), (9, ValueError), (-1, ValueError),
+                                        (True, TypeError), (1.5, TypeError), ('2', TypeError)])
+def test_thread_counts_outside_1_to_8_are_refused(bad, error) -> None:
+    with pytest.raises(error):
+        parallel.check_threads(bad)
+    with pytest.raises((TypeError, ValueError)):
+        corridor(compute_threads=bad)
+
+
+def test_part_bounds_cover_the_range_in_order() -> None:
+    for count in (1, 2, 7, 100):
+        for parts in (1, 2, 3, 8, 200):
+            bounds = parallel.part_bounds(count, parts)
+            assert bounds[0][0] == 0 and bounds[-1][1] == count
+            assert all(a < b for a, b in bounds)
+            assert all(b == c for (_, b), (c, _) in zip(bounds[:-1], bounds[1:]))
+            assert len(bounds) == min(parts, count)
+
+
+@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2 or parallel._pool._current_cpu is None,
+                    reason='needs two CPUs and sched_getcpu')
+def test_pool_threads_are_kept_off_the_callers_cpu() -> None:
+    parallel.run_parts([lambda: None] * 2, 2)
+    kept_off = parallel._pool._kept_off
+    assert kept_off is not None
+    for native_id in parallel._pool._native_ids:
+        assert os.sched_getaffinity(native_id) == os.sched_getaffinity(0) - {kept_off}
+
+
+# ------------------------------------------------------------------------------ the stages
+
+def scipy_median(img, k):
+    return ndimage.median_filter(img, size=k, mode='nearest')
+
+
+@compiled
+@pytest.mark.parametrize('k', [7, 9, 17, 21])
+@pytest.mark.parametrize('threads', [2, 3, 8])
+def test_banded_median_equals_scipy(k, threads) -> None:
+    rng = np.random.default_rng(k + threads)
+    for shape in ((40, 45), (17, 70), (3, 33), (61, 9)):
+        img = rng.integers(0, 5000, shape).astype(np.uint16)
+        img[:, : shape[1] // 3] = 0                       # a block of no return
+        np.testing.assert_array_equal(median.median_filter(img, k, threads=threads),
+                                      scipy_median(img, k))
+
+
+@compiled
+def test_banded_median_of_a_frame_equals_one_thread() -> None:
+    frame = render_scene('person_walking', seed=2, intrinsics=KINECT_V2_SD,
+                         size=KINECT_V2_SD_SIZE, frame_index=4).depth_mm
+    one = median.median_filter(frame, 17, threads=1)
+    for threads in (2, 4):
+        np.testing.assert_array_equal(median.median_filter(frame, 17, threads=threads), one)
+    metres = decode_depth(frame)
+    np.testing.assert_array_equal(median.median_filter(metres, 17, threads=2),
+                                  median.median_filter(metres, 17))
+
+
+@pytest.mark.parametrize('k', [3, 5, 7, 17])
+def test_median_of_codes_is_the_median_of_the_decoded_depth(k) -> None:
+    rng = np.random.default_rng(k)
+    codes = rng.integers(0, 9000, (30, 37)).astype(np.uint16)
+    codes[rng.random(codes.shape) < 0.3] = 0
+    for scale in (1000.0, 5000.0, 3.0):
+        table = depth_lut(scale)
+        expected = scipy_median(table[codes], k)
+        got = median.median_of_codes(codes, k, table, threads=2)
+        assert got.dtype == np.float32
+        np.testing.assert_array_equal(got, expected)
+
+
+def _cloud(rng, n):
+    """Return a floor, a wall and a cube of 5 cm grid points (exact ties), and duplicates."""
+    u = rng.uniform(0.0, 2.0, (n, 2))
+    floor = np.column_stack((u, np.zeros(n)))
+    wall = np.column_stack((np.full(n // 2, 1.5), u[: n // 2]))
+    grid = np.stack(np.meshgrid(*[np.arange(6) * 0.05] * 3), -1).reshape(-1, 3)  # ties
+    pts = np.concatenate((floor, wall, grid, grid[:20])) + rng.normal(0, 0.002, (1, 3))
+    return pts.astype(np.float32)
+
+
+@compiled
+@pytest.mark.parametrize('parts', [2, 3, 7])
+def test_knn_in_ranges_equals_one_search(parts) -> None:
+    pts = _cloud(np.random.default_rng(parts), 3000)
+    one = jit_knn.knn_grid(pts, 13)
+    calls = []
+
+    def run(functions):
+        calls.append(len(functions))
+        for function in reversed(functions):              # any order gives the same rows
+            function()
+
+    np.testing.assert_array_equal(jit_knn.knn_grid(pts, 13, parts=parts, run_parts=run), one)
+    assert calls == [parts]
+    np.testing.assert_array_equal(normals.nearest_neighbours(pts, 13, threads=2), one)
+
+
+@compiled
+def test_normals_in_ranges_equal_one_pass() -> None:
+    pts = _cloud(np.random.default_rng(5), 3000)
+    neighbours = jit_knn.knn_grid(pts, 13)[:, :10]
+    one = jit_knn.normals_from_neighbours(pts, neighbours, 10)
+    np.testing.assert_array_equal(
+        jit_knn.normals_from_neighbours(pts, neighbours, 10, parts=4,
+                                        run_parts=lambda fs: [f() for f in fs]), one)
+    np.testing.assert_array_equal(normals.estimate_normals(pts, neighbours, threads=3), one)
+    bad = neighbours.copy()
+    bad[-1, 3] = pts.shape[0]                               # out of range in the last part
+    with pytest.raises(ValueError, match='neighbour indices'):
+        jit_knn.normals_from_neighbours(pts, bad, 10, parts=4,
+                                        run_parts=lambda fs: [f() for f in fs])
+
+
+@pytest.mark.parametrize('scene', ['person_walking', 'corridor', 'ramps'])
+def test_detector_outputs_do_not_depend_on_compute_threads(scene) -> None:
+    frame = render_scene(scene, seed=3, intrinsics=KINECT_V2_SD, size=KINECT_V2_SD_SIZE,
+                         frame_index=2)
+    mount = dict(camera_height_m=float(frame.height_m), camera_pitch_rad=float(frame.pitch_rad),
+                 camera_roll_rad=float(frame.roll_rad))
+    one = Detector(corridor(**mount)).process(frame.depth_mm, KINECT_V2_SD)
+    two = Detector(corridor(compute_threads=2, **mount)).process(frame.depth_mm, KINECT_V2_SD)
+    metres = Detector(corridor(compute_threads=2, **mount)).process(
+        decode_depth(frame.depth_mm), KINECT_V2_SD)
+    for result in (two, metres):
+        for name in ('depth_m', 'labels', 'pixel_voxel', 'voxel_points', 'voxel_normals',
+                     'voxel_neighbours', 'voxel_is_obstacle', 'obstacle_points',
+                     'ground_points'):
+            a, b = getattr(one, name), getattr(result, name)
+            assert a.dtype == b.dtype and a.shape == b.shape, name
+            assert a.tobytes() == b.tobytes(), name
+        np.testing.assert_array_equal(result.costmap.data, one.costmap.data)
+    assert one.obstacle_points.shape[0] > 0
