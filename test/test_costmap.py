@@ -37,3 +37,36 @@ def test_cell_centres():
     x, y = grid.cell_centres()
     assert x[0] == 0.05 and np.isclose(y[0], -0.45)
     assert (grid.data == CELL_UNKNOWN).all()
+
+
+def _numpy_costmap(obstacles, ground, params, monkeypatch):
+    from obstacle_detection.pipeline import jit
+    monkeypatch.setenv(jit.NO_JIT_ENV, '1')
+    try:
+        with np.errstate(invalid='ignore'):   # numpy's cast of NaN and inf to int warns
+            return build_costmap(obstacles, ground, params)
+    finally:
+        monkeypatch.delenv(jit.NO_JIT_ENV)
+
+
+def test_compiled_rasterisation_equals_numpy(monkeypatch):
+    """Same cells for float32 and float64 points, edges, outside, NaN, inf and huge values."""
+    params = DetectorParams(costmap_resolution_m=0.05, costmap_length_m=2.0,
+                            costmap_width_m=4.0, camera_y_m=0.013)
+    rng = np.random.default_rng(11)
+    pts = rng.uniform(-0.5, 2.5, (4000, 3))
+    pts[:, 1] = rng.uniform(-2.5, 2.5, 4000)
+    origin, nx, ny = costmap_geometry(params)
+    pts[:50, 0] = origin[0] + np.arange(50) * 0.05        # on cell borders
+    pts[50:100, 1] = origin[1] + np.arange(50) * 0.05
+    pts[100:110] = [np.nan, 0.0, 0.0]
+    pts[110:120] = [np.inf, 1.0, 0.0]
+    pts[120:130] = [1.0, -np.inf, 0.0]
+    pts[130:140] = [1e30, 1e30, 0.0]
+    for dtype in (np.float32, np.float64):
+        p = pts.astype(dtype)
+        obstacles, ground = p[:1500], p[1500:]
+        expected = _numpy_costmap(obstacles, ground, params, monkeypatch)
+        got = build_costmap(obstacles, ground, params)
+        assert set(np.unique(expected.data)) == {CELL_UNKNOWN, CELL_FREE, CELL_OCCUPIED}
+        np.testing.assert_array_equal(got.data, expected.data)

@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from obstacle_detection.pipeline import jit, median, normals, parallel
+from obstacle_detection.pipeline import geometry, jit, median, normals, parallel, traversal, voxel
 from obstacle_detection.pipeline._compiled import knn as jit_knn
 from obstacle_detection.pipeline._compiled import median as jit_median
+from obstacle_detection.pipeline._compiled import traversal as jit_traversal
 from obstacle_detection.pipeline.depth import decode_depth, depth_lut
 from obstacle_detection.pipeline.detector import Detector
 from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE, corridor
@@ -212,3 +213,72 @@ def test_detector_outputs_do_not_depend_on_compute_threads(scene) -> None:
             assert a.tobytes() == b.tobytes(), name
         np.testing.assert_array_equal(result.costmap.data, one.costmap.data)
     assert one.obstacle_points.shape[0] > 0
+
+
+@compiled
+def test_smear_pass_in_row_ranges_equals_one_pass() -> None:
+    frame = render_scene('people', seed=1, intrinsics=KINECT_V2_SD, size=KINECT_V2_SD_SIZE,
+                         frame_index=1).depth_mm
+    raw = decode_depth(frame)
+    raw[100:140, 200:260] = 0.0                              # a hole for the fill rule
+    filtered = median.median_filter(raw, 17)
+    one = traversal.drop_smeared(filtered.copy(), raw, 0.02)
+    assert np.count_nonzero(one != filtered) > 100           # the pass changed something
+    for parts in (2, 3, 7):
+        got = filtered.copy()
+        assert jit_traversal.drop_smeared_fused(got, raw, 0.02, traversal.FLYING_JUMP,
+                                                traversal.PLANAR_TOLERANCE, parts=parts,
+                                                run_parts=lambda fs: [f() for f in fs[::-1]])
+        np.testing.assert_array_equal(got, one)
+    np.testing.assert_array_equal(traversal.drop_smeared(filtered.copy(), raw, 0.02, 2), one)
+
+
+@compiled
+@pytest.mark.parametrize('model', ['table', 'factors'])
+def test_back_projection_in_row_bands_equals_one_pass(model) -> None:
+    frame = render_scene('corridor', seed=2, intrinsics=KINECT_V2_SD, size=KINECT_V2_SD_SIZE,
+                         frame_index=0)
+    params = corridor(camera_height_m=float(frame.height_m),
+                      camera_pitch_rad=float(frame.pitch_rad))
+    depth = decode_depth(frame.depth_mm)
+    rays = (geometry.ground_rays(depth.shape, KINECT_V2_SD, params) if model == 'table' else
+            geometry.ray_model(depth.shape, KINECT_V2_SD, params))
+    one = voxel.points_in_roi(depth, rays, params)
+    one = (one.points.copy(), one.pixel_index.copy(), one.projection.labels.copy(),
+           one.projection.keys.copy())
+    assert one[0].shape[0] > 1000
+    for threads in (2, 3):
+        roi = voxel.points_in_roi(depth, rays, params.replace(compute_threads=threads))
+        for a, b in zip(one, (roi.points, roi.pixel_index, roi.projection.labels,
+                              roi.projection.keys)):
+            np.testing.assert_array_equal(b, a)
+
+
+def test_validation_compiled_equals_the_definition() -> None:
+    rng = np.random.default_rng(7)
+    flags = rng.random(500) < 0.7
+    neighbours = np.column_stack((np.arange(500), rng.integers(0, 500, (500, 12))))
+    expected = np.array([flags[v] and all(flags[neighbours[v, 1:13]]) for v in range(500)])
+    assert 0 < expected.sum() < 500 and not np.array_equal(expected, flags)
+    np.testing.assert_array_equal(normals.validate_obstacles(flags, neighbours, 12), expected)
+    if jit_knn.AVAILABLE:
+        np.testing.assert_array_equal(jit_knn.validate(flags, neighbours, 12), expected)
+        bad = neighbours.copy()
+        bad[3, 5] = 500
+        assert jit_knn.validate(flags, bad, 12) is None
+        with pytest.raises(IndexError):
+            normals.validate_obstacles(flags, bad, 12)
+
+
+@compiled
+def test_awake_helpers_take_the_next_parts() -> None:
+    parallel.warm_up()
+    assert parallel._pool._spin is not None and parallel._pool._spin_rounds > 0
+    generation = np.zeros(1, np.int64)
+    assert not parallel._pool._spin(generation, 0, 50)        # nothing moved: gives up
+    assert parallel._pool._spin(generation, 1, 50)            # moved already: at once
+    for _ in range(20):                                       # woken, then parts at once
+        parallel.wake(2)
+        ran: list[int] = []
+        parallel.run_parts([lambda: ran.append(threading.get_ident())] * 4, 2)
+        assert len(ran) == 4 and len(set(ran)) <= 2

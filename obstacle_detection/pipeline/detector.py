@@ -17,7 +17,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..labels import LABEL_OBSTACLE
-from . import geometry, median, traversal, voxel
+from . import geometry, median, parallel, traversal, voxel
+from . import costmap as costmap_stage   # a frame's local `costmap` is its grid
 from . import normals as normals_stage   # a frame's local `normals` are vectors
 from .costmap import Costmap, build_costmap
 from .depth import MM_PER_M, crop_borders, decode_depth, depth_lut
@@ -115,6 +116,9 @@ class Detector:
         normals_stage.warm_up()
         voxel.warm_up()
         traversal.warm_up()
+        costmap_stage.warm_up()
+        if self.params.compute_threads > 1:
+            parallel.warm_up()
         return time.perf_counter() - start
 
     def _rays(self, shape: tuple[int, int], intr: Intrinsics) -> geometry.GroundRays:
@@ -139,6 +143,8 @@ class Detector:
         p = self.params
         intr = intrinsics if intrinsics is not None else SEED_TABLE_4_1
         clock = _Clock()
+        if p.compute_threads > 1:
+            parallel.wake(p.compute_threads)   # the helpers wake while the frame is decoded
         depth_m = decode_depth(depth, depth_scale=depth_scale)
         clock.lap('decode')
         # uint16 input: the median runs on its codes (the same result, see median_of_codes)
@@ -158,7 +164,8 @@ class Detector:
             depth_m = median_filter(depth_m, p.median_kernel, p.compute_threads)
         clock.lap('median')
         if p.robot_level and p.median_kernel > 1:
-            depth_m = traversal.drop_smeared(depth_m, raw_m, p.max_filter_shift)
+            depth_m = traversal.drop_smeared(depth_m, raw_m, p.max_filter_shift,
+                                              p.compute_threads)
         clock.lap('smear')
 
         rays = self._rays(depth_m.shape, intr)

@@ -215,5 +215,9 @@ def validate_obstacles(is_obstacle: np.ndarray, neighbours: np.ndarray, n1: int)
         return is_obstacle.copy()
     if neighbours.shape[1] < n1 + 1:
         return np.zeros_like(is_obstacle)
+    if jit.enabled():   # compiled: the same flags without the (V, N1) gather (0.3 ms)
+        out = jit_knn.validate(is_obstacle, neighbours, n1)
+        if out is not None:
+            return out
     neighbour_flags = is_obstacle[neighbours[:, 1:n1 + 1]]
     return is_obstacle & np.all(neighbour_flags, axis=1)

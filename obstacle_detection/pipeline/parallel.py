@@ -27,13 +27,18 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ['MAX_THREADS', 'check_threads', 'part_bounds', 'run_parts']
+from ._compiled import _numba
+
+__all__ = ['MAX_THREADS', 'check_threads', 'part_bounds', 'run_parts', 'wake', 'warm_up']
 
 #: Most threads a stage may use (the range of ``compute_threads``).
 MAX_THREADS = 8
 #: How long the calling thread polls, once its parts are done, for the last part of another
 #: thread before it blocks [s]; blocking costs a wake-up (0.1-0.3 ms on a virtual machine).
 _POLL_S = 0.004
+#: How long a helper stays awake after its parts, for the next stage's [s] (yielding its CPU
+#: to any other thread that wants it); 0 = block at once.
+LINGER_S = 0.002
 
 
 class _Batch:
@@ -75,6 +80,34 @@ def _current_cpu_function() -> Callable[[], int] | None:
     return function if function() >= 0 else None
 
 
+def _make_spin() -> Callable[[np.ndarray, int, int], bool] | None:
+    """Return the compiled wait of :meth:`_Pool._next_soon`, or None without numba / libc.
+
+    ``spin(generation, seen, rounds)`` returns True as soon as ``generation[0] != seen``, or
+    False after ``rounds`` yields of the CPU (``sched_yield``: another thread that wants this
+    CPU gets it at once). It holds no GIL. The call to libc also keeps the compiler from
+    reading ``generation[0]`` once for the whole loop.
+    """
+    if _numba.numba is None:
+        return None
+    try:
+        yield_cpu = ctypes.CDLL(None).sched_yield
+    except (OSError, AttributeError):
+        return None
+    yield_cpu.restype = ctypes.c_int
+    yield_cpu.argtypes = []
+
+    def spin(generation: np.ndarray, seen: int, rounds: int) -> bool:  # pragma: no cover
+        for _ in range(rounds):
+            if generation[0] != seen:
+                return True
+            yield_cpu()
+        return generation[0] != seen
+
+    # not cached on disk: numba cannot cache a call through a ctypes pointer (tiny compile)
+    return _numba.numba.njit(nogil=True, cache=False)(spin)
+
+
 class _Pool:
     """Daemon threads that each take batches from one queue and work on them.
 
@@ -93,11 +126,53 @@ class _Pool:
         self._lock = threading.Lock()
         self._current_cpu = _current_cpu_function()
         self._kept_off: int | None = None    # the CPU the helpers are kept off
+        self._generation = np.zeros(1, np.int64)   # moves at every submit
+        self._spin: Callable[[np.ndarray, int, int], bool] | None = None
+        self._spin_rounds = 0                # yields in LINGER_S, measured when compiled
+
+    def prepare_spin(self) -> None:
+        """Compile the helpers' wait (:func:`_make_spin`) and time its yields, once."""
+        with self._lock:
+            if self._spin is not None or LINGER_S <= 0.0:
+                return
+            spin = _make_spin()
+            if spin is None:
+                return
+            spin(self._generation, -1, 1)           # compiles
+            probe = 2000
+            start = time.perf_counter()
+            spin(self._generation, int(self._generation[0]), probe)
+            per_round = max((time.perf_counter() - start) / probe, 1e-8)
+            self._spin_rounds = max(1, int(LINGER_S / per_round))
+            self._spin = spin
 
     def _serve(self) -> None:
         _local.in_pool = True
         while True:
-            self._tasks.get().work()
+            batch: _Batch | None = self._tasks.get()
+            while batch is not None:
+                batch.work()
+                batch = self._next_soon()
+
+    def _next_soon(self) -> _Batch | None:
+        """Return the next batch if it comes within LINGER_S, else None (then block).
+
+        Waking a blocked thread costs 0.1-0.3 ms on this virtual machine, more than some
+        stages save on two threads; a helper that stays awake between the stages of a frame
+        starts the next one within microseconds.
+        """
+        spin = self._spin
+        seen = int(self._generation[0])    # read before looking: a submit after it moves it
+        try:
+            return self._tasks.get_nowait()
+        except queue.Empty:
+            pass
+        if spin is None or not spin(self._generation, seen, self._spin_rounds):
+            return None
+        try:
+            return self._tasks.get_nowait()    # submit puts the batch before it moves it
+        except queue.Empty:
+            return None
 
     def _keep_off_caller_cpu(self) -> None:
         if self._current_cpu is None:
@@ -130,6 +205,7 @@ class _Pool:
             self._keep_off_caller_cpu()
         for _ in range(helpers):
             self._tasks.put(batch)
+        self._generation[0] += 1
 
     def _start(self, started: threading.Event) -> None:
         started.set()
@@ -138,6 +214,23 @@ class _Pool:
 
 _pool = _Pool()
 _local = threading.local()
+
+
+def wake(threads: int) -> None:
+    """Wake the pool's helpers ahead of the parts ``threads`` threads will run soon.
+
+    A frame's first parallel stage then finds its helpers awake (see :meth:`_Pool._next_soon`)
+    instead of paying their wake-up. Does nothing for one thread or from a pool thread.
+    """
+    helpers = check_threads(threads) - 1
+    if helpers > 0 and not getattr(_local, 'in_pool', False):
+        _pool.prepare_spin()
+        _pool.submit(_Batch([]), helpers)
+
+
+def warm_up() -> None:
+    """Compile the helpers' wait ahead of the first frame (a fraction of a second)."""
+    _pool.prepare_spin()
 
 
 def check_threads(threads: Any) -> int:

@@ -9,17 +9,21 @@ bit-identical.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..labels import LABEL_GROUND, LABEL_OBSTACLE, LABEL_OUTSIDE_ROI
-from . import geometry, jit
+from . import geometry, jit, parallel
 from ._compiled import voxel as jit_voxel
 from .params import DetectorParams, Intrinsics
 
 #: Largest dense voxel lattice [cells] indexed directly; larger extents fall back to sorting.
 _DENSE_LIMIT = 16_000_000
+#: Bands of rows per thread of the compiled back-projection (compute_threads > 1): a thread
+#: that starts late leaves its bands to the others.
+BANDS_PER_THREAD = 1
 
 
 @dataclass(frozen=True)
@@ -148,8 +152,11 @@ def points_in_roi(depth_m: np.ndarray, rays: np.ndarray | geometry.GroundRays,
     """
     if jit.enabled():
         factors = (rays.ru, rays.rv, rays.rot) if isinstance(rays, geometry.GroundRays) else rays
-        proj = jit_voxel.project_roi(depth_m, factors, roi_bounds(params), params.voxel_size_m,
-                                     reuse=True)
+        threads = params.compute_threads
+        proj = jit_voxel.project_roi(
+            depth_m, factors, roi_bounds(params), params.voxel_size_m, reuse=True,
+            parts=threads * BANDS_PER_THREAD if threads > 1 else 1,
+            run_parts=functools.partial(parallel.run_parts, threads=threads))
         return RoiPoints(proj.points, proj.pixel_index, depth_m.shape, params.voxel_size_m,
                          projection=proj)
     pts, pix_roi, valid = geometry.ground_points_in_roi(depth_m, rays, params)
@@ -211,6 +218,10 @@ def warm_up() -> None:
                                                                     cy=3.0), params), params)
     grid = voxel_grid(roi)
     pixel_labels(roi, grid, np.zeros(grid.counts.size, bool))
+    threaded = params.replace(compute_threads=2)   # the bands' kernels take array slices
+    points_in_roi(depth, rays, threaded)
+    points_in_roi(depth, geometry.ray_model(depth.shape, Intrinsics(fx=5.0, fy=5.0, cx=4.0,
+                                                                    cy=3.0), params), threaded)
     pts = np.random.default_rng(0).uniform(-1.0, 1.0, (20, 3))
     voxel_downsample(pts.astype(np.float32), (0.1, 0.1, 0.1))
     voxel_downsample(pts, (0.1, 0.1, 0.1))

@@ -819,6 +819,38 @@ def normals_from_neighbours(points: np.ndarray, neighbours: np.ndarray, n: int, 
     return normals
 
 
+@_jit
+def _validate_kernel(is_obstacle, neighbours, n1, out):  # pragma: no cover - compiled
+    """Set out[v] = is_obstacle[v] and all of is_obstacle[neighbours[v, 1:n1 + 1]].
+
+    Returns False when an index lies outside [0, V) (nothing is promised of ``out`` then).
+    """
+    v_count = is_obstacle.shape[0]
+    for v in range(v_count):
+        keep = is_obstacle[v]
+        for t in range(1, n1 + 1):
+            j = neighbours[v, t]
+            if j < 0 or j >= v_count:
+                return False
+            keep = keep and is_obstacle[j]
+        out[v] = keep
+    return True
+
+
+def validate(is_obstacle: np.ndarray, neighbours: np.ndarray, n1: int) -> np.ndarray | None:
+    """Return the seed's validation of ``normals.validate_obstacles`` for n1 >= 1, compiled.
+
+    is_obstacle: (V,) bool; neighbours: (V, >= n1 + 1) int indices, the point itself first.
+    Returns the (V,) bool result, or None when an index is out of range (the numpy path then
+    raises as numpy does).
+    """
+    out = np.empty(is_obstacle.shape[0], np.bool_)
+    nb = neighbours if neighbours.dtype == np.int64 else neighbours.astype(np.int64)
+    if not _validate_kernel(np.ascontiguousarray(is_obstacle, np.bool_), nb, int(n1), out):
+        return None
+    return out
+
+
 def warm_up() -> None:
     """Compile (or load from the on-disk cache) every kernel on a tiny cloud; no-op without numba.
 
@@ -832,3 +864,7 @@ def warm_up() -> None:
     nb = knn_grid(pts, 13)
     normals_from_neighbours(pts, nb, 10)
     normals_from_neighbours(pts, nb[:, :10], 10)   # a column slice compiles a second layout
+    validate(np.ones(pts.shape[0], np.bool_), nb, 12)
+    in_order = lambda calls: [call() for call in calls]  # noqa: E731 - the parts, here
+    nb = knn_grid(pts, 13, parts=2, run_parts=in_order)
+    normals_from_neighbours(pts, nb[:, :10], 10, parts=2, run_parts=in_order)

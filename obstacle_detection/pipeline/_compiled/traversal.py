@@ -12,8 +12,10 @@ The stage modules choose these kernels or their numpy twins through the one swit
 
 from __future__ import annotations
 
+import functools
 import math
 import threading
+from collections.abc import Callable
 
 import numpy as np
 
@@ -619,13 +621,30 @@ def _smear5_kernel(filtered, raw, ratio, jump, tol_ratio, col_lo, col_hi, row_lo
     columns (planar and keep where needed, decide; the compiler vectorises them) and the
     scalar rule at the 2 border columns each side. raw: no NaN (the caller checks); zeros: (W,) 0.
     """
+    _smear5_rows(filtered, raw, ratio, jump, tol_ratio, col_lo, col_hi, row_lo, row_hi,
+                 pair_lo, pair_hi, inv3, zeros, planar, keep, 0, filtered.shape[0])
+
+
+@_jit
+def _smear5_rows(filtered, raw, ratio, jump, tol_ratio, col_lo, col_hi, row_lo, row_hi,
+                 pair_lo, pair_hi, inv3, zeros, planar, keep, i_begin,
+                 i_end):  # pragma: no cover - compiled
+    """:func:`_smear5_kernel` of the rows i_begin .. i_end - 1 (their own row buffers).
+
+    A row's result depends only on its own filtered depths and the measured rows i - 2 ..
+    i + 2, so row ranges may run in any order, on any thread, each with its own buffers: the
+    ring's row pairs a range's first rows need are computed first.
+    """
     height, width = filtered.shape
     inf = np.float32(np.inf)
     zero = np.float32(0.0)
     half = 2
     inv_of = np.full(3, -1, np.int64)   # the row whose inverse depths each slot of inv3 holds
     n = width - 4
-    for i in range(height):
+    for i in range(max(0, i_begin - half), i_begin):   # the pairs the rows before would keep
+        if (i >= half and i + half < height) or (i < half and i + half + 1 < height):
+            _pair_range(raw[i], raw[i + 1], pair_lo[i % 3], pair_hi[i % 3])
+    for i in range(i_begin, i_end):
         # col_lo/col_hi (W + 4,): the column pass in [2, W + 2), neutral pads (inf, 0) around,
         # so that the row pass's 5 taps give the window clipped to the image at the borders
         inner = i >= half and i + half < height
@@ -688,21 +707,45 @@ def _smear5_buffers(width: int) -> tuple[np.ndarray, ...]:
 
 
 def drop_smeared_fused(filtered: np.ndarray, raw: np.ndarray, max_shift: float, jump: float,
-                       planar_tolerance: float) -> bool:
+                       planar_tolerance: float, *, parts: int = 1,
+                       run_parts: Callable[[list[Callable[[], None]]], None] | None = None,
+                       ) -> bool:
     """In place, as :func:`drop_smeared` with the 5 x 5 window range of traversal's numpy path.
 
     filtered, raw: (H, W) float32 C-contiguous. Returns False, changing nothing, when raw
     holds a NaN (the caller then takes OpenCV's window range, whose NaN handling is its own).
+    parts: the rows cut into this many ranges, run by ``run_parts`` (which returns once all
+    have run, e.g. on several threads; None: here, in order); the same result.
     """
     if _has_nan(raw):
         return False
-    bufs = getattr(_SCRATCH, 'smear5', None)
-    if bufs is None or bufs[0].size != raw.shape[1] + 4:
-        bufs = _smear5_buffers(raw.shape[1])
-        _SCRATCH.smear5 = bufs
-    _smear5_kernel(filtered, raw, np.float32(max_shift), np.float32(jump),
-                   np.float32(planar_tolerance), *bufs)
+    rules = (np.float32(max_shift), np.float32(jump), np.float32(planar_tolerance))
+    if parts <= 1 or raw.shape[0] < 2 * parts:
+        _smear5_kernel(filtered, raw, *rules, *_smear5_scratch(raw.shape[1]))
+        return True
+    height = raw.shape[0]
+    edges = [height * j // parts for j in range(parts + 1)]
+
+    def rows(j: int) -> None:      # on the thread that runs it: that thread's row buffers
+        _smear5_rows(filtered, raw, *rules, *_smear5_scratch(raw.shape[1]), edges[j],
+                     edges[j + 1])
+
+    calls = [functools.partial(rows, j) for j in range(parts)]
+    if run_parts is None:
+        for call in calls:
+            call()
+    else:
+        run_parts(calls)
     return True
+
+
+def _smear5_scratch(width: int) -> tuple[np.ndarray, ...]:
+    """Return this thread's row buffers of :func:`_smear5_kernel` for images this wide."""
+    bufs = getattr(_SCRATCH, 'smear5', None)
+    if bufs is None or bufs[0].size != width + 4:
+        bufs = _smear5_buffers(width)
+        _SCRATCH.smear5 = bufs
+    return bufs
 
 
 @_jit

@@ -25,7 +25,9 @@ frame. They run on one thread.
 
 from __future__ import annotations
 
+import functools
 import threading
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
@@ -107,11 +109,24 @@ def _project_rays_kernel(depth, ru, rv, rot, chunk, bounds, size, low, dims, lab
     The rays of a band of rows are computed into chunk (3, rows * W) float32 (a few
     cache-resident rows; the same float32 operations as the table), then projected.
     """
+    return _project_rays_rows(depth, ru, rv, rot, chunk, bounds, size, low, dims, labels,
+                              pixel_voxel, cols, pix, keys, 0, rv.size)
+
+
+@_jit
+def _project_rays_rows(depth, ru, rv, rot, chunk, bounds, size, low, dims, labels,
+                       pixel_voxel, cols, pix, keys, row_begin,
+                       row_end):  # pragma: no cover - compiled
+    """:func:`_project_rays_kernel` of the image rows row_begin .. row_end - 1.
+
+    depth, labels, pixel_voxel: the whole image (flat); the rows' kept points go to cols,
+    pix and keys from index 0 (pix: flat image indices). Returns their number, or -1.
+    """
     width = ru.size
     band = max(1, chunk.shape[1] // width)
     m = 0
-    for i0 in range(0, rv.size, band):
-        i1 = min(rv.size, i0 + band)
+    for i0 in range(row_begin, row_end, band):
+        i1 = min(row_end, i0 + band)
         for a in range(3):
             for i in range(i0, i1):
                 ray_row(ru, rv[i], rot[a, 0], rot[a, 1], rot[a, 2],
@@ -255,7 +270,10 @@ def roi_lattice(bounds: np.ndarray, size: np.ndarray) -> tuple[np.ndarray, np.nd
 
 
 def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarray,
-                voxel_size_m: tuple[float, float, float], *, reuse: bool = False) -> Projection:
+                voxel_size_m: tuple[float, float, float], *, reuse: bool = False,
+                parts: int = 1,
+                run_parts: Callable[[list[Callable[[], None]]], None] | None = None,
+                ) -> Projection:
     """Back-project a depth image through ground rays, keep the ROI, key the voxels.
 
     depth_m: (H, W) float32, 0 = no return; rays: (3, H*W) float32 ground rays, or their
@@ -266,6 +284,10 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarra
     indices equal those of :func:`obstacle_detection.pipeline.geometry.ground_points_in_roi`.
     reuse: keep the points, pixel indices and keys in per-thread buffers that the next call
     in the same thread overwrites (the pipeline's choice; faster), instead of fresh arrays.
+    parts: the image rows cut into this many bands, projected by the functions handed to
+    ``run_parts`` (which returns once all have run, e.g. on several threads; None: here, in
+    order) into their own stretch of the buffers, then moved together in pixel order: the
+    same points, pixels and keys.
     """
     shape = depth_m.shape
     depth = np.ascontiguousarray(depth_m, np.float32).reshape(-1)
@@ -279,6 +301,8 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarra
 
         def kernel(*args):
             return _project_rays_kernel(depth, ru, rv, rot, chunk, *args)
+
+        source: np.ndarray | tuple = (ru, rv, rot)
     else:
         rays = np.ascontiguousarray(rays, np.float32)
         if rays.shape != (3, n):
@@ -286,6 +310,8 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarra
 
         def kernel(*args):
             return _project_kernel(depth, rays, 0, *args)
+
+        source = rays
     size = np.asarray(voxel_size_m, np.float32)
     low, dims = roi_lattice(bounds, size)
     n_cells = int(dims[0]) * int(dims[1]) * int(dims[2])
@@ -300,7 +326,10 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarra
         pix = np.empty(n, np.int64)
         keys = np.empty(n, np.int64)
     m = -1
-    if n_cells <= _DENSE_LIMIT:
+    if n_cells <= _DENSE_LIMIT and parts > 1 and shape[0] >= 2 * parts:
+        m = _project_parts(depth, source, shape, (bounds, size, low, dims), labels.reshape(-1),
+                           pixel_voxel.reshape(-1), (cols, pix, keys), parts, run_parts)
+    elif n_cells <= _DENSE_LIMIT:
         m = kernel(bounds, size, low, dims, labels.reshape(-1), pixel_voxel.reshape(-1), cols,
                    pix, keys)
     if m < 0:   # lattice too large: points only, numpy numbers the voxels
@@ -311,6 +340,55 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarra
                           voxel_size_m, reuse)
     return Projection(cols[:, :m].T, pix[:m], labels, pixel_voxel, keys[:m], low, dims,
                       voxel_size_m, reuse)
+
+
+def _project_parts(depth: np.ndarray, rays: np.ndarray | tuple, shape: tuple[int, int],
+                   lattice: tuple, labels: np.ndarray, pixel_voxel: np.ndarray,
+                   out: tuple[np.ndarray, np.ndarray, np.ndarray], parts: int,
+                   run_parts: Callable[[list[Callable[[], None]]], None] | None) -> int:
+    """Project bands of rows into their own stretches of ``out``, then close the gaps.
+
+    Band j writes its points from column (its first pixel) of cols, pix and keys: a band
+    keeps at most one point per pixel, so the stretches never overlap. Returns the number of
+    points, now in pixel order from index 0, or -1 when a key falls outside the lattice.
+    """
+    height, width = shape
+    cols, pix, keys = out
+    edges = [height * j // parts for j in range(parts + 1)]
+    counts = [0] * parts
+
+    def band(j: int) -> None:
+        r0, r1 = edges[j], edges[j + 1]
+        p0, p1 = r0 * width, r1 * width
+        if isinstance(rays, tuple):
+            ru, rv, rot = rays
+            chunk_px = max(1, _RAY_BAND_PX // width) * width   # this thread's ray band
+            chunk = _scratch('ray_band', 3 * chunk_px, np.float32)[:3 * chunk_px]
+            counts[j] = _project_rays_rows(depth, ru, rv, rot, chunk.reshape(3, chunk_px),
+                                           *lattice, labels, pixel_voxel, cols[:, p0:p1],
+                                           pix[p0:p1], keys[p0:p1], r0, r1)
+        else:
+            counts[j] = _project_kernel(depth[p0:p1], rays[:, p0:p1], p0, *lattice,
+                                        labels[p0:p1], pixel_voxel[p0:p1], cols[:, p0:p1],
+                                        pix[p0:p1], keys[p0:p1])
+
+    calls = [functools.partial(band, j) for j in range(parts)]
+    if run_parts is None:
+        for call in calls:
+            call()
+    else:
+        run_parts(calls)
+    if min(counts) < 0:
+        return -1
+    m = counts[0]
+    for j in range(1, parts):
+        p0, got = edges[j] * width, counts[j]
+        if got and p0 != m:    # moving left: the stretch read lies at or after the one written
+            cols[:, m:m + got] = cols[:, p0:p0 + got]
+            pix[m:m + got] = pix[p0:p0 + got]
+            keys[m:m + got] = keys[p0:p0 + got]
+        m += got
+    return m
 
 
 def voxelise(proj: Projection) -> tuple | None:
