@@ -152,6 +152,15 @@ def median_of_codes(codes: np.ndarray, k: int, table: np.ndarray,
     this equals the median of the decoded image to the bit, without mapping the decoded
     depths back to keys and the median's keys to depths (0.3-0.5 ms at 512 x 424).
     """
+    k = _check_kernel(k)
+    codes = np.ascontiguousarray(check_image(codes, 'median input'), np.uint16)
+    if (jit.enabled() and 7 <= k <= _JIT_MAX_K and table.dtype == np.float32
+            and table.shape == (_UINT16_LEVELS,) and codes.max() >= 256):
+        # the compiled network, each band of rows looked up by the thread that filtered it
+        threads = parallel.check_threads(threads)
+        return jit_median.network_median(
+            codes, _jit_program(k), parts=threads * BANDS_PER_THREAD if threads > 1 else 1,
+            run_parts=functools.partial(parallel.run_parts, threads=threads), table=table)
     med = median_filter(codes, k, threads)
     if table.dtype == np.float32 and jit.enabled():
         return jit_median.take(table, med)

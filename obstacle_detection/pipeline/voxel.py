@@ -23,7 +23,7 @@ from .params import DetectorParams, Intrinsics
 _DENSE_LIMIT = 16_000_000
 #: Bands of rows per thread of the compiled back-projection (compute_threads > 1): a thread
 #: that starts late leaves its bands to the others.
-BANDS_PER_THREAD = 1
+BANDS_PER_THREAD = 3
 
 
 @dataclass(frozen=True)

@@ -607,7 +607,7 @@ def _register_tables(program: NetworkProgram, chunk: int) -> tuple:
 def network_median(keys: np.ndarray, program: NetworkProgram, *,
                    in_registers: bool | None = None, parts: int = 1,
                    run_parts: Callable[[list[Callable[[], None]]], None] | None = None,
-                   ) -> np.ndarray:
+                   table: np.ndarray | None = None) -> np.ndarray:
     """Exact 'nearest'-mode K x K median of uint16 keys by a compiled network program.
 
     Args:
@@ -622,6 +622,8 @@ def network_median(keys: np.ndarray, program: NetworkProgram, *,
             result whoever runs them, in any order.
         run_parts: called with the list of ``parts`` functions (no arguments) and returns once
             all have run, e.g. on several threads; None runs them in order here.
+        table: (65536,) float32: return ``table[median]`` instead (:func:`take`), looked up
+            by each run for its rows when the image is one row chunk wide.
 
     Returns:
         (H, W) uint16 C-contiguous median, equal to
@@ -654,19 +656,26 @@ def network_median(keys: np.ndarray, program: NetworkProgram, *,
             plan = band_plan(h, w, chunk, tile, r)
             out = np.empty((h, w), np.uint16)
             size = int(tables[3][-1]) + chunk   # the ring and the band's medians
+            looked_up = None if table is None else np.empty((h, w), table.dtype)
             runs = []
             for begin, end in _plan_runs(plan, parts):
                 run = plan[begin:end].copy()
                 run[0, 4] = 0                 # the run's first band fills the whole ring
+                # one chunk wide: the run's bands are whole rows, which it looks up itself
+                rows = (int(run[0, 1]), int(run[-1, 1] + run[-1, 2])) if n_chunks == 1 else None
                 runs.append(functools.partial(_run_register_kernel, kernel, size,
                                               (padded, h, w, chunk, *tables, need, fill, run,
-                                               out)))
+                                               out), table, looked_up, rows))
             if len(runs) == 1 or run_parts is None:
                 for call in runs:
                     call()
             else:
                 run_parts(runs)
-            return out
+            if table is None:
+                return out
+            if n_chunks > 1:
+                _take_kernel(table, out.reshape(-1), looked_up.reshape(-1))
+            return looked_up
         except Exception as error:  # noqa: BLE001 - code generation by another numba
             if not automatic:
                 raise
@@ -674,23 +683,30 @@ def network_median(keys: np.ndarray, program: NetworkProgram, *,
             warnings.warn(f'the in-register median kernels failed to compile ({error!r}); '
                           f'the slower interpreter runs instead (same results)',
                           RuntimeWarning, stacklevel=2)
-    return _median_kernel(padded, h, w, k, tile, blocks, program.code1, program.code2,
-                          program.out2, program.n_regs, need, fill)
+    med = _median_kernel(padded, h, w, k, tile, blocks, program.code1, program.code2,
+                         program.out2, program.n_regs, need, fill)
+    return med if table is None else take(table, med)
 
 
 _scratch = threading.local()
 
 
-def _run_register_kernel(kernel: Any, size: int, args: tuple) -> None:
+def _run_register_kernel(kernel: Any, size: int, args: tuple, table: np.ndarray | None = None,
+                         looked_up: np.ndarray | None = None,
+                         rows: tuple[int, int] | None = None) -> None:
     """Run an in-register kernel on this thread's ring buffer of ``size`` registers.
 
     The buffer is kept for the thread's next call: a fresh one would cost its page faults at
     every call (0.1-0.2 ms at 512 x 424), and two threads faulting at once wait on each other.
+    With ``rows`` (y0, y1): then ``looked_up[y0:y1] = table[out[y0:y1]]`` (out: args[-1]).
     """
     mem = getattr(_scratch, 'mem', None)
     if mem is None or mem.shape[0] < size:
         mem = _scratch.mem = aligned_registers(size)
     kernel(*args, mem[:size])
+    if rows is not None and table is not None and looked_up is not None:
+        y0, y1 = rows
+        _take_kernel(table, args[-1][y0:y1].reshape(-1), looked_up[y0:y1].reshape(-1))
 
 
 def _plan_runs(plan: np.ndarray, parts: int) -> list[tuple[int, int]]:
