@@ -33,6 +33,19 @@ def test_decode_returns_the_depth_of_a_raw_image() -> None:
     np.testing.assert_array_equal(decoded, depth)
 
 
+def test_decode_views_the_message_pixels_when_no_copy_is_needed() -> None:
+    depth = np.arange(12, dtype=np.uint16).reshape(3, 4)
+    msg = array_to_image(depth, stamp=STAMP, frame_id='cam')
+    view = frame_gate.decode(msg)
+    assert np.shares_memory(view, np.frombuffer(msg.data, np.uint8))   # no copy in the node
+    big = array_to_image(depth, stamp=STAMP, frame_id='cam')
+    big.is_bigendian = 1
+    big.data = depth.astype('>u2').tobytes()
+    swapped = frame_gate.decode(big)
+    np.testing.assert_array_equal(swapped, depth)                         # swapped: a copy
+    assert not np.shares_memory(swapped, np.frombuffer(big.data, np.uint8))
+
+
 def test_decode_refuses_a_colour_encoding() -> None:
     colour = array_to_image(np.zeros((3, 4, 3), np.uint8), stamp=STAMP, frame_id='cam',
                             encoding='rgb8')
@@ -81,6 +94,9 @@ def test_check_depth_refuses_a_frame_without_valid_depth() -> None:
     assert frame_gate.check_depth(np.zeros((4, 4), np.uint16), msg).kind == 'no_depth'
     good = np.full((4, 4), 1.5, np.float32)
     assert frame_gate.check_depth(good, msg) is None
+    lone = np.zeros((9, 9), np.uint16)
+    lone[5, 7] = 1500                  # off the every-4th-pixel sample: the whole frame counts
+    assert frame_gate.check_depth(lone, msg) is None
 
 
 def test_problem_kind_ignores_the_numbers() -> None:

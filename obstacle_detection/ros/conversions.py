@@ -71,12 +71,14 @@ def _byte_view(data: Any) -> np.ndarray:
         return np.asarray(data, dtype=np.uint8).reshape(-1)
 
 
-def image_to_array(msg: Any) -> np.ndarray:
+def image_to_array(msg: Any, *, copy: bool = True) -> np.ndarray:
     """Decode a depth Image message into a native-byte-order array.
 
     msg: ``sensor_msgs/Image`` (rclpy or rosbags) with encoding ``16UC1``/``mono16`` -> (H, W)
     uint16 [mm], or ``32FC1`` -> (H, W) float32 [m]. ``is_bigendian`` and the row ``step``
-    (padding at the end of each row) are honoured. The result is a fresh writable array.
+    (padding at the end of each row) are honoured. The result is a fresh writable array, or
+    with ``copy=False`` a view of the message's data when it already is native-order rows
+    without padding (the node: 0.05-0.1 ms a frame less; do not write into it).
 
     Raises ImageFormatError naming the bad value for an unsupported encoding, an empty image, a
     step shorter than one row, or a ``data`` length other than ``step * height``.
@@ -86,7 +88,7 @@ def image_to_array(msg: Any) -> np.ndarray:
         raise ImageFormatError(
             f'unsupported depth encoding {encoding!r}: expected one of '
             f'{", ".join(DEPTH_ENCODINGS)}')
-    return _pixels(msg, *DEPTH_ENCODINGS[encoding])
+    return _pixels(msg, *DEPTH_ENCODINGS[encoding], copy=copy)
 
 
 def image_to_rgb(msg: Any) -> np.ndarray:
@@ -102,8 +104,11 @@ def image_to_rgb(msg: Any) -> np.ndarray:
     return np.ascontiguousarray(rgb[:, :, ::-1]) if encoding == 'bgr8' else rgb
 
 
-def _pixels(msg: Any, base: np.dtype, channels: int) -> np.ndarray:
-    """(H, W) or (H, W, channels) native-order pixels of an Image; ImageFormatError if bad."""
+def _pixels(msg: Any, base: np.dtype, channels: int, copy: bool = True) -> np.ndarray:
+    """(H, W) or (H, W, channels) native-order pixels of an Image; ImageFormatError if bad.
+
+    copy=False: a view of ``msg.data`` when no byte swap and no padding need a copy.
+    """
     encoding = str(msg.encoding)
     height, width, step = int(msg.height), int(msg.width), int(msg.step)
     if height <= 0 or width <= 0:
@@ -122,7 +127,7 @@ def _pixels(msg: Any, base: np.dtype, channels: int) -> np.ndarray:
     # The copy makes the rows contiguous (drops the padding); astype() then yields native order.
     shape = (height, width) if channels == 1 else (height, width, channels)
     pixels = np.ascontiguousarray(rows).view(wire).reshape(shape)
-    return pixels.astype(base.newbyteorder('='), copy=True)
+    return pixels.astype(base.newbyteorder('='), copy=copy)
 
 
 def array_to_image(array: np.ndarray, *, stamp: Time, frame_id: str,
