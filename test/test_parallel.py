@@ -282,3 +282,27 @@ def test_awake_helpers_take_the_next_parts() -> None:
         ran: list[int] = []
         parallel.run_parts([lambda: ran.append(threading.get_ident())] * 4, 2)
         assert len(ran) == 4 and len(set(ran)) <= 2
+
+
+@compiled
+def test_knn_and_normals_in_one_pass_equal_the_two_stages() -> None:
+    pts = _cloud(np.random.default_rng(9), 3000)
+    neighbours = jit_knn.knn_grid(pts, 13)
+    normals_one = jit_knn.normals_from_neighbours(pts, neighbours[:, :10], 10)
+    for parts in (2, 5):
+        nb, nv = jit_knn.knn_and_normals(pts, 13, 10, parts=parts,
+                                         run_parts=lambda fs: [f() for f in fs[::-1]])
+        np.testing.assert_array_equal(nb, neighbours)
+        np.testing.assert_array_equal(nv, normals_one)
+    nb, nv = normals.neighbours_and_normals(pts, 13, 10, threads=2)
+    np.testing.assert_array_equal(nb, neighbours)
+    np.testing.assert_array_equal(nv, normals_one)
+    small = pts[:50]                                  # below MIN_SPLIT_POINTS: the two stages
+    nb, nv = normals.neighbours_and_normals(small, 13, 10, threads=2)
+    np.testing.assert_array_equal(nb, jit_knn.knn_grid(small, 13))
+    with pytest.raises(ValueError):
+        jit_knn.knn_and_normals(pts[:3], 13, 10, parts=2)
+    bad = pts.copy()
+    bad[7, 1] = np.nan
+    with pytest.raises(ValueError, match='finite'):
+        jit_knn.knn_and_normals(bad, 13, 10, parts=2)

@@ -58,6 +58,29 @@ def nearest_neighbours(points: np.ndarray, k: int, threads: int = 1) -> np.ndarr
     return _nearest_neighbours_scipy(points, k)
 
 
+def neighbours_and_normals(points: np.ndarray, k: int, n_normals: int,
+                           threads: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Return (:func:`nearest_neighbours` (V, k), :func:`estimate_normals` of its first columns).
+
+    The normals use the first ``min(n_normals, k clipped to V)`` neighbours, as the detector
+    does. With numba, ``threads`` > 1 and a cloud of :data:`MIN_SPLIT_POINTS` or more, one grid
+    search whose query ranges also compute their normals (:func:`._compiled.knn.knn_and_normals`:
+    one hand-over to the other threads instead of two); otherwise the two stages in turn. The
+    same results either way.
+    """
+    threads = parallel.check_threads(threads)
+    n = points.shape[0]
+    k_used = min(int(k), n)
+    n_cols = min(int(n_normals), k_used)
+    if jit.enabled() and threads > 1 and n >= MIN_SPLIT_POINTS and 2 <= n_cols:
+        return jit_knn.knn_and_normals(
+            points, k_used, n_cols, parts=threads * RANGES_PER_THREAD,
+            run_parts=functools.partial(parallel.run_parts, threads=threads))
+    neighbours = nearest_neighbours(points, k, threads)
+    n_cols = min(int(n_normals), neighbours.shape[1])
+    return neighbours, estimate_normals(points, neighbours[:, :n_cols], threads)
+
+
 def _nearest_neighbours_scipy(points: np.ndarray, k: int) -> np.ndarray:
     """:func:`nearest_neighbours` with scipy's cKDTree.
 

@@ -635,13 +635,14 @@ def knn_grid(points: np.ndarray, k: int, *, parts: int = 1,
 @_jit
 def _normals_kernel(pts, neighbours, n_use, normals, cov_bad, bad):  # pragma: no cover
     """:func:`_normals_rows` of every row."""
-    return _normals_rows(pts, neighbours, n_use, normals, cov_bad, bad, 0, pts.shape[0])
+    return _normals_rows(pts, neighbours, n_use, normals, cov_bad, bad,
+                         np.arange(pts.shape[0]))
 
 
 @_jit
-def _normals_rows(pts, neighbours, n_use, normals, cov_bad, bad, v_begin,
-                  v_end):  # pragma: no cover - compiled
-    """Covariance and closed-form smallest eigenvector of rows v_begin .. v_end - 1.
+def _normals_rows(pts, neighbours, n_use, normals, cov_bad, bad,
+                  rows):  # pragma: no cover - compiled
+    """Covariance and closed-form smallest eigenvector of the rows ``rows`` (int64 indices).
 
     See normals_from_neighbours; a row's result depends on no other row.
 
@@ -653,7 +654,7 @@ def _normals_rows(pts, neighbours, n_use, normals, cov_bad, bad, v_begin,
     of degenerate rows, or -1 (with nothing done) when an index is out of range.
     """
     v_count = pts.shape[0]
-    for v in range(v_begin, v_end):
+    for v in rows:
         for t in range(n_use):
             if neighbours[v, t] < 0 or neighbours[v, t] >= v_count:
                 return -1
@@ -661,7 +662,7 @@ def _normals_rows(pts, neighbours, n_use, normals, cov_bad, bad, v_begin,
     two_pi_3 = 2.0 * np.pi / 3.0
     tiny = np.finfo(np.float64).tiny
     n_bad = 0
-    for v in range(v_begin, v_end):
+    for v in rows:
         px = np.float64(pts[v, 0])
         py = np.float64(pts[v, 1])
         pz = np.float64(pts[v, 2])
@@ -800,8 +801,8 @@ def normals_from_neighbours(points: np.ndarray, neighbours: np.ndarray, n: int, 
         edges = [v_count * p // parts for p in range(parts + 1)]
 
         def rows(part: int) -> None:
-            counts[part] = _normals_rows(pts, nb, n, normals, cov_bad, bad, edges[part],
-                                         edges[part + 1])
+            counts[part] = _normals_rows(pts, nb, n, normals, cov_bad, bad,
+                                         np.arange(edges[part], edges[part + 1]))
 
         calls = [functools.partial(rows, part) for part in range(parts)]
         if run_parts is None:
@@ -812,11 +813,67 @@ def normals_from_neighbours(points: np.ndarray, neighbours: np.ndarray, n: int, 
         n_bad = -1 if min(counts) < 0 else sum(counts)
     if n_bad < 0:
         raise ValueError(f'neighbour indices must lie in [0, {v_count})')
+    return _degenerate_normals(normals, cov_bad, bad, n_bad)
+
+
+def _degenerate_normals(normals: np.ndarray, cov_bad: np.ndarray, bad: np.ndarray,
+                        n_bad: int) -> np.ndarray:
+    """Give the degenerate rows LAPACK's eigenvector, as the numpy path does; return normals."""
     if n_bad:
         cov = cov_bad[bad][:, [0, 1, 2, 1, 3, 4, 2, 4, 5]].reshape(-1, 3, 3)
         _, vecs = np.linalg.eigh(cov)
         normals[bad] = vecs[:, :, 0]
     return normals
+
+
+def knn_and_normals(points: np.ndarray, k: int, n_use: int, *, parts: int,
+                    run_parts: Callable[[list[Callable[[], None]]], None] | None = None,
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Return (:func:`knn_grid` (V, k), :func:`normals_from_neighbours` of its n_use columns).
+
+    One grid; the queries cut into ``parts`` ranges (grid order), each part searching its
+    queries and then computing their normals while their neighbours are in the cache: one
+    hand-over to the other threads instead of two. The same results. points: (V, 3) finite,
+    V >= 2 * parts and 2 <= n_use <= k <= V (ValueError otherwise, as the two functions
+    raise).
+    """
+    if not AVAILABLE:
+        raise RuntimeError('numba is not available; use normals.nearest_neighbours')
+    pts = np.asarray(points)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise ValueError(f'points must have shape (V, 3), got {pts.shape}')
+    n = pts.shape[0]
+    if not (n >= 2 * parts and 2 <= n_use <= k <= n):
+        raise ValueError(f'knn_and_normals needs V >= 2 * parts and 2 <= n_use <= k <= V, got '
+                         f'V={n}, parts={parts}, n_use={n_use}, k={k}')
+    pts64 = np.ascontiguousarray(pts, dtype=np.float64)
+    pts32 = np.ascontiguousarray(pts, dtype=np.float32)
+    finite, lo, cell, dense, slack = _knn_setup(pts64, k)
+    if not finite:
+        raise ValueError('points must be finite (no NaN or inf coordinates)')
+    grid = _build_grid(pts64, lo, cell, dense)
+    order = grid[2]
+    out = np.empty((n, k), dtype=np.int64)
+    normals = np.empty((n, 3), dtype=np.float32)
+    cov_bad = np.empty((n, 6), dtype=np.float64)
+    bad = np.empty(n, dtype=np.bool_)
+    edges = [n * p // parts for p in range(parts + 1)]
+    counts = [0] * parts
+
+    def part(j: int) -> None:
+        begin, end = edges[j], edges[j + 1]
+        _knn_queries(lo, cell, k, dense, slack, *grid, begin, end, out)
+        counts[j] = _normals_rows(pts32, out, n_use, normals, cov_bad, bad, order[begin:end])
+
+    calls = [functools.partial(part, j) for j in range(parts)]
+    if run_parts is None:
+        for call in calls:
+            call()
+    else:
+        run_parts(calls)
+    if min(counts) < 0:   # cannot happen: the search gives indices in range
+        raise ValueError(f'neighbour indices must lie in [0, {n})')
+    return out, _degenerate_normals(normals, cov_bad, bad, sum(counts))
 
 
 @_jit
@@ -868,3 +925,4 @@ def warm_up() -> None:
     in_order = lambda calls: [call() for call in calls]  # noqa: E731 - the parts, here
     nb = knn_grid(pts, 13, parts=2, run_parts=in_order)
     normals_from_neighbours(pts, nb[:, :10], 10, parts=2, run_parts=in_order)
+    knn_and_normals(pts, 13, 10, parts=2, run_parts=in_order)
