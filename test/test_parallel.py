@@ -60,6 +60,18 @@ def test_run_parts_raises_the_first_error_after_all_parts_ran() -> None:
     assert done[-1] == 'next'
 
 
+two_cpus = pytest.mark.skipif(parallel.usable_cpus() < 2, reason='needs two usable CPUs')
+
+
+def test_one_usable_cpu_runs_every_part_on_the_calling_thread(monkeypatch) -> None:
+    monkeypatch.setattr(parallel, 'usable_cpus', lambda: 1)
+    ran: list[int] = []
+    parallel.wake(4)
+    parallel.run_parts([lambda: ran.append(threading.get_ident())] * 5, 4)
+    assert ran == [threading.get_ident()] * 5
+
+
+@two_cpus
 def test_run_parts_from_a_pool_thread_runs_them_there() -> None:
     inner: list[int] = []
     started = threading.Event()

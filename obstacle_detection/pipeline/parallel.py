@@ -29,7 +29,8 @@ import numpy as np
 
 from ._compiled import _numba
 
-__all__ = ['MAX_THREADS', 'check_threads', 'part_bounds', 'run_parts', 'wake', 'warm_up']
+__all__ = ['MAX_THREADS', 'check_threads', 'part_bounds', 'run_parts', 'usable_cpus', 'wake',
+           'warm_up']
 
 #: Most threads a stage may use (the range of ``compute_threads``).
 MAX_THREADS = 8
@@ -222,7 +223,7 @@ def wake(threads: int) -> None:
     A frame's first parallel stage then finds its helpers awake (see :meth:`_Pool._next_soon`)
     instead of paying their wake-up. Does nothing for one thread or from a pool thread.
     """
-    helpers = check_threads(threads) - 1
+    helpers = min(check_threads(threads), usable_cpus()) - 1
     if helpers > 0 and not getattr(_local, 'in_pool', False):
         _pool.prepare_spin()
         _pool.submit(_Batch([]), helpers)
@@ -231,6 +232,17 @@ def wake(threads: int) -> None:
 def warm_up() -> None:
     """Compile the helpers' wait ahead of the first frame (a fraction of a second)."""
     _pool.prepare_spin()
+
+
+def usable_cpus() -> int:
+    """Return the number of CPUs this process may run on (its affinity, e.g. ``taskset``).
+
+    A stage never runs on more threads than that: a second thread on one CPU only waits.
+    """
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
 
 
 def check_threads(threads: Any) -> int:
@@ -254,12 +266,13 @@ def run_parts(parts: Sequence[Callable[[], Any]], threads: int) -> None:
     """Call every function of ``parts`` on up to ``threads`` threads; return when all returned.
 
     The calling thread and ``threads - 1`` pool threads take the parts in list order, each the
-    next one not yet taken. The first exception (in list order) is raised again once every
-    part has returned. One thread, one part, or a call from a pool thread (a pool never waits
-    on itself) runs the parts one after the other on the calling thread.
+    next one not yet taken, never more threads than :func:`usable_cpus`. The first exception
+    (in list order) is raised again once every part has returned. One thread, one part, one
+    usable CPU, or a call from a pool thread (a pool never waits on itself) runs the parts one
+    after the other on the calling thread.
     """
     parts = list(parts)
-    helpers = min(check_threads(threads), len(parts)) - 1
+    helpers = min(check_threads(threads), len(parts), usable_cpus()) - 1
     if helpers <= 0 or getattr(_local, 'in_pool', False):
         for part in parts:
             part()
