@@ -54,7 +54,8 @@ from obstacle_detection.ros.conversions import (
     pointcloud2_to_points,
 )
 from obstacle_detection.pipeline.geometry import mount_rotation
-from obstacle_detection.ros.node import DetectorNode, LatestSlot
+from obstacle_detection.ros import node as node_module
+from obstacle_detection.ros.node import DetectorNode, FrameMailbox, LatestSlot
 from obstacle_detection.pipeline.params import PRESETS, Intrinsics, table_4_2, table_4_3
 from obstacle_detection.pipeline.detector import DetectionResult, Detector
 from obstacle_detection.ros.parameters import (
@@ -831,6 +832,23 @@ def test_latest_slot_keeps_only_the_newest() -> None:
     assert slot.take(timeout=0.0) == 'c'
     assert slot.dropped == 2
     assert slot.take(timeout=0.0) is None
+
+
+def test_frame_mailbox_lets_one_frame_wait_and_drops_the_oldest() -> None:
+    box = FrameMailbox(2)
+    assert not box.put('a') and not box.put('b')      # one waits behind the other: no drop
+    assert box.put('c')                               # full: the oldest ('a') goes
+    assert box.dropped == 1
+    assert [box.take(timeout=0.0) for _ in range(3)] == ['b', 'c', None]
+    with pytest.raises(ValueError):
+        FrameMailbox(0)
+    done: list = []
+    waiter = threading.Thread(target=lambda: done.append(box.take(timeout=5.0)))
+    waiter.start()
+    box.put('d')                                      # wakes a waiting take
+    waiter.join(5.0)
+    assert done == ['d']
+    assert node_module.MAILBOX_FRAMES == 2
 
 
 def test_every_parameter_has_a_description_and_numbers_a_range(

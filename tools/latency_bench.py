@@ -13,7 +13,8 @@ Three processes on this machine, all on loopback DDS
 
 Per frame it measures the depth-stamp -> costmap-received latency (both clocks are this
 machine's), the node's own processing time, and which frames got no costmap (dropped by the
-node's newest-frame-only slot, or lost in transit). It prints a table and one ``JSON`` line.
+node's mailbox, where at most one frame waits, or lost in transit). It prints a table and one
+``JSON`` line.
 Frames of the first ``--warmup`` seconds are not counted. Exit code 0 when the run completed
 (whatever the figures), 1 when it could not run, 2 for bad usage.
 """

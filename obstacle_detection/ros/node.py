@@ -95,42 +95,60 @@ _ODOM_QOS = QoSProfile(depth=20, reliability=ReliabilityPolicy.RELIABLE,
                        history=HistoryPolicy.KEEP_LAST, durability=DurabilityPolicy.VOLATILE)
 #: First word of every ~/status message once the node processes frames.
 STATUS_READY = 'ready'
+#: Depth frames that may wait for the worker (see FrameMailbox): one may wait behind another.
+MAILBOX_FRAMES = 2
 _RELIABLE_INPUT_QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE,
                                  history=HistoryPolicy.KEEP_LAST,
                                  durability=DurabilityPolicy.VOLATILE)
 
 
-class LatestSlot:
-    """A one-item mailbox: ``put`` replaces a pending item (counted as dropped)."""
+class FrameMailbox:
+    """The newest ``capacity`` items, oldest taken first: ``put`` drops the oldest when full.
 
-    def __init__(self) -> None:
+    Dropped items are counted. capacity 1 keeps only the newest (a frame waiting is replaced
+    by the next one); 2 lets one frame wait behind another, so one slow frame (a 50-80 ms
+    stall of this virtual machine, a garbage collection) delays the next instead of dropping
+    it, while a node that cannot keep up still falls at most one frame behind.
+    """
+
+    def __init__(self, capacity: int = 1) -> None:
+        if capacity < 1:
+            raise ValueError(f'capacity={capacity} must be >= 1')
+        self.capacity = capacity
         self._cond = threading.Condition()
-        self._item: Any = None
+        self._items: collections.deque = collections.deque()
         self._closed = False
         self.dropped = 0
 
     def put(self, item: Any) -> bool:
-        """Store ``item`` as the newest; True if an unprocessed older item was dropped."""
+        """Store ``item`` as the newest; True if the oldest waiting item was dropped for it."""
         with self._cond:
-            dropped = self._item is not None
+            dropped = len(self._items) >= self.capacity
             if dropped:
+                self._items.popleft()
                 self.dropped += 1
-            self._item = item
+            self._items.append(item)
             self._cond.notify()
         return dropped
 
     def take(self, timeout: float | None = None) -> Any:
-        """Remove and return the pending item, waiting up to ``timeout`` s; None if none."""
+        """Remove and return the oldest waiting item, waiting up to ``timeout`` s; None if none."""
         with self._cond:
-            self._cond.wait_for(lambda: self._item is not None or self._closed, timeout)
-            item, self._item = self._item, None
-            return item
+            self._cond.wait_for(lambda: bool(self._items) or self._closed, timeout)
+            return self._items.popleft() if self._items else None
 
     def close(self) -> None:
         """Wake every waiting ``take``."""
         with self._cond:
             self._closed = True
             self._cond.notify_all()
+
+
+class LatestSlot(FrameMailbox):
+    """A one-item mailbox: ``put`` replaces a pending item (counted as dropped)."""
+
+    def __init__(self) -> None:
+        super().__init__(1)
 
 
 class FrameStats:
@@ -220,7 +238,7 @@ class DetectorNode(Node):
             self.destroy_node()
             raise
         self.stats = FrameStats()
-        self._slot = LatestSlot()
+        self._slot = FrameMailbox(MAILBOX_FRAMES)
         self._mount_source = self._make_mount_source(tf_buffer)
         self._mount_cache: tuple[NodeConfig, Mount, Any] | None = None
         self._mount_said = ''
