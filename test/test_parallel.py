@@ -318,3 +318,30 @@ def test_knn_and_normals_in_one_pass_equal_the_two_stages() -> None:
     bad[7, 1] = np.nan
     with pytest.raises(ValueError, match='finite'):
         jit_knn.knn_and_normals(bad, 13, 10, parts=2)
+
+
+@pytest.mark.parametrize('k', [3, 7, 17])
+@pytest.mark.parametrize('threads', [1, 2])
+def test_median_and_decode_gives_the_median_and_the_raw_depth(k, threads) -> None:
+    rng = np.random.default_rng(k)
+    codes = rng.integers(0, 9000, (45, 70)).astype(np.uint16)
+    codes[rng.random(codes.shape) < 0.2] = 0
+    table = depth_lut(1000.0)
+    filtered, raw = median.median_and_decode(codes, k, table, threads)
+    np.testing.assert_array_equal(filtered, scipy_median(table[codes], k))
+    np.testing.assert_array_equal(raw, table[codes])
+    assert filtered.dtype == raw.dtype == np.float32
+
+
+def test_threaded_detector_refuses_what_the_decode_refuses() -> None:
+    detector = Detector(corridor(compute_threads=2))
+    depth = np.full((40, 50), 1500, np.uint16)
+    for bad in (0.0, -5.0, float('nan')):
+        with pytest.raises(ValueError, match='depth_scale'):
+            detector.process(depth, KINECT_V2_SD, depth_scale=bad)
+    with pytest.raises(ValueError):
+        detector.process(np.zeros((0, 5), np.uint16), KINECT_V2_SD)
+    tum = detector.process(depth, KINECT_V2_SD, depth_scale=5000.0)   # 0.3 m: all near
+    one = Detector(corridor()).process(depth, KINECT_V2_SD, depth_scale=5000.0)
+    np.testing.assert_array_equal(tum.depth_m, one.depth_m)
+    assert tum.depth_m.max() == np.float32(1500 / 5000.0)

@@ -21,7 +21,7 @@ from . import jit, parallel
 from ._compiled import median as jit_median
 from .depth import MM_PER_M, DepthFormatError, check_image, depth_lut
 
-__all__ = ['MEDIAN_MODE', 'median_filter', 'median_of_codes', 'warm_up']
+__all__ = ['MEDIAN_MODE', 'median_and_decode', 'median_filter', 'median_of_codes', 'warm_up']
 
 #: Border mode of :func:`median_filter`, as a ``scipy.ndimage`` mode: the image is extended
 #: by repeating its edge pixels (OpenCV ``BORDER_REPLICATE``). Unlike 'constant' it adds no
@@ -165,6 +165,29 @@ def median_of_codes(codes: np.ndarray, k: int, table: np.ndarray,
     if table.dtype == np.float32 and jit.enabled():
         return jit_median.take(table, med)
     return np.take(table, med)
+
+
+def median_and_decode(codes: np.ndarray, k: int, table: np.ndarray,
+                      threads: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Return (:func:`median_of_codes`, ``table[codes]``): the filtered and the raw depth.
+
+    With the compiled network the threads that filter a band of rows also look its raw
+    codes up, so the decode costs no time of its own; otherwise the raw depth is looked up
+    after the median. The same arrays either way.
+    """
+    k = _check_kernel(k)
+    codes = np.ascontiguousarray(check_image(codes, 'median input'), np.uint16)
+    if (jit.enabled() and 7 <= k <= _JIT_MAX_K and table.dtype == np.float32
+            and table.shape == (_UINT16_LEVELS,) and codes.max() >= 256):
+        threads = parallel.check_threads(threads)
+        return jit_median.network_median(
+            codes, _jit_program(k), parts=threads * BANDS_PER_THREAD if threads > 1 else 1,
+            run_parts=functools.partial(parallel.run_parts, threads=threads), table=table,
+            decode_input=True)
+    filtered = median_of_codes(codes, k, table, threads)
+    raw = jit_median.take(table, codes) if (table.dtype == np.float32 and jit.enabled()) else (
+        np.take(table, codes))
+    return filtered, raw
 
 
 def _check_kernel(k: int) -> int:

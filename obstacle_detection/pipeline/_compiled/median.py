@@ -616,7 +616,8 @@ def _register_tables(program: NetworkProgram, chunk: int) -> tuple:
 def network_median(keys: np.ndarray, program: NetworkProgram, *,
                    in_registers: bool | None = None, parts: int = 1,
                    run_parts: Callable[[list[Callable[[], None]]], None] | None = None,
-                   table: np.ndarray | None = None) -> np.ndarray:
+                   table: np.ndarray | None = None,
+                   decode_input: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Exact 'nearest'-mode K x K median of uint16 keys by a compiled network program.
 
     Args:
@@ -633,6 +634,8 @@ def network_median(keys: np.ndarray, program: NetworkProgram, *,
             all have run, e.g. on several threads; None runs them in order here.
         table: (65536,) float32: return ``table[median]`` instead (:func:`take`), looked up
             by each run for its rows when the image is one row chunk wide.
+        decode_input: with ``table``, return ``(table[median], table[keys])``: the runs look
+            their input rows up too (the detector's decoded raw depth, on the threads).
 
     Returns:
         (H, W) uint16 C-contiguous median, equal to
@@ -669,6 +672,7 @@ def network_median(keys: np.ndarray, program: NetworkProgram, *,
             out = np.empty((h, w), np.uint16)
             size = int(tables[3][-1]) + chunk   # the ring and the band's medians
             looked_up = None if table is None else np.empty((h, w), table.dtype)
+            decoded = np.empty((h, w), table.dtype) if table is not None and decode_input else None
             runs = []
             for begin, end in _plan_runs(plan, parts):
                 run = plan[begin:end].copy()
@@ -677,7 +681,8 @@ def network_median(keys: np.ndarray, program: NetworkProgram, *,
                 rows = (int(run[0, 1]), int(run[-1, 1] + run[-1, 2])) if n_chunks == 1 else None
                 runs.append(functools.partial(_run_register_kernel, kernel, size,
                                               (padded, h, w, chunk, *tables, need, fill, run,
-                                               out), table, looked_up, rows))
+                                               out), table, looked_up, rows,
+                                              None if decoded is None else (keys, decoded)))
             if len(runs) == 1 or run_parts is None:
                 for call in runs:
                     call()
@@ -687,7 +692,9 @@ def network_median(keys: np.ndarray, program: NetworkProgram, *,
                 return out
             if n_chunks > 1:
                 _take_kernel(table, out.reshape(-1), looked_up.reshape(-1))
-            return looked_up
+                if decoded is not None:
+                    _take_kernel(table, keys.reshape(-1), decoded.reshape(-1))
+            return looked_up if decoded is None else (looked_up, decoded)
         except Exception as error:  # noqa: BLE001 - code generation by another numba
             if not automatic:
                 raise
@@ -697,7 +704,9 @@ def network_median(keys: np.ndarray, program: NetworkProgram, *,
                           RuntimeWarning, stacklevel=2)
     med = _median_kernel(padded, h, w, k, tile, blocks, program.code1, program.code2,
                          program.out2, program.n_regs, need, fill)
-    return med if table is None else take(table, med)
+    if table is None:
+        return med
+    return (take(table, med), take(table, keys)) if decode_input else take(table, med)
 
 
 _scratch = threading.local()
@@ -705,12 +714,14 @@ _scratch = threading.local()
 
 def _run_register_kernel(kernel: Any, size: int, args: tuple, table: np.ndarray | None = None,
                          looked_up: np.ndarray | None = None,
-                         rows: tuple[int, int] | None = None) -> None:
+                         rows: tuple[int, int] | None = None,
+                         decode: tuple[np.ndarray, np.ndarray] | None = None) -> None:
     """Run an in-register kernel on this thread's ring buffer of ``size`` registers.
 
     The buffer is kept for the thread's next call: a fresh one would cost its page faults at
     every call (0.1-0.2 ms at 512 x 424), and two threads faulting at once wait on each other.
-    With ``rows`` (y0, y1): then ``looked_up[y0:y1] = table[out[y0:y1]]`` (out: args[-1]).
+    With ``rows`` (y0, y1): then ``looked_up[y0:y1] = table[out[y0:y1]]`` (out: args[-1]),
+    and with ``decode`` (keys, decoded) also ``decoded[y0:y1] = table[keys[y0:y1]]``.
     """
     mem = getattr(_scratch, 'mem', None)
     if mem is None or mem.shape[0] < size:
@@ -719,6 +730,9 @@ def _run_register_kernel(kernel: Any, size: int, args: tuple, table: np.ndarray 
     if rows is not None and table is not None and looked_up is not None:
         y0, y1 = rows
         _take_kernel(table, args[-1][y0:y1].reshape(-1), looked_up[y0:y1].reshape(-1))
+        if decode is not None:
+            keys, decoded = decode
+            _take_kernel(table, keys[y0:y1].reshape(-1), decoded[y0:y1].reshape(-1))
 
 
 def _plan_runs(plan: np.ndarray, parts: int) -> list[tuple[int, int]]:
