@@ -345,3 +345,55 @@ def test_threaded_detector_refuses_what_the_decode_refuses() -> None:
     one = Detector(corridor()).process(depth, KINECT_V2_SD, depth_scale=5000.0)
     np.testing.assert_array_equal(tum.depth_m, one.depth_m)
     assert tum.depth_m.max() == np.float32(1500 / 5000.0)
+
+
+def _compiled_signatures() -> dict:
+    """Every numba dispatcher of the pipeline's kernels -> its number of compiled signatures."""
+    from obstacle_detection.pipeline import _compiled
+    from obstacle_detection.pipeline._compiled import costmap as jit_costmap
+    from obstacle_detection.pipeline._compiled import voxel as jit_voxel
+    found = {}
+    modules = (jit_median, jit_knn, jit_traversal, jit_voxel, jit_costmap, _compiled)
+    kernels = [getattr(m, name) for m in modules for name in dir(m)]
+    kernels += list(jit_median._REGISTER_KERNELS.values())
+    for kernel in kernels:
+        if hasattr(kernel, 'signatures') and hasattr(kernel, 'py_func'):
+            found[kernel] = len(kernel.signatures)
+    return found
+
+
+_FIRST_FRAME_CHECK = """
+import sys
+sys.path.insert(0, {test_dir!r})
+import test_parallel as t
+from obstacle_detection.pipeline.depth import decode_depth
+from obstacle_detection.pipeline.detector import Detector
+from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE, corridor
+from obstacle_detection.sim.scenes import render_scene
+frame = render_scene('person_walking', seed=1, intrinsics=KINECT_V2_SD, size=KINECT_V2_SD_SIZE,
+                     frame_index=0)
+detector = Detector(corridor(compute_threads=2, camera_height_m=float(frame.height_m),
+                             camera_pitch_rad=float(frame.pitch_rad)))
+detector.warm_up()
+before = t._compiled_signatures()
+assert len(before) > 20, len(before)
+detector.process(frame.depth_mm, KINECT_V2_SD)
+detector.process(decode_depth(frame.depth_mm), KINECT_V2_SD)
+after = t._compiled_signatures()
+print(sorted(k.py_func.__name__ for k, n in after.items() if n != before.get(k, 0)))
+"""
+
+
+@compiled
+def test_warm_up_compiles_every_kernel_a_threaded_frame_runs() -> None:
+    """After Detector.warm_up no frame compiles (the node's first frame on the compiled path
+    once stalled 3 s compiling the band kernels of compute_threads > 1). In a fresh process:
+    in this one, earlier tests have compiled everything already."""
+    import subprocess
+    import sys
+    from pathlib import Path
+    code = _FIRST_FRAME_CHECK.format(test_dir=str(Path(__file__).parent))
+    run = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                         timeout=600, cwd=Path(__file__).parents[1])
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert run.stdout.strip().splitlines()[-1] == '[]'

@@ -848,4 +848,8 @@ def warm_up(kernel_size: int = 17) -> float:
     for k in sorted({7, kernel_size}):
         median_filter(millimetres, k)
         median_filter(metres, k)
+        # the detector's uint16 paths: lookups in the read-only depth table (its own
+        # signature), on one thread and in bands
+        median_of_codes(millimetres, k, depth_lut(MM_PER_M))
+        median_and_decode(millimetres, k, depth_lut(MM_PER_M), threads=2)
     return time.perf_counter() - start

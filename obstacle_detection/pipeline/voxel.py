@@ -218,10 +218,18 @@ def warm_up() -> None:
                                                                     cy=3.0), params), params)
     grid = voxel_grid(roi)
     pixel_labels(roi, grid, np.zeros(grid.counts.size, bool))
-    threaded = params.replace(compute_threads=2)   # the bands' kernels take array slices
-    points_in_roi(depth, rays, threaded)
-    points_in_roi(depth, geometry.ray_model(depth.shape, Intrinsics(fx=5.0, fy=5.0, cx=4.0,
-                                                                    cy=3.0), params), threaded)
+    # the bands' kernels of compute_threads > 1 take array slices: a frame tall enough to be
+    # cut into bands (2 * parts rows), run here in turn
+    threaded = params.replace(compute_threads=2)
+    tall = np.full((4 * 2 * BANDS_PER_THREAD, 8), 1.0, np.float32)
+    model = Intrinsics(fx=5.0, fy=5.0, cx=4.0, cy=tall.shape[0] / 2.0)
+    in_turn = lambda calls: [call() for call in calls]  # noqa: E731 - the parts, here
+    for tall_rays in (geometry.ground_rays(tall.shape, model, params),
+                      geometry.ray_model(tall.shape, model, params)):
+        factors = ((tall_rays.ru, tall_rays.rv, tall_rays.rot)
+                   if isinstance(tall_rays, geometry.GroundRays) else tall_rays)
+        jit_voxel.project_roi(tall, factors, roi_bounds(threaded), threaded.voxel_size_m,
+                              parts=2 * BANDS_PER_THREAD, run_parts=in_turn)
     pts = np.random.default_rng(0).uniform(-1.0, 1.0, (20, 3))
     voxel_downsample(pts.astype(np.float32), (0.1, 0.1, 0.1))
     voxel_downsample(pts, (0.1, 0.1, 0.1))

@@ -964,6 +964,8 @@ def warm_up() -> None:
     drop_smeared(one.copy(), one, one, one, 0.03, 0.05, 0.02)
     drop_smeared_fused(np.ones((6, 6), np.float32), np.ones((6, 6), np.float32), 0.03, 0.05,
                        0.02)
+    drop_smeared_fused(np.ones((6, 6), np.float32), np.ones((6, 6), np.float32), 0.03, 0.05,
+                       0.02, parts=2)                 # the row ranges of compute_threads > 1
     holes_to_inf(one)
     rng = np.random.default_rng(0)
     depth = rng.uniform(0.5, 3.0, (12, 12)).astype(np.float32)
