@@ -386,9 +386,11 @@ print(sorted(k.py_func.__name__ for k, n in after.items() if n != before.get(k, 
 
 @compiled
 def test_warm_up_compiles_every_kernel_a_threaded_frame_runs() -> None:
-    """After Detector.warm_up no frame compiles (the node's first frame on the compiled path
-    once stalled 3 s compiling the band kernels of compute_threads > 1). In a fresh process:
-    in this one, earlier tests have compiled everything already."""
+    """After Detector.warm_up no frame compiles anything.
+
+    The node's first frame on the compiled path once stalled 3 s compiling the band kernels of
+    compute_threads > 1. In a fresh process: in this one, earlier tests compiled them already.
+    """
     import subprocess
     import sys
     from pathlib import Path
