@@ -399,3 +399,16 @@ def test_warm_up_compiles_every_kernel_a_threaded_frame_runs() -> None:
                          timeout=600, cwd=Path(__file__).parents[1])
     assert run.returncode == 0, run.stderr[-2000:]
     assert run.stdout.strip().splitlines()[-1] == '[]'
+
+
+def test_wake_compiles_nothing_while_a_background_compile_runs(monkeypatch) -> None:
+    """The node's worker calls wake() from its first frame, while its kernels compile."""
+    fresh = parallel._Pool()
+    monkeypatch.setattr(parallel, '_pool', fresh)
+    monkeypatch.setattr(parallel, 'usable_cpus', lambda: 2)
+    monkeypatch.setattr(jit, 'enabled', lambda: False)       # another thread compiles
+    parallel.wake(2)
+    assert fresh._spin is None and len(fresh._native_ids) == 1   # woken, nothing compiled
+    ran: list[int] = []
+    parallel.run_parts([lambda: ran.append(1)] * 3, 2)
+    assert ran == [1, 1, 1]

@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from . import jit
 from ._compiled import _numba
 
 __all__ = ['MAX_THREADS', 'check_threads', 'part_bounds', 'run_parts', 'usable_cpus', 'wake',
@@ -225,7 +226,8 @@ def wake(threads: int) -> None:
     """
     helpers = min(check_threads(threads), usable_cpus()) - 1
     if helpers > 0 and not getattr(_local, 'in_pool', False):
-        _pool.prepare_spin()
+        if jit.enabled():   # not while a background compile holds numba (the node's start)
+            _pool.prepare_spin()
         _pool.submit(_Batch([]), helpers)
 
 
