@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from . import jit
-from ._compiled import _numba
+from ._compiled import _numba, _parts
 
 __all__ = ['MAX_THREADS', 'check_threads', 'part_bounds', 'run_parts', 'usable_cpus', 'wake',
            'warm_up']
@@ -259,9 +259,8 @@ def check_threads(threads: Any) -> int:
 
 def part_bounds(count: int, parts: int) -> list[tuple[int, int]]:
     """Cut ``range(count)`` into at most ``parts`` contiguous, non-empty, near-equal ranges."""
-    parts = max(1, min(int(parts), int(count)))
-    edges = [count * p // parts for p in range(parts + 1)]
-    return [(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+    cuts = _parts.edges(count, max(1, min(int(parts), int(count))))
+    return [(a, b) for a, b in zip(cuts[:-1], cuts[1:]) if b > a]
 
 
 def run_parts(parts: Sequence[Callable[[], Any]], threads: int) -> None:

@@ -26,6 +26,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from . import _parts
 from ._numba import AVAILABLE, jit as _jit, jit_inline as _jit_inline
 
 #: Largest dense cell table [cells]; a larger grid looks its cells up in a hash table.
@@ -619,14 +620,10 @@ def knn_grid(points: np.ndarray, k: int, *, parts: int = 1,
     if not finite:
         raise ValueError('points must be finite (no NaN or inf coordinates)')
     grid = _build_grid(pts, lo, cell, dense)
-    edges = [n * p // parts for p in range(parts + 1)]
+    edges = _parts.edges(n, parts)
     calls = [functools.partial(_knn_queries, lo, cell, k, dense, slack, *grid, begin, end, out)
              for begin, end in zip(edges[:-1], edges[1:])]
-    if run_parts is None:
-        for call in calls:
-            call()
-    else:
-        run_parts(calls)
+    _parts.run(calls, run_parts)
     return out
 
 
@@ -798,18 +795,14 @@ def normals_from_neighbours(points: np.ndarray, neighbours: np.ndarray, n: int, 
         n_bad = _normals_kernel(pts, nb, n, normals, cov_bad, bad)
     else:
         counts = [0] * parts
-        edges = [v_count * p // parts for p in range(parts + 1)]
+        edges = _parts.edges(v_count, parts)
 
         def rows(part: int) -> None:
             counts[part] = _normals_rows(pts, nb, n, normals, cov_bad, bad,
                                          np.arange(edges[part], edges[part + 1]))
 
         calls = [functools.partial(rows, part) for part in range(parts)]
-        if run_parts is None:
-            for call in calls:
-                call()
-        else:
-            run_parts(calls)
+        _parts.run(calls, run_parts)
         n_bad = -1 if min(counts) < 0 else sum(counts)
     if n_bad < 0:
         raise ValueError(f'neighbour indices must lie in [0, {v_count})')
@@ -857,7 +850,7 @@ def knn_and_normals(points: np.ndarray, k: int, n_use: int, *, parts: int,
     normals = np.empty((n, 3), dtype=np.float32)
     cov_bad = np.empty((n, 6), dtype=np.float64)
     bad = np.empty(n, dtype=np.bool_)
-    edges = [n * p // parts for p in range(parts + 1)]
+    edges = _parts.edges(n, parts)
     counts = [0] * parts
 
     def part(j: int) -> None:
@@ -866,11 +859,7 @@ def knn_and_normals(points: np.ndarray, k: int, n_use: int, *, parts: int,
         counts[j] = _normals_rows(pts32, out, n_use, normals, cov_bad, bad, order[begin:end])
 
     calls = [functools.partial(part, j) for j in range(parts)]
-    if run_parts is None:
-        for call in calls:
-            call()
-    else:
-        run_parts(calls)
+    _parts.run(calls, run_parts)
     if min(counts) < 0:   # cannot happen: the search gives indices in range
         raise ValueError(f'neighbour indices must lie in [0, {n})')
     return out, _degenerate_normals(normals, cov_bad, bad, sum(counts))

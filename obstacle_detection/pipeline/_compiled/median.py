@@ -63,6 +63,7 @@ from typing import Any, NamedTuple
 import cv2
 import numpy as np
 
+from . import _parts
 from ._numba import AVAILABLE, jit as _jit
 
 __all__ = ['AVAILABLE', 'NetworkProgram', 'aligned_registers', 'assemble_program', 'band_lanes',
@@ -683,11 +684,7 @@ def network_median(keys: np.ndarray, program: NetworkProgram, *,
                                               (padded, h, w, chunk, *tables, need, fill, run,
                                                out), table, looked_up, rows,
                                               None if decoded is None else (keys, decoded)))
-            if len(runs) == 1 or run_parts is None:
-                for call in runs:
-                    call()
-            else:
-                run_parts(runs)
+            _parts.run(runs, run_parts)
             if table is None:
                 return out
             if n_chunks > 1:
@@ -737,10 +734,8 @@ def _run_register_kernel(kernel: Any, size: int, args: tuple, table: np.ndarray 
 
 def _plan_runs(plan: np.ndarray, parts: int) -> list[tuple[int, int]]:
     """Cut the rows of a :func:`band_plan` into at most ``parts`` runs of near-equal length."""
-    count = plan.shape[0]
-    parts = max(1, min(int(parts), count))
-    edges = [count * p // parts for p in range(parts + 1)]
-    return [(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+    cuts = _parts.edges(plan.shape[0], max(1, min(int(parts), plan.shape[0])))
+    return [(a, b) for a, b in zip(cuts[:-1], cuts[1:]) if b > a]
 
 
 def _known_lowest(keys: np.ndarray, k: int) -> tuple[int, np.ndarray]:

@@ -19,6 +19,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from . import _parts
 from ._numba import AVAILABLE, jit as _jit
 
 #: Per-thread buffers reused across frames (fresh large arrays cost page faults).
@@ -724,18 +725,14 @@ def drop_smeared_fused(filtered: np.ndarray, raw: np.ndarray, max_shift: float, 
         _smear5_kernel(filtered, raw, *rules, *_smear5_scratch(raw.shape[1]))
         return True
     height = raw.shape[0]
-    edges = [height * j // parts for j in range(parts + 1)]
+    edges = _parts.edges(height, parts)
 
     def rows(j: int) -> None:      # on the thread that runs it: that thread's row buffers
         _smear5_rows(filtered, raw, *rules, *_smear5_scratch(raw.shape[1]), edges[j],
                      edges[j + 1])
 
     calls = [functools.partial(rows, j) for j in range(parts)]
-    if run_parts is None:
-        for call in calls:
-            call()
-    else:
-        run_parts(calls)
+    _parts.run(calls, run_parts)
     return True
 
 

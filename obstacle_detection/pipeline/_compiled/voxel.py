@@ -35,6 +35,7 @@ import numpy as np
 from obstacle_detection.labels import (LABEL_GROUND, LABEL_NO_RETURN, LABEL_OBSTACLE,
                                        LABEL_OUTSIDE_ROI)
 
+from . import _parts
 from ._numba import AVAILABLE, jit as _jit
 from .traversal import ray_row
 
@@ -354,7 +355,7 @@ def _project_parts(depth: np.ndarray, rays: np.ndarray | tuple, shape: tuple[int
     """
     height, width = shape
     cols, pix, keys = out
-    edges = [height * j // parts for j in range(parts + 1)]
+    edges = _parts.edges(height, parts)
     counts = [0] * parts
 
     def band(j: int) -> None:
@@ -373,11 +374,7 @@ def _project_parts(depth: np.ndarray, rays: np.ndarray | tuple, shape: tuple[int
                                         pix[p0:p1], keys[p0:p1])
 
     calls = [functools.partial(band, j) for j in range(parts)]
-    if run_parts is None:
-        for call in calls:
-            call()
-    else:
-        run_parts(calls)
+    _parts.run(calls, run_parts)
     if min(counts) < 0:
         return -1
     m = counts[0]
