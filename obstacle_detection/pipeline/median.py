@@ -12,6 +12,7 @@ from __future__ import annotations
 import functools
 import operator
 import time
+from typing import Any
 
 import cv2
 import numpy as np
@@ -152,19 +153,7 @@ def median_of_codes(codes: np.ndarray, k: int, table: np.ndarray,
     this equals the median of the decoded image to the bit, without mapping the decoded
     depths back to keys and the median's keys to depths (0.3-0.5 ms at 512 x 424).
     """
-    k = _check_kernel(k)
-    codes = np.ascontiguousarray(check_image(codes, 'median input'), np.uint16)
-    if (jit.enabled() and 7 <= k <= _JIT_MAX_K and table.dtype == np.float32
-            and table.shape == (_UINT16_LEVELS,) and codes.max() >= 256):
-        # the compiled network, each band of rows looked up by the thread that filtered it
-        threads = parallel.check_threads(threads)
-        return jit_median.network_median(
-            codes, _jit_program(k), parts=threads * BANDS_PER_THREAD if threads > 1 else 1,
-            run_parts=functools.partial(parallel.run_parts, threads=threads), table=table)
-    med = median_filter(codes, k, threads)
-    if table.dtype == np.float32 and jit.enabled():
-        return jit_median.take(table, med)
-    return np.take(table, med)
+    return _median_of_codes(codes, k, table, threads, decode_input=False)
 
 
 def median_and_decode(codes: np.ndarray, k: int, table: np.ndarray,
@@ -175,19 +164,31 @@ def median_and_decode(codes: np.ndarray, k: int, table: np.ndarray,
     codes up, so the decode costs no time of its own; otherwise the raw depth is looked up
     after the median. The same arrays either way.
     """
+    return _median_of_codes(codes, k, table, threads, decode_input=True)
+
+
+def _median_of_codes(codes: np.ndarray, k: int, table: np.ndarray, threads: int,
+                     decode_input: bool) -> Any:
+    """:func:`median_of_codes`, and with ``decode_input`` also ``table[codes]`` (a tuple)."""
     k = _check_kernel(k)
     codes = np.ascontiguousarray(check_image(codes, 'median input'), np.uint16)
     if (jit.enabled() and 7 <= k <= _JIT_MAX_K and table.dtype == np.float32
             and table.shape == (_UINT16_LEVELS,) and codes.max() >= 256):
+        # the compiled network, each band of rows looked up by the thread that filtered it
         threads = parallel.check_threads(threads)
         return jit_median.network_median(
             codes, _jit_program(k), parts=threads * BANDS_PER_THREAD if threads > 1 else 1,
             run_parts=functools.partial(parallel.run_parts, threads=threads), table=table,
-            decode_input=True)
-    filtered = median_of_codes(codes, k, table, threads)
-    raw = jit_median.take(table, codes) if (table.dtype == np.float32 and jit.enabled()) else (
-        np.take(table, codes))
-    return filtered, raw
+            decode_input=decode_input)
+    filtered = _lookup(table, median_filter(codes, k, threads))
+    return (filtered, _lookup(table, codes)) if decode_input else filtered
+
+
+def _lookup(table: np.ndarray, codes: np.ndarray) -> np.ndarray:
+    """Return ``table[codes]``: compiled for a float32 table, else numpy's take."""
+    if table.dtype == np.float32 and jit.enabled():
+        return jit_median.take(table, codes)
+    return np.take(table, codes)
 
 
 def _check_kernel(k: int) -> int:
