@@ -55,7 +55,7 @@ from obstacle_detection.ros.conversions import (
 )
 from obstacle_detection.pipeline.geometry import mount_rotation
 from obstacle_detection.ros import node as node_module
-from obstacle_detection.ros.node import DetectorNode, FrameMailbox, LatestSlot
+from obstacle_detection.ros.node import DetectorNode, FrameMailbox
 from obstacle_detection.pipeline.params import PRESETS, Intrinsics, table_4_2, table_4_3
 from obstacle_detection.pipeline.detector import DetectionResult, Detector
 from obstacle_detection.ros.parameters import (
@@ -823,8 +823,8 @@ def test_unexpected_pipeline_exception_is_survived(local_node: DetectorNode,
     assert local_node.stats.total_processed == 1
 
 
-def test_latest_slot_keeps_only_the_newest() -> None:
-    slot = LatestSlot()
+def test_one_frame_mailbox_keeps_only_the_newest() -> None:
+    slot = FrameMailbox(1)
     assert slot.take(timeout=0.0) is None
     assert not slot.put('a')
     assert slot.put('b') and slot.put('c')

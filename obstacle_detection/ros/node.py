@@ -145,13 +145,6 @@ class FrameMailbox:
             self._cond.notify_all()
 
 
-class LatestSlot(FrameMailbox):
-    """A one-item mailbox: ``put`` replaces a pending item (counted as dropped)."""
-
-    def __init__(self) -> None:
-        super().__init__(1)
-
-
 class FrameStats:
     """Thread-safe frame counters and processing times since the last ``take_period``."""
 
