@@ -13,6 +13,12 @@ Prints a table for people and one line starting with ``JSON `` for machines.
 
     python tools/benchmark.py                 # 100 frames per configuration, corridor.yaml
     python tools/benchmark.py --frames 300 --preset table_4_2   # the seed method exactly
+    python tools/benchmark.py --rate 30       # frames 1/30 s apart, as a camera sends them
+
+Frames run back to back by default: the caches stay warm from one frame to the next, the best
+case. ``--rate HZ`` starts one frame every 1/HZ s and sleeps in between, as the node works on
+a camera's frames: on a virtual machine the caches and TLBs go cold while the process sleeps,
+and the same frame takes longer (see the README, "Through DDS").
 
 The row "new stages" is the per-frame sum of the stages that are not the seed's (median filter
 smear check, floor fit, robot-level traversal, drop edges).
@@ -62,8 +68,12 @@ def jit_description() -> str:
 
 
 def run_config(scenes: tuple[str, ...], size_label: str, kernel: int, frames: int,
-               preset: str, distinct: int) -> dict:
-    """Time ``frames`` frames of one configuration; return the statistics."""
+               preset: str, distinct: int, rate_hz: float = 0.0) -> dict:
+    """Time ``frames`` frames of one configuration; return the statistics.
+
+    rate_hz > 0: a frame starts every 1 / rate_hz s (sleeping in between, never catching up
+    on a late frame); 0: back to back.
+    """
     (width, height), intr = SIZES[size_label]
     rendered = []
     for name in scenes:
@@ -75,8 +85,12 @@ def run_config(scenes: tuple[str, ...], size_label: str, kernel: int, frames: in
     rendered[0][1].process(rendered[0][0].depth_mm, rendered[0][0].intrinsics)
     per_stage = {stage: [] for stage in (*STAGES, NEW_TOTAL, 'total')}
     voxels, obstacles = [], []
-    wall_start = time.perf_counter()
+    period_s = 1.0 / rate_hz if rate_hz > 0.0 else 0.0
+    wall_start = next_start = time.perf_counter()
     for i in range(frames):
+        if period_s:
+            next_start = max(next_start + period_s, time.perf_counter())
+            time.sleep(max(0.0, next_start - time.perf_counter()))
         frame, detector = rendered[i % len(rendered)]
         result = detector.process(frame.depth_mm, frame.intrinsics)
         for stage, ms in result.timings_ms.items():
@@ -90,7 +104,7 @@ def run_config(scenes: tuple[str, ...], size_label: str, kernel: int, frames: in
     return {
         'size': size_label, 'kernel': kernel, 'preset': preset, 'frames': frames,
         'scenes': list(scenes), 'stages': stats,
-        'fps': frames / wall,
+        'fps': frames / wall, 'rate_hz': rate_hz,
         'voxels_median': float(np.median(voxels)),
         'obstacle_points_median': float(np.median(obstacles)),
     }
@@ -125,9 +139,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--kernels', default='5,17', help='comma-separated median kernels K')
     parser.add_argument('--distinct', type=int, default=3,
                         help='distinct seeds rendered per scene (frames cycle over them)')
+    parser.add_argument('--rate', type=float, default=0.0, metavar='HZ',
+                        help='start a frame every 1/HZ s, sleeping in between, as a camera '
+                             'paces the node (0 = back to back, the default)')
     args = parser.parse_args(argv)
     if args.frames < 1:
         parser.error('--frames must be >= 1')
+    if not (0.0 <= args.rate <= 1000.0):
+        parser.error('--rate must be in [0, 1000] Hz (0 = back to back)')
     sizes = args.sizes.split(',')
     unknown = [s for s in sizes if s not in SIZES]
     if unknown:
@@ -143,9 +162,11 @@ def main(argv: list[str] | None = None) -> int:
             print(f'# {size_label} K={kernel}: {args.frames} frames ...', file=sys.stderr,
                   flush=True)
             results.append(run_config(scenes, size_label, kernel, args.frames, args.preset,
-                                      args.distinct))
+                                      args.distinct, args.rate))
     peak_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-    print(f'# preset {args.preset}, scenes {", ".join(scenes)}, {args.frames} frames each; '
+    pace = f'one frame every {1e3 / args.rate:.1f} ms' if args.rate else 'back to back'
+    print(f'# preset {args.preset}, scenes {", ".join(scenes)}, {args.frames} frames each '
+          f'({pace}); '
           f'{platform.processor() or platform.machine()}, Python {platform.python_version()}, '
           f'numpy {np.__version__}, OpenCV {cv2.__version__}')
     print(format_table(results))
