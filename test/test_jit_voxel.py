@@ -93,6 +93,25 @@ def test_voxel_downsample_points_on_voxel_boundaries():
                      VoxelGrid(*jit_voxel.voxel_downsample(pts, size)))
 
 
+def test_voxel_numbers_across_the_bitmap_words():
+    """Cells at either end of a 64-cell word of the occupied bitmap, a full word, lone cells.
+
+    Points on a line along z (the fastest axis: linear key = cell index), several per cell in
+    shuffled order: the voxels, their order and their means equal numpy's.
+    """
+    size = (0.1, 0.1, 0.01)
+    cells = np.array([0, 1, 62, 63, 64, 65, 127, 128, 191, 255, 256, 1000, 1023, 1024]
+                     + list(range(300, 364)))          # 300..363: a whole word and a bit more
+    rng = np.random.default_rng(9)
+    z = (np.repeat(cells, 3) + rng.uniform(0.1, 0.9, 3 * cells.size)) * 0.01
+    pts = np.stack([np.full(z.size, 0.05), np.full(z.size, 0.05), z], 1).astype(np.float32)
+    pts = pts[rng.permutation(pts.shape[0])]
+    got = VoxelGrid(*jit_voxel.voxel_downsample(pts, size))
+    assert_same_grid(voxel_downsample_numpy(pts, size), got)
+    np.testing.assert_array_equal(got.voxel_ijk[:, 2], np.unique(cells))
+    assert (got.counts == 3).all()
+
+
 def test_voxel_downsample_falls_back_when_the_lattice_is_huge_or_nan():
     pts = np.array([[0.0, 0.0, 0.0], [1e4, 1e4, 1e4]], np.float32)
     assert jit_voxel.voxel_downsample(pts, (0.01,) * 3) is None

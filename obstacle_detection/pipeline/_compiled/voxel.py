@@ -14,8 +14,9 @@ the voxels, their order (linear key, x slowest, z fastest) and the centroids are
 Method: one pass over the pixels back-projects through the cached ground rays, applies the
 region of interest and computes each kept point's voxel key on a lattice fixed by the region's
 bounds (division by a positive number is monotone, so every kept point's voxel lies inside
-it). A byte map of the occupied cells, scanned eight cells at a time, numbers the voxels in
-key order; one pass over the points then accumulates counts and sums. A lattice larger than
+it). A bitmap of the occupied cells (a bit per lattice cell) and the count of set bits
+before each of its 64-bit words number the voxels in key order; one pass over the points then
+accumulates counts and sums. A lattice larger than
 ``_DENSE_LIMIT`` cells, or a point whose voxel index does not fit, falls back to numpy.
 
 The kernels are compiled on first use (a few seconds) and cached on disk (``cache=True``);
@@ -36,7 +37,7 @@ from obstacle_detection.labels import (LABEL_GROUND, LABEL_NO_RETURN, LABEL_OBST
                                        LABEL_OUTSIDE_ROI)
 
 from . import _parts
-from ._numba import AVAILABLE, jit as _jit
+from ._numba import AVAILABLE, jit as _jit, jit_inline as _jit_inline
 from .traversal import ray_row
 
 __all__ = ['AVAILABLE', 'Projection', 'label_pixels', 'project_roi', 'roi_lattice',
@@ -44,6 +45,9 @@ __all__ = ['AVAILABLE', 'Projection', 'label_pixels', 'project_roi', 'roi_lattic
 
 #: Most lattice cells [cells] of the byte map (as the numpy path's dense limit).
 _DENSE_LIMIT = 16_000_000
+#: uint64 0 and 1 (numba turns uint64 mixed with an int literal into float64).
+_U0 = np.uint64(0)
+_U1 = np.uint64(1)
 #: Largest |voxel index| handled; beyond it (or NaN) the numpy path runs.
 _MAX_INDEX = float(1 << 40)
 #: Label of a pixel inside the region of interest until :func:`label_pixels` decides ground or
@@ -155,45 +159,60 @@ def _index_kernel(cols, size, ijk, limit):  # pragma: no cover - compiled
     return True
 
 
+@_jit_inline
+def _popcount(x):  # pragma: no cover - compiled
+    """Return the number of set bits of the uint64 ``x`` (counted in parallel in the word)."""
+    x = x - ((x >> _U1) & np.uint64(0x5555555555555555))
+    x = (x & np.uint64(0x3333333333333333)) + ((x >> np.uint64(2))
+                                               & np.uint64(0x3333333333333333))
+    x = (x + (x >> np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
+    return np.int64((x * np.uint64(0x0101010101010101)) >> np.uint64(56))
+
+
 @_jit
-def _voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_voxel, occupied,
-                  lookup):  # pragma: no cover - compiled
+def _voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_voxel, bits,
+                  prefix):  # pragma: no cover - compiled
     """Give the occupied cells numbers in key order; average their points.
 
     cols (3, m) float; keys (m,) int64 in [0, n_cells); dims, low (3,) int64 the lattice;
     pixels (m,) int64 and pixel_voxel (n,) int32: when pixels is not empty, the voxel of
-    point q is written to pixel_voxel[pixels[q]]; point_voxel (m,) int64 out. Scratch:
-    occupied (>= n_cells rounded up to 8) uint8 all zero (left all zero), lookup (>= n_cells)
-    int32. Returns (centroids (V, 3) float32, point_voxel, counts (V,) int64, voxel_ijk
-    (V, 3) int64).
+    point q is written to pixel_voxel[pixels[q]]; point_voxel (m,) int64 out. Scratch, one
+    entry per 64 cells: bits (>= ceil(n_cells / 64)) uint64 all zero (left all zero), the
+    occupied cells' bits; prefix (as long) int64, the occupied cells before each word. A
+    cell's voxel number is its word's prefix plus the set bits below it in the word: no
+    table entry per cell, so the frame touches 1/64 of the memory a table would (the bitmap
+    and the prefixes stay in the cache). Returns (centroids (V, 3) float32, point_voxel,
+    counts (V,) int64, voxel_ijk (V, 3) int64).
     """
     m = keys.size
-    n_words = (n_cells + 7) // 8
+    n_words = (n_cells + 63) // 64
     for q in range(m):
-        occupied[keys[q]] = 1
-    words = occupied[:n_words * 8].view(np.uint64)
+        key = keys[q]
+        bits[key >> 6] |= _U1 << np.uint64(key & 63)
     n_vox = 0
     for w in range(n_words):
-        if words[w] != 0:
-            for c in range(w * 8, w * 8 + 8):
-                if occupied[c]:
-                    lookup[c] = n_vox
-                    n_vox += 1
+        prefix[w] = n_vox
+        n_vox += _popcount(bits[w])
     voxel_ijk = np.empty((n_vox, 3), np.int64)
     for w in range(n_words):
-        if words[w] != 0:
-            for c in range(w * 8, w * 8 + 8):
-                if occupied[c]:
-                    v = lookup[c]
-                    rest = c // dims[2]
-                    voxel_ijk[v, 2] = c - rest * dims[2] + low[2]
-                    voxel_ijk[v, 1] = rest % dims[1] + low[1]
-                    voxel_ijk[v, 0] = rest // dims[1] + low[0]
+        word = bits[w]
+        v = prefix[w]
+        while word != _U0:
+            lowest = word & (~word + _U1)          # the lowest set bit: cells in key order
+            c = w * 64 + _popcount(lowest - _U1)
+            rest = c // dims[2]
+            voxel_ijk[v, 2] = c - rest * dims[2] + low[2]
+            voxel_ijk[v, 1] = rest % dims[1] + low[1]
+            voxel_ijk[v, 0] = rest // dims[1] + low[0]
+            v += 1
+            word ^= lowest
     counts = np.zeros(n_vox, np.int64)
     sums = np.zeros((n_vox, 3), np.float64)
     with_pixels = pixels.size > 0
     for q in range(m):
-        v = lookup[keys[q]]
+        key = keys[q]
+        w = key >> 6
+        v = prefix[w] + _popcount(bits[w] & ((_U1 << np.uint64(key & 63)) - _U1))
         point_voxel[q] = v
         counts[v] += 1
         sums[v, 0] += np.float64(cols[0, q])
@@ -202,7 +221,7 @@ def _voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_vox
         if with_pixels:
             pixel_voxel[pixels[q]] = v
     for q in range(m):
-        occupied[keys[q]] = 0
+        bits[keys[q] >> 6] = _U0
     centroids = np.empty((n_vox, 3), np.float32)
     for v in range(n_vox):
         n = np.float64(counts[v])
@@ -408,10 +427,11 @@ def voxelise(proj: Projection) -> tuple | None:
 
 def _run_voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_voxel):
     """Call :func:`_voxel_kernel` with this thread's lattice scratch buffers."""
-    occupied = _scratch('occupied', (n_cells + 7) // 8 * 8, np.uint8, zero=True)
-    lookup = _scratch('lookup', n_cells, np.int32)
+    n_words = (n_cells + 63) // 64
+    bits = _scratch('occupied_bits', n_words, np.uint64, zero=True)
+    prefix = _scratch('bit_prefix', n_words, np.int64)
     return _voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_voxel,
-                         occupied, lookup)
+                         bits, prefix)
 
 
 def voxel_downsample(points: np.ndarray, voxel_size_m: tuple[float, float, float]
