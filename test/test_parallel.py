@@ -1,5 +1,6 @@
 """Stages on several threads (compute_threads) give the one-thread result to the bit."""
 
+import functools
 import os
 import threading
 
@@ -11,6 +12,7 @@ from obstacle_detection.pipeline import geometry, jit, median, normals, parallel
 from obstacle_detection.pipeline._compiled import knn as jit_knn
 from obstacle_detection.pipeline._compiled import median as jit_median
 from obstacle_detection.pipeline._compiled import traversal as jit_traversal
+from obstacle_detection.pipeline._compiled import voxel as jit_voxel
 from obstacle_detection.pipeline.depth import decode_depth, depth_lut
 from obstacle_detection.pipeline.detector import Detector
 from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE, corridor
@@ -264,6 +266,56 @@ def test_back_projection_in_row_bands_equals_one_pass(model) -> None:
         for a, b in zip(one, (roi.points, roi.pixel_index, roi.projection.labels,
                               roi.projection.keys)):
             np.testing.assert_array_equal(b, a)
+
+
+@compiled
+def test_back_projection_bands_in_any_order_and_a_failing_band() -> None:
+    """The bands close their gaps in any run order; a band that raises hangs nobody."""
+    frame = render_scene('people', seed=1, intrinsics=KINECT_V2_SD, size=KINECT_V2_SD_SIZE,
+                         frame_index=0)
+    params = corridor(camera_height_m=float(frame.height_m),
+                      camera_pitch_rad=float(frame.pitch_rad))
+    depth = decode_depth(frame.depth_mm)
+    rays = geometry.ground_rays(depth.shape, KINECT_V2_SD, params)
+    bounds = voxel.roi_bounds(params)
+    one = jit_voxel.project_roi(depth, rays, bounds, params.voxel_size_m)
+    assert one.points.shape[0] > 1000
+    orders = {'reversed': lambda calls: [call() for call in calls[::-1]],
+              'middle first': lambda calls: [calls[i]() for i in (3, 0, 4, 1, 5, 2)],
+              'two threads': functools.partial(parallel.run_parts, threads=2)}
+    for name, run_parts in orders.items():
+        got = jit_voxel.project_roi(depth, rays, bounds, params.voxel_size_m, parts=6,
+                                    run_parts=run_parts)
+        for a, b in zip((one.points, one.pixel_index, one.keys, one.labels),
+                        (got.points, got.pixel_index, got.keys, got.labels)):
+            np.testing.assert_array_equal(b, a, err_msg=name)
+
+    real = jit_voxel._project_kernel
+    third_band = depth.shape[0] * 2 // 6 * depth.shape[1]
+
+    def failing(depth_band, rays_band, offset, *args):
+        if offset == third_band:
+            raise RuntimeError('band 2 failed')
+        return real(depth_band, rays_band, offset, *args)
+
+    outcome: list[BaseException] = []
+
+    def run() -> None:
+        try:
+            jit_voxel.project_roi(depth, rays, bounds, params.voxel_size_m, parts=6,
+                                  run_parts=functools.partial(parallel.run_parts, threads=2))
+        except RuntimeError as error:
+            outcome.append(error)
+
+    jit_voxel._project_kernel = failing
+    try:
+        worker = threading.Thread(target=run, daemon=True)
+        worker.start()
+        worker.join(timeout=30.0)
+    finally:
+        jit_voxel._project_kernel = real
+    assert not worker.is_alive(), 'a band waited forever for the failed one'
+    assert len(outcome) == 1 and 'band 2 failed' in str(outcome[0])
 
 
 def test_validation_compiled_equals_the_definition() -> None:
