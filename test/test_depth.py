@@ -619,6 +619,22 @@ def test_jit_lowest_key_count_only_when_it_can_pay() -> None:
 
 
 @needs_numba
+def test_key_range_is_min_max_and_count_of_the_min() -> None:
+    """key_range against numpy on images whose lowest key is rare, common, 0, 65535, alone."""
+    rng = np.random.default_rng(11)
+    images = [rng.integers(0, 65536, (37, 53)).astype(np.uint16),
+              np.full((5, 7), 65535, np.uint16), np.zeros((1, 1), np.uint16),
+              np.array([[9, 3, 3], [4, 3, 65535]], np.uint16)]
+    holes = rng.integers(500, 4500, (424, 512)).astype(np.uint16)
+    holes[rng.random(holes.shape) < 0.45] = 0
+    images.append(holes)
+    images.append(holes[::2, 1::3])             # not contiguous
+    for keys in images:
+        assert jit_median.key_range(keys) == (int(keys.min()), int(keys.max()),
+                                              int(np.count_nonzero(keys == keys.min())))
+
+
+@needs_numba
 def test_jit_median_mostly_no_return_frames(monkeypatch) -> None:
     """Float metres as the pipeline passes them: large no-return areas, K = 9 and 17."""
     monkeypatch.delenv(jit.NO_JIT_ENV, raising=False)

@@ -172,14 +172,16 @@ def _median_of_codes(codes: np.ndarray, k: int, table: np.ndarray, threads: int,
     """:func:`median_of_codes`, and with ``decode_input`` also ``table[codes]`` (a tuple)."""
     k = _check_kernel(k)
     codes = np.ascontiguousarray(check_image(codes, 'median input'), np.uint16)
-    if (jit.enabled() and 7 <= k <= _JIT_MAX_K and table.dtype == np.float32
-            and table.shape == (_UINT16_LEVELS,) and codes.max() >= 256):
+    compiled = (jit.enabled() and 7 <= k <= _JIT_MAX_K and table.dtype == np.float32
+                and table.shape == (_UINT16_LEVELS,))
+    keys_range = jit_median.key_range(codes) if compiled else None
+    if compiled and keys_range[1] >= 256:
         # the compiled network, each band of rows looked up by the thread that filtered it
         threads = parallel.check_threads(threads)
         return jit_median.network_median(
             codes, _jit_program(k), parts=threads * BANDS_PER_THREAD if threads > 1 else 1,
             run_parts=functools.partial(parallel.run_parts, threads=threads), table=table,
-            decode_input=decode_input)
+            decode_input=decode_input, keys_range=keys_range)
     filtered = _lookup(table, median_filter(codes, k, threads))
     return (filtered, _lookup(table, codes)) if decode_input else filtered
 

@@ -67,7 +67,7 @@ from . import _parts
 from ._numba import AVAILABLE, jit as _jit
 
 __all__ = ['AVAILABLE', 'NetworkProgram', 'aligned_registers', 'assemble_program', 'band_lanes',
-           'band_plan', 'network_median', 'quantised_keys', 'take', 'write_band']
+           'band_plan', 'key_range', 'network_median', 'quantised_keys', 'take', 'write_band']
 
 #: The interpreter processes ``blocks * _LANES`` pixels of a row per instruction.
 _LANES = 64
@@ -294,6 +294,31 @@ def _take_kernel(values, keys, out):  # pragma: no cover - compiled
     """``out[i] = values[keys[i]]`` for flat arrays (uint16 keys)."""
     for i in range(keys.size):
         out[i] = values[keys[i]]
+
+
+@_jit
+def _key_range_kernel(keys):  # pragma: no cover - compiled
+    """Return (lowest, highest, count of the lowest) of flat uint16 keys (size >= 1)."""
+    lowest = keys[0]
+    highest = keys[0]
+    for i in range(keys.size):
+        lowest = min(lowest, keys[i])
+        highest = max(highest, keys[i])
+    count = 0
+    for i in range(keys.size):
+        count += keys[i] == lowest
+    return lowest, highest, count
+
+
+def key_range(keys: np.ndarray) -> tuple[int, int, int]:
+    """Return (lowest key, highest key, pixels at the lowest) of a non-empty uint16 image.
+
+    One compiled pass (two over data in the cache) in place of ``min``, ``max`` and a count
+    of ``keys == min``: what :func:`network_median` and its caller look at before filtering.
+    """
+    flat = np.ascontiguousarray(keys, np.uint16).reshape(-1)
+    lowest, highest, count = _key_range_kernel(flat)
+    return int(lowest), int(highest), int(count)
 
 
 def quantised_keys(depth: np.ndarray,
@@ -618,7 +643,9 @@ def network_median(keys: np.ndarray, program: NetworkProgram, *,
                    in_registers: bool | None = None, parts: int = 1,
                    run_parts: Callable[[list[Callable[[], None]]], None] | None = None,
                    table: np.ndarray | None = None,
-                   decode_input: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+                   decode_input: bool = False,
+                   keys_range: tuple[int, int, int] | None = None,
+                   ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Exact 'nearest'-mode K x K median of uint16 keys by a compiled network program.
 
     Args:
@@ -637,6 +664,7 @@ def network_median(keys: np.ndarray, program: NetworkProgram, *,
             by each run for its rows when the image is one row chunk wide.
         decode_input: with ``table``, return ``(table[median], table[keys])``: the runs look
             their input rows up too (the detector's decoded raw depth, on the threads).
+        keys_range: :func:`key_range` of ``keys`` when the caller has it (None: found here).
 
     Returns:
         (H, W) uint16 C-contiguous median, equal to
@@ -656,7 +684,7 @@ def network_median(keys: np.ndarray, program: NetworkProgram, *,
     blocks = -(-w // (n_chunks * _LANES))      # lanes per chunk / 64, as even as possible
     chunk = blocks * _LANES
     bands = -(-h // tile)
-    fill, need = _known_lowest(keys, k)
+    fill, need = _known_lowest(keys, k, keys_range)
     padded = cv2.copyMakeBorder(keys, r, r + bands * tile - h,
                                 r, r + n_chunks * chunk - w, cv2.BORDER_REPLICATE)
     automatic = in_registers is None
@@ -738,7 +766,8 @@ def _plan_runs(plan: np.ndarray, parts: int) -> list[tuple[int, int]]:
     return [(a, b) for a, b in zip(cuts[:-1], cuts[1:]) if b > a]
 
 
-def _known_lowest(keys: np.ndarray, k: int) -> tuple[int, np.ndarray]:
+def _known_lowest(keys: np.ndarray, k: int,
+                  keys_range: tuple[int, int, int] | None = None) -> tuple[int, np.ndarray]:
     """Return (lowest key, need): need (H, W) uint8 is 0 where the median is that key.
 
     The K x K median ('nearest' border) is the lowest key v exactly when more than
@@ -746,11 +775,12 @@ def _known_lowest(keys: np.ndarray, k: int) -> tuple[int, np.ndarray]:
     border (the image's edge pixels count as often as scipy's 'nearest' mode repeats them).
     need is (0, 0) (compute every output) when under :data:`_SKIP_MIN_FRACTION` of the keys
     are the lowest: the count (0.15 ms at 512 x 424) would then cost more than it saves.
+    keys_range: :func:`key_range` of ``keys`` (None: computed here).
     """
-    lowest = int(keys.min())
-    is_lowest = keys == lowest
-    if np.count_nonzero(is_lowest) < _SKIP_MIN_FRACTION * keys.size:
+    lowest, _, at_lowest = key_range(keys) if keys_range is None else keys_range
+    if at_lowest < _SKIP_MIN_FRACTION * keys.size:
         return lowest, np.zeros((0, 0), np.uint8)
+    is_lowest = keys == lowest
     count = cv2.boxFilter(is_lowest.view(np.uint8), cv2.CV_16U, (k, k), normalize=False,
                           borderType=cv2.BORDER_REPLICATE)
     return lowest, (count <= k * k // 2).view(np.uint8)
