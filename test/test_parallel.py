@@ -245,6 +245,14 @@ def test_smear_pass_in_row_ranges_equals_one_pass() -> None:
                                                 run_parts=lambda fs: [f() for f in fs[::-1]])
         np.testing.assert_array_equal(got, one)
     np.testing.assert_array_equal(traversal.drop_smeared(filtered.copy(), raw, 0.02, 2), one)
+    # the detector's promise that raw holds no NaN skips only the scan for one
+    np.testing.assert_array_equal(
+        traversal.drop_smeared(filtered.copy(), raw, 0.02, 2, raw_no_nan=True), one)
+    with_nan = raw.copy()
+    with_nan[10, 10] = np.nan
+    assert not jit_traversal.drop_smeared_fused(filtered.copy(), with_nan, 0.02,
+                                                traversal.FLYING_JUMP,
+                                                traversal.PLANAR_TOLERANCE, parts=2)
 
 
 @compiled

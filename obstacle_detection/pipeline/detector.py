@@ -175,8 +175,9 @@ class Detector:
                 depth_m = median_filter(depth_m, p.median_kernel, p.compute_threads)
         clock.lap('median')
         if p.robot_level and p.median_kernel > 1:
+            # raw depth looked up from uint16 codes in the table holds no NaN
             depth_m = traversal.drop_smeared(depth_m, raw_m, p.max_filter_shift,
-                                              p.compute_threads)
+                                              p.compute_threads, raw_no_nan=codes is not None)
         clock.lap('smear')
 
         rays = self._rays(depth_m.shape, intr)

@@ -243,7 +243,7 @@ def _planar(raw: np.ndarray) -> np.ndarray:
 
 
 def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float,
-                 threads: int = 1) -> np.ndarray:
+                 threads: int = 1, *, raw_no_nan: bool = False) -> np.ndarray:
     """Undo what the median filter smeared across depth edges; drop what is no surface.
 
     filtered, raw: (H, W) float32 [m], the median-filtered and the measured depth (0 = no
@@ -264,6 +264,8 @@ def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float,
 
     Returns ``filtered`` (modified in place); ``max_shift`` <= 0 changes nothing. Compiled
     when numba is there (same result), on ``threads`` threads (row ranges, same result).
+    ``raw_no_nan``: the caller knows ``raw`` holds no NaN (the detector's uint16 depth, looked
+    up in the depth table: 0 for no return, never NaN), which spares the compiled path a scan.
     """
     if max_shift <= 0.0:
         return filtered
@@ -273,7 +275,8 @@ def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float,
             and jit_traversal.drop_smeared_fused(
                 filtered, raw, max_shift, FLYING_JUMP, PLANAR_TOLERANCE,
                 parts=parallel.check_threads(threads),
-                run_parts=functools.partial(parallel.run_parts, threads=threads))):
+                run_parts=functools.partial(parallel.run_parts, threads=threads),
+                raw_no_nan=raw_no_nan)):
         return filtered   # one compiled pass, the window range on the way (same result)
     near, far = depth_window_range(raw)
     if jit.enabled():

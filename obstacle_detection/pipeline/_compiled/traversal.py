@@ -710,15 +710,17 @@ def _smear5_buffers(width: int) -> tuple[np.ndarray, ...]:
 def drop_smeared_fused(filtered: np.ndarray, raw: np.ndarray, max_shift: float, jump: float,
                        planar_tolerance: float, *, parts: int = 1,
                        run_parts: Callable[[list[Callable[[], None]]], None] | None = None,
-                       ) -> bool:
+                       raw_no_nan: bool = False) -> bool:
     """In place, as :func:`drop_smeared` with the 5 x 5 window range of traversal's numpy path.
 
     filtered, raw: (H, W) float32 C-contiguous. Returns False, changing nothing, when raw
     holds a NaN (the caller then takes OpenCV's window range, whose NaN handling is its own).
     parts: the rows cut into this many ranges, run by ``run_parts`` (which returns once all
     have run, e.g. on several threads; None: here, in order); the same result.
+    raw_no_nan: the caller knows raw holds no NaN (looked up in a table of depths):
+    the scan for one is skipped.
     """
-    if _has_nan(raw):
+    if not raw_no_nan and _has_nan(raw):
         return False
     rules = (np.float32(max_shift), np.float32(jump), np.float32(planar_tolerance))
     if parts <= 1 or raw.shape[0] < 2 * parts:
