@@ -18,7 +18,9 @@ from obstacle_detection.ros.conversions import (
     array_to_image,
     camera_info_to_intrinsics,
     costmap_to_occupancy_grid,
+    DEPTH_SAMPLE_ROWS,
     depth_problem,
+    depth_sample,
     image_to_array,
     image_to_rgb,
     intrinsics_problem,
@@ -359,6 +361,31 @@ def test_real_depth_is_plausible_in_both_encodings() -> None:
     metres[::5] = np.nan
     assert depth_problem(metres) is None
     assert depth_problem(np.zeros((4, 4), np.uint16)) is None   # no valid pixel: not judged here
+
+
+@pytest.mark.parametrize(('inside_code', 'outside_code'), [(50, 49), (20000, 20001)])
+@pytest.mark.parametrize('extra_inside', [0, -1])
+def test_uint16_plausibility_counts_the_band_edges_as_the_metres_rule(
+        inside_code: int, outside_code: int, extra_inside: int) -> None:
+    """16UC1: a code at the edge of 0.05-20 m counts as inside, the next one out as outside.
+
+    Half of the sampled valid pixels at the edge code and half just outside: exactly the
+    plausible share (accepted); one pixel fewer inside: refused. Zeros are not counted, and
+    the rows between the sampled ones are not read.
+    """
+    frame = np.full((424, 512), 65535, np.uint16)    # unsampled rows: implausible
+    sample = depth_sample(frame).copy()
+    flat = sample.reshape(-1)
+    valid = flat.size - 100                          # 100 sampled pixels without a return
+    inside = valid // 2 + extra_inside
+    flat[:inside] = inside_code
+    flat[inside:valid] = outside_code
+    flat[valid:] = 0
+    frame[::DEPTH_SAMPLE_ROWS] = sample
+    metres = flat[flat > 0].astype(np.float64) * 1e-3
+    share = np.count_nonzero((metres >= 0.05) & (metres <= 20.0)) / metres.size
+    assert (share >= 0.5) == (extra_inside == 0)
+    assert (depth_problem(frame) is None) == (extra_inside == 0)
 
 
 def test_millimetres_sent_as_metres_are_refused_with_the_guess() -> None:

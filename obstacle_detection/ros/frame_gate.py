@@ -29,7 +29,7 @@ from obstacle_detection.pipeline.params import Intrinsics
 
 from .compressed_depth import compressed_depth_to_array, is_compressed_image
 from .conversions import (DEPTH_ENCODINGS, ImageFormatError, camera_info_to_intrinsics,
-                          depth_problem, image_to_array, intrinsics_problem)
+                          depth_problem, depth_sample, image_to_array, intrinsics_problem)
 
 
 @dataclass(frozen=True)
@@ -150,9 +150,9 @@ def choose_intrinsics(camera: CameraState | None, shape: tuple[int, ...], *,
 
 def check_depth(depth: np.ndarray, msg: Any) -> Skip | None:
     """Why a decoded frame's depth cannot be processed (none valid, implausible), or None."""
-    # every 4th pixel of every 4th row first (what depth_problem reads): one valid pixel there
-    # spares the scan of the whole frame
-    if not has_valid_depth(depth[::4, ::4]) and not has_valid_depth(depth):
+    # the sampled rows first (what depth_problem reads): one valid pixel there spares the
+    # scan of the whole frame
+    if not has_valid_depth(depth_sample(depth)) and not has_valid_depth(depth):
         return Skip('no_depth', 'no valid depth pixel (every pixel is 0, NaN or inf)')
     problem = depth_problem(depth)
     if problem is not None:
