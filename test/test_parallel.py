@@ -291,12 +291,21 @@ def test_back_projection_bands_in_any_order_and_a_failing_band() -> None:
     orders = {'reversed': lambda calls: [call() for call in calls[::-1]],
               'middle first': lambda calls: [calls[i]() for i in (3, 0, 4, 1, 5, 2)],
               'two threads': functools.partial(parallel.run_parts, threads=2)}
+    one_grid = jit_voxel.voxelise(one)
     for name, run_parts in orders.items():
         got = jit_voxel.project_roi(depth, rays, bounds, params.voxel_size_m, parts=6,
                                     run_parts=run_parts)
+        # the voxel grid reads the bands' stretches where they lie ...
+        assert got.stretches is not None and got.stretches[0][1] > got.stretches[1][0]
+        for a, b in zip(one_grid, jit_voxel.voxelise(got)):
+            np.testing.assert_array_equal(b, a, err_msg=name)
+        np.testing.assert_array_equal(got.pixel_voxel, one.pixel_voxel, err_msg=name)
+        assert got.stretches is not None
+        # ... and the points, read, are moved together once
         for a, b in zip((one.points, one.pixel_index, one.keys, one.labels),
                         (got.points, got.pixel_index, got.keys, got.labels)):
             np.testing.assert_array_equal(b, a, err_msg=name)
+        assert got.stretches is None
 
     real = jit_voxel._project_kernel
     third_band = depth.shape[0] * 2 // 6 * depth.shape[1]

@@ -119,15 +119,28 @@ class RoiPoints:
     points: (M, 3) float32 ground frame [m]; pixel_index: (M,) int64 their flat pixel
     indices; shape: the image's (H, W); voxel_size_m: the voxel size of the frame's params;
     valid: (H*W,) bool, the pixels with a 3-D point (numpy path; None when compiled);
-    projection: the compiled path's :class:`._compiled.voxel.Projection` (None on numpy).
+    projection: the compiled path's :class:`._compiled.voxel.Projection` (None on numpy),
+    which holds the points and pixels (read from it when asked for: only then are the bands'
+    stretches moved together, which the pipeline never needs).
     """
 
-    points: np.ndarray
-    pixel_index: np.ndarray
     shape: tuple[int, int]
     voxel_size_m: tuple[float, float, float]
     valid: np.ndarray | None = None
     projection: jit_voxel.Projection | None = None
+    numpy_points: np.ndarray | None = None
+    numpy_pixel_index: np.ndarray | None = None
+
+    @property
+    def points(self) -> np.ndarray:
+        """(M, 3) float32 ground frame [m]."""
+        return self.numpy_points if self.projection is None else self.projection.points
+
+    @property
+    def pixel_index(self) -> np.ndarray:
+        """(M,) int64 flat pixel indices of the points."""
+        return (self.numpy_pixel_index if self.projection is None
+                else self.projection.pixel_index)
 
 
 def roi_bounds(params: DetectorParams) -> np.ndarray:
@@ -157,10 +170,10 @@ def points_in_roi(depth_m: np.ndarray, rays: np.ndarray | geometry.GroundRays,
             depth_m, factors, roi_bounds(params), params.voxel_size_m, reuse=True,
             parts=threads * BANDS_PER_THREAD if threads > 1 else 1,
             run_parts=functools.partial(parallel.run_parts, threads=threads))
-        return RoiPoints(proj.points, proj.pixel_index, depth_m.shape, params.voxel_size_m,
-                         projection=proj)
+        return RoiPoints(depth_m.shape, params.voxel_size_m, projection=proj)
     pts, pix_roi, valid = geometry.ground_points_in_roi(depth_m, rays, params)
-    return RoiPoints(pts, pix_roi, depth_m.shape, params.voxel_size_m, valid=valid)
+    return RoiPoints(depth_m.shape, params.voxel_size_m, valid=valid, numpy_points=pts,
+                     numpy_pixel_index=pix_roi)
 
 
 def voxelise(proj: jit_voxel.Projection) -> VoxelGrid:
@@ -228,8 +241,11 @@ def warm_up() -> None:
                       geometry.ray_model(tall.shape, model, params)):
         factors = ((tall_rays.ru, tall_rays.rv, tall_rays.rot)
                    if isinstance(tall_rays, geometry.GroundRays) else tall_rays)
-        jit_voxel.project_roi(tall, factors, roi_bounds(threaded), threaded.voxel_size_m,
-                              parts=2 * BANDS_PER_THREAD, run_parts=in_turn)
+        banded = jit_voxel.project_roi(tall, factors, roi_bounds(threaded),
+                                       threaded.voxel_size_m, parts=2 * BANDS_PER_THREAD,
+                                       run_parts=in_turn)
+        voxelise(banded)
+        banded.points   # noqa: B018 - moves the bands' points together: compiles that too
     pts = np.random.default_rng(0).uniform(-1.0, 1.0, (20, 3))
     voxel_downsample(pts.astype(np.float32), (0.1, 0.1, 0.1))
     voxel_downsample(pts, (0.1, 0.1, 0.1))
