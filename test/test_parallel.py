@@ -3,6 +3,7 @@
 import functools
 import os
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -363,6 +364,21 @@ def test_awake_helpers_take_the_next_parts() -> None:
         ran: list[int] = []
         parallel.run_parts([lambda: ran.append(threading.get_ident())] * 4, 2)
         assert len(ran) == 4 and len(set(ran)) <= 2
+
+
+@compiled
+def test_a_second_wake_at_once_is_skipped() -> None:
+    """The detector's wake right after the node's hands nothing over; a later one does."""
+    if parallel.usable_cpus() < 2:
+        pytest.skip('one usable CPU: no helpers to wake')
+    parallel.warm_up()
+    parallel.wake(2)
+    generation = int(parallel._pool._generation[0])
+    parallel.wake(2)                                  # within _REWAKE_S: still awake
+    assert int(parallel._pool._generation[0]) == generation
+    time.sleep(2 * parallel._REWAKE_S)
+    parallel.wake(2)
+    assert int(parallel._pool._generation[0]) == generation + 1
 
 
 @compiled

@@ -41,6 +41,9 @@ _POLL_S = 0.004
 #: How long a helper stays awake after its parts, for the next stage's [s] (yielding its CPU
 #: to any other thread that wants it); 0 = block at once.
 LINGER_S = 0.002
+#: A wake-up this soon after the last hand-over is skipped [s]: the helpers are still awake
+#: (the node wakes them when it takes a frame, the detector again when it starts).
+_REWAKE_S = LINGER_S / 4
 
 
 class _Batch:
@@ -131,6 +134,11 @@ class _Pool:
         self._generation = np.zeros(1, np.int64)   # moves at every submit
         self._spin: Callable[[np.ndarray, int, int], bool] | None = None
         self._spin_rounds = 0                # yields in LINGER_S, measured when compiled
+        self.handed_at = -1.0                # perf_counter of the last submit
+
+    def lingers(self) -> bool:
+        """Whether the helpers stay awake a while after a hand-over (the compiled wait)."""
+        return self._spin is not None
 
     def prepare_spin(self) -> None:
         """Compile the helpers' wait (:func:`_make_spin`) and time its yields, once."""
@@ -208,6 +216,7 @@ class _Pool:
         for _ in range(helpers):
             self._tasks.put(batch)
         self._generation[0] += 1
+        self.handed_at = time.perf_counter()
 
     def _start(self, started: threading.Event) -> None:
         started.set()
@@ -224,6 +233,8 @@ def wake(threads: int) -> None:
     A frame's first parallel stage then finds its helpers awake (see :meth:`_Pool._next_soon`)
     instead of paying their wake-up. Does nothing for one thread or from a pool thread.
     """
+    if time.perf_counter() - _pool.handed_at < _REWAKE_S and _pool.lingers():
+        return            # woken a moment ago (or given parts): still awake
     helpers = min(check_threads(threads), usable_cpus()) - 1
     if helpers > 0 and not getattr(_local, 'in_pool', False):
         if jit.enabled():   # not while a background compile holds numba (the node's start)
