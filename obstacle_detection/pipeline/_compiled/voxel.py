@@ -42,7 +42,7 @@ from .traversal import ray_row
 __all__ = ['AVAILABLE', 'Projection', 'label_pixels', 'project_roi', 'roi_lattice',
            'voxel_downsample', 'voxelise']
 
-#: Most lattice cells [cells] of the byte map (as the numpy path's dense limit).
+#: Most lattice cells [cells] of the occupied-cell bitmap (as the numpy path's dense limit).
 _DENSE_LIMIT = 16_000_000
 #: uint64 0 and 1 (numba turns uint64 mixed with an int literal into float64).
 _U0 = np.uint64(0)
@@ -177,17 +177,14 @@ def _voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_vox
     cols (3, n) float, keys (n,) int64 in [0, n_cells) and pixels (n,) int64; point q is
     the q-th of them in stretch order. dims, low (3,) int64 the lattice; pixel_voxel (h*w,)
     int32: when pixels is not empty, the voxel of each point is written at its pixel;
-    point_voxel (m,) int64 out. Scratch, one
-    entry per 64 cells: bits (>= ceil(n_cells / 64)) uint64 all zero (left all zero), the
-    occupied cells' bits; prefix (as long) int64, the occupied cells before each word. A
+    point_voxel (m,) int64 out. Scratch, one entry per 64 cells: bits (>= ceil(n_cells /
+    64)) uint64 all zero (left all zero), the occupied cells' bits; prefix (as long) int64,
+    the occupied cells before each word. A
     cell's voxel number is its word's prefix plus the set bits below it in the word: no
     table entry per cell, so the frame touches 1/64 of the memory a table would (the bitmap
     and the prefixes stay in the cache). Returns (centroids (V, 3) float32, point_voxel,
     counts (V,) int64, voxel_ijk (V, 3) int64).
     """
-    m = 0
-    for s in range(begins.size):
-        m += counts_in[s]
     n_words = (n_cells + 63) // 64
     for s in range(begins.size):
         for q in range(begins[s], begins[s] + counts_in[s]):
@@ -371,8 +368,9 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarra
     in the same thread overwrites (the pipeline's choice; faster), instead of fresh arrays.
     parts: the image rows cut into this many bands, projected by the functions handed to
     ``run_parts`` (which returns once all have run, e.g. on several threads; None: here, in
-    order) into their own stretch of the buffers, then moved together in pixel order: the
-    same points, pixels and keys.
+    order) into their own stretch of the buffers, moved together in pixel order when the
+    points, pixels or keys are first read (:class:`Projection`): the same points, pixels and
+    keys.
     """
     shape = depth_m.shape
     depth = np.ascontiguousarray(depth_m, np.float32).reshape(-1)
