@@ -249,7 +249,7 @@ def depth_problem(depth: np.ndarray) -> str | None:
     a wrong ``is_bigendian``, random bytes. A frame with no valid value is not judged here.
     """
     sample = depth_sample(depth)
-    if sample.dtype.kind != 'f':
+    if sample.dtype == np.uint16:
         # the usual case, in integers (no float copy): accepted when enough codes lie in
         # lo..hi (uint16 wrap-around puts the codes below lo above hi - lo); a refusal and
         # its message come from the rule in metres below
