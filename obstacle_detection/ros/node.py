@@ -232,7 +232,7 @@ class DetectorNode(Node):
             self.destroy_node()
             raise
         self.stats = FrameStats()
-        self._slot = FrameMailbox(MAILBOX_FRAMES)
+        self._mailbox = FrameMailbox(MAILBOX_FRAMES)
         self._mount_source = self._make_mount_source(tf_buffer)
         self._mount_cache: tuple[NodeConfig, Mount, Any] | None = None
         self._mount_said = ''
@@ -544,7 +544,7 @@ class DetectorNode(Node):
     # -- callbacks (executor thread): store only --------------------------------------------
     def _on_depth(self, msg: Image) -> None:
         self._health.received()
-        if self._slot.put(msg):
+        if self._mailbox.put(msg):
             self.stats.add_dropped()
             self._health.dropped()
 
@@ -611,7 +611,7 @@ class DetectorNode(Node):
     # -- worker thread ------------------------------------------------------------------------
     def _work(self) -> None:
         while not self._stop.is_set():
-            msg = self._slot.take(timeout=0.5)
+            msg = self._mailbox.take(timeout=0.5)
             if msg is not None and not self._stop.is_set():
                 self.handle_frame(msg)
 
@@ -749,7 +749,7 @@ class DetectorNode(Node):
     def close(self) -> None:
         """Stop the worker thread (call before ``destroy_node``)."""
         self._stop.set()
-        self._slot.close()
+        self._mailbox.close()
         if self._worker.is_alive() and self._worker is not threading.current_thread():
             self._worker.join(timeout=10.0)
 
