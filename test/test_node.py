@@ -65,8 +65,6 @@ from obstacle_detection.ros.parameters import (
 )
 from obstacle_detection.sim.scenes import SceneFrame, render_scene
 
-#: Starts processes or a DDS graph: deselect with -m "not integration" (README, tests).
-pytestmark = pytest.mark.integration
 
 REPO = ros_env.REPO_ROOT
 OK, ERROR = DiagnosticStatus.OK, DiagnosticStatus.ERROR
