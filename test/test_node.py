@@ -63,7 +63,8 @@ from obstacle_detection.ros.parameters import (
     detector_params_from_ros,
     params_file_problems,
 )
-from obstacle_detection.sim.scenes import SceneFrame, render_scene
+from obstacle_detection.sim.render import SceneFrame
+from obstacle_detection.sim.scenes import render_scene
 
 
 REPO = ros_env.REPO_ROOT
