@@ -7,8 +7,8 @@ import pytest
 
 from obstacle_detection.labels import CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN
 from obstacle_detection.pipeline.costmap import Costmap
-from obstacle_detection.pipeline.fusion import (FusedGrid, FusionParams, PoseBuffer,
-                                       frame_evidence, yaw_from_quaternion)
+from obstacle_detection.pipeline.fusion import FusedGrid, FusionParams, PoseBuffer, frame_evidence
+from obstacle_detection.pipeline.geometry import yaw_from_quaternion
 
 RES = 0.05
 

@@ -152,15 +152,6 @@ def _wrap_angle(angle_rad: float) -> float:
     return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
 
 
-def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
-    """Yaw [rad] (rotation about z) of a unit quaternion, e.g. nav_msgs/Odometry's orientation.
-
-    For a robot on the floor (roll = pitch = 0) this is its heading; otherwise the heading of
-    its x axis projected on the floor.
-    """
-    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-
-
 def _check_pose(pose: object) -> str:
     """'' when ``pose`` is a usable (x, y, yaw), else what is wrong with it."""
     try:

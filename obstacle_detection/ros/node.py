@@ -66,8 +66,8 @@ from .frame_gate import CameraState as _CameraState
 from .frame_gate import stamp_ns as _stamp_ns
 from obstacle_detection.viz.overlay import render_overlay
 from .diagnostics import HealthWindow, diagnostic_array, health_status
-from obstacle_detection.pipeline.fusion import (FusedGrid, PoseBuffer,
-                                                yaw_from_quaternion)
+from obstacle_detection.pipeline.fusion import FusedGrid, PoseBuffer
+from obstacle_detection.pipeline.geometry import yaw_from_quaternion
 from .mount_source import Mount, MountSource
 from obstacle_detection.pipeline.params import Intrinsics
 from .parameters import (ALL_PARAMS, NODE_NAME, params_file_problems,
