@@ -60,6 +60,7 @@ from obstacle_detection.pipeline.params import PRESETS, Intrinsics, table_4_2, t
 from obstacle_detection.pipeline.detector import DetectionResult, Detector
 from obstacle_detection.ros.parameters import (
     ALL_PARAMS,
+    PARAMS_FILE_KEY,
     detector_params_from_ros,
     params_file_problems,
 )
@@ -83,7 +84,7 @@ COMPILE_TIMEOUT_S = 300.0
 
 def _yaml_values(path: Path) -> dict[str, Any]:
     """{name: python value} of a params file, parsed by rclpy as the node's rcl does."""
-    parsed = parameter_dict_from_yaml_file(str(path), target_nodes=['obstacle_detector'])
+    parsed = parameter_dict_from_yaml_file(str(path), target_nodes=[PARAMS_FILE_KEY])
     return {name: parameter_value_to_python(msg.value) for name, msg in parsed.items()}
 
 
@@ -992,20 +993,35 @@ def test_unreadable_params_file_is_one_clear_line(tmp_path: Path, content: str |
     assert done.stderr.startswith(f'detector: error: {path}: {expected}')
 
 
-@pytest.mark.parametrize('key, applies', [
-    ('obstacle_detector', True), ('/obstacle_detector', True), ('/**', True),
-    ('/**/obstacle_detector', True), ('/*', True), ('detector', False),
-    ('/robot/obstacle_detector', False), ('obstacle_detection', False)])
-def test_params_file_sections_are_matched_as_rcl_does(tmp_path: Path, key: str,
+@pytest.mark.parametrize('key, node_fqn, applies', [
+    ('obstacle_detector', NODE, True), ('/obstacle_detector', NODE, True), ('/**', NODE, True),
+    ('/**/obstacle_detector', NODE, True), ('/*', NODE, True), ('detector', NODE, False),
+    ('/robot/obstacle_detector', NODE, False), ('obstacle_detection', NODE, False),
+    # in a namespace: the shipped files' key still names the node, a bare name no longer does
+    ('/**/obstacle_detector', '/x/obstacle_detector', True), ('/**', '/x/obstacle_detector', True),
+    ('/x/obstacle_detector', '/x/obstacle_detector', True),
+    ('obstacle_detector', '/x/obstacle_detector', False),
+    ('/*', '/x/obstacle_detector', False)])
+def test_params_file_sections_are_matched_as_rcl_does(tmp_path: Path, key: str, node_fqn: str,
                                                       applies: bool) -> None:
     path = tmp_path / 'p.yaml'
     path.write_text(f'{key}:\n  ros__parameters:\n    median_kernel: 5\n')
 
-    problems = params_file_problems(path)
+    problems = params_file_problems(path, node_fqn)
 
     assert problems == ([] if applies else [
-        f"{path}: section '{key}' does not name this node (/obstacle_detector); its 1 "
-        'parameter(s) are ignored (use "obstacle_detector:" or "/**:")'])
+        f"{path}: section '{key}' does not name this node ({node_fqn}); its 1 "
+        'parameter(s) are ignored (use "/**/obstacle_detector:" or "/**:")'])
+
+
+def test_rclpys_own_parameters_in_a_params_file_are_not_unknown(tmp_path: Path) -> None:
+    path = tmp_path / 'p.yaml'
+    path.write_text('/**/obstacle_detector:\n  ros__parameters:\n    use_sim_time: true\n'
+                    '    use_sim_tme: true\n')
+
+    assert params_file_problems(path) == [
+        f"{path}: unknown parameter 'use_sim_tme' is ignored (did you mean 'use_sim_time'?); "
+        '`detector --help` lists the parameters']
 
 
 def test_params_file_problems_name_unknown_parameters(tmp_path: Path) -> None:
