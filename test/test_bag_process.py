@@ -476,7 +476,16 @@ def _compressed_depth(depth: np.ndarray) -> tuple[str, bytes]:
     return msg.format, bytes(msg.data)
 
 
+def _rvl_compressed_depth(depth: np.ndarray) -> tuple[str, bytes]:
+    """Return compressedDepth with format rvl (image_transport_plugins 4.0): header + RVL."""
+    from rvl_encoder import rvl_message
+
+    msg = rvl_message(depth, Time(), 'f')
+    return msg.format, bytes(msg.data)
+
+
 COMPRESSIONS = {'compressedDepth': ('compressedDepth', _compressed_depth),
+                'compressedDepth rvl': ('compressedDepth', _rvl_compressed_depth),
                 'iai_kinect2 tiff': ('compressed', _iai_tiff),
                 'png': ('compressed', _headerless_png)}
 

@@ -69,7 +69,7 @@ from .conversions import (
     costmap_to_occupancy_grid,
     result_to_messages,
 )
-from . import frame_gate
+from . import frame_gate, rvl
 from .config import DEPTH_TRANSPORT_TOPICS, NodeConfig, build_config
 from .diagnostics import Context as DiagnosticsContext
 from .frame_gate import CameraState as _CameraState
@@ -269,7 +269,7 @@ class DetectorNode(Node):
         # frames meanwhile take the numpy path (identical results, slower), so the node is
         # ready as soon as it subscribes and never stalls or drops a frame while compiling.
         self._compile_started = time.monotonic()
-        self._compile = jit_support.compile_in_background(self._config.detector.warm_up,
+        self._compile = jit_support.compile_in_background(self._warm_up,
                                                           on_done=self._on_compiled)
         reliable = bool(self.get_parameter('reliable_input').value)
         in_qos = _RELIABLE_INPUT_QOS if reliable else qos_profile_sensor_data
@@ -434,6 +434,12 @@ class DetectorNode(Node):
             return ('numpy path while the numba kernels compile or load in the background '
                     '(a first compilation takes about 20-40 s; same results, slower)')
         return 'compiled numba kernels'
+
+    def _warm_up(self) -> None:
+        """Compile or load the kernels frames will need: the pipeline's, RVL's if compressed."""
+        self._config.detector.warm_up()
+        if self.get_parameter('depth_transport').value == 'compressedDepth':
+            rvl.warm_up()
 
     def _on_compiled(self, job: jit_support.BackgroundCompile) -> None:
         # Runs on the compile thread; the node may already be shutting down.
