@@ -653,9 +653,12 @@ class DetectorNode(Node):
             why = f'no odometry on {self._odom_sub.topic_name}'
         update = self._fused.update(result.costmap, pose, pose_stamp_s=stamp_s,
                                     no_pose_reason=why)
-        if update.message:
-            log = self.get_logger()
-            (log.warning if update.warning else log.info)(f'fused costmap: {update.message}')
+        # One call site per severity: rclpy refuses ("Logger severity cannot be changed
+        # between calls") a call site whose severity changes, which skipped the frame.
+        if update.message and update.warning:
+            self.get_logger().warning(update.message)
+        elif update.message:
+            self.get_logger().info(update.message)
         return costmap_to_occupancy_grid(self._fused.to_costmap(), stamp=msg.header.stamp,
                                          frame_id=config.odom_frame)
 
