@@ -410,3 +410,27 @@ def test_rvl_frames_give_the_raw_frames_outputs_and_a_broken_one_is_skipped(
     finally:
         node.close()
         node.destroy_node()
+
+
+def test_help_lists_every_topic_the_node_can_use(tmp_path: Path) -> None:
+    """Every create_publisher / create_subscription topic of node.py, and the odometry."""
+    import ast
+
+    from test_node import _run_detector
+
+    tree = ast.parse((REPO / 'obstacle_detection' / 'ros' / 'node.py').read_text())
+    topics = {call.args[1].value for call in ast.walk(tree)
+              if isinstance(call, ast.Call) and isinstance(call.func, ast.Attribute)
+              and call.func.attr in ('create_publisher', 'create_subscription')
+              and len(call.args) >= 2 and isinstance(call.args[1], ast.Constant)}
+    from obstacle_detection.ros.node import DEPTH_TRANSPORTS
+
+    topics |= {topic for _, topic in DEPTH_TRANSPORTS.values()} | {'odom'}
+    assert {'/diagnostics', 'obstacles/fused_costmap', 'depth/camera_info'} <= topics
+
+    done = _run_detector(tmp_path, '--help', salt=':plumbing-help')
+
+    assert done.returncode == 0, done.stderr
+    listed = {line.split()[1] for line in done.stdout.splitlines()
+              if line.startswith(('  in ', '  out '))}
+    assert topics <= listed, topics - listed

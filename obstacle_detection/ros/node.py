@@ -375,7 +375,7 @@ class DetectorNode(Node):
 
     def _warn_request(self, service: str, text: str) -> None:
         self._throttled_logger(f'service:{service}').warning(
-            f'refused a malformed {service} request: {text}',
+            f'refused a {service} request: {text}',
             throttle_duration_sec=WARN_THROTTLE_S)
 
     def _parameter_msg_problem(self, msg: Any) -> str | None:
