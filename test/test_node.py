@@ -401,6 +401,11 @@ def test_a_burst_of_frames_is_not_queued(detector: NodeUnderTest, scene: SceneFr
                                    REPLY_TIMEOUT_S), detector.log(start)
 
 
+def _projection(fx: float, fy: float, cx: float, cy: float) -> list[float]:
+    """Return a CameraInfo P (3 x 4, row-major) of these intrinsics [px]."""
+    return [fx, 0.0, cx, 0.0, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0]
+
+
 def _bad_cases(scene: SceneFrame) -> list[tuple[str, Image, CameraInfo, str]]:
     good_info = _camera_info(scene)
     height, width = scene.depth_mm.shape
@@ -410,14 +415,14 @@ def _bad_cases(scene: SceneFrame) -> list[tuple[str, Image, CameraInfo, str]]:
     odd.data = bytes(odd.data)[:-1]
     small = array_to_image(scene.depth_mm[::2, ::2].copy(), stamp=Time(),
                            frame_id='depth_optical')
-    zero_focal = _camera_info(scene)
-    zero_focal.k = [0.0] * 9
+    zero_focal = _camera_info(scene)     # an uncalibrated camera: K and P all zero
+    zero_focal.k, zero_focal.p = [0.0] * 9, [0.0] * 12
     nan = array_to_image(np.full((height, width), np.nan, np.float32), stamp=Time(),
                          frame_id='depth_optical')
     huge_focal = _camera_info(scene)
-    huge_focal.k = [1e300, 0.0, 256.0, 0.0, 1e300, 212.0, 0.0, 0.0, 1.0]
+    huge_focal.p = _projection(1e300, 1e300, 256.0, 212.0)     # the intrinsics come from P
     tiny_focal = _camera_info(scene)
-    tiny_focal.k = [1e-300, 0.0, 256.0, 0.0, 1e-300, 212.0, 0.0, 0.0, 1.0]
+    tiny_focal.p = _projection(1e-300, 1e-300, 256.0, 212.0)
     no_size = _camera_info(scene)
     no_size.width = no_size.height = 0
     mm_as_metres = array_to_image(scene.depth_mm.astype(np.float32), stamp=Time(),
@@ -464,7 +469,7 @@ def test_camera_info_is_matched_to_the_frame_by_stamp(
     info = _camera_info(scene)
     info.header.stamp = own
     other = _camera_info(scene)
-    other.k = [300.0, 0.0, 250.0, 0.0, 300.0, 200.0, 0.0, 0.0, 1.0]
+    other.p = _projection(300.0, 300.0, 250.0, 200.0)
     other.header.stamp = newer
     detector.info_pub.publish(info)
     detector.info_pub.publish(other)
