@@ -285,6 +285,9 @@ def test_only_what_is_switched_on_is_advertised_or_subscribed(graph: Graph) -> N
     assert cloud.qos_profile.reliability == ReliabilityPolicy.RELIABLE
     (odom,) = subscriptions('odom')
     assert odom.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT
+    # the transient-local one exists because the latched publisher does
+    assert graph.spin_until(lambda: len(subscriptions('depth/camera_info')) == 2,
+                            REPLY_TIMEOUT_S)
     infos = subscriptions('depth/camera_info')
     assert sorted((i.qos_profile.reliability, i.qos_profile.durability) for i in infos) == [
         (ReliabilityPolicy.RELIABLE, DurabilityPolicy.TRANSIENT_LOCAL),
@@ -337,6 +340,41 @@ def test_a_best_effort_camera_info_is_received_without_a_qos_warning(
 def local_context() -> Iterator[rclpy.Context]:
     with ros_env.rclpy_context(__name__ + ':in-process') as context:
         yield context
+
+
+def test_a_volatile_camera_info_publisher_meets_no_incompatible_subscription(
+        local_context: rclpy.Context, scene: SceneFrame) -> None:
+    """Most drivers publish CameraInfo volatile: no transient-local subscription for them.
+
+    Else the driver's own process would warn "requesting incompatible QoS" at every start.
+    """
+    from rclpy.event_handler import PublisherEventCallbacks
+
+    node = DetectorNode(context=local_context,
+                        cli_args=['--ros-args', '--params-file', str(CORRIDOR_YAML)])
+    probe = rclpy.create_node('camera_stand_in', context=local_context)
+    executor = SingleThreadedExecutor(context=local_context)
+    incompatible: list[Any] = []
+    try:
+        executor.add_node(node)
+        executor.add_node(probe)
+        publisher = probe.create_publisher(
+            CameraInfo, 'depth/camera_info', qos_profile_sensor_data,
+            event_callbacks=PublisherEventCallbacks(incompatible_qos=incompatible.append))
+        deadline = time.monotonic() + REPLY_TIMEOUT_S
+        while not node._cameras and time.monotonic() < deadline:
+            publisher.publish(_camera_info(scene, Time(sec=5)))
+            executor.spin_once(timeout_sec=0.1)
+        end = time.monotonic() + 2.0      # four watches of the graph
+        while time.monotonic() < end:
+            executor.spin_once(timeout_sec=0.1)
+        assert node._cameras, 'the CameraInfo did not arrive'
+        assert node._latched_info_sub is None and incompatible == []
+    finally:
+        executor.shutdown(timeout_sec=1.0)
+        probe.destroy_node()
+        node.close()
+        node.destroy_node()
 
 
 def test_two_nodes_report_under_two_names(local_context: rclpy.Context,

@@ -7,9 +7,9 @@ Topics (relative names, remappable; :func:`help_text` lists them all):
 - in  ``depth/image_raw`` (sensor_msgs/Image, 16UC1 [mm] or 32FC1 [m]; or a CompressedImage
   on ``.../compressedDepth`` or ``.../compressed`` by ``depth_transport``): sensor-data QoS
   (best effort), reliable when ``reliable_input`` is true.
-- in  ``depth/camera_info`` (sensor_msgs/CameraInfo, intrinsics from P): as the depth, and a
-  second, reliable transient-local subscription that receives a latched CameraInfo (a camera
-  that publishes one, once); what both deliver is kept once.
+- in  ``depth/camera_info`` (sensor_msgs/CameraInfo, intrinsics from P): as the depth; once a
+  transient-local publisher shows up (a camera that publishes one CameraInfo, latched), a
+  second, transient-local subscription receives it; what both deliver is kept once.
 - in  ``odom`` (nav_msgs/Odometry, ``odom_topic``), only if ``fuse``: best effort, so
   reliable and best-effort publishers both connect.
 - out (reliable): ``obstacles/points`` (PointCloud2 x, y, z float32 in ``cloud_frame_id``),
@@ -47,6 +47,7 @@ import rclpy.logging
 import rclpy.utilities
 from nav_msgs.msg import OccupancyGrid, Odometry
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
@@ -110,12 +111,8 @@ _ODOM_QOS = QoSProfile(depth=20, reliability=ReliabilityPolicy.BEST_EFFORT,
 _GRID_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                        history=HistoryPolicy.KEEP_LAST,
                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
-#: The second CameraInfo subscription: a latched CameraInfo (reliable + transient local,
-#: published once) reaches only a transient-local subscriber. Volatile or best-effort
-#: publishers do not match it (the first subscription takes those), quietly.
-_LATCHED_INFO_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                               history=HistoryPolicy.KEEP_LAST,
-                               durability=DurabilityPolicy.TRANSIENT_LOCAL)
+#: How often the node looks for a latched CameraInfo publisher until it finds one [s].
+LATCHED_INFO_WATCH_S = 0.5
 #: First word of every ~/status message once the node processes frames.
 STATUS_READY = 'ready'
 #: Depth frames that may wait for the worker (see FrameMailbox): one may wait behind another.
@@ -303,16 +300,17 @@ class DetectorNode(Node):
                                                    in_qos)
         self._info_sub = self.create_subscription(CameraInfo, 'depth/camera_info',
                                                   self._on_camera_info, in_qos)
-        self._latched_info_sub = self.create_subscription(
-            CameraInfo, 'depth/camera_info', self._on_camera_info, _LATCHED_INFO_QOS,
-            event_callbacks=SubscriptionEventCallbacks(
-                incompatible_qos=self._on_volatile_camera_info_publisher))
+        self._latched_info_sub: Any = None
+        self._latched_info_watch: Any = self.create_timer(
+            LATCHED_INFO_WATCH_S, self._watch_for_latched_camera_info,
+            clock=Clock(clock_type=ClockType.STEADY_TIME))   # also before /clock runs
         outputs = [pub.topic_name for pub in (self._points_pub, self._costmap_pub,
                                               self._ground_pub, self._overlay_pub,
                                               self._fused_pub) if pub is not None]
         self.get_logger().info(
             f'ready: {self._depth_sub.topic_name} + {self._info_sub.topic_name} '
-            f'({"reliable" if reliable else "sensor-data"} QoS; a latched CameraInfo too)'
+            f'({"reliable" if reliable else "sensor-data"} QoS; a latched CameraInfo too, '
+            'once its publisher shows up)'
             + (f' + {self._odom_sub.topic_name}' if self._odom_sub is not None else '')
             + f' -> {", ".join(outputs)}; '
             f'frames {self._config.cloud_frame_id!r}/{self._config.costmap_frame_id!r}; '
@@ -618,15 +616,44 @@ class DetectorNode(Node):
             return
         self._cameras.append(camera)
 
-    def _on_volatile_camera_info_publisher(self, event: Any) -> None:
-        """Note quietly a CameraInfo publisher that cannot match the latched subscription.
+    def _watch_for_latched_camera_info(self) -> None:
+        """Subscribe transient local as well once a latched CameraInfo publisher shows up.
 
-        Expected: the first subscription receives it. This replaces rclpy's default warning
+        A camera that publishes one CameraInfo, latched (transient local, often reliable),
+        reaches only a transient-local subscription; a volatile publisher (most drivers)
+        cannot match one, and its own process would then warn of "incompatible QoS". So the
+        second subscription is made only when the graph shows a transient-local publisher
+        (best effort if one of them is), and the watch stops. Runs on a steady clock.
+        """
+        latched = [info for info in self.get_publishers_info_by_topic(self._info_sub.topic_name)
+                   if info.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL]
+        if not latched:
+            return
+        reliable = all(info.qos_profile.reliability == ReliabilityPolicy.RELIABLE
+                       for info in latched)
+        qos = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                         reliability=(ReliabilityPolicy.RELIABLE if reliable
+                                      else ReliabilityPolicy.BEST_EFFORT))
+        self.destroy_timer(self._latched_info_watch)
+        self._latched_info_watch = None
+        self._latched_info_sub = self.create_subscription(
+            CameraInfo, 'depth/camera_info', self._on_camera_info, qos,
+            event_callbacks=SubscriptionEventCallbacks(
+                incompatible_qos=self._on_unlatched_camera_info_publisher))
+        self.get_logger().info(
+            f'a latched CameraInfo publisher on {self._info_sub.topic_name}: subscribed '
+            f'{"reliable" if reliable else "best effort"} + transient local too')
+
+    def _on_unlatched_camera_info_publisher(self, event: Any) -> None:
+        """Note quietly a volatile CameraInfo publisher beside a latched one.
+
+        The first subscription receives it; this replaces rclpy's default warning
         ("offering incompatible QoS"), which would be a false alarm here.
         """
         self.get_logger().debug(
-            f'CameraInfo publisher on {self._info_sub.topic_name} is not latched '
-            f'({event.last_policy_kind}): received by the volatile subscription')
+            f'a CameraInfo publisher on {self._info_sub.topic_name} is not latched '
+            f'({event.last_policy_kind}): received by the first subscription')
 
     def _on_odometry(self, msg: Odometry) -> None:
         pose = msg.pose.pose
