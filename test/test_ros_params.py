@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -11,9 +12,11 @@ from obstacle_detection.ros.parameters import (
     FRAME_VOXELS_BOUND,
     MAX_COSTMAP_CELLS,
     MAX_NEIGHBOUR_ENTRIES,
+    ParamsFileError,
     budget_problem,
     detector_params_from_ros,
     pipeline_params_to_ros,
+    read_params_file,
 )
 
 
@@ -75,3 +78,28 @@ def test_millimetre_voxels_over_a_long_range_are_refused() -> None:
 def test_a_log_line_every_microsecond_is_refused() -> None:
     problem = budget_problem(_values(stats_period_s=1e-6))
     assert problem is not None and 'stats_period_s=1e-06' in problem
+
+
+@pytest.mark.parametrize('key', ['/**/obstacle_detector', 'obstacle_detector', '/**'])
+def test_the_tools_read_a_section_that_names_the_node(tmp_path: Path, key: str) -> None:
+    path = tmp_path / 'p.yaml'
+    path.write_text(f'{key}:\n  ros__parameters:\n    median_kernel: 5\n'
+                    '    use_sim_time: true\n')
+
+    assert read_params_file(path) == {'median_kernel': 5}    # rclpy's use_sim_time: skipped
+
+
+def test_wildcard_sections_are_read_first_then_the_node_s_own(tmp_path: Path) -> None:
+    path = tmp_path / 'p.yaml'
+    path.write_text('obstacle_detector:\n  ros__parameters:\n    median_kernel: 7\n'
+                    '/**:\n  ros__parameters:\n    median_kernel: 5\n    max_range_m: 3.0\n')
+
+    assert read_params_file(path) == {'median_kernel': 7, 'max_range_m': 3.0}
+
+
+def test_a_file_for_another_node_is_refused_by_the_tools(tmp_path: Path) -> None:
+    path = tmp_path / 'p.yaml'
+    path.write_text('/robot/obstacle_detector:\n  ros__parameters:\n    median_kernel: 5\n')
+
+    with pytest.raises(ParamsFileError, match='no section naming the node'):
+        read_params_file(path)
