@@ -39,7 +39,8 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from obstacle_detection.pipeline.params import table_4_2
 from obstacle_detection.ros.conversions import array_to_image, intrinsics_to_camera_info
 from obstacle_detection.ros.node import DetectorNode
-from obstacle_detection.ros.parameters import ALL_PARAMS, PARAMS_FILE_KEY, params_file_problems
+from obstacle_detection.ros.parameters import (ALL_PARAMS, PARAMS_FILE_KEY, params_file_problems,
+                                               read_params_file)
 from obstacle_detection.sim.scenes import SceneFrame, render_scene
 
 #: Starts processes or a DDS graph: deselect with -m "not integration" (README, tests).
@@ -374,6 +375,27 @@ def test_a_volatile_camera_info_publisher_meets_no_incompatible_subscription(
         executor.shutdown(timeout_sec=1.0)
         probe.destroy_node()
         node.close()
+        node.destroy_node()
+
+
+@pytest.mark.parametrize('order', [('obstacle_detector', '/**/obstacle_detector', '/**'),
+                                   ('/**', '/**/obstacle_detector', 'obstacle_detector'),
+                                   ('/**/obstacle_detector', 'obstacle_detector', '/**')])
+def test_the_tools_read_a_params_file_as_rclpy_gives_it_to_the_node(
+        local_context: rclpy.Context, tmp_path: Path, order: tuple[str, ...]) -> None:
+    values = {'obstacle_detector': {'median_kernel': 7},
+              '/**/obstacle_detector': {'median_kernel': 9, 'max_range_m': 2.5},
+              '/**': {'median_kernel': 5, 'max_range_m': 3.0, 'lateral_limit_m': 1.0}}
+    path = tmp_path / 'p.yaml'
+    path.write_text(yaml.safe_dump({key: {'ros__parameters': values[key]} for key in order},
+                                   sort_keys=False))
+    node = rclpy.create_node('obstacle_detector', context=local_context,
+                             cli_args=['--ros-args', '--params-file', str(path)],
+                             automatically_declare_parameters_from_overrides=True)
+    try:
+        read = read_params_file(path)
+        assert read == {name: node.get_parameter(name).value for name in read}
+    finally:
         node.destroy_node()
 
 

@@ -82,7 +82,7 @@ from obstacle_detection.pipeline.geometry import yaw_from_quaternion
 from .mount_source import Mount, MountSource
 from obstacle_detection.pipeline.params import Intrinsics
 from .parameters import (ALL_PARAMS, NODE_NAME, PARAMS_FILE_KEY, params_file_problems,
-                         params_files_in_args)
+                         params_file_reason, params_files_in_args)
 
 #: Minimum interval between two warnings about the same kind of bad input [s].
 WARN_THROTTLE_S = 5.0
@@ -994,7 +994,8 @@ def main(args: list[str] | None = None) -> int:
         try:
             node = DetectorNode()
         except (ValueError, ParameterException) as error:
-            rclpy.logging.get_logger(NODE_NAME).fatal(f'invalid parameters: {error}')
+            reason = params_file_reason(files) or str(error)
+            rclpy.logging.get_logger(NODE_NAME).fatal(f'invalid parameters: {reason}')
             return 1
         for path in files:
             for problem in params_file_problems(path, node.get_fully_qualified_name()):

@@ -7,8 +7,8 @@ which a person writes in degrees (DESIGN.md): ``max_slope_rad`` -> ``max_slope_d
 Descriptions and ranges come from the dataclass's field metadata. The node's own parameters
 (frames, output switches, QoS, intrinsics fallback, statistics) follow.
 
-This module builds ``rcl_interfaces`` messages but never imports rclpy, so tools (the parameter
-table) and tests use it without a ROS graph.
+This module builds ``rcl_interfaces`` messages and needs no ROS graph: tools (the parameter
+table) and tests use it as it is; only reading a params file imports rclpy's own reader.
 """
 
 from __future__ import annotations
@@ -418,30 +418,47 @@ def params_file_problems(path: str | Path, node_fqn: str = f'/{NODE_NAME}') -> l
             continue
         for name in params:
             if name not in SPECS_BY_NAME and name not in RCLPY_PARAMETERS:
-                close = difflib.get_close_matches(str(name), [*SPECS_BY_NAME, *RCLPY_PARAMETERS],
-                                                  n=1)
-                hint = f' (did you mean {close[0]!r}?)' if close else ''
-                problems.append(f'{path}: unknown parameter {name!r} is ignored{hint}; '
-                                '`detector --help` lists the parameters')
+                problems.append(_unknown_name(path, name, ' is ignored'))
     if not applied and not problems:
         problems.append(f'{path}: no section for this node ({node_fqn})')
     return problems
 
 
-def read_params_file(path: str | Path) -> dict[str, ParamValue]:
+def _unknown_name(path: Path, name: str, outcome: str = '') -> str:
+    """Say that ``name`` is no parameter of the node (and ``outcome``), with the nearest one."""
+    close = difflib.get_close_matches(str(name), [*SPECS_BY_NAME, *RCLPY_PARAMETERS], n=1)
+    hint = f' (did you mean {close[0]!r}?)' if close else ''
+    return (f'{path}: unknown parameter {name!r}{outcome}{hint}; `detector --help` lists the '
+            'parameters')
+
+
+def _type_problem(path: Path, spec: ParamSpec, value: Any) -> str | None:
+    """Say why ``value`` does not have the parameter's type (as rcl refuses it), or None."""
+    want = type(spec.default)
+    if type(value) is want:
+        return None
+    fix = f': write {value}.0' if want is float and type(value) is int else ''
+    return f'{path}: parameter {spec.name!r} must be a {want.__name__}, got {value!r}{fix}'
+
+
+def read_params_file(path: str | Path, *, unknown_is_error: bool = True
+                     ) -> dict[str, ParamValue]:
     """Return the parameter values a node parameter file sets: ``{ros_name: value}``.
 
     The file has the ``--params-file`` format (``/**/obstacle_detector: ros__parameters:
-    {...}``); every section that names the node ``/obstacle_detector`` as rcl matches keys
-    (``/**/obstacle_detector``, ``obstacle_detector``, ``/**``, ...) is read, the sections with
-    wildcards first, then the others, each in file order, a later value replacing an earlier.
-    Unlike the node, which ignores undeclared names, an unknown name is an error here (a typo
-    would otherwise go unnoticed); rclpy's own parameters (``use_sim_time``...) are skipped, as
-    an offline tool has no ROS clock. As for the node, a value must have its parameter's type
-    (1.0, not 1, for a floating-point one). Only the names in the file are returned. Raises
-    ParamsFileError naming the file and the parameter; the values themselves are validated by
-    :func:`detector_params_from_ros`.
+    {...}``); the sections that name the node ``/obstacle_detector`` as rcl matches keys
+    (``/**/obstacle_detector``, ``obstacle_detector``, ``/**``, ...) are read by rclpy's own
+    reader (``parameter_dict_from_yaml_file``) in file order, a later value replacing an
+    earlier, as rclpy applies them to a node. Unlike the node, which ignores
+    undeclared names, an unknown name is an error here (a typo would otherwise go unnoticed;
+    ``unknown_is_error=False`` skips it); rclpy's own parameters (``use_sim_time``...) are
+    skipped, as an offline tool has no ROS clock. As for the node, a value must have its
+    parameter's type (1.0, not 1, for a floating-point one). Only the names in the file are
+    returned. Raises ParamsFileError naming the file and the parameter; the values themselves
+    are validated by :func:`detector_params_from_ros`.
     """
+    from rclpy.parameter import Parameter, parameter_dict_from_yaml_file
+
     path = Path(path)
     data, unreadable = _load_params_yaml(path)
     if unreadable is not None:
@@ -449,28 +466,47 @@ def read_params_file(path: str | Path) -> dict[str, ParamValue]:
     if not isinstance(data, dict):
         raise ParamsFileError(f'{path}: expected "{PARAMS_FILE_KEY}: ros__parameters: ..."')
     keys = [key for key in data if _section_applies(str(key), f'/{NODE_NAME}')]
-    keys.sort(key=lambda key: '*' not in str(key))   # stable: wildcards first, in file order
     if not keys:
         raise ParamsFileError(f'{path}: no section naming the node (e.g. '
                               f'"{PARAMS_FILE_KEY}:" or "/**:")')
+    try:   # the keys in the order given, each once
+        messages = parameter_dict_from_yaml_file(str(path), target_nodes=keys)
+    except (RuntimeError, ValueError, TypeError) as error:
+        raise ParamsFileError(f'{path}: {error}') from None
     values: dict[str, ParamValue] = {}
-    for key in keys:
-        section = data[key]
-        params = section.get('ros__parameters') if isinstance(section, dict) else None
-        if not isinstance(params, dict):
-            raise ParamsFileError(f'{path}: section {key!r} lacks "ros__parameters"')
-        for name, value in params.items():
-            if name in RCLPY_PARAMETERS:
-                continue
-            spec = SPECS_BY_NAME.get(name)
-            if spec is None:
-                raise ParamsFileError(f'{path}: unknown parameter {name!r}')
-            want = type(spec.default)
-            if type(value) is not want:
-                raise ParamsFileError(f'{path}: parameter {name!r} must be a {want.__name__}, '
-                                      f'got {value!r}')
-            values[name] = value
+    for name, message in messages.items():
+        if name in RCLPY_PARAMETERS:
+            continue
+        spec = SPECS_BY_NAME.get(name)
+        if spec is None:
+            if unknown_is_error:
+                raise ParamsFileError(_unknown_name(path, name))
+            continue
+        value = Parameter.from_parameter_msg(message).value
+        problem = _type_problem(path, spec, value)
+        if problem is not None:
+            raise ParamsFileError(problem)
+        values[name] = value
     return values
+
+
+def params_file_reason(paths: list[str] | tuple[str, ...]) -> str | None:
+    """Name the file and the value behind a refused start-up, or None if none is to blame.
+
+    A value of the wrong type (``max_range_m: 3`` for 3.0) or out of its range, found in one of
+    ``paths`` (the ``--params-file`` arguments, in order); unknown names are not the cause
+    (the node ignores them, with a warning).
+    """
+    for path in paths:
+        try:
+            values = read_params_file(path, unknown_is_error=False)
+        except ParamsFileError as error:
+            return str(error)
+        for name, value in values.items():
+            problem = _range_problem(SPECS_BY_NAME[name], value)
+            if problem is not None:
+                return f'{path}: {problem}'
+    return None
 
 
 def read_params_files(paths: list[str | Path] | tuple[str | Path, ...]
