@@ -1,9 +1,11 @@
-"""Tests of obstacle_detection.pipeline.depth: decoding and cropping (the median: test_median)."""
+"""Tests of obstacle_detection.pipeline.depth: decoding, cropping, lookup (median: test_median)."""
 
 import numpy as np
 import pytest
 
-from obstacle_detection.pipeline.depth import DepthFormatError, crop_borders, decode_depth
+from obstacle_detection.pipeline import jit
+from obstacle_detection.pipeline.depth import (DepthFormatError, crop_borders, decode_depth,
+                                               depth_lut, lookup)
 
 
 # --------------------------------------------------------------------------- decode
@@ -109,3 +111,19 @@ def test_crop_covering_whole_image_gives_zeros(margins) -> None:
 def test_crop_rejects_negative_margin() -> None:
     with pytest.raises(ValueError, match='left'):
         crop_borders(np.ones((3, 3), np.float32), 0, 0, -1, 0)
+
+
+# --------------------------------------------------------------------------- lookup
+
+
+@pytest.mark.parametrize('no_jit', ['', '1'])
+def test_lookup_is_numpys_take(no_jit, monkeypatch) -> None:
+    monkeypatch.setenv(jit.NO_JIT_ENV, no_jit)
+    rng = np.random.default_rng(5)
+    codes = rng.integers(0, 65536, (30, 41)).astype(np.uint16)
+    for table in (depth_lut(1000.0), depth_lut(5000.0, 'float64'),
+                  rng.normal(0, 1, 65536).astype(np.float32)):
+        for view in (codes, codes[::2, 3:]):
+            out = lookup(table, view)
+            assert out.dtype == table.dtype and out.flags.c_contiguous
+            np.testing.assert_array_equal(out, np.take(table, view))

@@ -1,7 +1,8 @@
 """Depth frame decoding and border cropping (the median filter is :mod:`.median`).
 
-All functions are numpy (no ROS). Depth images are (H, W) arrays; the pipeline format is
-float32 metres, C-contiguous, with 0.0 as the one "no return" value.
+All functions are numpy (no ROS); the lookup of uint16 codes is compiled when numba is there.
+Depth images are (H, W) arrays; the pipeline format is float32 metres, C-contiguous, with 0.0
+as the one "no return" value.
 """
 
 from __future__ import annotations
@@ -11,6 +12,9 @@ import operator
 
 import numpy as np
 
+from . import jit
+from ._compiled import depth as compiled
+
 __all__ = [
     'MM_PER_M',
     'DepthFormatError',
@@ -18,6 +22,7 @@ __all__ = [
     'crop_borders',
     'decode_depth',
     'depth_lut',
+    'lookup',
     'units_per_metre',
 ]
 
@@ -43,6 +48,18 @@ def depth_lut(units_per_m: float, dtype: str = 'float32') -> np.ndarray:
     lut = (np.arange(_UINT16_LEVELS, dtype=np.float64) / units_per_m).astype(dtype)
     lut.flags.writeable = False
     return lut
+
+
+def lookup(table: np.ndarray, codes: np.ndarray) -> np.ndarray:
+    """Return ``np.take(table, codes)``: (H, W) uint16 codes, (65536,) table; a new array.
+
+    Compiled when :func:`.jit.enabled`: numpy's take first turns the codes into 64-bit
+    indices, which costs about 0.25 ms more per 512 x 424 frame, twice per frame in the
+    detector (the raw and the filtered depth): about 6 % of the node's time at K = 5.
+    """
+    if jit.enabled():
+        return compiled.lookup(table, codes)
+    return np.take(table, codes)
 
 
 def units_per_metre(depth_scale: float | None) -> float:
@@ -88,7 +105,7 @@ def decode_depth(depth: np.ndarray, *, depth_scale: float | None = None) -> np.n
     if kind == 'u' and size == 2:
         scale = units_per_metre(depth_scale)
         # One table lookup per pixel; code 0 maps to 0.0 (no return).
-        return np.take(depth_lut(scale), arr.astype(np.uint16, copy=False))
+        return lookup(depth_lut(scale), arr.astype(np.uint16, copy=False))
     if kind == 'f' and size in (4, 8):
         if depth_scale is not None:
             raise DepthFormatError(

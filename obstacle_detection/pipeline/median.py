@@ -18,7 +18,7 @@ from scipy import ndimage
 from . import jit
 from ._compiled import _numba
 from ._compiled import median as compiled
-from .depth import MM_PER_M, DepthFormatError, check_image, depth_lut
+from .depth import MM_PER_M, DepthFormatError, check_image, depth_lut, lookup
 
 __all__ = ['MEDIAN_MODE', 'median_filter', 'median_of_codes', 'reference_median', 'warm_up']
 
@@ -87,7 +87,7 @@ def median_of_codes(codes: np.ndarray, k: int, table: np.ndarray,
     median of the decoded image to the bit; uint16 keys are faster to filter than float32.
     """
     codes = np.ascontiguousarray(check_image(codes, 'median input'), np.uint16)
-    return np.take(table, median_filter(codes, k, threads))
+    return lookup(table, median_filter(codes, k, threads))
 
 
 def _check_kernel(k: int) -> int:
@@ -115,15 +115,15 @@ def _opencv_median(image: np.ndarray, k: int) -> np.ndarray:
 def warm_up() -> float:
     """Compile (or load from numba's disk cache) the median kernel; return the seconds it took.
 
-    Both of its signatures (uint16 codes, the ranks of other dtypes) are prepared, so no
-    frame pays for them; every K runs the same kernel. A no-op returning 0.0 when
-    :func:`.jit.enabled` is False.
+    Both of its signatures (uint16 codes, the ranks of other dtypes) and the lookup of codes
+    in a depth table are prepared, so no frame pays for them; every K runs the same kernel.
+    A no-op returning 0.0 when :func:`.jit.enabled` is False.
     """
     if not jit.enabled():
         return 0.0
     start = time.perf_counter()
     millimetres = np.random.default_rng(0).integers(0, 4000, (24, 40)).astype(np.uint16)
-    metres = np.take(depth_lut(MM_PER_M), millimetres)
+    metres = lookup(depth_lut(MM_PER_M), millimetres)
     compiled.median_filter(millimetres, 7)
     compiled.median_filter(metres, 7)
     return time.perf_counter() - start
