@@ -108,8 +108,8 @@ class Detector:
     def warm_up(self) -> float:
         """Compile (or load from numba's disk cache) the optional JIT kernels; return seconds.
 
-        Without numba it does nothing.
-        Call it before the first frame (the node does at start-up) so no frame pays for it.
+        Without numba it does nothing. Call it before the first frame (the node does at
+        start-up) so no frame pays for it.
         """
         start = time.perf_counter()
         median.warm_up()
