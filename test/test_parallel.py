@@ -1,9 +1,6 @@
 """Stages on several threads (compute_threads) give the one-thread result to the bit."""
 
-import functools
-import os
 import threading
-import time
 
 import numpy as np
 import pytest
@@ -28,6 +25,7 @@ def _compiled_path(monkeypatch):
 
 
 # ------------------------------------------------------------------------------ run_parts
+# (the median's bands; the other stages cut their work in compiled prange loops)
 
 def test_run_parts_runs_every_part_once_on_up_to_n_threads() -> None:
     seen: list[tuple[int, int]] = []
@@ -63,64 +61,26 @@ def test_run_parts_raises_the_first_error_after_all_parts_ran() -> None:
     assert done[-1] == 'next'
 
 
-two_cpus = pytest.mark.skipif(parallel.usable_cpus() < 2, reason='needs two usable CPUs')
-
-
-def test_one_usable_cpu_runs_every_part_on_the_calling_thread(monkeypatch) -> None:
-    monkeypatch.setattr(parallel, 'usable_cpus', lambda: 1)
-    ran: list[int] = []
-    parallel.wake(4)
-    parallel.run_parts([lambda: ran.append(threading.get_ident())] * 5, 4)
-    assert ran == [threading.get_ident()] * 5
-
-
-@two_cpus
-def test_run_parts_from_a_pool_thread_runs_them_there() -> None:
-    inner: list[int] = []
-    started = threading.Event()
-    outer_thread: list[int] = []
-
-    def outer() -> None:
-        # a pool thread that waited for the pool could wait for itself: it runs them in turn
-        outer_thread.append(threading.get_ident())
-        started.set()
-        parallel.run_parts([lambda: inner.append(threading.get_ident())] * 3, 2)
-
-    def first() -> None:          # the calling thread takes this part and waits for outer
-        assert started.wait(10.0)
-
-    parallel.run_parts([first, outer], 2)
-    assert outer_thread and outer_thread[0] != threading.get_ident()
-    assert inner == [outer_thread[0]] * 3
-
-
 @pytest.mark.parametrize('bad, error', [(0, ValueError), (9, ValueError), (-1, ValueError),
                                         (True, TypeError), (1.5, TypeError), ('2', TypeError)])
 def test_thread_counts_outside_1_to_8_are_refused(bad, error) -> None:
     with pytest.raises(error):
-        parallel.check_threads(bad)
+        jit.check_threads(bad)
+    with pytest.raises(error):
+        jit.use_threads(bad)
     with pytest.raises((TypeError, ValueError)):
         corridor(compute_threads=bad)
 
 
-def test_part_bounds_cover_the_range_in_order() -> None:
-    for count in (1, 2, 7, 100):
-        for parts in (1, 2, 3, 8, 200):
-            bounds = parallel.part_bounds(count, parts)
-            assert bounds[0][0] == 0 and bounds[-1][1] == count
-            assert all(a < b for a, b in bounds)
-            assert all(b == c for (_, b), (c, _) in zip(bounds[:-1], bounds[1:]))
-            assert len(bounds) == min(parts, count)
-
-
-@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2 or parallel._pool._current_cpu is None,
-                    reason='needs two CPUs and sched_getcpu')
-def test_pool_threads_are_kept_off_the_callers_cpu() -> None:
-    parallel.run_parts([lambda: None] * 2, 2)
-    kept_off = parallel._pool._kept_off
-    assert kept_off is not None
-    for native_id in parallel._pool._native_ids:
-        assert os.sched_getaffinity(native_id) == os.sched_getaffinity(0) - {kept_off}
+def test_use_threads_never_asks_for_more_than_numba_has() -> None:
+    assert jit.use_threads(1) == 1
+    assert 1 <= jit.use_threads(jit.MAX_THREADS) <= jit.MAX_THREADS
+    if jit_knn.AVAILABLE:
+        import numba
+        assert jit.use_threads(jit.MAX_THREADS) == min(jit.MAX_THREADS,
+                                                       numba.config.NUMBA_NUM_THREADS)
+        used = jit.use_threads(2)
+        assert numba.get_num_threads() == used
 
 
 # ------------------------------------------------------------------------------ the stages
@@ -181,15 +141,9 @@ def _cloud(rng, n):
 def test_knn_in_ranges_equals_one_search(parts) -> None:
     pts = _cloud(np.random.default_rng(parts), 3000)
     one = jit_knn.knn_grid(pts, 13)
-    calls = []
-
-    def run(functions):
-        calls.append(len(functions))
-        for function in reversed(functions):              # any order gives the same rows
-            function()
-
-    np.testing.assert_array_equal(jit_knn.knn_grid(pts, 13, parts=parts, run_parts=run), one)
-    assert calls == [parts]
+    for threads in (1, 2):       # the ranges on one thread, or shared by two
+        jit.use_threads(threads)
+        np.testing.assert_array_equal(jit_knn.knn_grid(pts, 13, parts=parts), one)
     np.testing.assert_array_equal(normals.nearest_neighbours(pts, 13, threads=2), one)
 
 
@@ -198,15 +152,13 @@ def test_normals_in_ranges_equal_one_pass() -> None:
     pts = _cloud(np.random.default_rng(5), 3000)
     neighbours = jit_knn.knn_grid(pts, 13)[:, :10]
     one = jit_knn.normals_from_neighbours(pts, neighbours, 10)
-    np.testing.assert_array_equal(
-        jit_knn.normals_from_neighbours(pts, neighbours, 10, parts=4,
-                                        run_parts=lambda fs: [f() for f in fs]), one)
+    np.testing.assert_array_equal(jit_knn.normals_from_neighbours(pts, neighbours, 10, parts=4),
+                                  one)
     np.testing.assert_array_equal(normals.estimate_normals(pts, neighbours, threads=3), one)
     bad = neighbours.copy()
     bad[-1, 3] = pts.shape[0]                               # out of range in the last part
     with pytest.raises(ValueError, match='neighbour indices'):
-        jit_knn.normals_from_neighbours(pts, bad, 10, parts=4,
-                                        run_parts=lambda fs: [f() for f in fs])
+        jit_knn.normals_from_neighbours(pts, bad, 10, parts=4)
 
 
 @pytest.mark.parametrize('scene', ['person_walking', 'corridor', 'ramps'])
@@ -242,8 +194,7 @@ def test_smear_pass_in_row_ranges_equals_one_pass() -> None:
     for parts in (2, 3, 7):
         got = filtered.copy()
         assert jit_traversal.drop_smeared_fused(got, raw, 0.02, traversal.FLYING_JUMP,
-                                                traversal.PLANAR_TOLERANCE, parts=parts,
-                                                run_parts=lambda fs: [f() for f in fs[::-1]])
+                                                traversal.PLANAR_TOLERANCE, parts=parts)
         np.testing.assert_array_equal(got, one)
     np.testing.assert_array_equal(traversal.drop_smeared(filtered.copy(), raw, 0.02, 2), one)
     # the detector's promise that raw holds no NaN skips only the scan for one
@@ -278,8 +229,8 @@ def test_back_projection_in_row_bands_equals_one_pass(model) -> None:
 
 
 @compiled
-def test_back_projection_bands_in_any_order_and_a_failing_band() -> None:
-    """The bands close their gaps in any run order; a band that raises hangs nobody."""
+def test_back_projection_bands_close_their_gaps_when_read() -> None:
+    """The voxel grid reads the bands' stretches where they lie; the points, read, move once."""
     frame = render_scene('people', seed=1, intrinsics=KINECT_V2_SD, size=KINECT_V2_SD_SIZE,
                          frame_index=0)
     params = corridor(camera_height_m=float(frame.height_m),
@@ -289,51 +240,18 @@ def test_back_projection_bands_in_any_order_and_a_failing_band() -> None:
     bounds = voxel.roi_bounds(params)
     one = jit_voxel.project_roi(depth, rays, bounds, params.voxel_size_m)
     assert one.points.shape[0] > 1000
-    orders = {'reversed': lambda calls: [call() for call in calls[::-1]],
-              'middle first': lambda calls: [calls[i]() for i in (3, 0, 4, 1, 5, 2)],
-              'two threads': functools.partial(parallel.run_parts, threads=2)}
     one_grid = jit_voxel.voxelise(one)
-    for name, run_parts in orders.items():
-        got = jit_voxel.project_roi(depth, rays, bounds, params.voxel_size_m, parts=6,
-                                    run_parts=run_parts)
-        # the voxel grid reads the bands' stretches where they lie ...
+    for parts in (2, 6):
+        got = jit_voxel.project_roi(depth, rays, bounds, params.voxel_size_m, parts=parts)
         assert got.stretches is not None and got.stretches[0][1] > got.stretches[1][0]
         for a, b in zip(one_grid, jit_voxel.voxelise(got)):
-            np.testing.assert_array_equal(b, a, err_msg=name)
-        np.testing.assert_array_equal(got.pixel_voxel, one.pixel_voxel, err_msg=name)
+            np.testing.assert_array_equal(b, a)
+        np.testing.assert_array_equal(got.pixel_voxel, one.pixel_voxel)
         assert got.stretches is not None
-        # ... and the points, read, are moved together once
         for a, b in zip((one.points, one.pixel_index, one.keys, one.labels),
                         (got.points, got.pixel_index, got.keys, got.labels)):
-            np.testing.assert_array_equal(b, a, err_msg=name)
+            np.testing.assert_array_equal(b, a)
         assert got.stretches is None
-
-    real = jit_voxel._project_kernel
-    third_band = depth.shape[0] * 2 // 6 * depth.shape[1]
-
-    def failing(depth_band, rays_band, offset, *args):
-        if offset == third_band:
-            raise RuntimeError('band 2 failed')
-        return real(depth_band, rays_band, offset, *args)
-
-    outcome: list[BaseException] = []
-
-    def run() -> None:
-        try:
-            jit_voxel.project_roi(depth, rays, bounds, params.voxel_size_m, parts=6,
-                                  run_parts=functools.partial(parallel.run_parts, threads=2))
-        except RuntimeError as error:
-            outcome.append(error)
-
-    jit_voxel._project_kernel = failing
-    try:
-        worker = threading.Thread(target=run, daemon=True)
-        worker.start()
-        worker.join(timeout=30.0)
-    finally:
-        jit_voxel._project_kernel = real
-    assert not worker.is_alive(), 'a band waited forever for the failed one'
-    assert len(outcome) == 1 and 'band 2 failed' in str(outcome[0])
 
 
 def test_validation_compiled_equals_the_definition() -> None:
@@ -353,42 +271,12 @@ def test_validation_compiled_equals_the_definition() -> None:
 
 
 @compiled
-def test_awake_helpers_take_the_next_parts() -> None:
-    parallel.warm_up()
-    assert parallel._pool._spin is not None and parallel._pool._spin_rounds > 0
-    generation = np.zeros(1, np.int64)
-    assert not parallel._pool._spin(generation, 0, 50)        # nothing moved: gives up
-    assert parallel._pool._spin(generation, 1, 50)            # moved already: at once
-    for _ in range(20):                                       # woken, then parts at once
-        parallel.wake(2)
-        ran: list[int] = []
-        parallel.run_parts([lambda: ran.append(threading.get_ident())] * 4, 2)
-        assert len(ran) == 4 and len(set(ran)) <= 2
-
-
-@compiled
-def test_a_second_wake_at_once_is_skipped() -> None:
-    """The detector's wake right after the node's hands nothing over; a later one does."""
-    if parallel.usable_cpus() < 2:
-        pytest.skip('one usable CPU: no helpers to wake')
-    parallel.warm_up()
-    parallel.wake(2)
-    generation = int(parallel._pool._generation[0])
-    parallel.wake(2)                                  # within _REWAKE_S: still awake
-    assert int(parallel._pool._generation[0]) == generation
-    time.sleep(2 * parallel._REWAKE_S)
-    parallel.wake(2)
-    assert int(parallel._pool._generation[0]) == generation + 1
-
-
-@compiled
 def test_knn_and_normals_in_one_pass_equal_the_two_stages() -> None:
     pts = _cloud(np.random.default_rng(9), 3000)
     neighbours = jit_knn.knn_grid(pts, 13)
     normals_one = jit_knn.normals_from_neighbours(pts, neighbours[:, :10], 10)
     for parts in (2, 5):
-        nb, nv = jit_knn.knn_and_normals(pts, 13, 10, parts=parts,
-                                         run_parts=lambda fs: [f() for f in fs[::-1]])
+        nb, nv = jit_knn.knn_and_normals(pts, 13, 10, parts=parts)
         np.testing.assert_array_equal(nb, neighbours)
         np.testing.assert_array_equal(nv, normals_one)
     nb, nv = normals.neighbours_and_normals(pts, 13, 10, threads=2)
@@ -484,16 +372,3 @@ def test_warm_up_compiles_every_kernel_a_threaded_frame_runs() -> None:
                          timeout=600, cwd=Path(__file__).parents[1])
     assert run.returncode == 0, run.stderr[-2000:]
     assert run.stdout.strip().splitlines()[-1] == '[]'
-
-
-def test_wake_compiles_nothing_while_a_background_compile_runs(monkeypatch) -> None:
-    """The node's worker calls wake() from its first frame, while its kernels compile."""
-    fresh = parallel._Pool()
-    monkeypatch.setattr(parallel, '_pool', fresh)
-    monkeypatch.setattr(parallel, 'usable_cpus', lambda: 2)
-    monkeypatch.setattr(jit, 'enabled', lambda: False)       # another thread compiles
-    parallel.wake(2)
-    assert fresh._spin is None and len(fresh._native_ids) == 1   # woken, nothing compiled
-    ran: list[int] = []
-    parallel.run_parts([lambda: ran.append(1)] * 3, 2)
-    assert ran == [1, 1, 1]

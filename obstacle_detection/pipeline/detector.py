@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..labels import LABEL_OBSTACLE
-from . import geometry, median, parallel, traversal, voxel
+from . import geometry, median, traversal, voxel
 from . import costmap as costmap_stage   # a frame's local `costmap` is its grid
 from . import normals as normals_stage   # a frame's local `normals` are vectors
 from .costmap import Costmap, build_costmap
@@ -117,8 +117,6 @@ class Detector:
         voxel.warm_up()
         traversal.warm_up()
         costmap_stage.warm_up()
-        if self.params.compute_threads > 1:
-            parallel.warm_up()
         return time.perf_counter() - start
 
     def _rays(self, shape: tuple[int, int], intr: Intrinsics) -> geometry.GroundRays:
@@ -143,8 +141,6 @@ class Detector:
         p = self.params
         intr = intrinsics if intrinsics is not None else SEED_TABLE_4_1
         clock = _Clock()
-        if p.compute_threads > 1:
-            parallel.wake(p.compute_threads)   # the helpers wake while the frame is decoded
         # uint16 input: the median runs on its codes (the same result, see median_of_codes);
         # on several threads, the threads that filter a band also decode its raw depth
         codes = _uint16_codes(depth) if p.median_kernel > 1 else None

@@ -30,7 +30,6 @@ All vectorised, or compiled (:mod:`.jit_traversal`, same results); no per-point 
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
 import cv2
@@ -38,7 +37,7 @@ import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import breadth_first_order
 
-from . import jit, parallel
+from . import jit
 from ._compiled import traversal as jit_traversal
 from .geometry import GroundRays, ray_table, rays_at
 from .params import DetectorParams
@@ -274,9 +273,7 @@ def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float,
             and filtered.dtype == np.float32 and filtered.shape == raw.shape
             and jit_traversal.drop_smeared_fused(
                 filtered, raw, max_shift, FLYING_JUMP, PLANAR_TOLERANCE,
-                parts=parallel.check_threads(threads),
-                run_parts=functools.partial(parallel.run_parts, threads=threads),
-                raw_no_nan=raw_no_nan)):
+                parts=jit.use_threads(threads), raw_no_nan=raw_no_nan)):
         return filtered   # one compiled pass, the window range on the way (same result)
     near, far = depth_window_range(raw)
     if jit.enabled():

@@ -15,19 +15,19 @@ give the same answers:
   ``normals.smallest_eigenvectors``, and hands degenerate rows to the same LAPACK call.
 
 The kernels are compiled on first use (a few seconds) and cached on disk (``cache=True``);
-call :func:`warm_up` at start-up to pay that before the first frame. They run on one thread.
+call :func:`warm_up` at start-up to pay that before the first frame. With ``parts`` > 1 the
+queries are cut into ranges that a ``prange`` loop runs on numba's threads (as many as
+``_numba.set_threads`` allows); each range writes its own rows, so the result is the same.
 """
 
 from __future__ import annotations
 
-import functools
 import math
-from collections.abc import Callable
 
 import numpy as np
 
-from . import _parts
-from ._numba import AVAILABLE, jit as _jit, jit_inline as _jit_inline
+from ._numba import (AVAILABLE, jit as _jit, jit_inline as _jit_inline, jit_parallel,
+                     part_edges, prange)
 
 #: Largest dense cell table [cells]; a larger grid looks its cells up in a hash table.
 _DENSE_CELLS_LIMIT = 1 << 22
@@ -584,8 +584,16 @@ def _knn_all(pts, k, out):  # pragma: no cover - compiled
 
 # ------------------------------------------------------------------------------ public API
 
-def knn_grid(points: np.ndarray, k: int, *, parts: int = 1,
-             run_parts: Callable[[list[Callable[[], None]]], None] | None = None) -> np.ndarray:
+@jit_parallel
+def _knn_parts(lo, cell, k, dense, slack, cell_ijk, dims, order, sp, starts, hash_keys,
+               hash_cells, edges, out):  # pragma: no cover - compiled
+    """:func:`_knn_queries` of the sorted slots edges[j] .. edges[j + 1] - 1, one range a turn."""
+    for j in prange(edges.size - 1):
+        _knn_queries(lo, cell, k, dense, slack, cell_ijk, dims, order, sp, starts, hash_keys,
+                     hash_cells, edges[j], edges[j + 1], out)
+
+
+def knn_grid(points: np.ndarray, k: int, *, parts: int = 1) -> np.ndarray:
     """Return indices (V, k) int64 of the exact k nearest points of every point, nearest first.
 
     points: (V, 3) float [m], finite. k is clipped to V. Column 0 is the point itself (also
@@ -595,9 +603,8 @@ def knn_grid(points: np.ndarray, k: int, *, parts: int = 1,
     non-finite coordinates, RuntimeError when numba is not available.
 
     ``parts`` > 1 builds the grid once and cuts the queries (in grid order) into that many
-    ranges, each writing its own rows; ``run_parts`` is called with their functions (no
-    arguments) and returns once all have run, e.g. on several threads (None: here, in
-    order). The same result.
+    ranges, each writing its own rows, run by a ``prange`` loop (numba's threads). The same
+    result.
     """
     if not AVAILABLE:
         raise RuntimeError('numba is not available; use normals.nearest_neighbours')
@@ -620,10 +627,7 @@ def knn_grid(points: np.ndarray, k: int, *, parts: int = 1,
     if not finite:
         raise ValueError('points must be finite (no NaN or inf coordinates)')
     grid = _build_grid(pts, lo, cell, dense)
-    edges = _parts.edges(n, parts)
-    calls = [functools.partial(_knn_queries, lo, cell, k, dense, slack, *grid, begin, end, out)
-             for begin, end in zip(edges[:-1], edges[1:])]
-    _parts.run(calls, run_parts)
+    _knn_parts(lo, cell, k, dense, slack, *grid, part_edges(n, parts), out)
     return out
 
 
@@ -634,6 +638,15 @@ def _normals_kernel(pts, neighbours, n_use, normals, cov_bad, bad):  # pragma: n
     """:func:`_normals_rows` of every row."""
     return _normals_rows(pts, neighbours, n_use, normals, cov_bad, bad,
                          np.arange(pts.shape[0]))
+
+
+@jit_parallel
+def _normals_parts(pts, neighbours, n_use, normals, cov_bad, bad, edges,
+                   counts):  # pragma: no cover - compiled
+    """:func:`_normals_rows` of the rows edges[j] .. edges[j + 1] - 1 into counts[j]."""
+    for j in prange(edges.size - 1):
+        counts[j] = _normals_rows(pts, neighbours, n_use, normals, cov_bad, bad,
+                                  np.arange(edges[j], edges[j + 1]))
 
 
 @_jit
@@ -757,9 +770,7 @@ def _normals_rows(pts, neighbours, n_use, normals, cov_bad, bad,
 
 
 def normals_from_neighbours(points: np.ndarray, neighbours: np.ndarray, n: int, *,
-                            parts: int = 1,
-                            run_parts: Callable[[list[Callable[[], None]]], None] | None = None,
-                            ) -> np.ndarray:
+                            parts: int = 1) -> np.ndarray:
     """Return unit normals (V, 3) float32 from the first n neighbours of every point.
 
     points: (V, 3) [m], used as float32 like ``normals.neighbourhood_covariance``;
@@ -769,8 +780,8 @@ def normals_from_neighbours(points: np.ndarray, neighbours: np.ndarray, n: int, 
     operation, so both paths give the same normals. Rows whose smallest eigenvalue is
     degenerate (a line, coincident points) go to ``numpy.linalg.eigh`` as in the numpy path;
     any unit vector of that eigenspace is a right answer there. The sign of a normal is
-    arbitrary. Raises ValueError for bad shapes or out-of-range indices. ``parts`` and
-    ``run_parts``: the rows cut into ranges, as in :func:`knn_grid`; the same result.
+    arbitrary. Raises ValueError for bad shapes or out-of-range indices. ``parts``: the rows
+    cut into ranges, as in :func:`knn_grid`; the same result.
     """
     if not AVAILABLE:
         raise RuntimeError('numba is not available; use normals.estimate_normals')
@@ -794,16 +805,9 @@ def normals_from_neighbours(points: np.ndarray, neighbours: np.ndarray, n: int, 
     if parts <= 1 or v_count < 2 * parts:
         n_bad = _normals_kernel(pts, nb, n, normals, cov_bad, bad)
     else:
-        counts = [0] * parts
-        edges = _parts.edges(v_count, parts)
-
-        def rows(part: int) -> None:
-            counts[part] = _normals_rows(pts, nb, n, normals, cov_bad, bad,
-                                         np.arange(edges[part], edges[part + 1]))
-
-        calls = [functools.partial(rows, part) for part in range(parts)]
-        _parts.run(calls, run_parts)
-        n_bad = -1 if min(counts) < 0 else sum(counts)
+        counts = np.zeros(parts, np.int64)
+        _normals_parts(pts, nb, n, normals, cov_bad, bad, part_edges(v_count, parts), counts)
+        n_bad = -1 if counts.min() < 0 else int(counts.sum())
     if n_bad < 0:
         raise ValueError(f'neighbour indices must lie in [0, {v_count})')
     return _degenerate_normals(normals, cov_bad, bad, n_bad)
@@ -819,14 +823,26 @@ def _degenerate_normals(normals: np.ndarray, cov_bad: np.ndarray, bad: np.ndarra
     return normals
 
 
+@jit_parallel
+def _knn_normals_parts(lo, cell, k, dense, slack, cell_ijk, dims, order, sp, starts, hash_keys,
+                       hash_cells, edges, out, pts32, n_use, normals, cov_bad, bad,
+                       counts):  # pragma: no cover - compiled
+    """:func:`_knn_parts`, each range going on to its normals (:func:`_normals_rows`)."""
+    for j in prange(edges.size - 1):
+        begin = edges[j]
+        end = edges[j + 1]
+        _knn_queries(lo, cell, k, dense, slack, cell_ijk, dims, order, sp, starts, hash_keys,
+                     hash_cells, begin, end, out)
+        counts[j] = _normals_rows(pts32, out, n_use, normals, cov_bad, bad, order[begin:end])
+
+
 def knn_and_normals(points: np.ndarray, k: int, n_use: int, *, parts: int,
-                    run_parts: Callable[[list[Callable[[], None]]], None] | None = None,
                     ) -> tuple[np.ndarray, np.ndarray]:
     """Return (:func:`knn_grid` (V, k), :func:`normals_from_neighbours` of its n_use columns).
 
     One grid; the queries cut into ``parts`` ranges (grid order), each part searching its
     queries and then computing their normals while their neighbours are in the cache: one
-    hand-over to the other threads instead of two. The same results. points: (V, 3) finite,
+    ``prange`` loop instead of two. The same results. points: (V, 3) finite,
     V >= 2 * parts and 2 <= n_use <= k <= V (ValueError otherwise, as the two functions
     raise).
     """
@@ -845,24 +861,16 @@ def knn_and_normals(points: np.ndarray, k: int, n_use: int, *, parts: int,
     if not finite:
         raise ValueError('points must be finite (no NaN or inf coordinates)')
     grid = _build_grid(pts64, lo, cell, dense)
-    order = grid[2]
     out = np.empty((n, k), dtype=np.int64)
     normals = np.empty((n, 3), dtype=np.float32)
     cov_bad = np.empty((n, 6), dtype=np.float64)
     bad = np.empty(n, dtype=np.bool_)
-    edges = _parts.edges(n, parts)
-    counts = [0] * parts
-
-    def part(j: int) -> None:
-        begin, end = edges[j], edges[j + 1]
-        _knn_queries(lo, cell, k, dense, slack, *grid, begin, end, out)
-        counts[j] = _normals_rows(pts32, out, n_use, normals, cov_bad, bad, order[begin:end])
-
-    calls = [functools.partial(part, j) for j in range(parts)]
-    _parts.run(calls, run_parts)
-    if min(counts) < 0:   # cannot happen: the search gives indices in range
+    counts = np.zeros(parts, np.int64)
+    _knn_normals_parts(lo, cell, k, dense, slack, *grid, part_edges(n, parts), out, pts32, n_use,
+                       normals, cov_bad, bad, counts)
+    if counts.min() < 0:   # cannot happen: the search gives indices in range
         raise ValueError(f'neighbour indices must lie in [0, {n})')
-    return out, _degenerate_normals(normals, cov_bad, bad, sum(counts))
+    return out, _degenerate_normals(normals, cov_bad, bad, int(counts.sum()))
 
 
 @_jit
@@ -911,7 +919,6 @@ def warm_up() -> None:
     normals_from_neighbours(pts, nb, 10)
     normals_from_neighbours(pts, nb[:, :10], 10)   # a column slice compiles a second layout
     validate(np.ones(pts.shape[0], np.bool_), nb, 12)
-    in_order = lambda calls: [call() for call in calls]  # noqa: E731 - the parts, here
-    nb = knn_grid(pts, 13, parts=2, run_parts=in_order)
-    normals_from_neighbours(pts, nb[:, :10], 10, parts=2, run_parts=in_order)
-    knn_and_normals(pts, 13, 10, parts=2, run_parts=in_order)
+    nb = knn_grid(pts, 13, parts=2)
+    normals_from_neighbours(pts, nb[:, :10], 10, parts=2)
+    knn_and_normals(pts, 13, 10, parts=2)

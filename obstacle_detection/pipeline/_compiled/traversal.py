@@ -12,15 +12,12 @@ The stage modules choose these kernels or their numpy twins through the one swit
 
 from __future__ import annotations
 
-import functools
 import math
 import threading
-from collections.abc import Callable
 
 import numpy as np
 
-from . import _parts
-from ._numba import AVAILABLE, jit as _jit
+from ._numba import AVAILABLE, jit as _jit, jit_parallel, part_edges, prange
 
 #: Per-thread buffers reused across frames (fresh large arrays cost page faults).
 _SCRATCH = threading.local()
@@ -697,6 +694,21 @@ def _smear5_rows(filtered, raw, ratio, jump, tol_ratio, col_lo, col_hi, row_lo, 
                     keep[:n], ratio, jump)
 
 
+@jit_parallel
+def _smear5_parts(filtered, raw, ratio, jump, tol_ratio, edges):  # pragma: no cover - compiled
+    """:func:`_smear5_rows` of the rows edges[j] .. edges[j + 1] - 1, each with its buffers."""
+    width = raw.shape[1]
+    for j in prange(edges.size - 1):
+        col_lo = np.full(width + 4, np.inf, np.float32)   # as _smear5_buffers
+        col_hi = np.zeros(width + 4, np.float32)
+        _smear5_rows(filtered, raw, ratio, jump, tol_ratio, col_lo, col_hi,
+                     np.empty(width, np.float32), np.empty(width, np.float32),
+                     np.empty((3, width), np.float32), np.empty((3, width), np.float32),
+                     np.empty((3, width), np.float32), np.zeros(width, np.float32),
+                     np.empty(width, np.bool_), np.empty(width, np.bool_), edges[j],
+                     edges[j + 1])
+
+
 def _smear5_buffers(width: int) -> tuple[np.ndarray, ...]:
     """Return the row buffers of _smear5_kernel for images this wide (pads, zeros set)."""
     col_lo = np.full(width + 4, np.inf, np.float32)   # neutral pads of the row pass: the
@@ -709,14 +721,13 @@ def _smear5_buffers(width: int) -> tuple[np.ndarray, ...]:
 
 def drop_smeared_fused(filtered: np.ndarray, raw: np.ndarray, max_shift: float, jump: float,
                        planar_tolerance: float, *, parts: int = 1,
-                       run_parts: Callable[[list[Callable[[], None]]], None] | None = None,
                        raw_no_nan: bool = False) -> bool:
     """In place, as :func:`drop_smeared` with the 5 x 5 window range of traversal's numpy path.
 
     filtered, raw: (H, W) float32 C-contiguous. Returns False, changing nothing, when raw
     holds a NaN (the caller then takes OpenCV's window range, whose NaN handling is its own).
-    parts: the rows cut into this many ranges, run by ``run_parts`` (which returns once all
-    have run, e.g. on several threads; None: here, in order); the same result.
+    parts: the rows cut into this many ranges, run by a ``prange`` loop (numba's threads);
+    the same result.
     raw_no_nan: the caller knows raw holds no NaN (looked up in a table of depths):
     the scan for one is skipped.
     """
@@ -726,15 +737,7 @@ def drop_smeared_fused(filtered: np.ndarray, raw: np.ndarray, max_shift: float, 
     if parts <= 1 or raw.shape[0] < 2 * parts:
         _smear5_kernel(filtered, raw, *rules, *_smear5_scratch(raw.shape[1]))
         return True
-    height = raw.shape[0]
-    edges = _parts.edges(height, parts)
-
-    def rows(j: int) -> None:      # on the thread that runs it: that thread's row buffers
-        _smear5_rows(filtered, raw, *rules, *_smear5_scratch(raw.shape[1]), edges[j],
-                     edges[j + 1])
-
-    calls = [functools.partial(rows, j) for j in range(parts)]
-    _parts.run(calls, run_parts)
+    _smear5_parts(filtered, raw, *rules, part_edges(raw.shape[0], parts))
     return True
 
 

@@ -21,22 +21,21 @@ accumulates counts and sums. A lattice larger than
 
 The kernels are compiled on first use (a few seconds) and cached on disk (``cache=True``);
 call :func:`obstacle_detection.pipeline.voxel.warm_up` at start-up to pay that before the first
-frame. They run on one thread.
+frame. The back-projection may cut the image into bands of rows that a ``prange`` loop runs
+on numba's threads (``parts``).
 """
 
 from __future__ import annotations
 
-import functools
 import threading
-from collections.abc import Callable
 
 import numpy as np
 
 from obstacle_detection.labels import (LABEL_GROUND, LABEL_NO_RETURN, LABEL_OBSTACLE,
                                        LABEL_OUTSIDE_ROI)
 
-from . import _parts
-from ._numba import AVAILABLE, jit as _jit, jit_inline as _jit_inline
+from ._numba import (AVAILABLE, jit as _jit, jit_inline as _jit_inline, jit_parallel,
+                     part_edges, prange)
 from .traversal import ray_row
 
 __all__ = ['AVAILABLE', 'Projection', 'label_pixels', 'project_roi', 'roi_lattice',
@@ -143,6 +142,39 @@ def _project_rays_rows(depth, ru, rv, rot, chunk, bounds, size, low, dims, label
             return -1
         m += got
     return m
+
+
+@jit_parallel
+def _project_bands(depth, rays, bounds, size, low, dims, labels, pixel_voxel, cols, pix, keys,
+                   edges, width, counts):  # pragma: no cover - compiled
+    """:func:`_project_kernel` of the rows edges[j] .. edges[j + 1] - 1, one band a turn.
+
+    Band j writes its kept points into its own stretch of cols, pix and keys, from the index
+    of its first pixel (a band keeps at most one point per pixel), and their number (or -1)
+    into counts[j].
+    """
+    for j in prange(edges.size - 1):
+        p0 = edges[j] * width
+        p1 = edges[j + 1] * width
+        counts[j] = _project_kernel(depth[p0:p1], rays[:, p0:p1], p0, bounds, size, low, dims,
+                                    labels[p0:p1], pixel_voxel[p0:p1], cols[:, p0:p1],
+                                    pix[p0:p1], keys[p0:p1])
+
+
+@jit_parallel
+def _project_rays_bands(depth, ru, rv, rot, chunks, bounds, size, low, dims, labels,
+                        pixel_voxel, cols, pix, keys, edges, counts):  # pragma: no cover
+    """:func:`_project_bands` with the rays computed (:func:`_project_rays_rows`).
+
+    chunks: (parts, 3, rows * W) float32, each band's own buffer of computed rays.
+    """
+    width = ru.size
+    for j in prange(edges.size - 1):
+        p0 = edges[j] * width
+        p1 = edges[j + 1] * width
+        counts[j] = _project_rays_rows(depth, ru, rv, rot, chunks[j], bounds, size, low, dims,
+                                       labels, pixel_voxel, cols[:, p0:p1], pix[p0:p1],
+                                       keys[p0:p1], edges[j], edges[j + 1])
 
 
 @_jit
@@ -353,9 +385,7 @@ def roi_lattice(bounds: np.ndarray, size: np.ndarray) -> tuple[np.ndarray, np.nd
 
 def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarray,
                 voxel_size_m: tuple[float, float, float], *, reuse: bool = False,
-                parts: int = 1,
-                run_parts: Callable[[list[Callable[[], None]]], None] | None = None,
-                ) -> Projection:
+                parts: int = 1) -> Projection:
     """Back-project a depth image through ground rays, keep the ROI, key the voxels.
 
     depth_m: (H, W) float32, 0 = no return; rays: (3, H*W) float32 ground rays, or their
@@ -366,9 +396,8 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarra
     indices equal those of :func:`obstacle_detection.pipeline.geometry.ground_points_in_roi`.
     reuse: keep the points, pixel indices and keys in per-thread buffers that the next call
     in the same thread overwrites (the pipeline's choice; faster), instead of fresh arrays.
-    parts: the image rows cut into this many bands, projected by the functions handed to
-    ``run_parts`` (which returns once all have run, e.g. on several threads; None: here, in
-    order) into their own stretch of the buffers, moved together in pixel order when the
+    parts: the image rows cut into this many bands, projected by a ``prange`` loop (numba's
+    threads) into their own stretch of the buffers, moved together in pixel order when the
     points, pixels or keys are first read (:class:`Projection`): the same points, pixels and
     keys.
     """
@@ -413,7 +442,7 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarra
     if n_cells <= _DENSE_LIMIT and parts > 1 and shape[0] >= 2 * parts:
         stretches = _project_parts(depth, source, shape, (bounds, size, low, dims),
                                    labels.reshape(-1), pixel_voxel.reshape(-1),
-                                   (cols, pix, keys), parts, run_parts)
+                                   (cols, pix, keys), parts)
         m = -1 if stretches is None else int(stretches[1].sum())
     elif n_cells <= _DENSE_LIMIT:
         m = kernel(bounds, size, low, dims, labels.reshape(-1), pixel_voxel.reshape(-1), cols,
@@ -431,7 +460,6 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarra
 def _project_parts(depth: np.ndarray, rays: np.ndarray | tuple, shape: tuple[int, int],
                    lattice: tuple, labels: np.ndarray, pixel_voxel: np.ndarray,
                    out: tuple[np.ndarray, np.ndarray, np.ndarray], parts: int,
-                   run_parts: Callable[[list[Callable[[], None]]], None] | None,
                    ) -> tuple[np.ndarray, np.ndarray] | None:
     """Project bands of rows into their own stretches of ``out``.
 
@@ -442,29 +470,21 @@ def _project_parts(depth: np.ndarray, rays: np.ndarray | tuple, shape: tuple[int
     """
     height, width = shape
     cols, pix, keys = out
-    edges = _parts.edges(height, parts)
+    edges = part_edges(height, parts)
     counts = np.zeros(parts, np.int64)
-
-    def band(j: int) -> None:
-        r0, r1 = edges[j], edges[j + 1]
-        p0, p1 = r0 * width, r1 * width
-        if isinstance(rays, tuple):
-            ru, rv, rot = rays
-            chunk_px = max(1, _RAY_BAND_PX // width) * width   # this thread's ray band
-            chunk = _scratch('ray_band', 3 * chunk_px, np.float32)[:3 * chunk_px]
-            counts[j] = _project_rays_rows(depth, ru, rv, rot, chunk.reshape(3, chunk_px),
-                                           *lattice, labels, pixel_voxel, cols[:, p0:p1],
-                                           pix[p0:p1], keys[p0:p1], r0, r1)
-        else:
-            counts[j] = _project_kernel(depth[p0:p1], rays[:, p0:p1], p0, *lattice,
-                                        labels[p0:p1], pixel_voxel[p0:p1], cols[:, p0:p1],
-                                        pix[p0:p1], keys[p0:p1])
-
-    calls = [functools.partial(band, j) for j in range(parts)]
-    _parts.run(calls, run_parts)
+    if isinstance(rays, tuple):
+        ru, rv, rot = rays
+        chunk_px = max(1, _RAY_BAND_PX // width) * width   # each band's rays
+        size = parts * 3 * chunk_px
+        chunks = _scratch('ray_bands', size, np.float32)[:size].reshape(parts, 3, chunk_px)
+        _project_rays_bands(depth, ru, rv, rot, chunks, *lattice, labels, pixel_voxel, cols,
+                            pix, keys, edges, counts)
+    else:
+        _project_bands(depth, rays, *lattice, labels, pixel_voxel, cols, pix, keys, edges,
+                       width, counts)
     if counts.min() < 0:
         return None
-    return np.array(edges[:-1], np.int64) * width, counts
+    return edges[:-1] * width, counts
 
 
 def voxelise(proj: Projection) -> tuple | None:
