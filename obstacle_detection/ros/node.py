@@ -54,7 +54,6 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 from std_msgs.msg import Float64, String
 
 from obstacle_detection.pipeline import jit as jit_support
-from obstacle_detection.pipeline import parallel
 from .conversions import (
     costmap_to_occupancy_grid,
     result_to_messages,
@@ -681,9 +680,6 @@ class DetectorNode(Node):
         """
         start = time.perf_counter()
         config = self._config
-        threads = config.detector.params.compute_threads
-        if threads > 1:   # the helper threads wake while the frame is checked, not in the median
-            parallel.wake(threads)
         depth = frame_gate.decode(msg)
         if isinstance(depth, frame_gate.Skip):
             self._warn_skip(depth.kind, depth.reason)
