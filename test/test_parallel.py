@@ -1,4 +1,4 @@
-"""Stages on several threads (compute_threads) give the one-thread result to the bit."""
+"""The median on several threads (compute_threads) gives the one-thread result to the bit."""
 
 import threading
 
@@ -6,11 +6,10 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from obstacle_detection.pipeline import geometry, jit, median, normals, parallel, traversal, voxel
+from obstacle_detection.pipeline import jit, median, normals, parallel
 from obstacle_detection.pipeline._compiled import knn as jit_knn
 from obstacle_detection.pipeline._compiled import median as jit_median
 from obstacle_detection.pipeline._compiled import traversal as jit_traversal
-from obstacle_detection.pipeline._compiled import voxel as jit_voxel
 from obstacle_detection.pipeline.depth import decode_depth, depth_lut
 from obstacle_detection.pipeline.detector import Detector
 from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE, corridor
@@ -25,7 +24,6 @@ def _compiled_path(monkeypatch):
 
 
 # ------------------------------------------------------------------------------ run_parts
-# (the median's bands; the other stages cut their work in compiled prange loops)
 
 def test_run_parts_runs_every_part_once_on_up_to_n_threads() -> None:
     seen: list[tuple[int, int]] = []
@@ -61,26 +59,31 @@ def test_run_parts_raises_the_first_error_after_all_parts_ran() -> None:
     assert done[-1] == 'next'
 
 
+def test_run_parts_does_not_wait_for_pool_threads_that_never_started() -> None:
+    """Every pool thread busy elsewhere: the calling thread runs all the parts and returns."""
+    release = threading.Event()
+    busy = [parallel._helpers.submit(release.wait) for _ in range(parallel.MAX_THREADS - 1)]
+    ran: list[int] = []
+    worker = threading.Thread(target=parallel.run_parts,
+                              args=([lambda: ran.append(threading.get_ident())] * 4, 2))
+    try:
+        worker.start()
+        worker.join(timeout=60.0)
+        assert not worker.is_alive(), 'run_parts waited for a pool thread that never started'
+        assert ran == [worker.ident] * 4
+    finally:
+        release.set()
+        for job in busy:
+            job.result()
+
+
 @pytest.mark.parametrize('bad, error', [(0, ValueError), (9, ValueError), (-1, ValueError),
                                         (True, TypeError), (1.5, TypeError), ('2', TypeError)])
 def test_thread_counts_outside_1_to_8_are_refused(bad, error) -> None:
     with pytest.raises(error):
-        jit.check_threads(bad)
-    with pytest.raises(error):
-        jit.use_threads(bad)
+        parallel.check_threads(bad)
     with pytest.raises((TypeError, ValueError)):
         corridor(compute_threads=bad)
-
-
-def test_use_threads_never_asks_for_more_than_numba_has() -> None:
-    assert jit.use_threads(1) == 1
-    assert 1 <= jit.use_threads(jit.MAX_THREADS) <= jit.MAX_THREADS
-    if jit_knn.AVAILABLE:
-        import numba
-        assert jit.use_threads(jit.MAX_THREADS) == min(jit.MAX_THREADS,
-                                                       numba.config.NUMBA_NUM_THREADS)
-        used = jit.use_threads(2)
-        assert numba.get_num_threads() == used
 
 
 # ------------------------------------------------------------------------------ the stages
@@ -126,41 +129,6 @@ def test_median_of_codes_is_the_median_of_the_decoded_depth(k) -> None:
         np.testing.assert_array_equal(got, expected)
 
 
-def _cloud(rng, n):
-    """Return a floor, a wall and a cube of 5 cm grid points (exact ties), and duplicates."""
-    u = rng.uniform(0.0, 2.0, (n, 2))
-    floor = np.column_stack((u, np.zeros(n)))
-    wall = np.column_stack((np.full(n // 2, 1.5), u[: n // 2]))
-    grid = np.stack(np.meshgrid(*[np.arange(6) * 0.05] * 3), -1).reshape(-1, 3)  # ties
-    pts = np.concatenate((floor, wall, grid, grid[:20])) + rng.normal(0, 0.002, (1, 3))
-    return pts.astype(np.float32)
-
-
-@compiled
-@pytest.mark.parametrize('parts', [2, 3, 7])
-def test_knn_in_ranges_equals_one_search(parts) -> None:
-    pts = _cloud(np.random.default_rng(parts), 3000)
-    one = jit_knn.knn_grid(pts, 13)
-    for threads in (1, 2):       # the ranges on one thread, or shared by two
-        jit.use_threads(threads)
-        np.testing.assert_array_equal(jit_knn.knn_grid(pts, 13, parts=parts), one)
-    np.testing.assert_array_equal(normals.nearest_neighbours(pts, 13, threads=2), one)
-
-
-@compiled
-def test_normals_in_ranges_equal_one_pass() -> None:
-    pts = _cloud(np.random.default_rng(5), 3000)
-    neighbours = jit_knn.knn_grid(pts, 13)[:, :10]
-    one = jit_knn.normals_from_neighbours(pts, neighbours, 10)
-    np.testing.assert_array_equal(jit_knn.normals_from_neighbours(pts, neighbours, 10, parts=4),
-                                  one)
-    np.testing.assert_array_equal(normals.estimate_normals(pts, neighbours, threads=3), one)
-    bad = neighbours.copy()
-    bad[-1, 3] = pts.shape[0]                               # out of range in the last part
-    with pytest.raises(ValueError, match='neighbour indices'):
-        jit_knn.normals_from_neighbours(pts, bad, 10, parts=4)
-
-
 @pytest.mark.parametrize('scene', ['person_walking', 'corridor', 'ramps'])
 def test_detector_outputs_do_not_depend_on_compute_threads(scene) -> None:
     frame = render_scene(scene, seed=3, intrinsics=KINECT_V2_SD, size=KINECT_V2_SD_SIZE,
@@ -182,78 +150,6 @@ def test_detector_outputs_do_not_depend_on_compute_threads(scene) -> None:
     assert one.obstacle_points.shape[0] > 0
 
 
-@compiled
-def test_smear_pass_in_row_ranges_equals_one_pass() -> None:
-    frame = render_scene('people', seed=1, intrinsics=KINECT_V2_SD, size=KINECT_V2_SD_SIZE,
-                         frame_index=1).depth_mm
-    raw = decode_depth(frame)
-    raw[100:140, 200:260] = 0.0                              # a hole for the fill rule
-    filtered = median.median_filter(raw, 17)
-    one = traversal.drop_smeared(filtered.copy(), raw, 0.02)
-    assert np.count_nonzero(one != filtered) > 100           # the pass changed something
-    for parts in (2, 3, 7):
-        got = filtered.copy()
-        assert jit_traversal.drop_smeared_fused(got, raw, 0.02, traversal.FLYING_JUMP,
-                                                traversal.PLANAR_TOLERANCE, parts=parts)
-        np.testing.assert_array_equal(got, one)
-    np.testing.assert_array_equal(traversal.drop_smeared(filtered.copy(), raw, 0.02, 2), one)
-    # the detector's promise that raw holds no NaN skips only the scan for one
-    np.testing.assert_array_equal(
-        traversal.drop_smeared(filtered.copy(), raw, 0.02, 2, raw_no_nan=True), one)
-    with_nan = raw.copy()
-    with_nan[10, 10] = np.nan
-    assert not jit_traversal.drop_smeared_fused(filtered.copy(), with_nan, 0.02,
-                                                traversal.FLYING_JUMP,
-                                                traversal.PLANAR_TOLERANCE, parts=2)
-
-
-@compiled
-@pytest.mark.parametrize('model', ['table', 'factors'])
-def test_back_projection_in_row_bands_equals_one_pass(model) -> None:
-    frame = render_scene('corridor', seed=2, intrinsics=KINECT_V2_SD, size=KINECT_V2_SD_SIZE,
-                         frame_index=0)
-    params = corridor(camera_height_m=float(frame.height_m),
-                      camera_pitch_rad=float(frame.pitch_rad))
-    depth = decode_depth(frame.depth_mm)
-    rays = (geometry.ground_rays(depth.shape, KINECT_V2_SD, params) if model == 'table' else
-            geometry.ray_model(depth.shape, KINECT_V2_SD, params))
-    one = voxel.points_in_roi(depth, rays, params)
-    one = (one.points.copy(), one.pixel_index.copy(), one.projection.labels.copy(),
-           one.projection.keys.copy())
-    assert one[0].shape[0] > 1000
-    for threads in (2, 3):
-        roi = voxel.points_in_roi(depth, rays, params.replace(compute_threads=threads))
-        for a, b in zip(one, (roi.points, roi.pixel_index, roi.projection.labels,
-                              roi.projection.keys)):
-            np.testing.assert_array_equal(b, a)
-
-
-@compiled
-def test_back_projection_bands_close_their_gaps_when_read() -> None:
-    """The voxel grid reads the bands' stretches where they lie; the points, read, move once."""
-    frame = render_scene('people', seed=1, intrinsics=KINECT_V2_SD, size=KINECT_V2_SD_SIZE,
-                         frame_index=0)
-    params = corridor(camera_height_m=float(frame.height_m),
-                      camera_pitch_rad=float(frame.pitch_rad))
-    depth = decode_depth(frame.depth_mm)
-    rays = geometry.ground_rays(depth.shape, KINECT_V2_SD, params)
-    bounds = voxel.roi_bounds(params)
-    one = jit_voxel.project_roi(depth, rays, bounds, params.voxel_size_m)
-    assert one.points.shape[0] > 1000
-    one_grid = jit_voxel.voxelise(one)
-    for parts in (2, 6):
-        got = jit_voxel.project_roi(depth, rays, bounds, params.voxel_size_m, parts=parts)
-        assert got.stretches is not None and got.stretches[0][1] > got.stretches[1][0]
-        for a, b in zip(one_grid, jit_voxel.voxelise(got)):
-            np.testing.assert_array_equal(b, a)
-        np.testing.assert_array_equal(got.pixel_voxel, one.pixel_voxel)
-        assert got.stretches is not None
-        for a, b in zip((one.points, one.pixel_index, one.keys, one.labels),
-                        (got.points, got.pixel_index, got.keys, got.labels)):
-            np.testing.assert_array_equal(b, a)
-        assert got.stretches is None
-
-
 def test_validation_compiled_equals_the_definition() -> None:
     rng = np.random.default_rng(7)
     flags = rng.random(500) < 0.7
@@ -268,29 +164,6 @@ def test_validation_compiled_equals_the_definition() -> None:
         assert jit_knn.validate(flags, bad, 12) is None
         with pytest.raises(IndexError):
             normals.validate_obstacles(flags, bad, 12)
-
-
-@compiled
-def test_knn_and_normals_in_one_pass_equal_the_two_stages() -> None:
-    pts = _cloud(np.random.default_rng(9), 3000)
-    neighbours = jit_knn.knn_grid(pts, 13)
-    normals_one = jit_knn.normals_from_neighbours(pts, neighbours[:, :10], 10)
-    for parts in (2, 5):
-        nb, nv = jit_knn.knn_and_normals(pts, 13, 10, parts=parts)
-        np.testing.assert_array_equal(nb, neighbours)
-        np.testing.assert_array_equal(nv, normals_one)
-    nb, nv = normals.neighbours_and_normals(pts, 13, 10, threads=2)
-    np.testing.assert_array_equal(nb, neighbours)
-    np.testing.assert_array_equal(nv, normals_one)
-    small = pts[:50]                                  # below MIN_SPLIT_POINTS: the two stages
-    nb, nv = normals.neighbours_and_normals(small, 13, 10, threads=2)
-    np.testing.assert_array_equal(nb, jit_knn.knn_grid(small, 13))
-    with pytest.raises(ValueError):
-        jit_knn.knn_and_normals(pts[:3], 13, 10, parts=2)
-    bad = pts.copy()
-    bad[7, 1] = np.nan
-    with pytest.raises(ValueError, match='finite'):
-        jit_knn.knn_and_normals(bad, 13, 10, parts=2)
 
 
 @pytest.mark.parametrize('k', [3, 7, 17])

@@ -173,7 +173,7 @@ class Detector:
         if p.robot_level and p.median_kernel > 1:
             # raw depth looked up from uint16 codes in the table holds no NaN
             depth_m = traversal.drop_smeared(depth_m, raw_m, p.max_filter_shift,
-                                              p.compute_threads, raw_no_nan=codes is not None)
+                                              raw_no_nan=codes is not None)
         clock.lap('smear')
 
         rays = self._rays(depth_m.shape, intr)
@@ -194,17 +194,11 @@ class Detector:
         centroids = grid.centroids
         clock.lap('voxel')
         k = max(p.normal_neighbours, p.validation_neighbours + 1)
-        if p.compute_threads > 1:   # each thread's queries go on to their normals
-            neighbours, normals = normals_stage.neighbours_and_normals(
-                centroids, k, p.normal_neighbours, p.compute_threads)
-            clock.lap('knn')        # with the normals
-            clock.lap('normals')
-        else:
-            neighbours = nearest_neighbours(centroids, k)
-            clock.lap('knn')
-            n_cols = min(p.normal_neighbours, neighbours.shape[1])
-            normals = estimate_normals(centroids, neighbours[:, :n_cols])
-            clock.lap('normals')
+        neighbours = nearest_neighbours(centroids, k)
+        clock.lap('knn')
+        n_cols = min(p.normal_neighbours, neighbours.shape[1])
+        normals = estimate_normals(centroids, neighbours[:, :n_cols])
+        clock.lap('normals')
         steep = slope_obstacles(normals, p.cos_max_slope)
         if p.max_ground_height_m > 0.0 and not p.robot_level:
             steep |= centroids[:, 2] > np.float32(p.max_ground_height_m)

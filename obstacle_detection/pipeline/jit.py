@@ -10,24 +10,18 @@ the numpy/scipy code with the same results. Every stage asks :func:`enabled`.
 
 from __future__ import annotations
 
-import operator
 import os
 import threading
 import time
 from collections.abc import Callable
 from typing import Any
 
-import numpy as np
-
-from ._compiled._numba import AVAILABLE, set_threads
+from ._compiled._numba import AVAILABLE
 
 #: Environment variable that, set to anything but '' or '0', turns the compiled path off (for
 #: tests and comparisons); it is read on every call.
 NO_JIT_ENV = 'OBSTACLE_DETECTION_NO_JIT'
 
-
-#: Most threads a stage may use (the range of ``compute_threads``).
-MAX_THREADS = 8
 
 #: Open unless a background compilation (:func:`compile_in_background`) is under way: while it
 #: is closed, every caller but the compiling thread takes the numpy path (same results).
@@ -55,26 +49,6 @@ def enabled() -> bool:
     if not AVAILABLE or switched_off():
         return False
     return _kernels_ready.is_set() or getattr(_compiling, 'active', False)
-
-
-def check_threads(threads: Any) -> int:
-    """Return ``threads`` as an int in [1, MAX_THREADS]; TypeError / ValueError otherwise."""
-    if isinstance(threads, (bool, np.bool_)):
-        raise TypeError(f'compute_threads must be an integer, got {threads!r}')
-    threads = operator.index(threads)
-    if not 1 <= threads <= MAX_THREADS:
-        raise ValueError(f'compute_threads={threads} out of range: must be in [1, {MAX_THREADS}]')
-    return threads
-
-
-def use_threads(threads: int) -> int:
-    """Let this thread's compiled ``prange`` loops use ``threads`` threads; return how many.
-
-    numba's own threads (its threading layer), never more than its pool
-    (``NUMBA_NUM_THREADS``, by default the CPUs the process may use). A stage cuts its work
-    into that many parts; each part writes its own rows, so the result does not depend on it.
-    """
-    return set_threads(check_threads(threads))
 
 
 class BackgroundCompile:

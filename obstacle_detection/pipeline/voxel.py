@@ -116,8 +116,7 @@ class RoiPoints:
     indices; shape: the image's (H, W); voxel_size_m: the voxel size of the frame's params;
     valid: (H*W,) bool, the pixels with a 3-D point (numpy path; None when compiled);
     projection: the compiled path's :class:`._compiled.voxel.Projection` (None on numpy),
-    which holds the points and pixels (read from it when asked for: only then are the bands'
-    stretches moved together, which the pipeline never needs).
+    which holds the points and pixels.
     """
 
     shape: tuple[int, int]
@@ -156,14 +155,13 @@ def points_in_roi(depth_m: np.ndarray, rays: np.ndarray | geometry.GroundRays,
     depth_m: (H, W) float32, 0 = no return; rays: (3, H*W) float32 from
     :func:`geometry.ground_rays`, or a :class:`geometry.GroundRays` (its rays computed on the
     fly by the compiled path, no table read). Compiled (:func:`._compiled.voxel.project_roi`,
-    its buffers reused by the next frame of the same thread; a band of rows per thread of
-    ``params.compute_threads``) or :func:`geometry.ground_points_in_roi`: the same points and
-    pixels.
+    its buffers reused by the next frame of the same thread) or
+    :func:`geometry.ground_points_in_roi`: the same points and pixels.
     """
     if jit.enabled():
         factors = (rays.ru, rays.rv, rays.rot) if isinstance(rays, geometry.GroundRays) else rays
         proj = jit_voxel.project_roi(depth_m, factors, roi_bounds(params), params.voxel_size_m,
-                                     reuse=True, parts=jit.use_threads(params.compute_threads))
+                                     reuse=True)
         return RoiPoints(depth_m.shape, params.voxel_size_m, projection=proj)
     pts, pix_roi, valid = geometry.ground_points_in_roi(depth_m, rays, params)
     return RoiPoints(depth_m.shape, params.voxel_size_m, valid=valid, numpy_points=pts,
@@ -225,18 +223,6 @@ def warm_up() -> None:
                                                                     cy=3.0), params), params)
     grid = voxel_grid(roi)
     pixel_labels(roi, grid, np.zeros(grid.counts.size, bool))
-    # the bands' kernels of compute_threads > 1: a frame tall enough to be cut into bands
-    threaded = params.replace(compute_threads=2)
-    tall = np.full((16, 8), 1.0, np.float32)
-    model = Intrinsics(fx=5.0, fy=5.0, cx=4.0, cy=tall.shape[0] / 2.0)
-    for tall_rays in (geometry.ground_rays(tall.shape, model, params),
-                      geometry.ray_model(tall.shape, model, params)):
-        factors = ((tall_rays.ru, tall_rays.rv, tall_rays.rot)
-                   if isinstance(tall_rays, geometry.GroundRays) else tall_rays)
-        banded = jit_voxel.project_roi(tall, factors, roi_bounds(threaded),
-                                       threaded.voxel_size_m, parts=2)
-        voxelise(banded)
-        banded.points   # noqa: B018 - moves the bands' points together: compiles that too
     pts = np.random.default_rng(0).uniform(-1.0, 1.0, (20, 3))
     voxel_downsample(pts.astype(np.float32), (0.1, 0.1, 0.1))
     voxel_downsample(pts, (0.1, 0.1, 0.1))

@@ -11,21 +11,17 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-import numpy as np
-
 try:
     import numba
-    from numba import prange
 except (ImportError, OSError):  # not installed, or built for another numpy / llvm
     numba = None
-    prange = range
 
 #: True when numba imported and the compiled kernels can run.
 AVAILABLE: bool = numba is not None
 
 
 def _compile(func: Callable[..., Any], **options: Any) -> Callable[..., Any]:
-    """numba.njit ``func`` releasing the GIL, cached on disk if it can be."""
+    """numba.njit ``func`` single-threaded, releasing the GIL, cached on disk if it can be."""
     if numba is None:
         return func
     try:
@@ -51,32 +47,3 @@ def jit_inline(func: Callable[..., Any]) -> Callable[..., Any]:
     caller compiles as if the helper's body were written in it.
     """
     return _compile(func, inline='always')
-
-
-def jit_parallel(func: Callable[..., Any]) -> Callable[..., Any]:
-    """:func:`jit` with numba's ``parallel=True``: its ``prange`` loops run on numba's threads.
-
-    As many threads as :func:`set_threads` last asked for on the calling thread.
-    """
-    return _compile(func, parallel=True)
-
-
-def set_threads(threads: int) -> int:
-    """Let the calling thread's ``prange`` loops use ``threads`` threads; return how many.
-
-    At most numba's pool (``NUMBA_NUM_THREADS``, by default the CPUs the process may use);
-    1 without numba.
-    """
-    if numba is None:
-        return 1
-    threads = max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS))
-    numba.set_num_threads(threads)
-    return threads
-
-
-def part_edges(count: int, parts: int) -> np.ndarray:
-    """Return the parts + 1 boundaries (int64) cutting ``range(count)`` into near-equal ranges.
-
-    The ranges of a ``prange`` loop over parts (each writing its own rows).
-    """
-    return np.array([count * p // parts for p in range(parts + 1)], np.int64)

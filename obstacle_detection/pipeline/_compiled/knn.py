@@ -15,9 +15,7 @@ give the same answers:
   ``normals.smallest_eigenvectors``, and hands degenerate rows to the same LAPACK call.
 
 The kernels are compiled on first use (a few seconds) and cached on disk (``cache=True``);
-call :func:`warm_up` at start-up to pay that before the first frame. With ``parts`` > 1 the
-queries are cut into ranges that a ``prange`` loop runs on numba's threads (as many as
-``_numba.set_threads`` allows); each range writes its own rows, so the result is the same.
+call :func:`warm_up` at start-up to pay that before the first frame. They run on one thread.
 """
 
 from __future__ import annotations
@@ -26,8 +24,7 @@ import math
 
 import numpy as np
 
-from ._numba import (AVAILABLE, jit as _jit, jit_inline as _jit_inline, jit_parallel,
-                     part_edges, prange)
+from ._numba import AVAILABLE, jit as _jit, jit_inline as _jit_inline
 
 #: Largest dense cell table [cells]; a larger grid looks its cells up in a hash table.
 _DENSE_CELLS_LIMIT = 1 << 22
@@ -584,16 +581,7 @@ def _knn_all(pts, k, out):  # pragma: no cover - compiled
 
 # ------------------------------------------------------------------------------ public API
 
-@jit_parallel
-def _knn_parts(lo, cell, k, dense, slack, cell_ijk, dims, order, sp, starts, hash_keys,
-               hash_cells, edges, out):  # pragma: no cover - compiled
-    """:func:`_knn_queries` of the sorted slots edges[j] .. edges[j + 1] - 1, one range a turn."""
-    for j in prange(edges.size - 1):
-        _knn_queries(lo, cell, k, dense, slack, cell_ijk, dims, order, sp, starts, hash_keys,
-                     hash_cells, edges[j], edges[j + 1], out)
-
-
-def knn_grid(points: np.ndarray, k: int, *, parts: int = 1) -> np.ndarray:
+def knn_grid(points: np.ndarray, k: int) -> np.ndarray:
     """Return indices (V, k) int64 of the exact k nearest points of every point, nearest first.
 
     points: (V, 3) float [m], finite. k is clipped to V. Column 0 is the point itself (also
@@ -601,10 +589,6 @@ def knn_grid(points: np.ndarray, k: int, *, parts: int = 1) -> np.ndarray:
     float64 as scipy's cKDTree computes it), ties broken by the smaller index. The grid sizes
     itself from the points (no voxel size needed). Raises ValueError for a wrong shape or
     non-finite coordinates, RuntimeError when numba is not available.
-
-    ``parts`` > 1 builds the grid once and cuts the queries (in grid order) into that many
-    ranges, each writing its own rows, run by a ``prange`` loop (numba's threads). The same
-    result.
     """
     if not AVAILABLE:
         raise RuntimeError('numba is not available; use normals.nearest_neighbours')
@@ -619,15 +603,8 @@ def knn_grid(points: np.ndarray, k: int, *, parts: int = 1) -> np.ndarray:
         return np.arange(n, dtype=np.int64).reshape(n, 1)
     out = np.empty((n, k), dtype=np.int64)
     pts = np.ascontiguousarray(pts, dtype=np.float64)
-    if parts <= 1 or n < 2 * parts:
-        if not _knn_all(pts, k, out):
-            raise ValueError('points must be finite (no NaN or inf coordinates)')
-        return out
-    finite, lo, cell, dense, slack = _knn_setup(pts, k)
-    if not finite:
+    if not _knn_all(pts, k, out):
         raise ValueError('points must be finite (no NaN or inf coordinates)')
-    grid = _build_grid(pts, lo, cell, dense)
-    _knn_parts(lo, cell, k, dense, slack, *grid, part_edges(n, parts), out)
     return out
 
 
@@ -638,15 +615,6 @@ def _normals_kernel(pts, neighbours, n_use, normals, cov_bad, bad):  # pragma: n
     """:func:`_normals_rows` of every row."""
     return _normals_rows(pts, neighbours, n_use, normals, cov_bad, bad,
                          np.arange(pts.shape[0]))
-
-
-@jit_parallel
-def _normals_parts(pts, neighbours, n_use, normals, cov_bad, bad, edges,
-                   counts):  # pragma: no cover - compiled
-    """:func:`_normals_rows` of the rows edges[j] .. edges[j + 1] - 1 into counts[j]."""
-    for j in prange(edges.size - 1):
-        counts[j] = _normals_rows(pts, neighbours, n_use, normals, cov_bad, bad,
-                                  np.arange(edges[j], edges[j + 1]))
 
 
 @_jit
@@ -769,8 +737,7 @@ def _normals_rows(pts, neighbours, n_use, normals, cov_bad, bad,
     return n_bad
 
 
-def normals_from_neighbours(points: np.ndarray, neighbours: np.ndarray, n: int, *,
-                            parts: int = 1) -> np.ndarray:
+def normals_from_neighbours(points: np.ndarray, neighbours: np.ndarray, n: int) -> np.ndarray:
     """Return unit normals (V, 3) float32 from the first n neighbours of every point.
 
     points: (V, 3) [m], used as float32 like ``normals.neighbourhood_covariance``;
@@ -780,8 +747,7 @@ def normals_from_neighbours(points: np.ndarray, neighbours: np.ndarray, n: int, 
     operation, so both paths give the same normals. Rows whose smallest eigenvalue is
     degenerate (a line, coincident points) go to ``numpy.linalg.eigh`` as in the numpy path;
     any unit vector of that eigenspace is a right answer there. The sign of a normal is
-    arbitrary. Raises ValueError for bad shapes or out-of-range indices. ``parts``: the rows
-    cut into ranges, as in :func:`knn_grid`; the same result.
+    arbitrary. Raises ValueError for bad shapes or out-of-range indices.
     """
     if not AVAILABLE:
         raise RuntimeError('numba is not available; use normals.estimate_normals')
@@ -802,12 +768,7 @@ def normals_from_neighbours(points: np.ndarray, neighbours: np.ndarray, n: int, 
     normals = np.empty((v_count, 3), dtype=np.float32)
     cov_bad = np.empty((v_count, 6), dtype=np.float64)    # filled on degenerate rows only
     bad = np.empty(v_count, dtype=np.bool_)
-    if parts <= 1 or v_count < 2 * parts:
-        n_bad = _normals_kernel(pts, nb, n, normals, cov_bad, bad)
-    else:
-        counts = np.zeros(parts, np.int64)
-        _normals_parts(pts, nb, n, normals, cov_bad, bad, part_edges(v_count, parts), counts)
-        n_bad = -1 if counts.min() < 0 else int(counts.sum())
+    n_bad = _normals_kernel(pts, nb, n, normals, cov_bad, bad)
     if n_bad < 0:
         raise ValueError(f'neighbour indices must lie in [0, {v_count})')
     return _degenerate_normals(normals, cov_bad, bad, n_bad)
@@ -821,56 +782,6 @@ def _degenerate_normals(normals: np.ndarray, cov_bad: np.ndarray, bad: np.ndarra
         _, vecs = np.linalg.eigh(cov)
         normals[bad] = vecs[:, :, 0]
     return normals
-
-
-@jit_parallel
-def _knn_normals_parts(lo, cell, k, dense, slack, cell_ijk, dims, order, sp, starts, hash_keys,
-                       hash_cells, edges, out, pts32, n_use, normals, cov_bad, bad,
-                       counts):  # pragma: no cover - compiled
-    """:func:`_knn_parts`, each range going on to its normals (:func:`_normals_rows`)."""
-    for j in prange(edges.size - 1):
-        begin = edges[j]
-        end = edges[j + 1]
-        _knn_queries(lo, cell, k, dense, slack, cell_ijk, dims, order, sp, starts, hash_keys,
-                     hash_cells, begin, end, out)
-        counts[j] = _normals_rows(pts32, out, n_use, normals, cov_bad, bad, order[begin:end])
-
-
-def knn_and_normals(points: np.ndarray, k: int, n_use: int, *, parts: int,
-                    ) -> tuple[np.ndarray, np.ndarray]:
-    """Return (:func:`knn_grid` (V, k), :func:`normals_from_neighbours` of its n_use columns).
-
-    One grid; the queries cut into ``parts`` ranges (grid order), each part searching its
-    queries and then computing their normals while their neighbours are in the cache: one
-    ``prange`` loop instead of two. The same results. points: (V, 3) finite,
-    V >= 2 * parts and 2 <= n_use <= k <= V (ValueError otherwise, as the two functions
-    raise).
-    """
-    if not AVAILABLE:
-        raise RuntimeError('numba is not available; use normals.nearest_neighbours')
-    pts = np.asarray(points)
-    if pts.ndim != 2 or pts.shape[1] != 3:
-        raise ValueError(f'points must have shape (V, 3), got {pts.shape}')
-    n = pts.shape[0]
-    if not (n >= 2 * parts and 2 <= n_use <= k <= n):
-        raise ValueError(f'knn_and_normals needs V >= 2 * parts and 2 <= n_use <= k <= V, got '
-                         f'V={n}, parts={parts}, n_use={n_use}, k={k}')
-    pts64 = np.ascontiguousarray(pts, dtype=np.float64)
-    pts32 = np.ascontiguousarray(pts, dtype=np.float32)
-    finite, lo, cell, dense, slack = _knn_setup(pts64, k)
-    if not finite:
-        raise ValueError('points must be finite (no NaN or inf coordinates)')
-    grid = _build_grid(pts64, lo, cell, dense)
-    out = np.empty((n, k), dtype=np.int64)
-    normals = np.empty((n, 3), dtype=np.float32)
-    cov_bad = np.empty((n, 6), dtype=np.float64)
-    bad = np.empty(n, dtype=np.bool_)
-    counts = np.zeros(parts, np.int64)
-    _knn_normals_parts(lo, cell, k, dense, slack, *grid, part_edges(n, parts), out, pts32, n_use,
-                       normals, cov_bad, bad, counts)
-    if counts.min() < 0:   # cannot happen: the search gives indices in range
-        raise ValueError(f'neighbour indices must lie in [0, {n})')
-    return out, _degenerate_normals(normals, cov_bad, bad, int(counts.sum()))
 
 
 @_jit
@@ -919,6 +830,3 @@ def warm_up() -> None:
     normals_from_neighbours(pts, nb, 10)
     normals_from_neighbours(pts, nb[:, :10], 10)   # a column slice compiles a second layout
     validate(np.ones(pts.shape[0], np.bool_), nb, 12)
-    nb = knn_grid(pts, 13, parts=2)
-    normals_from_neighbours(pts, nb[:, :10], 10, parts=2)
-    knn_and_normals(pts, 13, 10, parts=2)

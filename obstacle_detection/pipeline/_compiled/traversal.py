@@ -17,7 +17,7 @@ import threading
 
 import numpy as np
 
-from ._numba import AVAILABLE, jit as _jit, jit_parallel, part_edges, prange
+from ._numba import AVAILABLE, jit as _jit
 
 #: Per-thread buffers reused across frames (fresh large arrays cost page faults).
 _SCRATCH = threading.local()
@@ -694,21 +694,6 @@ def _smear5_rows(filtered, raw, ratio, jump, tol_ratio, col_lo, col_hi, row_lo, 
                     keep[:n], ratio, jump)
 
 
-@jit_parallel
-def _smear5_parts(filtered, raw, ratio, jump, tol_ratio, edges):  # pragma: no cover - compiled
-    """:func:`_smear5_rows` of the rows edges[j] .. edges[j + 1] - 1, each with its buffers."""
-    width = raw.shape[1]
-    for j in prange(edges.size - 1):
-        col_lo = np.full(width + 4, np.inf, np.float32)   # as _smear5_buffers
-        col_hi = np.zeros(width + 4, np.float32)
-        _smear5_rows(filtered, raw, ratio, jump, tol_ratio, col_lo, col_hi,
-                     np.empty(width, np.float32), np.empty(width, np.float32),
-                     np.empty((3, width), np.float32), np.empty((3, width), np.float32),
-                     np.empty((3, width), np.float32), np.zeros(width, np.float32),
-                     np.empty(width, np.bool_), np.empty(width, np.bool_), edges[j],
-                     edges[j + 1])
-
-
 def _smear5_buffers(width: int) -> tuple[np.ndarray, ...]:
     """Return the row buffers of _smear5_kernel for images this wide (pads, zeros set)."""
     col_lo = np.full(width + 4, np.inf, np.float32)   # neutral pads of the row pass: the
@@ -720,24 +705,18 @@ def _smear5_buffers(width: int) -> tuple[np.ndarray, ...]:
 
 
 def drop_smeared_fused(filtered: np.ndarray, raw: np.ndarray, max_shift: float, jump: float,
-                       planar_tolerance: float, *, parts: int = 1,
-                       raw_no_nan: bool = False) -> bool:
+                       planar_tolerance: float, *, raw_no_nan: bool = False) -> bool:
     """In place, as :func:`drop_smeared` with the 5 x 5 window range of traversal's numpy path.
 
     filtered, raw: (H, W) float32 C-contiguous. Returns False, changing nothing, when raw
     holds a NaN (the caller then takes OpenCV's window range, whose NaN handling is its own).
-    parts: the rows cut into this many ranges, run by a ``prange`` loop (numba's threads);
-    the same result.
     raw_no_nan: the caller knows raw holds no NaN (looked up in a table of depths):
     the scan for one is skipped.
     """
     if not raw_no_nan and _has_nan(raw):
         return False
     rules = (np.float32(max_shift), np.float32(jump), np.float32(planar_tolerance))
-    if parts <= 1 or raw.shape[0] < 2 * parts:
-        _smear5_kernel(filtered, raw, *rules, *_smear5_scratch(raw.shape[1]))
-        return True
-    _smear5_parts(filtered, raw, *rules, part_edges(raw.shape[0], parts))
+    _smear5_kernel(filtered, raw, *rules, *_smear5_scratch(raw.shape[1]))
     return True
 
 
@@ -966,8 +945,6 @@ def warm_up() -> None:
     drop_smeared(one.copy(), one, one, one, 0.03, 0.05, 0.02)
     drop_smeared_fused(np.ones((6, 6), np.float32), np.ones((6, 6), np.float32), 0.03, 0.05,
                        0.02)
-    drop_smeared_fused(np.ones((6, 6), np.float32), np.ones((6, 6), np.float32), 0.03, 0.05,
-                       0.02, parts=2)                 # the row ranges of compute_threads > 1
     holes_to_inf(one)
     rng = np.random.default_rng(0)
     depth = rng.uniform(0.5, 3.0, (12, 12)).astype(np.float32)

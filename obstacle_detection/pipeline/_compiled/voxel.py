@@ -21,8 +21,7 @@ accumulates counts and sums. A lattice larger than
 
 The kernels are compiled on first use (a few seconds) and cached on disk (``cache=True``);
 call :func:`obstacle_detection.pipeline.voxel.warm_up` at start-up to pay that before the first
-frame. The back-projection may cut the image into bands of rows that a ``prange`` loop runs
-on numba's threads (``parts``).
+frame. They run on one thread.
 """
 
 from __future__ import annotations
@@ -34,8 +33,7 @@ import numpy as np
 from obstacle_detection.labels import (LABEL_GROUND, LABEL_NO_RETURN, LABEL_OBSTACLE,
                                        LABEL_OUTSIDE_ROI)
 
-from ._numba import (AVAILABLE, jit as _jit, jit_inline as _jit_inline, jit_parallel,
-                     part_edges, prange)
+from ._numba import AVAILABLE, jit as _jit, jit_inline as _jit_inline
 from .traversal import ray_row
 
 __all__ = ['AVAILABLE', 'Projection', 'label_pixels', 'project_roi', 'roi_lattice',
@@ -144,39 +142,6 @@ def _project_rays_rows(depth, ru, rv, rot, chunk, bounds, size, low, dims, label
     return m
 
 
-@jit_parallel
-def _project_bands(depth, rays, bounds, size, low, dims, labels, pixel_voxel, cols, pix, keys,
-                   edges, width, counts):  # pragma: no cover - compiled
-    """:func:`_project_kernel` of the rows edges[j] .. edges[j + 1] - 1, one band a turn.
-
-    Band j writes its kept points into its own stretch of cols, pix and keys, from the index
-    of its first pixel (a band keeps at most one point per pixel), and their number (or -1)
-    into counts[j].
-    """
-    for j in prange(edges.size - 1):
-        p0 = edges[j] * width
-        p1 = edges[j + 1] * width
-        counts[j] = _project_kernel(depth[p0:p1], rays[:, p0:p1], p0, bounds, size, low, dims,
-                                    labels[p0:p1], pixel_voxel[p0:p1], cols[:, p0:p1],
-                                    pix[p0:p1], keys[p0:p1])
-
-
-@jit_parallel
-def _project_rays_bands(depth, ru, rv, rot, chunks, bounds, size, low, dims, labels,
-                        pixel_voxel, cols, pix, keys, edges, counts):  # pragma: no cover
-    """:func:`_project_bands` with the rays computed (:func:`_project_rays_rows`).
-
-    chunks: (parts, 3, rows * W) float32, each band's own buffer of computed rays.
-    """
-    width = ru.size
-    for j in prange(edges.size - 1):
-        p0 = edges[j] * width
-        p1 = edges[j + 1] * width
-        counts[j] = _project_rays_rows(depth, ru, rv, rot, chunks[j], bounds, size, low, dims,
-                                       labels, pixel_voxel, cols[:, p0:p1], pix[p0:p1],
-                                       keys[p0:p1], edges[j], edges[j + 1])
-
-
 @_jit
 def _index_kernel(cols, size, ijk, limit):  # pragma: no cover - compiled
     """Write ijk (3, m) int64 = floor(cols / size) in the points' dtype; False if one is huge."""
@@ -202,13 +167,12 @@ def _popcount(x):  # pragma: no cover - compiled
 
 @_jit
 def _voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_voxel, bits,
-                  prefix, begins, counts_in):  # pragma: no cover - compiled
+                  prefix):  # pragma: no cover - compiled
     """Give the occupied cells numbers in key order; average their points.
 
-    The points lie in stretches (begins, counts_in (s,) int64: first index and count) of
-    cols (3, n) float, keys (n,) int64 in [0, n_cells) and pixels (n,) int64; point q is
-    the q-th of them in stretch order. dims, low (3,) int64 the lattice; pixel_voxel (h*w,)
-    int32: when pixels is not empty, the voxel of each point is written at its pixel;
+    The m points are the first m of cols (3, >= m) float, keys (>= m,) int64 in
+    [0, n_cells) and pixels (>= m,) int64. dims, low (3,) int64 the lattice; pixel_voxel
+    (h*w,) int32: when pixels is not empty, the voxel of each point is written at its pixel;
     point_voxel (m,) int64 out. Scratch, one entry per 64 cells: bits (>= ceil(n_cells /
     64)) uint64 all zero (left all zero), the occupied cells' bits; prefix (as long) int64,
     the occupied cells before each word. A
@@ -218,10 +182,10 @@ def _voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_vox
     counts (V,) int64, voxel_ijk (V, 3) int64).
     """
     n_words = (n_cells + 63) // 64
-    for s in range(begins.size):
-        for q in range(begins[s], begins[s] + counts_in[s]):
-            key = keys[q]
-            bits[key >> 6] |= _U1 << np.uint64(key & 63)
+    m = point_voxel.shape[0]
+    for q in range(m):
+        key = keys[q]
+        bits[key >> 6] |= _U1 << np.uint64(key & 63)
     n_vox = 0
     for w in range(n_words):
         prefix[w] = n_vox
@@ -242,49 +206,25 @@ def _voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_vox
     counts = np.zeros(n_vox, np.int64)
     sums = np.zeros((n_vox, 3), np.float64)
     with_pixels = pixels.size > 0
-    i = 0
-    for s in range(begins.size):
-        for q in range(begins[s], begins[s] + counts_in[s]):
-            key = keys[q]
-            w = key >> 6
-            v = prefix[w] + _popcount(bits[w] & ((_U1 << np.uint64(key & 63)) - _U1))
-            point_voxel[i] = v
-            i += 1
-            counts[v] += 1
-            sums[v, 0] += np.float64(cols[0, q])
-            sums[v, 1] += np.float64(cols[1, q])
-            sums[v, 2] += np.float64(cols[2, q])
-            if with_pixels:
-                pixel_voxel[pixels[q]] = v
-    for s in range(begins.size):
-        for q in range(begins[s], begins[s] + counts_in[s]):
-            bits[keys[q] >> 6] = _U0
+    for q in range(m):
+        key = keys[q]
+        w = key >> 6
+        v = prefix[w] + _popcount(bits[w] & ((_U1 << np.uint64(key & 63)) - _U1))
+        point_voxel[q] = v
+        counts[v] += 1
+        sums[v, 0] += np.float64(cols[0, q])
+        sums[v, 1] += np.float64(cols[1, q])
+        sums[v, 2] += np.float64(cols[2, q])
+        if with_pixels:
+            pixel_voxel[pixels[q]] = v
+    for q in range(m):
+        bits[keys[q] >> 6] = _U0
     centroids = np.empty((n_vox, 3), np.float32)
     for v in range(n_vox):
         n = np.float64(counts[v])
         for a in range(3):
             centroids[v, a] = np.float32(sums[v, a] / n)
     return centroids, point_voxel, counts, voxel_ijk
-
-
-@_jit
-def _close_gaps_kernel(cols, pix, keys, begins, counts):  # pragma: no cover - compiled
-    """Move the points of stretch j (counts[j] from index begins[j]) to follow stretch j - 1.
-
-    Each stretch begins at or after the end of the points before it, so the points move
-    left and a forward copy reads every point before anything overwrites it.
-    """
-    m = 0
-    for j in range(begins.size):
-        p0 = begins[j]
-        if p0 != m:
-            for q in range(counts[j]):
-                cols[0, m + q] = cols[0, p0 + q]
-                cols[1, m + q] = cols[1, p0 + q]
-                cols[2, m + q] = cols[2, p0 + q]
-                pix[m + q] = pix[p0 + q]
-                keys[m + q] = keys[p0 + q]
-        m += counts[j]
 
 
 @_jit
@@ -308,54 +248,33 @@ class Projection:
     ``low``, ``dims`` (None when the numpy path must number the voxels); voxel_size_m: the
     voxel size; reuse: points, pixel_index and keys live in per-thread buffers (see
     :func:`project_roi`).
-
-    Projected in bands of rows, the points lie in stretches of the buffers (``stretches``:
-    each band's first index and count) until ``points``, ``pixel_index`` or ``keys`` is first
-    read, which moves them together once; :func:`voxelise` reads the stretches as they are,
-    so the pipeline, which reads nothing else of them, never moves them (0.25 ms a frame).
     """
 
     __slots__ = ('_cols', '_pix', '_keys', 'count', 'labels', 'pixel_voxel', 'has_keys',
-                 'low', 'dims', 'voxel_size_m', 'reuse', 'stretches')
+                 'low', 'dims', 'voxel_size_m', 'reuse')
 
     def __init__(self, cols: np.ndarray, pix: np.ndarray, keys: np.ndarray, count: int,
                  labels: np.ndarray, pixel_voxel: np.ndarray, has_keys: bool, low: np.ndarray,
-                 dims: np.ndarray, voxel_size_m: tuple[float, float, float], reuse: bool,
-                 stretches: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+                 dims: np.ndarray, voxel_size_m: tuple[float, float, float],
+                 reuse: bool) -> None:
         self._cols, self._pix, self._keys, self.count = cols, pix, keys, count
         self.labels, self.pixel_voxel, self.has_keys = labels, pixel_voxel, has_keys
         self.low, self.dims, self.voxel_size_m, self.reuse = low, dims, voxel_size_m, reuse
-        self.stretches = stretches
-
-    def _together(self) -> None:
-        if self.stretches is not None:
-            _close_gaps_kernel(self._cols, self._pix, self._keys, *self.stretches)
-            self.stretches = None
 
     @property
     def points(self) -> np.ndarray:
         """(M, 3) float32, a view of (3, M) contiguous columns."""
-        self._together()
         return self._cols[:, :self.count].T
 
     @property
     def pixel_index(self) -> np.ndarray:
         """(M,) int64 flat pixel indices."""
-        self._together()
         return self._pix[:self.count]
 
     @property
     def keys(self) -> np.ndarray | None:
         """(M,) int64 linear voxel keys, or None."""
-        self._together()
         return self._keys[:self.count] if self.has_keys else None
-
-    def buffers(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Return (cols (3, n), pix, keys, begins, counts): the stretches as they lie."""
-        if self.stretches is None:
-            one = np.array([0], np.int64), np.array([self.count], np.int64)
-            return self._cols, self._pix, self._keys, *one
-        return self._cols, self._pix, self._keys, *self.stretches
 
 
 _SCRATCH = threading.local()
@@ -385,7 +304,7 @@ def roi_lattice(bounds: np.ndarray, size: np.ndarray) -> tuple[np.ndarray, np.nd
 
 def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarray,
                 voxel_size_m: tuple[float, float, float], *, reuse: bool = False,
-                parts: int = 1) -> Projection:
+                ) -> Projection:
     """Back-project a depth image through ground rays, keep the ROI, key the voxels.
 
     depth_m: (H, W) float32, 0 = no return; rays: (3, H*W) float32 ground rays, or their
@@ -396,10 +315,6 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarra
     indices equal those of :func:`obstacle_detection.pipeline.geometry.ground_points_in_roi`.
     reuse: keep the points, pixel indices and keys in per-thread buffers that the next call
     in the same thread overwrites (the pipeline's choice; faster), instead of fresh arrays.
-    parts: the image rows cut into this many bands, projected by a ``prange`` loop (numba's
-    threads) into their own stretch of the buffers, moved together in pixel order when the
-    points, pixels or keys are first read (:class:`Projection`): the same points, pixels and
-    keys.
     """
     shape = depth_m.shape
     depth = np.ascontiguousarray(depth_m, np.float32).reshape(-1)
@@ -414,7 +329,6 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarra
         def kernel(*args):
             return _project_rays_kernel(depth, ru, rv, rot, chunk, *args)
 
-        source: np.ndarray | tuple = (ru, rv, rot)
     else:
         rays = np.ascontiguousarray(rays, np.float32)
         if rays.shape != (3, n):
@@ -423,7 +337,6 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarra
         def kernel(*args):
             return _project_kernel(depth, rays, 0, *args)
 
-        source = rays
     size = np.asarray(voxel_size_m, np.float32)
     low, dims = roi_lattice(bounds, size)
     n_cells = int(dims[0]) * int(dims[1]) * int(dims[2])
@@ -438,13 +351,7 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarra
         pix = np.empty(n, np.int64)
         keys = np.empty(n, np.int64)
     m = -1
-    stretches = None
-    if n_cells <= _DENSE_LIMIT and parts > 1 and shape[0] >= 2 * parts:
-        stretches = _project_parts(depth, source, shape, (bounds, size, low, dims),
-                                   labels.reshape(-1), pixel_voxel.reshape(-1),
-                                   (cols, pix, keys), parts)
-        m = -1 if stretches is None else int(stretches[1].sum())
-    elif n_cells <= _DENSE_LIMIT:
+    if n_cells <= _DENSE_LIMIT:
         m = kernel(bounds, size, low, dims, labels.reshape(-1), pixel_voxel.reshape(-1), cols,
                    pix, keys)
     if m < 0:   # lattice too large: points only, numpy numbers the voxels
@@ -454,37 +361,7 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarra
         return Projection(cols, pix, keys, m, labels, pixel_voxel, False, low, dims,
                           voxel_size_m, reuse)
     return Projection(cols, pix, keys, m, labels, pixel_voxel, True, low, dims, voxel_size_m,
-                      reuse, stretches)
-
-
-def _project_parts(depth: np.ndarray, rays: np.ndarray | tuple, shape: tuple[int, int],
-                   lattice: tuple, labels: np.ndarray, pixel_voxel: np.ndarray,
-                   out: tuple[np.ndarray, np.ndarray, np.ndarray], parts: int,
-                   ) -> tuple[np.ndarray, np.ndarray] | None:
-    """Project bands of rows into their own stretches of ``out``.
-
-    Band j writes its points from column (its first pixel) of cols, pix and keys: a band
-    keeps at most one point per pixel, so the stretches never overlap. Returns the stretches
-    (first index (parts,) int64, count (parts,) int64) in pixel order, or None when a key
-    falls outside the lattice.
-    """
-    height, width = shape
-    cols, pix, keys = out
-    edges = part_edges(height, parts)
-    counts = np.zeros(parts, np.int64)
-    if isinstance(rays, tuple):
-        ru, rv, rot = rays
-        chunk_px = max(1, _RAY_BAND_PX // width) * width   # each band's rays
-        size = parts * 3 * chunk_px
-        chunks = _scratch('ray_bands', size, np.float32)[:size].reshape(parts, 3, chunk_px)
-        _project_rays_bands(depth, ru, rv, rot, chunks, *lattice, labels, pixel_voxel, cols,
-                            pix, keys, edges, counts)
-    else:
-        _project_bands(depth, rays, *lattice, labels, pixel_voxel, cols, pix, keys, edges,
-                       width, counts)
-    if counts.min() < 0:
-        return None
-    return edges[:-1] * width, counts
+                      reuse)
 
 
 def voxelise(proj: Projection) -> tuple | None:
@@ -501,19 +378,17 @@ def voxelise(proj: Projection) -> tuple | None:
     m = proj.count
     point_voxel = _scratch('point_voxel', m, np.int64)[:m] if proj.reuse else np.empty(m,
                                                                                       np.int64)
-    cols, pix, keys, begins, counts = proj.buffers()   # the stretches, not moved together
-    return _run_voxel_kernel(cols, keys, n_cells, proj.dims, proj.low, pix,
-                             proj.pixel_voxel.reshape(-1), point_voxel, begins, counts)
+    return _run_voxel_kernel(proj._cols, proj._keys, n_cells, proj.dims, proj.low, proj._pix,
+                             proj.pixel_voxel.reshape(-1), point_voxel)
 
 
-def _run_voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_voxel,
-                      begins, counts):
+def _run_voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_voxel):
     """Call :func:`_voxel_kernel` with this thread's lattice scratch buffers."""
     n_words = (n_cells + 63) // 64
     bits = _scratch('occupied_bits', n_words, np.uint64, zero=True)
     prefix = _scratch('bit_prefix', n_words, np.int64)
     return _voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_voxel,
-                         bits, prefix, begins, counts)
+                         bits, prefix)
 
 
 def voxel_downsample(points: np.ndarray, voxel_size_m: tuple[float, float, float]
@@ -543,8 +418,7 @@ def voxel_downsample(points: np.ndarray, voxel_size_m: tuple[float, float, float
     keys *= dims[2]
     keys += ijk[2] - low[2]
     return _run_voxel_kernel(cols, keys, n_cells, dims, low, np.zeros(0, np.int64),
-                             np.zeros(0, np.int32), np.empty(keys.size, np.int64),
-                             np.zeros(1, np.int64), np.full(1, keys.size, np.int64))
+                             np.zeros(0, np.int32), np.empty(keys.size, np.int64))
 
 
 def label_pixels(labels: np.ndarray, pixel_voxel: np.ndarray, is_obstacle: np.ndarray) -> None:
