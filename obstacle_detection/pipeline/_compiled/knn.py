@@ -381,17 +381,16 @@ def _knn_kernel(pts, lo, cell, k, dense, slack, out):  # pragma: no cover - comp
     """
     cell_ijk, dims, order, sp, starts, hash_keys, hash_cells = _build_grid(pts, lo, cell, dense)
     _knn_queries(lo, cell, k, dense, slack, cell_ijk, dims, order, sp, starts, hash_keys,
-                 hash_cells, 0, pts.shape[0], out)
+                 hash_cells, out)
 
 
 @_jit
 def _knn_queries(lo, cell, k, dense, slack, cell_ijk, dims, order, sp, starts, hash_keys,
-                 hash_cells, s_begin, s_end, out):  # pragma: no cover - compiled
-    """Search the queries of sorted slots s_begin .. s_end - 1 of a :func:`_build_grid` grid.
+                 hash_cells, out):  # pragma: no cover - compiled
+    """Search every query of a :func:`_build_grid` grid, in sorted (cell) order, into ``out``.
 
-    Writes their rows of ``out`` only; a query's answer does not depend on the others (the
-    previous query's k-th distance only picks the first radius tried), so the slots can be
-    cut into ranges searched in any order, on any thread.
+    A query's answer does not depend on the others (the previous query's k-th distance only
+    picks the first radius tried).
     """
     n = order.shape[0]
     best_d = np.empty(k, np.float64)
@@ -408,10 +407,10 @@ def _knn_queries(lo, cell, k, dense, slack, cell_ijk, dims, order, sp, starts, h
     top = np.empty(k + 1, np.int64)
     budget = 2 * n + 512              # cells to look at before a plain scan is cheaper
     rank_limit = 4 * k + 64           # more near points (a crowded cell): insertion is cheaper
-    group_end = s_begin
+    group_end = 0
     m = 0
     kth2_prev = np.inf                # squared k-th distance of the previous query
-    for s in range(s_begin, s_end):   # queries in cell order: neighbouring cells stay cached
+    for s in range(n):   # queries in cell order: neighbouring cells stay cached
         i = order[s]
         c0 = cell_ijk[i, 0]
         c1 = cell_ijk[i, 1]
@@ -612,15 +611,7 @@ def knn_grid(points: np.ndarray, k: int) -> np.ndarray:
 
 @_jit
 def _normals_kernel(pts, neighbours, n_use, normals, cov_bad, bad):  # pragma: no cover
-    """:func:`_normals_rows` of every row."""
-    return _normals_rows(pts, neighbours, n_use, normals, cov_bad, bad,
-                         np.arange(pts.shape[0]))
-
-
-@_jit
-def _normals_rows(pts, neighbours, n_use, normals, cov_bad, bad,
-                  rows):  # pragma: no cover - compiled
-    """Covariance and closed-form smallest eigenvector of the rows ``rows`` (int64 indices).
+    """Covariance and closed-form smallest eigenvector of every row.
 
     See normals_from_neighbours; a row's result depends on no other row.
 
@@ -632,7 +623,7 @@ def _normals_rows(pts, neighbours, n_use, normals, cov_bad, bad,
     of degenerate rows, or -1 (with nothing done) when an index is out of range.
     """
     v_count = pts.shape[0]
-    for v in rows:
+    for v in range(v_count):
         for t in range(n_use):
             if neighbours[v, t] < 0 or neighbours[v, t] >= v_count:
                 return -1
@@ -640,7 +631,7 @@ def _normals_rows(pts, neighbours, n_use, normals, cov_bad, bad,
     two_pi_3 = 2.0 * np.pi / 3.0
     tiny = np.finfo(np.float64).tiny
     n_bad = 0
-    for v in rows:
+    for v in range(v_count):
         px = np.float64(pts[v, 0])
         py = np.float64(pts[v, 1])
         pz = np.float64(pts[v, 2])

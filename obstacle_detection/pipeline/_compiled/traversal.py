@@ -619,30 +619,13 @@ def _smear5_kernel(filtered, raw, ratio, jump, tol_ratio, col_lo, col_hi, row_lo
     columns (planar and keep where needed, decide; the compiler vectorises them) and the
     scalar rule at the 2 border columns each side. raw: no NaN (the caller checks); zeros: (W,) 0.
     """
-    _smear5_rows(filtered, raw, ratio, jump, tol_ratio, col_lo, col_hi, row_lo, row_hi,
-                 pair_lo, pair_hi, inv3, zeros, planar, keep, 0, filtered.shape[0])
-
-
-@_jit
-def _smear5_rows(filtered, raw, ratio, jump, tol_ratio, col_lo, col_hi, row_lo, row_hi,
-                 pair_lo, pair_hi, inv3, zeros, planar, keep, i_begin,
-                 i_end):  # pragma: no cover - compiled
-    """:func:`_smear5_kernel` of the rows i_begin .. i_end - 1 (their own row buffers).
-
-    A row's result depends only on its own filtered depths and the measured rows i - 2 ..
-    i + 2, so row ranges may run in any order, on any thread, each with its own buffers: the
-    ring's row pairs a range's first rows need are computed first.
-    """
     height, width = filtered.shape
     inf = np.float32(np.inf)
     zero = np.float32(0.0)
     half = 2
     inv_of = np.full(3, -1, np.int64)   # the row whose inverse depths each slot of inv3 holds
     n = width - 4
-    for i in range(max(0, i_begin - half), i_begin):   # the pairs the rows before would keep
-        if (i >= half and i + half < height) or (i < half and i + half + 1 < height):
-            _pair_range(raw[i], raw[i + 1], pair_lo[i % 3], pair_hi[i % 3])
-    for i in range(i_begin, i_end):
+    for i in range(height):
         # col_lo/col_hi (W + 4,): the column pass in [2, W + 2), neutral pads (inf, 0) around,
         # so that the row pass's 5 taps give the window clipped to the image at the borders
         inner = i >= half and i + half < height

@@ -109,25 +109,15 @@ def _project_rays_kernel(depth, ru, rv, rot, chunk, bounds, size, low, dims, lab
 
     The rays of a band of rows are computed into chunk (3, rows * W) float32 (a few
     cache-resident rows; the same float32 operations as the table), then projected.
-    """
-    return _project_rays_rows(depth, ru, rv, rot, chunk, bounds, size, low, dims, labels,
-                              pixel_voxel, cols, pix, keys, 0, rv.size)
-
-
-@_jit
-def _project_rays_rows(depth, ru, rv, rot, chunk, bounds, size, low, dims, labels,
-                       pixel_voxel, cols, pix, keys, row_begin,
-                       row_end):  # pragma: no cover - compiled
-    """:func:`_project_rays_kernel` of the image rows row_begin .. row_end - 1.
-
-    depth, labels, pixel_voxel: the whole image (flat); the rows' kept points go to cols,
-    pix and keys from index 0 (pix: flat image indices). Returns their number, or -1.
+    depth, labels, pixel_voxel: the whole image (flat). Returns the number of kept points,
+    or -1.
     """
     width = ru.size
+    height = rv.size
     band = max(1, chunk.shape[1] // width)
     m = 0
-    for i0 in range(row_begin, row_end, band):
-        i1 = min(row_end, i0 + band)
+    for i0 in range(0, height, band):
+        i1 = min(height, i0 + band)
         for a in range(3):
             for i in range(i0, i1):
                 ray_row(ru, rv[i], rot[a, 0], rot[a, 1], rot[a, 2],
