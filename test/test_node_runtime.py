@@ -1,13 +1,11 @@
-"""How the node process runs: its executor and its frozen start-up heap (in-process, loopback).
+"""How the node process runs: its executor (in-process, loopback).
 
-The figures behind these choices (CPU per thread, the length of a full collection) are
-measured by tools/latency_bench.py and described in the README; these tests check the
-behaviour the node relies on.
+The figures behind this choice (CPU per thread) are measured by tools/latency_bench.py and
+described in the README; this test checks the behaviour the node relies on.
 """
 
 from __future__ import annotations
 
-import gc
 import threading
 from collections.abc import Iterator
 
@@ -15,7 +13,7 @@ import pytest
 import rclpy
 import ros_env
 
-from obstacle_detection.ros.node import DetectorNode, freeze_heap_when_ready, make_executor
+from obstacle_detection.ros.node import make_executor
 
 
 
@@ -54,20 +52,3 @@ def test_executor_raises_a_callback_error_and_goes_on_dispatching(context) -> No
         node.destroy_node()
     assert raised == ['first tick fails']
     assert second.is_set() and len(calls) >= 2
-
-
-def test_start_up_heap_is_frozen_once_the_kernels_are_ready(context) -> None:
-    node = DetectorNode(context=context)
-    before = [object()]          # a list: tracked by the collector
-    try:
-        assert id(before) in {id(o) for o in gc.get_objects()}
-        freeze_heap_when_ready(node).join(timeout=300.0)
-        assert node._compile is None or node._compile.done()
-        assert gc.get_freeze_count() > 0
-        assert id(before) not in {id(o) for o in gc.get_objects()}   # out of every collection
-        after = [object()]
-        assert id(after) in {id(o) for o in gc.get_objects()}        # new objects are collected
-    finally:
-        gc.unfreeze()
-        node.close()
-        node.destroy_node()

@@ -6,7 +6,8 @@ configuration (frame size x median kernel K) runs the same number of frames, cyc
 named scenes. The run is pinned to one thread: BLAS/OpenMP thread counts are set to 1 before
 numpy is imported, OpenCV gets ``cv2.setNumThreads(1)``, the k-d tree is queried with
 ``workers=1``, the optional numba kernels are single-threaded, and the process is pinned to one
-CPU with ``os.sched_setaffinity`` (where the platform has it). Peak memory is the process's
+CPU with ``os.sched_setaffinity`` (where the platform has it); ``--threads N`` > 1 leaves it
+unpinned and runs the detector with ``compute_threads`` N. Peak memory is the process's
 maximum resident set size. ``OBSTACLE_DETECTION_NO_JIT=1`` times the numpy/scipy path.
 
 Prints a table for people and one line starting with ``JSON `` for machines.
@@ -14,6 +15,7 @@ Prints a table for people and one line starting with ``JSON `` for machines.
     python tools/benchmark.py                 # 100 frames per configuration, corridor.yaml
     python tools/benchmark.py --frames 300 --preset table_4_2   # the seed method exactly
     python tools/benchmark.py --rate 30       # frames 1/30 s apart, as a camera sends them
+    python tools/benchmark.py --threads 2     # compute_threads 2 (not pinned)
 
 Frames run back to back by default: the caches stay warm from one frame to the next, the best
 case. ``--rate HZ`` starts one frame every 1/HZ s and sleeps in between, as the node works on
@@ -58,17 +60,18 @@ NEW_TOTAL = 'new stages'
 
 
 
-def jit_description() -> str:
-    """Say whether the optional numba kernels run (they are single-threaded) or numpy/scipy."""
+def jit_description(threads: int = 1) -> str:
+    """Say whether the optional numba kernels run (on how many threads) or numpy/scipy."""
     if jit_enabled():
         import numba
-        return (f'numba {numba.__version__} kernels (one thread): back-projection and voxel '
-                'grid, median K >= 7, k-NN, normals, labels, rays, smear, traversal, drops')
+        return (f'numba {numba.__version__} kernels (compute_threads {threads}): '
+                'back-projection and voxel grid, median K >= 7, k-NN, normals, labels, rays, '
+                'smear, traversal, drops')
     return 'numpy/scipy path (numba missing or OBSTACLE_DETECTION_NO_JIT=1)'
 
 
 def run_config(scenes: tuple[str, ...], size_label: str, kernel: int, frames: int,
-               preset: str, distinct: int, rate_hz: float = 0.0) -> dict:
+               preset: str, distinct: int, rate_hz: float = 0.0, threads: int = 1) -> dict:
     """Time ``frames`` frames of one configuration; return the statistics.
 
     rate_hz > 0: a frame starts every 1 / rate_hz s (sleeping in between, never catching up
@@ -79,7 +82,8 @@ def run_config(scenes: tuple[str, ...], size_label: str, kernel: int, frames: in
     for name in scenes:
         for seed in range(distinct):
             frame = render_scene(name, seed=seed, intrinsics=intr, size=(width, height))
-            params = scene_params(frame, PRESETS[preset](median_kernel=kernel))
+            params = scene_params(frame, PRESETS[preset](median_kernel=kernel,
+                                                         compute_threads=threads))
             rendered.append((frame, Detector(params)))
     rendered[0][1].warm_up()  # numba kernels compiled or loaded before timing
     rendered[0][1].process(rendered[0][0].depth_mm, rendered[0][0].intrinsics)
@@ -103,7 +107,7 @@ def run_config(scenes: tuple[str, ...], size_label: str, kernel: int, frames: in
              for stage, v in per_stage.items()}
     return {
         'size': size_label, 'kernel': kernel, 'preset': preset, 'frames': frames,
-        'scenes': list(scenes), 'stages': stats,
+        'scenes': list(scenes), 'stages': stats, 'threads': threads,
         'fps': frames / wall, 'rate_hz': rate_hz,
         'voxels_median': float(np.median(voxels)),
         'obstacle_points_median': float(np.median(obstacles)),
@@ -142,6 +146,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--rate', type=float, default=0.0, metavar='HZ',
                         help='start a frame every 1/HZ s, sleeping in between, as a camera '
                              'paces the node (0 = back to back, the default)')
+    parser.add_argument('--threads', type=int, default=1,
+                        help='compute_threads of the detector; above 1 the process is not '
+                             'pinned to one CPU [default: 1]')
     args = parser.parse_args(argv)
     if args.frames < 1:
         parser.error('--frames must be >= 1')
@@ -153,8 +160,15 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f'unknown size(s) {unknown}; choose from {list(SIZES)}')
     scenes = tuple(args.scenes.split(','))
     kernels = [int(k) for k in args.kernels.split(',')]
-    pinning = (f'{tool_support.pin_one_cpu()}; k-d tree workers = 1; '
-               f'{jit_description()}')
+    if not 1 <= args.threads <= 8:
+        parser.error('--threads must be in [1, 8]')
+    if args.threads == 1:
+        pinned = tool_support.pin_one_cpu()
+    else:
+        cv2.setNumThreads(1)
+        pinned = 'not pinned; BLAS/OpenMP/OpenCV threads = 1'
+    pinning = f'{pinned}; k-d tree workers = 1; {jit_description(args.threads)}'
+
     print(f'# {pinning}', flush=True)
     results = []
     for size_label in sizes:
@@ -162,7 +176,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f'# {size_label} K={kernel}: {args.frames} frames ...', file=sys.stderr,
                   flush=True)
             results.append(run_config(scenes, size_label, kernel, args.frames, args.preset,
-                                      args.distinct, args.rate))
+                                      args.distinct, args.rate, args.threads))
     peak_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     pace = f'one frame every {1e3 / args.rate:.1f} ms' if args.rate else 'back to back'
     print(f'# preset {args.preset}, scenes {", ".join(scenes)}, {args.frames} frames each '

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..labels import LABEL_OBSTACLE
-from . import geometry, median, parallel, traversal, voxel
+from . import geometry, median, traversal, voxel
 from . import costmap as costmap_stage   # a frame's local `costmap` is its grid
 from . import normals as normals_stage   # a frame's local `normals` are vectors
 from .costmap import Costmap, build_costmap
@@ -117,8 +117,6 @@ class Detector:
         voxel.warm_up()
         traversal.warm_up()
         costmap_stage.warm_up()
-        if self.params.compute_threads > 1:
-            parallel.warm_up()
         return time.perf_counter() - start
 
     def _rays(self, shape: tuple[int, int], intr: Intrinsics) -> geometry.GroundRays:
@@ -143,8 +141,6 @@ class Detector:
         p = self.params
         intr = intrinsics if intrinsics is not None else SEED_TABLE_4_1
         clock = _Clock()
-        if p.compute_threads > 1:
-            parallel.wake(p.compute_threads)   # the helpers wake while the frame is decoded
         # uint16 input: the median runs on its codes (the same result, see median_of_codes)
         codes = _uint16_codes(depth) if p.median_kernel > 1 else None
         crop = (p.crop_top_px, p.crop_bottom_px, p.crop_left_px, p.crop_right_px)
@@ -165,7 +161,7 @@ class Detector:
         if p.robot_level and p.median_kernel > 1:
             # raw depth looked up from uint16 codes in the table holds no NaN
             depth_m = traversal.drop_smeared(depth_m, raw_m, p.max_filter_shift,
-                                              p.compute_threads, raw_no_nan=codes is not None)
+                                              raw_no_nan=codes is not None)
         clock.lap('smear')
 
         rays = self._rays(depth_m.shape, intr)
@@ -186,17 +182,11 @@ class Detector:
         centroids = grid.centroids
         clock.lap('voxel')
         k = max(p.normal_neighbours, p.validation_neighbours + 1)
-        if p.compute_threads > 1:   # each thread's queries go on to their normals
-            neighbours, normals = normals_stage.neighbours_and_normals(
-                centroids, k, p.normal_neighbours, p.compute_threads)
-            clock.lap('knn')        # with the normals
-            clock.lap('normals')
-        else:
-            neighbours = nearest_neighbours(centroids, k)
-            clock.lap('knn')
-            n_cols = min(p.normal_neighbours, neighbours.shape[1])
-            normals = estimate_normals(centroids, neighbours[:, :n_cols])
-            clock.lap('normals')
+        neighbours = nearest_neighbours(centroids, k)
+        clock.lap('knn')
+        n_cols = min(p.normal_neighbours, neighbours.shape[1])
+        normals = estimate_normals(centroids, neighbours[:, :n_cols])
+        clock.lap('normals')
         steep = slope_obstacles(normals, p.cos_max_slope)
         if p.max_ground_height_m > 0.0 and not p.robot_level:
             steep |= centroids[:, 2] > np.float32(p.max_ground_height_m)

@@ -12,20 +12,11 @@ normals (the same float64 operations in the same order).
 
 from __future__ import annotations
 
-import functools
-
 import numpy as np
 from scipy.spatial import cKDTree
 
-from . import jit, parallel
+from . import jit
 from ._compiled import knn as jit_knn
-
-#: k-NN query ranges per thread (:func:`nearest_neighbours` with threads > 1): a thread that
-#: starts late leaves its ranges to the others.
-RANGES_PER_THREAD = 2
-#: Clouds with fewer points run on one thread: handing a part to another thread costs about
-#: 0.1-0.3 ms here, which a small cloud does not repay.
-MIN_SPLIT_POINTS = 2048
 
 # The six distinct entries of a symmetric 3 x 3 matrix: (0,0) (0,1) (0,2) (1,1) (1,2) (2,2).
 _PAIR_A = np.array([0, 0, 0, 1, 1, 2])
@@ -38,47 +29,17 @@ def warm_up() -> None:
         jit_knn.warm_up()
 
 
-def nearest_neighbours(points: np.ndarray, k: int, threads: int = 1) -> np.ndarray:
+def nearest_neighbours(points: np.ndarray, k: int) -> np.ndarray:
     """Return indices (V, k) int64 of the k nearest points of every point, nearest first.
 
     points: (V, 3) float32 [m]. The point itself is first (distance 0, also among duplicate
     points); points at exactly equal distance follow in index order. Exact Euclidean search: a
-    compiled grid search (:func:`._compiled.knn.knn_grid`, its queries cut into
-    :data:`RANGES_PER_THREAD` ranges per thread when ``threads`` > 1, see :mod:`.parallel`)
-    or scipy's k-d tree on one thread, the same result. If there are fewer than k points, k
-    is clipped to V.
+    compiled grid search (:func:`._compiled.knn.knn_grid`) or scipy's k-d tree on one
+    thread, the same result. If there are fewer than k points, k is clipped to V.
     """
-    threads = parallel.check_threads(threads)
     if jit.enabled():
-        if threads == 1 or np.shape(points)[0] < MIN_SPLIT_POINTS:
-            return jit_knn.knn_grid(points, k)
-        return jit_knn.knn_grid(points, k, parts=threads * RANGES_PER_THREAD,
-                                run_parts=functools.partial(parallel.run_parts,
-                                                            threads=threads))
+        return jit_knn.knn_grid(points, k)
     return _nearest_neighbours_scipy(points, k)
-
-
-def neighbours_and_normals(points: np.ndarray, k: int, n_normals: int,
-                           threads: int = 1) -> tuple[np.ndarray, np.ndarray]:
-    """Return (:func:`nearest_neighbours` (V, k), :func:`estimate_normals` of its first columns).
-
-    The normals use the first ``min(n_normals, k clipped to V)`` neighbours, as the detector
-    does. With numba, ``threads`` > 1 and a cloud of :data:`MIN_SPLIT_POINTS` or more, one grid
-    search whose query ranges also compute their normals (:func:`._compiled.knn.knn_and_normals`:
-    one hand-over to the other threads instead of two); otherwise the two stages in turn. The
-    same results either way.
-    """
-    threads = parallel.check_threads(threads)
-    n = points.shape[0]
-    k_used = min(int(k), n)
-    n_cols = min(int(n_normals), k_used)
-    if jit.enabled() and threads > 1 and n >= MIN_SPLIT_POINTS and 2 <= n_cols:
-        return jit_knn.knn_and_normals(
-            points, k_used, n_cols, parts=threads * RANGES_PER_THREAD,
-            run_parts=functools.partial(parallel.run_parts, threads=threads))
-    neighbours = nearest_neighbours(points, k, threads)
-    n_cols = min(int(n_normals), neighbours.shape[1])
-    return neighbours, estimate_normals(points, neighbours[:, :n_cols], threads)
 
 
 def _nearest_neighbours_scipy(points: np.ndarray, k: int) -> np.ndarray:
@@ -198,23 +159,16 @@ def _cross(ux: np.ndarray, uy: np.ndarray, uz: np.ndarray,
     return np.stack([uy * wz - uz * wy, uz * wx - ux * wz, ux * wy - uy * wx])
 
 
-def estimate_normals(points: np.ndarray, neighbours: np.ndarray,
-                     threads: int = 1) -> np.ndarray:
+def estimate_normals(points: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
     """Return unit normals (V, 3) float32: smallest-eigenvalue eigenvector of each neighbourhood.
 
     neighbours: (V, N) indices from :func:`nearest_neighbours`, the point itself included.
-    Runs the fused compiled kernel when numba is available (see :func:`.jit.enabled`), on
-    ``threads`` threads (row ranges, the same result).
+    Runs the fused compiled kernel when numba is available (see :func:`.jit.enabled`).
     """
-    threads = parallel.check_threads(threads)
     if points.shape[0] == 0:
         return np.zeros((0, 3), dtype=np.float32)
     if jit.enabled():
-        if threads == 1 or points.shape[0] < MIN_SPLIT_POINTS:
-            return jit_knn.normals_from_neighbours(points, neighbours, neighbours.shape[1])
-        return jit_knn.normals_from_neighbours(
-            points, neighbours, neighbours.shape[1], parts=threads,
-            run_parts=functools.partial(parallel.run_parts, threads=threads))
+        return jit_knn.normals_from_neighbours(points, neighbours, neighbours.shape[1])
     cov = neighbourhood_covariance(points, neighbours)
     return smallest_eigenvectors(cov).astype(np.float32)
 

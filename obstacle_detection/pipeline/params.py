@@ -178,11 +178,9 @@ class DetectorParams:
     # -- execution (not in the seed): the outputs are the same for every value, so it takes no
     # part in comparing two parameter sets
     compute_threads: int = field(default=1, compare=False, metadata=_describe(
-        'Not in the seed: threads of the median filter, the smeared-pixel pass and the '
-        'back-projection (row bands), the k-NN search and the normals (point ranges), at most '
-        'the CPUs the process may use; the outputs are identical to the bit for every value. '
-        'The helper threads stay awake 2 ms after their parts (yielding their CPU to anyone '
-        'who asks). 1 = all on the calling thread', min=1, max=8))
+        'Not in the seed: threads of the median filter (row bands), at most the CPUs the '
+        'process may use; the outputs are identical to the bit for every value. 1 = all on '
+        'the calling thread', min=1, max=8))
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):

@@ -30,7 +30,6 @@ All vectorised, or compiled (:mod:`.jit_traversal`, same results); no per-point 
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
 import cv2
@@ -38,7 +37,7 @@ import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import breadth_first_order
 
-from . import jit, parallel
+from . import jit
 from ._compiled import traversal as jit_traversal
 from .geometry import GroundRays, ray_table, rays_at
 from .params import DetectorParams
@@ -242,8 +241,8 @@ def _planar(raw: np.ndarray) -> np.ndarray:
     return out
 
 
-def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float,
-                 threads: int = 1, *, raw_no_nan: bool = False) -> np.ndarray:
+def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float, *,
+                 raw_no_nan: bool = False) -> np.ndarray:
     """Undo what the median filter smeared across depth edges; drop what is no surface.
 
     filtered, raw: (H, W) float32 [m], the median-filtered and the measured depth (0 = no
@@ -263,7 +262,7 @@ def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float,
       and not on a plane with its neighbours (a surface seen at a grazing angle is kept).
 
     Returns ``filtered`` (modified in place); ``max_shift`` <= 0 changes nothing. Compiled
-    when numba is there (same result), on ``threads`` threads (row ranges, same result).
+    when numba is there (same result).
     ``raw_no_nan``: the caller knows ``raw`` holds no NaN (the detector's uint16 depth, looked
     up in the depth table: 0 for no return, never NaN), which spares the compiled path a scan.
     """
@@ -274,8 +273,6 @@ def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float,
             and filtered.dtype == np.float32 and filtered.shape == raw.shape
             and jit_traversal.drop_smeared_fused(
                 filtered, raw, max_shift, FLYING_JUMP, PLANAR_TOLERANCE,
-                parts=parallel.check_threads(threads),
-                run_parts=functools.partial(parallel.run_parts, threads=threads),
                 raw_no_nan=raw_no_nan)):
         return filtered   # one compiled pass, the window range on the way (same result)
     near, far = depth_window_range(raw)

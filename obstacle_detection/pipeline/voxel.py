@@ -9,21 +9,17 @@ bit-identical.
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..labels import LABEL_GROUND, LABEL_OBSTACLE, LABEL_OUTSIDE_ROI
-from . import geometry, jit, parallel
+from . import geometry, jit
 from ._compiled import voxel as jit_voxel
 from .params import DetectorParams, Intrinsics
 
 #: Largest dense voxel lattice [cells] indexed directly; larger extents fall back to sorting.
 _DENSE_LIMIT = 16_000_000
-#: Bands of rows per thread of the compiled back-projection (compute_threads > 1): a thread
-#: that starts late leaves its bands to the others.
-BANDS_PER_THREAD = 3
 
 
 @dataclass(frozen=True)
@@ -120,8 +116,7 @@ class RoiPoints:
     indices; shape: the image's (H, W); voxel_size_m: the voxel size of the frame's params;
     valid: (H*W,) bool, the pixels with a 3-D point (numpy path; None when compiled);
     projection: the compiled path's :class:`._compiled.voxel.Projection` (None on numpy),
-    which holds the points and pixels (read from it when asked for: only then are the bands'
-    stretches moved together, which the pipeline never needs).
+    which holds the points and pixels.
     """
 
     shape: tuple[int, int]
@@ -165,11 +160,8 @@ def points_in_roi(depth_m: np.ndarray, rays: np.ndarray | geometry.GroundRays,
     """
     if jit.enabled():
         factors = (rays.ru, rays.rv, rays.rot) if isinstance(rays, geometry.GroundRays) else rays
-        threads = params.compute_threads
-        proj = jit_voxel.project_roi(
-            depth_m, factors, roi_bounds(params), params.voxel_size_m, reuse=True,
-            parts=threads * BANDS_PER_THREAD if threads > 1 else 1,
-            run_parts=functools.partial(parallel.run_parts, threads=threads))
+        proj = jit_voxel.project_roi(depth_m, factors, roi_bounds(params), params.voxel_size_m,
+                                     reuse=True)
         return RoiPoints(depth_m.shape, params.voxel_size_m, projection=proj)
     pts, pix_roi, valid = geometry.ground_points_in_roi(depth_m, rays, params)
     return RoiPoints(depth_m.shape, params.voxel_size_m, valid=valid, numpy_points=pts,
@@ -231,21 +223,6 @@ def warm_up() -> None:
                                                                     cy=3.0), params), params)
     grid = voxel_grid(roi)
     pixel_labels(roi, grid, np.zeros(grid.counts.size, bool))
-    # the bands' kernels of compute_threads > 1 take array slices: a frame tall enough to be
-    # cut into bands (2 * parts rows), run here in turn
-    threaded = params.replace(compute_threads=2)
-    tall = np.full((4 * 2 * BANDS_PER_THREAD, 8), 1.0, np.float32)
-    model = Intrinsics(fx=5.0, fy=5.0, cx=4.0, cy=tall.shape[0] / 2.0)
-    in_turn = lambda calls: [call() for call in calls]  # noqa: E731 - the parts, here
-    for tall_rays in (geometry.ground_rays(tall.shape, model, params),
-                      geometry.ray_model(tall.shape, model, params)):
-        factors = ((tall_rays.ru, tall_rays.rv, tall_rays.rot)
-                   if isinstance(tall_rays, geometry.GroundRays) else tall_rays)
-        banded = jit_voxel.project_roi(tall, factors, roi_bounds(threaded),
-                                       threaded.voxel_size_m, parts=2 * BANDS_PER_THREAD,
-                                       run_parts=in_turn)
-        voxelise(banded)
-        banded.points   # noqa: B018 - moves the bands' points together: compiles that too
     pts = np.random.default_rng(0).uniform(-1.0, 1.0, (20, 3))
     voxel_downsample(pts.astype(np.float32), (0.1, 0.1, 0.1))
     voxel_downsample(pts, (0.1, 0.1, 0.1))

@@ -34,8 +34,6 @@ messages of ``conversions.result_to_messages``.
 from __future__ import annotations
 
 import collections
-import ctypes
-import gc
 import sys
 import threading
 import time
@@ -65,7 +63,6 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 from std_msgs.msg import Float64, String
 
 from obstacle_detection.pipeline import jit as jit_support
-from obstacle_detection.pipeline import parallel
 from .conversions import (
     costmap_to_occupancy_grid,
     result_to_messages,
@@ -221,15 +218,6 @@ class FrameStats:
 _SKIP = _CameraState(0, 0, None, 'skip')
 #: CameraInfos kept for matching depth frames by stamp (a second at 30 Hz).
 CAMERA_INFO_HISTORY = 30
-
-
-def _release_memory() -> None:
-    """Hand freed heap memory back to the operating system (glibc's malloc_trim)."""
-    gc.collect()
-    try:
-        ctypes.CDLL('libc.so.6').malloc_trim(0)
-    except (OSError, AttributeError):   # not glibc: the allocator keeps it for reuse
-        pass
 
 
 class DetectorNode(Node):
@@ -584,7 +572,6 @@ class DetectorNode(Node):
                 self._compile = job
                 self._publish_status()
         self._config = config
-        _release_memory()   # a large grid or cloud of the old configuration goes back to the OS
         if self._config.stats_period_s != old_period:
             self._restart_stats_timer(self._config.stats_period_s)
         changed = ', '.join(f'{p.name}={p.value!r}' for p in parameters)
@@ -788,9 +775,6 @@ class DetectorNode(Node):
         """
         start = time.perf_counter()
         config = self._config
-        threads = config.detector.params.compute_threads
-        if threads > 1:   # the helper threads wake while the frame is checked, not in the median
-            parallel.wake(threads)
         depth = frame_gate.decode(msg)
         if isinstance(depth, frame_gate.Skip):
             self._warn_skip(depth.kind, depth.reason)
@@ -859,27 +843,6 @@ class DetectorNode(Node):
         self._mailbox.close()
         if self._worker.is_alive() and self._worker is not threading.current_thread():
             self._worker.join(timeout=10.0)
-
-
-def freeze_heap_when_ready(node: DetectorNode) -> threading.Thread:
-    """Once the kernels are loaded, put every object alive then out of the collector's reach.
-
-    A full collection of the ~140,000 objects of a running node (rclpy, numpy, numba's
-    compiled kernels) holds the GIL for 30-60 ms on a small machine: long enough to delay a
-    frame by two periods at 30 Hz. Those objects live as long as the process, so after one
-    collection they are frozen (``gc.freeze``); later collections look at the objects made
-    since. Runs on a daemon thread of its own (returned), which waits for the compilation.
-    """
-    def freeze() -> None:
-        job = node._compile
-        if job is not None:
-            job.wait()
-        gc.collect()
-        gc.freeze()
-
-    thread = threading.Thread(target=freeze, name='obstacle_detector_gc_freeze', daemon=True)
-    thread.start()
-    return thread
 
 
 def make_executor(context: Any) -> Any:
@@ -1000,7 +963,6 @@ def main(args: list[str] | None = None) -> int:
         for path in files:
             for problem in params_file_problems(path, node.get_fully_qualified_name()):
                 node.get_logger().warning(problem)
-        freeze_heap_when_ready(node)
         spin_forever(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass   # Ctrl-C at any point of the start-up or the run: a clean stop

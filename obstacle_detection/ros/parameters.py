@@ -112,20 +112,12 @@ def _degrees(value: float) -> float:
     return round(math.degrees(value), 9)
 
 
-#: Pipeline fields whose node default differs from the dataclass's. The node runs the median,
-#: the k-NN and the other heavy stages on two threads (README, Through DDS: the processing
-#: median at 30 Hz fell from 13.4 to 11.5 ms with the first of these changes, to about 10 ms
-#: with the rest); the library, its benchmark and the tools that run several detectors side
-#: by side keep one.
-NODE_DEFAULTS: dict[str, Any] = {'compute_threads': 2}
-
-
 def _pipeline_specs() -> list[ParamSpec]:
     defaults = DetectorParams()
     specs = []
     for f in dataclasses.fields(DetectorParams):
         meta = f.metadata
-        default = NODE_DEFAULTS.get(f.name, getattr(defaults, f.name))
+        default = getattr(defaults, f.name)
         low, high = meta.get('min'), meta.get('max')
         if f.name in DEGREE_FIELDS:
             description = meta['description'].replace('[rad]', '[deg]')

@@ -20,13 +20,10 @@ call :func:`warm_up` at start-up to pay that before the first frame. They run on
 
 from __future__ import annotations
 
-import functools
 import math
-from collections.abc import Callable
 
 import numpy as np
 
-from . import _parts
 from ._numba import AVAILABLE, jit as _jit, jit_inline as _jit_inline
 
 #: Largest dense cell table [cells]; a larger grid looks its cells up in a hash table.
@@ -384,17 +381,16 @@ def _knn_kernel(pts, lo, cell, k, dense, slack, out):  # pragma: no cover - comp
     """
     cell_ijk, dims, order, sp, starts, hash_keys, hash_cells = _build_grid(pts, lo, cell, dense)
     _knn_queries(lo, cell, k, dense, slack, cell_ijk, dims, order, sp, starts, hash_keys,
-                 hash_cells, 0, pts.shape[0], out)
+                 hash_cells, out)
 
 
 @_jit
 def _knn_queries(lo, cell, k, dense, slack, cell_ijk, dims, order, sp, starts, hash_keys,
-                 hash_cells, s_begin, s_end, out):  # pragma: no cover - compiled
-    """Search the queries of sorted slots s_begin .. s_end - 1 of a :func:`_build_grid` grid.
+                 hash_cells, out):  # pragma: no cover - compiled
+    """Search every query of a :func:`_build_grid` grid, in sorted (cell) order, into ``out``.
 
-    Writes their rows of ``out`` only; a query's answer does not depend on the others (the
-    previous query's k-th distance only picks the first radius tried), so the slots can be
-    cut into ranges searched in any order, on any thread.
+    A query's answer does not depend on the others (the previous query's k-th distance only
+    picks the first radius tried).
     """
     n = order.shape[0]
     best_d = np.empty(k, np.float64)
@@ -411,10 +407,10 @@ def _knn_queries(lo, cell, k, dense, slack, cell_ijk, dims, order, sp, starts, h
     top = np.empty(k + 1, np.int64)
     budget = 2 * n + 512              # cells to look at before a plain scan is cheaper
     rank_limit = 4 * k + 64           # more near points (a crowded cell): insertion is cheaper
-    group_end = s_begin
+    group_end = 0
     m = 0
     kth2_prev = np.inf                # squared k-th distance of the previous query
-    for s in range(s_begin, s_end):   # queries in cell order: neighbouring cells stay cached
+    for s in range(n):   # queries in cell order: neighbouring cells stay cached
         i = order[s]
         c0 = cell_ijk[i, 0]
         c1 = cell_ijk[i, 1]
@@ -584,8 +580,7 @@ def _knn_all(pts, k, out):  # pragma: no cover - compiled
 
 # ------------------------------------------------------------------------------ public API
 
-def knn_grid(points: np.ndarray, k: int, *, parts: int = 1,
-             run_parts: Callable[[list[Callable[[], None]]], None] | None = None) -> np.ndarray:
+def knn_grid(points: np.ndarray, k: int) -> np.ndarray:
     """Return indices (V, k) int64 of the exact k nearest points of every point, nearest first.
 
     points: (V, 3) float [m], finite. k is clipped to V. Column 0 is the point itself (also
@@ -593,11 +588,6 @@ def knn_grid(points: np.ndarray, k: int, *, parts: int = 1,
     float64 as scipy's cKDTree computes it), ties broken by the smaller index. The grid sizes
     itself from the points (no voxel size needed). Raises ValueError for a wrong shape or
     non-finite coordinates, RuntimeError when numba is not available.
-
-    ``parts`` > 1 builds the grid once and cuts the queries (in grid order) into that many
-    ranges, each writing its own rows; ``run_parts`` is called with their functions (no
-    arguments) and returns once all have run, e.g. on several threads (None: here, in
-    order). The same result.
     """
     if not AVAILABLE:
         raise RuntimeError('numba is not available; use normals.nearest_neighbours')
@@ -612,18 +602,8 @@ def knn_grid(points: np.ndarray, k: int, *, parts: int = 1,
         return np.arange(n, dtype=np.int64).reshape(n, 1)
     out = np.empty((n, k), dtype=np.int64)
     pts = np.ascontiguousarray(pts, dtype=np.float64)
-    if parts <= 1 or n < 2 * parts:
-        if not _knn_all(pts, k, out):
-            raise ValueError('points must be finite (no NaN or inf coordinates)')
-        return out
-    finite, lo, cell, dense, slack = _knn_setup(pts, k)
-    if not finite:
+    if not _knn_all(pts, k, out):
         raise ValueError('points must be finite (no NaN or inf coordinates)')
-    grid = _build_grid(pts, lo, cell, dense)
-    edges = _parts.edges(n, parts)
-    calls = [functools.partial(_knn_queries, lo, cell, k, dense, slack, *grid, begin, end, out)
-             for begin, end in zip(edges[:-1], edges[1:])]
-    _parts.run(calls, run_parts)
     return out
 
 
@@ -631,15 +611,7 @@ def knn_grid(points: np.ndarray, k: int, *, parts: int = 1,
 
 @_jit
 def _normals_kernel(pts, neighbours, n_use, normals, cov_bad, bad):  # pragma: no cover
-    """:func:`_normals_rows` of every row."""
-    return _normals_rows(pts, neighbours, n_use, normals, cov_bad, bad,
-                         np.arange(pts.shape[0]))
-
-
-@_jit
-def _normals_rows(pts, neighbours, n_use, normals, cov_bad, bad,
-                  rows):  # pragma: no cover - compiled
-    """Covariance and closed-form smallest eigenvector of the rows ``rows`` (int64 indices).
+    """Covariance and closed-form smallest eigenvector of every row.
 
     See normals_from_neighbours; a row's result depends on no other row.
 
@@ -651,7 +623,7 @@ def _normals_rows(pts, neighbours, n_use, normals, cov_bad, bad,
     of degenerate rows, or -1 (with nothing done) when an index is out of range.
     """
     v_count = pts.shape[0]
-    for v in rows:
+    for v in range(v_count):
         for t in range(n_use):
             if neighbours[v, t] < 0 or neighbours[v, t] >= v_count:
                 return -1
@@ -659,7 +631,7 @@ def _normals_rows(pts, neighbours, n_use, normals, cov_bad, bad,
     two_pi_3 = 2.0 * np.pi / 3.0
     tiny = np.finfo(np.float64).tiny
     n_bad = 0
-    for v in rows:
+    for v in range(v_count):
         px = np.float64(pts[v, 0])
         py = np.float64(pts[v, 1])
         pz = np.float64(pts[v, 2])
@@ -756,10 +728,7 @@ def _normals_rows(pts, neighbours, n_use, normals, cov_bad, bad,
     return n_bad
 
 
-def normals_from_neighbours(points: np.ndarray, neighbours: np.ndarray, n: int, *,
-                            parts: int = 1,
-                            run_parts: Callable[[list[Callable[[], None]]], None] | None = None,
-                            ) -> np.ndarray:
+def normals_from_neighbours(points: np.ndarray, neighbours: np.ndarray, n: int) -> np.ndarray:
     """Return unit normals (V, 3) float32 from the first n neighbours of every point.
 
     points: (V, 3) [m], used as float32 like ``normals.neighbourhood_covariance``;
@@ -769,8 +738,7 @@ def normals_from_neighbours(points: np.ndarray, neighbours: np.ndarray, n: int, 
     operation, so both paths give the same normals. Rows whose smallest eigenvalue is
     degenerate (a line, coincident points) go to ``numpy.linalg.eigh`` as in the numpy path;
     any unit vector of that eigenspace is a right answer there. The sign of a normal is
-    arbitrary. Raises ValueError for bad shapes or out-of-range indices. ``parts`` and
-    ``run_parts``: the rows cut into ranges, as in :func:`knn_grid`; the same result.
+    arbitrary. Raises ValueError for bad shapes or out-of-range indices.
     """
     if not AVAILABLE:
         raise RuntimeError('numba is not available; use normals.estimate_normals')
@@ -791,19 +759,7 @@ def normals_from_neighbours(points: np.ndarray, neighbours: np.ndarray, n: int, 
     normals = np.empty((v_count, 3), dtype=np.float32)
     cov_bad = np.empty((v_count, 6), dtype=np.float64)    # filled on degenerate rows only
     bad = np.empty(v_count, dtype=np.bool_)
-    if parts <= 1 or v_count < 2 * parts:
-        n_bad = _normals_kernel(pts, nb, n, normals, cov_bad, bad)
-    else:
-        counts = [0] * parts
-        edges = _parts.edges(v_count, parts)
-
-        def rows(part: int) -> None:
-            counts[part] = _normals_rows(pts, nb, n, normals, cov_bad, bad,
-                                         np.arange(edges[part], edges[part + 1]))
-
-        calls = [functools.partial(rows, part) for part in range(parts)]
-        _parts.run(calls, run_parts)
-        n_bad = -1 if min(counts) < 0 else sum(counts)
+    n_bad = _normals_kernel(pts, nb, n, normals, cov_bad, bad)
     if n_bad < 0:
         raise ValueError(f'neighbour indices must lie in [0, {v_count})')
     return _degenerate_normals(normals, cov_bad, bad, n_bad)
@@ -817,52 +773,6 @@ def _degenerate_normals(normals: np.ndarray, cov_bad: np.ndarray, bad: np.ndarra
         _, vecs = np.linalg.eigh(cov)
         normals[bad] = vecs[:, :, 0]
     return normals
-
-
-def knn_and_normals(points: np.ndarray, k: int, n_use: int, *, parts: int,
-                    run_parts: Callable[[list[Callable[[], None]]], None] | None = None,
-                    ) -> tuple[np.ndarray, np.ndarray]:
-    """Return (:func:`knn_grid` (V, k), :func:`normals_from_neighbours` of its n_use columns).
-
-    One grid; the queries cut into ``parts`` ranges (grid order), each part searching its
-    queries and then computing their normals while their neighbours are in the cache: one
-    hand-over to the other threads instead of two. The same results. points: (V, 3) finite,
-    V >= 2 * parts and 2 <= n_use <= k <= V (ValueError otherwise, as the two functions
-    raise).
-    """
-    if not AVAILABLE:
-        raise RuntimeError('numba is not available; use normals.nearest_neighbours')
-    pts = np.asarray(points)
-    if pts.ndim != 2 or pts.shape[1] != 3:
-        raise ValueError(f'points must have shape (V, 3), got {pts.shape}')
-    n = pts.shape[0]
-    if not (n >= 2 * parts and 2 <= n_use <= k <= n):
-        raise ValueError(f'knn_and_normals needs V >= 2 * parts and 2 <= n_use <= k <= V, got '
-                         f'V={n}, parts={parts}, n_use={n_use}, k={k}')
-    pts64 = np.ascontiguousarray(pts, dtype=np.float64)
-    pts32 = np.ascontiguousarray(pts, dtype=np.float32)
-    finite, lo, cell, dense, slack = _knn_setup(pts64, k)
-    if not finite:
-        raise ValueError('points must be finite (no NaN or inf coordinates)')
-    grid = _build_grid(pts64, lo, cell, dense)
-    order = grid[2]
-    out = np.empty((n, k), dtype=np.int64)
-    normals = np.empty((n, 3), dtype=np.float32)
-    cov_bad = np.empty((n, 6), dtype=np.float64)
-    bad = np.empty(n, dtype=np.bool_)
-    edges = _parts.edges(n, parts)
-    counts = [0] * parts
-
-    def part(j: int) -> None:
-        begin, end = edges[j], edges[j + 1]
-        _knn_queries(lo, cell, k, dense, slack, *grid, begin, end, out)
-        counts[j] = _normals_rows(pts32, out, n_use, normals, cov_bad, bad, order[begin:end])
-
-    calls = [functools.partial(part, j) for j in range(parts)]
-    _parts.run(calls, run_parts)
-    if min(counts) < 0:   # cannot happen: the search gives indices in range
-        raise ValueError(f'neighbour indices must lie in [0, {n})')
-    return out, _degenerate_normals(normals, cov_bad, bad, sum(counts))
 
 
 @_jit
@@ -911,7 +821,3 @@ def warm_up() -> None:
     normals_from_neighbours(pts, nb, 10)
     normals_from_neighbours(pts, nb[:, :10], 10)   # a column slice compiles a second layout
     validate(np.ones(pts.shape[0], np.bool_), nb, 12)
-    in_order = lambda calls: [call() for call in calls]  # noqa: E731 - the parts, here
-    nb = knn_grid(pts, 13, parts=2, run_parts=in_order)
-    normals_from_neighbours(pts, nb[:, :10], 10, parts=2, run_parts=in_order)
-    knn_and_normals(pts, 13, 10, parts=2, run_parts=in_order)

@@ -12,14 +12,11 @@ The stage modules choose these kernels or their numpy twins through the one swit
 
 from __future__ import annotations
 
-import functools
 import math
 import threading
-from collections.abc import Callable
 
 import numpy as np
 
-from . import _parts
 from ._numba import AVAILABLE, jit as _jit
 
 #: Per-thread buffers reused across frames (fresh large arrays cost page faults).
@@ -622,30 +619,13 @@ def _smear5_kernel(filtered, raw, ratio, jump, tol_ratio, col_lo, col_hi, row_lo
     columns (planar and keep where needed, decide; the compiler vectorises them) and the
     scalar rule at the 2 border columns each side. raw: no NaN (the caller checks); zeros: (W,) 0.
     """
-    _smear5_rows(filtered, raw, ratio, jump, tol_ratio, col_lo, col_hi, row_lo, row_hi,
-                 pair_lo, pair_hi, inv3, zeros, planar, keep, 0, filtered.shape[0])
-
-
-@_jit
-def _smear5_rows(filtered, raw, ratio, jump, tol_ratio, col_lo, col_hi, row_lo, row_hi,
-                 pair_lo, pair_hi, inv3, zeros, planar, keep, i_begin,
-                 i_end):  # pragma: no cover - compiled
-    """:func:`_smear5_kernel` of the rows i_begin .. i_end - 1 (their own row buffers).
-
-    A row's result depends only on its own filtered depths and the measured rows i - 2 ..
-    i + 2, so row ranges may run in any order, on any thread, each with its own buffers: the
-    ring's row pairs a range's first rows need are computed first.
-    """
     height, width = filtered.shape
     inf = np.float32(np.inf)
     zero = np.float32(0.0)
     half = 2
     inv_of = np.full(3, -1, np.int64)   # the row whose inverse depths each slot of inv3 holds
     n = width - 4
-    for i in range(max(0, i_begin - half), i_begin):   # the pairs the rows before would keep
-        if (i >= half and i + half < height) or (i < half and i + half + 1 < height):
-            _pair_range(raw[i], raw[i + 1], pair_lo[i % 3], pair_hi[i % 3])
-    for i in range(i_begin, i_end):
+    for i in range(height):
         # col_lo/col_hi (W + 4,): the column pass in [2, W + 2), neutral pads (inf, 0) around,
         # so that the row pass's 5 taps give the window clipped to the image at the borders
         inner = i >= half and i + half < height
@@ -708,33 +688,18 @@ def _smear5_buffers(width: int) -> tuple[np.ndarray, ...]:
 
 
 def drop_smeared_fused(filtered: np.ndarray, raw: np.ndarray, max_shift: float, jump: float,
-                       planar_tolerance: float, *, parts: int = 1,
-                       run_parts: Callable[[list[Callable[[], None]]], None] | None = None,
-                       raw_no_nan: bool = False) -> bool:
+                       planar_tolerance: float, *, raw_no_nan: bool = False) -> bool:
     """In place, as :func:`drop_smeared` with the 5 x 5 window range of traversal's numpy path.
 
     filtered, raw: (H, W) float32 C-contiguous. Returns False, changing nothing, when raw
     holds a NaN (the caller then takes OpenCV's window range, whose NaN handling is its own).
-    parts: the rows cut into this many ranges, run by ``run_parts`` (which returns once all
-    have run, e.g. on several threads; None: here, in order); the same result.
     raw_no_nan: the caller knows raw holds no NaN (looked up in a table of depths):
     the scan for one is skipped.
     """
     if not raw_no_nan and _has_nan(raw):
         return False
     rules = (np.float32(max_shift), np.float32(jump), np.float32(planar_tolerance))
-    if parts <= 1 or raw.shape[0] < 2 * parts:
-        _smear5_kernel(filtered, raw, *rules, *_smear5_scratch(raw.shape[1]))
-        return True
-    height = raw.shape[0]
-    edges = _parts.edges(height, parts)
-
-    def rows(j: int) -> None:      # on the thread that runs it: that thread's row buffers
-        _smear5_rows(filtered, raw, *rules, *_smear5_scratch(raw.shape[1]), edges[j],
-                     edges[j + 1])
-
-    calls = [functools.partial(rows, j) for j in range(parts)]
-    _parts.run(calls, run_parts)
+    _smear5_kernel(filtered, raw, *rules, *_smear5_scratch(raw.shape[1]))
     return True
 
 
@@ -963,8 +928,6 @@ def warm_up() -> None:
     drop_smeared(one.copy(), one, one, one, 0.03, 0.05, 0.02)
     drop_smeared_fused(np.ones((6, 6), np.float32), np.ones((6, 6), np.float32), 0.03, 0.05,
                        0.02)
-    drop_smeared_fused(np.ones((6, 6), np.float32), np.ones((6, 6), np.float32), 0.03, 0.05,
-                       0.02, parts=2)                 # the row ranges of compute_threads > 1
     holes_to_inf(one)
     rng = np.random.default_rng(0)
     depth = rng.uniform(0.5, 3.0, (12, 12)).astype(np.float32)

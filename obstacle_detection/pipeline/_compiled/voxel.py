@@ -26,16 +26,13 @@ frame. They run on one thread.
 
 from __future__ import annotations
 
-import functools
 import threading
-from collections.abc import Callable
 
 import numpy as np
 
 from obstacle_detection.labels import (LABEL_GROUND, LABEL_NO_RETURN, LABEL_OBSTACLE,
                                        LABEL_OUTSIDE_ROI)
 
-from . import _parts
 from ._numba import AVAILABLE, jit as _jit, jit_inline as _jit_inline
 from .traversal import ray_row
 
@@ -112,25 +109,15 @@ def _project_rays_kernel(depth, ru, rv, rot, chunk, bounds, size, low, dims, lab
 
     The rays of a band of rows are computed into chunk (3, rows * W) float32 (a few
     cache-resident rows; the same float32 operations as the table), then projected.
-    """
-    return _project_rays_rows(depth, ru, rv, rot, chunk, bounds, size, low, dims, labels,
-                              pixel_voxel, cols, pix, keys, 0, rv.size)
-
-
-@_jit
-def _project_rays_rows(depth, ru, rv, rot, chunk, bounds, size, low, dims, labels,
-                       pixel_voxel, cols, pix, keys, row_begin,
-                       row_end):  # pragma: no cover - compiled
-    """:func:`_project_rays_kernel` of the image rows row_begin .. row_end - 1.
-
-    depth, labels, pixel_voxel: the whole image (flat); the rows' kept points go to cols,
-    pix and keys from index 0 (pix: flat image indices). Returns their number, or -1.
+    depth, labels, pixel_voxel: the whole image (flat). Returns the number of kept points,
+    or -1.
     """
     width = ru.size
+    height = rv.size
     band = max(1, chunk.shape[1] // width)
     m = 0
-    for i0 in range(row_begin, row_end, band):
-        i1 = min(row_end, i0 + band)
+    for i0 in range(0, height, band):
+        i1 = min(height, i0 + band)
         for a in range(3):
             for i in range(i0, i1):
                 ray_row(ru, rv[i], rot[a, 0], rot[a, 1], rot[a, 2],
@@ -170,13 +157,12 @@ def _popcount(x):  # pragma: no cover - compiled
 
 @_jit
 def _voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_voxel, bits,
-                  prefix, begins, counts_in):  # pragma: no cover - compiled
+                  prefix):  # pragma: no cover - compiled
     """Give the occupied cells numbers in key order; average their points.
 
-    The points lie in stretches (begins, counts_in (s,) int64: first index and count) of
-    cols (3, n) float, keys (n,) int64 in [0, n_cells) and pixels (n,) int64; point q is
-    the q-th of them in stretch order. dims, low (3,) int64 the lattice; pixel_voxel (h*w,)
-    int32: when pixels is not empty, the voxel of each point is written at its pixel;
+    The m points are the first m of cols (3, >= m) float, keys (>= m,) int64 in
+    [0, n_cells) and pixels (>= m,) int64. dims, low (3,) int64 the lattice; pixel_voxel
+    (h*w,) int32: when pixels is not empty, the voxel of each point is written at its pixel;
     point_voxel (m,) int64 out. Scratch, one entry per 64 cells: bits (>= ceil(n_cells /
     64)) uint64 all zero (left all zero), the occupied cells' bits; prefix (as long) int64,
     the occupied cells before each word. A
@@ -186,10 +172,10 @@ def _voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_vox
     counts (V,) int64, voxel_ijk (V, 3) int64).
     """
     n_words = (n_cells + 63) // 64
-    for s in range(begins.size):
-        for q in range(begins[s], begins[s] + counts_in[s]):
-            key = keys[q]
-            bits[key >> 6] |= _U1 << np.uint64(key & 63)
+    m = point_voxel.shape[0]
+    for q in range(m):
+        key = keys[q]
+        bits[key >> 6] |= _U1 << np.uint64(key & 63)
     n_vox = 0
     for w in range(n_words):
         prefix[w] = n_vox
@@ -210,49 +196,25 @@ def _voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_vox
     counts = np.zeros(n_vox, np.int64)
     sums = np.zeros((n_vox, 3), np.float64)
     with_pixels = pixels.size > 0
-    i = 0
-    for s in range(begins.size):
-        for q in range(begins[s], begins[s] + counts_in[s]):
-            key = keys[q]
-            w = key >> 6
-            v = prefix[w] + _popcount(bits[w] & ((_U1 << np.uint64(key & 63)) - _U1))
-            point_voxel[i] = v
-            i += 1
-            counts[v] += 1
-            sums[v, 0] += np.float64(cols[0, q])
-            sums[v, 1] += np.float64(cols[1, q])
-            sums[v, 2] += np.float64(cols[2, q])
-            if with_pixels:
-                pixel_voxel[pixels[q]] = v
-    for s in range(begins.size):
-        for q in range(begins[s], begins[s] + counts_in[s]):
-            bits[keys[q] >> 6] = _U0
+    for q in range(m):
+        key = keys[q]
+        w = key >> 6
+        v = prefix[w] + _popcount(bits[w] & ((_U1 << np.uint64(key & 63)) - _U1))
+        point_voxel[q] = v
+        counts[v] += 1
+        sums[v, 0] += np.float64(cols[0, q])
+        sums[v, 1] += np.float64(cols[1, q])
+        sums[v, 2] += np.float64(cols[2, q])
+        if with_pixels:
+            pixel_voxel[pixels[q]] = v
+    for q in range(m):
+        bits[keys[q] >> 6] = _U0
     centroids = np.empty((n_vox, 3), np.float32)
     for v in range(n_vox):
         n = np.float64(counts[v])
         for a in range(3):
             centroids[v, a] = np.float32(sums[v, a] / n)
     return centroids, point_voxel, counts, voxel_ijk
-
-
-@_jit
-def _close_gaps_kernel(cols, pix, keys, begins, counts):  # pragma: no cover - compiled
-    """Move the points of stretch j (counts[j] from index begins[j]) to follow stretch j - 1.
-
-    Each stretch begins at or after the end of the points before it, so the points move
-    left and a forward copy reads every point before anything overwrites it.
-    """
-    m = 0
-    for j in range(begins.size):
-        p0 = begins[j]
-        if p0 != m:
-            for q in range(counts[j]):
-                cols[0, m + q] = cols[0, p0 + q]
-                cols[1, m + q] = cols[1, p0 + q]
-                cols[2, m + q] = cols[2, p0 + q]
-                pix[m + q] = pix[p0 + q]
-                keys[m + q] = keys[p0 + q]
-        m += counts[j]
 
 
 @_jit
@@ -276,54 +238,33 @@ class Projection:
     ``low``, ``dims`` (None when the numpy path must number the voxels); voxel_size_m: the
     voxel size; reuse: points, pixel_index and keys live in per-thread buffers (see
     :func:`project_roi`).
-
-    Projected in bands of rows, the points lie in stretches of the buffers (``stretches``:
-    each band's first index and count) until ``points``, ``pixel_index`` or ``keys`` is first
-    read, which moves them together once; :func:`voxelise` reads the stretches as they are,
-    so the pipeline, which reads nothing else of them, never moves them (0.25 ms a frame).
     """
 
     __slots__ = ('_cols', '_pix', '_keys', 'count', 'labels', 'pixel_voxel', 'has_keys',
-                 'low', 'dims', 'voxel_size_m', 'reuse', 'stretches')
+                 'low', 'dims', 'voxel_size_m', 'reuse')
 
     def __init__(self, cols: np.ndarray, pix: np.ndarray, keys: np.ndarray, count: int,
                  labels: np.ndarray, pixel_voxel: np.ndarray, has_keys: bool, low: np.ndarray,
-                 dims: np.ndarray, voxel_size_m: tuple[float, float, float], reuse: bool,
-                 stretches: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+                 dims: np.ndarray, voxel_size_m: tuple[float, float, float],
+                 reuse: bool) -> None:
         self._cols, self._pix, self._keys, self.count = cols, pix, keys, count
         self.labels, self.pixel_voxel, self.has_keys = labels, pixel_voxel, has_keys
         self.low, self.dims, self.voxel_size_m, self.reuse = low, dims, voxel_size_m, reuse
-        self.stretches = stretches
-
-    def _together(self) -> None:
-        if self.stretches is not None:
-            _close_gaps_kernel(self._cols, self._pix, self._keys, *self.stretches)
-            self.stretches = None
 
     @property
     def points(self) -> np.ndarray:
         """(M, 3) float32, a view of (3, M) contiguous columns."""
-        self._together()
         return self._cols[:, :self.count].T
 
     @property
     def pixel_index(self) -> np.ndarray:
         """(M,) int64 flat pixel indices."""
-        self._together()
         return self._pix[:self.count]
 
     @property
     def keys(self) -> np.ndarray | None:
         """(M,) int64 linear voxel keys, or None."""
-        self._together()
         return self._keys[:self.count] if self.has_keys else None
-
-    def buffers(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Return (cols (3, n), pix, keys, begins, counts): the stretches as they lie."""
-        if self.stretches is None:
-            one = np.array([0], np.int64), np.array([self.count], np.int64)
-            return self._cols, self._pix, self._keys, *one
-        return self._cols, self._pix, self._keys, *self.stretches
 
 
 _SCRATCH = threading.local()
@@ -353,8 +294,6 @@ def roi_lattice(bounds: np.ndarray, size: np.ndarray) -> tuple[np.ndarray, np.nd
 
 def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarray,
                 voxel_size_m: tuple[float, float, float], *, reuse: bool = False,
-                parts: int = 1,
-                run_parts: Callable[[list[Callable[[], None]]], None] | None = None,
                 ) -> Projection:
     """Back-project a depth image through ground rays, keep the ROI, key the voxels.
 
@@ -366,11 +305,6 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarra
     indices equal those of :func:`obstacle_detection.pipeline.geometry.ground_points_in_roi`.
     reuse: keep the points, pixel indices and keys in per-thread buffers that the next call
     in the same thread overwrites (the pipeline's choice; faster), instead of fresh arrays.
-    parts: the image rows cut into this many bands, projected by the functions handed to
-    ``run_parts`` (which returns once all have run, e.g. on several threads; None: here, in
-    order) into their own stretch of the buffers, moved together in pixel order when the
-    points, pixels or keys are first read (:class:`Projection`): the same points, pixels and
-    keys.
     """
     shape = depth_m.shape
     depth = np.ascontiguousarray(depth_m, np.float32).reshape(-1)
@@ -385,7 +319,6 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarra
         def kernel(*args):
             return _project_rays_kernel(depth, ru, rv, rot, chunk, *args)
 
-        source: np.ndarray | tuple = (ru, rv, rot)
     else:
         rays = np.ascontiguousarray(rays, np.float32)
         if rays.shape != (3, n):
@@ -394,7 +327,6 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarra
         def kernel(*args):
             return _project_kernel(depth, rays, 0, *args)
 
-        source = rays
     size = np.asarray(voxel_size_m, np.float32)
     low, dims = roi_lattice(bounds, size)
     n_cells = int(dims[0]) * int(dims[1]) * int(dims[2])
@@ -409,13 +341,7 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarra
         pix = np.empty(n, np.int64)
         keys = np.empty(n, np.int64)
     m = -1
-    stretches = None
-    if n_cells <= _DENSE_LIMIT and parts > 1 and shape[0] >= 2 * parts:
-        stretches = _project_parts(depth, source, shape, (bounds, size, low, dims),
-                                   labels.reshape(-1), pixel_voxel.reshape(-1),
-                                   (cols, pix, keys), parts, run_parts)
-        m = -1 if stretches is None else int(stretches[1].sum())
-    elif n_cells <= _DENSE_LIMIT:
+    if n_cells <= _DENSE_LIMIT:
         m = kernel(bounds, size, low, dims, labels.reshape(-1), pixel_voxel.reshape(-1), cols,
                    pix, keys)
     if m < 0:   # lattice too large: points only, numpy numbers the voxels
@@ -425,46 +351,7 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarra
         return Projection(cols, pix, keys, m, labels, pixel_voxel, False, low, dims,
                           voxel_size_m, reuse)
     return Projection(cols, pix, keys, m, labels, pixel_voxel, True, low, dims, voxel_size_m,
-                      reuse, stretches)
-
-
-def _project_parts(depth: np.ndarray, rays: np.ndarray | tuple, shape: tuple[int, int],
-                   lattice: tuple, labels: np.ndarray, pixel_voxel: np.ndarray,
-                   out: tuple[np.ndarray, np.ndarray, np.ndarray], parts: int,
-                   run_parts: Callable[[list[Callable[[], None]]], None] | None,
-                   ) -> tuple[np.ndarray, np.ndarray] | None:
-    """Project bands of rows into their own stretches of ``out``.
-
-    Band j writes its points from column (its first pixel) of cols, pix and keys: a band
-    keeps at most one point per pixel, so the stretches never overlap. Returns the stretches
-    (first index (parts,) int64, count (parts,) int64) in pixel order, or None when a key
-    falls outside the lattice.
-    """
-    height, width = shape
-    cols, pix, keys = out
-    edges = _parts.edges(height, parts)
-    counts = np.zeros(parts, np.int64)
-
-    def band(j: int) -> None:
-        r0, r1 = edges[j], edges[j + 1]
-        p0, p1 = r0 * width, r1 * width
-        if isinstance(rays, tuple):
-            ru, rv, rot = rays
-            chunk_px = max(1, _RAY_BAND_PX // width) * width   # this thread's ray band
-            chunk = _scratch('ray_band', 3 * chunk_px, np.float32)[:3 * chunk_px]
-            counts[j] = _project_rays_rows(depth, ru, rv, rot, chunk.reshape(3, chunk_px),
-                                           *lattice, labels, pixel_voxel, cols[:, p0:p1],
-                                           pix[p0:p1], keys[p0:p1], r0, r1)
-        else:
-            counts[j] = _project_kernel(depth[p0:p1], rays[:, p0:p1], p0, *lattice,
-                                        labels[p0:p1], pixel_voxel[p0:p1], cols[:, p0:p1],
-                                        pix[p0:p1], keys[p0:p1])
-
-    calls = [functools.partial(band, j) for j in range(parts)]
-    _parts.run(calls, run_parts)
-    if counts.min() < 0:
-        return None
-    return np.array(edges[:-1], np.int64) * width, counts
+                      reuse)
 
 
 def voxelise(proj: Projection) -> tuple | None:
@@ -481,19 +368,17 @@ def voxelise(proj: Projection) -> tuple | None:
     m = proj.count
     point_voxel = _scratch('point_voxel', m, np.int64)[:m] if proj.reuse else np.empty(m,
                                                                                       np.int64)
-    cols, pix, keys, begins, counts = proj.buffers()   # the stretches, not moved together
-    return _run_voxel_kernel(cols, keys, n_cells, proj.dims, proj.low, pix,
-                             proj.pixel_voxel.reshape(-1), point_voxel, begins, counts)
+    return _run_voxel_kernel(proj._cols, proj._keys, n_cells, proj.dims, proj.low, proj._pix,
+                             proj.pixel_voxel.reshape(-1), point_voxel)
 
 
-def _run_voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_voxel,
-                      begins, counts):
+def _run_voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_voxel):
     """Call :func:`_voxel_kernel` with this thread's lattice scratch buffers."""
     n_words = (n_cells + 63) // 64
     bits = _scratch('occupied_bits', n_words, np.uint64, zero=True)
     prefix = _scratch('bit_prefix', n_words, np.int64)
     return _voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_voxel,
-                         bits, prefix, begins, counts)
+                         bits, prefix)
 
 
 def voxel_downsample(points: np.ndarray, voxel_size_m: tuple[float, float, float]
@@ -523,8 +408,7 @@ def voxel_downsample(points: np.ndarray, voxel_size_m: tuple[float, float, float
     keys *= dims[2]
     keys += ijk[2] - low[2]
     return _run_voxel_kernel(cols, keys, n_cells, dims, low, np.zeros(0, np.int64),
-                             np.zeros(0, np.int32), np.empty(keys.size, np.int64),
-                             np.zeros(1, np.int64), np.full(1, keys.size, np.int64))
+                             np.zeros(0, np.int32), np.empty(keys.size, np.int64))
 
 
 def label_pixels(labels: np.ndarray, pixel_voxel: np.ndarray, is_obstacle: np.ndarray) -> None:
