@@ -9,8 +9,10 @@ Topics (relative names, remappable):
   effort), reliable when ``reliable_input`` is true.
 - out (reliable): ``obstacles/points`` (PointCloud2 x, y, z float32 in ``cloud_frame_id``),
   ``obstacles/costmap`` (OccupancyGrid in the z = 0 plane of ``costmap_frame_id``),
-  ``obstacles/ground_points`` (if ``publish_ground``), ``obstacles/overlay`` (rgb8 Image in the
-  input's frame, if ``publish_overlay``) and ``~/processing_time_ms`` (std_msgs/Float64).
+  ``obstacles/ground_points`` (if ``publish_ground``), ``obstacles/clearing_points``
+  (PointCloud2 in the input's optical frame, if ``publish_clearing``), ``obstacles/overlay``
+  (rgb8 Image in the input's frame, if ``publish_overlay``) and ``~/processing_time_ms``
+  (std_msgs/Float64).
 
 The default output frame ``base_footprint`` is the pipeline's ground frame: x forward, y left,
 z up, origin on the ground right under the camera (a robot whose base_footprint is elsewhere
@@ -53,6 +55,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 from std_msgs.msg import Float64, String
 
+from obstacle_detection.pipeline import clearing
 from obstacle_detection.pipeline import jit as jit_support
 from obstacle_detection.pipeline import parallel
 from .conversions import (
@@ -257,6 +260,9 @@ class DetectorNode(Node):
         self._ground_pub = self.create_publisher(PointCloud2, 'obstacles/ground_points',
                                                  _OUTPUT_QOS)
         self._overlay_pub = self.create_publisher(Image, 'obstacles/overlay', _OUTPUT_QOS)
+        self._clearing_pub = (self.create_publisher(PointCloud2, 'obstacles/clearing_points',
+                                                    _OUTPUT_QOS)
+                              if self._config.publish_clearing else None)
         self._time_pub = self.create_publisher(Float64, '~/processing_time_ms', _OUTPUT_QOS)
         self._fused_pub = self.create_publisher(OccupancyGrid, 'obstacles/fused_costmap',
                                                 _OUTPUT_QOS)
@@ -705,7 +711,11 @@ class DetectorNode(Node):
                 costmap_frame_id=config.costmap_frame_id, image_frame_id=msg.header.frame_id,
                 with_ground=config.publish_ground,
                 overlay_rgb=(render_overlay(result.depth_m, result.labels)
-                             if config.publish_overlay else None))
+                             if config.publish_overlay else None),
+                clearing_points=(clearing.clearing_points(
+                    result.depth_m, result.intrinsics, stride_px=config.clearing_stride_px,
+                    range_m=config.clearing_range_m)
+                    if self._clearing_pub is not None else None))
             fused = self._fuse(result, msg, config)
         except ValueError as error:
             self._warn_skip('pipeline', str(error))
@@ -724,6 +734,8 @@ class DetectorNode(Node):
                 self._ground_pub.publish(messages['ground'])
             if 'overlay' in messages:
                 self._overlay_pub.publish(messages['overlay'])
+            if 'clearing' in messages:
+                self._clearing_pub.publish(messages['clearing'])
             if fused is not None:
                 self._fused_pub.publish(fused)
             elapsed_ms = (time.perf_counter() - start) * 1e3
@@ -824,6 +836,8 @@ def help_text() -> str:
         '  out  obstacles/points         sensor_msgs/PointCloud2 of obstacle points',
         '  out  obstacles/costmap        nav_msgs/OccupancyGrid: 100 occupied, 0 free, -1 unknown',
         '  out  obstacles/ground_points  sensor_msgs/PointCloud2, if publish_ground',
+        '  out  obstacles/clearing_points sensor_msgs/PointCloud2 in the image frame, if '
+        'publish_clearing',
         '  out  obstacles/overlay        sensor_msgs/Image rgb8, if publish_overlay',
         '  out  ~/processing_time_ms     std_msgs/Float64 per frame',
         '  out  ~/status                 std_msgs/String, latched: "ready: <which code runs>"',
