@@ -252,6 +252,24 @@ def buffer_cloud(points: np.ndarray, rotation: np.ndarray, translation: np.ndarr
 # Bresenham walks
 
 
+def line_cells(start: np.ndarray, delta: np.ndarray, steps: np.ndarray,
+               shape: tuple[int, ...]) -> np.ndarray:
+    """Return the cells (M, D) visited by the walks of :func:`bresenham_cells` (repeats kept).
+
+    Rays with the same start, end and steps walk the same cells: each walk is done once.
+    shape: the grid's size per axis (start and start + delta lie inside it).
+    """
+    start = np.asarray(start, np.int64)
+    end = start + np.asarray(delta, np.int64)
+    steps = np.asarray(steps, np.int64)
+    cells = int(np.prod(shape))
+    key = (np.ravel_multi_index(start.T, shape) * cells
+           + np.ravel_multi_index(end.T, shape)) * (int(steps.max(initial=0)) + 1) + steps
+    _, first = np.unique(key, return_index=True)
+    _, visited = bresenham_cells(start[first], end[first] - start[first], steps[first])
+    return visited
+
+
 def bresenham_cells(start: np.ndarray, delta: np.ndarray, steps: np.ndarray,
                     ) -> tuple[np.ndarray, np.ndarray]:
     """Cells visited by Nav2's integer Bresenham walks, many rays at once.
@@ -270,27 +288,23 @@ def bresenham_cells(start: np.ndarray, delta: np.ndarray, steps: np.ndarray,
     delta = np.asarray(delta, dtype=np.int64)
     steps = np.asarray(steps, dtype=np.int64)
     n, dims = start.shape
-    rows = np.arange(n)
+    if n == 0:
+        return np.zeros(0, np.int64), np.zeros((0, dims), np.int64)
     size = np.abs(delta)
     step = np.where(delta > 0, 1, -1)
-    dominant = np.zeros((n, dims), dtype=bool)
-    dominant[rows, np.argmax(size, axis=1)] = True
-    size_a = size[dominant].reshape(n, 1)
-    error = np.repeat(size_a // 2, dims, axis=1)
-    pos = start.copy()
-    rays, cells = [], []
-    for i in range(int(steps.max(initial=0))):
-        active = np.flatnonzero(steps > i)
-        p, e, a = pos[active], error[active] + size[active], size_a[active]
-        rays.append(active)
-        cells.append(p)
-        move = ~dominant[active] & (e >= a)
-        e = e - np.where(move, a, 0)
-        pos[active] = p + np.where(dominant[active] | move, step[active], 0)
-        error[active] = e
-    rays.append(rows)
-    cells.append(pos.copy())
-    return np.concatenate(rays), np.concatenate(cells)
+    dominant = np.argmax(size, axis=1)
+    size_a = size[np.arange(n), dominant]
+    # after i steps, axis b has moved floor((|delta_a| // 2 + i |delta_b|) / |delta_a|) times
+    # (its error starts at |delta_a| // 2, gains |delta_b| a step, loses |delta_a| a move);
+    # the cells are those after 0 .. steps steps
+    rays = np.repeat(np.arange(n), steps + 1)
+    first = np.cumsum(steps + 1) - (steps + 1)
+    i = np.arange(rays.size) - first[rays]
+    a = np.maximum(size_a, 1)[rays]
+    moves = (size_a[rays, None] // 2 + i[:, None] * size[rays]) // a[:, None]
+    moves[np.arange(rays.size), dominant[rays]] = i
+    cells = start[rays] + step[rays] * moves
+    return rays, cells
 
 
 # ------------------------------------------------------------------------------------------
@@ -453,7 +467,7 @@ class ObstacleLayer:
         size_a = np.abs(delta).max(axis=1)
         steps = np.minimum((scale * size_a).astype(np.int64), size_a)
         start = np.stack([sx, sy], axis=1)
-        _, cells = bresenham_cells(start[go], delta[go], steps[go])
+        cells = line_cells(start[go], delta[go], steps[go], (self.size_x, self.size_y))
         self.costmap[cells[:, 1], cells[:, 0]] = FREE_SPACE     # MarkCell(FREE_SPACE)
 
     def clear_footprint(self, robot_pose: tuple[float, float, float]) -> None:
@@ -614,7 +628,8 @@ class VoxelLayer(ObstacleLayer):
         delta = ends.astype(np.int64) - start_cell
         size_a = np.abs(delta).max(axis=1)
         steps = np.minimum((scale * size_a).astype(np.int64), size_a)
-        _, cells = bresenham_cells(start_cell[go], delta[go], steps[go])
+        cells = line_cells(start_cell[go], delta[go], steps[go],
+                           (self.size_x, self.size_y, self.size_z))
         cleared = np.zeros((self.size_y, self.size_x, VOXEL_BITS), dtype=bool)
         cleared[cells[:, 1], cells[:, 0], cells[:, 2]] = True
         weights = (np.uint32(1) << np.arange(VOXEL_BITS, dtype=np.uint32))

@@ -97,6 +97,39 @@ def test_bresenham_of_many_rays_matches_the_one_cell_at_a_time_reference() -> No
         assert got == want, i
 
 
+def _bresenham3d_reference(start: np.ndarray, delta: np.ndarray, steps: int) -> list[tuple]:
+    """VoxelGrid::bresenham3D as written upstream, one cell at a time (the slow reference)."""
+    size = [abs(int(d)) for d in delta]
+    sign = [1 if d > 0 else -1 for d in delta]
+    a = 0 if size[0] >= max(size[1], size[2]) else (1 if size[1] >= size[2] else 2)
+    others = [k for k in range(3) if k != a]
+    error = {k: size[a] // 2 for k in others}
+    pos, cells = [int(v) for v in start], []
+    for _ in range(min(steps, size[a])):
+        cells.append(tuple(pos))
+        pos[a] += sign[a]
+        for k in others:
+            error[k] += size[k]
+            if error[k] >= size[a]:
+                pos[k] += sign[k]
+                error[k] -= size[a]
+    cells.append(tuple(pos))
+    return cells
+
+
+def test_bresenham_in_3d_matches_the_one_cell_at_a_time_reference() -> None:
+    rng = np.random.default_rng(8)
+    start = rng.integers(0, 16, size=(300, 3))
+    delta = rng.integers(0, 16, size=(300, 3)) - start
+    steps = np.minimum(rng.integers(0, 20, size=300), np.abs(delta).max(axis=1))
+
+    rays, cells = nav2.bresenham_cells(start, delta, steps)
+
+    for i in range(300):
+        got = sorted(map(tuple, cells[rays == i].tolist()))
+        assert got == sorted(_bresenham3d_reference(start[i], delta[i], int(steps[i]))), i
+
+
 def test_bresenham_in_3d_follows_the_dominant_axis() -> None:
     _, cells = nav2.bresenham_cells(np.array([[0, 0, 5]]), np.array([[0, 0, -4]]),
                                     np.array([4]))
