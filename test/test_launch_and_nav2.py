@@ -235,7 +235,7 @@ def test_nav2_heights_agree_with_the_corridor_region_of_interest() -> None:
         assert settings['min_obstacle_height'] <= _lowest_obstacle_m(params)
     assert 1 <= layer['z_voxels'] <= 16                   # nav2_voxel_grid's 16 bits
     # voxel 0 holds what lies below the floor (drop view, marked at origin_z); the floor band
-    # starts at voxel 1, so rays to the floor never clear the drop marks
+    # starts at voxel 1: rays to the floor end 0.1 m short of it, above the drop marks
     assert layer['origin_z'] <= 0.0 < layer['origin_z'] + layer['z_resolution'] + 1e-9
     assert _grid_top_m(layer) > top                       # every mark fits in the grid
     # rays start at the camera, inside the grid below its raytrace top (origin + (n - 0.5) dz)
