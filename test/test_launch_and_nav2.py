@@ -73,7 +73,7 @@ def _costmap() -> dict[str, Any]:
 
 
 def _layer() -> dict[str, Any]:
-    """The costmap's VoxelLayer (the one obstacle layer of the example)."""
+    """Return the costmap's VoxelLayer (the one obstacle layer of the example)."""
     costmap = _costmap()
     layers = [costmap[name] for name in costmap['plugins']
               if costmap[name]['plugin'] == 'nav2_costmap_2d::VoxelLayer']
