@@ -306,3 +306,19 @@ def test_the_2d_obstacle_layer_keeps_fewer_obstacles_out_of_view(figures: dict) 
     flat = figures[('drive_past_boxes', 'ObstacleLayer')]
 
     assert flat.kept < voxel.kept     # its 2-D rays erase what they pass over or under
+
+
+@pytest.mark.parametrize(('setting', 'publishers'), [('true', 1), ('false', 0)])
+def test_the_clearing_publisher_exists_only_when_on(setting: str, publishers: int) -> None:
+    from obstacle_detection.ros.node import DetectorNode
+
+    with ros_env.rclpy_context(f'{__name__}:clearing-{setting}') as context:
+        node = DetectorNode(context=context, cli_args=[
+            '--ros-args', '--params-file', str(CORRIDOR), '-p', f'publish_clearing:={setting}'])
+        try:
+            found = node.get_publishers_info_by_topic('/obstacles/clearing_points')
+        finally:
+            node.close()
+            node.destroy_node()
+
+    assert len(found) == publishers
