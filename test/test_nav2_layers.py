@@ -343,3 +343,12 @@ def test_read_costmap_refuses_what_nav2_would_not_read(tmp_path: Path, layer_ext
                                                         source_extra: str, message: str) -> None:
     with pytest.raises(nav2.Nav2ConfigError, match=message):
         nav2.read_costmap(_write(tmp_path, layer_extra, source_extra))
+
+
+def test_the_shipped_example_uses_only_names_nav2_jazzy_reads() -> None:
+    config = nav2.read_costmap(Path(__file__).resolve().parents[1] / 'params'
+                               / 'nav2_costmap.yaml')
+
+    assert [layer.plugin for layer in config.layers] == [nav2.VOXEL_PLUGIN]
+    assert {s.topic for s in config.layers[0].sources} == {'/obstacles/points',
+                                                          '/obstacles/clearing_points'}
