@@ -5,7 +5,7 @@ Three families, each a small integer code:
 - ``LABEL_*``: what the pipeline decided for each pixel of a depth image
   (``DetectionResult.labels``, uint8).
 - ``GT_*``: the ground truth of a pixel, written by the scene generator
-  (:mod:`obstacle_detection.sim.scenes`) and by labelled folders, read by the evaluation.
+  (:mod:`obstacle_detection.sim.render`) and by labelled folders, read by the evaluation.
 - ``CELL_*``: the value of a costmap cell (nav_msgs/OccupancyGrid convention, int8).
 
 This module imports nothing, so every layer (numba kernels included: numba reads module-level

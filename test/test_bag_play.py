@@ -24,8 +24,6 @@ from obstacle_detection.evaluation import datasets
 from obstacle_detection.cli import bag_player, bag_writer
 from obstacle_detection.tools import bag_play
 
-#: Starts processes or a DDS graph: deselect with -m "not integration" (README, tests).
-pytestmark = pytest.mark.integration
 
 REPO = Path(__file__).resolve().parents[1]
 N_FRAMES = 6

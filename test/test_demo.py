@@ -14,8 +14,6 @@ from rosbags.rosbag2 import Reader
 
 from obstacle_detection.tools import demo
 
-#: Starts processes or a DDS graph: deselect with -m "not integration" (README, tests).
-pytestmark = pytest.mark.integration
 
 REPO = Path(__file__).resolve().parents[1]
 

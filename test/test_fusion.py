@@ -7,8 +7,8 @@ import pytest
 
 from obstacle_detection.labels import CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN
 from obstacle_detection.pipeline.costmap import Costmap
-from obstacle_detection.pipeline.fusion import (FusedGrid, FusionParams, PoseBuffer, compose_poses,
-                                       frame_evidence, yaw_from_quaternion)
+from obstacle_detection.pipeline.fusion import FusedGrid, FusionParams, PoseBuffer, frame_evidence
+from obstacle_detection.pipeline.geometry import yaw_from_quaternion
 
 RES = 0.05
 
@@ -324,15 +324,11 @@ def test_pose_buffer_interpolates_holds_and_refuses():
     assert 'not finite' in buffer.add(1.3, (0.0, float('inf'), 0.0))
 
 
-def test_odometry_helpers():
+def test_yaw_from_quaternion():
     half = math.radians(120.0) / 2             # a quaternion of a 120 deg turn about z
     assert yaw_from_quaternion(0.0, 0.0, math.sin(half), math.cos(half)) == \
         pytest.approx(math.radians(120.0))
     assert yaw_from_quaternion(0.0, 0.0, 0.0, 1.0) == 0.0
-    # base_link at (1, 2) facing +y; the costmap frame 0.2 m ahead of it, turned 90 deg more
-    pose = compose_poses((1.0, 2.0, math.pi / 2), (0.2, 0.0, math.pi / 2))
-    np.testing.assert_allclose(pose[:2], (1.0, 2.2), atol=1e-12)
-    assert pose[2] == pytest.approx(-math.pi)                  # wrapped into [-pi, pi)
 
 
 # -- bad input ----------------------------------------------------------------------------------

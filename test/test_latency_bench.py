@@ -8,11 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-import pytest
 import ros_env
 
-#: Starts processes or a DDS graph: deselect with -m "not integration" (README, tests).
-pytestmark = pytest.mark.integration
 
 REPO = Path(__file__).resolve().parents[1]
 

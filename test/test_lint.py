@@ -1,7 +1,6 @@
 """Style checks run with the tests (STYLE.md): pyflakes/pycodestyle and pep257 docstrings.
 
-ruff does both in one tool. The rules follow the ROS conventions: ament_flake8's line length
-of 99, and ament_pep257's pep257 convention with the missing-docstring checks (D100-D107) off.
+ruff does both in one tool, with the settings of pyproject.toml (the ROS conventions).
 """
 
 import shutil
@@ -12,10 +11,7 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-RUFF_ARGS = ['check', '--no-cache', '--line-length', '99', '--select', 'E,F,W,D',
-             '--ignore', 'D100,D101,D102,D103,D104,D105,D106,D107',
-             '--config', "lint.pydocstyle.convention='pep257'",
-             'obstacle_detection', 'tools', 'test', 'setup.py']
+RUFF_ARGS = ['check', '--no-cache', 'obstacle_detection', 'tools', 'test', 'setup.py', 'launch']
 
 
 def _ruff() -> list[str] | None:

@@ -13,7 +13,9 @@ from obstacle_detection.cli import support as tool_support
 from obstacle_detection.pipeline.params import KINECT_V2_SD, Intrinsics, table_4_2
 from obstacle_detection.viz.pictures import read_depth_png
 from obstacle_detection.pipeline.detector import Detector
-from obstacle_detection.sim.scenes import Box, Floor, Scene, Wall, render, render_scene
+from obstacle_detection.sim.primitives import Box, Floor, Wall
+from obstacle_detection.sim.render import render, Scene
+from obstacle_detection.sim.scenes import render_scene
 from obstacle_detection.tools import estimate_mount as tool
 
 #: Recovery tolerances on noisy Kinect-v2-like frames (measured errors are below 1 mm and

@@ -9,13 +9,12 @@ from typing import Any
 import numpy as np
 import pytest
 
-from obstacle_detection.pipeline.geometry import OPTICAL_TO_BODY, mount_rotation
+from obstacle_detection.pipeline.geometry import OPTICAL_TO_BODY, mount_rotation, quaternion_matrix
 from obstacle_detection.ros.mount_source import (
     Mount,
     MountSource,
     mount_from_rotation,
     mount_from_transform,
-    quaternion_matrix,
 )
 
 

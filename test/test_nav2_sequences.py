@@ -51,9 +51,6 @@ from obstacle_detection.ros.conversions import (
 from obstacle_detection.sim.scenes import scene_params
 from obstacle_detection.sim.sequences import PERFECT_ODOMETRY, SceneSequence
 
-#: Starts the node and a DDS graph: deselect with -m "not integration".
-pytestmark = pytest.mark.integration
-
 REPO = ros_env.REPO_ROOT
 CORRIDOR = REPO / 'params' / 'corridor.yaml'
 NAV2_YAML = REPO / 'params' / 'nav2_costmap.yaml'

@@ -17,8 +17,6 @@ import ros_env
 
 from obstacle_detection.ros.node import DetectorNode, freeze_heap_when_ready, make_executor
 
-#: Starts a DDS graph: deselect with -m "not integration" (README, tests).
-pytestmark = pytest.mark.integration
 
 
 @pytest.fixture(scope='module')

@@ -20,8 +20,6 @@ from pathlib import Path
 import pytest
 import ros_env
 
-#: Starts processes or a DDS graph: deselect with -m "not integration" (README, tests).
-pytestmark = pytest.mark.integration
 
 REPO = ros_env.REPO_ROOT
 PACKAGE = 'obstacle_detection'

@@ -180,7 +180,8 @@ def test_outputs_are_in_the_base_frame_of_a_camera_off_the_base_origin() -> None
     import dataclasses
 
     from obstacle_detection.pipeline.params import PRESETS
-    from obstacle_detection.sim.scenes import Box, Floor, Scene, render
+    from obstacle_detection.sim.primitives import Box, Floor
+    from obstacle_detection.sim.render import render, Scene
 
     frame = render(Scene('box_ahead', (Floor(), Box.on_floor(1.05, 0.0, 0.1, 0.3, 0.5))),
                    seed=1)

@@ -9,8 +9,11 @@ from obstacle_detection.labels import GT_ABOVE_ROBOT, GT_NO_RETURN, GT_OBSTACLE,
 from obstacle_detection.sim import scenes
 from obstacle_detection.pipeline.geometry import back_project, to_ground
 from obstacle_detection.pipeline.params import DetectorParams, Intrinsics, KINECT_V2_SD
-from obstacle_detection.sim.scenes import (Box, Cylinder, Floor, NoiseModel, Ramp, Scene, StepDown,
-                                           Wall, render, render_scene, scene_params)
+from obstacle_detection.sim.noise import (KINECT_V2_NOISE, KINECT_V2_TOF_NOISE, NOISE_MODELS,
+                                          NoiseModel)
+from obstacle_detection.sim.primitives import Box, Cylinder, Floor, Ramp, StepDown, Wall
+from obstacle_detection.sim.render import render, Scene
+from obstacle_detection.sim.scenes import render_scene, scene_params
 
 HEIGHT_M = 0.6
 QHD = Intrinsics(fx=540.0, fy=540.0, cx=479.5, cy=269.5)   # another camera, 960x540
@@ -263,7 +266,7 @@ def test_noise_std_at_two_metres():
     frame = render(wall_scene(2.0), seed=13)
     returned = (frame.hit_index == 1) & (frame.depth_mm > 0)
     error_mm = frame.depth_mm[returned].astype(float) - 2000.0
-    expected = 1e3 * scenes.KINECT_V2_NOISE.sigma_m(2.0)   # 4.875 mm
+    expected = 1e3 * KINECT_V2_NOISE.sigma_m(2.0)   # 4.875 mm
     assert expected == pytest.approx(4.875)
     assert np.std(error_mm) == pytest.approx(expected, rel=0.05)
     assert abs(np.mean(error_mm)) < 0.1
@@ -424,7 +427,7 @@ def test_flying_pixels_lie_between_foreground_and_background_at_edges_only():
 
 
 def test_flying_pixels_are_deterministic_per_seed_and_frame_and_about_half_next_to_edges():
-    model = scenes.KINECT_V2_TOF_NOISE
+    model = KINECT_V2_TOF_NOISE
     a = render(box_before_wall(), noise=model, seed=5, frame_index=2)
     b = render(box_before_wall(), noise=model, seed=5, frame_index=2)
     c = render(box_before_wall(), noise=model, seed=5, frame_index=3)
@@ -461,5 +464,5 @@ def test_far_surfaces_drop_more_returns():
 def test_default_noise_has_no_time_of_flight_artefacts():
     frame = render(box_before_wall(), seed=3)
     assert not frame.flying.any()
-    frame = render(box_before_wall(), noise=scenes.NOISE_MODELS['kinect_v2_tof'], seed=3)
+    frame = render(box_before_wall(), noise=NOISE_MODELS['kinect_v2_tof'], seed=3)
     assert frame.flying.any()

@@ -8,7 +8,8 @@ import pytest
 from obstacle_detection.evaluation.camera import scaled_intrinsics
 from obstacle_detection.labels import GT_NO_RETURN, GT_OBSTACLE
 from obstacle_detection.pipeline.params import KINECT_V2_SD
-from obstacle_detection.sim.scenes import Box, Floor, Scene, render
+from obstacle_detection.sim.primitives import Box, Floor
+from obstacle_detection.sim.render import render, Scene
 from obstacle_detection.sim.sequences import (PERFECT_ODOMETRY, SEQUENCE_NAMES, OdometryModel,
                                           SceneSequence, odometry_poses, person_y_at)
 

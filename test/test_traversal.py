@@ -19,8 +19,9 @@ from obstacle_detection.pipeline.jit import NO_JIT_ENV
 from obstacle_detection.pipeline._compiled import traversal as jit_traversal
 from obstacle_detection.pipeline.params import corridor, table_4_2
 from obstacle_detection.pipeline.detector import Detector
-from obstacle_detection.sim.scenes import (Box, Floor, Ramp, Scene, StepDown, Wall, render,
-                                       render_scene, scene_params)
+from obstacle_detection.sim.primitives import Box, Floor, Ramp, StepDown, Wall
+from obstacle_detection.sim.render import render, Scene
+from obstacle_detection.sim.scenes import render_scene, scene_params
 
 
 SCENARIOS = evaluation.SUITES['seed']

@@ -8,9 +8,10 @@ import pytest
 
 from obstacle_detection.labels import GT_ABOVE_ROBOT, GT_NO_RETURN, GT_OBSTACLE, GT_TRAVERSABLE
 from obstacle_detection.pipeline.params import DetectorParams
-from obstacle_detection.sim.scenes import (Box, Cylinder, Floor, DROP_EDGE_BAND_M, Ramp, Scene,
-                                           StepDown, TruthRules, chair, render, render_scene,
-                                           table)
+from obstacle_detection.sim.primitives import Box, Cylinder, Floor, Ramp, StepDown
+from obstacle_detection.sim.render import render, Scene
+from obstacle_detection.sim.scenes import chair, render_scene, table
+from obstacle_detection.sim.truth import DROP_EDGE_BAND_M, TruthRules
 
 
 def exact(primitives, *, height_m=0.6, pitch_deg=0.0, rules=None):

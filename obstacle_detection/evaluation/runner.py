@@ -59,7 +59,7 @@ _MOUNT_KEYS = ('height_m', 'pitch_deg', 'roll_deg')
 #: Ground truths a scenario is scored against: the seed's slope-only labels
 #: (``SceneFrame.labels_seed``) or the robot-level ones (``SceneFrame.labels``, issue 9).
 TRUTH_KINDS = ('seed', 'robot')
-#: Sensor models by name (``scenes.NOISE_MODELS``): 'kinect_v2' (the generator's default, the
+#: Sensor models by name (``sim.noise.NOISE_MODELS``): 'kinect_v2' (the generator's default, the
 #: seed suite's), 'kinect_v2_tof' with time-of-flight artefacts (flying pixels, more noise and
 #: dropouts on dark and far surfaces; the robot suite's), 'exact'.
 NOISE_NAMES = ('kinect_v2', 'kinect_v2_tof', 'exact')
@@ -228,10 +228,12 @@ def scenario_frames(scenario: Scenario, *, max_frames: int | None = None,
     max_frames: keep at most this many, spread evenly over the scenario (None = all);
     size: (width, height) [px], None = the generator's default (Kinect v2 SD, 512 x 424); a
     smaller size scales the Kinect v2 intrinsics with the width (same field of view), which
-    makes quick tests. rules: ``scenes.TruthRules`` or detector parameters for the robot-level
+    makes quick tests. rules: ``sim.truth.TruthRules`` or detector parameters for the robot-level
     truth (None = the defaults); truth: 'seed' or 'robot', None = the scenario's own.
     """
-    from obstacle_detection.sim import scenes  # the generator is only needed for synthetic frames
+    # the generator is only needed for synthetic frames
+    from obstacle_detection.sim import scenes
+    from obstacle_detection.sim.noise import NOISE_MODELS
 
     truth = scenario.truth if truth is None else truth
     if truth not in TRUTH_KINDS:
@@ -245,7 +247,7 @@ def scenario_frames(scenario: Scenario, *, max_frames: int | None = None,
         kwargs['intrinsics'] = scaled_intrinsics(KINECT_V2_SD, size[0] / KINECT_V2_SD_SIZE[0])
     for seed, index in jobs:
         frame = scenes.render_scene(scenario.scene, seed=seed, frame_index=index,
-                                    noise=scenes.NOISE_MODELS[scenario.noise], rules=rules,
+                                    noise=NOISE_MODELS[scenario.noise], rules=rules,
                                     **kwargs)
         frame_id = f'seed {seed}' + (f' frame {index}' if scenario.is_sequence else '')
         yield LabelledFrame(

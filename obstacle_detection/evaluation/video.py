@@ -73,6 +73,10 @@ CLEAR_BUDGET_FRAMES = 10
 VIDEO_SCORE_DEFINITIONS = __doc__.split('What is measured')[1].split('\n', 1)[1]
 
 
+#: The two grids scored: the fused one and the per-frame one moved into odom.
+_GRIDS = ('fused', 'per_frame')
+
+
 class RunTracker:
     """Runs of frames per cell (truth occupied, or vacated) and when each grid reacted.
 
@@ -353,6 +357,156 @@ def observe_sequence(sequence: SceneSequence, base: DetectorParams, *,
             on_frame(index, total)
 
 
+class _Scorer:
+    """The scores of one sequence, frame by frame (:func:`score_sequence`)."""
+
+    def __init__(self, observations: Sequence[Observation], fusion: FusionParams,
+                 sheet_frames: int) -> None:
+        total = len(observations)
+        self.fusion = fusion
+        self.lattice = _Lattice([o.pose_true for o in observations]
+                                + [o.pose_odom for o in observations if o.pose_odom is not None],
+                                fusion, margin_m=1.0)
+        self.grid = FusedGrid(fusion)
+        self.truth_area = np.full(self.lattice.shape, CELL_UNKNOWN, dtype=np.int8)
+        self.conf = {k: Confusion() for k in ('fused_area', 'per_frame_area', 'per_frame',
+                                              'fused_view')}
+        self.flicker: dict[str, list[float]] = {'fused': [], 'per_frame': []}
+        self.mark = RunTracker(self.truth_area.size, _GRIDS, MARK_BUDGET_FRAMES)
+        self.clear = RunTracker(self.truth_area.size, _GRIDS, CLEAR_BUDGET_FRAMES)
+        self.blind = {'cells': 0, 'fused': 0, 'per_frame': 0, 'fused_near': 0,
+                      'per_frame_near': 0}
+        self.fusion_ms: list[float] = []
+        self.resets = self.in_place = 0
+        self.previous: dict[str, np.ndarray] = {}
+        self.last_change = np.full(self.lattice.shape, -STILL_FRAMES - 1, dtype=np.int64)
+        self.sheet_at = set(np.linspace(0, total - 1, sheet_frames).round().astype(int)
+                            .tolist()) if sheet_frames > 0 else set()
+        self.thumbs: list[np.ndarray] = []
+        self.labels: list[str] = []
+
+    def add(self, step: int, obs: Observation, use_odometry: bool, rate_hz: float) -> None:
+        """Fuse one observation and score both grids on it."""
+        lattice, grid = self.lattice, self.grid
+        start = time.perf_counter()
+        update = grid.update(obs.costmap, obs.pose_odom if use_odometry else None)
+        self.fusion_ms.append((time.perf_counter() - start) * 1e3)
+        self.resets += update.reset
+        self.in_place += update.in_place
+        # truth: this frame's cells in odom overwrite the area seen so far
+        seen = metrics.truth_grid(_to_odom(obs.truth_obstacle, obs.pose_true),
+                                  _to_odom(obs.truth_traversable, obs.pose_true),
+                                  (lattice.origin_cell[0] * lattice.res,
+                                   lattice.origin_cell[1] * lattice.res),
+                                  lattice.res, lattice.shape)
+        truth_prev = self.truth_area.copy()
+        self.truth_area[seen != CELL_UNKNOWN] = seen[seen != CELL_UNKNOWN]
+        # both grids on the lattice
+        rows, cols = lattice.window(grid.origin_cell, self.fusion.cells)
+        fused_world = np.full(lattice.shape, CELL_UNKNOWN, dtype=np.int8)
+        states = grid.cell_states()
+        fused_world[rows, cols] = states
+        worlds = {'fused': fused_world,
+                  'per_frame': lattice.evidence_grid(obs.costmap, update.pose)}
+        truth_window = self.truth_area[rows, cols]
+        self._confusions(obs, update.pose, states, worlds['per_frame'][rows, cols],
+                         truth_window)
+        self._flicker(step, truth_prev, worlds)
+        self._runs(step, truth_prev, worlds, rows, cols)
+        self._blind_zone(obs, worlds)
+        self.previous = worlds
+        if step in self.sheet_at:
+            pair = [_panel(g, truth_window, update.pose, grid.origin_xy_m,
+                           self.fusion.resolution_m, 3)
+                    for g in (worlds['per_frame'][rows, cols], states)]
+            gap = np.full((pair[0].shape[0], 8, 3), 255, np.uint8)
+            self.thumbs.append(np.hstack([pair[0], gap, pair[1]]))
+            self.labels.append(f't = {obs.index / rate_hz:.1f} s (frame {obs.index}): '
+                               f'per-frame | fused')
+
+    def _confusions(self, obs: Observation, pose: tuple[float, float, float],
+                    states: np.ndarray, per_frame_window: np.ndarray,
+                    truth_window: np.ndarray) -> None:
+        """F1 counts: both grids on the area seen so far, and on the frame's own view."""
+        conf = self.conf
+        conf['fused_area'] += metrics.cell_confusion(states, truth_window)
+        conf['per_frame_area'] += metrics.cell_confusion(per_frame_window, truth_window)
+        conf['per_frame'] += metrics.cell_confusion(obs.costmap.data, obs.truth_costmap)
+        xs, ys = obs.costmap.cell_centres()
+        bx, by = np.meshgrid(xs, ys)
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        odom_xy = np.stack([pose[0] + c * bx - s * by,
+                            pose[1] + s * bx + c * by], axis=-1).reshape(-1, 2)
+        fused_view = self.grid.values_at(odom_xy).reshape(bx.shape)
+        conf['fused_view'] += metrics.cell_confusion(fused_view, obs.truth_costmap)
+
+    def _flicker(self, step: int, truth_prev: np.ndarray,
+                 worlds: dict[str, np.ndarray]) -> None:
+        """Cells whose occupied state changed while nothing moved nearby."""
+        moved = _dilate(self.truth_area != truth_prev, STILL_RADIUS_CELLS)
+        self.last_change[moved] = step
+        previous = self.previous
+        if not previous:
+            return
+        static = step - self.last_change > STILL_FRAMES
+        per_frame = worlds['per_frame']
+        for key, was_known in (
+                ('fused', previous['fused'] != CELL_UNKNOWN),
+                ('per_frame', (previous['per_frame'] != CELL_UNKNOWN)
+                 & (per_frame != CELL_UNKNOWN))):
+            now = worlds[key]
+            changed = (now == CELL_OCCUPIED) != (previous[key] == CELL_OCCUPIED)
+            known = int(np.count_nonzero(now != CELL_UNKNOWN))
+            self.flicker[key].append(np.count_nonzero(changed & static & was_known)
+                                     / max(known, 1))
+
+    def _runs(self, step: int, truth_prev: np.ndarray, worlds: dict[str, np.ndarray],
+              rows: slice, cols: slice) -> None:
+        """Frames until marked / cleared, over runs inside the fused window only.
+
+        What lies farther is not the grid's to mark.
+        """
+        truth_area = self.truth_area
+        in_window = np.zeros(self.lattice.shape, dtype=bool)
+        in_window[rows, cols] = True
+        occupied_truth = ((truth_area == CELL_OCCUPIED) & in_window).reshape(-1)
+        marked = {k: (worlds[k] == CELL_OCCUPIED).reshape(-1) for k in _GRIDS}
+        self.mark.step(step, occupied_truth, occupied_truth, marked, marked['per_frame'])
+        vacated = ((truth_area == CELL_FREE) & (truth_prev == CELL_OCCUPIED)).reshape(-1)
+        was_marked = {k: (self.previous[k] == CELL_OCCUPIED).reshape(-1) if self.previous
+                      else np.zeros(truth_area.size, bool) for k in _GRIDS}
+        self.clear.step(step, ((truth_area == CELL_FREE) & in_window).reshape(-1), vacated,
+                        {k: ~v for k, v in marked.items()},
+                        (worlds['per_frame'] == CELL_FREE).reshape(-1), eligible=was_marked)
+
+    def _blind_zone(self, obs: Observation, worlds: dict[str, np.ndarray]) -> None:
+        """Obstacle cells just ahead of the robot (true pose) that each grid keeps."""
+        zone = self.lattice.blind_zone(obs.pose_true) & (self.truth_area == CELL_OCCUPIED)
+        self.blind['cells'] += int(np.count_nonzero(zone))
+        for key in _GRIDS:
+            marked_here = worlds[key] == CELL_OCCUPIED
+            self.blind[key] += int(np.count_nonzero(zone & marked_here))
+            self.blind[key + '_near'] += int(np.count_nonzero(zone & _dilate(marked_here, 1)))
+
+    def report(self, name: str, total: int) -> SequenceReport:
+        """Close the runs and return the scores."""
+        self.mark.finish(total)
+        self.clear.finish(total)
+        sheet = None
+        if self.thumbs:
+            from obstacle_detection.viz.pictures import contact_sheet
+            sheet = contact_sheet(self.thumbs, labels=self.labels, columns=4,
+                                  thumb_width=self.thumbs[0].shape[1])
+        conf = self.conf
+        return SequenceReport(
+            name=name, frames=total, fused_area=conf['fused_area'],
+            per_frame_area=conf['per_frame_area'], per_frame=conf['per_frame'],
+            fused_view=conf['fused_view'], flicker_fused=self.flicker['fused'],
+            flicker_per_frame=self.flicker['per_frame'], mark=self.mark.report(),
+            clear=self.clear.report(), blind=self.blind, fusion_ms=self.fusion_ms,
+            resets=self.resets, in_place=self.in_place, sheet=sheet)
+
+
 def score_sequence(name: str, observations: Sequence[Observation],
                    fusion: FusionParams | None = None, *, rate_hz: float = 30.0,
                    use_odometry: bool = True, sheet_frames: int = 0) -> SequenceReport:
@@ -366,120 +520,10 @@ def score_sequence(name: str, observations: Sequence[Observation],
     fusion = fusion if fusion is not None else FusionParams()
     if not observations:
         raise ValueError(f'{name}: no frame to score')
-    total = len(observations)
-    lattice = _Lattice([o.pose_true for o in observations]
-                       + [o.pose_odom for o in observations if o.pose_odom is not None],
-                       fusion, margin_m=1.0)
-    grid = FusedGrid(fusion)
-    n = fusion.cells
-    truth_area = np.full(lattice.shape, CELL_UNKNOWN, dtype=np.int8)
-    conf = {k: Confusion() for k in ('fused_area', 'per_frame_area', 'per_frame',
-                                     'fused_view')}
-    flicker: dict[str, list[float]] = {'fused': [], 'per_frame': []}
-    names = ('fused', 'per_frame')
-    mark = RunTracker(truth_area.size, names, MARK_BUDGET_FRAMES)
-    clear = RunTracker(truth_area.size, names, CLEAR_BUDGET_FRAMES)
-    blind = {'cells': 0, 'fused': 0, 'per_frame': 0, 'fused_near': 0, 'per_frame_near': 0}
-    fusion_ms: list[float] = []
-    resets = in_place = 0
-    previous: dict[str, np.ndarray] = {}
-    last_change = np.full(lattice.shape, -STILL_FRAMES - 1, dtype=np.int64)
-    sheet_at = set(np.linspace(0, total - 1, sheet_frames).round().astype(int).tolist()) \
-        if sheet_frames > 0 else set()
-    thumbs: list[np.ndarray] = []
-    labels: list[str] = []
-    lattice_origin_m = (lattice.origin_cell[0] * lattice.res,
-                        lattice.origin_cell[1] * lattice.res)
+    scorer = _Scorer(observations, fusion, sheet_frames)
     for step, obs in enumerate(observations):
-        start = time.perf_counter()
-        update = grid.update(obs.costmap, obs.pose_odom if use_odometry else None)
-        fusion_ms.append((time.perf_counter() - start) * 1e3)
-        resets += update.reset
-        in_place += update.in_place
-        # truth: this frame's cells in odom overwrite the area seen so far
-        seen = metrics.truth_grid(_to_odom(obs.truth_obstacle, obs.pose_true),
-                                  _to_odom(obs.truth_traversable, obs.pose_true),
-                                  lattice_origin_m, lattice.res, lattice.shape)
-        truth_prev = truth_area.copy()
-        truth_area[seen != CELL_UNKNOWN] = seen[seen != CELL_UNKNOWN]
-        # both grids on the lattice
-        rows, cols = lattice.window(grid.origin_cell, n)
-        fused_world = np.full(lattice.shape, CELL_UNKNOWN, dtype=np.int8)
-        states = grid.cell_states()
-        fused_world[rows, cols] = states
-        per_frame_world = lattice.evidence_grid(obs.costmap, update.pose)
-        # F1 scores
-        truth_window = truth_area[rows, cols]
-        conf['fused_area'] += metrics.cell_confusion(states, truth_window)
-        conf['per_frame_area'] += metrics.cell_confusion(per_frame_world[rows, cols],
-                                                         truth_window)
-        conf['per_frame'] += metrics.cell_confusion(obs.costmap.data, obs.truth_costmap)
-        xs, ys = obs.costmap.cell_centres()
-        bx, by = np.meshgrid(xs, ys)
-        c, s = math.cos(update.pose[2]), math.sin(update.pose[2])
-        odom_xy = np.stack([update.pose[0] + c * bx - s * by,
-                            update.pose[1] + s * bx + c * by], axis=-1).reshape(-1, 2)
-        fused_view = grid.values_at(odom_xy).reshape(bx.shape)
-        conf['fused_view'] += metrics.cell_confusion(fused_view, obs.truth_costmap)
-        # flicker
-        moved = _dilate(truth_area != truth_prev, STILL_RADIUS_CELLS)
-        last_change[moved] = step
-        if previous:
-            static = step - last_change > STILL_FRAMES
-            for key, now, was_known in (
-                    ('fused', fused_world, previous['fused'] != CELL_UNKNOWN),
-                    ('per_frame', per_frame_world,
-                     (previous['per_frame'] != CELL_UNKNOWN) & (per_frame_world
-                                                                != CELL_UNKNOWN))):
-                changed = (now == CELL_OCCUPIED) != (previous[key] == CELL_OCCUPIED)
-                known = int(np.count_nonzero(now != CELL_UNKNOWN))
-                flicker[key].append(np.count_nonzero(changed & static & was_known)
-                                    / max(known, 1))
-        # frames until marked / cleared
-        # (runs only inside the fused window: what lies farther is not the grid's to mark)
-        in_window = np.zeros(lattice.shape, dtype=bool)
-        in_window[rows, cols] = True
-        occupied_truth = ((truth_area == CELL_OCCUPIED) & in_window).reshape(-1)
-        marked = {'fused': (fused_world == CELL_OCCUPIED).reshape(-1),
-                  'per_frame': (per_frame_world == CELL_OCCUPIED).reshape(-1)}
-        mark.step(step, occupied_truth, occupied_truth, marked, marked['per_frame'])
-        vacated = ((truth_area == CELL_FREE) & (truth_prev == CELL_OCCUPIED)).reshape(-1)
-        was_marked = {k: (previous[k] == CELL_OCCUPIED).reshape(-1) if previous
-                      else np.zeros(truth_area.size, bool) for k in names}
-        clear.step(step, ((truth_area == CELL_FREE) & in_window).reshape(-1), vacated,
-                   {k: ~v for k, v in marked.items()},
-                   (per_frame_world == CELL_FREE).reshape(-1), eligible=was_marked)
-        # blind-zone memory, with the true pose
-        zone = lattice.blind_zone(obs.pose_true) & (truth_area == CELL_OCCUPIED)
-        blind['cells'] += int(np.count_nonzero(zone))
-        for key, world in (('fused', fused_world), ('per_frame', per_frame_world)):
-            marked_here = world == CELL_OCCUPIED
-            blind[key] += int(np.count_nonzero(zone & marked_here))
-            blind[key + '_near'] += int(np.count_nonzero(zone & _dilate(marked_here, 1)))
-        previous = {'fused': fused_world, 'per_frame': per_frame_world}
-        if step in sheet_at:
-            scale = 3
-            origin = grid.origin_xy_m
-            pair = [_panel(g, truth_window, update.pose, origin, fusion.resolution_m, scale)
-                    for g in (per_frame_world[rows, cols], states)]
-            gap = np.full((pair[0].shape[0], 8, 3), 255, np.uint8)
-            thumbs.append(np.hstack([pair[0], gap, pair[1]]))
-            labels.append(f't = {obs.index / rate_hz:.1f} s (frame {obs.index}): '
-                          f'per-frame | fused')
-    mark.finish(total)
-    clear.finish(total)
-    sheet = None
-    if thumbs:
-        from obstacle_detection.viz.pictures import contact_sheet
-        sheet = contact_sheet(thumbs, labels=labels, columns=4,
-                              thumb_width=thumbs[0].shape[1])
-    return SequenceReport(
-        name=name, frames=total, fused_area=conf['fused_area'],
-        per_frame_area=conf['per_frame_area'], per_frame=conf['per_frame'],
-        fused_view=conf['fused_view'], flicker_fused=flicker['fused'],
-        flicker_per_frame=flicker['per_frame'], mark=mark.report(), clear=clear.report(),
-        blind=blind, fusion_ms=fusion_ms, resets=resets,
-        in_place=in_place, sheet=sheet)
+        scorer.add(step, obs, use_odometry, rate_hz)
+    return scorer.report(name, len(observations))
 
 
 def evaluate_sequence(sequence: SceneSequence, base: DetectorParams,

@@ -24,7 +24,7 @@ import numpy as np
 
 from . import jit
 from ._compiled import traversal as jit_traversal
-from .geometry import GroundRays, mount_rotation
+from .geometry import GroundRays, mount_angles, mount_rotation
 from .params import DetectorParams
 
 #: About this many pixels (an even grid) are sampled for the floor fit.
@@ -293,11 +293,6 @@ def fit_floor(depth_m: np.ndarray, sub_rays: np.ndarray, params: DetectorParams)
     return _corrected_mount(params, a, b, c, used)
 
 
-#: Optical axes (x right, y down, z forward) in body axes (x forward, y left, z up).
-_BODY_FROM_OPTICAL = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
-_BODY_FROM_OPTICAL.flags.writeable = False
-
-
 @functools.lru_cache(maxsize=16)
 def _mount_rotation(pitch_rad: float, roll_rad: float) -> np.ndarray:
     """:func:`.geometry.mount_rotation`, kept per configured mount (read-only)."""
@@ -323,9 +318,7 @@ def _corrected_mount(params: DetectorParams, a: float, b: float, c: float,
         kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
         rot_c = rot_c + s * kx + (1.0 - cos_angle) * (kx @ kx)
     total = rot_c @ _mount_rotation(params.camera_pitch_rad, params.camera_roll_rad)
-    body = total @ _BODY_FROM_OPTICAL
-    pitch = -math.asin(max(-1.0, min(1.0, float(body[2, 0]))))
-    roll = math.atan2(float(body[2, 1]), float(body[2, 2]))
+    roll, pitch, _ = mount_angles(total)
     return FloorFit(True, height, pitch, roll, d_height_m=height - params.camera_height_m,
                     d_pitch_deg=math.degrees(pitch - params.camera_pitch_rad),
                     d_roll_deg=math.degrees(roll - params.camera_roll_rad), samples=samples)

@@ -152,25 +152,6 @@ def _wrap_angle(angle_rad: float) -> float:
     return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
 
 
-def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
-    """Yaw [rad] (rotation about z) of a unit quaternion, e.g. nav_msgs/Odometry's orientation.
-
-    For a robot on the floor (roll = pitch = 0) this is its heading; otherwise the heading of
-    its x axis projected on the floor.
-    """
-    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-
-
-def compose_poses(a: Pose, b: Pose) -> Pose:
-    """Pose ``b`` (given in the frame of pose ``a``) expressed in ``a``'s parent frame.
-
-    E.g. odom->base_link from odometry composed with base_link->base_footprint of the
-    costmap (from TF or the mount) gives the costmap frame's pose in odom.
-    """
-    c, s = math.cos(a[2]), math.sin(a[2])
-    return (a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], _wrap_angle(a[2] + b[2]))
-
-
 def _check_pose(pose: object) -> str:
     """'' when ``pose`` is a usable (x, y, yaw), else what is wrong with it."""
     try:

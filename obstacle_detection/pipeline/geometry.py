@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from . import jit
 from ._compiled import traversal as jit_traversal
@@ -33,6 +34,34 @@ def mount_rotation(pitch_rad: float, roll_rad: float) -> np.ndarray:
     r_y = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
     r_x = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
     return r_y @ r_x @ OPTICAL_TO_BODY
+
+
+def mount_angles(rotation: np.ndarray) -> tuple[float, float, float]:
+    """(roll, pitch, yaw) [rad] of ``rotation`` (3, 3), optical-frame vectors to a body frame.
+
+    The inverse of ``R = R_z(yaw) @ mount_rotation(pitch, roll)``: pitch in [-pi/2, pi/2].
+    """
+    body = np.asarray(rotation, dtype=np.float64) @ OPTICAL_TO_BODY.T   # R_z R_y R_x
+    pitch = -math.asin(max(-1.0, min(1.0, float(body[2, 0]))))
+    roll = math.atan2(float(body[2, 1]), float(body[2, 2]))
+    yaw = math.atan2(float(body[1, 0]), float(body[0, 0]))
+    return roll, pitch, yaw
+
+
+def quaternion_matrix(x: float, y: float, z: float, w: float) -> np.ndarray:
+    """Rotation matrix (3, 3) of a quaternion (normalised first); ValueError if it is zero."""
+    if not all(math.isfinite(v) for v in (x, y, z, w)) or math.hypot(x, y, z, w) <= 1e-9:
+        raise ValueError(f'quaternion ({x}, {y}, {z}, {w}) is not a rotation')
+    return Rotation.from_quat((x, y, z, w)).as_matrix()
+
+
+def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
+    """Yaw [rad] (rotation about z) of a quaternion, e.g. nav_msgs/Odometry's orientation.
+
+    For a robot on the floor (roll = pitch = 0) this is its heading; otherwise the heading of
+    its x axis projected on the floor.
+    """
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 
 def mount_transform(height_m: float, pitch_rad: float, roll_rad: float,

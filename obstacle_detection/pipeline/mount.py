@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .geometry import back_project
+from .geometry import back_project, mount_rotation
 from .params import Intrinsics
 
 #: Fewest valid points (within range) the estimate starts from.
@@ -89,8 +89,7 @@ def floor_normal(pitch_rad: float, roll_rad: float) -> np.ndarray:
     The inverse of :func:`mount_from_plane`: ``mount_rotation(pitch, roll) @ n = (0, 0, 1)``,
     i.e. ``n = (-sin(roll) cos(pitch), -cos(roll) cos(pitch), -sin(pitch))``.
     """
-    cp = math.cos(pitch_rad)
-    return np.array([-math.sin(roll_rad) * cp, -math.cos(roll_rad) * cp, -math.sin(pitch_rad)])
+    return mount_rotation(pitch_rad, roll_rad)[2].copy()
 
 
 def mount_from_plane(normal_optical: np.ndarray, offset_m: float) -> tuple[float, float, float]:

@@ -50,6 +50,8 @@ from typing import Any
 
 import cv2
 import numpy as np
+from scipy.optimize import minimize
+from scipy.special import expit
 
 from ..labels import GT_NO_RETURN, GT_OBSTACLE, LABEL_GROUND, LABEL_OBSTACLE
 from .params import DetectorParams
@@ -164,25 +166,8 @@ def training_samples(result: Any, truth_labels: np.ndarray,
 # Maximum-likelihood fit
 
 
-def _sigmoid(z: np.ndarray) -> np.ndarray:
-    out = np.empty_like(z)
-    pos = z >= 0
-    out[pos] = 1.0 / (1.0 + np.exp(-z[pos]))
-    ez = np.exp(z[~pos])
-    out[~pos] = ez / (1.0 + ez)
-    return out
-
-
-def _objective(design: np.ndarray, targets: np.ndarray, weights: np.ndarray,
-               penalty: np.ndarray) -> float:
-    z = design @ weights
-    # -log-likelihood = sum(log(1 + e^z) - y z), computed stably.
-    return float(np.sum(np.logaddexp(0.0, z) - targets * z) + 0.5 * np.sum(penalty * weights ** 2))
-
-
-def fit_logistic(features: np.ndarray, targets: np.ndarray, *, l2: float = 1e-3,
-                 max_iter: int = 100, tol: float = 1e-9) -> np.ndarray:
-    """Maximum-likelihood logistic regression by Newton's method (IRLS) with a tiny L2 penalty.
+def fit_logistic(features: np.ndarray, targets: np.ndarray, *, l2: float = 1e-3) -> np.ndarray:
+    """Maximum-likelihood logistic regression with a tiny L2 penalty (scipy's L-BFGS).
 
     features: (M, D) float; targets: (M,) bool or 0/1. Minimises
     ``-sum log P(y | x) + l2/2 * |w|^2`` (the intercept is not penalised) and returns the
@@ -202,27 +187,16 @@ def fit_logistic(features: np.ndarray, targets: np.ndarray, *, l2: float = 1e-3,
     design = np.hstack([np.ones((y.size, 1)), x])
     penalty = np.full(design.shape[1], l2)
     penalty[0] = 0.0
-    weights = np.zeros(design.shape[1])
-    objective = _objective(design, y, weights, penalty)
-    for _ in range(max_iter):
-        p = _sigmoid(design @ weights)
-        gradient = design.T @ (p - y) + penalty * weights
-        hessian = (design * (p * (1.0 - p))[:, None]).T @ design + np.diag(penalty)
-        # A minute ridge keeps the solve defined when a feature column is constant.
-        hessian[np.diag_indices_from(hessian)] += 1e-10 * y.size
-        step = np.linalg.solve(hessian, gradient)
-        size = 1.0
-        while True:  # backtracking: Newton steps can overshoot far from the optimum
-            candidate = weights - size * step
-            value = _objective(design, y, candidate, penalty)
-            if value <= objective or size < 1e-6:
-                break
-            size *= 0.5
-        improvement = objective - value
-        weights, objective = candidate, value
-        if improvement <= tol * max(1.0, abs(objective)):
-            break
-    return weights
+
+    def loss_and_gradient(weights: np.ndarray) -> tuple[float, np.ndarray]:
+        z = design @ weights
+        # -log-likelihood = sum(log(1 + e^z) - y z), computed stably
+        loss = np.sum(np.logaddexp(0.0, z) - y * z) + 0.5 * np.sum(penalty * weights ** 2)
+        return float(loss), design.T @ (expit(z) - y) + penalty * weights
+
+    fit = minimize(loss_and_gradient, np.zeros(design.shape[1]), jac=True, method='L-BFGS-B',
+                   options={'maxiter': 1000, 'ftol': 1e-12, 'gtol': 1e-8})
+    return fit.x
 
 
 # --------------------------------------------------------------------------------------------
@@ -297,7 +271,7 @@ class LogisticRefiner:
 
     def predict_proba(self, features: np.ndarray) -> np.ndarray:
         """(M,) float64 probability of obstacle for raw features (M, 9)."""
-        return _sigmoid(self._log_odds(features))
+        return expit(self._log_odds(features))
 
     def predict(self, features: np.ndarray) -> np.ndarray:
         """(M,) bool obstacle decision for raw features (M, 9).

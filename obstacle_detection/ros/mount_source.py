@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from obstacle_detection.pipeline.geometry import OPTICAL_TO_BODY
+from obstacle_detection.pipeline.geometry import mount_angles, quaternion_matrix
 
 
 @dataclass(frozen=True)
@@ -45,24 +45,9 @@ class Mount:
                 f'{math.degrees(self.yaw_rad):.2f} deg')
 
 
-def quaternion_matrix(x: float, y: float, z: float, w: float) -> np.ndarray:
-    """Rotation matrix (3, 3) of a quaternion (normalised first); ValueError if it is zero."""
-    norm = math.sqrt(x * x + y * y + z * z + w * w)
-    if not norm > 1e-9 or not math.isfinite(norm):
-        raise ValueError(f'quaternion ({x}, {y}, {z}, {w}) is not a rotation')
-    x, y, z, w = x / norm, y / norm, z / norm, w / norm
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
-
-
 def mount_from_rotation(rotation: np.ndarray, translation: Any) -> Mount:
     """Return the Mount of ``p_base = rotation @ p_optical + translation``."""
-    body = np.asarray(rotation, dtype=np.float64) @ OPTICAL_TO_BODY.T  # R_z R_y R_x
-    yaw = math.atan2(body[1, 0], body[0, 0])
-    pitch = math.asin(max(-1.0, min(1.0, -body[2, 0])))
-    roll = math.atan2(body[2, 1], body[2, 2])
+    roll, pitch, yaw = mount_angles(rotation)
     tx, ty, tz = (float(v) for v in translation)
     return Mount(tx, ty, tz, roll, pitch, yaw)
 

@@ -1,1 +1,1 @@
-"""The scene generator: ray-cast scenes with known truth (:mod:`.scenes`) and sequences."""
+"""The scene generator: primitives, truth, sensor noise, the renderer, named scenes, sequences."""

@@ -2,7 +2,7 @@
 
 A sequence is a world of primitives in the odometry frame (``odom``: x, y on the floor, z up,
 the robot's start pose at the origin) and a robot driven through it by a velocity profile at
-``rate_hz``. Each frame is ray-cast by :func:`.scenes.render` from the robot's true pose, so
+``rate_hz``. Each frame is ray-cast by :func:`.render.render` from the robot's true pose, so
 its ground truth (``labels``, ``points_ground`` in the robot's base frame) is the one of the
 per-frame scenes. Each frame also carries what a wheel odometry would report: the true motion
 increments with a scale error and a little noise (seeded), integrated from the start pose, so
@@ -29,7 +29,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE, Intrinsics
-from .scenes import Box, Cylinder, Floor, NoiseModel, Primitive, Scene, SceneFrame, Wall, render
+from .noise import NoiseModel
+from .primitives import Box, Cylinder, Floor, Primitive, Wall
+from .render import render, Scene, SceneFrame
 
 #: A pose: base frame in odom, (x [m], y [m], yaw [rad]).
 Pose = tuple[float, float, float]

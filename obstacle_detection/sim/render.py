@@ -1,0 +1,280 @@
+"""Ray-cast depth frames with a ground-truth label per pixel (tests, benchmark, demo).
+
+A :class:`Scene` (primitives of :mod:`.primitives` plus a camera mount) is seen from a camera
+at a height, pitch and roll (and optionally a robot pose): every pixel's ray is intersected
+with every primitive at once; the nearest hit wins and gives the pixel its true depth, its true
+ground-frame point, the index of the primitive hit (``object_ids``; primitives may carry a
+``name``, those of one name form one object) and two labels: the robot-level truth
+(:mod:`.truth`) and the seed's slope-only truth. The sensor model is :mod:`.noise`'s. Rays
+use the pipeline's own mount convention (``geometry.mount_transform``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from obstacle_detection.labels import GT_NO_RETURN
+from obstacle_detection.pipeline.geometry import mount_transform
+from obstacle_detection.pipeline.params import (DetectorParams, Intrinsics, KINECT_V2_SD,
+                                                KINECT_V2_SD_SIZE)
+
+from .noise import EXACT, KINECT_V2_NOISE, NoiseModel, measure
+from .primitives import MAX_TRACE_M, Bounds, Primitive, Rays, check_positive, label_of
+from .truth import TruthRules, robot_labels
+
+#: Default camera height of the named scenes [m].
+DEFAULT_HEIGHT_M = 0.6
+#: Near plane [m] for projecting a primitive's bounding box into the image.
+_NEAR_M = 0.05
+
+@dataclass(frozen=True)
+class Scene:
+    """Primitives plus the default camera mount (height [m], pitch and roll [rad])."""
+
+    name: str
+    primitives: tuple[Primitive, ...]
+    height_m: float = DEFAULT_HEIGHT_M
+    pitch_rad: float = 0.0
+    roll_rad: float = 0.0
+
+    def __post_init__(self) -> None:
+        check_positive('Scene', height_m=self.height_m)
+        for name in ('pitch_rad', 'roll_rad'):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and abs(value) < math.pi / 2):
+                raise ValueError(f'Scene: {name}={value!r} must be within (-pi/2, pi/2)')
+        if not self.primitives:
+            raise ValueError(f'Scene {self.name!r} has no primitives')
+
+
+@dataclass(frozen=True)
+class SceneFrame:
+    """One rendered frame with its ground truth.
+
+    depth_mm: (H, W) uint16 measured depth [mm], 0 = no return.
+    depth_true_m: (H, W) float32 noise-free depth (optical z) of the nearest hit [m], 0 where
+    no surface is hit within ``MAX_TRACE_M`` (no band, border or dropout applied).
+    labels: (H, W) uint8 robot-level truth ``GT_*`` (issue 9: traversable, obstacle,
+    above the robot); ``GT_NO_RETURN`` exactly where depth_mm == 0 or ``flying``.
+    labels_seed: (H, W) uint8 the seed's slope-only truth (``GT_TRAVERSABLE``/``GT_OBSTACLE``
+    by each primitive's own flag), masked like ``labels``.
+    points_ground: (H, W, 3) float32 true hit points, ground frame [m], NaN where no hit.
+    hit_labels, hit_labels_seed: (H, W) uint8 robot-level / seed label of the hit surface
+    whether or not the sensor returned it (``GT_NO_RETURN`` only where nothing is hit).
+    hit_index: (H, W) int16 index into ``primitives`` of the hit primitive, -1 where none
+    (also ``object_ids``).
+    flying: (H, W) bool flying (mixed) pixels: a depth between a foreground and a background
+    surface, not a surface: labelled ``GT_NO_RETURN`` (not scored), ``points_ground`` keeps
+    the true hit of the ray.
+    drop_edge: (H, W) bool hit points on reachable ground within ``DROP_EDGE_BAND_M`` of a
+    drop (the truth costmap marks their cells).
+    truth_rules: the rules ``labels`` were made with.
+    """
+
+    depth_mm: np.ndarray
+    depth_true_m: np.ndarray
+    labels: np.ndarray
+    points_ground: np.ndarray
+    intrinsics: Intrinsics
+    height_m: float
+    pitch_rad: float
+    roll_rad: float
+    name: str
+    seed: int
+    frame_index: int = 0
+    hit_labels: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), np.uint8))
+    hit_index: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), np.int16))
+    primitives: tuple[Primitive, ...] = ()
+    labels_seed: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), np.uint8))
+    hit_labels_seed: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), np.uint8))
+    flying: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), bool))
+    drop_edge: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), bool))
+    truth_rules: TruthRules = field(default_factory=lambda: TruthRules())
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """(width, height) [px]."""
+        return self.depth_mm.shape[1], self.depth_mm.shape[0]
+
+    @property
+    def depth_m(self) -> np.ndarray:
+        """(H, W) float32 measured depth [m], 0 = no return."""
+        return self.depth_mm.astype(np.float32) * np.float32(1e-3)
+
+    @property
+    def object_ids(self) -> np.ndarray:
+        """(H, W) int16 index of the primitive hit, -1 where none (``hit_index``)."""
+        return self.hit_index
+
+    @property
+    def object_names(self) -> tuple[str, ...]:
+        """Name of each primitive ('' = unnamed); primitives of one name form one object."""
+        return tuple(p.name for p in self.primitives)
+
+
+
+def camera_rays(intrinsics: Intrinsics, size: tuple[int, int], height_m: float,
+                pitch_rad: float, roll_rad: float) -> tuple[Rays, np.ndarray]:
+    """Rays of every pixel, directions (H, W) each, and the optical->ground rotation (3, 3)."""
+    width, height = size
+    rot, trans = mount_transform(height_m, pitch_rad, roll_rad)
+    ru = (np.arange(width, dtype=np.float64) - intrinsics.cx) / intrinsics.fx
+    rv = (np.arange(height, dtype=np.float64) - intrinsics.cy) / intrinsics.fy
+    components = []
+    for k in range(3):
+        d = np.empty((height, width))
+        np.add((rot[k, 1] * rv + rot[k, 2])[:, None], (rot[k, 0] * ru)[None, :], out=d)
+        components.append(d)
+    origin = (float(trans[0]), float(trans[1]), float(trans[2]))
+    return Rays(origin, *components), rot
+
+
+def _image_window(bounds: Bounds, rays: Rays, rot: np.ndarray, intrinsics: Intrinsics,
+                  size: tuple[int, int]) -> tuple[slice, slice] | None:
+    """Pixel window (rows, cols) holding the image of ``bounds``; None when it is empty.
+
+    The whole image when the bounds are unbounded or reach behind the near plane. The image of
+    a convex body in front of the camera lies in the convex hull of its box corners' images.
+    """
+    width, height = size
+    everything = (slice(0, height), slice(0, width))
+    if bounds is None:
+        return everything
+    lo, hi = bounds
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                        for z in (lo[2], hi[2])]) - np.array(rays.origin)
+    optical = corners @ rot   # rows: R^T (p - t)
+    if np.any(optical[:, 2] < _NEAR_M):
+        return everything
+    u = intrinsics.fx * optical[:, 0] / optical[:, 2] + intrinsics.cx
+    v = intrinsics.fy * optical[:, 1] / optical[:, 2] + intrinsics.cy
+    u0, u1 = max(int(math.floor(u.min())) - 1, 0), min(int(math.ceil(u.max())) + 2, width)
+    v0, v1 = max(int(math.floor(v.min())) - 1, 0), min(int(math.ceil(v.max())) + 2, height)
+    if u0 >= u1 or v0 >= v1:
+        return None
+    return slice(v0, v1), slice(u0, u1)
+
+
+def check_render_args(seed: int, size: tuple[int, int], frame_index: int) -> None:
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f'seed={seed!r} must be an int >= 0')
+    if isinstance(frame_index, bool) or not isinstance(frame_index, (int, np.integer)) or \
+            frame_index < 0:
+        raise ValueError(f'frame_index={frame_index!r} must be an int >= 0')
+    if len(size) != 2 or any(isinstance(n, bool) or not isinstance(n, (int, np.integer))
+                             or n < 1 for n in size):
+        raise ValueError(f'size={size!r} must be (width, height), positive ints')
+
+
+def _posed_rays(rays: Rays, rot: np.ndarray, pose: tuple[float, float, float],
+                ) -> tuple[Rays, np.ndarray]:
+    """Move base-frame rays and rotation to a robot at ``pose`` (x, y, yaw) in the scene."""
+    x, y, yaw = (float(v) for v in pose)
+    if not all(math.isfinite(v) for v in (x, y, yaw)):
+        raise ValueError(f'pose={pose!r} must be finite (x [m], y [m], yaw [rad])')
+    c, s = math.cos(yaw), math.sin(yaw)
+    ox, oy, oz = rays.origin
+    yaw_rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return Rays((x + c * ox - s * oy, y + s * ox + c * oy, oz), c * rays.dx - s * rays.dy,
+                s * rays.dx + c * rays.dy, rays.dz), yaw_rot @ rot
+
+
+def _nearest_hits(scene: Scene, rays: Rays, rot: np.ndarray, intrinsics: Intrinsics,
+                  size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Intersect every primitive with the rays it may hit; the nearest hit wins.
+
+    Returns (H, W) float64 ray parameter of the nearest hit (inf where none), (H, W) int16
+    index of the primitive hit (-1 where none within ``MAX_TRACE_M``) and (H, W) uint8 the
+    hit surface's seed label.
+    """
+    width, height = size
+    best_t = np.full((height, width), np.inf)
+    hit_index = np.full((height, width), -1, dtype=np.int16)
+    label_lut = np.array([label_of(p.traversable) for p in scene.primitives] + [GT_NO_RETURN],
+                         dtype=np.uint8)
+    own_labels = []   # (index, window, per-ray labels) of primitives with mixed labels
+    for i, primitive in enumerate(scene.primitives):
+        window = _image_window(primitive.bounds(), rays, rot, intrinsics, size)
+        if window is None:
+            continue
+        t, label = primitive.intersect(rays.window(*window))
+        closer = t < best_t[window]
+        np.copyto(best_t[window], t, where=closer)
+        np.copyto(hit_index[window], i, where=closer)
+        if isinstance(label, np.ndarray):
+            own_labels.append((i, window, label))
+    hit_index[~(best_t <= MAX_TRACE_M)] = -1
+    hit_labels_seed = label_lut[hit_index]
+    for i, window, label in own_labels:
+        np.copyto(hit_labels_seed[window], label, where=hit_index[window] == i)
+
+    return best_t, hit_index, hit_labels_seed
+
+
+def render(scene: Scene, *, seed: int = 0, intrinsics: Intrinsics = KINECT_V2_SD,
+           size: tuple[int, int] = KINECT_V2_SD_SIZE, noise: bool | NoiseModel = True,
+           frame_index: int = 0, pose: tuple[float, float, float] | None = None,
+           rules: TruthRules | DetectorParams | None = None,
+           ) -> SceneFrame:
+    """Ray-cast ``scene`` from its mount and apply the sensor model (see module docstring).
+
+    noise: True for ``KINECT_V2_NOISE``, False for ``EXACT``, or a ``NoiseModel``. The noise
+    generator is seeded by ``(seed, frame_index)``: equal arguments give equal frames.
+    size: (width, height) [px]. pose: the robot's base frame in the scene's frame, (x [m],
+    y [m], yaw [rad]) (a sequence's world, e.g. odom); None = the scene frame is the base
+    frame. The primitives stay where they are in the scene; ``points_ground`` is always in
+    the robot's base frame. rules: the robot-level truth's ``TruthRules``, or detector
+    parameters to read them from; None = ``TruthRules()`` (theta 30 deg, steps 0.05 m, robot
+    1.0 m high).
+    """
+    check_render_args(seed, size, frame_index)
+    model = noise if isinstance(noise, NoiseModel) else (KINECT_V2_NOISE if noise else EXACT)
+    if rules is None:
+        rules = TruthRules()
+    elif not isinstance(rules, TruthRules):
+        rules = TruthRules.from_params(rules)
+    width, height = size
+    size = (int(width), int(height))
+    rays, rot = camera_rays(intrinsics, size, scene.height_m, scene.pitch_rad, scene.roll_rad)
+    if pose is not None:
+        rays, rot = _posed_rays(rays, rot, pose)
+
+    best_t, hit_index, hit_labels_seed = _nearest_hits(scene, rays, rot, intrinsics, size)
+    hit = hit_index >= 0
+    depth_true = np.where(hit, best_t, 0.0)
+    t_or_nan = np.where(hit, best_t, np.nan)   # nan propagates to the points of missed rays
+    points64 = np.empty((height, width, 3))
+    for k, (o, d) in enumerate(zip(rays.origin, (rays.dx, rays.dy, rays.dz))):
+        points64[:, :, k] = o + t_or_nan * d
+
+    hit_labels = np.full((height, width), GT_NO_RETURN, dtype=np.uint8)
+    drop_edge = np.zeros((height, width), dtype=bool)
+    robot, edge = robot_labels(points64[hit], hit_index[hit].astype(np.intp),
+                               scene.primitives, rules)   # the truth lives in the scene frame
+    hit_labels[hit] = robot
+    drop_edge[hit] = edge
+    if pose is not None:   # scene frame -> the robot's base frame
+        c, s = math.cos(float(pose[2])), math.sin(float(pose[2]))
+        px = points64[:, :, 0] - float(pose[0])
+        py = points64[:, :, 1] - float(pose[1])
+        points64[:, :, 0] = c * px + s * py
+        points64[:, :, 1] = -s * px + c * py
+    points = points64.astype(np.float32)
+
+    dark = np.array([p.dark for p in scene.primitives] + [False])
+    depth_mm, valid, flying = measure(depth_true, hit_index, dark, model,
+                                      (int(seed), int(frame_index)))
+    flying &= valid
+    scored = valid & ~flying
+    labels = np.where(scored, hit_labels, GT_NO_RETURN).astype(np.uint8)
+    labels_seed = np.where(scored, hit_labels_seed, GT_NO_RETURN).astype(np.uint8)
+    return SceneFrame(
+        depth_mm=depth_mm, depth_true_m=depth_true.astype(np.float32), labels=labels,
+        points_ground=points, intrinsics=intrinsics, height_m=scene.height_m,
+        pitch_rad=scene.pitch_rad, roll_rad=scene.roll_rad, name=scene.name, seed=int(seed),
+        frame_index=int(frame_index), hit_labels=hit_labels, hit_index=hit_index,
+        primitives=scene.primitives, labels_seed=labels_seed, hit_labels_seed=hit_labels_seed,
+        flying=flying, drop_edge=drop_edge, truth_rules=rules)

@@ -1,0 +1,172 @@
+"""The robot-level ground truth of a rendered frame (``SceneFrame.labels``).
+
+Computed from the primitives' geometry with ``TruthRules`` (theta, step up, step down, robot
+height; read from detector parameters when given). Each primitive offers its drivable patches
+(``walk_patches``: the floor, box and cap tops, ramps no steeper than theta, both floors of a
+step down); a breadth-first search from the patch under the robot over patches that touch with
+a height difference within a step up or down finds the reachable ones. A hit on a reachable
+patch is ``GT_TRAVERSABLE``, as is every hit on a primitive no higher than a step whose patches
+are all reachable (a door sill, its sides too); a hit higher than the robot above the reachable
+ground under it is ``GT_ABOVE_ROBOT``; every other hit is ``GT_OBSTACLE`` (walls, box and table
+tops and undersides, legs, curbs, too-steep ramps, people, trunks, the lower floor beyond a
+drop). ``drop_edge`` flags the reachable ground within ``DROP_EDGE_BAND_M`` of a drop: the
+truth costmap marks where the floor ends. The seed's slope-only truth (``labels_seed``) is each
+primitive's own ``traversable`` flag.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from obstacle_detection.labels import GT_ABOVE_ROBOT, GT_OBSTACLE, GT_TRAVERSABLE
+
+from .primitives import Patch, Primitive, check_positive
+
+#: Two drivable patches whose rectangles are closer than this touch (connectivity) [m].
+TOUCH_M = 1e-3
+#: A hit lies on a patch when it is within this of the patch plane (plus its tolerance) [m].
+ON_PATCH_M = 1e-4
+#: Width of the band of reachable ground before a drop whose cells the truth marks [m].
+DROP_EDGE_BAND_M = 0.03
+
+
+@dataclass(frozen=True)
+class TruthRules:
+    """The robot-level truth's parameters (issue 9; ``DetectorParams`` fields of one name).
+
+    max_slope_rad: theta, steepest drivable slope; max_step_height_m / max_step_down_m: the
+    largest step up / down the robot drives over [m]; robot_height_m: surfaces higher than this
+    above the ground under them do not block the robot [m].
+    """
+
+    max_slope_rad: float = math.pi / 6
+    max_step_height_m: float = 0.05
+    max_step_down_m: float = 0.05
+    robot_height_m: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.max_slope_rad < math.pi / 2:
+            raise ValueError(f'TruthRules: max_slope_rad={self.max_slope_rad!r} must be in '
+                             '(0, pi/2)')
+        for name in ('max_step_height_m', 'max_step_down_m'):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f'TruthRules: {name}={value!r} must be a finite number >= 0')
+        check_positive('TruthRules', robot_height_m=self.robot_height_m)
+
+    @classmethod
+    def from_params(cls, params: Any) -> 'TruthRules':
+        """Rules from detector parameters; fields they lack (older params) keep the defaults."""
+        default = cls()
+        return cls(**{name: float(getattr(params, name, getattr(default, name)))
+                      for name in ('max_slope_rad', 'max_step_height_m', 'max_step_down_m',
+                                   'robot_height_m')})
+
+
+def _connects(a: Patch, b: Patch, rules: TruthRules) -> bool:
+    """Return True when the robot on patch ``a`` can drive onto patch ``b``.
+
+    That is: their rectangles touch, and somewhere where they meet b is at most a step up or
+    down from a.
+    """
+    x0, x1 = max(a.x0_m, b.x0_m), min(a.x1_m, b.x1_m)
+    y0, y1 = max(a.y0_m, b.y0_m), min(a.y1_m, b.y1_m)
+    if x0 > x1 + TOUCH_M or y0 > y1 + TOUCH_M:
+        return False
+    xs = np.array([v for v in (x0, x1) if math.isfinite(v)] or [0.0])
+    dz = b.z_at(xs) - a.z_at(xs)   # planar patches: the extremes are at the x ends
+    return bool(dz.min() <= rules.max_step_height_m and dz.max() >= -rules.max_step_down_m)
+
+
+def scene_patches(primitives: tuple[Primitive, ...], rules: TruthRules,
+                  ) -> tuple[list[Patch], list[bool]]:
+    """Every drivable patch of the scene (``owner`` set) and whether the robot reaches it.
+
+    The robot stands at the ground-frame origin: the patches under it (within a step of
+    z = 0) are reached; from them, a breadth-first search over ``_connects``.
+    """
+    patches = [dataclasses.replace(patch, owner=i) for i, primitive in enumerate(primitives)
+               for patch in primitive.walk_patches(rules.max_slope_rad)]
+    origin = np.zeros(1)
+    reached = [bool(p.covers(origin, origin)[0])
+               and abs(float(p.z_at(origin)[0])) <= rules.max_step_height_m + p.tolerance_m
+               for p in patches]
+    todo = [i for i, r in enumerate(reached) if r]
+    while todo:
+        a = patches[todo.pop()]
+        for j, b in enumerate(patches):
+            if not reached[j] and _connects(a, b, rules):
+                reached[j] = True
+                todo.append(j)
+    return patches, reached
+
+
+def _vertical_extent_m(primitive: Primitive) -> float:
+    bounds = primitive.bounds()
+    if bounds is not None:
+        return bounds[1][2] - bounds[0][2]
+    depth = getattr(primitive, 'depth_m', None)   # a step down: the riser's height
+    return float(depth) if depth is not None else math.inf
+
+
+def robot_labels(points: np.ndarray, owner: np.ndarray, primitives: tuple[Primitive, ...],
+                 rules: TruthRules) -> tuple[np.ndarray, np.ndarray]:
+    """Robot-level truth of hit points: ``(labels (N,) uint8 GT_*, drop_edge (N,) bool)``.
+
+    points: (N, 3) float64 hit points, ground frame [m]; owner: (N,) index of the primitive
+    hit (>= 0). A point on a reached patch is traversable, as is every point of a primitive
+    whose patches are all reached and whose height is at most a step (a door sill, its sides
+    included); a point higher than ``robot_height_m`` above the reached ground under it (the
+    highest reached patch below it, else z = 0) is ``GT_ABOVE_ROBOT``; everything else is an
+    obstacle. ``drop_edge`` flags reached ground within ``DROP_EDGE_BAND_M`` of a drop: where a
+    reached patch meets an unreached one lower by more than ``max_step_down_m``.
+    """
+    x, y, z = points[:, 0], points[:, 1], points[:, 2]
+    patches, reached = scene_patches(primitives, rules)
+    ground = np.zeros(x.shape)
+    on_reached = np.zeros(x.shape, dtype=bool)
+    for patch, ok in zip(patches, reached):
+        if not ok:
+            continue
+        covered = patch.covers(x, y)
+        plane = patch.z_at(x)
+        below = covered & (plane <= z + 0.01)
+        np.maximum(ground, np.where(below, plane, -np.inf), out=ground)
+        on_reached |= (covered & (owner == patch.owner)
+                       & (np.abs(z - plane) <= patch.tolerance_m + ON_PATCH_M))
+    labels = np.where(z - ground > rules.robot_height_m, GT_ABOVE_ROBOT,
+                      GT_OBSTACLE).astype(np.uint8)
+    labels[on_reached] = GT_TRAVERSABLE
+    for i, primitive in enumerate(primitives):
+        own = [ok for patch, ok in zip(patches, reached) if patch.owner == i]
+        if own and all(own) and _vertical_extent_m(primitive) <= rules.max_step_height_m:
+            labels[owner == i] = GT_TRAVERSABLE
+    drop_edge = np.zeros(x.shape, dtype=bool)
+    for a, a_ok in zip(patches, reached):
+        if not a_ok:
+            continue
+        for b, b_ok in zip(patches, reached):
+            if b_ok or not _is_drop(a, b, rules):
+                continue
+            near = Patch(max(a.x0_m, b.x0_m) - DROP_EDGE_BAND_M,
+                         min(a.x1_m, b.x1_m) + DROP_EDGE_BAND_M,
+                         max(a.y0_m, b.y0_m) - DROP_EDGE_BAND_M,
+                         min(a.y1_m, b.y1_m) + DROP_EDGE_BAND_M, 0.0)
+            drop_edge |= (near.covers(x, y) & a.covers(x, y) & (owner == a.owner)
+                          & (np.abs(z - a.z_at(x)) <= a.tolerance_m + ON_PATCH_M))
+    return labels, drop_edge
+
+
+def _is_drop(a: Patch, b: Patch, rules: TruthRules) -> bool:
+    """Return True when b touches a and lies lower than it by more than a step down."""
+    x0, x1 = max(a.x0_m, b.x0_m), min(a.x1_m, b.x1_m)
+    y0, y1 = max(a.y0_m, b.y0_m), min(a.y1_m, b.y1_m)
+    if x0 > x1 + TOUCH_M or y0 > y1 + TOUCH_M:
+        return False
+    xs = np.array([v for v in (x0, x1) if math.isfinite(v)] or [0.0])
+    return bool((b.z_at(xs) - a.z_at(xs)).max() < -rules.max_step_down_m)
