@@ -227,7 +227,7 @@ def test_load_params_file_matches_node_format(params_file: Path) -> None:
     assert config.detector.params == detector_params_from_ros(PARAM_VALUES)
     corridor = bag_processor.load_params_file(REPO / 'params' / 'corridor.yaml')
     assert bag_processor.config_from_values(corridor, 'corridor').detector.params.median_kernel \
-        == 17
+        == 5
 
 
 @pytest.mark.parametrize(('text', 'match'), [

@@ -573,7 +573,7 @@ def test_even_median_kernel_is_refused_and_the_old_value_kept(
 
     assert not result.successful
     assert 'median_kernel=4 must be odd' in result.reason
-    assert detector.get_parameter('median_kernel') == 17
+    assert detector.get_parameter('median_kernel') == 5
 
 
 def test_out_of_range_value_is_refused_by_the_descriptor(detector: NodeUnderTest) -> None:
@@ -626,7 +626,7 @@ def test_set_parameters_validates_without_side_effects(local_node: DetectorNode)
     result = local_node.set_parameters([Parameter('median_kernel', value=4)])[0]
 
     assert not result.successful and 'median_kernel=4 must be odd' in result.reason
-    assert local_node.get_parameter('median_kernel').value == 17
+    assert local_node.get_parameter('median_kernel').value == 5
     assert local_node.config is before
 
 
@@ -870,7 +870,7 @@ def test_every_parameter_has_a_description_and_numbers_a_range(
 
 def test_invalid_params_file_stops_the_node_with_the_message(tmp_path: Path) -> None:
     bad = tmp_path / 'bad.yaml'
-    bad.write_text(CORRIDOR_YAML.read_text().replace('median_kernel: 17', 'median_kernel: 4'))
+    bad.write_text(CORRIDOR_YAML.read_text().replace('median_kernel: 5 ', 'median_kernel: 4 '))
     env = ros_env.loopback_env(__name__ + ':bad-file', log_dir=tmp_path / 'ros_log')
 
     done = subprocess.run(_detector_command() + ['--ros-args', '--params-file', str(bad)],
