@@ -286,14 +286,7 @@ def test_obstacles_stay_marked_after_leaving_the_view(figures: dict) -> None:
     assert drive.kept >= 0.95
 
 
-#: Not met: a cell the node marked one cell in front of the walking person, at the right
-#: edge of the view, is cleared at the costmap update after 12 frames seen free, not 10.
-_EDGE_CELL = pytest.mark.xfail(strict=True, reason='one cell at the edge of the view stays '
-                               'lethal for one update (12 frames) after it is seen free')
-
-
-@pytest.mark.parametrize('name', [pytest.param('person_crossing', marks=_EDGE_CELL),
-                                  'drive_past_boxes'])
+@pytest.mark.parametrize('name', ['person_crossing', 'drive_past_boxes'])
 def test_no_seen_free_floor_left_lethal_after_10_frames(figures: dict, name: str) -> None:
     assert figures[(name, 'VoxelLayer')].stale_lethal_max == 0
 
