@@ -4,9 +4,9 @@ There is no ``launch`` package in the pip-installed ROS wheels: the launch file 
 where it builds the launch description, so it is imported here and its ``node_settings`` (the
 detector Node's arguments from the launch arguments) run; what it names must be installed by
 setup.py and be the node's topics. The Nav2 YAML is parsed and compared with the node's topic names
-and with params/corridor.yaml; the detector's clouds of rendered scenes pass the obstacle
-layer's height and range filters (as Nav2 Jazzy's ObservationBuffer and ObstacleLayer apply
-them).
+and with params/corridor.yaml; the detector's clouds of rendered scenes pass the voxel layer's
+height and range filters (as Nav2 Jazzy's ObservationBuffer and VoxelLayer apply them).
+test/test_nav2_sequences.py plays the layer itself over rendered sequences.
 """
 
 from __future__ import annotations
@@ -29,6 +29,7 @@ from obstacle_detection.ros.compressed_depth import TRANSPORT_SUFFIXES
 from obstacle_detection.ros.parameters import NODE_NAME, PARAMS_FILE_KEY
 from obstacle_detection.sim.scenes import render_scene
 from obstacle_detection.cli import bag_processor
+from obstacle_detection.pipeline.clearing import clearing_points
 
 REPO = Path(__file__).resolve().parents[1]
 LAUNCH = REPO / 'launch' / 'detector.launch.py'
@@ -71,9 +72,18 @@ def _costmap() -> dict[str, Any]:
         'ros__parameters']
 
 
+def _layer() -> dict[str, Any]:
+    """Return the costmap's VoxelLayer (the one obstacle layer of the example)."""
+    costmap = _costmap()
+    layers = [costmap[name] for name in costmap['plugins']
+              if costmap[name]['plugin'] == 'nav2_costmap_2d::VoxelLayer']
+    assert len(layers) == 1
+    return layers[0]
+
+
 def _sources() -> dict[str, dict[str, Any]]:
-    """Topic -> settings of each observation source of the obstacle layer."""
-    layer = _costmap()['obstacle_layer']
+    """Topic -> settings of each observation source of the voxel layer."""
+    layer = _layer()
     return {layer[name]['topic']: layer[name] for name in layer['observation_sources'].split()}
 
 
@@ -175,19 +185,34 @@ def test_everything_the_launch_file_names_is_installed(prefix: Path) -> None:
 
 
 def test_nav2_sources_are_the_nodes_clouds() -> None:
-    costmap = _costmap()
     clouds = {name for name, kind in _node_topics('publisher').items() if kind == 'PointCloud2'}
     sources = _sources()
 
-    assert 'obstacle_layer' in costmap['plugins']
-    assert costmap['obstacle_layer']['plugin'] == 'nav2_costmap_2d::ObstacleLayer'
-    assert {topic.lstrip('/') for topic in sources} == clouds == {'obstacles/points',
-                                                                  'obstacles/ground_points'}
+    assert {topic.lstrip('/') for topic in sources} == {'obstacles/points',
+                                                        'obstacles/clearing_points'}
+    assert {topic.lstrip('/') for topic in sources} <= clouds
     assert all(topic.startswith('/') for topic in sources)  # the node runs without namespace
     assert all(source['data_type'] == 'PointCloud2' for source in sources.values())
-    points, ground = sources['/obstacles/points'], sources['/obstacles/ground_points']
+    points, clearing = sources['/obstacles/points'], sources['/obstacles/clearing_points']
     assert (points['marking'], points['clearing']) == (True, False)
-    assert (ground['marking'], ground['clearing']) == (False, True)
+    assert (clearing['marking'], clearing['clearing']) == (False, True)
+    # rays start at the cloud frame's origin: the camera for the clearing cloud (its frame is
+    # the depth image's), so no sensor_frame may move them elsewhere
+    assert all(source['sensor_frame'] == '' for source in sources.values())
+
+
+def test_nav2_is_told_when_the_clouds_stop_and_leaves_no_unknown_space() -> None:
+    assert all(source['expected_update_rate'] > 0.0 for source in _sources().values())
+    assert all(source['observation_persistence'] == 0.0 for source in _sources().values())
+    assert _costmap()['track_unknown_space'] is False
+
+
+def test_corridor_publishes_the_clearing_cloud_nav2_reads() -> None:
+    params = _corridor()
+
+    assert params['publish_clearing'] is True
+    assert _sources()['/obstacles/clearing_points']['raytrace_max_range'] >= \
+        params['clearing_range_m']
 
 
 def _lowest_obstacle_m(params: dict[str, Any]) -> float:
@@ -198,48 +223,69 @@ def _lowest_obstacle_m(params: dict[str, Any]) -> float:
     return lowest
 
 
+def _grid_top_m(layer: dict[str, Any]) -> float:
+    """Top of the voxel grid: a point at or above it is not marked (worldToMap3D) [m]."""
+    return layer['origin_z'] + layer['z_voxels'] * layer['z_resolution']
+
+
 def test_nav2_heights_agree_with_the_corridor_region_of_interest() -> None:
     params = _corridor()
     top = float(params['camera_height_m']) + float(params['smar_m'])
-    layer = _costmap()['obstacle_layer']
+    layer = _layer()
+    points = _sources()['/obstacles/points']
 
-    for settings in (layer, *_sources().values()):
+    for settings in (layer, points):
         assert settings['max_obstacle_height'] == pytest.approx(top)
         assert settings['min_obstacle_height'] <= _lowest_obstacle_m(params)
+    assert 1 <= layer['z_voxels'] <= 16                   # nav2_voxel_grid's 16 bits
+    # voxel 0 holds what lies below the floor (drop view, marked at origin_z); the floor band
+    # starts at voxel 1: rays to the floor end 0.1 m short of it, above the drop marks
+    assert layer['origin_z'] <= 0.0 < layer['origin_z'] + layer['z_resolution'] + 1e-9
+    assert _grid_top_m(layer) > top                       # every mark fits in the grid
+    # rays start at the camera, inside the grid below its raytrace top (origin + (n - 0.5) dz)
+    assert layer['origin_z'] < float(params['camera_height_m']) < \
+        layer['origin_z'] + (layer['z_voxels'] - 0.5) * layer['z_resolution']
+    clearing = _sources()['/obstacles/clearing_points']
+    assert clearing['min_obstacle_height'] <= _lowest_obstacle_m(params)
+    assert clearing['max_obstacle_height'] >= _grid_top_m(layer)   # cut at the top, not lost
 
 
 def test_nav2_ranges_and_window_cover_the_corridor_region_of_interest() -> None:
     params = _corridor()
     costmap = _costmap()
     reach = math.hypot(float(params['max_range_m']), float(params['lateral_limit_m']))
+    top = float(params['camera_height_m']) + float(params['smar_m'])
+    points = _sources()['/obstacles/points']
 
-    for source in _sources().values():
-        assert source['obstacle_max_range'] >= reach and source['raytrace_max_range'] >= reach
-        assert source['obstacle_min_range'] <= float(params['min_range_m'])
-        assert source['raytrace_min_range'] == 0.0
-        assert min(costmap['width'], costmap['height']) / 2 >= source['obstacle_max_range']
+    # the voxel layer measures the marking range in 3-D from the cloud frame's origin
+    assert points['obstacle_max_range'] > math.hypot(reach, top)
+    assert points['obstacle_max_range'] > math.hypot(reach, _lowest_obstacle_m(params))
+    assert points['obstacle_min_range'] <= float(params['min_range_m'])
+    assert _sources()['/obstacles/clearing_points']['raytrace_min_range'] == 0.0
+    assert min(costmap['width'], costmap['height']) / 2 >= reach
     assert costmap['resolution'] == pytest.approx(float(params['costmap_resolution_m']))
     assert costmap['robot_base_frame'] == params['cloud_frame_id']
 
 
 @pytest.mark.parametrize('scene', ['corridor', 'step_down'])
-def test_every_detector_point_passes_the_obstacle_layer_filters(scene: str) -> None:
+def test_every_detector_point_passes_the_voxel_layer_filters(scene: str) -> None:
     values = bag_processor.load_params_file(CORRIDOR)
-    values['publish_ground'] = True
     config = bag_processor.config_from_values(values, str(CORRIDOR))
     params = config.detector.params
     frame = render_scene(scene, seed=1, height_m=params.camera_height_m,
                          pitch_rad=params.camera_pitch_rad, roll_rad=params.camera_roll_rad)
     result = config.detector.process(frame.depth_mm, frame.intrinsics)
-    layer = _costmap()['obstacle_layer']
+    layer, source = _layer(), _sources()['/obstacles/points']
+    points = result.obstacle_points.astype(np.float64)
+    clearing = clearing_points(result.depth_m, result.intrinsics,
+                               stride_px=config.clearing_stride_px,
+                               range_m=config.clearing_range_m)
 
-    assert result.obstacle_points.shape[0] > 100 and result.ground_points.shape[0] > 100
-    for topic, points in (('/obstacles/points', result.obstacle_points),
-                          ('/obstacles/ground_points', result.ground_points)):
-        source = _sources()[topic]
-        z = points[:, 2].astype(np.float64)
-        distance = np.hypot(points[:, 0], points[:, 1])  # from the cloud frame's origin
-        assert z.min() >= max(layer['min_obstacle_height'], source['min_obstacle_height'])
-        assert z.max() <= min(layer['max_obstacle_height'], source['max_obstacle_height'])
-        assert distance.max() <= min(source['obstacle_max_range'],
-                                     source['raytrace_max_range'])
+    assert points.shape[0] > 100 and clearing.shape[0] > 1000
+    z = points[:, 2]
+    assert z.min() >= max(layer['min_obstacle_height'], source['min_obstacle_height'])
+    assert z.max() <= min(layer['max_obstacle_height'], source['max_obstacle_height'])
+    assert np.linalg.norm(points, axis=1).max() < source['obstacle_max_range']
+    # clearing rays from the camera (the cloud frame's origin) are no longer than Nav2 traces
+    assert np.linalg.norm(clearing, axis=1).max() <= \
+        _sources()['/obstacles/clearing_points']['raytrace_max_range']

@@ -42,6 +42,9 @@ class NodeConfig:
     camera_info_tolerance_ns: int = 20_000_000
     fusion: FusionParams | None = None      #: None: no fused costmap
     odom_frame: str = 'odom'
+    publish_clearing: bool = False      #: obstacles/clearing_points (pipeline.clearing)
+    clearing_range_m: float = 4.0
+    clearing_stride_px: int = 4
     values: dict[str, Any] = field(default_factory=dict)   #: the ROS values it was built from
 
     def mount(self) -> Mount:
@@ -87,6 +90,11 @@ def build_detector(values: dict[str, Any]) -> Detector | RefinedDetector:
     return RefinedDetector(detector, refiner)
 
 
+def _value(values: dict[str, Any], name: str) -> Any:
+    """Return a parameter's value, or its default when ``values`` lacks it."""
+    return values[name] if name in values else SPECS_BY_NAME[name].default
+
+
 def build_config(values: dict[str, Any]) -> NodeConfig:
     """NodeConfig from ``{ros_name: value}`` of every parameter; ValueError naming a bad one."""
     for name in ('cloud_frame_id', 'costmap_frame_id', 'odom_frame'):
@@ -110,4 +118,7 @@ def build_config(values: dict[str, Any]) -> NodeConfig:
                              resolution_m=float(values['fused_resolution_m']))
                 if values.get('fuse') else None),
         odom_frame=str(values.get('odom_frame', 'odom')),
+        publish_clearing=bool(_value(values, 'publish_clearing')),
+        clearing_range_m=float(_value(values, 'clearing_range_m')),
+        clearing_stride_px=int(_value(values, 'clearing_stride_px')),
         values=dict(values))

@@ -407,15 +407,18 @@ def occupancy_grid_to_costmap(grid: Any) -> Costmap:
 
 def result_to_messages(result: DetectionResult, *, stamp: Time, cloud_frame_id: str,
                        costmap_frame_id: str, image_frame_id: str, with_ground: bool = False,
-                       overlay_rgb: np.ndarray | None = None) -> dict[str, Any]:
+                       overlay_rgb: np.ndarray | None = None,
+                       clearing_points: np.ndarray | None = None) -> dict[str, Any]:
     """All output messages of one pipeline result, stamped with the input's stamp.
 
     Returns {'obstacles': PointCloud2, 'costmap': OccupancyGrid} plus 'ground' (PointCloud2 of
     the traversable voxel centroids, in ``cloud_frame_id``) if ``with_ground`` and 'overlay'
     (rgb8 Image in ``image_frame_id``) of ``overlay_rgb`` when given: the (H, W, 3) uint8
     picture the caller drew (``viz.overlay.render_overlay``: the filtered depth with obstacle
-    pixels marked); conversion packs it, it does not draw. The node and the offline bag tools
-    both call this function.
+    pixels marked); conversion packs it, it does not draw. 'clearing' (PointCloud2 in
+    ``image_frame_id``, the camera optical frame, origin at the camera) of ``clearing_points``
+    when given: (N, 3) [m] from ``pipeline.clearing.clearing_points``. The node and the
+    offline bag tools both call this function.
     """
     messages: dict[str, Any] = {
         'obstacles': points_to_pointcloud2(result.obstacle_points, stamp=stamp,
@@ -426,6 +429,9 @@ def result_to_messages(result: DetectionResult, *, stamp: Time, cloud_frame_id: 
     if with_ground:
         messages['ground'] = points_to_pointcloud2(result.ground_points, stamp=stamp,
                                                    frame_id=cloud_frame_id)
+    if clearing_points is not None:
+        messages['clearing'] = points_to_pointcloud2(clearing_points, stamp=stamp,
+                                                     frame_id=image_frame_id)
     if overlay_rgb is not None:
         messages['overlay'] = array_to_image(overlay_rgb, stamp=stamp, frame_id=image_frame_id,
                                              encoding='rgb8')

@@ -16,10 +16,12 @@ Topics (relative names, remappable; :func:`help_text` lists them all):
   ``obstacles/costmap`` (OccupancyGrid in the z = 0 plane of ``costmap_frame_id``; transient
   local, depth 1, so a late RViz gets the last grid), ``obstacles/ground_points`` (only if
   ``publish_ground``), ``obstacles/overlay`` (rgb8 Image in the input's frame, only if
-  ``publish_overlay``), ``obstacles/fused_costmap`` (OccupancyGrid in ``odom_frame``, only if
-  ``fuse``; transient local, depth 1), ``~/processing_time_ms`` (std_msgs/Float64),
-  ``~/status`` (latched) and ``/diagnostics``. The switches are read at start-up (read-only):
-  what is off is neither advertised nor subscribed.
+  ``publish_overlay``), ``obstacles/clearing_points`` (PointCloud2 in the input's optical
+  frame, only if ``publish_clearing``: Nav2's clearing source), ``obstacles/fused_costmap``
+  (OccupancyGrid in ``odom_frame``, only if ``fuse``; transient local, depth 1),
+  ``~/processing_time_ms`` (std_msgs/Float64), ``~/status`` (latched) and ``/diagnostics``.
+  The switches are read at start-up (read-only): what is off is neither advertised nor
+  subscribed.
 
 The default output frame ``base_footprint`` is the pipeline's ground frame: x forward, y left,
 z up, origin on the ground right under the camera (a robot whose base_footprint is elsewhere
@@ -62,6 +64,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 from std_msgs.msg import Float64, String
 
+from obstacle_detection.pipeline import clearing
 from obstacle_detection.pipeline import jit as jit_support
 from .conversions import (
     costmap_to_occupancy_grid,
@@ -293,8 +296,9 @@ class DetectorNode(Node):
             LATCHED_INFO_WATCH_S, self._watch_for_latched_camera_info,
             clock=Clock(clock_type=ClockType.STEADY_TIME))   # also before /clock runs
         outputs = [pub.topic_name for pub in (self._points_pub, self._costmap_pub,
-                                              self._ground_pub, self._overlay_pub,
-                                              self._fused_pub) if pub is not None]
+                                              self._ground_pub, self._clearing_pub,
+                                              self._overlay_pub, self._fused_pub)
+                   if pub is not None]
         self.get_logger().info(
             f'ready: {self._depth_sub.topic_name} + {self._info_sub.topic_name} '
             f'({"reliable" if reliable else "sensor-data"} QoS; a latched CameraInfo too, '
@@ -309,7 +313,8 @@ class DetectorNode(Node):
     def _create_optional_endpoints(self) -> None:
         """Advertise and subscribe only what the switches turn on; None where off.
 
-        publish_ground -> obstacles/ground_points; publish_overlay -> obstacles/overlay; fuse ->
+        publish_ground -> obstacles/ground_points; publish_overlay -> obstacles/overlay;
+        publish_clearing -> obstacles/clearing_points; fuse ->
         obstacles/fused_costmap and the odometry subscription. The switches (and odom_topic)
         are read-only: a change would need endpoints made or destroyed while the worker
         thread publishes.
@@ -321,6 +326,9 @@ class DetectorNode(Node):
         self._overlay_pub: Any = (
             self.create_publisher(Image, 'obstacles/overlay', _OUTPUT_QOS)
             if config.publish_overlay else None)
+        self._clearing_pub: Any = (
+            self.create_publisher(PointCloud2, 'obstacles/clearing_points', _OUTPUT_QOS)
+            if config.publish_clearing else None)
         self._fused_pub: Any = None
         self._odom_sub: Any = None
         if config.fusion is not None:
@@ -796,7 +804,11 @@ class DetectorNode(Node):
                 costmap_frame_id=config.costmap_frame_id, image_frame_id=msg.header.frame_id,
                 with_ground=config.publish_ground,
                 overlay_rgb=(render_overlay(result.depth_m, result.labels)
-                             if config.publish_overlay else None))
+                             if config.publish_overlay else None),
+                clearing_points=(clearing.clearing_points(
+                    result.depth_m, result.intrinsics, stride_px=config.clearing_stride_px,
+                    range_m=config.clearing_range_m)
+                    if self._clearing_pub is not None else None))
             fused = self._fuse(result, msg, config)
         except ValueError as error:
             self._warn_skip('pipeline', str(error))
@@ -815,6 +827,8 @@ class DetectorNode(Node):
                 self._ground_pub.publish(messages['ground'])
             if 'overlay' in messages and self._overlay_pub is not None:
                 self._overlay_pub.publish(messages['overlay'])
+            if 'clearing' in messages and self._clearing_pub is not None:
+                self._clearing_pub.publish(messages['clearing'])
             if fused is not None and self._fused_pub is not None:
                 self._fused_pub.publish(fused)
             elapsed_ms = (time.perf_counter() - start) * 1e3
@@ -904,6 +918,8 @@ def help_text() -> str:
         '  out  obstacles/costmap         nav_msgs/OccupancyGrid: 100 occupied, 0 free, -1',
         '                                 unknown; reliable, transient local, depth 1',
         '  out  obstacles/ground_points   sensor_msgs/PointCloud2, if publish_ground; reliable',
+        '  out  obstacles/clearing_points sensor_msgs/PointCloud2 in the depth image frame, if',
+        '                                 publish_clearing (Nav2 clearing source); reliable',
         '  out  obstacles/overlay         sensor_msgs/Image rgb8, if publish_overlay; reliable',
         '  out  obstacles/fused_costmap   nav_msgs/OccupancyGrid in odom_frame, if fuse;',
         '                                 reliable, transient local, depth 1',

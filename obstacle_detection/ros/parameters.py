@@ -151,6 +151,18 @@ NODE_PARAMS: tuple[ParamSpec, ...] = (
               'Also publish the traversable voxels on obstacles/ground_points (lets a costmap '
               'clear cells); read at start-up (the topic is advertised only when on)',
               read_only=True),
+    ParamSpec('publish_clearing', True,
+              'Also publish obstacles/clearing_points: the surfaces the camera saw (every '
+              'clearing_stride_px-th pixel), in the depth image\'s own optical frame, so a 3-D '
+              'costmap layer (Nav2 VoxelLayer) raytraces from the camera through the space now '
+              'empty and forgets obstacles that left; read at start-up (the topic is advertised '
+              'only when on)', read_only=True),
+    ParamSpec('clearing_range_m', 4.0,
+              'Farthest clearing point from the camera: a farther surface gives the point at '
+              'this distance on its ray (the space up to it was seen free) [m]', 0.5, 20.0),
+    ParamSpec('clearing_stride_px', 4,
+              'obstacles/clearing_points keeps every this many-th row and column of the '
+              'filtered depth image (4: about 13,000 rays of a 512 x 424 frame) [px]', 1, 64),
     ParamSpec('publish_overlay', False,
               'Also publish obstacles/overlay: rgb8 depth frame with obstacle pixels in red; '
               'read at start-up (the topic is advertised only when on)', read_only=True),

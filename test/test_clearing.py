@@ -1,0 +1,102 @@
+"""The clearing cloud (pipeline.clearing) and its message, on depth images whose answer is known.
+
+A 9 x 7 image with the principal point on pixel (4, 3) and fx = fy = 2 px: pixel (u, v) at depth
+z lies at ((u - 4) z / 2, (v - 3) z / 2, z) in the optical frame.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from builtin_interfaces.msg import Time
+
+from obstacle_detection.pipeline import clearing
+from obstacle_detection.pipeline.clearing import BORDER_FRACTIONS, clearing_points
+from obstacle_detection.pipeline.params import Intrinsics
+from obstacle_detection.ros.conversions import pointcloud2_to_points, result_to_messages
+
+INTRINSICS = Intrinsics(fx=2.0, fy=2.0, cx=4.0, cy=3.0)
+
+
+def _grid_points(points: np.ndarray, count: int) -> np.ndarray:
+    """Return the points of the kept pixels (the border points follow them)."""
+    return points[:count]
+
+
+def test_every_stride_pixel_and_the_last_row_and_column_are_back_projected() -> None:
+    depth = np.full((7, 9), 2.0, np.float32)
+
+    points = clearing_points(depth, INTRINSICS, stride_px=4, range_m=100.0)
+
+    # rows 0, 4, 6 and columns 0, 4, 8: 9 pixels
+    grid = _grid_points(points, 9)
+    expected = [((u - 4) * 1.0, (v - 3) * 1.0, 2.0) for v in (0, 4, 6) for u in (0, 4, 8)]
+    np.testing.assert_allclose(grid, expected, atol=1e-6)
+    assert points.dtype == np.float32
+
+
+def test_no_return_pixels_give_no_point() -> None:
+    depth = np.zeros((7, 9), np.float32)
+    depth[4, 4] = 1.0
+    depth[0, 0] = np.nan
+    depth[0, 8] = np.inf
+
+    points = clearing_points(depth, INTRINSICS, stride_px=4, range_m=100.0)
+
+    # the one valid pixel is also the outermost valid pixel of its row, on both sides
+    assert points.shape == (1 + 2 * len(BORDER_FRACTIONS), 3)
+    np.testing.assert_allclose(points[0], [0.0, 0.5, 1.0], atol=1e-6)
+
+
+def test_a_surface_beyond_the_range_gives_the_point_at_the_range_on_its_ray() -> None:
+    depth = np.zeros((7, 9), np.float32)
+    depth[4, 8] = 3.0            # (6, 1.5, 3) m: 6.87 m away
+
+    point = clearing_points(depth, INTRINSICS, stride_px=4, range_m=2.0)[0]
+
+    assert np.linalg.norm(point) == pytest.approx(2.0, rel=1e-6)
+    np.testing.assert_allclose(point / np.linalg.norm(point),
+                               np.array([6.0, 1.5, 3.0]) / np.linalg.norm([6.0, 1.5, 3.0]),
+                               atol=1e-6)
+
+
+def test_the_outermost_pixels_of_each_row_add_points_along_their_ray() -> None:
+    depth = np.zeros((7, 9), np.float32)
+    depth[0, 2:7] = 2.0          # row 0: valid from column 2 to 6 (off the stride grid)
+
+    points = clearing_points(depth, INTRINSICS, stride_px=4, range_m=100.0)
+
+    left, right = np.array([-2.0, -3.0, 2.0]), np.array([2.0, -3.0, 2.0])
+    border = points[1:]          # after the one grid pixel, (4, 0)
+    expected = [p * f for f in BORDER_FRACTIONS for p in (left, right)]
+    np.testing.assert_allclose(border, expected, atol=1e-6)
+
+
+@pytest.mark.parametrize(('kwargs', 'message'), [
+    ({'stride_px': 0, 'range_m': 4.0}, 'stride_px=0 must be an int >= 1'),
+    ({'stride_px': 2.0, 'range_m': 4.0}, 'stride_px=2.0 must be an int'),
+    ({'stride_px': 4, 'range_m': 0.0}, 'range_m=0.0 must be a finite number > 0'),
+    ({'stride_px': 4, 'range_m': float('nan')}, 'range_m=nan must be a finite number'),
+])
+def test_bad_arguments_are_refused_by_name(kwargs: dict, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        clearing_points(np.ones((7, 9), np.float32), INTRINSICS, **kwargs)
+
+
+def test_the_clearing_message_is_in_the_image_frame() -> None:
+    from obstacle_detection.pipeline.detector import Detector
+
+    depth = np.full((42, 51), 1500, np.uint16)
+    result = Detector().process(depth, Intrinsics(fx=40.0, fy=40.0, cx=25.0, cy=21.0))
+    points = clearing.clearing_points(result.depth_m, result.intrinsics, stride_px=4,
+                                      range_m=4.0)
+
+    messages = result_to_messages(result, stamp=Time(sec=3), cloud_frame_id='base_footprint',
+                                  costmap_frame_id='base_footprint',
+                                  image_frame_id='camera_optical', clearing_points=points)
+    plain = result_to_messages(result, stamp=Time(sec=3), cloud_frame_id='base_footprint',
+                               costmap_frame_id='base_footprint', image_frame_id='camera_optical')
+
+    assert messages['clearing'].header.frame_id == 'camera_optical'
+    np.testing.assert_array_equal(pointcloud2_to_points(messages['clearing']), points)
+    assert 'clearing' not in plain
