@@ -418,6 +418,28 @@ def test_traversal_kernels_equal_numpy(monkeypatch):
     np.testing.assert_array_equal(jit_rays, geometry.ground_rays((424, 512), intr, params))
 
 
+@jit_only
+def test_ledge_kernel_equals_numpy(monkeypatch):
+    from obstacle_detection.pipeline._compiled import ledges as jit_ledges
+    rng = np.random.default_rng(22)
+    marked = 0
+    for trial in range(20):
+        n = int(rng.integers(50, 3000))
+        pts = rng.uniform([0.3, -1.5, -0.1], [3.0, 1.5, 0.4], size=(n, 3)).astype(np.float32)
+        pts[: n // 2, 2] = rng.choice([0.0, 0.03, 0.18, 1.2], n // 2) + rng.normal(0, 0.01, n // 2)
+        steep = rng.random(n) < 0.2
+        reached = rng.random(n) < 0.6
+        above = pts[:, 2] > 1.0
+        got = jit_ledges.ledges(pts, steep, reached, above, 0.05, 0.05, 0.05,
+                                traversal.LEDGE_SHADOW_CELLS)
+        monkeypatch.setenv(NO_JIT_ENV, '1')
+        want = traversal.ledges(pts, steep, reached, above, 0.05, 0.05, 0.05)
+        monkeypatch.delenv(NO_JIT_ENV)
+        np.testing.assert_array_equal(got, want, err_msg=f'trial {trial}')
+        marked += int(want.sum())
+    assert marked > 100
+
+
 def frame_intrinsics():
     """Kinect v2 SD intrinsics of the generator."""
     from obstacle_detection.pipeline.params import KINECT_V2_SD

@@ -40,6 +40,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import breadth_first_order
 
 from . import jit, parallel
+from ._compiled import ledges as jit_ledges
 from ._compiled import traversal as jit_traversal
 from .geometry import GroundRays, ray_table, rays_at
 from .params import DetectorParams
@@ -136,11 +137,15 @@ def ledges(points: np.ndarray, steep: np.ndarray, reached: np.ndarray, above: np
 
     Never a voxel above the robot (``above``). points: (V, 3) float32 ground frame, the
     camera over its origin [m]; steep, reached, above: (V,) bool. Numpy on the cells (a few
-    thousand); the same function serves the compiled path. The marks are obstacles that the
+    thousand), or compiled (:mod:`._compiled.ledges`, the same flags) when
+    :func:`.jit.enabled`. The marks are obstacles that the
     seed's N1 validation keeps (a ledge is a band one cell wide, as a drop edge).
     """
     if points.shape[0] == 0:
         return np.zeros(0, bool)
+    if jit.enabled():
+        return jit_ledges.ledges(points, steep, reached, above, size_m, step_up_m, step_down_m,
+                                 LEDGE_SHADOW_CELLS)
     size = np.float32(size_m)
     ix = np.floor(points[:, 0] / size).astype(np.int64)
     iy = np.floor(points[:, 1] / size).astype(np.int64)
@@ -473,3 +478,6 @@ def warm_up() -> None:
     """Compile (or load from the disk cache) the robot-level kernels, if they run."""
     if jit.enabled():
         jit_traversal.warm_up()
+        pts = np.zeros((2, 3), np.float32)
+        flags = np.zeros(2, bool)
+        jit_ledges.ledges(pts, flags, flags, flags, 0.05, 0.05, 0.05, LEDGE_SHADOW_CELLS)
