@@ -22,6 +22,9 @@ climb a passable ramp to its landing. After the normals, :func:`traversable_grou
    or lower than ``-max_step_down_m`` (the floor beyond a drop). Above the robot: not an
    obstacle.
 
+:func:`ledges` marks the open side of a raised traversable surface (a ramp or landing more than
+a step above the floor beside it, both reached: issue 22), kept through the N1 validation.
+
 :func:`drop_edges` marks a drop whose lower floor is out of view or out of range: a pixel whose
 ray passed the floor plane (its point lies more than the step down below it) right above pixels
 that see the floor marks the cell where that floor ends, when it lies within the range.
@@ -126,11 +129,11 @@ def ledges(points: np.ndarray, steep: np.ndarray, reached: np.ndarray, above: np
     voxel, where it was reached:
 
     - a reached cell whose *lower ground* lies more than ``step_down_m`` below its surface:
-      its voxels, the edge of the higher surface. Its lower ground is the lowest reached surface among
-      its 8 neighbours, or, across the edge (the floor right beyond an open side lies in its
-      shadow), the lowest of the first cells with voxels beyond a gap of cells without
-      (up to ``LEDGE_SHADOW_CELLS``) in the 8 directions whose x and y steps both lead away
-      from the camera (or are 0), where reached;
+      its voxels, the edge of the higher surface. Its lower ground is the lowest reached
+      surface among its 8 neighbours or, across the edge (the floor right beyond an open
+      side lies in its shadow), the lowest of the first cells with voxels beyond a gap of
+      cells without (up to ``LEDGE_SHADOW_CELLS``) in the 8 directions whose x and y steps
+      both lead away from the camera (or are 0), where reached;
     - a cell not reached whose reached neighbours' surfaces differ by more than
       ``step_up_m``: its voxels more than ``step_up_m`` above the lowest (the side face seen
       from the floor, which the local ground, the highest neighbour's, calls ground).
@@ -138,8 +141,8 @@ def ledges(points: np.ndarray, steep: np.ndarray, reached: np.ndarray, above: np
     Never a voxel above the robot (``above``). points: (V, 3) float32 ground frame, the
     camera over its origin [m]; steep, reached, above: (V,) bool. Numpy on the cells (a few
     thousand), or compiled (:mod:`._compiled.ledges`, the same flags) when
-    :func:`.jit.enabled`. The marks are obstacles that the
-    seed's N1 validation keeps (a ledge is a band one cell wide, as a drop edge).
+    :func:`.jit.enabled`. The marks are obstacles that the seed's N1 validation keeps (a
+    ledge is a band one cell wide, as a drop edge).
     """
     if points.shape[0] == 0:
         return np.zeros(0, bool)
