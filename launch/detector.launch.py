@@ -19,9 +19,12 @@ Arguments (``ros2 launch ... --show-args`` lists them):
   mount parameters); ``false`` (default) passes nothing, so the params file decides.
 - ``publish_ground``: ``true`` / ``false`` overrides the params file's ``publish_ground``
   (Nav2's clearing source needs ``true``); empty (default) keeps the file's value.
-- ``namespace``: the node's namespace (default none: outputs on ``/obstacles/...``). A params
-  file section must then name the node with it (``/<namespace>/obstacle_detector:``) or be
-  ``/**:``.
+- ``use_sim_time``: ``true`` / ``false`` (default ``false``) sets rclpy's own ``use_sim_time``
+  parameter of the node (the clock from ``/clock``, as every Nav2 bringup passes it); it
+  overrides a params file's value.
+- ``namespace``: the node's namespace (default none: outputs on ``/obstacles/...``). The shipped
+  params files key the node as ``/**/obstacle_detector:``, so they apply in any namespace (a
+  file of your own keyed ``obstacle_detector:`` names only the node without a namespace).
 
 The ``launch`` packages (not among the pip-installed ROS wheels) are imported only where
 the launch description is built, so tests import this file and run :func:`node_settings`.
@@ -59,6 +62,8 @@ ARGUMENTS = [
      'true: the camera mount from TF (node parameter use_tf); false: from the params file'),
     ('publish_ground', '', ['', 'true', 'false'],
      'override publish_ground (true for a Nav2 clearing source); empty: as the params file'),
+    ('use_sim_time', 'false', ['true', 'false'],
+     "rclpy's use_sim_time parameter of the node (the clock from /clock), as Nav2 passes it"),
     ('namespace', '', None, 'namespace of the node and its topics'),
 ]
 
@@ -78,7 +83,7 @@ def node_settings(values: dict[str, str], share_dir: str) -> dict[str, Any]:
     depth_topic, info_topic = CAMERA_PRESETS[values['camera']]
     depth_topic = values['depth_topic'] or depth_topic
     info_topic = values['camera_info_topic'] or info_topic
-    overrides: dict[str, bool] = {}
+    overrides: dict[str, bool] = {'use_sim_time': values['use_sim_time'] == 'true'}
     if values['use_tf'] == 'true':
         overrides['use_tf'] = True
     if values['publish_ground']:
@@ -87,7 +92,7 @@ def node_settings(values: dict[str, str], share_dir: str) -> dict[str, Any]:
         (f'{DEPTH_INPUT}/{suffix}', f'{depth_topic}/{suffix}') for suffix in TRANSPORT_SUFFIXES]
     return {'package': PACKAGE, 'executable': EXECUTABLE, 'name': NODE_NAME,
             'namespace': values['namespace'],
-            'parameters': [params_file, overrides] if overrides else [params_file],
+            'parameters': [params_file, overrides],
             'remappings': remaps, 'output': 'screen', 'emulate_tty': True}
 
 

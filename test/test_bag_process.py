@@ -227,13 +227,13 @@ def test_load_params_file_matches_node_format(params_file: Path) -> None:
     assert config.detector.params == detector_params_from_ros(PARAM_VALUES)
     corridor = bag_processor.load_params_file(REPO / 'params' / 'corridor.yaml')
     assert bag_processor.config_from_values(corridor, 'corridor').detector.params.median_kernel \
-        == 17
+        == 5
 
 
 @pytest.mark.parametrize(('text', 'match'), [
     ('obstacle_detector:\n  ros__parameters:\n    voxel_x_m: 1\n', "voxel_x_m.*float"),
     ('obstacle_detector:\n  ros__parameters:\n    no_such: 1\n', "unknown parameter 'no_such'"),
-    ('other_node:\n  ros__parameters: {}\n', 'no "obstacle_detector"'),
+    ('other_node:\n  ros__parameters: {}\n', 'no section naming the node'),
     ('obstacle_detector:\n  ros__parameters:\n    median_kernel: 4\n', 'median_kernel'),
 ])
 def test_bad_params_file(tmp_path: Path, text: str, match: str, depths: list[np.ndarray],
@@ -476,7 +476,16 @@ def _compressed_depth(depth: np.ndarray) -> tuple[str, bytes]:
     return msg.format, bytes(msg.data)
 
 
+def _rvl_compressed_depth(depth: np.ndarray) -> tuple[str, bytes]:
+    """Return compressedDepth with format rvl (image_transport_plugins 4.0): header + RVL."""
+    from rvl_encoder import rvl_message
+
+    msg = rvl_message(depth, Time(), 'f')
+    return msg.format, bytes(msg.data)
+
+
 COMPRESSIONS = {'compressedDepth': ('compressedDepth', _compressed_depth),
+                'compressedDepth rvl': ('compressedDepth', _rvl_compressed_depth),
                 'iai_kinect2 tiff': ('compressed', _iai_tiff),
                 'png': ('compressed', _headerless_png)}
 

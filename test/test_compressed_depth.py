@@ -247,7 +247,8 @@ BAD = {
                             'corrupt', 'no PNG or TIFF after the 12-byte ConfigHeader'),
     'colour image': ('bgr8; jpeg compressed bgr8', _valid_data, 'format',
                      "must be a depth encoding .*got 'bgr8'"),
-    'rvl': ('16UC1; compressedDepth rvl', _valid_data, 'format', 'RVL is not supported'),
+    'rvl with a png inside': ('16UC1; compressedDepth rvl', _valid_data, 'corrupt',
+                              'RVL image announces 1196314761x169478669 pixels: more than'),
     'jpeg': ('16UC1; jpeg compressed', _valid_data, 'format', 'JPEG is lossy'),
     'unknown': ('16UC1; zstd', _valid_data, 'format', 'unknown compressed depth format'),
     '8-bit png': ('16UC1; png compressed',
@@ -317,13 +318,15 @@ def test_encoder_refuses_an_array_that_is_not_depth() -> None:
 
 
 @pytest.mark.parametrize(('fmt', 'expected'), [
-    ('16UC1; compressedDepth png', ('16UC1', True)),
-    ('32FC1; compressedDepth png', ('32FC1', True)),
-    ('16UC1; compressedDepth', ('16UC1', True)),
-    ('mono16', ('mono16', True)),
-    ('16UC1; tiff compressed', ('16UC1', False)),
+    ('16UC1; compressedDepth png', ('16UC1', True, False)),
+    ('32FC1; compressedDepth png', ('32FC1', True, False)),
+    ('16UC1; compressedDepth rvl', ('16UC1', True, True)),
+    ('32FC1; compressedDepth rvl', ('32FC1', True, True)),
+    ('16UC1; compressedDepth', ('16UC1', True, False)),
+    ('mono16', ('mono16', True, False)),
+    ('16UC1; tiff compressed', ('16UC1', False, False)),
 ])
-def test_parse_format(fmt: str, expected: tuple[str, bool]) -> None:
+def test_parse_format(fmt: str, expected: tuple[str, bool, bool]) -> None:
     assert parse_format(fmt) == expected
 
 

@@ -23,6 +23,7 @@ from obstacle_detection.ros.conversions import (
     depth_sample,
     image_to_array,
     image_to_rgb,
+    intrinsics_come_from_k,
     intrinsics_problem,
     intrinsics_to_camera_info,
     occupancy_grid_to_costmap,
@@ -166,6 +167,38 @@ def test_camera_info_round_trip() -> None:
     assert (msg.width, msg.height, msg.header.frame_id) == (512, 424, 'depth')
     assert list(msg.p)[:3] == [365.5, 0.0, 255.0]
     assert camera_info_to_intrinsics(msg) == intrinsics
+
+
+def _rectified_info() -> CameraInfo:
+    """Return a CameraInfo whose K (raw image) and P (rectified image) differ."""
+    msg = intrinsics_to_camera_info(Intrinsics(fx=365.5, fy=366.25, cx=255.0, cy=211.5),
+                                    512, 424, stamp=STAMP, frame_id='depth')
+    msg.p = [360.0, 0.0, 250.0, 0.0, 0.0, 362.0, 209.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+    return msg
+
+
+def test_intrinsics_come_from_p_when_k_and_p_differ() -> None:
+    msg = _rectified_info()
+
+    assert camera_info_to_intrinsics(msg) == Intrinsics(fx=360.0, fy=362.0, cx=250.0, cy=209.0)
+    assert not intrinsics_come_from_k(msg)
+
+
+def test_intrinsics_come_from_k_only_when_p_is_all_zero() -> None:
+    msg = _rectified_info()
+    msg.p = [0.0] * 12
+
+    assert camera_info_to_intrinsics(msg) == Intrinsics(fx=365.5, fy=366.25, cx=255.0,
+                                                        cy=211.5)
+    assert intrinsics_come_from_k(msg)
+
+
+def test_p_with_a_zero_focal_length_is_refused_naming_p() -> None:
+    msg = _rectified_info()
+    msg.p = [0.0, 0.0, 250.0, 0.0, 0.0, 362.0, 209.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+
+    with pytest.raises(ValueError, match='CameraInfo P is not a usable pinhole model'):
+        camera_info_to_intrinsics(msg)
 
 
 def test_camera_info_with_zero_focal_length_is_refused() -> None:

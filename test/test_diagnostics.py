@@ -14,7 +14,10 @@ from obstacle_detection.ros.diagnostics import (
     HealthWindow,
     Period,
     health_status,
+    status_name,
 )
+
+NAME = status_name('/obstacle_detector')
 
 
 def _context(**changes: object) -> Context:
@@ -39,7 +42,8 @@ def _values(status: object) -> dict[str, str]:
 
 
 def test_a_healthy_stream_is_ok_with_its_figures() -> None:
-    status = health_status(_period(), _context(), hardware_id='kinect2_ir_optical_frame')
+    status = health_status(_period(), _context(), name=NAME,
+                           hardware_id='kinect2_ir_optical_frame')
     assert status.level == OK and status.message == '30.0 frames/s processed'
     values = _values(status)
     assert values['input rate [Hz]'] == '30.0' and values['processing mean [ms]'] == '10.0'
@@ -71,12 +75,13 @@ def test_a_healthy_stream_is_ok_with_its_figures() -> None:
 ])
 def test_levels_follow_the_thresholds(period: Period, context: Context, level: int,
                                       message: str) -> None:
-    status = health_status(period, context)
+    status = health_status(period, context, name=NAME, hardware_id='/depth/image_raw')
     assert (status.level, status.message) == (level, message)
 
 
 def test_skip_reasons_are_listed_one_by_one() -> None:
-    values = _values(health_status(_period(skipped=Counter(size=2, encoding=1)), _context()))
+    values = _values(health_status(_period(skipped=Counter(size=2, encoding=1)), _context(),
+                                   name=NAME, hardware_id='f'))
     assert values['skipped: size'] == '2' and values['skipped: encoding'] == '1'
     assert values['skipped (bad input)'] == '3'
 
@@ -94,3 +99,13 @@ def test_window_counts_one_period_then_starts_again() -> None:
     assert period.skipped == {'size': 1} and period.since_last_frame_s == pytest.approx(0.6)
     later = window.take(now=103.0)
     assert later.received == 0 and later.since_last_frame_s == pytest.approx(2.6)
+
+
+def test_the_status_is_named_after_the_node_that_reports_it() -> None:
+    front = health_status(_period(), _context(), name=status_name('/front/obstacle_detector'),
+                          hardware_id='front_depth_optical')
+    rear = health_status(_period(), _context(), name=status_name('/rear/obstacle_detector'),
+                         hardware_id='rear_depth_optical')
+
+    assert front.name == '/front/obstacle_detector: depth obstacle detection'
+    assert rear.name == '/rear/obstacle_detector: depth obstacle detection'

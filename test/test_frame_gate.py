@@ -116,3 +116,14 @@ def test_gate_and_bag_process_load_without_rclpy_or_the_node() -> None:
                           timeout=120, check=False)
     assert done.returncode == 0, done.stderr
     assert done.stdout.split() == ['False', 'False', 'False']
+
+
+def test_a_camera_info_read_from_k_says_so_and_one_read_from_p_does_not() -> None:
+    info = intrinsics_to_camera_info(KINECT_V2_SD, WIDTH, HEIGHT, stamp=STAMP, frame_id='cam')
+    info.p = [360.0, 0.0, 250.0, 0.0, 0.0, 362.0, 209.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+    from_p = frame_gate.CameraState.from_camera_info(info)
+    info.p = [0.0] * 12
+    from_k = frame_gate.CameraState.from_camera_info(info)
+
+    assert from_p.intrinsics == Intrinsics(360.0, 362.0, 250.0, 209.0) and from_p.note is None
+    assert from_k.intrinsics == KINECT_V2_SD and 'P is all zero' in from_k.note

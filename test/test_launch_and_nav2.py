@@ -26,7 +26,7 @@ import yaml
 
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.ros.compressed_depth import TRANSPORT_SUFFIXES
-from obstacle_detection.ros.parameters import NODE_NAME
+from obstacle_detection.ros.parameters import NODE_NAME, PARAMS_FILE_KEY
 from obstacle_detection.sim.scenes import render_scene
 from obstacle_detection.cli import bag_processor
 
@@ -63,7 +63,7 @@ def _node_topics(method: str) -> dict[str, str]:
 
 
 def _corridor() -> dict[str, Any]:
-    return yaml.safe_load(CORRIDOR.read_text(encoding='utf-8'))[NODE_NAME]['ros__parameters']
+    return yaml.safe_load(CORRIDOR.read_text(encoding='utf-8'))[PARAMS_FILE_KEY]['ros__parameters']
 
 
 def _costmap() -> dict[str, Any]:
@@ -92,7 +92,9 @@ def test_launch_arguments_and_their_choices() -> None:
     launch = _launch_module()
     arguments = {name: (default, choices) for name, default, choices, _ in launch.ARGUMENTS}
 
-    assert {'params_file', 'use_tf', 'camera', 'publish_ground'} <= set(arguments)
+    assert {'params_file', 'use_tf', 'camera', 'publish_ground', 'use_sim_time',
+            'namespace'} <= set(arguments)
+    assert arguments['use_sim_time'] == ('false', ['true', 'false'])   # as Nav2's bringup
     assert set(arguments['camera'][1]) == set(launch.CAMERA_PRESETS) == {'kinect2', 'generic'}
     for name, (default, choices) in arguments.items():
         assert choices is None or default in choices, name
@@ -109,7 +111,8 @@ def test_kinect2_default_remaps_the_node_inputs_to_kinect2_bridge() -> None:
     assert sorted(settings['remappings']) == sorted(
         [('depth/image_raw', depth), ('depth/camera_info', info)]
         + [(f'depth/image_raw/{suffix}', f'{depth}/{suffix}') for suffix in TRANSPORT_SUFFIXES])
-    assert settings['parameters'] == ['/opt/share/obstacle_detection/params/corridor.yaml']
+    assert settings['parameters'] == ['/opt/share/obstacle_detection/params/corridor.yaml',
+                                      {'use_sim_time': False}]
     assert (settings['package'], settings['executable'], settings['name'],
             settings['namespace']) == (PACKAGE, 'detector', NODE_NAME, '')
 
@@ -130,13 +133,14 @@ def test_generic_camera_keeps_the_node_names_unless_topics_are_given() -> None:
 
 
 @pytest.mark.parametrize(('values', 'parameters'), [
-    ({}, ['mine.yaml']),
-    ({'use_tf': 'true'}, ['mine.yaml', {'use_tf': True}]),
-    ({'publish_ground': 'true'}, ['mine.yaml', {'publish_ground': True}]),
+    ({}, ['mine.yaml', {'use_sim_time': False}]),
+    ({'use_tf': 'true'}, ['mine.yaml', {'use_sim_time': False, 'use_tf': True}]),
+    ({'publish_ground': 'true'}, ['mine.yaml', {'use_sim_time': False, 'publish_ground': True}]),
     ({'publish_ground': 'false', 'use_tf': 'true'},
-     ['mine.yaml', {'use_tf': True, 'publish_ground': False}]),
+     ['mine.yaml', {'use_sim_time': False, 'use_tf': True, 'publish_ground': False}]),
+    ({'use_sim_time': 'true'}, ['mine.yaml', {'use_sim_time': True}]),
 ])
-def test_use_tf_and_publish_ground_override_the_params_file_only_when_given(
+def test_use_sim_time_is_always_passed_use_tf_and_publish_ground_only_when_given(
         values: dict[str, str], parameters: list) -> None:
     settings = _launch_module().node_settings({'params_file': 'mine.yaml', **values}, '/s')
 
@@ -151,7 +155,7 @@ def test_an_unknown_camera_preset_is_refused_by_name() -> None:
 def test_launch_node_name_is_the_params_files_section() -> None:
     corridor = yaml.safe_load(CORRIDOR.read_text(encoding='utf-8'))
 
-    assert _launch_module().NODE_NAME == NODE_NAME and list(corridor) == [NODE_NAME]
+    assert _launch_module().NODE_NAME == NODE_NAME and list(corridor) == [PARAMS_FILE_KEY]
 
 
 def test_everything_the_launch_file_names_is_installed(prefix: Path) -> None:

@@ -60,6 +60,7 @@ from obstacle_detection.pipeline.params import PRESETS, Intrinsics, table_4_2, t
 from obstacle_detection.pipeline.detector import DetectionResult, Detector
 from obstacle_detection.ros.parameters import (
     ALL_PARAMS,
+    PARAMS_FILE_KEY,
     detector_params_from_ros,
     params_file_problems,
 )
@@ -82,7 +83,7 @@ COMPILE_TIMEOUT_S = 300.0
 
 def _yaml_values(path: Path) -> dict[str, Any]:
     """{name: python value} of a params file, parsed by rclpy as the node's rcl does."""
-    parsed = parameter_dict_from_yaml_file(str(path), target_nodes=['obstacle_detector'])
+    parsed = parameter_dict_from_yaml_file(str(path), target_nodes=[PARAMS_FILE_KEY])
     return {name: parameter_value_to_python(msg.value) for name, msg in parsed.items()}
 
 
@@ -399,6 +400,11 @@ def test_a_burst_of_frames_is_not_queued(detector: NodeUnderTest, scene: SceneFr
                                    REPLY_TIMEOUT_S), detector.log(start)
 
 
+def _projection(fx: float, fy: float, cx: float, cy: float) -> list[float]:
+    """Return a CameraInfo P (3 x 4, row-major) of these intrinsics [px]."""
+    return [fx, 0.0, cx, 0.0, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0]
+
+
 def _bad_cases(scene: SceneFrame) -> list[tuple[str, Image, CameraInfo, str]]:
     good_info = _camera_info(scene)
     height, width = scene.depth_mm.shape
@@ -408,14 +414,14 @@ def _bad_cases(scene: SceneFrame) -> list[tuple[str, Image, CameraInfo, str]]:
     odd.data = bytes(odd.data)[:-1]
     small = array_to_image(scene.depth_mm[::2, ::2].copy(), stamp=Time(),
                            frame_id='depth_optical')
-    zero_focal = _camera_info(scene)
-    zero_focal.k = [0.0] * 9
+    zero_focal = _camera_info(scene)     # an uncalibrated camera: K and P all zero
+    zero_focal.k, zero_focal.p = [0.0] * 9, [0.0] * 12
     nan = array_to_image(np.full((height, width), np.nan, np.float32), stamp=Time(),
                          frame_id='depth_optical')
     huge_focal = _camera_info(scene)
-    huge_focal.k = [1e300, 0.0, 256.0, 0.0, 1e300, 212.0, 0.0, 0.0, 1.0]
+    huge_focal.p = _projection(1e300, 1e300, 256.0, 212.0)     # the intrinsics come from P
     tiny_focal = _camera_info(scene)
-    tiny_focal.k = [1e-300, 0.0, 256.0, 0.0, 1e-300, 212.0, 0.0, 0.0, 1.0]
+    tiny_focal.p = _projection(1e-300, 1e-300, 256.0, 212.0)
     no_size = _camera_info(scene)
     no_size.width = no_size.height = 0
     mm_as_metres = array_to_image(scene.depth_mm.astype(np.float32), stamp=Time(),
@@ -462,7 +468,7 @@ def test_camera_info_is_matched_to_the_frame_by_stamp(
     info = _camera_info(scene)
     info.header.stamp = own
     other = _camera_info(scene)
-    other.k = [300.0, 0.0, 250.0, 0.0, 300.0, 200.0, 0.0, 0.0, 1.0]
+    other.p = _projection(300.0, 300.0, 250.0, 200.0)
     other.header.stamp = newer
     detector.info_pub.publish(info)
     detector.info_pub.publish(other)
@@ -567,7 +573,7 @@ def test_even_median_kernel_is_refused_and_the_old_value_kept(
 
     assert not result.successful
     assert 'median_kernel=4 must be odd' in result.reason
-    assert detector.get_parameter('median_kernel') == 17
+    assert detector.get_parameter('median_kernel') == 5
 
 
 def test_out_of_range_value_is_refused_by_the_descriptor(detector: NodeUnderTest) -> None:
@@ -620,7 +626,7 @@ def test_set_parameters_validates_without_side_effects(local_node: DetectorNode)
     result = local_node.set_parameters([Parameter('median_kernel', value=4)])[0]
 
     assert not result.successful and 'median_kernel=4 must be odd' in result.reason
-    assert local_node.get_parameter('median_kernel').value == 17
+    assert local_node.get_parameter('median_kernel').value == 5
     assert local_node.config is before
 
 
@@ -864,7 +870,7 @@ def test_every_parameter_has_a_description_and_numbers_a_range(
 
 def test_invalid_params_file_stops_the_node_with_the_message(tmp_path: Path) -> None:
     bad = tmp_path / 'bad.yaml'
-    bad.write_text(CORRIDOR_YAML.read_text().replace('median_kernel: 17', 'median_kernel: 4'))
+    bad.write_text(CORRIDOR_YAML.read_text().replace('median_kernel: 5 ', 'median_kernel: 4 '))
     env = ros_env.loopback_env(__name__ + ':bad-file', log_dir=tmp_path / 'ros_log')
 
     done = subprocess.run(_detector_command() + ['--ros-args', '--params-file', str(bad)],
@@ -991,20 +997,35 @@ def test_unreadable_params_file_is_one_clear_line(tmp_path: Path, content: str |
     assert done.stderr.startswith(f'detector: error: {path}: {expected}')
 
 
-@pytest.mark.parametrize('key, applies', [
-    ('obstacle_detector', True), ('/obstacle_detector', True), ('/**', True),
-    ('/**/obstacle_detector', True), ('/*', True), ('detector', False),
-    ('/robot/obstacle_detector', False), ('obstacle_detection', False)])
-def test_params_file_sections_are_matched_as_rcl_does(tmp_path: Path, key: str,
+@pytest.mark.parametrize('key, node_fqn, applies', [
+    ('obstacle_detector', NODE, True), ('/obstacle_detector', NODE, True), ('/**', NODE, True),
+    ('/**/obstacle_detector', NODE, True), ('/*', NODE, True), ('detector', NODE, False),
+    ('/robot/obstacle_detector', NODE, False), ('obstacle_detection', NODE, False),
+    # in a namespace: the shipped files' key still names the node, a bare name no longer does
+    ('/**/obstacle_detector', '/x/obstacle_detector', True), ('/**', '/x/obstacle_detector', True),
+    ('/x/obstacle_detector', '/x/obstacle_detector', True),
+    ('obstacle_detector', '/x/obstacle_detector', False),
+    ('/*', '/x/obstacle_detector', False)])
+def test_params_file_sections_are_matched_as_rcl_does(tmp_path: Path, key: str, node_fqn: str,
                                                       applies: bool) -> None:
     path = tmp_path / 'p.yaml'
     path.write_text(f'{key}:\n  ros__parameters:\n    median_kernel: 5\n')
 
-    problems = params_file_problems(path)
+    problems = params_file_problems(path, node_fqn)
 
     assert problems == ([] if applies else [
-        f"{path}: section '{key}' does not name this node (/obstacle_detector); its 1 "
-        'parameter(s) are ignored (use "obstacle_detector:" or "/**:")'])
+        f"{path}: section '{key}' does not name this node ({node_fqn}); its 1 "
+        'parameter(s) are ignored (use "/**/obstacle_detector:" or "/**:")'])
+
+
+def test_rclpys_own_parameters_in_a_params_file_are_not_unknown(tmp_path: Path) -> None:
+    path = tmp_path / 'p.yaml'
+    path.write_text('/**/obstacle_detector:\n  ros__parameters:\n    use_sim_time: true\n'
+                    '    use_sim_tme: true\n')
+
+    assert params_file_problems(path) == [
+        f"{path}: unknown parameter 'use_sim_tme' is ignored (did you mean 'use_sim_time'?); "
+        '`detector --help` lists the parameters']
 
 
 def test_params_file_problems_name_unknown_parameters(tmp_path: Path) -> None:

@@ -7,14 +7,13 @@ import time
 
 import numpy as np
 import pytest
-from scipy import ndimage
 
 from obstacle_detection.pipeline import geometry, jit, median, normals, parallel, traversal, voxel
 from obstacle_detection.pipeline._compiled import knn as jit_knn
 from obstacle_detection.pipeline._compiled import median as jit_median
 from obstacle_detection.pipeline._compiled import traversal as jit_traversal
 from obstacle_detection.pipeline._compiled import voxel as jit_voxel
-from obstacle_detection.pipeline.depth import decode_depth, depth_lut
+from obstacle_detection.pipeline.depth import decode_depth
 from obstacle_detection.pipeline.detector import Detector
 from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE, corridor
 from obstacle_detection.sim.scenes import render_scene
@@ -124,47 +123,6 @@ def test_pool_threads_are_kept_off_the_callers_cpu() -> None:
 
 
 # ------------------------------------------------------------------------------ the stages
-
-def scipy_median(img, k):
-    return ndimage.median_filter(img, size=k, mode='nearest')
-
-
-@compiled
-@pytest.mark.parametrize('k', [7, 9, 17, 21])
-@pytest.mark.parametrize('threads', [2, 3, 8])
-def test_banded_median_equals_scipy(k, threads) -> None:
-    rng = np.random.default_rng(k + threads)
-    for shape in ((40, 45), (17, 70), (3, 33), (61, 9)):
-        img = rng.integers(0, 5000, shape).astype(np.uint16)
-        img[:, : shape[1] // 3] = 0                       # a block of no return
-        np.testing.assert_array_equal(median.median_filter(img, k, threads=threads),
-                                      scipy_median(img, k))
-
-
-@compiled
-def test_banded_median_of_a_frame_equals_one_thread() -> None:
-    frame = render_scene('person_walking', seed=2, intrinsics=KINECT_V2_SD,
-                         size=KINECT_V2_SD_SIZE, frame_index=4).depth_mm
-    one = median.median_filter(frame, 17, threads=1)
-    for threads in (2, 4):
-        np.testing.assert_array_equal(median.median_filter(frame, 17, threads=threads), one)
-    metres = decode_depth(frame)
-    np.testing.assert_array_equal(median.median_filter(metres, 17, threads=2),
-                                  median.median_filter(metres, 17))
-
-
-@pytest.mark.parametrize('k', [3, 5, 7, 17])
-def test_median_of_codes_is_the_median_of_the_decoded_depth(k) -> None:
-    rng = np.random.default_rng(k)
-    codes = rng.integers(0, 9000, (30, 37)).astype(np.uint16)
-    codes[rng.random(codes.shape) < 0.3] = 0
-    for scale in (1000.0, 5000.0, 3.0):
-        table = depth_lut(scale)
-        expected = scipy_median(table[codes], k)
-        got = median.median_of_codes(codes, k, table, threads=2)
-        assert got.dtype == np.float32
-        np.testing.assert_array_equal(got, expected)
-
 
 def _cloud(rng, n):
     """Return a floor, a wall and a cube of 5 cm grid points (exact ties), and duplicates."""
@@ -405,19 +363,6 @@ def test_knn_and_normals_in_one_pass_equal_the_two_stages() -> None:
         jit_knn.knn_and_normals(bad, 13, 10, parts=2)
 
 
-@pytest.mark.parametrize('k', [3, 7, 17])
-@pytest.mark.parametrize('threads', [1, 2])
-def test_median_and_decode_gives_the_median_and_the_raw_depth(k, threads) -> None:
-    rng = np.random.default_rng(k)
-    codes = rng.integers(0, 9000, (45, 70)).astype(np.uint16)
-    codes[rng.random(codes.shape) < 0.2] = 0
-    table = depth_lut(1000.0)
-    filtered, raw = median.median_and_decode(codes, k, table, threads)
-    np.testing.assert_array_equal(filtered, scipy_median(table[codes], k))
-    np.testing.assert_array_equal(raw, table[codes])
-    assert filtered.dtype == raw.dtype == np.float32
-
-
 def test_threaded_detector_refuses_what_the_decode_refuses() -> None:
     detector = Detector(corridor(compute_threads=2))
     depth = np.full((40, 50), 1500, np.uint16)
@@ -440,7 +385,6 @@ def _compiled_signatures() -> dict:
     found = {}
     modules = (jit_median, jit_knn, jit_traversal, jit_voxel, jit_costmap, _compiled)
     kernels = [getattr(m, name) for m in modules for name in dir(m)]
-    kernels += list(jit_median._REGISTER_KERNELS.values())
     for kernel in kernels:
         if hasattr(kernel, 'signatures') and hasattr(kernel, 'py_func'):
             found[kernel] = len(kernel.signatures)

@@ -9,8 +9,8 @@ from obstacle_detection.pipeline.params import (SEED_TABLE_4_1, DetectorParams, 
                                                 corridor, table_4_2, table_4_3)
 
 
-def test_defaults_are_seed_table_4_2():
-    p = DetectorParams(robot_level=False, refine_floor=False)
+def test_defaults_are_seed_table_4_2_but_the_median():
+    p = DetectorParams(robot_level=False, refine_floor=False, median_kernel=17)
     assert p == table_4_2()
     assert p.max_slope_rad == pytest.approx(math.pi / 6)
     assert (p.validation_neighbours, p.normal_neighbours) == (12, 10)
@@ -84,8 +84,9 @@ def test_navigation_default_is_table_4_2_with_the_robot_level_rules():
     assert p == corridor()
     assert p.robot_level and p.refine_floor
     assert (p.max_step_height_m, p.max_step_down_m, p.robot_height_m) == (0.05, 0.05, 1.0)
+    assert (p.median_kernel, table_4_2().median_kernel) == (5, 17)
     seed_fields = {f.name for f in dataclasses.fields(DetectorParams)} - {
-        'robot_level', 'refine_floor'}
+        'robot_level', 'refine_floor', 'median_kernel'}
     assert all(getattr(p, name) == getattr(table_4_2(), name) for name in seed_fields)
     assert not table_4_2().robot_level and not table_4_3().robot_level
     assert not table_4_2().refine_floor and not table_4_3().refine_floor

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -11,9 +12,12 @@ from obstacle_detection.ros.parameters import (
     FRAME_VOXELS_BOUND,
     MAX_COSTMAP_CELLS,
     MAX_NEIGHBOUR_ENTRIES,
+    ParamsFileError,
     budget_problem,
     detector_params_from_ros,
+    params_file_reason,
     pipeline_params_to_ros,
+    read_params_file,
 )
 
 
@@ -75,3 +79,69 @@ def test_millimetre_voxels_over_a_long_range_are_refused() -> None:
 def test_a_log_line_every_microsecond_is_refused() -> None:
     problem = budget_problem(_values(stats_period_s=1e-6))
     assert problem is not None and 'stats_period_s=1e-06' in problem
+
+
+@pytest.mark.parametrize('key', ['/**/obstacle_detector', 'obstacle_detector', '/**'])
+def test_the_tools_read_a_section_that_names_the_node(tmp_path: Path, key: str) -> None:
+    path = tmp_path / 'p.yaml'
+    path.write_text(f'{key}:\n  ros__parameters:\n    median_kernel: 5\n'
+                    '    use_sim_time: true\n')
+
+    assert read_params_file(path) == {'median_kernel': 5}    # rclpy's use_sim_time: skipped
+
+
+def test_sections_apply_in_file_order_as_rclpy_applies_them(tmp_path: Path) -> None:
+    # rclpy 7.1 (Jazzy) gives a node every section naming it in file order, the later value
+    # replacing the earlier, wildcard or not (test_node_plumbing checks it against a node)
+    path = tmp_path / 'p.yaml'
+    path.write_text('obstacle_detector:\n  ros__parameters:\n    median_kernel: 7\n'
+                    '/**:\n  ros__parameters:\n    median_kernel: 5\n    max_range_m: 3.0\n')
+
+    assert read_params_file(path) == {'median_kernel': 5, 'max_range_m': 3.0}
+
+
+def test_a_file_for_another_node_is_refused_by_the_tools(tmp_path: Path) -> None:
+    path = tmp_path / 'p.yaml'
+    path.write_text('/robot/obstacle_detector:\n  ros__parameters:\n    median_kernel: 5\n')
+
+    with pytest.raises(ParamsFileError, match='no section naming the node'):
+        read_params_file(path)
+
+
+def test_every_kind_of_section_applies_in_file_order(tmp_path: Path) -> None:
+    path = tmp_path / 'p.yaml'
+    path.write_text('/**:\n  ros__parameters:\n    median_kernel: 5\n    max_range_m: 3.0\n'
+                    '    lateral_limit_m: 1.0\n'
+                    '/**/obstacle_detector:\n  ros__parameters:\n    median_kernel: 9\n'
+                    '    max_range_m: 2.5\n'
+                    'obstacle_detector:\n  ros__parameters:\n    median_kernel: 7\n')
+
+    assert read_params_file(path) == {'median_kernel': 7, 'max_range_m': 2.5,
+                                      'lateral_limit_m': 1.0}
+
+
+def test_a_typo_is_refused_by_the_tools_with_the_nearest_name(tmp_path: Path) -> None:
+    path = tmp_path / 'p.yaml'
+    path.write_text('/**/obstacle_detector:\n  ros__parameters:\n    max_rnge_m: 3.0\n')
+
+    with pytest.raises(ParamsFileError, match="'max_rnge_m' .*did you mean 'max_range_m'"):
+        read_params_file(path)
+
+
+def test_an_integer_for_a_float_says_how_to_write_it(tmp_path: Path) -> None:
+    path = tmp_path / 'p.yaml'
+    path.write_text('/**/obstacle_detector:\n  ros__parameters:\n    max_range_m: 3\n')
+
+    with pytest.raises(ParamsFileError, match=r"'max_range_m' must be a float, got 3: write 3\.0"):
+        read_params_file(path)
+
+
+def test_a_refused_start_names_the_file_and_the_value(tmp_path: Path) -> None:
+    good, bad = tmp_path / 'good.yaml', tmp_path / 'bad.yaml'
+    good.write_text('/**/obstacle_detector:\n  ros__parameters:\n    max_range_m: 3.0\n'
+                    '    no_such_thing: 1\n')   # unknown names are warned about, not the cause
+    bad.write_text('/**/obstacle_detector:\n  ros__parameters:\n    max_range_m: 0.0\n')
+
+    assert params_file_reason([str(good)]) is None
+    reason = params_file_reason([str(good), str(bad)])
+    assert reason == f'{bad}: max_range_m=0.0 out of range: must be in (0, 20]'

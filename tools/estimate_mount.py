@@ -29,14 +29,14 @@ from obstacle_detection.pipeline.depth import decode_depth
 from obstacle_detection.pipeline.mount import MountEstimate, estimate_mount
 from obstacle_detection.pipeline.params import Intrinsics
 from obstacle_detection.viz.pictures import read_depth_png
-from obstacle_detection.ros.parameters import NODE_NAME
+from obstacle_detection.ros.parameters import PARAMS_FILE_KEY
 
 
-def params_yaml(estimate: MountEstimate, node_name: str = NODE_NAME) -> str:
+def params_yaml(estimate: MountEstimate, node_key: str = PARAMS_FILE_KEY) -> str:
     """Node parameter file fragment holding the mount (angles in degrees, as the node's)."""
     return (f'# camera mount from the floor plane ({estimate.inlier_fraction:.0%} of the points '
             f'on it), tools/estimate_mount.py\n'
-            f'{node_name}:\n'
+            f'{node_key}:\n'
             f'  ros__parameters:\n'
             f'    camera_height_m: {estimate.height_m:.4f}\n'
             f'    camera_pitch_deg: {estimate.pitch_deg:.3f}\n'

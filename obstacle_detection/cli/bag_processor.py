@@ -266,6 +266,9 @@ def process_bag(src: Path, output: Path, config: NodeConfig, *,
                         if conn.topic == info_topic:
                             camera = CameraState.from_camera_info(
                                 deserialize_message(bytes(raw), CameraInfo))
+                            said = f'CameraInfo on {info_topic}: {camera.note}'
+                            if camera.note is not None and said not in summary.notes:
+                                summary.notes.append(said)
                             continue
                         if conn.topic != depth_topic:
                             continue

@@ -21,9 +21,9 @@ from . import geometry, median, parallel, traversal, voxel
 from . import costmap as costmap_stage   # a frame's local `costmap` is its grid
 from . import normals as normals_stage   # a frame's local `normals` are vectors
 from .costmap import Costmap, build_costmap
-from .depth import check_image, crop_borders, decode_depth, depth_lut, units_per_metre
+from .depth import crop_borders, decode_depth, depth_lut, units_per_metre
 from .floor import FloorFit, fit_floor, sample_rays
-from .median import median_and_decode, median_filter, median_of_codes
+from .median import median_filter, median_of_codes
 from .normals import estimate_normals, nearest_neighbours, slope_obstacles, validate_obstacles
 from .params import SEED_TABLE_4_1, DetectorParams, Intrinsics
 
@@ -108,11 +108,11 @@ class Detector:
     def warm_up(self) -> float:
         """Compile (or load from numba's disk cache) the optional JIT kernels; return seconds.
 
-        The median kernel is prepared for this detector's K. Without numba it does nothing.
-        Call it before the first frame (the node does at start-up) so no frame pays for it.
+        Without numba it does nothing. Call it before the first frame (the node does at
+        start-up) so no frame pays for it.
         """
         start = time.perf_counter()
-        median.warm_up(self.params.median_kernel)
+        median.warm_up()
         normals_stage.warm_up()
         voxel.warm_up()
         traversal.warm_up()
@@ -145,34 +145,22 @@ class Detector:
         clock = _Clock()
         if p.compute_threads > 1:
             parallel.wake(p.compute_threads)   # the helpers wake while the frame is decoded
-        # uint16 input: the median runs on its codes (the same result, see median_of_codes);
-        # on several threads, the threads that filter a band also decode its raw depth
+        # uint16 input: the median runs on its codes (the same result, see median_of_codes)
         codes = _uint16_codes(depth) if p.median_kernel > 1 else None
         crop = (p.crop_top_px, p.crop_bottom_px, p.crop_left_px, p.crop_right_px)
-        if codes is not None and p.compute_threads > 1:
-            check_image(codes, 'depth image')
-            table = depth_lut(units_per_metre(depth_scale))
-            clock.lap('decode')     # in the median's bands
-            if any(crop):
-                codes = crop_borders(codes, *crop)
-            clock.lap('crop')
-            depth_m, raw_m = median_and_decode(codes, p.median_kernel, table,
-                                               p.compute_threads)
-        else:
-            depth_m = decode_depth(depth, depth_scale=depth_scale)
-            clock.lap('decode')
-            if any(crop):
-                depth_m = crop_borders(depth_m, *crop)
-                if codes is not None:
-                    codes = crop_borders(codes, *crop)
-            clock.lap('crop')
-            raw_m = depth_m
+        depth_m = decode_depth(depth, depth_scale=depth_scale)
+        clock.lap('decode')
+        if any(crop):
+            depth_m = crop_borders(depth_m, *crop)
             if codes is not None:
-                depth_m = median_of_codes(codes, p.median_kernel,
-                                          depth_lut(units_per_metre(depth_scale)),
-                                          p.compute_threads)
-            elif p.median_kernel > 1:
-                depth_m = median_filter(depth_m, p.median_kernel, p.compute_threads)
+                codes = crop_borders(codes, *crop)
+        clock.lap('crop')
+        raw_m = depth_m
+        if codes is not None:
+            depth_m = median_of_codes(codes, p.median_kernel,
+                                      depth_lut(units_per_metre(depth_scale)), p.compute_threads)
+        elif p.median_kernel > 1:
+            depth_m = median_filter(depth_m, p.median_kernel, p.compute_threads)
         clock.lap('median')
         if p.robot_level and p.median_kernel > 1:
             # raw depth looked up from uint16 codes in the table holds no NaN

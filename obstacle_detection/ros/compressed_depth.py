@@ -16,6 +16,11 @@ releases wrote ``<encoding>; compressedDepth`` or only ``<encoding>``)
     ``A = z0 (z0 + 1)``, ``B = 1 - A / depth_max``, z0 = ``depth_quantization`` (100 by
     default); decoding gives ``d' = A / (q - B)`` in float32 and NaN where q = 0, so
     ``0 <= d' - d < d^2 / (A - d)`` (2 mm at 4.5 m with the defaults).
+``<encoding>; compressedDepth rvl`` (image_transport_plugins 4.0, Jazzy: the publisher's
+``format`` parameter set to ``rvl``)
+    the same 12-byte ``ConfigHeader`` (and the same pixels: millimetres, or the quantised
+    inverse depth of a 32FC1 image), then the image width and height (uint32 little-endian)
+    and the pixels coded by RVL (:mod:`.rvl`), lossless.
 ``16UC1; compressedDepth`` (iai_kinect2's ``.../compressed`` depth topics)
     the same header (quantisation fields uninitialised) followed by a PNG or, with the
     bridge's default ``use_png: false``, a TIFF of the millimetres.
@@ -24,21 +29,22 @@ releases wrote ``<encoding>; compressedDepth`` or only ``<encoding>``)
     the PNG or TIFF alone, without the header.
 
 Which of the last two is on the wire is told by the magic bytes (PNG or TIFF signature at
-byte 0, or at byte 12 after a header), not by the format string. ``compressedDepth rvl`` (the
-RVL codec) and lossy formats (JPEG) are refused by name.
+byte 0, or at byte 12 after a header), not by the format string. Lossy formats (JPEG) are
+refused by name.
 """
 
 from __future__ import annotations
 
 import struct
 import zlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import cv2
 import numpy as np
 from sensor_msgs.msg import CompressedImage
 from std_msgs.msg import Header
 
+from . import rvl
 from .conversions import DEPTH_ENCODINGS, ImageFormatError, image_to_array
 
 if TYPE_CHECKING:
@@ -63,6 +69,13 @@ DEPTH_QUANTIZATION_RANGE = (1.0, 150.0)
 #: Topic suffixes image_transport adds to a raw topic for the compressed transports.
 TRANSPORT_SUFFIXES = ('compressedDepth', 'compressed')
 COMPRESSED_IMAGE_TYPE = 'sensor_msgs/msg/CompressedImage'
+
+#: RVL data after the ConfigHeader: width, height (uint32 little-endian), then the stream.
+RVL_SIZE = struct.Struct('<II')
+#: The most pixels an RVL image may announce (4096 x 4096): a depth camera has fewer, and a
+#: corrupt size must not make the decoder allocate gigabytes. (An all-zero image of any size
+#: codes to 4 bytes, so its data length bounds nothing.)
+MAX_RVL_PIXELS = 4096 * 4096
 
 #: Error kinds of CompressedDepthError.
 ERROR_KINDS = ('format', 'header', 'corrupt', 'size')
@@ -108,13 +121,22 @@ def raw_topic(topic: str) -> str:
     return parent if last in TRANSPORT_SUFFIXES and parent else topic
 
 
-def parse_format(fmt: str) -> tuple[str, bool]:
-    """Read a CompressedImage ``format``: ``(depth encoding, whether it names compressedDepth)``.
+class DepthFormat(NamedTuple):
+    """A compressed depth ``format`` read: its encoding, and which codec it names."""
+
+    encoding: str          #: '16UC1', 'mono16' or '32FC1'
+    compressed_depth: bool  #: names compressedDepth (or is an older, bare format)
+    rvl: bool = False      #: ``compressedDepth rvl``
+
+
+def parse_format(fmt: str) -> DepthFormat:
+    """Read a CompressedImage ``format``: ``(depth encoding, names compressedDepth, is RVL)``.
 
     Accepted: ``<enc>``, ``<enc>; compressedDepth``, ``<enc>; compressedDepth png``,
-    ``<enc>; png compressed ...`` and ``<enc>; tiff compressed ...`` with <enc> one of
-    ``16UC1``, ``mono16``, ``32FC1``. Raises CompressedDepthError (kind ``'format'``) naming
-    the format otherwise: another encoding (a colour image), ``compressedDepth rvl``, JPEG.
+    ``<enc>; compressedDepth rvl``, ``<enc>; png compressed ...`` and ``<enc>; tiff
+    compressed ...`` with <enc> one of ``16UC1``, ``mono16``, ``32FC1``. Raises
+    CompressedDepthError (kind ``'format'``) naming the format otherwise: another encoding (a
+    colour image), JPEG, an unknown codec.
     """
     text = str(fmt)
     encoding, sep, rest = text.partition(';')
@@ -124,19 +146,17 @@ def parse_format(fmt: str) -> tuple[str, bool]:
             'format', f'unknown compressed depth format {text!r}: the part before ";" must be '
             f'a depth encoding ({", ".join(DEPTH_ENCODINGS)}), got {encoding!r}')
     if not sep or rest in ('', 'compressedDepth'):
-        return encoding, True  # older compressedDepth releases, iai_kinect2
+        return DepthFormat(encoding, True)  # older compressedDepth releases, iai_kinect2
     words = rest.split()
     if words[0] == 'compressedDepth':
         if words[1:] == ['png']:
-            return encoding, True
-        if words[1:2] == ['rvl']:
-            raise CompressedDepthError(
-                'format', f'compressed depth format {text!r}: RVL is not supported; set the '
-                "publisher's compressedDepth format parameter to png")
+            return DepthFormat(encoding, True)
+        if words[1:] == ['rvl']:
+            return DepthFormat(encoding, True, rvl=True)
         raise CompressedDepthError('format', f'unknown compressed depth format {text!r}: '
-                                             'compressedDepth names no png compression')
+                                             'compressedDepth names neither png nor rvl')
     if words[0] in ('png', 'tiff', 'tif') and words[1:2] == ['compressed']:
-        return encoding, False
+        return DepthFormat(encoding, False)
     if words[0] in ('jpeg', 'jpg'):
         raise CompressedDepthError('format', f'compressed depth format {text!r}: JPEG is '
                                              'lossy and cannot carry depth')
@@ -218,6 +238,42 @@ def _decode_image(payload: bytes, container: str) -> np.ndarray:
     return image
 
 
+def _config_header(data: bytes, after: int, what: str) -> tuple[float, float]:
+    """Read the ConfigHeader at the start of ``data``: (depthQuantA, depthQuantB).
+
+    ``after``: the bytes that must follow it at least, ``what`` they are (for the message).
+    """
+    if len(data) < CONFIG_HEADER_SIZE + after:
+        raise CompressedDepthError(
+            'header', f'compressed depth data has {len(data)} bytes: too short for the '
+            f'{CONFIG_HEADER_SIZE}-byte ConfigHeader and {what}')
+    fmt_code, quant_a, quant_b = CONFIG_HEADER.unpack_from(data, 0)
+    if fmt_code != INV_DEPTH:
+        raise CompressedDepthError(
+            'header', f'bad ConfigHeader: compression format {fmt_code}, expected '
+            f'{INV_DEPTH} (INV_DEPTH); the data is not compressedDepth (first bytes '
+            f'{data[:CONFIG_HEADER_SIZE].hex()})')
+    return quant_a, quant_b
+
+
+def _decode_rvl(payload: bytes, expected_shape: tuple[int, int] | None) -> np.ndarray:
+    """Decode the RVL part of compressedDepth (width, height, stream) into (H, W) uint16."""
+    width, height = RVL_SIZE.unpack_from(payload, 0)
+    if width == 0 or height == 0 or width * height > MAX_RVL_PIXELS:
+        raise CompressedDepthError(
+            'corrupt', f'RVL image announces {width}x{height} pixels: '
+            + ('empty' if width * height == 0 else f'more than {MAX_RVL_PIXELS:,}'))
+    if expected_shape is not None and (height, width) != tuple(expected_shape):
+        raise CompressedDepthError(
+            'size', f'compressed depth image is {width}x{height} but {expected_shape[1]}x'
+            f'{expected_shape[0]} was expected (the CameraInfo size)')
+    try:
+        pixels = rvl.decode_rvl(payload[RVL_SIZE.size:], width * height)
+    except rvl.RvlError as error:
+        raise CompressedDepthError('corrupt', f'{error} ({width}x{height} image)') from error
+    return pixels.reshape(height, width)
+
+
 def compressed_depth_to_array(msg: Any, *,
                               expected_shape: tuple[int, int] | None = None) -> np.ndarray:
     """Decode a compressed depth CompressedImage into the array the raw Image would give.
@@ -233,29 +289,23 @@ def compressed_depth_to_array(msg: Any, *,
     format string), 'header' (data too short for the ConfigHeader and an image, a header
     naming another compression, quantisation parameters that cannot invert, a 32FC1 image
     without them), 'corrupt' (no PNG/TIFF where one must start, a truncated or damaged image,
-    not one channel of 16 bits), 'size' (not ``expected_shape``).
+    not one channel of 16 bits; an RVL image of no or too many pixels, or whose stream is not
+    one of that size, see :mod:`.rvl`), 'size' (not ``expected_shape``).
     """
-    encoding, _ = parse_format(msg.format)
+    encoding, _, is_rvl = parse_format(msg.format)
     data = _byte_string(msg.data)
-    container = _container(data, 0)
+    container = None if is_rvl else _container(data, 0)
     quant: tuple[float, float] | None = None
-    if container is None:
-        if len(data) <= CONFIG_HEADER_SIZE:
-            raise CompressedDepthError(
-                'header', f'compressed depth data has {len(data)} bytes: too short for the '
-                f'{CONFIG_HEADER_SIZE}-byte ConfigHeader and an image')
-        fmt_code, quant_a, quant_b = CONFIG_HEADER.unpack_from(data, 0)
-        if fmt_code != INV_DEPTH:
-            raise CompressedDepthError(
-                'header', f'bad ConfigHeader: compression format {fmt_code}, expected '
-                f'{INV_DEPTH} (INV_DEPTH); the data is not compressedDepth (first bytes '
-                f'{data[:CONFIG_HEADER_SIZE].hex()})')
+    if is_rvl:
+        quant = _config_header(data, RVL_SIZE.size, 'the RVL image size and data')
+        payload = data[CONFIG_HEADER_SIZE:]
+    elif container is None:
+        quant = _config_header(data, 1, 'an image')
         container = _container(data, CONFIG_HEADER_SIZE)
         if container is None:
             raise CompressedDepthError(
                 'corrupt', f'no PNG or TIFF after the {CONFIG_HEADER_SIZE}-byte ConfigHeader '
                 f'(it starts with {data[CONFIG_HEADER_SIZE:CONFIG_HEADER_SIZE + 8].hex()})')
-        quant = (quant_a, quant_b)
         payload = data[CONFIG_HEADER_SIZE:]
     else:
         payload = data
@@ -269,7 +319,8 @@ def compressed_depth_to_array(msg: Any, *,
             raise CompressedDepthError(
                 'header', f'bad ConfigHeader: depthQuantA={quant_a:g}, depthQuantB={quant_b:g} '
                 'cannot invert the 32FC1 depth (A must be finite and positive)')
-    image = _decode_image(payload, container)
+    image = (_decode_rvl(payload, expected_shape) if is_rvl
+             else _decode_image(payload, container))
     if expected_shape is not None and image.shape != tuple(expected_shape):
         height, width = expected_shape
         raise CompressedDepthError(

@@ -164,12 +164,35 @@ def array_to_image(array: np.ndarray, *, stamp: Time, frame_id: str,
         is_bigendian=0, step=width * channels * base.itemsize, data=little.tobytes())
 
 
-def camera_info_to_intrinsics(msg: Any) -> Intrinsics:
-    """Pinhole intrinsics from a CameraInfo's K matrix (row-major 3 x 3) [px].
+#: Why a CameraInfo's intrinsics come from K: its P is all zero.
+K_FALLBACK_NOTE = ('P is all zero (a driver that fills only K): intrinsics from K, which '
+                   'describe the unrectified image')
 
-    fx = K[0], fy = K[4], cx = K[2], cy = K[5]. Raises ValueError (naming the values) for an
-    uncalibrated camera (zero focal length) or non-finite entries.
+
+def intrinsics_come_from_k(msg: Any) -> bool:
+    """Whether :func:`camera_info_to_intrinsics` reads K: the CameraInfo's P is all zero."""
+    p = np.asarray(msg.p, dtype=np.float64).reshape(-1)
+    return not np.any(p)
+
+
+def camera_info_to_intrinsics(msg: Any) -> Intrinsics:
+    """Pinhole intrinsics from a CameraInfo's P, the rectified image's matrix [px].
+
+    fx = P[0], fy = P[5], cx = P[2], cy = P[6] (P row-major 3 x 4), as image_geometry's
+    PinholeCameraModel and depth_image_proc back-project a (rectified) depth image. Only when P
+    is all zero (a driver that fills only K) they come from K: fx = K[0], fy = K[4],
+    cx = K[2], cy = K[5] (:func:`intrinsics_come_from_k`; the caller says so). Raises
+    ValueError (naming the matrix and values) for an uncalibrated camera (zero focal length)
+    or non-finite entries.
     """
+    p = np.asarray(msg.p, dtype=np.float64).reshape(-1)
+    if p.size != 12:
+        raise ValueError(f'CameraInfo P has {p.size} entries, expected 12')
+    if np.any(p):
+        try:
+            return Intrinsics(fx=float(p[0]), fy=float(p[5]), cx=float(p[2]), cy=float(p[6]))
+        except ValueError as error:
+            raise ValueError(f'CameraInfo P is not a usable pinhole model: {error}') from error
     k = np.asarray(msg.k, dtype=np.float64).reshape(-1)
     if k.size != 9:
         raise ValueError(f'CameraInfo K has {k.size} entries, expected 9')

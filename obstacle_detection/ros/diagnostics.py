@@ -28,7 +28,8 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 NO_FRAME_ERROR_S = 2.0
 SKIPPED_ERROR_SHARE = 0.5
 DROPPED_WARN_SHARE = 0.2
-STATUS_NAME = 'obstacle_detector: depth obstacle detection'
+#: What the status is about, after the node's name (diagnostic_updater's "node: task" form).
+STATUS_TASK = 'depth obstacle detection'
 
 OK, WARN, ERROR = DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR
 
@@ -136,8 +137,23 @@ def _level_and_message(period: Period, ctx: Context) -> tuple[int, str]:
     return OK, f'{period.processed / period.seconds:.1f} frames/s processed'
 
 
-def health_status(period: Period, ctx: Context, *, hardware_id: str = '') -> DiagnosticStatus:
-    """Return the DiagnosticStatus of one period: level, one-line message, key/values."""
+def status_name(node_fqn: str) -> str:
+    """Return the status name of a node: its fully qualified name and the task.
+
+    Two detectors (two cameras) in two namespaces report under two names, e.g.
+    ``/front/obstacle_detector: depth obstacle detection``.
+    """
+    return f'{node_fqn}: {STATUS_TASK}'
+
+
+def health_status(period: Period, ctx: Context, *, name: str,
+                  hardware_id: str) -> DiagnosticStatus:
+    """Return the DiagnosticStatus of one period: level, one-line message, key/values.
+
+    name: :func:`status_name` of the node. hardware_id: what the status is about, the depth
+    frames' frame_id once one is known (rqt_robot_monitor and the aggregator want it
+    non-empty).
+    """
     level, message = _level_and_message(period, ctx)
     times = sorted(period.times_ms)
     values = {
@@ -158,7 +174,7 @@ def health_status(period: Period, ctx: Context, *, hardware_id: str = '') -> Dia
         values[f'skipped: {reason}'] = str(count)
     if ctx.floor_correction:
         values['floor correction'] = ctx.floor_correction
-    return DiagnosticStatus(level=level, name=STATUS_NAME, message=message,
+    return DiagnosticStatus(level=level, name=name, message=message,
                             hardware_id=hardware_id,
                             values=[KeyValue(key=k, value=v) for k, v in values.items()])
 

@@ -28,8 +28,9 @@ import numpy as np
 from obstacle_detection.pipeline.params import Intrinsics
 
 from .compressed_depth import compressed_depth_to_array, is_compressed_image
-from .conversions import (DEPTH_ENCODINGS, ImageFormatError, camera_info_to_intrinsics,
-                          depth_problem, depth_sample, image_to_array, intrinsics_problem)
+from .conversions import (DEPTH_ENCODINGS, K_FALLBACK_NOTE, ImageFormatError,
+                          camera_info_to_intrinsics, depth_problem, depth_sample, image_to_array,
+                          intrinsics_come_from_k, intrinsics_problem)
 
 
 @dataclass(frozen=True)
@@ -42,25 +43,33 @@ class Skip:
 
 @dataclass(frozen=True)
 class CameraState:
-    """One CameraInfo: its stamp, image size and intrinsics, or why it is unusable."""
+    """One CameraInfo: its stamp, image size and intrinsics, or why it is unusable.
+
+    ``note`` says something the user should know about a usable one (its intrinsics come from
+    K, P being all zero), None otherwise.
+    """
 
     width: int
     height: int
     intrinsics: Intrinsics | None
     error: str | None
     stamp_ns: int = 0
+    note: str | None = None
 
     @classmethod
     def from_camera_info(cls, msg: Any) -> CameraState:
-        """Read a sensor_msgs/CameraInfo: K as intrinsics, refused when implausible."""
+        """Read a sensor_msgs/CameraInfo: P (else K) as intrinsics, refused when implausible."""
         width, height = int(msg.width), int(msg.height)
+        note = None
         try:
             intrinsics, error = camera_info_to_intrinsics(msg), None
             error = intrinsics_problem(intrinsics, width, height)
+            if error is None and intrinsics_come_from_k(msg):
+                note = K_FALLBACK_NOTE
         except ValueError as exc:
             intrinsics, error = None, str(exc)
         return cls(width, height, intrinsics if error is None else None, error,
-                   stamp_ns(msg.header.stamp))
+                   stamp_ns(msg.header.stamp), note)
 
     def same_camera(self, other: CameraState) -> bool:
         """Whether two CameraInfos describe the same camera (size, intrinsics, error)."""

@@ -2,15 +2,24 @@
 
 Run: ``ros2 run obstacle_detection detector --ros-args --params-file params/corridor.yaml``.
 
-Topics (relative names, remappable):
+Topics (relative names, remappable; :func:`help_text` lists them all):
 
-- in  ``depth/image_raw`` (sensor_msgs/Image, 16UC1 [mm] or 32FC1 [m]) and
-  ``depth/camera_info`` (sensor_msgs/CameraInfo, intrinsics from K); sensor-data QoS (best
-  effort), reliable when ``reliable_input`` is true.
+- in  ``depth/image_raw`` (sensor_msgs/Image, 16UC1 [mm] or 32FC1 [m]; or a CompressedImage
+  on ``.../compressedDepth`` or ``.../compressed`` by ``depth_transport``): sensor-data QoS
+  (best effort), reliable when ``reliable_input`` is true.
+- in  ``depth/camera_info`` (sensor_msgs/CameraInfo, intrinsics from P): as the depth; once a
+  transient-local publisher shows up (a camera that publishes one CameraInfo, latched), a
+  second, transient-local subscription receives it; what both deliver is kept once.
+- in  ``odom`` (nav_msgs/Odometry, ``odom_topic``), only if ``fuse``: best effort, so
+  reliable and best-effort publishers both connect.
 - out (reliable): ``obstacles/points`` (PointCloud2 x, y, z float32 in ``cloud_frame_id``),
-  ``obstacles/costmap`` (OccupancyGrid in the z = 0 plane of ``costmap_frame_id``),
-  ``obstacles/ground_points`` (if ``publish_ground``), ``obstacles/overlay`` (rgb8 Image in the
-  input's frame, if ``publish_overlay``) and ``~/processing_time_ms`` (std_msgs/Float64).
+  ``obstacles/costmap`` (OccupancyGrid in the z = 0 plane of ``costmap_frame_id``; transient
+  local, depth 1, so a late RViz gets the last grid), ``obstacles/ground_points`` (only if
+  ``publish_ground``), ``obstacles/overlay`` (rgb8 Image in the input's frame, only if
+  ``publish_overlay``), ``obstacles/fused_costmap`` (OccupancyGrid in ``odom_frame``, only if
+  ``fuse``; transient local, depth 1), ``~/processing_time_ms`` (std_msgs/Float64),
+  ``~/status`` (latched) and ``/diagnostics``. The switches are read at start-up (read-only):
+  what is off is neither advertised nor subscribed.
 
 The default output frame ``base_footprint`` is the pipeline's ground frame: x forward, y left,
 z up, origin on the ground right under the camera (a robot whose base_footprint is elsewhere
@@ -38,6 +47,8 @@ import rclpy.logging
 import rclpy.utilities
 from nav_msgs.msg import OccupancyGrid, Odometry
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.clock import Clock, ClockType
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
@@ -59,19 +70,19 @@ from .conversions import (
     costmap_to_occupancy_grid,
     result_to_messages,
 )
-from . import frame_gate
+from . import frame_gate, rvl
 from .config import DEPTH_TRANSPORT_TOPICS, NodeConfig, build_config
 from .diagnostics import Context as DiagnosticsContext
 from .frame_gate import CameraState as _CameraState
 from .frame_gate import stamp_ns as _stamp_ns
 from obstacle_detection.viz.overlay import render_overlay
-from .diagnostics import HealthWindow, diagnostic_array, health_status
+from .diagnostics import HealthWindow, diagnostic_array, health_status, status_name
 from obstacle_detection.pipeline.fusion import FusedGrid, PoseBuffer
 from obstacle_detection.pipeline.geometry import yaw_from_quaternion
 from .mount_source import Mount, MountSource
 from obstacle_detection.pipeline.params import Intrinsics
-from .parameters import (ALL_PARAMS, NODE_NAME, params_file_problems,
-                         params_files_in_args)
+from .parameters import (ALL_PARAMS, NODE_NAME, PARAMS_FILE_KEY, params_file_problems,
+                         params_file_reason, params_files_in_args)
 
 #: Minimum interval between two warnings about the same kind of bad input [s].
 WARN_THROTTLE_S = 5.0
@@ -91,9 +102,17 @@ DIAGNOSTICS_PERIOD_S = 1.0
 #: depth_transport -> (message type, topic): image_transport's names for the depth stream.
 DEPTH_TRANSPORTS = {name: (Image if name == 'raw' else CompressedImage, topic)
                     for name, topic in DEPTH_TRANSPORT_TOPICS.items()}
-#: Odometry: reliable, a short history (the pose buffer interpolates between messages).
-_ODOM_QOS = QoSProfile(depth=20, reliability=ReliabilityPolicy.RELIABLE,
+#: Odometry: best effort, which both a best-effort publisher (common on robots, and bag_play's
+#: default) and a reliable one match; a short history (the pose buffer interpolates).
+_ODOM_QOS = QoSProfile(depth=20, reliability=ReliabilityPolicy.BEST_EFFORT,
                        history=HistoryPolicy.KEEP_LAST, durability=DurabilityPolicy.VOLATILE)
+#: OccupancyGrids: reliable + transient local, depth 1 (RViz's map display default, as
+#: map_server publishes): a display that joins late gets the last grid at once.
+_GRID_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                       history=HistoryPolicy.KEEP_LAST,
+                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
+#: How often the node looks for a latched CameraInfo publisher until it finds one [s].
+LATCHED_INFO_WATCH_S = 0.5
 #: First word of every ~/status message once the node processes frames.
 STATUS_READY = 'ready'
 #: Depth frames that may wait for the worker (see FrameMailbox): one may wait behind another.
@@ -247,24 +266,16 @@ class DetectorNode(Node):
         # frames meanwhile take the numpy path (identical results, slower), so the node is
         # ready as soon as it subscribes and never stalls or drops a frame while compiling.
         self._compile_started = time.monotonic()
-        self._compile = jit_support.compile_in_background(self._config.detector.warm_up,
+        self._compile = jit_support.compile_in_background(self._warm_up,
                                                           on_done=self._on_compiled)
         reliable = bool(self.get_parameter('reliable_input').value)
         in_qos = _RELIABLE_INPUT_QOS if reliable else qos_profile_sensor_data
         self._points_pub = self.create_publisher(PointCloud2, 'obstacles/points', _OUTPUT_QOS)
-        self._costmap_pub = self.create_publisher(OccupancyGrid, 'obstacles/costmap',
-                                                  _OUTPUT_QOS)
-        self._ground_pub = self.create_publisher(PointCloud2, 'obstacles/ground_points',
-                                                 _OUTPUT_QOS)
-        self._overlay_pub = self.create_publisher(Image, 'obstacles/overlay', _OUTPUT_QOS)
+        self._costmap_pub = self.create_publisher(OccupancyGrid, 'obstacles/costmap', _GRID_QOS)
         self._time_pub = self.create_publisher(Float64, '~/processing_time_ms', _OUTPUT_QOS)
-        self._fused_pub = self.create_publisher(OccupancyGrid, 'obstacles/fused_costmap',
-                                                _OUTPUT_QOS)
         self._poses = PoseBuffer()
         self._fused: FusedGrid | None = None
-        self._odom_sub = self.create_subscription(
-            Odometry, str(self.get_parameter('odom_topic').value), self._on_odometry,
-            _ODOM_QOS)
+        self._create_optional_endpoints()
 
         self._stats_timer = None
         self._restart_stats_timer(self._config.stats_period_s)
@@ -289,13 +300,47 @@ class DetectorNode(Node):
                                                    in_qos)
         self._info_sub = self.create_subscription(CameraInfo, 'depth/camera_info',
                                                   self._on_camera_info, in_qos)
+        self._latched_info_sub: Any = None
+        self._latched_info_watch: Any = self.create_timer(
+            LATCHED_INFO_WATCH_S, self._watch_for_latched_camera_info,
+            clock=Clock(clock_type=ClockType.STEADY_TIME))   # also before /clock runs
+        outputs = [pub.topic_name for pub in (self._points_pub, self._costmap_pub,
+                                              self._ground_pub, self._overlay_pub,
+                                              self._fused_pub) if pub is not None]
         self.get_logger().info(
             f'ready: {self._depth_sub.topic_name} + {self._info_sub.topic_name} '
-            f'({"reliable" if reliable else "sensor-data"} QoS) -> '
-            f'{self._points_pub.topic_name}, {self._costmap_pub.topic_name}; '
+            f'({"reliable" if reliable else "sensor-data"} QoS; a latched CameraInfo too, '
+            'once its publisher shows up)'
+            + (f' + {self._odom_sub.topic_name}' if self._odom_sub is not None else '')
+            + f' -> {", ".join(outputs)}; '
             f'frames {self._config.cloud_frame_id!r}/{self._config.costmap_frame_id!r}; '
             f'{self.compute_path()}')
         self._publish_status()
+
+    # -- what is switched on: its publishers and subscriptions --------------------------------
+    def _create_optional_endpoints(self) -> None:
+        """Advertise and subscribe only what the switches turn on; None where off.
+
+        publish_ground -> obstacles/ground_points; publish_overlay -> obstacles/overlay; fuse ->
+        obstacles/fused_costmap and the odometry subscription. The switches (and odom_topic)
+        are read-only: a change would need endpoints made or destroyed while the worker
+        thread publishes.
+        """
+        config = self._config
+        self._ground_pub: Any = (
+            self.create_publisher(PointCloud2, 'obstacles/ground_points', _OUTPUT_QOS)
+            if config.publish_ground else None)
+        self._overlay_pub: Any = (
+            self.create_publisher(Image, 'obstacles/overlay', _OUTPUT_QOS)
+            if config.publish_overlay else None)
+        self._fused_pub: Any = None
+        self._odom_sub: Any = None
+        if config.fusion is not None:
+            self._fused_pub = self.create_publisher(OccupancyGrid, 'obstacles/fused_costmap',
+                                                    _GRID_QOS)
+            self._odom_sub = self.create_subscription(
+                Odometry, str(self.get_parameter('odom_topic').value), self._on_odometry,
+                _ODOM_QOS)
 
     # -- parameter services: no request may kill the node ------------------------------------
     def _guard_parameter_services(self) -> None:
@@ -328,7 +373,7 @@ class DetectorNode(Node):
 
     def _warn_request(self, service: str, text: str) -> None:
         self._throttled_logger(f'service:{service}').warning(
-            f'refused a malformed {service} request: {text}',
+            f'refused a {service} request: {text}',
             throttle_duration_sec=WARN_THROTTLE_S)
 
     def _parameter_msg_problem(self, msg: Any) -> str | None:
@@ -336,6 +381,9 @@ class DetectorNode(Node):
         if not msg.name or not self.has_parameter(msg.name):
             return (f'parameter {msg.name!r} is not declared by this node '
                     '(detector --help lists the parameters)')
+        if self.describe_parameter(msg.name).read_only:
+            return (f'parameter {msg.name!r} is read-only: the node reads it at start-up '
+                    f'(restart it with -p {msg.name}:=<value>)')
         if msg.value.type not in _PARAMETER_TYPES:
             return (f'parameter {msg.name!r}: ParameterValue.type {msg.value.type} is not a '
                     f'parameter type (valid: {min(_PARAMETER_TYPES)}..{max(_PARAMETER_TYPES)})')
@@ -384,6 +432,12 @@ class DetectorNode(Node):
             return ('numpy path while the numba kernels compile or load in the background '
                     '(a first compilation takes about 20-40 s; same results, slower)')
         return 'compiled numba kernels'
+
+    def _warm_up(self) -> None:
+        """Compile or load the kernels frames will need: the pipeline's, RVL's if compressed."""
+        self._config.detector.warm_up()
+        if self.get_parameter('depth_transport').value == 'compressedDepth':
+            rvl.warm_up()
 
     def _on_compiled(self, job: jit_support.BackgroundCompile) -> None:
         # Runs on the compile thread; the node may already be shutting down.
@@ -489,7 +543,10 @@ class DetectorNode(Node):
             camera_info=camera_info, camera_info_usable=usable, code_path=path,
             compiled=path == 'compiled numba kernels', mount=self._mount_text(),
             floor_correction=self._floor_text)
-        status = health_status(self._health.take(), context, hardware_id=self._last_frame_id)
+        # hardware_id: the frames' frame_id once one is processed, the depth topic before
+        status = health_status(self._health.take(), context,
+                               name=status_name(self.get_fully_qualified_name()),
+                               hardware_id=self._last_frame_id or self._depth_sub.topic_name)
         if self.context.ok():
             self._diagnostics_pub.publish(
                 diagnostic_array(status, self.get_clock().now().to_msg()))
@@ -549,7 +606,54 @@ class DetectorNode(Node):
             self._health.dropped()
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
-        self._cameras.append(_CameraState.from_camera_info(msg))
+        camera = _CameraState.from_camera_info(msg)
+        if camera.note is not None:
+            self._throttled_logger('camera_info_note').info(
+                f'CameraInfo on {self._info_sub.topic_name}: {camera.note}',
+                throttle_duration_sec=WARN_THROTTLE_S)
+        # A latched camera's CameraInfo comes through both subscriptions: kept once.
+        if any(c.stamp_ns == camera.stamp_ns and c.same_camera(camera) for c in self._cameras):
+            return
+        self._cameras.append(camera)
+
+    def _watch_for_latched_camera_info(self) -> None:
+        """Subscribe transient local as well once a latched CameraInfo publisher shows up.
+
+        A camera that publishes one CameraInfo, latched (transient local, often reliable),
+        reaches only a transient-local subscription; a volatile publisher (most drivers)
+        cannot match one, and its own process would then warn of "incompatible QoS". So the
+        second subscription is made only when the graph shows a transient-local publisher
+        (best effort if one of them is), and the watch stops. Runs on a steady clock.
+        """
+        latched = [info for info in self.get_publishers_info_by_topic(self._info_sub.topic_name)
+                   if info.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL]
+        if not latched:
+            return
+        reliable = all(info.qos_profile.reliability == ReliabilityPolicy.RELIABLE
+                       for info in latched)
+        qos = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                         reliability=(ReliabilityPolicy.RELIABLE if reliable
+                                      else ReliabilityPolicy.BEST_EFFORT))
+        self.destroy_timer(self._latched_info_watch)
+        self._latched_info_watch = None
+        self._latched_info_sub = self.create_subscription(
+            CameraInfo, 'depth/camera_info', self._on_camera_info, qos,
+            event_callbacks=SubscriptionEventCallbacks(
+                incompatible_qos=self._on_unlatched_camera_info_publisher))
+        self.get_logger().info(
+            f'a latched CameraInfo publisher on {self._info_sub.topic_name}: subscribed '
+            f'{"reliable" if reliable else "best effort"} + transient local too')
+
+    def _on_unlatched_camera_info_publisher(self, event: Any) -> None:
+        """Note quietly a volatile CameraInfo publisher beside a latched one.
+
+        The first subscription receives it; this replaces rclpy's default warning
+        ("offering incompatible QoS"), which would be a false alarm here.
+        """
+        self.get_logger().debug(
+            f'a CameraInfo publisher on {self._info_sub.topic_name} is not latched '
+            f'({event.last_policy_kind}): received by the first subscription')
 
     def _on_odometry(self, msg: Odometry) -> None:
         pose = msg.pose.pose
@@ -576,9 +680,12 @@ class DetectorNode(Node):
             why = f'no odometry on {self._odom_sub.topic_name}'
         update = self._fused.update(result.costmap, pose, pose_stamp_s=stamp_s,
                                     no_pose_reason=why)
-        if update.message:
-            log = self.get_logger()
-            (log.warning if update.warning else log.info)(f'fused costmap: {update.message}')
+        # One call site per severity: rclpy refuses ("Logger severity cannot be changed
+        # between calls") a call site whose severity changes, which skipped the frame.
+        if update.message and update.warning:
+            self.get_logger().warning(update.message)
+        elif update.message:
+            self.get_logger().info(update.message)
         return costmap_to_occupancy_grid(self._fused.to_costmap(), stamp=msg.header.stamp,
                                          frame_id=config.odom_frame)
 
@@ -720,11 +827,11 @@ class DetectorNode(Node):
         try:
             self._points_pub.publish(messages['obstacles'])
             self._costmap_pub.publish(messages['costmap'])
-            if 'ground' in messages:
+            if 'ground' in messages and self._ground_pub is not None:
                 self._ground_pub.publish(messages['ground'])
-            if 'overlay' in messages:
+            if 'overlay' in messages and self._overlay_pub is not None:
                 self._overlay_pub.publish(messages['overlay'])
-            if fused is not None:
+            if fused is not None and self._fused_pub is not None:
                 self._fused_pub.publish(fused)
             elapsed_ms = (time.perf_counter() - start) * 1e3
             self._time_pub.publish(Float64(data=elapsed_ms))
@@ -818,18 +925,31 @@ def help_text() -> str:
         '',
         'ROS 2 node "obstacle_detector": depth image -> obstacle cloud and ground-plane costmap.',
         '',
-        'topics (relative names; remap with -r):',
-        '  in   depth/image_raw          sensor_msgs/Image, 16UC1/mono16 [mm] or 32FC1 [m]',
-        '  in   depth/camera_info        sensor_msgs/CameraInfo (intrinsics from K)',
-        '  out  obstacles/points         sensor_msgs/PointCloud2 of obstacle points',
-        '  out  obstacles/costmap        nav_msgs/OccupancyGrid: 100 occupied, 0 free, -1 unknown',
-        '  out  obstacles/ground_points  sensor_msgs/PointCloud2, if publish_ground',
-        '  out  obstacles/overlay        sensor_msgs/Image rgb8, if publish_overlay',
-        '  out  ~/processing_time_ms     std_msgs/Float64 per frame',
-        '  out  ~/status                 std_msgs/String, latched: "ready: <which code runs>"',
+        'topics (relative names; remap with -r) and their QoS:',
+        '  in   depth/image_raw           sensor_msgs/Image, 16UC1/mono16 [mm] or 32FC1 [m];',
+        '                                 sensor data (best effort), reliable if reliable_input',
+        '  in   depth/image_raw/compressedDepth  sensor_msgs/CompressedImage (PNG or RVL), if',
+        '                                 depth_transport is compressedDepth; QoS as above',
+        '  in   depth/image_raw/compressed  sensor_msgs/CompressedImage, if depth_transport is',
+        '                                 compressed; QoS as above',
+        '  in   depth/camera_info         sensor_msgs/CameraInfo (intrinsics from P, or K when',
+        '                                 P is all zero); as the depth, and latched (reliable,',
+        '                                 transient local) publishers too',
+        '  in   odom                      nav_msgs/Odometry (odom_topic), if fuse; best effort',
+        '                                 (reliable and best-effort publishers both connect)',
+        '  out  obstacles/points          sensor_msgs/PointCloud2 of obstacle points; reliable',
+        '  out  obstacles/costmap         nav_msgs/OccupancyGrid: 100 occupied, 0 free, -1',
+        '                                 unknown; reliable, transient local, depth 1',
+        '  out  obstacles/ground_points   sensor_msgs/PointCloud2, if publish_ground; reliable',
+        '  out  obstacles/overlay         sensor_msgs/Image rgb8, if publish_overlay; reliable',
+        '  out  obstacles/fused_costmap   nav_msgs/OccupancyGrid in odom_frame, if fuse;',
+        '                                 reliable, transient local, depth 1',
+        '  out  ~/processing_time_ms      std_msgs/Float64 per frame; reliable',
+        '  out  ~/status                  std_msgs/String, latched: "ready: <which code runs>"',
+        '  out  /diagnostics              diagnostic_msgs/DiagnosticArray, 1 Hz; reliable',
         '',
-        f'parameters (section "{NODE_NAME}:" or "/**:" of a --params-file; name  type  default'
-        '  range):',
+        f'parameters (section "{PARAMS_FILE_KEY}:" or "/**:" of a --params-file; name  type  '
+        'default  range; use_sim_time is rclpy\'s own):',
     ]
     for spec in ALL_PARAMS:
         default = repr(spec.default) if isinstance(spec.default, str) else str(spec.default)
@@ -874,7 +994,8 @@ def main(args: list[str] | None = None) -> int:
         try:
             node = DetectorNode()
         except (ValueError, ParameterException) as error:
-            rclpy.logging.get_logger(NODE_NAME).fatal(f'invalid parameters: {error}')
+            reason = params_file_reason(files) or str(error)
+            rclpy.logging.get_logger(NODE_NAME).fatal(f'invalid parameters: {reason}')
             return 1
         for path in files:
             for problem in params_file_problems(path, node.get_fully_qualified_name()):

@@ -7,8 +7,8 @@ which a person writes in degrees (DESIGN.md): ``max_slope_rad`` -> ``max_slope_d
 Descriptions and ranges come from the dataclass's field metadata. The node's own parameters
 (frames, output switches, QoS, intrinsics fallback, statistics) follow.
 
-This module builds ``rcl_interfaces`` messages but never imports rclpy, so tools (the parameter
-table) and tests use it without a ROS graph.
+This module builds ``rcl_interfaces`` messages and needs no ROS graph: tools (the parameter
+table) and tests use it as it is; only reading a params file imports rclpy's own reader.
 """
 
 from __future__ import annotations
@@ -30,8 +30,15 @@ from obstacle_detection.pipeline.params import SEED_TABLE_4_1, DetectorParams, I
 
 ParamValue = bool | int | float | str
 
-#: The node's name: the section of a ``--params-file`` it reads.
+#: The node's name.
 NODE_NAME = 'obstacle_detector'
+#: The section key of the shipped ``--params-file`` YAMLs: the node in any namespace (rcl matches
+#: a key against the node's fully qualified name, so a plain ``obstacle_detector:`` is lost
+#: when the node runs in a namespace).
+PARAMS_FILE_KEY = f'/**/{NODE_NAME}'
+#: Parameters every rclpy node declares itself (rclpy's TimeSource and type description
+#: service): a params file may set them; they are not the node's own.
+RCLPY_PARAMETERS = ('use_sim_time', 'start_type_description_service')
 
 #: DetectorParams fields exposed in degrees -> their ROS parameter name.
 DEGREE_FIELDS = {
@@ -150,12 +157,15 @@ NODE_PARAMS: tuple[ParamSpec, ...] = (
               'Frame of obstacles/costmap, whose grid lies in its z = 0 plane: the ground frame'),
     ParamSpec('publish_ground', False,
               'Also publish the traversable voxels on obstacles/ground_points (lets a costmap '
-              'clear cells)'),
+              'clear cells); read at start-up (the topic is advertised only when on)',
+              read_only=True),
     ParamSpec('publish_overlay', False,
-              'Also publish obstacles/overlay: rgb8 depth frame with obstacle pixels in red'),
+              'Also publish obstacles/overlay: rgb8 depth frame with obstacle pixels in red; '
+              'read at start-up (the topic is advertised only when on)', read_only=True),
     ParamSpec('reliable_input', False,
               'Subscribe to depth and camera_info with reliable QoS instead of sensor-data '
-              '(best effort); read at start-up', read_only=True),
+              '(best effort; a latched CameraInfo is received either way); read at start-up',
+              read_only=True),
     ParamSpec('use_fallback_intrinsics', False,
               'Use fallback_fx/fy/cx/cy while no CameraInfo has arrived (else frames are '
               'skipped until one arrives)'),
@@ -163,9 +173,12 @@ NODE_PARAMS: tuple[ParamSpec, ...] = (
               'Also publish obstacles/fused_costmap: the per-frame costmaps fused over time '
               '(log-odds) in a rolling window centred on the robot in odom_frame, moved by the '
               'odometry on odom_topic, or by TF odom_frame <- cloud_frame_id when use_tf and '
-              'no odometry comes (neither: fused in place, said once)'),
+              'no odometry comes (neither: fused in place, said once); read at start-up (the '
+              'topic and the odometry subscription exist only when on)', read_only=True),
     ParamSpec('odom_topic', 'odom',
-              'nav_msgs/Odometry of the robot base in odom_frame, for the fused costmap'),
+              'nav_msgs/Odometry of the robot base in odom_frame, for the fused costmap '
+              '(subscribed best effort, so reliable and best-effort publishers both connect); '
+              'read at start-up', read_only=True),
     ParamSpec('odom_frame', 'odom', 'Frame of obstacles/fused_costmap (the odometry frame)'),
     ParamSpec('fused_size_m', 4.0,
               'Side of the fused costmap window, centred on the robot [m]', 0.5, 100.0),
@@ -184,9 +197,9 @@ NODE_PARAMS: tuple[ParamSpec, ...] = (
               '(false: look it up for every frame, e.g. a pan-tilt head)'),
     ParamSpec('depth_transport', 'raw',
               "Depth input: 'raw' (sensor_msgs/Image on depth/image_raw), 'compressedDepth' "
-              "(CompressedImage on depth/image_raw/compressedDepth, image_transport's PNG "
-              "codec) or 'compressed' (depth/image_raw/compressed, e.g. iai_kinect2's); read "
-              'at start-up', read_only=True),
+              "(CompressedImage on depth/image_raw/compressedDepth, image_transport's PNG or "
+              "RVL codec) or 'compressed' (depth/image_raw/compressed, e.g. iai_kinect2's); "
+              'read at start-up', read_only=True),
     ParamSpec('camera_info_tolerance_s', 0.02,
               'A depth frame uses the CameraInfo whose stamp is nearest to its own within this '
               'tolerance (the newest one when the camera publishes a single CameraInfo, or when '
@@ -363,86 +376,137 @@ def _section_applies(key: str, node_fqn: str) -> bool:
     return re.fullmatch(''.join(tokens), node_fqn) is not None
 
 
+def _load_params_yaml(path: Path) -> tuple[Any, str | None]:
+    """Return the parsed YAML of a params file, or why it cannot be read (one sentence)."""
+    try:
+        return yaml.safe_load(path.read_text(encoding='utf-8')), None
+    except OSError as err:
+        return None, f'{path}: cannot read params file ({err.strerror})'
+    except yaml.YAMLError as err:
+        return None, f'{path}: not valid YAML ({" ".join(str(err).split())})'
+
+
 def params_file_problems(path: str | Path, node_fqn: str = f'/{NODE_NAME}') -> list[str]:
     """Return what the node would silently ignore in a params file, one sentence each.
 
-    rcl applies the sections whose key names the node (``obstacle_detector``, ``/**``, ...) and
-    the node ignores names it did not declare; both are most often typos (``detector:`` for
-    ``obstacle_detector:``, ``max_slope:`` for ``max_slope_deg:``). The offline tools refuse
-    such a file (:func:`read_params_file`); the node warns with these sentences. A file that
-    cannot be read or parsed gives one problem too.
+    rcl applies the sections whose key names the node's fully qualified name ``node_fqn``
+    (``/**/obstacle_detector``, ``/**``, ``obstacle_detector`` without a namespace...) and the
+    node ignores names it did not declare; both are most often typos (``detector:`` for
+    ``obstacle_detector:``, ``max_slope:`` for ``max_slope_deg:``) or a key that a namespace no
+    longer matches. rclpy's own parameters (``use_sim_time``...) are not unknown. The offline
+    tools refuse such a file (:func:`read_params_file`); the node warns with these sentences. A
+    file that cannot be read or parsed gives one problem too.
     """
     path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text(encoding='utf-8'))
-    except OSError as err:
-        return [f'{path}: cannot read params file ({err.strerror})']
-    except yaml.YAMLError as err:
-        return [f'{path}: not valid YAML ({" ".join(str(err).split())})']
+    data, unreadable = _load_params_yaml(path)
+    if unreadable is not None:
+        return [unreadable]
     if not isinstance(data, dict):
-        return [f'{path}: expected "{NODE_NAME}: ros__parameters: ..."']
+        return [f'{path}: expected "{PARAMS_FILE_KEY}: ros__parameters: ..."']
     problems, applied = [], 0
     for key, section in data.items():
         params = section.get('ros__parameters') if isinstance(section, dict) else None
         if not _section_applies(str(key), node_fqn):
             count = len(params) if isinstance(params, dict) else 0
             problems.append(f'{path}: section {key!r} does not name this node ({node_fqn}); '
-                            f'its {count} parameter(s) are ignored (use "{NODE_NAME}:" or '
-                            '"/**:")')
+                            f'its {count} parameter(s) are ignored (use "{PARAMS_FILE_KEY}:" '
+                            'or "/**:")')
             continue
         applied += 1
         if not isinstance(params, dict):
             problems.append(f'{path}: section {key!r} lacks "ros__parameters"')
             continue
         for name in params:
-            if name not in SPECS_BY_NAME:
-                close = difflib.get_close_matches(str(name), SPECS_BY_NAME, n=1)
-                hint = f' (did you mean {close[0]!r}?)' if close else ''
-                problems.append(f'{path}: unknown parameter {name!r} is ignored{hint}; '
-                                '`detector --help` lists the parameters')
+            if name not in SPECS_BY_NAME and name not in RCLPY_PARAMETERS:
+                problems.append(_unknown_name(path, name, ' is ignored'))
     if not applied and not problems:
         problems.append(f'{path}: no section for this node ({node_fqn})')
     return problems
 
 
-def read_params_file(path: str | Path) -> dict[str, ParamValue]:
+def _unknown_name(path: Path, name: str, outcome: str = '') -> str:
+    """Say that ``name`` is no parameter of the node (and ``outcome``), with the nearest one."""
+    close = difflib.get_close_matches(str(name), [*SPECS_BY_NAME, *RCLPY_PARAMETERS], n=1)
+    hint = f' (did you mean {close[0]!r}?)' if close else ''
+    return (f'{path}: unknown parameter {name!r}{outcome}{hint}; `detector --help` lists the '
+            'parameters')
+
+
+def _type_problem(path: Path, spec: ParamSpec, value: Any) -> str | None:
+    """Say why ``value`` does not have the parameter's type (as rcl refuses it), or None."""
+    want = type(spec.default)
+    if type(value) is want:
+        return None
+    fix = f': write {value}.0' if want is float and type(value) is int else ''
+    return f'{path}: parameter {spec.name!r} must be a {want.__name__}, got {value!r}{fix}'
+
+
+def read_params_file(path: str | Path, *, unknown_is_error: bool = True
+                     ) -> dict[str, ParamValue]:
     """Return the parameter values a node parameter file sets: ``{ros_name: value}``.
 
-    The file has the ``--params-file`` format (``obstacle_detector: ros__parameters: {...}``;
-    ``/**`` and ``/obstacle_detector`` sections are read too, in that order). Unlike the node,
-    which ignores undeclared names, an unknown name is an error here (a typo would otherwise
-    go unnoticed); as for the node, a value must have its parameter's type (1.0, not 1, for a
-    floating-point one). Only the names in the file are returned. Raises ParamsFileError
-    naming the file and the parameter; the values themselves are validated by
-    :func:`detector_params_from_ros`.
+    The file has the ``--params-file`` format (``/**/obstacle_detector: ros__parameters:
+    {...}``); the sections that name the node ``/obstacle_detector`` as rcl matches keys
+    (``/**/obstacle_detector``, ``obstacle_detector``, ``/**``, ...) are read by rclpy's own
+    reader (``parameter_dict_from_yaml_file``) in file order, a later value replacing an
+    earlier, as rclpy applies them to a node. Unlike the node, which ignores
+    undeclared names, an unknown name is an error here (a typo would otherwise go unnoticed;
+    ``unknown_is_error=False`` skips it); rclpy's own parameters (``use_sim_time``...) are
+    skipped, as an offline tool has no ROS clock. As for the node, a value must have its
+    parameter's type (1.0, not 1, for a floating-point one). Only the names in the file are
+    returned. Raises ParamsFileError naming the file and the parameter; the values themselves
+    are validated by :func:`detector_params_from_ros`.
     """
+    from rclpy.parameter import Parameter, parameter_dict_from_yaml_file
+
     path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text(encoding='utf-8'))
-    except OSError as err:
-        raise ParamsFileError(f'{path}: cannot read params file ({err.strerror})') from err
-    except yaml.YAMLError as err:
-        raise ParamsFileError(f'{path}: not valid YAML ({err})') from err
+    data, unreadable = _load_params_yaml(path)
+    if unreadable is not None:
+        raise ParamsFileError(unreadable)
     if not isinstance(data, dict):
-        raise ParamsFileError(f'{path}: expected "{NODE_NAME}: ros__parameters: ..."')
-    sections = [data[key] for key in ('/**', NODE_NAME, f'/{NODE_NAME}') if key in data]
-    if not sections:
-        raise ParamsFileError(f'{path}: no "{NODE_NAME}" (or "/**") section')
+        raise ParamsFileError(f'{path}: expected "{PARAMS_FILE_KEY}: ros__parameters: ..."')
+    keys = [key for key in data if _section_applies(str(key), f'/{NODE_NAME}')]
+    if not keys:
+        raise ParamsFileError(f'{path}: no section naming the node (e.g. '
+                              f'"{PARAMS_FILE_KEY}:" or "/**:")')
+    try:   # the keys in the order given, each once
+        messages = parameter_dict_from_yaml_file(str(path), target_nodes=keys)
+    except (RuntimeError, ValueError, TypeError) as error:
+        raise ParamsFileError(f'{path}: {error}') from None
     values: dict[str, ParamValue] = {}
-    for section in sections:
-        params = section.get('ros__parameters') if isinstance(section, dict) else None
-        if not isinstance(params, dict):
-            raise ParamsFileError(f'{path}: a section lacks "ros__parameters"')
-        for name, value in params.items():
-            spec = SPECS_BY_NAME.get(name)
-            if spec is None:
-                raise ParamsFileError(f'{path}: unknown parameter {name!r}')
-            want = type(spec.default)
-            if type(value) is not want:
-                raise ParamsFileError(f'{path}: parameter {name!r} must be a {want.__name__}, '
-                                      f'got {value!r}')
-            values[name] = value
+    for name, message in messages.items():
+        if name in RCLPY_PARAMETERS:
+            continue
+        spec = SPECS_BY_NAME.get(name)
+        if spec is None:
+            if unknown_is_error:
+                raise ParamsFileError(_unknown_name(path, name))
+            continue
+        value = Parameter.from_parameter_msg(message).value
+        problem = _type_problem(path, spec, value)
+        if problem is not None:
+            raise ParamsFileError(problem)
+        values[name] = value
     return values
+
+
+def params_file_reason(paths: list[str] | tuple[str, ...]) -> str | None:
+    """Name the file and the value behind a refused start-up, or None if none is to blame.
+
+    A value of the wrong type (``max_range_m: 3`` for 3.0) or out of its range, found in one of
+    ``paths`` (the ``--params-file`` arguments, in order); unknown names are not the cause
+    (the node ignores them, with a warning).
+    """
+    for path in paths:
+        try:
+            values = read_params_file(path, unknown_is_error=False)
+        except ParamsFileError as error:
+            return str(error)
+        for name, value in values.items():
+            problem = _range_problem(SPECS_BY_NAME[name], value)
+            if problem is not None:
+                return f'{path}: {problem}'
+    return None
 
 
 def read_params_files(paths: list[str | Path] | tuple[str | Path, ...]

@@ -18,10 +18,12 @@ except (ImportError, OSError):  # not installed, or built for another numpy / ll
 
 #: True when numba imported and the compiled kernels can run.
 AVAILABLE: bool = numba is not None
+#: numba's parallel range in :func:`jit_parallel` kernels (``range`` without numba).
+prange = numba.prange if numba is not None else range
 
 
 def _compile(func: Callable[..., Any], **options: Any) -> Callable[..., Any]:
-    """numba.njit ``func`` single-threaded, releasing the GIL, cached on disk if it can be."""
+    """numba.njit ``func`` releasing the GIL, cached on disk if it can be; ``options`` added."""
     if numba is None:
         return func
     try:
@@ -37,6 +39,24 @@ def jit(func: Callable[..., Any]) -> Callable[..., Any]:
     the kernel is compiled in memory at each start.
     """
     return _compile(func)
+
+
+def jit_parallel(func: Callable[..., Any]) -> Callable[..., Any]:
+    """:func:`jit` with numba's ``parallel=True``: its ``prange`` loops run on numba's threads.
+
+    The caller chooses how many with :func:`set_threads`.
+    """
+    return _compile(func, parallel=True)
+
+
+def set_threads(threads: int) -> None:
+    """Let the next :func:`jit_parallel` kernels of this thread use ``threads`` threads.
+
+    Clipped to 1 .. numba's thread count (``NUMBA_NUM_THREADS``, the CPUs by default). A no-op
+    without numba.
+    """
+    if numba is not None:
+        numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
 
 
 def jit_inline(func: Callable[..., Any]) -> Callable[..., Any]:

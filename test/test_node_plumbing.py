@@ -1,0 +1,496 @@
+"""How the node meets a ROS system: namespace, QoS pairings, endpoints, diagnostics names.
+
+The first tests run the node once as a process through DDS (loopback, a domain of its own),
+in the namespace ``/x`` with ``params/corridor.yaml`` and fusion on, as a robot starts it:
+before it starts, a camera stand-in publishes one latched CameraInfo (reliable + transient
+local, once); depth frames come best effort (sensor data), odometry best effort then
+reliable; a display that joins late subscribes to the grids reliable + transient local, as
+RViz's map display does. The last tests build the node in-process (two namespaces, the launch
+file's settings, RVL frames).
+"""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import rclpy
+import ros_env
+import yaml
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray
+from nav_msgs.msg import OccupancyGrid, Odometry
+from rcl_interfaces.srv import GetParameters, SetParameters
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter, parameter_dict_from_yaml_file, parameter_value_to_python
+from rclpy.qos import (DurabilityPolicy, QoSProfile, ReliabilityPolicy,
+                       qos_profile_sensor_data)
+from rclpy.signals import SignalHandlerOptions
+from rvl_encoder import rvl_message
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+
+from obstacle_detection.pipeline.params import table_4_2
+from obstacle_detection.ros.conversions import array_to_image, intrinsics_to_camera_info
+from obstacle_detection.ros.node import DetectorNode
+from obstacle_detection.ros.parameters import (ALL_PARAMS, PARAMS_FILE_KEY, params_file_problems,
+                                               read_params_file)
+from obstacle_detection.sim.scenes import SceneFrame, render_scene
+
+#: Starts processes or a DDS graph: deselect with -m "not integration" (README, tests).
+pytestmark = pytest.mark.integration
+
+REPO = ros_env.REPO_ROOT
+CORRIDOR_YAML = REPO / 'params' / 'corridor.yaml'
+NAMESPACE = '/x'
+NODE = f'{NAMESPACE}/obstacle_detector'
+#: What the process gets besides the params file (the file's values must survive them).
+OVERRIDES = {'fuse': True, 'fused_size_m': 6.0, 'publish_ground': False,
+             'publish_overlay': False}
+START_TIMEOUT_S = 90.0
+REPLY_TIMEOUT_S = 30.0
+RELIABLE = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+BEST_EFFORT = QoSProfile(depth=5, reliability=ReliabilityPolicy.BEST_EFFORT)
+
+
+def _detector_command() -> list[str]:
+    from test_node import _detector_command as command
+
+    return command()
+
+
+def _stamp_key(stamp: Time) -> tuple[int, int]:
+    return (stamp.sec, stamp.nanosec)
+
+
+def _yaml_values(path: Path) -> dict[str, Any]:
+    parsed = parameter_dict_from_yaml_file(str(path), target_nodes=[PARAMS_FILE_KEY])
+    return {name: parameter_value_to_python(msg.value) for name, msg in parsed.items()}
+
+
+@pytest.fixture(scope='module')
+def scene() -> SceneFrame:
+    params = table_4_2()
+    return render_scene('corridor', seed=3, height_m=params.camera_height_m,
+                        pitch_rad=params.camera_pitch_rad, roll_rad=params.camera_roll_rad)
+
+
+def _camera_info(frame: SceneFrame, stamp: Time = Time()) -> CameraInfo:
+    width, height = frame.size
+    return intrinsics_to_camera_info(frame.intrinsics, width, height, stamp=stamp,
+                                     frame_id='depth_optical')
+
+
+class Graph:
+    """The node process in /x, and a probe node that plays camera, odometry and display."""
+
+    def __init__(self, tmp: Path, scene: SceneFrame) -> None:
+        self.scene = scene
+        self.env = ros_env.loopback_env(__name__, log_dir=tmp / 'ros_log')
+        self._old_env = ros_env.apply(self.env)
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
+        self.node = rclpy.create_node('plumbing_probe', context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        # The camera's one latched CameraInfo, published before the detector exists.
+        self.latched_info_pub = self.node.create_publisher(
+            CameraInfo, f'{NAMESPACE}/depth/camera_info', LATCHED)
+        self.latched_info_pub.publish(_camera_info(scene, Time(sec=1)))
+        self.depth_pub = self.node.create_publisher(Image, f'{NAMESPACE}/depth/image_raw',
+                                                    qos_profile_sensor_data)
+        self.received: dict[str, dict[tuple[int, int], Any]] = {}
+        for key, msg_type in (('points', PointCloud2), ('costmap', OccupancyGrid),
+                              ('fused_costmap', OccupancyGrid)):
+            store = self.received.setdefault(key, {})
+            self.node.create_subscription(
+                msg_type, f'{NAMESPACE}/obstacles/{key}',
+                lambda msg, store=store: store.__setitem__(_stamp_key(msg.header.stamp), msg),
+                RELIABLE)
+        self.reports: list[Any] = []
+        self.node.create_subscription(DiagnosticArray, '/diagnostics',
+                                      lambda msg: self.reports.extend(msg.status), RELIABLE)
+        self.get_client = self.node.create_client(GetParameters, f'{NODE}/get_parameters')
+        self.set_client = self.node.create_client(SetParameters, f'{NODE}/set_parameters')
+        command = _detector_command() + [
+            '--ros-args', '-r', f'__ns:={NAMESPACE}', '--params-file', str(CORRIDOR_YAML)]
+        for name, value in OVERRIDES.items():
+            command += ['-p', f'{name}:={str(value).lower()}']
+        self.process = subprocess.Popen(command, env=self.env, cwd=tmp, stdout=subprocess.PIPE,
+                                        stderr=subprocess.STDOUT, text=True)
+        self.lines: list[str] = []
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+        self._next_sec = 100
+
+    def _read(self) -> None:
+        for line in self.process.stdout:
+            self.lines.append(line)
+
+    def log(self) -> str:
+        return ''.join(self.lines)
+
+    def spin_until(self, done: Callable[[], bool], timeout: float) -> bool:
+        deadline = time.monotonic() + timeout
+        while not done():
+            if time.monotonic() > deadline or self.process.poll() is not None:
+                return done()
+            self.executor.spin_once(timeout_sec=0.05)
+        return True
+
+    def call(self, client: Any, request: Any) -> Any:
+        assert self.spin_until(client.service_is_ready, REPLY_TIMEOUT_S), self.log()
+        future = client.call_async(request)
+        assert self.spin_until(future.done, REPLY_TIMEOUT_S), 'no reply from the node'
+        return future.result()
+
+    def next_stamp(self) -> Time:
+        self._next_sec += 1
+        return Time(sec=self._next_sec, nanosec=500)
+
+    def frame(self, before: Callable[[Time], None] | None = None,
+              keys: tuple[str, ...] = ('points', 'costmap')) -> dict[str, Any]:
+        """Send the scene's depth (best effort), no CameraInfo with it; return its outputs.
+
+        ``before(stamp)`` runs first (e.g. odometry at the frame's stamp). Retried: a best
+        effort frame may be lost.
+        """
+        for _ in range(4):
+            stamp = self.next_stamp()
+            if before is not None:
+                before(stamp)
+                self.spin_until(lambda: False, 0.3)
+            image = array_to_image(self.scene.depth_mm, stamp=stamp, frame_id='depth_optical')
+            self.depth_pub.publish(image)
+            key = _stamp_key(stamp)
+            if self.spin_until(lambda: all(key in self.received[k] for k in keys),
+                               REPLY_TIMEOUT_S):
+                return {k: self.received[k][key] for k in keys}
+        pytest.fail('no output for a frame:\n' + self.log())
+
+    def close(self) -> None:
+        try:
+            self.executor.shutdown(timeout_sec=1.0)
+            self.node.destroy_node()
+            rclpy.try_shutdown(context=self.context)
+        finally:
+            if self.process.poll() is None:
+                self.process.send_signal(signal.SIGINT)
+                try:
+                    self.process.wait(timeout=15)
+                except subprocess.TimeoutExpired:
+                    self.process.kill()
+                    self.process.wait(timeout=10)
+            self._reader.join(timeout=5)
+            ros_env.restore(self._old_env)
+
+
+@pytest.fixture(scope='module')
+def graph(tmp_path_factory: pytest.TempPathFactory, scene: SceneFrame) -> Iterator[Graph]:
+    """Start the node; keep the first /diagnostics report it sends before any frame."""
+    tmp = tmp_path_factory.mktemp('plumbing')
+    harness = Graph(tmp, scene)
+    try:
+        assert harness.spin_until(lambda: 'ready:' in harness.log(), START_TIMEOUT_S), \
+            harness.log()
+        assert harness.spin_until(lambda: bool(harness.reports), REPLY_TIMEOUT_S), \
+            harness.log()
+        harness.first_report = harness.reports[0]
+        assert harness.spin_until(lambda: harness.depth_pub.get_subscription_count() > 0,
+                                  START_TIMEOUT_S), harness.log()
+        yield harness
+    finally:
+        harness.close()
+        (tmp / 'detector.log').write_text(harness.log())   # for a post-mortem
+
+
+def test_a_namespace_keeps_every_value_of_the_params_file(graph: Graph) -> None:
+    names = [spec.name for spec in ALL_PARAMS]
+    expected = _yaml_values(CORRIDOR_YAML) | OVERRIDES
+
+    reply = graph.call(graph.get_client, GetParameters.Request(names=names))
+
+    running = dict(zip(names, map(parameter_value_to_python, reply.values)))
+    assert set(expected) == set(names)          # the file sets every parameter
+    assert running == expected
+    assert 'does not name this node' not in graph.log()
+
+
+def test_a_latched_camera_info_published_before_the_node_started_is_used(
+        graph: Graph) -> None:
+    out = graph.frame()      # best-effort depth; the only CameraInfo is the latched one
+
+    assert out['points'].header.frame_id == 'base_footprint'
+    assert 'no CameraInfo received yet' not in graph.log()
+
+
+def test_best_effort_and_reliable_odometry_both_move_the_fused_costmap(graph: Graph) -> None:
+    half = OVERRIDES['fused_size_m'] / 2
+    origins = []
+    # steps within the fused grid's odometry jump limit (0.5 m a frame)
+    for reliability, x_m in ((ReliabilityPolicy.BEST_EFFORT, 0.25),
+                             (ReliabilityPolicy.RELIABLE, 0.5)):
+        odom_pub = graph.node.create_publisher(
+            Odometry, f'{NAMESPACE}/odom', QoSProfile(depth=10, reliability=reliability))
+        assert graph.spin_until(lambda: odom_pub.get_subscription_count() > 0,
+                                REPLY_TIMEOUT_S), f'{reliability} odometry did not connect'
+
+        def odometry(stamp: Time, odom_pub: Any = odom_pub, x_m: float = x_m) -> None:
+            msg = Odometry()
+            msg.header.stamp = stamp
+            msg.header.frame_id = 'odom'
+            msg.pose.pose.position.x = x_m
+            msg.pose.pose.orientation.w = 1.0
+            odom_pub.publish(msg)
+
+        out = graph.frame(odometry, ('points', 'fused_costmap'))
+        origins.append(out['fused_costmap'].info.origin.position.x)
+        graph.node.destroy_publisher(odom_pub)
+
+    assert origins == pytest.approx([0.25 - half, 0.5 - half])
+
+
+def test_a_display_that_joins_late_gets_the_last_grids(graph: Graph) -> None:
+    graph.frame(keys=('points', 'costmap', 'fused_costmap'))
+    last = {key: max(graph.received[key]) for key in ('costmap', 'fused_costmap')}
+    late: dict[str, Any] = {}
+    for key in last:   # RViz's map display: reliable, transient local, depth 1
+        graph.node.create_subscription(OccupancyGrid, f'{NAMESPACE}/obstacles/{key}',
+                                       lambda msg, key=key: late.setdefault(key, msg), LATCHED)
+
+    assert graph.spin_until(lambda: len(late) == len(last), REPLY_TIMEOUT_S), late.keys()
+    assert {key: _stamp_key(msg.header.stamp) for key, msg in late.items()} == last
+
+
+def test_only_what_is_switched_on_is_advertised_or_subscribed(graph: Graph) -> None:
+    def publishers(topic: str) -> list[Any]:
+        return graph.node.get_publishers_info_by_topic(f'{NAMESPACE}/{topic}')
+
+    def subscriptions(topic: str) -> list[Any]:
+        return graph.node.get_subscriptions_info_by_topic(f'{NAMESPACE}/{topic}')
+
+    assert publishers('obstacles/ground_points') == [] == publishers('obstacles/overlay')
+    for topic in ('obstacles/costmap', 'obstacles/fused_costmap'):
+        (grid,) = publishers(topic)
+        assert grid.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL, topic
+        assert grid.qos_profile.reliability == ReliabilityPolicy.RELIABLE, topic
+    (cloud,) = publishers('obstacles/points')
+    assert cloud.qos_profile.reliability == ReliabilityPolicy.RELIABLE
+    (odom,) = subscriptions('odom')
+    assert odom.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT
+    # the transient-local one exists because the latched publisher does
+    assert graph.spin_until(lambda: len(subscriptions('depth/camera_info')) == 2,
+                            REPLY_TIMEOUT_S)
+    infos = subscriptions('depth/camera_info')
+    assert sorted((i.qos_profile.reliability, i.qos_profile.durability) for i in infos) == [
+        (ReliabilityPolicy.RELIABLE, DurabilityPolicy.TRANSIENT_LOCAL),
+        (ReliabilityPolicy.BEST_EFFORT, DurabilityPolicy.VOLATILE)]
+
+
+def test_a_switch_cannot_change_at_run_time_and_says_why(graph: Graph) -> None:
+    request = SetParameters.Request(parameters=[
+        Parameter('publish_ground', value=True).to_parameter_msg()])
+
+    result = graph.call(graph.set_client, request).results[0]
+
+    assert not result.successful
+    assert result.reason == ("parameter 'publish_ground' is read-only: the node reads it at "
+                             'start-up (restart it with -p publish_ground:=<value>)')
+    assert graph.node.get_publishers_info_by_topic(f'{NAMESPACE}/obstacles/ground_points') == []
+
+
+def test_diagnostics_are_named_after_the_node_and_say_what_before_a_frame(
+        graph: Graph) -> None:
+    first = graph.first_report
+    assert first.name == f'{NODE}: depth obstacle detection'
+    assert first.hardware_id == f'{NAMESPACE}/depth/image_raw'   # no frame yet
+    graph.frame()
+    start = len(graph.reports)
+    assert graph.spin_until(lambda: len(graph.reports) > start, REPLY_TIMEOUT_S)
+    assert graph.reports[-1].hardware_id == 'depth_optical'     # the frames' frame_id
+
+
+def test_a_best_effort_camera_info_is_received_without_a_qos_warning(
+        graph: Graph, scene: SceneFrame) -> None:
+    """Last: the node then holds two different CameraInfos (frames would need stamps)."""
+    publisher = graph.node.create_publisher(CameraInfo, f'{NAMESPACE}/depth/camera_info',
+                                            BEST_EFFORT)
+    info = _camera_info(scene, graph.next_stamp())
+    info.p[0] = info.k[0] + 7.0          # a fx the latched CameraInfo does not have
+    wanted = f'fx={info.p[0]:g}'
+
+    def seen() -> bool:
+        publisher.publish(info)
+        return any(wanted in kv.value for r in graph.reports[-3:] for kv in r.values
+                   if kv.key == 'intrinsics')
+
+    assert graph.spin_until(seen, REPLY_TIMEOUT_S), graph.reports[-1].values
+    assert 'incompatible' not in graph.log().lower(), graph.log()
+
+
+# -- in-process nodes ---------------------------------------------------------------------
+@pytest.fixture(scope='module')
+def local_context() -> Iterator[rclpy.Context]:
+    with ros_env.rclpy_context(__name__ + ':in-process') as context:
+        yield context
+
+
+def test_a_volatile_camera_info_publisher_meets_no_incompatible_subscription(
+        local_context: rclpy.Context, scene: SceneFrame) -> None:
+    """Most drivers publish CameraInfo volatile: no transient-local subscription for them.
+
+    Else the driver's own process would warn "requesting incompatible QoS" at every start.
+    """
+    from rclpy.event_handler import PublisherEventCallbacks
+
+    node = DetectorNode(context=local_context,
+                        cli_args=['--ros-args', '--params-file', str(CORRIDOR_YAML)])
+    probe = rclpy.create_node('camera_stand_in', context=local_context)
+    executor = SingleThreadedExecutor(context=local_context)
+    incompatible: list[Any] = []
+    try:
+        executor.add_node(node)
+        executor.add_node(probe)
+        publisher = probe.create_publisher(
+            CameraInfo, 'depth/camera_info', qos_profile_sensor_data,
+            event_callbacks=PublisherEventCallbacks(incompatible_qos=incompatible.append))
+        deadline = time.monotonic() + REPLY_TIMEOUT_S
+        while not node._cameras and time.monotonic() < deadline:
+            publisher.publish(_camera_info(scene, Time(sec=5)))
+            executor.spin_once(timeout_sec=0.1)
+        end = time.monotonic() + 2.0      # four watches of the graph
+        while time.monotonic() < end:
+            executor.spin_once(timeout_sec=0.1)
+        assert node._cameras, 'the CameraInfo did not arrive'
+        assert node._latched_info_sub is None and incompatible == []
+    finally:
+        executor.shutdown(timeout_sec=1.0)
+        probe.destroy_node()
+        node.close()
+        node.destroy_node()
+
+
+@pytest.mark.parametrize('order', [('obstacle_detector', '/**/obstacle_detector', '/**'),
+                                   ('/**', '/**/obstacle_detector', 'obstacle_detector'),
+                                   ('/**/obstacle_detector', 'obstacle_detector', '/**')])
+def test_the_tools_read_a_params_file_as_rclpy_gives_it_to_the_node(
+        local_context: rclpy.Context, tmp_path: Path, order: tuple[str, ...]) -> None:
+    values = {'obstacle_detector': {'median_kernel': 7},
+              '/**/obstacle_detector': {'median_kernel': 9, 'max_range_m': 2.5},
+              '/**': {'median_kernel': 5, 'max_range_m': 3.0, 'lateral_limit_m': 1.0}}
+    path = tmp_path / 'p.yaml'
+    path.write_text(yaml.safe_dump({key: {'ros__parameters': values[key]} for key in order},
+                                   sort_keys=False))
+    node = rclpy.create_node('obstacle_detector', context=local_context,
+                             cli_args=['--ros-args', '--params-file', str(path)],
+                             automatically_declare_parameters_from_overrides=True)
+    try:
+        read = read_params_file(path)
+        assert read == {name: node.get_parameter(name).value for name in read}
+    finally:
+        node.destroy_node()
+
+
+def test_two_nodes_report_under_two_names(local_context: rclpy.Context,
+                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    nodes = [DetectorNode(context=local_context, namespace=ns,
+                          cli_args=['--ros-args', '--params-file', str(CORRIDOR_YAML)])
+             for ns in ('front', 'rear')]
+    reports: list[Any] = []
+    try:
+        for node in nodes:
+            monkeypatch.setattr(node._diagnostics_pub, 'publish',
+                                lambda msg: reports.extend(msg.status))
+            node._publish_diagnostics()
+        assert [(r.name, r.hardware_id) for r in reports] == [
+            ('/front/obstacle_detector: depth obstacle detection', '/front/depth/image_raw'),
+            ('/rear/obstacle_detector: depth obstacle detection', '/rear/depth/image_raw')]
+    finally:
+        for node in nodes:
+            node.close()
+            node.destroy_node()
+
+
+def test_the_launch_files_settings_keep_the_file_and_pass_use_sim_time(
+        local_context: rclpy.Context, tmp_path: Path) -> None:
+    """As launch_ros starts the node: its dict of parameters becomes a '/**' params file."""
+    from test_launch_and_nav2 import _launch_module
+
+    settings = _launch_module().node_settings(
+        {'namespace': 'x', 'use_sim_time': 'true', 'params_file': str(CORRIDOR_YAML)}, '/s')
+    files = []
+    for i, parameters in enumerate(settings['parameters']):
+        if isinstance(parameters, dict):
+            path = tmp_path / f'launch_params_{i}.yaml'
+            path.write_text(yaml.safe_dump({'/**': {'ros__parameters': parameters}}))
+            parameters = str(path)
+        files += ['--params-file', parameters]
+    node = DetectorNode(context=local_context, namespace=settings['namespace'],
+                        cli_args=['--ros-args', *files])
+    try:
+        fqn = node.get_fully_qualified_name()
+        assert fqn == NODE
+        assert node.get_parameter('use_sim_time').value is True
+        file_values = _yaml_values(CORRIDOR_YAML)
+        assert {name: node.get_parameter(name).value for name in file_values} == file_values
+        assert [p for f in files[1::2] for p in params_file_problems(f, fqn)] == []
+    finally:
+        node.close()
+        node.destroy_node()
+
+
+def test_rvl_frames_give_the_raw_frames_outputs_and_a_broken_one_is_skipped(
+        local_context: rclpy.Context, scene: SceneFrame,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    node = DetectorNode(context=local_context, cli_args=[
+        '--ros-args', '--params-file', str(CORRIDOR_YAML),
+        '-p', 'depth_transport:=compressedDepth'])
+    grids: list[OccupancyGrid] = []
+    try:
+        monkeypatch.setattr(node._costmap_pub, 'publish', grids.append)
+        node._on_camera_info(_camera_info(scene))
+        assert node.handle_frame(array_to_image(scene.depth_mm, stamp=Time(),
+                                                frame_id='depth_optical'))
+        assert node.handle_frame(rvl_message(scene.depth_mm, Time(), 'depth_optical'))
+        assert len(grids) == 2 and grids[0].data == grids[1].data
+        assert np.count_nonzero(np.asarray(grids[1].data) == 100) > 100
+
+        broken = rvl_message(scene.depth_mm, Time(), 'depth_optical')
+        broken.data = bytes(broken.data)[:-100]
+        assert not node.handle_frame(broken)
+        assert node.stats.skipped == 1 and len(grids) == 2
+    finally:
+        node.close()
+        node.destroy_node()
+
+
+def test_help_lists_every_topic_the_node_can_use(tmp_path: Path) -> None:
+    """Every create_publisher / create_subscription topic of node.py, and the odometry."""
+    import ast
+
+    from test_node import _run_detector
+
+    tree = ast.parse((REPO / 'obstacle_detection' / 'ros' / 'node.py').read_text())
+    topics = {call.args[1].value for call in ast.walk(tree)
+              if isinstance(call, ast.Call) and isinstance(call.func, ast.Attribute)
+              and call.func.attr in ('create_publisher', 'create_subscription')
+              and len(call.args) >= 2 and isinstance(call.args[1], ast.Constant)}
+    from obstacle_detection.ros.node import DEPTH_TRANSPORTS
+
+    topics |= {topic for _, topic in DEPTH_TRANSPORTS.values()} | {'odom'}
+    assert {'/diagnostics', 'obstacles/fused_costmap', 'depth/camera_info'} <= topics
+
+    done = _run_detector(tmp_path, '--help', salt=':plumbing-help')
+
+    assert done.returncode == 0, done.stderr
+    listed = {line.split()[1] for line in done.stdout.splitlines()
+              if line.startswith(('  in ', '  out '))}
+    assert topics <= listed, topics - listed
