@@ -300,6 +300,24 @@ def test_a_step_no_higher_than_the_step_height_is_no_ledge():
     assert not marks.any()
 
 
+def test_two_surfaces_within_the_floor_band_are_no_ledge():
+    # range noise on a far floor: cells 8.5 cm apart, both within a step of z = 0
+    low = surface_voxels(1.0, 2.0, -0.5, 0.5, -0.045)
+    high = surface_voxels(1.0, 2.0, 0.5, 1.0, 0.04)
+    _, marks = ledge_marks([low, high], [True, True])
+    assert not marks.any()
+
+
+def test_a_walkway_at_floor_level_above_a_lower_reached_floor_has_a_ledge():
+    # the robot on a walkway (z = 0), the floor beside it 0.18 m lower (reached by a ramp)
+    walkway = surface_voxels(1.0, 2.0, -0.5, 0.5, 0.0)
+    lower = surface_voxels(1.0, 2.0, 0.5, 1.0, -0.18)
+    pts, marks = ledge_marks([walkway, lower], [True, True])
+    y = pts[:, 1]
+    assert np.all(marks[(y > 0.45) & (y < 0.5)])
+    assert not marks[(y < 0.45) | (y > 0.5)].any()
+
+
 def test_a_raised_surface_that_was_not_reached_is_left_to_the_height_rule():
     # a box top: not reached, so no ledge (it is an obstacle by its height already)
     floor_pts = surface_voxels(1.0, 2.0, -0.5, 0.5, 0.0)

@@ -138,6 +138,10 @@ def ledges(points: np.ndarray, steep: np.ndarray, reached: np.ndarray, above: np
       ``step_up_m``: its voxels more than ``step_up_m`` above the lowest (the side face seen
       from the floor, which the local ground, the highest neighbour's, calls ground).
 
+    Two surfaces that both lie within the floor's band (``[-step_down_m, step_up_m]`` of
+    z = 0, where the reach starts) are both floor, never a ledge: range noise on a far floor
+    (a real Kinect v1 frame's floor cells 2.3 m away spread over 8 cm) is no open side.
+
     Never a voxel above the robot (``above``). points: (V, 3) float32 ground frame, the
     camera over its origin [m]; steep, reached, above: (V,) bool. Numpy on the cells (a few
     thousand), or compiled (:mod:`._compiled.ledges`, the same flags) when
@@ -197,9 +201,15 @@ def ledges(points: np.ndarray, steep: np.ndarray, reached: np.ndarray, above: np
         wx, wy, sx, sy, owner = wx[gap], wy[gap], sx[gap], sy[gap], owner[gap]
     low[cx, cy] = np.minimum(low[cx, cy], beyond)
     with np.errstate(invalid='ignore'):
-        raised = (surface - low > step_down_m).reshape(-1)[key]   # a reached cell's
+        # two surfaces within the floor's band (the seeds') are both floor: no ledge
+        floor_low = (low >= -step_down_m) & (low <= step_up_m)
+        raised = (surface - low > step_down_m)                    # a reached cell's
+        raised &= ~(floor_low & (surface >= -step_down_m) & (surface <= step_up_m))
+        face = (high - low > step_up_m) & ~(floor_low & (high >= -step_down_m)
+                                            & (high <= step_up_m))
+        raised = raised.reshape(-1)[key]
         low = low.reshape(-1)[key]
-        face = (high.reshape(-1)[key] - low > step_up_m) & (z - low > step_up_m)
+        face = face.reshape(-1)[key] & (z - low > step_up_m)
     return np.where(reached, raised, face) & ~above
 
 

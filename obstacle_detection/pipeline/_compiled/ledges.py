@@ -87,12 +87,17 @@ def _ledges_kernel(points, steep, reached, above, size, step_up, step_down,
         cx = ix[v]
         cy = iy[v]
         lo = low[cx, cy]
+        floor_low = lo >= -step_down and lo <= step_up
         if above[v]:
             out[v] = False
         elif reached[v]:
-            out[v] = surface[cx, cy] - lo > step_down
+            s = surface[cx, cy]
+            out[v] = (s - lo > step_down
+                      and not (floor_low and s >= -step_down and s <= step_up))
         else:
-            out[v] = (high[cx, cy] - lo > step_up
+            hi = high[cx, cy]
+            out[v] = (hi - lo > step_up
+                      and not (floor_low and hi >= -step_down and hi <= step_up)
                       and np.float64(points[v, 2]) - lo > step_up)
 
 
