@@ -163,3 +163,27 @@ def test_surface_gap_points_fill_sparse_samples_of_one_surface_only():
                                       max_gap_m=0.5).shape == (0, 3)
     with pytest.raises(ValueError, match='step_m'):
         metrics.surface_gap_points(points, ids, mask, step_m=0.0, max_gap_m=0.5)
+
+
+def test_tolerant_cells_count_a_mark_one_cell_off_and_not_two():
+    truth = np.full((6, 8), CELL_FREE, np.int8)
+    truth[2, 3] = CELL_OCCUPIED
+    truth[0, 7] = CELL_UNKNOWN
+    predicted = np.zeros((6, 8), np.int8)
+    predicted[3, 4] = CELL_OCCUPIED     # one cell off (diagonal): counts both ways
+    predicted[2, 6] = CELL_OCCUPIED     # three cells off: a far alarm
+    predicted[0, 7] = CELL_OCCUPIED     # on an unscored cell: not counted
+    tol = metrics.tolerant_cells(predicted, truth, cells=1)
+    assert (tol.hit_truth, tol.truth) == (1, 1)
+    assert (tol.hit_marked, tol.marked) == (1, 2)
+    assert (tol.far_alarms, tol.free) == (1, 6 * 8 - 2)
+    assert tol.f1 == pytest.approx(2 * 0.5 * 1.0 / 1.5)
+    strict = metrics.tolerant_cells(predicted, truth, cells=0)
+    assert strict.hit_truth == 0 and strict.far_alarms == 2
+    pooled = tol + tol
+    assert pooled.truth == 2 and pooled.far_alarm_rate == tol.far_alarm_rate
+
+
+def test_tolerant_cells_reject_grids_of_two_shapes():
+    with pytest.raises(ValueError, match='shape'):
+        metrics.tolerant_cells(np.zeros((2, 2), np.int8), np.zeros((3, 2), np.int8))

@@ -1,11 +1,15 @@
 """The robot-level suite (scenarios_robot.json) with params/corridor.yaml: figures held.
 
-Measured (README, Accuracy): overall cell F1 0.941, false alarms 0.87 % of free cells, 44 of 44
-named objects found, passable ramps and landing 99.9 % free, 3 of 3 drops marked; the seed's
-Table 4.2 scores cell F1 0.40 on the same truth. The floors are issue 9's own targets (cell F1
->= 0.9, false alarms <= 1 %, every object found, every drop marked, >= 97 % passable free):
-the measurement clears them by 0.04 and 0.13 points, enough for last-digit differences
-between machines (float summation order in BLAS, OpenCV builds), not for a real regression.
+Measured (docs/accuracy.md, K = 5): 28 frames with issue 22's scenes (open-sided ramps, dark
+furniture with blob dropouts, thin legs): cell F1 0.916 (one-cell tolerance 0.982), false
+alarms 1.50 % of free cells (0.30 % beyond one cell of a true obstacle; the dark furniture
+and the floor fit on the open ramp seen along it carry most), 62 of 62 named objects found
+(the open ramp's side faces included), passable ramps and landings 99.2 % free, 3 of 3 drops
+marked; the seed's Table 4.2 scores cell F1 0.40 on the same truth. The floors keep a margin
+of 0.016 (F1) and 0.5 points (FA) for last-digit differences between machines (float
+summation order in BLAS, OpenCV builds), not for a real regression; the scenes that were there
+before issue 22 keep issue 9's 1 % false-alarm floor, the whole suite 2 % (issue 22's dark
+furniture raised it; its target, 0.5 %, is not met).
 """
 
 from pathlib import Path
@@ -20,33 +24,50 @@ REPO = Path(__file__).resolve().parents[1]
 SUITE = evaluation.SUITES['robot']
 
 
+#: The scenes issue 22 added (open-sided ramps, dark furniture with blob dropouts, thin legs).
+ISSUE_22_SCENES = ('open_ramp', 'open_ramp_ahead', 'dark_furniture', 'thin_legs')
+
+
 def run_suite(params):
-    """Evaluate every scenario of the robot-level suite; return the overall summary."""
+    """Evaluate every scenario of the robot-level suite; return the report."""
     frames = (frame for scenario in evaluation.load_scenarios(SUITE)
               for frame in evaluation.scenario_frames(scenario))
-    return evaluation.evaluate_frames(frames, params).overall
+    return evaluation.evaluate_frames(frames, params)
 
 
 @pytest.fixture(scope='module')
-def corridor_overall():
+def corridor_report():
     params = detector_params_from_ros(read_params_file(REPO / 'params' / 'corridor.yaml'))
     assert params.robot_level and params.refine_floor
     return run_suite(params)
 
 
+@pytest.fixture(scope='module')
+def corridor_overall(corridor_report):
+    return corridor_report.overall
+
+
+def test_the_scenes_before_issue_22_keep_issue_9s_false_alarm_target(corridor_report):
+    assert set(ISSUE_22_SCENES) <= set(corridor_report.scenes)
+    earlier = [summary.cell for name, summary in corridor_report.scenes.items()
+               if name not in ISSUE_22_SCENES]
+    assert len(earlier) >= 16
+    assert sum(earlier[1:], earlier[0]).false_alarm_rate <= 0.01
+
+
 def test_corridor_yaml_holds_the_robot_level_figures(corridor_overall):
     cell = corridor_overall.cell
     assert cell.f1 >= 0.9
-    assert cell.false_alarm_rate <= 0.01
+    assert cell.false_alarm_rate <= 0.02
     found, counted, missed = corridor_overall.objects_found()
-    assert counted >= 40 and found == counted, missed
+    assert counted >= 60 and found == counted, missed
     marked, drops, unmarked = corridor_overall.drops_marked()
     assert drops >= 3 and marked == drops, unmarked
     assert corridor_overall.passable_free() >= 0.97
 
 
 def test_the_seed_method_does_not(corridor_overall):
-    seed = run_suite(table_4_2())
+    seed = run_suite(table_4_2()).overall
     assert seed.cell.f1 < corridor_overall.cell.f1 - 0.3      # flat tops, curbs, drops
     marked, drops, _ = seed.drops_marked()
     assert marked < drops

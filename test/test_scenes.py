@@ -14,6 +14,7 @@ from obstacle_detection.sim.noise import (KINECT_V2_NOISE, KINECT_V2_TOF_NOISE, 
 from obstacle_detection.sim.primitives import Box, Cylinder, Floor, Ramp, StepDown, Wall
 from obstacle_detection.sim.render import render, Scene
 from obstacle_detection.sim.scenes import render_scene, scene_params
+from obstacle_detection.sim.truth import DROP_EDGE_BAND_M
 
 HEIGHT_M = 0.6
 QHD = Intrinsics(fx=540.0, fy=540.0, cx=479.5, cy=269.5)   # another camera, 960x540
@@ -130,6 +131,11 @@ def test_ramps_gentle_traversable_steep_obstacle():
     assert steep.slope_rad == pytest.approx(math.radians(45.0))
     for index, ramp, label in ((1, gentle, GT_TRAVERSABLE), (2, steep, GT_OBSTACLE)):
         on_ramp = frame.hit_index == index
+        if label == GT_TRAVERSABLE:   # away from its open sides and end (ledges, issue 22)
+            x, y = frame.points_ground[..., 0], frame.points_ground[..., 1]
+            band = DROP_EDGE_BAND_M + 1e-3
+            on_ramp &= ((np.abs(y - ramp.y_center_m) < ramp.width_m / 2 - band)
+                        & (x < ramp.x_start_m + ramp.length_m - band))
         assert on_ramp.sum() > 2000
         assert np.all(frame.labels[on_ramp] == label)
         x, z = frame.points_ground[on_ramp][:, 0], frame.points_ground[on_ramp][:, 2]
@@ -253,6 +259,20 @@ def test_dropout_fraction(dark, rate):
     assert on_wall.sum() > 50000
     fraction = np.mean(frame.depth_mm[on_wall] == 0)
     assert fraction == pytest.approx(rate, abs=0.1 * rate)
+
+
+def test_dark_dropouts_in_blobs_keep_the_rate_and_come_in_blobs():
+    model = NoiseModel(dropout_rate=0.0, dark_dropout_rate=0.4, border_px=0, dark_blob_px=6.0)
+    frame = render(wall_scene(2.0, dark=True), noise=model, seed=11)
+    on_wall = frame.hit_index == 1
+    dropped = on_wall & (frame.depth_mm == 0)
+    assert np.mean(dropped[on_wall]) == pytest.approx(0.4, abs=0.01)
+    inner = dropped[1:-1, 1:-1]
+    all_four = (dropped[:-2, 1:-1] & dropped[2:, 1:-1] & dropped[1:-1, :-2]
+                & dropped[1:-1, 2:])
+    assert np.mean(all_four[inner]) > 0.8          # pepper at 40 %: 0.4 ** 4 = 0.03
+    plain = render(wall_scene(2.0, dark=False), noise=model, seed=11)
+    assert not np.any(plain.depth_mm[plain.hit_index == 1] == 0)
 
 
 def test_default_dropout_rate_is_under_one_percent():

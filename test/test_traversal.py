@@ -259,13 +259,135 @@ def test_labels_follow_the_costmap_decision():
     assert (result.costmap.data[row[inside], col[inside]] == CELL_OCCUPIED).all()
 
 
+# -- ledges: the open sides of raised traversable surfaces (issue 22) ------------------------
+
+LEDGE_CELL = 0.05
+VOXEL = 0.025
+
+
+def surface_voxels(x0, x1, y0, y1, z):
+    """Voxel centroids (N, 3) float32 of a level surface at z over [x0, x1) x [y0, y1) [m]."""
+    xs = np.arange(x0 + VOXEL / 2, x1, VOXEL)
+    ys = np.arange(y0 + VOXEL / 2, y1, VOXEL)
+    gx, gy = np.meshgrid(xs, ys, indexing='ij')
+    return np.stack((gx.ravel(), gy.ravel(), np.full(gx.size, z)), axis=1).astype(np.float32)
+
+
+def ledge_marks(parts, reached_flags, *, step=0.05):
+    """Run traversal.ledges on parts (point arrays), each reached or not; (points, marks)."""
+    pts = np.concatenate(parts)
+    reached = np.concatenate([np.full(len(p), r) for p, r in zip(parts, reached_flags)])
+    steep = np.zeros(len(pts), bool)
+    above = pts[:, 2] > 1.0
+    return pts, traversal.ledges(pts, steep, reached, above, LEDGE_CELL, step, step)
+
+
+@pytest.mark.parametrize('rise', [0.18, 0.10])
+def test_a_raised_reached_surface_beside_the_floor_has_its_edge_cells_marked(rise):
+    # floor for y < 0.5, a platform (reached through a ramp elsewhere) for y >= 0.5
+    floor_pts = surface_voxels(1.0, 2.0, -0.5, 0.5, 0.0)
+    platform = surface_voxels(1.0, 2.0, 0.5, 1.0, rise)
+    pts, marks = ledge_marks([floor_pts, platform], [True, True])
+    y = pts[:, 1]
+    assert np.all(marks[(y > 0.5) & (y < 0.55)])          # the platform's edge cell
+    assert not marks[(y < 0.5) | (y > 0.55)].any()         # nothing else, no floor cell
+
+
+def test_a_step_no_higher_than_the_step_height_is_no_ledge():
+    floor_pts = surface_voxels(1.0, 2.0, -0.5, 0.5, 0.0)
+    sill = surface_voxels(1.0, 2.0, 0.5, 1.0, 0.04)
+    _, marks = ledge_marks([floor_pts, sill], [True, True])
+    assert not marks.any()
+
+
+def test_two_surfaces_within_the_floor_band_are_no_ledge():
+    # range noise on a far floor: cells 8.5 cm apart, both within a step of z = 0
+    low = surface_voxels(1.0, 2.0, -0.5, 0.5, -0.045)
+    high = surface_voxels(1.0, 2.0, 0.5, 1.0, 0.04)
+    _, marks = ledge_marks([low, high], [True, True])
+    assert not marks.any()
+
+
+def test_a_walkway_at_floor_level_above_a_lower_reached_floor_has_a_ledge():
+    # the robot on a walkway (z = 0), the floor beside it 0.18 m lower (reached by a ramp)
+    walkway = surface_voxels(1.0, 2.0, -0.5, 0.5, 0.0)
+    lower = surface_voxels(1.0, 2.0, 0.5, 1.0, -0.18)
+    pts, marks = ledge_marks([walkway, lower], [True, True])
+    y = pts[:, 1]
+    assert np.all(marks[(y > 0.45) & (y < 0.5)])
+    assert not marks[(y < 0.45) | (y > 0.5)].any()
+
+
+def test_a_raised_surface_that_was_not_reached_is_left_to_the_height_rule():
+    # a box top: not reached, so no ledge (it is an obstacle by its height already)
+    floor_pts = surface_voxels(1.0, 2.0, -0.5, 0.5, 0.0)
+    box_top = surface_voxels(1.0, 2.0, 0.5, 1.0, 0.3)
+    _, marks = ledge_marks([floor_pts, box_top], [True, False])
+    assert not marks.any()
+
+
+def test_the_edge_is_found_across_its_shadow_away_from_the_camera_only():
+    # seen from the origin, the floor right beyond the platform's far side is hidden: a gap
+    # of cells without voxels, then the floor again
+    platform = surface_voxels(1.0, 2.0, 0.0, 0.5, 0.18)
+    beyond = surface_voxels(1.0, 2.0, 0.7, 1.2, 0.0)
+    pts, marks = ledge_marks([platform, beyond], [True, True])
+    y = pts[:, 1]
+    assert np.all(marks[(y > 0.45) & (y < 0.5)])
+    assert not marks[(y < 0.45) | (y > 0.5)].any()
+    # the same gap on the camera's side is no shadow of the platform: nothing is inferred
+    mirrored = pts * np.float32([1.0, -1.0, 1.0])
+    mirrored[:, 1] += np.float32(1.2)     # platform at y 0.7..1.2, floor at 0..0.5
+    far_plat = mirrored[:, 2] > 0.1
+    _, marks2 = ledge_marks([mirrored[far_plat], mirrored[~far_plat]], [True, True])
+    assert not marks2.any()
+
+
+def test_a_side_face_seen_from_the_floor_is_marked_above_a_step():
+    floor_pts = surface_voxels(1.0, 2.0, -0.5, 0.5, 0.0)
+    platform = surface_voxels(1.0, 2.0, 0.55, 1.0, 0.18)
+    zs = np.arange(0.0125, 0.18, VOXEL)
+    xs = np.arange(1.0125, 2.0, VOXEL)
+    gx, gz = np.meshgrid(xs, zs, indexing='ij')
+    face = np.stack((gx.ravel(), np.full(gx.size, 0.51), gz.ravel()), axis=1).astype(np.float32)
+    face_floor = surface_voxels(1.0, 2.0, 0.5, 0.55, 0.0)    # the floor at its foot
+    pts, marks = ledge_marks([floor_pts, platform, face, face_floor], [True, True, False, False])
+    n_face0 = len(floor_pts) + len(platform)
+    on_face = np.zeros(len(pts), bool)
+    on_face[n_face0:n_face0 + len(face)] = True
+    assert np.all(marks[on_face & (pts[:, 2] > 0.05 + 1e-3)])
+    assert not marks[on_face & (pts[:, 2] < 0.05 - 1e-3)].any()
+    assert not marks[:len(floor_pts)].any()
+
+
+def test_ledge_is_never_above_the_robot():
+    floor_pts = surface_voxels(1.0, 2.0, -0.5, 0.5, 0.0)
+    high = surface_voxels(1.0, 2.0, 0.5, 1.0, 1.2)          # reached, but 1.2 m up
+    _, marks = ledge_marks([floor_pts, high], [True, True])
+    assert not marks.any()
+
+
+def test_the_detector_marks_both_open_sides_of_a_ramp_seen_along_it():
+    slope = math.radians(12.0)
+    run_m = 0.18 / math.tan(slope)
+    ramp = Ramp(x_start_m=0.9, y_center_m=0.0, width_m=0.9, length_m=run_m, slope_rad=slope)
+    platform = Box((0.9 + run_m, -0.45, 0.0), (3.0, 0.45, 0.18))
+    _, _, robot = run([Floor(), ramp, platform], refine_floor=False)
+    x0 = 1.3                                            # the ramp over 8 cm up, the platform
+    for y0, y1 in ((0.35, 0.5), (-0.5, -0.35)):          # within a cell of each open side
+        edge = cells(robot, x0, 1.7, y0, y1)   # the floor beyond the shadow within 2 m
+        assert seen(edge).size >= 10
+        assert all(np.any(col == CELL_OCCUPIED) for col in edge.T)   # every x along it
+    assert occupied_share(cells(robot, x0, 2.0, -0.3, 0.3)) == 0.0   # the middle stays free
+
+
 # -- the compiled kernels equal the numpy path -----------------------------------------------
 
 jit_only = pytest.mark.skipif(not jit_traversal.AVAILABLE, reason='numba is not installed')
 
 
 @jit_only
-@pytest.mark.parametrize('name', ['corridor', 'ramps', 'step_down'])
+@pytest.mark.parametrize('name', ['corridor', 'ramps', 'step_down', 'open_ramp_ahead'])
 def test_robot_level_pipeline_identical_with_and_without_jit(name, monkeypatch):
     frame = render_scene(name, seed=2)
     params = scene_params(frame, corridor())
@@ -312,6 +434,28 @@ def test_traversal_kernels_equal_numpy(monkeypatch):
     jit_rays = geometry.ground_rays((424, 512), intr, params)
     monkeypatch.setenv(NO_JIT_ENV, '1')
     np.testing.assert_array_equal(jit_rays, geometry.ground_rays((424, 512), intr, params))
+
+
+@jit_only
+def test_ledge_kernel_equals_numpy(monkeypatch):
+    from obstacle_detection.pipeline._compiled import ledges as jit_ledges
+    rng = np.random.default_rng(22)
+    marked = 0
+    for trial in range(20):
+        n = int(rng.integers(50, 3000))
+        pts = rng.uniform([0.3, -1.5, -0.1], [3.0, 1.5, 0.4], size=(n, 3)).astype(np.float32)
+        pts[: n // 2, 2] = rng.choice([0.0, 0.03, 0.18, 1.2], n // 2) + rng.normal(0, 0.01, n // 2)
+        steep = rng.random(n) < 0.2
+        reached = rng.random(n) < 0.6
+        above = pts[:, 2] > 1.0
+        got = jit_ledges.ledges(pts, steep, reached, above, 0.05, 0.05, 0.05,
+                                traversal.LEDGE_SHADOW_CELLS)
+        monkeypatch.setenv(NO_JIT_ENV, '1')
+        want = traversal.ledges(pts, steep, reached, above, 0.05, 0.05, 0.05)
+        monkeypatch.delenv(NO_JIT_ENV)
+        np.testing.assert_array_equal(got, want, err_msg=f'trial {trial}')
+        marked += int(want.sum())
+    assert marked > 100
 
 
 def frame_intrinsics():

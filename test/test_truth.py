@@ -8,7 +8,7 @@ import pytest
 
 from obstacle_detection.labels import GT_ABOVE_ROBOT, GT_NO_RETURN, GT_OBSTACLE, GT_TRAVERSABLE
 from obstacle_detection.pipeline.params import DetectorParams
-from obstacle_detection.sim.primitives import Box, Cylinder, Floor, Ramp, StepDown
+from obstacle_detection.sim.primitives import Box, Cylinder, Floor, Ramp, RampSide, StepDown
 from obstacle_detection.sim.render import render, Scene
 from obstacle_detection.sim.scenes import chair, render_scene, table
 from obstacle_detection.sim.truth import DROP_EDGE_BAND_M, TruthRules
@@ -43,10 +43,14 @@ def test_landing_reached_by_a_passable_ramp_is_traversable_and_unreached_it_is_n
     rise = ramp.top_height_m
     landing = Box((1.7, -0.4, 0.0), (3.0, 0.4, rise))
     with_ramp = exact([Floor(), ramp, landing])
+    # away from the open sides (ledges, issue 22: a band of DROP_EDGE_BAND_M is an obstacle)
+    pts = with_ramp.points_ground
+    inner = ((np.abs(pts[..., 1]) < 0.4 - DROP_EDGE_BAND_M - 1e-3)
+             & (pts[..., 0] < 3.0 - DROP_EDGE_BAND_M - 1e-3))
     top = on(with_ramp, 2, z=rise)
-    assert top.sum() > 200
-    assert np.all(with_ramp.labels[top] == GT_TRAVERSABLE)
-    assert np.all(with_ramp.labels[on(with_ramp, 1)] == GT_TRAVERSABLE)
+    assert (top & inner).sum() > 200
+    assert np.all(with_ramp.labels[top & inner] == GT_TRAVERSABLE)
+    assert np.all(with_ramp.labels[on(with_ramp, 1) & inner] == GT_TRAVERSABLE)
     # the same platform without its ramp is 0.106 m up: more than a step, an obstacle
     alone = exact([Floor(), landing])
     assert np.all(alone.labels[on(alone, 1, z=rise)] == GT_OBSTACLE)
@@ -62,7 +66,11 @@ def test_landing_reached_by_a_passable_ramp_is_traversable_and_unreached_it_is_n
 def test_ramp_traversability_follows_theta_of_the_rules():
     ramp = Ramp(x_start_m=1.1, y_center_m=0.0, width_m=0.8, length_m=1.0,
                 slope_rad=math.radians(15.0))
-    assert np.all(exact([Floor(), ramp]).labels[on(exact([Floor(), ramp]), 1)] == GT_TRAVERSABLE)
+    frame = exact([Floor(), ramp])
+    pts = frame.points_ground   # away from its open sides and end (ledges, issue 22)
+    inner = ((np.abs(pts[..., 1]) < 0.4 - DROP_EDGE_BAND_M - 1e-3)
+             & (pts[..., 0] < 2.1 - DROP_EDGE_BAND_M - 1e-3))
+    assert np.all(frame.labels[on(frame, 1) & inner] == GT_TRAVERSABLE)
     strict = exact([Floor(), ramp], rules=TruthRules(max_slope_rad=math.radians(10.0)))
     assert on(strict, 1).sum() > 1000
     assert np.all(strict.labels[on(strict, 1)] == GT_OBSTACLE)
@@ -183,8 +191,64 @@ def test_rules_from_params_read_present_fields_and_default_the_others():
         TruthRules(max_step_down_m=-0.1)
 
 
+def _open_platform(side_y: float):
+    # a 12 deg ramp from x = 1.0 up to 0.18 m, a platform beyond it, |y| <= 0.4 (issue 22)
+    slope = math.radians(12.0)
+    run = 0.18 / math.tan(slope)
+    ramp = Ramp(x_start_m=1.0, y_center_m=side_y + 0.4, width_m=0.8, length_m=run,
+                slope_rad=slope)
+    platform = Box((1.0 + run, side_y, 0.0), (1.0 + run + 1.2, side_y + 0.8, 0.18))
+    return [RampSide(1.0, side_y, run, slope), Floor(), ramp, platform], run
+
+
+def test_open_side_of_a_reached_ramp_and_platform_is_a_ledge():
+    # straight ahead, both sides open: seen along it, a band of DROP_EDGE_BAND_M along each
+    # side where the surface stands more than a step above the floor is an obstacle
+    prims, run = _open_platform(-0.4)
+    frame = exact(prims[1:])
+    pts = frame.points_ground
+    edge_dist = 0.4 - np.abs(pts[..., 1])
+    ramp_z = (pts[..., 0] - 1.0) * math.tan(math.radians(12.0))
+    for index in (1, 2):   # the ramp, the platform
+        mine = on(frame, index) & (pts[..., 0] < 1.0 + run + 1.2 - DROP_EDGE_BAND_M - 1e-3)
+        high = mine & (np.minimum(ramp_z, 0.18) > 0.05 + 1e-3)
+        band = high & (edge_dist < DROP_EDGE_BAND_M - 1e-3)
+        assert band.sum() > 20
+        assert np.all(frame.labels[band] == GT_OBSTACLE)
+        inner = mine & (edge_dist > DROP_EDGE_BAND_M + 1e-3)
+        assert inner.sum() > 200
+        assert np.all(frame.labels[inner] == GT_TRAVERSABLE)
+    # where the ramp is no higher than a step, its side is no ledge
+    low = on(frame, 1) & (ramp_z < 0.05 - 1e-3) & (edge_dist < DROP_EDGE_BAND_M - 1e-3)
+    assert low.sum() > 20
+    assert np.all(frame.labels[low] == GT_TRAVERSABLE)
+
+
+def test_open_side_face_seen_from_the_floor_is_an_obstacle_above_a_step():
+    prims, run = _open_platform(0.25)
+    frame = exact(prims)
+    side = on(frame, 0)
+    z = frame.points_ground[..., 2]
+    ramp_z = (frame.points_ground[..., 0] - 1.0) * math.tan(math.radians(12.0))
+    climbable = side & (ramp_z < 0.05 - 1e-3)
+    assert side.sum() > 100 and climbable.sum() > 5
+    assert np.all(frame.labels[side & (ramp_z > 0.05 + 1e-3)] == GT_OBSTACLE)
+    assert np.all(frame.labels[climbable] == GT_TRAVERSABLE)   # a riser no higher than a step
+    assert np.all(frame.labels[on(frame, 1)] == GT_TRAVERSABLE)   # the floor beside it
+    assert np.all(z[side] >= -1e-6)
+
+
+def test_a_platform_beside_a_drop_keeps_its_drop_and_gets_no_ledge():
+    # the lower floor beyond a drop is not reached: a drop (flagged), not a ledge
+    frame = exact([StepDown(x_m=1.4, depth_m=0.3)])
+    upper = on(frame, 0, z=0.0)
+    assert np.all(frame.labels[upper] == GT_TRAVERSABLE)
+
+
 @pytest.mark.parametrize('name', ['office', 'dark_office', 'ramp_landing', 'dock_edge',
-                                  'dock_edge_high', 'curb_sill', 'shelf', 'orchard'])
+                                  'dock_edge_high', 'curb_sill', 'shelf', 'orchard',
+                                  'open_ramp', 'open_ramp_ahead', 'dark_furniture',
+                                  'thin_legs'])
 def test_new_scenes_keep_labels_consistent_with_depth(name):
     frame = render_scene(name, seed=1)
     np.testing.assert_array_equal(frame.labels == GT_NO_RETURN, frame.depth_mm == 0)

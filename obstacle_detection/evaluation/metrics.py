@@ -35,6 +35,7 @@ computed from the summed counts (micro average), never by averaging per-frame ra
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -272,6 +273,91 @@ def occupied_share(predicted_grid: np.ndarray, cells: np.ndarray, *,
                 grown |= padded[dy:dy + ny, dx:dx + nx]
         occupied = grown
     return int(np.count_nonzero(occupied & cells)), int(np.count_nonzero(cells))
+
+
+def grow_cells(mask: np.ndarray, cells: int) -> np.ndarray:
+    """(ny, nx) bool: the cells within ``cells`` cells (Chebyshev distance) of a True cell."""
+    mask = np.asarray(mask, dtype=bool)
+    if cells <= 0:
+        return mask.copy()
+    k = int(cells)
+    padded = np.pad(mask, k)
+    grown = np.zeros_like(mask)
+    ny, nx = mask.shape
+    for dy in range(2 * k + 1):
+        for dx in range(2 * k + 1):
+            grown |= padded[dy:dy + ny, dx:dx + nx]
+    return grown
+
+
+@dataclass(frozen=True)
+class TolerantCells:
+    """Costmap-cell counts with a tolerance of ``cells`` cells (issue 22); add to pool frames.
+
+    hit_truth / truth: occupied truth cells with an occupied predicted cell within the
+    tolerance / all occupied truth cells; hit_marked / marked: occupied predicted cells (on
+    scored truth cells) with an occupied truth cell within the tolerance / all of them;
+    far_alarms / free: free truth cells marked occupied with no occupied truth cell within the
+    tolerance / all free truth cells.
+    """
+
+    hit_truth: int = 0
+    truth: int = 0
+    hit_marked: int = 0
+    marked: int = 0
+    far_alarms: int = 0
+    free: int = 0
+
+    def __add__(self, other: 'TolerantCells') -> 'TolerantCells':
+        return TolerantCells(*(a + b for a, b in zip(dataclasses.astuple(self),
+                                                     dataclasses.astuple(other))))
+
+    @property
+    def recall(self) -> float:
+        """Share of the occupied truth cells found within the tolerance."""
+        return _ratio(self.hit_truth, self.truth)
+
+    @property
+    def precision(self) -> float:
+        """Share of the marked cells with a true obstacle within the tolerance."""
+        return _ratio(self.hit_marked, self.marked)
+
+    @property
+    def f1(self) -> float:
+        """Harmonic mean of the tolerant precision and recall (NaN when undefined)."""
+        p, r = self.precision, self.recall
+        return 2 * p * r / (p + r) if p + r > 0 else math.nan
+
+    @property
+    def far_alarm_rate(self) -> float:
+        """Share of the free truth cells marked with no true obstacle within the tolerance."""
+        return _ratio(self.far_alarms, self.free)
+
+
+def tolerant_cells(predicted_grid: np.ndarray, truth_grid: np.ndarray, *,
+                   cells: int = 1) -> TolerantCells:
+    """Cell counts where a mark within ``cells`` cells of a true obstacle counts (and back).
+
+    predicted_grid, truth_grid: (ny, nx) ``CELL_*`` grids of one geometry; truth cells
+    ``CELL_UNKNOWN`` are not scored (a predicted mark there is not counted).
+    """
+    predicted = np.asarray(predicted_grid) == CELL_OCCUPIED
+    truth_grid = np.asarray(truth_grid)
+    if predicted.shape != truth_grid.shape:
+        raise ValueError(f'predicted grid shape {predicted.shape} differs from truth grid '
+                         f'shape {truth_grid.shape}')
+    occupied = truth_grid == CELL_OCCUPIED
+    free = truth_grid == CELL_FREE
+    scored = truth_grid != CELL_UNKNOWN
+    near_truth = grow_cells(occupied, cells)
+    marked = predicted & scored
+    return TolerantCells(
+        hit_truth=int(np.count_nonzero(occupied & grow_cells(predicted, cells))),
+        truth=int(np.count_nonzero(occupied)),
+        hit_marked=int(np.count_nonzero(marked & near_truth)),
+        marked=int(np.count_nonzero(marked)),
+        far_alarms=int(np.count_nonzero(predicted & free & ~near_truth)),
+        free=int(np.count_nonzero(free)))
 
 
 def free_share(predicted_grid: np.ndarray, cells: np.ndarray) -> tuple[int, int]:

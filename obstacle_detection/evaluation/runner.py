@@ -62,7 +62,7 @@ TRUTH_KINDS = ('seed', 'robot')
 #: Sensor models by name (``sim.noise.NOISE_MODELS``): 'kinect_v2' (the generator's default, the
 #: seed suite's), 'kinect_v2_tof' with time-of-flight artefacts (flying pixels, more noise and
 #: dropouts on dark and far surfaces; the robot suite's), 'exact'.
-NOISE_NAMES = ('kinect_v2', 'kinect_v2_tof', 'exact')
+NOISE_NAMES = ('kinect_v2', 'kinect_v2_tof', 'kinect_v2_tof_blobs', 'exact')
 
 
 # --------------------------------------------------------------------------------------------

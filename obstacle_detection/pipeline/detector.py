@@ -206,6 +206,8 @@ class Detector:
             clock.lap('traversal')
             clock.lap('drops')
         is_obstacle = validate_obstacles(candidates, neighbours, p.validation_neighbours)
+        if p.robot_level and trav.ledge is not None:
+            is_obstacle |= trav.ledge   # a band one cell wide, as a drop edge: not validated
         clock.lap('validation')
         obstacle_points = centroids[is_obstacle]
         if drop_points.shape[0]:

@@ -22,6 +22,9 @@ climb a passable ramp to its landing. After the normals, :func:`traversable_grou
    or lower than ``-max_step_down_m`` (the floor beyond a drop). Above the robot: not an
    obstacle.
 
+:func:`ledges` marks the open side of a raised traversable surface (a ramp or landing more than
+a step above the floor beside it, both reached: issue 22), kept through the N1 validation.
+
 :func:`drop_edges` marks a drop whose lower floor is out of view or out of range: a pixel whose
 ray passed the floor plane (its point lies more than the step down below it) right above pixels
 that see the floor marks the cell where that floor ends, when it lies within the range.
@@ -34,10 +37,12 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy.ndimage import maximum_filter, minimum_filter
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import breadth_first_order
 
 from . import jit
+from ._compiled import ledges as jit_ledges
 from ._compiled import traversal as jit_traversal
 from .geometry import GroundRays, ray_table, rays_at
 from .params import DetectorParams
@@ -55,6 +60,11 @@ DROP_EDGE_ROWS = 3
 FLYING_JUMP = 0.03
 #: Largest second difference of the inverse depth, as a share of it, of a pixel on a plane.
 PLANAR_TOLERANCE = 0.02
+#: Cells searched beyond an open side for the lower ground in its shadow (the floor beside
+#: a platform 18 cm up, seen from 0.6 m, is hidden over 0.4 x the side's distance) [cells].
+LEDGE_SHADOW_CELLS = 12
+#: The 8 directions of the search across an edge, as (dx, dy) cell steps.
+_DIRECTIONS = np.array(((1, 0), (0, 1), (-1, 0), (0, -1), (1, 1), (1, -1), (-1, 1), (-1, -1)))
 #: Window of the flying-pixel test [px]: time-of-flight mixed pixels lie up to two pixels
 #: from the depth edge.
 FLYING_WINDOW_PX = 5
@@ -66,7 +76,8 @@ class Traversal:
 
     is_obstacle: (V,) bool before the seed's N1 validation; above_robot: (V,) bool;
     height_m: (V,) float32 height above the local ground [m]; reached: (V,) bool, the voxel's
-    cell was reached from the floor; cell_size_m: the grid's cell size [m].
+    cell was reached from the floor; cell_size_m: the grid's cell size [m]; ledge: (V,) bool,
+    the voxel lies on a ledge (:func:`ledges`), an obstacle that the N1 validation keeps.
     """
 
     is_obstacle: np.ndarray
@@ -74,6 +85,7 @@ class Traversal:
     height_m: np.ndarray
     reached: np.ndarray
     cell_size_m: float
+    ledge: np.ndarray | None = None
 
 
 def cell_size(params: DetectorParams) -> float:
@@ -92,7 +104,7 @@ def traversable_ground(points: np.ndarray, steep: np.ndarray,
     size = cell_size(params)
     if points.shape[0] == 0:
         empty = np.zeros(0, bool)
-        return Traversal(empty, empty, np.zeros(0, np.float32), empty, size)
+        return Traversal(empty, empty, np.zeros(0, np.float32), empty, size, empty)
     if jit.enabled():
         out = jit_traversal.traverse(points, steep, size, params.max_step_height_m,
                                      params.max_step_down_m, params.robot_height_m,
@@ -100,7 +112,104 @@ def traversable_ground(points: np.ndarray, steep: np.ndarray,
     else:
         out = traverse_numpy(points, steep, size, params.max_step_height_m,
                              params.max_step_down_m, params.robot_height_m, params.voxel_z_m)
-    return Traversal(*out, size)
+    edge = ledges(points, steep, out[3], out[1], size, params.max_step_height_m,
+                  params.max_step_down_m)
+    return Traversal(*out, size, edge)
+
+
+def ledges(points: np.ndarray, steep: np.ndarray, reached: np.ndarray, above: np.ndarray,
+           size_m: float, step_up_m: float, step_down_m: float) -> np.ndarray:
+    """(V,) bool: voxels on the side of a raised traversable surface (issue 22).
+
+    Where two reached surfaces, a ramp or a landing and the floor beside it, differ by more
+    than a step (its open side, which the reach from the floor does not stop at: both are
+    reached), the robot falls off the higher one or meets a wall from the lower one. On the
+    cell grid of :func:`traverse_numpy` (same cells); a cell's surface is its lowest flat
+    voxel, where it was reached:
+
+    - a reached cell whose *lower ground* lies more than ``step_down_m`` below its surface:
+      its voxels, the edge of the higher surface. Its lower ground is the lowest reached
+      surface among its 8 neighbours or, across the edge (the floor right beyond an open
+      side lies in its shadow), the lowest of the first cells with voxels beyond a gap of
+      cells without (up to ``LEDGE_SHADOW_CELLS``) in the 8 directions whose x and y steps
+      both lead away from the camera (or are 0), where reached;
+    - a cell not reached whose reached neighbours' surfaces differ by more than
+      ``step_up_m``: its voxels more than ``step_up_m`` above the lowest (the side face seen
+      from the floor, which the local ground, the highest neighbour's, calls ground).
+
+    Two surfaces that both lie within the floor's band (``[-step_down_m, step_up_m]`` of
+    z = 0, where the reach starts) are both floor, never a ledge: range noise on a far floor
+    (a real Kinect v1 frame's floor cells 2.3 m away spread over 8 cm) is no open side.
+
+    Never a voxel above the robot (``above``). points: (V, 3) float32 ground frame, the
+    camera over its origin [m]; steep, reached, above: (V,) bool. Numpy on the cells (a few
+    thousand), or compiled (:mod:`._compiled.ledges`, the same flags) when
+    :func:`.jit.enabled`. The marks are obstacles that the seed's N1 validation keeps (a
+    ledge is a band one cell wide, as a drop edge).
+    """
+    if points.shape[0] == 0:
+        return np.zeros(0, bool)
+    if jit.enabled():
+        return jit_ledges.ledges(points, steep, reached, above, size_m, step_up_m, step_down_m,
+                                 LEDGE_SHADOW_CELLS)
+    size = np.float32(size_m)
+    ix = np.floor(points[:, 0] / size).astype(np.int64)
+    iy = np.floor(points[:, 1] / size).astype(np.int64)
+    ox, oy = int(ix.min()), int(iy.min())
+    ix -= ox
+    iy -= oy
+    nx, ny = int(ix.max()) + 1, int(iy.max()) + 1
+    key = ix * ny + iy
+    z = points[:, 2].astype(np.float64)
+    flat = reached & ~steep
+    surface = np.full(nx * ny, np.inf)
+    np.minimum.at(surface, key[flat], z[flat])
+    surface = surface.reshape(nx, ny)
+    low = minimum_filter(surface, size=3, mode='constant', cval=np.inf)
+    top = np.where(np.isfinite(surface), surface, -np.inf)
+    high = maximum_filter(top, size=3, mode='constant', cval=-np.inf)
+    # across the edge, where the lower ground right beyond it lies in the edge's shadow:
+    # from a reached cell with an empty neighbour, over empty cells in the 8 directions that
+    # lead away from the camera, to the first cell with voxels
+    seen = np.zeros(nx * ny, bool)
+    seen[key] = True
+    seen = seen.reshape(nx, ny)
+    empty_nb = minimum_filter(seen, size=3, mode='constant', cval=True) == 0
+    cx, cy = np.nonzero(np.isfinite(surface) & empty_nb)
+    # every (cell, direction) pair at once, walked k cells out
+    sx = np.repeat(_DIRECTIONS[:, 0][None, :], cx.size, axis=0).reshape(-1)
+    sy = np.repeat(_DIRECTIONS[:, 1][None, :], cx.size, axis=0).reshape(-1)
+    wx = np.repeat(cx, 8)
+    wy = np.repeat(cy, 8)
+    owner = np.repeat(np.arange(cx.size), 8)
+    # the gap lies behind the edge, seen from the camera: each step component leads away
+    going = (sx * (wx + ox + 0.5) >= 0.0) & (sy * (wy + oy + 0.5) >= 0.0)
+    wx, wy, sx, sy, owner = wx[going], wy[going], sx[going], sy[going], owner[going]
+    beyond = np.full(cx.size, np.inf)
+    for k in range(1, LEDGE_SHADOW_CELLS + 1):
+        wx = wx + sx
+        wy = wy + sy
+        inside = (wx >= 0) & (wx < nx) & (wy >= 0) & (wy < ny)
+        wx, wy, sx, sy, owner = wx[inside], wy[inside], sx[inside], sy[inside], owner[inside]
+        if wx.size == 0:
+            break
+        hit = seen[wx, wy]
+        if k > 1:   # the first cell beyond a gap (next to it, the 8 neighbours decide)
+            np.minimum.at(beyond, owner[hit], surface[wx[hit], wy[hit]])
+        gap = ~hit
+        wx, wy, sx, sy, owner = wx[gap], wy[gap], sx[gap], sy[gap], owner[gap]
+    low[cx, cy] = np.minimum(low[cx, cy], beyond)
+    with np.errstate(invalid='ignore'):
+        # two surfaces within the floor's band (the seeds') are both floor: no ledge
+        floor_low = (low >= -step_down_m) & (low <= step_up_m)
+        raised = (surface - low > step_down_m)                    # a reached cell's
+        raised &= ~(floor_low & (surface >= -step_down_m) & (surface <= step_up_m))
+        face = (high - low > step_up_m) & ~(floor_low & (high >= -step_down_m)
+                                            & (high <= step_up_m))
+        raised = raised.reshape(-1)[key]
+        low = low.reshape(-1)[key]
+        face = face.reshape(-1)[key] & (z - low > step_up_m)
+    return np.where(reached, raised, face) & ~above
 
 
 def traverse_numpy(points: np.ndarray, steep: np.ndarray, size_m: float, step_up_m: float,
@@ -379,3 +488,6 @@ def warm_up() -> None:
     """Compile (or load from the disk cache) the robot-level kernels, if they run."""
     if jit.enabled():
         jit_traversal.warm_up()
+        pts = np.zeros((2, 3), np.float32)
+        flags = np.zeros(2, bool)
+        jit_ledges.ledges(pts, flags, flags, flags, 0.05, 0.05, 0.05, LEDGE_SHADOW_CELLS)

@@ -16,7 +16,11 @@ Sensor model (``NoiseModel``, Kinect v2 like; all draws from one generator seede
 3. no return outside the valid band: quantised depth below 0.5 m or above 4.5 m becomes 0;
 4. pepper dropouts: each pixel is set to 0 with probability 0.75 %, or 40 % on a primitive
    flagged ``dark`` (low-reflectance material), plus ``far_dropout_rate`` reached at 4.5 m,
-   linearly from 3 m (10 % in the time-of-flight model);
+   linearly from 3 m (10 % in the time-of-flight model); with ``dark_blob_px`` > 0 the dark
+   dropouts come in blobs instead (black furniture, time-of-flight on dark fabric): a smooth
+   random field over the image (white noise blurred with a Gaussian of that standard
+   deviation [px], from a generator of its own) drops the ``dark_dropout_rate`` share of each
+   dark primitive's pixels where it is highest;
 5. an invalid border: the outer 4 pixel rows and columns are 0.
 
 ``noise=False`` keeps only steps 2 and 3 (exact depth, millimetre quantised, valid band).
@@ -61,11 +65,12 @@ class NoiseModel:
     flying_pixel_rate: float = 0.0
     flying_jump_m: float = 0.05
     flying_jump_ratio: float = 0.08
+    dark_blob_px: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ('depth_sigma_base_mm', 'depth_sigma_quad_mm_per_m2', 'depth_sigma_ref_m',
                      'dark_sigma_factor', 'far_dropout_start_m', 'flying_jump_m',
-                     'flying_jump_ratio'):
+                     'flying_jump_ratio', 'dark_blob_px'):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f'NoiseModel: {name}={value!r} must be a finite number >= 0')
@@ -103,9 +108,32 @@ EXACT = NoiseModel(depth_sigma_base_mm=0.0, depth_sigma_quad_mm_per_m2=0.0, drop
 #: dropouts rising from 0.75 % at 3 m to 10.75 % at 4.5 m. The robot-level suite uses it.
 KINECT_V2_TOF_NOISE = NoiseModel(dark_sigma_factor=2.0, far_dropout_rate=0.1,
                                  flying_pixel_rate=0.5)
+#: The time-of-flight model with the dark dropouts in blobs of about 6 px (issue 22).
+KINECT_V2_TOF_BLOBS = NoiseModel(dark_sigma_factor=2.0, far_dropout_rate=0.1,
+                                 flying_pixel_rate=0.5, dark_blob_px=6.0)
 #: Sensor models by the names scenario lists use.
 NOISE_MODELS = {'kinect_v2': KINECT_V2_NOISE, 'kinect_v2_tof': KINECT_V2_TOF_NOISE,
-                'exact': EXACT}
+                'kinect_v2_tof_blobs': KINECT_V2_TOF_BLOBS, 'exact': EXACT}
+
+
+def blob_dropouts(hit_index: np.ndarray, dark: np.ndarray, rate: float, blob_px: float,
+                  key: tuple[int, int]) -> np.ndarray:
+    """(H, W) bool: the dark pixels dropped in blobs, ``rate`` of each dark primitive's.
+
+    hit_index: (H, W) primitive hit, -1 where none; dark: (P + 1,) bool per primitive, then
+    False; a smooth field (white noise blurred by a Gaussian of ``blob_px`` [px]) seeded by
+    ``key``; per dark primitive, its pixels where the field is highest are dropped.
+    """
+    rng = np.random.default_rng([*key, 0xB10B5])
+    field = rng.standard_normal(hit_index.shape).astype(np.float32)
+    field = cv2.GaussianBlur(field, (0, 0), blob_px, borderType=cv2.BORDER_REFLECT)
+    out = np.zeros(hit_index.shape, bool)
+    for index in np.flatnonzero(dark[:-1]):
+        mine = hit_index == index
+        if mine.any():
+            cut = np.quantile(field[mine], 1.0 - rate)
+            out |= mine & (field > cut)
+    return out
 
 
 def depth_edges(depth_m: np.ndarray, hit: np.ndarray, model: NoiseModel, window_px: int,
@@ -183,11 +211,16 @@ def measure(depth_true: np.ndarray, hit_index: np.ndarray, dark: np.ndarray,
     lo, hi = round(model.min_range_m * 1e3), round(model.max_range_m * 1e3)
     valid = hit & (measured_mm >= lo) & (measured_mm <= hi)
     if dropout_draw is not None:
-        rates = np.where(dark, model.dark_dropout_rate, model.dropout_rate).astype(np.float32)
+        blobs = model.dark_blob_px > 0.0
+        dark_rate = model.dropout_rate if blobs else model.dark_dropout_rate
+        rates = np.where(dark, dark_rate, model.dropout_rate).astype(np.float32)
         rate = rates[hit_index]
         if model.far_dropout_rate > 0.0:
             rate += model.far_dropout(depth_true).astype(np.float32)
         valid &= dropout_draw >= rate
+        if blobs and model.dark_dropout_rate > 0.0:
+            valid &= ~blob_dropouts(hit_index, dark, model.dark_dropout_rate,
+                                    model.dark_blob_px, key)
     b = model.border_px
     if b:
         valid[:b, :] = False

@@ -408,6 +408,53 @@ class Ramp:
 
 
 @dataclass(frozen=True)
+class RampSide:
+    """The open side of a solid ramp: a vertical triangle in the plane ``y = y_m``.
+
+    It spans ``x_start_m <= x <= x_start_m + length_m`` and ``0 <= z <= (x - x_start_m)
+    tan(slope_rad)``: the wedge under a :class:`Ramp` of the same start, run and slope seen
+    from beside it (the ``Ramp`` strip models only its top). An obstacle where it stands more
+    than a step above the floor (the robot-level truth decides); no drivable patch.
+    """
+
+    x_start_m: float
+    y_m: float
+    length_m: float
+    slope_rad: float
+    traversable: bool = False
+    dark: bool = False
+    name: str = ''
+
+    def __post_init__(self) -> None:
+        _check_finite('RampSide', x_start_m=self.x_start_m, y_m=self.y_m)
+        check_positive('RampSide', length_m=self.length_m)
+        if not 0.0 < self.slope_rad < math.pi / 2:
+            raise ValueError(f'RampSide: slope_rad={self.slope_rad!r} must be in (0, pi/2)')
+
+    def bounds(self) -> Bounds:
+        """Bounding box of the triangle."""
+        top = self.length_m * math.tan(self.slope_rad)
+        return ((self.x_start_m, self.y_m, 0.0),
+                (self.x_start_m + self.length_m, self.y_m, top))
+
+    def walk_patches(self, max_slope_rad: float) -> tuple[Patch, ...]:
+        """Return nothing: the side is vertical."""
+        return ()
+
+    def intersect(self, rays: Rays) -> tuple[np.ndarray, LabelValue]:
+        """Hit ray parameter on the triangle (inf where none) and its label."""
+        ox, oy, oz = rays.origin
+        t = _plane_t(oy - self.y_m, rays.dy)
+        with np.errstate(invalid='ignore'):
+            x = ox + t * rays.dx
+            z = oz + t * rays.dz
+            inside = ((x >= self.x_start_m) & (x <= self.x_start_m + self.length_m)
+                      & (z >= 0.0) & (z <= (x - self.x_start_m) * math.tan(self.slope_rad)))
+        t[~inside] = np.inf
+        return t, label_of(self.traversable)
+
+
+@dataclass(frozen=True)
 class Cylinder:
     """Vertical cylinder (a person, a trunk) on (x_m, y_m), from base_z_m to base + height."""
 

@@ -1,7 +1,8 @@
 """The named scenes of the generator: ``build_scene`` and ``render_scene`` by name.
 
 Corridor, ramps, people, farm row, floors, step down, dark materials, a person walking (video),
-office (and dark office), ramp to a landing, dock edges, curb and sill, shelf, orchard; positions
+office (and dark office), ramp to a landing, dock edges, curb and sill, shelf, orchard, open-sided
+ramps to a platform, dark furniture, thin legs; positions
 jitter with the seed. :mod:`.render` ray-casts them.
 """
 
@@ -16,7 +17,7 @@ from obstacle_detection.pipeline.params import (DetectorParams, Intrinsics, KINE
                                                 KINECT_V2_SD_SIZE)
 
 from .noise import NoiseModel
-from .primitives import Box, Cylinder, Floor, Ramp, StepDown, Wall, check_positive
+from .primitives import Box, Cylinder, Floor, Ramp, RampSide, StepDown, Wall, check_positive
 from .render import Scene, SceneFrame, check_render_args, render
 from .truth import TruthRules
 
@@ -142,9 +143,9 @@ def table(x_m: float, y_m: float, size_x_m: float, size_y_m: float, height_m: fl
 
 def chair(x_m: float, y_m: float, *, seat_m: float = 0.42, seat_height_m: float = 0.46,
           back_height_m: float = 0.9, name: str = 'chair', dark: bool = False,
-          ) -> tuple[Box, ...]:
+          leg_m: float = 0.03) -> tuple[Box, ...]:
     """Return a chair centred on (x_m, y_m): a square seat on four legs, its back at +x."""
-    parts = table(x_m, y_m, seat_m, seat_m, seat_height_m, top_m=0.03, leg_m=0.03, name=name,
+    parts = table(x_m, y_m, seat_m, seat_m, seat_height_m, top_m=0.03, leg_m=leg_m, name=name,
                   dark=dark)
     half = seat_m / 2
     back = Box((x_m + half - 0.03, y_m - half, seat_height_m),
@@ -227,6 +228,81 @@ def _orchard(rng: np.random.Generator, frame_index: int) -> Scene:
     return Scene('orchard', (ground,) + tuple(trunks) + bushes)
 
 
+# -- issue 22 scenes: open-sided ramps, dark blobs on furniture, thin legs
+
+#: The open-sided ramp of issue 22: slope [deg] and the height of its platform [m].
+OPEN_RAMP_SLOPE_DEG = 12.0
+OPEN_RAMP_RISE_M = 0.18
+
+
+def open_ramp(x_m: float, y_center_m: float, width_m: float, platform_m: float, *,
+              sides: tuple[float, ...] = ()) -> tuple:
+    """Return an open-sided ramp up to a platform, the ramp's foot at x_m [m].
+
+    ``OPEN_RAMP_SLOPE_DEG`` up to ``OPEN_RAMP_RISE_M``, then a platform ``platform_m`` long,
+    both ``width_m`` wide around ``y_center_m``. ``sides``: the y [m] of the open sides to
+    model as their own primitives, named 'ramp_side' and 'platform_side' (the wedge under the
+    ramp and the platform's face, listed first so that they, not the platform box, own the
+    face's pixels), so that the suite scores them as objects.
+    """
+    slope = math.radians(OPEN_RAMP_SLOPE_DEG)
+    run = OPEN_RAMP_RISE_M / math.tan(slope)
+    ramp = Ramp(x_start_m=x_m, y_center_m=y_center_m, width_m=width_m, length_m=run,
+                slope_rad=slope, name='ramp')
+    half = width_m / 2
+    platform = Box((x_m + run, y_center_m - half, 0.0),
+                   (x_m + run + platform_m, y_center_m + half, OPEN_RAMP_RISE_M),
+                   name='platform')
+    faces: list = []
+    for y in sides:
+        faces.append(RampSide(x_m, y, run, slope, name='ramp_side'))
+        faces.append(Wall(x_m + run, y, x_m + run + platform_m, y, 0.0, OPEN_RAMP_RISE_M,
+                          name='platform_side'))
+    return tuple(faces) + (ramp, platform)
+
+
+def _open_ramp(rng: np.random.Generator, frame_index: int) -> Scene:
+    x0 = 1.0 + rng.uniform(-0.05, 0.05)
+    yc = 0.65 + rng.uniform(-0.05, 0.05)
+    box = Box.on_floor(1.3 + rng.uniform(-0.05, 0.05), -0.5, 0.3, 0.3, 0.3, name='box')
+    return Scene('open_ramp', (Floor(),) + open_ramp(x0, yc, 0.8, 1.2, sides=(yc - 0.4,))
+                 + (box,))
+
+
+def _open_ramp_ahead(rng: np.random.Generator, frame_index: int) -> Scene:
+    x0 = 0.9 + rng.uniform(-0.05, 0.05)
+    yc = rng.uniform(-0.05, 0.05)
+    box = Box.on_floor(1.6 + rng.uniform(-0.05, 0.05), -0.85, 0.3, 0.3, 0.3, name='box')
+    return Scene('open_ramp_ahead', (Floor(),) + open_ramp(x0, yc, 0.9, 1.5) + (box,))
+
+
+def _dark_furniture(rng: np.random.Generator, frame_index: int) -> Scene:
+    def jitter() -> float:
+        return float(rng.uniform(-0.04, 0.04))
+
+    wall = Wall(2.9, 2.5, 2.9, -2.5, 0.0, 2.5)
+    sofa = Box.on_floor(1.3 + jitter(), 0.75 + jitter(), 0.5, 0.6, 0.45, dark=True,
+                        name='sofa')
+    cabinet = Box.on_floor(2.0 + jitter(), -0.9 + jitter(), 0.4, 0.5, 0.8, dark=True,
+                           name='cabinet')
+    furniture = (table(1.9 + jitter(), 0.15 + jitter(), 0.7, 0.8, 0.72, dark=True)
+                 + chair(1.2 + jitter(), -0.35 + jitter(), dark=True))
+    return Scene('dark_furniture', (Floor(), wall, sofa, cabinet) + furniture)
+
+
+def _thin_legs(rng: np.random.Generator, frame_index: int) -> Scene:
+    def jitter() -> float:
+        return float(rng.uniform(-0.04, 0.04))
+
+    wall = Wall(3.0, 2.5, 3.0, -2.5, 0.0, 2.5)
+    furniture = (table(1.8 + jitter(), 0.2 + jitter(), 0.6, 0.8, 0.72, leg_m=0.02)
+                 + chair(1.1 + jitter(), -0.45 + jitter(), leg_m=0.02, name='chair_1')
+                 + chair(1.4 + jitter(), 0.65 + jitter(), leg_m=0.02, name='chair_2')
+                 + table(1.5 + jitter(), -1.0 + jitter(), 0.3, 0.3, 0.6, leg_m=0.02,
+                         name='stool'))
+    return Scene('thin_legs', (Floor(), wall) + furniture)
+
+
 _BUILDERS: dict[str, Callable[[np.random.Generator, int], Scene]] = {
     'corridor': _corridor,
     'ramps': _ramps,
@@ -245,6 +321,10 @@ _BUILDERS: dict[str, Callable[[np.random.Generator, int], Scene]] = {
     'curb_sill': _curb_sill,
     'shelf': _shelf,
     'orchard': _orchard,
+    'open_ramp': _open_ramp,
+    'open_ramp_ahead': _open_ramp_ahead,
+    'dark_furniture': _dark_furniture,
+    'thin_legs': _thin_legs,
 }
 
 #: Names accepted by ``build_scene`` and ``render_scene``.

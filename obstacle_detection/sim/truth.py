@@ -142,6 +142,8 @@ def robot_labels(points: np.ndarray, owner: np.ndarray, primitives: tuple[Primit
     labels = np.where(z - ground > rules.robot_height_m, GT_ABOVE_ROBOT,
                       GT_OBSTACLE).astype(np.uint8)
     labels[on_reached] = GT_TRAVERSABLE
+    labels[_climbable_risers(x, y, z, patches, reached, rules)] = GT_TRAVERSABLE
+    labels[_ledges(x, y, z, owner, patches, reached, rules)] = GT_OBSTACLE
     for i, primitive in enumerate(primitives):
         own = [ok for patch, ok in zip(patches, reached) if patch.owner == i]
         if own and all(own) and _vertical_extent_m(primitive) <= rules.max_step_height_m:
@@ -160,6 +162,71 @@ def robot_labels(points: np.ndarray, owner: np.ndarray, primitives: tuple[Primit
             drop_edge |= (near.covers(x, y) & a.covers(x, y) & (owner == a.owner)
                           & (np.abs(z - a.z_at(x)) <= a.tolerance_m + ON_PATCH_M))
     return labels, drop_edge
+
+
+def _climbable_risers(x: np.ndarray, y: np.ndarray, z: np.ndarray,
+                      patches: list[Patch], reached: list[bool], rules: TruthRules,
+                      ) -> np.ndarray:
+    """(N,) bool: hits on a riser no higher than a step up to a reached surface above them.
+
+    The side of an open ramp where the ramp stands no more than ``max_step_height_m`` above
+    the ground beside it: the highest reached patch over the hit's (x, y) lies above the
+    lowest one there by at most a step, and the hit between them.
+    """
+    top = np.full(x.shape, -np.inf)
+    low = np.full(x.shape, np.inf)
+    for patch, ok in zip(patches, reached):
+        if ok:
+            covered = patch.covers(x, y)
+            plane = patch.z_at(x)
+            np.maximum(top, np.where(covered, plane, -np.inf), out=top)
+            np.minimum(low, np.where(covered, plane, np.inf), out=low)
+    with np.errstate(invalid='ignore'):
+        rise = top - low
+        return ((rise > 1e-3) & (rise <= rules.max_step_height_m)
+                & (z <= top + ON_PATCH_M) & (z >= low - ON_PATCH_M))
+
+
+def _ledges(x: np.ndarray, y: np.ndarray, z: np.ndarray, owner: np.ndarray,
+            patches: list[Patch], reached: list[bool], rules: TruthRules) -> np.ndarray:
+    """(N,) bool: reached ground within ``DROP_EDGE_BAND_M`` of a ledge (issue 22).
+
+    A ledge is an edge of a reached patch beyond which the reached ground (the highest other
+    reached patch there no more than a step above) lies more than ``max_step_down_m`` lower:
+    the open side of a ramp or a platform above the floor beside it, where a robot driving
+    along it falls off (seen from the floor, its face is an obstacle already). Unlike a drop,
+    the lower ground is reachable (through the ramp); where no reached patch lies beyond the
+    edge (a drop, a wall) it is no ledge.
+    """
+    out = np.zeros(x.shape, dtype=bool)
+    eps = 1e-3
+    for i, (a, a_ok) in enumerate(zip(patches, reached)):
+        if not a_ok:
+            continue
+        on_a = (a.covers(x, y) & (owner == a.owner)
+                & (np.abs(z - a.z_at(x)) <= a.tolerance_m + ON_PATCH_M))
+        if not on_a.any():
+            continue
+        for axis, edge, outward in (('x', a.x0_m, -1.0), ('x', a.x1_m, 1.0),
+                                    ('y', a.y0_m, -1.0), ('y', a.y1_m, 1.0)):
+            if not math.isfinite(edge):
+                continue
+            coord = x if axis == 'x' else y
+            band = on_a & (np.abs(coord - edge) <= DROP_EDGE_BAND_M)
+            if not band.any():
+                continue
+            qx = np.where(band, edge + outward * eps, x) if axis == 'x' else x
+            qy = np.where(band, edge + outward * eps, y) if axis == 'y' else y
+            z_here = a.z_at(x)
+            beyond = np.full(x.shape, -np.inf)
+            for j, (b, b_ok) in enumerate(zip(patches, reached)):
+                if not b_ok or j == i:
+                    continue
+                plane = b.z_at(qx)
+                fits = b.covers(qx, qy) & (plane <= z_here + rules.max_step_height_m)
+                np.maximum(beyond, np.where(fits, plane, -np.inf), out=beyond)
+            out |= band & np.isfinite(beyond) & (z_here - beyond > rules.max_step_down_m)
+    return out
 
 
 def _is_drop(a: Patch, b: Patch, rules: TruthRules) -> bool:

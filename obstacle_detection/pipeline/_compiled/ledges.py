@@ -1,0 +1,117 @@
+"""Compiled (numba) ledges (optional): the open sides of raised traversable surfaces.
+
+:func:`ledges` is ``pipeline.traversal.ledges`` in one pass over the voxels and the cells,
+with the same arithmetic (cells from float32 ``floor(x / size)``, surfaces and comparisons in
+float64), so its flags equal the numpy path's.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._numba import AVAILABLE, jit as _jit
+
+__all__ = ['AVAILABLE', 'ledges']
+
+#: The 8 directions of the search across an edge (the numpy path's order; min is exact).
+_DX = np.array((1, 0, -1, 0, 1, 1, -1, -1), np.int64)
+_DY = np.array((0, 1, 0, -1, 1, -1, 1, -1), np.int64)
+
+
+@_jit
+def _ledges_kernel(points, steep, reached, above, size, step_up, step_down,
+                   shadow_cells, dxs, dys, out):  # pragma: no cover - compiled
+    """out[v] = the voxel lies on a ledge (see ``pipeline.traversal.ledges``)."""
+    n = points.shape[0]
+    ix = np.empty(n, np.int64)
+    iy = np.empty(n, np.int64)
+    for v in range(n):
+        ix[v] = np.int64(np.floor(points[v, 0] / size))
+        iy[v] = np.int64(np.floor(points[v, 1] / size))
+    ox = ix.min()
+    oy = iy.min()
+    nx = ix.max() - ox + 1
+    ny = iy.max() - oy + 1
+    surface = np.full((nx, ny), np.inf)
+    seen = np.zeros((nx, ny), np.bool_)
+    for v in range(n):
+        cx = ix[v] - ox
+        cy = iy[v] - oy
+        ix[v] = cx
+        iy[v] = cy
+        seen[cx, cy] = True
+        if reached[v] and not steep[v]:
+            z = np.float64(points[v, 2])
+            if z < surface[cx, cy]:
+                surface[cx, cy] = z
+    low = np.full((nx, ny), np.inf)
+    high = np.full((nx, ny), -np.inf)
+    for cx in range(nx):
+        for cy in range(ny):
+            lo = np.inf
+            hi = -np.inf
+            empty = False
+            for ax in range(cx - 1, cx + 2):
+                for ay in range(cy - 1, cy + 2):
+                    if ax < 0 or ax >= nx or ay < 0 or ay >= ny:
+                        continue
+                    s = surface[ax, ay]
+                    if s < lo:
+                        lo = s
+                    if s < np.inf and s > hi:
+                        hi = s
+                    if not seen[ax, ay]:
+                        empty = True
+            high[cx, cy] = hi
+            if empty and surface[cx, cy] < np.inf:   # across the edge, over empty cells
+                px = cx + ox + 0.5
+                py = cy + oy + 0.5
+                for d in range(8):
+                    sx = dxs[d]
+                    sy = dys[d]
+                    if sx * px < 0.0 or sy * py < 0.0:
+                        continue
+                    wx = cx
+                    wy = cy
+                    for k in range(1, shadow_cells + 1):
+                        wx += sx
+                        wy += sy
+                        if wx < 0 or wx >= nx or wy < 0 or wy >= ny:
+                            break
+                        if seen[wx, wy]:
+                            if k > 1 and surface[wx, wy] < lo:
+                                lo = surface[wx, wy]
+                            break
+            low[cx, cy] = lo
+    for v in range(n):
+        cx = ix[v]
+        cy = iy[v]
+        lo = low[cx, cy]
+        floor_low = lo >= -step_down and lo <= step_up
+        if above[v]:
+            out[v] = False
+        elif reached[v]:
+            s = surface[cx, cy]
+            out[v] = (s - lo > step_down
+                      and not (floor_low and s >= -step_down and s <= step_up))
+        else:
+            hi = high[cx, cy]
+            out[v] = (hi - lo > step_up
+                      and not (floor_low and hi >= -step_down and hi <= step_up)
+                      and np.float64(points[v, 2]) - lo > step_up)
+
+
+def ledges(points: np.ndarray, steep: np.ndarray, reached: np.ndarray, above: np.ndarray,
+           size_m: float, step_up_m: float, step_down_m: float,
+           shadow_cells: int) -> np.ndarray:
+    """(V,) bool: ``pipeline.traversal.ledges`` compiled (the same flags).
+
+    points: (V, 3) float32 C-contiguous; steep, reached, above: (V,) bool.
+    """
+    out = np.zeros(points.shape[0], np.bool_)
+    if points.shape[0] == 0:
+        return out
+    _ledges_kernel(np.ascontiguousarray(points, np.float32), steep, reached, above,
+                   np.float32(size_m), float(step_up_m), float(step_down_m),
+                   int(shadow_cells), _DX, _DY, out)
+    return out

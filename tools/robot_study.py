@@ -1,0 +1,96 @@
+#!/usr/bin/env python3
+"""Robot-level suite with a one-cell tolerance, for one or more forward ranges (issue 22).
+
+Runs the robot suite (scenarios_robot.json) with ``params/corridor.yaml`` (or
+``--params-file``) and prints, per scenario and overall: cell F1, cell F1 with a one-cell
+tolerance (a mark within one cell of a true obstacle counts, and a true obstacle with a mark
+within one cell is found: ``metrics.tolerant_cells``), false alarms (share of free truth
+cells marked), false alarms beyond one cell of a true obstacle, named objects found and
+passable surfaces left free. ``--range 2,3,4`` repeats it with ``max_range_m`` and
+``costmap_length_m`` set to each value [m].
+
+    python tools/robot_study.py                       # the default range
+    python tools/robot_study.py --range 2,3,4         # the range study of docs/accuracy.md
+    python tools/robot_study.py --scene open_ramp --set max_step_down_m=0.08
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Sequence
+
+from obstacle_detection.cli import support as tool_support
+from obstacle_detection.cli.evaluation_args import parse_assignment, report_error
+from obstacle_detection.evaluation import metrics, runner as evaluation
+from obstacle_detection.pipeline.params import DetectorParams, corridor
+
+DEFAULT_PARAMS = tool_support.PACKAGE_ROOT / 'params' / 'corridor.yaml'
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Return the command-line interface."""
+    parser = argparse.ArgumentParser(prog='robot_study.py', description=__doc__.split('\n\n')[0])
+    parser.add_argument('--params-file', type=Path, default=DEFAULT_PARAMS, metavar='YAML',
+                        help='node parameter file [default: params/corridor.yaml]')
+    parser.add_argument('--set', action='append', type=parse_assignment, default=[],
+                        metavar='KEY=VALUE', help='override one parameter; repeatable')
+    parser.add_argument('--range', default='', metavar='M[,M...]',
+                        help='forward ranges [m]: max_range_m and costmap_length_m each')
+    parser.add_argument('--scene', action='append', metavar='NAME',
+                        help='only this scenario (repeatable) [default: all]')
+    return parser
+
+
+def study(params: DetectorParams, scenes: Sequence[str] | None) -> str:
+    """Run the robot suite with ``params``; return the table (one row per scenario)."""
+    scenarios = evaluation.select_scenarios(
+        evaluation.load_scenarios(evaluation.SUITES['robot']), scenes)
+    tolerant: dict[str, metrics.TolerantCells] = {}
+
+    def on_frame(frame: evaluation.LabelledFrame, result, score) -> None:
+        p = frame.params(params)
+        truth = evaluation.truth_costmap(frame, p, evaluation.truth_roi(frame, p))
+        counts = metrics.tolerant_cells(result.costmap.data, truth, cells=1)
+        tolerant[frame.scenario] = tolerant.get(frame.scenario, metrics.TolerantCells()) + counts
+
+    frames = (frame for s in scenarios for frame in evaluation.scenario_frames(s))
+    report = evaluation.evaluate_frames(frames, params, on_frame=on_frame)
+    total = sum(tolerant.values(), metrics.TolerantCells())
+    head = (f'{"scenario":<24} {"frames":>6} {"cell F1":>7} {"F1 1-cell":>9} {"FA %":>6} '
+            f'{"FA>1 cell %":>11} {"objects":>8} {"passable free":>13}')
+    lines = [head, '-' * len(head)]
+    for name, summary in [*report.scenes.items(), ('overall', report.overall)]:
+        tol = total if name == 'overall' else tolerant[name]
+        found, counted, missed = summary.objects_found()
+        lines.append(
+            f'{name:<24} {summary.frames:>6} {metrics.format_score(summary.cell.f1):>7} '
+            f'{metrics.format_score(tol.f1):>9} '
+            f'{100 * summary.cell.false_alarm_rate:>6.2f} {100 * tol.far_alarm_rate:>11.2f} '
+            f'{f"{found}/{counted}":>8} {metrics.format_score(summary.passable_free()):>13}'
+            + (f'  missed: {", ".join(missed)}' if missed else ''))
+    return '\n'.join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point; returns the exit code (0 ok, 1 bad input, 2 bad usage)."""
+    args = build_parser().parse_args(argv)
+    try:
+        base = evaluation.load_params_file(args.params_file, corridor())
+        if args.set:
+            base = evaluation.apply_overrides(base, dict(args.set))
+        ranges = [float(r) for r in args.range.split(',') if r.strip()] or [None]
+        for metres in ranges:
+            params = base if metres is None else base.replace(max_range_m=metres,
+                                                              costmap_length_m=metres)
+            print(f'max_range_m {params.max_range_m:g}, costmap_length_m '
+                  f'{params.costmap_length_m:g} ({args.params_file}):')
+            print(study(params, args.scene), flush=True)
+    except (ValueError, OSError) as exc:
+        return report_error('robot_study.py', exc)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
