@@ -62,7 +62,7 @@ from obstacle_detection.cli.bag_writer import (DEFAULT_COLOR_TOPIC, DEFAULT_DEPT
 def build_parser() -> argparse.ArgumentParser:
     """Return the command-line parser."""
     parser = argparse.ArgumentParser(
-        prog='bag_convert.py', description=__doc__.split('\n\n')[0],
+        prog='bag_convert', description=__doc__.split('\n\n')[0],
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog='Run "bag_convert.py SOURCE -h" for the options of one source.')
     sub = parser.add_subparsers(dest='source', required=True, metavar='SOURCE')
@@ -173,7 +173,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             source = sources[args.source]()
             summary = write_frames(source, args.output, options_from_args(args))
     except ConvertError as err:
-        return tool_support.report_error('bag_convert.py', err)
+        return tool_support.report_error('bag_convert', err)
     print('\n'.join(summary.lines()))
     return 0
 

@@ -466,7 +466,7 @@ def build_parser() -> argparse.ArgumentParser:
     from obstacle_detection.sim.scenes import SCENE_NAMES
     from obstacle_detection.sim.sequences import SEQUENCE_NAMES
 
-    parser = argparse.ArgumentParser(prog='demo.py', description=__doc__.split('\n\n')[0])
+    parser = argparse.ArgumentParser(prog='demo', description=__doc__.split('\n\n')[0])
     parser.add_argument('--output', type=Path, default=Path('out/demo'),
                         help='folder for everything the demo writes (default %(default)s); '
                              'replaced only when the demo succeeds')

@@ -29,7 +29,7 @@ from obstacle_detection.sim.sequences import (PERFECT_ODOMETRY, SEQUENCE_NAMES,
                                           OdometryModel, SceneSequence)
 
 DEFAULT_PARAMS = tool_support.package_file('params/corridor.yaml')
-PROG = 'evaluate_video.py'
+PROG = 'evaluate_video'
 
 
 def parse_assignment(text: str) -> tuple[str, float]:

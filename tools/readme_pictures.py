@@ -134,7 +134,7 @@ def real_picture(panels: Sequence[Panel], real_dir: Path,
 
 def build_parser() -> argparse.ArgumentParser:
     """Return the command-line parser."""
-    parser = argparse.ArgumentParser(prog='readme_pictures.py',
+    parser = argparse.ArgumentParser(prog='readme_pictures',
                                      description=__doc__.split('\n\n')[0])
     parser.add_argument('--out-dir', type=Path, default=DEFAULT_OUT_DIR, metavar='DIR',
                         help='where the PNGs go [default: tools/readme]')
@@ -154,15 +154,15 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(picture_jobs.write_pictures(parser.parse_args([*options, '--out', str(out)])))
             recompress(out)
     except (tool_support.UsageError, ValueError, OSError, KeyError) as exc:
-        return tool_support.report_error('readme_pictures.py', exc)
+        return tool_support.report_error('readme_pictures', exc)
     if not args.real_dir.is_dir():
-        print(f'readme_pictures.py: warning: no real frames in {args.real_dir}; the real-frame '
+        print(f'readme_pictures: warning: no real frames in {args.real_dir}; the real-frame '
               f'pictures ({", ".join(REAL)}) are left as they are', file=sys.stderr)
         return 0
     for name, panels in REAL.items():
         missing = sorted({p.depth for p in panels if not (args.real_dir / p.depth).is_file()})
         if missing:
-            print(f'readme_pictures.py: warning: {name} skipped, missing in {args.real_dir}: '
+            print(f'readme_pictures: warning: {name} skipped, missing in {args.real_dir}: '
                   f'{", ".join(missing)}', file=sys.stderr)
             continue
         out = args.out_dir / name
@@ -170,7 +170,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             pictures.write_png(out, real_picture(panels, args.real_dir))
             recompress(out)
         except (ValueError, OSError, KeyError) as exc:
-            return tool_support.report_error('readme_pictures.py', exc)
+            return tool_support.report_error('readme_pictures', exc)
     return 0
 
 

@@ -365,7 +365,7 @@ def depth_job(args: argparse.Namespace, base: DetectorParams) -> _Job:
 
 def build_parser() -> argparse.ArgumentParser:
     """Return the command-line interface."""
-    parser = argparse.ArgumentParser(prog='pictures.py', description=__doc__.split('\n\n')[0],
+    parser = argparse.ArgumentParser(prog='pictures', description=__doc__.split('\n\n')[0],
                                      formatter_class=argparse.RawTextHelpFormatter)
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument('--scene', help='a scene of the generator (scenes.SCENE_NAMES)')
