@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Score the fused costmap over scene sequences, side by side with the per-frame costmap.
 
-Renders each sequence (obstacle_detection/sequences.py: a robot driving past boxes and a
+Renders each sequence (obstacle_detection/sim/sequences.py: a robot driving past boxes and a
 table, a person crossing in front of a standing robot), runs the detector on every frame with
 the parameter file (default params/corridor.yaml) and fuses the costmaps at the odometry pose.
 Prints a table for people and one JSON line for machines (the last line of stdout, or
