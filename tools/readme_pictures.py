@@ -10,7 +10,7 @@ Synthetic pictures (always), drawn by ``tools/pictures.py`` exactly as its comma
 
 Real-frame pictures (when the real frames are there, ``--real-dir``, by default the
 repository's sibling ``../shared/data/real``; skipped with a warning otherwise), each a column
-of panels scaled to 860 px wide, the camera mount estimated from the floor
+of panels drawn 860 px wide, the camera mount estimated from the floor
 (``--estimate-mount``), the default configuration (robot level) at range 4 m:
 
 - ``real_tum_office.png``: TUM fr3 office, the seed method (Table 4.2, K = 5) above the default;
@@ -121,15 +121,20 @@ def real_picture(panels: Sequence[Panel], real_dir: Path,
                  width: int = REAL_WIDTH_PX) -> np.ndarray:
     """(h, width, 3) uint8 RGB: the panels drawn by ``tools/pictures.py``, one above the other.
 
-    The column (narrower panels padded white on the right) is scaled as a whole to ``width``.
-    Raises ValueError / OSError / KeyError as ``obstacle_detection.cli.picture_jobs.render`` does.
+    Each panel is drawn ``width`` wide, its images scaled and its text at full size
+    (``pictures.fit_width``), under its caption as title. Raises ValueError / OSError /
+    KeyError as ``obstacle_detection.cli.picture_jobs.detect`` does.
     """
     parser = picture_jobs.build_parser()
-    images = [image for panel in panels
-              for _, image in picture_jobs.render(parser.parse_args(panel.argv(real_dir)))]
-    column = pictures.tile(images, columns=1)
-    # a contact sheet of one image is that image scaled, with a 6 px margin right and below
-    return pictures.contact_sheet([column], columns=1, thumb_width=width - 6)
+    images = []
+    for panel in panels:
+        for frame in picture_jobs.detect(parser.parse_args(panel.argv(real_dir))):
+            picture = pictures.fit_width(
+                lambda scale, frame=frame: picture_jobs.draw(frame, image_scale=scale), width)
+            rule = picture_jobs.rule_text(frame.job.params)
+            images.append(pictures.titled(picture, f'{panel.caption} ({rule})'))
+    gap = np.full((6, width, 3), 255, np.uint8)
+    return np.vstack([part for image in images for part in (image, gap)][:-1])
 
 
 def build_parser() -> argparse.ArgumentParser:
