@@ -187,7 +187,6 @@ def save_pictures(folder: Path, recorder: Recorder, every: int, params: Any = No
     fused = by_stamp('/obstacles/fused_costmap', OccupancyGrid)
     saved: list[Path] = []
     thumbs: list[np.ndarray] = []
-    labels: list[str] = []
     out = folder / 'pictures'
     for k, stamp in enumerate(sorted(grids)):
         if k % every or stamp not in overlays:
@@ -218,8 +217,7 @@ def save_pictures(folder: Path, recorder: Recorder, every: int, params: Any = No
                                                 with_legend=False)[0], SHEET_THUMB_PX)
         thumbs.append(thumb)
     if thumbs:
-        sheet = pictures.contact_sheet(thumbs, labels=labels, columns=2,
-                                       thumb_width=SHEET_THUMB_PX)
+        sheet = pictures.contact_sheet(thumbs, columns=2, thumb_width=SHEET_THUMB_PX)
         panels = 3 if fused else 2
         legend = pictures.node_outputs_legend([(sheet.shape[1] - 6 * (panels - 1)) // panels]
                                               * panels)

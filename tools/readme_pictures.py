@@ -6,7 +6,7 @@ Synthetic pictures (always), drawn by ``tools/pictures.py`` exactly as its comma
 - ``corridor.png``: the corridor scene, the default (``params/corridor.yaml``, robot level),
   with the robot-level ground-truth panel;
 - ``person_walking_sheet.png``: frames 0, 15, ..., 75 of the person_walking sequence, no truth,
-  3 columns of 400 px thumbnails.
+  2 columns of 600 px thumbnails.
 
 Real-frame pictures (when the real frames are there, ``--real-dir``, by default the
 repository's sibling ``../shared/data/real``; skipped with a warning otherwise), each a column
@@ -51,7 +51,7 @@ REAL_WIDTH_PX = 860
 SYNTHETIC = {
     'corridor.png': ['--scene', 'corridor', '--preset', 'corridor'],
     'person_walking_sheet.png': ['--scene', 'person_walking', '--frames', '0:90:15',
-                                 '--no-truth', '--thumb-width', '400', '--columns', '3'],
+                                 '--no-truth', '--thumb-width', '600', '--columns', '2'],
 }
 
 # Intrinsics fx,fy,cx,cy [px] and depth units per metre of the real frames (their README).

@@ -45,6 +45,8 @@ TEXT_SCALE = 0.5
 TITLE_SCALE = 0.6
 #: Smallest height of a capital letter [px] at TEXT_SCALE.
 MIN_TEXT_PX = 11
+#: A costmap panel's grid is at most this share of the depth image's width.
+GRID_WIDTH_SHARE = 1.2
 
 
 def _text_size(text: str, scale: float) -> tuple[int, int]:
@@ -112,15 +114,6 @@ def caption_band(lines: Sequence[str], width: int, *, scale: float = 0.5) -> np.
         cv2.putText(band, text, (4, 3 + line_h * (i + 1) - 6), _FONT, scale, TEXT_RGB, 1,
                     cv2.LINE_AA)
     return band
-
-
-def _pad_to_height(image: np.ndarray, height: int) -> np.ndarray:
-    if image.shape[0] >= height:
-        return image[:height]
-    top = (height - image.shape[0]) // 2
-    out = np.full((height, image.shape[1], 3), BACKGROUND_RGB, dtype=np.uint8)
-    out[top:top + image.shape[0]] = image
-    return out
 
 
 def join_panels(panels: Sequence[np.ndarray], *, gap_px: int = _GAP_PX) -> np.ndarray:
@@ -454,13 +447,12 @@ def side_by_side(result: Any, *, caption: str = '', truth_labels: np.ndarray | N
     if image_scale != 1.0:
         height, width = (max(1, round(n * image_scale)) for n in depth_m.shape)
         panels = [cv2.resize(p, (width, height), interpolation=cv2.INTER_AREA) for p in panels]
-    margin_w, margin_h = 80, 90
-    scale = max(1, min((width - margin_w) // max(costmap.height, 1),
-                       (height - margin_h) // max(costmap.width, 1)))
+    # the grid as high as the depth image (its axes below it) and not much wider
+    scale = max(1, min(int(GRID_WIDTH_SHARE * width) // max(costmap.height, 1),
+                       height // max(costmap.width, 1)))
     intrinsics = getattr(result, 'intrinsics', None)
-    panels.insert(1, _pad_to_height(costmap_panel(
-        costmap, scale=scale, params=params, intrinsics=intrinsics,
-        image_shape=depth_m.shape), height))
+    panels.insert(1, costmap_panel(costmap, scale=scale, params=params, intrinsics=intrinsics,
+                                   image_shape=depth_m.shape))
     top = join_panels(panels)
     parts = [top]
     if with_legend:
@@ -716,13 +708,14 @@ def node_outputs(overlay: np.ndarray, costmap: Any, *, caption: Sequence[str],
                 max(1, round(overlay.shape[0] * image_scale)))
         overlay = cv2.resize(overlay, size, interpolation=cv2.INTER_AREA)
     height, width = overlay.shape[:2]
-    scale = max(1, min((height - 90) // max(costmap.width, 1),
-                       width // max(costmap.height, 1)))
+    scale = max(1, min(height // max(costmap.width, 1),
+                       int(GRID_WIDTH_SHARE * width) // max(costmap.height, 1)))
     grid_rgb = costmap_panel(costmap, scale=scale, params=params, intrinsics=intrinsics,
                              image_shape=image_shape)
     panels = [overlay, grid_rgb]
     if fused is not None:
-        fused_scale = max(1, (height - 90) // max(fused.height, 1))
+        fused_scale = max(1, min(height // max(fused.width, 1),
+                                 int(GRID_WIDTH_SHARE * width) // max(fused.height, 1)))
         panels.append(costmap_panel(fused, scale=fused_scale, robot_pose=robot_pose,
                                     axis_names=('x [m], odom', 'y [m], odom')))
     row = join_panels(panels)
