@@ -294,7 +294,7 @@ def test_readme_pictures_are_made_again(tmp_path, capsys):
     width, height = KINECT_V2_SD_SIZE
     # overlay, costmap and truth panels over a caption band
     assert corridor.shape[0] > height and corridor.shape[1] > 2 * width + 2 * 6
-    assert sheet.shape[1] == 3 * (400 + 6)  # frames 0, 15, ..., 75: two rows of three
+    assert sheet.shape[1] == 2 * (600 + 6)  # frames 0, 15, ..., 75: three rows of two
     assert sheet.shape[0] > 2 * 400 * height / (2 * width)
     assert sorted(p.name for p in out.iterdir()) == ['corridor.png', 'person_walking_sheet.png']
     assert 'no real frames' in capsys.readouterr().err

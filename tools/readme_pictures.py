@@ -132,7 +132,8 @@ def real_picture(panels: Sequence[Panel], real_dir: Path,
             picture = pictures.fit_width(
                 lambda scale, frame=frame: picture_jobs.draw(frame, image_scale=scale), width)
             rule = picture_jobs.rule_text(frame.job.params)
-            images.append(pictures.titled(picture, f'{panel.caption} ({rule})'))
+            images.append(pictures.titled(picture, panel.caption if rule in panel.caption
+                                          else f'{panel.caption} ({rule})'))
     gap = np.full((6, width, 3), 255, np.uint8)
     return np.vstack([part for image in images for part in (image, gap)][:-1])
 

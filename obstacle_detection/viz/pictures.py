@@ -365,8 +365,8 @@ def legend(title: str, items: Sequence[tuple[str, tuple[int, int, int], str]],
             rows[-1].append((kind if k == 0 else 'none', colour, line.strip()))
             used += need if len(lines) == 1 else width   # nothing after a wrapped item
     band = np.full((line_h * (len(rows) + 1) + 4, width, 3), BACKGROUND_RGB, dtype=np.uint8)
-    _put(band, title, (4, line_h - 5), scale=0.47)
-    _put(band, title, (5, line_h - 5), scale=0.47)
+    _put(band, title, (4, line_h - 5), scale=TEXT_SCALE)
+    _put(band, title, (5, line_h - 5), scale=TEXT_SCALE)
     for r, row in enumerate(rows):
         x, y = 4, line_h * (r + 1) + 3
         for kind, colour, text in row:
