@@ -227,19 +227,6 @@ class NodeUnderTest:
             ros_env.restore(self._old_env)
 
 
-@pytest.fixture(autouse=True)
-def compilation_ends_inside_the_test() -> Iterator[None]:
-    """Let a background compilation a test started (a new K, a refiner) end inside that test.
-
-    Its node logs an [INFO] line when it ends; after the test, pytest's output capture may be
-    paused while it writes the progress dots, and the line would land in ``pytest -q``'s output.
-    """
-    yield
-    deadline = time.monotonic() + 120.0   # a failed compilation keeps compiling() True
-    while jit_support.compiling() and time.monotonic() < deadline:
-        time.sleep(0.05)
-
-
 @pytest.fixture(scope='module')
 def scene() -> SceneFrame:
     params = table_4_2()
