@@ -76,6 +76,10 @@ def test_readme_paths_finds_inline_and_fenced_paths() -> None:
                                   'tools/y.py', 'pipeline/w.py']
 
 
+#: (document, path): files a history names that are gone on purpose.
+_GONE = {('docs/threads.md', 'pipeline/parallel.py'), ('docs/speed.md', 'pipeline/parallel.py')}
+
+
 @pytest.mark.parametrize('document', ['README.md', *sorted(
     str(p.relative_to(REPO)) for p in (REPO / 'docs').glob('*.md'))])
 def test_every_repository_path_in_the_manual_exists(document: str) -> None:
@@ -83,6 +87,6 @@ def test_every_repository_path_in_the_manual_exists(document: str) -> None:
     missing = []
     for path in readme_paths(text):
         root = REPO / 'obstacle_detection' if path.split('/')[0] in _SUBPACKAGES else REPO
-        if not list(root.glob(path.rstrip('/'))):
+        if not list(root.glob(path.rstrip('/'))) and (document, path) not in _GONE:
             missing.append(path)
     assert missing == []
