@@ -6,6 +6,7 @@ import inspect
 import re
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import pytest
@@ -102,3 +103,41 @@ def _processes_need_the_mark(request: pytest.FixtureRequest,
     except ImportError:
         return
     monkeypatch.setattr(rclpy, 'init', refuse)
+
+
+def _join_compilations() -> None:
+    """Wait for background compilations (``jit.BackgroundCompile``, thread 'numba_compile')."""
+    for thread in threading.enumerate():
+        if thread.name == 'numba_compile':
+            thread.join(timeout=120.0)
+
+
+# A node compiles its kernels on a thread of its own and logs an [INFO] line when done. Ending
+# between two phases of a test, while pytest's capture is paused to report, that line would
+# land in `pytest -q`'s output: each phase (setup, call, teardown) waits for the compilations
+# it started before its capture ends (trylast: inside the capture plugin's own wrapper).
+@pytest.hookimpl(wrapper=True, trylast=True)
+def pytest_runtest_setup(item: pytest.Item) -> object:
+    """Run the setup phase, then wait for the compilations it started."""
+    try:
+        return (yield)
+    finally:
+        _join_compilations()
+
+
+@pytest.hookimpl(wrapper=True, trylast=True)
+def pytest_runtest_call(item: pytest.Item) -> object:
+    """Run the test, then wait for the compilations it started."""
+    try:
+        return (yield)
+    finally:
+        _join_compilations()
+
+
+@pytest.hookimpl(wrapper=True, trylast=True)
+def pytest_runtest_teardown(item: pytest.Item, nextitem: pytest.Item | None) -> object:
+    """Run the teardown phase, then wait for the compilations it started."""
+    try:
+        return (yield)
+    finally:
+        _join_compilations()

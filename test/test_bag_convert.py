@@ -715,3 +715,87 @@ def test_frames_with_a_pose_carry_odometry_and_the_processor_keeps_it(
     assert bag_process.main([str(tmp_path / 'bag'), str(tmp_path / 'processed'),
                              '--quiet']) == 0
     assert odometry(tmp_path / 'processed') == written
+
+
+def tum_units(depth_mm: np.ndarray) -> np.ndarray:
+    """Depth [mm] in TUM's 5000 units/m, with sub-millimetre remainders."""
+    remainder = np.arange(depth_mm.size).reshape(depth_mm.shape) % 5
+    return np.minimum(depth_mm.astype(np.uint32) * 5 + remainder * (depth_mm > 0),
+                      65535).astype(np.uint16)
+
+
+def write_pngs(folder: Path, images: list[np.ndarray], name: str = 'frame_{:04d}.png') -> Path:
+    folder.mkdir(parents=True)
+    for k, image in enumerate(images):
+        cv2.imwrite(str(folder / name.format(k)), image)
+    return folder
+
+
+def test_folder_states_the_default_depth_unit(tmp_path: Path, depths: list[np.ndarray],
+                                              capsys: pytest.CaptureFixture[str]) -> None:
+    folder = write_pngs(tmp_path / 'depth', depths[:2])
+    code, out, _ = run(['folder', str(folder), str(tmp_path / 'out'), '--intrinsics',
+                        str(write_intrinsics(tmp_path / 'k.yaml'))], capsys)
+    assert code == 0
+    assert 'depth read at 1000 units/m (millimetres, the default; --depth-scale' in out
+    check_frames(tmp_path / 'out', depths[:2], [0, 33_333_333])
+
+
+def test_folder_of_tum_frames_converts_with_depth_scale(tmp_path: Path, depths: list[np.ndarray],
+                                                        capsys: pytest.CaptureFixture[str]
+                                                        ) -> None:
+    folder = write_pngs(tmp_path / 'depth', [tum_units(d) for d in depths[:2]])
+    code, out, err = run(['folder', str(folder), str(tmp_path / 'out'), '--depth-scale', '5000',
+                          '--intrinsics', str(write_intrinsics(tmp_path / 'k.yaml'))], capsys)
+    assert code == 0, err
+    assert 'depth read at 5000 units/m (--depth-scale)' in out
+    # 5 units of 0.2 mm a millimetre, rounded to the nearest
+    expected = [np.floor(tum_units(d) / 5.0 + 0.5).astype(np.uint16) for d in depths[:2]]
+    check_frames(tmp_path / 'out', expected, [0, 33_333_333])
+
+
+@pytest.mark.parametrize('frame', ['office', 'desk'])
+def test_folder_of_tum_frames_without_depth_scale_is_refused(
+        tmp_path: Path, frame: str, capsys: pytest.CaptureFixture[str]) -> None:
+    # as ../shared/data/real/tum_office and tum_fr2_desk
+    if frame == 'office':  # 2.4 m away, 12 m read as millimetres; some pixels no return
+        image = np.full((60, 80), 12000, np.uint16)
+        image[::7] = 0
+    else:  # a desk at 1.5 m (7.5 m as mm, plausible) before a hall at 4 m (20 m as mm)
+        image = np.full((60, 80), 7500, np.uint16)
+        image[:8] = 20000
+    folder = write_pngs(tmp_path / 'depth', [image])
+    code, out, err = run(['folder', str(folder), str(tmp_path / 'out')], capsys)
+    assert code == 1 and out == ''
+    assert err.count('\n') == 1 and err.startswith(f'error: {folder / "frame_0000.png"}: ')
+    assert '--depth-scale 5000 (TUM RGB-D format' in err
+    assert not (tmp_path / 'out').exists() and not list(tmp_path.glob('.out*'))
+
+
+def test_tum_without_lists_takes_the_stamps_from_the_file_names(
+        tmp_path: Path, depths: list[np.ndarray], capsys: pytest.CaptureFixture[str]) -> None:
+    root = tmp_path / 'seq'
+    expected, stamps = make_tum(root, depths[:3])
+    (root / 'depth.txt').unlink()
+    (root / 'rgb.txt').unlink()
+    code, out, err = run(['tum', str(root), str(tmp_path / 'out'), '--camera', 'fr2'], capsys)
+    assert code == 0, err
+    assert 'depth frames listed from the timestamps in the file names' in out
+    colors = [fake_color(d, k) if k != 2 else None for k, d in enumerate(depths[:3])]
+    check_frames(tmp_path / 'out', expected, stamps, colors=colors,
+                 intr=datasets.TUM_CAMERAS['fr2'])
+
+
+def test_tum_without_lists_or_stamped_names_says_what_to_write(
+        tmp_path: Path, depths: list[np.ndarray], capsys: pytest.CaptureFixture[str]) -> None:
+    # the layout of ../shared/data/real/tum_fr2_desk: depth_N.png and color_N.png side by side
+    root = write_pngs(tmp_path / 'desk', [tum_units(d) for d in depths[:2]], 'depth_{}.png')
+    cv2.imwrite(str(root / 'color_0.png'), fake_color(depths[0], 0))
+    code, out, err = run(['tum', str(root), str(tmp_path / 'out')], capsys)
+    assert code == 1 and out == ''
+    assert err.count('\n') == 1
+    assert err.startswith(f'error: {root / "depth.txt"}: not found')
+    assert f"printf '0.000000 depth_0.png\\n0.033333 depth_1.png\\n' > {root / 'depth.txt'}" \
+        in err
+    assert 'rgb.txt likewise' in err and '--no-color' in err
+    assert not (tmp_path / 'out').exists()

@@ -188,7 +188,7 @@ def test_bad_options(bag: Path, args: list[str], named: str, code: int,
     assert bag_play.main([str(bag), *args, '--quiet']) == code
     err = capsys.readouterr().err
     assert named in err
-    assert err.count('\n') == 1 and err.startswith('bag_play.py: error: ' if code == 2
+    assert err.count('\n') == 1 and err.startswith('bag_play: error: ' if code == 2
                                                     else f'error: {bag}')
 
 

@@ -32,7 +32,7 @@ from obstacle_detection.ros.conversions import (
     result_to_messages,
 )
 from obstacle_detection.pipeline.costmap import Costmap
-from obstacle_detection.viz.overlay import OBSTACLE_RGB, render_overlay
+from obstacle_detection.viz.overlay import is_obstacle_rgb, render_overlay
 from obstacle_detection.pipeline.params import KINECT_V2_SD, Intrinsics
 from obstacle_detection.pipeline.detector import DetectionResult
 
@@ -357,7 +357,7 @@ def test_result_to_messages_with_ground_and_overlay() -> None:
     assert (overlay.encoding, overlay.header.frame_id, overlay.width, overlay.height) == (
         'rgb8', 'cam', 4, 3)
     rgb = np.frombuffer(bytes(overlay.data), np.uint8).reshape(3, 4, 3)
-    assert tuple(rgb[1, 2]) == OBSTACLE_RGB
+    assert is_obstacle_rgb(rgb[1, 2])
 
 
 # -- plausibility of CameraInfo and depth (issue: plausible-looking nonsense is refused) ------

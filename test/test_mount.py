@@ -248,7 +248,7 @@ def test_unit_warning_names_the_scale_that_fits():
 
 def test_cli_rejects_a_bad_depth_scale_as_usage(capsys):
     assert tool.main(['--depth', 'x.png', '--intrinsics', '1,1,4,4', '--depth-scale', '0']) == 2
-    assert capsys.readouterr().err.startswith('estimate_mount.py: error: argument --depth-scale')
+    assert capsys.readouterr().err.startswith('estimate_mount: error: argument --depth-scale')
 
 
 def test_cli_rejects_malformed_intrinsics(capsys):

@@ -10,12 +10,12 @@ from obstacle_detection.labels import (CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN, L
 from obstacle_detection.pipeline.costmap import Costmap
 from obstacle_detection.viz.overlay import (
     FREE_RGB,
-    OBSTACLE_RGB,
     OCCUPIED_RGB,
     ROBOT_RGB,
     UNKNOWN_RGB,
     costmap_pixel_of,
     render_costmap,
+    is_obstacle_rgb,
     render_overlay,
 )
 
@@ -39,7 +39,8 @@ def test_overlay_marks_obstacle_pixels() -> None:
     rgb = render_overlay(depth, labels)
 
     assert rgb.shape == (20, 30, 3) and rgb.dtype == np.uint8
-    assert (rgb[labels == LABEL_OBSTACLE] == OBSTACLE_RGB).all()
+    assert is_obstacle_rgb(rgb[labels == LABEL_OBSTACLE]).all()
+    assert not is_obstacle_rgb(rgb[labels != LABEL_OBSTACLE]).any()
 
 
 def test_overlay_other_pixels_are_grey() -> None:

@@ -14,9 +14,11 @@ from obstacle_detection.labels import (CELL_OCCUPIED, CELL_UNKNOWN, LABEL_GROUND
 from obstacle_detection.evaluation import runner as evaluation
 from obstacle_detection.viz import pictures
 from obstacle_detection.pipeline.costmap import Costmap, costmap_geometry
-from obstacle_detection.viz.overlay import (MIN_GREY, NO_RETURN_RGB, OBSTACLE_RGB, OCCUPIED_RGB,
-                                       ROBOT_RGB, UNKNOWN_RGB, render_overlay)
-from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE, table_4_2
+from obstacle_detection.viz.overlay import (MIN_GREY, NO_RETURN_RGB, OBSTACLE_ALPHA, OBSTACLE_RGB,
+                                       OCCUPIED_RGB, ROBOT_RGB, UNKNOWN_RGB, is_obstacle_rgb,
+                                       render_overlay)
+from obstacle_detection.pipeline.params import (KINECT_V2_SD, KINECT_V2_SD_SIZE, PRESETS,
+                                               table_4_2)
 from obstacle_detection.pipeline.detector import Detector
 from obstacle_detection.sim.scenes import render_scene
 from obstacle_detection.cli import support as tool_support
@@ -45,7 +47,7 @@ def test_overlay_half_has_the_frame_size_and_marks_obstacles(corridor):
     np.testing.assert_array_equal(overlay, pictures.depth_overlay(result.depth_m, result.labels))
     obstacle = result.labels == LABEL_OBSTACLE
     assert obstacle.any() and (~obstacle).any()
-    assert (overlay[obstacle] == OBSTACLE_RGB).all()
+    assert is_obstacle_rgb(overlay[obstacle]).all()
     # outside the region of interest: the plain depth grey; ground inside it: tinted green
     plain = render_overlay(result.depth_m, result.labels)
     outside = result.labels == LABEL_OUTSIDE_ROI
@@ -222,7 +224,8 @@ def tilted_floor(tmp_path_factory):
 
 def _red_pixels(path, height, width):
     rgb = cv2.cvtColor(cv2.imread(str(path)), cv2.COLOR_BGR2RGB)
-    return int(np.count_nonzero((rgb[:height, :width] == OBSTACLE_RGB).all(axis=-1))), rgb
+    top = pictures.title_band('title', width).shape[0]   # a one-line title above the panels
+    return int(np.count_nonzero(is_obstacle_rgb(rgb[top:top + height, :width]))), rgb
 
 
 def test_tool_estimates_the_mount_of_a_depth_png(tmp_path, tilted_floor, capsys):
@@ -291,7 +294,7 @@ def test_readme_pictures_are_made_again(tmp_path, capsys):
     width, height = KINECT_V2_SD_SIZE
     # overlay, costmap and truth panels over a caption band
     assert corridor.shape[0] > height and corridor.shape[1] > 2 * width + 2 * 6
-    assert sheet.shape[1] == 3 * (400 + 6)  # frames 0, 15, ..., 75: two rows of three
+    assert sheet.shape[1] == 2 * (600 + 6)  # frames 0, 15, ..., 75: three rows of two
     assert sheet.shape[0] > 2 * 400 * height / (2 * width)
     assert sorted(p.name for p in out.iterdir()) == ['corridor.png', 'person_walking_sheet.png']
     assert 'no real frames' in capsys.readouterr().err
@@ -436,7 +439,7 @@ def test_costmap_panel_hatches_cells_outside_the_region_of_interest():
 def test_depth_colour_bar_grows_brighter_with_depth():
     bar = pictures.depth_colour_bar(4.0, 400)
     row = bar[10, :, 0].astype(int)
-    first = np.flatnonzero(row == MIN_GREY)[0]
+    first = np.flatnonzero((bar[5:15, :, 0] == MIN_GREY).all(axis=0))[0]  # the bar, not text
     ramp = row[first:first + 300]
     assert (np.diff(ramp) >= 0).all() and ramp[-1] > ramp[0] + 150
 
@@ -450,7 +453,9 @@ def test_picture_has_a_legend_for_every_colour(corridor):
     height = frame.depth.shape[0]
     assert image.shape[0] > bare.shape[0]
     below = image[height:]
-    for colour in (OBSTACLE_RGB, pictures.GROUND_RGB, NO_RETURN_RGB, OCCUPIED_RGB,
+    for colour in (pictures.over_grey(OBSTACLE_RGB, OBSTACLE_ALPHA),
+                   pictures.over_grey(pictures.GROUND_RGB, pictures.GROUND_TINT), NO_RETURN_RGB,
+                   OCCUPIED_RGB,
                    UNKNOWN_RGB, ROBOT_RGB, pictures.VIEW_EDGE_RGB, pictures.HATCH_RGB,
                    pictures.HIT_RGB, pictures.FALSE_ALARM_RGB, pictures.MISS_RGB):
         assert (below == colour).all(axis=-1).any(), colour
@@ -463,7 +468,53 @@ def test_contact_sheet_has_one_legend_under_the_thumbnails(tmp_path):
                                str(out)]) == 0
     sheet = cv2.cvtColor(cv2.imread(str(out)), cv2.COLOR_BGR2RGB)
     rows = np.flatnonzero((sheet == pictures.VIEW_EDGE_RGB).all(axis=-1).any(axis=1))
-    legend_rows = np.flatnonzero((sheet == pictures.GROUND_RGB).all(axis=-1).any(axis=1))
+    ground = pictures.over_grey(pictures.GROUND_RGB, pictures.GROUND_TINT)
+    legend_rows = np.flatnonzero((sheet == ground).all(axis=-1).any(axis=1))
     # the full-size legend (its swatches exactly coloured) lies below every thumbnail
     assert sheet.shape[1] == 2 * 306 and legend_rows.size and rows.size
-    assert legend_rows.max() > sheet.shape[0] - 120
+    assert legend_rows.max() > 0.6 * sheet.shape[0]
+
+
+def test_text_is_at_least_11_px_high_as_drawn():
+    # capitals of every text (ticks, legends, captions) are MIN_TEXT_PX high, and the sheets
+    # draw their text at the size they are shown (contact_sheet pads, fit_width scales rasters)
+    assert pictures.text_height_px(pictures.TEXT_SCALE) >= pictures.MIN_TEXT_PX == 11
+    assert pictures.text_height_px(pictures.TITLE_SCALE) > pictures.MIN_TEXT_PX
+    narrow = np.zeros((10, 50, 3), np.uint8)
+    assert pictures.contact_sheet([narrow], thumb_width=80)[:10, :50].sum() == 0
+
+
+def test_fit_width_scales_the_images_not_the_text(corridor):
+    frame, result = corridor
+    full = pictures.side_by_side(result, caption='corridor')
+    fitted = pictures.fit_width(lambda s: pictures.side_by_side(result, caption='corridor',
+                                                                image_scale=s),
+                                full.shape[1] - 60)
+    assert fitted.shape[1] == full.shape[1] - 60
+    # the caption 'corridor' is written in both at the same size: its band's ink is found
+    word = pictures.caption_band(['corridor'], 100)
+    ink = np.flatnonzero((word < 128).any(axis=(1, 2)))
+    patch = word[ink[0]:ink[-1] + 1]
+
+    def has_word(image):
+        return any((image[r:r + patch.shape[0], :100] == patch).all()
+                   for r in range(image.shape[0] - patch.shape[0]))
+    assert has_word(full) and has_word(fitted)
+
+
+def test_above_robot_surfaces_have_their_own_colour(corridor):
+    frame, _ = corridor
+    params = frame.params(PRESETS['corridor']())  # robot level: walls above 1 m are passable
+    result = Detector(params).process(frame.depth, frame.intrinsics)
+    above = pictures.above_robot_pixels(result, params)
+    assert above is not None and above.any()
+    assert (result.labels[above] == LABEL_GROUND).all()
+    heights = result.voxel_height_m[result.pixel_voxel[above]]
+    assert (heights > params.robot_height_m).all()
+    rgb = pictures.depth_overlay(result.depth_m, result.labels, above_robot=above)
+    plain = pictures.depth_overlay(result.depth_m, result.labels)
+    blue = rgb[above].astype(int)
+    assert (blue[:, 2] > blue[:, 1]).all() and (blue[:, 2] > blue[:, 0]).all()
+    np.testing.assert_array_equal(rgb[~above], plain[~above])
+    # the seed's slope test knows no robot height: nothing is called above the robot
+    assert pictures.above_robot_pixels(result, table_4_2()) is None

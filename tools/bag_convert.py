@@ -5,7 +5,8 @@ Sources (one sub-command each):
 
 ``tum``
     RGB-D benchmark layout (TUM RGB-D; also ETH3D SLAM, Bonn, ICL-NUIM in TUM format):
-    ``rgb.txt`` and ``depth.txt`` list ``timestamp filename`` lines (``#`` starts a comment),
+    ``rgb.txt`` and ``depth.txt`` list ``timestamp filename`` lines (``#`` starts a comment;
+    without them, the ``<seconds>.png`` names in ``depth/`` and ``rgb/`` give the stamps),
     depth is a 16-bit PNG with 5000 units per metre. Depth keeps its real timestamps and is
     written in millimetres (``round(v / 5)``); each depth frame gets the colour frame nearest in
     time if it is within ``--max-difference`` seconds, otherwise it is kept without colour and
@@ -24,8 +25,10 @@ Sources (one sub-command each):
     ``<id>_c.png`` and ``<id>_depth_filled.png`` (16-bit millimetres). The samples are not a
     sequence; they are sorted by scene and id and stamped ``start + k / rate``.
 ``folder``
-    A folder of 16-bit depth PNGs in millimetres (and optionally a colour folder with as many
-    images), sorted by name and stamped ``start + k / rate``.
+    A folder of 16-bit depth PNGs, in millimetres unless ``--depth-scale`` says otherwise (units
+    per metre: 5000 for TUM frames), and optionally a colour folder with as many images, sorted
+    by name and stamped ``start + k / rate``. A first frame that looks like another unit read
+    as millimetres (e.g. TUM's) is refused, naming the scale that fits.
 ``ros1``
     A ROS 1 bag (e.g. from the iai_kinect2 driver): every message (or those of ``--topics``)
     is converted to its ROS 2 Jazzy type and written with its topic, stamp and data. Compressed
@@ -62,9 +65,9 @@ from obstacle_detection.cli.bag_writer import (DEFAULT_COLOR_TOPIC, DEFAULT_DEPT
 def build_parser() -> argparse.ArgumentParser:
     """Return the command-line parser."""
     parser = argparse.ArgumentParser(
-        prog='bag_convert.py', description=__doc__.split('\n\n')[0],
+        prog='bag_convert', description=__doc__.split('\n\n')[0],
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog='Run "bag_convert.py SOURCE -h" for the options of one source.')
+        epilog='Run "bag_convert SOURCE -h" for the options of one source.')
     sub = parser.add_subparsers(dest='source', required=True, metavar='SOURCE')
 
     common = argparse.ArgumentParser(add_help=False)
@@ -92,7 +95,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser('tum', parents=[common, frames], help='TUM RGB-D format '
                        '(TUM, ETH3D SLAM, Bonn, ICL-NUIM)', description=tum_frames.__doc__)
-    p.add_argument('sequence', type=Path, help='folder with rgb.txt and depth.txt')
+    p.add_argument('sequence', type=Path, help='folder with depth.txt and rgb.txt (or depth/ and '
+                   'rgb/ of <seconds>.png)')
     p.add_argument('output', type=Path, help='rosbag2 folder to create (must not exist)')
     p.add_argument('--camera', choices=sorted(TUM_CAMERAS),
                    help='TUM camera intrinsics (fr1, fr2, fr3, or ros = 525/525/319.5/239.5)')
@@ -119,11 +123,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help='which resolution to take when both exist (default %(default)s)')
 
     p = sub.add_parser('folder', parents=[common, frames, timed],
-                       help='a folder of 16-bit depth PNGs [mm] (+ a colour folder)',
+                       help='a folder of 16-bit depth PNGs (+ a colour folder)',
                        description=folder_frames.__doc__)
-    p.add_argument('depth_dir', type=Path, help='folder of 16-bit depth PNGs in millimetres')
+    p.add_argument('depth_dir', type=Path, help='folder of 16-bit depth PNGs')
     p.add_argument('output', type=Path, help='rosbag2 folder to create (must not exist)')
     p.add_argument('--color-dir', type=Path, help='folder with as many colour images')
+    p.add_argument('--depth-scale', type=float, metavar='UNITS',
+                   help='depth units per metre of the PNGs (default: 1000, millimetres; '
+                        'TUM RGB-D: 5000)')
 
     p = sub.add_parser('ros1', parents=[common], help='a ROS 1 bag (e.g. iai_kinect2)',
                        description=convert_ros1.__doc__)
@@ -162,7 +169,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                                                   with_color=not args.no_color),
         'folder': lambda: folder_frames(args.depth_dir, color_dir=args.color_dir,
                                         intrinsics_path=args.intrinsics, rate_hz=args.rate,
-                                        start_s=args.start_time),
+                                        start_s=args.start_time,
+                                        depth_units_per_m=args.depth_scale),
     }
     try:
         if args.source == 'ros1':
@@ -173,7 +181,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             source = sources[args.source]()
             summary = write_frames(source, args.output, options_from_args(args))
     except ConvertError as err:
-        return tool_support.report_error('bag_convert.py', err)
+        return tool_support.report_error('bag_convert', err)
     print('\n'.join(summary.lines()))
     return 0
 

@@ -32,7 +32,7 @@ from obstacle_detection.cli.bag_player import (PlayError, PlayOptions, Player, P
 def build_parser() -> argparse.ArgumentParser:
     """Return the command-line parser."""
     parser = argparse.ArgumentParser(
-        prog='bag_play.py', description=__doc__.split('\n\n')[0],
+        prog='bag_play', description=__doc__.split('\n\n')[0],
         epilog='Example (into a detector started with default topic names): python '
                'tools/bag_play.py out/demo/input_bag --rate 0.5 --loop '
                '--remap /kinect2/sd/image_depth_rect:=/depth/image_raw '
@@ -65,8 +65,8 @@ def build_parser() -> argparse.ArgumentParser:
 def _report(err: PlayError) -> int:
     """Print the error line; return 2 for a bad option value, 1 for a bad bag."""
     if isinstance(err, PlayUsageError):
-        return tool_support.report_error('bag_play.py', tool_support.UsageError(str(err)))
-    return tool_support.report_error('bag_play.py', err)
+        return tool_support.report_error('bag_play', tool_support.UsageError(str(err)))
+    return tool_support.report_error('bag_play', err)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

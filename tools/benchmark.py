@@ -132,7 +132,7 @@ def format_table(results: list[dict]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the benchmark; print the table and one JSON line."""
-    parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    parser = argparse.ArgumentParser(prog='benchmark', description=__doc__.split('\n\n')[0])
     parser.add_argument('--frames', type=int, default=100, help='frames per configuration')
     parser.add_argument('--preset', choices=sorted(PRESETS), default='corridor',
                         help='parameters: corridor (the default, robot level) or a seed '

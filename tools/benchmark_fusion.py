@@ -30,7 +30,7 @@ from obstacle_detection.cli import support as tool_support  # noqa: E402
 from obstacle_detection.pipeline.fusion import FusedGrid, FusionParams  # noqa: E402
 from obstacle_detection.sim.sequences import SceneSequence  # noqa: E402
 
-PROG = 'benchmark_fusion.py'
+PROG = 'benchmark_fusion'
 
 
 def build_parser() -> argparse.ArgumentParser:

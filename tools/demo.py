@@ -58,6 +58,8 @@ OUTPUT_TOPICS = {
 }
 #: Frames a second the demo replays at, unless --rate says otherwise.
 DEMO_FPS = 7.5
+#: Width of a frame in the contact sheet [px]: two columns, about as wide as the README's text.
+SHEET_THUMB_PX = 600
 
 
 class DemoError(Exception):
@@ -161,7 +163,8 @@ def save_pictures(folder: Path, recorder: Recorder, every: int, params: Any = No
     camera, the region of interest (hatched outside) and the floor in view when ``params``
     (the node's DetectorParams) and ``intrinsics`` are given; the fused costmap (odom) beside
     it when the node published one, the robot at its odometry pose (``poses`` by stamp); each
-    picture has a legend.
+    picture has a title and a legend. The contact sheet: two columns of thumbnails drawn at
+    the size they are shown (the images scaled, the text not), one legend underneath.
     Returns the side-by-side paths.
     """
     from nav_msgs.msg import OccupancyGrid
@@ -169,7 +172,7 @@ def save_pictures(folder: Path, recorder: Recorder, every: int, params: Any = No
     from sensor_msgs.msg import Image, PointCloud2
 
     from obstacle_detection.ros.conversions import image_to_rgb, occupancy_grid_to_costmap
-    from obstacle_detection.viz.pictures import contact_sheet, node_outputs, write_png
+    from obstacle_detection.viz import pictures
 
     def by_stamp(topic: str, cls: type) -> dict[tuple[int, int], Any]:
         out = {}
@@ -183,8 +186,8 @@ def save_pictures(folder: Path, recorder: Recorder, every: int, params: Any = No
     clouds = by_stamp('/obstacles/points', PointCloud2)
     fused = by_stamp('/obstacles/fused_costmap', OccupancyGrid)
     saved: list[Path] = []
-    panels: list[np.ndarray] = []
-    labels: list[str] = []
+    thumbs: list[np.ndarray] = []
+    out = folder / 'pictures'
     for k, stamp in enumerate(sorted(grids)):
         if k % every or stamp not in overlays:
             continue
@@ -193,21 +196,34 @@ def save_pictures(folder: Path, recorder: Recorder, every: int, params: Any = No
         cloud = clouds.get(stamp)
         points = int(cloud.width * cloud.height) if cloud is not None else 0
         occupied = int(np.count_nonzero(costmap.data == 100))
-        caption = [f'frame {k}, stamp {stamp[0]}.{stamp[1]:09d}: {points} obstacle points, '
-                   f'{occupied} occupied cells']
-        picture, grid_rgb = node_outputs(
-            overlay, costmap, caption=caption, params=params, intrinsics=intrinsics,
-            fused=occupancy_grid_to_costmap(fused[stamp]) if stamp in fused else None,
-            robot_pose=(poses or {}).get(stamp) or (0.0, 0.0, 0.0))
+        when = f'frame {k}, t = {stamp[0]}.{stamp[1]:09d} s'
+        caption = [f'{when}: {points} obstacle points, {occupied} occupied cells']
+        options = dict(caption=caption, params=params, intrinsics=intrinsics,
+                       fused=occupancy_grid_to_costmap(fused[stamp]) if stamp in fused else None,
+                       robot_pose=(poses or {}).get(stamp) or (0.0, 0.0, 0.0))
+        picture, grid_rgb = pictures.node_outputs(overlay, costmap, **options)
         name = f'frame_{k:04d}'
-        write_png(folder / 'pictures' / f'overlay_{k:04d}.png', overlay)
-        write_png(folder / 'pictures' / f'costmap_{k:04d}.png', grid_rgb)
-        write_png(folder / 'pictures' / f'{name}.png', picture)
-        saved.append(folder / 'pictures' / f'{name}.png')
-        panels.append(picture)
-        labels.append(name)
-    if panels:
-        write_png(folder / 'demo_sheet.png', contact_sheet(panels, labels=labels, columns=3))
+        pictures.write_png(out / f'overlay_{k:04d}.png', pictures.titled(
+            overlay, f'obstacles/overlay, {when}',
+            below=pictures.overlay_legend(overlay.shape[1])))
+        pictures.write_png(out / f'costmap_{k:04d}.png', pictures.titled(
+            grid_rgb, f'obstacles/costmap, {when}',
+            below=pictures.costmap_legend(max(grid_rgb.shape[1], 480))))
+        pictures.write_png(out / f'{name}.png', pictures.titled(
+            picture, f"What the detector node published, {when}"))
+        saved.append(out / f'{name}.png')
+        thumb = pictures.fit_width(
+            lambda scale: pictures.node_outputs(overlay, costmap, **options, image_scale=scale,
+                                                with_legend=False)[0], SHEET_THUMB_PX)
+        thumbs.append(thumb)
+    if thumbs:
+        sheet = pictures.contact_sheet(thumbs, columns=2, thumb_width=SHEET_THUMB_PX)
+        panels = 3 if fused else 2
+        legend = pictures.node_outputs_legend([(sheet.shape[1] - 6 * (panels - 1)) // panels]
+                                              * panels)
+        pictures.write_png(folder / 'demo_sheet.png', pictures.titled(
+            sheet, f'What the detector node published: {len(thumbs)} of its frames (overlay, '
+                   'costmap, fused costmap in odom)', below=legend))
     return saved
 
 
@@ -466,7 +482,7 @@ def build_parser() -> argparse.ArgumentParser:
     from obstacle_detection.sim.scenes import SCENE_NAMES
     from obstacle_detection.sim.sequences import SEQUENCE_NAMES
 
-    parser = argparse.ArgumentParser(prog='demo.py', description=__doc__.split('\n\n')[0])
+    parser = argparse.ArgumentParser(prog='demo', description=__doc__.split('\n\n')[0])
     parser.add_argument('--output', type=Path, default=Path('out/demo'),
                         help='folder for everything the demo writes (default %(default)s); '
                              'replaced only when the demo succeeds')

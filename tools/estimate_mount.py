@@ -53,7 +53,7 @@ def camera_yaml(estimate: MountEstimate, intrinsics: Intrinsics, depth_scale: fl
 
 def build_parser() -> argparse.ArgumentParser:
     """Return the command-line parser."""
-    parser = argparse.ArgumentParser(prog='estimate_mount.py',
+    parser = argparse.ArgumentParser(prog='estimate_mount',
                                      description=__doc__.split('\n\n')[0],
                                      formatter_class=argparse.RawTextHelpFormatter)
     parser.add_argument('--depth', type=Path, required=True, metavar='FILE',
@@ -85,7 +85,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """
     args = build_parser().parse_args(argv)
     if not (math.isfinite(args.depth_scale) and args.depth_scale > 0.0):
-        return tool_support.report_error('estimate_mount.py', tool_support.UsageError(
+        return tool_support.report_error('estimate_mount', tool_support.UsageError(
             f'argument --depth-scale: {args.depth_scale} must be > 0'))
     unit_warning = None
     try:
@@ -111,7 +111,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             args.camera_yaml_out.write_text(
                 camera_yaml(estimate, args.intrinsics, args.depth_scale), encoding='utf-8')
     except (ValueError, OSError) as exc:
-        return tool_support.report_error('estimate_mount.py', exc)
+        return tool_support.report_error('estimate_mount', exc)
     if unit_warning:
         tool_support.warn(f'{args.depth}: {unit_warning}')
     print(f'{args.depth}: height {estimate.height_m:.3f} m, pitch {estimate.pitch_deg:.2f} deg, '

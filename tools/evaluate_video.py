@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Score the fused costmap over scene sequences, side by side with the per-frame costmap.
 
-Renders each sequence (obstacle_detection/sequences.py: a robot driving past boxes and a
+Renders each sequence (obstacle_detection/sim/sequences.py: a robot driving past boxes and a
 table, a person crossing in front of a standing robot), runs the detector on every frame with
 the parameter file (default params/corridor.yaml) and fuses the costmaps at the odometry pose.
 Prints a table for people and one JSON line for machines (the last line of stdout, or
@@ -29,7 +29,7 @@ from obstacle_detection.sim.sequences import (PERFECT_ODOMETRY, SEQUENCE_NAMES,
                                           OdometryModel, SceneSequence)
 
 DEFAULT_PARAMS = tool_support.package_file('params/corridor.yaml')
-PROG = 'evaluate_video.py'
+PROG = 'evaluate_video'
 
 
 def parse_assignment(text: str) -> tuple[str, float]:
@@ -101,6 +101,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise tool_support.ToolError(args.sheet, 'the contact sheet must be a .png file')
     except (ValueError, OSError) as exc:
         return tool_support.report_error(PROG, exc)
+    from obstacle_detection.evaluation import video
     from obstacle_detection.evaluation.video import evaluate_sequence, format_table
 
     reports = []
@@ -123,13 +124,25 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.sheet is not None:
         import numpy as np
 
-        from obstacle_detection.viz.pictures import write_png
+        from obstacle_detection.viz import pictures
+        from obstacle_detection.viz.overlay import FREE_RGB, OCCUPIED_RGB, ROBOT_RGB, UNKNOWN_RGB
         sheets = [r.sheet for r in reports if r.sheet is not None]
         width = max(s.shape[1] for s in sheets)
         rows = [np.pad(s, ((0, 0), (0, width - s.shape[1]), (0, 0)), constant_values=255)
                 for s in sheets]
+        names = ', '.join(r.name for r in reports if r.sheet is not None)
+        legend = pictures.legend(
+            f'each pair: per-frame costmap moved into odom | fused costmap; a {fusion.size_m:g} m '
+            f'x {fusion.size_m:g} m window around the robot, north-up in odom (x up, y left), '
+            f'{fusion.resolution_m * 100:g} cm cells', [
+                ('box', OCCUPIED_RGB, 'occupied'), ('box', FREE_RGB, 'free'),
+                ('box', UNKNOWN_RGB, 'unknown'),
+                ('line', video.TRUTH_OUTLINE_RGB, "the truth's obstacles seen so far"),
+                ('triangle', ROBOT_RGB, 'robot (a disc, a line along its heading)')], width)
         try:
-            write_png(args.sheet, np.vstack(rows))
+            pictures.write_png(args.sheet, pictures.titled(
+                np.vstack(rows), f'Per-frame and fused costmaps over time: {names}',
+                below=legend))
         except OSError as exc:
             return tool_support.report_error(PROG, exc)
         print(f'contact sheet: {args.sheet}')

@@ -305,7 +305,7 @@ def format_table(fig: dict[str, Any]) -> str:
 
 def build_parser() -> argparse.ArgumentParser:
     """Return the command-line parser."""
-    parser = argparse.ArgumentParser(prog='latency_bench.py',
+    parser = argparse.ArgumentParser(prog='latency_bench',
                                      description=__doc__.split('\n\n')[0])
     parser.add_argument('--duration', type=float, default=600.0,
                         help='seconds of streaming (default %(default)s: 10 minutes)')

@@ -19,7 +19,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         done = write_pictures(args)
     except (tool_support.UsageError, ValueError, OSError, KeyError) as exc:
-        return tool_support.report_error('pictures.py', exc)
+        return tool_support.report_error('pictures', exc)
     print(done)
     return 0
 

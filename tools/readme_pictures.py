@@ -6,11 +6,11 @@ Synthetic pictures (always), drawn by ``tools/pictures.py`` exactly as its comma
 - ``corridor.png``: the corridor scene, the default (``params/corridor.yaml``, robot level),
   with the robot-level ground-truth panel;
 - ``person_walking_sheet.png``: frames 0, 15, ..., 75 of the person_walking sequence, no truth,
-  3 columns of 400 px thumbnails.
+  2 columns of 600 px thumbnails.
 
 Real-frame pictures (when the real frames are there, ``--real-dir``, by default the
 repository's sibling ``../shared/data/real``; skipped with a warning otherwise), each a column
-of panels scaled to 860 px wide, the camera mount estimated from the floor
+of panels drawn 860 px wide, the camera mount estimated from the floor
 (``--estimate-mount``), the default configuration (robot level) at range 4 m:
 
 - ``real_tum_office.png``: TUM fr3 office, the seed method (Table 4.2, K = 5) above the default;
@@ -51,7 +51,7 @@ REAL_WIDTH_PX = 860
 SYNTHETIC = {
     'corridor.png': ['--scene', 'corridor', '--preset', 'corridor'],
     'person_walking_sheet.png': ['--scene', 'person_walking', '--frames', '0:90:15',
-                                 '--no-truth', '--thumb-width', '400', '--columns', '3'],
+                                 '--no-truth', '--thumb-width', '600', '--columns', '2'],
 }
 
 # Intrinsics fx,fy,cx,cy [px] and depth units per metre of the real frames (their README).
@@ -121,20 +121,26 @@ def real_picture(panels: Sequence[Panel], real_dir: Path,
                  width: int = REAL_WIDTH_PX) -> np.ndarray:
     """(h, width, 3) uint8 RGB: the panels drawn by ``tools/pictures.py``, one above the other.
 
-    The column (narrower panels padded white on the right) is scaled as a whole to ``width``.
-    Raises ValueError / OSError / KeyError as ``obstacle_detection.cli.picture_jobs.render`` does.
+    Each panel is drawn ``width`` wide, its images scaled and its text at full size
+    (``pictures.fit_width``), under its caption as title. Raises ValueError / OSError /
+    KeyError as ``obstacle_detection.cli.picture_jobs.detect`` does.
     """
     parser = picture_jobs.build_parser()
-    images = [image for panel in panels
-              for _, image in picture_jobs.render(parser.parse_args(panel.argv(real_dir)))]
-    column = pictures.tile(images, columns=1)
-    # a contact sheet of one image is that image scaled, with a 6 px margin right and below
-    return pictures.contact_sheet([column], columns=1, thumb_width=width - 6)
+    images = []
+    for panel in panels:
+        for frame in picture_jobs.detect(parser.parse_args(panel.argv(real_dir))):
+            picture = pictures.fit_width(
+                lambda scale, frame=frame: picture_jobs.draw(frame, image_scale=scale), width)
+            rule = picture_jobs.rule_text(frame.job.params)
+            images.append(pictures.titled(picture, panel.caption if rule in panel.caption
+                                          else f'{panel.caption} ({rule})'))
+    gap = np.full((6, width, 3), 255, np.uint8)
+    return np.vstack([part for image in images for part in (image, gap)][:-1])
 
 
 def build_parser() -> argparse.ArgumentParser:
     """Return the command-line parser."""
-    parser = argparse.ArgumentParser(prog='readme_pictures.py',
+    parser = argparse.ArgumentParser(prog='readme_pictures',
                                      description=__doc__.split('\n\n')[0])
     parser.add_argument('--out-dir', type=Path, default=DEFAULT_OUT_DIR, metavar='DIR',
                         help='where the PNGs go [default: tools/readme]')
@@ -154,15 +160,15 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(picture_jobs.write_pictures(parser.parse_args([*options, '--out', str(out)])))
             recompress(out)
     except (tool_support.UsageError, ValueError, OSError, KeyError) as exc:
-        return tool_support.report_error('readme_pictures.py', exc)
+        return tool_support.report_error('readme_pictures', exc)
     if not args.real_dir.is_dir():
-        print(f'readme_pictures.py: warning: no real frames in {args.real_dir}; the real-frame '
+        print(f'readme_pictures: warning: no real frames in {args.real_dir}; the real-frame '
               f'pictures ({", ".join(REAL)}) are left as they are', file=sys.stderr)
         return 0
     for name, panels in REAL.items():
         missing = sorted({p.depth for p in panels if not (args.real_dir / p.depth).is_file()})
         if missing:
-            print(f'readme_pictures.py: warning: {name} skipped, missing in {args.real_dir}: '
+            print(f'readme_pictures: warning: {name} skipped, missing in {args.real_dir}: '
                   f'{", ".join(missing)}', file=sys.stderr)
             continue
         out = args.out_dir / name
@@ -170,7 +176,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             pictures.write_png(out, real_picture(panels, args.real_dir))
             recompress(out)
         except (ValueError, OSError, KeyError) as exc:
-            return tool_support.report_error('readme_pictures.py', exc)
+            return tool_support.report_error('readme_pictures', exc)
     return 0
 
 

@@ -76,7 +76,7 @@ def _with_path(path: Path, err: Exception) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     """Command-line entry: print the per-frame and total shares."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog='real_frames', description=__doc__.splitlines()[0])
     parser.add_argument('--data', type=Path, default=REPO.parent / 'shared' / 'data' / 'real',
                         help='folder of the real frames [default: ../shared/data/real]')
     parser.add_argument('--params-file', type=Path,

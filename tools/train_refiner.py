@@ -57,7 +57,7 @@ def comparison_table(rule_pixel: Confusion, rule_cell: Confusion, refined_pixel:
 
 def build_parser() -> argparse.ArgumentParser:
     """Return the command-line interface."""
-    parser = argparse.ArgumentParser(prog='train_refiner.py',
+    parser = argparse.ArgumentParser(prog='train_refiner',
                                      description=__doc__.split('\n\n')[0],
                                      formatter_class=argparse.RawTextHelpFormatter)
     add_common_arguments(parser)
@@ -94,7 +94,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                                 refiner_name=str(args.out),
                                                 on_frame=lambda *_: bar.update())
     except (ValueError, OSError) as exc:
-        print(f'train_refiner.py: error: {exc}', file=sys.stderr)
+        print(f'train_refiner: error: {exc}', file=sys.stderr)
         return 2
     overall = report.overall
     print(f'parameters: {args.preset}; trained on {len(train)} frames '

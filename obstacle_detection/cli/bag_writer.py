@@ -45,6 +45,11 @@ DEFAULT_FRAME_ID = 'kinect2_ir_optical_frame'
 #: Odometry of frames that carry a pose (nav_msgs/Odometry, base_footprint in odom).
 DEFAULT_ODOM_TOPIC = '/odom'
 BAG_VERSION = 9
+#: A first frame with more than FAR_SHARE of its valid depth beyond FAR_DEPTH_M [m] looks
+#: like another unit (TUM's 5000 units/m read as millimetres puts a desk at 7 m and the
+#: hall behind it at 20 m).
+FAR_DEPTH_M = 10.0
+FAR_SHARE = 0.05
 STORAGES = {'sqlite3': StoragePlugin.SQLITE3, 'mcap': StoragePlugin.MCAP}
 
 
@@ -193,7 +198,16 @@ def write_frames(source: FrameSource, output: Path, options: BagOptions) -> Summ
     if not source.frames:
         raise ConvertError(f'{output}: no frames to write')
     first = source.frames[0].depth_path
-    first_depth = read_depth_png(first, divisor=source.depth_divisor)
+    scale = source.depth_units_per_m
+    problem = depth_unit_problem(read_depth_png(first), scale)
+    if problem is not None and not source.depth_units_origin:
+        raise ConvertError(f'{first}: {problem}; if it is in millimetres after all, pass '
+                           '--depth-scale 1000')
+    if problem is not None:
+        warn(f'{first}: {problem}')
+    first_depth = read_depth_png(first, units_per_m=scale)
+    units_origin = source.depth_units_origin or ('millimetres, the default; --depth-scale for '
+                                                 'another unit, TUM: 5000')
     size = (first_depth.shape[1], first_depth.shape[0])
     if source.size is not None and source.size != size:
         raise ConvertError(f'{source.intrinsics_origin.removeprefix("from ")}: intrinsics are '
@@ -207,7 +221,9 @@ def write_frames(source: FrameSource, output: Path, options: BagOptions) -> Summ
               'only as right as these values.')
     with_color = options.with_color and any(f.color_path is not None for f in source.frames)
     summary = Summary(output=output, size=size, intrinsics=intr, dropped=source.dropped.copy(),
-                      notes=[*source.notes, f'intrinsics: {origin}'])
+                      notes=[*source.notes, f'intrinsics: {origin}',
+                             f'depth read at {scale:g} units/m ({units_origin}), written in '
+                             'millimetres'])
     with staged_output(output) as staging:
         try:
             with Writer(staging, version=BAG_VERSION,
@@ -220,7 +236,7 @@ def write_frames(source: FrameSource, output: Path, options: BagOptions) -> Summ
                 with bar:
                     for k, frame in enumerate(source.frames):
                         depth = first_depth if k == 0 else read_depth_png(
-                            frame.depth_path, divisor=source.depth_divisor)
+                            frame.depth_path, units_per_m=scale)
                         if depth.shape != first_depth.shape:
                             raise ConvertError(
                                 f'{frame.depth_path}: {depth.shape[1]}x{depth.shape[0]} but '
@@ -251,6 +267,32 @@ def write_frames(source: FrameSource, output: Path, options: BagOptions) -> Summ
         summary.notes.append('colour images differ in size from depth: the colour topic is not '
                              'registered to the depth image')
     return summary
+
+
+def depth_unit_problem(depth: np.ndarray, units_per_m: float) -> str | None:
+    """Return why a depth image read at ``units_per_m`` looks like another unit, or None.
+
+    depth: (H, W) uint16 in the file's units, 0 = no return. Its median outside what a depth
+    camera sees indoors (``tool_support.depth_unit_warning``), or more than FAR_SHARE of it
+    beyond FAR_DEPTH_M; the text names the known scale that fits (``--depth-scale N``).
+    """
+    text = tool_support.depth_unit_warning(depth, units_per_m)
+    valid = depth[depth > 0]
+    if text is not None or valid.size == 0:
+        return text
+    far_m = float(np.quantile(valid, 1.0 - FAR_SHARE)) / units_per_m
+    if far_m <= FAR_DEPTH_M:
+        return None
+    text = (f'the depth looks like another unit: read at {units_per_m:g} units/m, '
+            f'{FAR_SHARE:.0%} of it lies beyond {far_m:.1f} m (median '
+            f'{float(np.median(valid)) / units_per_m:.2f} m), farther than a depth camera '
+            'sees indoors')
+    fits = [s for s in sorted(tool_support.KNOWN_DEPTH_SCALES)
+            if s > units_per_m and far_m * units_per_m / s <= FAR_DEPTH_M]
+    if fits:
+        text += (f'; with --depth-scale {fits[0]:g} ({tool_support.KNOWN_DEPTH_SCALES[fits[0]]})'
+                 f' the median would be {float(np.median(valid)) / fits[0]:.2f} m')
+    return text
 
 
 def convert_ros1(src: Path, output: Path, *, storage: str = 'sqlite3',

@@ -365,7 +365,7 @@ def depth_job(args: argparse.Namespace, base: DetectorParams) -> _Job:
 
 def build_parser() -> argparse.ArgumentParser:
     """Return the command-line interface."""
-    parser = argparse.ArgumentParser(prog='pictures.py', description=__doc__.split('\n\n')[0],
+    parser = argparse.ArgumentParser(prog='pictures', description=__doc__.split('\n\n')[0],
                                      formatter_class=argparse.RawTextHelpFormatter)
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument('--scene', help='a scene of the generator (scenes.SCENE_NAMES)')
@@ -483,13 +483,33 @@ def detect(args: argparse.Namespace) -> list[_Detected]:
 
 
 def draw(frame: _Detected, *, with_legend: bool = True,
-         max_depth_m: float | None = None) -> np.ndarray:
-    """Return the picture of one detected frame (``pictures.side_by_side``)."""
+         max_depth_m: float | None = None, image_scale: float = 1.0) -> np.ndarray:
+    """Return the picture of one detected frame (``pictures.side_by_side``), without title."""
     return pictures.side_by_side(frame.result, caption=frame.caption,
                                  truth_labels=frame.truth, labels=frame.labels,
                                  costmap=frame.costmap, extra_lines=frame.job.extra_lines,
                                  params=frame.job.params, with_legend=with_legend,
-                                 max_depth_m=max_depth_m)
+                                 max_depth_m=max_depth_m, image_scale=image_scale)
+
+
+def rule_text(params: DetectorParams) -> str:
+    """Name the obstacle rule of ``params`` for a title: robot level or the seed's slope test."""
+    return 'robot level' if params.robot_level else "the seed's slope test"
+
+
+def title(frame: _Detected) -> str:
+    """Return the title of one frame's picture."""
+    truth = ', against the ground truth' if frame.truth is not None else ''
+    return (f'{frame.caption}: obstacles in the depth image and the costmap '
+            f'({rule_text(frame.job.params)}{truth})')
+
+
+def titled_frame(frame: _Detected, *, width: int | None = None) -> np.ndarray:
+    """Return the titled picture of one frame; ``width``: drawn to fit it [px]."""
+    if width is None:
+        return pictures.titled(draw(frame), title(frame))
+    return pictures.titled(pictures.fit_width(lambda scale: draw(frame, image_scale=scale),
+                                              width), title(frame))
 
 
 def _write_frames_dir(args: argparse.Namespace, detected: Sequence[_Detected]) -> None:
@@ -497,7 +517,7 @@ def _write_frames_dir(args: argparse.Namespace, detected: Sequence[_Detected]) -
         return
     for i, frame in enumerate(detected):
         safe = frame.job.name.replace(' ', '_').replace('/', '_').replace('#', '')
-        pictures.write_png(args.frames_dir / f'{i:04d}_{safe}.png', draw(frame))
+        pictures.write_png(args.frames_dir / f'{i:04d}_{safe}.png', titled_frame(frame))
 
 
 def render(args: argparse.Namespace) -> list[tuple[str, np.ndarray]]:
@@ -507,14 +527,15 @@ def render(args: argparse.Namespace) -> list[tuple[str, np.ndarray]]:
     """
     detected = detect(args)
     _write_frames_dir(args, detected)
-    return [(frame.caption, draw(frame)) for frame in detected]
+    return [(frame.caption, titled_frame(frame)) for frame in detected]
 
 
 def sheet(args: argparse.Namespace, detected: Sequence[_Detected]) -> np.ndarray:
     """Return the contact sheet of several frames, with one full-size legend underneath.
 
     The thumbnails share one depth shading (the farthest depth of all frames is white), so
-    the legend's colour bar holds for every one of them.
+    the legend's colour bar holds for every one of them. Each is drawn ``--thumb-width`` wide
+    with its images scaled and its text at full size (``pictures.fit_width``).
     """
     farthest = 0.0
     for frame in detected:
@@ -523,16 +544,20 @@ def sheet(args: argparse.Namespace, detected: Sequence[_Detected]) -> np.ndarray
         if valid.any():
             farthest = max(farthest, float(depth[valid].max()))
     farthest = farthest or 1.0
-    images = [draw(frame, with_legend=False, max_depth_m=farthest) for frame in detected]
-    grid = pictures.contact_sheet(images, labels=[f.caption for f in detected],
-                                  columns=args.columns, thumb_width=args.thumb_width)
+    images = [pictures.fit_width(
+        lambda scale, frame=frame: draw(frame, with_legend=False, max_depth_m=farthest,
+                                        image_scale=scale), args.thumb_width)
+        for frame in detected]
+    grid = pictures.contact_sheet(images, columns=args.columns, thumb_width=args.thumb_width)
     truth = any(f.truth is not None for f in detected)
     parts = 3 if truth else 2
     widths = [(grid.shape[1] - (parts - 1) * 6) // parts] * parts
-    legend = pictures.legend_row(widths, farthest, truth=truth, params=detected[0].job.params)
-    legend = np.pad(legend, ((0, 0), (0, grid.shape[1] - legend.shape[1]), (0, 0)),
-                    constant_values=255)
-    return np.vstack([grid, legend])
+    params = detected[0].job.params
+    legend = pictures.legend_row(widths, farthest, truth=truth, params=params,
+                                 above_robot=pictures.above_robot_pixels(
+                                     detected[0].result, params) is not None)
+    return pictures.titled(grid, f'{len(detected)} frames: obstacles in the depth image and '
+                                 f'the costmap ({rule_text(params)})', below=legend)
 
 
 def write_pictures(args: argparse.Namespace) -> str:
@@ -543,7 +568,7 @@ def write_pictures(args: argparse.Namespace) -> str:
     detected = detect(args)
     _write_frames_dir(args, detected)
     if len(detected) == 1:
-        pictures.write_png(args.out, draw(detected[0]))
+        pictures.write_png(args.out, titled_frame(detected[0]))
     else:
         pictures.write_png(args.out, sheet(args, detected))
     return f'wrote {args.out} ({len(detected)} frame{"s" if len(detected) > 1 else ""})'

@@ -32,6 +32,10 @@ TUM_CAMERAS: dict[str, Intrinsics] = {
 }
 #: Depth units per metre in the TUM-format benchmarks.
 TUM_DEPTH_UNITS_PER_M = 5000
+#: Depth units per metre of a folder of depth PNGs unless told otherwise (millimetres).
+DEFAULT_DEPTH_UNITS_PER_M = 1000.0
+#: A TUM file name: a timestamp [s], ``1305031102.160407.png``.
+TUM_STAMP_NAME = re.compile(r'^(\d+(?:\.\d+)?)\.png$')
 #: Nominal Kinect v2 colour camera at 1920x1080 (libfreenect2's factory defaults), used, scaled
 #: to the image size, for depth that DIML warped or upsampled into the colour view when the
 #: user gives no intrinsics.
@@ -76,7 +80,11 @@ class FrameSource:
     intrinsics: Intrinsics | None
     intrinsics_origin: str
     size: tuple[int, int] | None = None
-    depth_divisor: int = 1
+    #: depth units per metre of the images (1000: millimetres, written as they are)
+    depth_units_per_m: float = DEFAULT_DEPTH_UNITS_PER_M
+    #: where ``depth_units_per_m`` came from: '' = the default, not given (so a frame that
+    #: looks like another unit is refused rather than converted wrongly)
+    depth_units_origin: str = ''
     default_view: str = 'depth'
     dropped: Counter[str] = dataclasses.field(default_factory=Counter)
     notes: list[str] = dataclasses.field(default_factory=list)
@@ -228,7 +236,7 @@ def diml_frames(sequence: Path, *, depth_kind: str = 'raw', intrinsics_path: Pat
     notes = [f'DIML has no timestamps: frames stamped from their number at {rate_hz:g} Hz']
     if with_color and not color_dir.is_dir():
         notes.append(f'{color_dir} not found: no colour written')
-    return FrameSource(frames, intr, origin, size,
+    return FrameSource(frames, intr, origin, size, depth_units_origin='DIML: millimetres',
                        default_view='depth' if depth_kind == 'raw' else 'color', notes=notes)
 
 
@@ -271,14 +279,24 @@ def diml_sample_frames(root: Path, *, resolution: str = 'LR',
             frames.append(Frame(stamp, path, color.get(key)))
     intr, origin, size = _optional_intrinsics(intrinsics_path)
     notes = [f'DIML samples have no timestamps: stamped in file order at {rate_hz:g} Hz']
-    return FrameSource(frames, intr, origin, size, default_view='color', notes=notes)
+    return FrameSource(frames, intr, origin, size, depth_units_origin='DIML: millimetres',
+                       default_view='color', notes=notes)
 
 
 def folder_frames(depth_dir: Path, *, color_dir: Path | None = None,
                   intrinsics_path: Path | None = None, rate_hz: float = 30.0,
-                  start_s: float = 0.0) -> FrameSource:
-    """List a folder of depth PNGs (and a colour folder), sorted by name, stamped by rate."""
+                  start_s: float = 0.0, depth_units_per_m: float | None = None) -> FrameSource:
+    """List a folder of depth PNGs (and a colour folder), sorted by name, stamped by rate.
+
+    depth_units_per_m: of the PNGs (``--depth-scale``; 5000 for TUM frames); None: 1000
+    (millimetres), the default, and a first frame that looks like another unit is refused
+    (:func:`obstacle_detection.cli.bag_writer.write_frames`).
+    """
     _check_rate(rate_hz)
+    if depth_units_per_m is not None and not (math.isfinite(depth_units_per_m)
+                                              and depth_units_per_m > 0):
+        raise ConvertError(f'--depth-scale must be a positive number of depth units per metre, '
+                           f'got {depth_units_per_m:g}')
     _require_dir(depth_dir, 'depth')
     depth = sorted(p for p in depth_dir.iterdir() if p.is_file() and p.suffix.lower() == '.png')
     if not depth:
@@ -295,7 +313,10 @@ def folder_frames(depth_dir: Path, *, color_dir: Path | None = None,
     intr, origin, size = _optional_intrinsics(intrinsics_path)
     frames = [Frame(stamp_ns(start_s) + stamp_ns(k / rate_hz), d, c)
               for k, (d, c) in enumerate(zip(depth, color))]
-    return FrameSource(frames, intr, origin, size)
+    if depth_units_per_m is None:
+        return FrameSource(frames, intr, origin, size)
+    return FrameSource(frames, intr, origin, size, depth_units_per_m=depth_units_per_m,
+                       depth_units_origin='--depth-scale')
 
 
 def read_timestamp_list(path: Path) -> list[tuple[float, str]]:
@@ -323,18 +344,26 @@ def tum_frames(root: Path, *, camera: str | None = None, intrinsics_path: Path |
         raise ConvertError(f'{root}: sequence folder not found')
     if not (math.isfinite(max_difference_s) and max_difference_s >= 0):
         raise ConvertError(f'--max-difference must be >= 0 s, got {max_difference_s}')
+    notes: list[str] = []
     depth_list = root / 'depth.txt'
-    if not depth_list.is_file():
-        raise ConvertError(f'{depth_list}: not found (expected a TUM-format sequence folder)')
-    depth = read_timestamp_list(depth_list)
+    if depth_list.is_file():
+        depth = read_timestamp_list(depth_list)
+    else:
+        depth = stamps_from_names(root, 'depth')
+        notes.append(f'{depth_list} not found: depth frames listed from the timestamps in the '
+                     f'file names of {root / "depth"}')
     if not depth:
         raise ConvertError(f'{depth_list}: lists no depth images')
-    notes: list[str] = []
     dropped: Counter[str] = Counter()
     color_for: list[Path | None] = [None] * len(depth)
     rgb_list = root / 'rgb.txt'
-    if with_color and rgb_list.is_file():
-        rgb = read_timestamp_list(rgb_list)
+    named_rgb = stamps_from_names(root, 'rgb') if with_color and not rgb_list.is_file() and \
+        (root / 'rgb').is_dir() else []
+    if with_color and (rgb_list.is_file() or named_rgb):
+        rgb = read_timestamp_list(rgb_list) if rgb_list.is_file() else named_rgb
+        if named_rgb:
+            notes.append(f'{rgb_list} not found: colour frames listed from the timestamps in '
+                         f'the file names of {root / "rgb"}')
         rgb_t = np.array([t for t, _ in rgb])
         used = set()
         for k, (t, _) in enumerate(depth):
@@ -374,15 +403,48 @@ def tum_frames(root: Path, *, camera: str | None = None, intrinsics_path: Path |
             intr, origin = TUM_CAMERAS['ros'], 'ROS default camera'
             warn(f'no intrinsics for {root}: using the ROS default camera fx=fy=525 '
                   'cx=319.5 cy=239.5; pass --camera fr1|fr2|fr3 or --intrinsics FILE')
-    return FrameSource(frames, intr, origin, size, depth_divisor=TUM_DEPTH_UNITS_PER_M // 1000,
-                       dropped=dropped, notes=notes)
+    return FrameSource(frames, intr, origin, size, depth_units_per_m=TUM_DEPTH_UNITS_PER_M,
+                       depth_units_origin='the TUM format', dropped=dropped, notes=notes)
 
 
-def read_depth_png(path: Path, *, divisor: int = 1) -> np.ndarray:
+def stamps_from_names(root: Path, kind: str) -> list[tuple[float, str]]:
+    """``(timestamp, file)`` of the images in ``root/kind`` named by their timestamp (TUM's).
+
+    kind: 'depth' or 'rgb'. Stands in for a missing ``depth.txt`` / ``rgb.txt``. Raises
+    ConvertError when the folder is missing or a PNG in it is not named ``<seconds>.png``,
+    saying exactly what list to write (the PNGs it found, with example stamps).
+    """
+    folder = root / kind
+    listed = root / f'{kind}.txt'
+    found = sorted(p.name for p in folder.iterdir() if p.suffix.lower() == '.png') \
+        if folder.is_dir() else []
+    stamped = [(float(m.group(1)), f'{kind}/{name}') for name in found
+               if (m := TUM_STAMP_NAME.match(name))]
+    if found and len(stamped) == len(found):
+        return sorted(stamped)
+    # name the files the list should hold: those of the sub-folder, else the PNGs beside it
+    # whose names say what they are
+    files = [f'{kind}/{name}' for name in found] or sorted(
+        p.name for p in root.glob('*.png')
+        if (kind == 'depth') == ('depth' in p.name.lower()))
+    lines = ''.join(f'{k / 30.0:.6f} {name}\\n' for k, name in enumerate(files[:3]))
+    example = (f"e.g. printf '{lines}' > {listed}" + (' (one line per file)' if len(files) > 3
+                                                      else '')) if files else \
+        f'no {kind} PNG found in {root}'
+    other = ('; rgb.txt likewise for the colour images' if kind == 'depth' else '') + \
+        ', or --no-color to leave colour out'
+    raise ConvertError(f'{listed}: not found, and no {folder}/<seconds>.png names give the '
+                       f'stamps: write it, one "timestamp filename" line per {kind} image, '
+                       f'{example}{other}')
+
+
+def read_depth_png(path: Path, *,
+                   units_per_m: float = DEFAULT_DEPTH_UNITS_PER_M) -> np.ndarray:
     """Read a 16-bit single-channel depth PNG; return (H, W) uint16 millimetres.
 
-    ``divisor`` converts other units to millimetres (5 for 5000 units per metre), rounding to
-    the nearest millimetre.
+    ``units_per_m`` converts other units to millimetres (5000 for TUM's 0.2 mm), rounding to
+    the nearest millimetre (halves up). Raises ConvertError naming the file when a value
+    converted does not fit 16 bits.
     """
     if not path.is_file():
         raise ConvertError(f'{path}: depth image not found')
@@ -395,9 +457,14 @@ def read_depth_png(path: Path, *, divisor: int = 1) -> np.ndarray:
         bits = image.dtype.itemsize * 8
         raise ConvertError(f'{path}: depth must be a 16-bit image in millimetres, '
                            f'found {bits}-bit ({image.dtype})')
-    if divisor != 1:
-        # (v + divisor // 2) // divisor rounds half up; with divisor 5 there are no ties.
-        image = ((image.astype(np.uint32) + divisor // 2) // divisor).astype(np.uint16)
+    if units_per_m != DEFAULT_DEPTH_UNITS_PER_M:
+        # multiplied before divided: exact for integer ratios (5000 units/m: v / 5)
+        mm = np.floor(image.astype(np.float64) * 1000.0 / units_per_m + 0.5)
+        if mm.max(initial=0.0) > np.iinfo(np.uint16).max:
+            raise ConvertError(f'{path}: at {units_per_m:g} depth units per metre its farthest '
+                               f'value is {mm.max() / 1000:.1f} m, beyond the 65.5 m a 16UC1 '
+                               'image in millimetres holds; check --depth-scale')
+        image = mm.astype(np.uint16)
     return image
 
 

@@ -273,6 +273,10 @@ def _dilate(mask: np.ndarray, radius: int) -> np.ndarray:
     return cv2.dilate(mask.astype(np.uint8), kernel).astype(bool)
 
 
+#: Outline of the truth's obstacles in the contact sheet's panels.
+TRUTH_OUTLINE_RGB = (230, 120, 0)
+
+
 def _to_odom(points: np.ndarray, pose: tuple[float, float, float]) -> np.ndarray:
     c, s = math.cos(pose[2]), math.sin(pose[2])
     x, y = points[:, 0].astype(np.float64), points[:, 1].astype(np.float64)
@@ -290,7 +294,7 @@ def _panel(grid: np.ndarray, truth: np.ndarray, pose: tuple[float, float, float]
     mask = (truth == CELL_OCCUPIED).T[::-1, ::-1]
     mask = np.repeat(np.repeat(mask, scale, axis=0), scale, axis=1).astype(np.uint8)
     contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-    cv2.drawContours(image, contours, -1, (230, 120, 0), 1)
+    cv2.drawContours(image, contours, -1, TRUTH_OUTLINE_RGB, 1)
     col, row = costmap_pixel_of(costmap, pose[0], pose[1], scale=scale)
     # the robot: a disc on its base origin and a line along its heading (+x)
     centre = np.array([col, row])

@@ -16,6 +16,9 @@ from obstacle_detection.pipeline.costmap import Costmap
 #: Obstacle pixels in the depth overlay. The seed (figures 4.22-4.27) marks obstacles with black
 #: dots, but black is also its colour for blind spots, so obstacles are drawn in red here.
 OBSTACLE_RGB = (255, 0, 0)
+#: Share of OBSTACLE_RGB in an obstacle pixel, the rest its depth grey: an object filling the
+#: view (a cabinet 0.6 m ahead) keeps its edges and shading instead of becoming a red block.
+OBSTACLE_ALPHA = 0.7
 #: Pixels without a depth return (blind spots) in the depth overlay, as in the seed.
 NO_RETURN_RGB = (0, 0, 0)
 #: Darkest grey used for a valid depth (the nearest point), so that it differs from a blind spot.
@@ -34,7 +37,8 @@ def render_overlay(depth_m: np.ndarray, labels: np.ndarray, *,
     """Draw the depth frame in grey with obstacle pixels marked (the seed's figures 4.22-4.27).
 
     depth_m: (H, W) float [m], 0 / NaN / inf = no return. labels: (H, W) pipeline LABEL_* values;
-    pixels labelled LABEL_OBSTACLE are drawn OBSTACLE_RGB. Other valid pixels are grey, dark near
+    pixels labelled LABEL_OBSTACLE are OBSTACLE_RGB over their grey (:func:`obstacle_colours`).
+    Other valid pixels are grey, dark near
     and bright far (as in the seed's figure 4.1), scaled so that ``max_depth_m`` (None = the
     frame's farthest valid depth) is white; pixels without a return are black.
 
@@ -55,8 +59,23 @@ def render_overlay(depth_m: np.ndarray, labels: np.ndarray, *,
     grey[~valid] = 0
     rgb = np.repeat(grey[:, :, np.newaxis], 3, axis=2)
     rgb[~valid] = NO_RETURN_RGB
-    rgb[labels == LABEL_OBSTACLE] = OBSTACLE_RGB
+    obstacle = labels == LABEL_OBSTACLE
+    rgb[obstacle] = obstacle_colours(grey[obstacle])
     return rgb
+
+
+def obstacle_colours(grey: np.ndarray) -> np.ndarray:
+    """(N, 3) uint8 RGB of obstacle pixels of depth grey ``grey`` (N,) uint8: red over grey."""
+    grey = np.asarray(grey, np.float32)[:, None]
+    red = np.asarray(OBSTACLE_RGB, np.float32)[None, :]
+    return (red * OBSTACLE_ALPHA + grey * (1.0 - OBSTACLE_ALPHA)).round().astype(np.uint8)
+
+
+def is_obstacle_rgb(rgb: np.ndarray) -> np.ndarray:
+    """Return (...) bool: which RGB pixels (..., 3) are obstacle-coloured (red over grey)."""
+    rgb = np.asarray(rgb, np.int16)
+    red, green, blue = rgb[..., 0], rgb[..., 1], rgb[..., 2]
+    return (green == blue) & (np.abs(red - green - OBSTACLE_ALPHA * 255) <= 1.0)
 
 
 def costmap_pixel_of(costmap: Costmap, x_m: float, y_m: float, *,

@@ -24,8 +24,8 @@ import numpy as np
 
 from obstacle_detection.labels import (CELL_OCCUPIED, GT_NO_RETURN, GT_OBSTACLE, LABEL_GROUND,
                                        LABEL_OBSTACLE)
-from .overlay import (MIN_GREY, NO_RETURN_RGB, OBSTACLE_RGB, OCCUPIED_RGB, FREE_RGB,
-                      ROBOT_RGB, UNKNOWN_RGB, render_costmap, render_overlay)
+from .overlay import (MIN_GREY, NO_RETURN_RGB, OBSTACLE_ALPHA, OBSTACLE_RGB, OCCUPIED_RGB,
+                      FREE_RGB, ROBOT_RGB, UNKNOWN_RGB, render_costmap, render_overlay)
 from obstacle_detection.pipeline.params import Intrinsics
 
 #: Background of the caption band and the padding, and its text colour.
@@ -38,11 +38,66 @@ MISS_RGB = (0, 90, 255)
 
 _FONT = cv2.FONT_HERSHEY_SIMPLEX
 _GAP_PX = 6
+#: Font scale of every text (ticks, legends, captions): capitals 11 px high, as the pictures
+#: are shown (they are drawn at the size they are shown: nothing with text is scaled down).
+TEXT_SCALE = 0.5
+#: Font scale of a picture's title (drawn twice, a pixel apart: bold).
+TITLE_SCALE = 0.6
+#: Smallest height of a capital letter [px] at TEXT_SCALE.
+MIN_TEXT_PX = 11
+#: A costmap panel's grid is at most this share of the depth image's width.
+GRID_WIDTH_SHARE = 1.2
 
 
 def _text_size(text: str, scale: float) -> tuple[int, int]:
     (width, height), baseline = cv2.getTextSize(text, _FONT, scale, 1)
     return width, height + baseline
+
+
+def text_height_px(scale: float = TEXT_SCALE) -> int:
+    """Height [px] of the ink of a capital letter ('H') written at ``scale``."""
+    image = np.zeros((100, 100), np.uint8)
+    cv2.putText(image, 'H', (10, 80), _FONT, scale, 255, 1, cv2.LINE_AA)
+    rows = np.flatnonzero((image > 100).any(axis=1))
+    return int(rows[-1] - rows[0] + 1)
+
+
+def title_band(title: str, width: int) -> np.ndarray:
+    """(h, width, 3) uint8 RGB: the title in bold on white, wrapped to the width."""
+    lines = _wrap([title], width, TITLE_SCALE)
+    line_h = _text_size('Ag', TITLE_SCALE)[1] + 6
+    band = np.full((line_h * len(lines) + 8, width, 3), BACKGROUND_RGB, dtype=np.uint8)
+    for i, line in enumerate(lines):
+        for dx in (4, 5):
+            cv2.putText(band, line, (dx, 4 + line_h * (i + 1) - 8), _FONT, TITLE_SCALE, TEXT_RGB,
+                        1, cv2.LINE_AA)
+    return band
+
+
+def titled(image: np.ndarray, title: str, *, below: np.ndarray | None = None) -> np.ndarray:
+    """Return ``image`` under a title band (and over ``below``, e.g. its legend), padded white."""
+    parts = [image] if below is None else [image, below]
+    width = max(part.shape[1] for part in parts)
+    parts = [np.pad(part, ((0, 0), (0, width - part.shape[1]), (0, 0)), constant_values=255)
+             for part in parts]
+    return np.vstack([title_band(title, width), *parts])
+
+
+def fit_width(render: Any, width: int, *, smallest: float = 0.2) -> np.ndarray:
+    """Return ``render(image_scale)`` for the largest image scale <= 1 whose result fits ``width``.
+
+    render: image_scale -> RGB picture whose rasters (depth, costmap) are scaled and whose text
+    is not; the picture is padded white on the right to ``width``. Scales tried in steps of
+    0.05 down to ``smallest`` (which is returned even when too wide).
+    """
+    scale = 1.0
+    while True:
+        picture = render(scale)
+        if picture.shape[1] <= width or scale <= smallest:
+            break
+        scale = max(smallest, round(scale - 0.05, 2))
+    pad = max(0, width - picture.shape[1])
+    return np.pad(picture, ((0, 0), (0, pad), (0, 0)), constant_values=255)
 
 
 def caption_band(lines: Sequence[str], width: int, *, scale: float = 0.5) -> np.ndarray:
@@ -59,15 +114,6 @@ def caption_band(lines: Sequence[str], width: int, *, scale: float = 0.5) -> np.
         cv2.putText(band, text, (4, 3 + line_h * (i + 1) - 6), _FONT, scale, TEXT_RGB, 1,
                     cv2.LINE_AA)
     return band
-
-
-def _pad_to_height(image: np.ndarray, height: int) -> np.ndarray:
-    if image.shape[0] >= height:
-        return image[:height]
-    top = (height - image.shape[0]) // 2
-    out = np.full((height, image.shape[1], 3), BACKGROUND_RGB, dtype=np.uint8)
-    out[top:top + image.shape[0]] = image
-    return out
 
 
 def join_panels(panels: Sequence[np.ndarray], *, gap_px: int = _GAP_PX) -> np.ndarray:
@@ -103,28 +149,53 @@ def truth_comparison(labels: np.ndarray, truth_labels: np.ndarray,
 #: depth grey blended with this green (GROUND_TINT of it), so the region's cut is visible.
 GROUND_RGB = (40, 190, 60)
 GROUND_TINT = 0.45
+#: Depth panel, robot level: surfaces higher than the robot above the ground under them (not
+#: obstacles; the pipeline labels them ground) are the depth grey blended with this blue.
+ABOVE_ROBOT_RGB = (0, 150, 255)
 #: Costmap panel: hatching over cells outside the region of interest, the edge of the floor
 #: the camera can see, axis and tick ink.
 HATCH_RGB = (70, 70, 70)
 VIEW_EDGE_RGB = (200, 0, 200)
 AXIS_RGB = (60, 60, 60)
-_SMALL = 0.42
+_SMALL = TEXT_SCALE
 
 
 def depth_overlay(depth_m: np.ndarray, labels: np.ndarray, *,
-                  max_depth_m: float | None = None) -> np.ndarray:
+                  max_depth_m: float | None = None,
+                  above_robot: np.ndarray | None = None) -> np.ndarray:
     """(H, W, 3) uint8 RGB: ``overlay.render_overlay`` with the region of interest shown.
 
-    Obstacle pixels red, pixels the pipeline called ground (inside the region of interest)
-    the depth grey tinted green, pixels outside the region the plain depth grey (dark near,
-    bright far), no return black.
+    Obstacle pixels red over their grey, pixels the pipeline called ground (inside the region
+    of interest) the depth grey tinted green, those of them in ``above_robot`` ((H, W) bool,
+    :func:`above_robot_pixels`) tinted blue instead, pixels outside the region the plain
+    depth grey (dark near, bright far), no return black.
     """
     rgb = render_overlay(depth_m, labels, max_depth_m=max_depth_m)
     ground = np.asarray(labels) == LABEL_GROUND
-    tinted = rgb[ground].astype(np.float32) * (1.0 - GROUND_TINT) + \
-        np.asarray(GROUND_RGB, np.float32) * GROUND_TINT
-    rgb[ground] = tinted.round().astype(np.uint8)
+    above = np.zeros_like(ground) if above_robot is None else ground & above_robot
+    for mask, colour in ((ground & ~above, GROUND_RGB), (above, ABOVE_ROBOT_RGB)):
+        tinted = rgb[mask].astype(np.float32) * (1.0 - GROUND_TINT) + \
+            np.asarray(colour, np.float32) * GROUND_TINT
+        rgb[mask] = tinted.round().astype(np.uint8)
     return rgb
+
+
+def above_robot_pixels(result: Any, params: Any) -> np.ndarray | None:
+    """(H, W) bool: pixels whose voxel stands higher than the robot above its local ground.
+
+    Robot level only (``params.robot_level``; None otherwise, or without the result's
+    ``voxel_height_m``). The pipeline labels such pixels ground (they do not block the robot);
+    this tells them apart for the pictures, from the per-voxel height and
+    ``params.robot_height_m``, without changing the result.
+    """
+    heights = getattr(result, 'voxel_height_m', None)
+    if params is None or not getattr(params, 'robot_level', False) or heights is None:
+        return None
+    pixel_voxel = np.asarray(result.pixel_voxel)
+    has = pixel_voxel >= 0
+    above = np.zeros(pixel_voxel.shape, bool)
+    above[has] = np.asarray(heights)[pixel_voxel[has]] > params.robot_height_m
+    return above & (np.asarray(result.labels) == LABEL_GROUND)
 
 
 def _nice_step(span_m: float, px_per_m: float, min_px: float) -> float:
@@ -228,12 +299,12 @@ def costmap_panel(costmap: Any, *, scale: int = 4, params: Any = None,
     x0, y0 = costmap.origin_xy_m
     x1, y1 = x0 + costmap.width * res, y0 + costmap.height * res
     _put(panel, axis_names[0], (2, line_h + 2))
-    for x in _ticks(x0, x1, _nice_step(x1 - x0, px_per_m, 3 * line_h)):
+    for x in _ticks(x0, x1, _nice_step(x1 - x0, px_per_m, 2.5 * line_h)):
         row = top + round((x1 - x) * px_per_m)
         cv2.line(panel, (left - 5, row), (left - 1, row), AXIS_RGB, 1)
         _put(panel, f'{x:g}', (left - 7, row + line_h // 2 - 1), anchor='right')
     tick_y = top + grid_h + marker + line_h + 4
-    for y in _ticks(y0, y1, _nice_step(y1 - y0, px_per_m, 2.5 * tick_w)):
+    for y in _ticks(y0, y1, _nice_step(y1 - y0, px_per_m, 2 * tick_w)):
         col = left + round((y1 - y) * px_per_m)
         cv2.line(panel, (col, top + grid_h), (col, top + grid_h + 4), AXIS_RGB, 1)
         _put(panel, f'{y:g}', (col, tick_y), anchor='centre')
@@ -282,16 +353,20 @@ def legend(title: str, items: Sequence[tuple[str, tuple[int, int, int], str]],
     size = line_h - 8
     rows: list[list[tuple[str, tuple[int, int, int], str]]] = [[]]
     used = 4
-    for item in items:
-        need = size + 6 + _text_size(item[2], _SMALL)[0] + 14
-        if rows[-1] and used + need > width:
-            rows.append([])
-            used = 4
-        rows[-1].append(item)
-        used += need
+    for kind, colour, text in items:
+        # an item wider than the legend goes on rows of its own, its text wrapped
+        lines = _wrap([text], width - size - 6, _SMALL) if \
+            size + 20 + _text_size(text, _SMALL)[0] > width else [text]
+        for k, line in enumerate(lines):
+            need = size + 6 + _text_size(line, _SMALL)[0] + 14
+            if rows[-1] and (used + need > width or len(lines) > 1):
+                rows.append([])
+                used = 4
+            rows[-1].append((kind if k == 0 else 'none', colour, line.strip()))
+            used += need if len(lines) == 1 else width   # nothing after a wrapped item
     band = np.full((line_h * (len(rows) + 1) + 4, width, 3), BACKGROUND_RGB, dtype=np.uint8)
-    _put(band, title, (4, line_h - 5), scale=0.47)
-    _put(band, title, (5, line_h - 5), scale=0.47)
+    _put(band, title, (4, line_h - 5), scale=TEXT_SCALE)
+    _put(band, title, (5, line_h - 5), scale=TEXT_SCALE)
     for r, row in enumerate(rows):
         x, y = 4, line_h * (r + 1) + 3
         for kind, colour, text in row:
@@ -342,7 +417,7 @@ def _wrap(lines: Sequence[str], width: int, scale: float = 0.5) -> list[str]:
 def side_by_side(result: Any, *, caption: str = '', truth_labels: np.ndarray | None = None,
                  max_depth_m: float | None = None, labels: np.ndarray | None = None,
                  costmap: Any = None, extra_lines: Sequence[str] = (), params: Any = None,
-                 with_legend: bool = True) -> np.ndarray:
+                 with_legend: bool = True, image_scale: float = 1.0) -> np.ndarray:
     """Return the panel picture of one ``DetectionResult``.
 
     Layout: ``[depth (H x W) | costmap | truth comparison (optional)]``, each with its legend
@@ -353,7 +428,10 @@ def side_by_side(result: Any, *, caption: str = '', truth_labels: np.ndarray | N
     shows the region of interest and the floor in the camera's view.
     labels / costmap: draw these instead of the result's (e.g. a refined result's).
     The caption's second line gives the obstacle pixel and voxel counts and the pipeline
-    time; long lines are wrapped. Returns (H + legends + band, W_total, 3) uint8 RGB.
+    time; long lines are wrapped. image_scale: the depth and truth panels scaled by it (the
+    costmap drawn to their height), the text not (:func:`fit_width`); at 1 the depth panel
+    occupies rows ``0:H`` and columns ``0:W``. Returns (H + legends + band, W_total, 3) uint8
+    RGB.
     """
     labels = result.labels if labels is None else labels
     costmap = result.costmap if costmap is None else costmap
@@ -362,21 +440,25 @@ def side_by_side(result: Any, *, caption: str = '', truth_labels: np.ndarray | N
     valid = np.isfinite(depth_m) & (depth_m > 0)
     shown_max = max_depth_m if max_depth_m is not None else (
         float(depth_m[valid].max()) if valid.any() else 1.0)
-    panels = [depth_overlay(depth_m, labels, max_depth_m=shown_max)]
-    margin_w, margin_h = 70, 80
-    scale = max(1, min((width - margin_w) // max(costmap.height, 1),
-                       (height - margin_h) // max(costmap.width, 1)))
-    intrinsics = getattr(result, 'intrinsics', None)
-    panels.append(_pad_to_height(costmap_panel(
-        costmap, scale=scale, params=params, intrinsics=intrinsics,
-        image_shape=(height, width)), height))
+    above = above_robot_pixels(result, params) if labels is result.labels else None
+    panels = [depth_overlay(depth_m, labels, max_depth_m=shown_max, above_robot=above)]
     if truth_labels is not None:
         panels.append(truth_comparison(labels, truth_labels, depth_m, max_depth_m=shown_max))
+    if image_scale != 1.0:
+        height, width = (max(1, round(n * image_scale)) for n in depth_m.shape)
+        panels = [cv2.resize(p, (width, height), interpolation=cv2.INTER_AREA) for p in panels]
+    # the grid as high as the depth image (its axes below it) and not much wider
+    scale = max(1, min(int(GRID_WIDTH_SHARE * width) // max(costmap.height, 1),
+                       height // max(costmap.width, 1)))
+    intrinsics = getattr(result, 'intrinsics', None)
+    panels.insert(1, costmap_panel(costmap, scale=scale, params=params, intrinsics=intrinsics,
+                                   image_shape=depth_m.shape))
     top = join_panels(panels)
     parts = [top]
     if with_legend:
         parts.append(legend_row([p.shape[1] for p in panels], shown_max,
-                                truth=truth_labels is not None, params=params))
+                                truth=truth_labels is not None, params=params,
+                                above_robot=above is not None))
     n_pixels = int(np.count_nonzero(labels == LABEL_OBSTACLE))
     occupied = int(np.count_nonzero(np.asarray(costmap.data) == CELL_OCCUPIED))
     total_ms = float(result.timings_ms.get('total', float('nan')))
@@ -396,17 +478,25 @@ def _roi_text(params: Any) -> str:
 
 
 def legend_row(widths: Sequence[int], max_depth_m: float, *, truth: bool,
-               params: Any = None) -> np.ndarray:
+               params: Any = None, above_robot: bool = False) -> np.ndarray:
     """Return the legends of the panels side by side, padded to one height.
 
     widths: of the depth, costmap (and truth) panels [px]; max_depth_m: the white end of the
-    depth colour bar; params: name the region of interest and show its hatching.
+    depth colour bar; params: name the region of interest and show its hatching;
+    above_robot: list the surfaces above the robot (robot level).
     """
     roi_text = _roi_text(params)
+    depth_items = [('box', over_grey(OBSTACLE_RGB, OBSTACLE_ALPHA), 'obstacle'),
+                   ('box', over_grey(GROUND_RGB, GROUND_TINT), 'ground (passable)')]
+    if above_robot:
+        height = getattr(params, 'robot_height_m', None)
+        depth_items.append(('box', over_grey(ABOVE_ROBOT_RGB, GROUND_TINT),
+                            'above the robot' + (f' (> {height:g} m over the ground)'
+                                                 if height is not None else '')
+                            + ': not an obstacle'))
     depth = np.vstack([
         legend('depth image (camera view)', [
-            ('box', OBSTACLE_RGB, 'obstacle'),
-            ('box', GROUND_RGB, 'ground (passable)'),
+            *depth_items,
             ('box', (150, 150, 150), roi_text + ': depth grey'),
             ('box', NO_RETURN_RGB, 'no return')], widths[0]),
         depth_colour_bar(max_depth_m, widths[0])])
@@ -425,11 +515,19 @@ def legend_row(widths: Sequence[int], max_depth_m: float, *, truth: bool,
     return join_panels(blocks)
 
 
+def over_grey(colour: tuple[int, int, int], share: float,
+              grey: int = 150) -> tuple[int, int, int]:
+    """Return ``colour`` over a mid depth grey, as the depth panel draws it (legend swatches)."""
+    return tuple(int(round(c * share + grey * (1.0 - share))) for c in colour)
+
+
 def contact_sheet(images: Sequence[np.ndarray], *, labels: Sequence[str] | None = None,
                   columns: int = 4, thumb_width: int = 400) -> np.ndarray:
     """Return a grid of RGB thumbnails, each ``thumb_width`` wide with an optional label below.
 
-    Returns (rows * cell_h, columns * thumb_width, 3) uint8 RGB (white padding).
+    An image wider than ``thumb_width`` is scaled down, text included: draw pictures with text
+    at the size they are shown (:func:`fit_width`) and keep this for rasters. A narrower image
+    is padded white. Returns (rows * cell_h, columns * thumb_width, 3) uint8 RGB.
     """
     if not images:
         raise ValueError('contact sheet of no images')
@@ -438,10 +536,13 @@ def contact_sheet(images: Sequence[np.ndarray], *, labels: Sequence[str] | None 
     thumbs = []
     for i, image in enumerate(images):
         h, w = image.shape[:2]
-        thumb_h = max(1, round(h * thumb_width / w))
-        thumb = cv2.resize(image, (thumb_width, thumb_h), interpolation=cv2.INTER_AREA)
+        if w > thumb_width:
+            thumb = cv2.resize(image, (thumb_width, max(1, round(h * thumb_width / w))),
+                               interpolation=cv2.INTER_AREA)
+        else:
+            thumb = np.pad(image, ((0, 0), (0, thumb_width - w), (0, 0)), constant_values=255)
         if labels is not None:
-            thumb = np.vstack([thumb, caption_band([labels[i]], thumb_width, scale=0.45)])
+            thumb = np.vstack([thumb, caption_band([labels[i]], thumb_width, scale=TEXT_SCALE)])
         thumbs.append(thumb)
     cell_h = max(t.shape[0] for t in thumbs) + _GAP_PX
     cell_w = thumb_width + _GAP_PX
@@ -499,10 +600,10 @@ def heatmap(scores: np.ndarray, x_labels: Sequence[str], y_labels: Sequence[str]
     scaled = np.clip((np.nan_to_num(scores, nan=vmin) - vmin) / (vmax - vmin), 0.0, 1.0)
     grey = (scaled * 255).round().astype(np.uint8)
     colours = cv2.cvtColor(cv2.applyColorMap(grey, cv2.COLORMAP_VIRIDIS), cv2.COLOR_BGR2RGB)
-    label_w = max([_text_size(s, 0.45)[0] for s in y_labels] + [_text_size(y_name, 0.45)[0]])
+    label_w = max(_text_size(s, TEXT_SCALE)[0] for s in [*y_labels, y_name])
     left = label_w + 12
     top = 2 * (_text_size('Ag', 0.5)[1] + 6)
-    bottom = 2 * (_text_size('Ag', 0.45)[1] + 6)
+    bottom = 2 * (_text_size('Ag', TEXT_SCALE)[1] + 6)
     image = np.full((top + ny * cell_px + bottom, max(left + nx * cell_px + 8, 160), 3),
                     BACKGROUND_RGB, dtype=np.uint8)
     for r in range(ny):
@@ -512,26 +613,26 @@ def heatmap(scores: np.ndarray, x_labels: Sequence[str], y_labels: Sequence[str]
             colour = (170, 170, 170) if np.isnan(value) else tuple(int(v) for v in colours[r, c])
             cv2.rectangle(image, (x0, y0), (x0 + cell_px - 1, y0 + cell_px - 1), colour, -1)
             text = '-' if np.isnan(values[r, c]) else f'{values[r, c]:.2f}'
-            tw, th = _text_size(text, 0.45)
+            tw, th = _text_size(text, TEXT_SCALE)
             ink = (0, 0, 0) if np.isnan(value) or scaled[r, c] > 0.6 else (255, 255, 255)
             cv2.putText(image, text, (x0 + (cell_px - tw) // 2, y0 + (cell_px + th) // 2 - 3),
-                        _FONT, 0.45, ink, 1, cv2.LINE_AA)
-        tw, th = _text_size(y_labels[r], 0.45)
+                        _FONT, TEXT_SCALE, ink, 1, cv2.LINE_AA)
+        tw, th = _text_size(y_labels[r], TEXT_SCALE)
         cv2.putText(image, y_labels[r], (left - tw - 6, top + r * cell_px + (cell_px + th) // 2),
-                    _FONT, 0.45, TEXT_RGB, 1, cv2.LINE_AA)
+                    _FONT, TEXT_SCALE, TEXT_RGB, 1, cv2.LINE_AA)
     for c in range(nx):
-        tw, th = _text_size(x_labels[c], 0.45)
+        tw, th = _text_size(x_labels[c], TEXT_SCALE)
         cv2.putText(image, x_labels[c],
                     (left + c * cell_px + (cell_px - tw) // 2, top + ny * cell_px + th + 2),
-                    _FONT, 0.45, TEXT_RGB, 1, cv2.LINE_AA)
+                    _FONT, TEXT_SCALE, TEXT_RGB, 1, cv2.LINE_AA)
     if best is not None:
         r, c = best
         cv2.rectangle(image, (left + c * cell_px, top + r * cell_px),
                       (left + (c + 1) * cell_px - 1, top + (r + 1) * cell_px - 1),
                       (230, 0, 0), 3)
-    axis_y = top + ny * cell_px + 2 * (_text_size('Ag', 0.45)[1] + 4)
-    cv2.putText(image, x_name, (left, axis_y), _FONT, 0.45, TEXT_RGB, 1, cv2.LINE_AA)
-    cv2.putText(image, y_name, (4, top - 6), _FONT, 0.45, TEXT_RGB, 1, cv2.LINE_AA)
+    axis_y = top + ny * cell_px + 2 * (_text_size('Ag', TEXT_SCALE)[1] + 4)
+    cv2.putText(image, x_name, (left, axis_y), _FONT, TEXT_SCALE, TEXT_RGB, 1, cv2.LINE_AA)
+    cv2.putText(image, y_name, (4, top - 6), _FONT, TEXT_SCALE, TEXT_RGB, 1, cv2.LINE_AA)
     cv2.putText(image, title, (4, _text_size('Ag', 0.5)[1] + 2), _FONT, 0.5, TEXT_RGB, 1,
                 cv2.LINE_AA)
     return image
@@ -553,23 +654,31 @@ def tile(images: Sequence[np.ndarray], *, columns: int = 3) -> np.ndarray:
     return page
 
 
+def overlay_legend(width: int) -> np.ndarray:
+    """Return the legend of the node's ``obstacles/overlay`` image, ``width`` px wide."""
+    return legend('obstacles/overlay (camera view)', [
+        ('box', over_grey(OBSTACLE_RGB, OBSTACLE_ALPHA), 'obstacle pixel'),
+        ('box', (160, 160, 160), 'other depth: dark near, white far'),
+        ('box', NO_RETURN_RGB, 'no return')], width)
+
+
+def costmap_legend(width: int) -> np.ndarray:
+    """Return the legend of a costmap panel (:func:`costmap_panel` with params), ``width`` px."""
+    return legend('obstacles/costmap, top view [m]', [
+        ('box', OCCUPIED_RGB, 'occupied (100)'), ('box', FREE_RGB, 'free (0)'),
+        ('box', UNKNOWN_RGB, 'unknown (-1)'),
+        ('hatch', HATCH_RGB, 'outside the region of interest'),
+        ('line', VIEW_EDGE_RGB, "edge of the floor in the camera's view"),
+        ('triangle', ROBOT_RGB, 'camera foot point, facing +x')], width)
+
+
 def node_outputs_legend(widths: Sequence[int]) -> np.ndarray:
     """Return the legend row under a picture of the node's outputs (:func:`node_outputs`).
 
     widths: of the overlay and costmap panels [px], and of the fused costmap's when there is
     one.
     """
-    left = legend('obstacles/overlay (camera view)', [
-        ('box', OBSTACLE_RGB, 'obstacle pixel'),
-        ('box', (160, 160, 160), 'other depth: dark near, white far'),
-        ('box', NO_RETURN_RGB, 'no return')], widths[0])
-    right = legend('obstacles/costmap, top view [m]', [
-        ('box', OCCUPIED_RGB, 'occupied (100)'), ('box', FREE_RGB, 'free (0)'),
-        ('box', UNKNOWN_RGB, 'unknown (-1)'),
-        ('hatch', HATCH_RGB, 'outside the region of interest'),
-        ('line', VIEW_EDGE_RGB, "edge of the floor in the camera's view"),
-        ('triangle', ROBOT_RGB, 'camera foot point, facing +x')], widths[1])
-    parts = [left, right]
+    parts = [overlay_legend(widths[0]), costmap_legend(widths[1])]
     if len(widths) > 2:
         parts.append(legend('obstacles/fused_costmap, odom [m]', [
             ('box', OCCUPIED_RGB, 'occupied: seen often enough'), ('box', FREE_RGB, 'free'),
@@ -582,6 +691,7 @@ def node_outputs(overlay: np.ndarray, costmap: Any, *, caption: Sequence[str],
                  params: Any = None, intrinsics: Intrinsics | None = None,
                  fused: Any = None,
                  robot_pose: tuple[float, float, float] = (0.0, 0.0, 0.0),
+                 image_scale: float = 1.0, with_legend: bool = True,
                  ) -> tuple[np.ndarray, np.ndarray]:
     """Return the picture of one frame of the node's outputs, and its costmap panel alone.
 
@@ -589,18 +699,27 @@ def node_outputs(overlay: np.ndarray, costmap: Any, *, caption: Sequence[str],
     the legends (:func:`node_outputs_legend`). The costmap panel shows the region of interest
     and the floor in view when ``params`` (the node's DetectorParams) and ``intrinsics`` are
     given; the fused costmap (odom axes) the robot at ``robot_pose`` (x [m], y [m], yaw [rad]).
+    image_scale: the overlay scaled by it and the grids drawn to its height, the text not (a
+    thumbnail that stays readable); with_legend: False leaves the legends out.
     """
+    image_shape = overlay.shape[:2]
+    if image_scale != 1.0:
+        size = (max(1, round(overlay.shape[1] * image_scale)),
+                max(1, round(overlay.shape[0] * image_scale)))
+        overlay = cv2.resize(overlay, size, interpolation=cv2.INTER_AREA)
     height, width = overlay.shape[:2]
-    scale = max(1, min((height - 60) // max(costmap.width, 1),
-                       width // max(costmap.height, 1)))
+    scale = max(1, min(height // max(costmap.width, 1),
+                       int(GRID_WIDTH_SHARE * width) // max(costmap.height, 1)))
     grid_rgb = costmap_panel(costmap, scale=scale, params=params, intrinsics=intrinsics,
-                             image_shape=(height, width))
+                             image_shape=image_shape)
     panels = [overlay, grid_rgb]
     if fused is not None:
-        fused_scale = max(1, (height - 60) // max(fused.height, 1))
+        fused_scale = max(1, min(height // max(fused.width, 1),
+                                 int(GRID_WIDTH_SHARE * width) // max(fused.height, 1)))
         panels.append(costmap_panel(fused, scale=fused_scale, robot_pose=robot_pose,
                                     axis_names=('x [m], odom', 'y [m], odom')))
     row = join_panels(panels)
-    picture = np.vstack([row, caption_band(caption, row.shape[1]),
-                         node_outputs_legend([p.shape[1] for p in panels])])
-    return picture, grid_rgb
+    parts = [row, caption_band(_wrap(caption, row.shape[1]), row.shape[1])]
+    if with_legend:
+        parts.append(node_outputs_legend([p.shape[1] for p in panels]))
+    return np.vstack(parts), grid_rgb
