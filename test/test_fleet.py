@@ -25,7 +25,8 @@ from obstacle_detection.fleet import bags as fleet_bags
 from obstacle_detection.fleet import cluster, scoring
 from obstacle_detection.pipeline.params import table_4_2
 from obstacle_detection.tools import bag_process, sweep
-from test_bag_process import OUTPUT_TOPICS, frame_messages, frames, output_messages, write_bag
+from test_bag_process import (INFO, OUTPUT_TOPICS, frame_messages, frames, output_messages,
+                              read_raw, write_bag)
 
 SMALL = (128, 106)
 PARAMS_YAML = """\
@@ -242,6 +243,28 @@ def test_ctrl_c_leaves_complete_outputs_and_no_partial_one(tmp_path: Path,
     assert no_partial_left(tmp_path / 'out')
 
 
+def test_chunks_merged_equal_the_one_task_bag(tmp_path: Path, depths: list[np.ndarray],
+                                              params_file: Path) -> None:
+    # one CameraInfo, at the start: the later chunks take it from before their window
+    items = frame_messages(depths * 3)
+    items = [item for k, item in enumerate(items) if item[0] != INFO or k == 0]
+    write_bag(tmp_path / 'long', items)
+    values = bag_processor.load_params_file(params_file)
+    job = fleet_bags.BagJob(tmp_path / 'long', tmp_path / 'out' / 'long', values, 'test',
+                            'test', chunk_frames=4)
+    windows = fleet_bags.plan_chunks(job)
+    assert len(windows) == 3   # 9 frames in chunks of about 4
+    parts = [fleet_bags.process_chunk(job, k, w, 'run') for k, w in enumerate(windows)]
+    assert [p.processed for p in parts] == [3, 3, 3]
+    outcome = fleet_bags.finish_bag(job, *parts)
+    assert outcome.error is None and (outcome.frames, outcome.processed) == (9, 9)
+    want = one_process_outputs(tmp_path, [tmp_path / 'long'], params_file)['long']
+    assert output_messages(tmp_path / 'out' / 'long') == want
+    got, source = read_raw(tmp_path / 'out' / 'long'), read_raw(tmp_path / 'long')
+    assert {topic: got[topic] for topic in source} == source   # the inputs, unchanged
+    assert not any(p.output.exists() for p in parts)
+
+
 def test_sweep_and_evaluate_tasks_in_one_process_equal_the_plain_run() -> None:
     sources = sequence_sources()
     frames_ = [f for _, _, lazy in sources for f in lazy]
@@ -310,6 +333,23 @@ def test_bags_on_two_workers_equal_one_process(tmp_path: Path, depths: list[np.n
                    if t in ('/obstacles/points', '/obstacles/costmap'))
     assert 'cannot read bag' in outcomes[-1].error
     assert no_partial_left(tmp_path / 'out')
+
+
+@pytest.mark.integration
+def test_chunked_bags_on_two_workers_equal_one_process(tmp_path: Path, depths: list[np.ndarray],
+                                                       params_file: Path,
+                                                       two_workers: cluster.Fleet) -> None:
+    folder = make_bags(tmp_path, depths, 2, repeat=4)   # 12 frames a bag
+    values = bag_processor.load_params_file(params_file)
+    jobs = [fleet_bags.BagJob(bag, tmp_path / 'out' / name, values, 'test', 'test',
+                              chunk_frames=5)
+            for bag, name in fleet_bags.find_bags(folder)]
+    outcomes = fleet_bags.process_bags(jobs, two_workers, progress=False)
+    assert [(o.error, o.processed) for o in outcomes] == [(None, 12), (None, 12)]
+    want = one_process_outputs(tmp_path, [folder / 'bag0', folder / 'bag1'], params_file)
+    for name, messages in want.items():
+        assert output_messages(tmp_path / 'out' / name) == messages, name
+    assert sorted(p.name for p in (tmp_path / 'out').iterdir()) == ['bag0', 'bag1']
 
 
 @pytest.mark.integration

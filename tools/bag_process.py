@@ -21,10 +21,11 @@ reason (corrupt PNG, bad header, ...).
 Many bags in one command: give a folder of bags, a glob pattern (quoted) or a list file
 (``.txt``, one bag a line) and an output folder; each bag is one task on a Dask cluster (a local
 one of one worker per core by default, ``--scheduler`` for another, ``--workers 0`` for this
-process), its output bag ``<output>/<name>`` written under a temporary name and renamed when
-complete. A summary table per bag (frames, skipped with reasons, obstacle points, ms/frame) and
-one JSON line (the last line of stdout) follow; a bag that fails is named with its reason and
-the others finish (exit code 1 then).
+process; ``--chunk-frames`` cuts long bags into chunks, one task each), its output bag
+``<output>/<name>`` written under a temporary name and renamed when complete. A summary table
+per bag (frames, skipped with reasons, obstacle points, ms/frame) and one JSON line (the last
+line of stdout) follow; a bag that fails is named with its reason and the others finish (exit
+code 1 then).
 """
 
 from __future__ import annotations
@@ -80,8 +81,23 @@ def build_parser() -> argparse.ArgumentParser:
                         help='output storage (default %(default)s)')
     parser.add_argument('--quiet', action='store_true',
                         help='no per-frame lines (a progress bar on a terminal instead)')
+    parser.add_argument('--chunk-frames', type=_positive, metavar='N',
+                        help='on a cluster, cut a bag of more than N depth frames into chunks '
+                             'of about N, one task each, merged into its one output bag '
+                             '[default: one task per bag]')
     add_fleet_arguments(parser)
     return parser
+
+
+def _positive(text: str) -> int:
+    """Parse a positive integer (argparse type)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'must be a positive integer, got {text!r}') from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f'must be >= 1, got {value}')
+    return value
 
 
 def _sets_mount(values: Mapping[str, Any], files: Sequence[Path]) -> bool:
@@ -135,7 +151,8 @@ def _process_many(args: argparse.Namespace, values: Mapping[str, Any], origin: s
     jobs = [fleet_bags.BagJob(
         bag, output, values, origin, mount_origin, depth_topic=args.depth_topic,
         info_topic=args.info_topic, namespace=args.namespace, with_ground=args.ground,
-        with_overlay=args.overlay, storage=args.storage) for bag, output in outputs]
+        with_overlay=args.overlay, storage=args.storage, chunk_frames=args.chunk_frames)
+        for bag, output in outputs]
     began = time.perf_counter()
     try:
         with open_fleet(**fleet_options(args), tasks=len(jobs)) as fleet:

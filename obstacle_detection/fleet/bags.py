@@ -1,4 +1,4 @@
-"""``bag_process`` over many bags: one task per bag, a summary table and one JSON line.
+"""``bag_process`` over many bags: one task per bag (or chunk), a summary table and a JSON line.
 
 The bags are a folder of bags (every folder below it holding a ``metadata.yaml``), a glob
 pattern (``'recordings/*/day1_*'``) or a list file (one bag a line; ``#`` comments; relative
@@ -6,6 +6,11 @@ paths are relative to the list file). Each bag becomes one task: ``bag_processor
 on a worker, which writes its output bag under a temporary name beside it and renames it when
 complete (``bag_writer.staged_output``). A bag that fails (corrupt, no depth topic, an output
 that exists) fails its own task, with the reason in the summary; the others finish.
+
+A bag of more than ``chunk_frames`` depth frames is cut into chunks of about that many frames
+(equal spans of bag time): one task per chunk writes the chunk's messages and outputs to a part
+bag (``process_bag`` with ``start_ns``/``stop_ns``), and the bag's last task copies the parts,
+in order, into the output bag: the messages of a one-task run, in the same order.
 """
 
 from __future__ import annotations
@@ -17,14 +22,17 @@ import io
 import json
 import math
 import shutil
+import uuid
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.cli.bag_processor import (DEFAULT_NAMESPACE, FrameReport,
-                                                  config_from_values, process_bag)
-from obstacle_detection.cli.bag_writer import DEFAULT_DEPTH_TOPIC
+                                                  config_from_values, copy_connections,
+                                                  process_bag)
+from obstacle_detection.cli.bag_writer import (BAG_VERSION, DEFAULT_DEPTH_TOPIC, STORAGES,
+                                               staged_output)
 from .cluster import Fleet, TaskError, limit_threads, run_tasks
 
 #: Suffixes of a list file of bags (anything else that is a file is refused).
@@ -113,6 +121,7 @@ class BagJob:
     with_ground: bool = False
     with_overlay: bool = False
     storage: str = 'sqlite3'
+    chunk_frames: int | None = None
 
 
 @dataclasses.dataclass
@@ -145,13 +154,15 @@ class BagOutcome:
                 'wall_s': round(self.wall_s, 3), 'warning': self.warning, 'error': self.error}
 
 
-def process_one(job: BagJob) -> BagOutcome:
-    """Process one bag (a task; runs on a worker or in this process). Never raises.
+def process_one(job: BagJob, window: tuple[int | None, int | None] = (None, None),
+                output: Path | None = None) -> BagOutcome:
+    """Process one bag, or the chunk ``window`` of it into ``output`` (a task). Never raises.
 
     Per-frame lines and warnings are not printed here: the summary carries them.
     """
     limit_threads()
-    outcome = BagOutcome(job.bag, job.output)
+    output = job.output if output is None else output
+    outcome = BagOutcome(job.bag, output)
     totals = {'points': 0}
 
     def count(report: FrameReport) -> None:
@@ -161,15 +172,14 @@ def process_one(job: BagJob) -> BagOutcome:
         config = config_from_values(job.values, job.origin)
         with contextlib.redirect_stderr(io.StringIO()):
             summary = process_bag(
-                job.bag, job.output, config, depth_topic=job.depth_topic,
+                job.bag, output, config, depth_topic=job.depth_topic,
                 info_topic=job.info_topic, namespace=job.namespace,
                 with_ground=job.with_ground or config.publish_ground,
                 with_overlay=job.with_overlay or config.publish_overlay, storage=job.storage,
-                progress=False, on_frame=count, mount_origin=job.mount_origin)
+                progress=False, on_frame=count, mount_origin=job.mount_origin,
+                start_ns=window[0], stop_ns=window[1])
     except Exception as err:   # noqa: BLE001 - a bag's failure is its task's result
-        outcome.error = str(err) if str(err) else type(err).__name__
-        if not str(err).startswith(str(job.bag)) and not str(err).startswith(str(job.output)):
-            outcome.error = f'{job.bag}: {type(err).__name__}: {err}'
+        outcome.error = _reason(err, job.bag, output)
         return outcome
     outcome.frames = summary.frames
     outcome.processed = summary.processed
@@ -178,6 +188,99 @@ def process_one(job: BagJob) -> BagOutcome:
     outcome.pipeline_ms = float(sum(summary.total_ms))
     outcome.wall_s = summary.wall_s
     outcome.warning = summary.mount_warning
+    return outcome
+
+
+def _reason(err: BaseException, *paths: Path) -> str:
+    """Return the error line of a failed bag: the message, naming the bag if it does not."""
+    text = str(err)
+    if text and text.startswith(tuple(str(p) for p in paths)):
+        return text
+    return f'{paths[0]}: {type(err).__name__}' + (f': {text}' if text else '')
+
+
+def plan_chunks(job: BagJob) -> list[tuple[int, int]]:
+    """Return the [start, stop) bag-time windows [ns] of ``job``'s chunks; [] for one task.
+
+    A bag of more than ``job.chunk_frames`` depth frames gets ceil(frames / chunk_frames)
+    equal spans of its recorded time. A bag that cannot be read gets [] (its task says why).
+    """
+    from rosbags.rosbag2 import Reader
+
+    if not job.chunk_frames:
+        return []
+    try:
+        with Reader(job.bag) as reader:
+            frames = sum(c.msgcount for c in reader.connections if c.topic == job.depth_topic)
+            start, stop = reader.start_time, reader.end_time
+    except Exception:   # noqa: BLE001 - the bag's own task reports it
+        return []
+    count = math.ceil(frames / job.chunk_frames)
+    if count < 2:
+        return []
+    edges = [start + (stop - start) * k // count for k in range(count + 1)]
+    return list(zip(edges[:-1], edges[1:]))
+
+
+def chunks_path(output: Path) -> Path:
+    """Return the folder of an output bag's chunk bags while they are made and merged."""
+    return output.parent / f'.{output.name}.chunks'
+
+
+def process_chunk(job: BagJob, index: int, window: tuple[int, int], run: str) -> BagOutcome:
+    """Process chunk ``index`` of a bag into its part bag (a task). Never raises."""
+    return process_one(job, window, chunks_path(job.output) / run / f'part{index:04d}')
+
+
+def finish_bag(job: BagJob, *parts: BagOutcome) -> BagOutcome:
+    """Return the bag's outcome: process it (no parts) or merge its chunks' parts (a task).
+
+    The parts' messages are copied in order into the output bag (written under a temporary
+    name, renamed when complete), the counts added; the part bags are removed. A failed part
+    fails the bag with the part's reason. Never raises.
+    """
+    if not parts:
+        return process_one(job)
+    from rosbags.rosbag2 import Reader, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    outcome = BagOutcome(job.bag, job.output)
+    try:
+        failed = next((p for p in parts if p.error is not None), None)
+        if failed is not None:
+            outcome.error = failed.error
+            return outcome
+        typestore = get_typestore(Stores.ROS2_JAZZY)
+        with staged_output(job.output) as staging, \
+                Writer(staging, version=BAG_VERSION, storage_plugin=STORAGES[job.storage]) \
+                as writer:
+            connections: dict[tuple[str, str], Any] = {}
+            for part in parts:
+                with Reader(part.output) as reader:
+                    ids = {}
+                    for conn in reader.connections:
+                        key = (conn.topic, conn.msgtype)
+                        if key not in connections:
+                            connections[key] = copy_connections([conn], writer,
+                                                                typestore)[conn.id]
+                        ids[conn.id] = connections[key]
+                    for conn, timestamp, raw in reader.messages():
+                        writer.write(ids[conn.id], timestamp, raw)
+    except Exception as err:   # noqa: BLE001 - a bag's failure is its task's result
+        outcome.error = _reason(err, job.bag, job.output)
+        return outcome
+    finally:
+        for part in parts:
+            shutil.rmtree(part.output, ignore_errors=True)
+    for part in parts:
+        outcome.frames += part.frames
+        outcome.processed += part.processed
+        for reason, count in part.skipped.items():
+            outcome.skipped[reason] = outcome.skipped.get(reason, 0) + count
+        outcome.obstacle_points += part.obstacle_points
+        outcome.pipeline_ms += part.pipeline_ms
+        outcome.wall_s += part.wall_s
+        outcome.warning = outcome.warning or part.warning
     return outcome
 
 
@@ -190,12 +293,24 @@ def process_bags(jobs: Sequence[BagJob], fleet: Fleet, *, progress: bool = True
                  ) -> list[BagOutcome]:
     """Run every job where ``fleet`` says; outcomes in ``jobs`` order.
 
-    A task lost for good (its worker died every time) is a failed outcome. On
+    On a cluster a job with ``chunk_frames`` is cut into chunks (:func:`plan_chunks`), one
+    task each, merged by the bag's last task; in this process a bag is one piece (the same
+    output). A task lost for good (its worker died every time) is a failed outcome. On
     KeyboardInterrupt the tasks are cancelled and it propagates: close the cluster, then
     :func:`remove_stale_staging` (a worker stopped mid-bag leaves its temporary folder).
     """
-    results = run_tasks(fleet, process_one, [(job,) for job in jobs], label='bags',
-                        progress=progress, errors='return')
+    items: list[tuple[Any, ...]] = [(job,) for job in jobs]
+    if fleet.distributed:
+        run = uuid.uuid4().hex[:8]
+        items = [(job, *(fleet.client.submit(process_chunk, job, k, window, run,
+                                             key=f'process_chunk-{run}-{i}-{k}',
+                                             retries=fleet.retries, pure=False)
+                         for k, window in enumerate(plan_chunks(job))))
+                 for i, job in enumerate(jobs)]
+    results = run_tasks(fleet, finish_bag, items, label='bags', progress=progress,
+                        errors='return')
+    for job in jobs:
+        shutil.rmtree(chunks_path(job.output), ignore_errors=True)
     return [BagOutcome(job.bag, job.output, error=f'{job.bag}: {result.reason}')
             if isinstance(result, TaskError) else result
             for job, result in zip(jobs, results)]
@@ -208,6 +323,7 @@ def remove_stale_staging(jobs: Sequence[BagJob]) -> None:
     """
     for job in jobs:
         shutil.rmtree(staging_path(job.output), ignore_errors=True)
+        shutil.rmtree(chunks_path(job.output), ignore_errors=True)
 
 
 def format_table(outcomes: Sequence[BagOutcome]) -> str:
