@@ -149,6 +149,14 @@ def test_workers_and_scheduler_together_are_refused() -> None:
             pass
 
 
+@pytest.mark.integration
+def test_a_scheduler_that_does_not_answer_is_a_clear_error() -> None:
+    with pytest.raises(cluster.FleetError, match='tcp://127.0.0.1:9: no Dask scheduler '
+                                                 'answers'):
+        with cluster.open_fleet(scheduler='tcp://127.0.0.1:9'):
+            pass
+
+
 def test_missing_dask_is_one_error_line_of_the_tool(tmp_path: Path, depths: list[np.ndarray],
                                                     monkeypatch: pytest.MonkeyPatch,
                                                     capsys: pytest.CaptureFixture[str]) -> None:

@@ -137,6 +137,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _evaluate(args, params, sources, refiner, fleet)
     except (ValueError, OSError) as exc:   # FleetError: Dask missing, no scheduler
         return report_error('evaluate.py', exc)
+    except KeyboardInterrupt:   # nothing is written before the end
+        print('evaluate.py: interrupted', file=sys.stderr)
+        return 130
 
 
 def _evaluate(args: Any, params: DetectorParams, sources: Any, refiner: Any,

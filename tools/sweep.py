@@ -122,6 +122,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                 frame_count, first = len(frames), frames[0]
     except (ValueError, OSError) as exc:
         return report_error('sweep.py', exc)
+    except KeyboardInterrupt:   # nothing is written before the grid is complete
+        print('sweep.py: interrupted', file=sys.stderr)
+        return 130
 
     scenes = list(result.grids)
     shown = scenes if args.per_scene else ['overall']
