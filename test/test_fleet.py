@@ -370,23 +370,26 @@ def test_a_worker_killed_mid_task_costs_a_retry_not_the_run(
     jobs = [fleet_bags.BagJob(bag, tmp_path / 'out' / name, values, str(params_file), 'test')
             for bag, name in fleet_bags.find_bags(folder)]
     killed: list[str] = []
+    done = threading.Event()
 
-    def kill_a_busy_worker() -> None:
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline:
+    def kill_a_busy_worker() -> None:   # the first worker seen running a bag's task
+        while not done.is_set():
             busy = {w: keys for w, keys in client.processing().items()
-                    if any('process_one' in str(k) for k in keys)}
+                    if any('finish_bag' in str(k) for k in keys)}
             if busy:
                 worker, keys = next(iter(busy.items()))
                 pid = client.run(os.getpid, workers=[worker])[worker]
                 os.kill(pid, signal.SIGKILL)
-                killed.append(str(next(k for k in keys if 'process_one' in str(k))))
+                killed.append(str(next(k for k in keys if 'finish_bag' in str(k))))
                 return
             time.sleep(0.01)
     killer = threading.Thread(target=kill_a_busy_worker)
     killer.start()
-    outcomes = fleet_bags.process_bags(jobs, two_workers, progress=False)
-    killer.join()
+    try:
+        outcomes = fleet_bags.process_bags(jobs, two_workers, progress=False)
+    finally:
+        done.set()
+        killer.join()
     assert killed, 'no task was seen running'
     assert [o.error for o in outcomes] == [None] * 3
     want = one_process_outputs(tmp_path, [folder / f'bag{i}' for i in range(3)], params_file)
