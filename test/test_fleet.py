@@ -9,6 +9,8 @@ from __future__ import annotations
 import json
 import os
 import signal
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -28,6 +30,7 @@ from obstacle_detection.tools import bag_process, sweep
 from test_bag_process import (INFO, OUTPUT_TOPICS, frame_messages, frames, output_messages,
                               read_raw, write_bag)
 
+REPO = Path(__file__).resolve().parents[1]
 SMALL = (128, 106)
 PARAMS_YAML = """\
 obstacle_detector:
@@ -399,6 +402,38 @@ def test_a_worker_killed_mid_task_costs_a_retry_not_the_run(
     # the killed task ran twice: on the worker that died, then on another
     story = client.story(killed[0])
     assert sum(1 for event in story if len(event) > 2 and event[2] == 'processing') >= 2, story
+
+
+@pytest.mark.integration
+def test_ctrl_c_on_a_cluster_stops_cleanly_and_leaves_no_partial_bag(
+        tmp_path: Path, depths: list[np.ndarray], params_file: Path) -> None:
+    folder = make_bags(tmp_path, depths, 4, repeat=30)   # 90 frames a bag
+    out = tmp_path / 'out'
+    # its own session, as a terminal's foreground job; SIGINT as a shell would leave it
+    run = subprocess.Popen(
+        [sys.executable, str(REPO / 'tools' / 'bag_process.py'), str(folder), str(out),
+         '--params-file', str(params_file), '--workers', '2'], cwd=REPO,
+        start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    try:
+        deadline = time.monotonic() + 120
+        while not (out.exists() and list(out.glob('.*.partial'))):   # a bag being written
+            assert run.poll() is None and time.monotonic() < deadline, run.stderr.read()
+            time.sleep(0.05)
+        os.killpg(run.pid, signal.SIGINT)   # Ctrl-C: every process of the group
+        _, err = run.communicate(timeout=120)
+    finally:
+        if run.poll() is None:
+            os.killpg(run.pid, signal.SIGKILL)
+    assert run.returncode == 130
+    assert err.splitlines()[-1] == ('bag_process.py: interrupted; the output bags not '
+                                    'complete were removed')
+    assert 'Traceback' not in err
+    assert no_partial_left(out)
+    done = sorted(p.name for p in out.iterdir())
+    want = one_process_outputs(tmp_path, [folder / name for name in done], params_file)
+    for name in done:   # what is there is complete
+        assert output_messages(out / name) == want[name], name
 
 
 @pytest.mark.integration

@@ -148,12 +148,15 @@ def open_fleet(*, workers: int | None = None, scheduler: str | None = None,
                             count, retries)
             return
         count = workers if workers is not None else usable_cores()
+        # the workers ignore Ctrl-C (worker_setup): this process alone stops the run
         with _quiet_dask_logs(), LocalCluster(
                 n_workers=count, threads_per_worker=1, processes=True, host='127.0.0.1',
                 dashboard_address='127.0.0.1:0', env=dict(ONE_THREAD_ENV),
-                silence_logs=logging.CRITICAL) as cluster, Client(cluster) as client:
-            yield Fleet(client, f'a local Dask cluster of {count} worker process'
-                        f'{"es" if count != 1 else ""} (1 thread each)', count, retries)
+                silence_logs=logging.CRITICAL,
+                preload=['obstacle_detection.fleet.worker_setup']) as cluster, \
+                Client(cluster) as client:
+                yield Fleet(client, f'a local Dask cluster of {count} worker process'
+                            f'{"es" if count != 1 else ""} (1 thread each)', count, retries)
 
 
 @contextlib.contextmanager
