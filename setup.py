@@ -38,7 +38,8 @@ setup(
     maintainer_email='maintainers@users.noreply.h-seed-4227b6c9.example',
     description='Depth image to obstacle cloud and ground-plane costmap (ROS 2 node).',
     license='Apache-2.0',
-    extras_require={'test': ['pytest']},
+    # pip install .[fleet]: offline work on a Dask cluster (README, Offline work at scale)
+    extras_require={'test': ['pytest'], 'fleet': ['dask>=2024.8', 'distributed>=2024.8']},
     entry_points={
         'console_scripts': [
             'detector = obstacle_detection.ros.node:main',

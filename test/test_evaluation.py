@@ -308,7 +308,7 @@ def test_robot_summary_pools_found_objects_passable_cells_and_drops():
 def test_evaluate_robot_suite_prints_the_robot_table(tmp_path, capsys):
     out = tmp_path / 'report.json'
     code = evaluate.main(['--suite', 'robot', '--scene', 'dock_edge', '--scene', 'curb_sill',
-                          '--json', str(out), '--quiet'])
+                          '--json', str(out), '--quiet', '--workers', '0'])
     assert code == 0
     table = capsys.readouterr().out
     assert 'robot level' in table and 'objects' in table and 'targets:' in table

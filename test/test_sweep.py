@@ -66,7 +66,7 @@ def test_command_prints_grid_names_best_and_saves_heatmap(tmp_path, capsys):
     data = tmp_path / 'grid.json'
     code = sweep.main(['--x', 'theta_deg=20,60', '--y', 'N1=0,12', '--scene', 'ramps',
                        '--out', str(out), '--strip', 'x', '--strip-out', str(strip),
-                       '--json', str(data)])
+                       '--json', str(data), '--workers', '0'])
     assert code == 0
     text = capsys.readouterr().out
     assert 'best setting per scenario' in text and 'ramps' in text

@@ -17,12 +17,22 @@ are decoded by ``obstacle_detection.ros.compressed_depth`` into the array the ra
 (16UC1
 exactly), so both give the same outputs; a frame that cannot be decoded is skipped with the
 reason (corrupt PNG, bad header, ...).
+
+Many bags in one command: give a folder of bags, a glob pattern (quoted) or a list file
+(``.txt``, one bag a line) and an output folder; each bag is one task on a Dask cluster (a local
+one of one worker per core by default, ``--scheduler`` for another, ``--workers 0`` for this
+process; ``--chunk-frames`` cuts long bags into chunks, one task each), its output bag
+``<output>/<name>`` written under a temporary name and renamed when complete. A summary table
+per bag (frames, skipped with reasons, obstacle points, ms/frame) and one JSON line (the last
+line of stdout) follow; a bag that fails is named with its reason and the others finish (exit
+code 1 then).
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -34,16 +44,23 @@ from obstacle_detection.cli.bag_processor import (DEFAULT_NAMESPACE, ProcessErro
 from obstacle_detection.ros.parameters import (ALL_PARAMS, ParamsFileError,
                                            read_params_files)
 from obstacle_detection.cli.bag_writer import DEFAULT_DEPTH_TOPIC, DEFAULT_INFO_TOPIC, STORAGES
+from obstacle_detection.fleet import bags as fleet_bags
+from obstacle_detection.fleet.cluster import (FleetError, add_fleet_arguments, fleet_options,
+                                              open_fleet)
 
 
 def build_parser() -> argparse.ArgumentParser:
     """Return the command-line parser."""
     parser = argparse.ArgumentParser(
         prog='bag_process.py', description=__doc__.split('\n\n')[0],
-        epilog='Example: python tools/bag_process.py in_bag out_bag --params-file '
-               'params/corridor.yaml --overlay')
-    parser.add_argument('bag', type=Path, help='input rosbag2 folder')
-    parser.add_argument('output', type=Path, help='rosbag2 folder to create (must not exist)')
+        epilog='Examples: python tools/bag_process.py in_bag out_bag --params-file '
+               "params/corridor.yaml --overlay; python tools/bag_process.py 'bags/*' out/ "
+               '--workers 2')
+    parser.add_argument('bag', help='input rosbag2 folder; or many: a folder of bags, a glob '
+                                    'pattern (quoted) or a list file (.txt, one bag a line)')
+    parser.add_argument('output', type=Path,
+                        help='rosbag2 folder to create (must not exist); for many bags the '
+                             'folder of the output bags (one per input, named after it)')
     parser.add_argument('--params-file', type=Path, action='append', default=[],
                         metavar='YAML',
                         help="the node's parameter YAML (default: the node's defaults); "
@@ -64,7 +81,23 @@ def build_parser() -> argparse.ArgumentParser:
                         help='output storage (default %(default)s)')
     parser.add_argument('--quiet', action='store_true',
                         help='no per-frame lines (a progress bar on a terminal instead)')
+    parser.add_argument('--chunk-frames', type=_positive, metavar='N',
+                        help='on a cluster, cut a bag of more than N depth frames into chunks '
+                             'of about N, one task each, merged into its one output bag '
+                             '[default: one task per bag]')
+    add_fleet_arguments(parser)
     return parser
+
+
+def _positive(text: str) -> int:
+    """Parse a positive integer (argparse type)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'must be a positive integer, got {text!r}') from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f'must be >= 1, got {value}')
+    return value
 
 
 def _sets_mount(values: Mapping[str, Any], files: Sequence[Path]) -> bool:
@@ -77,7 +110,7 @@ def _sets_mount(values: Mapping[str, Any], files: Sequence[Path]) -> bool:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Process a bag; return the exit code (0 success, 1 bad input, 2 bad usage)."""
+    """Process a bag (or many); return the exit code (0 success, 1 bad input, 2 bad usage)."""
     args = build_parser().parse_args(argv)
     try:
         if args.params_file:
@@ -86,19 +119,56 @@ def main(argv: Sequence[str] | None = None) -> int:
         else:
             values, origin = {spec.name: spec.default for spec in ALL_PARAMS}, 'defaults'
         config = config_from_values(values, origin)
+        mount_origin = (origin if args.params_file and _sets_mount(values, args.params_file)
+                        else "the node's defaults: no params file sets it")
+        if fleet_bags.is_many(args.bag) or args.scheduler or args.workers:
+            return _process_many(args, values, origin, mount_origin)
         summary = process_bag(
-            args.bag, args.output, config, depth_topic=args.depth_topic,
+            Path(args.bag), args.output, config, depth_topic=args.depth_topic,
             info_topic=args.info_topic, namespace=args.namespace,
             with_ground=args.ground or config.publish_ground,
             with_overlay=args.overlay or config.publish_overlay, storage=args.storage,
             progress=args.quiet,  # the bar only when per-frame lines are off
             on_frame=None if args.quiet else lambda r: print(format_report(r), flush=True),
-            mount_origin=origin if args.params_file and _sets_mount(values, args.params_file)
-            else "the node's defaults: no params file sets it")
-    except ProcessError as err:
+            mount_origin=mount_origin)
+    except (ProcessError, tool_support.ToolError, FleetError) as err:
         return tool_support.report_error('bag_process.py', err)
     print('\n'.join(summary.lines()))
     return 0
+
+
+def _process_many(args: argparse.Namespace, values: Mapping[str, Any], origin: str,
+                  mount_origin: str) -> int:
+    """Every bag one task (fleet.bags): the table and the JSON line; 1 when a bag failed."""
+    if fleet_bags.is_many(args.bag):
+        found = fleet_bags.find_bags(args.bag)
+        outputs = [(bag, args.output / name) for bag, name in found]
+    else:   # one bag on a cluster (--workers / --scheduler): the output is the one named
+        tool_support.check_bag_path(args.bag, ros1=False)
+        outputs = [(Path(args.bag), args.output)]
+    # one thread per task: the workers are the parallelism (same results: compare=False)
+    values = {**values, 'compute_threads': 1}
+    jobs = [fleet_bags.BagJob(
+        bag, output, values, origin, mount_origin, depth_topic=args.depth_topic,
+        info_topic=args.info_topic, namespace=args.namespace, with_ground=args.ground,
+        with_overlay=args.overlay, storage=args.storage, chunk_frames=args.chunk_frames)
+        for bag, output in outputs]
+    began = time.perf_counter()
+    try:
+        with open_fleet(**fleet_options(args), tasks=len(jobs)) as fleet:
+            print(f'{len(jobs)} bag{"s" if len(jobs) != 1 else ""} on {fleet.description}',
+                  file=sys.stderr, flush=True)
+            outcomes = fleet_bags.process_bags(jobs, fleet)
+    except KeyboardInterrupt:
+        fleet_bags.remove_stale_staging(jobs)
+        print('bag_process.py: interrupted; the output bags not complete were removed',
+              file=sys.stderr)
+        return 130
+    wall_s = time.perf_counter() - began
+    print(fleet_bags.format_table(outcomes))
+    print(fleet_bags.summary_json(outcomes, wall_s=wall_s, where=fleet.description))
+    return tool_support.EXIT_OK if all(o.error is None for o in outcomes) else \
+        tool_support.EXIT_BAD_INPUT
 
 
 if __name__ == '__main__':

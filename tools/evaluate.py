@@ -18,6 +18,11 @@ Examples::
     python tools/evaluate.py --suite robot --params-file params/corridor.yaml  # issue 9
     python tools/evaluate.py --suite robot --params-file params/corridor.yaml \
         --beside-seed table_4_2 --beside-seed table_4_3
+    python tools/evaluate.py --suite robot --workers 2       # two worker processes (Dask)
+
+With Dask installed the scenarios (and folders) are scored on a local cluster of one worker per
+core, one task per scenario (``--scheduler`` for another cluster, ``--workers 0`` for this
+process); the numbers are those of one process.
 """
 
 from __future__ import annotations
@@ -29,9 +34,14 @@ import sys
 from pathlib import Path
 from typing import Any, Sequence
 
+from obstacle_detection.cli import evaluation_args
 from obstacle_detection.cli.evaluation_args import (SUITES, add_common_arguments, base_params,
                                                    frame_sources, report_error)
+from obstacle_detection.cli import support as tool_support
 from obstacle_detection.evaluation import runner as evaluation
+from obstacle_detection.fleet import scoring
+from obstacle_detection.fleet.cluster import (Fleet, add_fleet_arguments, fleet_options,
+                                              open_fleet)
 from obstacle_detection.pipeline.params import PRESETS, DetectorParams
 
 DEFAULT_SCENARIOS = SUITES['seed']
@@ -68,13 +78,25 @@ def build_parser() -> argparse.ArgumentParser:
                         metavar='PRESET',
                         help='also score this preset on the seed suite (scenarios.json, '
                              'slope-only truth) and print its overall row beside; repeatable')
+    add_fleet_arguments(parser)
     return parser
 
 
-def seed_suite_rows(presets: Sequence[str], max_frames: int | None,
+def seed_suite_rows(presets: Sequence[str], max_frames: int | None, fleet: Fleet | None = None,
                     ) -> list[tuple[str, evaluation.SceneSummary]]:
-    """Overall summaries of the seed suite for each preset (frames rendered once)."""
-    frames = [frame for scenario in evaluation.load_scenarios(SUITES['seed'])
+    """Overall summaries of the seed suite for each preset (frames rendered once).
+
+    On a cluster (``fleet``), one task per (preset, scenario).
+    """
+    scenarios = evaluation.load_scenarios(SUITES['seed'])
+    if fleet is not None and fleet.distributed:
+        sources = [(s.name, s.frame_count, evaluation_args.LazyFrames(
+            evaluation.scenario_frames, s, max_frames=max_frames)) for s in scenarios]
+        points = [PRESETS[name]() for name in presets]
+        scores = scoring.score_points(fleet, sources, points, label='beside-seed')
+        return [(name, scoring.pool_report(part, point, label=name).overall)
+                for name, point, part in zip(presets, points, scores)]
+    frames = [frame for scenario in scenarios
               for frame in evaluation.scenario_frames(scenario, max_frames=max_frames)]
     return [(name, evaluation.evaluate_frames(frames, PRESETS[name](), label=name).overall)
             for name in presets]
@@ -103,8 +125,26 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.refiner is not None:
             from obstacle_detection.pipeline.refine import LogisticRefiner
             refiner = LogisticRefiner.load(args.refiner)
+        if args.pictures is not None:
+            if args.workers or args.scheduler:
+                raise tool_support.UsageError('--pictures draws in this process: leave out '
+                                              '--workers/--scheduler')
+            args.workers = 0
     except (ValueError, OSError) as exc:
         return report_error('evaluate.py', exc)
+    try:
+        with open_fleet(**fleet_options(args), tasks=len(sources)) as fleet:
+            return _evaluate(args, params, sources, refiner, fleet)
+    except (ValueError, OSError) as exc:   # FleetError: Dask missing, no scheduler
+        return report_error('evaluate.py', exc)
+    except KeyboardInterrupt:   # nothing is written before the end
+        print('evaluate.py: interrupted', file=sys.stderr)
+        return 130
+
+
+def _evaluate(args: Any, params: DetectorParams, sources: Any, refiner: Any,
+              fleet: Fleet) -> int:
+    """Score, print the tables and the JSON line (main's work, where ``fleet`` says)."""
     total = sum(count for _, count, _ in sources)
     callbacks = []
     if not args.quiet:
@@ -120,9 +160,17 @@ def main(argv: Sequence[str] | None = None) -> int:
             callback(frame, result, score)
 
     try:
-        report = evaluation.evaluate_frames(
-            frames, params, label=label, refiner=refiner,
-            refiner_name=str(args.refiner) if args.refiner else None, on_frame=on_frame)
+        if fleet.distributed:
+            print(f'evaluate: {len(sources)} sequences on {fleet.description}',
+                  file=sys.stderr, flush=True)
+            report = scoring.evaluate_on_fleet(
+                fleet, sources, params, label=label, refiner=refiner,
+                refiner_name=str(args.refiner) if args.refiner else None,
+                progress=not args.quiet)
+        else:
+            report = evaluation.evaluate_frames(
+                frames, params, label=label, refiner=refiner,
+                refiner_name=str(args.refiner) if args.refiner else None, on_frame=on_frame)
     except (ValueError, OSError) as exc:
         return report_error('evaluate.py', exc)
     table_stream = sys.stderr if args.json == '-' else sys.stdout
@@ -138,7 +186,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     data = report.as_dict()
     if args.beside_seed:
         try:
-            rows = seed_suite_rows(args.beside_seed, args.max_frames)
+            rows = seed_suite_rows(args.beside_seed, args.max_frames, fleet)
         except (ValueError, OSError) as exc:
             print(f'evaluate.py: error: {exc}', file=sys.stderr)
             return 2

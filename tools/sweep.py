@@ -18,6 +18,10 @@ names theta_deg, N, N1, K, TDBG, SMAR, and voxel_m (all three voxel sizes). The 
 chosen metric is printed (overall, and per scenario with ``--per-scene``), the best setting per
 scenario is named, and a PNG heatmap per scenario plus overall is saved (``--out``).
 Frames are subsampled (``--max-frames``, default 1 per scenario) and rendered once.
+
+With Dask installed the grid runs on a local cluster of one worker per core, one task per
+(setting, scenario) (``--scheduler`` for another cluster, ``--workers 0`` for this process);
+the grids are those of one process.
 """
 
 from __future__ import annotations
@@ -32,6 +36,8 @@ from typing import Sequence
 import numpy as np
 
 from obstacle_detection.evaluation import runner as evaluation
+from obstacle_detection.fleet import scoring
+from obstacle_detection.fleet.cluster import add_fleet_arguments, fleet_options, open_fleet
 from obstacle_detection.evaluation.sweep import (METRICS, SweepResult, format_grid, grid_shape,
                                                  parse_axis, project, run_sweep,
                                                  settings_params)
@@ -69,6 +75,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--strip-out', type=Path, default=Path('sweep_strip.png'),
                         help='strip PNG [default: sweep_strip.png]')
     parser.add_argument('--json', type=Path, metavar='FILE', help='also write the grids as JSON')
+    add_fleet_arguments(parser)
     return parser
 
 
@@ -93,18 +100,35 @@ def main(argv: Sequence[str] | None = None) -> int:
                     if 'unknown parameter' in str(exc):
                         raise
         started = time.perf_counter()
-        frames = [f for _, _, source in frame_sources(args) for f in source]
-        if not frames:
-            raise ValueError('no frames selected')
-        _log(f'rendered {len(frames)} frames in {time.perf_counter() - started:.1f} s; '
-             f'{int(np.prod(grid_shape(args.x, args.y, also)))} settings')
-        result = run_sweep(frames, base, args.x, args.y, args.metric, also=also, log=_log)
+        sources = frame_sources(args)
+        settings = int(np.prod(grid_shape(args.x, args.y, also)))
+        with open_fleet(**fleet_options(args), tasks=settings * len(sources)) as fleet:
+            if fleet.distributed:
+                if sum(count for _, count, _ in sources) == 0:
+                    raise ValueError('no frames selected')
+                _log(f'{settings} settings x {len(sources)} scenarios on {fleet.description}')
+                result = scoring.sweep_on_fleet(fleet, sources, base, args.x, args.y,
+                                                args.metric, also=also, log=_log)
+                frame_count = sum(count for _, count, _ in sources)
+                first = next(iter(sources[0][2]), None) if args.strip else None
+            else:
+                frames = [f for _, _, source in sources for f in source]
+                if not frames:
+                    raise ValueError('no frames selected')
+                _log(f'rendered {len(frames)} frames in {time.perf_counter() - started:.1f} s;'
+                     f' {settings} settings')
+                result = run_sweep(frames, base, args.x, args.y, args.metric, also=also,
+                                   log=_log)
+                frame_count, first = len(frames), frames[0]
     except (ValueError, OSError) as exc:
         return report_error('sweep.py', exc)
+    except KeyboardInterrupt:   # nothing is written before the grid is complete
+        print('sweep.py: interrupted', file=sys.stderr)
+        return 130
 
     scenes = list(result.grids)
     shown = scenes if args.per_scene else ['overall']
-    print(f'parameters: {args.preset}; {len(frames)} frames; '
+    print(f'parameters: {args.preset}; {frame_count} frames; '
           f'{"higher" if METRICS[args.metric][2] else "lower"} is better; * = best')
     for scene in shown:
         print(format_grid(result, scene))
@@ -126,10 +150,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         _write_heatmaps(args, result)
         print(f'heatmap: {args.out}')
         if args.strip:
-            _write_strip(args, base, frames[0], result)
+            _write_strip(args, base, first, result)
             print(f'strip: {args.strip_out}')
         if args.json:
-            data = {'metric': args.metric, 'preset': args.preset, 'frames': len(frames),
+            data = {'metric': args.metric, 'preset': args.preset, 'frames': frame_count,
                     'axes': ['y', 'x'] + [f'also[{i}]' for i in range(len(also))],
                     'x': {'name': args.x.name, 'values': list(args.x.values)},
                     'y': ({'name': args.y.name, 'values': list(args.y.values)}

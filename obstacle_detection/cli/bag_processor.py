@@ -13,7 +13,7 @@ import dataclasses
 import io
 import statistics
 from collections import Counter
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -184,7 +184,8 @@ def process_bag(src: Path, output: Path, config: NodeConfig, *,
                 namespace: str = DEFAULT_NAMESPACE, with_ground: bool = False,
                 with_overlay: bool = False, storage: str = 'sqlite3', progress: bool = True,
                 on_frame: Callable[[FrameReport], None] | None = None,
-                mount_origin: str = 'the parameters') -> ProcessSummary:
+                mount_origin: str = 'the parameters', start_ns: int | None = None,
+                stop_ns: int | None = None) -> ProcessSummary:
     """Process every depth frame of ``src`` and write inputs + outputs to ``output``.
 
     depth_topic: a ``sensor_msgs/Image`` or ``sensor_msgs/CompressedImage`` topic (decoded by
@@ -195,6 +196,10 @@ def process_bag(src: Path, output: Path, config: NodeConfig, *,
     mount (from ``mount_origin``); the floor of the first processed frame is compared with that
     mount (``tool_support.check_mount``) and a disagreement is a warning on stderr and in the
     summary.
+
+    start_ns, stop_ns: only the messages recorded in [start_ns, stop_ns) [bag time, ns], a
+    chunk of a long bag (``fleet.bags``); the camera info in effect at ``start_ns`` is the
+    latest recorded before it.
 
     Raises:
         ProcessError: naming the bag when it cannot be read or written, lacks the depth topic,
@@ -239,28 +244,26 @@ def process_bag(src: Path, output: Path, config: NodeConfig, *,
                 raise ProcessError(f'{src}: already has {", ".join(clash)}; choose another '
                                    '--namespace')
             n_depth = sum(c.msgcount for c in reader.connections if c.topic == depth_topic)
+            window = start_ns is not None or stop_ns is not None
             with staged_output(output) as staging, \
                     Writer(staging, version=BAG_VERSION, storage_plugin=STORAGES[storage]) \
                     as writer:
-                copies = {}
-                for conn in reader.connections:
-                    # Keep the recorded definition; older bags lack the hash: take Jazzy's.
-                    known = bool(conn.msgdef.data and conn.digest)
-                    copies[conn.id] = writer.add_connection(
-                        conn.topic, conn.msgtype,
-                        msgdef=conn.msgdef.data if known else None,
-                        rihs01=conn.digest if known else None,
-                        typestore=None if known else typestore,
-                        serialization_format=getattr(conn.ext, 'serialization_format', 'cdr'),
-                        offered_qos_profiles=getattr(conn.ext, 'offered_qos_profiles', ()))
+                copies = copy_connections(reader.connections, writer, typestore)
                 out_conns = {key: writer.add_connection(outputs[key], OUTPUTS[key][1],
                                                         typestore=typestore) for key in wanted}
                 counts: Counter[str] = Counter()
                 camera: CameraState | None = None
-                bar = Progress(n_depth, 'processing', stream=None if progress else io.StringIO())
+                if start_ns is not None and info_topic is not None:
+                    for _, _, raw in reader.messages(
+                            [c for c in reader.connections if c.topic == info_topic],
+                            stop=start_ns):
+                        camera = CameraState.from_camera_info(
+                            deserialize_message(bytes(raw), CameraInfo))
+                bar = Progress(None if window else n_depth, 'processing',
+                               stream=None if progress else io.StringIO())
                 with bar:
-                    for conn, timestamp, raw in _grouped_by_timestamp(reader.messages(),
-                                                                      info_topic):
+                    for conn, timestamp, raw in _grouped_by_timestamp(
+                            reader.messages(start=start_ns, stop=stop_ns), info_topic):
                         writer.write(copies[conn.id], timestamp, raw)
                         counts[conn.topic] += 1
                         if conn.topic == info_topic:
@@ -306,6 +309,25 @@ def process_bag(src: Path, output: Path, config: NodeConfig, *,
     summary.wall_s = time.perf_counter() - began
     summary.topics = dict(sorted(counts.items()))
     return summary
+
+
+def copy_connections(connections: Iterable[Any], writer: Writer, typestore: Any
+                     ) -> dict[int, Any]:
+    """Add a reader's ``connections`` to ``writer``; return {reader's id: writer's connection}.
+
+    The recorded definitions are kept; older bags lack the hash: Jazzy's is taken.
+    """
+    copies = {}
+    for conn in connections:
+        known = bool(conn.msgdef.data and conn.digest)
+        copies[conn.id] = writer.add_connection(
+            conn.topic, conn.msgtype,
+            msgdef=conn.msgdef.data if known else None,
+            rihs01=conn.digest if known else None,
+            typestore=None if known else typestore,
+            serialization_format=getattr(conn.ext, 'serialization_format', 'cdr'),
+            offered_qos_profiles=getattr(conn.ext, 'offered_qos_profiles', ()))
+    return copies
 
 
 def _check_first_mount(result: Any, config: NodeConfig, summary: ProcessSummary) -> None:

@@ -147,43 +147,73 @@ def settings_params(base: DetectorParams, x: Axis, y: Axis | None, *index: int,
     return evaluation.apply_overrides(base, setting_of(x, y, also, tuple(index)))
 
 
+def check_sweep(x: Axis, y: Axis | None, metric: str, also: Sequence[Axis] = ()) -> None:
+    """Raise ValueError for an unknown metric or an axis given twice."""
+    if metric not in METRICS:
+        raise ValueError(f'unknown metric {metric!r}; known: {", ".join(METRICS)}')
+    names = [x.name] + ([y.name] if y is not None else []) + [a.name for a in also]
+    if len(set(names)) != len(names):
+        raise ValueError(f'an axis is given twice: {", ".join(names)}')
+
+
+def sweep_points(base: DetectorParams, x: Axis, y: Axis | None, also: Sequence[Axis] = (),
+                 ) -> list[tuple[tuple[int, ...], DetectorParams | ValueError]]:
+    """Every grid cell in row-major order: (index, its parameters or why they are invalid)."""
+    points: list[tuple[tuple[int, ...], DetectorParams | ValueError]] = []
+    for index in np.ndindex(*grid_shape(x, y, also)):
+        try:
+            points.append((index, settings_params(base, x, y, *index, also=also)))
+        except ValueError as exc:
+            points.append((index, exc))
+    return points
+
+
+def empty_result(x: Axis, y: Axis | None, metric: str, scenes: Sequence[str],
+                 also: Sequence[Axis] = ()) -> SweepResult:
+    """Return a SweepResult of ``scenes`` (and 'overall'), every cell NaN until recorded."""
+    shape = grid_shape(x, y, also)
+    names = list(dict.fromkeys(scenes)) + ['overall']
+    return SweepResult(x, y, metric, {s: np.full(shape, np.nan) for s in names},
+                       {s: np.full(shape, np.nan) for s in names}, {}, tuple(also))
+
+
+def record_report(result: SweepResult, index: tuple[int, ...],
+                  report: evaluation.Report) -> None:
+    """Enter one grid cell's evaluation into ``result`` (its metric per scene and overall)."""
+    kind, attr, _ = METRICS[result.metric]
+    for name, summary in [*report.scenes.items(), ('overall', report.overall)]:
+        confusion = getattr(summary, kind)
+        result.grids[name][index] = getattr(confusion, attr)
+        result.false_alarms[name][index] = confusion.false_alarm_rate
+        result.positives[name] = confusion.tp + confusion.fn
+
+
+def point_label(result: SweepResult, index: tuple[int, ...]) -> str:
+    """``theta_deg=30 N=5``: the setting of one grid cell, for log lines."""
+    return ' '.join(f'{k}={v}' for k, v in result.setting(*index).items())
+
+
 def run_sweep(frames: Sequence[evaluation.LabelledFrame], base: DetectorParams, x: Axis,
               y: Axis | None, metric: str = 'cell_f1', *, also: Sequence[Axis] = (),
               log: Any = None) -> SweepResult:
     """Evaluate every setting of the grid on ``frames`` (already rendered)."""
-    if metric not in METRICS:
-        raise ValueError(f'unknown metric {metric!r}; known: {", ".join(METRICS)}')
-    kind, attr, _ = METRICS[metric]
     also = tuple(also)
-    names = [x.name] + ([y.name] if y is not None else []) + [a.name for a in also]
-    if len(set(names)) != len(names):
-        raise ValueError(f'an axis is given twice: {", ".join(names)}')
-    shape = grid_shape(x, y, also)
-    total = int(np.prod(shape))
-    scenes = list(dict.fromkeys(f.scenario for f in frames)) + ['overall']
-    grids = {s: np.full(shape, np.nan) for s in scenes}
-    false_alarms = {s: np.full(shape, np.nan) for s in scenes}
-    positives: dict[str, int] = {}
-    for i, index in enumerate(np.ndindex(*shape), start=1):
-        label = ' '.join(f'{k}={v}' for k, v in setting_of(x, y, also, index).items())
+    check_sweep(x, y, metric, also)
+    result = empty_result(x, y, metric, [f.scenario for f in frames], also)
+    points = sweep_points(base, x, y, also)
+    for i, (index, params) in enumerate(points, start=1):
+        label = point_label(result, index)
         started = time.perf_counter()
-        try:
-            params = settings_params(base, x, y, *index, also=also)
-        except ValueError as exc:
+        if isinstance(params, ValueError):
             if log:
-                log(f'[{i}/{total}] {label}: invalid ({exc})')
+                log(f'[{i}/{len(points)}] {label}: invalid ({params})')
             continue
-        report = evaluation.evaluate_frames(frames, params)
-        for name, summary in [*report.scenes.items(), ('overall', report.overall)]:
-            confusion = getattr(summary, kind)
-            grids[name][index] = getattr(confusion, attr)
-            false_alarms[name][index] = confusion.false_alarm_rate
-            positives[name] = confusion.tp + confusion.fn
+        record_report(result, index, evaluation.evaluate_frames(frames, params))
         if log:
-            log(f'[{i}/{total}] {label}: {metric} '
-                f'{evaluation.format_score(grids["overall"][index])} '
+            log(f'[{i}/{len(points)}] {label}: {metric} '
+                f'{evaluation.format_score(result.grids["overall"][index])} '
                 f'({time.perf_counter() - started:.1f} s)')
-    return SweepResult(x, y, metric, grids, false_alarms, positives, also)
+    return result
 
 
 def format_grid(result: SweepResult, scene: str) -> str:

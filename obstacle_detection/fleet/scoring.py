@@ -1,0 +1,119 @@
+"""``evaluate`` and ``sweep`` on a cluster: one task per (parameter point, sequence).
+
+A sequence is one frame source of ``evaluation_args.frame_sources`` (a scenario of the suite,
+a labelled folder). Its frames are rendered or read once, by a task of their own on a worker;
+every (point, sequence) task then runs ``runner.evaluate_frames`` on them, the code of a
+one-process run, and returns the per-frame scores (counts, small). The scores are pooled here
+in sequence order, as one process pools them, so the tables and JSON hold identical numbers
+(times aside).
+"""
+
+from __future__ import annotations
+
+import time
+import uuid
+from collections.abc import Callable, Iterable, Sequence
+from typing import Any
+
+from obstacle_detection.evaluation import runner as evaluation
+from obstacle_detection.evaluation import sweep as grid_search
+from obstacle_detection.pipeline.params import DetectorParams
+from .cluster import Fleet, limit_threads, run_tasks
+
+#: (name, frame count, lazy frames), as ``evaluation_args.frame_sources`` gives them.
+Source = tuple[str, int, Iterable[evaluation.LabelledFrame]]
+
+
+def load_frames(frames: Iterable[evaluation.LabelledFrame]) -> list[evaluation.LabelledFrame]:
+    """Render or read one sequence's frames (a task)."""
+    limit_threads()
+    return list(frames)
+
+
+def score_sequence(frames: Sequence[evaluation.LabelledFrame], params: DetectorParams,
+                   refiner: Any = None) -> list[evaluation.FrameScore]:
+    """Per-frame scores of one sequence with one parameter point (a task).
+
+    One thread per task (``compute_threads`` does not change results); the sequence's
+    refiner state runs in order within it, as in one process.
+    """
+    limit_threads()
+    return evaluation.evaluate_frames(frames, params.replace(compute_threads=1),
+                                      refiner=refiner).frames
+
+
+def score_points(fleet: Fleet, sources: Sequence[Source], points: Sequence[DetectorParams],
+                 *, refiner: Any = None, label: str = 'scoring', progress: bool = True,
+                 on_result: Callable[[int, Any], None] | None = None,
+                 ) -> list[list[evaluation.FrameScore]]:
+    """Per point, the frame scores of every source in source order (one task per pair).
+
+    ``on_result(task index, scores)`` as each (point, source) task finishes; the task index
+    is ``point * len(sources) + source``. Errors (a bad folder, a bad value) are raised as in
+    one process.
+    """
+    if fleet.distributed:
+        run = uuid.uuid4().hex[:8]
+        frames: list[Any] = [fleet.client.submit(load_frames, lazy, key=f'frames-{run}-{i}',
+                                                 retries=fleet.retries, pure=False)
+                             for i, (_, _, lazy) in enumerate(sources)]
+    else:
+        frames = [load_frames(lazy) for _, _, lazy in sources]
+    items = [(frames[s], params, refiner) for params in points for s in range(len(sources))]
+    flat = run_tasks(fleet, score_sequence, items, label=label, progress=progress,
+                     on_result=on_result)
+    count = len(sources)
+    return [[score for part in flat[p * count:(p + 1) * count] for score in part]
+            for p in range(len(points))]
+
+
+def pool_report(scores: Sequence[evaluation.FrameScore], params: DetectorParams, *,
+                label: str = '', refiner_name: str | None = None, seconds: float = 0.0,
+                ) -> evaluation.Report:
+    """Return the Report ``runner.evaluate_frames`` gives for frames with these scores."""
+    scenes: dict[str, evaluation.SceneSummary] = {}
+    overall = evaluation.SceneSummary('overall')
+    for score in scores:
+        scenes.setdefault(score.scenario, evaluation.SceneSummary(score.scenario)).add(score)
+        overall.add(score)
+    return evaluation.Report(params, label, scenes, overall, list(scores), refiner_name,
+                             seconds)
+
+
+def evaluate_on_fleet(fleet: Fleet, sources: Sequence[Source], params: DetectorParams, *,
+                      label: str = '', refiner: Any = None, refiner_name: str | None = None,
+                      progress: bool = True) -> evaluation.Report:
+    """``runner.evaluate_frames`` over every source's frames, one task per source."""
+    started = time.perf_counter()
+    [scores] = score_points(fleet, sources, [params], refiner=refiner, label='evaluate',
+                            progress=progress)
+    return pool_report(scores, params, label=label, refiner_name=refiner_name,
+                       seconds=time.perf_counter() - started)
+
+
+def sweep_on_fleet(fleet: Fleet, sources: Sequence[Source], base: DetectorParams,
+                   x: grid_search.Axis, y: grid_search.Axis | None, metric: str = 'cell_f1',
+                   *, also: Sequence[grid_search.Axis] = (), log: Any = None,
+                   progress: bool = True) -> grid_search.SweepResult:
+    """``sweep.run_sweep`` with one task per (valid grid point, source); same SweepResult."""
+    also = tuple(also)
+    grid_search.check_sweep(x, y, metric, also)
+    points = grid_search.sweep_points(base, x, y, also)
+    valid = [(index, params) for index, params in points
+             if not isinstance(params, ValueError)]
+    scores = score_points(fleet, sources, [params for _, params in valid], label='sweep',
+                          progress=progress)
+    scenes = [s.scenario for s in scores[0]] if scores else [name for name, _, _ in sources]
+    result = grid_search.empty_result(x, y, metric, scenes, also)
+    reports = dict(zip((index for index, _ in valid), scores))
+    for i, (index, params) in enumerate(points, start=1):
+        label = grid_search.point_label(result, index)
+        if isinstance(params, ValueError):
+            if log:
+                log(f'[{i}/{len(points)}] {label}: invalid ({params})')
+            continue
+        grid_search.record_report(result, index, pool_report(reports[index], params))
+        if log:
+            log(f'[{i}/{len(points)}] {label}: {metric} '
+                f'{evaluation.format_score(result.grids["overall"][index])}')
+    return result
