@@ -57,6 +57,17 @@ def test_overrides_accept_seed_names_degrees_and_voxel_size():
     assert p.voxel_size_m == (0.05, 0.05, 0.05)
 
 
+def test_overrides_set_booleans_written_as_words():
+    base = table_4_2()
+    assert not base.robot_level and not base.refine_floor
+    p = evaluation.apply_overrides(base, {'robot_level': 'true', 'refine_floor': 'Yes'})
+    assert p.robot_level is True and p.refine_floor is True
+    q = evaluation.apply_overrides(p, {'robot_level': '0', 'refine_floor': False})
+    assert q.robot_level is False and q.refine_floor is False
+    with pytest.raises(ValueError, match="robot_level='maybe' must be true or false"):
+        evaluation.apply_overrides(base, {'robot_level': 'maybe'})
+
+
 def test_overrides_refuse_unknown_names_and_fractional_counts():
     with pytest.raises(ValueError, match="unknown parameter 'Q'"):
         evaluation.apply_overrides(table_4_2(), {'Q': 1})
@@ -161,7 +172,7 @@ def test_report_pools_counts_and_serialises_nan_as_null():
 def test_evaluate_one_corridor_frame_scores_above_a_floor(tmp_path, capsys):
     out = tmp_path / 'report.json'
     code = evaluate.main(['--scene', 'corridor', '--max-frames', '1', '--json', str(out),
-                          '--quiet'])
+                          '--quiet', '--preset', 'table_4_2'])
     assert code == 0
     table = capsys.readouterr().out
     assert 'corridor' in table and 'overall' in table and 'cell F1' in table
@@ -357,3 +368,11 @@ def test_truth_option_scores_the_seed_suite_at_robot_level(tmp_path, capsys):
     assert 'robot level' in capsys.readouterr().out
     robot = json.loads(out.read_text())['scenes']['step_down']['robot']
     assert robot['drops'] == 1 and robot['objects'] == 1      # the drop and the box
+
+
+def test_the_tools_default_to_the_navigation_default(tmp_path, capsys):
+    # README: `evaluate --suite robot` scores params/corridor.yaml, not the seed's Table 4.2
+    code = evaluate.main(['--suite', 'robot', '--scene', 'curb_sill', '--max-frames', '1',
+                          '--quiet', '--workers', '0', '--json', str(tmp_path / 'r.json')])
+    assert code == 0
+    assert 'parameters: corridor' in capsys.readouterr().out

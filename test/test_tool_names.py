@@ -13,13 +13,9 @@ import pytest
 
 TOOLS_DIR = Path(__file__).resolve().parents[1] / 'tools'
 TOOLS = sorted(p.stem for p in TOOLS_DIR.glob('*.py') if not p.name.startswith('_'))
-#: Tools whose files another change owns; their prog is fixed there (then drop them here).
-PENDING = {'bag_process', 'evaluate', 'sweep'}
 
 
-@pytest.mark.parametrize('name', [
-    pytest.param(name, marks=pytest.mark.xfail(strict=True, reason='prog still ends in .py'))
-    if name in PENDING else name for name in TOOLS])
+@pytest.mark.parametrize('name', TOOLS)
 def test_help_names_the_installed_command(name: str,
                                           capsys: pytest.CaptureFixture[str]) -> None:
     module = importlib.import_module(f'obstacle_detection.tools.{name}')

@@ -52,7 +52,7 @@ from obstacle_detection.fleet.cluster import (FleetError, add_fleet_arguments, f
 def build_parser() -> argparse.ArgumentParser:
     """Return the command-line parser."""
     parser = argparse.ArgumentParser(
-        prog='bag_process.py', description=__doc__.split('\n\n')[0],
+        prog='bag_process', description=__doc__.split('\n\n')[0],
         epilog='Examples: python tools/bag_process.py in_bag out_bag --params-file '
                "params/corridor.yaml --overlay; python tools/bag_process.py 'bags/*' out/ "
                '--workers 2')
@@ -128,11 +128,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             info_topic=args.info_topic, namespace=args.namespace,
             with_ground=args.ground or config.publish_ground,
             with_overlay=args.overlay or config.publish_overlay, storage=args.storage,
-            progress=args.quiet,  # the bar only when per-frame lines are off
+            # the bar only when per-frame lines are off, and never into a redirected log
+            progress=args.quiet and sys.stderr.isatty(),
             on_frame=None if args.quiet else lambda r: print(format_report(r), flush=True),
             mount_origin=mount_origin)
     except (ProcessError, tool_support.ToolError, FleetError) as err:
-        return tool_support.report_error('bag_process.py', err)
+        return tool_support.report_error('bag_process', err)
     print('\n'.join(summary.lines()))
     return 0
 

@@ -59,7 +59,7 @@ def positive(text: str) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     """Return the command-line parser."""
-    parser = argparse.ArgumentParser(prog='benchmark_fleet.py',
+    parser = argparse.ArgumentParser(prog='benchmark_fleet',
                                      description=__doc__.split('\n\n')[0])
     parser.add_argument('--bags', type=positive, default=8, help='bags [default: 8]')
     parser.add_argument('--frames', type=positive, default=300,

@@ -44,7 +44,6 @@ from obstacle_detection.fleet.cluster import (Fleet, add_fleet_arguments, fleet_
                                               open_fleet)
 from obstacle_detection.pipeline.params import PRESETS, DetectorParams
 
-DEFAULT_SCENARIOS = SUITES['seed']
 
 
 def _progress(total: int, label: str) -> Any:
@@ -61,7 +60,7 @@ def _progress(total: int, label: str) -> Any:
 def build_parser() -> argparse.ArgumentParser:
     """Return the command-line interface."""
     parser = argparse.ArgumentParser(
-        prog='evaluate.py', description=__doc__.split('\n\n')[0],
+        prog='evaluate', description=__doc__.split('\n\n')[0],
         epilog=evaluation.SCORE_DEFINITIONS, formatter_class=argparse.RawTextHelpFormatter)
     add_common_arguments(parser)
     parser.add_argument('--refiner', type=Path, metavar='MODEL',
@@ -131,12 +130,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                                               '--workers/--scheduler')
             args.workers = 0
     except (ValueError, OSError) as exc:
-        return report_error('evaluate.py', exc)
+        return report_error('evaluate', exc)
     try:
         with open_fleet(**fleet_options(args), tasks=len(sources)) as fleet:
             return _evaluate(args, params, sources, refiner, fleet)
     except (ValueError, OSError) as exc:   # FleetError: Dask missing, no scheduler
-        return report_error('evaluate.py', exc)
+        return report_error('evaluate', exc)
     except KeyboardInterrupt:   # nothing is written before the end
         print('evaluate.py: interrupted', file=sys.stderr)
         return 130
@@ -172,7 +171,7 @@ def _evaluate(args: Any, params: DetectorParams, sources: Any, refiner: Any,
                 frames, params, label=label, refiner=refiner,
                 refiner_name=str(args.refiner) if args.refiner else None, on_frame=on_frame)
     except (ValueError, OSError) as exc:
-        return report_error('evaluate.py', exc)
+        return report_error('evaluate', exc)
     table_stream = sys.stderr if args.json == '-' else sys.stdout
     print(f'parameters: {label}; {report.overall.frames} frames in {report.seconds:.1f} s',
           file=table_stream)

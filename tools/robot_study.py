@@ -31,7 +31,7 @@ DEFAULT_PARAMS = tool_support.PACKAGE_ROOT / 'params' / 'corridor.yaml'
 
 def build_parser() -> argparse.ArgumentParser:
     """Return the command-line interface."""
-    parser = argparse.ArgumentParser(prog='robot_study.py', description=__doc__.split('\n\n')[0])
+    parser = argparse.ArgumentParser(prog='robot_study', description=__doc__.split('\n\n')[0])
     parser.add_argument('--params-file', type=Path, default=DEFAULT_PARAMS, metavar='YAML',
                         help='node parameter file [default: params/corridor.yaml]')
     parser.add_argument('--set', action='append', type=parse_assignment, default=[],
@@ -88,7 +88,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                   f'{params.costmap_length_m:g} ({args.params_file}):')
             print(study(params, args.scene), flush=True)
     except (ValueError, OSError) as exc:
-        return report_error('robot_study.py', exc)
+        return report_error('robot_study', exc)
     return 0
 
 

@@ -48,7 +48,7 @@ from obstacle_detection.cli.evaluation_args import (add_common_arguments, base_p
 
 def build_parser() -> argparse.ArgumentParser:
     """Return the command-line interface."""
-    parser = argparse.ArgumentParser(prog='sweep.py', description=__doc__.split('\n\n')[0],
+    parser = argparse.ArgumentParser(prog='sweep', description=__doc__.split('\n\n')[0],
                                      epilog=evaluation.SCORE_DEFINITIONS,
                                      formatter_class=argparse.RawTextHelpFormatter)
     parser.add_argument('--x', type=parse_axis, required=True, metavar='NAME=V1,V2,...',
@@ -121,7 +121,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                    log=_log)
                 frame_count, first = len(frames), frames[0]
     except (ValueError, OSError) as exc:
-        return report_error('sweep.py', exc)
+        return report_error('sweep', exc)
     except KeyboardInterrupt:   # nothing is written before the grid is complete
         print('sweep.py: interrupted', file=sys.stderr)
         return 130
@@ -165,7 +165,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                              for s in scenes}}
             args.json.write_text(json.dumps(data) + '\n', encoding='utf-8')
     except (ValueError, OSError) as exc:
-        return report_error('sweep.py', exc)
+        return report_error('sweep', exc)
     return 0
 
 

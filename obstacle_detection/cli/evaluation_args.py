@@ -48,8 +48,10 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
 
 def add_parameter_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the detector parameter options: ``--preset``, ``--params-file``, ``--set``."""
-    parser.add_argument('--preset', choices=sorted(PRESETS), default='table_4_2',
-                        help='base parameters: seed Table 4.2 or 4.3 [default: table_4_2]')
+    parser.add_argument('--preset', choices=sorted(PRESETS), default='corridor',
+                        help='base parameters: corridor (params/corridor.yaml, the node\'s '
+                             'default) or the seed method, table_4_2 / table_4_3 '
+                             '[default: corridor]')
     parser.add_argument('--params-file', type=Path, metavar='YAML', action='append',
                         default=[], help='node parameter file applied on top of the preset; '
                                          'repeatable, merged in order')

@@ -379,6 +379,20 @@ PARAM_ALIASES = {'theta': 'max_slope_rad', 'N': 'normal_neighbours',
                  'SMAR': 'smar_m'}
 
 
+#: How a boolean may be written in ``--set`` (case-insensitive).
+_BOOLEANS = {'true': True, '1': True, 'yes': True, 'false': False, '0': False, 'no': False}
+
+
+def _boolean(key: str, value: Any) -> bool:
+    """``value`` (a bool, or a word of ``_BOOLEANS``) as a bool; ValueError naming it otherwise."""
+    if isinstance(value, bool):
+        return value
+    word = str(value).strip().lower()
+    if word not in _BOOLEANS:
+        raise ValueError(f'{key}={value!r} must be true or false')
+    return _BOOLEANS[word]
+
+
 def apply_overrides(base: DetectorParams, overrides: dict[str, Any]) -> DetectorParams:
     """Return ``base`` with some parameters changed, by name (values may be strings).
 
@@ -402,7 +416,9 @@ def apply_overrides(base: DetectorParams, overrides: dict[str, Any]) -> Detector
         if name not in fields:
             raise ValueError(f'unknown parameter {key!r}')
         current = getattr(base, name)
-        if isinstance(current, int) and not isinstance(current, bool):
+        if isinstance(current, bool):
+            value = _boolean(key, value)
+        elif isinstance(current, int):
             as_float = float(value)
             if as_float != int(as_float):
                 raise ValueError(f'{key}={value!r} must be an integer')
