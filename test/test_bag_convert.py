@@ -189,7 +189,7 @@ def test_diml_sequence(tmp_path: Path, depths: list[np.ndarray], kind: str, offs
     code, _, err = run(['diml', str(seq), str(bag), '--depth', kind, '--intrinsics',
                         str(write_intrinsics(tmp_path / 'k.yaml'))], capsys)
     assert code == 0
-    assert 'WARNING' not in err
+    assert 'warning' not in err
     stamps = [round(n / 30.0 * 1e9) for n in numbers]
     check_frames(bag, [d + offset for d in depths], stamps,
                  colors=[fake_color(d, k) for k, d in enumerate(depths)])
@@ -204,7 +204,7 @@ def test_diml_without_intrinsics_warns_and_uses_kinect_defaults(
     bag = tmp_path / 'out'
     code, _, err = run(['diml', str(seq), str(bag), '--no-color', '--rate', '15'], capsys)
     assert code == 0
-    assert 'WARNING: no intrinsics given' in err
+    assert 'warning: no intrinsics given' in err
     assert 'Kinect v2 depth camera defaults' in err
     check_frames(bag, depths, [round(1e9 / 15), round(2e9 / 15)], intr=KINECT_V2_SD)
 

@@ -220,12 +220,12 @@ def test_latest_camera_info_before_each_frame(tmp_path: Path, depths: list[np.nd
     assert points[0] != expected_outputs(depths[1], other, t[1])['obstacles']
 
 
-def test_load_params_file_matches_node_format(params_file: Path) -> None:
-    values = bag_processor.load_params_file(params_file)
+def test_node_param_values_match_the_node_format(params_file: Path) -> None:
+    values = bag_processor.node_param_values(params_file)
     assert values['median_kernel'] == 5 and values['publish_ground'] is True
     config = bag_processor.config_from_values(values, str(params_file))
     assert config.detector.params == detector_params_from_ros(PARAM_VALUES)
-    corridor = bag_processor.load_params_file(REPO / 'params' / 'corridor.yaml')
+    corridor = bag_processor.node_param_values(REPO / 'params' / 'corridor.yaml')
     assert bag_processor.config_from_values(corridor, 'corridor').detector.params.median_kernel \
         == 5
 
@@ -372,7 +372,7 @@ def test_several_params_files_are_merged_in_order(tmp_path: Path) -> None:
     second = tmp_path / 'second.yaml'
     second.write_text('obstacle_detector:\n  ros__parameters:\n    median_kernel: 7\n'
                       '    camera_height_m: 1.25\n')
-    values = bag_processor.load_params_file([first, second])
+    values = bag_processor.node_param_values([first, second])
     assert (values['median_kernel'], values['max_range_m'], values['camera_height_m']) == (
         7, 3.0, 1.25)
     args = bag_process.build_parser().parse_args(

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from obstacle_detection.evaluation import camera
-from obstacle_detection.evaluation.runner import read_camera_yaml, write_camera_yaml
+from obstacle_detection.evaluation.runner import folder_camera, write_camera_yaml
 from obstacle_detection.pipeline.params import Intrinsics
 
 INTR = Intrinsics(365.5, 366.25, 255.5, 211.5)
@@ -40,7 +40,7 @@ def test_written_camera_yaml_reads_back(tmp_path: Path) -> None:
 def test_labelled_folder_camera_round_trip(tmp_path: Path) -> None:
     path = tmp_path / 'intrinsics.yaml'
     write_camera_yaml(path, INTR, 0.6, math.radians(15.0), math.radians(-2.0))
-    back = read_camera_yaml(path)
+    back = folder_camera(path)
     assert back['intrinsics'] == INTR and back['depth_scale'] is None
     assert (back['height_m'], back['pitch_rad'], back['roll_rad']) == pytest.approx(
         (0.6, math.radians(15.0), math.radians(-2.0)))
@@ -75,4 +75,4 @@ def test_labelled_folder_needs_the_mount(tmp_path: Path) -> None:
     path = tmp_path / 'intrinsics.yaml'
     path.write_text(camera.camera_yaml_text(INTR, comment='no mount'))
     with pytest.raises(ValueError, match='missing camera_height_m'):
-        read_camera_yaml(path)
+        folder_camera(path)

@@ -260,7 +260,7 @@ def test_chunks_merged_equal_the_one_task_bag(tmp_path: Path, depths: list[np.nd
     items = frame_messages(depths * 3)
     items = [item for k, item in enumerate(items) if item[0] != INFO or k == 0]
     write_bag(tmp_path / 'long', items)
-    values = bag_processor.load_params_file(params_file)
+    values = bag_processor.node_param_values(params_file)
     job = fleet_bags.BagJob(tmp_path / 'long', tmp_path / 'out' / 'long', values, 'test',
                             'test', chunk_frames=4)
     windows = fleet_bags.plan_chunks(job)
@@ -332,7 +332,7 @@ def test_bags_on_two_workers_equal_one_process(tmp_path: Path, depths: list[np.n
                                                params_file: Path,
                                                two_workers: cluster.Fleet) -> None:
     folder = make_bags(tmp_path, depths, 4, corrupt=True)
-    values = bag_processor.load_params_file(params_file)
+    values = bag_processor.node_param_values(params_file)
     jobs = [fleet_bags.BagJob(bag, tmp_path / 'out' / name, values, str(params_file), 'test')
             for bag, name in fleet_bags.find_bags(folder)]
     outcomes = fleet_bags.process_bags(jobs, two_workers, progress=False)
@@ -351,7 +351,7 @@ def test_chunked_bags_on_two_workers_equal_one_process(tmp_path: Path, depths: l
                                                        params_file: Path,
                                                        two_workers: cluster.Fleet) -> None:
     folder = make_bags(tmp_path, depths, 2, repeat=4)   # 12 frames a bag
-    values = bag_processor.load_params_file(params_file)
+    values = bag_processor.node_param_values(params_file)
     jobs = [fleet_bags.BagJob(bag, tmp_path / 'out' / name, values, 'test', 'test',
                               chunk_frames=5)
             for bag, name in fleet_bags.find_bags(folder)]
@@ -369,7 +369,7 @@ def test_a_worker_killed_mid_task_costs_a_retry_not_the_run(
         two_workers: cluster.Fleet) -> None:
     client = two_workers.client
     folder = make_bags(tmp_path, depths, 3, repeat=20)   # 60 frames a bag
-    values = bag_processor.load_params_file(params_file)
+    values = bag_processor.node_param_values(params_file)
     jobs = [fleet_bags.BagJob(bag, tmp_path / 'out' / name, values, str(params_file), 'test')
             for bag, name in fleet_bags.find_bags(folder)]
     killed: list[str] = []

@@ -269,7 +269,7 @@ def test_nav2_ranges_and_window_cover_the_corridor_region_of_interest() -> None:
 
 @pytest.mark.parametrize('scene', ['corridor', 'step_down'])
 def test_every_detector_point_passes_the_voxel_layer_filters(scene: str) -> None:
-    values = bag_processor.load_params_file(CORRIDOR)
+    values = bag_processor.node_param_values(CORRIDOR)
     config = bag_processor.config_from_values(values, str(CORRIDOR))
     params = config.detector.params
     frame = render_scene(scene, seed=1, height_m=params.camera_height_m,

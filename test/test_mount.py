@@ -189,7 +189,7 @@ def test_cli_prints_the_mount_and_writes_a_params_file(tmp_path, capsys, tilted_
     params = evaluation.load_params_file(params_out)
     assert (params.camera_height_m, math.degrees(params.camera_pitch_rad),
             math.degrees(params.camera_roll_rad)) == pytest.approx((0.75, 20.0, -4.0), abs=0.02)
-    camera = evaluation.read_camera_yaml(camera_out)
+    camera = evaluation.folder_camera(camera_out)
     assert camera['intrinsics'] == tilted_frame.intrinsics
     assert camera['depth_scale'] == scale
     assert camera['height_m'] == pytest.approx(params.camera_height_m, abs=1e-4)

@@ -238,7 +238,7 @@ def _clearing_cost_ms(values: dict[str, Any]) -> tuple[float, int]:
 
 @pytest.fixture(scope='module')
 def figures(harness: Harness) -> dict[tuple[str, str], Any]:
-    values = bag_processor.load_params_file(CORRIDOR)
+    values = bag_processor.node_param_values(CORRIDOR)
     start = time.perf_counter()
     reports = [f for name in ('person_crossing', 'drive_past_boxes')
                for f in _run_sequence(harness, name, values)]
@@ -251,7 +251,7 @@ def figures(harness: Harness) -> dict[tuple[str, str], Any]:
 
 def test_the_shipped_files_publish_clearing_evidence_nav2_reads() -> None:
     sources = {s.topic: s for s in nav2.read_costmap(NAV2_YAML).layers[0].sources}
-    values = bag_processor.load_params_file(CORRIDOR)
+    values = bag_processor.node_param_values(CORRIDOR)
 
     assert values['publish_clearing'] is True
     assert sources['/obstacles/clearing_points'].clearing

@@ -40,7 +40,7 @@ from typing import Any
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.cli.bag_processor import (DEFAULT_NAMESPACE, ProcessError,
                                                   config_from_values, format_report,
-                                                  load_params_file, process_bag)
+                                                  node_param_values, process_bag)
 from obstacle_detection.ros.parameters import (ALL_PARAMS, ParamsFileError,
                                            read_params_files)
 from obstacle_detection.cli.bag_writer import DEFAULT_DEPTH_TOPIC, DEFAULT_INFO_TOPIC, STORAGES
@@ -114,7 +114,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         if args.params_file:
-            values = load_params_file(args.params_file)
+            values = node_param_values(args.params_file)
             origin = ', '.join(str(p) for p in args.params_file)
         else:
             values, origin = {spec.name: spec.default for spec in ALL_PARAMS}, 'defaults'

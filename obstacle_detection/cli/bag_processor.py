@@ -53,7 +53,7 @@ class ProcessError(Exception):
     """Bad input, parameters or output; the message names the file."""
 
 
-def load_params_file(path: Path | Sequence[Path]) -> dict[str, Any]:
+def node_param_values(path: Path | Sequence[Path]) -> dict[str, Any]:
     """All node parameter values: defaults updated with one or more ``--params-file`` YAMLs.
 
     Several files are merged in order, as ROS does (a later file wins for a parameter both
@@ -128,11 +128,6 @@ class ProcessSummary:
                        f'({self.wall_s:.2f} s)')
         out.extend(f'  {topic}: {count} messages' for topic, count in self.topics.items())
         return out
-
-
-def _time_msg(stamp: Any) -> Any:
-    from builtin_interfaces.msg import Time
-    return Time(sec=int(stamp.sec), nanosec=int(stamp.nanosec))
 
 
 def process_frame(depth: Image | CompressedImage, camera: CameraState | None,

@@ -35,7 +35,7 @@ from obstacle_detection.ros.conversions import array_to_image, intrinsics_to_cam
 from obstacle_detection.pipeline.params import Intrinsics
 from obstacle_detection.cli.progress import Progress
 from obstacle_detection.evaluation.datasets import (ConvertError, FrameSource, default_intrinsics,
-                                                 read_color, read_depth_png, warn)
+                                                 read_color, read_depth_png)
 
 # The one set of default topic names of every tool (tool_support), kept here under their names.
 DEFAULT_DEPTH_TOPIC = tool_support.DEFAULT_DEPTH_TOPIC
@@ -204,7 +204,7 @@ def write_frames(source: FrameSource, output: Path, options: BagOptions) -> Summ
         raise ConvertError(f'{first}: {problem}; if it is in millimetres after all, pass '
                            '--depth-scale 1000')
     if problem is not None:
-        warn(f'{first}: {problem}')
+        tool_support.warn(f'{first}: {problem}')
     first_depth = read_depth_png(first, units_per_m=scale)
     units_origin = source.depth_units_origin or ('millimetres, the default; --depth-scale for '
                                                  'another unit, TUM: 5000')
@@ -216,9 +216,10 @@ def write_frames(source: FrameSource, output: Path, options: BagOptions) -> Summ
     intr, origin = source.intrinsics, source.intrinsics_origin
     if intr is None:
         intr, origin = default_intrinsics(source.default_view, size)
-        warn(f'no intrinsics given (--intrinsics FILE): using {origin}, fx={intr.fx:.2f} '
-              f'fy={intr.fy:.2f} cx={intr.cx:.2f} cy={intr.cy:.2f}. Obstacle positions are '
-              'only as right as these values.')
+        tool_support.warn(f'no intrinsics given (--intrinsics FILE): using {origin}, '
+                          f'fx={intr.fx:.2f} fy={intr.fy:.2f} cx={intr.cx:.2f} '
+                          f'cy={intr.cy:.2f}. Obstacle positions are only as right as these '
+                          'values.')
     with_color = options.with_color and any(f.color_path is not None for f in source.frames)
     summary = Summary(output=output, size=size, intrinsics=intr, dropped=source.dropped.copy(),
                       notes=[*source.notes, f'intrinsics: {origin}',
@@ -383,7 +384,7 @@ def convert_ros1(src: Path, output: Path, *, storage: str = 'sqlite3',
     for (topic, reason), count in sorted(failed.items()):
         note = f'{count} frame(s) of {topic} not decoded, left out: {reason}'
         summary.notes.append(note)
-        warn(note)
+        tool_support.warn(note)
     summary.topics = dict(sorted(counts.items()))
     summary.messages = sum(counts.values())
     summary.frames = max(counts.values(), default=0)

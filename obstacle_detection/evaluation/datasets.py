@@ -401,7 +401,7 @@ def tum_frames(root: Path, *, camera: str | None = None, intrinsics_path: Path |
             origin = f'from {calibration}'
         else:
             intr, origin = TUM_CAMERAS['ros'], 'ROS default camera'
-            warn(f'no intrinsics for {root}: using the ROS default camera fx=fy=525 '
+            _warn(f'no intrinsics for {root}: using the ROS default camera fx=fy=525 '
                   'cx=319.5 cy=239.5; pass --camera fr1|fr2|fr3 or --intrinsics FILE')
     return FrameSource(frames, intr, origin, size, depth_units_per_m=TUM_DEPTH_UNITS_PER_M,
                        depth_units_origin='the TUM format', dropped=dropped, notes=notes)
@@ -480,6 +480,6 @@ def read_color(path: Path, encoding: str) -> np.ndarray:
     return image
 
 
-def warn(text: str) -> None:
-    """Print a warning line on stderr (a default chosen, a frame left out, ...)."""
-    print(f'WARNING: {text}', file=sys.stderr)
+def _warn(text: str) -> None:
+    """Print a ``warning: ...`` line on stderr, as the tools do (a default chosen, ...)."""
+    print(f'warning: {text}', file=sys.stderr)

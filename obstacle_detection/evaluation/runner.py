@@ -278,7 +278,7 @@ def subsample(items: Sequence[Any], max_items: int | None) -> list[Any]:
 # Labelled folders
 
 
-def read_camera_yaml(path: str | Path) -> dict[str, Any]:
+def folder_camera(path: str | Path) -> dict[str, Any]:
     """Intrinsics and mount of a labelled folder (see the module docstring).
 
     Returns ``{'intrinsics': Intrinsics, 'height_m', 'pitch_rad', 'roll_rad', 'depth_scale'}``.
@@ -316,7 +316,7 @@ def load_labelled_folder(path: str | Path, *, max_frames: int | None = None,
                          name: str | None = None) -> Iterator[LabelledFrame]:
     """Frames of a labelled folder, in file-name order (a time sequence)."""
     root = Path(path)
-    camera = read_camera_yaml(root / 'intrinsics.yaml')
+    camera = folder_camera(root / 'intrinsics.yaml')
     depth_files = sorted((root / 'depth').glob('*.png'))
     if not depth_files:
         raise ValueError(f'{root}: no depth/*.png')

@@ -6,7 +6,7 @@ above (figure 4.23, ``overlay.render_costmap``), optionally a third panel compar
 obstacle pixels with a ground truth, and a caption band underneath (frame name, obstacle
 count, time). A sequence becomes a contact sheet, a grid of captioned thumbnails.
 
-Frames come from a depth PNG with an intrinsics YAML (``evaluation.read_camera_yaml``), a
+Frames come from a depth PNG with an intrinsics YAML (``evaluation.camera.read_camera_yaml``), a
 scene of the generator, a labelled folder, or a ROS 2 bag (:func:`bag_frames`).
 
 All images are RGB uint8; :func:`write_png` converts to OpenCV's BGR when writing.
