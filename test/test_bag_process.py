@@ -191,27 +191,32 @@ def test_output_stamps_and_types_read_back(processed: tuple[Path, Path, str]) ->
     assert 'processed 3, skipped 0' in stdout
 
 
-def test_latest_camera_info_before_each_frame(tmp_path: Path, depths: list[np.ndarray],
-                                              params_file: Path,
-                                              capsys: pytest.CaptureFixture[str]) -> None:
+def test_camera_info_recorded_before_each_frame_matched_by_stamp(
+        tmp_path: Path, depths: list[np.ndarray], params_file: Path,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """As the node: the stamp nearest the frame's, else the newest if all agree, else skip."""
     other = Intrinsics(INTR.fx * 1.2, INTR.fy * 1.2, INTR.cx + 3, INTR.cy - 2)
-    t = [T0_NS + k * PERIOD_NS for k in range(3)]
+    t = [T0_NS + k * PERIOD_NS for k in range(4)]
     stamp = [to_time(x) for x in t]
     info = [intrinsics_to_camera_info(i, SIZE[0], SIZE[1], stamp=s, frame_id=FRAME_ID)
-            for i, s in ((INTR, stamp[0]), (other, stamp[1]))]
+            for i, s in ((INTR, stamp[0]), (other, stamp[2]))]
     items = [
         (DEPTH, t[0], array_to_image(depths[0], stamp=stamp[0], frame_id=FRAME_ID)),
         (INFO, t[0] + 1, info[0]),  # after frame 0: frame 0 has no camera info
         (DEPTH, t[1], array_to_image(depths[1], stamp=stamp[1], frame_id=FRAME_ID)),
         (DEPTH, t[2], array_to_image(depths[2], stamp=stamp[2], frame_id=FRAME_ID)),
         (INFO, t[2], info[1]),  # written after, same bag time as frame 2: counts as before it
+        # stamped between the two CameraInfos, which disagree: the node skips it
+        (DEPTH, t[3], array_to_image(depths[0], stamp=to_time((t[0] + t[2]) // 2),
+                                     frame_id=FRAME_ID)),
     ]
     write_bag(tmp_path / 'in', items)
     code = bag_process.main([str(tmp_path / 'in'), str(tmp_path / 'out'), '--params-file',
                              str(params_file)])
     out = capsys.readouterr().out
     assert code == 0
-    assert 'skipped 1: no camera info recorded before the frame' in out
+    assert 'no camera info recorded before the frame' in out
+    assert 'while the recent CameraInfos disagree' in out
     got = read_raw(tmp_path / 'out')
     assert [ts for ts, _ in got['/obstacles/costmap']] == [t[1], t[2]]
     points = [decoded('/obstacles/points', raw) for _, raw in got['/obstacles/points']]

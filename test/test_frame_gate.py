@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 from builtin_interfaces.msg import Time
 
@@ -127,3 +129,38 @@ def test_a_camera_info_read_from_k_says_so_and_one_read_from_p_does_not() -> Non
 
     assert from_p.intrinsics == Intrinsics(360.0, 362.0, 250.0, 209.0) and from_p.note is None
     assert from_k.intrinsics == KINECT_V2_SD and 'P is all zero' in from_k.note
+
+
+def _stamped(camera: frame_gate.CameraState, stamp_s: float) -> frame_gate.CameraState:
+    return dataclasses.replace(camera, stamp_ns=round(stamp_s * 1e9))
+
+
+def test_a_frame_takes_the_camera_info_nearest_its_stamp_not_the_latest() -> None:
+    other = Intrinsics(300.0, 300.0, 250.0, 200.0)
+    a, b = _stamped(_camera(), 1.00), _stamped(_camera(intrinsics=other), 1.10)
+    tolerance = 20_000_000
+    assert frame_gate.camera_for([a, b], round(1.005e9), tolerance) is a
+    assert frame_gate.camera_for([a, b], round(1.095e9), tolerance) is b
+    assert frame_gate.camera_for([], round(1.0e9), tolerance) is None
+    skip = frame_gate.camera_for([a, b], round(1.5e9), tolerance)   # far from both, they differ
+    assert isinstance(skip, frame_gate.Skip) and 'disagree' in skip.reason
+    same = [_stamped(_camera(), 1.0), _stamped(_camera(), 1.2)]    # one camera: the newest
+    assert frame_gate.camera_for(same, round(5.0e9), tolerance) is same[-1]
+
+
+def test_bag_process_pairs_a_frame_with_its_camera_info_as_the_node_does() -> None:
+    from obstacle_detection.cli import bag_processor
+    from obstacle_detection.ros.config import build_config
+    from obstacle_detection.ros.parameters import ALL_PARAMS
+
+    config = build_config({spec.name: spec.default for spec in ALL_PARAMS})
+    depth = array_to_image(np.full((HEIGHT, WIDTH), 1500, np.uint16), stamp=Time(sec=1),
+                           frame_id='cam')
+    right = _stamped(_camera(), 1.0)
+    later = _stamped(_camera(width=WIDTH // 2, height=HEIGHT // 2), 1.1)   # the latest, wrong
+    messages, result, reason, _ = bag_processor.process_frame(
+        depth, [right, later], config, with_ground=False, with_overlay=False)
+    assert reason == '' and result.intrinsics == KINECT_V2_SD
+    _, _, reason, _ = bag_processor.process_frame(
+        depth, [later], config, with_ground=False, with_overlay=False)
+    assert reason == f'image is {WIDTH}x{HEIGHT} but CameraInfo is {WIDTH // 2}x{HEIGHT // 2}'

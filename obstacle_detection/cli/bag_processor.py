@@ -12,7 +12,7 @@ from __future__ import annotations
 import dataclasses
 import io
 import statistics
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -130,18 +130,24 @@ class ProcessSummary:
         return out
 
 
-def process_frame(depth: Image | CompressedImage, camera: CameraState | None,
+def process_frame(depth: Image | CompressedImage, cameras: Sequence[CameraState],
                   config: NodeConfig, *, with_ground: bool, with_overlay: bool
                   ) -> tuple[dict[str, Any] | None, Any, str, str | None]:
     """Run one depth message (raw or compressed) through the node's gate and pipeline.
 
-    ``camera``: the latest CameraInfo recorded before the frame (None: none yet). Returns
-    (messages from result_to_messages, the DetectionResult, '', a note when the fallback
-    intrinsics were used) or (None, None, the reason the node would skip the frame, None).
+    ``cameras``: the CameraInfos recorded before the frame, oldest first (at most
+    ``frame_gate.CAMERA_INFO_HISTORY``); the frame takes the one the node would take
+    (:func:`frame_gate.camera_for`). Returns (messages from result_to_messages, the
+    DetectionResult, '', a note when the fallback intrinsics were used) or (None, None, the
+    reason the node would skip the frame, None).
     """
     array = frame_gate.decode(depth)
     if isinstance(array, frame_gate.Skip):
         return None, None, array.reason, None
+    camera = frame_gate.camera_for(cameras, frame_gate.stamp_ns(depth.header.stamp),
+                                   config.camera_info_tolerance_ns)
+    if isinstance(camera, frame_gate.Skip):
+        return None, None, camera.reason, None
     verdict = frame_gate.choose_intrinsics(
         camera, array.shape, use_fallback=config.use_fallback_intrinsics,
         fallback=config.fallback_intrinsics, no_camera='no camera info recorded before the frame')
@@ -160,6 +166,12 @@ def process_frame(depth: Image | CompressedImage, camera: CameraState | None,
         with_ground=with_ground,
         overlay_rgb=render_overlay(result.depth_m, result.labels) if with_overlay else None)
     return messages, result, '', verdict.note
+
+
+def _keep_camera(cameras: deque[CameraState], camera: CameraState) -> None:
+    """Add a CameraInfo to the recent ones, once per stamp and camera (as the node keeps them)."""
+    if not any(c.stamp_ns == camera.stamp_ns and c.same_camera(camera) for c in cameras):
+        cameras.append(camera)
 
 
 def _grouped_by_timestamp(messages: Iterator[tuple[Any, int, bytes]], info_topic: str
@@ -247,13 +259,13 @@ def process_bag(src: Path, output: Path, config: NodeConfig, *,
                 out_conns = {key: writer.add_connection(outputs[key], OUTPUTS[key][1],
                                                         typestore=typestore) for key in wanted}
                 counts: Counter[str] = Counter()
-                camera: CameraState | None = None
+                cameras: deque[CameraState] = deque(maxlen=frame_gate.CAMERA_INFO_HISTORY)
                 if start_ns is not None and info_topic is not None:
                     for _, _, raw in reader.messages(
                             [c for c in reader.connections if c.topic == info_topic],
                             stop=start_ns):
-                        camera = CameraState.from_camera_info(
-                            deserialize_message(bytes(raw), CameraInfo))
+                        _keep_camera(cameras, CameraState.from_camera_info(
+                            deserialize_message(bytes(raw), CameraInfo)))
                 bar = Progress(None if window else n_depth, 'processing',
                                stream=None if progress else io.StringIO())
                 with bar:
@@ -264,6 +276,7 @@ def process_bag(src: Path, output: Path, config: NodeConfig, *,
                         if conn.topic == info_topic:
                             camera = CameraState.from_camera_info(
                                 deserialize_message(bytes(raw), CameraInfo))
+                            _keep_camera(cameras, camera)
                             said = f'CameraInfo on {info_topic}: {camera.note}'
                             if camera.note is not None and said not in summary.notes:
                                 summary.notes.append(said)
@@ -274,7 +287,7 @@ def process_bag(src: Path, output: Path, config: NodeConfig, *,
                         report = FrameReport(summary.frames, timestamp)
                         summary.frames += 1
                         messages, result, reason, note = process_frame(
-                            depth, camera, config, with_ground=with_ground,
+                            depth, list(cameras), config, with_ground=with_ground,
                             with_overlay=with_overlay)
                         if note is not None and note not in summary.notes:
                             summary.notes.append(note)

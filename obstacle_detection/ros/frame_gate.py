@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -76,6 +77,32 @@ class CameraState:
         return ((self.width, self.height, self.intrinsics, self.error)
                 == (other.width, other.height, other.intrinsics, other.error))
 
+
+
+#: CameraInfos kept for matching depth frames by stamp (a second at 30 Hz).
+CAMERA_INFO_HISTORY = 30
+
+
+def camera_for(cameras: Sequence[CameraState], frame_stamp_ns: int,
+               tolerance_ns: int) -> CameraState | Skip | None:
+    """Choose a frame's CameraInfo among the recent ones (oldest first), as the node does.
+
+    The one whose stamp is nearest the frame's within ``tolerance_ns``; when none is that close,
+    the newest if every recent one describes the same camera (a camera that publishes one,
+    latched, or whose info stamps differ from its image stamps); otherwise a Skip (the frame's
+    intrinsics are not known). None when there is no CameraInfo yet.
+    """
+    if not cameras:
+        return None
+    nearest = min(cameras, key=lambda c: abs(c.stamp_ns - frame_stamp_ns))
+    if abs(nearest.stamp_ns - frame_stamp_ns) <= tolerance_ns:
+        return nearest
+    if all(c.same_camera(cameras[-1]) for c in cameras):
+        return cameras[-1]
+    return Skip('camera_info_stamp', (
+        f'no CameraInfo within camera_info_tolerance_s ({tolerance_ns * 1e-9:g} s) of the '
+        f'frame stamp (nearest {abs(nearest.stamp_ns - frame_stamp_ns) * 1e-9:.3f} s away) '
+        'while the recent CameraInfos disagree'))
 
 @dataclass(frozen=True)
 class Verdict:

@@ -219,8 +219,6 @@ class FrameStats:
 
 #: _camera_for's answer when the frame must be skipped (the reason is already logged).
 _SKIP = _CameraState(0, 0, None, 'skip')
-#: CameraInfos kept for matching depth frames by stamp (a second at 30 Hz).
-CAMERA_INFO_HISTORY = 30
 
 
 class DetectorNode(Node):
@@ -247,7 +245,7 @@ class DetectorNode(Node):
         self._mount_cache: tuple[NodeConfig, Mount, Any] | None = None
         self._mount_said = ''
         self._cameras: collections.deque[_CameraState] = collections.deque(
-            maxlen=CAMERA_INFO_HISTORY)
+            maxlen=frame_gate.CAMERA_INFO_HISTORY)
         self._warn_loggers: dict[str, Any] = {}
         self._stop = threading.Event()
 
@@ -735,28 +733,16 @@ class DetectorNode(Node):
                                              throttle_duration_sec=WARN_THROTTLE_S)
 
     def _camera_for(self, msg: Image, config: NodeConfig) -> _CameraState | None:
-        """Return the CameraInfo of a frame: the nearest stamp within the tolerance, or below.
+        """Return the CameraInfo of a frame (:func:`frame_gate.camera_for`), None if none yet.
 
-        When no CameraInfo is that close, the newest one serves if every recent CameraInfo
-        describes the same camera (a camera that publishes one, latched, or whose info stamps
-        differ from its image stamps); otherwise the frame is skipped: its intrinsics are not
-        known.
+        _SKIP when the frame must be skipped (said in a throttled warning).
         """
-        cameras = list(self._cameras)
-        if not cameras:
-            return None
-        stamp = _stamp_ns(msg.header.stamp)
-        nearest = min(cameras, key=lambda c: abs(c.stamp_ns - stamp))
-        if abs(nearest.stamp_ns - stamp) <= config.camera_info_tolerance_ns:
-            return nearest
-        if all(c.same_camera(cameras[-1]) for c in cameras):
-            return cameras[-1]
-        self._warn_skip('camera_info_stamp', (
-            f'no CameraInfo within camera_info_tolerance_s '
-            f'({config.camera_info_tolerance_ns * 1e-9:g} s) of the frame stamp (nearest '
-            f'{abs(nearest.stamp_ns - stamp) * 1e-9:.3f} s away) while the recent CameraInfos '
-            'disagree'))
-        return _SKIP
+        chosen = frame_gate.camera_for(list(self._cameras), _stamp_ns(msg.header.stamp),
+                                       config.camera_info_tolerance_ns)
+        if isinstance(chosen, frame_gate.Skip):
+            self._warn_skip(chosen.kind, chosen.reason)
+            return _SKIP
+        return chosen
 
     def _frame_intrinsics(self, msg: Any, shape: tuple[int, ...],
                           config: NodeConfig) -> Intrinsics | None:
