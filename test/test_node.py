@@ -55,7 +55,7 @@ from obstacle_detection.ros.conversions import (
 )
 from obstacle_detection.pipeline.geometry import mount_rotation
 from obstacle_detection.ros import node as node_module
-from obstacle_detection.ros.node import DetectorNode, FrameMailbox
+from obstacle_detection.ros.node import DetectorNode, FrameMailbox, FrameStats, StampGaps
 from obstacle_detection.pipeline.params import PRESETS, Intrinsics, table_4_2, table_4_3
 from obstacle_detection.pipeline.detector import DetectionResult, Detector
 from obstacle_detection.ros.parameters import (
@@ -837,6 +837,26 @@ def test_one_frame_mailbox_keeps_only_the_newest() -> None:
     assert slot.take(timeout=0.0) == 'c'
     assert slot.dropped == 2
     assert slot.take(timeout=0.0) is None
+
+
+def test_stamp_gaps_count_the_frames_lost_on_the_way() -> None:
+    gaps = StampGaps()
+    period = 33_333_333
+    stamps = [k * period for k in (0, 1, 2, 3, 4, 6, 7, 10, 11)]   # 5, 8 and 9 never came
+    assert [gaps.add(10**18 + s) for s in stamps] == [0, 0, 0, 0, 0, 1, 0, 2, 0]
+    assert gaps.add(10**18) == 0            # a replay starts over: no gap, no count
+    assert gaps.add(10**18 + 4 * period) == 0   # too few intervals yet to know the period
+    slow = StampGaps()                      # any steady rate is measured against itself
+    assert [slow.add(k * 10**9) for k in (0, 1, 2, 3, 4, 5, 7)] == [0, 0, 0, 0, 0, 0, 1]
+
+
+def test_frame_stats_report_missing_frames_and_reset() -> None:
+    stats = FrameStats()
+    stats.add_missing(2)
+    stats.add_dropped()
+    period = stats.take_period()
+    assert (period['missing'], period['dropped']) == (2, 1)
+    assert stats.take_period()['missing'] == 0 and stats.total_missing == 2
 
 
 def test_frame_mailbox_lets_one_frame_wait_and_drops_the_oldest() -> None:

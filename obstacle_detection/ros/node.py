@@ -164,18 +164,62 @@ class FrameMailbox:
             self._cond.notify_all()
 
 
+class StampGaps:
+    """Count the frames a camera sent that never arrived, from gaps in the frame stamps.
+
+    A camera stamps its frames at a steady period; an interval between two received stamps
+    of about k periods means k - 1 frames were lost on the way (a best-effort transport drops
+    a frame that does not fit the socket buffer), which the node would otherwise never see.
+    The period is the median of the recent intervals, so a camera or a replay at any rate is
+    measured against itself; a stamp that goes back (a replay looping, a clock reset) starts
+    over.
+    """
+
+    #: Recent intervals whose median is the period.
+    HISTORY = 31
+    #: An interval this many periods long or more is a gap.
+    GAP_PERIODS = 1.5
+
+    def __init__(self) -> None:
+        self._last_ns: int | None = None
+        self._intervals: collections.deque[int] = collections.deque(maxlen=self.HISTORY)
+
+    def add(self, stamp_ns: int) -> int:
+        """Take the next frame's stamp; return how many frames went missing before it."""
+        last, self._last_ns = self._last_ns, stamp_ns
+        if last is None or stamp_ns <= last:
+            if last is not None:
+                self._intervals.clear()
+            return 0
+        interval = stamp_ns - last
+        missing = 0
+        if len(self._intervals) >= 3:
+            period = sorted(self._intervals)[len(self._intervals) // 2]
+            if interval >= self.GAP_PERIODS * period:
+                missing = round(interval / period) - 1
+        if not missing:
+            self._intervals.append(interval)
+        return missing
+
+
 class FrameStats:
     """Thread-safe frame counters and processing times since the last ``take_period``."""
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
-        self.total_processed = self.total_dropped = 0
+        self.total_processed = self.total_dropped = self.total_missing = 0
         self._reset(time.monotonic())
 
     def _reset(self, now: float) -> None:
         self._since = now
-        self.processed = self.dropped = self.skipped = self.errors = 0
+        self.processed = self.dropped = self.skipped = self.errors = self.missing = 0
         self.sum_ms = 0.0
+
+    def add_missing(self, count: int) -> None:
+        """Count frames the camera sent that never arrived (:class:`StampGaps`)."""
+        with self._lock:
+            self.missing += count
+            self.total_missing += count
 
     def add_processed(self, elapsed_ms: float) -> None:
         """Count one published frame that took ``elapsed_ms``."""
@@ -203,13 +247,13 @@ class FrameStats:
     def take_period(self) -> dict[str, float]:
         """Return the counters since the last call, then reset them.
 
-        Keys: processed, dropped, skipped, errors, mean_ms, fps, period_s.
+        Keys: processed, dropped, skipped, errors, missing, mean_ms, fps, period_s.
         """
         now = time.monotonic()
         with self._lock:
             period = max(now - self._since, 1e-9)
             snapshot = {'processed': self.processed, 'dropped': self.dropped,
-                        'skipped': self.skipped,
+                        'skipped': self.skipped, 'missing': self.missing,
                         'errors': self.errors, 'period_s': period,
                         'mean_ms': self.sum_ms / self.processed if self.processed else 0.0,
                         'fps': self.processed / period}
@@ -240,6 +284,7 @@ class DetectorNode(Node):
             self.destroy_node()
             raise
         self.stats = FrameStats()
+        self._stamp_gaps = StampGaps()
         self._mailbox = FrameMailbox(MAILBOX_FRAMES)
         self._mount_source = self._make_mount_source(tf_buffer)
         self._mount_cache: tuple[NodeConfig, Mount, Any] | None = None
@@ -594,6 +639,9 @@ class DetectorNode(Node):
     # -- callbacks (executor thread): store only --------------------------------------------
     def _on_depth(self, msg: Image) -> None:
         self._health.received()
+        missing = self._stamp_gaps.add(_stamp_ns(msg.header.stamp))
+        if missing:
+            self.stats.add_missing(missing)
         if self._mailbox.put(msg):
             self.stats.add_dropped()
             self._health.dropped()
@@ -705,7 +753,8 @@ class DetectorNode(Node):
             f'{period["processed"]} frames processed in {period["period_s"]:.1f} s '
             f'({period["fps"]:.1f} fps), mean {period["mean_ms"]:.1f} ms/frame; '
             f'{period["dropped"]} dropped (a newer frame came first), '
-            f'{period["skipped"]} skipped (bad input), {period["errors"]} errors'
+            f'{period["missing"]} missing (gaps in the frame stamps: lost before they reached '
+            f'the node), {period["skipped"]} skipped (bad input), {period["errors"]} errors'
             + (f'; last {self._floor_text}' if self._floor_text else ''))
 
     # -- worker thread ------------------------------------------------------------------------
