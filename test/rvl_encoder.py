@@ -14,7 +14,8 @@ import numpy as np
 from builtin_interfaces.msg import Time
 from sensor_msgs.msg import CompressedImage
 
-from obstacle_detection.ros.compressed_depth import CONFIG_HEADER_SIZE, array_to_compressed_depth
+from message_helpers import array_to_compressed_depth
+from obstacle_detection.ros.compressed_depth import CONFIG_HEADER_SIZE
 
 
 class _Nibbles:

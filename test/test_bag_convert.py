@@ -17,8 +17,8 @@ from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import CameraInfo, Image
 
-from obstacle_detection.ros.compressed_depth import (array_to_compressed_depth,
-                                                 compressed_depth_to_array)
+from message_helpers import array_to_compressed_depth
+from obstacle_detection.ros.compressed_depth import compressed_depth_to_array
 from obstacle_detection.ros.conversions import image_to_array
 from obstacle_detection.pipeline.params import KINECT_V2_SD, Intrinsics
 from obstacle_detection.sim.scenes import render_scene

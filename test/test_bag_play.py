@@ -216,8 +216,8 @@ def test_compressed_depth_topic_is_played_and_decodes(tmp_path: Path,
     from rosbags.rosbag2 import Writer
     from rosbags.typesys import Stores, get_typestore
 
-    from obstacle_detection.ros.compressed_depth import (array_to_compressed_depth,
-                                                     compressed_depth_to_array)
+    from message_helpers import array_to_compressed_depth
+    from obstacle_detection.ros.compressed_depth import compressed_depth_to_array
 
     topic = f'{DEPTH}/compressedDepth'
     with Writer(tmp_path / 'bag', version=9) as writer:

@@ -20,7 +20,7 @@ from rosbags.typesys import Stores, get_typestore
 from nav_msgs.msg import OccupancyGrid
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 
-from obstacle_detection.ros.compressed_depth import array_to_compressed_depth
+from message_helpers import array_to_compressed_depth
 from obstacle_detection.viz.overlay import render_overlay
 from obstacle_detection.ros.conversions import (array_to_image, image_to_array,
                                             intrinsics_to_camera_info, result_to_messages)

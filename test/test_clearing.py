@@ -13,7 +13,8 @@ from builtin_interfaces.msg import Time
 from obstacle_detection.pipeline import clearing
 from obstacle_detection.pipeline.clearing import BORDER_FRACTIONS, clearing_points
 from obstacle_detection.pipeline.params import Intrinsics
-from obstacle_detection.ros.conversions import pointcloud2_to_points, result_to_messages
+from message_helpers import pointcloud2_to_points
+from obstacle_detection.ros.conversions import result_to_messages
 
 INTRINSICS = Intrinsics(fx=2.0, fy=2.0, cx=4.0, cy=3.0)
 

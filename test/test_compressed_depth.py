@@ -13,15 +13,14 @@ from rclpy.serialization import serialize_message
 from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import CompressedImage
 
+from message_helpers import (array_to_compressed_depth, depth_message_to_array,
+                             quantisation_error_bound_m)
 from obstacle_detection.ros.compressed_depth import (
     CONFIG_HEADER_SIZE,
     CompressedDepthError,
-    array_to_compressed_depth,
     compressed_depth_to_array,
-    depth_message_to_array,
     parse_format,
     quantisation_constants,
-    quantisation_error_bound_m,
     raw_topic,
 )
 from obstacle_detection.ros.conversions import ImageFormatError, array_to_image, image_to_array

@@ -11,6 +11,7 @@ from rclpy.serialization import deserialize_message, serialize_message
 from nav_msgs.msg import OccupancyGrid
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
 
+from message_helpers import pointcloud2_to_points
 from obstacle_detection.labels import (CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN, LABEL_GROUND,
                                        LABEL_OBSTACLE)
 from obstacle_detection.ros.conversions import (
@@ -27,7 +28,6 @@ from obstacle_detection.ros.conversions import (
     intrinsics_problem,
     intrinsics_to_camera_info,
     occupancy_grid_to_costmap,
-    pointcloud2_to_points,
     points_to_pointcloud2,
     result_to_messages,
 )

@@ -42,10 +42,10 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 from obstacle_detection.cli import bag_processor
 from obstacle_detection.pipeline.clearing import clearing_points
+from message_helpers import pointcloud2_to_points
 from obstacle_detection.ros.conversions import (
     array_to_image,
     intrinsics_to_camera_info,
-    pointcloud2_to_points,
     points_to_pointcloud2,
 )
 from obstacle_detection.sim.scenes import scene_params

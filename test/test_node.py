@@ -47,11 +47,10 @@ from std_msgs.msg import Float64, String
 
 from obstacle_detection.labels import CELL_OCCUPIED, GT_OBSTACLE
 from obstacle_detection.pipeline import jit as jit_support
-from obstacle_detection.ros.compressed_depth import array_to_compressed_depth
+from message_helpers import array_to_compressed_depth, pointcloud2_to_points
 from obstacle_detection.ros.conversions import (
     array_to_image,
     intrinsics_to_camera_info,
-    pointcloud2_to_points,
 )
 from obstacle_detection.pipeline.geometry import mount_rotation
 from obstacle_detection.ros import node as node_module

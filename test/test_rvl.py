@@ -17,10 +17,10 @@ from rvl_encoder import encode_rvl, rvl_message
 
 from obstacle_detection.pipeline import jit as jit_support
 from obstacle_detection.ros import frame_gate, rvl
+from message_helpers import array_to_compressed_depth
 from obstacle_detection.ros.compressed_depth import (
     CONFIG_HEADER_SIZE,
     CompressedDepthError,
-    array_to_compressed_depth,
     compressed_depth_to_array,
 )
 

@@ -37,18 +37,13 @@ from __future__ import annotations
 
 import struct
 import zlib
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
-from sensor_msgs.msg import CompressedImage
-from std_msgs.msg import Header
 
 from . import rvl
-from .conversions import DEPTH_ENCODINGS, ImageFormatError, image_to_array
-
-if TYPE_CHECKING:
-    from builtin_interfaces.msg import Time
+from .conversions import DEPTH_ENCODINGS, ImageFormatError
 
 #: ``ConfigHeader`` of compressed_depth_image_transport: int32 format, float32 quantA, quantB.
 CONFIG_HEADER = struct.Struct('<iff')
@@ -281,9 +276,8 @@ def compressed_depth_to_array(msg: Any, *,
     msg: ``sensor_msgs/CompressedImage`` (rclpy or rosbags, ROS 1 or 2) in one of the formats
     of the module docstring. Returns, like :func:`conversions.image_to_array`, a fresh (H, W)
     uint16 array [mm] for ``16UC1`` / ``mono16`` (bit-identical to what was encoded) or float32
-    [m] for ``32FC1`` (NaN = no return; within the quantisation error, see
-    :func:`quantisation_error_bound_m`). expected_shape: (height, width) the image must have
-    (e.g. the CameraInfo's), or None.
+    [m] for ``32FC1`` (NaN = no return; within the quantisation error d^2 / (A - d)).
+    expected_shape: (height, width) the image must have (e.g. the CameraInfo's), or None.
 
     Raises CompressedDepthError naming the problem: ``kind`` 'format' (unknown or unsupported
     format string), 'header' (data too short for the ConfigHeader and an image, a header
@@ -336,23 +330,6 @@ def compressed_depth_to_array(msg: Any, *,
     return depth
 
 
-def depth_message_to_array(msg: Any, *,
-                           expected_shape: tuple[int, int] | None = None) -> np.ndarray:
-    """Decode a depth ``Image`` or ``CompressedImage`` (rclpy or rosbags) into its array.
-
-    Image: :func:`conversions.image_to_array`; CompressedImage:
-    :func:`compressed_depth_to_array`. Same result for the same frame either way (16UC1
-    exactly, 32FC1 within the quantisation). expected_shape: (height, width) or None.
-    Raises ImageFormatError (CompressedDepthError for a CompressedImage) naming the problem.
-    """
-    if is_compressed_image(msg):
-        return compressed_depth_to_array(msg, expected_shape=expected_shape)
-    array = image_to_array(msg)
-    if expected_shape is not None and array.shape != tuple(expected_shape):
-        height, width = expected_shape
-        raise ImageFormatError(f'depth image is {array.shape[1]}x{array.shape[0]} but '
-                               f'{width}x{height} was expected (the CameraInfo size)')
-    return array
 
 
 def quantisation_constants(depth_max_m: float = DEFAULT_DEPTH_MAX_M,
@@ -366,80 +343,3 @@ def quantisation_constants(depth_max_m: float = DEFAULT_DEPTH_MAX_M,
     quant_a = np.float32(z0 * (z0 + np.float32(1.0)))
     quant_b = np.float32(np.float32(1.0) - quant_a / np.float32(depth_max_m))
     return quant_a, quant_b
-
-
-def quantisation_error_bound_m(depth_m: np.ndarray | float,
-                               depth_quantization: float = DEFAULT_DEPTH_QUANTIZATION
-                               ) -> np.ndarray | float:
-    """Largest amount a 32FC1 depth grows through the codec: d' - d < d^2 / (A - d) [m].
-
-    From q = trunc(A / d + B) > A / d + B - 1 and d' = A / (q - B): d <= d' < A d / (A - d)
-    in exact arithmetic (float32 rounding adds a few ulp). depth_m [m]; A = z0 (z0 + 1).
-    """
-    quant_a = float(depth_quantization) * (float(depth_quantization) + 1.0)
-    depth = np.asarray(depth_m, dtype=np.float64)
-    return depth * depth / (quant_a - depth)
-
-
-def array_to_compressed_depth(depth: np.ndarray, stamp: Time, frame_id: str, *,
-                              encoding: str | None = None,
-                              depth_max_m: float = DEFAULT_DEPTH_MAX_M,
-                              depth_quantization: float = DEFAULT_DEPTH_QUANTIZATION,
-                              png_level: int = DEFAULT_PNG_LEVEL) -> CompressedImage:
-    """Build a ``compressedDepth png`` CompressedImage as compressed_depth_image_transport does.
-
-    depth: (H, W) uint16 [mm] (encoding ``16UC1``, or ``mono16``) or float32 [m] (``32FC1``).
-    encoding None picks it from the dtype. The message: header (stamp, frame_id), format
-    ``<encoding>; compressedDepth png``, data = ConfigHeader (INV_DEPTH, A, B; zeros for
-    16-bit) + PNG at ``png_level`` (0-9, the publisher's default 3).
-
-    16-bit: values above ``uint16(depth_max_m * 1000)`` become 0, as the encoder does; the rest
-    is lossless. 32FC1: q = trunc(A / d + B) with (A, B) from :func:`quantisation_constants`,
-    and q = 0 (no return) where d >= depth_max_m or is NaN, as the encoder does, and also
-    where d <= 0, is infinite or is nearer than A / (65535 - B) (0.15 m by default), where the
-    C++ float-to-uint16 conversion is undefined.
-
-    Raises ValueError naming the bad value: a parameter outside the publisher's ranges
-    (depth_max_m 1-100, depth_quantization 1-150, png_level 0-9) or an array that is not
-    one of the two depth layouts (ImageFormatError).
-    """
-    low, high = DEPTH_MAX_RANGE_M
-    if not low <= depth_max_m <= high:
-        raise ValueError(f'depth_max_m={depth_max_m} outside [{low:g}, {high:g}] m')
-    low, high = DEPTH_QUANTIZATION_RANGE
-    if not low <= depth_quantization <= high:
-        raise ValueError(f'depth_quantization={depth_quantization} outside [{low:g}, {high:g}]')
-    if int(png_level) != png_level or not 0 <= png_level <= 9:
-        raise ValueError(f'png_level={png_level} must be an integer in [0, 9]')
-    depth = np.asarray(depth)
-    kind = {np.dtype(np.uint16): ('16UC1', 'mono16'),
-            np.dtype(np.float32): ('32FC1',)}.get(depth.dtype.newbyteorder('='))
-    if depth.ndim != 2 or kind is None or 0 in depth.shape:
-        raise ImageFormatError(f'compressed depth needs a non-empty (H, W) uint16 [mm] or '
-                               f'float32 [m] array, got shape {depth.shape} of {depth.dtype}')
-    encoding = kind[0] if encoding is None else encoding
-    if encoding not in kind:
-        raise ImageFormatError(f'encoding {encoding!r} does not fit a {depth.dtype} array '
-                               f'(expected {" or ".join(kind)})')
-    if encoding == '32FC1':
-        quant_a, quant_b = quantisation_constants(depth_max_m, depth_quantization)
-        metres = depth.astype(np.float32)
-        with np.errstate(divide='ignore', invalid='ignore', over='ignore'):
-            inverse = quant_a / metres + quant_b  # float32, as the C++ encoder
-            usable = (metres < np.float32(depth_max_m)) & (metres > 0) & (inverse >= 0) & (
-                inverse < 65536.0)
-        pixels = np.zeros(depth.shape, dtype=np.uint16)
-        pixels[usable] = inverse[usable].astype(np.uint16)  # truncation toward zero
-        config = CONFIG_HEADER.pack(INV_DEPTH, float(quant_a), float(quant_b))
-    else:
-        # static_cast<unsigned short>(depth_max * 1000.0f): truncation of the double.
-        limit = np.uint16(min(int(depth_max_m * 1000.0), 65535))
-        pixels = depth.astype(np.uint16, copy=True)
-        pixels[pixels > limit] = 0
-        config = CONFIG_HEADER.pack(INV_DEPTH, 0.0, 0.0)
-    ok, png = cv2.imencode('.png', pixels, [cv2.IMWRITE_PNG_COMPRESSION, int(png_level)])
-    if not ok:  # pragma: no cover - OpenCV always encodes a uint16 array
-        raise ImageFormatError('OpenCV could not encode the depth as PNG')
-    return CompressedImage(header=Header(stamp=stamp, frame_id=frame_id),
-                           format=f'{encoding}; compressedDepth png',
-                           data=config + png.tobytes())

@@ -339,25 +339,6 @@ def points_to_pointcloud2(points: np.ndarray, *, stamp: Time, frame_id: str) -> 
         data=xyz.tobytes(), is_dense=bool(np.isfinite(xyz).all()))
 
 
-def pointcloud2_to_points(msg: Any) -> np.ndarray:
-    """Read the x, y, z float32 fields of a PointCloud2 into (N, 3) float32 (any layout)."""
-    offsets = {f.name: int(f.offset) for f in msg.fields
-               if f.name in _XYZ_FIELDS and int(f.datatype) == PointField.FLOAT32}
-    missing = [name for name in _XYZ_FIELDS if name not in offsets]
-    if missing:
-        raise ValueError(f'PointCloud2 has no float32 field(s) {", ".join(missing)}')
-    order = '>' if msg.is_bigendian else '<'
-    dtype = np.dtype({'names': list(_XYZ_FIELDS), 'formats': [order + 'f4'] * 3,
-                      'offsets': [offsets[name] for name in _XYZ_FIELDS],
-                      'itemsize': int(msg.point_step)})
-    count = int(msg.width) * int(msg.height)
-    row_step, width = int(msg.row_step), int(msg.width)
-    raw = _byte_view(msg.data)
-    if count == 0:
-        return np.zeros((0, 3), dtype=np.float32)
-    rows = raw[:row_step * int(msg.height)].reshape(int(msg.height), row_step)
-    records = np.ascontiguousarray(rows[:, :width * int(msg.point_step)]).view(dtype).reshape(-1)
-    return np.stack([records[name] for name in _XYZ_FIELDS], axis=1).astype(np.float32)
 
 
 def costmap_to_occupancy_grid(costmap: Costmap, *, stamp: Time,
