@@ -44,3 +44,13 @@ def test_pin_one_cpu_leaves_the_process_on_one_cpu() -> None:
     said, cpus = run.stdout.splitlines()
     assert said.startswith('pinned to CPU ') and 'OpenCV threads = 1' in said
     assert cpus == '1'
+
+
+def test_int_in_parses_integers_in_range_and_names_the_bound() -> None:
+    at_least_one = support.int_in(1)
+    assert at_least_one('3') == 3
+    for text, words in (('0', 'must be >= 1, got 0'), ('x', "must be an integer >= 1, got 'x'")):
+        with pytest.raises(argparse.ArgumentTypeError, match=words):
+            at_least_one(text)
+    with pytest.raises(argparse.ArgumentTypeError, match=r'must be in 0\.\.232, got 233'):
+        support.domain_id('233')

@@ -81,23 +81,12 @@ def build_parser() -> argparse.ArgumentParser:
                         help='output storage (default %(default)s)')
     parser.add_argument('--quiet', action='store_true',
                         help='no per-frame lines (a progress bar on a terminal instead)')
-    parser.add_argument('--chunk-frames', type=_positive, metavar='N',
+    parser.add_argument('--chunk-frames', type=tool_support.int_in(1), metavar='N',
                         help='on a cluster, cut a bag of more than N depth frames into chunks '
                              'of about N, one task each, merged into its one output bag '
                              '[default: one task per bag]')
     add_fleet_arguments(parser)
     return parser
-
-
-def _positive(text: str) -> int:
-    """Parse a positive integer (argparse type)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'must be a positive integer, got {text!r}') from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f'must be >= 1, got {value}')
-    return value
 
 
 def _sets_mount(values: Mapping[str, Any], files: Sequence[Path]) -> bool:

@@ -46,27 +46,17 @@ DISTINCT_FRAMES = 12
 EMPTY_TASKS = 200
 
 
-def positive(text: str) -> int:
-    """Parse a positive integer for argparse."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'must be a positive integer, got {text!r}') from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f'must be >= 1, got {value}')
-    return value
-
-
 def build_parser() -> argparse.ArgumentParser:
     """Return the command-line parser."""
     parser = argparse.ArgumentParser(prog='benchmark_fleet',
                                      description=__doc__.split('\n\n')[0])
-    parser.add_argument('--bags', type=positive, default=8, help='bags [default: 8]')
-    parser.add_argument('--frames', type=positive, default=300,
+    parser.add_argument('--bags', type=tool_support.int_in(1), default=8,
+                        help='bags [default: 8]')
+    parser.add_argument('--frames', type=tool_support.int_in(1), default=300,
                         help='depth frames per bag [default: 300]')
-    parser.add_argument('--max-workers', type=positive, default=2,
+    parser.add_argument('--max-workers', type=tool_support.int_in(1), default=2,
                         help='largest local cluster measured [default: 2]')
-    parser.add_argument('--repeat', type=positive, default=1,
+    parser.add_argument('--repeat', type=tool_support.int_in(1), default=1,
                         help='runs of each, in turn; the best is shown [default: 1]')
     parser.add_argument('--work-dir', type=Path,
                         help='where the bags and outputs go (kept) [default: a temporary '

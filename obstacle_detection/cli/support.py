@@ -16,7 +16,7 @@ import argparse
 import math
 import os
 import sys
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TextIO
@@ -310,15 +310,25 @@ def check_mount(depth_m: np.ndarray, intrinsics: Intrinsics, params: DetectorPar
     return MountCheck(estimate, warning)
 
 
-def domain_id(text: str) -> int:
-    """Parse a ROS_DOMAIN_ID for argparse: an integer in 0..232 (Fast DDS's port range)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'must be an integer in 0..232, got {text!r}') from None
-    if not 0 <= value <= 232:
-        raise argparse.ArgumentTypeError(f'must be in 0..232, got {value}')
-    return value
+def int_in(low: int, high: int | None = None) -> Callable[[str], int]:
+    """Return an argparse type: an integer in ``low..high`` (no upper bound when None)."""
+    wanted = f'in {low}..{high}' if high is not None else f'>= {low}'
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f'must be an integer {wanted}, got {text!r}') \
+                from None
+        if value < low or (high is not None and value > high):
+            raise argparse.ArgumentTypeError(f'must be {wanted}, got {value}')
+        return value
+
+    return parse
+
+
+#: A ROS_DOMAIN_ID for argparse: an integer in 0..232 (Fast DDS's port range).
+domain_id = int_in(0, 232)
 
 
 def add_domain_id_option(parser: argparse.ArgumentParser, help_text: str) -> None:

@@ -30,6 +30,7 @@ import uuid
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
+from obstacle_detection.cli import support as tool_support
 from obstacle_detection.cli.progress import Progress
 
 #: Whether dask.distributed can be imported (the optional ``fleet`` extra).
@@ -72,29 +73,19 @@ def usable_cores() -> int:
     return os.cpu_count() or 1
 
 
-def worker_count(text: str) -> int:
-    """Parse ``--workers`` for argparse: an integer >= 0."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'must be an integer >= 0, got {text!r}') from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f'must be >= 0, got {value}')
-    return value
-
-
 def add_fleet_arguments(parser: argparse.ArgumentParser) -> None:
     """Add ``--workers``, ``--scheduler`` and ``--retries``."""
     group = parser.add_argument_group(
         'where the work runs (Dask, optional: README, Offline work at scale)')
-    group.add_argument('--workers', type=worker_count, metavar='N',
+    group.add_argument('--workers', type=tool_support.int_in(0), metavar='N',
                        help='a local Dask cluster of N worker processes (one thread each); '
                             '0 = this process, no Dask [default: one per core when Dask is '
                             'installed and there is more than one task]')
     group.add_argument('--scheduler', metavar='ADDRESS',
                        help=f'run on the Dask cluster of this scheduler, e.g. '
                             f'tcp://host:8786 [default: ${SCHEDULER_ENV} if set]')
-    group.add_argument('--retries', type=worker_count, default=DEFAULT_RETRIES, metavar='N',
+    group.add_argument('--retries', type=tool_support.int_in(0), default=DEFAULT_RETRIES,
+                       metavar='N',
                        help='retries of a task that raised [default: %(default)s]; a task '
                             'whose worker died is restarted by Dask')
 
