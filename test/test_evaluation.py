@@ -188,6 +188,10 @@ def test_evaluate_one_corridor_frame_scores_above_a_floor(tmp_path, capsys):
 def test_evaluate_reports_bad_input_with_exit_code_2(capsys):
     assert evaluate.main(['--scene', 'no_such_scene']) == 2
     assert "unknown scenario 'no_such_scene'" in capsys.readouterr().err
+    assert evaluate.main(['--scene', 'corridor', '--max-frames', '0']) == 2
+    assert 'evaluate: error: --max-frames=0 must be >= 1' in capsys.readouterr().err
+    assert evaluate.main(['--scene', 'corridor', '--set', 'Q=1']) == 2
+    assert "unknown parameter 'Q'" in capsys.readouterr().err
 
 
 def test_truth_obstacles_exist_in_every_suite_scene_but_the_empty_floor():

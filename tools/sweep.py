@@ -96,9 +96,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             if axis is not None:
                 try:
                     evaluation.apply_overrides(base, {axis.name: axis.values[0]})
-                except ValueError as exc:
-                    if 'unknown parameter' in str(exc):
-                        raise
+                except evaluation.UnknownNameError:
+                    raise
+                except ValueError:   # a bad value: said for its own cell
+                    pass
         started = time.perf_counter()
         sources = frame_sources(args)
         settings = int(np.prod(grid_shape(args.x, args.y, also)))

@@ -76,14 +76,9 @@ def base_params(args: argparse.Namespace) -> DetectorParams:
     return params
 
 
-#: Errors about the command line rather than a file: exit 2 (tool_support).
-USAGE_PREFIXES = ('unknown scenario', 'unknown parameter', '--')
-
-
 def report_error(prog: str, exc: Exception) -> int:
-    """Print the error line; unknown names and bad option values are usage errors (2)."""
-    if not isinstance(exc, (OSError, tool_support.UsageError)) and \
-            str(exc).startswith(USAGE_PREFIXES):
+    """Print the error line; an unknown scenario, parameter or metric is a usage error (2)."""
+    if isinstance(exc, evaluation.UnknownNameError):
         exc = tool_support.UsageError(str(exc))
     return tool_support.report_error(prog, exc)
 
@@ -93,7 +88,7 @@ def frame_sources(args: argparse.Namespace,
     """(name, frame count, lazy frames) for each scenario and folder selected by the options."""
     sources: list[tuple[str, int, Iterable[evaluation.LabelledFrame]]] = []
     if args.max_frames is not None and args.max_frames < 1:
-        raise ValueError(f'--max-frames={args.max_frames} must be >= 1')
+        raise tool_support.UsageError(f'--max-frames={args.max_frames} must be >= 1')
     if args.scene or not args.folder:
         path = args.scenarios if args.scenarios is not None else SUITES[args.suite]
         scenarios = evaluation.select_scenarios(evaluation.load_scenarios(path), args.scene)

@@ -48,6 +48,10 @@ from .metrics import Confusion, format_score
 from obstacle_detection.pipeline.params import (KINECT_V2_SD, KINECT_V2_SD_SIZE, PRESETS,
                                                 DetectorParams, Intrinsics)
 
+class UnknownNameError(ValueError):
+    """A scenario, parameter or metric name the evaluation does not know (a usage error)."""
+
+
 #: Version of the scenario-list format read by :func:`load_scenarios`.
 SCENARIO_FORMAT_VERSION = 1
 
@@ -215,7 +219,7 @@ def select_scenarios(scenarios: Sequence[Scenario], names: Iterable[str] | None,
     chosen = []
     for name in names:
         if name not in by_name:
-            raise ValueError(f'unknown scenario {name!r}; known: {", ".join(by_name)}')
+            raise UnknownNameError(f'unknown scenario {name!r}; known: {", ".join(by_name)}')
         chosen.append(by_name[name])
     return chosen
 
@@ -414,7 +418,7 @@ def apply_overrides(base: DetectorParams, overrides: dict[str, Any]) -> Detector
         if name == 'theta_rad':
             name = 'max_slope_rad'
         if name not in fields:
-            raise ValueError(f'unknown parameter {key!r}')
+            raise UnknownNameError(f'unknown parameter {key!r}')
         current = getattr(base, name)
         if isinstance(current, bool):
             value = _boolean(key, value)
