@@ -15,7 +15,7 @@ from obstacle_detection.pipeline.detector import Detector
 from obstacle_detection.sim.scenes import render_scene, scene_params
 from obstacle_detection.pipeline.voxel import VoxelGrid, voxel_downsample, voxel_downsample_numpy
 
-pytestmark = pytest.mark.skipif(not jit_voxel.AVAILABLE, reason='numba is not installed')
+pytestmark = pytest.mark.numba
 
 GRID_FIELDS = ('centroids', 'point_voxel', 'counts', 'voxel_ijk')
 
@@ -192,17 +192,16 @@ def test_roi_lattice_holds_the_bounds():
     assert low[1] == math.floor(-params.lateral_limit_m / 0.025)
 
 
+def _outputs(params, frame):
+    """Return the outputs of one frame that do not depend on the clock."""
+    result = Detector(params).process(frame.depth_mm, frame.intrinsics)
+    return (result.obstacle_points, result.ground_points, result.labels, result.voxel_points,
+            result.voxel_normals, result.voxel_is_obstacle, result.voxel_slope_obstacle,
+            result.pixel_voxel, result.voxel_neighbours, result.costmap)
+
+
 @pytest.mark.parametrize('name', ['corridor', 'people', 'farm_row'])
-def test_pipeline_identical_with_and_without_jit(name, monkeypatch):
+def test_pipeline_identical_with_and_without_jit(name, both_paths):
     frame = render_scene(name, seed=2)
-    params = scene_params(frame, table_4_2())
-    compiled = Detector(params).process(frame.depth_mm, frame.intrinsics)
-    monkeypatch.setenv(jit.NO_JIT_ENV, '1')
-    ref = Detector(params).process(frame.depth_mm, frame.intrinsics)
-    for field in ('obstacle_points', 'ground_points', 'labels', 'voxel_points',
-                  'voxel_normals', 'voxel_is_obstacle', 'voxel_slope_obstacle', 'pixel_voxel'):
-        a, b = getattr(ref, field), getattr(compiled, field)
-        assert a.dtype == b.dtype, field
-        np.testing.assert_array_equal(a, b, err_msg=field)
-    np.testing.assert_array_equal(ref.costmap.data, compiled.costmap.data)
-    assert ref.costmap.origin_xy_m == compiled.costmap.origin_xy_m
+    obstacles = both_paths(_outputs, scene_params(frame, table_4_2()), frame)[0]
+    assert obstacles.shape[0] > 100

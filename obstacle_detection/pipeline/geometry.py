@@ -144,14 +144,7 @@ class GroundRays:
         out: a (3, H*W) float32 array the compiled path fills instead of a new one.
         """
         if self._table is None:
-            if jit.enabled():   # the same float32 operations, compiled
-                self._table = jit_traversal.ground_rays(self.ru, self.rv, self.rot, out)
-            else:
-                rays = np.empty((3, self.rv.size, self.ru.size), dtype=np.float32)
-                for axis in range(3):
-                    rays[axis] = (self.rot[axis, 0] * self.ru[None, :]
-                                  + self.rot[axis, 1] * self.rv[:, None] + self.rot[axis, 2])
-                self._table = rays.reshape(3, -1)
+            self._table = _ray_table(self.ru, self.rv, self.rot, out)
         return self._table
 
     def at(self, pixels: np.ndarray) -> np.ndarray:
@@ -171,6 +164,24 @@ class GroundRays:
     def subsampled(self, step: int) -> GroundRays:
         """Return the rays of every ``step``-th row and column (the same values)."""
         return GroundRays(self.ru[::step], self.rv[::step], self.rot)
+
+
+def _reference_ground_rays(ru: np.ndarray, rv: np.ndarray, rot: np.ndarray,
+                           out: np.ndarray | None = None) -> np.ndarray:
+    """(3, H*W) float32 rays ``rot[a, 0] * ru[j] + rot[a, 1] * rv[i] + rot[a, 2]``.
+
+    ru (W,), rv (H,), rot (3, 3) float32. out: a (3, H*W) float32 array to fill.
+    """
+    if out is None or out.shape != (3, rv.size * ru.size) or out.dtype != np.float32:
+        out = np.empty((3, rv.size * ru.size), np.float32)
+    rays = out.reshape(3, rv.size, ru.size)
+    for axis in range(3):
+        rays[axis] = rot[axis, 0] * ru[None, :] + rot[axis, 1] * rv[:, None] + rot[axis, 2]
+    return out
+
+
+# compiled: the same float32 operations
+_ray_table = jit.choose(_reference_ground_rays, jit_traversal.ground_rays)
 
 
 def ray_model(shape: tuple[int, int], intrinsics: Intrinsics,

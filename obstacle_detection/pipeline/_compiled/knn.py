@@ -793,17 +793,16 @@ def _validate_kernel(is_obstacle, neighbours, n1, out):  # pragma: no cover - co
     return True
 
 
-def validate(is_obstacle: np.ndarray, neighbours: np.ndarray, n1: int) -> np.ndarray | None:
+def validate(is_obstacle: np.ndarray, neighbours: np.ndarray, n1: int) -> np.ndarray:
     """Return the seed's validation of ``normals.validate_obstacles`` for n1 >= 1, compiled.
 
     is_obstacle: (V,) bool; neighbours: (V, >= n1 + 1) int indices, the point itself first.
-    Returns the (V,) bool result, or None when an index is out of range (the numpy path then
-    raises as numpy does).
+    Returns the (V,) bool result. Raises IndexError when an index lies outside [0, V).
     """
     out = np.empty(is_obstacle.shape[0], np.bool_)
     nb = neighbours if neighbours.dtype == np.int64 else neighbours.astype(np.int64)
     if not _validate_kernel(np.ascontiguousarray(is_obstacle, np.bool_), nb, int(n1), out):
-        return None
+        raise IndexError(f'a neighbour index lies outside [0, {is_obstacle.shape[0]})')
     return out
 
 
