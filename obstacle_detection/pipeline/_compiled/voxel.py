@@ -44,7 +44,7 @@ _DENSE_LIMIT = 16_000_000
 #: uint64 0 and 1 (numba turns uint64 mixed with an int literal into float64).
 _U0 = np.uint64(0)
 _U1 = np.uint64(1)
-#: Largest |voxel index| handled; beyond it (or NaN) the numpy path runs.
+#: Largest |voxel index| handled; beyond it (or NaN) the numpy path must run.
 _MAX_INDEX = float(1 << 40)
 #: Label of a pixel inside the region of interest until :func:`label_pixels` decides ground or
 #: obstacle (every such pixel has a voxel, so none keeps it).
@@ -354,16 +354,15 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarra
                       reuse)
 
 
-def voxelise(proj: Projection) -> tuple | None:
-    """Voxel grid of a :class:`Projection`; fills in ``proj.pixel_voxel``.
+def voxelise(proj: Projection) -> tuple:
+    """Voxel grid of a :class:`Projection` with keys and points; fills in ``proj.pixel_voxel``.
 
     Returns (centroids, point_voxel, counts, voxel_ijk), the fields of the ``VoxelGrid`` that
-    :func:`obstacle_detection.pipeline.voxel.voxel_downsample` gives for ``proj.points``, or
-    None when the numpy path must number the voxels (no keys, or no point): then
-    ``proj.pixel_voxel`` is left to the caller.
+    :func:`obstacle_detection.pipeline.voxel.voxel_downsample` gives for ``proj.points``.
+    Raises ValueError for a projection without keys (its lattice too large) or points.
     """
     if not proj.has_keys or proj.count == 0:
-        return None
+        raise ValueError('the projection has no voxel keys or no point')
     n_cells = int(proj.dims[0] * proj.dims[1] * proj.dims[2])
     m = proj.count
     point_voxel = _scratch('point_voxel', m, np.int64)[:m] if proj.reuse else np.empty(m,
@@ -382,26 +381,27 @@ def _run_voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point
 
 
 def voxel_downsample(points: np.ndarray, voxel_size_m: tuple[float, float, float]
-                     ) -> tuple | None:
+                     ) -> tuple:
     """:func:`obstacle_detection.pipeline.voxel.voxel_downsample` compiled.
 
     points: (M, 3) float32 or float64 (M >= 1) [m]; the size has been validated. Returns the
-    fields (centroids, point_voxel, counts, voxel_ijk) of the same ``VoxelGrid``, or None when
-    the numpy path must run (another dtype, a voxel index beyond 2**40 or NaN, or a lattice
-    over ``_DENSE_LIMIT`` cells).
+    fields (centroids, point_voxel, counts, voxel_ijk) of the same ``VoxelGrid``. Raises
+    ValueError for another dtype, no point, a voxel index beyond 2**40 or NaN, or a lattice
+    over ``_DENSE_LIMIT`` cells (the stage module sends those to numpy before calling).
     """
     if points.dtype not in (np.float32, np.float64) or points.shape[0] == 0:
-        return None
+        raise ValueError(f'need float32/64 points, at least one; got {points.dtype} '
+                         f'{points.shape}')
     cols = np.ascontiguousarray(points.T)
     size = np.asarray(voxel_size_m, np.float64).astype(cols.dtype)
     ijk = np.empty(cols.shape, np.int64)
     if not _index_kernel(cols, size, ijk, cols.dtype.type(_MAX_INDEX)):
-        return None
+        raise ValueError('a voxel index is NaN or beyond 2**40')
     low = ijk.min(axis=1)
     dims = ijk.max(axis=1) - low + 1
     n_cells = int(dims[0]) * int(dims[1]) * int(dims[2])
     if n_cells > _DENSE_LIMIT:
-        return None
+        raise ValueError(f'{n_cells} lattice cells > {_DENSE_LIMIT}')
     keys = ijk[0] - low[0]
     keys *= dims[1]
     keys += ijk[1] - low[1]
