@@ -141,40 +141,8 @@ class Detector:
         p = self.params
         intr = intrinsics if intrinsics is not None else SEED_TABLE_4_1
         clock = _Clock()
-        # uint16 input: the median runs on its codes (the same result, see median_of_codes)
-        codes = _uint16_codes(depth) if p.median_kernel > 1 else None
-        crop = (p.crop_top_px, p.crop_bottom_px, p.crop_left_px, p.crop_right_px)
-        depth_m = decode_depth(depth, depth_scale=depth_scale)
-        clock.lap('decode')
-        if any(crop):
-            depth_m = crop_borders(depth_m, *crop)
-            if codes is not None:
-                codes = crop_borders(codes, *crop)
-        clock.lap('crop')
-        raw_m = depth_m
-        if codes is not None:
-            depth_m = median_of_codes(codes, p.median_kernel,
-                                      depth_lut(units_per_metre(depth_scale)), p.compute_threads)
-        elif p.median_kernel > 1:
-            depth_m = median_filter(depth_m, p.median_kernel, p.compute_threads)
-        clock.lap('median')
-        if p.robot_level and p.median_kernel > 1:
-            # raw depth looked up from uint16 codes in the table holds no NaN
-            depth_m = traversal.drop_smeared(depth_m, raw_m, p.max_filter_shift,
-                                              raw_no_nan=codes is not None)
-        clock.lap('smear')
-
-        rays = self._rays(depth_m.shape, intr)
-        fit = fit_floor(depth_m, self._sub_rays, p)
-        frame_changes: dict = {}   # this frame's parameters: fitted mount, robot-level ROI
-        if fit.refined:
-            frame_changes.update(camera_height_m=fit.height_m, camera_pitch_rad=fit.pitch_rad,
-                                 camera_roll_rad=fit.roll_rad)
-        if p.robot_level and -p.drop_view_m < p.tdbg_m:
-            frame_changes['tdbg_m'] = -p.drop_view_m
-        run = p.with_frame_mount(**frame_changes) if frame_changes else p
-        if fit.refined:   # the fitted mount's rays (no table: computed where they are read)
-            rays = rays.for_mount(run)
+        depth_m = self._filtered_depth(depth, depth_scale, clock)
+        rays, fit, run = self._frame_mount(depth_m, intr)
         clock.lap('floor')
         roi = voxel.points_in_roi(depth_m, rays, run)
         clock.lap('back_project')
@@ -191,20 +159,8 @@ class Detector:
         if p.max_ground_height_m > 0.0 and not p.robot_level:
             steep |= centroids[:, 2] > np.float32(p.max_ground_height_m)
         clock.lap('slope')
-        heights = centroids[:, 2]
-        drop_points = np.zeros((0, 3), np.float32)
-        drop_pixels = np.zeros(0, np.int64)
-        candidates = steep
-        if p.robot_level:
-            trav = traversal.traversable_ground(centroids, steep, p)
-            candidates, heights = trav.is_obstacle, trav.height_m
-            clock.lap('traversal')
-            drop_points, drop_pixels = traversal.drop_edges(depth_m, rays, run.camera_height_m,
-                                                            p)
-            clock.lap('drops')
-        else:
-            clock.lap('traversal')
-            clock.lap('drops')
+        candidates, heights, drop_points, drop_pixels = self._robot_level(
+            depth_m, rays, run, centroids, steep, clock)
         is_obstacle = validate_obstacles(candidates, neighbours, p.validation_neighbours)
         clock.lap('validation')
         obstacle_points = centroids[is_obstacle]
@@ -227,3 +183,63 @@ class Detector:
             voxel_normals=normals, voxel_slope_obstacle=candidates, voxel_is_obstacle=is_obstacle,
             voxel_neighbours=neighbours, pixel_voxel=pixel_voxel, depth_m=depth_m, intrinsics=intr,
             floor=fit, voxel_height_m=heights, drop_points=drop_points)
+
+    def _filtered_depth(self, depth: np.ndarray, depth_scale: float | None,
+                        clock: _Clock) -> np.ndarray:
+        """Decode, crop, median-filter and (robot level) un-smear a frame: (H, W) float32 [m]."""
+        p = self.params
+        # uint16 input: the median runs on its codes (the same result, see median_of_codes)
+        codes = _uint16_codes(depth) if p.median_kernel > 1 else None
+        crop = (p.crop_top_px, p.crop_bottom_px, p.crop_left_px, p.crop_right_px)
+        depth_m = decode_depth(depth, depth_scale=depth_scale)
+        clock.lap('decode')
+        if any(crop):
+            depth_m = crop_borders(depth_m, *crop)
+            if codes is not None:
+                codes = crop_borders(codes, *crop)
+        clock.lap('crop')
+        raw_m = depth_m
+        if codes is not None:
+            depth_m = median_of_codes(codes, p.median_kernel,
+                                      depth_lut(units_per_metre(depth_scale)), p.compute_threads)
+        elif p.median_kernel > 1:
+            depth_m = median_filter(depth_m, p.median_kernel, p.compute_threads)
+        clock.lap('median')
+        if p.robot_level and p.median_kernel > 1:
+            # raw depth looked up from uint16 codes in the table holds no NaN
+            depth_m = traversal.drop_smeared(depth_m, raw_m, p.max_filter_shift,
+                                              raw_no_nan=codes is not None)
+        clock.lap('smear')
+        return depth_m
+
+    def _frame_mount(self, depth_m: np.ndarray, intr: Intrinsics,
+                     ) -> tuple[geometry.GroundRays, FloorFit, DetectorParams]:
+        """(rays, floor fit, parameters) of one frame: the fitted mount, the robot-level ROI."""
+        p = self.params
+        rays = self._rays(depth_m.shape, intr)
+        fit = fit_floor(depth_m, self._sub_rays, p)
+        frame_changes: dict = {}   # this frame's parameters: fitted mount, robot-level ROI
+        if fit.refined:
+            frame_changes.update(camera_height_m=fit.height_m, camera_pitch_rad=fit.pitch_rad,
+                                 camera_roll_rad=fit.roll_rad)
+        if p.robot_level and -p.drop_view_m < p.tdbg_m:
+            frame_changes['tdbg_m'] = -p.drop_view_m
+        run = p.with_frame_mount(**frame_changes) if frame_changes else p
+        if fit.refined:   # the fitted mount's rays (no table: computed where they are read)
+            rays = rays.for_mount(run)
+        return rays, fit, run
+
+    def _robot_level(self, depth_m: np.ndarray, rays: geometry.GroundRays,
+                     run: DetectorParams, centroids: np.ndarray, steep: np.ndarray,
+                     clock: _Clock) -> tuple[np.ndarray, ...]:
+        """(obstacle candidates, heights, drop points, drop pixels): the seed's or robot level."""
+        p = self.params
+        if not p.robot_level:
+            clock.lap('traversal')
+            clock.lap('drops')
+            return steep, centroids[:, 2], np.zeros((0, 3), np.float32), np.zeros(0, np.int64)
+        trav = traversal.traversable_ground(centroids, steep, p)
+        clock.lap('traversal')
+        drop_points, drop_pixels = traversal.drop_edges(depth_m, rays, run.camera_height_m, p)
+        clock.lap('drops')
+        return trav.is_obstacle, trav.height_m, drop_points, drop_pixels
