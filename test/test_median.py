@@ -7,8 +7,7 @@ compiled kernel ('compiled', skipped without numba) and with the numpy / OpenCV 
 import numpy as np
 import pytest
 
-from obstacle_detection.pipeline import jit, median
-from obstacle_detection.pipeline._compiled import median as compiled
+from obstacle_detection.pipeline import median
 from obstacle_detection.pipeline.depth import DepthFormatError, decode_depth, depth_lut
 from obstacle_detection.pipeline.median import median_filter, median_of_codes, reference_median
 from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE
@@ -145,9 +144,6 @@ def test_median_rejects_bad_image(img) -> None:
         median_filter(img, 3)
 
 
-def test_warm_up(monkeypatch) -> None:
-    monkeypatch.setenv(jit.NO_JIT_ENV, '1')
-    assert median.warm_up() == 0.0
-    monkeypatch.delenv(jit.NO_JIT_ENV)
+def test_warm_up(kernel_path) -> None:
     seconds = median.warm_up()
-    assert seconds >= 0.0 and (seconds > 0.0) is compiled.AVAILABLE
+    assert seconds >= 0.0 and (seconds > 0.0) is (kernel_path == 'compiled')

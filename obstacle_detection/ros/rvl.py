@@ -81,7 +81,7 @@ def _codes(words: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return values, ends + 1
 
 
-def decode_rvl_numpy(stream: bytes, num_pixels: int) -> np.ndarray:
+def _reference_decode_rvl(stream: bytes, num_pixels: int) -> np.ndarray:
     """Decode an RVL stream into its (num_pixels,) uint16 pixels: the reference decoder.
 
     The codes are read with numpy; a Python loop walks the runs (one step per run of zeros
@@ -121,7 +121,7 @@ def decode_rvl_numpy(stream: bytes, num_pixels: int) -> np.ndarray:
     return pixels
 
 
-def decode_rvl_compiled(stream: bytes, num_pixels: int) -> np.ndarray:
+def _compiled_decode_rvl(stream: bytes, num_pixels: int) -> np.ndarray:
     """Decode an RVL stream with the numba kernel; same result and refusals as the reference.
 
     Without numba the kernel runs as plain Python (slow; for tests of its logic).
@@ -134,15 +134,10 @@ def decode_rvl_compiled(stream: bytes, num_pixels: int) -> np.ndarray:
     return pixels
 
 
-def decode_rvl(stream: bytes, num_pixels: int) -> np.ndarray:
-    """Decode an RVL stream into its (num_pixels,) uint16 pixels, row-major.
-
-    The numba kernel when the compiled path is on (about a millisecond for a 512 x 424
-    frame), else the numpy reference. Raises RvlError naming the problem.
-    """
-    if jit_support.enabled():
-        return decode_rvl_compiled(stream, num_pixels)
-    return decode_rvl_numpy(stream, num_pixels)
+#: Decode an RVL stream into its (num_pixels,) uint16 pixels, row-major: the numba kernel when
+#: the compiled path is on (about a millisecond for a 512 x 424 frame), else the numpy
+#: reference. Raises RvlError naming the problem.
+decode_rvl = jit_support.choose(_reference_decode_rvl, _compiled_decode_rvl)
 
 
 def warm_up() -> None:
