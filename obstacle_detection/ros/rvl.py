@@ -10,10 +10,10 @@ significant first, the nibble's high bit set when another follows. The nibbles f
 little-endian words from their most significant end; the last word is padded with zero
 nibbles. (Where the codec's stream sits in a CompressedImage: :mod:`.compressed_depth`.)
 
-Two decoders give the same pixels: :func:`decode_rvl_numpy`, the reference (numpy for the
-codes, a Python loop over the runs), and a numba kernel (``pipeline/_compiled/rvl.py``, one
-sequential loop over the nibbles); :func:`decode_rvl` takes the kernel when the package's
-one switch (:func:`obstacle_detection.pipeline.jit.enabled`) allows it. Unlike the C++
+Two decoders give the same pixels: ``_reference_decode_rvl`` (numpy for the codes, a Python
+loop over the runs), and a numba kernel (``pipeline/_compiled/rvl.py``, one sequential loop
+over the nibbles); :func:`decode_rvl` takes the kernel when the package's one switch
+(:func:`obstacle_detection.pipeline.jit.choose`) allows it. Unlike the C++
 decoder, which trusts its input, both refuse data that is not an RVL stream of the announced
 size (:class:`RvlError`): words that end before the last pixel (truncated), a run beyond the
 image, a code longer than any count needs, a difference beyond 16 bits, whole words left after

@@ -17,7 +17,8 @@ bounds (division by a positive number is monotone, so every kept point's voxel l
 it). A bitmap of the occupied cells (a bit per lattice cell) and the count of set bits
 before each of its 64-bit words number the voxels in key order; one pass over the points then
 accumulates counts and sums. A lattice larger than
-``_DENSE_LIMIT`` cells, or a point whose voxel index does not fit, falls back to numpy.
+``_DENSE_LIMIT`` cells, or a point whose voxel index does not fit, is refused (ValueError);
+the stage module sends those to numpy before calling.
 
 The kernels are compiled on first use (a few seconds) and cached on disk (``cache=True``);
 call :func:`obstacle_detection.pipeline.voxel.warm_up` at start-up to pay that before the first
