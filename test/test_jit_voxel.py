@@ -27,10 +27,10 @@ def project(depth_m, rays, params, reuse=False):
 def assert_same_frame(depth_m, rays, params, both_paths):
     """Check the stage's two paths (points, pixels, voxels, labels) bit for bit.
 
-    And the compiled projection, with and without its reused buffers, against
-    geometry.ground_points_in_roi.
+    And the compiled projection, with and without its reused buffers, against the numpy path.
     """
-    pts, pix, valid = geometry.ground_points_in_roi(depth_m, rays, params)
+    ref = voxel.points_in_roi.reference(depth_m, rays, params)
+    pts, pix, valid = ref.points, ref.pixel_index, ref.labels.reshape(-1) != 0
     for reuse in (False, True):
         proj = project(depth_m, rays, params, reuse=reuse)
         np.testing.assert_array_equal(proj.points, pts)
@@ -156,7 +156,7 @@ def test_roi_and_voxel_boundaries_and_negative_coordinates(both_paths):
     depth[::17] = 0.0
     depth = depth.reshape(h, w)
     m = assert_same_frame(depth, rays, params, both_paths)
-    pts, _, _ = geometry.ground_points_in_roi(depth, rays, params)
+    pts = voxel.points_in_roi.reference(depth, rays, params).points
     assert m > 100 and (pts[:, 1] < 0).any() and (pts[:, 2] < 0).any()
     on_bound = (pts[:, 0] == np.float32(0.5)) | (pts[:, 0] == np.float32(2.0))
     assert on_bound.any()

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..labels import LABEL_GROUND, LABEL_OBSTACLE, LABEL_OUTSIDE_ROI
+from ..labels import LABEL_GROUND, LABEL_NO_RETURN, LABEL_OBSTACLE, LABEL_OUTSIDE_ROI
 from . import geometry, jit
 from ._compiled import voxel as jit_voxel
 from .params import DetectorParams, Intrinsics
@@ -147,7 +147,7 @@ class RoiPoints:
 
 
 def roi_bounds(params: DetectorParams) -> np.ndarray:
-    """Return the ROI bounds in float32, as :func:`geometry.ground_points_in_roi` rounds them.
+    """Return the ROI bounds in float32, as :func:`points_in_roi` rounds them.
 
     (min range, max range, lateral limit, camera height, tdbg, max height), the ``bounds`` of
     :func:`._compiled.voxel.project_roi`.
@@ -158,14 +158,28 @@ def roi_bounds(params: DetectorParams) -> np.ndarray:
 
 def _reference_points_in_roi(depth_m: np.ndarray, rays: np.ndarray | geometry.GroundRays,
                              params: DetectorParams) -> RoiPoints:
-    """:func:`points_in_roi` in numpy (:func:`geometry.ground_points_in_roi`)."""
-    pts, pix, valid = geometry.ground_points_in_roi(depth_m, rays, params)
-    labels = np.zeros(depth_m.shape, dtype=np.uint8)
-    flat = labels.reshape(-1)
-    flat[valid] = LABEL_OUTSIDE_ROI
-    flat[pix] = LABEL_GROUND
+    """:func:`points_in_roi` in numpy: the ROI of :func:`geometry.roi_mask` on the image."""
+    rays = rays.table() if isinstance(rays, geometry.GroundRays) else rays
+    z = depth_m.reshape(-1)
+    valid = z > 0.0
+    gx = z * rays[0]
+    keep = valid & (gx >= np.float32(params.min_range_m))
+    keep &= gx <= np.float32(params.max_range_m)
+    gy = z * rays[1]
+    keep &= np.abs(gy) <= np.float32(params.lateral_limit_m)
+    gz = z * rays[2]
+    gz += np.float32(params.camera_height_m)
+    keep &= gz >= np.float32(params.tdbg_m)
+    keep &= gz <= np.float32(params.max_height_m)
+    pix = np.flatnonzero(keep)
+    cols = np.empty((3, pix.size), dtype=np.float32)   # (M, 3) points with contiguous columns
+    for axis, values in enumerate((gx, gy, gz)):
+        np.take(values, pix, out=cols[axis])
+    labels = np.where(valid, LABEL_OUTSIDE_ROI, LABEL_NO_RETURN).astype(np.uint8)
+    labels = labels.reshape(depth_m.shape)
+    labels.reshape(-1)[pix] = LABEL_GROUND
     pixel_voxel = np.full(depth_m.shape, -1, dtype=np.int32)
-    return RoiPoints(pts, pix, labels, pixel_voxel, params.voxel_size_m)
+    return RoiPoints(cols.T, pix, labels, pixel_voxel, params.voxel_size_m)
 
 
 def _compiled_points_in_roi(depth_m: np.ndarray, rays: np.ndarray | geometry.GroundRays,

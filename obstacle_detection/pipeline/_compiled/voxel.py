@@ -2,8 +2,8 @@
 
 numba is an optional accelerator: when :func:`obstacle_detection.pipeline.jit.enabled`, the
 stage module :mod:`obstacle_detection.pipeline.voxel` runs :func:`project_roi` and
-:func:`voxelise` instead of :func:`obstacle_detection.pipeline.geometry.ground_points_in_roi`
-and its numpy voxel grid, and its ``voxel_downsample`` runs :func:`voxel_downsample`. This
+:func:`voxelise` instead of its numpy twin (``_reference_points_in_roi``) and numpy voxel
+grid, and its ``voxel_downsample`` runs :func:`voxel_downsample`. This
 module takes and returns arrays; the stage module builds its ``VoxelGrid`` from them.
 
 Both paths give bit-identical results. The kernels repeat the float32 operations of the numpy
@@ -303,7 +303,7 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarra
     on the fly a band of rows at a time, no table read; the same float32 values); bounds: (6,)
     float32 (min range, max range, lateral limit, camera height, tdbg, max height), as
     :func:`obstacle_detection.pipeline.voxel.roi_bounds` rounds them. The points and pixel
-    indices equal those of :func:`obstacle_detection.pipeline.geometry.ground_points_in_roi`.
+    indices equal those of :func:`obstacle_detection.pipeline.voxel.points_in_roi`'s numpy path.
     reuse: keep the points, pixel indices and keys in per-thread buffers that the next call
     in the same thread overwrites (the pipeline's choice; faster), instead of fresh arrays.
     """
