@@ -2,14 +2,21 @@
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import inspect
 import re
 import subprocess
 import sys
 import threading
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
+import numpy as np
 import pytest
+
+from obstacle_detection.pipeline import jit
 
 REPO = Path(__file__).resolve().parents[1]
 pytest_plugins = ['pytester']   # test_conftest_marks runs pytest on small test files
@@ -30,6 +37,77 @@ def prefix(tmp_path_factory: pytest.TempPathFactory) -> Path:
                           check=False)
     assert done.returncode == 0, done.stdout + done.stderr
     return install
+
+
+# -- the numpy/scipy reference and the compiled (numba) path -----------------------------------
+def pytest_configure(config: pytest.Config) -> None:
+    """Declare the ``numba`` mark: the test needs the compiled kernels (skipped without)."""
+    config.addinivalue_line('markers', 'numba: needs numba; skipped where it is not installed')
+
+
+@pytest.fixture(autouse=True)
+def _needs_numba(request: pytest.FixtureRequest) -> None:
+    """Skip the tests marked ``numba`` where numba is not installed."""
+    if request.node.get_closest_marker('numba') is not None and not jit.AVAILABLE:
+        pytest.skip('numba is not installed')
+
+
+def _use_path(monkeypatch: pytest.MonkeyPatch, path: str) -> None:
+    """Switch the pipeline to 'reference' (numpy/scipy) or 'compiled' (skipped without numba)."""
+    if path == 'compiled' and not jit.AVAILABLE:
+        pytest.skip('numba is not installed')
+    monkeypatch.setenv(jit.NO_JIT_ENV, '1' if path == 'reference' else '0')
+    assert jit.enabled() == (path == 'compiled')
+
+
+@pytest.fixture(params=['reference', 'compiled'])
+def kernel_path(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> str:
+    """Run the test once on each path: 'reference' (numpy/scipy) and 'compiled' (numba)."""
+    _use_path(monkeypatch, request.param)
+    return request.param
+
+
+def assert_same(got: Any, want: Any, where: str = 'result') -> None:
+    """Assert two results equal bit for bit: arrays (dtype, shape, bytes), dataclasses, tuples."""
+    if isinstance(want, np.ndarray):
+        assert isinstance(got, np.ndarray), f'{where}: {type(got)} is not an array'
+        assert (got.dtype, got.shape) == (want.dtype, want.shape), where
+        assert np.ascontiguousarray(got).tobytes() == np.ascontiguousarray(want).tobytes(), \
+            f'{where} differs'
+    elif dataclasses.is_dataclass(want):
+        assert type(got) is type(want), where
+        for f in dataclasses.fields(want):
+            assert_same(getattr(got, f.name), getattr(want, f.name), f'{where}.{f.name}')
+    elif isinstance(want, (tuple, list)):
+        assert type(got) is type(want) and len(got) == len(want), where
+        for i, (g, w) in enumerate(zip(got, want)):
+            assert_same(g, w, f'{where}[{i}]')
+    elif isinstance(want, dict):
+        assert got.keys() == want.keys(), where
+        for key in want:
+            assert_same(got[key], want[key], f'{where}[{key!r}]')
+    else:
+        assert type(got) is type(want) and (got == want or got != got and want != want), \
+            f'{where}: {got!r} != {want!r}'
+
+
+@pytest.fixture
+def both_paths(monkeypatch: pytest.MonkeyPatch) -> Callable[..., Any]:
+    """Return ``compare(call, *args, **kwargs)``: run on both paths, assert the same result.
+
+    ``call`` runs on a deep copy of the arguments with the numpy/scipy reference, then with
+    the compiled kernels (the test is skipped without numba); the two results must be equal
+    bit for bit (:func:`assert_same`). Returns the reference's result.
+    """
+    def compare(call: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
+        results = []
+        for path in ('reference', 'compiled'):
+            _use_path(monkeypatch, path)
+            results.append(call(*copy.deepcopy(args), **copy.deepcopy(kwargs)))
+        assert_same(results[1], results[0])
+        return results[0]
+
+    return compare
 
 
 # -- the integration mark, set by what a test does -------------------------------------------

@@ -3,7 +3,6 @@
 import numpy as np
 import pytest
 
-from obstacle_detection.pipeline import jit
 from obstacle_detection.pipeline.depth import (DepthFormatError, crop_borders, decode_depth,
                                                depth_lut, lookup)
 
@@ -116,9 +115,7 @@ def test_crop_rejects_negative_margin() -> None:
 # --------------------------------------------------------------------------- lookup
 
 
-@pytest.mark.parametrize('no_jit', ['', '1'])
-def test_lookup_is_numpys_take(no_jit, monkeypatch) -> None:
-    monkeypatch.setenv(jit.NO_JIT_ENV, no_jit)
+def test_lookup_is_numpys_take(kernel_path) -> None:
     rng = np.random.default_rng(5)
     codes = rng.integers(0, 65536, (30, 41)).astype(np.uint16)
     for table in (depth_lut(1000.0), depth_lut(5000.0, 'float64'),

@@ -17,13 +17,10 @@ import pytest
 
 from obstacle_detection.evaluation import runner as evaluation
 from obstacle_detection.pipeline import floor
-from obstacle_detection.pipeline.jit import NO_JIT_ENV
-from obstacle_detection.pipeline._compiled import traversal as jit_traversal
 from obstacle_detection.pipeline.detector import Detector
 from obstacle_detection.ros.parameters import detector_params_from_ros, read_params_file
 
 REPO = Path(__file__).resolve().parents[1]
-jit_only = pytest.mark.skipif(not jit_traversal.AVAILABLE, reason='numba is not installed')
 
 
 @functools.lru_cache(maxsize=1)
@@ -40,37 +37,18 @@ def suite_inputs():
     return out
 
 
-def both_paths(monkeypatch, call):
-    """Return call() with the compiled kernels, then with numpy."""
-    compiled = call()
-    monkeypatch.setenv(NO_JIT_ENV, '1')
-    reference = call()
-    monkeypatch.delenv(NO_JIT_ENV)
-    return compiled, reference
-
-
-def assert_bits(a, b, what):
-    assert a.dtype == b.dtype and a.shape == b.shape, what
-    assert a.tobytes() == b.tobytes(), what
-
-
-@jit_only
-def test_compiled_floor_fit_equals_numpy_on_the_robot_suite(monkeypatch):
+@pytest.mark.numba
+def test_compiled_floor_fit_equals_numpy_on_the_robot_suite(both_paths):
     refined = 0
-    for name, depth, sub_rays, params in suite_inputs():
-        got, want = both_paths(monkeypatch,
-                               lambda: floor.floor_samples(depth, sub_rays, params))
-        assert_bits(got, want, f'{name}: floor samples')
-        if want.shape[1] >= params.floor_min_points:
-            got_h, want_h = both_paths(monkeypatch, lambda: floor._ransac_plane(want, params))
-            assert_bits(got_h, want_h, f'{name}: hypotheses')
+    for _, depth, sub_rays, params in suite_inputs():
+        pts = both_paths(floor.floor_samples, depth, sub_rays, params)
+        if pts.shape[1] >= params.floor_min_points:
+            best = both_paths(floor._ransac_plane, pts, params)[0]
             for band in floor.REFIT_BANDS_M:   # laid out as numpy's, so lstsq sums alike
-                a, b = both_paths(monkeypatch, lambda: floor._in_band(want, want_h[0], band))
-                assert a.strides == b.strides, name
-                assert_bits(a, b, f'{name}: inliers')
-        fit, ref = both_paths(monkeypatch, lambda: floor.fit_floor(depth, sub_rays, params))
-        assert fit == ref, name
-        refined += ref.refined
+                both_paths(floor._in_band, pts, *best, band)
+                assert (floor._in_band.compiled(pts, *best, band).strides
+                        == floor._in_band.reference(pts, *best, band).strides)
+        refined += both_paths(floor.fit_floor, depth, sub_rays, params).refined
     assert refined >= 10   # the suite's frames do fit a floor: the comparison has teeth
 
 
@@ -96,10 +74,7 @@ def fit_every_hypothesis(depth, sub_rays, params):
     return best
 
 
-@pytest.mark.parametrize('compiled', [False, pytest.param(True, marks=jit_only)])
-def test_skipping_repeated_refits_keeps_the_fit(compiled, monkeypatch):
-    if not compiled:
-        monkeypatch.setenv(NO_JIT_ENV, '1')
+def test_skipping_repeated_refits_keeps_the_fit(kernel_path):
     skipped = 0
     for name, depth, sub_rays, params in suite_inputs():
         best = fit_every_hypothesis(depth, sub_rays, params)
@@ -111,8 +86,8 @@ def test_skipping_repeated_refits_keeps_the_fit(compiled, monkeypatch):
         assert fit == want, name
         pts = floor.floor_samples(depth, sub_rays, params)
         first, second = floor._ransac_plane(pts, params)
-        skipped += floor._same(floor._in_band(pts, first, floor.REFIT_BANDS_M[0]),
-                               floor._in_band(pts, second, floor.REFIT_BANDS_M[0]))
+        skipped += floor._same(floor._in_band(pts, *first, floor.REFIT_BANDS_M[0]),
+                               floor._in_band(pts, *second, floor.REFIT_BANDS_M[0]))
     assert skipped >= 1   # some frame does take the shortcut
 
 

@@ -11,12 +11,8 @@ import numpy as np
 import pytest
 
 from obstacle_detection.pipeline import floor, geometry, traversal, voxel
-from obstacle_detection.pipeline.jit import NO_JIT_ENV
-from obstacle_detection.pipeline._compiled import traversal as jit_traversal
 from obstacle_detection.pipeline._compiled import voxel as jit_voxel
 from obstacle_detection.pipeline.params import KINECT_V2_SD, Intrinsics, corridor
-
-jit_only = pytest.mark.skipif(not jit_traversal.AVAILABLE, reason='numba is not installed')
 
 SHAPE = (424, 512)
 MOUNT = dict(camera_height_m=0.62, camera_pitch_rad=0.21, camera_roll_rad=-0.04)
@@ -54,7 +50,7 @@ def _frame():
     return depth
 
 
-@jit_only
+@pytest.mark.numba
 @pytest.mark.parametrize('shape', [SHAPE, (7, 9000), (1, 3)])
 def test_projection_from_the_model_equals_the_table(shape):
     # the rays are computed a band of rows at a time: a partial last band, rows wider than
@@ -78,12 +74,7 @@ def test_projection_from_the_model_equals_the_table(shape):
     np.testing.assert_array_equal(staged.points, want.points)
 
 
-@pytest.mark.parametrize('compiled', [True, False])
-def test_drop_edges_from_the_model_equal_the_table(compiled, monkeypatch):
-    if compiled and not jit_traversal.AVAILABLE:
-        pytest.skip('numba is not installed')
-    if not compiled:
-        monkeypatch.setenv(NO_JIT_ENV, '1')
+def test_drop_edges_from_the_model_equal_the_table(kernel_path):
     params = corridor(**MOUNT)
     model = geometry.ray_model(SHAPE, KINECT_V2_SD, params)
     # a floor 0.62 m down whose lower half (rows beyond 300) is 0.3 m lower: a drop

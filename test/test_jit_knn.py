@@ -5,11 +5,11 @@ import pytest
 from scipy.spatial import cKDTree
 
 from obstacle_detection.pipeline._compiled import knn as jit_knn
-from obstacle_detection.pipeline import jit, normals
+from obstacle_detection.pipeline import normals
 from obstacle_detection.pipeline.detector import Detector
 from obstacle_detection.sim.scenes import render_scene, scene_params
 
-pytestmark = pytest.mark.skipif(not jit_knn.AVAILABLE, reason='numba is not installed')
+pytestmark = pytest.mark.numba
 
 PIPELINE_SCENES = ('corridor', 'people', 'farm_row')
 
@@ -66,20 +66,14 @@ def small_clouds():
 
 
 @pytest.fixture(scope='module')
-def scene_runs():
-    """Scene voxel centroids and pipeline results, with the compiled kernels and without."""
-    mp = pytest.MonkeyPatch()
-    runs = {}
-    try:
-        for name in PIPELINE_SCENES:
-            frame = render_scene(name)
-            detector = Detector(scene_params(frame))
-            for flag in ('0', '1'):
-                mp.setenv(jit.NO_JIT_ENV, flag)
-                runs[name, flag] = detector.process(frame.depth_mm, frame.intrinsics)
-    finally:
-        mp.undo()
-    return runs
+def scene_points():
+    """Voxel centroids (V, 3) float32 of a few scenes, by scene name."""
+    points = {}
+    for name in PIPELINE_SCENES:
+        frame = render_scene(name)
+        result = Detector(scene_params(frame)).process(frame.depth_mm, frame.intrinsics)
+        points[name] = result.voxel_points
+    return points
 
 
 def test_warm_up_compiles_the_kernels_a_frame_uses():
@@ -114,16 +108,16 @@ def test_knn_matches_ckdtree_on_random_clouds(k):
         # where no two of a row's distances tie, the tree's order is the only right one
         distinct = np.all(np.diff(ref_d, axis=1) > 0, axis=1)
         np.testing.assert_array_equal(got[distinct], ref_i[distinct])
-        np.testing.assert_array_equal(got, normals._nearest_neighbours_scipy(points, k))
+        np.testing.assert_array_equal(got, normals.nearest_neighbours.reference(points, k))
 
 
-def test_knn_on_scene_voxel_centroids(scene_runs):
+def test_knn_on_scene_voxel_centroids(scene_points):
     for name in PIPELINE_SCENES:
-        points = scene_runs[name, '0'].voxel_points
+        points = scene_points[name]
         got = jit_knn.knn_grid(points, 13)
         ref_d, _ = cKDTree(points).query(points, k=13)
         np.testing.assert_allclose(distances(points, got), ref_d, rtol=1e-6, atol=1e-9)
-        np.testing.assert_array_equal(got, normals._nearest_neighbours_scipy(points, 13))
+        np.testing.assert_array_equal(got, normals.nearest_neighbours.reference(points, 13))
 
 
 @pytest.mark.parametrize('cell_m', [0.004, 0.02, 0.1, 1.0, 10.0])
@@ -158,11 +152,11 @@ def well_conditioned(cov):
     return (w[:, 1] - w[:, 0]) > 1e-3 * np.maximum(w[:, 2], 1e-30)
 
 
-def test_normals_match_numpy_path(scene_runs):
+def test_normals_match_numpy_path(scene_points):
     rng = np.random.default_rng(4)
     clouds = [rng.normal(0, 1, (800, 3)).astype(np.float32) * np.float32([1, 0.5, 0.1]),
               plane_cloud(rng, 800, (0.3, -0.2, 0.9), 0.001) + np.float32(500.0)]
-    clouds += [scene_runs[name, '0'].voxel_points for name in PIPELINE_SCENES]
+    clouds += [scene_points[name] for name in PIPELINE_SCENES]
     for points in clouds:
         nb = jit_knn.knn_grid(points, 13)
         for n in (3, 10, 13):
@@ -197,13 +191,3 @@ def test_normals_reject_bad_neighbours():
         jit_knn.normals_from_neighbours(points, np.zeros((4, 2), np.int64), 3)
     with pytest.raises(ValueError, match='shape'):
         jit_knn.normals_from_neighbours(points, np.zeros((3, 2), np.int64), 2)
-
-
-@pytest.mark.parametrize('name', PIPELINE_SCENES)
-def test_pipeline_identical_with_and_without_jit(scene_runs, name):
-    fast, slow = scene_runs[name, '0'], scene_runs[name, '1']
-    assert fast.voxel_points.shape[0] > 1000
-    np.testing.assert_array_equal(fast.labels, slow.labels)
-    np.testing.assert_array_equal(fast.costmap.data, slow.costmap.data)
-    np.testing.assert_array_equal(fast.voxel_is_obstacle, slow.voxel_is_obstacle)
-    np.testing.assert_array_equal(fast.voxel_normals, slow.voxel_normals)

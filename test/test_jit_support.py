@@ -12,10 +12,6 @@ import pytest
 
 from obstacle_detection.pipeline import jit as jit_support
 
-needs_compiled = pytest.mark.skipif(not jit_support.enabled(),
-                                    reason='numba is not installed or switched off')
-
-
 @pytest.mark.parametrize('value, on', [(None, True), ('', True), ('0', True), ('1', False),
                                        ('yes', False)])
 def test_the_switch_follows_the_environment(value, on, monkeypatch) -> None:
@@ -30,14 +26,18 @@ def test_the_switch_follows_the_environment(value, on, monkeypatch) -> None:
 
 @pytest.fixture
 def fresh_gate(monkeypatch: pytest.MonkeyPatch) -> threading.Event:
-    """Give this test a gate of its own, so a failed compilation cannot leak out."""
+    """Give this test a gate of its own, so a failed compilation cannot leak out.
+
+    The compiled path is on (not switched off by the environment).
+    """
+    monkeypatch.delenv(jit_support.NO_JIT_ENV, raising=False)
     gate = threading.Event()
     gate.set()
     monkeypatch.setattr(jit_support, '_kernels_ready', gate)
     return gate
 
 
-@needs_compiled
+@pytest.mark.numba
 def test_other_threads_take_the_numpy_path_while_compiling(fresh_gate: threading.Event) -> None:
     release = threading.Event()
     seen_inside: list[bool] = []
@@ -63,7 +63,7 @@ def test_other_threads_take_the_numpy_path_while_compiling(fresh_gate: threading
     assert not jit_support.compiling()
 
 
-@needs_compiled
+@pytest.mark.numba
 def test_a_failed_compilation_keeps_the_numpy_path_and_says_why(
         fresh_gate: threading.Event) -> None:
     finished: list[jit_support.BackgroundCompile] = []
@@ -78,10 +78,37 @@ def test_a_failed_compilation_keeps_the_numpy_path_and_says_why(
     assert not jit_support.enabled()
 
 
-@needs_compiled
+@pytest.mark.numba
 def test_nothing_starts_when_the_compiled_path_is_switched_off(
         fresh_gate: threading.Event, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv(jit_support.NO_JIT_ENV, '1')
     ran: list[int] = []
     assert jit_support.compile_in_background(lambda: ran.append(1)) is None
     assert ran == [] and fresh_gate.is_set()
+
+
+def _twice(x: int) -> int:
+    """Return 2 x."""
+    return 2 * x
+
+
+def _twice_compiled(x: int) -> int:
+    return x + x + 1000   # marks which twin ran
+
+
+def test_choose_runs_the_compiled_twin_only_when_the_switch_is_on(monkeypatch) -> None:
+    both = jit_support.choose(_twice, _twice_compiled)
+    assert (both.reference, both.compiled) == (_twice, _twice_compiled)
+    assert both.__name__ == '_twice_compiled' and both.__doc__ == _twice.__doc__
+    monkeypatch.setenv(jit_support.NO_JIT_ENV, '1')
+    assert both(3) == 6
+    monkeypatch.setenv(jit_support.NO_JIT_ENV, '0')
+    assert both(3) == (1006 if jit_support.AVAILABLE else 6)
+
+
+@pytest.mark.numba
+def test_choose_asks_accepts_before_calling_the_compiled_twin(monkeypatch) -> None:
+    monkeypatch.setenv(jit_support.NO_JIT_ENV, '0')
+    small = jit_support.choose(_twice, _twice_compiled, accepts=lambda x: x < 10)
+    assert small(3) == 1006
+    assert small(30) == 60

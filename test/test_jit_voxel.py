@@ -6,25 +6,16 @@ import numpy as np
 import pytest
 
 from obstacle_detection.labels import LABEL_GROUND
-from obstacle_detection.pipeline import geometry, jit, voxel
+from obstacle_detection.pipeline import geometry, voxel
 from obstacle_detection.pipeline._compiled import voxel as jit_voxel
 from obstacle_detection.pipeline.depth import crop_borders, decode_depth
 from obstacle_detection.pipeline.median import median_filter
 from obstacle_detection.pipeline.params import DetectorParams, Intrinsics, table_4_2, table_4_3
 from obstacle_detection.pipeline.detector import Detector
 from obstacle_detection.sim.scenes import render_scene, scene_params
-from obstacle_detection.pipeline.voxel import VoxelGrid, voxel_downsample, voxel_downsample_numpy
+from obstacle_detection.pipeline.voxel import voxel_downsample
 
-pytestmark = pytest.mark.skipif(not jit_voxel.AVAILABLE, reason='numba is not installed')
-
-GRID_FIELDS = ('centroids', 'point_voxel', 'counts', 'voxel_ijk')
-
-
-def assert_same_grid(expected, got):
-    for name in GRID_FIELDS:
-        a, b = getattr(expected, name), getattr(got, name)
-        assert a.dtype == b.dtype and a.shape == b.shape, name
-        np.testing.assert_array_equal(a, b, err_msg=name)
+pytestmark = pytest.mark.numba
 
 
 def project(depth_m, rays, params, reuse=False):
@@ -33,9 +24,13 @@ def project(depth_m, rays, params, reuse=False):
                                  reuse=reuse)
 
 
-def assert_same_frame(depth_m, rays, params, monkeypatch):
-    """Check numpy ROI + voxel_downsample == project_roi + voxelise, bit for bit."""
-    pts, pix, valid = geometry.ground_points_in_roi(depth_m, rays, params)
+def assert_same_frame(depth_m, rays, params, both_paths):
+    """Check the stage's two paths (points, pixels, voxels, labels) bit for bit.
+
+    And the compiled projection, with and without its reused buffers, against the numpy path.
+    """
+    ref = voxel.points_in_roi.reference(depth_m, rays, params)
+    pts, pix, valid = ref.points, ref.pixel_index, ref.labels.reshape(-1) != 0
     for reuse in (False, True):
         proj = project(depth_m, rays, params, reuse=reuse)
         np.testing.assert_array_equal(proj.points, pts)
@@ -44,56 +39,37 @@ def assert_same_frame(depth_m, rays, params, monkeypatch):
         flat = proj.labels.reshape(-1)
         np.testing.assert_array_equal(flat != 0, valid)
         np.testing.assert_array_equal(np.flatnonzero(flat == LABEL_GROUND), pix)
-        grid = voxel.voxelise(proj)
-        expected = voxel_downsample_numpy(pts, params.voxel_size_m)
-        assert_same_grid(expected, grid)
-        pixel_voxel = np.full(depth_m.size, -1, np.int32)
-        pixel_voxel[pix] = expected.point_voxel
-        np.testing.assert_array_equal(proj.pixel_voxel.reshape(-1), pixel_voxel)
-    # The stage's two paths: same points, pixels, voxels and labels.
-    is_obstacle = np.arange(expected.counts.size) % 3 == 0
-    outputs = {}
-    for flag in ('0', '1'):
-        monkeypatch.setenv(jit.NO_JIT_ENV, flag)
+
+    def stage():
         roi = voxel.points_in_roi(depth_m, rays, params)
-        assert (roi.projection is not None) is (flag == '0')
         grid = voxel.voxel_grid(roi)
-        outputs[flag] = (roi.points, roi.pixel_index, grid,
-                         *voxel.pixel_labels(roi, grid, is_obstacle))
-    monkeypatch.delenv(jit.NO_JIT_ENV)
-    compiled, numpy_path = outputs['0'], outputs['1']
-    for a, b in zip(compiled[:2], numpy_path[:2]):
-        np.testing.assert_array_equal(a, b)
-    assert_same_grid(numpy_path[2], compiled[2])
-    for a, b in zip(compiled[3:], numpy_path[3:]):
-        assert a.dtype == b.dtype
-        np.testing.assert_array_equal(a, b)
+        is_obstacle = np.arange(grid.counts.size) % 3 == 0
+        return roi.points, roi.pixel_index, grid, *voxel.pixel_labels(roi, grid, is_obstacle)
+
+    both_paths(stage)
     return pts.shape[0]
 
 
 @pytest.mark.parametrize('dtype', [np.float32, np.float64])
-def test_voxel_downsample_matches_numpy_on_random_clouds(dtype):
+def test_voxel_downsample_matches_numpy_on_random_clouds(dtype, both_paths):
     rng = np.random.default_rng(5)
     for n, spread, size in [(1, 1.0, (0.1, 0.1, 0.1)), (7, 0.05, (0.025,) * 3),
                             (5000, 2.0, (0.2, 0.25, 0.3)), (20000, 3.0, (0.025, 0.03, 0.05))]:
         pts = rng.uniform(-spread, spread, (n, 3)).astype(dtype)
-        got = VoxelGrid(*jit_voxel.voxel_downsample(pts, size))
-        assert_same_grid(voxel_downsample_numpy(pts, size), got)
-        assert_same_grid(voxel_downsample_numpy(pts, size), voxel_downsample(pts, size))
+        both_paths(voxel_downsample, pts, size)
 
 
-def test_voxel_downsample_points_on_voxel_boundaries():
+def test_voxel_downsample_points_on_voxel_boundaries(both_paths):
     size = (0.025, 0.05, 0.1)
     steps = np.arange(-8, 9)
     pts = np.stack(np.meshgrid(steps * np.float32(0.025), steps * np.float32(0.05),
                                steps * np.float32(0.1)), -1).reshape(-1, 3).astype(np.float32)
     pts = np.vstack([pts, np.nextafter(pts, np.float32(-np.inf)),
                      np.nextafter(pts, np.float32(np.inf))])
-    assert_same_grid(voxel_downsample_numpy(pts, size),
-                     VoxelGrid(*jit_voxel.voxel_downsample(pts, size)))
+    both_paths(voxel_downsample, pts, size)
 
 
-def test_voxel_numbers_across_the_bitmap_words():
+def test_voxel_numbers_across_the_bitmap_words(both_paths):
     """Cells at either end of a 64-cell word of the occupied bitmap, a full word, lone cells.
 
     Points on a line along z (the fastest axis: linear key = cell index), several per cell in
@@ -106,58 +82,63 @@ def test_voxel_numbers_across_the_bitmap_words():
     z = (np.repeat(cells, 3) + rng.uniform(0.1, 0.9, 3 * cells.size)) * 0.01
     pts = np.stack([np.full(z.size, 0.05), np.full(z.size, 0.05), z], 1).astype(np.float32)
     pts = pts[rng.permutation(pts.shape[0])]
-    got = VoxelGrid(*jit_voxel.voxel_downsample(pts, size))
-    assert_same_grid(voxel_downsample_numpy(pts, size), got)
+    got = both_paths(voxel_downsample, pts, size)
     np.testing.assert_array_equal(got.voxel_ijk[:, 2], np.unique(cells))
     assert (got.counts == 3).all()
 
 
-def test_voxel_downsample_falls_back_when_the_lattice_is_huge_or_nan():
+def test_huge_or_nan_lattices_go_to_numpy(both_paths):
+    """The compiled kernel refuses them; the stage sends them to numpy before calling it."""
     pts = np.array([[0.0, 0.0, 0.0], [1e4, 1e4, 1e4]], np.float32)
-    assert jit_voxel.voxel_downsample(pts, (0.01,) * 3) is None
-    assert_same_grid(voxel_downsample_numpy(pts, (0.01,) * 3), voxel_downsample(pts, (0.01,) * 3))
-    assert jit_voxel.voxel_downsample(np.array([[np.nan, 0, 0]], np.float32), (0.1,) * 3) is None
+    with pytest.raises(ValueError, match='lattice cells'):
+        jit_voxel.voxel_downsample(pts, (0.01,) * 3)
+    assert both_paths(voxel_downsample, pts, (0.01,) * 3).counts.tolist() == [1, 1]
+    with pytest.raises(ValueError, match='NaN'):
+        jit_voxel.voxel_downsample(np.array([[np.nan, 0, 0]], np.float32), (0.1,) * 3)
 
 
 @pytest.mark.parametrize('preset', [table_4_2, table_4_3])
 @pytest.mark.parametrize('name', ['corridor', 'people', 'ramps', 'farm_row', 'step_down',
                                   'pitched_floor'])
-def test_scene_frames_match_numpy(name, preset, monkeypatch):
+def test_scene_frames_match_numpy(name, preset, both_paths):
     frame = render_scene(name, seed=1)
     params = scene_params(frame, preset())
     depth = decode_depth(frame.depth_mm)
     if params.median_kernel > 1:
         depth = median_filter(depth, 5)
     rays = geometry.ground_rays(depth.shape, frame.intrinsics, params)
-    kept = assert_same_frame(depth, rays, params, monkeypatch)
+    kept = assert_same_frame(depth, rays, params, both_paths)
     assert kept > 1000 or preset is table_4_3   # 4.3's 1 m range may see nothing
 
 
 @pytest.mark.parametrize('pitch_deg, roll_deg, crop', [(0.0, 0.0, (0, 0, 0, 0)),
                                                        (25.0, 4.0, (20, 30, 10, 40)),
                                                        (-5.0, -8.0, (0, 100, 60, 0))])
-def test_mount_and_crop_match_numpy(pitch_deg, roll_deg, crop, monkeypatch):
+def test_mount_and_crop_match_numpy(pitch_deg, roll_deg, crop, both_paths):
     frame = render_scene('corridor', pitch_rad=math.radians(pitch_deg),
                          roll_rad=math.radians(roll_deg))
     params = scene_params(frame, table_4_2(crop_top_px=crop[0], crop_bottom_px=crop[1],
                                            crop_left_px=crop[2], crop_right_px=crop[3]))
     depth = crop_borders(decode_depth(frame.depth_mm), *crop)
     rays = geometry.ground_rays(depth.shape, frame.intrinsics, params)
-    assert_same_frame(depth, rays, params, monkeypatch)
+    assert_same_frame(depth, rays, params, both_paths)
 
 
-def test_empty_and_all_outside_frames(monkeypatch):
+def test_empty_and_all_outside_frames(both_paths):
     params = DetectorParams(camera_height_m=0.5, max_range_m=2.0)
     intr = Intrinsics(fx=50.0, fy=50.0, cx=8.0, cy=6.0)
     rays = geometry.ground_rays((12, 16), intr, params)
     for depth in (np.zeros((12, 16), np.float32), np.full((12, 16), 9.0, np.float32)):
-        assert assert_same_frame(depth, rays, params, monkeypatch) == 0
+        assert assert_same_frame(depth, rays, params, both_paths) == 0
         proj = project(depth, rays, params)
-        assert voxel.voxelise(proj).centroids.shape == (0, 3)
-        assert (proj.pixel_voxel == -1).all()
+        with pytest.raises(ValueError, match='no point'):
+            jit_voxel.voxelise(proj)
+        roi = voxel.points_in_roi(depth, rays, params)
+        assert voxel.voxel_grid(roi).centroids.shape == (0, 3)
+        assert (roi.pixel_voxel == -1).all()
 
 
-def test_roi_and_voxel_boundaries_and_negative_coordinates(monkeypatch):
+def test_roi_and_voxel_boundaries_and_negative_coordinates(both_paths):
     """Depths chosen so that points land exactly on the ROI bounds and voxel faces."""
     params = DetectorParams(camera_height_m=0.5, max_range_m=2.0, min_range_m=0.5,
                             lateral_limit_m=1.0, tdbg_m=-0.1, smar_m=0.8)
@@ -174,8 +155,8 @@ def test_roi_and_voxel_boundaries_and_negative_coordinates(monkeypatch):
     depth = np.where(rng.random(h * w) < 0.3, np.nextafter(depth, np.float32(0)), depth)
     depth[::17] = 0.0
     depth = depth.reshape(h, w)
-    m = assert_same_frame(depth, rays, params, monkeypatch)
-    pts, _, _ = geometry.ground_points_in_roi(depth, rays, params)
+    m = assert_same_frame(depth, rays, params, both_paths)
+    pts = voxel.points_in_roi.reference(depth, rays, params).points
     assert m > 100 and (pts[:, 1] < 0).any() and (pts[:, 2] < 0).any()
     on_bound = (pts[:, 0] == np.float32(0.5)) | (pts[:, 0] == np.float32(2.0))
     assert on_bound.any()
@@ -192,17 +173,16 @@ def test_roi_lattice_holds_the_bounds():
     assert low[1] == math.floor(-params.lateral_limit_m / 0.025)
 
 
+def _outputs(params, frame):
+    """Return the outputs of one frame that do not depend on the clock."""
+    result = Detector(params).process(frame.depth_mm, frame.intrinsics)
+    return (result.obstacle_points, result.ground_points, result.labels, result.voxel_points,
+            result.voxel_normals, result.voxel_is_obstacle, result.voxel_slope_obstacle,
+            result.pixel_voxel, result.voxel_neighbours, result.costmap)
+
+
 @pytest.mark.parametrize('name', ['corridor', 'people', 'farm_row'])
-def test_pipeline_identical_with_and_without_jit(name, monkeypatch):
+def test_pipeline_identical_with_and_without_jit(name, both_paths):
     frame = render_scene(name, seed=2)
-    params = scene_params(frame, table_4_2())
-    compiled = Detector(params).process(frame.depth_mm, frame.intrinsics)
-    monkeypatch.setenv(jit.NO_JIT_ENV, '1')
-    ref = Detector(params).process(frame.depth_mm, frame.intrinsics)
-    for field in ('obstacle_points', 'ground_points', 'labels', 'voxel_points',
-                  'voxel_normals', 'voxel_is_obstacle', 'voxel_slope_obstacle', 'pixel_voxel'):
-        a, b = getattr(ref, field), getattr(compiled, field)
-        assert a.dtype == b.dtype, field
-        np.testing.assert_array_equal(a, b, err_msg=field)
-    np.testing.assert_array_equal(ref.costmap.data, compiled.costmap.data)
-    assert ref.costmap.origin_xy_m == compiled.costmap.origin_xy_m
+    obstacles = both_paths(_outputs, scene_params(frame, table_4_2()), frame)[0]
+    assert obstacles.shape[0] > 100

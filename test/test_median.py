@@ -1,15 +1,13 @@
 """Tests of obstacle_detection.pipeline.median: every path equals scipy's median filter.
 
-The tests that take the ``median_path`` fixture run twice: with the compiled kernel of
-:mod:`obstacle_detection.pipeline._compiled.median` ('compiled', skipped without numba) and
-with the numpy / OpenCV code (``OBSTACLE_DETECTION_NO_JIT=1``).
+The tests that take the ``kernel_path`` fixture (test/conftest.py) run twice: with the
+compiled kernel ('compiled', skipped without numba) and with the numpy / OpenCV code.
 """
 
 import numpy as np
 import pytest
 
-from obstacle_detection.pipeline import jit, median
-from obstacle_detection.pipeline._compiled import median as compiled
+from obstacle_detection.pipeline import median
 from obstacle_detection.pipeline.depth import DepthFormatError, decode_depth, depth_lut
 from obstacle_detection.pipeline.median import median_filter, median_of_codes, reference_median
 from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE
@@ -18,20 +16,6 @@ from obstacle_detection.sim.scenes import render_scene
 KERNELS = (1, 3, 5, 7, 17, 21)
 # Sizes smaller than K (down to 1 x 1), odd sizes and one larger than two bands of rows.
 SIZES = [(1, 1), (1, 6), (5, 1), (3, 4), (8, 13), (17, 16), (23, 31), (61, 70)]
-
-
-@pytest.fixture(params=['compiled', 'numpy'])
-def median_path(request, monkeypatch) -> str:
-    """Run the test with the compiled median or with the numpy / OpenCV code."""
-    if request.param == 'compiled':
-        if not compiled.AVAILABLE:
-            pytest.skip('numba is not installed')
-        monkeypatch.delenv(jit.NO_JIT_ENV, raising=False)
-        assert jit.enabled()
-    else:
-        monkeypatch.setenv(jit.NO_JIT_ENV, '1')
-        assert not jit.enabled()
-    return request.param
 
 
 def depth_mm_image(rng: np.random.Generator, shape: tuple[int, int],
@@ -70,7 +54,7 @@ def sample_images(rng: np.random.Generator, shape: tuple[int, int]) -> dict[str,
 
 
 @pytest.mark.parametrize('shape', SIZES)
-def test_median_equals_the_reference(shape, median_path) -> None:
+def test_median_equals_the_reference(shape, kernel_path) -> None:
     rng = np.random.default_rng(sum(shape))
     for name, img in sample_images(rng, shape).items():
         for k in KERNELS:
@@ -86,7 +70,7 @@ _REFERENCE_CACHE: dict = {}
 
 
 @pytest.mark.parametrize('name', ['corridor', 'people', 'farm_row'])
-def test_median_of_kinect_frames_equals_the_reference(name, median_path) -> None:
+def test_median_of_kinect_frames_equals_the_reference(name, kernel_path) -> None:
     frame = render_scene(name, seed=1, intrinsics=KINECT_V2_SD, size=KINECT_V2_SD_SIZE)
     for k in (5, 17):
         key = (name, k)
@@ -100,7 +84,7 @@ def test_median_of_kinect_frames_equals_the_reference(name, median_path) -> None
 
 
 @pytest.mark.parametrize('k', [3, 5, 7, 17])
-def test_median_of_codes_is_the_median_of_the_decoded_depth(k, median_path) -> None:
+def test_median_of_codes_is_the_median_of_the_decoded_depth(k, kernel_path) -> None:
     rng = np.random.default_rng(k)
     codes = rng.integers(0, 9000, (30, 37)).astype(np.uint16)
     codes[rng.random(codes.shape) < 0.3] = 0
@@ -111,28 +95,28 @@ def test_median_of_codes_is_the_median_of_the_decoded_depth(k, median_path) -> N
         np.testing.assert_array_equal(got, reference_median(table[codes], k))
 
 
-def test_median_k1_is_a_copy(median_path) -> None:
+def test_median_k1_is_a_copy(kernel_path) -> None:
     img = np.arange(12, dtype=np.float32).reshape(3, 4)
     out = median_filter(img, 1)
     np.testing.assert_array_equal(out, img)
     assert not np.shares_memory(out, img)
 
 
-def test_median_fills_isolated_pepper_zero(median_path) -> None:
+def test_median_fills_isolated_pepper_zero(kernel_path) -> None:
     img = np.full((9, 11), 1.5, np.float32)
     img[4, 5] = 0.0
     for k in (3, 5, 7):
         np.testing.assert_array_equal(median_filter(img, k), np.full_like(img, 1.5))
 
 
-def test_median_removes_isolated_valid_pixel_among_zeros(median_path) -> None:
+def test_median_removes_isolated_valid_pixel_among_zeros(kernel_path) -> None:
     img = np.zeros((9, 9), np.float32)
     img[4, 4] = 2.0
     for k in (3, 7):
         assert not median_filter(img, k).any()
 
 
-def test_median_does_not_modify_input(median_path) -> None:
+def test_median_does_not_modify_input(kernel_path) -> None:
     img = depth_mm_image(np.random.default_rng(2), (20, 20))
     before = img.copy()
     for k in (5, 7):
@@ -160,9 +144,6 @@ def test_median_rejects_bad_image(img) -> None:
         median_filter(img, 3)
 
 
-def test_warm_up(monkeypatch) -> None:
-    monkeypatch.setenv(jit.NO_JIT_ENV, '1')
-    assert median.warm_up() == 0.0
-    monkeypatch.delenv(jit.NO_JIT_ENV)
+def test_warm_up(kernel_path) -> None:
     seconds = median.warm_up()
-    assert seconds >= 0.0 and (seconds > 0.0) is compiled.AVAILABLE
+    assert seconds >= 0.0 and (seconds > 0.0) is (kernel_path == 'compiled')

@@ -1,7 +1,7 @@
 """Normals, slope test and validation against geometry whose answer is known.
 
-Every test runs twice: on the numpy/scipy path and on the compiled (numba) path, which is
-skipped where numba is not installed.
+Every test runs twice (the ``kernel_path`` fixture of test/conftest.py): on the numpy/scipy
+path and on the compiled (numba) path, which is skipped where numba is not installed.
 """
 
 import math
@@ -10,22 +10,13 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from obstacle_detection.pipeline import jit
 from obstacle_detection.pipeline._compiled import knn as jit_knn
-from obstacle_detection.pipeline.normals import (_nearest_neighbours_scipy, estimate_normals,
-                                                 nearest_neighbours, neighbourhood_covariance,
-                                                 smallest_eigenvectors, slope_obstacles,
-                                                 validate_obstacles)
+from obstacle_detection.pipeline.normals import (estimate_normals, nearest_neighbours,
+                                                 neighbourhood_covariance, smallest_eigenvectors,
+                                                 slope_obstacles, validate_obstacles)
 
 
-@pytest.fixture(autouse=True, params=['numpy', 'jit'])
-def kernel_path(request, monkeypatch):
-    """Run the test on one path: numpy/scipy (``OBSTACLE_DETECTION_NO_JIT=1``) or numba."""
-    if request.param == 'jit' and not jit_knn.AVAILABLE:
-        pytest.skip('numba is not installed')
-    monkeypatch.setenv(jit.NO_JIT_ENV, '1' if request.param == 'numpy' else '0')
-    assert jit.enabled() == (request.param == 'jit')
-    return request.param
+pytestmark = pytest.mark.usefixtures('kernel_path')   # test/conftest.py: both paths
 
 
 def plane_points(normal, n=400, seed=0, spread=1.0, noise=0.0):
@@ -160,14 +151,14 @@ def test_equal_distances_are_ordered_by_index_self_first():
     for pts in (lattice, np.vstack([twins, twins])):
         ref = brute_force_order(pts, 13)
         np.testing.assert_array_equal(nearest_neighbours(pts, 13), ref)
-        np.testing.assert_array_equal(_nearest_neighbours_scipy(pts, 13), ref)
+        np.testing.assert_array_equal(nearest_neighbours.reference(pts, 13), ref)
 
 
 def test_covariance_sums_in_column_order_in_float64():
     """The covariance equals a per-point loop summing the neighbours in order, bit for bit."""
     rng = np.random.default_rng(12)
     pts = (rng.normal(0, 0.02, (60, 3)) + [3000.0, -2000.0, 1.0]).astype(np.float32)
-    nb = _nearest_neighbours_scipy(pts, 10)
+    nb = nearest_neighbours.reference(pts, 10)
     cov = neighbourhood_covariance(pts, nb)
     for i in range(pts.shape[0]):
         rel = pts[nb[i]].astype(np.float64) - pts[i].astype(np.float64)
@@ -183,13 +174,12 @@ def test_covariance_sums_in_column_order_in_float64():
     np.testing.assert_allclose(cov, ref, rtol=1e-9, atol=1e-15)
 
 
+@pytest.mark.numba
 def test_paths_agree_on_normals():
     """The compiled and the numpy normals are the same (to the last bit where libm agrees)."""
-    if not jit_knn.AVAILABLE:
-        pytest.skip('numba is not installed')
     rng = np.random.default_rng(13)
     pts = rng.normal(0, 1, (500, 3)).astype(np.float32) * np.float32([1.0, 0.6, 0.05])
-    nb = _nearest_neighbours_scipy(pts, 10)
+    nb = nearest_neighbours.reference(pts, 10)
     numpy_normals = smallest_eigenvectors(neighbourhood_covariance(pts, nb)).astype(np.float32)
     np.testing.assert_allclose(jit_knn.normals_from_neighbours(pts, nb, 10), numpy_normals,
                                atol=1e-6)

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from obstacle_detection.pipeline import jit, normals
+from obstacle_detection.pipeline import normals
 from obstacle_detection.pipeline._compiled import knn as jit_knn
 from obstacle_detection.pipeline._compiled import median as jit_median
 from obstacle_detection.pipeline._compiled import traversal as jit_traversal
@@ -11,13 +11,6 @@ from obstacle_detection.pipeline.depth import decode_depth
 from obstacle_detection.pipeline.detector import Detector
 from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE, corridor
 from obstacle_detection.sim.scenes import render_scene
-
-compiled = pytest.mark.skipif(not jit_median.AVAILABLE, reason='numba is not installed')
-
-
-@pytest.fixture(autouse=True)
-def _compiled_path(monkeypatch):
-    monkeypatch.delenv(jit.NO_JIT_ENV, raising=False)
 
 
 @pytest.mark.parametrize('bad, words', [(0, 'out of range'), (9, 'out of range'),
@@ -49,20 +42,17 @@ def test_detector_outputs_do_not_depend_on_compute_threads(scene) -> None:
     assert one.obstacle_points.shape[0] > 0
 
 
-def test_validation_compiled_equals_the_definition() -> None:
+def test_validation_equals_the_definition(kernel_path: str) -> None:
     rng = np.random.default_rng(7)
     flags = rng.random(500) < 0.7
     neighbours = np.column_stack((np.arange(500), rng.integers(0, 500, (500, 12))))
     expected = np.array([flags[v] and all(flags[neighbours[v, 1:13]]) for v in range(500)])
     assert 0 < expected.sum() < 500 and not np.array_equal(expected, flags)
     np.testing.assert_array_equal(normals.validate_obstacles(flags, neighbours, 12), expected)
-    if jit_knn.AVAILABLE:
-        np.testing.assert_array_equal(jit_knn.validate(flags, neighbours, 12), expected)
-        bad = neighbours.copy()
-        bad[3, 5] = 500
-        assert jit_knn.validate(flags, bad, 12) is None
-        with pytest.raises(IndexError):
-            normals.validate_obstacles(flags, bad, 12)
+    bad = neighbours.copy()
+    bad[3, 5] = 500
+    with pytest.raises(IndexError):
+        normals.validate_obstacles(flags, bad, 12)
 
 
 def test_threaded_detector_refuses_what_the_decode_refuses() -> None:
@@ -116,7 +106,7 @@ print(sorted(k.py_func.__name__ for k, n in after.items() if n != before.get(k, 
 """
 
 
-@compiled
+@pytest.mark.numba
 def test_warm_up_compiles_every_kernel_a_threaded_frame_runs() -> None:
     """After Detector.warm_up no frame compiles anything.
 

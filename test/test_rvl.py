@@ -15,7 +15,6 @@ import pytest
 from builtin_interfaces.msg import Time
 from rvl_encoder import encode_rvl, rvl_message
 
-from obstacle_detection.pipeline import jit as jit_support
 from obstacle_detection.ros import frame_gate, rvl
 from message_helpers import array_to_compressed_depth
 from obstacle_detection.ros.compressed_depth import (
@@ -27,7 +26,7 @@ from obstacle_detection.ros.compressed_depth import (
 STAMP = Time(sec=1700000000, nanosec=5)
 RNG_SEED = 20261202
 DECODERS: dict[str, Callable[[bytes, int], np.ndarray]] = {
-    'numpy': rvl.decode_rvl_numpy, 'compiled': rvl.decode_rvl_compiled}
+    'numpy': rvl.decode_rvl.reference, 'compiled': rvl.decode_rvl.compiled}
 
 
 def _runs(rng: np.random.Generator, size: int, zero_share: float = 0.3,
@@ -85,15 +84,13 @@ def test_compiled_and_numpy_decoders_agree_on_many_streams() -> None:
         size = int(rng.integers(0, 600))
         pixels = _runs(rng, size, float(rng.random()), int(rng.integers(1, 65536)))
         stream = encode_rvl(pixels)
-        np.testing.assert_array_equal(rvl.decode_rvl_compiled(stream, size),
-                                      rvl.decode_rvl_numpy(stream, size))
+        np.testing.assert_array_equal(rvl.decode_rvl.compiled(stream, size),
+                                      rvl.decode_rvl.reference(stream, size))
 
 
-def test_the_switch_picks_the_kernel_or_numpy(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_decode_rvl_on_either_path(kernel_path: str) -> None:
     pixels = _runs(np.random.default_rng(RNG_SEED), 500)
     stream = encode_rvl(pixels)
-    monkeypatch.setenv(jit_support.NO_JIT_ENV, '1')
-    monkeypatch.setattr(rvl, 'decode_rvl_compiled', None)         # would fail if called
     np.testing.assert_array_equal(rvl.decode_rvl(stream, pixels.size), pixels)
 
 

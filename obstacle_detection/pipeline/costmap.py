@@ -66,6 +66,27 @@ def costmap_geometry(params: DetectorParams) -> tuple[tuple[float, float], int, 
     return origin, nx, ny
 
 
+def _reference_rasterise(flat: np.ndarray, points: np.ndarray, value: int,
+                         origin_xy_m: tuple[float, float], resolution_m: float, nx: int,
+                         ny: int) -> None:
+    """Write ``value`` into the cells of ``flat`` ((ny * nx,) int8) that ``points`` hit.
+
+    points: (M, >= 2) ground frame [m]; points outside the nx x ny grid are ignored.
+    """
+    grid = Costmap(flat.reshape(ny, nx), resolution_m, origin_xy_m)
+    row, col, inside = grid.cell_of(points)
+    flat[row[inside] * nx + col[inside]] = value
+
+
+def _float_points(flat: np.ndarray, points: np.ndarray, *args: object) -> bool:
+    """Return True for the points the compiled rasterisation takes: (M, >= 2) float32/64."""
+    return points.dtype in (np.float32, np.float64) and points.ndim == 2 and points.shape[1] >= 2
+
+
+# compiled: the same cells, 0.3 ms of numpy temporaries less
+rasterise = jit.choose(_reference_rasterise, jit_costmap.rasterise, accepts=_float_points)
+
+
 def build_costmap(obstacle_points: np.ndarray, ground_points: np.ndarray,
                   params: DetectorParams) -> Costmap:
     """Project points orthogonally onto the ground plane (seed: p(x, y, z) -> p(x, y)).
@@ -78,20 +99,13 @@ def build_costmap(obstacle_points: np.ndarray, ground_points: np.ndarray,
     grid = Costmap(np.full((ny, nx), CELL_UNKNOWN, dtype=np.int8),
                    params.costmap_resolution_m, origin)
     flat = grid.data.reshape(-1)
-    compiled = jit.enabled()
     for points, value in ((ground_points, CELL_FREE), (obstacle_points, CELL_OCCUPIED)):
-        if points.shape[0] == 0:
-            continue
-        if compiled and jit_costmap.rasterise(flat, points, value, origin,
-                                              params.costmap_resolution_m, nx, ny):
-            continue   # the same cells (0.3 ms of numpy temporaries less)
-        row, col, inside = grid.cell_of(points)
-        flat[row[inside] * nx + col[inside]] = value
+        if points.shape[0]:
+            rasterise(flat, points, value, origin, params.costmap_resolution_m, nx, ny)
     return grid
 
 
 def warm_up() -> None:
     """Compile (or load from numba's disk cache) the rasterisation kernel, if it runs."""
-    if jit.enabled():
-        jit_costmap.rasterise(np.zeros(4, np.int8), np.zeros((1, 3), np.float32), CELL_FREE,
-                              (0.0, 0.0), 1.0, 2, 2)
+    rasterise(np.zeros(4, np.int8), np.zeros((1, 3), np.float32), CELL_FREE, (0.0, 0.0), 1.0,
+              2, 2)

@@ -141,6 +141,55 @@ class Detector:
         p = self.params
         intr = intrinsics if intrinsics is not None else SEED_TABLE_4_1
         clock = _Clock()
+        depth_m = self._filtered_depth(depth, depth_scale, clock)
+        rays, fit, run = self._frame_mount(depth_m, intr)
+        clock.lap('floor')
+        roi = voxel.points_in_roi(depth_m, rays, run)
+        clock.lap('back_project')
+        grid = voxel.voxel_grid(roi)
+        centroids = grid.centroids
+        clock.lap('voxel')
+        k = max(p.normal_neighbours, p.validation_neighbours + 1)
+        neighbours = nearest_neighbours(centroids, k)
+        clock.lap('knn')
+        n_cols = min(p.normal_neighbours, neighbours.shape[1])
+        normals = estimate_normals(centroids, neighbours[:, :n_cols])
+        clock.lap('normals')
+        steep = slope_obstacles(normals, p.cos_max_slope)
+        if p.max_ground_height_m > 0.0 and not p.robot_level:
+            steep |= centroids[:, 2] > np.float32(p.max_ground_height_m)
+        clock.lap('slope')
+        candidates, heights, ledge, drop_points, drop_pixels = self._robot_level(
+            depth_m, rays, run, centroids, steep, clock)
+        is_obstacle = validate_obstacles(candidates, neighbours, p.validation_neighbours)
+        if ledge is not None:
+            is_obstacle |= ledge   # a band one cell wide, as a drop edge: not validated
+        clock.lap('validation')
+        obstacle_points = centroids[is_obstacle]
+        if drop_points.shape[0]:
+            obstacle_points = np.concatenate((obstacle_points, drop_points))
+        ground_points = centroids[~is_obstacle]
+        # outputs in the robot's base frame (the camera's x, y and yaw on the robot)
+        obstacle_points = geometry.to_base_frame(obstacle_points, p)
+        ground_points = geometry.to_base_frame(ground_points, p)
+        costmap = build_costmap(obstacle_points, ground_points, p)
+        clock.lap('costmap')
+
+        labels, pixel_voxel = voxel.pixel_labels(roi, grid, is_obstacle)
+        if drop_pixels.size:
+            labels.reshape(-1)[drop_pixels] = LABEL_OBSTACLE
+        clock.lap('labels')
+        return DetectionResult(
+            obstacle_points=obstacle_points, ground_points=ground_points, labels=labels,
+            costmap=costmap, timings_ms=clock.finish(), voxel_points=centroids,
+            voxel_normals=normals, voxel_slope_obstacle=candidates, voxel_is_obstacle=is_obstacle,
+            voxel_neighbours=neighbours, pixel_voxel=pixel_voxel, depth_m=depth_m, intrinsics=intr,
+            floor=fit, voxel_height_m=heights, drop_points=drop_points)
+
+    def _filtered_depth(self, depth: np.ndarray, depth_scale: float | None,
+                        clock: _Clock) -> np.ndarray:
+        """Decode, crop, median-filter and (robot level) un-smear a frame: (H, W) float32 [m]."""
+        p = self.params
         # uint16 input: the median runs on its codes (the same result, see median_of_codes)
         codes = _uint16_codes(depth) if p.median_kernel > 1 else None
         crop = (p.crop_top_px, p.crop_bottom_px, p.crop_left_px, p.crop_right_px)
@@ -163,7 +212,12 @@ class Detector:
             depth_m = traversal.drop_smeared(depth_m, raw_m, p.max_filter_shift,
                                               raw_no_nan=codes is not None)
         clock.lap('smear')
+        return depth_m
 
+    def _frame_mount(self, depth_m: np.ndarray, intr: Intrinsics,
+                     ) -> tuple[geometry.GroundRays, FloorFit, DetectorParams]:
+        """(rays, floor fit, parameters) of one frame: the fitted mount, the robot-level ROI."""
+        p = self.params
         rays = self._rays(depth_m.shape, intr)
         fit = fit_floor(depth_m, self._sub_rays, p)
         frame_changes: dict = {}   # this frame's parameters: fitted mount, robot-level ROI
@@ -175,57 +229,23 @@ class Detector:
         run = p.with_frame_mount(**frame_changes) if frame_changes else p
         if fit.refined:   # the fitted mount's rays (no table: computed where they are read)
             rays = rays.for_mount(run)
-        clock.lap('floor')
-        roi = voxel.points_in_roi(depth_m, rays, run)
-        clock.lap('back_project')
-        grid = voxel.voxel_grid(roi)
-        centroids = grid.centroids
-        clock.lap('voxel')
-        k = max(p.normal_neighbours, p.validation_neighbours + 1)
-        neighbours = nearest_neighbours(centroids, k)
-        clock.lap('knn')
-        n_cols = min(p.normal_neighbours, neighbours.shape[1])
-        normals = estimate_normals(centroids, neighbours[:, :n_cols])
-        clock.lap('normals')
-        steep = slope_obstacles(normals, p.cos_max_slope)
-        if p.max_ground_height_m > 0.0 and not p.robot_level:
-            steep |= centroids[:, 2] > np.float32(p.max_ground_height_m)
-        clock.lap('slope')
-        heights = centroids[:, 2]
-        drop_points = np.zeros((0, 3), np.float32)
-        drop_pixels = np.zeros(0, np.int64)
-        candidates = steep
-        if p.robot_level:
-            trav = traversal.traversable_ground(centroids, steep, p)
-            candidates, heights = trav.is_obstacle, trav.height_m
-            clock.lap('traversal')
-            drop_points, drop_pixels = traversal.drop_edges(depth_m, rays, run.camera_height_m,
-                                                            p)
-            clock.lap('drops')
-        else:
-            clock.lap('traversal')
-            clock.lap('drops')
-        is_obstacle = validate_obstacles(candidates, neighbours, p.validation_neighbours)
-        if p.robot_level and trav.ledge is not None:
-            is_obstacle |= trav.ledge   # a band one cell wide, as a drop edge: not validated
-        clock.lap('validation')
-        obstacle_points = centroids[is_obstacle]
-        if drop_points.shape[0]:
-            obstacle_points = np.concatenate((obstacle_points, drop_points))
-        ground_points = centroids[~is_obstacle]
-        # outputs in the robot's base frame (the camera's x, y and yaw on the robot)
-        obstacle_points = geometry.to_base_frame(obstacle_points, p)
-        ground_points = geometry.to_base_frame(ground_points, p)
-        costmap = build_costmap(obstacle_points, ground_points, p)
-        clock.lap('costmap')
+        return rays, fit, run
 
-        labels, pixel_voxel = voxel.pixel_labels(roi, grid, is_obstacle)
-        if drop_pixels.size:
-            labels.reshape(-1)[drop_pixels] = LABEL_OBSTACLE
-        clock.lap('labels')
-        return DetectionResult(
-            obstacle_points=obstacle_points, ground_points=ground_points, labels=labels,
-            costmap=costmap, timings_ms=clock.finish(), voxel_points=centroids,
-            voxel_normals=normals, voxel_slope_obstacle=candidates, voxel_is_obstacle=is_obstacle,
-            voxel_neighbours=neighbours, pixel_voxel=pixel_voxel, depth_m=depth_m, intrinsics=intr,
-            floor=fit, voxel_height_m=heights, drop_points=drop_points)
+    def _robot_level(self, depth_m: np.ndarray, rays: geometry.GroundRays,
+                     run: DetectorParams, centroids: np.ndarray, steep: np.ndarray,
+                     clock: _Clock) -> tuple[np.ndarray, ...]:
+        """(obstacle candidates, heights, ledges or None, drop points, drop pixels).
+
+        The seed's slope test, or robot level: reach from the floor, ledges and drop edges.
+        """
+        p = self.params
+        if not p.robot_level:
+            clock.lap('traversal')
+            clock.lap('drops')
+            return (steep, centroids[:, 2], None, np.zeros((0, 3), np.float32),
+                    np.zeros(0, np.int64))
+        trav = traversal.traversable_ground(centroids, steep, p)
+        clock.lap('traversal')
+        drop_points, drop_pixels = traversal.drop_edges(depth_m, rays, run.camera_height_m, p)
+        clock.lap('drops')
+        return trav.is_obstacle, trav.height_m, trav.ledge, drop_points, drop_pixels

@@ -115,19 +115,25 @@ def floor_samples(depth_m: np.ndarray, sub_rays: np.ndarray,
     sub_rays: :func:`sample_rays` of the configured mount's ground rays. Compiled when
     :func:`.jit.enabled` (the same points, the same float64 operations).
     """
-    step = sample_step(depth_m.shape)
-    if jit.enabled():
-        return jit_traversal.floor_samples(
-            depth_m, step, sub_rays, params.camera_height_m,
-            math.tan(params.floor_max_tilt_rad), params.floor_max_offset_m + 0.02,
-            params.min_range_m, params.max_range_m + FIT_RANGE_MARGIN_M,
-            params.lateral_limit_m, FACING_UP_COS2)
+    return _floor_samples(depth_m, sample_step(depth_m.shape), sub_rays, params.camera_height_m,
+                          math.tan(params.floor_max_tilt_rad), params.floor_max_offset_m + 0.02,
+                          params.min_range_m, params.max_range_m + FIT_RANGE_MARGIN_M,
+                          params.lateral_limit_m, FACING_UP_COS2)
+
+
+def _reference_floor_samples(depth_m: np.ndarray, step: int, sub_rays: np.ndarray,
+                             height_m: float, tan_tilt: float, band0_m: float, min_x_m: float,
+                             max_x_m: float, max_y_m: float, facing_cos2: float) -> np.ndarray:
+    """(3, M) float64: the samples of every ``step``-th pixel that face up near the floor.
+
+    Near: |z| <= band0_m + tan_tilt * hypot(x, y), min_x_m <= x <= max_x_m, |y| <= max_y_m.
+    """
     grid = depth_m[::step, ::step]
     gh, gw = grid.shape
     with np.errstate(invalid='ignore'):
         d = np.where(grid > 0.0, grid, np.nan).astype(np.float64)   # no return: NaN
     r = sub_rays.reshape(3, gh, gw)
-    pts = np.stack((d * r[0], d * r[1], d * r[2] + params.camera_height_m))
+    pts = np.stack((d * r[0], d * r[1], d * r[2] + height_m))
     # a local normal from the right and the lower neighbour on the grid: floor samples face
     # up (walls, box sides and flying pixels do not); NaN (no return) drops out
     du = pts[:, :-1, 1:] - pts[:, :-1, :-1]
@@ -137,13 +143,16 @@ def floor_samples(depth_m: np.ndarray, sub_rays: np.ndarray,
     nz = du[0] * dv[1] - du[1] * dv[0]
     x, y, z = pts[0, :-1, :-1], pts[1, :-1, :-1], pts[2, :-1, :-1]
     with np.errstate(invalid='ignore'):
-        facing_up = nz * nz >= (nx * nx + ny * ny + nz * nz) * FACING_UP_COS2
-        band = np.hypot(x, y) * math.tan(params.floor_max_tilt_rad)
-        band += params.floor_max_offset_m + 0.02
+        facing_up = nz * nz >= (nx * nx + ny * ny + nz * nz) * facing_cos2
+        band = np.hypot(x, y) * tan_tilt
+        band += band0_m
         near = facing_up & (np.abs(z) <= band)
-        near &= (x >= params.min_range_m) & (x <= params.max_range_m + FIT_RANGE_MARGIN_M)
-        near &= np.abs(y) <= params.lateral_limit_m
+        near &= (x >= min_x_m) & (x <= max_x_m)
+        near &= np.abs(y) <= max_y_m
     return np.stack((x[near], y[near], z[near]))
+
+
+_floor_samples = jit.choose(_reference_floor_samples, jit_traversal.floor_samples)
 
 
 def _lstsq_plane(pts: np.ndarray) -> np.ndarray:
@@ -163,15 +172,10 @@ def _lstsq_plane(pts: np.ndarray) -> np.ndarray:
     return np.array([a, b, mean[2] - a * mean[0] - b * mean[1]])
 
 
-def _in_band(pts: np.ndarray, coef: np.ndarray, band_m: float,
-             compiled: bool | None = None) -> np.ndarray:
-    """(3, m) float64: the samples pts (3, M) within band_m of z = coef . (x, y, 1).
-
-    compiled: run the kernel (None: when :func:`.jit.enabled`).
-    """
-    if jit.enabled() if compiled is None else compiled:
-        return jit_traversal.in_band(pts, coef[0], coef[1], coef[2], band_m)
-    resid = pts[2] - (coef[0] * pts[0] + coef[1] * pts[1] + coef[2])
+def _reference_in_band(pts: np.ndarray, a: float, b: float, c: float,
+                       band_m: float) -> np.ndarray:
+    """(3, m) float64: the samples pts (3, M) within band_m of z = a x + b y + c."""
+    resid = pts[2] - (a * pts[0] + b * pts[1] + c)
     return pts[:, np.abs(resid) <= band_m]
 
 
@@ -180,17 +184,14 @@ def _same(a: np.ndarray, b: np.ndarray) -> bool:
     return a.shape == b.shape and a.tobytes() == b.tobytes()
 
 
-def _count_in_band(pts: np.ndarray, coef: np.ndarray, band_m: float,
-                   compiled: bool | None = None) -> int:
-    """How many samples pts (3, M) lie within band_m of z = coef . (x, y, 1)."""
-    if jit.enabled() if compiled is None else compiled:
-        return jit_traversal.count_in_band(pts, coef[0], coef[1], coef[2], band_m)
-    resid = pts[2] - (coef[0] * pts[0] + coef[1] * pts[1] + coef[2])
+def _reference_count_in_band(pts: np.ndarray, a: float, b: float, c: float,
+                             band_m: float) -> int:
+    """How many samples pts (3, M) lie within band_m of z = a x + b y + c."""
+    resid = pts[2] - (a * pts[0] + b * pts[1] + c)
     return int(np.count_nonzero(np.abs(resid) <= band_m))
 
 
-def _ransac_plane(pts: np.ndarray, params: DetectorParams,
-                  compiled: bool | None = None) -> np.ndarray:
+def _ransac_plane(pts: np.ndarray, params: DetectorParams) -> np.ndarray:
     """Return (k, 3): (a, b, c) of the bounded hypotheses with most samples in INLIER_BAND_M.
 
     pts (3, M). Hypotheses tilted more than ``floor_max_tilt_rad`` or offset more than
@@ -198,16 +199,20 @@ def _ransac_plane(pts: np.ndarray, params: DetectorParams,
     beyond a drop); the configured floor (0, 0, 0) and the level plane at the most common
     sample height always are. At most SCORE_POINTS samples score them; the best
     REFINED_HYPOTHESES are returned, best first. Compiled when :func:`.jit.enabled`
-    (the same hypotheses, scores and order); compiled: None asks it.
+    (the same hypotheses, scores and order).
     """
-    if jit.enabled() if compiled is None else compiled:
-        return jit_traversal.ransac_plane(pts, _PICKS, math.tan(params.floor_max_tilt_rad) ** 2,
-                                          params.floor_max_offset_m, INLIER_BAND_M,
-                                          SCORE_POINTS, REFINED_HYPOTHESES)
+    return _ransac(pts, _PICKS, math.tan(params.floor_max_tilt_rad) ** 2,
+                   params.floor_max_offset_m, INLIER_BAND_M, SCORE_POINTS, REFINED_HYPOTHESES)
+
+
+def _reference_ransac_plane(pts: np.ndarray, picks: np.ndarray, tan_tilt2: float,
+                            offset_m: float, band_m: float, score_points: int,
+                            k: int) -> np.ndarray:
+    """(k, 3) float64: the best k of the hypotheses from ``picks`` ((3, h) in [0, 1))."""
     # one point from each third of the samples (image row order: far, middle, near for a
     # camera above the floor): well-conditioned triplets
     third = pts.shape[1] // 3
-    picks = (_PICKS * third).astype(np.int64) + np.arange(3)[:, None] * third
+    picks = (picks * third).astype(np.int64) + np.arange(3)[:, None] * third
     p0, p1, p2 = pts[:, picks[0]], pts[:, picks[1]], pts[:, picks[2]]   # (3, h) each
     u, v = p1 - p0, p2 - p0
     nx = u[1] * v[2] - u[2] * v[1]
@@ -217,18 +222,17 @@ def _ransac_plane(pts: np.ndarray, params: DetectorParams,
     nz = np.where(good, nz, 1.0)
     a, b = -nx / nz, -ny / nz
     c = p0[2] - a * p0[0] - b * p0[1]
-    bounded = good & (a * a + b * b <= math.tan(params.floor_max_tilt_rad) ** 2)
-    bounded &= np.abs(c) <= params.floor_max_offset_m
+    bounded = good & (a * a + b * b <= tan_tilt2)
+    bounded &= np.abs(c) <= offset_m
     # the configured floor itself is always a candidate, and so is the level plane through
     # the most common sample height in 1 cm bins (the floor under a mount wrong in height)
-    offset = params.floor_max_offset_m
-    near = np.abs(pts[2]) <= offset
-    counts = np.bincount(np.floor((pts[2][near] + offset) * 100.0).astype(np.int64))
-    mode = (int(np.argmax(counts)) + 0.5) * 0.01 - offset if counts.size else 0.0
+    near = np.abs(pts[2]) <= offset_m
+    counts = np.bincount(np.floor((pts[2][near] + offset_m) * 100.0).astype(np.int64))
+    mode = (int(np.argmax(counts)) + 0.5) * 0.01 - offset_m if counts.size else 0.0
     a = np.append(a[bounded], (0.0, 0.0))
     b = np.append(b[bounded], (0.0, 0.0))
     c = np.append(c[bounded], (0.0, mode))
-    sp = pts[:, ::max(1, pts.shape[1] // SCORE_POINTS)].astype(np.float32)
+    sp = pts[:, ::max(1, pts.shape[1] // score_points)].astype(np.float32)
     a32, b32, c32 = a.astype(np.float32), b.astype(np.float32), c.astype(np.float32)
     score = np.empty(a.size, np.int64)
     for start in range(0, a.size, SCORE_CHUNK):   # small temporaries: no page faults
@@ -237,9 +241,14 @@ def _ransac_plane(pts: np.ndarray, params: DetectorParams,
         resid += b32[part, None] * sp[1]
         resid += c32[part, None]
         resid -= sp[2]
-        score[part] = np.count_nonzero(np.abs(resid, out=resid) <= INLIER_BAND_M, axis=1)
-    best = np.argsort(-score, kind='stable')[:REFINED_HYPOTHESES]
+        score[part] = np.count_nonzero(np.abs(resid, out=resid) <= band_m, axis=1)
+    best = np.argsort(-score, kind='stable')[:k]
     return np.stack((a[best], b[best], c[best]), axis=1)
+
+
+_in_band = jit.choose(_reference_in_band, jit_traversal.in_band)
+_count_in_band = jit.choose(_reference_count_in_band, jit_traversal.count_in_band)
+_ransac = jit.choose(_reference_ransac_plane, jit_traversal.ransac_plane)
 
 
 def fit_floor(depth_m: np.ndarray, sub_rays: np.ndarray, params: DetectorParams) -> FloorFit:
@@ -256,13 +265,12 @@ def fit_floor(depth_m: np.ndarray, sub_rays: np.ndarray, params: DetectorParams)
                                   f'{params.floor_min_points}')
     best = None   # (inliers in the last band, coefficients, samples of the last refit)
     refits: list[list[np.ndarray]] = []   # the inliers of each refit of the earlier hypotheses
-    compiled = jit.enabled()
-    for coef in _ransac_plane(pts, params, compiled):   # each refined on narrowing bands
+    for coef in _ransac_plane(pts, params):   # each refined on narrowing bands
         used = 0
         stages: list[np.ndarray] = []
         repeated = False
         for stage, band in enumerate(REFIT_BANDS_M):
-            inliers = _in_band(pts, coef, band, compiled)
+            inliers = _in_band(pts, *coef, band)
             used = inliers.shape[1]
             if used < 3:
                 break
@@ -276,7 +284,7 @@ def fit_floor(depth_m: np.ndarray, sub_rays: np.ndarray, params: DetectorParams)
         refits.append(stages)
         if repeated:
             continue
-        support = _count_in_band(pts, coef, REFIT_BANDS_M[-1], compiled)
+        support = _count_in_band(pts, *coef, REFIT_BANDS_M[-1])
         if best is None or support > best[0]:
             best = (support, coef, used)
     support, coef, used = best

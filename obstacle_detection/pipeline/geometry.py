@@ -144,14 +144,7 @@ class GroundRays:
         out: a (3, H*W) float32 array the compiled path fills instead of a new one.
         """
         if self._table is None:
-            if jit.enabled():   # the same float32 operations, compiled
-                self._table = jit_traversal.ground_rays(self.ru, self.rv, self.rot, out)
-            else:
-                rays = np.empty((3, self.rv.size, self.ru.size), dtype=np.float32)
-                for axis in range(3):
-                    rays[axis] = (self.rot[axis, 0] * self.ru[None, :]
-                                  + self.rot[axis, 1] * self.rv[:, None] + self.rot[axis, 2])
-                self._table = rays.reshape(3, -1)
+            self._table = _ray_table(self.ru, self.rv, self.rot, out)
         return self._table
 
     def at(self, pixels: np.ndarray) -> np.ndarray:
@@ -173,6 +166,24 @@ class GroundRays:
         return GroundRays(self.ru[::step], self.rv[::step], self.rot)
 
 
+def _reference_ground_rays(ru: np.ndarray, rv: np.ndarray, rot: np.ndarray,
+                           out: np.ndarray | None = None) -> np.ndarray:
+    """(3, H*W) float32 rays ``rot[a, 0] * ru[j] + rot[a, 1] * rv[i] + rot[a, 2]``.
+
+    ru (W,), rv (H,), rot (3, 3) float32. out: a (3, H*W) float32 array to fill.
+    """
+    if out is None or out.shape != (3, rv.size * ru.size) or out.dtype != np.float32:
+        out = np.empty((3, rv.size * ru.size), np.float32)
+    rays = out.reshape(3, rv.size, ru.size)
+    for axis in range(3):
+        rays[axis] = rot[axis, 0] * ru[None, :] + rot[axis, 1] * rv[:, None] + rot[axis, 2]
+    return out
+
+
+# compiled: the same float32 operations
+_ray_table = jit.choose(_reference_ground_rays, jit_traversal.ground_rays)
+
+
 def ray_model(shape: tuple[int, int], intrinsics: Intrinsics,
               params: DetectorParams) -> GroundRays:
     """Return the :class:`GroundRays` of an (H, W) image under the params' mount."""
@@ -192,45 +203,9 @@ def ground_rays(shape: tuple[int, int], intrinsics: Intrinsics, params: Detector
     return ray_model(shape, intrinsics, params).table(out)
 
 
-def ray_table(rays: np.ndarray | GroundRays) -> np.ndarray:
-    """Return the (3, H*W) table of rays given as a table or as :class:`GroundRays`."""
-    return rays.table() if isinstance(rays, GroundRays) else rays
-
-
 def rays_at(rays: np.ndarray | GroundRays, pixels: np.ndarray) -> np.ndarray:
     """Return the (3, D) float32 rays of the flat pixel indices, from a table or a model."""
     return rays.at(pixels) if isinstance(rays, GroundRays) else rays[:, pixels]
-
-
-def ground_points_in_roi(depth_m: np.ndarray, rays: np.ndarray | GroundRays,
-                         params: DetectorParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Back-project a whole depth image into the ground frame and keep the ROI.
-
-    depth_m: (H, W) float32, 0 = no return; rays: from :func:`ground_rays` (or
-    :class:`GroundRays`). Returns ``(points, roi_index, valid)``: points (M, 3) float32
-    ground frame [m] of the pixels inside the region of interest (a view with contiguous
-    columns), roi_index (M,) int64 their flat pixel indices, valid (H*W,) bool the pixels
-    with a depth.
-    Same ROI as :func:`roi_mask`, computed on the image without a per-point gather.
-    """
-    rays = ray_table(rays)
-    z = depth_m.reshape(-1)
-    valid = z > 0.0
-    gx = z * rays[0]
-    keep = valid & (gx >= np.float32(params.min_range_m))
-    keep &= gx <= np.float32(params.max_range_m)
-    gy = z * rays[1]
-    keep &= np.abs(gy) <= np.float32(params.lateral_limit_m)
-    gz = z * rays[2]
-    gz += np.float32(params.camera_height_m)
-    keep &= gz >= np.float32(params.tdbg_m)
-    keep &= gz <= np.float32(params.max_height_m)
-    roi_index = np.flatnonzero(keep)
-    cols = np.empty((3, roi_index.size), dtype=np.float32)
-    np.take(gx, roi_index, out=cols[0])
-    np.take(gy, roi_index, out=cols[1])
-    np.take(gz, roi_index, out=cols[2])
-    return cols.T, roi_index, valid
 
 
 def roi_mask(points_ground: np.ndarray, params: DetectorParams) -> np.ndarray:

@@ -5,11 +5,21 @@ numba is an optional accelerator (README, Dependencies). When it imports
 :mod:`.voxel`, :mod:`.normals`, :mod:`.geometry`, :mod:`.floor`, :mod:`.traversal`) run their
 kernels of :mod:`._compiled`; when it does not (a ROS system without python3-numba), or the
 environment variable ``OBSTACLE_DETECTION_NO_JIT`` is set to anything but '' or '0', they run
-the numpy/scipy code with the same results. Every stage asks :func:`enabled`.
+the numpy/scipy code with the same results.
+
+The pattern, the same in every stage module: a reference ``_reference_<name>`` (numpy/scipy,
+obviously right) and its compiled twin ``_compiled.<module>.<name>`` with the same signature
+and return type, joined by :func:`choose`::
+
+    lookup = jit.choose(_reference_lookup, compiled.lookup)
+
+A kernel never returns a value meaning "fall back": an input it does not take is turned away
+before the call by the ``accepts`` predicate of :func:`choose`.
 """
 
 from __future__ import annotations
 
+import functools
 import os
 import threading
 import time
@@ -49,6 +59,27 @@ def enabled() -> bool:
     if not AVAILABLE or switched_off():
         return False
     return _kernels_ready.is_set() or getattr(_compiling, 'active', False)
+
+
+def choose(reference: Callable[..., Any], compiled: Callable[..., Any], *,
+           accepts: Callable[..., bool] | None = None) -> Callable[..., Any]:
+    """Return a function that runs ``compiled`` when :func:`enabled`, else ``reference``.
+
+    Both take the same arguments and return the same values. ``accepts(*args, **kwargs)``,
+    when given, says whether the compiled twin takes those arguments (else the reference
+    runs). The returned function keeps both as ``.reference`` and ``.compiled`` (tests run
+    each and compare), the reference's docstring and the compiled twin's name.
+    """
+    @functools.wraps(reference)
+    def dispatch(*args: Any, **kwargs: Any) -> Any:
+        if enabled() and (accepts is None or accepts(*args, **kwargs)):
+            return compiled(*args, **kwargs)
+        return reference(*args, **kwargs)
+
+    dispatch.__name__ = dispatch.__qualname__ = compiled.__name__
+    dispatch.reference = reference
+    dispatch.compiled = compiled
+    return dispatch
 
 
 class BackgroundCompile:

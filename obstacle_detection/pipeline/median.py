@@ -33,6 +33,10 @@ def reference_median(image: np.ndarray, k: int) -> np.ndarray:
     return ndimage.median_filter(image, size=k, mode=MEDIAN_MODE)
 
 
+#: The exact median for any K and dtype: the compiled sliding histogram, or scipy.
+_exact_median = jit.choose(reference_median, compiled.median_filter)
+
+
 def median_filter(image: np.ndarray, k: int, threads: int = 1) -> np.ndarray:
     """Exact K x K median filter: the result of :func:`reference_median`, to the bit.
 
@@ -71,10 +75,8 @@ def median_filter(image: np.ndarray, k: int, threads: int = 1) -> np.ndarray:
         return reference_median(arr, k)
     if k <= 5 and arr.dtype in (np.uint16, np.float32):
         return _opencv_median(arr, k)
-    if jit.enabled():
-        _numba.set_threads(threads)
-        return compiled.median_filter(arr, k)
-    return reference_median(arr, k)
+    _numba.set_threads(threads)
+    return _exact_median(arr, k)
 
 
 def median_of_codes(codes: np.ndarray, k: int, table: np.ndarray,

@@ -23,27 +23,13 @@ _PAIR_A = np.array([0, 0, 0, 1, 1, 2])
 _PAIR_B = np.array([0, 1, 2, 1, 2, 2])
 
 
-def warm_up() -> None:
-    """Compile (or load from numba's disk cache) the k-NN and normals kernels, if they run."""
-    if jit.enabled():   # not when switched off, or while another thread compiles
-        jit_knn.warm_up()
-
-
-def nearest_neighbours(points: np.ndarray, k: int) -> np.ndarray:
+def _reference_knn_grid(points: np.ndarray, k: int) -> np.ndarray:
     """Return indices (V, k) int64 of the k nearest points of every point, nearest first.
 
     points: (V, 3) float32 [m]. The point itself is first (distance 0, also among duplicate
-    points); points at exactly equal distance follow in index order. Exact Euclidean search: a
-    compiled grid search (:func:`._compiled.knn.knn_grid`) or scipy's k-d tree on one
-    thread, the same result. If there are fewer than k points, k is clipped to V.
-    """
-    if jit.enabled():
-        return jit_knn.knn_grid(points, k)
-    return _nearest_neighbours_scipy(points, k)
-
-
-def _nearest_neighbours_scipy(points: np.ndarray, k: int) -> np.ndarray:
-    """:func:`nearest_neighbours` with scipy's cKDTree.
+    points); points at exactly equal distance follow in index order. If there are fewer than
+    k points, k is clipped to V. Exact Euclidean search with scipy's k-d tree on one thread;
+    compiled: a grid search, the same result.
 
     The tree orders points at equal distance arbitrarily; rows where that can matter (equal
     distances among the first k + 1, e.g. duplicate points) are re-sorted by the exact squared
@@ -62,6 +48,9 @@ def _nearest_neighbours_scipy(points: np.ndarray, k: int) -> np.ndarray:
     if tied.size:
         _order_ties(points, tree, idx, dist, tied, k)
     return np.ascontiguousarray(idx[:, :k])
+
+
+nearest_neighbours = jit.choose(_reference_knn_grid, jit_knn.knn_grid)
 
 
 def _order_ties(points: np.ndarray, tree: cKDTree, idx: np.ndarray, dist: np.ndarray,
@@ -159,6 +148,17 @@ def _cross(ux: np.ndarray, uy: np.ndarray, uz: np.ndarray,
     return np.stack([uy * wz - uz * wy, uz * wx - ux * wz, ux * wy - uy * wx])
 
 
+def _reference_normals_from_neighbours(points: np.ndarray, neighbours: np.ndarray,
+                                       n: int) -> np.ndarray:
+    """Return unit normals (V, 3) float32 of the first ``n`` neighbours, in numpy."""
+    cov = neighbourhood_covariance(points, neighbours[:, :n])
+    return smallest_eigenvectors(cov).astype(np.float32)
+
+
+_normals_from_neighbours = jit.choose(_reference_normals_from_neighbours,
+                                      jit_knn.normals_from_neighbours)
+
+
 def estimate_normals(points: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
     """Return unit normals (V, 3) float32: smallest-eigenvalue eigenvector of each neighbourhood.
 
@@ -167,10 +167,7 @@ def estimate_normals(points: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
     """
     if points.shape[0] == 0:
         return np.zeros((0, 3), dtype=np.float32)
-    if jit.enabled():
-        return jit_knn.normals_from_neighbours(points, neighbours, neighbours.shape[1])
-    cov = neighbourhood_covariance(points, neighbours)
-    return smallest_eigenvectors(cov).astype(np.float32)
+    return _normals_from_neighbours(points, neighbours, neighbours.shape[1])
 
 
 def slope_obstacles(normals: np.ndarray, cos_max_slope: float,
@@ -192,9 +189,20 @@ def validate_obstacles(is_obstacle: np.ndarray, neighbours: np.ndarray, n1: int)
         return is_obstacle.copy()
     if neighbours.shape[1] < n1 + 1:
         return np.zeros_like(is_obstacle)
-    if jit.enabled():   # compiled: the same flags without the (V, N1) gather (0.3 ms)
-        out = jit_knn.validate(is_obstacle, neighbours, n1)
-        if out is not None:
-            return out
+    return _validate(is_obstacle, neighbours, n1)
+
+
+def _reference_validate(is_obstacle: np.ndarray, neighbours: np.ndarray, n1: int) -> np.ndarray:
+    """:func:`validate_obstacles` for 1 <= n1 < neighbours.shape[1], in numpy."""
     neighbour_flags = is_obstacle[neighbours[:, 1:n1 + 1]]
     return is_obstacle & np.all(neighbour_flags, axis=1)
+
+
+# compiled: the same flags without the (V, N1) gather (0.3 ms)
+_validate = jit.choose(_reference_validate, jit_knn.validate)
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's disk cache) the k-NN and normals kernels, if they run."""
+    if jit.enabled():   # not when switched off, or while another thread compiles
+        jit_knn.warm_up()

@@ -44,7 +44,7 @@ from scipy.sparse.csgraph import breadth_first_order
 from . import jit
 from ._compiled import ledges as jit_ledges
 from ._compiled import traversal as jit_traversal
-from .geometry import GroundRays, ray_table, rays_at
+from .geometry import GroundRays, rays_at
 from .params import DetectorParams
 
 #: The 8 neighbours of a cell as (dx, dy); the search adds both directions of each pair.
@@ -98,20 +98,14 @@ def traversable_ground(points: np.ndarray, steep: np.ndarray,
     """Decide obstacles at robot level.
 
     points: (V, 3) float32 voxel centroids, ground frame [m]; steep: (V,) bool, the seed's
-    slope test (True = steeper than theta). Runs :func:`.jit_traversal.traverse` when
-    :func:`.jit.enabled` (same result).
+    slope test (True = steeper than theta). Compiled when :func:`.jit.enabled` (same result).
     """
     size = cell_size(params)
     if points.shape[0] == 0:
         empty = np.zeros(0, bool)
         return Traversal(empty, empty, np.zeros(0, np.float32), empty, size, empty)
-    if jit.enabled():
-        out = jit_traversal.traverse(points, steep, size, params.max_step_height_m,
-                                     params.max_step_down_m, params.robot_height_m,
-                                     params.voxel_z_m, MIN_SURFACE_VOXELS)
-    else:
-        out = traverse_numpy(points, steep, size, params.max_step_height_m,
-                             params.max_step_down_m, params.robot_height_m, params.voxel_z_m)
+    out = _traverse(points, steep, size, params.max_step_height_m, params.max_step_down_m,
+                    params.robot_height_m, params.voxel_z_m, MIN_SURFACE_VOXELS)
     edge = ledges(points, steep, out[3], out[1], size, params.max_step_height_m,
                   params.max_step_down_m)
     return Traversal(*out, size, edge)
@@ -124,7 +118,7 @@ def ledges(points: np.ndarray, steep: np.ndarray, reached: np.ndarray, above: np
     Where two reached surfaces, a ramp or a landing and the floor beside it, differ by more
     than a step (its open side, which the reach from the floor does not stop at: both are
     reached), the robot falls off the higher one or meets a wall from the lower one. On the
-    cell grid of :func:`traverse_numpy` (same cells); a cell's surface is its lowest flat
+    cell grid of :func:`_reference_traverse` (same cells); a cell's surface is its lowest flat
     voxel, where it was reached:
 
     - a reached cell whose *lower ground* lies more than ``step_down_m`` below its surface:
@@ -212,9 +206,12 @@ def ledges(points: np.ndarray, steep: np.ndarray, reached: np.ndarray, above: np
     return np.where(reached, raised, face) & ~above
 
 
-def traverse_numpy(points: np.ndarray, steep: np.ndarray, size_m: float, step_up_m: float,
-                   step_down_m: float, robot_height_m: float, layer_m: float,
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+
+
+def _reference_traverse(points: np.ndarray, steep: np.ndarray, size_m: float, step_up_m: float,
+                        step_down_m: float, robot_height_m: float, layer_m: float,
+                        min_support: int = MIN_SURFACE_VOXELS,
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(obstacle, above, height float32, reached) per voxel, in numpy (the reference)."""
     size = np.float32(size_m)
     ix = np.floor(points[:, 0] / size).astype(np.int64)
@@ -237,7 +234,7 @@ def traverse_numpy(points: np.ndarray, steep: np.ndarray, size_m: float, step_up
     on_surface = flat & (z <= surface[key] + layer_m)
     support = np.bincount(key[on_surface], minlength=nx * ny)
     passable = np.isfinite(surface) & (high - low <= step_up_m)
-    passable &= support >= MIN_SURFACE_VOXELS
+    passable &= support >= min_support
     seeds = passable & (surface >= -step_down_m) & (surface <= step_up_m)
     reached = _grow(surface.reshape(nx, ny), passable.reshape(nx, ny), seeds, step_up_m,
                     step_down_m)
@@ -247,6 +244,9 @@ def traverse_numpy(points: np.ndarray, steep: np.ndarray, size_m: float, step_up
     obstacle = (height > np.float32(step_up_m)) & ~above
     obstacle |= height < -np.float32(step_down_m)
     return obstacle, above, height, reached[key]
+
+
+_traverse = jit.choose(_reference_traverse, jit_traversal.traverse)
 
 
 def _neighbour_views(arr: np.ndarray, fill: float | bool) -> list[np.ndarray]:
@@ -319,29 +319,32 @@ def depth_window_range(raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     by the numpy and the compiled path.
     """
     kernel = np.ones((FLYING_WINDOW_PX, FLYING_WINDOW_PX), np.uint8)
-    if jit.enabled():   # the same values, into buffers reused across frames
-        holes_far = jit_traversal.holes_to_inf(raw)
-        near = jit_traversal.scratch('near', raw.shape, np.float32)
-        far = jit_traversal.scratch('far', raw.shape, np.float32)
-    else:
-        holes_far = np.where(raw > 0.0, raw, np.float32(np.inf))
-        near = np.empty(raw.shape, np.float32)
-        far = np.empty(raw.shape, np.float32)
+    holes_far = _holes_to_inf(raw)
+    near = np.empty(raw.shape, np.float32)
+    far = np.empty(raw.shape, np.float32)
     cv2.erode(holes_far, kernel, dst=near, borderType=cv2.BORDER_REPLICATE)
     cv2.dilate(raw, kernel, dst=far, borderType=cv2.BORDER_REPLICATE)   # no return is 0
     return near, far
 
 
-def _planar(raw: np.ndarray) -> np.ndarray:
+def _reference_holes_to_inf(raw: np.ndarray) -> np.ndarray:
+    """Return ``np.where(raw > 0, raw, inf)`` (float32)."""
+    return np.where(raw > 0.0, raw, np.float32(np.inf))
+
+
+_holes_to_inf = jit.choose(_reference_holes_to_inf, jit_traversal.holes_to_inf)
+
+
+def _planar(raw: np.ndarray, tolerance: float = PLANAR_TOLERANCE) -> np.ndarray:
     """(H, W) bool: the pixel lies on a plane with its row and column neighbours.
 
     A plane's inverse depth is affine in the pixel coordinates, so its second differences
     vanish (a floor or a table's underside seen at a grazing angle); a mixed pixel's do not.
-    Within ``PLANAR_TOLERANCE`` of the pixel's inverse depth, all four neighbours measured.
+    Within ``tolerance`` of the pixel's inverse depth, all four neighbours measured.
     """
     with np.errstate(divide='ignore', invalid='ignore'):
         inv = np.where(raw > 0.0, np.float32(1.0) / raw, np.float32(np.nan))
-    tol = np.float32(PLANAR_TOLERANCE) * inv
+    tol = np.float32(tolerance) * inv
     out = np.zeros(raw.shape, bool)
     with np.errstate(invalid='ignore'):
         row = np.abs(inv[:, :-2] + inv[:, 2:] - np.float32(2.0) * inv[:, 1:-1])
@@ -378,17 +381,15 @@ def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float, *,
     if max_shift <= 0.0:
         return filtered
     raw = np.ascontiguousarray(raw, np.float32)
-    if (jit.enabled() and FLYING_WINDOW_PX == 5 and filtered.flags.c_contiguous
-            and filtered.dtype == np.float32 and filtered.shape == raw.shape
-            and jit_traversal.drop_smeared_fused(
-                filtered, raw, max_shift, FLYING_JUMP, PLANAR_TOLERANCE,
-                raw_no_nan=raw_no_nan)):
-        return filtered   # one compiled pass, the window range on the way (same result)
+    _drop_smeared(filtered, raw, max_shift, FLYING_JUMP, PLANAR_TOLERANCE, raw_no_nan)
+    return filtered
+
+
+def _reference_drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float,
+                            jump: float, planar_tolerance: float,
+                            raw_no_nan: bool = False) -> None:
+    """In place: :func:`drop_smeared`'s rules with the flying-pixel ``jump`` (numpy)."""
     near, far = depth_window_range(raw)
-    if jit.enabled():
-        jit_traversal.drop_smeared(filtered, raw, near, far, max_shift, FLYING_JUMP,
-                                   PLANAR_TOLERANCE)
-        return filtered
     ratio = np.float32(max_shift)
     h, w = raw.shape
     with np.errstate(invalid='ignore'):
@@ -404,12 +405,31 @@ def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float, *,
             seen |= valid
             agree &= ~valid | (np.abs(nb - filtered) <= lim)
         bad = hole & ~(seen & agree)
-        lim = np.float32(FLYING_JUMP) * raw
+        lim = np.float32(jump) * raw
         between = ~hole & (raw - near > lim) & (far - raw > lim)
-        bad |= between & ~_planar(raw)
+        bad |= between & ~_planar(raw, planar_tolerance)
     filtered[moved] = raw[moved]
     filtered[bad] = 0.0
-    return filtered
+
+
+def _compiled_drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float,
+                           jump: float, planar_tolerance: float,
+                           raw_no_nan: bool = False) -> None:
+    """:func:`_reference_drop_smeared` compiled: one fused pass, or the window range first.
+
+    The fused pass (the 5 x 5 window range on the way) takes C-contiguous float32 images
+    without NaN (OpenCV's window range orders NaN its own way).
+    """
+    if (FLYING_WINDOW_PX == 5 and filtered.flags.c_contiguous
+            and filtered.dtype == np.float32 and filtered.shape == raw.shape
+            and (raw_no_nan or not jit_traversal.has_nan(raw))):
+        jit_traversal.drop_smeared_fused(filtered, raw, max_shift, jump, planar_tolerance)
+    else:
+        near, far = depth_window_range(raw)
+        jit_traversal.drop_smeared(filtered, raw, near, far, max_shift, jump, planar_tolerance)
+
+
+_drop_smeared = jit.choose(_reference_drop_smeared, _compiled_drop_smeared)
 
 
 def drop_edge_mask(depth_m: np.ndarray, rz: np.ndarray, height_m: float, step_down_m: float,
@@ -426,8 +446,12 @@ def drop_edge_mask(depth_m: np.ndarray, rz: np.ndarray, height_m: float, step_do
     ``step_down_m`` above its own point (the nearest such row is given). float32 arithmetic,
     as the compiled kernel.
     """
-    if jit.enabled():
-        return jit_traversal.drop_mask(depth_m, rz, height_m, step_down_m, step_up_m, rows)
+    return _drop_edge_mask(depth_m, rz, height_m, step_down_m, step_up_m, rows)
+
+
+def _reference_drop_edge_mask(depth_m: np.ndarray, rz: np.ndarray, height_m: float,
+                              step_down_m: float, step_up_m: float, rows: int) -> np.ndarray:
+    """:func:`drop_edge_mask` in numpy."""
     h, w = depth_m.shape
     d = depth_m.astype(np.float32, copy=False)
     valid = d > 0.0
@@ -445,6 +469,28 @@ def drop_edge_mask(depth_m: np.ndarray, rz: np.ndarray, height_m: float, step_do
     return edge
 
 
+_drop_edge_mask = jit.choose(_reference_drop_edge_mask, jit_traversal.drop_edge_mask)
+
+
+def _reference_drop_pixels(depth_m: np.ndarray, rz: np.ndarray | None, height_m: float,
+                           step_down_m: float, step_up_m: float, rows: int,
+                           model: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+                           ) -> tuple[np.ndarray, np.ndarray]:
+    """(flat pixel indices int64, offsets int8) of :func:`drop_edge_mask`'s marks, in order.
+
+    rz: (H*W,) or (H, W) float32, the z of the ground rays; or None and model: (ru, rv, rot)
+    float32 of :class:`.geometry.GroundRays`.
+    """
+    if model is not None:
+        rz = GroundRays(*model).table()[2]
+    edge = _reference_drop_edge_mask(depth_m, rz, height_m, step_down_m, step_up_m, rows)
+    pixels = np.flatnonzero(edge)
+    return pixels, edge.reshape(-1)[pixels]
+
+
+_drop_pixels = jit.choose(_reference_drop_pixels, jit_traversal.drop_pixels)
+
+
 def drop_edges(depth_m: np.ndarray, rays: np.ndarray | GroundRays, height_m: float,
                params: DetectorParams) -> tuple[np.ndarray, np.ndarray]:
     """Where the floor ends at a drop: the last floor seen below the rays that passed it.
@@ -458,18 +504,11 @@ def drop_edges(depth_m: np.ndarray, rays: np.ndarray | GroundRays, height_m: flo
     (the lower floor, or anything beyond it).
     """
     down, up = params.max_step_down_m, params.max_step_height_m
-    if jit.enabled():   # the marked pixels and their offsets straight away
-        if isinstance(rays, GroundRays):
-            pixels, offsets = jit_traversal.drop_pixels(depth_m, None, height_m, down, up,
-                                                        DROP_EDGE_ROWS,
-                                                        (rays.ru, rays.rv, rays.rot))
-        else:
-            pixels, offsets = jit_traversal.drop_pixels(depth_m, rays[2], height_m, down, up,
-                                                        DROP_EDGE_ROWS)
+    if isinstance(rays, GroundRays):   # the compiled path computes them row by row
+        rz, model = None, (rays.ru, rays.rv, rays.rot)
     else:
-        edge = drop_edge_mask(depth_m, ray_table(rays)[2], height_m, down, up)
-        pixels = np.flatnonzero(edge)
-        offsets = edge.reshape(-1)[pixels]
+        rz, model = rays[2], None
+    pixels, offsets = _drop_pixels(depth_m, rz, height_m, down, up, DROP_EDGE_ROWS, model)
     if pixels.size == 0:
         return np.zeros((0, 3), np.float32), pixels
     floor_px = pixels + offsets.astype(np.int64) * depth_m.shape[1]

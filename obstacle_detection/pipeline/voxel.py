@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..labels import LABEL_GROUND, LABEL_OBSTACLE, LABEL_OUTSIDE_ROI
+from ..labels import LABEL_GROUND, LABEL_NO_RETURN, LABEL_OBSTACLE, LABEL_OUTSIDE_ROI
 from . import geometry, jit
 from ._compiled import voxel as jit_voxel
 from .params import DetectorParams, Intrinsics
@@ -47,7 +47,8 @@ def voxel_downsample(points: np.ndarray, voxel_size_m: tuple[float, float, float
     the frame origin, so a point's voxel does not depend on the other points. Voxels are
     ordered by their linear index (x slowest, z fastest), so the output is deterministic.
     An empty input gives empty arrays. Runs the compiled kernel
-    (:func:`._compiled.voxel.voxel_downsample`, same result) when :func:`.jit.enabled`.
+    (:func:`._compiled.voxel.voxel_downsample`, same result) when :func:`.jit.enabled` and
+    the points lie on a lattice it indexes directly (:func:`_on_dense_lattice`).
     """
     size = np.asarray(voxel_size_m, dtype=np.float64)
     if size.shape != (3,) or np.any(size <= 0.0):
@@ -55,21 +56,17 @@ def voxel_downsample(points: np.ndarray, voxel_size_m: tuple[float, float, float
     pts = np.asarray(points)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise ValueError(f'points must have shape (M, 3), got {pts.shape}')
-    if pts.shape[0] and jit.enabled():
-        fields = jit_voxel.voxel_downsample(pts, voxel_size_m)
-        if fields is not None:
-            return VoxelGrid(*fields)
-    return voxel_downsample_numpy(pts, voxel_size_m)
+    return VoxelGrid(*_downsample(pts, voxel_size_m))
 
 
-def voxel_downsample_numpy(points: np.ndarray, voxel_size_m: tuple[float, float, float],
-                           ) -> VoxelGrid:
-    """:func:`voxel_downsample` in numpy (the reference the compiled kernel matches)."""
+def _reference_voxel_downsample(points: np.ndarray, voxel_size_m: tuple[float, float, float],
+                                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Return the fields of :func:`voxel_downsample`'s :class:`VoxelGrid`, in numpy."""
     size = np.asarray(voxel_size_m, dtype=np.float64)
     pts = np.asarray(points)
     if pts.shape[0] == 0:
-        return VoxelGrid(np.zeros((0, 3), np.float32), np.zeros(0, np.int64),
-                         np.zeros(0, np.int64), np.zeros((0, 3), np.int64))
+        return (np.zeros((0, 3), np.float32), np.zeros(0, np.int64), np.zeros(0, np.int64),
+                np.zeros((0, 3), np.int64))
 
     cols = np.ascontiguousarray(pts.T)
     ijk = [np.floor(cols[a] / cols.dtype.type(size[a])).astype(np.int64) for a in range(3)]
@@ -103,7 +100,28 @@ def voxel_downsample_numpy(points: np.ndarray, voxel_size_m: tuple[float, float,
     rest, vox_ijk[:, 2] = np.divmod(cell_keys, dims[2])
     vox_ijk[:, 0], vox_ijk[:, 1] = np.divmod(rest, dims[1])
     vox_ijk += low
-    return VoxelGrid(centroids, point_voxel, counts, vox_ijk)
+    return centroids, point_voxel, counts, vox_ijk
+
+
+def _on_dense_lattice(points: np.ndarray, voxel_size_m: tuple[float, float, float]) -> bool:
+    """Return True for the points the compiled voxel grid takes.
+
+    float32 or float64, at least one, finite, voxel indices within ``2**40`` and a lattice of
+    at most ``_DENSE_LIMIT`` cells (floor(p / size) is monotonic: the extreme points give it).
+    """
+    if points.dtype not in (np.float32, np.float64) or points.shape[0] == 0:
+        return False
+    size = np.asarray(voxel_size_m, np.float64).astype(points.dtype)
+    with np.errstate(invalid='ignore', over='ignore'):
+        low = np.floor(points.min(axis=0) / size)
+        high = np.floor(points.max(axis=0) / size)
+    if not (np.all(np.abs(low) < 2.0 ** 40) and np.all(np.abs(high) < 2.0 ** 40)):
+        return False   # NaN fails too
+    return float(np.prod(high.astype(np.float64) - low + 1.0)) <= _DENSE_LIMIT
+
+
+_downsample = jit.choose(_reference_voxel_downsample, jit_voxel.voxel_downsample,
+                         accepts=_on_dense_lattice)
 
 
 # --------------------------------------------------------------------------- the frame stage
@@ -113,33 +131,23 @@ class RoiPoints:
     """The points of one depth frame inside the region of interest (:func:`points_in_roi`).
 
     points: (M, 3) float32 ground frame [m]; pixel_index: (M,) int64 their flat pixel
-    indices; shape: the image's (H, W); voxel_size_m: the voxel size of the frame's params;
-    valid: (H*W,) bool, the pixels with a 3-D point (numpy path; None when compiled);
-    projection: the compiled path's :class:`._compiled.voxel.Projection` (None on numpy),
-    which holds the points and pixels.
+    indices; labels: (H, W) uint8, LABEL_NO_RETURN, LABEL_OUTSIDE_ROI or (the points)
+    LABEL_GROUND until :func:`pixel_labels`; pixel_voxel: (H, W) int32, -1 until
+    :func:`voxel_grid` numbers the points' voxels; voxel_size_m: the frame's voxel size.
+    keyed: the compiled :class:`._compiled.voxel.Projection` that also keyed the points'
+    voxels (its buffers hold the arrays above), or None.
     """
 
-    shape: tuple[int, int]
+    points: np.ndarray
+    pixel_index: np.ndarray
+    labels: np.ndarray
+    pixel_voxel: np.ndarray
     voxel_size_m: tuple[float, float, float]
-    valid: np.ndarray | None = None
-    projection: jit_voxel.Projection | None = None
-    numpy_points: np.ndarray | None = None
-    numpy_pixel_index: np.ndarray | None = None
-
-    @property
-    def points(self) -> np.ndarray:
-        """(M, 3) float32 ground frame [m]."""
-        return self.numpy_points if self.projection is None else self.projection.points
-
-    @property
-    def pixel_index(self) -> np.ndarray:
-        """(M,) int64 flat pixel indices of the points."""
-        return (self.numpy_pixel_index if self.projection is None
-                else self.projection.pixel_index)
+    keyed: jit_voxel.Projection | None = None
 
 
 def roi_bounds(params: DetectorParams) -> np.ndarray:
-    """Return the ROI bounds in float32, as :func:`geometry.ground_points_in_roi` rounds them.
+    """Return the ROI bounds in float32, as :func:`points_in_roi` rounds them.
 
     (min range, max range, lateral limit, camera height, tdbg, max height), the ``bounds`` of
     :func:`._compiled.voxel.project_roi`.
@@ -148,44 +156,72 @@ def roi_bounds(params: DetectorParams) -> np.ndarray:
                      params.camera_height_m, params.tdbg_m, params.max_height_m], np.float32)
 
 
-def points_in_roi(depth_m: np.ndarray, rays: np.ndarray | geometry.GroundRays,
-                  params: DetectorParams) -> RoiPoints:
-    """Back-project a depth image through its ground rays and keep the region of interest.
+def _reference_points_in_roi(depth_m: np.ndarray, rays: np.ndarray | geometry.GroundRays,
+                             params: DetectorParams) -> RoiPoints:
+    """:func:`points_in_roi` in numpy: the ROI of :func:`geometry.roi_mask` on the image."""
+    rays = rays.table() if isinstance(rays, geometry.GroundRays) else rays
+    z = depth_m.reshape(-1)
+    valid = z > 0.0
+    gx = z * rays[0]
+    keep = valid & (gx >= np.float32(params.min_range_m))
+    keep &= gx <= np.float32(params.max_range_m)
+    gy = z * rays[1]
+    keep &= np.abs(gy) <= np.float32(params.lateral_limit_m)
+    gz = z * rays[2]
+    gz += np.float32(params.camera_height_m)
+    keep &= gz >= np.float32(params.tdbg_m)
+    keep &= gz <= np.float32(params.max_height_m)
+    pix = np.flatnonzero(keep)
+    cols = np.empty((3, pix.size), dtype=np.float32)   # (M, 3) points with contiguous columns
+    for axis, values in enumerate((gx, gy, gz)):
+        np.take(values, pix, out=cols[axis])
+    labels = np.where(valid, LABEL_OUTSIDE_ROI, LABEL_NO_RETURN).astype(np.uint8)
+    labels = labels.reshape(depth_m.shape)
+    labels.reshape(-1)[pix] = LABEL_GROUND
+    pixel_voxel = np.full(depth_m.shape, -1, dtype=np.int32)
+    return RoiPoints(cols.T, pix, labels, pixel_voxel, params.voxel_size_m)
 
-    depth_m: (H, W) float32, 0 = no return; rays: (3, H*W) float32 from
-    :func:`geometry.ground_rays`, or a :class:`geometry.GroundRays` (its rays computed on the
-    fly by the compiled path, no table read). Compiled (:func:`._compiled.voxel.project_roi`,
-    its buffers reused by the next frame of the same thread) or
-    :func:`geometry.ground_points_in_roi`: the same points and pixels.
-    """
-    if jit.enabled():
-        factors = (rays.ru, rays.rv, rays.rot) if isinstance(rays, geometry.GroundRays) else rays
-        proj = jit_voxel.project_roi(depth_m, factors, roi_bounds(params), params.voxel_size_m,
-                                     reuse=True)
-        return RoiPoints(depth_m.shape, params.voxel_size_m, projection=proj)
-    pts, pix_roi, valid = geometry.ground_points_in_roi(depth_m, rays, params)
-    return RoiPoints(depth_m.shape, params.voxel_size_m, valid=valid, numpy_points=pts,
-                     numpy_pixel_index=pix_roi)
+
+def _compiled_points_in_roi(depth_m: np.ndarray, rays: np.ndarray | geometry.GroundRays,
+                            params: DetectorParams) -> RoiPoints:
+    """:func:`points_in_roi` by :func:`._compiled.voxel.project_roi`, its buffers reused."""
+    factors = (rays.ru, rays.rv, rays.rot) if isinstance(rays, geometry.GroundRays) else rays
+    proj = jit_voxel.project_roi(depth_m, factors, roi_bounds(params), params.voxel_size_m,
+                                 reuse=True)
+    return RoiPoints(proj.points, proj.pixel_index, proj.labels, proj.pixel_voxel,
+                     params.voxel_size_m, proj if proj.has_keys and proj.count else None)
 
 
-def voxelise(proj: jit_voxel.Projection) -> VoxelGrid:
-    """Voxel grid of a compiled :class:`._compiled.voxel.Projection`; fills its pixel_voxel.
-
-    The same :class:`VoxelGrid` as :func:`voxel_downsample` of ``proj.points``.
-    """
-    fields = jit_voxel.voxelise(proj)
-    if fields is not None:
-        return VoxelGrid(*fields)
-    grid = voxel_downsample_numpy(proj.points, proj.voxel_size_m)
-    proj.pixel_voxel.reshape(-1)[proj.pixel_index] = grid.point_voxel
-    return grid
+#: Back-project a depth image through its ground rays and keep the region of interest.
+#: depth_m: (H, W) float32, 0 = no return; rays: (3, H*W) float32 from
+#: :func:`geometry.ground_rays`, or a :class:`geometry.GroundRays` (its rays computed on the
+#: fly by the compiled path, no table read). The same :class:`RoiPoints` on both paths.
+points_in_roi = jit.choose(_reference_points_in_roi, _compiled_points_in_roi)
 
 
 def voxel_grid(roi: RoiPoints) -> VoxelGrid:
-    """Return the voxel grid of the frame's points (:func:`voxel_downsample`)."""
-    if roi.projection is not None:
-        return voxelise(roi.projection)
-    return voxel_downsample(roi.points, roi.voxel_size_m)
+    """Return the voxel grid of the frame's points (:func:`voxel_downsample`).
+
+    Fills ``roi.pixel_voxel``: the voxel of each point's pixel. The compiled projection's keys
+    serve when it has them (a lattice small enough, at least one point).
+    """
+    if roi.keyed is not None:
+        return VoxelGrid(*jit_voxel.voxelise(roi.keyed))
+    grid = voxel_downsample(roi.points, roi.voxel_size_m)
+    roi.pixel_voxel.reshape(-1)[roi.pixel_index] = grid.point_voxel
+    return grid
+
+
+def _reference_label_pixels(labels: np.ndarray, pixel_voxel: np.ndarray,
+                            is_obstacle: np.ndarray) -> None:
+    """In place: labels (H, W) uint8 of voxel pixels become LABEL_OBSTACLE or LABEL_GROUND."""
+    voxel_of = pixel_voxel.reshape(-1)
+    pixels = np.flatnonzero(voxel_of >= 0)
+    labels.reshape(-1)[pixels] = np.where(is_obstacle[voxel_of[pixels]], LABEL_OBSTACLE,
+                                          LABEL_GROUND).astype(np.uint8)
+
+
+_label_pixels = jit.choose(_reference_label_pixels, jit_voxel.label_pixels)
 
 
 def pixel_labels(roi: RoiPoints, grid: VoxelGrid, is_obstacle: np.ndarray,
@@ -194,20 +230,10 @@ def pixel_labels(roi: RoiPoints, grid: VoxelGrid, is_obstacle: np.ndarray,
 
     is_obstacle: (V,) bool, the voxels' decision. Pixels without a point are
     LABEL_NO_RETURN, points outside the region LABEL_OUTSIDE_ROI, the others their voxel's
-    LABEL_OBSTACLE or LABEL_GROUND. The compiled path writes into the projection's arrays.
+    LABEL_OBSTACLE or LABEL_GROUND. Written into ``roi``'s arrays.
     """
-    proj = roi.projection
-    if proj is not None:
-        jit_voxel.label_pixels(proj.labels, proj.pixel_voxel, is_obstacle)
-        return proj.labels, proj.pixel_voxel
-    labels = np.zeros(roi.shape, dtype=np.uint8)
-    flat_labels = labels.reshape(-1)
-    flat_labels[roi.valid] = LABEL_OUTSIDE_ROI
-    flat_labels[roi.pixel_index] = np.where(is_obstacle[grid.point_voxel], LABEL_OBSTACLE,
-                                            LABEL_GROUND).astype(np.uint8)
-    pixel_voxel = np.full(roi.shape, -1, dtype=np.int32)
-    pixel_voxel.reshape(-1)[roi.pixel_index] = grid.point_voxel
-    return labels, pixel_voxel
+    _label_pixels(roi.labels, roi.pixel_voxel, is_obstacle)
+    return roi.labels, roi.pixel_voxel
 
 
 def warm_up() -> None:

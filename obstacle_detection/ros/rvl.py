@@ -10,10 +10,10 @@ significant first, the nibble's high bit set when another follows. The nibbles f
 little-endian words from their most significant end; the last word is padded with zero
 nibbles. (Where the codec's stream sits in a CompressedImage: :mod:`.compressed_depth`.)
 
-Two decoders give the same pixels: :func:`decode_rvl_numpy`, the reference (numpy for the
-codes, a Python loop over the runs), and a numba kernel (``pipeline/_compiled/rvl.py``, one
-sequential loop over the nibbles); :func:`decode_rvl` takes the kernel when the package's
-one switch (:func:`obstacle_detection.pipeline.jit.enabled`) allows it. Unlike the C++
+Two decoders give the same pixels: ``_reference_decode_rvl`` (numpy for the codes, a Python
+loop over the runs), and a numba kernel (``pipeline/_compiled/rvl.py``, one sequential loop
+over the nibbles); :func:`decode_rvl` takes the kernel when the package's one switch
+(:func:`obstacle_detection.pipeline.jit.choose`) allows it. Unlike the C++
 decoder, which trusts its input, both refuse data that is not an RVL stream of the announced
 size (:class:`RvlError`): words that end before the last pixel (truncated), a run beyond the
 image, a code longer than any count needs, a difference beyond 16 bits, whole words left after
@@ -81,7 +81,7 @@ def _codes(words: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return values, ends + 1
 
 
-def decode_rvl_numpy(stream: bytes, num_pixels: int) -> np.ndarray:
+def _reference_decode_rvl(stream: bytes, num_pixels: int) -> np.ndarray:
     """Decode an RVL stream into its (num_pixels,) uint16 pixels: the reference decoder.
 
     The codes are read with numpy; a Python loop walks the runs (one step per run of zeros
@@ -121,7 +121,7 @@ def decode_rvl_numpy(stream: bytes, num_pixels: int) -> np.ndarray:
     return pixels
 
 
-def decode_rvl_compiled(stream: bytes, num_pixels: int) -> np.ndarray:
+def _compiled_decode_rvl(stream: bytes, num_pixels: int) -> np.ndarray:
     """Decode an RVL stream with the numba kernel; same result and refusals as the reference.
 
     Without numba the kernel runs as plain Python (slow; for tests of its logic).
@@ -134,15 +134,10 @@ def decode_rvl_compiled(stream: bytes, num_pixels: int) -> np.ndarray:
     return pixels
 
 
-def decode_rvl(stream: bytes, num_pixels: int) -> np.ndarray:
-    """Decode an RVL stream into its (num_pixels,) uint16 pixels, row-major.
-
-    The numba kernel when the compiled path is on (about a millisecond for a 512 x 424
-    frame), else the numpy reference. Raises RvlError naming the problem.
-    """
-    if jit_support.enabled():
-        return decode_rvl_compiled(stream, num_pixels)
-    return decode_rvl_numpy(stream, num_pixels)
+#: Decode an RVL stream into its (num_pixels,) uint16 pixels, row-major: the numba kernel when
+#: the compiled path is on (about a millisecond for a 512 x 424 frame), else the numpy
+#: reference. Raises RvlError naming the problem.
+decode_rvl = jit_support.choose(_reference_decode_rvl, _compiled_decode_rvl)
 
 
 def warm_up() -> None:

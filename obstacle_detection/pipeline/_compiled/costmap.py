@@ -27,15 +27,13 @@ def _raster_kernel(points, value, ox, oy, res, nx, ny, flat):  # pragma: no cove
 
 
 def rasterise(flat: np.ndarray, points: np.ndarray, value: int,
-              origin_xy_m: tuple[float, float], resolution_m: float, nx: int, ny: int) -> bool:
+              origin_xy_m: tuple[float, float], resolution_m: float, nx: int, ny: int) -> None:
     """Write ``value`` into the cells of ``flat`` ((ny * nx,) int8) that ``points`` hit.
 
-    points: (M, >= 2) float32 or float64 [m]. Returns False, writing nothing, for any other
-    dtype (the caller then runs its numpy code).
+    points: (M, >= 2) float32 or float64 [m] (TypeError for another dtype).
     """
-    if points.dtype not in (np.float32, np.float64) or points.ndim != 2 or points.shape[1] < 2:
-        return False
+    if points.dtype not in (np.float32, np.float64):
+        raise TypeError(f'points must be float32 or float64, got {points.dtype}')
     cast = points.dtype.type
     _raster_kernel(points, np.int8(value), cast(origin_xy_m[0]), cast(origin_xy_m[1]),
                    cast(resolution_m), int(nx), int(ny), flat)
-    return True

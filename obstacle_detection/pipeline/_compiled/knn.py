@@ -609,6 +609,97 @@ def knn_grid(points: np.ndarray, k: int) -> np.ndarray:
 
 # --------------------------------------------------------------------------- normals kernel
 
+@_jit_inline
+def _covariance_row(pts, neighbours, v, n_use):  # pragma: no cover - compiled
+    """Six entries (a00, a01, a02, a11, a12, a22) of row v's neighbourhood covariance.
+
+    Relative to the query point, float64, summed over the neighbours in column order.
+    """
+    count = np.float64(n_use)
+    px = np.float64(pts[v, 0])
+    py = np.float64(pts[v, 1])
+    pz = np.float64(pts[v, 2])
+    j = neighbours[v, 0]
+    rx = np.float64(pts[j, 0]) - px
+    ry = np.float64(pts[j, 1]) - py
+    rz = np.float64(pts[j, 2]) - pz
+    sx = rx
+    sy = ry
+    sz = rz
+    s00 = rx * rx
+    s01 = rx * ry
+    s02 = rx * rz
+    s11 = ry * ry
+    s12 = ry * rz
+    s22 = rz * rz
+    for t in range(1, n_use):
+        j = neighbours[v, t]
+        rx = np.float64(pts[j, 0]) - px
+        ry = np.float64(pts[j, 1]) - py
+        rz = np.float64(pts[j, 2]) - pz
+        sx += rx
+        sy += ry
+        sz += rz
+        s00 += rx * rx
+        s01 += rx * ry
+        s02 += rx * rz
+        s11 += ry * ry
+        s12 += ry * rz
+        s22 += rz * rz
+    m0 = sx / count
+    m1 = sy / count
+    m2 = sz / count
+    return (s00 / count - m0 * m0, s01 / count - m0 * m1, s02 / count - m0 * m2,
+            s11 / count - m1 * m1, s12 / count - m1 * m2, s22 / count - m2 * m2)
+
+
+@_jit_inline
+def _smallest_eigenvector(a00, a01, a02, a11, a12, a22):  # pragma: no cover - compiled
+    """(x, y, z, length, p2): the unnormalised eigenvector of the smallest eigenvalue.
+
+    The trigonometric eigenvalue, then the longest cross product of two rows of C - lam I
+    (the first on ties); p2 measures the matrix's anisotropy (the degenerate test's scale).
+    """
+    q = (a00 + a11 + a22) / 3.0
+    p1 = a01 * a01 + a02 * a02 + a12 * a12
+    b00 = a00 - q
+    b11 = a11 - q
+    b22 = a22 - q
+    p2 = b00 * b00 + b11 * b11 + b22 * b22 + 2.0 * p1
+    p = math.sqrt(p2 / 6.0)
+    safe_p = p if p > 0.0 else 1.0
+    det_b = (b00 * (b11 * b22 - a12 * a12) - a01 * (a01 * b22 - a12 * a02)
+             + a02 * (a01 * a12 - b11 * a02))
+    r = det_b / (2.0 * (safe_p * safe_p * safe_p))
+    r = min(max(r, -1.0), 1.0)
+    phi = math.acos(r) / 3.0
+    lam = q + 2.0 * p * math.cos(phi + 2.0 * np.pi / 3.0)
+    r00 = a00 - lam
+    r11 = a11 - lam
+    r22 = a22 - lam
+    best_len2 = -1.0
+    bx = 0.0
+    by = 0.0
+    bz = 0.0
+    for c in range(3):
+        if c == 0:    # row0 x row1
+            ux, uy, uz, wx, wy, wz = r00, a01, a02, a01, r11, a12
+        elif c == 1:  # row0 x row2
+            ux, uy, uz, wx, wy, wz = r00, a01, a02, a02, a12, r22
+        else:         # row1 x row2
+            ux, uy, uz, wx, wy, wz = a01, r11, a12, a02, a12, r22
+        cx = uy * wz - uz * wy
+        cy = uz * wx - ux * wz
+        cz = ux * wy - uy * wx
+        len2 = cx * cx + cy * cy + cz * cz
+        if len2 > best_len2:
+            best_len2 = len2
+            bx = cx
+            by = cy
+            bz = cz
+    return bx, by, bz, math.sqrt(best_len2), p2
+
+
 @_jit
 def _normals_kernel(pts, neighbours, n_use, normals, cov_bad, bad):  # pragma: no cover
     """Covariance and closed-form smallest eigenvector of every row.
@@ -627,90 +718,11 @@ def _normals_kernel(pts, neighbours, n_use, normals, cov_bad, bad):  # pragma: n
         for t in range(n_use):
             if neighbours[v, t] < 0 or neighbours[v, t] >= v_count:
                 return -1
-    count = np.float64(n_use)
-    two_pi_3 = 2.0 * np.pi / 3.0
     tiny = np.finfo(np.float64).tiny
     n_bad = 0
     for v in range(v_count):
-        px = np.float64(pts[v, 0])
-        py = np.float64(pts[v, 1])
-        pz = np.float64(pts[v, 2])
-        j = neighbours[v, 0]
-        rx = np.float64(pts[j, 0]) - px
-        ry = np.float64(pts[j, 1]) - py
-        rz = np.float64(pts[j, 2]) - pz
-        sx = rx
-        sy = ry
-        sz = rz
-        s00 = rx * rx
-        s01 = rx * ry
-        s02 = rx * rz
-        s11 = ry * ry
-        s12 = ry * rz
-        s22 = rz * rz
-        for t in range(1, n_use):
-            j = neighbours[v, t]
-            rx = np.float64(pts[j, 0]) - px
-            ry = np.float64(pts[j, 1]) - py
-            rz = np.float64(pts[j, 2]) - pz
-            sx += rx
-            sy += ry
-            sz += rz
-            s00 += rx * rx
-            s01 += rx * ry
-            s02 += rx * rz
-            s11 += ry * ry
-            s12 += ry * rz
-            s22 += rz * rz
-        m0 = sx / count
-        m1 = sy / count
-        m2 = sz / count
-        a00 = s00 / count - m0 * m0
-        a01 = s01 / count - m0 * m1
-        a02 = s02 / count - m0 * m2
-        a11 = s11 / count - m1 * m1
-        a12 = s12 / count - m1 * m2
-        a22 = s22 / count - m2 * m2
-
-        q = (a00 + a11 + a22) / 3.0
-        p1 = a01 * a01 + a02 * a02 + a12 * a12
-        b00 = a00 - q
-        b11 = a11 - q
-        b22 = a22 - q
-        p2 = b00 * b00 + b11 * b11 + b22 * b22 + 2.0 * p1
-        p = math.sqrt(p2 / 6.0)
-        safe_p = p if p > 0.0 else 1.0
-        det_b = (b00 * (b11 * b22 - a12 * a12) - a01 * (a01 * b22 - a12 * a02)
-                 + a02 * (a01 * a12 - b11 * a02))
-        r = det_b / (2.0 * (safe_p * safe_p * safe_p))
-        r = min(max(r, -1.0), 1.0)
-        phi = math.acos(r) / 3.0
-        lam = q + 2.0 * p * math.cos(phi + two_pi_3)
-        # rows of C - lam I and their three cross products; keep the longest (first on ties)
-        r00 = a00 - lam
-        r11 = a11 - lam
-        r22 = a22 - lam
-        best_len2 = -1.0
-        bx = 0.0
-        by = 0.0
-        bz = 0.0
-        for c in range(3):
-            if c == 0:    # row0 x row1
-                ux, uy, uz, wx, wy, wz = r00, a01, a02, a01, r11, a12
-            elif c == 1:  # row0 x row2
-                ux, uy, uz, wx, wy, wz = r00, a01, a02, a02, a12, r22
-            else:         # row1 x row2
-                ux, uy, uz, wx, wy, wz = a01, r11, a12, a02, a12, r22
-            cx = uy * wz - uz * wy
-            cy = uz * wx - ux * wz
-            cz = ux * wy - uy * wx
-            len2 = cx * cx + cy * cy + cz * cz
-            if len2 > best_len2:
-                best_len2 = len2
-                bx = cx
-                by = cy
-                bz = cz
-        length = math.sqrt(best_len2)
+        a00, a01, a02, a11, a12, a22 = _covariance_row(pts, neighbours, v, n_use)
+        bx, by, bz, length, p2 = _smallest_eigenvector(a00, a01, a02, a11, a12, a22)
         scale = p2 if p2 > tiny else tiny
         bad[v] = length * length <= 1e-12 * scale * scale
         if bad[v]:                    # degenerate: the caller asks LAPACK, as numpy does
@@ -793,17 +805,16 @@ def _validate_kernel(is_obstacle, neighbours, n1, out):  # pragma: no cover - co
     return True
 
 
-def validate(is_obstacle: np.ndarray, neighbours: np.ndarray, n1: int) -> np.ndarray | None:
+def validate(is_obstacle: np.ndarray, neighbours: np.ndarray, n1: int) -> np.ndarray:
     """Return the seed's validation of ``normals.validate_obstacles`` for n1 >= 1, compiled.
 
     is_obstacle: (V,) bool; neighbours: (V, >= n1 + 1) int indices, the point itself first.
-    Returns the (V,) bool result, or None when an index is out of range (the numpy path then
-    raises as numpy does).
+    Returns the (V,) bool result. Raises IndexError when an index lies outside [0, V).
     """
     out = np.empty(is_obstacle.shape[0], np.bool_)
     nb = neighbours if neighbours.dtype == np.int64 else neighbours.astype(np.int64)
     if not _validate_kernel(np.ascontiguousarray(is_obstacle, np.bool_), nb, int(n1), out):
-        return None
+        raise IndexError(f'a neighbour index lies outside [0, {is_obstacle.shape[0]})')
     return out
 
 

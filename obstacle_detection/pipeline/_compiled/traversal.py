@@ -4,10 +4,11 @@
 float32 operations per pixel, in the same order); :func:`traverse` equals the numpy path of
 :func:`obstacle_detection.pipeline.traversal.traversable_ground` (the same grid, the same
 reachable set, the same layered nearest-ground rule, the same float operations);
-:func:`drop_mask` equals :func:`obstacle_detection.pipeline.traversal.drop_edge_mask`.
+:func:`drop_edge_mask` equals :func:`obstacle_detection.pipeline.traversal.drop_edge_mask`.
 The tests compare them bit for bit.
-The stage modules choose these kernels or their numpy twins through the one switch,
-:func:`obstacle_detection.pipeline.jit.enabled`. Kernels import nothing of ours.
+The stage modules choose these kernels or their numpy twins (``_reference_<name>``) through
+the one dispatcher, :func:`obstacle_detection.pipeline.jit.choose`. Kernels import nothing of
+ours.
 """
 
 from __future__ import annotations
@@ -22,8 +23,8 @@ from ._numba import AVAILABLE, jit as _jit
 #: Per-thread buffers reused across frames (fresh large arrays cost page faults).
 _SCRATCH = threading.local()
 
-__all__ = ['AVAILABLE', 'drop_mask', 'drop_smeared', 'ground_rays', 'holes_to_inf', 'ray_row',
-           'traverse', 'warm_up']
+__all__ = ['AVAILABLE', 'drop_edge_mask', 'drop_smeared', 'ground_rays', 'has_nan',
+           'holes_to_inf', 'ray_row', 'traverse', 'warm_up']
 
 
 @_jit
@@ -249,7 +250,7 @@ def _z_row(depth_row, rz_row, h, down, out):  # pragma: no cover - compiled
 @_jit
 def _drop_pixels_kernel(depth, rz, ru, rv, rot, h, down, up, rows, zring, rz_row, passed,
                         pix_out, k_out):  # pragma: no cover - compiled
-    """Fill pix_out/k_out with the pixels drop_mask marks and their offsets; return how many.
+    """Fill pix_out/k_out with the pixels drop_edge_mask marks and their offsets; return how many.
 
     The same float32 heights and tests as _drop_kernel: the heights of rows i to i + rows
     rotate through zring (rows + 1, W), passed (H,) counts each row's pixels below the floor;
@@ -291,7 +292,7 @@ def drop_pixels(depth_m: np.ndarray, rz: np.ndarray | None, height_m: float,
                 step_down_m: float, step_up_m: float, rows: int,
                 model: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
                 ) -> tuple[np.ndarray, np.ndarray]:
-    """(flat pixel indices int64, offsets int8) of drop_mask's nonzero pixels, in order.
+    """(flat pixel indices int64, offsets int8) of drop_edge_mask's nonzero pixels, in order.
 
     rz: (H*W,) or (H, W) float32, the z of the ground rays; or None and model: (ru, rv, rot)
     float32 of geometry.GroundRays, the rays computed row by row (the same values).
@@ -315,8 +316,8 @@ def drop_pixels(depth_m: np.ndarray, rz: np.ndarray | None, height_m: float,
     return pix[:m].copy(), offsets[:m].copy()
 
 
-def drop_mask(depth_m: np.ndarray, rz: np.ndarray, height_m: float, step_down_m: float,
-              step_up_m: float, rows: int) -> np.ndarray:
+def drop_edge_mask(depth_m: np.ndarray, rz: np.ndarray, height_m: float, step_down_m: float,
+                   step_up_m: float, rows: int) -> np.ndarray:
     """(H, W) int8 drop-edge row offsets; equals traversal.drop_edge_mask."""
     out = np.empty(depth_m.shape, np.int8)
     _drop_kernel(np.ascontiguousarray(depth_m, np.float32),
@@ -687,20 +688,20 @@ def _smear5_buffers(width: int) -> tuple[np.ndarray, ...]:
             np.empty(width, np.bool_), np.empty(width, np.bool_))
 
 
+def has_nan(raw: np.ndarray) -> bool:
+    """Return True when the float32 image raw holds a NaN."""
+    return bool(_has_nan(raw))
+
+
 def drop_smeared_fused(filtered: np.ndarray, raw: np.ndarray, max_shift: float, jump: float,
-                       planar_tolerance: float, *, raw_no_nan: bool = False) -> bool:
+                       planar_tolerance: float) -> None:
     """In place, as :func:`drop_smeared` with the 5 x 5 window range of traversal's numpy path.
 
-    filtered, raw: (H, W) float32 C-contiguous. Returns False, changing nothing, when raw
-    holds a NaN (the caller then takes OpenCV's window range, whose NaN handling is its own).
-    raw_no_nan: the caller knows raw holds no NaN (looked up in a table of depths):
-    the scan for one is skipped.
+    filtered, raw: (H, W) float32 C-contiguous; raw without NaN (:func:`has_nan`: OpenCV's
+    window range, which the result must equal, orders NaN its own way).
     """
-    if not raw_no_nan and _has_nan(raw):
-        return False
     rules = (np.float32(max_shift), np.float32(jump), np.float32(planar_tolerance))
     _smear5_kernel(filtered, raw, *rules, *_smear5_scratch(raw.shape[1]))
-    return True
 
 
 def _smear5_scratch(width: int) -> tuple[np.ndarray, ...]:
@@ -920,7 +921,7 @@ def warm_up() -> None:
     ground_rays(np.zeros(2, np.float32), np.zeros(2, np.float32), np.eye(3, dtype=np.float32))
     pts = np.array([[0.1, 0.0, 0.0], [0.2, 0.1, 0.3]], np.float32)
     traverse(pts, np.array([False, True]), 0.05, 0.05, 0.05, 1.0, 0.025)
-    drop_mask(np.ones((4, 2), np.float32), -np.ones((4, 2), np.float32), 0.5, 0.05, 0.05, 3)
+    drop_edge_mask(np.ones((4, 2), np.float32), -np.ones((4, 2), np.float32), 0.5, 0.05, 0.05, 3)
     drop_pixels(np.ones((4, 2), np.float32), -np.ones(8, np.float32), 0.5, 0.05, 0.05, 3)
     drop_pixels(np.ones((4, 2), np.float32), None, 0.5, 0.05, 0.05, 3,
                 (np.zeros(2, np.float32), np.zeros(4, np.float32), np.eye(3, dtype=np.float32)))
@@ -929,6 +930,7 @@ def warm_up() -> None:
     drop_smeared_fused(np.ones((6, 6), np.float32), np.ones((6, 6), np.float32), 0.03, 0.05,
                        0.02)
     holes_to_inf(one)
+    has_nan(one)
     rng = np.random.default_rng(0)
     depth = rng.uniform(0.5, 3.0, (12, 12)).astype(np.float32)
     rays = rng.uniform(-1.0, 1.0, (3, 36)).astype(np.float32)

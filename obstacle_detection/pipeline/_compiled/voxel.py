@@ -2,8 +2,8 @@
 
 numba is an optional accelerator: when :func:`obstacle_detection.pipeline.jit.enabled`, the
 stage module :mod:`obstacle_detection.pipeline.voxel` runs :func:`project_roi` and
-:func:`voxelise` instead of :func:`obstacle_detection.pipeline.geometry.ground_points_in_roi`
-and its numpy voxel grid, and its ``voxel_downsample`` runs :func:`voxel_downsample`. This
+:func:`voxelise` instead of its numpy twin (``_reference_points_in_roi``) and numpy voxel
+grid, and its ``voxel_downsample`` runs :func:`voxel_downsample`. This
 module takes and returns arrays; the stage module builds its ``VoxelGrid`` from them.
 
 Both paths give bit-identical results. The kernels repeat the float32 operations of the numpy
@@ -17,7 +17,8 @@ bounds (division by a positive number is monotone, so every kept point's voxel l
 it). A bitmap of the occupied cells (a bit per lattice cell) and the count of set bits
 before each of its 64-bit words number the voxels in key order; one pass over the points then
 accumulates counts and sums. A lattice larger than
-``_DENSE_LIMIT`` cells, or a point whose voxel index does not fit, falls back to numpy.
+``_DENSE_LIMIT`` cells, or a point whose voxel index does not fit, is refused (ValueError);
+the stage module sends those to numpy before calling.
 
 The kernels are compiled on first use (a few seconds) and cached on disk (``cache=True``);
 call :func:`obstacle_detection.pipeline.voxel.warm_up` at start-up to pay that before the first
@@ -44,7 +45,7 @@ _DENSE_LIMIT = 16_000_000
 #: uint64 0 and 1 (numba turns uint64 mixed with an int literal into float64).
 _U0 = np.uint64(0)
 _U1 = np.uint64(1)
-#: Largest |voxel index| handled; beyond it (or NaN) the numpy path runs.
+#: Largest |voxel index| handled; beyond it (or NaN) the numpy path must run.
 _MAX_INDEX = float(1 << 40)
 #: Label of a pixel inside the region of interest until :func:`label_pixels` decides ground or
 #: obstacle (every such pixel has a voxel, so none keeps it).
@@ -302,7 +303,7 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarra
     on the fly a band of rows at a time, no table read; the same float32 values); bounds: (6,)
     float32 (min range, max range, lateral limit, camera height, tdbg, max height), as
     :func:`obstacle_detection.pipeline.voxel.roi_bounds` rounds them. The points and pixel
-    indices equal those of :func:`obstacle_detection.pipeline.geometry.ground_points_in_roi`.
+    indices equal those of :func:`obstacle_detection.pipeline.voxel.points_in_roi`'s numpy path.
     reuse: keep the points, pixel indices and keys in per-thread buffers that the next call
     in the same thread overwrites (the pipeline's choice; faster), instead of fresh arrays.
     """
@@ -354,16 +355,15 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarra
                       reuse)
 
 
-def voxelise(proj: Projection) -> tuple | None:
-    """Voxel grid of a :class:`Projection`; fills in ``proj.pixel_voxel``.
+def voxelise(proj: Projection) -> tuple:
+    """Voxel grid of a :class:`Projection` with keys and points; fills in ``proj.pixel_voxel``.
 
     Returns (centroids, point_voxel, counts, voxel_ijk), the fields of the ``VoxelGrid`` that
-    :func:`obstacle_detection.pipeline.voxel.voxel_downsample` gives for ``proj.points``, or
-    None when the numpy path must number the voxels (no keys, or no point): then
-    ``proj.pixel_voxel`` is left to the caller.
+    :func:`obstacle_detection.pipeline.voxel.voxel_downsample` gives for ``proj.points``.
+    Raises ValueError for a projection without keys (its lattice too large) or points.
     """
     if not proj.has_keys or proj.count == 0:
-        return None
+        raise ValueError('the projection has no voxel keys or no point')
     n_cells = int(proj.dims[0] * proj.dims[1] * proj.dims[2])
     m = proj.count
     point_voxel = _scratch('point_voxel', m, np.int64)[:m] if proj.reuse else np.empty(m,
@@ -382,26 +382,27 @@ def _run_voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point
 
 
 def voxel_downsample(points: np.ndarray, voxel_size_m: tuple[float, float, float]
-                     ) -> tuple | None:
+                     ) -> tuple:
     """:func:`obstacle_detection.pipeline.voxel.voxel_downsample` compiled.
 
     points: (M, 3) float32 or float64 (M >= 1) [m]; the size has been validated. Returns the
-    fields (centroids, point_voxel, counts, voxel_ijk) of the same ``VoxelGrid``, or None when
-    the numpy path must run (another dtype, a voxel index beyond 2**40 or NaN, or a lattice
-    over ``_DENSE_LIMIT`` cells).
+    fields (centroids, point_voxel, counts, voxel_ijk) of the same ``VoxelGrid``. Raises
+    ValueError for another dtype, no point, a voxel index beyond 2**40 or NaN, or a lattice
+    over ``_DENSE_LIMIT`` cells (the stage module sends those to numpy before calling).
     """
     if points.dtype not in (np.float32, np.float64) or points.shape[0] == 0:
-        return None
+        raise ValueError(f'need float32/64 points, at least one; got {points.dtype} '
+                         f'{points.shape}')
     cols = np.ascontiguousarray(points.T)
     size = np.asarray(voxel_size_m, np.float64).astype(cols.dtype)
     ijk = np.empty(cols.shape, np.int64)
     if not _index_kernel(cols, size, ijk, cols.dtype.type(_MAX_INDEX)):
-        return None
+        raise ValueError('a voxel index is NaN or beyond 2**40')
     low = ijk.min(axis=1)
     dims = ijk.max(axis=1) - low + 1
     n_cells = int(dims[0]) * int(dims[1]) * int(dims[2])
     if n_cells > _DENSE_LIMIT:
-        return None
+        raise ValueError(f'{n_cells} lattice cells > {_DENSE_LIMIT}')
     keys = ijk[0] - low[0]
     keys *= dims[1]
     keys += ijk[1] - low[1]
