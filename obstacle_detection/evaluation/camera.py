@@ -17,16 +17,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from obstacle_detection.evaluation import EvaluationError
 from obstacle_detection.pipeline.params import Intrinsics
-
-
-class CameraFileError(ValueError):
-    """A camera file that cannot be used: ``path`` and the ``problem``."""
-
-    def __init__(self, path: str | Path, problem: str) -> None:
-        super().__init__(f'{path}: {problem}')
-        self.path = Path(path)
-        self.problem = problem
 
 
 @dataclass(frozen=True)
@@ -120,7 +112,7 @@ def camera_from_mapping(data: Any) -> CameraFile:
 def read_camera_yaml(path: str | Path) -> CameraFile:
     """Read a camera YAML (see the module docstring).
 
-    Raises OSError when the file cannot be read, CameraFileError naming it when its content is
+    Raises OSError when the file cannot be read, EvaluationError naming it when its content is
     not a usable camera.
     """
     import yaml  # PyYAML ships with ROS 2 (rclpy's own dependency)
@@ -129,9 +121,9 @@ def read_camera_yaml(path: str | Path) -> CameraFile:
     try:
         return camera_from_mapping(yaml.safe_load(text) or {})
     except yaml.YAMLError as err:
-        raise CameraFileError(path, f'not valid YAML ({err})') from None
+        raise EvaluationError(f'not valid YAML ({err})', path) from None
     except ValueError as err:
-        raise CameraFileError(path, str(err)) from None
+        raise EvaluationError(str(err), path) from None
 
 
 def camera_yaml_text(intrinsics: Intrinsics, *, comment: str,

@@ -41,15 +41,13 @@ import numpy as np
 from obstacle_detection.labels import (CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN, GT_ABOVE_ROBOT,
                                        GT_NO_RETURN, GT_OBSTACLE, GT_TRAVERSABLE)
 from obstacle_detection.pipeline import geometry
-from . import camera as camera_file
+from . import EvaluationError, camera as camera_file
 from . import metrics
 from .camera import scaled_intrinsics
 from .metrics import Confusion, format_score
 from obstacle_detection.pipeline.params import (KINECT_V2_SD, KINECT_V2_SD_SIZE, PRESETS,
                                                 DetectorParams, Intrinsics)
 
-class UnknownNameError(ValueError):
-    """A scenario, parameter or metric name the evaluation does not know (a usage error)."""
 
 
 #: Version of the scenario-list format read by :func:`load_scenarios`.
@@ -219,7 +217,8 @@ def select_scenarios(scenarios: Sequence[Scenario], names: Iterable[str] | None,
     chosen = []
     for name in names:
         if name not in by_name:
-            raise UnknownNameError(f'unknown scenario {name!r}; known: {", ".join(by_name)}')
+            raise EvaluationError(f'unknown scenario {name!r}; known: {", ".join(by_name)}',
+                                  usage=True)
         chosen.append(by_name[name])
     return chosen
 
@@ -418,7 +417,7 @@ def apply_overrides(base: DetectorParams, overrides: dict[str, Any]) -> Detector
         if name == 'theta_rad':
             name = 'max_slope_rad'
         if name not in fields:
-            raise UnknownNameError(f'unknown parameter {key!r}')
+            raise EvaluationError(f'unknown parameter {key!r}', usage=True)
         current = getattr(base, name)
         if isinstance(current, bool):
             value = _boolean(key, value)

@@ -150,8 +150,8 @@ def settings_params(base: DetectorParams, x: Axis, y: Axis | None, *index: int,
 def check_sweep(x: Axis, y: Axis | None, metric: str, also: Sequence[Axis] = ()) -> None:
     """Raise ValueError for an unknown metric or an axis given twice."""
     if metric not in METRICS:
-        raise evaluation.UnknownNameError(f'unknown metric {metric!r}; known: '
-                                          f'{", ".join(METRICS)}')
+        raise evaluation.EvaluationError(f'unknown metric {metric!r}; known: '
+                                         f'{", ".join(METRICS)}', usage=True)
     names = [x.name] + ([y.name] if y is not None else []) + [a.name for a in also]
     if len(set(names)) != len(names):
         raise ValueError(f'an axis is given twice: {", ".join(names)}')
