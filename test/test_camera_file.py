@@ -8,7 +8,9 @@ from pathlib import Path
 import pytest
 
 from obstacle_detection.evaluation import EvaluationError, camera
-from obstacle_detection.evaluation.runner import folder_camera, write_camera_yaml
+from obstacle_detection.evaluation.runner import folder_camera
+
+from eval_helpers import write_camera_yaml
 from obstacle_detection.pipeline.params import Intrinsics
 
 INTR = Intrinsics(365.5, 366.25, 255.5, 211.5)

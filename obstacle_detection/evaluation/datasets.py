@@ -1,10 +1,6 @@
 """Recorded RGB-D datasets as frame lists: TUM RGB-D format, DIML/CVL, depth PNG folders.
 
-Each reader returns a :class:`FrameSource`: the frames (stamp, depth PNG, paired colour image,
-optional pose), the camera intrinsics (from a file, a dataset's known camera, or ``None`` = the
-Kinect v2 defaults chosen, loudly, once the image size is known) and what could not be paired.
-``obstacle_detection.cli.bag_writer`` writes a FrameSource as a rosbag2 bag
-(``tools/bag_convert.py``); the layouts are described there.
+``cli.bag_writer`` writes a :class:`FrameSource` as a rosbag2 bag (``tools/bag_convert.py``).
 """
 
 from __future__ import annotations
@@ -66,12 +62,7 @@ class Frame:
 
 @dataclasses.dataclass
 class FrameSource:
-    """What a dataset layout yields: frames, their camera and what could not be paired.
-
-    ``intrinsics`` None means "not given": defaults for the view are chosen (with a warning)
-    once the image size is known. ``size`` is (width, height) from the intrinsics file, checked
-    against the images when given.
-    """
+    """Frames, their camera (None: Kinect v2 defaults, with a warning), what was not paired."""
 
     frames: list[Frame]
     intrinsics: Intrinsics | None
@@ -88,18 +79,9 @@ class FrameSource:
 
 
 def load_intrinsics(path: Path) -> tuple[Intrinsics, tuple[int, int] | None]:
-    """Read camera intrinsics from a file.
+    """Intrinsics (and size if given) of a camera YAML, ROS camera_info or ETH3D calibration.txt.
 
-    Accepted: a YAML mapping with ``fx, fy, cx, cy`` and optionally ``width, height`` (also
-    nested under an ``intrinsics`` or ``camera`` key); a ROS ``camera_info`` YAML
-    (``camera_matrix: {data: [...]}``, ``image_width``, ``image_height``); or an ETH3D
-    ``calibration.txt`` holding ``fx fy cx cy`` on one line.
-
-    Returns:
-        The intrinsics and (width, height) if the file gives them.
-
-    Raises:
-        EvaluationError: naming the file when it is missing, unreadable or incomplete.
+    Raises EvaluationError naming the file when it is missing, unreadable or incomplete.
     """
     try:
         text = path.read_text()
@@ -150,11 +132,7 @@ def default_intrinsics(view: str, size: tuple[int, int]) -> tuple[Intrinsics, st
 
 
 def stamp_ns(seconds: float) -> int:
-    """Seconds to integer nanoseconds (rounded).
-
-    Frame stamps are ``stamp_ns(start) + stamp_ns(i / rate)``: adding in integers keeps the
-    frame spacing exact to the nanosecond even for a start near the current epoch.
-    """
+    """Seconds to integer nanoseconds (rounded), so that frame spacing stays exact."""
     return int(round(seconds * 1e9))
 
 
@@ -197,10 +175,7 @@ def _pair_by_key(depth: dict[str, Path], color: dict[str, Path], depth_dir: Path
 def diml_frames(sequence: Path, *, depth_kind: str = 'raw', intrinsics_path: Path | None = None,
                 rate_hz: float = 30.0, start_s: float = 0.0,
                 with_color: bool = True) -> FrameSource:
-    """List the frames of one DIML/CVL indoor sequence folder (``<scene>/<date>/<n>``).
-
-    Frame ``i`` (the number before the suffix) is stamped ``start_s + i / rate_hz``.
-    """
+    """List the frames of one DIML/CVL indoor sequence folder, stamped by frame number."""
     _check_rate(rate_hz)
     folder, suffix = DIML_DEPTH_KINDS[depth_kind]
     depth_dir = sequence / folder
@@ -241,12 +216,7 @@ def diml_frames(sequence: Path, *, depth_kind: str = 'raw', intrinsics_path: Pat
 def diml_sample_frames(root: Path, *, resolution: str = 'LR',
                        intrinsics_path: Path | None = None, rate_hz: float = 30.0,
                        start_s: float = 0.0, with_color: bool = True) -> FrameSource:
-    """List the frames of the DIML sample subset below ``root``.
-
-    ``root`` is a split folder (``.../test``), a resolution folder (``.../test/LR``) or one
-    scene folder holding ``color/`` and ``depth_filled/``. Frames are sorted by scene folder
-    and id and stamped ``start_s + k / rate_hz``.
-    """
+    """List the frames of the DIML sample subset (split, resolution or scene folder)."""
     _check_rate(rate_hz)
     if not root.is_dir():
         raise EvaluationError(f'{root}: DIML sample folder not found')
@@ -286,9 +256,7 @@ def folder_frames(depth_dir: Path, *, color_dir: Path | None = None,
                   start_s: float = 0.0, depth_units_per_m: float | None = None) -> FrameSource:
     """List a folder of depth PNGs (and a colour folder), sorted by name, stamped by rate.
 
-    depth_units_per_m: of the PNGs (``--depth-scale``; 5000 for TUM frames); None: 1000
-    (millimetres), the default, and a first frame that looks like another unit is refused
-    (:func:`obstacle_detection.cli.bag_writer.write_frames`).
+    depth_units_per_m: None = millimetres (and a first frame in another unit is refused).
     """
     _check_rate(rate_hz)
     if depth_units_per_m is not None and not (math.isfinite(depth_units_per_m)
@@ -406,11 +374,9 @@ def tum_frames(root: Path, *, camera: str | None = None, intrinsics_path: Path |
 
 
 def stamps_from_names(root: Path, kind: str) -> list[tuple[float, str]]:
-    """``(timestamp, file)`` of the images in ``root/kind`` named by their timestamp (TUM's).
+    """``(timestamp, file)`` of the PNGs in ``root/kind`` named ``<seconds>.png`` (TUM).
 
-    kind: 'depth' or 'rgb'. Stands in for a missing ``depth.txt`` / ``rgb.txt``. Raises
-    EvaluationError when the folder is missing or a PNG in it is not named ``<seconds>.png``,
-    saying exactly what list to write (the PNGs it found, with example stamps).
+    Stands in for a missing ``depth.txt`` / ``rgb.txt``; EvaluationError says what to write.
     """
     folder = root / kind
     listed = root / f'{kind}.txt'
@@ -438,11 +404,9 @@ def stamps_from_names(root: Path, kind: str) -> list[tuple[float, str]]:
 
 def read_depth_png(path: Path, *,
                    units_per_m: float = DEFAULT_DEPTH_UNITS_PER_M) -> np.ndarray:
-    """Read a 16-bit single-channel depth PNG; return (H, W) uint16 millimetres.
+    """Read a 16-bit single-channel depth PNG as (H, W) uint16 millimetres.
 
-    ``units_per_m`` converts other units to millimetres (5000 for TUM's 0.2 mm), rounding to
-    the nearest millimetre (halves up). Raises EvaluationError naming the file when a value
-    converted does not fit 16 bits.
+    ``units_per_m`` converts other units (5000 for TUM); EvaluationError when a value overflows.
     """
     if not path.is_file():
         raise EvaluationError(f'{path}: depth image not found')

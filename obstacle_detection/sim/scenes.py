@@ -1,10 +1,4 @@
-"""The named scenes of the generator: ``build_scene`` and ``render_scene`` by name.
-
-Corridor, ramps, people, farm row, floors, step down, dark materials, a person walking (video),
-office (and dark office), ramp to a landing, dock edges, curb and sill, shelf, orchard, open-sided
-ramps to a platform, dark furniture, thin legs; positions
-jitter with the seed. :mod:`.render` ray-casts them.
-"""
+"""The named scenes of the generator: ``build_scene`` and ``render_scene`` by name."""
 
 from __future__ import annotations
 
@@ -120,10 +114,7 @@ def _person_walking(rng: np.random.Generator, frame_index: int) -> Scene:
 def table(x_m: float, y_m: float, size_x_m: float, size_y_m: float, height_m: float, *,
           top_m: float = 0.03, leg_m: float = 0.04, name: str = 'table',
           dark: bool = False) -> tuple[Box, ...]:
-    """Return a table: a top ``top_m`` thick whose upper face is ``height_m`` up, four legs.
-
-    Centred on (x_m, y_m), sizes [m]; every part carries ``name``.
-    """
+    """Return a table centred on (x_m, y_m): a top with its upper face ``height_m`` up, legs."""
     check_positive('table', size_x_m=size_x_m, size_y_m=size_y_m, height_m=height_m,
                     top_m=top_m, leg_m=leg_m)
     if not (top_m < height_m and 2 * leg_m < min(size_x_m, size_y_m)):
@@ -239,11 +230,7 @@ def open_ramp(x_m: float, y_center_m: float, width_m: float, platform_m: float, 
               sides: tuple[float, ...] = ()) -> tuple:
     """Return an open-sided ramp up to a platform, the ramp's foot at x_m [m].
 
-    ``OPEN_RAMP_SLOPE_DEG`` up to ``OPEN_RAMP_RISE_M``, then a platform ``platform_m`` long,
-    both ``width_m`` wide around ``y_center_m``. ``sides``: the y [m] of the open sides to
-    model as their own primitives, named 'ramp_side' and 'platform_side' (the wedge under the
-    ramp and the platform's face, listed first so that they, not the platform box, own the
-    face's pixels), so that the suite scores them as objects.
+    ``sides``: the y [m] of the open sides modelled as their own primitives (listed first).
     """
     slope = math.radians(OPEN_RAMP_SLOPE_DEG)
     run = OPEN_RAMP_RISE_M / math.tan(slope)
@@ -339,14 +326,7 @@ def scene_params(frame: SceneFrame, base: DetectorParams | None = None) -> Detec
 
 
 def build_scene(name: str, *, seed: int = 0, frame_index: int = 0) -> Scene:
-    """Return the named scene's primitives and default mount; positions jitter with ``seed``.
-
-    Only 'person_walking' depends on ``frame_index``: a person about 2 m ahead walks from left
-    to right (ground y decreasing, image column increasing) at ``WALK_SPEED_M_S``, one frame
-    every 1 / ``WALK_FRAME_RATE_HZ`` s, starting in view at y = +1.0 m. Each crossing spans
-    ``WALK_SPAN_M`` (y = +1.6 to -1.6 m, the edges of a Kinect v2 view at 2 m), then the next
-    one starts on the left.
-    """
+    """Return the named scene's primitives and default mount; positions jitter with ``seed``."""
     if name not in _BUILDERS:
         raise ValueError(f'unknown scene {name!r}; known: {", ".join(SCENE_NAMES)}')
     check_render_args(seed, (1, 1), frame_index)
@@ -360,8 +340,6 @@ def render_scene(name: str, *, seed: int = 0, intrinsics: Intrinsics = KINECT_V2
                  noise: bool | NoiseModel = True, frame_index: int = 0,
                  rules: TruthRules | DetectorParams | None = None) -> SceneFrame:
     """Render a named scene (``SCENE_NAMES``); mount arguments override its defaults.
-
-    rules: the robot-level truth's rules (see ``render``).
 
     Raises ValueError for an unknown name, a bad seed, size or frame index, or a bad mount.
     """

@@ -71,13 +71,6 @@ def obstacle_colours(grey: np.ndarray) -> np.ndarray:
     return (red * OBSTACLE_ALPHA + grey * (1.0 - OBSTACLE_ALPHA)).round().astype(np.uint8)
 
 
-def is_obstacle_rgb(rgb: np.ndarray) -> np.ndarray:
-    """Return (...) bool: which RGB pixels (..., 3) are obstacle-coloured (red over grey)."""
-    rgb = np.asarray(rgb, np.int16)
-    red, green, blue = rgb[..., 0], rgb[..., 1], rgb[..., 2]
-    return (green == blue) & (np.abs(red - green - OBSTACLE_ALPHA * 255) <= 1.0)
-
-
 def costmap_pixel_of(costmap: Costmap, x_m: float, y_m: float, *,
                      scale: int = 4) -> tuple[float, float]:
     """(column, row) in ``render_costmap``'s image of the ground-frame point (x, y) [m].

@@ -43,8 +43,6 @@ _GAP_PX = 6
 TEXT_SCALE = 0.5
 #: Font scale of a picture's title (drawn twice, a pixel apart: bold).
 TITLE_SCALE = 0.6
-#: Smallest height of a capital letter [px] at TEXT_SCALE.
-MIN_TEXT_PX = 11
 #: A costmap panel's grid is at most this share of the depth image's width.
 GRID_WIDTH_SHARE = 1.2
 
@@ -52,14 +50,6 @@ GRID_WIDTH_SHARE = 1.2
 def _text_size(text: str, scale: float) -> tuple[int, int]:
     (width, height), baseline = cv2.getTextSize(text, _FONT, scale, 1)
     return width, height + baseline
-
-
-def text_height_px(scale: float = TEXT_SCALE) -> int:
-    """Height [px] of the ink of a capital letter ('H') written at ``scale``."""
-    image = np.zeros((100, 100), np.uint8)
-    cv2.putText(image, 'H', (10, 80), _FONT, scale, 255, 1, cv2.LINE_AA)
-    rows = np.flatnonzero((image > 100).any(axis=1))
-    return int(rows[-1] - rows[0] + 1)
 
 
 def title_band(title: str, width: int) -> np.ndarray:
