@@ -175,7 +175,10 @@ def _pair_by_key(depth: dict[str, Path], color: dict[str, Path], depth_dir: Path
 def diml_frames(sequence: Path, *, depth_kind: str = 'raw', intrinsics_path: Path | None = None,
                 rate_hz: float = 30.0, start_s: float = 0.0,
                 with_color: bool = True) -> FrameSource:
-    """List the frames of one DIML/CVL indoor sequence folder, stamped by frame number."""
+    """List the frames of one DIML/CVL indoor sequence folder (``<scene>/<date>/<n>``).
+
+    Frame ``i`` (the number before the suffix) is stamped ``start_s + i / rate_hz``.
+    """
     _check_rate(rate_hz)
     folder, suffix = DIML_DEPTH_KINDS[depth_kind]
     depth_dir = sequence / folder
@@ -216,7 +219,12 @@ def diml_frames(sequence: Path, *, depth_kind: str = 'raw', intrinsics_path: Pat
 def diml_sample_frames(root: Path, *, resolution: str = 'LR',
                        intrinsics_path: Path | None = None, rate_hz: float = 30.0,
                        start_s: float = 0.0, with_color: bool = True) -> FrameSource:
-    """List the frames of the DIML sample subset (split, resolution or scene folder)."""
+    """List the frames of the DIML sample subset below ``root``.
+
+    ``root`` is a split folder (``.../test``), a resolution folder (``.../test/LR``) or one
+    scene folder holding ``color/`` and ``depth_filled/``. Frames are sorted by scene folder
+    and id and stamped ``start_s + k / rate_hz``.
+    """
     _check_rate(rate_hz)
     if not root.is_dir():
         raise EvaluationError(f'{root}: DIML sample folder not found')
@@ -256,7 +264,9 @@ def folder_frames(depth_dir: Path, *, color_dir: Path | None = None,
                   start_s: float = 0.0, depth_units_per_m: float | None = None) -> FrameSource:
     """List a folder of depth PNGs (and a colour folder), sorted by name, stamped by rate.
 
-    depth_units_per_m: None = millimetres (and a first frame in another unit is refused).
+    depth_units_per_m: of the PNGs (``--depth-scale``; 5000 for TUM frames); None: 1000
+    (millimetres), the default, and a first frame that looks like another unit is refused
+    (:func:`obstacle_detection.cli.bag_writer.write_frames`).
     """
     _check_rate(rate_hz)
     if depth_units_per_m is not None and not (math.isfinite(depth_units_per_m)

@@ -38,7 +38,33 @@ STILL_FRAMES = 10
 MARK_BUDGET_FRAMES = 3
 CLEAR_BUDGET_FRAMES = 10
 
-VIDEO_SCORE_DEFINITIONS = __doc__.split('What is measured')[1].split('\n', 1)[1]
+VIDEO_SCORE_DEFINITIONS = """
+- truth of the area seen so far: each frame's truth grid overwrites the cells it saw (occupied
+  when an obstacle point falls in the cell, free when only traversable ground does); cells
+  seen once keep their last truth when out of view;
+- fused F1: the fused window against that truth (cells of the window whose truth is known),
+  pooled over frames; per-frame F1: the detector's costmap against its own frame's truth
+  (the single-frame score of tools/evaluate.py); fused F1 in view: the fused grid sampled at
+  the per-frame costmap's cells against the same single-frame truth (the fair comparison);
+  per-frame F1 vs the area: the per-frame grid in the fused window against the area's truth;
+- flicker: cells whose occupied state changes between two consecutive frames while nothing
+  moved or appeared near them (no cell within 2 cells changed its truth in the last 10
+  frames: a grid catching up with a change is not flicker), over the cells the grid knows
+  at the later frame; a fused cell counts when it was known (not unknown) at the earlier
+  frame, a per-frame cell when it was seen in both;
+- frames until marked: for each run of frames in which a cell of the fused window has an
+  occupied truth, the number of frames up to and including the first where the grid marks
+  it (1 = at once); frames until cleared: for each run in which a formerly occupied cell is
+  seen free, up to the first frame the grid no longer marks it (counted when the grid marked
+  it before). Only
+  runs the detector saw steadily count (it marked the cell, or saw it free, in each of the
+  run's first 3 frames for a mark, 10 for a clearing): fusion cannot be faster than the
+  detector. A steady run that ends unmarked (uncleared) is *missed* when it lasted at least
+  those 3 (10) frames;
+- blind-zone memory: truth-occupied cells closer than 0.5 m ahead of the robot (the Kinect v2
+  returns nothing nearer), |y| <= 0.3 m: the share the grid marks, over all frames (and the
+  share with a marked cell within one cell: odometry drift shifts the memory a little).
+"""
 
 
 #: The two grids scored: the fused one and the per-frame one moved into odom.
