@@ -202,7 +202,7 @@ def write_frames(source: FrameSource, output: Path, options: BagOptions) -> Summ
     problem = depth_unit_problem(read_depth_png(first), scale)
     if problem is not None and not source.depth_units_origin:
         raise EvaluationError(f'{first}: {problem}; if it is in millimetres after all, pass '
-                           '--depth-scale 1000')
+                              '--depth-scale 1000')
     if problem is not None:
         tool_support.warn(f'{first}: {problem}')
     first_depth = read_depth_png(first, units_per_m=scale)
@@ -211,8 +211,8 @@ def write_frames(source: FrameSource, output: Path, options: BagOptions) -> Summ
     size = (first_depth.shape[1], first_depth.shape[0])
     if source.size is not None and source.size != size:
         raise EvaluationError(f'{source.intrinsics_origin.removeprefix("from ")}: intrinsics are '
-                           f'for {source.size[0]}x{source.size[1]} images but {first} is '
-                           f'{size[0]}x{size[1]}')
+                              f'for {source.size[0]}x{source.size[1]} images but {first} is '
+                              f'{size[0]}x{size[1]}')
     intr, origin = source.intrinsics, source.intrinsics_origin
     if intr is None:
         intr, origin = default_intrinsics(source.default_view, size)

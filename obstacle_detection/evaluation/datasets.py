@@ -166,7 +166,7 @@ def _pair_by_key(depth: dict[str, Path], color: dict[str, Path], depth_dir: Path
     """Raise unless depth and colour folders hold the same frames."""
     if len(depth) != len(color):
         raise EvaluationError(f'{depth_dir} holds {len(depth)} depth images but {color_dir} holds '
-                           f'{len(color)} colour images; they must match one to one')
+                              f'{len(color)} colour images; they must match one to one')
     for key, path in depth.items():
         if key not in color:
             raise EvaluationError(f'{path}: no colour image for this depth image in {color_dir}')
@@ -189,7 +189,7 @@ def diml_frames(sequence: Path, *, depth_kind: str = 'raw', intrinsics_path: Pat
         hint = (f'; sequence folders below it: {", ".join(map(str, found[:5]))}'
                 + (' ...' if len(found) > 5 else '')) if found else ''
         raise EvaluationError(f'{depth_dir}: DIML {depth_kind} depth folder not found '
-                           f'(pass a <scene>/<date>/<n> folder){hint}')
+                              f'(pass a <scene>/<date>/<n> folder){hint}')
     depth = _files_with_suffix(depth_dir, suffix)
     if not depth:
         raise EvaluationError(f'{depth_dir}: no *{suffix} depth images')
@@ -238,7 +238,7 @@ def diml_sample_frames(root: Path, *, resolution: str = 'LR',
             raise EvaluationError(f'{root}: no {resolution}/ folder below it')
     if not depth_dirs:
         raise EvaluationError(f'{root}: no {DIML_SAMPLE_DEPTH[0]}/ folder below it '
-                           f'(expected <split>/{{HR,LR}}/<scene>/{{color,depth_filled}})')
+                              f'(expected <split>/{{HR,LR}}/<scene>/{{color,depth_filled}})')
     frames: list[Frame] = []
     for depth_dir in depth_dirs:
         depth = _files_with_suffix(depth_dir, DIML_SAMPLE_DEPTH[1])
@@ -272,7 +272,7 @@ def folder_frames(depth_dir: Path, *, color_dir: Path | None = None,
     if depth_units_per_m is not None and not (math.isfinite(depth_units_per_m)
                                               and depth_units_per_m > 0):
         raise EvaluationError(f'--depth-scale must be a positive number of depth units per metre, '
-                           f'got {depth_units_per_m:g}')
+                              f'got {depth_units_per_m:g}')
     _require_dir(depth_dir, 'depth')
     depth = sorted(p for p in depth_dir.iterdir() if p.is_file() and p.suffix.lower() == '.png')
     if not depth:
@@ -284,7 +284,7 @@ def folder_frames(depth_dir: Path, *, color_dir: Path | None = None,
                        if p.is_file() and p.suffix.lower() in ('.png', '.jpg', '.jpeg'))
         if len(found) != len(depth):
             raise EvaluationError(f'{depth_dir} holds {len(depth)} depth images but {color_dir} '
-                               f'holds {len(found)} colour images; they must match one to one')
+                                  f'holds {len(found)} colour images; they must match one to one')
         color = list(found)
     intr, origin, size = _optional_intrinsics(intrinsics_path)
     frames = [Frame(stamp_ns(start_s) + stamp_ns(k / rate_hz), d, c)
@@ -408,8 +408,8 @@ def stamps_from_names(root: Path, kind: str) -> list[tuple[float, str]]:
     other = ('; rgb.txt likewise for the colour images' if kind == 'depth' else '') + \
         ', or --no-color to leave colour out'
     raise EvaluationError(f'{listed}: not found, and no {folder}/<seconds>.png names give the '
-                       f'stamps: write it, one "timestamp filename" line per {kind} image, '
-                       f'{example}{other}')
+                          f'stamps: write it, one "timestamp filename" line per {kind} image, '
+                          f'{example}{other}')
 
 
 def read_depth_png(path: Path, *,
@@ -428,14 +428,14 @@ def read_depth_png(path: Path, *,
     if image.dtype != np.uint16:
         bits = image.dtype.itemsize * 8
         raise EvaluationError(f'{path}: depth must be a 16-bit image in millimetres, '
-                           f'found {bits}-bit ({image.dtype})')
+                              f'found {bits}-bit ({image.dtype})')
     if units_per_m != DEFAULT_DEPTH_UNITS_PER_M:
         # multiplied before divided: exact for integer ratios (5000 units/m: v / 5)
         mm = np.floor(image.astype(np.float64) * 1000.0 / units_per_m + 0.5)
         if mm.max(initial=0.0) > np.iinfo(np.uint16).max:
             raise EvaluationError(f'{path}: at {units_per_m:g} depth units per metre its farthest '
-                               f'value is {mm.max() / 1000:.1f} m, beyond the 65.5 m a 16UC1 '
-                               'image in millimetres holds; check --depth-scale')
+                                  f'value is {mm.max() / 1000:.1f} m, beyond the 65.5 m a 16UC1 '
+                                  'image in millimetres holds; check --depth-scale')
         image = mm.astype(np.uint16)
     return image
 
