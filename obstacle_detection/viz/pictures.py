@@ -50,8 +50,7 @@ def title_band(title: str, width: int) -> np.ndarray:
     band = np.full((line_h * len(lines) + 8, width, 3), BACKGROUND_RGB, dtype=np.uint8)
     for i, line in enumerate(lines):
         for dx in (4, 5):
-            cv2.putText(band, line, (dx, 4 + line_h * (i + 1) - 8), _FONT, TITLE_SCALE, TEXT_RGB,
-                        1, cv2.LINE_AA)
+            _put(band, line, (dx, 4 + line_h * (i + 1) - 8), scale=TITLE_SCALE)
     return band
 
 
@@ -84,8 +83,7 @@ def caption_band(lines: Sequence[str], width: int, *, scale: float = 0.5) -> np.
         text = line
         while text and _text_size(text, scale)[0] > width - 8:
             text = text[:-4] + '...' if len(text) > 4 else ''
-        cv2.putText(band, text, (4, 3 + line_h * (i + 1) - 6), _FONT, scale, TEXT_RGB, 1,
-                    cv2.LINE_AA)
+        _put(band, text, (4, 3 + line_h * (i + 1) - 6), scale=scale)
     return band
 
 
@@ -126,7 +124,6 @@ ABOVE_ROBOT_RGB = (0, 150, 255)
 HATCH_RGB = (70, 70, 70)
 VIEW_EDGE_RGB = (200, 0, 200)
 AXIS_RGB = (60, 60, 60)
-_SMALL = TEXT_SCALE
 
 
 def depth_overlay(depth_m: np.ndarray, labels: np.ndarray, *,
@@ -168,7 +165,7 @@ def _ticks(low: float, high: float, step: float) -> np.ndarray:
     return np.round(np.arange(first, high + 1e-9, step), 6)
 
 
-def _put(image: np.ndarray, text: str, org: tuple[int, int], *, scale: float = _SMALL,
+def _put(image: np.ndarray, text: str, org: tuple[int, int], *, scale: float = TEXT_SCALE,
          colour: tuple[int, int, int] = TEXT_RGB, anchor: str = 'left') -> None:
     """Write text with its baseline at org; anchor 'left', 'centre' or 'right'."""
     width = _text_size(text, scale)[0]
@@ -230,12 +227,12 @@ def costmap_panel(costmap: Any, *, scale: int = 4, params: Any = None,
                                            cv2.CHAIN_APPROX_SIMPLE)
             cv2.drawContours(grid, contours, -1, VIEW_EDGE_RGB, 2 if scale >= 3 else 1)
     grid_h, grid_w = grid.shape[:2]
-    line_h = _text_size('Ag', _SMALL)[1]
-    tick_w = _text_size('-10.0', _SMALL)[0]
+    line_h = _text_size('Ag', TEXT_SCALE)[1]
+    tick_w = _text_size('-10.0', TEXT_SCALE)[0]
     left, top = tick_w + 12, line_h + 8
     marker = max(6, scale * 2)
     bottom = marker + 2 * line_h + 12
-    right = _text_size('-10.0', _SMALL)[0] // 2 + 4
+    right = _text_size('-10.0', TEXT_SCALE)[0] // 2 + 4
     panel = np.full((top + grid_h + bottom, left + grid_w + right, 3), BACKGROUND_RGB,
                     dtype=np.uint8)
     panel[top:top + grid_h, left:left + grid_w] = grid
@@ -292,16 +289,16 @@ def _swatch(image: np.ndarray, x: int, y: int, size: int, kind: str,
 def legend(title: str, items: Sequence[tuple[str, tuple[int, int, int], str]],
            width: int) -> np.ndarray:
     """(h, width, 3) RGB: a title, then (kind, colour, text) items wrapped to width."""
-    line_h = _text_size('Ag', _SMALL)[1] + 6
+    line_h = _text_size('Ag', TEXT_SCALE)[1] + 6
     size = line_h - 8
     rows: list[list[tuple[str, tuple[int, int, int], str]]] = [[]]
     used = 4
     for kind, colour, text in items:
         # an item wider than the legend goes on rows of its own, its text wrapped
-        lines = _wrap([text], width - size - 6, _SMALL) if \
-            size + 20 + _text_size(text, _SMALL)[0] > width else [text]
+        lines = _wrap([text], width - size - 6, TEXT_SCALE) if \
+            size + 20 + _text_size(text, TEXT_SCALE)[0] > width else [text]
         for k, line in enumerate(lines):
-            need = size + 6 + _text_size(line, _SMALL)[0] + 14
+            need = size + 6 + _text_size(line, TEXT_SCALE)[0] + 14
             if rows[-1] and (used + need > width or len(lines) > 1):
                 rows.append([])
                 used = 4
@@ -315,15 +312,15 @@ def legend(title: str, items: Sequence[tuple[str, tuple[int, int, int], str]],
         for kind, colour, text in row:
             _swatch(band, x, y, size, kind, colour)
             _put(band, text, (x + size + 6, y + size))
-            x += size + 6 + _text_size(text, _SMALL)[0] + 14
+            x += size + 6 + _text_size(text, TEXT_SCALE)[0] + 14
     return band
 
 
 def depth_colour_bar(max_depth_m: float, width: int) -> np.ndarray:
     """(h, width, 3) RGB: the depth grey ramp of ``render_overlay`` ticked in metres."""
-    line_h = _text_size('Ag', _SMALL)[1]
+    line_h = _text_size('Ag', TEXT_SCALE)[1]
     label = 'depth [m]'
-    left = _text_size(label, _SMALL)[0] + 12
+    left = _text_size(label, TEXT_SCALE)[0] + 12
     bar_w = max(8, width - left - 16)
     band = np.full((line_h * 2 + 20, width, 3), BACKGROUND_RGB, dtype=np.uint8)
     ramp = (MIN_GREY + np.linspace(0.0, 1.0, bar_w) * (255 - MIN_GREY)).round()
@@ -464,15 +461,7 @@ def contact_sheet(images: Sequence[np.ndarray], *, labels: Sequence[str] | None 
         if labels is not None:
             thumb = np.vstack([thumb, caption_band([labels[i]], thumb_width, scale=TEXT_SCALE)])
         thumbs.append(thumb)
-    cell_h = max(t.shape[0] for t in thumbs) + _GAP_PX
-    cell_w = thumb_width + _GAP_PX
-    columns = min(columns, len(thumbs))
-    rows = -(-len(thumbs) // columns)
-    sheet = np.full((rows * cell_h, columns * cell_w, 3), BACKGROUND_RGB, dtype=np.uint8)
-    for i, thumb in enumerate(thumbs):
-        r, c = divmod(i, columns)
-        sheet[r * cell_h:r * cell_h + thumb.shape[0], c * cell_w:c * cell_w + thumb_width] = thumb
-    return sheet
+    return tile(thumbs, columns=columns)
 
 
 def write_png(path: str | Path, rgb: np.ndarray) -> None:
@@ -533,26 +522,23 @@ def heatmap(scores: np.ndarray, x_labels: Sequence[str], y_labels: Sequence[str]
             text = '-' if np.isnan(values[r, c]) else f'{values[r, c]:.2f}'
             tw, th = _text_size(text, TEXT_SCALE)
             ink = (0, 0, 0) if np.isnan(value) or scaled[r, c] > 0.6 else (255, 255, 255)
-            cv2.putText(image, text, (x0 + (cell_px - tw) // 2, y0 + (cell_px + th) // 2 - 3),
-                        _FONT, TEXT_SCALE, ink, 1, cv2.LINE_AA)
-        tw, th = _text_size(y_labels[r], TEXT_SCALE)
-        cv2.putText(image, y_labels[r], (left - tw - 6, top + r * cell_px + (cell_px + th) // 2),
-                    _FONT, TEXT_SCALE, TEXT_RGB, 1, cv2.LINE_AA)
+            _put(image, text, (x0 + (cell_px - tw) // 2, y0 + (cell_px + th) // 2 - 3), colour=ink)
+        th = _text_size(y_labels[r], TEXT_SCALE)[1]
+        _put(image, y_labels[r], (left - 6, top + r * cell_px + (cell_px + th) // 2),
+             anchor='right')
     for c in range(nx):
         tw, th = _text_size(x_labels[c], TEXT_SCALE)
-        cv2.putText(image, x_labels[c],
-                    (left + c * cell_px + (cell_px - tw) // 2, top + ny * cell_px + th + 2),
-                    _FONT, TEXT_SCALE, TEXT_RGB, 1, cv2.LINE_AA)
+        _put(image, x_labels[c],
+             (left + c * cell_px + (cell_px - tw) // 2, top + ny * cell_px + th + 2))
     if best is not None:
         r, c = best
         cv2.rectangle(image, (left + c * cell_px, top + r * cell_px),
                       (left + (c + 1) * cell_px - 1, top + (r + 1) * cell_px - 1),
                       (230, 0, 0), 3)
     axis_y = top + ny * cell_px + 2 * (_text_size('Ag', TEXT_SCALE)[1] + 4)
-    cv2.putText(image, x_name, (left, axis_y), _FONT, TEXT_SCALE, TEXT_RGB, 1, cv2.LINE_AA)
-    cv2.putText(image, y_name, (4, top - 6), _FONT, TEXT_SCALE, TEXT_RGB, 1, cv2.LINE_AA)
-    cv2.putText(image, title, (4, _text_size('Ag', 0.5)[1] + 2), _FONT, 0.5, TEXT_RGB, 1,
-                cv2.LINE_AA)
+    _put(image, x_name, (left, axis_y))
+    _put(image, y_name, (4, top - 6))
+    _put(image, title, (4, _text_size('Ag', 0.5)[1] + 2), scale=0.5)
     return image
 
 
