@@ -60,17 +60,23 @@ def _people(rng: np.random.Generator, frame_index: int) -> Scene:
     return Scene('people', (Floor(),) + people)
 
 
-def _farm_row(rng: np.random.Generator, frame_index: int) -> Scene:
-    ground = Floor(bump_amplitude_m=0.03, bump_wavelength_m=1.5,
+def _tree_rows(rng: np.random.Generator, wavelength_m: float, row_y: float, count: int,
+               x0: float, spacing: float, radius_m: float, height_m: float) -> tuple:
+    """Return a bumpy floor and two rows of trunks at y = +-row_y [m], positions jittered."""
+    ground = Floor(bump_amplitude_m=0.03, bump_wavelength_m=wavelength_m,
                    bump_phase_rad=tuple(float(p) for p in rng.uniform(0, 2 * math.pi, 3)))
     trunks = []
-    for side, row_y in (('left', 0.75), ('right', -0.75)):
-        for i in range(7):
-            trunks.append(Cylinder(1.0 + 0.8 * i + rng.uniform(-0.05, 0.05),
-                                   row_y + rng.uniform(-0.05, 0.05),
-                                   radius_m=0.1 + rng.uniform(-0.02, 0.02), height_m=1.6,
-                                   base_z_m=-0.1, name=f'trunk_{side}_{i + 1}'))
-    return Scene('farm_row', (ground,) + tuple(trunks))
+    for side, y in (('left', row_y), ('right', -row_y)):
+        for i in range(count):
+            trunks.append(Cylinder(x0 + spacing * i + rng.uniform(-0.05, 0.05),
+                                   y + rng.uniform(-0.05, 0.05),
+                                   radius_m=radius_m + rng.uniform(-0.02, 0.02),
+                                   height_m=height_m, base_z_m=-0.1, name=f'trunk_{side}_{i + 1}'))
+    return (ground,) + tuple(trunks)
+
+
+def _farm_row(rng: np.random.Generator, frame_index: int) -> Scene:
+    return Scene('farm_row', _tree_rows(rng, 1.5, 0.75, 7, 1.0, 0.8, 0.1, 1.6))
 
 
 def _pitched_floor(rng: np.random.Generator, frame_index: int) -> Scene:
@@ -144,10 +150,13 @@ def chair(x_m: float, y_m: float, *, seat_m: float = 0.42, seat_height_m: float 
     return parts + (back,)
 
 
-def _office(rng: np.random.Generator, frame_index: int, *, dark: bool = False) -> Scene:
-    def jitter() -> float:
-        return float(rng.uniform(-0.04, 0.04))
+def _jitter(rng: np.random.Generator) -> Callable[[], float]:
+    """Return a draw of the furniture scenes' position jitter, +-0.04 m."""
+    return lambda: float(rng.uniform(-0.04, 0.04))
 
+
+def _office(rng: np.random.Generator, frame_index: int, *, dark: bool = False) -> Scene:
+    jitter = _jitter(rng)
     walls = (Wall(2.7, 2.5, 2.7, -2.5, 0.0, 2.5, dark=dark),
              Wall(-1.0, 1.5 + jitter(), 2.7, 1.5, 0.0, 2.5))
     boxes = (Box.on_floor(1.25 + jitter(), 0.65 + jitter(), 0.3, 0.3, 0.3, dark=dark,
@@ -201,22 +210,14 @@ def _shelf(rng: np.random.Generator, frame_index: int) -> Scene:
 
 
 def _orchard(rng: np.random.Generator, frame_index: int) -> Scene:
-    ground = Floor(bump_amplitude_m=0.03, bump_wavelength_m=1.2,
-                   bump_phase_rad=tuple(float(p) for p in rng.uniform(0, 2 * math.pi, 3)))
-    trunks = []
-    for side, row_y in (('left', 0.85), ('right', -0.85)):
-        for i in range(6):
-            trunks.append(Cylinder(1.2 + 0.9 * i + rng.uniform(-0.05, 0.05),
-                                   row_y + rng.uniform(-0.05, 0.05),
-                                   radius_m=0.08 + rng.uniform(-0.02, 0.02), height_m=1.9,
-                                   base_z_m=-0.1, name=f'trunk_{side}_{i + 1}'))
+    rows = _tree_rows(rng, 1.2, 0.85, 6, 1.2, 0.9, 0.08, 1.9)
     bushes = (Cylinder(1.5 + rng.uniform(-0.05, 0.05), -0.25 + rng.uniform(-0.05, 0.05),
                        radius_m=0.22, height_m=0.35 + rng.uniform(0.0, 0.1), base_z_m=-0.05,
                        name='bush_1'),
               Cylinder(1.85 + rng.uniform(-0.05, 0.05), 0.4 + rng.uniform(-0.05, 0.05),
                        radius_m=0.18, height_m=0.3 + rng.uniform(0.0, 0.1), base_z_m=-0.05,
                        name='bush_2'))
-    return Scene('orchard', (ground,) + tuple(trunks) + bushes)
+    return Scene('orchard', rows + bushes)
 
 
 # -- issue 22 scenes: open-sided ramps, dark blobs on furniture, thin legs
@@ -264,9 +265,7 @@ def _open_ramp_ahead(rng: np.random.Generator, frame_index: int) -> Scene:
 
 
 def _dark_furniture(rng: np.random.Generator, frame_index: int) -> Scene:
-    def jitter() -> float:
-        return float(rng.uniform(-0.04, 0.04))
-
+    jitter = _jitter(rng)
     wall = Wall(2.9, 2.5, 2.9, -2.5, 0.0, 2.5)
     sofa = Box.on_floor(1.3 + jitter(), 0.75 + jitter(), 0.5, 0.6, 0.45, dark=True,
                         name='sofa')
@@ -278,9 +277,7 @@ def _dark_furniture(rng: np.random.Generator, frame_index: int) -> Scene:
 
 
 def _thin_legs(rng: np.random.Generator, frame_index: int) -> Scene:
-    def jitter() -> float:
-        return float(rng.uniform(-0.04, 0.04))
-
+    jitter = _jitter(rng)
     wall = Wall(3.0, 2.5, 3.0, -2.5, 0.0, 2.5)
     furniture = (table(1.8 + jitter(), 0.2 + jitter(), 0.6, 0.8, 0.72, leg_m=0.02)
                  + chair(1.1 + jitter(), -0.45 + jitter(), leg_m=0.02, name='chair_1')
@@ -290,32 +287,14 @@ def _thin_legs(rng: np.random.Generator, frame_index: int) -> Scene:
     return Scene('thin_legs', (Floor(), wall) + furniture)
 
 
-_BUILDERS: dict[str, Callable[[np.random.Generator, int], Scene]] = {
-    'corridor': _corridor,
-    'ramps': _ramps,
-    'people': _people,
-    'farm_row': _farm_row,
-    'pitched_floor': _pitched_floor,
-    'flat_floor': _flat_floor,
-    'step_down': _step_down,
-    'dark_materials': _dark_materials,
-    'person_walking': _person_walking,
-    'office': _office,
-    'dark_office': _dark_office,
-    'ramp_landing': _ramp_landing,
-    'dock_edge': _dock_edge,
-    'dock_edge_high': _dock_edge_high,
-    'curb_sill': _curb_sill,
-    'shelf': _shelf,
-    'orchard': _orchard,
-    'open_ramp': _open_ramp,
-    'open_ramp_ahead': _open_ramp_ahead,
-    'dark_furniture': _dark_furniture,
-    'thin_legs': _thin_legs,
-}
-
 #: Names accepted by ``build_scene`` and ``render_scene``.
-SCENE_NAMES: tuple[str, ...] = tuple(_BUILDERS)
+SCENE_NAMES: tuple[str, ...] = ('corridor', 'ramps', 'people', 'farm_row', 'pitched_floor',
+                                'flat_floor', 'step_down', 'dark_materials', 'person_walking',
+                                'office', 'dark_office', 'ramp_landing', 'dock_edge',
+                                'dock_edge_high', 'curb_sill', 'shelf', 'orchard', 'open_ramp',
+                                'open_ramp_ahead', 'dark_furniture', 'thin_legs')
+_BUILDERS: dict[str, Callable[[np.random.Generator, int], Scene]] = {
+    name: globals()['_' + name] for name in SCENE_NAMES}
 
 
 def scene_params(frame: SceneFrame, base: DetectorParams | None = None) -> DetectorParams:
