@@ -49,15 +49,21 @@ class TruthRules:
                                    'robot_height_m')})
 
 
-def _connects(a: Patch, b: Patch, rules: TruthRules) -> bool:
-    """Return True when the robot on patch ``a`` can drive onto ``b`` (touching, within a step)."""
+def _rise(a: Patch, b: Patch) -> np.ndarray | None:
+    """Height of ``b`` over ``a`` at the x ends of where they touch; None if they do not."""
     x0, x1 = max(a.x0_m, b.x0_m), min(a.x1_m, b.x1_m)
     y0, y1 = max(a.y0_m, b.y0_m), min(a.y1_m, b.y1_m)
     if x0 > x1 + TOUCH_M or y0 > y1 + TOUCH_M:
-        return False
+        return None
     xs = np.array([v for v in (x0, x1) if math.isfinite(v)] or [0.0])
-    dz = b.z_at(xs) - a.z_at(xs)   # planar patches: the extremes are at the x ends
-    return bool(dz.min() <= rules.max_step_height_m and dz.max() >= -rules.max_step_down_m)
+    return b.z_at(xs) - a.z_at(xs)   # planar patches: the extremes are at the x ends
+
+
+def _connects(a: Patch, b: Patch, rules: TruthRules) -> bool:
+    """Return True when the robot on patch ``a`` can drive onto ``b`` (touching, within a step)."""
+    dz = _rise(a, b)
+    return dz is not None and bool(dz.min() <= rules.max_step_height_m
+                                   and dz.max() >= -rules.max_step_down_m)
 
 
 def scene_patches(primitives: tuple[Primitive, ...], rules: TruthRules,
@@ -123,9 +129,15 @@ def robot_labels(points: np.ndarray, owner: np.ndarray, primitives: tuple[Primit
                          min(a.x1_m, b.x1_m) + DROP_EDGE_BAND_M,
                          max(a.y0_m, b.y0_m) - DROP_EDGE_BAND_M,
                          min(a.y1_m, b.y1_m) + DROP_EDGE_BAND_M, 0.0)
-            drop_edge |= (near.covers(x, y) & a.covers(x, y) & (owner == a.owner)
-                          & (np.abs(z - a.z_at(x)) <= a.tolerance_m + ON_PATCH_M))
+            drop_edge |= near.covers(x, y) & _on_patch(a, x, y, z, owner)
     return labels, drop_edge
+
+
+def _on_patch(patch: Patch, x: np.ndarray, y: np.ndarray, z: np.ndarray,
+              owner: np.ndarray) -> np.ndarray:
+    """(N,) bool: hits of the patch's own primitive that lie on the patch."""
+    return (patch.covers(x, y) & (owner == patch.owner)
+            & (np.abs(z - patch.z_at(x)) <= patch.tolerance_m + ON_PATCH_M))
 
 
 def _climbable_risers(x: np.ndarray, y: np.ndarray, z: np.ndarray,
@@ -154,8 +166,7 @@ def _ledges(x: np.ndarray, y: np.ndarray, z: np.ndarray, owner: np.ndarray,
     for i, (a, a_ok) in enumerate(zip(patches, reached)):
         if not a_ok:
             continue
-        on_a = (a.covers(x, y) & (owner == a.owner)
-                & (np.abs(z - a.z_at(x)) <= a.tolerance_m + ON_PATCH_M))
+        on_a = _on_patch(a, x, y, z, owner)
         if not on_a.any():
             continue
         for axis, edge, outward in (('x', a.x0_m, -1.0), ('x', a.x1_m, 1.0),
@@ -182,9 +193,5 @@ def _ledges(x: np.ndarray, y: np.ndarray, z: np.ndarray, owner: np.ndarray,
 
 def _is_drop(a: Patch, b: Patch, rules: TruthRules) -> bool:
     """Return True when b touches a and lies lower than it by more than a step down."""
-    x0, x1 = max(a.x0_m, b.x0_m), min(a.x1_m, b.x1_m)
-    y0, y1 = max(a.y0_m, b.y0_m), min(a.y1_m, b.y1_m)
-    if x0 > x1 + TOUCH_M or y0 > y1 + TOUCH_M:
-        return False
-    xs = np.array([v for v in (x0, x1) if math.isfinite(v)] or [0.0])
-    return bool((b.z_at(xs) - a.z_at(xs)).max() < -rules.max_step_down_m)
+    dz = _rise(a, b)
+    return dz is not None and bool(dz.max() < -rules.max_step_down_m)
