@@ -6,6 +6,7 @@ labelled folder on disk (layout in docs/accuracy.md). What counts: :mod:`.metric
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import time
@@ -603,19 +604,37 @@ class Report:
                 'overall': self.overall.as_dict(), 'seconds': round(self.seconds, 2)}
 
 
-class DetectorCache:
-    """One ``pipeline.Detector`` per distinct parameter set (frames differ in their mount)."""
+def pool_scores(scores: Sequence[FrameScore], params: DetectorParams, *, label: str = '',
+                refiner_name: str | None = None, seconds: float = 0.0) -> Report:
+    """Return the Report of frames with these scores: per scenario in run order, overall."""
+    scenes: dict[str, SceneSummary] = {}
+    overall = SceneSummary('overall')
+    for score in scores:
+        scenes.setdefault(score.scenario, SceneSummary(score.scenario)).add(score)
+        overall.add(score)
+    return Report(params, label, scenes, overall, list(scores), refiner_name, seconds)
 
-    def __init__(self) -> None:
-        self._detectors: dict[DetectorParams, Any] = {}
 
-    def get(self, params: DetectorParams) -> Any:
-        """Return the detector for ``params``."""
-        from obstacle_detection.pipeline.detector import Detector
+def detect_frames(frames: Iterable[LabelledFrame], base: DetectorParams,
+                  ) -> Iterator[tuple[LabelledFrame, DetectorParams, Any, np.ndarray | None]]:
+    """Yield (frame, params, result, previous obstacle mask) for each frame, in order.
 
-        if params not in self._detectors:
-            self._detectors[params] = Detector(params)
-        return self._detectors[params]
+    Each frame runs with its own mount; the previous mask is the rule-based obstacle mask of
+    the previous frame of the same sequence, None for a still frame or a sequence's first.
+    """
+    from obstacle_detection.pipeline import refine
+    from obstacle_detection.pipeline.detector import Detector
+
+    detector = functools.cache(Detector)   # one per parameter set: frames differ in mount
+    key: str | None = None
+    mask: np.ndarray | None = None
+    for frame in frames:
+        params = frame.params(base)
+        result = detector(params).process(frame.depth, frame.intrinsics,
+                                          depth_scale=frame.depth_scale)
+        same = frame.sequence_key is not None and key == frame.sequence_key
+        yield frame, params, result, mask if same else None
+        key, mask = frame.sequence_key, refine.obstacle_mask(result)
 
 
 def evaluate_frames(frames: Iterable[LabelledFrame], base: DetectorParams, *,
@@ -629,15 +648,8 @@ def evaluate_frames(frames: Iterable[LabelledFrame], base: DetectorParams, *,
     from obstacle_detection.pipeline import refine
 
     started = time.perf_counter()
-    cache = DetectorCache()
-    scenes: dict[str, SceneSummary] = {}
-    overall = SceneSummary('overall')
     scores: list[FrameScore] = []
-    previous: tuple[str | None, np.ndarray | None] = (None, None)
-    for frame in frames:
-        params = frame.params(base)
-        result = cache.get(params).process(frame.depth, frame.intrinsics,
-                                           depth_scale=frame.depth_scale)
+    for frame, params, result, prev_mask in detect_frames(frames, base):
         roi = truth_roi(frame, params)
         grid = truth_costmap(frame, params, roi)
         pixel, cell = score_frame(frame, result, params, grid)
@@ -647,21 +659,15 @@ def evaluate_frames(frames: Iterable[LabelledFrame], base: DetectorParams, *,
         if frame.truth == 'robot':
             score.robot = robot_score(frame, result.costmap.data, params, grid, roi)
         if refiner is not None:
-            prev_mask = None
-            if frame.sequence_key is not None and previous[0] == frame.sequence_key:
-                prev_mask = previous[1]
             mask = refiner.predict_labels(result, prev_mask)
             refined = refine.refine_result(result, mask, params)
             score.refined_pixel = metrics.pixel_confusion(refined.labels, frame.truth_labels)
             score.refined_cell = metrics.cell_confusion(refined.costmap.data, grid)
-        previous = (frame.sequence_key, refine.obstacle_mask(result))
-        scenes.setdefault(frame.scenario, SceneSummary(frame.scenario)).add(score)
-        overall.add(score)
         scores.append(score)
         if on_frame is not None:
             on_frame(frame, result, score)
-    return Report(base, label, scenes, overall, scores, refiner_name,
-                  time.perf_counter() - started)
+    return pool_scores(scores, base, label=label, refiner_name=refiner_name,
+                       seconds=time.perf_counter() - started)
 
 
 # --------------------------------------------------------------------------------------------
@@ -783,23 +789,14 @@ def collect_training_samples(frames: Iterable[LabelledFrame], base: DetectorPara
     from obstacle_detection.pipeline import refine
 
     rng = np.random.default_rng(seed)
-    cache = DetectorCache()
     xs, ys = [], []
-    previous: tuple[str | None, np.ndarray | None] = (None, None)
-    for frame in frames:
-        params = frame.params(base)
-        result = cache.get(params).process(frame.depth, frame.intrinsics,
-                                           depth_scale=frame.depth_scale)
-        prev_mask = None
-        if frame.sequence_key is not None and previous[0] == frame.sequence_key:
-            prev_mask = previous[1]
+    for frame, _, result, prev_mask in detect_frames(frames, base):
         x, y = refine.training_samples(result, frame.truth_labels, prev_mask)
         if max_pixels_per_frame is not None and y.size > max_pixels_per_frame:
             pick = rng.choice(y.size, size=max_pixels_per_frame, replace=False)
             x, y = x[pick], y[pick]
         xs.append(x)
         ys.append(y)
-        previous = (frame.sequence_key, refine.obstacle_mask(result))
         if on_frame is not None:
             on_frame(frame)
     if not xs:

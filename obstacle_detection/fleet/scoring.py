@@ -50,19 +50,6 @@ def score_points(fleet: Fleet, sources: Sequence[Source], points: Sequence[Detec
             for p in range(len(points))]
 
 
-def pool_report(scores: Sequence[evaluation.FrameScore], params: DetectorParams, *,
-                label: str = '', refiner_name: str | None = None, seconds: float = 0.0,
-                ) -> evaluation.Report:
-    """Return the Report ``runner.evaluate_frames`` gives for frames with these scores."""
-    scenes: dict[str, evaluation.SceneSummary] = {}
-    overall = evaluation.SceneSummary('overall')
-    for score in scores:
-        scenes.setdefault(score.scenario, evaluation.SceneSummary(score.scenario)).add(score)
-        overall.add(score)
-    return evaluation.Report(params, label, scenes, overall, list(scores), refiner_name,
-                             seconds)
-
-
 def evaluate_on_fleet(fleet: Fleet, sources: Sequence[Source], params: DetectorParams, *,
                       label: str = '', refiner: Any = None, refiner_name: str | None = None,
                       progress: bool = True) -> evaluation.Report:
@@ -70,8 +57,8 @@ def evaluate_on_fleet(fleet: Fleet, sources: Sequence[Source], params: DetectorP
     started = time.perf_counter()
     [scores] = score_points(fleet, sources, [params], refiner=refiner, label='evaluate',
                             progress=progress)
-    return pool_report(scores, params, label=label, refiner_name=refiner_name,
-                       seconds=time.perf_counter() - started)
+    return evaluation.pool_scores(scores, params, label=label, refiner_name=refiner_name,
+                                  seconds=time.perf_counter() - started)
 
 
 def sweep_on_fleet(fleet: Fleet, sources: Sequence[Source], base: DetectorParams,
@@ -95,7 +82,7 @@ def sweep_on_fleet(fleet: Fleet, sources: Sequence[Source], base: DetectorParams
             if log:
                 log(f'[{i}/{len(points)}] {label}: invalid ({params})')
             continue
-        grid_search.record_report(result, index, pool_report(reports[index], params))
+        grid_search.record_report(result, index, evaluation.pool_scores(reports[index], params))
         if log:
             log(f'[{i}/{len(points)}] {label}: {metric} '
                 f'{evaluation.format_score(result.grids["overall"][index])}')
