@@ -544,9 +544,7 @@ class SceneSummary:
 
     def objects_found(self) -> tuple[int, int, list[str]]:
         """Return (objects found, objects counted, names of the missed ones) over the frames."""
-        entries = self.robot.objects if self.robot else []
-        missed = [name for name, hits, cells in entries if hits < FOUND_SHARE * cells]
-        return len(entries) - len(missed), len(entries), missed
+        return _reached(self.robot.objects if self.robot else [], FOUND_SHARE)
 
     def passable_free(self) -> float:
         """Share of the passable named objects' free truth cells left free (NaN: none)."""
@@ -556,9 +554,7 @@ class SceneSummary:
 
     def drops_marked(self) -> tuple[int, int, list[str]]:
         """Return (drops marked, drops counted, names of the unmarked ones) over the frames."""
-        entries = self.robot.drops if self.robot else []
-        missed = [name for name, hits, cells in entries if hits < DROP_MARKED_SHARE * cells]
-        return len(entries) - len(missed), len(entries), missed
+        return _reached(self.robot.drops if self.robot else [], DROP_MARKED_SHARE)
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready scores (NaN becomes None)."""
@@ -575,6 +571,13 @@ class SceneSummary:
                             'passable_free': _json_number(self.passable_free()),
                             'drops_marked': marked, 'drops': drops, 'unmarked': unmarked}
         return out
+
+
+def _reached(entries: list[tuple[str, int, int]], share: float,
+             ) -> tuple[int, int, list[str]]:
+    """Return (entries with hits >= ``share`` of their cells, entries, the others' names)."""
+    missed = [name for name, hits, cells in entries if hits < share * cells]
+    return len(entries) - len(missed), len(entries), missed
 
 
 def _json_number(value: float) -> float | None:
