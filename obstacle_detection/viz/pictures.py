@@ -374,11 +374,9 @@ def side_by_side(result: Any, *, caption: str = '', truth_labels: np.ndarray | N
     if image_scale != 1.0:
         height, width = (max(1, round(n * image_scale)) for n in depth_m.shape)
         panels = [cv2.resize(p, (width, height), interpolation=cv2.INTER_AREA) for p in panels]
-    # the grid as high as the depth image (its axes below it) and not much wider
-    scale = max(1, min(int(GRID_WIDTH_SHARE * width) // max(costmap.height, 1),
-                       height // max(costmap.width, 1)))
     intrinsics = getattr(result, 'intrinsics', None)
-    panels.insert(1, costmap_panel(costmap, scale=scale, params=params, intrinsics=intrinsics,
+    panels.insert(1, costmap_panel(costmap, scale=_grid_scale(costmap, height, width),
+                                   params=params, intrinsics=intrinsics,
                                    image_shape=depth_m.shape))
     top = join_panels(panels)
     parts = [top]
@@ -394,6 +392,12 @@ def side_by_side(result: Any, *, caption: str = '', truth_labels: np.ndarray | N
     lines = [line for line in (caption, stats, *extra_lines) if line]
     parts.append(caption_band(_wrap(lines, top.shape[1]), top.shape[1]))
     return np.vstack(parts)
+
+
+def _grid_scale(costmap: Any, height: int, width: int) -> int:
+    """Pixels a cell: the grid as high as an image (axes below) and not much wider."""
+    return max(1, min(int(GRID_WIDTH_SHARE * width) // max(costmap.height, 1),
+                      height // max(costmap.width, 1)))
 
 
 def _roi_text(params: Any) -> str:
@@ -603,15 +607,12 @@ def node_outputs(overlay: np.ndarray, costmap: Any, *, caption: Sequence[str],
                 max(1, round(overlay.shape[0] * image_scale)))
         overlay = cv2.resize(overlay, size, interpolation=cv2.INTER_AREA)
     height, width = overlay.shape[:2]
-    scale = max(1, min(height // max(costmap.width, 1),
-                       int(GRID_WIDTH_SHARE * width) // max(costmap.height, 1)))
-    grid_rgb = costmap_panel(costmap, scale=scale, params=params, intrinsics=intrinsics,
-                             image_shape=image_shape)
+    grid_rgb = costmap_panel(costmap, scale=_grid_scale(costmap, height, width), params=params,
+                             intrinsics=intrinsics, image_shape=image_shape)
     panels = [overlay, grid_rgb]
     if fused is not None:
-        fused_scale = max(1, min(height // max(fused.width, 1),
-                                 int(GRID_WIDTH_SHARE * width) // max(fused.height, 1)))
-        panels.append(costmap_panel(fused, scale=fused_scale, robot_pose=robot_pose,
+        panels.append(costmap_panel(fused, scale=_grid_scale(fused, height, width),
+                                    robot_pose=robot_pose,
                                     axis_names=('x [m], odom', 'y [m], odom')))
     row = join_panels(panels)
     parts = [row, caption_band(_wrap(caption, row.shape[1]), row.shape[1])]
