@@ -51,11 +51,6 @@ class NoiseModel:
             raise ValueError(f'NoiseModel: need 0 <= min_range_m={self.min_range_m!r} < '
                              f'max_range_m={self.max_range_m!r} <= 65.535')
 
-    def sigma_m(self, depth_m: np.ndarray) -> np.ndarray:
-        """Depth noise standard deviation [m] at true depth depth_m [m] (not dark)."""
-        dz = np.asarray(depth_m) - self.depth_sigma_ref_m
-        return 1e-3 * (self.depth_sigma_base_mm + self.depth_sigma_quad_mm_per_m2 * dz * dz)
-
     def far_dropout(self, depth_m: np.ndarray) -> np.ndarray:
         """Extra dropout probability at true depth depth_m [m] (0 up to far_dropout_start_m)."""
         span = max(self.max_range_m - self.far_dropout_start_m, 1e-9)
