@@ -20,6 +20,7 @@ import numpy as np
 from obstacle_detection.labels import (CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN, GT_ABOVE_ROBOT,
                                        GT_NO_RETURN, GT_OBSTACLE, GT_TRAVERSABLE)
 from obstacle_detection.pipeline import geometry
+from obstacle_detection.sim.noise import NOISE_MODELS
 from . import EvaluationError, camera as camera_file
 from . import metrics
 from .camera import scaled_intrinsics
@@ -40,10 +41,6 @@ _MOUNT_KEYS = ('height_m', 'pitch_deg', 'roll_deg')
 #: Ground truths a scenario is scored against: the seed's slope-only labels
 #: (``SceneFrame.labels_seed``) or the robot-level ones (``SceneFrame.labels``, issue 9).
 TRUTH_KINDS = ('seed', 'robot')
-#: Sensor models by name (``sim.noise.NOISE_MODELS``): 'kinect_v2' (the generator's default, the
-#: seed suite's), 'kinect_v2_tof' with time-of-flight artefacts (flying pixels, more noise and
-#: dropouts on dark and far surfaces; the robot suite's), 'exact'.
-NOISE_NAMES = ('kinect_v2', 'kinect_v2_tof', 'kinect_v2_tof_blobs', 'exact')
 
 
 # --------------------------------------------------------------------------------------------
@@ -96,9 +93,9 @@ class Scenario:
         if self.truth not in TRUTH_KINDS:
             raise ValueError(f'scenario {self.name!r}: truth={self.truth!r} (allowed: '
                              f'{", ".join(TRUTH_KINDS)})')
-        if self.noise not in NOISE_NAMES:
+        if self.noise not in NOISE_MODELS:
             raise ValueError(f'scenario {self.name!r}: noise={self.noise!r} (allowed: '
-                             f'{", ".join(NOISE_NAMES)})')
+                             f'{", ".join(NOISE_MODELS)})')
         if not self.seeds:
             raise ValueError(f'scenario {self.name!r}: seeds must not be empty')
         unknown = {k for k, _ in self.mount} - set(_MOUNT_KEYS)
@@ -197,7 +194,6 @@ def scenario_frames(scenario: Scenario, *, max_frames: int | None = None,
     """
     # the generator is only needed for synthetic frames
     from obstacle_detection.sim import scenes
-    from obstacle_detection.sim.noise import NOISE_MODELS
 
     truth = scenario.truth if truth is None else truth
     if truth not in TRUTH_KINDS:
