@@ -651,7 +651,7 @@ def test_load_intrinsics_formats(tmp_path: Path) -> None:
                                                   None)
     bad = tmp_path / 'bad.yaml'
     bad.write_text('fx: 0\nfy: 1\ncx: 1\ncy: 1\n')
-    with pytest.raises(datasets.ConvertError, match='bad.yaml'):
+    with pytest.raises(datasets.EvaluationError, match='bad.yaml'):
         datasets.load_intrinsics(bad)
 
 

@@ -7,8 +7,10 @@ from pathlib import Path
 
 import pytest
 
-from obstacle_detection.evaluation import camera
-from obstacle_detection.evaluation.runner import folder_camera, write_camera_yaml
+from obstacle_detection.evaluation import EvaluationError, camera
+from obstacle_detection.evaluation.runner import folder_camera
+
+from eval_helpers import write_camera_yaml
 from obstacle_detection.pipeline.params import Intrinsics
 
 INTR = Intrinsics(365.5, 366.25, 255.5, 211.5)
@@ -66,7 +68,7 @@ def test_a_bad_camera_yaml_names_the_file_and_the_problem(tmp_path: Path, text: 
                                                           problem: str) -> None:
     path = tmp_path / 'bad.yaml'
     path.write_text(text)
-    with pytest.raises(camera.CameraFileError, match=problem) as caught:
+    with pytest.raises(EvaluationError, match=problem) as caught:
         camera.read_camera_yaml(path)
     assert caught.value.path == path and str(caught.value).startswith(f'{path}: ')
 

@@ -32,7 +32,9 @@ from obstacle_detection.ros.conversions import (
     result_to_messages,
 )
 from obstacle_detection.pipeline.costmap import Costmap
-from obstacle_detection.viz.overlay import is_obstacle_rgb, render_overlay
+from obstacle_detection.viz.overlay import render_overlay
+
+from eval_helpers import is_obstacle_rgb
 from obstacle_detection.pipeline.params import KINECT_V2_SD, Intrinsics
 from obstacle_detection.pipeline.detector import DetectionResult
 

@@ -13,7 +13,8 @@ import ros_env
 from rosbags.rosbag2 import Reader
 
 from obstacle_detection.tools import demo
-from obstacle_detection.viz.pictures import MIN_TEXT_PX
+
+from eval_helpers import MIN_TEXT_PX
 
 
 REPO = Path(__file__).resolve().parents[1]

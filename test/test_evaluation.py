@@ -15,6 +15,8 @@ from obstacle_detection.evaluation.metrics import Confusion
 from obstacle_detection.pipeline.params import table_4_2, table_4_3
 from obstacle_detection.tools import evaluate
 
+from eval_helpers import save_labelled_folder
+
 REPO = Path(__file__).resolve().parents[1]
 SUITE = evaluation.SUITES['seed']
 SMALL = (256, 212)  # half the Kinect v2 SD size: same field of view, a quarter of the pixels
@@ -109,7 +111,7 @@ def test_truth_grid_uses_the_costmap_binning():
 
 def test_labelled_folder_round_trip(tmp_path):
     frame = _corridor_frame((128, 106))
-    assert evaluation.save_labelled_folder([frame, frame], tmp_path / 'seq') == 2
+    assert save_labelled_folder([frame, frame], tmp_path / 'seq') == 2
     loaded = list(evaluation.load_labelled_folder(tmp_path / 'seq'))
     assert [f.frame_id for f in loaded] == ['000000', '000001']
     np.testing.assert_array_equal(loaded[0].depth, frame.depth)
@@ -125,7 +127,7 @@ def test_labelled_folder_round_trip(tmp_path):
 def test_labelled_folder_with_bad_label_value(tmp_path):
     import cv2
     frame = _corridor_frame((64, 53))
-    evaluation.save_labelled_folder([frame], tmp_path / 'seq')
+    save_labelled_folder([frame], tmp_path / 'seq')
     cv2.imwrite(str(tmp_path / 'seq' / 'labels' / '000000.png'),
                 np.full(frame.truth_labels.shape, 7, np.uint8))
     with pytest.raises(ValueError, match='label value 7'):

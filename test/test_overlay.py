@@ -15,9 +15,10 @@ from obstacle_detection.viz.overlay import (
     UNKNOWN_RGB,
     costmap_pixel_of,
     render_costmap,
-    is_obstacle_rgb,
     render_overlay,
 )
+
+from eval_helpers import is_obstacle_rgb
 
 
 def _frame() -> tuple[np.ndarray, np.ndarray]:

@@ -15,8 +15,7 @@ from obstacle_detection.evaluation import runner as evaluation
 from obstacle_detection.viz import pictures
 from obstacle_detection.pipeline.costmap import Costmap, costmap_geometry
 from obstacle_detection.viz.overlay import (MIN_GREY, NO_RETURN_RGB, OBSTACLE_ALPHA, OBSTACLE_RGB,
-                                       OCCUPIED_RGB, ROBOT_RGB, UNKNOWN_RGB, is_obstacle_rgb,
-                                       render_overlay)
+                                       OCCUPIED_RGB, ROBOT_RGB, UNKNOWN_RGB, render_overlay)
 from obstacle_detection.pipeline.params import (KINECT_V2_SD, KINECT_V2_SD_SIZE, PRESETS,
                                                table_4_2)
 from obstacle_detection.pipeline.detector import Detector
@@ -26,6 +25,8 @@ from obstacle_detection.cli import picture_jobs
 from obstacle_detection.cli import bag_writer
 from obstacle_detection.tools import bag_process, readme_pictures
 from obstacle_detection.tools import pictures as pictures_tool
+
+from eval_helpers import MIN_TEXT_PX, is_obstacle_rgb, text_height_px, write_camera_yaml
 
 SIZE = (160, 132)
 
@@ -100,7 +101,7 @@ def test_tool_draws_a_scene_frame(tmp_path, capsys):
 def test_tool_draws_a_depth_png_with_intrinsics(tmp_path, corridor):
     frame, _ = corridor
     cv2.imwrite(str(tmp_path / 'd.png'), frame.depth)
-    evaluation.write_camera_yaml(tmp_path / 'intrinsics.yaml', frame.intrinsics,
+    write_camera_yaml(tmp_path / 'intrinsics.yaml', frame.intrinsics,
                                  frame.height_m, frame.pitch_rad, frame.roll_rad)
     out = tmp_path / 'd_out.png'
     assert pictures_tool.main(['--depth', str(tmp_path / 'd.png'), '--intrinsics',
@@ -480,8 +481,8 @@ def test_contact_sheet_has_one_legend_under_the_thumbnails(tmp_path):
 def test_text_is_at_least_11_px_high_as_drawn():
     # capitals of every text (ticks, legends, captions) are MIN_TEXT_PX high, and the sheets
     # draw their text at the size they are shown (contact_sheet pads, fit_width scales rasters)
-    assert pictures.text_height_px(pictures.TEXT_SCALE) >= pictures.MIN_TEXT_PX == 11
-    assert pictures.text_height_px(pictures.TITLE_SCALE) > pictures.MIN_TEXT_PX
+    assert text_height_px(pictures.TEXT_SCALE) >= MIN_TEXT_PX == 11
+    assert text_height_px(pictures.TITLE_SCALE) > MIN_TEXT_PX
     narrow = np.zeros((10, 50, 3), np.uint8)
     assert pictures.contact_sheet([narrow], thumb_width=80)[:10, :50].sum() == 0
 

@@ -286,7 +286,9 @@ def test_noise_std_at_two_metres():
     frame = render(wall_scene(2.0), seed=13)
     returned = (frame.hit_index == 1) & (frame.depth_mm > 0)
     error_mm = frame.depth_mm[returned].astype(float) - 2000.0
-    expected = 1e3 * KINECT_V2_NOISE.sigma_m(2.0)   # 4.875 mm
+    model = KINECT_V2_NOISE
+    expected = (model.depth_sigma_base_mm
+                + model.depth_sigma_quad_mm_per_m2 * (2.0 - model.depth_sigma_ref_m) ** 2)
     assert expected == pytest.approx(4.875)
     assert np.std(error_mm) == pytest.approx(expected, rel=0.05)
     assert abs(np.mean(error_mm)) < 0.1

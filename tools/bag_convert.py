@@ -54,7 +54,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from obstacle_detection.cli import support as tool_support
-from obstacle_detection.evaluation.datasets import (DIML_DEPTH_KINDS, TUM_CAMERAS, ConvertError,
+from obstacle_detection.evaluation.datasets import (DIML_DEPTH_KINDS, TUM_CAMERAS, EvaluationError,
                                                     FrameSource, diml_frames, diml_sample_frames,
                                                     folder_frames, tum_frames)
 from obstacle_detection.cli.bag_writer import (DEFAULT_COLOR_TOPIC, DEFAULT_DEPTH_TOPIC,
@@ -180,7 +180,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         else:
             source = sources[args.source]()
             summary = write_frames(source, args.output, options_from_args(args))
-    except ConvertError as err:
+    except EvaluationError as err:
         return tool_support.report_error('bag_convert', err)
     print('\n'.join(summary.lines()))
     return 0

@@ -93,7 +93,7 @@ def seed_suite_rows(presets: Sequence[str], max_frames: int | None, fleet: Fleet
             evaluation.scenario_frames, s, max_frames=max_frames)) for s in scenarios]
         points = [PRESETS[name]() for name in presets]
         scores = scoring.score_points(fleet, sources, points, label='beside-seed')
-        return [(name, scoring.pool_report(part, point, label=name).overall)
+        return [(name, evaluation.pool_scores(part, point, label=name).overall)
                 for name, point, part in zip(presets, points, scores)]
     frames = [frame for scenario in scenarios
               for frame in evaluation.scenario_frames(scenario, max_frames=max_frames)]

@@ -96,8 +96,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             if axis is not None:
                 try:
                     evaluation.apply_overrides(base, {axis.name: axis.values[0]})
-                except evaluation.UnknownNameError:
-                    raise
+                except evaluation.EvaluationError as exc:
+                    if exc.usage:
+                        raise
                 except ValueError:   # a bad value: said for its own cell
                     pass
         started = time.perf_counter()

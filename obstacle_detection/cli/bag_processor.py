@@ -32,7 +32,7 @@ from obstacle_detection.ros.config import NodeConfig, build_config
 from obstacle_detection.ros.frame_gate import CameraState
 from obstacle_detection.ros.parameters import (ALL_PARAMS, ParamsFileError,
                                            read_params_files)
-from obstacle_detection.evaluation.datasets import ConvertError
+from obstacle_detection.evaluation.datasets import EvaluationError
 from obstacle_detection.cli.bag_writer import (BAG_VERSION, DEFAULT_DEPTH_TOPIC,
                                                STORAGES, staged_output)
 from obstacle_detection.cli.progress import Progress
@@ -308,7 +308,7 @@ def process_bag(src: Path, output: Path, config: NodeConfig, *,
                         bar.update()
                         if on_frame is not None:
                             on_frame(report)
-    except ConvertError as err:
+    except EvaluationError as err:
         raise ProcessError(str(err)) from err
     except ReaderError as err:
         raise ProcessError(f'{src}: cannot read bag ({err})') from err

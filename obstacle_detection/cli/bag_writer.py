@@ -34,8 +34,8 @@ from obstacle_detection.ros.compressed_depth import (COMPRESSED_IMAGE_TYPE,
 from obstacle_detection.ros.conversions import array_to_image, intrinsics_to_camera_info
 from obstacle_detection.pipeline.params import Intrinsics
 from obstacle_detection.cli.progress import Progress
-from obstacle_detection.evaluation.datasets import (ConvertError, FrameSource, default_intrinsics,
-                                                 read_color, read_depth_png)
+from obstacle_detection.evaluation.datasets import (EvaluationError, FrameSource,
+                                                 default_intrinsics, read_color, read_depth_png)
 
 # The one set of default topic names of every tool (tool_support), kept here under their names.
 DEFAULT_DEPTH_TOPIC = tool_support.DEFAULT_DEPTH_TOPIC
@@ -116,7 +116,7 @@ def staged_output(output: Path) -> Iterator[Path]:
     On any error the temporary folder is removed, so no half-written bag is left.
     """
     if output.exists() or output.is_symlink():
-        raise ConvertError(f'{output}: output already exists; remove it or choose another name')
+        raise EvaluationError(f'{output}: output already exists; remove it or choose another name')
     parent = output.parent
     try:
         parent.mkdir(parents=True, exist_ok=True)
@@ -125,11 +125,11 @@ def staged_output(output: Path) -> Iterator[Path]:
             shutil.rmtree(staging)
         staging.mkdir()
     except OSError as err:
-        raise ConvertError(f'{parent}: cannot create the output ({err.strerror})') from err
+        raise EvaluationError(f'{parent}: cannot create the output ({err.strerror})') from err
     try:
         yield staging / output.name
         if output.exists():
-            raise ConvertError(f'{output}: appeared while converting; not overwriting it')
+            raise EvaluationError(f'{output}: appeared while converting; not overwriting it')
         (staging / output.name).rename(output)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
@@ -191,18 +191,18 @@ def write_frames(source: FrameSource, output: Path, options: BagOptions) -> Summ
     """Write the frames of ``source`` as a rosbag2 at ``output``.
 
     Raises:
-        ConvertError: naming the file for an unreadable or wrong-format image, a size change,
+        EvaluationError: naming the file for an unreadable or wrong-format image, a size change,
             intrinsics that do not fit the images, or an existing output. Nothing is left at
             ``output`` then.
     """
     if not source.frames:
-        raise ConvertError(f'{output}: no frames to write')
+        raise EvaluationError(f'{output}: no frames to write')
     first = source.frames[0].depth_path
     scale = source.depth_units_per_m
     problem = depth_unit_problem(read_depth_png(first), scale)
     if problem is not None and not source.depth_units_origin:
-        raise ConvertError(f'{first}: {problem}; if it is in millimetres after all, pass '
-                           '--depth-scale 1000')
+        raise EvaluationError(f'{first}: {problem}; if it is in millimetres after all, pass '
+                              '--depth-scale 1000')
     if problem is not None:
         tool_support.warn(f'{first}: {problem}')
     first_depth = read_depth_png(first, units_per_m=scale)
@@ -210,9 +210,9 @@ def write_frames(source: FrameSource, output: Path, options: BagOptions) -> Summ
                                                  'another unit, TUM: 5000')
     size = (first_depth.shape[1], first_depth.shape[0])
     if source.size is not None and source.size != size:
-        raise ConvertError(f'{source.intrinsics_origin.removeprefix("from ")}: intrinsics are '
-                           f'for {source.size[0]}x{source.size[1]} images but {first} is '
-                           f'{size[0]}x{size[1]}')
+        raise EvaluationError(f'{source.intrinsics_origin.removeprefix("from ")}: intrinsics are '
+                              f'for {source.size[0]}x{source.size[1]} images but {first} is '
+                              f'{size[0]}x{size[1]}')
     intr, origin = source.intrinsics, source.intrinsics_origin
     if intr is None:
         intr, origin = default_intrinsics(source.default_view, size)
@@ -239,7 +239,7 @@ def write_frames(source: FrameSource, output: Path, options: BagOptions) -> Summ
                         depth = first_depth if k == 0 else read_depth_png(
                             frame.depth_path, units_per_m=scale)
                         if depth.shape != first_depth.shape:
-                            raise ConvertError(
+                            raise EvaluationError(
                                 f'{frame.depth_path}: {depth.shape[1]}x{depth.shape[0]} but '
                                 f'the first depth image {first} is {size[0]}x{size[1]}')
                         color = None
@@ -255,7 +255,7 @@ def write_frames(source: FrameSource, output: Path, options: BagOptions) -> Summ
                         summary.frames += 1
                         bar.update()
         except WriterError as err:
-            raise ConvertError(f'{output}: cannot write bag ({err})') from err
+            raise EvaluationError(f'{output}: cannot write bag ({err})') from err
     summary.topics = {options.depth_topic: summary.frames, options.info_topic: summary.frames,
                       **summary.topics}
     if with_color:
@@ -310,7 +310,7 @@ def convert_ros1(src: Path, output: Path, *, storage: str = 'sqlite3',
     warned about.
 
     Raises:
-        ConvertError: naming the bag: unreadable, not ROS 1, no such topic, or (with
+        EvaluationError: naming the bag: unreadable, not ROS 1, no such topic, or (with
             ``decompress_depth``) a raw topic that is recorded too.
     """
     # Imported here: only this conversion needs them.
@@ -318,7 +318,7 @@ def convert_ros1(src: Path, output: Path, *, storage: str = 'sqlite3',
     from rosbags.highlevel import AnyReader, AnyReaderError
 
     if not src.is_file():
-        raise ConvertError(f'{src}: ROS 1 bag not found')
+        raise EvaluationError(f'{src}: ROS 1 bag not found')
     summary = Summary(output=output)
     noetic = get_typestore(Stores.ROS1_NOETIC)
     jazzy = get_typestore(Stores.ROS2_JAZZY)
@@ -326,12 +326,12 @@ def convert_ros1(src: Path, output: Path, *, storage: str = 'sqlite3',
         try:
             with AnyReader([src], default_typestore=noetic) as reader:
                 if reader.is2:
-                    raise ConvertError(f'{src}: not a ROS 1 bag (expected a .bag file)')
+                    raise EvaluationError(f'{src}: not a ROS 1 bag (expected a .bag file)')
                 connections = [c for c in reader.connections if not topics or c.topic in topics]
                 if missing := sorted(set(topics) - {c.topic for c in reader.connections}):
-                    raise ConvertError(f'{src}: has no topic {", ".join(missing)}')
+                    raise EvaluationError(f'{src}: has no topic {", ".join(missing)}')
                 if not connections:
-                    raise ConvertError(f'{src}: contains no messages')
+                    raise EvaluationError(f'{src}: contains no messages')
                 depth = _compressed_depth_topics(reader, connections, noetic)
                 for topic, fmt in sorted(depth.items()):
                     summary.notes.append(
@@ -344,7 +344,7 @@ def convert_ros1(src: Path, output: Path, *, storage: str = 'sqlite3',
                 targets = Counter(raw_topic(t) for t in decoded)
                 if clash := sorted(t for t, n in targets.items() if n > 1 or t in (
                         {c.topic for c in connections} - decoded)):
-                    raise ConvertError(
+                    raise EvaluationError(
                         f'{src}: {", ".join(clash)} would be written twice by '
                         '--decompress-depth (recorded raw too, or from two compressed topics); '
                         'choose one with --topics')
@@ -378,9 +378,9 @@ def convert_ros1(src: Path, output: Path, *, storage: str = 'sqlite3',
                             counts[conn.topic] += 1
                 summary.duration_s = (reader.end_time - reader.start_time) / 1e9
         except AnyReaderError as err:
-            raise ConvertError(f'{src}: cannot read ROS 1 bag ({err})') from err
+            raise EvaluationError(f'{src}: cannot read ROS 1 bag ({err})') from err
         except WriterError as err:
-            raise ConvertError(f'{output}: cannot write bag ({err})') from err
+            raise EvaluationError(f'{output}: cannot write bag ({err})') from err
     for (topic, reason), count in sorted(failed.items()):
         note = f'{count} frame(s) of {topic} not decoded, left out: {reason}'
         summary.notes.append(note)

@@ -78,7 +78,7 @@ def base_params(args: argparse.Namespace) -> DetectorParams:
 
 def report_error(prog: str, exc: Exception) -> int:
     """Print the error line; an unknown scenario, parameter or metric is a usage error (2)."""
-    if isinstance(exc, evaluation.UnknownNameError):
+    if isinstance(exc, evaluation.EvaluationError) and exc.usage:
         exc = tool_support.UsageError(str(exc))
     return tool_support.report_error(prog, exc)
 

@@ -38,7 +38,8 @@ from obstacle_detection.pipeline import mount
 from obstacle_detection.viz import pictures
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.cli.support import parse_intrinsics
-from obstacle_detection.evaluation.camera import CameraFileError, read_camera_yaml
+from obstacle_detection.evaluation import EvaluationError
+from obstacle_detection.evaluation.camera import read_camera_yaml
 from obstacle_detection.pipeline.depth import decode_depth
 from obstacle_detection.pipeline.params import (SEED_TABLE_4_1, DetectorParams,
                                        Intrinsics)
@@ -98,7 +99,7 @@ def read_camera(path: Path) -> _Camera:
     except OSError as exc:
         raise tool_support.ToolError(path, f'cannot read the camera YAML ({exc.strerror})') \
             from None
-    except CameraFileError as exc:
+    except EvaluationError as exc:
         raise tool_support.ToolError(path, f'bad camera YAML: {exc.problem}') from None
     return _Camera(camera.intrinsics, f'from {path}', camera.depth_scale, camera.mount)
 

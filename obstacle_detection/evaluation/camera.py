@@ -1,12 +1,7 @@
 """Camera files: the one reader and writer of the camera YAML, and intrinsics scaling.
 
-The camera YAML holds pinhole intrinsics [px] (``fx fy cx cy``, or a ROS calibration's
-``camera_matrix``, optionally nested under ``intrinsics:`` or ``camera:``), optionally the image
-size (``width height``, or ``image_width image_height``), the depth scale (units per metre) and
-the camera mount (``camera_height_m`` with ``camera_pitch_deg|rad`` and ``camera_roll_deg|rad``).
-It is a labelled folder's ``intrinsics.yaml`` (``runner``), the output of
-``tools/estimate_mount.py --camera-yaml-out``, the demo's ``camera.yaml`` and what
-``tools/pictures.py --intrinsics`` and ``tools/bag_convert.py --intrinsics`` read.
+Keys: ``fx fy cx cy`` (or a ROS ``camera_matrix``), optional ``width height``, ``depth_scale``
+and mount (``camera_height_m``, ``camera_pitch_deg|rad``, ``camera_roll_deg|rad``).
 """
 
 from __future__ import annotations
@@ -17,16 +12,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from obstacle_detection.evaluation import EvaluationError
 from obstacle_detection.pipeline.params import Intrinsics
-
-
-class CameraFileError(ValueError):
-    """A camera file that cannot be used: ``path`` and the ``problem``."""
-
-    def __init__(self, path: str | Path, problem: str) -> None:
-        super().__init__(f'{path}: {problem}')
-        self.path = Path(path)
-        self.problem = problem
 
 
 @dataclass(frozen=True)
@@ -41,10 +28,7 @@ class CameraFile:
 
 def scaled_intrinsics(intrinsics: Intrinsics, sx: float, sy: float | None = None
                       ) -> Intrinsics:
-    """Return the intrinsics of the same camera with images resized by ``sx`` (and ``sy``).
-
-    Pixel-centre aware: ``c' = (c + 0.5) * s - 0.5``. ``sy`` defaults to ``sx``.
-    """
+    """Intrinsics of the camera with images resized by ``sx`` (and ``sy``), pixel-centre aware."""
     sy = sx if sy is None else sy
     for name, factor in (('sx', sx), ('sy', sy)):
         if not factor > 0.0:
@@ -56,10 +40,7 @@ def scaled_intrinsics(intrinsics: Intrinsics, sx: float, sy: float | None = None
 
 def intrinsics_from_mapping(data: Mapping[str, Any]
                             ) -> tuple[Intrinsics, tuple[int, int] | None]:
-    """Return the intrinsics and (width, height), if given, of a camera YAML mapping.
-
-    Raises ValueError saying what is missing or bad.
-    """
+    """Intrinsics and (width, height) if given of a camera YAML mapping; ValueError if bad."""
     for key in ('intrinsics', 'camera'):
         if isinstance(data.get(key), dict):
             data = data[key]
@@ -118,20 +99,16 @@ def camera_from_mapping(data: Any) -> CameraFile:
 
 
 def read_camera_yaml(path: str | Path) -> CameraFile:
-    """Read a camera YAML (see the module docstring).
-
-    Raises OSError when the file cannot be read, CameraFileError naming it when its content is
-    not a usable camera.
-    """
+    """Read a camera YAML; OSError if unreadable, EvaluationError naming a bad content."""
     import yaml  # PyYAML ships with ROS 2 (rclpy's own dependency)
 
     text = Path(path).read_text(encoding='utf-8')
     try:
         return camera_from_mapping(yaml.safe_load(text) or {})
     except yaml.YAMLError as err:
-        raise CameraFileError(path, f'not valid YAML ({err})') from None
+        raise EvaluationError(f'not valid YAML ({err})', path) from None
     except ValueError as err:
-        raise CameraFileError(path, str(err)) from None
+        raise EvaluationError(str(err), path) from None
 
 
 def camera_yaml_text(intrinsics: Intrinsics, *, comment: str,

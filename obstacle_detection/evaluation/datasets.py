@@ -1,10 +1,6 @@
 """Recorded RGB-D datasets as frame lists: TUM RGB-D format, DIML/CVL, depth PNG folders.
 
-Each reader returns a :class:`FrameSource`: the frames (stamp, depth PNG, paired colour image,
-optional pose), the camera intrinsics (from a file, a dataset's known camera, or ``None`` = the
-Kinect v2 defaults chosen, loudly, once the image size is known) and what could not be paired.
-``obstacle_detection.cli.bag_writer`` writes a FrameSource as a rosbag2 bag
-(``tools/bag_convert.py``); the layouts are described there.
+``cli.bag_writer`` writes a :class:`FrameSource` as a rosbag2 bag (``tools/bag_convert.py``).
 """
 
 from __future__ import annotations
@@ -20,6 +16,7 @@ import cv2
 import numpy as np
 import yaml
 
+from obstacle_detection.evaluation import EvaluationError
 from obstacle_detection.evaluation.camera import intrinsics_from_mapping, scaled_intrinsics
 from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE, Intrinsics
 
@@ -51,10 +48,6 @@ DIML_SAMPLE_COLOR = ('color', '_c.png')
 DIML_SAMPLE_DEPTH = ('depth_filled', '_depth_filled.png')
 
 
-class ConvertError(Exception):
-    """Bad input or output for a conversion; the message names the offending file."""
-
-
 @dataclasses.dataclass(frozen=True)
 class Frame:
     """One depth frame to write, with the colour image paired to it (if any)."""
@@ -69,12 +62,7 @@ class Frame:
 
 @dataclasses.dataclass
 class FrameSource:
-    """What a dataset layout yields: frames, their camera and what could not be paired.
-
-    ``intrinsics`` None means "not given": defaults for the view are chosen (with a warning)
-    once the image size is known. ``size`` is (width, height) from the intrinsics file, checked
-    against the images when given.
-    """
+    """Frames, their camera (None: Kinect v2 defaults, with a warning), what was not paired."""
 
     frames: list[Frame]
     intrinsics: Intrinsics | None
@@ -91,43 +79,34 @@ class FrameSource:
 
 
 def load_intrinsics(path: Path) -> tuple[Intrinsics, tuple[int, int] | None]:
-    """Read camera intrinsics from a file.
+    """Intrinsics (and size if given) of a camera YAML, ROS camera_info or ETH3D calibration.txt.
 
-    Accepted: a YAML mapping with ``fx, fy, cx, cy`` and optionally ``width, height`` (also
-    nested under an ``intrinsics`` or ``camera`` key); a ROS ``camera_info`` YAML
-    (``camera_matrix: {data: [...]}``, ``image_width``, ``image_height``); or an ETH3D
-    ``calibration.txt`` holding ``fx fy cx cy`` on one line.
-
-    Returns:
-        The intrinsics and (width, height) if the file gives them.
-
-    Raises:
-        ConvertError: naming the file when it is missing, unreadable or incomplete.
+    Raises EvaluationError naming the file when it is missing, unreadable or incomplete.
     """
     try:
         text = path.read_text()
     except OSError as err:
-        raise ConvertError(f'{path}: cannot read intrinsics file ({err.strerror})') from err
+        raise EvaluationError(f'{path}: cannot read intrinsics file ({err.strerror})') from err
     numbers = text.split()
     try:
         if len(numbers) == 4 and all(_is_number(n) for n in numbers):
             return _intrinsics(path, *map(float, numbers)), None
         data = yaml.safe_load(text)
     except yaml.YAMLError as err:
-        raise ConvertError(f'{path}: not valid YAML ({err})') from err
+        raise EvaluationError(f'{path}: not valid YAML ({err})') from err
     if not isinstance(data, dict):
-        raise ConvertError(f'{path}: expected a mapping with fx, fy, cx, cy')
+        raise EvaluationError(f'{path}: expected a mapping with fx, fy, cx, cy')
     try:
         return intrinsics_from_mapping(data)
     except ValueError as err:
-        raise ConvertError(f'{path}: {err}') from err
+        raise EvaluationError(f'{path}: {err}') from err
 
 
 def _intrinsics(path: Path, fx: float, fy: float, cx: float, cy: float) -> Intrinsics:
     try:
         return Intrinsics(fx, fy, cx, cy)
     except ValueError as err:
-        raise ConvertError(f'{path}: {err}') from err
+        raise EvaluationError(f'{path}: {err}') from err
 
 
 def _is_number(text: str) -> bool:
@@ -153,17 +132,13 @@ def default_intrinsics(view: str, size: tuple[int, int]) -> tuple[Intrinsics, st
 
 
 def stamp_ns(seconds: float) -> int:
-    """Seconds to integer nanoseconds (rounded).
-
-    Frame stamps are ``stamp_ns(start) + stamp_ns(i / rate)``: adding in integers keeps the
-    frame spacing exact to the nanosecond even for a start near the current epoch.
-    """
+    """Seconds to integer nanoseconds (rounded), so that frame spacing stays exact."""
     return int(round(seconds * 1e9))
 
 
 def _require_dir(path: Path, what: str) -> None:
     if not path.is_dir():
-        raise ConvertError(f'{path}: {what} folder not found')
+        raise EvaluationError(f'{path}: {what} folder not found')
 
 
 def _optional_intrinsics(path: Path | None
@@ -176,7 +151,8 @@ def _optional_intrinsics(path: Path | None
 
 def _check_rate(rate_hz: float) -> None:
     if not (math.isfinite(rate_hz) and rate_hz > 0):
-        raise ConvertError(f'--rate must be a positive number of frames per second, got {rate_hz}')
+        raise EvaluationError(f'--rate must be a positive number of frames per second, '
+                              f'got {rate_hz}')
 
 
 def _files_with_suffix(folder: Path, suffix: str) -> dict[str, Path]:
@@ -189,11 +165,11 @@ def _pair_by_key(depth: dict[str, Path], color: dict[str, Path], depth_dir: Path
                  color_dir: Path) -> None:
     """Raise unless depth and colour folders hold the same frames."""
     if len(depth) != len(color):
-        raise ConvertError(f'{depth_dir} holds {len(depth)} depth images but {color_dir} holds '
-                           f'{len(color)} colour images; they must match one to one')
+        raise EvaluationError(f'{depth_dir} holds {len(depth)} depth images but {color_dir} holds '
+                              f'{len(color)} colour images; they must match one to one')
     for key, path in depth.items():
         if key not in color:
-            raise ConvertError(f'{path}: no colour image for this depth image in {color_dir}')
+            raise EvaluationError(f'{path}: no colour image for this depth image in {color_dir}')
 
 
 def diml_frames(sequence: Path, *, depth_kind: str = 'raw', intrinsics_path: Path | None = None,
@@ -207,22 +183,22 @@ def diml_frames(sequence: Path, *, depth_kind: str = 'raw', intrinsics_path: Pat
     folder, suffix = DIML_DEPTH_KINDS[depth_kind]
     depth_dir = sequence / folder
     if not sequence.is_dir():
-        raise ConvertError(f'{sequence}: DIML sequence folder not found')
+        raise EvaluationError(f'{sequence}: DIML sequence folder not found')
     if not depth_dir.is_dir():
         found = sorted(p.parent for p in sequence.rglob(folder) if p.is_dir())
         hint = (f'; sequence folders below it: {", ".join(map(str, found[:5]))}'
                 + (' ...' if len(found) > 5 else '')) if found else ''
-        raise ConvertError(f'{depth_dir}: DIML {depth_kind} depth folder not found '
-                           f'(pass a <scene>/<date>/<n> folder){hint}')
+        raise EvaluationError(f'{depth_dir}: DIML {depth_kind} depth folder not found '
+                              f'(pass a <scene>/<date>/<n> folder){hint}')
     depth = _files_with_suffix(depth_dir, suffix)
     if not depth:
-        raise ConvertError(f'{depth_dir}: no *{suffix} depth images')
+        raise EvaluationError(f'{depth_dir}: no *{suffix} depth images')
     pattern = re.compile(r'(\d+)$')
     frames_index: dict[str, int] = {}
     for key, path in depth.items():
         match = pattern.search(key)
         if match is None:
-            raise ConvertError(f'{path}: no frame number before {suffix} in the file name')
+            raise EvaluationError(f'{path}: no frame number before {suffix} in the file name')
         frames_index[key] = int(match.group(1))
     color: dict[str, Path] = {}
     color_dir = sequence / DIML_COLOR[0]
@@ -251,7 +227,7 @@ def diml_sample_frames(root: Path, *, resolution: str = 'LR',
     """
     _check_rate(rate_hz)
     if not root.is_dir():
-        raise ConvertError(f'{root}: DIML sample folder not found')
+        raise EvaluationError(f'{root}: DIML sample folder not found')
     name = DIML_SAMPLE_DEPTH[0]
     depth_dirs = sorted({p for p in [root / name, *root.rglob(name)] if p.is_dir()})
     # Below a split folder both HR and LR exist: keep the chosen one.
@@ -259,15 +235,15 @@ def diml_sample_frames(root: Path, *, resolution: str = 'LR',
     if {'HR', 'LR'} & parts:
         depth_dirs = [p for p in depth_dirs if resolution in p.relative_to(root).parts]
         if not depth_dirs:
-            raise ConvertError(f'{root}: no {resolution}/ folder below it')
+            raise EvaluationError(f'{root}: no {resolution}/ folder below it')
     if not depth_dirs:
-        raise ConvertError(f'{root}: no {DIML_SAMPLE_DEPTH[0]}/ folder below it '
-                           f'(expected <split>/{{HR,LR}}/<scene>/{{color,depth_filled}})')
+        raise EvaluationError(f'{root}: no {DIML_SAMPLE_DEPTH[0]}/ folder below it '
+                              f'(expected <split>/{{HR,LR}}/<scene>/{{color,depth_filled}})')
     frames: list[Frame] = []
     for depth_dir in depth_dirs:
         depth = _files_with_suffix(depth_dir, DIML_SAMPLE_DEPTH[1])
         if not depth:
-            raise ConvertError(f'{depth_dir}: no *{DIML_SAMPLE_DEPTH[1]} depth images')
+            raise EvaluationError(f'{depth_dir}: no *{DIML_SAMPLE_DEPTH[1]} depth images')
         color: dict[str, Path] = {}
         if with_color:
             color_dir = depth_dir.parent / DIML_SAMPLE_COLOR[0]
@@ -295,20 +271,20 @@ def folder_frames(depth_dir: Path, *, color_dir: Path | None = None,
     _check_rate(rate_hz)
     if depth_units_per_m is not None and not (math.isfinite(depth_units_per_m)
                                               and depth_units_per_m > 0):
-        raise ConvertError(f'--depth-scale must be a positive number of depth units per metre, '
-                           f'got {depth_units_per_m:g}')
+        raise EvaluationError(f'--depth-scale must be a positive number of depth units per metre, '
+                              f'got {depth_units_per_m:g}')
     _require_dir(depth_dir, 'depth')
     depth = sorted(p for p in depth_dir.iterdir() if p.is_file() and p.suffix.lower() == '.png')
     if not depth:
-        raise ConvertError(f'{depth_dir}: no .png depth images')
+        raise EvaluationError(f'{depth_dir}: no .png depth images')
     color: list[Path | None] = [None] * len(depth)
     if color_dir is not None:
         _require_dir(color_dir, 'colour')
         found = sorted(p for p in color_dir.iterdir()
                        if p.is_file() and p.suffix.lower() in ('.png', '.jpg', '.jpeg'))
         if len(found) != len(depth):
-            raise ConvertError(f'{depth_dir} holds {len(depth)} depth images but {color_dir} '
-                               f'holds {len(found)} colour images; they must match one to one')
+            raise EvaluationError(f'{depth_dir} holds {len(depth)} depth images but {color_dir} '
+                                  f'holds {len(found)} colour images; they must match one to one')
         color = list(found)
     intr, origin, size = _optional_intrinsics(intrinsics_path)
     frames = [Frame(stamp_ns(start_s) + stamp_ns(k / rate_hz), d, c)
@@ -324,7 +300,7 @@ def read_timestamp_list(path: Path) -> list[tuple[float, str]]:
     try:
         lines = path.read_text().splitlines()
     except OSError as err:
-        raise ConvertError(f'{path}: cannot read ({err.strerror})') from err
+        raise EvaluationError(f'{path}: cannot read ({err.strerror})') from err
     entries = []
     for number, line in enumerate(lines, start=1):
         line = line.split('#', 1)[0].strip()
@@ -332,7 +308,7 @@ def read_timestamp_list(path: Path) -> list[tuple[float, str]]:
             continue
         parts = line.replace(',', ' ').split()
         if len(parts) < 2 or not _is_number(parts[0]):
-            raise ConvertError(f'{path}:{number}: expected "timestamp filename", got {line!r}')
+            raise EvaluationError(f'{path}:{number}: expected "timestamp filename", got {line!r}')
         entries.append((float(parts[0]), parts[1]))
     return sorted(entries)
 
@@ -341,9 +317,9 @@ def tum_frames(root: Path, *, camera: str | None = None, intrinsics_path: Path |
                max_difference_s: float = 0.02, with_color: bool = True) -> FrameSource:
     """List the depth frames of a TUM-format sequence, each with its nearest colour frame."""
     if not root.is_dir():
-        raise ConvertError(f'{root}: sequence folder not found')
+        raise EvaluationError(f'{root}: sequence folder not found')
     if not (math.isfinite(max_difference_s) and max_difference_s >= 0):
-        raise ConvertError(f'--max-difference must be >= 0 s, got {max_difference_s}')
+        raise EvaluationError(f'--max-difference must be >= 0 s, got {max_difference_s}')
     notes: list[str] = []
     depth_list = root / 'depth.txt'
     if depth_list.is_file():
@@ -353,7 +329,7 @@ def tum_frames(root: Path, *, camera: str | None = None, intrinsics_path: Path |
         notes.append(f'{depth_list} not found: depth frames listed from the timestamps in the '
                      f'file names of {root / "depth"}')
     if not depth:
-        raise ConvertError(f'{depth_list}: lists no depth images')
+        raise EvaluationError(f'{depth_list}: lists no depth images')
     dropped: Counter[str] = Counter()
     color_for: list[Path | None] = [None] * len(depth)
     rgb_list = root / 'rgb.txt'
@@ -408,11 +384,9 @@ def tum_frames(root: Path, *, camera: str | None = None, intrinsics_path: Path |
 
 
 def stamps_from_names(root: Path, kind: str) -> list[tuple[float, str]]:
-    """``(timestamp, file)`` of the images in ``root/kind`` named by their timestamp (TUM's).
+    """``(timestamp, file)`` of the PNGs in ``root/kind`` named ``<seconds>.png`` (TUM).
 
-    kind: 'depth' or 'rgb'. Stands in for a missing ``depth.txt`` / ``rgb.txt``. Raises
-    ConvertError when the folder is missing or a PNG in it is not named ``<seconds>.png``,
-    saying exactly what list to write (the PNGs it found, with example stamps).
+    Stands in for a missing ``depth.txt`` / ``rgb.txt``; EvaluationError says what to write.
     """
     folder = root / kind
     listed = root / f'{kind}.txt'
@@ -433,37 +407,35 @@ def stamps_from_names(root: Path, kind: str) -> list[tuple[float, str]]:
         f'no {kind} PNG found in {root}'
     other = ('; rgb.txt likewise for the colour images' if kind == 'depth' else '') + \
         ', or --no-color to leave colour out'
-    raise ConvertError(f'{listed}: not found, and no {folder}/<seconds>.png names give the '
-                       f'stamps: write it, one "timestamp filename" line per {kind} image, '
-                       f'{example}{other}')
+    raise EvaluationError(f'{listed}: not found, and no {folder}/<seconds>.png names give the '
+                          f'stamps: write it, one "timestamp filename" line per {kind} image, '
+                          f'{example}{other}')
 
 
 def read_depth_png(path: Path, *,
                    units_per_m: float = DEFAULT_DEPTH_UNITS_PER_M) -> np.ndarray:
-    """Read a 16-bit single-channel depth PNG; return (H, W) uint16 millimetres.
+    """Read a 16-bit single-channel depth PNG as (H, W) uint16 millimetres.
 
-    ``units_per_m`` converts other units to millimetres (5000 for TUM's 0.2 mm), rounding to
-    the nearest millimetre (halves up). Raises ConvertError naming the file when a value
-    converted does not fit 16 bits.
+    ``units_per_m`` converts other units (5000 for TUM); EvaluationError when a value overflows.
     """
     if not path.is_file():
-        raise ConvertError(f'{path}: depth image not found')
+        raise EvaluationError(f'{path}: depth image not found')
     image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if image is None:
-        raise ConvertError(f'{path}: cannot read depth image (not an image file?)')
+        raise EvaluationError(f'{path}: cannot read depth image (not an image file?)')
     if image.ndim != 2:
-        raise ConvertError(f'{path}: depth must have one channel, found {image.shape[2]}')
+        raise EvaluationError(f'{path}: depth must have one channel, found {image.shape[2]}')
     if image.dtype != np.uint16:
         bits = image.dtype.itemsize * 8
-        raise ConvertError(f'{path}: depth must be a 16-bit image in millimetres, '
-                           f'found {bits}-bit ({image.dtype})')
+        raise EvaluationError(f'{path}: depth must be a 16-bit image in millimetres, '
+                              f'found {bits}-bit ({image.dtype})')
     if units_per_m != DEFAULT_DEPTH_UNITS_PER_M:
         # multiplied before divided: exact for integer ratios (5000 units/m: v / 5)
         mm = np.floor(image.astype(np.float64) * 1000.0 / units_per_m + 0.5)
         if mm.max(initial=0.0) > np.iinfo(np.uint16).max:
-            raise ConvertError(f'{path}: at {units_per_m:g} depth units per metre its farthest '
-                               f'value is {mm.max() / 1000:.1f} m, beyond the 65.5 m a 16UC1 '
-                               'image in millimetres holds; check --depth-scale')
+            raise EvaluationError(f'{path}: at {units_per_m:g} depth units per metre its farthest '
+                                  f'value is {mm.max() / 1000:.1f} m, beyond the 65.5 m a 16UC1 '
+                                  'image in millimetres holds; check --depth-scale')
         image = mm.astype(np.uint16)
     return image
 
@@ -471,10 +443,10 @@ def read_depth_png(path: Path, *,
 def read_color(path: Path, encoding: str) -> np.ndarray:
     """Read a colour image as (H, W, 3) uint8 in ``encoding`` ('bgr8' or 'rgb8')."""
     if not path.is_file():
-        raise ConvertError(f'{path}: colour image not found')
+        raise EvaluationError(f'{path}: colour image not found')
     image = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if image is None:
-        raise ConvertError(f'{path}: cannot read colour image')
+        raise EvaluationError(f'{path}: cannot read colour image')
     if encoding == 'rgb8':
         image = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
     return image

@@ -1,36 +1,6 @@
-"""Accuracy of the detector against ground truth: pixel and costmap-cell confusion counts.
+"""Accuracy against ground truth: pixel and costmap-cell confusion counts (plain numpy).
 
-The seed thesis tuned its parameters "by trial" and named a ground truth as future work; these
-functions turn a detection into numbers. Everything here is plain numpy on label arrays and
-grids; nothing runs the pipeline.
-
-What counts (the same text is printed by ``tools/evaluate.py --help``):
-
-Pixel level
-    The positive class is "obstacle". A pixel is *evaluated* when the ground truth saw a surface
-    there (truth label not ``GT_NO_RETURN``) **and** the pipeline made a call on it (pipeline
-    label ``LABEL_GROUND`` or ``LABEL_OBSTACLE``). Pixels without depth after filtering
-    (``LABEL_NO_RETURN``) and pixels outside the region of interest (``LABEL_OUTSIDE_ROI``) carry
-    no prediction and are left out. Predicted positive: pipeline label ``LABEL_OBSTACLE``; true
-    positive: truth label ``GT_OBSTACLE``.
-
-Costmap-cell level
-    The truth grid has the pipeline's costmap geometry (same origin, resolution and size). A cell
-    is occupied in the truth when the noise-free hit point of at least one ``GT_OBSTACLE`` pixel
-    inside the region of interest falls in it, free when only ``GT_TRAVERSABLE`` points fall in
-    it, unknown otherwise. Unknown truth cells are not evaluated. Predicted positive: the
-    pipeline's cell is ``CELL_OCCUPIED``; a free or unknown pipeline cell counts as negative
-    (an obstacle the pipeline never saw is a miss).
-
-Robot-level truth (issue 9) adds the label ``GT_ABOVE_ROBOT``: a surface above the robot is
-not an obstacle, so its pixels are negatives and its points count as free in the truth grid (a
-cell under an overhang above the robot is free, marking it is a false alarm).
-
-Scores from a confusion (tp, fp, fn, tn): precision tp/(tp+fp), recall tp/(tp+fn),
-F1 2 tp/(2 tp+fp+fn), IoU tp/(tp+fp+fn), false-alarm rate fp/(fp+tn) (the share of traversable
-truth marked as obstacle), accuracy (tp+tn)/total. A ratio with a zero denominator is NaN
-("not defined": e.g. recall on a frame without obstacles). Scores over several frames are
-computed from the summed counts (micro average), never by averaging per-frame ratios.
+What counts is stated in ``runner.SCORE_DEFINITIONS`` and docs/accuracy.md.
 """
 
 from __future__ import annotations
@@ -118,11 +88,7 @@ class Confusion:
 
 def confusion(predicted: np.ndarray, truth: np.ndarray,
               evaluated: np.ndarray | None = None) -> Confusion:
-    """Confusion counts of two boolean arrays of one shape, over the ``evaluated`` entries.
-
-    predicted, truth: bool arrays (any shape, equal); evaluated: bool mask of the same shape,
-    None = all entries.
-    """
+    """Confusion counts of two bool arrays of one shape over ``evaluated`` (None = all)."""
     predicted = np.asarray(predicted, dtype=bool)
     truth = np.asarray(truth, dtype=bool)
     if predicted.shape != truth.shape:
@@ -154,21 +120,14 @@ def pixel_evaluated(pipeline_labels: np.ndarray, truth_labels: np.ndarray) -> np
 
 
 def pixel_confusion(pipeline_labels: np.ndarray, truth_labels: np.ndarray) -> Confusion:
-    """Pixel-level confusion of obstacle pixels (see the module docstring for what counts).
-
-    pipeline_labels: (H, W) uint8 ``LABEL_*``; truth_labels: (H, W) uint8 ``GT_*``.
-    """
+    """Pixel confusion of obstacle pixels: pipeline ``LABEL_*`` against truth ``GT_*``."""
     evaluated = pixel_evaluated(pipeline_labels, truth_labels)
     return confusion(np.asarray(pipeline_labels) == LABEL_OBSTACLE,
                      np.asarray(truth_labels) == GT_OBSTACLE, evaluated)
 
 
 def cell_confusion(predicted_grid: np.ndarray, truth_grid: np.ndarray) -> Confusion:
-    """Costmap-cell confusion: truth cells ``CELL_UNKNOWN`` are skipped.
-
-    predicted_grid, truth_grid: (ny, nx) int8 grids with ``CELL_*`` values of one geometry.
-    A predicted cell is positive when ``CELL_OCCUPIED``; free and unknown are negative.
-    """
+    """Costmap-cell confusion of two ``CELL_*`` grids; unknown truth cells are skipped."""
     predicted_grid = np.asarray(predicted_grid)
     truth_grid = np.asarray(truth_grid)
     if predicted_grid.shape != truth_grid.shape:
@@ -180,14 +139,10 @@ def cell_confusion(predicted_grid: np.ndarray, truth_grid: np.ndarray) -> Confus
 
 def truth_points(points_ground: np.ndarray, truth_labels: np.ndarray, roi: np.ndarray,
                  marked: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Split true hit points into (obstacle (O, 3), traversable (T, 3)) float32 [m].
+    """Split true points (H, W, 3) into (obstacle (O, 3), traversable (T, 3)) float32 [m].
 
-    points_ground: (H, W, 3) ground frame, NaN where no hit; truth_labels (H, W) ``GT_*``;
-    roi: (H, W) bool, True for pixels whose true point lies in the region of interest. Only
-    finite points inside the region of interest are returned. ``GT_ABOVE_ROBOT`` points count
-    as traversable (a cell under an overhang above the robot is free). marked: (H, W) bool,
-    pixels with a surface whose points count as obstacles whatever their label (the reachable
-    ground at a drop's edge), None = none.
+    Only finite points in ``roi``; ``GT_ABOVE_ROBOT`` counts as traversable; ``marked`` pixels
+    (a drop's edge) count as obstacles whatever their label.
     """
     flat = np.asarray(points_ground, dtype=np.float32).reshape(-1, 3)
     labels = np.asarray(truth_labels).reshape(-1)
@@ -205,15 +160,7 @@ def truth_points(points_ground: np.ndarray, truth_labels: np.ndarray, roi: np.nd
 def truth_grid(obstacle_points: np.ndarray, traversable_points: np.ndarray,
                origin_xy_m: tuple[float, float], resolution_m: float, shape: tuple[int, int],
                ) -> np.ndarray:
-    """Rasterise true points into a (ny, nx) int8 grid of ``CELL_*`` values.
-
-    Cell (row iy, column ix) covers ``origin + [ix, ix+1) * res`` in x and
-    ``origin + [iy, iy+1) * res`` in y (ground frame [m]); points outside the grid are dropped.
-    A cell with an obstacle point is occupied, one with only traversable points free, others
-    unknown. This mirrors the pipeline's costmap binning (floor of the offset over the cell
-    size); ``evaluation.truth_costmap`` uses the pipeline's own ``build_costmap`` instead when
-    it is available so that both grids bin points the same way.
-    """
+    """Rasterise true points into a (ny, nx) int8 ``CELL_*`` grid, binned as the costmap."""
     if resolution_m <= 0.0 or not math.isfinite(resolution_m):
         raise ValueError(f'resolution_m={resolution_m!r} must be a positive number')
     ny, nx = shape
@@ -234,11 +181,7 @@ def format_score(value: float, digits: int = 3) -> str:
 
 def point_cells(points: np.ndarray, origin_xy_m: tuple[float, float], resolution_m: float,
                 shape: tuple[int, int]) -> np.ndarray:
-    """(ny, nx) bool: the grid cells that points (M, 3) or (M, 2) [m] fall in.
-
-    Binning as in :func:`truth_grid` (floor of the offset over the cell size); points outside
-    the grid are dropped.
-    """
+    """(ny, nx) bool: the grid cells that points (M, 3) or (M, 2) [m] fall in."""
     if resolution_m <= 0.0 or not math.isfinite(resolution_m):
         raise ValueError(f'resolution_m={resolution_m!r} must be a positive number')
     ny, nx = shape
@@ -254,11 +197,7 @@ def point_cells(points: np.ndarray, origin_xy_m: tuple[float, float], resolution
 
 def occupied_share(predicted_grid: np.ndarray, cells: np.ndarray, *,
                    tolerance_cells: int = 0) -> tuple[int, int]:
-    """(cells marked, cells) of a set of cells: how many are ``CELL_OCCUPIED`` in the grid.
-
-    tolerance_cells: a cell also counts as marked when an occupied cell lies within this many
-    cells of it (Chebyshev distance; 0 = the cell itself).
-    """
+    """(cells marked, cells): how many are occupied, within ``tolerance_cells`` (Chebyshev)."""
     occupied = np.asarray(predicted_grid) == CELL_OCCUPIED
     cells = np.asarray(cells, dtype=bool)
     if occupied.shape != cells.shape:
@@ -292,14 +231,7 @@ def grow_cells(mask: np.ndarray, cells: int) -> np.ndarray:
 
 @dataclass(frozen=True)
 class TolerantCells:
-    """Costmap-cell counts with a tolerance of ``cells`` cells (issue 22); add to pool frames.
-
-    hit_truth / truth: occupied truth cells with an occupied predicted cell within the
-    tolerance / all occupied truth cells; hit_marked / marked: occupied predicted cells (on
-    scored truth cells) with an occupied truth cell within the tolerance / all of them;
-    far_alarms / free: free truth cells marked occupied with no occupied truth cell within the
-    tolerance / all free truth cells.
-    """
+    """Costmap-cell counts with a tolerance of ``cells`` cells (issue 22); add to pool frames."""
 
     hit_truth: int = 0
     truth: int = 0
@@ -336,11 +268,7 @@ class TolerantCells:
 
 def tolerant_cells(predicted_grid: np.ndarray, truth_grid: np.ndarray, *,
                    cells: int = 1) -> TolerantCells:
-    """Cell counts where a mark within ``cells`` cells of a true obstacle counts (and back).
-
-    predicted_grid, truth_grid: (ny, nx) ``CELL_*`` grids of one geometry; truth cells
-    ``CELL_UNKNOWN`` are not scored (a predicted mark there is not counted).
-    """
+    """Cell counts where a mark within ``cells`` cells of a true obstacle counts (and back)."""
     predicted = np.asarray(predicted_grid) == CELL_OCCUPIED
     truth_grid = np.asarray(truth_grid)
     if predicted.shape != truth_grid.shape:
@@ -371,13 +299,10 @@ def free_share(predicted_grid: np.ndarray, cells: np.ndarray) -> tuple[int, int]
 
 def surface_gap_points(points_ground: np.ndarray, object_ids: np.ndarray, mask: np.ndarray,
                        *, step_m: float, max_gap_m: float) -> np.ndarray:
-    """Points (M, 3) float64 [m] filling the gaps between neighbouring samples of a surface.
+    """Points (M, 3) [m] filling gaps between neighbouring samples of one surface.
 
-    Two 4-neighbour pixels, both in ``mask``, that hit the same object (``object_ids`` >= 0,
-    equal) and lie more than ``step_m`` but at most ``max_gap_m`` apart span a piece of that
-    surface the pixel grid sampled sparsely (a table's underside seen at a grazing angle): the
-    segment between them is sampled at most ``step_m`` apart (end points excluded). points_ground:
-    (H, W, 3) ground frame, NaN where no hit.
+    Neighbour pixels in ``mask`` on the same object, more than ``step_m`` and at most
+    ``max_gap_m`` apart, get the segment between them sampled ``step_m`` apart.
     """
     if not (0.0 < step_m <= max_gap_m and math.isfinite(max_gap_m)):
         raise ValueError(f'need 0 < step_m={step_m!r} <= max_gap_m={max_gap_m!r}')

@@ -1,33 +1,12 @@
 """Run the detector over labelled frames and score it: the scenario suite runner of the tools.
 
-Labelled frames come from two sources:
-
-* the scene generator (``obstacle_detection.sim.scenes``), through a scenario list such as the
-  committed ``scenarios.json`` beside this module (fixed seeds, so numbers are comparable
-  across versions; scored against the seed's slope-only truth ``labels_seed``) or
-  ``scenarios_robot.json``
-  (issue 9: scored against the robot-level truth ``labels``, with the time-of-flight sensor
-  model; :func:`robot_score` adds named objects found, passable surfaces left free and drops
-  marked);
-* a *labelled folder* on disk, for recorded sequences with per-pixel labels::
-
-      my_sequence/
-        intrinsics.yaml     fx, fy, cx, cy [px]; camera_height_m; camera_pitch_deg (or _rad);
-                            camera_roll_deg (or _rad); optional depth_scale [m per unit]
-        depth/000000.png    16-bit depth [mm] (0 = no return)
-        labels/000000.png   8-bit labels: 0 no return, 1 traversable, 2 obstacle,
-                            3 above the robot (robot-level truth: scored as free)
-
-  Frames pair up by file name, sorted. ``intrinsics.yaml`` may instead be a ROS camera
-  calibration file (``camera_matrix: {data: [fx, 0, cx, 0, fy, cy, 0, 0, 1]}``) with the mount
-  keys added. The true 3-D points of a folder frame are its own depth back-projected through
-  the mount (a recording has no noise-free depth).
-
-What the scores count is defined in :mod:`obstacle_detection.evaluation.metrics`.
+Frames come from the scene generator (``scenarios.json``, ``scenarios_robot.json``) or a
+labelled folder on disk (layout in docs/accuracy.md). What counts: :mod:`.metrics`.
 """
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import time
@@ -41,15 +20,14 @@ import numpy as np
 from obstacle_detection.labels import (CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN, GT_ABOVE_ROBOT,
                                        GT_NO_RETURN, GT_OBSTACLE, GT_TRAVERSABLE)
 from obstacle_detection.pipeline import geometry
-from . import camera as camera_file
+from obstacle_detection.sim.noise import NOISE_MODELS
+from . import EvaluationError, camera as camera_file
 from . import metrics
 from .camera import scaled_intrinsics
 from .metrics import Confusion, format_score
 from obstacle_detection.pipeline.params import (KINECT_V2_SD, KINECT_V2_SD_SIZE, PRESETS,
                                                 DetectorParams, Intrinsics)
 
-class UnknownNameError(ValueError):
-    """A scenario, parameter or metric name the evaluation does not know (a usage error)."""
 
 
 #: Version of the scenario-list format read by :func:`load_scenarios`.
@@ -63,10 +41,6 @@ _MOUNT_KEYS = ('height_m', 'pitch_deg', 'roll_deg')
 #: Ground truths a scenario is scored against: the seed's slope-only labels
 #: (``SceneFrame.labels_seed``) or the robot-level ones (``SceneFrame.labels``, issue 9).
 TRUTH_KINDS = ('seed', 'robot')
-#: Sensor models by name (``sim.noise.NOISE_MODELS``): 'kinect_v2' (the generator's default, the
-#: seed suite's), 'kinect_v2_tof' with time-of-flight artefacts (flying pixels, more noise and
-#: dropouts on dark and far surfaces; the robot suite's), 'exact'.
-NOISE_NAMES = ('kinect_v2', 'kinect_v2_tof', 'kinect_v2_tof_blobs', 'exact')
 
 
 # --------------------------------------------------------------------------------------------
@@ -75,12 +49,7 @@ NOISE_NAMES = ('kinect_v2', 'kinect_v2_tof', 'kinect_v2_tof_blobs', 'exact')
 
 @dataclass
 class LabelledFrame:
-    """One depth frame with per-pixel ground truth.
-
-    depth: (H, W) uint16 [mm or 1/depth_scale m] or float32 [m]; truth_labels: (H, W) uint8
-    ``GT_*``; truth_points: (H, W, 3) float32 ground frame [m], NaN where nothing was hit;
-    mount: camera height [m], pitch and roll [rad] (pitch positive looks down).
-    """
+    """One depth frame with per-pixel ground truth (``GT_*``) and true points [m]."""
 
     scenario: str
     frame_id: str
@@ -107,12 +76,7 @@ class LabelledFrame:
 
 @dataclass(frozen=True)
 class Scenario:
-    """One entry of the scenario suite.
-
-    scene: a name in ``scenes.SCENE_NAMES``; seeds: generator seeds; frames: frame indices for
-    a sequence (None = a still frame, index 0); mount: overrides of the scene's own mount,
-    keys ``height_m``, ``pitch_deg``, ``roll_deg``.
-    """
+    """One entry of the scenario suite; mount keys ``height_m``, ``pitch_deg``, ``roll_deg``."""
 
     name: str
     scene: str
@@ -129,9 +93,9 @@ class Scenario:
         if self.truth not in TRUTH_KINDS:
             raise ValueError(f'scenario {self.name!r}: truth={self.truth!r} (allowed: '
                              f'{", ".join(TRUTH_KINDS)})')
-        if self.noise not in NOISE_NAMES:
+        if self.noise not in NOISE_MODELS:
             raise ValueError(f'scenario {self.name!r}: noise={self.noise!r} (allowed: '
-                             f'{", ".join(NOISE_NAMES)})')
+                             f'{", ".join(NOISE_MODELS)})')
         if not self.seeds:
             raise ValueError(f'scenario {self.name!r}: seeds must not be empty')
         unknown = {k for k, _ in self.mount} - set(_MOUNT_KEYS)
@@ -166,8 +130,7 @@ def scenario_from_dict(entry: dict[str, Any], defaults: dict[str, Any] | None = 
                        ) -> Scenario:
     """Build a :class:`Scenario` from one JSON entry (raises ValueError naming the problem).
 
-    ``frames`` may be a list of indices or ``{"start": a, "stop": b, "step": c}`` (stop
-    excluded). ``defaults``: the list's own ``truth`` and ``noise`` for entries without them.
+    ``frames``: a list or ``{"start", "stop", "step"}``; ``defaults``: the list's truth and noise.
     """
     if not isinstance(entry, dict):
         raise ValueError(f'scenario entry {entry!r} is not an object')
@@ -193,11 +156,7 @@ def scenario_from_dict(entry: dict[str, Any], defaults: dict[str, Any] | None = 
 
 
 def load_scenarios(path: str | Path) -> list[Scenario]:
-    """Read a scenario list (JSON: ``{"version": 1, "scenarios": [...]}``).
-
-    Optional list-level keys ``truth`` ('seed' or 'robot', default 'seed') and ``noise`` (a
-    name in ``NOISE_NAMES``, default 'kinect_v2') apply to entries without their own.
-    """
+    """Read a scenario list (JSON ``{"version": 1, "scenarios": [...]}``)."""
     data = json.loads(Path(path).read_text(encoding='utf-8'))
     if not isinstance(data, dict) or data.get('version') != SCENARIO_FORMAT_VERSION:
         raise ValueError(f'{path}: not a version {SCENARIO_FORMAT_VERSION} scenario list')
@@ -219,7 +178,8 @@ def select_scenarios(scenarios: Sequence[Scenario], names: Iterable[str] | None,
     chosen = []
     for name in names:
         if name not in by_name:
-            raise UnknownNameError(f'unknown scenario {name!r}; known: {", ".join(by_name)}')
+            raise EvaluationError(f'unknown scenario {name!r}; known: {", ".join(by_name)}',
+                                  usage=True)
         chosen.append(by_name[name])
     return chosen
 
@@ -229,15 +189,11 @@ def scenario_frames(scenario: Scenario, *, max_frames: int | None = None,
                     truth: str | None = None) -> Iterator[LabelledFrame]:
     """Render the frames of one scenario with the scene generator.
 
-    max_frames: keep at most this many, spread evenly over the scenario (None = all);
-    size: (width, height) [px], None = the generator's default (Kinect v2 SD, 512 x 424); a
-    smaller size scales the Kinect v2 intrinsics with the width (same field of view), which
-    makes quick tests. rules: ``sim.truth.TruthRules`` or detector parameters for the robot-level
-    truth (None = the defaults); truth: 'seed' or 'robot', None = the scenario's own.
+    max_frames: at most this many, evenly spread; size: (width, height) [px] with the Kinect v2
+    intrinsics scaled; rules: the robot-level truth's; truth: None = the scenario's own.
     """
     # the generator is only needed for synthetic frames
     from obstacle_detection.sim import scenes
-    from obstacle_detection.sim.noise import NOISE_MODELS
 
     truth = scenario.truth if truth is None else truth
     if truth not in TRUTH_KINDS:
@@ -283,26 +239,13 @@ def subsample(items: Sequence[Any], max_items: int | None) -> list[Any]:
 
 
 def folder_camera(path: str | Path) -> dict[str, Any]:
-    """Intrinsics and mount of a labelled folder (see the module docstring).
-
-    Returns ``{'intrinsics': Intrinsics, 'height_m', 'pitch_rad', 'roll_rad', 'depth_scale'}``.
-    Raises ValueError naming a missing or bad key (``camera.read_camera_yaml`` reads the file).
-    """
+    """Intrinsics, mount and depth scale of a labelled folder as a dict (ValueError if bad)."""
     camera = camera_file.read_camera_yaml(path)
     if camera.mount is None:
         raise ValueError(f'{path}: missing camera_height_m (the mount height above ground)')
     height_m, pitch_rad, roll_rad = camera.mount
     return {'intrinsics': camera.intrinsics, 'height_m': height_m, 'pitch_rad': pitch_rad,
             'roll_rad': roll_rad, 'depth_scale': camera.depth_scale}
-
-
-def write_camera_yaml(path: str | Path, intrinsics: Intrinsics, height_m: float,
-                      pitch_rad: float, roll_rad: float) -> None:
-    """Write ``intrinsics.yaml`` of a labelled folder (angles in degrees)."""
-    Path(path).write_text(camera_file.camera_yaml_text(
-        intrinsics, comment='obstacle_detection labelled folder: pinhole intrinsics [px] and '
-        'camera mount', height_m=height_m, pitch_deg=math.degrees(pitch_rad),
-        roll_deg=math.degrees(roll_rad)), encoding='utf-8')
 
 
 def truth_points_from_depth(depth_m: np.ndarray, intrinsics: Intrinsics, height_m: float,
@@ -351,28 +294,6 @@ def load_labelled_folder(path: str | Path, *, max_frames: int | None = None,
             roll_rad=camera['roll_rad'], depth_scale=camera['depth_scale'], sequence_key=name)
 
 
-def save_labelled_folder(frames: Iterable[LabelledFrame], path: str | Path) -> int:
-    """Write frames (one mount and intrinsics) as a labelled folder; returns the frame count.
-
-    Float depth is written in millimetres. Existing files of the same names are overwritten.
-    """
-    root = Path(path)
-    (root / 'depth').mkdir(parents=True, exist_ok=True)
-    (root / 'labels').mkdir(parents=True, exist_ok=True)
-    count = 0
-    for count, frame in enumerate(frames, start=1):
-        if count == 1:
-            write_camera_yaml(root / 'intrinsics.yaml', frame.intrinsics, frame.height_m,
-                              frame.pitch_rad, frame.roll_rad)
-        depth = frame.depth
-        if depth.dtype != np.uint16:
-            depth = np.clip(np.nan_to_num(depth * 1000.0), 0, 65535).round().astype(np.uint16)
-        cv2.imwrite(str(root / 'depth' / f'{count - 1:06d}.png'), depth)
-        cv2.imwrite(str(root / 'labels' / f'{count - 1:06d}.png'),
-                    frame.truth_labels.astype(np.uint8))
-    return count
-
-
 # --------------------------------------------------------------------------------------------
 # Node parameter files
 
@@ -398,11 +319,9 @@ def _boolean(key: str, value: Any) -> bool:
 
 
 def apply_overrides(base: DetectorParams, overrides: dict[str, Any]) -> DetectorParams:
-    """Return ``base`` with some parameters changed, by name (values may be strings).
+    """Return ``base`` with parameters changed by name (values may be strings).
 
-    Keys: a field name, a seed alias (theta, N, N1, K, TDBG, SMAR), a ``<field>`` with
-    ``_deg`` instead of ``_rad`` (degrees), or ``voxel_m``/``voxel``/``voxel_mm`` (all three
-    voxel sizes). Raises ValueError naming an unknown key or a bad value.
+    Keys: a field, a seed alias, ``<field>_deg`` for ``_rad``, ``voxel``/``voxel_m``/``voxel_mm``.
     """
     fields = set(base.as_dict())
     changes: dict[str, Any] = {}
@@ -418,7 +337,7 @@ def apply_overrides(base: DetectorParams, overrides: dict[str, Any]) -> Detector
         if name == 'theta_rad':
             name = 'max_slope_rad'
         if name not in fields:
-            raise UnknownNameError(f'unknown parameter {key!r}')
+            raise EvaluationError(f'unknown parameter {key!r}', usage=True)
         current = getattr(base, name)
         if isinstance(current, bool):
             value = _boolean(key, value)
@@ -435,13 +354,7 @@ def apply_overrides(base: DetectorParams, overrides: dict[str, Any]) -> Detector
 
 def load_params_file(path: str | Path, base: DetectorParams | None = None,
                      ) -> DetectorParams:
-    """Detector parameters from a node parameter file (the node's ``--params-file`` format).
-
-    The pipeline parameters the file sets are applied on ``base`` (default: Table 4.2); the
-    node's own parameters (frames, output switches, QoS) are ignored. The file is read by
-    ``ros_params.read_params_file``, as the offline bag tool reads it. Raises ValueError
-    naming the file and the bad value.
-    """
+    """Detector parameters from a node parameter file, on ``base`` (default: Table 4.2)."""
     from obstacle_detection.ros.parameters import (detector_params_from_ros,
                                                    pipeline_params_to_ros, read_params_file)
 
@@ -459,12 +372,7 @@ def load_params_file(path: str | Path, base: DetectorParams | None = None,
 
 
 def truth_roi(frame: LabelledFrame, params: DetectorParams) -> np.ndarray:
-    """(H, W) bool: pixels whose true point the truth costmap counts.
-
-    Seed truth: the pipeline's region of interest (``geometry.roi_mask``). Robot-level truth:
-    the forward range and lateral limits only; no height band, since a drop's lower floor
-    (below TDBG) is an obstacle and what is above the robot is labelled so.
-    """
+    """(H, W) bool: pixels whose true point the truth costmap counts (robot: no height band)."""
     flat = frame.truth_points.reshape(-1, 3)
     finite = np.isfinite(flat).all(axis=1)
     roi = np.zeros(flat.shape[0], dtype=bool)
@@ -483,16 +391,10 @@ MAX_SURFACE_GAP_M = 0.5
 
 def truth_costmap(frame: LabelledFrame, params: DetectorParams,
                   roi: np.ndarray | None = None) -> np.ndarray:
-    """Return the truth grid (ny, nx) int8 of a frame in the pipeline's costmap geometry.
+    """Truth grid (ny, nx) int8 of a frame in the costmap geometry (``build_costmap``).
 
-    The true points of ``GT_OBSTACLE`` pixels inside the region of interest make cells
-    occupied; cells with only ``GT_TRAVERSABLE`` (or ``GT_ABOVE_ROBOT``) points are free (see
-    :mod:`metrics`). Robot-level truth also marks the cells of the reachable ground at a
-    drop's edge (``drop_edge``: where the floor ends), and leaves unscored (unknown) the
-    cells between neighbouring samples of one obstacle surface that no sample fell in (a
-    surface seen at a grazing angle, ``metrics.surface_gap_points``, up to
-    ``MAX_SURFACE_GAP_M`` apart). The pipeline's own ``build_costmap``
-    rasterises them, so both grids bin points identically. roi: :func:`truth_roi`, if known.
+    Robot-level truth also marks drop edges and leaves unscored the gaps between samples of one
+    surface seen at a grazing angle.
     """
     from obstacle_detection.pipeline.costmap import build_costmap
 
@@ -530,12 +432,7 @@ DROP_TOLERANCE_CELLS = 1
 
 @dataclass
 class RobotScore:
-    """Robot-level checks of one frame (issue 9), each entry ``(name, hits, cells)``.
-
-    objects: named obstacle objects, hits = visible cells occupied; passable: named
-    traversable objects (ramp, landing, sill), hits = their free truth cells left free;
-    drops: named drops, hits = edge cells marked (within ``DROP_TOLERANCE_CELLS``).
-    """
+    """Robot-level checks of one frame (issue 9), each entry ``(name, hits, cells)``."""
 
     objects: list[tuple[str, int, int]] = field(default_factory=list)
     passable: list[tuple[str, int, int]] = field(default_factory=list)
@@ -544,14 +441,7 @@ class RobotScore:
 
 def robot_score(frame: LabelledFrame, predicted_grid: np.ndarray, params: DetectorParams,
                 truth_grid: np.ndarray, roi: np.ndarray) -> RobotScore:
-    """Named objects found, passable surfaces left free and drops marked in one frame.
-
-    Primitives of one name form one object; an object whose returned, in-range pixels are
-    mostly ``GT_OBSTACLE`` is an obstacle (its visible cells: those its obstacle points fall
-    in), otherwise passable (its cells: those its traversable points fall in that are free in
-    the truth). A named primitive with ``drop_edge`` pixels is a drop (its cells: those of the
-    edge pixels). Objects with fewer than ``MIN_OBJECT_CELLS`` cells are left out.
-    """
+    """Named objects found, passable surfaces left free and drops marked in one frame."""
     from obstacle_detection.pipeline.costmap import costmap_geometry
 
     score = RobotScore()
@@ -650,9 +540,7 @@ class SceneSummary:
 
     def objects_found(self) -> tuple[int, int, list[str]]:
         """Return (objects found, objects counted, names of the missed ones) over the frames."""
-        entries = self.robot.objects if self.robot else []
-        missed = [name for name, hits, cells in entries if hits < FOUND_SHARE * cells]
-        return len(entries) - len(missed), len(entries), missed
+        return _reached(self.robot.objects if self.robot else [], FOUND_SHARE)
 
     def passable_free(self) -> float:
         """Share of the passable named objects' free truth cells left free (NaN: none)."""
@@ -662,9 +550,7 @@ class SceneSummary:
 
     def drops_marked(self) -> tuple[int, int, list[str]]:
         """Return (drops marked, drops counted, names of the unmarked ones) over the frames."""
-        entries = self.robot.drops if self.robot else []
-        missed = [name for name, hits, cells in entries if hits < DROP_MARKED_SHARE * cells]
-        return len(entries) - len(missed), len(entries), missed
+        return _reached(self.robot.drops if self.robot else [], DROP_MARKED_SHARE)
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready scores (NaN becomes None)."""
@@ -681,6 +567,13 @@ class SceneSummary:
                             'passable_free': _json_number(self.passable_free()),
                             'drops_marked': marked, 'drops': drops, 'unmarked': unmarked}
         return out
+
+
+def _reached(entries: list[tuple[str, int, int]], share: float,
+             ) -> tuple[int, int, list[str]]:
+    """Return (entries with hits >= ``share`` of their cells, entries, the others' names)."""
+    missed = [name for name, hits, cells in entries if hits < share * cells]
+    return len(entries) - len(missed), len(entries), missed
 
 
 def _json_number(value: float) -> float | None:
@@ -710,44 +603,52 @@ class Report:
                 'overall': self.overall.as_dict(), 'seconds': round(self.seconds, 2)}
 
 
-class DetectorCache:
-    """One ``pipeline.Detector`` per distinct parameter set (frames differ in their mount)."""
+def pool_scores(scores: Sequence[FrameScore], params: DetectorParams, *, label: str = '',
+                refiner_name: str | None = None, seconds: float = 0.0) -> Report:
+    """Return the Report of frames with these scores: per scenario in run order, overall."""
+    scenes: dict[str, SceneSummary] = {}
+    overall = SceneSummary('overall')
+    for score in scores:
+        scenes.setdefault(score.scenario, SceneSummary(score.scenario)).add(score)
+        overall.add(score)
+    return Report(params, label, scenes, overall, list(scores), refiner_name, seconds)
 
-    def __init__(self) -> None:
-        self._detectors: dict[DetectorParams, Any] = {}
 
-    def get(self, params: DetectorParams) -> Any:
-        """Return the detector for ``params``."""
-        from obstacle_detection.pipeline.detector import Detector
+def detect_frames(frames: Iterable[LabelledFrame], base: DetectorParams,
+                  ) -> Iterator[tuple[LabelledFrame, DetectorParams, Any, np.ndarray | None]]:
+    """Yield (frame, params, result, previous obstacle mask) for each frame, in order.
 
-        if params not in self._detectors:
-            self._detectors[params] = Detector(params)
-        return self._detectors[params]
+    Each frame runs with its own mount; the previous mask is the rule-based obstacle mask of
+    the previous frame of the same sequence, None for a still frame or a sequence's first.
+    """
+    from obstacle_detection.pipeline import refine
+    from obstacle_detection.pipeline.detector import Detector
+
+    detector = functools.cache(Detector)   # one per parameter set: frames differ in mount
+    key: str | None = None
+    mask: np.ndarray | None = None
+    for frame in frames:
+        params = frame.params(base)
+        result = detector(params).process(frame.depth, frame.intrinsics,
+                                          depth_scale=frame.depth_scale)
+        same = frame.sequence_key is not None and key == frame.sequence_key
+        yield frame, params, result, mask if same else None
+        key, mask = frame.sequence_key, refine.obstacle_mask(result)
 
 
 def evaluate_frames(frames: Iterable[LabelledFrame], base: DetectorParams, *,
                     label: str = '', refiner: Any = None, refiner_name: str | None = None,
                     on_frame: Callable[[LabelledFrame, Any, FrameScore], None] | None = None,
                     ) -> Report:
-    """Run the detector (and optionally a ``refine.LogisticRefiner``) over frames and pool.
+    """Run the detector (and optionally a refiner) over frames and pool the scores.
 
-    base: detector parameters; each frame's own mount replaces the mount fields. Within a
-    sequence (equal ``sequence_key``, consecutive), the refiner's previous-frame obstacle states
-    are the previous frame's rule-based obstacle pixels; a still frame uses its own.
-    on_frame(frame, result, score) is called after each frame (progress, pictures).
+    on_frame(frame, result, score) is called after each frame.
     """
     from obstacle_detection.pipeline import refine
 
     started = time.perf_counter()
-    cache = DetectorCache()
-    scenes: dict[str, SceneSummary] = {}
-    overall = SceneSummary('overall')
     scores: list[FrameScore] = []
-    previous: tuple[str | None, np.ndarray | None] = (None, None)
-    for frame in frames:
-        params = frame.params(base)
-        result = cache.get(params).process(frame.depth, frame.intrinsics,
-                                           depth_scale=frame.depth_scale)
+    for frame, params, result, prev_mask in detect_frames(frames, base):
         roi = truth_roi(frame, params)
         grid = truth_costmap(frame, params, roi)
         pixel, cell = score_frame(frame, result, params, grid)
@@ -757,21 +658,15 @@ def evaluate_frames(frames: Iterable[LabelledFrame], base: DetectorParams, *,
         if frame.truth == 'robot':
             score.robot = robot_score(frame, result.costmap.data, params, grid, roi)
         if refiner is not None:
-            prev_mask = None
-            if frame.sequence_key is not None and previous[0] == frame.sequence_key:
-                prev_mask = previous[1]
             mask = refiner.predict_labels(result, prev_mask)
             refined = refine.refine_result(result, mask, params)
             score.refined_pixel = metrics.pixel_confusion(refined.labels, frame.truth_labels)
             score.refined_cell = metrics.cell_confusion(refined.costmap.data, grid)
-        previous = (frame.sequence_key, refine.obstacle_mask(result))
-        scenes.setdefault(frame.scenario, SceneSummary(frame.scenario)).add(score)
-        overall.add(score)
         scores.append(score)
         if on_frame is not None:
             on_frame(frame, result, score)
-    return Report(base, label, scenes, overall, scores, refiner_name,
-                  time.perf_counter() - started)
+    return pool_scores(scores, base, label=label, refiner_name=refiner_name,
+                       seconds=time.perf_counter() - started)
 
 
 # --------------------------------------------------------------------------------------------
@@ -785,12 +680,7 @@ _COLUMNS = (('px P', 'pixel', 'precision'), ('px R', 'pixel', 'recall'),
 
 
 def format_table(report: Report, *, refined: bool = False) -> str:
-    """Return a fixed-width table: one row per scenario and an 'overall' row.
-
-    Columns: frames; pixel precision (px P), recall (px R), F1, false-alarm rate (px FA);
-    costmap-cell precision, recall, F1, IoU, false-alarm rate; mean pipeline time [ms].
-    ``refined=True`` shows the refiner's scores instead (time is the pipeline's).
-    """
+    """Return a fixed-width table: one row per scenario and an 'overall' row."""
     width = max([len('overall')] + [len(n) for n in report.scenes]) + 1
     head = f'{"scenario":<{width}} {"frames":>6} ' + ' '.join(
         f'{c[0]:>7}' for c in _COLUMNS) + f' {"ms":>7}'
@@ -820,14 +710,7 @@ def _share(hits: int, total: int) -> str:
 
 
 def format_robot_table(report: Report) -> str:
-    """Return the robot-level table: one row per scenario, an 'overall' row, the targets.
-
-    Columns: frames; exact-cell F1; false alarms as % of the free truth cells (FA %); named
-    obstacle objects found (>= 50 % of their visible cells occupied) out of those seen, per
-    frame; share of the passable named surfaces' (ramp, landing, sill) free truth cells left
-    free (pass %); drops marked out of those seen; pixel F1; mean pipeline time [ms]. Then the
-    missed objects and unmarked drops by name and frame, and each target met or not.
-    """
+    """Return the robot-level table: a row per scenario, 'overall', misses, targets."""
     width = max([len('overall')] + [len(n) for n in report.scenes]) + 1
     head = (f'{"scenario":<{width}} {"frames":>6} {"cell F1":>7} {"FA %":>6} {"objects":>8} '
             f'{"pass %":>6} {"drops":>6} {"px F1":>6} {"ms":>6}')
@@ -898,33 +781,21 @@ def collect_training_samples(frames: Iterable[LabelledFrame], base: DetectorPara
                              max_pixels_per_frame: int | None = 20000, seed: int = 0,
                              on_frame: Callable[[LabelledFrame], None] | None = None,
                              ) -> tuple[np.ndarray, np.ndarray]:
-    """Refiner features and targets of labelled frames: ``(X (M, 9) float64, y (M,) bool)``.
+    """Refiner features and targets ``(X (M, 9), y (M,) bool)`` of labelled frames.
 
-    Each frame runs the detector with ``base`` and its own mount; the previous-frame obstacle
-    states follow :func:`evaluate_frames`' convention (the previous frame of the same sequence,
-    else the frame's own rule-based mask). At most ``max_pixels_per_frame`` samples are drawn
-    per frame (without replacement, seeded) so that large frames do not dominate.
+    At most ``max_pixels_per_frame`` samples per frame, drawn without replacement (seeded).
     """
     from obstacle_detection.pipeline import refine
 
     rng = np.random.default_rng(seed)
-    cache = DetectorCache()
     xs, ys = [], []
-    previous: tuple[str | None, np.ndarray | None] = (None, None)
-    for frame in frames:
-        params = frame.params(base)
-        result = cache.get(params).process(frame.depth, frame.intrinsics,
-                                           depth_scale=frame.depth_scale)
-        prev_mask = None
-        if frame.sequence_key is not None and previous[0] == frame.sequence_key:
-            prev_mask = previous[1]
+    for frame, _, result, prev_mask in detect_frames(frames, base):
         x, y = refine.training_samples(result, frame.truth_labels, prev_mask)
         if max_pixels_per_frame is not None and y.size > max_pixels_per_frame:
             pick = rng.choice(y.size, size=max_pixels_per_frame, replace=False)
             x, y = x[pick], y[pick]
         xs.append(x)
         ys.append(y)
-        previous = (frame.sequence_key, refine.obstacle_mask(result))
         if on_frame is not None:
             on_frame(frame)
     if not xs:

@@ -1,10 +1,4 @@
-"""The parameter sweep's grid search: score every setting of a grid, pick the best, print it.
-
-A sweep has an x axis, optionally a y axis and further ``also`` axes (a full grid); every
-setting is applied on top of a base DetectorParams and scored on already-rendered labelled
-frames (``runner.evaluate_frames``). A setting the parameters refuse is NaN in the grids.
-The command line is ``tools/sweep.py``.
-"""
+"""The parameter sweep's grid search: score every setting of a grid, pick the best, print it."""
 
 from __future__ import annotations
 
@@ -56,10 +50,7 @@ def parse_axis(text: str) -> Axis:
 
 def best_of_grid(scores: np.ndarray, *, higher_is_better: bool = True,
                  ) -> tuple[int, ...] | None:
-    """Index of the best finite score of a grid (2-D: (row, col)).
-
-    Ties go to the first in row-major order; None when no score is finite.
-    """
+    """Index of the best finite score (first in row-major order), None when none is finite."""
     grid = np.asarray(scores, dtype=np.float64)
     if grid.ndim < 1:
         raise ValueError(f'scores must be a grid, got shape {grid.shape}')
@@ -86,12 +77,9 @@ def project(scores: np.ndarray, *, higher_is_better: bool = True) -> np.ndarray:
 
 @dataclass
 class SweepResult:
-    """Scores of every setting: ``grids[scene]`` (ny, nx, *extra) float, NaN = invalid setting.
+    """Scores of every setting: ``grids[scene]`` (ny, nx, *extra), NaN = invalid setting.
 
-    Axis order: rows = y (one row when there is no y axis), columns = x, then the ``also``
-    axes of a full grid. false_alarms[scene]: the false-alarm rate of the metric's kind (pixel
-    or cell) per setting; positives[scene]: obstacle pixels/cells in the truth. A scene without
-    any (an empty floor) has no meaningful F1 or recall, so it is ranked by its false-alarm rate.
+    A scene without obstacles in the truth (``positives``) is ranked by its false-alarm rate.
     """
 
     x: Axis
@@ -150,8 +138,8 @@ def settings_params(base: DetectorParams, x: Axis, y: Axis | None, *index: int,
 def check_sweep(x: Axis, y: Axis | None, metric: str, also: Sequence[Axis] = ()) -> None:
     """Raise ValueError for an unknown metric or an axis given twice."""
     if metric not in METRICS:
-        raise evaluation.UnknownNameError(f'unknown metric {metric!r}; known: '
-                                          f'{", ".join(METRICS)}')
+        raise evaluation.EvaluationError(f'unknown metric {metric!r}; known: '
+                                         f'{", ".join(METRICS)}', usage=True)
     names = [x.name] + ([y.name] if y is not None else []) + [a.name for a in also]
     if len(set(names)) != len(names):
         raise ValueError(f'an axis is given twice: {", ".join(names)}')
@@ -218,10 +206,7 @@ def run_sweep(frames: Sequence[evaluation.LabelledFrame], base: DetectorParams, 
 
 
 def format_grid(result: SweepResult, scene: str) -> str:
-    """Return the grid of one scene as text: rows = y values, columns = x values; best marked '*'.
-
-    With ``also`` axes each cell shows the best score over them.
-    """
+    """Return the grid of one scene as text: rows = y, columns = x; best marked '*'."""
     grid, metric, higher = result.ranking(scene)
     flat = project(grid, higher_is_better=higher)
     best = result.best(scene)

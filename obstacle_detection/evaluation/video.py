@@ -1,38 +1,6 @@
 """Scores of the fused costmap over a sequence, side by side with the per-frame costmap.
 
-For each frame of a :class:`.sequences.SceneSequence`: the detector makes the per-frame
-costmap (base frame), :class:`.fusion.FusedGrid` fuses it at the odometry pose, and the frame's
-ground truth (the noise-free points of the pixels the sensor returned, inside the region of
-interest, as in :mod:`.evaluation`) is moved into odom with the *true* pose. Everything is
-compared on one odom lattice (the fused grid's cells) covering the whole trajectory.
-
-What is measured (``VIDEO_SCORE_DEFINITIONS`` says it for the tool's help):
-
-- truth of the area seen so far: each frame's truth grid overwrites the cells it saw (occupied
-  when an obstacle point falls in the cell, free when only traversable ground does); cells
-  seen once keep their last truth when out of view;
-- fused F1: the fused window against that truth (cells of the window whose truth is known),
-  pooled over frames; per-frame F1: the detector's costmap against its own frame's truth
-  (the single-frame score of tools/evaluate.py); fused F1 in view: the fused grid sampled at
-  the per-frame costmap's cells against the same single-frame truth (the fair comparison);
-  per-frame F1 vs the area: the per-frame grid in the fused window against the area's truth;
-- flicker: cells whose occupied state changes between two consecutive frames while nothing
-  moved or appeared near them (no cell within 2 cells changed its truth in the last 10
-  frames: a grid catching up with a change is not flicker), over the cells the grid knows
-  at the later frame; a fused cell counts when it was known (not unknown) at the earlier
-  frame, a per-frame cell when it was seen in both;
-- frames until marked: for each run of frames in which a cell of the fused window has an
-  occupied truth, the number of frames up to and including the first where the grid marks
-  it (1 = at once); frames until cleared: for each run in which a formerly occupied cell is
-  seen free, up to the first frame the grid no longer marks it (counted when the grid marked
-  it before). Only
-  runs the detector saw steadily count (it marked the cell, or saw it free, in each of the
-  run's first 3 frames for a mark, 10 for a clearing): fusion cannot be faster than the
-  detector. A steady run that ends unmarked (uncleared) is *missed* when it lasted at least
-  those 3 (10) frames;
-- blind-zone memory: truth-occupied cells closer than 0.5 m ahead of the robot (the Kinect v2
-  returns nothing nearer), |y| <= 0.3 m: the share the grid marks, over all frames (and the
-  share with a marked cell within one cell: odometry drift shifts the memory a little).
+What is measured: ``VIDEO_SCORE_DEFINITIONS`` and docs/accuracy.md.
 """
 
 from __future__ import annotations
@@ -70,7 +38,33 @@ STILL_FRAMES = 10
 MARK_BUDGET_FRAMES = 3
 CLEAR_BUDGET_FRAMES = 10
 
-VIDEO_SCORE_DEFINITIONS = __doc__.split('What is measured')[1].split('\n', 1)[1]
+VIDEO_SCORE_DEFINITIONS = """
+- truth of the area seen so far: each frame's truth grid overwrites the cells it saw (occupied
+  when an obstacle point falls in the cell, free when only traversable ground does); cells
+  seen once keep their last truth when out of view;
+- fused F1: the fused window against that truth (cells of the window whose truth is known),
+  pooled over frames; per-frame F1: the detector's costmap against its own frame's truth
+  (the single-frame score of tools/evaluate.py); fused F1 in view: the fused grid sampled at
+  the per-frame costmap's cells against the same single-frame truth (the fair comparison);
+  per-frame F1 vs the area: the per-frame grid in the fused window against the area's truth;
+- flicker: cells whose occupied state changes between two consecutive frames while nothing
+  moved or appeared near them (no cell within 2 cells changed its truth in the last 10
+  frames: a grid catching up with a change is not flicker), over the cells the grid knows
+  at the later frame; a fused cell counts when it was known (not unknown) at the earlier
+  frame, a per-frame cell when it was seen in both;
+- frames until marked: for each run of frames in which a cell of the fused window has an
+  occupied truth, the number of frames up to and including the first where the grid marks
+  it (1 = at once); frames until cleared: for each run in which a formerly occupied cell is
+  seen free, up to the first frame the grid no longer marks it (counted when the grid marked
+  it before). Only
+  runs the detector saw steadily count (it marked the cell, or saw it free, in each of the
+  run's first 3 frames for a mark, 10 for a clearing): fusion cannot be faster than the
+  detector. A steady run that ends unmarked (uncleared) is *missed* when it lasted at least
+  those 3 (10) frames;
+- blind-zone memory: truth-occupied cells closer than 0.5 m ahead of the robot (the Kinect v2
+  returns nothing nearer), |y| <= 0.3 m: the share the grid marks, over all frames (and the
+  share with a marked cell within one cell: odometry drift shifts the memory a little).
+"""
 
 
 #: The two grids scored: the fused one and the per-frame one moved into odom.
@@ -80,15 +74,8 @@ _GRIDS = ('fused', 'per_frame')
 class RunTracker:
     """Runs of frames per cell (truth occupied, or vacated) and when each grid reacted.
 
-    ``step`` once a frame with: the cells in a run now, the cells whose run may start now,
-    per grid the cells that show the expected reaction (marked, or no longer marked), and the
-    cells where the detector's own frame supports it (marks the cell, or sees it free). Only
-    *steady* runs are scored: the detector supported the reaction in every frame of the run's
-    first ``budget`` frames (all of a shorter run), so a grid could react; the others are
-    counted apart (the detector did not see the change clearly: no fusion can do better).
-    ``report`` gives per grid the frames until the reaction in each steady run that got one (1 =
-    in the run's first frame) and the steady runs missed (no reaction in a run that lasted at
-    least ``budget`` frames).
+    Only steady runs (the detector supported the reaction in the run's first ``budget`` frames)
+    are scored.
     """
 
     def __init__(self, size: int, names: tuple[str, ...], budget: int) -> None:
@@ -121,10 +108,7 @@ class RunTracker:
     def step(self, t: int, in_run: np.ndarray, start: np.ndarray,
              reacted: dict[str, np.ndarray], supported: np.ndarray,
              eligible: dict[str, np.ndarray] | None = None) -> None:
-        """Close runs that ended, open new ones at frame t, record first reactions.
-
-        eligible: per grid, whether a run starting now counts for it (None: all do).
-        """
+        """Close runs that ended, open new ones at frame t, record first reactions."""
         self._close(~in_run & (self.onset >= 0), t)
         start = start & in_run & (self.onset < 0)
         self.onset[start] = t
@@ -308,14 +292,7 @@ def _panel(grid: np.ndarray, truth: np.ndarray, pose: tuple[float, float, float]
 
 @dataclass(frozen=True)
 class Observation:
-    """What one frame of a sequence gives the scoring: the detector's output and the truth.
-
-    index, stamp_s [s]; pose_true, pose_odom: base in odom (x, y, yaw), truth and odometry
-    (None: no odometry for this frame); costmap: the detector's per-frame costmap (base
-    frame); truth_obstacle (O, 3), truth_traversable (T, 3): the frame's true points in the
-    region of interest, base frame [m]; truth_costmap: the frame's truth in the costmap's
-    geometry (int8 CELL_* grid).
-    """
+    """One frame of a sequence: true and odometry poses, the costmap, the truth."""
 
     index: int
     stamp_s: float
@@ -331,12 +308,7 @@ def observe_sequence(sequence: SceneSequence, base: DetectorParams, *,
                      stop: int | None = None, size: tuple[int, int] | None = None,
                      on_frame: Callable[[int, int], None] | None = None,
                      ) -> Iterator[Observation]:
-    """Render the frames [0, stop) of ``sequence`` and run the detector on each.
-
-    base: detector parameters (the frame's mount replaces the base mount, as in the scene
-    evaluation); size: render (width, height) [px] with the Kinect v2 intrinsics scaled to it
-    (None = 512 x 424). on_frame(index, total) is called after each frame.
-    """
+    """Render the frames [0, stop) of ``sequence`` and run the detector on each."""
     from .camera import scaled_intrinsics
 
     total = len(sequence) if stop is None else max(1, min(stop, len(sequence)))
@@ -466,10 +438,7 @@ class _Scorer:
 
     def _runs(self, step: int, truth_prev: np.ndarray, worlds: dict[str, np.ndarray],
               rows: slice, cols: slice) -> None:
-        """Frames until marked / cleared, over runs inside the fused window only.
-
-        What lies farther is not the grid's to mark.
-        """
+        """Frames until marked / cleared, over runs inside the fused window only."""
         truth_area = self.truth_area
         in_window = np.zeros(self.lattice.shape, dtype=bool)
         in_window[rows, cols] = True
@@ -516,10 +485,7 @@ def score_sequence(name: str, observations: Sequence[Observation],
                    use_odometry: bool = True, sheet_frames: int = 0) -> SequenceReport:
     """Fuse the observations' costmaps in order and score per-frame and fused grids.
 
-    fusion: the fused grid's parameters; use_odometry: False fuses every frame in place (a
-    replayed bag without odometry); sheet_frames: when > 0, draw a contact sheet of that many
-    moments (per-frame | fused, truth obstacles outlined in orange, the robot a red disc with
-    a line along its heading).
+    sheet_frames: when > 0, draw a contact sheet of that many moments.
     """
     fusion = fusion if fusion is not None else FusionParams()
     if not observations:

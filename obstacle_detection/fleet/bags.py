@@ -1,17 +1,4 @@
-"""``bag_process`` over many bags: one task per bag (or chunk), a summary table and a JSON line.
-
-The bags are a folder of bags (every folder below it holding a ``metadata.yaml``), a glob
-pattern (``'recordings/*/day1_*'``) or a list file (one bag a line; ``#`` comments; relative
-paths are relative to the list file). Each bag becomes one task: ``bag_processor.process_bag``
-on a worker, which writes its output bag under a temporary name beside it and renames it when
-complete (``bag_writer.staged_output``). A bag that fails (corrupt, no depth topic, an output
-that exists) fails its own task, with the reason in the summary; the others finish.
-
-A bag of more than ``chunk_frames`` depth frames is cut into chunks of about that many frames
-(equal spans of bag time): one task per chunk writes the chunk's messages and outputs to a part
-bag (``process_bag`` with ``start_ns``/``stop_ns``), and the bag's last task copies the parts,
-in order, into the output bag: the messages of a one-task run, in the same order.
-"""
+"""``bag_process`` over many bags: one task per bag (or chunk), a summary table and a JSON line."""
 
 from __future__ import annotations
 
@@ -46,11 +33,7 @@ def is_bag(path: Path) -> bool:
 
 
 def is_many(spec: str | Path) -> bool:
-    """Tell whether ``spec`` names several bags (a folder of bags, a glob, a list file).
-
-    A bag folder itself, or anything that does not exist, is one bag (the one-bag path then
-    says what is wrong with it).
-    """
+    """Tell whether ``spec`` names several bags (a folder of bags, a glob, a list file)."""
     text = str(spec)
     if _GLOB_CHARS & set(text):
         return True
@@ -63,11 +46,7 @@ def is_many(spec: str | Path) -> bool:
 def find_bags(spec: str | Path) -> list[tuple[Path, Path]]:
     """Return ``(bag, output name)`` of every bag ``spec`` names, in a stable order.
 
-    Output names are relative: a folder's bags keep their path below it; a glob's and a list
-    file's bags are named after their own folder (two with one name are refused).
-
-    Raises:
-        tool_support.ToolError: naming the spec or the entry that is not a bag.
+    Raises tool_support.ToolError naming the spec or the entry that is not a bag.
     """
     text = str(spec)
     path = Path(text)
@@ -156,10 +135,7 @@ class BagOutcome:
 
 def process_one(job: BagJob, window: tuple[int | None, int | None] = (None, None),
                 output: Path | None = None) -> BagOutcome:
-    """Process one bag, or the chunk ``window`` of it into ``output`` (a task). Never raises.
-
-    Per-frame lines and warnings are not printed here: the summary carries them.
-    """
+    """Process one bag, or the chunk ``window`` of it into ``output`` (a task). Never raises."""
     limit_threads()
     output = job.output if output is None else output
     outcome = BagOutcome(job.bag, output)
@@ -200,11 +176,7 @@ def _reason(err: BaseException, *paths: Path) -> str:
 
 
 def plan_chunks(job: BagJob) -> list[tuple[int, int]]:
-    """Return the [start, stop) bag-time windows [ns] of ``job``'s chunks; [] for one task.
-
-    A bag of more than ``job.chunk_frames`` depth frames gets ceil(frames / chunk_frames)
-    equal spans of its recorded time. A bag that cannot be read gets [] (its task says why).
-    """
+    """Return the [start, stop) bag-time windows [ns] of ``job``'s chunks; [] for one task."""
     from rosbags.rosbag2 import Reader
 
     if not job.chunk_frames:
@@ -233,12 +205,7 @@ def process_chunk(job: BagJob, index: int, window: tuple[int, int], run: str) ->
 
 
 def finish_bag(job: BagJob, *parts: BagOutcome) -> BagOutcome:
-    """Return the bag's outcome: process it (no parts) or merge its chunks' parts (a task).
-
-    The parts' messages are copied in order into the output bag (written under a temporary
-    name, renamed when complete), the counts added; the part bags are removed. A failed part
-    fails the bag with the part's reason. Never raises.
-    """
+    """Return the bag's outcome: process it (no parts) or merge its chunks' parts (a task)."""
     if not parts:
         return process_one(job)
     from rosbags.rosbag2 import Reader, Writer
@@ -293,11 +260,8 @@ def process_bags(jobs: Sequence[BagJob], fleet: Fleet, *, progress: bool = True
                  ) -> list[BagOutcome]:
     """Run every job where ``fleet`` says; outcomes in ``jobs`` order.
 
-    On a cluster a job with ``chunk_frames`` is cut into chunks (:func:`plan_chunks`), one
-    task each, merged by the bag's last task; in this process a bag is one piece (the same
-    output). A task lost for good (its worker died every time) is a failed outcome. On
-    KeyboardInterrupt the tasks are cancelled and it propagates: close the cluster, then
-    :func:`remove_stale_staging` (a worker stopped mid-bag leaves its temporary folder).
+    On KeyboardInterrupt the tasks are cancelled and it propagates (then
+    :func:`remove_stale_staging`).
     """
     items: list[tuple[Any, ...]] = [(job,) for job in jobs]
     if fleet.distributed:
@@ -317,20 +281,14 @@ def process_bags(jobs: Sequence[BagJob], fleet: Fleet, *, progress: bool = True
 
 
 def remove_stale_staging(jobs: Sequence[BagJob]) -> None:
-    """Remove the temporary folders a stopped run left (after its cluster is closed).
-
-    Complete outputs stay: an output bag appears under its name only when complete.
-    """
+    """Remove the temporary folders a stopped run left (after its cluster is closed)."""
     for job in jobs:
         shutil.rmtree(staging_path(job.output), ignore_errors=True)
         shutil.rmtree(chunks_path(job.output), ignore_errors=True)
 
 
 def format_table(outcomes: Sequence[BagOutcome]) -> str:
-    """Return the per-bag table: frames, processed, skipped, obstacle points, ms/frame, status.
-
-    Below it, the skip reasons and warnings per bag, and the failed bags with their reason.
-    """
+    """Return the per-bag table, then skip reasons, warnings and failures per bag."""
     names = [str(o.bag) for o in outcomes]
     width = max([len('bag'), len('total')] + [len(n) for n in names]) + 1
     head = (f'{"bag":<{width}} {"frames":>7} {"processed":>9} {"skipped":>7} '

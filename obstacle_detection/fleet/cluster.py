@@ -1,21 +1,4 @@
-"""Open a Dask cluster (or none) and run a list of tasks on it, in order, with a progress bar.
-
-Where the work runs (:func:`open_fleet`):
-
-* ``--scheduler tcp://HOST:8786`` (or ``DASK_SCHEDULER_ADDRESS``): a cluster started with
-  Dask's own ``dask scheduler`` / ``dask worker`` (or dask-jobqueue, Kubernetes); the workers
-  must see the same files (bags, outputs) at the same paths.
-* ``--workers N``: a local cluster of N worker processes of one thread each, on 127.0.0.1 only,
-  no dashboard; 0 = this process, no Dask.
-* neither: a local cluster of one worker per core when Dask is installed and the run has more
-  than one task, else this process.
-
-Every task limits itself to one thread (:func:`limit_threads`: numba, OpenCV; a local
-cluster's workers also start with ``NUMBA_NUM_THREADS=1`` and one BLAS/OpenMP thread), so N
-workers on N cores do not oversubscribe them. A worker that dies during a task costs that task
-a new start on another worker (Dask's ``allowed-failures``), an exception a retry
-(``retries=``), not the run.
-"""
+"""Open a Dask cluster (or none) and run a list of tasks on it, in order (docs/fleet.md)."""
 
 from __future__ import annotations
 
@@ -98,12 +81,10 @@ def fleet_options(args: argparse.Namespace) -> dict[str, Any]:
 @contextlib.contextmanager
 def open_fleet(*, workers: int | None = None, scheduler: str | None = None,
                retries: int = DEFAULT_RETRIES, tasks: int = 2) -> Iterator[Fleet]:
-    """Yield where to run ``tasks`` tasks (see the module docstring); close it afterwards.
+    """Yield where to run ``tasks`` tasks; close it afterwards.
 
-    Raises:
-        FleetError: a cluster was asked for (``workers`` > 0, a scheduler) and Dask is not
-            installed, or the scheduler cannot be reached. ``workers`` and ``scheduler``
-            together are refused too.
+    Raises FleetError when Dask is missing or the scheduler cannot be reached for a cluster asked
+    for, or for ``workers`` and ``scheduler`` together.
     """
     if scheduler is not None and workers is not None:
         raise FleetError('--workers starts a local cluster, --scheduler uses another one: '
@@ -156,10 +137,7 @@ def open_fleet(*, workers: int | None = None, scheduler: str | None = None,
 
 @contextlib.contextmanager
 def _quiet_dask_logs() -> Iterator[None]:
-    """Keep Dask's own log lines (a worker restarted, a cluster closing) off the terminal.
-
-    What matters reaches the user through the tasks' results: a restarted task simply finishes.
-    """
+    """Keep Dask's own log lines (a worker restarted, a cluster closing) off the terminal."""
     loggers = [logging.getLogger(name) for name in ('distributed', 'distributed.nanny',
                                                     'distributed.scheduler',
                                                     'distributed.worker', 'distributed.core')]
@@ -196,13 +174,8 @@ def run_tasks(fleet: Fleet, function: Callable[..., Any], items: Sequence[tuple[
               on_result: Callable[[int, Any], None] | None = None) -> list[Any]:
     """Return ``[function(*item) for item in items]``, computed where ``fleet`` says.
 
-    On a cluster every item is one task (an item may hold futures of earlier tasks: Dask
-    passes their results); the results come back in ``items`` order. ``errors='raise'``:
-    the first failed task's exception is raised (as in one process); ``'return'``: a failed
-    task's result is a :class:`TaskError` and the others finish. ``on_result(index,
-    result)`` is called as each task finishes (in finishing order). A progress bar counts
-    the tasks on stderr when ``progress``. On KeyboardInterrupt the tasks not yet done are
-    cancelled before it propagates.
+    errors: 'raise' the first failure, or 'return' a :class:`TaskError` in its place;
+    on_result(index, result) as each task finishes.
     """
     if errors not in ('raise', 'return'):
         raise ValueError(f"errors={errors!r}: 'raise' or 'return'")

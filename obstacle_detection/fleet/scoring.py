@@ -1,12 +1,4 @@
-"""``evaluate`` and ``sweep`` on a cluster: one task per (parameter point, sequence).
-
-A sequence is one frame source of ``evaluation_args.frame_sources`` (a scenario of the suite,
-a labelled folder). Its frames are rendered or read once, by a task of their own on a worker;
-every (point, sequence) task then runs ``runner.evaluate_frames`` on them, the code of a
-one-process run, and returns the per-frame scores (counts, small). The scores are pooled here
-in sequence order, as one process pools them, so the tables and JSON hold identical numbers
-(times aside).
-"""
+"""``evaluate`` and ``sweep`` on a cluster: one task per (parameter point, sequence)."""
 
 from __future__ import annotations
 
@@ -32,11 +24,7 @@ def load_frames(frames: Iterable[evaluation.LabelledFrame]) -> list[evaluation.L
 
 def score_sequence(frames: Sequence[evaluation.LabelledFrame], params: DetectorParams,
                    refiner: Any = None) -> list[evaluation.FrameScore]:
-    """Per-frame scores of one sequence with one parameter point (a task).
-
-    One thread per task (``compute_threads`` does not change results); the sequence's
-    refiner state runs in order within it, as in one process.
-    """
+    """Per-frame scores of one sequence with one parameter point (a task)."""
     limit_threads()
     return evaluation.evaluate_frames(frames, params.replace(compute_threads=1),
                                       refiner=refiner).frames
@@ -46,12 +34,7 @@ def score_points(fleet: Fleet, sources: Sequence[Source], points: Sequence[Detec
                  *, refiner: Any = None, label: str = 'scoring', progress: bool = True,
                  on_result: Callable[[int, Any], None] | None = None,
                  ) -> list[list[evaluation.FrameScore]]:
-    """Per point, the frame scores of every source in source order (one task per pair).
-
-    ``on_result(task index, scores)`` as each (point, source) task finishes; the task index
-    is ``point * len(sources) + source``. Errors (a bad folder, a bad value) are raised as in
-    one process.
-    """
+    """Per point, the frame scores of every source in source order (one task per pair)."""
     if fleet.distributed:
         run = uuid.uuid4().hex[:8]
         frames: list[Any] = [fleet.client.submit(load_frames, lazy, key=f'frames-{run}-{i}',
@@ -67,19 +50,6 @@ def score_points(fleet: Fleet, sources: Sequence[Source], points: Sequence[Detec
             for p in range(len(points))]
 
 
-def pool_report(scores: Sequence[evaluation.FrameScore], params: DetectorParams, *,
-                label: str = '', refiner_name: str | None = None, seconds: float = 0.0,
-                ) -> evaluation.Report:
-    """Return the Report ``runner.evaluate_frames`` gives for frames with these scores."""
-    scenes: dict[str, evaluation.SceneSummary] = {}
-    overall = evaluation.SceneSummary('overall')
-    for score in scores:
-        scenes.setdefault(score.scenario, evaluation.SceneSummary(score.scenario)).add(score)
-        overall.add(score)
-    return evaluation.Report(params, label, scenes, overall, list(scores), refiner_name,
-                             seconds)
-
-
 def evaluate_on_fleet(fleet: Fleet, sources: Sequence[Source], params: DetectorParams, *,
                       label: str = '', refiner: Any = None, refiner_name: str | None = None,
                       progress: bool = True) -> evaluation.Report:
@@ -87,8 +57,8 @@ def evaluate_on_fleet(fleet: Fleet, sources: Sequence[Source], params: DetectorP
     started = time.perf_counter()
     [scores] = score_points(fleet, sources, [params], refiner=refiner, label='evaluate',
                             progress=progress)
-    return pool_report(scores, params, label=label, refiner_name=refiner_name,
-                       seconds=time.perf_counter() - started)
+    return evaluation.pool_scores(scores, params, label=label, refiner_name=refiner_name,
+                                  seconds=time.perf_counter() - started)
 
 
 def sweep_on_fleet(fleet: Fleet, sources: Sequence[Source], base: DetectorParams,
@@ -112,7 +82,7 @@ def sweep_on_fleet(fleet: Fleet, sources: Sequence[Source], base: DetectorParams
             if log:
                 log(f'[{i}/{len(points)}] {label}: invalid ({params})')
             continue
-        grid_search.record_report(result, index, pool_report(reports[index], params))
+        grid_search.record_report(result, index, evaluation.pool_scores(reports[index], params))
         if log:
             log(f'[{i}/{len(points)}] {label}: {metric} '
                 f'{evaluation.format_score(result.grids["overall"][index])}')

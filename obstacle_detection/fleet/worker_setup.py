@@ -1,10 +1,4 @@
-"""Set up a local cluster's worker process (a Dask preload, run as the worker starts).
-
-A Ctrl-C at the terminal reaches every process of its group. The worker processes ignore it:
-the tool's process alone stops the run and closes the cluster (the running tasks finish, or
-stop when their worker is ended, no new ones start), instead of each worker dying with a
-traceback.
-"""
+"""Dask preload of a local cluster's workers: they ignore Ctrl-C (the tool stops the run)."""
 
 from __future__ import annotations
 

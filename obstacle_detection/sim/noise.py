@@ -1,33 +1,4 @@
-"""The Kinect v2 like sensor model of the scene generator.
-
-Sensor model (``NoiseModel``, Kinect v2 like; all draws from one generator seeded by
-``(seed, frame_index)``, vectorised):
-
-0. time-of-flight flying pixels (``KINECT_V2_TOF_NOISE``; off in the default model): a pixel
-   within one pixel of a depth edge (true depths in its 3 x 3 window differ by more than
-   5 cm and 8 % of the nearest) becomes a mix of the nearest and farthest depth of its window
-   with probability 50 %, 25 % two pixels away (5 x 5 window). A flying pixel is not a
-   surface: both labels are ``GT_NO_RETURN`` there (not scored), ``flying`` flags it, and
-   ``points_ground`` keeps the ray's true hit;
-1. Gaussian depth noise ``sigma(z) = sigma_base + sigma_quad * (z - z_ref)^2`` with defaults
-   1.5 mm + 1.5 mm/m^2 * (z - 0.5 m)^2 (1.5 mm at 0.5 m, 4.9 mm at 2 m, 25.5 mm at 4.5 m),
-   times ``dark_sigma_factor`` on a ``dark`` primitive (2 in the time-of-flight model);
-2. millimetre quantisation (``depth_mm`` is uint16, rounded to nearest);
-3. no return outside the valid band: quantised depth below 0.5 m or above 4.5 m becomes 0;
-4. pepper dropouts: each pixel is set to 0 with probability 0.75 %, or 40 % on a primitive
-   flagged ``dark`` (low-reflectance material), plus ``far_dropout_rate`` reached at 4.5 m,
-   linearly from 3 m (10 % in the time-of-flight model); with ``dark_blob_px`` > 0 the dark
-   dropouts come in blobs instead (black furniture, time-of-flight on dark fabric): a smooth
-   random field over the image (white noise blurred with a Gaussian of that standard
-   deviation [px], from a generator of its own) drops the ``dark_dropout_rate`` share of each
-   dark primitive's pixels where it is highest;
-5. an invalid border: the outer 4 pixel rows and columns are 0.
-
-``noise=False`` keeps only steps 2 and 3 (exact depth, millimetre quantised, valid band).
-``labels`` and ``labels_seed`` are ``GT_NO_RETURN`` wherever ``depth_mm`` is 0 or the pixel
-flies, the hit's label elsewhere; ``depth_true_m`` and ``points_ground`` are always the
-noise-free hit.
-"""
+"""The Kinect v2 like sensor model of the scene generator (steps in docs/scenes.md)."""
 
 from __future__ import annotations
 
@@ -40,15 +11,9 @@ import numpy as np
 
 @dataclass(frozen=True)
 class NoiseModel:
-    """Kinect v2 like sensor model (see the module docstring for the order of the steps).
+    """Kinect v2 like sensor model; every draw seeded by ``(seed, frame_index)``.
 
-    sigma(z) = depth_sigma_base_mm + depth_sigma_quad_mm_per_m2 * (z - depth_sigma_ref_m)^2
-    [mm], z the true depth [m], times ``dark_sigma_factor`` on a ``dark`` primitive. Rates are
-    per-pixel probabilities; ``far_dropout_rate`` is added to the dropout rate in full at
-    ``max_range_m``, linearly from ``far_dropout_start_m`` on. Flying pixels: a pixel within
-    one pixel of a depth edge (3 x 3 window whose true depths differ by more than
-    ``max(flying_jump_m, flying_jump_ratio * nearest)``) becomes one with probability
-    ``flying_pixel_rate``, a pixel two pixels away (5 x 5 window) with half of it.
+    sigma(z) = depth_sigma_base_mm + depth_sigma_quad_mm_per_m2 * (z - depth_sigma_ref_m)^2 [mm].
     """
 
     depth_sigma_base_mm: float = 1.5
@@ -86,11 +51,6 @@ class NoiseModel:
             raise ValueError(f'NoiseModel: need 0 <= min_range_m={self.min_range_m!r} < '
                              f'max_range_m={self.max_range_m!r} <= 65.535')
 
-    def sigma_m(self, depth_m: np.ndarray) -> np.ndarray:
-        """Depth noise standard deviation [m] at true depth depth_m [m] (not dark)."""
-        dz = np.asarray(depth_m) - self.depth_sigma_ref_m
-        return 1e-3 * (self.depth_sigma_base_mm + self.depth_sigma_quad_mm_per_m2 * dz * dz)
-
     def far_dropout(self, depth_m: np.ndarray) -> np.ndarray:
         """Extra dropout probability at true depth depth_m [m] (0 up to far_dropout_start_m)."""
         span = max(self.max_range_m - self.far_dropout_start_m, 1e-9)
@@ -118,12 +78,7 @@ NOISE_MODELS = {'kinect_v2': KINECT_V2_NOISE, 'kinect_v2_tof': KINECT_V2_TOF_NOI
 
 def blob_dropouts(hit_index: np.ndarray, dark: np.ndarray, rate: float, blob_px: float,
                   key: tuple[int, int]) -> np.ndarray:
-    """(H, W) bool: the dark pixels dropped in blobs, ``rate`` of each dark primitive's.
-
-    hit_index: (H, W) primitive hit, -1 where none; dark: (P + 1,) bool per primitive, then
-    False; a smooth field (white noise blurred by a Gaussian of ``blob_px`` [px]) seeded by
-    ``key``; per dark primitive, its pixels where the field is highest are dropped.
-    """
+    """(H, W) bool: the ``rate`` of each dark primitive's pixels dropped in smooth blobs."""
     rng = np.random.default_rng([*key, 0xB10B5])
     field = rng.standard_normal(hit_index.shape).astype(np.float32)
     field = cv2.GaussianBlur(field, (0, 0), blob_px, borderType=cv2.BORDER_REFLECT)
@@ -138,11 +93,7 @@ def blob_dropouts(hit_index: np.ndarray, dark: np.ndarray, rate: float, blob_px:
 
 def depth_edges(depth_m: np.ndarray, hit: np.ndarray, model: NoiseModel, window_px: int,
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Pixels with a depth edge in their ``window_px`` square window, and its depth range.
-
-    depth_m: (H, W) true depth [m]; hit: (H, W) bool, pixels with a surface (others take no
-    part). Returns (edge (H, W) bool, nearest (H, W), farthest (H, W) depth in the window [m]).
-    """
+    """Pixels with a depth edge in their ``window_px`` window: (edge, nearest, farthest)."""
     kernel = np.ones((window_px, window_px), np.uint8)
     nearest = cv2.erode(np.where(hit, depth_m, np.inf), kernel, borderType=cv2.BORDER_REPLICATE)
     farthest = cv2.dilate(np.where(hit, depth_m, 0.0), kernel,
@@ -155,12 +106,7 @@ def depth_edges(depth_m: np.ndarray, hit: np.ndarray, model: NoiseModel, window_
 
 def flying_pixels(depth_m: np.ndarray, hit: np.ndarray, model: NoiseModel,
                   select: np.ndarray, weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Time-of-flight mixed pixels at depth edges: ``(depth (H, W) [m], flying (H, W) bool)``.
-
-    A flying pixel's depth is a mix of the nearest and farthest true depth of its window,
-    ``near + w (far - near)`` with ``w = 0.1 + 0.8 * weight``; select and weight: (H, W)
-    uniform [0, 1) draws. Other pixels keep their depth.
-    """
+    """Time-of-flight mixed pixels at depth edges: ``(depth (H, W) [m], flying (H, W) bool)``."""
     ring1, near1, far1 = depth_edges(depth_m, hit, model, 3)
     ring2, near2, far2 = depth_edges(depth_m, hit, model, 5)
     ring2 &= ~ring1
@@ -175,12 +121,9 @@ def flying_pixels(depth_m: np.ndarray, hit: np.ndarray, model: NoiseModel,
 
 def measure(depth_true: np.ndarray, hit_index: np.ndarray, dark: np.ndarray,
             model: NoiseModel, key: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Apply the sensor model to the true depth (the module docstring's steps, in order).
+    """Apply the sensor model to the true depth: ``(depth_mm uint16, valid, flying)``.
 
-    depth_true: (H, W) float64 noise-free depth [m], 0 where nothing is hit. hit_index: (H, W)
-    int16 primitive hit, -1 where none. dark: (P + 1,) bool, each primitive's ``dark`` flag
-    then False. key: (seed, frame_index), seeding every draw. Returns depth_mm (H, W) uint16
-    (0 = no return), valid (H, W) bool and flying (H, W) bool.
+    hit_index: (H, W) primitive hit, -1 none; dark: (P + 1,) bool; key: (seed, frame_index).
     """
     rng = np.random.default_rng([*key, 0x4015E])
     height, width = depth_true.shape

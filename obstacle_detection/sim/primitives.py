@@ -1,12 +1,4 @@
-"""The primitives of the ray-cast scene generator, in the ground frame [m].
-
-A scene is a tuple of primitives (floor, boxes, wall segments, ramps, vertical cylinders, a step
-down; tables and chairs are made of boxes) in the ground frame (x forward, y left, z up, origin
-on the ground under the camera). Each intersects every pixel's ray at once (numpy, no per-pixel
-loop) and offers its drivable patches (``walk_patches``) to the robot-level truth
-(:mod:`.truth`). The ray of pixel (u, v) has the optical direction ``((u - cx)/fx, (v - cy)/fy,
-1)``, so the ray parameter t of a hit is its depth (optical z) in metres.
-"""
+"""The primitives of the ray-cast scene generator, in the ground frame [m] (docs/scenes.md)."""
 
 from __future__ import annotations
 
@@ -30,11 +22,7 @@ _EPS_T = 1e-9
 
 @dataclass(frozen=True)
 class Rays:
-    """Camera rays in the ground frame: one origin, directions as same-shape arrays.
-
-    origin: (x, y, z) [m]; dx, dy, dz: direction components, any (equal) shape, float64, with
-    optical z = 1 so that a hit's ray parameter t is its depth [m].
-    """
+    """Camera rays in the ground frame: one origin, directions with optical z = 1 (t = depth)."""
 
     origin: tuple[float, float, float]
     dx: np.ndarray
@@ -61,9 +49,7 @@ Bounds = Union[tuple[tuple[float, float, float], tuple[float, float, float]], No
 class Patch:
     """A drivable planar piece of a primitive: ``z = z0_m + rise * (x - x0_m)`` [m].
 
-    It covers ``x0_m <= x <= x1_m``, ``y0_m <= y <= y1_m`` (ground frame, bounds may be
-    infinite when ``rise`` is 0); ``tolerance_m`` is how far the real surface may lie off the
-    plane (a bumpy floor's amplitude). ``owner`` is the index of its primitive in the scene.
+    ``tolerance_m``: how far the real surface may lie off it; ``owner``: its primitive's index.
     """
 
     x0_m: float
@@ -134,14 +120,7 @@ def _plane_t(offset: float, rate: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Floor:
-    """Infinite ground z = 0, optionally bumpy: ``z = amplitude * f(x, y)``, ``|f| <= 1``.
-
-    ``f`` is a smooth sum of two sinusoidal patterns of wavelength ``bump_wavelength_m`` with
-    phases ``bump_phase_rad``; its slope is at most ``1.29 * amplitude * 2 pi / wavelength``
-    (0.16, 9 degrees, for 3 cm over 1.5 m). A bumpy hit is found by marching each ray through
-    the band ``|z| <= amplitude`` in steps of a tenth of a wavelength and refining the first
-    sign change by regula falsi; beyond ``BUMPY_TRACE_M`` the flat z = 0 hit is used.
-    """
+    """Infinite ground z = 0, optionally bumpy: ``z = amplitude * f(x, y)``, ``|f| <= 1``."""
 
     bump_amplitude_m: float = 0.0
     bump_wavelength_m: float = 1.5
@@ -241,10 +220,7 @@ class Floor:
 
 @dataclass(frozen=True)
 class Box:
-    """Axis-aligned box between corners ``min_m`` and ``max_m`` (x, y, z) [m]; slab method.
-
-    Every face carries the box's label (an obstacle by default).
-    """
+    """Axis-aligned box between corners ``min_m`` and ``max_m`` (x, y, z) [m]; slab method."""
 
     min_m: tuple[float, float, float]
     max_m: tuple[float, float, float]
@@ -344,14 +320,7 @@ class Wall:
 
 @dataclass(frozen=True)
 class Ramp:
-    """Planar strip rising from the floor: ``z = (x - x_start) tan(slope)``.
-
-    It spans ``x_start_m <= x <= x_start_m + length_m`` (``length_m`` is the horizontal run)
-    and ``|y - y_center_m| <= width_m / 2``. Traversable iff ``slope_rad <=
-    max_passable_slope_rad`` (default pi/6, the seed's theta). Seen from a camera above its
-    plane, the strip hides exactly what a solid wedge would; the wedge's vertical sides are
-    not modelled.
-    """
+    """Planar strip rising from the floor: ``z = (x - x_start) tan(slope)``."""
 
     x_start_m: float
     y_center_m: float
@@ -409,13 +378,7 @@ class Ramp:
 
 @dataclass(frozen=True)
 class RampSide:
-    """The open side of a solid ramp: a vertical triangle in the plane ``y = y_m``.
-
-    It spans ``x_start_m <= x <= x_start_m + length_m`` and ``0 <= z <= (x - x_start_m)
-    tan(slope_rad)``: the wedge under a :class:`Ramp` of the same start, run and slope seen
-    from beside it (the ``Ramp`` strip models only its top). An obstacle where it stands more
-    than a step above the floor (the robot-level truth decides); no drivable patch.
-    """
+    """The open side of a solid ramp: a vertical triangle in the plane ``y = y_m``."""
 
     x_start_m: float
     y_m: float
@@ -513,10 +476,7 @@ class Cylinder:
 class StepDown:
     """Floor at z = 0 for x < x_m, a drop of depth_m there, lower floor at z = -depth_m beyond.
 
-    Use it instead of ``Floor``. The upper floor is traversable; the vertical riser at x = x_m
-    (facing +x, so hidden from a camera on the upper floor) is an obstacle; the lower floor is
-    an obstacle when ``depth_m > max_drop_m`` (default 0.1 m: a drop the robot must not drive
-    off), traversable otherwise.
+    Use it instead of ``Floor``; the lower floor is an obstacle when ``depth_m > max_drop_m``.
     """
 
     x_m: float

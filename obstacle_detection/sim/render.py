@@ -1,13 +1,4 @@
-"""Ray-cast depth frames with a ground-truth label per pixel (tests, benchmark, demo).
-
-A :class:`Scene` (primitives of :mod:`.primitives` plus a camera mount) is seen from a camera
-at a height, pitch and roll (and optionally a robot pose): every pixel's ray is intersected
-with every primitive at once; the nearest hit wins and gives the pixel its true depth, its true
-ground-frame point, the index of the primitive hit (``object_ids``; primitives may carry a
-``name``, those of one name form one object) and two labels: the robot-level truth
-(:mod:`.truth`) and the seed's slope-only truth. The sensor model is :mod:`.noise`'s. Rays
-use the pipeline's own mount convention (``geometry.mount_transform``).
-"""
+"""Ray-cast depth frames with a ground-truth label per pixel (tests, benchmark, demo)."""
 
 from __future__ import annotations
 
@@ -52,26 +43,13 @@ class Scene:
 
 @dataclass(frozen=True)
 class SceneFrame:
-    """One rendered frame with its ground truth.
+    """One rendered frame with its ground truth (H, W arrays; docs/scenes.md).
 
-    depth_mm: (H, W) uint16 measured depth [mm], 0 = no return.
-    depth_true_m: (H, W) float32 noise-free depth (optical z) of the nearest hit [m], 0 where
-    no surface is hit within ``MAX_TRACE_M`` (no band, border or dropout applied).
-    labels: (H, W) uint8 robot-level truth ``GT_*`` (issue 9: traversable, obstacle,
-    above the robot); ``GT_NO_RETURN`` exactly where depth_mm == 0 or ``flying``.
-    labels_seed: (H, W) uint8 the seed's slope-only truth (``GT_TRAVERSABLE``/``GT_OBSTACLE``
-    by each primitive's own flag), masked like ``labels``.
-    points_ground: (H, W, 3) float32 true hit points, ground frame [m], NaN where no hit.
-    hit_labels, hit_labels_seed: (H, W) uint8 robot-level / seed label of the hit surface
-    whether or not the sensor returned it (``GT_NO_RETURN`` only where nothing is hit).
-    hit_index: (H, W) int16 index into ``primitives`` of the hit primitive, -1 where none
-    (also ``object_ids``).
-    flying: (H, W) bool flying (mixed) pixels: a depth between a foreground and a background
-    surface, not a surface: labelled ``GT_NO_RETURN`` (not scored), ``points_ground`` keeps
-    the true hit of the ray.
-    drop_edge: (H, W) bool hit points on reachable ground within ``DROP_EDGE_BAND_M`` of a
-    drop (the truth costmap marks their cells).
-    truth_rules: the rules ``labels`` were made with.
+    depth_mm: measured [mm], 0 = no return; depth_true_m: noise-free depth, 0 where no hit;
+    labels / labels_seed: robot-level / seed truth ``GT_*``, ``GT_NO_RETURN`` where depth_mm is 0
+    or the pixel flies; points_ground: true hit points, base frame [m], NaN where no hit;
+    hit_labels(_seed): the hit surface's labels; hit_index / object_ids: primitive hit, -1 none;
+    flying: mixed pixels; drop_edge: reachable ground at a drop's edge.
     """
 
     depth_mm: np.ndarray
@@ -134,11 +112,7 @@ def camera_rays(intrinsics: Intrinsics, size: tuple[int, int], height_m: float,
 
 def _image_window(bounds: Bounds, rays: Rays, rot: np.ndarray, intrinsics: Intrinsics,
                   size: tuple[int, int]) -> tuple[slice, slice] | None:
-    """Pixel window (rows, cols) holding the image of ``bounds``; None when it is empty.
-
-    The whole image when the bounds are unbounded or reach behind the near plane. The image of
-    a convex body in front of the camera lies in the convex hull of its box corners' images.
-    """
+    """Pixel window (rows, cols) holding the image of ``bounds``; None when it is empty."""
     width, height = size
     everything = (slice(0, height), slice(0, width))
     if bounds is None:
@@ -184,12 +158,7 @@ def _posed_rays(rays: Rays, rot: np.ndarray, pose: tuple[float, float, float],
 
 def _nearest_hits(scene: Scene, rays: Rays, rot: np.ndarray, intrinsics: Intrinsics,
                   size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Intersect every primitive with the rays it may hit; the nearest hit wins.
-
-    Returns (H, W) float64 ray parameter of the nearest hit (inf where none), (H, W) int16
-    index of the primitive hit (-1 where none within ``MAX_TRACE_M``) and (H, W) uint8 the
-    hit surface's seed label.
-    """
+    """Nearest hit per pixel: (ray parameter, primitive index, seed label)."""
     width, height = size
     best_t = np.full((height, width), np.inf)
     hit_index = np.full((height, width), -1, dtype=np.int16)
@@ -219,16 +188,11 @@ def render(scene: Scene, *, seed: int = 0, intrinsics: Intrinsics = KINECT_V2_SD
            frame_index: int = 0, pose: tuple[float, float, float] | None = None,
            rules: TruthRules | DetectorParams | None = None,
            ) -> SceneFrame:
-    """Ray-cast ``scene`` from its mount and apply the sensor model (see module docstring).
+    """Ray-cast ``scene`` from its mount and apply the sensor model.
 
-    noise: True for ``KINECT_V2_NOISE``, False for ``EXACT``, or a ``NoiseModel``. The noise
-    generator is seeded by ``(seed, frame_index)``: equal arguments give equal frames.
-    size: (width, height) [px]. pose: the robot's base frame in the scene's frame, (x [m],
-    y [m], yaw [rad]) (a sequence's world, e.g. odom); None = the scene frame is the base
-    frame. The primitives stay where they are in the scene; ``points_ground`` is always in
-    the robot's base frame. rules: the robot-level truth's ``TruthRules``, or detector
-    parameters to read them from; None = ``TruthRules()`` (theta 30 deg, steps 0.05 m, robot
-    1.0 m high).
+    noise: True (``KINECT_V2_NOISE``), False (``EXACT``) or a ``NoiseModel``, seeded by
+    ``(seed, frame_index)``; pose: the robot's (x, y, yaw) in the scene (None: at the origin);
+    rules: ``TruthRules`` or detector parameters (None: the defaults).
     """
     check_render_args(seed, size, frame_index)
     model = noise if isinstance(noise, NoiseModel) else (KINECT_V2_NOISE if noise else EXACT)

@@ -1,10 +1,4 @@
-"""The named scenes of the generator: ``build_scene`` and ``render_scene`` by name.
-
-Corridor, ramps, people, farm row, floors, step down, dark materials, a person walking (video),
-office (and dark office), ramp to a landing, dock edges, curb and sill, shelf, orchard, open-sided
-ramps to a platform, dark furniture, thin legs; positions
-jitter with the seed. :mod:`.render` ray-casts them.
-"""
+"""The named scenes of the generator: ``build_scene`` and ``render_scene`` by name."""
 
 from __future__ import annotations
 
@@ -66,17 +60,23 @@ def _people(rng: np.random.Generator, frame_index: int) -> Scene:
     return Scene('people', (Floor(),) + people)
 
 
-def _farm_row(rng: np.random.Generator, frame_index: int) -> Scene:
-    ground = Floor(bump_amplitude_m=0.03, bump_wavelength_m=1.5,
+def _tree_rows(rng: np.random.Generator, wavelength_m: float, row_y: float, count: int,
+               x0: float, spacing: float, radius_m: float, height_m: float) -> tuple:
+    """Return a bumpy floor and two rows of trunks at y = +-row_y [m], positions jittered."""
+    ground = Floor(bump_amplitude_m=0.03, bump_wavelength_m=wavelength_m,
                    bump_phase_rad=tuple(float(p) for p in rng.uniform(0, 2 * math.pi, 3)))
     trunks = []
-    for side, row_y in (('left', 0.75), ('right', -0.75)):
-        for i in range(7):
-            trunks.append(Cylinder(1.0 + 0.8 * i + rng.uniform(-0.05, 0.05),
-                                   row_y + rng.uniform(-0.05, 0.05),
-                                   radius_m=0.1 + rng.uniform(-0.02, 0.02), height_m=1.6,
-                                   base_z_m=-0.1, name=f'trunk_{side}_{i + 1}'))
-    return Scene('farm_row', (ground,) + tuple(trunks))
+    for side, y in (('left', row_y), ('right', -row_y)):
+        for i in range(count):
+            trunks.append(Cylinder(x0 + spacing * i + rng.uniform(-0.05, 0.05),
+                                   y + rng.uniform(-0.05, 0.05),
+                                   radius_m=radius_m + rng.uniform(-0.02, 0.02),
+                                   height_m=height_m, base_z_m=-0.1, name=f'trunk_{side}_{i + 1}'))
+    return (ground,) + tuple(trunks)
+
+
+def _farm_row(rng: np.random.Generator, frame_index: int) -> Scene:
+    return Scene('farm_row', _tree_rows(rng, 1.5, 0.75, 7, 1.0, 0.8, 0.1, 1.6))
 
 
 def _pitched_floor(rng: np.random.Generator, frame_index: int) -> Scene:
@@ -120,10 +120,7 @@ def _person_walking(rng: np.random.Generator, frame_index: int) -> Scene:
 def table(x_m: float, y_m: float, size_x_m: float, size_y_m: float, height_m: float, *,
           top_m: float = 0.03, leg_m: float = 0.04, name: str = 'table',
           dark: bool = False) -> tuple[Box, ...]:
-    """Return a table: a top ``top_m`` thick whose upper face is ``height_m`` up, four legs.
-
-    Centred on (x_m, y_m), sizes [m]; every part carries ``name``.
-    """
+    """Return a table centred on (x_m, y_m): a top with its upper face ``height_m`` up, legs."""
     check_positive('table', size_x_m=size_x_m, size_y_m=size_y_m, height_m=height_m,
                     top_m=top_m, leg_m=leg_m)
     if not (top_m < height_m and 2 * leg_m < min(size_x_m, size_y_m)):
@@ -153,10 +150,13 @@ def chair(x_m: float, y_m: float, *, seat_m: float = 0.42, seat_height_m: float 
     return parts + (back,)
 
 
-def _office(rng: np.random.Generator, frame_index: int, *, dark: bool = False) -> Scene:
-    def jitter() -> float:
-        return float(rng.uniform(-0.04, 0.04))
+def _jitter(rng: np.random.Generator) -> Callable[[], float]:
+    """Return a draw of the furniture scenes' position jitter, +-0.04 m."""
+    return lambda: float(rng.uniform(-0.04, 0.04))
 
+
+def _office(rng: np.random.Generator, frame_index: int, *, dark: bool = False) -> Scene:
+    jitter = _jitter(rng)
     walls = (Wall(2.7, 2.5, 2.7, -2.5, 0.0, 2.5, dark=dark),
              Wall(-1.0, 1.5 + jitter(), 2.7, 1.5, 0.0, 2.5))
     boxes = (Box.on_floor(1.25 + jitter(), 0.65 + jitter(), 0.3, 0.3, 0.3, dark=dark,
@@ -210,22 +210,14 @@ def _shelf(rng: np.random.Generator, frame_index: int) -> Scene:
 
 
 def _orchard(rng: np.random.Generator, frame_index: int) -> Scene:
-    ground = Floor(bump_amplitude_m=0.03, bump_wavelength_m=1.2,
-                   bump_phase_rad=tuple(float(p) for p in rng.uniform(0, 2 * math.pi, 3)))
-    trunks = []
-    for side, row_y in (('left', 0.85), ('right', -0.85)):
-        for i in range(6):
-            trunks.append(Cylinder(1.2 + 0.9 * i + rng.uniform(-0.05, 0.05),
-                                   row_y + rng.uniform(-0.05, 0.05),
-                                   radius_m=0.08 + rng.uniform(-0.02, 0.02), height_m=1.9,
-                                   base_z_m=-0.1, name=f'trunk_{side}_{i + 1}'))
+    rows = _tree_rows(rng, 1.2, 0.85, 6, 1.2, 0.9, 0.08, 1.9)
     bushes = (Cylinder(1.5 + rng.uniform(-0.05, 0.05), -0.25 + rng.uniform(-0.05, 0.05),
                        radius_m=0.22, height_m=0.35 + rng.uniform(0.0, 0.1), base_z_m=-0.05,
                        name='bush_1'),
               Cylinder(1.85 + rng.uniform(-0.05, 0.05), 0.4 + rng.uniform(-0.05, 0.05),
                        radius_m=0.18, height_m=0.3 + rng.uniform(0.0, 0.1), base_z_m=-0.05,
                        name='bush_2'))
-    return Scene('orchard', (ground,) + tuple(trunks) + bushes)
+    return Scene('orchard', rows + bushes)
 
 
 # -- issue 22 scenes: open-sided ramps, dark blobs on furniture, thin legs
@@ -239,11 +231,7 @@ def open_ramp(x_m: float, y_center_m: float, width_m: float, platform_m: float, 
               sides: tuple[float, ...] = ()) -> tuple:
     """Return an open-sided ramp up to a platform, the ramp's foot at x_m [m].
 
-    ``OPEN_RAMP_SLOPE_DEG`` up to ``OPEN_RAMP_RISE_M``, then a platform ``platform_m`` long,
-    both ``width_m`` wide around ``y_center_m``. ``sides``: the y [m] of the open sides to
-    model as their own primitives, named 'ramp_side' and 'platform_side' (the wedge under the
-    ramp and the platform's face, listed first so that they, not the platform box, own the
-    face's pixels), so that the suite scores them as objects.
+    ``sides``: the y [m] of the open sides modelled as their own primitives (listed first).
     """
     slope = math.radians(OPEN_RAMP_SLOPE_DEG)
     run = OPEN_RAMP_RISE_M / math.tan(slope)
@@ -277,9 +265,7 @@ def _open_ramp_ahead(rng: np.random.Generator, frame_index: int) -> Scene:
 
 
 def _dark_furniture(rng: np.random.Generator, frame_index: int) -> Scene:
-    def jitter() -> float:
-        return float(rng.uniform(-0.04, 0.04))
-
+    jitter = _jitter(rng)
     wall = Wall(2.9, 2.5, 2.9, -2.5, 0.0, 2.5)
     sofa = Box.on_floor(1.3 + jitter(), 0.75 + jitter(), 0.5, 0.6, 0.45, dark=True,
                         name='sofa')
@@ -291,9 +277,7 @@ def _dark_furniture(rng: np.random.Generator, frame_index: int) -> Scene:
 
 
 def _thin_legs(rng: np.random.Generator, frame_index: int) -> Scene:
-    def jitter() -> float:
-        return float(rng.uniform(-0.04, 0.04))
-
+    jitter = _jitter(rng)
     wall = Wall(3.0, 2.5, 3.0, -2.5, 0.0, 2.5)
     furniture = (table(1.8 + jitter(), 0.2 + jitter(), 0.6, 0.8, 0.72, leg_m=0.02)
                  + chair(1.1 + jitter(), -0.45 + jitter(), leg_m=0.02, name='chair_1')
@@ -303,32 +287,14 @@ def _thin_legs(rng: np.random.Generator, frame_index: int) -> Scene:
     return Scene('thin_legs', (Floor(), wall) + furniture)
 
 
-_BUILDERS: dict[str, Callable[[np.random.Generator, int], Scene]] = {
-    'corridor': _corridor,
-    'ramps': _ramps,
-    'people': _people,
-    'farm_row': _farm_row,
-    'pitched_floor': _pitched_floor,
-    'flat_floor': _flat_floor,
-    'step_down': _step_down,
-    'dark_materials': _dark_materials,
-    'person_walking': _person_walking,
-    'office': _office,
-    'dark_office': _dark_office,
-    'ramp_landing': _ramp_landing,
-    'dock_edge': _dock_edge,
-    'dock_edge_high': _dock_edge_high,
-    'curb_sill': _curb_sill,
-    'shelf': _shelf,
-    'orchard': _orchard,
-    'open_ramp': _open_ramp,
-    'open_ramp_ahead': _open_ramp_ahead,
-    'dark_furniture': _dark_furniture,
-    'thin_legs': _thin_legs,
-}
-
 #: Names accepted by ``build_scene`` and ``render_scene``.
-SCENE_NAMES: tuple[str, ...] = tuple(_BUILDERS)
+SCENE_NAMES: tuple[str, ...] = ('corridor', 'ramps', 'people', 'farm_row', 'pitched_floor',
+                                'flat_floor', 'step_down', 'dark_materials', 'person_walking',
+                                'office', 'dark_office', 'ramp_landing', 'dock_edge',
+                                'dock_edge_high', 'curb_sill', 'shelf', 'orchard', 'open_ramp',
+                                'open_ramp_ahead', 'dark_furniture', 'thin_legs')
+_BUILDERS: dict[str, Callable[[np.random.Generator, int], Scene]] = {
+    name: globals()['_' + name] for name in SCENE_NAMES}
 
 
 def scene_params(frame: SceneFrame, base: DetectorParams | None = None) -> DetectorParams:
@@ -339,14 +305,7 @@ def scene_params(frame: SceneFrame, base: DetectorParams | None = None) -> Detec
 
 
 def build_scene(name: str, *, seed: int = 0, frame_index: int = 0) -> Scene:
-    """Return the named scene's primitives and default mount; positions jitter with ``seed``.
-
-    Only 'person_walking' depends on ``frame_index``: a person about 2 m ahead walks from left
-    to right (ground y decreasing, image column increasing) at ``WALK_SPEED_M_S``, one frame
-    every 1 / ``WALK_FRAME_RATE_HZ`` s, starting in view at y = +1.0 m. Each crossing spans
-    ``WALK_SPAN_M`` (y = +1.6 to -1.6 m, the edges of a Kinect v2 view at 2 m), then the next
-    one starts on the left.
-    """
+    """Return the named scene's primitives and default mount; positions jitter with ``seed``."""
     if name not in _BUILDERS:
         raise ValueError(f'unknown scene {name!r}; known: {", ".join(SCENE_NAMES)}')
     check_render_args(seed, (1, 1), frame_index)
@@ -360,8 +319,6 @@ def render_scene(name: str, *, seed: int = 0, intrinsics: Intrinsics = KINECT_V2
                  noise: bool | NoiseModel = True, frame_index: int = 0,
                  rules: TruthRules | DetectorParams | None = None) -> SceneFrame:
     """Render a named scene (``SCENE_NAMES``); mount arguments override its defaults.
-
-    rules: the robot-level truth's rules (see ``render``).
 
     Raises ValueError for an unknown name, a bad seed, size or frame index, or a bad mount.
     """

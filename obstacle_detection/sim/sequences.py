@@ -1,24 +1,4 @@
-"""Scene sequences with a known camera trajectory and its odometry (video tests and demos).
-
-A sequence is a world of primitives in the odometry frame (``odom``: x, y on the floor, z up,
-the robot's start pose at the origin) and a robot driven through it by a velocity profile at
-``rate_hz``. Each frame is ray-cast by :func:`.render.render` from the robot's true pose, so
-its ground truth (``labels``, ``points_ground`` in the robot's base frame) is the one of the
-per-frame scenes. Each frame also carries what a wheel odometry would report: the true motion
-increments with a scale error and a little noise (seeded), integrated from the start pose, so
-the fused costmap sees a small drift as on a robot.
-
-Sequences (``SEQUENCE_NAMES``):
-
-- ``drive_past_boxes``: the robot stands 0.5 s, drives 1.65 m forward at 0.5 m/s past a low
-  box on its right and a box on its left, and stops 0.39 m in front of a tall cabinet (inside
-  the Kinect v2's 0.5 m blind zone); it turns left 90 deg on the spot (45 deg/s) and drives
-  1.5 m along a table (legs and a top at 0.72-0.75 m, above the camera) with a box on its
-  right, then stands. Walls close the room. 294 frames at 30 Hz.
-- ``person_crossing``: the robot stands still facing a box; a person (a 0.2 m cylinder)
-  walks in from the left at 1 m/s, stands 1 s in front of the robot 1.6 m away, walks out to
-  the right and leaves. 177 frames at 30 Hz.
-"""
+"""Scene sequences with a known camera trajectory and its odometry (docs/scenes.md)."""
 
 from __future__ import annotations
 
@@ -42,12 +22,7 @@ SEQUENCE_RATE_HZ = 30.0
 
 @dataclass(frozen=True)
 class OdometryModel:
-    """Wheel-odometry errors: per-frame increments scaled and perturbed (seeded).
-
-    distance_scale, yaw_scale: relative errors of travelled distance and turned angle
-    (0.02 = 2 % too long); noise_fraction: standard deviation of the per-frame increment noise
-    as a fraction of the increment's size (no motion, no noise).
-    """
+    """Wheel-odometry errors: relative distance and yaw scale, per-frame noise (seeded)."""
 
     distance_scale: float = 0.02
     yaw_scale: float = -0.01
@@ -69,12 +44,7 @@ PERFECT_ODOMETRY = OdometryModel(0.0, 0.0, 0.0)
 
 @dataclass(frozen=True)
 class SequenceFrame:
-    """One frame of a sequence: the rendering and both poses.
-
-    index: frame number; stamp_s: its time [s] from the start; pose_true: the robot's base
-    pose in odom (ground truth); pose_odom: what odometry reports at that time; frame: the
-    rendered frame (``points_ground`` in the base frame at pose_true).
-    """
+    """One frame of a sequence: the rendering and the true and odometry poses in odom."""
 
     index: int
     stamp_s: float
@@ -85,11 +55,7 @@ class SequenceFrame:
 
 def _integrate(segments: tuple[tuple[float, float, float], ...], rate_hz: float,
                ) -> np.ndarray:
-    """(n, 3) true poses at each frame from (duration [s], v [m/s], w [rad/s]) segments.
-
-    The robot starts at the origin facing +x; each frame's pose follows the previous one by
-    one step of the segment's velocities (exact arc for constant v and w).
-    """
+    """(n, 3) true poses at each frame from (duration [s], v [m/s], w [rad/s]) segments."""
     dt = 1.0 / rate_hz
     steps = []
     for duration_s, v, w in segments:
@@ -103,12 +69,7 @@ def _integrate(segments: tuple[tuple[float, float, float], ...], rate_hz: float,
 
 
 def odometry_poses(true_poses: np.ndarray, model: OdometryModel, seed: int) -> np.ndarray:
-    """(n, 3) odometry poses: the true increments, in the robot's frame, with the model's errors.
-
-    Increments (forward, lateral, yaw) between true poses are expressed in the robot frame,
-    scaled by (1 + distance_scale) and (1 + yaw_scale), perturbed by Gaussian noise of
-    ``noise_fraction`` times their size, and integrated from the first true pose.
-    """
+    """(n, 3) odometry poses: the true increments with the model's errors, integrated."""
     rng = np.random.default_rng([int(seed), 0x0D0])
     out = np.empty_like(true_poses)
     out[0] = true_poses[0]

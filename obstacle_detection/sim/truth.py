@@ -1,18 +1,4 @@
-"""The robot-level ground truth of a rendered frame (``SceneFrame.labels``).
-
-Computed from the primitives' geometry with ``TruthRules`` (theta, step up, step down, robot
-height; read from detector parameters when given). Each primitive offers its drivable patches
-(``walk_patches``: the floor, box and cap tops, ramps no steeper than theta, both floors of a
-step down); a breadth-first search from the patch under the robot over patches that touch with
-a height difference within a step up or down finds the reachable ones. A hit on a reachable
-patch is ``GT_TRAVERSABLE``, as is every hit on a primitive no higher than a step whose patches
-are all reachable (a door sill, its sides too); a hit higher than the robot above the reachable
-ground under it is ``GT_ABOVE_ROBOT``; every other hit is ``GT_OBSTACLE`` (walls, box and table
-tops and undersides, legs, curbs, too-steep ramps, people, trunks, the lower floor beyond a
-drop). ``drop_edge`` flags the reachable ground within ``DROP_EDGE_BAND_M`` of a drop: the
-truth costmap marks where the floor ends. The seed's slope-only truth (``labels_seed``) is each
-primitive's own ``traversable`` flag.
-"""
+"""The robot-level ground truth of a rendered frame (``SceneFrame.labels``; docs/scenes.md)."""
 
 from __future__ import annotations
 
@@ -37,12 +23,7 @@ DROP_EDGE_BAND_M = 0.03
 
 @dataclass(frozen=True)
 class TruthRules:
-    """The robot-level truth's parameters (issue 9; ``DetectorParams`` fields of one name).
-
-    max_slope_rad: theta, steepest drivable slope; max_step_height_m / max_step_down_m: the
-    largest step up / down the robot drives over [m]; robot_height_m: surfaces higher than this
-    above the ground under them do not block the robot [m].
-    """
+    """The robot-level truth's parameters (``DetectorParams`` fields of one name)."""
 
     max_slope_rad: float = math.pi / 6
     max_step_height_m: float = 0.05
@@ -68,28 +49,26 @@ class TruthRules:
                                    'robot_height_m')})
 
 
-def _connects(a: Patch, b: Patch, rules: TruthRules) -> bool:
-    """Return True when the robot on patch ``a`` can drive onto patch ``b``.
-
-    That is: their rectangles touch, and somewhere where they meet b is at most a step up or
-    down from a.
-    """
+def _rise(a: Patch, b: Patch) -> np.ndarray | None:
+    """Height of ``b`` over ``a`` at the x ends of where they touch; None if they do not."""
     x0, x1 = max(a.x0_m, b.x0_m), min(a.x1_m, b.x1_m)
     y0, y1 = max(a.y0_m, b.y0_m), min(a.y1_m, b.y1_m)
     if x0 > x1 + TOUCH_M or y0 > y1 + TOUCH_M:
-        return False
+        return None
     xs = np.array([v for v in (x0, x1) if math.isfinite(v)] or [0.0])
-    dz = b.z_at(xs) - a.z_at(xs)   # planar patches: the extremes are at the x ends
-    return bool(dz.min() <= rules.max_step_height_m and dz.max() >= -rules.max_step_down_m)
+    return b.z_at(xs) - a.z_at(xs)   # planar patches: the extremes are at the x ends
+
+
+def _connects(a: Patch, b: Patch, rules: TruthRules) -> bool:
+    """Return True when the robot on patch ``a`` can drive onto ``b`` (touching, within a step)."""
+    dz = _rise(a, b)
+    return dz is not None and bool(dz.min() <= rules.max_step_height_m
+                                   and dz.max() >= -rules.max_step_down_m)
 
 
 def scene_patches(primitives: tuple[Primitive, ...], rules: TruthRules,
                   ) -> tuple[list[Patch], list[bool]]:
-    """Every drivable patch of the scene (``owner`` set) and whether the robot reaches it.
-
-    The robot stands at the ground-frame origin: the patches under it (within a step of
-    z = 0) are reached; from them, a breadth-first search over ``_connects``.
-    """
+    """Every drivable patch of the scene and whether the robot (at the origin) reaches it."""
     patches = [dataclasses.replace(patch, owner=i) for i, primitive in enumerate(primitives)
                for patch in primitive.walk_patches(rules.max_slope_rad)]
     origin = np.zeros(1)
@@ -116,16 +95,7 @@ def _vertical_extent_m(primitive: Primitive) -> float:
 
 def robot_labels(points: np.ndarray, owner: np.ndarray, primitives: tuple[Primitive, ...],
                  rules: TruthRules) -> tuple[np.ndarray, np.ndarray]:
-    """Robot-level truth of hit points: ``(labels (N,) uint8 GT_*, drop_edge (N,) bool)``.
-
-    points: (N, 3) float64 hit points, ground frame [m]; owner: (N,) index of the primitive
-    hit (>= 0). A point on a reached patch is traversable, as is every point of a primitive
-    whose patches are all reached and whose height is at most a step (a door sill, its sides
-    included); a point higher than ``robot_height_m`` above the reached ground under it (the
-    highest reached patch below it, else z = 0) is ``GT_ABOVE_ROBOT``; everything else is an
-    obstacle. ``drop_edge`` flags reached ground within ``DROP_EDGE_BAND_M`` of a drop: where a
-    reached patch meets an unreached one lower by more than ``max_step_down_m``.
-    """
+    """Robot-level truth of hit points: ``(labels (N,) uint8 GT_*, drop_edge (N,) bool)``."""
     x, y, z = points[:, 0], points[:, 1], points[:, 2]
     patches, reached = scene_patches(primitives, rules)
     ground = np.zeros(x.shape)
@@ -159,20 +129,21 @@ def robot_labels(points: np.ndarray, owner: np.ndarray, primitives: tuple[Primit
                          min(a.x1_m, b.x1_m) + DROP_EDGE_BAND_M,
                          max(a.y0_m, b.y0_m) - DROP_EDGE_BAND_M,
                          min(a.y1_m, b.y1_m) + DROP_EDGE_BAND_M, 0.0)
-            drop_edge |= (near.covers(x, y) & a.covers(x, y) & (owner == a.owner)
-                          & (np.abs(z - a.z_at(x)) <= a.tolerance_m + ON_PATCH_M))
+            drop_edge |= near.covers(x, y) & _on_patch(a, x, y, z, owner)
     return labels, drop_edge
+
+
+def _on_patch(patch: Patch, x: np.ndarray, y: np.ndarray, z: np.ndarray,
+              owner: np.ndarray) -> np.ndarray:
+    """(N,) bool: hits of the patch's own primitive that lie on the patch."""
+    return (patch.covers(x, y) & (owner == patch.owner)
+            & (np.abs(z - patch.z_at(x)) <= patch.tolerance_m + ON_PATCH_M))
 
 
 def _climbable_risers(x: np.ndarray, y: np.ndarray, z: np.ndarray,
                       patches: list[Patch], reached: list[bool], rules: TruthRules,
                       ) -> np.ndarray:
-    """(N,) bool: hits on a riser no higher than a step up to a reached surface above them.
-
-    The side of an open ramp where the ramp stands no more than ``max_step_height_m`` above
-    the ground beside it: the highest reached patch over the hit's (x, y) lies above the
-    lowest one there by at most a step, and the hit between them.
-    """
+    """(N,) bool: hits on a riser no higher than a step up to a reached surface above."""
     top = np.full(x.shape, -np.inf)
     low = np.full(x.shape, np.inf)
     for patch, ok in zip(patches, reached):
@@ -189,22 +160,13 @@ def _climbable_risers(x: np.ndarray, y: np.ndarray, z: np.ndarray,
 
 def _ledges(x: np.ndarray, y: np.ndarray, z: np.ndarray, owner: np.ndarray,
             patches: list[Patch], reached: list[bool], rules: TruthRules) -> np.ndarray:
-    """(N,) bool: reached ground within ``DROP_EDGE_BAND_M`` of a ledge (issue 22).
-
-    A ledge is an edge of a reached patch beyond which the reached ground (the highest other
-    reached patch there no more than a step above) lies more than ``max_step_down_m`` lower:
-    the open side of a ramp or a platform above the floor beside it, where a robot driving
-    along it falls off (seen from the floor, its face is an obstacle already). Unlike a drop,
-    the lower ground is reachable (through the ramp); where no reached patch lies beyond the
-    edge (a drop, a wall) it is no ledge.
-    """
+    """(N,) bool: reached ground within ``DROP_EDGE_BAND_M`` of a ledge (issue 22)."""
     out = np.zeros(x.shape, dtype=bool)
     eps = 1e-3
     for i, (a, a_ok) in enumerate(zip(patches, reached)):
         if not a_ok:
             continue
-        on_a = (a.covers(x, y) & (owner == a.owner)
-                & (np.abs(z - a.z_at(x)) <= a.tolerance_m + ON_PATCH_M))
+        on_a = _on_patch(a, x, y, z, owner)
         if not on_a.any():
             continue
         for axis, edge, outward in (('x', a.x0_m, -1.0), ('x', a.x1_m, 1.0),
@@ -231,9 +193,5 @@ def _ledges(x: np.ndarray, y: np.ndarray, z: np.ndarray, owner: np.ndarray,
 
 def _is_drop(a: Patch, b: Patch, rules: TruthRules) -> bool:
     """Return True when b touches a and lies lower than it by more than a step down."""
-    x0, x1 = max(a.x0_m, b.x0_m), min(a.x1_m, b.x1_m)
-    y0, y1 = max(a.y0_m, b.y0_m), min(a.y1_m, b.y1_m)
-    if x0 > x1 + TOUCH_M or y0 > y1 + TOUCH_M:
-        return False
-    xs = np.array([v for v in (x0, x1) if math.isfinite(v)] or [0.0])
-    return bool((b.z_at(xs) - a.z_at(xs)).max() < -rules.max_step_down_m)
+    dz = _rise(a, b)
+    return dz is not None and bool(dz.max() < -rules.max_step_down_m)

@@ -1,9 +1,4 @@
-"""Pictures of a result: the depth frame with obstacles marked, and the costmap seen from above.
-
-Pure numpy (OpenCV only to draw the robot marker); no ROS import. Both return RGB uint8 images
-ready for ``conversions.array_to_image(..., encoding='rgb8')`` or ``cv2.imwrite`` (after
-RGB -> BGR).
-"""
+"""Pictures of a result: the depth frame with obstacles marked, the costmap from above (RGB)."""
 
 from __future__ import annotations
 
@@ -34,15 +29,9 @@ ROBOT_RGB = (220, 0, 0)
 
 def render_overlay(depth_m: np.ndarray, labels: np.ndarray, *,
                    max_depth_m: float | None = None) -> np.ndarray:
-    """Draw the depth frame in grey with obstacle pixels marked (the seed's figures 4.22-4.27).
+    """Draw the depth frame in grey (dark near, white at ``max_depth_m``), obstacles red over it.
 
-    depth_m: (H, W) float [m], 0 / NaN / inf = no return. labels: (H, W) pipeline LABEL_* values;
-    pixels labelled LABEL_OBSTACLE are OBSTACLE_RGB over their grey (:func:`obstacle_colours`).
-    Other valid pixels are grey, dark near
-    and bright far (as in the seed's figure 4.1), scaled so that ``max_depth_m`` (None = the
-    frame's farthest valid depth) is white; pixels without a return are black.
-
-    Returns (H, W, 3) uint8 RGB.
+    No return is black. Returns (H, W, 3) uint8 RGB.
     """
     depth = np.asarray(depth_m, dtype=np.float32)
     labels = np.asarray(labels)
@@ -71,32 +60,18 @@ def obstacle_colours(grey: np.ndarray) -> np.ndarray:
     return (red * OBSTACLE_ALPHA + grey * (1.0 - OBSTACLE_ALPHA)).round().astype(np.uint8)
 
 
-def is_obstacle_rgb(rgb: np.ndarray) -> np.ndarray:
-    """Return (...) bool: which RGB pixels (..., 3) are obstacle-coloured (red over grey)."""
-    rgb = np.asarray(rgb, np.int16)
-    red, green, blue = rgb[..., 0], rgb[..., 1], rgb[..., 2]
-    return (green == blue) & (np.abs(red - green - OBSTACLE_ALPHA * 255) <= 1.0)
-
-
 def costmap_pixel_of(costmap: Costmap, x_m: float, y_m: float, *,
                      scale: int = 4) -> tuple[float, float]:
-    """(column, row) in ``render_costmap``'s image of the ground-frame point (x, y) [m].
-
-    Fractional: the image's pixel (c, r) covers [c, c + 1) x [r, r + 1).
-    """
+    """Fractional (column, row) in ``render_costmap``'s image of the ground point (x, y) [m]."""
     col_cells = (costmap.origin_xy_m[1] + costmap.height * costmap.resolution_m - y_m)
     row_cells = (costmap.origin_xy_m[0] + costmap.width * costmap.resolution_m - x_m)
     return (col_cells / costmap.resolution_m * scale, row_cells / costmap.resolution_m * scale)
 
 
 def render_costmap(costmap: Costmap, *, scale: int = 4, draw_robot: bool = True) -> np.ndarray:
-    """Draw the costmap seen from above, x (forward) up and y (left) to the left.
+    """Draw the costmap from above (x forward up, y left to the left), ``scale`` px a cell.
 
-    Each cell becomes ``scale x scale`` pixels: OCCUPIED_RGB for 100, FREE_RGB for 0, a blend
-    for 1..99, UNKNOWN_RGB for -1. If ``draw_robot``, a ROBOT_RGB disc marks the ground-frame
-    origin (the camera's foot point), clamped into the image when it lies outside the grid.
-
-    Returns (height * scale, width * scale, 3) uint8 RGB, i.e. (nx * scale, ny * scale, 3).
+    ``draw_robot``: a disc at the origin, clamped into the image. Returns RGB uint8.
     """
     if scale < 1:
         raise ValueError(f'scale={scale} must be >= 1')

@@ -1,15 +1,6 @@
 """Pictures of what the detector saw, without ROS running: PNG panels and contact sheets.
 
-One panel per frame: on the left the depth frame with obstacle pixels marked (the seed's
-figures 4.22-4.27, drawn by ``overlay.render_overlay``), on the right the costmap seen from
-above (figure 4.23, ``overlay.render_costmap``), optionally a third panel comparing the
-obstacle pixels with a ground truth, and a caption band underneath (frame name, obstacle
-count, time). A sequence becomes a contact sheet, a grid of captioned thumbnails.
-
-Frames come from a depth PNG with an intrinsics YAML (``evaluation.camera.read_camera_yaml``), a
-scene of the generator, a labelled folder, or a ROS 2 bag (:func:`bag_frames`).
-
-All images are RGB uint8; :func:`write_png` converts to OpenCV's BGR when writing.
+All images are RGB uint8; how they are drawn: docs/pictures.md.
 """
 
 from __future__ import annotations
@@ -43,8 +34,6 @@ _GAP_PX = 6
 TEXT_SCALE = 0.5
 #: Font scale of a picture's title (drawn twice, a pixel apart: bold).
 TITLE_SCALE = 0.6
-#: Smallest height of a capital letter [px] at TEXT_SCALE.
-MIN_TEXT_PX = 11
 #: A costmap panel's grid is at most this share of the depth image's width.
 GRID_WIDTH_SHARE = 1.2
 
@@ -54,14 +43,6 @@ def _text_size(text: str, scale: float) -> tuple[int, int]:
     return width, height + baseline
 
 
-def text_height_px(scale: float = TEXT_SCALE) -> int:
-    """Height [px] of the ink of a capital letter ('H') written at ``scale``."""
-    image = np.zeros((100, 100), np.uint8)
-    cv2.putText(image, 'H', (10, 80), _FONT, scale, 255, 1, cv2.LINE_AA)
-    rows = np.flatnonzero((image > 100).any(axis=1))
-    return int(rows[-1] - rows[0] + 1)
-
-
 def title_band(title: str, width: int) -> np.ndarray:
     """(h, width, 3) uint8 RGB: the title in bold on white, wrapped to the width."""
     lines = _wrap([title], width, TITLE_SCALE)
@@ -69,8 +50,7 @@ def title_band(title: str, width: int) -> np.ndarray:
     band = np.full((line_h * len(lines) + 8, width, 3), BACKGROUND_RGB, dtype=np.uint8)
     for i, line in enumerate(lines):
         for dx in (4, 5):
-            cv2.putText(band, line, (dx, 4 + line_h * (i + 1) - 8), _FONT, TITLE_SCALE, TEXT_RGB,
-                        1, cv2.LINE_AA)
+            _put(band, line, (dx, 4 + line_h * (i + 1) - 8), scale=TITLE_SCALE)
     return band
 
 
@@ -84,12 +64,7 @@ def titled(image: np.ndarray, title: str, *, below: np.ndarray | None = None) ->
 
 
 def fit_width(render: Any, width: int, *, smallest: float = 0.2) -> np.ndarray:
-    """Return ``render(image_scale)`` for the largest image scale <= 1 whose result fits ``width``.
-
-    render: image_scale -> RGB picture whose rasters (depth, costmap) are scaled and whose text
-    is not; the picture is padded white on the right to ``width``. Scales tried in steps of
-    0.05 down to ``smallest`` (which is returned even when too wide).
-    """
+    """Return ``render(image_scale)`` for the largest scale <= 1 (0.05 steps) fitting ``width``."""
     scale = 1.0
     while True:
         picture = render(scale)
@@ -101,18 +76,14 @@ def fit_width(render: Any, width: int, *, smallest: float = 0.2) -> np.ndarray:
 
 
 def caption_band(lines: Sequence[str], width: int, *, scale: float = 0.5) -> np.ndarray:
-    """(h, width, 3) uint8 RGB: the text lines on a white band, left aligned.
-
-    Lines longer than the band are shortened with '...' so that nothing is cut mid-glyph.
-    """
+    """(h, width, 3) uint8 RGB: the text lines on a white band, too long ones cut with '...'."""
     line_h = _text_size('Ag', scale)[1] + 4
     band = np.full((line_h * len(lines) + 6, width, 3), BACKGROUND_RGB, dtype=np.uint8)
     for i, line in enumerate(lines):
         text = line
         while text and _text_size(text, scale)[0] > width - 8:
             text = text[:-4] + '...' if len(text) > 4 else ''
-        cv2.putText(band, text, (4, 3 + line_h * (i + 1) - 6), _FONT, scale, TEXT_RGB, 1,
-                    cv2.LINE_AA)
+        _put(band, text, (4, 3 + line_h * (i + 1) - 6), scale=scale)
     return band
 
 
@@ -129,11 +100,7 @@ def join_panels(panels: Sequence[np.ndarray], *, gap_px: int = _GAP_PX) -> np.nd
 
 def truth_comparison(labels: np.ndarray, truth_labels: np.ndarray,
                      depth_m: np.ndarray, *, max_depth_m: float | None = None) -> np.ndarray:
-    """(H, W, 3) uint8 RGB: grey depth with obstacle hits red, false alarms orange, misses blue.
-
-    labels: pipeline ``LABEL_*``; truth_labels: ``GT_*``. A miss is a truth obstacle pixel the
-    pipeline called ground; pixels the pipeline made no call on keep their grey.
-    """
+    """(H, W, 3) RGB: grey depth with obstacle hits red, false alarms orange, misses blue."""
     base = render_overlay(depth_m, np.zeros_like(labels), max_depth_m=max_depth_m)
     called = (labels == LABEL_OBSTACLE) | (labels == LABEL_GROUND)
     truth_obstacle = (truth_labels == GT_OBSTACLE)
@@ -157,19 +124,12 @@ ABOVE_ROBOT_RGB = (0, 150, 255)
 HATCH_RGB = (70, 70, 70)
 VIEW_EDGE_RGB = (200, 0, 200)
 AXIS_RGB = (60, 60, 60)
-_SMALL = TEXT_SCALE
 
 
 def depth_overlay(depth_m: np.ndarray, labels: np.ndarray, *,
                   max_depth_m: float | None = None,
                   above_robot: np.ndarray | None = None) -> np.ndarray:
-    """(H, W, 3) uint8 RGB: ``overlay.render_overlay`` with the region of interest shown.
-
-    Obstacle pixels red over their grey, pixels the pipeline called ground (inside the region
-    of interest) the depth grey tinted green, those of them in ``above_robot`` ((H, W) bool,
-    :func:`above_robot_pixels`) tinted blue instead, pixels outside the region the plain
-    depth grey (dark near, bright far), no return black.
-    """
+    """(H, W, 3) RGB: ``render_overlay`` with ground tinted green, ``above_robot`` blue."""
     rgb = render_overlay(depth_m, labels, max_depth_m=max_depth_m)
     ground = np.asarray(labels) == LABEL_GROUND
     above = np.zeros_like(ground) if above_robot is None else ground & above_robot
@@ -181,13 +141,7 @@ def depth_overlay(depth_m: np.ndarray, labels: np.ndarray, *,
 
 
 def above_robot_pixels(result: Any, params: Any) -> np.ndarray | None:
-    """(H, W) bool: pixels whose voxel stands higher than the robot above its local ground.
-
-    Robot level only (``params.robot_level``; None otherwise, or without the result's
-    ``voxel_height_m``). The pipeline labels such pixels ground (they do not block the robot);
-    this tells them apart for the pictures, from the per-voxel height and
-    ``params.robot_height_m``, without changing the result.
-    """
+    """(H, W) bool: ground pixels whose voxel is higher than the robot (robot level, else None)."""
     heights = getattr(result, 'voxel_height_m', None)
     if params is None or not getattr(params, 'robot_level', False) or heights is None:
         return None
@@ -211,7 +165,7 @@ def _ticks(low: float, high: float, step: float) -> np.ndarray:
     return np.round(np.arange(first, high + 1e-9, step), 6)
 
 
-def _put(image: np.ndarray, text: str, org: tuple[int, int], *, scale: float = _SMALL,
+def _put(image: np.ndarray, text: str, org: tuple[int, int], *, scale: float = TEXT_SCALE,
          colour: tuple[int, int, int] = TEXT_RGB, anchor: str = 'left') -> None:
     """Write text with its baseline at org; anchor 'left', 'centre' or 'right'."""
     width = _text_size(text, scale)[0]
@@ -227,12 +181,7 @@ def _cell_image(mask_yx: np.ndarray, scale: int) -> np.ndarray:
 
 def floor_in_view(costmap: Any, params: Any, intrinsics: Intrinsics,
                   image_shape: tuple[int, int]) -> np.ndarray:
-    """(ny, nx) bool: cells whose centre, on the ground, the camera sees (inside the image).
-
-    The ground point (x, y, 0) of each cell centre is moved into the optical frame through the
-    mount (``geometry.mount_transform``) and projected with the intrinsics; cells outside the
-    image (below the lower edge of the view, beside it) are the grid's blind cells.
-    """
+    """(ny, nx) bool: cells whose centre, on the ground, the camera sees (inside the image)."""
     from obstacle_detection.pipeline.geometry import mount_transform
 
     xs, ys = costmap.cell_centres()
@@ -262,16 +211,10 @@ def costmap_panel(costmap: Any, *, scale: int = 4, params: Any = None,
                   image_shape: tuple[int, int] | None = None,
                   robot_pose: tuple[float, float, float] = (0.0, 0.0, 0.0),
                   axis_names: tuple[str, str] = ('x forward [m]', 'y left [m]')) -> np.ndarray:
-    """Return the costmap seen from above with metre axes, the camera and its view.
+    """Return the costmap seen from above with metre axes, the camera and its view (RGB).
 
-    The grid is ``overlay.render_costmap`` (x forward up, y left to the left, ``scale`` px per
-    cell) inside axes ticked in metres: x (forward) on the left, y (left positive) below. A red
-    triangle at x = y = 0 is the camera's foot point, pointing forward. With ``params``, cells
-    outside the region of interest are hatched; with ``params``, ``intrinsics`` and
-    ``image_shape`` too, a magenta line bounds the floor the camera can see (unknown cells
-    outside it were never in view). robot_pose: (x, y, yaw) of the triangle in the grid's frame
-    (a fused grid in odom: the robot's pose there); axis_names: the axes' labels. Returns RGB
-    uint8.
+    With ``params`` cells outside the region of interest are hatched; with ``intrinsics`` and
+    ``image_shape`` too, a magenta line bounds the floor in view. robot_pose: (x, y, yaw).
     """
     grid = render_costmap(costmap, scale=scale, draw_robot=False)
     if params is not None:
@@ -284,12 +227,12 @@ def costmap_panel(costmap: Any, *, scale: int = 4, params: Any = None,
                                            cv2.CHAIN_APPROX_SIMPLE)
             cv2.drawContours(grid, contours, -1, VIEW_EDGE_RGB, 2 if scale >= 3 else 1)
     grid_h, grid_w = grid.shape[:2]
-    line_h = _text_size('Ag', _SMALL)[1]
-    tick_w = _text_size('-10.0', _SMALL)[0]
+    line_h = _text_size('Ag', TEXT_SCALE)[1]
+    tick_w = _text_size('-10.0', TEXT_SCALE)[0]
     left, top = tick_w + 12, line_h + 8
     marker = max(6, scale * 2)
     bottom = marker + 2 * line_h + 12
-    right = _text_size('-10.0', _SMALL)[0] // 2 + 4
+    right = _text_size('-10.0', TEXT_SCALE)[0] // 2 + 4
     panel = np.full((top + grid_h + bottom, left + grid_w + right, 3), BACKGROUND_RGB,
                     dtype=np.uint8)
     panel[top:top + grid_h, left:left + grid_w] = grid
@@ -345,20 +288,17 @@ def _swatch(image: np.ndarray, x: int, y: int, size: int, kind: str,
 
 def legend(title: str, items: Sequence[tuple[str, tuple[int, int, int], str]],
            width: int) -> np.ndarray:
-    """(h, width, 3) RGB: a bold-ish title line, then symbol + text items wrapped to width.
-
-    items: (kind, colour, text), kind one of 'box', 'hatch', 'line', 'triangle'.
-    """
-    line_h = _text_size('Ag', _SMALL)[1] + 6
+    """(h, width, 3) RGB: a title, then (kind, colour, text) items wrapped to width."""
+    line_h = _text_size('Ag', TEXT_SCALE)[1] + 6
     size = line_h - 8
     rows: list[list[tuple[str, tuple[int, int, int], str]]] = [[]]
     used = 4
     for kind, colour, text in items:
         # an item wider than the legend goes on rows of its own, its text wrapped
-        lines = _wrap([text], width - size - 6, _SMALL) if \
-            size + 20 + _text_size(text, _SMALL)[0] > width else [text]
+        lines = _wrap([text], width - size - 6, TEXT_SCALE) if \
+            size + 20 + _text_size(text, TEXT_SCALE)[0] > width else [text]
         for k, line in enumerate(lines):
-            need = size + 6 + _text_size(line, _SMALL)[0] + 14
+            need = size + 6 + _text_size(line, TEXT_SCALE)[0] + 14
             if rows[-1] and (used + need > width or len(lines) > 1):
                 rows.append([])
                 used = 4
@@ -372,18 +312,15 @@ def legend(title: str, items: Sequence[tuple[str, tuple[int, int, int], str]],
         for kind, colour, text in row:
             _swatch(band, x, y, size, kind, colour)
             _put(band, text, (x + size + 6, y + size))
-            x += size + 6 + _text_size(text, _SMALL)[0] + 14
+            x += size + 6 + _text_size(text, TEXT_SCALE)[0] + 14
     return band
 
 
 def depth_colour_bar(max_depth_m: float, width: int) -> np.ndarray:
-    """(h, width, 3) RGB: the depth grey ramp of ``render_overlay`` ticked in metres.
-
-    Black (no return) on the left, then MIN_GREY at 0 m to white at ``max_depth_m``.
-    """
-    line_h = _text_size('Ag', _SMALL)[1]
+    """(h, width, 3) RGB: the depth grey ramp of ``render_overlay`` ticked in metres."""
+    line_h = _text_size('Ag', TEXT_SCALE)[1]
     label = 'depth [m]'
-    left = _text_size(label, _SMALL)[0] + 12
+    left = _text_size(label, TEXT_SCALE)[0] + 12
     bar_w = max(8, width - left - 16)
     band = np.full((line_h * 2 + 20, width, 3), BACKGROUND_RGB, dtype=np.uint8)
     ramp = (MIN_GREY + np.linspace(0.0, 1.0, bar_w) * (255 - MIN_GREY)).round()
@@ -418,20 +355,10 @@ def side_by_side(result: Any, *, caption: str = '', truth_labels: np.ndarray | N
                  max_depth_m: float | None = None, labels: np.ndarray | None = None,
                  costmap: Any = None, extra_lines: Sequence[str] = (), params: Any = None,
                  with_legend: bool = True, image_scale: float = 1.0) -> np.ndarray:
-    """Return the panel picture of one ``DetectionResult``.
+    """Return the panel picture of one ``DetectionResult``: depth, costmap, truth, caption.
 
-    Layout: ``[depth (H x W) | costmap | truth comparison (optional)]``, each with its legend
-    underneath (with_legend), over a caption band. The depth panel (:func:`depth_overlay`)
-    occupies exactly rows ``0:H`` and columns ``0:W`` of the returned image; its legend has a
-    colour bar of the depth in metres. The costmap panel (:func:`costmap_panel`) has metre
-    axes and the camera; with ``params`` (the parameters the result was made with) it also
-    shows the region of interest and the floor in the camera's view.
-    labels / costmap: draw these instead of the result's (e.g. a refined result's).
-    The caption's second line gives the obstacle pixel and voxel counts and the pipeline
-    time; long lines are wrapped. image_scale: the depth and truth panels scaled by it (the
-    costmap drawn to their height), the text not (:func:`fit_width`); at 1 the depth panel
-    occupies rows ``0:H`` and columns ``0:W``. Returns (H + legends + band, W_total, 3) uint8
-    RGB.
+    The depth panel occupies rows ``0:H`` and columns ``0:W`` at image_scale 1. labels / costmap:
+    draw these instead of the result's; params: show the region of interest and the view.
     """
     labels = result.labels if labels is None else labels
     costmap = result.costmap if costmap is None else costmap
@@ -447,11 +374,9 @@ def side_by_side(result: Any, *, caption: str = '', truth_labels: np.ndarray | N
     if image_scale != 1.0:
         height, width = (max(1, round(n * image_scale)) for n in depth_m.shape)
         panels = [cv2.resize(p, (width, height), interpolation=cv2.INTER_AREA) for p in panels]
-    # the grid as high as the depth image (its axes below it) and not much wider
-    scale = max(1, min(int(GRID_WIDTH_SHARE * width) // max(costmap.height, 1),
-                       height // max(costmap.width, 1)))
     intrinsics = getattr(result, 'intrinsics', None)
-    panels.insert(1, costmap_panel(costmap, scale=scale, params=params, intrinsics=intrinsics,
+    panels.insert(1, costmap_panel(costmap, scale=_grid_scale(costmap, height, width),
+                                   params=params, intrinsics=intrinsics,
                                    image_shape=depth_m.shape))
     top = join_panels(panels)
     parts = [top]
@@ -469,6 +394,12 @@ def side_by_side(result: Any, *, caption: str = '', truth_labels: np.ndarray | N
     return np.vstack(parts)
 
 
+def _grid_scale(costmap: Any, height: int, width: int) -> int:
+    """Pixels a cell: the grid as high as an image (axes below) and not much wider."""
+    return max(1, min(int(GRID_WIDTH_SHARE * width) // max(costmap.height, 1),
+                      height // max(costmap.width, 1)))
+
+
 def _roi_text(params: Any) -> str:
     if params is None:
         return 'outside the region of interest'
@@ -479,12 +410,7 @@ def _roi_text(params: Any) -> str:
 
 def legend_row(widths: Sequence[int], max_depth_m: float, *, truth: bool,
                params: Any = None, above_robot: bool = False) -> np.ndarray:
-    """Return the legends of the panels side by side, padded to one height.
-
-    widths: of the depth, costmap (and truth) panels [px]; max_depth_m: the white end of the
-    depth colour bar; params: name the region of interest and show its hatching;
-    above_robot: list the surfaces above the robot (robot level).
-    """
+    """Return the legends of the panels (``widths`` [px]) side by side, padded to one height."""
     roi_text = _roi_text(params)
     depth_items = [('box', over_grey(OBSTACLE_RGB, OBSTACLE_ALPHA), 'obstacle'),
                    ('box', over_grey(GROUND_RGB, GROUND_TINT), 'ground (passable)')]
@@ -523,12 +449,7 @@ def over_grey(colour: tuple[int, int, int], share: float,
 
 def contact_sheet(images: Sequence[np.ndarray], *, labels: Sequence[str] | None = None,
                   columns: int = 4, thumb_width: int = 400) -> np.ndarray:
-    """Return a grid of RGB thumbnails, each ``thumb_width`` wide with an optional label below.
-
-    An image wider than ``thumb_width`` is scaled down, text included: draw pictures with text
-    at the size they are shown (:func:`fit_width`) and keep this for rasters. A narrower image
-    is padded white. Returns (rows * cell_h, columns * thumb_width, 3) uint8 RGB.
-    """
+    """Return a grid of RGB thumbnails ``thumb_width`` wide (wider ones scaled), labels below."""
     if not images:
         raise ValueError('contact sheet of no images')
     if columns < 1 or thumb_width < 8:
@@ -544,15 +465,7 @@ def contact_sheet(images: Sequence[np.ndarray], *, labels: Sequence[str] | None 
         if labels is not None:
             thumb = np.vstack([thumb, caption_band([labels[i]], thumb_width, scale=TEXT_SCALE)])
         thumbs.append(thumb)
-    cell_h = max(t.shape[0] for t in thumbs) + _GAP_PX
-    cell_w = thumb_width + _GAP_PX
-    columns = min(columns, len(thumbs))
-    rows = -(-len(thumbs) // columns)
-    sheet = np.full((rows * cell_h, columns * cell_w, 3), BACKGROUND_RGB, dtype=np.uint8)
-    for i, thumb in enumerate(thumbs):
-        r, c = divmod(i, columns)
-        sheet[r * cell_h:r * cell_h + thumb.shape[0], c * cell_w:c * cell_w + thumb_width] = thumb
-    return sheet
+    return tile(thumbs, columns=columns)
 
 
 def write_png(path: str | Path, rgb: np.ndarray) -> None:
@@ -582,12 +495,10 @@ def heatmap(scores: np.ndarray, x_labels: Sequence[str], y_labels: Sequence[str]
             title: str = '', x_name: str = '', y_name: str = '', vmin: float = 0.0,
             vmax: float = 1.0, best: tuple[int, int] | None = None,
             values: np.ndarray | None = None, cell_px: int = 64) -> np.ndarray:
-    """Return a score grid drawn as a coloured table with the value written in each cell.
+    """Return a score grid (ny, nx) as a coloured table with the value in each cell (RGB).
 
-    scores: (ny, nx) float, NaN = not run / invalid (drawn grey, '-'); row 0 is drawn at the
-    top; colours: OpenCV's viridis from ``vmin`` (dark) to ``vmax`` (yellow); best: (row, col)
-    outlined in red; values: numbers to write instead of ``scores`` (e.g. when the colour
-    shows 1 - a false-alarm rate). Returns RGB uint8.
+    NaN: grey '-'; viridis from ``vmin`` to ``vmax``; best: (row, col) outlined in red; values:
+    numbers to write instead of ``scores``.
     """
     scores = np.asarray(scores, dtype=np.float64)
     values = scores if values is None else np.asarray(values, dtype=np.float64)
@@ -615,26 +526,23 @@ def heatmap(scores: np.ndarray, x_labels: Sequence[str], y_labels: Sequence[str]
             text = '-' if np.isnan(values[r, c]) else f'{values[r, c]:.2f}'
             tw, th = _text_size(text, TEXT_SCALE)
             ink = (0, 0, 0) if np.isnan(value) or scaled[r, c] > 0.6 else (255, 255, 255)
-            cv2.putText(image, text, (x0 + (cell_px - tw) // 2, y0 + (cell_px + th) // 2 - 3),
-                        _FONT, TEXT_SCALE, ink, 1, cv2.LINE_AA)
-        tw, th = _text_size(y_labels[r], TEXT_SCALE)
-        cv2.putText(image, y_labels[r], (left - tw - 6, top + r * cell_px + (cell_px + th) // 2),
-                    _FONT, TEXT_SCALE, TEXT_RGB, 1, cv2.LINE_AA)
+            _put(image, text, (x0 + (cell_px - tw) // 2, y0 + (cell_px + th) // 2 - 3), colour=ink)
+        th = _text_size(y_labels[r], TEXT_SCALE)[1]
+        _put(image, y_labels[r], (left - 6, top + r * cell_px + (cell_px + th) // 2),
+             anchor='right')
     for c in range(nx):
         tw, th = _text_size(x_labels[c], TEXT_SCALE)
-        cv2.putText(image, x_labels[c],
-                    (left + c * cell_px + (cell_px - tw) // 2, top + ny * cell_px + th + 2),
-                    _FONT, TEXT_SCALE, TEXT_RGB, 1, cv2.LINE_AA)
+        _put(image, x_labels[c],
+             (left + c * cell_px + (cell_px - tw) // 2, top + ny * cell_px + th + 2))
     if best is not None:
         r, c = best
         cv2.rectangle(image, (left + c * cell_px, top + r * cell_px),
                       (left + (c + 1) * cell_px - 1, top + (r + 1) * cell_px - 1),
                       (230, 0, 0), 3)
     axis_y = top + ny * cell_px + 2 * (_text_size('Ag', TEXT_SCALE)[1] + 4)
-    cv2.putText(image, x_name, (left, axis_y), _FONT, TEXT_SCALE, TEXT_RGB, 1, cv2.LINE_AA)
-    cv2.putText(image, y_name, (4, top - 6), _FONT, TEXT_SCALE, TEXT_RGB, 1, cv2.LINE_AA)
-    cv2.putText(image, title, (4, _text_size('Ag', 0.5)[1] + 2), _FONT, 0.5, TEXT_RGB, 1,
-                cv2.LINE_AA)
+    _put(image, x_name, (left, axis_y))
+    _put(image, y_name, (4, top - 6))
+    _put(image, title, (4, _text_size('Ag', 0.5)[1] + 2), scale=0.5)
     return image
 
 
@@ -673,11 +581,7 @@ def costmap_legend(width: int) -> np.ndarray:
 
 
 def node_outputs_legend(widths: Sequence[int]) -> np.ndarray:
-    """Return the legend row under a picture of the node's outputs (:func:`node_outputs`).
-
-    widths: of the overlay and costmap panels [px], and of the fused costmap's when there is
-    one.
-    """
+    """Return the legend row under :func:`node_outputs` (panel widths [px])."""
     parts = [overlay_legend(widths[0]), costmap_legend(widths[1])]
     if len(widths) > 2:
         parts.append(legend('obstacles/fused_costmap, odom [m]', [
@@ -695,12 +599,7 @@ def node_outputs(overlay: np.ndarray, costmap: Any, *, caption: Sequence[str],
                  ) -> tuple[np.ndarray, np.ndarray]:
     """Return the picture of one frame of the node's outputs, and its costmap panel alone.
 
-    Layout: ``[overlay image | costmap | fused costmap (optional)]`` over a caption band and
-    the legends (:func:`node_outputs_legend`). The costmap panel shows the region of interest
-    and the floor in view when ``params`` (the node's DetectorParams) and ``intrinsics`` are
-    given; the fused costmap (odom axes) the robot at ``robot_pose`` (x [m], y [m], yaw [rad]).
-    image_scale: the overlay scaled by it and the grids drawn to its height, the text not (a
-    thumbnail that stays readable); with_legend: False leaves the legends out.
+    image_scale: the overlay scaled by it, the grids drawn to its height, the text not.
     """
     image_shape = overlay.shape[:2]
     if image_scale != 1.0:
@@ -708,15 +607,12 @@ def node_outputs(overlay: np.ndarray, costmap: Any, *, caption: Sequence[str],
                 max(1, round(overlay.shape[0] * image_scale)))
         overlay = cv2.resize(overlay, size, interpolation=cv2.INTER_AREA)
     height, width = overlay.shape[:2]
-    scale = max(1, min(height // max(costmap.width, 1),
-                       int(GRID_WIDTH_SHARE * width) // max(costmap.height, 1)))
-    grid_rgb = costmap_panel(costmap, scale=scale, params=params, intrinsics=intrinsics,
-                             image_shape=image_shape)
+    grid_rgb = costmap_panel(costmap, scale=_grid_scale(costmap, height, width), params=params,
+                             intrinsics=intrinsics, image_shape=image_shape)
     panels = [overlay, grid_rgb]
     if fused is not None:
-        fused_scale = max(1, min(height // max(fused.width, 1),
-                                 int(GRID_WIDTH_SHARE * width) // max(fused.height, 1)))
-        panels.append(costmap_panel(fused, scale=fused_scale, robot_pose=robot_pose,
+        panels.append(costmap_panel(fused, scale=_grid_scale(fused, height, width),
+                                    robot_pose=robot_pose,
                                     axis_names=('x [m], odom', 'y [m], odom')))
     row = join_panels(panels)
     parts = [row, caption_band(_wrap(caption, row.shape[1]), row.shape[1])]

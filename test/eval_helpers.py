@@ -1,0 +1,62 @@
+"""Test-only helpers of the evaluation and pictures: labelled folders, obstacle colours, text."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Iterable
+
+import cv2
+import numpy as np
+
+from obstacle_detection.evaluation import camera as camera_file
+from obstacle_detection.evaluation.runner import LabelledFrame
+from obstacle_detection.pipeline.params import Intrinsics
+from obstacle_detection.viz.overlay import OBSTACLE_ALPHA
+from obstacle_detection.viz.pictures import TEXT_SCALE
+
+#: Smallest height of a capital letter [px] at TEXT_SCALE.
+MIN_TEXT_PX = 11
+
+
+def write_camera_yaml(path: str | Path, intrinsics: Intrinsics, height_m: float,
+                      pitch_rad: float, roll_rad: float) -> None:
+    """Write ``intrinsics.yaml`` of a labelled folder (angles in degrees)."""
+    Path(path).write_text(camera_file.camera_yaml_text(
+        intrinsics, comment='obstacle_detection labelled folder: pinhole intrinsics [px] and '
+        'camera mount', height_m=height_m, pitch_deg=math.degrees(pitch_rad),
+        roll_deg=math.degrees(roll_rad)), encoding='utf-8')
+
+
+def save_labelled_folder(frames: Iterable[LabelledFrame], path: str | Path) -> int:
+    """Write frames as a labelled folder; returns the frame count."""
+    root = Path(path)
+    (root / 'depth').mkdir(parents=True, exist_ok=True)
+    (root / 'labels').mkdir(parents=True, exist_ok=True)
+    count = 0
+    for count, frame in enumerate(frames, start=1):
+        if count == 1:
+            write_camera_yaml(root / 'intrinsics.yaml', frame.intrinsics, frame.height_m,
+                              frame.pitch_rad, frame.roll_rad)
+        depth = frame.depth
+        if depth.dtype != np.uint16:
+            depth = np.clip(np.nan_to_num(depth * 1000.0), 0, 65535).round().astype(np.uint16)
+        cv2.imwrite(str(root / 'depth' / f'{count - 1:06d}.png'), depth)
+        cv2.imwrite(str(root / 'labels' / f'{count - 1:06d}.png'),
+                    frame.truth_labels.astype(np.uint8))
+    return count
+
+
+def is_obstacle_rgb(rgb: np.ndarray) -> np.ndarray:
+    """Return (...) bool: which RGB pixels (..., 3) are obstacle-coloured (red over grey)."""
+    rgb = np.asarray(rgb, np.int16)
+    red, green, blue = rgb[..., 0], rgb[..., 1], rgb[..., 2]
+    return (green == blue) & (np.abs(red - green - OBSTACLE_ALPHA * 255) <= 1.0)
+
+
+def text_height_px(scale: float = TEXT_SCALE) -> int:
+    """Height [px] of the ink of a capital letter ('H') written at ``scale``."""
+    image = np.zeros((100, 100), np.uint8)
+    cv2.putText(image, 'H', (10, 80), cv2.FONT_HERSHEY_SIMPLEX, scale, 255, 1, cv2.LINE_AA)
+    rows = np.flatnonzero((image > 100).any(axis=1))
+    return int(rows[-1] - rows[0] + 1)
