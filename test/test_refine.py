@@ -7,7 +7,8 @@ import pytest
 
 from obstacle_detection.labels import LABEL_GROUND, LABEL_NO_RETURN, LABEL_OBSTACLE
 from obstacle_detection.pipeline import refine
-from obstacle_detection.pipeline.refine import FEATURE_NAMES, LogisticRefiner, ModelFileError
+from obstacle_detection.pipeline.depth import DepthFormatError
+from obstacle_detection.pipeline.refine import FEATURE_NAMES, LogisticRefiner
 
 
 def _known_model_data(n=20000, seed=0):
@@ -95,7 +96,7 @@ def test_model_file_with_other_features_is_refused(tmp_path):
     model = LogisticRefiner((0.0,) * 10, (0.0,) * 9, (1.0,) * 9)
     data = model.to_dict()
     data['features'] = data['features'][:-1]
-    with pytest.raises(ModelFileError, match='features'):
+    with pytest.raises(DepthFormatError, match='features'):
         LogisticRefiner.from_dict(data)
 
 

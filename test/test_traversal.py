@@ -14,7 +14,7 @@ import pytest
 
 from obstacle_detection.labels import CELL_OCCUPIED, CELL_UNKNOWN, LABEL_GROUND, LABEL_OBSTACLE
 from obstacle_detection.evaluation import runner as evaluation
-from obstacle_detection.pipeline import floor, geometry, jit, traversal
+from obstacle_detection.pipeline import floor, geometry, traversal
 from obstacle_detection.pipeline._compiled import traversal as jit_traversal
 from obstacle_detection.pipeline.params import corridor, table_4_2
 from obstacle_detection.pipeline.detector import Detector
@@ -278,7 +278,8 @@ def ledge_marks(parts, reached_flags, *, step=0.05):
     reached = np.concatenate([np.full(len(p), r) for p, r in zip(parts, reached_flags)])
     steep = np.zeros(len(pts), bool)
     above = pts[:, 2] > 1.0
-    return pts, traversal.ledges(pts, steep, reached, above, LEDGE_CELL, step, step)
+    return pts, traversal.ledges(pts, steep, reached, above, LEDGE_CELL, step, step,
+                                 traversal.LEDGE_SHADOW_CELLS)
 
 
 @pytest.mark.parametrize('rise', [0.18, 0.10])
@@ -416,9 +417,7 @@ def test_traversal_kernels_equal_numpy(both_paths):
     both_paths(geometry.ground_rays, (424, 512), intr, params)
 
 
-@pytest.mark.numba
-def test_ledge_kernel_equals_numpy(monkeypatch):
-    from obstacle_detection.pipeline._compiled import ledges as jit_ledges
+def test_ledge_kernel_equals_numpy(both_paths):
     rng = np.random.default_rng(22)
     marked = 0
     for trial in range(20):
@@ -428,12 +427,8 @@ def test_ledge_kernel_equals_numpy(monkeypatch):
         steep = rng.random(n) < 0.2
         reached = rng.random(n) < 0.6
         above = pts[:, 2] > 1.0
-        got = jit_ledges.ledges(pts, steep, reached, above, 0.05, 0.05, 0.05,
-                                traversal.LEDGE_SHADOW_CELLS)
-        monkeypatch.setenv(jit.NO_JIT_ENV, '1')
-        want = traversal.ledges(pts, steep, reached, above, 0.05, 0.05, 0.05)
-        monkeypatch.delenv(jit.NO_JIT_ENV)
-        np.testing.assert_array_equal(got, want, err_msg=f'trial {trial}')
+        want = both_paths(traversal.ledges, pts, steep, reached, above, 0.05, 0.05, 0.05,
+                          traversal.LEDGE_SHADOW_CELLS)
         marked += int(want.sum())
     assert marked > 100
 

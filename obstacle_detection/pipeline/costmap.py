@@ -1,8 +1,4 @@
-"""Costmap generation (seed section 4.3.6): obstacles projected onto the ground plane.
-
-The grid uses nav_msgs/OccupancyGrid's layout: ``data[row, col]`` with the row along the
-ground frame's y axis and the column along x, row-major, cell (0, 0) at ``origin_xy_m``.
-"""
+"""Costmap generation (seed 4.3.6): points projected onto the ground plane (OccupancyGrid)."""
 
 from __future__ import annotations
 
@@ -19,11 +15,7 @@ from .params import DetectorParams
 
 @dataclass(frozen=True)
 class Costmap:
-    """A 2-D grid in the ground plane.
-
-    data: (ny, nx) int8 with CELL_* values; resolution_m [m/cell]; origin_xy_m: ground-frame
-    (x, y) [m] of the outer corner of cell (0, 0) (its minimum x and y).
-    """
+    """A ground-plane grid: data (ny, nx) int8 CELL_*, rows along y, origin_xy_m a corner."""
 
     data: np.ndarray
     resolution_m: float
@@ -54,11 +46,7 @@ class Costmap:
 
 
 def costmap_geometry(params: DetectorParams) -> tuple[tuple[float, float], int, int]:
-    """(origin_xy_m, nx, ny) of the grid, in the base frame.
-
-    x from the camera's foot point (camera_x_m; 0 for a camera above the base origin) forward,
-    y centred on the camera (camera_y_m).
-    """
+    """(origin_xy_m, nx, ny) of the grid in the base frame: ahead of the camera, centred on it."""
     res = params.costmap_resolution_m
     nx = max(1, int(np.ceil(params.costmap_length_m / res - 1e-9)))
     ny = max(1, int(np.ceil(params.costmap_width_m / res - 1e-9)))
@@ -69,10 +57,7 @@ def costmap_geometry(params: DetectorParams) -> tuple[tuple[float, float], int, 
 def _reference_rasterise(flat: np.ndarray, points: np.ndarray, value: int,
                          origin_xy_m: tuple[float, float], resolution_m: float, nx: int,
                          ny: int) -> None:
-    """Write ``value`` into the cells of ``flat`` ((ny * nx,) int8) that ``points`` hit.
-
-    points: (M, >= 2) ground frame [m]; points outside the nx x ny grid are ignored.
-    """
+    """Write ``value`` into the cells of ``flat`` ((ny * nx,) int8) that ``points`` hit."""
     grid = Costmap(flat.reshape(ny, nx), resolution_m, origin_xy_m)
     row, col, inside = grid.cell_of(points)
     flat[row[inside] * nx + col[inside]] = value
@@ -89,12 +74,7 @@ rasterise = jit.choose(_reference_rasterise, jit_costmap.rasterise, accepts=_flo
 
 def build_costmap(obstacle_points: np.ndarray, ground_points: np.ndarray,
                   params: DetectorParams) -> Costmap:
-    """Project points orthogonally onto the ground plane (seed: p(x, y, z) -> p(x, y)).
-
-    obstacle_points, ground_points: (M, 3) ground frame [m]. Cells hit by an obstacle point are
-    CELL_OCCUPIED, cells hit only by ground points CELL_FREE, the rest CELL_UNKNOWN. Points
-    outside the grid are ignored.
-    """
+    """Grid of the points: CELL_OCCUPIED where an obstacle point fell, else CELL_FREE / UNKNOWN."""
     origin, nx, ny = costmap_geometry(params)
     grid = Costmap(np.full((ny, nx), CELL_UNKNOWN, dtype=np.int8),
                    params.costmap_resolution_m, origin)

@@ -1,32 +1,8 @@
-"""The fused local costmap: per-frame costmaps accumulated over time in the odometry frame.
+"""The fused local costmap: per-frame costmaps accumulated as log-odds in the odometry frame.
 
-Each frame's costmap (:class:`.costmap.Costmap`, robot base frame, cells 100 / 0 / -1) is
-evidence about the cells it saw: an occupied cell adds ``hit_log_odds`` to the log-odds of the
-odometry-frame cell it covers, a free cell (ground seen) adds ``miss_log_odds`` (negative), an
-unknown cell adds nothing; the sum is clamped to ``[min_log_odds, max_log_odds]``. So an
-obstacle stays marked after it leaves the view or enters the sensor's blind zone (a Kinect v2
-sees nothing closer than 0.5 m), and a cell clears once the ground is seen where the obstacle
-was (a person who walked away).
-
-The grid is a square window of the odometry frame (``odom``) centred on the robot: cell
-(row, col) covers ``x in origin_x + [col, col + 1) * res``, ``y in origin_y + [row, row + 1)
-* res`` (OccupancyGrid layout, as :mod:`.costmap`), its origin a whole multiple of the
-resolution. When the robot moves, the window scrolls by whole cells; cells that leave it are
-forgotten, new ones start unknown (log-odds 0). A frame is moved into the window by sampling
-its costmap at the base-frame position of every window cell centre (nearest cell), and its
-occupied cells are also splatted (each occupied cell centre marks the window cell it falls in),
-so that no obstacle cell is lost between the two lattices when the robot has turned. All numpy,
-no per-cell Python loop.
-
-Odometry: ``FusedGrid.update(costmap, pose)`` takes the base pose in odom, (x [m], y [m],
-yaw [rad]), at the frame's time (:class:`PoseBuffer` interpolates it from the odometry
-messages). ``pose=None`` (no odometry: a static camera, a bag without odometry) fuses in place
-at the last pose used. A pose older than the last one used is ignored (fused in place). A pose
-that jumps farther than ``max_jump_m`` / ``max_jump_deg`` from the last one in one frame is an
-odometry reset: the map is re-anchored on the new pose as if the robot had stood still (its
-evidence is kept relative to the robot; only cells the re-anchored window no longer covers are
-lost). Each update returns a :class:`FusionUpdate` that says what happened and, when the node
-should log something, a message (once per change of state, not every frame).
+A square window of ``odom`` centred on the robot, scrolled by whole cells as it moves; each
+frame adds evidence at its odometry pose (:class:`PoseBuffer`), or in place without one. The
+rules, the defaults and their measurement: docs/fused_costmap.md.
 """
 
 from __future__ import annotations
@@ -50,18 +26,11 @@ Pose = tuple[float, float, float]
 
 @dataclass(frozen=True)
 class FusionParams:
-    """Parameters of the fused costmap (log-odds evidence per frame, window geometry).
+    """Parameters of the fused costmap (docs/fused_costmap.md); ValueError when out of range.
 
-    size_m: side of the square window centred on the robot [m]; resolution_m: cell size
-    [m/cell]. hit_log_odds (> 0) is added to a cell a frame sees occupied, miss_log_odds
-    (< 0) to one it sees free; the sum is clamped to [min_log_odds, max_log_odds]. A cell is
-    published occupied when its log-odds >= occupied_log_odds, free when <= free_log_odds,
-    unknown between. With the defaults (chosen on the sequences, see the README) an obstacle
-    is marked at its first hit on an unknown cell (1.0 >= 0.5) and at the second on ground
-    seen free (-1 + 2 = 1), a cell at the upper clamp clears after 5 frames of seen ground
-    (2.4 - 5 * 0.4 = 0.4 < 0.5), and one false hit on free ground never shows (-1 + 1 = 0).
-    max_jump_m, max_jump_deg: a pose change between two consecutive frames beyond either is
-    an odometry reset.
+    A frame adds hit_log_odds to a cell it sees occupied, miss_log_odds to one seen free,
+    clamped to [min_log_odds, max_log_odds]; published occupied at >= occupied_log_odds, free
+    at <= free_log_odds. A pose jump beyond max_jump_m or max_jump_deg is an odometry reset.
     """
 
     size_m: float = 4.0
@@ -126,13 +95,8 @@ class FusionParams:
 class FusionUpdate:
     """What one :meth:`FusedGrid.update` did, for the node's log and diagnostics.
 
-    pose: the base pose in odom the frame was fused at. in_place: no usable pose came with
-    the frame (``reason`` says why) and it was fused at the last pose used. shift_cells:
-    (columns, rows) the window scrolled. cells_forgotten: cells holding evidence that left
-    the window (scrolled out, or not covered after a reset). reset: an odometry jump
-    re-anchored the map. hit_cells, miss_cells: window cells the frame marked occupied /
-    free. message: a line for the log when the state changed (odometry lost, back, reset,
-    an old pose), '' otherwise; warning: True when that line is a warning.
+    in_place: fused at the last pose used (``reason`` says why); cells_forgotten: cells with
+    evidence that left the window; message: a log line when the state changed, else ''.
     """
 
     pose: Pose
@@ -170,12 +134,9 @@ def frame_evidence(costmap: Costmap, pose: Pose, origin_cell: tuple[int, int],
                    ) -> tuple[np.ndarray, np.ndarray]:
     """Where a per-frame costmap puts evidence in an odom window: (hit, miss) (ny, nx) bool.
 
-    costmap: the frame's grid in the base frame; pose: base in odom (x, y, yaw); the window's
-    cell (0, 0) is odom-lattice cell ``origin_cell`` = (column, row), i.e. its corner is at
-    ``origin_cell * resolution_m``; cells = (nx, ny). A window cell is a miss when its centre,
-    moved into the base frame, falls in a free cell of the costmap, and a hit when it falls in
-    an occupied one or when the centre of an occupied costmap cell falls in it (splat). hit
-    and miss never overlap.
+    The window's cell (0, 0) is odom-lattice cell ``origin_cell`` (column, row); cells:
+    (nx, ny). A window cell's centre sampled in the costmap (base frame at ``pose``), and
+    the occupied costmap cells' centres splatted into the window, so none is lost.
     """
     nx, ny = cells
     res = float(resolution_m)
@@ -209,10 +170,7 @@ def frame_evidence(costmap: Costmap, pose: Pose, origin_cell: tuple[int, int],
 
 
 def _shifted(grid: np.ndarray, d_col: int, d_row: int) -> np.ndarray:
-    """Return the window content after its origin moved by (d_col, d_row) cells.
-
-    new[r, c] = old[r + d_row, c + d_col]; cells from outside the old window are 0.
-    """
+    """Return ``new[r, c] = old[r + d_row, c + d_col]``, 0 from outside the old window."""
     ny, nx = grid.shape
     out = np.zeros_like(grid)
     if abs(d_col) >= nx or abs(d_row) >= ny:
@@ -226,10 +184,9 @@ def _shifted(grid: np.ndarray, d_col: int, d_row: int) -> np.ndarray:
 
 
 class FusedGrid:
-    """A rolling log-odds grid centred on the robot in the odometry frame.
+    """A rolling log-odds grid centred on the robot in the odometry frame (one thread).
 
-    ``update(costmap, pose)`` per frame, then ``to_costmap()`` for the OccupancyGrid (frame
-    odom). Not thread-safe: call it from one thread (the node's worker).
+    ``update(costmap, pose)`` per frame, then ``to_costmap()`` for the OccupancyGrid in odom.
     """
 
     def __init__(self, params: FusionParams | None = None) -> None:
@@ -240,9 +197,6 @@ class FusedGrid:
         self._pose: Pose | None = None          # last pose used (None: none yet)
         self._pose_stamp_s: float | None = None
         self._in_place_kind: str | None = None   # why the last frame fused in place, '' if not
-        self._frames = 0
-
-    # -- geometry ---------------------------------------------------------------------------
 
     @property
     def resolution_m(self) -> float:
@@ -287,8 +241,6 @@ class FusedGrid:
         n = self.params.cells
         return row, col, (col >= 0) & (col < n) & (row >= 0) & (row < n)
 
-    # -- output -----------------------------------------------------------------------------
-
     def cell_states(self) -> np.ndarray:
         """(n, n) int8: 100 occupied, 0 free, -1 unknown, from the log-odds thresholds."""
         p = self.params
@@ -308,15 +260,6 @@ class FusedGrid:
         out[inside] = self.cell_states()[row[inside], col[inside]]
         return out
 
-    # -- update -----------------------------------------------------------------------------
-
-    def clear(self) -> None:
-        """Forget all evidence and the pose (a parameter change, a new map)."""
-        self._log_odds[:] = 0.0
-        self._pose = None
-        self._pose_stamp_s = None
-        self._in_place_kind = None
-
     def _scroll_to(self, origin: tuple[int, int]) -> tuple[tuple[int, int], int]:
         """Move the window's origin to ``origin``; return (shift, cells with evidence lost)."""
         d_col = origin[0] - self._origin_cell[0]
@@ -329,12 +272,7 @@ class FusedGrid:
         return (d_col, d_row), before - int(np.count_nonzero(self._log_odds))
 
     def _reanchor(self, old: Pose, new: Pose) -> int:
-        """Re-express the map in a new odom frame where the robot is at ``new`` (was ``old``).
-
-        Assumes the robot did not move across the jump: each new window cell takes the
-        log-odds of the old cell at the same place relative to the robot (nearest cell).
-        Returns the number of cells with evidence before minus after (cells lost).
-        """
+        """Re-express the map with the robot at ``new`` (was ``old``, not moved); cells lost."""
         n = self.params.cells
         res = self.params.resolution_m
         origin = self._centred_origin(new[0], new[1])
@@ -357,15 +295,11 @@ class FusedGrid:
 
     def update(self, costmap: Costmap, pose: Pose | None, *,
                pose_stamp_s: float | None = None, no_pose_reason: str = '') -> FusionUpdate:
-        """Fuse one frame's costmap (base frame) taken at base pose ``pose`` in odom.
+        """Fuse one frame's costmap (base frame) taken at base pose ``pose`` (x, y, yaw) in odom.
 
-        pose: (x [m], y [m], yaw [rad]) or None (no odometry: fuse in place at the last pose
-        used, or at the odom origin before any). pose_stamp_s: the pose's time [s]; a pose
-        older than the last one used is ignored (fused in place). no_pose_reason: why
-        ``pose`` is None, for the message (e.g. :meth:`PoseBuffer.pose_at`'s reason; default
-        'no odometry'). Fusing in place is said once per cause (missing, invalid or old pose)
-        until a pose is used again. Raises ValueError when ``costmap`` is not a 2-D int8 grid
-        with a positive resolution.
+        pose None (no_pose_reason says why), invalid, or older than the last one used
+        (pose_stamp_s): fused in place, said once per cause. ValueError for a costmap that is
+        not a 2-D int8 grid with a positive resolution.
         """
         data = np.asarray(costmap.data)
         if data.ndim != 2 or data.dtype != np.int8:
@@ -420,7 +354,6 @@ class FusedGrid:
         grid[hit] += np.float32(p.hit_log_odds)
         grid[miss] += np.float32(p.miss_log_odds)
         np.clip(grid, np.float32(p.min_log_odds), np.float32(p.max_log_odds), out=grid)
-        self._frames += 1
         return FusionUpdate(pose=used, in_place=bool(reason) and not reset, shift_cells=shift,
                             cells_forgotten=forgotten + scrolled_out, reset=reset,
                             hit_cells=int(np.count_nonzero(hit)),
@@ -429,13 +362,10 @@ class FusedGrid:
 
 
 class PoseBuffer:
-    """Recent odometry poses by time; gives the pose at a frame's stamp.
+    """Recent odometry poses by time (thread-safe); the pose at a frame's stamp.
 
-    ``add(stamp_s, pose)`` from the odometry callback; ``pose_at(stamp_s)`` interpolates
-    (linear in x, y, shortest way in yaw) between the two poses around the stamp, holds the
-    newest one for a frame up to ``max_age_s`` newer than it (odometry late), and returns
-    (None, reason) for a frame beyond that, older than the buffer, or before any odometry.
-    Thread-safe: the odometry callback may add while the frame worker reads.
+    ``pose_at`` interpolates, holds the newest pose up to ``max_age_s`` late, and gives
+    (None, reason) beyond that, before the buffer or before any odometry.
     """
 
     def __init__(self, max_age_s: float = 0.2, capacity: int = 256) -> None:
@@ -450,11 +380,6 @@ class PoseBuffer:
     def __len__(self) -> int:
         with self._lock:
             return len(self._items)
-
-    def clear(self) -> None:
-        """Forget every pose (an odometry reset seen by the node)."""
-        with self._lock:
-            self._items.clear()
 
     def add(self, stamp_s: float, pose: Pose) -> str:
         """Store a pose; return '' or why it was refused (not finite, older than the newest)."""

@@ -1,8 +1,7 @@
-"""Back-projection, the camera mount transform and the region of interest.
+"""Frames and rotations, back-projection and the region of interest.
 
-Frames (DESIGN.md): the depth image is in the camera optical frame (x right, y down, z forward);
-the pipeline works in the ground frame (x forward, y left, z up) whose origin is on the ground
-right under the camera's optical centre.
+Optical frame: x right, y down, z forward; ground frame: x forward, y left, z up, its origin
+on the ground under the optical centre.
 """
 
 from __future__ import annotations
@@ -23,11 +22,9 @@ OPTICAL_TO_BODY = np.array([[0.0, 0.0, 1.0],
 
 
 def mount_rotation(pitch_rad: float, roll_rad: float) -> np.ndarray:
-    """Rotation (3, 3) float64 taking optical-frame vectors to ground-frame vectors.
+    """Rotation (3, 3) optical -> ground frame: ``R_y(pitch) @ R_x(roll) @ OPTICAL_TO_BODY``.
 
-    ``R = R_y(pitch) @ R_x(roll) @ OPTICAL_TO_BODY``. Positive pitch turns the optical axis
-    down towards the ground (a rotation about the ground frame's +y, left, axis); positive roll
-    turns the camera about its optical axis so that the image's right side goes down.
+    Positive pitch looks down; positive roll lowers the image's right side.
     """
     cp, sp = math.cos(pitch_rad), math.sin(pitch_rad)
     cr, sr = math.cos(roll_rad), math.sin(roll_rad)
@@ -37,10 +34,7 @@ def mount_rotation(pitch_rad: float, roll_rad: float) -> np.ndarray:
 
 
 def mount_angles(rotation: np.ndarray) -> tuple[float, float, float]:
-    """(roll, pitch, yaw) [rad] of ``rotation`` (3, 3), optical-frame vectors to a body frame.
-
-    The inverse of ``R = R_z(yaw) @ mount_rotation(pitch, roll)``: pitch in [-pi/2, pi/2].
-    """
+    """(roll, pitch, yaw) [rad] of ``R = R_z(yaw) @ mount_rotation(pitch, roll)``."""
     body = np.asarray(rotation, dtype=np.float64) @ OPTICAL_TO_BODY.T   # R_z R_y R_x
     pitch = -math.asin(max(-1.0, min(1.0, float(body[2, 0]))))
     roll = math.atan2(float(body[2, 1]), float(body[2, 2]))
@@ -56,11 +50,7 @@ def quaternion_matrix(x: float, y: float, z: float, w: float) -> np.ndarray:
 
 
 def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
-    """Yaw [rad] (rotation about z) of a quaternion, e.g. nav_msgs/Odometry's orientation.
-
-    For a robot on the floor (roll = pitch = 0) this is its heading; otherwise the heading of
-    its x axis projected on the floor.
-    """
+    """Yaw [rad] of a quaternion: the heading of its x axis projected on the floor."""
     return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 
@@ -71,11 +61,7 @@ def mount_transform(height_m: float, pitch_rad: float, roll_rad: float,
 
 
 def pixel_rays(shape: tuple[int, int], intrinsics: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
-    """Per-column and per-row ray slopes: ``x/z = (u - cx)/fx`` (W,), ``y/z = (v - cy)/fy`` (H,).
-
-    These are the seed's section 4.3.2 equations ``x = (j - cx) z / f``, ``y = (i - cy) z / f``
-    with the depth z factored out. float32.
-    """
+    """float32 ray slopes ``(u - cx)/fx`` (W,) and ``(v - cy)/fy`` (H,) (seed 4.3.2)."""
     height, width = shape
     ru = (np.arange(width, dtype=np.float32) - np.float32(intrinsics.cx)) / np.float32(
         intrinsics.fx)
@@ -86,12 +72,7 @@ def pixel_rays(shape: tuple[int, int], intrinsics: Intrinsics) -> tuple[np.ndarr
 
 def back_project(depth_m: np.ndarray, intrinsics: Intrinsics,
                  ) -> tuple[np.ndarray, np.ndarray]:
-    """Back-project the valid pixels of a depth image into the optical frame.
-
-    depth_m: (H, W) float32 metres, 0 = no return.
-    Returns ``(points, pixel_index)``: points (M, 3) float32 optical frame [m] for the M pixels
-    with depth > 0, and pixel_index (M,) int64, their flat indices into the (H, W) image.
-    """
+    """(points (M, 3) float32 optical frame, flat pixel indices (M,)) of the depths > 0."""
     flat = depth_m.reshape(-1)
     pixel_index = np.flatnonzero(flat > 0.0)
     z = flat[pixel_index]
@@ -117,12 +98,8 @@ def to_ground(points_optical: np.ndarray, params: DetectorParams) -> np.ndarray:
 class GroundRays:
     """Ground-frame rays of every pixel of one mount, kept as their factors (no table).
 
-    The ray of pixel (i, j) is ``(rot[:, 0] * ru[j] + rot[:, 1] * rv[i]) + rot[:, 2]``, in
-    float32 (ru, rv: :func:`pixel_rays`; rot: the mount's rotation in float32), scaled so that
-    depth 1 m travels it: ``p_ground = depth * ray + (0, 0, height)``. The compiled kernels
-    compute it on the fly with these float32 operations (a (3, H*W) table is 2.6 MB at
-    512 x 424, its memory traffic costs more than the arithmetic); :meth:`table` gives the
-    table (kept once made) for the numpy path.
+    Pixel (i, j): ``(rot[:, 0] * ru[j] + rot[:, 1] * rv[i]) + rot[:, 2]`` in float32, so that
+    ``p_ground = depth * ray + (0, 0, height)``; the compiled kernels compute it where read.
     """
 
     __slots__ = ('ru', 'rv', 'rot', '_table')
@@ -139,10 +116,7 @@ class GroundRays:
         return self.rv.size, self.ru.size
 
     def table(self, out: np.ndarray | None = None) -> np.ndarray:
-        """Return the (3, H*W) float32 rays of every flat pixel index (made once).
-
-        out: a (3, H*W) float32 array the compiled path fills instead of a new one.
-        """
+        """Return the (3, H*W) float32 rays of every flat pixel index (made once; out: to fill)."""
         if self._table is None:
             self._table = _ray_table(self.ru, self.rv, self.rot, out)
         return self._table
@@ -168,10 +142,7 @@ class GroundRays:
 
 def _reference_ground_rays(ru: np.ndarray, rv: np.ndarray, rot: np.ndarray,
                            out: np.ndarray | None = None) -> np.ndarray:
-    """(3, H*W) float32 rays ``rot[a, 0] * ru[j] + rot[a, 1] * rv[i] + rot[a, 2]``.
-
-    ru (W,), rv (H,), rot (3, 3) float32. out: a (3, H*W) float32 array to fill.
-    """
+    """(3, H*W) float32 rays ``rot[a, 0] * ru[j] + rot[a, 1] * rv[i] + rot[a, 2]`` (numpy)."""
     if out is None or out.shape != (3, rv.size * ru.size) or out.dtype != np.float32:
         out = np.empty((3, rv.size * ru.size), np.float32)
     rays = out.reshape(3, rv.size, ru.size)
@@ -193,13 +164,7 @@ def ray_model(shape: tuple[int, int], intrinsics: Intrinsics,
 
 def ground_rays(shape: tuple[int, int], intrinsics: Intrinsics, params: DetectorParams,
                 out: np.ndarray | None = None) -> np.ndarray:
-    """Ground-frame direction of every pixel's ray, scaled so that depth 1 m travels it.
-
-    Returns (3, H*W) float32: ``p_ground = depth * rays[:, pixel] + (0, 0, height)`` is the
-    back-projection (seed 4.3.2) followed by the camera mount, for a flat pixel index (the
-    table of :func:`ray_model`). out: a (3, H*W) float32 array the compiled path fills
-    instead of a new one.
-    """
+    """(3, H*W) float32 table of :func:`ray_model`'s rays (out: an array to fill)."""
     return ray_model(shape, intrinsics, params).table(out)
 
 
@@ -209,11 +174,7 @@ def rays_at(rays: np.ndarray | GroundRays, pixels: np.ndarray) -> np.ndarray:
 
 
 def roi_mask(points_ground: np.ndarray, params: DetectorParams) -> np.ndarray:
-    """Seed 4.3.3 region of interest: (M,) bool, True for points kept.
-
-    Kept: ``min_range <= x <= max_range``, ``|y| <= lateral_limit``,
-    ``tdbg <= z <= camera_height + smar`` (all bounds inclusive, ground frame [m]).
-    """
+    """Seed 4.3.3 region of interest: (M,) bool, the ground points within the bounds."""
     x, y, z = points_ground[:, 0], points_ground[:, 1], points_ground[:, 2]
     keep = (x >= params.min_range_m) & (x <= params.max_range_m)
     keep &= np.abs(y) <= params.lateral_limit_m
@@ -222,12 +183,9 @@ def roi_mask(points_ground: np.ndarray, params: DetectorParams) -> np.ndarray:
 
 
 def to_base_frame(points: np.ndarray, params: DetectorParams) -> np.ndarray:
-    """Move ground-frame points (origin under the camera) into the robot's base frame.
+    """Ground-frame points (M, 3) -> base frame: ``R_z(yaw) p + (x, y, 0)`` of the camera.
 
-    points: (M, 3) float32 [m], x forward, y left, z up on the ground under the camera. The
-    camera sits at (camera_x_m, camera_y_m) turned by camera_yaw_rad in the base frame:
-    ``p_base = R_z(yaw) p + (x, y, 0)``. A camera at the base origin facing forward (the
-    default) returns the points unchanged (the same array).
+    A camera at the base origin facing forward returns the same array.
     """
     x, y, yaw = params.camera_x_m, params.camera_y_m, params.camera_yaw_rad
     if x == 0.0 and y == 0.0 and yaw == 0.0:

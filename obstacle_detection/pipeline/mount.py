@@ -1,33 +1,8 @@
 """Estimate the camera mount (height, pitch, roll) from one depth frame by finding the floor.
 
-Real depth frames seldom come with the mount the pipeline needs to define its ground frame. The
-floor is usually in view, so the mount follows from the floor plane: fit it in the camera
-optical frame (x right, y down, z forward), then solve for the pitch and roll that turn its
-normal into the ground frame's up axis and take the optical centre's distance to it as the
-height, exactly in the convention of :func:`obstacle_detection.pipeline.geometry.mount_rotation`.
-
-Method (pure numpy, vectorised):
-
-1. back-project the valid pixels (:func:`geometry.back_project`), keep depth <= ``max_range_m``;
-2. RANSAC: draw many point triplets at once -- half anywhere in the image, half within a
-   small pixel window around an anchor (a triplet on one surface is then far more likely
-   when the floor is only a small part of the view) -- and score every candidate plane
-   against a subsample with one matrix product;
-3. keep the candidates whose upward normal lies within ``max_tilt_rad`` of the expected "up"
-   (optical -y, or the prior pitch's up), that hold at least ``min_inlier_fraction`` of the
-   points, and that have next to nothing *below* them (fewer points more than
-   ``2.5 * inlier_m`` beneath than a floor would need, and at most a tenth of their inliers):
-   a table or box top has the floor beneath it, the floor has only noise. This is the rule
-   "the floor is the farthest horizontal plane with enough support" without its weakness:
-   planes that cut the floor at a slight tilt reach farther than the floor on a strip of
-   its points but have the rest of it below them. The best supported survivor wins;
-4. refine by least squares (SVD) on its inliers until they no longer change.
-
-A frame without a plausible floor (too few points, no horizontal-ish plane with enough
-support, e.g. a wall filling the view) raises ValueError. Limits: a frame whose floor is
-hidden but which shows a large table top returns the table, and a frame looking over a drop
-(a step down, a stair) returns the lower floor when enough of it is in view: nothing in one
-frame tells them apart. Point the camera at open floor to calibrate.
+RANSAC on the back-projected points, keeping planes near the expected up with next to nothing
+below them, refined by least squares; the method and its limits: docs/method.md. A frame
+without a plausible floor raises ValueError.
 """
 
 from __future__ import annotations
@@ -54,14 +29,10 @@ MAX_BELOW_PER_INLIER = 0.1
 
 @dataclass(frozen=True)
 class MountEstimate:
-    """The camera mount found from the floor, in the pipeline's convention.
+    """The camera mount found from the floor (``geometry.mount_rotation``'s convention).
 
-    height_m: optical centre above the floor [m]; pitch_rad: positive looks down; roll_rad:
-    positive lowers the image's right side (``geometry.mount_rotation``).
-    inlier_fraction: share of the n_points within ``inlier_m`` of the floor plane.
-    normal_optical: (3,) unit floor normal in the optical frame, pointing up (towards the
-    camera); offset_m: the plane is ``normal_optical . p + offset_m = 0`` (equal to height_m).
-    n_points: valid points within range that the estimate used.
+    inlier_fraction: share of the n_points (valid, within range) within ``inlier_m`` of the
+    floor plane ``normal_optical . p + offset_m = 0`` (unit normal up, optical frame).
     """
 
     height_m: float
@@ -84,20 +55,15 @@ class MountEstimate:
 
 
 def floor_normal(pitch_rad: float, roll_rad: float) -> np.ndarray:
-    """(3,) float64 unit "up" vector in the optical frame of a camera with this mount.
-
-    The inverse of :func:`mount_from_plane`: ``mount_rotation(pitch, roll) @ n = (0, 0, 1)``,
-    i.e. ``n = (-sin(roll) cos(pitch), -cos(roll) cos(pitch), -sin(pitch))``.
-    """
+    """(3,) float64 unit "up" vector in the optical frame of a camera with this mount."""
     return mount_rotation(pitch_rad, roll_rad)[2].copy()
 
 
 def mount_from_plane(normal_optical: np.ndarray, offset_m: float) -> tuple[float, float, float]:
     """(height [m], pitch [rad], roll [rad]) of the camera above the plane ``n . p + d = 0``.
 
-    normal_optical: (3,) floor normal in the optical frame, any length, pointing up (towards
-    the camera, so that ``offset_m`` > 0 once normalised). Raises ValueError when the camera
-    is not above the plane or the plane is seen edge-on from above/below (|pitch| >= 90 deg).
+    normal_optical: any length, pointing up. ValueError when the camera is not above the
+    plane or |pitch| would be 90 deg.
     """
     n = np.asarray(normal_optical, dtype=np.float64)
     norm = float(np.linalg.norm(n))
@@ -128,11 +94,7 @@ def _check_depth(depth_m: np.ndarray) -> np.ndarray:
 
 def _triplets(pixel_index: np.ndarray, shape: tuple[int, int], n: int,
               rng: np.random.Generator) -> np.ndarray:
-    """(k, 3) int64 point indices: n // 2 global triplets and n - n // 2 local ones.
-
-    A local triplet has an anchor point and two partners drawn within a pixel window of a
-    sixteenth of the image's larger side around it; partners without a depth are dropped.
-    """
+    """(k, 3) int64 point indices: n // 2 triplets anywhere, the others in a pixel window."""
     m = pixel_index.size
     height, width = shape
     n_global = n // 2
@@ -153,10 +115,7 @@ def _triplets(pixel_index: np.ndarray, shape: tuple[int, int], n: int,
 
 
 def _candidate_planes(points: np.ndarray, triplets: np.ndarray) -> np.ndarray:
-    """(k, 4) float64 planes (unit n, d) through the triplets, n oriented so that d >= 0.
-
-    Degenerate (collinear) triplets are dropped.
-    """
+    """(k, 4) float64 planes (unit n, d >= 0) through the triplets, collinear ones dropped."""
     p0 = points[triplets[:, 0]].astype(np.float64)
     normals = np.cross(points[triplets[:, 1]] - p0, points[triplets[:, 2]] - p0)
     norms = np.linalg.norm(normals, axis=1)
@@ -187,26 +146,14 @@ def estimate_mount(depth_m: np.ndarray, intrinsics: Intrinsics, *, max_range_m: 
                    min_inlier_fraction: float = 0.03) -> MountEstimate:
     """Find the floor in a depth frame and return the camera mount above it.
 
-    depth_m: (H, W) float metres, 0 / NaN = no return. intrinsics: the frame's pinhole model.
-    max_range_m: points deeper than this (optical z) are left out (sensor noise grows with
-    depth). inlier_m: distance to a plane within which a point supports it [m].
-    iterations: candidate planes drawn (RANSAC). seed: of the random generator.
-    prior_pitch_rad: the expected pitch (roll 0): floor normals are then sought around its up
-    vector instead of around optical -y. max_tilt_rad: largest angle between a floor
-    candidate's normal and that expected up. min_inlier_fraction: least share of the points a
-    floor must hold. Raises ValueError for a bad argument or when no plausible floor is found.
+    depth_m: (H, W) float metres, 0 / NaN = no return; points deeper than max_range_m are
+    left out. inlier_m: a point within it supports a plane [m]; iterations: RANSAC planes
+    drawn. prior_pitch_rad: the expected pitch (roll 0) whose up the floor normal is sought
+    around (else optical -y), within max_tilt_rad; min_inlier_fraction: least share of the
+    points a floor holds. Raises ValueError for a bad argument or no plausible floor.
     """
-    for name, value in (('max_range_m', max_range_m), ('inlier_m', inlier_m)):
-        if not (math.isfinite(value) and value > 0.0):
-            raise ValueError(f'{name}={value!r} must be a finite number > 0')
-    if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
-        raise ValueError(f'iterations={iterations!r} must be an int >= 1')
-    if not 0.0 < max_tilt_rad < math.pi / 2:
-        raise ValueError(f'max_tilt_rad={max_tilt_rad!r} must be within (0, pi/2)')
-    if not 0.0 < min_inlier_fraction < 1.0:
-        raise ValueError(f'min_inlier_fraction={min_inlier_fraction!r} must be within (0, 1)')
-    if prior_pitch_rad is not None and not abs(prior_pitch_rad) < math.pi / 2:
-        raise ValueError(f'prior_pitch_rad={prior_pitch_rad!r} must be within (-pi/2, pi/2)')
+    _check_arguments(max_range_m, inlier_m, iterations, max_tilt_rad, min_inlier_fraction,
+                     prior_pitch_rad)
     depth = _check_depth(depth_m)
     depth[depth > max_range_m] = 0.0
     points, pixel_index = back_project(depth, intrinsics)
@@ -216,31 +163,8 @@ def estimate_mount(depth_m: np.ndarray, intrinsics: Intrinsics, *, max_range_m: 
                          f'{max_range_m} m, need {MIN_POINTS}')
     rng = np.random.default_rng(seed)
     up = floor_normal(0.0 if prior_pitch_rad is None else prior_pitch_rad, 0.0)
-
-    score = points[rng.choice(n_points, size=min(SCORE_POINTS, n_points), replace=False)]
-    score_h = np.column_stack([score, np.ones(len(score), dtype=np.float32)])
-    planes = _candidate_planes(points, _triplets(pixel_index, depth.shape, iterations, rng))
-    planes = planes[planes[:, :3] @ up >= math.cos(max_tilt_rad)]
-    if planes.shape[0] == 0:
-        raise ValueError('no plausible floor: no horizontal-ish plane below the camera (normal '
-                         f'within {math.degrees(max_tilt_rad):.0f} deg of up)')
-    # signed distance of every scoring point to every candidate, > 0 towards the camera
-    dist = planes.astype(np.float32) @ score_h.T
-    below = np.count_nonzero(dist < -BELOW_MARGIN_INLIERS * inlier_m, axis=1)
-    inliers = np.count_nonzero(np.abs(dist, out=dist) <= inlier_m, axis=1)
-    min_count = max(min_inlier_fraction * len(score), 3.0)
-    # a plane with as many points below it as a floor needs is a table or box top
-    plausible = (inliers >= min_count) & (below < min_count)
-    plausible &= below <= MAX_BELOW_PER_INLIER * inliers
-    if not plausible.any():
-        best = int(np.argmax(inliers))
-        raise ValueError(
-            'no plausible floor: no horizontal-ish plane with at least '
-            f'{min_inlier_fraction:.0%} of the points and nothing below it (the best '
-            f'horizontal-ish candidate holds {inliers[best] / len(score):.1%} of the points, '
-            f'{below[best] / len(score):.1%} lie below it)')
-    plane = planes[int(np.argmax(np.where(plausible, inliers, -1)))]
-
+    plane = _best_candidate(points, pixel_index, depth.shape, up, rng, inlier_m, iterations,
+                            max_tilt_rad, min_inlier_fraction)
     previous = None
     for _ in range(REFINE_ROUNDS):
         near = np.abs(points @ plane[:3].astype(np.float32) + np.float32(plane[3])) <= inlier_m
@@ -264,3 +188,51 @@ def estimate_mount(depth_m: np.ndarray, intrinsics: Intrinsics, *, max_range_m: 
                          inlier_fraction=fraction,
                          normal_optical=tuple(float(v) for v in plane[:3]),
                          offset_m=float(plane[3]), n_points=n_points)
+
+
+def _check_arguments(max_range_m: float, inlier_m: float, iterations: int,
+                     max_tilt_rad: float, min_inlier_fraction: float,
+                     prior_pitch_rad: float | None) -> None:
+    """Raise ValueError for a bad argument of :func:`estimate_mount`."""
+    for name, value in (('max_range_m', max_range_m), ('inlier_m', inlier_m)):
+        if not (math.isfinite(value) and value > 0.0):
+            raise ValueError(f'{name}={value!r} must be a finite number > 0')
+    if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
+        raise ValueError(f'iterations={iterations!r} must be an int >= 1')
+    if not 0.0 < max_tilt_rad < math.pi / 2:
+        raise ValueError(f'max_tilt_rad={max_tilt_rad!r} must be within (0, pi/2)')
+    if not 0.0 < min_inlier_fraction < 1.0:
+        raise ValueError(f'min_inlier_fraction={min_inlier_fraction!r} must be within (0, 1)')
+    if prior_pitch_rad is not None and not abs(prior_pitch_rad) < math.pi / 2:
+        raise ValueError(f'prior_pitch_rad={prior_pitch_rad!r} must be within (-pi/2, pi/2)')
+
+
+def _best_candidate(points: np.ndarray, pixel_index: np.ndarray, shape: tuple[int, int],
+                    up: np.ndarray, rng: np.random.Generator, inlier_m: float,
+                    iterations: int, max_tilt_rad: float,
+                    min_inlier_fraction: float) -> np.ndarray:
+    """(4,) the best supported RANSAC plane near ``up`` with next to nothing below it."""
+    n_points = points.shape[0]
+    score = points[rng.choice(n_points, size=min(SCORE_POINTS, n_points), replace=False)]
+    score_h = np.column_stack([score, np.ones(len(score), dtype=np.float32)])
+    planes = _candidate_planes(points, _triplets(pixel_index, shape, iterations, rng))
+    planes = planes[planes[:, :3] @ up >= math.cos(max_tilt_rad)]
+    if planes.shape[0] == 0:
+        raise ValueError('no plausible floor: no horizontal-ish plane below the camera (normal '
+                         f'within {math.degrees(max_tilt_rad):.0f} deg of up)')
+    # signed distance of every scoring point to every candidate, > 0 towards the camera
+    dist = planes.astype(np.float32) @ score_h.T
+    below = np.count_nonzero(dist < -BELOW_MARGIN_INLIERS * inlier_m, axis=1)
+    inliers = np.count_nonzero(np.abs(dist, out=dist) <= inlier_m, axis=1)
+    min_count = max(min_inlier_fraction * len(score), 3.0)
+    # a plane with as many points below it as a floor needs is a table or box top
+    plausible = (inliers >= min_count) & (below < min_count)
+    plausible &= below <= MAX_BELOW_PER_INLIER * inliers
+    if not plausible.any():
+        best = int(np.argmax(inliers))
+        raise ValueError(
+            'no plausible floor: no horizontal-ish plane with at least '
+            f'{min_inlier_fraction:.0%} of the points and nothing below it (the best '
+            f'horizontal-ish candidate holds {inliers[best] / len(score):.1%} of the points, '
+            f'{below[best] / len(score):.1%} lie below it)')
+    return planes[int(np.argmax(np.where(plausible, inliers, -1)))]

@@ -1,11 +1,6 @@
-"""Parameters of the obstacle-detection pipeline, validated on construction.
+"""Parameters of the pipeline, validated on construction (metres and radians), and presets.
 
-Every parameter of the seed thesis (chapter 4) is here under a descriptive name; the seed's own
-name is given in each field's description. Defaults are the seed's Table 4.2 values with the
-robot-level rules on (``robot_level``, floor refinement; not in the seed); the presets
-:func:`table_4_2` and :func:`table_4_3` are the seed method exactly (slope only), and
-:func:`corridor` is the navigation default. Units are metres and radians unless a name says
-otherwise.
+Each field's description names the seed's parameter; the defaults are :func:`corridor`'s.
 """
 
 from __future__ import annotations
@@ -18,11 +13,7 @@ from typing import Any
 
 @dataclass(frozen=True)
 class Intrinsics:
-    """Pinhole intrinsics of the depth camera [pixels].
-
-    The seed (section 4.3.2, Table 4.1) uses one focal length f for both axes; ROS CameraInfo
-    gives fx and fy separately, so both are kept.
-    """
+    """Pinhole intrinsics of the depth camera [pixels] (the seed's one f is fx = fy)."""
 
     fx: float
     fy: float
@@ -56,9 +47,8 @@ def _describe(text: str, **limits: Any) -> dict[str, Any]:
 class DetectorParams:
     """All parameters of the pipeline; construction raises ValueError naming a bad value.
 
-    Field metadata holds a ``description`` (with the seed's name) and the allowed range
-    (``min``/``max``, inclusive unless ``open_min``/``open_max``), which the ROS node turns
-    into parameter descriptors.
+    Field metadata: a ``description`` and the range (``min``/``max``, inclusive unless
+    ``open_min``/``open_max``), the ROS node's parameter descriptors.
     """
 
     # -- crop (seed 4.3.1 "Cropping step") [px]
@@ -227,11 +217,7 @@ class DetectorParams:
     def with_frame_mount(self, **changes: float) -> 'DetectorParams':
         """Return a copy with this frame's fitted mount or ROI floor set, not validated again.
 
-        For the pipeline's per frame changes only (camera_height_m, camera_pitch_rad,
-        camera_roll_rad from the floor fit, which keeps them within floor_max_offset_m and
-        floor_max_tilt_rad of this validated mount; tdbg_m = -drop_view_m, a validated
-        value): :meth:`replace` validates all the fields again, which costs more than the
-        copy itself, every frame.
+        For the pipeline's per-frame changes only (values kept in range by the floor fit).
         """
         allowed = {'camera_height_m', 'camera_pitch_rad', 'camera_roll_rad', 'tdbg_m'}
         if not set(changes) <= allowed:
@@ -274,12 +260,7 @@ SEED_METHOD = dict(robot_level=False, refine_floor=False)
 
 
 def table_4_2(**overrides: Any) -> DetectorParams:
-    """Return the seed's Table 4.2 parameters (DIML indoor scenes), the seed method exactly.
-
-    theta = pi/6, N1 = 12, N = 10, TDBG = -0.1, SMAR = 0.8, range 2 m, voxels 25 mm,
-    K = 17 (seed figure 4.8); slope only (``robot_level=False``, no floor refinement).
-    ``params/seed_table_4_2.yaml``.
-    """
+    """Return the seed's Table 4.2 parameters (K = 17, slope only): params/seed_table_4_2.yaml."""
     base = dict(max_slope_rad=math.pi / 6, validation_neighbours=12, normal_neighbours=10,
                 tdbg_m=-0.1, smar_m=0.8, max_range_m=2.0, median_kernel=17, **SEED_METHOD)
     base.update(overrides)
@@ -287,12 +268,7 @@ def table_4_2(**overrides: Any) -> DetectorParams:
 
 
 def table_4_3(**overrides: Any) -> DetectorParams:
-    """Return the seed's Table 4.3 parameters (corridor video, 512x424), with overrides.
-
-    theta = pi/3, N1 = 7, N = 5, TDBG = -0.1, SMAR = 0.8, range 1 m (seed figure 4.27),
-    K = 7 (seed figure 4.11); slope only. ``params/seed_table_4_3.yaml`` (and its older name
-    ``params/corridor_video.yaml``).
-    """
+    """Return the seed's Table 4.3 parameters (corridor video), ``params/seed_table_4_3.yaml``."""
     base = dict(max_slope_rad=math.pi / 3, validation_neighbours=7, normal_neighbours=5,
                 tdbg_m=-0.1, smar_m=0.8, max_range_m=1.0, median_kernel=7,
                 costmap_length_m=1.0, **SEED_METHOD)
@@ -301,12 +277,7 @@ def table_4_3(**overrides: Any) -> DetectorParams:
 
 
 def corridor(**overrides: Any) -> DetectorParams:
-    """Return the navigation default, ``params/corridor.yaml`` (= ``DetectorParams()``).
-
-    Table 4.2's values for the seed's parameters but a 5 x 5 median (as accurate at robot
-    level as the seed's 17 x 17, for a third of its time: ``docs/median.md``), with the
-    robot-level rules and the floor refinement on.
-    """
+    """Return the navigation default ``params/corridor.yaml``: Table 4.2, K = 5, robot level."""
     return table_4_2(**{'robot_level': True, 'refine_floor': True, 'median_kernel': 5,
                         **overrides})
 

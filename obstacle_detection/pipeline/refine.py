@@ -1,41 +1,8 @@
-"""Learned refinement of the obstacle pixels: the seed's section 4.5 logistic regression.
+"""The seed's section 4.5 logistic-regression refinement of the obstacle pixels.
 
-The seed (section 4.5) proposes to classify each pixel as obstacle or not from
-
-* its slope ``s = |cos(normal, up)|`` (here: the z component of the unit normal of the pixel's
-  voxel, ``|result.voxel_normals[result.pixel_voxel, 2]|``),
-* the depth gradient magnitude ``c`` (Sobel on the filtered depth ``result.depth_m``),
-* the obstacle states ``e_1 .. e_7`` of seven neighbours of the pixel in the previous frame,
-  the seed's ``V_{t-1}``: offsets (dx, dy) = (-1,-1), (-1,0), (0,-1), (0,0), (+1,0), (0,+1),
-  (+1,+1) in (column, row),
-
-with ``P(obstacle) = sigma(a0 + a1 s + a2 c + sum_k b_k e_k)`` fitted by maximum likelihood.
-The seed reports an accuracy of 0.83 after training on 10 frames.
-
-Choices made here (the seed leaves them open):
-
-* Samples are the pixels that have a voxel (``result.pixel_voxel >= 0``): the pixels the
-  rule-based pipeline made a call on. Other pixels are never predicted obstacle.
-* The "previous frame obstacle states" are the *rule-based* obstacle pixels of the previous
-  frame (``previous_result.labels == LABEL_OBSTACLE``, see :func:`obstacle_mask`), never the
-  refiner's own output, so that errors cannot feed back from frame to frame. Without a previous
-  frame (a still image, or the first frame of a stream) the current frame's rule-based mask
-  stands in for it, as for a camera that did not move. Training uses the same convention, so
-  training and use agree.
-* The gradient is ``|Sobel(depth)| / 8`` (metres per pixel, the 3x3 Sobel kernel's weight
-  divided out) clipped at :data:`GRADIENT_CLIP_M_PER_PX`, because next to holes (depth 0) it is
-  meaningless.
-* The continuous features are standardised (mean, scale kept in the model file); a tiny L2
-  penalty (not on the intercept) keeps the fit finite on separable data.
-
-The refined detection (:func:`refine_result`) keeps the pipeline's voxels: a voxel is an
-obstacle candidate when more than half of its pixels are predicted obstacle; the seed's
-validation step (an obstacle stays one only if its N1 nearest voxels are candidates too, as in
-the rule-based pipeline) then removes isolated candidates, and the costmap is rebuilt from the
-remaining obstacle voxels with ``costmap.build_costmap``. The refined pixel labels are the
-model's per-pixel decisions (what the seed's accuracy measures). Without the validation step
-the scattered pixel errors on the floor each mark a whole costmap cell: on the scenario suite
-the refined costmap then has several times the rule-based cell false alarms.
+``P(obstacle) = sigma(a0 + a1 s + a2 c + sum_k b_k e_k)`` per pixel with a voxel: s the slope
+of its voxel's normal, c the depth gradient, e_1..e_7 the previous frame's rule-based obstacle
+states of seven neighbours. Choices the seed leaves open: docs/method.md.
 """
 
 from __future__ import annotations
@@ -54,6 +21,7 @@ from scipy.optimize import minimize
 from scipy.special import expit
 
 from ..labels import GT_NO_RETURN, GT_OBSTACLE, LABEL_GROUND, LABEL_OBSTACLE
+from .depth import DepthFormatError
 from .params import DetectorParams
 
 #: Seed section 4.5 neighbours V_{t-1} as (dx, dy) = (column, row) offsets.
@@ -72,14 +40,6 @@ MODEL_FORMAT_VERSION = 1
 MODEL_KIND = 'obstacle_detection.pipeline.refine.LogisticRefiner'
 
 
-class ModelFileError(ValueError):
-    """A refiner model file is missing fields or does not match this code's features."""
-
-
-# --------------------------------------------------------------------------------------------
-# Features
-
-
 def obstacle_mask(result: Any) -> np.ndarray:
     """(H, W) bool rule-based obstacle pixels of a ``DetectionResult`` (next frame's V_{t-1})."""
     return np.asarray(result.labels) == LABEL_OBSTACLE
@@ -96,10 +56,7 @@ def slope_image(result: Any) -> np.ndarray:
 
 
 def gradient_image(depth_m: np.ndarray) -> np.ndarray:
-    """(H, W) float32 depth gradient magnitude [m/px]: ``|Sobel 3x3| / 8``, clipped.
-
-    depth_m: (H, W) float metres (0 = no return; the jump to 0 is clipped, not special-cased).
-    """
+    """(H, W) float32 depth gradient magnitude [m/px]: ``|Sobel 3x3| / 8``, clipped."""
     depth = np.asarray(depth_m, dtype=np.float32)
     gx = cv2.Sobel(depth, cv2.CV_32F, 1, 0, ksize=3, borderType=cv2.BORDER_REPLICATE)
     gy = cv2.Sobel(depth, cv2.CV_32F, 0, 1, ksize=3, borderType=cv2.BORDER_REPLICATE)
@@ -108,10 +65,7 @@ def gradient_image(depth_m: np.ndarray) -> np.ndarray:
 
 
 def neighbour_states(previous_mask: np.ndarray) -> np.ndarray:
-    """(H, W, 7) bool: ``previous_mask[y + dy, x + dx]`` for each seed neighbour offset.
-
-    Neighbours outside the image are False (not obstacle).
-    """
+    """(H, W, 7) bool: ``previous_mask[y + dy, x + dx]`` per neighbour offset (outside: False)."""
     prev = np.asarray(previous_mask, dtype=bool)
     height, width = prev.shape
     padded = np.zeros((height + 2, width + 2), dtype=bool)
@@ -124,13 +78,9 @@ def neighbour_states(previous_mask: np.ndarray) -> np.ndarray:
 
 def pixel_features(result: Any, previous_mask: np.ndarray | None = None,
                    ) -> tuple[np.ndarray, np.ndarray]:
-    """Seed 4.5 features of the pixels that have a voxel.
+    """(features (M, 9) float64 raw, pixel_index (M,) int64) of a result's pixels with a voxel.
 
-    result: a ``DetectionResult`` (uses pixel_voxel, voxel_normals, depth_m, labels);
-    previous_mask: (H, W) bool rule-based obstacle pixels of the previous frame, or None to use
-    this frame's own (see the module docstring).
-    Returns ``(features, pixel_index)``: features (M, 9) float64 in :data:`FEATURE_NAMES` order
-    (raw, not standardised), pixel_index (M,) int64 flat indices into (H, W).
+    previous_mask: the previous frame's rule-based obstacle pixels, or None for this frame's.
     """
     pixel_voxel = np.asarray(result.pixel_voxel)
     if previous_mask is None:
@@ -151,28 +101,17 @@ def pixel_features(result: Any, previous_mask: np.ndarray | None = None,
 def training_samples(result: Any, truth_labels: np.ndarray,
                      previous_mask: np.ndarray | None = None,
                      ) -> tuple[np.ndarray, np.ndarray]:
-    """(features (M, 9) float64, targets (M,) bool) for the pixels with a voxel and a truth.
-
-    truth_labels: (H, W) ``GT_*``; pixels whose truth is ``GT_NO_RETURN`` are dropped; the
-    target is ``truth == GT_OBSTACLE``.
-    """
+    """(features (M, 9), targets (M,) bool ``truth == GT_OBSTACLE``), GT_NO_RETURN dropped."""
     features, pixel_index = pixel_features(result, previous_mask)
     truth = np.asarray(truth_labels).reshape(-1)[pixel_index]
     keep = truth != GT_NO_RETURN
     return features[keep], truth[keep] == GT_OBSTACLE
 
 
-# --------------------------------------------------------------------------------------------
-# Maximum-likelihood fit
-
-
 def fit_logistic(features: np.ndarray, targets: np.ndarray, *, l2: float = 1e-3) -> np.ndarray:
-    """Maximum-likelihood logistic regression with a tiny L2 penalty (scipy's L-BFGS).
+    """Coefficients (D + 1,), intercept first, of an L2-penalised logistic fit (L-BFGS).
 
-    features: (M, D) float; targets: (M,) bool or 0/1. Minimises
-    ``-sum log P(y | x) + l2/2 * |w|^2`` (the intercept is not penalised) and returns the
-    coefficients (D + 1,) float64, intercept first. Raises ValueError on empty or mismatched
-    input or a non-finite feature.
+    features: (M, D); targets: (M,) bool. ValueError on empty, mismatched or non-finite input.
     """
     x = np.asarray(features, dtype=np.float64)
     y = np.asarray(targets, dtype=np.float64).reshape(-1)
@@ -199,18 +138,9 @@ def fit_logistic(features: np.ndarray, targets: np.ndarray, *, l2: float = 1e-3)
     return fit.x
 
 
-# --------------------------------------------------------------------------------------------
-# The model
-
-
 @dataclass(frozen=True)
 class LogisticRefiner:
-    """A fitted seed-4.5 model: ``P(obstacle) = sigma(w0 + sum_j w_j (x_j - mean_j) / scale_j)``.
-
-    coefficients: (10,) intercept first, on standardised features; feature_mean and
-    feature_scale: (9,) in :data:`FEATURE_NAMES` order; threshold: probability above which a
-    pixel is an obstacle.
-    """
+    """A fitted model: ``P(obstacle) = sigma(w0 + sum_j w_j (x_j - mean_j) / scale_j)``."""
 
     coefficients: tuple[float, ...]
     feature_mean: tuple[float, ...]
@@ -238,11 +168,7 @@ class LogisticRefiner:
     @classmethod
     def fit(cls, features: np.ndarray, targets: np.ndarray, *, l2: float = 1e-3,
             threshold: float = 0.5, **info: Any) -> 'LogisticRefiner':
-        """Standardise the continuous features (slope, gradient) and fit by maximum likelihood.
-
-        features: (M, 9) from :func:`pixel_features`/:func:`training_samples`; targets (M,).
-        Extra keyword arguments are stored as training information in the model file.
-        """
+        """Standardise slope and gradient and fit; ``info`` is stored in the model file."""
         x = np.asarray(features, dtype=np.float64)
         if x.ndim != 2 or x.shape[1] != len(FEATURE_NAMES):
             raise ValueError(f'features shape {x.shape}, expected (M, {len(FEATURE_NAMES)})')
@@ -274,21 +200,12 @@ class LogisticRefiner:
         return expit(self._log_odds(features))
 
     def predict(self, features: np.ndarray) -> np.ndarray:
-        """(M,) bool obstacle decision for raw features (M, 9).
-
-        sigmoid(z) > threshold is decided as z > logit(threshold): the same decision without
-        two exponentials per pixel (the threshold lies in (0, 1)).
-        """
+        """(M,) bool obstacle decision for raw features (M, 9): z > logit(threshold)."""
         return self._log_odds(features) > math.log(self.threshold / (1.0 - self.threshold))
 
     def predict_labels(self, result: Any, previous_mask: np.ndarray | None = None,
                        ) -> np.ndarray:
-        """(H, W) bool refined obstacle pixels of one ``DetectionResult``.
-
-        previous_mask: (H, W) bool rule-based obstacle pixels of the previous frame
-        (:func:`obstacle_mask` of the previous result), or None for a still image / first frame.
-        Pixels without a voxel are False.
-        """
+        """(H, W) bool refined obstacle pixels of a result (previous_mask: as pixel_features)."""
         features, pixel_index = pixel_features(result, previous_mask)
         shape = np.asarray(result.pixel_voxel).shape
         out = np.zeros(shape[0] * shape[1], dtype=bool)
@@ -316,17 +233,17 @@ class LogisticRefiner:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> 'LogisticRefiner':
-        """Inverse of :meth:`to_dict`; raises :class:`ModelFileError` on a mismatch."""
+        """Inverse of :meth:`to_dict`; raises DepthFormatError on a mismatch."""
         if data.get('kind') != MODEL_KIND:
-            raise ModelFileError(f'not a refiner model: kind={data.get("kind")!r}')
+            raise DepthFormatError(f'not a refiner model: kind={data.get("kind")!r}')
         if data.get('version') != MODEL_FORMAT_VERSION:
-            raise ModelFileError(f'model format version {data.get("version")!r} is not '
+            raise DepthFormatError(f'model format version {data.get("version")!r} is not '
                                  f'supported (expected {MODEL_FORMAT_VERSION})')
         if list(data.get('features', [])) != list(FEATURE_NAMES):
-            raise ModelFileError(f'model features {data.get("features")!r} differ from '
+            raise DepthFormatError(f'model features {data.get("features")!r} differ from '
                                  f'{list(FEATURE_NAMES)}')
         if data.get('gradient_clip_m_per_px') != GRADIENT_CLIP_M_PER_PX:
-            raise ModelFileError(f'model gradient clip {data.get("gradient_clip_m_per_px")!r} '
+            raise DepthFormatError(f'model gradient clip {data.get("gradient_clip_m_per_px")!r} '
                                  f'differs from {GRADIENT_CLIP_M_PER_PX}')
         try:
             coefficients = (float(data['intercept']),
@@ -335,7 +252,7 @@ class LogisticRefiner:
             scale = tuple(float(data['feature_scale'][n]) for n in FEATURE_NAMES)
             threshold = float(data.get('threshold', 0.5))
         except (KeyError, TypeError, ValueError) as exc:
-            raise ModelFileError(f'model file lacks or garbles a field: {exc!r}') from exc
+            raise DepthFormatError(f'model file lacks or garbles a field: {exc!r}') from exc
         info = data.get('training', {})
         return cls(coefficients, mean, scale, threshold,
                    tuple(sorted(info.items())) if isinstance(info, dict) else ())
@@ -346,31 +263,19 @@ class LogisticRefiner:
 
     @classmethod
     def load(cls, path: str | Path) -> 'LogisticRefiner':
-        """Read a model written by :meth:`save` (raises ModelFileError, OSError)."""
+        """Read a model written by :meth:`save` (raises DepthFormatError, OSError)."""
         try:
             data = json.loads(Path(path).read_text(encoding='utf-8'))
         except json.JSONDecodeError as exc:
-            raise ModelFileError(f'{path}: not JSON ({exc})') from exc
+            raise DepthFormatError(f'{path}: not JSON ({exc})') from exc
         if not isinstance(data, dict):
-            raise ModelFileError(f'{path}: not a JSON object')
+            raise DepthFormatError(f'{path}: not a JSON object')
         return cls.from_dict(data)
-
-
-# --------------------------------------------------------------------------------------------
-# Refined detection
 
 
 @dataclass(frozen=True)
 class RefinedResult:
-    """A detection after the learned refinement.
-
-    labels: (H, W) uint8 ``LABEL_*`` (the pipeline's, with pixels that have a voxel relabelled
-    GROUND/OBSTACLE by the refiner); obstacle_mask: (H, W) bool refined obstacle pixels;
-    voxel_is_obstacle: (V,) bool, majority vote of each voxel's pixels, then validated;
-    obstacle_points (O, 3)
-    and ground_points (G, 3) float32 voxel centroids, ground frame [m]; costmap: a
-    ``costmap.Costmap`` built from them.
-    """
+    """A detection after the learned refinement (labels, pixel mask, voxels, points, costmap)."""
 
     labels: np.ndarray
     obstacle_mask: np.ndarray
@@ -392,15 +297,7 @@ def voxel_votes(pixel_voxel: np.ndarray, mask: np.ndarray, n_voxels: int) -> np.
 
 def refine_result(result: Any, refined_mask: np.ndarray, params: DetectorParams, *,
                   validate: bool = True) -> RefinedResult:
-    """Turn refined obstacle pixels into labels, obstacle voxels and a costmap.
-
-    result: the ``DetectionResult`` the mask was predicted from; refined_mask: (H, W) bool from
-    :meth:`LogisticRefiner.predict_labels`; params: the detector's parameters (costmap
-    geometry, N1). Obstacle voxels are those most of whose pixels are refined obstacles and,
-    when ``validate``, whose ``params.validation_neighbours`` nearest voxels are such too (the
-    seed's validation step); the other voxels are ground; ``costmap.build_costmap`` rasterises
-    both.
-    """
+    """Refined obstacle pixels -> labels, voxels (majority vote, N1 check) and a costmap."""
     # Imported here: the fit and the model file need neither the costmap nor the k-NN.
     from .costmap import build_costmap
     from .geometry import to_base_frame
@@ -428,13 +325,10 @@ def refine_result(result: Any, refined_mask: np.ndarray, params: DetectorParams,
 
 
 class RefinedDetector:
-    """A ``Detector`` followed by the learned refinement, for a stream of frames.
+    """A ``Detector`` followed by the refinement, for a stream (keeps the previous mask).
 
-    Keeps the previous frame's rule-based obstacle mask (the seed's V_{t-1}); a frame of
-    another size starts afresh. ``process`` returns a ``DetectionResult`` whose labels,
-    obstacle and ground points, voxel flags and costmap are the refined ones, with a 'refine'
-    stage in ``timings_ms``; everything else (normals, depth, pixel_voxel) is the pipeline's.
-    The node and the offline bag tool both use it when a model file is named.
+    ``process`` returns a ``DetectionResult`` with the refined labels, points, voxel flags and
+    costmap, and a 'refine' stage in ``timings_ms``.
     """
 
     def __init__(self, detector: Any, refiner: LogisticRefiner) -> None:

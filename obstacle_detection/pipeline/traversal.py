@@ -1,34 +1,9 @@
-"""Robot-level traversability (not in the seed): connectivity, step height, drops.
+"""Robot-level traversability (not in the seed): reach from the floor, step height, drops.
 
-The seed calls a voxel ground when its normal is within theta of vertical. A robot cannot drive
-onto a box top, a table or a curb, however flat, nor off a drop; it can cross a door sill and
-climb a passable ramp to its landing. After the normals, :func:`traversable_ground` decides:
-
-1. A 2.5-D grid of cells (twice the voxel size) over the voxels. The *surface* of a cell is its
-   lowest voxel that passed the slope test (under a table the floor, where it is seen). A
-   cell is *passable* when it has a surface held by at least ``MIN_SURFACE_VOXELS`` flat
-   voxels within one voxel height (flying or stray voxels make no floor) and its voxels span
-   no more than ``max_step_height_m`` in height (no step, wall foot or curb face inside it).
-2. Seeds: passable cells whose surface lies on the floor plane, within ``[-max_step_down_m,
-   max_step_height_m]`` of z = 0 (the floor plane refined per frame, :mod:`.floor`).
-3. Ground is grown from the seeds to the 8 neighbouring passable cells through steps of at most
-   ``max_step_height_m`` up and ``max_step_down_m`` down (a directed graph, one breadth-first
-   search in scipy): ramps no steeper than theta and their landings are reached, box and table
-   tops, curbs and the floor beyond a drop are not.
-4. The local ground of a reached cell is its surface; the others take it from the reached
-   cells, grown outward layer by layer (the largest of the neighbours filled before); a
-   voxel's height is taken above its cell's local ground. Obstacle: higher than
-   ``max_step_height_m`` and not above ``robot_height_m`` (a wall, but not its foot; a box top),
-   or lower than ``-max_step_down_m`` (the floor beyond a drop). Above the robot: not an
-   obstacle.
-
-:func:`ledges` marks the open side of a raised traversable surface (a ramp or landing more than
-a step above the floor beside it, both reached: issue 22), kept through the N1 validation.
-
-:func:`drop_edges` marks a drop whose lower floor is out of view or out of range: a pixel whose
-ray passed the floor plane (its point lies more than the step down below it) right above pixels
-that see the floor marks the cell where that floor ends, when it lies within the range.
-All vectorised, or compiled (:mod:`.jit_traversal`, same results); no per-point Python loop.
+:func:`traversable_ground` decides per voxel on a 2.5-D grid of cells, :func:`ledges` marks
+the open sides of raised surfaces, :func:`drop_edges` the cells where the floor ends at a drop,
+:func:`drop_smeared` undoes what the median smeared across depth edges. The rules:
+docs/method.md.
 """
 
 from __future__ import annotations
@@ -66,18 +41,16 @@ LEDGE_SHADOW_CELLS = 12
 #: The 8 directions of the search across an edge, as (dx, dy) cell steps.
 _DIRECTIONS = np.array(((1, 0), (0, 1), (-1, 0), (0, -1), (1, 1), (1, -1), (-1, 1), (-1, -1)))
 #: Window of the flying-pixel test [px]: time-of-flight mixed pixels lie up to two pixels
-#: from the depth edge.
+#: from the depth edge (the compiled smear pass computes a 5 x 5 window only).
 FLYING_WINDOW_PX = 5
 
 
 @dataclass(frozen=True)
 class Traversal:
-    """Robot-level decision per voxel.
+    """Robot-level decision per voxel ((V,) arrays; is_obstacle before the N1 validation).
 
-    is_obstacle: (V,) bool before the seed's N1 validation; above_robot: (V,) bool;
-    height_m: (V,) float32 height above the local ground [m]; reached: (V,) bool, the voxel's
-    cell was reached from the floor; cell_size_m: the grid's cell size [m]; ledge: (V,) bool,
-    the voxel lies on a ledge (:func:`ledges`), an obstacle that the N1 validation keeps.
+    height_m: float32 above the local ground [m]; reached: the voxel's cell was reached from
+    the floor; ledge: on a ledge (:func:`ledges`), an obstacle the N1 validation keeps.
     """
 
     is_obstacle: np.ndarray
@@ -95,11 +68,7 @@ def cell_size(params: DetectorParams) -> float:
 
 def traversable_ground(points: np.ndarray, steep: np.ndarray,
                        params: DetectorParams) -> Traversal:
-    """Decide obstacles at robot level.
-
-    points: (V, 3) float32 voxel centroids, ground frame [m]; steep: (V,) bool, the seed's
-    slope test (True = steeper than theta). Compiled when :func:`.jit.enabled` (same result).
-    """
+    """Decide obstacles at robot level: points (V, 3) float32 ground frame, steep (V,) bool."""
     size = cell_size(params)
     if points.shape[0] == 0:
         empty = np.zeros(0, bool)
@@ -107,53 +76,33 @@ def traversable_ground(points: np.ndarray, steep: np.ndarray,
     out = _traverse(points, steep, size, params.max_step_height_m, params.max_step_down_m,
                     params.robot_height_m, params.voxel_z_m, MIN_SURFACE_VOXELS)
     edge = ledges(points, steep, out[3], out[1], size, params.max_step_height_m,
-                  params.max_step_down_m)
+                  params.max_step_down_m, LEDGE_SHADOW_CELLS)
     return Traversal(*out, size, edge)
 
 
-def ledges(points: np.ndarray, steep: np.ndarray, reached: np.ndarray, above: np.ndarray,
-           size_m: float, step_up_m: float, step_down_m: float) -> np.ndarray:
-    """(V,) bool: voxels on the side of a raised traversable surface (issue 22).
-
-    Where two reached surfaces, a ramp or a landing and the floor beside it, differ by more
-    than a step (its open side, which the reach from the floor does not stop at: both are
-    reached), the robot falls off the higher one or meets a wall from the lower one. On the
-    cell grid of :func:`_reference_traverse` (same cells); a cell's surface is its lowest flat
-    voxel, where it was reached:
-
-    - a reached cell whose *lower ground* lies more than ``step_down_m`` below its surface:
-      its voxels, the edge of the higher surface. Its lower ground is the lowest reached
-      surface among its 8 neighbours or, across the edge (the floor right beyond an open
-      side lies in its shadow), the lowest of the first cells with voxels beyond a gap of
-      cells without (up to ``LEDGE_SHADOW_CELLS``) in the 8 directions whose x and y steps
-      both lead away from the camera (or are 0), where reached;
-    - a cell not reached whose reached neighbours' surfaces differ by more than
-      ``step_up_m``: its voxels more than ``step_up_m`` above the lowest (the side face seen
-      from the floor, which the local ground, the highest neighbour's, calls ground).
-
-    Two surfaces that both lie within the floor's band (``[-step_down_m, step_up_m]`` of
-    z = 0, where the reach starts) are both floor, never a ledge: range noise on a far floor
-    (a real Kinect v1 frame's floor cells 2.3 m away spread over 8 cm) is no open side.
-
-    Never a voxel above the robot (``above``). points: (V, 3) float32 ground frame, the
-    camera over its origin [m]; steep, reached, above: (V,) bool. Numpy on the cells (a few
-    thousand), or compiled (:mod:`._compiled.ledges`, the same flags) when
-    :func:`.jit.enabled`. The marks are obstacles that the seed's N1 validation keeps (a
-    ledge is a band one cell wide, as a drop edge).
-    """
-    if points.shape[0] == 0:
-        return np.zeros(0, bool)
-    if jit.enabled():
-        return jit_ledges.ledges(points, steep, reached, above, size_m, step_up_m, step_down_m,
-                                 LEDGE_SHADOW_CELLS)
+def _cells(points: np.ndarray, size_m: float) -> tuple[np.ndarray, int, int, int, int]:
+    """(key (V,) int64, nx, ny, ox, oy): each point's cell ``floor(p / size) - (ox, oy)``."""
     size = np.float32(size_m)
     ix = np.floor(points[:, 0] / size).astype(np.int64)
     iy = np.floor(points[:, 1] / size).astype(np.int64)
     ox, oy = int(ix.min()), int(iy.min())
     ix -= ox
     iy -= oy
-    nx, ny = int(ix.max()) + 1, int(iy.max()) + 1
-    key = ix * ny + iy
+    ny = int(iy.max()) + 1
+    return ix * ny + iy, int(ix.max()) + 1, ny, ox, oy
+
+
+def _reference_ledges(points: np.ndarray, steep: np.ndarray, reached: np.ndarray,
+                      above: np.ndarray, size_m: float, step_up_m: float, step_down_m: float,
+                      shadow_cells: int) -> np.ndarray:
+    """(V,) bool: voxels on the open side of a raised traversable surface (issue 22).
+
+    points: (V, 3) float32 ground frame, the camera over its origin [m]; steep, reached,
+    above: (V,) bool; the cells of :func:`traversable_ground`. The rule: docs/method.md.
+    """
+    if points.shape[0] == 0:
+        return np.zeros(0, bool)
+    key, nx, ny, ox, oy = _cells(points, size_m)
     z = points[:, 2].astype(np.float64)
     flat = reached & ~steep
     surface = np.full(nx * ny, np.inf)
@@ -162,37 +111,10 @@ def ledges(points: np.ndarray, steep: np.ndarray, reached: np.ndarray, above: np
     low = minimum_filter(surface, size=3, mode='constant', cval=np.inf)
     top = np.where(np.isfinite(surface), surface, -np.inf)
     high = maximum_filter(top, size=3, mode='constant', cval=-np.inf)
-    # across the edge, where the lower ground right beyond it lies in the edge's shadow:
-    # from a reached cell with an empty neighbour, over empty cells in the 8 directions that
-    # lead away from the camera, to the first cell with voxels
     seen = np.zeros(nx * ny, bool)
     seen[key] = True
     seen = seen.reshape(nx, ny)
-    empty_nb = minimum_filter(seen, size=3, mode='constant', cval=True) == 0
-    cx, cy = np.nonzero(np.isfinite(surface) & empty_nb)
-    # every (cell, direction) pair at once, walked k cells out
-    sx = np.repeat(_DIRECTIONS[:, 0][None, :], cx.size, axis=0).reshape(-1)
-    sy = np.repeat(_DIRECTIONS[:, 1][None, :], cx.size, axis=0).reshape(-1)
-    wx = np.repeat(cx, 8)
-    wy = np.repeat(cy, 8)
-    owner = np.repeat(np.arange(cx.size), 8)
-    # the gap lies behind the edge, seen from the camera: each step component leads away
-    going = (sx * (wx + ox + 0.5) >= 0.0) & (sy * (wy + oy + 0.5) >= 0.0)
-    wx, wy, sx, sy, owner = wx[going], wy[going], sx[going], sy[going], owner[going]
-    beyond = np.full(cx.size, np.inf)
-    for k in range(1, LEDGE_SHADOW_CELLS + 1):
-        wx = wx + sx
-        wy = wy + sy
-        inside = (wx >= 0) & (wx < nx) & (wy >= 0) & (wy < ny)
-        wx, wy, sx, sy, owner = wx[inside], wy[inside], sx[inside], sy[inside], owner[inside]
-        if wx.size == 0:
-            break
-        hit = seen[wx, wy]
-        if k > 1:   # the first cell beyond a gap (next to it, the 8 neighbours decide)
-            np.minimum.at(beyond, owner[hit], surface[wx[hit], wy[hit]])
-        gap = ~hit
-        wx, wy, sx, sy, owner = wx[gap], wy[gap], sx[gap], sy[gap], owner[gap]
-    low[cx, cy] = np.minimum(low[cx, cy], beyond)
+    _lower_beyond_gaps(surface, seen, low, ox, oy, shadow_cells)
     with np.errstate(invalid='ignore'):
         # two surfaces within the floor's band (the seeds') are both floor: no ledge
         floor_low = (low >= -step_down_m) & (low <= step_up_m)
@@ -206,6 +128,44 @@ def ledges(points: np.ndarray, steep: np.ndarray, reached: np.ndarray, above: np
     return np.where(reached, raised, face) & ~above
 
 
+def _lower_beyond_gaps(surface: np.ndarray, seen: np.ndarray, low: np.ndarray, ox: int,
+                       oy: int, shadow_cells: int) -> None:
+    """Lower ``low`` (nx, ny) of the surface cells next to an empty one, in place.
+
+    To the lowest surface of the first cells with voxels beyond a gap of empty cells, in the
+    directions leading away from the camera (the shadow of an open side).
+    """
+    nx, ny = surface.shape
+    empty_nb = minimum_filter(seen, size=3, mode='constant', cval=True) == 0
+    cx, cy = np.nonzero(np.isfinite(surface) & empty_nb)
+    # every (cell, direction) pair at once, walked k cells out
+    sx = np.repeat(_DIRECTIONS[:, 0][None, :], cx.size, axis=0).reshape(-1)
+    sy = np.repeat(_DIRECTIONS[:, 1][None, :], cx.size, axis=0).reshape(-1)
+    wx = np.repeat(cx, 8)
+    wy = np.repeat(cy, 8)
+    owner = np.repeat(np.arange(cx.size), 8)
+    # the gap lies behind the edge, seen from the camera: each step component leads away
+    going = (sx * (wx + ox + 0.5) >= 0.0) & (sy * (wy + oy + 0.5) >= 0.0)
+    wx, wy, sx, sy, owner = wx[going], wy[going], sx[going], sy[going], owner[going]
+    beyond = np.full(cx.size, np.inf)
+    for k in range(1, shadow_cells + 1):
+        wx = wx + sx
+        wy = wy + sy
+        inside = (wx >= 0) & (wx < nx) & (wy >= 0) & (wy < ny)
+        wx, wy, sx, sy, owner = wx[inside], wy[inside], sx[inside], sy[inside], owner[inside]
+        if wx.size == 0:
+            break
+        hit = seen[wx, wy]
+        if k > 1:   # the first cell beyond a gap (next to it, the 8 neighbours decide)
+            np.minimum.at(beyond, owner[hit], surface[wx[hit], wy[hit]])
+        gap = ~hit
+        wx, wy, sx, sy, owner = wx[gap], wy[gap], sx[gap], sy[gap], owner[gap]
+    low[cx, cy] = np.minimum(low[cx, cy], beyond)
+
+
+ledges = jit.choose(_reference_ledges, jit_ledges.ledges)
+
+
 
 
 def _reference_traverse(points: np.ndarray, steep: np.ndarray, size_m: float, step_up_m: float,
@@ -213,13 +173,7 @@ def _reference_traverse(points: np.ndarray, steep: np.ndarray, size_m: float, st
                         min_support: int = MIN_SURFACE_VOXELS,
                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(obstacle, above, height float32, reached) per voxel, in numpy (the reference)."""
-    size = np.float32(size_m)
-    ix = np.floor(points[:, 0] / size).astype(np.int64)
-    iy = np.floor(points[:, 1] / size).astype(np.int64)
-    ix -= ix.min()
-    iy -= iy.min()
-    nx, ny = int(ix.max()) + 1, int(iy.max()) + 1
-    key = ix * ny + iy
+    key, nx, ny, _, _ = _cells(points, size_m)
     z = points[:, 2].astype(np.float64)
 
     surface = np.full(nx * ny, np.inf)
@@ -314,12 +268,10 @@ def _grow(surface: np.ndarray, has: np.ndarray, seeds: np.ndarray, step_up: floa
 def depth_window_range(raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Nearest and farthest measured depth (H, W) float32 in each pixel's 5 x 5 window [m].
 
-    raw: 0 = no return (as :func:`.depth.decode_depth` gives; no NaN). Pixels without a
-    return take no part (a window without any gives inf / 0). OpenCV's erode/dilate, shared
-    by the numpy and the compiled path.
+    raw: 0 = no return, which takes no part (a window without any gives inf / 0).
     """
     kernel = np.ones((FLYING_WINDOW_PX, FLYING_WINDOW_PX), np.uint8)
-    holes_far = _holes_to_inf(raw)
+    holes_far = np.where(raw > 0.0, raw, np.float32(np.inf))
     near = np.empty(raw.shape, np.float32)
     far = np.empty(raw.shape, np.float32)
     cv2.erode(holes_far, kernel, dst=near, borderType=cv2.BORDER_REPLICATE)
@@ -327,21 +279,8 @@ def depth_window_range(raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return near, far
 
 
-def _reference_holes_to_inf(raw: np.ndarray) -> np.ndarray:
-    """Return ``np.where(raw > 0, raw, inf)`` (float32)."""
-    return np.where(raw > 0.0, raw, np.float32(np.inf))
-
-
-_holes_to_inf = jit.choose(_reference_holes_to_inf, jit_traversal.holes_to_inf)
-
-
 def _planar(raw: np.ndarray, tolerance: float = PLANAR_TOLERANCE) -> np.ndarray:
-    """(H, W) bool: the pixel lies on a plane with its row and column neighbours.
-
-    A plane's inverse depth is affine in the pixel coordinates, so its second differences
-    vanish (a floor or a table's underside seen at a grazing angle); a mixed pixel's do not.
-    Within ``tolerance`` of the pixel's inverse depth, all four neighbours measured.
-    """
+    """(H, W) bool: inverse-depth second differences within ``tolerance`` of it (a plane)."""
     with np.errstate(divide='ignore', invalid='ignore'):
         inv = np.where(raw > 0.0, np.float32(1.0) / raw, np.float32(np.nan))
     tol = np.float32(tolerance) * inv
@@ -358,25 +297,10 @@ def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float, *,
     """Undo what the median filter smeared across depth edges; drop what is no surface.
 
     filtered, raw: (H, W) float32 [m], the median-filtered and the measured depth (0 = no
-    return, as :func:`.depth.decode_depth` gives). A pixel
-    whose filtered depth differs from its measured one by more than ``max_shift`` times the
-    filtered depth got its value from across a depth edge (it would fatten the near object
-    into free space, or erase a thin one such as a table's edge): it takes its measured depth
-    back. Dropped (set to 0, no return):
-
-    - a pixel without a measured depth (0 or NaN) that the filter filled, unless it has a
-      measured 4-neighbour and all of them lie within ``max_shift`` of the filled depth (a
-      dropout inside a surface is filled; a hole at a depth edge, where the filter could only
-      guess, is not: no return never marks anything);
-    - a mixed ("flying") pixel: its measured depth lies more than ``FLYING_JUMP`` of it away
-      from both the nearest and the farthest depth of its 5 x 5 window, between the two
-      surfaces of a depth edge, as a time-of-flight sensor returns up to two pixels from it,
-      and not on a plane with its neighbours (a surface seen at a grazing angle is kept).
-
-    Returns ``filtered`` (modified in place); ``max_shift`` <= 0 changes nothing. Compiled
-    when numba is there (same result).
-    ``raw_no_nan``: the caller knows ``raw`` holds no NaN (the detector's uint16 depth, looked
-    up in the depth table: 0 for no return, never NaN), which spares the compiled path a scan.
+    return). A pixel the filter moved by more than ``max_shift`` of its depth takes its
+    measured depth back; filled holes at a depth edge and flying pixels are dropped (rules:
+    docs/method.md). Returns ``filtered``, changed in place; ``max_shift`` <= 0 changes
+    nothing. raw_no_nan: the caller knows ``raw`` holds no NaN (spares the compiled path a scan).
     """
     if max_shift <= 0.0:
         return filtered
@@ -412,46 +336,29 @@ def _reference_drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: fl
     filtered[bad] = 0.0
 
 
-def _compiled_drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float,
-                           jump: float, planar_tolerance: float,
-                           raw_no_nan: bool = False) -> None:
-    """:func:`_reference_drop_smeared` compiled: one fused pass, or the window range first.
+def _fusable(filtered: np.ndarray, raw: np.ndarray, max_shift: float, jump: float,
+             planar_tolerance: float, raw_no_nan: bool = False) -> bool:
+    """Return True for the images the compiled smear pass takes (its window range is OpenCV's).
 
-    The fused pass (the 5 x 5 window range on the way) takes C-contiguous float32 images
-    without NaN (OpenCV's window range orders NaN its own way).
+    C-contiguous float32 of one shape, raw without NaN (OpenCV orders NaN its own way).
     """
-    if (FLYING_WINDOW_PX == 5 and filtered.flags.c_contiguous
+    return (FLYING_WINDOW_PX == 5 and filtered.flags.c_contiguous
             and filtered.dtype == np.float32 and filtered.shape == raw.shape
-            and (raw_no_nan or not jit_traversal.has_nan(raw))):
-        jit_traversal.drop_smeared_fused(filtered, raw, max_shift, jump, planar_tolerance)
-    else:
-        near, far = depth_window_range(raw)
-        jit_traversal.drop_smeared(filtered, raw, near, far, max_shift, jump, planar_tolerance)
+            and (raw_no_nan or not jit_traversal.has_nan(raw)))
 
 
-_drop_smeared = jit.choose(_reference_drop_smeared, _compiled_drop_smeared)
+_drop_smeared = jit.choose(_reference_drop_smeared, jit_traversal.drop_smeared,
+                           accepts=_fusable)
 
 
 def drop_edge_mask(depth_m: np.ndarray, rz: np.ndarray, height_m: float, step_down_m: float,
                    step_up_m: float, rows: int = DROP_EDGE_ROWS) -> np.ndarray:
-    """Return (H, W) int8: rows down to where the floor ends, for rays that passed it; else 0.
+    """Return (H, W) int8: rows (1 to ``rows``) down to where the floor ends, else 0.
 
-    For a pixel whose ray passed the floor plane right above seen floor: the number of rows
-    (1 to ``rows``) down to the floor pixel where the floor ends.
-
-    depth_m (H, W) float32 [m] (0/NaN no return: never marks); rz (H*W,) or (H, W) float32,
-    the z component of the ground rays; height_m: camera height. A pixel passed the floor when
-    its point lies more than ``step_down_m`` below z = 0; it is an edge when one of the
-    ``rows`` pixels below it sees the floor (z within ``[-step_down_m, step_up_m]``) more than
-    ``step_down_m`` above its own point (the nearest such row is given). float32 arithmetic,
-    as the compiled kernel.
+    For a pixel whose ray passed the floor plane (more than ``step_down_m`` below it) right
+    above seen floor (within ``[-step_down_m, step_up_m]``, more than ``step_down_m`` above
+    its point). rz: (H*W,) or (H, W) float32, the rays' z; 0/NaN depth never marks.
     """
-    return _drop_edge_mask(depth_m, rz, height_m, step_down_m, step_up_m, rows)
-
-
-def _reference_drop_edge_mask(depth_m: np.ndarray, rz: np.ndarray, height_m: float,
-                              step_down_m: float, step_up_m: float, rows: int) -> np.ndarray:
-    """:func:`drop_edge_mask` in numpy."""
     h, w = depth_m.shape
     d = depth_m.astype(np.float32, copy=False)
     valid = d > 0.0
@@ -469,21 +376,17 @@ def _reference_drop_edge_mask(depth_m: np.ndarray, rz: np.ndarray, height_m: flo
     return edge
 
 
-_drop_edge_mask = jit.choose(_reference_drop_edge_mask, jit_traversal.drop_edge_mask)
-
-
 def _reference_drop_pixels(depth_m: np.ndarray, rz: np.ndarray | None, height_m: float,
                            step_down_m: float, step_up_m: float, rows: int,
                            model: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
                            ) -> tuple[np.ndarray, np.ndarray]:
     """(flat pixel indices int64, offsets int8) of :func:`drop_edge_mask`'s marks, in order.
 
-    rz: (H*W,) or (H, W) float32, the z of the ground rays; or None and model: (ru, rv, rot)
-    float32 of :class:`.geometry.GroundRays`.
+    rz: the rays' z; or None and model: :class:`.geometry.GroundRays`' (ru, rv, rot).
     """
     if model is not None:
         rz = GroundRays(*model).table()[2]
-    edge = _reference_drop_edge_mask(depth_m, rz, height_m, step_down_m, step_up_m, rows)
+    edge = drop_edge_mask(depth_m, rz, height_m, step_down_m, step_up_m, rows)
     pixels = np.flatnonzero(edge)
     return pixels, edge.reshape(-1)[pixels]
 
@@ -495,13 +398,9 @@ def drop_edges(depth_m: np.ndarray, rays: np.ndarray | GroundRays, height_m: flo
                params: DetectorParams) -> tuple[np.ndarray, np.ndarray]:
     """Where the floor ends at a drop: the last floor seen below the rays that passed it.
 
-    depth_m: (H, W) float32 [m]; rays: the (3, H*W) ground rays of the frame's mount, or its
-    :class:`.geometry.GroundRays` (the same values; the compiled path then computes them row
-    by row, no table); height_m: the camera height of that mount. Returns
-    ``(points, pixels)``: (D, 3) float32 ground points of the floor pixels where the floor
-    ends (:func:`drop_edge_mask`), inside the forward range and lateral limit [m] (the cells
-    the costmap marks), and (D,) int64 the flat indices of the pixels that saw past the edge
-    (the lower floor, or anything beyond it).
+    rays: the frame's (3, H*W) ground rays or :class:`.geometry.GroundRays`; height_m: its
+    camera height. Returns ((D, 3) float32 ground points of those floor pixels inside the
+    range and lateral limit, (D,) int64 flat indices of the pixels that saw past the edge).
     """
     down, up = params.max_step_down_m, params.max_step_height_m
     if isinstance(rays, GroundRays):   # the compiled path computes them row by row
@@ -529,4 +428,4 @@ def warm_up() -> None:
         jit_traversal.warm_up()
         pts = np.zeros((2, 3), np.float32)
         flags = np.zeros(2, bool)
-        jit_ledges.ledges(pts, flags, flags, flags, 0.05, 0.05, 0.05, LEDGE_SHADOW_CELLS)
+        ledges(pts, flags, flags, flags, 0.05, 0.05, 0.05, LEDGE_SHADOW_CELLS)

@@ -1,10 +1,7 @@
-"""Voxel-grid downsampling (seed section 4.3.4): one centroid per occupied voxel.
+"""Back-projection, region of interest and voxel grid (seed 4.3.2 to 4.3.4), pixel labels.
 
-The stage of the frame: :func:`points_in_roi` (back-projection and region of interest),
-:func:`voxel_grid` and, once the voxels are decided, :func:`pixel_labels`. Each runs the
-compiled kernels of :mod:`._compiled.voxel` when :func:`.jit.enabled` (the choice is made
-once per frame, in :func:`points_in_roi`) and the numpy code otherwise; the results are
-bit-identical.
+:func:`points_in_roi`, :func:`voxel_grid`, then :func:`pixel_labels`; compiled or numpy, the
+same results.
 """
 
 from __future__ import annotations
@@ -24,13 +21,7 @@ _DENSE_LIMIT = 16_000_000
 
 @dataclass(frozen=True)
 class VoxelGrid:
-    """Result of :func:`voxel_downsample`.
-
-    centroids: (V, 3) float32, mean of the points in each occupied voxel [m].
-    point_voxel: (M,) int64, for every input point the row of its voxel in ``centroids``.
-    counts: (V,) int64, points per voxel.
-    voxel_ijk: (V, 3) int64, integer voxel coordinates ``floor(p / size)``.
-    """
+    """Voxels: centroids (V, 3) float32, point_voxel (M,), counts (V,), voxel_ijk (V, 3)."""
 
     centroids: np.ndarray
     point_voxel: np.ndarray
@@ -40,15 +31,10 @@ class VoxelGrid:
 
 def voxel_downsample(points: np.ndarray, voxel_size_m: tuple[float, float, float],
                      ) -> VoxelGrid:
-    """Replace the points of every occupied voxel by their centroid.
+    """Replace the points (M, 3) of every occupied voxel by their centroid.
 
-    points: (M, 3) float32 [m] (a view with contiguous columns, ``cols.T``, is fastest).
-    Voxels are the cells ``[i*Vx, (i+1)*Vx) x [j*Vy, ...) x ...`` of a lattice anchored at
-    the frame origin, so a point's voxel does not depend on the other points. Voxels are
-    ordered by their linear index (x slowest, z fastest), so the output is deterministic.
-    An empty input gives empty arrays. Runs the compiled kernel
-    (:func:`._compiled.voxel.voxel_downsample`, same result) when :func:`.jit.enabled` and
-    the points lie on a lattice it indexes directly (:func:`_on_dense_lattice`).
+    Voxels ``floor(p / size)`` on a lattice anchored at the origin, ordered by linear index
+    (x slowest). ValueError for a bad size or shape.
     """
     size = np.asarray(voxel_size_m, dtype=np.float64)
     if size.shape != (3,) or np.any(size <= 0.0):
@@ -104,11 +90,7 @@ def _reference_voxel_downsample(points: np.ndarray, voxel_size_m: tuple[float, f
 
 
 def _on_dense_lattice(points: np.ndarray, voxel_size_m: tuple[float, float, float]) -> bool:
-    """Return True for the points the compiled voxel grid takes.
-
-    float32 or float64, at least one, finite, voxel indices within ``2**40`` and a lattice of
-    at most ``_DENSE_LIMIT`` cells (floor(p / size) is monotonic: the extreme points give it).
-    """
+    """Return True for the points the compiled voxel grid takes (float, finite, small lattice)."""
     if points.dtype not in (np.float32, np.float64) or points.shape[0] == 0:
         return False
     size = np.asarray(voxel_size_m, np.float64).astype(points.dtype)
@@ -130,12 +112,9 @@ _downsample = jit.choose(_reference_voxel_downsample, jit_voxel.voxel_downsample
 class RoiPoints:
     """The points of one depth frame inside the region of interest (:func:`points_in_roi`).
 
-    points: (M, 3) float32 ground frame [m]; pixel_index: (M,) int64 their flat pixel
-    indices; labels: (H, W) uint8, LABEL_NO_RETURN, LABEL_OUTSIDE_ROI or (the points)
-    LABEL_GROUND until :func:`pixel_labels`; pixel_voxel: (H, W) int32, -1 until
-    :func:`voxel_grid` numbers the points' voxels; voxel_size_m: the frame's voxel size.
-    keyed: the compiled :class:`._compiled.voxel.Projection` that also keyed the points'
-    voxels (its buffers hold the arrays above), or None.
+    points (M, 3) float32 ground frame, their flat pixel_index; labels (H, W) uint8;
+    pixel_voxel (H, W) int32, -1 until :func:`voxel_grid`; keyed: the compiled projection
+    that also keyed the voxels, or None.
     """
 
     points: np.ndarray
@@ -147,11 +126,7 @@ class RoiPoints:
 
 
 def roi_bounds(params: DetectorParams) -> np.ndarray:
-    """Return the ROI bounds in float32, as :func:`points_in_roi` rounds them.
-
-    (min range, max range, lateral limit, camera height, tdbg, max height), the ``bounds`` of
-    :func:`._compiled.voxel.project_roi`.
-    """
+    """(min range, max range, lateral limit, camera height, tdbg, max height) float32."""
     return np.array([params.min_range_m, params.max_range_m, params.lateral_limit_m,
                      params.camera_height_m, params.tdbg_m, params.max_height_m], np.float32)
 
@@ -192,19 +167,13 @@ def _compiled_points_in_roi(depth_m: np.ndarray, rays: np.ndarray | geometry.Gro
                      params.voxel_size_m, proj if proj.has_keys and proj.count else None)
 
 
-#: Back-project a depth image through its ground rays and keep the region of interest.
-#: depth_m: (H, W) float32, 0 = no return; rays: (3, H*W) float32 from
-#: :func:`geometry.ground_rays`, or a :class:`geometry.GroundRays` (its rays computed on the
-#: fly by the compiled path, no table read). The same :class:`RoiPoints` on both paths.
+#: Back-project a depth image (0 = no return) through its ground rays (a table or
+#: :class:`geometry.GroundRays`) and keep the region of interest: :class:`RoiPoints`.
 points_in_roi = jit.choose(_reference_points_in_roi, _compiled_points_in_roi)
 
 
 def voxel_grid(roi: RoiPoints) -> VoxelGrid:
-    """Return the voxel grid of the frame's points (:func:`voxel_downsample`).
-
-    Fills ``roi.pixel_voxel``: the voxel of each point's pixel. The compiled projection's keys
-    serve when it has them (a lattice small enough, at least one point).
-    """
+    """Return the voxel grid of the frame's points; fills ``roi.pixel_voxel``."""
     if roi.keyed is not None:
         return VoxelGrid(*jit_voxel.voxelise(roi.keyed))
     grid = voxel_downsample(roi.points, roi.voxel_size_m)
@@ -226,12 +195,7 @@ _label_pixels = jit.choose(_reference_label_pixels, jit_voxel.label_pixels)
 
 def pixel_labels(roi: RoiPoints, grid: VoxelGrid, is_obstacle: np.ndarray,
                  ) -> tuple[np.ndarray, np.ndarray]:
-    """Return (labels (H, W) uint8 LABEL_*, pixel_voxel (H, W) int32 voxel of each pixel or -1).
-
-    is_obstacle: (V,) bool, the voxels' decision. Pixels without a point are
-    LABEL_NO_RETURN, points outside the region LABEL_OUTSIDE_ROI, the others their voxel's
-    LABEL_OBSTACLE or LABEL_GROUND. Written into ``roi``'s arrays.
-    """
+    """Return (labels, pixel_voxel) with the voxels' decision ``is_obstacle`` (V,) written in."""
     _label_pixels(roi.labels, roi.pixel_voxel, is_obstacle)
     return roi.labels, roi.pixel_voxel
 

@@ -1,15 +1,16 @@
-"""The numba import and the compile decorator the kernels of this package share.
+"""The numba import, the compile decorators and the scratch buffers the kernels share.
 
-numba is an optional accelerator (README, Dependencies): when it does not import (a ROS system
-without python3-numba, or one built for another numpy / llvm), :data:`AVAILABLE` is False,
-:func:`jit` leaves the functions as plain Python and the stage modules run their numpy path
-(the switch is :func:`obstacle_detection.pipeline.jit.enabled`).
+numba is optional: without it :data:`AVAILABLE` is False, the decorators leave the functions
+as plain Python and the stage modules run their numpy path.
 """
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable
 from typing import Any
+
+import numpy as np
 
 try:
     import numba
@@ -20,6 +21,8 @@ except (ImportError, OSError):  # not installed, or built for another numpy / ll
 AVAILABLE: bool = numba is not None
 #: numba's parallel range in :func:`jit_parallel` kernels (``range`` without numba).
 prange = numba.prange if numba is not None else range
+
+_SCRATCH = threading.local()
 
 
 def _compile(func: Callable[..., Any], **options: Any) -> Callable[..., Any]:
@@ -33,37 +36,34 @@ def _compile(func: Callable[..., Any], **options: Any) -> Callable[..., Any]:
 
 
 def jit(func: Callable[..., Any]) -> Callable[..., Any]:
-    """Compile ``func`` with numba (cached on disk) when numba is there; else leave it as is.
-
-    Single-threaded (no ``parallel``), releasing the GIL; without a writable cache directory
-    the kernel is compiled in memory at each start.
-    """
+    """Compile ``func`` with numba (single-threaded, cached on disk) when numba is there."""
     return _compile(func)
 
 
 def jit_parallel(func: Callable[..., Any]) -> Callable[..., Any]:
-    """:func:`jit` with numba's ``parallel=True``: its ``prange`` loops run on numba's threads.
-
-    The caller chooses how many with :func:`set_threads`.
-    """
+    """:func:`jit` with ``parallel=True``: ``prange`` loops on :func:`set_threads` threads."""
     return _compile(func, parallel=True)
 
 
 def set_threads(threads: int) -> None:
-    """Let the next :func:`jit_parallel` kernels of this thread use ``threads`` threads.
-
-    Clipped to 1 .. numba's thread count (``NUMBA_NUM_THREADS``, the CPUs by default). A no-op
-    without numba.
-    """
+    """Let this thread's next :func:`jit_parallel` kernels use ``threads`` (clipped) threads."""
     if numba is not None:
         numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
 
 
 def jit_inline(func: Callable[..., Any]) -> Callable[..., Any]:
-    """:func:`jit`, and inlined into every compiled caller (numba's ``inline='always'``).
-
-    For the small helpers of a hot kernel: an ordinary call passing arrays costs two atomic
-    reference-count updates per array, more than the work of the helper; inlined, the
-    caller compiles as if the helper's body were written in it.
-    """
+    """:func:`jit`, inlined into every compiled caller (spares the array reference counts)."""
     return _compile(func, inline='always')
+
+
+def scratch(name: str, size: int, dtype: Any, zero: bool = False) -> np.ndarray:
+    """Return this thread's flat buffer ``name`` of at least ``size`` elements, kept for reuse.
+
+    Reuse spares the page faults of fresh large arrays. ``zero``: it starts all zero, and its
+    users leave it so.
+    """
+    buf = getattr(_SCRATCH, name, None)
+    if buf is None or buf.size < size or buf.dtype != dtype:
+        buf = np.zeros(size, dtype) if zero else np.empty(size, dtype)
+        setattr(_SCRATCH, name, buf)
+    return buf

@@ -1,15 +1,11 @@
-"""Compiled (numba) ledges (optional): the open sides of raised traversable surfaces.
-
-:func:`ledges` is ``pipeline.traversal.ledges`` in one pass over the voxels and the cells,
-with the same arithmetic (cells from float32 ``floor(x / size)``, surfaces and comparisons in
-float64), so its flags equal the numpy path's.
-"""
+"""Compiled (numba) ledges: ``pipeline.traversal.ledges`` in one pass, the same flags."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from ._numba import AVAILABLE, jit as _jit
+from .traversal import grid_cells
 
 __all__ = ['AVAILABLE', 'ledges']
 
@@ -23,22 +19,12 @@ def _ledges_kernel(points, steep, reached, above, size, step_up, step_down,
                    shadow_cells, dxs, dys, out):  # pragma: no cover - compiled
     """out[v] = the voxel lies on a ledge (see ``pipeline.traversal.ledges``)."""
     n = points.shape[0]
-    ix = np.empty(n, np.int64)
-    iy = np.empty(n, np.int64)
-    for v in range(n):
-        ix[v] = np.int64(np.floor(points[v, 0] / size))
-        iy[v] = np.int64(np.floor(points[v, 1] / size))
-    ox = ix.min()
-    oy = iy.min()
-    nx = ix.max() - ox + 1
-    ny = iy.max() - oy + 1
+    ix, iy, nx, ny, ox, oy = grid_cells(points, size)
     surface = np.full((nx, ny), np.inf)
     seen = np.zeros((nx, ny), np.bool_)
     for v in range(n):
-        cx = ix[v] - ox
-        cy = iy[v] - oy
-        ix[v] = cx
-        iy[v] = cy
+        cx = ix[v]
+        cy = iy[v]
         seen[cx, cy] = True
         if reached[v] and not steep[v]:
             z = np.float64(points[v, 2])
@@ -104,10 +90,7 @@ def _ledges_kernel(points, steep, reached, above, size, step_up, step_down,
 def ledges(points: np.ndarray, steep: np.ndarray, reached: np.ndarray, above: np.ndarray,
            size_m: float, step_up_m: float, step_down_m: float,
            shadow_cells: int) -> np.ndarray:
-    """(V,) bool: ``pipeline.traversal.ledges`` compiled (the same flags).
-
-    points: (V, 3) float32 C-contiguous; steep, reached, above: (V,) bool.
-    """
+    """(V,) bool: ``pipeline.traversal.ledges`` compiled (the same flags)."""
     out = np.zeros(points.shape[0], np.bool_)
     if points.shape[0] == 0:
         return out

@@ -1,14 +1,7 @@
-"""Compiled (numba) kernels of the robot-level stages (optional; same results as numpy).
+"""Compiled (numba) kernels of the robot-level stages and the floor fit.
 
-:func:`ground_rays` equals :func:`~obstacle_detection.pipeline.geometry.ground_rays` (the same
-float32 operations per pixel, in the same order); :func:`traverse` equals the numpy path of
-:func:`obstacle_detection.pipeline.traversal.traversable_ground` (the same grid, the same
-reachable set, the same layered nearest-ground rule, the same float operations);
-:func:`drop_edge_mask` equals :func:`obstacle_detection.pipeline.traversal.drop_edge_mask`.
-The tests compare them bit for bit.
-The stage modules choose these kernels or their numpy twins (``_reference_<name>``) through
-the one dispatcher, :func:`obstacle_detection.pipeline.jit.choose`. Kernels import nothing of
-ours.
+Each equals its numpy twin ``_reference_<name>`` in :mod:`..traversal`, :mod:`..geometry` or
+:mod:`..floor` to the bit (the same float operations in the same order); the tests compare them.
 """
 
 from __future__ import annotations
@@ -18,21 +11,18 @@ import threading
 
 import numpy as np
 
-from ._numba import AVAILABLE, jit as _jit
+from ._numba import AVAILABLE, jit as _jit, scratch
 
-#: Per-thread buffers reused across frames (fresh large arrays cost page faults).
+__all__ = ['AVAILABLE', 'drop_pixels', 'drop_smeared', 'ground_rays', 'has_nan', 'ray_row',
+           'traverse', 'warm_up']
+
+#: Per-thread row buffers of the smear pass.
 _SCRATCH = threading.local()
-
-__all__ = ['AVAILABLE', 'drop_edge_mask', 'drop_smeared', 'ground_rays', 'has_nan',
-           'holes_to_inf', 'ray_row', 'traverse', 'warm_up']
 
 
 @_jit
 def ray_row(ru, rv_i, r0, r1, r2, out):  # pragma: no cover - compiled
-    """Fill out (W,) float32 with one component of a row's ground rays.
-
-    ``(r0 * ru[j] + r1 * rv_i) + r2``: geometry.GroundRays' float32 operations, in order.
-    """
+    """Fill out (W,) float32 with ``(r0 * ru[j] + r1 * rv_i) + r2`` (GroundRays' order)."""
     t = r1 * rv_i
     for j in range(ru.size):
         out[j] = (r0 * ru[j] + t) + r2
@@ -48,23 +38,27 @@ def _rays_kernel(ru, rv, rot, out):  # pragma: no cover - compiled
 
 def ground_rays(ru: np.ndarray, rv: np.ndarray, rot: np.ndarray,
                 out: np.ndarray | None = None) -> np.ndarray:
-    """(3, H*W) float32 ground rays from the per-column/per-row slopes and the float32 mount.
-
-    out: a (3, H*W) float32 array to fill (reused across frames spares page faults).
-    """
+    """(3, H*W) float32 ground rays of the slopes ru, rv and the mount rot; out: to fill."""
     if out is None or out.shape != (3, rv.size * ru.size) or out.dtype != np.float32:
         out = np.empty((3, rv.size * ru.size), np.float32)
     _rays_kernel(ru, rv, rot, out.reshape(3, rv.size, ru.size))
     return out
 
 
-def scratch(name: str, shape: tuple[int, ...], dtype) -> np.ndarray:
-    """Return a per-thread buffer of this shape and dtype, reused across frames."""
-    buf = getattr(_SCRATCH, name, None)
-    if buf is None or buf.shape != shape or buf.dtype != dtype:
-        buf = np.empty(shape, dtype)
-        setattr(_SCRATCH, name, buf)
-    return buf
+@_jit
+def grid_cells(points, size):  # pragma: no cover - compiled
+    """(ix, iy, nx, ny, ox, oy): each point's cell ``floor(p / size) - (ox, oy)``, grid nx x ny."""
+    n = points.shape[0]
+    ix = np.empty(n, np.int64)
+    iy = np.empty(n, np.int64)
+    for v in range(n):
+        ix[v] = np.int64(np.floor(points[v, 0] / size))
+        iy[v] = np.int64(np.floor(points[v, 1] / size))
+    ox = ix.min()
+    oy = iy.min()
+    ix -= ox
+    iy -= oy
+    return ix, iy, ix.max() + 1, iy.max() + 1, ox, oy
 
 
 @_jit
@@ -76,26 +70,15 @@ def _cell(bx, by, nx, ny):  # pragma: no cover - compiled
 
 
 @_jit
-def _traverse_kernel(points, steep, size, step_up, step_down, up32, down32, robot32, layer,
-                     min_support, obstacle, above, height,
-                     reached_v):  # pragma: no cover - compiled
-    """Run the numpy path of traversal.traversable_ground cell by cell (see that module)."""
+def _passable_cells(points, steep, key, n_cells, step_up, layer,
+                    min_support):  # pragma: no cover - compiled
+    """(surface, passable) per cell: lowest flat voxel; supported and without a step."""
     n = points.shape[0]
-    ix = np.empty(n, np.int64)
-    iy = np.empty(n, np.int64)
+    surface = np.full(n_cells, np.inf)
+    low = np.full(n_cells, np.inf)
+    high = np.full(n_cells, -np.inf)
     for v in range(n):
-        ix[v] = np.int64(np.floor(points[v, 0] / size))
-        iy[v] = np.int64(np.floor(points[v, 1] / size))
-    x0, y0 = ix.min(), iy.min()
-    nx = ix.max() - x0 + 1
-    ny = iy.max() - y0 + 1
-    key = np.empty(n, np.int64)
-    surface = np.full(nx * ny, np.inf)
-    low = np.full(nx * ny, np.inf)
-    high = np.full(nx * ny, -np.inf)
-    for v in range(n):
-        k = (ix[v] - x0) * ny + (iy[v] - y0)
-        key[v] = k
+        k = key[v]
         z = np.float64(points[v, 2])
         if not steep[v] and z < surface[k]:
             surface[k] = z
@@ -103,7 +86,6 @@ def _traverse_kernel(points, steep, size, step_up, step_down, up32, down32, robo
             low[k] = z
         if z > high[k]:
             high[k] = z
-    n_cells = nx * ny
     support = np.zeros(n_cells, np.int64)
     for v in range(n):
         k = key[v]
@@ -113,7 +95,13 @@ def _traverse_kernel(points, steep, size, step_up, step_down, up32, down32, robo
     for c in range(n_cells):
         passable[c] = (surface[c] != np.inf and high[c] - low[c] <= step_up
                        and support[c] >= min_support)
-    # reach: breadth-first from the seeds through allowed steps (8 neighbours)
+    return surface, passable
+
+
+@_jit
+def _reach(surface, passable, nx, ny, step_up, step_down):  # pragma: no cover - compiled
+    """(reached, order): breadth-first from the floor seeds through allowed steps (8-connected)."""
+    n_cells = nx * ny
     reached = np.zeros(n_cells, np.bool_)
     queue = np.empty(n_cells, np.int64)
     tail = 0
@@ -141,43 +129,63 @@ def _traverse_kernel(points, steep, size, step_up, step_down, up32, down32, robo
                     reached[b] = True
                     queue[tail] = b
                     tail += 1
-    # local ground: reached cells their surface, the others the largest ground of the
-    # neighbours filled in the previous layers (layer by layer, 8 neighbours)
+    return reached, queue[:tail].copy()
+
+
+@_jit
+def _local_ground(surface, reached, order, nx, ny):  # pragma: no cover - compiled
+    """Ground per cell: its surface where reached, else grown layer by layer (largest)."""
+    n_cells = nx * ny
     ground = np.zeros(n_cells)
-    if tail > 0:
-        done = reached.copy()
-        for c in range(n_cells):
-            if reached[c]:
-                ground[c] = surface[c]
-        frontier = queue[:tail].copy()
-        cand = np.empty(n_cells, np.int64)
-        mark = np.zeros(n_cells, np.bool_)
-        while frontier.size > 0:
-            m = 0
-            for c in frontier:
-                cx, cy = c // ny, c % ny
-                for dx in range(-1, 2):
-                    for dy in range(-1, 2):
-                        b = _cell(cx + dx, cy + dy, nx, ny)
-                        if b >= 0 and not done[b] and not mark[b]:
-                            mark[b] = True
-                            cand[m] = b
-                            m += 1
-            for i in range(m):
-                b = cand[i]
-                bx, by = b // ny, b % ny
-                best = -np.inf
-                for dx in range(-1, 2):
-                    for dy in range(-1, 2):
-                        a = _cell(bx + dx, by + dy, nx, ny)
-                        if a >= 0 and done[a] and ground[a] > best:
-                            best = ground[a]
-                ground[b] = best
-            for i in range(m):
-                done[cand[i]] = True
-                mark[cand[i]] = False
-            frontier = cand[:m].copy()
-    for v in range(n):
+    if order.size == 0:
+        return ground
+    done = reached.copy()
+    for c in range(n_cells):
+        if reached[c]:
+            ground[c] = surface[c]
+    frontier = order
+    cand = np.empty(n_cells, np.int64)
+    mark = np.zeros(n_cells, np.bool_)
+    while frontier.size > 0:
+        m = 0
+        for c in frontier:
+            cx, cy = c // ny, c % ny
+            for dx in range(-1, 2):
+                for dy in range(-1, 2):
+                    b = _cell(cx + dx, cy + dy, nx, ny)
+                    if b >= 0 and not done[b] and not mark[b]:
+                        mark[b] = True
+                        cand[m] = b
+                        m += 1
+        for i in range(m):
+            b = cand[i]
+            bx, by = b // ny, b % ny
+            best = -np.inf
+            for dx in range(-1, 2):
+                for dy in range(-1, 2):
+                    a = _cell(bx + dx, by + dy, nx, ny)
+                    if a >= 0 and done[a] and ground[a] > best:
+                        best = ground[a]
+            ground[b] = best
+        for i in range(m):
+            done[cand[i]] = True
+            mark[cand[i]] = False
+        frontier = cand[:m].copy()
+    return ground
+
+
+@_jit
+def _traverse_kernel(points, steep, size, step_up, step_down, up32, down32, robot32, layer,
+                     min_support, obstacle, above, height,
+                     reached_v):  # pragma: no cover - compiled
+    """Run the numpy path of traversal.traversable_ground, cell by cell."""
+    ix, iy, nx, ny, _, _ = grid_cells(points, size)
+    key = ix * ny + iy
+    surface, passable = _passable_cells(points, steep, key, nx * ny, step_up, layer,
+                                        min_support)
+    reached, order = _reach(surface, passable, nx, ny, step_up, step_down)
+    ground = _local_ground(surface, reached, order, nx, ny)
+    for v in range(points.shape[0]):
         k = key[v]
         h = np.float32(np.float64(points[v, 2]) - ground[k])
         height[v] = h
@@ -205,36 +213,8 @@ def traverse(points: np.ndarray, steep: np.ndarray, size_m: float, step_up_m: fl
 
 
 @_jit
-def _drop_kernel(depth, rz, h, down, up, rows, out):  # pragma: no cover - compiled
-    """Fill out (H, W) int8: drop-edge row offsets (see traversal.drop_edge_mask)."""
-    height, width = depth.shape
-    for i in range(height):
-        for j in range(width):
-            out[i, j] = 0
-            d = depth[i, j]
-            if not d > 0.0:
-                continue
-            zp = d * rz[i, j] + h
-            if not zp < -down:
-                continue
-            for k in range(1, rows + 1):
-                if i + k >= height:
-                    break
-                dq = depth[i + k, j]
-                if not dq > 0.0:
-                    continue
-                zq = dq * rz[i + k, j] + h
-                if zq >= -down and zq <= up and zq - zp > down:
-                    out[i, j] = k
-                    break
-
-
-@_jit
 def _z_row(depth_row, rz_row, h, down, out):  # pragma: no cover - compiled
-    """Fill out with the heights of the row's points (NaN without a return), float32.
-
-    Returns how many lie more than ``down`` below the floor (passed it).
-    """
+    """Fill out with the row's point heights (NaN: no return); return how many passed the floor."""
     nan = np.float32(np.nan)
     zero = np.float32(0.0)
     passed = 0
@@ -250,12 +230,11 @@ def _z_row(depth_row, rz_row, h, down, out):  # pragma: no cover - compiled
 @_jit
 def _drop_pixels_kernel(depth, rz, ru, rv, rot, h, down, up, rows, zring, rz_row, passed,
                         pix_out, k_out):  # pragma: no cover - compiled
-    """Fill pix_out/k_out with the pixels drop_edge_mask marks and their offsets; return how many.
+    """Fill pix_out/k_out with drop_edge_mask's marked pixels and offsets; return how many.
 
-    The same float32 heights and tests as _drop_kernel: the heights of rows i to i + rows
-    rotate through zring (rows + 1, W), passed (H,) counts each row's pixels below the floor;
-    only the rows with some are searched. rz: (H, W) the rays' z, or (0, 0) and each row's
-    computed into rz_row (W,) from ru, rv and rot (geometry.GroundRays), no table read.
+    The heights of rows i to i + rows rotate through zring (rows + 1, W); only rows with a
+    pixel below the floor (passed) are searched. rz: (H, W), or (0, 0) and each row's rays
+    computed into rz_row from ru, rv and rot.
     """
     height, width = depth.shape
     ring = rows + 1
@@ -292,14 +271,14 @@ def drop_pixels(depth_m: np.ndarray, rz: np.ndarray | None, height_m: float,
                 step_down_m: float, step_up_m: float, rows: int,
                 model: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
                 ) -> tuple[np.ndarray, np.ndarray]:
-    """(flat pixel indices int64, offsets int8) of drop_edge_mask's nonzero pixels, in order.
+    """(flat pixel indices int64, offsets int8) of drop_edge_mask's marks, in order.
 
-    rz: (H*W,) or (H, W) float32, the z of the ground rays; or None and model: (ru, rv, rot)
-    float32 of geometry.GroundRays, the rays computed row by row (the same values).
+    rz: the rays' z, (H*W,) or (H, W); or None and model: GroundRays' (ru, rv, rot).
     """
     height, width = depth_m.shape
-    pix = scratch('drop_pix', (height * width,), np.int64)
-    offsets = scratch('drop_k', (height * width,), np.int8)
+    pix = scratch('drop_pix', height * width, np.int64)[:height * width]
+    offsets = scratch('drop_k', height * width, np.int8)[:height * width]
+    ring = (int(rows) + 1) * width
     if model is None:
         rz = np.ascontiguousarray(rz, np.float32).reshape(depth_m.shape)
         empty = np.zeros(0, np.float32)
@@ -310,43 +289,15 @@ def drop_pixels(depth_m: np.ndarray, rz: np.ndarray | None, height_m: float,
     m = _drop_pixels_kernel(np.ascontiguousarray(depth_m, np.float32), rz, ru, rv, rot,
                             np.float32(height_m), np.float32(step_down_m),
                             np.float32(step_up_m), int(rows),
-                            scratch('drop_z', (int(rows) + 1, width), np.float32),
-                            scratch('drop_rz', (width,), np.float32),
-                            scratch('drop_passed', (height,), np.int64), pix, offsets)
+                            scratch('drop_z', ring, np.float32)[:ring].reshape(-1, width),
+                            scratch('drop_rz', width, np.float32)[:width],
+                            scratch('drop_passed', height, np.int64)[:height], pix, offsets)
     return pix[:m].copy(), offsets[:m].copy()
-
-
-def drop_edge_mask(depth_m: np.ndarray, rz: np.ndarray, height_m: float, step_down_m: float,
-                   step_up_m: float, rows: int) -> np.ndarray:
-    """(H, W) int8 drop-edge row offsets; equals traversal.drop_edge_mask."""
-    out = np.empty(depth_m.shape, np.int8)
-    _drop_kernel(np.ascontiguousarray(depth_m, np.float32),
-                 np.ascontiguousarray(rz, np.float32).reshape(depth_m.shape),
-                 np.float32(height_m), np.float32(step_down_m), np.float32(step_up_m),
-                 int(rows), out)
-    return out
-
-
-@_jit
-def _inf_kernel(raw, out):  # pragma: no cover - compiled
-    """Copy raw into out with inf where there is no return (raw <= 0)."""
-    flat_in = raw.reshape(-1)
-    flat_out = out.reshape(-1)
-    for k in range(flat_in.size):
-        r = flat_in[k]
-        flat_out[k] = r if r > 0.0 else np.float32(np.inf)
-
-
-def holes_to_inf(raw: np.ndarray) -> np.ndarray:
-    """Return ``np.where(raw > 0, raw, inf)`` (float32) in a per-thread buffer, compiled."""
-    buf = scratch('inf', raw.shape, np.float32)
-    _inf_kernel(np.ascontiguousarray(raw, np.float32), buf)
-    return buf
 
 
 @_jit
 def _planar_at(raw, i, j, tol_ratio):  # pragma: no cover - compiled
-    """Return traversal._planar at (i, j): inverse-depth second differences within tolerance."""
+    """Return traversal._planar at (i, j)."""
     height, width = raw.shape
     if i < 1 or j < 1 or i >= height - 1 or j >= width - 1:
         return False
@@ -360,45 +311,6 @@ def _planar_at(raw, i, j, tol_ratio):  # pragma: no cover - compiled
     row = abs(one / a + one / b - two * inv)
     col = abs(one / c + one / d - two * inv)
     return row <= tol and col <= tol
-
-
-@_jit
-def _smear_kernel(filtered, raw, near, far, ratio, jump, tol_ratio):  # pragma: no cover
-    """Apply traversal.drop_smeared in place, with the same float32 operations.
-
-    raw: measured depth with 0 for no return; near, far: its 5 x 5 window range.
-    """
-    height, width = filtered.shape
-    for i in range(height):
-        for j in range(width):
-            r = raw[i, j]
-            f = filtered[i, j]
-            if r > 0.0:
-                lim = jump * r
-                if r - near[i, j] > lim and far[i, j] - r > lim and \
-                        not _planar_at(raw, i, j, tol_ratio):
-                    filtered[i, j] = 0.0          # a mixed (flying) pixel
-                elif abs(f - r) > ratio * f:
-                    filtered[i, j] = r            # moved across an edge: the measured depth
-                continue
-            lim = ratio * f                       # a filled hole: kept inside a surface only
-            seen = False
-            agree = True
-            for ni, nj in ((i - 1, j), (i + 1, j), (i, j - 1), (i, j + 1)):
-                if 0 <= ni < height and 0 <= nj < width:
-                    nb = raw[ni, nj]
-                    if nb > 0.0:
-                        seen = True
-                        agree &= abs(nb - f) <= lim
-            if not (seen and agree):
-                filtered[i, j] = 0.0
-
-
-def drop_smeared(filtered: np.ndarray, raw: np.ndarray, near: np.ndarray, far: np.ndarray,
-                 max_shift: float, jump: float, planar_tolerance: float) -> None:
-    """In place: equals the numpy path of traversal.drop_smeared (float32 arithmetic)."""
-    _smear_kernel(filtered, raw, near, far, np.float32(max_shift), np.float32(jump),
-                  np.float32(planar_tolerance))
 
 
 @_jit
@@ -423,7 +335,7 @@ def _inverse_row(row, out):  # pragma: no cover - compiled
 
 @_jit
 def _smear_pixel(filtered, raw, i, j, near, far, ratio, jump, tol_ratio):  # pragma: no cover
-    """Return the new filtered depth at (i, j): _smear_kernel's rule, window range given."""
+    """Return the new filtered depth at (i, j): drop_smeared's rule, window range given."""
     height, width = raw.shape
     zero = np.float32(0.0)
     r = raw[i, j]
@@ -510,13 +422,9 @@ def _column_step(row, col_lo, col_hi):  # pragma: no cover - compiled
 
 @_jit
 def _row_range(col_lo, col_hi, r_row, f_row, jump, lo_out, hi_out):  # pragma: no cover
-    """Row pass of the window range, and what the row holds to decide; returns two counts.
+    """Row pass of the window range (lo_out, hi_out: min/max of 5 taps, exact in any order).
 
-    lo_out[j] = min(col_lo[j:j + 5]), hi_out[j] likewise max, pairs first (min(a, b),
-    min(c, d): the same values as taking the five in turn, min and max of numbers are
-    exact in any order). Returns (flying, filled): how many pixels of the row r_row lie more
-    than jump of their depth from both ends of their window range (flying unless planar),
-    and how many holes the filter filled (no measured depth, a filtered one in f_row).
+    Returns (flying, filled): the row's flying candidates and filled holes.
     """
     zero = np.float32(0.0)
     flying = 0
@@ -551,10 +459,7 @@ def _row_range(col_lo, col_hi, r_row, f_row, jump, lo_out, hi_out):  # pragma: n
 
 @_jit
 def _pair_range(upper, lower, lo_out, hi_out):  # pragma: no cover - compiled
-    """Fill lo_out/hi_out with the range of two rows (nearest measured depth, inf: none).
-
-    hi_out: the farthest, 0 without any.
-    """
+    """Fill lo_out/hi_out with the nearest (inf: none) and farthest (0) depth of two rows."""
     zero = np.float32(0.0)
     inf = np.float32(np.inf)
     for j in range(lo_out.size):
@@ -590,7 +495,7 @@ def _column_range(lo_a, hi_a, lo_b, hi_b, row, col_lo, col_hi):  # pragma: no co
 @_jit
 def _decide_row(r_row, f_row, near, far, planar, keep, ratio, jump,
                 ):  # pragma: no cover - compiled
-    """Apply _smear_kernel's rule along a row, in place, the masks of the row given."""
+    """Apply drop_smeared's rule along a row, in place, the masks of the row given."""
     zero = np.float32(0.0)
     for j in range(r_row.size):
         r = r_row[j]
@@ -608,17 +513,11 @@ def _decide_row(r_row, f_row, near, far, planar, keep, ratio, jump,
 @_jit
 def _smear5_kernel(filtered, raw, ratio, jump, tol_ratio, col_lo, col_hi, row_lo, row_hi,
                    pair_lo, pair_hi, inv3, zeros, planar, keep):  # pragma: no cover - compiled
-    """_smear_kernel with its 5 x 5 window range computed on the way, row by row.
+    """drop_smeared, row by row, with the 5 x 5 window range (clipped to the image) on the way.
 
-    The window range is the window clipped to the image (what OpenCV's erode/dilate with a
-    replicated border give): the nearest measured depth (inf without any) and the farthest (0
-    without any): a column pass into col_lo/col_hi (inside the image, from the range of the
-    rows i - 2, i - 1 and i, i + 1, each pair's kept in the ring pair_lo/pair_hi (3, W), and
-    row i + 2), a row pass into row_lo/row_hi that counts the row's flying candidates and
-    filled holes. The inverse depths of the rows i - 1, i, i + 1 rotate through inv3, computed
-    for the rows with a flying candidate only. Then branch-free passes over the row's inner
-    columns (planar and keep where needed, decide; the compiler vectorises them) and the
-    scalar rule at the 2 border columns each side. raw: no NaN (the caller checks); zeros: (W,) 0.
+    A column pass (row pairs kept in the ring pair_lo/pair_hi) and a row pass give each row's
+    range; the inverse depths of rows i - 1 to i + 1 rotate through inv3; branch-free passes
+    decide the inner columns, the scalar rule the 2 border columns each side. zeros: (W,) 0.
     """
     height, width = filtered.shape
     inf = np.float32(np.inf)
@@ -693,24 +592,18 @@ def has_nan(raw: np.ndarray) -> bool:
     return bool(_has_nan(raw))
 
 
-def drop_smeared_fused(filtered: np.ndarray, raw: np.ndarray, max_shift: float, jump: float,
-                       planar_tolerance: float) -> None:
-    """In place, as :func:`drop_smeared` with the 5 x 5 window range of traversal's numpy path.
+def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float, jump: float,
+                 planar_tolerance: float, raw_no_nan: bool = False) -> None:
+    """In place: traversal's drop_smeared, its 5 x 5 window range computed on the way.
 
-    filtered, raw: (H, W) float32 C-contiguous; raw without NaN (:func:`has_nan`: OpenCV's
-    window range, which the result must equal, orders NaN its own way).
+    filtered, raw: (H, W) float32 C-contiguous; raw without NaN (the stage's ``accepts``
+    checks it, or takes ``raw_no_nan``: OpenCV's window range orders NaN its own way).
     """
-    rules = (np.float32(max_shift), np.float32(jump), np.float32(planar_tolerance))
-    _smear5_kernel(filtered, raw, *rules, *_smear5_scratch(raw.shape[1]))
-
-
-def _smear5_scratch(width: int) -> tuple[np.ndarray, ...]:
-    """Return this thread's row buffers of :func:`_smear5_kernel` for images this wide."""
     bufs = getattr(_SCRATCH, 'smear5', None)
-    if bufs is None or bufs[0].size != width + 4:
-        bufs = _smear5_buffers(width)
-        _SCRATCH.smear5 = bufs
-    return bufs
+    if bufs is None or bufs[0].size != raw.shape[1] + 4:
+        bufs = _SCRATCH.smear5 = _smear5_buffers(raw.shape[1])
+    rules = (np.float32(max_shift), np.float32(jump), np.float32(planar_tolerance))
+    _smear5_kernel(filtered, raw, *rules, *bufs)
 
 
 @_jit
@@ -718,8 +611,7 @@ def _floor_samples_kernel(depth, step, rays, height, tan_tilt, band0, min_x, max
                           facing_cos2, out):  # pragma: no cover - compiled
     """Fill out (3, M) float64 with floor.floor_samples' points; return how many.
 
-    depth: (H, W) float32, sampled every ``step`` pixels; rays: (3, gh * gw) float32 of the
-    sampled grid. The same float64 operations as the numpy path, point by point.
+    depth: (H, W) float32, sampled every ``step`` pixels; rays: (3, gh * gw) of that grid.
     """
     gh = (depth.shape[0] + step - 1) // step
     gw = (depth.shape[1] + step - 1) // step
@@ -762,21 +654,16 @@ def _floor_samples_kernel(depth, step, rays, height, tan_tilt, band0, min_x, max
 
 
 @_jit
-def _ransac_kernel(pts, picks, tan_tilt2, offset, band32, score_points, out,
-                   ):  # pragma: no cover - compiled
-    """Fill out (k, 3) with floor._ransac_plane's best k hypotheses (same float operations).
+def _hypotheses(pts, picks, tan_tilt2, offset, a, b, c):  # pragma: no cover - compiled
+    """Fill a, b, c with the planes through the picked triplets within the tilt and offset.
 
-    pts: (3, M) float64 floor samples; picks: (3, h) float64 in [0, 1), where in each third
-    of the samples the triplet points are taken; band32: the float32 inlier band.
+    pts: (3, M) float64; picks: (3, h) in [0, 1), where in each third of the samples the
+    triplet points are taken. Returns how many.
     """
     n = pts.shape[1]
-    h = picks.shape[1]
     third = n // 3
-    a = np.empty(h + 2)
-    b = np.empty(h + 2)
-    c = np.empty(h + 2)
     used = 0
-    for t in range(h):
+    for t in range(picks.shape[1]):
         i0 = np.int64(picks[0, t] * third)
         i1 = np.int64(picks[1, t] * third) + third
         i2 = np.int64(picks[2, t] * third) + 2 * third
@@ -799,27 +686,32 @@ def _ransac_kernel(pts, picks, tan_tilt2, offset, band32, score_points, out,
             b[used] = hb
             c[used] = hc
             used += 1
-    # the configured floor, and the level plane through the most common sample height
+    return used
+
+
+@_jit
+def _mode_height(pts, offset):  # pragma: no cover - compiled
+    """Return the most common sample height within the offset (1 cm bins), or 0."""
+    n = pts.shape[1]
     n_bins = 0
     for i in range(n):
         z = pts[2, i]
         if abs(z) <= offset:
             n_bins = max(n_bins, np.int64(np.floor((z + offset) * 100.0)) + 1)
-    mode = 0.0
-    if n_bins > 0:
-        counts = np.zeros(n_bins, np.int64)
-        for i in range(n):
-            z = pts[2, i]
-            if abs(z) <= offset:
-                counts[np.int64(np.floor((z + offset) * 100.0))] += 1
-        mode = (np.argmax(counts) + 0.5) * 0.01 - offset
-    a[used] = 0.0
-    b[used] = 0.0
-    c[used] = 0.0
-    a[used + 1] = 0.0
-    b[used + 1] = 0.0
-    c[used + 1] = mode
-    used += 2
+    if n_bins == 0:
+        return 0.0
+    counts = np.zeros(n_bins, np.int64)
+    for i in range(n):
+        z = pts[2, i]
+        if abs(z) <= offset:
+            counts[np.int64(np.floor((z + offset) * 100.0))] += 1
+    return (np.argmax(counts) + 0.5) * 0.01 - offset
+
+
+@_jit
+def _scores(pts, a, b, c, used, score_points, band32):  # pragma: no cover - compiled
+    """Return (used,) int64: samples (every stride-th, float32) within band32 of each plane."""
+    n = pts.shape[1]
     stride = max(1, n // score_points)
     ns = (n + stride - 1) // stride
     sx = np.empty(ns, np.float32)
@@ -842,6 +734,30 @@ def _ransac_kernel(pts, picks, tan_tilt2, offset, band32, score_points, out,
             r -= sz[i]
             count += abs(r) <= band32
         score[t] = count
+    return score
+
+
+@_jit
+def _ransac_kernel(pts, picks, tan_tilt2, offset, band32, score_points, out,
+                   ):  # pragma: no cover - compiled
+    """Fill out (k, 3) with floor._ransac_plane's best k hypotheses (same float operations).
+
+    The hypotheses: the triplets' planes, the configured floor and the level plane through
+    the most common sample height; band32: the float32 inlier band.
+    """
+    h = picks.shape[1]
+    a = np.empty(h + 2)
+    b = np.empty(h + 2)
+    c = np.empty(h + 2)
+    used = _hypotheses(pts, picks, tan_tilt2, offset, a, b, c)
+    a[used] = 0.0
+    b[used] = 0.0
+    c[used] = 0.0
+    a[used + 1] = 0.0
+    b[used + 1] = 0.0
+    c[used + 1] = _mode_height(pts, offset)
+    used += 2
+    score = _scores(pts, a, b, c, used, score_points, band32)
     for k in range(out.shape[0]):   # the best first; ties: the earlier hypothesis
         best = -1
         for t in range(used):
@@ -883,7 +799,8 @@ def floor_samples(depth_m: np.ndarray, step: int, sub_rays: np.ndarray, height_m
     """(3, M) float64: floor.floor_samples' points, compiled (a fresh array)."""
     gh = (depth_m.shape[0] + step - 1) // step
     gw = (depth_m.shape[1] + step - 1) // step
-    buf = scratch('floor_samples', (3, max(1, (gh - 1) * (gw - 1))), np.float64)
+    size = max(1, (gh - 1) * (gw - 1))
+    buf = scratch('floor_samples', 3 * size, np.float64)[:3 * size].reshape(3, size)
     m = _floor_samples_kernel(np.ascontiguousarray(depth_m, np.float32), step,
                               np.ascontiguousarray(sub_rays, np.float32), float(height_m),
                               float(tan_tilt), float(band0_m), float(min_x_m), float(max_x_m),
@@ -903,10 +820,10 @@ def ransac_plane(pts: np.ndarray, picks: np.ndarray, tan_tilt2: float, offset_m:
 def in_band(pts: np.ndarray, a: float, b: float, c: float, band_m: float) -> np.ndarray:
     """(3, m) float64: the samples pts (3, M) within band_m of z = a x + b y + c (a copy).
 
-    Laid out as numpy's ``pts[:, mask]`` is (the transpose of an (m, 3) C array): the sums
-    over it (mean, dot) then run in the same order, to the bit.
+    Laid out as numpy's ``pts[:, mask]`` (the transpose of an (m, 3) C array): the same sums.
     """
-    buf = scratch('floor_band', (pts.shape[1], 3), np.float64)
+    size = 3 * pts.shape[1]
+    buf = scratch('floor_band', size, np.float64)[:size].reshape(-1, 3)
     m = _band_kernel(pts, float(a), float(b), float(c), float(band_m), buf)
     return buf[:m].copy().T
 
@@ -921,15 +838,11 @@ def warm_up() -> None:
     ground_rays(np.zeros(2, np.float32), np.zeros(2, np.float32), np.eye(3, dtype=np.float32))
     pts = np.array([[0.1, 0.0, 0.0], [0.2, 0.1, 0.3]], np.float32)
     traverse(pts, np.array([False, True]), 0.05, 0.05, 0.05, 1.0, 0.025)
-    drop_edge_mask(np.ones((4, 2), np.float32), -np.ones((4, 2), np.float32), 0.5, 0.05, 0.05, 3)
     drop_pixels(np.ones((4, 2), np.float32), -np.ones(8, np.float32), 0.5, 0.05, 0.05, 3)
     drop_pixels(np.ones((4, 2), np.float32), None, 0.5, 0.05, 0.05, 3,
                 (np.zeros(2, np.float32), np.zeros(4, np.float32), np.eye(3, dtype=np.float32)))
-    one = np.ones((3, 3), np.float32)
-    drop_smeared(one.copy(), one, one, one, 0.03, 0.05, 0.02)
-    drop_smeared_fused(np.ones((6, 6), np.float32), np.ones((6, 6), np.float32), 0.03, 0.05,
-                       0.02)
-    holes_to_inf(one)
+    one = np.ones((6, 6), np.float32)
+    drop_smeared(one.copy(), one, 0.03, 0.05, 0.02)
     has_nan(one)
     rng = np.random.default_rng(0)
     depth = rng.uniform(0.5, 3.0, (12, 12)).astype(np.float32)

@@ -1,40 +1,19 @@
-"""Compiled (numba) back-projection, region of interest and voxel grid (optional).
+"""Compiled (numba) back-projection, region of interest and voxel grid.
 
-numba is an optional accelerator: when :func:`obstacle_detection.pipeline.jit.enabled`, the
-stage module :mod:`obstacle_detection.pipeline.voxel` runs :func:`project_roi` and
-:func:`voxelise` instead of its numpy twin (``_reference_points_in_roi``) and numpy voxel
-grid, and its ``voxel_downsample`` runs :func:`voxel_downsample`. This
-module takes and returns arrays; the stage module builds its ``VoxelGrid`` from them.
-
-Both paths give bit-identical results. The kernels repeat the float32 operations of the numpy
-code one by one (``depth * ray``, then ``+ height`` for z; ``floor(x / size)`` in the points'
-dtype) and sum every voxel in float64 in point order, as ``np.bincount`` does, so the points,
-the voxels, their order (linear key, x slowest, z fastest) and the centroids are the same.
-
-Method: one pass over the pixels back-projects through the cached ground rays, applies the
-region of interest and computes each kept point's voxel key on a lattice fixed by the region's
-bounds (division by a positive number is monotone, so every kept point's voxel lies inside
-it). A bitmap of the occupied cells (a bit per lattice cell) and the count of set bits
-before each of its 64-bit words number the voxels in key order; one pass over the points then
-accumulates counts and sums. A lattice larger than
-``_DENSE_LIMIT`` cells, or a point whose voxel index does not fit, is refused (ValueError);
-the stage module sends those to numpy before calling.
-
-The kernels are compiled on first use (a few seconds) and cached on disk (``cache=True``);
-call :func:`obstacle_detection.pipeline.voxel.warm_up` at start-up to pay that before the first
-frame. They run on one thread.
+The stage module :mod:`obstacle_detection.pipeline.voxel` runs :func:`project_roi`,
+:func:`voxelise` and :func:`voxel_downsample` instead of its numpy twins when
+:func:`obstacle_detection.pipeline.jit.enabled`; the results are bit-identical (the same
+float32 operations, float64 sums in point order). Method: docs/speed.md.
 """
 
 from __future__ import annotations
-
-import threading
 
 import numpy as np
 
 from obstacle_detection.labels import (LABEL_GROUND, LABEL_NO_RETURN, LABEL_OBSTACLE,
                                        LABEL_OUTSIDE_ROI)
 
-from ._numba import AVAILABLE, jit as _jit, jit_inline as _jit_inline
+from ._numba import AVAILABLE, jit as _jit, jit_inline as _jit_inline, scratch
 from .traversal import ray_row
 
 __all__ = ['AVAILABLE', 'Projection', 'label_pixels', 'project_roi', 'roi_lattice',
@@ -47,27 +26,20 @@ _U0 = np.uint64(0)
 _U1 = np.uint64(1)
 #: Largest |voxel index| handled; beyond it (or NaN) the numpy path must run.
 _MAX_INDEX = float(1 << 40)
-#: Label of a pixel inside the region of interest until :func:`label_pixels` decides ground or
-#: obstacle (every such pixel has a voxel, so none keeps it).
+#: Label of a pixel inside the region of interest until :func:`label_pixels` decides.
 _LABEL_KEPT = LABEL_GROUND
-#: Pixels whose rays are computed at once when they are not read from a table (a band of
-#: rows: 3 x 4 B x 8192 = 96 kB, cache resident).
+#: Pixels whose rays are computed at once when not read from a table (96 kB, cache resident).
 _RAY_BAND_PX = 8192
 
-
-# --------------------------------------------------------------------------- kernels
 
 @_jit
 def _project_kernel(depth, rays, offset, bounds, size, low, dims, labels, pixel_voxel, cols,
                     pix, keys):  # pragma: no cover - compiled
     """Back-project, keep the region of interest, key the kept points' voxels.
 
-    depth (n,) float32; rays (3, n) float32; offset: the flat index of depth[0] in the image
-    (pix holds image indices); bounds (6,) float32 (min range, max range,
-    lateral limit, height, tdbg, max height); size (3,) float32; low, dims (3,) int64 the
-    lattice. Writes labels (n,) uint8 (LABEL_NO_RETURN, LABEL_OUTSIDE_ROI, or _LABEL_KEPT
-    inside), pixel_voxel (n,) int32 = -1, and for the m kept points cols (3, >=m) float32,
-    pix (m,) int64, keys (m,) int64. Returns m, or -1 when a key falls outside the lattice.
+    offset: the image index of depth[0]; bounds: as :func:`project_roi`. Writes labels,
+    pixel_voxel (-1) and the kept points' cols, pix, keys; returns their number, or -1 when
+    a key falls outside the lattice (low, dims).
     """
     min_x, max_x, lateral = bounds[0], bounds[1], bounds[2]
     height, min_z, max_z = bounds[3], bounds[4], bounds[5]
@@ -106,13 +78,7 @@ def _project_kernel(depth, rays, offset, bounds, size, low, dims, labels, pixel_
 @_jit
 def _project_rays_kernel(depth, ru, rv, rot, chunk, bounds, size, low, dims, labels,
                          pixel_voxel, cols, pix, keys):  # pragma: no cover - compiled
-    """_project_kernel with the rays computed, not read: geometry.GroundRays (ru, rv, rot).
-
-    The rays of a band of rows are computed into chunk (3, rows * W) float32 (a few
-    cache-resident rows; the same float32 operations as the table), then projected.
-    depth, labels, pixel_voxel: the whole image (flat). Returns the number of kept points,
-    or -1.
-    """
+    """_project_kernel with the rays of geometry.GroundRays computed into chunk, band by band."""
     width = ru.size
     height = rv.size
     band = max(1, chunk.shape[1] // width)
@@ -159,18 +125,10 @@ def _popcount(x):  # pragma: no cover - compiled
 @_jit
 def _voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_voxel, bits,
                   prefix):  # pragma: no cover - compiled
-    """Give the occupied cells numbers in key order; average their points.
+    """Give the occupied cells numbers in key order (a bitmap, bits; prefix: counts per word).
 
-    The m points are the first m of cols (3, >= m) float, keys (>= m,) int64 in
-    [0, n_cells) and pixels (>= m,) int64. dims, low (3,) int64 the lattice; pixel_voxel
-    (h*w,) int32: when pixels is not empty, the voxel of each point is written at its pixel;
-    point_voxel (m,) int64 out. Scratch, one entry per 64 cells: bits (>= ceil(n_cells /
-    64)) uint64 all zero (left all zero), the occupied cells' bits; prefix (as long) int64,
-    the occupied cells before each word. A
-    cell's voxel number is its word's prefix plus the set bits below it in the word: no
-    table entry per cell, so the frame touches 1/64 of the memory a table would (the bitmap
-    and the prefixes stay in the cache). Returns (centroids (V, 3) float32, point_voxel,
-    counts (V,) int64, voxel_ijk (V, 3) int64).
+    Writes point_voxel (m,) and, when pixels is not empty, pixel_voxel at each point's pixel;
+    bits must be all zero and are left so. Returns (centroids, point_voxel, counts, voxel_ijk).
     """
     n_words = (n_cells + 63) // 64
     m = point_voxel.shape[0]
@@ -227,18 +185,11 @@ def _label_kernel(labels, pixel_voxel, is_obstacle):  # pragma: no cover - compi
             labels[p] = LABEL_OBSTACLE if is_obstacle[v] else LABEL_GROUND
 
 
-# --------------------------------------------------------------------------- wrappers
-
 class Projection:
     """What :func:`project_roi` found in one depth image (flat pixel order).
 
-    points: (M, 3) float32 ground frame [m] of the pixels in the region of interest (a view
-    with contiguous columns); pixel_index: (M,) int64 their flat indices; labels: (H, W) uint8
-    LABEL_NO_RETURN, LABEL_OUTSIDE_ROI or (inside) _LABEL_KEPT; pixel_voxel: (H, W) int32, -1
-    (filled in by :func:`voxelise`); keys, low, dims: linear voxel keys (M,) on the lattice
-    ``low``, ``dims`` (None when the numpy path must number the voxels); voxel_size_m: the
-    voxel size; reuse: points, pixel_index and keys live in per-thread buffers (see
-    :func:`project_roi`).
+    The points inside the region, their pixel indices and (``has_keys``) voxel keys on the
+    lattice ``low``, ``dims``; labels; pixel_voxel (-1 until :func:`voxelise`).
     """
 
     __slots__ = ('_cols', '_pix', '_keys', 'count', 'labels', 'pixel_voxel', 'has_keys',
@@ -268,22 +219,6 @@ class Projection:
         return self._keys[:self.count] if self.has_keys else None
 
 
-_SCRATCH = threading.local()
-
-
-def _scratch(name: str, size: int, dtype, zero: bool = False) -> np.ndarray:
-    """Return a per-thread buffer of at least ``size`` elements, reused across frames.
-
-    Reuse spares the page faults of fresh large arrays (about 1 ms a frame). ``zero``: the
-    buffer starts all zero, and its users leave it so.
-    """
-    buf = getattr(_SCRATCH, name, None)
-    if buf is None or buf.size < size:
-        buf = np.zeros(size, dtype) if zero else np.empty(size, dtype)
-        setattr(_SCRATCH, name, buf)
-    return buf
-
-
 def roi_lattice(bounds: np.ndarray, size: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Voxel lattice (low, dims) int64 holding every point inside the float32 bounds."""
     lo = np.array([bounds[0], -bounds[2], bounds[4]], np.float32)
@@ -298,14 +233,8 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarra
                 ) -> Projection:
     """Back-project a depth image through ground rays, keep the ROI, key the voxels.
 
-    depth_m: (H, W) float32, 0 = no return; rays: (3, H*W) float32 ground rays, or their
-    factors (ru (W,), rv (H,), rot (3, 3)) float32 of ``geometry.GroundRays`` (the rays computed
-    on the fly a band of rows at a time, no table read; the same float32 values); bounds: (6,)
-    float32 (min range, max range, lateral limit, camera height, tdbg, max height), as
-    :func:`obstacle_detection.pipeline.voxel.roi_bounds` rounds them. The points and pixel
-    indices equal those of :func:`obstacle_detection.pipeline.voxel.points_in_roi`'s numpy path.
-    reuse: keep the points, pixel indices and keys in per-thread buffers that the next call
-    in the same thread overwrites (the pipeline's choice; faster), instead of fresh arrays.
+    rays: (3, H*W) float32, or GroundRays' factors (ru, rv, rot), computed on the fly; bounds:
+    ``voxel.roi_bounds``. reuse: per-thread buffers that the thread's next call overwrites.
     """
     shape = depth_m.shape
     depth = np.ascontiguousarray(depth_m, np.float32).reshape(-1)
@@ -315,7 +244,7 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarra
         if (rv.size, ru.size) != shape:
             raise ValueError(f'rays are for a {(rv.size, ru.size)} image, the depth is {shape}')
         band = max(1, _RAY_BAND_PX // shape[1]) * shape[1]   # whole rows
-        chunk = _scratch('ray_band', 3 * band, np.float32)[:3 * band].reshape(3, band)
+        chunk = scratch('ray_band', 3 * band, np.float32)[:3 * band].reshape(3, band)
 
         def kernel(*args):
             return _project_rays_kernel(depth, ru, rv, rot, chunk, *args)
@@ -334,9 +263,9 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarra
     labels = np.empty(shape, np.uint8)
     pixel_voxel = np.empty(shape, np.int32)
     if reuse:
-        cols = _scratch('cols', 3 * n, np.float32)[:3 * n].reshape(3, n)
-        pix = _scratch('pix', n, np.int64)[:n]
-        keys = _scratch('keys', n, np.int64)[:n]
+        cols = scratch('cols', 3 * n, np.float32)[:3 * n].reshape(3, n)
+        pix = scratch('pix', n, np.int64)[:n]
+        keys = scratch('keys', n, np.int64)[:n]
     else:
         cols = np.empty((3, n), np.float32)
         pix = np.empty(n, np.int64)
@@ -356,17 +285,15 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarra
 
 
 def voxelise(proj: Projection) -> tuple:
-    """Voxel grid of a :class:`Projection` with keys and points; fills in ``proj.pixel_voxel``.
+    """Return the VoxelGrid fields of a :class:`Projection`; fill ``proj.pixel_voxel``.
 
-    Returns (centroids, point_voxel, counts, voxel_ijk), the fields of the ``VoxelGrid`` that
-    :func:`obstacle_detection.pipeline.voxel.voxel_downsample` gives for ``proj.points``.
     Raises ValueError for a projection without keys (its lattice too large) or points.
     """
     if not proj.has_keys or proj.count == 0:
         raise ValueError('the projection has no voxel keys or no point')
     n_cells = int(proj.dims[0] * proj.dims[1] * proj.dims[2])
     m = proj.count
-    point_voxel = _scratch('point_voxel', m, np.int64)[:m] if proj.reuse else np.empty(m,
+    point_voxel = scratch('point_voxel', m, np.int64)[:m] if proj.reuse else np.empty(m,
                                                                                       np.int64)
     return _run_voxel_kernel(proj._cols, proj._keys, n_cells, proj.dims, proj.low, proj._pix,
                              proj.pixel_voxel.reshape(-1), point_voxel)
@@ -375,20 +302,17 @@ def voxelise(proj: Projection) -> tuple:
 def _run_voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_voxel):
     """Call :func:`_voxel_kernel` with this thread's lattice scratch buffers."""
     n_words = (n_cells + 63) // 64
-    bits = _scratch('occupied_bits', n_words, np.uint64, zero=True)
-    prefix = _scratch('bit_prefix', n_words, np.int64)
+    bits = scratch('occupied_bits', n_words, np.uint64, zero=True)
+    prefix = scratch('bit_prefix', n_words, np.int64)
     return _voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_voxel,
                          bits, prefix)
 
 
 def voxel_downsample(points: np.ndarray, voxel_size_m: tuple[float, float, float]
                      ) -> tuple:
-    """:func:`obstacle_detection.pipeline.voxel.voxel_downsample` compiled.
+    """Return the VoxelGrid fields of ``pipeline.voxel.voxel_downsample``, compiled.
 
-    points: (M, 3) float32 or float64 (M >= 1) [m]; the size has been validated. Returns the
-    fields (centroids, point_voxel, counts, voxel_ijk) of the same ``VoxelGrid``. Raises
-    ValueError for another dtype, no point, a voxel index beyond 2**40 or NaN, or a lattice
-    over ``_DENSE_LIMIT`` cells (the stage module sends those to numpy before calling).
+    ValueError for another dtype, no point, an index beyond 2**40 or NaN, or too large a lattice.
     """
     if points.dtype not in (np.float32, np.float64) or points.shape[0] == 0:
         raise ValueError(f'need float32/64 points, at least one; got {points.dtype} '
