@@ -529,7 +529,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
     try:
         return run_demo(args)
-    except (DemoError, datasets.ConvertError, bag_player.PlayError) as err:
+    except (DemoError, datasets.ConvertError, tool_support.ToolError) as err:
         print(f'error: {err}', file=sys.stderr)
         return 1
 

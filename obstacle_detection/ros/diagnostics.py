@@ -1,20 +1,4 @@
-"""The node's health on ``/diagnostics``: counters per period and the level they mean.
-
-Pure Python plus the ``diagnostic_msgs`` message types (no rclpy), so the rules are tested
-without a ROS graph. The node feeds a :class:`HealthWindow` from its callbacks and worker, and
-once a second publishes :func:`health_status` as a ``diagnostic_msgs/DiagnosticArray``, where
-rqt_robot_monitor and the diagnostic aggregator look first when a sensor pipeline misbehaves.
-
-Levels (thresholds over the last period, about a second):
-
-- ERROR: no depth frame for ``NO_FRAME_ERROR_S`` (2 s); frames arrive but no usable CameraInfo
-  (and no fallback); more than ``SKIPPED_ERROR_SHARE`` (50 %) of the frames skipped for bad
-  input; the pipeline raised on a frame.
-- WARN: some frames skipped; more than ``DROPPED_WARN_SHARE`` (20 %) replaced by a newer frame
-  before processing (the node does not keep up); the numpy path while the compiled kernels
-  build, or because they failed.
-- OK otherwise.
-"""
+"""The node's health on ``/diagnostics``: counters per period and the level they mean."""
 
 from __future__ import annotations
 
@@ -138,22 +122,13 @@ def _level_and_message(period: Period, ctx: Context) -> tuple[int, str]:
 
 
 def status_name(node_fqn: str) -> str:
-    """Return the status name of a node: its fully qualified name and the task.
-
-    Two detectors (two cameras) in two namespaces report under two names, e.g.
-    ``/front/obstacle_detector: depth obstacle detection``.
-    """
+    """Return the status name of a node: its fully qualified name and the task."""
     return f'{node_fqn}: {STATUS_TASK}'
 
 
 def health_status(period: Period, ctx: Context, *, name: str,
                   hardware_id: str) -> DiagnosticStatus:
-    """Return the DiagnosticStatus of one period: level, one-line message, key/values.
-
-    name: :func:`status_name` of the node. hardware_id: what the status is about, the depth
-    frames' frame_id once one is known (rqt_robot_monitor and the aggregator want it
-    non-empty).
-    """
+    """Return the DiagnosticStatus of one period: level, one-line message, key/values."""
     level, message = _level_and_message(period, ctx)
     times = sorted(period.times_ms)
     values = {

@@ -1,37 +1,4 @@
-"""The ROS 2 node: depth frames in, obstacle cloud and ground-plane costmap out.
-
-Run: ``ros2 run obstacle_detection detector --ros-args --params-file params/corridor.yaml``.
-
-Topics (relative names, remappable; :func:`help_text` lists them all):
-
-- in  ``depth/image_raw`` (sensor_msgs/Image, 16UC1 [mm] or 32FC1 [m]; or a CompressedImage
-  on ``.../compressedDepth`` or ``.../compressed`` by ``depth_transport``): sensor-data QoS
-  (best effort), reliable when ``reliable_input`` is true.
-- in  ``depth/camera_info`` (sensor_msgs/CameraInfo, intrinsics from P): as the depth; once a
-  transient-local publisher shows up (a camera that publishes one CameraInfo, latched), a
-  second, transient-local subscription receives it; what both deliver is kept once.
-- in  ``odom`` (nav_msgs/Odometry, ``odom_topic``), only if ``fuse``: best effort, so
-  reliable and best-effort publishers both connect.
-- out (reliable): ``obstacles/points`` (PointCloud2 x, y, z float32 in ``cloud_frame_id``),
-  ``obstacles/costmap`` (OccupancyGrid in the z = 0 plane of ``costmap_frame_id``; transient
-  local, depth 1, so a late RViz gets the last grid), ``obstacles/ground_points`` (only if
-  ``publish_ground``), ``obstacles/overlay`` (rgb8 Image in the input's frame, only if
-  ``publish_overlay``), ``obstacles/clearing_points`` (PointCloud2 in the input's optical
-  frame, only if ``publish_clearing``: Nav2's clearing source), ``obstacles/fused_costmap``
-  (OccupancyGrid in ``odom_frame``, only if ``fuse``; transient local, depth 1),
-  ``~/processing_time_ms`` (std_msgs/Float64), ``~/status`` (latched) and ``/diagnostics``.
-  The switches are read at start-up (read-only): what is off is neither advertised nor
-  subscribed.
-
-The default output frame ``base_footprint`` is the pipeline's ground frame: x forward, y left,
-z up, origin on the ground right under the camera (a robot whose base_footprint is elsewhere
-remaps or sets the frame ids and publishes the transform).
-
-Frames never queue behind a slow pipeline: the subscription callback only keeps the newest
-message (an older pending one is dropped and counted) and a worker thread processes it. The
-node holds no algorithm: it converts the message, calls ``Detector.process`` and publishes the
-messages of ``conversions.result_to_messages``.
-"""
+"""The ROS 2 node: depth frames in, obstacle cloud and ground-plane costmap out."""
 
 from __future__ import annotations
 
@@ -123,13 +90,7 @@ _RELIABLE_INPUT_QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE
 
 
 class FrameMailbox:
-    """The newest ``capacity`` items, oldest taken first: ``put`` drops the oldest when full.
-
-    Dropped items are counted. capacity 1 keeps only the newest (a frame waiting is replaced
-    by the next one); 2 lets one frame wait behind another, so one slow frame (a 50-80 ms
-    stall of this virtual machine, a garbage collection) delays the next instead of dropping
-    it, while a node that cannot keep up still falls at most one frame behind.
-    """
+    """The newest ``capacity`` items, oldest taken first: ``put`` drops the oldest when full."""
 
     def __init__(self, capacity: int = 1) -> None:
         if capacity < 1:
@@ -165,15 +126,7 @@ class FrameMailbox:
 
 
 class StampGaps:
-    """Count the frames a camera sent that never arrived, from gaps in the frame stamps.
-
-    A camera stamps its frames at a steady period; an interval between two received stamps
-    of about k periods means k - 1 frames were lost on the way (a best-effort transport drops
-    a frame that does not fit the socket buffer), which the node would otherwise never see.
-    The period is the median of the recent intervals, so a camera or a replay at any rate is
-    measured against itself; a stamp that goes back (a replay looping, a clock reset) starts
-    over.
-    """
+    """Count the frames a camera sent that never arrived, from gaps in the frame stamps."""
 
     #: Recent intervals whose median is the period.
     HISTORY = 31
@@ -245,10 +198,7 @@ class FrameStats:
             self.errors += 1
 
     def take_period(self) -> dict[str, float]:
-        """Return the counters since the last call, then reset them.
-
-        Keys: processed, dropped, skipped, errors, missing, mean_ms, fps, period_s.
-        """
+        """Return the counters since the last call, then reset them."""
         now = time.monotonic()
         with self._lock:
             period = max(now - self._since, 1e-9)
@@ -271,8 +221,7 @@ class DetectorNode(Node):
     def __init__(self, *, tf_buffer: Any = None, **kwargs: Any) -> None:
         """Declare the parameters, build the detector, subscribe.
 
-        tf_buffer: an object with ``tf2_ros.Buffer``'s ``lookup_transform`` (tests give a
-        stand-in); None creates a real one when ``use_tf`` is set and tf2_ros is importable.
+        tf_buffer: a ``tf2_ros.Buffer`` stand-in (tests); None makes one when ``use_tf`` is set.
         """
         super().__init__(NODE_NAME, **kwargs)
         for spec in ALL_PARAMS:
@@ -295,11 +244,8 @@ class DetectorNode(Node):
         self._stop = threading.Event()
 
         self._status_pub = self.create_publisher(String, '~/status', _STATUS_QOS)
-        # Compiled kernels: a first compilation takes 20-40 s on a small machine, loading them
-        # from numba's cache well under a second. Either way it runs on a thread of its own;
-        # frames meanwhile take the numpy path (identical results, slower), so the node is
-        # ready as soon as it subscribes and never stalls or drops a frame while compiling.
-        self._compile_started = time.monotonic()
+        # Compiling (20-40 s) or loading the kernels runs on a thread of its own; frames take
+        # the numpy path meanwhile (same results), so no frame waits for it.
         self._compile = jit_support.compile_in_background(self._warm_up,
                                                           on_done=self._on_compiled)
         reliable = bool(self.get_parameter('reliable_input').value)
@@ -338,6 +284,10 @@ class DetectorNode(Node):
         self._latched_info_watch: Any = self.create_timer(
             LATCHED_INFO_WATCH_S, self._watch_for_latched_camera_info,
             clock=Clock(clock_type=ClockType.STEADY_TIME))   # also before /clock runs
+        self._say_ready(reliable)
+        self._publish_status()
+
+    def _say_ready(self, reliable: bool) -> None:
         outputs = [pub.topic_name for pub in (self._points_pub, self._costmap_pub,
                                               self._ground_pub, self._clearing_pub,
                                               self._overlay_pub, self._fused_pub)
@@ -350,18 +300,10 @@ class DetectorNode(Node):
             + f' -> {", ".join(outputs)}; '
             f'frames {self._config.cloud_frame_id!r}/{self._config.costmap_frame_id!r}; '
             f'{self.compute_path()}')
-        self._publish_status()
 
     # -- what is switched on: its publishers and subscriptions --------------------------------
     def _create_optional_endpoints(self) -> None:
-        """Advertise and subscribe only what the switches turn on; None where off.
-
-        publish_ground -> obstacles/ground_points; publish_overlay -> obstacles/overlay;
-        publish_clearing -> obstacles/clearing_points; fuse ->
-        obstacles/fused_costmap and the odometry subscription. The switches (and odom_topic)
-        are read-only: a change would need endpoints made or destroyed while the worker
-        thread publishes.
-        """
+        """Advertise and subscribe only what the switches turn on; None where off."""
         config = self._config
         self._ground_pub: Any = (
             self.create_publisher(PointCloud2, 'obstacles/ground_points', _OUTPUT_QOS)
@@ -385,11 +327,8 @@ class DetectorNode(Node):
     def _guard_parameter_services(self) -> None:
         """Check parameter requests before rclpy's service callbacks see them.
 
-        rclpy's ``Parameter.from_parameter_msg`` raises on a ``ParameterValue.type`` it does
-        not know (10, 200...) inside the service callback; the exception leaves ``spin`` and
-        the node dies. Such requests, and names the node did not declare (the empty name
-        included), are answered with a refusal and its reason instead; every other parameter
-        service keeps rclpy's behaviour behind a catch-all.
+        rclpy raises inside the callback on an unknown ``ParameterValue.type``, which ends the
+        node; such requests and undeclared names are refused with the reason instead.
         """
         for service in self.services:
             name = service.srv_name.rsplit('/', 1)[-1]
@@ -660,11 +599,7 @@ class DetectorNode(Node):
     def _watch_for_latched_camera_info(self) -> None:
         """Subscribe transient local as well once a latched CameraInfo publisher shows up.
 
-        A camera that publishes one CameraInfo, latched (transient local, often reliable),
-        reaches only a transient-local subscription; a volatile publisher (most drivers)
-        cannot match one, and its own process would then warn of "incompatible QoS". So the
-        second subscription is made only when the graph shows a transient-local publisher
-        (best effort if one of them is), and the watch stops. Runs on a steady clock.
+        Only then: a volatile publisher (most drivers) would warn of "incompatible QoS".
         """
         latched = [info for info in self.get_publishers_info_by_topic(self._info_sub.topic_name)
                    if info.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL]
@@ -687,11 +622,7 @@ class DetectorNode(Node):
             f'{"reliable" if reliable else "best effort"} + transient local too')
 
     def _on_unlatched_camera_info_publisher(self, event: Any) -> None:
-        """Note quietly a volatile CameraInfo publisher beside a latched one.
-
-        The first subscription receives it; this replaces rclpy's default warning
-        ("offering incompatible QoS"), which would be a false alarm here.
-        """
+        """Note quietly a volatile CameraInfo publisher beside a latched one."""
         self.get_logger().debug(
             f'a CameraInfo publisher on {self._info_sub.topic_name} is not latched '
             f'({event.last_policy_kind}): received by the first subscription')
@@ -782,10 +713,7 @@ class DetectorNode(Node):
                                              throttle_duration_sec=WARN_THROTTLE_S)
 
     def _camera_for(self, msg: Image, config: NodeConfig) -> _CameraState | None:
-        """Return the CameraInfo of a frame (:func:`frame_gate.camera_for`), None if none yet.
-
-        _SKIP when the frame must be skipped (said in a throttled warning).
-        """
+        """Return the CameraInfo of a frame (:func:`frame_gate.camera_for`), None if none yet."""
         chosen = frame_gate.camera_for(list(self._cameras), _stamp_ns(msg.header.stamp),
                                        config.camera_info_tolerance_ns)
         if isinstance(chosen, frame_gate.Skip):
@@ -811,11 +739,7 @@ class DetectorNode(Node):
         return verdict.intrinsics
 
     def handle_frame(self, msg: Image) -> bool:
-        """Process one depth Image and publish its outputs; False if the frame was skipped.
-
-        Never raises: bad input is warned about (throttled), an unexpected exception is logged
-        as an error (throttled), and the next frame is processed as usual.
-        """
+        """Process one depth Image and publish its outputs; False if the frame was skipped."""
         start = time.perf_counter()
         config = self._config
         depth = frame_gate.decode(msg)
@@ -895,16 +819,7 @@ class DetectorNode(Node):
 
 
 def make_executor(context: Any) -> Any:
-    """Return the executor of the node process: rclpy's events executor where there is one.
-
-    rclpy's ``SingleThreadedExecutor`` rebuilds its wait set in Python for every message: at
-    30 Hz (a depth image and a CameraInfo a frame) its thread took about 1.6 ms of CPU a
-    frame, measured per thread, nearly all of it Python holding the GIL that the worker thread
-    then waits for. The events executor of rclpy >= 7.1 (``rclpy.experimental``, in Jazzy)
-    dispatches in C++: 0.6 ms a frame. Like the other, it raises a callback's exception from
-    ``spin_once`` (after a log line of its own), which :func:`spin_forever` logs and
-    survives. Without it (an older rclpy), the single-threaded executor.
-    """
+    """Return the executor of the node process: rclpy's events executor where there is one."""
     try:
         from rclpy.experimental import EventsExecutor
     except ImportError:
