@@ -1,25 +1,4 @@
-r"""Draw what the detector saw, without ROS: depth with obstacles marked + costmap, as PNG.
-
-One frame gives one picture (the seed's figures 4.22-4.27 beside figure 4.23, with a caption:
-frame, obstacle count, time); several frames (a sequence, a labelled folder, a bag) give a
-contact sheet of thumbnails, and ``--frames-dir`` keeps every full-size picture too::
-
-    python tools/pictures.py --scene corridor --out corridor.png
-    python tools/pictures.py --scene person_walking --frames 0:84:6 --out walk_sheet.png
-    python tools/pictures.py --depth frame.png --intrinsics intrinsics.yaml --out frame_out.png
-    python tools/pictures.py --depth tum.png --intrinsics 535.4,539.2,320.1,247.6 \\
-        --depth-scale 5000 --estimate-mount --out tum_out.png
-    python tools/pictures.py --folder recordings/lab_run --out lab_sheet.png
-    python tools/pictures.py --bag run.bag --depth-topic /kinect2/sd/image_depth \\
-        --info-topic /kinect2/sd/camera_info --height 0.6 --every 10 --out bag_sheet.png
-
-Frames with ground truth (scenes, labelled folders) get a third panel comparing the obstacle
-pixels with the truth (hit red, false alarm orange, miss blue) unless ``--no-truth``.
-A depth file whose camera mount is unknown can be drawn with ``--estimate-mount``: the mount
-comes from the floor in view (``obstacle_detection.pipeline.mount.estimate_mount``) and is
-written in
-the caption.
-"""
+"""Draw what the detector saw, without ROS: depth with obstacles marked + costmap, as PNG."""
 
 from __future__ import annotations
 
@@ -260,8 +239,8 @@ def jobs(args: argparse.Namespace, base: DetectorParams) -> Iterator[_Job]:
             raise tool_support.ToolError('--intrinsics does not apply to --bag: its '
                                          'CameraInfo gives them (see --info-topic)', usage=True)
         for frame in bag_frames(args.bag, args.depth_topic, args.info_topic,
-                                         every=args.every, max_frames=args.max_frames,
-                                         find_info_topic=True):
+                                every=args.every, max_frames=args.max_frames,
+                                find_info_topic=True):
             yield real.job(frame.name, frame.depth, frame.intrinsics, frame.intrinsics_origin,
                            sequence=True)
 
@@ -618,6 +597,3 @@ def _bag_frames(reader: Any, path: str | Path, depth_topic: str, info_topic: str
         if max_frames is not None and kept >= max_frames:
             return
 
-
-# --------------------------------------------------------------------------------------------
-# Heatmaps of parameter sweeps (seed figures 4.18 and 4.19 as numbers)

@@ -51,42 +51,39 @@ from obstacle_detection.pipeline.params import Intrinsics
 from .parameters import (ALL_PARAMS, NODE_NAME, PARAMS_FILE_KEY, params_file_problems,
                          params_file_reason, params_files_in_args)
 
+
+def _qos(depth: int, *, reliable: bool = True, latched: bool = False) -> QoSProfile:
+    return QoSProfile(depth=depth, history=HistoryPolicy.KEEP_LAST,
+                      reliability=(ReliabilityPolicy.RELIABLE if reliable
+                                   else ReliabilityPolicy.BEST_EFFORT),
+                      durability=(DurabilityPolicy.TRANSIENT_LOCAL if latched
+                                  else DurabilityPolicy.VOLATILE))
+
+
 #: Minimum interval between two warnings about the same kind of bad input [s].
 WARN_THROTTLE_S = 5.0
-_OUTPUT_QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE,
-                         history=HistoryPolicy.KEEP_LAST, durability=DurabilityPolicy.VOLATILE)
+_OUTPUT_QOS = _qos(5)
 #: ~/status: latched (transient local), so a late subscriber still gets the last state.
-_STATUS_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                         history=HistoryPolicy.KEEP_LAST,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+_STATUS_QOS = _qos(1, latched=True)
 #: rcl_interfaces/ParameterType values (NOT_SET .. STRING_ARRAY).
 _PARAMETER_TYPES = frozenset(range(0, 10))
 #: /diagnostics: reliable, as diagnostic_updater publishes it, about once a second.
-_DIAGNOSTICS_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
-                              history=HistoryPolicy.KEEP_LAST,
-                              durability=DurabilityPolicy.VOLATILE)
+_DIAGNOSTICS_QOS = _qos(10)
 DIAGNOSTICS_PERIOD_S = 1.0
 #: depth_transport -> (message type, topic): image_transport's names for the depth stream.
 DEPTH_TRANSPORTS = {name: (Image if name == 'raw' else CompressedImage, topic)
                     for name, topic in DEPTH_TRANSPORT_TOPICS.items()}
-#: Odometry: best effort, which both a best-effort publisher (common on robots, and bag_play's
-#: default) and a reliable one match; a short history (the pose buffer interpolates).
-_ODOM_QOS = QoSProfile(depth=20, reliability=ReliabilityPolicy.BEST_EFFORT,
-                       history=HistoryPolicy.KEEP_LAST, durability=DurabilityPolicy.VOLATILE)
-#: OccupancyGrids: reliable + transient local, depth 1 (RViz's map display default, as
-#: map_server publishes): a display that joins late gets the last grid at once.
-_GRID_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                       history=HistoryPolicy.KEEP_LAST,
-                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
+#: Odometry: best effort, which reliable and best-effort publishers both match.
+_ODOM_QOS = _qos(20, reliable=False)
+#: OccupancyGrids: latched, depth 1 (as map_server): a late display gets the last grid.
+_GRID_QOS = _qos(1, latched=True)
 #: How often the node looks for a latched CameraInfo publisher until it finds one [s].
 LATCHED_INFO_WATCH_S = 0.5
 #: First word of every ~/status message once the node processes frames.
 STATUS_READY = 'ready'
 #: Depth frames that may wait for the worker (see FrameMailbox): one may wait behind another.
 MAILBOX_FRAMES = 2
-_RELIABLE_INPUT_QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE,
-                                 history=HistoryPolicy.KEEP_LAST,
-                                 durability=DurabilityPolicy.VOLATILE)
+_RELIABLE_INPUT_QOS = _qos(5)
 
 
 class FrameMailbox:
@@ -607,10 +604,7 @@ class DetectorNode(Node):
             return
         reliable = all(info.qos_profile.reliability == ReliabilityPolicy.RELIABLE
                        for info in latched)
-        qos = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL,
-                         reliability=(ReliabilityPolicy.RELIABLE if reliable
-                                      else ReliabilityPolicy.BEST_EFFORT))
+        qos = _qos(1, reliable=reliable, latched=True)
         self.destroy_timer(self._latched_info_watch)
         self._latched_info_watch = None
         self._latched_info_sub = self.create_subscription(
