@@ -144,12 +144,6 @@ def process_frame(depth: Image | CompressedImage, cameras: Sequence[CameraState]
     return messages, result, '', verdict.note
 
 
-def _keep_camera(cameras: deque[CameraState], camera: CameraState) -> None:
-    """Add a CameraInfo to the recent ones, once per stamp and camera (as the node keeps them)."""
-    if not any(c.stamp_ns == camera.stamp_ns and c.same_camera(camera) for c in cameras):
-        cameras.append(camera)
-
-
 def _grouped_by_timestamp(messages: Iterator[tuple[Any, int, bytes]], info_topic: str
                           ) -> Iterator[tuple[Any, int, bytes]]:
     """Messages in bag order, camera infos first among those with the same timestamp."""
@@ -199,7 +193,7 @@ def process_bag(src: Path, output: Path, config: NodeConfig, *,
                     for _, _, raw in reader.messages(
                             [c for c in reader.connections if c.topic == summary.info_topic],
                             stop=start_ns):
-                        _keep_camera(cameras, CameraState.from_camera_info(
+                        frame_gate.keep_camera(cameras, CameraState.from_camera_info(
                             deserialize_message(bytes(raw), CameraInfo)))
                 counts: Counter[str] = Counter()
                 for conn, timestamp, raw in _grouped_by_timestamp(
@@ -209,7 +203,7 @@ def process_bag(src: Path, output: Path, config: NodeConfig, *,
                     if conn.topic == summary.info_topic:
                         camera = CameraState.from_camera_info(
                             deserialize_message(bytes(raw), CameraInfo))
-                        _keep_camera(cameras, camera)
+                        frame_gate.keep_camera(cameras, camera)
                         _note(summary, None if camera.note is None else
                               f'CameraInfo on {summary.info_topic}: {camera.note}')
                     elif conn.topic == depth_topic:

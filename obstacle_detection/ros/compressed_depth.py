@@ -11,7 +11,7 @@ import numpy as np
 
 from . import rvl
 from . import RosInputError
-from .conversions import DEPTH_ENCODINGS
+from .conversions import DEPTH_ENCODINGS, byte_view
 
 #: ``ConfigHeader`` of compressed_depth_image_transport: int32 format, float32 quantA, quantB.
 CONFIG_HEADER = struct.Struct('<iff')
@@ -32,16 +32,6 @@ RVL_SIZE = struct.Struct('<II')
 #: corrupt size must not make the decoder allocate gigabytes. (An all-zero image of any size
 #: codes to 4 bytes, so its data length bounds nothing.)
 MAX_RVL_PIXELS = 4096 * 4096
-
-def _byte_string(data: Any) -> bytes:
-    """Return a message's ``data`` (bytes, array.array, ndarray or a list of ints) as bytes."""
-    if isinstance(data, bytes):
-        return data
-    try:
-        return memoryview(data).cast('B').tobytes()
-    except TypeError:  # a plain sequence of ints
-        return np.asarray(data, dtype=np.uint8).tobytes()
-
 
 def is_compressed_image(msg: Any) -> bool:
     """Whether ``msg`` is a CompressedImage (has ``format``, no ``encoding``), rclpy or rosbags."""
@@ -199,7 +189,7 @@ def compressed_depth_to_array(msg: Any, *,
                               expected_shape: tuple[int, int] | None = None) -> np.ndarray:
     """Decode a compressed depth CompressedImage into the array the raw Image would give."""
     encoding, _, is_rvl = parse_format(msg.format)
-    data = _byte_string(msg.data)
+    data = byte_view(msg.data).tobytes()
     container = None if is_rvl else _container(data, 0)
     quant: tuple[float, float] | None = None
     if is_rvl:

@@ -53,7 +53,7 @@ def _stamped_header(stamp: Time, frame_id: str) -> Header:
     return Header(stamp=stamp, frame_id=frame_id)
 
 
-def _byte_view(data: Any) -> np.ndarray:
+def byte_view(data: Any) -> np.ndarray:
     """Return a flat uint8 view of a message's ``data`` (bytes, array.array, ndarray or a list)."""
     try:
         return np.frombuffer(data, dtype=np.uint8)
@@ -95,7 +95,7 @@ def _pixels(msg: Any, base: np.dtype, channels: int, copy: bool = True) -> np.nd
     if step < row_bytes:
         raise RosInputError(
             f'step={step} is shorter than one row of {width} x {encoding} ({row_bytes} bytes)')
-    buffer = _byte_view(msg.data)
+    buffer = byte_view(msg.data)
     if buffer.size != step * height:
         raise RosInputError(
             f'data has {buffer.size} bytes, expected step * height = {step} * {height} = '

@@ -63,6 +63,12 @@ class CameraState:
 CAMERA_INFO_HISTORY = 30
 
 
+def keep_camera(cameras: Any, camera: CameraState) -> None:
+    """Append a CameraInfo to the recent ones (a deque), once per stamp and camera."""
+    if not any(c.stamp_ns == camera.stamp_ns and c.same_camera(camera) for c in cameras):
+        cameras.append(camera)
+
+
 def camera_for(cameras: Sequence[CameraState], frame_stamp_ns: int,
                tolerance_ns: int) -> CameraState | Skip | None:
     """Choose a frame's CameraInfo among the recent ones (oldest first), as the node does."""

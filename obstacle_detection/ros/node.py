@@ -152,62 +152,6 @@ class StampGaps:
         return missing
 
 
-class FrameStats:
-    """Thread-safe frame counters and processing times since the last ``take_period``."""
-
-    def __init__(self) -> None:
-        self._lock = threading.Lock()
-        self.total_processed = self.total_dropped = self.total_missing = 0
-        self._reset(time.monotonic())
-
-    def _reset(self, now: float) -> None:
-        self._since = now
-        self.processed = self.dropped = self.skipped = self.errors = self.missing = 0
-        self.sum_ms = 0.0
-
-    def add_missing(self, count: int) -> None:
-        """Count frames the camera sent that never arrived (:class:`StampGaps`)."""
-        with self._lock:
-            self.missing += count
-            self.total_missing += count
-
-    def add_processed(self, elapsed_ms: float) -> None:
-        """Count one published frame that took ``elapsed_ms``."""
-        with self._lock:
-            self.processed += 1
-            self.total_processed += 1
-            self.sum_ms += elapsed_ms
-
-    def add_dropped(self) -> None:
-        """Count one frame replaced by a newer one before it was processed."""
-        with self._lock:
-            self.dropped += 1
-            self.total_dropped += 1
-
-    def add_skipped(self) -> None:
-        """Count one frame skipped for bad input."""
-        with self._lock:
-            self.skipped += 1
-
-    def add_error(self) -> None:
-        """Count one frame lost to an unexpected exception."""
-        with self._lock:
-            self.errors += 1
-
-    def take_period(self) -> dict[str, float]:
-        """Return the counters since the last call, then reset them."""
-        now = time.monotonic()
-        with self._lock:
-            period = max(now - self._since, 1e-9)
-            snapshot = {'processed': self.processed, 'dropped': self.dropped,
-                        'skipped': self.skipped, 'missing': self.missing,
-                        'errors': self.errors, 'period_s': period,
-                        'mean_ms': self.sum_ms / self.processed if self.processed else 0.0,
-                        'fps': self.processed / period}
-            self._reset(now)
-        return snapshot
-
-
 #: _camera_for's answer when the frame must be skipped (the reason is already logged).
 _SKIP = _CameraState(0, 0, None, 'skip')
 
@@ -229,7 +173,7 @@ class DetectorNode(Node):
         except ValueError:
             self.destroy_node()
             raise
-        self.stats = FrameStats()
+        self.stats = HealthWindow(readers=('diagnostics', 'log'))
         self._stamp_gaps = StampGaps()
         self._mailbox = FrameMailbox(MAILBOX_FRAMES)
         self._mount_source = self._make_mount_source(tf_buffer)
@@ -256,7 +200,6 @@ class DetectorNode(Node):
 
         self._stats_timer = None
         self._restart_stats_timer(self._config.stats_period_s)
-        self._health = HealthWindow()
         self._started = time.monotonic()
         self._last_frame_id = ''
         self._floor_text = ''
@@ -519,7 +462,7 @@ class DetectorNode(Node):
             compiled=path == 'compiled numba kernels', mount=self._mount_text(),
             floor_correction=self._floor_text)
         # hardware_id: the frames' frame_id once one is processed, the depth topic before
-        status = health_status(self._health.take(), context,
+        status = health_status(self.stats.take(), context,
                                name=status_name(self.get_fully_qualified_name()),
                                hardware_id=self._last_frame_id or self._depth_sub.topic_name)
         if self.context.ok():
@@ -569,18 +512,17 @@ class DetectorNode(Node):
             self.destroy_timer(self._stats_timer)
             self._stats_timer = None
         if period_s > 0.0:
-            self.stats.take_period()
+            self.stats.take(reader='log')
             self._stats_timer = self.create_timer(period_s, self._log_stats)
 
     # -- callbacks (executor thread): store only --------------------------------------------
     def _on_depth(self, msg: Image) -> None:
-        self._health.received()
+        self.stats.received()
         missing = self._stamp_gaps.add(_stamp_ns(msg.header.stamp))
         if missing:
-            self.stats.add_missing(missing)
+            self.stats.missing(missing)
         if self._mailbox.put(msg):
-            self.stats.add_dropped()
-            self._health.dropped()
+            self.stats.dropped()
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
         camera = _CameraState.from_camera_info(msg)
@@ -589,9 +531,7 @@ class DetectorNode(Node):
                 f'CameraInfo on {self._info_sub.topic_name}: {camera.note}',
                 throttle_duration_sec=WARN_THROTTLE_S)
         # A latched camera's CameraInfo comes through both subscriptions: kept once.
-        if any(c.stamp_ns == camera.stamp_ns and c.same_camera(camera) for c in self._cameras):
-            return
-        self._cameras.append(camera)
+        frame_gate.keep_camera(self._cameras, camera)
 
     def _watch_for_latched_camera_info(self) -> None:
         """Subscribe transient local as well once a latched CameraInfo publisher shows up.
@@ -673,13 +613,15 @@ class DetectorNode(Node):
                           f'({type(error).__name__})')
 
     def _log_stats(self) -> None:
-        period = self.stats.take_period()
+        period = self.stats.take(reader='log')
+        mean_ms = period.sum_ms / period.processed if period.processed else 0.0
         self.get_logger().info(
-            f'{period["processed"]} frames processed in {period["period_s"]:.1f} s '
-            f'({period["fps"]:.1f} fps), mean {period["mean_ms"]:.1f} ms/frame; '
-            f'{period["dropped"]} dropped (a newer frame came first), '
-            f'{period["missing"]} missing (gaps in the frame stamps: lost before they reached '
-            f'the node), {period["skipped"]} skipped (bad input), {period["errors"]} errors'
+            f'{period.processed} frames processed in {period.seconds:.1f} s '
+            f'({period.processed / period.seconds:.1f} fps), mean {mean_ms:.1f} ms/frame; '
+            f'{period.dropped} dropped (a newer frame came first), '
+            f'{period.missing} missing (gaps in the frame stamps: lost before they reached '
+            f'the node), {sum(period.skipped.values())} skipped (bad input), '
+            f'{period.errors} errors'
             + (f'; last {self._floor_text}' if self._floor_text else ''))
 
     # -- worker thread ------------------------------------------------------------------------
@@ -701,8 +643,7 @@ class DetectorNode(Node):
 
     def _warn_skip(self, kind: str, text: str) -> None:
         """Warn about a skipped frame; each kind of problem is throttled on its own."""
-        self.stats.add_skipped()
-        self._health.skipped(kind.split(':', 1)[0])
+        self.stats.skipped(kind.split(':', 1)[0])
         self._throttled_logger(kind).warning(f'skipping depth frame: {text}',
                                              throttle_duration_sec=WARN_THROTTLE_S)
 
@@ -767,8 +708,7 @@ class DetectorNode(Node):
             self._warn_skip('pipeline', str(error))
             return False
         except Exception as error:  # noqa: BLE001 - the node must survive any frame
-            self.stats.add_error()
-            self._health.error()
+            self.stats.error()
             self.get_logger().error(f'pipeline failed on a frame, skipping it: '
                                     f'{type(error).__name__}: {error}',
                                     throttle_duration_sec=WARN_THROTTLE_S)
@@ -791,8 +731,7 @@ class DetectorNode(Node):
                 self.get_logger().error(f'publishing failed: {type(error).__name__}: {error}',
                                         throttle_duration_sec=WARN_THROTTLE_S)
             return False
-        self.stats.add_processed(elapsed_ms)
-        self._health.processed(elapsed_ms)
+        self.stats.processed(elapsed_ms)
         self._last_frame_id = msg.header.frame_id
         floor = getattr(result, 'floor', None)
         self._floor_text = floor.summary() if floor is not None else ''
