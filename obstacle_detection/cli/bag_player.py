@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import io
 import math
 import threading
 import time
@@ -186,7 +187,7 @@ class Player:
         loops = self.options.loops
         total = self.total * loops if self.total and loops else None
         gap_s = _loop_gap_s(self.connections, self.reader.duration)
-        bar = Progress(total, 'playing', stream=None if self.options.progress else _Null())
+        bar = Progress(total, 'playing', stream=None if self.options.progress else io.StringIO())
         with bar:
             while not loops or stats.loops < loops:
                 if stats.loops and not _sleep_until(
@@ -212,16 +213,6 @@ class Player:
         return stats
 
 
-class _Null:
-    """A stream that drops everything (for a silent progress bar)."""
-
-    def write(self, text: str) -> int:
-        return len(text)
-
-    def flush(self) -> None:
-        pass
-
-
 def _loop_gap_s(connections: Sequence[Any], duration_ns: int) -> float:
     """Mean spacing of the busiest topic [s], waited between the last and first when looping."""
     most = max((c.msgcount for c in connections), default=0)
@@ -230,10 +221,8 @@ def _loop_gap_s(connections: Sequence[Any], duration_ns: int) -> float:
 
 def _sleep_until(due: float, stop: threading.Event | None) -> bool:
     """Sleep until monotonic time ``due``; False if ``stop`` was set meanwhile."""
-    while True:
-        if stop is not None and stop.is_set():
-            return False
-        left = due - time.monotonic()
-        if left <= 0:
-            return True
-        time.sleep(min(left, _POLL_S))
+    left = max(due - time.monotonic(), 0.0)
+    if stop is None:
+        time.sleep(left)
+        return True
+    return not stop.wait(left)
