@@ -15,16 +15,33 @@ from builtin_interfaces.msg import Time
 from sensor_msgs.msg import CompressedImage, PointField
 from std_msgs.msg import Header
 
-from obstacle_detection.ros.compressed_depth import (CONFIG_HEADER, DEFAULT_DEPTH_MAX_M,
-                                                     DEFAULT_DEPTH_QUANTIZATION,
-                                                     DEFAULT_PNG_LEVEL, DEPTH_MAX_RANGE_M,
-                                                     DEPTH_QUANTIZATION_RANGE, INV_DEPTH,
+from obstacle_detection.ros.compressed_depth import (CONFIG_HEADER, INV_DEPTH,
                                                      compressed_depth_to_array,
-                                                     is_compressed_image,
-                                                     quantisation_constants)
-from obstacle_detection.ros.conversions import ImageFormatError, image_to_array
+                                                     is_compressed_image)
+from obstacle_detection.ros import RosInputError
+from obstacle_detection.ros.conversions import image_to_array
 
 _XYZ = ('x', 'y', 'z')
+
+#: The compressedDepth publisher's defaults (ROS 2) and the ranges its parameters accept.
+DEFAULT_DEPTH_MAX_M = 10.0
+DEFAULT_DEPTH_QUANTIZATION = 100.0
+DEFAULT_PNG_LEVEL = 3
+DEPTH_MAX_RANGE_M = (1.0, 100.0)
+DEPTH_QUANTIZATION_RANGE = (1.0, 150.0)
+
+
+def quantisation_constants(depth_max_m: float = DEFAULT_DEPTH_MAX_M,
+                           depth_quantization: float = DEFAULT_DEPTH_QUANTIZATION
+                           ) -> tuple[np.float32, np.float32]:
+    """Return the 32FC1 inverse-depth constants (A, B) in float32, as the C++ encoder does.
+
+    A = z0 (z0 + 1), B = 1 - A / depth_max; q = trunc(A / d + B).
+    """
+    z0 = np.float32(depth_quantization)
+    quant_a = np.float32(z0 * (z0 + np.float32(1.0)))
+    quant_b = np.float32(np.float32(1.0) - quant_a / np.float32(depth_max_m))
+    return quant_a, quant_b
 
 
 def pointcloud2_to_points(msg: Any) -> np.ndarray:
@@ -55,15 +72,15 @@ def depth_message_to_array(msg: Any, *,
     Image: :func:`conversions.image_to_array`; CompressedImage:
     :func:`compressed_depth_to_array`. Same result for the same frame either way (16UC1
     exactly, 32FC1 within the quantisation). expected_shape: (height, width) or None.
-    Raises ImageFormatError (CompressedDepthError for a CompressedImage) naming the problem.
+    Raises RosInputError naming the problem.
     """
     if is_compressed_image(msg):
         return compressed_depth_to_array(msg, expected_shape=expected_shape)
     array = image_to_array(msg)
     if expected_shape is not None and array.shape != tuple(expected_shape):
         height, width = expected_shape
-        raise ImageFormatError(f'depth image is {array.shape[1]}x{array.shape[0]} but '
-                               f'{width}x{height} was expected (the CameraInfo size)')
+        raise RosInputError(f'depth image is {array.shape[1]}x{array.shape[0]} but '
+                            f'{width}x{height} was expected (the CameraInfo size)')
     return array
 
 
@@ -100,7 +117,7 @@ def array_to_compressed_depth(depth: np.ndarray, stamp: Time, frame_id: str, *,
 
     Raises ValueError naming the bad value: a parameter outside the publisher's ranges
     (depth_max_m 1-100, depth_quantization 1-150, png_level 0-9) or an array that is not
-    one of the two depth layouts (ImageFormatError).
+    one of the two depth layouts (RosInputError).
     """
     low, high = DEPTH_MAX_RANGE_M
     if not low <= depth_max_m <= high:
@@ -114,12 +131,12 @@ def array_to_compressed_depth(depth: np.ndarray, stamp: Time, frame_id: str, *,
     kind = {np.dtype(np.uint16): ('16UC1', 'mono16'),
             np.dtype(np.float32): ('32FC1',)}.get(depth.dtype.newbyteorder('='))
     if depth.ndim != 2 or kind is None or 0 in depth.shape:
-        raise ImageFormatError(f'compressed depth needs a non-empty (H, W) uint16 [mm] or '
-                               f'float32 [m] array, got shape {depth.shape} of {depth.dtype}')
+        raise RosInputError(f'compressed depth needs a non-empty (H, W) uint16 [mm] or '
+                            f'float32 [m] array, got shape {depth.shape} of {depth.dtype}')
     encoding = kind[0] if encoding is None else encoding
     if encoding not in kind:
-        raise ImageFormatError(f'encoding {encoding!r} does not fit a {depth.dtype} array '
-                               f'(expected {" or ".join(kind)})')
+        raise RosInputError(f'encoding {encoding!r} does not fit a {depth.dtype} array '
+                            f'(expected {" or ".join(kind)})')
     if encoding == '32FC1':
         quant_a, quant_b = quantisation_constants(depth_max_m, depth_quantization)
         metres = depth.astype(np.float32)
@@ -138,7 +155,7 @@ def array_to_compressed_depth(depth: np.ndarray, stamp: Time, frame_id: str, *,
         config = CONFIG_HEADER.pack(INV_DEPTH, 0.0, 0.0)
     ok, png = cv2.imencode('.png', pixels, [cv2.IMWRITE_PNG_COMPRESSION, int(png_level)])
     if not ok:  # pragma: no cover - OpenCV always encodes a uint16 array
-        raise ImageFormatError('OpenCV could not encode the depth as PNG')
+        raise RosInputError('OpenCV could not encode the depth as PNG')
     return CompressedImage(header=Header(stamp=stamp, frame_id=frame_id),
                            format=f'{encoding}; compressedDepth png',
                            data=config + png.tobytes())

@@ -14,16 +14,15 @@ from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import CompressedImage
 
 from message_helpers import (array_to_compressed_depth, depth_message_to_array,
-                             quantisation_error_bound_m)
+                             quantisation_constants, quantisation_error_bound_m)
 from obstacle_detection.ros.compressed_depth import (
     CONFIG_HEADER_SIZE,
-    CompressedDepthError,
     compressed_depth_to_array,
     parse_format,
-    quantisation_constants,
     raw_topic,
 )
-from obstacle_detection.ros.conversions import ImageFormatError, array_to_image, image_to_array
+from obstacle_detection.ros import RosInputError
+from obstacle_detection.ros.conversions import array_to_image, image_to_array
 
 STAMP = Time(sec=1700000000, nanosec=123456789)
 RNG_SEED = 20261201
@@ -273,18 +272,18 @@ def test_bad_data_is_refused_with_the_reason(case: str, capfd: pytest.CaptureFix
     fmt, make, kind, reason = BAD[case]
     msg = _message(fmt, make())
 
-    with pytest.raises(CompressedDepthError, match=reason) as caught:
+    with pytest.raises(RosInputError, match=reason) as caught:
         compressed_depth_to_array(msg)
 
     assert caught.value.kind == kind
-    assert isinstance(caught.value, ImageFormatError) and isinstance(caught.value, ValueError)
+    assert isinstance(caught.value, RosInputError) and isinstance(caught.value, ValueError)
     assert capfd.readouterr().err == ''  # the reason is in the exception, not on stderr
 
 
 def test_size_other_than_the_camera_info_is_refused() -> None:
     msg = array_to_compressed_depth(_depth_mm((424, 512)), STAMP, 'f')
 
-    with pytest.raises(CompressedDepthError, match='is 512x424 but 640x480 was expected') as e:
+    with pytest.raises(RosInputError, match='is 512x424 but 640x480 was expected') as e:
         compressed_depth_to_array(msg, expected_shape=(480, 640))
     assert e.value.kind == 'size'
 
@@ -292,7 +291,7 @@ def test_size_other_than_the_camera_info_is_refused() -> None:
 def test_raw_image_of_the_wrong_size_is_refused_too() -> None:
     raw = array_to_image(_depth_mm((4, 6)), stamp=STAMP, frame_id='f')
 
-    with pytest.raises(ImageFormatError, match='is 6x4 but 8x5 was expected'):
+    with pytest.raises(RosInputError, match='is 6x4 but 8x5 was expected'):
         depth_message_to_array(raw, expected_shape=(5, 8))
 
 
@@ -308,7 +307,7 @@ def test_encoder_refuses_bad_parameters(kwargs: dict, reason: str) -> None:
 
 
 def test_encoder_refuses_an_array_that_is_not_depth() -> None:
-    with pytest.raises(ImageFormatError, match=r'shape \(4, 4, 3\) of uint8'):
+    with pytest.raises(RosInputError, match=r'shape \(4, 4, 3\) of uint8'):
         array_to_compressed_depth(np.zeros((4, 4, 3), np.uint8), STAMP, 'f')
 
 

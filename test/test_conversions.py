@@ -15,7 +15,6 @@ from message_helpers import pointcloud2_to_points
 from obstacle_detection.labels import (CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN, LABEL_GROUND,
                                        LABEL_OBSTACLE)
 from obstacle_detection.ros.conversions import (
-    ImageFormatError,
     array_to_image,
     camera_info_to_intrinsics,
     costmap_to_occupancy_grid,
@@ -32,6 +31,7 @@ from obstacle_detection.ros.conversions import (
     result_to_messages,
 )
 from obstacle_detection.pipeline.costmap import Costmap
+from obstacle_detection.ros import RosInputError
 from obstacle_detection.viz.overlay import render_overlay
 
 from eval_helpers import is_obstacle_rgb
@@ -106,13 +106,13 @@ def test_array_to_image_picks_encoding_from_dtype() -> None:
 
 
 def test_array_to_image_refuses_dtype_that_does_not_fit_encoding() -> None:
-    with pytest.raises(ImageFormatError, match="encoding '32FC1' needs 1 channel"):
+    with pytest.raises(RosInputError, match="encoding '32FC1' needs 1 channel"):
         array_to_image(np.zeros((2, 2), np.uint16), stamp=STAMP, frame_id='c',
                        encoding='32FC1')
 
 
 def test_array_to_image_refuses_unknown_dtype() -> None:
-    with pytest.raises(ImageFormatError, match='no image encoding for dtype int64'):
+    with pytest.raises(RosInputError, match='no image encoding for dtype int64'):
         array_to_image(np.zeros((2, 2), np.int64), stamp=STAMP, frame_id='c')
 
 
@@ -137,26 +137,26 @@ def test_image_to_array_reads_rosbags_messages() -> None:
 def test_image_to_array_refuses_unknown_encoding() -> None:
     msg = _wire_image(_depth_array(np.uint16), '16UC1', big_endian=False, padding=0)
     msg.encoding = 'rgb8'
-    with pytest.raises(ImageFormatError, match="unsupported depth encoding 'rgb8'"):
+    with pytest.raises(RosInputError, match="unsupported depth encoding 'rgb8'"):
         image_to_array(msg)
 
 
 def test_image_to_array_refuses_odd_byte_count() -> None:
     msg = _wire_image(_depth_array(np.uint16), '16UC1', big_endian=False, padding=0)
     msg.data = bytes(msg.data)[:-1]
-    with pytest.raises(ImageFormatError, match=r'data has 69 bytes, expected step \* height'):
+    with pytest.raises(RosInputError, match=r'data has 69 bytes, expected step \* height'):
         image_to_array(msg)
 
 
 def test_image_to_array_refuses_step_shorter_than_a_row() -> None:
     msg = _wire_image(_depth_array(np.float32), '32FC1', big_endian=False, padding=0)
     msg.step = 27
-    with pytest.raises(ImageFormatError, match='step=27 is shorter than one row'):
+    with pytest.raises(RosInputError, match='step=27 is shorter than one row'):
         image_to_array(msg)
 
 
 def test_image_to_array_refuses_empty_image() -> None:
-    with pytest.raises(ImageFormatError, match='empty image: width=0'):
+    with pytest.raises(RosInputError, match='empty image: width=0'):
         image_to_array(Image(encoding='16UC1', height=3, width=0, step=0))
 
 
@@ -315,7 +315,7 @@ def test_colour_image_round_trip(encoding: str) -> None:
     msg = array_to_image(np.ascontiguousarray(wire), stamp=STAMP, frame_id='cam',
                          encoding=encoding)
     np.testing.assert_array_equal(image_to_rgb(msg), rgb)
-    with pytest.raises(ImageFormatError, match="unsupported colour encoding '16UC1'"):
+    with pytest.raises(RosInputError, match="unsupported colour encoding '16UC1'"):
         image_to_rgb(array_to_image(np.zeros((2, 2), np.uint16), stamp=STAMP, frame_id='c'))
 
 

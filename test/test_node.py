@@ -54,7 +54,8 @@ from obstacle_detection.ros.conversions import (
 )
 from obstacle_detection.pipeline.geometry import mount_rotation
 from obstacle_detection.ros import node as node_module
-from obstacle_detection.ros.node import DetectorNode, FrameMailbox, FrameStats, StampGaps
+from obstacle_detection.ros.diagnostics import HealthWindow
+from obstacle_detection.ros.node import DetectorNode, FrameMailbox, StampGaps
 from obstacle_detection.pipeline.params import PRESETS, Intrinsics, table_4_2, table_4_3
 from obstacle_detection.pipeline.detector import DetectionResult, Detector
 from obstacle_detection.ros.parameters import (
@@ -821,7 +822,7 @@ def test_unexpected_pipeline_exception_is_survived(local_node: DetectorNode,
 
     monkeypatch.setattr(local_node.config.detector, 'process', boom)
     assert not local_node.handle_frame(_depth_image(scene))
-    assert local_node.stats.errors == 1
+    assert local_node.stats.take(reader='log').errors == 1
     monkeypatch.undo()
     assert local_node.handle_frame(_depth_image(scene))
     assert local_node.stats.total_processed == 1
@@ -850,12 +851,12 @@ def test_stamp_gaps_count_the_frames_lost_on_the_way() -> None:
 
 
 def test_frame_stats_report_missing_frames_and_reset() -> None:
-    stats = FrameStats()
-    stats.add_missing(2)
-    stats.add_dropped()
-    period = stats.take_period()
-    assert (period['missing'], period['dropped']) == (2, 1)
-    assert stats.take_period()['missing'] == 0 and stats.total_missing == 2
+    stats = HealthWindow(readers=('log',))
+    stats.missing(2)
+    stats.dropped()
+    period = stats.take(reader='log')
+    assert (period.missing, period.dropped) == (2, 1)
+    assert stats.take(reader='log').missing == 0 and stats.total_missing == 2
 
 
 def test_frame_mailbox_lets_one_frame_wait_and_drops_the_oldest() -> None:

@@ -8,11 +8,11 @@ from typing import Any
 import pytest
 
 from obstacle_detection.pipeline.params import DetectorParams
+from obstacle_detection.ros import RosInputError
 from obstacle_detection.ros.parameters import (
     FRAME_VOXELS_BOUND,
     MAX_COSTMAP_CELLS,
     MAX_NEIGHBOUR_ENTRIES,
-    ParamsFileError,
     budget_problem,
     detector_params_from_ros,
     params_file_reason,
@@ -104,7 +104,7 @@ def test_a_file_for_another_node_is_refused_by_the_tools(tmp_path: Path) -> None
     path = tmp_path / 'p.yaml'
     path.write_text('/robot/obstacle_detector:\n  ros__parameters:\n    median_kernel: 5\n')
 
-    with pytest.raises(ParamsFileError, match='no section naming the node'):
+    with pytest.raises(RosInputError, match='no section naming the node'):
         read_params_file(path)
 
 
@@ -124,7 +124,7 @@ def test_a_typo_is_refused_by_the_tools_with_the_nearest_name(tmp_path: Path) ->
     path = tmp_path / 'p.yaml'
     path.write_text('/**/obstacle_detector:\n  ros__parameters:\n    max_rnge_m: 3.0\n')
 
-    with pytest.raises(ParamsFileError, match="'max_rnge_m' .*did you mean 'max_range_m'"):
+    with pytest.raises(RosInputError, match="'max_rnge_m' .*did you mean 'max_range_m'"):
         read_params_file(path)
 
 
@@ -132,7 +132,7 @@ def test_an_integer_for_a_float_says_how_to_write_it(tmp_path: Path) -> None:
     path = tmp_path / 'p.yaml'
     path.write_text('/**/obstacle_detector:\n  ros__parameters:\n    max_range_m: 3\n')
 
-    with pytest.raises(ParamsFileError, match=r"'max_range_m' must be a float, got 3: write 3\.0"):
+    with pytest.raises(RosInputError, match=r"'max_range_m' must be a float, got 3: write 3\.0"):
         read_params_file(path)
 
 

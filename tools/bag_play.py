@@ -25,8 +25,9 @@ from pathlib import Path
 
 
 from obstacle_detection.cli import support as tool_support
-from obstacle_detection.cli.bag_player import (PlayError, PlayOptions, Player, PlayUsageError,
-                                               message_class, open_bag, parse_remap)
+from obstacle_detection.cli.bag_player import (PlayOptions, Player, message_class, open_bag,
+                                               parse_remap)
+from obstacle_detection.cli.support import ToolError
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -62,10 +63,8 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _report(err: PlayError) -> int:
+def _report(err: ToolError) -> int:
     """Print the error line; return 2 for a bad option value, 1 for a bad bag."""
-    if isinstance(err, PlayUsageError):
-        return tool_support.report_error('bag_play', tool_support.UsageError(str(err)))
     return tool_support.report_error('bag_play', err)
 
 
@@ -82,10 +81,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         try:
             for conn in opened[1]:
                 message_class(conn.msgtype)
-        except PlayError:
+        except ToolError:
             opened[0].close()
             raise
-    except PlayError as err:
+    except ToolError as err:
         return _report(err)
 
     import rclpy
@@ -101,7 +100,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                   file=sys.stderr)
             player.wait_for_subscribers()
         stats = player.play()
-    except PlayError as err:
+    except ToolError as err:
         return _report(err)
     except KeyboardInterrupt:
         print('interrupted', file=sys.stderr)

@@ -38,11 +38,10 @@ from pathlib import Path
 from typing import Any
 
 from obstacle_detection.cli import support as tool_support
-from obstacle_detection.cli.bag_processor import (DEFAULT_NAMESPACE, ProcessError,
-                                                  config_from_values, format_report,
-                                                  node_param_values, process_bag)
-from obstacle_detection.ros.parameters import (ALL_PARAMS, ParamsFileError,
-                                           read_params_files)
+from obstacle_detection.cli.bag_processor import (DEFAULT_NAMESPACE, config_from_values,
+                                                  format_report, node_param_values, process_bag)
+from obstacle_detection.ros import RosInputError
+from obstacle_detection.ros.parameters import ALL_PARAMS, read_params_files
 from obstacle_detection.cli.bag_writer import DEFAULT_DEPTH_TOPIC, DEFAULT_INFO_TOPIC, STORAGES
 from obstacle_detection.fleet import bags as fleet_bags
 from obstacle_detection.fleet.cluster import (FleetError, add_fleet_arguments, fleet_options,
@@ -94,7 +93,7 @@ def _sets_mount(values: Mapping[str, Any], files: Sequence[Path]) -> bool:
     names = ('camera_height_m', 'camera_pitch_deg', 'camera_roll_deg')
     try:
         return any(name in read_params_files(list(files)) for name in names)
-    except ParamsFileError:
+    except RosInputError:
         return False
 
 
@@ -121,7 +120,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             progress=args.quiet and sys.stderr.isatty(),
             on_frame=None if args.quiet else lambda r: print(format_report(r), flush=True),
             mount_origin=mount_origin)
-    except (ProcessError, tool_support.ToolError, FleetError) as err:
+    except (tool_support.ToolError, FleetError) as err:
         return tool_support.report_error('bag_process', err)
     print('\n'.join(summary.lines()))
     return 0

@@ -58,12 +58,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         if args.passes < 1 or args.step < 1:
-            raise tool_support.UsageError(
-                f'--passes={args.passes} and --step={args.step} must be >= 1')
+            raise tool_support.ToolError(
+                f'--passes={args.passes} and --step={args.step} must be >= 1', usage=True)
         try:
             fusion = FusionParams(size_m=args.size_m, resolution_m=args.resolution_m)
         except ValueError as exc:
-            raise tool_support.UsageError(str(exc)) from None
+            raise tool_support.ToolError(str(exc), usage=True) from None
         params = evaluation.load_params_file(tool_support.package_file('params/corridor.yaml'))
     except (ValueError, OSError) as exc:
         return tool_support.report_error(PROG, exc)

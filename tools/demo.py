@@ -529,7 +529,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
     try:
         return run_demo(args)
-    except (DemoError, datasets.EvaluationError, bag_player.PlayError) as err:
+    except (DemoError, datasets.EvaluationError, tool_support.ToolError) as err:
         print(f'error: {err}', file=sys.stderr)
         return 1
 

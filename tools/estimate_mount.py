@@ -85,8 +85,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     """
     args = build_parser().parse_args(argv)
     if not (math.isfinite(args.depth_scale) and args.depth_scale > 0.0):
-        return tool_support.report_error('estimate_mount', tool_support.UsageError(
-            f'argument --depth-scale: {args.depth_scale} must be > 0'))
+        return tool_support.report_error('estimate_mount', tool_support.ToolError(
+            f'argument --depth-scale: {args.depth_scale} must be > 0', usage=True))
     unit_warning = None
     try:
         raw = read_depth_png(args.depth)

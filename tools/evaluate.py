@@ -126,8 +126,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             refiner = LogisticRefiner.load(args.refiner)
         if args.pictures is not None:
             if args.workers or args.scheduler:
-                raise tool_support.UsageError('--pictures draws in this process: leave out '
-                                              '--workers/--scheduler')
+                raise tool_support.ToolError('--pictures draws in this process: leave out '
+                                             '--workers/--scheduler', usage=True)
             args.workers = 0
     except (ValueError, OSError) as exc:
         return report_error('evaluate', exc)

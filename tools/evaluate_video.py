@@ -84,18 +84,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         if args.frames is not None and args.frames < 1:
-            raise tool_support.UsageError(f'argument --frames: {args.frames} must be >= 1')
+            raise tool_support.ToolError(f'argument --frames: {args.frames} must be >= 1',
+                                         usage=True)
         if args.sheet_frames < 1:
-            raise tool_support.UsageError(
-                f'argument --sheet-frames: {args.sheet_frames} must be >= 1')
+            raise tool_support.ToolError(
+                f'argument --sheet-frames: {args.sheet_frames} must be >= 1', usage=True)
         if args.seed < 0:
-            raise tool_support.UsageError(f'argument --seed: {args.seed} must be >= 0')
+            raise tool_support.ToolError(f'argument --seed: {args.seed} must be >= 0', usage=True)
         try:
             fusion = FusionParams(**dict(args.fusion))
         except TypeError as exc:
-            raise tool_support.UsageError(f'argument --fusion: {exc}') from None
+            raise tool_support.ToolError(f'argument --fusion: {exc}', usage=True) from None
         except ValueError as exc:
-            raise tool_support.UsageError(f'argument --fusion: {exc}') from None
+            raise tool_support.ToolError(f'argument --fusion: {exc}', usage=True) from None
         params = evaluation.load_params_file(args.params_file)
         if args.sheet is not None and args.sheet.suffix.lower() != '.png':
             raise tool_support.ToolError(args.sheet, 'the contact sheet must be a .png file')

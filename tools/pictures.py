@@ -18,7 +18,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         done = write_pictures(args)
-    except (tool_support.UsageError, ValueError, OSError, KeyError) as exc:
+    except (ValueError, OSError, KeyError) as exc:
         return tool_support.report_error('pictures', exc)
     print(done)
     return 0

@@ -159,7 +159,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             out = args.out_dir / name
             print(picture_jobs.write_pictures(parser.parse_args([*options, '--out', str(out)])))
             recompress(out)
-    except (tool_support.UsageError, ValueError, OSError, KeyError) as exc:
+    except (ValueError, OSError, KeyError) as exc:
         return tool_support.report_error('readme_pictures', exc)
     if not args.real_dir.is_dir():
         print(f'readme_pictures: warning: no real frames in {args.real_dir}; the real-frame '

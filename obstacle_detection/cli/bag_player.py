@@ -1,14 +1,10 @@
-"""Replay a rosbag2 bag on a ROS 2 graph: the player behind ``tools/bag_play.py`` and the demo.
-
-A :class:`Player` publishes every message of the chosen topics of a bag with its recorded
-timing (scaled by ``rate``), reliable or best effort, optionally looping, from a node the caller
-owns; :class:`PlayStats` counts what was published.
-"""
+"""Replay a rosbag2 bag on a ROS 2 graph: the player behind ``tools/bag_play.py`` and the demo."""
 
 from __future__ import annotations
 
 import dataclasses
 import importlib
+import io
 import math
 import threading
 import time
@@ -20,30 +16,16 @@ from typing import Any
 from rosbags.rosbag2 import Reader, ReaderError
 
 from obstacle_detection.cli import support as tool_support
+from obstacle_detection.cli.support import ToolError
 from obstacle_detection.cli.progress import Progress
 
 #: How long to sleep at most between checks for a stop request [s].
 _POLL_S = 0.05
 
 
-class PlayError(Exception):
-    """The bag or the options cannot be played; the message names the bag or topic."""
-
-
-class PlayUsageError(PlayError):
-    """An option value that cannot work whatever the bag (exit 2, as argparse)."""
-
-
 @dataclasses.dataclass(frozen=True)
 class PlayOptions:
-    """How to play a bag.
-
-    topics: topics to publish (empty: all). rate: speed factor (2.0 = twice as fast).
-    loops: how many times to play (0 = until stopped). start_offset_s: skip this much of the
-    bag's start [s]. reliable: reliable QoS instead of sensor data. remap: bag topic -> published
-    topic. wait_for_subscribers: wait until this many subscriptions (summed over the played
-    topics) are matched, at most wait_timeout_s [s].
-    """
+    """How to play a bag."""
 
     topics: tuple[str, ...] = ()
     rate: float = 1.0
@@ -58,14 +40,16 @@ class PlayOptions:
     def __post_init__(self) -> None:
         """Validate the values, naming the bad one."""
         if not (math.isfinite(self.rate) and self.rate > 0):
-            raise PlayUsageError(f'--rate must be a positive factor, got {self.rate}')
+            raise ToolError(f'--rate must be a positive factor, got {self.rate}', usage=True)
         if self.loops < 0:
-            raise PlayUsageError(f'--loops must be >= 0 (0 = until stopped), got {self.loops}')
+            raise ToolError(f'--loops must be >= 0 (0 = until stopped), got {self.loops}',
+                            usage=True)
         if not (math.isfinite(self.start_offset_s) and self.start_offset_s >= 0):
-            raise PlayUsageError(f'--start-offset must be >= 0 s, got {self.start_offset_s}')
+            raise ToolError(f'--start-offset must be >= 0 s, got {self.start_offset_s}',
+                            usage=True)
         if self.wait_for_subscribers < 0:
-            raise PlayUsageError('--wait-for-subscribers must be >= 0, got '
-                            f'{self.wait_for_subscribers}')
+            raise ToolError('--wait-for-subscribers must be >= 0, got '
+                            f'{self.wait_for_subscribers}', usage=True)
 
 
 @dataclasses.dataclass
@@ -90,7 +74,7 @@ def parse_remap(items: Sequence[str]) -> dict[str, str]:
     for item in items:
         old, sep, new = item.partition(':=')
         if not sep or not old or not new:
-            raise PlayUsageError(f'--remap expects old:=new, got {item!r}')
+            raise ToolError(f'--remap expects old:=new, got {item!r}', usage=True)
         remap[old] = new
     return remap
 
@@ -101,37 +85,30 @@ def message_class(msgtype: str) -> type:
     try:
         return getattr(importlib.import_module(package.replace('/', '.')), name)
     except (ImportError, AttributeError) as err:
-        raise PlayError(f'message type {msgtype} is not installed ({err})') from err
+        raise ToolError(f'message type {msgtype} is not installed ({err})') from err
 
 
 def open_bag(bag: Path, options: PlayOptions) -> tuple[Reader, list[Any]]:
-    """Open ``bag`` and pick the connections to play; the caller closes the reader.
-
-    Raises:
-        PlayError: naming the bag when it is missing or unreadable, or lacks a topic.
-    """
-    try:
-        tool_support.check_bag_path(bag, ros1=False)
-    except tool_support.ToolError as err:
-        raise PlayError(str(err)) from err
+    """Open ``bag`` and pick the connections to play; the caller closes the reader."""
+    tool_support.check_bag_path(bag, ros1=False)
     try:
         reader = Reader(bag)
         reader.open()
     except ReaderError as err:
-        raise PlayError(f'{bag}: cannot read bag ({err})') from err
+        raise ToolError(f'{bag}: cannot read bag ({err})') from err
     try:
         known = {c.topic for c in reader.connections}
         if missing := sorted(set(options.topics) - known):
-            raise PlayError(f'{bag}: has no topic {", ".join(missing)} '
+            raise ToolError(f'{bag}: has no topic {", ".join(missing)} '
                             f'(it has {", ".join(sorted(known))})')
         connections = [c for c in reader.connections
                        if not options.topics or c.topic in options.topics]
         if unknown := sorted(set(options.remap) - {c.topic for c in connections}):
-            raise PlayError(f'{bag}: --remap of {", ".join(unknown)}, which is not played')
+            raise ToolError(f'{bag}: --remap of {", ".join(unknown)}, which is not played')
         offset_ns = int(round(options.start_offset_s * 1e9))
         if not any(c.msgcount for c in connections) or (
                 reader.start_time + offset_ns > reader.end_time):
-            raise PlayError(f'{bag}: no messages to play after {options.start_offset_s:g} s '
+            raise ToolError(f'{bag}: no messages to play after {options.start_offset_s:g} s '
                             f'(the bag lasts {(reader.end_time - reader.start_time) / 1e9:g} s)')
     except BaseException:
         reader.close()
@@ -140,18 +117,11 @@ def open_bag(bag: Path, options: PlayOptions) -> tuple[Reader, list[Any]]:
 
 
 class Player:
-    """Publish a bag's messages from an existing rclpy node.
-
-    Messages are streamed from the bag (not loaded at once), in bag-timestamp order.
-    """
+    """Publish a bag's messages from an existing rclpy node."""
 
     def __init__(self, node: Any, bag: Path, options: PlayOptions, *,
                  opened: tuple[Reader, list[Any]] | None = None) -> None:
-        """Open the bag (unless ``opened`` by ``open_bag``) and create the publishers.
-
-        Raises:
-            PlayError: the bag cannot be read, a topic or type is unknown.
-        """
+        """Open the bag (unless ``opened`` by ``open_bag``) and create the publishers."""
         from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
         self.bag = bag
@@ -178,12 +148,7 @@ class Player:
             else None
 
     def close(self, ack_timeout_s: float = 3.0) -> None:
-        """Close the bag and destroy the publishers.
-
-        A reliable publisher first waits (at most ``ack_timeout_s`` in all) until its matched
-        subscriptions acknowledged what it sent: destroyed at once, the last messages, still
-        in its history, are lost (a replay that ends right after its last frame lost it).
-        """
+        """Close the bag and destroy the publishers."""
         from rclpy.duration import Duration
 
         deadline = time.monotonic() + ack_timeout_s
@@ -203,34 +168,26 @@ class Player:
         return sum(p.get_subscription_count() for p in self.publishers.values())
 
     def wait_for_subscribers(self, stop: threading.Event | None = None) -> None:
-        """Block until ``options.wait_for_subscribers`` subscriptions are matched.
-
-        Raises:
-            PlayError: after ``options.wait_timeout_s`` without them.
-        """
+        """Block until ``options.wait_for_subscribers`` subscriptions are matched."""
         want = self.options.wait_for_subscribers
         deadline = time.monotonic() + self.options.wait_timeout_s
         while self.subscription_count() < want:
             if stop is not None and stop.is_set():
                 return
             if time.monotonic() > deadline:
-                raise PlayError(f'{self.bag}: only {self.subscription_count()} of {want} '
+                raise ToolError(f'{self.bag}: only {self.subscription_count()} of {want} '
                                 f'subscriptions matched after {self.options.wait_timeout_s:g} s')
             time.sleep(_POLL_S)
 
     def play(self, stop: threading.Event | None = None,
              on_publish: Callable[[str, int], None] | None = None) -> PlayStats:
-        """Publish the messages with their recorded spacing; return what was published.
-
-        stop: set it (from another thread) to stop early. on_publish(topic, bag timestamp) is
-        called after each message.
-        """
+        """Publish the messages with their recorded spacing; return what was published."""
         stats = PlayStats()
         began = time.monotonic()
         loops = self.options.loops
         total = self.total * loops if self.total and loops else None
         gap_s = _loop_gap_s(self.connections, self.reader.duration)
-        bar = Progress(total, 'playing', stream=None if self.options.progress else _Null())
+        bar = Progress(total, 'playing', stream=None if self.options.progress else io.StringIO())
         with bar:
             while not loops or stats.loops < loops:
                 if stats.loops and not _sleep_until(
@@ -256,16 +213,6 @@ class Player:
         return stats
 
 
-class _Null:
-    """A stream that drops everything (for a silent progress bar)."""
-
-    def write(self, text: str) -> int:
-        return len(text)
-
-    def flush(self) -> None:
-        pass
-
-
 def _loop_gap_s(connections: Sequence[Any], duration_ns: int) -> float:
     """Mean spacing of the busiest topic [s], waited between the last and first when looping."""
     most = max((c.msgcount for c in connections), default=0)
@@ -274,10 +221,8 @@ def _loop_gap_s(connections: Sequence[Any], duration_ns: int) -> float:
 
 def _sleep_until(due: float, stop: threading.Event | None) -> bool:
     """Sleep until monotonic time ``due``; False if ``stop`` was set meanwhile."""
-    while True:
-        if stop is not None and stop.is_set():
-            return False
-        left = due - time.monotonic()
-        if left <= 0:
-            return True
-        time.sleep(min(left, _POLL_S))
+    left = max(due - time.monotonic(), 0.0)
+    if stop is None:
+        time.sleep(left)
+        return True
+    return not stop.wait(left)

@@ -1,11 +1,4 @@
-"""Run the detector over a whole rosbag2 bag offline (behind ``tools/bag_process.py``).
-
-No DDS: every depth frame of the bag passes the node's frame gate (``frame_gate``) and
-pipeline (``config.build_config`` from the node's parameter files), paired with the latest
-CameraInfo recorded at or before it; the output bag holds every input message plus the node's
-outputs per processed frame, stamped like the depth image. Skipped frames are counted with the
-reason the node would give.
-"""
+"""Run the detector over a whole rosbag2 bag offline (behind ``tools/bag_process.py``)."""
 
 from __future__ import annotations
 
@@ -23,6 +16,7 @@ from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
 from obstacle_detection.cli import support as tool_support
+from obstacle_detection.cli.support import ToolError
 from obstacle_detection.ros.compressed_depth import (COMPRESSED_IMAGE_TYPE,
                                                  raw_topic)
 from obstacle_detection.ros.conversions import result_to_messages
@@ -30,8 +24,8 @@ from obstacle_detection.viz.overlay import render_overlay
 from obstacle_detection.ros import frame_gate
 from obstacle_detection.ros.config import NodeConfig, build_config
 from obstacle_detection.ros.frame_gate import CameraState
-from obstacle_detection.ros.parameters import (ALL_PARAMS, ParamsFileError,
-                                           read_params_files)
+from obstacle_detection.ros import RosInputError
+from obstacle_detection.ros.parameters import ALL_PARAMS, read_params_files
 from obstacle_detection.evaluation.datasets import EvaluationError
 from obstacle_detection.cli.bag_writer import (BAG_VERSION, DEFAULT_DEPTH_TOPIC,
                                                STORAGES, staged_output)
@@ -49,25 +43,14 @@ OUTPUTS = {
 DEPTH_TYPES = {tool_support.IMAGE_TYPE: Image, COMPRESSED_IMAGE_TYPE: CompressedImage}
 
 
-class ProcessError(Exception):
-    """Bad input, parameters or output; the message names the file."""
-
-
 def node_param_values(path: Path | Sequence[Path]) -> dict[str, Any]:
-    """All node parameter values: defaults updated with one or more ``--params-file`` YAMLs.
-
-    Several files are merged in order, as ROS does (a later file wins for a parameter both
-    set). See :func:`obstacle_detection.ros.parameters.read_params_file` for the format.
-
-    Raises:
-        ProcessError: naming the file and the parameter.
-    """
+    """All node parameter values: defaults updated with one or more ``--params-file`` YAMLs."""
     values: dict[str, Any] = {spec.name: spec.default for spec in ALL_PARAMS}
     paths = [path] if isinstance(path, (str, Path)) else list(path)
     try:
         values.update(read_params_files(paths))
-    except ParamsFileError as err:
-        raise ProcessError(str(err)) from err
+    except RosInputError as err:
+        raise ToolError(str(err)) from err
     return values
 
 
@@ -76,7 +59,7 @@ def config_from_values(values: Mapping[str, Any], origin: str) -> NodeConfig:
     try:
         return build_config(dict(values))
     except ValueError as err:
-        raise ProcessError(f'{origin}: {err}') from err
+        raise ToolError(f'{origin}: {err}') from err
 
 
 @dataclasses.dataclass
@@ -133,14 +116,7 @@ class ProcessSummary:
 def process_frame(depth: Image | CompressedImage, cameras: Sequence[CameraState],
                   config: NodeConfig, *, with_ground: bool, with_overlay: bool
                   ) -> tuple[dict[str, Any] | None, Any, str, str | None]:
-    """Run one depth message (raw or compressed) through the node's gate and pipeline.
-
-    ``cameras``: the CameraInfos recorded before the frame, oldest first (at most
-    ``frame_gate.CAMERA_INFO_HISTORY``); the frame takes the one the node would take
-    (:func:`frame_gate.camera_for`). Returns (messages from result_to_messages, the
-    DetectionResult, '', a note when the fallback intrinsics were used) or (None, None, the
-    reason the node would skip the frame, None).
-    """
+    """Run one depth message (raw or compressed) through the node's gate and pipeline."""
     array = frame_gate.decode(depth)
     if isinstance(array, frame_gate.Skip):
         return None, None, array.reason, None
@@ -168,12 +144,6 @@ def process_frame(depth: Image | CompressedImage, cameras: Sequence[CameraState]
     return messages, result, '', verdict.note
 
 
-def _keep_camera(cameras: deque[CameraState], camera: CameraState) -> None:
-    """Add a CameraInfo to the recent ones, once per stamp and camera (as the node keeps them)."""
-    if not any(c.stamp_ns == camera.stamp_ns and c.same_camera(camera) for c in cameras):
-        cameras.append(camera)
-
-
 def _grouped_by_timestamp(messages: Iterator[tuple[Any, int, bytes]], info_topic: str
                           ) -> Iterator[tuple[Any, int, bytes]]:
     """Messages in bag order, camera infos first among those with the same timestamp."""
@@ -193,138 +163,125 @@ def process_bag(src: Path, output: Path, config: NodeConfig, *,
                 on_frame: Callable[[FrameReport], None] | None = None,
                 mount_origin: str = 'the parameters', start_ns: int | None = None,
                 stop_ns: int | None = None) -> ProcessSummary:
-    """Process every depth frame of ``src`` and write inputs + outputs to ``output``.
-
-    depth_topic: a ``sensor_msgs/Image`` or ``sensor_msgs/CompressedImage`` topic (decoded by
-    ``compressed_depth``). info_topic: the depth's CameraInfo topic; None finds it by type
-    (``tool_support.choose_info_topic``: the default topic, else the CameraInfo topic beside
-    the depth topic, or beside its raw topic for a ``.../compressed(Depth)`` one, else the
-    only one). The summary says which was used, and which camera
-    mount (from ``mount_origin``); the floor of the first processed frame is compared with that
-    mount (``tool_support.check_mount``) and a disagreement is a warning on stderr and in the
-    summary.
-
-    start_ns, stop_ns: only the messages recorded in [start_ns, stop_ns) [bag time, ns], a
-    chunk of a long bag (``fleet.bags``); the camera info in effect at ``start_ns`` is the
-    latest recorded before it.
-
-    Raises:
-        ProcessError: naming the bag when it cannot be read or written, lacks the depth topic,
-            or the output exists. Nothing is left at ``output`` then.
-    """
+    """Process every depth frame of ``src`` and write inputs + outputs to ``output``."""
     import time
 
-    try:
-        tool_support.check_bag_path(src, ros1=False)
-    except tool_support.ToolError as err:
-        raise ProcessError(str(err)) from err
+    tool_support.check_bag_path(src, ros1=False)
     namespace = '/' + namespace.strip('/') if namespace.strip('/') else ''
     summary = ProcessSummary(output=output)
     summary.mount = f'{tool_support.mount_text(config.detector.params)} ({mount_origin})'
-    typestore = get_typestore(Stores.ROS2_JAZZY)
     wanted = ['obstacles', 'costmap'] + (['ground'] if with_ground else []) + (
         ['overlay'] if with_overlay else [])
     began = time.perf_counter()
     try:
         with Reader(src) as reader:
-            topics = {c.topic: c.msgtype for c in reader.connections}
-            kinds = ' or '.join(DEPTH_TYPES)
-            if depth_topic not in topics:
-                images = sorted(t for t, m in topics.items() if m in DEPTH_TYPES)
-                raise ProcessError(f'{src}: no depth topic {depth_topic} (its {kinds} topics: '
-                                   f'{", ".join(images) or "none"}; use --depth-topic)')
-            if topics[depth_topic] not in DEPTH_TYPES:
-                raise ProcessError(f'{src}: {depth_topic} has type {topics[depth_topic]}, '
-                                   f'not {kinds}')
-            depth_class = DEPTH_TYPES[topics[depth_topic]]
-            summary.depth = f'{depth_topic} ({topics[depth_topic]}' + (
-                ', decoded by compressed_depth)' if depth_class is CompressedImage else ')')
-            try:
-                info_topic, how = tool_support.choose_info_topic(topics, raw_topic(depth_topic),
-                                                                 info_topic)
-            except ValueError as err:
-                raise ProcessError(f'{src}: {err}') from err
-            summary.info_topic = info_topic
-            summary.info_how = how
             outputs = {key: namespace + '/' + OUTPUTS[key][0] for key in wanted}
-            if clash := sorted(set(outputs.values()) & set(topics)):
-                raise ProcessError(f'{src}: already has {", ".join(clash)}; choose another '
-                                   '--namespace')
+            depth_class = _check_topics(reader, src, depth_topic, info_topic, outputs, summary)
             n_depth = sum(c.msgcount for c in reader.connections if c.topic == depth_topic)
             window = start_ns is not None or stop_ns is not None
             with staged_output(output) as staging, \
                     Writer(staging, version=BAG_VERSION, storage_plugin=STORAGES[storage]) \
-                    as writer:
+                    as writer, \
+                    Progress(None if window else n_depth, 'processing',
+                             stream=None if progress else io.StringIO()) as bar:
+                typestore = get_typestore(Stores.ROS2_JAZZY)
                 copies = copy_connections(reader.connections, writer, typestore)
                 out_conns = {key: writer.add_connection(outputs[key], OUTPUTS[key][1],
                                                         typestore=typestore) for key in wanted}
-                counts: Counter[str] = Counter()
                 cameras: deque[CameraState] = deque(maxlen=frame_gate.CAMERA_INFO_HISTORY)
-                if start_ns is not None and info_topic is not None:
+                if start_ns is not None and summary.info_topic is not None:
                     for _, _, raw in reader.messages(
-                            [c for c in reader.connections if c.topic == info_topic],
+                            [c for c in reader.connections if c.topic == summary.info_topic],
                             stop=start_ns):
-                        _keep_camera(cameras, CameraState.from_camera_info(
+                        frame_gate.keep_camera(cameras, CameraState.from_camera_info(
                             deserialize_message(bytes(raw), CameraInfo)))
-                bar = Progress(None if window else n_depth, 'processing',
-                               stream=None if progress else io.StringIO())
-                with bar:
-                    for conn, timestamp, raw in _grouped_by_timestamp(
-                            reader.messages(start=start_ns, stop=stop_ns), info_topic):
-                        writer.write(copies[conn.id], timestamp, raw)
-                        counts[conn.topic] += 1
-                        if conn.topic == info_topic:
-                            camera = CameraState.from_camera_info(
-                                deserialize_message(bytes(raw), CameraInfo))
-                            _keep_camera(cameras, camera)
-                            said = f'CameraInfo on {info_topic}: {camera.note}'
-                            if camera.note is not None and said not in summary.notes:
-                                summary.notes.append(said)
-                            continue
-                        if conn.topic != depth_topic:
-                            continue
-                        depth = deserialize_message(bytes(raw), depth_class)
+                counts: Counter[str] = Counter()
+                for conn, timestamp, raw in _grouped_by_timestamp(
+                        reader.messages(start=start_ns, stop=stop_ns), summary.info_topic):
+                    writer.write(copies[conn.id], timestamp, raw)
+                    counts[conn.topic] += 1
+                    if conn.topic == summary.info_topic:
+                        camera = CameraState.from_camera_info(
+                            deserialize_message(bytes(raw), CameraInfo))
+                        frame_gate.keep_camera(cameras, camera)
+                        _note(summary, None if camera.note is None else
+                              f'CameraInfo on {summary.info_topic}: {camera.note}')
+                    elif conn.topic == depth_topic:
                         report = FrameReport(summary.frames, timestamp)
-                        summary.frames += 1
-                        messages, result, reason, note = process_frame(
-                            depth, list(cameras), config, with_ground=with_ground,
-                            with_overlay=with_overlay)
-                        if note is not None and note not in summary.notes:
-                            summary.notes.append(note)
-                        if messages is None:
-                            report.skipped = reason
-                            summary.skipped[reason] += 1
-                        else:
-                            for key in wanted:
-                                writer.write(out_conns[key], timestamp,
-                                             serialize_message(messages[key]))
-                                counts[outputs[key]] += 1
-                            if summary.processed == 0:
-                                _check_first_mount(result, config, summary)
-                            report.obstacle_points = int(result.obstacle_points.shape[0])
-                            report.timings_ms = dict(result.timings_ms)
-                            summary.processed += 1
-                            summary.total_ms.append(result.timings_ms.get('total', 0.0))
+                        messages = _frame(deserialize_message(bytes(raw), depth_class),
+                                          list(cameras), config, summary, report,
+                                          with_ground=with_ground, with_overlay=with_overlay)
+                        for key in wanted if messages is not None else ():
+                            writer.write(out_conns[key], timestamp,
+                                         serialize_message(messages[key]))
+                            counts[outputs[key]] += 1
                         bar.update()
                         if on_frame is not None:
                             on_frame(report)
     except EvaluationError as err:
-        raise ProcessError(str(err)) from err
+        raise ToolError(str(err)) from err
     except ReaderError as err:
-        raise ProcessError(f'{src}: cannot read bag ({err})') from err
+        raise ToolError(f'{src}: cannot read bag ({err})') from err
     except WriterError as err:
-        raise ProcessError(f'{output}: cannot write bag ({err})') from err
+        raise ToolError(f'{output}: cannot write bag ({err})') from err
     summary.wall_s = time.perf_counter() - began
     summary.topics = dict(sorted(counts.items()))
     return summary
 
 
+def _check_topics(reader: Reader, src: Path, depth_topic: str, info_topic: str | None,
+                  outputs: Mapping[str, str], summary: ProcessSummary) -> type:
+    """Check the bag's depth topic and outputs, find the CameraInfo topic; the depth class."""
+    topics = {c.topic: c.msgtype for c in reader.connections}
+    kinds = ' or '.join(DEPTH_TYPES)
+    if depth_topic not in topics:
+        images = sorted(t for t, m in topics.items() if m in DEPTH_TYPES)
+        raise ToolError(f'{src}: no depth topic {depth_topic} (its {kinds} topics: '
+                        f'{", ".join(images) or "none"}; use --depth-topic)')
+    if topics[depth_topic] not in DEPTH_TYPES:
+        raise ToolError(f'{src}: {depth_topic} has type {topics[depth_topic]}, not {kinds}')
+    depth_class = DEPTH_TYPES[topics[depth_topic]]
+    summary.depth = f'{depth_topic} ({topics[depth_topic]}' + (
+        ', decoded by compressed_depth)' if depth_class is CompressedImage else ')')
+    try:
+        summary.info_topic, summary.info_how = tool_support.choose_info_topic(
+            topics, raw_topic(depth_topic), info_topic)
+    except ValueError as err:
+        raise ToolError(f'{src}: {err}') from err
+    if clash := sorted(set(outputs.values()) & set(topics)):
+        raise ToolError(f'{src}: already has {", ".join(clash)}; choose another --namespace')
+    return depth_class
+
+
+def _note(summary: ProcessSummary, note: str | None) -> None:
+    if note is not None and note not in summary.notes:
+        summary.notes.append(note)
+
+
+def _frame(depth: Any, cameras: Sequence[CameraState], config: NodeConfig,
+           summary: ProcessSummary, report: FrameReport, *, with_ground: bool,
+           with_overlay: bool) -> dict[str, Any] | None:
+    """Process one depth message, counting it in ``summary`` and ``report``; its messages."""
+    summary.frames += 1
+    messages, result, reason, note = process_frame(
+        depth, cameras, config, with_ground=with_ground, with_overlay=with_overlay)
+    _note(summary, note)
+    if messages is None:
+        report.skipped = reason
+        summary.skipped[reason] += 1
+        return None
+    if summary.processed == 0:
+        _check_first_mount(result, config, summary)
+    report.obstacle_points = int(result.obstacle_points.shape[0])
+    report.timings_ms = dict(result.timings_ms)
+    summary.processed += 1
+    summary.total_ms.append(result.timings_ms.get('total', 0.0))
+    return messages
+
+
 def copy_connections(connections: Iterable[Any], writer: Writer, typestore: Any
                      ) -> dict[int, Any]:
-    """Add a reader's ``connections`` to ``writer``; return {reader's id: writer's connection}.
-
-    The recorded definitions are kept; older bags lack the hash: Jazzy's is taken.
-    """
+    """Add a reader's ``connections`` to ``writer``; return {reader's id: writer's connection}."""
     copies = {}
     for conn in connections:
         known = bool(conn.msgdef.data and conn.digest)

@@ -1,12 +1,4 @@
-"""Write rosbag2 bags: dataset frames on the Kinect v2 driver's topics, or a ROS 1 bag.
-
-:func:`write_frames` writes a :class:`~obstacle_detection.evaluation.datasets.FrameSource` (per
-frame a 16UC1 depth ``Image`` [mm], its ``CameraInfo``, the colour ``Image`` and odometry when
-given, each with the frame's stamp as header stamp and bag timestamp); :func:`convert_ros1`
-converts a ROS 1 bag message by message. Both write into a temporary sibling folder renamed when
-complete (:func:`staged_output`), so a failed run leaves nothing behind. The command line is
-``tools/bag_convert.py``.
-"""
+"""Write rosbag2 bags: dataset frames on the Kinect v2 driver's topics, or a ROS 1 bag."""
 
 from __future__ import annotations
 
@@ -27,10 +19,10 @@ from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 from rosbags.typesys import Stores, get_typestore
 
 from obstacle_detection.cli import support as tool_support
+from obstacle_detection.ros import RosInputError
 from obstacle_detection.ros.compressed_depth import (COMPRESSED_IMAGE_TYPE,
-                                                 CompressedDepthError,
-                                                 compressed_depth_to_array, parse_format,
-                                                 raw_topic)
+                                                     compressed_depth_to_array, parse_format,
+                                                     raw_topic)
 from obstacle_detection.ros.conversions import array_to_image, intrinsics_to_camera_info
 from obstacle_detection.pipeline.params import Intrinsics
 from obstacle_detection.cli.progress import Progress
@@ -111,10 +103,7 @@ def to_time(ns: int) -> Time:
 
 @contextlib.contextmanager
 def staged_output(output: Path) -> Iterator[Path]:
-    """Yield a temporary path beside ``output``; rename it to ``output`` on success.
-
-    On any error the temporary folder is removed, so no half-written bag is left.
-    """
+    """Yield a temporary path beside ``output``; rename it to ``output`` on success."""
     if output.exists() or output.is_symlink():
         raise EvaluationError(f'{output}: output already exists; remove it or choose another name')
     parent = output.parent
@@ -188,13 +177,7 @@ class FrameBagWriter:
 
 
 def write_frames(source: FrameSource, output: Path, options: BagOptions) -> Summary:
-    """Write the frames of ``source`` as a rosbag2 at ``output``.
-
-    Raises:
-        EvaluationError: naming the file for an unreadable or wrong-format image, a size change,
-            intrinsics that do not fit the images, or an existing output. Nothing is left at
-            ``output`` then.
-    """
+    """Write the frames of ``source`` as a rosbag2 at ``output``."""
     if not source.frames:
         raise EvaluationError(f'{output}: no frames to write')
     first = source.frames[0].depth_path
@@ -271,12 +254,7 @@ def write_frames(source: FrameSource, output: Path, options: BagOptions) -> Summ
 
 
 def depth_unit_problem(depth: np.ndarray, units_per_m: float) -> str | None:
-    """Return why a depth image read at ``units_per_m`` looks like another unit, or None.
-
-    depth: (H, W) uint16 in the file's units, 0 = no return. Its median outside what a depth
-    camera sees indoors (``tool_support.depth_unit_warning``), or more than FAR_SHARE of it
-    beyond FAR_DEPTH_M; the text names the known scale that fits (``--depth-scale N``).
-    """
+    """Return why a depth image read at ``units_per_m`` looks like another unit, or None."""
     text = tool_support.depth_unit_warning(depth, units_per_m)
     valid = depth[depth > 0]
     if text is not None or valid.size == 0:
@@ -332,22 +310,8 @@ def convert_ros1(src: Path, output: Path, *, storage: str = 'sqlite3',
                     raise EvaluationError(f'{src}: has no topic {", ".join(missing)}')
                 if not connections:
                     raise EvaluationError(f'{src}: contains no messages')
-                depth = _compressed_depth_topics(reader, connections, noetic)
-                for topic, fmt in sorted(depth.items()):
-                    summary.notes.append(
-                        f'{topic}: compressed depth ({fmt!r}); '
-                        + (f'decoded to sensor_msgs/Image on {raw_topic(topic)}'
-                           if decompress_depth else
-                           f'bag_process.py --depth-topic {topic} reads it (or convert with '
-                           '--decompress-depth)'))
-                decoded = set(depth) if decompress_depth else set()
-                targets = Counter(raw_topic(t) for t in decoded)
-                if clash := sorted(t for t, n in targets.items() if n > 1 or t in (
-                        {c.topic for c in connections} - decoded)):
-                    raise EvaluationError(
-                        f'{src}: {", ".join(clash)} would be written twice by '
-                        '--decompress-depth (recorded raw too, or from two compressed topics); '
-                        'choose one with --topics')
+                decoded = _depth_to_decode(src, reader, connections, noetic, summary,
+                                           decompress_depth)
                 total = sum(c.msgcount for c in connections)
                 with Writer(staging, version=BAG_VERSION,
                             storage_plugin=STORAGES[storage]) as writer:
@@ -391,6 +355,26 @@ def convert_ros1(src: Path, output: Path, *, storage: str = 'sqlite3',
     return summary
 
 
+def _depth_to_decode(src: Path, reader: Any, connections: Sequence[Any], typestore: Any,
+                     summary: Summary, decompress_depth: bool) -> set[str]:
+    """Note the compressed depth topics; return those to decode (EvaluationError on a clash)."""
+    depth = _compressed_depth_topics(reader, connections, typestore)
+    for topic, fmt in sorted(depth.items()):
+        summary.notes.append(
+            f'{topic}: compressed depth ({fmt!r}); '
+            + (f'decoded to sensor_msgs/Image on {raw_topic(topic)}' if decompress_depth else
+               f'bag_process.py --depth-topic {topic} reads it (or convert with '
+               '--decompress-depth)'))
+    decoded = set(depth) if decompress_depth else set()
+    targets = Counter(raw_topic(t) for t in decoded)
+    if clash := sorted(t for t, n in targets.items() if n > 1 or t in (
+            {c.topic for c in connections} - decoded)):
+        raise EvaluationError(
+            f'{src}: {", ".join(clash)} would be written twice by --decompress-depth '
+            '(recorded raw too, or from two compressed topics); choose one with --topics')
+    return decoded
+
+
 def _compressed_depth_topics(reader: Any, connections: Sequence[Any],
                              typestore: Any) -> dict[str, str]:
     """Map each CompressedImage topic holding depth to its first message's format."""
@@ -402,7 +386,7 @@ def _compressed_depth_topics(reader: Any, connections: Sequence[Any],
         fmt = str(typestore.deserialize_ros1(data, COMPRESSED_IMAGE_TYPE).format)
         try:
             parse_format(fmt)
-        except CompressedDepthError:
+        except RosInputError:
             continue  # colour (jpeg, png of bgr8, ...): not depth
         found[conn.topic] = fmt
     return found
@@ -414,7 +398,7 @@ def _decoded_depth(data: bytes, typestore: Any) -> tuple[bytes | None, str]:
     try:
         array = compressed_depth_to_array(msg)
         encoding = parse_format(msg.format)[0]
-    except CompressedDepthError as err:
+    except RosInputError as err:
         return None, str(err)
     stamp = Time(sec=int(msg.header.stamp.sec), nanosec=int(msg.header.stamp.nanosec))
     image = array_to_image(array, stamp=stamp, frame_id=str(msg.header.frame_id),

@@ -1,9 +1,4 @@
-"""Command-line options shared by evaluate, sweep, train_refiner and pictures.
-
-The frame sources (committed scenario suites, labelled folders) and the detector parameters
-(preset, parameter files, ``--set`` overrides) are chosen the same way by every evaluation
-command line; this module holds those options and the error report that goes with them.
-"""
+"""Command-line options shared by evaluate, sweep, train_refiner and pictures."""
 
 from __future__ import annotations
 
@@ -72,14 +67,14 @@ def base_params(args: argparse.Namespace) -> DetectorParams:
         try:
             params = evaluation.apply_overrides(params, dict(args.set))
         except ValueError as exc:
-            raise tool_support.UsageError(f'argument --set: {exc}') from None
+            raise tool_support.ToolError(f'argument --set: {exc}', usage=True) from None
     return params
 
 
 def report_error(prog: str, exc: Exception) -> int:
     """Print the error line; an unknown scenario, parameter or metric is a usage error (2)."""
     if isinstance(exc, evaluation.EvaluationError) and exc.usage:
-        exc = tool_support.UsageError(str(exc))
+        exc = tool_support.ToolError(str(exc), usage=True)
     return tool_support.report_error(prog, exc)
 
 
@@ -88,7 +83,7 @@ def frame_sources(args: argparse.Namespace,
     """(name, frame count, lazy frames) for each scenario and folder selected by the options."""
     sources: list[tuple[str, int, Iterable[evaluation.LabelledFrame]]] = []
     if args.max_frames is not None and args.max_frames < 1:
-        raise tool_support.UsageError(f'--max-frames={args.max_frames} must be >= 1')
+        raise tool_support.ToolError(f'--max-frames={args.max_frames} must be >= 1', usage=True)
     if args.scene or not args.folder:
         path = args.scenarios if args.scenarios is not None else SUITES[args.suite]
         scenarios = evaluation.select_scenarios(evaluation.load_scenarios(path), args.scene)

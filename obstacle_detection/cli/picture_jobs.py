@@ -1,25 +1,4 @@
-r"""Draw what the detector saw, without ROS: depth with obstacles marked + costmap, as PNG.
-
-One frame gives one picture (the seed's figures 4.22-4.27 beside figure 4.23, with a caption:
-frame, obstacle count, time); several frames (a sequence, a labelled folder, a bag) give a
-contact sheet of thumbnails, and ``--frames-dir`` keeps every full-size picture too::
-
-    python tools/pictures.py --scene corridor --out corridor.png
-    python tools/pictures.py --scene person_walking --frames 0:84:6 --out walk_sheet.png
-    python tools/pictures.py --depth frame.png --intrinsics intrinsics.yaml --out frame_out.png
-    python tools/pictures.py --depth tum.png --intrinsics 535.4,539.2,320.1,247.6 \\
-        --depth-scale 5000 --estimate-mount --out tum_out.png
-    python tools/pictures.py --folder recordings/lab_run --out lab_sheet.png
-    python tools/pictures.py --bag run.bag --depth-topic /kinect2/sd/image_depth \\
-        --info-topic /kinect2/sd/camera_info --height 0.6 --every 10 --out bag_sheet.png
-
-Frames with ground truth (scenes, labelled folders) get a third panel comparing the obstacle
-pixels with the truth (hit red, false alarm orange, miss blue) unless ``--no-truth``.
-A depth file whose camera mount is unknown can be drawn with ``--estimate-mount``: the mount
-comes from the floor in view (``obstacle_detection.pipeline.mount.estimate_mount``) and is
-written in
-the caption.
-"""
+"""Draw what the detector saw, without ROS: depth with obstacles marked + costmap, as PNG."""
 
 from __future__ import annotations
 
@@ -89,11 +68,7 @@ def parse_camera(text: str) -> Intrinsics | Path:
 
 
 def read_camera(path: Path) -> _Camera:
-    """Intrinsics, and the depth scale and mount when given, of a camera YAML.
-
-    The format of ``evaluation.camera`` (``tools/estimate_mount.py --camera-yaml-out``, a
-    labelled folder's ``intrinsics.yaml``). Raises ToolError naming the file.
-    """
+    """Intrinsics, and the depth scale and mount when given, of a camera YAML."""
     try:
         camera = read_camera_yaml(path)
     except OSError as exc:
@@ -138,12 +113,7 @@ def _given_mount_options(args: argparse.Namespace) -> list[str]:
 
 
 class _RealFrames:
-    """Turns real depth frames into jobs, saying which intrinsics, scale and mount are used.
-
-    One instance per source (a depth file, a folder, a bag): the mount is estimated
-    (``--estimate-mount``) or checked against the floor on the source's first frame, and a
-    warning is given once per source, not per frame.
-    """
+    """Turns real depth frames into jobs, saying which intrinsics, scale and mount are used."""
 
     def __init__(self, args: argparse.Namespace, base: DetectorParams, camera: _Camera,
                  fix_mount: str) -> None:
@@ -267,11 +237,11 @@ def jobs(args: argparse.Namespace, base: DetectorParams) -> Iterator[_Job]:
             '--estimate-mount (the first frame\'s floor), or --height, --pitch-deg and '
             '--roll-deg'))
         if real.camera.intrinsics is not None:
-            raise tool_support.UsageError('--intrinsics does not apply to --bag: its '
-                                          'CameraInfo gives them (see --info-topic)')
+            raise tool_support.ToolError('--intrinsics does not apply to --bag: its '
+                                         'CameraInfo gives them (see --info-topic)', usage=True)
         for frame in bag_frames(args.bag, args.depth_topic, args.info_topic,
-                                         every=args.every, max_frames=args.max_frames,
-                                         find_info_topic=True):
+                                every=args.every, max_frames=args.max_frames,
+                                find_info_topic=True):
             yield real.job(frame.name, frame.depth, frame.intrinsics, frame.intrinsics_origin,
                            sequence=True)
 
@@ -282,14 +252,7 @@ def _is_labelled(folder: Path) -> bool:
 
 
 def folder_jobs(args: argparse.Namespace, base: DetectorParams) -> Iterator[_Job]:
-    """Frames of ``--folder``: a labelled folder, or a plain folder of 16-bit depth images.
-
-    A labelled folder (``depth/``, ``labels/``, ``intrinsics.yaml``) is drawn with its truth
-    (unless ``--no-truth``) as long as no ``--intrinsics`` replaces its camera. Any other
-    folder: the 16-bit PNG/PGM files in it (or in its ``depth/``), sorted by name, with the
-    intrinsics of ``--intrinsics`` (else the folder's ``intrinsics.yaml``), the depth scale of
-    ``--depth-scale`` (else the YAML's, else millimetres) and no truth.
-    """
+    """Frames of ``--folder``: a labelled folder, or a plain folder of 16-bit depth images."""
     folder: Path = args.folder
     if not folder.is_dir():
         raise tool_support.ToolError(folder, 'no such folder; expected a folder of 16-bit '
@@ -337,21 +300,13 @@ def folder_jobs(args: argparse.Namespace, base: DetectorParams) -> Iterator[_Job
 
 
 def depth_job(args: argparse.Namespace, base: DetectorParams) -> _Job:
-    """Return the frame of ``--depth``: intrinsics, depth scale and mount from the options.
-
-    Mount: the camera YAML's, or with ``--estimate-mount`` the floor's (which needs the
-    intrinsics), then ``--height`` / ``--pitch-deg`` / ``--roll-deg``; else the preset's,
-    checked against the floor in view (a warning when they disagree). Depth scale:
-    ``--depth-scale``, else the YAML's, else millimetres. Which were used is in the job's
-    caption lines. Raises ValueError (no floor found, a bad file) or UsageError
-    (``--estimate-mount`` without intrinsics).
-    """
+    """Return the frame of ``--depth``: intrinsics, depth scale and mount from the options."""
     depth = pictures.read_depth_png(args.depth)
     camera = camera_of(args)
     if args.estimate_mount and camera.intrinsics is None:
-        raise tool_support.UsageError('--estimate-mount needs the intrinsics of the depth '
-                                      'image: give --intrinsics YAML or --intrinsics '
-                                      'FX,FY,CX,CY')
+        raise tool_support.ToolError('--estimate-mount needs the intrinsics of the depth '
+                                     'image: give --intrinsics YAML or --intrinsics '
+                                     'FX,FY,CX,CY', usage=True)
     scale, scale_origin = args.depth_scale, '--depth-scale'
     if scale is None and camera.depth_scale is not None:
         scale, scale_origin = camera.depth_scale, camera.origin
@@ -436,22 +391,18 @@ class _Detected:
 
 
 def detect(args: argparse.Namespace) -> list[_Detected]:
-    """Run the pipeline (and the refiner) over every frame the parsed options name, in order.
-
-    Reports each frame on stderr, with what was used (intrinsics, scale, mount) and the
-    warnings; raises UsageError for options that do not go together, ValueError, OSError or
-    KeyError on bad input.
-    """
+    """Run the pipeline (and the refiner) over every frame the parsed options name, in order."""
     from obstacle_detection.pipeline import refine
     from obstacle_detection.pipeline.detector import Detector
 
     if args.scene is not None and (args.estimate_mount or args.depth_scale is not None
                                    or args.intrinsics is not None):
-        raise tool_support.UsageError('--estimate-mount, --depth-scale and --intrinsics do not '
-                                      'apply to --scene (the generator knows its camera)')
+        raise tool_support.ToolError('--estimate-mount, --depth-scale and --intrinsics do not '
+                                     'apply to --scene (the generator knows its camera)',
+                                     usage=True)
     if args.bag is not None and args.depth_scale is not None:
-        raise tool_support.UsageError('--depth-scale does not apply to --bag (16UC1 images '
-                                      'are millimetres, 32FC1 metres)')
+        raise tool_support.ToolError('--depth-scale does not apply to --bag (16UC1 images '
+                                     'are millimetres, 32FC1 metres)', usage=True)
     base = base_params(args)
     refiner = refine.LogisticRefiner.load(args.refiner) if args.refiner else None
     detected: list[_Detected] = []
@@ -522,22 +473,14 @@ def _write_frames_dir(args: argparse.Namespace, detected: Sequence[_Detected]) -
 
 
 def render(args: argparse.Namespace) -> list[tuple[str, np.ndarray]]:
-    """(caption, RGB picture with its legends) of every frame the parsed options name.
-
-    Also writes ``--frames-dir``; raises as :func:`detect`.
-    """
+    """(caption, RGB picture with its legends) of every frame the parsed options name."""
     detected = detect(args)
     _write_frames_dir(args, detected)
     return [(frame.caption, titled_frame(frame)) for frame in detected]
 
 
 def sheet(args: argparse.Namespace, detected: Sequence[_Detected]) -> np.ndarray:
-    """Return the contact sheet of several frames, with one full-size legend underneath.
-
-    The thumbnails share one depth shading (the farthest depth of all frames is white), so
-    the legend's colour bar holds for every one of them. Each is drawn ``--thumb-width`` wide
-    with its images scaled and its text at full size (``pictures.fit_width``).
-    """
+    """Return the contact sheet of several frames, with one full-size legend underneath."""
     farthest = 0.0
     for frame in detected:
         depth = np.asarray(frame.result.depth_m)
@@ -562,10 +505,7 @@ def sheet(args: argparse.Namespace, detected: Sequence[_Detected]) -> np.ndarray
 
 
 def write_pictures(args: argparse.Namespace) -> str:
-    """Draw the frames ``args`` select and write the PNG(s); return the line to print.
-
-    Raises UsageError, ValueError, OSError or KeyError naming the problem.
-    """
+    """Draw the frames ``args`` select and write the PNG(s); return the line to print."""
     detected = detect(args)
     _write_frames_dir(args, detected)
     if len(detected) == 1:
@@ -595,16 +535,7 @@ class DepthFrame:
 def bag_frames(path: str | Path, depth_topic: str, info_topic: str | None = None, *,
                every: int = 1, max_frames: int | None = None,
                find_info_topic: bool = False) -> Iterator[DepthFrame]:
-    """Depth frames of a ROS 2 (or ROS 1) bag, in time order, with the latest camera info.
-
-    depth_topic: sensor_msgs/Image (16UC1 [mm] or 32FC1 [m]); info_topic: its CameraInfo.
-    Without ``info_topic`` and with ``find_info_topic``, the CameraInfo topic is found by type
-    (``tool_support.choose_info_topic``). No CameraInfo topic, or no message before a frame:
-    the frame's intrinsics are None (the caller chooses a fallback and says so); each frame's
-    ``intrinsics_origin`` names the topic. every: keep one frame in ``every``; max_frames: stop
-    after so many. Raises ValueError naming the path when it is not a bag, cannot be read, or
-    lacks the depth topic.
-    """
+    """Depth frames of a ROS 2 (or ROS 1) bag, in time order, with the latest camera info."""
     from rosbags.highlevel import AnyReader, AnyReaderError
     from rosbags.typesys import Stores, get_typestore
 
@@ -667,6 +598,3 @@ def _bag_frames(reader: Any, path: str | Path, depth_topic: str, info_topic: str
         if max_frames is not None and kept >= max_frames:
             return
 
-
-# --------------------------------------------------------------------------------------------
-# Heatmaps of parameter sweeps (seed figures 4.18 and 4.19 as numbers)

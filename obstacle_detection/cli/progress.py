@@ -1,8 +1,4 @@
-"""A small progress bar for the command-line tools (standard library only).
-
-The bar is drawn on stderr and redrawn in place only when stderr is a terminal; when it is not
-(a pipe, a log file, a test), nothing is written until ``close()``, which prints one final line.
-"""
+"""A small progress bar for the command-line tools (standard library only)."""
 
 from __future__ import annotations
 
@@ -16,24 +12,10 @@ _MIN_REDRAW_S = 0.1
 
 
 class Progress:
-    """Count work items and show how far along the work is.
-
-    Use as a context manager, or call ``close()`` when done::
-
-        with Progress(len(frames), 'converting') as bar:
-            for frame in frames:
-                ...
-                bar.update()
-    """
+    """Count work items and show how far along the work is."""
 
     def __init__(self, total: int | None, label: str, *, stream: TextIO | None = None) -> None:
-        """Start counting.
-
-        Args:
-            total: number of items expected, or None if unknown (then only a count is shown).
-            label: short text shown before the bar.
-            stream: where to write; stderr by default.
-        """
+        """Start counting."""
         self.total = total
         self.label = label
         self.count = 0

@@ -1,8 +1,4 @@
-"""Record topics of a live ROS 2 graph as raw messages, and write them as a rosbag2 bag.
-
-The demo records what the node publishes with a :class:`Recorder` (reliable, raw CDR bytes,
-the arrival time kept) and saves it with :func:`write_bag`.
-"""
+"""Record topics of a live ROS 2 graph as raw messages, and write them as a rosbag2 bag."""
 
 from __future__ import annotations
 

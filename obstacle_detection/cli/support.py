@@ -1,14 +1,4 @@
-"""What the command-line tools share: default topics, error lines and exit codes, data checks.
-
-Exit codes, the same in every tool (and as the README says): 0 success, 1 bad input (a file,
-folder or bag that cannot be used; one ``error: <path>: <problem>`` line on stderr),
-2 usage error (as argparse: ``<prog>: error: <problem>``).
-
-The data checks never change what a tool computes: they say which intrinsics, depth scale and
-camera mount are used and warn when the data disagrees with them (a depth whose values look
-like another unit, a floor far from where the mount puts it), with the option that fixes it.
-No ROS import here.
-"""
+"""What the command-line tools share: default topics, error lines and exit codes, data checks."""
 
 from __future__ import annotations
 
@@ -51,19 +41,15 @@ MOUNT_ANGLE_TOLERANCE_DEG = 5.0
 
 
 class ToolError(ValueError):
-    """Bad input to a tool (exit 1); ``str()`` is ``<path>: <problem>``."""
+    """The command-line layer's one error: bad input (exit 1) or, with ``usage``, bad options (2).
 
-    def __init__(self, path: str | Path, problem: str) -> None:
-        super().__init__(f'{path}: {problem}')
-        self.path = path
-        self.problem = problem
-
-
-class UsageError(ValueError):
-    """Options that do not go together or name nothing known (exit 2, as argparse).
-
-    A ValueError, so that callers catching bad values catch it too.
+    ``ToolError(path, problem)`` reads ``<path>: <problem>``; ``ToolError(message)`` the message.
     """
+
+    def __init__(self, path: str | Path, problem: str | None = None, *,
+                 usage: bool = False) -> None:
+        super().__init__(str(path) if problem is None else f'{path}: {problem}')
+        self.usage = usage
 
 
 #: The folder holding the ``obstacle_detection`` package: the repository root in a checkout
@@ -73,13 +59,7 @@ PACKAGE_ROOT = Path(__file__).resolve().parents[2]
 
 
 def package_file(relative: str) -> Path:
-    """Return a file the package ships beside its Python code, e.g. ``params/corridor.yaml``.
-
-    From a checkout, the repository's file; once installed (colcon, pip), the one in
-    ``<prefix>/share/obstacle_detection`` (setup.py's data_files), the prefix being three
-    levels above ``site-packages``. When neither exists the checkout's path is returned, so
-    the error that follows names it.
-    """
+    """Return a file the package ships beside its Python code, e.g. ``params/corridor.yaml``."""
     candidates = [PACKAGE_ROOT / relative]
     if len(PACKAGE_ROOT.parents) > 2:   # <prefix>/lib/pythonX.Y/site-packages
         candidates.append(PACKAGE_ROOT.parents[2] / 'share' / 'obstacle_detection' / relative)
@@ -87,13 +67,9 @@ def package_file(relative: str) -> Path:
 
 
 def report_error(prog: str, error: BaseException, stream: TextIO | None = None) -> int:
-    """Print the one error line of ``error`` and return the exit code it calls for.
-
-    UsageError: ``<prog>: error: <message>``, 2. Anything else (ToolError, ValueError,
-    OSError naming a path): ``error: <message>``, 1.
-    """
+    """Print the one error line of ``error`` and return the exit code it calls for."""
     stream = sys.stderr if stream is None else stream
-    if isinstance(error, UsageError):
+    if getattr(error, 'usage', False):
         print(f'{prog}: error: {error}', file=stream)
         return EXIT_USAGE
     text = str(error)
@@ -115,11 +91,7 @@ def warn(text: str, stream: TextIO | None = None) -> None:
 
 
 def check_bag_path(path: str | Path, *, ros1: bool = True) -> None:
-    """Raise ToolError unless ``path`` looks like a bag the rosbags library can open.
-
-    A rosbag2 bag is a folder holding ``metadata.yaml``; a ROS 1 bag a ``.bag`` file (accepted
-    when ``ros1``). The message names the path and what was expected.
-    """
+    """Raise ToolError unless ``path`` looks like a bag the rosbags library can open."""
     path = Path(path)
     expected = ('a rosbag2 folder (holding metadata.yaml)'
                 + (' or a ROS 1 .bag file' if ros1 else ''))
@@ -146,14 +118,7 @@ def check_bag_path(path: str | Path, *, ros1: bool = True) -> None:
 
 def choose_info_topic(topics: Mapping[str, str], depth_topic: str,
                       requested: str | None = None) -> tuple[str | None, str]:
-    """Pick the CameraInfo topic of a bag's depth topic: ``(topic or None, how it was found)``.
-
-    topics: ``{topic: message type}``. requested: the user's ``--info-topic`` (must exist and
-    be a CameraInfo: ValueError otherwise). Without it: ``DEFAULT_INFO_TOPIC`` when the bag has
-    it, else the CameraInfo topic beside the depth topic (same parent namespace), else the only
-    CameraInfo topic, else the one sharing the longest prefix with the depth topic. None when
-    the bag has no CameraInfo topic.
-    """
+    """Pick the CameraInfo topic of a bag's depth topic: ``(topic or None, how it was found)``."""
     infos = sorted(t for t, kind in topics.items() if kind == CAMERA_INFO_TYPE)
     if requested is not None:
         if requested not in topics:
@@ -215,11 +180,7 @@ def mount_text(params: DetectorParams) -> str:
 
 
 def intrinsics_warning(intrinsics: Intrinsics, shape: tuple[int, int]) -> str | None:
-    """Why these intrinsics do not fit an (H, W) image (principal point far off centre), or None.
-
-    A principal point more than a quarter of the image from its centre is not a calibration
-    of this camera (real ones are within a few percent).
-    """
+    """Why these intrinsics do not fit an (H, W) image (principal point off centre), or None."""
     height, width = shape
     if abs(intrinsics.cx - width / 2) > width / 4 or abs(intrinsics.cy - height / 2) > height / 4:
         return (f'the principal point ({intrinsics.cx:g}, {intrinsics.cy:g}) is far from the '
@@ -231,15 +192,7 @@ def intrinsics_warning(intrinsics: Intrinsics, shape: tuple[int, int]) -> str | 
 def depth_unit_warning(depth: np.ndarray, depth_scale: float | None,
                        option: str = '--depth-scale', *,
                        out_of_range_m: float | None = None) -> str | None:
-    """Return a warning when integer depth read at ``depth_scale`` units/m looks like another unit.
-
-    depth: (H, W) integer depth (0 = no return); depth_scale: units per metre (None = 1000).
-    The frame looks wrong when its median valid depth lies outside PLAUSIBLE_MEDIAN_DEPTH_M,
-    or, with ``out_of_range_m`` (a caller found too few points within this range), when
-    another known scale would bring the median nearer 2 m. The warning names the median and
-    the known scale (KNOWN_DEPTH_SCALES) that brings it nearest to 2 m. None for float depth
-    (metres), an empty frame, or a plausible one.
-    """
+    """Warn when integer depth read at ``depth_scale`` units/m looks like another unit."""
     arr = np.asarray(depth)
     if arr.dtype.kind not in 'ui':
         return None
@@ -271,11 +224,7 @@ def depth_unit_warning(depth: np.ndarray, depth_scale: float | None,
 
 @dataclass(frozen=True)
 class MountCheck:
-    """The floor found in a frame compared with the mount in use.
-
-    estimate: the floor's mount (``mount.MountEstimate``) or None when no floor was found
-    (``reason`` says why); warning: set when the mount in use is far from the floor's.
-    """
+    """The floor found in a frame compared with the mount in use."""
 
     estimate: object | None
     warning: str | None = None
@@ -284,13 +233,7 @@ class MountCheck:
 
 def check_mount(depth_m: np.ndarray, intrinsics: Intrinsics, params: DetectorParams,
                 fix: str = '--estimate-mount') -> MountCheck:
-    """Find the floor (``mount.estimate_mount``, RANSAC) and compare it with the params' mount.
-
-    Warns when the camera height differs by more than MOUNT_HEIGHT_TOLERANCE_M or the pitch or
-    roll by more than MOUNT_ANGLE_TOLERANCE_DEG: the floor is then tilted or shifted in the
-    ground frame and bands of it are marked as obstacles or cut by the region of interest.
-    fix: the option or command that applies the floor's mount, quoted in the warning.
-    """
+    """Find the floor (``mount.estimate_mount``, RANSAC) and compare it with the params' mount."""
     from obstacle_detection.pipeline.mount import estimate_mount
 
     try:
@@ -338,11 +281,7 @@ def add_domain_id_option(parser: argparse.ArgumentParser, help_text: str) -> Non
 
 
 def pin_one_cpu() -> str:
-    """Pin this process to one CPU and OpenCV to one thread; return what was done.
-
-    The tools that time code call it after setting the BLAS/OpenMP thread variables to 1
-    (before numpy is imported), so the returned text says so too.
-    """
+    """Pin this process to one CPU and OpenCV to one thread; return what was done."""
     import cv2
 
     cv2.setNumThreads(1)

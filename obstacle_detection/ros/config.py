@@ -1,9 +1,4 @@
-"""The node's configuration from its parameter values: detector, frames, switches (no rclpy).
-
-:func:`build_config` turns ``{ros_name: value}`` of every parameter into a validated
-:class:`NodeConfig`; the node swaps it as one reference on a parameter set, and the offline bag
-tool builds the same one from a ``--params-file``, so both run the same detector.
-"""
+"""The node's configuration from its parameter values: detector, frames, switches (no rclpy)."""
 
 from __future__ import annotations
 
@@ -74,10 +69,7 @@ class NodeConfig:
 
 
 def build_detector(values: dict[str, Any]) -> Detector | RefinedDetector:
-    """Return the pipeline, refined when ``refiner_model_file`` names a model; ValueError if bad.
-
-    Shared by the node and the offline bag tool, so that both run the same detector.
-    """
+    """Build the pipeline, refined when ``refiner_model_file`` names a model; ValueError if bad."""
     detector = Detector(detector_params_from_ros(values))
     model_file = str(values.get('refiner_model_file', '')).strip()
     if not model_file:

@@ -1,13 +1,4 @@
-"""Conversions between ROS messages and the numpy arrays of the pipeline.
-
-This module imports message classes but never rclpy, so the node and the offline bag tools build
-identical messages through the same functions. Readers are duck-typed: they accept rclpy
-messages and rosbags-deserialised messages alike (``data`` as ``bytes``, ``array.array`` or a
-numpy ``uint8`` array; ``k`` as a list, tuple or numpy array).
-
-Supported depth encodings (REP 118): ``16UC1`` / ``mono16`` in millimetres (0 = no return) and
-``32FC1`` in metres (0, NaN or inf = no return), either byte order, rows padded to ``step``.
-"""
+"""Conversions between ROS messages and the numpy arrays of the pipeline."""
 
 from __future__ import annotations
 
@@ -23,6 +14,8 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
 from std_msgs.msg import Header
 
 from obstacle_detection.pipeline.params import Intrinsics
+
+from . import RosInputError
 
 if TYPE_CHECKING:
     from builtin_interfaces.msg import Time
@@ -56,15 +49,11 @@ _DEFAULT_ENCODING = {
 _XYZ_FIELDS = ('x', 'y', 'z')
 
 
-class ImageFormatError(ValueError):
-    """An Image message cannot be read as a depth image (encoding, size or byte count)."""
-
-
 def _stamped_header(stamp: Time, frame_id: str) -> Header:
     return Header(stamp=stamp, frame_id=frame_id)
 
 
-def _byte_view(data: Any) -> np.ndarray:
+def byte_view(data: Any) -> np.ndarray:
     """Return a flat uint8 view of a message's ``data`` (bytes, array.array, ndarray or a list)."""
     try:
         return np.frombuffer(data, dtype=np.uint8)
@@ -75,52 +64,40 @@ def _byte_view(data: Any) -> np.ndarray:
 def image_to_array(msg: Any, *, copy: bool = True) -> np.ndarray:
     """Decode a depth Image message into a native-byte-order array.
 
-    msg: ``sensor_msgs/Image`` (rclpy or rosbags) with encoding ``16UC1``/``mono16`` -> (H, W)
-    uint16 [mm], or ``32FC1`` -> (H, W) float32 [m]. ``is_bigendian`` and the row ``step``
-    (padding at the end of each row) are honoured. The result is a fresh writable array, or
-    with ``copy=False`` a view of the message's data when it already is native-order rows
-    without padding (the node: 0.05-0.1 ms a frame less; do not write into it).
-
-    Raises ImageFormatError naming the bad value for an unsupported encoding, an empty image, a
-    step shorter than one row, or a ``data`` length other than ``step * height``.
+    16UC1/mono16 -> (H, W) uint16 [mm], 32FC1 -> float32 [m]; copy=False may return a view of
+    the message's data (do not write into it). Raises RosInputError naming the bad value.
     """
     encoding = str(msg.encoding)
     if encoding not in DEPTH_ENCODINGS:
-        raise ImageFormatError(
+        raise RosInputError(
             f'unsupported depth encoding {encoding!r}: expected one of '
             f'{", ".join(DEPTH_ENCODINGS)}')
     return _pixels(msg, *DEPTH_ENCODINGS[encoding], copy=copy)
 
 
 def image_to_rgb(msg: Any) -> np.ndarray:
-    """Decode an ``rgb8`` or ``bgr8`` Image message (the node's overlay) into (H, W, 3) RGB.
-
-    Raises ImageFormatError as :func:`image_to_array` does.
-    """
+    """Decode an ``rgb8`` or ``bgr8`` Image message (the node's overlay) into (H, W, 3) RGB."""
     encoding = str(msg.encoding)
     if encoding not in ('rgb8', 'bgr8'):
-        raise ImageFormatError(f'unsupported colour encoding {encoding!r}: expected rgb8 or '
-                               'bgr8')
+        raise RosInputError(f'unsupported colour encoding {encoding!r}: expected rgb8 or '
+                            'bgr8')
     rgb = _pixels(msg, *IMAGE_ENCODINGS[encoding])
     return np.ascontiguousarray(rgb[:, :, ::-1]) if encoding == 'bgr8' else rgb
 
 
 def _pixels(msg: Any, base: np.dtype, channels: int, copy: bool = True) -> np.ndarray:
-    """(H, W) or (H, W, channels) native-order pixels of an Image; ImageFormatError if bad.
-
-    copy=False: a view of ``msg.data`` when no byte swap and no padding need a copy.
-    """
+    """(H, W) or (H, W, channels) native-order pixels of an Image; RosInputError if bad."""
     encoding = str(msg.encoding)
     height, width, step = int(msg.height), int(msg.width), int(msg.step)
     if height <= 0 or width <= 0:
-        raise ImageFormatError(f'empty image: width={width}, height={height}')
+        raise RosInputError(f'empty image: width={width}, height={height}')
     row_bytes = width * channels * base.itemsize
     if step < row_bytes:
-        raise ImageFormatError(
+        raise RosInputError(
             f'step={step} is shorter than one row of {width} x {encoding} ({row_bytes} bytes)')
-    buffer = _byte_view(msg.data)
+    buffer = byte_view(msg.data)
     if buffer.size != step * height:
-        raise ImageFormatError(
+        raise RosInputError(
             f'data has {buffer.size} bytes, expected step * height = {step} * {height} = '
             f'{step * height}')
     wire = base.newbyteorder('>' if msg.is_bigendian else '<')
@@ -133,28 +110,22 @@ def _pixels(msg: Any, base: np.dtype, channels: int, copy: bool = True) -> np.nd
 
 def array_to_image(array: np.ndarray, *, stamp: Time, frame_id: str,
                    encoding: str | None = None) -> Image:
-    """Build an Image message from an array (little-endian, no row padding).
-
-    array: (H, W) uint16 [mm] (``16UC1``, or ``mono16``), (H, W) float32 [m] (``32FC1``),
-    (H, W) uint8 (``mono8``) or (H, W, 3) uint8 (``rgb8``, or ``bgr8``). encoding: None picks the
-    default for the array's dtype and channel count. Raises ImageFormatError if the array does not
-    fit the encoding.
-    """
+    """Build an Image message from an array (little-endian, no row padding)."""
     array = np.asarray(array)
     if array.ndim not in (2, 3) or (array.ndim == 3 and array.shape[2] not in (1, 3)):
-        raise ImageFormatError(f'cannot make an image from an array of shape {array.shape}')
+        raise RosInputError(f'cannot make an image from an array of shape {array.shape}')
     channels = 1 if array.ndim == 2 else array.shape[2]
     if encoding is None:
         encoding = _DEFAULT_ENCODING.get((array.dtype.newbyteorder('='), channels))
         if encoding is None:
-            raise ImageFormatError(
+            raise RosInputError(
                 f'no image encoding for dtype {array.dtype} with {channels} channel(s)')
     if encoding not in IMAGE_ENCODINGS:
-        raise ImageFormatError(
+        raise RosInputError(
             f'unsupported encoding {encoding!r}: expected one of {", ".join(IMAGE_ENCODINGS)}')
     base, want_channels = IMAGE_ENCODINGS[encoding]
     if array.dtype.newbyteorder('=') != base or channels != want_channels:
-        raise ImageFormatError(
+        raise RosInputError(
             f'encoding {encoding!r} needs {want_channels} channel(s) of {base}, got '
             f'{channels} of {array.dtype}')
     height, width = array.shape[:2]
@@ -178,12 +149,7 @@ def intrinsics_come_from_k(msg: Any) -> bool:
 def camera_info_to_intrinsics(msg: Any) -> Intrinsics:
     """Pinhole intrinsics from a CameraInfo's P, the rectified image's matrix [px].
 
-    fx = P[0], fy = P[5], cx = P[2], cy = P[6] (P row-major 3 x 4), as image_geometry's
-    PinholeCameraModel and depth_image_proc back-project a (rectified) depth image. Only when P
-    is all zero (a driver that fills only K) they come from K: fx = K[0], fy = K[4],
-    cx = K[2], cy = K[5] (:func:`intrinsics_come_from_k`; the caller says so). Raises
-    ValueError (naming the matrix and values) for an uncalibrated camera (zero focal length)
-    or non-finite entries.
+    From K only when P is all zero (:func:`intrinsics_come_from_k`); ValueError if uncalibrated.
     """
     p = np.asarray(msg.p, dtype=np.float64).reshape(-1)
     if p.size != 12:
@@ -215,13 +181,7 @@ DEPTH_SAMPLE_ROWS = 16
 
 
 def intrinsics_problem(intrinsics: Intrinsics, width: int, height: int) -> str | None:
-    """Say why intrinsics cannot belong to a ``width`` x ``height`` depth camera, or None.
-
-    Checks: a non-zero image size (without it, frames cannot be checked against the
-    CameraInfo), focal lengths giving a field of view within PLAUSIBLE_FOV_DEG on both axes
-    (fx = 1e300 or 1e-300 are refused, not turned into phantom points or an underflow), and
-    a principal point within PRINCIPAL_POINT_MARGIN of the image.
-    """
+    """Say why intrinsics cannot belong to a ``width`` x ``height`` depth camera, or None."""
     if width <= 0 or height <= 0:
         return (f'CameraInfo image size is {width}x{height}: a depth camera has a size, '
                 'needed to check frames against it')
@@ -241,22 +201,13 @@ def intrinsics_problem(intrinsics: Intrinsics, width: int, height: int) -> str |
 
 
 def depth_sample(depth: np.ndarray) -> np.ndarray:
-    """Return the rows of a depth frame that the checks of a frame read (a view).
-
-    Every DEPTH_SAMPLE_ROWS-th row, whole: about 13,800 pixels of a 512 x 424 frame spread
-    over its height, in a quarter of the memory that every 4th pixel of every 4th row spans
-    (the checks are the first to read a frame's pixels, from memory, not the cache).
-    """
+    """Return the rows of a depth frame that the checks of a frame read (a view)."""
     return depth[::DEPTH_SAMPLE_ROWS]
 
 
 @functools.lru_cache(maxsize=1)
 def _plausible_codes() -> tuple[int, int]:
-    """Return the first and last uint16 millimetre code within PLAUSIBLE_DEPTH_M.
-
-    Computed as :func:`depth_problem` converts codes (float64 code * 1e-3), so its integer
-    test counts the same pixels as the rule in metres.
-    """
+    """Return the first and last uint16 millimetre code within PLAUSIBLE_DEPTH_M."""
     metres = np.arange(1 << 16, dtype=np.float64) * 1e-3
     near, far = PLAUSIBLE_DEPTH_M
     inside = np.flatnonzero((metres >= near) & (metres <= far))
@@ -264,13 +215,7 @@ def _plausible_codes() -> tuple[int, int]:
 
 
 def depth_problem(depth: np.ndarray) -> str | None:
-    """Say why a decoded depth frame cannot be real depth, or None.
-
-    depth: (H, W) uint16 [mm] or float32 [m], as :func:`image_to_array` returns. Looks at the
-    rows of :func:`depth_sample`; a frame is refused when less than PLAUSIBLE_SHARE of its
-    valid (finite, > 0) values lie within PLAUSIBLE_DEPTH_M: millimetres sent as 32FC1 metres,
-    a wrong ``is_bigendian``, random bytes. A frame with no valid value is not judged here.
-    """
+    """Say why a decoded depth frame cannot be real depth, or None."""
     sample = depth_sample(depth)
     if sample.dtype == np.uint16:
         # the usual case, in integers (no float copy): accepted when enough codes lie in
@@ -319,11 +264,7 @@ def intrinsics_to_camera_info(intrinsics: Intrinsics, width: int, height: int, *
 
 
 def points_to_pointcloud2(points: np.ndarray, *, stamp: Time, frame_id: str) -> PointCloud2:
-    """Build an unorganised PointCloud2 (height 1) of float32 x, y, z, little-endian.
-
-    points: (N, 3) [m] in ``frame_id``; N may be 0. ``is_dense`` is True when every coordinate is
-    finite.
-    """
+    """Build an unorganised PointCloud2 (height 1) of float32 x, y, z, little-endian."""
     points = np.asarray(points)
     if points.ndim != 2 or points.shape[1] != 3:
         raise ValueError(f'points must have shape (N, 3), got {points.shape}')
@@ -343,12 +284,7 @@ def points_to_pointcloud2(points: np.ndarray, *, stamp: Time, frame_id: str) -> 
 
 def costmap_to_occupancy_grid(costmap: Costmap, *, stamp: Time,
                               frame_id: str) -> OccupancyGrid:
-    """Build an OccupancyGrid of the costmap, lying in the ground plane of ``frame_id``.
-
-    info: resolution [m/cell], width = nx, height = ny, origin at the costmap's ``origin_xy_m``
-    (the outer corner of cell (0, 0)), z = 0, identity orientation. data: row-major int8 cells
-    (100 occupied, 0 free, -1 unknown), the same order as ``costmap.data``.
-    """
+    """Build an OccupancyGrid of the costmap, lying in the ground plane of ``frame_id``."""
     data = np.ascontiguousarray(costmap.data, dtype=np.int8)
     origin = Pose()
     origin.position.x = float(costmap.origin_xy_m[0])
@@ -363,11 +299,7 @@ def costmap_to_occupancy_grid(costmap: Costmap, *, stamp: Time,
 
 
 def occupancy_grid_to_costmap(grid: Any) -> Costmap:
-    """Read an OccupancyGrid back into a Costmap (the inverse of costmap_to_occupancy_grid).
-
-    data: (info.height, info.width) int8 cells; origin: the grid origin's x, y [m] (a rotated
-    origin is not supported: ValueError).
-    """
+    """Read an OccupancyGrid back into a Costmap (the inverse of costmap_to_occupancy_grid)."""
     from obstacle_detection.pipeline.costmap import Costmap
 
     info = grid.info
@@ -392,14 +324,7 @@ def result_to_messages(result: DetectionResult, *, stamp: Time, cloud_frame_id: 
                        clearing_points: np.ndarray | None = None) -> dict[str, Any]:
     """All output messages of one pipeline result, stamped with the input's stamp.
 
-    Returns {'obstacles': PointCloud2, 'costmap': OccupancyGrid} plus 'ground' (PointCloud2 of
-    the traversable voxel centroids, in ``cloud_frame_id``) if ``with_ground`` and 'overlay'
-    (rgb8 Image in ``image_frame_id``) of ``overlay_rgb`` when given: the (H, W, 3) uint8
-    picture the caller drew (``viz.overlay.render_overlay``: the filtered depth with obstacle
-    pixels marked); conversion packs it, it does not draw. 'clearing' (PointCloud2 in
-    ``image_frame_id``, the camera optical frame, origin at the camera) of ``clearing_points``
-    when given: (N, 3) [m] from ``pipeline.clearing.clearing_points``. The node and the
-    offline bag tools both call this function.
+    Keys: 'obstacles', 'costmap', and 'ground', 'overlay', 'clearing' when asked for.
     """
     messages: dict[str, Any] = {
         'obstacles': points_to_pointcloud2(result.obstacle_points, stamp=stamp,

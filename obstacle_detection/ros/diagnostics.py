@@ -1,20 +1,4 @@
-"""The node's health on ``/diagnostics``: counters per period and the level they mean.
-
-Pure Python plus the ``diagnostic_msgs`` message types (no rclpy), so the rules are tested
-without a ROS graph. The node feeds a :class:`HealthWindow` from its callbacks and worker, and
-once a second publishes :func:`health_status` as a ``diagnostic_msgs/DiagnosticArray``, where
-rqt_robot_monitor and the diagnostic aggregator look first when a sensor pipeline misbehaves.
-
-Levels (thresholds over the last period, about a second):
-
-- ERROR: no depth frame for ``NO_FRAME_ERROR_S`` (2 s); frames arrive but no usable CameraInfo
-  (and no fallback); more than ``SKIPPED_ERROR_SHARE`` (50 %) of the frames skipped for bad
-  input; the pipeline raised on a frame.
-- WARN: some frames skipped; more than ``DROPPED_WARN_SHARE`` (20 %) replaced by a newer frame
-  before processing (the node does not keep up); the numpy path while the compiled kernels
-  build, or because they failed.
-- OK otherwise.
-"""
+"""The node's health on ``/diagnostics``: counters per period and the level they mean."""
 
 from __future__ import annotations
 
@@ -43,54 +27,73 @@ class Period:
     processed: int = 0
     dropped: int = 0
     errors: int = 0
+    missing: int = 0   #: frames the camera sent that never arrived (gaps in the stamps)
     skipped: Counter = field(default_factory=Counter)
-    times_ms: list[float] = field(default_factory=list)
+    sum_ms: float = 0.0
+    max_ms: float = 0.0
     since_last_frame_s: float | None = None   #: None: no frame since the node started
 
 
 class HealthWindow:
-    """Thread-safe counters of one reporting period (callbacks and worker add, a timer takes)."""
+    """Thread-safe frame counters: one period per reader (the diagnostics, the log) and totals."""
 
-    def __init__(self, now: float | None = None) -> None:
+    def __init__(self, now: float | None = None, readers: tuple[str, ...] = ('diagnostics',)
+                 ) -> None:
         self._lock = threading.Lock()
-        self._start = time.monotonic() if now is None else now
+        self._start = dict.fromkeys(readers, time.monotonic() if now is None else now)
+        self._periods = {reader: Period() for reader in readers}
         self._last_frame: float | None = None
-        self._period = Period()
+        self.total_processed = self.total_dropped = self.total_missing = 0
+
+    def _add(self, name: str, count: int = 1) -> None:
+        for period in self._periods.values():
+            setattr(period, name, getattr(period, name) + count)
 
     def received(self, now: float | None = None) -> None:
         """Count one depth frame received."""
         with self._lock:
-            self._period.received += 1
+            self._add('received')
             self._last_frame = time.monotonic() if now is None else now
 
     def processed(self, elapsed_ms: float) -> None:
         """Count one frame processed and published in ``elapsed_ms``."""
         with self._lock:
-            self._period.processed += 1
-            self._period.times_ms.append(elapsed_ms)
+            self.total_processed += 1
+            self._add('processed')
+            for period in self._periods.values():
+                period.sum_ms += elapsed_ms
+                period.max_ms = max(period.max_ms, elapsed_ms)
 
     def dropped(self) -> None:
         """Count one frame replaced by a newer one before it was processed."""
         with self._lock:
-            self._period.dropped += 1
+            self.total_dropped += 1
+            self._add('dropped')
+
+    def missing(self, count: int) -> None:
+        """Count frames the camera sent that never arrived."""
+        with self._lock:
+            self.total_missing += count
+            self._add('missing', count)
 
     def skipped(self, reason: str) -> None:
         """Count one frame skipped for bad input, by reason (a short key)."""
         with self._lock:
-            self._period.skipped[reason] += 1
+            for period in self._periods.values():
+                period.skipped[reason] += 1
 
     def error(self) -> None:
         """Count one frame lost to an unexpected exception."""
         with self._lock:
-            self._period.errors += 1
+            self._add('errors')
 
-    def take(self, now: float | None = None) -> Period:
-        """Return the period since the last call and start a new one."""
+    def take(self, now: float | None = None, reader: str = 'diagnostics') -> Period:
+        """Return the reader's period since its last call and start a new one."""
         now = time.monotonic() if now is None else now
         with self._lock:
-            period, self._period = self._period, Period()
-            period.seconds = max(now - self._start, 1e-9)
-            self._start = now
+            period, self._periods[reader] = self._periods[reader], Period()
+            period.seconds = max(now - self._start[reader], 1e-9)
+            self._start[reader] = now
             if self._last_frame is not None:
                 period.since_last_frame_s = now - self._last_frame
         return period
@@ -138,29 +141,20 @@ def _level_and_message(period: Period, ctx: Context) -> tuple[int, str]:
 
 
 def status_name(node_fqn: str) -> str:
-    """Return the status name of a node: its fully qualified name and the task.
-
-    Two detectors (two cameras) in two namespaces report under two names, e.g.
-    ``/front/obstacle_detector: depth obstacle detection``.
-    """
+    """Return the status name of a node: its fully qualified name and the task."""
     return f'{node_fqn}: {STATUS_TASK}'
 
 
 def health_status(period: Period, ctx: Context, *, name: str,
                   hardware_id: str) -> DiagnosticStatus:
-    """Return the DiagnosticStatus of one period: level, one-line message, key/values.
-
-    name: :func:`status_name` of the node. hardware_id: what the status is about, the depth
-    frames' frame_id once one is known (rqt_robot_monitor and the aggregator want it
-    non-empty).
-    """
+    """Return the DiagnosticStatus of one period: level, one-line message, key/values."""
     level, message = _level_and_message(period, ctx)
-    times = sorted(period.times_ms)
     values = {
         'input rate [Hz]': f'{period.received / period.seconds:.1f}',
         'processed rate [Hz]': f'{period.processed / period.seconds:.1f}',
-        'processing mean [ms]': f'{sum(times) / len(times):.1f}' if times else '-',
-        'processing max [ms]': f'{times[-1]:.1f}' if times else '-',
+        'processing mean [ms]': (f'{period.sum_ms / period.processed:.1f}'
+                                 if period.processed else '-'),
+        'processing max [ms]': f'{period.max_ms:.1f}' if period.processed else '-',
         'dropped (newer frame came first)': str(period.dropped),
         'skipped (bad input)': str(sum(period.skipped.values())),
         'errors': str(period.errors),

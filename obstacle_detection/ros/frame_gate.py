@@ -1,21 +1,4 @@
-"""The checks a depth frame passes before the pipeline sees it: one gate for node and bag tools.
-
-The node (``DetectorNode.handle_frame``) and the offline processor (``tools/bag_process.py``)
-run every depth message through the same three steps, in this order, so a frame gives the same
-outputs, or is skipped for the same reason, in both:
-
-1. :func:`decode`: the encoding is one the pipeline takes (raw ``Image``) and the message
-   decodes into a depth array (raw or compressed, ``compressed_depth``);
-2. :func:`choose_intrinsics`: the frame's CameraInfo (a :class:`CameraState`) is usable and
-   has the frame's size; without one, the fallback intrinsics serve when allowed, and saying so
-   is part of the answer (``Verdict.note``), never silent;
-3. :func:`check_depth`: the frame holds valid depth, in a plausible range.
-
-Which CameraInfo belongs to a frame is the caller's: the node matches stamps among those it
-received, the bag tool takes the latest recorded before the frame. A refusal is a :class:`Skip`:
-``kind`` is the key the node throttles warnings by (the text without its numbers), ``reason``
-the sentence both print. No rclpy here.
-"""
+"""The checks a depth frame passes before the pipeline sees it: one gate for node and bag tools."""
 
 from __future__ import annotations
 
@@ -29,8 +12,9 @@ import numpy as np
 from obstacle_detection.pipeline.params import Intrinsics
 
 from .compressed_depth import compressed_depth_to_array, is_compressed_image
-from .conversions import (DEPTH_ENCODINGS, K_FALLBACK_NOTE, ImageFormatError,
-                          camera_info_to_intrinsics, depth_problem, depth_sample, image_to_array,
+from . import RosInputError
+from .conversions import (DEPTH_ENCODINGS, K_FALLBACK_NOTE, camera_info_to_intrinsics,
+                          depth_problem, depth_sample, image_to_array,
                           intrinsics_come_from_k, intrinsics_problem)
 
 
@@ -44,11 +28,7 @@ class Skip:
 
 @dataclass(frozen=True)
 class CameraState:
-    """One CameraInfo: its stamp, image size and intrinsics, or why it is unusable.
-
-    ``note`` says something the user should know about a usable one (its intrinsics come from
-    K, P being all zero), None otherwise.
-    """
+    """One CameraInfo: its stamp, image size and intrinsics, or why it is unusable."""
 
     width: int
     height: int
@@ -83,15 +63,15 @@ class CameraState:
 CAMERA_INFO_HISTORY = 30
 
 
+def keep_camera(cameras: Any, camera: CameraState) -> None:
+    """Append a CameraInfo to the recent ones (a deque), once per stamp and camera."""
+    if not any(c.stamp_ns == camera.stamp_ns and c.same_camera(camera) for c in cameras):
+        cameras.append(camera)
+
+
 def camera_for(cameras: Sequence[CameraState], frame_stamp_ns: int,
                tolerance_ns: int) -> CameraState | Skip | None:
-    """Choose a frame's CameraInfo among the recent ones (oldest first), as the node does.
-
-    The one whose stamp is nearest the frame's within ``tolerance_ns``; when none is that close,
-    the newest if every recent one describes the same camera (a camera that publishes one,
-    latched, or whose info stamps differ from its image stamps); otherwise a Skip (the frame's
-    intrinsics are not known). None when there is no CameraInfo yet.
-    """
+    """Choose a frame's CameraInfo among the recent ones (oldest first), as the node does."""
     if not cameras:
         return None
     nearest = min(cameras, key=lambda c: abs(c.stamp_ns - frame_stamp_ns))
@@ -119,11 +99,7 @@ def stamp_ns(stamp: Any) -> int:
 
 
 def problem_kind(prefix: str, text: str) -> str:
-    """Return the throttling key of a problem: its text without the numbers.
-
-    Each kind of problem is throttled on its own; the same problem with other values is not
-    repeated within the throttle period.
-    """
+    """Return the throttling key of a problem: its text without the numbers."""
     return f'{prefix}:{re.sub(r"[-+]?[0-9][0-9.e+-]*", "#", text)}'
 
 
@@ -152,7 +128,7 @@ def decode(msg: Any) -> np.ndarray | Skip:
         # reads them)
         return (compressed_depth_to_array(msg) if compressed
                 else image_to_array(msg, copy=False))
-    except ImageFormatError as error:
+    except RosInputError as error:
         return Skip('compressed' if compressed else 'layout', str(error))
 
 
@@ -164,12 +140,7 @@ def fallback_note(fallback: Intrinsics) -> str:
 
 def choose_intrinsics(camera: CameraState | None, shape: tuple[int, ...], *,
                       use_fallback: bool, fallback: Intrinsics, no_camera: str) -> Verdict:
-    """Choose the intrinsics of a frame of ``shape`` (H, W, ...) from its CameraInfo.
-
-    ``camera`` None: no CameraInfo yet.
-
-    ``no_camera`` is the reason printed when there is no CameraInfo and no fallback allowed.
-    """
+    """Choose the intrinsics of a frame of ``shape`` (H, W, ...) from its CameraInfo."""
     if camera is None:
         if use_fallback:
             return Verdict(fallback, note=fallback_note(fallback))

@@ -1,14 +1,4 @@
-"""Where the camera mount comes from: the parameters, or TF when it has the transform.
-
-The mount is the camera's pose in the robot's base frame: the transform ``base_frame <-
-optical frame`` (``p_base = R p_optical + t``). Every peer (rtabmap, Nav2's layers, STVL,
-elevation mapping) takes it from TF; here TF is used when ``tf2_ros`` is importable and
-``use_tf`` is set, and the parameters are the fallback, said once (throttled) when used.
-
-No rclpy import at module level: :class:`MountSource` talks to any object with the
-``tf2_ros.Buffer`` interface (``lookup_transform(target, source, time, timeout)``), so the
-node's side is tested with a stand-in where tf2 is not installed (the Jazzy wheels have none).
-"""
+"""Where the camera mount comes from: the parameters, or TF when it has the transform."""
 
 from __future__ import annotations
 
@@ -23,12 +13,7 @@ from obstacle_detection.pipeline.geometry import mount_angles, quaternion_matrix
 
 @dataclass(frozen=True)
 class Mount:
-    """The camera pose in the base frame: position [m] and roll, pitch, yaw [rad].
-
-    Angles in this package's convention: ``R = R_z(yaw) R_y(pitch) R_x(roll) OPTICAL_TO_BODY``
-    takes optical-frame vectors to the base frame; positive pitch looks down, positive yaw
-    turns the camera to the left.
-    """
+    """The camera pose in the base frame: position [m] and roll, pitch, yaw [rad]."""
 
     x_m: float = 0.0
     y_m: float = 0.0
@@ -60,13 +45,7 @@ def mount_from_transform(transform: Any) -> Mount:
 
 
 class MountSource:
-    """Give each frame its mount: TF's transform when it has one, else the parameters.
-
-    buffer: a ``tf2_ros.Buffer`` (or None: parameters only). A transform found once is kept
-    when ``static`` (a camera bolted to the robot) and looked up again per frame otherwise.
-    ``mount_for`` never raises: a failed lookup returns the parameters' mount, and
-    :attr:`last_problem` says why (the node logs it, throttled).
-    """
+    """Give each frame its mount: TF's transform when it has one, else the parameters."""
 
     def __init__(self, buffer: Any, base_frame: str, *, static: bool = True,
                  timeout_s: float = 0.05) -> None:
@@ -80,11 +59,7 @@ class MountSource:
 
     def mount_for(self, frame_id: str, stamp: Any, fallback: Mount,
                   duration: Any = None) -> Mount:
-        """Return the mount for an image of ``frame_id`` at ``stamp`` (a rclpy Time).
-
-        duration: a callable seconds -> timeout object for ``lookup_transform`` (rclpy's
-        ``Duration(seconds=...)``), None to pass seconds as they are.
-        """
+        """Return the mount for an image of ``frame_id`` at ``stamp`` (a rclpy Time)."""
         self.last_problem = None
         if self.buffer is None:
             self.source = 'parameters'

@@ -1,37 +1,4 @@
-"""The ROS 2 node: depth frames in, obstacle cloud and ground-plane costmap out.
-
-Run: ``ros2 run obstacle_detection detector --ros-args --params-file params/corridor.yaml``.
-
-Topics (relative names, remappable; :func:`help_text` lists them all):
-
-- in  ``depth/image_raw`` (sensor_msgs/Image, 16UC1 [mm] or 32FC1 [m]; or a CompressedImage
-  on ``.../compressedDepth`` or ``.../compressed`` by ``depth_transport``): sensor-data QoS
-  (best effort), reliable when ``reliable_input`` is true.
-- in  ``depth/camera_info`` (sensor_msgs/CameraInfo, intrinsics from P): as the depth; once a
-  transient-local publisher shows up (a camera that publishes one CameraInfo, latched), a
-  second, transient-local subscription receives it; what both deliver is kept once.
-- in  ``odom`` (nav_msgs/Odometry, ``odom_topic``), only if ``fuse``: best effort, so
-  reliable and best-effort publishers both connect.
-- out (reliable): ``obstacles/points`` (PointCloud2 x, y, z float32 in ``cloud_frame_id``),
-  ``obstacles/costmap`` (OccupancyGrid in the z = 0 plane of ``costmap_frame_id``; transient
-  local, depth 1, so a late RViz gets the last grid), ``obstacles/ground_points`` (only if
-  ``publish_ground``), ``obstacles/overlay`` (rgb8 Image in the input's frame, only if
-  ``publish_overlay``), ``obstacles/clearing_points`` (PointCloud2 in the input's optical
-  frame, only if ``publish_clearing``: Nav2's clearing source), ``obstacles/fused_costmap``
-  (OccupancyGrid in ``odom_frame``, only if ``fuse``; transient local, depth 1),
-  ``~/processing_time_ms`` (std_msgs/Float64), ``~/status`` (latched) and ``/diagnostics``.
-  The switches are read at start-up (read-only): what is off is neither advertised nor
-  subscribed.
-
-The default output frame ``base_footprint`` is the pipeline's ground frame: x forward, y left,
-z up, origin on the ground right under the camera (a robot whose base_footprint is elsewhere
-remaps or sets the frame ids and publishes the transform).
-
-Frames never queue behind a slow pipeline: the subscription callback only keeps the newest
-message (an older pending one is dropped and counted) and a worker thread processes it. The
-node holds no algorithm: it converts the message, calls ``Detector.process`` and publishes the
-messages of ``conversions.result_to_messages``.
-"""
+"""The ROS 2 node: depth frames in, obstacle cloud and ground-plane costmap out."""
 
 from __future__ import annotations
 
@@ -84,52 +51,43 @@ from obstacle_detection.pipeline.params import Intrinsics
 from .parameters import (ALL_PARAMS, NODE_NAME, PARAMS_FILE_KEY, params_file_problems,
                          params_file_reason, params_files_in_args)
 
+
+def _qos(depth: int, *, reliable: bool = True, latched: bool = False) -> QoSProfile:
+    return QoSProfile(depth=depth, history=HistoryPolicy.KEEP_LAST,
+                      reliability=(ReliabilityPolicy.RELIABLE if reliable
+                                   else ReliabilityPolicy.BEST_EFFORT),
+                      durability=(DurabilityPolicy.TRANSIENT_LOCAL if latched
+                                  else DurabilityPolicy.VOLATILE))
+
+
 #: Minimum interval between two warnings about the same kind of bad input [s].
 WARN_THROTTLE_S = 5.0
-_OUTPUT_QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE,
-                         history=HistoryPolicy.KEEP_LAST, durability=DurabilityPolicy.VOLATILE)
+_OUTPUT_QOS = _qos(5)
 #: ~/status: latched (transient local), so a late subscriber still gets the last state.
-_STATUS_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                         history=HistoryPolicy.KEEP_LAST,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+_STATUS_QOS = _qos(1, latched=True)
 #: rcl_interfaces/ParameterType values (NOT_SET .. STRING_ARRAY).
 _PARAMETER_TYPES = frozenset(range(0, 10))
 #: /diagnostics: reliable, as diagnostic_updater publishes it, about once a second.
-_DIAGNOSTICS_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
-                              history=HistoryPolicy.KEEP_LAST,
-                              durability=DurabilityPolicy.VOLATILE)
+_DIAGNOSTICS_QOS = _qos(10)
 DIAGNOSTICS_PERIOD_S = 1.0
 #: depth_transport -> (message type, topic): image_transport's names for the depth stream.
 DEPTH_TRANSPORTS = {name: (Image if name == 'raw' else CompressedImage, topic)
                     for name, topic in DEPTH_TRANSPORT_TOPICS.items()}
-#: Odometry: best effort, which both a best-effort publisher (common on robots, and bag_play's
-#: default) and a reliable one match; a short history (the pose buffer interpolates).
-_ODOM_QOS = QoSProfile(depth=20, reliability=ReliabilityPolicy.BEST_EFFORT,
-                       history=HistoryPolicy.KEEP_LAST, durability=DurabilityPolicy.VOLATILE)
-#: OccupancyGrids: reliable + transient local, depth 1 (RViz's map display default, as
-#: map_server publishes): a display that joins late gets the last grid at once.
-_GRID_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                       history=HistoryPolicy.KEEP_LAST,
-                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
+#: Odometry: best effort, which reliable and best-effort publishers both match.
+_ODOM_QOS = _qos(20, reliable=False)
+#: OccupancyGrids: latched, depth 1 (as map_server): a late display gets the last grid.
+_GRID_QOS = _qos(1, latched=True)
 #: How often the node looks for a latched CameraInfo publisher until it finds one [s].
 LATCHED_INFO_WATCH_S = 0.5
 #: First word of every ~/status message once the node processes frames.
 STATUS_READY = 'ready'
 #: Depth frames that may wait for the worker (see FrameMailbox): one may wait behind another.
 MAILBOX_FRAMES = 2
-_RELIABLE_INPUT_QOS = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE,
-                                 history=HistoryPolicy.KEEP_LAST,
-                                 durability=DurabilityPolicy.VOLATILE)
+_RELIABLE_INPUT_QOS = _qos(5)
 
 
 class FrameMailbox:
-    """The newest ``capacity`` items, oldest taken first: ``put`` drops the oldest when full.
-
-    Dropped items are counted. capacity 1 keeps only the newest (a frame waiting is replaced
-    by the next one); 2 lets one frame wait behind another, so one slow frame (a 50-80 ms
-    stall of this virtual machine, a garbage collection) delays the next instead of dropping
-    it, while a node that cannot keep up still falls at most one frame behind.
-    """
+    """The newest ``capacity`` items, oldest taken first: ``put`` drops the oldest when full."""
 
     def __init__(self, capacity: int = 1) -> None:
         if capacity < 1:
@@ -165,15 +123,7 @@ class FrameMailbox:
 
 
 class StampGaps:
-    """Count the frames a camera sent that never arrived, from gaps in the frame stamps.
-
-    A camera stamps its frames at a steady period; an interval between two received stamps
-    of about k periods means k - 1 frames were lost on the way (a best-effort transport drops
-    a frame that does not fit the socket buffer), which the node would otherwise never see.
-    The period is the median of the recent intervals, so a camera or a replay at any rate is
-    measured against itself; a stamp that goes back (a replay looping, a clock reset) starts
-    over.
-    """
+    """Count the frames a camera sent that never arrived, from gaps in the frame stamps."""
 
     #: Recent intervals whose median is the period.
     HISTORY = 31
@@ -202,65 +152,6 @@ class StampGaps:
         return missing
 
 
-class FrameStats:
-    """Thread-safe frame counters and processing times since the last ``take_period``."""
-
-    def __init__(self) -> None:
-        self._lock = threading.Lock()
-        self.total_processed = self.total_dropped = self.total_missing = 0
-        self._reset(time.monotonic())
-
-    def _reset(self, now: float) -> None:
-        self._since = now
-        self.processed = self.dropped = self.skipped = self.errors = self.missing = 0
-        self.sum_ms = 0.0
-
-    def add_missing(self, count: int) -> None:
-        """Count frames the camera sent that never arrived (:class:`StampGaps`)."""
-        with self._lock:
-            self.missing += count
-            self.total_missing += count
-
-    def add_processed(self, elapsed_ms: float) -> None:
-        """Count one published frame that took ``elapsed_ms``."""
-        with self._lock:
-            self.processed += 1
-            self.total_processed += 1
-            self.sum_ms += elapsed_ms
-
-    def add_dropped(self) -> None:
-        """Count one frame replaced by a newer one before it was processed."""
-        with self._lock:
-            self.dropped += 1
-            self.total_dropped += 1
-
-    def add_skipped(self) -> None:
-        """Count one frame skipped for bad input."""
-        with self._lock:
-            self.skipped += 1
-
-    def add_error(self) -> None:
-        """Count one frame lost to an unexpected exception."""
-        with self._lock:
-            self.errors += 1
-
-    def take_period(self) -> dict[str, float]:
-        """Return the counters since the last call, then reset them.
-
-        Keys: processed, dropped, skipped, errors, missing, mean_ms, fps, period_s.
-        """
-        now = time.monotonic()
-        with self._lock:
-            period = max(now - self._since, 1e-9)
-            snapshot = {'processed': self.processed, 'dropped': self.dropped,
-                        'skipped': self.skipped, 'missing': self.missing,
-                        'errors': self.errors, 'period_s': period,
-                        'mean_ms': self.sum_ms / self.processed if self.processed else 0.0,
-                        'fps': self.processed / period}
-            self._reset(now)
-        return snapshot
-
-
 #: _camera_for's answer when the frame must be skipped (the reason is already logged).
 _SKIP = _CameraState(0, 0, None, 'skip')
 
@@ -271,8 +162,7 @@ class DetectorNode(Node):
     def __init__(self, *, tf_buffer: Any = None, **kwargs: Any) -> None:
         """Declare the parameters, build the detector, subscribe.
 
-        tf_buffer: an object with ``tf2_ros.Buffer``'s ``lookup_transform`` (tests give a
-        stand-in); None creates a real one when ``use_tf`` is set and tf2_ros is importable.
+        tf_buffer: a ``tf2_ros.Buffer`` stand-in (tests); None makes one when ``use_tf`` is set.
         """
         super().__init__(NODE_NAME, **kwargs)
         for spec in ALL_PARAMS:
@@ -283,7 +173,7 @@ class DetectorNode(Node):
         except ValueError:
             self.destroy_node()
             raise
-        self.stats = FrameStats()
+        self.stats = HealthWindow(readers=('diagnostics', 'log'))
         self._stamp_gaps = StampGaps()
         self._mailbox = FrameMailbox(MAILBOX_FRAMES)
         self._mount_source = self._make_mount_source(tf_buffer)
@@ -295,11 +185,8 @@ class DetectorNode(Node):
         self._stop = threading.Event()
 
         self._status_pub = self.create_publisher(String, '~/status', _STATUS_QOS)
-        # Compiled kernels: a first compilation takes 20-40 s on a small machine, loading them
-        # from numba's cache well under a second. Either way it runs on a thread of its own;
-        # frames meanwhile take the numpy path (identical results, slower), so the node is
-        # ready as soon as it subscribes and never stalls or drops a frame while compiling.
-        self._compile_started = time.monotonic()
+        # Compiling (20-40 s) or loading the kernels runs on a thread of its own; frames take
+        # the numpy path meanwhile (same results), so no frame waits for it.
         self._compile = jit_support.compile_in_background(self._warm_up,
                                                           on_done=self._on_compiled)
         reliable = bool(self.get_parameter('reliable_input').value)
@@ -313,7 +200,6 @@ class DetectorNode(Node):
 
         self._stats_timer = None
         self._restart_stats_timer(self._config.stats_period_s)
-        self._health = HealthWindow()
         self._started = time.monotonic()
         self._last_frame_id = ''
         self._floor_text = ''
@@ -338,6 +224,10 @@ class DetectorNode(Node):
         self._latched_info_watch: Any = self.create_timer(
             LATCHED_INFO_WATCH_S, self._watch_for_latched_camera_info,
             clock=Clock(clock_type=ClockType.STEADY_TIME))   # also before /clock runs
+        self._say_ready(reliable)
+        self._publish_status()
+
+    def _say_ready(self, reliable: bool) -> None:
         outputs = [pub.topic_name for pub in (self._points_pub, self._costmap_pub,
                                               self._ground_pub, self._clearing_pub,
                                               self._overlay_pub, self._fused_pub)
@@ -350,18 +240,10 @@ class DetectorNode(Node):
             + f' -> {", ".join(outputs)}; '
             f'frames {self._config.cloud_frame_id!r}/{self._config.costmap_frame_id!r}; '
             f'{self.compute_path()}')
-        self._publish_status()
 
     # -- what is switched on: its publishers and subscriptions --------------------------------
     def _create_optional_endpoints(self) -> None:
-        """Advertise and subscribe only what the switches turn on; None where off.
-
-        publish_ground -> obstacles/ground_points; publish_overlay -> obstacles/overlay;
-        publish_clearing -> obstacles/clearing_points; fuse ->
-        obstacles/fused_costmap and the odometry subscription. The switches (and odom_topic)
-        are read-only: a change would need endpoints made or destroyed while the worker
-        thread publishes.
-        """
+        """Advertise and subscribe only what the switches turn on; None where off."""
         config = self._config
         self._ground_pub: Any = (
             self.create_publisher(PointCloud2, 'obstacles/ground_points', _OUTPUT_QOS)
@@ -385,11 +267,8 @@ class DetectorNode(Node):
     def _guard_parameter_services(self) -> None:
         """Check parameter requests before rclpy's service callbacks see them.
 
-        rclpy's ``Parameter.from_parameter_msg`` raises on a ``ParameterValue.type`` it does
-        not know (10, 200...) inside the service callback; the exception leaves ``spin`` and
-        the node dies. Such requests, and names the node did not declare (the empty name
-        included), are answered with a refusal and its reason instead; every other parameter
-        service keeps rclpy's behaviour behind a catch-all.
+        rclpy raises inside the callback on an unknown ``ParameterValue.type``, which ends the
+        node; such requests and undeclared names are refused with the reason instead.
         """
         for service in self.services:
             name = service.srv_name.rsplit('/', 1)[-1]
@@ -583,7 +462,7 @@ class DetectorNode(Node):
             compiled=path == 'compiled numba kernels', mount=self._mount_text(),
             floor_correction=self._floor_text)
         # hardware_id: the frames' frame_id once one is processed, the depth topic before
-        status = health_status(self._health.take(), context,
+        status = health_status(self.stats.take(), context,
                                name=status_name(self.get_fully_qualified_name()),
                                hardware_id=self._last_frame_id or self._depth_sub.topic_name)
         if self.context.ok():
@@ -633,18 +512,17 @@ class DetectorNode(Node):
             self.destroy_timer(self._stats_timer)
             self._stats_timer = None
         if period_s > 0.0:
-            self.stats.take_period()
+            self.stats.take(reader='log')
             self._stats_timer = self.create_timer(period_s, self._log_stats)
 
     # -- callbacks (executor thread): store only --------------------------------------------
     def _on_depth(self, msg: Image) -> None:
-        self._health.received()
+        self.stats.received()
         missing = self._stamp_gaps.add(_stamp_ns(msg.header.stamp))
         if missing:
-            self.stats.add_missing(missing)
+            self.stats.missing(missing)
         if self._mailbox.put(msg):
-            self.stats.add_dropped()
-            self._health.dropped()
+            self.stats.dropped()
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
         camera = _CameraState.from_camera_info(msg)
@@ -653,18 +531,12 @@ class DetectorNode(Node):
                 f'CameraInfo on {self._info_sub.topic_name}: {camera.note}',
                 throttle_duration_sec=WARN_THROTTLE_S)
         # A latched camera's CameraInfo comes through both subscriptions: kept once.
-        if any(c.stamp_ns == camera.stamp_ns and c.same_camera(camera) for c in self._cameras):
-            return
-        self._cameras.append(camera)
+        frame_gate.keep_camera(self._cameras, camera)
 
     def _watch_for_latched_camera_info(self) -> None:
         """Subscribe transient local as well once a latched CameraInfo publisher shows up.
 
-        A camera that publishes one CameraInfo, latched (transient local, often reliable),
-        reaches only a transient-local subscription; a volatile publisher (most drivers)
-        cannot match one, and its own process would then warn of "incompatible QoS". So the
-        second subscription is made only when the graph shows a transient-local publisher
-        (best effort if one of them is), and the watch stops. Runs on a steady clock.
+        Only then: a volatile publisher (most drivers) would warn of "incompatible QoS".
         """
         latched = [info for info in self.get_publishers_info_by_topic(self._info_sub.topic_name)
                    if info.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL]
@@ -672,10 +544,7 @@ class DetectorNode(Node):
             return
         reliable = all(info.qos_profile.reliability == ReliabilityPolicy.RELIABLE
                        for info in latched)
-        qos = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL,
-                         reliability=(ReliabilityPolicy.RELIABLE if reliable
-                                      else ReliabilityPolicy.BEST_EFFORT))
+        qos = _qos(1, reliable=reliable, latched=True)
         self.destroy_timer(self._latched_info_watch)
         self._latched_info_watch = None
         self._latched_info_sub = self.create_subscription(
@@ -687,11 +556,7 @@ class DetectorNode(Node):
             f'{"reliable" if reliable else "best effort"} + transient local too')
 
     def _on_unlatched_camera_info_publisher(self, event: Any) -> None:
-        """Note quietly a volatile CameraInfo publisher beside a latched one.
-
-        The first subscription receives it; this replaces rclpy's default warning
-        ("offering incompatible QoS"), which would be a false alarm here.
-        """
+        """Note quietly a volatile CameraInfo publisher beside a latched one."""
         self.get_logger().debug(
             f'a CameraInfo publisher on {self._info_sub.topic_name} is not latched '
             f'({event.last_policy_kind}): received by the first subscription')
@@ -748,13 +613,15 @@ class DetectorNode(Node):
                           f'({type(error).__name__})')
 
     def _log_stats(self) -> None:
-        period = self.stats.take_period()
+        period = self.stats.take(reader='log')
+        mean_ms = period.sum_ms / period.processed if period.processed else 0.0
         self.get_logger().info(
-            f'{period["processed"]} frames processed in {period["period_s"]:.1f} s '
-            f'({period["fps"]:.1f} fps), mean {period["mean_ms"]:.1f} ms/frame; '
-            f'{period["dropped"]} dropped (a newer frame came first), '
-            f'{period["missing"]} missing (gaps in the frame stamps: lost before they reached '
-            f'the node), {period["skipped"]} skipped (bad input), {period["errors"]} errors'
+            f'{period.processed} frames processed in {period.seconds:.1f} s '
+            f'({period.processed / period.seconds:.1f} fps), mean {mean_ms:.1f} ms/frame; '
+            f'{period.dropped} dropped (a newer frame came first), '
+            f'{period.missing} missing (gaps in the frame stamps: lost before they reached '
+            f'the node), {sum(period.skipped.values())} skipped (bad input), '
+            f'{period.errors} errors'
             + (f'; last {self._floor_text}' if self._floor_text else ''))
 
     # -- worker thread ------------------------------------------------------------------------
@@ -776,16 +643,12 @@ class DetectorNode(Node):
 
     def _warn_skip(self, kind: str, text: str) -> None:
         """Warn about a skipped frame; each kind of problem is throttled on its own."""
-        self.stats.add_skipped()
-        self._health.skipped(kind.split(':', 1)[0])
+        self.stats.skipped(kind.split(':', 1)[0])
         self._throttled_logger(kind).warning(f'skipping depth frame: {text}',
                                              throttle_duration_sec=WARN_THROTTLE_S)
 
     def _camera_for(self, msg: Image, config: NodeConfig) -> _CameraState | None:
-        """Return the CameraInfo of a frame (:func:`frame_gate.camera_for`), None if none yet.
-
-        _SKIP when the frame must be skipped (said in a throttled warning).
-        """
+        """Return the CameraInfo of a frame (:func:`frame_gate.camera_for`), None if none yet."""
         chosen = frame_gate.camera_for(list(self._cameras), _stamp_ns(msg.header.stamp),
                                        config.camera_info_tolerance_ns)
         if isinstance(chosen, frame_gate.Skip):
@@ -811,11 +674,7 @@ class DetectorNode(Node):
         return verdict.intrinsics
 
     def handle_frame(self, msg: Image) -> bool:
-        """Process one depth Image and publish its outputs; False if the frame was skipped.
-
-        Never raises: bad input is warned about (throttled), an unexpected exception is logged
-        as an error (throttled), and the next frame is processed as usual.
-        """
+        """Process one depth Image and publish its outputs; False if the frame was skipped."""
         start = time.perf_counter()
         config = self._config
         depth = frame_gate.decode(msg)
@@ -849,8 +708,7 @@ class DetectorNode(Node):
             self._warn_skip('pipeline', str(error))
             return False
         except Exception as error:  # noqa: BLE001 - the node must survive any frame
-            self.stats.add_error()
-            self._health.error()
+            self.stats.error()
             self.get_logger().error(f'pipeline failed on a frame, skipping it: '
                                     f'{type(error).__name__}: {error}',
                                     throttle_duration_sec=WARN_THROTTLE_S)
@@ -873,8 +731,7 @@ class DetectorNode(Node):
                 self.get_logger().error(f'publishing failed: {type(error).__name__}: {error}',
                                         throttle_duration_sec=WARN_THROTTLE_S)
             return False
-        self.stats.add_processed(elapsed_ms)
-        self._health.processed(elapsed_ms)
+        self.stats.processed(elapsed_ms)
         self._last_frame_id = msg.header.frame_id
         floor = getattr(result, 'floor', None)
         self._floor_text = floor.summary() if floor is not None else ''
@@ -895,16 +752,7 @@ class DetectorNode(Node):
 
 
 def make_executor(context: Any) -> Any:
-    """Return the executor of the node process: rclpy's events executor where there is one.
-
-    rclpy's ``SingleThreadedExecutor`` rebuilds its wait set in Python for every message: at
-    30 Hz (a depth image and a CameraInfo a frame) its thread took about 1.6 ms of CPU a
-    frame, measured per thread, nearly all of it Python holding the GIL that the worker thread
-    then waits for. The events executor of rclpy >= 7.1 (``rclpy.experimental``, in Jazzy)
-    dispatches in C++: 0.6 ms a frame. Like the other, it raises a callback's exception from
-    ``spin_once`` (after a log line of its own), which :func:`spin_forever` logs and
-    survives. Without it (an older rclpy), the single-threaded executor.
-    """
+    """Return the executor of the node process: rclpy's events executor where there is one."""
     try:
         from rclpy.experimental import EventsExecutor
     except ImportError:

@@ -1,15 +1,4 @@
-"""The node's ROS parameters: names, defaults, descriptors, and the map to DetectorParams.
-
-Every DetectorParams field becomes one ROS parameter of the same name, except the three angles,
-which a person writes in degrees (DESIGN.md): ``max_slope_rad`` -> ``max_slope_deg``,
-``camera_pitch_rad`` -> ``camera_pitch_deg``, ``camera_roll_rad`` -> ``camera_roll_deg``,
-``floor_max_tilt_rad`` -> ``floor_max_tilt_deg``.
-Descriptions and ranges come from the dataclass's field metadata. The node's own parameters
-(frames, output switches, QoS, intrinsics fallback, statistics) follow.
-
-This module builds ``rcl_interfaces`` messages and needs no ROS graph: tools (the parameter
-table) and tests use it as it is; only reading a params file imports rclpy's own reader.
-"""
+"""The node's ROS parameters: names, defaults, descriptors, and the map to DetectorParams."""
 
 from __future__ import annotations
 
@@ -27,6 +16,8 @@ import yaml
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
 
 from obstacle_detection.pipeline.params import SEED_TABLE_4_1, DetectorParams, Intrinsics
+
+from . import RosInputError
 
 ParamValue = bool | int | float | str
 
@@ -55,13 +46,7 @@ _ROS_TYPES = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_I
 
 @dataclass(frozen=True)
 class ParamSpec:
-    """One ROS parameter of the node.
-
-    ``field`` names the DetectorParams field it sets (None for a node-only parameter);
-    ``degrees`` means the ROS value is in degrees and the field in radians. ``low``/``high`` is
-    the inclusive range given to ROS; ``open_low``/``open_high`` mark a bound that the dataclass
-    itself refuses (with its own message).
-    """
+    """One ROS parameter of the node."""
 
     name: str
     default: ParamValue
@@ -270,12 +255,7 @@ def _range_problem(spec: ParamSpec, value: Any) -> str | None:
 
 
 def budget_problem(values: Mapping[str, Any]) -> str | None:
-    """Say which resource limit a set of ROS parameter values exceeds, or None.
-
-    Each parameter may be within its range while the combination is absurd: a 50 m costmap at
-    5 mm (10^8 cells), N = N1 = 400 neighbours over millimetre voxels (seconds a frame), a
-    statistics line every microsecond. Missing names take their defaults.
-    """
+    """Say which resource limit a set of ROS parameter values exceeds, or None."""
     def get(name: str) -> Any:
         return values[name] if name in values else SPECS_BY_NAME[name].default
 
@@ -323,12 +303,7 @@ def _user_names(text: str) -> str:
 
 
 def detector_params_from_ros(values: Mapping[str, Any]) -> DetectorParams:
-    """DetectorParams from ROS parameter values; missing names take the dataclass defaults.
-
-    Raises ValueError naming the bad value as the user wrote it (``max_slope_deg=90``, not its
-    radians), for a value out of its range, a combination beyond the resource limits
-    (:func:`budget_problem`) or the dataclass's own validation.
-    """
+    """DetectorParams from ROS parameter values; missing names take the dataclass defaults."""
     for spec in PIPELINE_PARAMS:
         if spec.name in values:
             problem = _range_problem(spec, values[spec.name])
@@ -349,10 +324,6 @@ def fallback_intrinsics_from_ros(values: Mapping[str, Any]) -> Intrinsics:
     """Build the fallback Intrinsics from fallback_fx/fy/cx/cy (ValueError on a zero focal)."""
     return Intrinsics(fx=float(values['fallback_fx']), fy=float(values['fallback_fy']),
                       cx=float(values['fallback_cx']), cy=float(values['fallback_cy']))
-
-
-class ParamsFileError(ValueError):
-    """A ``--params-file`` that cannot be read, or that names or types a parameter wrongly."""
 
 
 def params_files_in_args(args: list[str]) -> list[str]:
@@ -391,16 +362,7 @@ def _load_params_yaml(path: Path) -> tuple[Any, str | None]:
 
 
 def params_file_problems(path: str | Path, node_fqn: str = f'/{NODE_NAME}') -> list[str]:
-    """Return what the node would silently ignore in a params file, one sentence each.
-
-    rcl applies the sections whose key names the node's fully qualified name ``node_fqn``
-    (``/**/obstacle_detector``, ``/**``, ``obstacle_detector`` without a namespace...) and the
-    node ignores names it did not declare; both are most often typos (``detector:`` for
-    ``obstacle_detector:``, ``max_slope:`` for ``max_slope_deg:``) or a key that a namespace no
-    longer matches. rclpy's own parameters (``use_sim_time``...) are not unknown. The offline
-    tools refuse such a file (:func:`read_params_file`); the node warns with these sentences. A
-    file that cannot be read or parsed gives one problem too.
-    """
+    """Return what the node would silently ignore in a params file, one sentence each."""
     path = Path(path)
     data, unreadable = _load_params_yaml(path)
     if unreadable is not None:
@@ -447,36 +409,23 @@ def _type_problem(path: Path, spec: ParamSpec, value: Any) -> str | None:
 
 def read_params_file(path: str | Path, *, unknown_is_error: bool = True
                      ) -> dict[str, ParamValue]:
-    """Return the parameter values a node parameter file sets: ``{ros_name: value}``.
-
-    The file has the ``--params-file`` format (``/**/obstacle_detector: ros__parameters:
-    {...}``); the sections that name the node ``/obstacle_detector`` as rcl matches keys
-    (``/**/obstacle_detector``, ``obstacle_detector``, ``/**``, ...) are read by rclpy's own
-    reader (``parameter_dict_from_yaml_file``) in file order, a later value replacing an
-    earlier, as rclpy applies them to a node. Unlike the node, which ignores
-    undeclared names, an unknown name is an error here (a typo would otherwise go unnoticed;
-    ``unknown_is_error=False`` skips it); rclpy's own parameters (``use_sim_time``...) are
-    skipped, as an offline tool has no ROS clock. As for the node, a value must have its
-    parameter's type (1.0, not 1, for a floating-point one). Only the names in the file are
-    returned. Raises ParamsFileError naming the file and the parameter; the values themselves
-    are validated by :func:`detector_params_from_ros`.
-    """
+    """Return the parameter values a node parameter file sets: ``{ros_name: value}``."""
     from rclpy.parameter import Parameter, parameter_dict_from_yaml_file
 
     path = Path(path)
     data, unreadable = _load_params_yaml(path)
     if unreadable is not None:
-        raise ParamsFileError(unreadable)
+        raise RosInputError(unreadable)
     if not isinstance(data, dict):
-        raise ParamsFileError(f'{path}: expected "{PARAMS_FILE_KEY}: ros__parameters: ..."')
+        raise RosInputError(f'{path}: expected "{PARAMS_FILE_KEY}: ros__parameters: ..."')
     keys = [key for key in data if _section_applies(str(key), f'/{NODE_NAME}')]
     if not keys:
-        raise ParamsFileError(f'{path}: no section naming the node (e.g. '
-                              f'"{PARAMS_FILE_KEY}:" or "/**:")')
+        raise RosInputError(f'{path}: no section naming the node (e.g. '
+                            f'"{PARAMS_FILE_KEY}:" or "/**:")')
     try:   # the keys in the order given, each once
         messages = parameter_dict_from_yaml_file(str(path), target_nodes=keys)
     except (RuntimeError, ValueError, TypeError) as error:
-        raise ParamsFileError(f'{path}: {error}') from None
+        raise RosInputError(f'{path}: {error}') from None
     values: dict[str, ParamValue] = {}
     for name, message in messages.items():
         if name in RCLPY_PARAMETERS:
@@ -484,27 +433,22 @@ def read_params_file(path: str | Path, *, unknown_is_error: bool = True
         spec = SPECS_BY_NAME.get(name)
         if spec is None:
             if unknown_is_error:
-                raise ParamsFileError(_unknown_name(path, name))
+                raise RosInputError(_unknown_name(path, name))
             continue
         value = Parameter.from_parameter_msg(message).value
         problem = _type_problem(path, spec, value)
         if problem is not None:
-            raise ParamsFileError(problem)
+            raise RosInputError(problem)
         values[name] = value
     return values
 
 
 def params_file_reason(paths: list[str] | tuple[str, ...]) -> str | None:
-    """Name the file and the value behind a refused start-up, or None if none is to blame.
-
-    A value of the wrong type (``max_range_m: 3`` for 3.0) or out of its range, found in one of
-    ``paths`` (the ``--params-file`` arguments, in order); unknown names are not the cause
-    (the node ignores them, with a warning).
-    """
+    """Name the file and the value behind a refused start-up, or None if none is to blame."""
     for path in paths:
         try:
             values = read_params_file(path, unknown_is_error=False)
-        except ParamsFileError as error:
+        except RosInputError as error:
             return str(error)
         for name, value in values.items():
             problem = _range_problem(SPECS_BY_NAME[name], value)
@@ -515,12 +459,7 @@ def params_file_reason(paths: list[str] | tuple[str, ...]) -> str | None:
 
 def read_params_files(paths: list[str | Path] | tuple[str | Path, ...]
                       ) -> dict[str, ParamValue]:
-    """Return the values several node parameter files set, merged in order as ROS does.
-
-    ``--params-file a.yaml --params-file b.yaml``: a parameter both set takes b's value, one
-    only a sets keeps a's. Each file is read by :func:`read_params_file` (ParamsFileError
-    naming the file).
-    """
+    """Return the values several node parameter files set, merged in order as ROS does."""
     values: dict[str, ParamValue] = {}
     for path in paths:
         values.update(read_params_file(path))

@@ -1,28 +1,10 @@
-"""RVL, the lossless depth codec of image_transport's ``compressedDepth rvl``: the decoder.
-
-RVL (A. D. Wilson, "Fast Lossless Depth Image Compression", ISS 2017) as
-compressed_depth_image_transport's ``RvlCodec`` writes it (rvl_codec.cpp): the uint16 pixels,
-row after row, are coded as runs, each a count of zeros, a count of non-zeros, then every
-non-zero pixel as its difference to the previous non-zero pixel (zeros do not reset it; the
-first is taken from 0), zigzag-coded (2d for d >= 0, -2d - 1 for d < 0) and summed modulo 2^16.
-Every number is a variable-length code of 4-bit nibbles carrying 3 bits each, least
-significant first, the nibble's high bit set when another follows. The nibbles fill 32-bit
-little-endian words from their most significant end; the last word is padded with zero
-nibbles. (Where the codec's stream sits in a CompressedImage: :mod:`.compressed_depth`.)
-
-Two decoders give the same pixels: ``_reference_decode_rvl`` (numpy for the codes, a Python
-loop over the runs), and a numba kernel (``pipeline/_compiled/rvl.py``, one sequential loop
-over the nibbles); :func:`decode_rvl` takes the kernel when the package's one switch
-(:func:`obstacle_detection.pipeline.jit.choose`) allows it. Unlike the C++
-decoder, which trusts its input, both refuse data that is not an RVL stream of the announced
-size (:class:`RvlError`): words that end before the last pixel (truncated), a run beyond the
-image, a code longer than any count needs, a difference beyond 16 bits, whole words left after
-the last pixel.
-"""
+"""RVL, the lossless depth codec of image_transport's ``compressedDepth rvl``: the decoder."""
 
 from __future__ import annotations
 
 import numpy as np
+
+from obstacle_detection.ros import RosInputError
 
 from obstacle_detection.pipeline import jit as jit_support
 from obstacle_detection.pipeline._compiled import rvl as compiled
@@ -34,12 +16,8 @@ from obstacle_detection.pipeline._compiled.rvl import (CODE_TOO_LONG, DIFFERENCE
 _NIBBLE_SHIFTS = np.arange(28, -1, -4, dtype=np.uint32)
 
 
-class RvlError(ValueError):
-    """The bytes are not an RVL stream of the expected number of pixels; ``str()`` says why."""
-
-
-def _error(status: int, pixel: int, num_pixels: int, words: int) -> RvlError:
-    """Return the RvlError of a decoder status (see ``pipeline/_compiled/rvl.py``)."""
+def _error(status: int, pixel: int, num_pixels: int, words: int) -> RosInputError:
+    """Return the RosInputError of a decoder status (see ``pipeline/_compiled/rvl.py``)."""
     reasons = {
         TRUNCATED: f'truncated: its {words} words end after {pixel} of {num_pixels} pixels',
         CODE_TOO_LONG: f'corrupt: a code longer than {MAX_CODE_NIBBLES} nibbles (after '
@@ -49,22 +27,19 @@ def _error(status: int, pixel: int, num_pixels: int, words: int) -> RvlError:
         DIFFERENCE_TOO_LARGE: f'corrupt: a difference beyond 16 bits at pixel {pixel}',
         WORDS_LEFT: f'corrupt: words left after the last of its {num_pixels} pixels',
     }
-    return RvlError(f'RVL stream {reasons[status]}')
+    return RosInputError(f'RVL stream {reasons[status]}')
 
 
 def _words(stream: bytes) -> np.ndarray:
-    """Return the 32-bit little-endian words of a stream, (M,) uint32; RvlError if not whole."""
+    """Return the 32-bit little-endian words of a stream, (M,) uint32."""
     if len(stream) % 4:
-        raise RvlError(f'RVL stream truncated: {len(stream)} bytes are not whole 32-bit words')
+        raise RosInputError(f'RVL stream truncated: {len(stream)} bytes are not whole 32-bit '
+                            'words')
     return np.frombuffer(stream, dtype='<u4').astype(np.uint32, copy=False)
 
 
 def _codes(words: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Every complete code of the words: (values (K,) int64, nibble index after each (K,)).
-
-    Nibbles after the last complete code (a truncated code) belong to none. The padding of
-    the last word reads as codes of value 0, which the run structure never reaches.
-    """
+    """Every complete code of the words: (values (K,) int64, nibble index after each (K,))."""
     nibbles = ((words[:, None] >> _NIBBLE_SHIFTS) & 0xF).reshape(-1).astype(np.int64)
     ends = np.flatnonzero((nibbles & 8) == 0)        # a code ends at a nibble without 8
     if ends.size == 0:
@@ -73,8 +48,8 @@ def _codes(words: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     lengths = ends - starts + 1
     if lengths.max() > MAX_CODE_NIBBLES:
         at = int(np.argmax(lengths > MAX_CODE_NIBBLES))
-        raise RvlError(f'RVL stream corrupt: code {at} is longer than {MAX_CODE_NIBBLES} '
-                       'nibbles')
+        raise RosInputError(f'RVL stream corrupt: code {at} is longer than {MAX_CODE_NIBBLES} '
+                            'nibbles')
     used = nibbles[:ends[-1] + 1]
     place = np.arange(used.size) - np.repeat(starts, lengths)   # nibble's place in its code
     values = np.add.reduceat((used & 7) << (3 * place), starts)
@@ -82,11 +57,7 @@ def _codes(words: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _reference_decode_rvl(stream: bytes, num_pixels: int) -> np.ndarray:
-    """Decode an RVL stream into its (num_pixels,) uint16 pixels: the reference decoder.
-
-    The codes are read with numpy; a Python loop walks the runs (one step per run of zeros
-    and non-zeros, not per pixel). Raises RvlError naming the problem.
-    """
+    """Decode an RVL stream into its (num_pixels,) uint16 pixels: the reference decoder."""
     words = _words(stream)
     values, after = _codes(words)
     nonzero_pixel = np.zeros(num_pixels, dtype=bool)
@@ -122,10 +93,7 @@ def _reference_decode_rvl(stream: bytes, num_pixels: int) -> np.ndarray:
 
 
 def _compiled_decode_rvl(stream: bytes, num_pixels: int) -> np.ndarray:
-    """Decode an RVL stream with the numba kernel; same result and refusals as the reference.
-
-    Without numba the kernel runs as plain Python (slow; for tests of its logic).
-    """
+    """Decode an RVL stream with the numba kernel; same result and refusals as the reference."""
     words = _words(stream)
     pixels = np.empty(num_pixels, dtype=np.uint16)
     status, pixel = compiled.decode(words, pixels)
@@ -136,7 +104,7 @@ def _compiled_decode_rvl(stream: bytes, num_pixels: int) -> np.ndarray:
 
 #: Decode an RVL stream into its (num_pixels,) uint16 pixels, row-major: the numba kernel when
 #: the compiled path is on (about a millisecond for a 512 x 424 frame), else the numpy
-#: reference. Raises RvlError naming the problem.
+#: reference. Raises RosInputError naming the problem.
 decode_rvl = jit_support.choose(_reference_decode_rvl, _compiled_decode_rvl)
 
 
