@@ -1,16 +1,12 @@
 #!/usr/bin/env python3
 r"""Estimate the camera mount (height, pitch, roll) of a depth frame from the floor in view.
 
-Prints the mount and the share of points on the floor plane, and optionally writes it as a
-node parameter file fragment (``--params-out``, for ``--params-file`` of the node and tools)
-and as a camera YAML with the intrinsics (``--camera-yaml-out``, for ``tools/pictures.py
---depth FILE --intrinsics YAML``)::
+Prints the mount and the floor's share of the points; writes it as a node parameter file
+(``--params-out``) and as a camera YAML with the intrinsics (``--camera-yaml-out``)::
 
     python tools/estimate_mount.py --depth depth.png --depth-scale 5000 \
         --intrinsics 535.4,539.2,320.1,247.6 --params-out mount.yaml
 
-Depth files: 16-bit single-channel PNG or PGM (read by OpenCV, which honours the PGM's
-big-endian byte order), ``--depth-scale`` units per metre (1000 = millimetres, 5000 = TUM).
 Point the camera at open floor: a hidden floor under a large table gives the table.
 """
 

@@ -1,17 +1,11 @@
 #!/usr/bin/env python3
 """Score the fused costmap over scene sequences, side by side with the per-frame costmap.
 
-Renders each sequence (obstacle_detection/sim/sequences.py: a robot driving past boxes and a
-table, a person crossing in front of a standing robot), runs the detector on every frame with
-the parameter file (default params/corridor.yaml) and fuses the costmaps at the odometry pose.
-Prints a table for people and one JSON line for machines (the last line of stdout, or
-``--json FILE``); ``--sheet`` draws a contact sheet of per-frame and fused grids over time.
+Runs the detector on every frame of each sequence (default params/corridor.yaml) and fuses the
+costmaps at the odometry pose; prints a table and one JSON line (the last line of stdout, or
+``--json FILE``); ``--sheet`` draws per-frame and fused grids over time::
 
-Examples::
-
-    python tools/evaluate_video.py
     python tools/evaluate_video.py --sequence person_crossing --no-odometry
-    python tools/evaluate_video.py --sheet tools/readme/fused_costmap.png
 """
 
 from __future__ import annotations

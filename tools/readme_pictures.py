@@ -1,29 +1,12 @@
 #!/usr/bin/env python3
 """Make every picture of the README again, from the repository's own code.
 
-Synthetic pictures (always), drawn by ``tools/pictures.py`` exactly as its command line does:
+The synthetic pictures always; the real-frame ones when the real frames are there
+(``--real-dir``, default ``../shared/data/real`` beside the repository), each panel with its
+mount estimated from the floor. The captions give this machine's pipeline time, so a new run
+changes those few pixels only::
 
-- ``corridor.png``: the corridor scene, the default (``params/corridor.yaml``, robot level),
-  with the robot-level ground-truth panel;
-- ``person_walking_sheet.png``: frames 0, 15, ..., 75 of the person_walking sequence, no truth,
-  2 columns of 600 px thumbnails.
-
-Real-frame pictures (when the real frames are there, ``--real-dir``, by default the
-repository's sibling ``../shared/data/real``; skipped with a warning otherwise), each a column
-of panels drawn 860 px wide, the camera mount estimated from the floor
-(``--estimate-mount``), the default configuration (robot level) at range 4 m:
-
-- ``real_tum_office.png``: TUM fr3 office, the seed method (Table 4.2, K = 5) above the default;
-- ``real_tum_fr2_desk.png``: TUM fr2 desk, the seed method above the default;
-- ``real_dining_room.png``: dining room frames 1 and 4, the default.
-
-::
-
-    python tools/readme_pictures.py                      # into tools/readme/
     python tools/readme_pictures.py --out-dir /tmp/pics --real-dir ~/data/real
-
-The captions give the pipeline time of the machine that ran it, so a new run changes those
-few pixels and nothing else.
 """
 
 from __future__ import annotations

@@ -1,18 +1,9 @@
 """Score the detector on the real frames of ../shared/data/real (no labels: heights decide).
 
-Usage: ``python tools/real_frames.py [--data DIR] [--params-file YAML] [--set KEY=VALUE ...]``.
-For each frame the camera mount is fitted to the floor (:func:`obstacle_detection.pipeline.mount.
-estimate_mount`, as ``tools/estimate_mount.py`` does), the detector runs with the parameter
-file (default ``params/corridor.yaml``) and that mount, and two shares are printed, over the
-pixels whose measured point lies inside the region of interest (forward range, lateral
-limit), heights from the measured depth and the fitted mount:
-
-- floor marked: of the pixels within 2 cm of the floor plane, the share labelled obstacle
-  (false alarms; lower is better);
-- standing marked: of the pixels 5 cm or more above the floor and not above the robot
-  (``robot_height_m``), the share labelled obstacle (higher is better).
-
-Prints one line per frame and the totals; on bad input one ``error: <path>: ...`` line, exit 1.
+Per frame, the mount is fitted to the floor and the detector runs with the parameter file; of
+the pixels inside the region of interest it prints the share of floor pixels (within 2 cm of
+the floor) marked as obstacle, lower is better, and of standing pixels (5 cm above the floor up
+to ``robot_height_m``) marked, higher is better; then the totals.
 """
 
 from __future__ import annotations
