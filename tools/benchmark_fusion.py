@@ -1,12 +1,9 @@
 #!/usr/bin/env python3
 """Time the fused costmap: one FusedGrid.update (and to_costmap) per frame, on one thread.
 
-The per-frame costmaps are the detector's own (params/corridor.yaml: 2 m x 4 m at 5 cm) on
-every 5th frame of the 'drive_past_boxes' sequence (driving and turning), fused at their
-odometry poses into a 4 m x 4 m grid at 5 cm (FusionParams defaults) again and again, a new
-grid for each pass. BLAS/OpenMP/OpenCV threads are set to 1 before numpy is imported and the
-process is pinned to one CPU with ``os.sched_setaffinity`` (where the platform has it), as
-tools/benchmark.py does. Prints median and p90 milliseconds and one JSON line.
+The detector's costmaps of every ``--step``-th frame of 'drive_past_boxes' are fused at their
+odometry poses ``--passes`` times, pinned to one CPU as tools/benchmark.py is. Prints median and
+p90 milliseconds and one JSON line.
 """
 
 from __future__ import annotations
@@ -36,9 +33,9 @@ PROG = 'benchmark_fusion'
 def build_parser() -> argparse.ArgumentParser:
     """Return the command-line interface."""
     parser = argparse.ArgumentParser(prog=PROG, description=__doc__.split('\n\n')[0])
-    parser.add_argument('--passes', type=int, default=20,
+    parser.add_argument('--passes', type=tool_support.int_in(1), default=20,
                         help='times the recorded frames are fused [default: 20]')
-    parser.add_argument('--step', type=int, default=5,
+    parser.add_argument('--step', type=tool_support.int_in(1), default=5,
                         help='use every STEP-th frame of the sequence [default: 5]')
     parser.add_argument('--size-m', type=float, default=4.0,
                         help='fused grid side [m] [default: 4]')
@@ -57,9 +54,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (0 ok, 2 bad usage)."""
     args = build_parser().parse_args(argv)
     try:
-        if args.passes < 1 or args.step < 1:
-            raise tool_support.UsageError(
-                f'--passes={args.passes} and --step={args.step} must be >= 1')
         try:
             fusion = FusionParams(size_m=args.size_m, resolution_m=args.resolution_m)
         except ValueError as exc:

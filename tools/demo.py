@@ -67,9 +67,8 @@ def _replace(folder: Path, by: Path | None = None) -> None:
 
 def render_sequence(folder: Path, scene: str, frames: int, seed: int, step: int = 1
                     ) -> tuple[Path, Path, Any, list[tuple[float, float, float]] | None]:
-    """Write the frames as 16-bit PNGs [mm] and a camera YAML.
+    """Write a scene's (or every ``step``-th sequence) frames as 16-bit PNGs and a camera YAML.
 
-    scene: a still scene of the generator or a sequence (every ``step``-th frame of it).
     Returns (depth folder, camera YAML, first SceneFrame, odometry poses or None).
     """
     from obstacle_detection.evaluation.camera import camera_yaml_text
@@ -197,11 +196,7 @@ def _why_no_output(log_path: Path, best_effort: bool, rate: float) -> str:
 
 
 def run_demo(args: argparse.Namespace) -> int:
-    """Run every step into ``<output>.partial``; move it to ``<output>`` only on success.
-
-    Raises ToolError when a step fails; the failed run's files are then in
-    ``<output>.failed`` and the previous ``<output>`` is untouched.
-    """
+    """Run every step into ``<output>.partial``, moved to ``<output>`` only on success."""
     began = time.monotonic()
     final: Path = args.output.resolve()  # absolute: the node runs with another working directory
     work = final.with_name(final.name + '.partial')

@@ -74,11 +74,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point; returns the exit code (0 ok, 1 bad input or no floor found, 2 bad usage).
-
-    When the depth looks like another unit than ``--depth-scale`` (its median far outside
-    what a depth camera sees), the error or a warning says so and names the scale that fits.
-    """
+    """Entry point; returns the exit code (0 ok, 1 bad input or no floor found, 2 bad usage)."""
     args = build_parser().parse_args(argv)
     if not (math.isfinite(args.depth_scale) and args.depth_scale > 0.0):
         return tool_support.report_error('estimate_mount', tool_support.UsageError(

@@ -18,24 +18,13 @@ from typing import Sequence
 
 from obstacle_detection.evaluation import runner as evaluation
 from obstacle_detection.cli import support as tool_support
+from obstacle_detection.cli.evaluation_args import parse_assignment
 from obstacle_detection.pipeline.fusion import FusionParams
 from obstacle_detection.sim.sequences import (PERFECT_ODOMETRY, SEQUENCE_NAMES,
                                           OdometryModel, SceneSequence)
 
 DEFAULT_PARAMS = tool_support.package_file('params/corridor.yaml')
 PROG = 'evaluate_video'
-
-
-def parse_assignment(text: str) -> tuple[str, float]:
-    """``key=value`` with a number -> (key, value); argparse type for ``--fusion``."""
-    key, sep, value = text.partition('=')
-    try:
-        number = float(value)
-    except ValueError:
-        number = None
-    if not sep or not key.strip() or number is None:
-        raise argparse.ArgumentTypeError(f'expected key=number, got {text!r}')
-    return key.strip(), number
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -55,8 +44,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help='a FusionParams field (size_m, resolution_m, hit_log_odds, '
                              'miss_log_odds, min_log_odds, max_log_odds, occupied_log_odds, '
                              'free_log_odds, max_jump_m, max_jump_deg); repeatable')
-    parser.add_argument('--seed', type=int, default=0, help='sequence seed [default: 0]')
-    parser.add_argument('--frames', type=int, metavar='N',
+    parser.add_argument('--seed', type=tool_support.int_in(0), default=0,
+                        help='sequence seed [default: 0]')
+    parser.add_argument('--frames', type=tool_support.int_in(1), metavar='N',
                         help='only the first N frames of each sequence')
     parser.add_argument('--no-odometry', action='store_true',
                         help='fuse every frame in place (as without odometry)')
@@ -65,7 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--sheet', type=Path, metavar='PNG',
                         help='write a contact sheet of per-frame and fused grids over time '
                              '(the sequences one under the other)')
-    parser.add_argument('--sheet-frames', type=int, default=4, metavar='N',
+    parser.add_argument('--sheet-frames', type=tool_support.int_in(1), default=4, metavar='N',
                         help='moments per sequence on the sheet [default: 4]')
     parser.add_argument('--json', metavar='FILE',
                         help='write the JSON report to FILE instead of printing it last')
@@ -77,18 +67,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (0 ok, 1 bad input, 2 bad usage)."""
     args = build_parser().parse_args(argv)
     try:
-        if args.frames is not None and args.frames < 1:
-            raise tool_support.UsageError(f'argument --frames: {args.frames} must be >= 1')
-        if args.sheet_frames < 1:
-            raise tool_support.UsageError(
-                f'argument --sheet-frames: {args.sheet_frames} must be >= 1')
-        if args.seed < 0:
-            raise tool_support.UsageError(f'argument --seed: {args.seed} must be >= 0')
         try:
-            fusion = FusionParams(**dict(args.fusion))
-        except TypeError as exc:
-            raise tool_support.UsageError(f'argument --fusion: {exc}') from None
-        except ValueError as exc:
+            fusion = FusionParams(**{key: float(value) for key, value in args.fusion})
+        except (TypeError, ValueError) as exc:
             raise tool_support.UsageError(f'argument --fusion: {exc}') from None
         params = evaluation.load_params_file(args.params_file)
         if args.sheet is not None and args.sheet.suffix.lower() != '.png':

@@ -1,12 +1,7 @@
 """Print the node's parameters as a Markdown table (for the README), from their descriptors.
 
-Usage: ``python tools/param_table.py [--output FILE | --doc [docs/parameters.md]]``. The table is
-generated from ``obstacle_detection.ros.parameters`` (itself built from DetectorParams' field
-metadata), so it cannot drift from what the node declares. Columns: the ROS name, type, the
-default (``params/corridor.yaml``: Table 4.2's values with the robot-level rules), the value
-of the seed's Table 4.3 preset where it differs (``params/seed_table_4_3.yaml``, the seed
-method exactly), the allowed range, and the description. The seed's Table 4.2 preset
-(``params/seed_table_4_2.yaml``) is the default with ``robot_level`` and ``refine_floor`` off.
+Columns: ROS name, type, default (``params/corridor.yaml``), the seed's Table 4.3 value where
+it differs, range, description. ``--doc`` rewrites the table inside docs/parameters.md.
 """
 
 from __future__ import annotations

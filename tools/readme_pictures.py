@@ -63,37 +63,30 @@ class Panel:
                 '--caption', self.caption, '--out', '-']
 
 
+_SEED = 'the seed method (Table 4.2, K=5), range 4 m'
+_ROBOT = 'the default, corridor.yaml (robot level), range 4 m'
+
+
+def _seed_above_default(depth: str, camera: tuple[str, str], name: str) -> tuple[Panel, ...]:
+    """Return the panels of one frame: the seed method above the default."""
+    return (Panel(depth, camera, f'{name}: {_SEED}', (*_TABLE_4_2_K5, *_FAR)),
+            Panel(depth, camera, f'{name}: {_ROBOT}', (*_DEFAULT, *_FAR)))
+
+
 #: The real-frame pictures: file name -> panels, top to bottom.
 REAL = {
-    'real_tum_office.png': (
-        Panel('tum_office/depth.png', _TUM_FR3,
-              'TUM fr3 office: the seed method (Table 4.2, K=5), range 4 m',
-              (*_TABLE_4_2_K5, *_FAR)),
-        Panel('tum_office/depth.png', _TUM_FR3,
-              'TUM fr3 office: the default, corridor.yaml (robot level), range 4 m',
-              (*_DEFAULT, *_FAR)),
-    ),
-    'real_tum_fr2_desk.png': (
-        Panel('tum_fr2_desk/depth_1.png', _TUM_FR2,
-              'TUM fr2 desk: the seed method (Table 4.2, K=5), range 4 m',
-              (*_TABLE_4_2_K5, *_FAR)),
-        Panel('tum_fr2_desk/depth_1.png', _TUM_FR2,
-              'TUM fr2 desk: the default, corridor.yaml (robot level), range 4 m',
-              (*_DEFAULT, *_FAR)),
-    ),
+    'real_tum_office.png': _seed_above_default('tum_office/depth.png', _TUM_FR3,
+                                               'TUM fr3 office'),
+    'real_tum_fr2_desk.png': _seed_above_default('tum_fr2_desk/depth_1.png', _TUM_FR2,
+                                                 'TUM fr2 desk'),
     'real_dining_room.png': tuple(
-        Panel(f'dining_room/depth_{i}.pgm', _DINING,
-              f'dining room {i}: the default, corridor.yaml (robot level), range 4 m',
-              (*_DEFAULT, *_FAR))
-        for i in (1, 4)),
+        Panel(f'dining_room/depth_{i}.pgm', _DINING, f'dining room {i}: {_ROBOT}',
+              (*_DEFAULT, *_FAR)) for i in (1, 4)),
 }
 
 
 def recompress(path: Path) -> None:
-    """Encode a PNG again at zlib level 9 (``pictures.write_png`` uses OpenCV's fast default).
-
-    Lossless: the pixels stay; the README pictures take about a third less room.
-    """
+    """Encode a PNG again at zlib level 9, losslessly (about a third smaller)."""
     image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if image is None or not cv2.imwrite(str(path), image, [cv2.IMWRITE_PNG_COMPRESSION, 9]):
         raise OSError(f'could not compress {path}')
@@ -102,11 +95,9 @@ def recompress(path: Path) -> None:
 
 def real_picture(panels: Sequence[Panel], real_dir: Path,
                  width: int = REAL_WIDTH_PX) -> np.ndarray:
-    """(h, width, 3) uint8 RGB: the panels drawn by ``tools/pictures.py``, one above the other.
+    """Return the panels drawn by ``tools/pictures.py``, one above the other, ``width`` wide.
 
-    Each panel is drawn ``width`` wide, its images scaled and its text at full size
-    (``pictures.fit_width``), under its caption as title. Raises ValueError / OSError /
-    KeyError as ``obstacle_detection.cli.picture_jobs.detect`` does.
+    Raises ValueError / OSError / KeyError as ``picture_jobs.detect`` does.
     """
     parser = picture_jobs.build_parser()
     images = []

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from obstacle_detection.cli import support as tool_support
+from obstacle_detection.cli.evaluation_args import parse_assignment
 from obstacle_detection.pipeline import geometry
 from obstacle_detection.pipeline.depth import decode_depth
 from obstacle_detection.evaluation.runner import apply_overrides, load_params_file
@@ -73,7 +74,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--params-file', type=Path,
                         default=tool_support.package_file('params/corridor.yaml'),
                         help='node parameter file [default: params/corridor.yaml]')
-    parser.add_argument('--set', action='append', default=[], metavar='KEY=VALUE',
+    parser.add_argument('--set', action='append', type=parse_assignment, default=[],
+                        metavar='KEY=VALUE',
                         help='override one parameter (as tools/evaluate.py); repeatable')
     args = parser.parse_args(argv)
     try:
@@ -81,14 +83,8 @@ def main(argv: list[str] | None = None) -> int:
     except (OSError, ValueError) as err:
         print(f'error: {_with_path(args.params_file, err)}', file=sys.stderr)
         return 1
-    overrides = {}
-    for item in args.set:
-        key, sep, value = item.partition('=')
-        if not sep:
-            parser.error(f'--set {item!r}: expected KEY=VALUE')
-        overrides[key] = value
     try:
-        params = apply_overrides(params, overrides)
+        params = apply_overrides(params, dict(args.set))
     except ValueError as err:
         print(f'error: --set: {err}', file=sys.stderr)
         return 1
