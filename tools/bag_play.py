@@ -38,14 +38,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--start-offset', type=float, default=0.0, metavar='SECONDS',
                         help='start this many seconds into the bag (default %(default)s)')
     parser.add_argument('--reliable', action='store_true',
-                        help='publish with reliable QoS (default: sensor data, best effort; '
-                             'over UDP, best-effort frames of 400 kB can be lost, reliable '
-                             'ones are resent; the subscriber must then be reliable too)')
+                        help='publish with reliable QoS (default: sensor data, best effort); '
+                             'the subscriber must then be reliable too')
     parser.add_argument('--remap', action='append', default=[], metavar='OLD:=NEW',
                         help='publish topic OLD as NEW (repeatable)')
     parser.add_argument('--wait-for-subscribers', type=int, default=0, metavar='N',
-                        help='wait until N subscriptions (summed over the played topics) '
-                             'are matched before playing')
+                        help='wait until N subscriptions (over all topics) are matched')
     parser.add_argument('--wait-timeout', type=float, default=30.0, metavar='SECONDS',
                         help='give up waiting for subscribers after this long (%(default)s)')
     parser.add_argument('--quiet', action='store_true', help='no progress bar')

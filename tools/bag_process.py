@@ -42,10 +42,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('output', type=Path,
                         help='rosbag2 folder to create (must not exist); for many bags the '
                              'folder of the output bags (one per input, named after it)')
-    parser.add_argument('--params-file', type=Path, action='append', default=[],
-                        metavar='YAML',
-                        help="the node's parameter YAML (default: the node's defaults); "
-                             'repeatable, merged in order as ROS does (a later file wins)')
+    parser.add_argument('--params-file', type=Path, action='append', default=[], metavar='YAML',
+                        help="the node's parameter YAML, repeatable: a later file wins "
+                             "(default: the node's defaults)")
     parser.add_argument('--depth-topic', default=DEFAULT_DEPTH_TOPIC,
                         help='depth topic: a sensor_msgs/Image, or a CompressedImage such as '
                              '.../compressed or .../compressedDepth (default %(default)s)')
@@ -63,9 +62,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--quiet', action='store_true',
                         help='no per-frame lines (a progress bar on a terminal instead)')
     parser.add_argument('--chunk-frames', type=tool_support.int_in(1), metavar='N',
-                        help='on a cluster, cut a bag of more than N depth frames into chunks '
-                             'of about N, one task each, merged into its one output bag '
-                             '[default: one task per bag]')
+                        help='on a cluster, cut a bag of more than N depth frames into tasks '
+                             'of about N frames [default: one task per bag]')
     add_fleet_arguments(parser)
     return parser
 

@@ -395,8 +395,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help='a sequence with odometry (the fused costmap follows it) or a '
                              'scene seen from a still camera (default %(default)s)')
     parser.add_argument('--step', type=int, default=10,
-                        help='of a sequence (30 Hz), take every N-th frame (default '
-                             '%(default)s)')
+                        help='take every N-th frame of a sequence (default %(default)s)')
     parser.add_argument('--frames', type=int, default=30, help='frames (default %(default)s)')
     parser.add_argument('--seed', type=int, default=0, help='scene seed (default %(default)s)')
     parser.add_argument('--params', type=Path, default=DEFAULT_PARAMS,
@@ -406,15 +405,13 @@ def build_parser() -> argparse.ArgumentParser:
                         help='replay speed factor of the recorded timing (default: frames at '
                              f'{DEMO_FPS:g} Hz)')
     parser.add_argument('--best-effort', action='store_true',
-                        help="replay with the camera's sensor-data QoS (best effort) instead of "
-                             'reliable; large frames over UDP may then be lost')
+                        help="replay with the camera's sensor-data QoS (best effort)")
     parser.add_argument('--save-every', type=int, default=5,
                         help='save pictures of one frame in N (default %(default)s)')
     tool_support.add_domain_id_option(
         parser, 'ROS_DOMAIN_ID of the demo, 0-232 (default: 100-200 from the process id)')
     parser.add_argument('--timeout', type=float, default=30.0,
-                        help='seconds to wait for the node to say it is ready on its ~/status '
-                             'topic (default %(default)s)')
+                        help='seconds to wait for the node to be ready (default %(default)s)')
     parser.add_argument('--quiet', action='store_true', help='no progress bars')
     return parser
 

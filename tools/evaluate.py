@@ -61,8 +61,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--quiet', action='store_true', help='no per-frame progress lines')
     parser.add_argument('--beside-seed', action='append', choices=sorted(PRESETS), default=[],
                         metavar='PRESET',
-                        help='also score this preset on the seed suite (scenarios.json, '
-                             'slope-only truth) and print its overall row beside; repeatable')
+                        help='also print the overall row of this preset on the seed suite '
+                             '(repeatable)')
     add_fleet_arguments(parser)
     return parser
 

@@ -37,12 +37,10 @@ def _publish(frames_file: Path, rate_hz: float, duration_s: float, reliable: boo
     from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
     from sensor_msgs.msg import CameraInfo, Image
 
+    from obstacle_detection.pipeline.params import KINECT_V2_SD
     from obstacle_detection.ros.conversions import array_to_image, intrinsics_to_camera_info
-    from obstacle_detection.pipeline.params import Intrinsics
 
-    data = np.load(frames_file)
-    depth = data['depth_mm']
-    intrinsics = Intrinsics(*(float(v) for v in data['intrinsics']))
+    depth = np.load(frames_file)['depth_mm']
     rclpy.init()
     node = rclpy.create_node('latency_bench_camera')
     qos = (QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE) if reliable
@@ -52,7 +50,7 @@ def _publish(frames_file: Path, rate_hz: float, duration_s: float, reliable: boo
     from builtin_interfaces.msg import Time
 
     images = [array_to_image(frame, stamp=Time(), frame_id='depth_optical') for frame in depth]
-    info = intrinsics_to_camera_info(intrinsics, depth.shape[2], depth.shape[1], stamp=Time(),
+    info = intrinsics_to_camera_info(KINECT_V2_SD, depth.shape[2], depth.shape[1], stamp=Time(),
                                      frame_id='depth_optical')
     deadline = time.monotonic() + 30.0
     while depth_pub.get_subscription_count() == 0 or info_pub.get_subscription_count() == 0:
@@ -64,11 +62,8 @@ def _publish(frames_file: Path, rate_hz: float, duration_s: float, reliable: boo
     period = 1.0 / rate_hz
     start = time.monotonic()
     sent, late = 0, 0
-    while True:
-        due = start + sent * period
-        if due - start >= duration_s:
-            break
-        wait = due - time.monotonic()
+    while sent * period < duration_s:
+        wait = start + sent * period - time.monotonic()
         if wait > 0:
             time.sleep(wait)
         elif wait < -period:
@@ -171,9 +166,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     log = work / 'node.log'
     frames = [render_scene(args.scene, seed=0, intrinsics=KINECT_V2_SD,
                            size=KINECT_V2_SD_SIZE, frame_index=k) for k in range(args.frames)]
-    np.savez(work / 'frames.npz', depth_mm=np.stack([f.depth_mm for f in frames]),
-             intrinsics=np.array([KINECT_V2_SD.fx, KINECT_V2_SD.fy, KINECT_V2_SD.cx,
-                                  KINECT_V2_SD.cy]))
+    np.savez(work / 'frames.npz', depth_mm=np.stack([f.depth_mm for f in frames]))
     env = node_process.use_loopback(args.domain_id, work / 'ros_log')
     overrides = ['stats_period_s:=10.0', *node_process.mount_overrides(frames[0], args.reliable),
                  *args.set]
