@@ -120,8 +120,8 @@ def _measure(args: argparse.Namespace, work: Path, bags: list[Path], tiny: list[
              jobs: Any) -> tuple[dict, bool, float, float]:
     """Process the bags on every fleet size ``--repeat`` times.
 
-    Returns (best run per worker count: wall s, start-up s, outcomes, CPU s; whether a run
-    failed or differed; an empty task's and a one-frame bag's worker time [ms]).
+    Returns (best (wall s, start-up s, outcomes, CPU s) per worker count, whether a run failed
+    or differed, an empty task's and a one-frame bag's worker time [ms]).
     """
     frames = args.bags * args.frames
     best: dict[int, tuple[float, float, list[fleet_bags.BagOutcome], float]] = {}

@@ -424,14 +424,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error('--frames, --step and --save-every must be >= 1')
     if args.rate is not None and not args.rate > 0:
         parser.error(f'--rate must be > 0, got {args.rate:g}')
-    if not args.params.is_file():
-        print(f'error: {args.params}: params file not found', file=sys.stderr)
-        return 1
     try:
+        if not args.params.is_file():
+            raise ToolError(args.params, 'params file not found')
         return run_demo(args)
     except (ToolError, datasets.ConvertError, bag_player.PlayError) as err:
-        print(f'error: {err}', file=sys.stderr)
-        return 1
+        return tool_support.report_error('demo', err)
 
 
 if __name__ == '__main__':

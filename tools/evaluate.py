@@ -69,10 +69,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def seed_suite_rows(presets: Sequence[str], max_frames: int | None, fleet: Fleet | None = None,
                     ) -> list[tuple[str, evaluation.SceneSummary]]:
-    """Overall summaries of the seed suite for each preset (frames rendered once).
-
-    On a cluster (``fleet``), one task per (preset, scenario).
-    """
+    """Return the seed suite's overall summary per preset (on ``fleet``: a task per scenario)."""
     scenarios = evaluation.load_scenarios(SUITES['seed'])
     if fleet is not None and fleet.distributed:
         sources = [(s.name, s.frame_count, evaluation_args.LazyFrames(

@@ -307,14 +307,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error('--duration, --rate (<= 1000) and --frames must be positive')
     if not 0 <= args.warmup < args.duration:
         parser.error('--warmup must be in [0, --duration)')
-    if not args.params.is_file():
-        print(f'error: {args.params}: params file not found', file=sys.stderr)
-        return 1
     try:
+        if not args.params.is_file():
+            raise ToolError(args.params, 'params file not found')
         figures = run(args)
     except ToolError as error:
-        print(f'error: {error}', file=sys.stderr)
-        return 1
+        return tool_support.report_error('latency_bench', error)
     print(format_table(figures))
     print('JSON ' + json.dumps(figures))
     return 0
