@@ -18,7 +18,7 @@ from obstacle_detection.cli.evaluation_args import parse_assignment, report_erro
 from obstacle_detection.evaluation import metrics, runner as evaluation
 from obstacle_detection.pipeline.params import DetectorParams, corridor
 
-DEFAULT_PARAMS = tool_support.PACKAGE_ROOT / 'params' / 'corridor.yaml'
+DEFAULT_PARAMS = tool_support.package_file('params/corridor.yaml')
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -29,6 +29,7 @@ from obstacle_detection.evaluation.sweep import (METRICS, SweepResult, format_gr
                                                  parse_axis, project, run_sweep,
                                                  settings_params)
 from obstacle_detection.pipeline.params import DetectorParams
+from obstacle_detection.cli.support import UsageError
 from obstacle_detection.cli.evaluation_args import (add_common_arguments, base_params,
                                                    frame_sources, report_error)
 
@@ -146,8 +147,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (0 ok, 1 bad input, 2 bad usage)."""
     args = build_parser().parse_args(argv)
     if args.strip == 'y' and args.y is None:
-        print('sweep.py: error: --strip y needs --y', file=sys.stderr)
-        return 2
+        return report_error('sweep', UsageError('--strip y needs --y'))
     also = tuple(args.also)
     try:
         base = base_params(args)
