@@ -33,9 +33,9 @@ PROG = 'benchmark_fusion'
 def build_parser() -> argparse.ArgumentParser:
     """Return the command-line interface."""
     parser = argparse.ArgumentParser(prog=PROG, description=__doc__.split('\n\n')[0])
-    parser.add_argument('--passes', type=tool_support.int_in(1), default=20,
+    parser.add_argument('--passes', type=int, default=20,
                         help='times the recorded frames are fused [default: 20]')
-    parser.add_argument('--step', type=tool_support.int_in(1), default=5,
+    parser.add_argument('--step', type=int, default=5,
                         help='use every STEP-th frame of the sequence [default: 5]')
     parser.add_argument('--size-m', type=float, default=4.0,
                         help='fused grid side [m] [default: 4]')
@@ -54,6 +54,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (0 ok, 2 bad usage)."""
     args = build_parser().parse_args(argv)
     try:
+        if args.passes < 1 or args.step < 1:
+            raise tool_support.UsageError(
+                f'--passes={args.passes} and --step={args.step} must be >= 1')
         try:
             fusion = FusionParams(size_m=args.size_m, resolution_m=args.resolution_m)
         except ValueError as exc:

@@ -44,9 +44,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help='a FusionParams field (size_m, resolution_m, hit_log_odds, '
                              'miss_log_odds, min_log_odds, max_log_odds, occupied_log_odds, '
                              'free_log_odds, max_jump_m, max_jump_deg); repeatable')
-    parser.add_argument('--seed', type=tool_support.int_in(0), default=0,
+    parser.add_argument('--seed', type=int, default=0,
                         help='sequence seed [default: 0]')
-    parser.add_argument('--frames', type=tool_support.int_in(1), metavar='N',
+    parser.add_argument('--frames', type=int, metavar='N',
                         help='only the first N frames of each sequence')
     parser.add_argument('--no-odometry', action='store_true',
                         help='fuse every frame in place (as without odometry)')
@@ -55,7 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--sheet', type=Path, metavar='PNG',
                         help='write a contact sheet of per-frame and fused grids over time '
                              '(the sequences one under the other)')
-    parser.add_argument('--sheet-frames', type=tool_support.int_in(1), default=4, metavar='N',
+    parser.add_argument('--sheet-frames', type=int, default=4, metavar='N',
                         help='moments per sequence on the sheet [default: 4]')
     parser.add_argument('--json', metavar='FILE',
                         help='write the JSON report to FILE instead of printing it last')
@@ -67,6 +67,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (0 ok, 1 bad input, 2 bad usage)."""
     args = build_parser().parse_args(argv)
     try:
+        for name, value, low in (('--frames', args.frames, 1), ('--seed', args.seed, 0),
+                                 ('--sheet-frames', args.sheet_frames, 1)):
+            if value is not None and value < low:
+                raise tool_support.UsageError(f'argument {name}: {value} must be >= {low}')
         try:
             fusion = FusionParams(**{key: float(value) for key, value in args.fusion})
         except (TypeError, ValueError) as exc:
