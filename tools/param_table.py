@@ -27,17 +27,15 @@ def _format_value(value: object) -> str:
     return str(value)
 
 
-def _row(spec: ParamSpec, *presets: dict[str, object]) -> str:
-    others = []
-    for preset in presets:
-        other = preset.get(spec.name, spec.default)
-        others.append(_format_value(other) if other != spec.default else '')
+def _row(spec: ParamSpec, seed: dict[str, object]) -> str:
+    other = seed.get(spec.name, spec.default)
     range_text = spec.range_text
     if spec.read_only:
         range_text = (range_text + ' ' if range_text else '') + 'read-only'
     description = spec.description.replace('|', '\\|')
     return (f'| `{spec.name}` | {spec.type_name} | {_format_value(spec.default)} | '
-            f'{" | ".join(others)} | {range_text} | {description} |')
+            f'{_format_value(other) if other != spec.default else ""} | {range_text} | '
+            f'{description} |')
 
 
 def parameter_table() -> str:
