@@ -97,7 +97,7 @@ def test_demo_fails_clearly_when_the_node_does_not_run(tmp_path: Path) -> None:
     params.write_text('obstacle_detector:\n  ros__parameters:\n    median_kernel: 4\n')
     done = run_demo(tmp_path, '--frames', '2', '--params', str(params), '--timeout', '20')
     assert done.returncode == 1
-    assert 'error: the detector node exited with code' in done.stderr
+    assert 'the detector node exited with code' in done.stderr
     assert 'median_kernel' in done.stderr  # the node's own message, from its log
 
 

@@ -1,49 +1,11 @@
 #!/usr/bin/env python3
 """Convert recorded RGB-D data into rosbag2 bags that the detector can replay.
 
-Sources (one sub-command each):
-
-``tum``
-    RGB-D benchmark layout (TUM RGB-D; also ETH3D SLAM, Bonn, ICL-NUIM in TUM format):
-    ``rgb.txt`` and ``depth.txt`` list ``timestamp filename`` lines (``#`` starts a comment;
-    without them, the ``<seconds>.png`` names in ``depth/`` and ``rgb/`` give the stamps),
-    depth is a 16-bit PNG with 5000 units per metre. Depth keeps its real timestamps and is
-    written in millimetres (``round(v / 5)``); each depth frame gets the colour frame nearest in
-    time if it is within ``--max-difference`` seconds, otherwise it is kept without colour and
-    counted as a dropped pair. Intrinsics: ``--camera fr1|fr2|fr3|ros`` or ``--intrinsics FILE``;
-    without either, ``freiburgN`` in the folder name chooses, then an ETH3D ``calibration.txt``
-    in the folder, then the ROS default (with a warning).
-``diml``
-    DIML/CVL RGB-D indoor (Kinect v2) full release: a sequence folder ``<scene>/<date>/<n>``
-    holding ``col/`` (``..._c.png``) and ``raw_png/`` (``..._rd.png``), ``up_png/``
-    (``..._ud.png``, upsampled) and ``warp_png/`` (``..._wd.png``, warped to the colour view);
-    depth is 16-bit millimetres. The release has no timestamps and no intrinsics: frame ``i``
-    (the number before the suffix, e.g. 000630 in ``in_k_03_170201_000630_rd.png``) is stamped
-    ``start + i / rate``; intrinsics come from ``--intrinsics`` or, loudly, from defaults.
-``diml-sample``
-    The DIML sample subset: ``<split>/{HR,LR}/<scene>/{color,depth_filled}/`` with
-    ``<id>_c.png`` and ``<id>_depth_filled.png`` (16-bit millimetres). The samples are not a
-    sequence; they are sorted by scene and id and stamped ``start + k / rate``.
-``folder``
-    A folder of 16-bit depth PNGs, in millimetres unless ``--depth-scale`` says otherwise (units
-    per metre: 5000 for TUM frames), and optionally a colour folder with as many images, sorted
-    by name and stamped ``start + k / rate``. A first frame that looks like another unit read
-    as millimetres (e.g. TUM's) is refused, naming the scale that fits.
-``ros1``
-    A ROS 1 bag (e.g. from the iai_kinect2 driver): every message (or those of ``--topics``)
-    is converted to its ROS 2 Jazzy type and written with its topic, stamp and data. Compressed
-    depth (``sensor_msgs/CompressedImage`` such as iai_kinect2's
-    ``/kinect2/sd/image_depth_rect/compressed`` or image_transport's ``.../compressedDepth``)
-    is kept as it is, for ``bag_process.py --depth-topic``, and named in the summary; with
-    ``--decompress-depth`` it is decoded instead (``obstacle_detection.ros.compressed_depth``,
-    16UC1 exactly) and written as a raw ``sensor_msgs/Image`` on the raw topic (``.../compressed``
-    -> ``...``), which the node and every tool read.
-
-Output: a rosbag2 folder (``--storage sqlite3`` by default, or ``mcap``) with, per frame, a
-``sensor_msgs/Image`` depth (16UC1, millimetres), a ``sensor_msgs/CameraInfo`` and, when
-available, a colour ``Image`` (``bgr8`` or ``rgb8``), all with the frame's stamp as header stamp
-and bag timestamp, on the Kinect v2 driver's SD topics by default. The bag is written into a
-temporary sibling folder and renamed when complete, so a failed run leaves nothing behind.
+Sources, one sub-command each (``bag_convert SOURCE -h`` describes one): ``tum`` (TUM RGB-D
+format: TUM, ETH3D SLAM, Bonn, ICL-NUIM), ``diml`` and ``diml-sample`` (DIML/CVL indoor),
+``folder`` (16-bit depth PNGs) and ``ros1`` (a ROS 1 bag, e.g. iai_kinect2). Output: a rosbag2
+folder with, per frame, a 16UC1 depth image [mm], a CameraInfo and, when available, a colour
+image on the Kinect v2 driver's SD topics; a failed run leaves nothing behind.
 """
 
 from __future__ import annotations

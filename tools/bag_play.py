@@ -1,19 +1,9 @@
 #!/usr/bin/env python3
 """Replay a rosbag2 bag on ROS 2 topics with its recorded timing (``ros2 bag play`` stand-in).
 
-The wheels install no ``ros2`` command line, so this player publishes a bag's messages (all
-topics by default, or ``--topics``) as the raw CDR bytes stored in the bag, spaced as they were
-recorded (scaled by ``--rate``), from ``--start-offset`` seconds into the bag, once or
-``--loop``-ed. Publishers use the sensor-data QoS profile (best effort, keep last 5), as a camera
-driver does, unless ``--reliable``. ``--remap old:=new`` renames topics;
-``--wait-for-subscribers N`` waits until N subscriptions, summed over the played topics, are
-matched (2 for the detector node: depth and camera info). Every message type plays as
-recorded, compressed depth too (``sensor_msgs/CompressedImage`` on ``.../compressedDepth`` or
-iai_kinect2's ``.../compressed``); a subscriber that takes raw depth only gets it from a bag
-converted with ``bag_convert.py ros1 --decompress-depth``.
-
-Every process that calls ``rclpy.init()`` here should run with the loopback Fast DDS profile
-(``obstacle_detection/ros/fastdds_loopback.xml``) and a ROS_DOMAIN_ID of its own; see the README.
+Publishes the bag's messages as recorded (raw CDR, compressed depth too), spaced by their
+timestamps, with the sensor-data QoS unless ``--reliable``. Run it on the loopback DDS profile
+in a ROS domain of its own, as the README says.
 """
 
 from __future__ import annotations
@@ -49,14 +39,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--start-offset', type=float, default=0.0, metavar='SECONDS',
                         help='start this many seconds into the bag (default %(default)s)')
     parser.add_argument('--reliable', action='store_true',
-                        help='publish with reliable QoS (default: sensor data, best effort; '
-                             'over UDP, best-effort frames of 400 kB can be lost, reliable '
-                             'ones are resent; the subscriber must then be reliable too)')
+                        help='publish with reliable QoS (default: sensor data, best effort); '
+                             'the subscriber must then be reliable too')
     parser.add_argument('--remap', action='append', default=[], metavar='OLD:=NEW',
                         help='publish topic OLD as NEW (repeatable)')
     parser.add_argument('--wait-for-subscribers', type=int, default=0, metavar='N',
-                        help='wait until N subscriptions (summed over the played topics) '
-                             'are matched before playing')
+                        help='wait until N subscriptions (over all topics) are matched')
     parser.add_argument('--wait-timeout', type=float, default=30.0, metavar='SECONDS',
                         help='give up waiting for subscribers after this long (%(default)s)')
     parser.add_argument('--quiet', action='store_true', help='no progress bar')

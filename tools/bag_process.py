@@ -1,31 +1,12 @@
 #!/usr/bin/env python3
 """Run the obstacle detector over a whole rosbag2 bag offline, as fast as the machine allows.
 
-No DDS and no ROS graph: every depth frame of the bag goes through the same code as the node
-(``Detector.process`` then ``conversions.result_to_messages``, with the node's parameters read
-from its ``--params-file`` YAML), paired with the latest camera info recorded at or before it.
-The output bag holds every input message unchanged plus, per processed frame, the obstacle cloud
-(``<namespace>/points``), the costmap (``<namespace>/costmap``) and, if asked or set in the
-params file, the ground cloud (``<namespace>/ground_points``) and the overlay image
-(``<namespace>/overlay``); each output carries the source depth image's header stamp and bag
-timestamp. Frames the node would skip (no camera info, size mismatch, unsupported encoding, no
-valid depth) are skipped and counted with the reason.
-
-The depth topic may be a raw ``sensor_msgs/Image`` or a ``sensor_msgs/CompressedImage``
-(image_transport's ``.../compressedDepth``, iai_kinect2's ``.../compressed``): compressed frames
-are decoded by ``obstacle_detection.ros.compressed_depth`` into the array the raw image gives
-(16UC1
-exactly), so both give the same outputs; a frame that cannot be decoded is skipped with the
-reason (corrupt PNG, bad header, ...).
-
-Many bags in one command: give a folder of bags, a glob pattern (quoted) or a list file
-(``.txt``, one bag a line) and an output folder; each bag is one task on a Dask cluster (a local
-one of one worker per core by default, ``--scheduler`` for another, ``--workers 0`` for this
-process; ``--chunk-frames`` cuts long bags into chunks, one task each), its output bag
-``<output>/<name>`` written under a temporary name and renamed when complete. A summary table
-per bag (frames, skipped with reasons, obstacle points, ms/frame) and one JSON line (the last
-line of stdout) follow; a bag that fails is named with its reason and the others finish (exit
-code 1 then).
+No DDS: every depth frame (raw or compressed) goes through the node's code with its
+``--params-file`` parameters, paired with the latest camera info; the output bag holds every
+input message plus the node's outputs, stamped as their depth frame. Frames the node would skip
+are counted with the reason. Many bags (a folder of bags, a quoted glob or a ``.txt`` list) run
+as tasks on a Dask cluster, one output bag each, then a table and one JSON line; a bag that
+fails is named and the others finish (exit code 1).
 """
 
 from __future__ import annotations
@@ -60,10 +41,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('output', type=Path,
                         help='rosbag2 folder to create (must not exist); for many bags the '
                              'folder of the output bags (one per input, named after it)')
-    parser.add_argument('--params-file', type=Path, action='append', default=[],
-                        metavar='YAML',
-                        help="the node's parameter YAML (default: the node's defaults); "
-                             'repeatable, merged in order as ROS does (a later file wins)')
+    parser.add_argument('--params-file', type=Path, action='append', default=[], metavar='YAML',
+                        help="the node's parameter YAML, repeatable: a later file wins "
+                             "(default: the node's defaults)")
     parser.add_argument('--depth-topic', default=DEFAULT_DEPTH_TOPIC,
                         help='depth topic: a sensor_msgs/Image, or a CompressedImage such as '
                              '.../compressed or .../compressedDepth (default %(default)s)')
@@ -81,15 +61,14 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--quiet', action='store_true',
                         help='no per-frame lines (a progress bar on a terminal instead)')
     parser.add_argument('--chunk-frames', type=tool_support.int_in(1), metavar='N',
-                        help='on a cluster, cut a bag of more than N depth frames into chunks '
-                             'of about N, one task each, merged into its one output bag '
-                             '[default: one task per bag]')
+                        help='on a cluster, cut a bag of more than N depth frames into tasks '
+                             'of about N frames [default: one task per bag]')
     add_fleet_arguments(parser)
     return parser
 
 
-def _sets_mount(values: Mapping[str, Any], files: Sequence[Path]) -> bool:
-    """Whether one of the params files sets a camera mount parameter."""
+def _sets_mount(files: Sequence[Path]) -> bool:
+    """Tell whether one of the params files sets a camera mount parameter."""
     names = ('camera_height_m', 'camera_pitch_deg', 'camera_roll_deg')
     try:
         return any(name in read_params_files(list(files)) for name in names)
@@ -107,7 +86,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         else:
             values, origin = {spec.name: spec.default for spec in ALL_PARAMS}, 'defaults'
         config = config_from_values(values, origin)
-        mount_origin = (origin if args.params_file and _sets_mount(values, args.params_file)
+        mount_origin = (origin if args.params_file and _sets_mount(args.params_file)
                         else "the node's defaults: no params file sets it")
         if fleet_bags.is_many(args.bag) or args.scheduler or args.workers:
             return _process_many(args, values, origin, mount_origin)

@@ -1,23 +1,11 @@
 #!/usr/bin/env python3
 """Benchmark bag_process over many bags: one process against a local Dask cluster of 1..N workers.
 
-Writes ``--bags`` bags of ``--frames`` depth frames each (Kinect v2 SD frames from the scene
-generator, a few distinct ones repeated, a CameraInfo per frame), then processes all of them
-with the node's defaults (one thread per task): in this process, and on a local cluster of
-1, 2, ... ``--max-workers`` worker processes. It prints frames/s for each and the speed-up over
-one process, checks that every run wrote the same messages as the one-process run, and measures
-what one task costs beyond its work, to size chunks: an empty task's round trip (scheduling,
-serialisation) and a one-frame bag's time (opening, copying and closing a bag). The machine's
-load average is printed before and after (``uptime``): other work on the cores slows the
-cluster more than one process. With Linux's autogroup scheduling (the default on desktops and
-here) the CPU is shared per session, not per process: while other sessions keep the cores busy,
-the cluster's processes share one session's part and cannot be faster than one process. The
-CPU time per frame, which varies little with load, gives the speed-up on idle cores.
+Writes ``--bags`` bags of ``--frames`` depth frames, processes them in this process and on local
+clusters of 1..``--max-workers`` workers, prints frames/s and the speed-up, checks the outputs
+are identical, and measures what one task costs beyond its work (docs/fleet.md explains it)::
 
-Example::
-
-    python tools/benchmark_fleet.py                       # 8 bags of 300 frames, 1 and 2 workers
-    python tools/benchmark_fleet.py --bags 4 --frames 50  # quicker
+    python tools/benchmark_fleet.py --bags 4 --frames 50
 """
 
 from __future__ import annotations
@@ -128,10 +116,82 @@ def _load() -> str:
     return f'load average {one:.2f} (1 min), {five:.2f} (5 min) on {os.cpu_count()} CPUs'
 
 
+def _measure(args: argparse.Namespace, work: Path, bags: list[Path], tiny: list[Path],
+             jobs: Any) -> tuple[dict, bool, float, float]:
+    """Process the bags on every fleet size ``--repeat`` times.
+
+    Returns (best (wall s, start-up s, outcomes, CPU s) per worker count, whether a run failed
+    or differed, an empty task's and a one-frame bag's worker time [ms]).
+    """
+    frames = args.bags * args.frames
+    best: dict[int, tuple[float, float, list[fleet_bags.BagOutcome], float]] = {}
+    failed = False
+    for repeat in range(args.repeat):   # in turn, so that a change of load hits all
+        for name, workers in _runs(args.max_workers):
+            out = work / f'out_{workers}'
+            shutil.rmtree(out, ignore_errors=True)
+            began = time.perf_counter()
+            with open_fleet(workers=workers, tasks=args.bags) as fleet:
+                if fleet.distributed:
+                    fleet.client.run(_warm_up)
+                else:
+                    _warm_up()
+                startup = time.perf_counter() - began
+                cpu = _cpu_s(fleet)
+                began = time.perf_counter()
+                outcomes = fleet_bags.process_bags(jobs(bags, out.name), fleet, progress=False)
+                wall = time.perf_counter() - began
+                cpu = _cpu_s(fleet) - cpu
+                if workers == args.max_workers and repeat == 0:
+                    empty_ms, tiny_ms = _task_overhead(fleet, jobs(tiny, 'out_tiny'))
+            failed |= any(o.error for o in outcomes)
+            if workers and not all(outputs_equal(work / 'out_0' / b.name, out / b.name)
+                                   for b in bags):
+                print(f'{name}: OUTPUTS DIFFER from one process', file=sys.stderr)
+                failed = True
+            if workers not in best or wall < best[workers][0]:
+                best[workers] = (wall, startup, outcomes, cpu)
+            print(f'  run {repeat + 1} {name}: {frames / wall:.1f} frames/s', flush=True)
+    return best, failed, empty_ms, tiny_ms
+
+
+def _runs(max_workers: int) -> list[tuple[str, int]]:
+    """Return (name, workers) of every run: one process (0), then 1..max_workers workers."""
+    return [('one process', 0)] + [(f'{n} worker{"s" if n > 1 else ""}', n)
+                                   for n in range(1, max_workers + 1)]
+
+
+def _print_results(args: argparse.Namespace, best: dict, failed: bool, empty_ms: float,
+                   tiny_ms: float) -> None:
+    """Print the best run of each fleet size, the idle-core speed-up and the task costs."""
+    frames = args.bags * args.frames
+    one = frames / best[0][0]
+    of = f', best of {args.repeat}' if args.repeat > 1 else ''
+    for name, workers in _runs(args.max_workers):
+        wall, startup, outcomes, cpu = best[workers]
+        ms = sum(o.pipeline_ms for o in outcomes) / max(1, sum(o.processed for o in outcomes))
+        print(f'{name:>12}: {frames / wall:6.1f} frames/s, x{frames / wall / one:.2f} one '
+              f'process ({wall:.1f} s{of}'
+              f'; pipeline {ms:.1f} ms/frame; CPU {cpu * 1000 / frames:.1f} ms/frame; '
+              f'start and warm-up {startup:.1f} s'
+              f'{"; outputs identical to one process" if workers and not failed else ""})')
+    frame_ms = best[args.max_workers][0] * 1000 * args.max_workers / frames
+    # CPU time does not depend on what else runs (much): the speed-up on idle cores
+    most = args.max_workers
+    print(f'on {most} idle cores: x{most * best[0][3] / best[most][3]:.2f} one process at '
+          f'most (CPU per frame of one process / of {most} workers, times {most}; the '
+          'wall-clock figures above are what this machine gave now)')
+    fixed_ms = max(0.0, tiny_ms - frame_ms)
+    print(f'per task ({args.max_workers} workers, worker time): an empty task '
+          f'{empty_ms:.1f} ms (scheduling + serialisation, {EMPTY_TASKS} tasks); a '
+          f'one-frame bag {tiny_ms:.0f} ms against {frame_ms:.1f} ms a frame in the long '
+          f'bags, so {fixed_ms:.0f} ms a bag beyond its frames: bags (or chunks) of '
+          f'{max(1, round(10 * fixed_ms / frame_ms))} frames or more keep that under 10 %')
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the benchmark; return the exit code (0 done, 1 outputs differ or a bag failed)."""
     args = build_parser().parse_args(argv)
-
     if not DASK_AVAILABLE:
         print(f'benchmark_fleet.py: error: needs dask.distributed: {INSTALL_HINT}',
               file=sys.stderr)
@@ -152,63 +212,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         started = time.perf_counter()
         bags = write_bags(work, args.bags, args.frames)
         tiny = write_bags(work / 'tiny', args.bags, 1)
-        frames = args.bags * args.frames
         print(f'wrote {args.bags} bags of {args.frames} frames (512x424) in '
               f'{time.perf_counter() - started:.1f} s')
-        runs = [('one process', 0)] + [(f'{n} worker{"s" if n > 1 else ""}', n)
-                                       for n in range(1, args.max_workers + 1)]
-        best: dict[int, tuple[float, float, list[fleet_bags.BagOutcome]]] = {}
-        failed = False
-        for repeat in range(args.repeat):   # in turn, so that a change of load hits all
-            for name, workers in runs:
-                out = work / f'out_{workers}'
-                shutil.rmtree(out, ignore_errors=True)
-                began = time.perf_counter()
-                with open_fleet(workers=workers, tasks=args.bags) as fleet:
-                    if fleet.distributed:
-                        fleet.client.run(_warm_up)
-                    else:
-                        _warm_up()
-                    startup = time.perf_counter() - began
-                    cpu = _cpu_s(fleet)
-                    began = time.perf_counter()
-                    outcomes = fleet_bags.process_bags(jobs(bags, out.name), fleet,
-                                                       progress=False)
-                    wall = time.perf_counter() - began
-                    cpu = _cpu_s(fleet) - cpu
-                    if workers == args.max_workers and repeat == 0:
-                        empty_ms, tiny_ms = _task_overhead(fleet, jobs(tiny, 'out_tiny'))
-                failed |= any(o.error for o in outcomes)
-                if workers and not all(outputs_equal(work / 'out_0' / b.name, out / b.name)
-                                       for b in bags):
-                    print(f'{name}: OUTPUTS DIFFER from one process', file=sys.stderr)
-                    failed = True
-                if workers not in best or wall < best[workers][0]:
-                    best[workers] = (wall, startup, outcomes, cpu)
-                print(f'  run {repeat + 1} {name}: {frames / wall:.1f} frames/s', flush=True)
-        one = frames / best[0][0]
-        of = f', best of {args.repeat}' if args.repeat > 1 else ''
-        for name, workers in runs:
-            wall, startup, outcomes, cpu = best[workers]
-            ms = sum(o.pipeline_ms for o in outcomes) / max(1, sum(o.processed
-                                                                   for o in outcomes))
-            print(f'{name:>12}: {frames / wall:6.1f} frames/s, x{frames / wall / one:.2f} one '
-                  f'process ({wall:.1f} s{of}'
-                  f'; pipeline {ms:.1f} ms/frame; CPU {cpu * 1000 / frames:.1f} ms/frame; '
-                  f'start and warm-up {startup:.1f} s'
-                  f'{"; outputs identical to one process" if workers and not failed else ""})')
-        frame_ms = best[args.max_workers][0] * 1000 * args.max_workers / frames
-        # CPU time does not depend on what else runs (much): the speed-up on idle cores
-        most = args.max_workers
-        print(f'on {most} idle cores: x{most * best[0][3] / best[most][3]:.2f} one process at '
-              f'most (CPU per frame of one process / of {most} workers, times {most}; the '
-              'wall-clock figures above are what this machine gave now)')
-        fixed_ms = max(0.0, tiny_ms - frame_ms)
-        print(f'per task ({args.max_workers} workers, worker time): an empty task '
-              f'{empty_ms:.1f} ms (scheduling + serialisation, {EMPTY_TASKS} tasks); a '
-              f'one-frame bag {tiny_ms:.0f} ms against {frame_ms:.1f} ms a frame in the long '
-              f'bags, so {fixed_ms:.0f} ms a bag beyond its frames: bags (or chunks) of '
-              f'{max(1, round(10 * fixed_ms / frame_ms))} frames or more keep that under 10 %')
+        best, failed, empty_ms, tiny_ms = _measure(args, work, bags, tiny, jobs)
+        _print_results(args, best, failed, empty_ms, tiny_ms)
         print(f'after: {_load()}')
     finally:
         if args.work_dir is None:

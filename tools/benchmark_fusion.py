@@ -1,12 +1,9 @@
 #!/usr/bin/env python3
 """Time the fused costmap: one FusedGrid.update (and to_costmap) per frame, on one thread.
 
-The per-frame costmaps are the detector's own (params/corridor.yaml: 2 m x 4 m at 5 cm) on
-every 5th frame of the 'drive_past_boxes' sequence (driving and turning), fused at their
-odometry poses into a 4 m x 4 m grid at 5 cm (FusionParams defaults) again and again, a new
-grid for each pass. BLAS/OpenMP/OpenCV threads are set to 1 before numpy is imported and the
-process is pinned to one CPU with ``os.sched_setaffinity`` (where the platform has it), as
-tools/benchmark.py does. Prints median and p90 milliseconds and one JSON line.
+The detector's costmaps of every ``--step``-th frame of 'drive_past_boxes' are fused at their
+odometry poses ``--passes`` times, pinned to one CPU as tools/benchmark.py is. Prints median and
+p90 milliseconds and one JSON line.
 """
 
 from __future__ import annotations

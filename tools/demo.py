@@ -1,34 +1,19 @@
 #!/usr/bin/env python3
 """The bundled demo: a recorded-looking depth sequence through the running detector node.
 
-Steps, all into one output folder (default ``out/demo``):
-
-1. render a short sequence of the scene generator (30 frames of 'person_walking' at the Kinect v2
-   SD size) as a folder of 16-bit depth PNGs plus an intrinsics YAML (``input/``);
-2. convert it to a rosbag2 with the converter (``input_bag/``, Kinect v2 driver topics);
-3. start the detector node (``python -m obstacle_detection.ros.node --ros-args --params-file
-   params/corridor.yaml``, its inputs remapped to the bag's topics; log in ``node.log``);
-4. replay the bag into it with the player, while a recorder in this process subscribes to
-   what the node publishes and writes it to ``results_bag/``;
-5. save, per saved frame, the node's overlay (depth with obstacle pixels red), the costmap and
-   both side by side (``pictures/``), plus a contact sheet (``demo_sheet.png``).
-
-The replay starts only when the node says it is ready (its latched ``~/status`` topic), not when
-its subscription is matched. Everything is written into ``<output>.partial`` and moved to
-``<output>`` only when the demo succeeded, so a failed run leaves the previous result in place
-(the failed run's files go to ``<output>.failed``, for its ``node.log``).
-
-DDS stays on the loopback interface (``obstacle_detection/ros/fastdds_loopback.xml``) in a ROS
-domain of the demo's own. Exit code 0 when the node produced output, 1 (with the reason) otherwise.
+It renders a scene sequence into depth PNGs, converts them to a rosbag2, starts the detector
+node on loopback DDS in a domain of its own, replays the bag into it, records what the node
+publishes and draws it. Everything goes into ``<output>.partial``, moved to ``<output>`` only on
+success (a failed run's files go to ``<output>.failed``). Exit code 0 when the node produced
+output, 1 (with the reason) otherwise; the README describes the steps.
 """
 
 from __future__ import annotations
 
 import argparse
-import os
+import dataclasses
+import re
 import shutil
-import signal
-import subprocess
 import sys
 import threading
 import time
@@ -39,13 +24,12 @@ from typing import Any
 import cv2
 import numpy as np
 
+from obstacle_detection.cli import bag_player, bag_writer, node_process
 from obstacle_detection.cli import support as tool_support
-from obstacle_detection.evaluation import datasets
-from obstacle_detection.cli import bag_player, bag_writer
 from obstacle_detection.cli.recorder import Recorder, write_bag
-from obstacle_detection.ros.dds_env import loopback_env
+from obstacle_detection.cli.support import ToolError
+from obstacle_detection.evaluation import datasets
 
-REPO = tool_support.PACKAGE_ROOT
 DEFAULT_PARAMS = tool_support.package_file('params/corridor.yaml')
 MARKER = '.obstacle_detection_demo'
 #: The node's outputs (after its default names) -> message type name.
@@ -62,65 +46,30 @@ DEMO_FPS = 7.5
 SHEET_THUMB_PX = 600
 
 
-class DemoError(Exception):
-    """The demo could not run or the node produced nothing; the message says why."""
-
-
 def _check_demo_folder(folder: Path) -> None:
     """Refuse ``folder`` if it exists and was not made by the demo."""
     if folder.exists():
         if not folder.is_dir():
-            raise DemoError(f'{folder}: exists and is not a folder')
+            raise ToolError(folder, 'exists and is not a folder')
         if any(folder.iterdir()) and not (folder / MARKER).exists():
-            raise DemoError(f'{folder}: exists and was not made by the demo; choose another '
-                            '--output')
+            raise ToolError(folder, 'exists and was not made by the demo; choose another '
+                                    '--output')
 
 
-def prepare_output(folder: Path) -> None:
-    """Create ``folder``, or empty it if an earlier demo made it; refuse any other folder."""
+def _replace(folder: Path, by: Path | None = None) -> None:
+    """Remove ``folder`` (a demo folder, or absent), then move ``by`` (if any) to its place."""
     _check_demo_folder(folder)
     if folder.exists():
         shutil.rmtree(folder)
-    folder.mkdir(parents=True)
-    (folder / MARKER).write_text('made by tools/demo.py; emptied when the demo runs again\n')
-
-
-def staging_folders(output: Path) -> tuple[Path, Path]:
-    """Return (work, failed): where a run writes, and where a failed run's files are kept."""
-    return (output.with_name(output.name + '.partial'),
-            output.with_name(output.name + '.failed'))
-
-
-def publish_output(work: Path, output: Path) -> None:
-    """Replace ``output`` (a demo folder, or absent) with the finished ``work`` folder."""
-    _check_demo_folder(output)
-    old = output.with_name(output.name + '.old')
-    if old.exists():
-        shutil.rmtree(old)
-    if output.exists():
-        output.rename(old)
-    work.rename(output)
-    if old.exists():
-        shutil.rmtree(old)
-
-
-def keep_failed(work: Path, failed: Path) -> None:
-    """Move a failed run's ``work`` folder to ``failed`` (replacing an older failure)."""
-    if not work.exists():
-        return
-    if failed.exists():
-        _check_demo_folder(failed)
-        shutil.rmtree(failed)
-    work.rename(failed)
+    if by is not None and by.exists():
+        by.rename(folder)
 
 
 def render_sequence(folder: Path, scene: str, frames: int, seed: int, step: int = 1
                     ) -> tuple[Path, Path, Any, list[tuple[float, float, float]] | None]:
-    """Write the frames as 16-bit PNGs [mm] and a camera YAML.
+    """Write a scene's (or every ``step``-th sequence) frames as 16-bit PNGs and a camera YAML.
 
-    scene: a scene of the generator (a static camera) or a sequence with a known trajectory
-    (every ``step``-th frame of it). Returns (depth folder, camera YAML, the first SceneFrame,
-    the odometry pose of each frame or None for a static scene).
+    Returns (depth folder, camera YAML, first SceneFrame, odometry poses or None).
     """
     from obstacle_detection.evaluation.camera import camera_yaml_text
     from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE
@@ -129,29 +78,22 @@ def render_sequence(folder: Path, scene: str, frames: int, seed: int, step: int 
 
     depth_dir = folder / 'depth'
     depth_dir.mkdir(parents=True)
-    first = None
-    poses: list[tuple[float, float, float]] | None = None
+    poses = None
     if scene in SEQUENCE_NAMES:
         sequence = SceneSequence(scene, seed=seed)
-        indices = range(0, min(len(sequence), frames * step), step)
-        poses = []
-        rendered = []
-        for index in indices:
-            item = sequence.frame(index)
-            poses.append(item.pose_odom)
-            rendered.append(item.frame)
+        items = [sequence.frame(i) for i in range(0, min(len(sequence), frames * step), step)]
+        poses = [item.pose_odom for item in items]
+        rendered = [item.frame for item in items]
     else:
-        rendered = (render_scene(scene, seed=seed, intrinsics=KINECT_V2_SD,
-                                 size=KINECT_V2_SD_SIZE, frame_index=k) for k in range(frames))
+        rendered = [render_scene(scene, seed=seed, intrinsics=KINECT_V2_SD,
+                                 size=KINECT_V2_SD_SIZE, frame_index=k) for k in range(frames)]
     for k, frame in enumerate(rendered):
-        first = frame if first is None else first
         if not cv2.imwrite(str(depth_dir / f'{scene}_{k:04d}.png'), frame.depth_mm):
-            raise DemoError(f'{depth_dir}: cannot write depth PNGs')
-    intr = KINECT_V2_SD
+            raise ToolError(depth_dir, 'cannot write depth PNGs')
     camera = folder / 'camera.yaml'
-    camera.write_text(camera_yaml_text(intr, comment='Kinect v2 SD camera of the rendered scene',
-                                       size=KINECT_V2_SD_SIZE))
-    return depth_dir, camera, first, poses
+    camera.write_text(camera_yaml_text(KINECT_V2_SD, size=KINECT_V2_SD_SIZE,
+                                       comment='Kinect v2 SD camera of the rendered scene'))
+    return depth_dir, camera, rendered[0], poses
 
 
 def save_pictures(folder: Path, recorder: Recorder, every: int, params: Any = None,
@@ -159,12 +101,8 @@ def save_pictures(folder: Path, recorder: Recorder, every: int, params: Any = No
                   poses: dict[tuple[int, int], Any] | None = None) -> list[Path]:
     """Save overlay, costmap and side-by-side PNGs of every ``every``-th frame; a contact sheet.
 
-    Frames are matched across topics by header stamp. The costmap panel has metre axes, the
-    camera, the region of interest (hatched outside) and the floor in view when ``params``
-    (the node's DetectorParams) and ``intrinsics`` are given; the fused costmap (odom) beside
-    it when the node published one, the robot at its odometry pose (``poses`` by stamp); each
-    picture has a title and a legend. The contact sheet: two columns of thumbnails drawn at
-    the size they are shown (the images scaled, the text not), one legend underneath.
+    Frames are matched across topics by header stamp; ``params`` and ``intrinsics`` draw the
+    camera and region of interest, ``poses`` (by stamp) the robot on the fused costmap.
     Returns the side-by-side paths.
     """
     from nav_msgs.msg import OccupancyGrid
@@ -229,59 +167,15 @@ def save_pictures(folder: Path, recorder: Recorder, every: int, params: Any = No
 
 def _scene_params(path: Path, frame: Any) -> Any:
     """Return the node's pipeline parameters: the params file, the rendered scene's mount."""
-    import dataclasses
-
     from obstacle_detection.evaluation.runner import load_params_file
 
-    params = load_params_file(path)
-    return dataclasses.replace(params, camera_height_m=float(frame.height_m),
+    return dataclasses.replace(load_params_file(path), camera_height_m=float(frame.height_m),
                                camera_pitch_rad=float(frame.pitch_rad),
                                camera_roll_rad=float(frame.roll_rad))
 
 
-def _node_command(params: Path, frame: Any, *, reliable: bool, odom_topic: str) -> list[str]:
-    """Return the detector node command: inputs remapped to the bag's, the scene's mount.
-
-    The fused costmap is on, moved by the bag's odometry (a static scene has none: it fuses
-    in place, as the node says in its log).
-    """
-    import math
-
-    return [sys.executable, '-m', 'obstacle_detection.ros.node', '--ros-args',
-            '--params-file', str(params),
-            '-r', f'depth/image_raw:={bag_writer.DEFAULT_DEPTH_TOPIC}',
-            '-r', f'depth/camera_info:={bag_writer.DEFAULT_INFO_TOPIC}',
-            '-p', 'publish_overlay:=true', '-p', 'stats_period_s:=1.0',
-            '-p', f'camera_height_m:={float(frame.height_m)!r}',
-            '-p', f'camera_pitch_deg:={round(math.degrees(frame.pitch_rad), 9)!r}',
-            '-p', f'camera_roll_deg:={round(math.degrees(frame.roll_rad), 9)!r}',
-            '-p', f'reliable_input:={"true" if reliable else "false"}',
-            '-p', 'fuse:=true', '-p', f'odom_topic:={odom_topic}']
-
-
-def _stop(process: subprocess.Popen) -> None:
-    """Stop the node with Ctrl-C, as a user would; kill it if it does not stop."""
-    if process.poll() is not None:
-        return
-    process.send_signal(signal.SIGINT)
-    try:
-        process.wait(timeout=10)
-    except subprocess.TimeoutExpired:
-        process.kill()
-        process.wait(timeout=5)
-
-
-def _log_tail(path: Path, lines: int = 15) -> str:
-    try:
-        return '\n'.join(path.read_text(errors='replace').splitlines()[-lines:])
-    except OSError:
-        return '(no log)'
-
-
 def _why_no_output(log_path: Path, best_effort: bool, rate: float) -> str:
     """Say from the node's log why frames had no output: skipped (and why) or dropped."""
-    import re
-
     text = log_path.read_text(errors='replace') if log_path.is_file() else ''
     dropped = sum(int(n) for n in re.findall(r'(\d+) dropped \(a newer frame', text))
     skipped = sum(int(n) for n in re.findall(r'(\d+) skipped \(bad input\)', text))
@@ -302,24 +196,26 @@ def _why_no_output(log_path: Path, best_effort: bool, rate: float) -> str:
 
 
 def run_demo(args: argparse.Namespace) -> int:
-    """Run every step into ``<output>.partial``; move it to ``<output>`` only on success.
-
-    Raises DemoError when a step fails; the failed run's files are then in
-    ``<output>.failed`` and the previous ``<output>`` is untouched.
-    """
+    """Run every step into ``<output>.partial``, moved to ``<output>`` only on success."""
     began = time.monotonic()
     final: Path = args.output.resolve()  # absolute: the node runs with another working directory
+    work = final.with_name(final.name + '.partial')
+    failed = final.with_name(final.name + '.failed')
     _check_demo_folder(final)
-    work, failed = staging_folders(final)
-    _check_demo_folder(work)
-    prepare_output(work)
+    _replace(work)
+    work.mkdir(parents=True)
+    (work / MARKER).write_text('made by tools/demo.py; emptied when the demo runs again\n')
     try:
         report = _run_steps(args, work, failed)
     except BaseException:
-        keep_failed(work, failed)
+        if work.exists():
+            _replace(failed, work)
         raise
-    publish_output(work, final)
-    if failed.exists() and (failed / MARKER).exists():
+    old = final.with_name(final.name + '.old')
+    _replace(old, final)
+    _replace(final, work)
+    _replace(old)
+    if (failed / MARKER).exists():
         shutil.rmtree(failed)   # an older failure, now superseded
     print()
     print(f'demo done in {time.monotonic() - began:.1f} s; everything is in {args.output}/')
@@ -328,110 +224,96 @@ def run_demo(args: argparse.Namespace) -> int:
     return 0
 
 
-def _wait_until_ready(executor: Any, status: list[str], player: Any, node_process: Any,
+def _wait_until_ready(executor: Any, status: list[str], player: Any, node: Any,
                       timeout_s: float, log_hint: Path, log_path: Path) -> None:
     """Spin until the node's ~/status says ready and the player's topics are matched."""
     deadline = time.monotonic() + timeout_s
     while not (status and status[-1].startswith('ready') and player.subscription_count() >= 2):
-        if node_process.poll() is not None:
-            raise DemoError(f'the detector node exited with code {node_process.returncode}'
-                            f' before it was ready; its log ({log_hint}):\n'
-                            + _log_tail(log_path))
+        if node.poll() is not None:
+            raise ToolError(log_hint, f'the detector node exited with code {node.returncode} '
+                            'before it was ready; the end of its log:\n'
+                            + node_process.log_tail(log_path))
         if time.monotonic() > deadline:
-            raise DemoError(f'the detector node did not say it was ready within {timeout_s:g} s'
-                            f' (--timeout); its log ({log_hint}):\n' + _log_tail(log_path))
+            raise ToolError(log_hint, f'the detector node did not say it was ready within '
+                            f'{timeout_s:g} s (--timeout); the end of its log:\n'
+                            + node_process.log_tail(log_path))
         executor.spin_once(timeout_sec=0.05)
 
 
-def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
-    """Run the demo's steps into ``out``; return the summary lines to print."""
-    import rclpy
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.node import Node
-    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-    from std_msgs.msg import String
+def _write_input(args: argparse.Namespace, out: Path, step: int
+                 ) -> tuple[Any, Any, dict, float]:
+    """Render the frames and convert them to a bag (steps 1 and 2).
 
-    import dataclasses
+    Returns (bag summary, first SceneFrame, odometry pose by stamp, bag frame rate [Hz]).
+    """
+    from obstacle_detection.sim.sequences import SEQUENCE_RATE_HZ
 
-    from obstacle_detection.sim.sequences import SEQUENCE_NAMES, SEQUENCE_RATE_HZ
-
-    step = args.step if args.scene in SEQUENCE_NAMES else 1
     print(f'[1/5] rendering {args.frames} frames of {args.scene!r}'
           f'{f" (every {step}th, with odometry)" if step > 1 else ""} into {out / "input"}')
     depth_dir, camera, first, poses = render_sequence(out / 'input', args.scene, args.frames,
                                                       args.seed, step)
     bag_hz = SEQUENCE_RATE_HZ / step
-    rate = args.rate if args.rate is not None else DEMO_FPS / bag_hz
-
     print(f'[2/5] converting them to a rosbag2: {out / "input_bag"}')
     source = datasets.folder_frames(depth_dir, intrinsics_path=camera, rate_hz=bag_hz,
-                                       start_s=float(int(time.time())))
+                                    start_s=float(int(time.time())))
+    pose_by_stamp = {}
     if poses is not None:
         source.frames = [dataclasses.replace(f, pose=p) for f, p in zip(source.frames, poses)]
-    pose_by_stamp = ({(f.stamp_ns // 1_000_000_000, f.stamp_ns % 1_000_000_000): f.pose
-                      for f in source.frames} if poses is not None else {})
+        pose_by_stamp = {divmod(f.stamp_ns, 1_000_000_000): f.pose for f in source.frames}
     summary = bag_writer.write_frames(source, out / 'input_bag',
-                                       bag_writer.BagOptions(progress=not args.quiet))
+                                      bag_writer.BagOptions(progress=not args.quiet))
     print('\n'.join('      ' + line for line in summary.lines()[1:4]))
+    return summary, first, pose_by_stamp, bag_hz
 
-    env = loopback_env(args.domain_id)
-    os.environ.update({k: env[k] for k in ('FASTDDS_DEFAULT_PROFILES_FILE',
-                                           'FASTRTPS_DEFAULT_PROFILES_FILE',
-                                           'RMW_IMPLEMENTATION', 'ROS_DOMAIN_ID')})
-    for name in ('ROS_LOCALHOST_ONLY', 'ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_STATIC_PEERS'):
-        os.environ.pop(name, None)
-    child_env = dict(env, PYTHONPATH=os.pathsep.join(
-        p for p in (str(REPO), env.get('PYTHONPATH', '')) if p), PYTHONUNBUFFERED='1',
-        RCUTILS_COLORIZED_OUTPUT='0', ROS_LOG_DIR=str(out / 'ros_log'))
-    command = _node_command(args.params, first, reliable=not args.best_effort,
-                            odom_topic=bag_writer.DEFAULT_ODOM_TOPIC)
-    print(f'[3/5] starting the detector node (ROS_DOMAIN_ID={args.domain_id}, loopback only; '
-          f'log: {out / "node.log"}):\n      {" ".join(command[1:])}')
-    with (out / 'node.log').open('w') as log:
-        node_process = subprocess.Popen(command, cwd=REPO, env=child_env, stdout=log,
-                                        stderr=subprocess.STDOUT)
+
+def _replay(args: argparse.Namespace, out: Path, failed: Path, node: Any, rate: float,
+            bag_hz: float, frames: int) -> tuple[Recorder, list[str], int]:
+    """Wait for the node, replay the bag into it, record what it publishes (steps 3, 4).
+
+    Returns (recorder, the node's status lines, depth frames sent).
+    """
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from std_msgs.msg import String
+
     context = rclpy.context.Context()
     rclpy.init(context=context)
-    node = Node('demo_recorder', context=context)
+    probe = Node('demo_recorder', context=context)
     executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
-    player = None
-    thread = None
+    executor.add_node(probe)
+    player = thread = None
     stop = threading.Event()
+    stats: list[bag_player.PlayStats] = []
     try:
-        recorder = Recorder(node, OUTPUT_TOPICS)
+        recorder = Recorder(probe, OUTPUT_TOPICS)
         status: list[str] = []
-        node.create_subscription(String, '/obstacle_detector/status',
-                                 lambda msg: status.append(msg.data),
-                                 QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                                            durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        probe.create_subscription(String, '/obstacle_detector/status',
+                                  lambda msg: status.append(msg.data), node_process.status_qos())
         options = bag_player.PlayOptions(rate=rate, reliable=not args.best_effort,
-                                       wait_for_subscribers=2,
-                                       wait_timeout_s=args.timeout, progress=False)
-        player = bag_player.Player(node, out / 'input_bag', options)
-        _wait_until_ready(executor, status, player, node_process, args.timeout,
+                                         wait_for_subscribers=2,
+                                         wait_timeout_s=args.timeout, progress=False)
+        player = bag_player.Player(probe, out / 'input_bag', options)
+        _wait_until_ready(executor, status, player, node, args.timeout,
                           failed / 'node.log', out / 'node.log')
         print(f'      node {status[-1]}')
         settle = time.monotonic() + 0.5  # let the node's side of the match settle too
         while time.monotonic() < settle:
             executor.spin_once(timeout_sec=0.05)
-
-        print(f'[4/5] replaying {summary.frames} frames at {bag_hz * rate:g} Hz into the node')
-        stats: list[bag_player.PlayStats] = []
+        print(f'[4/5] replaying {frames} frames at {bag_hz * rate:g} Hz into the node')
         thread = threading.Thread(target=lambda: stats.append(player.play(stop)), daemon=True)
         thread.start()
         while thread.is_alive():
             executor.spin_once(timeout_sec=0.05)
-            if node_process.poll() is not None:
+            if node.poll() is not None:
                 stop.set()
-        # Let the last frames come out: until every output of every frame arrived, or
-        # nothing new came for 3 s after the replay ended (frames the node dropped never
-        # come). Counted from the replay's end too: the recorder's clock starts before the
-        # node is ready, so a slow start must not end this wait before the first output.
+        # Let the last frames come out: until every output of every frame arrived, or nothing
+        # new came for 3 s after the replay ended (counted from the replay's end too: the
+        # recorder's clock starts before the node is ready).
         played = time.monotonic()
-        while (min(map(recorder.count, OUTPUT_TOPICS)) < summary.frames
+        while (min(map(recorder.count, OUTPUT_TOPICS)) < frames
                and time.monotonic() - max(recorder.last_arrival, played) < 3.0
-               and node_process.poll() is None):
+               and node.poll() is None):
             executor.spin_once(timeout_sec=0.05)
     finally:
         stop.set()
@@ -440,26 +322,48 @@ def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
         if player is not None:
             player.close()
         executor.shutdown()
-        node.destroy_node()
+        probe.destroy_node()
         context.try_shutdown()
-        _stop(node_process)
+        node_process.stop_node(node)
+    sent = stats[0].published.get(bag_writer.DEFAULT_DEPTH_TOPIC, 0) if stats else 0
+    return recorder, status, sent
+
+
+def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
+    """Run the demo's steps into ``out``; return the summary lines to print."""
+    from rclpy.serialization import deserialize_message
+    from std_msgs.msg import Float64
+
+    from obstacle_detection.sim.sequences import SEQUENCE_NAMES
+
+    step = args.step if args.scene in SEQUENCE_NAMES else 1
+    summary, first, pose_by_stamp, bag_hz = _write_input(args, out, step)
+    rate = args.rate if args.rate is not None else DEMO_FPS / bag_hz
+    env = node_process.use_loopback(args.domain_id, out / 'ros_log')
+    # the fused costmap is on, moved by the bag's odometry (a static scene fuses in place)
+    command = node_process.node_command(
+        args.params, ['publish_overlay:=true', 'stats_period_s:=1.0',
+                      *node_process.mount_overrides(first, not args.best_effort), 'fuse:=true',
+                      f'odom_topic:={bag_writer.DEFAULT_ODOM_TOPIC}'],
+        [f'depth/image_raw:={bag_writer.DEFAULT_DEPTH_TOPIC}',
+         f'depth/camera_info:={bag_writer.DEFAULT_INFO_TOPIC}'])
+    print(f'[3/5] starting the detector node (ROS_DOMAIN_ID={args.domain_id}, loopback only; '
+          f'log: {out / "node.log"}):\n      {" ".join(command[1:])}')
+    node = node_process.start_node(command, env, out / 'node.log')
+    recorder, status, sent = _replay(args, out, failed, node, rate, bag_hz, summary.frames)
 
     received = recorder.count('/obstacles/costmap')
     if received == 0:
-        raise DemoError(f'the detector node published nothing for {summary.frames} frames; '
-                        f'its log ({failed / "node.log"}):\n' + _log_tail(out / 'node.log'))
+        raise ToolError(failed / 'node.log', f'the detector node published nothing for '
+                        f'{summary.frames} frames; the end of its log:\n'
+                        + node_process.log_tail(out / 'node.log'))
     print(f'[5/5] writing what the node published: {out / "results_bag"}; pictures: '
           f'{out / "pictures"}')
     write_bag(out / 'results_bag', recorder)
     saved = save_pictures(out, recorder, args.save_every, _scene_params(args.params, first),
                           first.intrinsics, pose_by_stamp)
-
-    from rclpy.serialization import deserialize_message
-    from std_msgs.msg import Float64
-
     times = [deserialize_message(raw, Float64).data
              for _, raw in recorder.messages['/obstacle_detector/processing_time_ms']]
-    sent = stats[0].published.get(bag_writer.DEFAULT_DEPTH_TOPIC, 0) if stats else 0
     report = [f'  depth frames sent: {sent}, results received: {received} costmaps, '
               f'{recorder.count("/obstacles/points")} obstacle clouds, '
               f'{recorder.count("/obstacles/overlay")} overlays']
@@ -488,12 +392,10 @@ def build_parser() -> argparse.ArgumentParser:
                              'replaced only when the demo succeeds')
     parser.add_argument('--scene', choices=(*SEQUENCE_NAMES, *SCENE_NAMES),
                         default='drive_past_boxes',
-                        help='a sequence with odometry (the robot drives or a person crosses; '
-                             'the fused costmap follows it) or a scene of the generator seen '
-                             'from a still camera (default %(default)s)')
+                        help='a sequence with odometry (the fused costmap follows it) or a '
+                             'scene seen from a still camera (default %(default)s)')
     parser.add_argument('--step', type=int, default=10,
-                        help='of a sequence (30 Hz), take every N-th frame (default '
-                             '%(default)s)')
+                        help='take every N-th frame of a sequence (default %(default)s)')
     parser.add_argument('--frames', type=int, default=30, help='frames (default %(default)s)')
     parser.add_argument('--seed', type=int, default=0, help='scene seed (default %(default)s)')
     parser.add_argument('--params', type=Path, default=DEFAULT_PARAMS,
@@ -503,15 +405,13 @@ def build_parser() -> argparse.ArgumentParser:
                         help='replay speed factor of the recorded timing (default: frames at '
                              f'{DEMO_FPS:g} Hz)')
     parser.add_argument('--best-effort', action='store_true',
-                        help="replay with the camera's sensor-data QoS (best effort) instead of "
-                             'reliable; large frames over UDP may then be lost')
+                        help="replay with the camera's sensor-data QoS (best effort)")
     parser.add_argument('--save-every', type=int, default=5,
                         help='save pictures of one frame in N (default %(default)s)')
     tool_support.add_domain_id_option(
         parser, 'ROS_DOMAIN_ID of the demo, 0-232 (default: 100-200 from the process id)')
     parser.add_argument('--timeout', type=float, default=30.0,
-                        help='seconds to wait for the node to say it is ready on its ~/status '
-                             'topic (default %(default)s)')
+                        help='seconds to wait for the node to be ready (default %(default)s)')
     parser.add_argument('--quiet', action='store_true', help='no progress bars')
     return parser
 
@@ -524,14 +424,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error('--frames, --step and --save-every must be >= 1')
     if args.rate is not None and not args.rate > 0:
         parser.error(f'--rate must be > 0, got {args.rate:g}')
-    if not args.params.is_file():
-        print(f'error: {args.params}: params file not found', file=sys.stderr)
-        return 1
     try:
+        if not args.params.is_file():
+            raise ToolError(args.params, 'params file not found')
         return run_demo(args)
-    except (DemoError, datasets.EvaluationError, tool_support.ToolError) as err:
-        print(f'error: {err}', file=sys.stderr)
-        return 1
+    except (ToolError, datasets.EvaluationError) as err:
+        return tool_support.report_error('demo', err)
 
 
 if __name__ == '__main__':

@@ -1,16 +1,12 @@
 #!/usr/bin/env python3
 r"""Estimate the camera mount (height, pitch, roll) of a depth frame from the floor in view.
 
-Prints the mount and the share of points on the floor plane, and optionally writes it as a
-node parameter file fragment (``--params-out``, for ``--params-file`` of the node and tools)
-and as a camera YAML with the intrinsics (``--camera-yaml-out``, for ``tools/pictures.py
---depth FILE --intrinsics YAML``)::
+Prints the mount and the floor's share of the points; writes it as a node parameter file
+(``--params-out``) and as a camera YAML with the intrinsics (``--camera-yaml-out``)::
 
     python tools/estimate_mount.py --depth depth.png --depth-scale 5000 \
         --intrinsics 535.4,539.2,320.1,247.6 --params-out mount.yaml
 
-Depth files: 16-bit single-channel PNG or PGM (read by OpenCV, which honours the PGM's
-big-endian byte order), ``--depth-scale`` units per metre (1000 = millimetres, 5000 = TUM).
 Point the camera at open floor: a hidden floor under a large table gives the table.
 """
 
@@ -78,11 +74,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point; returns the exit code (0 ok, 1 bad input or no floor found, 2 bad usage).
-
-    When the depth looks like another unit than ``--depth-scale`` (its median far outside
-    what a depth camera sees), the error or a warning says so and names the scale that fits.
-    """
+    """Entry point; returns the exit code (0 ok, 1 bad input or no floor found, 2 bad usage)."""
     args = build_parser().parse_args(argv)
     if not (math.isfinite(args.depth_scale) and args.depth_scale > 0.0):
         return tool_support.report_error('estimate_mount', tool_support.ToolError(

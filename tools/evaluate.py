@@ -1,28 +1,15 @@
 #!/usr/bin/env python3
 """Score the obstacle detector against ground truth: per scenario and overall.
 
-Runs the pipeline over labelled frames, a committed scenario suite (scene generator, fixed
-seeds: ``--suite seed``, scenarios.json, scored against the seed's slope-only truth, or
-``--suite robot``, scenarios_robot.json, scored against the robot-level truth of issue 9
-with time-of-flight sensor artefacts, which adds a table of objects found, passable surfaces
-left free and drops marked) and/or labelled folders (``depth/*.png`` 16-bit mm,
-``labels/*.png`` 8-bit 0/1/2/3, ``intrinsics.yaml`` with the camera mount), and prints a table
-for people and one JSON line for machines (the last line of stdout, or ``--json FILE``).
+Scores a committed scenario suite (``--suite seed``: the seed's slope-only truth; ``--suite
+robot``: the robot-level truth, with a table of objects found and passable surfaces left free)
+and/or labelled folders (``depth/*.png``, ``labels/*.png``, ``intrinsics.yaml``); prints a table
+and one JSON line (the last line of stdout, or ``--json FILE``)::
 
-Examples::
-
-    python tools/evaluate.py                                  # suite, seed Table 4.2
     python tools/evaluate.py --preset table_4_3 --scene corridor --scene people
-    python tools/evaluate.py --params-file params/corridor.yaml --refiner refiner.json
-    python tools/evaluate.py --folder recordings/lab_run --pictures /tmp/pics
-    python tools/evaluate.py --suite robot --params-file params/corridor.yaml  # issue 9
-    python tools/evaluate.py --suite robot --params-file params/corridor.yaml \
-        --beside-seed table_4_2 --beside-seed table_4_3
-    python tools/evaluate.py --suite robot --workers 2       # two worker processes (Dask)
+    python tools/evaluate.py --suite robot --params-file params/corridor.yaml --workers 2
 
-With Dask installed the scenarios (and folders) are scored on a local cluster of one worker per
-core, one task per scenario (``--scheduler`` for another cluster, ``--workers 0`` for this
-process); the numbers are those of one process.
+With Dask installed the scenarios run on a local cluster (``--workers 0``: in this process).
 """
 
 from __future__ import annotations
@@ -43,7 +30,6 @@ from obstacle_detection.fleet import scoring
 from obstacle_detection.fleet.cluster import (Fleet, add_fleet_arguments, fleet_options,
                                               open_fleet)
 from obstacle_detection.pipeline.params import PRESETS, DetectorParams
-
 
 
 def _progress(total: int, label: str) -> Any:
@@ -75,18 +61,15 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--quiet', action='store_true', help='no per-frame progress lines')
     parser.add_argument('--beside-seed', action='append', choices=sorted(PRESETS), default=[],
                         metavar='PRESET',
-                        help='also score this preset on the seed suite (scenarios.json, '
-                             'slope-only truth) and print its overall row beside; repeatable')
+                        help='also print the overall row of this preset on the seed suite '
+                             '(repeatable)')
     add_fleet_arguments(parser)
     return parser
 
 
 def seed_suite_rows(presets: Sequence[str], max_frames: int | None, fleet: Fleet | None = None,
                     ) -> list[tuple[str, evaluation.SceneSummary]]:
-    """Overall summaries of the seed suite for each preset (frames rendered once).
-
-    On a cluster (``fleet``), one task per (preset, scenario).
-    """
+    """Return the seed suite's overall summary per preset (on ``fleet``: a task per scenario)."""
     scenarios = evaluation.load_scenarios(SUITES['seed'])
     if fleet is not None and fleet.distributed:
         sources = [(s.name, s.frame_count, evaluation_args.LazyFrames(

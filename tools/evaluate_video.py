@@ -1,17 +1,11 @@
 #!/usr/bin/env python3
 """Score the fused costmap over scene sequences, side by side with the per-frame costmap.
 
-Renders each sequence (obstacle_detection/sim/sequences.py: a robot driving past boxes and a
-table, a person crossing in front of a standing robot), runs the detector on every frame with
-the parameter file (default params/corridor.yaml) and fuses the costmaps at the odometry pose.
-Prints a table for people and one JSON line for machines (the last line of stdout, or
-``--json FILE``); ``--sheet`` draws a contact sheet of per-frame and fused grids over time.
+Runs the detector on every frame of each sequence (default params/corridor.yaml) and fuses the
+costmaps at the odometry pose; prints a table and one JSON line (the last line of stdout, or
+``--json FILE``); ``--sheet`` draws per-frame and fused grids over time::
 
-Examples::
-
-    python tools/evaluate_video.py
     python tools/evaluate_video.py --sequence person_crossing --no-odometry
-    python tools/evaluate_video.py --sheet tools/readme/fused_costmap.png
 """
 
 from __future__ import annotations
@@ -24,24 +18,13 @@ from typing import Sequence
 
 from obstacle_detection.evaluation import runner as evaluation
 from obstacle_detection.cli import support as tool_support
+from obstacle_detection.cli.evaluation_args import parse_assignment
 from obstacle_detection.pipeline.fusion import FusionParams
 from obstacle_detection.sim.sequences import (PERFECT_ODOMETRY, SEQUENCE_NAMES,
                                           OdometryModel, SceneSequence)
 
 DEFAULT_PARAMS = tool_support.package_file('params/corridor.yaml')
 PROG = 'evaluate_video'
-
-
-def parse_assignment(text: str) -> tuple[str, float]:
-    """``key=value`` with a number -> (key, value); argparse type for ``--fusion``."""
-    key, sep, value = text.partition('=')
-    try:
-        number = float(value)
-    except ValueError:
-        number = None
-    if not sep or not key.strip() or number is None:
-        raise argparse.ArgumentTypeError(f'expected key=number, got {text!r}')
-    return key.strip(), number
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -61,7 +44,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help='a FusionParams field (size_m, resolution_m, hit_log_odds, '
                              'miss_log_odds, min_log_odds, max_log_odds, occupied_log_odds, '
                              'free_log_odds, max_jump_m, max_jump_deg); repeatable')
-    parser.add_argument('--seed', type=int, default=0, help='sequence seed [default: 0]')
+    parser.add_argument('--seed', type=int, default=0,
+                        help='sequence seed [default: 0]')
     parser.add_argument('--frames', type=int, metavar='N',
                         help='only the first N frames of each sequence')
     parser.add_argument('--no-odometry', action='store_true',
@@ -83,19 +67,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (0 ok, 1 bad input, 2 bad usage)."""
     args = build_parser().parse_args(argv)
     try:
-        if args.frames is not None and args.frames < 1:
-            raise tool_support.ToolError(f'argument --frames: {args.frames} must be >= 1',
-                                         usage=True)
-        if args.sheet_frames < 1:
-            raise tool_support.ToolError(
-                f'argument --sheet-frames: {args.sheet_frames} must be >= 1', usage=True)
-        if args.seed < 0:
-            raise tool_support.ToolError(f'argument --seed: {args.seed} must be >= 0', usage=True)
+        for name, value, low in (('--frames', args.frames, 1), ('--seed', args.seed, 0),
+                                 ('--sheet-frames', args.sheet_frames, 1)):
+            if value is not None and value < low:
+                raise tool_support.ToolError(f'argument {name}: {value} must be >= {low}',
+                                             usage=True)
         try:
-            fusion = FusionParams(**dict(args.fusion))
-        except TypeError as exc:
-            raise tool_support.ToolError(f'argument --fusion: {exc}', usage=True) from None
-        except ValueError as exc:
+            fusion = FusionParams(**{key: float(value) for key, value in args.fusion})
+        except (TypeError, ValueError) as exc:
             raise tool_support.ToolError(f'argument --fusion: {exc}', usage=True) from None
         params = evaluation.load_params_file(args.params_file)
         if args.sheet is not None and args.sheet.suffix.lower() != '.png':

@@ -1,22 +1,11 @@
 #!/usr/bin/env python3
 """Latency and throughput of the running detector node through DDS, as a camera would feed it.
 
-Three processes on this machine, all on loopback DDS
-(``obstacle_detection/ros/fastdds_loopback.xml``) in a ROS domain of the benchmark's own:
-
-1. the detector node (``detector --ros-args --params-file FILE``, plus ``--set`` overrides);
-2. a publisher that sends pre-rendered 512x424 depth frames of a scene (16UC1 + CameraInfo,
-   the camera's sensor-data QoS unless ``--reliable``) at ``--rate`` Hz for ``--duration`` s,
-   each stamped with the time it is published;
-3. this process, which receives ``obstacles/costmap`` and ``~/processing_time_ms`` and samples
-   the node's memory and CPU time.
-
-Per frame it measures the depth-stamp -> costmap-received latency (both clocks are this
-machine's), the node's own processing time, and which frames got no costmap (dropped by the
-node's mailbox, where at most one frame waits, or lost in transit). It prints a table and one
-``JSON`` line.
-Frames of the first ``--warmup`` seconds are not counted. Exit code 0 when the run completed
-(whatever the figures), 1 when it could not run, 2 for bad usage.
+Starts the node and a camera publisher process on loopback DDS in a domain of its own, streams
+pre-rendered depth frames of a scene at ``--rate`` Hz, and measures per frame the depth stamp
+-> costmap latency, the node's processing time, frames without a costmap, and the node's memory
+and CPU. Prints a table and one ``JSON`` line; exit code 0 when the run completed, 1 when it
+could not run, 2 for bad usage.
 """
 
 from __future__ import annotations
@@ -24,7 +13,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import signal
 import subprocess
 import sys
 import tempfile
@@ -35,31 +23,24 @@ from typing import Any
 
 import numpy as np
 
+from obstacle_detection.cli import node_process
 from obstacle_detection.cli import support as tool_support
-from obstacle_detection.ros.dds_env import loopback_env
+from obstacle_detection.cli.support import ToolError
 
-REPO = tool_support.PACKAGE_ROOT
 DEFAULT_PARAMS = tool_support.package_file('params/corridor.yaml')
 NODE = '/obstacle_detector'
 
 
-class BenchError(Exception):
-    """The benchmark could not run; the message says why."""
-
-
-# -------------------------------------------------------------------------------- publisher
 def _publish(frames_file: Path, rate_hz: float, duration_s: float, reliable: bool) -> int:
     """Publish the frames of ``frames_file`` round robin; print a JSON summary; return 0."""
     import rclpy
     from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
     from sensor_msgs.msg import CameraInfo, Image
 
+    from obstacle_detection.pipeline.params import KINECT_V2_SD
     from obstacle_detection.ros.conversions import array_to_image, intrinsics_to_camera_info
-    from obstacle_detection.pipeline.params import Intrinsics
 
-    data = np.load(frames_file)
-    depth = data['depth_mm']
-    intrinsics = Intrinsics(*(float(v) for v in data['intrinsics']))
+    depth = np.load(frames_file)['depth_mm']
     rclpy.init()
     node = rclpy.create_node('latency_bench_camera')
     qos = (QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE) if reliable
@@ -69,7 +50,7 @@ def _publish(frames_file: Path, rate_hz: float, duration_s: float, reliable: boo
     from builtin_interfaces.msg import Time
 
     images = [array_to_image(frame, stamp=Time(), frame_id='depth_optical') for frame in depth]
-    info = intrinsics_to_camera_info(intrinsics, depth.shape[2], depth.shape[1], stamp=Time(),
+    info = intrinsics_to_camera_info(KINECT_V2_SD, depth.shape[2], depth.shape[1], stamp=Time(),
                                      frame_id='depth_optical')
     deadline = time.monotonic() + 30.0
     while depth_pub.get_subscription_count() == 0 or info_pub.get_subscription_count() == 0:
@@ -81,11 +62,8 @@ def _publish(frames_file: Path, rate_hz: float, duration_s: float, reliable: boo
     period = 1.0 / rate_hz
     start = time.monotonic()
     sent, late = 0, 0
-    while True:
-        due = start + sent * period
-        if due - start >= duration_s:
-            break
-        wait = due - time.monotonic()
+    while sent * period < duration_s:
+        wait = start + sent * period - time.monotonic()
         if wait > 0:
             time.sleep(wait)
         elif wait < -period:
@@ -104,15 +82,6 @@ def _publish(frames_file: Path, rate_hz: float, duration_s: float, reliable: boo
     node.destroy_node()
     rclpy.try_shutdown()
     return 0
-
-
-# ------------------------------------------------------------------------------ the node
-def _node_command(params: Path, overrides: Sequence[str]) -> list[str]:
-    command = [sys.executable, '-m', 'obstacle_detection.ros.node', '--ros-args',
-               '--params-file', str(params), '-p', 'stats_period_s:=10.0']
-    for item in overrides:
-        command += ['-p', item]
-    return command
 
 
 def _proc_stats(pid: int) -> tuple[float, float]:
@@ -137,66 +106,84 @@ def _percentiles(values: Sequence[float]) -> dict[str, float]:
             'p99': float(np.percentile(arr, 99)), 'max': float(arr.max())}
 
 
-def run(args: argparse.Namespace) -> dict[str, Any]:
-    """Run the three processes and return the figures."""
-    import rclpy
+def _probe(executor: Any, node: Any) -> tuple[dict, list, list[str]]:
+    """Subscribe to the node's costmap, processing time and status; return their records."""
     from nav_msgs.msg import OccupancyGrid
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
     from std_msgs.msg import Float64, String
 
-    from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE
-    from obstacle_detection.sim.scenes import render_scene
-    from obstacle_detection.cli.progress import Progress
-
-    work = Path(tempfile.mkdtemp(prefix='latency_bench_'))
-    frames = [render_scene(args.scene, seed=0, intrinsics=KINECT_V2_SD,
-                           size=KINECT_V2_SD_SIZE, frame_index=k) for k in range(args.frames)]
-    first = frames[0]
-    np.savez(work / 'frames.npz', depth_mm=np.stack([f.depth_mm for f in frames]),
-             intrinsics=np.array([KINECT_V2_SD.fx, KINECT_V2_SD.fy, KINECT_V2_SD.cx,
-                                  KINECT_V2_SD.cy]))
-    mount = [f'camera_height_m:={float(first.height_m)!r}',
-             f'camera_pitch_deg:={round(float(np.degrees(first.pitch_rad)), 9)!r}',
-             f'camera_roll_deg:={round(float(np.degrees(first.roll_rad)), 9)!r}',
-             f'reliable_input:={"true" if args.reliable else "false"}']
-    env = dict(loopback_env(args.domain_id), PYTHONUNBUFFERED='1',
-               RCUTILS_COLORIZED_OUTPUT='0', ROS_LOG_DIR=str(work / 'ros_log'),
-               PYTHONPATH=os.pathsep.join(p for p in (str(REPO), os.environ.get('PYTHONPATH'))
-                                          if p))
-    for name in ('FASTDDS_DEFAULT_PROFILES_FILE', 'FASTRTPS_DEFAULT_PROFILES_FILE',
-                 'RMW_IMPLEMENTATION', 'ROS_DOMAIN_ID'):
-        os.environ[name] = env[name]
-    node_log = (work / 'node.log').open('w')
-    node = subprocess.Popen(_node_command(args.params, [*mount, *args.set]), cwd=REPO,
-                            env=env, stdout=node_log, stderr=subprocess.STDOUT)
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    probe = rclpy.create_node('latency_bench_probe', context=context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(probe)
     arrivals: dict[tuple[int, int], int] = {}
     times_ms: list[tuple[int, float]] = []
     status: list[str] = []
     reliable = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
-    probe.create_subscription(
+    node.create_subscription(
         OccupancyGrid, 'obstacles/costmap',
         lambda m: arrivals.setdefault((m.header.stamp.sec, m.header.stamp.nanosec),
                                       time.time_ns()), reliable)
-    probe.create_subscription(Float64, f'{NODE}/processing_time_ms',
-                              lambda m: times_ms.append((time.time_ns(), m.data)), reliable)
-    probe.create_subscription(String, f'{NODE}/status', lambda m: status.append(m.data),
-                              QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                                         durability=DurabilityPolicy.TRANSIENT_LOCAL))
+    node.create_subscription(Float64, f'{NODE}/processing_time_ms',
+                             lambda m: times_ms.append((time.time_ns(), m.data)), reliable)
+    node.create_subscription(String, f'{NODE}/status', lambda m: status.append(m.data),
+                             node_process.status_qos())
+    executor.add_node(node)
+    return arrivals, times_ms, status
+
+
+def _stream(args: argparse.Namespace, executor: Any, node: Any, publisher: Any,
+            log: Path) -> list[tuple[float, float]]:
+    """Spin while the publisher streams; return the node's memory [MiB] each second."""
+    from obstacle_detection.cli.progress import Progress
+
+    memory = [(0.0, _proc_stats(node.pid)[0])]
+    began = last_sample = time.monotonic()
+    total = int(args.duration)
+    with Progress(total if not args.quiet else None, 'streaming [s]',
+                  stream=sys.stderr if not args.quiet else open(os.devnull, 'w')) as bar:
+        while publisher.poll() is None:
+            executor.spin_once(timeout_sec=0.01)
+            now = time.monotonic()
+            if now - last_sample >= 1.0:
+                last_sample = now
+                memory.append((now - began, _proc_stats(node.pid)[0]))
+                if bar.count < total:
+                    bar.update()
+            if node.poll() is not None:
+                raise ToolError(log, f'the node exited with code {node.returncode}')
+    drain = time.monotonic() + 2.0
+    while time.monotonic() < drain:
+        executor.spin_once(timeout_sec=0.01)
+    return memory
+
+
+def run(args: argparse.Namespace) -> dict[str, Any]:
+    """Run the three processes and return the figures."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+
+    from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE
+    from obstacle_detection.sim.scenes import render_scene
+
+    work = Path(tempfile.mkdtemp(prefix='latency_bench_'))
+    log = work / 'node.log'
+    frames = [render_scene(args.scene, seed=0, intrinsics=KINECT_V2_SD,
+                           size=KINECT_V2_SD_SIZE, frame_index=k) for k in range(args.frames)]
+    np.savez(work / 'frames.npz', depth_mm=np.stack([f.depth_mm for f in frames]))
+    env = node_process.use_loopback(args.domain_id, work / 'ros_log')
+    overrides = ['stats_period_s:=10.0', *node_process.mount_overrides(frames[0], args.reliable),
+                 *args.set]
+    node = node_process.start_node(node_process.node_command(args.params, overrides), env, log)
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    probe = rclpy.create_node('latency_bench_probe', context=context)
+    executor = SingleThreadedExecutor(context=context)
+    arrivals, times_ms, status = _probe(executor, probe)
     publisher = None
-    memory: list[tuple[float, float]] = []
     try:
         deadline = time.monotonic() + args.start_timeout
         while not (status and status[-1] == 'ready: compiled numba kernels'
                    or status and 'numpy path (' in status[-1]):
             if node.poll() is not None or time.monotonic() > deadline:
-                raise BenchError(f'the node did not become ready (log: {work / "node.log"}): '
-                                 + (status[-1] if status else 'no status'))
+                raise ToolError(log, 'the node did not become ready: '
+                                + (status[-1] if status else 'no status'))
             executor.spin_once(timeout_sec=0.1)
         print(f'node {status[-1]}; publishing {args.scene} at {args.rate:g} Hz for '
               f'{args.duration:g} s ({"reliable" if args.reliable else "sensor-data"} QoS)',
@@ -205,46 +192,23 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             [sys.executable, str(Path(__file__).resolve()), '--role', 'publisher',
              '--frames-file', str(work / 'frames.npz'), '--rate', str(args.rate),
              '--duration', str(args.duration)] + (['--reliable'] if args.reliable else []),
-            cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+            cwd=tool_support.PACKAGE_ROOT, env=env, stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT, text=True)
         rss0, cpu0 = _proc_stats(node.pid)
-        memory.append((0.0, rss0))
         began = time.monotonic()
-        last_sample = began
-        total = int(args.duration)
-        with Progress(total if not args.quiet else None, 'streaming [s]',
-                      stream=sys.stderr if not args.quiet else open(os.devnull, 'w')) as bar:
-            while publisher.poll() is None:
-                executor.spin_once(timeout_sec=0.01)
-                now = time.monotonic()
-                if now - last_sample >= 1.0:
-                    last_sample = now
-                    memory.append((now - began, _proc_stats(node.pid)[0]))
-                    if bar.count < total:
-                        bar.update()
-                if node.poll() is not None:
-                    raise BenchError(f'the node exited with code {node.returncode} (log: '
-                                     f'{work / "node.log"})')
-        drain = time.monotonic() + 2.0
-        while time.monotonic() < drain:
-            executor.spin_once(timeout_sec=0.01)
+        memory = _stream(args, executor, node, publisher, log)
         rss1, cpu1 = _proc_stats(node.pid)
         elapsed = time.monotonic() - began
         report = json.loads(publisher.stdout.read().strip().splitlines()[0])
         if 'error' in report:
-            raise BenchError(report['error'])
+            raise ToolError(log, report['error'])
     finally:
         if publisher is not None and publisher.poll() is None:
             publisher.kill()
         executor.shutdown()
         probe.destroy_node()
         context.try_shutdown()
-        if node.poll() is None:
-            node.send_signal(signal.SIGINT)
-            try:
-                node.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                node.kill()
-        node_log.close()
+        node_process.stop_node(node)
     return _figures(args, report, arrivals, times_ms, memory, rss0, rss1,
                     (cpu1 - cpu0) / elapsed, work)
 
@@ -343,14 +307,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error('--duration, --rate (<= 1000) and --frames must be positive')
     if not 0 <= args.warmup < args.duration:
         parser.error('--warmup must be in [0, --duration)')
-    if not args.params.is_file():
-        print(f'error: {args.params}: params file not found', file=sys.stderr)
-        return 1
     try:
+        if not args.params.is_file():
+            raise ToolError(args.params, 'params file not found')
         figures = run(args)
-    except BenchError as error:
-        print(f'error: {error}', file=sys.stderr)
-        return 1
+    except ToolError as error:
+        return tool_support.report_error('latency_bench', error)
     print(format_table(figures))
     print('JSON ' + json.dumps(figures))
     return 0

@@ -1,12 +1,7 @@
 """Print the node's parameters as a Markdown table (for the README), from their descriptors.
 
-Usage: ``python tools/param_table.py [--output FILE | --doc [docs/parameters.md]]``. The table is
-generated from ``obstacle_detection.ros.parameters`` (itself built from DetectorParams' field
-metadata), so it cannot drift from what the node declares. Columns: the ROS name, type, the
-default (``params/corridor.yaml``: Table 4.2's values with the robot-level rules), the value
-of the seed's Table 4.3 preset where it differs (``params/seed_table_4_3.yaml``, the seed
-method exactly), the allowed range, and the description. The seed's Table 4.2 preset
-(``params/seed_table_4_2.yaml``) is the default with ``robot_level`` and ``refine_floor`` off.
+Columns: ROS name, type, default (``params/corridor.yaml``), the seed's Table 4.3 value where
+it differs, range, description. ``--doc`` rewrites the table inside docs/parameters.md.
 """
 
 from __future__ import annotations
@@ -32,17 +27,15 @@ def _format_value(value: object) -> str:
     return str(value)
 
 
-def _row(spec: ParamSpec, *presets: dict[str, object]) -> str:
-    others = []
-    for preset in presets:
-        other = preset.get(spec.name, spec.default)
-        others.append(_format_value(other) if other != spec.default else '')
+def _row(spec: ParamSpec, seed: dict[str, object]) -> str:
+    other = seed.get(spec.name, spec.default)
     range_text = spec.range_text
     if spec.read_only:
         range_text = (range_text + ' ' if range_text else '') + 'read-only'
     description = spec.description.replace('|', '\\|')
     return (f'| `{spec.name}` | {spec.type_name} | {_format_value(spec.default)} | '
-            f'{" | ".join(others)} | {range_text} | {description} |')
+            f'{_format_value(other) if other != spec.default else ""} | {range_text} | '
+            f'{description} |')
 
 
 def parameter_table() -> str:

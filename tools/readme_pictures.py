@@ -1,29 +1,12 @@
 #!/usr/bin/env python3
 """Make every picture of the README again, from the repository's own code.
 
-Synthetic pictures (always), drawn by ``tools/pictures.py`` exactly as its command line does:
+The synthetic pictures always; the real-frame ones when the real frames are there
+(``--real-dir``, default ``../shared/data/real`` beside the repository), each panel with its
+mount estimated from the floor. The captions give this machine's pipeline time, so a new run
+changes those few pixels only::
 
-- ``corridor.png``: the corridor scene, the default (``params/corridor.yaml``, robot level),
-  with the robot-level ground-truth panel;
-- ``person_walking_sheet.png``: frames 0, 15, ..., 75 of the person_walking sequence, no truth,
-  2 columns of 600 px thumbnails.
-
-Real-frame pictures (when the real frames are there, ``--real-dir``, by default the
-repository's sibling ``../shared/data/real``; skipped with a warning otherwise), each a column
-of panels drawn 860 px wide, the camera mount estimated from the floor
-(``--estimate-mount``), the default configuration (robot level) at range 4 m:
-
-- ``real_tum_office.png``: TUM fr3 office, the seed method (Table 4.2, K = 5) above the default;
-- ``real_tum_fr2_desk.png``: TUM fr2 desk, the seed method above the default;
-- ``real_dining_room.png``: dining room frames 1 and 4, the default.
-
-::
-
-    python tools/readme_pictures.py                      # into tools/readme/
     python tools/readme_pictures.py --out-dir /tmp/pics --real-dir ~/data/real
-
-The captions give the pipeline time of the machine that ran it, so a new run changes those
-few pixels and nothing else.
 """
 
 from __future__ import annotations
@@ -80,37 +63,30 @@ class Panel:
                 '--caption', self.caption, '--out', '-']
 
 
+_SEED = 'the seed method (Table 4.2, K=5), range 4 m'
+_ROBOT = 'the default, corridor.yaml (robot level), range 4 m'
+
+
+def _seed_above_default(depth: str, camera: tuple[str, str], name: str) -> tuple[Panel, ...]:
+    """Return the panels of one frame: the seed method above the default."""
+    return (Panel(depth, camera, f'{name}: {_SEED}', (*_TABLE_4_2_K5, *_FAR)),
+            Panel(depth, camera, f'{name}: {_ROBOT}', (*_DEFAULT, *_FAR)))
+
+
 #: The real-frame pictures: file name -> panels, top to bottom.
 REAL = {
-    'real_tum_office.png': (
-        Panel('tum_office/depth.png', _TUM_FR3,
-              'TUM fr3 office: the seed method (Table 4.2, K=5), range 4 m',
-              (*_TABLE_4_2_K5, *_FAR)),
-        Panel('tum_office/depth.png', _TUM_FR3,
-              'TUM fr3 office: the default, corridor.yaml (robot level), range 4 m',
-              (*_DEFAULT, *_FAR)),
-    ),
-    'real_tum_fr2_desk.png': (
-        Panel('tum_fr2_desk/depth_1.png', _TUM_FR2,
-              'TUM fr2 desk: the seed method (Table 4.2, K=5), range 4 m',
-              (*_TABLE_4_2_K5, *_FAR)),
-        Panel('tum_fr2_desk/depth_1.png', _TUM_FR2,
-              'TUM fr2 desk: the default, corridor.yaml (robot level), range 4 m',
-              (*_DEFAULT, *_FAR)),
-    ),
+    'real_tum_office.png': _seed_above_default('tum_office/depth.png', _TUM_FR3,
+                                               'TUM fr3 office'),
+    'real_tum_fr2_desk.png': _seed_above_default('tum_fr2_desk/depth_1.png', _TUM_FR2,
+                                                 'TUM fr2 desk'),
     'real_dining_room.png': tuple(
-        Panel(f'dining_room/depth_{i}.pgm', _DINING,
-              f'dining room {i}: the default, corridor.yaml (robot level), range 4 m',
-              (*_DEFAULT, *_FAR))
-        for i in (1, 4)),
+        Panel(f'dining_room/depth_{i}.pgm', _DINING, f'dining room {i}: {_ROBOT}',
+              (*_DEFAULT, *_FAR)) for i in (1, 4)),
 }
 
 
 def recompress(path: Path) -> None:
-    """Encode a PNG again at zlib level 9 (``pictures.write_png`` uses OpenCV's fast default).
-
-    Lossless: the pixels stay; the README pictures take about a third less room.
-    """
+    """Encode a PNG again at zlib level 9, losslessly (about a third smaller)."""
     image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if image is None or not cv2.imwrite(str(path), image, [cv2.IMWRITE_PNG_COMPRESSION, 9]):
         raise OSError(f'could not compress {path}')
@@ -119,11 +95,9 @@ def recompress(path: Path) -> None:
 
 def real_picture(panels: Sequence[Panel], real_dir: Path,
                  width: int = REAL_WIDTH_PX) -> np.ndarray:
-    """(h, width, 3) uint8 RGB: the panels drawn by ``tools/pictures.py``, one above the other.
+    """Return the panels drawn by ``tools/pictures.py``, one above the other, ``width`` wide.
 
-    Each panel is drawn ``width`` wide, its images scaled and its text at full size
-    (``pictures.fit_width``), under its caption as title. Raises ValueError / OSError /
-    KeyError as ``obstacle_detection.cli.picture_jobs.detect`` does.
+    Raises ValueError / OSError / KeyError as ``picture_jobs.detect`` does.
     """
     parser = picture_jobs.build_parser()
     images = []

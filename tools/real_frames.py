@@ -1,18 +1,9 @@
 """Score the detector on the real frames of ../shared/data/real (no labels: heights decide).
 
-Usage: ``python tools/real_frames.py [--data DIR] [--params-file YAML] [--set KEY=VALUE ...]``.
-For each frame the camera mount is fitted to the floor (:func:`obstacle_detection.pipeline.mount.
-estimate_mount`, as ``tools/estimate_mount.py`` does), the detector runs with the parameter
-file (default ``params/corridor.yaml``) and that mount, and two shares are printed, over the
-pixels whose measured point lies inside the region of interest (forward range, lateral
-limit), heights from the measured depth and the fitted mount:
-
-- floor marked: of the pixels within 2 cm of the floor plane, the share labelled obstacle
-  (false alarms; lower is better);
-- standing marked: of the pixels 5 cm or more above the floor and not above the robot
-  (``robot_height_m``), the share labelled obstacle (higher is better).
-
-Prints one line per frame and the totals; on bad input one ``error: <path>: ...`` line, exit 1.
+Per frame, the mount is fitted to the floor and the detector runs with the parameter file; of
+the pixels inside the region of interest it prints the share of floor pixels (within 2 cm of
+the floor) marked as obstacle, lower is better, and of standing pixels (5 cm above the floor up
+to ``robot_height_m``) marked, higher is better; then the totals.
 """
 
 from __future__ import annotations
@@ -24,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from obstacle_detection.cli import support as tool_support
+from obstacle_detection.cli.evaluation_args import parse_assignment
 from obstacle_detection.pipeline import geometry
 from obstacle_detection.pipeline.depth import decode_depth
 from obstacle_detection.evaluation.runner import apply_overrides, load_params_file
@@ -82,7 +74,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--params-file', type=Path,
                         default=tool_support.package_file('params/corridor.yaml'),
                         help='node parameter file [default: params/corridor.yaml]')
-    parser.add_argument('--set', action='append', default=[], metavar='KEY=VALUE',
+    parser.add_argument('--set', action='append', type=parse_assignment, default=[],
+                        metavar='KEY=VALUE',
                         help='override one parameter (as tools/evaluate.py); repeatable')
     args = parser.parse_args(argv)
     try:
@@ -90,14 +83,8 @@ def main(argv: list[str] | None = None) -> int:
     except (OSError, ValueError) as err:
         print(f'error: {_with_path(args.params_file, err)}', file=sys.stderr)
         return 1
-    overrides = {}
-    for item in args.set:
-        key, sep, value = item.partition('=')
-        if not sep:
-            parser.error(f'--set {item!r}: expected KEY=VALUE')
-        overrides[key] = value
     try:
-        params = apply_overrides(params, overrides)
+        params = apply_overrides(params, dict(args.set))
     except ValueError as err:
         print(f'error: --set: {err}', file=sys.stderr)
         return 1

@@ -1,17 +1,9 @@
 #!/usr/bin/env python3
 """Robot-level suite with a one-cell tolerance, for one or more forward ranges (issue 22).
 
-Runs the robot suite (scenarios_robot.json) with ``params/corridor.yaml`` (or
-``--params-file``) and prints, per scenario and overall: cell F1, cell F1 with a one-cell
-tolerance (a mark within one cell of a true obstacle counts, and a true obstacle with a mark
-within one cell is found: ``metrics.tolerant_cells``), false alarms (share of free truth
-cells marked), false alarms beyond one cell of a true obstacle, named objects found and
-passable surfaces left free. ``--range 2,3,4`` repeats it with ``max_range_m`` and
-``costmap_length_m`` set to each value [m].
-
-    python tools/robot_study.py                       # the default range
-    python tools/robot_study.py --range 2,3,4         # the range study of docs/accuracy.md
-    python tools/robot_study.py --scene open_ramp --set max_step_down_m=0.08
+Prints per scenario and overall: cell F1, cell F1 and false alarms with a one-cell tolerance
+(``metrics.tolerant_cells``), objects found and passable surfaces left free; ``--range 2,3,4``
+repeats it with ``max_range_m`` and ``costmap_length_m`` at each value [m].
 """
 
 from __future__ import annotations
@@ -26,7 +18,7 @@ from obstacle_detection.cli.evaluation_args import parse_assignment, report_erro
 from obstacle_detection.evaluation import metrics, runner as evaluation
 from obstacle_detection.pipeline.params import DetectorParams, corridor
 
-DEFAULT_PARAMS = tool_support.PACKAGE_ROOT / 'params' / 'corridor.yaml'
+DEFAULT_PARAMS = tool_support.package_file('params/corridor.yaml')
 
 
 def build_parser() -> argparse.ArgumentParser:

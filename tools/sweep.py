@@ -1,27 +1,14 @@
 #!/usr/bin/env python3
 """Parameter sweep: score a grid of settings on the scenario suite and draw it as a heatmap.
 
-The seed chose theta, N, N1 and K "by trial" (figures 4.18 and 4.19 show three values each);
-this tool makes the trial a command. Choose one or two axes, every other parameter stays at
-the preset (plus ``--params-file`` / ``--set``)::
+One or two axes (``--also`` adds more, shown as the best over them); every other parameter stays
+at the preset. Axis names: any DetectorParams field, a ``..._deg`` variant of a ``..._rad``
+field, the seed's theta_deg, N, N1, K, TDBG, SMAR, and voxel_m (all three voxel sizes)::
 
     python tools/sweep.py --x theta_deg=15,20,30,45 --y N=3,5,10,20
     python tools/sweep.py --x N1=0,4,8,12 --y K=1,5,9,17 --metric pixel_f1 --out n1_k.png
-    python tools/sweep.py --x voxel_m=0.015,0.025,0.04 --scene corridor --strip x
-    python tools/sweep.py --x theta_deg=20,30,45 --y N=5,10 --also N1=0,7,12 --also K=7,17
 
-``--also`` makes a full small grid over more parameters: the grid shown is the best over
-them, and the best setting per scenario names every parameter.
-
-Axis names: any DetectorParams field, a ``..._deg`` variant of a ``..._rad`` field, the seed's
-names theta_deg, N, N1, K, TDBG, SMAR, and voxel_m (all three voxel sizes). The grid of the
-chosen metric is printed (overall, and per scenario with ``--per-scene``), the best setting per
-scenario is named, and a PNG heatmap per scenario plus overall is saved (``--out``).
-Frames are subsampled (``--max-frames``, default 1 per scenario) and rendered once.
-
-With Dask installed the grid runs on a local cluster of one worker per core, one task per
-(setting, scenario) (``--scheduler`` for another cluster, ``--workers 0`` for this process);
-the grids are those of one process.
+With Dask installed the grid runs on a local cluster (``--workers 0``: in this process).
 """
 
 from __future__ import annotations
@@ -42,6 +29,7 @@ from obstacle_detection.evaluation.sweep import (METRICS, SweepResult, format_gr
                                                  parse_axis, project, run_sweep,
                                                  settings_params)
 from obstacle_detection.pipeline.params import DetectorParams
+from obstacle_detection.cli.support import ToolError
 from obstacle_detection.cli.evaluation_args import (add_common_arguments, base_params,
                                                    frame_sources, report_error)
 
@@ -83,56 +71,47 @@ def _log(text: str) -> None:
     print(text, file=sys.stderr, flush=True)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point; returns the exit code (0 ok, 1 bad input, 2 bad usage)."""
-    args = build_parser().parse_args(argv)
-    if args.strip == 'y' and args.y is None:
-        print('sweep.py: error: --strip y needs --y', file=sys.stderr)
-        return 2
-    also = tuple(args.also)
-    try:
-        base = base_params(args)
-        for axis in (args.x, args.y, *also):  # an unknown axis name fails now, not per cell
-            if axis is not None:
-                try:
-                    evaluation.apply_overrides(base, {axis.name: axis.values[0]})
-                except evaluation.EvaluationError as exc:
-                    if exc.usage:
-                        raise
-                except ValueError:   # a bad value: said for its own cell
-                    pass
-        started = time.perf_counter()
-        sources = frame_sources(args)
-        settings = int(np.prod(grid_shape(args.x, args.y, also)))
-        with open_fleet(**fleet_options(args), tasks=settings * len(sources)) as fleet:
-            if fleet.distributed:
-                if sum(count for _, count, _ in sources) == 0:
-                    raise ValueError('no frames selected')
-                _log(f'{settings} settings x {len(sources)} scenarios on {fleet.description}')
-                result = scoring.sweep_on_fleet(fleet, sources, base, args.x, args.y,
-                                                args.metric, also=also, log=_log)
-                frame_count = sum(count for _, count, _ in sources)
-                first = next(iter(sources[0][2]), None) if args.strip else None
-            else:
-                frames = [f for _, _, source in sources for f in source]
-                if not frames:
-                    raise ValueError('no frames selected')
-                _log(f'rendered {len(frames)} frames in {time.perf_counter() - started:.1f} s;'
-                     f' {settings} settings')
-                result = run_sweep(frames, base, args.x, args.y, args.metric, also=also,
-                                   log=_log)
-                frame_count, first = len(frames), frames[0]
-    except (ValueError, OSError) as exc:
-        return report_error('sweep', exc)
-    except KeyboardInterrupt:   # nothing is written before the grid is complete
-        print('sweep.py: interrupted', file=sys.stderr)
-        return 130
+def _check_axes(base: DetectorParams, axes: Sequence) -> None:
+    """Raise for an unknown axis name now, not per cell (a bad value is said for its cell)."""
+    for axis in axes:
+        if axis is not None:
+            try:
+                evaluation.apply_overrides(base, {axis.name: axis.values[0]})
+            except ValueError as exc:
+                if getattr(exc, 'usage', False):
+                    raise
 
+
+def _sweep(args: argparse.Namespace, base: DetectorParams, also: tuple
+           ) -> tuple[SweepResult, int, evaluation.LabelledFrame | None]:
+    """Score the grid (on a cluster or here); return (result, frames, first frame or None)."""
+    started = time.perf_counter()
+    sources = frame_sources(args)
+    settings = int(np.prod(grid_shape(args.x, args.y, also)))
+    with open_fleet(**fleet_options(args), tasks=settings * len(sources)) as fleet:
+        if fleet.distributed:
+            if sum(count for _, count, _ in sources) == 0:
+                raise ValueError('no frames selected')
+            _log(f'{settings} settings x {len(sources)} scenarios on {fleet.description}')
+            result = scoring.sweep_on_fleet(fleet, sources, base, args.x, args.y,
+                                            args.metric, also=also, log=_log)
+            first = next(iter(sources[0][2]), None) if args.strip else None
+            return result, sum(count for _, count, _ in sources), first
+        frames = [f for _, _, source in sources for f in source]
+        if not frames:
+            raise ValueError('no frames selected')
+        _log(f'rendered {len(frames)} frames in {time.perf_counter() - started:.1f} s;'
+             f' {settings} settings')
+        result = run_sweep(frames, base, args.x, args.y, args.metric, also=also, log=_log)
+        return result, len(frames), frames[0]
+
+
+def _print_result(args: argparse.Namespace, result: SweepResult, frame_count: int) -> None:
+    """Print the grids and the best setting per scenario."""
     scenes = list(result.grids)
-    shown = scenes if args.per_scene else ['overall']
     print(f'parameters: {args.preset}; {frame_count} frames; '
           f'{"higher" if METRICS[args.metric][2] else "lower"} is better; * = best')
-    for scene in shown:
+    for scene in scenes if args.per_scene else ['overall']:
         print(format_grid(result, scene))
         print()
     print('best setting per scenario:')
@@ -148,6 +127,37 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f'  {scene:<{width}}  {setting}: {metric} '
               f'{evaluation.format_score(grid[best])}{note}')
 
+
+def _json(args: argparse.Namespace, result: SweepResult, frame_count: int) -> dict:
+    """Return the grids and best settings as the ``--json`` document."""
+    also = tuple(args.also)
+    return {'metric': args.metric, 'preset': args.preset, 'frames': frame_count,
+            'axes': ['y', 'x'] + [f'also[{i}]' for i in range(len(also))],
+            'x': {'name': args.x.name, 'values': list(args.x.values)},
+            'y': {'name': args.y.name, 'values': list(args.y.values)} if args.y else None,
+            'also': [{'name': a.name, 'values': list(a.values)} for a in also],
+            'grids': {s: np.where(np.isnan(g), None, g).tolist()
+                      for s, g in result.grids.items()},
+            'best': {s: result.setting(*b) if (b := result.best(s)) else None
+                     for s in result.grids}}
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point; returns the exit code (0 ok, 1 bad input, 2 bad usage)."""
+    args = build_parser().parse_args(argv)
+    if args.strip == 'y' and args.y is None:
+        return report_error('sweep', ToolError('--strip y needs --y', usage=True))
+    also = tuple(args.also)
+    try:
+        base = base_params(args)
+        _check_axes(base, (args.x, args.y, *also))
+        result, frame_count, first = _sweep(args, base, also)
+    except (ValueError, OSError) as exc:
+        return report_error('sweep', exc)
+    except KeyboardInterrupt:   # nothing is written before the grid is complete
+        print('sweep.py: interrupted', file=sys.stderr)
+        return 130
+    _print_result(args, result, frame_count)
     try:
         _write_heatmaps(args, result)
         print(f'heatmap: {args.out}')
@@ -155,17 +165,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             _write_strip(args, base, first, result)
             print(f'strip: {args.strip_out}')
         if args.json:
-            data = {'metric': args.metric, 'preset': args.preset, 'frames': frame_count,
-                    'axes': ['y', 'x'] + [f'also[{i}]' for i in range(len(also))],
-                    'x': {'name': args.x.name, 'values': list(args.x.values)},
-                    'y': ({'name': args.y.name, 'values': list(args.y.values)}
-                          if args.y else None),
-                    'also': [{'name': a.name, 'values': list(a.values)} for a in also],
-                    'grids': {s: np.where(np.isnan(g), None, g).tolist()
-                              for s, g in result.grids.items()},
-                    'best': {s: result.setting(*b) if (b := result.best(s)) else None
-                             for s in scenes}}
-            args.json.write_text(json.dumps(data) + '\n', encoding='utf-8')
+            args.json.write_text(json.dumps(_json(args, result, frame_count)) + '\n',
+                                 encoding='utf-8')
     except (ValueError, OSError) as exc:
         return report_error('sweep', exc)
     return 0

@@ -1,14 +1,10 @@
 #!/usr/bin/env python3
 """Train the seed's section 4.5 logistic refiner and compare it with the rule-based result.
 
-The scenario suite's frames are split: ``--train-frames`` frames (default 10, as in the seed),
-evenly spread over the suite, train the model; the other frames are held out. On the held-out
-frames the tool prints accuracy, precision, recall and F1 of the obstacle pixels (pixels with
-a voxel and a truth label, see ``tools/evaluate.py --help``) and the costmap-cell scores, for
-the rule-based pipeline and for the refined result, then the fitted coefficients. The model is
-saved as a small JSON file for ``tools/evaluate.py --refiner`` and the node::
+``--train-frames`` frames, evenly spread over the suite, train the model; on the held-out
+frames the pixel and cell scores of the rule-based and the refined result are printed, then
+the coefficients. The model (JSON) is for ``tools/evaluate.py --refiner`` and the node::
 
-    python tools/train_refiner.py --out refiner.json
     python tools/train_refiner.py --preset table_4_3 --train-frames 20 --out refiner_t43.json
 """
 

@@ -1,0 +1,81 @@
+"""The detector node as a child process on loopback DDS (tools/demo.py, tools/latency_bench.py)."""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import subprocess
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from obstacle_detection.cli.support import PACKAGE_ROOT
+from obstacle_detection.ros.dds_env import CONFLICTING, loopback_env
+
+
+def use_loopback(domain_id: int, log_dir: Path) -> dict[str, str]:
+    """Put this process on loopback DDS in ``domain_id``; return the node's environment."""
+    env = loopback_env(domain_id)
+    for name in CONFLICTING:
+        os.environ.pop(name, None)
+    os.environ.update(env)
+    path = os.pathsep.join(p for p in (str(PACKAGE_ROOT), env.get('PYTHONPATH', '')) if p)
+    return dict(env, PYTHONPATH=path, PYTHONUNBUFFERED='1', RCUTILS_COLORIZED_OUTPUT='0',
+                ROS_LOG_DIR=str(log_dir))
+
+
+def mount_overrides(frame: Any, reliable: bool) -> list[str]:
+    """Node parameters ``name:=value`` for a rendered frame's camera mount and the input QoS."""
+    return [f'camera_height_m:={float(frame.height_m)!r}',
+            f'camera_pitch_deg:={round(math.degrees(frame.pitch_rad), 9)!r}',
+            f'camera_roll_deg:={round(math.degrees(frame.roll_rad), 9)!r}',
+            f'reliable_input:={"true" if reliable else "false"}']
+
+
+def node_command(params: Path, overrides: Sequence[str], remaps: Sequence[str] = ()
+                 ) -> list[str]:
+    """Return the command that starts the node with a params file, topic remaps and overrides."""
+    command = [sys.executable, '-m', 'obstacle_detection.ros.node', '--ros-args',
+               '--params-file', str(params)]
+    for remap in remaps:
+        command += ['-r', remap]
+    for item in overrides:
+        command += ['-p', item]
+    return command
+
+
+def start_node(command: list[str], env: dict[str, str], log: Path) -> subprocess.Popen:
+    """Start the node, its output into the file ``log``."""
+    with log.open('w') as out:
+        return subprocess.Popen(command, cwd=PACKAGE_ROOT, env=env, stdout=out,
+                                stderr=subprocess.STDOUT)
+
+
+def stop_node(process: subprocess.Popen) -> None:
+    """Stop the node with Ctrl-C, as a user would; kill it if it does not stop."""
+    if process.poll() is not None:
+        return
+    process.send_signal(signal.SIGINT)
+    try:
+        process.wait(timeout=15)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        process.wait(timeout=5)
+
+
+def status_qos() -> Any:
+    """Return the QoS of the node's latched ``~/status`` topic (late subscribers get it)."""
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+    return QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def log_tail(path: Path, lines: int = 15) -> str:
+    """Return the last ``lines`` lines of a log file, or ``(no log)``."""
+    try:
+        return '\n'.join(path.read_text(errors='replace').splitlines()[-lines:])
+    except OSError:
+        return '(no log)'
