@@ -1,26 +1,8 @@
 """Clearing evidence: every surface the camera saw, as rays from the camera (no rclpy).
 
-A costmap forgets an obstacle only when it sees through the space the obstacle held. Nav2's
-VoxelLayer raytraces in 3-D from the cloud's frame origin to each point of a clearing cloud and
-frees the voxels on the way. The obstacle cloud cannot serve: its points lie on obstacles; nor
-the ground cloud: its rays start on the floor (the ground frame's origin) and end on the floor,
-so they never cross the space where a person stood. This stage gives rays that do: the
-filtered depth image subsampled by a pixel stride, back-projected into the camera's own optical
-frame (origin at the camera), every surface kept (walls, floor, objects behind where an
-obstacle was).
-
-Range: a surface farther than ``range_m`` from the camera gives the point at that distance on
-its ray: the space up to it was seen free, and a costmap needs no farther rays (nor their
-noise).
-
-The edges of the field of view: Nav2 draws each ray between the cells of its two ends
-(``VoxelGrid::raytraceLine`` truncates both to whole cells), so its line may run up to a cell
-beside the true ray. Inside the image, neighbouring rays cover for it; along the image's left
-and right borders nothing does, and a cell seen only at the edge of the view is never cleared
-(measured with a person leaving at the side: 2 to 3 cells left lethal). The outermost valid
-pixel of each kept row therefore also gives points at ``BORDER_FRACTIONS`` of its ray: the space
-there was seen free (the surface lies farther), and ends in other cells give lines on both
-sides of the true ray.
+Nav2's VoxelLayer frees the voxels on the ray from the cloud's origin to each point; the
+obstacle and ground clouds cannot serve (``docs/node.md``). Points at ``BORDER_FRACTIONS`` of
+the outermost rays clear the cells Nav2's whole-cell lines miss at the edges of the view.
 """
 
 from __future__ import annotations
@@ -39,15 +21,10 @@ def clearing_points(depth_m: np.ndarray, intrinsics: Intrinsics, *, stride_px: i
                     range_m: float) -> np.ndarray:
     """Return the surfaces seen in a depth frame, subsampled, as clearing ray ends.
 
-    depth_m: (H, W) float32 depth [m] (the detector's filtered depth, ``DetectionResult
-    .depth_m``); 0, NaN and inf are "no return" and give no point. intrinsics: its pinhole
-    model [px]. stride_px: every ``stride_px``-th row and column is kept, and the last row and
-    column (>= 1). range_m: the largest distance from the camera [m] (> 0); a farther surface
-    gives the point at this distance on its ray. The outermost valid pixel of each kept row
-    also gives points at ``BORDER_FRACTIONS`` of its ray (see the module's docstring).
-
-    Returns (N, 3) float32 points in the camera optical frame (x right, y down, z forward)
-    [m]: the kept pixels in image order, then the border points.
+    depth_m: (H, W) float32 [m], 0/NaN/inf no return. stride_px (>= 1): every stride_px-th row
+    and column, and the last. range_m (> 0): a farther surface gives the point at this distance.
+    Returns (N, 3) float32 in the camera optical frame: kept pixels in image order, then the
+    border points. Raises ValueError for a bad argument.
     """
     if isinstance(stride_px, bool) or not isinstance(stride_px, (int, np.integer)) \
             or stride_px < 1:
