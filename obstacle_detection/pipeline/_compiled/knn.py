@@ -151,15 +151,14 @@ def _gather_block(c0, c1, c2, dims, dense, starts, cell_keys, sp, order,
 
 
 @_jit_inline
-def _near_points(block_x, block_y, block_z, block_j, m, x0, x1, x2, i, radius2, near_d,
-                 near_j):  # pragma: no cover - compiled
+def _near_points(block_d, block_j, m, i, radius2, near_d, near_j):  # pragma: no cover
     """Keep the block's points within squared distance ``radius2`` of query i; return how many.
 
     The query itself gets distance -1 (first even among duplicates). Branch-free.
     """
     n_near = 0
     for u in range(m):
-        d = _squared_distance(block_x[u], block_y[u], block_z[u], x0, x1, x2)
+        d = block_d[u]
         j = block_j[u]
         near_d[n_near] = -1.0 if j == i else d
         near_j[n_near] = j
@@ -327,6 +326,7 @@ def _knn_queries(lo, cell, k, dense, slack, cell_ijk, dims, order, sp, starts, c
     block_y = np.empty(n, np.float64)
     block_z = np.empty(n, np.float64)
     block_j = np.empty(n, np.int64)
+    block_d = np.empty(n, np.float64)
     near_d = np.empty(n + 8, np.float64)
     near_j = np.empty(n + 8, np.int64)
     top = np.empty(k + 1, np.int64)
@@ -356,11 +356,11 @@ def _knn_queries(lo, cell, k, dense, slack, cell_ijk, dims, order, sp, starts, c
         # First try a radius a little beyond the previous query's k-th neighbour (queries in
         # cell order are close, so it usually holds k points and fewer others), then reach.
         radius2 = min(reach2, 1.21 * kth2_prev)
-        n_near = _near_points(block_x, block_y, block_z, block_j, m, x0, x1, x2, i, radius2,
-                              near_d, near_j)
+        for u in range(m):   # a loop of its own: vectorised
+            block_d[u] = _squared_distance(block_x[u], block_y[u], block_z[u], x0, x1, x2)
+        n_near = _near_points(block_d, block_j, m, i, radius2, near_d, near_j)
         if n_near < k and radius2 != reach2:
-            n_near = _near_points(block_x, block_y, block_z, block_j, m, x0, x1, x2, i,
-                                  reach2, near_d, near_j)
+            n_near = _near_points(block_d, block_j, m, i, reach2, near_d, near_j)
         if k <= n_near <= rank_limit:
             kth2_prev = _rank_near(near_d, near_j, n_near, k, top, kth2_prev)
             _write_row(out, i, top, k)
