@@ -134,7 +134,7 @@ def test_knn_result_does_not_depend_on_grid(cell_m, dense):
     out = np.empty((points.shape[0], 9), np.int64)
     cell = np.full(3, cell_m)
     grid = jit_knn._build_grid(points, lo, cell, dense)
-    jit_knn._knn_queries(lo, cell, 9, dense, 1e-12, *grid, 0, points.shape[0], out)
+    jit_knn._knn_queries(lo, cell, 9, dense, 1e-12, *grid, out)
     np.testing.assert_array_equal(out, brute_force_knn(points, 9))
 
 

@@ -129,10 +129,10 @@ class Detector:
         centroids = grid.centroids
         clock.lap('voxel')
         k = max(p.normal_neighbours, p.validation_neighbours + 1)
-        neighbours = nearest_neighbours(centroids, k, p.compute_threads)
+        neighbours = nearest_neighbours(centroids, k)
         clock.lap('knn')
         n_cols = min(p.normal_neighbours, neighbours.shape[1])
-        normals = estimate_normals(centroids, neighbours[:, :n_cols], p.compute_threads)
+        normals = estimate_normals(centroids, neighbours[:, :n_cols])
         clock.lap('normals')
         steep = slope_obstacles(normals, p.cos_max_slope)
         if p.max_ground_height_m > 0.0 and not p.robot_level:

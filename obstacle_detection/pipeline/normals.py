@@ -18,12 +18,12 @@ _PAIR_A = np.array([0, 0, 0, 1, 1, 2])
 _PAIR_B = np.array([0, 1, 2, 1, 2, 2])
 
 
-def _reference_knn_grid(points: np.ndarray, k: int, threads: int = 1) -> np.ndarray:
+def _reference_knn_grid(points: np.ndarray, k: int) -> np.ndarray:
     """Return indices (V, k) int64 of the k nearest points of every point, nearest first.
 
     points: (V, 3) float32 [m]. The point itself first (also among duplicates), then by
-    (squared distance, index); k is clipped to V. threads: the compiled twin's threads (the same
-    result for any). Rows whose distances tie are re-sorted (:func:`_order_ties`).
+    (squared distance, index); k is clipped to V. Rows whose distances tie are re-sorted
+    (:func:`_order_ties`).
     """
     n = points.shape[0]
     k = min(int(k), n)
@@ -132,8 +132,8 @@ def _cross(ux: np.ndarray, uy: np.ndarray, uz: np.ndarray,
     return np.stack([uy * wz - uz * wy, uz * wx - ux * wz, ux * wy - uy * wx])
 
 
-def _reference_normals_from_neighbours(points: np.ndarray, neighbours: np.ndarray, n: int,
-                                       threads: int = 1) -> np.ndarray:
+def _reference_normals_from_neighbours(points: np.ndarray, neighbours: np.ndarray,
+                                       n: int) -> np.ndarray:
     """Return unit normals (V, 3) float32 of the first ``n`` neighbours, in numpy."""
     cov = neighbourhood_covariance(points, neighbours[:, :n])
     return smallest_eigenvectors(cov).astype(np.float32)
@@ -143,15 +143,14 @@ _normals_from_neighbours = jit.choose(_reference_normals_from_neighbours,
                                       jit_knn.normals_from_neighbours)
 
 
-def estimate_normals(points: np.ndarray, neighbours: np.ndarray,
-                     threads: int = 1) -> np.ndarray:
+def estimate_normals(points: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
     """Return unit normals (V, 3) float32: smallest-eigenvalue eigenvector of each neighbourhood.
 
     neighbours: (V, N) indices from :func:`nearest_neighbours`, the point itself included.
     """
     if points.shape[0] == 0:
         return np.zeros((0, 3), dtype=np.float32)
-    return _normals_from_neighbours(points, neighbours, neighbours.shape[1], threads)
+    return _normals_from_neighbours(points, neighbours, neighbours.shape[1])
 
 
 def slope_obstacles(normals: np.ndarray, cos_max_slope: float,

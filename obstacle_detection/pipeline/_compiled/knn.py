@@ -8,7 +8,6 @@ itself first; the normals with the same float64 operations. Method: ``docs/metho
 from __future__ import annotations
 
 import math
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -307,14 +306,14 @@ def _search_shells(i, x0, x1, x2, c0, c1, c2, below, above, cell, slack, dims, d
 
 
 @_jit
-def _knn_queries(lo, cell, k, dense, slack, cell_ijk, dims, order, sp, starts, cell_keys, s0,
-                 s1, out):  # pragma: no cover - compiled
-    """Search the queries of sorted slots s0 .. s1 - 1 of a :func:`_build_grid` grid into ``out``.
+def _knn_queries(lo, cell, k, dense, slack, cell_ijk, dims, order, sp, starts, cell_keys,
+                 out):  # pragma: no cover - compiled
+    """Search every query of a :func:`_build_grid` grid, in sorted (cell) order, into ``out``.
 
     Per cell, the points of its 3 x 3 x 3 block are gathered once; a query keeps those closer
     than the block's boundary and, if at least k, ranks them (:func:`_rank_near`); else it
     searches shells (:func:`_search_shells`) or scans all points. A query's answer does not
-    depend on the others, so any slot range gives the same rows.
+    depend on the others (the previous one's k-th distance only picks the first radius).
     """
     n = order.shape[0]
     best_d = np.empty(k, np.float64)
@@ -332,10 +331,10 @@ def _knn_queries(lo, cell, k, dense, slack, cell_ijk, dims, order, sp, starts, c
     top = np.empty(k + 1, np.int64)
     budget = 2 * n + 512              # cells to look at before a plain scan is cheaper
     rank_limit = 4 * k + 64           # more near points (a crowded cell): insertion is cheaper
-    group_end = s0
+    group_end = 0
     m = 0
     kth2_prev = np.inf                # squared k-th distance of the previous query
-    for s in range(s0, s1):   # queries in cell order: neighbouring cells stay cached
+    for s in range(n):   # queries in cell order: neighbouring cells stay cached
         i = order[s]
         c0 = cell_ijk[i, 0]
         c1 = cell_ijk[i, 1]
@@ -488,42 +487,9 @@ def _knn_setup(pts, k):  # pragma: no cover - compiled
     return True, lo, cell, dense, slack
 
 
-# ------------------------------------------------------------------------------ threads
-
-_pool: ThreadPoolExecutor | None = None
-
-
-def run_parts(task, size: int, threads: int) -> list:
-    """Run ``task(start, stop)`` over ``size`` items; return the results in part order.
-
-    threads > 1 cuts them into 4 parts a thread, taken in turn by the calling thread and
-    ``threads - 1`` pool threads: a pool thread that wakes late takes fewer parts, one that
-    has not started when the parts run out is cancelled. Each part writes its own rows.
-    """
-    global _pool
-    if threads <= 1 or size < 64:
-        return [task(0, size)]
-    if _pool is None:
-        _pool = ThreadPoolExecutor(7, thread_name_prefix='compute')
-    parts = 4 * threads
-    todo = iter(range(parts))
-    results = [None] * parts
-
-    def work() -> None:
-        for part in todo:   # next() of a range iterator is atomic under the GIL
-            results[part] = task(size * part // parts, size * (part + 1) // parts)
-
-    helpers = [_pool.submit(work) for _ in range(threads - 1)]
-    work()
-    for helper in helpers:
-        if not helper.cancel():
-            helper.result()
-    return results
-
-
 # ------------------------------------------------------------------------------ public API
 
-def knn_grid(points: np.ndarray, k: int, threads: int = 1) -> np.ndarray:
+def knn_grid(points: np.ndarray, k: int) -> np.ndarray:
     """Return indices (V, k) int64 of the exact k nearest points of every point, nearest first.
 
     The compiled twin of ``normals.nearest_neighbours``: the same arguments and result.
@@ -544,9 +510,7 @@ def knn_grid(points: np.ndarray, k: int, threads: int = 1) -> np.ndarray:
     finite, lo, cell, dense, slack = _knn_setup(pts, k)
     if not finite:
         raise ValueError('points must be finite (no NaN or inf coordinates)')
-    grid = _build_grid(pts, lo, cell, dense)
-    run_parts(lambda s0, s1: _knn_queries(lo, cell, k, dense, slack, *grid, s0, s1, out), n,
-              threads)
+    _knn_queries(lo, cell, k, dense, slack, *_build_grid(pts, lo, cell, dense), out)
     return out
 
 
@@ -637,21 +601,20 @@ def _smallest_eigenvector(a00, a01, a02, a11, a12, a22):  # pragma: no cover - c
 
 
 @_jit
-def _normals_kernel(pts, neighbours, n_use, v0, v1, normals, cov_bad,
-                    bad):  # pragma: no cover - compiled
-    """Write the normals of rows v0 .. v1 - 1 as the numpy twin does; return n degenerate.
+def _normals_kernel(pts, neighbours, n_use, normals, cov_bad, bad):  # pragma: no cover
+    """Write every row's normal as the numpy twin does; return the number of degenerate rows.
 
     Degenerate rows are marked in ``bad`` with their covariance in ``cov_bad`` (the caller
     asks LAPACK, as numpy does). Returns -1, with nothing done, for an index out of range.
     """
     v_count = pts.shape[0]
-    for v in range(v0, v1):
+    for v in range(v_count):
         for t in range(n_use):
             if neighbours[v, t] < 0 or neighbours[v, t] >= v_count:
                 return -1
     tiny = np.finfo(np.float64).tiny
     n_bad = 0
-    for v in range(v0, v1):
+    for v in range(v_count):
         a00, a01, a02, a11, a12, a22 = _covariance_row(pts, neighbours, v, n_use)
         bx, by, bz, length, p2 = _smallest_eigenvector(a00, a01, a02, a11, a12, a22)
         scale = p2 if p2 > tiny else tiny
@@ -671,8 +634,7 @@ def _normals_kernel(pts, neighbours, n_use, v0, v1, normals, cov_bad,
     return n_bad
 
 
-def normals_from_neighbours(points: np.ndarray, neighbours: np.ndarray, n: int,
-                            threads: int = 1) -> np.ndarray:
+def normals_from_neighbours(points: np.ndarray, neighbours: np.ndarray, n: int) -> np.ndarray:
     """Return unit normals (V, 3) float32 from the first n neighbours of every point.
 
     The compiled twin of the numpy normals (``normals.estimate_normals``), bit for bit.
@@ -697,11 +659,10 @@ def normals_from_neighbours(points: np.ndarray, neighbours: np.ndarray, n: int,
     normals = np.empty((v_count, 3), dtype=np.float32)
     cov_bad = np.empty((v_count, 6), dtype=np.float64)    # filled on degenerate rows only
     bad = np.empty(v_count, dtype=np.bool_)
-    counts = run_parts(lambda v0, v1: _normals_kernel(pts, nb, n, v0, v1, normals, cov_bad, bad),
-                       v_count, threads)
-    if min(counts) < 0:
+    n_bad = _normals_kernel(pts, nb, n, normals, cov_bad, bad)
+    if n_bad < 0:
         raise ValueError(f'neighbour indices must lie in [0, {v_count})')
-    return _degenerate_normals(normals, cov_bad, bad, sum(counts))
+    return _degenerate_normals(normals, cov_bad, bad, n_bad)
 
 
 def _degenerate_normals(normals: np.ndarray, cov_bad: np.ndarray, bad: np.ndarray,
