@@ -101,3 +101,16 @@ def test_the_clearing_message_is_in_the_image_frame() -> None:
     assert messages['clearing'].header.frame_id == 'camera_optical'
     np.testing.assert_array_equal(pointcloud2_to_points(messages['clearing']), points)
     assert 'clearing' not in plain
+
+
+@pytest.mark.parametrize('stride', [1, 3, 4])
+def test_the_compiled_clearing_points_equal_the_reference(both_paths, stride: int) -> None:
+    rng = np.random.default_rng(stride)
+    depth = rng.uniform(0.2, 9.0, (40, 57)).astype(np.float32)
+    depth[rng.random(depth.shape) < 0.3] = 0.0
+    depth[rng.random(depth.shape) < 0.1] = np.nan
+    depth[rng.random(depth.shape) < 0.05] = np.inf
+    depth[:, :5] = 0.0
+    depth[12] = 0.0   # a kept row (stride 1, 3, 4) without a return: no border point
+    points = both_paths(clearing_points, depth, INTRINSICS, stride_px=stride, range_m=4.0)
+    assert points.shape[0] > 3 * 2 * (40 // stride)

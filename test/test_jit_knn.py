@@ -79,7 +79,7 @@ def scene_points():
 def test_warm_up_compiles_the_kernels_a_frame_uses():
     """After warm_up the k-NN and normals kernels hold compiled signatures (both layouts)."""
     jit_knn.warm_up()
-    assert len(jit_knn._knn_all.signatures) >= 1
+    assert len(jit_knn._knn_queries.signatures) >= 1
     assert len(jit_knn._normals_kernel.signatures) >= 2   # a whole and a column-sliced k-NN
 
 
@@ -132,7 +132,9 @@ def test_knn_result_does_not_depend_on_grid(cell_m, dense):
     if dense and cells > 1e6:
         pytest.skip('a dense table that large is never built (knn_grid hashes it)')
     out = np.empty((points.shape[0], 9), np.int64)
-    jit_knn._knn_kernel(points, lo, np.full(3, cell_m), 9, dense, 1e-12, out)
+    cell = np.full(3, cell_m)
+    grid = jit_knn._build_grid(points, lo, cell, dense)
+    jit_knn._knn_queries(lo, cell, 9, dense, 1e-12, *grid, out)
     np.testing.assert_array_equal(out, brute_force_knn(points, 9))
 
 

@@ -1,32 +1,16 @@
 """Clearing evidence: every surface the camera saw, as rays from the camera (no rclpy).
 
-A costmap forgets an obstacle only when it sees through the space the obstacle held. Nav2's
-VoxelLayer raytraces in 3-D from the cloud's frame origin to each point of a clearing cloud and
-frees the voxels on the way. The obstacle cloud cannot serve: its points lie on obstacles; nor
-the ground cloud: its rays start on the floor (the ground frame's origin) and end on the floor,
-so they never cross the space where a person stood. This stage gives rays that do: the
-filtered depth image subsampled by a pixel stride, back-projected into the camera's own optical
-frame (origin at the camera), every surface kept (walls, floor, objects behind where an
-obstacle was).
-
-Range: a surface farther than ``range_m`` from the camera gives the point at that distance on
-its ray: the space up to it was seen free, and a costmap needs no farther rays (nor their
-noise).
-
-The edges of the field of view: Nav2 draws each ray between the cells of its two ends
-(``VoxelGrid::raytraceLine`` truncates both to whole cells), so its line may run up to a cell
-beside the true ray. Inside the image, neighbouring rays cover for it; along the image's left
-and right borders nothing does, and a cell seen only at the edge of the view is never cleared
-(measured with a person leaving at the side: 2 to 3 cells left lethal). The outermost valid
-pixel of each kept row therefore also gives points at ``BORDER_FRACTIONS`` of its ray: the space
-there was seen free (the surface lies farther), and ends in other cells give lines on both
-sides of the true ray.
+Nav2's VoxelLayer frees the voxels on the ray from the cloud's origin to each point; the
+obstacle and ground clouds cannot serve (``docs/node.md``). Points at ``BORDER_FRACTIONS`` of
+the outermost rays clear the cells Nav2's whole-cell lines miss at the edges of the view.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from . import jit
+from ._compiled import clearing as compiled
 from .geometry import pixel_rays
 from .params import Intrinsics
 
@@ -39,15 +23,10 @@ def clearing_points(depth_m: np.ndarray, intrinsics: Intrinsics, *, stride_px: i
                     range_m: float) -> np.ndarray:
     """Return the surfaces seen in a depth frame, subsampled, as clearing ray ends.
 
-    depth_m: (H, W) float32 depth [m] (the detector's filtered depth, ``DetectionResult
-    .depth_m``); 0, NaN and inf are "no return" and give no point. intrinsics: its pinhole
-    model [px]. stride_px: every ``stride_px``-th row and column is kept, and the last row and
-    column (>= 1). range_m: the largest distance from the camera [m] (> 0); a farther surface
-    gives the point at this distance on its ray. The outermost valid pixel of each kept row
-    also gives points at ``BORDER_FRACTIONS`` of its ray (see the module's docstring).
-
-    Returns (N, 3) float32 points in the camera optical frame (x right, y down, z forward)
-    [m]: the kept pixels in image order, then the border points.
+    depth_m: (H, W) float32 [m], 0/NaN/inf no return. stride_px (>= 1): every stride_px-th row
+    and column, and the last. range_m (> 0): a farther surface gives the point at this distance.
+    Returns (N, 3) float32 in the camera optical frame: kept pixels in image order, then the
+    border points. Raises ValueError for a bad argument.
     """
     if isinstance(stride_px, bool) or not isinstance(stride_px, (int, np.integer)) \
             or stride_px < 1:
@@ -61,6 +40,14 @@ def clearing_points(depth_m: np.ndarray, intrinsics: Intrinsics, *, stride_px: i
     height, width = depth.shape
     rows = _with_last(np.arange(0, height, stride_px), height)
     cols = _with_last(np.arange(0, width, stride_px), width)
+    return _clearing_points(depth, ru, rv, rows, cols, range_m, BORDER_FRACTIONS)
+
+
+def _reference_clearing_points(depth: np.ndarray, ru: np.ndarray, rv: np.ndarray,
+                               rows: np.ndarray, cols: np.ndarray, range_m: float,
+                               fractions: tuple[float, ...]) -> np.ndarray:
+    """Points of the kept pixels (rows x cols) on rays ru, rv, then the border points."""
+    width = depth.shape[1]
     band = depth[rows]                                   # (R, W): the kept rows, all columns
     with np.errstate(invalid='ignore'):
         valid = np.isfinite(band) & (band > 0.0)
@@ -73,8 +60,13 @@ def clearing_points(depth_m: np.ndarray, intrinsics: Intrinsics, *, stride_px: i
     edge_r = np.concatenate((np.flatnonzero(has), np.flatnonzero(has)))
     edge_c = np.concatenate((first, last))
     edge = _points(band[edge_r, edge_c], ru[edge_c], rv[rows[edge_r]], range_m)
-    points += [edge * np.float32(fraction) for fraction in BORDER_FRACTIONS]
+    points += [edge * np.float32(fraction) for fraction in fractions]
     return np.concatenate(points).astype(np.float32, copy=False)
+
+
+# compiled: one pass over the kept rows instead of a dozen numpy calls (0.7 -> 0.1 ms)
+_clearing_points = jit.choose(_reference_clearing_points, compiled.clearing_points,
+                              accepts=lambda depth, *_: depth.dtype == np.float32)
 
 
 def _points(z: np.ndarray, x_per_z: np.ndarray, y_per_z: np.ndarray,
@@ -90,3 +82,10 @@ def _points(z: np.ndarray, x_per_z: np.ndarray, y_per_z: np.ndarray,
 def _with_last(index: np.ndarray, size: int) -> np.ndarray:
     """Return ``index`` (ascending, from 0) with ``size - 1`` appended when it lacks it."""
     return index if index[-1] == size - 1 else np.append(index, size - 1)
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's disk cache) the clearing kernel, if it runs."""
+    if jit.enabled():
+        clearing_points(np.ones((6, 8), np.float32), Intrinsics(fx=4.0, fy=4.0, cx=4.0, cy=3.0),
+                        stride_px=2, range_m=1.0)

@@ -1,12 +1,6 @@
-"""The whole per-frame pipeline of the seed (chapter 4) behind one call.
+"""The whole per-frame pipeline of the seed (chapter 4) behind one call: :class:`Detector`.
 
-``Detector(params).process(depth, intrinsics)`` runs: decode -> crop -> K x K median ->
-[drop the pixels the median smeared across depth edges] -> [floor plane fit] ->
-back-projection and camera mount with the region of interest -> voxel grid -> k-NN ->
-normals -> slope test -> [robot-level traversal, drop edges] -> validation -> costmap, and
-returns a :class:`DetectionResult`. The bracketed stages are not in the seed; they
-run when ``refine_floor`` / ``robot_level`` are on (:mod:`.floor`, :mod:`.traversal`). The
-per-pixel labels follow the same decision as the costmap.
+Stages (:data:`STAGES`) and what is not in the seed: ``docs/method.md``.
 """
 
 from __future__ import annotations
@@ -17,7 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..labels import LABEL_OBSTACLE
-from . import geometry, median, traversal, voxel
+from . import clearing, geometry, median, traversal, voxel
 from . import costmap as costmap_stage   # a frame's local `costmap` is its grid
 from . import normals as normals_stage   # a frame's local `normals` are vectors
 from .costmap import Costmap, build_costmap
@@ -37,20 +31,10 @@ NEW_STAGES = ('smear', 'floor', 'traversal', 'drops')
 class DetectionResult:
     """Everything one frame produced. Points are in the ground frame [m], float32.
 
-    obstacle_points (M, 3), ground_points (G, 3): voxel centroids labelled obstacle / ground.
-    labels (H, W) uint8: LABEL_* per pixel. costmap: the ground-plane grid.
-    timings_ms: per stage (STAGES order) and 'total' [ms].
-    voxel_points (V, 3); voxel_normals (V, 3) unit; voxel_slope_obstacle (V,) bool, the rule's
-    decision before validation: the slope test (and the optional height rule,
-    ``max_ground_height_m``), or the robot-level decision when ``robot_level``;
-    voxel_is_obstacle (V,) bool after validation; voxel_neighbours (V, k) int64, the k-NN query
-    that served the normals and the validation (k = max(N, N1 + 1) clipped to V, nearest first,
-    the voxel itself first); pixel_voxel (H, W) int32, the voxel of each pixel or -1;
-    depth_m (H, W) float32, the filtered depth the points came from.
-    floor: the mount the frame was processed with (:class:`FloorFit`; the correction
-    to the configured mount, or why there is none). voxel_height_m (V,) float32: height above
-    the local ground (robot level; the centroid's z otherwise). drop_points (D, 3): where the
-    floor ends at a drop (robot level), also in obstacle_points and the costmap.
+    voxel_*: per voxel centroid (V), ``voxel_slope_obstacle`` the rule's decision before the
+    validation, ``voxel_neighbours`` (V, k) the one k-NN query (the voxel itself first);
+    pixel_voxel (H, W) int32: each pixel's voxel or -1; depth_m: the filtered depth [m];
+    floor: the mount the frame was processed with; drop_points: drop edges (robot level).
     """
 
     obstacle_points: np.ndarray
@@ -106,13 +90,10 @@ class Detector:
         self._sub_rays: np.ndarray | None = None
 
     def warm_up(self) -> float:
-        """Compile (or load from numba's disk cache) the optional JIT kernels; return seconds.
-
-        Without numba it does nothing. Call it before the first frame (the node does at
-        start-up) so no frame pays for it.
-        """
+        """Compile (or load from numba's disk cache) the JIT kernels; return the seconds."""
         start = time.perf_counter()
         median.warm_up()
+        clearing.warm_up()   # the node's clearing cloud
         normals_stage.warm_up()
         voxel.warm_up()
         traversal.warm_up()
@@ -132,11 +113,9 @@ class Detector:
                 depth_scale: float | None = None) -> DetectionResult:
         """Detect obstacles in one depth frame.
 
-        depth: (H, W) uint16 [mm] (or uint16 in 1/depth_scale m) or float32/float64 [m];
-        0, NaN and inf are "no return". intrinsics: the frame's pinhole model; None uses the
-        seed's Table 4.1 fallback. Raises ``DepthFormatError`` (a ValueError) for a wrong
-        dtype or shape. A frame with no valid point gives an empty result (no obstacle, an
-        all-unknown costmap), not an error.
+        depth: (H, W) uint16 [mm] (or in 1/depth_scale m) or float32/float64 [m]; 0, NaN and inf
+        are no return. intrinsics: None uses the seed's Table 4.1. Raises ``DepthFormatError`` (a
+        ValueError) for a bad dtype or shape; a frame with no valid point gives an empty result.
         """
         p = self.params
         intr = intrinsics if intrinsics is not None else SEED_TABLE_4_1
@@ -234,10 +213,7 @@ class Detector:
     def _robot_level(self, depth_m: np.ndarray, rays: geometry.GroundRays,
                      run: DetectorParams, centroids: np.ndarray, steep: np.ndarray,
                      clock: _Clock) -> tuple[np.ndarray, ...]:
-        """(obstacle candidates, heights, ledges or None, drop points, drop pixels).
-
-        The seed's slope test, or robot level: reach from the floor, ledges and drop edges.
-        """
+        """(obstacle candidates, heights, ledges or None, drop points, drop pixels)."""
         p = self.params
         if not p.robot_level:
             clock.lap('traversal')

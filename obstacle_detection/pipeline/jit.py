@@ -1,20 +1,8 @@
 """The one switch between the compiled kernels and the numpy path, and the background compile.
 
-numba is an optional accelerator (README, Dependencies). When it imports
-(:data:`AVAILABLE`, from :mod:`._compiled._numba`), the stage modules (:mod:`.median`,
-:mod:`.voxel`, :mod:`.normals`, :mod:`.geometry`, :mod:`.floor`, :mod:`.traversal`) run their
-kernels of :mod:`._compiled`; when it does not (a ROS system without python3-numba), or the
-environment variable ``OBSTACLE_DETECTION_NO_JIT`` is set to anything but '' or '0', they run
-the numpy/scipy code with the same results.
-
-The pattern, the same in every stage module: a reference ``_reference_<name>`` (numpy/scipy,
-obviously right) and its compiled twin ``_compiled.<module>.<name>`` with the same signature
-and return type, joined by :func:`choose`::
-
-    lookup = jit.choose(_reference_lookup, compiled.lookup)
-
-A kernel never returns a value meaning "fall back": an input it does not take is turned away
-before the call by the ``accepts`` predicate of :func:`choose`.
+A stage's reference ``_reference_<name>`` (numpy/scipy) and its compiled twin
+``_compiled.<module>.<name>`` (same signature, same result) are joined by :func:`choose`. The
+compiled path runs when numba imports and ``OBSTACLE_DETECTION_NO_JIT`` is '' or '0'.
 """
 
 from __future__ import annotations
@@ -53,8 +41,7 @@ def compiling() -> bool:
 def enabled() -> bool:
     """Return True when the compiled kernels run: numba is there and not switched off.
 
-    False on every thread but the compiling one while :func:`compile_in_background` runs, so
-    no caller blocks on numba's compile lock or runs a half-loaded kernel.
+    False on every thread but the compiling one while :func:`compile_in_background` runs.
     """
     if not AVAILABLE or switched_off():
         return False
@@ -65,10 +52,8 @@ def choose(reference: Callable[..., Any], compiled: Callable[..., Any], *,
            accepts: Callable[..., bool] | None = None) -> Callable[..., Any]:
     """Return a function that runs ``compiled`` when :func:`enabled`, else ``reference``.
 
-    Both take the same arguments and return the same values. ``accepts(*args, **kwargs)``,
-    when given, says whether the compiled twin takes those arguments (else the reference
-    runs). The returned function keeps both as ``.reference`` and ``.compiled`` (tests run
-    each and compare), the reference's docstring and the compiled twin's name.
+    ``accepts(*args, **kwargs)``, when given, says whether the compiled twin takes the arguments.
+    The result keeps both as ``.reference`` and ``.compiled`` (tests compare them).
     """
     @functools.wraps(reference)
     def dispatch(*args: Any, **kwargs: Any) -> Any:
@@ -124,10 +109,8 @@ def compile_in_background(warm_up: Callable[[], Any], *,
                           ) -> BackgroundCompile | None:
     """Run ``warm_up`` (which compiles or loads the kernels) on a daemon thread.
 
-    Until it returns, :func:`enabled` is False for every other thread: they run the numpy path,
-    whose results are the same, instead of waiting for a first compilation (30 s and more on a
-    small machine). ``on_done`` is called on that thread at the end. Returns None, starting
-    nothing, when the compiled path is off (no numba, or the NO_JIT switch).
+    Until it returns, the other threads run the numpy path (same results) instead of waiting.
+    ``on_done`` is called on that thread at the end. Returns None when the compiled path is off.
     """
     if not enabled():
         return None

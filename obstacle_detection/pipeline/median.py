@@ -1,10 +1,4 @@
-"""Exact K x K median filter of depth images (:func:`median_filter`).
-
-The reference is ``scipy.ndimage.median_filter(image, size=k, mode='nearest')``
-(:func:`reference_median`); :func:`median_filter` returns exactly that, faster: OpenCV's
-``medianBlur`` for K = 3 and 5, else the compiled sliding histogram of
-:mod:`._compiled.median` when :func:`.jit.enabled`. Method and speed: ``docs/median.md``.
-"""
+"""Exact K x K median filter of depth images, equal to scipy's (``docs/median.md``)."""
 
 from __future__ import annotations
 
@@ -40,28 +34,11 @@ _exact_median = jit.choose(reference_median, compiled.median_filter)
 def median_filter(image: np.ndarray, k: int, threads: int = 1) -> np.ndarray:
     """Exact K x K median filter: the result of :func:`reference_median`, to the bit.
 
-    Outside the image the edge pixels are repeated (:data:`MEDIAN_MODE`). Zeros (no return)
-    are ordinary values and take part in the median like any depth, exactly as in scipy: a
-    pixel whose window is mostly valid gets a valid depth (isolated "pepper" zeros are
-    filled), while a pixel whose window holds more than K*K // 2 zeros becomes 0.
-
-    K = 3 and 5 on uint16 or float32 run OpenCV's ``cv2.medianBlur`` (a sorting network,
-    border replicated: the same values); larger K, or other dtypes, the compiled sliding
-    histogram of :mod:`._compiled.median` when :func:`.jit.enabled`, else scipy. Images
-    holding NaN always go to scipy (the others order NaN differently).
-
-    Args:
-        image: (H, W) real array, e.g. float32 metres or uint16 millimetres.
-        k: window size K, odd, >= 1 (1 returns a copy).
-        threads: threads of the compiled kernel (bands of rows); the same result for any.
-
-    Returns:
-        (H, W) C-contiguous array of the input dtype (a new array).
-
-    Raises:
-        ValueError: ``k`` even or < 1 (TypeError if not an integer).
-        DepthFormatError: ``image`` not a non-empty 2-D array, or a bool / complex /
-            non-numeric dtype.
+    image: (H, W) real array; k: odd >= 1 (1 returns a copy); threads: the compiled kernel's
+    (the same result for any). K = 3, 5 on uint16 or float32 run ``cv2.medianBlur``; larger K
+    the compiled sliding histogram (:mod:`._compiled.median`) when :func:`.jit.enabled`, else
+    scipy; images holding NaN scipy. Returns a new C-contiguous array of the input dtype.
+    Raises ValueError (TypeError) for a bad ``k``, DepthFormatError for a bad image.
     """
     k = _check_kernel(k)
     arr = check_image(image, 'median input')
@@ -83,10 +60,8 @@ def median_of_codes(codes: np.ndarray, k: int, table: np.ndarray,
                     threads: int = 1) -> np.ndarray:
     """Return ``median_filter(table[codes], k)``, computed on the codes and then looked up.
 
-    codes: (H, W) uint16 raw depth (e.g. millimetres); table: (65536,) the codes' depths in
-    metres (:func:`.depth.depth_lut`), non-decreasing. The median commutes with a
-    non-decreasing map (the middle value of the window stays the middle value), so this is the
-    median of the decoded image to the bit; uint16 keys are faster to filter than float32.
+    table: (65536,) non-decreasing depths [m] of the uint16 codes (:func:`.depth.depth_lut`): the
+    median commutes with a non-decreasing map, and uint16 keys filter faster.
     """
     codes = np.ascontiguousarray(check_image(codes, 'median input'), np.uint16)
     return lookup(table, median_filter(codes, k, threads))
@@ -103,7 +78,7 @@ def _check_kernel(k: int) -> int:
 
 
 def _opencv_median(image: np.ndarray, k: int) -> np.ndarray:
-    """Run ``cv2.medianBlur`` (K = 3, 5; uint16 or float32; BORDER_REPLICATE)."""
+    """Run ``cv2.medianBlur`` (K = 3, 5; uint16 or float32; borders replicated)."""
     h, w = image.shape
     if min(h, w) < k:
         # OpenCV needs an image at least as large as its window: pad by replication, which
@@ -115,12 +90,7 @@ def _opencv_median(image: np.ndarray, k: int) -> np.ndarray:
 
 
 def warm_up() -> float:
-    """Compile (or load from numba's disk cache) the median kernel; return the seconds it took.
-
-    Both of its signatures (uint16 codes, the ranks of other dtypes) and the lookup of codes
-    in a depth table are prepared, so no frame pays for them; every K runs the same kernel.
-    A no-op returning 0.0 when :func:`.jit.enabled` is False.
-    """
+    """Compile (or load from numba's disk cache) the median kernel; return the seconds."""
     if not jit.enabled():
         return 0.0
     start = time.perf_counter()

@@ -1,13 +1,8 @@
 """Normals, the slope test and neighbour validation (seed section 4.3.5).
 
-One k-nearest-neighbour query serves both the normals (N neighbours) and the validation (N1
-neighbours): it asks for ``max(N, N1 + 1)`` neighbours, the point itself first.
-
-The k-NN search and the normals run as compiled kernels (:mod:`._compiled.knn`) when numba is
-installed, and with scipy's k-d tree and vectorised numpy otherwise, or when the environment
-variable ``OBSTACLE_DETECTION_NO_JIT=1`` asks for that. Both paths give the same neighbours
-(ties at exactly equal distance: the point itself, then the smaller index) and the same
-normals (the same float64 operations in the same order).
+One k-nearest-neighbour query of ``max(N, N1 + 1)`` neighbours, the point itself first, serves
+the normals (N) and the validation (N1). Each stage has a numpy/scipy reference and a compiled
+twin (:mod:`._compiled.knn`) with the same results.
 """
 
 from __future__ import annotations
@@ -26,14 +21,9 @@ _PAIR_B = np.array([0, 1, 2, 1, 2, 2])
 def _reference_knn_grid(points: np.ndarray, k: int) -> np.ndarray:
     """Return indices (V, k) int64 of the k nearest points of every point, nearest first.
 
-    points: (V, 3) float32 [m]. The point itself is first (distance 0, also among duplicate
-    points); points at exactly equal distance follow in index order. If there are fewer than
-    k points, k is clipped to V. Exact Euclidean search with scipy's k-d tree on one thread;
-    compiled: a grid search, the same result.
-
-    The tree orders points at equal distance arbitrarily; rows where that can matter (equal
-    distances among the first k + 1, e.g. duplicate points) are re-sorted by the exact squared
-    distance, the point itself first, then by index, over every point as close as the k-th.
+    points: (V, 3) float32 [m]. The point itself first (also among duplicates), then by
+    (squared distance, index); k is clipped to V. Rows whose distances tie are re-sorted
+    (:func:`_order_ties`).
     """
     n = points.shape[0]
     k = min(int(k), n)
@@ -69,10 +59,8 @@ def _order_ties(points: np.ndarray, tree: cKDTree, idx: np.ndarray, dist: np.nda
 def neighbourhood_covariance(points: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
     """Covariance (V, 3, 3) float64 of each point's neighbours (seed: C = 1/N sum (p-p̄)(p-p̄)ᵀ).
 
-    points: (V, 3) [m], used as float32; neighbours: (V, N) indices into points. Coordinates
-    are taken relative to each query point (exact in float64), so millimetre-scale spreads far
-    from the origin keep their precision; only the six distinct entries are summed, over the
-    neighbours in column order (the compiled kernel sums in the same order, bit for bit).
+    points: (V, 3) [m], used as float32; neighbours: (V, N) indices into points. Relative to each
+    query point in float64, the six distinct entries summed in column order (as the kernel).
     """
     n_nb = neighbours.shape[1]
     pts_t = np.ascontiguousarray(points.T, dtype=np.float32).astype(np.float64)   # (3, V)
@@ -92,14 +80,10 @@ def neighbourhood_covariance(points: np.ndarray, neighbours: np.ndarray) -> np.n
 
 
 def smallest_eigenvectors(cov: np.ndarray) -> np.ndarray:
-    """Return unit eigenvector (V, 3) float64 of the smallest eigenvalue of symmetric 3x3 matrices.
+    """Return unit eigenvectors (V, 3) float64 of the smallest eigenvalue of 3x3 symmetric C.
 
-    Closed form, vectorised: the eigenvalues come from the trigonometric solution of the
-    characteristic cubic; the eigenvector of the smallest one is the longest of the three
-    cross products of the rows of ``C - lambda I`` (the first of equally long ones). Where the
-    matrix is (near) isotropic or the smallest eigenvalue is degenerate, ``numpy.linalg.eigh``
-    is used for those rows. The sign of each vector is arbitrary: callers use ``|n . up|``.
-    Written operation by operation like the compiled kernel (:mod:`._compiled.knn`).
+    Closed form (the characteristic cubic's trigonometric root; the longest cross product of two
+    rows of ``C - lambda I``), LAPACK's ``eigh`` for degenerate rows. The sign is arbitrary.
     """
     c = np.asarray(cov, dtype=np.float64)
     a00, a01, a02 = c[:, 0, 0], c[:, 0, 1], c[:, 0, 2]
@@ -163,7 +147,6 @@ def estimate_normals(points: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
     """Return unit normals (V, 3) float32: smallest-eigenvalue eigenvector of each neighbourhood.
 
     neighbours: (V, N) indices from :func:`nearest_neighbours`, the point itself included.
-    Runs the fused compiled kernel when numba is available (see :func:`.jit.enabled`).
     """
     if points.shape[0] == 0:
         return np.zeros((0, 3), dtype=np.float32)
@@ -180,10 +163,8 @@ def slope_obstacles(normals: np.ndarray, cos_max_slope: float,
 def validate_obstacles(is_obstacle: np.ndarray, neighbours: np.ndarray, n1: int) -> np.ndarray:
     """Seed validation: an obstacle stays one only if its N1 nearest neighbours are obstacles.
 
-    is_obstacle: (V,) bool from the slope test; neighbours: (V, k) nearest-first indices with
-    the point itself in column 0 and k >= N1 + 1. A cloud too small to give a point N1
-    neighbours (fewer than N1 + 1 columns) validates no obstacle. n1 = 0 disables validation.
-    Returns (V,) bool.
+    neighbours: (V, k) nearest first, the point itself in column 0. Fewer than N1 + 1 columns
+    validate no obstacle; n1 = 0 disables validation. Returns (V,) bool.
     """
     if n1 <= 0 or is_obstacle.size == 0:
         return is_obstacle.copy()

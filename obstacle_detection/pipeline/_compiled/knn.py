@@ -1,21 +1,8 @@
-"""Compiled k-nearest neighbours on a uniform grid and fused normals (optional, numba).
+"""Compiled exact k-nearest neighbours on a uniform grid, normals and validation (numba).
 
-numba is an optional accelerator: when :func:`obstacle_detection.pipeline.jit.enabled`, the
-stage module :mod:`obstacle_detection.pipeline.normals` runs the kernels of this module;
-otherwise (no numba, ``AVAILABLE`` False, or the switch off) its numpy/scipy code. Both
-give the same answers:
-
-* :func:`knn_grid` is an exact k-nearest-neighbour search. Squared distances are summed in
-  float64 in the same order as scipy's ``cKDTree`` (``dx^2 + dy^2 + dz^2``), so the distances
-  are bit-identical; the order differs from the k-d tree only between points at exactly equal
-  distance, which this kernel breaks deterministically: the query point first, then by
-  distance, then by smaller index.
-* :func:`normals_from_neighbours` computes the covariance and its smallest-eigenvalue
-  eigenvector with the same operations as ``normals.neighbourhood_covariance`` and
-  ``normals.smallest_eigenvectors``, and hands degenerate rows to the same LAPACK call.
-
-The kernels are compiled on first use (a few seconds) and cached on disk (``cache=True``);
-call :func:`warm_up` at start-up to pay that before the first frame. They run on one thread.
+The compiled twins of :mod:`obstacle_detection.pipeline.normals`, with the same results: the
+neighbours in (squared distance in float64 as scipy's cKDTree sums it, index) order, the query
+itself first; the normals with the same float64 operations. Method: ``docs/method.md``.
 """
 
 from __future__ import annotations
@@ -26,10 +13,8 @@ import numpy as np
 
 from ._numba import AVAILABLE, jit as _jit, jit_inline as _jit_inline
 
-#: Largest dense cell table [cells]; a larger grid looks its cells up in a hash table.
+#: Largest dense cell table [cells]; a larger grid looks its cells up in its sorted keys.
 _DENSE_CELLS_LIMIT = 1 << 22
-#: Fibonacci hashing multiplier (2**64 / golden ratio as a signed int64; products wrap).
-_HASH_MULTIPLIER = -7046029254386353131
 #: Target mean number of other points in a point's grid cell, per neighbour asked for.
 _CROWDING_PER_NEIGHBOUR = 0.5
 #: Most cells along one grid axis, so linear cell keys fit comfortably in int64.
@@ -38,21 +23,12 @@ _MAX_AXIS_CELLS = 1 << 20
 
 # --------------------------------------------------------------------------- grid k-NN kernel
 
-@_jit_inline
-def _hash_slot(key, mask):  # pragma: no cover - compiled
-    """First slot of a linear cell key in the open-addressing table (Fibonacci hashing)."""
-    return ((key * _HASH_MULTIPLIER) >> 17) & mask
-
-
 @_jit
 def _build_grid(pts, lo, cell, dense):  # pragma: no cover - compiled
-    """Sort points by cell; return the CSR layout and the cell lookup.
+    """Sort points by cell: (cell_ijk, dims, order, sorted_pts, starts, cell_keys).
 
-    Returns (cell_ijk (n, 3) int64, dims (3,) int64, order (n,) int64 point of each sorted
-    slot, sorted_pts (n, 3) float64, starts, hash_keys, hash_cells). Dense: ``starts`` has
-    ncells + 1 entries, cell c spans ``order[starts[c]:starts[c + 1]]``. Hashed: ``starts``
-    has one entry per occupied cell + 1 and ``hash_keys``/``hash_cells`` map a linear cell key
-    to its occupied-cell number (see :func:`_hashed_span`).
+    Dense: cell c spans ``order[starts[c]:starts[c + 1]]``; sparse: ``cell_keys`` holds the
+    occupied cells' keys in order and ``starts`` one entry per occupied cell (:func:`_span`).
     """
     n = pts.shape[0]
     cell_ijk = np.empty((n, 3), np.int64)
@@ -83,8 +59,7 @@ def _build_grid(pts, lo, cell, dense):  # pragma: no cover - compiled
         for i in range(n - 1, -1, -1):  # backwards: stable, starts[c] becomes the beginning
             starts[keys[i]] -= 1
             order[starts[keys[i]]] = i
-        hash_keys = np.empty(0, np.int64)
-        hash_cells = np.empty(0, np.int64)
+        cell_keys = np.empty(0, np.int64)
     else:
         order[:] = np.argsort(keys, kind='mergesort')
         n_occ = 0
@@ -92,51 +67,31 @@ def _build_grid(pts, lo, cell, dense):  # pragma: no cover - compiled
             if s == 0 or keys[order[s]] != keys[order[s - 1]]:
                 n_occ += 1
         starts = np.empty(n_occ + 1, np.int64)
-        size = 16
-        while size < 2 * n_occ:
-            size *= 2
-        mask = size - 1
-        hash_keys = np.full(size, -1, np.int64)
-        hash_cells = np.empty(size, np.int64)
+        cell_keys = np.empty(n_occ, np.int64)
         occ = 0
         for s in range(n):
             key = keys[order[s]]
             if s == 0 or key != keys[order[s - 1]]:
                 starts[occ] = s
-                slot = _hash_slot(key, mask)
-                while hash_keys[slot] != -1:
-                    slot = (slot + 1) & mask
-                hash_keys[slot] = key
-                hash_cells[slot] = occ
+                cell_keys[occ] = key
                 occ += 1
         starts[n_occ] = n
     sorted_pts = np.empty((n, 3), np.float64)
     for s in range(n):
         for a in range(3):
             sorted_pts[s, a] = pts[order[s], a]
-    return cell_ijk, dims, order, sorted_pts, starts, hash_keys, hash_cells
+    return cell_ijk, dims, order, sorted_pts, starts, cell_keys
 
 
-@_jit
-def _hashed_span(key, starts, hash_keys, hash_cells):  # pragma: no cover - compiled
-    """Return (begin, end): the sorted slots of the points in the cell of linear key ``key``.
-
-    For hashed grids: the cell's number is found in the table of :func:`_build_grid` (an
-    empty span when no point is in the cell). Dense grids index ``starts`` by the key
-    directly; the callers do that inline (a call passing arrays costs reference counting,
-    27 times per gathered block).
-    """
-    mask = hash_keys.shape[0] - 1
-    begin = 0
-    end = 0
-    slot = _hash_slot(key, mask)
-    while hash_keys[slot] != -1:
-        if hash_keys[slot] == key:
-            begin = starts[hash_cells[slot]]
-            end = starts[hash_cells[slot] + 1]
-            break
-        slot = (slot + 1) & mask
-    return begin, end
+@_jit_inline
+def _span(key, dense, starts, cell_keys):  # pragma: no cover - compiled
+    """Return (begin, end): the sorted slots of the points in the cell of linear key ``key``."""
+    if dense:
+        return starts[key], starts[key + 1]
+    c = np.searchsorted(cell_keys, key)
+    if c < cell_keys.shape[0] and cell_keys[c] == key:
+        return starts[c], starts[c + 1]
+    return 0, 0
 
 
 @_jit_inline
@@ -150,7 +105,7 @@ def _squared_distance(a0, a1, a2, x0, x1, x2):  # pragma: no cover - compiled
 
 @_jit
 def _axis_gap(offset, below, above, size, slack):  # pragma: no cover - compiled
-    """Smallest distance along one axis from the query to a cell ``offset`` cells away."""
+    """Return the smallest distance along one axis from the query to a cell ``offset`` away."""
     if offset > 0:
         g = (offset - 1) * size + above - slack
     elif offset < 0:
@@ -173,21 +128,18 @@ def _cell_end(s, order, cell_ijk):  # pragma: no cover - compiled
 
 
 @_jit_inline
-def _gather_block(c0, c1, c2, dims, dense, starts, hash_keys, hash_cells, sp, order,
+def _gather_block(c0, c1, c2, dims, dense, starts, cell_keys, sp, order,
                   block_x, block_y, block_z, block_j):  # pragma: no cover - compiled
     """Copy the points of the 3 x 3 x 3 cells around cell (c0, c1, c2) into the block arrays.
 
-    Returns their number m: block_x/y/z[:m] the coordinates, block_j[:m] the point indices.
+    Returns their number m (block_x/y/z, block_j: coordinates and index).
     """
     m = 0
     for o0 in range(max(c0 - 1, 0), min(c0 + 1, dims[0] - 1) + 1):
         for o1 in range(max(c1 - 1, 0), min(c1 + 1, dims[1] - 1) + 1):
             for o2 in range(max(c2 - 1, 0), min(c2 + 1, dims[2] - 1) + 1):
                 key = (o0 * dims[1] + o1) * dims[2] + o2
-                if dense:
-                    begin, end = starts[key], starts[key + 1]
-                else:
-                    begin, end = _hashed_span(key, starts, hash_keys, hash_cells)
+                begin, end = _span(key, dense, starts, cell_keys)
                 for t in range(begin, end):
                     block_x[m] = sp[t, 0]
                     block_y[m] = sp[t, 1]
@@ -198,17 +150,14 @@ def _gather_block(c0, c1, c2, dims, dense, starts, hash_keys, hash_cells, sp, or
 
 
 @_jit_inline
-def _near_points(block_x, block_y, block_z, block_j, m, x0, x1, x2, i, radius2, near_d,
-                 near_j):  # pragma: no cover - compiled
+def _near_points(block_d, block_j, m, i, radius2, near_d, near_j):  # pragma: no cover
     """Keep the block's points within squared distance ``radius2`` of query i; return how many.
 
-    near_d / near_j get their squared distances (-1 for the query itself, so it comes first
-    even among duplicates) and indices. Branch-free: every point is written, the count moves
-    only for those kept.
+    The query itself gets distance -1 (first even among duplicates). Branch-free.
     """
     n_near = 0
     for u in range(m):
-        d = _squared_distance(block_x[u], block_y[u], block_z[u], x0, x1, x2)
+        d = block_d[u]
         j = block_j[u]
         near_d[n_near] = -1.0 if j == i else d
         near_j[n_near] = j
@@ -220,10 +169,7 @@ def _near_points(block_x, block_y, block_z, block_j, m, x0, x1, x2, i, radius2, 
 def _rank_near(near_d, near_j, n_near, k, top, kth2):  # pragma: no cover - compiled
     """Write the k nearest of the n_near (>= k) near points into top[:k]; return the k-th d2.
 
-    The rank of each point by distance; ranks below k are the answer unless distances tie
-    among them, then ranks by (distance, index) decide. Branch-free: the comparisons run over
-    a multiple of 8 (padded with inf) and ranks of k or more land in a spare slot (top[k]).
-    ``kth2``: returned unchanged if no point has rank k - 1 (cannot happen with n_near >= k).
+    Ranks by counting (branch-free, padded to 8); ties among the first k: by (distance, index).
     """
     padded = (n_near + 7) & ~7
     for v in range(n_near, padded):
@@ -260,9 +206,7 @@ def _offer_span(begin, end, sp, order, x0, x1, x2, i, best_d, best_i, count, wor
                 k):  # pragma: no cover - compiled
     """Offer the sorted points begin .. end - 1 to query i's insertion-sorted top-k.
 
-    best_d / best_i[:count] hold the best so far by (squared distance, index), the query
-    itself excluded (it sits first with distance -1); ``worst`` is the k-th distance once
-    count == k. Returns the new (count, worst).
+    Returns the new (count, worst): worst is the k-th squared distance once count == k.
     """
     last = k - 1
     for t in range(begin, end):
@@ -306,13 +250,11 @@ def _write_row(out, i, src, k):  # pragma: no cover - compiled
 
 @_jit_inline
 def _search_shells(i, x0, x1, x2, c0, c1, c2, below, above, cell, slack, dims, dense, starts,
-                   hash_keys, hash_cells, sp, order, best_d, best_i, k,
-                   budget):  # pragma: no cover - compiled
-    """Search shells of cells of growing Chebyshev radius around query i's cell (c0, c1, c2).
+                   cell_keys, sp, order, best_d, best_i, k, budget):  # pragma: no cover
+    """Search shells of cells of growing Chebyshev radius around query i's cell.
 
-    Fills best_d / best_i (:func:`_offer_span`, the query first), pruning the cells farther
-    than the k-th best. Returns False when more than ``budget`` cells would be looked at (the
-    caller scans all points instead).
+    Fills best_d / best_i, pruning cells farther than the k-th best. Returns False when more
+    than ``budget`` cells would be looked at (the caller scans all points instead).
     """
     best_d[0] = -1.0              # the query itself comes first, even among duplicates
     best_i[0] = i
@@ -357,40 +299,21 @@ def _search_shells(i, x0, x1, x2, c0, c1, c2, below, above, cell, slack, dims, d
                     if g01 + g2 * g2 > worst:
                         continue
                     key = ((c0 + o0) * dims[1] + (c1 + o1)) * dims[2] + (c2 + o2)
-                    if dense:
-                        begin, end = starts[key], starts[key + 1]
-                    else:
-                        begin, end = _hashed_span(key, starts, hash_keys, hash_cells)
+                    begin, end = _span(key, dense, starts, cell_keys)
                     count, worst = _offer_span(begin, end, sp, order, x0, x1, x2, i, best_d,
                                                best_i, count, worst, k)
     return True
 
 
 @_jit
-def _knn_kernel(pts, lo, cell, k, dense, slack, out):  # pragma: no cover - compiled
-    """Exact k nearest neighbours of every point (see :func:`knn_grid`) into ``out`` (n, k).
-
-    Fast path, per occupied cell: the points of its 3 x 3 x 3 block of cells are gathered
-    once (:func:`_gather_block`); each query of the cell measures them all and keeps those
-    closer than the block's boundary (every such point of the cloud is in the block). If at
-    least k remain, the k nearest are among them, ranked by counting (:func:`_rank_near`).
-    Otherwise (or when very many remain) the query searches shells of cells of growing
-    Chebyshev radius with an insertion-sorted top-k (:func:`_search_shells`), pruning cells
-    farther than its k-th best, or scans all points when the cloud is so sparse that the
-    shells would cost more.
-    """
-    cell_ijk, dims, order, sp, starts, hash_keys, hash_cells = _build_grid(pts, lo, cell, dense)
-    _knn_queries(lo, cell, k, dense, slack, cell_ijk, dims, order, sp, starts, hash_keys,
-                 hash_cells, out)
-
-
-@_jit
-def _knn_queries(lo, cell, k, dense, slack, cell_ijk, dims, order, sp, starts, hash_keys,
-                 hash_cells, out):  # pragma: no cover - compiled
+def _knn_queries(lo, cell, k, dense, slack, cell_ijk, dims, order, sp, starts, cell_keys,
+                 out):  # pragma: no cover - compiled
     """Search every query of a :func:`_build_grid` grid, in sorted (cell) order, into ``out``.
 
-    A query's answer does not depend on the others (the previous query's k-th distance only
-    picks the first radius tried).
+    Per cell, the points of its 3 x 3 x 3 block are gathered once; a query keeps those closer
+    than the block's boundary and, if at least k, ranks them (:func:`_rank_near`); else it
+    searches shells (:func:`_search_shells`) or scans all points. A query's answer does not
+    depend on the others (the previous one's k-th distance only picks the first radius).
     """
     n = order.shape[0]
     best_d = np.empty(k, np.float64)
@@ -402,6 +325,7 @@ def _knn_queries(lo, cell, k, dense, slack, cell_ijk, dims, order, sp, starts, h
     block_y = np.empty(n, np.float64)
     block_z = np.empty(n, np.float64)
     block_j = np.empty(n, np.int64)
+    block_d = np.empty(n, np.float64)
     near_d = np.empty(n + 8, np.float64)
     near_j = np.empty(n + 8, np.int64)
     top = np.empty(k + 1, np.int64)
@@ -417,7 +341,7 @@ def _knn_queries(lo, cell, k, dense, slack, cell_ijk, dims, order, sp, starts, h
         c2 = cell_ijk[i, 2]
         if s == group_end:            # first point of a new cell: gather its block
             group_end = _cell_end(s, order, cell_ijk)
-            m = _gather_block(c0, c1, c2, dims, dense, starts, hash_keys, hash_cells, sp,
+            m = _gather_block(c0, c1, c2, dims, dense, starts, cell_keys, sp,
                               order, block_x, block_y, block_z, block_j)
         x0 = sp[s, 0]
         x1 = sp[s, 1]
@@ -431,18 +355,17 @@ def _knn_queries(lo, cell, k, dense, slack, cell_ijk, dims, order, sp, starts, h
         # First try a radius a little beyond the previous query's k-th neighbour (queries in
         # cell order are close, so it usually holds k points and fewer others), then reach.
         radius2 = min(reach2, 1.21 * kth2_prev)
-        n_near = _near_points(block_x, block_y, block_z, block_j, m, x0, x1, x2, i, radius2,
-                              near_d, near_j)
+        for u in range(m):   # a loop of its own: vectorised
+            block_d[u] = _squared_distance(block_x[u], block_y[u], block_z[u], x0, x1, x2)
+        n_near = _near_points(block_d, block_j, m, i, radius2, near_d, near_j)
         if n_near < k and radius2 != reach2:
-            n_near = _near_points(block_x, block_y, block_z, block_j, m, x0, x1, x2, i,
-                                  reach2, near_d, near_j)
+            n_near = _near_points(block_d, block_j, m, i, reach2, near_d, near_j)
         if k <= n_near <= rank_limit:
             kth2_prev = _rank_near(near_d, near_j, n_near, k, top, kth2_prev)
             _write_row(out, i, top, k)
             continue
         if not _search_shells(i, x0, x1, x2, c0, c1, c2, below, above, cell, slack, dims, dense,
-                              starts, hash_keys, hash_cells, sp, order, best_d, best_i, k,
-                              budget):
+                              starts, cell_keys, sp, order, best_d, best_i, k, budget):
             # far-apart points: a plain scan is the cheaper search
             _offer_span(0, n, sp, order, x0, x1, x2, i, best_d, best_i, 1, np.inf, k)
         kth2_prev = best_d[k - 1]
@@ -453,7 +376,7 @@ def _knn_queries(lo, cell, k, dense, slack, cell_ijk, dims, order, sp, starts, h
 
 @_jit
 def _grid_dims(extent, size):  # pragma: no cover - compiled
-    """Cells (3,) int64 along each axis of an isotropic ``size`` [m] grid over ``extent``."""
+    """Return the cells (3,) int64 along each axis of an isotropic ``size`` grid."""
     dims = np.empty(3, np.int64)
     for a in range(3):
         dims[a] = np.int64(math.floor(extent[a] / size)) + 1
@@ -462,7 +385,7 @@ def _grid_dims(extent, size):  # pragma: no cover - compiled
 
 @_jit
 def _crowding(pts, lo, extent, size):  # pragma: no cover - compiled
-    """Mean number of other points in a point's own cell of an isotropic ``size`` grid."""
+    """Return the mean number of other points in a point's own cell of a ``size`` grid."""
     n = pts.shape[0]
     dims = _grid_dims(extent, size)
     keys = np.empty(n, np.int64)
@@ -496,12 +419,8 @@ def _crowding(pts, lo, extent, size):  # pragma: no cover - compiled
 def _cell_size(pts, lo, extent, k):  # pragma: no cover - compiled
     """Pick the grid cell [m] so that a point's own cell holds about ``k / 2`` other points.
 
-    Then the 3 x 3 x 3 block around a query's cell holds its k nearest points for nearly all
-    queries, and few others (measured best for k = 5..20 on surfaces and volumes). The mean
-    number of other points in a point's cell grows as ``size ** dim`` with the cloud's local
-    dimension (1 for lines, 2 for surfaces, 3 for volumes): it is counted at two trial sizes
-    and the size giving the target is extrapolated between them. Only speed depends on this
-    choice, never the result.
+    The crowding is counted at two trial sizes and the size extrapolated between them (it grows
+    as ``size ** dim``, dim the cloud's local dimension). Only speed depends on it.
     """
     n = pts.shape[0]
     target = _CROWDING_PER_NEIGHBOUR * k
@@ -568,26 +487,12 @@ def _knn_setup(pts, k):  # pragma: no cover - compiled
     return True, lo, cell, dense, slack
 
 
-@_jit
-def _knn_all(pts, k, out):  # pragma: no cover - compiled
-    """Plan the grid and run the search; return False (and do nothing) for non-finite points."""
-    finite, lo, cell, dense, slack = _knn_setup(pts, k)
-    if not finite:
-        return False
-    _knn_kernel(pts, lo, cell, k, dense, slack, out)
-    return True
-
-
 # ------------------------------------------------------------------------------ public API
 
 def knn_grid(points: np.ndarray, k: int) -> np.ndarray:
     """Return indices (V, k) int64 of the exact k nearest points of every point, nearest first.
 
-    points: (V, 3) float [m], finite. k is clipped to V. Column 0 is the point itself (also
-    among duplicate points); then the others by increasing Euclidean distance (squared in
-    float64 as scipy's cKDTree computes it), ties broken by the smaller index. The grid sizes
-    itself from the points (no voxel size needed). Raises ValueError for a wrong shape or
-    non-finite coordinates, RuntimeError when numba is not available.
+    The compiled twin of ``normals.nearest_neighbours``: the same arguments and result.
     """
     if not AVAILABLE:
         raise RuntimeError('numba is not available; use normals.nearest_neighbours')
@@ -602,8 +507,10 @@ def knn_grid(points: np.ndarray, k: int) -> np.ndarray:
         return np.arange(n, dtype=np.int64).reshape(n, 1)
     out = np.empty((n, k), dtype=np.int64)
     pts = np.ascontiguousarray(pts, dtype=np.float64)
-    if not _knn_all(pts, k, out):
+    finite, lo, cell, dense, slack = _knn_setup(pts, k)
+    if not finite:
         raise ValueError('points must be finite (no NaN or inf coordinates)')
+    _knn_queries(lo, cell, k, dense, slack, *_build_grid(pts, lo, cell, dense), out)
     return out
 
 
@@ -611,10 +518,7 @@ def knn_grid(points: np.ndarray, k: int) -> np.ndarray:
 
 @_jit_inline
 def _covariance_row(pts, neighbours, v, n_use):  # pragma: no cover - compiled
-    """Six entries (a00, a01, a02, a11, a12, a22) of row v's neighbourhood covariance.
-
-    Relative to the query point, float64, summed over the neighbours in column order.
-    """
+    """Six entries (a00, a01, a02, a11, a12, a22) of row v's covariance, float64."""
     count = np.float64(n_use)
     px = np.float64(pts[v, 0])
     py = np.float64(pts[v, 1])
@@ -655,11 +559,7 @@ def _covariance_row(pts, neighbours, v, n_use):  # pragma: no cover - compiled
 
 @_jit_inline
 def _smallest_eigenvector(a00, a01, a02, a11, a12, a22):  # pragma: no cover - compiled
-    """(x, y, z, length, p2): the unnormalised eigenvector of the smallest eigenvalue.
-
-    The trigonometric eigenvalue, then the longest cross product of two rows of C - lam I
-    (the first on ties); p2 measures the matrix's anisotropy (the degenerate test's scale).
-    """
+    """Return (x, y, z, length, p2): the smallest eigenvalue's unnormalised eigenvector."""
     q = (a00 + a11 + a22) / 3.0
     p1 = a01 * a01 + a02 * a02 + a12 * a12
     b00 = a00 - q
@@ -702,16 +602,10 @@ def _smallest_eigenvector(a00, a01, a02, a11, a12, a22):  # pragma: no cover - c
 
 @_jit
 def _normals_kernel(pts, neighbours, n_use, normals, cov_bad, bad):  # pragma: no cover
-    """Covariance and closed-form smallest eigenvector of every row.
+    """Write every row's normal as the numpy twin does; return the number of degenerate rows.
 
-    See normals_from_neighbours; a row's result depends on no other row.
-
-    Every floating-point operation follows ``normals.neighbourhood_covariance`` and
-    ``normals.smallest_eigenvectors`` in the same order (float64, sums over the neighbours in
-    column order), so the two agree bit for bit but for acos / cos, which numpy may take from
-    its own vector library (within an ulp). Writes normals (V, 3) float32; marks degenerate
-    rows in ``bad`` and leaves their six covariance entries in ``cov_bad``. Returns the number
-    of degenerate rows, or -1 (with nothing done) when an index is out of range.
+    Degenerate rows are marked in ``bad`` with their covariance in ``cov_bad`` (the caller
+    asks LAPACK, as numpy does). Returns -1, with nothing done, for an index out of range.
     """
     v_count = pts.shape[0]
     for v in range(v_count):
@@ -725,7 +619,7 @@ def _normals_kernel(pts, neighbours, n_use, normals, cov_bad, bad):  # pragma: n
         bx, by, bz, length, p2 = _smallest_eigenvector(a00, a01, a02, a11, a12, a22)
         scale = p2 if p2 > tiny else tiny
         bad[v] = length * length <= 1e-12 * scale * scale
-        if bad[v]:                    # degenerate: the caller asks LAPACK, as numpy does
+        if bad[v]:
             cov_bad[v, 0] = a00
             cov_bad[v, 1] = a01
             cov_bad[v, 2] = a02
@@ -743,14 +637,8 @@ def _normals_kernel(pts, neighbours, n_use, normals, cov_bad, bad):  # pragma: n
 def normals_from_neighbours(points: np.ndarray, neighbours: np.ndarray, n: int) -> np.ndarray:
     """Return unit normals (V, 3) float32 from the first n neighbours of every point.
 
-    points: (V, 3) [m], used as float32 like ``normals.neighbourhood_covariance``;
-    neighbours: (V, >= n) int indices into points, the point itself included. The covariance
-    (relative to each query point, float64) and its smallest-eigenvalue eigenvector follow
-    ``normals.neighbourhood_covariance`` and ``normals.smallest_eigenvectors`` operation by
-    operation, so both paths give the same normals. Rows whose smallest eigenvalue is
-    degenerate (a line, coincident points) go to ``numpy.linalg.eigh`` as in the numpy path;
-    any unit vector of that eigenspace is a right answer there. The sign of a normal is
-    arbitrary. Raises ValueError for bad shapes or out-of-range indices.
+    The compiled twin of the numpy normals (``normals.estimate_normals``), bit for bit.
+    Raises ValueError for bad shapes or out-of-range indices.
     """
     if not AVAILABLE:
         raise RuntimeError('numba is not available; use normals.estimate_normals')
@@ -779,7 +667,7 @@ def normals_from_neighbours(points: np.ndarray, neighbours: np.ndarray, n: int) 
 
 def _degenerate_normals(normals: np.ndarray, cov_bad: np.ndarray, bad: np.ndarray,
                         n_bad: int) -> np.ndarray:
-    """Give the degenerate rows LAPACK's eigenvector, as the numpy path does; return normals."""
+    """Give the degenerate rows LAPACK's eigenvector, as the numpy path does."""
     if n_bad:
         cov = cov_bad[bad][:, [0, 1, 2, 1, 3, 4, 2, 4, 5]].reshape(-1, 3, 3)
         _, vecs = np.linalg.eigh(cov)
@@ -789,10 +677,7 @@ def _degenerate_normals(normals: np.ndarray, cov_bad: np.ndarray, bad: np.ndarra
 
 @_jit
 def _validate_kernel(is_obstacle, neighbours, n1, out):  # pragma: no cover - compiled
-    """Set out[v] = is_obstacle[v] and all of is_obstacle[neighbours[v, 1:n1 + 1]].
-
-    Returns False when an index lies outside [0, V) (nothing is promised of ``out`` then).
-    """
+    """Set out[v] = is_obstacle[v] and its n1 neighbours'; False for an index out of range."""
     v_count = is_obstacle.shape[0]
     for v in range(v_count):
         keep = is_obstacle[v]
@@ -806,10 +691,9 @@ def _validate_kernel(is_obstacle, neighbours, n1, out):  # pragma: no cover - co
 
 
 def validate(is_obstacle: np.ndarray, neighbours: np.ndarray, n1: int) -> np.ndarray:
-    """Return the seed's validation of ``normals.validate_obstacles`` for n1 >= 1, compiled.
+    """Return ``normals.validate_obstacles`` for n1 >= 1, compiled.
 
-    is_obstacle: (V,) bool; neighbours: (V, >= n1 + 1) int indices, the point itself first.
-    Returns the (V,) bool result. Raises IndexError when an index lies outside [0, V).
+    Raises IndexError when an index lies outside [0, V).
     """
     out = np.empty(is_obstacle.shape[0], np.bool_)
     nb = neighbours if neighbours.dtype == np.int64 else neighbours.astype(np.int64)
@@ -819,11 +703,7 @@ def validate(is_obstacle: np.ndarray, neighbours: np.ndarray, n1: int) -> np.nda
 
 
 def warm_up() -> None:
-    """Compile (or load from the on-disk cache) every kernel on a tiny cloud; no-op without numba.
-
-    The first compilation takes a few seconds; call this once at start-up so the first frame
-    does not pay it.
-    """
+    """Compile (or load from the disk cache) every kernel on a tiny cloud; no-op without numba."""
     if not AVAILABLE:
         return
     rng = np.random.default_rng(0)

@@ -1,17 +1,7 @@
 """Compiled (numba) exact K x K median: a sliding histogram per row (Huang's algorithm).
 
-:func:`median_filter` has the signature and result of the reference,
-``scipy.ndimage.median_filter(image, size=k, mode='nearest')`` (edge pixels repeated outside
-the image). The stage module :mod:`obstacle_detection.pipeline.median` chooses between them.
-
-Method: each output row keeps a histogram of the integer keys in its K x K window. Moving one
-pixel right removes the K keys of the column that leaves and adds the K of the column that
-enters (2K updates a pixel, whatever the data); the median key is tracked from the previous
-pixel: ``below`` counts the window keys under it, and it steps down while more than
-K*K // 2 are below, up while at most K*K // 2 are below or at it. Across depth edges the
-walk passes whole 64-key blocks at a time (a block's count summed when the walk reaches it).
-uint16 images are their own keys; any other dtype is keyed by its rank among the image's
-distinct values (``np.unique``). Rows are cut into one band per thread (``prange``).
+The twin of ``scipy.ndimage.median_filter(image, size=k, mode='nearest')``; method:
+``docs/median.md``. Rows are cut into one band per thread (``prange``).
 """
 
 from __future__ import annotations
@@ -29,10 +19,7 @@ _BLOCK = 64
 
 @jit_parallel
 def _histogram_median(keys, k, bands):  # pragma: no cover - compiled
-    """Return the exact 'nearest'-mode K x K median of (H, W) non-negative integer keys.
-
-    The rows are cut into ``bands`` bands filtered in parallel.
-    """
+    """Return the exact 'nearest'-mode median of (H, W) integer keys, rows in ``bands``."""
     h, w = keys.shape
     r = k // 2
     rank = k * k // 2             # the median's index in the sorted window
@@ -94,9 +81,7 @@ def _histogram_median(keys, k, bands):  # pragma: no cover - compiled
 def median_filter(image: np.ndarray, k: int) -> np.ndarray:
     """Return ``scipy.ndimage.median_filter(image, size=k, mode='nearest')``, compiled.
 
-    image: (H, W) real array without NaN (scipy's order of NaN is its own); k: odd >= 1.
-    Returns an (H, W) C-contiguous array of the image's dtype. Runs on the threads set by
-    :func:`._numba.set_threads`.
+    image: (H, W) without NaN; k: odd >= 1. Runs on the threads of :func:`._numba.set_threads`.
     """
     bands = _numba.get_num_threads()   # (numba cannot cache a kernel that asks itself)
     if image.dtype == np.uint16:
