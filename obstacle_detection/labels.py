@@ -1,15 +1,7 @@
-"""The label values shared by the layers: the one home of every pixel and cell constant.
+"""The pixel and cell codes every layer shares (it imports nothing; numba reads them too).
 
-Three families, each a small integer code:
-
-- ``LABEL_*``: what the pipeline decided for each pixel of a depth image
-  (``DetectionResult.labels``, uint8).
-- ``GT_*``: the ground truth of a pixel, written by the scene generator
-  (:mod:`obstacle_detection.sim.render`) and by labelled folders, read by the evaluation.
-- ``CELL_*``: the value of a costmap cell (nav_msgs/OccupancyGrid convention, int8).
-
-This module imports nothing, so every layer (numba kernels included: numba reads module-level
-integers as compile-time constants) may take its values from here.
+``LABEL_*``: the pipeline's decision per pixel (uint8); ``GT_*``: a pixel's ground truth;
+``CELL_*``: a costmap cell (nav_msgs/OccupancyGrid, int8).
 """
 
 # --------------------------------------------------------------------------- pipeline labels

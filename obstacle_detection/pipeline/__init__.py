@@ -1,9 +1,7 @@
-"""The pipeline layer: depth frame in, obstacle points, labels and costmap out (numpy only).
+"""The pipeline layer: depth frame in, obstacle points, labels and costmap out (no ROS).
 
-One module per stage family, the frozen parameter dataclass (:mod:`.params`) and the
-orchestrator (:mod:`.detector`). Numba kernels live in :mod:`._compiled` (leaves that import
-nothing of ours); :mod:`.jit` holds the one switch between them and the numpy path. Nothing
-here imports rclpy, the ROS layer, evaluation, the scene generator or pictures.
+One module per stage family, :mod:`.params`, the orchestrator :mod:`.detector`; numba kernels
+in :mod:`._compiled`, chosen by :mod:`.jit`.
 """
 
 from .detector import DetectionResult, Detector

@@ -1,10 +1,4 @@
-"""Compiled (numba) costmap rasterisation (optional): the cells points fall in.
-
-:func:`rasterise` writes a value into the cells of a row-major grid that points fall in, with
-the floating-point operations of ``pipeline.costmap.Costmap.cell_of`` in the points' dtype
-(``floor((x - origin_x) / resolution)``, the origin and resolution rounded to that dtype as
-numpy rounds a Python float next to a float32 array), so the grid equals the numpy path's.
-"""
+"""Compiled (numba) costmap rasterisation: ``Costmap.cell_of``'s operations, the points' dtype."""
 
 from __future__ import annotations
 
@@ -28,10 +22,7 @@ def _raster_kernel(points, value, ox, oy, res, nx, ny, flat):  # pragma: no cove
 
 def rasterise(flat: np.ndarray, points: np.ndarray, value: int,
               origin_xy_m: tuple[float, float], resolution_m: float, nx: int, ny: int) -> None:
-    """Write ``value`` into the cells of ``flat`` ((ny * nx,) int8) that ``points`` hit.
-
-    points: (M, >= 2) float32 or float64 [m] (TypeError for another dtype).
-    """
+    """Write ``value`` into the cells of ``flat`` that points (M, >= 2) float32/64 hit."""
     if points.dtype not in (np.float32, np.float64):
         raise TypeError(f'points must be float32 or float64, got {points.dtype}')
     cast = points.dtype.type

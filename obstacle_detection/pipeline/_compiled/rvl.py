@@ -1,9 +1,4 @@
-"""Compiled (numba) RVL decoder (optional): the kernel of :mod:`obstacle_detection.ros.rvl`.
-
-RVL's codes are read one 4-bit nibble after the other, each code's length known only at its
-end: a sequential loop, which numba runs at C speed. The stream layout and the status codes
-are described in :mod:`obstacle_detection.ros.rvl`, whose numpy decoder gives the same pixels.
-"""
+"""Compiled (numba) RVL decoder, the kernel of :mod:`obstacle_detection.ros.rvl` (same pixels)."""
 
 from __future__ import annotations
 
@@ -81,12 +76,7 @@ def _decode_kernel(words, out):  # pragma: no cover - compiled
 
 
 def decode(words: np.ndarray, out: np.ndarray) -> tuple[int, int]:
-    """Decode RVL ``words`` ((M,) uint32) into ``out`` ((N,) uint16, every pixel written).
-
-    Returns (status, pixels decoded before the problem): status OK, or TRUNCATED (the words
-    end before pixel N), CODE_TOO_LONG, RUN_BEYOND_IMAGE, DIFFERENCE_TOO_LARGE, WORDS_LEFT
-    (whole words after the last pixel).
-    """
+    """Decode RVL ``words`` (M,) uint32 into ``out`` (N,) uint16: (status, pixels decoded)."""
     status, pixel = _decode_kernel(words, out)
     return int(status), int(pixel)
 
