@@ -9,9 +9,9 @@ import pytest
 
 from obstacle_detection.evaluation import EvaluationError, camera
 from obstacle_detection.evaluation.runner import folder_camera
+from obstacle_detection.pipeline.params import Intrinsics
 
 from eval_helpers import write_camera_yaml
-from obstacle_detection.pipeline.params import Intrinsics
 
 INTR = Intrinsics(365.5, 366.25, 255.5, 211.5)
 
@@ -43,9 +43,8 @@ def test_labelled_folder_camera_round_trip(tmp_path: Path) -> None:
     path = tmp_path / 'intrinsics.yaml'
     write_camera_yaml(path, INTR, 0.6, math.radians(15.0), math.radians(-2.0))
     back = folder_camera(path)
-    assert back['intrinsics'] == INTR and back['depth_scale'] is None
-    assert (back['height_m'], back['pitch_rad'], back['roll_rad']) == pytest.approx(
-        (0.6, math.radians(15.0), math.radians(-2.0)))
+    assert back.intrinsics == INTR and back.depth_scale is None
+    assert back.mount == pytest.approx((0.6, math.radians(15.0), math.radians(-2.0)))
 
 
 def test_ros_calibration_file_and_its_size(tmp_path: Path) -> None:

@@ -190,9 +190,9 @@ def test_cli_prints_the_mount_and_writes_a_params_file(tmp_path, capsys, tilted_
     assert (params.camera_height_m, math.degrees(params.camera_pitch_rad),
             math.degrees(params.camera_roll_rad)) == pytest.approx((0.75, 20.0, -4.0), abs=0.02)
     camera = evaluation.folder_camera(camera_out)
-    assert camera['intrinsics'] == tilted_frame.intrinsics
-    assert camera['depth_scale'] == scale
-    assert camera['height_m'] == pytest.approx(params.camera_height_m, abs=1e-4)
+    assert camera.intrinsics == tilted_frame.intrinsics
+    assert camera.depth_scale == scale
+    assert camera.mount[0] == pytest.approx(params.camera_height_m, abs=1e-4)
 
 
 def test_cli_reports_a_missing_floor(tmp_path, capsys):

@@ -238,14 +238,12 @@ def subsample(items: Sequence[Any], max_items: int | None) -> list[Any]:
 # Labelled folders
 
 
-def folder_camera(path: str | Path) -> dict[str, Any]:
-    """Intrinsics, mount and depth scale of a labelled folder as a dict (ValueError if bad)."""
+def folder_camera(path: str | Path) -> camera_file.CameraFile:
+    """Return the camera of a labelled folder's ``intrinsics.yaml`` (EvaluationError: no mount)."""
     camera = camera_file.read_camera_yaml(path)
     if camera.mount is None:
-        raise ValueError(f'{path}: missing camera_height_m (the mount height above ground)')
-    height_m, pitch_rad, roll_rad = camera.mount
-    return {'intrinsics': camera.intrinsics, 'height_m': height_m, 'pitch_rad': pitch_rad,
-            'roll_rad': roll_rad, 'depth_scale': camera.depth_scale}
+        raise EvaluationError('missing camera_height_m (the mount height above ground)', path)
+    return camera
 
 
 def truth_points_from_depth(depth_m: np.ndarray, intrinsics: Intrinsics, height_m: float,
@@ -272,7 +270,8 @@ def load_labelled_folder(path: str | Path, *, max_frames: int | None = None,
         raise ValueError(f'{root}: no labels/ file for depth/{missing[0]} '
                          f'({len(missing)} missing)')
     name = name or root.name
-    scale = camera['depth_scale'] if camera['depth_scale'] is not None else 0.001
+    scale = camera.depth_scale if camera.depth_scale is not None else 0.001
+    height_m, pitch_rad, roll_rad = camera.mount
     for depth_file in subsample(depth_files, max_frames):
         depth = cv2.imread(str(depth_file), cv2.IMREAD_UNCHANGED)
         labels = cv2.imread(str(root / 'labels' / depth_file.name), cv2.IMREAD_UNCHANGED)
@@ -285,13 +284,12 @@ def load_labelled_folder(path: str | Path, *, max_frames: int | None = None,
             raise ValueError(f'{root / "labels" / depth_file.name}: label value '
                              f'{int(labels.max())} (allowed 0, 1, 2, 3)')
         points = truth_points_from_depth(depth.astype(np.float32) * np.float32(scale),
-                                         camera['intrinsics'], camera['height_m'],
-                                         camera['pitch_rad'], camera['roll_rad'])
+                                         camera.intrinsics, height_m, pitch_rad, roll_rad)
         yield LabelledFrame(
             scenario=name, frame_id=depth_file.stem, depth=depth,
-            intrinsics=camera['intrinsics'], truth_labels=labels, truth_points=points,
-            height_m=camera['height_m'], pitch_rad=camera['pitch_rad'],
-            roll_rad=camera['roll_rad'], depth_scale=camera['depth_scale'], sequence_key=name)
+            intrinsics=camera.intrinsics, truth_labels=labels, truth_points=points,
+            height_m=height_m, pitch_rad=pitch_rad, roll_rad=roll_rad,
+            depth_scale=camera.depth_scale, sequence_key=name)
 
 
 # --------------------------------------------------------------------------------------------
