@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import functools
 import inspect
 import re
 import subprocess
@@ -125,17 +126,13 @@ def _source(obj: object) -> str:
         return ''
 
 
-def _starts_process(item: pytest.Item) -> bool:
-    """Whether the test, its fixtures or the module functions they use start a process/DDS."""
-    module = getattr(item, 'module', None)
-    infos = getattr(item, '_fixtureinfo', None)   # pytest has no public name for this
-    todo = [getattr(item, 'function', None)]
-    for name in getattr(item, 'fixturenames', ()):
-        if name == '_processes_need_the_mark':   # the guard below names what it refuses
-            continue
-        for definition in (infos.name2fixturedefs.get(name, ()) if infos else ()):
-            todo.append(definition.func)
-    seen: set[int] = set()
+@functools.cache
+def _reaches_process(module: object, root: object) -> bool:
+    """Whether ``root`` or the functions of ``module`` its code names start a process/DDS.
+
+    Cached: a parametrised test and a shared fixture are read once, not once per test.
+    """
+    todo, seen = [root], set()
     while todo:
         func = todo.pop()
         if func is None or id(func) in seen:
@@ -150,6 +147,19 @@ def _starts_process(item: pytest.Item) -> bool:
                 if getattr(obj, '__module__', None) == getattr(module, '__name__', ''):
                     todo.append(obj)
     return False
+
+
+def _starts_process(item: pytest.Item) -> bool:
+    """Whether the test, its fixtures or the module functions they use start a process/DDS."""
+    module = getattr(item, 'module', None)
+    infos = getattr(item, '_fixtureinfo', None)   # pytest has no public name for this
+    roots = [getattr(item, 'function', None)]
+    for name in getattr(item, 'fixturenames', ()):
+        if name == '_processes_need_the_mark':   # the guard below names what it refuses
+            continue
+        for definition in (infos.name2fixturedefs.get(name, ()) if infos else ()):
+            roots.append(definition.func)
+    return any(_reaches_process(module, root) for root in roots if root is not None)
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
