@@ -113,9 +113,9 @@ def both_paths(monkeypatch: pytest.MonkeyPatch) -> Callable[..., Any]:
 
 # -- the integration mark, set by what a test does -------------------------------------------
 #: Words in a test's code (or in a fixture or module function it uses) that start a process or
-#: a DDS graph.
+#: a DDS graph (NodeProcess, rclpy_context, run_detector: test/ros_env.py).
 _STARTS_PROCESS = re.compile(r'\b(subprocess|Popen|rclpy\.init|rclpy_context|multiprocessing'
-                             r'|LocalCluster)\b')
+                             r'|LocalCluster|NodeProcess|run_detector)\b')
 _CALLED = re.compile(r'\b([A-Za-z_]\w*)\b')
 
 
