@@ -40,6 +40,23 @@ def prefix(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return install
 
 
+# -- the small bags of test_bag_process and test_fleet ----------------------------------------
+@pytest.fixture(scope='session')
+def depths() -> list[np.ndarray]:
+    """Return the frames of the small test bags (``test_bag_process.frames``), rendered once."""
+    from test_bag_process import frames
+
+    return frames()
+
+
+@pytest.fixture(scope='module')
+def params_file(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Write the test module's ``PARAMS_YAML`` to a params file; return its path."""
+    path = tmp_path_factory.mktemp('params') / 'params.yaml'
+    path.write_text(request.module.PARAMS_YAML)
+    return path
+
+
 # -- the numpy/scipy reference and the compiled (numba) path -----------------------------------
 def pytest_configure(config: pytest.Config) -> None:
     """Declare the ``numba`` mark: the test needs the compiled kernels (skipped without)."""

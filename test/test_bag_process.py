@@ -130,18 +130,6 @@ def decoded(topic: str, raw: bytes) -> object:
 
 
 @pytest.fixture(scope='module')
-def depths() -> list[np.ndarray]:
-    return frames()
-
-
-@pytest.fixture(scope='module')
-def params_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    path = tmp_path_factory.mktemp('params') / 'params.yaml'
-    path.write_text(PARAMS_YAML)
-    return path
-
-
-@pytest.fixture(scope='module')
 def processed(tmp_path_factory: pytest.TempPathFactory, depths: list[np.ndarray],
               params_file: Path) -> tuple[Path, Path, str]:
     """(input bag, output bag, stdout) of one offline run over the frames."""
