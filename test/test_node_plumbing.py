@@ -137,6 +137,11 @@ def graph(tmp_path_factory: pytest.TempPathFactory, scene: SceneFrame) -> Iterat
         harness.first_report = harness.reports[0]
         assert harness.spin_until(lambda: harness.depth_pub.get_subscription_count() > 0,
                                   START_TIMEOUT_S), harness.log()
+        # the node's transient-local CameraInfo subscription (made when it sees the latched
+        # publisher) before the first frame: else that frame may come first on a busy machine
+        assert harness.spin_until(lambda: harness.latched_info_pub.get_subscription_count() == 2,
+                                  START_TIMEOUT_S), harness.log()
+        harness.spin_until(lambda: False, 0.5)     # the latched message on its way
         yield harness
     finally:
         harness.close()   # writes tmp/detector.log for a post-mortem
