@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import functools
 import inspect
 import re
 import subprocess
@@ -37,6 +38,23 @@ def prefix(tmp_path_factory: pytest.TempPathFactory) -> Path:
                           check=False)
     assert done.returncode == 0, done.stdout + done.stderr
     return install
+
+
+# -- the small bags of test_bag_process and test_fleet ----------------------------------------
+@pytest.fixture(scope='session')
+def depths() -> list[np.ndarray]:
+    """Return the frames of the small test bags (``test_bag_process.frames``), rendered once."""
+    from test_bag_process import frames
+
+    return frames()
+
+
+@pytest.fixture(scope='module')
+def params_file(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Write the test module's ``PARAMS_YAML`` to a params file; return its path."""
+    path = tmp_path_factory.mktemp('params') / 'params.yaml'
+    path.write_text(request.module.PARAMS_YAML)
+    return path
 
 
 # -- the numpy/scipy reference and the compiled (numba) path -----------------------------------
@@ -112,9 +130,9 @@ def both_paths(monkeypatch: pytest.MonkeyPatch) -> Callable[..., Any]:
 
 # -- the integration mark, set by what a test does -------------------------------------------
 #: Words in a test's code (or in a fixture or module function it uses) that start a process or
-#: a DDS graph.
+#: a DDS graph (NodeProcess, rclpy_context, run_detector: test/ros_env.py).
 _STARTS_PROCESS = re.compile(r'\b(subprocess|Popen|rclpy\.init|rclpy_context|multiprocessing'
-                             r'|LocalCluster)\b')
+                             r'|LocalCluster|NodeProcess|run_detector)\b')
 _CALLED = re.compile(r'\b([A-Za-z_]\w*)\b')
 
 
@@ -125,17 +143,13 @@ def _source(obj: object) -> str:
         return ''
 
 
-def _starts_process(item: pytest.Item) -> bool:
-    """Whether the test, its fixtures or the module functions they use start a process/DDS."""
-    module = getattr(item, 'module', None)
-    infos = getattr(item, '_fixtureinfo', None)   # pytest has no public name for this
-    todo = [getattr(item, 'function', None)]
-    for name in getattr(item, 'fixturenames', ()):
-        if name == '_processes_need_the_mark':   # the guard below names what it refuses
-            continue
-        for definition in (infos.name2fixturedefs.get(name, ()) if infos else ()):
-            todo.append(definition.func)
-    seen: set[int] = set()
+@functools.cache
+def _reaches_process(module: object, root: object) -> bool:
+    """Whether ``root`` or the functions of ``module`` its code names start a process/DDS.
+
+    Cached: a parametrised test and a shared fixture are read once, not once per test.
+    """
+    todo, seen = [root], set()
     while todo:
         func = todo.pop()
         if func is None or id(func) in seen:
@@ -150,6 +164,19 @@ def _starts_process(item: pytest.Item) -> bool:
                 if getattr(obj, '__module__', None) == getattr(module, '__name__', ''):
                     todo.append(obj)
     return False
+
+
+def _starts_process(item: pytest.Item) -> bool:
+    """Whether the test, its fixtures or the module functions they use start a process/DDS."""
+    module = getattr(item, 'module', None)
+    infos = getattr(item, '_fixtureinfo', None)   # pytest has no public name for this
+    roots = [getattr(item, 'function', None)]
+    for name in getattr(item, 'fixturenames', ()):
+        if name == '_processes_need_the_mark':   # the guard below names what it refuses
+            continue
+        for definition in (infos.name2fixturedefs.get(name, ()) if infos else ()):
+            roots.append(definition.func)
+    return any(_reaches_process(module, root) for root in roots if root is not None)
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:

@@ -130,18 +130,6 @@ def decoded(topic: str, raw: bytes) -> object:
 
 
 @pytest.fixture(scope='module')
-def depths() -> list[np.ndarray]:
-    return frames()
-
-
-@pytest.fixture(scope='module')
-def params_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    path = tmp_path_factory.mktemp('params') / 'params.yaml'
-    path.write_text(PARAMS_YAML)
-    return path
-
-
-@pytest.fixture(scope='module')
 def processed(tmp_path_factory: pytest.TempPathFactory, depths: list[np.ndarray],
               params_file: Path) -> tuple[Path, Path, str]:
     """(input bag, output bag, stdout) of one offline run over the frames."""
@@ -518,18 +506,28 @@ def output_messages(bag: Path) -> dict[str, list[tuple[int, object]]]:
             for topic in OUTPUT_TOPICS.values()}
 
 
+@pytest.fixture(scope='module')
+def raw_outputs(tmp_path_factory: pytest.TempPathFactory, depths: list[np.ndarray],
+                params_file: Path) -> dict[str, list[tuple[int, object]]]:
+    """Process the raw (16UC1) bag of the frames in this process; return its outputs."""
+    root = tmp_path_factory.mktemp('raw')
+    write_bag(root / 'raw', frame_messages(depths))
+    assert bag_process.main([str(root / 'raw'), str(root / 'raw_out'), '--params-file',
+                             str(params_file), '--quiet']) == 0
+    return output_messages(root / 'raw_out')
+
+
 @pytest.mark.parametrize('kind', sorted(COMPRESSIONS))
 def test_compressed_depth_bag_gives_the_raw_bags_outputs(
         tmp_path: Path, depths: list[np.ndarray], params_file: Path, kind: str,
+        raw_outputs: dict[str, list[tuple[int, object]]],
         capsys: pytest.CaptureFixture[str]) -> None:
     suffix, compress = COMPRESSIONS[kind]
     assert max(int(d.max()) for d in depths) <= 10000  # within compressedDepth's 10 m
-    items = frame_messages(depths)
-    write_bag(tmp_path / 'raw', items)
-    write_bag(tmp_path / 'compressed', compressed_items(items, suffix, compress))
+    write_bag(tmp_path / 'compressed', compressed_items(frame_messages(depths), suffix,
+                                                        compress))
     common = ['--params-file', str(params_file), '--quiet']
 
-    assert bag_process.main([str(tmp_path / 'raw'), str(tmp_path / 'raw_out'), *common]) == 0
     assert bag_process.main([str(tmp_path / 'compressed'), str(tmp_path / 'compressed_out'),
                              *common, '--depth-topic', f'{DEPTH}/{suffix}']) == 0
 
@@ -537,11 +535,10 @@ def test_compressed_depth_bag_gives_the_raw_bags_outputs(
     assert (f'depth: {DEPTH}/{suffix} (sensor_msgs/msg/CompressedImage, decoded by '
             'compressed_depth)') in out
     assert f'intrinsics: CameraInfo on {INFO} (the default topic)' in out
-    raw_out = output_messages(tmp_path / 'raw_out')
     compressed_out = output_messages(tmp_path / 'compressed_out')
     for topic in OUTPUT_TOPICS.values():
-        assert len(raw_out[topic]) == len(depths)
-        assert compressed_out[topic] == raw_out[topic], f'{topic} differs'
+        assert len(raw_outputs[topic]) == len(depths)
+        assert compressed_out[topic] == raw_outputs[topic], f'{topic} differs'
 
 
 def test_ros1_iai_kinect2_compressed_bag_gives_the_raw_bags_outputs(

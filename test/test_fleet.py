@@ -27,7 +27,7 @@ from obstacle_detection.fleet import bags as fleet_bags
 from obstacle_detection.fleet import cluster, scoring
 from obstacle_detection.pipeline.params import table_4_2
 from obstacle_detection.tools import bag_process, sweep
-from test_bag_process import (INFO, OUTPUT_TOPICS, frame_messages, frames, output_messages,
+from test_bag_process import (INFO, OUTPUT_TOPICS, frame_messages, output_messages,
                               read_raw, write_bag)
 
 REPO = Path(__file__).resolve().parents[1]
@@ -41,18 +41,6 @@ obstacle_detector:
     max_range_m: 2.5
     costmap_length_m: 2.5
 """
-
-
-@pytest.fixture(scope='module')
-def depths() -> list[np.ndarray]:
-    return frames()
-
-
-@pytest.fixture(scope='module')
-def params_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    path = tmp_path_factory.mktemp('params') / 'params.yaml'
-    path.write_text(PARAMS_YAML)
-    return path
 
 
 def make_bags(root: Path, depths: list[np.ndarray], count: int, *, repeat: int = 1,

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from obstacle_detection.evaluation import runner as evaluation
-from obstacle_detection.pipeline import floor
+from obstacle_detection.pipeline import floor, geometry
 from obstacle_detection.pipeline.detector import Detector
 from obstacle_detection.ros.parameters import detector_params_from_ros, read_params_file
 
@@ -31,9 +31,10 @@ def suite_inputs():
     for scenario in evaluation.load_scenarios(evaluation.SUITES['robot']):
         frame = next(evaluation.scenario_frames(scenario, max_frames=1))
         params = frame.params(base)
-        detector = Detector(params)
-        result = detector.process(frame.depth, frame.intrinsics)
-        out.append((scenario.name, result.depth_m, detector._sub_rays, params))
+        result = Detector(params).process(frame.depth, frame.intrinsics)
+        shape = result.depth_m.shape     # the rays the detector samples for its floor fit
+        sub_rays = floor.sample_rays(geometry.ray_model(shape, result.intrinsics, params), shape)
+        out.append((scenario.name, result.depth_m, sub_rays, params))
     return out
 
 

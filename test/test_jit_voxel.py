@@ -10,7 +10,8 @@ from obstacle_detection.pipeline import geometry, voxel
 from obstacle_detection.pipeline._compiled import voxel as jit_voxel
 from obstacle_detection.pipeline.depth import crop_borders, decode_depth
 from obstacle_detection.pipeline.median import median_filter
-from obstacle_detection.pipeline.params import DetectorParams, Intrinsics, table_4_2, table_4_3
+from obstacle_detection.pipeline.params import (KINECT_V2_SD, DetectorParams, Intrinsics,
+                                                table_4_2, table_4_3)
 from obstacle_detection.pipeline.detector import Detector
 from obstacle_detection.sim.scenes import render_scene, scene_params
 from obstacle_detection.pipeline.voxel import voxel_downsample
@@ -183,6 +184,9 @@ def _outputs(params, frame):
 
 @pytest.mark.parametrize('name', ['corridor', 'people', 'farm_row'])
 def test_pipeline_identical_with_and_without_jit(name, both_paths):
-    frame = render_scene(name, seed=2)
+    # half the Kinect's pixels on the same geometry: as many voxels, a quarter of the median
+    half = Intrinsics(KINECT_V2_SD.fx / 2, KINECT_V2_SD.fy / 2, KINECT_V2_SD.cx / 2,
+                      KINECT_V2_SD.cy / 2)
+    frame = render_scene(name, seed=2, intrinsics=half, size=(256, 212))
     obstacles = both_paths(_outputs, scene_params(frame, table_4_2()), frame)[0]
     assert obstacles.shape[0] > 100

@@ -17,13 +17,9 @@ figures; ``pytest -s`` prints them as a table (README, Use with Nav2).
 from __future__ import annotations
 
 import dataclasses
-import signal
 import statistics
-import subprocess
-import sys
-import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -32,12 +28,9 @@ import nav2_layers as nav2
 import nav2_replay as replay
 import numpy as np
 import pytest
-import rclpy
 import ros_env
 from builtin_interfaces.msg import Time
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 from obstacle_detection.cli import bag_processor
@@ -64,89 +57,30 @@ LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
-def _detector_command() -> list[str]:
-    """Return the venv's console script (``pip install -e .``), else ``python -m``."""
-    script = Path(sys.executable).with_name('detector')
-    return [str(script)] if script.is_file() else [
-        sys.executable, '-m', 'obstacle_detection.ros.node']
-
-
-class Harness:
-    """The node subprocess (as the README starts it) and a probe node talking to it."""
+class Harness(ros_env.NodeProcess):
+    """The node process (as the README starts it) and a probe node talking to it."""
 
     def __init__(self, tmp: Path) -> None:
-        self.env = ros_env.loopback_env(__name__, log_dir=tmp / 'ros_log')
-        self._old_env = ros_env.apply(self.env)
-        self.tmp = tmp
-        self.process = subprocess.Popen(
-            _detector_command() + ['--ros-args', '--params-file', str(CORRIDOR)],
-            env=self.env, cwd=tmp, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-        self.lines: list[str] = []
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
-        self.node = rclpy.create_node('nav2_sequence_probe', context=self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
+        super().__init__(tmp, __name__, 'nav2_sequence_probe', spin_step_s=0.02)
         self.depth_pub = self.node.create_publisher(Image, 'depth/image_raw', RELIABLE)
         self.info_pub = self.node.create_publisher(CameraInfo, 'depth/camera_info', LATCHED)
-        self.clouds: dict[str, dict[tuple[int, int], PointCloud2]] = {}
-        self.subs = [self._subscribe('obstacles/points'),
-                     self._subscribe('obstacles/clearing_points')]
-
-    def _read(self) -> None:
-        for line in self.process.stdout:
-            self.lines.append(line)
-
-    def _subscribe(self, topic: str) -> Any:
-        store = self.clouds.setdefault(topic, {})
-        return self.node.create_subscription(
-            PointCloud2, topic,
-            lambda msg: store.__setitem__((msg.header.stamp.sec, msg.header.stamp.nanosec),
-                                          msg), RELIABLE)
-
-    def log(self) -> str:
-        return ''.join(self.lines)
-
-    def spin_until(self, done: Callable[[], bool], timeout: float) -> bool:
-        deadline = time.monotonic() + timeout
-        while not done():
-            if time.monotonic() > deadline or self.process.poll() is not None:
-                return done()
-            self.executor.spin_once(timeout_sec=0.02)
-        return True
+        self.subs = [self.by_stamp(topic, PointCloud2, topic, RELIABLE)
+                     for topic in ('obstacles/points', 'obstacles/clearing_points')]
+        self.start(['--ros-args', '--params-file', str(CORRIDOR)])
 
     def send(self, depth_mm: np.ndarray, info: CameraInfo, stamp: Time,
              ) -> tuple[PointCloud2, PointCloud2]:
         """Publish one frame; return its obstacle and clearing clouds (one resend if lost)."""
-        key = (stamp.sec, stamp.nanosec)
+        key = ros_env.stamp_key(stamp)
         topics = ('obstacles/points', 'obstacles/clearing_points')
         for _ in range(2):
             info.header.stamp = stamp
             self.info_pub.publish(info)
             self.depth_pub.publish(array_to_image(depth_mm, stamp=stamp, frame_id=FRAME_ID))
-            if self.spin_until(lambda: all(key in self.clouds[t] for t in topics),
+            if self.spin_until(lambda: all(key in self.received[t] for t in topics),
                                REPLY_TIMEOUT_S):
-                return tuple(self.clouds[t].pop(key) for t in topics)
+                return tuple(self.received[t].pop(key) for t in topics)
         raise AssertionError(f'no clouds for the frame stamped {key}:\n{self.log()}')
-
-    def close(self) -> None:
-        try:
-            self.executor.shutdown(timeout_sec=1.0)
-            self.node.destroy_node()
-            rclpy.try_shutdown(context=self.context)
-        finally:
-            if self.process.poll() is None:
-                self.process.send_signal(signal.SIGINT)
-                try:
-                    self.process.wait(timeout=15)
-                except subprocess.TimeoutExpired:
-                    self.process.kill()
-                    self.process.wait(timeout=10)
-            self._reader.join(timeout=5)
-            (self.tmp / 'detector.log').write_text(self.log())
-            ros_env.restore(self._old_env)
 
 
 @pytest.fixture(scope='module')

@@ -12,10 +12,8 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
-import shutil
 import signal
 import subprocess
-import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -38,10 +36,8 @@ from rcl_interfaces.srv import (
     SetParameters,
     SetParametersAtomically,
 )
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter, parameter_dict_from_yaml_file, parameter_value_to_python
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 from std_msgs.msg import Float64, String
 
@@ -87,95 +83,45 @@ def _yaml_values(path: Path) -> dict[str, Any]:
     return {name: parameter_value_to_python(msg.value) for name, msg in parsed.items()}
 
 
-def _detector_command() -> list[str]:
-    """Return the venv's console script (``pip install -e .``), else ``python -m``."""
-    script = Path(sys.executable).with_name('detector')
-    if script.is_file():
-        return [str(script)]
-    found = shutil.which('detector')
-    return [found] if found else [sys.executable, '-m', 'obstacle_detection.ros.node']
-
-
-def _stamp_key(stamp: Time) -> tuple[int, int]:
-    return (stamp.sec, stamp.nanosec)
-
-
-class NodeUnderTest:
-    """The detector subprocess, its log lines, and a probe node talking to it."""
+class NodeUnderTest(ros_env.NodeProcess):
+    """The detector process (params/corridor.yaml, debug log) and a probe talking to it."""
 
     def __init__(self, tmp: Path, *, salt: str = '',
                  extra_env: dict[str, str] | None = None,
                  extra_args: tuple[str, ...] = ()) -> None:
-        self.tmp = tmp
-        self.env = ros_env.loopback_env(__name__ + salt, log_dir=tmp / 'ros_log')
-        self.env.update(extra_env or {})
-        self._old_env = ros_env.apply(self.env)
-        command = _detector_command() + [
-            '--ros-args', '--params-file', str(CORRIDOR_YAML),
-            '-p', 'reliable_input:=true', '-p', 'publish_ground:=true',
-            '-p', 'publish_overlay:=true',
-            '-p', 'stats_period_s:=1.0', '--log-level', 'obstacle_detector:=debug',
-            *extra_args]
-        self.process = subprocess.Popen(command, env=self.env, cwd=tmp, stdout=subprocess.PIPE,
-                                        stderr=subprocess.STDOUT, text=True)
-        self.lines: list[str] = []
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
-        self.node = rclpy.create_node('node_test_probe', context=self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
+        super().__init__(tmp, __name__ + salt, 'node_test_probe', extra_env=extra_env)
         self.depth_pub = self.node.create_publisher(Image, 'depth/image_raw', RELIABLE)
         self.info_pub = self.node.create_publisher(CameraInfo, 'depth/camera_info', RELIABLE)
-        self.received: dict[str, dict[tuple[int, int], Any]] = {}
         self.times_ms: list[float] = []
         self.statuses: list[str] = []
-        self._subs = [self._subscribe(PointCloud2, 'obstacles/points', 'obstacles'),
-                      self._subscribe(OccupancyGrid, 'obstacles/costmap', 'costmap'),
-                      self._subscribe(PointCloud2, 'obstacles/ground_points', 'ground'),
-                      self._subscribe(Image, 'obstacles/overlay', 'overlay'),
-                      self.node.create_subscription(
-                          Float64, f'{NODE}/processing_time_ms',
-                          lambda msg: self.times_ms.append(msg.data), RELIABLE),
-                      self.node.create_subscription(
-                          String, f'{NODE}/status', lambda msg: self.statuses.append(msg.data),
-                          STATUS_QOS)]
+        self.outputs_subs = [self.by_stamp('obstacles', PointCloud2, 'obstacles/points', RELIABLE),
+                             self.by_stamp('costmap', OccupancyGrid, 'obstacles/costmap',
+                                           RELIABLE)]
+        self.by_stamp('ground', PointCloud2, 'obstacles/ground_points', RELIABLE)
+        self.by_stamp('overlay', Image, 'obstacles/overlay', RELIABLE)
+        self.node.create_subscription(Float64, f'{NODE}/processing_time_ms',
+                                      lambda msg: self.times_ms.append(msg.data), RELIABLE)
+        self.node.create_subscription(String, f'{NODE}/status',
+                                      lambda msg: self.statuses.append(msg.data), STATUS_QOS)
         self.set_client = self.node.create_client(SetParameters, f'{NODE}/set_parameters')
         self.atomic_client = self.node.create_client(SetParametersAtomically,
                                                      f'{NODE}/set_parameters_atomically')
         self.list_client = self.node.create_client(ListParameters, f'{NODE}/list_parameters')
         self.get_client = self.node.create_client(GetParameters, f'{NODE}/get_parameters')
-        self._next_sec = 100
+        self.start([
+            '--ros-args', '--params-file', str(CORRIDOR_YAML),
+            '-p', 'reliable_input:=true', '-p', 'publish_ground:=true',
+            '-p', 'publish_overlay:=true',
+            '-p', 'stats_period_s:=1.0', '--log-level', 'obstacle_detector:=debug',
+            *extra_args])
 
-    def _read(self) -> None:
-        for line in self.process.stdout:
-            self.lines.append(line)
-
-    def _subscribe(self, msg_type: type, topic: str, key: str) -> Any:
-        store = self.received.setdefault(key, {})
-        return self.node.create_subscription(
-            msg_type, topic, lambda msg: store.__setitem__(_stamp_key(msg.header.stamp), msg),
-            RELIABLE)
-
-    def log(self, start: int = 0) -> str:
-        return ''.join(self.lines[start:])
-
-    def spin_until(self, done: Callable[[], bool], timeout: float) -> bool:
-        """Spin the probe until ``done()`` or the deadline; never sleeps blindly."""
-        deadline = time.monotonic() + timeout
-        while not done():
-            if time.monotonic() > deadline or self.process.poll() is not None:
-                return done()
-            self.executor.spin_once(timeout_sec=0.05)
-        return True
+    def connected(self, publisher: Any) -> bool:
+        """Whether the node subscribes to ``publisher`` and publishes the cloud and grid."""
+        return (publisher.get_subscription_count() > 0
+                and all(s.get_publisher_count() > 0 for s in self.outputs_subs))
 
     def wait_for_log(self, text: str, start: int, timeout: float = REPLY_TIMEOUT_S) -> bool:
-        return self.spin_until(lambda: text in self.log(start), timeout)
-
-    def next_stamp(self) -> Time:
-        self._next_sec += 1
-        return Time(sec=self._next_sec, nanosec=250)
+        return super().wait_for_log(text, start, timeout)
 
     def send(self, image: Image, info: CameraInfo | None) -> Time:
         """Publish ``info`` (if any), let it arrive first, then ``image`` with a new stamp."""
@@ -190,15 +136,12 @@ class NodeUnderTest:
 
     def outputs(self, stamp: Time, keys: tuple[str, ...] = ('obstacles', 'costmap'),
                 timeout: float = REPLY_TIMEOUT_S) -> dict[str, Any] | None:
-        key = _stamp_key(stamp)
+        key = ros_env.stamp_key(stamp)
         got = self.spin_until(lambda: all(key in self.received[k] for k in keys), timeout)
         return {k: self.received[k][key] for k in keys} if got else None
 
     def call(self, client: Any, request: Any) -> Any:
-        assert self.spin_until(lambda: client.service_is_ready(), REPLY_TIMEOUT_S)
-        future = client.call_async(request)
-        assert self.spin_until(future.done, REPLY_TIMEOUT_S), 'no reply from the node'
-        return future.result()
+        return super().call(client, request, REPLY_TIMEOUT_S)
 
     def set_parameter(self, name: str, value: Any) -> Any:
         request = SetParameters.Request(parameters=[Parameter(name, value=value)
@@ -208,23 +151,6 @@ class NodeUnderTest:
     def get_parameter(self, name: str) -> Any:
         reply = self.call(self.get_client, GetParameters.Request(names=[name]))
         return parameter_value_to_python(reply.values[0])
-
-    def close(self) -> None:
-        try:
-            self.executor.shutdown(timeout_sec=1.0)
-            self.node.destroy_node()
-            rclpy.try_shutdown(context=self.context)
-        finally:
-            if self.process.poll() is None:
-                self.process.send_signal(signal.SIGINT)
-                try:
-                    self.process.wait(timeout=15)
-                except subprocess.TimeoutExpired:
-                    self.process.kill()
-                    self.process.wait(timeout=10)
-            self._reader.join(timeout=5)
-            (self.tmp / 'detector.log').write_text(self.log())  # for a post-mortem
-            ros_env.restore(self._old_env)
 
 
 @pytest.fixture(scope='module')
@@ -252,10 +178,8 @@ def detector(tmp_path_factory: pytest.TempPathFactory,
     try:
         assert harness.wait_for_log('ready:', 0, START_TIMEOUT_S), harness.log()
         matched = harness.spin_until(
-            lambda: (harness.depth_pub.get_subscription_count() > 0
-                     and harness.info_pub.get_subscription_count() > 0
-                     and all(s.get_publisher_count() > 0 for s in harness._subs[:2])),
-            START_TIMEOUT_S)
+            lambda: (harness.connected(harness.depth_pub)
+                     and harness.info_pub.get_subscription_count() > 0), START_TIMEOUT_S)
         assert matched, 'the probe and the node did not discover each other'
         start = len(harness.lines)
         harness.send(_depth_image(scene), None)
@@ -338,9 +262,7 @@ def test_cold_numba_cache_answers_at_once_then_switches_to_the_kernels(
     try:
         assert cold.spin_until(lambda: bool(cold.statuses), START_TIMEOUT_S), cold.log()
         assert cold.statuses[0].startswith('ready: numpy path while the numba kernels compile')
-        assert cold.spin_until(lambda: cold.depth_pub.get_subscription_count() > 0
-                               and all(s.get_publisher_count() > 0 for s in cold._subs[:2]),
-                               START_TIMEOUT_S)
+        assert cold.spin_until(lambda: cold.connected(cold.depth_pub), START_TIMEOUT_S)
         _assert_matches(_good_frame(cold, scene), expected)
 
         assert cold.spin_until(lambda: 'compiled' in cold.statuses[-1], COMPILE_TIMEOUT_S), (
@@ -394,7 +316,7 @@ def test_a_burst_of_frames_is_not_queued(detector: NodeUnderTest, scene: SceneFr
 
     # The newest frame is always processed; older pending ones may be dropped, never queued.
     assert detector.outputs(stamps[-1]) is not None, detector.log(start)
-    answered = sum(_stamp_key(s) in detector.received['obstacles'] for s in stamps)
+    answered = sum(ros_env.stamp_key(s) in detector.received['obstacles'] for s in stamps)
     if answered < len(stamps):  # the stats log must account for the dropped frames
         assert detector.spin_until(lambda: re.search(r'[1-9]\d* dropped', detector.log(start)),
                                    REPLY_TIMEOUT_S), detector.log(start)
@@ -452,7 +374,7 @@ def test_bad_inputs_are_logged_and_survived(detector: NodeUnderTest, scene: Scen
         start = len(detector.lines)
         stamp = detector.send(image, info)
         assert detector.wait_for_log(message, start), f'{name}: not logged\n{detector.log()}'
-        assert _stamp_key(stamp) not in detector.received['obstacles'], name
+        assert ros_env.stamp_key(stamp) not in detector.received['obstacles'], name
         assert detector.process.poll() is None, f'{name}: the node died\n{detector.log()}'
         _assert_matches(_good_frame(detector, scene), expected)
     assert 'Traceback' not in detector.log()
@@ -893,18 +815,12 @@ def test_invalid_params_file_stops_the_node_with_the_message(tmp_path: Path) -> 
     bad.write_text(CORRIDOR_YAML.read_text().replace('median_kernel: 5 ', 'median_kernel: 4 '))
     env = ros_env.loopback_env(__name__ + ':bad-file', log_dir=tmp_path / 'ros_log')
 
-    done = subprocess.run(_detector_command() + ['--ros-args', '--params-file', str(bad)],
+    done = subprocess.run(ros_env.detector_command() + ['--ros-args', '--params-file', str(bad)],
                           env=env, cwd=tmp_path, capture_output=True, text=True, timeout=60,
                           check=False)
 
     assert done.returncode == 1
     assert 'invalid parameters: median_kernel=4 must be odd' in done.stdout + done.stderr
-
-
-def _run_detector(tmp_path: Path, *args: str, salt: str) -> subprocess.CompletedProcess:
-    env = ros_env.loopback_env(__name__ + salt, log_dir=tmp_path / 'ros_log')
-    return subprocess.run(_detector_command() + list(args), env=env, cwd=tmp_path,
-                          capture_output=True, text=True, timeout=60, check=False)
 
 
 def test_diagnostics_report_each_fault_at_its_level(tmp_path: Path, scene: SceneFrame) -> None:
@@ -960,9 +876,8 @@ def test_compressed_depth_input_gives_the_raw_frames_outputs(
     try:
         compressed_pub = node.node.create_publisher(
             CompressedImage, 'depth/image_raw/compressedDepth', RELIABLE)
-        assert node.spin_until(lambda: compressed_pub.get_subscription_count() > 0
-                               and all(s.get_publisher_count() > 0 for s in node._subs[:2]),
-                               START_TIMEOUT_S), node.log()
+        assert node.spin_until(lambda: node.connected(compressed_pub), START_TIMEOUT_S), \
+            node.log()
         expected = Detector(corridor_params).process(scene.depth_mm, scene.intrinsics)
         for _ in range(3):
             stamp = node.next_stamp()
@@ -989,7 +904,7 @@ def test_compressed_depth_input_gives_the_raw_frames_outputs(
 
 
 def test_help_lists_every_parameter_and_starts_no_node(tmp_path: Path) -> None:
-    done = _run_detector(tmp_path, '--help', salt=':help')
+    done = ros_env.run_detector(tmp_path, '--help', salt=__name__ + ':help')
 
     assert done.returncode == 0, done.stderr
     assert done.stdout.startswith('usage: detector')
@@ -1010,7 +925,8 @@ def test_unreadable_params_file_is_one_clear_line(tmp_path: Path, content: str |
     if content is not None:
         path.write_text(content)
 
-    done = _run_detector(tmp_path, '--ros-args', '--params-file', str(path), salt=':unread')
+    done = ros_env.run_detector(tmp_path, '--ros-args', '--params-file', str(path),
+                              salt=__name__ + ':unread')
 
     assert done.returncode == 1
     assert done.stderr.count('\n') == 1 and 'Traceback' not in done.stderr, done.stderr
@@ -1067,7 +983,8 @@ def test_node_warns_about_a_params_file_it_would_ignore(tmp_path: Path) -> None:
     wrong.write_text('detector:\n  ros__parameters:\n    median_kernel: 5\n'
                      'obstacle_detector:\n  ros__parameters:\n    max_slope: 20.0\n')
     env = ros_env.loopback_env(__name__ + ':wrong-file', log_dir=tmp_path / 'ros_log')
-    process = subprocess.Popen(_detector_command() + ['--ros-args', '--params-file', str(wrong)],
+    process = subprocess.Popen(ros_env.detector_command() + ['--ros-args', '--params-file',
+                                                             str(wrong)],
                                env=env, cwd=tmp_path, stdout=subprocess.PIPE,
                                stderr=subprocess.STDOUT, text=True)
     lines: list[str] = []

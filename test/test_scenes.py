@@ -296,8 +296,11 @@ def test_noise_std_at_two_metres():
 
 # -- named scenes ------------------------------------------------------------------------------
 
-@pytest.mark.parametrize('size, intrinsics', [((512, 424), KINECT_V2_SD), ((960, 540), QHD)])
-@pytest.mark.parametrize('name', scenes.SCENE_NAMES)
+# Every scene at the Kinect's size; another camera (size and intrinsics) on one scene of each
+# kind (with and without obstacles): the scenes share the renderer that takes them.
+@pytest.mark.parametrize('name, size, intrinsics', [
+    *((name, (512, 424), KINECT_V2_SD) for name in scenes.SCENE_NAMES),
+    ('flat_floor', (960, 540), QHD), ('corridor', (960, 540), QHD)])
 def test_every_named_scene_renders(name, size, intrinsics):
     frame = render_scene(name, seed=1, size=size, intrinsics=intrinsics)
     width, height = size
