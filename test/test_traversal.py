@@ -541,3 +541,46 @@ def test_warm_up_compiles_every_robot_level_kernel_a_frame_uses():
                          text=True, timeout=600)
     assert run.returncode == 0, run.stderr
     assert run.stdout.strip() == '[]', f'compiled during the frame: {run.stdout}'
+
+
+def test_lone_voxels_are_those_without_a_neighbour(kernel_path):
+    v = 0.025
+    board = np.array([(1.0 + i * v, j * v, 0.5) for i in range(4) for j in range(4)])
+    leg = np.array([(1.5, 0.5, k * v) for k in range(8)])          # a 2.5 cm column
+    diagonal = np.array([(1.7, -0.2, 0.3), (1.7 + v, -0.2 + v, 0.3 + v)])
+    alone = np.array([(1.3, -0.5, 0.4), (1.9, 0.6, 0.2)])          # mixed pixels in the air
+    pts = (np.concatenate((board, leg, diagonal, alone)) + v / 2).astype(np.float32)
+    lone = traversal.lone_voxels(pts, v, v, v)
+    assert not lone[:-2].any() and lone[-2:].all()
+    assert traversal.lone_voxels(np.zeros((0, 3), np.float32), v, v, v).shape == (0,)
+    assert traversal.lone_voxels(pts[-1:], v, v, v).all()
+
+
+@pytest.mark.numba
+def test_lone_voxel_kernel_equals_numpy(both_paths):
+    rng = np.random.default_rng(3)
+    pts = rng.uniform([0.0, -1.0, -0.4], [2.0, 1.0, 1.5], size=(4000, 3)).astype(np.float32)
+    pts[:2000, 2] = 0.3   # a board: neighbours
+    assert both_paths(traversal._lone_voxels, pts, 0.025, 0.025, 0.025).sum() > 100
+
+
+def test_mixed_pixels_scattered_in_the_air_are_not_marked():
+    box = Box.on_floor(1.2, 0.0, 0.3, 0.3, 0.5)
+    wall = Wall(3.5, -3.0, 3.5, 3.0)
+    frame, params, _ = run([Floor(), box, wall])
+    depth = frame.depth_mm.astype(np.float32)
+    on_box = frame.hit_index == 1
+    # every 8th pixel of the column beside the box's silhouette, whose near side returned
+    # nothing (a dropout blob): mixed depths scattered between the box and the wall
+    rows = np.flatnonzero(on_box.any(axis=1))
+    col = np.flatnonzero(on_box.any(axis=0))[-1] + 1
+    depth[:, col - 3:col + 1] = 0.0
+    rows = rows[::8]
+    near = np.median(depth[on_box])
+    mixed = near + np.linspace(0.1, 0.9, rows.size) * (depth[rows, col] - near)
+    depth[rows, col] = mixed[np.random.default_rng(0).permutation(rows.size)]
+    result = Detector(params).process(depth.astype(np.uint16), frame.intrinsics)
+    # without the lone-voxel rule every one is marked (N1 counts the others); with it, those
+    # next to the box, the floor or the wall only
+    assert (result.labels[rows, col] == LABEL_OBSTACLE).mean() < 0.4
+    assert (result.labels[on_box & (depth > 0)] == LABEL_OBSTACLE).mean() > 0.5

@@ -164,6 +164,8 @@ class Detector:
         is_obstacle = validate_obstacles(candidates, neighbours, p.validation_neighbours)
         if ledge is not None:
             is_obstacle |= ledge   # a band one cell wide, as a drop edge: not validated
+            is_obstacle &= ~traversal.lone_voxels(centroids, p.voxel_x_m, p.voxel_y_m,
+                                                  p.voxel_z_m)   # mixed pixels kept
         clock.lap('validation')
         obstacle_points = centroids[is_obstacle]
         if drop_points.shape[0]:

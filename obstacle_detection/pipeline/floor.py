@@ -328,7 +328,7 @@ def _floor_beneath(pts: np.ndarray, coef: np.ndarray, used: int,
     all have missed the floor. A lower floor beyond a drop lies out of the bounds.
     """
     resid = pts[2] - (coef[0] * pts[0] + coef[1] * pts[1] + coef[2])
-    beneath = pts[:, resid < -BENEATH_M]
+    beneath = np.ascontiguousarray(pts[:, resid < -BENEATH_M])   # the kernels' layout
     if beneath.shape[1] < params.floor_min_points:
         return coef, used
     lower, _ = _best_plane(beneath, params)

@@ -111,6 +111,36 @@ def traversable_ground(points: np.ndarray, steep: np.ndarray,
     return Traversal(*out, size, edge)
 
 
+def _reference_lone_voxels(points: np.ndarray, vx: float, vy: float, vz: float) -> np.ndarray:
+    """(V,) bool: no other voxel lies in the 26 voxels around the voxel (numpy)."""
+    ijk = np.floor(points / np.array((vx, vy, vz), np.float32)).astype(np.int64)
+    ijk += 1 - ijk.min(axis=0)
+    grid = np.zeros(tuple(ijk.max(axis=0) + 2), bool)
+    grid[ijk[:, 0], ijk[:, 1], ijk[:, 2]] = True
+    lone = np.ones(points.shape[0], bool)
+    for d in np.ndindex(3, 3, 3):
+        if d != (1, 1, 1):
+            lone &= ~grid[ijk[:, 0] + d[0] - 1, ijk[:, 1] + d[1] - 1, ijk[:, 2] + d[2] - 1]
+    return lone
+
+
+def lone_voxels(points: np.ndarray, vx: float, vy: float, vz: float) -> np.ndarray:
+    """(V,) bool: voxels with no other voxel among their 26 neighbours (issue 22).
+
+    points: (V, 3) float32 voxel centroids [m]; vx, vy, vz: the voxel size [m]. A lone
+    voxel in the robot's band is a time-of-flight mixed pixel that the flying-pixel test kept
+    (its window's near surface missing in a dropout blob, or within 3 % of a surface): mixed
+    depths scatter along the rays, while a surface, a leg or a board fills neighbouring
+    voxels. Such candidates are not obstacles. Compiled when :func:`.jit.enabled`.
+    """
+    if points.shape[0] == 0:
+        return np.zeros(0, bool)
+    return _lone_voxels(points, vx, vy, vz)
+
+
+_lone_voxels = jit.choose(_reference_lone_voxels, jit_ledges.lone_voxels)
+
+
 def ledges(points: np.ndarray, steep: np.ndarray, reached: np.ndarray, above: np.ndarray,
            size_m: float, step_up_m: float, step_down_m: float) -> np.ndarray:
     """(V,) bool: voxels on the side of a raised traversable surface (issue 22).
@@ -530,3 +560,4 @@ def warm_up() -> None:
         pts = np.zeros((2, 3), np.float32)
         flags = np.zeros(2, bool)
         jit_ledges.ledges(pts, flags, flags, flags, 0.05, 0.05, 0.05, LEDGE_SHADOW_CELLS)
+        jit_ledges.lone_voxels(pts, 0.025, 0.025, 0.025)
