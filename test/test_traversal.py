@@ -584,3 +584,15 @@ def test_mixed_pixels_scattered_in_the_air_are_not_marked():
     # next to the box, the floor or the wall only
     assert (result.labels[rows, col] == LABEL_OBSTACLE).mean() < 0.4
     assert (result.labels[on_box & (depth > 0)] == LABEL_OBSTACLE).mean() > 0.5
+
+
+def test_the_band_just_under_the_robot_height_is_marked():
+    # a tall cabinet: its face just under the robot's height (1 m) has neighbours above the
+    # robot; they support its validation (N1), as they would any obstacle's
+    cabinet = Box.on_floor(1.4, 0.0, 0.4, 0.8, 1.6)
+    frame, params, result = run([Floor(), cabinet], noise=True)
+    z = frame.points_ground[..., 2]
+    band = (frame.hit_index == 1) & (z > 0.95) & (z < 0.99) & (frame.depth_mm > 0)
+    assert band.sum() > 200
+    assert (result.labels[band] == LABEL_OBSTACLE).mean() > 0.95   # 0.63 without the rule
+    assert not (result.labels[(frame.hit_index == 1) & (z > 1.05)] == LABEL_OBSTACLE).any()

@@ -159,11 +159,14 @@ class Detector:
         if p.max_ground_height_m > 0.0 and not p.robot_level:
             steep |= centroids[:, 2] > np.float32(p.max_ground_height_m)
         clock.lap('slope')
-        candidates, heights, ledge, drop_points, drop_pixels = self._robot_level(
+        candidates, heights, trav, drop_points, drop_pixels = self._robot_level(
             depth_m, rays, run, centroids, steep, clock)
-        is_obstacle = validate_obstacles(candidates, neighbours, p.validation_neighbours)
-        if ledge is not None:
-            is_obstacle |= ledge   # a band one cell wide, as a drop edge: not validated
+        # robot level: surfaces above the robot support the validation of those just under it
+        support = candidates if trav is None else candidates | trav.above_robot
+        is_obstacle = validate_obstacles(support, neighbours, p.validation_neighbours)
+        is_obstacle &= candidates
+        if trav is not None:
+            is_obstacle |= trav.ledge   # a band one cell wide, as a drop edge: not validated
             is_obstacle &= ~traversal.lone_voxels(centroids, p.voxel_x_m, p.voxel_y_m,
                                                   p.voxel_z_m)   # mixed pixels kept
         clock.lap('validation')
@@ -236,7 +239,7 @@ class Detector:
     def _robot_level(self, depth_m: np.ndarray, rays: geometry.GroundRays,
                      run: DetectorParams, centroids: np.ndarray, steep: np.ndarray,
                      clock: _Clock) -> tuple[np.ndarray, ...]:
-        """(obstacle candidates, heights, ledges or None, drop points, drop pixels).
+        """(obstacle candidates, heights, traversal or None, drop points, drop pixels).
 
         The seed's slope test, or robot level: reach from the floor, ledges and drop edges.
         """
@@ -250,4 +253,4 @@ class Detector:
         clock.lap('traversal')
         drop_points, drop_pixels = traversal.drop_edges(depth_m, rays, run.camera_height_m, p)
         clock.lap('drops')
-        return trav.is_obstacle, trav.height_m, trav.ledge, drop_points, drop_pixels
+        return trav.is_obstacle, trav.height_m, trav, drop_points, drop_pixels
