@@ -596,3 +596,38 @@ def test_the_band_just_under_the_robot_height_is_marked():
     assert band.sum() > 200
     assert (result.labels[band] == LABEL_OBSTACLE).mean() > 0.95   # 0.63 without the rule
     assert not (result.labels[(frame.hit_index == 1) & (z > 1.05)] == LABEL_OBSTACLE).any()
+
+
+def test_feet_are_the_candidates_right_under_a_marked_voxel(kernel_path):
+    v = 0.025
+    column = np.array([(1.0, 0.0, k * v) for k in range(1, 8)])   # 2.5 to 17.5 cm up
+    apart = np.array([(1.5, 0.3, 0.05), (1.5, 0.3, 0.20)])          # 4 voxels apart: too far
+    pts = (np.concatenate((column, apart)) + v / 2).astype(np.float32)
+    candidates = np.ones(pts.shape[0], bool)
+    candidates[0] = False                     # within the step: not a candidate
+    marked = np.zeros(pts.shape[0], bool)
+    marked[4:7] = True                        # the validation kept the top of the column
+    marked[-1] = True
+    foot = traversal.feet(pts, candidates, marked, v, v, v)
+    assert foot.tolist() == [False, True, True, True, False, False, False, False, False]
+
+
+@pytest.mark.numba
+def test_foot_kernel_equals_numpy(both_paths):
+    rng = np.random.default_rng(4)
+    pts = rng.uniform([0.0, -1.0, -0.4], [2.0, 1.0, 1.5], size=(4000, 3)).astype(np.float32)
+    pts[:2000, :2] = np.round(pts[:2000, :2] / 0.1) * 0.1   # columns
+    candidates = rng.random(4000) < 0.6
+    marked = candidates & (rng.random(4000) < 0.5)
+    assert both_paths(traversal._feet, pts, candidates, marked, 0.025, 0.025, 0.025, 3).any()
+
+
+def test_the_foot_of_a_box_is_marked():
+    # the bottom band of a box (5-10 cm up) has floor among its N1 neighbours: the validation
+    # lets it go, the marked face above it keeps it
+    box = Box.on_floor(1.3, 0.0, 0.4, 0.8, 0.4)
+    frame, params, result = run([Floor(), box], noise=True)
+    z = frame.points_ground[..., 2]
+    band = (frame.hit_index == 1) & (z > 0.06) & (z < 0.1) & (frame.depth_mm > 0)
+    assert band.sum() > 100
+    assert (result.labels[band] == LABEL_OBSTACLE).mean() > 0.9

@@ -166,6 +166,8 @@ class Detector:
         is_obstacle = validate_obstacles(support, neighbours, p.validation_neighbours)
         is_obstacle &= candidates
         if trav is not None:
+            is_obstacle |= traversal.feet(centroids, candidates, is_obstacle, p.voxel_x_m,
+                                          p.voxel_y_m, p.voxel_z_m)
             is_obstacle |= trav.ledge   # a band one cell wide, as a drop edge: not validated
             is_obstacle &= ~traversal.lone_voxels(centroids, p.voxel_x_m, p.voxel_y_m,
                                                   p.voxel_z_m)   # mixed pixels kept

@@ -65,6 +65,8 @@ PLANAR_TOLERANCE = 0.02
 LEDGE_SHADOW_CELLS = 12
 #: The 8 directions of the search across an edge, as (dx, dy) cell steps.
 _DIRECTIONS = np.array(((1, 0), (0, 1), (-1, 0), (0, -1), (1, 1), (1, -1), (-1, 1), (-1, -1)))
+#: Voxels below a marked one in which the foot of an object is looked for (:func:`feet`).
+FOOT_VOXELS = 3
 #: Window of the flying-pixel test [px]: time-of-flight mixed pixels lie up to two pixels
 #: from the depth edge.
 FLYING_WINDOW_PX = 5
@@ -139,6 +141,39 @@ def lone_voxels(points: np.ndarray, vx: float, vy: float, vz: float) -> np.ndarr
 
 
 _lone_voxels = jit.choose(_reference_lone_voxels, jit_ledges.lone_voxels)
+
+
+def _reference_feet(points: np.ndarray, candidates: np.ndarray, marked: np.ndarray, vx: float,
+                    vy: float, vz: float, reach: int) -> np.ndarray:
+    """(V,) bool: candidates, not marked, with a marked voxel 1 to reach voxels above (numpy)."""
+    ijk = np.floor(points / np.array((vx, vy, vz), np.float32)).astype(np.int64)
+    ijk += 1 - ijk.min(axis=0)
+    top = ijk.max(axis=0) + 1
+    top[2] += reach
+    grid = np.zeros(tuple(top), bool)
+    grid[ijk[marked, 0], ijk[marked, 1], ijk[marked, 2]] = True
+    foot = np.zeros(points.shape[0], bool)
+    for up in range(1, reach + 1):
+        foot |= grid[ijk[:, 0], ijk[:, 1], ijk[:, 2] + up]
+    return foot & candidates & ~marked
+
+
+def feet(points: np.ndarray, candidates: np.ndarray, marked: np.ndarray, vx: float, vy: float,
+         vz: float) -> np.ndarray:
+    """(V,) bool: the feet of marked obstacles, candidates the N1 validation let go (issue 22).
+
+    An obstacle candidate (above the step height) right under a marked voxel of the same
+    column, 1 to ``FOOT_VOXELS`` voxels below it, is the bottom of that object: its
+    neighbours include the floor, which fails the seed's validation, while the voxels above
+    it passed. points: (V, 3) float32 voxel centroids [m]; candidates, marked: (V,) bool;
+    vx, vy, vz: the voxel size [m]. Compiled when :func:`.jit.enabled`.
+    """
+    if points.shape[0] == 0:
+        return np.zeros(0, bool)
+    return _feet(points, candidates, marked, vx, vy, vz, FOOT_VOXELS)
+
+
+_feet = jit.choose(_reference_feet, jit_ledges.feet)
 
 
 def ledges(points: np.ndarray, steep: np.ndarray, reached: np.ndarray, above: np.ndarray,
@@ -561,3 +596,4 @@ def warm_up() -> None:
         flags = np.zeros(2, bool)
         jit_ledges.ledges(pts, flags, flags, flags, 0.05, 0.05, 0.05, LEDGE_SHADOW_CELLS)
         jit_ledges.lone_voxels(pts, 0.025, 0.025, 0.025)
+        jit_ledges.feet(pts, flags, flags, 0.025, 0.025, 0.025, FOOT_VOXELS)
