@@ -325,10 +325,13 @@ def _floor_beneath(pts: np.ndarray, coef: np.ndarray, used: int,
     (a) (the floor beside a platform the fit ran through, tilted), the best plane of those
     samples, refined on all samples, replaces (a) when it is within the bounds and more
     samples support it: the RANSAC's hypotheses, drawn mostly from the raised surface, may
-    all have missed the floor. A lower floor beyond a drop lies out of the bounds.
+    all have missed the floor. Samples more than ``floor_max_offset_m`` below the configured
+    floor (a lower floor beyond a drop) are not looked at.
     """
     resid = pts[2] - (coef[0] * pts[0] + coef[1] * pts[1] + coef[2])
-    beneath = np.ascontiguousarray(pts[:, resid < -BENEATH_M])   # the kernels' layout
+    # within the offset bound of the configured floor (not a lower floor beyond a drop)
+    low = (resid < -BENEATH_M) & (pts[2] >= -params.floor_max_offset_m)
+    beneath = np.ascontiguousarray(pts[:, low])   # the kernels' layout
     if beneath.shape[1] < params.floor_min_points:
         return coef, used
     lower, _ = _best_plane(beneath, params)
