@@ -8,10 +8,13 @@ neighbouring grid points within 30 deg of vertical: walls and box sides drop out
 a plane ``z = a x + b y + c`` to them: a fixed-seed RANSAC over plane hypotheses (vectorised;
 one point of each triplet from the far, middle and near third of the samples), then
 least-squares refits of the best two on the inliers of narrowing bands, keeping the one most
-samples support. The fit is accepted only when it is bounded around the mount (tilt and
-offset within the limits) and supported by at least ``floor_min_points`` samples; otherwise
-the configured mount is kept and the result says why. An accepted plane becomes a corrected
-mount (height, pitch, roll) for the whole frame, so the ground frame's z = 0 is the seen floor.
+samples support; where enough samples lie well below that plane, the plane of those samples
+takes its place when more samples support it (the fit ran through a raised surface, the floor
+is beside it: :func:`_floor_beneath`). The fit is accepted only when it is bounded around
+the mount (tilt and offset within the limits) and supported by at least ``floor_min_points``
+samples; otherwise the configured mount is kept and the result says why. An accepted plane
+becomes a corrected mount (height, pitch, roll) for the whole frame, so the ground frame's
+z = 0 is the seen floor.
 """
 
 from __future__ import annotations
