@@ -57,7 +57,7 @@ DROP_EDGE_ROWS = 3
 #: A pixel this share of its depth away from both the nearest and the farthest depth of its
 #: window is a mixed (flying) pixel, unless it lies on a plane with its neighbours (a floor
 #: seen 0.6 m up at 4 m changes ~2 % a row: such planes are kept, see _planar).
-FLYING_JUMP = 0.02
+FLYING_JUMP = 0.03
 #: Largest second difference of the inverse depth, as a share of it, of a pixel on a plane.
 PLANAR_TOLERANCE = 0.02
 #: Cells searched beyond an open side for the lower ground in its shadow (the floor beside
@@ -131,7 +131,7 @@ def lone_voxels(points: np.ndarray, vx: float, vy: float, vz: float) -> np.ndarr
 
     points: (V, 3) float32 voxel centroids [m]; vx, vy, vz: the voxel size [m]. A lone
     voxel in the robot's band is a time-of-flight mixed pixel that the flying-pixel test kept
-    (its window's near surface missing in a dropout blob, or within 2 % of a surface): mixed
+    (its window's near surface missing in a dropout blob, or within 3 % of a surface): mixed
     depths scatter along the rays, while a surface, a leg or a board fills neighbouring
     voxels. Such candidates are not obstacles. Compiled when :func:`.jit.enabled`.
     """
