@@ -1,22 +1,21 @@
 """The robot-level suite (scenarios_robot.json) with params/corridor.yaml: figures held.
 
 Measured (docs/accuracy.md, K = 5): 28 frames with issue 22's scenes (open-sided ramps, dark
-furniture with blob dropouts, thin legs): cell F1 0.916 (one-cell tolerance 0.982), false
-alarms 1.50 % of free cells (0.30 % beyond one cell of a true obstacle; the dark furniture
-and the floor fit on the open ramp seen along it carry most), 62 of 62 named objects found
-(the open ramp's side faces included), passable ramps and landings 99.2 % free, 3 of 3 drops
-marked; the seed's Table 4.2 scores cell F1 0.40 on the same truth. The floors keep a margin
-of 0.016 (F1) and 0.5 points (FA) for last-digit differences between machines (float
-summation order in BLAS, OpenCV builds), not for a real regression; the scenes that were there
-before issue 22 keep issue 9's 1 % false-alarm floor, the whole suite 2 % (issue 22's dark
-furniture raised it; its target, 0.5 %, is not met).
+furniture with blob dropouts, thin legs): cell F1 0.918 (one-cell tolerance 0.981), false
+alarms 0.88 % of free cells (0.05 % beyond one cell of a true obstacle; the 22 frames from
+before issue 22: 0.63 %), 62 of 62 named objects found (the open ramp's side faces included),
+passable ramps and landings 100 % free, 3 of 3 drops marked; the seed's Table 4.2 scores cell
+F1 0.40 on the same truth. The floors keep a margin of 0.018 (F1), 0.011 (one-cell F1) and
+about 0.3 points (FA) for last-digit differences between machines (float summation order in
+BLAS, OpenCV builds), not for a real regression; issue 22's target, 0.5 % false alarms, is
+not met.
 """
 
 from pathlib import Path
 
 import pytest
 
-from obstacle_detection.evaluation import runner as evaluation
+from obstacle_detection.evaluation import metrics, runner as evaluation
 from obstacle_detection.pipeline.params import table_4_2
 from obstacle_detection.ros.parameters import detector_params_from_ros, read_params_file
 
@@ -35,11 +34,21 @@ def suite_frames():
             for frame in evaluation.scenario_frames(scenario)]
 
 
+#: One-cell-tolerance counts of the corridor.yaml run, summed over the frames.
+TOLERANT = []
+
+
 @pytest.fixture(scope='module')
 def corridor_report(suite_frames):
     params = detector_params_from_ros(read_params_file(REPO / 'params' / 'corridor.yaml'))
     assert params.robot_level and params.refine_floor
-    return evaluation.evaluate_frames(iter(suite_frames), params)
+
+    def on_frame(frame, result, score):
+        p = frame.params(params)
+        truth = evaluation.truth_costmap(frame, p, evaluation.truth_roi(frame, p))
+        TOLERANT.append(metrics.tolerant_cells(result.costmap.data, truth, cells=1))
+
+    return evaluation.evaluate_frames(iter(suite_frames), params, on_frame=on_frame)
 
 
 @pytest.fixture(scope='module')
@@ -47,23 +56,30 @@ def corridor_overall(corridor_report):
     return corridor_report.overall
 
 
-def test_the_scenes_before_issue_22_keep_issue_9s_false_alarm_target(corridor_report):
+def test_the_scenes_before_issue_22_stay_under_issue_9s_false_alarm_target(corridor_report):
     assert set(ISSUE_22_SCENES) <= set(corridor_report.scenes)
     earlier = [summary.cell for name, summary in corridor_report.scenes.items()
                if name not in ISSUE_22_SCENES]
     assert len(earlier) >= 16
-    assert sum(earlier[1:], earlier[0]).false_alarm_rate <= 0.01
+    assert sum(earlier[1:], earlier[0]).false_alarm_rate <= 0.009
 
 
 def test_corridor_yaml_holds_the_robot_level_figures(corridor_overall):
     cell = corridor_overall.cell
     assert cell.f1 >= 0.9
-    assert cell.false_alarm_rate <= 0.02
+    assert cell.false_alarm_rate <= 0.012
     found, counted, missed = corridor_overall.objects_found()
     assert counted >= 60 and found == counted, missed
     marked, drops, unmarked = corridor_overall.drops_marked()
     assert drops >= 3 and marked == drops, unmarked
     assert corridor_overall.passable_free() >= 0.97
+
+
+def test_corridor_yaml_holds_the_one_cell_tolerance_figures(corridor_report):
+    tolerant = sum(TOLERANT[1:], TOLERANT[0])
+    assert len(TOLERANT) == corridor_report.overall.frames
+    assert tolerant.f1 >= 0.97
+    assert tolerant.far_alarm_rate <= 0.002
 
 
 def test_the_seed_method_does_not(suite_frames, corridor_overall):

@@ -536,3 +536,93 @@ def test_warm_up_compiles_every_robot_level_kernel_a_frame_uses():
                          text=True, timeout=600)
     assert run.returncode == 0, run.stderr
     assert run.stdout.strip() == '[]', f'compiled during the frame: {run.stdout}'
+
+
+def test_lone_voxels_are_those_without_a_neighbour(kernel_path):
+    v = 0.025
+    board = np.array([(1.0 + i * v, j * v, 0.5) for i in range(4) for j in range(4)])
+    leg = np.array([(1.5, 0.5, k * v) for k in range(8)])          # a 2.5 cm column
+    diagonal = np.array([(1.7, -0.2, 0.3), (1.7 + v, -0.2 + v, 0.3 + v)])
+    alone = np.array([(1.3, -0.5, 0.4), (1.9, 0.6, 0.2)])          # mixed pixels in the air
+    pts = (np.concatenate((board, leg, diagonal, alone)) + v / 2).astype(np.float32)
+    lone = traversal.lone_voxels(pts, v, v, v)
+    assert not lone[:-2].any() and lone[-2:].all()
+    assert traversal.lone_voxels(np.zeros((0, 3), np.float32), v, v, v).shape == (0,)
+    assert traversal.lone_voxels(pts[-1:], v, v, v).all()
+
+
+@pytest.mark.numba
+def test_lone_voxel_kernel_equals_numpy(both_paths):
+    rng = np.random.default_rng(3)
+    pts = rng.uniform([0.0, -1.0, -0.4], [2.0, 1.0, 1.5], size=(4000, 3)).astype(np.float32)
+    pts[:2000, 2] = 0.3   # a board: neighbours
+    assert both_paths(traversal._lone_voxels, pts, 0.025, 0.025, 0.025).sum() > 100
+
+
+def test_mixed_pixels_scattered_in_the_air_are_not_marked():
+    box = Box.on_floor(1.2, 0.0, 0.3, 0.3, 0.5)
+    wall = Wall(3.5, -3.0, 3.5, 3.0)
+    frame, params, _ = run([Floor(), box, wall])
+    depth = frame.depth_mm.astype(np.float32)
+    on_box = frame.hit_index == 1
+    # every 8th pixel of the column beside the box's silhouette, whose near side returned
+    # nothing (a dropout blob): mixed depths scattered between the box and the wall
+    rows = np.flatnonzero(on_box.any(axis=1))
+    col = np.flatnonzero(on_box.any(axis=0))[-1] + 1
+    depth[:, col - 3:col + 1] = 0.0
+    rows = rows[::8]
+    near = np.median(depth[on_box])
+    mixed = near + np.linspace(0.1, 0.9, rows.size) * (depth[rows, col] - near)
+    depth[rows, col] = mixed[np.random.default_rng(0).permutation(rows.size)]
+    result = Detector(params).process(depth.astype(np.uint16), frame.intrinsics)
+    # without the lone-voxel rule every one is marked (N1 counts the others); with it, those
+    # next to the box, the floor or the wall only
+    assert (result.labels[rows, col] == LABEL_OBSTACLE).mean() < 0.4
+    assert (result.labels[on_box & (depth > 0)] == LABEL_OBSTACLE).mean() > 0.5
+
+
+def test_the_band_just_under_the_robot_height_is_marked():
+    # a tall cabinet: its face just under the robot's height (1 m) has neighbours above the
+    # robot; they support its validation (N1), as they would any obstacle's
+    cabinet = Box.on_floor(1.4, 0.0, 0.4, 0.8, 1.6)
+    frame, params, result = run([Floor(), cabinet], noise=True)
+    z = frame.points_ground[..., 2]
+    band = (frame.hit_index == 1) & (z > 0.95) & (z < 0.99) & (frame.depth_mm > 0)
+    assert band.sum() > 200
+    assert (result.labels[band] == LABEL_OBSTACLE).mean() > 0.95   # 0.63 without the rule
+    assert not (result.labels[(frame.hit_index == 1) & (z > 1.05)] == LABEL_OBSTACLE).any()
+
+
+def test_feet_are_the_candidates_right_under_a_marked_voxel(kernel_path):
+    v = 0.025
+    column = np.array([(1.0, 0.0, k * v) for k in range(1, 8)])   # 2.5 to 17.5 cm up
+    apart = np.array([(1.5, 0.3, 0.05), (1.5, 0.3, 0.20)])          # 4 voxels apart: too far
+    pts = (np.concatenate((column, apart)) + v / 2).astype(np.float32)
+    candidates = np.ones(pts.shape[0], bool)
+    candidates[0] = False                     # within the step: not a candidate
+    marked = np.zeros(pts.shape[0], bool)
+    marked[4:7] = True                        # the validation kept the top of the column
+    marked[-1] = True
+    foot = traversal.feet(pts, candidates, marked, v, v, v)
+    assert foot.tolist() == [False, True, True, True, False, False, False, False, False]
+
+
+@pytest.mark.numba
+def test_foot_kernel_equals_numpy(both_paths):
+    rng = np.random.default_rng(4)
+    pts = rng.uniform([0.0, -1.0, -0.4], [2.0, 1.0, 1.5], size=(4000, 3)).astype(np.float32)
+    pts[:2000, :2] = np.round(pts[:2000, :2] / 0.1) * 0.1   # columns
+    candidates = rng.random(4000) < 0.6
+    marked = candidates & (rng.random(4000) < 0.5)
+    assert both_paths(traversal._feet, pts, candidates, marked, 0.025, 0.025, 0.025, 3).any()
+
+
+def test_the_foot_of_a_box_is_marked():
+    # the bottom band of a box (5-10 cm up) has floor among its N1 neighbours: the validation
+    # lets it go, the marked face above it keeps it
+    box = Box.on_floor(1.3, 0.0, 0.4, 0.8, 0.4)
+    frame, params, result = run([Floor(), box], noise=True)
+    z = frame.points_ground[..., 2]
+    band = (frame.hit_index == 1) & (z > 0.06) & (z < 0.1) & (frame.depth_mm > 0)
+    assert band.sum() > 100
+    assert (result.labels[band] == LABEL_OBSTACLE).mean() > 0.9

@@ -4,6 +4,7 @@
 Prints per scenario and overall: cell F1, cell F1 and false alarms with a one-cell tolerance
 (``metrics.tolerant_cells``), objects found and passable surfaces left free; ``--range 2,3,4``
 repeats it with ``max_range_m`` and ``costmap_length_m`` at each value [m].
+``--causes`` adds the false-alarm cells of each scenario by what marked them (docs/accuracy.md).
 """
 
 from __future__ import annotations
@@ -11,11 +12,18 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from collections import Counter
 from typing import Sequence
+
+import numpy as np
 
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.cli.evaluation_args import parse_assignment, report_error
 from obstacle_detection.evaluation import metrics, runner as evaluation
+from obstacle_detection.labels import CELL_FREE, CELL_OCCUPIED, GT_NO_RETURN, GT_OBSTACLE
+from obstacle_detection.labels import GT_TRAVERSABLE
+from obstacle_detection.pipeline import traversal
+from obstacle_detection.pipeline.normals import slope_obstacles
 from obstacle_detection.pipeline.params import DetectorParams, corridor
 
 DEFAULT_PARAMS = tool_support.package_file('params/corridor.yaml')
@@ -32,20 +40,56 @@ def build_parser() -> argparse.ArgumentParser:
                         help='forward ranges [m]: max_range_m and costmap_length_m each')
     parser.add_argument('--scene', action='append', metavar='NAME',
                         help='only this scenario (repeatable) [default: all]')
+    parser.add_argument('--causes', action='store_true',
+                        help='also count the false-alarm cells of each scenario by cause')
     return parser
 
 
-def study(params: DetectorParams, scenes: Sequence[str] | None) -> str:
+def false_alarm_causes(frame: evaluation.LabelledFrame, result, params: DetectorParams,
+                       truth: np.ndarray) -> Counter:
+    """Count the false-alarm cells of one frame by cause (the module docstring's keys)."""
+    steep = slope_obstacles(result.voxel_normals, params.cos_max_slope)
+    trav = traversal.traversable_ground(result.voxel_points, steep, params)
+    height = result.voxel_height_m
+    kind = np.where(trav.ledge & ~trav.is_obstacle, 'ledge',
+                    np.where(height < -params.max_step_down_m, 'low', 'high'))
+    pixel_voxel, labels = result.pixel_voxel.reshape(-1), frame.truth_labels.reshape(-1)
+    tags = np.full(kind.shape, '', object)
+    for tag, label in (('O', GT_OBSTACLE), ('F', GT_TRAVERSABLE), ('X', GT_NO_RETURN)):
+        has = np.zeros(kind.shape, bool)
+        has[pixel_voxel[(pixel_voxel >= 0) & (labels == label)]] = True
+        tags[has] += tag
+    alarm = (result.costmap.data == CELL_OCCUPIED) & (truth == CELL_FREE)
+    near = metrics.grow_cells(truth == CELL_OCCUPIED, 1)
+    causes: dict[tuple[int, int], set] = {}
+    marked = result.voxel_is_obstacle
+    sources = [(result.voxel_points[marked], [f'{k}/{t}' for k, t in zip(kind[marked],
+                                                                         tags[marked])]),
+               (result.drop_points, ['drop'] * result.drop_points.shape[0])]
+    for points, names in sources:
+        row, col, inside = result.costmap.cell_of(points)
+        for r, c, ok, name in zip(row, col, inside, names):
+            if ok and alarm[r, c]:
+                causes.setdefault((r, c), set()).add(name)
+    return Counter('+'.join(sorted(names)) + ('' if near[cell] else ' far')
+                   for cell, names in causes.items())
+
+
+def study(params: DetectorParams, scenes: Sequence[str] | None, causes: bool = False) -> str:
     """Run the robot suite with ``params``; return the table (one row per scenario)."""
     scenarios = evaluation.select_scenarios(
         evaluation.load_scenarios(evaluation.SUITES['robot']), scenes)
     tolerant: dict[str, metrics.TolerantCells] = {}
+    alarms: dict[str, Counter] = {}
 
     def on_frame(frame: evaluation.LabelledFrame, result, score) -> None:
         p = frame.params(params)
         truth = evaluation.truth_costmap(frame, p, evaluation.truth_roi(frame, p))
         counts = metrics.tolerant_cells(result.costmap.data, truth, cells=1)
         tolerant[frame.scenario] = tolerant.get(frame.scenario, metrics.TolerantCells()) + counts
+        if causes:
+            alarms.setdefault(frame.scenario, Counter()).update(
+                false_alarm_causes(frame, result, p, truth))
 
     frames = (frame for s in scenarios for frame in evaluation.scenario_frames(s))
     report = evaluation.evaluate_frames(frames, params, on_frame=on_frame)
@@ -62,6 +106,11 @@ def study(params: DetectorParams, scenes: Sequence[str] | None) -> str:
             f'{100 * summary.cell.false_alarm_rate:>6.2f} {100 * tol.far_alarm_rate:>11.2f} '
             f'{f"{found}/{counted}":>8} {metrics.format_score(summary.passable_free()):>13}'
             + (f'  missed: {", ".join(missed)}' if missed else ''))
+    if causes:
+        alarms['overall'] = sum(alarms.values(), Counter())
+        lines.append('false-alarm cells by cause:')
+        lines += [f'{name:<24} ' + ', '.join(f'{n} {k}' for k, n in counts.most_common())
+                  for name, counts in alarms.items() if counts]
     return '\n'.join(lines)
 
 
@@ -78,7 +127,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                                               costmap_length_m=metres)
             print(f'max_range_m {params.max_range_m:g}, costmap_length_m '
                   f'{params.costmap_length_m:g} ({args.params_file}):')
-            print(study(params, args.scene), flush=True)
+            print(study(params, args.scene, args.causes), flush=True)
     except (ValueError, OSError) as exc:
         return report_error('robot_study', exc)
     return 0

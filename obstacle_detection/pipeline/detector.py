@@ -138,11 +138,18 @@ class Detector:
         if p.max_ground_height_m > 0.0 and not p.robot_level:
             steep |= centroids[:, 2] > np.float32(p.max_ground_height_m)
         clock.lap('slope')
-        candidates, heights, ledge, drop_points, drop_pixels = self._robot_level(
+        candidates, heights, trav, drop_points, drop_pixels = self._robot_level(
             depth_m, rays, run, centroids, steep, clock)
-        is_obstacle = validate_obstacles(candidates, neighbours, p.validation_neighbours)
-        if ledge is not None:
-            is_obstacle |= ledge   # a band one cell wide, as a drop edge: not validated
+        # robot level: surfaces above the robot support the validation of those just under it
+        support = candidates if trav is None else candidates | trav.above_robot
+        is_obstacle = validate_obstacles(support, neighbours, p.validation_neighbours)
+        is_obstacle &= candidates
+        if trav is not None:
+            is_obstacle |= traversal.feet(centroids, candidates, is_obstacle, p.voxel_x_m,
+                                          p.voxel_y_m, p.voxel_z_m)
+            is_obstacle |= trav.ledge   # a band one cell wide, as a drop edge: not validated
+            is_obstacle &= ~traversal.lone_voxels(centroids, p.voxel_x_m, p.voxel_y_m,
+                                                  p.voxel_z_m)   # mixed pixels kept
         clock.lap('validation')
         obstacle_points = centroids[is_obstacle]
         if drop_points.shape[0]:
@@ -213,7 +220,7 @@ class Detector:
     def _robot_level(self, depth_m: np.ndarray, rays: geometry.GroundRays,
                      run: DetectorParams, centroids: np.ndarray, steep: np.ndarray,
                      clock: _Clock) -> tuple[np.ndarray, ...]:
-        """(obstacle candidates, heights, ledges or None, drop points, drop pixels)."""
+        """(obstacle candidates, heights, traversal or None, drop points, drop pixels)."""
         p = self.params
         if not p.robot_level:
             clock.lap('traversal')
@@ -224,4 +231,4 @@ class Detector:
         clock.lap('traversal')
         drop_points, drop_pixels = traversal.drop_edges(depth_m, rays, run.camera_height_m, p)
         clock.lap('drops')
-        return trav.is_obstacle, trav.height_m, trav.ledge, drop_points, drop_pixels
+        return trav.is_obstacle, trav.height_m, trav, drop_points, drop_pixels

@@ -8,10 +8,13 @@ neighbouring grid points within 30 deg of vertical: walls and box sides drop out
 a plane ``z = a x + b y + c`` to them: a fixed-seed RANSAC over plane hypotheses (vectorised;
 one point of each triplet from the far, middle and near third of the samples), then
 least-squares refits of the best two on the inliers of narrowing bands, keeping the one most
-samples support. The fit is accepted only when it is bounded around the mount (tilt and
-offset within the limits) and supported by at least ``floor_min_points`` samples; otherwise
-the configured mount is kept and the result says why. An accepted plane becomes a corrected
-mount (height, pitch, roll) for the whole frame, so the ground frame's z = 0 is the seen floor.
+samples support; where enough samples lie well below that plane, the plane of those samples
+takes its place when more samples support it (the fit ran through a raised surface, the floor
+is beside it: :func:`_floor_beneath`). The fit is accepted only when it is bounded around
+the mount (tilt and offset within the limits) and supported by at least ``floor_min_points``
+samples; otherwise the configured mount is kept and the result says why. An accepted plane
+becomes a corrected mount (height, pitch, roll) for the whole frame, so the ground frame's
+z = 0 is the seen floor.
 """
 
 from __future__ import annotations
@@ -55,6 +58,9 @@ FACING_UP_COS2 = math.cos(math.radians(30.0)) ** 2
 #: Floor samples are taken up to this far beyond the forward range [m] (a high camera sees the
 #: floor only far away).
 FIT_RANGE_MARGIN_M = 1.0
+#: Samples this far below a fitted plane are lower ground: the floor, when the plane ran
+#: through a raised surface (see _floor_beneath) [m].
+BENEATH_M = 0.05
 
 
 @dataclass(frozen=True)
@@ -263,6 +269,19 @@ def fit_floor(depth_m: np.ndarray, sub_rays: np.ndarray, params: DetectorParams)
     if pts.shape[1] < params.floor_min_points:
         return configured(params, f'{pts.shape[1]} floor samples < floor_min_points='
                                   f'{params.floor_min_points}')
+    coef, used = _best_plane(pts, params)
+    if used < params.floor_min_points:
+        return configured(params, f'{used} floor inliers < floor_min_points='
+                                  f'{params.floor_min_points}')
+    reason = _out_of_bounds(coef, params)
+    if reason:
+        return configured(params, reason)
+    coef, used = _floor_beneath(pts, coef, used, params)
+    return _corrected_mount(params, *(float(v) for v in coef), used)
+
+
+def _best_plane(pts: np.ndarray, params: DetectorParams) -> tuple[np.ndarray, int]:
+    """Return ((a, b, c), inliers of its last refit): the refined plane most samples support."""
     best = None   # (inliers in the last band, coefficients, samples of the last refit)
     refits: list[list[np.ndarray]] = []   # the inliers of each refit of the earlier hypotheses
     for coef in _ransac_plane(pts, params):   # each refined on narrowing bands
@@ -287,18 +306,49 @@ def fit_floor(depth_m: np.ndarray, sub_rays: np.ndarray, params: DetectorParams)
         support = _count_in_band(pts, *coef, REFIT_BANDS_M[-1])
         if best is None or support > best[0]:
             best = (support, coef, used)
-    support, coef, used = best
-    if used < params.floor_min_points:
-        return configured(params, f'{used} floor inliers < floor_min_points='
-                                  f'{params.floor_min_points}')
+    return best[1], best[2]
+
+
+def _out_of_bounds(coef: np.ndarray, params: DetectorParams) -> str:
+    """Why the plane (a, b, c) is too far from the configured floor to be it, or ''."""
     a, b, c = (float(v) for v in coef)
     tilt = math.atan(math.hypot(a, b))
     if tilt > params.floor_max_tilt_rad:
-        return configured(params, f'fitted floor tilted {math.degrees(tilt):.1f} deg > '
-                                  f'floor_max_tilt_deg')
+        return f'fitted floor tilted {math.degrees(tilt):.1f} deg > floor_max_tilt_deg'
     if abs(c) > params.floor_max_offset_m:
-        return configured(params, f'fitted floor offset {c:+.3f} m beyond floor_max_offset_m')
-    return _corrected_mount(params, a, b, c, used)
+        return f'fitted floor offset {c:+.3f} m beyond floor_max_offset_m'
+    return ''
+
+
+def _floor_beneath(pts: np.ndarray, coef: np.ndarray, used: int,
+                   params: DetectorParams) -> tuple[np.ndarray, int]:
+    """Return the floor under a raised surface the fit took for it: ((a, b, c), inliers).
+
+    Where at least ``floor_min_points`` samples lie more than ``BENEATH_M`` below the plane
+    (a) (the floor beside a platform the fit ran through, tilted), the best plane of those
+    samples, refined on all samples, replaces (a) when it is within the bounds and more
+    samples support it: the RANSAC's hypotheses, drawn mostly from the raised surface, may
+    all have missed the floor. Samples more than ``floor_max_offset_m`` below the configured
+    floor (a lower floor beyond a drop) are not looked at.
+    """
+    resid = pts[2] - (coef[0] * pts[0] + coef[1] * pts[1] + coef[2])
+    # within the offset bound of the configured floor (not a lower floor beyond a drop)
+    low = (resid < -BENEATH_M) & (pts[2] >= -params.floor_max_offset_m)
+    beneath = np.ascontiguousarray(pts[:, low])   # the kernels' layout
+    if beneath.shape[1] < params.floor_min_points:
+        return coef, used
+    lower, _ = _best_plane(beneath, params)
+    for band in REFIT_BANDS_M:   # refined on all samples (the floor on the plane's other side)
+        lower_in = _in_band(pts, *lower, band)
+        if lower_in.shape[1] < params.floor_min_points:
+            return coef, used
+        lower = _lstsq_plane(lower_in)
+    if _out_of_bounds(lower, params):
+        return coef, used
+    band = REFIT_BANDS_M[-1]
+    if _count_in_band(pts, *lower, band) <= _count_in_band(pts, *coef, band):
+        return coef, used
+    return lower, lower_in.shape[1]
 
 
 @functools.lru_cache(maxsize=16)

@@ -40,6 +40,8 @@ PLANAR_TOLERANCE = 0.02
 LEDGE_SHADOW_CELLS = 12
 #: The 8 directions of the search across an edge, as (dx, dy) cell steps.
 _DIRECTIONS = np.array(((1, 0), (0, 1), (-1, 0), (0, -1), (1, 1), (1, -1), (-1, 1), (-1, -1)))
+#: Voxels below a marked one in which the foot of an object is looked for (:func:`feet`).
+FOOT_VOXELS = 3
 #: Window of the flying-pixel test [px]: time-of-flight mixed pixels lie up to two pixels
 #: from the depth edge (the compiled smear pass computes a 5 x 5 window only).
 FLYING_WINDOW_PX = 5
@@ -78,6 +80,62 @@ def traversable_ground(points: np.ndarray, steep: np.ndarray,
     edge = ledges(points, steep, out[3], out[1], size, params.max_step_height_m,
                   params.max_step_down_m, LEDGE_SHADOW_CELLS)
     return Traversal(*out, size, edge)
+
+
+def _reference_lone_voxels(points: np.ndarray, vx: float, vy: float, vz: float) -> np.ndarray:
+    """(V,) bool: no other voxel lies in the 26 voxels around the voxel (numpy)."""
+    ijk = np.floor(points / np.array((vx, vy, vz), np.float32)).astype(np.int64)
+    ijk += 1 - ijk.min(axis=0)
+    grid = np.zeros(tuple(ijk.max(axis=0) + 2), bool)
+    grid[ijk[:, 0], ijk[:, 1], ijk[:, 2]] = True
+    lone = np.ones(points.shape[0], bool)
+    for d in np.ndindex(3, 3, 3):
+        if d != (1, 1, 1):
+            lone &= ~grid[ijk[:, 0] + d[0] - 1, ijk[:, 1] + d[1] - 1, ijk[:, 2] + d[2] - 1]
+    return lone
+
+
+def lone_voxels(points: np.ndarray, vx: float, vy: float, vz: float) -> np.ndarray:
+    """(V,) bool: voxels with no other voxel among their 26 neighbours (docs/accuracy.md).
+
+    points: (V, 3) float32 voxel centroids [m]; vx, vy, vz: the voxel size [m].
+    """
+    if points.shape[0] == 0:
+        return np.zeros(0, bool)
+    return _lone_voxels(points, vx, vy, vz)
+
+
+_lone_voxels = jit.choose(_reference_lone_voxels, jit_ledges.lone_voxels)
+
+
+def _reference_feet(points: np.ndarray, candidates: np.ndarray, marked: np.ndarray, vx: float,
+                    vy: float, vz: float, reach: int) -> np.ndarray:
+    """(V,) bool: candidates, not marked, with a marked voxel 1 to reach voxels above (numpy)."""
+    ijk = np.floor(points / np.array((vx, vy, vz), np.float32)).astype(np.int64)
+    ijk += 1 - ijk.min(axis=0)
+    top = ijk.max(axis=0) + 1
+    top[2] += reach
+    grid = np.zeros(tuple(top), bool)
+    grid[ijk[marked, 0], ijk[marked, 1], ijk[marked, 2]] = True
+    foot = np.zeros(points.shape[0], bool)
+    for up in range(1, reach + 1):
+        foot |= grid[ijk[:, 0], ijk[:, 1], ijk[:, 2] + up]
+    return foot & candidates & ~marked
+
+
+def feet(points: np.ndarray, candidates: np.ndarray, marked: np.ndarray, vx: float, vy: float,
+         vz: float) -> np.ndarray:
+    """(V,) bool: candidates 1 to ``FOOT_VOXELS`` voxels under a marked voxel (docs/accuracy.md).
+
+    points: (V, 3) float32 voxel centroids [m]; candidates, marked: (V,) bool; vx, vy, vz:
+    the voxel size [m].
+    """
+    if points.shape[0] == 0:
+        return np.zeros(0, bool)
+    return _feet(points, candidates, marked, vx, vy, vz, FOOT_VOXELS)
+
+
+_feet = jit.choose(_reference_feet, jit_ledges.feet)
 
 
 def _cells(points: np.ndarray, size_m: float) -> tuple[np.ndarray, int, int, int, int]:
@@ -429,3 +487,5 @@ def warm_up() -> None:
         pts = np.zeros((2, 3), np.float32)
         flags = np.zeros(2, bool)
         ledges(pts, flags, flags, flags, 0.05, 0.05, 0.05, LEDGE_SHADOW_CELLS)
+        jit_ledges.lone_voxels(pts, 0.025, 0.025, 0.025)
+        jit_ledges.feet(pts, flags, flags, 0.025, 0.025, 0.025, FOOT_VOXELS)

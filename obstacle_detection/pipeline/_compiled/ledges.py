@@ -7,7 +7,7 @@ import numpy as np
 from ._numba import AVAILABLE, jit as _jit
 from .traversal import grid_cells
 
-__all__ = ['AVAILABLE', 'ledges']
+__all__ = ['AVAILABLE', 'feet', 'ledges', 'lone_voxels']
 
 #: The 8 directions of the search across an edge (the numpy path's order; min is exact).
 _DX = np.array((1, 0, -1, 0, 1, 1, -1, -1), np.int64)
@@ -97,4 +97,77 @@ def ledges(points: np.ndarray, steep: np.ndarray, reached: np.ndarray, above: np
     _ledges_kernel(np.ascontiguousarray(points, np.float32), steep, reached, above,
                    np.float32(size_m), float(step_up_m), float(step_down_m),
                    int(shadow_cells), _DX, _DY, out)
+    return out
+
+
+@_jit
+def _lone_kernel(points, vx, vy, vz, out):  # pragma: no cover - compiled
+    """out[v] = no other voxel lies in the 26 voxels around voxel v."""
+    n = points.shape[0]
+    ijk = np.empty((n, 3), np.int64)
+    for v in range(n):
+        ijk[v, 0] = np.int64(np.floor(points[v, 0] / vx))
+        ijk[v, 1] = np.int64(np.floor(points[v, 1] / vy))
+        ijk[v, 2] = np.int64(np.floor(points[v, 2] / vz))
+    lo0, lo1, lo2 = ijk[:, 0].min(), ijk[:, 1].min(), ijk[:, 2].min()
+    grid = np.zeros((ijk[:, 0].max() - lo0 + 3, ijk[:, 1].max() - lo1 + 3,
+                     ijk[:, 2].max() - lo2 + 3), np.bool_)
+    for v in range(n):
+        ijk[v, 0] += 1 - lo0
+        ijk[v, 1] += 1 - lo1
+        ijk[v, 2] += 1 - lo2
+        grid[ijk[v, 0], ijk[v, 1], ijk[v, 2]] = True
+    for v in range(n):
+        lone = True
+        for dx in range(-1, 2):
+            for dy in range(-1, 2):
+                for dz in range(-1, 2):
+                    if (dx or dy or dz) and grid[ijk[v, 0] + dx, ijk[v, 1] + dy, ijk[v, 2] + dz]:
+                        lone = False
+        out[v] = lone
+
+
+def lone_voxels(points: np.ndarray, vx: float, vy: float, vz: float) -> np.ndarray:
+    """(V,) bool: ``pipeline.traversal.lone_voxels``, compiled."""
+    out = np.empty(points.shape[0], np.bool_)
+    if points.shape[0]:
+        _lone_kernel(np.ascontiguousarray(points, np.float32), np.float32(vx), np.float32(vy),
+                     np.float32(vz), out)
+    return out
+
+
+@_jit
+def _feet_kernel(points, candidates, marked, vx, vy, vz, reach, out):  # pragma: no cover
+    """out[v] = candidate v, not marked, has a marked voxel 1 to reach voxels above it."""
+    n = points.shape[0]
+    ijk = np.empty((n, 3), np.int64)
+    for v in range(n):
+        ijk[v, 0] = np.int64(np.floor(points[v, 0] / vx))
+        ijk[v, 1] = np.int64(np.floor(points[v, 1] / vy))
+        ijk[v, 2] = np.int64(np.floor(points[v, 2] / vz))
+    lo0, lo1, lo2 = ijk[:, 0].min(), ijk[:, 1].min(), ijk[:, 2].min()
+    grid = np.zeros((ijk[:, 0].max() - lo0 + 2, ijk[:, 1].max() - lo1 + 2,
+                     ijk[:, 2].max() - lo2 + 2 + reach), np.bool_)
+    for v in range(n):
+        ijk[v, 0] += 1 - lo0
+        ijk[v, 1] += 1 - lo1
+        ijk[v, 2] += 1 - lo2
+        if marked[v]:
+            grid[ijk[v, 0], ijk[v, 1], ijk[v, 2]] = True
+    for v in range(n):
+        found = False
+        if candidates[v] and not marked[v]:
+            for up in range(1, reach + 1):
+                if grid[ijk[v, 0], ijk[v, 1], ijk[v, 2] + up]:
+                    found = True
+        out[v] = found
+
+
+def feet(points: np.ndarray, candidates: np.ndarray, marked: np.ndarray, vx: float,
+         vy: float, vz: float, reach: int) -> np.ndarray:
+    """(V,) bool: ``pipeline.traversal.feet``, compiled."""
+    out = np.empty(points.shape[0], np.bool_)
+    if points.shape[0]:
+        _feet_kernel(np.ascontiguousarray(points, np.float32), candidates, marked,
+                     np.float32(vx), np.float32(vy), np.float32(vz), int(reach), out)
     return out
