@@ -158,12 +158,15 @@ def test_drop_with_the_lower_floor_beyond_the_range_is_marked_where_the_floor_en
     assert not (quiet.costmap.data == CELL_OCCUPIED).any()
 
 
+def box_before_a_wall():
+    """(frame, params, depth in mm as float32, the box's pixels): a box 2.3 m before a wall."""
+    frame, params, _ = run([Floor(), Box.on_floor(1.2, 0.0, 0.3, 0.3, 0.5),
+                            Wall(3.5, -3.0, 3.5, 3.0)])
+    return frame, params, frame.depth_mm.astype(np.float32), frame.hit_index == 1
+
+
 def test_flying_pixels_between_a_box_and_the_wall_behind_are_not_marked():
-    box = Box.on_floor(1.2, 0.0, 0.3, 0.3, 0.5)
-    wall = Wall(3.5, -3.0, 3.5, 3.0)
-    frame, params, _ = run([Floor(), box, wall])
-    depth = frame.depth_mm.astype(np.float32)
-    on_box = frame.hit_index == 1
+    frame, params, depth, on_box = box_before_a_wall()
     # mixed pixels: the column beside the box's left and right silhouette takes depths
     # between the box and the wall behind it, as a time-of-flight sensor gives at edges
     rows = np.flatnonzero(on_box.any(axis=1))
@@ -560,11 +563,7 @@ def test_lone_voxel_kernel_equals_numpy(both_paths):
 
 
 def test_mixed_pixels_scattered_in_the_air_are_not_marked():
-    box = Box.on_floor(1.2, 0.0, 0.3, 0.3, 0.5)
-    wall = Wall(3.5, -3.0, 3.5, 3.0)
-    frame, params, _ = run([Floor(), box, wall])
-    depth = frame.depth_mm.astype(np.float32)
-    on_box = frame.hit_index == 1
+    frame, params, depth, on_box = box_before_a_wall()
     # every 8th pixel of the column beside the box's silhouette, whose near side returned
     # nothing (a dropout blob): mixed depths scattered between the box and the wall
     rows = np.flatnonzero(on_box.any(axis=1))

@@ -101,8 +101,8 @@ def ledges(points: np.ndarray, steep: np.ndarray, reached: np.ndarray, above: np
 
 
 @_jit
-def _lone_kernel(points, vx, vy, vz, out):  # pragma: no cover - compiled
-    """out[v] = no other voxel lies in the 26 voxels around voxel v."""
+def _voxel_ijk(points, vx, vy, vz):  # pragma: no cover - compiled
+    """(V, 3) voxel indices from 1, as the numpy twins: ``floor(p / v) + 1 - min``."""
     n = points.shape[0]
     ijk = np.empty((n, 3), np.int64)
     for v in range(n):
@@ -110,14 +110,21 @@ def _lone_kernel(points, vx, vy, vz, out):  # pragma: no cover - compiled
         ijk[v, 1] = np.int64(np.floor(points[v, 1] / vy))
         ijk[v, 2] = np.int64(np.floor(points[v, 2] / vz))
     lo0, lo1, lo2 = ijk[:, 0].min(), ijk[:, 1].min(), ijk[:, 2].min()
-    grid = np.zeros((ijk[:, 0].max() - lo0 + 3, ijk[:, 1].max() - lo1 + 3,
-                     ijk[:, 2].max() - lo2 + 3), np.bool_)
     for v in range(n):
         ijk[v, 0] += 1 - lo0
         ijk[v, 1] += 1 - lo1
         ijk[v, 2] += 1 - lo2
+    return ijk
+
+
+@_jit
+def _lone_kernel(points, vx, vy, vz, out):  # pragma: no cover - compiled
+    """out[v] = no other voxel lies in the 26 voxels around voxel v."""
+    ijk = _voxel_ijk(points, vx, vy, vz)
+    grid = np.zeros((ijk[:, 0].max() + 2, ijk[:, 1].max() + 2, ijk[:, 2].max() + 2), np.bool_)
+    for v in range(points.shape[0]):
         grid[ijk[v, 0], ijk[v, 1], ijk[v, 2]] = True
-    for v in range(n):
+    for v in range(points.shape[0]):
         lone = True
         for dx in range(-1, 2):
             for dy in range(-1, 2):
@@ -140,18 +147,10 @@ def lone_voxels(points: np.ndarray, vx: float, vy: float, vz: float) -> np.ndarr
 def _feet_kernel(points, candidates, marked, vx, vy, vz, reach, out):  # pragma: no cover
     """out[v] = candidate v, not marked, has a marked voxel 1 to reach voxels above it."""
     n = points.shape[0]
-    ijk = np.empty((n, 3), np.int64)
+    ijk = _voxel_ijk(points, vx, vy, vz)
+    grid = np.zeros((ijk[:, 0].max() + 1, ijk[:, 1].max() + 1, ijk[:, 2].max() + 1 + reach),
+                    np.bool_)
     for v in range(n):
-        ijk[v, 0] = np.int64(np.floor(points[v, 0] / vx))
-        ijk[v, 1] = np.int64(np.floor(points[v, 1] / vy))
-        ijk[v, 2] = np.int64(np.floor(points[v, 2] / vz))
-    lo0, lo1, lo2 = ijk[:, 0].min(), ijk[:, 1].min(), ijk[:, 2].min()
-    grid = np.zeros((ijk[:, 0].max() - lo0 + 2, ijk[:, 1].max() - lo1 + 2,
-                     ijk[:, 2].max() - lo2 + 2 + reach), np.bool_)
-    for v in range(n):
-        ijk[v, 0] += 1 - lo0
-        ijk[v, 1] += 1 - lo1
-        ijk[v, 2] += 1 - lo2
         if marked[v]:
             grid[ijk[v, 0], ijk[v, 1], ijk[v, 2]] = True
     for v in range(n):
