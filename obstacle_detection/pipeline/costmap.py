@@ -11,8 +11,8 @@ from . import jit
 from ._compiled import costmap as jit_costmap
 from .params import DetectorParams
 
-#: A cell holding less than this share of the obstacle points (pixels) of its strongest
-#: neighbour is the tail of that neighbour's range noise, its halo (docs/accuracy.md).
+#: A cell holding less than this share of the obstacle points (pixels) of a neighbour, near
+#: their border, is the tail of that neighbour's range noise, its halo (docs/accuracy.md).
 HALO_SHARE = 0.01
 
 

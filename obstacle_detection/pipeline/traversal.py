@@ -376,8 +376,10 @@ def unbias_holes(filtered: np.ndarray, raw: np.ndarray, kernel: int) -> np.ndarr
 
     filtered, raw: (H, W) float32 [m] after :func:`drop_smeared` and as measured (0 or NaN = no
     return); kernel: the median's window size. Such a pixel takes its measured depth back, a
-    hole the median filled there is dropped; pixels already dropped stay so. In place.
+    hole the median filled there is dropped; pixels already dropped stay so. Returns
+    ``filtered`` (C-contiguous float32: changed in place).
     """
+    raw = np.ascontiguousarray(raw, np.float32)
     returned = cv2.compare(raw, 0.0, cv2.CMP_GT)   # 255 or 0 (NaN: 0)
     count = cv2.boxFilter(returned, cv2.CV_32F, (kernel, kernel), normalize=False,
                           borderType=cv2.BORDER_REPLICATE)
@@ -386,9 +388,8 @@ def unbias_holes(filtered: np.ndarray, raw: np.ndarray, kernel: int) -> np.ndarr
     returned = returned != 0
     back = (biased & returned & (filtered > 0.0)).view(np.uint8)
     hole = (biased & ~returned).view(np.uint8)
-    cv2.copyTo(raw, back, filtered)   # in place; np.copyto with a mask is 15 times slower
-    cv2.copyTo(np.zeros_like(filtered), hole, filtered)
-    return filtered
+    filtered = cv2.copyTo(raw, back, filtered)   # np.copyto with a mask is 15 times slower
+    return cv2.copyTo(np.zeros_like(raw), hole, filtered)
 
 
 def _reference_drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float,
