@@ -59,3 +59,32 @@ def test_compiled_rasterisation_equals_numpy(both_paths):
         with np.errstate(invalid='ignore'):   # numpy's cast of NaN and inf to int warns
             grid = both_paths(build_costmap, obstacles, ground, params)
         assert set(np.unique(grid.data)) == {CELL_UNKNOWN, CELL_FREE, CELL_OCCUPIED}
+
+
+def test_halo_cells_are_the_sparse_border_tail_of_a_dense_neighbour():
+    from obstacle_detection.pipeline.costmap import HALO_SHARE, halo_voxels
+
+    # P: 0.1 m cells, origin (0, -0.5). A face at x = 1.005 (cell column 10) holds 2000 px.
+    face = np.array([[1.005, 0.05, 0.3]], np.float32)
+    near_border = np.array([[0.995, 0.05, 0.3]], np.float32)   # column 9, its half at x = 1.0
+    far_half = np.array([[0.92, 0.05, 0.3]], np.float32)       # column 9, the other half
+    pixels = 2000.0
+    few = int(HALO_SHARE * pixels) - 1
+    for points, counts, expected in (
+            ((face, near_border), (pixels, few), [False, True]),    # the range-noise tail
+            ((face, near_border), (pixels, few + 2), [False, False]),   # 1 % or more: a surface
+            ((face, far_half), (pixels, few), [False, False]),      # not at the border
+            ((near_border,), (few,), [False])):                     # nothing beside it
+        got = halo_voxels(np.concatenate(points), np.array(counts, np.int64), P)
+        assert got.tolist() == expected, (points, counts)
+
+
+def test_halo_is_decided_per_cell_and_ignores_points_outside_the_grid():
+    from obstacle_detection.pipeline.costmap import halo_voxels
+
+    points = np.array([[1.005, 0.05, 0.3], [0.995, 0.05, 0.2], [0.99, 0.04, 0.6],
+                       [9.0, 0.0, 0.1]], np.float32)
+    counts = np.array([5000, 10, 30, 10], np.int64)   # cell 9 holds 40 < 1 % of 5000
+    assert halo_voxels(points, counts, P).tolist() == [False, True, True, False]
+    counts[2] = 60                                     # 70: 1.4 %, kept
+    assert halo_voxels(points, counts, P).tolist() == [False, False, False, False]

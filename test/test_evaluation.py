@@ -382,3 +382,43 @@ def test_the_tools_default_to_the_navigation_default(tmp_path, capsys):
                           '--quiet', '--workers', '0', '--json', str(tmp_path / 'r.json')])
     assert code == 0
     assert 'parameters: corridor' in capsys.readouterr().out
+
+
+def test_robot_truth_marks_the_cells_of_an_obstacle_that_returned_no_depth():
+    # a dark table top 0.8 m up (under the robot's 1 m), seen from below by a camera 0.6 m up:
+    # all its pixels drop out, the floor under it is seen between the legs
+    from dataclasses import replace
+
+    from obstacle_detection.evaluation.camera import scaled_intrinsics
+    from obstacle_detection.pipeline.costmap import costmap_geometry
+    from obstacle_detection.pipeline.params import KINECT_V2_SD
+    from obstacle_detection.sim.noise import EXACT
+    from obstacle_detection.sim.primitives import Box, Floor
+    from obstacle_detection.sim.render import Scene, render
+
+    top = Box((1.2, -0.4, 0.77), (1.7, 0.4, 0.8), dark=True, name='top')
+    legs = [Box((x, y, 0.0), (x + 0.04, y + 0.04, 0.77), name='leg')
+            for x in (1.2, 1.66) for y in (-0.4, 0.36)]
+    shot = render(Scene('t', (Floor(), top, *legs)), size=SMALL,
+                  intrinsics=scaled_intrinsics(KINECT_V2_SD, 0.5),
+                  noise=replace(EXACT, dark_dropout_rate=1.0))
+    dropped = shot.object_ids == 1
+    assert dropped.sum() > 50 and np.all(shot.depth_mm[dropped] == 0)
+    assert np.all(shot.labels[dropped] == evaluation.GT_NO_RETURN)
+    frame = evaluation.LabelledFrame(
+        't', '0', shot.depth_mm, shot.intrinsics, shot.labels, shot.points_ground,
+        shot.height_m, shot.pitch_rad, shot.roll_rad, truth='robot',
+        object_ids=shot.object_ids, object_names=shot.object_names,
+        drop_edge=shot.drop_edge, hit_labels=shot.hit_labels)
+    params = frame.params(table_4_2())
+    roi = evaluation.truth_roi(frame, params)
+    fixed = evaluation.truth_costmap(frame, params, roi)
+    flawed = evaluation.truth_costmap(replace(frame, hit_labels=None), params, roi)
+    origin, nx, ny = costmap_geometry(params)
+    under_top = metrics.point_cells(shot.points_ground[dropped & roi], origin,
+                                    params.costmap_resolution_m, (ny, nx))
+    # without the hits, the cells under the top whose floor was seen are called free
+    assert (flawed[under_top] == CELL_FREE).sum() > 100           # of 160 under the top
+    assert np.all(fixed[under_top & (flawed != evaluation.CELL_UNKNOWN)] == CELL_OCCUPIED)
+    np.testing.assert_array_equal(fixed[~under_top], flawed[~under_top])   # nothing else moves
+    assert (fixed == CELL_FREE).sum() > 100                                # the floor around

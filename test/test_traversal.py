@@ -625,3 +625,32 @@ def test_the_foot_of_a_box_is_marked():
     band = (frame.hit_index == 1) & (z > 0.06) & (z < 0.1) & (frame.depth_mm > 0)
     assert band.sum() > 100
     assert (result.labels[band] == LABEL_OBSTACLE).mean() > 0.9
+
+
+def test_unbias_holes_undoes_the_median_where_its_window_was_mostly_no_return():
+    import cv2
+
+    # a wall seen at a grazing angle: depth rising 1 % a pixel; its left half 40 % dropouts
+    rng = np.random.default_rng(3)
+    true = (1.0 * 1.01 ** np.arange(64, dtype=np.float64))[None, :].repeat(40, axis=0)
+    raw = np.round(true * 1000.0).astype(np.uint16)
+    raw[:, :32][rng.random((40, 32)) < 0.4] = 0
+    filtered = cv2.medianBlur(raw, 5).astype(np.float32) / 1000.0
+    raw_m = raw.astype(np.float32) / 1000.0
+    returned = raw > 0
+    left = (slice(2, -2), slice(2, 28))
+    # no-returns sort first: the median of a window with holes is nearer than the surface
+    bias = (filtered - true)[left][returned[left]] / true[left][returned[left]]
+    assert bias.mean() < -0.005
+    out = traversal.unbias_holes(filtered.copy(), raw_m, 5)
+    holes = cv2.boxFilter((~returned).astype(np.uint8), cv2.CV_16U, (5, 5), normalize=False,
+                          borderType=cv2.BORDER_REPLICATE)
+    biased = holes >= 5                                       # a fifth of 25
+    assert biased[left].mean() > 0.8
+    back = biased & returned & (filtered > 0.0)   # a 0 (dropped by drop_smeared) stays 0
+    assert back.sum() > 300
+    np.testing.assert_array_equal(out[back], raw_m[back])
+    assert np.all(out[biased & (filtered == 0.0)] == 0.0)
+    assert np.all(out[biased & ~returned] == 0.0)                  # filled holes stay holes
+    np.testing.assert_array_equal(out[~biased], filtered[~biased])  # the rest keeps its median
+    assert np.all(out[:, 36:] == filtered[:, 36:])

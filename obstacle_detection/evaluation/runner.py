@@ -66,6 +66,7 @@ class LabelledFrame:
     object_ids: np.ndarray | None = None   # (H, W) int16 primitive hit, -1 none (generator)
     object_names: tuple[str, ...] = ()     # name per primitive id ('' = unnamed)
     drop_edge: np.ndarray | None = None    # (H, W) bool reachable ground at a drop's edge
+    hit_labels: np.ndarray | None = None   # (H, W) GT_* of the surface hit, returned or not
 
     def params(self, base: DetectorParams) -> DetectorParams:
         """Return ``base`` with this frame's camera mount."""
@@ -218,7 +219,8 @@ def scenario_frames(scenario: Scenario, *, max_frames: int | None = None,
             pitch_rad=frame.pitch_rad, roll_rad=frame.roll_rad,
             sequence_key=f'{scenario.name}/{seed}' if scenario.is_sequence else None,
             truth=truth, object_ids=frame.object_ids, object_names=frame.object_names,
-            drop_edge=frame.drop_edge)
+            drop_edge=frame.drop_edge,
+            hit_labels=frame.hit_labels if truth == 'robot' else None)
 
 
 
@@ -391,10 +393,11 @@ def truth_costmap(frame: LabelledFrame, params: DetectorParams,
                   roi: np.ndarray | None = None) -> np.ndarray:
     """Truth grid (ny, nx) int8 of a frame in the costmap geometry (``build_costmap``).
 
-    Robot-level truth also marks drop edges and leaves unscored the gaps between samples of one
-    surface seen at a grazing angle.
+    Robot-level truth also marks drop edges, leaves unscored the gaps between samples of one
+    surface seen at a grazing angle, and marks a free cell where an obstacle stands whose pixels
+    returned no depth (``hit_labels``).
     """
-    from obstacle_detection.pipeline.costmap import build_costmap
+    from obstacle_detection.pipeline.costmap import build_costmap, costmap_geometry
 
     if roi is None:
         roi = truth_roi(frame, params)
@@ -402,19 +405,22 @@ def truth_costmap(frame: LabelledFrame, params: DetectorParams,
     obstacle, traversable = metrics.truth_points(frame.truth_points, frame.truth_labels, roi,
                                                  marked)
     grid = build_costmap(obstacle, traversable, params).data
+    origin, nx, ny = costmap_geometry(params)
+    res = params.costmap_resolution_m
     if frame.truth == 'robot' and frame.object_ids is not None:
         # A surface seen at a grazing angle (a table's underside) is sampled in sparse rows:
         # the cells between its samples are neither known free nor sampled: not scored.
-        from obstacle_detection.pipeline.costmap import costmap_geometry
-
-        origin, nx, ny = costmap_geometry(params)
-        res = params.costmap_resolution_m
         gaps = metrics.surface_gap_points(
             frame.truth_points, frame.object_ids,
             roi & (frame.truth_labels == GT_OBSTACLE), step_m=res / 2,
             max_gap_m=MAX_SURFACE_GAP_M)
         covered = metrics.point_cells(gaps, origin, res, (ny, nx))
         grid[covered & (grid != CELL_OCCUPIED)] = CELL_UNKNOWN
+    if frame.truth == 'robot' and frame.hit_labels is not None:
+        # an obstacle in view whose pixels returned no depth still stands in its cells
+        hidden = roi & (frame.hit_labels == GT_OBSTACLE) & (frame.truth_labels == GT_NO_RETURN)
+        cells = metrics.point_cells(frame.truth_points[hidden], origin, res, (ny, nx))
+        grid[cells & (grid == CELL_FREE)] = CELL_OCCUPIED
     return grid
 
 

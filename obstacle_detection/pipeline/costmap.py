@@ -11,6 +11,9 @@ from . import jit
 from ._compiled import costmap as jit_costmap
 from .params import DetectorParams
 
+#: A cell holding less than this share of the obstacle points (pixels) of a neighbour, near
+#: their border, is the tail of that neighbour's range noise, its halo (docs/accuracy.md).
+HALO_SHARE = 0.01
 
 
 @dataclass(frozen=True)
@@ -83,6 +86,38 @@ def build_costmap(obstacle_points: np.ndarray, ground_points: np.ndarray,
         if points.shape[0]:
             rasterise(flat, points, value, origin, params.costmap_resolution_m, nx, ny)
     return grid
+
+
+def halo_voxels(points: np.ndarray, counts: np.ndarray, params: DetectorParams) -> np.ndarray:
+    """(V,) bool: obstacle voxels in a cell of the costmap that is a neighbour's halo.
+
+    points: (V, 3) obstacle voxel centroids, base frame [m]; counts: (V,) their pixels. Such
+    a cell holds less than ``HALO_SHARE`` of the pixels of a neighbour (of 8), and their
+    centroid lies in its half towards that neighbour: range noise spread them over the border.
+    """
+    origin, nx, ny = costmap_geometry(params)
+    res = params.costmap_resolution_m
+    row, col, inside = Costmap(np.empty((ny, nx), np.int8), res, origin).cell_of(points)
+    cell = np.where(inside, row * nx + col, 0)
+    weights = np.where(inside, counts, 0).astype(np.float64)
+    held = np.bincount(cell, weights=weights, minlength=nx * ny)
+    # the pixels' mean offset in their cell, -0.5 to 0.5 cells along x and y
+    offsets = []
+    for axis, index in ((0, col), (1, row)):
+        within = (points[:, axis] - origin[axis]) / res - index - 0.5
+        total = np.bincount(cell, weights=weights * within, minlength=nx * ny)
+        offsets.append((total / np.maximum(held, 1.0)).reshape(ny, nx))
+    held = held.reshape(ny, nx)
+    padded = np.pad(held, 1)
+    beside = np.zeros((ny, nx))
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            if dx or dy:
+                towards = (dx * offsets[0] >= 0.0) & (dy * offsets[1] >= 0.0)
+                shifted = padded[1 + dy:1 + dy + ny, 1 + dx:1 + dx + nx]
+                np.maximum(beside, np.where(towards, shifted, 0.0), out=beside)
+    weak = held < HALO_SHARE * beside
+    return inside & weak.reshape(-1)[cell]
 
 
 def warm_up() -> None:

@@ -150,6 +150,10 @@ class Detector:
             is_obstacle |= trav.ledge   # a band one cell wide, as a drop edge: not validated
             is_obstacle &= ~traversal.lone_voxels(centroids, p.voxel_x_m, p.voxel_y_m,
                                                   p.voxel_z_m)   # mixed pixels kept
+            marked = np.flatnonzero(is_obstacle)
+            halo = costmap_stage.halo_voxels(geometry.to_base_frame(centroids[marked], p),
+                                             grid.counts[marked], p)
+            is_obstacle[marked[halo & ~trav.ledge[marked]]] = False
         clock.lap('validation')
         obstacle_points = centroids[is_obstacle]
         if drop_points.shape[0]:
@@ -197,6 +201,7 @@ class Detector:
             # raw depth looked up from uint16 codes in the table holds no NaN
             depth_m = traversal.drop_smeared(depth_m, raw_m, p.max_filter_shift,
                                               raw_no_nan=codes is not None)
+            depth_m = traversal.unbias_holes(depth_m, raw_m, p.median_kernel)
         clock.lap('smear')
         return depth_m
 
