@@ -1,6 +1,7 @@
 """Costmap: projection of points onto the ground grid."""
 
 import numpy as np
+import pytest
 
 from obstacle_detection.labels import CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN
 from obstacle_detection.pipeline.costmap import build_costmap, costmap_geometry
@@ -88,3 +89,31 @@ def test_halo_is_decided_per_cell_and_ignores_points_outside_the_grid():
     assert halo_voxels(points, counts, P).tolist() == [False, True, True, False]
     counts[2] = 60                                     # 70: 1.4 %, kept
     assert halo_voxels(points, counts, P).tolist() == [False, False, False, False]
+
+
+@pytest.mark.numba
+def test_compiled_halo_equals_numpy(both_paths):
+    """The same halo flags: known cells, float32 and float64, outside, NaN, inf, huge values."""
+    from obstacle_detection.pipeline.costmap import halo_voxels
+
+    rng = np.random.default_rng(5)
+    origin, nx, ny = costmap_geometry(P)
+    for trial in range(40):
+        n = int(rng.integers(1, 600))
+        pts = np.empty((n, 3))
+        pts[:, 0] = origin[0] + rng.uniform(-2.0, nx + 2.0, n) * 0.1
+        pts[:, 1] = origin[1] + rng.uniform(-2.0, ny + 2.0, n) * 0.1
+        pts[:, 2] = rng.uniform(0.0, 1.0, n)
+        border = rng.random(n) < 0.2                          # on cell borders
+        pts[border, 0] = origin[0] + rng.integers(0, nx, border.sum()) * 0.1
+        pts[:3, trial % 2] = (np.nan, np.inf, 1e30)[trial % 3]
+        dense = rng.random(n) < 0.3                           # faces beside sparse tails
+        counts = np.where(dense, rng.integers(1000, 5000, n), rng.integers(1, 40, n))
+        for dtype in (np.float32, np.float64):
+            with np.errstate(invalid='ignore'):   # numpy's cast of NaN and inf to int warns
+                both_paths(halo_voxels, pts.astype(dtype), counts, P)
+    # the known halo of the test above: a face at x = 1.005, its tail at 0.995
+    points = np.array([[1.005, 0.05, 0.3], [0.995, 0.05, 0.2], [0.99, 0.04, 0.6],
+                       [9.0, 0.0, 0.1]], np.float32)
+    got = both_paths(halo_voxels, points, np.array([5000, 10, 30, 10], np.int64), P)
+    assert got.tolist() == [False, True, True, False]

@@ -654,3 +654,30 @@ def test_unbias_holes_undoes_the_median_where_its_window_was_mostly_no_return():
     assert np.all(out[biased & ~returned] == 0.0)                  # filled holes stay holes
     np.testing.assert_array_equal(out[~biased], filtered[~biased])  # the rest keeps its median
     assert np.all(out[:, 36:] == filtered[:, 36:])
+
+
+@pytest.mark.numba
+def test_unbias_holes_kernel_equals_numpy(both_paths):
+    from scipy.ndimage import median_filter
+
+    # known geometry: a grazing wall, its left half 40 % dropouts (the test above), K = 5 and 17
+    rng = np.random.default_rng(3)
+    true = (1.0 * 1.01 ** np.arange(64, dtype=np.float64))[None, :].repeat(40, axis=0)
+    raw = np.round(true * 1000.0).astype(np.float32) / np.float32(1000.0)
+    raw[:, :32][rng.random((40, 32)) < 0.4] = 0.0
+    for k in (5, 17):
+        filtered = median_filter(raw, size=k, mode='nearest')
+        filtered[::7, ::5] = 0.0                            # dropped by drop_smeared
+        out = both_paths(traversal.unbias_holes, filtered, raw, k)
+        assert (out != filtered).sum() > 100
+    # random: holes, NaN, inf, negative depths; images smaller than the window
+    for _ in range(60):
+        h, w = rng.integers(2, 30, 2)
+        k = int(rng.choice([1, 3, 5, 7, 17]))
+        raw = rng.uniform(0.3, 4.0, (h, w)).astype(np.float32)
+        for value, share in ((0.0, rng.random()), (np.nan, 0.05), (np.inf, 0.02), (-1.0, 0.02)):
+            raw[rng.random((h, w)) < share] = value
+        filtered = rng.uniform(0.0, 4.0, (h, w)).astype(np.float32)
+        filtered[rng.random((h, w)) < 0.2] = 0.0
+        filtered[rng.random((h, w)) < 0.05] = np.nan
+        both_paths(traversal.unbias_holes, filtered, raw, k)

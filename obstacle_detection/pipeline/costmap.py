@@ -96,7 +96,13 @@ def halo_voxels(points: np.ndarray, counts: np.ndarray, params: DetectorParams) 
     centroid lies in its half towards that neighbour: range noise spread them over the border.
     """
     origin, nx, ny = costmap_geometry(params)
-    res = params.costmap_resolution_m
+    return _halo_voxels(points, counts, origin, params.costmap_resolution_m, nx, ny, HALO_SHARE)
+
+
+def _reference_halo_voxels(points: np.ndarray, counts: np.ndarray,
+                           origin: tuple[float, float], res: float, nx: int, ny: int,
+                           share: float) -> np.ndarray:
+    """:func:`halo_voxels` on the nx x ny grid of ``res`` cells from ``origin`` (numpy)."""
     row, col, inside = Costmap(np.empty((ny, nx), np.int8), res, origin).cell_of(points)
     cell = np.where(inside, row * nx + col, 0)
     weights = np.where(inside, counts, 0).astype(np.float64)
@@ -116,11 +122,24 @@ def halo_voxels(points: np.ndarray, counts: np.ndarray, params: DetectorParams) 
                 towards = (dx * offsets[0] >= 0.0) & (dy * offsets[1] >= 0.0)
                 shifted = padded[1 + dy:1 + dy + ny, 1 + dx:1 + dx + nx]
                 np.maximum(beside, np.where(towards, shifted, 0.0), out=beside)
-    weak = held < HALO_SHARE * beside
+    weak = held < share * beside
     return inside & weak.reshape(-1)[cell]
 
 
+def _voxel_points(points: np.ndarray, counts: np.ndarray, *args: object) -> bool:
+    """Return True for what the compiled halo takes: (V, >= 2) float32/64 points, (V,) counts."""
+    return (_float_points(None, points) and counts.ndim == 1
+            and counts.shape[0] == points.shape[0])
+
+
+# compiled: only the cells of the voxels, not 8 passes over the whole grid
+_halo_voxels = jit.choose(_reference_halo_voxels, jit_costmap.halo_voxels, accepts=_voxel_points)
+
+
 def warm_up() -> None:
-    """Compile (or load from numba's disk cache) the rasterisation kernel, if it runs."""
+    """Compile (or load from numba's disk cache) the costmap's kernels, if they run."""
     rasterise(np.zeros(4, np.int8), np.zeros((1, 3), np.float32), CELL_FREE, (0.0, 0.0), 1.0,
               2, 2)
+    if jit.enabled():
+        jit_costmap.halo_voxels(np.zeros((1, 3), np.float32), np.ones(1, np.int64), (0.0, 0.0),
+                                1.0, 2, 2, HALO_SHARE)

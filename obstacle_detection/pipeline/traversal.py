@@ -379,17 +379,34 @@ def unbias_holes(filtered: np.ndarray, raw: np.ndarray, kernel: int) -> np.ndarr
     hole the median filled there is dropped; pixels already dropped stay so. Returns
     ``filtered`` (C-contiguous float32: changed in place).
     """
-    raw = np.ascontiguousarray(raw, np.float32)
+    area = kernel * kernel
+    most = area - int(np.ceil(MEDIAN_HOLE_SHARE * area))   # returns in a window still biased
+    return _unbias_holes(filtered, np.ascontiguousarray(raw, np.float32), kernel, most)
+
+
+def _reference_unbias_holes(filtered: np.ndarray, raw: np.ndarray, kernel: int,
+                            most: int) -> np.ndarray:
+    """:func:`unbias_holes` where at most ``most`` pixels of the window returned (numpy, cv2)."""
     returned = cv2.compare(raw, 0.0, cv2.CMP_GT)   # 255 or 0 (NaN: 0)
     count = cv2.boxFilter(returned, cv2.CV_32F, (kernel, kernel), normalize=False,
                           borderType=cv2.BORDER_REPLICATE)
-    area = kernel * kernel
-    biased = count <= np.float32(255 * (area - np.ceil(MEDIAN_HOLE_SHARE * area)))
+    biased = count <= np.float32(255 * most)
     returned = returned != 0
     back = (biased & returned & (filtered > 0.0)).view(np.uint8)
     hole = (biased & ~returned).view(np.uint8)
     filtered = cv2.copyTo(raw, back, filtered)   # np.copyto with a mask is 15 times slower
     return cv2.copyTo(np.zeros_like(raw), hole, filtered)
+
+
+def _one_float32_image(filtered: np.ndarray, raw: np.ndarray, kernel: int, most: int) -> bool:
+    """Return True for what the compiled pass takes: C-contiguous float32, kernel <= 181."""
+    return (filtered.flags.c_contiguous and filtered.dtype == np.float32
+            and filtered.shape == raw.shape and raw.ndim == 2 and kernel <= 181)
+
+
+# compiled: one pass with a sliding window count, instead of six image-sized passes
+_unbias_holes = jit.choose(_reference_unbias_holes, jit_traversal.unbias_holes,
+                           accepts=_one_float32_image)
 
 
 def _reference_drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float,

@@ -14,7 +14,7 @@ import numpy as np
 from ._numba import AVAILABLE, jit as _jit, scratch
 
 __all__ = ['AVAILABLE', 'drop_pixels', 'drop_smeared', 'ground_rays', 'has_nan', 'ray_row',
-           'traverse', 'warm_up']
+           'traverse', 'unbias_holes', 'warm_up']
 
 #: Per-thread row buffers of the smear pass.
 _SCRATCH = threading.local()
@@ -607,6 +607,68 @@ def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float, jump: 
 
 
 @_jit
+def _unbias_kernel(filtered, raw, kernel, most, padded, window):  # pragma: no cover - compiled
+    """In place: traversal's unbias_holes, the window's returns counted on the way.
+
+    padded (W + kernel - 1,) int16: the returns of each column in the window's rows, slid down
+    row by row, its ends replicated; window (W,) int16: their sums along the row. Branch-free
+    passes (vectorised).
+    """
+    height, width = raw.shape
+    before = kernel // 2
+    after = kernel - 1 - before
+    zero = np.float32(0.0)
+    one = np.int16(1)
+    nil = np.int16(0)
+    most = np.int16(most)
+    columns = padded[before:before + width]
+    columns[:] = 0
+    for d in range(kernel):
+        rd = raw[min(max(d - before, 0), height - 1)]
+        for j in range(width):
+            columns[j] += one if rd[j] > zero else nil
+    for i in range(height):
+        gone = min(max(i - 1 - before, 0), height - 1)
+        come = min(i + after, height - 1)
+        if i > 0 and gone != come:
+            rg = raw[gone]
+            rc = raw[come]
+            for j in range(width):
+                columns[j] += (one if rc[j] > zero else nil) - (one if rg[j] > zero else nil)
+        for t in range(before):
+            padded[t] = columns[0]
+        for t in range(after):
+            padded[before + width + t] = columns[width - 1]
+        window[:] = padded[:width]
+        for d in range(1, kernel):
+            for j in range(width):
+                window[j] += padded[j + d]
+        rr = raw[i]
+        fr = filtered[i]
+        for j in range(width):
+            r = rr[j]
+            f = fr[j]
+            back = r if f > zero else f      # its measured depth back (dropped stays so)
+            new = back if r > zero else zero   # a hole the median filled: dropped
+            fr[j] = new if window[j] <= most else f
+
+
+def unbias_holes(filtered: np.ndarray, raw: np.ndarray, kernel: int, most: int) -> np.ndarray:
+    """In place: traversal.unbias_holes where at most ``most`` of the window's pixels returned.
+
+    filtered, raw: (H, W) float32 C-contiguous; kernel <= 181 (its counts fit int16).
+    Returns ``filtered``.
+    """
+    if raw.size:
+        width = raw.shape[1]
+        size = width + kernel - 1
+        _unbias_kernel(filtered, raw, int(kernel), int(most),
+                       scratch('unbias_padded', size, np.int16)[:size],
+                       scratch('unbias_window', width, np.int16)[:width])
+    return filtered
+
+
+@_jit
 def _floor_samples_kernel(depth, step, rays, height, tan_tilt, band0, min_x, max_x, max_y,
                           facing_cos2, out):  # pragma: no cover - compiled
     """Fill out (3, M) float64 with floor.floor_samples' points; return how many.
@@ -843,6 +905,7 @@ def warm_up() -> None:
                 (np.zeros(2, np.float32), np.zeros(4, np.float32), np.eye(3, dtype=np.float32)))
     one = np.ones((6, 6), np.float32)
     drop_smeared(one.copy(), one, 0.03, 0.05, 0.02)
+    unbias_holes(one.copy(), one, 5, 20)
     has_nan(one)
     rng = np.random.default_rng(0)
     depth = rng.uniform(0.5, 3.0, (12, 12)).astype(np.float32)
