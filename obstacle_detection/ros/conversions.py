@@ -271,8 +271,7 @@ def points_to_pointcloud2(points: np.ndarray, *, stamp: Time, frame_id: str) -> 
     fields = [PointField(name=name, offset=i * 4, datatype=PointField.FLOAT32, count=1)
               for i, name in enumerate(_XYZ_FIELDS)]
     count = xyz.shape[0]
-    # built bare and then filled: a constructor's keyword arguments do not spare it building
-    # (and dropping) its default header, and its data=bytes would be copied twice
+    # filled in place: the constructor builds a default header anyway, copies data=bytes twice
     msg = PointCloud2(height=1, width=count, fields=fields, is_bigendian=False, point_step=12,
                       row_step=12 * count, is_dense=bool(np.isfinite(xyz).all()))
     msg.header.stamp = stamp
