@@ -8,8 +8,7 @@ import math
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from geometry_msgs.msg import Pose
-from nav_msgs.msg import MapMetaData, OccupancyGrid
+from nav_msgs.msg import OccupancyGrid
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
 from std_msgs.msg import Header
 
@@ -269,32 +268,43 @@ def points_to_pointcloud2(points: np.ndarray, *, stamp: Time, frame_id: str) -> 
     if points.ndim != 2 or points.shape[1] != 3:
         raise ValueError(f'points must have shape (N, 3), got {points.shape}')
     xyz = np.ascontiguousarray(points, dtype='<f4')
-    itemsize = xyz.dtype.itemsize
-    fields = [PointField(name=name, offset=i * itemsize, datatype=PointField.FLOAT32, count=1)
+    fields = [PointField(name=name, offset=i * 4, datatype=PointField.FLOAT32, count=1)
               for i, name in enumerate(_XYZ_FIELDS)]
-    point_step = 3 * itemsize
     count = xyz.shape[0]
-    return PointCloud2(
-        header=_stamped_header(stamp, frame_id), height=1, width=count, fields=fields,
-        is_bigendian=False, point_step=point_step, row_step=point_step * count,
-        data=xyz.tobytes(), is_dense=bool(np.isfinite(xyz).all()))
+    # filled in place: the constructor builds a default header anyway, copies data=bytes twice
+    msg = PointCloud2(height=1, width=count, fields=fields, is_bigendian=False, point_step=12,
+                      row_step=12 * count, is_dense=bool(np.isfinite(xyz).all()))
+    msg.header.stamp = stamp
+    msg.header.frame_id = frame_id
+    msg.data = _byte_array('B', xyz)
+    return msg
 
 
+def _byte_array(typecode: str, values: np.ndarray) -> array.array:
+    """Return an array.array of a C-contiguous array's bytes, copied once."""
+    out = array.array(typecode)
+    out.frombytes(memoryview(values.reshape(-1)).cast('B'))
+    return out
 
 
 def costmap_to_occupancy_grid(costmap: Costmap, *, stamp: Time,
                               frame_id: str) -> OccupancyGrid:
     """Build an OccupancyGrid of the costmap, lying in the ground plane of ``frame_id``."""
     data = np.ascontiguousarray(costmap.data, dtype=np.int8)
-    origin = Pose()
-    origin.position.x = float(costmap.origin_xy_m[0])
-    origin.position.y = float(costmap.origin_xy_m[1])
-    origin.orientation.w = 1.0
-    info = MapMetaData(map_load_time=stamp, resolution=float(costmap.resolution_m),
-                       width=int(data.shape[1]), height=int(data.shape[0]), origin=origin)
-    grid = OccupancyGrid(header=_stamped_header(stamp, frame_id), info=info)
+    # filled in place: the default sub-messages are built anyway (see points_to_pointcloud2)
+    grid = OccupancyGrid()
+    grid.header.stamp = stamp
+    grid.header.frame_id = frame_id
+    info = grid.info
+    info.map_load_time = stamp
+    info.resolution = float(costmap.resolution_m)
+    info.width = int(data.shape[1])
+    info.height = int(data.shape[0])
+    info.origin.position.x = float(costmap.origin_xy_m[0])
+    info.origin.position.y = float(costmap.origin_xy_m[1])
+    info.origin.orientation.w = 1.0
     # array.array('b') is stored as is; a numpy array or a list would be converted per element.
-    grid.data = array.array('b', data.tobytes())
+    grid.data = _byte_array('b', data)
     return grid
 
 

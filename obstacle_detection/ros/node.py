@@ -664,8 +664,9 @@ class DetectorNode(Node):
         verdict = frame_gate.choose_intrinsics(
             camera, shape, use_fallback=config.use_fallback_intrinsics,
             fallback=config.fallback_intrinsics,
-            no_camera=f'no CameraInfo received yet on {self._info_sub.topic_name} (set '
-                      'use_fallback_intrinsics to use fallback_fx/fy/cx/cy)')
+            no_camera='' if camera is not None else (
+                f'no CameraInfo received yet on {self._info_sub.topic_name} (set '
+                'use_fallback_intrinsics to use fallback_fx/fy/cx/cy)'))
         if verdict.note is not None:
             self._throttled_logger('fallback').info(verdict.note,
                                                     throttle_duration_sec=WARN_THROTTLE_S)
