@@ -186,6 +186,10 @@ def _reference_ledges(points: np.ndarray, steep: np.ndarray, reached: np.ndarray
                                             & (high <= step_up_m))
         raised = raised.reshape(-1)[key]
         low = low.reshape(-1)[key]
+        floor_low = floor_low.reshape(-1)[key]
+        # a cell the edge crosses holds both surfaces: its raised voxels, by their own z
+        raised |= flat & (z - low > step_down_m) & ~(floor_low & (z >= -step_down_m)
+                                                     & (z <= step_up_m))
         face = face.reshape(-1)[key] & (z - low > step_up_m)
     return np.where(reached, raised, face) & ~above
 

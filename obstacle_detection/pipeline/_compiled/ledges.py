@@ -80,6 +80,10 @@ def _ledges_kernel(points, steep, reached, above, size, step_up, step_down,
             s = surface[cx, cy]
             out[v] = (s - lo > step_down
                       and not (floor_low and s >= -step_down and s <= step_up))
+            if not steep[v]:   # a cell the edge crosses: its raised voxels, by their own z
+                zv = np.float64(points[v, 2])
+                out[v] = out[v] or (zv - lo > step_down and not (
+                    floor_low and zv >= -step_down and zv <= step_up))
         else:
             hi = high[cx, cy]
             out[v] = (hi - lo > step_up
