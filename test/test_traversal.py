@@ -296,6 +296,31 @@ def test_a_raised_reached_surface_beside_the_floor_has_its_edge_cells_marked(ris
     assert not marks[(y < 0.5) | (y > 0.55)].any()         # nothing else, no floor cell
 
 
+@pytest.mark.parametrize('rise', [0.18, 0.10])
+def test_a_ledge_inside_a_cell_is_marked_in_that_cell(rise):
+    # the platform's edge at y = 0.525 m, half-way across the cell [0.50, 0.55): that cell
+    # holds floor and platform voxels, and is the edge's cell
+    floor_pts = surface_voxels(1.0, 2.0, -0.5, 0.525, 0.0)
+    platform = surface_voxels(1.0, 2.0, 0.525, 1.0, rise)
+    pts, marks = ledge_marks([floor_pts, platform], [True, True])
+    y = pts[:, 1]
+    assert np.all(marks[(y > 0.525) & (y < 0.55)])         # the platform's part of that cell
+    assert not marks[y < 0.525].any()                      # no floor voxel
+    assert not marks[y > 0.6].any()                        # within a cell of the edge
+
+
+def test_a_far_side_over_its_shadow_is_marked_when_the_floor_beyond_is_not_reached():
+    # a platform's far side, its shadow empty, the floor beyond seen but reached by nothing
+    # (an island past the shadow): it is still the lower ground the side drops to
+    floor_pts = surface_voxels(1.0, 2.0, -0.5, 0.5, 0.0)
+    platform = surface_voxels(1.0, 2.0, 0.5, 1.0, 0.18)
+    beyond = surface_voxels(1.0, 2.0, 1.3, 1.6, 0.0)
+    pts, marks = ledge_marks([floor_pts, platform, beyond], [True, True, False])
+    y = pts[:, 1]
+    assert np.all(marks[(y > 0.95) & (y < 1.0)])           # the far side's cells
+    assert not marks[y > 1.0].any()
+
+
 def test_a_step_no_higher_than_the_step_height_is_no_ledge():
     floor_pts = surface_voxels(1.0, 2.0, -0.5, 0.5, 0.0)
     sill = surface_voxels(1.0, 2.0, 0.5, 1.0, 0.04)

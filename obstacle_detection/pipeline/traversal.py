@@ -176,7 +176,9 @@ def _reference_ledges(points: np.ndarray, steep: np.ndarray, reached: np.ndarray
     seen = np.zeros(nx * ny, bool)
     seen[key] = True
     seen = seen.reshape(nx, ny)
-    _lower_beyond_gaps(surface, seen, low, ox, oy, shadow_cells)
+    lowest = np.full(nx * ny, np.inf)
+    np.minimum.at(lowest, key[~steep], z[~steep])
+    _lower_beyond_gaps(surface, lowest.reshape(nx, ny), seen, low, ox, oy, shadow_cells)
     with np.errstate(invalid='ignore'):
         # two surfaces within the floor's band (the seeds') are both floor: no ledge
         floor_low = (low >= -step_down_m) & (low <= step_up_m)
@@ -186,12 +188,16 @@ def _reference_ledges(points: np.ndarray, steep: np.ndarray, reached: np.ndarray
                                             & (high <= step_up_m))
         raised = raised.reshape(-1)[key]
         low = low.reshape(-1)[key]
+        floor_low = floor_low.reshape(-1)[key]
+        # a cell the edge crosses holds both surfaces: its raised voxels, by their own z
+        raised |= flat & (z - low > step_down_m) & ~(floor_low & (z >= -step_down_m)
+                                                     & (z <= step_up_m))
         face = face.reshape(-1)[key] & (z - low > step_up_m)
     return np.where(reached, raised, face) & ~above
 
 
-def _lower_beyond_gaps(surface: np.ndarray, seen: np.ndarray, low: np.ndarray, ox: int,
-                       oy: int, shadow_cells: int) -> None:
+def _lower_beyond_gaps(surface: np.ndarray, lowest: np.ndarray, seen: np.ndarray,
+                       low: np.ndarray, ox: int, oy: int, shadow_cells: int) -> None:
     """Lower ``low`` (nx, ny) of the surface cells next to an empty one, in place.
 
     To the lowest surface of the first cells with voxels beyond a gap of empty cells, in the
@@ -219,7 +225,7 @@ def _lower_beyond_gaps(surface: np.ndarray, seen: np.ndarray, low: np.ndarray, o
             break
         hit = seen[wx, wy]
         if k > 1:   # the first cell beyond a gap (next to it, the 8 neighbours decide)
-            np.minimum.at(beyond, owner[hit], surface[wx[hit], wy[hit]])
+            np.minimum.at(beyond, owner[hit], lowest[wx[hit], wy[hit]])
         gap = ~hit
         wx, wy, sx, sy, owner = wx[gap], wy[gap], sx[gap], sy[gap], owner[gap]
     low[cx, cy] = np.minimum(low[cx, cy], beyond)

@@ -21,11 +21,14 @@ def _ledges_kernel(points, steep, reached, above, size, step_up, step_down,
     n = points.shape[0]
     ix, iy, nx, ny, ox, oy = grid_cells(points, size)
     surface = np.full((nx, ny), np.inf)
+    lowest = np.full((nx, ny), np.inf)
     seen = np.zeros((nx, ny), np.bool_)
     for v in range(n):
         cx = ix[v]
         cy = iy[v]
         seen[cx, cy] = True
+        if not steep[v] and np.float64(points[v, 2]) < lowest[cx, cy]:
+            lowest[cx, cy] = np.float64(points[v, 2])
         if reached[v] and not steep[v]:
             z = np.float64(points[v, 2])
             if z < surface[cx, cy]:
@@ -65,8 +68,8 @@ def _ledges_kernel(points, steep, reached, above, size, step_up, step_down,
                         if wx < 0 or wx >= nx or wy < 0 or wy >= ny:
                             break
                         if seen[wx, wy]:
-                            if k > 1 and surface[wx, wy] < lo:
-                                lo = surface[wx, wy]
+                            if k > 1 and lowest[wx, wy] < lo:
+                                lo = lowest[wx, wy]
                             break
             low[cx, cy] = lo
     for v in range(n):
@@ -80,6 +83,10 @@ def _ledges_kernel(points, steep, reached, above, size, step_up, step_down,
             s = surface[cx, cy]
             out[v] = (s - lo > step_down
                       and not (floor_low and s >= -step_down and s <= step_up))
+            if not steep[v]:   # a cell the edge crosses: its raised voxels, by their own z
+                zv = np.float64(points[v, 2])
+                out[v] = out[v] or (zv - lo > step_down and not (
+                    floor_low and zv >= -step_down and zv <= step_up))
         else:
             hi = high[cx, cy]
             out[v] = (hi - lo > step_up
