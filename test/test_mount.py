@@ -11,7 +11,7 @@ from obstacle_detection.evaluation import runner as evaluation
 from obstacle_detection.pipeline import geometry, mount
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.pipeline.params import KINECT_V2_SD, Intrinsics, table_4_2
-from obstacle_detection.viz.pictures import read_depth_png
+from obstacle_detection.evaluation.datasets import read_depth_png
 from obstacle_detection.pipeline.detector import Detector
 from obstacle_detection.sim.primitives import Box, Floor, Wall
 from obstacle_detection.sim.render import render, Scene

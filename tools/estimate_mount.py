@@ -24,7 +24,7 @@ from obstacle_detection.evaluation.camera import camera_yaml_text
 from obstacle_detection.pipeline.depth import decode_depth
 from obstacle_detection.pipeline.mount import MountEstimate, estimate_mount
 from obstacle_detection.pipeline.params import Intrinsics
-from obstacle_detection.viz.pictures import read_depth_png
+from obstacle_detection.evaluation.datasets import read_depth_png
 from obstacle_detection.ros.parameters import PARAMS_FILE_KEY
 
 

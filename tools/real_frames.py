@@ -21,7 +21,7 @@ from obstacle_detection.pipeline.depth import decode_depth
 from obstacle_detection.evaluation.runner import apply_overrides, load_params_file
 from obstacle_detection.pipeline.mount import estimate_mount
 from obstacle_detection.pipeline.params import Intrinsics, corridor
-from obstacle_detection.viz.pictures import read_depth_png
+from obstacle_detection.evaluation.datasets import read_depth_png
 from obstacle_detection.labels import LABEL_OBSTACLE
 from obstacle_detection.pipeline.detector import Detector
 

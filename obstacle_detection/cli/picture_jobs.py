@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterator, Sequence
+from typing import Iterator, Sequence
 
 import cv2
 import numpy as np
@@ -19,6 +20,7 @@ from obstacle_detection.cli import support as tool_support
 from obstacle_detection.cli.support import parse_intrinsics
 from obstacle_detection.evaluation import EvaluationError
 from obstacle_detection.evaluation.camera import read_camera_yaml
+from obstacle_detection.evaluation.datasets import read_depth_png
 from obstacle_detection.pipeline.depth import decode_depth
 from obstacle_detection.pipeline.params import (SEED_TABLE_4_1, DetectorParams,
                                        Intrinsics)
@@ -95,21 +97,24 @@ def mount_caption(estimate: mount.MountEstimate) -> str:
             f'({estimate.inlier_fraction:.0%} on the plane)')
 
 
+#: The mount options: (argparse dest, DetectorParams field, conversion to the field's unit).
+_MOUNT_OPTIONS = (('height', 'camera_height_m', float),
+                  ('pitch_deg', 'camera_pitch_rad', math.radians),
+                  ('roll_deg', 'camera_roll_rad', math.radians))
+#: How to fix a mount that does not match the floor, for folders and bags.
+_FIX_MOUNT = ('--estimate-mount (the first frame\'s floor), or --height, --pitch-deg and '
+              '--roll-deg')
+
+
 def _mount(args: argparse.Namespace, params: DetectorParams) -> DetectorParams:
-    changes: dict[str, float] = {}
-    if args.height is not None:
-        changes['camera_height_m'] = args.height
-    if args.pitch_deg is not None:
-        changes['camera_pitch_rad'] = math.radians(args.pitch_deg)
-    if args.roll_deg is not None:
-        changes['camera_roll_rad'] = math.radians(args.roll_deg)
+    changes = {field: convert(getattr(args, dest)) for dest, field, convert in _MOUNT_OPTIONS
+               if getattr(args, dest) is not None}
     return params.replace(**changes) if changes else params
 
 
 def _given_mount_options(args: argparse.Namespace) -> list[str]:
-    return [f'--{name}' for name, value in (('height', args.height),
-                                            ('pitch-deg', args.pitch_deg),
-                                            ('roll-deg', args.roll_deg)) if value is not None]
+    return [f'--{dest.replace("_", "-")}' for dest, _, _ in _MOUNT_OPTIONS
+            if getattr(args, dest) is not None]
 
 
 class _RealFrames:
@@ -233,9 +238,7 @@ def jobs(args: argparse.Namespace, base: DetectorParams) -> Iterator[_Job]:
     elif args.depth is not None:
         yield depth_job(args, base)
     else:
-        real = _RealFrames(args, base, camera_of(args), fix_mount=(
-            '--estimate-mount (the first frame\'s floor), or --height, --pitch-deg and '
-            '--roll-deg'))
+        real = _RealFrames(args, base, camera_of(args), fix_mount=_FIX_MOUNT)
         if real.camera.intrinsics is not None:
             raise tool_support.ToolError('--intrinsics does not apply to --bag: its '
                                          'CameraInfo gives them (see --info-topic)', usage=True)
@@ -291,9 +294,7 @@ def folder_jobs(args: argparse.Namespace, base: DetectorParams) -> Iterator[_Job
     scale, scale_origin = args.depth_scale, '--depth-scale'
     if scale is None and camera.depth_scale is not None:
         scale, scale_origin = camera.depth_scale, camera.origin
-    real = _RealFrames(args, base, camera, fix_mount=(
-        '--estimate-mount (the first frame\'s floor), or --height, --pitch-deg and '
-        '--roll-deg'))
+    real = _RealFrames(args, base, camera, fix_mount=_FIX_MOUNT)
     for path, depth in evaluation.subsample(depths, args.max_frames):
         yield real.job(path.name, depth, camera.intrinsics, camera.origin, scale,
                        scale_origin if scale is not None else '', sequence=True)
@@ -301,7 +302,7 @@ def folder_jobs(args: argparse.Namespace, base: DetectorParams) -> Iterator[_Job
 
 def depth_job(args: argparse.Namespace, base: DetectorParams) -> _Job:
     """Return the frame of ``--depth``: intrinsics, depth scale and mount from the options."""
-    depth = pictures.read_depth_png(args.depth)
+    depth = read_depth_png(args.depth)
     camera = camera_of(args)
     if args.estimate_mount and camera.intrinsics is None:
         raise tool_support.ToolError('--estimate-mount needs the intrinsics of the depth '
@@ -472,22 +473,10 @@ def _write_frames_dir(args: argparse.Namespace, detected: Sequence[_Detected]) -
         pictures.write_png(args.frames_dir / f'{i:04d}_{safe}.png', titled_frame(frame))
 
 
-def render(args: argparse.Namespace) -> list[tuple[str, np.ndarray]]:
-    """(caption, RGB picture with its legends) of every frame the parsed options name."""
-    detected = detect(args)
-    _write_frames_dir(args, detected)
-    return [(frame.caption, titled_frame(frame)) for frame in detected]
-
-
 def sheet(args: argparse.Namespace, detected: Sequence[_Detected]) -> np.ndarray:
     """Return the contact sheet of several frames, with one full-size legend underneath."""
-    farthest = 0.0
-    for frame in detected:
-        depth = np.asarray(frame.result.depth_m)
-        valid = np.isfinite(depth) & (depth > 0)
-        if valid.any():
-            farthest = max(farthest, float(depth[valid].max()))
-    farthest = farthest or 1.0
+    depths = [np.asarray(frame.result.depth_m) for frame in detected]
+    farthest = max(float(d[np.isfinite(d) & (d > 0)].max(initial=0.0)) for d in depths) or 1.0
     images = [pictures.fit_width(
         lambda scale, frame=frame: draw(frame, with_legend=False, max_depth_m=farthest,
                                         image_scale=scale), args.thumb_width)
@@ -526,8 +515,6 @@ class DepthFrame:
     name: str
     depth: np.ndarray
     intrinsics: Intrinsics | None
-    depth_scale: float | None = None
-    truth_labels: np.ndarray | None = None
     #: where the intrinsics came from (e.g. ``CameraInfo on /x (found by type)``), '' = none
     intrinsics_origin: str = ''
 
@@ -539,7 +526,8 @@ def bag_frames(path: str | Path, depth_topic: str, info_topic: str | None = None
     from rosbags.highlevel import AnyReader, AnyReaderError
     from rosbags.typesys import Stores, get_typestore
 
-    from obstacle_detection.cli.support import check_bag_path
+    from obstacle_detection.cli.support import IMAGE_TYPE, check_bag_path, choose_info_topic
+    from obstacle_detection.ros.conversions import camera_info_to_intrinsics, image_to_array
 
     if every < 1:
         raise ValueError(f'every={every} must be >= 1')
@@ -549,52 +537,39 @@ def bag_frames(path: str | Path, depth_topic: str, info_topic: str | None = None
         reader.open()
     except AnyReaderError as exc:
         raise ValueError(f'{path}: cannot read the bag ({exc})') from None
-    try:
-        yield from _bag_frames(reader, path, depth_topic, info_topic, every, max_frames,
-                               find_info_topic)
-    finally:
-        reader.close()
-
-
-def _bag_frames(reader: Any, path: str | Path, depth_topic: str, info_topic: str | None,
-                every: int, max_frames: int | None, find_info_topic: bool
-                ) -> Iterator[DepthFrame]:
-    from obstacle_detection.ros.conversions import camera_info_to_intrinsics, image_to_array
-    from obstacle_detection.cli.support import IMAGE_TYPE, choose_info_topic
-
-    topics = {c.topic: c.msgtype for c in reader.connections}
-    if depth_topic not in topics:
-        images = sorted(t for t, kind in topics.items() if kind == IMAGE_TYPE)
-        raise ValueError(f'{path}: no topic {depth_topic!r}; its {IMAGE_TYPE} topics: '
-                         f'{", ".join(images) or "none"} (use --depth-topic)')
-    how = 'given'
-    if info_topic is None and find_info_topic:
-        info_topic, how = choose_info_topic(topics, depth_topic)
-    elif info_topic is not None:
-        try:
-            choose_info_topic(topics, depth_topic, info_topic)
-        except ValueError as exc:
-            raise ValueError(f'{path}: {exc}') from None
-    wanted = [c for c in reader.connections
-              if c.topic == depth_topic or (info_topic and c.topic == info_topic)]
-    intrinsics: Intrinsics | None = None
-    seen = kept = 0
-    for connection, timestamp, raw in reader.messages(connections=wanted):
-        if connection.topic != depth_topic:
-            intrinsics = camera_info_to_intrinsics(reader.deserialize(raw,
-                                                                      connection.msgtype))
-            continue
-        seen += 1
-        if (seen - 1) % every:
-            continue
-        msg = reader.deserialize(raw, connection.msgtype)
-        stamp = msg.header.stamp
-        origin = (f'CameraInfo on {info_topic} ({how})' if intrinsics is not None
-                  else f'none: no CameraInfo on {info_topic} before the frame'
-                  if info_topic else f'none: {how}')
-        yield DepthFrame(f'{depth_topic} #{seen - 1} t={stamp.sec}.{stamp.nanosec:09d}',
-                         image_to_array(msg), intrinsics, intrinsics_origin=origin)
-        kept += 1
-        if max_frames is not None and kept >= max_frames:
-            return
-
+    with contextlib.closing(reader):
+        topics = {c.topic: c.msgtype for c in reader.connections}
+        if depth_topic not in topics:
+            images = sorted(t for t, kind in topics.items() if kind == IMAGE_TYPE)
+            raise ValueError(f'{path}: no topic {depth_topic!r}; its {IMAGE_TYPE} topics: '
+                             f'{", ".join(images) or "none"} (use --depth-topic)')
+        how = 'given'
+        if info_topic is None and find_info_topic:
+            info_topic, how = choose_info_topic(topics, depth_topic)
+        elif info_topic is not None:
+            try:
+                choose_info_topic(topics, depth_topic, info_topic)
+            except ValueError as exc:
+                raise ValueError(f'{path}: {exc}') from None
+        wanted = [c for c in reader.connections
+                  if c.topic == depth_topic or (info_topic and c.topic == info_topic)]
+        intrinsics: Intrinsics | None = None
+        seen = kept = 0
+        for connection, timestamp, raw in reader.messages(connections=wanted):
+            if connection.topic != depth_topic:
+                intrinsics = camera_info_to_intrinsics(reader.deserialize(raw,
+                                                                          connection.msgtype))
+                continue
+            seen += 1
+            if (seen - 1) % every:
+                continue
+            msg = reader.deserialize(raw, connection.msgtype)
+            stamp = msg.header.stamp
+            origin = (f'CameraInfo on {info_topic} ({how})' if intrinsics is not None
+                      else f'none: no CameraInfo on {info_topic} before the frame'
+                      if info_topic else f'none: {how}')
+            yield DepthFrame(f'{depth_topic} #{seen - 1} t={stamp.sec}.{stamp.nanosec:09d}',
+                             image_to_array(msg), intrinsics, intrinsics_origin=origin)
+            kept += 1
+            if max_frames is not None and kept >= max_frames:
+                return

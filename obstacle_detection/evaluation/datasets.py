@@ -412,23 +412,21 @@ def stamps_from_names(root: Path, kind: str) -> list[tuple[float, str]]:
                           f'{example}{other}')
 
 
-def read_depth_png(path: Path, *,
+def read_depth_png(path: str | Path, *,
                    units_per_m: float = DEFAULT_DEPTH_UNITS_PER_M) -> np.ndarray:
-    """Read a 16-bit single-channel depth PNG as (H, W) uint16 millimetres.
+    """Read a 16-bit single-channel depth PNG or PGM as (H, W) uint16 millimetres.
 
     ``units_per_m`` converts other units (5000 for TUM); EvaluationError when a value overflows.
     """
+    path = Path(path)
     if not path.is_file():
         raise EvaluationError(f'{path}: depth image not found')
     image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if image is None:
         raise EvaluationError(f'{path}: cannot read depth image (not an image file?)')
-    if image.ndim != 2:
-        raise EvaluationError(f'{path}: depth must have one channel, found {image.shape[2]}')
-    if image.dtype != np.uint16:
-        bits = image.dtype.itemsize * 8
-        raise EvaluationError(f'{path}: depth must be a 16-bit image in millimetres, '
-                              f'found {bits}-bit ({image.dtype})')
+    if image.dtype != np.uint16 or image.ndim != 2:
+        raise EvaluationError(f'{path}: a depth image must be 16-bit single channel in '
+                              f'millimetres, got {image.dtype} with shape {image.shape}')
     if units_per_m != DEFAULT_DEPTH_UNITS_PER_M:
         # multiplied before divided: exact for integer ratios (5000 units/m: v / 5)
         mm = np.floor(image.astype(np.float64) * 1000.0 / units_per_m + 0.5)

@@ -24,6 +24,7 @@ from obstacle_detection.sim.noise import NOISE_MODELS
 from . import EvaluationError, camera as camera_file
 from . import metrics
 from .camera import scaled_intrinsics
+from .datasets import read_depth_png
 from .metrics import Confusion, format_score
 from obstacle_detection.pipeline.params import (KINECT_V2_SD, KINECT_V2_SD_SIZE, PRESETS,
                                                 DetectorParams, Intrinsics)
@@ -91,12 +92,10 @@ class Scenario:
     def __post_init__(self) -> None:
         if not self.name:
             raise ValueError('scenario name must not be empty')
-        if self.truth not in TRUTH_KINDS:
-            raise ValueError(f'scenario {self.name!r}: truth={self.truth!r} (allowed: '
-                             f'{", ".join(TRUTH_KINDS)})')
-        if self.noise not in NOISE_MODELS:
-            raise ValueError(f'scenario {self.name!r}: noise={self.noise!r} (allowed: '
-                             f'{", ".join(NOISE_MODELS)})')
+        for key, allowed in (('truth', TRUTH_KINDS), ('noise', NOISE_MODELS)):
+            if getattr(self, key) not in allowed:
+                raise ValueError(f'scenario {self.name!r}: {key}={getattr(self, key)!r} '
+                                 f'(allowed: {", ".join(allowed)})')
         if not self.seeds:
             raise ValueError(f'scenario {self.name!r}: seeds must not be empty')
         unknown = {k for k, _ in self.mount} - set(_MOUNT_KEYS)
@@ -117,13 +116,10 @@ class Scenario:
     def render_kwargs(self) -> dict[str, float]:
         """Keyword arguments of ``scenes.render_scene`` for the mount overrides."""
         mount = dict(self.mount)
-        out: dict[str, float] = {}
-        if 'height_m' in mount:
-            out['height_m'] = float(mount['height_m'])
-        if 'pitch_deg' in mount:
-            out['pitch_rad'] = math.radians(mount['pitch_deg'])
-        if 'roll_deg' in mount:
-            out['roll_rad'] = math.radians(mount['roll_deg'])
+        out = {'height_m': float(mount['height_m'])} if 'height_m' in mount else {}
+        for key in ('pitch_deg', 'roll_deg'):
+            if key in mount:
+                out[key.replace('_deg', '_rad')] = math.radians(mount[key])
         return out
 
 
@@ -275,10 +271,8 @@ def load_labelled_folder(path: str | Path, *, max_frames: int | None = None,
     scale = camera.depth_scale if camera.depth_scale is not None else 0.001
     height_m, pitch_rad, roll_rad = camera.mount
     for depth_file in subsample(depth_files, max_frames):
-        depth = cv2.imread(str(depth_file), cv2.IMREAD_UNCHANGED)
+        depth = read_depth_png(depth_file)
         labels = cv2.imread(str(root / 'labels' / depth_file.name), cv2.IMREAD_UNCHANGED)
-        if depth is None or depth.dtype != np.uint16 or depth.ndim != 2:
-            raise ValueError(f'{depth_file}: not a single-channel 16-bit PNG')
         if labels is None or labels.dtype != np.uint8 or labels.shape != depth.shape:
             raise ValueError(f'{root / "labels" / depth_file.name}: not an 8-bit PNG of the '
                              f'depth size {depth.shape[::-1]}')

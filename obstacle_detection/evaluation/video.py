@@ -167,22 +167,21 @@ class SequenceReport:
             return None if value is None or (isinstance(value, float) and math.isnan(value)) \
                 else round(float(value), 4)
 
+        def nums(values: dict[str, Any]) -> dict[str, Any]:
+            return {k: num(v) if isinstance(v, float) else v for k, v in values.items()}
+
         def flick(values: list[float]) -> dict[str, float | None]:
             arr = np.asarray(values) if values else np.zeros(1)
             return {'mean_pct': num(100 * arr.mean()), 'p90_pct': num(100 * np.percentile(
                 arr, 90)), 'max_pct': num(100 * arr.max())}
 
         out: dict[str, Any] = {'sequence': self.name, 'frames': self.frames}
-        for key, conf in (('fused_area', self.fused_area), ('per_frame_area',
-                                                            self.per_frame_area),
-                          ('per_frame', self.per_frame), ('fused_view', self.fused_view)):
-            out[key] = {k: num(v) if isinstance(v, float) else v
-                        for k, v in conf.as_dict().items()}
+        for key in ('fused_area', 'per_frame_area', 'per_frame', 'fused_view'):
+            out[key] = nums(getattr(self, key).as_dict())
         out['flicker_fused'] = flick(self.flicker_fused)
         out['flicker_per_frame'] = flick(self.flicker_per_frame)
         for key, runs in (('frames_to_mark', self.mark), ('frames_to_clear', self.clear)):
-            out[key] = {grid: {k: num(v) if isinstance(v, float) else v
-                               for k, v in stats.items()} if isinstance(stats, dict) else stats
+            out[key] = {grid: nums(stats) if isinstance(stats, dict) else stats
                         for grid, stats in runs.items()}
         cells = self.blind['cells']
         out['blind_zone'] = {'cell_frames': cells, **{
@@ -470,11 +469,8 @@ class _Scorer:
             from obstacle_detection.viz.pictures import contact_sheet
             sheet = contact_sheet(self.thumbs, labels=self.labels, columns=4,
                                   thumb_width=self.thumbs[0].shape[1])
-        conf = self.conf
         return SequenceReport(
-            name=name, frames=total, fused_area=conf['fused_area'],
-            per_frame_area=conf['per_frame_area'], per_frame=conf['per_frame'],
-            fused_view=conf['fused_view'], flicker_fused=self.flicker['fused'],
+            name=name, frames=total, **self.conf, flicker_fused=self.flicker['fused'],
             flicker_per_frame=self.flicker['per_frame'], mark=self.mark.report(),
             clear=self.clear.report(), blind=self.blind, fusion_ms=self.fusion_ms,
             resets=self.resets, in_place=self.in_place, sheet=sheet)

@@ -94,18 +94,16 @@ class FrameMailbox:
             raise ValueError(f'capacity={capacity} must be >= 1')
         self.capacity = capacity
         self._cond = threading.Condition()
-        self._items: collections.deque = collections.deque()
+        self._items: collections.deque = collections.deque(maxlen=capacity)
         self._closed = False
         self.dropped = 0
 
     def put(self, item: Any) -> bool:
         """Store ``item`` as the newest; True if the oldest waiting item was dropped for it."""
         with self._cond:
-            dropped = len(self._items) >= self.capacity
-            if dropped:
-                self._items.popleft()
-                self.dropped += 1
-            self._items.append(item)
+            dropped = len(self._items) == self.capacity
+            self.dropped += dropped
+            self._items.append(item)   # a full deque drops its oldest item
             self._cond.notify()
         return dropped
 
@@ -449,9 +447,6 @@ class DetectorNode(Node):
                     f'cx={intr.cx:g} cy={intr.cy:g}'), True
         return f'none: no CameraInfo received on {self._info_sub.topic_name}', False
 
-    def _mount_text(self) -> str:
-        return self._mount_said or f'parameters: {self._config.mount().describe()}'
-
 
     def _publish_diagnostics(self) -> None:
         camera_info, usable = self._camera_info_text()
@@ -459,7 +454,8 @@ class DetectorNode(Node):
         context = DiagnosticsContext(
             uptime_s=time.monotonic() - self._started, depth_topic=self._depth_sub.topic_name,
             camera_info=camera_info, camera_info_usable=usable, code_path=path,
-            compiled=path == 'compiled numba kernels', mount=self._mount_text(),
+            compiled=path == 'compiled numba kernels',
+            mount=self._mount_said or f'parameters: {self._config.mount().describe()}',
             floor_correction=self._floor_text)
         # hardware_id: the frames' frame_id once one is processed, the depth topic before
         status = health_status(self.stats.take(), context,
@@ -635,11 +631,9 @@ class DetectorNode(Node):
         """Return the logger of one kind of problem, throttled on its own."""
         # rclpy throttles per logger object and call site: one logger per kind keeps an unknown
         # encoding from hiding a size mismatch.
-        logger = self._warn_loggers.get(kind)
-        if logger is None:
-            logger = self._warn_loggers[kind] = rclpy.logging.get_logger(
-                self.get_logger().name)
-        return logger
+        if kind not in self._warn_loggers:
+            self._warn_loggers[kind] = rclpy.logging.get_logger(self.get_logger().name)
+        return self._warn_loggers[kind]
 
     def _warn_skip(self, kind: str, text: str) -> None:
         """Warn about a skipped frame; each kind of problem is throttled on its own."""
@@ -717,12 +711,10 @@ class DetectorNode(Node):
         try:
             self._points_pub.publish(messages['obstacles'])
             self._costmap_pub.publish(messages['costmap'])
-            if 'ground' in messages and self._ground_pub is not None:
-                self._ground_pub.publish(messages['ground'])
-            if 'overlay' in messages and self._overlay_pub is not None:
-                self._overlay_pub.publish(messages['overlay'])
-            if 'clearing' in messages and self._clearing_pub is not None:
-                self._clearing_pub.publish(messages['clearing'])
+            for key, pub in (('ground', self._ground_pub), ('overlay', self._overlay_pub),
+                             ('clearing', self._clearing_pub)):
+                if key in messages and pub is not None:
+                    pub.publish(messages[key])
             if fused is not None and self._fused_pub is not None:
                 self._fused_pub.publish(fused)
             elapsed_ms = (time.perf_counter() - start) * 1e3

@@ -104,19 +104,17 @@ def _pipeline_specs() -> list[ParamSpec]:
         meta = f.metadata
         default = getattr(defaults, f.name)
         low, high = meta.get('min'), meta.get('max')
-        if f.name in DEGREE_FIELDS:
-            description = meta['description'].replace('[rad]', '[deg]')
+        name, description, degrees = f.name, meta['description'], f.name in DEGREE_FIELDS
+        if degrees:
+            name, default = DEGREE_FIELDS[f.name], _degrees(default)
+            low, high = _degrees(low), _degrees(high)
+            description = description.replace('[rad]', '[deg]')
             if not description.endswith('[deg]'):
                 description += ' [deg]'
-            specs.append(ParamSpec(
-                name=DEGREE_FIELDS[f.name], default=_degrees(default), description=description,
-                low=_degrees(low), high=_degrees(high), field=f.name, degrees=True,
-                open_low=bool(meta.get('open_min')), open_high=bool(meta.get('open_max'))))
-            continue
-        if isinstance(default, float):
+        elif isinstance(default, float):
             low, high = float(low), float(high)
-        specs.append(ParamSpec(name=f.name, default=default, description=meta['description'],
-                               low=low, high=high, field=f.name,
+        specs.append(ParamSpec(name=name, default=default, description=description, low=low,
+                               high=high, field=f.name, degrees=degrees,
                                open_low=bool(meta.get('open_min')),
                                open_high=bool(meta.get('open_max'))))
     return specs
@@ -351,24 +349,26 @@ def _section_applies(key: str, node_fqn: str) -> bool:
     return re.fullmatch(''.join(tokens), node_fqn) is not None
 
 
-def _load_params_yaml(path: Path) -> tuple[Any, str | None]:
-    """Return the parsed YAML of a params file, or why it cannot be read (one sentence)."""
+def _load_params_yaml(path: Path) -> dict[Any, Any]:
+    """Return the parsed YAML mapping of a params file; RosInputError says why there is none."""
     try:
-        return yaml.safe_load(path.read_text(encoding='utf-8')), None
+        data = yaml.safe_load(path.read_text(encoding='utf-8'))
     except OSError as err:
-        return None, f'{path}: cannot read params file ({err.strerror})'
+        raise RosInputError(f'{path}: cannot read params file ({err.strerror})') from None
     except yaml.YAMLError as err:
-        return None, f'{path}: not valid YAML ({" ".join(str(err).split())})'
+        raise RosInputError(f'{path}: not valid YAML ({" ".join(str(err).split())})') from None
+    if not isinstance(data, dict):
+        raise RosInputError(f'{path}: expected "{PARAMS_FILE_KEY}: ros__parameters: ..."')
+    return data
 
 
 def params_file_problems(path: str | Path, node_fqn: str = f'/{NODE_NAME}') -> list[str]:
     """Return what the node would silently ignore in a params file, one sentence each."""
     path = Path(path)
-    data, unreadable = _load_params_yaml(path)
-    if unreadable is not None:
-        return [unreadable]
-    if not isinstance(data, dict):
-        return [f'{path}: expected "{PARAMS_FILE_KEY}: ros__parameters: ..."']
+    try:
+        data = _load_params_yaml(path)
+    except RosInputError as error:
+        return [str(error)]
     problems, applied = [], 0
     for key, section in data.items():
         params = section.get('ros__parameters') if isinstance(section, dict) else None
@@ -413,11 +413,7 @@ def read_params_file(path: str | Path, *, unknown_is_error: bool = True
     from rclpy.parameter import Parameter, parameter_dict_from_yaml_file
 
     path = Path(path)
-    data, unreadable = _load_params_yaml(path)
-    if unreadable is not None:
-        raise RosInputError(unreadable)
-    if not isinstance(data, dict):
-        raise RosInputError(f'{path}: expected "{PARAMS_FILE_KEY}: ros__parameters: ..."')
+    data = _load_params_yaml(path)
     keys = [key for key in data if _section_applies(str(key), f'/{NODE_NAME}')]
     if not keys:
         raise RosInputError(f'{path}: no section naming the node (e.g. '

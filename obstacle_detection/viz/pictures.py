@@ -480,17 +480,6 @@ def write_png(path: str | Path, rgb: np.ndarray) -> None:
 # Frames from files and bags
 
 
-def read_depth_png(path: str | Path) -> np.ndarray:
-    """Return the (H, W) uint16 depth of a 16-bit one-channel PNG or PGM (ValueError if not)."""
-    depth = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if depth is None:
-        raise ValueError(f'{path}: cannot read the image')
-    if depth.dtype != np.uint16 or depth.ndim != 2:
-        raise ValueError(f'{path}: a depth PNG must be 16-bit single channel, got '
-                         f'{depth.dtype} with shape {depth.shape}')
-    return depth
-
-
 def heatmap(scores: np.ndarray, x_labels: Sequence[str], y_labels: Sequence[str], *,
             title: str = '', x_name: str = '', y_name: str = '', vmin: float = 0.0,
             vmax: float = 1.0, best: tuple[int, int] | None = None,
