@@ -619,7 +619,6 @@ def _normals_kernel(pts, neighbours, n_use, normals, cov, bad):  # pragma: no co
         for t in range(n_use):
             if neighbours[v, t] < 0 or neighbours[v, t] >= v_count:
                 return -1
-    for v in range(v_count):
         (cov[v, 0], cov[v, 1], cov[v, 2], cov[v, 3], cov[v, 4],
          cov[v, 5]) = _covariance_row(pts, neighbours, v, n_use)
     lam = np.empty(v_count, np.float64)
