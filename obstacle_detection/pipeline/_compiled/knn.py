@@ -558,8 +558,8 @@ def _covariance_row(pts, neighbours, v, n_use):  # pragma: no cover - compiled
 
 
 @_jit_inline
-def _smallest_eigenvector(a00, a01, a02, a11, a12, a22):  # pragma: no cover - compiled
-    """Return (x, y, z, length, p2): the smallest eigenvalue's unnormalised eigenvector."""
+def _smallest_eigenvalue(a00, a01, a02, a11, a12, a22):  # pragma: no cover - compiled
+    """Return (lambda, p2): the smallest eigenvalue (the cubic's trigonometric root), p2."""
     q = (a00 + a11 + a22) / 3.0
     p1 = a01 * a01 + a02 * a02 + a12 * a12
     b00 = a00 - q
@@ -573,7 +573,12 @@ def _smallest_eigenvector(a00, a01, a02, a11, a12, a22):  # pragma: no cover - c
     r = det_b / (2.0 * (safe_p * safe_p * safe_p))
     r = min(max(r, -1.0), 1.0)
     phi = math.acos(r) / 3.0
-    lam = q + 2.0 * p * math.cos(phi + 2.0 * np.pi / 3.0)
+    return q + 2.0 * p * math.cos(phi + 2.0 * np.pi / 3.0), p2
+
+
+@_jit_inline
+def _eigenvector(a00, a01, a02, a11, a12, a22, lam):  # pragma: no cover - compiled
+    """Return (x, y, z, length): the longest cross product of two rows of C - lam I."""
     r00 = a00 - lam
     r11 = a11 - lam
     r22 = a22 - lam
@@ -597,35 +602,38 @@ def _smallest_eigenvector(a00, a01, a02, a11, a12, a22):  # pragma: no cover - c
             bx = cx
             by = cy
             bz = cz
-    return bx, by, bz, math.sqrt(best_len2), p2
+    return bx, by, bz, math.sqrt(best_len2)
 
 
 @_jit
-def _normals_kernel(pts, neighbours, n_use, normals, cov_bad, bad):  # pragma: no cover
+def _normals_kernel(pts, neighbours, n_use, normals, cov, bad):  # pragma: no cover
     """Write every row's normal as the numpy twin does; return the number of degenerate rows.
 
-    Degenerate rows are marked in ``bad`` with their covariance in ``cov_bad`` (the caller
-    asks LAPACK, as numpy does). Returns -1, with nothing done, for an index out of range.
+    Degenerate rows are marked in ``bad`` (cov (V, 6) holds every row's covariance: the
+    caller asks LAPACK for them, as numpy does). Returns -1 for an index out of range.
+    Three passes over the rows, not one: a row's work is one long chain of dependent
+    operations, and rows in a pass of their own overlap in the CPU (1.13 -> 0.92 ms paced).
     """
     v_count = pts.shape[0]
     for v in range(v_count):
         for t in range(n_use):
             if neighbours[v, t] < 0 or neighbours[v, t] >= v_count:
                 return -1
+        (cov[v, 0], cov[v, 1], cov[v, 2], cov[v, 3], cov[v, 4],
+         cov[v, 5]) = _covariance_row(pts, neighbours, v, n_use)
+    lam = np.empty(v_count, np.float64)
+    p2 = np.empty(v_count, np.float64)
+    for v in range(v_count):
+        lam[v], p2[v] = _smallest_eigenvalue(cov[v, 0], cov[v, 1], cov[v, 2], cov[v, 3],
+                                             cov[v, 4], cov[v, 5])
     tiny = np.finfo(np.float64).tiny
     n_bad = 0
     for v in range(v_count):
-        a00, a01, a02, a11, a12, a22 = _covariance_row(pts, neighbours, v, n_use)
-        bx, by, bz, length, p2 = _smallest_eigenvector(a00, a01, a02, a11, a12, a22)
-        scale = p2 if p2 > tiny else tiny
+        bx, by, bz, length = _eigenvector(cov[v, 0], cov[v, 1], cov[v, 2], cov[v, 3],
+                                          cov[v, 4], cov[v, 5], lam[v])
+        scale = p2[v] if p2[v] > tiny else tiny
         bad[v] = length * length <= 1e-12 * scale * scale
         if bad[v]:
-            cov_bad[v, 0] = a00
-            cov_bad[v, 1] = a01
-            cov_bad[v, 2] = a02
-            cov_bad[v, 3] = a11
-            cov_bad[v, 4] = a12
-            cov_bad[v, 5] = a22
             n_bad += 1
         else:
             normals[v, 0] = np.float32(bx / length)
@@ -657,7 +665,7 @@ def normals_from_neighbours(points: np.ndarray, neighbours: np.ndarray, n: int) 
     if nb.dtype != np.int64:
         nb = nb.astype(np.int64)
     normals = np.empty((v_count, 3), dtype=np.float32)
-    cov_bad = np.empty((v_count, 6), dtype=np.float64)    # filled on degenerate rows only
+    cov_bad = np.empty((v_count, 6), dtype=np.float64)    # every row's covariance
     bad = np.empty(v_count, dtype=np.bool_)
     n_bad = _normals_kernel(pts, nb, n, normals, cov_bad, bad)
     if n_bad < 0:
