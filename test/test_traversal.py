@@ -286,27 +286,18 @@ def ledge_marks(parts, reached_flags, *, step=0.05):
 
 
 @pytest.mark.parametrize('rise', [0.18, 0.10])
-def test_a_raised_reached_surface_beside_the_floor_has_its_edge_cells_marked(rise):
-    # floor for y < 0.5, a platform (reached through a ramp elsewhere) for y >= 0.5
-    floor_pts = surface_voxels(1.0, 2.0, -0.5, 0.5, 0.0)
-    platform = surface_voxels(1.0, 2.0, 0.5, 1.0, rise)
+@pytest.mark.parametrize('edge, last', [(0.5, 0.55), (0.525, 0.6)])
+def test_a_raised_reached_surface_beside_the_floor_has_its_edge_cells_marked(rise, edge, last):
+    # floor for y < edge, a platform (reached through a ramp elsewhere) for y >= edge; at
+    # 0.525 m the edge lies half-way across the cell [0.50, 0.55), which holds floor and
+    # platform voxels and is the edge's cell
+    floor_pts = surface_voxels(1.0, 2.0, -0.5, edge, 0.0)
+    platform = surface_voxels(1.0, 2.0, edge, 1.0, rise)
     pts, marks = ledge_marks([floor_pts, platform], [True, True])
     y = pts[:, 1]
-    assert np.all(marks[(y > 0.5) & (y < 0.55)])          # the platform's edge cell
-    assert not marks[(y < 0.5) | (y > 0.55)].any()         # nothing else, no floor cell
-
-
-@pytest.mark.parametrize('rise', [0.18, 0.10])
-def test_a_ledge_inside_a_cell_is_marked_in_that_cell(rise):
-    # the platform's edge at y = 0.525 m, half-way across the cell [0.50, 0.55): that cell
-    # holds floor and platform voxels, and is the edge's cell
-    floor_pts = surface_voxels(1.0, 2.0, -0.5, 0.525, 0.0)
-    platform = surface_voxels(1.0, 2.0, 0.525, 1.0, rise)
-    pts, marks = ledge_marks([floor_pts, platform], [True, True])
-    y = pts[:, 1]
-    assert np.all(marks[(y > 0.525) & (y < 0.55)])         # the platform's part of that cell
-    assert not marks[y < 0.525].any()                      # no floor voxel
-    assert not marks[y > 0.6].any()                        # within a cell of the edge
+    assert np.all(marks[(y > edge) & (y < 0.55)])          # the platform's part of that cell
+    assert not marks[y < edge].any()                       # no floor voxel
+    assert not marks[y > last].any()                       # within a cell of the edge
 
 
 def test_a_far_side_over_its_shadow_is_marked_when_the_floor_beyond_is_not_reached():
