@@ -86,10 +86,15 @@ def traversable_ground(points: np.ndarray, steep: np.ndarray,
     return Traversal(*out, size, edge)
 
 
+def _voxel_ijk(points: np.ndarray, vx: float, vy: float, vz: float) -> np.ndarray:
+    """(V, 3) int64 voxel indices from 1: ``floor(p / v) + 1 - min`` (the kernels' layout)."""
+    ijk = np.floor(points / np.array((vx, vy, vz), np.float32)).astype(np.int64)
+    return ijk + (1 - ijk.min(axis=0))
+
+
 def _reference_lone_voxels(points: np.ndarray, vx: float, vy: float, vz: float) -> np.ndarray:
     """(V,) bool: no other voxel lies in the 26 voxels around the voxel (numpy)."""
-    ijk = np.floor(points / np.array((vx, vy, vz), np.float32)).astype(np.int64)
-    ijk += 1 - ijk.min(axis=0)
+    ijk = _voxel_ijk(points, vx, vy, vz)
     grid = np.zeros(tuple(ijk.max(axis=0) + 2), bool)
     grid[ijk[:, 0], ijk[:, 1], ijk[:, 2]] = True
     lone = np.ones(points.shape[0], bool)
@@ -115,8 +120,7 @@ _lone_voxels = jit.choose(_reference_lone_voxels, jit_ledges.lone_voxels)
 def _reference_feet(points: np.ndarray, candidates: np.ndarray, marked: np.ndarray, vx: float,
                     vy: float, vz: float, reach: int) -> np.ndarray:
     """(V,) bool: candidates, not marked, with a marked voxel 1 to reach voxels above (numpy)."""
-    ijk = np.floor(points / np.array((vx, vy, vz), np.float32)).astype(np.int64)
-    ijk += 1 - ijk.min(axis=0)
+    ijk = _voxel_ijk(points, vx, vy, vz)
     top = ijk.max(axis=0) + 1
     top[2] += reach
     grid = np.zeros(tuple(top), bool)
