@@ -5,11 +5,11 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import functools
 import importlib.util
 import io
 import logging
 import os
-import uuid
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
@@ -48,12 +48,9 @@ class Fleet:
         """True when tasks run on a Dask cluster."""
         return self.client is not None
 
-
-def usable_cores() -> int:
-    """CPUs this process may run on."""
-    if hasattr(os, 'sched_getaffinity'):
-        return len(os.sched_getaffinity(0))
-    return os.cpu_count() or 1
+    def submit(self, function: Callable[..., Any], *args: Any) -> Any:
+        """Start ``function(*args)`` on the cluster; return its future (retried on errors)."""
+        return self.client.submit(function, *args, retries=self.retries, pure=False)
 
 
 def add_fleet_arguments(parser: argparse.ArgumentParser) -> None:
@@ -97,8 +94,8 @@ def open_fleet(*, workers: int | None = None, scheduler: str | None = None,
         raise FleetError(f'{what} needs dask.distributed, which is not installed: '
                          f'{INSTALL_HINT}, or leave out --workers/--scheduler (and unset '
                          f'{SCHEDULER_ENV}) to run in this process')
-    if not wanted and (workers == 0 or not DASK_AVAILABLE or tasks < 2
-                       or usable_cores() < 2):
+    cores = len(os.sched_getaffinity(0))
+    if not wanted and (workers == 0 or not DASK_AVAILABLE or tasks < 2 or cores < 2):
         yield Fleet(None, 'this process', 1, retries)
         return
     import dask
@@ -123,9 +120,9 @@ def open_fleet(*, workers: int | None = None, scheduler: str | None = None,
                 yield Fleet(client, f'the Dask cluster at {scheduler} ({count} workers)',
                             count, retries)
             return
-        count = workers if workers is not None else usable_cores()
+        count = workers if workers is not None else cores
         # the workers ignore Ctrl-C (worker_setup): this process alone stops the run
-        with _quiet_dask_logs(), LocalCluster(
+        with LocalCluster(
                 n_workers=count, threads_per_worker=1, processes=True, host='127.0.0.1',
                 dashboard_address='127.0.0.1:0', env=dict(ONE_THREAD_ENV),
                 silence_logs=logging.CRITICAL,
@@ -133,22 +130,6 @@ def open_fleet(*, workers: int | None = None, scheduler: str | None = None,
                 Client(cluster) as client:
                 yield Fleet(client, f'a local Dask cluster of {count} worker process'
                             f'{"es" if count != 1 else ""} (1 thread each)', count, retries)
-
-
-@contextlib.contextmanager
-def _quiet_dask_logs() -> Iterator[None]:
-    """Keep Dask's own log lines (a worker restarted, a cluster closing) off the terminal."""
-    loggers = [logging.getLogger(name) for name in ('distributed', 'distributed.nanny',
-                                                    'distributed.scheduler',
-                                                    'distributed.worker', 'distributed.core')]
-    levels = [logger.level for logger in loggers]
-    for logger in loggers:
-        logger.setLevel(logging.CRITICAL)
-    try:
-        yield
-    finally:
-        for logger, level in zip(loggers, levels):
-            logger.setLevel(level)
 
 
 def limit_threads() -> None:
@@ -164,64 +145,47 @@ def limit_threads() -> None:
 
 @dataclasses.dataclass
 class TaskError:
-    """A task that failed for good: its exception's text (``errors='return'``)."""
+    """A task that failed for good (``return_errors``): why, and its exception."""
 
     reason: str
+    error: BaseException | None = dataclasses.field(default=None, compare=False)
 
 
 def run_tasks(fleet: Fleet, function: Callable[..., Any], items: Sequence[tuple[Any, ...]],
-              *, label: str, progress: bool = True, errors: str = 'raise',
-              on_result: Callable[[int, Any], None] | None = None) -> list[Any]:
+              *, label: str, progress: bool = True, return_errors: bool = False) -> list[Any]:
     """Return ``[function(*item) for item in items]``, computed where ``fleet`` says.
 
-    errors: 'raise' the first failure, or 'return' a :class:`TaskError` in its place;
-    on_result(index, result) as each task finishes.
+    A task that fails raises, or with ``return_errors`` gives a :class:`TaskError` instead.
     """
-    if errors not in ('raise', 'return'):
-        raise ValueError(f"errors={errors!r}: 'raise' or 'return'")
     results: list[Any] = [None] * len(items)
-    bar = Progress(len(items), label, stream=None if progress else io.StringIO())
-    with bar:
-        if not fleet.distributed:
-            for index, item in enumerate(items):
-                try:
-                    results[index] = function(*item)
-                except Exception as err:   # noqa: BLE001 - reported as the task's failure
-                    if errors == 'raise':
-                        raise
-                    results[index] = TaskError(f'{type(err).__name__}: {err}')
-                if on_result is not None:
-                    on_result(index, results[index])
-                bar.update()
-            return results
+    futures: list[Any] = []
+    if fleet.distributed:
         from distributed import as_completed
 
-        run = uuid.uuid4().hex[:8]
-        name = getattr(function, '__name__', 'task')
-        futures = [fleet.client.submit(function, *item, key=f'{name}-{run}-{index}',
-                                       retries=fleet.retries, pure=False)
-                   for index, item in enumerate(items)]
+        futures = [fleet.submit(function, *item) for item in items]
         position = {future.key: index for index, future in enumerate(futures)}
+        done = ((position[future.key], future.result) for future in as_completed(futures))
+    else:
+        done = ((index, functools.partial(function, *item)) for index, item in enumerate(items))
+    with Progress(len(items), label, stream=None if progress else io.StringIO()) as bar:
         try:
-            for future in as_completed(futures):
-                index = position[future.key]
+            for index, result in done:
                 try:
-                    results[index] = future.result()
-                except Exception as err:   # noqa: BLE001 - as in one process, or returned
-                    if errors == 'raise':
+                    results[index] = result()
+                except Exception as err:   # noqa: BLE001 - the task's failure
+                    if not return_errors:
                         raise
-                    results[index] = TaskError(_task_reason(err))
-                if on_result is not None:
-                    on_result(index, results[index])
+                    results[index] = TaskError(_task_reason(err), err)
                 bar.update()
         except BaseException:
-            fleet.client.cancel(futures)
+            if futures:
+                fleet.client.cancel(futures)
             raise
     return results
 
 
 def _task_reason(err: BaseException) -> str:
-    """One line on why a task failed on the cluster."""
+    """One line on why a task failed."""
     kind = type(err).__name__
     if kind == 'KilledWorker':
         return (f'its worker died {ALLOWED_FAILURES} times while running it (out of memory, '
