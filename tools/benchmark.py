@@ -1,29 +1,14 @@
 #!/usr/bin/env python3
 """Benchmark the detection pipeline: per-stage and total milliseconds, frames per second.
 
-Frames come from the ray-cast scene generator (rendered once before timing). Every
-configuration (frame size x median kernel K) runs the same number of frames, cycling over the
-named scenes. The run is pinned to one thread: BLAS/OpenMP thread counts are set to 1 before
-numpy is imported, OpenCV gets ``cv2.setNumThreads(1)``, the k-d tree is queried with
-``workers=1``, the optional numba kernels are single-threaded, and the process is pinned to one
-CPU with ``os.sched_setaffinity`` (where the platform has it); ``--threads N`` > 1 leaves it
-unpinned and runs the detector with ``compute_threads`` N. Peak memory is the process's
-maximum resident set size. ``OBSTACLE_DETECTION_NO_JIT=1`` times the numpy/scipy path.
+Frames are rendered scenes (rendered before timing), cycled over for every frame size x median
+kernel K. One thread pinned to one CPU unless ``--threads N`` > 1; ``--rate HZ`` paces the
+frames as a camera does; ``--fusion`` times the fused costmap instead; peak memory is the
+maximum resident set size; ``OBSTACLE_DETECTION_NO_JIT=1`` times the numpy/scipy path.
+Prints a table and one line starting with ``JSON `` (docs/speed.md).
 
-Prints a table for people and one line starting with ``JSON `` for machines.
-
-    python tools/benchmark.py                 # 100 frames per configuration, corridor.yaml
     python tools/benchmark.py --frames 300 --preset table_4_2   # the seed method exactly
-    python tools/benchmark.py --rate 30       # frames 1/30 s apart, as a camera sends them
-    python tools/benchmark.py --threads 2     # compute_threads 2 (not pinned)
-
-Frames run back to back by default: the caches stay warm from one frame to the next, the best
-case. ``--rate HZ`` starts one frame every 1/HZ s and sleeps in between, as the node works on
-a camera's frames: on a virtual machine the caches and TLBs go cold while the process sleeps,
-and the same frame takes longer (see the README, "Through DDS").
-
-The row "new stages" is the per-frame sum of the stages that are not the seed's (median filter
-smear check, floor fit, robot-level traversal, drop edges).
+    python tools/benchmark.py --fusion        # FusedGrid.update + to_costmap per frame
 """
 
 from __future__ import annotations
@@ -59,15 +44,17 @@ DEFAULT_SCENES = ('corridor', 'people', 'ramps', 'farm_row')
 NEW_TOTAL = 'new stages'
 
 
-
 def jit_description(threads: int = 1) -> str:
     """Say whether the optional numba kernels run (on how many threads) or numpy/scipy."""
     if jit_enabled():
         import numba
-        return (f'numba {numba.__version__} kernels (compute_threads {threads}): '
-                'back-projection and voxel grid, median K >= 7, k-NN, normals, labels, rays, '
-                'smear, traversal, drops')
+        return f'numba {numba.__version__} kernels (compute_threads {threads})'
     return 'numpy/scipy path (numba missing or OBSTACLE_DETECTION_NO_JIT=1)'
+
+
+def _stats(per_row: dict[str, list[float]]) -> dict[str, dict[str, float]]:
+    return {row: {'median_ms': float(np.median(v)), 'p90_ms': float(np.percentile(v, 90))}
+            for row, v in per_row.items()}
 
 
 def run_config(scenes: tuple[str, ...], size_label: str, kernel: int, frames: int,
@@ -103,30 +90,57 @@ def run_config(scenes: tuple[str, ...], size_label: str, kernel: int, frames: in
         voxels.append(result.voxel_points.shape[0])
         obstacles.append(result.obstacle_points.shape[0])
     wall = time.perf_counter() - wall_start
-    stats = {stage: {'median_ms': float(np.median(v)), 'p90_ms': float(np.percentile(v, 90))}
-             for stage, v in per_stage.items()}
     return {
-        'size': size_label, 'kernel': kernel, 'preset': preset, 'frames': frames,
-        'scenes': list(scenes), 'stages': stats, 'threads': threads,
-        'fps': frames / wall, 'rate_hz': rate_hz,
+        'label': f'{size_label} K={kernel}', 'size': size_label, 'kernel': kernel,
+        'preset': preset, 'frames': frames, 'scenes': list(scenes), 'stages': _stats(per_stage),
+        'threads': threads, 'fps': frames / wall, 'rate_hz': rate_hz,
         'voxels_median': float(np.median(voxels)),
         'obstacle_points_median': float(np.median(obstacles)),
     }
 
 
+def run_fusion(frames: int, preset: str) -> dict:
+    """Time FusedGrid.update and to_costmap on the costmaps of 'drive_past_boxes' (every 5th)."""
+    from obstacle_detection.evaluation.video import observe_sequence
+    from obstacle_detection.pipeline.fusion import FusedGrid, FusionParams
+    from obstacle_detection.sim.sequences import SceneSequence
+
+    print('# running the detector on drive_past_boxes ...', file=sys.stderr, flush=True)
+    observations = list(observe_sequence(SceneSequence('drive_past_boxes'),
+                                         PRESETS[preset]()))[::5]
+    fusion = FusionParams()
+    times: dict[str, list[float]] = {'update': [], 'to_costmap': [], 'total': []}
+    wall_start = time.perf_counter()
+    for i in range(frames):
+        if i % len(observations) == 0:
+            grid = FusedGrid(fusion)   # each pass over the frames starts a new grid
+        obs = observations[i % len(observations)]
+        start = time.perf_counter()
+        grid.update(obs.costmap, obs.pose_odom)
+        middle = time.perf_counter()
+        grid.to_costmap()
+        end = time.perf_counter()
+        times['update'].append((middle - start) * 1e3)
+        times['to_costmap'].append((end - middle) * 1e3)
+        times['total'].append((end - start) * 1e3)
+    costmap = observations[0].costmap
+    return {'label': f'fused {fusion.cells}x{fusion.cells}', 'preset': preset, 'frames': frames,
+            'costmap_cells': [costmap.width, costmap.height], 'fused_cells': fusion.cells,
+            'stages': _stats(times), 'fps': frames / (time.perf_counter() - wall_start)}
+
+
 def format_table(results: list[dict]) -> str:
     """Return a fixed-width table: one row per stage, one column pair per configuration."""
-    heads = [f"{r['size']} K={r['kernel']}" for r in results]
-    lines = ['stage          ' + ''.join(f'{h:>22}' for h in heads),
-             '               ' + ''.join(f'{"median ms":>12}{"p90 ms":>10}' for _ in heads)]
-    for stage in (*STAGES, NEW_TOTAL, 'total'):
-        row = f'{stage:<15}'
-        for r in results:
-            s = r['stages'][stage]
-            row += f"{s['median_ms']:>12.2f}{s['p90_ms']:>10.2f}"
-        lines.append(row)
+    lines = ['stage          ' + ''.join(f'{r["label"]:>22}' for r in results),
+             '               ' + f'{"median ms":>12}{"p90 ms":>10}' * len(results)]
+    for stage in results[0]['stages']:
+        lines.append(f'{stage:<15}' + ''.join(f"{r['stages'][stage]['median_ms']:>12.2f}"
+                                              f"{r['stages'][stage]['p90_ms']:>10.2f}"
+                                              for r in results))
     lines.append('fps (wall)     ' + ''.join(f"{r['fps']:>22.1f}" for r in results))
-    lines.append('voxels (median)' + ''.join(f"{r['voxels_median']:>22.0f}" for r in results))
+    if 'voxels_median' in results[0]:
+        lines.append('voxels (median)' + ''.join(f"{r['voxels_median']:>22.0f}"
+                                                 for r in results))
     return '\n'.join(lines)
 
 
@@ -149,6 +163,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--threads', type=int, default=1,
                         help='compute_threads of the detector; above 1 the process is not '
                              'pinned to one CPU [default: 1]')
+    parser.add_argument('--fusion', action='store_true',
+                        help="time the fused costmap's update and to_costmap per frame "
+                             '(pinned; the size, kernel, rate and thread options are ignored)')
     args = parser.parse_args(argv)
     if args.frames < 1:
         parser.error('--frames must be >= 1')
@@ -162,7 +179,7 @@ def main(argv: list[str] | None = None) -> int:
     kernels = [int(k) for k in args.kernels.split(',')]
     if not 1 <= args.threads <= 8:
         parser.error('--threads must be in [1, 8]')
-    if args.threads == 1:
+    if args.threads == 1 or args.fusion:
         pinned = tool_support.pin_one_cpu()
     else:
         cv2.setNumThreads(1)
@@ -170,17 +187,21 @@ def main(argv: list[str] | None = None) -> int:
     pinning = f'{pinned}; k-d tree workers = 1; {jit_description(args.threads)}'
 
     print(f'# {pinning}', flush=True)
-    results = []
-    for size_label in sizes:
-        for kernel in kernels:
-            print(f'# {size_label} K={kernel}: {args.frames} frames ...', file=sys.stderr,
-                  flush=True)
-            results.append(run_config(scenes, size_label, kernel, args.frames, args.preset,
-                                      args.distinct, args.rate, args.threads))
+    if args.fusion:
+        results = [run_fusion(args.frames, args.preset)]
+        what = 'scene drive_past_boxes, fused costmap'
+    else:
+        results = []
+        for size_label in sizes:
+            for kernel in kernels:
+                print(f'# {size_label} K={kernel}: {args.frames} frames ...', file=sys.stderr,
+                      flush=True)
+                results.append(run_config(scenes, size_label, kernel, args.frames, args.preset,
+                                          args.distinct, args.rate, args.threads))
+        pace = f'one frame every {1e3 / args.rate:.1f} ms' if args.rate else 'back to back'
+        what = f'scenes {", ".join(scenes)}, {pace}'
     peak_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-    pace = f'one frame every {1e3 / args.rate:.1f} ms' if args.rate else 'back to back'
-    print(f'# preset {args.preset}, scenes {", ".join(scenes)}, {args.frames} frames each '
-          f'({pace}); '
+    print(f'# preset {args.preset}, {what}, {args.frames} frames each; '
           f'{platform.processor() or platform.machine()}, Python {platform.python_version()}, '
           f'numpy {np.__version__}, OpenCV {cv2.__version__}')
     print(format_table(results))
