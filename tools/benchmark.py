@@ -3,12 +3,14 @@
 
 Frames are rendered scenes (rendered before timing), cycled over for every frame size x median
 kernel K. One thread pinned to one CPU unless ``--threads N`` > 1; ``--rate HZ`` paces the
-frames as a camera does; ``--fusion`` times the fused costmap instead; peak memory is the
-maximum resident set size; ``OBSTACLE_DETECTION_NO_JIT=1`` times the numpy/scipy path.
-Prints a table and one line starting with ``JSON `` (docs/speed.md).
+frames as a camera does; ``--fusion`` times the fused costmap instead, ``--fleet N``
+bag_process over many bags in one process and on local Dask clusters of 1..N workers; peak
+memory is the maximum resident set size; ``OBSTACLE_DETECTION_NO_JIT=1`` times the numpy/scipy
+path. Prints a table and one line starting with ``JSON `` (docs/speed.md, docs/fleet.md).
 
     python tools/benchmark.py --frames 300 --preset table_4_2   # the seed method exactly
     python tools/benchmark.py --fusion        # FusedGrid.update + to_costmap per frame
+    python tools/benchmark.py --fleet 2 --frames 300    # 8 bags of 300 frames, 0-2 workers
 """
 
 from __future__ import annotations
@@ -23,7 +25,10 @@ import json  # noqa: E402
 import platform  # noqa: E402
 import resource  # noqa: E402
 import sys  # noqa: E402
+import tempfile  # noqa: E402
 import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import Any  # noqa: E402
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
@@ -129,6 +134,85 @@ def run_fusion(frames: int, preset: str) -> dict:
             'stages': _stats(times), 'fps': frames / (time.perf_counter() - wall_start)}
 
 
+def _write_bags(folder: Path, scenes: tuple[str, ...], distinct: int, count: int,
+                frames: int) -> list[Path]:
+    """Write ``count`` bags of ``frames`` rendered 512x424 frames; bag i starts at frame i."""
+    from obstacle_detection.cli.bag_writer import BagOptions, write_frames
+    from obstacle_detection.evaluation.datasets import Frame, FrameSource
+
+    pngs = [folder / f'{name}_{seed}.png' for name in scenes for seed in range(distinct)]
+    for png in pngs:
+        name, seed = png.stem.rsplit('_', 1)
+        cv2.imwrite(str(png), render_scene(name, seed=int(seed)).depth_mm)
+    bags = [folder / 'bags' / f'bag{i}' for i in range(count)]
+    for i, bag in enumerate(bags):
+        source = FrameSource([Frame(1_700_000_000_000_000_000 + n * 33_333_333,
+                                    pngs[(i + n) % len(pngs)]) for n in range(frames)],
+                             KINECT_V2_SD, 'the Kinect v2 SD defaults')
+        write_frames(source, bag, BagOptions(with_color=False, progress=False))
+    return bags
+
+
+def _warm_up() -> None:
+    """Import the bag processing and load the compiled kernels (what a first task pays)."""
+    from obstacle_detection.fleet import bags  # noqa: F401 - the import is the work
+    from obstacle_detection.fleet.cluster import limit_threads
+
+    limit_threads()
+    Detector().warm_up()
+
+
+def _cpu_s(fleet: Any) -> float:
+    """CPU seconds used so far by this process (client, scheduler) and the workers."""
+    used = time.process_time()
+    if fleet.distributed:
+        used += sum(fleet.client.run(time.process_time).values())
+    return used
+
+
+def run_fleet(scenes: tuple[str, ...], distinct: int, bags: int, frames: int,
+              max_workers: int) -> list[dict]:
+    """Time bag_process's many-bag run in this process, then on 1..max_workers workers."""
+    from obstacle_detection.fleet import bags as fleet_bags
+    from obstacle_detection.fleet.cluster import open_fleet
+    from obstacle_detection.ros.parameters import ALL_PARAMS
+
+    values = {**{spec.name: spec.default for spec in ALL_PARAMS}, 'compute_threads': 1}
+    results = []
+    with tempfile.TemporaryDirectory(prefix='benchmark_fleet_') as folder:
+        inputs = _write_bags(Path(folder), scenes, distinct, bags, frames)
+        for workers in range(max_workers + 1):
+            label = f'{workers} worker{"s" if workers > 1 else ""}' if workers else 'one process'
+            print(f'# bag_process, {label} ...', file=sys.stderr, flush=True)
+            jobs = [fleet_bags.BagJob(bag, Path(folder) / f'out{workers}' / bag.name, values,
+                                      'defaults', "the node's defaults") for bag in inputs]
+            with open_fleet(workers=workers, tasks=bags) as fleet:
+                if fleet.distributed:
+                    fleet.client.run(_warm_up)
+                else:
+                    _warm_up()
+                cpu, began = _cpu_s(fleet), time.perf_counter()
+                outcomes = fleet_bags.process_bags(jobs, fleet, progress=False)
+                wall, cpu = time.perf_counter() - began, _cpu_s(fleet) - cpu
+            failed = [o.error for o in outcomes if o.error is not None]
+            if failed:
+                raise RuntimeError(failed[0])
+            total = fleet_bags.merged(Path(), Path(), outcomes)
+            results.append({'label': label,
+                            'workers': workers, 'frames': total.processed, 'wall_s': wall,
+                            'fps': total.processed / wall, 'pipeline_ms': total.ms_per_frame,
+                            'cpu_ms': cpu * 1e3 / total.processed})
+    return results
+
+
+def format_fleet(results: list[dict]) -> str:
+    """Return one line per run: frames/s, the speed-up, pipeline and CPU time per frame."""
+    one = results[0]['fps']
+    return '\n'.join(f"{r['label']:>12}: {r['fps']:6.1f} frames/s, x{r['fps'] / one:.2f} one "
+                     f"process ({r['wall_s']:.1f} s); pipeline {r['pipeline_ms']:.1f} ms/frame; "
+                     f"CPU {r['cpu_ms']:.1f} ms/frame (every process)" for r in results)
+
+
 def format_table(results: list[dict]) -> str:
     """Return a fixed-width table: one row per stage, one column pair per configuration."""
     lines = ['stage          ' + ''.join(f'{r["label"]:>22}' for r in results),
@@ -166,6 +250,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--fusion', action='store_true',
                         help="time the fused costmap's update and to_costmap per frame "
                              '(pinned; the size, kernel, rate and thread options are ignored)')
+    parser.add_argument('--fleet', type=tool_support.int_in(0), default=0, metavar='N',
+                        help='time bag_process over --bags bags of --frames frames in one '
+                             'process and on local Dask clusters of 1..N workers (not pinned)')
+    parser.add_argument('--bags', type=tool_support.int_in(1), default=8,
+                        help='bags of --fleet [default: 8]')
     args = parser.parse_args(argv)
     if args.frames < 1:
         parser.error('--frames must be >= 1')
@@ -179,6 +268,12 @@ def main(argv: list[str] | None = None) -> int:
     kernels = [int(k) for k in args.kernels.split(',')]
     if not 1 <= args.threads <= 8:
         parser.error('--threads must be in [1, 8]')
+    if args.fleet:   # not pinned: the workers would inherit this process's one CPU
+        print(f'# load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs', flush=True)
+        results = run_fleet(scenes, args.distinct, args.bags, args.frames, args.fleet)
+        print(format_fleet(results))
+        print('JSON ' + json.dumps({'results': results}))
+        return 0
     if args.threads == 1 or args.fusion:
         pinned = tool_support.pin_one_cpu()
     else:

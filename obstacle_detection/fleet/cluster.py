@@ -20,8 +20,6 @@ from obstacle_detection.cli.progress import Progress
 DASK_AVAILABLE = importlib.util.find_spec('distributed') is not None
 #: The environment variable Dask itself reads for the scheduler's address.
 SCHEDULER_ENV = 'DASK_SCHEDULER_ADDRESS'
-#: Retries of a task that raised (a worker that died is restarted by Dask, see the module).
-DEFAULT_RETRIES = 2
 #: How often the scheduler restarts a task whose worker died before giving up on it.
 ALLOWED_FAILURES = 3
 #: The environment of a local cluster's worker processes: one thread per worker.
@@ -41,7 +39,6 @@ class Fleet:
     client: Any
     description: str
     workers: int
-    retries: int = DEFAULT_RETRIES
 
     @property
     def distributed(self) -> bool:
@@ -49,12 +46,12 @@ class Fleet:
         return self.client is not None
 
     def submit(self, function: Callable[..., Any], *args: Any) -> Any:
-        """Start ``function(*args)`` on the cluster; return its future (retried on errors)."""
-        return self.client.submit(function, *args, retries=self.retries, pure=False)
+        """Start ``function(*args)`` on the cluster; return its future."""
+        return self.client.submit(function, *args, pure=False)
 
 
 def add_fleet_arguments(parser: argparse.ArgumentParser) -> None:
-    """Add ``--workers``, ``--scheduler`` and ``--retries``."""
+    """Add ``--workers`` and ``--scheduler``."""
     group = parser.add_argument_group(
         'where the work runs (Dask, optional: README, Offline work at scale)')
     group.add_argument('--workers', type=tool_support.int_in(0), metavar='N',
@@ -64,20 +61,16 @@ def add_fleet_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument('--scheduler', metavar='ADDRESS',
                        help=f'run on the Dask cluster of this scheduler, e.g. '
                             f'tcp://host:8786 [default: ${SCHEDULER_ENV} if set]')
-    group.add_argument('--retries', type=tool_support.int_in(0), default=DEFAULT_RETRIES,
-                       metavar='N',
-                       help='retries of a task that raised [default: %(default)s]; a task '
-                            'whose worker died is restarted by Dask')
 
 
 def fleet_options(args: argparse.Namespace) -> dict[str, Any]:
     """Return the keyword arguments of :func:`open_fleet` from the parsed fleet options."""
-    return {'workers': args.workers, 'scheduler': args.scheduler, 'retries': args.retries}
+    return {'workers': args.workers, 'scheduler': args.scheduler}
 
 
 @contextlib.contextmanager
 def open_fleet(*, workers: int | None = None, scheduler: str | None = None,
-               retries: int = DEFAULT_RETRIES, tasks: int = 2) -> Iterator[Fleet]:
+               tasks: int = 2) -> Iterator[Fleet]:
     """Yield where to run ``tasks`` tasks; close it afterwards.
 
     Raises FleetError when Dask is missing or the scheduler cannot be reached for a cluster asked
@@ -96,7 +89,7 @@ def open_fleet(*, workers: int | None = None, scheduler: str | None = None,
                          f'{SCHEDULER_ENV}) to run in this process')
     cores = len(os.sched_getaffinity(0))
     if not wanted and (workers == 0 or not DASK_AVAILABLE or tasks < 2 or cores < 2):
-        yield Fleet(None, 'this process', 1, retries)
+        yield Fleet(None, 'this process', 1)
         return
     import dask
     from distributed import Client, LocalCluster
@@ -118,7 +111,7 @@ def open_fleet(*, workers: int | None = None, scheduler: str | None = None,
             with client:
                 count = len(client.scheduler_info().get('workers', {}))
                 yield Fleet(client, f'the Dask cluster at {scheduler} ({count} workers)',
-                            count, retries)
+                            count)
             return
         count = workers if workers is not None else cores
         # the workers ignore Ctrl-C (worker_setup): this process alone stops the run
@@ -129,7 +122,7 @@ def open_fleet(*, workers: int | None = None, scheduler: str | None = None,
                 preload=['obstacle_detection.fleet.worker_setup']) as cluster, \
                 Client(cluster) as client:
                 yield Fleet(client, f'a local Dask cluster of {count} worker process'
-                            f'{"es" if count != 1 else ""} (1 thread each)', count, retries)
+                            f'{"es" if count != 1 else ""} (1 thread each)', count)
 
 
 def limit_threads() -> None:
