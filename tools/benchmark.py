@@ -231,7 +231,8 @@ def format_table(results: list[dict]) -> str:
 def main(argv: list[str] | None = None) -> int:
     """Run the benchmark; print the table and one JSON line."""
     parser = argparse.ArgumentParser(prog='benchmark', description=__doc__.split('\n\n')[0])
-    parser.add_argument('--frames', type=int, default=100, help='frames per configuration')
+    parser.add_argument('--frames', type=tool_support.int_in(1), default=100,
+                        help='frames per configuration')
     parser.add_argument('--preset', choices=sorted(PRESETS), default='corridor',
                         help='parameters: corridor (the default, robot level) or a seed '
                              'table [default: corridor]')
@@ -239,12 +240,12 @@ def main(argv: list[str] | None = None) -> int:
                         help='comma-separated scene names')
     parser.add_argument('--sizes', default=','.join(SIZES), help='comma-separated sizes')
     parser.add_argument('--kernels', default='5,17', help='comma-separated median kernels K')
-    parser.add_argument('--distinct', type=int, default=3,
+    parser.add_argument('--distinct', type=tool_support.int_in(1), default=3,
                         help='distinct seeds rendered per scene (frames cycle over them)')
     parser.add_argument('--rate', type=float, default=0.0, metavar='HZ',
                         help='start a frame every 1/HZ s, sleeping in between, as a camera '
                              'paces the node (0 = back to back, the default)')
-    parser.add_argument('--threads', type=int, default=1,
+    parser.add_argument('--threads', type=tool_support.int_in(1, 8), default=1,
                         help='compute_threads of the detector; above 1 the process is not '
                              'pinned to one CPU [default: 1]')
     parser.add_argument('--fusion', action='store_true',
@@ -256,8 +257,6 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--bags', type=tool_support.int_in(1), default=8,
                         help='bags of --fleet [default: 8]')
     args = parser.parse_args(argv)
-    if args.frames < 1:
-        parser.error('--frames must be >= 1')
     if not (0.0 <= args.rate <= 1000.0):
         parser.error('--rate must be in [0, 1000] Hz (0 = back to back)')
     sizes = args.sizes.split(',')
@@ -266,8 +265,6 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f'unknown size(s) {unknown}; choose from {list(SIZES)}')
     scenes = tuple(args.scenes.split(','))
     kernels = [int(k) for k in args.kernels.split(',')]
-    if not 1 <= args.threads <= 8:
-        parser.error('--threads must be in [1, 8]')
     if args.fleet:   # not pinned: the workers would inherit this process's one CPU
         print(f'# load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs', flush=True)
         results = run_fleet(scenes, args.distinct, args.bags, args.frames, args.fleet)

@@ -38,6 +38,7 @@ def _publish(depth: np.ndarray, rate_hz: float, duration_s: float, reliable: boo
              report: Any) -> None:
     """Publish the frames ``depth`` round robin; put a summary dict on ``report``."""
     import rclpy
+    import rclpy.time
     from builtin_interfaces.msg import Time
     from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
     from sensor_msgs.msg import CameraInfo, Image
@@ -70,8 +71,7 @@ def _publish(depth: np.ndarray, rate_hz: float, duration_s: float, reliable: boo
             time.sleep(wait)
         elif wait < -period:
             late += 1
-        now_ns = time.time_ns()
-        stamp = Time(sec=now_ns // 1_000_000_000, nanosec=now_ns % 1_000_000_000)
+        stamp = rclpy.time.Time(nanoseconds=time.time_ns()).to_msg()
         info.header.stamp = stamp
         image = images[sent % len(images)]
         image.header.stamp = stamp

@@ -27,11 +27,6 @@ LIST_SUFFIXES = ('.txt', '.list')
 _GLOB_CHARS = frozenset('*?[')
 
 
-def is_bag(path: Path) -> bool:
-    """Tell whether ``path`` is a rosbag2 folder (it holds ``metadata.yaml``)."""
-    return (path / 'metadata.yaml').is_file()
-
-
 def is_many(spec: str | Path) -> bool:
     """Tell whether ``spec`` names several bags (a folder of bags, a glob, a list file)."""
     text = str(spec)
@@ -40,7 +35,8 @@ def is_many(spec: str | Path) -> bool:
     path = Path(text)
     if path.is_file():
         return path.suffix in LIST_SUFFIXES
-    return path.is_dir() and not is_bag(path) and any(path.rglob('metadata.yaml'))
+    return (path.is_dir() and not (path / 'metadata.yaml').is_file()
+            and any(path.rglob('metadata.yaml')))
 
 
 def find_bags(spec: str | Path) -> list[tuple[Path, Path]]:
@@ -188,7 +184,7 @@ def chunks_path(output: Path) -> Path:
 
 
 def process_chunk(job: BagJob, index: int, window: tuple[int, int], run: str) -> BagOutcome:
-    """Process chunk ``index`` of a bag into its part bag (a task). Never raises."""
+    """Process chunk ``index`` of a bag into its part bag (a task)."""
     return process_one(job, window, chunks_path(job.output) / run / f'part{index:04d}')
 
 

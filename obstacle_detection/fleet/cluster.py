@@ -94,11 +94,7 @@ def open_fleet(*, workers: int | None = None, scheduler: str | None = None,
     import dask
     from distributed import Client, LocalCluster
 
-    # Dask's default MALLOC_TRIM_THRESHOLD_ for its workers fixes glibc's mmap threshold at
-    # 128 kB: every frame-sized array is then mapped and unmapped anew, and its page faults
-    # made a worker's frames ~50 % slower than one process's here. Workers keep glibc's default.
-    # The workers' statistical profiler samples the running task's stack every 10 ms and the
-    # event loops tick every 20 ms: CPU taken from the frames, for nothing a batch run reads.
+    # glibc's own mmap threshold, no profiler, slower ticks: docs/fleet.md, Speed
     with dask.config.set({'distributed.scheduler.allowed-failures': ALLOWED_FAILURES,
                           'distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_': None,
                           'distributed.worker.profile.enabled': False,
