@@ -49,14 +49,6 @@ DEFAULT_SCENES = ('corridor', 'people', 'ramps', 'farm_row')
 NEW_TOTAL = 'new stages'
 
 
-def jit_description(threads: int = 1) -> str:
-    """Say whether the optional numba kernels run (on how many threads) or numpy/scipy."""
-    if jit_enabled():
-        import numba
-        return f'numba {numba.__version__} kernels (compute_threads {threads})'
-    return 'numpy/scipy path (numba missing or OBSTACLE_DETECTION_NO_JIT=1)'
-
-
 def _stats(per_row: dict[str, list[float]]) -> dict[str, dict[str, float]]:
     return {row: {'median_ms': float(np.median(v)), 'p90_ms': float(np.percentile(v, 90))}
             for row, v in per_row.items()}
@@ -276,7 +268,9 @@ def main(argv: list[str] | None = None) -> int:
     else:
         cv2.setNumThreads(1)
         pinned = 'not pinned; BLAS/OpenMP/OpenCV threads = 1'
-    pinning = f'{pinned}; k-d tree workers = 1; {jit_description(args.threads)}'
+    path = (f'numba kernels (compute_threads {args.threads})' if jit_enabled() else
+            'numpy/scipy path (numba missing or OBSTACLE_DETECTION_NO_JIT=1)')
+    pinning = f'{pinned}; k-d tree workers = 1; {path}'
 
     print(f'# {pinning}', flush=True)
     if args.fusion:

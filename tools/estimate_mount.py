@@ -81,7 +81,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                       inlier_m=args.inlier, seed=args.seed,
                                       prior_pitch_rad=prior)
         except ValueError as exc:
-            if unit_warning is None and str(exc).startswith('too few points'):
+            if unit_warning is None:   # the depth may be in range only at another scale
                 unit_warning = tool_support.depth_unit_warning(
                     raw, args.depth_scale, out_of_range_m=args.max_range)
             reason = f'{exc}; {unit_warning}' if unit_warning else str(exc)
