@@ -165,7 +165,7 @@ def test_run_tasks_in_this_process_returns_failures_in_order() -> None:
     def invert(x: float) -> float:
         return 1 / x
     results = cluster.run_tasks(fleet, invert, [(2,), (0,), (4,)], label='t', progress=False,
-                                errors='return')
+                                return_errors=True)
     assert results[0] == 0.5 and results[2] == 0.25
     assert results[1] == cluster.TaskError('ZeroDivisionError: division by zero')
     with pytest.raises(ZeroDivisionError):

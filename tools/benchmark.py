@@ -1,29 +1,16 @@
 #!/usr/bin/env python3
 """Benchmark the detection pipeline: per-stage and total milliseconds, frames per second.
 
-Frames come from the ray-cast scene generator (rendered once before timing). Every
-configuration (frame size x median kernel K) runs the same number of frames, cycling over the
-named scenes. The run is pinned to one thread: BLAS/OpenMP thread counts are set to 1 before
-numpy is imported, OpenCV gets ``cv2.setNumThreads(1)``, the k-d tree is queried with
-``workers=1``, the optional numba kernels are single-threaded, and the process is pinned to one
-CPU with ``os.sched_setaffinity`` (where the platform has it); ``--threads N`` > 1 leaves it
-unpinned and runs the detector with ``compute_threads`` N. Peak memory is the process's
-maximum resident set size. ``OBSTACLE_DETECTION_NO_JIT=1`` times the numpy/scipy path.
+Frames are rendered scenes (rendered before timing), cycled over for every frame size x median
+kernel K. One thread pinned to one CPU unless ``--threads N`` > 1; ``--rate HZ`` paces the
+frames as a camera does; ``--fusion`` times the fused costmap instead, ``--fleet N``
+bag_process over many bags in one process and on local Dask clusters of 1..N workers; peak
+memory is the maximum resident set size; ``OBSTACLE_DETECTION_NO_JIT=1`` times the numpy/scipy
+path. Prints a table and one line starting with ``JSON `` (docs/speed.md, docs/fleet.md).
 
-Prints a table for people and one line starting with ``JSON `` for machines.
-
-    python tools/benchmark.py                 # 100 frames per configuration, corridor.yaml
     python tools/benchmark.py --frames 300 --preset table_4_2   # the seed method exactly
-    python tools/benchmark.py --rate 30       # frames 1/30 s apart, as a camera sends them
-    python tools/benchmark.py --threads 2     # compute_threads 2 (not pinned)
-
-Frames run back to back by default: the caches stay warm from one frame to the next, the best
-case. ``--rate HZ`` starts one frame every 1/HZ s and sleeps in between, as the node works on
-a camera's frames: on a virtual machine the caches and TLBs go cold while the process sleeps,
-and the same frame takes longer (see the README, "Through DDS").
-
-The row "new stages" is the per-frame sum of the stages that are not the seed's (median filter
-smear check, floor fit, robot-level traversal, drop edges).
+    python tools/benchmark.py --fusion        # FusedGrid.update + to_costmap per frame
+    python tools/benchmark.py --fleet 2 --frames 300    # 8 bags of 300 frames, 0-2 workers
 """
 
 from __future__ import annotations
@@ -38,7 +25,10 @@ import json  # noqa: E402
 import platform  # noqa: E402
 import resource  # noqa: E402
 import sys  # noqa: E402
+import tempfile  # noqa: E402
 import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import Any  # noqa: E402
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
@@ -59,15 +49,9 @@ DEFAULT_SCENES = ('corridor', 'people', 'ramps', 'farm_row')
 NEW_TOTAL = 'new stages'
 
 
-
-def jit_description(threads: int = 1) -> str:
-    """Say whether the optional numba kernels run (on how many threads) or numpy/scipy."""
-    if jit_enabled():
-        import numba
-        return (f'numba {numba.__version__} kernels (compute_threads {threads}): '
-                'back-projection and voxel grid, median K >= 7, k-NN, normals, labels, rays, '
-                'smear, traversal, drops')
-    return 'numpy/scipy path (numba missing or OBSTACLE_DETECTION_NO_JIT=1)'
+def _stats(per_row: dict[str, list[float]]) -> dict[str, dict[str, float]]:
+    return {row: {'median_ms': float(np.median(v)), 'p90_ms': float(np.percentile(v, 90))}
+            for row, v in per_row.items()}
 
 
 def run_config(scenes: tuple[str, ...], size_label: str, kernel: int, frames: int,
@@ -103,37 +87,144 @@ def run_config(scenes: tuple[str, ...], size_label: str, kernel: int, frames: in
         voxels.append(result.voxel_points.shape[0])
         obstacles.append(result.obstacle_points.shape[0])
     wall = time.perf_counter() - wall_start
-    stats = {stage: {'median_ms': float(np.median(v)), 'p90_ms': float(np.percentile(v, 90))}
-             for stage, v in per_stage.items()}
     return {
-        'size': size_label, 'kernel': kernel, 'preset': preset, 'frames': frames,
-        'scenes': list(scenes), 'stages': stats, 'threads': threads,
-        'fps': frames / wall, 'rate_hz': rate_hz,
+        'label': f'{size_label} K={kernel}', 'size': size_label, 'kernel': kernel,
+        'preset': preset, 'frames': frames, 'scenes': list(scenes), 'stages': _stats(per_stage),
+        'threads': threads, 'fps': frames / wall, 'rate_hz': rate_hz,
         'voxels_median': float(np.median(voxels)),
         'obstacle_points_median': float(np.median(obstacles)),
     }
 
 
+def run_fusion(frames: int, preset: str) -> dict:
+    """Time FusedGrid.update and to_costmap on the costmaps of 'drive_past_boxes' (every 5th)."""
+    from obstacle_detection.evaluation.video import observe_sequence
+    from obstacle_detection.pipeline.fusion import FusedGrid, FusionParams
+    from obstacle_detection.sim.sequences import SceneSequence
+
+    print('# running the detector on drive_past_boxes ...', file=sys.stderr, flush=True)
+    observations = list(observe_sequence(SceneSequence('drive_past_boxes'),
+                                         PRESETS[preset]()))[::5]
+    fusion = FusionParams()
+    times: dict[str, list[float]] = {'update': [], 'to_costmap': [], 'total': []}
+    wall_start = time.perf_counter()
+    for i in range(frames):
+        if i % len(observations) == 0:
+            grid = FusedGrid(fusion)   # each pass over the frames starts a new grid
+        obs = observations[i % len(observations)]
+        start = time.perf_counter()
+        grid.update(obs.costmap, obs.pose_odom)
+        middle = time.perf_counter()
+        grid.to_costmap()
+        end = time.perf_counter()
+        times['update'].append((middle - start) * 1e3)
+        times['to_costmap'].append((end - middle) * 1e3)
+        times['total'].append((end - start) * 1e3)
+    costmap = observations[0].costmap
+    return {'label': f'fused {fusion.cells}x{fusion.cells}', 'preset': preset, 'frames': frames,
+            'costmap_cells': [costmap.width, costmap.height], 'fused_cells': fusion.cells,
+            'stages': _stats(times), 'fps': frames / (time.perf_counter() - wall_start)}
+
+
+def _write_bags(folder: Path, scenes: tuple[str, ...], distinct: int, count: int,
+                frames: int) -> list[Path]:
+    """Write ``count`` bags of ``frames`` rendered 512x424 frames; bag i starts at frame i."""
+    from obstacle_detection.cli.bag_writer import BagOptions, write_frames
+    from obstacle_detection.evaluation.datasets import Frame, FrameSource
+
+    pngs = [folder / f'{name}_{seed}.png' for name in scenes for seed in range(distinct)]
+    for png in pngs:
+        name, seed = png.stem.rsplit('_', 1)
+        cv2.imwrite(str(png), render_scene(name, seed=int(seed)).depth_mm)
+    bags = [folder / 'bags' / f'bag{i}' for i in range(count)]
+    for i, bag in enumerate(bags):
+        source = FrameSource([Frame(1_700_000_000_000_000_000 + n * 33_333_333,
+                                    pngs[(i + n) % len(pngs)]) for n in range(frames)],
+                             KINECT_V2_SD, 'the Kinect v2 SD defaults')
+        write_frames(source, bag, BagOptions(with_color=False, progress=False))
+    return bags
+
+
+def _warm_up() -> None:
+    """Import the bag processing and load the compiled kernels (what a first task pays)."""
+    from obstacle_detection.fleet import bags  # noqa: F401 - the import is the work
+    from obstacle_detection.fleet.cluster import limit_threads
+
+    limit_threads()
+    Detector().warm_up()
+
+
+def _cpu_s(fleet: Any) -> float:
+    """CPU seconds used so far by this process (client, scheduler) and the workers."""
+    used = time.process_time()
+    if fleet.distributed:
+        used += sum(fleet.client.run(time.process_time).values())
+    return used
+
+
+def run_fleet(scenes: tuple[str, ...], distinct: int, bags: int, frames: int,
+              max_workers: int) -> list[dict]:
+    """Time bag_process's many-bag run in this process, then on 1..max_workers workers."""
+    from obstacle_detection.fleet import bags as fleet_bags
+    from obstacle_detection.fleet.cluster import open_fleet
+    from obstacle_detection.ros.parameters import ALL_PARAMS
+
+    values = {**{spec.name: spec.default for spec in ALL_PARAMS}, 'compute_threads': 1}
+    results = []
+    with tempfile.TemporaryDirectory(prefix='benchmark_fleet_') as folder:
+        inputs = _write_bags(Path(folder), scenes, distinct, bags, frames)
+        for workers in range(max_workers + 1):
+            label = f'{workers} worker{"s" if workers > 1 else ""}' if workers else 'one process'
+            print(f'# bag_process, {label} ...', file=sys.stderr, flush=True)
+            jobs = [fleet_bags.BagJob(bag, Path(folder) / f'out{workers}' / bag.name, values,
+                                      'defaults', "the node's defaults") for bag in inputs]
+            with open_fleet(workers=workers, tasks=bags) as fleet:
+                if fleet.distributed:
+                    fleet.client.run(_warm_up)
+                else:
+                    _warm_up()
+                cpu, began = _cpu_s(fleet), time.perf_counter()
+                outcomes = fleet_bags.process_bags(jobs, fleet, progress=False)
+                wall, cpu = time.perf_counter() - began, _cpu_s(fleet) - cpu
+            failed = [o.error for o in outcomes if o.error is not None]
+            if failed:
+                raise RuntimeError(failed[0])
+            total = fleet_bags.merged(Path(), Path(), outcomes)
+            results.append({'label': label,
+                            'workers': workers, 'frames': total.processed, 'wall_s': wall,
+                            'fps': total.processed / wall, 'pipeline_ms': total.ms_per_frame,
+                            'cpu_ms': cpu * 1e3 / total.processed})
+    return results
+
+
+def format_fleet(results: list[dict]) -> str:
+    """Return one line per run: frames/s, the speed-up, pipeline and CPU time per frame."""
+    one = results[0]['fps']
+    return '\n'.join(f"{r['label']:>12}: {r['fps']:6.1f} frames/s, x{r['fps'] / one:.2f} one "
+                     f"process ({r['wall_s']:.1f} s); pipeline {r['pipeline_ms']:.1f} ms/frame; "
+                     f"CPU {r['cpu_ms']:.1f} ms/frame (every process)" for r in results)
+
+
 def format_table(results: list[dict]) -> str:
     """Return a fixed-width table: one row per stage, one column pair per configuration."""
-    heads = [f"{r['size']} K={r['kernel']}" for r in results]
-    lines = ['stage          ' + ''.join(f'{h:>22}' for h in heads),
-             '               ' + ''.join(f'{"median ms":>12}{"p90 ms":>10}' for _ in heads)]
-    for stage in (*STAGES, NEW_TOTAL, 'total'):
-        row = f'{stage:<15}'
-        for r in results:
-            s = r['stages'][stage]
-            row += f"{s['median_ms']:>12.2f}{s['p90_ms']:>10.2f}"
-        lines.append(row)
+    lines = ['stage          ' + ''.join(f'{r["label"]:>22}' for r in results),
+             '               ' + f'{"median ms":>12}{"p90 ms":>10}' * len(results)]
+    for stage in results[0]['stages']:
+        lines.append(f'{stage:<15}' + ''.join(f"{r['stages'][stage]['median_ms']:>12.2f}"
+                                              f"{r['stages'][stage]['p90_ms']:>10.2f}"
+                                              for r in results))
     lines.append('fps (wall)     ' + ''.join(f"{r['fps']:>22.1f}" for r in results))
-    lines.append('voxels (median)' + ''.join(f"{r['voxels_median']:>22.0f}" for r in results))
+    if 'voxels_median' in results[0]:
+        lines.append('voxels (median)' + ''.join(f"{r['voxels_median']:>22.0f}"
+                                                 for r in results))
     return '\n'.join(lines)
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run the benchmark; print the table and one JSON line."""
     parser = argparse.ArgumentParser(prog='benchmark', description=__doc__.split('\n\n')[0])
-    parser.add_argument('--frames', type=int, default=100, help='frames per configuration')
+    parser.add_argument('--frames', type=tool_support.int_in(1), default=100,
+                        help='frames per configuration')
     parser.add_argument('--preset', choices=sorted(PRESETS), default='corridor',
                         help='parameters: corridor (the default, robot level) or a seed '
                              'table [default: corridor]')
@@ -141,17 +232,23 @@ def main(argv: list[str] | None = None) -> int:
                         help='comma-separated scene names')
     parser.add_argument('--sizes', default=','.join(SIZES), help='comma-separated sizes')
     parser.add_argument('--kernels', default='5,17', help='comma-separated median kernels K')
-    parser.add_argument('--distinct', type=int, default=3,
+    parser.add_argument('--distinct', type=tool_support.int_in(1), default=3,
                         help='distinct seeds rendered per scene (frames cycle over them)')
     parser.add_argument('--rate', type=float, default=0.0, metavar='HZ',
                         help='start a frame every 1/HZ s, sleeping in between, as a camera '
                              'paces the node (0 = back to back, the default)')
-    parser.add_argument('--threads', type=int, default=1,
+    parser.add_argument('--threads', type=tool_support.int_in(1, 8), default=1,
                         help='compute_threads of the detector; above 1 the process is not '
                              'pinned to one CPU [default: 1]')
+    parser.add_argument('--fusion', action='store_true',
+                        help="time the fused costmap's update and to_costmap per frame "
+                             '(pinned; the size, kernel, rate and thread options are ignored)')
+    parser.add_argument('--fleet', type=tool_support.int_in(0), default=0, metavar='N',
+                        help='time bag_process over --bags bags of --frames frames in one '
+                             'process and on local Dask clusters of 1..N workers (not pinned)')
+    parser.add_argument('--bags', type=tool_support.int_in(1), default=8,
+                        help='bags of --fleet [default: 8]')
     args = parser.parse_args(argv)
-    if args.frames < 1:
-        parser.error('--frames must be >= 1')
     if not (0.0 <= args.rate <= 1000.0):
         parser.error('--rate must be in [0, 1000] Hz (0 = back to back)')
     sizes = args.sizes.split(',')
@@ -160,27 +257,37 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f'unknown size(s) {unknown}; choose from {list(SIZES)}')
     scenes = tuple(args.scenes.split(','))
     kernels = [int(k) for k in args.kernels.split(',')]
-    if not 1 <= args.threads <= 8:
-        parser.error('--threads must be in [1, 8]')
-    if args.threads == 1:
+    if args.fleet:   # not pinned: the workers would inherit this process's one CPU
+        print(f'# load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs', flush=True)
+        results = run_fleet(scenes, args.distinct, args.bags, args.frames, args.fleet)
+        print(format_fleet(results))
+        print('JSON ' + json.dumps({'results': results}))
+        return 0
+    if args.threads == 1 or args.fusion:
         pinned = tool_support.pin_one_cpu()
     else:
         cv2.setNumThreads(1)
         pinned = 'not pinned; BLAS/OpenMP/OpenCV threads = 1'
-    pinning = f'{pinned}; k-d tree workers = 1; {jit_description(args.threads)}'
+    path = (f'numba kernels (compute_threads {args.threads})' if jit_enabled() else
+            'numpy/scipy path (numba missing or OBSTACLE_DETECTION_NO_JIT=1)')
+    pinning = f'{pinned}; k-d tree workers = 1; {path}'
 
     print(f'# {pinning}', flush=True)
-    results = []
-    for size_label in sizes:
-        for kernel in kernels:
-            print(f'# {size_label} K={kernel}: {args.frames} frames ...', file=sys.stderr,
-                  flush=True)
-            results.append(run_config(scenes, size_label, kernel, args.frames, args.preset,
-                                      args.distinct, args.rate, args.threads))
+    if args.fusion:
+        results = [run_fusion(args.frames, args.preset)]
+        what = 'scene drive_past_boxes, fused costmap'
+    else:
+        results = []
+        for size_label in sizes:
+            for kernel in kernels:
+                print(f'# {size_label} K={kernel}: {args.frames} frames ...', file=sys.stderr,
+                      flush=True)
+                results.append(run_config(scenes, size_label, kernel, args.frames, args.preset,
+                                          args.distinct, args.rate, args.threads))
+        pace = f'one frame every {1e3 / args.rate:.1f} ms' if args.rate else 'back to back'
+        what = f'scenes {", ".join(scenes)}, {pace}'
     peak_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-    pace = f'one frame every {1e3 / args.rate:.1f} ms' if args.rate else 'back to back'
-    print(f'# preset {args.preset}, scenes {", ".join(scenes)}, {args.frames} frames each '
-          f'({pace}); '
+    print(f'# preset {args.preset}, {what}, {args.frames} frames each; '
           f'{platform.processor() or platform.machine()}, Python {platform.python_version()}, '
           f'numpy {np.__version__}, OpenCV {cv2.__version__}')
     print(format_table(results))

@@ -23,28 +23,19 @@ from obstacle_detection.cli.support import parse_intrinsics
 from obstacle_detection.evaluation.camera import camera_yaml_text
 from obstacle_detection.pipeline.depth import decode_depth
 from obstacle_detection.pipeline.mount import MountEstimate, estimate_mount
-from obstacle_detection.pipeline.params import Intrinsics
 from obstacle_detection.evaluation.datasets import read_depth_png
 from obstacle_detection.ros.parameters import PARAMS_FILE_KEY
 
 
-def params_yaml(estimate: MountEstimate, node_key: str = PARAMS_FILE_KEY) -> str:
+def params_yaml(estimate: MountEstimate) -> str:
     """Node parameter file fragment holding the mount (angles in degrees, as the node's)."""
     return (f'# camera mount from the floor plane ({estimate.inlier_fraction:.0%} of the points '
             f'on it), tools/estimate_mount.py\n'
-            f'{node_key}:\n'
+            f'{PARAMS_FILE_KEY}:\n'
             f'  ros__parameters:\n'
             f'    camera_height_m: {estimate.height_m:.4f}\n'
             f'    camera_pitch_deg: {estimate.pitch_deg:.3f}\n'
             f'    camera_roll_deg: {estimate.roll_deg:.3f}\n')
-
-
-def camera_yaml(estimate: MountEstimate, intrinsics: Intrinsics, depth_scale: float) -> str:
-    """Camera YAML (``evaluation.camera``): intrinsics, depth scale and the mount."""
-    return camera_yaml_text(intrinsics, comment='intrinsics [px] and the camera mount estimated '
-                            'from the floor', depth_scale=depth_scale,
-                            height_m=estimate.height_m, pitch_deg=estimate.pitch_deg,
-                            roll_deg=estimate.roll_deg)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -90,18 +81,20 @@ def main(argv: Sequence[str] | None = None) -> int:
                                       inlier_m=args.inlier, seed=args.seed,
                                       prior_pitch_rad=prior)
         except ValueError as exc:
-            if unit_warning is None and str(exc).startswith('too few points'):
+            if unit_warning is None:   # the depth may be in range only at another scale
                 unit_warning = tool_support.depth_unit_warning(
                     raw, args.depth_scale, out_of_range_m=args.max_range)
             reason = f'{exc}; {unit_warning}' if unit_warning else str(exc)
             raise ValueError(f'{args.depth}: cannot estimate the mount: {reason}') from None
-        if args.params_out is not None:
-            args.params_out.parent.mkdir(parents=True, exist_ok=True)
-            args.params_out.write_text(params_yaml(estimate), encoding='utf-8')
-        if args.camera_yaml_out is not None:
-            args.camera_yaml_out.parent.mkdir(parents=True, exist_ok=True)
-            args.camera_yaml_out.write_text(
-                camera_yaml(estimate, args.intrinsics, args.depth_scale), encoding='utf-8')
+        camera = camera_yaml_text(
+            args.intrinsics, comment='intrinsics [px] and the camera mount estimated from the '
+            'floor', depth_scale=args.depth_scale, height_m=estimate.height_m,
+            pitch_deg=estimate.pitch_deg, roll_deg=estimate.roll_deg)
+        outputs = {args.params_out: params_yaml(estimate), args.camera_yaml_out: camera}
+        for path, text in outputs.items():
+            if path is not None:
+                path.parent.mkdir(parents=True, exist_ok=True)
+                path.write_text(text, encoding='utf-8')
     except (ValueError, OSError) as exc:
         return tool_support.report_error('estimate_mount', exc)
     if unit_warning:
@@ -109,7 +102,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(f'{args.depth}: height {estimate.height_m:.3f} m, pitch {estimate.pitch_deg:.2f} deg, '
           f'roll {estimate.roll_deg:.2f} deg; floor holds {estimate.inlier_fraction:.1%} of '
           f'{estimate.n_points} points within {args.max_range:g} m')
-    for path in (args.params_out, args.camera_yaml_out):
+    for path in outputs:
         if path is not None:
             print(f'wrote {path}')
     return 0

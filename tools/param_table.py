@@ -29,9 +29,7 @@ def _format_value(value: object) -> str:
 
 def _row(spec: ParamSpec, seed: dict[str, object]) -> str:
     other = seed.get(spec.name, spec.default)
-    range_text = spec.range_text
-    if spec.read_only:
-        range_text = (range_text + ' ' if range_text else '') + 'read-only'
+    range_text = ' '.join(filter(None, (spec.range_text, 'read-only' if spec.read_only else '')))
     description = spec.description.replace('|', '\\|')
     return (f'| `{spec.name}` | {spec.type_name} | {_format_value(spec.default)} | '
             f'{_format_value(other) if other != spec.default else ""} | {range_text} | '
@@ -60,9 +58,8 @@ def with_table(doc: str, table: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Command-line entry: print the table, write it to ``--output`` or into the document."""
+    """Command-line entry: print the table, or write it into the document."""
     parser = argparse.ArgumentParser(prog='param_table', description=__doc__.splitlines()[0])
-    parser.add_argument('--output', type=Path, help='write the table here instead of stdout')
     parser.add_argument('--doc', type=Path, nargs='?', const=Path('docs/parameters.md'),
                         help='replace the table between the markers of this Markdown file '
                              '[default: docs/parameters.md]')
@@ -75,10 +72,8 @@ def main(argv: list[str] | None = None) -> int:
         except ValueError as error:
             print(f'error: {args.doc}: {error}', file=sys.stderr)
             return 1
-    elif args.output is None:
-        sys.stdout.write(table)
     else:
-        args.output.write_text(table, encoding='utf-8')
+        sys.stdout.write(table)
     return 0
 
 

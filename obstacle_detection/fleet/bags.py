@@ -10,14 +10,14 @@ import json
 import math
 import shutil
 import uuid
+from collections import Counter
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from obstacle_detection.cli import support as tool_support
-from obstacle_detection.cli.bag_processor import (DEFAULT_NAMESPACE, FrameReport,
-                                                  config_from_values, copy_connections,
-                                                  process_bag)
+from obstacle_detection.cli.bag_processor import (DEFAULT_NAMESPACE, config_from_values,
+                                                  copy_connections, process_bag)
 from obstacle_detection.cli.bag_writer import (BAG_VERSION, DEFAULT_DEPTH_TOPIC, STORAGES,
                                                staged_output)
 from .cluster import Fleet, TaskError, limit_threads, run_tasks
@@ -25,11 +25,6 @@ from .cluster import Fleet, TaskError, limit_threads, run_tasks
 #: Suffixes of a list file of bags (anything else that is a file is refused).
 LIST_SUFFIXES = ('.txt', '.list')
 _GLOB_CHARS = frozenset('*?[')
-
-
-def is_bag(path: Path) -> bool:
-    """Tell whether ``path`` is a rosbag2 folder (it holds ``metadata.yaml``)."""
-    return (path / 'metadata.yaml').is_file()
 
 
 def is_many(spec: str | Path) -> bool:
@@ -40,7 +35,8 @@ def is_many(spec: str | Path) -> bool:
     path = Path(text)
     if path.is_file():
         return path.suffix in LIST_SUFFIXES
-    return path.is_dir() and not is_bag(path) and any(path.rglob('metadata.yaml'))
+    return (path.is_dir() and not (path / 'metadata.yaml').is_file()
+            and any(path.rglob('metadata.yaml')))
 
 
 def find_bags(spec: str | Path) -> list[tuple[Path, Path]]:
@@ -133,46 +129,34 @@ class BagOutcome:
                 'wall_s': round(self.wall_s, 3), 'warning': self.warning, 'error': self.error}
 
 
+def merged(bag: Path, output: Path, parts: Sequence[BagOutcome]) -> BagOutcome:
+    """Return the outcome of ``parts`` together (a chunked bag's, or a table's total)."""
+    return BagOutcome(
+        bag, output, frames=sum(p.frames for p in parts),
+        processed=sum(p.processed for p in parts),
+        skipped=dict(sum((Counter(p.skipped) for p in parts), Counter())),
+        obstacle_points=sum(p.obstacle_points for p in parts),
+        pipeline_ms=sum(p.pipeline_ms for p in parts), wall_s=sum(p.wall_s for p in parts),
+        warning=next((p.warning for p in parts if p.warning), None))
+
+
 def process_one(job: BagJob, window: tuple[int | None, int | None] = (None, None),
                 output: Path | None = None) -> BagOutcome:
-    """Process one bag, or the chunk ``window`` of it into ``output`` (a task). Never raises."""
+    """Process one bag, or the chunk ``window`` of it into ``output`` (a task)."""
     limit_threads()
     output = job.output if output is None else output
-    outcome = BagOutcome(job.bag, output)
-    totals = {'points': 0}
-
-    def count(report: FrameReport) -> None:
-        totals['points'] += report.obstacle_points
-
-    try:
-        config = config_from_values(job.values, job.origin)
-        with contextlib.redirect_stderr(io.StringIO()):
-            summary = process_bag(
-                job.bag, output, config, depth_topic=job.depth_topic,
-                info_topic=job.info_topic, namespace=job.namespace,
-                with_ground=job.with_ground or config.publish_ground,
-                with_overlay=job.with_overlay or config.publish_overlay, storage=job.storage,
-                progress=False, on_frame=count, mount_origin=job.mount_origin,
-                start_ns=window[0], stop_ns=window[1])
-    except Exception as err:   # noqa: BLE001 - a bag's failure is its task's result
-        outcome.error = _reason(err, job.bag, output)
-        return outcome
-    outcome.frames = summary.frames
-    outcome.processed = summary.processed
-    outcome.skipped = dict(summary.skipped)
-    outcome.obstacle_points = totals['points']
-    outcome.pipeline_ms = float(sum(summary.total_ms))
-    outcome.wall_s = summary.wall_s
-    outcome.warning = summary.mount_warning
-    return outcome
-
-
-def _reason(err: BaseException, *paths: Path) -> str:
-    """Return the error line of a failed bag: the message, naming the bag if it does not."""
-    text = str(err)
-    if text and text.startswith(tuple(str(p) for p in paths)):
-        return text
-    return f'{paths[0]}: {type(err).__name__}' + (f': {text}' if text else '')
+    points: list[int] = []
+    config = config_from_values(job.values, job.origin)
+    with contextlib.redirect_stderr(io.StringIO()):
+        summary = process_bag(
+            job.bag, output, config, depth_topic=job.depth_topic, info_topic=job.info_topic,
+            namespace=job.namespace, with_ground=job.with_ground or config.publish_ground,
+            with_overlay=job.with_overlay or config.publish_overlay, storage=job.storage,
+            progress=False, on_frame=lambda report: points.append(report.obstacle_points),
+            mount_origin=job.mount_origin, start_ns=window[0], stop_ns=window[1])
+    return BagOutcome(job.bag, output, summary.frames, summary.processed,
+                      dict(summary.skipped), sum(points), float(sum(summary.total_ms)),
+                      summary.wall_s, summary.mount_warning)
 
 
 def plan_chunks(job: BagJob) -> list[tuple[int, int]]:
@@ -200,7 +184,7 @@ def chunks_path(output: Path) -> Path:
 
 
 def process_chunk(job: BagJob, index: int, window: tuple[int, int], run: str) -> BagOutcome:
-    """Process chunk ``index`` of a bag into its part bag (a task). Never raises."""
+    """Process chunk ``index`` of a bag into its part bag (a task)."""
     return process_one(job, window, chunks_path(job.output) / run / f'part{index:04d}')
 
 
@@ -211,13 +195,8 @@ def finish_bag(job: BagJob, *parts: BagOutcome) -> BagOutcome:
     from rosbags.rosbag2 import Reader, Writer
     from rosbags.typesys import Stores, get_typestore
 
-    outcome = BagOutcome(job.bag, job.output)
+    typestore = get_typestore(Stores.ROS2_JAZZY)
     try:
-        failed = next((p for p in parts if p.error is not None), None)
-        if failed is not None:
-            outcome.error = failed.error
-            return outcome
-        typestore = get_typestore(Stores.ROS2_JAZZY)
         with staged_output(job.output) as staging, \
                 Writer(staging, version=BAG_VERSION, storage_plugin=STORAGES[job.storage]) \
                 as writer:
@@ -233,32 +212,15 @@ def finish_bag(job: BagJob, *parts: BagOutcome) -> BagOutcome:
                         ids[conn.id] = connections[key]
                     for conn, timestamp, raw in reader.messages():
                         writer.write(ids[conn.id], timestamp, raw)
-    except Exception as err:   # noqa: BLE001 - a bag's failure is its task's result
-        outcome.error = _reason(err, job.bag, job.output)
-        return outcome
     finally:
         for part in parts:
             shutil.rmtree(part.output, ignore_errors=True)
-    for part in parts:
-        outcome.frames += part.frames
-        outcome.processed += part.processed
-        for reason, count in part.skipped.items():
-            outcome.skipped[reason] = outcome.skipped.get(reason, 0) + count
-        outcome.obstacle_points += part.obstacle_points
-        outcome.pipeline_ms += part.pipeline_ms
-        outcome.wall_s += part.wall_s
-        outcome.warning = outcome.warning or part.warning
-    return outcome
-
-
-def staging_path(output: Path) -> Path:
-    """Return the temporary folder an output bag is written in (``bag_writer.staged_output``)."""
-    return output.parent / f'.{output.name}.partial'
+    return merged(job.bag, job.output, parts)
 
 
 def process_bags(jobs: Sequence[BagJob], fleet: Fleet, *, progress: bool = True
                  ) -> list[BagOutcome]:
-    """Run every job where ``fleet`` says; outcomes in ``jobs`` order.
+    """Run every job where ``fleet`` says; outcomes in ``jobs`` order (a failed one's error set).
 
     On KeyboardInterrupt the tasks are cancelled and it propagates (then
     :func:`remove_stale_staging`).
@@ -266,69 +228,73 @@ def process_bags(jobs: Sequence[BagJob], fleet: Fleet, *, progress: bool = True
     items: list[tuple[Any, ...]] = [(job,) for job in jobs]
     if fleet.distributed:
         run = uuid.uuid4().hex[:8]
-        items = [(job, *(fleet.client.submit(process_chunk, job, k, window, run,
-                                             key=f'process_chunk-{run}-{i}-{k}',
-                                             retries=fleet.retries, pure=False)
+        items = [(job, *(fleet.submit(process_chunk, job, k, window, run)
                          for k, window in enumerate(plan_chunks(job))))
-                 for i, job in enumerate(jobs)]
+                 for job in jobs]
     results = run_tasks(fleet, finish_bag, items, label='bags', progress=progress,
-                        errors='return')
+                        return_errors=True)
     for job in jobs:
         shutil.rmtree(chunks_path(job.output), ignore_errors=True)
-    return [BagOutcome(job.bag, job.output, error=f'{job.bag}: {result.reason}')
+    return [BagOutcome(job.bag, job.output, error=_named(result, job))
             if isinstance(result, TaskError) else result
             for job, result in zip(jobs, results)]
 
 
+def _named(failure: TaskError, job: BagJob) -> str:
+    """Return a failed bag's reason: its error's message if it names the bag, else with it."""
+    text = str(failure.error)
+    if failure.error is not None and text.startswith((str(job.bag), str(job.output))):
+        return text
+    return f'{job.bag}: {failure.reason}'
+
+
 def remove_stale_staging(jobs: Sequence[BagJob]) -> None:
     """Remove the temporary folders a stopped run left (after its cluster is closed)."""
-    for job in jobs:
-        shutil.rmtree(staging_path(job.output), ignore_errors=True)
+    for job in jobs:   # the names of bag_writer.staged_output and chunks_path
+        shutil.rmtree(job.output.parent / f'.{job.output.name}.partial', ignore_errors=True)
         shutil.rmtree(chunks_path(job.output), ignore_errors=True)
 
 
 def format_table(outcomes: Sequence[BagOutcome]) -> str:
     """Return the per-bag table, then skip reasons, warnings and failures per bag."""
     names = [str(o.bag) for o in outcomes]
-    width = max([len('bag'), len('total')] + [len(n) for n in names]) + 1
-    head = (f'{"bag":<{width}} {"frames":>7} {"processed":>9} {"skipped":>7} '
-            f'{"obstacle pts":>12} {"ms/frame":>8} {"s":>7}  status')
+    width = max(len(name) for name in [*names, 'total']) + 1
+    widths = (7, 9, 7, 12, 8, 7)
+
+    def row(name: str, outcome: BagOutcome, status: str) -> str:
+        ms = outcome.ms_per_frame
+        cells = (['-'] * 6 if outcome.error is not None else
+                 [outcome.frames, outcome.processed, sum(outcome.skipped.values()),
+                  outcome.obstacle_points, '-' if math.isnan(ms) else f'{ms:.1f}',
+                  f'{outcome.wall_s:.1f}'])
+        return f'{name:<{width}} ' + ' '.join(f'{c:>{w}}' for c, w in zip(cells, widths)) + \
+            f'  {status}'
+    head = f'{"bag":<{width}} ' + ' '.join(
+        f'{h:>{w}}' for h, w in zip(('frames', 'processed', 'skipped', 'obstacle pts',
+                                     'ms/frame', 's'), widths)) + '  status'
     lines = [head, '-' * len(head)]
     notes: list[str] = []
     for name, outcome in zip(names, outcomes):
+        lines.append(row(name, outcome, 'ok' if outcome.error is None else 'FAILED'))
         if outcome.error is not None:
-            lines.append(f'{name:<{width}} {"-":>7} {"-":>9} {"-":>7} {"-":>12} {"-":>8} '
-                         f'{"-":>7}  FAILED')
             notes.append(f'  {name}: failed: {outcome.error}')
-            continue
-        ms = outcome.ms_per_frame
-        lines.append(f'{name:<{width}} {outcome.frames:>7} {outcome.processed:>9} '
-                     f'{sum(outcome.skipped.values()):>7} {outcome.obstacle_points:>12} '
-                     f'{"-" if math.isnan(ms) else f"{ms:.1f}":>8} {outcome.wall_s:>7.1f}  ok')
         notes.extend(f'  {name}: skipped {count}: {reason}'
                      for reason, count in outcome.skipped.items())
         if outcome.warning:
             notes.append(f'  {name}: warning: {outcome.warning}')
     done = [o for o in outcomes if o.error is None]
-    processed = sum(o.processed for o in done)
-    ms_total = sum(o.pipeline_ms for o in done)
-    lines.append('-' * len(head))
-    lines.append(f'{"total":<{width}} {sum(o.frames for o in done):>7} {processed:>9} '
-                 f'{sum(sum(o.skipped.values()) for o in done):>7} '
-                 f'{sum(o.obstacle_points for o in done):>12} '
-                 f'{(f"{ms_total / processed:.1f}" if processed else "-"):>8} '
-                 f'{sum(o.wall_s for o in done):>7.1f}  '
-                 f'{len(done)} ok, {len(outcomes) - len(done)} failed')
+    lines += ['-' * len(head), row('total', merged(Path('total'), Path(), done),
+                                   f'{len(done)} ok, {len(outcomes) - len(done)} failed')]
     return '\n'.join(lines + notes)
 
 
 def summary_json(outcomes: Sequence[BagOutcome], *, wall_s: float, where: str) -> str:
     """Return the one JSON line of a many-bag run: per bag, totals, the run's wall time."""
     done = [o for o in outcomes if o.error is None]
-    processed = sum(o.processed for o in done)
+    total = merged(Path('total'), Path(), done)
     return json.dumps({
         'bags': [o.as_dict() for o in outcomes], 'ok': len(done),
-        'failed': len(outcomes) - len(done), 'frames': sum(o.frames for o in done),
-        'processed': processed, 'wall_s': round(wall_s, 3),
-        'frames_per_s': round(processed / wall_s, 2) if wall_s > 0 else None,
+        'failed': len(outcomes) - len(done), 'frames': total.frames,
+        'processed': total.processed, 'wall_s': round(wall_s, 3),
+        'frames_per_s': round(total.processed / wall_s, 2) if wall_s > 0 else None,
         'where': where}, sort_keys=True)

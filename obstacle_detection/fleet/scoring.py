@@ -3,8 +3,7 @@
 from __future__ import annotations
 
 import time
-import uuid
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Iterable, Sequence
 from typing import Any
 
 from obstacle_detection.evaluation import runner as evaluation
@@ -31,20 +30,15 @@ def score_sequence(frames: Sequence[evaluation.LabelledFrame], params: DetectorP
 
 
 def score_points(fleet: Fleet, sources: Sequence[Source], points: Sequence[DetectorParams],
-                 *, refiner: Any = None, label: str = 'scoring', progress: bool = True,
-                 on_result: Callable[[int, Any], None] | None = None,
+                 *, refiner: Any = None, label: str = 'scoring', progress: bool = True
                  ) -> list[list[evaluation.FrameScore]]:
     """Per point, the frame scores of every source in source order (one task per pair)."""
-    if fleet.distributed:
-        run = uuid.uuid4().hex[:8]
-        frames: list[Any] = [fleet.client.submit(load_frames, lazy, key=f'frames-{run}-{i}',
-                                                 retries=fleet.retries, pure=False)
-                             for i, (_, _, lazy) in enumerate(sources)]
+    if fleet.distributed:   # each source's frames rendered once, by a task of their own
+        frames = [fleet.submit(load_frames, lazy) for _, _, lazy in sources]
     else:
         frames = [load_frames(lazy) for _, _, lazy in sources]
     items = [(frames[s], params, refiner) for params in points for s in range(len(sources))]
-    flat = run_tasks(fleet, score_sequence, items, label=label, progress=progress,
-                     on_result=on_result)
+    flat = run_tasks(fleet, score_sequence, items, label=label, progress=progress)
     count = len(sources)
     return [[score for part in flat[p * count:(p + 1) * count] for score in part]
             for p in range(len(points))]
