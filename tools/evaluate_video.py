@@ -29,12 +29,10 @@ PROG = 'evaluate_video'
 
 def build_parser() -> argparse.ArgumentParser:
     """Return the command-line interface."""
-    from obstacle_detection.evaluation.video import VIDEO_SCORE_DEFINITIONS
-
     parser = argparse.ArgumentParser(
         prog=PROG, description=__doc__.split('\n\n')[0],
-        epilog='What is measured:\n' + VIDEO_SCORE_DEFINITIONS,
-        formatter_class=argparse.RawTextHelpFormatter)
+        epilog='What is measured: docs/accuracy.md, "Scores of the fused costmap over a '
+               'sequence".')
     parser.add_argument('--sequence', action='append', choices=SEQUENCE_NAMES,
                         help='evaluate only this sequence (repeatable) [default: all]')
     parser.add_argument('--params-file', type=Path, default=DEFAULT_PARAMS, metavar='YAML',

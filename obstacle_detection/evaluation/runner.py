@@ -6,6 +6,7 @@ labelled folder on disk (layout in docs/accuracy.md). What counts: :mod:`.metric
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import json
 import math
@@ -25,11 +26,9 @@ from . import EvaluationError, camera as camera_file
 from . import metrics
 from .camera import scaled_intrinsics
 from .datasets import read_depth_png
-from .metrics import Confusion, format_score
+from .metrics import Confusion, TolerantCells, format_score
 from obstacle_detection.pipeline.params import (KINECT_V2_SD, KINECT_V2_SD_SIZE, PRESETS,
                                                 DetectorParams, Intrinsics)
-
-
 
 #: Version of the scenario-list format read by :func:`load_scenarios`.
 SCENARIO_FORMAT_VERSION = 1
@@ -90,18 +89,14 @@ class Scenario:
     noise: str = 'kinect_v2'
 
     def __post_init__(self) -> None:
-        if not self.name:
-            raise ValueError('scenario name must not be empty')
-        for key, allowed in (('truth', TRUTH_KINDS), ('noise', NOISE_MODELS)):
-            if getattr(self, key) not in allowed:
-                raise ValueError(f'scenario {self.name!r}: {key}={getattr(self, key)!r} '
-                                 f'(allowed: {", ".join(allowed)})')
-        if not self.seeds:
-            raise ValueError(f'scenario {self.name!r}: seeds must not be empty')
-        unknown = {k for k, _ in self.mount} - set(_MOUNT_KEYS)
-        if unknown:
-            raise ValueError(f'scenario {self.name!r}: unknown mount key(s) '
-                             f'{", ".join(sorted(unknown))} (allowed: {", ".join(_MOUNT_KEYS)})')
+        allowed = {'truth': TRUTH_KINDS, 'noise': NOISE_MODELS, 'mount': _MOUNT_KEYS}
+        for key, value in (('truth', [self.truth]), ('noise', [self.noise]),
+                           ('mount', [k for k, _ in self.mount])):
+            if set(value) - set(allowed[key]):
+                raise ValueError(f'scenario {self.name!r}: {key}={", ".join(value)!r} '
+                                 f'(allowed: {", ".join(allowed[key])})')
+        if not self.name or not self.seeds:
+            raise ValueError(f'scenario {self.name!r}: name and seeds must not be empty')
 
     @property
     def is_sequence(self) -> bool:
@@ -131,14 +126,13 @@ def scenario_from_dict(entry: dict[str, Any], defaults: dict[str, Any] | None = 
     """
     if not isinstance(entry, dict):
         raise ValueError(f'scenario entry {entry!r} is not an object')
-    known = {'name', 'scene', 'seeds', 'frames', 'mount', 'description', 'truth', 'noise'}
-    unknown = set(entry) - known
+    unknown = set(entry) - {f.name for f in dataclasses.fields(Scenario)}
     if unknown:
         raise ValueError(f'scenario {entry.get("name")!r}: unknown key(s) '
                          f'{", ".join(sorted(unknown))}')
     if 'name' not in entry or 'scene' not in entry:
         raise ValueError(f'scenario entry {entry!r} needs "name" and "scene"')
-    frames = entry.get('frames')
+    frames, defaults = entry.get('frames'), defaults or {}
     if isinstance(frames, dict):
         frames = range(int(frames.get('start', 0)), int(frames['stop']),
                        int(frames.get('step', 1)))
@@ -148,8 +142,8 @@ def scenario_from_dict(entry: dict[str, Any], defaults: dict[str, Any] | None = 
         frames=None if frames is None else tuple(int(f) for f in frames),
         mount=tuple(sorted((str(k), float(v)) for k, v in entry.get('mount', {}).items())),
         description=str(entry.get('description', '')),
-        truth=str(entry.get('truth', (defaults or {}).get('truth', 'seed'))),
-        noise=str(entry.get('noise', (defaults or {}).get('noise', 'kinect_v2'))))
+        truth=str(entry.get('truth', defaults.get('truth', 'seed'))),
+        noise=str(entry.get('noise', defaults.get('noise', 'kinect_v2'))))
 
 
 def load_scenarios(path: str | Path) -> list[Scenario]:
@@ -293,23 +287,11 @@ def load_labelled_folder(path: str | Path, *, max_frames: int | None = None,
 
 
 #: Short names people use on command lines and in the seed's tables.
-PARAM_ALIASES = {'theta': 'max_slope_rad', 'N': 'normal_neighbours',
-                 'N1': 'validation_neighbours', 'K': 'median_kernel', 'TDBG': 'tdbg_m',
-                 'SMAR': 'smar_m'}
-
-
+PARAM_ALIASES = {'theta': 'max_slope_rad', 'theta_rad': 'max_slope_rad',
+                 'N': 'normal_neighbours', 'N1': 'validation_neighbours', 'K': 'median_kernel',
+                 'TDBG': 'tdbg_m', 'SMAR': 'smar_m'}
 #: How a boolean may be written in ``--set`` (case-insensitive).
 _BOOLEANS = {'true': True, '1': True, 'yes': True, 'false': False, '0': False, 'no': False}
-
-
-def _boolean(key: str, value: Any) -> bool:
-    """``value`` (a bool, or a word of ``_BOOLEANS``) as a bool; ValueError naming it otherwise."""
-    if isinstance(value, bool):
-        return value
-    word = str(value).strip().lower()
-    if word not in _BOOLEANS:
-        raise ValueError(f'{key}={value!r} must be true or false')
-    return _BOOLEANS[word]
 
 
 def apply_overrides(base: DetectorParams, overrides: dict[str, Any]) -> DetectorParams:
@@ -326,20 +308,19 @@ def apply_overrides(base: DetectorParams, overrides: dict[str, Any]) -> Detector
             changes.update(voxel_x_m=size, voxel_y_m=size, voxel_z_m=size)
             continue
         if name.endswith('_deg'):
-            name = name[:-4] + '_rad'
-            value = math.radians(float(value))
-        if name == 'theta_rad':
-            name = 'max_slope_rad'
+            name, value = name[:-4] + '_rad', math.radians(float(value))
+            name = PARAM_ALIASES.get(name, name)
         if name not in fields:
             raise EvaluationError(f'unknown parameter {key!r}', usage=True)
         current = getattr(base, name)
         if isinstance(current, bool):
-            value = _boolean(key, value)
+            value = value if isinstance(value, bool) else _BOOLEANS.get(str(value).strip().lower())
+            if value is None:
+                raise ValueError(f'{key}={overrides[key]!r} must be true or false')
         elif isinstance(current, int):
-            as_float = float(value)
-            if as_float != int(as_float):
+            if float(value) != int(float(value)):
                 raise ValueError(f'{key}={value!r} must be an integer')
-            value = int(as_float)
+            value = int(float(value))
         else:
             value = float(value)
         changes[name] = value
@@ -430,11 +411,15 @@ DROP_TOLERANCE_CELLS = 1
 
 @dataclass
 class RobotScore:
-    """Robot-level checks of one frame (issue 9), each entry ``(name, hits, cells)``."""
+    """Robot-level checks of one frame (issue 9), each entry ``(name, hits, cells)``.
+
+    ``tolerant``: the cell counts with a one-cell tolerance (issue 22).
+    """
 
     objects: list[tuple[str, int, int]] = field(default_factory=list)
     passable: list[tuple[str, int, int]] = field(default_factory=list)
     drops: list[tuple[str, int, int]] = field(default_factory=list)
+    tolerant: TolerantCells = field(default_factory=TolerantCells)
 
 
 def robot_score(frame: LabelledFrame, predicted_grid: np.ndarray, params: DetectorParams,
@@ -442,7 +427,7 @@ def robot_score(frame: LabelledFrame, predicted_grid: np.ndarray, params: Detect
     """Named objects found, passable surfaces left free and drops marked in one frame."""
     from obstacle_detection.pipeline.costmap import costmap_geometry
 
-    score = RobotScore()
+    score = RobotScore(tolerant=metrics.tolerant_cells(predicted_grid, truth_grid, cells=1))
     if frame.object_ids is None or not frame.object_names:
         return score
     origin, nx, ny = costmap_geometry(params)
@@ -492,15 +477,6 @@ class FrameScore:
     robot: RobotScore | None = None
 
 
-def score_frame(frame: LabelledFrame, result: Any, params: DetectorParams,
-                truth_grid: np.ndarray | None = None) -> tuple[Confusion, Confusion]:
-    """(pixel confusion, cell confusion) of a pipeline result against the frame's truth."""
-    if truth_grid is None:
-        truth_grid = truth_costmap(frame, params)
-    return (metrics.pixel_confusion(result.labels, frame.truth_labels),
-            metrics.cell_confusion(result.costmap.data, truth_grid))
-
-
 @dataclass
 class SceneSummary:
     """Pooled scores of the frames of one scenario (or of all: name 'overall')."""
@@ -523,10 +499,11 @@ class SceneSummary:
         if score.robot is not None:
             self.robot = self.robot or RobotScore()
             tag = f'{score.scenario} {score.frame_id}'
-            for mine, theirs in ((self.robot.objects, score.robot.objects),
-                                 (self.robot.passable, score.robot.passable),
-                                 (self.robot.drops, score.robot.drops)):
-                mine.extend((f'{name} ({tag})', hits, cells) for name, hits, cells in theirs)
+            for kind in ('objects', 'passable', 'drops'):
+                getattr(self.robot, kind).extend(
+                    (f'{name} ({tag})', hits, cells)
+                    for name, hits, cells in getattr(score.robot, kind))
+            self.robot.tolerant += score.robot.tolerant
         if score.refined_pixel is not None and score.refined_cell is not None:
             self.refined_pixel = (self.refined_pixel or Confusion()) + score.refined_pixel
             self.refined_cell = (self.refined_cell or Confusion()) + score.refined_cell
@@ -561,9 +538,12 @@ class SceneSummary:
         if self.robot is not None:
             found, counted, missed = self.objects_found()
             marked, drops, unmarked = self.drops_marked()
+            tolerant = self.robot.tolerant
             out['robot'] = {'objects_found': found, 'objects': counted, 'missed': missed,
                             'passable_free': _json_number(self.passable_free()),
-                            'drops_marked': marked, 'drops': drops, 'unmarked': unmarked}
+                            'drops_marked': marked, 'drops': drops, 'unmarked': unmarked,
+                            'f1_one_cell': _json_number(tolerant.f1),
+                            'far_alarm_rate': _json_number(tolerant.far_alarm_rate)}
         return out
 
 
@@ -649,8 +629,9 @@ def evaluate_frames(frames: Iterable[LabelledFrame], base: DetectorParams, *,
     for frame, params, result, prev_mask in detect_frames(frames, base):
         roi = truth_roi(frame, params)
         grid = truth_costmap(frame, params, roi)
-        pixel, cell = score_frame(frame, result, params, grid)
-        score = FrameScore(frame.scenario, frame.frame_id, pixel, cell,
+        score = FrameScore(frame.scenario, frame.frame_id,
+                           metrics.pixel_confusion(result.labels, frame.truth_labels),
+                           metrics.cell_confusion(result.costmap.data, grid),
                            int(result.obstacle_points.shape[0]),
                            float(result.timings_ms.get('total', math.nan)))
         if frame.truth == 'robot':
@@ -670,63 +651,75 @@ def evaluate_frames(frames: Iterable[LabelledFrame], base: DetectorParams, *,
 # --------------------------------------------------------------------------------------------
 # Text output
 
-_COLUMNS = (('px P', 'pixel', 'precision'), ('px R', 'pixel', 'recall'),
-            ('px F1', 'pixel', 'f1'), ('px FA', 'pixel', 'false_alarm_rate'),
-            ('cell P', 'cell', 'precision'), ('cell R', 'cell', 'recall'),
-            ('cell F1', 'cell', 'f1'), ('IoU', 'cell', 'iou'),
-            ('cell FA', 'cell', 'false_alarm_rate'))
+def _table(report: Report, columns: Sequence[tuple[str, int, Callable[[Any], str]]],
+           ) -> list[str]:
+    """Fixed-width rows: one per scenario and 'overall'; ``columns``: (head, width, cell)."""
+    width = max([len('overall')] + [len(n) for n in report.scenes]) + 1
+    head = f'{"scenario":<{width}} ' + ' '.join(f'{h:>{w}}' for h, w, _ in columns)
+    lines = [head, '-' * len(head)]
+    for summary in [*report.scenes.values(), None, report.overall]:
+        lines.append('-' * len(head) if summary is None else f'{summary.name:<{width}} '
+                     + ' '.join(f'{cell(summary):>{w}}' for _, w, cell in columns))
+    return lines
+
+
+def _score_column(head: str, kind: str, attr: str, refined: bool = False, width: int = 7,
+                  ) -> tuple[str, int, Callable[[SceneSummary], str]]:
+    """Return a column of one confusion ratio (``kind`` 'pixel' or 'cell'), optionally refined."""
+    def cell(summary: SceneSummary) -> str:
+        confusion = getattr(summary, f'refined_{kind}' if refined else kind)
+        return format_score(getattr(confusion or Confusion(), attr))
+    return head, width, cell
+
+
+def _frames(summary: SceneSummary) -> str:
+    return str(summary.frames)
+
+
+def _percent(value: float, digits: int = 2) -> str:
+    return '-' if math.isnan(value) else f'{100 * value:.{digits}f}'
 
 
 def format_table(report: Report, *, refined: bool = False) -> str:
     """Return a fixed-width table: one row per scenario and an 'overall' row."""
-    width = max([len('overall')] + [len(n) for n in report.scenes]) + 1
-    head = f'{"scenario":<{width}} {"frames":>6} ' + ' '.join(
-        f'{c[0]:>7}' for c in _COLUMNS) + f' {"ms":>7}'
-    lines = [head, '-' * len(head)]
-    rows = list(report.scenes.values()) + [report.overall]
-    for i, summary in enumerate(rows):
-        if i == len(rows) - 1:
-            lines.append('-' * len(head))
-        pixel, cell = summary.pixel, summary.cell
-        if refined:
-            pixel = summary.refined_pixel or Confusion()
-            cell = summary.refined_cell or Confusion()
-        confusions = {'pixel': pixel, 'cell': cell}
-        cells = ' '.join(f'{format_score(getattr(confusions[kind], attr)):>7}'
-                         for _, kind, attr in _COLUMNS)
-        lines.append(f'{summary.name:<{width}} {summary.frames:>6} {cells} '
-                     f'{summary.mean_ms:>7.1f}')
-    return '\n'.join(lines)
+    columns = [('frames', 6, _frames)] + [
+        _score_column(head, kind, attr, refined) for head, kind, attr in (
+            ('px P', 'pixel', 'precision'), ('px R', 'pixel', 'recall'),
+            ('px F1', 'pixel', 'f1'), ('px FA', 'pixel', 'false_alarm_rate'),
+            ('cell P', 'cell', 'precision'), ('cell R', 'cell', 'recall'),
+            ('cell F1', 'cell', 'f1'), ('IoU', 'cell', 'iou'),
+            ('cell FA', 'cell', 'false_alarm_rate'))]
+    columns.append(('ms', 7, lambda s: f'{s.mean_ms:.1f}'))
+    return '\n'.join(_table(report, columns))
 
 
 #: Issue 9's targets for the robot-level suite (``params/corridor.yaml``).
 ROBOT_TARGETS = {'cell_f1': 0.9, 'false_alarm_rate': 0.01, 'passable_free': 0.97}
 
 
-def _share(hits: int, total: int) -> str:
-    return f'{hits}/{total}' if total else '-'
+def _share(reached: tuple[int, int, list[str]]) -> str:
+    return f'{reached[0]}/{reached[1]}' if reached[1] else '-'
 
 
 def format_robot_table(report: Report) -> str:
-    """Return the robot-level table: a row per scenario, 'overall', misses, targets."""
-    width = max([len('overall')] + [len(n) for n in report.scenes]) + 1
-    head = (f'{"scenario":<{width}} {"frames":>6} {"cell F1":>7} {"FA %":>6} {"objects":>8} '
-            f'{"pass %":>6} {"drops":>6} {"px F1":>6} {"ms":>6}')
-    lines = [head, '-' * len(head)]
-    rows = list(report.scenes.values()) + [report.overall]
-    for i, summary in enumerate(rows):
-        if i == len(rows) - 1:
-            lines.append('-' * len(head))
-        found, counted, _ = summary.objects_found()
-        marked, drops, _ = summary.drops_marked()
-        fa = summary.cell.false_alarm_rate
-        passable = summary.passable_free()
-        lines.append(
-            f'{summary.name:<{width}} {summary.frames:>6} {format_score(summary.cell.f1):>7} '
-            f'{"-" if math.isnan(fa) else f"{100 * fa:.2f}":>6} {_share(found, counted):>8} '
-            f'{"-" if math.isnan(passable) else f"{100 * passable:.1f}":>6} '
-            f'{_share(marked, drops):>6} {format_score(summary.pixel.f1):>6} '
-            f'{summary.mean_ms:>6.1f}')
+    """Return the robot-level table: a row per scenario, 'overall', misses, targets.
+
+    "F1 1-cell" counts a mark within one cell of a true obstacle (and back); "FA>1 cell %" is
+    the share of free cells marked with no true obstacle within one cell.
+    """
+    def tolerant(summary: SceneSummary) -> TolerantCells:
+        return summary.robot.tolerant if summary.robot else TolerantCells()
+
+    lines = _table(report, [
+        ('frames', 6, _frames), _score_column('cell F1', 'cell', 'f1'),
+        ('F1 1-cell', 9, lambda s: format_score(tolerant(s).f1)),
+        ('FA %', 6, lambda s: _percent(s.cell.false_alarm_rate)),
+        ('FA>1 cell %', 11, lambda s: _percent(tolerant(s).far_alarm_rate)),
+        ('objects', 8, lambda s: _share(s.objects_found())),
+        ('pass %', 6, lambda s: _percent(s.passable_free(), 1)),
+        ('drops', 6, lambda s: _share(s.drops_marked())),
+        _score_column('px F1', 'pixel', 'f1', width=6),
+        ('ms', 6, lambda s: f'{s.mean_ms:.1f}')])
     overall = report.overall
     found, counted, missed = overall.objects_found()
     marked, drops, unmarked = overall.drops_marked()
@@ -749,25 +742,16 @@ def format_robot_table(report: Report) -> str:
     return '\n'.join(lines)
 
 
-#: README-ready text on what the scores count.
+#: The short form of docs/accuracy.md, "What the scores count" (the tools' --help).
 SCORE_DEFINITIONS = """\
-What counts (obstacle = positive class; scores pool the counts of all frames of a row):
-  pixel: evaluated pixels are those where the truth saw a surface (label != no return) AND the
-         pipeline made a call (its label is ground or obstacle; no-depth and outside-ROI pixels
-         are left out). Predicted obstacle = pipeline label OBSTACLE; true = truth OBSTACLE.
-  cell:  truth grid in the costmap's geometry: occupied where a noise-free point of a truth
-         OBSTACLE pixel inside the ROI falls, free where only TRAVERSABLE points fall, unknown
-         (not evaluated) elsewhere. Predicted obstacle = costmap cell OCCUPIED (100); free and
-         unknown pipeline cells count as 'not obstacle'.
-  P precision tp/(tp+fp), R recall tp/(tp+fn), F1 2tp/(2tp+fp+fn), IoU tp/(tp+fp+fn),
-  FA false-alarm rate fp/(fp+tn): share of traversable truth marked obstacle. '-' = undefined.
-Robot-level suite (--suite robot): the truth is the robot-level one (box, table and shelf tops,
-  curbs, the lower floor beyond a drop are obstacles; ramps to a landing, sills traversable;
-  surfaces above the robot count as free); the truth grid keeps the forward range and lateral
-  limits of the ROI but no height band, and marks the cells where the floor ends at a drop.
-  objects: named obstacles found (>= 50 % of their visible cells occupied) / seen (>= 3 cells),
-  per frame; pass %: free truth cells of the passable named surfaces left free; drops: drops
-  whose edge cells are marked (>= 50 % within one cell) / seen. Flying pixels are not scored.
+What counts (obstacle = positive class; a row pools the counts of its frames):
+  pixel: pixels where the truth saw a surface and the pipeline called ground or obstacle;
+  cell:  the costmap's cells against a truth grid of the noise-free points (unknown cells are
+         not scored). P precision, R recall, F1, IoU, FA false-alarm rate fp/(fp+tn): the
+         share of traversable truth marked obstacle. '-' = undefined.
+Robot-level suite (--suite robot): objects found (>= 50 % of their cells occupied) / seen,
+  pass %: passable surfaces left free; drops marked; 1-cell: a mark within one cell counts.
+Details: docs/accuracy.md.
 """
 
 

@@ -90,11 +90,6 @@ class SweepResult:
     positives: dict[str, int] = field(default_factory=dict)
     also: tuple[Axis, ...] = ()
 
-    @property
-    def shape(self) -> tuple[int, ...]:
-        """Grid shape (ny, nx, *extra)."""
-        return grid_shape(self.x, self.y, self.also)
-
     def ranking(self, scene: str) -> tuple[np.ndarray, str, bool]:
         """(grid, metric name, higher is better) used to rank the settings of one scene."""
         kind, attr, higher = METRICS[self.metric]
@@ -129,12 +124,6 @@ def setting_of(x: Axis, y: Axis | None, also: Sequence[Axis], index: tuple[int, 
     return out
 
 
-def settings_params(base: DetectorParams, x: Axis, y: Axis | None, *index: int,
-                    also: Sequence[Axis] = ()) -> DetectorParams:
-    """Return ``base`` with grid cell ``index``'s setting applied (ValueError when invalid)."""
-    return evaluation.apply_overrides(base, setting_of(x, y, also, tuple(index)))
-
-
 def check_sweep(x: Axis, y: Axis | None, metric: str, also: Sequence[Axis] = ()) -> None:
     """Raise ValueError for an unknown metric or an axis given twice."""
     if metric not in METRICS:
@@ -151,7 +140,8 @@ def sweep_points(base: DetectorParams, x: Axis, y: Axis | None, also: Sequence[A
     points: list[tuple[tuple[int, ...], DetectorParams | ValueError]] = []
     for index in np.ndindex(*grid_shape(x, y, also)):
         try:
-            points.append((index, settings_params(base, x, y, *index, also=also)))
+            points.append((index, evaluation.apply_overrides(
+                base, setting_of(x, y, also, tuple(index)))))
         except ValueError as exc:
             points.append((index, exc))
     return points
