@@ -238,20 +238,12 @@ def folder_camera(path: str | Path) -> camera_file.CameraFile:
     return camera
 
 
-def truth_points_from_depth(depth_m: np.ndarray, intrinsics: Intrinsics, height_m: float,
-                            pitch_rad: float, roll_rad: float) -> np.ndarray:
-    """(H, W, 3) float32 ground-frame points of a depth image [m], NaN where depth is 0."""
-    params = DetectorParams(camera_height_m=height_m, camera_pitch_rad=pitch_rad,
-                            camera_roll_rad=roll_rad)
-    points, index = geometry.back_project(np.asarray(depth_m, dtype=np.float32), intrinsics)
-    out = np.full((depth_m.size, 3), np.nan, dtype=np.float32)
-    out[index] = geometry.to_ground(points, params)
-    return out.reshape(depth_m.shape + (3,))
-
-
 def load_labelled_folder(path: str | Path, *, max_frames: int | None = None,
-                         name: str | None = None) -> Iterator[LabelledFrame]:
-    """Frames of a labelled folder, in file-name order (a time sequence)."""
+                         ) -> Iterator[LabelledFrame]:
+    """Frames of a labelled folder, in file-name order (a time sequence).
+
+    The true points are the frame's own depth back-projected through the mount.
+    """
     root = Path(path)
     camera = folder_camera(root / 'intrinsics.yaml')
     depth_files = sorted((root / 'depth').glob('*.png'))
@@ -261,25 +253,30 @@ def load_labelled_folder(path: str | Path, *, max_frames: int | None = None,
     if missing:
         raise ValueError(f'{root}: no labels/ file for depth/{missing[0]} '
                          f'({len(missing)} missing)')
-    name = name or root.name
     scale = camera.depth_scale if camera.depth_scale is not None else 0.001
     height_m, pitch_rad, roll_rad = camera.mount
+    params = DetectorParams(camera_height_m=height_m, camera_pitch_rad=pitch_rad,
+                            camera_roll_rad=roll_rad)
     for depth_file in subsample(depth_files, max_frames):
         depth = read_depth_png(depth_file)
-        labels = cv2.imread(str(root / 'labels' / depth_file.name), cv2.IMREAD_UNCHANGED)
+        label_file = root / 'labels' / depth_file.name
+        labels = cv2.imread(str(label_file), cv2.IMREAD_UNCHANGED)
         if labels is None or labels.dtype != np.uint8 or labels.shape != depth.shape:
-            raise ValueError(f'{root / "labels" / depth_file.name}: not an 8-bit PNG of the '
-                             f'depth size {depth.shape[::-1]}')
+            raise ValueError(f'{label_file}: not an 8-bit PNG of the depth size '
+                             f'{depth.shape[::-1]}')
         if labels.max(initial=0) > GT_ABOVE_ROBOT:
-            raise ValueError(f'{root / "labels" / depth_file.name}: label value '
-                             f'{int(labels.max())} (allowed 0, 1, 2, 3)')
-        points = truth_points_from_depth(depth.astype(np.float32) * np.float32(scale),
-                                         camera.intrinsics, height_m, pitch_rad, roll_rad)
+            raise ValueError(f'{label_file}: label value {int(labels.max())} '
+                             '(allowed 0, 1, 2, 3)')
+        points, index = geometry.back_project(depth.astype(np.float32) * np.float32(scale),
+                                              camera.intrinsics)
+        truth_points = np.full((depth.size, 3), np.nan, dtype=np.float32)
+        truth_points[index] = geometry.to_ground(points, params)
         yield LabelledFrame(
-            scenario=name, frame_id=depth_file.stem, depth=depth,
-            intrinsics=camera.intrinsics, truth_labels=labels, truth_points=points,
-            height_m=height_m, pitch_rad=pitch_rad, roll_rad=roll_rad,
-            depth_scale=camera.depth_scale, sequence_key=name)
+            scenario=root.name, frame_id=depth_file.stem, depth=depth,
+            intrinsics=camera.intrinsics, truth_labels=labels,
+            truth_points=truth_points.reshape(depth.shape + (3,)), height_m=height_m,
+            pitch_rad=pitch_rad, roll_rad=roll_rad, depth_scale=camera.depth_scale,
+            sequence_key=root.name)
 
 
 # --------------------------------------------------------------------------------------------
@@ -348,16 +345,22 @@ def load_params_file(path: str | Path, base: DetectorParams | None = None,
 
 def truth_roi(frame: LabelledFrame, params: DetectorParams) -> np.ndarray:
     """(H, W) bool: pixels whose true point the truth costmap counts (robot: no height band)."""
-    flat = frame.truth_points.reshape(-1, 3)
+    return points_roi(frame.truth_points, params, robot=frame.truth == 'robot')
+
+
+def points_roi(points_ground: np.ndarray, params: DetectorParams, *,
+               robot: bool = False) -> np.ndarray:
+    """(H, W) bool: finite points (H, W, 3) in the region of interest (robot: no height band)."""
+    flat = points_ground.reshape(-1, 3)
     finite = np.isfinite(flat).all(axis=1)
     roi = np.zeros(flat.shape[0], dtype=bool)
-    if frame.truth == 'robot':
+    if robot:
         x, y = flat[finite, 0], flat[finite, 1]
         roi[finite] = ((x >= params.min_range_m) & (x <= params.max_range_m)
                        & (np.abs(y) <= params.lateral_limit_m))
     else:
         roi[finite] = geometry.roi_mask(flat[finite], params)
-    return roi.reshape(frame.truth_labels.shape)
+    return roi.reshape(points_ground.shape[:-1])
 
 
 #: Neighbouring obstacle samples of one surface at most this far apart span it [m].
@@ -464,13 +467,12 @@ def robot_score(frame: LabelledFrame, predicted_grid: np.ndarray, params: Detect
 
 @dataclass
 class FrameScore:
-    """Scores of one frame: pixel and cell confusions, obstacle count, time."""
+    """Scores of one frame: pixel and cell confusions, pipeline time [ms]."""
 
     scenario: str
     frame_id: str
     pixel: Confusion
     cell: Confusion
-    obstacle_points: int
     total_ms: float
     refined_pixel: Confusion | None = None
     refined_cell: Confusion | None = None
@@ -529,22 +531,20 @@ class SceneSummary:
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready scores (NaN becomes None)."""
-        out: dict[str, Any] = {'frames': self.frames, 'mean_ms': _json_number(self.mean_ms),
-                               'pixel': _json_dict(self.pixel.as_dict()),
-                               'cell': _json_dict(self.cell.as_dict())}
+        out: dict[str, Any] = {'frames': self.frames, 'mean_ms': self.mean_ms,
+                               'pixel': self.pixel.as_dict(), 'cell': self.cell.as_dict()}
         if self.refined_pixel is not None and self.refined_cell is not None:
-            out['refined'] = {'pixel': _json_dict(self.refined_pixel.as_dict()),
-                              'cell': _json_dict(self.refined_cell.as_dict())}
+            out['refined'] = {'pixel': self.refined_pixel.as_dict(),
+                              'cell': self.refined_cell.as_dict()}
         if self.robot is not None:
             found, counted, missed = self.objects_found()
             marked, drops, unmarked = self.drops_marked()
-            tolerant = self.robot.tolerant
             out['robot'] = {'objects_found': found, 'objects': counted, 'missed': missed,
-                            'passable_free': _json_number(self.passable_free()),
-                            'drops_marked': marked, 'drops': drops, 'unmarked': unmarked,
-                            'f1_one_cell': _json_number(tolerant.f1),
-                            'far_alarm_rate': _json_number(tolerant.far_alarm_rate)}
-        return out
+                            'passable_free': self.passable_free(), 'drops_marked': marked,
+                            'drops': drops, 'unmarked': unmarked,
+                            'f1_one_cell': self.robot.tolerant.f1,
+                            'far_alarm_rate': self.robot.tolerant.far_alarm_rate}
+        return _without_nan(out)
 
 
 def _reached(entries: list[tuple[str, int, int]], share: float,
@@ -554,12 +554,11 @@ def _reached(entries: list[tuple[str, int, int]], share: float,
     return len(entries) - len(missed), len(entries), missed
 
 
-def _json_number(value: float) -> float | None:
+def _without_nan(value: Any) -> Any:
+    """Return ``value`` with every NaN (in nested dicts too) replaced by None."""
+    if isinstance(value, dict):
+        return {k: _without_nan(v) for k, v in value.items()}
     return None if isinstance(value, float) and math.isnan(value) else value
-
-
-def _json_dict(values: dict[str, Any]) -> dict[str, Any]:
-    return {k: _json_number(v) for k, v in values.items()}
 
 
 @dataclass
@@ -632,7 +631,6 @@ def evaluate_frames(frames: Iterable[LabelledFrame], base: DetectorParams, *,
         score = FrameScore(frame.scenario, frame.frame_id,
                            metrics.pixel_confusion(result.labels, frame.truth_labels),
                            metrics.cell_confusion(result.costmap.data, grid),
-                           int(result.obstacle_points.shape[0]),
                            float(result.timings_ms.get('total', math.nan)))
         if frame.truth == 'robot':
             score.robot = robot_score(frame, result.costmap.data, params, grid, roi)

@@ -15,15 +15,15 @@ import cv2
 import numpy as np
 
 from obstacle_detection.labels import CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN
-from obstacle_detection.pipeline import geometry
 from . import metrics
 from obstacle_detection.pipeline.costmap import Costmap, build_costmap
 from obstacle_detection.pipeline.fusion import FusedGrid, FusionParams, frame_evidence
 from .metrics import Confusion
+from .runner import points_roi
 from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE, DetectorParams
 from obstacle_detection.pipeline.detector import Detector
 from obstacle_detection.sim.scenes import scene_params
-from obstacle_detection.sim.sequences import SceneSequence, SequenceFrame
+from obstacle_detection.sim.sequences import SceneSequence
 
 #: The blind zone of the memory score: ahead of the robot, x in [0, 0.5) m, |y| <= 0.3 m.
 BLIND_ZONE_X_M = (0.0, 0.5)
@@ -209,17 +209,6 @@ class _Lattice:
             (np.abs(left) <= BLIND_ZONE_HALF_WIDTH_M)
 
 
-def truth_points_in_roi(sf: SequenceFrame, params: DetectorParams,
-                        ) -> tuple[np.ndarray, np.ndarray]:
-    """(obstacle (O, 3), traversable (T, 3)) true base-frame points in the region of interest."""
-    flat = sf.frame.points_ground.reshape(-1, 3)
-    finite = np.isfinite(flat).all(axis=1)
-    roi = np.zeros(flat.shape[0], dtype=bool)
-    roi[finite] = geometry.roi_mask(flat[finite], params)
-    return metrics.truth_points(sf.frame.points_ground, sf.frame.labels,
-                                roi.reshape(sf.frame.labels.shape))
-
-
 #: Outline of the truth's obstacles in the contact sheet's panels.
 TRUTH_OUTLINE_RGB = (230, 120, 0)
 
@@ -286,7 +275,9 @@ def observe_sequence(sequence: SceneSequence, base: DetectorParams, *,
         if detector is None or detector.params != params:
             detector = Detector(params)
         result = detector.process(sf.frame.depth_mm, sf.frame.intrinsics)
-        obstacle, traversable = truth_points_in_roi(sf, params)
+        points = sf.frame.points_ground
+        obstacle, traversable = metrics.truth_points(points, sf.frame.labels,
+                                                     points_roi(points, params))
         truth = build_costmap(obstacle, traversable, params).data
         yield Observation(index=index, stamp_s=sf.stamp_s, pose_true=sf.pose_true,
                           pose_odom=sf.pose_odom, costmap=result.costmap,
