@@ -26,7 +26,7 @@ from obstacle_detection.evaluation import runner as evaluation
 from obstacle_detection.fleet import scoring
 from obstacle_detection.fleet.cluster import add_fleet_arguments, fleet_options, open_fleet
 from obstacle_detection.evaluation.sweep import (METRICS, SweepResult, format_grid, grid_shape,
-                                                 parse_axis, project, run_sweep)
+                                                 parse_axis, run_sweep)
 from obstacle_detection.pipeline.params import DetectorParams
 from obstacle_detection.cli.evaluation_args import (add_common_arguments, base_params,
                                                    frame_sources, report_error)
@@ -165,12 +165,9 @@ def _write_heatmaps(args: argparse.Namespace, result: SweepResult) -> None:
 
     panels = []
     for scene in result.grids:
-        grid, metric, higher = result.ranking(scene)
-        flat = project(grid, higher_is_better=higher)
+        flat, _, higher, title = result.view(scene)
         best = result.best(scene)
-        title = f'{scene}: {metric}' + ('' if higher else ' (colour: 1 - value)')
-        if result.also:
-            title += ' (best over ' + ', '.join(a.name for a in result.also) + ')'
+        title += '' if higher else ' (colour: 1 - value)'
         panels.append(pictures.heatmap(
             flat if higher else 1.0 - flat, list(args.x.values),
             list(args.y.values) if args.y else [''], title=title, x_name=args.x.name,

@@ -163,16 +163,12 @@ def load_scenarios(path: str | Path) -> list[Scenario]:
 def select_scenarios(scenarios: Sequence[Scenario], names: Iterable[str] | None,
                      ) -> list[Scenario]:
     """Return the scenarios named (all when ``names`` is None); ValueError for an unknown name."""
-    if names is None:
-        return list(scenarios)
     by_name = {s.name: s for s in scenarios}
-    chosen = []
-    for name in names:
-        if name not in by_name:
-            raise EvaluationError(f'unknown scenario {name!r}; known: {", ".join(by_name)}',
-                                  usage=True)
-        chosen.append(by_name[name])
-    return chosen
+    unknown = [name for name in names or () if name not in by_name]
+    if unknown:
+        raise EvaluationError(f'unknown scenario {unknown[0]!r}; known: {", ".join(by_name)}',
+                              usage=True)
+    return list(scenarios) if names is None else [by_name[name] for name in names]
 
 
 def scenario_frames(scenario: Scenario, *, max_frames: int | None = None,

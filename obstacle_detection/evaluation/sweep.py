@@ -52,8 +52,6 @@ def best_of_grid(scores: np.ndarray, *, higher_is_better: bool = True,
                  ) -> tuple[int, ...] | None:
     """Index of the best finite score (first in row-major order), None when none is finite."""
     grid = np.asarray(scores, dtype=np.float64)
-    if grid.ndim < 1:
-        raise ValueError(f'scores must be a grid, got shape {grid.shape}')
     finite = np.isfinite(grid)
     if not finite.any():
         return None
@@ -105,6 +103,14 @@ class SweepResult:
         """Index (row, col, *extra) of the best setting of one scene ('overall' included)."""
         grid, _, higher = self.ranking(scene)
         return best_of_grid(grid, higher_is_better=higher)
+
+    def view(self, scene: str) -> tuple[np.ndarray, str, bool, str]:
+        """(ny, nx) best over the extra axes, metric, higher is better, title of one scene."""
+        grid, metric, higher = self.ranking(scene)
+        title = f'{scene}: {metric}'
+        if self.also:
+            title += f' (best over {", ".join(a.name for a in self.also)})'
+        return project(grid, higher_is_better=higher), metric, higher, title
 
 
 def grid_shape(x: Axis, y: Axis | None, also: Sequence[Axis] = ()) -> tuple[int, ...]:
@@ -197,16 +203,12 @@ def run_sweep(frames: Sequence[evaluation.LabelledFrame], base: DetectorParams, 
 
 def format_grid(result: SweepResult, scene: str) -> str:
     """Return the grid of one scene as text: rows = y, columns = x; best marked '*'."""
-    grid, metric, higher = result.ranking(scene)
-    flat = project(grid, higher_is_better=higher)
+    flat, _, _, title = result.view(scene)
     best = result.best(scene)
     y_name = result.y.name if result.y is not None else ''
     y_values = result.y.values if result.y is not None else ('',)
     width = max(8, *(len(v) + 2 for v in result.x.values))
     first = max(len(y_name), *(len(v) for v in y_values), len(result.x.name) + 3) + 1
-    title = f'{scene}: {metric}'
-    if result.also:
-        title += f' (best over {", ".join(a.name for a in result.also)})'
     lines = [title,
              f'{y_name + " / " + result.x.name if y_name else result.x.name:<{first}}'
              + ''.join(f'{v:>{width}}' for v in result.x.values)]
