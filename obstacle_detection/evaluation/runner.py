@@ -89,14 +89,14 @@ class Scenario:
     noise: str = 'kinect_v2'
 
     def __post_init__(self) -> None:
-        allowed = {'truth': TRUTH_KINDS, 'noise': NOISE_MODELS, 'mount': _MOUNT_KEYS}
-        for key, value in (('truth', [self.truth]), ('noise', [self.noise]),
-                           ('mount', [k for k, _ in self.mount])):
-            if set(value) - set(allowed[key]):
-                raise ValueError(f'scenario {self.name!r}: {key}={", ".join(value)!r} '
-                                 f'(allowed: {", ".join(allowed[key])})')
         if not self.name or not self.seeds:
             raise ValueError(f'scenario {self.name!r}: name and seeds must not be empty')
+        for key, given, allowed in (('truth', {self.truth}, TRUTH_KINDS),
+                                    ('noise', {self.noise}, NOISE_MODELS),
+                                    ('mount', {k for k, _ in self.mount}, _MOUNT_KEYS)):
+            if given - set(allowed):
+                raise ValueError(f'scenario {self.name!r}: {key}={", ".join(sorted(given))!r} '
+                                 f'(allowed: {", ".join(allowed)})')
 
     @property
     def is_sequence(self) -> bool:
