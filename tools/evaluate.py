@@ -5,11 +5,13 @@ Scores a committed scenario suite (``--suite seed``: the seed's slope-only truth
 robot``: the robot-level truth, with a table of objects found, passable surfaces left free and
 one-cell-tolerance scores) and/or labelled folders (``depth/*.png``, ``labels/*.png``,
 ``intrinsics.yaml``); prints a table and one JSON line (the last line of stdout, or ``--json
-FILE``). ``--real DIR`` scores unlabelled real frames by their height above the floor::
+FILE``). ``--real DIR`` scores unlabelled real frames by their height above the floor;
+``--sequence NAME`` the fused costmap over a scene sequence beside the per-frame one::
 
     python tools/evaluate.py --preset table_4_3 --scene corridor --scene people
     python tools/evaluate.py --suite robot --params-file params/corridor.yaml --workers 2
     python tools/evaluate.py --real ../shared/data/real --set K=17
+    python tools/evaluate.py --sequence person_crossing --no-odometry
 
 With Dask installed the scenarios run on a local cluster (``--workers 0``: in this process).
 """
@@ -27,7 +29,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from obstacle_detection.cli.evaluation_args import (add_common_arguments, base_params,
-                                                   frame_sources, report_error)
+                                                   frame_sources, parse_assignment,
+                                                   report_error)
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.evaluation import runner as evaluation
 from obstacle_detection.fleet import scoring
@@ -36,6 +39,7 @@ from obstacle_detection.fleet.cluster import (Fleet, add_fleet_arguments, fleet_
 from obstacle_detection.labels import (CELL_FREE, CELL_OCCUPIED, GT_NO_RETURN, GT_OBSTACLE,
                                        GT_TRAVERSABLE, LABEL_OBSTACLE)
 from obstacle_detection.pipeline.params import DetectorParams, Intrinsics
+from obstacle_detection.sim.sequences import SEQUENCE_NAMES
 
 #: The frames of ../shared/data/real/README.md: (folder, files, units per metre, intrinsics).
 REAL_FRAMES = (
@@ -82,6 +86,26 @@ def build_parser() -> argparse.ArgumentParser:
                              'tum_fr2_desk/, dining_room/) by height above the fitted floor')
     parser.add_argument('--quiet', action='store_true', help='no per-frame progress lines')
     add_fleet_arguments(parser)
+    video = parser.add_argument_group('the fused costmap over scene sequences (--sequence)')
+    video.add_argument('--sequence', action='append', choices=(*SEQUENCE_NAMES, 'all'),
+                       help='instead, score the fused costmap over this scene sequence '
+                            "(repeatable; 'all': every one); docs/accuracy.md says what counts")
+    video.add_argument('--fusion', action='append', type=parse_assignment, default=[],
+                       metavar='KEY=NUMBER',
+                       help='a FusionParams field (size_m, resolution_m, hit_log_odds, '
+                            'miss_log_odds, min_log_odds, max_log_odds, occupied_log_odds, '
+                            'free_log_odds, max_jump_m, max_jump_deg); repeatable')
+    video.add_argument('--seed', type=int, default=0, help='sequence seed [default: 0]')
+    video.add_argument('--frames', type=int, metavar='N',
+                       help='only the first N frames of each sequence')
+    video.add_argument('--no-odometry', action='store_true',
+                       help='fuse every frame in place (as without odometry)')
+    video.add_argument('--exact-odometry', action='store_true',
+                       help='odometry without drift or noise (the true poses)')
+    video.add_argument('--sheet', type=Path, metavar='PNG',
+                       help='write a contact sheet of per-frame and fused grids over time')
+    video.add_argument('--sheet-frames', type=int, default=4, metavar='N',
+                       help='moments per sequence on the sheet [default: 4]')
     return parser
 
 
@@ -92,6 +116,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         params = base_params(args)
         if args.real is not None:
             return _score_real_frames(args.real, params)
+        if args.sequence:
+            return _score_sequences(args, params)
         sources = frame_sources(args)
         refiner = None
         if args.refiner is not None:
@@ -158,12 +184,61 @@ def _evaluate(args: Any, params: DetectorParams, sources: Any, refiner: Any,
             if counts:
                 print(f'{name:<24} ' + ', '.join(f'{n} {k}' for k, n in counts.most_common()),
                       file=out)
-    line = json.dumps(report.as_dict(), sort_keys=True)
-    if args.json in (None, '-'):
+    _write_json(args.json, report.as_dict())
+    return 0
+
+
+def _score_sequences(args: Any, params: DetectorParams) -> int:
+    """Print the fused and per-frame scores of the sequences, the JSON line; the sheet."""
+    from obstacle_detection.evaluation import video
+    from obstacle_detection.pipeline.fusion import FusionParams
+    from obstacle_detection.sim.sequences import PERFECT_ODOMETRY, OdometryModel, SceneSequence
+
+    for name, value, low in (('--frames', args.frames, 1), ('--seed', args.seed, 0),
+                             ('--sheet-frames', args.sheet_frames, 1)):
+        if value is not None and value < low:
+            raise tool_support.ToolError(f'argument {name}: {value} must be >= {low}',
+                                         usage=True)
+    try:
+        fusion = FusionParams(**{key: float(value) for key, value in args.fusion})
+    except (TypeError, ValueError) as exc:
+        raise tool_support.ToolError(f'argument --fusion: {exc}', usage=True) from None
+    if args.sheet is not None and args.sheet.suffix.lower() != '.png':
+        raise tool_support.ToolError(args.sheet, 'the contact sheet must be a .png file')
+    reports = []
+    for name in SEQUENCE_NAMES if 'all' in args.sequence else args.sequence:
+        def progress(index: int, total: int, name: str = name) -> None:
+            if not args.quiet and (index + 1 == total or (index + 1) % 30 == 0):
+                print(f'evaluate: {name} frame {index + 1}/{total}', file=sys.stderr,
+                      flush=True)
+
+        sequence = SceneSequence(name, seed=args.seed, odometry=PERFECT_ODOMETRY
+                                 if args.exact_odometry else OdometryModel())
+        reports.append(video.evaluate_sequence(
+            sequence, params, fusion, stop=args.frames, use_odometry=not args.no_odometry,
+            sheet_frames=args.sheet_frames if args.sheet is not None else 0,
+            on_frame=progress))
+    label = args.preset + ''.join(f' + {path}' for path in args.params_file)
+    out = sys.stderr if args.json == '-' else sys.stdout
+    print(f'parameters: {label}; fusion: {fusion}', file=out)
+    print(video.format_table(reports), file=out)
+    if args.sheet is not None:
+        from obstacle_detection.viz import pictures
+
+        pictures.write_png(args.sheet, video.contact_sheet(reports, fusion))
+        print(f'contact sheet: {args.sheet}', file=out)
+    _write_json(args.json, {'fusion': fusion.__dict__,
+                            'sequences': [r.as_dict() for r in reports]})
+    return 0
+
+
+def _write_json(path: str | None, data: dict) -> None:
+    """Print ``data`` as the last line of stdout, or write it to ``path`` ('-': print)."""
+    line = json.dumps(data, sort_keys=True)
+    if path in (None, '-'):
         print(line)
     else:
-        Path(args.json).write_text(line + '\n', encoding='utf-8')
-    return 0
+        Path(path).write_text(line + '\n', encoding='utf-8')
 
 
 def false_alarm_causes(frame: evaluation.LabelledFrame, result: Any,

@@ -458,6 +458,28 @@ def evaluate_sequence(sequence: SceneSequence, base: DetectorParams,
                           use_odometry=use_odometry, sheet_frames=sheet_frames)
 
 
+def contact_sheet(reports: Sequence[SequenceReport], fusion: FusionParams) -> np.ndarray:
+    """Stack the reports' sheets one under the other, with a title and a legend (RGB)."""
+    from obstacle_detection.viz import pictures
+    from obstacle_detection.viz.overlay import FREE_RGB, OCCUPIED_RGB, ROBOT_RGB, UNKNOWN_RGB
+
+    drawn = [r for r in reports if r.sheet is not None]
+    width = max(r.sheet.shape[1] for r in drawn)
+    rows = [np.pad(r.sheet, ((0, 0), (0, width - r.sheet.shape[1]), (0, 0)),
+                   constant_values=255) for r in drawn]
+    legend = pictures.legend(
+        f'each pair: per-frame costmap moved into odom | fused costmap; a {fusion.size_m:g} m '
+        f'x {fusion.size_m:g} m window around the robot, north-up in odom (x up, y left), '
+        f'{fusion.resolution_m * 100:g} cm cells', [
+            ('box', OCCUPIED_RGB, 'occupied'), ('box', FREE_RGB, 'free'),
+            ('box', UNKNOWN_RGB, 'unknown'),
+            ('line', TRUTH_OUTLINE_RGB, "the truth's obstacles seen so far"),
+            ('triangle', ROBOT_RGB, 'robot (a disc, a line along its heading)')], width)
+    names = ', '.join(r.name for r in drawn)
+    return pictures.titled(np.vstack(rows), f'Per-frame and fused costmaps over time: {names}',
+                           below=legend)
+
+
 def format_table(reports: list[SequenceReport]) -> str:
     """Per-frame and fused side by side, one block of rows per sequence (Markdown)."""
     from .metrics import format_score
