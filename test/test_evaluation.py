@@ -162,9 +162,9 @@ def test_sequence_frames_pass_the_previous_rule_based_mask():
 def test_report_pools_counts_and_serialises_nan_as_null():
     summary = evaluation.SceneSummary('x')
     summary.add(evaluation.FrameScore('x', '0', Confusion(0, 0, 0, 5), Confusion(1, 1, 0, 2),
-                                      0, 10.0))
+                                      10.0))
     summary.add(evaluation.FrameScore('x', '1', Confusion(0, 1, 0, 5), Confusion(1, 0, 1, 2),
-                                      0, 20.0))
+                                      20.0))
     assert summary.cell == Confusion(2, 1, 1, 4) and summary.mean_ms == 15.0
     data = summary.as_dict()
     assert data['pixel']['recall'] is None
@@ -313,7 +313,7 @@ def test_robot_summary_pools_found_objects_passable_cells_and_drops():
                                                         [('ramp', 9, 10)], [('drop', 2, 4)])),
                             ('1', evaluation.RobotScore([('box', 2, 4)], [('ramp', 10, 10)],
                                                         [('drop', 1, 4)]))):
-        summary.add(evaluation.FrameScore('x', frame_id, Confusion(), Confusion(), 0, 1.0,
+        summary.add(evaluation.FrameScore('x', frame_id, Confusion(), Confusion(), 1.0,
                                           robot=robot))
     assert summary.objects_found() == (2, 3, ['table (x 0)'])
     assert summary.passable_free() == pytest.approx(19 / 20)
@@ -325,26 +325,22 @@ def test_robot_summary_pools_found_objects_passable_cells_and_drops():
 def test_evaluate_robot_suite_prints_the_robot_table(tmp_path, capsys):
     out = tmp_path / 'report.json'
     code = evaluate.main(['--suite', 'robot', '--scene', 'dock_edge', '--scene', 'curb_sill',
-                          '--json', str(out), '--quiet', '--workers', '0'])
+                          '--json', str(out), '--quiet', '--causes'])
     assert code == 0
     table = capsys.readouterr().out
     assert 'robot level' in table and 'objects' in table and 'targets:' in table
+    assert 'F1 1-cell' in table and 'false-alarm cells by cause' in table
     report = json.loads(out.read_text())
     assert report['scenes']['dock_edge']['robot']['drops'] == 1
     assert report['scenes']['curb_sill']['robot']['objects'] == 1     # the curb
     assert report['overall']['robot']['passable_free'] is not None      # the sill
+    assert report['overall']['robot']['f1_one_cell'] >= report['overall']['cell']['f1']
 
 
-def test_evaluate_prints_the_seed_presets_beside_the_robot_suite(tmp_path, capsys):
-    out = tmp_path / 'report.json'
-    code = evaluate.main(['--suite', 'robot', '--scene', 'curb_sill', '--max-frames', '1',
-                          '--beside-seed', 'table_4_3', '--json', str(out), '--quiet'])
-    assert code == 0
-    assert 'beside it, the seed suite' in capsys.readouterr().out
-    beside = json.loads(out.read_text())['beside_seed']
-    assert list(beside) == ['table_4_3']
-    suite = evaluation.load_scenarios(SUITE)
-    assert beside['table_4_3']['frames'] == len(suite)      # one frame per seed scenario
+def test_evaluate_real_frames_names_a_missing_frame(tmp_path, capsys):
+    assert evaluate.main(['--real', str(tmp_path)]) == 1
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and str(tmp_path / 'tum_office' / 'depth.png') in err
 
 
 def test_robot_truth_leaves_the_gaps_of_a_grazing_underside_unscored():

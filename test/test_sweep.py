@@ -48,7 +48,7 @@ def test_tiny_sweep_best_is_the_argmax_of_its_own_scores(small_frames):
     row, col = result.best('corridor')
     assert grid[row, col] == np.nanmax(grid)
     # Each cell is what a plain evaluation with that setting gives.
-    params = grid_search.settings_params(table_4_2(), x, y, row, col)
+    params = evaluation.apply_overrides(table_4_2(), result.setting(row, col))
     report = evaluation.evaluate_frames(small_frames, params)
     assert report.scenes['corridor'].cell.f1 == pytest.approx(grid[row, col])
 
@@ -62,11 +62,9 @@ def test_invalid_setting_is_nan_not_an_error(small_frames):
 
 def test_command_prints_grid_names_best_and_saves_heatmap(tmp_path, capsys):
     out = tmp_path / 'heat.png'
-    strip = tmp_path / 'strip.png'
     data = tmp_path / 'grid.json'
     code = sweep.main(['--x', 'theta_deg=20,60', '--y', 'N1=0,12', '--scene', 'ramps',
-                       '--out', str(out), '--strip', 'x', '--strip-out', str(strip),
-                       '--json', str(data), '--workers', '0'])
+                       '--out', str(out), '--json', str(data), '--workers', '0'])
     assert code == 0
     text = capsys.readouterr().out
     assert 'best setting per scenario' in text and 'ramps' in text
@@ -74,7 +72,7 @@ def test_command_prints_grid_names_best_and_saves_heatmap(tmp_path, capsys):
     grid = np.array(saved['grids']['ramps'], dtype=float)
     row, col = np.unravel_index(np.nanargmax(grid), grid.shape)
     assert saved['best']['ramps'] == {'theta_deg': ['20', '60'][col], 'N1': ['0', '12'][row]}
-    assert cv2.imread(str(out)) is not None and cv2.imread(str(strip)) is not None
+    assert cv2.imread(str(out)) is not None
 
 
 def test_command_refuses_an_unknown_axis(capsys):

@@ -139,7 +139,7 @@ def test_the_report_is_json_and_the_sheet_an_image():
 
 
 def run_tool(*args):
-    return subprocess.run([sys.executable, str(REPO / 'tools' / 'evaluate_video.py'), *args],
+    return subprocess.run([sys.executable, str(REPO / 'tools' / 'evaluate.py'), *args],
                           capture_output=True, text=True, timeout=300, cwd=REPO)
 
 
@@ -163,7 +163,7 @@ def test_tool_scores_a_few_frames_and_draws_the_sheet(tmp_path):
     (['--sheet', 'out.jpg'], 1, 'error: out.jpg: .*png'),
 ])
 def test_tool_refuses_bad_input_with_one_line(args, code, words):
-    run = run_tool(*args)
+    run = run_tool('--sequence', 'all', *args)
     assert run.returncode == code
     assert 'Traceback' not in run.stderr
     assert len(run.stderr.strip().splitlines()) == 1

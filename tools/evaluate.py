@@ -2,12 +2,16 @@
 """Score the obstacle detector against ground truth: per scenario and overall.
 
 Scores a committed scenario suite (``--suite seed``: the seed's slope-only truth; ``--suite
-robot``: the robot-level truth, with a table of objects found and passable surfaces left free)
-and/or labelled folders (``depth/*.png``, ``labels/*.png``, ``intrinsics.yaml``); prints a table
-and one JSON line (the last line of stdout, or ``--json FILE``)::
+robot``: the robot-level truth, with a table of objects found, passable surfaces left free and
+one-cell-tolerance scores) and/or labelled folders (``depth/*.png``, ``labels/*.png``,
+``intrinsics.yaml``); prints a table and one JSON line (the last line of stdout, or ``--json
+FILE``). ``--real DIR`` scores unlabelled real frames by their height above the floor;
+``--sequence NAME`` the fused costmap over a scene sequence beside the per-frame one::
 
     python tools/evaluate.py --preset table_4_3 --scene corridor --scene people
     python tools/evaluate.py --suite robot --params-file params/corridor.yaml --workers 2
+    python tools/evaluate.py --real ../shared/data/real --set K=17
+    python tools/evaluate.py --sequence person_crossing --no-odometry
 
 With Dask installed the scenarios run on a local cluster (``--workers 0``: in this process).
 """
@@ -18,18 +22,37 @@ import argparse
 import itertools
 import json
 import sys
+from collections import Counter
 from pathlib import Path
 from typing import Any, Sequence
 
-from obstacle_detection.cli import evaluation_args
-from obstacle_detection.cli.evaluation_args import (SUITES, add_common_arguments, base_params,
-                                                   frame_sources, report_error)
+import numpy as np
+
+from obstacle_detection.cli.evaluation_args import (add_common_arguments, base_params,
+                                                   frame_sources, parse_assignment,
+                                                   report_error)
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.evaluation import runner as evaluation
 from obstacle_detection.fleet import scoring
 from obstacle_detection.fleet.cluster import (Fleet, add_fleet_arguments, fleet_options,
                                               open_fleet)
-from obstacle_detection.pipeline.params import PRESETS, DetectorParams
+from obstacle_detection.labels import (CELL_FREE, CELL_OCCUPIED, GT_NO_RETURN, GT_OBSTACLE,
+                                       GT_TRAVERSABLE, LABEL_OBSTACLE)
+from obstacle_detection.pipeline.params import DetectorParams, Intrinsics
+from obstacle_detection.sim.sequences import SEQUENCE_NAMES
+
+#: The frames of ../shared/data/real/README.md: (folder, files, units per metre, intrinsics).
+REAL_FRAMES = (
+    ('tum_office', ('depth.png',), 5000.0, Intrinsics(535.4, 539.2, 320.1, 247.6)),
+    ('tum_fr2_desk', ('depth_1.png', 'depth_2.png'), 5000.0,
+     Intrinsics(520.9, 521.0, 325.1, 249.7)),
+    ('dining_room', tuple(f'depth_{i}.pgm' for i in range(1, 6)), 1000.0,
+     Intrinsics(518.0, 519.0, 325.5, 253.5)),
+)
+#: Real frames: floor pixels lie within FLOOR_BAND_M of the fitted floor; standing pixels
+#: STANDING_M above it up to the robot height.
+FLOOR_BAND_M = 0.02
+STANDING_M = 0.05
 
 
 def _progress(total: int, label: str) -> Any:
@@ -55,46 +78,35 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--json', metavar='FILE',
                         help="write the JSON report to FILE instead of printing it as the last "
                              "line ('-': print only the JSON line, table to stderr)")
-    parser.add_argument('--pictures', type=Path, metavar='DIR',
-                        help='also save one PNG per frame (depth + obstacles, costmap, '
-                             'comparison with the truth)')
+    parser.add_argument('--causes', action='store_true',
+                        help='also count the false-alarm cells of each scenario by cause '
+                             '(docs/accuracy.md)')
+    parser.add_argument('--real', type=Path, metavar='DIR',
+                        help='instead, score the real frames of DIR (tum_office/, '
+                             'tum_fr2_desk/, dining_room/) by height above the fitted floor')
     parser.add_argument('--quiet', action='store_true', help='no per-frame progress lines')
-    parser.add_argument('--beside-seed', action='append', choices=sorted(PRESETS), default=[],
-                        metavar='PRESET',
-                        help='also print the overall row of this preset on the seed suite '
-                             '(repeatable)')
     add_fleet_arguments(parser)
+    video = parser.add_argument_group('the fused costmap over scene sequences (--sequence)')
+    video.add_argument('--sequence', action='append', choices=(*SEQUENCE_NAMES, 'all'),
+                       help='instead, score the fused costmap over this scene sequence '
+                            "(repeatable; 'all': every one); docs/accuracy.md says what counts")
+    video.add_argument('--fusion', action='append', type=parse_assignment, default=[],
+                       metavar='KEY=NUMBER',
+                       help='a FusionParams field (size_m, resolution_m, hit_log_odds, '
+                            'miss_log_odds, min_log_odds, max_log_odds, occupied_log_odds, '
+                            'free_log_odds, max_jump_m, max_jump_deg); repeatable')
+    video.add_argument('--seed', type=int, default=0, help='sequence seed [default: 0]')
+    video.add_argument('--frames', type=int, metavar='N',
+                       help='only the first N frames of each sequence')
+    video.add_argument('--no-odometry', action='store_true',
+                       help='fuse every frame in place (as without odometry)')
+    video.add_argument('--exact-odometry', action='store_true',
+                       help='odometry without drift or noise (the true poses)')
+    video.add_argument('--sheet', type=Path, metavar='PNG',
+                       help='write a contact sheet of per-frame and fused grids over time')
+    video.add_argument('--sheet-frames', type=int, default=4, metavar='N',
+                       help='moments per sequence on the sheet [default: 4]')
     return parser
-
-
-def seed_suite_rows(presets: Sequence[str], max_frames: int | None, fleet: Fleet | None = None,
-                    ) -> list[tuple[str, evaluation.SceneSummary]]:
-    """Return the seed suite's overall summary per preset (on ``fleet``: a task per scenario)."""
-    scenarios = evaluation.load_scenarios(SUITES['seed'])
-    if fleet is not None and fleet.distributed:
-        sources = [(s.name, s.frame_count, evaluation_args.LazyFrames(
-            evaluation.scenario_frames, s, max_frames=max_frames)) for s in scenarios]
-        points = [PRESETS[name]() for name in presets]
-        scores = scoring.score_points(fleet, sources, points, label='beside-seed')
-        return [(name, evaluation.pool_scores(part, point, label=name).overall)
-                for name, point, part in zip(presets, points, scores)]
-    frames = [frame for scenario in scenarios
-              for frame in evaluation.scenario_frames(scenario, max_frames=max_frames)]
-    return [(name, evaluation.evaluate_frames(frames, PRESETS[name](), label=name).overall)
-            for name in presets]
-
-
-def format_seed_rows(rows: Sequence[tuple[str, evaluation.SceneSummary]]) -> str:
-    """Return the seed-suite rows: preset, frames, pixel F1, cell F1, cell FA (fractions)."""
-    width = max([len('preset')] + [len(name) for name, _ in rows]) + 1
-    head = f'{"preset":<{width}} {"frames":>6} {"px F1":>7} {"cell F1":>7} {"cell FA":>7}'
-    lines = [head, '-' * len(head)]
-    for name, summary in rows:
-        lines.append(f'{name:<{width}} {summary.frames:>6} '
-                     f'{evaluation.format_score(summary.pixel.f1):>7} '
-                     f'{evaluation.format_score(summary.cell.f1):>7} '
-                     f'{evaluation.format_score(summary.cell.false_alarm_rate):>7}')
-    return '\n'.join(lines)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -102,14 +114,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         params = base_params(args)
+        if args.real is not None:
+            return _score_real_frames(args.real, params)
+        if args.sequence:
+            return _score_sequences(args, params)
         sources = frame_sources(args)
         refiner = None
         if args.refiner is not None:
             from obstacle_detection.pipeline.refine import LogisticRefiner
             refiner = LogisticRefiner.load(args.refiner)
-        if args.pictures is not None:
+        if args.causes:
             if args.workers or args.scheduler:
-                raise tool_support.ToolError('--pictures draws in this process: leave out '
+                raise tool_support.ToolError('--causes works in this process: leave out '
                                              '--workers/--scheduler', usage=True)
             args.workers = 0
     except (ValueError, OSError) as exc:
@@ -131,72 +147,192 @@ def _evaluate(args: Any, params: DetectorParams, sources: Any, refiner: Any,
     callbacks = []
     if not args.quiet:
         callbacks.append(_progress(total, 'evaluate'))
-    if args.pictures is not None:
-        callbacks.append(_picture_writer(args.pictures, refiner, params))
+    causes: dict[str, Counter] = {}
+    if args.causes:
+        callbacks.append(lambda frame, result, score: causes.setdefault(
+            frame.scenario, Counter()).update(false_alarm_causes(frame, result, params)))
     frames = itertools.chain.from_iterable(frames for _, _, frames in sources)
     label = args.preset + ''.join(f' + {path}' for path in args.params_file)
-
-    def on_frame(frame: evaluation.LabelledFrame, result: Any,
-                 score: evaluation.FrameScore) -> None:
-        for callback in callbacks:
-            callback(frame, result, score)
-
-    try:
-        if fleet.distributed:
-            print(f'evaluate: {len(sources)} sequences on {fleet.description}',
-                  file=sys.stderr, flush=True)
-            report = scoring.evaluate_on_fleet(
-                fleet, sources, params, label=label, refiner=refiner,
-                refiner_name=str(args.refiner) if args.refiner else None,
-                progress=not args.quiet)
-        else:
-            report = evaluation.evaluate_frames(
-                frames, params, label=label, refiner=refiner,
-                refiner_name=str(args.refiner) if args.refiner else None, on_frame=on_frame)
-    except (ValueError, OSError) as exc:
-        return report_error('evaluate', exc)
-    table_stream = sys.stderr if args.json == '-' else sys.stdout
-    print(f'parameters: {label}; {report.overall.frames} frames in {report.seconds:.1f} s',
-          file=table_stream)
-    print(evaluation.format_table(report), file=table_stream)
-    if report.overall.robot is not None:
-        print('\nrobot level (issue 9):', file=table_stream)
-        print(evaluation.format_robot_table(report), file=table_stream)
-    if refiner is not None:
-        print(f'\nrefined by {args.refiner} (seed 4.5 logistic regression):', file=table_stream)
-        print(evaluation.format_table(report, refined=True), file=table_stream)
-    data = report.as_dict()
-    if args.beside_seed:
-        try:
-            rows = seed_suite_rows(args.beside_seed, args.max_frames, fleet)
-        except (ValueError, OSError) as exc:
-            print(f'evaluate.py: error: {exc}', file=sys.stderr)
-            return 2
-        print('\nbeside it, the seed suite (scenarios.json, slope-only truth), overall:',
-              file=table_stream)
-        print(format_seed_rows(rows), file=table_stream)
-        data['beside_seed'] = {name: summary.as_dict() for name, summary in rows}
-    line = json.dumps(data, sort_keys=True)
-    if args.json in (None, '-'):
-        print(line)
+    refiner_name = str(args.refiner) if args.refiner else None
+    if fleet.distributed:
+        print(f'evaluate: {len(sources)} sequences on {fleet.description}',
+              file=sys.stderr, flush=True)
+        report = scoring.evaluate_on_fleet(fleet, sources, params, label=label,
+                                           refiner=refiner, refiner_name=refiner_name,
+                                           progress=not args.quiet)
     else:
-        Path(args.json).write_text(line + '\n', encoding='utf-8')
+        def on_frame(*frame_result_score: Any) -> None:
+            for callback in callbacks:
+                callback(*frame_result_score)
+
+        report = evaluation.evaluate_frames(frames, params, label=label, refiner=refiner,
+                                            refiner_name=refiner_name, on_frame=on_frame)
+    out = sys.stderr if args.json == '-' else sys.stdout
+    print(f'parameters: {label}; {report.overall.frames} frames in {report.seconds:.1f} s',
+          file=out)
+    print(evaluation.format_table(report), file=out)
+    if report.overall.robot is not None:
+        print('\nrobot level (issue 9):', file=out)
+        print(evaluation.format_robot_table(report), file=out)
+    if refiner is not None:
+        print(f'\nrefined by {args.refiner} (seed 4.5 logistic regression):', file=out)
+        print(evaluation.format_table(report, refined=True), file=out)
+    if args.causes:
+        causes['overall'] = sum(causes.values(), Counter())
+        print('\nfalse-alarm cells by cause:', file=out)
+        for name, counts in causes.items():
+            if counts:
+                print(f'{name:<24} ' + ', '.join(f'{n} {k}' for k, n in counts.most_common()),
+                      file=out)
+    _write_json(args.json, report.as_dict())
     return 0
 
 
-def _picture_writer(folder: Path, refiner: Any, base: DetectorParams) -> Any:
-    from obstacle_detection.viz import pictures
+def _score_sequences(args: Any, params: DetectorParams) -> int:
+    """Print the fused and per-frame scores of the sequences, the JSON line; the sheet."""
+    from obstacle_detection.evaluation import video
+    from obstacle_detection.pipeline.fusion import FusionParams
+    from obstacle_detection.sim.sequences import PERFECT_ODOMETRY, OdometryModel, SceneSequence
 
-    def on_frame(frame: evaluation.LabelledFrame, result: Any,
-                 score: evaluation.FrameScore) -> None:
-        name = f'{frame.scenario}_{frame.frame_id}'.replace(' ', '_').replace('/', '_')
-        caption = (f'{frame.scenario} {frame.frame_id}: cell F1 '
-                   f'{evaluation.format_score(score.cell.f1)}, pixel F1 '
-                   f'{evaluation.format_score(score.pixel.f1)}')
-        pictures.write_png(folder / f'{name}.png', pictures.side_by_side(
-            result, caption=caption, truth_labels=frame.truth_labels,
-            params=frame.params(base)))
-    return on_frame
+    for name, value, low in (('--frames', args.frames, 1), ('--seed', args.seed, 0),
+                             ('--sheet-frames', args.sheet_frames, 1)):
+        if value is not None and value < low:
+            raise tool_support.ToolError(f'argument {name}: {value} must be >= {low}',
+                                         usage=True)
+    try:
+        fusion = FusionParams(**{key: float(value) for key, value in args.fusion})
+    except (TypeError, ValueError) as exc:
+        raise tool_support.ToolError(f'argument --fusion: {exc}', usage=True) from None
+    if args.sheet is not None and args.sheet.suffix.lower() != '.png':
+        raise tool_support.ToolError(args.sheet, 'the contact sheet must be a .png file')
+    reports = []
+    for name in SEQUENCE_NAMES if 'all' in args.sequence else args.sequence:
+        def progress(index: int, total: int, name: str = name) -> None:
+            if not args.quiet and (index + 1 == total or (index + 1) % 30 == 0):
+                print(f'evaluate: {name} frame {index + 1}/{total}', file=sys.stderr,
+                      flush=True)
+
+        sequence = SceneSequence(name, seed=args.seed, odometry=PERFECT_ODOMETRY
+                                 if args.exact_odometry else OdometryModel())
+        reports.append(video.evaluate_sequence(
+            sequence, params, fusion, stop=args.frames, use_odometry=not args.no_odometry,
+            sheet_frames=args.sheet_frames if args.sheet is not None else 0,
+            on_frame=progress))
+    label = args.preset + ''.join(f' + {path}' for path in args.params_file)
+    out = sys.stderr if args.json == '-' else sys.stdout
+    print(f'parameters: {label}; fusion: {fusion}', file=out)
+    print(video.format_table(reports), file=out)
+    if args.sheet is not None:
+        from obstacle_detection.viz import pictures
+
+        pictures.write_png(args.sheet, video.contact_sheet(reports, fusion))
+        print(f'contact sheet: {args.sheet}', file=out)
+    _write_json(args.json, {'fusion': fusion.__dict__,
+                            'sequences': [r.as_dict() for r in reports]})
+    return 0
+
+
+def _write_json(path: str | None, data: dict) -> None:
+    """Print ``data`` as the last line of stdout, or write it to ``path`` ('-': print)."""
+    line = json.dumps(data, sort_keys=True)
+    if path in (None, '-'):
+        print(line)
+    else:
+        Path(path).write_text(line + '\n', encoding='utf-8')
+
+
+def false_alarm_causes(frame: evaluation.LabelledFrame, result: Any,
+                       base: DetectorParams) -> Counter:
+    """Count the false-alarm cells of one frame by what marked them (docs/accuracy.md).
+
+    A voxel more than a step above its local ground (``high``), below the step down (``low``),
+    a ``ledge`` or a ``drop`` edge; with the truth of its pixels: obstacle ``O``, traversable
+    ``F``, no return ``X``; `` far``: no true obstacle within one cell.
+    """
+    from obstacle_detection.evaluation.metrics import grow_cells
+    from obstacle_detection.pipeline import traversal
+    from obstacle_detection.pipeline.normals import slope_obstacles
+
+    params = frame.params(base)
+    truth = evaluation.truth_costmap(frame, params)
+    steep = slope_obstacles(result.voxel_normals, params.cos_max_slope)
+    trav = traversal.traversable_ground(result.voxel_points, steep, params)
+    kind = np.where(trav.ledge & ~trav.is_obstacle, 'ledge',
+                    np.where(result.voxel_height_m < -params.max_step_down_m, 'low', 'high'))
+    pixel_voxel, labels = result.pixel_voxel.reshape(-1), frame.truth_labels.reshape(-1)
+    tags = np.full(kind.shape, '', object)
+    for tag, label in (('O', GT_OBSTACLE), ('F', GT_TRAVERSABLE), ('X', GT_NO_RETURN)):
+        has = np.zeros(kind.shape, bool)
+        has[pixel_voxel[(pixel_voxel >= 0) & (labels == label)]] = True
+        tags[has] += tag
+    alarm = (result.costmap.data == CELL_OCCUPIED) & (truth == CELL_FREE)
+    near = grow_cells(truth == CELL_OCCUPIED, 1)
+    marked = result.voxel_is_obstacle
+    causes: dict[tuple[int, int], set] = {}
+    for points, names in ((result.voxel_points[marked],
+                           [f'{k}/{t}' for k, t in zip(kind[marked], tags[marked])]),
+                          (result.drop_points, ['drop'] * result.drop_points.shape[0])):
+        row, col, inside = result.costmap.cell_of(points)
+        for r, c, ok, name in zip(row, col, inside, names):
+            if ok and alarm[r, c]:
+                causes.setdefault((r, c), set()).add(name)
+    return Counter('+'.join(sorted(names)) + ('' if near[cell] else ' far')
+                   for cell, names in causes.items())
+
+
+def _score_real_frames(folder: Path, params: DetectorParams) -> int:
+    """Print per real frame the floor pixels marked (lower is better), standing ones marked."""
+    from obstacle_detection.evaluation.datasets import read_depth_png
+    from obstacle_detection.pipeline.depth import decode_depth
+
+    totals = np.zeros(4, np.int64)
+    for name, files, scale, intrinsics in REAL_FRAMES:
+        for file in files:
+            path = folder / name / file
+            try:
+                depth = decode_depth(read_depth_png(path), depth_scale=scale)
+                *counts, mount = real_frame_counts(depth, intrinsics, params)
+            except (OSError, ValueError) as exc:   # named with its path
+                text = str(exc) if str(path) in str(exc) else f'{path}: {exc}'
+                return report_error('evaluate', tool_support.ToolError(text))
+            totals += counts
+            print(f'{name}/{file}: floor marked {counts[1]}/{counts[0]} '
+                  f'({100.0 * counts[1] / max(counts[0], 1):.2f} %), standing marked '
+                  f'{counts[3]}/{counts[2]} ({100.0 * counts[3] / max(counts[2], 1):.1f} %)'
+                  f'  [{mount}]')
+    print(f'total: floor marked {100.0 * totals[1] / max(totals[0], 1):.2f} % of '
+          f'{totals[0]} px, standing marked {100.0 * totals[3] / max(totals[2], 1):.1f} % of '
+          f'{totals[2]} px')
+    return 0
+
+
+def real_frame_counts(depth_m: np.ndarray, intrinsics: Intrinsics, params: DetectorParams,
+                      ) -> tuple[int, int, int, int, str]:
+    """Return (floor, floor marked, standing, standing marked, mount text) of one frame.
+
+    The mount is fitted to the floor; only pixels inside the region of interest count.
+    """
+    from obstacle_detection.pipeline import geometry
+    from obstacle_detection.pipeline.detector import Detector
+    from obstacle_detection.pipeline.mount import estimate_mount
+
+    est = estimate_mount(depth_m, intrinsics)
+    p = params.replace(camera_height_m=est.height_m, camera_pitch_rad=est.pitch_rad,
+                       camera_roll_rad=est.roll_rad)
+    result = Detector(p).process(depth_m, intrinsics)
+    rays = geometry.ground_rays(depth_m.shape, intrinsics, p)
+    d = depth_m.reshape(-1)
+    x, y = d * rays[0], d * rays[1]
+    z = d * rays[2] + np.float32(p.camera_height_m)
+    inside = (d > 0) & (x >= p.min_range_m) & (x <= p.max_range_m) & (
+        np.abs(y) <= p.lateral_limit_m)
+    marked = result.labels.reshape(-1) == LABEL_OBSTACLE
+    on_floor = inside & (np.abs(z) <= FLOOR_BAND_M)
+    standing = inside & (z >= STANDING_M) & (z <= p.robot_height_m)
+    mount = (f'h {est.height_m:.2f} m, pitch {est.pitch_deg:.1f} deg, '
+             f'roll {est.roll_deg:.1f} deg; {result.floor.summary()}')
+    return (int(on_floor.sum()), int((on_floor & marked).sum()), int(standing.sum()),
+            int((standing & marked).sum()), mount)
 
 
 if __name__ == '__main__':

@@ -26,10 +26,8 @@ from obstacle_detection.evaluation import runner as evaluation
 from obstacle_detection.fleet import scoring
 from obstacle_detection.fleet.cluster import add_fleet_arguments, fleet_options, open_fleet
 from obstacle_detection.evaluation.sweep import (METRICS, SweepResult, format_grid, grid_shape,
-                                                 parse_axis, project, run_sweep,
-                                                 settings_params)
+                                                 parse_axis, run_sweep)
 from obstacle_detection.pipeline.params import DetectorParams
-from obstacle_detection.cli.support import ToolError
 from obstacle_detection.cli.evaluation_args import (add_common_arguments, base_params,
                                                    frame_sources, report_error)
 
@@ -57,11 +55,6 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--out', type=Path, default=Path('sweep.png'),
                         help='heatmap PNG (one panel per scenario + overall) '
                              '[default: sweep.png]')
-    parser.add_argument('--strip', choices=('x', 'y'),
-                        help='also save a strip of overlays of the first frame, one per value '
-                             'of this axis (the other axis at its overall best)')
-    parser.add_argument('--strip-out', type=Path, default=Path('sweep_strip.png'),
-                        help='strip PNG [default: sweep_strip.png]')
     parser.add_argument('--json', type=Path, metavar='FILE', help='also write the grids as JSON')
     add_fleet_arguments(parser)
     return parser
@@ -82,9 +75,9 @@ def _check_axes(base: DetectorParams, axes: Sequence) -> None:
                     raise
 
 
-def _sweep(args: argparse.Namespace, base: DetectorParams, also: tuple
-           ) -> tuple[SweepResult, int, evaluation.LabelledFrame | None]:
-    """Score the grid (on a cluster or here); return (result, frames, first frame or None)."""
+def _sweep(args: argparse.Namespace, base: DetectorParams, also: tuple,
+           ) -> tuple[SweepResult, int]:
+    """Score the grid (on a cluster or here); return (result, frames)."""
     started = time.perf_counter()
     sources = frame_sources(args)
     settings = int(np.prod(grid_shape(args.x, args.y, also)))
@@ -95,15 +88,14 @@ def _sweep(args: argparse.Namespace, base: DetectorParams, also: tuple
             _log(f'{settings} settings x {len(sources)} scenarios on {fleet.description}')
             result = scoring.sweep_on_fleet(fleet, sources, base, args.x, args.y,
                                             args.metric, also=also, log=_log)
-            first = next(iter(sources[0][2]), None) if args.strip else None
-            return result, sum(count for _, count, _ in sources), first
+            return result, sum(count for _, count, _ in sources)
         frames = [f for _, _, source in sources for f in source]
         if not frames:
             raise ValueError('no frames selected')
         _log(f'rendered {len(frames)} frames in {time.perf_counter() - started:.1f} s;'
              f' {settings} settings')
         result = run_sweep(frames, base, args.x, args.y, args.metric, also=also, log=_log)
-        return result, len(frames), frames[0]
+        return result, len(frames)
 
 
 def _print_result(args: argparse.Namespace, result: SweepResult, frame_count: int) -> None:
@@ -145,13 +137,11 @@ def _json(args: argparse.Namespace, result: SweepResult, frame_count: int) -> di
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (0 ok, 1 bad input, 2 bad usage)."""
     args = build_parser().parse_args(argv)
-    if args.strip == 'y' and args.y is None:
-        return report_error('sweep', ToolError('--strip y needs --y', usage=True))
     also = tuple(args.also)
     try:
         base = base_params(args)
         _check_axes(base, (args.x, args.y, *also))
-        result, frame_count, first = _sweep(args, base, also)
+        result, frame_count = _sweep(args, base, also)
     except (ValueError, OSError) as exc:
         return report_error('sweep', exc)
     except KeyboardInterrupt:   # nothing is written before the grid is complete
@@ -161,9 +151,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         _write_heatmaps(args, result)
         print(f'heatmap: {args.out}')
-        if args.strip:
-            _write_strip(args, base, first, result)
-            print(f'strip: {args.strip_out}')
         if args.json:
             args.json.write_text(json.dumps(_json(args, result, frame_count)) + '\n',
                                  encoding='utf-8')
@@ -178,50 +165,15 @@ def _write_heatmaps(args: argparse.Namespace, result: SweepResult) -> None:
 
     panels = []
     for scene in result.grids:
-        grid, metric, higher = result.ranking(scene)
-        flat = project(grid, higher_is_better=higher)
+        flat, _, higher, title = result.view(scene)
         best = result.best(scene)
-        title = f'{scene}: {metric}' + ('' if higher else ' (colour: 1 - value)')
-        if result.also:
-            title += ' (best over ' + ', '.join(a.name for a in result.also) + ')'
+        title += '' if higher else ' (colour: 1 - value)'
         panels.append(pictures.heatmap(
             flat if higher else 1.0 - flat, list(args.x.values),
             list(args.y.values) if args.y else [''], title=title, x_name=args.x.name,
             y_name=args.y.name if args.y else '', best=best[:2] if best else None,
             values=flat))
     pictures.write_png(args.out, pictures.tile(panels, columns=3))
-
-
-def _write_strip(args: argparse.Namespace, base: DetectorParams,
-                 frame: evaluation.LabelledFrame, result: SweepResult) -> None:
-    """Overlays of one frame for each value of the strip axis, the others at the best."""
-    from obstacle_detection.viz import pictures
-    from obstacle_detection.pipeline.detector import Detector
-
-    best = result.best('overall') or (0,) * len(result.shape)
-    images, labels = [], []
-    along_x = args.strip == 'x'
-    count = len(args.x.values) if along_x else len(args.y.values)
-    for i in range(count):
-        index = list(best)
-        index[1 if along_x else 0] = i
-        setting = ', '.join(f'{k}={v}' for k, v in result.setting(*index).items())
-        try:
-            params = frame.params(settings_params(base, args.x, args.y, *index,
-                                                  also=result.also))
-        except ValueError:
-            continue
-        detection = Detector(params).process(frame.depth, frame.intrinsics,
-                                             depth_scale=frame.depth_scale)
-        pixel, cell = evaluation.score_frame(frame, detection, params)
-        images.append(pictures.side_by_side(detection, caption=f'{frame.scenario} '
-                                            f'{frame.frame_id}: {setting}', params=params))
-        labels.append(f'{setting}: cell F1 {evaluation.format_score(cell.f1)}, '
-                      f'pixel F1 {evaluation.format_score(pixel.f1)}')
-    if not images:
-        raise ValueError('no valid setting along the strip axis')
-    pictures.write_png(args.strip_out, pictures.contact_sheet(
-        images, labels=labels, columns=len(images), thumb_width=420))
 
 
 if __name__ == '__main__':

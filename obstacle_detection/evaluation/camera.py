@@ -38,12 +38,20 @@ def scaled_intrinsics(intrinsics: Intrinsics, sx: float, sy: float | None = None
                       cy=(intrinsics.cy + 0.5) * sy - 0.5)
 
 
-def intrinsics_from_mapping(data: Mapping[str, Any]
-                            ) -> tuple[Intrinsics, tuple[int, int] | None]:
-    """Intrinsics and (width, height) if given of a camera YAML mapping; ValueError if bad."""
+def _number(data: Mapping[str, Any], key: str, default: Any = None) -> Any:
+    try:
+        return default if data.get(key) is None else float(data[key])
+    except (TypeError, ValueError):
+        raise ValueError(f'{key} must be a number, got {data[key]!r}') from None
+
+
+def camera_from_mapping(data: Any) -> CameraFile:
+    """Return the camera a parsed camera YAML describes; ValueError saying what is bad."""
+    if not isinstance(data, dict):
+        raise ValueError('not a YAML mapping (expected fx, fy, cx, cy, ...)')
     for key in ('intrinsics', 'camera'):
         if isinstance(data.get(key), dict):
-            data = data[key]
+            data = {**data, **data[key]}
     if 'camera_matrix' in data:
         try:
             k = [float(v) for v in data['camera_matrix']['data']]
@@ -55,10 +63,7 @@ def intrinsics_from_mapping(data: Mapping[str, Any]
         missing = [k for k in ('fx', 'fy', 'cx', 'cy') if k not in data]
         if missing:
             raise ValueError(f'missing {", ".join(missing)} (need fx, fy, cx, cy)')
-        try:
-            values = tuple(float(data[k]) for k in ('fx', 'fy', 'cx', 'cy'))
-        except (TypeError, ValueError) as err:
-            raise ValueError('fx, fy, cx, cy must be numbers') from err
+        values = tuple(_number(data, k) for k in ('fx', 'fy', 'cx', 'cy'))
         width, height = data.get('width'), data.get('height')
     if (width is None) != (height is None):
         raise ValueError('give both width and height, or neither')
@@ -66,36 +71,24 @@ def intrinsics_from_mapping(data: Mapping[str, Any]
     if width is not None:
         try:
             size = (int(width), int(height))
-        except (TypeError, ValueError) as err:
-            raise ValueError('width and height must be integers') from err
+        except (TypeError, ValueError):
+            raise ValueError('width and height must be integers') from None
         if size[0] <= 0 or size[1] <= 0:
             raise ValueError(f'width and height must be positive, got {size}')
-    return Intrinsics(*values), size
+    scale = _number(data, 'depth_scale')
+    if scale is not None and not (math.isfinite(scale) and scale > 0):
+        raise ValueError(f'depth_scale={scale} must be > 0')
+    mount = None
+    if 'camera_height_m' in data:
+        mount = (_number(data, 'camera_height_m'), _angle(data, 'camera_pitch'),
+                 _angle(data, 'camera_roll'))
+    return CameraFile(Intrinsics(*values), size, scale, mount)
 
 
 def _angle(data: Mapping[str, Any], name: str) -> float:
     if f'{name}_rad' in data:
-        return float(data[f'{name}_rad'])
-    return math.radians(float(data.get(f'{name}_deg', 0.0)))
-
-
-def camera_from_mapping(data: Any) -> CameraFile:
-    """Return the camera a parsed camera YAML describes; ValueError saying what is bad."""
-    if not isinstance(data, dict):
-        raise ValueError('not a YAML mapping (expected fx, fy, cx, cy, ...)')
-    intrinsics, size = intrinsics_from_mapping(data)
-    try:
-        scale = data.get('depth_scale')
-        scale = None if scale is None else float(scale)
-        mount = None
-        if 'camera_height_m' in data:
-            mount = (float(data['camera_height_m']), _angle(data, 'camera_pitch'),
-                     _angle(data, 'camera_roll'))
-    except (TypeError, ValueError) as err:
-        raise ValueError(f'depth scale and mount must be numbers ({err})') from err
-    if scale is not None and not (math.isfinite(scale) and scale > 0):
-        raise ValueError(f'depth_scale={scale} must be > 0')
-    return CameraFile(intrinsics, size, scale, mount)
+        return _number(data, f'{name}_rad')
+    return math.radians(_number(data, f'{name}_deg', 0.0))
 
 
 def read_camera_yaml(path: str | Path) -> CameraFile:

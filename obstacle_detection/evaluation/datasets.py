@@ -14,10 +14,9 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import yaml
 
 from obstacle_detection.evaluation import EvaluationError
-from obstacle_detection.evaluation.camera import intrinsics_from_mapping, scaled_intrinsics
+from obstacle_detection.evaluation.camera import read_camera_yaml, scaled_intrinsics
 from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE, Intrinsics
 
 #: TUM RGB-D benchmark cameras (fx, fy, cx, cy) for 640x480 images, and the ROS default.
@@ -84,39 +83,18 @@ def load_intrinsics(path: Path) -> tuple[Intrinsics, tuple[int, int] | None]:
     Raises EvaluationError naming the file when it is missing, unreadable or incomplete.
     """
     try:
-        text = path.read_text()
+        numbers = [float(n) for n in path.read_text().split()]
+    except ValueError:
+        numbers = []
     except OSError as err:
         raise EvaluationError(f'{path}: cannot read intrinsics file ({err.strerror})') from err
-    numbers = text.split()
+    if len(numbers) != 4:
+        camera = read_camera_yaml(path)
+        return camera.intrinsics, camera.size
     try:
-        if len(numbers) == 4 and all(_is_number(n) for n in numbers):
-            return _intrinsics(path, *map(float, numbers)), None
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as err:
-        raise EvaluationError(f'{path}: not valid YAML ({err})') from err
-    if not isinstance(data, dict):
-        raise EvaluationError(f'{path}: expected a mapping with fx, fy, cx, cy')
-    try:
-        return intrinsics_from_mapping(data)
+        return Intrinsics(*numbers), None
     except ValueError as err:
         raise EvaluationError(f'{path}: {err}') from err
-
-
-def _intrinsics(path: Path, fx: float, fy: float, cx: float, cy: float) -> Intrinsics:
-    try:
-        return Intrinsics(fx, fy, cx, cy)
-    except ValueError as err:
-        raise EvaluationError(f'{path}: {err}') from err
-
-
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
-
-
 
 
 def default_intrinsics(view: str, size: tuple[int, int]) -> tuple[Intrinsics, str]:
@@ -307,9 +285,11 @@ def read_timestamp_list(path: Path) -> list[tuple[float, str]]:
         if not line:
             continue
         parts = line.replace(',', ' ').split()
-        if len(parts) < 2 or not _is_number(parts[0]):
-            raise EvaluationError(f'{path}:{number}: expected "timestamp filename", got {line!r}')
-        entries.append((float(parts[0]), parts[1]))
+        try:
+            entries.append((float(parts[0]), parts[1]))
+        except (IndexError, ValueError):
+            raise EvaluationError(f'{path}:{number}: expected "timestamp filename", '
+                                  f'got {line!r}') from None
     return sorted(entries)
 
 
@@ -340,21 +320,20 @@ def tum_frames(root: Path, *, camera: str | None = None, intrinsics_path: Path |
         if named_rgb:
             notes.append(f'{rgb_list} not found: colour frames listed from the timestamps in '
                          f'the file names of {root / "rgb"}')
-        rgb_t = np.array([t for t, _ in rgb])
-        used = set()
-        for k, (t, _) in enumerate(depth):
-            if len(rgb_t) == 0:
-                dropped['rgb.txt lists no colour images'] += 1
-                continue
-            j = int(np.searchsorted(rgb_t, t))
-            best = min((c for c in (j - 1, j) if 0 <= c < len(rgb_t)),
-                       key=lambda c: abs(rgb_t[c] - t))
-            if abs(rgb_t[best] - t) <= max_difference_s:
-                color_for[k] = root / rgb[best][1]
-                used.add(best)
-            else:
-                dropped[f'no colour frame within {max_difference_s:g} s of the depth frame '
-                        '(kept without colour)'] += 1
+        rgb_t, depth_t = np.array([t for t, _ in rgb]), np.array([t for t, _ in depth])
+        if rgb_t.size == 0:
+            dropped['rgb.txt lists no colour images'] = len(depth)
+            rgb_t = np.full(1, np.inf)
+        j = np.searchsorted(rgb_t, depth_t)
+        lo, hi = np.clip(j - 1, 0, rgb_t.size - 1), np.clip(j, 0, rgb_t.size - 1)
+        best = np.where(np.abs(rgb_t[hi] - depth_t) < np.abs(rgb_t[lo] - depth_t), hi, lo)
+        paired = np.abs(rgb_t[best] - depth_t) <= max_difference_s
+        for k in np.flatnonzero(paired):
+            color_for[k] = root / rgb[best[k]][1]
+        used = set(best[paired].tolist())
+        if rgb and not paired.all():
+            dropped[f'no colour frame within {max_difference_s:g} s of the depth frame '
+                    '(kept without colour)'] = int(np.count_nonzero(~paired))
         if len(rgb) > len(used):
             notes.append(f'{len(rgb) - len(used)} colour frames not nearest to any depth frame '
                          'were not written')

@@ -1,6 +1,6 @@
 """Accuracy against ground truth: pixel and costmap-cell confusion counts (plain numpy).
 
-What counts is stated in ``runner.SCORE_DEFINITIONS`` and docs/accuracy.md.
+What counts is stated in docs/accuracy.md ("What the scores count").
 """
 
 from __future__ import annotations
@@ -9,6 +9,7 @@ import dataclasses
 import math
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from obstacle_detection.labels import (CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN, GT_ABOVE_ROBOT,
@@ -16,9 +17,13 @@ from obstacle_detection.labels import (CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN, G
                                        LABEL_OBSTACLE)
 
 
-
 def _ratio(num: int, den: int) -> float:
     return num / den if den > 0 else math.nan
+
+
+def _same_shape(a: np.ndarray, b: np.ndarray) -> None:
+    if a.shape != b.shape:
+        raise ValueError(f'shape {a.shape} differs from shape {b.shape}')
 
 
 @dataclass(frozen=True)
@@ -29,12 +34,6 @@ class Confusion:
     fp: int = 0
     fn: int = 0
     tn: int = 0
-
-    def __post_init__(self) -> None:
-        for name in ('tp', 'fp', 'fn', 'tn'):
-            value = getattr(self, name)
-            if value < 0:
-                raise ValueError(f'confusion count {name}={value!r} must be >= 0')
 
     def __add__(self, other: 'Confusion') -> 'Confusion':
         return Confusion(self.tp + other.tp, self.fp + other.fp, self.fn + other.fn,
@@ -57,7 +56,7 @@ class Confusion:
 
     @property
     def f1(self) -> float:
-        """F1 score 2 tp / (2 tp + fp + fn); NaN without any positive or prediction."""
+        """F1 2 tp / (2 tp + fp + fn); NaN without any positive or prediction."""
         return _ratio(2 * self.tp, 2 * self.tp + self.fp + self.fn)
 
     @property
@@ -75,15 +74,11 @@ class Confusion:
         """(tp + tn) / total."""
         return _ratio(self.tp + self.tn, self.total)
 
-    def scores(self) -> dict[str, float]:
-        """All ratios by name (precision, recall, f1, iou, false_alarm_rate, accuracy)."""
-        return {'precision': self.precision, 'recall': self.recall, 'f1': self.f1,
-                'iou': self.iou, 'false_alarm_rate': self.false_alarm_rate,
-                'accuracy': self.accuracy}
-
     def as_dict(self) -> dict[str, float]:
-        """Return counts and scores in one flat dict (JSON-ready; NaN stays NaN)."""
-        return {'tp': self.tp, 'fp': self.fp, 'fn': self.fn, 'tn': self.tn, **self.scores()}
+        """Return the counts and every ratio in one flat dict (NaN stays NaN)."""
+        return {**dataclasses.asdict(self), 'precision': self.precision, 'recall': self.recall,
+                'f1': self.f1, 'iou': self.iou, 'false_alarm_rate': self.false_alarm_rate,
+                'accuracy': self.accuracy}
 
 
 def confusion(predicted: np.ndarray, truth: np.ndarray,
@@ -91,49 +86,31 @@ def confusion(predicted: np.ndarray, truth: np.ndarray,
     """Confusion counts of two bool arrays of one shape over ``evaluated`` (None = all)."""
     predicted = np.asarray(predicted, dtype=bool)
     truth = np.asarray(truth, dtype=bool)
-    if predicted.shape != truth.shape:
-        raise ValueError(
-            f'predicted shape {predicted.shape} differs from truth shape {truth.shape}')
+    _same_shape(predicted, truth)
     if evaluated is not None:
-        evaluated = np.asarray(evaluated, dtype=bool)
-        if evaluated.shape != truth.shape:
-            raise ValueError(
-                f'evaluated mask shape {evaluated.shape} differs from truth shape {truth.shape}')
-        predicted = predicted[evaluated]
-        truth = truth[evaluated]
+        predicted, truth = predicted[evaluated], truth[evaluated]
     tp = int(np.count_nonzero(predicted & truth))
     fp = int(np.count_nonzero(predicted & ~truth))
     fn = int(np.count_nonzero(~predicted & truth))
-    tn = int(predicted.size - tp - fp - fn)
-    return Confusion(tp, fp, fn, tn)
-
-
-def pixel_evaluated(pipeline_labels: np.ndarray, truth_labels: np.ndarray) -> np.ndarray:
-    """(H, W) bool: pixels the pixel-level scores count (truth saw a surface, pipeline called)."""
-    pipeline_labels = np.asarray(pipeline_labels)
-    truth_labels = np.asarray(truth_labels)
-    if pipeline_labels.shape != truth_labels.shape:
-        raise ValueError(f'pipeline labels shape {pipeline_labels.shape} differs from truth '
-                         f'labels shape {truth_labels.shape}')
-    called = (pipeline_labels == LABEL_GROUND) | (pipeline_labels == LABEL_OBSTACLE)
-    return called & (truth_labels != GT_NO_RETURN)
+    return Confusion(tp, fp, fn, int(predicted.size - tp - fp - fn))
 
 
 def pixel_confusion(pipeline_labels: np.ndarray, truth_labels: np.ndarray) -> Confusion:
-    """Pixel confusion of obstacle pixels: pipeline ``LABEL_*`` against truth ``GT_*``."""
-    evaluated = pixel_evaluated(pipeline_labels, truth_labels)
-    return confusion(np.asarray(pipeline_labels) == LABEL_OBSTACLE,
-                     np.asarray(truth_labels) == GT_OBSTACLE, evaluated)
+    """Obstacle pixels, pipeline ``LABEL_*`` against truth ``GT_*``.
+
+    Counted: pixels where the truth saw a surface and the pipeline called ground or obstacle.
+    """
+    pipeline_labels, truth_labels = np.asarray(pipeline_labels), np.asarray(truth_labels)
+    _same_shape(pipeline_labels, truth_labels)
+    called = (pipeline_labels == LABEL_GROUND) | (pipeline_labels == LABEL_OBSTACLE)
+    return confusion(pipeline_labels == LABEL_OBSTACLE, truth_labels == GT_OBSTACLE,
+                     called & (truth_labels != GT_NO_RETURN))
 
 
 def cell_confusion(predicted_grid: np.ndarray, truth_grid: np.ndarray) -> Confusion:
     """Costmap-cell confusion of two ``CELL_*`` grids; unknown truth cells are skipped."""
-    predicted_grid = np.asarray(predicted_grid)
     truth_grid = np.asarray(truth_grid)
-    if predicted_grid.shape != truth_grid.shape:
-        raise ValueError(f'predicted grid shape {predicted_grid.shape} differs from truth grid '
-                         f'shape {truth_grid.shape}')
-    return confusion(predicted_grid == CELL_OCCUPIED, truth_grid == CELL_OCCUPIED,
+    return confusion(np.asarray(predicted_grid) == CELL_OCCUPIED, truth_grid == CELL_OCCUPIED,
                      truth_grid != CELL_UNKNOWN)
 
 
@@ -149,34 +126,9 @@ def truth_points(points_ground: np.ndarray, truth_labels: np.ndarray, roi: np.nd
     keep = np.asarray(roi, dtype=bool).reshape(-1) & np.isfinite(flat).all(axis=1)
     is_obstacle = labels == GT_OBSTACLE
     if marked is not None:
-        is_obstacle = is_obstacle | (np.asarray(marked, dtype=bool).reshape(-1)
-                                     & (labels != GT_NO_RETURN))
-    obstacle = flat[keep & is_obstacle]
-    traversable = flat[keep & ~is_obstacle
-                       & ((labels == GT_TRAVERSABLE) | (labels == GT_ABOVE_ROBOT))]
-    return obstacle, traversable
-
-
-def truth_grid(obstacle_points: np.ndarray, traversable_points: np.ndarray,
-               origin_xy_m: tuple[float, float], resolution_m: float, shape: tuple[int, int],
-               ) -> np.ndarray:
-    """Rasterise true points into a (ny, nx) int8 ``CELL_*`` grid, binned as the costmap."""
-    if resolution_m <= 0.0 or not math.isfinite(resolution_m):
-        raise ValueError(f'resolution_m={resolution_m!r} must be a positive number')
-    ny, nx = shape
-    grid = np.full((ny, nx), CELL_UNKNOWN, dtype=np.int8)
-    for points, value in ((traversable_points, CELL_FREE), (obstacle_points, CELL_OCCUPIED)):
-        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        ix = np.floor((points[:, 0] - origin_xy_m[0]) / resolution_m)
-        iy = np.floor((points[:, 1] - origin_xy_m[1]) / resolution_m)
-        inside = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
-        grid[iy[inside].astype(np.intp), ix[inside].astype(np.intp)] = value
-    return grid
-
-
-def format_score(value: float, digits: int = 3) -> str:
-    """Return a ratio as text, '-' when not defined (NaN)."""
-    return '-' if value is None or math.isnan(value) else f'{value:.{digits}f}'
+        is_obstacle |= np.asarray(marked, dtype=bool).reshape(-1) & (labels != GT_NO_RETURN)
+    traversable = (labels == GT_TRAVERSABLE) | (labels == GT_ABOVE_ROBOT)
+    return flat[keep & is_obstacle], flat[keep & ~is_obstacle & traversable]
 
 
 def point_cells(points: np.ndarray, origin_xy_m: tuple[float, float], resolution_m: float,
@@ -195,43 +147,51 @@ def point_cells(points: np.ndarray, origin_xy_m: tuple[float, float], resolution
     return cells
 
 
-def occupied_share(predicted_grid: np.ndarray, cells: np.ndarray, *,
-                   tolerance_cells: int = 0) -> tuple[int, int]:
-    """(cells marked, cells): how many are occupied, within ``tolerance_cells`` (Chebyshev)."""
-    occupied = np.asarray(predicted_grid) == CELL_OCCUPIED
-    cells = np.asarray(cells, dtype=bool)
-    if occupied.shape != cells.shape:
-        raise ValueError(f'grid shape {occupied.shape} differs from cells shape {cells.shape}')
-    if tolerance_cells > 0:
-        k = int(tolerance_cells)
-        padded = np.pad(occupied, k)
-        grown = np.zeros_like(occupied)
-        ny, nx = occupied.shape
-        for dy in range(2 * k + 1):
-            for dx in range(2 * k + 1):
-                grown |= padded[dy:dy + ny, dx:dx + nx]
-        occupied = grown
-    return int(np.count_nonzero(occupied & cells)), int(np.count_nonzero(cells))
+def truth_grid(obstacle_points: np.ndarray, traversable_points: np.ndarray,
+               origin_xy_m: tuple[float, float], resolution_m: float, shape: tuple[int, int],
+               ) -> np.ndarray:
+    """Rasterise true points into a (ny, nx) int8 ``CELL_*`` grid, binned as the costmap."""
+    grid = np.full(shape, CELL_UNKNOWN, dtype=np.int8)
+    grid[point_cells(traversable_points, origin_xy_m, resolution_m, shape)] = CELL_FREE
+    grid[point_cells(obstacle_points, origin_xy_m, resolution_m, shape)] = CELL_OCCUPIED
+    return grid
+
+
+def format_score(value: float, digits: int = 3) -> str:
+    """Return a ratio as text, '-' when not defined (NaN)."""
+    return '-' if value is None or math.isnan(value) else f'{value:.{digits}f}'
 
 
 def grow_cells(mask: np.ndarray, cells: int) -> np.ndarray:
     """(ny, nx) bool: the cells within ``cells`` cells (Chebyshev distance) of a True cell."""
     mask = np.asarray(mask, dtype=bool)
-    if cells <= 0:
+    if cells <= 0 or not mask.any():
         return mask.copy()
-    k = int(cells)
-    padded = np.pad(mask, k)
-    grown = np.zeros_like(mask)
-    ny, nx = mask.shape
-    for dy in range(2 * k + 1):
-        for dx in range(2 * k + 1):
-            grown |= padded[dy:dy + ny, dx:dx + nx]
-    return grown
+    kernel = np.ones((2 * cells + 1, 2 * cells + 1), np.uint8)
+    return cv2.dilate(mask.astype(np.uint8), kernel).astype(bool)
+
+
+def occupied_share(predicted_grid: np.ndarray, cells: np.ndarray, *,
+                   tolerance_cells: int = 0) -> tuple[int, int]:
+    """(cells marked, cells): how many are occupied, within ``tolerance_cells`` (Chebyshev)."""
+    return _share(grow_cells(np.asarray(predicted_grid) == CELL_OCCUPIED, tolerance_cells),
+                  cells)
+
+
+def free_share(predicted_grid: np.ndarray, cells: np.ndarray) -> tuple[int, int]:
+    """(cells free, cells) of a set of cells: how many are ``CELL_FREE`` in the grid."""
+    return _share(np.asarray(predicted_grid) == CELL_FREE, cells)
+
+
+def _share(hit: np.ndarray, cells: np.ndarray) -> tuple[int, int]:
+    cells = np.asarray(cells, dtype=bool)
+    _same_shape(hit, cells)
+    return int(np.count_nonzero(hit & cells)), int(np.count_nonzero(cells))
 
 
 @dataclass(frozen=True)
 class TolerantCells:
-    """Costmap-cell counts with a tolerance of ``cells`` cells (issue 22); add to pool frames."""
+    """Costmap-cell counts with a tolerance of a few cells (issue 22); add to pool frames."""
 
     hit_truth: int = 0
     truth: int = 0
@@ -271,14 +231,11 @@ def tolerant_cells(predicted_grid: np.ndarray, truth_grid: np.ndarray, *,
     """Cell counts where a mark within ``cells`` cells of a true obstacle counts (and back)."""
     predicted = np.asarray(predicted_grid) == CELL_OCCUPIED
     truth_grid = np.asarray(truth_grid)
-    if predicted.shape != truth_grid.shape:
-        raise ValueError(f'predicted grid shape {predicted.shape} differs from truth grid '
-                         f'shape {truth_grid.shape}')
+    _same_shape(predicted, truth_grid)
     occupied = truth_grid == CELL_OCCUPIED
     free = truth_grid == CELL_FREE
-    scored = truth_grid != CELL_UNKNOWN
     near_truth = grow_cells(occupied, cells)
-    marked = predicted & scored
+    marked = predicted & (truth_grid != CELL_UNKNOWN)
     return TolerantCells(
         hit_truth=int(np.count_nonzero(occupied & grow_cells(predicted, cells))),
         truth=int(np.count_nonzero(occupied)),
@@ -286,15 +243,6 @@ def tolerant_cells(predicted_grid: np.ndarray, truth_grid: np.ndarray, *,
         marked=int(np.count_nonzero(marked)),
         far_alarms=int(np.count_nonzero(predicted & free & ~near_truth)),
         free=int(np.count_nonzero(free)))
-
-
-def free_share(predicted_grid: np.ndarray, cells: np.ndarray) -> tuple[int, int]:
-    """(cells free, cells) of a set of cells: how many are ``CELL_FREE`` in the grid."""
-    free = np.asarray(predicted_grid) == CELL_FREE
-    cells = np.asarray(cells, dtype=bool)
-    if free.shape != cells.shape:
-        raise ValueError(f'grid shape {free.shape} differs from cells shape {cells.shape}')
-    return int(np.count_nonzero(free & cells)), int(np.count_nonzero(cells))
 
 
 def surface_gap_points(points_ground: np.ndarray, object_ids: np.ndarray, mask: np.ndarray,

@@ -6,6 +6,7 @@ labelled folder on disk (layout in docs/accuracy.md). What counts: :mod:`.metric
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import json
 import math
@@ -25,11 +26,9 @@ from . import EvaluationError, camera as camera_file
 from . import metrics
 from .camera import scaled_intrinsics
 from .datasets import read_depth_png
-from .metrics import Confusion, format_score
+from .metrics import Confusion, TolerantCells, format_score
 from obstacle_detection.pipeline.params import (KINECT_V2_SD, KINECT_V2_SD_SIZE, PRESETS,
                                                 DetectorParams, Intrinsics)
-
-
 
 #: Version of the scenario-list format read by :func:`load_scenarios`.
 SCENARIO_FORMAT_VERSION = 1
@@ -90,18 +89,14 @@ class Scenario:
     noise: str = 'kinect_v2'
 
     def __post_init__(self) -> None:
-        if not self.name:
-            raise ValueError('scenario name must not be empty')
-        for key, allowed in (('truth', TRUTH_KINDS), ('noise', NOISE_MODELS)):
-            if getattr(self, key) not in allowed:
-                raise ValueError(f'scenario {self.name!r}: {key}={getattr(self, key)!r} '
+        if not self.name or not self.seeds:
+            raise ValueError(f'scenario {self.name!r}: name and seeds must not be empty')
+        for key, given, allowed in (('truth', {self.truth}, TRUTH_KINDS),
+                                    ('noise', {self.noise}, NOISE_MODELS),
+                                    ('mount', {k for k, _ in self.mount}, _MOUNT_KEYS)):
+            if given - set(allowed):
+                raise ValueError(f'scenario {self.name!r}: {key}={", ".join(sorted(given))!r} '
                                  f'(allowed: {", ".join(allowed)})')
-        if not self.seeds:
-            raise ValueError(f'scenario {self.name!r}: seeds must not be empty')
-        unknown = {k for k, _ in self.mount} - set(_MOUNT_KEYS)
-        if unknown:
-            raise ValueError(f'scenario {self.name!r}: unknown mount key(s) '
-                             f'{", ".join(sorted(unknown))} (allowed: {", ".join(_MOUNT_KEYS)})')
 
     @property
     def is_sequence(self) -> bool:
@@ -131,14 +126,13 @@ def scenario_from_dict(entry: dict[str, Any], defaults: dict[str, Any] | None = 
     """
     if not isinstance(entry, dict):
         raise ValueError(f'scenario entry {entry!r} is not an object')
-    known = {'name', 'scene', 'seeds', 'frames', 'mount', 'description', 'truth', 'noise'}
-    unknown = set(entry) - known
+    unknown = set(entry) - {f.name for f in dataclasses.fields(Scenario)}
     if unknown:
         raise ValueError(f'scenario {entry.get("name")!r}: unknown key(s) '
                          f'{", ".join(sorted(unknown))}')
     if 'name' not in entry or 'scene' not in entry:
         raise ValueError(f'scenario entry {entry!r} needs "name" and "scene"')
-    frames = entry.get('frames')
+    frames, defaults = entry.get('frames'), defaults or {}
     if isinstance(frames, dict):
         frames = range(int(frames.get('start', 0)), int(frames['stop']),
                        int(frames.get('step', 1)))
@@ -148,8 +142,8 @@ def scenario_from_dict(entry: dict[str, Any], defaults: dict[str, Any] | None = 
         frames=None if frames is None else tuple(int(f) for f in frames),
         mount=tuple(sorted((str(k), float(v)) for k, v in entry.get('mount', {}).items())),
         description=str(entry.get('description', '')),
-        truth=str(entry.get('truth', (defaults or {}).get('truth', 'seed'))),
-        noise=str(entry.get('noise', (defaults or {}).get('noise', 'kinect_v2'))))
+        truth=str(entry.get('truth', defaults.get('truth', 'seed'))),
+        noise=str(entry.get('noise', defaults.get('noise', 'kinect_v2'))))
 
 
 def load_scenarios(path: str | Path) -> list[Scenario]:
@@ -169,16 +163,12 @@ def load_scenarios(path: str | Path) -> list[Scenario]:
 def select_scenarios(scenarios: Sequence[Scenario], names: Iterable[str] | None,
                      ) -> list[Scenario]:
     """Return the scenarios named (all when ``names`` is None); ValueError for an unknown name."""
-    if names is None:
-        return list(scenarios)
     by_name = {s.name: s for s in scenarios}
-    chosen = []
-    for name in names:
-        if name not in by_name:
-            raise EvaluationError(f'unknown scenario {name!r}; known: {", ".join(by_name)}',
-                                  usage=True)
-        chosen.append(by_name[name])
-    return chosen
+    unknown = [name for name in names or () if name not in by_name]
+    if unknown:
+        raise EvaluationError(f'unknown scenario {unknown[0]!r}; known: {", ".join(by_name)}',
+                              usage=True)
+    return list(scenarios) if names is None else [by_name[name] for name in names]
 
 
 def scenario_frames(scenario: Scenario, *, max_frames: int | None = None,
@@ -244,20 +234,12 @@ def folder_camera(path: str | Path) -> camera_file.CameraFile:
     return camera
 
 
-def truth_points_from_depth(depth_m: np.ndarray, intrinsics: Intrinsics, height_m: float,
-                            pitch_rad: float, roll_rad: float) -> np.ndarray:
-    """(H, W, 3) float32 ground-frame points of a depth image [m], NaN where depth is 0."""
-    params = DetectorParams(camera_height_m=height_m, camera_pitch_rad=pitch_rad,
-                            camera_roll_rad=roll_rad)
-    points, index = geometry.back_project(np.asarray(depth_m, dtype=np.float32), intrinsics)
-    out = np.full((depth_m.size, 3), np.nan, dtype=np.float32)
-    out[index] = geometry.to_ground(points, params)
-    return out.reshape(depth_m.shape + (3,))
-
-
 def load_labelled_folder(path: str | Path, *, max_frames: int | None = None,
-                         name: str | None = None) -> Iterator[LabelledFrame]:
-    """Frames of a labelled folder, in file-name order (a time sequence)."""
+                         ) -> Iterator[LabelledFrame]:
+    """Frames of a labelled folder, in file-name order (a time sequence).
+
+    The true points are the frame's own depth back-projected through the mount.
+    """
     root = Path(path)
     camera = folder_camera(root / 'intrinsics.yaml')
     depth_files = sorted((root / 'depth').glob('*.png'))
@@ -267,25 +249,30 @@ def load_labelled_folder(path: str | Path, *, max_frames: int | None = None,
     if missing:
         raise ValueError(f'{root}: no labels/ file for depth/{missing[0]} '
                          f'({len(missing)} missing)')
-    name = name or root.name
     scale = camera.depth_scale if camera.depth_scale is not None else 0.001
     height_m, pitch_rad, roll_rad = camera.mount
+    params = DetectorParams(camera_height_m=height_m, camera_pitch_rad=pitch_rad,
+                            camera_roll_rad=roll_rad)
     for depth_file in subsample(depth_files, max_frames):
         depth = read_depth_png(depth_file)
-        labels = cv2.imread(str(root / 'labels' / depth_file.name), cv2.IMREAD_UNCHANGED)
+        label_file = root / 'labels' / depth_file.name
+        labels = cv2.imread(str(label_file), cv2.IMREAD_UNCHANGED)
         if labels is None or labels.dtype != np.uint8 or labels.shape != depth.shape:
-            raise ValueError(f'{root / "labels" / depth_file.name}: not an 8-bit PNG of the '
-                             f'depth size {depth.shape[::-1]}')
+            raise ValueError(f'{label_file}: not an 8-bit PNG of the depth size '
+                             f'{depth.shape[::-1]}')
         if labels.max(initial=0) > GT_ABOVE_ROBOT:
-            raise ValueError(f'{root / "labels" / depth_file.name}: label value '
-                             f'{int(labels.max())} (allowed 0, 1, 2, 3)')
-        points = truth_points_from_depth(depth.astype(np.float32) * np.float32(scale),
-                                         camera.intrinsics, height_m, pitch_rad, roll_rad)
+            raise ValueError(f'{label_file}: label value {int(labels.max())} '
+                             '(allowed 0, 1, 2, 3)')
+        points, index = geometry.back_project(depth.astype(np.float32) * np.float32(scale),
+                                              camera.intrinsics)
+        truth_points = np.full((depth.size, 3), np.nan, dtype=np.float32)
+        truth_points[index] = geometry.to_ground(points, params)
         yield LabelledFrame(
-            scenario=name, frame_id=depth_file.stem, depth=depth,
-            intrinsics=camera.intrinsics, truth_labels=labels, truth_points=points,
-            height_m=height_m, pitch_rad=pitch_rad, roll_rad=roll_rad,
-            depth_scale=camera.depth_scale, sequence_key=name)
+            scenario=root.name, frame_id=depth_file.stem, depth=depth,
+            intrinsics=camera.intrinsics, truth_labels=labels,
+            truth_points=truth_points.reshape(depth.shape + (3,)), height_m=height_m,
+            pitch_rad=pitch_rad, roll_rad=roll_rad, depth_scale=camera.depth_scale,
+            sequence_key=root.name)
 
 
 # --------------------------------------------------------------------------------------------
@@ -293,23 +280,11 @@ def load_labelled_folder(path: str | Path, *, max_frames: int | None = None,
 
 
 #: Short names people use on command lines and in the seed's tables.
-PARAM_ALIASES = {'theta': 'max_slope_rad', 'N': 'normal_neighbours',
-                 'N1': 'validation_neighbours', 'K': 'median_kernel', 'TDBG': 'tdbg_m',
-                 'SMAR': 'smar_m'}
-
-
+PARAM_ALIASES = {'theta': 'max_slope_rad', 'theta_rad': 'max_slope_rad',
+                 'N': 'normal_neighbours', 'N1': 'validation_neighbours', 'K': 'median_kernel',
+                 'TDBG': 'tdbg_m', 'SMAR': 'smar_m'}
 #: How a boolean may be written in ``--set`` (case-insensitive).
 _BOOLEANS = {'true': True, '1': True, 'yes': True, 'false': False, '0': False, 'no': False}
-
-
-def _boolean(key: str, value: Any) -> bool:
-    """``value`` (a bool, or a word of ``_BOOLEANS``) as a bool; ValueError naming it otherwise."""
-    if isinstance(value, bool):
-        return value
-    word = str(value).strip().lower()
-    if word not in _BOOLEANS:
-        raise ValueError(f'{key}={value!r} must be true or false')
-    return _BOOLEANS[word]
 
 
 def apply_overrides(base: DetectorParams, overrides: dict[str, Any]) -> DetectorParams:
@@ -326,20 +301,19 @@ def apply_overrides(base: DetectorParams, overrides: dict[str, Any]) -> Detector
             changes.update(voxel_x_m=size, voxel_y_m=size, voxel_z_m=size)
             continue
         if name.endswith('_deg'):
-            name = name[:-4] + '_rad'
-            value = math.radians(float(value))
-        if name == 'theta_rad':
-            name = 'max_slope_rad'
+            name, value = name[:-4] + '_rad', math.radians(float(value))
+            name = PARAM_ALIASES.get(name, name)
         if name not in fields:
             raise EvaluationError(f'unknown parameter {key!r}', usage=True)
         current = getattr(base, name)
         if isinstance(current, bool):
-            value = _boolean(key, value)
+            value = value if isinstance(value, bool) else _BOOLEANS.get(str(value).strip().lower())
+            if value is None:
+                raise ValueError(f'{key}={overrides[key]!r} must be true or false')
         elif isinstance(current, int):
-            as_float = float(value)
-            if as_float != int(as_float):
+            if float(value) != int(float(value)):
                 raise ValueError(f'{key}={value!r} must be an integer')
-            value = int(as_float)
+            value = int(float(value))
         else:
             value = float(value)
         changes[name] = value
@@ -367,16 +341,22 @@ def load_params_file(path: str | Path, base: DetectorParams | None = None,
 
 def truth_roi(frame: LabelledFrame, params: DetectorParams) -> np.ndarray:
     """(H, W) bool: pixels whose true point the truth costmap counts (robot: no height band)."""
-    flat = frame.truth_points.reshape(-1, 3)
+    return points_roi(frame.truth_points, params, robot=frame.truth == 'robot')
+
+
+def points_roi(points_ground: np.ndarray, params: DetectorParams, *,
+               robot: bool = False) -> np.ndarray:
+    """(H, W) bool: finite points (H, W, 3) in the region of interest (robot: no height band)."""
+    flat = points_ground.reshape(-1, 3)
     finite = np.isfinite(flat).all(axis=1)
     roi = np.zeros(flat.shape[0], dtype=bool)
-    if frame.truth == 'robot':
+    if robot:
         x, y = flat[finite, 0], flat[finite, 1]
         roi[finite] = ((x >= params.min_range_m) & (x <= params.max_range_m)
                        & (np.abs(y) <= params.lateral_limit_m))
     else:
         roi[finite] = geometry.roi_mask(flat[finite], params)
-    return roi.reshape(frame.truth_labels.shape)
+    return roi.reshape(points_ground.shape[:-1])
 
 
 #: Neighbouring obstacle samples of one surface at most this far apart span it [m].
@@ -430,11 +410,15 @@ DROP_TOLERANCE_CELLS = 1
 
 @dataclass
 class RobotScore:
-    """Robot-level checks of one frame (issue 9), each entry ``(name, hits, cells)``."""
+    """Robot-level checks of one frame (issue 9), each entry ``(name, hits, cells)``.
+
+    ``tolerant``: the cell counts with a one-cell tolerance (issue 22).
+    """
 
     objects: list[tuple[str, int, int]] = field(default_factory=list)
     passable: list[tuple[str, int, int]] = field(default_factory=list)
     drops: list[tuple[str, int, int]] = field(default_factory=list)
+    tolerant: TolerantCells = field(default_factory=TolerantCells)
 
 
 def robot_score(frame: LabelledFrame, predicted_grid: np.ndarray, params: DetectorParams,
@@ -442,7 +426,7 @@ def robot_score(frame: LabelledFrame, predicted_grid: np.ndarray, params: Detect
     """Named objects found, passable surfaces left free and drops marked in one frame."""
     from obstacle_detection.pipeline.costmap import costmap_geometry
 
-    score = RobotScore()
+    score = RobotScore(tolerant=metrics.tolerant_cells(predicted_grid, truth_grid, cells=1))
     if frame.object_ids is None or not frame.object_names:
         return score
     origin, nx, ny = costmap_geometry(params)
@@ -479,26 +463,16 @@ def robot_score(frame: LabelledFrame, predicted_grid: np.ndarray, params: Detect
 
 @dataclass
 class FrameScore:
-    """Scores of one frame: pixel and cell confusions, obstacle count, time."""
+    """Scores of one frame: pixel and cell confusions, pipeline time [ms]."""
 
     scenario: str
     frame_id: str
     pixel: Confusion
     cell: Confusion
-    obstacle_points: int
     total_ms: float
     refined_pixel: Confusion | None = None
     refined_cell: Confusion | None = None
     robot: RobotScore | None = None
-
-
-def score_frame(frame: LabelledFrame, result: Any, params: DetectorParams,
-                truth_grid: np.ndarray | None = None) -> tuple[Confusion, Confusion]:
-    """(pixel confusion, cell confusion) of a pipeline result against the frame's truth."""
-    if truth_grid is None:
-        truth_grid = truth_costmap(frame, params)
-    return (metrics.pixel_confusion(result.labels, frame.truth_labels),
-            metrics.cell_confusion(result.costmap.data, truth_grid))
 
 
 @dataclass
@@ -523,10 +497,11 @@ class SceneSummary:
         if score.robot is not None:
             self.robot = self.robot or RobotScore()
             tag = f'{score.scenario} {score.frame_id}'
-            for mine, theirs in ((self.robot.objects, score.robot.objects),
-                                 (self.robot.passable, score.robot.passable),
-                                 (self.robot.drops, score.robot.drops)):
-                mine.extend((f'{name} ({tag})', hits, cells) for name, hits, cells in theirs)
+            for kind in ('objects', 'passable', 'drops'):
+                getattr(self.robot, kind).extend(
+                    (f'{name} ({tag})', hits, cells)
+                    for name, hits, cells in getattr(score.robot, kind))
+            self.robot.tolerant += score.robot.tolerant
         if score.refined_pixel is not None and score.refined_cell is not None:
             self.refined_pixel = (self.refined_pixel or Confusion()) + score.refined_pixel
             self.refined_cell = (self.refined_cell or Confusion()) + score.refined_cell
@@ -552,19 +527,20 @@ class SceneSummary:
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready scores (NaN becomes None)."""
-        out: dict[str, Any] = {'frames': self.frames, 'mean_ms': _json_number(self.mean_ms),
-                               'pixel': _json_dict(self.pixel.as_dict()),
-                               'cell': _json_dict(self.cell.as_dict())}
+        out: dict[str, Any] = {'frames': self.frames, 'mean_ms': self.mean_ms,
+                               'pixel': self.pixel.as_dict(), 'cell': self.cell.as_dict()}
         if self.refined_pixel is not None and self.refined_cell is not None:
-            out['refined'] = {'pixel': _json_dict(self.refined_pixel.as_dict()),
-                              'cell': _json_dict(self.refined_cell.as_dict())}
+            out['refined'] = {'pixel': self.refined_pixel.as_dict(),
+                              'cell': self.refined_cell.as_dict()}
         if self.robot is not None:
             found, counted, missed = self.objects_found()
             marked, drops, unmarked = self.drops_marked()
             out['robot'] = {'objects_found': found, 'objects': counted, 'missed': missed,
-                            'passable_free': _json_number(self.passable_free()),
-                            'drops_marked': marked, 'drops': drops, 'unmarked': unmarked}
-        return out
+                            'passable_free': self.passable_free(), 'drops_marked': marked,
+                            'drops': drops, 'unmarked': unmarked,
+                            'f1_one_cell': self.robot.tolerant.f1,
+                            'far_alarm_rate': self.robot.tolerant.far_alarm_rate}
+        return _without_nan(out)
 
 
 def _reached(entries: list[tuple[str, int, int]], share: float,
@@ -574,12 +550,11 @@ def _reached(entries: list[tuple[str, int, int]], share: float,
     return len(entries) - len(missed), len(entries), missed
 
 
-def _json_number(value: float) -> float | None:
+def _without_nan(value: Any) -> Any:
+    """Return ``value`` with every NaN (in nested dicts too) replaced by None."""
+    if isinstance(value, dict):
+        return {k: _without_nan(v) for k, v in value.items()}
     return None if isinstance(value, float) and math.isnan(value) else value
-
-
-def _json_dict(values: dict[str, Any]) -> dict[str, Any]:
-    return {k: _json_number(v) for k, v in values.items()}
 
 
 @dataclass
@@ -649,9 +624,9 @@ def evaluate_frames(frames: Iterable[LabelledFrame], base: DetectorParams, *,
     for frame, params, result, prev_mask in detect_frames(frames, base):
         roi = truth_roi(frame, params)
         grid = truth_costmap(frame, params, roi)
-        pixel, cell = score_frame(frame, result, params, grid)
-        score = FrameScore(frame.scenario, frame.frame_id, pixel, cell,
-                           int(result.obstacle_points.shape[0]),
+        score = FrameScore(frame.scenario, frame.frame_id,
+                           metrics.pixel_confusion(result.labels, frame.truth_labels),
+                           metrics.cell_confusion(result.costmap.data, grid),
                            float(result.timings_ms.get('total', math.nan)))
         if frame.truth == 'robot':
             score.robot = robot_score(frame, result.costmap.data, params, grid, roi)
@@ -670,63 +645,75 @@ def evaluate_frames(frames: Iterable[LabelledFrame], base: DetectorParams, *,
 # --------------------------------------------------------------------------------------------
 # Text output
 
-_COLUMNS = (('px P', 'pixel', 'precision'), ('px R', 'pixel', 'recall'),
-            ('px F1', 'pixel', 'f1'), ('px FA', 'pixel', 'false_alarm_rate'),
-            ('cell P', 'cell', 'precision'), ('cell R', 'cell', 'recall'),
-            ('cell F1', 'cell', 'f1'), ('IoU', 'cell', 'iou'),
-            ('cell FA', 'cell', 'false_alarm_rate'))
+def _table(report: Report, columns: Sequence[tuple[str, int, Callable[[Any], str]]],
+           ) -> list[str]:
+    """Fixed-width rows: one per scenario and 'overall'; ``columns``: (head, width, cell)."""
+    width = max([len('overall')] + [len(n) for n in report.scenes]) + 1
+    head = f'{"scenario":<{width}} ' + ' '.join(f'{h:>{w}}' for h, w, _ in columns)
+    lines = [head, '-' * len(head)]
+    for summary in [*report.scenes.values(), None, report.overall]:
+        lines.append('-' * len(head) if summary is None else f'{summary.name:<{width}} '
+                     + ' '.join(f'{cell(summary):>{w}}' for _, w, cell in columns))
+    return lines
+
+
+def _score_column(head: str, kind: str, attr: str, refined: bool = False, width: int = 7,
+                  ) -> tuple[str, int, Callable[[SceneSummary], str]]:
+    """Return a column of one confusion ratio (``kind`` 'pixel' or 'cell'), optionally refined."""
+    def cell(summary: SceneSummary) -> str:
+        confusion = getattr(summary, f'refined_{kind}' if refined else kind)
+        return format_score(getattr(confusion or Confusion(), attr))
+    return head, width, cell
+
+
+def _frames(summary: SceneSummary) -> str:
+    return str(summary.frames)
+
+
+def _percent(value: float, digits: int = 2) -> str:
+    return '-' if math.isnan(value) else f'{100 * value:.{digits}f}'
 
 
 def format_table(report: Report, *, refined: bool = False) -> str:
     """Return a fixed-width table: one row per scenario and an 'overall' row."""
-    width = max([len('overall')] + [len(n) for n in report.scenes]) + 1
-    head = f'{"scenario":<{width}} {"frames":>6} ' + ' '.join(
-        f'{c[0]:>7}' for c in _COLUMNS) + f' {"ms":>7}'
-    lines = [head, '-' * len(head)]
-    rows = list(report.scenes.values()) + [report.overall]
-    for i, summary in enumerate(rows):
-        if i == len(rows) - 1:
-            lines.append('-' * len(head))
-        pixel, cell = summary.pixel, summary.cell
-        if refined:
-            pixel = summary.refined_pixel or Confusion()
-            cell = summary.refined_cell or Confusion()
-        confusions = {'pixel': pixel, 'cell': cell}
-        cells = ' '.join(f'{format_score(getattr(confusions[kind], attr)):>7}'
-                         for _, kind, attr in _COLUMNS)
-        lines.append(f'{summary.name:<{width}} {summary.frames:>6} {cells} '
-                     f'{summary.mean_ms:>7.1f}')
-    return '\n'.join(lines)
+    columns = [('frames', 6, _frames)] + [
+        _score_column(head, kind, attr, refined) for head, kind, attr in (
+            ('px P', 'pixel', 'precision'), ('px R', 'pixel', 'recall'),
+            ('px F1', 'pixel', 'f1'), ('px FA', 'pixel', 'false_alarm_rate'),
+            ('cell P', 'cell', 'precision'), ('cell R', 'cell', 'recall'),
+            ('cell F1', 'cell', 'f1'), ('IoU', 'cell', 'iou'),
+            ('cell FA', 'cell', 'false_alarm_rate'))]
+    columns.append(('ms', 7, lambda s: f'{s.mean_ms:.1f}'))
+    return '\n'.join(_table(report, columns))
 
 
 #: Issue 9's targets for the robot-level suite (``params/corridor.yaml``).
 ROBOT_TARGETS = {'cell_f1': 0.9, 'false_alarm_rate': 0.01, 'passable_free': 0.97}
 
 
-def _share(hits: int, total: int) -> str:
-    return f'{hits}/{total}' if total else '-'
+def _share(reached: tuple[int, int, list[str]]) -> str:
+    return f'{reached[0]}/{reached[1]}' if reached[1] else '-'
 
 
 def format_robot_table(report: Report) -> str:
-    """Return the robot-level table: a row per scenario, 'overall', misses, targets."""
-    width = max([len('overall')] + [len(n) for n in report.scenes]) + 1
-    head = (f'{"scenario":<{width}} {"frames":>6} {"cell F1":>7} {"FA %":>6} {"objects":>8} '
-            f'{"pass %":>6} {"drops":>6} {"px F1":>6} {"ms":>6}')
-    lines = [head, '-' * len(head)]
-    rows = list(report.scenes.values()) + [report.overall]
-    for i, summary in enumerate(rows):
-        if i == len(rows) - 1:
-            lines.append('-' * len(head))
-        found, counted, _ = summary.objects_found()
-        marked, drops, _ = summary.drops_marked()
-        fa = summary.cell.false_alarm_rate
-        passable = summary.passable_free()
-        lines.append(
-            f'{summary.name:<{width}} {summary.frames:>6} {format_score(summary.cell.f1):>7} '
-            f'{"-" if math.isnan(fa) else f"{100 * fa:.2f}":>6} {_share(found, counted):>8} '
-            f'{"-" if math.isnan(passable) else f"{100 * passable:.1f}":>6} '
-            f'{_share(marked, drops):>6} {format_score(summary.pixel.f1):>6} '
-            f'{summary.mean_ms:>6.1f}')
+    """Return the robot-level table: a row per scenario, 'overall', misses, targets.
+
+    "F1 1-cell" counts a mark within one cell of a true obstacle (and back); "FA>1 cell %" is
+    the share of free cells marked with no true obstacle within one cell.
+    """
+    def tolerant(summary: SceneSummary) -> TolerantCells:
+        return summary.robot.tolerant if summary.robot else TolerantCells()
+
+    lines = _table(report, [
+        ('frames', 6, _frames), _score_column('cell F1', 'cell', 'f1'),
+        ('F1 1-cell', 9, lambda s: format_score(tolerant(s).f1)),
+        ('FA %', 6, lambda s: _percent(s.cell.false_alarm_rate)),
+        ('FA>1 cell %', 11, lambda s: _percent(tolerant(s).far_alarm_rate)),
+        ('objects', 8, lambda s: _share(s.objects_found())),
+        ('pass %', 6, lambda s: _percent(s.passable_free(), 1)),
+        ('drops', 6, lambda s: _share(s.drops_marked())),
+        _score_column('px F1', 'pixel', 'f1', width=6),
+        ('ms', 6, lambda s: f'{s.mean_ms:.1f}')])
     overall = report.overall
     found, counted, missed = overall.objects_found()
     marked, drops, unmarked = overall.drops_marked()
@@ -749,25 +736,16 @@ def format_robot_table(report: Report) -> str:
     return '\n'.join(lines)
 
 
-#: README-ready text on what the scores count.
+#: The short form of docs/accuracy.md, "What the scores count" (the tools' --help).
 SCORE_DEFINITIONS = """\
-What counts (obstacle = positive class; scores pool the counts of all frames of a row):
-  pixel: evaluated pixels are those where the truth saw a surface (label != no return) AND the
-         pipeline made a call (its label is ground or obstacle; no-depth and outside-ROI pixels
-         are left out). Predicted obstacle = pipeline label OBSTACLE; true = truth OBSTACLE.
-  cell:  truth grid in the costmap's geometry: occupied where a noise-free point of a truth
-         OBSTACLE pixel inside the ROI falls, free where only TRAVERSABLE points fall, unknown
-         (not evaluated) elsewhere. Predicted obstacle = costmap cell OCCUPIED (100); free and
-         unknown pipeline cells count as 'not obstacle'.
-  P precision tp/(tp+fp), R recall tp/(tp+fn), F1 2tp/(2tp+fp+fn), IoU tp/(tp+fp+fn),
-  FA false-alarm rate fp/(fp+tn): share of traversable truth marked obstacle. '-' = undefined.
-Robot-level suite (--suite robot): the truth is the robot-level one (box, table and shelf tops,
-  curbs, the lower floor beyond a drop are obstacles; ramps to a landing, sills traversable;
-  surfaces above the robot count as free); the truth grid keeps the forward range and lateral
-  limits of the ROI but no height band, and marks the cells where the floor ends at a drop.
-  objects: named obstacles found (>= 50 % of their visible cells occupied) / seen (>= 3 cells),
-  per frame; pass %: free truth cells of the passable named surfaces left free; drops: drops
-  whose edge cells are marked (>= 50 % within one cell) / seen. Flying pixels are not scored.
+What counts (obstacle = positive class; a row pools the counts of its frames):
+  pixel: pixels where the truth saw a surface and the pipeline called ground or obstacle;
+  cell:  the costmap's cells against a truth grid of the noise-free points (unknown cells are
+         not scored). P precision, R recall, F1, IoU, FA false-alarm rate fp/(fp+tn): the
+         share of traversable truth marked obstacle. '-' = undefined.
+Robot-level suite (--suite robot): objects found (>= 50 % of their cells occupied) / seen,
+  pass %: passable surfaces left free; drops marked; 1-cell: a mark within one cell counts.
+Details: docs/accuracy.md.
 """
 
 

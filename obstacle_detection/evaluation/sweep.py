@@ -52,8 +52,6 @@ def best_of_grid(scores: np.ndarray, *, higher_is_better: bool = True,
                  ) -> tuple[int, ...] | None:
     """Index of the best finite score (first in row-major order), None when none is finite."""
     grid = np.asarray(scores, dtype=np.float64)
-    if grid.ndim < 1:
-        raise ValueError(f'scores must be a grid, got shape {grid.shape}')
     finite = np.isfinite(grid)
     if not finite.any():
         return None
@@ -90,11 +88,6 @@ class SweepResult:
     positives: dict[str, int] = field(default_factory=dict)
     also: tuple[Axis, ...] = ()
 
-    @property
-    def shape(self) -> tuple[int, ...]:
-        """Grid shape (ny, nx, *extra)."""
-        return grid_shape(self.x, self.y, self.also)
-
     def ranking(self, scene: str) -> tuple[np.ndarray, str, bool]:
         """(grid, metric name, higher is better) used to rank the settings of one scene."""
         kind, attr, higher = METRICS[self.metric]
@@ -110,6 +103,14 @@ class SweepResult:
         """Index (row, col, *extra) of the best setting of one scene ('overall' included)."""
         grid, _, higher = self.ranking(scene)
         return best_of_grid(grid, higher_is_better=higher)
+
+    def view(self, scene: str) -> tuple[np.ndarray, str, bool, str]:
+        """(ny, nx) best over the extra axes, metric, higher is better, title of one scene."""
+        grid, metric, higher = self.ranking(scene)
+        title = f'{scene}: {metric}'
+        if self.also:
+            title += f' (best over {", ".join(a.name for a in self.also)})'
+        return project(grid, higher_is_better=higher), metric, higher, title
 
 
 def grid_shape(x: Axis, y: Axis | None, also: Sequence[Axis] = ()) -> tuple[int, ...]:
@@ -129,12 +130,6 @@ def setting_of(x: Axis, y: Axis | None, also: Sequence[Axis], index: tuple[int, 
     return out
 
 
-def settings_params(base: DetectorParams, x: Axis, y: Axis | None, *index: int,
-                    also: Sequence[Axis] = ()) -> DetectorParams:
-    """Return ``base`` with grid cell ``index``'s setting applied (ValueError when invalid)."""
-    return evaluation.apply_overrides(base, setting_of(x, y, also, tuple(index)))
-
-
 def check_sweep(x: Axis, y: Axis | None, metric: str, also: Sequence[Axis] = ()) -> None:
     """Raise ValueError for an unknown metric or an axis given twice."""
     if metric not in METRICS:
@@ -151,7 +146,8 @@ def sweep_points(base: DetectorParams, x: Axis, y: Axis | None, also: Sequence[A
     points: list[tuple[tuple[int, ...], DetectorParams | ValueError]] = []
     for index in np.ndindex(*grid_shape(x, y, also)):
         try:
-            points.append((index, settings_params(base, x, y, *index, also=also)))
+            points.append((index, evaluation.apply_overrides(
+                base, setting_of(x, y, also, tuple(index)))))
         except ValueError as exc:
             points.append((index, exc))
     return points
@@ -207,16 +203,12 @@ def run_sweep(frames: Sequence[evaluation.LabelledFrame], base: DetectorParams, 
 
 def format_grid(result: SweepResult, scene: str) -> str:
     """Return the grid of one scene as text: rows = y, columns = x; best marked '*'."""
-    grid, metric, higher = result.ranking(scene)
-    flat = project(grid, higher_is_better=higher)
+    flat, _, _, title = result.view(scene)
     best = result.best(scene)
     y_name = result.y.name if result.y is not None else ''
     y_values = result.y.values if result.y is not None else ('',)
     width = max(8, *(len(v) + 2 for v in result.x.values))
     first = max(len(y_name), *(len(v) for v in y_values), len(result.x.name) + 3) + 1
-    title = f'{scene}: {metric}'
-    if result.also:
-        title += f' (best over {", ".join(a.name for a in result.also)})'
     lines = [title,
              f'{y_name + " / " + result.x.name if y_name else result.x.name:<{first}}'
              + ''.join(f'{v:>{width}}' for v in result.x.values)]

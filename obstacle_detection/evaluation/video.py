@@ -1,6 +1,6 @@
 """Scores of the fused costmap over a sequence, side by side with the per-frame costmap.
 
-What is measured: ``VIDEO_SCORE_DEFINITIONS`` and docs/accuracy.md.
+What is measured: docs/accuracy.md, "Scores of the fused costmap over a sequence".
 """
 
 from __future__ import annotations
@@ -15,15 +15,15 @@ import cv2
 import numpy as np
 
 from obstacle_detection.labels import CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN
-from obstacle_detection.pipeline import geometry
 from . import metrics
 from obstacle_detection.pipeline.costmap import Costmap, build_costmap
 from obstacle_detection.pipeline.fusion import FusedGrid, FusionParams, frame_evidence
 from .metrics import Confusion
+from .runner import points_roi
 from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE, DetectorParams
 from obstacle_detection.pipeline.detector import Detector
 from obstacle_detection.sim.scenes import scene_params
-from obstacle_detection.sim.sequences import SceneSequence, SequenceFrame
+from obstacle_detection.sim.sequences import SceneSequence
 
 #: The blind zone of the memory score: ahead of the robot, x in [0, 0.5) m, |y| <= 0.3 m.
 BLIND_ZONE_X_M = (0.0, 0.5)
@@ -37,34 +37,6 @@ STILL_FRAMES = 10
 #: The issue's targets [frames at 30 Hz]: a new obstacle marked, a vacated cell cleared.
 MARK_BUDGET_FRAMES = 3
 CLEAR_BUDGET_FRAMES = 10
-
-VIDEO_SCORE_DEFINITIONS = """
-- truth of the area seen so far: each frame's truth grid overwrites the cells it saw (occupied
-  when an obstacle point falls in the cell, free when only traversable ground does); cells
-  seen once keep their last truth when out of view;
-- fused F1: the fused window against that truth (cells of the window whose truth is known),
-  pooled over frames; per-frame F1: the detector's costmap against its own frame's truth
-  (the single-frame score of tools/evaluate.py); fused F1 in view: the fused grid sampled at
-  the per-frame costmap's cells against the same single-frame truth (the fair comparison);
-  per-frame F1 vs the area: the per-frame grid in the fused window against the area's truth;
-- flicker: cells whose occupied state changes between two consecutive frames while nothing
-  moved or appeared near them (no cell within 2 cells changed its truth in the last 10
-  frames: a grid catching up with a change is not flicker), over the cells the grid knows
-  at the later frame; a fused cell counts when it was known (not unknown) at the earlier
-  frame, a per-frame cell when it was seen in both;
-- frames until marked: for each run of frames in which a cell of the fused window has an
-  occupied truth, the number of frames up to and including the first where the grid marks
-  it (1 = at once); frames until cleared: for each run in which a formerly occupied cell is
-  seen free, up to the first frame the grid no longer marks it (counted when the grid marked
-  it before). Only
-  runs the detector saw steadily count (it marked the cell, or saw it free, in each of the
-  run's first 3 frames for a mark, 10 for a clearing): fusion cannot be faster than the
-  detector. A steady run that ends unmarked (uncleared) is *missed* when it lasted at least
-  those 3 (10) frames;
-- blind-zone memory: truth-occupied cells closer than 0.5 m ahead of the robot (the Kinect v2
-  returns nothing nearer), |y| <= 0.3 m: the share the grid marks, over all frames (and the
-  share with a marked cell within one cell: odometry drift shifts the memory a little).
-"""
 
 
 #: The two grids scored: the fused one and the per-frame one moved into odom.
@@ -237,34 +209,15 @@ class _Lattice:
             (np.abs(left) <= BLIND_ZONE_HALF_WIDTH_M)
 
 
-def truth_points_in_roi(sf: SequenceFrame, params: DetectorParams,
-                        ) -> tuple[np.ndarray, np.ndarray]:
-    """(obstacle (O, 3), traversable (T, 3)) true base-frame points in the region of interest."""
-    flat = sf.frame.points_ground.reshape(-1, 3)
-    finite = np.isfinite(flat).all(axis=1)
-    roi = np.zeros(flat.shape[0], dtype=bool)
-    roi[finite] = geometry.roi_mask(flat[finite], params)
-    return metrics.truth_points(sf.frame.points_ground, sf.frame.labels,
-                                roi.reshape(sf.frame.labels.shape))
-
-
-def _dilate(mask: np.ndarray, radius: int) -> np.ndarray:
-    """Return ``mask`` grown by ``radius`` cells (a square neighbourhood)."""
-    if radius <= 0 or not mask.any():
-        return mask.copy()
-    kernel = np.ones((2 * radius + 1, 2 * radius + 1), np.uint8)
-    return cv2.dilate(mask.astype(np.uint8), kernel).astype(bool)
-
-
 #: Outline of the truth's obstacles in the contact sheet's panels.
 TRUTH_OUTLINE_RGB = (230, 120, 0)
 
 
-def _to_odom(points: np.ndarray, pose: tuple[float, float, float]) -> np.ndarray:
+def _to_odom(pose: tuple[float, float, float], x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """(M, 2) odom x, y [m] of base-frame x, y, at ``pose``."""
     c, s = math.cos(pose[2]), math.sin(pose[2])
-    x, y = points[:, 0].astype(np.float64), points[:, 1].astype(np.float64)
-    return np.stack([pose[0] + c * x - s * y, pose[1] + s * x + c * y,
-                     points[:, 2].astype(np.float64)], axis=1)
+    x, y = np.ravel(x).astype(np.float64), np.ravel(y).astype(np.float64)
+    return np.stack([pose[0] + c * x - s * y, pose[1] + s * x + c * y], axis=1)
 
 
 def _panel(grid: np.ndarray, truth: np.ndarray, pose: tuple[float, float, float],
@@ -322,7 +275,9 @@ def observe_sequence(sequence: SceneSequence, base: DetectorParams, *,
         if detector is None or detector.params != params:
             detector = Detector(params)
         result = detector.process(sf.frame.depth_mm, sf.frame.intrinsics)
-        obstacle, traversable = truth_points_in_roi(sf, params)
+        points = sf.frame.points_ground
+        obstacle, traversable = metrics.truth_points(points, sf.frame.labels,
+                                                     points_roi(points, params))
         truth = build_costmap(obstacle, traversable, params).data
         yield Observation(index=index, stamp_s=sf.stamp_s, pose_true=sf.pose_true,
                           pose_odom=sf.pose_odom, costmap=result.costmap,
@@ -369,8 +324,9 @@ class _Scorer:
         self.resets += update.reset
         self.in_place += update.in_place
         # truth: this frame's cells in odom overwrite the area seen so far
-        seen = metrics.truth_grid(_to_odom(obs.truth_obstacle, obs.pose_true),
-                                  _to_odom(obs.truth_traversable, obs.pose_true),
+        pose = obs.pose_true
+        seen = metrics.truth_grid(_to_odom(pose, *obs.truth_obstacle[:, :2].T),
+                                  _to_odom(pose, *obs.truth_traversable[:, :2].T),
                                   (lattice.origin_cell[0] * lattice.res,
                                    lattice.origin_cell[1] * lattice.res),
                                   lattice.res, lattice.shape)
@@ -409,16 +365,13 @@ class _Scorer:
         conf['per_frame'] += metrics.cell_confusion(obs.costmap.data, obs.truth_costmap)
         xs, ys = obs.costmap.cell_centres()
         bx, by = np.meshgrid(xs, ys)
-        c, s = math.cos(pose[2]), math.sin(pose[2])
-        odom_xy = np.stack([pose[0] + c * bx - s * by,
-                            pose[1] + s * bx + c * by], axis=-1).reshape(-1, 2)
-        fused_view = self.grid.values_at(odom_xy).reshape(bx.shape)
+        fused_view = self.grid.values_at(_to_odom(pose, bx, by)).reshape(bx.shape)
         conf['fused_view'] += metrics.cell_confusion(fused_view, obs.truth_costmap)
 
     def _flicker(self, step: int, truth_prev: np.ndarray,
                  worlds: dict[str, np.ndarray]) -> None:
         """Cells whose occupied state changed while nothing moved nearby."""
-        moved = _dilate(self.truth_area != truth_prev, STILL_RADIUS_CELLS)
+        moved = metrics.grow_cells(self.truth_area != truth_prev, STILL_RADIUS_CELLS)
         self.last_change[moved] = step
         previous = self.previous
         if not previous:
@@ -458,7 +411,8 @@ class _Scorer:
         for key in _GRIDS:
             marked_here = worlds[key] == CELL_OCCUPIED
             self.blind[key] += int(np.count_nonzero(zone & marked_here))
-            self.blind[key + '_near'] += int(np.count_nonzero(zone & _dilate(marked_here, 1)))
+            near = metrics.grow_cells(marked_here, 1)
+            self.blind[key + '_near'] += int(np.count_nonzero(zone & near))
 
     def report(self, name: str, total: int) -> SequenceReport:
         """Close the runs and return the scores."""
@@ -502,6 +456,28 @@ def evaluate_sequence(sequence: SceneSequence, base: DetectorParams,
                                          on_frame=on_frame))
     return score_sequence(sequence.name, observations, fusion, rate_hz=sequence.rate_hz,
                           use_odometry=use_odometry, sheet_frames=sheet_frames)
+
+
+def contact_sheet(reports: Sequence[SequenceReport], fusion: FusionParams) -> np.ndarray:
+    """Stack the reports' sheets one under the other, with a title and a legend (RGB)."""
+    from obstacle_detection.viz import pictures
+    from obstacle_detection.viz.overlay import FREE_RGB, OCCUPIED_RGB, ROBOT_RGB, UNKNOWN_RGB
+
+    drawn = [r for r in reports if r.sheet is not None]
+    width = max(r.sheet.shape[1] for r in drawn)
+    rows = [np.pad(r.sheet, ((0, 0), (0, width - r.sheet.shape[1]), (0, 0)),
+                   constant_values=255) for r in drawn]
+    legend = pictures.legend(
+        f'each pair: per-frame costmap moved into odom | fused costmap; a {fusion.size_m:g} m '
+        f'x {fusion.size_m:g} m window around the robot, north-up in odom (x up, y left), '
+        f'{fusion.resolution_m * 100:g} cm cells', [
+            ('box', OCCUPIED_RGB, 'occupied'), ('box', FREE_RGB, 'free'),
+            ('box', UNKNOWN_RGB, 'unknown'),
+            ('line', TRUTH_OUTLINE_RGB, "the truth's obstacles seen so far"),
+            ('triangle', ROBOT_RGB, 'robot (a disc, a line along its heading)')], width)
+    names = ', '.join(r.name for r in drawn)
+    return pictures.titled(np.vstack(rows), f'Per-frame and fused costmaps over time: {names}',
+                           below=legend)
 
 
 def format_table(reports: list[SequenceReport]) -> str:
