@@ -619,6 +619,6 @@ def test_camera_info_is_found_beside_the_raw_topic_of_a_compressed_one(
                              '--depth-topic', '/cam/depth/image_raw/compressedDepth']) == 0
 
     out = capsys.readouterr().out
-    assert ('intrinsics: CameraInfo on /cam/depth/camera_info (found by type beside '
+    assert ('intrinsics: CameraInfo on /cam/depth/camera_info (found by type, the nearest to '
             '/cam/depth/image_raw)') in out
     assert 'depth frames: 2, processed 2, skipped 0' in out
