@@ -100,9 +100,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('output', type=Path, help='rosbag2 folder to create (must not exist)')
     p.add_argument('--topics', nargs='+', default=(), metavar='TOPIC',
                    help='convert only these topics (default: all)')
-    p.add_argument('--decompress-depth', action='store_true',
-                   help='write compressed depth topics (.../compressed, .../compressedDepth) '
-                        'as raw sensor_msgs/Image on their raw topic (.../compressed -> ...)')
     return parser
 
 
@@ -137,8 +134,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         if args.source == 'ros1':
             summary = convert_ros1(args.bag, args.output, storage=args.storage,
-                                   topics=args.topics, progress=not args.quiet,
-                                   decompress_depth=args.decompress_depth)
+                                   topics=args.topics, progress=not args.quiet)
         else:
             source = sources[args.source]()
             summary = write_frames(source, args.output, options_from_args(args))

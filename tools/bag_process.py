@@ -22,7 +22,7 @@ from obstacle_detection.cli import support as tool_support
 from obstacle_detection.cli.bag_processor import (DEFAULT_NAMESPACE, config_from_values,
                                                   format_report, node_param_values, process_bag)
 from obstacle_detection.ros import RosInputError
-from obstacle_detection.ros.parameters import ALL_PARAMS, read_params_files
+from obstacle_detection.ros.parameters import read_params_files
 from obstacle_detection.cli.bag_writer import DEFAULT_DEPTH_TOPIC, DEFAULT_INFO_TOPIC, STORAGES
 from obstacle_detection.fleet import bags as fleet_bags
 from obstacle_detection.fleet.cluster import (FleetError, add_fleet_arguments, fleet_options,
@@ -80,13 +80,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Process a bag (or many); return the exit code (0 success, 1 bad input, 2 bad usage)."""
     args = build_parser().parse_args(argv)
     try:
-        if args.params_file:
-            values = node_param_values(args.params_file)
-            origin = ', '.join(str(p) for p in args.params_file)
-        else:
-            values, origin = {spec.name: spec.default for spec in ALL_PARAMS}, 'defaults'
+        values = node_param_values(args.params_file)
+        origin = ', '.join(str(p) for p in args.params_file) or 'defaults'
         config = config_from_values(values, origin)
-        mount_origin = (origin if args.params_file and _sets_mount(args.params_file)
+        mount_origin = (origin if _sets_mount(args.params_file)
                         else "the node's defaults: no params file sets it")
         if fleet_bags.is_many(args.bag) or args.scheduler or args.workers:
             return _process_many(args, values, origin, mount_origin)

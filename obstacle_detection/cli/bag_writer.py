@@ -19,9 +19,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.ros import RosInputError
-from obstacle_detection.ros.compressed_depth import (COMPRESSED_IMAGE_TYPE,
-                                                     compressed_depth_to_array, parse_format,
-                                                     raw_topic)
+from obstacle_detection.ros.compressed_depth import COMPRESSED_IMAGE_TYPE, parse_format
 from obstacle_detection.ros.conversions import array_to_image, intrinsics_to_camera_info
 from obstacle_detection.cli.progress import Progress
 from obstacle_detection.evaluation.datasets import (EvaluationError, FrameSource,
@@ -203,12 +201,11 @@ def write_frames(source: FrameSource, output: Path, options: BagOptions) -> Summ
 
 
 def convert_ros1(src: Path, output: Path, *, storage: str = 'sqlite3',
-                 topics: Sequence[str] = (), progress: bool = True,
-                 decompress_depth: bool = False) -> Summary:
+                 topics: Sequence[str] = (), progress: bool = True) -> Summary:
     """Convert a ROS 1 bag to rosbag2, every message to its ROS 2 Jazzy type (EvaluationError).
 
-    Compressed depth topics are named in the notes; with ``decompress_depth`` they are written
-    decoded, as ``sensor_msgs/Image`` on their raw topic (a frame that fails is left out, said).
+    Compressed depth topics are kept as recorded and named in the notes (the node, with its
+    ``depth_transport``, and ``bag_process.py --depth-topic`` read them).
     """
     from rosbags.convert.converter import create_connections_converters
     from rosbags.highlevel import AnyReader, AnyReaderError
@@ -217,7 +214,6 @@ def convert_ros1(src: Path, output: Path, *, storage: str = 'sqlite3',
         raise EvaluationError(f'{src}: ROS 1 bag not found')
     summary = Summary(output=output)
     noetic = get_typestore(Stores.ROS1_NOETIC)
-    jazzy = get_typestore(Stores.ROS2_JAZZY)
     with staged_output(output) as staging:
         try:
             with AnyReader([src], default_typestore=noetic) as reader:
@@ -228,77 +224,39 @@ def convert_ros1(src: Path, output: Path, *, storage: str = 'sqlite3',
                     raise EvaluationError(f'{src}: has no topic {", ".join(missing)}')
                 if not connections:
                     raise EvaluationError(f'{src}: contains no messages')
-                decoded = _depth_to_decode(src, reader, connections, noetic, summary,
-                                           decompress_depth)
-                total = sum(c.msgcount for c in connections)
+                for topic, fmt in _compressed_depth_topics(reader, connections, noetic):
+                    summary.notes.append(f'{topic}: compressed depth ({fmt!r}); '
+                                         f'bag_process.py --depth-topic {topic} reads it')
                 with Writer(staging, version=BAG_VERSION,
-                            storage_plugin=STORAGES[storage]) as writer:
-                    kept = [c for c in connections if c.topic not in decoded]
+                            storage_plugin=STORAGES[storage]) as writer, \
+                        Progress(sum(c.msgcount for c in connections), 'converting',
+                                 stream=None if progress else io.StringIO()) as bar:
                     # rosbags prints which types it migrates; keep stdout for our summary.
                     with contextlib.redirect_stdout(io.StringIO()):
                         connmap, convmap = create_connections_converters(
-                            kept, jazzy, reader, writer) if kept else ({}, {})
-                    raw_conns = {t: writer.add_connection(raw_topic(t), tool_support.IMAGE_TYPE,
-                                                          typestore=jazzy)
-                                 for t in sorted(decoded)}
-                    counts = summary.topics
-                    failed: Counter[tuple[str, str]] = Counter()
-                    with Progress(total, 'converting',
-                                  stream=None if progress else io.StringIO()) as bar:
-                        for conn, timestamp, data in reader.messages(connections=connections):
-                            bar.update()
-                            if conn.topic in decoded:
-                                image, reason = _decoded_depth(data, noetic)
-                                if image is None:
-                                    failed[(conn.topic, reason)] += 1
-                                    continue
-                                writer.write(raw_conns[conn.topic], timestamp, image)
-                                counts[raw_topic(conn.topic)] += 1
-                                continue
-                            writer.write(connmap[(conn.id, conn.owner)], timestamp,
-                                         convmap[conn.msgtype](data))
-                            counts[conn.topic] += 1
+                            connections, get_typestore(Stores.ROS2_JAZZY), reader, writer)
+                    for conn, timestamp, data in reader.messages(connections=connections):
+                        writer.write(connmap[(conn.id, conn.owner)], timestamp,
+                                     convmap[conn.msgtype](data))
+                        summary.topics[conn.topic] += 1
+                        bar.update()
                 summary.duration_s = (reader.end_time - reader.start_time) / 1e9
         except AnyReaderError as err:
             raise EvaluationError(f'{src}: cannot read ROS 1 bag ({err})') from err
         except WriterError as err:
             raise EvaluationError(f'{output}: cannot write bag ({err})') from err
-    for (topic, reason), count in sorted(failed.items()):
-        note = f'{count} frame(s) of {topic} not decoded, left out: {reason}'
-        summary.notes.append(note)
-        tool_support.warn(note)
     summary.topics = Counter(dict(sorted(summary.topics.items())))
     summary.messages = sum(summary.topics.values())
     summary.frames = max(summary.topics.values(), default=0)
     return summary
 
 
-def _depth_to_decode(src: Path, reader: Any, connections: Sequence[Any], typestore: Any,
-                     summary: Summary, decompress_depth: bool) -> set[str]:
-    """Note the compressed depth topics; return those to decode (EvaluationError on a clash)."""
-    depth = _compressed_depth_topics(reader, connections, typestore)
-    for topic, fmt in sorted(depth.items()):
-        summary.notes.append(
-            f'{topic}: compressed depth ({fmt!r}); '
-            + (f'decoded to sensor_msgs/Image on {raw_topic(topic)}' if decompress_depth else
-               f'bag_process.py --depth-topic {topic} reads it (or convert with '
-               '--decompress-depth)'))
-    decoded = set(depth) if decompress_depth else set()
-    targets = Counter(raw_topic(t) for t in decoded)
-    if clash := sorted(t for t, n in targets.items() if n > 1 or t in (
-            {c.topic for c in connections} - decoded)):
-        raise EvaluationError(
-            f'{src}: {", ".join(clash)} would be written twice by --decompress-depth '
-            '(recorded raw too, or from two compressed topics); choose one with --topics')
-    return decoded
-
-
 def _compressed_depth_topics(reader: Any, connections: Sequence[Any],
-                             typestore: Any) -> dict[str, str]:
-    """Map each CompressedImage topic holding depth to its first message's format."""
-    found: dict[str, str] = {}
+                             typestore: Any) -> list[tuple[str, str]]:
+    """Return (topic, first message's format) of each CompressedImage topic holding depth."""
+    found = []
     for conn in connections:
-        if conn.msgtype != COMPRESSED_IMAGE_TYPE or conn.msgcount == 0 or conn.topic in found:
+        if conn.msgtype != COMPRESSED_IMAGE_TYPE or conn.msgcount == 0:
             continue
         _, _, data = next(iter(reader.messages(connections=[conn])))
         fmt = str(typestore.deserialize_ros1(data, COMPRESSED_IMAGE_TYPE).format)
@@ -306,21 +264,5 @@ def _compressed_depth_topics(reader: Any, connections: Sequence[Any],
             parse_format(fmt)
         except RosInputError:
             continue  # colour (jpeg, png of bgr8, ...): not depth
-        found[conn.topic] = fmt
-    return found
-
-
-def _decoded_depth(data: bytes, typestore: Any) -> tuple[bytes | None, str]:
-    """Decode one ROS 1 CompressedImage of depth into a serialized ROS 2 Image, or say why not."""
-    msg = typestore.deserialize_ros1(data, COMPRESSED_IMAGE_TYPE)
-    try:
-        array = compressed_depth_to_array(msg)
-        encoding = parse_format(msg.format)[0]
-    except RosInputError as err:
-        return None, str(err)
-    stamp = Time(sec=int(msg.header.stamp.sec), nanosec=int(msg.header.stamp.nanosec))
-    image = array_to_image(array, stamp=stamp, frame_id=str(msg.header.frame_id),
-                           encoding=encoding)
-    return serialize_message(image), ''
-
-
+        found.append((conn.topic, fmt))
+    return sorted(set(found))
