@@ -133,38 +133,22 @@ def make_folder(root: Path, depths: list[np.ndarray], *, with_color: bool = True
 
 
 @pytest.mark.parametrize('storage', ['sqlite3', 'mcap'])
-@pytest.mark.parametrize('encoding', ['bgr8', 'rgb8'])
 def test_folder_round_trip(tmp_path: Path, depths: list[np.ndarray], storage: str,
-                           encoding: str, capsys: pytest.CaptureFixture[str]) -> None:
+                           capsys: pytest.CaptureFixture[str]) -> None:
     root = make_folder(tmp_path / 'data', depths)
     yaml_path = write_intrinsics(tmp_path / 'camera.yaml')
     bag = tmp_path / 'out'
     code, out, _ = run(['folder', str(root / 'depth'), str(bag), '--color-dir',
                         str(root / 'color'), '--intrinsics', str(yaml_path), '--rate', '10',
-                        '--start-time', '100', '--storage', storage, '--color-encoding',
-                        encoding], capsys)
+                        '--start-time', '100', '--storage', storage], capsys)
     assert code == 0
     assert 'frames: 4 depth' in out
     assert [p.suffix for p in bag.iterdir() if p.name != 'metadata.yaml'] == [
         {'sqlite3': '.db3', 'mcap': '.mcap'}[storage]]
     stamps = [100_000_000_000 + k * 100_000_000 for k in range(4)]
     colors = [fake_color(d, k) for k, d in enumerate(depths)]
-    check_frames(bag, depths, stamps, colors=colors, encoding=encoding)
+    check_frames(bag, depths, stamps, colors=colors)
     assert not list(tmp_path.glob('.*partial*'))
-
-
-def test_folder_topic_and_frame_options(tmp_path: Path, depths: list[np.ndarray],
-                                        capsys: pytest.CaptureFixture[str]) -> None:
-    root = make_folder(tmp_path / 'data', depths[:2], with_color=False)
-    bag = tmp_path / 'out'
-    code, _, _ = run(['folder', str(root / 'depth'), str(bag), '--intrinsics',
-                      str(write_intrinsics(tmp_path / 'c.yaml')), '--depth-topic', '/cam/depth',
-                      '--info-topic', '/cam/info', '--frame-id', 'cam_optical'], capsys)
-    assert code == 0
-    topics = read_bag(bag)
-    assert sorted(topics) == ['/cam/depth', '/cam/info']
-    assert {msg.header.frame_id for _, msg in topics['/cam/depth'] + topics['/cam/info']} == {
-        'cam_optical'}
 
 
 def make_diml(seq: Path, depths: list[np.ndarray], numbers: list[int]) -> None:

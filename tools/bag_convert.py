@@ -19,9 +19,7 @@ from obstacle_detection.cli import support as tool_support
 from obstacle_detection.evaluation.datasets import (DIML_DEPTH_KINDS, TUM_CAMERAS, EvaluationError,
                                                     FrameSource, diml_frames, diml_sample_frames,
                                                     folder_frames, tum_frames)
-from obstacle_detection.cli.bag_writer import (DEFAULT_COLOR_TOPIC, DEFAULT_DEPTH_TOPIC,
-                                               DEFAULT_FRAME_ID, DEFAULT_INFO_TOPIC, STORAGES,
-                                               BagOptions, convert_ros1, write_frames)
+from obstacle_detection.cli.bag_writer import STORAGES, BagOptions, convert_ros1, write_frames
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -38,12 +36,6 @@ def build_parser() -> argparse.ArgumentParser:
     common.add_argument('--quiet', action='store_true', help='no progress bar')
 
     frames = argparse.ArgumentParser(add_help=False)
-    frames.add_argument('--depth-topic', default=DEFAULT_DEPTH_TOPIC, help='(%(default)s)')
-    frames.add_argument('--info-topic', default=DEFAULT_INFO_TOPIC, help='(%(default)s)')
-    frames.add_argument('--color-topic', default=DEFAULT_COLOR_TOPIC, help='(%(default)s)')
-    frames.add_argument('--frame-id', default=DEFAULT_FRAME_ID, help='(%(default)s)')
-    frames.add_argument('--color-encoding', choices=('bgr8', 'rgb8'), default='bgr8',
-                        help='colour encoding (default %(default)s, as the Kinect v2 driver)')
     frames.add_argument('--no-color', action='store_true', help='write depth and camera info only')
 
     timed = argparse.ArgumentParser(add_help=False)
@@ -103,14 +95,6 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def options_from_args(args: argparse.Namespace) -> BagOptions:
-    """Build the writing options from parsed arguments."""
-    return BagOptions(storage=args.storage, depth_topic=args.depth_topic,
-                      info_topic=args.info_topic, color_topic=args.color_topic,
-                      frame_id=args.frame_id, color_encoding=args.color_encoding,
-                      with_color=not args.no_color, progress=not args.quiet)
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the converter; return the exit code (0 success, 1 bad input, 2 bad usage)."""
     args = build_parser().parse_args(argv)
@@ -137,7 +121,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                                    topics=args.topics, progress=not args.quiet)
         else:
             source = sources[args.source]()
-            summary = write_frames(source, args.output, options_from_args(args))
+            summary = write_frames(source, args.output, BagOptions(
+                args.storage, with_color=not args.no_color, progress=not args.quiet))
     except EvaluationError as err:
         return tool_support.report_error('bag_convert', err)
     print('\n'.join(summary.lines()))

@@ -37,15 +37,9 @@ STORAGES = {'sqlite3': StoragePlugin.SQLITE3, 'mcap': StoragePlugin.MCAP}
 
 @dataclasses.dataclass(frozen=True)
 class BagOptions:
-    """Where and how frames are written."""
+    """How frames are written: storage plugin, with colour, with a progress bar."""
 
     storage: str = 'sqlite3'
-    depth_topic: str = DEFAULT_DEPTH_TOPIC
-    info_topic: str = DEFAULT_INFO_TOPIC
-    color_topic: str = DEFAULT_COLOR_TOPIC
-    frame_id: str = DEFAULT_FRAME_ID
-    color_encoding: str = 'bgr8'
-    odom_topic: str = DEFAULT_ODOM_TOPIC
     with_color: bool = True
     progress: bool = True
 
@@ -179,20 +173,20 @@ def write_frames(source: FrameSource, output: Path, options: BagOptions) -> Summ
                             f'first depth image {first} is {size[0]}x{size[1]}')
                     time = to_time(frame.stamp_ns)
                     if frame.pose is not None:
-                        write(options.odom_topic, frame.stamp_ns, _odometry(time, frame.pose))
-                    write(options.info_topic, frame.stamp_ns, intrinsics_to_camera_info(
-                        intr, size[0], size[1], stamp=time, frame_id=options.frame_id))
-                    write(options.depth_topic, frame.stamp_ns, array_to_image(
-                        depth, stamp=time, frame_id=options.frame_id, encoding='16UC1'))
+                        write(DEFAULT_ODOM_TOPIC, frame.stamp_ns, _odometry(time, frame.pose))
+                    write(DEFAULT_INFO_TOPIC, frame.stamp_ns, intrinsics_to_camera_info(
+                        intr, size[0], size[1], stamp=time, frame_id=DEFAULT_FRAME_ID))
+                    write(DEFAULT_DEPTH_TOPIC, frame.stamp_ns, array_to_image(
+                        depth, stamp=time, frame_id=DEFAULT_FRAME_ID, encoding='16UC1'))
                     if options.with_color and frame.color_path is not None:
-                        color = read_color(frame.color_path, options.color_encoding)
-                        if color.shape[:2] != shape and summary.topics[options.color_topic] == 0:
+                        color = read_color(frame.color_path, 'bgr8')
+                        if color.shape[:2] != shape and summary.topics[DEFAULT_COLOR_TOPIC] == 0:
                             summary.notes.append('colour images differ in size from depth: '
                                                  'the colour topic is not registered to the '
                                                  'depth image')
-                        write(options.color_topic, frame.stamp_ns, array_to_image(
-                            color, stamp=time, frame_id=options.frame_id,
-                            encoding=options.color_encoding))
+                        write(DEFAULT_COLOR_TOPIC, frame.stamp_ns, array_to_image(
+                            color, stamp=time, frame_id=DEFAULT_FRAME_ID,
+                            encoding='bgr8'))
                     summary.frames += 1
                     bar.update()
         except WriterError as err:
