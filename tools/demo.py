@@ -175,22 +175,6 @@ def run_demo(args: argparse.Namespace) -> int:
     return 0
 
 
-def _wait_until_ready(executor: Any, status: list[str], player: Any, node: Any,
-                      timeout_s: float, log_hint: Path, log_path: Path) -> None:
-    """Spin until the node's ~/status says ready and the player's topics are matched."""
-    deadline = time.monotonic() + timeout_s
-    while not (status and status[-1].startswith('ready') and player.subscription_count() >= 2):
-        if node.poll() is not None:
-            raise ToolError(log_hint, f'the detector node exited with code {node.returncode} '
-                            'before it was ready; the end of its log:\n'
-                            + node_process.log_tail(log_path))
-        if time.monotonic() > deadline:
-            raise ToolError(log_hint, f'the detector node did not say it was ready within '
-                            f'{timeout_s:g} s (--timeout); the end of its log:\n'
-                            + node_process.log_tail(log_path))
-        executor.spin_once(timeout_sec=0.05)
-
-
 def _write_input(args: argparse.Namespace, out: Path) -> tuple[Any, Any, dict, float]:
     """Render the frames and convert them to a bag (steps 1 and 2).
 
@@ -238,12 +222,19 @@ def _replay(args: argparse.Namespace, out: Path, failed: Path, node: Any, rate: 
         status: list[str] = []
         probe.create_subscription(String, '/obstacle_detector/status',
                                   lambda msg: status.append(msg.data), node_process.status_qos())
-        options = bag_player.PlayOptions(rate=rate, reliable=True,
-                                         wait_for_subscribers=2,
-                                         wait_timeout_s=args.timeout, progress=False)
-        player = bag_player.Player(probe, out / 'input_bag', options)
-        _wait_until_ready(executor, status, player, node, args.timeout,
-                          failed / 'node.log', out / 'node.log')
+        player = bag_player.Player(probe, out / 'input_bag', bag_player.PlayOptions(
+            rate=rate, reliable=True, progress=False))
+        deadline = time.monotonic() + args.timeout
+        # until the node's ~/status says ready and it subscribes to the depth and camera info
+        while not (status and status[-1].startswith('ready')
+                   and player.subscription_count() >= 2):
+            if node.poll() is not None or time.monotonic() > deadline:
+                why = (f'exited with code {node.returncode} before it was ready'
+                       if node.poll() is not None else
+                       f'did not say it was ready within {args.timeout:g} s (--timeout)')
+                raise ToolError(failed / 'node.log', f'the detector node {why}; the end of its '
+                                'log:\n' + node_process.log_tail(out / 'node.log'))
+            executor.spin_once(timeout_sec=0.05)
         print(f'      node {status[-1]}')
         settle = time.monotonic() + 0.5  # let the node's side of the match settle too
         while time.monotonic() < settle:

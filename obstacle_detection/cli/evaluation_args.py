@@ -71,11 +71,8 @@ def base_params(args: argparse.Namespace) -> DetectorParams:
     return params
 
 
-def report_error(prog: str, exc: Exception) -> int:
-    """Print the error line; an unknown scenario, parameter or metric is a usage error (2)."""
-    if isinstance(exc, evaluation.EvaluationError) and exc.usage:
-        exc = tool_support.ToolError(str(exc), usage=True)
-    return tool_support.report_error(prog, exc)
+#: Print the error line; an unknown scenario, parameter or metric is a usage error (2).
+report_error = tool_support.report_error
 
 
 def frame_sources(args: argparse.Namespace,

@@ -308,21 +308,6 @@ def rule_text(params: DetectorParams) -> str:
     return 'robot level' if params.robot_level else "the seed's slope test"
 
 
-def title(frame: _Detected) -> str:
-    """Return the title of one frame's picture."""
-    truth = ', against the ground truth' if frame.truth is not None else ''
-    return (f'{frame.caption}: obstacles in the depth image and the costmap '
-            f'({rule_text(frame.job.params)}{truth})')
-
-
-def titled_frame(frame: _Detected, *, width: int | None = None) -> np.ndarray:
-    """Return the titled picture of one frame; ``width``: drawn to fit it [px]."""
-    if width is None:
-        return pictures.titled(draw(frame), title(frame))
-    return pictures.titled(pictures.fit_width(lambda scale: draw(frame, image_scale=scale),
-                                              width), title(frame))
-
-
 def sheet(args: argparse.Namespace, detected: Sequence[_Detected]) -> np.ndarray:
     """Return the contact sheet of several frames, with one full-size legend underneath."""
     depths = [np.asarray(frame.result.depth_m) for frame in detected]
@@ -347,7 +332,11 @@ def write_pictures(args: argparse.Namespace) -> str:
     """Draw the frames ``args`` select and write the PNG; return the line to print."""
     detected = detect(args)
     if len(detected) == 1:
-        pictures.write_png(args.out, titled_frame(detected[0]))
+        frame = detected[0]
+        truth = ', against the ground truth' if frame.truth is not None else ''
+        pictures.write_png(args.out, pictures.titled(draw(frame), (
+            f'{frame.caption}: obstacles in the depth image and the costmap '
+            f'({rule_text(frame.job.params)}{truth})')))
     else:
         pictures.write_png(args.out, sheet(args, detected))
     return f'wrote {args.out} ({len(detected)} frame{"s" if len(detected) > 1 else ""})'

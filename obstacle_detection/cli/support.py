@@ -9,7 +9,6 @@ import sys
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TextIO
 
 import numpy as np
 
@@ -44,10 +43,7 @@ MOUNT_ANGLE_TOLERANCE_DEG = 5.0
 
 
 class ToolError(ValueError):
-    """The command-line layer's one error: bad input (exit 1) or, with ``usage``, bad options (2).
-
-    ``ToolError(path, problem)`` reads ``<path>: <problem>``; ``ToolError(message)`` the message.
-    """
+    """The tools' error, ``<path>: <problem>`` or a message: bad input, or ``usage``: options."""
 
     def __init__(self, path: str | Path, problem: str | None = None, *,
                  usage: bool = False) -> None:
@@ -55,9 +51,7 @@ class ToolError(ValueError):
         self.usage = usage
 
 
-#: The folder holding the ``obstacle_detection`` package: the repository root in a checkout
-#: (or an editable install), ``site-packages`` once installed. A child process that must import
-#: this copy of the package gets it on its PYTHONPATH.
+#: The folder holding the ``obstacle_detection`` package (the repository root in a checkout).
 PACKAGE_ROOT = Path(__file__).resolve().parents[2]
 
 
@@ -69,24 +63,23 @@ def package_file(relative: str) -> Path:
     return next((path for path in candidates if path.exists()), candidates[0])
 
 
-def report_error(prog: str, error: BaseException, stream: TextIO | None = None) -> int:
-    """Print the one error line of ``error`` and return the exit code it calls for."""
-    stream = sys.stderr if stream is None else stream
+def report_error(prog: str, error: BaseException) -> int:
+    """Print the one error line of ``error``; return its exit code (2 when ``error.usage``)."""
     if getattr(error, 'usage', False):
-        print(f'{prog}: error: {error}', file=stream)
+        print(f'{prog}: error: {error}', file=sys.stderr)
         return EXIT_USAGE
     text = str(error)
     if isinstance(error, OSError) and error.filename is not None and error.strerror:
         text = f'{error.filename}: {error.strerror}'
     elif isinstance(error, KeyError) and error.args:
         text = str(error.args[0])
-    print(f'error: {text}', file=stream)
+    print(f'error: {text}', file=sys.stderr)
     return EXIT_BAD_INPUT
 
 
-def warn(text: str, stream: TextIO | None = None) -> None:
+def warn(text: str) -> None:
     """Print one ``warning: ...`` line on stderr."""
-    print(f'warning: {text}', file=sys.stderr if stream is None else stream)
+    print(f'warning: {text}', file=sys.stderr)
 
 
 # --------------------------------------------------------------------------------------------
