@@ -1,11 +1,8 @@
 #!/usr/bin/env python3
 """Convert recorded RGB-D data into rosbag2 bags that the detector can replay.
 
-Sources, one sub-command each (``bag_convert SOURCE -h`` describes one): ``tum`` (TUM RGB-D
-format: TUM, ETH3D SLAM, Bonn, ICL-NUIM), ``diml`` and ``diml-sample`` (DIML/CVL indoor),
-``folder`` (16-bit depth PNGs) and ``ros1`` (a ROS 1 bag, e.g. iai_kinect2). Output: a rosbag2
-folder with, per frame, a 16UC1 depth image [mm], a CameraInfo and, when available, a colour
-image on the Kinect v2 driver's SD topics; a failed run leaves nothing behind.
+One sub-command per source (``bag_convert SOURCE -h``): per frame a 16UC1 depth image [mm], a
+CameraInfo and a colour image on the Kinect v2 driver's SD topics; a ROS 1 bag message for message.
 """
 
 from __future__ import annotations

@@ -1,9 +1,7 @@
 #!/usr/bin/env python3
 """Replay a rosbag2 bag on ROS 2 topics with its recorded timing (``ros2 bag play`` stand-in).
 
-Publishes the bag's messages as recorded (raw CDR, compressed depth too), spaced by their
-timestamps, with the sensor-data QoS unless ``--reliable``. Run it on the loopback DDS profile
-in a ROS domain of its own, as the README says.
+Messages go out as recorded (compressed depth too), with the sensor-data QoS unless --reliable.
 """
 
 from __future__ import annotations

@@ -1,11 +1,9 @@
 #!/usr/bin/env python3
 """The bundled demo: a recorded-looking depth sequence through the running detector node.
 
-It renders a scene sequence into depth PNGs, converts them to a rosbag2, starts the detector
-node on loopback DDS in a domain of its own, replays the bag into it, records what the node
-publishes and draws it. Everything goes into ``<output>.partial``, moved to ``<output>`` only on
-success (a failed run's files go to ``<output>.failed``). Exit code 0 when the node produced
-output, 1 (with the reason) otherwise; the README describes the steps.
+It renders a scene sequence, converts it to a rosbag2, replays it into the node on loopback DDS,
+records what the node publishes and draws it, in ``<output>.partial``, moved to ``<output>`` on
+success (``<output>.failed`` otherwise). Exit code 0 when the node produced output, else 1.
 """
 
 from __future__ import annotations

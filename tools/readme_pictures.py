@@ -1,12 +1,8 @@
 #!/usr/bin/env python3
 """Make every picture of the README again, from the repository's own code.
 
-The synthetic pictures always; the real-frame ones when the real frames are there
-(``--real-dir``, default ``../shared/data/real`` beside the repository), each panel with its
-mount estimated from the floor. The captions give this machine's pipeline time, so a new run
-changes those few pixels only::
-
-    python tools/readme_pictures.py --out-dir /tmp/pics --real-dir ~/data/real
+The synthetic pictures always; the real-frame ones when the real frames are there (``--real-dir``,
+default ``../shared/data/real`` beside the repository). Only the captions' timings change.
 """
 
 from __future__ import annotations

@@ -167,7 +167,7 @@ def jobs(args: argparse.Namespace, base: DetectorParams) -> Iterator[_Job]:
             name=args.scene, scene=args.scene, seeds=(args.seed,),
             frames=tuple(args.frames) if args.frames is not None else None,
             mount=tuple(sorted(mount_values.items())),
-            truth=args.truth or ('robot' if getattr(base, 'robot_level', False) else 'seed'))
+            truth='robot' if base.robot_level else 'seed')  # the rule the parameters follow
         for frame in evaluation.scenario_frames(scenario, max_frames=args.max_frames):
             yield _Job(f'{frame.scenario} {frame.frame_id}', frame.depth, frame.intrinsics,
                        frame.params(base), truth_labels=frame.truth_labels)
@@ -208,10 +208,6 @@ def build_parser() -> argparse.ArgumentParser:
                                      formatter_class=argparse.RawTextHelpFormatter)
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument('--scene', help='a scene of the generator (scenes.SCENE_NAMES)')
-    parser.add_argument('--truth', choices=('robot', 'seed'),
-                        help="a scene's ground truth: 'robot' (box tops, drops obstacles; "
-                             "the default for robot-level parameters) or 'seed' (slope only; "
-                             'the default for the seed presets)')
     source.add_argument('--depth', type=Path, metavar='PNG',
                         help='a 16-bit depth PNG or PGM (see --depth-scale)')
     source.add_argument('--bag', type=Path, metavar='PATH',
@@ -230,11 +226,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--estimate-mount', action='store_true',
                         help='camera mount from the floor in view (of the first frame of a '
                              'bag);\n--height etc. still override it')
-    parser.add_argument('--depth-topic', default=tool_support.DEFAULT_DEPTH_TOPIC,
-                        help=f'bag depth topic [default: {tool_support.DEFAULT_DEPTH_TOPIC}]')
-    parser.add_argument('--info-topic',
-                        help=f'bag CameraInfo topic [default: {tool_support.DEFAULT_INFO_TOPIC}'
-                             ", else the bag's\nCameraInfo topic found by type]")
+    tool_support.add_topic_options(parser)
     parser.add_argument('--every', type=tool_support.int_in(1), default=1,
                         help='bag: one frame in N')
     parser.add_argument('--max-frames', type=int, metavar='N', help='at most N frames')

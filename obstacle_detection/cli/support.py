@@ -258,6 +258,14 @@ def add_domain_id_option(parser: argparse.ArgumentParser, help_text: str) -> Non
                         metavar='ID', help=help_text)
 
 
+def add_topic_options(parser: argparse.ArgumentParser) -> None:
+    """Add a bag's ``--depth-topic`` and ``--info-topic``."""
+    parser.add_argument('--depth-topic', default=DEFAULT_DEPTH_TOPIC,
+                        help='depth topic (default %(default)s)')
+    parser.add_argument('--info-topic', help=f'CameraInfo topic (default: {DEFAULT_INFO_TOPIC}, '
+                                             "else the bag's CameraInfo topic found by type)")
+
+
 def pin_one_cpu() -> str:
     """Pin this process to one CPU and OpenCV to one thread; return what was done."""
     import cv2
