@@ -72,12 +72,6 @@ class Summary:
         return out
 
 
-def to_time(ns: int) -> Time:
-    """Integer nanoseconds to a ``builtin_interfaces/Time``."""
-    sec, nanosec = divmod(int(ns), 1_000_000_000)
-    return Time(sec=sec, nanosec=nanosec)
-
-
 @contextlib.contextmanager
 def staged_output(output: Path) -> Iterator[Path]:
     """Yield a temporary path beside ``output``; rename it to ``output`` on success."""
@@ -171,7 +165,7 @@ def write_frames(source: FrameSource, output: Path, options: BagOptions) -> Summ
                         raise EvaluationError(
                             f'{frame.depth_path}: {depth.shape[1]}x{depth.shape[0]} but the '
                             f'first depth image {first} is {size[0]}x{size[1]}')
-                    time = to_time(frame.stamp_ns)
+                    time = Time(sec=frame.stamp_ns // 10**9, nanosec=frame.stamp_ns % 10**9)
                     if frame.pose is not None:
                         write(DEFAULT_ODOM_TOPIC, frame.stamp_ns, _odometry(time, frame.pose))
                     write(DEFAULT_INFO_TOPIC, frame.stamp_ns, intrinsics_to_camera_info(

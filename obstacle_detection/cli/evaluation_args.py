@@ -59,9 +59,7 @@ def add_parameter_arguments(parser: argparse.ArgumentParser) -> None:
 def base_params(args: argparse.Namespace) -> DetectorParams:
     """Preset, then parameter file, then ``--set`` overrides (ValueError on a bad one)."""
     params = PRESETS[args.preset]()
-    files = args.params_file if isinstance(args.params_file, list) else (
-        [] if args.params_file is None else [args.params_file])
-    for path in files:  # several files apply in order, as ROS merges them
+    for path in args.params_file:  # several files apply in order, as ROS merges them
         params = evaluation.load_params_file(path, params)
     if args.set:
         try:
@@ -86,9 +84,7 @@ def frame_sources(args: argparse.Namespace,
         scenarios = evaluation.select_scenarios(evaluation.load_scenarios(path), args.scene)
         rules = base_params(args)
         for scenario in scenarios:
-            count = scenario.frame_count
-            if args.max_frames is not None:
-                count = min(count, args.max_frames)
+            count = min(scenario.frame_count, args.max_frames or scenario.frame_count)
             sources.append((scenario.name, count,
                             LazyFrames(evaluation.scenario_frames, scenario,
                                   max_frames=args.max_frames, rules=rules,
