@@ -59,29 +59,6 @@ def _replace(folder: Path, by: Path | None = None) -> None:
         by.rename(folder)
 
 
-def render_sequence(folder: Path, scene: str, frames: int, seed: int, step: int
-                    ) -> tuple[Path, Path, Any, list[tuple[float, float, float]]]:
-    """Write every ``step``-th frame of a sequence as 16-bit PNGs, and a camera YAML.
-
-    Returns (depth folder, camera YAML, first SceneFrame, odometry poses).
-    """
-    from obstacle_detection.evaluation.camera import camera_yaml_text
-    from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE
-    from obstacle_detection.sim.sequences import SceneSequence
-
-    depth_dir = folder / 'depth'
-    depth_dir.mkdir(parents=True)
-    sequence = SceneSequence(scene, seed=seed)
-    items = [sequence.frame(i) for i in range(0, min(len(sequence), frames * step), step)]
-    for k, item in enumerate(items):
-        if not cv2.imwrite(str(depth_dir / f'{scene}_{k:04d}.png'), item.frame.depth_mm):
-            raise ToolError(depth_dir, 'cannot write depth PNGs')
-    camera = folder / 'camera.yaml'
-    camera.write_text(camera_yaml_text(KINECT_V2_SD, size=KINECT_V2_SD_SIZE,
-                                       comment='Kinect v2 SD camera of the rendered scene'))
-    return depth_dir, camera, items[0].frame, [item.pose_odom for item in items]
-
-
 def save_pictures(folder: Path, recorder: Recorder, every: int, params: Any,
                   intrinsics: Any, poses: dict[tuple[int, int], Any]) -> list[Path]:
     """Save a picture of every ``every``-th frame the node published, and a contact sheet.
@@ -139,15 +116,6 @@ def save_pictures(folder: Path, recorder: Recorder, every: int, params: Any,
     return saved
 
 
-def _scene_params(path: Path, frame: Any) -> Any:
-    """Return the node's pipeline parameters: the params file, the rendered scene's mount."""
-    from obstacle_detection.evaluation.runner import load_params_file
-
-    return dataclasses.replace(load_params_file(path), camera_height_m=float(frame.height_m),
-                               camera_pitch_rad=float(frame.pitch_rad),
-                               camera_roll_rad=float(frame.roll_rad))
-
-
 def run_demo(args: argparse.Namespace) -> int:
     """Run every step into ``<output>.partial``, moved to ``<output>`` only on success."""
     began = time.monotonic()
@@ -174,26 +142,38 @@ def run_demo(args: argparse.Namespace) -> int:
 
 
 def _write_input(args: argparse.Namespace, out: Path) -> tuple[Any, Any, dict, float]:
-    """Render the frames and convert them to a bag (steps 1 and 2).
+    """Render the frames as 16-bit PNGs and convert them to a bag (steps 1 and 2).
 
     Returns (bag summary, first SceneFrame, odometry pose by stamp, bag frame rate [Hz]).
     """
-    from obstacle_detection.sim.sequences import SEQUENCE_RATE_HZ
+    from obstacle_detection.evaluation.camera import camera_yaml_text
+    from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE
+    from obstacle_detection.sim.sequences import SEQUENCE_RATE_HZ, SceneSequence
 
+    depth_dir = out / 'input' / 'depth'
     print(f'[1/5] rendering {args.frames} frames of {args.scene!r} (every {args.step}th, with '
-          f'odometry) into {out / "input"}')
-    depth_dir, camera, first, poses = render_sequence(out / 'input', args.scene, args.frames,
-                                                      args.seed, args.step)
+          f'odometry) into {depth_dir}')
+    depth_dir.mkdir(parents=True)
+    sequence = SceneSequence(args.scene, seed=args.seed)
+    items = [sequence.frame(i)
+             for i in range(0, min(len(sequence), args.frames * args.step), args.step)]
+    for k, item in enumerate(items):
+        if not cv2.imwrite(str(depth_dir / f'{args.scene}_{k:04d}.png'), item.frame.depth_mm):
+            raise ToolError(depth_dir, 'cannot write depth PNGs')
+    camera = out / 'input' / 'camera.yaml'
+    camera.write_text(camera_yaml_text(KINECT_V2_SD, size=KINECT_V2_SD_SIZE,
+                                       comment='Kinect v2 SD camera of the rendered scene'))
     bag_hz = SEQUENCE_RATE_HZ / args.step
     print(f'[2/5] converting them to a rosbag2: {out / "input_bag"}')
     source = datasets.folder_frames(depth_dir, intrinsics_path=camera, rate_hz=bag_hz,
                                     start_s=float(int(time.time())))
-    source.frames = [dataclasses.replace(f, pose=p) for f, p in zip(source.frames, poses)]
+    source.frames = [dataclasses.replace(f, pose=item.pose_odom)
+                     for f, item in zip(source.frames, items)]
     summary = bag_writer.write_frames(source, out / 'input_bag',
                                       bag_writer.BagOptions(progress=not args.quiet))
     print('\n'.join('      ' + line for line in summary.lines()[1:4]))
     pose_by_stamp = {divmod(f.stamp_ns, 1_000_000_000): f.pose for f in source.frames}
-    return summary, first, pose_by_stamp, bag_hz
+    return summary, items[0].frame, pose_by_stamp, bag_hz
 
 
 def _replay(args: argparse.Namespace, out: Path, failed: Path, node: Any, rate: float,
@@ -271,6 +251,8 @@ def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
     from rclpy.serialization import deserialize_message
     from std_msgs.msg import Float64
 
+    from obstacle_detection.evaluation.runner import load_params_file
+
     summary, first, pose_by_stamp, bag_hz = _write_input(args, out)
     rate = args.rate if args.rate is not None else DEMO_FPS / bag_hz
     env = node_process.use_loopback(args.domain_id, out / 'ros_log')
@@ -294,8 +276,11 @@ def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
     print(f'[5/5] writing what the node published: {out / "results_bag"}; pictures: '
           f'{out / "pictures"}')
     write_bag(out / 'results_bag', recorder)
-    saved = save_pictures(out, recorder, args.save_every, _scene_params(args.params, first),
-                          first.intrinsics, pose_by_stamp)
+    params = load_params_file(args.params).replace(  # with the rendered scene's mount
+        camera_height_m=float(first.height_m), camera_pitch_rad=float(first.pitch_rad),
+        camera_roll_rad=float(first.roll_rad))
+    saved = save_pictures(out, recorder, args.save_every, params, first.intrinsics,
+                          pose_by_stamp)
     times = [deserialize_message(raw, Float64).data
              for _, raw in recorder.messages['/obstacle_detector/processing_time_ms']]
     report = [f'  depth frames sent: {sent}, results received: {received} costmaps, '
