@@ -34,11 +34,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     frames = argparse.ArgumentParser(add_help=False)
     frames.add_argument('--no-color', action='store_true', help='write depth and camera info only')
+    frames.add_argument('--intrinsics', type=Path, metavar='FILE',
+                        help='YAML with fx, fy, cx, cy[, width, height], a ROS camera_info YAML '
+                             'or an ETH3D calibration.txt; else Kinect v2 defaults (tum: '
+                             '--camera), with a warning')
 
     timed = argparse.ArgumentParser(add_help=False)
-    timed.add_argument('--intrinsics', type=Path, metavar='FILE',
-                       help='YAML with fx, fy, cx, cy[, width, height] (or a ROS camera_info '
-                            'YAML); Kinect v2 defaults, with a warning, when absent')
     timed.add_argument('--rate', type=float, default=30.0, help='frame rate [Hz] used to stamp '
                        'frames (default %(default)s)')
     timed.add_argument('--start-time', type=float, default=0.0,
@@ -51,8 +52,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('output', type=Path, help='rosbag2 folder to create (must not exist)')
     p.add_argument('--camera', choices=sorted(TUM_CAMERAS),
                    help='TUM camera intrinsics (fr1, fr2, fr3, or ros = 525/525/319.5/239.5)')
-    p.add_argument('--intrinsics', type=Path, metavar='FILE',
-                   help='intrinsics YAML or ETH3D calibration.txt (overrides --camera)')
     p.add_argument('--max-difference', type=float, default=0.02,
                    help='largest depth-colour time difference to pair [s] (%(default)s)')
 

@@ -218,11 +218,10 @@ def check_mount(depth_m: np.ndarray, intrinsics: Intrinsics, params: DetectorPar
         estimate = estimate_mount(depth_m, intrinsics)
     except ValueError as exc:
         return MountCheck(None, reason=str(exc))
-    d_height = abs(estimate.height_m - params.camera_height_m)
-    d_pitch = abs(estimate.pitch_deg - math.degrees(params.camera_pitch_rad))
-    d_roll = abs(estimate.roll_deg - math.degrees(params.camera_roll_rad))
-    if (d_height <= MOUNT_HEIGHT_TOLERANCE_M and d_pitch <= MOUNT_ANGLE_TOLERANCE_DEG
-            and d_roll <= MOUNT_ANGLE_TOLERANCE_DEG):
+    d_angle = max(abs(estimate.pitch_deg - math.degrees(params.camera_pitch_rad)),
+                  abs(estimate.roll_deg - math.degrees(params.camera_roll_rad)))
+    if (abs(estimate.height_m - params.camera_height_m) <= MOUNT_HEIGHT_TOLERANCE_M
+            and d_angle <= MOUNT_ANGLE_TOLERANCE_DEG):
         return MountCheck(estimate)
     warning = (f'the floor in view ({estimate.inlier_fraction:.0%} of the points) puts the '
                f'camera at height {estimate.height_m:.2f} m, pitch {estimate.pitch_deg:.1f} deg, '
