@@ -95,29 +95,25 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (0 ok, 1 a picture could not be made)."""
     args = build_parser().parse_args(argv)
     parser = picture_jobs.build_parser()
+    real = REAL if args.real_dir.is_dir() else {}
+    if not real:
+        tool_support.warn(f'no real frames in {args.real_dir}; the real-frame pictures '
+                          f'({", ".join(REAL)}) are left as they are')
     try:
         for name, options in SYNTHETIC.items():
             out = args.out_dir / name
             print(picture_jobs.write_pictures(parser.parse_args([*options, '--out', str(out)])))
             recompress(out)
+        for name, panels in real.items():
+            missing = sorted({p[0] for p in panels if not (args.real_dir / p[0]).is_file()})
+            if missing:
+                tool_support.warn(f'{name} skipped, missing in {args.real_dir}: '
+                                  f'{", ".join(missing)}')
+                continue
+            pictures.write_png(args.out_dir / name, real_picture(panels, args.real_dir))
+            recompress(args.out_dir / name)
     except (ValueError, OSError, KeyError) as exc:
         return tool_support.report_error('readme_pictures', exc)
-    if not args.real_dir.is_dir():
-        print(f'readme_pictures: warning: no real frames in {args.real_dir}; the real-frame '
-              f'pictures ({", ".join(REAL)}) are left as they are', file=sys.stderr)
-        return 0
-    for name, panels in REAL.items():
-        missing = sorted({p[0] for p in panels if not (args.real_dir / p[0]).is_file()})
-        if missing:
-            print(f'readme_pictures: warning: {name} skipped, missing in {args.real_dir}: '
-                  f'{", ".join(missing)}', file=sys.stderr)
-            continue
-        out = args.out_dir / name
-        try:
-            pictures.write_png(out, real_picture(panels, args.real_dir))
-            recompress(out)
-        except (ValueError, OSError, KeyError) as exc:
-            return tool_support.report_error('readme_pictures', exc)
     return 0
 
 
