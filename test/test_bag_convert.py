@@ -133,38 +133,22 @@ def make_folder(root: Path, depths: list[np.ndarray], *, with_color: bool = True
 
 
 @pytest.mark.parametrize('storage', ['sqlite3', 'mcap'])
-@pytest.mark.parametrize('encoding', ['bgr8', 'rgb8'])
 def test_folder_round_trip(tmp_path: Path, depths: list[np.ndarray], storage: str,
-                           encoding: str, capsys: pytest.CaptureFixture[str]) -> None:
+                           capsys: pytest.CaptureFixture[str]) -> None:
     root = make_folder(tmp_path / 'data', depths)
     yaml_path = write_intrinsics(tmp_path / 'camera.yaml')
     bag = tmp_path / 'out'
     code, out, _ = run(['folder', str(root / 'depth'), str(bag), '--color-dir',
                         str(root / 'color'), '--intrinsics', str(yaml_path), '--rate', '10',
-                        '--start-time', '100', '--storage', storage, '--color-encoding',
-                        encoding], capsys)
+                        '--start-time', '100', '--storage', storage], capsys)
     assert code == 0
     assert 'frames: 4 depth' in out
     assert [p.suffix for p in bag.iterdir() if p.name != 'metadata.yaml'] == [
         {'sqlite3': '.db3', 'mcap': '.mcap'}[storage]]
     stamps = [100_000_000_000 + k * 100_000_000 for k in range(4)]
     colors = [fake_color(d, k) for k, d in enumerate(depths)]
-    check_frames(bag, depths, stamps, colors=colors, encoding=encoding)
+    check_frames(bag, depths, stamps, colors=colors)
     assert not list(tmp_path.glob('.*partial*'))
-
-
-def test_folder_topic_and_frame_options(tmp_path: Path, depths: list[np.ndarray],
-                                        capsys: pytest.CaptureFixture[str]) -> None:
-    root = make_folder(tmp_path / 'data', depths[:2], with_color=False)
-    bag = tmp_path / 'out'
-    code, _, _ = run(['folder', str(root / 'depth'), str(bag), '--intrinsics',
-                      str(write_intrinsics(tmp_path / 'c.yaml')), '--depth-topic', '/cam/depth',
-                      '--info-topic', '/cam/info', '--frame-id', 'cam_optical'], capsys)
-    assert code == 0
-    topics = read_bag(bag)
-    assert sorted(topics) == ['/cam/depth', '/cam/info']
-    assert {msg.header.frame_id for _, msg in topics['/cam/depth'] + topics['/cam/info']} == {
-        'cam_optical'}
 
 
 def make_diml(seq: Path, depths: list[np.ndarray], numbers: list[int]) -> None:
@@ -391,12 +375,12 @@ def compressed_depth_png(depth: np.ndarray) -> tuple[str, bytes]:
 def write_ros1_kinect2(path: Path, depths: list[np.ndarray], intr: Intrinsics, *,
                        depth_topic: str = KINECT2_DEPTH,
                        compress: Callable[[np.ndarray], tuple[str, bytes]] | None = None,
-                       also_raw: bool = False, jpeg_color: bool = False) -> list[int]:
+                       jpeg_color: bool = False) -> list[int]:
     """Write a ROS 1 bag as kinect2_bridge records it; return the frames' stamps [ns].
 
     Per frame a CameraInfo and the depth: a raw 16UC1 Image, or with ``compress`` a
-    CompressedImage of (format, data) = compress(depth); ``also_raw`` records the raw Image on
-    KINECT2_DEPTH too; ``jpeg_color`` adds a colour CompressedImage (bgr8 jpeg).
+    CompressedImage of (format, data) = compress(depth); ``jpeg_color`` adds a colour
+    CompressedImage (bgr8 jpeg).
     """
     noetic = get_typestore(Stores.ROS1_NOETIC)
     types = noetic.types
@@ -410,7 +394,6 @@ def write_ros1_kinect2(path: Path, depths: list[np.ndarray], intr: Intrinsics, *
         info_c = conn(KINECT2_INFO, 'sensor_msgs/msg/CameraInfo')
         depth_c = conn(depth_topic, 'sensor_msgs/msg/CompressedImage' if compress
                        else 'sensor_msgs/msg/Image')
-        raw_c = conn(KINECT2_DEPTH, 'sensor_msgs/msg/Image') if also_raw else None
         color_c = conn('/kinect2/sd/image_color_rect/compressed',
                        'sensor_msgs/msg/CompressedImage') if jpeg_color else None
         for k, (depth, stamp) in enumerate(zip(depths, stamps)):
@@ -432,8 +415,6 @@ def write_ros1_kinect2(path: Path, depths: list[np.ndarray], intr: Intrinsics, *
                 fmt, data = compress(depth)
                 items.append((depth_c, types['sensor_msgs/msg/CompressedImage'](
                     header=header, format=fmt, data=np.frombuffer(data, np.uint8))))
-            if raw_c is not None:
-                items.append((raw_c, raw))
             if color_c is not None:
                 jpeg = cv2.imencode('.jpg', fake_color(depth, k))[1].reshape(-1)
                 items.append((color_c, types['sensor_msgs/msg/CompressedImage'](
@@ -451,78 +432,18 @@ def test_ros1_compressed_depth_is_kept_and_named(
         capsys: pytest.CaptureFixture[str]) -> None:
     topic = f'{KINECT2_DEPTH}/{suffix}'
     stamps = write_ros1_kinect2(tmp_path / 'k.bag', depths, INTR, depth_topic=topic,
-                                compress=compress)
+                                compress=compress, jpeg_color=True)
 
     code, out, _ = run(['ros1', str(tmp_path / 'k.bag'), str(tmp_path / 'out')], capsys)
 
     assert code == 0
     assert f'note: {topic}: compressed depth' in out and f'--depth-topic {topic}' in out
+    assert out.count('compressed depth') == 1  # the jpeg colour is not depth
     got = read_bag(tmp_path / 'out')
     assert KINECT2_DEPTH not in got
     assert [t for t, _ in got[topic]] == stamps
     for (_, msg), depth in zip(got[topic], depths, strict=True):
         np.testing.assert_array_equal(compressed_depth_to_array(msg), depth)
-
-
-@pytest.mark.parametrize(('suffix', 'compress'), [
-    ('compressed', iai_tiff), ('compressedDepth', compressed_depth_png)])
-def test_ros1_decompress_depth_writes_the_raw_images(
-        tmp_path: Path, depths: list[np.ndarray], suffix: str,
-        compress: Callable[[np.ndarray], tuple[str, bytes]],
-        capsys: pytest.CaptureFixture[str]) -> None:
-    topic = f'{KINECT2_DEPTH}/{suffix}'
-    stamps = write_ros1_kinect2(tmp_path / 'k.bag', depths, INTR, depth_topic=topic,
-                                compress=compress, jpeg_color=True)
-
-    code, out, err = run(['ros1', str(tmp_path / 'k.bag'), str(tmp_path / 'out'),
-                          '--decompress-depth'], capsys)
-
-    assert code == 0, err
-    assert f'decoded to sensor_msgs/Image on {KINECT2_DEPTH}' in out
-    assert f'{KINECT2_DEPTH}: {len(depths)} messages' in out
-    got = read_bag(tmp_path / 'out')
-    assert topic not in got
-    assert sorted(got) == sorted([KINECT2_DEPTH, KINECT2_INFO,
-                                  '/kinect2/sd/image_color_rect/compressed'])  # jpeg is kept
-    for (t, msg), depth, stamp in zip(got[KINECT2_DEPTH], depths, stamps, strict=True):
-        assert t == stamp == stamp_of(msg)
-        assert (msg.encoding, msg.header.frame_id) == ('16UC1', 'kinect2_ir_optical_frame')
-        np.testing.assert_array_equal(image_to_array(msg), depth)
-
-
-def test_ros1_corrupt_compressed_frame_is_left_out_and_said(
-        tmp_path: Path, depths: list[np.ndarray], capsys: pytest.CaptureFixture[str]) -> None:
-    def truncated_second(depth: np.ndarray) -> tuple[str, bytes]:
-        fmt, data = compressed_depth_png(depth)
-        return fmt, data[:-40] if depth is depths[1] else data
-
-    write_ros1_kinect2(tmp_path / 'k.bag', depths, INTR,
-                       depth_topic=f'{KINECT2_DEPTH}/compressedDepth', compress=truncated_second)
-
-    code, out, err = run(['ros1', str(tmp_path / 'k.bag'), str(tmp_path / 'out'),
-                          '--decompress-depth'], capsys)
-
-    assert code == 0
-    assert (f'1 frame(s) of {KINECT2_DEPTH}/compressedDepth not decoded, left out: corrupt '
-            'PNG: truncated') in out
-    assert 'not decoded' in err
-    got = read_bag(tmp_path / 'out')[KINECT2_DEPTH]
-    assert [stamp_of(m) for _, m in got] == [ROS1_T0_NS + k * 33_333_333 for k in (0, 2, 3)]
-
-
-def test_ros1_decompress_refuses_to_write_a_raw_topic_twice(
-        tmp_path: Path, depths: list[np.ndarray], capsys: pytest.CaptureFixture[str]) -> None:
-    write_ros1_kinect2(tmp_path / 'k.bag', depths[:1], INTR,
-                       depth_topic=f'{KINECT2_DEPTH}/compressed', compress=iai_tiff,
-                       also_raw=True)
-
-    code, _, err = run(['ros1', str(tmp_path / 'k.bag'), str(tmp_path / 'out'),
-                        '--decompress-depth'], capsys)
-
-    assert code == 1
-    assert err.count('\n') == 1 and err.startswith(f'error: {tmp_path / "k.bag"}: ')
-    assert f'{KINECT2_DEPTH} would be written twice' in err
-    assert not (tmp_path / 'out').exists()
 
 
 # -------------------------------------------------------------------------------------------

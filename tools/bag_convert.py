@@ -1,11 +1,8 @@
 #!/usr/bin/env python3
 """Convert recorded RGB-D data into rosbag2 bags that the detector can replay.
 
-Sources, one sub-command each (``bag_convert SOURCE -h`` describes one): ``tum`` (TUM RGB-D
-format: TUM, ETH3D SLAM, Bonn, ICL-NUIM), ``diml`` and ``diml-sample`` (DIML/CVL indoor),
-``folder`` (16-bit depth PNGs) and ``ros1`` (a ROS 1 bag, e.g. iai_kinect2). Output: a rosbag2
-folder with, per frame, a 16UC1 depth image [mm], a CameraInfo and, when available, a colour
-image on the Kinect v2 driver's SD topics; a failed run leaves nothing behind.
+One sub-command per source (``bag_convert SOURCE -h``): per frame a 16UC1 depth image [mm], a
+CameraInfo and a colour image on the Kinect v2 driver's SD topics; a ROS 1 bag message for message.
 """
 
 from __future__ import annotations
@@ -19,9 +16,7 @@ from obstacle_detection.cli import support as tool_support
 from obstacle_detection.evaluation.datasets import (DIML_DEPTH_KINDS, TUM_CAMERAS, EvaluationError,
                                                     FrameSource, diml_frames, diml_sample_frames,
                                                     folder_frames, tum_frames)
-from obstacle_detection.cli.bag_writer import (DEFAULT_COLOR_TOPIC, DEFAULT_DEPTH_TOPIC,
-                                               DEFAULT_FRAME_ID, DEFAULT_INFO_TOPIC, STORAGES,
-                                               BagOptions, convert_ros1, write_frames)
+from obstacle_detection.cli.bag_writer import STORAGES, BagOptions, convert_ros1, write_frames
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -38,18 +33,13 @@ def build_parser() -> argparse.ArgumentParser:
     common.add_argument('--quiet', action='store_true', help='no progress bar')
 
     frames = argparse.ArgumentParser(add_help=False)
-    frames.add_argument('--depth-topic', default=DEFAULT_DEPTH_TOPIC, help='(%(default)s)')
-    frames.add_argument('--info-topic', default=DEFAULT_INFO_TOPIC, help='(%(default)s)')
-    frames.add_argument('--color-topic', default=DEFAULT_COLOR_TOPIC, help='(%(default)s)')
-    frames.add_argument('--frame-id', default=DEFAULT_FRAME_ID, help='(%(default)s)')
-    frames.add_argument('--color-encoding', choices=('bgr8', 'rgb8'), default='bgr8',
-                        help='colour encoding (default %(default)s, as the Kinect v2 driver)')
     frames.add_argument('--no-color', action='store_true', help='write depth and camera info only')
+    frames.add_argument('--intrinsics', type=Path, metavar='FILE',
+                        help='YAML with fx, fy, cx, cy[, width, height], a ROS camera_info YAML '
+                             'or an ETH3D calibration.txt; else Kinect v2 defaults (tum: '
+                             '--camera), with a warning')
 
     timed = argparse.ArgumentParser(add_help=False)
-    timed.add_argument('--intrinsics', type=Path, metavar='FILE',
-                       help='YAML with fx, fy, cx, cy[, width, height] (or a ROS camera_info '
-                            'YAML); Kinect v2 defaults, with a warning, when absent')
     timed.add_argument('--rate', type=float, default=30.0, help='frame rate [Hz] used to stamp '
                        'frames (default %(default)s)')
     timed.add_argument('--start-time', type=float, default=0.0,
@@ -62,8 +52,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('output', type=Path, help='rosbag2 folder to create (must not exist)')
     p.add_argument('--camera', choices=sorted(TUM_CAMERAS),
                    help='TUM camera intrinsics (fr1, fr2, fr3, or ros = 525/525/319.5/239.5)')
-    p.add_argument('--intrinsics', type=Path, metavar='FILE',
-                   help='intrinsics YAML or ETH3D calibration.txt (overrides --camera)')
     p.add_argument('--max-difference', type=float, default=0.02,
                    help='largest depth-colour time difference to pair [s] (%(default)s)')
 
@@ -100,18 +88,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('output', type=Path, help='rosbag2 folder to create (must not exist)')
     p.add_argument('--topics', nargs='+', default=(), metavar='TOPIC',
                    help='convert only these topics (default: all)')
-    p.add_argument('--decompress-depth', action='store_true',
-                   help='write compressed depth topics (.../compressed, .../compressedDepth) '
-                        'as raw sensor_msgs/Image on their raw topic (.../compressed -> ...)')
     return parser
-
-
-def options_from_args(args: argparse.Namespace) -> BagOptions:
-    """Build the writing options from parsed arguments."""
-    return BagOptions(storage=args.storage, depth_topic=args.depth_topic,
-                      info_topic=args.info_topic, color_topic=args.color_topic,
-                      frame_id=args.frame_id, color_encoding=args.color_encoding,
-                      with_color=not args.no_color, progress=not args.quiet)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -137,11 +114,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         if args.source == 'ros1':
             summary = convert_ros1(args.bag, args.output, storage=args.storage,
-                                   topics=args.topics, progress=not args.quiet,
-                                   decompress_depth=args.decompress_depth)
+                                   topics=args.topics, progress=not args.quiet)
         else:
             source = sources[args.source]()
-            summary = write_frames(source, args.output, options_from_args(args))
+            summary = write_frames(source, args.output, BagOptions(
+                args.storage, with_color=not args.no_color, progress=not args.quiet))
     except EvaluationError as err:
         return tool_support.report_error('bag_convert', err)
     print('\n'.join(summary.lines()))

@@ -1,9 +1,7 @@
 #!/usr/bin/env python3
 """Replay a rosbag2 bag on ROS 2 topics with its recorded timing (``ros2 bag play`` stand-in).
 
-Publishes the bag's messages as recorded (raw CDR, compressed depth too), spaced by their
-timestamps, with the sensor-data QoS unless ``--reliable``. Run it on the loopback DDS profile
-in a ROS domain of its own, as the README says.
+Messages go out as recorded (compressed depth too), with the sensor-data QoS unless --reliable.
 """
 
 from __future__ import annotations
@@ -51,54 +49,42 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _report(err: ToolError) -> int:
-    """Print the error line; return 2 for a bad option value, 1 for a bad bag."""
-    return tool_support.report_error('bag_play', err)
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Play a bag; return the exit code (0 done or interrupted, 1 bad bag, 2 bad usage)."""
     args = build_parser().parse_args(argv)
+    node = player = None
     try:
         options = PlayOptions(
             topics=tuple(args.topics), rate=args.rate, loops=0 if args.loop else args.loops,
             start_offset_s=args.start_offset, reliable=args.reliable,
             remap=parse_remap(args.remap), wait_for_subscribers=args.wait_for_subscribers,
             wait_timeout_s=args.wait_timeout, progress=not args.quiet)
-        opened = open_bag(args.bag, options)  # bad input fails before DDS starts
-        try:
-            for conn in opened[1]:
-                message_class(conn.msgtype)
-        except ToolError:
-            opened[0].close()
-            raise
-    except ToolError as err:
-        return _report(err)
+        reader, connections = open_bag(args.bag, options)  # bad input fails before DDS starts
+        reader.close()
+        for conn in connections:
+            message_class(conn.msgtype)
 
-    import rclpy
-    from rclpy.node import Node
+        import rclpy
+        from rclpy.node import Node
 
-    rclpy.init(args=None)
-    node = Node('bag_player')
-    player = None
-    try:
-        player = Player(node, args.bag, options, opened=opened)
+        rclpy.init(args=None)
+        node = Node('bag_player')
+        player = Player(node, args.bag, options)
         if options.wait_for_subscribers:
             print(f'waiting for {options.wait_for_subscribers} subscription(s) ...',
                   file=sys.stderr)
             player.wait_for_subscribers()
-        stats = player.play()
+        print('\n'.join(player.play().lines()))
     except ToolError as err:
-        return _report(err)
+        return tool_support.report_error('bag_play', err)
     except KeyboardInterrupt:
         print('interrupted', file=sys.stderr)
-        return 0
     finally:
         if player is not None:
             player.close()
-        node.destroy_node()
-        rclpy.try_shutdown()
-    print('\n'.join(stats.lines()))
+        if node is not None:
+            node.destroy_node()
+            rclpy.try_shutdown()
     return 0
 
 

@@ -1,12 +1,8 @@
 #!/usr/bin/env python3
 """Run the obstacle detector over a whole rosbag2 bag offline, as fast as the machine allows.
 
-No DDS: every depth frame (raw or compressed) goes through the node's code with its
-``--params-file`` parameters, paired with the latest camera info; the output bag holds every
-input message plus the node's outputs, stamped as their depth frame. Frames the node would skip
-are counted with the reason. Many bags (a folder of bags, a quoted glob or a ``.txt`` list) run
-as tasks on a Dask cluster, one output bag each, then a table and one JSON line; a bag that
-fails is named and the others finish (exit code 1).
+Each depth frame goes through the node's code; the output bag holds the input and the node's
+outputs. Many bags (a folder, a quoted glob or a ``.txt`` list) run as Dask tasks (docs/fleet.md).
 """
 
 from __future__ import annotations
@@ -22,8 +18,8 @@ from obstacle_detection.cli import support as tool_support
 from obstacle_detection.cli.bag_processor import (DEFAULT_NAMESPACE, config_from_values,
                                                   format_report, node_param_values, process_bag)
 from obstacle_detection.ros import RosInputError
-from obstacle_detection.ros.parameters import ALL_PARAMS, read_params_files
-from obstacle_detection.cli.bag_writer import DEFAULT_DEPTH_TOPIC, DEFAULT_INFO_TOPIC, STORAGES
+from obstacle_detection.ros.parameters import read_params_files
+from obstacle_detection.cli.bag_writer import STORAGES
 from obstacle_detection.fleet import bags as fleet_bags
 from obstacle_detection.fleet.cluster import (FleetError, add_fleet_arguments, fleet_options,
                                               open_fleet)
@@ -44,12 +40,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--params-file', type=Path, action='append', default=[], metavar='YAML',
                         help="the node's parameter YAML, repeatable: a later file wins "
                              "(default: the node's defaults)")
-    parser.add_argument('--depth-topic', default=DEFAULT_DEPTH_TOPIC,
-                        help='depth topic: a sensor_msgs/Image, or a CompressedImage such as '
-                             '.../compressed or .../compressedDepth (default %(default)s)')
-    parser.add_argument('--info-topic',
-                        help=f'CameraInfo topic (default: {DEFAULT_INFO_TOPIC}, else the bag\'s '
-                             'CameraInfo topic found by type)')
+    tool_support.add_topic_options(parser)
     parser.add_argument('--namespace', default=DEFAULT_NAMESPACE,
                         help='prefix of the output topics (default %(default)s)')
     parser.add_argument('--ground', action='store_true',
@@ -80,13 +71,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Process a bag (or many); return the exit code (0 success, 1 bad input, 2 bad usage)."""
     args = build_parser().parse_args(argv)
     try:
-        if args.params_file:
-            values = node_param_values(args.params_file)
-            origin = ', '.join(str(p) for p in args.params_file)
-        else:
-            values, origin = {spec.name: spec.default for spec in ALL_PARAMS}, 'defaults'
+        values = node_param_values(args.params_file)
+        origin = ', '.join(str(p) for p in args.params_file) or 'defaults'
         config = config_from_values(values, origin)
-        mount_origin = (origin if args.params_file and _sets_mount(args.params_file)
+        mount_origin = (origin if _sets_mount(args.params_file)
                         else "the node's defaults: no params file sets it")
         if fleet_bags.is_many(args.bag) or args.scheduler or args.workers:
             return _process_many(args, values, origin, mount_origin)

@@ -1,19 +1,14 @@
 #!/usr/bin/env python3
 """Make every picture of the README again, from the repository's own code.
 
-The synthetic pictures always; the real-frame ones when the real frames are there
-(``--real-dir``, default ``../shared/data/real`` beside the repository), each panel with its
-mount estimated from the floor. The captions give this machine's pipeline time, so a new run
-changes those few pixels only::
-
-    python tools/readme_pictures.py --out-dir /tmp/pics --real-dir ~/data/real
+The synthetic pictures always; the real-frame ones when the real frames are there (``--real-dir``,
+default ``../shared/data/real`` beside the repository). Only the captions' timings change.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
@@ -37,51 +32,24 @@ SYNTHETIC = {
                                  '--no-truth', '--thumb-width', '600', '--columns', '2'],
 }
 
-# Intrinsics fx,fy,cx,cy [px] and depth units per metre of the real frames (their README).
-_TUM_FR3 = ('535.4,539.2,320.1,247.6', '5000')
-_TUM_FR2 = ('520.9,521.0,325.1,249.7', '5000')
-_DINING = ('518.0,519.0,325.5,253.5', '1000')
-_TABLE_4_2_K5 = ['--preset', 'table_4_2', '--set', 'median_kernel=5']
-_DEFAULT = ['--preset', 'corridor']
-_FAR = ['--set', 'max_range_m=4.0', '--set', 'costmap_length_m=4.0']
-
-
-@dataclass(frozen=True)
-class Panel:
-    """One real depth frame drawn with its mount estimated from the floor."""
-
-    depth: str  # path under the real-frames folder
-    camera: tuple[str, str]  # (fx,fy,cx,cy, depth units per metre)
-    caption: str
-    options: tuple[str, ...]  # further tools/pictures.py arguments (parameters)
-
-    def argv(self, real_dir: Path) -> list[str]:
-        """Return the ``tools/pictures.py`` arguments that draw this panel (``--out`` unused)."""
-        intrinsics, scale = self.camera
-        return ['--depth', str(real_dir / self.depth), '--intrinsics', intrinsics,
-                '--depth-scale', scale, '--estimate-mount', *self.options,
-                '--caption', self.caption, '--out', '-']
-
-
-_SEED = 'the seed method (Table 4.2, K=5), range 4 m'
-_ROBOT = 'the default, corridor.yaml (robot level), range 4 m'
-
-
-def _seed_above_default(depth: str, camera: tuple[str, str], name: str) -> tuple[Panel, ...]:
-    """Return the panels of one frame: the seed method above the default."""
-    return (Panel(depth, camera, f'{name}: {_SEED}', (*_TABLE_4_2_K5, *_FAR)),
-            Panel(depth, camera, f'{name}: {_ROBOT}', (*_DEFAULT, *_FAR)))
-
-
-#: The real-frame pictures: file name -> panels, top to bottom.
+#: Each real frame's camera: intrinsics fx,fy,cx,cy [px] and depth units per metre (their README).
+_TUM_FR3 = ('--intrinsics', '535.4,539.2,320.1,247.6', '--depth-scale', '5000')
+_TUM_FR2 = ('--intrinsics', '520.9,521.0,325.1,249.7', '--depth-scale', '5000')
+_DINING = ('--intrinsics', '518.0,519.0,325.5,253.5', '--depth-scale', '1000')
+_FAR = ('--set', 'max_range_m=4.0', '--set', 'costmap_length_m=4.0')
+#: The two methods drawn: (caption, tools/pictures.py parameter options).
+_SEED = ('the seed method (Table 4.2, K=5), range 4 m',
+         ('--preset', 'table_4_2', '--set', 'median_kernel=5', *_FAR))
+_ROBOT = ('the default, corridor.yaml (robot level), range 4 m', ('--preset', 'corridor', *_FAR))
+#: The real-frame pictures: file name -> panels top to bottom (depth under --real-dir, camera
+#: options, name, method), each drawn with its mount estimated from the floor.
 REAL = {
-    'real_tum_office.png': _seed_above_default('tum_office/depth.png', _TUM_FR3,
-                                               'TUM fr3 office'),
-    'real_tum_fr2_desk.png': _seed_above_default('tum_fr2_desk/depth_1.png', _TUM_FR2,
-                                                 'TUM fr2 desk'),
-    'real_dining_room.png': tuple(
-        Panel(f'dining_room/depth_{i}.pgm', _DINING, f'dining room {i}: {_ROBOT}',
-              (*_DEFAULT, *_FAR)) for i in (1, 4)),
+    'real_tum_office.png': [('tum_office/depth.png', _TUM_FR3, 'TUM fr3 office', method)
+                            for method in (_SEED, _ROBOT)],
+    'real_tum_fr2_desk.png': [('tum_fr2_desk/depth_1.png', _TUM_FR2, 'TUM fr2 desk', method)
+                              for method in (_SEED, _ROBOT)],
+    'real_dining_room.png': [(f'dining_room/depth_{i}.pgm', _DINING, f'dining room {i}', _ROBOT)
+                             for i in (1, 4)],
 }
 
 
@@ -93,21 +61,20 @@ def recompress(path: Path) -> None:
     print(f'compressed {path} to {path.stat().st_size // 1024} KB')
 
 
-def real_picture(panels: Sequence[Panel], real_dir: Path,
-                 width: int = REAL_WIDTH_PX) -> np.ndarray:
-    """Return the panels drawn by ``tools/pictures.py``, one above the other, ``width`` wide.
-
-    Raises ValueError / OSError / KeyError as ``picture_jobs.detect`` does.
-    """
+def real_picture(panels: Sequence[tuple], real_dir: Path, width: int = REAL_WIDTH_PX
+                 ) -> np.ndarray:
+    """Return the panels drawn by ``tools/pictures.py``, one above the other, ``width`` wide."""
     parser = picture_jobs.build_parser()
     images = []
-    for panel in panels:
-        for frame in picture_jobs.detect(parser.parse_args(panel.argv(real_dir))):
-            picture = pictures.fit_width(
-                lambda scale, frame=frame: picture_jobs.draw(frame, image_scale=scale), width)
+    for depth, camera, name, (method, options) in panels:
+        caption = f'{name}: {method}'
+        argv = ['--depth', str(real_dir / depth), *camera, '--estimate-mount', *options,
+                '--caption', caption, '--out', '-']
+        for frame in picture_jobs.detect(parser.parse_args(argv)):
             rule = picture_jobs.rule_text(frame.job.params)
-            images.append(pictures.titled(picture, panel.caption if rule in panel.caption
-                                          else f'{panel.caption} ({rule})'))
+            images.append(pictures.titled(pictures.fit_width(
+                lambda scale, frame=frame: picture_jobs.draw(frame, image_scale=scale), width),
+                caption if rule in caption else f'{caption} ({rule})'))
     gap = np.full((6, width, 3), 255, np.uint8)
     return np.vstack([part for image in images for part in (image, gap)][:-1])
 
@@ -128,29 +95,25 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (0 ok, 1 a picture could not be made)."""
     args = build_parser().parse_args(argv)
     parser = picture_jobs.build_parser()
+    real = REAL if args.real_dir.is_dir() else {}
+    if not real:
+        tool_support.warn(f'no real frames in {args.real_dir}; the real-frame pictures '
+                          f'({", ".join(REAL)}) are left as they are')
     try:
         for name, options in SYNTHETIC.items():
             out = args.out_dir / name
             print(picture_jobs.write_pictures(parser.parse_args([*options, '--out', str(out)])))
             recompress(out)
+        for name, panels in real.items():
+            missing = sorted({p[0] for p in panels if not (args.real_dir / p[0]).is_file()})
+            if missing:
+                tool_support.warn(f'{name} skipped, missing in {args.real_dir}: '
+                                  f'{", ".join(missing)}')
+                continue
+            pictures.write_png(args.out_dir / name, real_picture(panels, args.real_dir))
+            recompress(args.out_dir / name)
     except (ValueError, OSError, KeyError) as exc:
         return tool_support.report_error('readme_pictures', exc)
-    if not args.real_dir.is_dir():
-        print(f'readme_pictures: warning: no real frames in {args.real_dir}; the real-frame '
-              f'pictures ({", ".join(REAL)}) are left as they are', file=sys.stderr)
-        return 0
-    for name, panels in REAL.items():
-        missing = sorted({p.depth for p in panels if not (args.real_dir / p.depth).is_file()})
-        if missing:
-            print(f'readme_pictures: warning: {name} skipped, missing in {args.real_dir}: '
-                  f'{", ".join(missing)}', file=sys.stderr)
-            continue
-        out = args.out_dir / name
-        try:
-            pictures.write_png(out, real_picture(panels, args.real_dir))
-            recompress(out)
-        except (ValueError, OSError, KeyError) as exc:
-            return tool_support.report_error('readme_pictures', exc)
     return 0
 
 

@@ -119,27 +119,23 @@ def open_bag(bag: Path, options: PlayOptions) -> tuple[Reader, list[Any]]:
 class Player:
     """Publish a bag's messages from an existing rclpy node."""
 
-    def __init__(self, node: Any, bag: Path, options: PlayOptions, *,
-                 opened: tuple[Reader, list[Any]] | None = None) -> None:
-        """Open the bag (unless ``opened`` by ``open_bag``) and create the publishers."""
+    def __init__(self, node: Any, bag: Path, options: PlayOptions) -> None:
+        """Open the bag and create one publisher per played topic."""
         from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
         self.bag = bag
         self.options = options
-        self.reader, self.connections = opened if opened is not None else open_bag(bag, options)
+        self.node = node
+        self.reader, self.connections = open_bag(bag, options)
         qos = (QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
                if options.reliable else qos_profile_sensor_data)
-        self.node = node
-        self.publishers: dict[tuple[str, str], Any] = {}
-        self.topic_of: dict[str, str] = {}
+        self.publishers: dict[str, Any] = {}
         try:
             for conn in self.connections:
-                topic = options.remap.get(conn.topic, conn.topic)
-                key = (topic, conn.msgtype)
-                if key not in self.publishers:
-                    self.publishers[key] = node.create_publisher(
-                        message_class(conn.msgtype), topic, qos)
-                self.topic_of[conn.topic] = topic
+                if conn.topic not in self.publishers:
+                    self.publishers[conn.topic] = node.create_publisher(
+                        message_class(conn.msgtype), options.remap.get(conn.topic, conn.topic),
+                        qos)
         except BaseException:
             self.close()
             raise
@@ -167,13 +163,11 @@ class Player:
         """Return matched subscriptions summed over the played topics."""
         return sum(p.get_subscription_count() for p in self.publishers.values())
 
-    def wait_for_subscribers(self, stop: threading.Event | None = None) -> None:
+    def wait_for_subscribers(self) -> None:
         """Block until ``options.wait_for_subscribers`` subscriptions are matched."""
         want = self.options.wait_for_subscribers
         deadline = time.monotonic() + self.options.wait_timeout_s
         while self.subscription_count() < want:
-            if stop is not None and stop.is_set():
-                return
             if time.monotonic() > deadline:
                 raise ToolError(f'{self.bag}: only {self.subscription_count()} of {want} '
                                 f'subscriptions matched after {self.options.wait_timeout_s:g} s')
@@ -186,7 +180,8 @@ class Player:
         began = time.monotonic()
         loops = self.options.loops
         total = self.total * loops if self.total and loops else None
-        gap_s = _loop_gap_s(self.connections, self.reader.duration)
+        most = max(c.msgcount for c in self.connections)  # its mean spacing: the loop seam's
+        gap_s = self.reader.duration / 1e9 / (most - 1) if most > 1 else 0.0
         bar = Progress(total, 'playing', stream=None if self.options.progress else io.StringIO())
         with bar:
             while not loops or stats.loops < loops:
@@ -202,8 +197,9 @@ class Player:
                     if not _sleep_until(due, stop):
                         stats.wall_s = time.monotonic() - began
                         return stats
-                    topic = self.topic_of[conn.topic]
-                    self.publishers[(topic, conn.msgtype)].publish(bytes(raw))
+                    publisher = self.publishers[conn.topic]
+                    publisher.publish(bytes(raw))
+                    topic = publisher.topic_name
                     stats.published[topic] += 1
                     bar.update()
                     if on_publish is not None:
@@ -211,12 +207,6 @@ class Player:
                 stats.loops += 1
         stats.wall_s = time.monotonic() - began
         return stats
-
-
-def _loop_gap_s(connections: Sequence[Any], duration_ns: int) -> float:
-    """Mean spacing of the busiest topic [s], waited between the last and first when looping."""
-    most = max((c.msgcount for c in connections), default=0)
-    return duration_ns / 1e9 / (most - 1) if most > 1 else 0.0
 
 
 def _sleep_until(due: float, stop: threading.Event | None) -> bool:

@@ -17,19 +17,17 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.cli.support import ToolError
-from obstacle_detection.ros.compressed_depth import (COMPRESSED_IMAGE_TYPE,
-                                                 raw_topic)
-from obstacle_detection.ros.conversions import result_to_messages
-from obstacle_detection.viz.overlay import render_overlay
-from obstacle_detection.ros import frame_gate
-from obstacle_detection.ros.config import NodeConfig, build_config
-from obstacle_detection.ros.frame_gate import CameraState
-from obstacle_detection.ros import RosInputError
-from obstacle_detection.ros.parameters import ALL_PARAMS, read_params_files
-from obstacle_detection.evaluation.datasets import EvaluationError
-from obstacle_detection.cli.bag_writer import (BAG_VERSION, DEFAULT_DEPTH_TOPIC,
-                                               STORAGES, staged_output)
+from obstacle_detection.cli.bag_writer import (BAG_VERSION, DEFAULT_DEPTH_TOPIC, STORAGES,
+                                               staged_output)
 from obstacle_detection.cli.progress import Progress
+from obstacle_detection.evaluation.datasets import EvaluationError
+from obstacle_detection.ros import RosInputError, frame_gate
+from obstacle_detection.ros.compressed_depth import COMPRESSED_IMAGE_TYPE, raw_topic
+from obstacle_detection.ros.config import NodeConfig, build_config
+from obstacle_detection.ros.conversions import result_to_messages
+from obstacle_detection.ros.frame_gate import CameraState
+from obstacle_detection.ros.parameters import ALL_PARAMS, read_params_files
+from obstacle_detection.viz.overlay import render_overlay
 
 DEFAULT_NAMESPACE = '/obstacles'
 #: result_to_messages key -> (topic below the namespace, message type).

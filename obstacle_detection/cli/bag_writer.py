@@ -12,7 +12,6 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 from builtin_interfaces.msg import Time
 from rclpy.serialization import serialize_message
 from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
@@ -20,16 +19,12 @@ from rosbags.typesys import Stores, get_typestore
 
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.ros import RosInputError
-from obstacle_detection.ros.compressed_depth import (COMPRESSED_IMAGE_TYPE,
-                                                     compressed_depth_to_array, parse_format,
-                                                     raw_topic)
+from obstacle_detection.ros.compressed_depth import COMPRESSED_IMAGE_TYPE, parse_format
 from obstacle_detection.ros.conversions import array_to_image, intrinsics_to_camera_info
-from obstacle_detection.pipeline.params import Intrinsics
 from obstacle_detection.cli.progress import Progress
 from obstacle_detection.evaluation.datasets import (EvaluationError, FrameSource,
                                                  default_intrinsics, read_color, read_depth_png)
 
-# The one set of default topic names of every tool (tool_support), kept here under their names.
 DEFAULT_DEPTH_TOPIC = tool_support.DEFAULT_DEPTH_TOPIC
 DEFAULT_INFO_TOPIC = tool_support.DEFAULT_INFO_TOPIC
 DEFAULT_COLOR_TOPIC = tool_support.DEFAULT_COLOR_TOPIC
@@ -37,25 +32,14 @@ DEFAULT_FRAME_ID = 'kinect2_ir_optical_frame'
 #: Odometry of frames that carry a pose (nav_msgs/Odometry, base_footprint in odom).
 DEFAULT_ODOM_TOPIC = '/odom'
 BAG_VERSION = 9
-#: A first frame with more than FAR_SHARE of its valid depth beyond FAR_DEPTH_M [m] looks
-#: like another unit (TUM's 5000 units/m read as millimetres puts a desk at 7 m and the
-#: hall behind it at 20 m).
-FAR_DEPTH_M = 10.0
-FAR_SHARE = 0.05
 STORAGES = {'sqlite3': StoragePlugin.SQLITE3, 'mcap': StoragePlugin.MCAP}
 
 
 @dataclasses.dataclass(frozen=True)
 class BagOptions:
-    """Where and how frames are written."""
+    """How frames are written: storage plugin, with colour, with a progress bar."""
 
     storage: str = 'sqlite3'
-    depth_topic: str = DEFAULT_DEPTH_TOPIC
-    info_topic: str = DEFAULT_INFO_TOPIC
-    color_topic: str = DEFAULT_COLOR_TOPIC
-    frame_id: str = DEFAULT_FRAME_ID
-    color_encoding: str = 'bgr8'
-    odom_topic: str = DEFAULT_ODOM_TOPIC
     with_color: bool = True
     progress: bool = True
 
@@ -66,28 +50,21 @@ class Summary:
 
     output: Path
     frames: int = 0
-    color_frames: int = 0
     messages: int = 0
     duration_s: float = 0.0
     size: tuple[int, int] | None = None
-    intrinsics: Intrinsics | None = None
     dropped: Counter[str] = dataclasses.field(default_factory=Counter)
-    topics: dict[str, int] = dataclasses.field(default_factory=dict)
+    topics: Counter[str] = dataclasses.field(default_factory=Counter)
     notes: list[str] = dataclasses.field(default_factory=list)
 
     def lines(self) -> list[str]:
         """Return the summary as printable lines."""
-        out = [f'wrote {self.output}']
-        if self.size is None:  # a bag conversion: no frames of our own
-            out.append(f'  {self.messages} messages; duration {self.duration_s:.3f} s')
-        else:
-            out.append(f'  frames: {self.frames} depth ({self.size[0]}x{self.size[1]}, 16UC1 mm), '
-                       f'{self.color_frames} with colour; duration {self.duration_s:.3f} s')
-        if self.intrinsics is not None:
-            i = self.intrinsics
-            out.append(f'  intrinsics: fx={i.fx:g} fy={i.fy:g} cx={i.cx:g} cy={i.cy:g}')
-        for topic, count in self.topics.items():
-            out.append(f'  {topic}: {count} messages')
+        out = [f'wrote {self.output}', f'  {self.messages} messages; duration '
+                                       f'{self.duration_s:.3f} s']
+        if self.size is not None:
+            out[1] = (f'  frames: {self.frames} depth ({self.size[0]}x{self.size[1]}, 16UC1 '
+                      f'mm); duration {self.duration_s:.3f} s')
+        out.extend(f'  {topic}: {count} messages' for topic, count in self.topics.items())
         if self.size is not None:
             out.append(f'  dropped pairs: {sum(self.dropped.values())}')
             out.extend(f'    {count}: {reason}' for reason, count in self.dropped.items())
@@ -95,26 +72,18 @@ class Summary:
         return out
 
 
-def to_time(ns: int) -> Time:
-    """Integer nanoseconds to a ``builtin_interfaces/Time``."""
-    sec, nanosec = divmod(int(ns), 1_000_000_000)
-    return Time(sec=sec, nanosec=nanosec)
-
-
 @contextlib.contextmanager
 def staged_output(output: Path) -> Iterator[Path]:
     """Yield a temporary path beside ``output``; rename it to ``output`` on success."""
     if output.exists() or output.is_symlink():
         raise EvaluationError(f'{output}: output already exists; remove it or choose another name')
-    parent = output.parent
+    staging = output.parent / f'.{output.name}.partial'
     try:
-        parent.mkdir(parents=True, exist_ok=True)
-        staging = parent / f'.{output.name}.partial'
-        if staging.exists():
-            shutil.rmtree(staging)
-        staging.mkdir()
+        shutil.rmtree(staging, ignore_errors=True)
+        staging.mkdir(parents=True)
     except OSError as err:
-        raise EvaluationError(f'{parent}: cannot create the output ({err.strerror})') from err
+        raise EvaluationError(f'{output.parent}: cannot create the output ({err.strerror})') \
+            from err
     try:
         yield staging / output.name
         if output.exists():
@@ -124,74 +93,34 @@ def staged_output(output: Path) -> Iterator[Path]:
         shutil.rmtree(staging, ignore_errors=True)
 
 
-class FrameBagWriter:
-    """Write depth, camera-info and colour messages of frames to an open rosbag2 Writer."""
+def _odometry(stamp: Time, pose: tuple[float, float, float]) -> Any:
+    """Return the base pose ``(x, y, yaw)`` in odom as a nav_msgs/Odometry."""
+    from nav_msgs.msg import Odometry
 
-    def __init__(self, writer: Writer, options: BagOptions, *, color: bool,
-                 odometry: bool = False) -> None:
-        """Add the connections (color, odometry: whether those topics are wanted)."""
-        typestore = get_typestore(Stores.ROS2_JAZZY)
-        self.options = options
-        self.depth = writer.add_connection(options.depth_topic, 'sensor_msgs/msg/Image',
-                                           typestore=typestore)
-        self.info = writer.add_connection(options.info_topic, 'sensor_msgs/msg/CameraInfo',
-                                          typestore=typestore)
-        self.color = (writer.add_connection(options.color_topic, 'sensor_msgs/msg/Image',
-                                            typestore=typestore) if color else None)
-        self.odom = (writer.add_connection(options.odom_topic, 'nav_msgs/msg/Odometry',
-                                           typestore=typestore) if odometry else None)
-        self.writer = writer
-
-    def write_odometry(self, stamp: int, pose: tuple[float, float, float]) -> int:
-        """Write the base pose in odom at bag time ``stamp`` [ns]; return 1 (or 0: no topic)."""
-        if self.odom is None:
-            return 0
-        from nav_msgs.msg import Odometry
-
-        msg = Odometry()
-        msg.header.stamp = to_time(stamp)
-        msg.header.frame_id = 'odom'
-        msg.child_frame_id = 'base_footprint'
-        msg.pose.pose.position.x, msg.pose.pose.position.y = float(pose[0]), float(pose[1])
-        msg.pose.pose.orientation.z = math.sin(pose[2] / 2.0)
-        msg.pose.pose.orientation.w = math.cos(pose[2] / 2.0)
-        self.writer.write(self.odom, stamp, serialize_message(msg))
-        return 1
-
-    def write(self, stamp: int, depth_mm: np.ndarray, intr: Intrinsics,
-              color: np.ndarray | None) -> int:
-        """Write one frame at bag time ``stamp`` [ns]; return the number of messages."""
-        time = to_time(stamp)
-        frame_id = self.options.frame_id
-        height, width = depth_mm.shape
-        depth_msg = array_to_image(depth_mm, stamp=time, frame_id=frame_id, encoding='16UC1')
-        info_msg = intrinsics_to_camera_info(intr, width, height, stamp=time, frame_id=frame_id)
-        self.writer.write(self.info, stamp, serialize_message(info_msg))
-        self.writer.write(self.depth, stamp, serialize_message(depth_msg))
-        if color is None or self.color is None:
-            return 2
-        color_msg = array_to_image(color, stamp=time, frame_id=frame_id,
-                                   encoding=self.options.color_encoding)
-        self.writer.write(self.color, stamp, serialize_message(color_msg))
-        return 3
+    msg = Odometry()
+    msg.header.stamp = stamp
+    msg.header.frame_id = 'odom'
+    msg.child_frame_id = 'base_footprint'
+    msg.pose.pose.position.x, msg.pose.pose.position.y = float(pose[0]), float(pose[1])
+    msg.pose.pose.orientation.z = math.sin(pose[2] / 2.0)
+    msg.pose.pose.orientation.w = math.cos(pose[2] / 2.0)
+    return msg
 
 
 def write_frames(source: FrameSource, output: Path, options: BagOptions) -> Summary:
-    """Write the frames of ``source`` as a rosbag2 at ``output``."""
+    """Write the frames of ``source`` as a rosbag2 at ``output``: depth [mm], info, colour."""
     if not source.frames:
         raise EvaluationError(f'{output}: no frames to write')
     first = source.frames[0].depth_path
     scale = source.depth_units_per_m
-    problem = depth_unit_problem(read_depth_png(first), scale)
+    problem = tool_support.depth_unit_warning(read_depth_png(first), scale)
     if problem is not None and not source.depth_units_origin:
         raise EvaluationError(f'{first}: {problem}; if it is in millimetres after all, pass '
                               '--depth-scale 1000')
     if problem is not None:
         tool_support.warn(f'{first}: {problem}')
-    first_depth = read_depth_png(first, units_per_m=scale)
-    units_origin = source.depth_units_origin or ('millimetres, the default; --depth-scale for '
-                                                 'another unit, TUM: 5000')
-    size = (first_depth.shape[1], first_depth.shape[0])
+    shape = read_depth_png(first).shape
+    size = (shape[1], shape[0])
     if source.size is not None and source.size != size:
         raise EvaluationError(f'{source.intrinsics_origin.removeprefix("from ")}: intrinsics are '
                               f'for {source.size[0]}x{source.size[1]} images but {first} is '
@@ -203,95 +132,69 @@ def write_frames(source: FrameSource, output: Path, options: BagOptions) -> Summ
                           f'fx={intr.fx:.2f} fy={intr.fy:.2f} cx={intr.cx:.2f} '
                           f'cy={intr.cy:.2f}. Obstacle positions are only as right as these '
                           'values.')
-    with_color = options.with_color and any(f.color_path is not None for f in source.frames)
-    summary = Summary(output=output, size=size, intrinsics=intr, dropped=source.dropped.copy(),
-                      notes=[*source.notes, f'intrinsics: {origin}',
+    units_origin = source.depth_units_origin or ('millimetres, the default; --depth-scale for '
+                                                 'another unit, TUM: 5000')
+    summary = Summary(output=output, size=size, dropped=source.dropped.copy(),
+                      notes=[*source.notes, f'intrinsics: {origin} (fx={intr.fx:g} '
+                             f'fy={intr.fy:g} cx={intr.cx:g} cy={intr.cy:g})',
                              f'depth read at {scale:g} units/m ({units_origin}), written in '
                              'millimetres'])
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    stamps = [f.stamp_ns for f in source.frames]
+    summary.duration_s = (max(stamps) - min(stamps)) / 1e9
     with staged_output(output) as staging:
         try:
             with Writer(staging, version=BAG_VERSION,
-                        storage_plugin=STORAGES[options.storage]) as writer:
-                with_odometry = any(f.pose is not None for f in source.frames)
-                frame_writer = FrameBagWriter(writer, options, color=with_color,
-                                              odometry=with_odometry)
-                bar = Progress(len(source.frames), 'converting',
-                               stream=None if options.progress else io.StringIO())
-                with bar:
-                    for k, frame in enumerate(source.frames):
-                        depth = first_depth if k == 0 else read_depth_png(
-                            frame.depth_path, units_per_m=scale)
-                        if depth.shape != first_depth.shape:
-                            raise EvaluationError(
-                                f'{frame.depth_path}: {depth.shape[1]}x{depth.shape[0]} but '
-                                f'the first depth image {first} is {size[0]}x{size[1]}')
-                        color = None
-                        if with_color and frame.color_path is not None:
-                            color = read_color(frame.color_path, options.color_encoding)
-                            summary.color_frames += 1
-                        if frame.pose is not None:
-                            summary.messages += frame_writer.write_odometry(frame.stamp_ns,
-                                                                            frame.pose)
-                            summary.topics[options.odom_topic] = (
-                                summary.topics.get(options.odom_topic, 0) + 1)
-                        summary.messages += frame_writer.write(frame.stamp_ns, depth, intr, color)
-                        summary.frames += 1
-                        bar.update()
+                        storage_plugin=STORAGES[options.storage]) as writer, \
+                    Progress(len(source.frames), 'converting',
+                             stream=None if options.progress else io.StringIO()) as bar:
+                connections: dict[str, Any] = {}
+
+                def write(topic: str, stamp: int, msg: Any) -> None:
+                    if topic not in connections:
+                        msgtype = f'{type(msg).__module__.split(".")[0]}/msg/{type(msg).__name__}'
+                        connections[topic] = writer.add_connection(topic, msgtype,
+                                                                   typestore=typestore)
+                    writer.write(connections[topic], stamp, serialize_message(msg))
+                    summary.topics[topic] += 1
+                    summary.messages += 1
+
+                for frame in source.frames:
+                    depth = read_depth_png(frame.depth_path, units_per_m=scale)
+                    if depth.shape != shape:
+                        raise EvaluationError(
+                            f'{frame.depth_path}: {depth.shape[1]}x{depth.shape[0]} but the '
+                            f'first depth image {first} is {size[0]}x{size[1]}')
+                    time = Time(sec=frame.stamp_ns // 10**9, nanosec=frame.stamp_ns % 10**9)
+                    if frame.pose is not None:
+                        write(DEFAULT_ODOM_TOPIC, frame.stamp_ns, _odometry(time, frame.pose))
+                    write(DEFAULT_INFO_TOPIC, frame.stamp_ns, intrinsics_to_camera_info(
+                        intr, size[0], size[1], stamp=time, frame_id=DEFAULT_FRAME_ID))
+                    write(DEFAULT_DEPTH_TOPIC, frame.stamp_ns, array_to_image(
+                        depth, stamp=time, frame_id=DEFAULT_FRAME_ID, encoding='16UC1'))
+                    if options.with_color and frame.color_path is not None:
+                        color = read_color(frame.color_path, 'bgr8')
+                        if color.shape[:2] != shape and summary.topics[DEFAULT_COLOR_TOPIC] == 0:
+                            summary.notes.append('colour images differ in size from depth: '
+                                                 'the colour topic is not registered to the '
+                                                 'depth image')
+                        write(DEFAULT_COLOR_TOPIC, frame.stamp_ns, array_to_image(
+                            color, stamp=time, frame_id=DEFAULT_FRAME_ID,
+                            encoding='bgr8'))
+                    summary.frames += 1
+                    bar.update()
         except WriterError as err:
             raise EvaluationError(f'{output}: cannot write bag ({err})') from err
-    summary.topics = {options.depth_topic: summary.frames, options.info_topic: summary.frames,
-                      **summary.topics}
-    if with_color:
-        summary.topics[options.color_topic] = summary.color_frames
-    stamps = [f.stamp_ns for f in source.frames]
-    summary.duration_s = (max(stamps) - min(stamps)) / 1e9
-    if with_color and summary.color_frames and (
-            read_color(next(f.color_path for f in source.frames if f.color_path),
-                       'bgr8').shape[:2] != first_depth.shape):
-        summary.notes.append('colour images differ in size from depth: the colour topic is not '
-                             'registered to the depth image')
     return summary
 
 
-def depth_unit_problem(depth: np.ndarray, units_per_m: float) -> str | None:
-    """Return why a depth image read at ``units_per_m`` looks like another unit, or None."""
-    text = tool_support.depth_unit_warning(depth, units_per_m)
-    valid = depth[depth > 0]
-    if text is not None or valid.size == 0:
-        return text
-    far_m = float(np.quantile(valid, 1.0 - FAR_SHARE)) / units_per_m
-    if far_m <= FAR_DEPTH_M:
-        return None
-    text = (f'the depth looks like another unit: read at {units_per_m:g} units/m, '
-            f'{FAR_SHARE:.0%} of it lies beyond {far_m:.1f} m (median '
-            f'{float(np.median(valid)) / units_per_m:.2f} m), farther than a depth camera '
-            'sees indoors')
-    fits = [s for s in sorted(tool_support.KNOWN_DEPTH_SCALES)
-            if s > units_per_m and far_m * units_per_m / s <= FAR_DEPTH_M]
-    if fits:
-        text += (f'; with --depth-scale {fits[0]:g} ({tool_support.KNOWN_DEPTH_SCALES[fits[0]]})'
-                 f' the median would be {float(np.median(valid)) / fits[0]:.2f} m')
-    return text
-
-
 def convert_ros1(src: Path, output: Path, *, storage: str = 'sqlite3',
-                 topics: Sequence[str] = (), progress: bool = True,
-                 decompress_depth: bool = False) -> Summary:
-    """Convert a ROS 1 bag to rosbag2, every message to its ROS 2 Jazzy type.
+                 topics: Sequence[str] = (), progress: bool = True) -> Summary:
+    """Convert a ROS 1 bag to rosbag2, every message to its ROS 2 Jazzy type (EvaluationError).
 
-    Topics, bag timestamps, header stamps, frame ids and data are kept; ROS 1 only fields
-    (``Header.seq``) are dropped and renamed fields (``CameraInfo.D`` -> ``d``) carried over.
-    A CompressedImage topic whose first message's format names a depth encoding
-    (``compressed_depth.parse_format``) is compressed depth: named in the summary's notes and,
-    with ``decompress_depth``, decoded and written as ``sensor_msgs/Image`` on its raw topic
-    (``raw_topic``); a frame that cannot be decoded is left out, counted in the notes and
-    warned about.
-
-    Raises:
-        EvaluationError: naming the bag: unreadable, not ROS 1, no such topic, or (with
-            ``decompress_depth``) a raw topic that is recorded too.
+    Compressed depth topics are kept as recorded and named in the notes (the node, with its
+    ``depth_transport``, and ``bag_process.py --depth-topic`` read them).
     """
-    # Imported here: only this conversion needs them.
     from rosbags.convert.converter import create_connections_converters
     from rosbags.highlevel import AnyReader, AnyReaderError
 
@@ -299,7 +202,6 @@ def convert_ros1(src: Path, output: Path, *, storage: str = 'sqlite3',
         raise EvaluationError(f'{src}: ROS 1 bag not found')
     summary = Summary(output=output)
     noetic = get_typestore(Stores.ROS1_NOETIC)
-    jazzy = get_typestore(Stores.ROS2_JAZZY)
     with staged_output(output) as staging:
         try:
             with AnyReader([src], default_typestore=noetic) as reader:
@@ -310,77 +212,39 @@ def convert_ros1(src: Path, output: Path, *, storage: str = 'sqlite3',
                     raise EvaluationError(f'{src}: has no topic {", ".join(missing)}')
                 if not connections:
                     raise EvaluationError(f'{src}: contains no messages')
-                decoded = _depth_to_decode(src, reader, connections, noetic, summary,
-                                           decompress_depth)
-                total = sum(c.msgcount for c in connections)
+                for topic, fmt in _compressed_depth_topics(reader, connections, noetic):
+                    summary.notes.append(f'{topic}: compressed depth ({fmt!r}); '
+                                         f'bag_process.py --depth-topic {topic} reads it')
                 with Writer(staging, version=BAG_VERSION,
-                            storage_plugin=STORAGES[storage]) as writer:
-                    kept = [c for c in connections if c.topic not in decoded]
+                            storage_plugin=STORAGES[storage]) as writer, \
+                        Progress(sum(c.msgcount for c in connections), 'converting',
+                                 stream=None if progress else io.StringIO()) as bar:
                     # rosbags prints which types it migrates; keep stdout for our summary.
                     with contextlib.redirect_stdout(io.StringIO()):
                         connmap, convmap = create_connections_converters(
-                            kept, jazzy, reader, writer) if kept else ({}, {})
-                    raw_conns = {t: writer.add_connection(raw_topic(t), tool_support.IMAGE_TYPE,
-                                                          typestore=jazzy)
-                                 for t in sorted(decoded)}
-                    counts: Counter[str] = Counter()
-                    failed: Counter[tuple[str, str]] = Counter()
-                    with Progress(total, 'converting',
-                                  stream=None if progress else io.StringIO()) as bar:
-                        for conn, timestamp, data in reader.messages(connections=connections):
-                            bar.update()
-                            if conn.topic in decoded:
-                                image, reason = _decoded_depth(data, noetic)
-                                if image is None:
-                                    failed[(conn.topic, reason)] += 1
-                                    continue
-                                writer.write(raw_conns[conn.topic], timestamp, image)
-                                counts[raw_topic(conn.topic)] += 1
-                                continue
-                            writer.write(connmap[(conn.id, conn.owner)], timestamp,
-                                         convmap[conn.msgtype](data))
-                            counts[conn.topic] += 1
+                            connections, get_typestore(Stores.ROS2_JAZZY), reader, writer)
+                    for conn, timestamp, data in reader.messages(connections=connections):
+                        writer.write(connmap[(conn.id, conn.owner)], timestamp,
+                                     convmap[conn.msgtype](data))
+                        summary.topics[conn.topic] += 1
+                        bar.update()
                 summary.duration_s = (reader.end_time - reader.start_time) / 1e9
         except AnyReaderError as err:
             raise EvaluationError(f'{src}: cannot read ROS 1 bag ({err})') from err
         except WriterError as err:
             raise EvaluationError(f'{output}: cannot write bag ({err})') from err
-    for (topic, reason), count in sorted(failed.items()):
-        note = f'{count} frame(s) of {topic} not decoded, left out: {reason}'
-        summary.notes.append(note)
-        tool_support.warn(note)
-    summary.topics = dict(sorted(counts.items()))
-    summary.messages = sum(counts.values())
-    summary.frames = max(counts.values(), default=0)
+    summary.topics = Counter(dict(sorted(summary.topics.items())))
+    summary.messages = sum(summary.topics.values())
+    summary.frames = max(summary.topics.values(), default=0)
     return summary
 
 
-def _depth_to_decode(src: Path, reader: Any, connections: Sequence[Any], typestore: Any,
-                     summary: Summary, decompress_depth: bool) -> set[str]:
-    """Note the compressed depth topics; return those to decode (EvaluationError on a clash)."""
-    depth = _compressed_depth_topics(reader, connections, typestore)
-    for topic, fmt in sorted(depth.items()):
-        summary.notes.append(
-            f'{topic}: compressed depth ({fmt!r}); '
-            + (f'decoded to sensor_msgs/Image on {raw_topic(topic)}' if decompress_depth else
-               f'bag_process.py --depth-topic {topic} reads it (or convert with '
-               '--decompress-depth)'))
-    decoded = set(depth) if decompress_depth else set()
-    targets = Counter(raw_topic(t) for t in decoded)
-    if clash := sorted(t for t, n in targets.items() if n > 1 or t in (
-            {c.topic for c in connections} - decoded)):
-        raise EvaluationError(
-            f'{src}: {", ".join(clash)} would be written twice by --decompress-depth '
-            '(recorded raw too, or from two compressed topics); choose one with --topics')
-    return decoded
-
-
 def _compressed_depth_topics(reader: Any, connections: Sequence[Any],
-                             typestore: Any) -> dict[str, str]:
-    """Map each CompressedImage topic holding depth to its first message's format."""
-    found: dict[str, str] = {}
+                             typestore: Any) -> list[tuple[str, str]]:
+    """Return (topic, first message's format) of each CompressedImage topic holding depth."""
+    found = []
     for conn in connections:
-        if conn.msgtype != COMPRESSED_IMAGE_TYPE or conn.msgcount == 0 or conn.topic in found:
+        if conn.msgtype != COMPRESSED_IMAGE_TYPE or conn.msgcount == 0:
             continue
         _, _, data = next(iter(reader.messages(connections=[conn])))
         fmt = str(typestore.deserialize_ros1(data, COMPRESSED_IMAGE_TYPE).format)
@@ -388,21 +252,5 @@ def _compressed_depth_topics(reader: Any, connections: Sequence[Any],
             parse_format(fmt)
         except RosInputError:
             continue  # colour (jpeg, png of bgr8, ...): not depth
-        found[conn.topic] = fmt
-    return found
-
-
-def _decoded_depth(data: bytes, typestore: Any) -> tuple[bytes | None, str]:
-    """Decode one ROS 1 CompressedImage of depth into a serialized ROS 2 Image, or say why not."""
-    msg = typestore.deserialize_ros1(data, COMPRESSED_IMAGE_TYPE)
-    try:
-        array = compressed_depth_to_array(msg)
-        encoding = parse_format(msg.format)[0]
-    except RosInputError as err:
-        return None, str(err)
-    stamp = Time(sec=int(msg.header.stamp.sec), nanosec=int(msg.header.stamp.nanosec))
-    image = array_to_image(array, stamp=stamp, frame_id=str(msg.header.frame_id),
-                           encoding=encoding)
-    return serialize_message(image), ''
-
-
+        found.append((conn.topic, fmt))
+    return sorted(set(found))

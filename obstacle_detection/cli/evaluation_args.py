@@ -59,9 +59,7 @@ def add_parameter_arguments(parser: argparse.ArgumentParser) -> None:
 def base_params(args: argparse.Namespace) -> DetectorParams:
     """Preset, then parameter file, then ``--set`` overrides (ValueError on a bad one)."""
     params = PRESETS[args.preset]()
-    files = args.params_file if isinstance(args.params_file, list) else (
-        [] if args.params_file is None else [args.params_file])
-    for path in files:  # several files apply in order, as ROS merges them
+    for path in args.params_file:  # several files apply in order, as ROS merges them
         params = evaluation.load_params_file(path, params)
     if args.set:
         try:
@@ -71,11 +69,8 @@ def base_params(args: argparse.Namespace) -> DetectorParams:
     return params
 
 
-def report_error(prog: str, exc: Exception) -> int:
-    """Print the error line; an unknown scenario, parameter or metric is a usage error (2)."""
-    if isinstance(exc, evaluation.EvaluationError) and exc.usage:
-        exc = tool_support.ToolError(str(exc), usage=True)
-    return tool_support.report_error(prog, exc)
+#: Print the error line; an unknown scenario, parameter or metric is a usage error (2).
+report_error = tool_support.report_error
 
 
 def frame_sources(args: argparse.Namespace,
@@ -89,9 +84,7 @@ def frame_sources(args: argparse.Namespace,
         scenarios = evaluation.select_scenarios(evaluation.load_scenarios(path), args.scene)
         rules = base_params(args)
         for scenario in scenarios:
-            count = scenario.frame_count
-            if args.max_frames is not None:
-                count = min(count, args.max_frames)
+            count = min(scenario.frame_count, args.max_frames or scenario.frame_count)
             sources.append((scenario.name, count,
                             LazyFrames(evaluation.scenario_frames, scenario,
                                   max_frames=args.max_frames, rules=rules,

@@ -4,65 +4,44 @@ from __future__ import annotations
 
 import sys
 import time
-from types import TracebackType
-from typing import TextIO
-
-_BAR_WIDTH = 30
-_MIN_REDRAW_S = 0.1
+from typing import Any, TextIO
 
 
 class Progress:
-    """Count work items and show how far along the work is."""
+    """Count work items: a bar redrawn on a terminal (at most every 0.1 s), one final line."""
 
     def __init__(self, total: int | None, label: str, *, stream: TextIO | None = None) -> None:
-        """Start counting."""
+        """Start counting; ``total`` None: no bar, only the count."""
         self.total = total
         self.label = label
         self.count = 0
-        self._stream = stream if stream is not None else sys.stderr
-        self._interactive = bool(getattr(self._stream, 'isatty', lambda: False)())
+        self._stream = sys.stderr if stream is None else stream
         self._start = time.monotonic()
-        self._last_draw = 0.0
-        self._closed = False
+        self._drawn = 0.0
 
     def update(self, n: int = 1) -> None:
-        """Mark ``n`` more items as done, redrawing the bar at most every 0.1 s."""
+        """Mark ``n`` more items as done."""
         self.count += n
-        if not self._interactive:
-            return
-        now = time.monotonic()
-        if now - self._last_draw >= _MIN_REDRAW_S or self.count == self.total:
-            self._last_draw = now
+        if self._stream.isatty() and time.monotonic() - self._drawn >= 0.1:
+            self._drawn = time.monotonic()
             self._stream.write('\r' + self._line())
             self._stream.flush()
 
-    def close(self, message: str = '') -> None:
-        """Finish: write the final line (with an optional message after it)."""
-        if self._closed:
-            return
-        self._closed = True
-        line = self._line()
-        if message:
-            line = f'{line} {message}'
-        self._stream.write(('\r' if self._interactive else '') + line + '\n')
-        self._stream.flush()
-
     def _line(self) -> str:
         elapsed = time.monotonic() - self._start
-        rate = self.count / elapsed if elapsed > 0 else 0.0
         if self.total:
-            done = min(self.count / self.total, 1.0)
-            filled = int(round(done * _BAR_WIDTH))
-            bar = '#' * filled + '-' * (_BAR_WIDTH - filled)
-            return (f'{self.label} [{bar}] {self.count}/{self.total} '
-                    f'{elapsed:5.1f} s ({rate:.1f}/s)')
-        return f'{self.label} {self.count} {elapsed:5.1f} s ({rate:.1f}/s)'
+            filled = '#' * round(30 * min(self.count / self.total, 1.0))
+            bar = f' [{filled.ljust(30, "-")}] {self.count}/{self.total}'
+        else:
+            bar = f' {self.count}'
+        return f'{self.label}{bar} {elapsed:5.1f} s ({self.count / max(elapsed, 1e-9):.1f}/s)'
 
     def __enter__(self) -> Progress:
         """Return the bar itself."""
         return self
 
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
-                 traceback: TracebackType | None) -> None:
-        """Write the final line, marking it when the work stopped on an error."""
-        self.close('(stopped)' if exc_type is not None else '')
+    def __exit__(self, exc_type: type[BaseException] | None, *_: Any) -> None:
+        """Write the final line, marked ``(stopped)`` when the work stopped on an error."""
+        end = ' (stopped)\n' if exc_type is not None else '\n'
+        self._stream.write(('\r' if self._stream.isatty() else '') + self._line() + end)
+        self._stream.flush()

@@ -9,7 +9,6 @@ import sys
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TextIO
 
 import numpy as np
 
@@ -35,16 +34,16 @@ KNOWN_DEPTH_SCALES: dict[float, str] = {
 }
 #: Median depth [m] of a plausible indoor RGB-D frame (structured light / time of flight).
 PLAUSIBLE_MEDIAN_DEPTH_M = (0.3, 8.0)
+#: Depth [m] that 5 % of an indoor frame does not reach (TUM's 0.2 mm read as millimetres puts a
+#: desk at 7 m and the hall behind it at 20 m).
+FAR_DEPTH_M = 10.0
 #: A mount differing from the floor in view by more than this is reported.
 MOUNT_HEIGHT_TOLERANCE_M = 0.15
 MOUNT_ANGLE_TOLERANCE_DEG = 5.0
 
 
 class ToolError(ValueError):
-    """The command-line layer's one error: bad input (exit 1) or, with ``usage``, bad options (2).
-
-    ``ToolError(path, problem)`` reads ``<path>: <problem>``; ``ToolError(message)`` the message.
-    """
+    """The tools' error, ``<path>: <problem>`` or a message: bad input, or ``usage``: options."""
 
     def __init__(self, path: str | Path, problem: str | None = None, *,
                  usage: bool = False) -> None:
@@ -52,9 +51,7 @@ class ToolError(ValueError):
         self.usage = usage
 
 
-#: The folder holding the ``obstacle_detection`` package: the repository root in a checkout
-#: (or an editable install), ``site-packages`` once installed. A child process that must import
-#: this copy of the package gets it on its PYTHONPATH.
+#: The folder holding the ``obstacle_detection`` package (the repository root in a checkout).
 PACKAGE_ROOT = Path(__file__).resolve().parents[2]
 
 
@@ -66,24 +63,23 @@ def package_file(relative: str) -> Path:
     return next((path for path in candidates if path.exists()), candidates[0])
 
 
-def report_error(prog: str, error: BaseException, stream: TextIO | None = None) -> int:
-    """Print the one error line of ``error`` and return the exit code it calls for."""
-    stream = sys.stderr if stream is None else stream
+def report_error(prog: str, error: BaseException) -> int:
+    """Print the one error line of ``error``; return its exit code (2 when ``error.usage``)."""
     if getattr(error, 'usage', False):
-        print(f'{prog}: error: {error}', file=stream)
+        print(f'{prog}: error: {error}', file=sys.stderr)
         return EXIT_USAGE
     text = str(error)
     if isinstance(error, OSError) and error.filename is not None and error.strerror:
         text = f'{error.filename}: {error.strerror}'
     elif isinstance(error, KeyError) and error.args:
         text = str(error.args[0])
-    print(f'error: {text}', file=stream)
+    print(f'error: {text}', file=sys.stderr)
     return EXIT_BAD_INPUT
 
 
-def warn(text: str, stream: TextIO | None = None) -> None:
+def warn(text: str) -> None:
     """Print one ``warning: ...`` line on stderr."""
-    print(f'warning: {text}', file=sys.stderr if stream is None else stream)
+    print(f'warning: {text}', file=sys.stderr)
 
 
 # --------------------------------------------------------------------------------------------
@@ -97,22 +93,13 @@ def check_bag_path(path: str | Path, *, ros1: bool = True) -> None:
                 + (' or a ROS 1 .bag file' if ros1 else ''))
     if not path.exists():
         raise ToolError(path, f'no such file or folder; expected {expected}')
-    if path.is_dir():
-        if not (path / 'metadata.yaml').is_file():
-            inner = sorted(p.parent.name for p in path.glob('*/metadata.yaml'))
-            hint = f' (its sub-folder{"s" if len(inner) > 1 else ""} {", ".join(inner)} ' \
-                   f'{"are bags" if len(inner) > 1 else "is one"})' if inner else ''
-            raise ToolError(path, f'not a bag: no metadata.yaml in the folder; expected '
-                                  f'{expected}{hint}')
-        return
+    if path.is_dir() and not (path / 'metadata.yaml').is_file():
+        raise ToolError(path, f'not a bag: no metadata.yaml in the folder; expected {expected}')
     if path.suffix in ('.db3', '.mcap'):
-        raise ToolError(path, f'a rosbag2 storage file: give its folder {path.parent} (the '
-                              'one holding metadata.yaml)')
-    if not ros1:
-        what = 'a ROS 1 bag: convert it first with tools/bag_convert.py ros1' \
-            if path.suffix == '.bag' else f'not a bag; expected {expected}'
-        raise ToolError(path, what)
-    if path.suffix != '.bag':
+        raise ToolError(path, f'a rosbag2 storage file: give its folder {path.parent}')
+    if path.suffix == '.bag' and not ros1:
+        raise ToolError(path, 'a ROS 1 bag: convert it first with tools/bag_convert.py ros1')
+    if not path.is_dir() and path.suffix != '.bag':
         raise ToolError(path, f'not a bag; expected {expected}')
 
 
@@ -121,34 +108,17 @@ def choose_info_topic(topics: Mapping[str, str], depth_topic: str,
     """Pick the CameraInfo topic of a bag's depth topic: ``(topic or None, how it was found)``."""
     infos = sorted(t for t, kind in topics.items() if kind == CAMERA_INFO_TYPE)
     if requested is not None:
-        if requested not in topics:
-            raise ValueError(f'no topic {requested!r} (its CameraInfo topics: '
-                             f'{", ".join(infos) or "none"})')
-        if topics[requested] != CAMERA_INFO_TYPE:
-            raise ValueError(f'{requested} has type {topics[requested]}, not {CAMERA_INFO_TYPE}')
+        if topics.get(requested) != CAMERA_INFO_TYPE:
+            kind = topics.get(requested, 'none (no such topic)')
+            raise ValueError(f'{requested} has type {kind}, not {CAMERA_INFO_TYPE} (CameraInfo '
+                             f'topics: {", ".join(infos) or "none"})')
         return requested, 'given'
     if not infos:
         return None, 'the bag has no CameraInfo topic'
     if DEFAULT_INFO_TOPIC in infos:
         return DEFAULT_INFO_TOPIC, 'the default topic'
-    parent = depth_topic.rsplit('/', 1)[0]
-    beside = [t for t in infos if t.rsplit('/', 1)[0] == parent]
-    if len(beside) == 1:
-        return beside[0], f'found by type beside {depth_topic}'
-    if len(infos) == 1:
-        return infos[0], 'found by type (the only CameraInfo topic)'
-
-    def shared(topic: str) -> int:
-        return len(_common_prefix(topic, depth_topic))
-    best = max(infos, key=shared)
-    return best, f'found by type (of {", ".join(infos)}, the nearest to {depth_topic})'
-
-
-def _common_prefix(a: str, b: str) -> str:
-    n = 0
-    while n < min(len(a), len(b)) and a[n] == b[n]:
-        n += 1
-    return a[:n]
+    best = max(infos, key=lambda topic: len(os.path.commonprefix([topic, depth_topic])))
+    return best, f'found by type, the nearest to {depth_topic}'
 
 
 # --------------------------------------------------------------------------------------------
@@ -192,31 +162,39 @@ def intrinsics_warning(intrinsics: Intrinsics, shape: tuple[int, int]) -> str | 
 def depth_unit_warning(depth: np.ndarray, depth_scale: float | None,
                        option: str = '--depth-scale', *,
                        out_of_range_m: float | None = None) -> str | None:
-    """Warn when integer depth read at ``depth_scale`` units/m looks like another unit."""
+    """Say why integer depth read at ``depth_scale`` units/m looks like another unit, or None.
+
+    It does when its median is not what a depth camera sees indoors, when 5 % of it lies beyond
+    FAR_DEPTH_M, or (``out_of_range_m`` given) when another known scale fits the median better.
+    """
     arr = np.asarray(depth)
-    if arr.dtype.kind not in 'ui':
-        return None
-    valid = arr[arr > 0]
+    valid = arr[arr > 0] if arr.dtype.kind in 'ui' else arr[:0]
     if valid.size == 0:
         return None
     scale = 1000.0 if depth_scale is None else float(depth_scale)
     median_units = float(np.median(valid))
     median_m = median_units / scale
+    far_m = float(np.quantile(valid, 0.95)) / scale
     low, high = PLAUSIBLE_MEDIAN_DEPTH_M
     fits = [s for s in KNOWN_DEPTH_SCALES if low <= median_units / s <= high]
     best = min(fits, key=lambda s: abs(math.log(median_units / s / 2.0)), default=None)
-    if low <= median_m <= high:
-        if out_of_range_m is None or best is None or best == scale:
-            return None
+    better = best is not None and best != scale
+    if not low <= median_m <= high:
+        text = (f'the depth looks like another unit: read at {scale:g} units/m its median is '
+                f'{median_m:.2f} m, {"beyond" if median_m > high else "below"} what a depth '
+                f'camera sees indoors ({low:g}-{high:g} m)')
+    elif far_m > FAR_DEPTH_M:
+        text = (f'the depth looks like another unit: read at {scale:g} units/m, 5% of it lies '
+                f'beyond {far_m:.1f} m (median {median_m:.2f} m), farther than a depth camera '
+                'sees indoors')
+    elif out_of_range_m is not None and better:
         return (f'read at {scale:g} units/m the depth\'s median is {median_m:.2f} m and little '
                 f'of it lies within {out_of_range_m:g} m: if the depth is in another unit, '
                 f'{option} {best:g} ({KNOWN_DEPTH_SCALES[best]}) would make its median '
                 f'{median_units / best:.2f} m')
     else:
-        text = (f'the depth looks like another unit: read at {scale:g} units/m its median is '
-                f'{median_m:.2f} m, {"beyond" if median_m > high else "below"} what a depth '
-                f'camera sees indoors ({low:g}-{high:g} m)')
-    if best is not None and best != scale:
+        return None
+    if better:
         text += (f'; with {option} {best:g} ({KNOWN_DEPTH_SCALES[best]}) the median would be '
                  f'{median_units / best:.2f} m')
     return text
@@ -240,11 +218,10 @@ def check_mount(depth_m: np.ndarray, intrinsics: Intrinsics, params: DetectorPar
         estimate = estimate_mount(depth_m, intrinsics)
     except ValueError as exc:
         return MountCheck(None, reason=str(exc))
-    d_height = abs(estimate.height_m - params.camera_height_m)
-    d_pitch = abs(estimate.pitch_deg - math.degrees(params.camera_pitch_rad))
-    d_roll = abs(estimate.roll_deg - math.degrees(params.camera_roll_rad))
-    if (d_height <= MOUNT_HEIGHT_TOLERANCE_M and d_pitch <= MOUNT_ANGLE_TOLERANCE_DEG
-            and d_roll <= MOUNT_ANGLE_TOLERANCE_DEG):
+    d_angle = max(abs(estimate.pitch_deg - math.degrees(params.camera_pitch_rad)),
+                  abs(estimate.roll_deg - math.degrees(params.camera_roll_rad)))
+    if (abs(estimate.height_m - params.camera_height_m) <= MOUNT_HEIGHT_TOLERANCE_M
+            and d_angle <= MOUNT_ANGLE_TOLERANCE_DEG):
         return MountCheck(estimate)
     warning = (f'the floor in view ({estimate.inlier_fraction:.0%} of the points) puts the '
                f'camera at height {estimate.height_m:.2f} m, pitch {estimate.pitch_deg:.1f} deg, '
@@ -278,6 +255,14 @@ def add_domain_id_option(parser: argparse.ArgumentParser, help_text: str) -> Non
     """Add ``--domain-id`` (a ROS domain of the run's own, default 100-200 from the pid)."""
     parser.add_argument('--domain-id', type=domain_id, default=100 + os.getpid() % 101,
                         metavar='ID', help=help_text)
+
+
+def add_topic_options(parser: argparse.ArgumentParser) -> None:
+    """Add a bag's ``--depth-topic`` and ``--info-topic``."""
+    parser.add_argument('--depth-topic', default=DEFAULT_DEPTH_TOPIC,
+                        help='depth topic (default %(default)s)')
+    parser.add_argument('--info-topic', help=f'CameraInfo topic (default: {DEFAULT_INFO_TOPIC}, '
+                                             "else the bag's CameraInfo topic found by type)")
 
 
 def pin_one_cpu() -> str:
