@@ -4,6 +4,7 @@ import json
 import math
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -185,6 +186,18 @@ def test_evaluate_one_corridor_frame_scores_above_a_floor(tmp_path, capsys):
     assert corridor['cell']['f1'] > 0.45
     assert corridor['pixel']['f1'] > 0.85
     assert corridor['cell']['false_alarm_rate'] < 0.2
+
+
+def test_evaluate_pictures_saves_one_picture_per_frame_with_the_truth(tmp_path, capsys):
+    pics = tmp_path / 'pics'
+    code = evaluate.main(['--scene', 'corridor', '--max-frames', '2', '--quiet',
+                          '--pictures', str(pics)])
+    assert code == 0
+    names = sorted(p.name for p in pics.glob('*.png'))
+    assert len(names) == 2 and all(n.startswith('corridor_') for n in names)
+    image = cv2.imread(str(pics / names[0]))
+    # Three panels side by side (depth, costmap, truth comparison): wider than high.
+    assert image is not None and image.shape[1] > 2 * image.shape[0]
 
 
 def test_evaluate_reports_bad_input_with_exit_code_2(capsys):

@@ -78,6 +78,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--json', metavar='FILE',
                         help="write the JSON report to FILE instead of printing it as the last "
                              "line ('-': print only the JSON line, table to stderr)")
+    parser.add_argument('--pictures', type=Path, metavar='DIR',
+                        help='also save one PNG per frame (depth + obstacles, costmap, '
+                             'comparison with the truth)')
     parser.add_argument('--causes', action='store_true',
                         help='also count the false-alarm cells of each scenario by cause '
                              '(docs/accuracy.md)')
@@ -123,10 +126,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.refiner is not None:
             from obstacle_detection.pipeline.refine import LogisticRefiner
             refiner = LogisticRefiner.load(args.refiner)
-        if args.causes:
+        if args.pictures is not None or args.causes:
             if args.workers or args.scheduler:
-                raise tool_support.ToolError('--causes works in this process: leave out '
-                                             '--workers/--scheduler', usage=True)
+                raise tool_support.ToolError('--pictures and --causes work in this process: '
+                                             'leave out --workers/--scheduler', usage=True)
             args.workers = 0
     except (ValueError, OSError) as exc:
         return report_error('evaluate', exc)
@@ -147,6 +150,8 @@ def _evaluate(args: Any, params: DetectorParams, sources: Any, refiner: Any,
     callbacks = []
     if not args.quiet:
         callbacks.append(_progress(total, 'evaluate'))
+    if args.pictures is not None:
+        callbacks.append(_picture_writer(args.pictures, params))
     causes: dict[str, Counter] = {}
     if args.causes:
         callbacks.append(lambda frame, result, score: causes.setdefault(
@@ -333,6 +338,21 @@ def real_frame_counts(depth_m: np.ndarray, intrinsics: Intrinsics, params: Detec
              f'roll {est.roll_deg:.1f} deg; {result.floor.summary()}')
     return (int(on_floor.sum()), int((on_floor & marked).sum()), int(standing.sum()),
             int((standing & marked).sum()), mount)
+
+
+def _picture_writer(folder: Path, base: DetectorParams) -> Any:
+    from obstacle_detection.viz import pictures
+
+    def on_frame(frame: evaluation.LabelledFrame, result: Any,
+                 score: evaluation.FrameScore) -> None:
+        name = f'{frame.scenario}_{frame.frame_id}'.replace(' ', '_').replace('/', '_')
+        caption = (f'{frame.scenario} {frame.frame_id}: cell F1 '
+                   f'{evaluation.format_score(score.cell.f1)}, pixel F1 '
+                   f'{evaluation.format_score(score.pixel.f1)}')
+        pictures.write_png(folder / f'{name}.png', pictures.side_by_side(
+            result, caption=caption, truth_labels=frame.truth_labels,
+            params=frame.params(base)))
+    return on_frame
 
 
 if __name__ == '__main__':
