@@ -16,7 +16,8 @@ import numpy as np
 from obstacle_detection.labels import (CELL_OCCUPIED, GT_NO_RETURN, GT_OBSTACLE, LABEL_GROUND,
                                        LABEL_OBSTACLE)
 from .overlay import (MIN_GREY, NO_RETURN_RGB, OBSTACLE_ALPHA, OBSTACLE_RGB, OCCUPIED_RGB,
-                      FREE_RGB, ROBOT_RGB, UNKNOWN_RGB, render_costmap, render_overlay)
+                      FREE_RGB, ROBOT_RGB, UNKNOWN_RGB, render_costmap,
+                      render_overlay, top_view)
 from obstacle_detection.pipeline.params import Intrinsics
 
 #: Background of the caption band and the padding, and its text colour.
@@ -173,12 +174,6 @@ def _put(image: np.ndarray, text: str, org: tuple[int, int], *, scale: float = T
     cv2.putText(image, text, (int(x), int(org[1])), _FONT, scale, colour, 1, cv2.LINE_AA)
 
 
-def _cell_image(mask_yx: np.ndarray, scale: int) -> np.ndarray:
-    """(ny, nx) cell mask -> the (nx * scale, ny * scale) pixel mask of render_costmap."""
-    top = mask_yx.T[::-1, ::-1]
-    return np.repeat(np.repeat(top, scale, axis=0), scale, axis=1)
-
-
 def floor_in_view(costmap: Any, params: Any, intrinsics: Intrinsics,
                   image_shape: tuple[int, int]) -> np.ndarray:
     """(ny, nx) bool: cells whose centre, on the ground, the camera sees (inside the image)."""
@@ -218,11 +213,11 @@ def costmap_panel(costmap: Any, *, scale: int = 4, params: Any = None,
     """
     grid = render_costmap(costmap, scale=scale, draw_robot=False)
     if params is not None:
-        outside = _cell_image(~roi_cells(costmap, params), scale)
+        outside = top_view(~roi_cells(costmap, params), scale)
         rows, cols = np.indices(outside.shape)
         grid[outside & ((rows + cols) % 6 == 0)] = HATCH_RGB
         if intrinsics is not None and image_shape is not None:
-            seen = _cell_image(floor_in_view(costmap, params, intrinsics, image_shape), scale)
+            seen = top_view(floor_in_view(costmap, params, intrinsics, image_shape), scale)
             contours, _ = cv2.findContours(seen.astype(np.uint8), cv2.RETR_EXTERNAL,
                                            cv2.CHAIN_APPROX_SIMPLE)
             cv2.drawContours(grid, contours, -1, VIEW_EDGE_RGB, 2 if scale >= 3 else 1)
@@ -363,7 +358,6 @@ def side_by_side(result: Any, *, caption: str = '', truth_labels: np.ndarray | N
     labels = result.labels if labels is None else labels
     costmap = result.costmap if costmap is None else costmap
     depth_m = np.asarray(result.depth_m)
-    height, width = depth_m.shape
     valid = np.isfinite(depth_m) & (depth_m > 0)
     shown_max = max_depth_m if max_depth_m is not None else (
         float(depth_m[valid].max()) if valid.any() else 1.0)
@@ -371,9 +365,8 @@ def side_by_side(result: Any, *, caption: str = '', truth_labels: np.ndarray | N
     panels = [depth_overlay(depth_m, labels, max_depth_m=shown_max, above_robot=above)]
     if truth_labels is not None:
         panels.append(truth_comparison(labels, truth_labels, depth_m, max_depth_m=shown_max))
-    if image_scale != 1.0:
-        height, width = (max(1, round(n * image_scale)) for n in depth_m.shape)
-        panels = [cv2.resize(p, (width, height), interpolation=cv2.INTER_AREA) for p in panels]
+    panels = [_scaled(panel, image_scale) for panel in panels]
+    height, width = panels[0].shape[:2]
     intrinsics = getattr(result, 'intrinsics', None)
     panels.insert(1, costmap_panel(costmap, scale=_grid_scale(costmap, height, width),
                                    params=params, intrinsics=intrinsics,
@@ -392,6 +385,14 @@ def side_by_side(result: Any, *, caption: str = '', truth_labels: np.ndarray | N
     lines = [line for line in (caption, stats, *extra_lines) if line]
     parts.append(caption_band(_wrap(lines, top.shape[1]), top.shape[1]))
     return np.vstack(parts)
+
+
+def _scaled(image: np.ndarray, scale: float) -> np.ndarray:
+    """Return ``image`` resized by ``scale`` (area interpolation), itself at scale 1."""
+    if scale == 1.0:
+        return image
+    size = (max(1, round(image.shape[1] * scale)), max(1, round(image.shape[0] * scale)))
+    return cv2.resize(image, size, interpolation=cv2.INTER_AREA)
 
 
 def _grid_scale(costmap: Any, height: int, width: int) -> int:
@@ -426,19 +427,25 @@ def legend_row(widths: Sequence[int], max_depth_m: float, *, truth: bool,
             ('box', (150, 150, 150), roi_text + ': depth grey'),
             ('box', NO_RETURN_RGB, 'no return')], widths[0]),
         depth_colour_bar(max_depth_m, widths[0])])
-    items = [('box', OCCUPIED_RGB, 'occupied'), ('box', FREE_RGB, 'free (ground seen)'),
-             ('box', UNKNOWN_RGB, 'unknown (not seen)')]
-    if params is not None:
-        items += [('hatch', HATCH_RGB, 'outside the region of interest'),
-                  ('line', VIEW_EDGE_RGB, "edge of the floor in the camera's view")]
-    items.append(('triangle', ROBOT_RGB, 'camera (x = y = 0), facing +x'))
-    cells = legend('costmap, top view', items, widths[1])
+    cells = legend('costmap, top view', _grid_items(
+        ('occupied', 'free (ground seen)', 'unknown (not seen)'),
+        'camera (x = y = 0), facing +x', view=params is not None), widths[1])
     blocks = [depth, cells]
     if truth:
         blocks.append(legend('obstacle pixels vs ground truth', [
             ('box', HIT_RGB, 'hit'), ('box', FALSE_ALARM_RGB, 'false alarm'),
             ('box', MISS_RGB, 'miss (called ground)')], widths[2]))
     return join_panels(blocks)
+
+
+def _grid_items(cells: tuple[str, str, str], robot: str, *, view: bool = True) -> list:
+    """Legend items of a costmap panel: occupied, free, unknown, (the view), the robot."""
+    items = [('box', colour, text) for colour, text in
+             zip((OCCUPIED_RGB, FREE_RGB, UNKNOWN_RGB), cells)]
+    if view:
+        items += [('hatch', HATCH_RGB, 'outside the region of interest'),
+                  ('line', VIEW_EDGE_RGB, "edge of the floor in the camera's view")]
+    return items + [('triangle', ROBOT_RGB, robot)]
 
 
 def over_grey(colour: tuple[int, int, int], share: float,
@@ -474,10 +481,6 @@ def write_png(path: str | Path, rgb: np.ndarray) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     if not cv2.imwrite(str(path), cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2BGR)):
         raise OSError(f'could not write {path}')
-
-
-# --------------------------------------------------------------------------------------------
-# Frames from files and bags
 
 
 def heatmap(scores: np.ndarray, x_labels: Sequence[str], y_labels: Sequence[str], *,
@@ -561,22 +564,17 @@ def overlay_legend(width: int) -> np.ndarray:
 
 def costmap_legend(width: int) -> np.ndarray:
     """Return the legend of a costmap panel (:func:`costmap_panel` with params), ``width`` px."""
-    return legend('obstacles/costmap, top view [m]', [
-        ('box', OCCUPIED_RGB, 'occupied (100)'), ('box', FREE_RGB, 'free (0)'),
-        ('box', UNKNOWN_RGB, 'unknown (-1)'),
-        ('hatch', HATCH_RGB, 'outside the region of interest'),
-        ('line', VIEW_EDGE_RGB, "edge of the floor in the camera's view"),
-        ('triangle', ROBOT_RGB, 'camera foot point, facing +x')], width)
+    return legend('obstacles/costmap, top view [m]', _grid_items(
+        ('occupied (100)', 'free (0)', 'unknown (-1)'), 'camera foot point, facing +x'), width)
 
 
 def node_outputs_legend(widths: Sequence[int]) -> np.ndarray:
     """Return the legend row under :func:`node_outputs` (panel widths [px])."""
     parts = [overlay_legend(widths[0]), costmap_legend(widths[1])]
     if len(widths) > 2:
-        parts.append(legend('obstacles/fused_costmap, odom [m]', [
-            ('box', OCCUPIED_RGB, 'occupied: seen often enough'), ('box', FREE_RGB, 'free'),
-            ('box', UNKNOWN_RGB, 'unknown / not sure'),
-            ('triangle', ROBOT_RGB, 'robot at its odometry pose')], widths[2]))
+        parts.append(legend('obstacles/fused_costmap, odom [m]', _grid_items(
+            ('occupied: seen often enough', 'free', 'unknown / not sure'),
+            'robot at its odometry pose', view=False), widths[2]))
     return join_panels(parts)
 
 
@@ -591,10 +589,7 @@ def node_outputs(overlay: np.ndarray, costmap: Any, *, caption: Sequence[str],
     image_scale: the overlay scaled by it, the grids drawn to its height, the text not.
     """
     image_shape = overlay.shape[:2]
-    if image_scale != 1.0:
-        size = (max(1, round(overlay.shape[1] * image_scale)),
-                max(1, round(overlay.shape[0] * image_scale)))
-        overlay = cv2.resize(overlay, size, interpolation=cv2.INTER_AREA)
+    overlay = _scaled(overlay, image_scale)
     height, width = overlay.shape[:2]
     grid_rgb = costmap_panel(costmap, scale=_grid_scale(costmap, height, width), params=params,
                              intrinsics=intrinsics, image_shape=image_shape)
