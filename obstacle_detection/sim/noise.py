@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
-import math
+import dataclasses
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
+
+from .primitives import check
 
 
 @dataclass(frozen=True)
@@ -33,20 +35,14 @@ class NoiseModel:
     dark_blob_px: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ('depth_sigma_base_mm', 'depth_sigma_quad_mm_per_m2', 'depth_sigma_ref_m',
-                     'dark_sigma_factor', 'far_dropout_start_m', 'flying_jump_m',
-                     'flying_jump_ratio', 'dark_blob_px'):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0.0):
-                raise ValueError(f'NoiseModel: {name}={value!r} must be a finite number >= 0')
-        for name in ('dropout_rate', 'dark_dropout_rate', 'far_dropout_rate',
-                     'flying_pixel_rate'):
-            value = getattr(self, name)
-            if not 0.0 <= value <= 1.0:
-                raise ValueError(f'NoiseModel: {name}={value!r} must be within [0, 1]')
         if isinstance(self.border_px, bool) or not isinstance(self.border_px, int) or \
                 self.border_px < 0:
             raise ValueError(f'NoiseModel: border_px={self.border_px!r} must be an int >= 0')
+        fields = dataclasses.asdict(self)
+        rates = {name: fields.pop(name) for name in ('dropout_rate', 'dark_dropout_rate',
+                                                     'far_dropout_rate', 'flying_pixel_rate')}
+        check('NoiseModel', 'within [0, 1]', lambda v: 0.0 <= v <= 1.0, **rates)
+        check('NoiseModel', 'a finite number >= 0', lambda v: v >= 0.0, **fields)
         if not 0.0 <= self.min_range_m < self.max_range_m <= 65.535:
             raise ValueError(f'NoiseModel: need 0 <= min_range_m={self.min_range_m!r} < '
                              f'max_range_m={self.max_range_m!r} <= 65.535')

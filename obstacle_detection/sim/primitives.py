@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Union
+from typing import Any, Callable, Union
 
 import numpy as np
 
@@ -78,21 +78,23 @@ def label_of(traversable: bool) -> int:
     return GT_TRAVERSABLE if traversable else GT_OBSTACLE
 
 
-def check_positive(owner: str, **values: float) -> None:
+def check(owner: str, rule: str, ok: Callable[[float], bool], **values: float) -> None:
+    """Raise ValueError naming ``owner`` and ``rule`` unless each value is finite and ``ok``."""
     for name, value in values.items():
-        if not (math.isfinite(value) and value > 0.0):
-            raise ValueError(f'{owner}: {name}={value!r} must be a finite number > 0')
+        if not (math.isfinite(value) and ok(value)):
+            raise ValueError(f'{owner}: {name}={value!r} must be {rule}')
+
+
+def check_positive(owner: str, **values: float) -> None:
+    check(owner, 'a finite number > 0', lambda v: v > 0.0, **values)
 
 
 def _check_finite(owner: str, **values: float) -> None:
-    for name, value in values.items():
-        if not math.isfinite(value):
-            raise ValueError(f'{owner}: {name}={value!r} must be finite')
+    check(owner, 'finite', lambda v: True, **values)
 
 
-def check_slope(owner: str, slope_rad: float, name: str = 'slope_rad') -> None:
-    if not 0.0 < slope_rad < math.pi / 2:
-        raise ValueError(f'{owner}: {name}={slope_rad!r} must be in (0, pi/2)')
+def check_slope(owner: str, **values: float) -> None:
+    check(owner, 'in (0, pi/2)', lambda v: 0.0 < v < math.pi / 2, **values)
 
 
 def _plane_t(offset: float, rate: np.ndarray) -> np.ndarray:
@@ -139,9 +141,7 @@ class Floor(Primitive):
     traversable: bool = True
 
     def __post_init__(self) -> None:
-        _check_finite('Floor', bump_amplitude_m=self.bump_amplitude_m)
-        if self.bump_amplitude_m < 0.0:
-            raise ValueError(f'Floor: bump_amplitude_m={self.bump_amplitude_m!r} must be >= 0')
+        check('Floor', '>= 0', lambda v: v >= 0.0, bump_amplitude_m=self.bump_amplitude_m)
         check_positive('Floor', bump_wavelength_m=self.bump_wavelength_m)
         if len(self.bump_phase_rad) != 3:
             raise ValueError(f'Floor: bump_phase_rad={self.bump_phase_rad!r} needs 3 phases')
@@ -323,7 +323,7 @@ class Ramp(Primitive):
     def __post_init__(self) -> None:
         _check_finite('Ramp', x_start_m=self.x_start_m, y_center_m=self.y_center_m)
         check_positive('Ramp', width_m=self.width_m, length_m=self.length_m)
-        check_slope('Ramp', self.slope_rad)
+        check_slope('Ramp', slope_rad=self.slope_rad)
 
     @property
     def traversable(self) -> bool:
@@ -373,7 +373,7 @@ class RampSide(Primitive):
     def __post_init__(self) -> None:
         _check_finite('RampSide', x_start_m=self.x_start_m, y_m=self.y_m)
         check_positive('RampSide', length_m=self.length_m)
-        check_slope('RampSide', self.slope_rad)
+        check_slope('RampSide', slope_rad=self.slope_rad)
 
     def bounds(self) -> Bounds:
         top = self.length_m * math.tan(self.slope_rad)

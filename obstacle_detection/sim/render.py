@@ -13,7 +13,8 @@ from obstacle_detection.pipeline.params import (DetectorParams, Intrinsics, KINE
                                                 KINECT_V2_SD_SIZE)
 
 from .noise import EXACT, KINECT_V2_NOISE, NoiseModel, measure
-from .primitives import MAX_TRACE_M, Bounds, Primitive, Rays, check_positive, label_of
+from .primitives import (MAX_TRACE_M, Bounds, Primitive, Rays, check, check_positive,
+                         label_of)
 from .truth import TruthRules, robot_labels
 
 #: Default camera height of the named scenes [m].
@@ -33,10 +34,8 @@ class Scene:
 
     def __post_init__(self) -> None:
         check_positive('Scene', height_m=self.height_m)
-        for name in ('pitch_rad', 'roll_rad'):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and abs(value) < math.pi / 2):
-                raise ValueError(f'Scene: {name}={value!r} must be within (-pi/2, pi/2)')
+        check('Scene', 'within (-pi/2, pi/2)', lambda v: abs(v) < math.pi / 2,
+              pitch_rad=self.pitch_rad, roll_rad=self.roll_rad)
         if not self.primitives:
             raise ValueError(f'Scene {self.name!r} has no primitives')
 

@@ -10,7 +10,7 @@ import numpy as np
 
 from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE, Intrinsics
 from .noise import NoiseModel
-from .primitives import Box, Cylinder, Floor, Primitive, Wall
+from .primitives import Box, Cylinder, Floor, Primitive, Wall, check
 from .render import render, Scene, SceneFrame
 
 #: A pose: base frame in odom, (x [m], y [m], yaw [rad]).
@@ -29,13 +29,10 @@ class OdometryModel:
     noise_fraction: float = 0.05
 
     def __post_init__(self) -> None:
-        for name in ('distance_scale', 'yaw_scale', 'noise_fraction'):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and abs(value) < 1.0):
-                raise ValueError(f'OdometryModel: {name}={value!r} must be finite, |.| < 1')
-        if self.noise_fraction < 0.0:
-            raise ValueError(f'OdometryModel: noise_fraction={self.noise_fraction!r} must '
-                             f'be >= 0')
+        check('OdometryModel', 'finite, |.| < 1', lambda v: abs(v) < 1.0,
+              distance_scale=self.distance_scale, yaw_scale=self.yaw_scale)
+        check('OdometryModel', 'in [0, 1)', lambda v: 0.0 <= v < 1.0,
+              noise_fraction=self.noise_fraction)
 
 
 #: Odometry without error (the odometry pose is the true pose).
