@@ -47,12 +47,6 @@ class NoiseModel:
             raise ValueError(f'NoiseModel: need 0 <= min_range_m={self.min_range_m!r} < '
                              f'max_range_m={self.max_range_m!r} <= 65.535')
 
-    def far_dropout(self, depth_m: np.ndarray) -> np.ndarray:
-        """Extra dropout probability at true depth depth_m [m] (0 up to far_dropout_start_m)."""
-        span = max(self.max_range_m - self.far_dropout_start_m, 1e-9)
-        ramp = np.clip((np.asarray(depth_m) - self.far_dropout_start_m) / span, 0.0, 1.0)
-        return self.far_dropout_rate * ramp
-
 
 #: The default sensor model (``noise=True``) and the exact one (``noise=False``). The default
 #: has no time-of-flight artefacts, so that numbers measured before issue 9 stay comparable.
@@ -154,8 +148,10 @@ def measure(depth_true: np.ndarray, hit_index: np.ndarray, dark: np.ndarray,
         dark_rate = model.dropout_rate if blobs else model.dark_dropout_rate
         rates = np.where(dark, dark_rate, model.dropout_rate).astype(np.float32)
         rate = rates[hit_index]
-        if model.far_dropout_rate > 0.0:
-            rate += model.far_dropout(depth_true).astype(np.float32)
+        if model.far_dropout_rate > 0.0:   # rising from far_dropout_start_m to max_range_m
+            span = max(model.max_range_m - model.far_dropout_start_m, 1e-9)
+            ramp = np.clip((depth_true - model.far_dropout_start_m) / span, 0.0, 1.0)
+            rate += (model.far_dropout_rate * ramp).astype(np.float32)
         valid &= dropout_draw >= rate
         if blobs and model.dark_dropout_rate > 0.0:
             valid &= ~blob_dropouts(hit_index, dark, model.dark_dropout_rate,

@@ -131,12 +131,16 @@ def _image_window(bounds: Bounds, rays: Rays, rot: np.ndarray, intrinsics: Intri
     return slice(v0, v1), slice(u0, u1)
 
 
+def check_count(name: str, value: int) -> int:
+    """Return ``value`` as an int; ValueError unless it is an int (not a bool) >= 0."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
+        raise ValueError(f'{name}={value!r} must be an int >= 0')
+    return int(value)
+
+
 def check_render_args(seed: int, size: tuple[int, int], frame_index: int) -> None:
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f'seed={seed!r} must be an int >= 0')
-    if isinstance(frame_index, bool) or not isinstance(frame_index, (int, np.integer)) or \
-            frame_index < 0:
-        raise ValueError(f'frame_index={frame_index!r} must be an int >= 0')
+    check_count('seed', seed)
+    check_count('frame_index', frame_index)
     if len(size) != 2 or any(isinstance(n, bool) or not isinstance(n, (int, np.integer))
                              or n < 1 for n in size):
         raise ValueError(f'size={size!r} must be (width, height), positive ints')

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -11,7 +10,7 @@ import numpy as np
 from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE, Intrinsics
 from .noise import NoiseModel
 from .primitives import Box, Cylinder, Floor, Primitive, Wall, check
-from .render import render, Scene, SceneFrame
+from .render import render, Scene, SceneFrame, check_count
 
 #: A pose: base frame in odom, (x [m], y [m], yaw [rad]).
 Pose = tuple[float, float, float]
@@ -146,10 +145,8 @@ class SceneSequence:
                  odometry: OdometryModel = OdometryModel()) -> None:
         if name not in SEQUENCE_NAMES:
             raise ValueError(f'unknown sequence {name!r}; known: {", ".join(SEQUENCE_NAMES)}')
-        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-            raise ValueError(f'seed={seed!r} must be an int >= 0')
         self.name = name
-        self.seed = int(seed)
+        self.seed = check_count('seed', seed)
         self.rate_hz = SEQUENCE_RATE_HZ
         if name == 'drive_past_boxes':
             self._poses = _integrate(_DRIVE_SEGMENTS, self.rate_hz)
@@ -195,13 +192,6 @@ class SceneSequence:
                           size=size, noise=noise, frame_index=index, pose=pose)
         return SequenceFrame(index=index, stamp_s=index / self.rate_hz, pose_true=pose,
                              pose_odom=self.pose_odom(index), frame=rendered)
-
-    def frames(self, start: int = 0, stop: int | None = None, step: int = 1, *,
-               noise: bool | NoiseModel = True) -> Iterator[SequenceFrame]:
-        """Render frames ``range(start, stop, step)`` one after the other."""
-        stop = len(self) if stop is None else min(stop, len(self))
-        for index in range(start, stop, step):
-            yield self.frame(index, noise=noise)
 
 
 #: Names accepted by :class:`SceneSequence`.

@@ -103,8 +103,7 @@ def robot_labels(points: np.ndarray, owner: np.ndarray, primitives: tuple[Primit
         plane = patch.z_at(x)
         below = covered & (plane <= z + 0.01)
         np.maximum(ground, np.where(below, plane, -np.inf), out=ground)
-        on_reached |= (covered & (owner == patch.owner)
-                       & (np.abs(z - plane) <= patch.tolerance_m + ON_PATCH_M))
+        on_reached |= _on_patch(patch, x, y, z, owner)
     labels = np.where(z - ground > rules.robot_height_m, GT_ABOVE_ROBOT,
                       GT_OBSTACLE).astype(np.uint8)
     labels[on_reached] = GT_TRAVERSABLE
