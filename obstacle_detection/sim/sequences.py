@@ -165,13 +165,11 @@ class SceneSequence:
 
     def pose_true(self, index: int) -> Pose:
         """Return the robot's true base pose in odom at frame ``index``."""
-        x, y, yaw = self._poses[self._check_index(index)]
-        return (float(x), float(y), float(yaw))
+        return tuple(float(v) for v in self._poses[self._check_index(index)])
 
     def pose_odom(self, index: int) -> Pose:
         """Return the odometry's base pose in odom at frame ``index`` (with the model's drift)."""
-        x, y, yaw = self._odometry[self._check_index(index)]
-        return (float(x), float(y), float(yaw))
+        return tuple(float(v) for v in self._odometry[self._check_index(index)])
 
     def scene_at(self, index: int) -> Scene:
         """Return the world (odom frame) at frame ``index``, with the default 0.6 m level mount."""

@@ -46,13 +46,7 @@ def _text_size(text: str, scale: float) -> tuple[int, int]:
 
 def title_band(title: str, width: int) -> np.ndarray:
     """(h, width, 3) uint8 RGB: the title in bold on white, wrapped to the width."""
-    lines = _wrap([title], width, TITLE_SCALE)
-    line_h = _text_size('Ag', TITLE_SCALE)[1] + 6
-    band = np.full((line_h * len(lines) + 8, width, 3), BACKGROUND_RGB, dtype=np.uint8)
-    for i, line in enumerate(lines):
-        for dx in (4, 5):
-            _put(band, line, (dx, 4 + line_h * (i + 1) - 8), scale=TITLE_SCALE)
-    return band
+    return caption_band(_wrap([title], width, TITLE_SCALE), width, scale=TITLE_SCALE, bold=True)
 
 
 def titled(image: np.ndarray, title: str, *, below: np.ndarray | None = None) -> np.ndarray:
@@ -76,15 +70,17 @@ def fit_width(render: Any, width: int, *, smallest: float = 0.2) -> np.ndarray:
     return np.pad(picture, ((0, 0), (0, pad), (0, 0)), constant_values=255)
 
 
-def caption_band(lines: Sequence[str], width: int, *, scale: float = 0.5) -> np.ndarray:
+def caption_band(lines: Sequence[str], width: int, *, scale: float = 0.5,
+                 bold: bool = False) -> np.ndarray:
     """(h, width, 3) uint8 RGB: the text lines on a white band, too long ones cut with '...'."""
-    line_h = _text_size('Ag', scale)[1] + 4
-    band = np.full((line_h * len(lines) + 6, width, 3), BACKGROUND_RGB, dtype=np.uint8)
+    pad = 6 if bold else 4
+    line_h = _text_size('Ag', scale)[1] + pad
+    band = np.full((line_h * len(lines) + pad + 2, width, 3), BACKGROUND_RGB, dtype=np.uint8)
     for i, line in enumerate(lines):
-        text = line
-        while text and _text_size(text, scale)[0] > width - 8:
-            text = text[:-4] + '...' if len(text) > 4 else ''
-        _put(band, text, (4, 3 + line_h * (i + 1) - 6), scale=scale)
+        while line and _text_size(line, scale)[0] > width - 8:
+            line = line[:-4] + '...' if len(line) > 4 else ''
+        for dx in ((4, 5) if bold else (4,)):   # bold: drawn twice, a pixel apart
+            _put(band, line, (dx, line_h * (i + 1) - pad // 2 - 1), scale=scale)
     return band
 
 
