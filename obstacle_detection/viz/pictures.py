@@ -501,9 +501,9 @@ def heatmap(scores: np.ndarray, x_labels: Sequence[str], y_labels: Sequence[str]
     colours = cv2.cvtColor(cv2.applyColorMap(grey, cv2.COLORMAP_VIRIDIS), cv2.COLOR_BGR2RGB)
     label_w = max(_text_size(s, TEXT_SCALE)[0] for s in [*y_labels, y_name])
     left = label_w + 12
-    top = 2 * (_text_size('Ag', 0.5)[1] + 6)
-    bottom = 2 * (_text_size('Ag', TEXT_SCALE)[1] + 6)
-    image = np.full((top + ny * cell_px + bottom, max(left + nx * cell_px + 8, 160), 3),
+    line_h = _text_size('Ag', TEXT_SCALE)[1]
+    top = 2 * (line_h + 6)   # and as much below the grid
+    image = np.full((2 * top + ny * cell_px, max(left + nx * cell_px + 8, 160), 3),
                     BACKGROUND_RGB, dtype=np.uint8)
     for r in range(ny):
         for c in range(nx):
@@ -527,10 +527,9 @@ def heatmap(scores: np.ndarray, x_labels: Sequence[str], y_labels: Sequence[str]
         cv2.rectangle(image, (left + c * cell_px, top + r * cell_px),
                       (left + (c + 1) * cell_px - 1, top + (r + 1) * cell_px - 1),
                       (230, 0, 0), 3)
-    axis_y = top + ny * cell_px + 2 * (_text_size('Ag', TEXT_SCALE)[1] + 4)
-    _put(image, x_name, (left, axis_y))
+    _put(image, x_name, (left, top + ny * cell_px + 2 * (line_h + 4)))
     _put(image, y_name, (4, top - 6))
-    _put(image, title, (4, _text_size('Ag', 0.5)[1] + 2), scale=0.5)
+    _put(image, title, (4, line_h + 2))
     return image
 
 
