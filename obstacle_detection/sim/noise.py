@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
-import math
+import dataclasses
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
+
+from .primitives import check
 
 
 @dataclass(frozen=True)
@@ -33,29 +35,17 @@ class NoiseModel:
     dark_blob_px: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ('depth_sigma_base_mm', 'depth_sigma_quad_mm_per_m2', 'depth_sigma_ref_m',
-                     'dark_sigma_factor', 'far_dropout_start_m', 'flying_jump_m',
-                     'flying_jump_ratio', 'dark_blob_px'):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0.0):
-                raise ValueError(f'NoiseModel: {name}={value!r} must be a finite number >= 0')
-        for name in ('dropout_rate', 'dark_dropout_rate', 'far_dropout_rate',
-                     'flying_pixel_rate'):
-            value = getattr(self, name)
-            if not 0.0 <= value <= 1.0:
-                raise ValueError(f'NoiseModel: {name}={value!r} must be within [0, 1]')
         if isinstance(self.border_px, bool) or not isinstance(self.border_px, int) or \
                 self.border_px < 0:
             raise ValueError(f'NoiseModel: border_px={self.border_px!r} must be an int >= 0')
+        fields = dataclasses.asdict(self)
+        rates = {name: fields.pop(name) for name in ('dropout_rate', 'dark_dropout_rate',
+                                                     'far_dropout_rate', 'flying_pixel_rate')}
+        check('NoiseModel', 'within [0, 1]', lambda v: 0.0 <= v <= 1.0, **rates)
+        check('NoiseModel', 'a finite number >= 0', lambda v: v >= 0.0, **fields)
         if not 0.0 <= self.min_range_m < self.max_range_m <= 65.535:
             raise ValueError(f'NoiseModel: need 0 <= min_range_m={self.min_range_m!r} < '
                              f'max_range_m={self.max_range_m!r} <= 65.535')
-
-    def far_dropout(self, depth_m: np.ndarray) -> np.ndarray:
-        """Extra dropout probability at true depth depth_m [m] (0 up to far_dropout_start_m)."""
-        span = max(self.max_range_m - self.far_dropout_start_m, 1e-9)
-        ramp = np.clip((np.asarray(depth_m) - self.far_dropout_start_m) / span, 0.0, 1.0)
-        return self.far_dropout_rate * ramp
 
 
 #: The default sensor model (``noise=True``) and the exact one (``noise=False``). The default
@@ -158,8 +148,10 @@ def measure(depth_true: np.ndarray, hit_index: np.ndarray, dark: np.ndarray,
         dark_rate = model.dropout_rate if blobs else model.dark_dropout_rate
         rates = np.where(dark, dark_rate, model.dropout_rate).astype(np.float32)
         rate = rates[hit_index]
-        if model.far_dropout_rate > 0.0:
-            rate += model.far_dropout(depth_true).astype(np.float32)
+        if model.far_dropout_rate > 0.0:   # rising from far_dropout_start_m to max_range_m
+            span = max(model.max_range_m - model.far_dropout_start_m, 1e-9)
+            ramp = np.clip((depth_true - model.far_dropout_start_m) / span, 0.0, 1.0)
+            rate += (model.far_dropout_rate * ramp).astype(np.float32)
         valid &= dropout_draw >= rate
         if blobs and model.dark_dropout_rate > 0.0:
             valid &= ~blob_dropouts(hit_index, dark, model.dark_dropout_rate,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Protocol, Union
+from typing import Any, Callable, Union
 
 import numpy as np
 
@@ -74,40 +74,27 @@ class Patch:
                 & (y >= self.y0_m - margin_m) & (y <= self.y1_m + margin_m))
 
 
-class Primitive(Protocol):
-    """What the renderer needs from a primitive."""
-
-    dark: bool
-    name: str
-
-    @property
-    def traversable(self) -> bool:
-        """True when the primitive's (main) surface is ground the robot may drive on."""
-
-    def bounds(self) -> Bounds:
-        """Axis-aligned bounds used to cull rays, None for an unbounded primitive."""
-
-    def intersect(self, rays: Rays) -> tuple[np.ndarray, LabelValue]:
-        """Ray parameter of the first hit, shaped like rays.dx (inf where none), and label(s)."""
-
-    def walk_patches(self, max_slope_rad: float) -> tuple[Patch, ...]:
-        """Its surfaces a robot could drive on (upward, slope <= max_slope_rad), if reached."""
-
-
 def label_of(traversable: bool) -> int:
     return GT_TRAVERSABLE if traversable else GT_OBSTACLE
 
 
-def check_positive(owner: str, **values: float) -> None:
+def check(owner: str, rule: str, ok: Callable[[float], bool], **values: float) -> None:
+    """Raise ValueError naming ``owner`` and ``rule`` unless each value is finite and ``ok``."""
     for name, value in values.items():
-        if not (math.isfinite(value) and value > 0.0):
-            raise ValueError(f'{owner}: {name}={value!r} must be a finite number > 0')
+        if not (math.isfinite(value) and ok(value)):
+            raise ValueError(f'{owner}: {name}={value!r} must be {rule}')
+
+
+def check_positive(owner: str, **values: float) -> None:
+    check(owner, 'a finite number > 0', lambda v: v > 0.0, **values)
 
 
 def _check_finite(owner: str, **values: float) -> None:
-    for name, value in values.items():
-        if not math.isfinite(value):
-            raise ValueError(f'{owner}: {name}={value!r} must be finite')
+    check(owner, 'finite', lambda v: True, **values)
+
+
+def check_slope(owner: str, **values: float) -> None:
+    check(owner, 'in (0, pi/2)', lambda v: 0.0 < v < math.pi / 2, **values)
 
 
 def _plane_t(offset: float, rate: np.ndarray) -> np.ndarray:
@@ -118,28 +105,46 @@ def _plane_t(offset: float, rate: np.ndarray) -> np.ndarray:
     return t
 
 
+@dataclass(frozen=True, kw_only=True)
+class Primitive:
+    """What the renderer needs from a primitive; ``dark``: the sensor's dark-surface model."""
+
+    dark: bool = False
+    name: str = ''
+    traversable = False
+
+    def bounds(self) -> Bounds:
+        """Axis-aligned bounds used to cull rays, None for an unbounded primitive."""
+        return None
+
+    def intersect(self, rays: Rays) -> tuple[np.ndarray, LabelValue]:
+        """Ray parameter of the first hit, shaped like rays.dx (inf where none), and label(s)."""
+        raise NotImplementedError
+
+    def walk_patches(self, max_slope_rad: float) -> tuple[Patch, ...]:
+        """Its surfaces a robot could drive on (upward, slope <= max_slope_rad), if reached."""
+        return ()
+
+    def _hit(self, t: np.ndarray, inside: np.ndarray) -> tuple[np.ndarray, LabelValue]:
+        """Return ``t`` with inf where not ``inside``, and the primitive's label."""
+        t[~inside] = np.inf
+        return t, label_of(self.traversable)
+
+
 @dataclass(frozen=True)
-class Floor:
+class Floor(Primitive):
     """Infinite ground z = 0, optionally bumpy: ``z = amplitude * f(x, y)``, ``|f| <= 1``."""
 
     bump_amplitude_m: float = 0.0
     bump_wavelength_m: float = 1.5
     bump_phase_rad: tuple[float, float, float] = (0.0, 0.0, 0.0)
     traversable: bool = True
-    dark: bool = False
-    name: str = ''
 
     def __post_init__(self) -> None:
-        _check_finite('Floor', bump_amplitude_m=self.bump_amplitude_m)
-        if self.bump_amplitude_m < 0.0:
-            raise ValueError(f'Floor: bump_amplitude_m={self.bump_amplitude_m!r} must be >= 0')
+        check('Floor', '>= 0', lambda v: v >= 0.0, bump_amplitude_m=self.bump_amplitude_m)
         check_positive('Floor', bump_wavelength_m=self.bump_wavelength_m)
         if len(self.bump_phase_rad) != 3:
             raise ValueError(f'Floor: bump_phase_rad={self.bump_phase_rad!r} needs 3 phases')
-
-    def bounds(self) -> Bounds:
-        """Unbounded."""
-        return None
 
     def walk_patches(self, max_slope_rad: float) -> tuple[Patch, ...]:
         """Return the whole plane z = 0, within the bump amplitude (gentler than theta)."""
@@ -159,7 +164,7 @@ class Floor:
         return pattern
 
     def intersect(self, rays: Rays) -> tuple[np.ndarray, LabelValue]:
-        """First hit with the floor (inf where none) and the floor's label."""
+        """First hit: z = 0, or a march and regula falsi through the bumps' band."""
         ox, oy, oz = rays.origin
         label = label_of(self.traversable)
         t_flat = _plane_t(oz, rays.dz)
@@ -219,14 +224,12 @@ class Floor:
 
 
 @dataclass(frozen=True)
-class Box:
+class Box(Primitive):
     """Axis-aligned box between corners ``min_m`` and ``max_m`` (x, y, z) [m]; slab method."""
 
     min_m: tuple[float, float, float]
     max_m: tuple[float, float, float]
     traversable: bool = False
-    dark: bool = False
-    name: str = ''
 
     def __post_init__(self) -> None:
         if len(self.min_m) != 3 or len(self.max_m) != 3:
@@ -245,7 +248,6 @@ class Box:
                    (x_m + size_x_m / 2, y_m + size_y_m / 2, size_z_m), **kwargs)
 
     def bounds(self) -> Bounds:
-        """Return the box itself."""
         return self.min_m, self.max_m
 
     def walk_patches(self, max_slope_rad: float) -> tuple[Patch, ...]:
@@ -254,7 +256,6 @@ class Box:
         return (Patch(x0, x1, y0, y1, z1),)
 
     def intersect(self, rays: Rays) -> tuple[np.ndarray, LabelValue]:
-        """Entry ray parameter into the box (inf where the ray misses it) and its label."""
         t_near = np.full(rays.dx.shape, -np.inf)
         t_far = np.full(rays.dx.shape, np.inf)
         with np.errstate(divide='ignore', invalid='ignore'):
@@ -266,12 +267,11 @@ class Box:
                 np.maximum(t_near, np.minimum(t0, t1), out=t_near)
                 np.minimum(t_far, np.maximum(t0, t1), out=t_far)
         # a ray parallel to a slab and outside it gives an empty interval or nan: no hit
-        t_near[~((t_near <= t_far) & (t_near > _EPS_T))] = np.inf
-        return t_near, label_of(self.traversable)
+        return self._hit(t_near, (t_near <= t_far) & (t_near > _EPS_T))
 
 
 @dataclass(frozen=True)
-class Wall:
+class Wall(Primitive):
     """Vertical plane segment from (x0, y0) to (x1, y1), between z_min and z_max [m]."""
 
     x0_m: float
@@ -281,8 +281,6 @@ class Wall:
     z_min_m: float = 0.0
     z_max_m: float = 2.5
     traversable: bool = False
-    dark: bool = False
-    name: str = ''
 
     def __post_init__(self) -> None:
         _check_finite('Wall', x0_m=self.x0_m, y0_m=self.y0_m, x1_m=self.x1_m, y1_m=self.y1_m,
@@ -294,16 +292,10 @@ class Wall:
                              f'z_max_m={self.z_max_m!r}')
 
     def bounds(self) -> Bounds:
-        """Bounding box of the segment."""
         return ((min(self.x0_m, self.x1_m), min(self.y0_m, self.y1_m), self.z_min_m),
                 (max(self.x0_m, self.x1_m), max(self.y0_m, self.y1_m), self.z_max_m))
 
-    def walk_patches(self, max_slope_rad: float) -> tuple[Patch, ...]:
-        """Return nothing: a wall is vertical (its top edge has no area)."""
-        return ()
-
     def intersect(self, rays: Rays) -> tuple[np.ndarray, LabelValue]:
-        """Hit ray parameter on the segment (inf where none) and the wall's label."""
         ex, ey = self.x1_m - self.x0_m, self.y1_m - self.y0_m
         length = math.hypot(ex, ey)
         ex, ey = ex / length, ey / length
@@ -313,13 +305,12 @@ class Wall:
         with np.errstate(invalid='ignore'):
             s = ex * (ox - self.x0_m + t * rays.dx) + ey * (oy - self.y0_m + t * rays.dy)
             z = oz + t * rays.dz
-            inside = (s >= 0.0) & (s <= length) & (z >= self.z_min_m) & (z <= self.z_max_m)
-        t[~inside] = np.inf
-        return t, label_of(self.traversable)
+            return self._hit(t, (s >= 0.0) & (s <= length) & (z >= self.z_min_m)
+                             & (z <= self.z_max_m))
 
 
 @dataclass(frozen=True)
-class Ramp:
+class Ramp(Primitive):
     """Planar strip rising from the floor: ``z = (x - x_start) tan(slope)``."""
 
     x_start_m: float
@@ -328,14 +319,11 @@ class Ramp:
     length_m: float
     slope_rad: float
     max_passable_slope_rad: float = math.pi / 6
-    dark: bool = False
-    name: str = ''
 
     def __post_init__(self) -> None:
         _check_finite('Ramp', x_start_m=self.x_start_m, y_center_m=self.y_center_m)
         check_positive('Ramp', width_m=self.width_m, length_m=self.length_m)
-        if not 0.0 < self.slope_rad < math.pi / 2:
-            raise ValueError(f'Ramp: slope_rad={self.slope_rad!r} must be in (0, pi/2)')
+        check_slope('Ramp', slope_rad=self.slope_rad)
 
     @property
     def traversable(self) -> bool:
@@ -348,7 +336,6 @@ class Ramp:
         return self.length_m * math.tan(self.slope_rad)
 
     def bounds(self) -> Bounds:
-        """Bounding box of the strip."""
         half = self.width_m / 2
         return ((self.x_start_m, self.y_center_m - half, 0.0),
                 (self.x_start_m + self.length_m, self.y_center_m + half, self.top_height_m))
@@ -362,7 +349,6 @@ class Ramp:
                       self.y_center_m + half, 0.0, math.tan(self.slope_rad)),)
 
     def intersect(self, rays: Rays) -> tuple[np.ndarray, LabelValue]:
-        """Hit ray parameter on the strip (inf where none) and the ramp's label."""
         tan = math.tan(self.slope_rad)
         ox, oy, oz = rays.origin
         # plane: z - tan * (x - x_start) = 0
@@ -370,14 +356,12 @@ class Ramp:
         with np.errstate(invalid='ignore'):
             x = ox + t * rays.dx
             y = oy + t * rays.dy
-            inside = ((x >= self.x_start_m) & (x <= self.x_start_m + self.length_m)
-                      & (np.abs(y - self.y_center_m) <= self.width_m / 2))
-        t[~inside] = np.inf
-        return t, label_of(self.traversable)
+            return self._hit(t, (x >= self.x_start_m) & (x <= self.x_start_m + self.length_m)
+                             & (np.abs(y - self.y_center_m) <= self.width_m / 2))
 
 
 @dataclass(frozen=True)
-class RampSide:
+class RampSide(Primitive):
     """The open side of a solid ramp: a vertical triangle in the plane ``y = y_m``."""
 
     x_start_m: float
@@ -385,40 +369,29 @@ class RampSide:
     length_m: float
     slope_rad: float
     traversable: bool = False
-    dark: bool = False
-    name: str = ''
 
     def __post_init__(self) -> None:
         _check_finite('RampSide', x_start_m=self.x_start_m, y_m=self.y_m)
         check_positive('RampSide', length_m=self.length_m)
-        if not 0.0 < self.slope_rad < math.pi / 2:
-            raise ValueError(f'RampSide: slope_rad={self.slope_rad!r} must be in (0, pi/2)')
+        check_slope('RampSide', slope_rad=self.slope_rad)
 
     def bounds(self) -> Bounds:
-        """Bounding box of the triangle."""
         top = self.length_m * math.tan(self.slope_rad)
         return ((self.x_start_m, self.y_m, 0.0),
                 (self.x_start_m + self.length_m, self.y_m, top))
 
-    def walk_patches(self, max_slope_rad: float) -> tuple[Patch, ...]:
-        """Return nothing: the side is vertical."""
-        return ()
-
     def intersect(self, rays: Rays) -> tuple[np.ndarray, LabelValue]:
-        """Hit ray parameter on the triangle (inf where none) and its label."""
         ox, oy, oz = rays.origin
         t = _plane_t(oy - self.y_m, rays.dy)
         with np.errstate(invalid='ignore'):
             x = ox + t * rays.dx
             z = oz + t * rays.dz
-            inside = ((x >= self.x_start_m) & (x <= self.x_start_m + self.length_m)
-                      & (z >= 0.0) & (z <= (x - self.x_start_m) * math.tan(self.slope_rad)))
-        t[~inside] = np.inf
-        return t, label_of(self.traversable)
+            return self._hit(t, (x >= self.x_start_m) & (x <= self.x_start_m + self.length_m)
+                             & (z >= 0.0) & (z <= (x - self.x_start_m) * math.tan(self.slope_rad)))
 
 
 @dataclass(frozen=True)
-class Cylinder:
+class Cylinder(Primitive):
     """Vertical cylinder (a person, a trunk) on (x_m, y_m), from base_z_m to base + height."""
 
     x_m: float
@@ -427,15 +400,12 @@ class Cylinder:
     height_m: float
     base_z_m: float = 0.0
     traversable: bool = False
-    dark: bool = False
-    name: str = ''
 
     def __post_init__(self) -> None:
         _check_finite('Cylinder', x_m=self.x_m, y_m=self.y_m, base_z_m=self.base_z_m)
         check_positive('Cylinder', radius_m=self.radius_m, height_m=self.height_m)
 
     def bounds(self) -> Bounds:
-        """Bounding box of the cylinder."""
         r = self.radius_m
         return ((self.x_m - r, self.y_m - r, self.base_z_m),
                 (self.x_m + r, self.y_m + r, self.base_z_m + self.height_m))
@@ -447,7 +417,6 @@ class Cylinder:
                       self.base_z_m + self.height_m),)
 
     def intersect(self, rays: Rays) -> tuple[np.ndarray, LabelValue]:
-        """Hit ray parameter on the side or a cap (inf where none) and the label."""
         ox, oy, oz = rays.origin
         cx, cy = self.x_m - ox, self.y_m - oy   # centre relative to the ray origin
         r = self.radius_m
@@ -460,8 +429,7 @@ class Cylinder:
         with np.errstate(divide='ignore', invalid='ignore'):
             t = (b - np.sqrt(b * b - a * c0)) / a
             z = oz + t * dz
-            ok = (t > _EPS_T) & (z >= z0) & (z <= z1)
-        t[~ok] = np.inf
+            t, label = self._hit(t, (t > _EPS_T) & (z >= z0) & (z <= z1))
         for cap_z in (z0, z1):
             t_cap = _plane_t(oz - cap_z, dz)
             with np.errstate(invalid='ignore'):
@@ -469,11 +437,11 @@ class Cylinder:
                 py = t_cap * dy - cy
                 t_cap[~(px * px + py * py <= r * r)] = np.inf
             np.minimum(t, t_cap, out=t)
-        return t, label_of(self.traversable)
+        return t, label
 
 
 @dataclass(frozen=True)
-class StepDown:
+class StepDown(Primitive):
     """Floor at z = 0 for x < x_m, a drop of depth_m there, lower floor at z = -depth_m beyond.
 
     Use it instead of ``Floor``; the lower floor is an obstacle when ``depth_m > max_drop_m``.
@@ -482,8 +450,6 @@ class StepDown:
     x_m: float
     depth_m: float
     max_drop_m: float = 0.1
-    dark: bool = False
-    name: str = ''
 
     def __post_init__(self) -> None:
         _check_finite('StepDown', x_m=self.x_m, max_drop_m=self.max_drop_m)
@@ -493,10 +459,6 @@ class StepDown:
     def traversable(self) -> bool:
         """Label of the lower floor: True when the drop is small enough to drive down."""
         return self.depth_m <= self.max_drop_m
-
-    def bounds(self) -> Bounds:
-        """Unbounded."""
-        return None
 
     def walk_patches(self, max_slope_rad: float) -> tuple[Patch, ...]:
         """Return the upper (x <= x_m, z = 0) and lower floor (x >= x_m, z = -depth_m)."""

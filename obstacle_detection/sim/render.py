@@ -13,7 +13,8 @@ from obstacle_detection.pipeline.params import (DetectorParams, Intrinsics, KINE
                                                 KINECT_V2_SD_SIZE)
 
 from .noise import EXACT, KINECT_V2_NOISE, NoiseModel, measure
-from .primitives import MAX_TRACE_M, Bounds, Primitive, Rays, check_positive, label_of
+from .primitives import (MAX_TRACE_M, Bounds, Primitive, Rays, check, check_positive,
+                         label_of)
 from .truth import TruthRules, robot_labels
 
 #: Default camera height of the named scenes [m].
@@ -33,10 +34,8 @@ class Scene:
 
     def __post_init__(self) -> None:
         check_positive('Scene', height_m=self.height_m)
-        for name in ('pitch_rad', 'roll_rad'):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and abs(value) < math.pi / 2):
-                raise ValueError(f'Scene: {name}={value!r} must be within (-pi/2, pi/2)')
+        check('Scene', 'within (-pi/2, pi/2)', lambda v: abs(v) < math.pi / 2,
+              pitch_rad=self.pitch_rad, roll_rad=self.roll_rad)
         if not self.primitives:
             raise ValueError(f'Scene {self.name!r} has no primitives')
 
@@ -132,12 +131,16 @@ def _image_window(bounds: Bounds, rays: Rays, rot: np.ndarray, intrinsics: Intri
     return slice(v0, v1), slice(u0, u1)
 
 
+def check_count(name: str, value: int) -> int:
+    """Return ``value`` as an int; ValueError unless it is an int (not a bool) >= 0."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
+        raise ValueError(f'{name}={value!r} must be an int >= 0')
+    return int(value)
+
+
 def check_render_args(seed: int, size: tuple[int, int], frame_index: int) -> None:
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f'seed={seed!r} must be an int >= 0')
-    if isinstance(frame_index, bool) or not isinstance(frame_index, (int, np.integer)) or \
-            frame_index < 0:
-        raise ValueError(f'frame_index={frame_index!r} must be an int >= 0')
+    check_count('seed', seed)
+    check_count('frame_index', frame_index)
     if len(size) != 2 or any(isinstance(n, bool) or not isinstance(n, (int, np.integer))
                              or n < 1 for n in size):
         raise ValueError(f'size={size!r} must be (width, height), positive ints')

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Callable
 
@@ -21,15 +22,14 @@ WALK_FRAME_RATE_HZ = 30.0
 #: Lateral extent of one crossing in 'person_walking' (then it starts again on the left) [m].
 WALK_SPAN_M = 3.2
 
-def _corridor_walls(rng: np.random.Generator, **left_kwargs: bool) -> tuple[Wall, Wall, float]:
+def _corridor_walls(rng: np.random.Generator, **left_kwargs: bool) -> tuple[Wall, Wall]:
     half = 0.7 + rng.uniform(-0.05, 0.05)      # 1.3-1.5 m apart: in view from ~1 m ahead
-    left = Wall(-1.0, half, 12.0, half, 0.0, 2.5, **left_kwargs)
-    right = Wall(-1.0, -half, 12.0, -half, 0.0, 2.5)
-    return left, right, half
+    return (Wall(-1.0, half, 12.0, half, 0.0, 2.5, **left_kwargs),
+            Wall(-1.0, -half, 12.0, -half, 0.0, 2.5))
 
 
 def _corridor(rng: np.random.Generator, frame_index: int) -> Scene:
-    left, right, _ = _corridor_walls(rng)
+    walls = _corridor_walls(rng)
     boxes = (
         Box.on_floor(0.9 + rng.uniform(0.0, 0.1), 0.25 + rng.uniform(-0.05, 0.05),
                      0.3, 0.3, 0.25 + rng.uniform(0.0, 0.05), name='box_1'),
@@ -38,7 +38,7 @@ def _corridor(rng: np.random.Generator, frame_index: int) -> Scene:
         Box.on_floor(1.85 + rng.uniform(-0.05, 0.05), 0.2 + rng.uniform(-0.05, 0.05),
                      0.25, 0.25, 0.2 + rng.uniform(0.0, 0.05), name='box_3'),
     )
-    return Scene('corridor', (Floor(), left, right) + boxes)
+    return Scene('corridor', (Floor(),) + walls + boxes)
 
 
 def _ramps(rng: np.random.Generator, frame_index: int) -> Scene:
@@ -94,14 +94,14 @@ def _step_down(rng: np.random.Generator, frame_index: int) -> Scene:
 
 
 def _dark_materials(rng: np.random.Generator, frame_index: int) -> Scene:
-    left, right, _ = _corridor_walls(rng, dark=True)
+    walls = _corridor_walls(rng, dark=True)
     boxes = (
         Box.on_floor(1.1 + rng.uniform(-0.05, 0.05), 0.2 + rng.uniform(-0.05, 0.05),
                      0.35, 0.35, 0.4, dark=True, name='dark_box'),
         Box.on_floor(1.6 + rng.uniform(-0.05, 0.05), -0.3 + rng.uniform(-0.05, 0.05),
                      0.3, 0.3, 0.3, name='box'),
     )
-    return Scene('dark_materials', (Floor(), left, right) + boxes)
+    return Scene('dark_materials', (Floor(),) + walls + boxes)
 
 
 def _person_walking(rng: np.random.Generator, frame_index: int) -> Scene:
@@ -322,13 +322,8 @@ def render_scene(name: str, *, seed: int = 0, intrinsics: Intrinsics = KINECT_V2
 
     Raises ValueError for an unknown name, a bad seed, size or frame index, or a bad mount.
     """
-    scene = build_scene(name, seed=seed, frame_index=frame_index)
-    overrides = {key: value for key, value in
-                 (('height_m', height_m), ('pitch_rad', pitch_rad), ('roll_rad', roll_rad))
-                 if value is not None}
-    if overrides:
-        scene = Scene(scene.name, scene.primitives, **{
-            'height_m': scene.height_m, 'pitch_rad': scene.pitch_rad,
-            'roll_rad': scene.roll_rad, **overrides})
+    mount = {'height_m': height_m, 'pitch_rad': pitch_rad, 'roll_rad': roll_rad}
+    scene = dataclasses.replace(build_scene(name, seed=seed, frame_index=frame_index),
+                                **{k: v for k, v in mount.items() if v is not None})
     return render(scene, seed=seed, intrinsics=intrinsics, size=size, noise=noise,
                   frame_index=frame_index, rules=rules)

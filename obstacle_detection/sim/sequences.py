@@ -3,15 +3,14 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
 
 from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE, Intrinsics
 from .noise import NoiseModel
-from .primitives import Box, Cylinder, Floor, Primitive, Wall
-from .render import render, Scene, SceneFrame
+from .primitives import Box, Cylinder, Floor, Primitive, Wall, check
+from .render import render, Scene, SceneFrame, check_count
 
 #: A pose: base frame in odom, (x [m], y [m], yaw [rad]).
 Pose = tuple[float, float, float]
@@ -29,13 +28,10 @@ class OdometryModel:
     noise_fraction: float = 0.05
 
     def __post_init__(self) -> None:
-        for name in ('distance_scale', 'yaw_scale', 'noise_fraction'):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and abs(value) < 1.0):
-                raise ValueError(f'OdometryModel: {name}={value!r} must be finite, |.| < 1')
-        if self.noise_fraction < 0.0:
-            raise ValueError(f'OdometryModel: noise_fraction={self.noise_fraction!r} must '
-                             f'be >= 0')
+        check('OdometryModel', 'finite, |.| < 1', lambda v: abs(v) < 1.0,
+              distance_scale=self.distance_scale, yaw_scale=self.yaw_scale)
+        check('OdometryModel', 'in [0, 1)', lambda v: 0.0 <= v < 1.0,
+              noise_fraction=self.noise_fraction)
 
 
 #: Odometry without error (the odometry pose is the true pose).
@@ -149,10 +145,8 @@ class SceneSequence:
                  odometry: OdometryModel = OdometryModel()) -> None:
         if name not in SEQUENCE_NAMES:
             raise ValueError(f'unknown sequence {name!r}; known: {", ".join(SEQUENCE_NAMES)}')
-        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-            raise ValueError(f'seed={seed!r} must be an int >= 0')
         self.name = name
-        self.seed = int(seed)
+        self.seed = check_count('seed', seed)
         self.rate_hz = SEQUENCE_RATE_HZ
         if name == 'drive_past_boxes':
             self._poses = _integrate(_DRIVE_SEGMENTS, self.rate_hz)
@@ -171,13 +165,11 @@ class SceneSequence:
 
     def pose_true(self, index: int) -> Pose:
         """Return the robot's true base pose in odom at frame ``index``."""
-        x, y, yaw = self._poses[self._check_index(index)]
-        return (float(x), float(y), float(yaw))
+        return tuple(float(v) for v in self._poses[self._check_index(index)])
 
     def pose_odom(self, index: int) -> Pose:
         """Return the odometry's base pose in odom at frame ``index`` (with the model's drift)."""
-        x, y, yaw = self._odometry[self._check_index(index)]
-        return (float(x), float(y), float(yaw))
+        return tuple(float(v) for v in self._odometry[self._check_index(index)])
 
     def scene_at(self, index: int) -> Scene:
         """Return the world (odom frame) at frame ``index``, with the default 0.6 m level mount."""
@@ -198,13 +190,6 @@ class SceneSequence:
                           size=size, noise=noise, frame_index=index, pose=pose)
         return SequenceFrame(index=index, stamp_s=index / self.rate_hz, pose_true=pose,
                              pose_odom=self.pose_odom(index), frame=rendered)
-
-    def frames(self, start: int = 0, stop: int | None = None, step: int = 1, *,
-               noise: bool | NoiseModel = True) -> Iterator[SequenceFrame]:
-        """Render frames ``range(start, stop, step)`` one after the other."""
-        stop = len(self) if stop is None else min(stop, len(self))
-        for index in range(start, stop, step):
-            yield self.frame(index, noise=noise)
 
 
 #: Names accepted by :class:`SceneSequence`.

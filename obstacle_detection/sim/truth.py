@@ -11,7 +11,7 @@ import numpy as np
 
 from obstacle_detection.labels import GT_ABOVE_ROBOT, GT_OBSTACLE, GT_TRAVERSABLE
 
-from .primitives import Patch, Primitive, check_positive
+from .primitives import Patch, Primitive, check, check_positive, check_slope
 
 #: Two drivable patches whose rectangles are closer than this touch (connectivity) [m].
 TOUCH_M = 1e-3
@@ -31,13 +31,9 @@ class TruthRules:
     robot_height_m: float = 1.0
 
     def __post_init__(self) -> None:
-        if not 0.0 < self.max_slope_rad < math.pi / 2:
-            raise ValueError(f'TruthRules: max_slope_rad={self.max_slope_rad!r} must be in '
-                             '(0, pi/2)')
-        for name in ('max_step_height_m', 'max_step_down_m'):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0.0):
-                raise ValueError(f'TruthRules: {name}={value!r} must be a finite number >= 0')
+        check_slope('TruthRules', max_slope_rad=self.max_slope_rad)
+        check('TruthRules', 'a finite number >= 0', lambda v: v >= 0.0,
+              max_step_height_m=self.max_step_height_m, max_step_down_m=self.max_step_down_m)
         check_positive('TruthRules', robot_height_m=self.robot_height_m)
 
     @classmethod
@@ -107,8 +103,7 @@ def robot_labels(points: np.ndarray, owner: np.ndarray, primitives: tuple[Primit
         plane = patch.z_at(x)
         below = covered & (plane <= z + 0.01)
         np.maximum(ground, np.where(below, plane, -np.inf), out=ground)
-        on_reached |= (covered & (owner == patch.owner)
-                       & (np.abs(z - plane) <= patch.tolerance_m + ON_PATCH_M))
+        on_reached |= _on_patch(patch, x, y, z, owner)
     labels = np.where(z - ground > rules.robot_height_m, GT_ABOVE_ROBOT,
                       GT_OBSTACLE).astype(np.uint8)
     labels[on_reached] = GT_TRAVERSABLE

@@ -53,6 +53,12 @@ def render_overlay(depth_m: np.ndarray, labels: np.ndarray, *,
     return rgb
 
 
+def top_view(cells_yx: np.ndarray, scale: int) -> np.ndarray:
+    """Grid cells [y, x] as seen from above: x forward up, y left to the left, scale px a cell."""
+    view = np.swapaxes(cells_yx, 0, 1)[::-1, ::-1]
+    return np.ascontiguousarray(np.repeat(np.repeat(view, scale, axis=0), scale, axis=1))
+
+
 def obstacle_colours(grey: np.ndarray) -> np.ndarray:
     """(N, 3) uint8 RGB of obstacle pixels of depth grey ``grey`` (N,) uint8: red over grey."""
     grey = np.asarray(grey, np.float32)[:, None]
@@ -80,9 +86,7 @@ def render_costmap(costmap: Costmap, *, scale: int = 4, draw_robot: bool = True)
     cells = (np.asarray(FREE_RGB, np.float32) * (1.0 - cost)
              + np.asarray(OCCUPIED_RGB, np.float32) * cost).round().astype(np.uint8)
     cells[data <= CELL_UNKNOWN] = UNKNOWN_RGB
-    # data[row = y, col = x] -> image[row = -x, col = -y]: forward up, left to the left.
-    top_view = cells.transpose(1, 0, 2)[::-1, ::-1]
-    image = np.ascontiguousarray(np.repeat(np.repeat(top_view, scale, axis=0), scale, axis=1))
+    image = top_view(cells, scale)
     if draw_robot:
         col, row = costmap_pixel_of(costmap, 0.0, 0.0, scale=scale)
         height, width = image.shape[:2]

@@ -16,7 +16,8 @@ import numpy as np
 from obstacle_detection.labels import (CELL_OCCUPIED, GT_NO_RETURN, GT_OBSTACLE, LABEL_GROUND,
                                        LABEL_OBSTACLE)
 from .overlay import (MIN_GREY, NO_RETURN_RGB, OBSTACLE_ALPHA, OBSTACLE_RGB, OCCUPIED_RGB,
-                      FREE_RGB, ROBOT_RGB, UNKNOWN_RGB, render_costmap, render_overlay)
+                      FREE_RGB, ROBOT_RGB, UNKNOWN_RGB, render_costmap,
+                      render_overlay, top_view)
 from obstacle_detection.pipeline.params import Intrinsics
 
 #: Background of the caption band and the padding, and its text colour.
@@ -45,13 +46,7 @@ def _text_size(text: str, scale: float) -> tuple[int, int]:
 
 def title_band(title: str, width: int) -> np.ndarray:
     """(h, width, 3) uint8 RGB: the title in bold on white, wrapped to the width."""
-    lines = _wrap([title], width, TITLE_SCALE)
-    line_h = _text_size('Ag', TITLE_SCALE)[1] + 6
-    band = np.full((line_h * len(lines) + 8, width, 3), BACKGROUND_RGB, dtype=np.uint8)
-    for i, line in enumerate(lines):
-        for dx in (4, 5):
-            _put(band, line, (dx, 4 + line_h * (i + 1) - 8), scale=TITLE_SCALE)
-    return band
+    return caption_band(_wrap([title], width, TITLE_SCALE), width, scale=TITLE_SCALE, bold=True)
 
 
 def titled(image: np.ndarray, title: str, *, below: np.ndarray | None = None) -> np.ndarray:
@@ -75,15 +70,17 @@ def fit_width(render: Any, width: int, *, smallest: float = 0.2) -> np.ndarray:
     return np.pad(picture, ((0, 0), (0, pad), (0, 0)), constant_values=255)
 
 
-def caption_band(lines: Sequence[str], width: int, *, scale: float = 0.5) -> np.ndarray:
+def caption_band(lines: Sequence[str], width: int, *, scale: float = 0.5,
+                 bold: bool = False) -> np.ndarray:
     """(h, width, 3) uint8 RGB: the text lines on a white band, too long ones cut with '...'."""
-    line_h = _text_size('Ag', scale)[1] + 4
-    band = np.full((line_h * len(lines) + 6, width, 3), BACKGROUND_RGB, dtype=np.uint8)
+    pad = 6 if bold else 4
+    line_h = _text_size('Ag', scale)[1] + pad
+    band = np.full((line_h * len(lines) + pad + 2, width, 3), BACKGROUND_RGB, dtype=np.uint8)
     for i, line in enumerate(lines):
-        text = line
-        while text and _text_size(text, scale)[0] > width - 8:
-            text = text[:-4] + '...' if len(text) > 4 else ''
-        _put(band, text, (4, 3 + line_h * (i + 1) - 6), scale=scale)
+        while line and _text_size(line, scale)[0] > width - 8:
+            line = line[:-4] + '...' if len(line) > 4 else ''
+        for dx in ((4, 5) if bold else (4,)):   # bold: drawn twice, a pixel apart
+            _put(band, line, (dx, line_h * (i + 1) - pad // 2 - 1), scale=scale)
     return band
 
 
@@ -173,12 +170,6 @@ def _put(image: np.ndarray, text: str, org: tuple[int, int], *, scale: float = T
     cv2.putText(image, text, (int(x), int(org[1])), _FONT, scale, colour, 1, cv2.LINE_AA)
 
 
-def _cell_image(mask_yx: np.ndarray, scale: int) -> np.ndarray:
-    """(ny, nx) cell mask -> the (nx * scale, ny * scale) pixel mask of render_costmap."""
-    top = mask_yx.T[::-1, ::-1]
-    return np.repeat(np.repeat(top, scale, axis=0), scale, axis=1)
-
-
 def floor_in_view(costmap: Any, params: Any, intrinsics: Intrinsics,
                   image_shape: tuple[int, int]) -> np.ndarray:
     """(ny, nx) bool: cells whose centre, on the ground, the camera sees (inside the image)."""
@@ -218,11 +209,11 @@ def costmap_panel(costmap: Any, *, scale: int = 4, params: Any = None,
     """
     grid = render_costmap(costmap, scale=scale, draw_robot=False)
     if params is not None:
-        outside = _cell_image(~roi_cells(costmap, params), scale)
+        outside = top_view(~roi_cells(costmap, params), scale)
         rows, cols = np.indices(outside.shape)
         grid[outside & ((rows + cols) % 6 == 0)] = HATCH_RGB
         if intrinsics is not None and image_shape is not None:
-            seen = _cell_image(floor_in_view(costmap, params, intrinsics, image_shape), scale)
+            seen = top_view(floor_in_view(costmap, params, intrinsics, image_shape), scale)
             contours, _ = cv2.findContours(seen.astype(np.uint8), cv2.RETR_EXTERNAL,
                                            cv2.CHAIN_APPROX_SIMPLE)
             cv2.drawContours(grid, contours, -1, VIEW_EDGE_RGB, 2 if scale >= 3 else 1)
@@ -363,7 +354,6 @@ def side_by_side(result: Any, *, caption: str = '', truth_labels: np.ndarray | N
     labels = result.labels if labels is None else labels
     costmap = result.costmap if costmap is None else costmap
     depth_m = np.asarray(result.depth_m)
-    height, width = depth_m.shape
     valid = np.isfinite(depth_m) & (depth_m > 0)
     shown_max = max_depth_m if max_depth_m is not None else (
         float(depth_m[valid].max()) if valid.any() else 1.0)
@@ -371,9 +361,8 @@ def side_by_side(result: Any, *, caption: str = '', truth_labels: np.ndarray | N
     panels = [depth_overlay(depth_m, labels, max_depth_m=shown_max, above_robot=above)]
     if truth_labels is not None:
         panels.append(truth_comparison(labels, truth_labels, depth_m, max_depth_m=shown_max))
-    if image_scale != 1.0:
-        height, width = (max(1, round(n * image_scale)) for n in depth_m.shape)
-        panels = [cv2.resize(p, (width, height), interpolation=cv2.INTER_AREA) for p in panels]
+    panels = [_scaled(panel, image_scale) for panel in panels]
+    height, width = panels[0].shape[:2]
     intrinsics = getattr(result, 'intrinsics', None)
     panels.insert(1, costmap_panel(costmap, scale=_grid_scale(costmap, height, width),
                                    params=params, intrinsics=intrinsics,
@@ -392,6 +381,14 @@ def side_by_side(result: Any, *, caption: str = '', truth_labels: np.ndarray | N
     lines = [line for line in (caption, stats, *extra_lines) if line]
     parts.append(caption_band(_wrap(lines, top.shape[1]), top.shape[1]))
     return np.vstack(parts)
+
+
+def _scaled(image: np.ndarray, scale: float) -> np.ndarray:
+    """Return ``image`` resized by ``scale`` (area interpolation), itself at scale 1."""
+    if scale == 1.0:
+        return image
+    size = (max(1, round(image.shape[1] * scale)), max(1, round(image.shape[0] * scale)))
+    return cv2.resize(image, size, interpolation=cv2.INTER_AREA)
 
 
 def _grid_scale(costmap: Any, height: int, width: int) -> int:
@@ -426,19 +423,25 @@ def legend_row(widths: Sequence[int], max_depth_m: float, *, truth: bool,
             ('box', (150, 150, 150), roi_text + ': depth grey'),
             ('box', NO_RETURN_RGB, 'no return')], widths[0]),
         depth_colour_bar(max_depth_m, widths[0])])
-    items = [('box', OCCUPIED_RGB, 'occupied'), ('box', FREE_RGB, 'free (ground seen)'),
-             ('box', UNKNOWN_RGB, 'unknown (not seen)')]
-    if params is not None:
-        items += [('hatch', HATCH_RGB, 'outside the region of interest'),
-                  ('line', VIEW_EDGE_RGB, "edge of the floor in the camera's view")]
-    items.append(('triangle', ROBOT_RGB, 'camera (x = y = 0), facing +x'))
-    cells = legend('costmap, top view', items, widths[1])
+    cells = legend('costmap, top view', _grid_items(
+        ('occupied', 'free (ground seen)', 'unknown (not seen)'),
+        'camera (x = y = 0), facing +x', view=params is not None), widths[1])
     blocks = [depth, cells]
     if truth:
         blocks.append(legend('obstacle pixels vs ground truth', [
             ('box', HIT_RGB, 'hit'), ('box', FALSE_ALARM_RGB, 'false alarm'),
             ('box', MISS_RGB, 'miss (called ground)')], widths[2]))
     return join_panels(blocks)
+
+
+def _grid_items(cells: tuple[str, str, str], robot: str, *, view: bool = True) -> list:
+    """Legend items of a costmap panel: occupied, free, unknown, (the view), the robot."""
+    items = [('box', colour, text) for colour, text in
+             zip((OCCUPIED_RGB, FREE_RGB, UNKNOWN_RGB), cells)]
+    if view:
+        items += [('hatch', HATCH_RGB, 'outside the region of interest'),
+                  ('line', VIEW_EDGE_RGB, "edge of the floor in the camera's view")]
+    return items + [('triangle', ROBOT_RGB, robot)]
 
 
 def over_grey(colour: tuple[int, int, int], share: float,
@@ -476,10 +479,6 @@ def write_png(path: str | Path, rgb: np.ndarray) -> None:
         raise OSError(f'could not write {path}')
 
 
-# --------------------------------------------------------------------------------------------
-# Frames from files and bags
-
-
 def heatmap(scores: np.ndarray, x_labels: Sequence[str], y_labels: Sequence[str], *,
             title: str = '', x_name: str = '', y_name: str = '', vmin: float = 0.0,
             vmax: float = 1.0, best: tuple[int, int] | None = None,
@@ -502,9 +501,9 @@ def heatmap(scores: np.ndarray, x_labels: Sequence[str], y_labels: Sequence[str]
     colours = cv2.cvtColor(cv2.applyColorMap(grey, cv2.COLORMAP_VIRIDIS), cv2.COLOR_BGR2RGB)
     label_w = max(_text_size(s, TEXT_SCALE)[0] for s in [*y_labels, y_name])
     left = label_w + 12
-    top = 2 * (_text_size('Ag', 0.5)[1] + 6)
-    bottom = 2 * (_text_size('Ag', TEXT_SCALE)[1] + 6)
-    image = np.full((top + ny * cell_px + bottom, max(left + nx * cell_px + 8, 160), 3),
+    line_h = _text_size('Ag', TEXT_SCALE)[1]
+    top = 2 * (line_h + 6)   # and as much below the grid
+    image = np.full((2 * top + ny * cell_px, max(left + nx * cell_px + 8, 160), 3),
                     BACKGROUND_RGB, dtype=np.uint8)
     for r in range(ny):
         for c in range(nx):
@@ -528,10 +527,9 @@ def heatmap(scores: np.ndarray, x_labels: Sequence[str], y_labels: Sequence[str]
         cv2.rectangle(image, (left + c * cell_px, top + r * cell_px),
                       (left + (c + 1) * cell_px - 1, top + (r + 1) * cell_px - 1),
                       (230, 0, 0), 3)
-    axis_y = top + ny * cell_px + 2 * (_text_size('Ag', TEXT_SCALE)[1] + 4)
-    _put(image, x_name, (left, axis_y))
+    _put(image, x_name, (left, top + ny * cell_px + 2 * (line_h + 4)))
     _put(image, y_name, (4, top - 6))
-    _put(image, title, (4, _text_size('Ag', 0.5)[1] + 2), scale=0.5)
+    _put(image, title, (4, line_h + 2))
     return image
 
 
@@ -561,22 +559,17 @@ def overlay_legend(width: int) -> np.ndarray:
 
 def costmap_legend(width: int) -> np.ndarray:
     """Return the legend of a costmap panel (:func:`costmap_panel` with params), ``width`` px."""
-    return legend('obstacles/costmap, top view [m]', [
-        ('box', OCCUPIED_RGB, 'occupied (100)'), ('box', FREE_RGB, 'free (0)'),
-        ('box', UNKNOWN_RGB, 'unknown (-1)'),
-        ('hatch', HATCH_RGB, 'outside the region of interest'),
-        ('line', VIEW_EDGE_RGB, "edge of the floor in the camera's view"),
-        ('triangle', ROBOT_RGB, 'camera foot point, facing +x')], width)
+    return legend('obstacles/costmap, top view [m]', _grid_items(
+        ('occupied (100)', 'free (0)', 'unknown (-1)'), 'camera foot point, facing +x'), width)
 
 
 def node_outputs_legend(widths: Sequence[int]) -> np.ndarray:
     """Return the legend row under :func:`node_outputs` (panel widths [px])."""
     parts = [overlay_legend(widths[0]), costmap_legend(widths[1])]
     if len(widths) > 2:
-        parts.append(legend('obstacles/fused_costmap, odom [m]', [
-            ('box', OCCUPIED_RGB, 'occupied: seen often enough'), ('box', FREE_RGB, 'free'),
-            ('box', UNKNOWN_RGB, 'unknown / not sure'),
-            ('triangle', ROBOT_RGB, 'robot at its odometry pose')], widths[2]))
+        parts.append(legend('obstacles/fused_costmap, odom [m]', _grid_items(
+            ('occupied: seen often enough', 'free', 'unknown / not sure'),
+            'robot at its odometry pose', view=False), widths[2]))
     return join_panels(parts)
 
 
@@ -591,10 +584,7 @@ def node_outputs(overlay: np.ndarray, costmap: Any, *, caption: Sequence[str],
     image_scale: the overlay scaled by it, the grids drawn to its height, the text not.
     """
     image_shape = overlay.shape[:2]
-    if image_scale != 1.0:
-        size = (max(1, round(overlay.shape[1] * image_scale)),
-                max(1, round(overlay.shape[0] * image_scale)))
-        overlay = cv2.resize(overlay, size, interpolation=cv2.INTER_AREA)
+    overlay = _scaled(overlay, image_scale)
     height, width = overlay.shape[:2]
     grid_rgb = costmap_panel(costmap, scale=_grid_scale(costmap, height, width), params=params,
                              intrinsics=intrinsics, image_shape=image_shape)
