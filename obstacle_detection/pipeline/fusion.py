@@ -13,6 +13,7 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import ndimage
 
 from ..labels import CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN
 from .costmap import Costmap
@@ -45,36 +46,29 @@ class FusionParams:
     max_jump_deg: float = 45.0
 
     def __post_init__(self) -> None:
-        for name in ('size_m', 'resolution_m', 'hit_log_odds', 'miss_log_odds',
-                     'min_log_odds', 'max_log_odds', 'occupied_log_odds', 'free_log_odds',
-                     'max_jump_m', 'max_jump_deg'):
+        for name in self.__dataclass_fields__:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or \
                     not math.isfinite(value):
                 raise ValueError(f'FusionParams: {name}={value!r} must be a finite number')
-        for name in ('size_m', 'resolution_m', 'hit_log_odds', 'max_log_odds', 'max_jump_m',
-                     'max_jump_deg'):
-            if not getattr(self, name) > 0.0:
-                raise ValueError(f'FusionParams: {name}={getattr(self, name)!r} must be > 0')
-        for name in ('miss_log_odds', 'min_log_odds'):
-            if not getattr(self, name) < 0.0:
-                raise ValueError(f'FusionParams: {name}={getattr(self, name)!r} must be < 0')
-        if self.resolution_m > self.size_m:
-            raise ValueError(f'FusionParams: resolution_m={self.resolution_m!r} must not '
-                             f'exceed size_m={self.size_m!r}')
+        rules = [(f'{name} > 0', getattr(self, name) > 0.0) for name in (
+            'size_m', 'resolution_m', 'hit_log_odds', 'max_log_odds', 'max_jump_m',
+            'max_jump_deg')]
+        rules += [(f'{name} < 0', getattr(self, name) < 0.0)
+                  for name in ('miss_log_odds', 'min_log_odds')]
+        rules += [('resolution_m must not exceed size_m', self.resolution_m <= self.size_m),
+                  ('min_log_odds <= free_log_odds < 0',
+                   self.min_log_odds <= self.free_log_odds < 0.0),
+                  ('0 < occupied_log_odds <= max_log_odds',
+                   0.0 < self.occupied_log_odds <= self.max_log_odds),
+                  ('max_jump_deg <= 180', self.max_jump_deg <= 180.0)]
+        for rule, holds in rules:
+            if not holds:
+                raise ValueError(f'FusionParams: {rule} does not hold in {self}')
         if self.cells > MAX_CELLS_PER_SIDE:
             raise ValueError(f'FusionParams: size_m={self.size_m!r} at resolution_m='
                              f'{self.resolution_m!r} is {self.cells} cells a side, more than '
                              f'{MAX_CELLS_PER_SIDE}')
-        if not self.min_log_odds <= self.free_log_odds < 0.0:
-            raise ValueError(f'FusionParams: free_log_odds={self.free_log_odds!r} must be in '
-                             f'[min_log_odds={self.min_log_odds!r}, 0)')
-        if not 0.0 < self.occupied_log_odds <= self.max_log_odds:
-            raise ValueError(f'FusionParams: occupied_log_odds={self.occupied_log_odds!r} '
-                             f'must be in (0, max_log_odds={self.max_log_odds!r}]')
-        if self.max_jump_deg > 180.0:
-            raise ValueError(f'FusionParams: max_jump_deg={self.max_jump_deg!r} must be '
-                             f'<= 180')
 
     @property
     def cells(self) -> int:
@@ -104,8 +98,6 @@ class FusionUpdate:
     shift_cells: tuple[int, int]
     cells_forgotten: int
     reset: bool
-    hit_cells: int
-    miss_cells: int
     reason: str = ''
     message: str = ''
     warning: bool = False
@@ -169,20 +161,6 @@ def frame_evidence(costmap: Costmap, pose: Pose, origin_cell: tuple[int, int],
     return hit, miss
 
 
-def _shifted(grid: np.ndarray, d_col: int, d_row: int) -> np.ndarray:
-    """Return ``new[r, c] = old[r + d_row, c + d_col]``, 0 from outside the old window."""
-    ny, nx = grid.shape
-    out = np.zeros_like(grid)
-    if abs(d_col) >= nx or abs(d_row) >= ny:
-        return out
-    src_r = slice(max(d_row, 0), ny + min(d_row, 0))
-    dst_r = slice(max(-d_row, 0), ny - max(d_row, 0))
-    src_c = slice(max(d_col, 0), nx + min(d_col, 0))
-    dst_c = slice(max(-d_col, 0), nx - max(d_col, 0))
-    out[dst_r, dst_c] = grid[src_r, src_c]
-    return out
-
-
 class FusedGrid:
     """A rolling log-odds grid centred on the robot in the odometry frame (one thread).
 
@@ -197,11 +175,6 @@ class FusedGrid:
         self._pose: Pose | None = None          # last pose used (None: none yet)
         self._pose_stamp_s: float | None = None
         self._in_place_kind: str | None = None   # why the last frame fused in place, '' if not
-
-    @property
-    def resolution_m(self) -> float:
-        """Cell size [m/cell]."""
-        return self.params.resolution_m
 
     @property
     def origin_cell(self) -> tuple[int, int]:
@@ -267,7 +240,9 @@ class FusedGrid:
         if d_col == 0 and d_row == 0:
             return (0, 0), 0
         before = int(np.count_nonzero(self._log_odds))
-        self._log_odds = _shifted(self._log_odds, d_col, d_row)
+        # whole cells: new[r, c] = old[r + d_row, c + d_col], 0 from outside the old window
+        self._log_odds = ndimage.shift(self._log_odds, (-d_row, -d_col), order=0, cval=0.0,
+                                       prefilter=False)
         self._origin_cell = origin
         return (d_col, d_row), before - int(np.count_nonzero(self._log_odds))
 
@@ -356,9 +331,7 @@ class FusedGrid:
         np.clip(grid, np.float32(p.min_log_odds), np.float32(p.max_log_odds), out=grid)
         return FusionUpdate(pose=used, in_place=bool(reason) and not reset, shift_cells=shift,
                             cells_forgotten=forgotten + scrolled_out, reset=reset,
-                            hit_cells=int(np.count_nonzero(hit)),
-                            miss_cells=int(np.count_nonzero(miss)), reason=reason,
-                            message=message, warning=warning)
+                            reason=reason, message=message, warning=warning)
 
 
 class PoseBuffer:
