@@ -1,8 +1,4 @@
-"""Back-projection, region of interest and voxel grid (seed 4.3.2 to 4.3.4), pixel labels.
-
-:func:`points_in_roi`, :func:`voxel_grid`, then :func:`pixel_labels`; compiled or numpy, the
-same results.
-"""
+"""Back-projection, region of interest and voxel grid (seed 4.3.2 to 4.3.4), pixel labels."""
 
 from __future__ import annotations
 
@@ -31,11 +27,7 @@ class VoxelGrid:
 
 def voxel_downsample(points: np.ndarray, voxel_size_m: tuple[float, float, float],
                      ) -> VoxelGrid:
-    """Replace the points (M, 3) of every occupied voxel by their centroid.
-
-    Voxels ``floor(p / size)`` on a lattice anchored at the origin, ordered by linear index
-    (x slowest). ValueError for a bad size or shape.
-    """
+    """Replace the points (M, 3) of every voxel ``floor(p / size)`` by their centroid."""
     size = np.asarray(voxel_size_m, dtype=np.float64)
     if size.shape != (3,) or np.any(size <= 0.0):
         raise ValueError(f'voxel size {voxel_size_m!r} must be three positive numbers')
@@ -110,12 +102,7 @@ _downsample = jit.choose(_reference_voxel_downsample, jit_voxel.voxel_downsample
 
 @dataclass(frozen=True)
 class RoiPoints:
-    """The points of one depth frame inside the region of interest (:func:`points_in_roi`).
-
-    points (M, 3) float32 ground frame, their flat pixel_index; labels (H, W) uint8;
-    pixel_voxel (H, W) int32, -1 until :func:`voxel_grid`; keyed: the compiled projection
-    that also keyed the voxels, or None.
-    """
+    """A frame's points in the region of interest; keyed: the compiled projection, or None."""
 
     points: np.ndarray
     pixel_index: np.ndarray
