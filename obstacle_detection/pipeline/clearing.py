@@ -1,9 +1,4 @@
-"""Clearing evidence: every surface the camera saw, as rays from the camera (no rclpy).
-
-Nav2's VoxelLayer frees the voxels on the ray from the cloud's origin to each point; the
-obstacle and ground clouds cannot serve (``docs/node.md``). Points at ``BORDER_FRACTIONS`` of
-the outermost rays clear the cells Nav2's whole-cell lines miss at the edges of the view.
-"""
+"""Clearing evidence: every surface the camera saw, as ray ends for Nav2 (``docs/node.md``)."""
 
 from __future__ import annotations
 
@@ -23,12 +18,9 @@ BORDER_FRACTIONS = (0.55, 0.7, 0.85)
 
 def clearing_points(depth_m: np.ndarray, intrinsics: Intrinsics, *, stride_px: int,
                     range_m: float) -> np.ndarray:
-    """Return the surfaces seen in a depth frame, subsampled, as clearing ray ends.
+    """Return (N, 3) float32 optical-frame clearing ray ends: every stride_px-th pixel, borders.
 
-    depth_m: (H, W) float32 [m], 0/NaN/inf no return. stride_px (>= 1): every stride_px-th row
-    and column, and the last. range_m (> 0): a farther surface gives the point at this distance.
-    Returns (N, 3) float32 in the camera optical frame: kept pixels in image order, then the
-    border points. Raises ValueError for a bad argument.
+    A surface farther than range_m gives the point at that distance. ValueError: bad argument.
     """
     if isinstance(stride_px, bool) or not isinstance(stride_px, (int, np.integer)) \
             or stride_px < 1:

@@ -1,8 +1,6 @@
 """The fused local costmap: per-frame costmaps accumulated as log-odds in the odometry frame.
 
-A square window of ``odom`` centred on the robot, scrolled by whole cells as it moves; each
-frame adds evidence at its odometry pose (:class:`PoseBuffer`), or in place without one. The
-rules, the defaults and their measurement: docs/fused_costmap.md.
+The rules, the defaults and their measurement: docs/fused_costmap.md.
 """
 
 from __future__ import annotations
@@ -27,12 +25,7 @@ Pose = tuple[float, float, float]
 
 @dataclass(frozen=True)
 class FusionParams:
-    """Parameters of the fused costmap (docs/fused_costmap.md); ValueError when out of range.
-
-    A frame adds hit_log_odds to a cell it sees occupied, miss_log_odds to one seen free,
-    clamped to [min_log_odds, max_log_odds]; published occupied at >= occupied_log_odds, free
-    at <= free_log_odds. A pose jump beyond max_jump_m or max_jump_deg is an odometry reset.
-    """
+    """Parameters of the fused costmap (docs/fused_costmap.md); ValueError when out of range."""
 
     size_m: float = 4.0
     resolution_m: float = 0.05
@@ -87,11 +80,7 @@ class FusionParams:
 
 @dataclass(frozen=True)
 class FusionUpdate:
-    """What one :meth:`FusedGrid.update` did, for the node's log and diagnostics.
-
-    in_place: fused at the last pose used (``reason`` says why); cells_forgotten: cells with
-    evidence that left the window; message: a log line when the state changed, else ''.
-    """
+    """What one :meth:`FusedGrid.update` did; message: a log line when the state changed."""
 
     pose: Pose
     in_place: bool
@@ -126,9 +115,7 @@ def frame_evidence(costmap: Costmap, pose: Pose, origin_cell: tuple[int, int],
                    ) -> tuple[np.ndarray, np.ndarray]:
     """Where a per-frame costmap puts evidence in an odom window: (hit, miss) (ny, nx) bool.
 
-    The window's cell (0, 0) is odom-lattice cell ``origin_cell`` (column, row); cells:
-    (nx, ny). A window cell's centre sampled in the costmap (base frame at ``pose``), and
-    the occupied costmap cells' centres splatted into the window, so none is lost.
+    The window's cell (0, 0) is odom-lattice cell ``origin_cell``; cells: (nx, ny).
     """
     nx, ny = cells
     res = float(resolution_m)
@@ -162,10 +149,7 @@ def frame_evidence(costmap: Costmap, pose: Pose, origin_cell: tuple[int, int],
 
 
 class FusedGrid:
-    """A rolling log-odds grid centred on the robot in the odometry frame (one thread).
-
-    ``update(costmap, pose)`` per frame, then ``to_costmap()`` for the OccupancyGrid in odom.
-    """
+    """A rolling log-odds grid centred on the robot in the odometry frame (one thread)."""
 
     def __init__(self, params: FusionParams | None = None) -> None:
         self.params = params if params is not None else FusionParams()
@@ -272,9 +256,7 @@ class FusedGrid:
                pose_stamp_s: float | None = None, no_pose_reason: str = '') -> FusionUpdate:
         """Fuse one frame's costmap (base frame) taken at base pose ``pose`` (x, y, yaw) in odom.
 
-        pose None (no_pose_reason says why), invalid, or older than the last one used
-        (pose_stamp_s): fused in place, said once per cause. ValueError for a costmap that is
-        not a 2-D int8 grid with a positive resolution.
+        Without a usable pose, or an older one: fused in place. ValueError for a bad costmap.
         """
         data = np.asarray(costmap.data)
         if data.ndim != 2 or data.dtype != np.int8:
@@ -335,11 +317,7 @@ class FusedGrid:
 
 
 class PoseBuffer:
-    """Recent odometry poses by time (thread-safe); the pose at a frame's stamp.
-
-    ``pose_at`` interpolates, holds the newest pose up to ``max_age_s`` late, and gives
-    (None, reason) beyond that, before the buffer or before any odometry.
-    """
+    """Recent odometry poses by time (thread-safe); the pose at a frame's stamp."""
 
     def __init__(self, max_age_s: float = 0.2, capacity: int = 256) -> None:
         if not (math.isfinite(max_age_s) and max_age_s >= 0.0):

@@ -242,25 +242,17 @@ def _reference_traverse(points: np.ndarray, steep: np.ndarray, size_m: float, st
 _traverse = jit.choose(_reference_traverse, jit_traversal.traverse)
 
 
-def _neighbour_views(arr: np.ndarray, fill: float | bool) -> list[np.ndarray]:
-    """Return the 8 neighbours' values of every cell (views of a padded copy)."""
-    nx, ny = arr.shape
-    pad = np.full((nx + 2, ny + 2), fill, dtype=arr.dtype)
-    pad[1:-1, 1:-1] = arr
-    return [pad[1 + dx:1 + dx + nx, 1 + dy:1 + dy + ny]
-            for dx in (-1, 0, 1) for dy in (-1, 0, 1) if dx or dy]
-
-
 def _local_ground(surface: np.ndarray, reached: np.ndarray) -> np.ndarray:
     """Ground height (nx, ny): the surface where reached, else the highest neighbour's, grown."""
     if not reached.any():
         return np.zeros(surface.shape)
     ground = np.where(reached, surface, 0.0)
     done = reached.copy()
-    while not done.all():
-        filled = [np.where(d, g, -np.inf) for d, g in zip(_neighbour_views(done, False),
-                                                          _neighbour_views(ground, 0.0))]
-        best = np.max(filled, axis=0)
+    ring = np.ones((3, 3), bool)
+    ring[1, 1] = False
+    while not done.all():   # layer by layer: the largest ground of the 8 neighbours filled
+        best = maximum_filter(np.where(done, ground, -np.inf), footprint=ring, mode='constant',
+                              cval=-np.inf)
         new = ~done & (best > -np.inf)
         ground[new] = best[new]
         done |= new
