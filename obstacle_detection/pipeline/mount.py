@@ -176,17 +176,18 @@ def _check_arguments(max_range_m: float, inlier_m: float, iterations: int,
                      max_tilt_rad: float, min_inlier_fraction: float,
                      prior_pitch_rad: float | None) -> None:
     """Raise ValueError for a bad argument of :func:`estimate_mount`."""
-    for name, value in (('max_range_m', max_range_m), ('inlier_m', inlier_m)):
-        if not (math.isfinite(value) and value > 0.0):
-            raise ValueError(f'{name}={value!r} must be a finite number > 0')
-    if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
-        raise ValueError(f'iterations={iterations!r} must be an int >= 1')
-    if not 0.0 < max_tilt_rad < math.pi / 2:
-        raise ValueError(f'max_tilt_rad={max_tilt_rad!r} must be within (0, pi/2)')
-    if not 0.0 < min_inlier_fraction < 1.0:
-        raise ValueError(f'min_inlier_fraction={min_inlier_fraction!r} must be within (0, 1)')
-    if prior_pitch_rad is not None and not abs(prior_pitch_rad) < math.pi / 2:
-        raise ValueError(f'prior_pitch_rad={prior_pitch_rad!r} must be within (-pi/2, pi/2)')
+    integer = isinstance(iterations, int) and not isinstance(iterations, bool)
+    for name, value, ok, rule in (
+            ('max_range_m', max_range_m, 0.0 < max_range_m < math.inf, 'a finite number > 0'),
+            ('inlier_m', inlier_m, 0.0 < inlier_m < math.inf, 'a finite number > 0'),
+            ('iterations', iterations, integer and iterations >= 1, 'an int >= 1'),
+            ('max_tilt_rad', max_tilt_rad, 0.0 < max_tilt_rad < math.pi / 2, 'in (0, pi/2)'),
+            ('min_inlier_fraction', min_inlier_fraction, 0.0 < min_inlier_fraction < 1.0,
+             'in (0, 1)'),
+            ('prior_pitch_rad', prior_pitch_rad,
+             prior_pitch_rad is None or abs(prior_pitch_rad) < math.pi / 2, 'in (-pi/2, pi/2)')):
+        if not ok:
+            raise ValueError(f'{name}={value!r} must be {rule}')
 
 
 def _best_candidate(points: np.ndarray, pixel_index: np.ndarray, shape: tuple[int, int],

@@ -194,10 +194,9 @@ def warm_up() -> None:
     params = DetectorParams()
     depth = np.full((6, 8), 1.0, np.float32)
     depth[0, 0] = 0.0
-    rays = geometry.ground_rays(depth.shape, Intrinsics(fx=5.0, fy=5.0, cx=4.0, cy=3.0), params)
-    roi = points_in_roi(depth, rays, params)
-    points_in_roi(depth, geometry.ray_model(depth.shape, Intrinsics(fx=5.0, fy=5.0, cx=4.0,
-                                                                    cy=3.0), params), params)
+    rays = geometry.ray_model(depth.shape, Intrinsics(fx=5.0, fy=5.0, cx=4.0, cy=3.0), params)
+    points_in_roi(depth, rays, params)
+    roi = points_in_roi(depth, rays.table(), params)
     grid = voxel_grid(roi)
     pixel_labels(roi, grid, np.zeros(grid.counts.size, bool))
     pts = np.random.default_rng(0).uniform(-1.0, 1.0, (20, 3))
