@@ -51,9 +51,7 @@ class Traversal:
     is_obstacle: np.ndarray
     above_robot: np.ndarray
     height_m: np.ndarray
-    reached: np.ndarray
-    cell_size_m: float
-    ledge: np.ndarray | None = None
+    ledge: np.ndarray
 
 
 def traversable_ground(points: np.ndarray, steep: np.ndarray,
@@ -62,12 +60,12 @@ def traversable_ground(points: np.ndarray, steep: np.ndarray,
     size = 2.0 * max(params.voxel_x_m, params.voxel_y_m)   # cells of 2 x 2 voxels
     if points.shape[0] == 0:
         empty = np.zeros(0, bool)
-        return Traversal(empty, empty, np.zeros(0, np.float32), empty, size, empty)
+        return Traversal(empty, empty, np.zeros(0, np.float32), empty)
     out = _traverse(points, steep, size, params.max_step_height_m, params.max_step_down_m,
                     params.robot_height_m, params.voxel_z_m, MIN_SURFACE_VOXELS)
     edge = ledges(points, steep, out[3], out[1], size, params.max_step_height_m,
                   params.max_step_down_m, LEDGE_SHADOW_CELLS)
-    return Traversal(*out, size, edge)
+    return Traversal(out[0], out[1], out[2], edge)
 
 
 def _voxel_ijk(points: np.ndarray, vx: float, vy: float, vz: float) -> np.ndarray:
@@ -292,17 +290,6 @@ def _grow(surface: np.ndarray, has: np.ndarray, seeds: np.ndarray, step_up: floa
     return reached[:source]
 
 
-def depth_window_range(raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Nearest and farthest measured depth (H, W) float32 of each 5 x 5 window (0: none)."""
-    kernel = np.ones((FLYING_WINDOW_PX, FLYING_WINDOW_PX), np.uint8)
-    holes_far = np.where(raw > 0.0, raw, np.float32(np.inf))
-    near = np.empty(raw.shape, np.float32)
-    far = np.empty(raw.shape, np.float32)
-    cv2.erode(holes_far, kernel, dst=near, borderType=cv2.BORDER_REPLICATE)
-    cv2.dilate(raw, kernel, dst=far, borderType=cv2.BORDER_REPLICATE)   # no return is 0
-    return near, far
-
-
 def _planar(raw: np.ndarray, tolerance: float = PLANAR_TOLERANCE) -> np.ndarray:
     """(H, W) bool: inverse-depth second differences within ``tolerance`` of it (a plane)."""
     with np.errstate(divide='ignore', invalid='ignore'):
@@ -365,7 +352,10 @@ def _reference_drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: fl
                             jump: float, planar_tolerance: float,
                             raw_no_nan: bool = False) -> None:
     """In place: :func:`drop_smeared`'s rules with the flying-pixel ``jump`` (numpy)."""
-    near, far = depth_window_range(raw)
+    kernel = np.ones((FLYING_WINDOW_PX, FLYING_WINDOW_PX), np.uint8)   # nearest, farthest
+    near = cv2.erode(np.where(raw > 0.0, raw, np.float32(np.inf)), kernel,
+                     borderType=cv2.BORDER_REPLICATE)
+    far = cv2.dilate(raw, kernel, borderType=cv2.BORDER_REPLICATE)   # no return is 0
     ratio = np.float32(max_shift)
     h, w = raw.shape
     with np.errstate(invalid='ignore'):
