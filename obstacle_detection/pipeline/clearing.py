@@ -41,8 +41,8 @@ def _rays_and_samples(shape: tuple[int, int], intrinsics: Intrinsics, stride_px:
     """Return the pixel rays (ru, rv) and the kept rows and columns of a frame size."""
     ru, rv = pixel_rays(shape, intrinsics)
     height, width = shape
-    rows = _with_last(np.arange(0, height, stride_px), height)
-    cols = _with_last(np.arange(0, width, stride_px), width)
+    rows = np.unique(np.append(np.arange(0, height, stride_px), height - 1))   # and the last
+    cols = np.unique(np.append(np.arange(0, width, stride_px), width - 1))
     return ru, rv, rows, cols
 
 
@@ -80,11 +80,6 @@ def _points(z: np.ndarray, x_per_z: np.ndarray, y_per_z: np.ndarray,
     distance = z * np.sqrt(np.float32(1.0) + x_per_z * x_per_z + y_per_z * y_per_z)
     z = z * np.minimum(np.float32(1.0), np.float32(range_m) / distance)
     return np.stack((x_per_z * z, y_per_z * z, z), axis=1)
-
-
-def _with_last(index: np.ndarray, size: int) -> np.ndarray:
-    """Return ``index`` (ascending, from 0) with ``size - 1`` appended when it lacks it."""
-    return index if index[-1] == size - 1 else np.append(index, size - 1)
 
 
 def warm_up() -> None:

@@ -11,7 +11,7 @@ from . import geometry, jit
 from ._compiled import voxel as jit_voxel
 from .params import DetectorParams, Intrinsics
 
-#: Largest dense voxel lattice [cells] indexed directly; larger extents fall back to sorting.
+#: Largest voxel lattice [cells] the compiled grid takes; larger extents run the numpy path.
 _DENSE_LIMIT = 16_000_000
 
 
@@ -55,18 +55,8 @@ def _reference_voxel_downsample(points: np.ndarray, voxel_size_m: tuple[float, f
     keys += ijk[1] - low[1]
     keys *= dims[2]
     keys += ijk[2] - low[2]
-    n_cells = int(dims[0] * dims[1] * dims[2])
-
-    if n_cells <= _DENSE_LIMIT:
-        occupied = np.zeros(n_cells, dtype=bool)
-        occupied[keys] = True
-        cell_keys = np.flatnonzero(occupied)
-        lookup = np.empty(n_cells, dtype=np.int64)  # read only where occupied
-        lookup[cell_keys] = np.arange(cell_keys.size)
-        point_voxel = lookup[keys]
-    else:
-        cell_keys, point_voxel = np.unique(keys, return_inverse=True)
-        point_voxel = point_voxel.reshape(-1)
+    cell_keys, point_voxel = np.unique(keys, return_inverse=True)
+    point_voxel = point_voxel.reshape(-1)
     n_vox = cell_keys.size
 
     counts = np.bincount(point_voxel, minlength=n_vox)
