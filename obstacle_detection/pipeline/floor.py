@@ -27,8 +27,6 @@ HYPOTHESES = 64
 _PICKS = np.random.default_rng(0).random((3, HYPOTHESES))
 #: Most samples that score the hypotheses (an even subsample of the floor samples).
 SCORE_POINTS = 2000
-#: Hypotheses scored at once (float32: keeps each temporary under 128 kB).
-SCORE_CHUNK = 32
 #: The best hypotheses that are refined by least squares; the best refined one is kept.
 REFINED_HYPOTHESES = 2
 #: Inlier band of the RANSAC [m].
@@ -205,14 +203,8 @@ def _reference_ransac_plane(pts: np.ndarray, picks: np.ndarray, tan_tilt2: float
     c = np.append(c[bounded], (0.0, mode))
     sp = pts[:, ::max(1, pts.shape[1] // score_points)].astype(np.float32)
     a32, b32, c32 = a.astype(np.float32), b.astype(np.float32), c.astype(np.float32)
-    score = np.empty(a.size, np.int64)
-    for start in range(0, a.size, SCORE_CHUNK):   # small temporaries: no page faults
-        part = slice(start, start + SCORE_CHUNK)
-        resid = a32[part, None] * sp[0]
-        resid += b32[part, None] * sp[1]
-        resid += c32[part, None]
-        resid -= sp[2]
-        score[part] = np.count_nonzero(np.abs(resid, out=resid) <= band_m, axis=1)
+    resid = a32[:, None] * sp[0] + b32[:, None] * sp[1] + c32[:, None] - sp[2]
+    score = np.count_nonzero(np.abs(resid) <= band_m, axis=1)
     best = np.argsort(-score, kind='stable')[:k]
     return np.stack((a[best], b[best], c[best]), axis=1)
 

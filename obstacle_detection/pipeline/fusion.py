@@ -124,22 +124,19 @@ def frame_evidence(costmap: Costmap, pose: Pose, origin_cell: tuple[int, int],
     # window cell centres relative to the robot, odom axes
     dx = (origin_cell[0] + np.arange(nx) + 0.5) * res - x
     dy = (origin_cell[1] + np.arange(ny) + 0.5) * res - y
-    # into the base frame: R(-yaw) (p - t), then the costmap's cell indices
-    fres = float(costmap.resolution_m)
-    fx0, fy0 = (float(v) for v in costmap.origin_xy_m)
-    col = np.floor((np.add.outer(s * dy, c * dx) - fx0) / fres).astype(np.int64)
-    row = np.floor((np.add.outer(c * dy, -s * dx) - fy0) / fres).astype(np.int64)
-    fny, fnx = costmap.data.shape
-    inside = (col >= 0) & (col < fnx) & (row >= 0) & (row < fny)
-    value = np.full((ny, nx), CELL_UNKNOWN, dtype=np.int8)
+    # into the base frame: R(-yaw) (p - t), then the costmap's cells
+    base = np.stack((np.add.outer(s * dy, c * dx), np.add.outer(c * dy, -s * dx)), axis=-1)
+    row, col, inside = costmap.cell_of(base.reshape(-1, 2))
+    value = np.full(nx * ny, CELL_UNKNOWN, dtype=np.int8)
     value[inside] = costmap.data[row[inside], col[inside]]
-    hit = value == CELL_OCCUPIED
-    miss = value == CELL_FREE
+    hit = (value == CELL_OCCUPIED).reshape(ny, nx)
+    miss = (value == CELL_FREE).reshape(ny, nx)
     # splat the occupied cells' centres so that none falls between window cell centres
     occ_row, occ_col = np.nonzero(costmap.data == CELL_OCCUPIED)
     if occ_row.size:
-        bx = fx0 + (occ_col + 0.5) * fres
-        by = fy0 + (occ_row + 0.5) * fres
+        fres = float(costmap.resolution_m)
+        bx = float(costmap.origin_xy_m[0]) + (occ_col + 0.5) * fres
+        by = float(costmap.origin_xy_m[1]) + (occ_row + 0.5) * fres
         wc = np.floor((x + c * bx - s * by) / res).astype(np.int64) - origin_cell[0]
         wr = np.floor((y + s * bx + c * by) / res).astype(np.int64) - origin_cell[1]
         ok = (wc >= 0) & (wc < nx) & (wr >= 0) & (wr < ny)
@@ -240,15 +237,13 @@ class FusedGrid:
         gy = origin[1] * res + centres - new[1]
         d_yaw = old[2] - new[2]
         c, s = math.cos(d_yaw), math.sin(d_yaw)
-        old_x = old[0] + np.add.outer(-s * gy, c * gx)   # (n, n): [row, col]
-        old_y = old[1] + np.add.outer(c * gy, s * gx)
-        col = np.floor(old_x / res).astype(np.int64) - self._origin_cell[0]
-        row = np.floor(old_y / res).astype(np.int64) - self._origin_cell[1]
-        inside = (col >= 0) & (col < n) & (row >= 0) & (row < n)
+        old_xy = np.stack((old[0] + np.add.outer(-s * gy, c * gx),   # (n, n): [row, col]
+                           old[1] + np.add.outer(c * gy, s * gx)), axis=-1)
+        row, col, inside = self.cell_of(old_xy)
         before = int(np.count_nonzero(self._log_odds))
-        moved = np.zeros_like(self._log_odds)
+        moved = np.zeros(n * n, np.float32)
         moved[inside] = self._log_odds[row[inside], col[inside]]
-        self._log_odds = moved
+        self._log_odds = moved.reshape(n, n)
         self._origin_cell = origin
         return max(0, before - int(np.count_nonzero(moved)))
 
