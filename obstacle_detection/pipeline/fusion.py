@@ -345,10 +345,6 @@ class PoseBuffer:
         """(pose at ``stamp_s``, '') or (None, why there is none)."""
         with self._lock:
             items = list(self._items)
-        return self._interpolate(items, stamp_s)
-
-    def _interpolate(self, items: list[tuple[float, Pose]], stamp_s: float,
-                     ) -> tuple[Pose | None, str]:
         if not items:
             return None, 'no odometry received'
         newest_s, newest = items[-1]
