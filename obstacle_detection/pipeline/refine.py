@@ -115,12 +115,9 @@ def fit_logistic(features: np.ndarray, targets: np.ndarray, *, l2: float = 1e-3)
     y = np.asarray(targets, dtype=np.float64).reshape(-1)
     if x.ndim != 2 or x.shape[0] != y.size:
         raise ValueError(f'features shape {x.shape} does not match targets shape {y.shape}')
-    if y.size == 0:
-        raise ValueError('no training samples (0 rows)')
-    if not np.isfinite(x).all():
-        raise ValueError('features contain non-finite values')
-    if not math.isfinite(l2) or l2 < 0.0:
-        raise ValueError(f'l2={l2!r} must be a finite number >= 0')
+    if y.size == 0 or not np.isfinite(x).all() or not 0.0 <= l2 < math.inf:
+        raise ValueError(f'a fit needs samples ({y.size} rows), finite features and a finite '
+                         f'l2 >= 0 (l2={l2!r})')
     design = np.hstack([np.ones((y.size, 1)), x])
     penalty = np.full(design.shape[1], l2)
     penalty[0] = 0.0
@@ -263,10 +260,9 @@ class LogisticRefiner:
 
 @dataclass(frozen=True)
 class RefinedResult:
-    """A detection after the learned refinement (labels, pixel mask, voxels, points, costmap)."""
+    """A detection after the learned refinement (labels, voxels, points, costmap)."""
 
     labels: np.ndarray
-    obstacle_mask: np.ndarray
     voxel_is_obstacle: np.ndarray
     obstacle_points: np.ndarray
     ground_points: np.ndarray
@@ -309,7 +305,7 @@ def refine_result(result: Any, refined_mask: np.ndarray, params: DetectorParams,
     obstacle_points = to_base_frame(voxel_points[is_obstacle], params)
     ground_points = to_base_frame(voxel_points[~is_obstacle], params)
     costmap = build_costmap(obstacle_points, ground_points, params)
-    return RefinedResult(labels, mask, is_obstacle, obstacle_points, ground_points, costmap)
+    return RefinedResult(labels, is_obstacle, obstacle_points, ground_points, costmap)
 
 
 class RefinedDetector:
