@@ -100,14 +100,12 @@ def _wrap_angle(angle_rad: float) -> float:
 def _check_pose(pose: object) -> str:
     """'' when ``pose`` is a usable (x, y, yaw), else what is wrong with it."""
     try:
-        values = [float(v) for v in pose]  # type: ignore[union-attr]
+        values = tuple(float(v) for v in pose)  # type: ignore[union-attr]
     except (TypeError, ValueError):
-        return f'pose {pose!r} is not (x, y, yaw)'
+        values = ()
     if len(values) != 3:
         return f'pose {pose!r} is not (x, y, yaw)'
-    if not all(math.isfinite(v) for v in values):
-        return f'pose {tuple(values)!r} is not finite'
-    return ''
+    return '' if all(math.isfinite(v) for v in values) else f'pose {values!r} is not finite'
 
 
 def frame_evidence(costmap: Costmap, pose: Pose, origin_cell: tuple[int, int],
