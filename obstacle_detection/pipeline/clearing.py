@@ -1,9 +1,4 @@
-"""Clearing evidence: every surface the camera saw, as rays from the camera (no rclpy).
-
-Nav2's VoxelLayer frees the voxels on the ray from the cloud's origin to each point; the
-obstacle and ground clouds cannot serve (``docs/node.md``). Points at ``BORDER_FRACTIONS`` of
-the outermost rays clear the cells Nav2's whole-cell lines miss at the edges of the view.
-"""
+"""Clearing evidence: every surface the camera saw, as ray ends for Nav2 (``docs/node.md``)."""
 
 from __future__ import annotations
 
@@ -23,12 +18,9 @@ BORDER_FRACTIONS = (0.55, 0.7, 0.85)
 
 def clearing_points(depth_m: np.ndarray, intrinsics: Intrinsics, *, stride_px: int,
                     range_m: float) -> np.ndarray:
-    """Return the surfaces seen in a depth frame, subsampled, as clearing ray ends.
+    """Return (N, 3) float32 optical-frame clearing ray ends: every stride_px-th pixel, borders.
 
-    depth_m: (H, W) float32 [m], 0/NaN/inf no return. stride_px (>= 1): every stride_px-th row
-    and column, and the last. range_m (> 0): a farther surface gives the point at this distance.
-    Returns (N, 3) float32 in the camera optical frame: kept pixels in image order, then the
-    border points. Raises ValueError for a bad argument.
+    A surface farther than range_m gives the point at that distance. ValueError: bad argument.
     """
     if isinstance(stride_px, bool) or not isinstance(stride_px, (int, np.integer)) \
             or stride_px < 1:
@@ -49,8 +41,8 @@ def _rays_and_samples(shape: tuple[int, int], intrinsics: Intrinsics, stride_px:
     """Return the pixel rays (ru, rv) and the kept rows and columns of a frame size."""
     ru, rv = pixel_rays(shape, intrinsics)
     height, width = shape
-    rows = _with_last(np.arange(0, height, stride_px), height)
-    cols = _with_last(np.arange(0, width, stride_px), width)
+    rows = np.unique(np.append(np.arange(0, height, stride_px), height - 1))   # and the last
+    cols = np.unique(np.append(np.arange(0, width, stride_px), width - 1))
     return ru, rv, rows, cols
 
 
@@ -88,11 +80,6 @@ def _points(z: np.ndarray, x_per_z: np.ndarray, y_per_z: np.ndarray,
     distance = z * np.sqrt(np.float32(1.0) + x_per_z * x_per_z + y_per_z * y_per_z)
     z = z * np.minimum(np.float32(1.0), np.float32(range_m) / distance)
     return np.stack((x_per_z * z, y_per_z * z, z), axis=1)
-
-
-def _with_last(index: np.ndarray, size: int) -> np.ndarray:
-    """Return ``index`` (ascending, from 0) with ``size - 1`` appended when it lacks it."""
-    return index if index[-1] == size - 1 else np.append(index, size - 1)
 
 
 def warm_up() -> None:

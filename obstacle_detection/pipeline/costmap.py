@@ -89,12 +89,7 @@ def build_costmap(obstacle_points: np.ndarray, ground_points: np.ndarray,
 
 
 def halo_voxels(points: np.ndarray, counts: np.ndarray, params: DetectorParams) -> np.ndarray:
-    """(V,) bool: obstacle voxels in a cell of the costmap that is a neighbour's halo.
-
-    points: (V, 3) obstacle voxel centroids, base frame [m]; counts: (V,) their pixels. Such
-    a cell holds less than ``HALO_SHARE`` of the pixels of a neighbour (of 8), and their
-    centroid lies in its half towards that neighbour: range noise spread them over the border.
-    """
+    """(V,) bool: obstacle voxels (base frame; counts: pixels) in a halo cell (docs/method.md)."""
     origin, nx, ny = costmap_geometry(params)
     return _halo_voxels(points, counts, origin, params.costmap_resolution_m, nx, ny, HALO_SHARE)
 

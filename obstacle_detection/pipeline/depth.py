@@ -10,17 +10,6 @@ import numpy as np
 from . import jit
 from ._compiled import depth as compiled
 
-__all__ = [
-    'MM_PER_M',
-    'DepthFormatError',
-    'check_image',
-    'crop_borders',
-    'decode_depth',
-    'depth_lut',
-    'lookup',
-    'units_per_metre',
-]
-
 #: uint16 depth units per metre when no ``depth_scale`` is given (Kinect v2 / REP 118: mm).
 MM_PER_M = 1000.0
 
@@ -68,10 +57,8 @@ def check_image(depth: np.ndarray, what: str) -> np.ndarray:
 def decode_depth(depth: np.ndarray, *, depth_scale: float | None = None) -> np.ndarray:
     """Convert a raw (H, W) depth frame to a new C-contiguous float32 array in metres.
 
-    depth: uint16 in 1/``depth_scale`` m (None: mm, ROS ``16UC1``) or float32/64 in m
-    (``32FC1``), any byte order. No return (0, NaN, inf, negative) becomes exactly 0.0.
-    Raises DepthFormatError for another dtype, not 2-D, empty, or a scale with float input;
-    ValueError for a scale that is not a finite number > 0.
+    depth: uint16 in 1/``depth_scale`` m (None: mm) or float32/64 in m; no return becomes 0.0.
+    Raises DepthFormatError for another dtype or shape, or a scale with float input.
     """
     arr = check_image(depth, 'depth image')
     kind, size = arr.dtype.kind, arr.dtype.itemsize
@@ -94,11 +81,7 @@ def decode_depth(depth: np.ndarray, *, depth_scale: float | None = None) -> np.n
 
 def crop_borders(depth_m: np.ndarray, top: int, bottom: int, left: int,
                  right: int) -> np.ndarray:
-    """Return a C-contiguous copy of ``depth_m`` with its border rows/columns set to 0 [px].
-
-    The shape is kept (pixels still match the intrinsics). Raises DepthFormatError for a bad
-    image, ValueError for a negative margin, TypeError for a margin that is not an integer.
-    """
+    """Return a C-contiguous copy of ``depth_m`` with its border rows/columns set to 0 [px]."""
     arr = check_image(depth_m, 'depth image')
     margins = {'top': top, 'bottom': bottom, 'left': left, 'right': right}
     for name, value in margins.items():

@@ -29,12 +29,9 @@ NEW_STAGES = ('smear', 'floor', 'traversal', 'drops')
 
 @dataclass(frozen=True)
 class DetectionResult:
-    """Everything one frame produced. Points are in the ground frame [m], float32.
+    """Everything one frame produced; points float32 [m]; voxel_*: per voxel centroid (V).
 
-    voxel_*: per voxel centroid (V), ``voxel_slope_obstacle`` the rule's decision before the
-    validation, ``voxel_neighbours`` (V, k) the one k-NN query (the voxel itself first);
-    pixel_voxel (H, W) int32: each pixel's voxel or -1; depth_m: the filtered depth [m];
-    floor: the mount the frame was processed with; drop_points: drop edges (robot level).
+    pixel_voxel (H, W): each pixel's voxel or -1; depth_m: the filtered depth [m].
     """
 
     obstacle_points: np.ndarray
@@ -111,11 +108,9 @@ class Detector:
 
     def process(self, depth: np.ndarray, intrinsics: Intrinsics | None = None, *,
                 depth_scale: float | None = None) -> DetectionResult:
-        """Detect obstacles in one depth frame.
+        """Detect obstacles in one (H, W) depth frame: uint16 (1/depth_scale m) or float [m].
 
-        depth: (H, W) uint16 [mm] (or in 1/depth_scale m) or float32/float64 [m]; 0, NaN and inf
-        are no return. intrinsics: None uses the seed's Table 4.1. Raises ``DepthFormatError`` (a
-        ValueError) for a bad dtype or shape; a frame with no valid point gives an empty result.
+        intrinsics: None uses the seed's Table 4.1. Raises ``DepthFormatError`` for bad input.
         """
         p = self.params
         intr = intrinsics if intrinsics is not None else SEED_TABLE_4_1

@@ -1,20 +1,6 @@
 """The floor plane from the data: a per-frame refinement of the configured camera mount.
 
-A height rule needs the floor within a couple of centimetres, and a configured mount is rarely
-that good. :func:`fit_floor` looks at a grid of about 3000 pixels back-projected through the
-configured mount, keeps the points near the configured floor (within ``floor_max_offset_m``
-plus ``floor_max_tilt_deg`` times their distance) whose surface faces up (a normal from the
-neighbouring grid points within 30 deg of vertical: walls and box sides drop out), and fits
-a plane ``z = a x + b y + c`` to them: a fixed-seed RANSAC over plane hypotheses (vectorised;
-one point of each triplet from the far, middle and near third of the samples), then
-least-squares refits of the best two on the inliers of narrowing bands, keeping the one most
-samples support; where enough samples lie well below that plane, the plane of those samples
-takes its place when more samples support it (the fit ran through a raised surface, the floor
-is beside it: :func:`_floor_beneath`). The fit is accepted only when it is bounded around
-the mount (tilt and offset within the limits) and supported by at least ``floor_min_points``
-samples; otherwise the configured mount is kept and the result says why. An accepted plane
-becomes a corrected mount (height, pitch, roll) for the whole frame, so the ground frame's
-z = 0 is the seen floor.
+A bounded RANSAC plane fit on upward-facing samples; the method: docs/method.md.
 """
 
 from __future__ import annotations
@@ -34,9 +20,6 @@ from .params import DetectorParams
 SAMPLE_PIXELS = 3000
 
 
-def sample_step(shape: tuple[int, int]) -> int:
-    """Row and column step of the sampled pixel grid for an (H, W) image."""
-    return max(1, round(math.sqrt(shape[0] * shape[1] / SAMPLE_PIXELS)))
 #: RANSAC plane hypotheses per frame (fixed seed: the same frame gives the same fit).
 HYPOTHESES = 64
 #: Where in each third of the samples the triplet points are taken (fixed: the same frame
@@ -44,8 +27,6 @@ HYPOTHESES = 64
 _PICKS = np.random.default_rng(0).random((3, HYPOTHESES))
 #: Most samples that score the hypotheses (an even subsample of the floor samples).
 SCORE_POINTS = 2000
-#: Hypotheses scored at once (float32: keeps each temporary under 128 kB).
-SCORE_CHUNK = 32
 #: The best hypotheses that are refined by least squares; the best refined one is kept.
 REFINED_HYPOTHESES = 2
 #: Inlier band of the RANSAC [m].
@@ -63,15 +44,16 @@ FIT_RANGE_MARGIN_M = 1.0
 BENEATH_M = 0.05
 
 
+def sample_step(shape: tuple[int, int]) -> int:
+    """Row and column step of the sampled pixel grid for an (H, W) image."""
+    return max(1, round(math.sqrt(shape[0] * shape[1] / SAMPLE_PIXELS)))
+
+
 @dataclass(frozen=True)
 class FloorFit:
-    """The mount used for one frame and how it was found.
+    """The mount a frame was processed with; d_*: used minus configured; samples: inliers.
 
-    refined: True when the floor fit was accepted. height_m, pitch_rad, roll_rad: the mount
-    the frame was processed with (the configured one when not refined). d_height_m,
-    d_pitch_deg, d_roll_deg: the correction (used minus configured). samples: floor samples
-    the fit used (inliers), 0 when no fit was tried. reason: why the configured mount was kept
-    ('' when refined, 'off' when refine_floor is false).
+    reason: why the configured mount was kept ('' when refined, 'off' when refine_floor is off).
     """
 
     refined: bool
@@ -101,11 +83,7 @@ def configured(params: DetectorParams, reason: str) -> FloorFit:
 
 
 def sample_rays(rays: np.ndarray | GroundRays, shape: tuple[int, int]) -> np.ndarray:
-    """Return (3, M) float32: the rays of the sampled pixel grid (a contiguous copy).
-
-    rays: the (3, H*W) table or the :class:`.geometry.GroundRays` of the image (the same
-    values; the table is not made).
-    """
+    """Return (3, M) float32: the rays (a table or GroundRays) of the sampled pixel grid."""
     step = sample_step(shape)
     if isinstance(rays, GroundRays):
         return np.ascontiguousarray(rays.subsampled(step).table())
@@ -116,11 +94,7 @@ def sample_rays(rays: np.ndarray | GroundRays, shape: tuple[int, int]) -> np.nda
 
 def floor_samples(depth_m: np.ndarray, sub_rays: np.ndarray,
                   params: DetectorParams) -> np.ndarray:
-    """Subsampled points (3, M) float64 near the configured floor, in the configured frame.
-
-    sub_rays: :func:`sample_rays` of the configured mount's ground rays. Compiled when
-    :func:`.jit.enabled` (the same points, the same float64 operations).
-    """
+    """Subsampled points (3, M) float64 near the configured floor, in the configured frame."""
     return _floor_samples(depth_m, sample_step(depth_m.shape), sub_rays, params.camera_height_m,
                           math.tan(params.floor_max_tilt_rad), params.floor_max_offset_m + 0.02,
                           params.min_range_m, params.max_range_m + FIT_RANGE_MARGIN_M,
@@ -162,10 +136,7 @@ _floor_samples = jit.choose(_reference_floor_samples, jit_traversal.floor_sample
 
 
 def _lstsq_plane(pts: np.ndarray) -> np.ndarray:
-    """Fit the least-squares plane z = a x + b y + c to pts (3, M); return (a, b, c).
-
-    The normal equations, centred on the mean (well conditioned for a few thousand points).
-    """
+    """Return (a, b, c) of the least-squares plane z = a x + b y + c of pts (3, M) (centred)."""
     mean = np.add.reduce(pts, axis=1) / pts.shape[1]   # pts.mean(axis=1), its overhead spared
     c = pts - mean[:, None]
     sxx, sxy, syy = np.dot(c[0], c[0]), np.dot(c[0], c[1]), np.dot(c[1], c[1])
@@ -198,15 +169,7 @@ def _reference_count_in_band(pts: np.ndarray, a: float, b: float, c: float,
 
 
 def _ransac_plane(pts: np.ndarray, params: DetectorParams) -> np.ndarray:
-    """Return (k, 3): (a, b, c) of the bounded hypotheses with most samples in INLIER_BAND_M.
-
-    pts (3, M). Hypotheses tilted more than ``floor_max_tilt_rad`` or offset more than
-    ``floor_max_offset_m`` from the configured floor are not considered (a ramp, the floor
-    beyond a drop); the configured floor (0, 0, 0) and the level plane at the most common
-    sample height always are. At most SCORE_POINTS samples score them; the best
-    REFINED_HYPOTHESES are returned, best first. Compiled when :func:`.jit.enabled`
-    (the same hypotheses, scores and order).
-    """
+    """Return (k, 3): (a, b, c) of the bounded hypotheses with most samples in the band."""
     return _ransac(pts, _PICKS, math.tan(params.floor_max_tilt_rad) ** 2,
                    params.floor_max_offset_m, INLIER_BAND_M, SCORE_POINTS, REFINED_HYPOTHESES)
 
@@ -240,14 +203,8 @@ def _reference_ransac_plane(pts: np.ndarray, picks: np.ndarray, tan_tilt2: float
     c = np.append(c[bounded], (0.0, mode))
     sp = pts[:, ::max(1, pts.shape[1] // score_points)].astype(np.float32)
     a32, b32, c32 = a.astype(np.float32), b.astype(np.float32), c.astype(np.float32)
-    score = np.empty(a.size, np.int64)
-    for start in range(0, a.size, SCORE_CHUNK):   # small temporaries: no page faults
-        part = slice(start, start + SCORE_CHUNK)
-        resid = a32[part, None] * sp[0]
-        resid += b32[part, None] * sp[1]
-        resid += c32[part, None]
-        resid -= sp[2]
-        score[part] = np.count_nonzero(np.abs(resid, out=resid) <= band_m, axis=1)
+    resid = a32[:, None] * sp[0] + b32[:, None] * sp[1] + c32[:, None] - sp[2]
+    score = np.count_nonzero(np.abs(resid) <= band_m, axis=1)
     best = np.argsort(-score, kind='stable')[:k]
     return np.stack((a[best], b[best], c[best]), axis=1)
 
@@ -258,11 +215,7 @@ _ransac = jit.choose(_reference_ransac_plane, jit_traversal.ransac_plane)
 
 
 def fit_floor(depth_m: np.ndarray, sub_rays: np.ndarray, params: DetectorParams) -> FloorFit:
-    """Fit the floor plane of one frame and return the mount to process it with.
-
-    depth_m: (H, W) float32 [m], 0 = no return; sub_rays: :func:`sample_rays` of the
-    configured mount's ground rays.
-    """
+    """Fit the floor plane of depth_m (H, W) [m]; return the mount to process the frame with."""
     if not params.refine_floor:
         return configured(params, 'off')
     pts = floor_samples(depth_m, sub_rays, params)
@@ -322,15 +275,7 @@ def _out_of_bounds(coef: np.ndarray, params: DetectorParams) -> str:
 
 def _floor_beneath(pts: np.ndarray, coef: np.ndarray, used: int,
                    params: DetectorParams) -> tuple[np.ndarray, int]:
-    """Return the floor under a raised surface the fit took for it: ((a, b, c), inliers).
-
-    Where at least ``floor_min_points`` samples lie more than ``BENEATH_M`` below the plane
-    (a) (the floor beside a platform the fit ran through, tilted), the best plane of those
-    samples, refined on all samples, replaces (a) when it is within the bounds and more
-    samples support it: the RANSAC's hypotheses, drawn mostly from the raised surface, may
-    all have missed the floor. Samples more than ``floor_max_offset_m`` below the configured
-    floor (a lower floor beyond a drop) are not looked at.
-    """
+    """Return the floor under a raised surface the fit took for it: ((a, b, c), inliers)."""
     resid = pts[2] - (coef[0] * pts[0] + coef[1] * pts[1] + coef[2])
     # within the offset bound of the configured floor (not a lower floor beyond a drop)
     low = (resid < -BENEATH_M) & (pts[2] >= -params.floor_max_offset_m)

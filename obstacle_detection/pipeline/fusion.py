@@ -1,8 +1,6 @@
 """The fused local costmap: per-frame costmaps accumulated as log-odds in the odometry frame.
 
-A square window of ``odom`` centred on the robot, scrolled by whole cells as it moves; each
-frame adds evidence at its odometry pose (:class:`PoseBuffer`), or in place without one. The
-rules, the defaults and their measurement: docs/fused_costmap.md.
+The rules, the defaults and their measurement: docs/fused_costmap.md.
 """
 
 from __future__ import annotations
@@ -13,6 +11,7 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import ndimage
 
 from ..labels import CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN
 from .costmap import Costmap
@@ -26,12 +25,7 @@ Pose = tuple[float, float, float]
 
 @dataclass(frozen=True)
 class FusionParams:
-    """Parameters of the fused costmap (docs/fused_costmap.md); ValueError when out of range.
-
-    A frame adds hit_log_odds to a cell it sees occupied, miss_log_odds to one seen free,
-    clamped to [min_log_odds, max_log_odds]; published occupied at >= occupied_log_odds, free
-    at <= free_log_odds. A pose jump beyond max_jump_m or max_jump_deg is an odometry reset.
-    """
+    """Parameters of the fused costmap (docs/fused_costmap.md); ValueError when out of range."""
 
     size_m: float = 4.0
     resolution_m: float = 0.05
@@ -45,36 +39,29 @@ class FusionParams:
     max_jump_deg: float = 45.0
 
     def __post_init__(self) -> None:
-        for name in ('size_m', 'resolution_m', 'hit_log_odds', 'miss_log_odds',
-                     'min_log_odds', 'max_log_odds', 'occupied_log_odds', 'free_log_odds',
-                     'max_jump_m', 'max_jump_deg'):
+        for name in self.__dataclass_fields__:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or \
                     not math.isfinite(value):
                 raise ValueError(f'FusionParams: {name}={value!r} must be a finite number')
-        for name in ('size_m', 'resolution_m', 'hit_log_odds', 'max_log_odds', 'max_jump_m',
-                     'max_jump_deg'):
-            if not getattr(self, name) > 0.0:
-                raise ValueError(f'FusionParams: {name}={getattr(self, name)!r} must be > 0')
-        for name in ('miss_log_odds', 'min_log_odds'):
-            if not getattr(self, name) < 0.0:
-                raise ValueError(f'FusionParams: {name}={getattr(self, name)!r} must be < 0')
-        if self.resolution_m > self.size_m:
-            raise ValueError(f'FusionParams: resolution_m={self.resolution_m!r} must not '
-                             f'exceed size_m={self.size_m!r}')
+        rules = [(f'{name} > 0', getattr(self, name) > 0.0) for name in (
+            'size_m', 'resolution_m', 'hit_log_odds', 'max_log_odds', 'max_jump_m',
+            'max_jump_deg')]
+        rules += [(f'{name} < 0', getattr(self, name) < 0.0)
+                  for name in ('miss_log_odds', 'min_log_odds')]
+        rules += [('resolution_m must not exceed size_m', self.resolution_m <= self.size_m),
+                  ('min_log_odds <= free_log_odds < 0',
+                   self.min_log_odds <= self.free_log_odds < 0.0),
+                  ('0 < occupied_log_odds <= max_log_odds',
+                   0.0 < self.occupied_log_odds <= self.max_log_odds),
+                  ('max_jump_deg <= 180', self.max_jump_deg <= 180.0)]
+        for rule, holds in rules:
+            if not holds:
+                raise ValueError(f'FusionParams: {rule} does not hold in {self}')
         if self.cells > MAX_CELLS_PER_SIDE:
             raise ValueError(f'FusionParams: size_m={self.size_m!r} at resolution_m='
                              f'{self.resolution_m!r} is {self.cells} cells a side, more than '
                              f'{MAX_CELLS_PER_SIDE}')
-        if not self.min_log_odds <= self.free_log_odds < 0.0:
-            raise ValueError(f'FusionParams: free_log_odds={self.free_log_odds!r} must be in '
-                             f'[min_log_odds={self.min_log_odds!r}, 0)')
-        if not 0.0 < self.occupied_log_odds <= self.max_log_odds:
-            raise ValueError(f'FusionParams: occupied_log_odds={self.occupied_log_odds!r} '
-                             f'must be in (0, max_log_odds={self.max_log_odds!r}]')
-        if self.max_jump_deg > 180.0:
-            raise ValueError(f'FusionParams: max_jump_deg={self.max_jump_deg!r} must be '
-                             f'<= 180')
 
     @property
     def cells(self) -> int:
@@ -93,19 +80,13 @@ class FusionParams:
 
 @dataclass(frozen=True)
 class FusionUpdate:
-    """What one :meth:`FusedGrid.update` did, for the node's log and diagnostics.
-
-    in_place: fused at the last pose used (``reason`` says why); cells_forgotten: cells with
-    evidence that left the window; message: a log line when the state changed, else ''.
-    """
+    """What one :meth:`FusedGrid.update` did; message: a log line when the state changed."""
 
     pose: Pose
     in_place: bool
     shift_cells: tuple[int, int]
     cells_forgotten: int
     reset: bool
-    hit_cells: int
-    miss_cells: int
     reason: str = ''
     message: str = ''
     warning: bool = False
@@ -119,14 +100,12 @@ def _wrap_angle(angle_rad: float) -> float:
 def _check_pose(pose: object) -> str:
     """'' when ``pose`` is a usable (x, y, yaw), else what is wrong with it."""
     try:
-        values = [float(v) for v in pose]  # type: ignore[union-attr]
+        values = tuple(float(v) for v in pose)  # type: ignore[union-attr]
     except (TypeError, ValueError):
-        return f'pose {pose!r} is not (x, y, yaw)'
+        values = ()
     if len(values) != 3:
         return f'pose {pose!r} is not (x, y, yaw)'
-    if not all(math.isfinite(v) for v in values):
-        return f'pose {tuple(values)!r} is not finite'
-    return ''
+    return '' if all(math.isfinite(v) for v in values) else f'pose {values!r} is not finite'
 
 
 def frame_evidence(costmap: Costmap, pose: Pose, origin_cell: tuple[int, int],
@@ -134,9 +113,7 @@ def frame_evidence(costmap: Costmap, pose: Pose, origin_cell: tuple[int, int],
                    ) -> tuple[np.ndarray, np.ndarray]:
     """Where a per-frame costmap puts evidence in an odom window: (hit, miss) (ny, nx) bool.
 
-    The window's cell (0, 0) is odom-lattice cell ``origin_cell`` (column, row); cells:
-    (nx, ny). A window cell's centre sampled in the costmap (base frame at ``pose``), and
-    the occupied costmap cells' centres splatted into the window, so none is lost.
+    The window's cell (0, 0) is odom-lattice cell ``origin_cell``; cells: (nx, ny).
     """
     nx, ny = cells
     res = float(resolution_m)
@@ -145,22 +122,19 @@ def frame_evidence(costmap: Costmap, pose: Pose, origin_cell: tuple[int, int],
     # window cell centres relative to the robot, odom axes
     dx = (origin_cell[0] + np.arange(nx) + 0.5) * res - x
     dy = (origin_cell[1] + np.arange(ny) + 0.5) * res - y
-    # into the base frame: R(-yaw) (p - t), then the costmap's cell indices
-    fres = float(costmap.resolution_m)
-    fx0, fy0 = (float(v) for v in costmap.origin_xy_m)
-    col = np.floor((np.add.outer(s * dy, c * dx) - fx0) / fres).astype(np.int64)
-    row = np.floor((np.add.outer(c * dy, -s * dx) - fy0) / fres).astype(np.int64)
-    fny, fnx = costmap.data.shape
-    inside = (col >= 0) & (col < fnx) & (row >= 0) & (row < fny)
-    value = np.full((ny, nx), CELL_UNKNOWN, dtype=np.int8)
+    # into the base frame: R(-yaw) (p - t), then the costmap's cells
+    base = np.stack((np.add.outer(s * dy, c * dx), np.add.outer(c * dy, -s * dx)), axis=-1)
+    row, col, inside = costmap.cell_of(base.reshape(-1, 2))
+    value = np.full(nx * ny, CELL_UNKNOWN, dtype=np.int8)
     value[inside] = costmap.data[row[inside], col[inside]]
-    hit = value == CELL_OCCUPIED
-    miss = value == CELL_FREE
+    hit = (value == CELL_OCCUPIED).reshape(ny, nx)
+    miss = (value == CELL_FREE).reshape(ny, nx)
     # splat the occupied cells' centres so that none falls between window cell centres
     occ_row, occ_col = np.nonzero(costmap.data == CELL_OCCUPIED)
     if occ_row.size:
-        bx = fx0 + (occ_col + 0.5) * fres
-        by = fy0 + (occ_row + 0.5) * fres
+        fres = float(costmap.resolution_m)
+        bx = float(costmap.origin_xy_m[0]) + (occ_col + 0.5) * fres
+        by = float(costmap.origin_xy_m[1]) + (occ_row + 0.5) * fres
         wc = np.floor((x + c * bx - s * by) / res).astype(np.int64) - origin_cell[0]
         wr = np.floor((y + s * bx + c * by) / res).astype(np.int64) - origin_cell[1]
         ok = (wc >= 0) & (wc < nx) & (wr >= 0) & (wr < ny)
@@ -169,25 +143,8 @@ def frame_evidence(costmap: Costmap, pose: Pose, origin_cell: tuple[int, int],
     return hit, miss
 
 
-def _shifted(grid: np.ndarray, d_col: int, d_row: int) -> np.ndarray:
-    """Return ``new[r, c] = old[r + d_row, c + d_col]``, 0 from outside the old window."""
-    ny, nx = grid.shape
-    out = np.zeros_like(grid)
-    if abs(d_col) >= nx or abs(d_row) >= ny:
-        return out
-    src_r = slice(max(d_row, 0), ny + min(d_row, 0))
-    dst_r = slice(max(-d_row, 0), ny - max(d_row, 0))
-    src_c = slice(max(d_col, 0), nx + min(d_col, 0))
-    dst_c = slice(max(-d_col, 0), nx - max(d_col, 0))
-    out[dst_r, dst_c] = grid[src_r, src_c]
-    return out
-
-
 class FusedGrid:
-    """A rolling log-odds grid centred on the robot in the odometry frame (one thread).
-
-    ``update(costmap, pose)`` per frame, then ``to_costmap()`` for the OccupancyGrid in odom.
-    """
+    """A rolling log-odds grid centred on the robot in the odometry frame (one thread)."""
 
     def __init__(self, params: FusionParams | None = None) -> None:
         self.params = params if params is not None else FusionParams()
@@ -197,11 +154,6 @@ class FusedGrid:
         self._pose: Pose | None = None          # last pose used (None: none yet)
         self._pose_stamp_s: float | None = None
         self._in_place_kind: str | None = None   # why the last frame fused in place, '' if not
-
-    @property
-    def resolution_m(self) -> float:
-        """Cell size [m/cell]."""
-        return self.params.resolution_m
 
     @property
     def origin_cell(self) -> tuple[int, int]:
@@ -267,7 +219,9 @@ class FusedGrid:
         if d_col == 0 and d_row == 0:
             return (0, 0), 0
         before = int(np.count_nonzero(self._log_odds))
-        self._log_odds = _shifted(self._log_odds, d_col, d_row)
+        # whole cells: new[r, c] = old[r + d_row, c + d_col], 0 from outside the old window
+        self._log_odds = ndimage.shift(self._log_odds, (-d_row, -d_col), order=0, cval=0.0,
+                                       prefilter=False)
         self._origin_cell = origin
         return (d_col, d_row), before - int(np.count_nonzero(self._log_odds))
 
@@ -281,15 +235,13 @@ class FusedGrid:
         gy = origin[1] * res + centres - new[1]
         d_yaw = old[2] - new[2]
         c, s = math.cos(d_yaw), math.sin(d_yaw)
-        old_x = old[0] + np.add.outer(-s * gy, c * gx)   # (n, n): [row, col]
-        old_y = old[1] + np.add.outer(c * gy, s * gx)
-        col = np.floor(old_x / res).astype(np.int64) - self._origin_cell[0]
-        row = np.floor(old_y / res).astype(np.int64) - self._origin_cell[1]
-        inside = (col >= 0) & (col < n) & (row >= 0) & (row < n)
+        old_xy = np.stack((old[0] + np.add.outer(-s * gy, c * gx),   # (n, n): [row, col]
+                           old[1] + np.add.outer(c * gy, s * gx)), axis=-1)
+        row, col, inside = self.cell_of(old_xy)
         before = int(np.count_nonzero(self._log_odds))
-        moved = np.zeros_like(self._log_odds)
+        moved = np.zeros(n * n, np.float32)
         moved[inside] = self._log_odds[row[inside], col[inside]]
-        self._log_odds = moved
+        self._log_odds = moved.reshape(n, n)
         self._origin_cell = origin
         return max(0, before - int(np.count_nonzero(moved)))
 
@@ -297,9 +249,7 @@ class FusedGrid:
                pose_stamp_s: float | None = None, no_pose_reason: str = '') -> FusionUpdate:
         """Fuse one frame's costmap (base frame) taken at base pose ``pose`` (x, y, yaw) in odom.
 
-        pose None (no_pose_reason says why), invalid, or older than the last one used
-        (pose_stamp_s): fused in place, said once per cause. ValueError for a costmap that is
-        not a 2-D int8 grid with a positive resolution.
+        Without a usable pose, or an older one: fused in place. ValueError for a bad costmap.
         """
         data = np.asarray(costmap.data)
         if data.ndim != 2 or data.dtype != np.int8:
@@ -356,17 +306,11 @@ class FusedGrid:
         np.clip(grid, np.float32(p.min_log_odds), np.float32(p.max_log_odds), out=grid)
         return FusionUpdate(pose=used, in_place=bool(reason) and not reset, shift_cells=shift,
                             cells_forgotten=forgotten + scrolled_out, reset=reset,
-                            hit_cells=int(np.count_nonzero(hit)),
-                            miss_cells=int(np.count_nonzero(miss)), reason=reason,
-                            message=message, warning=warning)
+                            reason=reason, message=message, warning=warning)
 
 
 class PoseBuffer:
-    """Recent odometry poses by time (thread-safe); the pose at a frame's stamp.
-
-    ``pose_at`` interpolates, holds the newest pose up to ``max_age_s`` late, and gives
-    (None, reason) beyond that, before the buffer or before any odometry.
-    """
+    """Recent odometry poses by time (thread-safe); the pose at a frame's stamp."""
 
     def __init__(self, max_age_s: float = 0.2, capacity: int = 256) -> None:
         if not (math.isfinite(max_age_s) and max_age_s >= 0.0):
@@ -399,10 +343,6 @@ class PoseBuffer:
         """(pose at ``stamp_s``, '') or (None, why there is none)."""
         with self._lock:
             items = list(self._items)
-        return self._interpolate(items, stamp_s)
-
-    def _interpolate(self, items: list[tuple[float, Pose]], stamp_s: float,
-                     ) -> tuple[Pose | None, str]:
         if not items:
             return None, 'no odometry received'
         newest_s, newest = items[-1]

@@ -22,10 +22,7 @@ OPTICAL_TO_BODY = np.array([[0.0, 0.0, 1.0],
 
 
 def mount_rotation(pitch_rad: float, roll_rad: float) -> np.ndarray:
-    """Rotation (3, 3) optical -> ground frame: ``R_y(pitch) @ R_x(roll) @ OPTICAL_TO_BODY``.
-
-    Positive pitch looks down; positive roll lowers the image's right side.
-    """
+    """Rotation optical -> ground: ``R_y(pitch) R_x(roll) OPTICAL_TO_BODY`` (+pitch: down)."""
     cp, sp = math.cos(pitch_rad), math.sin(pitch_rad)
     cr, sr = math.cos(roll_rad), math.sin(roll_rad)
     r_y = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
@@ -96,11 +93,7 @@ def to_ground(points_optical: np.ndarray, params: DetectorParams) -> np.ndarray:
 
 
 class GroundRays:
-    """Ground-frame rays of every pixel of one mount, kept as their factors (no table).
-
-    Pixel (i, j): ``(rot[:, 0] * ru[j] + rot[:, 1] * rv[i]) + rot[:, 2]`` in float32, so that
-    ``p_ground = depth * ray + (0, 0, height)``; the compiled kernels compute it where read.
-    """
+    """Ground rays of a mount as factors: pixel (i, j) ``rot @ (ru[j], rv[i], 1)`` (float32)."""
 
     __slots__ = ('ru', 'rv', 'rot', '_table')
 
@@ -183,10 +176,7 @@ def roi_mask(points_ground: np.ndarray, params: DetectorParams) -> np.ndarray:
 
 
 def to_base_frame(points: np.ndarray, params: DetectorParams) -> np.ndarray:
-    """Ground-frame points (M, 3) -> base frame: ``R_z(yaw) p + (x, y, 0)`` of the camera.
-
-    A camera at the base origin facing forward returns the same array.
-    """
+    """Ground-frame points (M, 3) -> base frame: ``R_z(yaw) p + (x, y, 0)`` of the camera."""
     x, y, yaw = params.camera_x_m, params.camera_y_m, params.camera_yaw_rad
     if x == 0.0 and y == 0.0 and yaw == 0.0:
         return points

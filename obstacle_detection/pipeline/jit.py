@@ -1,8 +1,6 @@
 """The one switch between the compiled kernels and the numpy path, and the background compile.
 
-A stage's reference ``_reference_<name>`` (numpy/scipy) and its compiled twin
-``_compiled.<module>.<name>`` (same signature, same result) are joined by :func:`choose`. The
-compiled path runs when numba imports and ``OBSTACLE_DETECTION_NO_JIT`` is '' or '0'.
+Each stage's ``_reference_<name>`` and compiled twin (same signature and result): :func:`choose`.
 """
 
 from __future__ import annotations
@@ -39,10 +37,7 @@ def compiling() -> bool:
 
 
 def enabled() -> bool:
-    """Return True when the compiled kernels run: numba is there and not switched off.
-
-    False on every thread but the compiling one while :func:`compile_in_background` runs.
-    """
+    """Return True when the compiled kernels run (on the compiling thread only while one runs)."""
     if not AVAILABLE or switched_off():
         return False
     return _kernels_ready.is_set() or getattr(_compiling, 'active', False)
@@ -50,9 +45,8 @@ def enabled() -> bool:
 
 def choose(reference: Callable[..., Any], compiled: Callable[..., Any], *,
            accepts: Callable[..., bool] | None = None) -> Callable[..., Any]:
-    """Return a function that runs ``compiled`` when :func:`enabled`, else ``reference``.
+    """Return a dispatcher: ``compiled`` when :func:`enabled` and ``accepts``, else ``reference``.
 
-    ``accepts(*args, **kwargs)``, when given, says whether the compiled twin takes the arguments.
     The result keeps both as ``.reference`` and ``.compiled`` (tests compare them).
     """
     @functools.wraps(reference)
@@ -67,19 +61,19 @@ def choose(reference: Callable[..., Any], compiled: Callable[..., Any], *,
     return dispatch
 
 
-class BackgroundCompile:
-    """A compilation running on a daemon thread; see :func:`compile_in_background`."""
+class BackgroundCompile(threading.Thread):
+    """A compilation on a daemon thread (:func:`compile_in_background`); error: what it raised."""
 
     def __init__(self, warm_up: Callable[[], Any],
                  on_done: Callable[['BackgroundCompile'], None] | None) -> None:
+        super().__init__(name='numba_compile', daemon=True)
         self.seconds: float | None = None   #: wall time of the compilation, once done
-        self.error: BaseException | None = None   #: what it raised, if it failed
+        self.error: BaseException | None = None
         self._warm_up = warm_up
         self._on_done = on_done
-        self._done = threading.Event()
-        self._thread = threading.Thread(target=self._run, name='numba_compile', daemon=True)
 
-    def _run(self) -> None:
+    def run(self) -> None:
+        """Compile on this thread; the numpy path stays open after a failure."""
         _compiling.active = True
         start = time.perf_counter()
         try:
@@ -90,32 +84,30 @@ class BackgroundCompile:
             _compiling.active = False
             self.seconds = time.perf_counter() - start
             if self.error is None:
-                _kernels_ready.set()   # a failed compile keeps the numpy path
-            self._done.set()
+                _kernels_ready.set()
             if self._on_done is not None:
                 self._on_done(self)
 
     def done(self) -> bool:
         """Return True once the compilation finished (or failed)."""
-        return self._done.is_set()
+        return self.seconds is not None
 
     def wait(self, timeout: float | None = None) -> bool:
         """Wait for the end of the compilation; return True if it ended."""
-        return self._done.wait(timeout)
+        self.join(timeout)
+        return not self.is_alive()
 
 
 def compile_in_background(warm_up: Callable[[], Any], *,
                           on_done: Callable[[BackgroundCompile], None] | None = None
                           ) -> BackgroundCompile | None:
-    """Run ``warm_up`` (which compiles or loads the kernels) on a daemon thread.
+    """Run ``warm_up`` on a daemon thread; meanwhile the other threads run the numpy path.
 
-    Until it returns, the other threads run the numpy path (same results) instead of waiting.
     ``on_done`` is called on that thread at the end. Returns None when the compiled path is off.
     """
     if not enabled():
         return None
     job = BackgroundCompile(warm_up, on_done)
     _kernels_ready.clear()
-    job._thread.start()
+    job.start()
     return job
-

@@ -14,11 +14,7 @@ from ._compiled import _numba
 from ._compiled import median as compiled
 from .depth import MM_PER_M, DepthFormatError, check_image, depth_lut, lookup
 
-__all__ = ['MEDIAN_MODE', 'median_filter', 'median_of_codes', 'reference_median', 'warm_up']
-
-#: Border mode of :func:`median_filter`, as a ``scipy.ndimage`` mode: the image is extended
-#: by repeating its edge pixels (OpenCV ``BORDER_REPLICATE``). Unlike 'constant' it adds no
-#: fake zeros (= no return) along the border.
+#: Border mode of :func:`median_filter`: edge pixels repeated (no fake zeros = no return).
 MEDIAN_MODE = 'nearest'
 
 
@@ -32,13 +28,9 @@ _exact_median = jit.choose(reference_median, compiled.median_filter)
 
 
 def median_filter(image: np.ndarray, k: int, threads: int = 1) -> np.ndarray:
-    """Exact K x K median filter: the result of :func:`reference_median`, to the bit.
+    """Exact K x K median filter (k odd), :func:`reference_median` to the bit; a new array.
 
-    image: (H, W) real array; k: odd >= 1 (1 returns a copy); threads: the compiled kernel's
-    (the same result for any). K = 3, 5 on uint16 or float32 run ``cv2.medianBlur``; larger K
-    the compiled sliding histogram (:mod:`._compiled.median`) when :func:`.jit.enabled`, else
-    scipy; images holding NaN scipy. Returns a new C-contiguous array of the input dtype.
-    Raises ValueError (TypeError) for a bad ``k``, DepthFormatError for a bad image.
+    K = 3, 5 on uint16 or float32 run ``cv2.medianBlur``, larger K the compiled kernel.
     """
     k = _check_kernel(k)
     arr = check_image(image, 'median input')
@@ -58,11 +50,7 @@ def median_filter(image: np.ndarray, k: int, threads: int = 1) -> np.ndarray:
 
 def median_of_codes(codes: np.ndarray, k: int, table: np.ndarray,
                     threads: int = 1) -> np.ndarray:
-    """Return ``median_filter(table[codes], k)``, computed on the codes and then looked up.
-
-    table: (65536,) non-decreasing depths [m] of the uint16 codes (:func:`.depth.depth_lut`): the
-    median commutes with a non-decreasing map, and uint16 keys filter faster.
-    """
+    """Return ``median_filter(table[codes], k)``: the median commutes with a sorted table."""
     codes = np.ascontiguousarray(check_image(codes, 'median input'), np.uint16)
     return lookup(table, median_filter(codes, k, threads))
 
@@ -80,9 +68,7 @@ def _check_kernel(k: int) -> int:
 def _opencv_median(image: np.ndarray, k: int) -> np.ndarray:
     """Run ``cv2.medianBlur`` (K = 3, 5; uint16 or float32; borders replicated)."""
     h, w = image.shape
-    if min(h, w) < k:
-        # OpenCV needs an image at least as large as its window: pad by replication, which
-        # is what 'nearest' does, and keep the centre.
+    if min(h, w) < k:   # OpenCV needs the window inside the image: pad as 'nearest' does
         r = k // 2
         padded = cv2.copyMakeBorder(image, r, r, r, r, cv2.BORDER_REPLICATE)
         return np.ascontiguousarray(cv2.medianBlur(padded, k)[r:r + h, r:r + w])

@@ -1,8 +1,6 @@
 """Estimate the camera mount (height, pitch, roll) from one depth frame by finding the floor.
 
-RANSAC on the back-projected points, keeping planes near the expected up with next to nothing
-below them, refined by least squares; the method and its limits: docs/method.md. A frame
-without a plausible floor raises ValueError.
+The method and its limits: docs/method.md.
 """
 
 from __future__ import annotations
@@ -29,11 +27,7 @@ MAX_BELOW_PER_INLIER = 0.1
 
 @dataclass(frozen=True)
 class MountEstimate:
-    """The camera mount found from the floor (``geometry.mount_rotation``'s convention).
-
-    inlier_fraction: share of the n_points (valid, within range) within ``inlier_m`` of the
-    floor plane ``normal_optical . p + offset_m = 0`` (unit normal up, optical frame).
-    """
+    """The camera mount found from the floor plane ``normal_optical . p + offset_m = 0``."""
 
     height_m: float
     pitch_rad: float
@@ -54,17 +48,8 @@ class MountEstimate:
         return math.degrees(self.roll_rad)
 
 
-def floor_normal(pitch_rad: float, roll_rad: float) -> np.ndarray:
-    """(3,) float64 unit "up" vector in the optical frame of a camera with this mount."""
-    return mount_rotation(pitch_rad, roll_rad)[2].copy()
-
-
 def mount_from_plane(normal_optical: np.ndarray, offset_m: float) -> tuple[float, float, float]:
-    """(height [m], pitch [rad], roll [rad]) of the camera above the plane ``n . p + d = 0``.
-
-    normal_optical: any length, pointing up. ValueError when the camera is not above the
-    plane or |pitch| would be 90 deg.
-    """
+    """(height [m], pitch, roll [rad]) of the camera above the plane ``n . p + d = 0`` (n up)."""
     n = np.asarray(normal_optical, dtype=np.float64)
     norm = float(np.linalg.norm(n))
     if not (math.isfinite(norm) and norm > 0.0):
@@ -144,13 +129,10 @@ def estimate_mount(depth_m: np.ndarray, intrinsics: Intrinsics, *, max_range_m: 
                    prior_pitch_rad: float | None = None,
                    max_tilt_rad: float = math.radians(60.0),
                    min_inlier_fraction: float = 0.03) -> MountEstimate:
-    """Find the floor in a depth frame and return the camera mount above it.
+    """Find the floor in a depth frame (H, W) [m] and return the camera mount above it.
 
-    depth_m: (H, W) float metres, 0 / NaN = no return; points deeper than max_range_m are
-    left out. inlier_m: a point within it supports a plane [m]; iterations: RANSAC planes
-    drawn. prior_pitch_rad: the expected pitch (roll 0) whose up the floor normal is sought
-    around (else optical -y), within max_tilt_rad; min_inlier_fraction: least share of the
-    points a floor holds. Raises ValueError for a bad argument or no plausible floor.
+    prior_pitch_rad: the expected pitch whose up the floor normal is sought around (else
+    optical -y). Raises ValueError for a bad argument or no plausible floor.
     """
     _check_arguments(max_range_m, inlier_m, iterations, max_tilt_rad, min_inlier_fraction,
                      prior_pitch_rad)
@@ -162,7 +144,7 @@ def estimate_mount(depth_m: np.ndarray, intrinsics: Intrinsics, *, max_range_m: 
         raise ValueError(f'too few points to find the floor: {n_points} valid pixels within '
                          f'{max_range_m} m, need {MIN_POINTS}')
     rng = np.random.default_rng(seed)
-    up = floor_normal(0.0 if prior_pitch_rad is None else prior_pitch_rad, 0.0)
+    up = mount_rotation(prior_pitch_rad or 0.0, 0.0)[2]   # the floor's up, optical frame
     plane = _best_candidate(points, pixel_index, depth.shape, up, rng, inlier_m, iterations,
                             max_tilt_rad, min_inlier_fraction)
     previous = None
@@ -194,17 +176,18 @@ def _check_arguments(max_range_m: float, inlier_m: float, iterations: int,
                      max_tilt_rad: float, min_inlier_fraction: float,
                      prior_pitch_rad: float | None) -> None:
     """Raise ValueError for a bad argument of :func:`estimate_mount`."""
-    for name, value in (('max_range_m', max_range_m), ('inlier_m', inlier_m)):
-        if not (math.isfinite(value) and value > 0.0):
-            raise ValueError(f'{name}={value!r} must be a finite number > 0')
-    if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
-        raise ValueError(f'iterations={iterations!r} must be an int >= 1')
-    if not 0.0 < max_tilt_rad < math.pi / 2:
-        raise ValueError(f'max_tilt_rad={max_tilt_rad!r} must be within (0, pi/2)')
-    if not 0.0 < min_inlier_fraction < 1.0:
-        raise ValueError(f'min_inlier_fraction={min_inlier_fraction!r} must be within (0, 1)')
-    if prior_pitch_rad is not None and not abs(prior_pitch_rad) < math.pi / 2:
-        raise ValueError(f'prior_pitch_rad={prior_pitch_rad!r} must be within (-pi/2, pi/2)')
+    integer = isinstance(iterations, int) and not isinstance(iterations, bool)
+    for name, value, ok, rule in (
+            ('max_range_m', max_range_m, 0.0 < max_range_m < math.inf, 'a finite number > 0'),
+            ('inlier_m', inlier_m, 0.0 < inlier_m < math.inf, 'a finite number > 0'),
+            ('iterations', iterations, integer and iterations >= 1, 'an int >= 1'),
+            ('max_tilt_rad', max_tilt_rad, 0.0 < max_tilt_rad < math.pi / 2, 'in (0, pi/2)'),
+            ('min_inlier_fraction', min_inlier_fraction, 0.0 < min_inlier_fraction < 1.0,
+             'in (0, 1)'),
+            ('prior_pitch_rad', prior_pitch_rad,
+             prior_pitch_rad is None or abs(prior_pitch_rad) < math.pi / 2, 'in (-pi/2, pi/2)')):
+        if not ok:
+            raise ValueError(f'{name}={value!r} must be {rule}')
 
 
 def _best_candidate(points: np.ndarray, pixel_index: np.ndarray, shape: tuple[int, int],

@@ -1,8 +1,6 @@
 """Normals, the slope test and neighbour validation (seed section 4.3.5).
 
-One k-nearest-neighbour query of ``max(N, N1 + 1)`` neighbours, the point itself first, serves
-the normals (N) and the validation (N1). Each stage has a numpy/scipy reference and a compiled
-twin (:mod:`._compiled.knn`) with the same results.
+One k-NN query of ``max(N, N1 + 1)`` neighbours, the point itself first, serves both.
 """
 
 from __future__ import annotations
@@ -19,12 +17,7 @@ _PAIR_B = np.array([0, 1, 2, 1, 2, 2])
 
 
 def _reference_knn_grid(points: np.ndarray, k: int) -> np.ndarray:
-    """Return indices (V, k) int64 of the k nearest points of every point, nearest first.
-
-    points: (V, 3) float32 [m]. The point itself first (also among duplicates), then by
-    (squared distance, index); k is clipped to V. Rows whose distances tie are re-sorted
-    (:func:`_order_ties`).
-    """
+    """Return indices (V, min(k, V)) int64 of the k nearest points: itself, then (d2, index)."""
     n = points.shape[0]
     k = min(int(k), n)
     if n == 0 or k <= 0:
@@ -57,11 +50,7 @@ def _order_ties(points: np.ndarray, tree: cKDTree, idx: np.ndarray, dist: np.nda
 
 
 def neighbourhood_covariance(points: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
-    """Covariance (V, 3, 3) float64 of each point's neighbours (seed: C = 1/N sum (p-p̄)(p-p̄)ᵀ).
-
-    points: (V, 3) [m], used as float32; neighbours: (V, N) indices into points. Relative to each
-    query point in float64, the six distinct entries summed in column order (as the kernel).
-    """
+    """Covariance (V, 3, 3) float64 of each point's neighbours (V, N), as the kernel sums it."""
     n_nb = neighbours.shape[1]
     pts_t = np.ascontiguousarray(points.T, dtype=np.float32).astype(np.float64)   # (3, V)
     rel = pts_t[:, np.ascontiguousarray(neighbours.T)]             # (3, N, V)
@@ -80,11 +69,7 @@ def neighbourhood_covariance(points: np.ndarray, neighbours: np.ndarray) -> np.n
 
 
 def smallest_eigenvectors(cov: np.ndarray) -> np.ndarray:
-    """Return unit eigenvectors (V, 3) float64 of the smallest eigenvalue of 3x3 symmetric C.
-
-    Closed form (the characteristic cubic's trigonometric root; the longest cross product of two
-    rows of ``C - lambda I``), LAPACK's ``eigh`` for degenerate rows. The sign is arbitrary.
-    """
+    """Return unit eigenvectors (V, 3) of the smallest eigenvalue of 3x3 C (closed form)."""
     c = np.asarray(cov, dtype=np.float64)
     a00, a01, a02 = c[:, 0, 0], c[:, 0, 1], c[:, 0, 2]
     a11, a12, a22 = c[:, 1, 1], c[:, 1, 2], c[:, 2, 2]
@@ -144,10 +129,7 @@ _normals_from_neighbours = jit.choose(_reference_normals_from_neighbours,
 
 
 def estimate_normals(points: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
-    """Return unit normals (V, 3) float32: smallest-eigenvalue eigenvector of each neighbourhood.
-
-    neighbours: (V, N) indices from :func:`nearest_neighbours`, the point itself included.
-    """
+    """Return unit normals (V, 3) float32 of the neighbourhoods (V, N), the point included."""
     if points.shape[0] == 0:
         return np.zeros((0, 3), dtype=np.float32)
     return _normals_from_neighbours(points, neighbours, neighbours.shape[1])
@@ -163,8 +145,7 @@ def slope_obstacles(normals: np.ndarray, cos_max_slope: float,
 def validate_obstacles(is_obstacle: np.ndarray, neighbours: np.ndarray, n1: int) -> np.ndarray:
     """Seed validation: an obstacle stays one only if its N1 nearest neighbours are obstacles.
 
-    neighbours: (V, k) nearest first, the point itself in column 0. Fewer than N1 + 1 columns
-    validate no obstacle; n1 = 0 disables validation. Returns (V,) bool.
+    neighbours: (V, k), the point itself first; fewer than N1 + 1 columns validate none.
     """
     if n1 <= 0 or is_obstacle.size == 0:
         return is_obstacle.copy()

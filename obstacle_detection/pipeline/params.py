@@ -21,13 +21,10 @@ class Intrinsics:
     cy: float
 
     def __post_init__(self) -> None:
-        for name in ('fx', 'fy', 'cx', 'cy'):
-            value = getattr(self, name)
-            if not math.isfinite(value):
-                raise ValueError(f'intrinsics {name}={value!r} is not a finite number')
-        if self.fx <= 0.0 or self.fy <= 0.0:
-            raise ValueError(
-                f'intrinsics focal lengths must be > 0, got fx={self.fx!r}, fy={self.fy!r}')
+        values = (self.fx, self.fy, self.cx, self.cy)
+        if not all(math.isfinite(v) for v in values) or min(self.fx, self.fy) <= 0.0:
+            raise ValueError(f'intrinsics focal lengths must be > 0 and every value finite, '
+                             f'got fx={self.fx!r}, fy={self.fy!r}, cx={self.cx!r}, cy={self.cy!r}')
 
 
 #: Seed Table 4.1: Kinect v2 intrinsics used when no CameraInfo is known (f = 580, cx = 200,

@@ -66,10 +66,8 @@ def gradient_image(depth_m: np.ndarray) -> np.ndarray:
 
 def neighbour_states(previous_mask: np.ndarray) -> np.ndarray:
     """(H, W, 7) bool: ``previous_mask[y + dy, x + dx]`` per neighbour offset (outside: False)."""
-    prev = np.asarray(previous_mask, dtype=bool)
-    height, width = prev.shape
-    padded = np.zeros((height + 2, width + 2), dtype=bool)
-    padded[1:-1, 1:-1] = prev
+    padded = np.pad(np.asarray(previous_mask, dtype=bool), 1)
+    height, width = padded.shape[0] - 2, padded.shape[1] - 2
     out = np.empty((height, width, len(NEIGHBOUR_OFFSETS_XY)), dtype=bool)
     for k, (dx, dy) in enumerate(NEIGHBOUR_OFFSETS_XY):
         out[:, :, k] = padded[1 + dy:1 + dy + height, 1 + dx:1 + dx + width]
@@ -78,7 +76,7 @@ def neighbour_states(previous_mask: np.ndarray) -> np.ndarray:
 
 def pixel_features(result: Any, previous_mask: np.ndarray | None = None,
                    ) -> tuple[np.ndarray, np.ndarray]:
-    """(features (M, 9) float64 raw, pixel_index (M,) int64) of a result's pixels with a voxel.
+    """(features (M, 9) float64, pixel_index (M,)) of the pixels with a voxel.
 
     previous_mask: the previous frame's rule-based obstacle pixels, or None for this frame's.
     """
@@ -117,12 +115,9 @@ def fit_logistic(features: np.ndarray, targets: np.ndarray, *, l2: float = 1e-3)
     y = np.asarray(targets, dtype=np.float64).reshape(-1)
     if x.ndim != 2 or x.shape[0] != y.size:
         raise ValueError(f'features shape {x.shape} does not match targets shape {y.shape}')
-    if y.size == 0:
-        raise ValueError('no training samples (0 rows)')
-    if not np.isfinite(x).all():
-        raise ValueError('features contain non-finite values')
-    if not math.isfinite(l2) or l2 < 0.0:
-        raise ValueError(f'l2={l2!r} must be a finite number >= 0')
+    if y.size == 0 or not np.isfinite(x).all() or not 0.0 <= l2 < math.inf:
+        raise ValueError(f'a fit needs samples ({y.size} rows), finite features and a finite '
+                         f'l2 >= 0 (l2={l2!r})')
     design = np.hstack([np.ones((y.size, 1)), x])
     penalty = np.full(design.shape[1], l2)
     penalty[0] = 0.0
@@ -138,6 +133,14 @@ def fit_logistic(features: np.ndarray, targets: np.ndarray, *, l2: float = 1e-3)
     return fit.x
 
 
+def _checked_features(features: np.ndarray) -> np.ndarray:
+    """Return the raw features as (M, 9) float64; ValueError for another shape."""
+    x = np.asarray(features, dtype=np.float64)
+    if x.ndim != 2 or x.shape[1] != len(FEATURE_NAMES):
+        raise ValueError(f'features shape {x.shape}, expected (M, {len(FEATURE_NAMES)})')
+    return x
+
+
 @dataclass(frozen=True)
 class LogisticRefiner:
     """A fitted model: ``P(obstacle) = sigma(w0 + sum_j w_j (x_j - mean_j) / scale_j)``."""
@@ -150,28 +153,19 @@ class LogisticRefiner:
 
     def __post_init__(self) -> None:
         n = len(FEATURE_NAMES)
-        if len(self.coefficients) != n + 1:
-            raise ValueError(f'{len(self.coefficients)} coefficients, expected {n + 1} '
-                             f'(intercept + {", ".join(FEATURE_NAMES)})')
-        if len(self.feature_mean) != n or len(self.feature_scale) != n:
-            raise ValueError(f'feature_mean/feature_scale must have {n} entries, got '
-                             f'{len(self.feature_mean)}/{len(self.feature_scale)}')
+        sizes = (len(self.coefficients), len(self.feature_mean), len(self.feature_scale))
+        if sizes != (n + 1, n, n):
+            raise ValueError(f'{sizes} coefficients, means, scales: expected {(n + 1, n, n)}')
         values = (*self.coefficients, *self.feature_mean, *self.feature_scale, self.threshold)
-        if not all(math.isfinite(v) for v in values):
-            raise ValueError('model coefficients and scaling must be finite numbers')
-        if any(s <= 0.0 for s in self.feature_scale):
-            raise ValueError(f'feature_scale={self.feature_scale} must be > 0')
-        if not 0.0 < self.threshold < 1.0:
-            raise ValueError(f'threshold={self.threshold!r} must be in (0, 1)')
+        if not all(math.isfinite(v) for v in values) or min(self.feature_scale) <= 0.0 \
+                or not 0.0 < self.threshold < 1.0:
+            raise ValueError('model values must be finite, scales > 0 and threshold in (0, 1)')
 
-    # -- fitting -------------------------------------------------------------------------
     @classmethod
     def fit(cls, features: np.ndarray, targets: np.ndarray, *, l2: float = 1e-3,
             threshold: float = 0.5, **info: Any) -> 'LogisticRefiner':
         """Standardise slope and gradient and fit; ``info`` is stored in the model file."""
-        x = np.asarray(features, dtype=np.float64)
-        if x.ndim != 2 or x.shape[1] != len(FEATURE_NAMES):
-            raise ValueError(f'features shape {x.shape}, expected (M, {len(FEATURE_NAMES)})')
+        x = _checked_features(features)
         mean = np.zeros(x.shape[1])
         scale = np.ones(x.shape[1])
         if x.shape[0]:
@@ -185,12 +179,9 @@ class LogisticRefiner:
                    tuple(float(s) for s in scale), float(threshold),
                    tuple(sorted(info.items())))
 
-    # -- prediction ----------------------------------------------------------------------
     def _log_odds(self, features: np.ndarray) -> np.ndarray:
         """(M,) float64 linear predictor a0 + sum a_j x_j of raw features (M, 9)."""
-        x = np.asarray(features, dtype=np.float64)
-        if x.ndim != 2 or x.shape[1] != len(FEATURE_NAMES):
-            raise ValueError(f'features shape {x.shape}, expected (M, {len(FEATURE_NAMES)})')
+        x = _checked_features(features)
         w = np.asarray(self.coefficients)
         scaled = (x - np.asarray(self.feature_mean)) / np.asarray(self.feature_scale)
         return w[0] + scaled @ w[1:]
@@ -213,7 +204,6 @@ class LogisticRefiner:
             out[pixel_index] = self.predict(features)
         return out.reshape(shape)
 
-    # -- file ----------------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready description (format version, feature names, scaling, coefficients)."""
         return {
@@ -234,17 +224,12 @@ class LogisticRefiner:
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> 'LogisticRefiner':
         """Inverse of :meth:`to_dict`; raises DepthFormatError on a mismatch."""
-        if data.get('kind') != MODEL_KIND:
-            raise DepthFormatError(f'not a refiner model: kind={data.get("kind")!r}')
-        if data.get('version') != MODEL_FORMAT_VERSION:
-            raise DepthFormatError(f'model format version {data.get("version")!r} is not '
-                                 f'supported (expected {MODEL_FORMAT_VERSION})')
-        if list(data.get('features', [])) != list(FEATURE_NAMES):
-            raise DepthFormatError(f'model features {data.get("features")!r} differ from '
-                                 f'{list(FEATURE_NAMES)}')
-        if data.get('gradient_clip_m_per_px') != GRADIENT_CLIP_M_PER_PX:
-            raise DepthFormatError(f'model gradient clip {data.get("gradient_clip_m_per_px")!r} '
-                                 f'differs from {GRADIENT_CLIP_M_PER_PX}')
+        for key, expected in (('kind', MODEL_KIND), ('version', MODEL_FORMAT_VERSION),
+                              ('features', list(FEATURE_NAMES)),
+                              ('gradient_clip_m_per_px', GRADIENT_CLIP_M_PER_PX)):
+            if data.get(key) != expected:
+                raise DepthFormatError(f'not a refiner model of this version: {key} '
+                                       f'{data.get(key)!r}, expected {expected!r}')
         try:
             coefficients = (float(data['intercept']),
                             *(float(data['coefficients'][n]) for n in FEATURE_NAMES))
@@ -275,10 +260,9 @@ class LogisticRefiner:
 
 @dataclass(frozen=True)
 class RefinedResult:
-    """A detection after the learned refinement (labels, pixel mask, voxels, points, costmap)."""
+    """A detection after the learned refinement (labels, voxels, points, costmap)."""
 
     labels: np.ndarray
-    obstacle_mask: np.ndarray
     voxel_is_obstacle: np.ndarray
     obstacle_points: np.ndarray
     ground_points: np.ndarray
@@ -321,15 +305,11 @@ def refine_result(result: Any, refined_mask: np.ndarray, params: DetectorParams,
     obstacle_points = to_base_frame(voxel_points[is_obstacle], params)
     ground_points = to_base_frame(voxel_points[~is_obstacle], params)
     costmap = build_costmap(obstacle_points, ground_points, params)
-    return RefinedResult(labels, mask, is_obstacle, obstacle_points, ground_points, costmap)
+    return RefinedResult(labels, is_obstacle, obstacle_points, ground_points, costmap)
 
 
 class RefinedDetector:
-    """A ``Detector`` followed by the refinement, for a stream (keeps the previous mask).
-
-    ``process`` returns a ``DetectionResult`` with the refined labels, points, voxel flags and
-    costmap, and a 'refine' stage in ``timings_ms``.
-    """
+    """A ``Detector`` followed by the refinement, for a stream (keeps the previous mask)."""
 
     def __init__(self, detector: Any, refiner: LogisticRefiner) -> None:
         self.detector = detector
@@ -347,7 +327,7 @@ class RefinedDetector:
 
     def process(self, depth: np.ndarray, intrinsics: Any = None, *,
                 depth_scale: float | None = None) -> Any:
-        """Run the pipeline on one frame, then refine it (see :class:`RefinedDetector`)."""
+        """Run the pipeline on one frame, refine it: its labels, points, costmap, timings."""
         result = self.detector.process(depth, intrinsics, depth_scale=depth_scale)
         start = time.perf_counter()
         previous = self._previous

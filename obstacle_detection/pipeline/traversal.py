@@ -1,9 +1,6 @@
-"""Robot-level traversability (not in the seed): reach from the floor, step height, drops.
+"""Robot-level traversability (not in the seed): reach from the floor, steps, ledges, drops.
 
-:func:`traversable_ground` decides per voxel on a 2.5-D grid of cells, :func:`ledges` marks
-the open sides of raised surfaces, :func:`drop_edges` the cells where the floor ends at a drop,
-:func:`drop_smeared` undoes what the median smeared across depth edges. The rules:
-docs/method.md.
+The rules: docs/method.md.
 """
 
 from __future__ import annotations
@@ -30,60 +27,45 @@ MIN_SURFACE_VOXELS = 3
 #: Rows below an over-the-edge pixel searched for the floor it passed [px].
 DROP_EDGE_ROWS = 3
 #: A pixel this share of its depth away from both the nearest and the farthest depth of its
-#: window is a mixed (flying) pixel, unless it lies on a plane with its neighbours (a floor
-#: seen 0.6 m up at 4 m changes ~2 % a row: such planes are kept, see _planar).
+#: window is a mixed (flying) pixel, unless it lies on a plane with its neighbours (_planar).
 FLYING_JUMP = 0.03
 #: Largest second difference of the inverse depth, as a share of it, of a pixel on a plane.
 PLANAR_TOLERANCE = 0.02
-#: Cells searched beyond an open side for the lower ground in its shadow (the floor beside
-#: a platform 18 cm up, seen from 0.6 m, is hidden over 0.4 x the side's distance) [cells].
+#: Cells searched beyond an open side for the lower ground in its shadow [cells].
 LEDGE_SHADOW_CELLS = 12
 #: The 8 directions of the search across an edge, as (dx, dy) cell steps.
 _DIRECTIONS = np.array(((1, 0), (0, 1), (-1, 0), (0, -1), (1, 1), (1, -1), (-1, 1), (-1, -1)))
 #: Voxels below a marked one in which the foot of an object is looked for (:func:`feet`).
 FOOT_VOXELS = 3
-#: Window of the flying-pixel test [px]: time-of-flight mixed pixels lie up to two pixels
-#: from the depth edge (the compiled smear pass computes a 5 x 5 window only).
+#: Window of the flying-pixel test [px] (the compiled smear pass computes 5 x 5 only).
 FLYING_WINDOW_PX = 5
 #: A pixel whose median window is at least this share no return keeps its measured depth,
-#: and a hole there stays one: no-returns sort first, so the median of such a window is the
-#: 40th percentile of its returns or lower, nearer than the surface (docs/accuracy.md).
+#: and a hole there stays one (docs/method.md).
 MEDIAN_HOLE_SHARE = 0.2
 
 
 @dataclass(frozen=True)
 class Traversal:
-    """Robot-level decision per voxel ((V,) arrays; is_obstacle before the N1 validation).
-
-    height_m: float32 above the local ground [m]; reached: the voxel's cell was reached from
-    the floor; ledge: on a ledge (:func:`ledges`), an obstacle the N1 validation keeps.
-    """
+    """Robot-level decision per voxel, (V,) arrays; height_m above the local ground [m]."""
 
     is_obstacle: np.ndarray
     above_robot: np.ndarray
     height_m: np.ndarray
-    reached: np.ndarray
-    cell_size_m: float
-    ledge: np.ndarray | None = None
-
-
-def cell_size(params: DetectorParams) -> float:
-    """Cell size of the traversability grid [m]: twice the larger horizontal voxel size."""
-    return 2.0 * max(params.voxel_x_m, params.voxel_y_m)
+    ledge: np.ndarray
 
 
 def traversable_ground(points: np.ndarray, steep: np.ndarray,
                        params: DetectorParams) -> Traversal:
     """Decide obstacles at robot level: points (V, 3) float32 ground frame, steep (V,) bool."""
-    size = cell_size(params)
+    size = 2.0 * max(params.voxel_x_m, params.voxel_y_m)   # cells of 2 x 2 voxels
     if points.shape[0] == 0:
         empty = np.zeros(0, bool)
-        return Traversal(empty, empty, np.zeros(0, np.float32), empty, size, empty)
+        return Traversal(empty, empty, np.zeros(0, np.float32), empty)
     out = _traverse(points, steep, size, params.max_step_height_m, params.max_step_down_m,
                     params.robot_height_m, params.voxel_z_m, MIN_SURFACE_VOXELS)
     edge = ledges(points, steep, out[3], out[1], size, params.max_step_height_m,
                   params.max_step_down_m, LEDGE_SHADOW_CELLS)
-    return Traversal(*out, size, edge)
+    return Traversal(out[0], out[1], out[2], edge)
 
 
 def _voxel_ijk(points: np.ndarray, vx: float, vy: float, vz: float) -> np.ndarray:
@@ -105,10 +87,7 @@ def _reference_lone_voxels(points: np.ndarray, vx: float, vy: float, vz: float) 
 
 
 def lone_voxels(points: np.ndarray, vx: float, vy: float, vz: float) -> np.ndarray:
-    """(V,) bool: voxels with no other voxel among their 26 neighbours (docs/accuracy.md).
-
-    points: (V, 3) float32 voxel centroids [m]; vx, vy, vz: the voxel size [m].
-    """
+    """(V,) bool: voxels (centroids (V, 3) [m]) with no other among their 26 neighbours."""
     if points.shape[0] == 0:
         return np.zeros(0, bool)
     return _lone_voxels(points, vx, vy, vz)
@@ -133,11 +112,7 @@ def _reference_feet(points: np.ndarray, candidates: np.ndarray, marked: np.ndarr
 
 def feet(points: np.ndarray, candidates: np.ndarray, marked: np.ndarray, vx: float, vy: float,
          vz: float) -> np.ndarray:
-    """(V,) bool: candidates 1 to ``FOOT_VOXELS`` voxels under a marked voxel (docs/accuracy.md).
-
-    points: (V, 3) float32 voxel centroids [m]; candidates, marked: (V,) bool; vx, vy, vz:
-    the voxel size [m].
-    """
+    """(V,) bool: candidates 1 to ``FOOT_VOXELS`` voxels under a marked voxel."""
     if points.shape[0] == 0:
         return np.zeros(0, bool)
     return _feet(points, candidates, marked, vx, vy, vz, FOOT_VOXELS)
@@ -161,11 +136,7 @@ def _cells(points: np.ndarray, size_m: float) -> tuple[np.ndarray, int, int, int
 def _reference_ledges(points: np.ndarray, steep: np.ndarray, reached: np.ndarray,
                       above: np.ndarray, size_m: float, step_up_m: float, step_down_m: float,
                       shadow_cells: int) -> np.ndarray:
-    """(V,) bool: voxels on the open side of a raised traversable surface (issue 22).
-
-    points: (V, 3) float32 ground frame, the camera over its origin [m]; steep, reached,
-    above: (V,) bool; the cells of :func:`traversable_ground`. The rule: docs/method.md.
-    """
+    """(V,) bool: voxels on the open side of a raised traversable surface (docs/method.md)."""
     if points.shape[0] == 0:
         return np.zeros(0, bool)
     key, nx, ny, ox, oy = _cells(points, size_m)
@@ -202,11 +173,7 @@ def _reference_ledges(points: np.ndarray, steep: np.ndarray, reached: np.ndarray
 
 def _lower_beyond_gaps(surface: np.ndarray, lowest: np.ndarray, seen: np.ndarray,
                        low: np.ndarray, ox: int, oy: int, shadow_cells: int) -> None:
-    """Lower ``low`` (nx, ny) of the surface cells next to an empty one, in place.
-
-    To the lowest surface of the first cells with voxels beyond a gap of empty cells, in the
-    directions leading away from the camera (the shadow of an open side).
-    """
+    """In place: ``low`` of a cell beside a gap, to the lowest surface beyond it (away)."""
     nx, ny = surface.shape
     empty_nb = minimum_filter(seen, size=3, mode='constant', cval=True) == 0
     cx, cy = np.nonzero(np.isfinite(surface) & empty_nb)
@@ -236,8 +203,6 @@ def _lower_beyond_gaps(surface: np.ndarray, lowest: np.ndarray, seen: np.ndarray
 
 
 ledges = jit.choose(_reference_ledges, jit_ledges.ledges)
-
-
 
 
 def _reference_traverse(points: np.ndarray, steep: np.ndarray, size_m: float, step_up_m: float,
@@ -275,29 +240,17 @@ def _reference_traverse(points: np.ndarray, steep: np.ndarray, size_m: float, st
 _traverse = jit.choose(_reference_traverse, jit_traversal.traverse)
 
 
-def _neighbour_views(arr: np.ndarray, fill: float | bool) -> list[np.ndarray]:
-    """Return the 8 neighbours' values of every cell (views of a padded copy)."""
-    nx, ny = arr.shape
-    pad = np.full((nx + 2, ny + 2), fill, dtype=arr.dtype)
-    pad[1:-1, 1:-1] = arr
-    return [pad[1 + dx:1 + dx + nx, 1 + dy:1 + dy + ny]
-            for dx in (-1, 0, 1) for dy in (-1, 0, 1) if dx or dy]
-
-
 def _local_ground(surface: np.ndarray, reached: np.ndarray) -> np.ndarray:
-    """Ground height (nx, ny) of every cell: its surface where reached, else grown outward.
-
-    Layer by layer (8 neighbours), a cell gets the largest ground among its neighbours filled
-    in the previous layers. No reached cell: the floor plane, 0.
-    """
+    """Ground height (nx, ny): the surface where reached, else the highest neighbour's, grown."""
     if not reached.any():
         return np.zeros(surface.shape)
     ground = np.where(reached, surface, 0.0)
     done = reached.copy()
-    while not done.all():
-        filled = [np.where(d, g, -np.inf) for d, g in zip(_neighbour_views(done, False),
-                                                          _neighbour_views(ground, 0.0))]
-        best = np.max(filled, axis=0)
+    ring = np.ones((3, 3), bool)
+    ring[1, 1] = False
+    while not done.all():   # layer by layer: the largest ground of the 8 neighbours filled
+        best = maximum_filter(np.where(done, ground, -np.inf), footprint=ring, mode='constant',
+                              cval=-np.inf)
         new = ~done & (best > -np.inf)
         ground[new] = best[new]
         done |= new
@@ -337,20 +290,6 @@ def _grow(surface: np.ndarray, has: np.ndarray, seeds: np.ndarray, step_up: floa
     return reached[:source]
 
 
-def depth_window_range(raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Nearest and farthest measured depth (H, W) float32 in each pixel's 5 x 5 window [m].
-
-    raw: 0 = no return, which takes no part (a window without any gives inf / 0).
-    """
-    kernel = np.ones((FLYING_WINDOW_PX, FLYING_WINDOW_PX), np.uint8)
-    holes_far = np.where(raw > 0.0, raw, np.float32(np.inf))
-    near = np.empty(raw.shape, np.float32)
-    far = np.empty(raw.shape, np.float32)
-    cv2.erode(holes_far, kernel, dst=near, borderType=cv2.BORDER_REPLICATE)
-    cv2.dilate(raw, kernel, dst=far, borderType=cv2.BORDER_REPLICATE)   # no return is 0
-    return near, far
-
-
 def _planar(raw: np.ndarray, tolerance: float = PLANAR_TOLERANCE) -> np.ndarray:
     """(H, W) bool: inverse-depth second differences within ``tolerance`` of it (a plane)."""
     with np.errstate(divide='ignore', invalid='ignore'):
@@ -366,13 +305,9 @@ def _planar(raw: np.ndarray, tolerance: float = PLANAR_TOLERANCE) -> np.ndarray:
 
 def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float, *,
                  raw_no_nan: bool = False) -> np.ndarray:
-    """Undo what the median filter smeared across depth edges; drop what is no surface.
+    """In place: undo what the median smeared across depth edges (rules: docs/method.md).
 
-    filtered, raw: (H, W) float32 [m], the median-filtered and the measured depth (0 = no
-    return). A pixel the filter moved by more than ``max_shift`` of its depth takes its
-    measured depth back; filled holes at a depth edge and flying pixels are dropped (rules:
-    docs/method.md). Returns ``filtered``, changed in place; ``max_shift`` <= 0 changes
-    nothing. raw_no_nan: the caller knows ``raw`` holds no NaN (spares the compiled path a scan).
+    filtered, raw: (H, W) float32 [m], filtered and measured; raw_no_nan: raw holds no NaN.
     """
     if max_shift <= 0.0:
         return filtered
@@ -382,13 +317,7 @@ def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float, *,
 
 
 def unbias_holes(filtered: np.ndarray, raw: np.ndarray, kernel: int) -> np.ndarray:
-    """Undo the median where its window was ``MEDIAN_HOLE_SHARE`` or more no return.
-
-    filtered, raw: (H, W) float32 [m] after :func:`drop_smeared` and as measured (0 or NaN = no
-    return); kernel: the median's window size. Such a pixel takes its measured depth back, a
-    hole the median filled there is dropped; pixels already dropped stay so. Returns
-    ``filtered`` (C-contiguous float32: changed in place).
-    """
+    """Undo the median (window ``kernel``) where ``MEDIAN_HOLE_SHARE`` of it was no return."""
     area = kernel * kernel
     most = area - int(np.ceil(MEDIAN_HOLE_SHARE * area))   # returns in a window still biased
     return _unbias_holes(filtered, np.ascontiguousarray(raw, np.float32), kernel, most)
@@ -423,7 +352,10 @@ def _reference_drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: fl
                             jump: float, planar_tolerance: float,
                             raw_no_nan: bool = False) -> None:
     """In place: :func:`drop_smeared`'s rules with the flying-pixel ``jump`` (numpy)."""
-    near, far = depth_window_range(raw)
+    kernel = np.ones((FLYING_WINDOW_PX, FLYING_WINDOW_PX), np.uint8)   # nearest, farthest
+    near = cv2.erode(np.where(raw > 0.0, raw, np.float32(np.inf)), kernel,
+                     borderType=cv2.BORDER_REPLICATE)
+    far = cv2.dilate(raw, kernel, borderType=cv2.BORDER_REPLICATE)   # no return is 0
     ratio = np.float32(max_shift)
     h, w = raw.shape
     with np.errstate(invalid='ignore'):
@@ -448,10 +380,7 @@ def _reference_drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: fl
 
 def _fusable(filtered: np.ndarray, raw: np.ndarray, max_shift: float, jump: float,
              planar_tolerance: float, raw_no_nan: bool = False) -> bool:
-    """Return True for the images the compiled smear pass takes (its window range is OpenCV's).
-
-    C-contiguous float32 of one shape, raw without NaN (OpenCV orders NaN its own way).
-    """
+    """Return True for what the compiled smear pass takes: float32, C order, no NaN in raw."""
     return (FLYING_WINDOW_PX == 5 and filtered.flags.c_contiguous
             and filtered.dtype == np.float32 and filtered.shape == raw.shape
             and (raw_no_nan or not jit_traversal.has_nan(raw)))
@@ -465,9 +394,7 @@ def drop_edge_mask(depth_m: np.ndarray, rz: np.ndarray, height_m: float, step_do
                    step_up_m: float, rows: int = DROP_EDGE_ROWS) -> np.ndarray:
     """Return (H, W) int8: rows (1 to ``rows``) down to where the floor ends, else 0.
 
-    For a pixel whose ray passed the floor plane (more than ``step_down_m`` below it) right
-    above seen floor (within ``[-step_down_m, step_up_m]``, more than ``step_down_m`` above
-    its point). rz: (H*W,) or (H, W) float32, the rays' z; 0/NaN depth never marks.
+    For a pixel whose ray passed the floor plane right above seen floor; rz: the rays' z.
     """
     h, w = depth_m.shape
     d = depth_m.astype(np.float32, copy=False)
@@ -490,10 +417,7 @@ def _reference_drop_pixels(depth_m: np.ndarray, rz: np.ndarray | None, height_m:
                            step_down_m: float, step_up_m: float, rows: int,
                            model: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
                            ) -> tuple[np.ndarray, np.ndarray]:
-    """(flat pixel indices int64, offsets int8) of :func:`drop_edge_mask`'s marks, in order.
-
-    rz: the rays' z; or None and model: :class:`.geometry.GroundRays`' (ru, rv, rot).
-    """
+    """(flat pixels, int8 offsets) of :func:`drop_edge_mask`'s marks; or model: (ru, rv, rot)."""
     if model is not None:
         rz = GroundRays(*model).table()[2]
     edge = drop_edge_mask(depth_m, rz, height_m, step_down_m, step_up_m, rows)
@@ -506,12 +430,7 @@ _drop_pixels = jit.choose(_reference_drop_pixels, jit_traversal.drop_pixels)
 
 def drop_edges(depth_m: np.ndarray, rays: np.ndarray | GroundRays, height_m: float,
                params: DetectorParams) -> tuple[np.ndarray, np.ndarray]:
-    """Where the floor ends at a drop: the last floor seen below the rays that passed it.
-
-    rays: the frame's (3, H*W) ground rays or :class:`.geometry.GroundRays`; height_m: its
-    camera height. Returns ((D, 3) float32 ground points of those floor pixels inside the
-    range and lateral limit, (D,) int64 flat indices of the pixels that saw past the edge).
-    """
+    """Where the floor ends at a drop: ((D, 3) float32 floor points, (D,) edge pixels)."""
     down, up = params.max_step_down_m, params.max_step_height_m
     if isinstance(rays, GroundRays):   # the compiled path computes them row by row
         rz, model = None, (rays.ru, rays.rv, rays.rot)

@@ -1,8 +1,4 @@
-"""Back-projection, region of interest and voxel grid (seed 4.3.2 to 4.3.4), pixel labels.
-
-:func:`points_in_roi`, :func:`voxel_grid`, then :func:`pixel_labels`; compiled or numpy, the
-same results.
-"""
+"""Back-projection, region of interest and voxel grid (seed 4.3.2 to 4.3.4), pixel labels."""
 
 from __future__ import annotations
 
@@ -15,7 +11,7 @@ from . import geometry, jit
 from ._compiled import voxel as jit_voxel
 from .params import DetectorParams, Intrinsics
 
-#: Largest dense voxel lattice [cells] indexed directly; larger extents fall back to sorting.
+#: Largest voxel lattice [cells] the compiled grid takes; larger extents run the numpy path.
 _DENSE_LIMIT = 16_000_000
 
 
@@ -31,11 +27,7 @@ class VoxelGrid:
 
 def voxel_downsample(points: np.ndarray, voxel_size_m: tuple[float, float, float],
                      ) -> VoxelGrid:
-    """Replace the points (M, 3) of every occupied voxel by their centroid.
-
-    Voxels ``floor(p / size)`` on a lattice anchored at the origin, ordered by linear index
-    (x slowest). ValueError for a bad size or shape.
-    """
+    """Replace the points (M, 3) of every voxel ``floor(p / size)`` by their centroid."""
     size = np.asarray(voxel_size_m, dtype=np.float64)
     if size.shape != (3,) or np.any(size <= 0.0):
         raise ValueError(f'voxel size {voxel_size_m!r} must be three positive numbers')
@@ -63,18 +55,8 @@ def _reference_voxel_downsample(points: np.ndarray, voxel_size_m: tuple[float, f
     keys += ijk[1] - low[1]
     keys *= dims[2]
     keys += ijk[2] - low[2]
-    n_cells = int(dims[0] * dims[1] * dims[2])
-
-    if n_cells <= _DENSE_LIMIT:
-        occupied = np.zeros(n_cells, dtype=bool)
-        occupied[keys] = True
-        cell_keys = np.flatnonzero(occupied)
-        lookup = np.empty(n_cells, dtype=np.int64)  # read only where occupied
-        lookup[cell_keys] = np.arange(cell_keys.size)
-        point_voxel = lookup[keys]
-    else:
-        cell_keys, point_voxel = np.unique(keys, return_inverse=True)
-        point_voxel = point_voxel.reshape(-1)
+    cell_keys, point_voxel = np.unique(keys, return_inverse=True)
+    point_voxel = point_voxel.reshape(-1)
     n_vox = cell_keys.size
 
     counts = np.bincount(point_voxel, minlength=n_vox)
@@ -110,12 +92,7 @@ _downsample = jit.choose(_reference_voxel_downsample, jit_voxel.voxel_downsample
 
 @dataclass(frozen=True)
 class RoiPoints:
-    """The points of one depth frame inside the region of interest (:func:`points_in_roi`).
-
-    points (M, 3) float32 ground frame, their flat pixel_index; labels (H, W) uint8;
-    pixel_voxel (H, W) int32, -1 until :func:`voxel_grid`; keyed: the compiled projection
-    that also keyed the voxels, or None.
-    """
+    """A frame's points in the region of interest; keyed: the compiled projection, or None."""
 
     points: np.ndarray
     pixel_index: np.ndarray
@@ -207,10 +184,9 @@ def warm_up() -> None:
     params = DetectorParams()
     depth = np.full((6, 8), 1.0, np.float32)
     depth[0, 0] = 0.0
-    rays = geometry.ground_rays(depth.shape, Intrinsics(fx=5.0, fy=5.0, cx=4.0, cy=3.0), params)
-    roi = points_in_roi(depth, rays, params)
-    points_in_roi(depth, geometry.ray_model(depth.shape, Intrinsics(fx=5.0, fy=5.0, cx=4.0,
-                                                                    cy=3.0), params), params)
+    rays = geometry.ray_model(depth.shape, Intrinsics(fx=5.0, fy=5.0, cx=4.0, cy=3.0), params)
+    points_in_roi(depth, rays, params)
+    roi = points_in_roi(depth, rays.table(), params)
     grid = voxel_grid(roi)
     pixel_labels(roi, grid, np.zeros(grid.counts.size, bool))
     pts = np.random.default_rng(0).uniform(-1.0, 1.0, (20, 3))
