@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import collections
+import functools
 import sys
 import threading
 import time
@@ -48,8 +49,9 @@ from obstacle_detection.pipeline.fusion import FusedGrid, PoseBuffer
 from obstacle_detection.pipeline.geometry import yaw_from_quaternion
 from .mount_source import Mount, MountSource
 from obstacle_detection.pipeline.params import Intrinsics
-from .parameters import (ALL_PARAMS, NODE_NAME, PARAMS_FILE_KEY, params_file_problems,
-                         params_file_reason, params_files_in_args)
+from . import RosInputError
+from .parameters import (ALL_PARAMS, NODE_NAME, PARAMS_FILE_KEY, load_params_yaml,
+                         params_file_problems, params_file_reason, params_files_in_args)
 
 
 def _qos(depth: int, *, reliable: bool = True, latched: bool = False) -> QoSProfile:
@@ -84,37 +86,41 @@ STATUS_READY = 'ready'
 #: Depth frames that may wait for the worker (see FrameMailbox): one may wait behind another.
 MAILBOX_FRAMES = 2
 _RELIABLE_INPUT_QOS = _qos(5)
+#: Output key (as result_to_messages names it) -> message type, topic, parameter switching it on.
+OUTPUTS = {
+    'obstacles': (PointCloud2, 'obstacles/points', None),
+    'costmap': (OccupancyGrid, 'obstacles/costmap', None),
+    'ground': (PointCloud2, 'obstacles/ground_points', 'publish_ground'),
+    'clearing': (PointCloud2, 'obstacles/clearing_points', 'publish_clearing'),
+    'overlay': (Image, 'obstacles/overlay', 'publish_overlay'),
+    'fused': (OccupancyGrid, 'obstacles/fused_costmap', 'fuse'),
+}
 
 
 class FrameMailbox:
     """The newest ``capacity`` items, oldest taken first: ``put`` drops the oldest when full."""
 
-    def __init__(self, capacity: int = 1) -> None:
-        if capacity < 1:
-            raise ValueError(f'capacity={capacity} must be >= 1')
-        self.capacity = capacity
+    def __init__(self, capacity: int) -> None:
         self._cond = threading.Condition()
         self._items: collections.deque = collections.deque(maxlen=capacity)
         self._closed = False
-        self.dropped = 0
 
     def put(self, item: Any) -> bool:
         """Store ``item`` as the newest; True if the oldest waiting item was dropped for it."""
         with self._cond:
-            dropped = len(self._items) == self.capacity
-            self.dropped += dropped
+            dropped = len(self._items) == self._items.maxlen
             self._items.append(item)   # a full deque drops its oldest item
             self._cond.notify()
         return dropped
 
     def take(self, timeout: float | None = None) -> Any:
-        """Remove and return the oldest waiting item, waiting up to ``timeout`` s; None if none."""
+        """Remove and return the oldest item, waiting up to ``timeout`` s; None if none/closed."""
         with self._cond:
-            self._cond.wait_for(lambda: bool(self._items) or self._closed, timeout)
-            return self._items.popleft() if self._items else None
+            self._cond.wait_for(lambda: self._items or self._closed, timeout)
+            return self._items.popleft() if self._items and not self._closed else None
 
     def close(self) -> None:
-        """Wake every waiting ``take``."""
+        """Make every ``take``, waiting or to come, return None."""
         with self._cond:
             self._closed = True
             self._cond.notify_all()
@@ -150,10 +156,6 @@ class StampGaps:
         return missing
 
 
-#: _camera_for's answer when the frame must be skipped (the reason is already logged).
-_SKIP = _CameraState(0, 0, None, 'skip')
-
-
 class DetectorNode(Node):
     """Subscribes to a depth camera, runs the pipeline, publishes obstacles and a costmap."""
 
@@ -180,7 +182,6 @@ class DetectorNode(Node):
         self._cameras: collections.deque[_CameraState] = collections.deque(
             maxlen=frame_gate.CAMERA_INFO_HISTORY)
         self._warn_loggers: dict[str, Any] = {}
-        self._stop = threading.Event()
 
         self._status_pub = self.create_publisher(String, '~/status', _STATUS_QOS)
         # Compiling (20-40 s) or loading the kernels runs on a thread of its own; frames take
@@ -189,12 +190,20 @@ class DetectorNode(Node):
                                                           on_done=self._on_compiled)
         reliable = bool(self.get_parameter('reliable_input').value)
         in_qos = _RELIABLE_INPUT_QOS if reliable else qos_profile_sensor_data
-        self._points_pub = self.create_publisher(PointCloud2, 'obstacles/points', _OUTPUT_QOS)
-        self._costmap_pub = self.create_publisher(OccupancyGrid, 'obstacles/costmap', _GRID_QOS)
+        # What is switched off is neither advertised nor subscribed.
+        self._pubs = {
+            key: self.create_publisher(kind, topic,
+                                       _GRID_QOS if kind is OccupancyGrid else _OUTPUT_QOS)
+            for key, (kind, topic, switch) in OUTPUTS.items()
+            if switch is None or self.get_parameter(switch).value}
+        self._odom_sub: Any = None
+        if self._config.fusion is not None:
+            self._odom_sub = self.create_subscription(
+                Odometry, str(self.get_parameter('odom_topic').value), self._on_odometry,
+                _ODOM_QOS)
         self._time_pub = self.create_publisher(Float64, '~/processing_time_ms', _OUTPUT_QOS)
         self._poses = PoseBuffer()
         self._fused: FusedGrid | None = None
-        self._create_optional_endpoints()
 
         self._stats_timer = None
         self._restart_stats_timer(self._config.stats_period_s)
@@ -226,10 +235,7 @@ class DetectorNode(Node):
         self._publish_status()
 
     def _say_ready(self, reliable: bool) -> None:
-        outputs = [pub.topic_name for pub in (self._points_pub, self._costmap_pub,
-                                              self._ground_pub, self._clearing_pub,
-                                              self._overlay_pub, self._fused_pub)
-                   if pub is not None]
+        outputs = [pub.topic_name for pub in self._pubs.values()]
         self.get_logger().info(
             f'ready: {self._depth_sub.topic_name} + {self._info_sub.topic_name} '
             f'({"reliable" if reliable else "sensor-data"} QoS; a latched CameraInfo too, '
@@ -239,53 +245,13 @@ class DetectorNode(Node):
             f'frames {self._config.cloud_frame_id!r}/{self._config.costmap_frame_id!r}; '
             f'{self.compute_path()}')
 
-    # -- what is switched on: its publishers and subscriptions --------------------------------
-    def _create_optional_endpoints(self) -> None:
-        """Advertise and subscribe only what the switches turn on; None where off."""
-        config = self._config
-        self._ground_pub: Any = (
-            self.create_publisher(PointCloud2, 'obstacles/ground_points', _OUTPUT_QOS)
-            if config.publish_ground else None)
-        self._overlay_pub: Any = (
-            self.create_publisher(Image, 'obstacles/overlay', _OUTPUT_QOS)
-            if config.publish_overlay else None)
-        self._clearing_pub: Any = (
-            self.create_publisher(PointCloud2, 'obstacles/clearing_points', _OUTPUT_QOS)
-            if config.publish_clearing else None)
-        self._fused_pub: Any = None
-        self._odom_sub: Any = None
-        if config.fusion is not None:
-            self._fused_pub = self.create_publisher(OccupancyGrid, 'obstacles/fused_costmap',
-                                                    _GRID_QOS)
-            self._odom_sub = self.create_subscription(
-                Odometry, str(self.get_parameter('odom_topic').value), self._on_odometry,
-                _ODOM_QOS)
-
     # -- parameter services: no request may kill the node ------------------------------------
     def _guard_parameter_services(self) -> None:
-        """Check parameter requests before rclpy's service callbacks see them.
-
-        rclpy raises inside the callback on an unknown ``ParameterValue.type``, which ends the
-        node; such requests and undeclared names are refused with the reason instead.
-        """
+        """Answer set requests here: rclpy's services raise (and end the node) on a bad type."""
         for service in self.services:
             name = service.srv_name.rsplit('/', 1)[-1]
-            if name == 'set_parameters':
-                service.callback = self._set_parameters_service
-            elif name == 'set_parameters_atomically':
-                service.callback = self._set_parameters_atomically_service
-            elif name in ('get_parameters', 'get_parameter_types', 'describe_parameters',
-                          'list_parameters'):
-                service.callback = self._guarded(service.callback, name)
-
-    def _guarded(self, callback: Any, name: str) -> Any:
-        def call(request: Any, response: Any) -> Any:
-            try:
-                return callback(request, response)
-            except Exception as error:  # noqa: BLE001 - a request must never end the node
-                self._warn_request(name, f'{type(error).__name__}: {error}')
-                return type(response)()
-        return call
+            if name in ('set_parameters', 'set_parameters_atomically'):
+                service.callback = functools.partial(self._set_parameters_service, name)
 
     def _warn_request(self, service: str, text: str) -> None:
         self._throttled_logger(f'service:{service}').warning(
@@ -305,32 +271,25 @@ class DetectorNode(Node):
                     f'parameter type (valid: {min(_PARAMETER_TYPES)}..{max(_PARAMETER_TYPES)})')
         return None
 
-    def _set_one(self, msg: Any) -> SetParametersResult:
-        problem = self._parameter_msg_problem(msg)
-        if problem is None:
-            try:
-                return self.set_parameters_atomically([Parameter.from_parameter_msg(msg)])
-            except Exception as error:  # noqa: BLE001 - refused, with rclpy's reason
-                problem = f'parameter {msg.name!r}: {type(error).__name__}: {error}'
-        self._warn_request('set_parameters', problem)
-        return SetParametersResult(successful=False, reason=problem)
-
-    def _set_parameters_service(self, request: Any, response: Any) -> Any:
-        response.results = [self._set_one(msg) for msg in request.parameters]
-        return response
-
-    def _set_parameters_atomically_service(self, request: Any, response: Any) -> Any:
-        problems = [p for p in map(self._parameter_msg_problem, request.parameters) if p]
-        if not problems:
-            try:
-                response.result = self.set_parameters_atomically(
-                    [Parameter.from_parameter_msg(msg) for msg in request.parameters])
-                return response
-            except Exception as error:  # noqa: BLE001 - refused, with rclpy's reason
-                problems = [f'{type(error).__name__}: {error}']
-        reason = '; '.join(problems)
-        self._warn_request('set_parameters_atomically', reason)
-        response.result = SetParametersResult(successful=False, reason=reason)
+    def _set_parameters_service(self, service: str, request: Any, response: Any) -> Any:
+        """Set each message (atomically: all at once); refuse, with the reason, what cannot be."""
+        atomic = service == 'set_parameters_atomically'
+        results = []
+        for msgs in [request.parameters] if atomic else [[msg] for msg in request.parameters]:
+            problems = [p for p in map(self._parameter_msg_problem, msgs) if p]
+            if not problems:
+                try:
+                    results.append(self.set_parameters_atomically(
+                        [Parameter.from_parameter_msg(msg) for msg in msgs]))
+                    continue
+                except Exception as error:  # noqa: BLE001 - refused, with rclpy's reason
+                    problems = [f'{type(error).__name__}: {error}']
+            self._warn_request(service, '; '.join(problems))
+            results.append(SetParametersResult(successful=False, reason='; '.join(problems)))
+        if atomic:
+            response.result = results[0]
+        else:
+            response.results = results
         return response
 
     # -- start-up: compiled kernels -----------------------------------------------------------
@@ -622,10 +581,8 @@ class DetectorNode(Node):
 
     # -- worker thread ------------------------------------------------------------------------
     def _work(self) -> None:
-        while not self._stop.is_set():
-            msg = self._mailbox.take(timeout=0.5)
-            if msg is not None and not self._stop.is_set():
-                self.handle_frame(msg)
+        while (msg := self._mailbox.take()) is not None:
+            self.handle_frame(msg)
 
     def _throttled_logger(self, kind: str) -> Any:
         """Return the logger of one kind of problem, throttled on its own."""
@@ -641,19 +598,12 @@ class DetectorNode(Node):
         self._throttled_logger(kind).warning(f'skipping depth frame: {text}',
                                              throttle_duration_sec=WARN_THROTTLE_S)
 
-    def _camera_for(self, msg: Image, config: NodeConfig) -> _CameraState | None:
-        """Return the CameraInfo of a frame (:func:`frame_gate.camera_for`), None if none yet."""
-        chosen = frame_gate.camera_for(list(self._cameras), _stamp_ns(msg.header.stamp),
-                                       config.camera_info_tolerance_ns)
-        if isinstance(chosen, frame_gate.Skip):
-            self._warn_skip(chosen.kind, chosen.reason)
-            return _SKIP
-        return chosen
-
     def _frame_intrinsics(self, msg: Any, shape: tuple[int, ...],
                           config: NodeConfig) -> Intrinsics | None:
-        camera = self._camera_for(msg, config)
-        if camera is _SKIP:
+        camera = frame_gate.camera_for(list(self._cameras), _stamp_ns(msg.header.stamp),
+                                       config.camera_info_tolerance_ns)
+        if isinstance(camera, frame_gate.Skip):
+            self._warn_skip(camera.kind, camera.reason)
             return None
         verdict = frame_gate.choose_intrinsics(
             camera, shape, use_fallback=config.use_fallback_intrinsics,
@@ -697,7 +647,7 @@ class DetectorNode(Node):
                 clearing_points=(clearing.clearing_points(
                     result.depth_m, result.intrinsics, stride_px=config.clearing_stride_px,
                     range_m=config.clearing_range_m)
-                    if self._clearing_pub is not None else None))
+                    if config.publish_clearing else None))
             fused = self._fuse(result, msg, config)
         except ValueError as error:
             self._warn_skip('pipeline', str(error))
@@ -709,14 +659,10 @@ class DetectorNode(Node):
                                     throttle_duration_sec=WARN_THROTTLE_S)
             return False
         try:
-            self._points_pub.publish(messages['obstacles'])
-            self._costmap_pub.publish(messages['costmap'])
-            for key, pub in (('ground', self._ground_pub), ('overlay', self._overlay_pub),
-                             ('clearing', self._clearing_pub)):
-                if key in messages and pub is not None:
-                    pub.publish(messages[key])
-            if fused is not None and self._fused_pub is not None:
-                self._fused_pub.publish(fused)
+            if fused is not None:
+                messages['fused'] = fused
+            for key, msg in messages.items():
+                self._pubs[key].publish(msg)
             elapsed_ms = (time.perf_counter() - start) * 1e3
             self._time_pub.publish(Float64(data=elapsed_ms))
         except Exception as error:  # noqa: BLE001 - e.g. the context shut down meanwhile
@@ -738,7 +684,6 @@ class DetectorNode(Node):
 
     def close(self) -> None:
         """Stop the worker thread (call before ``destroy_node``)."""
-        self._stop.set()
         self._mailbox.close()
         if self._worker.is_alive() and self._worker is not threading.current_thread():
             self._worker.join(timeout=10.0)
@@ -778,30 +723,17 @@ def help_text() -> str:
         '',
         'ROS 2 node "obstacle_detector": depth image -> obstacle cloud and ground-plane costmap.',
         '',
-        'topics (relative names; remap with -r) and their QoS:',
-        '  in   depth/image_raw           sensor_msgs/Image, 16UC1/mono16 [mm] or 32FC1 [m];',
-        '                                 sensor data (best effort), reliable if reliable_input',
-        '  in   depth/image_raw/compressedDepth  sensor_msgs/CompressedImage (PNG or RVL), if',
-        '                                 depth_transport is compressedDepth; QoS as above',
-        '  in   depth/image_raw/compressed  sensor_msgs/CompressedImage, if depth_transport is',
-        '                                 compressed; QoS as above',
-        '  in   depth/camera_info         sensor_msgs/CameraInfo (intrinsics from P, or K when',
-        '                                 P is all zero); as the depth, and latched (reliable,',
-        '                                 transient local) publishers too',
-        '  in   odom                      nav_msgs/Odometry (odom_topic), if fuse; best effort',
-        '                                 (reliable and best-effort publishers both connect)',
-        '  out  obstacles/points          sensor_msgs/PointCloud2 of obstacle points; reliable',
-        '  out  obstacles/costmap         nav_msgs/OccupancyGrid: 100 occupied, 0 free, -1',
-        '                                 unknown; reliable, transient local, depth 1',
-        '  out  obstacles/ground_points   sensor_msgs/PointCloud2, if publish_ground; reliable',
-        '  out  obstacles/clearing_points sensor_msgs/PointCloud2 in the depth image frame, if',
-        '                                 publish_clearing (Nav2 clearing source); reliable',
-        '  out  obstacles/overlay         sensor_msgs/Image rgb8, if publish_overlay; reliable',
-        '  out  obstacles/fused_costmap   nav_msgs/OccupancyGrid in odom_frame, if fuse;',
-        '                                 reliable, transient local, depth 1',
-        '  out  ~/processing_time_ms      std_msgs/Float64 per frame; reliable',
+        'topics (relative names; remap with -r; their QoS: docs/node.md):',
+        '  in   depth/image_raw           sensor_msgs/Image, 16UC1/mono16 [mm] or 32FC1 [m]',
+        '  in   depth/image_raw/compressedDepth  CompressedImage (PNG or RVL), by depth_transport',
+        '  in   depth/image_raw/compressed  CompressedImage (PNG or TIFF), by depth_transport',
+        '  in   depth/camera_info         sensor_msgs/CameraInfo (P, or K when P is all zero)',
+        '  in   odom                      nav_msgs/Odometry (odom_topic), if fuse',
+        *(f'  out  {topic:<25} {kind.__name__}' + (f', if {switch}' if switch else '')
+          for kind, topic, switch in OUTPUTS.values()),
+        '  out  ~/processing_time_ms      std_msgs/Float64 per frame',
         '  out  ~/status                  std_msgs/String, latched: "ready: <which code runs>"',
-        '  out  /diagnostics              diagnostic_msgs/DiagnosticArray, 1 Hz; reliable',
+        '  out  /diagnostics              diagnostic_msgs/DiagnosticArray, 1 Hz',
         '',
         f'parameters (section "{PARAMS_FILE_KEY}:" or "/**:" of a --params-file; name  type  '
         'default  range; use_sim_time is rclpy\'s own):',
@@ -824,13 +756,12 @@ def main(args: list[str] | None = None) -> int:
     """Entry point of ``ros2 run obstacle_detection detector``; returns the exit code."""
     argv = list(sys.argv if args is None else args)
     files = params_files_in_args(argv)
-    for path in files:   # rcl would end in a raw RCLError traceback
-        problems = [p for p in params_file_problems(path)
-                    if 'cannot read' in p or 'not valid YAML' in p]
-        if problems or not Path(path).is_file():
-            print(f'detector: error: {problems[0] if problems else f"{path}: not a file"}',
-                  file=sys.stderr)
-            return 1
+    try:
+        for path in files:   # rcl would end in a raw RCLError traceback
+            load_params_yaml(Path(path))
+    except RosInputError as error:
+        print(f'detector: error: {error}', file=sys.stderr)
+        return 1
     try:
         own = rclpy.utilities.remove_ros_args(argv)[1:]
         if '-h' in own or '--help' in own:

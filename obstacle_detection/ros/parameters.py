@@ -349,7 +349,7 @@ def _section_applies(key: str, node_fqn: str) -> bool:
     return re.fullmatch(''.join(tokens), node_fqn) is not None
 
 
-def _load_params_yaml(path: Path) -> dict[Any, Any]:
+def load_params_yaml(path: Path) -> dict[Any, Any]:
     """Return the parsed YAML mapping of a params file; RosInputError says why there is none."""
     try:
         data = yaml.safe_load(path.read_text(encoding='utf-8'))
@@ -366,7 +366,7 @@ def params_file_problems(path: str | Path, node_fqn: str = f'/{NODE_NAME}') -> l
     """Return what the node would silently ignore in a params file, one sentence each."""
     path = Path(path)
     try:
-        data = _load_params_yaml(path)
+        data = load_params_yaml(path)
     except RosInputError as error:
         return [str(error)]
     problems, applied = [], 0
@@ -413,7 +413,7 @@ def read_params_file(path: str | Path, *, unknown_is_error: bool = True
     from rclpy.parameter import Parameter, parameter_dict_from_yaml_file
 
     path = Path(path)
-    data = _load_params_yaml(path)
+    data = load_params_yaml(path)
     keys = [key for key in data if _section_applies(str(key), f'/{NODE_NAME}')]
     if not keys:
         raise RosInputError(f'{path}: no section naming the node (e.g. '
