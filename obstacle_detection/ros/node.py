@@ -16,11 +16,14 @@ import rclpy.utilities
 from nav_msgs.msg import OccupancyGrid, Odometry
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock, ClockType
+from rclpy.duration import Duration
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException
+from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.time import Time as RclpyTime
 from rclpy.qos import (
     DurabilityPolicy,
     HistoryPolicy,
@@ -47,7 +50,7 @@ from obstacle_detection.viz.overlay import render_overlay
 from .diagnostics import HealthWindow, diagnostic_array, health_status, status_name
 from obstacle_detection.pipeline.fusion import FusedGrid, PoseBuffer
 from obstacle_detection.pipeline.geometry import yaw_from_quaternion
-from .mount_source import Mount, MountSource
+from .mount_source import MountSource
 from obstacle_detection.pipeline.params import Intrinsics
 from . import RosInputError
 from .parameters import (ALL_PARAMS, NODE_NAME, PARAMS_FILE_KEY, load_params_yaml,
@@ -177,7 +180,6 @@ class DetectorNode(Node):
         self._stamp_gaps = StampGaps()
         self._mailbox = FrameMailbox(MAILBOX_FRAMES)
         self._mount_source = self._make_mount_source(tf_buffer)
-        self._mount_cache: tuple[NodeConfig, Mount, Any] | None = None
         self._mount_said = ''
         self._cameras: collections.deque[_CameraState] = collections.deque(
             maxlen=frame_gate.CAMERA_INFO_HISTORY)
@@ -335,38 +337,35 @@ class DetectorNode(Node):
     # -- the camera mount: parameters or TF ------------------------------------------------------
     def _make_mount_source(self, tf_buffer: Any) -> MountSource:
         target = str(self.get_parameter('cloud_frame_id').value)
-        if not bool(self.get_parameter('use_tf').value):
-            self.get_logger().info(
-                f'camera mount from the parameters ({self._config.mount().describe()})')
-            return MountSource(None, target)
-        timeout = float(self.get_parameter('tf_timeout_s').value)
-        static = bool(self.get_parameter('tf_static_mount').value)
-        if tf_buffer is None:
+        params = f'the parameters ({self._config.mount().describe()})'
+        use_tf = bool(self.get_parameter('use_tf').value)
+        if use_tf and tf_buffer is None:
             try:
                 import tf2_ros
             except ImportError:
-                self.get_logger().warning(
-                    'use_tf is set but tf2_ros is not importable (no ROS 2 installation?): the '
-                    f'camera mount comes from the parameters ({self._config.mount().describe()})')
+                self.get_logger().warning('use_tf is set but tf2_ros is not importable (no ROS 2 '
+                                          f'installation?): the camera mount comes from {params}')
                 return MountSource(None, target)
             tf_buffer = tf2_ros.Buffer()
             self._tf_listener = tf2_ros.TransformListener(tf_buffer, self)
+        if not use_tf:
+            self.get_logger().info(f'camera mount from {params}')
+            return MountSource(None, target)
+        static = bool(self.get_parameter('tf_static_mount').value)
         self.get_logger().info(f'camera mount from TF: {target} <- the depth image frame_id'
                                f'{" (static: looked up once)" if static else ""}; until '
                                'then from the parameters')
-        return MountSource(tf_buffer, target, static=static, timeout_s=timeout)
+        return MountSource(tf_buffer, target, static=static, timeout=Duration(
+            seconds=float(self.get_parameter('tf_timeout_s').value)))
 
     def _detector_for(self, msg: Any, config: NodeConfig) -> Any:
         """Return the frame's detector: the configured one, or one mounted where TF says."""
         source = self._mount_source
         if source.buffer is None:
             return config.detector
-        from rclpy.duration import Duration
-        from rclpy.time import Time as RclpyTime
-
         fallback = config.mount()
         mount = source.mount_for(msg.header.frame_id, RclpyTime.from_msg(msg.header.stamp),
-                                 fallback, duration=lambda s: Duration(seconds=s))
+                                 fallback)
         if source.last_problem is not None:
             self._throttled_logger('mount').warning(source.last_problem,
                                                     throttle_duration_sec=WARN_THROTTLE_S)
@@ -376,16 +375,11 @@ class DetectorNode(Node):
         self._mount_said = said
         if mount == fallback:
             return config.detector
-        cache = self._mount_cache
-        if cache is not None and cache[0] is config and cache[1] == mount:
-            return cache[2]
         try:
-            detector = config.detector_for(mount)
+            return config.detector_for(mount)
         except ValueError as error:
             self._warn_skip('mount', f'the mount from TF cannot be used: {error}')
             return None
-        self._mount_cache = (config, mount, detector)
-        return detector
 
     # -- diagnostics ---------------------------------------------------------------------------
     def _camera_info_text(self) -> tuple[str, bool]:
@@ -552,14 +546,11 @@ class DetectorNode(Node):
 
     def _odom_pose_from_tf(self, msg: Any, config: NodeConfig) -> tuple[Any, str]:
         """Return the base pose in odom from TF (odom_frame <- cloud_frame_id), and why not."""
-        from rclpy.duration import Duration
-        from rclpy.time import Time as RclpyTime
-
         source = self._mount_source
         try:
             transform = source.buffer.lookup_transform(
                 config.odom_frame, config.cloud_frame_id, RclpyTime.from_msg(msg.header.stamp),
-                Duration(seconds=source.timeout_s))
+                source.timeout)
             t, q = transform.transform.translation, transform.transform.rotation
             return (float(t.x), float(t.y), yaw_from_quaternion(q.x, q.y, q.z, q.w)), ''
         except Exception as error:  # noqa: BLE001 - tf2's exceptions are not importable here
@@ -689,18 +680,9 @@ class DetectorNode(Node):
             self._worker.join(timeout=10.0)
 
 
-def make_executor(context: Any) -> Any:
-    """Return the executor of the node process: rclpy's events executor where there is one."""
-    try:
-        from rclpy.experimental import EventsExecutor
-    except ImportError:
-        return SingleThreadedExecutor(context=context)
-    return EventsExecutor(context=context)
-
-
 def spin_forever(node: DetectorNode) -> None:
     """Spin until shutdown; an exception escaping a callback is logged, never fatal."""
-    executor = make_executor(node.context)
+    executor = EventsExecutor(context=node.context)
     executor.add_node(node)
     logger = rclpy.logging.get_logger(f'{node.get_logger().name}.executor')
     try:

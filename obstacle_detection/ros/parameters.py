@@ -15,7 +15,7 @@ import yaml
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
 
-from obstacle_detection.pipeline.params import SEED_TABLE_4_1, DetectorParams, Intrinsics
+from obstacle_detection.pipeline.params import SEED_TABLE_4_1, DetectorParams
 
 from . import RosInputError
 
@@ -71,10 +71,6 @@ class ParamSpec:
     def type_name(self) -> str:
         """'bool', 'int', 'float' or 'str'."""
         return type(self.default).__name__
-
-    def to_field(self, value: ParamValue) -> ParamValue:
-        """Convert a ROS value to the DetectorParams field value (degrees -> radians)."""
-        return math.radians(value) if self.degrees else value
 
     def descriptor(self) -> ParameterDescriptor:
         """Build the rcl_interfaces ParameterDescriptor: type, description, range, read-only."""
@@ -310,18 +306,12 @@ def detector_params_from_ros(values: Mapping[str, Any]) -> DetectorParams:
     problem = budget_problem(values)
     if problem is not None:
         raise ValueError(problem)
-    fields = {spec.field: spec.to_field(values[spec.name])
+    fields = {spec.field: math.radians(values[spec.name]) if spec.degrees else values[spec.name]
               for spec in PIPELINE_PARAMS if spec.name in values}
     try:
         return DetectorParams(**fields)
     except ValueError as error:
         raise ValueError(_user_names(str(error))) from error
-
-
-def fallback_intrinsics_from_ros(values: Mapping[str, Any]) -> Intrinsics:
-    """Build the fallback Intrinsics from fallback_fx/fy/cx/cy (ValueError on a zero focal)."""
-    return Intrinsics(fx=float(values['fallback_fx']), fy=float(values['fallback_fy']),
-                      cx=float(values['fallback_cx']), cy=float(values['fallback_cy']))
 
 
 def params_files_in_args(args: list[str]) -> list[str]:
