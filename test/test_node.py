@@ -51,7 +51,7 @@ from obstacle_detection.ros.conversions import (
 from obstacle_detection.pipeline.geometry import mount_rotation
 from obstacle_detection.ros import node as node_module
 from obstacle_detection.ros.diagnostics import HealthWindow
-from obstacle_detection.ros.node import DetectorNode, FrameMailbox, StampGaps
+from obstacle_detection.ros.node import DetectorNode, FrameMailbox
 from obstacle_detection.pipeline.params import PRESETS, Intrinsics, table_4_2, table_4_3
 from obstacle_detection.pipeline.detector import DetectionResult, Detector
 from obstacle_detection.ros.parameters import (
@@ -758,17 +758,6 @@ def test_one_frame_mailbox_keeps_only_the_newest() -> None:
 
     assert slot.take(timeout=0.0) == 'c'
     assert slot.take(timeout=0.0) is None
-
-
-def test_stamp_gaps_count_the_frames_lost_on_the_way() -> None:
-    gaps = StampGaps()
-    period = 33_333_333
-    stamps = [k * period for k in (0, 1, 2, 3, 4, 6, 7, 10, 11)]   # 5, 8 and 9 never came
-    assert [gaps.add(10**18 + s) for s in stamps] == [0, 0, 0, 0, 0, 1, 0, 2, 0]
-    assert gaps.add(10**18) == 0            # a replay starts over: no gap, no count
-    assert gaps.add(10**18 + 4 * period) == 0   # too few intervals yet to know the period
-    slow = StampGaps()                      # any steady rate is measured against itself
-    assert [slow.add(k * 10**9) for k in (0, 1, 2, 3, 4, 5, 7)] == [0, 0, 0, 0, 0, 0, 1]
 
 
 def test_frame_stats_report_missing_frames_and_reset() -> None:

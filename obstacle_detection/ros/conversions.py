@@ -37,13 +37,8 @@ IMAGE_ENCODINGS: dict[str, tuple[np.dtype, int]] = {
     'bgr8': (np.dtype(np.uint8), 3),
 }
 
-#: Default encoding per (dtype, channels) for ``array_to_image``.
-_DEFAULT_ENCODING = {
-    (np.dtype(np.uint16), 1): '16UC1',
-    (np.dtype(np.float32), 1): '32FC1',
-    (np.dtype(np.uint8), 1): 'mono8',
-    (np.dtype(np.uint8), 3): 'rgb8',
-}
+#: Default encoding per (dtype, channels) for ``array_to_image``: the first listed above.
+_DEFAULT_ENCODING = {kind: name for name, kind in reversed(IMAGE_ENCODINGS.items())}
 
 _XYZ_FIELDS = ('x', 'y', 'z')
 

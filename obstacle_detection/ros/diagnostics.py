@@ -116,6 +116,8 @@ class Context:
 def _level_and_message(period: Period, ctx: Context) -> tuple[int, str]:
     frames = period.received
     skipped = sum(period.skipped.values())
+    reasons = ', '.join(f'{k} {v}' for k, v in period.skipped.most_common())
+    skipped_text = f'{skipped} of {frames} frames skipped for bad input ({reasons})'
     if period.since_last_frame_s is None:
         if ctx.uptime_s >= NO_FRAME_ERROR_S:
             return ERROR, f'no depth frame received on {ctx.depth_topic} yet'
@@ -125,13 +127,11 @@ def _level_and_message(period: Period, ctx: Context) -> tuple[int, str]:
     if frames and not ctx.camera_info_usable:
         return ERROR, f'depth frames arrive but no usable CameraInfo ({ctx.camera_info})'
     if frames and skipped > SKIPPED_ERROR_SHARE * frames:
-        reasons = ', '.join(f'{k} {v}' for k, v in period.skipped.most_common())
-        return ERROR, f'{skipped} of {frames} frames skipped for bad input ({reasons})'
+        return ERROR, skipped_text
     if period.errors:
         return ERROR, f'the pipeline failed on {period.errors} frame(s) (see the log)'
     if skipped:
-        reasons = ', '.join(f'{k} {v}' for k, v in period.skipped.most_common())
-        return WARN, f'{skipped} of {frames} frames skipped for bad input ({reasons})'
+        return WARN, skipped_text
     if frames and period.dropped > DROPPED_WARN_SHARE * frames:
         return WARN, (f'{period.dropped} of {frames} frames replaced before processing: the '
                       'node does not keep up with the camera')

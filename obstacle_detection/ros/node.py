@@ -129,36 +129,6 @@ class FrameMailbox:
             self._cond.notify_all()
 
 
-class StampGaps:
-    """Count the frames a camera sent that never arrived, from gaps in the frame stamps."""
-
-    #: Recent intervals whose median is the period.
-    HISTORY = 31
-    #: An interval this many periods long or more is a gap.
-    GAP_PERIODS = 1.5
-
-    def __init__(self) -> None:
-        self._last_ns: int | None = None
-        self._intervals: collections.deque[int] = collections.deque(maxlen=self.HISTORY)
-
-    def add(self, stamp_ns: int) -> int:
-        """Take the next frame's stamp; return how many frames went missing before it."""
-        last, self._last_ns = self._last_ns, stamp_ns
-        if last is None or stamp_ns <= last:
-            if last is not None:
-                self._intervals.clear()
-            return 0
-        interval = stamp_ns - last
-        missing = 0
-        if len(self._intervals) >= 3:
-            period = sorted(self._intervals)[len(self._intervals) // 2]
-            if interval >= self.GAP_PERIODS * period:
-                missing = round(interval / period) - 1
-        if not missing:
-            self._intervals.append(interval)
-        return missing
-
-
 class DetectorNode(Node):
     """Subscribes to a depth camera, runs the pipeline, publishes obstacles and a costmap."""
 
@@ -177,7 +147,6 @@ class DetectorNode(Node):
             self.destroy_node()
             raise
         self.stats = HealthWindow(readers=('diagnostics', 'log'))
-        self._stamp_gaps = StampGaps()
         self._mailbox = FrameMailbox(MAILBOX_FRAMES)
         self._mount_source = self._make_mount_source(tf_buffer)
         self._mount_said = ''
@@ -225,8 +194,10 @@ class DetectorNode(Node):
         # Subscribe last: a publisher that sees the match finds a node able to process.
         transport = str(self.get_parameter('depth_transport').value)
         depth_type, depth_topic = DEPTH_TRANSPORTS[transport]
-        self._depth_sub = self.create_subscription(depth_type, depth_topic, self._on_depth,
-                                                   in_qos)
+        self._depth_sub = self.create_subscription(
+            depth_type, depth_topic, self._on_depth, in_qos,
+            event_callbacks=SubscriptionEventCallbacks(   # frames the transport lost on the way
+                message_lost=lambda event: self.stats.missing(event.total_count_change)))
         self._info_sub = self.create_subscription(CameraInfo, 'depth/camera_info',
                                                   self._on_camera_info, in_qos)
         self._latched_info_sub: Any = None
@@ -255,11 +226,6 @@ class DetectorNode(Node):
             if name in ('set_parameters', 'set_parameters_atomically'):
                 service.callback = functools.partial(self._set_parameters_service, name)
 
-    def _warn_request(self, service: str, text: str) -> None:
-        self._throttled_logger(f'service:{service}').warning(
-            f'refused a {service} request: {text}',
-            throttle_duration_sec=WARN_THROTTLE_S)
-
     def _parameter_msg_problem(self, msg: Any) -> str | None:
         """Return why a ``rcl_interfaces/Parameter`` cannot be applied, or None."""
         if not msg.name or not self.has_parameter(msg.name):
@@ -286,7 +252,9 @@ class DetectorNode(Node):
                     continue
                 except Exception as error:  # noqa: BLE001 - refused, with rclpy's reason
                     problems = [f'{type(error).__name__}: {error}']
-            self._warn_request(service, '; '.join(problems))
+            self._throttled_logger(f'service:{service}').warning(
+                f'refused a {service} request: {"; ".join(problems)}',
+                throttle_duration_sec=WARN_THROTTLE_S)
             results.append(SetParametersResult(successful=False, reason='; '.join(problems)))
         if atomic:
             response.result = results[0]
@@ -467,9 +435,6 @@ class DetectorNode(Node):
     # -- callbacks (executor thread): store only --------------------------------------------
     def _on_depth(self, msg: Image) -> None:
         self.stats.received()
-        missing = self._stamp_gaps.add(_stamp_ns(msg.header.stamp))
-        if missing:
-            self.stats.missing(missing)
         if self._mailbox.put(msg):
             self.stats.dropped()
 
@@ -565,9 +530,8 @@ class DetectorNode(Node):
             f'{period.processed} frames processed in {period.seconds:.1f} s '
             f'({period.processed / period.seconds:.1f} fps), mean {mean_ms:.1f} ms/frame; '
             f'{period.dropped} dropped (a newer frame came first), '
-            f'{period.missing} missing (gaps in the frame stamps: lost before they reached '
-            f'the node), {sum(period.skipped.values())} skipped (bad input), '
-            f'{period.errors} errors'
+            f'{period.missing} missing (lost by the transport on the way), '
+            f'{sum(period.skipped.values())} skipped (bad input), {period.errors} errors'
             + (f'; last {self._floor_text}' if self._floor_text else ''))
 
     # -- worker thread ------------------------------------------------------------------------
