@@ -107,8 +107,6 @@ def _pipeline_specs() -> list[ParamSpec]:
             description = description.replace('[rad]', '[deg]')
             if not description.endswith('[deg]'):
                 description += ' [deg]'
-        elif isinstance(default, float):
-            low, high = float(low), float(high)
         specs.append(ParamSpec(name=name, default=default, description=description, low=low,
                                high=high, field=f.name, degrees=degrees,
                                open_low=bool(meta.get('open_min')),
