@@ -616,8 +616,8 @@ class DetectorNode(Node):
         try:
             if fused is not None:
                 messages['fused'] = fused
-            for key, msg in messages.items():
-                self._pubs[key].publish(msg)
+            for key, out in messages.items():
+                self._pubs[key].publish(out)
             elapsed_ms = (time.perf_counter() - start) * 1e3
             self._time_pub.publish(Float64(data=elapsed_ms))
         except Exception as error:  # noqa: BLE001 - e.g. the context shut down meanwhile
