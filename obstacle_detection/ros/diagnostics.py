@@ -7,7 +7,7 @@ import time
 from collections import Counter
 from dataclasses import dataclass, field
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 
 NO_FRAME_ERROR_S = 2.0
 SKIPPED_ERROR_SHARE = 0.5
@@ -172,9 +172,3 @@ def health_status(period: Period, ctx: Context, *, name: str,
                             hardware_id=hardware_id,
                             values=[KeyValue(key=k, value=v) for k, v in values.items()])
 
-
-def diagnostic_array(status: DiagnosticStatus, stamp: object) -> DiagnosticArray:
-    """Wrap one status in the array message ``/diagnostics`` carries, stamped ``stamp``."""
-    msg = DiagnosticArray(status=[status])
-    msg.header.stamp = stamp
-    return msg

@@ -47,7 +47,7 @@ from .diagnostics import Context as DiagnosticsContext
 from .frame_gate import CameraState as _CameraState
 from .frame_gate import stamp_ns as _stamp_ns
 from obstacle_detection.viz.overlay import render_overlay
-from .diagnostics import HealthWindow, diagnostic_array, health_status, status_name
+from .diagnostics import HealthWindow, health_status, status_name
 from obstacle_detection.pipeline.fusion import FusedGrid, PoseBuffer
 from obstacle_detection.pipeline.geometry import yaw_from_quaternion
 from .mount_source import MountSource
@@ -67,7 +67,8 @@ def _qos(depth: int, *, reliable: bool = True, latched: bool = False) -> QoSProf
 
 #: Minimum interval between two warnings about the same kind of bad input [s].
 WARN_THROTTLE_S = 5.0
-_OUTPUT_QOS = _qos(5)
+#: Outputs, and the inputs with reliable_input: reliable, depth 5.
+_RELIABLE_QOS = _qos(5)
 #: ~/status: latched (transient local), so a late subscriber still gets the last state.
 _STATUS_QOS = _qos(1, latched=True)
 #: rcl_interfaces/ParameterType values (NOT_SET .. STRING_ARRAY).
@@ -88,7 +89,6 @@ LATCHED_INFO_WATCH_S = 0.5
 STATUS_READY = 'ready'
 #: Depth frames that may wait for the worker (see FrameMailbox): one may wait behind another.
 MAILBOX_FRAMES = 2
-_RELIABLE_INPUT_QOS = _qos(5)
 #: Output key (as result_to_messages names it) -> message type, topic, parameter switching it on.
 OUTPUTS = {
     'obstacles': (PointCloud2, 'obstacles/points', None),
@@ -133,10 +133,7 @@ class DetectorNode(Node):
     """Subscribes to a depth camera, runs the pipeline, publishes obstacles and a costmap."""
 
     def __init__(self, *, tf_buffer: Any = None, **kwargs: Any) -> None:
-        """Declare the parameters, build the detector, subscribe.
-
-        tf_buffer: a ``tf2_ros.Buffer`` stand-in (tests); None makes one when ``use_tf`` is set.
-        """
+        """Declare the parameters, build the detector, subscribe; ``tf_buffer``: a tf2 stand-in."""
         super().__init__(NODE_NAME, **kwargs)
         for spec in ALL_PARAMS:
             self.declare_parameter(spec.name, spec.default, spec.descriptor())
@@ -160,11 +157,11 @@ class DetectorNode(Node):
         self._compile = jit_support.compile_in_background(self._warm_up,
                                                           on_done=self._on_compiled)
         reliable = bool(self.get_parameter('reliable_input').value)
-        in_qos = _RELIABLE_INPUT_QOS if reliable else qos_profile_sensor_data
+        in_qos = _RELIABLE_QOS if reliable else qos_profile_sensor_data
         # What is switched off is neither advertised nor subscribed.
         self._pubs = {
             key: self.create_publisher(kind, topic,
-                                       _GRID_QOS if kind is OccupancyGrid else _OUTPUT_QOS)
+                                       _GRID_QOS if kind is OccupancyGrid else _RELIABLE_QOS)
             for key, (kind, topic, switch) in OUTPUTS.items()
             if switch is None or self.get_parameter(switch).value}
         self._odom_sub: Any = None
@@ -172,7 +169,7 @@ class DetectorNode(Node):
             self._odom_sub = self.create_subscription(
                 Odometry, str(self.get_parameter('odom_topic').value), self._on_odometry,
                 _ODOM_QOS)
-        self._time_pub = self.create_publisher(Float64, '~/processing_time_ms', _OUTPUT_QOS)
+        self._time_pub = self.create_publisher(Float64, '~/processing_time_ms', _RELIABLE_QOS)
         self._poses = PoseBuffer()
         self._fused: FusedGrid | None = None
 
@@ -383,8 +380,9 @@ class DetectorNode(Node):
                                name=status_name(self.get_fully_qualified_name()),
                                hardware_id=self._last_frame_id or self._depth_sub.topic_name)
         if self.context.ok():
-            self._diagnostics_pub.publish(
-                diagnostic_array(status, self.get_clock().now().to_msg()))
+            msg = DiagnosticArray(status=[status])
+            msg.header.stamp = self.get_clock().now().to_msg()
+            self._diagnostics_pub.publish(msg)
 
     # -- parameters -------------------------------------------------------------------------
     def _parameter_values(self, changes: list[Parameter] | None = None) -> dict[str, Any]:
