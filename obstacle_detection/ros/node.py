@@ -194,7 +194,7 @@ class DetectorNode(Node):
         self._depth_sub = self.create_subscription(
             depth_type, depth_topic, self._on_depth, in_qos,
             event_callbacks=SubscriptionEventCallbacks(   # frames the transport lost on the way
-                message_lost=lambda event: self.stats.missing(event.total_count_change)))
+                message_lost=lambda event: self.stats.count('missing', event.total_count_change)))
         self._info_sub = self.create_subscription(CameraInfo, 'depth/camera_info',
                                                   self._on_camera_info, in_qos)
         self._latched_info_sub: Any = None
@@ -432,9 +432,9 @@ class DetectorNode(Node):
 
     # -- callbacks (executor thread): store only --------------------------------------------
     def _on_depth(self, msg: Image) -> None:
-        self.stats.received()
+        self.stats.count('received')
         if self._mailbox.put(msg):
-            self.stats.dropped()
+            self.stats.count('dropped')
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
         camera = _CameraState.from_camera_info(msg)
@@ -606,7 +606,7 @@ class DetectorNode(Node):
             self._warn_skip('pipeline', str(error))
             return False
         except Exception as error:  # noqa: BLE001 - the node must survive any frame
-            self.stats.error()
+            self.stats.count('errors')
             self.get_logger().error(f'pipeline failed on a frame, skipping it: '
                                     f'{type(error).__name__}: {error}',
                                     throttle_duration_sec=WARN_THROTTLE_S)
