@@ -386,15 +386,6 @@ def _unknown_name(path: Path, name: str, outcome: str = '') -> str:
             'parameters')
 
 
-def _type_problem(path: Path, spec: ParamSpec, value: Any) -> str | None:
-    """Say why ``value`` does not have the parameter's type (as rcl refuses it), or None."""
-    want = type(spec.default)
-    if type(value) is want:
-        return None
-    fix = f': write {value}.0' if want is float and type(value) is int else ''
-    return f'{path}: parameter {spec.name!r} must be a {want.__name__}, got {value!r}{fix}'
-
-
 def read_params_file(path: str | Path, *, unknown_is_error: bool = True
                      ) -> dict[str, ParamValue]:
     """Return the parameter values a node parameter file sets: ``{ros_name: value}``."""
@@ -420,9 +411,11 @@ def read_params_file(path: str | Path, *, unknown_is_error: bool = True
                 raise RosInputError(_unknown_name(path, name))
             continue
         value = Parameter.from_parameter_msg(message).value
-        problem = _type_problem(path, spec, value)
-        if problem is not None:
-            raise RosInputError(problem)
+        want = type(spec.default)   # as rcl refuses it
+        if type(value) is not want:
+            fix = f': write {value}.0' if want is float and type(value) is int else ''
+            raise RosInputError(f'{path}: parameter {name!r} must be a {want.__name__}, got '
+                                f'{value!r}{fix}')
         values[name] = value
     return values
 
