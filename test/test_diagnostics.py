@@ -88,9 +88,9 @@ def test_skip_reasons_are_listed_one_by_one() -> None:
 
 def test_window_counts_one_period_then_starts_again() -> None:
     window = HealthWindow(now=100.0)
-    window.received(now=100.2)
-    window.received(now=100.4)
-    window.dropped()
+    window.count('received', now=100.2)
+    window.count('received', now=100.4)
+    window.count('dropped')
     window.processed(12.0)
     window.skipped('size')
     period = window.take(now=101.0)

@@ -47,7 +47,7 @@ def _launch_module() -> ModuleType:
 
 
 def _node_topics(method: str) -> dict[str, str]:
-    """Topic -> message type of the node's ``create_<method>`` calls, read from node.py."""
+    """Topic -> message type of the node's ``create_<method>`` calls (node.py) and outputs."""
     tree = ast.parse((REPO / 'obstacle_detection' / 'ros' / 'node.py').read_text(encoding='utf-8'))
     topics = {}
     for call in ast.walk(tree):
@@ -55,11 +55,13 @@ def _node_topics(method: str) -> dict[str, str]:
                 and call.func.attr == f'create_{method}' and len(call.args) >= 2 \
                 and isinstance(call.args[1], ast.Constant) and isinstance(call.args[0], ast.Name):
             topics[call.args[1].value] = call.args[0].id
-    if method == 'subscription':   # the depth topic follows depth_transport (raw by default)
-        from obstacle_detection.ros.node import DEPTH_TRANSPORTS
+    from obstacle_detection.ros.node import DEPTH_TRANSPORTS, OUTPUTS
 
+    if method == 'subscription':   # the depth topic follows depth_transport (raw by default)
         msg_type, topic = DEPTH_TRANSPORTS['raw']
         topics[topic] = msg_type.__name__
+    else:   # the outputs' publishers are made from their table
+        topics.update({topic: kind.__name__ for kind, topic, _ in OUTPUTS.values()})
     return topics
 
 

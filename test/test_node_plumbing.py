@@ -393,7 +393,7 @@ def test_rvl_frames_give_the_raw_frames_outputs_and_a_broken_one_is_skipped(
         '-p', 'depth_transport:=compressedDepth'])
     grids: list[OccupancyGrid] = []
     try:
-        monkeypatch.setattr(node._costmap_pub, 'publish', grids.append)
+        monkeypatch.setattr(node._pubs['costmap'], 'publish', grids.append)
         node._on_camera_info(_camera_info(scene))
         assert node.handle_frame(array_to_image(scene.depth_mm, stamp=Time(),
                                                 frame_id='depth_optical'))
@@ -411,7 +411,7 @@ def test_rvl_frames_give_the_raw_frames_outputs_and_a_broken_one_is_skipped(
 
 
 def test_help_lists_every_topic_the_node_can_use(tmp_path: Path) -> None:
-    """Every create_publisher / create_subscription topic of node.py, and the odometry."""
+    """Every create_publisher / create_subscription topic of node.py, its outputs, the odometry."""
     import ast
 
     tree = ast.parse((REPO / 'obstacle_detection' / 'ros' / 'node.py').read_text())
@@ -419,9 +419,10 @@ def test_help_lists_every_topic_the_node_can_use(tmp_path: Path) -> None:
               if isinstance(call, ast.Call) and isinstance(call.func, ast.Attribute)
               and call.func.attr in ('create_publisher', 'create_subscription')
               and len(call.args) >= 2 and isinstance(call.args[1], ast.Constant)}
-    from obstacle_detection.ros.node import DEPTH_TRANSPORTS
+    from obstacle_detection.ros.node import DEPTH_TRANSPORTS, OUTPUTS
 
     topics |= {topic for _, topic in DEPTH_TRANSPORTS.values()} | {'odom'}
+    topics |= {topic for _, topic, _ in OUTPUTS.values()}
     assert {'/diagnostics', 'obstacles/fused_costmap', 'depth/camera_info'} <= topics
 
     done = ros_env.run_detector(tmp_path, '--help', salt=__name__ + ':help')

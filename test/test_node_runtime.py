@@ -13,7 +13,7 @@ import pytest
 import rclpy
 import ros_env
 
-from obstacle_detection.ros.node import make_executor
+from rclpy.experimental import EventsExecutor
 
 
 
@@ -26,7 +26,7 @@ def context() -> Iterator[rclpy.Context]:
 def test_executor_raises_a_callback_error_and_goes_on_dispatching(context) -> None:
     """spin_forever survives a raising callback only if spin_once raises it and goes on."""
     node = rclpy.create_node('executor_probe', context=context)
-    executor = make_executor(context)
+    executor = EventsExecutor(context=context)
     executor.add_node(node)
     calls = []
     second = threading.Event()

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+import functools
+from dataclasses import dataclass
 from typing import Any
 
 from obstacle_detection.pipeline.detector import Detector
@@ -12,7 +13,7 @@ from obstacle_detection.pipeline.params import Intrinsics
 from obstacle_detection.pipeline.refine import LogisticRefiner, RefinedDetector
 
 from .mount_source import Mount
-from .parameters import SPECS_BY_NAME, detector_params_from_ros, fallback_intrinsics_from_ros
+from .parameters import detector_params_from_ros
 
 #: depth_transport -> topic: image_transport's names for the depth stream.
 DEPTH_TRANSPORT_TOPICS = {
@@ -22,7 +23,7 @@ DEPTH_TRANSPORT_TOPICS = {
 }
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class NodeConfig:
     """Everything a frame needs, validated and swapped as one reference on a parameter set."""
 
@@ -34,38 +35,31 @@ class NodeConfig:
     use_fallback_intrinsics: bool
     fallback_intrinsics: Intrinsics
     stats_period_s: float
-    camera_info_tolerance_ns: int = 20_000_000
-    fusion: FusionParams | None = None      #: None: no fused costmap
-    odom_frame: str = 'odom'
-    publish_clearing: bool = False      #: obstacles/clearing_points (pipeline.clearing)
-    clearing_range_m: float = 4.0
-    clearing_stride_px: int = 4
-    values: dict[str, Any] = field(default_factory=dict)   #: the ROS values it was built from
+    camera_info_tolerance_ns: int
+    fusion: FusionParams | None      #: None: no fused costmap
+    odom_frame: str
+    publish_clearing: bool      #: obstacles/clearing_points (pipeline.clearing)
+    clearing_range_m: float
+    clearing_stride_px: int
+    values: dict[str, Any]   #: the ROS values it was built from
 
     def mount(self) -> Mount:
         """Return the mount the parameters give (the fallback when TF has none)."""
         values = self.values
-        return Mount(x_m=float(values.get('camera_x_m', 0.0)),
-                     y_m=float(values.get('camera_y_m', 0.0)),
-                     z_m=float(values.get('camera_height_m', 0.6)),
-                     roll_rad=math.radians(float(values.get('camera_roll_deg', 0.0))),
-                     pitch_rad=math.radians(float(values.get('camera_pitch_deg', 0.0))),
-                     yaw_rad=math.radians(float(values.get('camera_yaw_deg', 0.0))))
+        return Mount(x_m=float(values['camera_x_m']), y_m=float(values['camera_y_m']),
+                     z_m=float(values['camera_height_m']),
+                     roll_rad=math.radians(float(values['camera_roll_deg'])),
+                     pitch_rad=math.radians(float(values['camera_pitch_deg'])),
+                     yaw_rad=math.radians(float(values['camera_yaw_deg'])))
 
+    @functools.lru_cache(maxsize=1)   # TF's mount changes rarely: its detector is kept
     def detector_for(self, mount: Mount) -> Detector | RefinedDetector:
         """Return the detector with the camera mounted as ``mount`` (ValueError if not)."""
-        values = dict(self.values, camera_height_m=mount.z_m,
-                      camera_roll_deg=math.degrees(mount.roll_rad),
-                      camera_pitch_deg=math.degrees(mount.pitch_rad))
-        extra = {'camera_x_m': mount.x_m, 'camera_y_m': mount.y_m,
-                 'camera_yaw_deg': math.degrees(mount.yaw_rad)}
-        for name, value in extra.items():
-            if name in SPECS_BY_NAME:
-                values[name] = value
-            elif abs(value) > 1e-6:
-                raise ValueError(f'this pipeline has no {name}: the camera must sit above the '
-                                 f'base frame origin, facing forward ({mount.describe()})')
-        return build_detector(values)
+        return build_detector(dict(
+            self.values, camera_x_m=mount.x_m, camera_y_m=mount.y_m, camera_height_m=mount.z_m,
+            camera_roll_deg=math.degrees(mount.roll_rad),
+            camera_pitch_deg=math.degrees(mount.pitch_rad),
+            camera_yaw_deg=math.degrees(mount.yaw_rad)))
 
 
 def build_detector(values: dict[str, Any]) -> Detector | RefinedDetector:
@@ -82,17 +76,12 @@ def build_detector(values: dict[str, Any]) -> Detector | RefinedDetector:
     return RefinedDetector(detector, refiner)
 
 
-def _value(values: dict[str, Any], name: str) -> Any:
-    """Return a parameter's value, or its default when ``values`` lacks it."""
-    return values[name] if name in values else SPECS_BY_NAME[name].default
-
-
 def build_config(values: dict[str, Any]) -> NodeConfig:
     """NodeConfig from ``{ros_name: value}`` of every parameter; ValueError naming a bad one."""
     for name in ('cloud_frame_id', 'costmap_frame_id', 'odom_frame'):
         if not str(values[name]).strip():
             raise ValueError(f'{name} must not be empty')
-    transport = values.get('depth_transport', 'raw')
+    transport = values['depth_transport']
     if transport not in DEPTH_TRANSPORT_TOPICS:
         raise ValueError(f'depth_transport={transport!r} must be one of '
                          f'{", ".join(map(repr, DEPTH_TRANSPORT_TOPICS))}')
@@ -103,14 +92,16 @@ def build_config(values: dict[str, Any]) -> NodeConfig:
         publish_ground=bool(values['publish_ground']),
         publish_overlay=bool(values['publish_overlay']),
         use_fallback_intrinsics=bool(values['use_fallback_intrinsics']),
-        fallback_intrinsics=fallback_intrinsics_from_ros(values),
+        fallback_intrinsics=Intrinsics(
+            fx=float(values['fallback_fx']), fy=float(values['fallback_fy']),
+            cx=float(values['fallback_cx']), cy=float(values['fallback_cy'])),
         stats_period_s=float(values['stats_period_s']),
         camera_info_tolerance_ns=round(float(values['camera_info_tolerance_s']) * 1e9),
         fusion=(FusionParams(size_m=float(values['fused_size_m']),
                              resolution_m=float(values['fused_resolution_m']))
-                if values.get('fuse') else None),
-        odom_frame=str(values.get('odom_frame', 'odom')),
-        publish_clearing=bool(_value(values, 'publish_clearing')),
-        clearing_range_m=float(_value(values, 'clearing_range_m')),
-        clearing_stride_px=int(_value(values, 'clearing_stride_px')),
+                if values['fuse'] else None),
+        odom_frame=str(values['odom_frame']),
+        publish_clearing=bool(values['publish_clearing']),
+        clearing_range_m=float(values['clearing_range_m']),
+        clearing_stride_px=int(values['clearing_stride_px']),
         values=dict(values))

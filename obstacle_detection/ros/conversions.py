@@ -37,19 +37,10 @@ IMAGE_ENCODINGS: dict[str, tuple[np.dtype, int]] = {
     'bgr8': (np.dtype(np.uint8), 3),
 }
 
-#: Default encoding per (dtype, channels) for ``array_to_image``.
-_DEFAULT_ENCODING = {
-    (np.dtype(np.uint16), 1): '16UC1',
-    (np.dtype(np.float32), 1): '32FC1',
-    (np.dtype(np.uint8), 1): 'mono8',
-    (np.dtype(np.uint8), 3): 'rgb8',
-}
+#: Default encoding per (dtype, channels) for ``array_to_image``: the first listed above.
+_DEFAULT_ENCODING = {kind: name for name, kind in reversed(IMAGE_ENCODINGS.items())}
 
 _XYZ_FIELDS = ('x', 'y', 'z')
-
-
-def _stamped_header(stamp: Time, frame_id: str) -> Header:
-    return Header(stamp=stamp, frame_id=frame_id)
 
 
 def byte_view(data: Any) -> np.ndarray:
@@ -130,8 +121,9 @@ def array_to_image(array: np.ndarray, *, stamp: Time, frame_id: str,
     height, width = array.shape[:2]
     little = np.ascontiguousarray(array, dtype=base.newbyteorder('<'))
     return Image(
-        header=_stamped_header(stamp, frame_id), height=height, width=width, encoding=encoding,
-        is_bigendian=0, step=width * channels * base.itemsize, data=little.tobytes())
+        header=Header(stamp=stamp, frame_id=frame_id), height=height, width=width,
+        encoding=encoding, is_bigendian=0, step=width * channels * base.itemsize,
+        data=little.tobytes())
 
 
 #: Why a CameraInfo's intrinsics come from K: its P is all zero.
@@ -150,21 +142,16 @@ def camera_info_to_intrinsics(msg: Any) -> Intrinsics:
 
     From K only when P is all zero (:func:`intrinsics_come_from_k`); ValueError if uncalibrated.
     """
-    p = np.asarray(msg.p, dtype=np.float64).reshape(-1)
-    if p.size != 12:
-        raise ValueError(f'CameraInfo P has {p.size} entries, expected 12')
-    if np.any(p):
-        try:
-            return Intrinsics(fx=float(p[0]), fy=float(p[5]), cx=float(p[2]), cy=float(p[6]))
-        except ValueError as error:
-            raise ValueError(f'CameraInfo P is not a usable pinhole model: {error}') from error
-    k = np.asarray(msg.k, dtype=np.float64).reshape(-1)
-    if k.size != 9:
-        raise ValueError(f'CameraInfo K has {k.size} entries, expected 9')
+    name, columns = ('K', 3) if intrinsics_come_from_k(msg) else ('P', 4)
+    matrix = np.asarray(msg.k if name == 'K' else msg.p, dtype=np.float64).reshape(-1)
+    if matrix.size != 3 * columns:
+        raise ValueError(f'CameraInfo {name} has {matrix.size} entries, expected {3 * columns}')
+    m = matrix.reshape(3, columns)
     try:
-        return Intrinsics(fx=float(k[0]), fy=float(k[4]), cx=float(k[2]), cy=float(k[5]))
+        return Intrinsics(fx=float(m[0, 0]), fy=float(m[1, 1]), cx=float(m[0, 2]),
+                          cy=float(m[1, 2]))
     except ValueError as error:
-        raise ValueError(f'CameraInfo K is not a usable pinhole model: {error}') from error
+        raise ValueError(f'CameraInfo {name} is not a usable pinhole model: {error}') from error
 
 
 #: Field of view a depth camera can have [deg]: focal lengths outside it are a bad CameraInfo.
@@ -255,7 +242,7 @@ def intrinsics_to_camera_info(intrinsics: Intrinsics, width: int, height: int, *
     """Build a CameraInfo of an undistorted pinhole camera (K, P, identity R, zero D)."""
     fx, fy, cx, cy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
     return CameraInfo(
-        header=_stamped_header(stamp, frame_id), width=int(width), height=int(height),
+        header=Header(stamp=stamp, frame_id=frame_id), width=int(width), height=int(height),
         distortion_model='plumb_bob', d=[0.0] * 5,
         k=[fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0],
         r=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],

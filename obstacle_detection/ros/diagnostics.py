@@ -7,7 +7,7 @@ import time
 from collections import Counter
 from dataclasses import dataclass, field
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 
 NO_FRAME_ERROR_S = 2.0
 SKIPPED_ERROR_SHARE = 0.5
@@ -35,7 +35,7 @@ class Period:
 
 
 class HealthWindow:
-    """Thread-safe frame counters: one period per reader (the diagnostics, the log) and totals."""
+    """Thread-safe frame counters: one period per reader (the diagnostics, the log)."""
 
     def __init__(self, now: float | None = None, readers: tuple[str, ...] = ('diagnostics',)
                  ) -> None:
@@ -43,49 +43,28 @@ class HealthWindow:
         self._start = dict.fromkeys(readers, time.monotonic() if now is None else now)
         self._periods = {reader: Period() for reader in readers}
         self._last_frame: float | None = None
-        self.total_processed = self.total_dropped = self.total_missing = 0
 
-    def _add(self, name: str, count: int = 1) -> None:
-        for period in self._periods.values():
-            setattr(period, name, getattr(period, name) + count)
-
-    def received(self, now: float | None = None) -> None:
-        """Count one depth frame received."""
+    def count(self, name: str, count: int = 1, now: float | None = None) -> None:
+        """Count frames ``received``, ``dropped``, ``missing`` or lost to ``errors``."""
         with self._lock:
-            self._add('received')
-            self._last_frame = time.monotonic() if now is None else now
+            for period in self._periods.values():
+                setattr(period, name, getattr(period, name) + count)
+            if name == 'received':
+                self._last_frame = time.monotonic() if now is None else now
 
     def processed(self, elapsed_ms: float) -> None:
         """Count one frame processed and published in ``elapsed_ms``."""
         with self._lock:
-            self.total_processed += 1
-            self._add('processed')
             for period in self._periods.values():
+                period.processed += 1
                 period.sum_ms += elapsed_ms
                 period.max_ms = max(period.max_ms, elapsed_ms)
-
-    def dropped(self) -> None:
-        """Count one frame replaced by a newer one before it was processed."""
-        with self._lock:
-            self.total_dropped += 1
-            self._add('dropped')
-
-    def missing(self, count: int) -> None:
-        """Count frames the camera sent that never arrived."""
-        with self._lock:
-            self.total_missing += count
-            self._add('missing', count)
 
     def skipped(self, reason: str) -> None:
         """Count one frame skipped for bad input, by reason (a short key)."""
         with self._lock:
             for period in self._periods.values():
                 period.skipped[reason] += 1
-
-    def error(self) -> None:
-        """Count one frame lost to an unexpected exception."""
-        with self._lock:
-            self._add('errors')
 
     def take(self, now: float | None = None, reader: str = 'diagnostics') -> Period:
         """Return the reader's period since its last call and start a new one."""
@@ -116,6 +95,8 @@ class Context:
 def _level_and_message(period: Period, ctx: Context) -> tuple[int, str]:
     frames = period.received
     skipped = sum(period.skipped.values())
+    reasons = ', '.join(f'{k} {v}' for k, v in period.skipped.most_common())
+    skipped_text = f'{skipped} of {frames} frames skipped for bad input ({reasons})'
     if period.since_last_frame_s is None:
         if ctx.uptime_s >= NO_FRAME_ERROR_S:
             return ERROR, f'no depth frame received on {ctx.depth_topic} yet'
@@ -125,13 +106,11 @@ def _level_and_message(period: Period, ctx: Context) -> tuple[int, str]:
     if frames and not ctx.camera_info_usable:
         return ERROR, f'depth frames arrive but no usable CameraInfo ({ctx.camera_info})'
     if frames and skipped > SKIPPED_ERROR_SHARE * frames:
-        reasons = ', '.join(f'{k} {v}' for k, v in period.skipped.most_common())
-        return ERROR, f'{skipped} of {frames} frames skipped for bad input ({reasons})'
+        return ERROR, skipped_text
     if period.errors:
         return ERROR, f'the pipeline failed on {period.errors} frame(s) (see the log)'
     if skipped:
-        reasons = ', '.join(f'{k} {v}' for k, v in period.skipped.most_common())
-        return WARN, f'{skipped} of {frames} frames skipped for bad input ({reasons})'
+        return WARN, skipped_text
     if frames and period.dropped > DROPPED_WARN_SHARE * frames:
         return WARN, (f'{period.dropped} of {frames} frames replaced before processing: the '
                       'node does not keep up with the camera')
@@ -172,9 +151,3 @@ def health_status(period: Period, ctx: Context, *, name: str,
                             hardware_id=hardware_id,
                             values=[KeyValue(key=k, value=v) for k, v in values.items()])
 
-
-def diagnostic_array(status: DiagnosticStatus, stamp: object) -> DiagnosticArray:
-    """Wrap one status in the array message ``/diagnostics`` carries, stamped ``stamp``."""
-    msg = DiagnosticArray(status=[status])
-    msg.header.stamp = stamp
-    return msg

@@ -48,17 +48,16 @@ class MountSource:
     """Give each frame its mount: TF's transform when it has one, else the parameters."""
 
     def __init__(self, buffer: Any, base_frame: str, *, static: bool = True,
-                 timeout_s: float = 0.05) -> None:
+                 timeout: Any = None) -> None:
         self.buffer = buffer
         self.base_frame = base_frame
         self.static = static
-        self.timeout_s = timeout_s
+        self.timeout = timeout   #: of a lookup: a rclpy Duration
         self._cache: dict[str, Mount] = {}
         self.last_problem: str | None = None
         self.source = 'parameters'
 
-    def mount_for(self, frame_id: str, stamp: Any, fallback: Mount,
-                  duration: Any = None) -> Mount:
+    def mount_for(self, frame_id: str, stamp: Any, fallback: Mount) -> Mount:
         """Return the mount for an image of ``frame_id`` at ``stamp`` (a rclpy Time)."""
         self.last_problem = None
         if self.buffer is None:
@@ -71,9 +70,9 @@ class MountSource:
         if self.static and frame_id in self._cache:
             self.source = f'TF {self.base_frame} <- {frame_id} (static, cached)'
             return self._cache[frame_id]
-        timeout = duration(self.timeout_s) if duration is not None else self.timeout_s
         try:
-            transform = self.buffer.lookup_transform(self.base_frame, frame_id, stamp, timeout)
+            transform = self.buffer.lookup_transform(self.base_frame, frame_id, stamp,
+                                                     self.timeout)
             mount = mount_from_transform(transform)
         except Exception as error:  # noqa: BLE001 - tf2's exceptions are not importable here
             self.last_problem = (f'no TF {self.base_frame} <- {frame_id} '

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import collections
+import functools
 import sys
 import threading
 import time
@@ -15,11 +16,14 @@ import rclpy.utilities
 from nav_msgs.msg import OccupancyGrid, Odometry
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock, ClockType
+from rclpy.duration import Duration
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException
+from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.time import Time as RclpyTime
 from rclpy.qos import (
     DurabilityPolicy,
     HistoryPolicy,
@@ -43,13 +47,14 @@ from .diagnostics import Context as DiagnosticsContext
 from .frame_gate import CameraState as _CameraState
 from .frame_gate import stamp_ns as _stamp_ns
 from obstacle_detection.viz.overlay import render_overlay
-from .diagnostics import HealthWindow, diagnostic_array, health_status, status_name
+from .diagnostics import HealthWindow, health_status, status_name
 from obstacle_detection.pipeline.fusion import FusedGrid, PoseBuffer
 from obstacle_detection.pipeline.geometry import yaw_from_quaternion
-from .mount_source import Mount, MountSource
+from .mount_source import MountSource
 from obstacle_detection.pipeline.params import Intrinsics
-from .parameters import (ALL_PARAMS, NODE_NAME, PARAMS_FILE_KEY, params_file_problems,
-                         params_file_reason, params_files_in_args)
+from . import RosInputError
+from .parameters import (ALL_PARAMS, NODE_NAME, PARAMS_FILE_KEY, load_params_yaml,
+                         params_file_problems, params_file_reason, params_files_in_args)
 
 
 def _qos(depth: int, *, reliable: bool = True, latched: bool = False) -> QoSProfile:
@@ -62,7 +67,8 @@ def _qos(depth: int, *, reliable: bool = True, latched: bool = False) -> QoSProf
 
 #: Minimum interval between two warnings about the same kind of bad input [s].
 WARN_THROTTLE_S = 5.0
-_OUTPUT_QOS = _qos(5)
+#: Outputs, and the inputs with reliable_input: reliable, depth 5.
+_RELIABLE_QOS = _qos(5)
 #: ~/status: latched (transient local), so a late subscriber still gets the last state.
 _STATUS_QOS = _qos(1, latched=True)
 #: rcl_interfaces/ParameterType values (NOT_SET .. STRING_ARRAY).
@@ -83,85 +89,51 @@ LATCHED_INFO_WATCH_S = 0.5
 STATUS_READY = 'ready'
 #: Depth frames that may wait for the worker (see FrameMailbox): one may wait behind another.
 MAILBOX_FRAMES = 2
-_RELIABLE_INPUT_QOS = _qos(5)
+#: Output key (as result_to_messages names it) -> message type, topic, parameter switching it on.
+OUTPUTS = {
+    'obstacles': (PointCloud2, 'obstacles/points', None),
+    'costmap': (OccupancyGrid, 'obstacles/costmap', None),
+    'ground': (PointCloud2, 'obstacles/ground_points', 'publish_ground'),
+    'clearing': (PointCloud2, 'obstacles/clearing_points', 'publish_clearing'),
+    'overlay': (Image, 'obstacles/overlay', 'publish_overlay'),
+    'fused': (OccupancyGrid, 'obstacles/fused_costmap', 'fuse'),
+}
 
 
 class FrameMailbox:
     """The newest ``capacity`` items, oldest taken first: ``put`` drops the oldest when full."""
 
-    def __init__(self, capacity: int = 1) -> None:
-        if capacity < 1:
-            raise ValueError(f'capacity={capacity} must be >= 1')
-        self.capacity = capacity
+    def __init__(self, capacity: int) -> None:
         self._cond = threading.Condition()
         self._items: collections.deque = collections.deque(maxlen=capacity)
         self._closed = False
-        self.dropped = 0
 
     def put(self, item: Any) -> bool:
         """Store ``item`` as the newest; True if the oldest waiting item was dropped for it."""
         with self._cond:
-            dropped = len(self._items) == self.capacity
-            self.dropped += dropped
+            dropped = len(self._items) == self._items.maxlen
             self._items.append(item)   # a full deque drops its oldest item
             self._cond.notify()
         return dropped
 
     def take(self, timeout: float | None = None) -> Any:
-        """Remove and return the oldest waiting item, waiting up to ``timeout`` s; None if none."""
+        """Remove and return the oldest item, waiting up to ``timeout`` s; None if none/closed."""
         with self._cond:
-            self._cond.wait_for(lambda: bool(self._items) or self._closed, timeout)
-            return self._items.popleft() if self._items else None
+            self._cond.wait_for(lambda: self._items or self._closed, timeout)
+            return self._items.popleft() if self._items and not self._closed else None
 
     def close(self) -> None:
-        """Wake every waiting ``take``."""
+        """Make every ``take``, waiting or to come, return None."""
         with self._cond:
             self._closed = True
             self._cond.notify_all()
-
-
-class StampGaps:
-    """Count the frames a camera sent that never arrived, from gaps in the frame stamps."""
-
-    #: Recent intervals whose median is the period.
-    HISTORY = 31
-    #: An interval this many periods long or more is a gap.
-    GAP_PERIODS = 1.5
-
-    def __init__(self) -> None:
-        self._last_ns: int | None = None
-        self._intervals: collections.deque[int] = collections.deque(maxlen=self.HISTORY)
-
-    def add(self, stamp_ns: int) -> int:
-        """Take the next frame's stamp; return how many frames went missing before it."""
-        last, self._last_ns = self._last_ns, stamp_ns
-        if last is None or stamp_ns <= last:
-            if last is not None:
-                self._intervals.clear()
-            return 0
-        interval = stamp_ns - last
-        missing = 0
-        if len(self._intervals) >= 3:
-            period = sorted(self._intervals)[len(self._intervals) // 2]
-            if interval >= self.GAP_PERIODS * period:
-                missing = round(interval / period) - 1
-        if not missing:
-            self._intervals.append(interval)
-        return missing
-
-
-#: _camera_for's answer when the frame must be skipped (the reason is already logged).
-_SKIP = _CameraState(0, 0, None, 'skip')
 
 
 class DetectorNode(Node):
     """Subscribes to a depth camera, runs the pipeline, publishes obstacles and a costmap."""
 
     def __init__(self, *, tf_buffer: Any = None, **kwargs: Any) -> None:
-        """Declare the parameters, build the detector, subscribe.
-
-        tf_buffer: a ``tf2_ros.Buffer`` stand-in (tests); None makes one when ``use_tf`` is set.
-        """
+        """Declare the parameters, build the detector, subscribe; ``tf_buffer``: a tf2 stand-in."""
         super().__init__(NODE_NAME, **kwargs)
         for spec in ALL_PARAMS:
             self.declare_parameter(spec.name, spec.default, spec.descriptor())
@@ -172,15 +144,12 @@ class DetectorNode(Node):
             self.destroy_node()
             raise
         self.stats = HealthWindow(readers=('diagnostics', 'log'))
-        self._stamp_gaps = StampGaps()
         self._mailbox = FrameMailbox(MAILBOX_FRAMES)
         self._mount_source = self._make_mount_source(tf_buffer)
-        self._mount_cache: tuple[NodeConfig, Mount, Any] | None = None
         self._mount_said = ''
         self._cameras: collections.deque[_CameraState] = collections.deque(
             maxlen=frame_gate.CAMERA_INFO_HISTORY)
         self._warn_loggers: dict[str, Any] = {}
-        self._stop = threading.Event()
 
         self._status_pub = self.create_publisher(String, '~/status', _STATUS_QOS)
         # Compiling (20-40 s) or loading the kernels runs on a thread of its own; frames take
@@ -188,13 +157,21 @@ class DetectorNode(Node):
         self._compile = jit_support.compile_in_background(self._warm_up,
                                                           on_done=self._on_compiled)
         reliable = bool(self.get_parameter('reliable_input').value)
-        in_qos = _RELIABLE_INPUT_QOS if reliable else qos_profile_sensor_data
-        self._points_pub = self.create_publisher(PointCloud2, 'obstacles/points', _OUTPUT_QOS)
-        self._costmap_pub = self.create_publisher(OccupancyGrid, 'obstacles/costmap', _GRID_QOS)
-        self._time_pub = self.create_publisher(Float64, '~/processing_time_ms', _OUTPUT_QOS)
+        in_qos = _RELIABLE_QOS if reliable else qos_profile_sensor_data
+        # What is switched off is neither advertised nor subscribed.
+        self._pubs = {
+            key: self.create_publisher(kind, topic,
+                                       _GRID_QOS if kind is OccupancyGrid else _RELIABLE_QOS)
+            for key, (kind, topic, switch) in OUTPUTS.items()
+            if switch is None or self.get_parameter(switch).value}
+        self._odom_sub: Any = None
+        if self._config.fusion is not None:
+            self._odom_sub = self.create_subscription(
+                Odometry, str(self.get_parameter('odom_topic').value), self._on_odometry,
+                _ODOM_QOS)
+        self._time_pub = self.create_publisher(Float64, '~/processing_time_ms', _RELIABLE_QOS)
         self._poses = PoseBuffer()
         self._fused: FusedGrid | None = None
-        self._create_optional_endpoints()
 
         self._stats_timer = None
         self._restart_stats_timer(self._config.stats_period_s)
@@ -214,8 +191,10 @@ class DetectorNode(Node):
         # Subscribe last: a publisher that sees the match finds a node able to process.
         transport = str(self.get_parameter('depth_transport').value)
         depth_type, depth_topic = DEPTH_TRANSPORTS[transport]
-        self._depth_sub = self.create_subscription(depth_type, depth_topic, self._on_depth,
-                                                   in_qos)
+        self._depth_sub = self.create_subscription(
+            depth_type, depth_topic, self._on_depth, in_qos,
+            event_callbacks=SubscriptionEventCallbacks(   # frames the transport lost on the way
+                message_lost=lambda event: self.stats.count('missing', event.total_count_change)))
         self._info_sub = self.create_subscription(CameraInfo, 'depth/camera_info',
                                                   self._on_camera_info, in_qos)
         self._latched_info_sub: Any = None
@@ -226,10 +205,7 @@ class DetectorNode(Node):
         self._publish_status()
 
     def _say_ready(self, reliable: bool) -> None:
-        outputs = [pub.topic_name for pub in (self._points_pub, self._costmap_pub,
-                                              self._ground_pub, self._clearing_pub,
-                                              self._overlay_pub, self._fused_pub)
-                   if pub is not None]
+        outputs = [pub.topic_name for pub in self._pubs.values()]
         self.get_logger().info(
             f'ready: {self._depth_sub.topic_name} + {self._info_sub.topic_name} '
             f'({"reliable" if reliable else "sensor-data"} QoS; a latched CameraInfo too, '
@@ -239,58 +215,13 @@ class DetectorNode(Node):
             f'frames {self._config.cloud_frame_id!r}/{self._config.costmap_frame_id!r}; '
             f'{self.compute_path()}')
 
-    # -- what is switched on: its publishers and subscriptions --------------------------------
-    def _create_optional_endpoints(self) -> None:
-        """Advertise and subscribe only what the switches turn on; None where off."""
-        config = self._config
-        self._ground_pub: Any = (
-            self.create_publisher(PointCloud2, 'obstacles/ground_points', _OUTPUT_QOS)
-            if config.publish_ground else None)
-        self._overlay_pub: Any = (
-            self.create_publisher(Image, 'obstacles/overlay', _OUTPUT_QOS)
-            if config.publish_overlay else None)
-        self._clearing_pub: Any = (
-            self.create_publisher(PointCloud2, 'obstacles/clearing_points', _OUTPUT_QOS)
-            if config.publish_clearing else None)
-        self._fused_pub: Any = None
-        self._odom_sub: Any = None
-        if config.fusion is not None:
-            self._fused_pub = self.create_publisher(OccupancyGrid, 'obstacles/fused_costmap',
-                                                    _GRID_QOS)
-            self._odom_sub = self.create_subscription(
-                Odometry, str(self.get_parameter('odom_topic').value), self._on_odometry,
-                _ODOM_QOS)
-
     # -- parameter services: no request may kill the node ------------------------------------
     def _guard_parameter_services(self) -> None:
-        """Check parameter requests before rclpy's service callbacks see them.
-
-        rclpy raises inside the callback on an unknown ``ParameterValue.type``, which ends the
-        node; such requests and undeclared names are refused with the reason instead.
-        """
+        """Answer set requests here: rclpy's services raise (and end the node) on a bad type."""
         for service in self.services:
             name = service.srv_name.rsplit('/', 1)[-1]
-            if name == 'set_parameters':
-                service.callback = self._set_parameters_service
-            elif name == 'set_parameters_atomically':
-                service.callback = self._set_parameters_atomically_service
-            elif name in ('get_parameters', 'get_parameter_types', 'describe_parameters',
-                          'list_parameters'):
-                service.callback = self._guarded(service.callback, name)
-
-    def _guarded(self, callback: Any, name: str) -> Any:
-        def call(request: Any, response: Any) -> Any:
-            try:
-                return callback(request, response)
-            except Exception as error:  # noqa: BLE001 - a request must never end the node
-                self._warn_request(name, f'{type(error).__name__}: {error}')
-                return type(response)()
-        return call
-
-    def _warn_request(self, service: str, text: str) -> None:
-        self._throttled_logger(f'service:{service}').warning(
-            f'refused a {service} request: {text}',
-            throttle_duration_sec=WARN_THROTTLE_S)
+            if name in ('set_parameters', 'set_parameters_atomically'):
+                service.callback = functools.partial(self._set_parameters_service, name)
 
     def _parameter_msg_problem(self, msg: Any) -> str | None:
         """Return why a ``rcl_interfaces/Parameter`` cannot be applied, or None."""
@@ -305,32 +236,27 @@ class DetectorNode(Node):
                     f'parameter type (valid: {min(_PARAMETER_TYPES)}..{max(_PARAMETER_TYPES)})')
         return None
 
-    def _set_one(self, msg: Any) -> SetParametersResult:
-        problem = self._parameter_msg_problem(msg)
-        if problem is None:
-            try:
-                return self.set_parameters_atomically([Parameter.from_parameter_msg(msg)])
-            except Exception as error:  # noqa: BLE001 - refused, with rclpy's reason
-                problem = f'parameter {msg.name!r}: {type(error).__name__}: {error}'
-        self._warn_request('set_parameters', problem)
-        return SetParametersResult(successful=False, reason=problem)
-
-    def _set_parameters_service(self, request: Any, response: Any) -> Any:
-        response.results = [self._set_one(msg) for msg in request.parameters]
-        return response
-
-    def _set_parameters_atomically_service(self, request: Any, response: Any) -> Any:
-        problems = [p for p in map(self._parameter_msg_problem, request.parameters) if p]
-        if not problems:
-            try:
-                response.result = self.set_parameters_atomically(
-                    [Parameter.from_parameter_msg(msg) for msg in request.parameters])
-                return response
-            except Exception as error:  # noqa: BLE001 - refused, with rclpy's reason
-                problems = [f'{type(error).__name__}: {error}']
-        reason = '; '.join(problems)
-        self._warn_request('set_parameters_atomically', reason)
-        response.result = SetParametersResult(successful=False, reason=reason)
+    def _set_parameters_service(self, service: str, request: Any, response: Any) -> Any:
+        """Set each message (atomically: all at once); refuse, with the reason, what cannot be."""
+        atomic = service == 'set_parameters_atomically'
+        results = []
+        for msgs in [request.parameters] if atomic else [[msg] for msg in request.parameters]:
+            problems = [p for p in map(self._parameter_msg_problem, msgs) if p]
+            if not problems:
+                try:
+                    results.append(self.set_parameters_atomically(
+                        [Parameter.from_parameter_msg(msg) for msg in msgs]))
+                    continue
+                except Exception as error:  # noqa: BLE001 - refused, with rclpy's reason
+                    problems = [f'{type(error).__name__}: {error}']
+            self._throttled_logger(f'service:{service}').warning(
+                f'refused a {service} request: {"; ".join(problems)}',
+                throttle_duration_sec=WARN_THROTTLE_S)
+            results.append(SetParametersResult(successful=False, reason='; '.join(problems)))
+        if atomic:
+            response.result = results[0]
+        else:
+            response.results = results
         return response
 
     # -- start-up: compiled kernels -----------------------------------------------------------
@@ -376,38 +302,35 @@ class DetectorNode(Node):
     # -- the camera mount: parameters or TF ------------------------------------------------------
     def _make_mount_source(self, tf_buffer: Any) -> MountSource:
         target = str(self.get_parameter('cloud_frame_id').value)
-        if not bool(self.get_parameter('use_tf').value):
-            self.get_logger().info(
-                f'camera mount from the parameters ({self._config.mount().describe()})')
-            return MountSource(None, target)
-        timeout = float(self.get_parameter('tf_timeout_s').value)
-        static = bool(self.get_parameter('tf_static_mount').value)
-        if tf_buffer is None:
+        params = f'the parameters ({self._config.mount().describe()})'
+        use_tf = bool(self.get_parameter('use_tf').value)
+        if use_tf and tf_buffer is None:
             try:
                 import tf2_ros
             except ImportError:
-                self.get_logger().warning(
-                    'use_tf is set but tf2_ros is not importable (no ROS 2 installation?): the '
-                    f'camera mount comes from the parameters ({self._config.mount().describe()})')
+                self.get_logger().warning('use_tf is set but tf2_ros is not importable (no ROS 2 '
+                                          f'installation?): the camera mount comes from {params}')
                 return MountSource(None, target)
             tf_buffer = tf2_ros.Buffer()
             self._tf_listener = tf2_ros.TransformListener(tf_buffer, self)
+        if not use_tf:
+            self.get_logger().info(f'camera mount from {params}')
+            return MountSource(None, target)
+        static = bool(self.get_parameter('tf_static_mount').value)
         self.get_logger().info(f'camera mount from TF: {target} <- the depth image frame_id'
                                f'{" (static: looked up once)" if static else ""}; until '
                                'then from the parameters')
-        return MountSource(tf_buffer, target, static=static, timeout_s=timeout)
+        return MountSource(tf_buffer, target, static=static, timeout=Duration(
+            seconds=float(self.get_parameter('tf_timeout_s').value)))
 
     def _detector_for(self, msg: Any, config: NodeConfig) -> Any:
         """Return the frame's detector: the configured one, or one mounted where TF says."""
         source = self._mount_source
         if source.buffer is None:
             return config.detector
-        from rclpy.duration import Duration
-        from rclpy.time import Time as RclpyTime
-
         fallback = config.mount()
         mount = source.mount_for(msg.header.frame_id, RclpyTime.from_msg(msg.header.stamp),
-                                 fallback, duration=lambda s: Duration(seconds=s))
+                                 fallback)
         if source.last_problem is not None:
             self._throttled_logger('mount').warning(source.last_problem,
                                                     throttle_duration_sec=WARN_THROTTLE_S)
@@ -417,16 +340,11 @@ class DetectorNode(Node):
         self._mount_said = said
         if mount == fallback:
             return config.detector
-        cache = self._mount_cache
-        if cache is not None and cache[0] is config and cache[1] == mount:
-            return cache[2]
         try:
-            detector = config.detector_for(mount)
+            return config.detector_for(mount)
         except ValueError as error:
             self._warn_skip('mount', f'the mount from TF cannot be used: {error}')
             return None
-        self._mount_cache = (config, mount, detector)
-        return detector
 
     # -- diagnostics ---------------------------------------------------------------------------
     def _camera_info_text(self) -> tuple[str, bool]:
@@ -462,8 +380,9 @@ class DetectorNode(Node):
                                name=status_name(self.get_fully_qualified_name()),
                                hardware_id=self._last_frame_id or self._depth_sub.topic_name)
         if self.context.ok():
-            self._diagnostics_pub.publish(
-                diagnostic_array(status, self.get_clock().now().to_msg()))
+            msg = DiagnosticArray(status=[status])
+            msg.header.stamp = self.get_clock().now().to_msg()
+            self._diagnostics_pub.publish(msg)
 
     # -- parameters -------------------------------------------------------------------------
     def _parameter_values(self, changes: list[Parameter] | None = None) -> dict[str, Any]:
@@ -513,12 +432,9 @@ class DetectorNode(Node):
 
     # -- callbacks (executor thread): store only --------------------------------------------
     def _on_depth(self, msg: Image) -> None:
-        self.stats.received()
-        missing = self._stamp_gaps.add(_stamp_ns(msg.header.stamp))
-        if missing:
-            self.stats.missing(missing)
+        self.stats.count('received')
         if self._mailbox.put(msg):
-            self.stats.dropped()
+            self.stats.count('dropped')
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
         camera = _CameraState.from_camera_info(msg)
@@ -593,14 +509,11 @@ class DetectorNode(Node):
 
     def _odom_pose_from_tf(self, msg: Any, config: NodeConfig) -> tuple[Any, str]:
         """Return the base pose in odom from TF (odom_frame <- cloud_frame_id), and why not."""
-        from rclpy.duration import Duration
-        from rclpy.time import Time as RclpyTime
-
         source = self._mount_source
         try:
             transform = source.buffer.lookup_transform(
                 config.odom_frame, config.cloud_frame_id, RclpyTime.from_msg(msg.header.stamp),
-                Duration(seconds=source.timeout_s))
+                source.timeout)
             t, q = transform.transform.translation, transform.transform.rotation
             return (float(t.x), float(t.y), yaw_from_quaternion(q.x, q.y, q.z, q.w)), ''
         except Exception as error:  # noqa: BLE001 - tf2's exceptions are not importable here
@@ -615,17 +528,14 @@ class DetectorNode(Node):
             f'{period.processed} frames processed in {period.seconds:.1f} s '
             f'({period.processed / period.seconds:.1f} fps), mean {mean_ms:.1f} ms/frame; '
             f'{period.dropped} dropped (a newer frame came first), '
-            f'{period.missing} missing (gaps in the frame stamps: lost before they reached '
-            f'the node), {sum(period.skipped.values())} skipped (bad input), '
-            f'{period.errors} errors'
+            f'{period.missing} missing (lost by the transport on the way), '
+            f'{sum(period.skipped.values())} skipped (bad input), {period.errors} errors'
             + (f'; last {self._floor_text}' if self._floor_text else ''))
 
     # -- worker thread ------------------------------------------------------------------------
     def _work(self) -> None:
-        while not self._stop.is_set():
-            msg = self._mailbox.take(timeout=0.5)
-            if msg is not None and not self._stop.is_set():
-                self.handle_frame(msg)
+        while (msg := self._mailbox.take()) is not None:
+            self.handle_frame(msg)
 
     def _throttled_logger(self, kind: str) -> Any:
         """Return the logger of one kind of problem, throttled on its own."""
@@ -641,19 +551,12 @@ class DetectorNode(Node):
         self._throttled_logger(kind).warning(f'skipping depth frame: {text}',
                                              throttle_duration_sec=WARN_THROTTLE_S)
 
-    def _camera_for(self, msg: Image, config: NodeConfig) -> _CameraState | None:
-        """Return the CameraInfo of a frame (:func:`frame_gate.camera_for`), None if none yet."""
-        chosen = frame_gate.camera_for(list(self._cameras), _stamp_ns(msg.header.stamp),
-                                       config.camera_info_tolerance_ns)
-        if isinstance(chosen, frame_gate.Skip):
-            self._warn_skip(chosen.kind, chosen.reason)
-            return _SKIP
-        return chosen
-
     def _frame_intrinsics(self, msg: Any, shape: tuple[int, ...],
                           config: NodeConfig) -> Intrinsics | None:
-        camera = self._camera_for(msg, config)
-        if camera is _SKIP:
+        camera = frame_gate.camera_for(list(self._cameras), _stamp_ns(msg.header.stamp),
+                                       config.camera_info_tolerance_ns)
+        if isinstance(camera, frame_gate.Skip):
+            self._warn_skip(camera.kind, camera.reason)
             return None
         verdict = frame_gate.choose_intrinsics(
             camera, shape, use_fallback=config.use_fallback_intrinsics,
@@ -697,26 +600,22 @@ class DetectorNode(Node):
                 clearing_points=(clearing.clearing_points(
                     result.depth_m, result.intrinsics, stride_px=config.clearing_stride_px,
                     range_m=config.clearing_range_m)
-                    if self._clearing_pub is not None else None))
+                    if config.publish_clearing else None))
             fused = self._fuse(result, msg, config)
         except ValueError as error:
             self._warn_skip('pipeline', str(error))
             return False
         except Exception as error:  # noqa: BLE001 - the node must survive any frame
-            self.stats.error()
+            self.stats.count('errors')
             self.get_logger().error(f'pipeline failed on a frame, skipping it: '
                                     f'{type(error).__name__}: {error}',
                                     throttle_duration_sec=WARN_THROTTLE_S)
             return False
         try:
-            self._points_pub.publish(messages['obstacles'])
-            self._costmap_pub.publish(messages['costmap'])
-            for key, pub in (('ground', self._ground_pub), ('overlay', self._overlay_pub),
-                             ('clearing', self._clearing_pub)):
-                if key in messages and pub is not None:
-                    pub.publish(messages[key])
-            if fused is not None and self._fused_pub is not None:
-                self._fused_pub.publish(fused)
+            if fused is not None:
+                messages['fused'] = fused
+            for key, out in messages.items():
+                self._pubs[key].publish(out)
             elapsed_ms = (time.perf_counter() - start) * 1e3
             self._time_pub.publish(Float64(data=elapsed_ms))
         except Exception as error:  # noqa: BLE001 - e.g. the context shut down meanwhile
@@ -738,24 +637,14 @@ class DetectorNode(Node):
 
     def close(self) -> None:
         """Stop the worker thread (call before ``destroy_node``)."""
-        self._stop.set()
         self._mailbox.close()
         if self._worker.is_alive() and self._worker is not threading.current_thread():
             self._worker.join(timeout=10.0)
 
 
-def make_executor(context: Any) -> Any:
-    """Return the executor of the node process: rclpy's events executor where there is one."""
-    try:
-        from rclpy.experimental import EventsExecutor
-    except ImportError:
-        return SingleThreadedExecutor(context=context)
-    return EventsExecutor(context=context)
-
-
 def spin_forever(node: DetectorNode) -> None:
     """Spin until shutdown; an exception escaping a callback is logged, never fatal."""
-    executor = make_executor(node.context)
+    executor = EventsExecutor(context=node.context)
     executor.add_node(node)
     logger = rclpy.logging.get_logger(f'{node.get_logger().name}.executor')
     try:
@@ -778,30 +667,17 @@ def help_text() -> str:
         '',
         'ROS 2 node "obstacle_detector": depth image -> obstacle cloud and ground-plane costmap.',
         '',
-        'topics (relative names; remap with -r) and their QoS:',
-        '  in   depth/image_raw           sensor_msgs/Image, 16UC1/mono16 [mm] or 32FC1 [m];',
-        '                                 sensor data (best effort), reliable if reliable_input',
-        '  in   depth/image_raw/compressedDepth  sensor_msgs/CompressedImage (PNG or RVL), if',
-        '                                 depth_transport is compressedDepth; QoS as above',
-        '  in   depth/image_raw/compressed  sensor_msgs/CompressedImage, if depth_transport is',
-        '                                 compressed; QoS as above',
-        '  in   depth/camera_info         sensor_msgs/CameraInfo (intrinsics from P, or K when',
-        '                                 P is all zero); as the depth, and latched (reliable,',
-        '                                 transient local) publishers too',
-        '  in   odom                      nav_msgs/Odometry (odom_topic), if fuse; best effort',
-        '                                 (reliable and best-effort publishers both connect)',
-        '  out  obstacles/points          sensor_msgs/PointCloud2 of obstacle points; reliable',
-        '  out  obstacles/costmap         nav_msgs/OccupancyGrid: 100 occupied, 0 free, -1',
-        '                                 unknown; reliable, transient local, depth 1',
-        '  out  obstacles/ground_points   sensor_msgs/PointCloud2, if publish_ground; reliable',
-        '  out  obstacles/clearing_points sensor_msgs/PointCloud2 in the depth image frame, if',
-        '                                 publish_clearing (Nav2 clearing source); reliable',
-        '  out  obstacles/overlay         sensor_msgs/Image rgb8, if publish_overlay; reliable',
-        '  out  obstacles/fused_costmap   nav_msgs/OccupancyGrid in odom_frame, if fuse;',
-        '                                 reliable, transient local, depth 1',
-        '  out  ~/processing_time_ms      std_msgs/Float64 per frame; reliable',
+        'topics (relative names; remap with -r; their QoS: docs/node.md):',
+        '  in   depth/image_raw           sensor_msgs/Image, 16UC1/mono16 [mm] or 32FC1 [m]',
+        '  in   depth/image_raw/compressedDepth  CompressedImage (PNG or RVL), by depth_transport',
+        '  in   depth/image_raw/compressed  CompressedImage (PNG or TIFF), by depth_transport',
+        '  in   depth/camera_info         sensor_msgs/CameraInfo (P, or K when P is all zero)',
+        '  in   odom                      nav_msgs/Odometry (odom_topic), if fuse',
+        *(f'  out  {topic:<25} {kind.__name__}' + (f', if {switch}' if switch else '')
+          for kind, topic, switch in OUTPUTS.values()),
+        '  out  ~/processing_time_ms      std_msgs/Float64 per frame',
         '  out  ~/status                  std_msgs/String, latched: "ready: <which code runs>"',
-        '  out  /diagnostics              diagnostic_msgs/DiagnosticArray, 1 Hz; reliable',
+        '  out  /diagnostics              diagnostic_msgs/DiagnosticArray, 1 Hz',
         '',
         f'parameters (section "{PARAMS_FILE_KEY}:" or "/**:" of a --params-file; name  type  '
         'default  range; use_sim_time is rclpy\'s own):',
@@ -824,13 +700,12 @@ def main(args: list[str] | None = None) -> int:
     """Entry point of ``ros2 run obstacle_detection detector``; returns the exit code."""
     argv = list(sys.argv if args is None else args)
     files = params_files_in_args(argv)
-    for path in files:   # rcl would end in a raw RCLError traceback
-        problems = [p for p in params_file_problems(path)
-                    if 'cannot read' in p or 'not valid YAML' in p]
-        if problems or not Path(path).is_file():
-            print(f'detector: error: {problems[0] if problems else f"{path}: not a file"}',
-                  file=sys.stderr)
-            return 1
+    try:
+        for path in files:   # rcl would end in a raw RCLError traceback
+            load_params_yaml(Path(path))
+    except RosInputError as error:
+        print(f'detector: error: {error}', file=sys.stderr)
+        return 1
     try:
         own = rclpy.utilities.remove_ros_args(argv)[1:]
         if '-h' in own or '--help' in own:

@@ -15,7 +15,7 @@ import yaml
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
 
-from obstacle_detection.pipeline.params import SEED_TABLE_4_1, DetectorParams, Intrinsics
+from obstacle_detection.pipeline.params import SEED_TABLE_4_1, DetectorParams
 
 from . import RosInputError
 
@@ -72,10 +72,6 @@ class ParamSpec:
         """'bool', 'int', 'float' or 'str'."""
         return type(self.default).__name__
 
-    def to_field(self, value: ParamValue) -> ParamValue:
-        """Convert a ROS value to the DetectorParams field value (degrees -> radians)."""
-        return math.radians(value) if self.degrees else value
-
     def descriptor(self) -> ParameterDescriptor:
         """Build the rcl_interfaces ParameterDescriptor: type, description, range, read-only."""
         desc = ParameterDescriptor(name=self.name, type=_ROS_TYPES[type(self.default)],
@@ -111,8 +107,6 @@ def _pipeline_specs() -> list[ParamSpec]:
             description = description.replace('[rad]', '[deg]')
             if not description.endswith('[deg]'):
                 description += ' [deg]'
-        elif isinstance(default, float):
-            low, high = float(low), float(high)
         specs.append(ParamSpec(name=name, default=default, description=description, low=low,
                                high=high, field=f.name, degrees=degrees,
                                open_low=bool(meta.get('open_min')),
@@ -310,18 +304,12 @@ def detector_params_from_ros(values: Mapping[str, Any]) -> DetectorParams:
     problem = budget_problem(values)
     if problem is not None:
         raise ValueError(problem)
-    fields = {spec.field: spec.to_field(values[spec.name])
+    fields = {spec.field: math.radians(values[spec.name]) if spec.degrees else values[spec.name]
               for spec in PIPELINE_PARAMS if spec.name in values}
     try:
         return DetectorParams(**fields)
     except ValueError as error:
         raise ValueError(_user_names(str(error))) from error
-
-
-def fallback_intrinsics_from_ros(values: Mapping[str, Any]) -> Intrinsics:
-    """Build the fallback Intrinsics from fallback_fx/fy/cx/cy (ValueError on a zero focal)."""
-    return Intrinsics(fx=float(values['fallback_fx']), fy=float(values['fallback_fy']),
-                      cx=float(values['fallback_cx']), cy=float(values['fallback_cy']))
 
 
 def params_files_in_args(args: list[str]) -> list[str]:
@@ -349,7 +337,7 @@ def _section_applies(key: str, node_fqn: str) -> bool:
     return re.fullmatch(''.join(tokens), node_fqn) is not None
 
 
-def _load_params_yaml(path: Path) -> dict[Any, Any]:
+def load_params_yaml(path: Path) -> dict[Any, Any]:
     """Return the parsed YAML mapping of a params file; RosInputError says why there is none."""
     try:
         data = yaml.safe_load(path.read_text(encoding='utf-8'))
@@ -366,7 +354,7 @@ def params_file_problems(path: str | Path, node_fqn: str = f'/{NODE_NAME}') -> l
     """Return what the node would silently ignore in a params file, one sentence each."""
     path = Path(path)
     try:
-        data = _load_params_yaml(path)
+        data = load_params_yaml(path)
     except RosInputError as error:
         return [str(error)]
     problems, applied = [], 0
@@ -398,22 +386,13 @@ def _unknown_name(path: Path, name: str, outcome: str = '') -> str:
             'parameters')
 
 
-def _type_problem(path: Path, spec: ParamSpec, value: Any) -> str | None:
-    """Say why ``value`` does not have the parameter's type (as rcl refuses it), or None."""
-    want = type(spec.default)
-    if type(value) is want:
-        return None
-    fix = f': write {value}.0' if want is float and type(value) is int else ''
-    return f'{path}: parameter {spec.name!r} must be a {want.__name__}, got {value!r}{fix}'
-
-
 def read_params_file(path: str | Path, *, unknown_is_error: bool = True
                      ) -> dict[str, ParamValue]:
     """Return the parameter values a node parameter file sets: ``{ros_name: value}``."""
     from rclpy.parameter import Parameter, parameter_dict_from_yaml_file
 
     path = Path(path)
-    data = _load_params_yaml(path)
+    data = load_params_yaml(path)
     keys = [key for key in data if _section_applies(str(key), f'/{NODE_NAME}')]
     if not keys:
         raise RosInputError(f'{path}: no section naming the node (e.g. '
@@ -432,9 +411,11 @@ def read_params_file(path: str | Path, *, unknown_is_error: bool = True
                 raise RosInputError(_unknown_name(path, name))
             continue
         value = Parameter.from_parameter_msg(message).value
-        problem = _type_problem(path, spec, value)
-        if problem is not None:
-            raise RosInputError(problem)
+        want = type(spec.default)   # as rcl refuses it
+        if type(value) is not want:
+            fix = f': write {value}.0' if want is float and type(value) is int else ''
+            raise RosInputError(f'{path}: parameter {name!r} must be a {want.__name__}, got '
+                                f'{value!r}{fix}')
         values[name] = value
     return values
 
