@@ -7,18 +7,13 @@ Each equals its numpy twin ``_reference_<name>`` in :mod:`..traversal`, :mod:`..
 from __future__ import annotations
 
 import math
-import threading
 
 import numpy as np
 
-from ._numba import AVAILABLE, jit as _jit, scratch
+from ._numba import AVAILABLE, jit as _jit, jit_inline as _jit_inline, scratch
 
 __all__ = ['AVAILABLE', 'drop_pixels', 'drop_smeared', 'ground_rays', 'has_nan', 'ray_row',
            'traverse', 'unbias_holes', 'warm_up']
-
-#: Per-thread row buffers of the smear pass.
-_SCRATCH = threading.local()
-
 
 @_jit
 def ray_row(ru, rv_i, r0, r1, r2, out):  # pragma: no cover - compiled
@@ -296,25 +291,7 @@ def drop_pixels(depth_m: np.ndarray, rz: np.ndarray | None, height_m: float,
 
 
 @_jit
-def _planar_at(raw, i, j, tol_ratio):  # pragma: no cover - compiled
-    """Return traversal._planar at (i, j)."""
-    height, width = raw.shape
-    if i < 1 or j < 1 or i >= height - 1 or j >= width - 1:
-        return False
-    r, a, b, c, d = raw[i, j], raw[i, j - 1], raw[i, j + 1], raw[i - 1, j], raw[i + 1, j]
-    if not (r > 0.0 and a > 0.0 and b > 0.0 and c > 0.0 and d > 0.0):
-        return False
-    one = np.float32(1.0)
-    two = np.float32(2.0)
-    inv = one / r
-    tol = tol_ratio * inv
-    row = abs(one / a + one / b - two * inv)
-    col = abs(one / c + one / d - two * inv)
-    return row <= tol and col <= tol
-
-
-@_jit
-def _has_nan(raw):  # pragma: no cover - compiled
+def has_nan(raw):  # pragma: no cover - compiled
     """Return True when raw holds a NaN."""
     flat = raw.reshape(-1)
     found = False
@@ -333,96 +310,47 @@ def _inverse_row(row, out):  # pragma: no cover - compiled
         out[j] = one / (r if r > zero else one)
 
 
-@_jit
-def _smear_pixel(filtered, raw, i, j, near, far, ratio, jump, tol_ratio):  # pragma: no cover
-    """Return the new filtered depth at (i, j): drop_smeared's rule, window range given."""
-    height, width = raw.shape
-    zero = np.float32(0.0)
-    r = raw[i, j]
-    f = filtered[i, j]
-    if r > zero:
-        lim = jump * r
-        if r - near > lim and far - r > lim and not _planar_at(raw, i, j, tol_ratio):
-            return zero
-        if abs(f - r) > ratio * f:
-            return r
-        return f
-    lim = ratio * f
-    seen = False
-    agree = True
-    if i > 0:
-        nb = raw[i - 1, j]
-        if nb > zero:
-            seen = True
-            agree &= abs(nb - f) <= lim
-    if i + 1 < height:
-        nb = raw[i + 1, j]
-        if nb > zero:
-            seen = True
-            agree &= abs(nb - f) <= lim
-    if j > 0:
-        nb = raw[i, j - 1]
-        if nb > zero:
-            seen = True
-            agree &= abs(nb - f) <= lim
-    if j + 1 < width:
-        nb = raw[i, j + 1]
-        if nb > zero:
-            seen = True
-            agree &= abs(nb - f) <= lim
-    return f if (seen and agree) else zero
+@_jit_inline
+def _near(v):  # pragma: no cover - compiled
+    """Return the depth v if measured, else inf."""
+    return v if v > np.float32(0.0) else np.float32(np.inf)
+
+
+@_jit_inline
+def _far(v):  # pragma: no cover - compiled
+    """Return the depth v if measured, else 0."""
+    return v if v > np.float32(0.0) else np.float32(0.0)
+
+
+@_jit_inline
+def _min5(a, b, c, d, e):  # pragma: no cover - compiled
+    """Return the smallest of five values (no NaN)."""
+    ab = a if a < b else b
+    cd = c if c < d else d
+    m = ab if ab < cd else cd
+    return e if e < m else m
+
+
+@_jit_inline
+def _max5(a, b, c, d, e):  # pragma: no cover - compiled
+    """Return the largest of five values (no NaN)."""
+    ab = a if a > b else b
+    cd = c if c > d else d
+    m = ab if ab > cd else cd
+    return e if e > m else m
 
 
 @_jit
-def _planar_row(left, mid, right, up, dn, iu, il, im, ir, idn, tol_ratio,
-                out):  # pragma: no cover - compiled
-    """Fill out with _planar_at along a row (depths, inverse depths: pixel, 4 neighbours)."""
-    zero = np.float32(0.0)
-    two = np.float32(2.0)
-    for j in range(out.size):
-        inv = im[j]
-        tol = tol_ratio * inv
-        row = abs(il[j] + ir[j] - two * inv)
-        col = abs(iu[j] + idn[j] - two * inv)
-        ok = (left[j] > zero) & (right[j] > zero) & (up[j] > zero) & (dn[j] > zero)
-        ok &= mid[j] > zero
-        out[j] = ok & (row <= tol) & (col <= tol)
+def _column_range(r0, r1, r2, r3, r4, col_lo, col_hi):  # pragma: no cover - compiled
+    """Fill col_lo/col_hi with the nearest (inf: none) and farthest (0) depth of five rows."""
+    for j in range(col_lo.size):
+        col_lo[j] = _min5(_near(r0[j]), _near(r1[j]), _near(r2[j]), _near(r3[j]), _near(r4[j]))
+        col_hi[j] = _max5(_far(r0[j]), _far(r1[j]), _far(r2[j]), _far(r3[j]), _far(r4[j]))
 
 
 @_jit
-def _keep_row(left, right, up, dn, f_row, ratio, out):  # pragma: no cover - compiled
-    """Fill out: a filled hole keeps its depth (a measured 4-neighbour, all within ratio)."""
-    zero = np.float32(0.0)
-    for j in range(out.size):
-        f = f_row[j]
-        lim = ratio * f
-        a = left[j]
-        b = right[j]
-        c = up[j]
-        d = dn[j]
-        seen = (a > zero) | (b > zero) | (c > zero) | (d > zero)
-        bad = ((a > zero) & (abs(a - f) > lim)) | ((b > zero) & (abs(b - f) > lim))
-        bad |= ((c > zero) & (abs(c - f) > lim)) | ((d > zero) & (abs(d - f) > lim))
-        out[j] = seen & ~bad
-
-
-@_jit
-def _column_step(row, col_lo, col_hi):  # pragma: no cover - compiled
-    """Take one more row into the column pass: nearest measured depth (inf: none), farthest."""
-    zero = np.float32(0.0)
-    inf = np.float32(np.inf)
-    for j in range(row.size):
-        v = row[j]
-        m = v if v > zero else inf
-        lo = col_lo[j]
-        col_lo[j] = m if m < lo else lo
-        hi = col_hi[j]
-        col_hi[j] = v if v > hi else hi
-
-
-@_jit
-def _row_range(col_lo, col_hi, r_row, f_row, jump, lo_out, hi_out):  # pragma: no cover
-    """Row pass of the window range (lo_out, hi_out: min/max of 5 taps, exact in any order).
+def _row_range(col_lo, col_hi, r_row, f_row, jump, near, far):  # pragma: no cover - compiled
+    """Row pass of the window range (near, far: min/max of 5 taps, exact in any order).
 
     Returns (flying, filled): the row's flying candidates and filled holes.
     """
@@ -430,26 +358,10 @@ def _row_range(col_lo, col_hi, r_row, f_row, jump, lo_out, hi_out):  # pragma: n
     flying = 0
     filled = 0
     for j in range(r_row.size):
-        a = col_lo[j]
-        b = col_lo[j + 1]
-        c = col_lo[j + 2]
-        d = col_lo[j + 3]
-        e = col_lo[j + 4]
-        ab = a if a < b else b
-        cd = c if c < d else d
-        m = ab if ab < cd else cd
-        lo = e if e < m else m
-        lo_out[j] = lo
-        a = col_hi[j]
-        b = col_hi[j + 1]
-        c = col_hi[j + 2]
-        d = col_hi[j + 3]
-        e = col_hi[j + 4]
-        ab = a if a > b else b
-        cd = c if c > d else d
-        m = ab if ab > cd else cd
-        hi = e if e > m else m
-        hi_out[j] = hi
+        lo = _min5(col_lo[j], col_lo[j + 1], col_lo[j + 2], col_lo[j + 3], col_lo[j + 4])
+        hi = _max5(col_hi[j], col_hi[j + 1], col_hi[j + 2], col_hi[j + 3], col_hi[j + 4])
+        near[j] = lo
+        far[j] = hi
         r = r_row[j]
         lim = jump * r
         flying += (r > zero) & (r - lo > lim) & (hi - r > lim)
@@ -458,38 +370,39 @@ def _row_range(col_lo, col_hi, r_row, f_row, jump, lo_out, hi_out):  # pragma: n
 
 
 @_jit
-def _pair_range(upper, lower, lo_out, hi_out):  # pragma: no cover - compiled
-    """Fill lo_out/hi_out with the nearest (inf: none) and farthest (0) depth of two rows."""
+def _planar_row(mid, up, dn, iu, im, idn, tol_ratio, out):  # pragma: no cover - compiled
+    """Fill out: the pixel and its 4 neighbours returned, 1/depth affine along row and column.
+
+    mid, im, iu, idn (W + 2,): the row's depths and the inverse depths of it and the rows above
+    and below, between pads (a 0 depth pad: no neighbour); up, dn (W,): those rows' depths.
+    """
     zero = np.float32(0.0)
-    inf = np.float32(np.inf)
-    for j in range(lo_out.size):
-        a = upper[j]
-        b = lower[j]
-        la = a if a > zero else inf
-        lb = b if b > zero else inf
-        ha = a if a > zero else zero
-        hb = b if b > zero else zero
-        lo_out[j] = la if la < lb else lb
-        hi_out[j] = ha if ha > hb else hb
+    two = np.float32(2.0)
+    for j in range(out.size):
+        inv = im[j + 1]
+        tol = tol_ratio * inv
+        row = abs(im[j] + im[j + 2] - two * inv)
+        col = abs(iu[j + 1] + idn[j + 1] - two * inv)
+        ok = (mid[j] > zero) & (mid[j + 2] > zero) & (up[j] > zero) & (dn[j] > zero)
+        ok &= mid[j + 1] > zero
+        out[j] = ok & (row <= tol) & (col <= tol)
 
 
 @_jit
-def _column_range(lo_a, hi_a, lo_b, hi_b, row, col_lo, col_hi):  # pragma: no cover - compiled
-    """Column pass of a 5-row window: the ranges of two row pairs (a, b) and one more row."""
+def _keep_row(mid, up, dn, f_row, ratio, out):  # pragma: no cover - compiled
+    """Fill out: a filled hole keeps its depth (a measured 4-neighbour, all within ratio)."""
     zero = np.float32(0.0)
-    inf = np.float32(np.inf)
-    for j in range(col_lo.size):
-        v = row[j]
-        lv = v if v > zero else inf
-        hv = v if v > zero else zero
-        lo = lo_a[j]
-        lb = lo_b[j]
-        lo = lb if lb < lo else lo
-        col_lo[j] = lv if lv < lo else lo
-        hi = hi_a[j]
-        hb = hi_b[j]
-        hi = hb if hb > hi else hi
-        col_hi[j] = hv if hv > hi else hi
+    for j in range(out.size):
+        f = f_row[j]
+        lim = ratio * f
+        a = mid[j]
+        b = mid[j + 2]
+        c = up[j]
+        d = dn[j]
+        seen = (a > zero) | (b > zero) | (c > zero) | (d > zero)
+        bad = ((a > zero) & ~(abs(a - f) <= lim)) | ((b > zero) & ~(abs(b - f) <= lim))
+        bad |= ((c > zero) & ~(abs(c - f) <= lim)) | ((d > zero) & ~(abs(d - f) <= lim))
+        out[j] = seen & ~bad
 
 
 @_jit
@@ -511,85 +424,45 @@ def _decide_row(r_row, f_row, near, far, planar, keep, ratio, jump,
 
 
 @_jit
-def _smear5_kernel(filtered, raw, ratio, jump, tol_ratio, col_lo, col_hi, row_lo, row_hi,
-                   pair_lo, pair_hi, inv3, zeros, planar, keep):  # pragma: no cover - compiled
+def _smear_kernel(filtered, raw, ratio, jump, tol_ratio, rows, planar,
+                  keep):  # pragma: no cover - compiled
     """drop_smeared, row by row, with the 5 x 5 window range (clipped to the image) on the way.
 
-    A column pass (row pairs kept in the ring pair_lo/pair_hi) and a row pass give each row's
-    range; the inverse depths of rows i - 1 to i + 1 rotate through inv3; branch-free passes
-    decide the inner columns, the scalar rule the 2 border columns each side. zeros: (W,) 0.
+    rows (9, W + 4) float32: the column pass's range between neutral pads (inf, 0) for the
+    row pass's 5 taps, the row's range, row i between 0 pads, the inverse depths of rows
+    i - 1 to i + 1 (a ring, computed for rows with flying candidates), zeros. Branch-free.
     """
-    height, width = filtered.shape
-    inf = np.float32(np.inf)
-    zero = np.float32(0.0)
-    half = 2
-    inv_of = np.full(3, -1, np.int64)   # the row whose inverse depths each slot of inv3 holds
-    n = width - 4
+    height, width = raw.shape
+    col_lo, col_hi, near, far, mid, zeros = rows[0], rows[1], rows[2], rows[3], rows[4], rows[8]
+    col_lo[:] = np.inf
+    col_hi[:] = 0.0
+    mid[:] = 0.0
+    rows[5:8] = 1.0
+    zeros[:] = 0.0
+    inv_of = np.full(3, -1, np.int64)   # the row whose inverse depths each ring row holds
     for i in range(height):
-        # col_lo/col_hi (W + 4,): the column pass in [2, W + 2), neutral pads (inf, 0) around,
-        # so that the row pass's 5 taps give the window clipped to the image at the borders
-        inner = i >= half and i + half < height
-        if inner or (i < half and i + half + 1 < height):   # rows i, i + 1, for row i + 2
-            _pair_range(raw[i], raw[i + 1], pair_lo[i % 3], pair_hi[i % 3])
-        if inner:    # rows i - 2 to i + 2: two pairs and row i + 2
-            _column_range(pair_lo[(i - 2) % 3], pair_hi[(i - 2) % 3], pair_lo[i % 3],
-                          pair_hi[i % 3], raw[i + 2], col_lo[2:width + 2],
-                          col_hi[2:width + 2])
-        else:        # the window clipped to the image, row by row
-            i0 = max(0, i - half)
-            r0 = raw[i0]
-            for j in range(width):
-                v = r0[j]
-                col_lo[j + 2] = v if v > zero else inf
-                col_hi[j + 2] = v if v > zero else zero
-            for k in range(i0 + 1, min(height, i + half + 1)):
-                _column_step(raw[k], col_lo[2:width + 2], col_hi[2:width + 2])
+        # the window clipped to the image: its rows clamped (min and max are idempotent)
+        _column_range(raw[max(i - 2, 0)], raw[max(i - 1, 0)], raw[i],
+                      raw[min(i + 1, height - 1)], raw[min(i + 2, height - 1)],
+                      col_lo[2:width + 2], col_hi[2:width + 2])
         rr = raw[i]
         fr = filtered[i]
-        flying, filled = _row_range(col_lo, col_hi, rr, fr, jump, row_lo, row_hi)
+        flying, filled = _row_range(col_lo, col_hi, rr, fr, jump, near, far)
         up = raw[i - 1] if i > 0 else zeros
         dn = raw[i + 1] if i + 1 < height else zeros
-        iu = inv3[(i - 1) % 3]
-        im = inv3[i % 3]
-        idn = inv3[(i + 1) % 3]
-        for e in range(4):   # border columns: the scalar rule
-            j = e if e < 2 else width - 4 + e
-            if j < 0 or j >= width or (e >= 2 and width - 4 + e < 2):
-                continue
-            fr[j] = _smear_pixel(filtered, raw, i, j, row_lo[j], row_hi[j], ratio, jump,
-                                 tol_ratio)
-        if n <= 0:
-            continue
+        mid[1:width + 1] = rr
         if flying:   # else planar is not looked at (nor the inverse depths)
             for k in range(max(0, i - 1), min(height, i + 2)):
                 if inv_of[k % 3] != k:
-                    _inverse_row(raw[k], inv3[k % 3])
+                    _inverse_row(raw[k], rows[5 + k % 3, 1:width + 1])
                     inv_of[k % 3] = k
-            _planar_row(rr[1:n + 1], rr[2:n + 2], rr[3:n + 3], up[2:n + 2], dn[2:n + 2],
-                        iu[2:n + 2], im[1:n + 1], im[2:n + 2], im[3:n + 3], idn[2:n + 2],
-                        tol_ratio, planar[:n])
+            _planar_row(mid, up, dn, rows[5 + (i - 1) % 3], rows[5 + i % 3],
+                        rows[5 + (i + 1) % 3], tol_ratio, planar)
         if filled:
-            _keep_row(rr[1:n + 1], rr[3:n + 3], up[2:n + 2], dn[2:n + 2], fr[2:n + 2], ratio,
-                      keep[:n])
+            _keep_row(mid, up, dn, fr, ratio, keep)
         else:        # no hole was filled: each hole stays empty
-            keep[:n] = False
-        _decide_row(rr[2:n + 2], fr[2:n + 2], row_lo[2:n + 2], row_hi[2:n + 2], planar[:n],
-                    keep[:n], ratio, jump)
-
-
-def _smear5_buffers(width: int) -> tuple[np.ndarray, ...]:
-    """Return the row buffers of _smear5_kernel for images this wide (pads, zeros set)."""
-    col_lo = np.full(width + 4, np.inf, np.float32)   # neutral pads of the row pass: the
-    col_hi = np.zeros(width + 4, np.float32)          # kernel writes [2, W + 2) only
-    return (col_lo, col_hi, np.empty(width, np.float32), np.empty(width, np.float32),
-            np.empty((3, width), np.float32), np.empty((3, width), np.float32),
-            np.empty((3, width), np.float32), np.zeros(width, np.float32),
-            np.empty(width, np.bool_), np.empty(width, np.bool_))
-
-
-def has_nan(raw: np.ndarray) -> bool:
-    """Return True when the float32 image raw holds a NaN."""
-    return bool(_has_nan(raw))
+            keep[:] = False
+        _decide_row(rr, fr, near, far, planar, keep, ratio, jump)
 
 
 def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float, jump: float,
@@ -599,11 +472,11 @@ def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float, jump: 
     filtered, raw: (H, W) float32 C-contiguous; raw without NaN (the stage's ``accepts``
     checks it, or takes ``raw_no_nan``: OpenCV's window range orders NaN its own way).
     """
-    bufs = getattr(_SCRATCH, 'smear5', None)
-    if bufs is None or bufs[0].size != raw.shape[1] + 4:
-        bufs = _SCRATCH.smear5 = _smear5_buffers(raw.shape[1])
-    rules = (np.float32(max_shift), np.float32(jump), np.float32(planar_tolerance))
-    _smear5_kernel(filtered, raw, *rules, *bufs)
+    width = raw.shape[1]
+    rows = scratch('smear_rows', 9 * (width + 4), np.float32)[:9 * (width + 4)]
+    flags = scratch('smear_flags', 2 * width, np.bool_)[:2 * width].reshape(2, width)
+    _smear_kernel(filtered, raw, np.float32(max_shift), np.float32(jump),
+                  np.float32(planar_tolerance), rows.reshape(9, width + 4), flags[0], flags[1])
 
 
 @_jit
