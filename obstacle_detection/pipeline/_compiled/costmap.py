@@ -4,9 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._numba import AVAILABLE, jit as _jit
-
-__all__ = ['AVAILABLE', 'halo_voxels', 'rasterise']
+from ._numba import jit as _jit
 
 
 @_jit

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from ._numba import AVAILABLE, jit as _jit, jit_inline as _jit_inline
+from ._numba import jit as _jit, jit_inline as _jit_inline
 
 #: Largest dense cell table [cells]; a larger grid looks its cells up in its sorted keys.
 _DENSE_CELLS_LIMIT = 1 << 22
@@ -494,8 +494,6 @@ def knn_grid(points: np.ndarray, k: int) -> np.ndarray:
 
     The compiled twin of ``normals.nearest_neighbours``: the same arguments and result.
     """
-    if not AVAILABLE:
-        raise RuntimeError('numba is not available; use normals.nearest_neighbours')
     pts = np.asarray(points)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise ValueError(f'points must have shape (V, 3), got {pts.shape}')
@@ -523,20 +521,8 @@ def _covariance_row(pts, neighbours, v, n_use):  # pragma: no cover - compiled
     px = np.float64(pts[v, 0])
     py = np.float64(pts[v, 1])
     pz = np.float64(pts[v, 2])
-    j = neighbours[v, 0]
-    rx = np.float64(pts[j, 0]) - px
-    ry = np.float64(pts[j, 1]) - py
-    rz = np.float64(pts[j, 2]) - pz
-    sx = rx
-    sy = ry
-    sz = rz
-    s00 = rx * rx
-    s01 = rx * ry
-    s02 = rx * rz
-    s11 = ry * ry
-    s12 = ry * rz
-    s22 = rz * rz
-    for t in range(1, n_use):
+    sx = sy = sz = s00 = s01 = s02 = s11 = s12 = s22 = -0.0   # -0.0 + x is x, to the bit
+    for t in range(n_use):
         j = neighbours[v, t]
         rx = np.float64(pts[j, 0]) - px
         ry = np.float64(pts[j, 1]) - py
@@ -648,8 +634,6 @@ def normals_from_neighbours(points: np.ndarray, neighbours: np.ndarray, n: int) 
     The compiled twin of the numpy normals (``normals.estimate_normals``), bit for bit.
     Raises ValueError for bad shapes or out-of-range indices.
     """
-    if not AVAILABLE:
-        raise RuntimeError('numba is not available; use normals.estimate_normals')
     pts = np.ascontiguousarray(points, dtype=np.float32)
     nb = np.asarray(neighbours)
     if pts.ndim != 2 or pts.shape[1] != 3:
@@ -670,16 +654,9 @@ def normals_from_neighbours(points: np.ndarray, neighbours: np.ndarray, n: int) 
     n_bad = _normals_kernel(pts, nb, n, normals, cov_bad, bad)
     if n_bad < 0:
         raise ValueError(f'neighbour indices must lie in [0, {v_count})')
-    return _degenerate_normals(normals, cov_bad, bad, n_bad)
-
-
-def _degenerate_normals(normals: np.ndarray, cov_bad: np.ndarray, bad: np.ndarray,
-                        n_bad: int) -> np.ndarray:
-    """Give the degenerate rows LAPACK's eigenvector, as the numpy path does."""
-    if n_bad:
+    if n_bad:   # the degenerate rows: LAPACK's eigenvector, as the numpy path
         cov = cov_bad[bad][:, [0, 1, 2, 1, 3, 4, 2, 4, 5]].reshape(-1, 3, 3)
-        _, vecs = np.linalg.eigh(cov)
-        normals[bad] = vecs[:, :, 0]
+        normals[bad] = np.linalg.eigh(cov)[1][:, :, 0]
     return normals
 
 
@@ -711,9 +688,7 @@ def validate(is_obstacle: np.ndarray, neighbours: np.ndarray, n1: int) -> np.nda
 
 
 def warm_up() -> None:
-    """Compile (or load from the disk cache) every kernel on a tiny cloud; no-op without numba."""
-    if not AVAILABLE:
-        return
+    """Compile (or load from the disk cache) every kernel on a tiny cloud."""
     rng = np.random.default_rng(0)
     pts = rng.uniform(0.0, 0.1, (40, 3)).astype(np.float32)
     nb = knn_grid(pts, 13)

@@ -4,10 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._numba import AVAILABLE, jit as _jit
+from ._numba import jit as _jit
 from .traversal import grid_cells
-
-__all__ = ['AVAILABLE', 'feet', 'ledges', 'lone_voxels']
 
 #: The 8 directions of the search across an edge (the numpy path's order; min is exact).
 _DX = np.array((1, 0, -1, 0, 1, 1, -1, -1), np.int64)

@@ -8,10 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._numba import AVAILABLE, jit_parallel, prange
+from ._numba import jit_parallel, prange
 from ._numba import numba as _numba
-
-__all__ = ['AVAILABLE', 'median_filter']
 
 #: Keys per block of the histogram walk.
 _BLOCK = 64

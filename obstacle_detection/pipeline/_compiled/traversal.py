@@ -10,10 +10,7 @@ import math
 
 import numpy as np
 
-from ._numba import AVAILABLE, jit as _jit, jit_inline as _jit_inline, scratch
-
-__all__ = ['AVAILABLE', 'drop_pixels', 'drop_smeared', 'ground_rays', 'has_nan', 'ray_row',
-           'traverse', 'unbias_holes', 'warm_up']
+from ._numba import jit as _jit, jit_inline as _jit_inline, scratch
 
 @_jit
 def ray_row(ru, rv_i, r0, r1, r2, out):  # pragma: no cover - compiled
@@ -170,9 +167,8 @@ def _local_ground(surface, reached, order, nx, ny):  # pragma: no cover - compil
 
 
 @_jit
-def _traverse_kernel(points, steep, size, step_up, step_down, up32, down32, robot32, layer,
-                     min_support, obstacle, above, height,
-                     reached_v):  # pragma: no cover - compiled
+def _traverse_kernel(points, steep, size, step_up, step_down, robot, layer,
+                     min_support):  # pragma: no cover - compiled
     """Run the numpy path of traversal.traversable_ground, cell by cell."""
     ix, iy, nx, ny, _, _ = grid_cells(points, size)
     key = ix * ny + iy
@@ -180,31 +176,22 @@ def _traverse_kernel(points, steep, size, step_up, step_down, up32, down32, robo
                                         min_support)
     reached, order = _reach(surface, passable, nx, ny, step_up, step_down)
     ground = _local_ground(surface, reached, order, nx, ny)
+    height = np.empty(points.shape[0], np.float32)
     for v in range(points.shape[0]):
-        k = key[v]
-        h = np.float32(np.float64(points[v, 2]) - ground[k])
-        height[v] = h
-        above[v] = h > robot32
-        obstacle[v] = (h > up32 and not above[v]) or h < -down32
-        reached_v[v] = reached[k]
+        height[v] = np.float32(np.float64(points[v, 2]) - ground[key[v]])
+    above = height > robot
+    obstacle = ((height > np.float32(step_up)) & ~above) | (height < -np.float32(step_down))
+    return obstacle, above, height, reached[key]
 
 
 def traverse(points: np.ndarray, steep: np.ndarray, size_m: float, step_up_m: float,
              step_down_m: float, robot_height_m: float, layer_m: float, min_support: int = 3,
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(obstacle, above, height float32, reached) per voxel; see traversal.traversable_ground."""
-    n = points.shape[0]
-    obstacle = np.empty(n, np.bool_)
-    above = np.empty(n, np.bool_)
-    height = np.empty(n, np.float32)
-    reached = np.empty(n, np.bool_)
-    _traverse_kernel(np.ascontiguousarray(points, np.float32),
-                     np.ascontiguousarray(steep, np.bool_), np.float32(size_m),
-                     float(step_up_m), float(step_down_m), np.float32(step_up_m),
-                     np.float32(step_down_m), np.float32(robot_height_m), float(layer_m),
-                     int(min_support),
-                     obstacle, above, height, reached)
-    return obstacle, above, height, reached
+    return _traverse_kernel(np.ascontiguousarray(points, np.float32),
+                            np.ascontiguousarray(steep, np.bool_), np.float32(size_m),
+                            float(step_up_m), float(step_down_m), np.float32(robot_height_m),
+                            float(layer_m), int(min_support))
 
 
 @_jit

@@ -13,11 +13,8 @@ import numpy as np
 from obstacle_detection.labels import (LABEL_GROUND, LABEL_NO_RETURN, LABEL_OBSTACLE,
                                        LABEL_OUTSIDE_ROI)
 
-from ._numba import AVAILABLE, jit as _jit, jit_inline as _jit_inline, scratch
+from ._numba import jit as _jit, jit_inline as _jit_inline, scratch
 from .traversal import ray_row
-
-__all__ = ['AVAILABLE', 'Projection', 'label_pixels', 'project_roi', 'roi_lattice',
-           'voxel_downsample', 'voxelise']
 
 #: Most lattice cells [cells] of the occupied-cell bitmap (as the numpy path's dense limit).
 _DENSE_LIMIT = 16_000_000
