@@ -163,8 +163,9 @@ def _compiled_points_in_roi(depth_m: np.ndarray, rays: np.ndarray | geometry.Gro
     factors = (rays.ru, rays.rv, rays.rot) if isinstance(rays, geometry.GroundRays) else rays
     proj = jit_voxel.project_roi(depth_m, factors, roi_bounds(params), params.voxel_size_m,
                                  reuse=True)
+    keyed = proj.keys is not None and proj.keys.size
     return RoiPoints(proj.points, proj.pixel_index, proj.labels, proj.pixel_voxel,
-                     params.voxel_size_m, proj if proj.has_keys and proj.count else None)
+                     params.voxel_size_m, proj if keyed else None)
 
 
 #: Back-project a depth image (0 = no return) through its ground rays (a table or

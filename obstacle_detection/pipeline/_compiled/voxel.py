@@ -8,6 +8,9 @@ float32 operations, float64 sums in point order). Method: docs/speed.md.
 
 from __future__ import annotations
 
+import functools
+from dataclasses import dataclass
+
 import numpy as np
 
 from obstacle_detection.labels import (LABEL_GROUND, LABEL_NO_RETURN, LABEL_OBSTACLE,
@@ -43,9 +46,9 @@ def _project_kernel(depth, rays, offset, bounds, size, low, dims, labels, pixel_
     m = 0
     for p in range(depth.size):
         z = depth[p]
+        pixel_voxel[p] = -1
         if not z > 0.0:
             labels[p] = LABEL_NO_RETURN
-            pixel_voxel[p] = -1
             continue
         gx = z * rays[0, p]
         gy = z * rays[1, p]
@@ -59,7 +62,6 @@ def _project_kernel(depth, rays, offset, bounds, size, low, dims, labels, pixel_
             if i < 0 or i >= dims[0] or j < 0 or j >= dims[1] or k < 0 or k >= dims[2]:
                 return -1
             labels[p] = _LABEL_KEPT
-            pixel_voxel[p] = -1
             cols[0, m] = gx
             cols[1, m] = gy
             cols[2, m] = gz
@@ -68,7 +70,6 @@ def _project_kernel(depth, rays, offset, bounds, size, low, dims, labels, pixel_
             m += 1
         else:
             labels[p] = LABEL_OUTSIDE_ROI
-            pixel_voxel[p] = -1
     return m
 
 
@@ -182,38 +183,24 @@ def _label_kernel(labels, pixel_voxel, is_obstacle):  # pragma: no cover - compi
             labels[p] = LABEL_OBSTACLE if is_obstacle[v] else LABEL_GROUND
 
 
+@dataclass
 class Projection:
     """What :func:`project_roi` found in one depth image (flat pixel order).
 
-    The points inside the region, their pixel indices and (``has_keys``) voxel keys on the
-    lattice ``low``, ``dims``; labels; pixel_voxel (-1 until :func:`voxelise`).
+    points (M, 3) float32, a view of cols (3, N); their flat pixel_index and voxel keys int64
+    on the lattice ``low``, ``dims`` (None: too large a lattice); labels (H, W) uint8;
+    pixel_voxel (H, W) int32, -1 until :func:`voxelise`; reuse: per-thread buffers.
     """
 
-    __slots__ = ('_cols', '_pix', '_keys', 'count', 'labels', 'pixel_voxel', 'has_keys',
-                 'low', 'dims', 'voxel_size_m', 'reuse')
-
-    def __init__(self, cols: np.ndarray, pix: np.ndarray, keys: np.ndarray, count: int,
-                 labels: np.ndarray, pixel_voxel: np.ndarray, has_keys: bool, low: np.ndarray,
-                 dims: np.ndarray, voxel_size_m: tuple[float, float, float],
-                 reuse: bool) -> None:
-        self._cols, self._pix, self._keys, self.count = cols, pix, keys, count
-        self.labels, self.pixel_voxel, self.has_keys = labels, pixel_voxel, has_keys
-        self.low, self.dims, self.voxel_size_m, self.reuse = low, dims, voxel_size_m, reuse
-
-    @property
-    def points(self) -> np.ndarray:
-        """(M, 3) float32, a view of (3, M) contiguous columns."""
-        return self._cols[:, :self.count].T
-
-    @property
-    def pixel_index(self) -> np.ndarray:
-        """(M,) int64 flat pixel indices."""
-        return self._pix[:self.count]
-
-    @property
-    def keys(self) -> np.ndarray | None:
-        """(M,) int64 linear voxel keys, or None."""
-        return self._keys[:self.count] if self.has_keys else None
+    points: np.ndarray
+    pixel_index: np.ndarray
+    keys: np.ndarray | None
+    labels: np.ndarray
+    pixel_voxel: np.ndarray
+    low: np.ndarray
+    dims: np.ndarray
+    reuse: bool
+    cols: np.ndarray
 
 
 def roi_lattice(bounds: np.ndarray, size: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -242,21 +229,14 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarra
             raise ValueError(f'rays are for a {(rv.size, ru.size)} image, the depth is {shape}')
         band = max(1, _RAY_BAND_PX // shape[1]) * shape[1]   # whole rows
         chunk = scratch('ray_band', 3 * band, np.float32)[:3 * band].reshape(3, band)
-
-        def kernel(*args):
-            return _project_rays_kernel(depth, ru, rv, rot, chunk, *args)
-
+        kernel = functools.partial(_project_rays_kernel, depth, ru, rv, rot, chunk)
     else:
         rays = np.ascontiguousarray(rays, np.float32)
         if rays.shape != (3, n):
             raise ValueError(f'rays must have shape (3, {n}), got {rays.shape}')
-
-        def kernel(*args):
-            return _project_kernel(depth, rays, 0, *args)
-
+        kernel = functools.partial(_project_kernel, depth, rays, 0)
     size = np.asarray(voxel_size_m, np.float32)
     low, dims = roi_lattice(bounds, size)
-    n_cells = int(dims[0]) * int(dims[1]) * int(dims[2])
     labels = np.empty(shape, np.uint8)
     pixel_voxel = np.empty(shape, np.int32)
     if reuse:
@@ -267,18 +247,16 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarra
         cols = np.empty((3, n), np.float32)
         pix = np.empty(n, np.int64)
         keys = np.empty(n, np.int64)
-    m = -1
-    if n_cells <= _DENSE_LIMIT:
-        m = kernel(bounds, size, low, dims, labels.reshape(-1), pixel_voxel.reshape(-1), cols,
-                   pix, keys)
-    if m < 0:   # lattice too large: points only, numpy numbers the voxels
-        dims = np.zeros(3, np.int64)
-        m = kernel(bounds, size, low, np.full(3, 1 << 62, np.int64), labels.reshape(-1),
-                   pixel_voxel.reshape(-1), cols, pix, keys)
-        return Projection(cols, pix, keys, m, labels, pixel_voxel, False, low, dims,
-                          voxel_size_m, reuse)
-    return Projection(cols, pix, keys, m, labels, pixel_voxel, True, low, dims, voxel_size_m,
-                      reuse)
+    keyed = int(dims[0]) * int(dims[1]) * int(dims[2]) <= _DENSE_LIMIT
+    unkeyed = np.full(3, 1 << 62, np.int64)   # a lattice no key leaves: points only
+    m = kernel(bounds, size, low, dims if keyed else unkeyed, labels.reshape(-1),
+               pixel_voxel.reshape(-1), cols, pix, keys)
+    if m < 0:   # a key outside the lattice: points only, numpy numbers the voxels
+        keyed = False
+        m = kernel(bounds, size, low, unkeyed, labels.reshape(-1), pixel_voxel.reshape(-1),
+                   cols, pix, keys)
+    return Projection(cols[:, :m].T, pix[:m], keys[:m] if keyed else None, labels, pixel_voxel,
+                      low, dims, reuse, cols)
 
 
 def voxelise(proj: Projection) -> tuple:
@@ -286,14 +264,14 @@ def voxelise(proj: Projection) -> tuple:
 
     Raises ValueError for a projection without keys (its lattice too large) or points.
     """
-    if not proj.has_keys or proj.count == 0:
+    m = proj.pixel_index.size
+    if proj.keys is None or m == 0:
         raise ValueError('the projection has no voxel keys or no point')
     n_cells = int(proj.dims[0] * proj.dims[1] * proj.dims[2])
-    m = proj.count
     point_voxel = scratch('point_voxel', m, np.int64)[:m] if proj.reuse else np.empty(m,
                                                                                       np.int64)
-    return _run_voxel_kernel(proj._cols, proj._keys, n_cells, proj.dims, proj.low, proj._pix,
-                             proj.pixel_voxel.reshape(-1), point_voxel)
+    return _run_voxel_kernel(proj.cols, proj.keys, n_cells, proj.dims, proj.low,
+                             proj.pixel_index, proj.pixel_voxel.reshape(-1), point_voxel)
 
 
 def _run_voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_voxel):
