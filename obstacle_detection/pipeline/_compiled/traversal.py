@@ -12,6 +12,7 @@ import numpy as np
 
 from ._numba import jit as _jit, jit_inline as _jit_inline, scratch
 
+
 @_jit
 def ray_row(ru, rv_i, r0, r1, r2, out):  # pragma: no cover - compiled
     """Fill out (W,) float32 with ``(r0 * ru[j] + r1 * rv_i) + r2`` (GroundRays' order)."""
