@@ -577,8 +577,8 @@ def _floor_samples_kernel(depth, step, rays, height, tan_tilt, band0, min_x, max
 
 
 @_jit
-def _hypotheses(pts, picks, tan_tilt2, offset, a, b, c):  # pragma: no cover - compiled
-    """Fill a, b, c with the planes through the picked triplets within the tilt and offset.
+def _hypotheses(pts, picks, tan_tilt2, offset, planes):  # pragma: no cover - compiled
+    """Fill planes (a, b, c) with those through the picked triplets within the tilt and offset.
 
     pts: (3, M) float64; picks: (3, h) in [0, 1), where in each third of the samples the
     triplet points are taken. Returns how many.
@@ -605,9 +605,9 @@ def _hypotheses(pts, picks, tan_tilt2, offset, a, b, c):  # pragma: no cover - c
         hb = -ny / nz
         hc = pts[2, i0] - ha * pts[0, i0] - hb * pts[1, i0]
         if ha * ha + hb * hb <= tan_tilt2 and abs(hc) <= offset:
-            a[used] = ha
-            b[used] = hb
-            c[used] = hc
+            planes[used, 0] = ha
+            planes[used, 1] = hb
+            planes[used, 2] = hc
             used += 1
     return used
 
@@ -615,25 +615,19 @@ def _hypotheses(pts, picks, tan_tilt2, offset, a, b, c):  # pragma: no cover - c
 @_jit
 def _mode_height(pts, offset):  # pragma: no cover - compiled
     """Return the most common sample height within the offset (1 cm bins), or 0."""
-    n = pts.shape[1]
-    n_bins = 0
-    for i in range(n):
-        z = pts[2, i]
-        if abs(z) <= offset:
-            n_bins = max(n_bins, np.int64(np.floor((z + offset) * 100.0)) + 1)
-    if n_bins == 0:
-        return 0.0
-    counts = np.zeros(n_bins, np.int64)
-    for i in range(n):
+    counts = np.zeros(np.int64(np.floor((offset + offset) * 100.0)) + 1, np.int64)
+    found = False
+    for i in range(pts.shape[1]):
         z = pts[2, i]
         if abs(z) <= offset:
             counts[np.int64(np.floor((z + offset) * 100.0))] += 1
-    return (np.argmax(counts) + 0.5) * 0.01 - offset
+            found = True
+    return (np.argmax(counts) + 0.5) * 0.01 - offset if found else 0.0
 
 
 @_jit
-def _scores(pts, a, b, c, used, score_points, band32):  # pragma: no cover - compiled
-    """Return (used,) int64: samples (every stride-th, float32) within band32 of each plane."""
+def _scores(pts, planes, score_points, band32):  # pragma: no cover - compiled
+    """Return the samples (every stride-th, float32) within band32 of each plane, int64."""
     n = pts.shape[1]
     stride = max(1, n // score_points)
     ns = (n + stride - 1) // stride
@@ -644,11 +638,11 @@ def _scores(pts, a, b, c, used, score_points, band32):  # pragma: no cover - com
         sx[i] = np.float32(pts[0, i * stride])
         sy[i] = np.float32(pts[1, i * stride])
         sz[i] = np.float32(pts[2, i * stride])
-    score = np.empty(used, np.int64)
-    for t in range(used):
-        a32 = np.float32(a[t])
-        b32 = np.float32(b[t])
-        c32 = np.float32(c[t])
+    score = np.empty(planes.shape[0], np.int64)
+    for t in range(planes.shape[0]):
+        a32 = np.float32(planes[t, 0])
+        b32 = np.float32(planes[t, 1])
+        c32 = np.float32(planes[t, 2])
         count = 0
         for i in range(ns):
             r = a32 * sx[i]
@@ -661,35 +655,18 @@ def _scores(pts, a, b, c, used, score_points, band32):  # pragma: no cover - com
 
 
 @_jit
-def _ransac_kernel(pts, picks, tan_tilt2, offset, band32, score_points, out,
-                   ):  # pragma: no cover - compiled
-    """Fill out (k, 3) with floor._ransac_plane's best k hypotheses (same float operations).
+def ransac_plane(pts, picks, tan_tilt2, offset, band, score_points,
+                 k):  # pragma: no cover - compiled
+    """(k, 3) float64: floor._ransac_plane's best k hypotheses (the same float operations).
 
     The hypotheses: the triplets' planes, the configured floor and the level plane through
-    the most common sample height; band32: the float32 inlier band.
+    the most common sample height; the best first, ties: the earlier hypothesis.
     """
-    h = picks.shape[1]
-    a = np.empty(h + 2)
-    b = np.empty(h + 2)
-    c = np.empty(h + 2)
-    used = _hypotheses(pts, picks, tan_tilt2, offset, a, b, c)
-    a[used] = 0.0
-    b[used] = 0.0
-    c[used] = 0.0
-    a[used + 1] = 0.0
-    b[used + 1] = 0.0
-    c[used + 1] = _mode_height(pts, offset)
-    used += 2
-    score = _scores(pts, a, b, c, used, score_points, band32)
-    for k in range(out.shape[0]):   # the best first; ties: the earlier hypothesis
-        best = -1
-        for t in range(used):
-            if score[t] >= 0 and (best < 0 or score[t] > score[best]):
-                best = t
-        out[k, 0] = a[best]
-        out[k, 1] = b[best]
-        out[k, 2] = c[best]
-        score[best] = -1
+    planes = np.zeros((picks.shape[1] + 2, 3))
+    used = _hypotheses(pts, picks, tan_tilt2, offset, planes)
+    planes[used + 1, 2] = _mode_height(pts, offset)   # planes[used]: the floor, (0, 0, 0)
+    score = _scores(pts, planes[:used + 2], score_points, np.float32(band))
+    return planes[np.argsort(-score, kind='mergesort')[:k]]
 
 
 def floor_samples(depth_m: np.ndarray, step: int, sub_rays: np.ndarray, height_m: float,
@@ -705,15 +682,6 @@ def floor_samples(depth_m: np.ndarray, step: int, sub_rays: np.ndarray, height_m
                               float(tan_tilt), float(band0_m), float(min_x_m), float(max_x_m),
                               float(max_y_m), float(facing_cos2), buf)
     return buf[:, :m].copy()
-
-
-def ransac_plane(pts: np.ndarray, picks: np.ndarray, tan_tilt2: float, offset_m: float,
-                 band_m: float, score_points: int, k: int) -> np.ndarray:
-    """(k, 3) float64: floor._ransac_plane's best hypotheses, compiled."""
-    out = np.empty((k, 3))
-    _ransac_kernel(pts, picks, float(tan_tilt2), float(offset_m), np.float32(band_m),
-                   int(score_points), out)
-    return out
 
 
 def warm_up() -> None:
