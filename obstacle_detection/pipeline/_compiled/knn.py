@@ -13,8 +13,8 @@ import numpy as np
 
 from ._numba import jit as _jit, jit_inline as _jit_inline
 
-#: Largest dense cell table [cells]; a larger grid looks its cells up in its sorted keys.
-_DENSE_CELLS_LIMIT = 1 << 22
+#: Most cells of the grid's cell table; a grid that would have more is made coarser.
+_MAX_CELLS = 1 << 22
 #: Target mean number of other points in a point's grid cell, per neighbour asked for.
 _CROWDING_PER_NEIGHBOUR = 0.5
 #: Most cells along one grid axis, so linear cell keys fit comfortably in int64.
@@ -24,11 +24,10 @@ _MAX_AXIS_CELLS = 1 << 20
 # --------------------------------------------------------------------------- grid k-NN kernel
 
 @_jit
-def _build_grid(pts, lo, cell, dense):  # pragma: no cover - compiled
-    """Sort points by cell: (cell_ijk, dims, order, sorted_pts, starts, cell_keys).
+def _build_grid(pts, lo, cell):  # pragma: no cover - compiled
+    """Sort points by cell: (cell_ijk, dims, order, sorted_pts, starts).
 
-    Dense: cell c spans ``order[starts[c]:starts[c + 1]]``; sparse: ``cell_keys`` holds the
-    occupied cells' keys in order and ``starts`` one entry per occupied cell (:func:`_span`).
+    Cell c (linear key) spans the sorted slots ``starts[c]:starts[c + 1]`` (points ``order``).
     """
     n = pts.shape[0]
     cell_ijk = np.empty((n, 3), np.int64)
@@ -46,52 +45,23 @@ def _build_grid(pts, lo, cell, dense):  # pragma: no cover - compiled
         keys[i] = (cell_ijk[i, 0] * dims[1] + cell_ijk[i, 1]) * dims[2] + cell_ijk[i, 2]
 
     order = np.empty(n, np.int64)
-    if dense:
-        ncells = dims[0] * dims[1] * dims[2]
-        starts = np.zeros(ncells + 1, np.int64)
-        for i in range(n):
-            starts[keys[i]] += 1
-        total = 0
-        for c in range(ncells):
-            total += starts[c]
-            starts[c] = total          # end of cell c
-        starts[ncells] = n
-        for i in range(n - 1, -1, -1):  # backwards: stable, starts[c] becomes the beginning
-            starts[keys[i]] -= 1
-            order[starts[keys[i]]] = i
-        cell_keys = np.empty(0, np.int64)
-    else:
-        order[:] = np.argsort(keys, kind='mergesort')
-        n_occ = 0
-        for s in range(n):
-            if s == 0 or keys[order[s]] != keys[order[s - 1]]:
-                n_occ += 1
-        starts = np.empty(n_occ + 1, np.int64)
-        cell_keys = np.empty(n_occ, np.int64)
-        occ = 0
-        for s in range(n):
-            key = keys[order[s]]
-            if s == 0 or key != keys[order[s - 1]]:
-                starts[occ] = s
-                cell_keys[occ] = key
-                occ += 1
-        starts[n_occ] = n
+    ncells = dims[0] * dims[1] * dims[2]
+    starts = np.zeros(ncells + 1, np.int64)
+    for i in range(n):
+        starts[keys[i]] += 1
+    total = 0
+    for c in range(ncells):
+        total += starts[c]
+        starts[c] = total          # end of cell c
+    starts[ncells] = n
+    for i in range(n - 1, -1, -1):  # backwards: stable, starts[c] becomes the beginning
+        starts[keys[i]] -= 1
+        order[starts[keys[i]]] = i
     sorted_pts = np.empty((n, 3), np.float64)
     for s in range(n):
         for a in range(3):
             sorted_pts[s, a] = pts[order[s], a]
-    return cell_ijk, dims, order, sorted_pts, starts, cell_keys
-
-
-@_jit_inline
-def _span(key, dense, starts, cell_keys):  # pragma: no cover - compiled
-    """Return (begin, end): the sorted slots of the points in the cell of linear key ``key``."""
-    if dense:
-        return starts[key], starts[key + 1]
-    c = np.searchsorted(cell_keys, key)
-    if c < cell_keys.shape[0] and cell_keys[c] == key:
-        return starts[c], starts[c + 1]
-    return 0, 0
+    return cell_ijk, dims, order, sorted_pts, starts
 
 
 @_jit_inline
@@ -128,8 +98,8 @@ def _cell_end(s, order, cell_ijk):  # pragma: no cover - compiled
 
 
 @_jit_inline
-def _gather_block(c0, c1, c2, dims, dense, starts, cell_keys, sp, order,
-                  block_x, block_y, block_z, block_j):  # pragma: no cover - compiled
+def _gather_block(c0, c1, c2, dims, starts, sp, order, block_x, block_y, block_z,
+                  block_j):  # pragma: no cover - compiled
     """Copy the points of the 3 x 3 x 3 cells around cell (c0, c1, c2) into the block arrays.
 
     Returns their number m (block_x/y/z, block_j: coordinates and index).
@@ -139,8 +109,7 @@ def _gather_block(c0, c1, c2, dims, dense, starts, cell_keys, sp, order,
         for o1 in range(max(c1 - 1, 0), min(c1 + 1, dims[1] - 1) + 1):
             for o2 in range(max(c2 - 1, 0), min(c2 + 1, dims[2] - 1) + 1):
                 key = (o0 * dims[1] + o1) * dims[2] + o2
-                begin, end = _span(key, dense, starts, cell_keys)
-                for t in range(begin, end):
+                for t in range(starts[key], starts[key + 1]):
                     block_x[m] = sp[t, 0]
                     block_y[m] = sp[t, 1]
                     block_z[m] = sp[t, 2]
@@ -249,8 +218,8 @@ def _write_row(out, i, src, k):  # pragma: no cover - compiled
 
 
 @_jit_inline
-def _search_shells(i, x0, x1, x2, c0, c1, c2, below, above, cell, slack, dims, dense, starts,
-                   cell_keys, sp, order, best_d, best_i, k, budget):  # pragma: no cover
+def _search_shells(i, x0, x1, x2, c0, c1, c2, below, above, cell, slack, dims, starts, sp,
+                   order, best_d, best_i, k, budget):  # pragma: no cover - compiled
     """Search shells of cells of growing Chebyshev radius around query i's cell.
 
     Fills best_d / best_i, pruning cells farther than the k-th best. Returns False when more
@@ -299,14 +268,13 @@ def _search_shells(i, x0, x1, x2, c0, c1, c2, below, above, cell, slack, dims, d
                     if g01 + g2 * g2 > worst:
                         continue
                     key = ((c0 + o0) * dims[1] + (c1 + o1)) * dims[2] + (c2 + o2)
-                    begin, end = _span(key, dense, starts, cell_keys)
-                    count, worst = _offer_span(begin, end, sp, order, x0, x1, x2, i, best_d,
-                                               best_i, count, worst, k)
+                    count, worst = _offer_span(starts[key], starts[key + 1], sp, order, x0, x1,
+                                               x2, i, best_d, best_i, count, worst, k)
     return True
 
 
 @_jit
-def _knn_queries(lo, cell, k, dense, slack, cell_ijk, dims, order, sp, starts, cell_keys,
+def _knn_queries(lo, cell, k, slack, cell_ijk, dims, order, sp, starts,
                  out):  # pragma: no cover - compiled
     """Search every query of a :func:`_build_grid` grid, in sorted (cell) order, into ``out``.
 
@@ -341,8 +309,8 @@ def _knn_queries(lo, cell, k, dense, slack, cell_ijk, dims, order, sp, starts, c
         c2 = cell_ijk[i, 2]
         if s == group_end:            # first point of a new cell: gather its block
             group_end = _cell_end(s, order, cell_ijk)
-            m = _gather_block(c0, c1, c2, dims, dense, starts, cell_keys, sp,
-                              order, block_x, block_y, block_z, block_j)
+            m = _gather_block(c0, c1, c2, dims, starts, sp, order, block_x, block_y, block_z,
+                              block_j)
         x0 = sp[s, 0]
         x1 = sp[s, 1]
         x2 = sp[s, 2]
@@ -364,8 +332,8 @@ def _knn_queries(lo, cell, k, dense, slack, cell_ijk, dims, order, sp, starts, c
             kth2_prev = _rank_near(near_d, near_j, n_near, k, top, kth2_prev)
             _write_row(out, i, top, k)
             continue
-        if not _search_shells(i, x0, x1, x2, c0, c1, c2, below, above, cell, slack, dims, dense,
-                              starts, cell_keys, sp, order, best_d, best_i, k, budget):
+        if not _search_shells(i, x0, x1, x2, c0, c1, c2, below, above, cell, slack, dims,
+                              starts, sp, order, best_d, best_i, k, budget):
             # far-apart points: a plain scan is the cheaper search
             _offer_span(0, n, sp, order, x0, x1, x2, i, best_d, best_i, 1, np.inf, k)
         kth2_prev = best_d[k - 1]
@@ -461,7 +429,7 @@ def _cell_size(pts, lo, extent, k):  # pragma: no cover - compiled
 
 @_jit
 def _knn_setup(pts, k):  # pragma: no cover - compiled
-    """Plan the grid: (finite, lo, cell, dense, slack); finite False for non-finite points."""
+    """Plan the grid: (finite, lo, cell, slack); finite False for non-finite points."""
     n = pts.shape[0]
     lo = np.empty(3, np.float64)
     extent = np.empty(3, np.float64)
@@ -472,19 +440,20 @@ def _knn_setup(pts, k):  # pragma: no cover - compiled
         for i in range(n):
             x = pts[i, a]
             if not math.isfinite(x):
-                return False, lo, extent, False, 0.0
+                return False, lo, extent, 0.0
             low = min(low, x)
             high = max(high, x)
         lo[a] = low
         extent[a] = high - low
         scale = max(scale, abs(low) + extent[a])
     size = _cell_size(pts, lo, extent, k)
-    cell = np.full(3, size)
     dims = _grid_dims(extent, size)
-    dense = np.float64(dims[0]) * dims[1] * dims[2] <= _DENSE_CELLS_LIMIT
+    while np.float64(dims[0]) * dims[1] * dims[2] > _MAX_CELLS:   # far-apart points
+        size *= 2.0
+        dims = _grid_dims(extent, size)
     # cell membership is computed in float64; this margin covers its rounding
     slack = 1e-9 * (scale + size)
-    return True, lo, cell, dense, slack
+    return True, lo, np.full(3, size), slack
 
 
 # ------------------------------------------------------------------------------ public API
@@ -505,10 +474,10 @@ def knn_grid(points: np.ndarray, k: int) -> np.ndarray:
         return np.arange(n, dtype=np.int64).reshape(n, 1)
     out = np.empty((n, k), dtype=np.int64)
     pts = np.ascontiguousarray(pts, dtype=np.float64)
-    finite, lo, cell, dense, slack = _knn_setup(pts, k)
+    finite, lo, cell, slack = _knn_setup(pts, k)
     if not finite:
         raise ValueError('points must be finite (no NaN or inf coordinates)')
-    _knn_queries(lo, cell, k, dense, slack, *_build_grid(pts, lo, cell, dense), out)
+    _knn_queries(lo, cell, k, slack, *_build_grid(pts, lo, cell), out)
     return out
 
 
