@@ -387,11 +387,10 @@ def _crowding(pts, lo, extent, size):  # pragma: no cover - compiled
 def _cell_size(pts, lo, extent, k):  # pragma: no cover - compiled
     """Pick the grid cell [m] so that a point's own cell holds about ``k / 2`` other points.
 
-    The crowding is counted at two trial sizes and the size extrapolated between them (it grows
-    as ``size ** dim``, dim the cloud's local dimension). Only speed depends on it.
+    The crowding is counted at about n cells and the size scaled as for a surface, whose
+    crowding grows as ``size ** 2`` (voxels of surfaces). Only speed depends on it.
     """
     n = pts.shape[0]
-    target = _CROWDING_PER_NEIGHBOUR * k
     dim = 0
     volume = 1.0
     largest = 0.0
@@ -403,25 +402,10 @@ def _cell_size(pts, lo, extent, k):  # pragma: no cover - compiled
     if dim == 0:
         return 1.0                              # all points coincide: one cell
     smallest = largest / (_MAX_AXIS_CELLS - 1)
-    size_a = max((volume / n) ** (1.0 / dim), smallest)     # about n cells
-    crowd_a = _crowding(pts, lo, extent, size_a)
-    if crowd_a > 0.0:
-        size_b = size_a * min(max((target / crowd_a) ** (1.0 / dim), 0.5), 4.0)
-    else:
-        size_b = 2.0 * size_a
-    size_b = max(size_b, smallest)
-    crowd_b = _crowding(pts, lo, extent, size_b)
-    slope = float(dim)
-    if crowd_a > 0.0 and crowd_b > 0.0 and size_a != size_b:
-        slope = math.log(crowd_a / crowd_b) / math.log(size_a / size_b)
-        slope = min(max(slope, 1.0), float(dim))
-    size = size_b
-    crowd = crowd_b
-    if crowd_b <= 0.0:
-        size = size_a
-        crowd = crowd_a
+    size = max((volume / n) ** (1.0 / dim), smallest)     # about n cells
+    crowd = _crowding(pts, lo, extent, size)
     if crowd > 0.0:
-        size *= (target / crowd) ** (1.0 / slope)
+        size *= min(max((_CROWDING_PER_NEIGHBOUR * k / crowd) ** 0.5, 0.25), 4.0)
     else:
         size *= 2.0                             # every point alone: a very sparse cloud
     return max(size, smallest)
