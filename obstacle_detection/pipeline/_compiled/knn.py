@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from ._numba import jit as _jit, jit_inline as _jit_inline
+from ._numba import jit as _jit
 
 #: Most cells of the grid's cell table; a grid that would have more is made coarser.
 _MAX_CELLS = 1 << 22
@@ -64,7 +64,7 @@ def _build_grid(pts, lo, cell):  # pragma: no cover - compiled
     return cell_ijk, dims, order, sorted_pts, starts
 
 
-@_jit_inline
+@_jit(inline='always')
 def _squared_distance(a0, a1, a2, x0, x1, x2):  # pragma: no cover - compiled
     """Squared distance of (a0, a1, a2) to (x0, x1, x2), summed in scipy's order."""
     d0 = a0 - x0
@@ -85,7 +85,7 @@ def _axis_gap(offset, below, above, size, slack):  # pragma: no cover - compiled
     return g if g > 0.0 else 0.0
 
 
-@_jit_inline
+@_jit(inline='always')
 def _cell_end(s, order, cell_ijk):  # pragma: no cover - compiled
     """Return the sorted slot after the last point of the cell of sorted slot ``s``."""
     i = order[s]
@@ -97,7 +97,7 @@ def _cell_end(s, order, cell_ijk):  # pragma: no cover - compiled
     return end
 
 
-@_jit_inline
+@_jit(inline='always')
 def _gather_block(c0, c1, c2, dims, starts, sp, order, block_x, block_y, block_z,
                   block_j):  # pragma: no cover - compiled
     """Copy the points of the 3 x 3 x 3 cells around cell (c0, c1, c2) into the block arrays.
@@ -118,7 +118,7 @@ def _gather_block(c0, c1, c2, dims, starts, sp, order, block_x, block_y, block_z
     return m
 
 
-@_jit_inline
+@_jit(inline='always')
 def _near_points(block_d, block_j, m, i, radius2, near_d, near_j):  # pragma: no cover
     """Keep the block's points within squared distance ``radius2`` of query i; return how many.
 
@@ -134,7 +134,7 @@ def _near_points(block_d, block_j, m, i, radius2, near_d, near_j):  # pragma: no
     return n_near
 
 
-@_jit_inline
+@_jit(inline='always')
 def _rank_near(near_d, near_j, n_near, k, top, kth2):  # pragma: no cover - compiled
     """Write the k nearest of the n_near (>= k) near points into top[:k]; return the k-th d2.
 
@@ -170,7 +170,7 @@ def _rank_near(near_d, near_j, n_near, k, top, kth2):  # pragma: no cover - comp
     return kth2
 
 
-@_jit_inline
+@_jit(inline='always')
 def _offer_span(begin, end, sp, order, x0, x1, x2, i, best_d, best_i, count, worst,
                 k):  # pragma: no cover - compiled
     """Offer the sorted points begin .. end - 1 to query i's insertion-sorted top-k.
@@ -202,7 +202,7 @@ def _offer_span(begin, end, sp, order, x0, x1, x2, i, best_d, best_i, count, wor
     return count, worst
 
 
-@_jit_inline
+@_jit(inline='always')
 def _shell_cells(r, c0, c1, c2, dims):  # pragma: no cover - compiled
     """Return the number of grid cells within Chebyshev radius r of cell (c0, c1, c2)."""
     return ((min(r, dims[0] - 1 - c0) + min(r, c0) + 1)
@@ -210,14 +210,14 @@ def _shell_cells(r, c0, c1, c2, dims):  # pragma: no cover - compiled
             * (min(r, dims[2] - 1 - c2) + min(r, c2) + 1))
 
 
-@_jit_inline
+@_jit(inline='always')
 def _write_row(out, i, src, k):  # pragma: no cover - compiled
     """out[i, :k] = src[:k]."""
     for col in range(k):
         out[i, col] = src[col]
 
 
-@_jit_inline
+@_jit(inline='always')
 def _search_shells(i, x0, x1, x2, c0, c1, c2, below, above, cell, slack, dims, starts, sp,
                    order, best_d, best_i, k, budget):  # pragma: no cover - compiled
     """Search shells of cells of growing Chebyshev radius around query i's cell.
@@ -467,7 +467,7 @@ def knn_grid(points: np.ndarray, k: int) -> np.ndarray:
 
 # --------------------------------------------------------------------------- normals kernel
 
-@_jit_inline
+@_jit(inline='always')
 def _covariance_row(pts, neighbours, v, n_use):  # pragma: no cover - compiled
     """Six entries (a00, a01, a02, a11, a12, a22) of row v's covariance, float64."""
     count = np.float64(n_use)
@@ -496,7 +496,7 @@ def _covariance_row(pts, neighbours, v, n_use):  # pragma: no cover - compiled
             s11 / count - m1 * m1, s12 / count - m1 * m2, s22 / count - m2 * m2)
 
 
-@_jit_inline
+@_jit(inline='always')
 def _smallest_eigenvalue(a00, a01, a02, a11, a12, a22):  # pragma: no cover - compiled
     """Return (lambda, p2): the smallest eigenvalue (the cubic's trigonometric root), p2."""
     q = (a00 + a11 + a22) / 3.0
@@ -515,7 +515,7 @@ def _smallest_eigenvalue(a00, a01, a02, a11, a12, a22):  # pragma: no cover - co
     return q + 2.0 * p * math.cos(phi + 2.0 * np.pi / 3.0), p2
 
 
-@_jit_inline
+@_jit(inline='always')
 def _eigenvector(a00, a01, a02, a11, a12, a22, lam):  # pragma: no cover - compiled
     """Return (x, y, z, length): the longest cross product of two rows of C - lam I."""
     r00 = a00 - lam

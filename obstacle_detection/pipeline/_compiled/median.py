@@ -8,14 +8,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._numba import jit_parallel, prange
+from ._numba import jit, prange
 from ._numba import numba as _numba
 
 #: Keys per block of the histogram walk.
 _BLOCK = 64
 
 
-@jit_parallel
+@jit(parallel=True)
 def _histogram_median(keys, k, bands):  # pragma: no cover - compiled
     """Return the exact 'nearest'-mode median of (H, W) integer keys, rows in ``bands``."""
     h, w = keys.shape

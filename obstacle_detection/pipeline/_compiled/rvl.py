@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._numba import jit as _jit, jit_inline as _jit_inline
+from ._numba import jit as _jit
 
 #: A code has at most this many nibbles (33 value bits: any count of pixels).
 MAX_CODE_NIBBLES = 11
@@ -15,7 +15,7 @@ MAX_ZIGZAG = 131070
 OK, TRUNCATED, CODE_TOO_LONG, RUN_BEYOND_IMAGE, DIFFERENCE_TOO_LARGE, WORDS_LEFT = range(6)
 
 
-@_jit_inline
+@_jit(inline='always')
 def _next_code(words, w, word, left):  # pragma: no cover - compiled
     """Read one code: (value, w, word, left); value -TRUNCATED or -CODE_TOO_LONG on a problem."""
     value = np.int64(0)

@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from ._numba import jit as _jit, jit_inline as _jit_inline, scratch
+from ._numba import jit as _jit, scratch
 
 
 @_jit
@@ -298,19 +298,19 @@ def _inverse_row(row, out):  # pragma: no cover - compiled
         out[j] = one / (r if r > zero else one)
 
 
-@_jit_inline
+@_jit(inline='always')
 def _near(v):  # pragma: no cover - compiled
     """Return the depth v if measured, else inf."""
     return v if v > np.float32(0.0) else np.float32(np.inf)
 
 
-@_jit_inline
+@_jit(inline='always')
 def _far(v):  # pragma: no cover - compiled
     """Return the depth v if measured, else 0."""
     return v if v > np.float32(0.0) else np.float32(0.0)
 
 
-@_jit_inline
+@_jit(inline='always')
 def _min5(a, b, c, d, e):  # pragma: no cover - compiled
     """Return the smallest of five values (no NaN)."""
     ab = a if a < b else b
@@ -319,7 +319,7 @@ def _min5(a, b, c, d, e):  # pragma: no cover - compiled
     return e if e < m else m
 
 
-@_jit_inline
+@_jit(inline='always')
 def _max5(a, b, c, d, e):  # pragma: no cover - compiled
     """Return the largest of five values (no NaN)."""
     ab = a if a > b else b

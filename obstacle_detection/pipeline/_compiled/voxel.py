@@ -16,7 +16,7 @@ import numpy as np
 from obstacle_detection.labels import (LABEL_GROUND, LABEL_NO_RETURN, LABEL_OBSTACLE,
                                        LABEL_OUTSIDE_ROI)
 
-from ._numba import jit as _jit, jit_inline as _jit_inline, scratch
+from ._numba import jit as _jit, scratch
 from .traversal import ray_row
 
 #: Most lattice cells [cells] of the occupied-cell bitmap (as the numpy path's dense limit).
@@ -110,7 +110,7 @@ def _index_kernel(cols, size, ijk, limit):  # pragma: no cover - compiled
     return True
 
 
-@_jit_inline
+@_jit(inline='always')
 def _popcount(x):  # pragma: no cover - compiled
     """Return the number of set bits of the uint64 ``x`` (counted in parallel in the word)."""
     x = x - ((x >> _U1) & np.uint64(0x5555555555555555))
