@@ -77,10 +77,7 @@ def _histogram_median(keys, k, bands):  # pragma: no cover - compiled
 
 
 def median_filter(image: np.ndarray, k: int) -> np.ndarray:
-    """Return ``scipy.ndimage.median_filter(image, size=k, mode='nearest')``, compiled.
-
-    image: (H, W) without NaN; k: odd >= 1. Runs on the threads of :func:`._numba.set_threads`.
-    """
+    """``scipy.ndimage.median_filter(image, size=k, mode='nearest')``: (H, W) no NaN, k odd."""
     bands = _numba.get_num_threads()   # (numba cannot cache a kernel that asks itself)
     if image.dtype == np.uint16:
         return _histogram_median(np.ascontiguousarray(image), k, bands)

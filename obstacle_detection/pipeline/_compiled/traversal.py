@@ -472,8 +472,7 @@ def _unbias_kernel(filtered, raw, kernel, most, padded, window):  # pragma: no c
     """In place: traversal's unbias_holes, the window's returns counted on the way.
 
     padded (W + kernel - 1,) int16: the returns of each column in the window's rows, slid down
-    row by row, its ends replicated; window (W,) int16: their sums along the row. Branch-free
-    passes (vectorised).
+    row by row, its ends replicated; window (W,) int16: their sums along the row.
     """
     height, width = raw.shape
     before = kernel // 2
@@ -515,10 +514,9 @@ def _unbias_kernel(filtered, raw, kernel, most, padded, window):  # pragma: no c
 
 
 def unbias_holes(filtered: np.ndarray, raw: np.ndarray, kernel: int, most: int) -> np.ndarray:
-    """In place: traversal.unbias_holes where at most ``most`` of the window's pixels returned.
+    """In place, returned: traversal.unbias_holes where at most ``most`` pixels returned.
 
     filtered, raw: (H, W) float32 C-contiguous; kernel <= 181 (its counts fit int16).
-    Returns ``filtered``.
     """
     if raw.size:
         width = raw.shape[1]

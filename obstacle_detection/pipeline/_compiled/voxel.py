@@ -1,9 +1,6 @@
-"""Compiled (numba) back-projection, region of interest and voxel grid.
+"""Compiled (numba) back-projection, region of interest and voxel grid of :mod:`..voxel`.
 
-The stage module :mod:`obstacle_detection.pipeline.voxel` runs :func:`project_roi`,
-:func:`voxelise` and :func:`voxel_downsample` instead of its numpy twins when
-:func:`obstacle_detection.pipeline.jit.enabled`; the results are bit-identical (the same
-float32 operations, float64 sums in point order). Method: docs/speed.md.
+Bit-identical to the numpy path: the same float32 operations, float64 sums in point order.
 """
 
 from __future__ import annotations
@@ -260,10 +257,7 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarra
 
 
 def voxelise(proj: Projection) -> tuple:
-    """Return the VoxelGrid fields of a :class:`Projection`; fill ``proj.pixel_voxel``.
-
-    Raises ValueError for a projection without keys (its lattice too large) or points.
-    """
+    """Return the VoxelGrid fields of a keyed :class:`Projection`; fill its pixel_voxel."""
     m = proj.pixel_index.size
     if proj.keys is None or m == 0:
         raise ValueError('the projection has no voxel keys or no point')
