@@ -21,8 +21,6 @@ _DENSE_LIMIT = 16_000_000
 #: uint64 0 and 1 (numba turns uint64 mixed with an int literal into float64).
 _U0 = np.uint64(0)
 _U1 = np.uint64(1)
-#: Largest |voxel index| handled; beyond it (or NaN) the numpy path must run.
-_MAX_INDEX = float(1 << 40)
 #: Label of a pixel inside the region of interest until :func:`label_pixels` decides.
 _LABEL_KEPT = LABEL_GROUND
 #: Pixels whose rays are computed at once when not read from a table (96 kB, cache resident).
@@ -94,19 +92,6 @@ def _project_rays_kernel(depth, ru, rv, rot, chunk, bounds, size, low, dims, lab
     return m
 
 
-@_jit
-def _index_kernel(cols, size, ijk, limit):  # pragma: no cover - compiled
-    """Write ijk (3, m) int64 = floor(cols / size) in the points' dtype; False if one is huge."""
-    for a in range(3):
-        s = size[a]
-        for p in range(cols.shape[1]):
-            f = np.floor(cols[a, p] / s)
-            if not (f > -limit and f < limit):   # also NaN
-                return False
-            ijk[a, p] = np.int64(f)
-    return True
-
-
 @_jit(inline='always')
 def _popcount(x):  # pragma: no cover - compiled
     """Return the number of set bits of the uint64 ``x`` (counted in parallel in the word)."""
@@ -122,8 +107,8 @@ def _voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_vox
                   prefix):  # pragma: no cover - compiled
     """Give the occupied cells numbers in key order (a bitmap, bits; prefix: counts per word).
 
-    Writes point_voxel (m,) and, when pixels is not empty, pixel_voxel at each point's pixel;
-    bits must be all zero and are left so. Returns (centroids, point_voxel, counts, voxel_ijk).
+    Writes point_voxel (m,) and pixel_voxel at each point's pixel; bits must be all zero and
+    are left so. Returns (centroids, point_voxel, counts, voxel_ijk).
     """
     n_words = (n_cells + 63) // 64
     m = point_voxel.shape[0]
@@ -149,7 +134,6 @@ def _voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_vox
             word ^= lowest
     counts = np.zeros(n_vox, np.int64)
     sums = np.zeros((n_vox, 3), np.float64)
-    with_pixels = pixels.size > 0
     for q in range(m):
         key = keys[q]
         w = key >> 6
@@ -159,8 +143,7 @@ def _voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_vox
         sums[v, 0] += np.float64(cols[0, q])
         sums[v, 1] += np.float64(cols[1, q])
         sums[v, 2] += np.float64(cols[2, q])
-        if with_pixels:
-            pixel_voxel[pixels[q]] = v
+        pixel_voxel[pixels[q]] = v
     for q in range(m):
         bits[keys[q] >> 6] = _U0
     centroids = np.empty((n_vox, 3), np.float32)
@@ -264,45 +247,11 @@ def voxelise(proj: Projection) -> tuple:
     n_cells = int(proj.dims[0] * proj.dims[1] * proj.dims[2])
     point_voxel = scratch('point_voxel', m, np.int64)[:m] if proj.reuse else np.empty(m,
                                                                                       np.int64)
-    return _run_voxel_kernel(proj.cols, proj.keys, n_cells, proj.dims, proj.low,
-                             proj.pixel_index, proj.pixel_voxel.reshape(-1), point_voxel)
-
-
-def _run_voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_voxel):
-    """Call :func:`_voxel_kernel` with this thread's lattice scratch buffers."""
     n_words = (n_cells + 63) // 64
-    bits = scratch('occupied_bits', n_words, np.uint64, zero=True)
-    prefix = scratch('bit_prefix', n_words, np.int64)
-    return _voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_voxel,
-                         bits, prefix)
-
-
-def voxel_downsample(points: np.ndarray, voxel_size_m: tuple[float, float, float]
-                     ) -> tuple:
-    """Return the VoxelGrid fields of ``pipeline.voxel.voxel_downsample``, compiled.
-
-    ValueError for another dtype, no point, an index beyond 2**40 or NaN, or too large a lattice.
-    """
-    if points.dtype not in (np.float32, np.float64) or points.shape[0] == 0:
-        raise ValueError(f'need float32/64 points, at least one; got {points.dtype} '
-                         f'{points.shape}')
-    cols = np.ascontiguousarray(points.T)
-    size = np.asarray(voxel_size_m, np.float64).astype(cols.dtype)
-    ijk = np.empty(cols.shape, np.int64)
-    if not _index_kernel(cols, size, ijk, cols.dtype.type(_MAX_INDEX)):
-        raise ValueError('a voxel index is NaN or beyond 2**40')
-    low = ijk.min(axis=1)
-    dims = ijk.max(axis=1) - low + 1
-    n_cells = int(dims[0]) * int(dims[1]) * int(dims[2])
-    if n_cells > _DENSE_LIMIT:
-        raise ValueError(f'{n_cells} lattice cells > {_DENSE_LIMIT}')
-    keys = ijk[0] - low[0]
-    keys *= dims[1]
-    keys += ijk[1] - low[1]
-    keys *= dims[2]
-    keys += ijk[2] - low[2]
-    return _run_voxel_kernel(cols, keys, n_cells, dims, low, np.zeros(0, np.int64),
-                             np.zeros(0, np.int32), np.empty(keys.size, np.int64))
+    return _voxel_kernel(proj.cols, proj.keys, n_cells, proj.dims, proj.low, proj.pixel_index,
+                         proj.pixel_voxel.reshape(-1), point_voxel,
+                         scratch('occupied_bits', n_words, np.uint64, zero=True),
+                         scratch('bit_prefix', n_words, np.int64))
 
 
 def label_pixels(labels: np.ndarray, pixel_voxel: np.ndarray, is_obstacle: np.ndarray) -> None:
