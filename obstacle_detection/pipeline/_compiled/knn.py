@@ -86,18 +86,6 @@ def _axis_gap(offset, below, above, size, slack):  # pragma: no cover - compiled
 
 
 @_jit(inline='always')
-def _cell_end(s, order, cell_ijk):  # pragma: no cover - compiled
-    """Return the sorted slot after the last point of the cell of sorted slot ``s``."""
-    i = order[s]
-    end = s + 1
-    while (end < order.shape[0] and cell_ijk[order[end], 0] == cell_ijk[i, 0]
-           and cell_ijk[order[end], 1] == cell_ijk[i, 1]
-           and cell_ijk[order[end], 2] == cell_ijk[i, 2]):
-        end += 1
-    return end
-
-
-@_jit(inline='always')
 def _gather_block(c0, c1, c2, dims, starts, sp, order, block_x, block_y, block_z,
                   block_j):  # pragma: no cover - compiled
     """Copy the points of the 3 x 3 x 3 cells around cell (c0, c1, c2) into the block arrays.
@@ -308,7 +296,7 @@ def _knn_queries(lo, cell, k, slack, cell_ijk, dims, order, sp, starts,
         c1 = cell_ijk[i, 1]
         c2 = cell_ijk[i, 2]
         if s == group_end:            # first point of a new cell: gather its block
-            group_end = _cell_end(s, order, cell_ijk)
+            group_end = starts[(c0 * dims[1] + c1) * dims[2] + c2 + 1]
             m = _gather_block(c0, c1, c2, dims, starts, sp, order, block_x, block_y, block_z,
                               block_j)
         x0 = sp[s, 0]

@@ -495,10 +495,8 @@ def _unbias_kernel(filtered, raw, kernel, most, padded, window):  # pragma: no c
             rc = raw[come]
             for j in range(width):
                 columns[j] += (one if rc[j] > zero else nil) - (one if rg[j] > zero else nil)
-        for t in range(before):
-            padded[t] = columns[0]
-        for t in range(after):
-            padded[before + width + t] = columns[width - 1]
+        padded[:before] = columns[0]
+        padded[before + width:] = columns[width - 1]
         window[:] = padded[:width]
         for d in range(1, kernel):
             for j in range(width):
