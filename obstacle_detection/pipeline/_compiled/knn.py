@@ -534,13 +534,13 @@ def _normals_kernel(pts, neighbours, n_use, normals, cov, bad):  # pragma: no co
     """Write every row's normal as the numpy twin does; return the number of degenerate rows.
 
     Degenerate rows are marked in ``bad`` (cov (V, 6) holds every row's covariance: the
-    caller asks LAPACK for them, as numpy does). Returns -1 for an index out of range.
+    caller asks LAPACK for them, as numpy does). ValueError for an index out of range.
     """
     v_count = pts.shape[0]
     for v in range(v_count):
         for t in range(n_use):
             if neighbours[v, t] < 0 or neighbours[v, t] >= v_count:
-                return -1
+                raise ValueError('neighbour indices must lie in [0, V)')
         (cov[v, 0], cov[v, 1], cov[v, 2], cov[v, 3], cov[v, 4],
          cov[v, 5]) = _covariance_row(pts, neighbours, v, n_use)
     lam = np.empty(v_count, np.float64)
@@ -583,37 +583,32 @@ def normals_from_neighbours(points: np.ndarray, neighbours: np.ndarray, n: int) 
     normals = np.empty((v_count, 3), dtype=np.float32)
     cov_bad = np.empty((v_count, 6), dtype=np.float64)    # every row's covariance
     bad = np.empty(v_count, dtype=np.bool_)
-    n_bad = _normals_kernel(pts, nb, n, normals, cov_bad, bad)
-    if n_bad < 0:
-        raise ValueError(f'neighbour indices must lie in [0, {v_count})')
-    if n_bad:   # the degenerate rows: LAPACK's eigenvector, as the numpy path
+    if _normals_kernel(pts, nb, n, normals, cov_bad, bad):   # degenerate rows: LAPACK's, as numpy
         cov = cov_bad[bad][:, [0, 1, 2, 1, 3, 4, 2, 4, 5]].reshape(-1, 3, 3)
         normals[bad] = np.linalg.eigh(cov)[1][:, :, 0]
     return normals
 
 
 @_jit
-def _validate_kernel(is_obstacle, neighbours, n1, out):  # pragma: no cover - compiled
-    """Set out[v] = is_obstacle[v] and its n1 neighbours'; False for an index out of range."""
+def _validate_kernel(is_obstacle, neighbours, n1):  # pragma: no cover - compiled
+    """(V,) bool: is_obstacle[v] and its n1 neighbours'; IndexError for an index outside."""
     v_count = is_obstacle.shape[0]
+    out = np.empty(v_count, np.bool_)
     for v in range(v_count):
         keep = is_obstacle[v]
         for t in range(1, n1 + 1):
             j = neighbours[v, t]
             if j < 0 or j >= v_count:
-                return False
+                raise IndexError('a neighbour index lies outside [0, V)')
             keep = keep and is_obstacle[j]
         out[v] = keep
-    return True
+    return out
 
 
 def validate(is_obstacle: np.ndarray, neighbours: np.ndarray, n1: int) -> np.ndarray:
     """Return ``normals.validate_obstacles`` for n1 >= 1; IndexError for an index outside."""
-    out = np.empty(is_obstacle.shape[0], np.bool_)
-    nb = neighbours if neighbours.dtype == np.int64 else neighbours.astype(np.int64)
-    if not _validate_kernel(np.ascontiguousarray(is_obstacle, np.bool_), nb, int(n1), out):
-        raise IndexError(f'a neighbour index lies outside [0, {is_obstacle.shape[0]})')
-    return out
+    return _validate_kernel(np.ascontiguousarray(is_obstacle, np.bool_),
+                            neighbours.astype(np.int64, copy=False), int(n1))
 
 
 def warm_up() -> None:
