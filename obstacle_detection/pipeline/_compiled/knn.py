@@ -199,13 +199,6 @@ def _shell_cells(r, c0, c1, c2, dims):  # pragma: no cover - compiled
 
 
 @_jit(inline='always')
-def _write_row(out, i, src, k):  # pragma: no cover - compiled
-    """out[i, :k] = src[:k]."""
-    for col in range(k):
-        out[i, col] = src[col]
-
-
-@_jit(inline='always')
 def _search_shells(i, x0, x1, x2, c0, c1, c2, below, above, cell, slack, dims, starts, sp,
                    order, best_d, best_i, k, budget):  # pragma: no cover - compiled
     """Search shells of cells of growing Chebyshev radius around query i's cell.
@@ -318,32 +311,25 @@ def _knn_queries(lo, cell, k, slack, cell_ijk, dims, order, sp, starts,
             n_near = _near_points(block_d, block_j, m, i, reach2, near_d, near_j)
         if k <= n_near <= rank_limit:
             kth2_prev = _rank_near(near_d, near_j, n_near, k, top, kth2_prev)
-            _write_row(out, i, top, k)
+            for col in range(k):
+                out[i, col] = top[col]
             continue
         if not _search_shells(i, x0, x1, x2, c0, c1, c2, below, above, cell, slack, dims,
                               starts, sp, order, best_d, best_i, k, budget):
             # far-apart points: a plain scan is the cheaper search
             _offer_span(0, n, sp, order, x0, x1, x2, i, best_d, best_i, 1, np.inf, k)
         kth2_prev = best_d[k - 1]
-        _write_row(out, i, best_i, k)
+        for col in range(k):
+            out[i, col] = best_i[col]
 
 
 # ---------------------------------------------------------------------------- grid planning
 
 @_jit
-def _grid_dims(extent, size):  # pragma: no cover - compiled
-    """Return the cells (3,) int64 along each axis of an isotropic ``size`` grid."""
-    dims = np.empty(3, np.int64)
-    for a in range(3):
-        dims[a] = np.int64(math.floor(extent[a] / size)) + 1
-    return dims
-
-
-@_jit
 def _crowding(pts, lo, extent, size):  # pragma: no cover - compiled
     """Return the mean number of other points in a point's own cell of a ``size`` grid."""
     n = pts.shape[0]
-    dims = _grid_dims(extent, size)
+    dims = (np.floor(extent / size) + 1.0).astype(np.int64)
     keys = np.empty(n, np.int64)
     for i in range(n):
         key = 0
@@ -401,7 +387,7 @@ def _cell_size(pts, lo, extent, k):  # pragma: no cover - compiled
 
 @_jit
 def _knn_setup(pts, k):  # pragma: no cover - compiled
-    """Plan the grid: (finite, lo, cell, slack); finite False for non-finite points."""
+    """Plan the grid: (lo, cell, slack); ValueError for a NaN or inf coordinate."""
     n = pts.shape[0]
     lo = np.empty(3, np.float64)
     extent = np.empty(3, np.float64)
@@ -412,20 +398,18 @@ def _knn_setup(pts, k):  # pragma: no cover - compiled
         for i in range(n):
             x = pts[i, a]
             if not math.isfinite(x):
-                return False, lo, extent, 0.0
+                raise ValueError('points must be finite (no NaN or inf coordinates)')
             low = min(low, x)
             high = max(high, x)
         lo[a] = low
         extent[a] = high - low
         scale = max(scale, abs(low) + extent[a])
     size = _cell_size(pts, lo, extent, k)
-    dims = _grid_dims(extent, size)
-    while np.float64(dims[0]) * dims[1] * dims[2] > _MAX_CELLS:   # far-apart points
+    while np.prod(np.floor(extent / size) + 1.0) > _MAX_CELLS:   # far-apart points
         size *= 2.0
-        dims = _grid_dims(extent, size)
     # cell membership is computed in float64; this margin covers its rounding
     slack = 1e-9 * (scale + size)
-    return True, lo, np.full(3, size), slack
+    return lo, np.full(3, size), slack
 
 
 # ------------------------------------------------------------------------------ public API
@@ -443,9 +427,7 @@ def knn_grid(points: np.ndarray, k: int) -> np.ndarray:
         return np.arange(n, dtype=np.int64).reshape(n, 1)
     out = np.empty((n, k), dtype=np.int64)
     pts = np.ascontiguousarray(pts, dtype=np.float64)
-    finite, lo, cell, slack = _knn_setup(pts, k)
-    if not finite:
-        raise ValueError('points must be finite (no NaN or inf coordinates)')
+    lo, cell, slack = _knn_setup(pts, k)
     _knn_queries(lo, cell, k, slack, *_build_grid(pts, lo, cell), out)
     return out
 

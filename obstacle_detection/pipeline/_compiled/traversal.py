@@ -84,11 +84,7 @@ def _passable_cells(points, steep, key, n_cells, step_up, layer,
         k = key[v]
         if not steep[v] and np.float64(points[v, 2]) <= surface[k] + layer:
             support[k] += 1
-    passable = np.empty(n_cells, np.bool_)
-    for c in range(n_cells):
-        passable[c] = (surface[c] != np.inf and high[c] - low[c] <= step_up
-                       and support[c] >= min_support)
-    return surface, passable
+    return surface, (surface != np.inf) & (high - low <= step_up) & (support >= min_support)
 
 
 @_jit
@@ -422,11 +418,9 @@ def _smear_kernel(filtered, raw, ratio, jump, tol_ratio, rows, planar,
     """
     height, width = raw.shape
     col_lo, col_hi, near, far, mid, zeros = rows[0], rows[1], rows[2], rows[3], rows[4], rows[8]
+    rows[:] = 0.0
     col_lo[:] = np.inf
-    col_hi[:] = 0.0
-    mid[:] = 0.0
     rows[5:8] = 1.0
-    zeros[:] = 0.0
     inv_of = np.full(3, -1, np.int64)   # the row whose inverse depths each ring row holds
     for i in range(height):
         # the window clipped to the image: its rows clamped (min and max are idempotent)
@@ -624,23 +618,17 @@ def _mode_height(pts, offset):  # pragma: no cover - compiled
 @_jit
 def _scores(pts, planes, score_points, band32):  # pragma: no cover - compiled
     """Return the samples (every stride-th, float32) within band32 of each plane, int64."""
-    n = pts.shape[1]
-    stride = max(1, n // score_points)
-    ns = (n + stride - 1) // stride
-    sx = np.empty(ns, np.float32)
-    sy = np.empty(ns, np.float32)
-    sz = np.empty(ns, np.float32)
-    for i in range(ns):
-        sx[i] = np.float32(pts[0, i * stride])
-        sy[i] = np.float32(pts[1, i * stride])
-        sz[i] = np.float32(pts[2, i * stride])
+    stride = max(1, pts.shape[1] // score_points)
+    sx = pts[0, ::stride].astype(np.float32)
+    sy = pts[1, ::stride].astype(np.float32)
+    sz = pts[2, ::stride].astype(np.float32)
     score = np.empty(planes.shape[0], np.int64)
     for t in range(planes.shape[0]):
         a32 = np.float32(planes[t, 0])
         b32 = np.float32(planes[t, 1])
         c32 = np.float32(planes[t, 2])
         count = 0
-        for i in range(ns):
+        for i in range(sx.size):
             r = a32 * sx[i]
             r += b32 * sy[i]
             r += c32
