@@ -178,7 +178,8 @@ def _lstsq_plane(pts: np.ndarray) -> np.ndarray:
     return np.array([a, b, mean[2] - a * mean[0] - b * mean[1]])
 
 
-def _in_band(pts: np.ndarray, a: float, b: float, c: float, band_m: float) -> np.ndarray:
+def _reference_in_band(pts: np.ndarray, a: float, b: float, c: float,
+                       band_m: float) -> np.ndarray:
     """(3, m) float64: the samples pts (3, M) within band_m of z = a x + b y + c."""
     resid = pts[2] - (a * pts[0] + b * pts[1] + c)
     return pts[:, np.abs(resid) <= band_m]
@@ -189,7 +190,8 @@ def _same(a: np.ndarray, b: np.ndarray) -> bool:
     return a.shape == b.shape and a.tobytes() == b.tobytes()
 
 
-def _count_in_band(pts: np.ndarray, a: float, b: float, c: float, band_m: float) -> int:
+def _reference_count_in_band(pts: np.ndarray, a: float, b: float, c: float,
+                             band_m: float) -> int:
     """How many samples pts (3, M) lie within band_m of z = a x + b y + c."""
     resid = pts[2] - (a * pts[0] + b * pts[1] + c)
     return int(np.count_nonzero(np.abs(resid) <= band_m))
@@ -250,6 +252,8 @@ def _reference_ransac_plane(pts: np.ndarray, picks: np.ndarray, tan_tilt2: float
     return np.stack((a[best], b[best], c[best]), axis=1)
 
 
+_in_band = jit.choose(_reference_in_band, jit_traversal.in_band)
+_count_in_band = jit.choose(_reference_count_in_band, jit_traversal.count_in_band)
 _ransac = jit.choose(_reference_ransac_plane, jit_traversal.ransac_plane)
 
 

@@ -653,6 +653,30 @@ def ransac_plane(pts, picks, tan_tilt2, offset, band, score_points,
     return planes[np.argsort(-score, kind='mergesort')[:k]]
 
 
+@_jit
+def _band_kernel(pts, a, b, c, band, out):  # pragma: no cover - compiled
+    """Copy the samples within band of z = a x + b y + c into out[:m] (M, 3); return m."""
+    m = 0
+    for i in range(pts.shape[1]):
+        resid = pts[2, i] - (a * pts[0, i] + b * pts[1, i] + c)
+        if abs(resid) <= band:
+            out[m, 0] = pts[0, i]
+            out[m, 1] = pts[1, i]
+            out[m, 2] = pts[2, i]
+            m += 1
+    return m
+
+
+@_jit
+def count_in_band(pts, a, b, c, band):  # pragma: no cover - compiled
+    """Return how many samples pts (3, M) lie within band of z = a x + b y + c."""
+    m = 0
+    for i in range(pts.shape[1]):
+        resid = pts[2, i] - (a * pts[0, i] + b * pts[1, i] + c)
+        m += abs(resid) <= band
+    return m
+
+
 def floor_samples(depth_m: np.ndarray, step: int, sub_rays: np.ndarray, height_m: float,
                   tan_tilt: float, band0_m: float, min_x_m: float, max_x_m: float,
                   max_y_m: float, facing_cos2: float) -> np.ndarray:
@@ -666,6 +690,17 @@ def floor_samples(depth_m: np.ndarray, step: int, sub_rays: np.ndarray, height_m
                               float(tan_tilt), float(band0_m), float(min_x_m), float(max_x_m),
                               float(max_y_m), float(facing_cos2), buf)
     return buf[:, :m].copy()
+
+
+def in_band(pts: np.ndarray, a: float, b: float, c: float, band_m: float) -> np.ndarray:
+    """(3, m) float64: the samples pts (3, M) within band_m of z = a x + b y + c (a copy).
+
+    Laid out as numpy's ``pts[:, mask]`` (the transpose of an (m, 3) C array): the same sums.
+    """
+    size = 3 * pts.shape[1]
+    buf = scratch('floor_band', size, np.float64)[:size].reshape(-1, 3)
+    m = _band_kernel(pts, float(a), float(b), float(c), float(band_m), buf)
+    return buf[:m].copy().T
 
 
 def warm_up() -> None:
@@ -686,3 +721,5 @@ def warm_up() -> None:
     pts = floor_samples(depth, 2, rays, 0.5, 0.1, 0.12, 0.0, 3.0, 2.0, 0.75)
     pts = rng.uniform(-0.05, 0.05, (3, 30))
     ransac_plane(pts, rng.random((3, 4)), 0.01, 0.1, 0.03, 2000, 2)
+    in_band(pts, 0.0, 0.0, 0.0, 0.03)
+    count_in_band(pts, 0.0, 0.0, 0.0, 0.03)
