@@ -49,10 +49,9 @@ def set_threads(threads: int) -> None:
 
 
 def scratch(name: str, size: int, dtype: Any, zero: bool = False) -> np.ndarray:
-    """Return this thread's flat buffer ``name`` of at least ``size`` elements, kept for reuse.
+    """Return this thread's flat buffer ``name`` (>= ``size``), reused: no fresh page faults.
 
-    Reuse spares the page faults of fresh large arrays. ``zero``: it starts all zero, and its
-    users leave it so.
+    ``zero``: it starts all zero, and its users leave it so.
     """
     buf = getattr(_SCRATCH, name, None)
     if buf is None or buf.size < size or buf.dtype != dtype:
