@@ -14,7 +14,6 @@ from obstacle_detection.pipeline.params import (KINECT_V2_SD, DetectorParams, In
                                                 table_4_2, table_4_3)
 from obstacle_detection.pipeline.detector import Detector
 from obstacle_detection.sim.scenes import render_scene, scene_params
-from obstacle_detection.pipeline.voxel import voxel_downsample
 
 pytestmark = pytest.mark.numba
 
@@ -51,30 +50,12 @@ def assert_same_frame(depth_m, rays, params, both_paths):
     return pts.shape[0]
 
 
-@pytest.mark.parametrize('dtype', [np.float32, np.float64])
-def test_voxel_downsample_matches_numpy_on_random_clouds(dtype, both_paths):
-    rng = np.random.default_rng(5)
-    for n, spread, size in [(1, 1.0, (0.1, 0.1, 0.1)), (7, 0.05, (0.025,) * 3),
-                            (5000, 2.0, (0.2, 0.25, 0.3)), (20000, 3.0, (0.025, 0.03, 0.05))]:
-        pts = rng.uniform(-spread, spread, (n, 3)).astype(dtype)
-        both_paths(voxel_downsample, pts, size)
-
-
-def test_voxel_downsample_points_on_voxel_boundaries(both_paths):
-    size = (0.025, 0.05, 0.1)
-    steps = np.arange(-8, 9)
-    pts = np.stack(np.meshgrid(steps * np.float32(0.025), steps * np.float32(0.05),
-                               steps * np.float32(0.1)), -1).reshape(-1, 3).astype(np.float32)
-    pts = np.vstack([pts, np.nextafter(pts, np.float32(-np.inf)),
-                     np.nextafter(pts, np.float32(np.inf))])
-    both_paths(voxel_downsample, pts, size)
-
-
-def test_voxel_numbers_across_the_bitmap_words(both_paths):
+def test_voxel_numbers_across_the_bitmap_words():
     """Cells at either end of a 64-cell word of the occupied bitmap, a full word, lone cells.
 
     Points on a line along z (the fastest axis: linear key = cell index), several per cell in
-    shuffled order: the voxels, their order and their means equal numpy's.
+    shuffled order, keyed as the projection keys them: the voxels, their order and their means
+    equal numpy's voxel grid.
     """
     size = (0.1, 0.1, 0.01)
     cells = np.array([0, 1, 62, 63, 64, 65, 127, 128, 191, 255, 256, 1000, 1023, 1024]
@@ -83,19 +64,21 @@ def test_voxel_numbers_across_the_bitmap_words(both_paths):
     z = (np.repeat(cells, 3) + rng.uniform(0.1, 0.9, 3 * cells.size)) * 0.01
     pts = np.stack([np.full(z.size, 0.05), np.full(z.size, 0.05), z], 1).astype(np.float32)
     pts = pts[rng.permutation(pts.shape[0])]
-    got = both_paths(voxel_downsample, pts, size)
-    np.testing.assert_array_equal(got.voxel_ijk[:, 2], np.unique(cells))
-    assert (got.counts == 3).all()
-
-
-def test_huge_or_nan_lattices_go_to_numpy(both_paths):
-    """The compiled kernel refuses them; the stage sends them to numpy before calling it."""
-    pts = np.array([[0.0, 0.0, 0.0], [1e4, 1e4, 1e4]], np.float32)
-    with pytest.raises(ValueError, match='lattice cells'):
-        jit_voxel.voxel_downsample(pts, (0.01,) * 3)
-    assert both_paths(voxel_downsample, pts, (0.01,) * 3).counts.tolist() == [1, 1]
-    with pytest.raises(ValueError, match='NaN'):
-        jit_voxel.voxel_downsample(np.array([[np.nan, 0, 0]], np.float32), (0.1,) * 3)
+    ijk = np.floor(pts / np.asarray(size, np.float32)).astype(np.int64)
+    low = ijk.min(axis=0)
+    dims = ijk.max(axis=0) - low + 1
+    keys = ((ijk[:, 0] - low[0]) * dims[1] + ijk[:, 1] - low[1]) * dims[2] + ijk[:, 2] - low[2]
+    n = pts.shape[0]
+    cols = np.ascontiguousarray(pts.T)
+    proj = jit_voxel.Projection(cols.T, np.arange(n), keys, np.zeros(n, np.uint8),
+                                np.full(n, -1, np.int32), low, dims, False, cols)
+    got = jit_voxel.voxelise(proj)
+    want = voxel.voxel_downsample(pts, size)
+    for name, value in zip(('centroids', 'point_voxel', 'counts', 'voxel_ijk'), got):
+        np.testing.assert_array_equal(value, getattr(want, name), err_msg=name)
+    np.testing.assert_array_equal(proj.pixel_voxel, want.point_voxel)
+    np.testing.assert_array_equal(want.voxel_ijk[:, 2], np.unique(cells))
+    assert (want.counts == 3).all()
 
 
 @pytest.mark.parametrize('preset', [table_4_2, table_4_3])

@@ -37,9 +37,9 @@ def voxel_downsample(points: np.ndarray, voxel_size_m: tuple[float, float, float
     return VoxelGrid(*_downsample(pts, voxel_size_m))
 
 
-def _reference_voxel_downsample(points: np.ndarray, voxel_size_m: tuple[float, float, float],
-                                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Return the fields of :func:`voxel_downsample`'s :class:`VoxelGrid`, in numpy."""
+def _downsample(points: np.ndarray, voxel_size_m: tuple[float, float, float],
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Return the fields of :func:`voxel_downsample`'s :class:`VoxelGrid` (numpy)."""
     size = np.asarray(voxel_size_m, dtype=np.float64)
     pts = np.asarray(points)
     if pts.shape[0] == 0:
@@ -69,23 +69,6 @@ def _reference_voxel_downsample(points: np.ndarray, voxel_size_m: tuple[float, f
     vox_ijk[:, 0], vox_ijk[:, 1] = np.divmod(rest, dims[1])
     vox_ijk += low
     return centroids, point_voxel, counts, vox_ijk
-
-
-def _on_dense_lattice(points: np.ndarray, voxel_size_m: tuple[float, float, float]) -> bool:
-    """Return True for the points the compiled voxel grid takes (float, finite, small lattice)."""
-    if points.dtype not in (np.float32, np.float64) or points.shape[0] == 0:
-        return False
-    size = np.asarray(voxel_size_m, np.float64).astype(points.dtype)
-    with np.errstate(invalid='ignore', over='ignore'):
-        low = np.floor(points.min(axis=0) / size)
-        high = np.floor(points.max(axis=0) / size)
-    if not (np.all(np.abs(low) < 2.0 ** 40) and np.all(np.abs(high) < 2.0 ** 40)):
-        return False   # NaN fails too
-    return float(np.prod(high.astype(np.float64) - low + 1.0)) <= _DENSE_LIMIT
-
-
-_downsample = jit.choose(_reference_voxel_downsample, jit_voxel.voxel_downsample,
-                         accepts=_on_dense_lattice)
 
 
 # --------------------------------------------------------------------------- the frame stage
@@ -140,8 +123,9 @@ def _compiled_points_in_roi(depth_m: np.ndarray, rays: np.ndarray | geometry.Gro
     factors = (rays.ru, rays.rv, rays.rot) if isinstance(rays, geometry.GroundRays) else rays
     proj = jit_voxel.project_roi(depth_m, factors, roi_bounds(params), params.voxel_size_m,
                                  reuse=True)
+    keyed = proj.keys is not None and proj.keys.size
     return RoiPoints(proj.points, proj.pixel_index, proj.labels, proj.pixel_voxel,
-                     params.voxel_size_m, proj if proj.has_keys and proj.count else None)
+                     params.voxel_size_m, proj if keyed else None)
 
 
 #: Back-project a depth image (0 = no return) through its ground rays (a table or
@@ -189,6 +173,3 @@ def warm_up() -> None:
     roi = points_in_roi(depth, rays.table(), params)
     grid = voxel_grid(roi)
     pixel_labels(roi, grid, np.zeros(grid.counts.size, bool))
-    pts = np.random.default_rng(0).uniform(-1.0, 1.0, (20, 3))
-    voxel_downsample(pts.astype(np.float32), (0.1, 0.1, 0.1))
-    voxel_downsample(pts, (0.1, 0.1, 0.1))

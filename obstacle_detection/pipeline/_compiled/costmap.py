@@ -4,9 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._numba import AVAILABLE, jit as _jit
-
-__all__ = ['AVAILABLE', 'halo_voxels', 'rasterise']
+from ._numba import jit as _jit
 
 
 @_jit
@@ -23,17 +21,16 @@ def _raster_kernel(points, value, ox, oy, res, nx, ny, flat):  # pragma: no cove
 def rasterise(flat: np.ndarray, points: np.ndarray, value: int,
               origin_xy_m: tuple[float, float], resolution_m: float, nx: int, ny: int) -> None:
     """Write ``value`` into the cells of ``flat`` that points (M, >= 2) float32/64 hit."""
-    if points.dtype not in (np.float32, np.float64):
-        raise TypeError(f'points must be float32 or float64, got {points.dtype}')
     cast = points.dtype.type
     _raster_kernel(points, np.int8(value), cast(origin_xy_m[0]), cast(origin_xy_m[1]),
                    cast(resolution_m), int(nx), int(ny), flat)
 
 
 @_jit
-def _halo_kernel(points, weights, ox, oy, res, nx, ny, share, out):  # pragma: no cover
-    """out[v] = voxel v lies in a halo cell (costmap.halo_voxels, its float operations)."""
+def _halo_kernel(points, weights, ox, oy, res, nx, ny, share):  # pragma: no cover - compiled
+    """(V,) bool: voxel v lies in a halo cell (costmap.halo_voxels, its float operations)."""
     n = points.shape[0]
+    out = np.empty(n, np.bool_)
     held = np.zeros(nx * ny)
     total_x = np.zeros(nx * ny)
     total_y = np.zeros(nx * ny)
@@ -76,13 +73,12 @@ def _halo_kernel(points, weights, ox, oy, res, nx, ny, share, out):  # pragma: n
                 if np.float64(dx) * off_x >= 0.0 and np.float64(dy) * off_y >= 0.0:
                     beside = max(beside, held[by * nx + bx])
         out[v] = held[c] < share * beside
+    return out
 
 
 def halo_voxels(points: np.ndarray, counts: np.ndarray, origin_xy_m: tuple[float, float],
                 resolution_m: float, nx: int, ny: int, share: float) -> np.ndarray:
     """(V,) bool: costmap's halo_voxels on the grid given, points (V, >= 2) float32/64."""
     cast = points.dtype.type
-    out = np.empty(points.shape[0], np.bool_)
-    _halo_kernel(points, counts.astype(np.float64), cast(origin_xy_m[0]), cast(origin_xy_m[1]),
-                 cast(resolution_m), int(nx), int(ny), float(share), out)
-    return out
+    return _halo_kernel(points, counts.astype(np.float64), cast(origin_xy_m[0]),
+                        cast(origin_xy_m[1]), cast(resolution_m), int(nx), int(ny), float(share))

@@ -4,9 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._numba import AVAILABLE, jit
-
-__all__ = ['AVAILABLE', 'lookup']
+from ._numba import jit
 
 
 @jit

@@ -11,10 +11,10 @@ import math
 
 import numpy as np
 
-from ._numba import AVAILABLE, jit as _jit, jit_inline as _jit_inline
+from ._numba import jit as _jit
 
-#: Largest dense cell table [cells]; a larger grid looks its cells up in its sorted keys.
-_DENSE_CELLS_LIMIT = 1 << 22
+#: Most cells of the grid's cell table; a grid that would have more is made coarser.
+_MAX_CELLS = 1 << 22
 #: Target mean number of other points in a point's grid cell, per neighbour asked for.
 _CROWDING_PER_NEIGHBOUR = 0.5
 #: Most cells along one grid axis, so linear cell keys fit comfortably in int64.
@@ -24,11 +24,10 @@ _MAX_AXIS_CELLS = 1 << 20
 # --------------------------------------------------------------------------- grid k-NN kernel
 
 @_jit
-def _build_grid(pts, lo, cell, dense):  # pragma: no cover - compiled
-    """Sort points by cell: (cell_ijk, dims, order, sorted_pts, starts, cell_keys).
+def _build_grid(pts, lo, cell):  # pragma: no cover - compiled
+    """Sort points by cell: (cell_ijk, dims, order, sorted_pts, starts).
 
-    Dense: cell c spans ``order[starts[c]:starts[c + 1]]``; sparse: ``cell_keys`` holds the
-    occupied cells' keys in order and ``starts`` one entry per occupied cell (:func:`_span`).
+    Cell c (linear key) spans the sorted slots ``starts[c]:starts[c + 1]`` (points ``order``).
     """
     n = pts.shape[0]
     cell_ijk = np.empty((n, 3), np.int64)
@@ -46,55 +45,26 @@ def _build_grid(pts, lo, cell, dense):  # pragma: no cover - compiled
         keys[i] = (cell_ijk[i, 0] * dims[1] + cell_ijk[i, 1]) * dims[2] + cell_ijk[i, 2]
 
     order = np.empty(n, np.int64)
-    if dense:
-        ncells = dims[0] * dims[1] * dims[2]
-        starts = np.zeros(ncells + 1, np.int64)
-        for i in range(n):
-            starts[keys[i]] += 1
-        total = 0
-        for c in range(ncells):
-            total += starts[c]
-            starts[c] = total          # end of cell c
-        starts[ncells] = n
-        for i in range(n - 1, -1, -1):  # backwards: stable, starts[c] becomes the beginning
-            starts[keys[i]] -= 1
-            order[starts[keys[i]]] = i
-        cell_keys = np.empty(0, np.int64)
-    else:
-        order[:] = np.argsort(keys, kind='mergesort')
-        n_occ = 0
-        for s in range(n):
-            if s == 0 or keys[order[s]] != keys[order[s - 1]]:
-                n_occ += 1
-        starts = np.empty(n_occ + 1, np.int64)
-        cell_keys = np.empty(n_occ, np.int64)
-        occ = 0
-        for s in range(n):
-            key = keys[order[s]]
-            if s == 0 or key != keys[order[s - 1]]:
-                starts[occ] = s
-                cell_keys[occ] = key
-                occ += 1
-        starts[n_occ] = n
+    ncells = dims[0] * dims[1] * dims[2]
+    starts = np.zeros(ncells + 1, np.int64)
+    for i in range(n):
+        starts[keys[i]] += 1
+    total = 0
+    for c in range(ncells):
+        total += starts[c]
+        starts[c] = total          # end of cell c
+    starts[ncells] = n
+    for i in range(n - 1, -1, -1):  # backwards: stable, starts[c] becomes the beginning
+        starts[keys[i]] -= 1
+        order[starts[keys[i]]] = i
     sorted_pts = np.empty((n, 3), np.float64)
     for s in range(n):
         for a in range(3):
             sorted_pts[s, a] = pts[order[s], a]
-    return cell_ijk, dims, order, sorted_pts, starts, cell_keys
+    return cell_ijk, dims, order, sorted_pts, starts
 
 
-@_jit_inline
-def _span(key, dense, starts, cell_keys):  # pragma: no cover - compiled
-    """Return (begin, end): the sorted slots of the points in the cell of linear key ``key``."""
-    if dense:
-        return starts[key], starts[key + 1]
-    c = np.searchsorted(cell_keys, key)
-    if c < cell_keys.shape[0] and cell_keys[c] == key:
-        return starts[c], starts[c + 1]
-    return 0, 0
-
-
-@_jit_inline
+@_jit(inline='always')
 def _squared_distance(a0, a1, a2, x0, x1, x2):  # pragma: no cover - compiled
     """Squared distance of (a0, a1, a2) to (x0, x1, x2), summed in scipy's order."""
     d0 = a0 - x0
@@ -115,21 +85,9 @@ def _axis_gap(offset, below, above, size, slack):  # pragma: no cover - compiled
     return g if g > 0.0 else 0.0
 
 
-@_jit_inline
-def _cell_end(s, order, cell_ijk):  # pragma: no cover - compiled
-    """Return the sorted slot after the last point of the cell of sorted slot ``s``."""
-    i = order[s]
-    end = s + 1
-    while (end < order.shape[0] and cell_ijk[order[end], 0] == cell_ijk[i, 0]
-           and cell_ijk[order[end], 1] == cell_ijk[i, 1]
-           and cell_ijk[order[end], 2] == cell_ijk[i, 2]):
-        end += 1
-    return end
-
-
-@_jit_inline
-def _gather_block(c0, c1, c2, dims, dense, starts, cell_keys, sp, order,
-                  block_x, block_y, block_z, block_j):  # pragma: no cover - compiled
+@_jit(inline='always')
+def _gather_block(c0, c1, c2, dims, starts, sp, order, block_x, block_y, block_z,
+                  block_j):  # pragma: no cover - compiled
     """Copy the points of the 3 x 3 x 3 cells around cell (c0, c1, c2) into the block arrays.
 
     Returns their number m (block_x/y/z, block_j: coordinates and index).
@@ -139,8 +97,7 @@ def _gather_block(c0, c1, c2, dims, dense, starts, cell_keys, sp, order,
         for o1 in range(max(c1 - 1, 0), min(c1 + 1, dims[1] - 1) + 1):
             for o2 in range(max(c2 - 1, 0), min(c2 + 1, dims[2] - 1) + 1):
                 key = (o0 * dims[1] + o1) * dims[2] + o2
-                begin, end = _span(key, dense, starts, cell_keys)
-                for t in range(begin, end):
+                for t in range(starts[key], starts[key + 1]):
                     block_x[m] = sp[t, 0]
                     block_y[m] = sp[t, 1]
                     block_z[m] = sp[t, 2]
@@ -149,7 +106,7 @@ def _gather_block(c0, c1, c2, dims, dense, starts, cell_keys, sp, order,
     return m
 
 
-@_jit_inline
+@_jit(inline='always')
 def _near_points(block_d, block_j, m, i, radius2, near_d, near_j):  # pragma: no cover
     """Keep the block's points within squared distance ``radius2`` of query i; return how many.
 
@@ -165,7 +122,7 @@ def _near_points(block_d, block_j, m, i, radius2, near_d, near_j):  # pragma: no
     return n_near
 
 
-@_jit_inline
+@_jit(inline='always')
 def _rank_near(near_d, near_j, n_near, k, top, kth2):  # pragma: no cover - compiled
     """Write the k nearest of the n_near (>= k) near points into top[:k]; return the k-th d2.
 
@@ -201,7 +158,7 @@ def _rank_near(near_d, near_j, n_near, k, top, kth2):  # pragma: no cover - comp
     return kth2
 
 
-@_jit_inline
+@_jit(inline='always')
 def _offer_span(begin, end, sp, order, x0, x1, x2, i, best_d, best_i, count, worst,
                 k):  # pragma: no cover - compiled
     """Offer the sorted points begin .. end - 1 to query i's insertion-sorted top-k.
@@ -233,7 +190,7 @@ def _offer_span(begin, end, sp, order, x0, x1, x2, i, best_d, best_i, count, wor
     return count, worst
 
 
-@_jit_inline
+@_jit(inline='always')
 def _shell_cells(r, c0, c1, c2, dims):  # pragma: no cover - compiled
     """Return the number of grid cells within Chebyshev radius r of cell (c0, c1, c2)."""
     return ((min(r, dims[0] - 1 - c0) + min(r, c0) + 1)
@@ -241,16 +198,9 @@ def _shell_cells(r, c0, c1, c2, dims):  # pragma: no cover - compiled
             * (min(r, dims[2] - 1 - c2) + min(r, c2) + 1))
 
 
-@_jit_inline
-def _write_row(out, i, src, k):  # pragma: no cover - compiled
-    """out[i, :k] = src[:k]."""
-    for col in range(k):
-        out[i, col] = src[col]
-
-
-@_jit_inline
-def _search_shells(i, x0, x1, x2, c0, c1, c2, below, above, cell, slack, dims, dense, starts,
-                   cell_keys, sp, order, best_d, best_i, k, budget):  # pragma: no cover
+@_jit(inline='always')
+def _search_shells(i, x0, x1, x2, c0, c1, c2, below, above, cell, slack, dims, starts, sp,
+                   order, best_d, best_i, k, budget):  # pragma: no cover - compiled
     """Search shells of cells of growing Chebyshev radius around query i's cell.
 
     Fills best_d / best_i, pruning cells farther than the k-th best. Returns False when more
@@ -299,14 +249,13 @@ def _search_shells(i, x0, x1, x2, c0, c1, c2, below, above, cell, slack, dims, d
                     if g01 + g2 * g2 > worst:
                         continue
                     key = ((c0 + o0) * dims[1] + (c1 + o1)) * dims[2] + (c2 + o2)
-                    begin, end = _span(key, dense, starts, cell_keys)
-                    count, worst = _offer_span(begin, end, sp, order, x0, x1, x2, i, best_d,
-                                               best_i, count, worst, k)
+                    count, worst = _offer_span(starts[key], starts[key + 1], sp, order, x0, x1,
+                                               x2, i, best_d, best_i, count, worst, k)
     return True
 
 
 @_jit
-def _knn_queries(lo, cell, k, dense, slack, cell_ijk, dims, order, sp, starts, cell_keys,
+def _knn_queries(lo, cell, k, slack, cell_ijk, dims, order, sp, starts,
                  out):  # pragma: no cover - compiled
     """Search every query of a :func:`_build_grid` grid, in sorted (cell) order, into ``out``.
 
@@ -340,9 +289,9 @@ def _knn_queries(lo, cell, k, dense, slack, cell_ijk, dims, order, sp, starts, c
         c1 = cell_ijk[i, 1]
         c2 = cell_ijk[i, 2]
         if s == group_end:            # first point of a new cell: gather its block
-            group_end = _cell_end(s, order, cell_ijk)
-            m = _gather_block(c0, c1, c2, dims, dense, starts, cell_keys, sp,
-                              order, block_x, block_y, block_z, block_j)
+            group_end = starts[(c0 * dims[1] + c1) * dims[2] + c2 + 1]
+            m = _gather_block(c0, c1, c2, dims, starts, sp, order, block_x, block_y, block_z,
+                              block_j)
         x0 = sp[s, 0]
         x1 = sp[s, 1]
         x2 = sp[s, 2]
@@ -362,32 +311,25 @@ def _knn_queries(lo, cell, k, dense, slack, cell_ijk, dims, order, sp, starts, c
             n_near = _near_points(block_d, block_j, m, i, reach2, near_d, near_j)
         if k <= n_near <= rank_limit:
             kth2_prev = _rank_near(near_d, near_j, n_near, k, top, kth2_prev)
-            _write_row(out, i, top, k)
+            for col in range(k):
+                out[i, col] = top[col]
             continue
-        if not _search_shells(i, x0, x1, x2, c0, c1, c2, below, above, cell, slack, dims, dense,
-                              starts, cell_keys, sp, order, best_d, best_i, k, budget):
+        if not _search_shells(i, x0, x1, x2, c0, c1, c2, below, above, cell, slack, dims,
+                              starts, sp, order, best_d, best_i, k, budget):
             # far-apart points: a plain scan is the cheaper search
             _offer_span(0, n, sp, order, x0, x1, x2, i, best_d, best_i, 1, np.inf, k)
         kth2_prev = best_d[k - 1]
-        _write_row(out, i, best_i, k)
+        for col in range(k):
+            out[i, col] = best_i[col]
 
 
 # ---------------------------------------------------------------------------- grid planning
 
 @_jit
-def _grid_dims(extent, size):  # pragma: no cover - compiled
-    """Return the cells (3,) int64 along each axis of an isotropic ``size`` grid."""
-    dims = np.empty(3, np.int64)
-    for a in range(3):
-        dims[a] = np.int64(math.floor(extent[a] / size)) + 1
-    return dims
-
-
-@_jit
 def _crowding(pts, lo, extent, size):  # pragma: no cover - compiled
     """Return the mean number of other points in a point's own cell of a ``size`` grid."""
     n = pts.shape[0]
-    dims = _grid_dims(extent, size)
+    dims = (np.floor(extent / size) + 1.0).astype(np.int64)
     keys = np.empty(n, np.int64)
     for i in range(n):
         key = 0
@@ -419,11 +361,10 @@ def _crowding(pts, lo, extent, size):  # pragma: no cover - compiled
 def _cell_size(pts, lo, extent, k):  # pragma: no cover - compiled
     """Pick the grid cell [m] so that a point's own cell holds about ``k / 2`` other points.
 
-    The crowding is counted at two trial sizes and the size extrapolated between them (it grows
-    as ``size ** dim``, dim the cloud's local dimension). Only speed depends on it.
+    The crowding is counted at about n cells and the size scaled as for a surface, whose
+    crowding grows as ``size ** 2`` (voxels of surfaces). Only speed depends on it.
     """
     n = pts.shape[0]
-    target = _CROWDING_PER_NEIGHBOUR * k
     dim = 0
     volume = 1.0
     largest = 0.0
@@ -435,25 +376,10 @@ def _cell_size(pts, lo, extent, k):  # pragma: no cover - compiled
     if dim == 0:
         return 1.0                              # all points coincide: one cell
     smallest = largest / (_MAX_AXIS_CELLS - 1)
-    size_a = max((volume / n) ** (1.0 / dim), smallest)     # about n cells
-    crowd_a = _crowding(pts, lo, extent, size_a)
-    if crowd_a > 0.0:
-        size_b = size_a * min(max((target / crowd_a) ** (1.0 / dim), 0.5), 4.0)
-    else:
-        size_b = 2.0 * size_a
-    size_b = max(size_b, smallest)
-    crowd_b = _crowding(pts, lo, extent, size_b)
-    slope = float(dim)
-    if crowd_a > 0.0 and crowd_b > 0.0 and size_a != size_b:
-        slope = math.log(crowd_a / crowd_b) / math.log(size_a / size_b)
-        slope = min(max(slope, 1.0), float(dim))
-    size = size_b
-    crowd = crowd_b
-    if crowd_b <= 0.0:
-        size = size_a
-        crowd = crowd_a
+    size = max((volume / n) ** (1.0 / dim), smallest)     # about n cells
+    crowd = _crowding(pts, lo, extent, size)
     if crowd > 0.0:
-        size *= (target / crowd) ** (1.0 / slope)
+        size *= min(max((_CROWDING_PER_NEIGHBOUR * k / crowd) ** 0.5, 0.25), 4.0)
     else:
         size *= 2.0                             # every point alone: a very sparse cloud
     return max(size, smallest)
@@ -461,7 +387,7 @@ def _cell_size(pts, lo, extent, k):  # pragma: no cover - compiled
 
 @_jit
 def _knn_setup(pts, k):  # pragma: no cover - compiled
-    """Plan the grid: (finite, lo, cell, dense, slack); finite False for non-finite points."""
+    """Plan the grid: (lo, cell, slack); ValueError for a NaN or inf coordinate."""
     n = pts.shape[0]
     lo = np.empty(3, np.float64)
     extent = np.empty(3, np.float64)
@@ -472,30 +398,24 @@ def _knn_setup(pts, k):  # pragma: no cover - compiled
         for i in range(n):
             x = pts[i, a]
             if not math.isfinite(x):
-                return False, lo, extent, False, 0.0
+                raise ValueError('points must be finite (no NaN or inf coordinates)')
             low = min(low, x)
             high = max(high, x)
         lo[a] = low
         extent[a] = high - low
         scale = max(scale, abs(low) + extent[a])
     size = _cell_size(pts, lo, extent, k)
-    cell = np.full(3, size)
-    dims = _grid_dims(extent, size)
-    dense = np.float64(dims[0]) * dims[1] * dims[2] <= _DENSE_CELLS_LIMIT
+    while np.prod(np.floor(extent / size) + 1.0) > _MAX_CELLS:   # far-apart points
+        size *= 2.0
     # cell membership is computed in float64; this margin covers its rounding
     slack = 1e-9 * (scale + size)
-    return True, lo, cell, dense, slack
+    return lo, np.full(3, size), slack
 
 
 # ------------------------------------------------------------------------------ public API
 
 def knn_grid(points: np.ndarray, k: int) -> np.ndarray:
-    """Return indices (V, k) int64 of the exact k nearest points of every point, nearest first.
-
-    The compiled twin of ``normals.nearest_neighbours``: the same arguments and result.
-    """
-    if not AVAILABLE:
-        raise RuntimeError('numba is not available; use normals.nearest_neighbours')
+    """Return indices (V, k) int64 of the exact k nearest points of every point, nearest first."""
     pts = np.asarray(points)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise ValueError(f'points must have shape (V, 3), got {pts.shape}')
@@ -507,36 +427,22 @@ def knn_grid(points: np.ndarray, k: int) -> np.ndarray:
         return np.arange(n, dtype=np.int64).reshape(n, 1)
     out = np.empty((n, k), dtype=np.int64)
     pts = np.ascontiguousarray(pts, dtype=np.float64)
-    finite, lo, cell, dense, slack = _knn_setup(pts, k)
-    if not finite:
-        raise ValueError('points must be finite (no NaN or inf coordinates)')
-    _knn_queries(lo, cell, k, dense, slack, *_build_grid(pts, lo, cell, dense), out)
+    lo, cell, slack = _knn_setup(pts, k)
+    _knn_queries(lo, cell, k, slack, *_build_grid(pts, lo, cell), out)
     return out
 
 
 # --------------------------------------------------------------------------- normals kernel
 
-@_jit_inline
+@_jit(inline='always')
 def _covariance_row(pts, neighbours, v, n_use):  # pragma: no cover - compiled
     """Six entries (a00, a01, a02, a11, a12, a22) of row v's covariance, float64."""
     count = np.float64(n_use)
     px = np.float64(pts[v, 0])
     py = np.float64(pts[v, 1])
     pz = np.float64(pts[v, 2])
-    j = neighbours[v, 0]
-    rx = np.float64(pts[j, 0]) - px
-    ry = np.float64(pts[j, 1]) - py
-    rz = np.float64(pts[j, 2]) - pz
-    sx = rx
-    sy = ry
-    sz = rz
-    s00 = rx * rx
-    s01 = rx * ry
-    s02 = rx * rz
-    s11 = ry * ry
-    s12 = ry * rz
-    s22 = rz * rz
-    for t in range(1, n_use):
+    sx = sy = sz = s00 = s01 = s02 = s11 = s12 = s22 = -0.0   # -0.0 + x is x, to the bit
+    for t in range(n_use):
         j = neighbours[v, t]
         rx = np.float64(pts[j, 0]) - px
         ry = np.float64(pts[j, 1]) - py
@@ -557,7 +463,7 @@ def _covariance_row(pts, neighbours, v, n_use):  # pragma: no cover - compiled
             s11 / count - m1 * m1, s12 / count - m1 * m2, s22 / count - m2 * m2)
 
 
-@_jit_inline
+@_jit(inline='always')
 def _smallest_eigenvalue(a00, a01, a02, a11, a12, a22):  # pragma: no cover - compiled
     """Return (lambda, p2): the smallest eigenvalue (the cubic's trigonometric root), p2."""
     q = (a00 + a11 + a22) / 3.0
@@ -576,7 +482,7 @@ def _smallest_eigenvalue(a00, a01, a02, a11, a12, a22):  # pragma: no cover - co
     return q + 2.0 * p * math.cos(phi + 2.0 * np.pi / 3.0), p2
 
 
-@_jit_inline
+@_jit(inline='always')
 def _eigenvector(a00, a01, a02, a11, a12, a22, lam):  # pragma: no cover - compiled
     """Return (x, y, z, length): the longest cross product of two rows of C - lam I."""
     r00 = a00 - lam
@@ -610,15 +516,13 @@ def _normals_kernel(pts, neighbours, n_use, normals, cov, bad):  # pragma: no co
     """Write every row's normal as the numpy twin does; return the number of degenerate rows.
 
     Degenerate rows are marked in ``bad`` (cov (V, 6) holds every row's covariance: the
-    caller asks LAPACK for them, as numpy does). Returns -1 for an index out of range.
-    Three passes over the rows, not one: a row's work is one long chain of dependent
-    operations, and rows in a pass of their own overlap in the CPU (1.13 -> 0.92 ms paced).
+    caller asks LAPACK for them, as numpy does). ValueError for an index out of range.
     """
     v_count = pts.shape[0]
     for v in range(v_count):
         for t in range(n_use):
             if neighbours[v, t] < 0 or neighbours[v, t] >= v_count:
-                return -1
+                raise ValueError('neighbour indices must lie in [0, V)')
         (cov[v, 0], cov[v, 1], cov[v, 2], cov[v, 3], cov[v, 4],
          cov[v, 5]) = _covariance_row(pts, neighbours, v, n_use)
     lam = np.empty(v_count, np.float64)
@@ -643,13 +547,7 @@ def _normals_kernel(pts, neighbours, n_use, normals, cov, bad):  # pragma: no co
 
 
 def normals_from_neighbours(points: np.ndarray, neighbours: np.ndarray, n: int) -> np.ndarray:
-    """Return unit normals (V, 3) float32 from the first n neighbours of every point.
-
-    The compiled twin of the numpy normals (``normals.estimate_normals``), bit for bit.
-    Raises ValueError for bad shapes or out-of-range indices.
-    """
-    if not AVAILABLE:
-        raise RuntimeError('numba is not available; use normals.estimate_normals')
+    """Return unit normals (V, 3) float32 from the first n neighbours; ValueError if bad."""
     pts = np.ascontiguousarray(points, dtype=np.float32)
     nb = np.asarray(neighbours)
     if pts.ndim != 2 or pts.shape[1] != 3:
@@ -667,53 +565,36 @@ def normals_from_neighbours(points: np.ndarray, neighbours: np.ndarray, n: int) 
     normals = np.empty((v_count, 3), dtype=np.float32)
     cov_bad = np.empty((v_count, 6), dtype=np.float64)    # every row's covariance
     bad = np.empty(v_count, dtype=np.bool_)
-    n_bad = _normals_kernel(pts, nb, n, normals, cov_bad, bad)
-    if n_bad < 0:
-        raise ValueError(f'neighbour indices must lie in [0, {v_count})')
-    return _degenerate_normals(normals, cov_bad, bad, n_bad)
-
-
-def _degenerate_normals(normals: np.ndarray, cov_bad: np.ndarray, bad: np.ndarray,
-                        n_bad: int) -> np.ndarray:
-    """Give the degenerate rows LAPACK's eigenvector, as the numpy path does."""
-    if n_bad:
+    if _normals_kernel(pts, nb, n, normals, cov_bad, bad):   # degenerate rows: LAPACK's, as numpy
         cov = cov_bad[bad][:, [0, 1, 2, 1, 3, 4, 2, 4, 5]].reshape(-1, 3, 3)
-        _, vecs = np.linalg.eigh(cov)
-        normals[bad] = vecs[:, :, 0]
+        normals[bad] = np.linalg.eigh(cov)[1][:, :, 0]
     return normals
 
 
 @_jit
-def _validate_kernel(is_obstacle, neighbours, n1, out):  # pragma: no cover - compiled
-    """Set out[v] = is_obstacle[v] and its n1 neighbours'; False for an index out of range."""
+def _validate_kernel(is_obstacle, neighbours, n1):  # pragma: no cover - compiled
+    """(V,) bool: is_obstacle[v] and its n1 neighbours'; IndexError for an index outside."""
     v_count = is_obstacle.shape[0]
+    out = np.empty(v_count, np.bool_)
     for v in range(v_count):
         keep = is_obstacle[v]
         for t in range(1, n1 + 1):
             j = neighbours[v, t]
             if j < 0 or j >= v_count:
-                return False
+                raise IndexError('a neighbour index lies outside [0, V)')
             keep = keep and is_obstacle[j]
         out[v] = keep
-    return True
-
-
-def validate(is_obstacle: np.ndarray, neighbours: np.ndarray, n1: int) -> np.ndarray:
-    """Return ``normals.validate_obstacles`` for n1 >= 1, compiled.
-
-    Raises IndexError when an index lies outside [0, V).
-    """
-    out = np.empty(is_obstacle.shape[0], np.bool_)
-    nb = neighbours if neighbours.dtype == np.int64 else neighbours.astype(np.int64)
-    if not _validate_kernel(np.ascontiguousarray(is_obstacle, np.bool_), nb, int(n1), out):
-        raise IndexError(f'a neighbour index lies outside [0, {is_obstacle.shape[0]})')
     return out
 
 
+def validate(is_obstacle: np.ndarray, neighbours: np.ndarray, n1: int) -> np.ndarray:
+    """Return ``normals.validate_obstacles`` for n1 >= 1; IndexError for an index outside."""
+    return _validate_kernel(np.ascontiguousarray(is_obstacle, np.bool_),
+                            neighbours.astype(np.int64, copy=False), int(n1))
+
+
 def warm_up() -> None:
-    """Compile (or load from the disk cache) every kernel on a tiny cloud; no-op without numba."""
-    if not AVAILABLE:
-        return
+    """Compile (or load from the disk cache) every kernel on a tiny cloud."""
     rng = np.random.default_rng(0)
     pts = rng.uniform(0.0, 0.1, (40, 3)).astype(np.float32)
     nb = knn_grid(pts, 13)

@@ -4,10 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._numba import AVAILABLE, jit as _jit
+from ._numba import jit as _jit
 from .traversal import grid_cells
-
-__all__ = ['AVAILABLE', 'feet', 'ledges', 'lone_voxels']
 
 #: The 8 directions of the search across an edge (the numpy path's order; min is exact).
 _DX = np.array((1, 0, -1, 0, 1, 1, -1, -1), np.int64)
@@ -15,8 +13,8 @@ _DY = np.array((0, 1, 0, -1, 1, -1, 1, -1), np.int64)
 
 
 @_jit
-def _ledges_kernel(points, steep, reached, above, size, step_up, step_down,
-                   shadow_cells, dxs, dys, out):  # pragma: no cover - compiled
+def _ledges_kernel(points, steep, reached, above, size, step_up, step_down, shadow_cells,
+                   out):  # pragma: no cover - compiled
     """out[v] = the voxel lies on a ledge (see ``pipeline.traversal.ledges``)."""
     n = points.shape[0]
     ix, iy, nx, ny, ox, oy = grid_cells(points, size)
@@ -56,8 +54,8 @@ def _ledges_kernel(points, steep, reached, above, size, step_up, step_down,
                 px = cx + ox + 0.5
                 py = cy + oy + 0.5
                 for d in range(8):
-                    sx = dxs[d]
-                    sy = dys[d]
+                    sx = _DX[d]
+                    sy = _DY[d]
                     if sx * px < 0.0 or sy * py < 0.0:
                         continue
                     wx = cx
@@ -103,7 +101,7 @@ def ledges(points: np.ndarray, steep: np.ndarray, reached: np.ndarray, above: np
         return out
     _ledges_kernel(np.ascontiguousarray(points, np.float32), steep, reached, above,
                    np.float32(size_m), float(step_up_m), float(step_down_m),
-                   int(shadow_cells), _DX, _DY, out)
+                   int(shadow_cells), out)
     return out
 
 

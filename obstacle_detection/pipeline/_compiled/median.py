@@ -8,16 +8,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._numba import AVAILABLE, jit_parallel, prange
+from ._numba import jit, prange
 from ._numba import numba as _numba
-
-__all__ = ['AVAILABLE', 'median_filter']
 
 #: Keys per block of the histogram walk.
 _BLOCK = 64
 
 
-@jit_parallel
+@jit(parallel=True)
 def _histogram_median(keys, k, bands):  # pragma: no cover - compiled
     """Return the exact 'nearest'-mode median of (H, W) integer keys, rows in ``bands``."""
     h, w = keys.shape
@@ -79,10 +77,7 @@ def _histogram_median(keys, k, bands):  # pragma: no cover - compiled
 
 
 def median_filter(image: np.ndarray, k: int) -> np.ndarray:
-    """Return ``scipy.ndimage.median_filter(image, size=k, mode='nearest')``, compiled.
-
-    image: (H, W) without NaN; k: odd >= 1. Runs on the threads of :func:`._numba.set_threads`.
-    """
+    """``scipy.ndimage.median_filter(image, size=k, mode='nearest')``: (H, W) no NaN, k odd."""
     bands = _numba.get_num_threads()   # (numba cannot cache a kernel that asks itself)
     if image.dtype == np.uint16:
         return _histogram_median(np.ascontiguousarray(image), k, bands)

@@ -4,10 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._numba import AVAILABLE, jit as _jit, jit_inline as _jit_inline
-
-__all__ = ['AVAILABLE', 'MAX_CODE_NIBBLES', 'MAX_ZIGZAG', 'OK', 'TRUNCATED', 'CODE_TOO_LONG',
-           'RUN_BEYOND_IMAGE', 'DIFFERENCE_TOO_LARGE', 'WORDS_LEFT', 'decode', 'warm_up']
+from ._numba import jit as _jit
 
 #: A code has at most this many nibbles (33 value bits: any count of pixels).
 MAX_CODE_NIBBLES = 11
@@ -18,14 +15,14 @@ MAX_ZIGZAG = 131070
 OK, TRUNCATED, CODE_TOO_LONG, RUN_BEYOND_IMAGE, DIFFERENCE_TOO_LARGE, WORDS_LEFT = range(6)
 
 
-@_jit_inline
+@_jit(inline='always')
 def _next_code(words, w, word, left):  # pragma: no cover - compiled
-    """Read one code: (value, w, word, left); value -1 if the words end, -2 if too long."""
+    """Read one code: (value, w, word, left); value -TRUNCATED or -CODE_TOO_LONG on a problem."""
     value = np.int64(0)
     for k in range(MAX_CODE_NIBBLES):
         if left == 0:
             if w >= words.shape[0]:
-                return np.int64(-1), w, word, left
+                return np.int64(-TRUNCATED), w, word, left
             word = np.int64(words[w])
             w += 1
             left = np.int64(8)
@@ -35,12 +32,12 @@ def _next_code(words, w, word, left):  # pragma: no cover - compiled
         value |= (nibble & 7) << (3 * k)
         if nibble < 8:
             return value, w, word, left
-    return np.int64(-2), w, word, left
+    return np.int64(-CODE_TOO_LONG), w, word, left
 
 
 @_jit
-def _decode_kernel(words, out):  # pragma: no cover - compiled
-    """Decode ``words`` into ``out``; return (status, pixels decoded before a problem)."""
+def decode(words, out):  # pragma: no cover - compiled
+    """Decode RVL ``words`` (M,) uint32 into ``out`` (N,) uint16: (status, pixels decoded)."""
     n = out.shape[0]
     w = np.int64(0)
     word = np.int64(0)
@@ -50,7 +47,7 @@ def _decode_kernel(words, out):  # pragma: no cover - compiled
     while pixel < n:
         zeros, w, word, left = _next_code(words, w, word, left)
         if zeros < 0:
-            return (TRUNCATED if zeros == -1 else CODE_TOO_LONG), pixel
+            return -zeros, pixel
         if zeros > n - pixel:
             return RUN_BEYOND_IMAGE, pixel
         for i in range(pixel, pixel + zeros):
@@ -58,13 +55,13 @@ def _decode_kernel(words, out):  # pragma: no cover - compiled
         pixel += zeros
         nonzeros, w, word, left = _next_code(words, w, word, left)
         if nonzeros < 0:
-            return (TRUNCATED if nonzeros == -1 else CODE_TOO_LONG), pixel
+            return -nonzeros, pixel
         if nonzeros > n - pixel:
             return RUN_BEYOND_IMAGE, pixel
         for _ in range(nonzeros):
             positive, w, word, left = _next_code(words, w, word, left)
             if positive < 0:
-                return (TRUNCATED if positive == -1 else CODE_TOO_LONG), pixel
+                return -positive, pixel
             if positive > MAX_ZIGZAG:
                 return DIFFERENCE_TOO_LARGE, pixel
             previous = (previous + ((positive >> 1) ^ -(positive & 1))) & 0xFFFF
@@ -73,12 +70,6 @@ def _decode_kernel(words, out):  # pragma: no cover - compiled
     if w < words.shape[0]:
         return WORDS_LEFT, pixel
     return OK, pixel
-
-
-def decode(words: np.ndarray, out: np.ndarray) -> tuple[int, int]:
-    """Decode RVL ``words`` (M,) uint32 into ``out`` (N,) uint16: (status, pixels decoded)."""
-    status, pixel = _decode_kernel(words, out)
-    return int(status), int(pixel)
 
 
 def warm_up() -> None:

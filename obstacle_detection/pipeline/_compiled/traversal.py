@@ -7,17 +7,10 @@ Each equals its numpy twin ``_reference_<name>`` in :mod:`..traversal`, :mod:`..
 from __future__ import annotations
 
 import math
-import threading
 
 import numpy as np
 
-from ._numba import AVAILABLE, jit as _jit, scratch
-
-__all__ = ['AVAILABLE', 'drop_pixels', 'drop_smeared', 'ground_rays', 'has_nan', 'ray_row',
-           'traverse', 'unbias_holes', 'warm_up']
-
-#: Per-thread row buffers of the smear pass.
-_SCRATCH = threading.local()
+from ._numba import jit as _jit, scratch
 
 
 @_jit
@@ -91,11 +84,7 @@ def _passable_cells(points, steep, key, n_cells, step_up, layer,
         k = key[v]
         if not steep[v] and np.float64(points[v, 2]) <= surface[k] + layer:
             support[k] += 1
-    passable = np.empty(n_cells, np.bool_)
-    for c in range(n_cells):
-        passable[c] = (surface[c] != np.inf and high[c] - low[c] <= step_up
-                       and support[c] >= min_support)
-    return surface, passable
+    return surface, (surface != np.inf) & (high - low <= step_up) & (support >= min_support)
 
 
 @_jit
@@ -175,9 +164,8 @@ def _local_ground(surface, reached, order, nx, ny):  # pragma: no cover - compil
 
 
 @_jit
-def _traverse_kernel(points, steep, size, step_up, step_down, up32, down32, robot32, layer,
-                     min_support, obstacle, above, height,
-                     reached_v):  # pragma: no cover - compiled
+def _traverse_kernel(points, steep, size, step_up, step_down, robot, layer,
+                     min_support):  # pragma: no cover - compiled
     """Run the numpy path of traversal.traversable_ground, cell by cell."""
     ix, iy, nx, ny, _, _ = grid_cells(points, size)
     key = ix * ny + iy
@@ -185,31 +173,22 @@ def _traverse_kernel(points, steep, size, step_up, step_down, up32, down32, robo
                                         min_support)
     reached, order = _reach(surface, passable, nx, ny, step_up, step_down)
     ground = _local_ground(surface, reached, order, nx, ny)
+    height = np.empty(points.shape[0], np.float32)
     for v in range(points.shape[0]):
-        k = key[v]
-        h = np.float32(np.float64(points[v, 2]) - ground[k])
-        height[v] = h
-        above[v] = h > robot32
-        obstacle[v] = (h > up32 and not above[v]) or h < -down32
-        reached_v[v] = reached[k]
+        height[v] = np.float32(np.float64(points[v, 2]) - ground[key[v]])
+    above = height > robot
+    obstacle = ((height > np.float32(step_up)) & ~above) | (height < -np.float32(step_down))
+    return obstacle, above, height, reached[key]
 
 
 def traverse(points: np.ndarray, steep: np.ndarray, size_m: float, step_up_m: float,
              step_down_m: float, robot_height_m: float, layer_m: float, min_support: int = 3,
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(obstacle, above, height float32, reached) per voxel; see traversal.traversable_ground."""
-    n = points.shape[0]
-    obstacle = np.empty(n, np.bool_)
-    above = np.empty(n, np.bool_)
-    height = np.empty(n, np.float32)
-    reached = np.empty(n, np.bool_)
-    _traverse_kernel(np.ascontiguousarray(points, np.float32),
-                     np.ascontiguousarray(steep, np.bool_), np.float32(size_m),
-                     float(step_up_m), float(step_down_m), np.float32(step_up_m),
-                     np.float32(step_down_m), np.float32(robot_height_m), float(layer_m),
-                     int(min_support),
-                     obstacle, above, height, reached)
-    return obstacle, above, height, reached
+    return _traverse_kernel(np.ascontiguousarray(points, np.float32),
+                            np.ascontiguousarray(steep, np.bool_), np.float32(size_m),
+                            float(step_up_m), float(step_down_m), np.float32(robot_height_m),
+                            float(layer_m), int(min_support))
 
 
 @_jit
@@ -296,25 +275,7 @@ def drop_pixels(depth_m: np.ndarray, rz: np.ndarray | None, height_m: float,
 
 
 @_jit
-def _planar_at(raw, i, j, tol_ratio):  # pragma: no cover - compiled
-    """Return traversal._planar at (i, j)."""
-    height, width = raw.shape
-    if i < 1 or j < 1 or i >= height - 1 or j >= width - 1:
-        return False
-    r, a, b, c, d = raw[i, j], raw[i, j - 1], raw[i, j + 1], raw[i - 1, j], raw[i + 1, j]
-    if not (r > 0.0 and a > 0.0 and b > 0.0 and c > 0.0 and d > 0.0):
-        return False
-    one = np.float32(1.0)
-    two = np.float32(2.0)
-    inv = one / r
-    tol = tol_ratio * inv
-    row = abs(one / a + one / b - two * inv)
-    col = abs(one / c + one / d - two * inv)
-    return row <= tol and col <= tol
-
-
-@_jit
-def _has_nan(raw):  # pragma: no cover - compiled
+def has_nan(raw):  # pragma: no cover - compiled
     """Return True when raw holds a NaN."""
     flat = raw.reshape(-1)
     found = False
@@ -333,96 +294,47 @@ def _inverse_row(row, out):  # pragma: no cover - compiled
         out[j] = one / (r if r > zero else one)
 
 
-@_jit
-def _smear_pixel(filtered, raw, i, j, near, far, ratio, jump, tol_ratio):  # pragma: no cover
-    """Return the new filtered depth at (i, j): drop_smeared's rule, window range given."""
-    height, width = raw.shape
-    zero = np.float32(0.0)
-    r = raw[i, j]
-    f = filtered[i, j]
-    if r > zero:
-        lim = jump * r
-        if r - near > lim and far - r > lim and not _planar_at(raw, i, j, tol_ratio):
-            return zero
-        if abs(f - r) > ratio * f:
-            return r
-        return f
-    lim = ratio * f
-    seen = False
-    agree = True
-    if i > 0:
-        nb = raw[i - 1, j]
-        if nb > zero:
-            seen = True
-            agree &= abs(nb - f) <= lim
-    if i + 1 < height:
-        nb = raw[i + 1, j]
-        if nb > zero:
-            seen = True
-            agree &= abs(nb - f) <= lim
-    if j > 0:
-        nb = raw[i, j - 1]
-        if nb > zero:
-            seen = True
-            agree &= abs(nb - f) <= lim
-    if j + 1 < width:
-        nb = raw[i, j + 1]
-        if nb > zero:
-            seen = True
-            agree &= abs(nb - f) <= lim
-    return f if (seen and agree) else zero
+@_jit(inline='always')
+def _near(v):  # pragma: no cover - compiled
+    """Return the depth v if measured, else inf."""
+    return v if v > np.float32(0.0) else np.float32(np.inf)
+
+
+@_jit(inline='always')
+def _far(v):  # pragma: no cover - compiled
+    """Return the depth v if measured, else 0."""
+    return v if v > np.float32(0.0) else np.float32(0.0)
+
+
+@_jit(inline='always')
+def _min5(a, b, c, d, e):  # pragma: no cover - compiled
+    """Return the smallest of five values (no NaN)."""
+    ab = a if a < b else b
+    cd = c if c < d else d
+    m = ab if ab < cd else cd
+    return e if e < m else m
+
+
+@_jit(inline='always')
+def _max5(a, b, c, d, e):  # pragma: no cover - compiled
+    """Return the largest of five values (no NaN)."""
+    ab = a if a > b else b
+    cd = c if c > d else d
+    m = ab if ab > cd else cd
+    return e if e > m else m
 
 
 @_jit
-def _planar_row(left, mid, right, up, dn, iu, il, im, ir, idn, tol_ratio,
-                out):  # pragma: no cover - compiled
-    """Fill out with _planar_at along a row (depths, inverse depths: pixel, 4 neighbours)."""
-    zero = np.float32(0.0)
-    two = np.float32(2.0)
-    for j in range(out.size):
-        inv = im[j]
-        tol = tol_ratio * inv
-        row = abs(il[j] + ir[j] - two * inv)
-        col = abs(iu[j] + idn[j] - two * inv)
-        ok = (left[j] > zero) & (right[j] > zero) & (up[j] > zero) & (dn[j] > zero)
-        ok &= mid[j] > zero
-        out[j] = ok & (row <= tol) & (col <= tol)
+def _column_range(r0, r1, r2, r3, r4, col_lo, col_hi):  # pragma: no cover - compiled
+    """Fill col_lo/col_hi with the nearest (inf: none) and farthest (0) depth of five rows."""
+    for j in range(col_lo.size):
+        col_lo[j] = _min5(_near(r0[j]), _near(r1[j]), _near(r2[j]), _near(r3[j]), _near(r4[j]))
+        col_hi[j] = _max5(_far(r0[j]), _far(r1[j]), _far(r2[j]), _far(r3[j]), _far(r4[j]))
 
 
 @_jit
-def _keep_row(left, right, up, dn, f_row, ratio, out):  # pragma: no cover - compiled
-    """Fill out: a filled hole keeps its depth (a measured 4-neighbour, all within ratio)."""
-    zero = np.float32(0.0)
-    for j in range(out.size):
-        f = f_row[j]
-        lim = ratio * f
-        a = left[j]
-        b = right[j]
-        c = up[j]
-        d = dn[j]
-        seen = (a > zero) | (b > zero) | (c > zero) | (d > zero)
-        bad = ((a > zero) & (abs(a - f) > lim)) | ((b > zero) & (abs(b - f) > lim))
-        bad |= ((c > zero) & (abs(c - f) > lim)) | ((d > zero) & (abs(d - f) > lim))
-        out[j] = seen & ~bad
-
-
-@_jit
-def _column_step(row, col_lo, col_hi):  # pragma: no cover - compiled
-    """Take one more row into the column pass: nearest measured depth (inf: none), farthest."""
-    zero = np.float32(0.0)
-    inf = np.float32(np.inf)
-    for j in range(row.size):
-        v = row[j]
-        m = v if v > zero else inf
-        lo = col_lo[j]
-        col_lo[j] = m if m < lo else lo
-        hi = col_hi[j]
-        col_hi[j] = v if v > hi else hi
-
-
-@_jit
-def _row_range(col_lo, col_hi, r_row, f_row, jump, lo_out, hi_out):  # pragma: no cover
-    """Row pass of the window range (lo_out, hi_out: min/max of 5 taps, exact in any order).
+def _row_range(col_lo, col_hi, r_row, f_row, jump, near, far):  # pragma: no cover - compiled
+    """Row pass of the window range (near, far: min/max of 5 taps, exact in any order).
 
     Returns (flying, filled): the row's flying candidates and filled holes.
     """
@@ -430,26 +342,10 @@ def _row_range(col_lo, col_hi, r_row, f_row, jump, lo_out, hi_out):  # pragma: n
     flying = 0
     filled = 0
     for j in range(r_row.size):
-        a = col_lo[j]
-        b = col_lo[j + 1]
-        c = col_lo[j + 2]
-        d = col_lo[j + 3]
-        e = col_lo[j + 4]
-        ab = a if a < b else b
-        cd = c if c < d else d
-        m = ab if ab < cd else cd
-        lo = e if e < m else m
-        lo_out[j] = lo
-        a = col_hi[j]
-        b = col_hi[j + 1]
-        c = col_hi[j + 2]
-        d = col_hi[j + 3]
-        e = col_hi[j + 4]
-        ab = a if a > b else b
-        cd = c if c > d else d
-        m = ab if ab > cd else cd
-        hi = e if e > m else m
-        hi_out[j] = hi
+        lo = _min5(col_lo[j], col_lo[j + 1], col_lo[j + 2], col_lo[j + 3], col_lo[j + 4])
+        hi = _max5(col_hi[j], col_hi[j + 1], col_hi[j + 2], col_hi[j + 3], col_hi[j + 4])
+        near[j] = lo
+        far[j] = hi
         r = r_row[j]
         lim = jump * r
         flying += (r > zero) & (r - lo > lim) & (hi - r > lim)
@@ -458,38 +354,39 @@ def _row_range(col_lo, col_hi, r_row, f_row, jump, lo_out, hi_out):  # pragma: n
 
 
 @_jit
-def _pair_range(upper, lower, lo_out, hi_out):  # pragma: no cover - compiled
-    """Fill lo_out/hi_out with the nearest (inf: none) and farthest (0) depth of two rows."""
+def _planar_row(mid, up, dn, iu, im, idn, tol_ratio, out):  # pragma: no cover - compiled
+    """Fill out: the pixel and its 4 neighbours returned, 1/depth affine along row and column.
+
+    mid, im, iu, idn (W + 2,): the row's depths and the inverse depths of it and the rows above
+    and below, between pads (a 0 depth pad: no neighbour); up, dn (W,): those rows' depths.
+    """
     zero = np.float32(0.0)
-    inf = np.float32(np.inf)
-    for j in range(lo_out.size):
-        a = upper[j]
-        b = lower[j]
-        la = a if a > zero else inf
-        lb = b if b > zero else inf
-        ha = a if a > zero else zero
-        hb = b if b > zero else zero
-        lo_out[j] = la if la < lb else lb
-        hi_out[j] = ha if ha > hb else hb
+    two = np.float32(2.0)
+    for j in range(out.size):
+        inv = im[j + 1]
+        tol = tol_ratio * inv
+        row = abs(im[j] + im[j + 2] - two * inv)
+        col = abs(iu[j + 1] + idn[j + 1] - two * inv)
+        ok = (mid[j] > zero) & (mid[j + 2] > zero) & (up[j] > zero) & (dn[j] > zero)
+        ok &= mid[j + 1] > zero
+        out[j] = ok & (row <= tol) & (col <= tol)
 
 
 @_jit
-def _column_range(lo_a, hi_a, lo_b, hi_b, row, col_lo, col_hi):  # pragma: no cover - compiled
-    """Column pass of a 5-row window: the ranges of two row pairs (a, b) and one more row."""
+def _keep_row(mid, up, dn, f_row, ratio, out):  # pragma: no cover - compiled
+    """Fill out: a filled hole keeps its depth (a measured 4-neighbour, all within ratio)."""
     zero = np.float32(0.0)
-    inf = np.float32(np.inf)
-    for j in range(col_lo.size):
-        v = row[j]
-        lv = v if v > zero else inf
-        hv = v if v > zero else zero
-        lo = lo_a[j]
-        lb = lo_b[j]
-        lo = lb if lb < lo else lo
-        col_lo[j] = lv if lv < lo else lo
-        hi = hi_a[j]
-        hb = hi_b[j]
-        hi = hb if hb > hi else hi
-        col_hi[j] = hv if hv > hi else hi
+    for j in range(out.size):
+        f = f_row[j]
+        lim = ratio * f
+        a = mid[j]
+        b = mid[j + 2]
+        c = up[j]
+        d = dn[j]
+        seen = (a > zero) | (b > zero) | (c > zero) | (d > zero)
+        bad = ((a > zero) & ~(abs(a - f) <= lim)) | ((b > zero) & ~(abs(b - f) <= lim))
+        bad |= ((c > zero) & ~(abs(c - f) <= lim)) | ((d > zero) & ~(abs(d - f) <= lim))
+        out[j] = seen & ~bad
 
 
 @_jit
@@ -511,85 +408,43 @@ def _decide_row(r_row, f_row, near, far, planar, keep, ratio, jump,
 
 
 @_jit
-def _smear5_kernel(filtered, raw, ratio, jump, tol_ratio, col_lo, col_hi, row_lo, row_hi,
-                   pair_lo, pair_hi, inv3, zeros, planar, keep):  # pragma: no cover - compiled
+def _smear_kernel(filtered, raw, ratio, jump, tol_ratio, rows, planar,
+                  keep):  # pragma: no cover - compiled
     """drop_smeared, row by row, with the 5 x 5 window range (clipped to the image) on the way.
 
-    A column pass (row pairs kept in the ring pair_lo/pair_hi) and a row pass give each row's
-    range; the inverse depths of rows i - 1 to i + 1 rotate through inv3; branch-free passes
-    decide the inner columns, the scalar rule the 2 border columns each side. zeros: (W,) 0.
+    rows (9, W + 4) float32: the column pass's range between neutral pads (inf, 0) for the
+    row pass's 5 taps, the row's range, row i between 0 pads, the inverse depths of rows
+    i - 1 to i + 1 (a ring, computed for rows with flying candidates), zeros. Branch-free.
     """
-    height, width = filtered.shape
-    inf = np.float32(np.inf)
-    zero = np.float32(0.0)
-    half = 2
-    inv_of = np.full(3, -1, np.int64)   # the row whose inverse depths each slot of inv3 holds
-    n = width - 4
+    height, width = raw.shape
+    col_lo, col_hi, near, far, mid, zeros = rows[0], rows[1], rows[2], rows[3], rows[4], rows[8]
+    rows[:] = 0.0
+    col_lo[:] = np.inf
+    rows[5:8] = 1.0
+    inv_of = np.full(3, -1, np.int64)   # the row whose inverse depths each ring row holds
     for i in range(height):
-        # col_lo/col_hi (W + 4,): the column pass in [2, W + 2), neutral pads (inf, 0) around,
-        # so that the row pass's 5 taps give the window clipped to the image at the borders
-        inner = i >= half and i + half < height
-        if inner or (i < half and i + half + 1 < height):   # rows i, i + 1, for row i + 2
-            _pair_range(raw[i], raw[i + 1], pair_lo[i % 3], pair_hi[i % 3])
-        if inner:    # rows i - 2 to i + 2: two pairs and row i + 2
-            _column_range(pair_lo[(i - 2) % 3], pair_hi[(i - 2) % 3], pair_lo[i % 3],
-                          pair_hi[i % 3], raw[i + 2], col_lo[2:width + 2],
-                          col_hi[2:width + 2])
-        else:        # the window clipped to the image, row by row
-            i0 = max(0, i - half)
-            r0 = raw[i0]
-            for j in range(width):
-                v = r0[j]
-                col_lo[j + 2] = v if v > zero else inf
-                col_hi[j + 2] = v if v > zero else zero
-            for k in range(i0 + 1, min(height, i + half + 1)):
-                _column_step(raw[k], col_lo[2:width + 2], col_hi[2:width + 2])
+        # the window clipped to the image: its rows clamped (min and max are idempotent)
+        _column_range(raw[max(i - 2, 0)], raw[max(i - 1, 0)], raw[i],
+                      raw[min(i + 1, height - 1)], raw[min(i + 2, height - 1)],
+                      col_lo[2:width + 2], col_hi[2:width + 2])
         rr = raw[i]
         fr = filtered[i]
-        flying, filled = _row_range(col_lo, col_hi, rr, fr, jump, row_lo, row_hi)
+        flying, filled = _row_range(col_lo, col_hi, rr, fr, jump, near, far)
         up = raw[i - 1] if i > 0 else zeros
         dn = raw[i + 1] if i + 1 < height else zeros
-        iu = inv3[(i - 1) % 3]
-        im = inv3[i % 3]
-        idn = inv3[(i + 1) % 3]
-        for e in range(4):   # border columns: the scalar rule
-            j = e if e < 2 else width - 4 + e
-            if j < 0 or j >= width or (e >= 2 and width - 4 + e < 2):
-                continue
-            fr[j] = _smear_pixel(filtered, raw, i, j, row_lo[j], row_hi[j], ratio, jump,
-                                 tol_ratio)
-        if n <= 0:
-            continue
+        mid[1:width + 1] = rr
         if flying:   # else planar is not looked at (nor the inverse depths)
             for k in range(max(0, i - 1), min(height, i + 2)):
                 if inv_of[k % 3] != k:
-                    _inverse_row(raw[k], inv3[k % 3])
+                    _inverse_row(raw[k], rows[5 + k % 3, 1:width + 1])
                     inv_of[k % 3] = k
-            _planar_row(rr[1:n + 1], rr[2:n + 2], rr[3:n + 3], up[2:n + 2], dn[2:n + 2],
-                        iu[2:n + 2], im[1:n + 1], im[2:n + 2], im[3:n + 3], idn[2:n + 2],
-                        tol_ratio, planar[:n])
+            _planar_row(mid, up, dn, rows[5 + (i - 1) % 3], rows[5 + i % 3],
+                        rows[5 + (i + 1) % 3], tol_ratio, planar)
         if filled:
-            _keep_row(rr[1:n + 1], rr[3:n + 3], up[2:n + 2], dn[2:n + 2], fr[2:n + 2], ratio,
-                      keep[:n])
+            _keep_row(mid, up, dn, fr, ratio, keep)
         else:        # no hole was filled: each hole stays empty
-            keep[:n] = False
-        _decide_row(rr[2:n + 2], fr[2:n + 2], row_lo[2:n + 2], row_hi[2:n + 2], planar[:n],
-                    keep[:n], ratio, jump)
-
-
-def _smear5_buffers(width: int) -> tuple[np.ndarray, ...]:
-    """Return the row buffers of _smear5_kernel for images this wide (pads, zeros set)."""
-    col_lo = np.full(width + 4, np.inf, np.float32)   # neutral pads of the row pass: the
-    col_hi = np.zeros(width + 4, np.float32)          # kernel writes [2, W + 2) only
-    return (col_lo, col_hi, np.empty(width, np.float32), np.empty(width, np.float32),
-            np.empty((3, width), np.float32), np.empty((3, width), np.float32),
-            np.empty((3, width), np.float32), np.zeros(width, np.float32),
-            np.empty(width, np.bool_), np.empty(width, np.bool_))
-
-
-def has_nan(raw: np.ndarray) -> bool:
-    """Return True when the float32 image raw holds a NaN."""
-    return bool(_has_nan(raw))
+            keep[:] = False
+        _decide_row(rr, fr, near, far, planar, keep, ratio, jump)
 
 
 def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float, jump: float,
@@ -599,11 +454,11 @@ def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float, jump: 
     filtered, raw: (H, W) float32 C-contiguous; raw without NaN (the stage's ``accepts``
     checks it, or takes ``raw_no_nan``: OpenCV's window range orders NaN its own way).
     """
-    bufs = getattr(_SCRATCH, 'smear5', None)
-    if bufs is None or bufs[0].size != raw.shape[1] + 4:
-        bufs = _SCRATCH.smear5 = _smear5_buffers(raw.shape[1])
-    rules = (np.float32(max_shift), np.float32(jump), np.float32(planar_tolerance))
-    _smear5_kernel(filtered, raw, *rules, *bufs)
+    width = raw.shape[1]
+    rows = scratch('smear_rows', 9 * (width + 4), np.float32)[:9 * (width + 4)]
+    flags = scratch('smear_flags', 2 * width, np.bool_)[:2 * width].reshape(2, width)
+    _smear_kernel(filtered, raw, np.float32(max_shift), np.float32(jump),
+                  np.float32(planar_tolerance), rows.reshape(9, width + 4), flags[0], flags[1])
 
 
 @_jit
@@ -611,8 +466,7 @@ def _unbias_kernel(filtered, raw, kernel, most, padded, window):  # pragma: no c
     """In place: traversal's unbias_holes, the window's returns counted on the way.
 
     padded (W + kernel - 1,) int16: the returns of each column in the window's rows, slid down
-    row by row, its ends replicated; window (W,) int16: their sums along the row. Branch-free
-    passes (vectorised).
+    row by row, its ends replicated; window (W,) int16: their sums along the row.
     """
     height, width = raw.shape
     before = kernel // 2
@@ -635,10 +489,8 @@ def _unbias_kernel(filtered, raw, kernel, most, padded, window):  # pragma: no c
             rc = raw[come]
             for j in range(width):
                 columns[j] += (one if rc[j] > zero else nil) - (one if rg[j] > zero else nil)
-        for t in range(before):
-            padded[t] = columns[0]
-        for t in range(after):
-            padded[before + width + t] = columns[width - 1]
+        padded[:before] = columns[0]
+        padded[before + width:] = columns[width - 1]
         window[:] = padded[:width]
         for d in range(1, kernel):
             for j in range(width):
@@ -654,10 +506,9 @@ def _unbias_kernel(filtered, raw, kernel, most, padded, window):  # pragma: no c
 
 
 def unbias_holes(filtered: np.ndarray, raw: np.ndarray, kernel: int, most: int) -> np.ndarray:
-    """In place: traversal.unbias_holes where at most ``most`` of the window's pixels returned.
+    """In place, returned: traversal.unbias_holes where at most ``most`` pixels returned.
 
     filtered, raw: (H, W) float32 C-contiguous; kernel <= 181 (its counts fit int16).
-    Returns ``filtered``.
     """
     if raw.size:
         width = raw.shape[1]
@@ -716,8 +567,8 @@ def _floor_samples_kernel(depth, step, rays, height, tan_tilt, band0, min_x, max
 
 
 @_jit
-def _hypotheses(pts, picks, tan_tilt2, offset, a, b, c):  # pragma: no cover - compiled
-    """Fill a, b, c with the planes through the picked triplets within the tilt and offset.
+def _hypotheses(pts, picks, tan_tilt2, offset, planes):  # pragma: no cover - compiled
+    """Fill planes (a, b, c) with those through the picked triplets within the tilt and offset.
 
     pts: (3, M) float64; picks: (3, h) in [0, 1), where in each third of the samples the
     triplet points are taken. Returns how many.
@@ -744,9 +595,9 @@ def _hypotheses(pts, picks, tan_tilt2, offset, a, b, c):  # pragma: no cover - c
         hb = -ny / nz
         hc = pts[2, i0] - ha * pts[0, i0] - hb * pts[1, i0]
         if ha * ha + hb * hb <= tan_tilt2 and abs(hc) <= offset:
-            a[used] = ha
-            b[used] = hb
-            c[used] = hc
+            planes[used, 0] = ha
+            planes[used, 1] = hb
+            planes[used, 2] = hc
             used += 1
     return used
 
@@ -754,42 +605,30 @@ def _hypotheses(pts, picks, tan_tilt2, offset, a, b, c):  # pragma: no cover - c
 @_jit
 def _mode_height(pts, offset):  # pragma: no cover - compiled
     """Return the most common sample height within the offset (1 cm bins), or 0."""
-    n = pts.shape[1]
-    n_bins = 0
-    for i in range(n):
-        z = pts[2, i]
-        if abs(z) <= offset:
-            n_bins = max(n_bins, np.int64(np.floor((z + offset) * 100.0)) + 1)
-    if n_bins == 0:
-        return 0.0
-    counts = np.zeros(n_bins, np.int64)
-    for i in range(n):
+    counts = np.zeros(np.int64(np.floor((offset + offset) * 100.0)) + 1, np.int64)
+    found = False
+    for i in range(pts.shape[1]):
         z = pts[2, i]
         if abs(z) <= offset:
             counts[np.int64(np.floor((z + offset) * 100.0))] += 1
-    return (np.argmax(counts) + 0.5) * 0.01 - offset
+            found = True
+    return (np.argmax(counts) + 0.5) * 0.01 - offset if found else 0.0
 
 
 @_jit
-def _scores(pts, a, b, c, used, score_points, band32):  # pragma: no cover - compiled
-    """Return (used,) int64: samples (every stride-th, float32) within band32 of each plane."""
-    n = pts.shape[1]
-    stride = max(1, n // score_points)
-    ns = (n + stride - 1) // stride
-    sx = np.empty(ns, np.float32)
-    sy = np.empty(ns, np.float32)
-    sz = np.empty(ns, np.float32)
-    for i in range(ns):
-        sx[i] = np.float32(pts[0, i * stride])
-        sy[i] = np.float32(pts[1, i * stride])
-        sz[i] = np.float32(pts[2, i * stride])
-    score = np.empty(used, np.int64)
-    for t in range(used):
-        a32 = np.float32(a[t])
-        b32 = np.float32(b[t])
-        c32 = np.float32(c[t])
+def _scores(pts, planes, score_points, band32):  # pragma: no cover - compiled
+    """Return the samples (every stride-th, float32) within band32 of each plane, int64."""
+    stride = max(1, pts.shape[1] // score_points)
+    sx = pts[0, ::stride].astype(np.float32)
+    sy = pts[1, ::stride].astype(np.float32)
+    sz = pts[2, ::stride].astype(np.float32)
+    score = np.empty(planes.shape[0], np.int64)
+    for t in range(planes.shape[0]):
+        a32 = np.float32(planes[t, 0])
+        b32 = np.float32(planes[t, 1])
+        c32 = np.float32(planes[t, 2])
         count = 0
-        for i in range(ns):
+        for i in range(sx.size):
             r = a32 * sx[i]
             r += b32 * sy[i]
             r += c32
@@ -800,35 +639,18 @@ def _scores(pts, a, b, c, used, score_points, band32):  # pragma: no cover - com
 
 
 @_jit
-def _ransac_kernel(pts, picks, tan_tilt2, offset, band32, score_points, out,
-                   ):  # pragma: no cover - compiled
-    """Fill out (k, 3) with floor._ransac_plane's best k hypotheses (same float operations).
+def ransac_plane(pts, picks, tan_tilt2, offset, band, score_points,
+                 k):  # pragma: no cover - compiled
+    """(k, 3) float64: floor._ransac_plane's best k hypotheses (the same float operations).
 
     The hypotheses: the triplets' planes, the configured floor and the level plane through
-    the most common sample height; band32: the float32 inlier band.
+    the most common sample height; the best first, ties: the earlier hypothesis.
     """
-    h = picks.shape[1]
-    a = np.empty(h + 2)
-    b = np.empty(h + 2)
-    c = np.empty(h + 2)
-    used = _hypotheses(pts, picks, tan_tilt2, offset, a, b, c)
-    a[used] = 0.0
-    b[used] = 0.0
-    c[used] = 0.0
-    a[used + 1] = 0.0
-    b[used + 1] = 0.0
-    c[used + 1] = _mode_height(pts, offset)
-    used += 2
-    score = _scores(pts, a, b, c, used, score_points, band32)
-    for k in range(out.shape[0]):   # the best first; ties: the earlier hypothesis
-        best = -1
-        for t in range(used):
-            if score[t] >= 0 and (best < 0 or score[t] > score[best]):
-                best = t
-        out[k, 0] = a[best]
-        out[k, 1] = b[best]
-        out[k, 2] = c[best]
-        score[best] = -1
+    planes = np.zeros((picks.shape[1] + 2, 3))
+    used = _hypotheses(pts, picks, tan_tilt2, offset, planes)
+    planes[used + 1, 2] = _mode_height(pts, offset)   # planes[used]: the floor, (0, 0, 0)
+    score = _scores(pts, planes[:used + 2], score_points, np.float32(band))
+    return planes[np.argsort(-score, kind='mergesort')[:k]]
 
 
 @_jit
@@ -846,8 +668,8 @@ def _band_kernel(pts, a, b, c, band, out):  # pragma: no cover - compiled
 
 
 @_jit
-def _band_count(pts, a, b, c, band):  # pragma: no cover - compiled
-    """Return how many samples lie within band of z = a x + b y + c."""
+def count_in_band(pts, a, b, c, band):  # pragma: no cover - compiled
+    """Return how many samples pts (3, M) lie within band of z = a x + b y + c."""
     m = 0
     for i in range(pts.shape[1]):
         resid = pts[2, i] - (a * pts[0, i] + b * pts[1, i] + c)
@@ -870,15 +692,6 @@ def floor_samples(depth_m: np.ndarray, step: int, sub_rays: np.ndarray, height_m
     return buf[:, :m].copy()
 
 
-def ransac_plane(pts: np.ndarray, picks: np.ndarray, tan_tilt2: float, offset_m: float,
-                 band_m: float, score_points: int, k: int) -> np.ndarray:
-    """(k, 3) float64: floor._ransac_plane's best hypotheses, compiled."""
-    out = np.empty((k, 3))
-    _ransac_kernel(pts, picks, float(tan_tilt2), float(offset_m), np.float32(band_m),
-                   int(score_points), out)
-    return out
-
-
 def in_band(pts: np.ndarray, a: float, b: float, c: float, band_m: float) -> np.ndarray:
     """(3, m) float64: the samples pts (3, M) within band_m of z = a x + b y + c (a copy).
 
@@ -888,11 +701,6 @@ def in_band(pts: np.ndarray, a: float, b: float, c: float, band_m: float) -> np.
     buf = scratch('floor_band', size, np.float64)[:size].reshape(-1, 3)
     m = _band_kernel(pts, float(a), float(b), float(c), float(band_m), buf)
     return buf[:m].copy().T
-
-
-def count_in_band(pts: np.ndarray, a: float, b: float, c: float, band_m: float) -> int:
-    """How many samples pts (3, M) lie within band_m of z = a x + b y + c."""
-    return int(_band_count(pts, float(a), float(b), float(c), float(band_m)))
 
 
 def warm_up() -> None:

@@ -1,31 +1,26 @@
-"""Compiled (numba) back-projection, region of interest and voxel grid.
+"""Compiled (numba) back-projection, region of interest and voxel grid of :mod:`..voxel`.
 
-The stage module :mod:`obstacle_detection.pipeline.voxel` runs :func:`project_roi`,
-:func:`voxelise` and :func:`voxel_downsample` instead of its numpy twins when
-:func:`obstacle_detection.pipeline.jit.enabled`; the results are bit-identical (the same
-float32 operations, float64 sums in point order). Method: docs/speed.md.
+Bit-identical to the numpy path: the same float32 operations, float64 sums in point order.
 """
 
 from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
 
 import numpy as np
 
 from obstacle_detection.labels import (LABEL_GROUND, LABEL_NO_RETURN, LABEL_OBSTACLE,
                                        LABEL_OUTSIDE_ROI)
 
-from ._numba import AVAILABLE, jit as _jit, jit_inline as _jit_inline, scratch
+from ._numba import jit as _jit, scratch
 from .traversal import ray_row
-
-__all__ = ['AVAILABLE', 'Projection', 'label_pixels', 'project_roi', 'roi_lattice',
-           'voxel_downsample', 'voxelise']
 
 #: Most lattice cells [cells] of the occupied-cell bitmap (as the numpy path's dense limit).
 _DENSE_LIMIT = 16_000_000
 #: uint64 0 and 1 (numba turns uint64 mixed with an int literal into float64).
 _U0 = np.uint64(0)
 _U1 = np.uint64(1)
-#: Largest |voxel index| handled; beyond it (or NaN) the numpy path must run.
-_MAX_INDEX = float(1 << 40)
 #: Label of a pixel inside the region of interest until :func:`label_pixels` decides.
 _LABEL_KEPT = LABEL_GROUND
 #: Pixels whose rays are computed at once when not read from a table (96 kB, cache resident).
@@ -46,9 +41,9 @@ def _project_kernel(depth, rays, offset, bounds, size, low, dims, labels, pixel_
     m = 0
     for p in range(depth.size):
         z = depth[p]
+        pixel_voxel[p] = -1
         if not z > 0.0:
             labels[p] = LABEL_NO_RETURN
-            pixel_voxel[p] = -1
             continue
         gx = z * rays[0, p]
         gy = z * rays[1, p]
@@ -62,7 +57,6 @@ def _project_kernel(depth, rays, offset, bounds, size, low, dims, labels, pixel_
             if i < 0 or i >= dims[0] or j < 0 or j >= dims[1] or k < 0 or k >= dims[2]:
                 return -1
             labels[p] = _LABEL_KEPT
-            pixel_voxel[p] = -1
             cols[0, m] = gx
             cols[1, m] = gy
             cols[2, m] = gz
@@ -71,7 +65,6 @@ def _project_kernel(depth, rays, offset, bounds, size, low, dims, labels, pixel_
             m += 1
         else:
             labels[p] = LABEL_OUTSIDE_ROI
-            pixel_voxel[p] = -1
     return m
 
 
@@ -99,20 +92,7 @@ def _project_rays_kernel(depth, ru, rv, rot, chunk, bounds, size, low, dims, lab
     return m
 
 
-@_jit
-def _index_kernel(cols, size, ijk, limit):  # pragma: no cover - compiled
-    """Write ijk (3, m) int64 = floor(cols / size) in the points' dtype; False if one is huge."""
-    for a in range(3):
-        s = size[a]
-        for p in range(cols.shape[1]):
-            f = np.floor(cols[a, p] / s)
-            if not (f > -limit and f < limit):   # also NaN
-                return False
-            ijk[a, p] = np.int64(f)
-    return True
-
-
-@_jit_inline
+@_jit(inline='always')
 def _popcount(x):  # pragma: no cover - compiled
     """Return the number of set bits of the uint64 ``x`` (counted in parallel in the word)."""
     x = x - ((x >> _U1) & np.uint64(0x5555555555555555))
@@ -127,8 +107,8 @@ def _voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_vox
                   prefix):  # pragma: no cover - compiled
     """Give the occupied cells numbers in key order (a bitmap, bits; prefix: counts per word).
 
-    Writes point_voxel (m,) and, when pixels is not empty, pixel_voxel at each point's pixel;
-    bits must be all zero and are left so. Returns (centroids, point_voxel, counts, voxel_ijk).
+    Writes point_voxel (m,) and pixel_voxel at each point's pixel; bits must be all zero and
+    are left so. Returns (centroids, point_voxel, counts, voxel_ijk).
     """
     n_words = (n_cells + 63) // 64
     m = point_voxel.shape[0]
@@ -154,7 +134,6 @@ def _voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_vox
             word ^= lowest
     counts = np.zeros(n_vox, np.int64)
     sums = np.zeros((n_vox, 3), np.float64)
-    with_pixels = pixels.size > 0
     for q in range(m):
         key = keys[q]
         w = key >> 6
@@ -164,8 +143,7 @@ def _voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_vox
         sums[v, 0] += np.float64(cols[0, q])
         sums[v, 1] += np.float64(cols[1, q])
         sums[v, 2] += np.float64(cols[2, q])
-        if with_pixels:
-            pixel_voxel[pixels[q]] = v
+        pixel_voxel[pixels[q]] = v
     for q in range(m):
         bits[keys[q] >> 6] = _U0
     centroids = np.empty((n_vox, 3), np.float32)
@@ -185,38 +163,24 @@ def _label_kernel(labels, pixel_voxel, is_obstacle):  # pragma: no cover - compi
             labels[p] = LABEL_OBSTACLE if is_obstacle[v] else LABEL_GROUND
 
 
+@dataclass
 class Projection:
     """What :func:`project_roi` found in one depth image (flat pixel order).
 
-    The points inside the region, their pixel indices and (``has_keys``) voxel keys on the
-    lattice ``low``, ``dims``; labels; pixel_voxel (-1 until :func:`voxelise`).
+    points (M, 3) float32, a view of cols (3, N); their flat pixel_index and voxel keys int64
+    on the lattice ``low``, ``dims`` (None: too large a lattice); labels (H, W) uint8;
+    pixel_voxel (H, W) int32, -1 until :func:`voxelise`; reuse: per-thread buffers.
     """
 
-    __slots__ = ('_cols', '_pix', '_keys', 'count', 'labels', 'pixel_voxel', 'has_keys',
-                 'low', 'dims', 'voxel_size_m', 'reuse')
-
-    def __init__(self, cols: np.ndarray, pix: np.ndarray, keys: np.ndarray, count: int,
-                 labels: np.ndarray, pixel_voxel: np.ndarray, has_keys: bool, low: np.ndarray,
-                 dims: np.ndarray, voxel_size_m: tuple[float, float, float],
-                 reuse: bool) -> None:
-        self._cols, self._pix, self._keys, self.count = cols, pix, keys, count
-        self.labels, self.pixel_voxel, self.has_keys = labels, pixel_voxel, has_keys
-        self.low, self.dims, self.voxel_size_m, self.reuse = low, dims, voxel_size_m, reuse
-
-    @property
-    def points(self) -> np.ndarray:
-        """(M, 3) float32, a view of (3, M) contiguous columns."""
-        return self._cols[:, :self.count].T
-
-    @property
-    def pixel_index(self) -> np.ndarray:
-        """(M,) int64 flat pixel indices."""
-        return self._pix[:self.count]
-
-    @property
-    def keys(self) -> np.ndarray | None:
-        """(M,) int64 linear voxel keys, or None."""
-        return self._keys[:self.count] if self.has_keys else None
+    points: np.ndarray
+    pixel_index: np.ndarray
+    keys: np.ndarray | None
+    labels: np.ndarray
+    pixel_voxel: np.ndarray
+    low: np.ndarray
+    dims: np.ndarray
+    reuse: bool
+    cols: np.ndarray
 
 
 def roi_lattice(bounds: np.ndarray, size: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -245,21 +209,14 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarra
             raise ValueError(f'rays are for a {(rv.size, ru.size)} image, the depth is {shape}')
         band = max(1, _RAY_BAND_PX // shape[1]) * shape[1]   # whole rows
         chunk = scratch('ray_band', 3 * band, np.float32)[:3 * band].reshape(3, band)
-
-        def kernel(*args):
-            return _project_rays_kernel(depth, ru, rv, rot, chunk, *args)
-
+        kernel = functools.partial(_project_rays_kernel, depth, ru, rv, rot, chunk)
     else:
         rays = np.ascontiguousarray(rays, np.float32)
         if rays.shape != (3, n):
             raise ValueError(f'rays must have shape (3, {n}), got {rays.shape}')
-
-        def kernel(*args):
-            return _project_kernel(depth, rays, 0, *args)
-
+        kernel = functools.partial(_project_kernel, depth, rays, 0)
     size = np.asarray(voxel_size_m, np.float32)
     low, dims = roi_lattice(bounds, size)
-    n_cells = int(dims[0]) * int(dims[1]) * int(dims[2])
     labels = np.empty(shape, np.uint8)
     pixel_voxel = np.empty(shape, np.int32)
     if reuse:
@@ -270,70 +227,31 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarra
         cols = np.empty((3, n), np.float32)
         pix = np.empty(n, np.int64)
         keys = np.empty(n, np.int64)
-    m = -1
-    if n_cells <= _DENSE_LIMIT:
-        m = kernel(bounds, size, low, dims, labels.reshape(-1), pixel_voxel.reshape(-1), cols,
-                   pix, keys)
-    if m < 0:   # lattice too large: points only, numpy numbers the voxels
-        dims = np.zeros(3, np.int64)
-        m = kernel(bounds, size, low, np.full(3, 1 << 62, np.int64), labels.reshape(-1),
-                   pixel_voxel.reshape(-1), cols, pix, keys)
-        return Projection(cols, pix, keys, m, labels, pixel_voxel, False, low, dims,
-                          voxel_size_m, reuse)
-    return Projection(cols, pix, keys, m, labels, pixel_voxel, True, low, dims, voxel_size_m,
-                      reuse)
+    keyed = int(dims[0]) * int(dims[1]) * int(dims[2]) <= _DENSE_LIMIT
+    unkeyed = np.full(3, 1 << 62, np.int64)   # a lattice no key leaves: points only
+    m = kernel(bounds, size, low, dims if keyed else unkeyed, labels.reshape(-1),
+               pixel_voxel.reshape(-1), cols, pix, keys)
+    if m < 0:   # a key outside the lattice: points only, numpy numbers the voxels
+        keyed = False
+        m = kernel(bounds, size, low, unkeyed, labels.reshape(-1), pixel_voxel.reshape(-1),
+                   cols, pix, keys)
+    return Projection(cols[:, :m].T, pix[:m], keys[:m] if keyed else None, labels, pixel_voxel,
+                      low, dims, reuse, cols)
 
 
 def voxelise(proj: Projection) -> tuple:
-    """Return the VoxelGrid fields of a :class:`Projection`; fill ``proj.pixel_voxel``.
-
-    Raises ValueError for a projection without keys (its lattice too large) or points.
-    """
-    if not proj.has_keys or proj.count == 0:
+    """Return the VoxelGrid fields of a keyed :class:`Projection`; fill its pixel_voxel."""
+    m = proj.pixel_index.size
+    if proj.keys is None or m == 0:
         raise ValueError('the projection has no voxel keys or no point')
     n_cells = int(proj.dims[0] * proj.dims[1] * proj.dims[2])
-    m = proj.count
     point_voxel = scratch('point_voxel', m, np.int64)[:m] if proj.reuse else np.empty(m,
                                                                                       np.int64)
-    return _run_voxel_kernel(proj._cols, proj._keys, n_cells, proj.dims, proj.low, proj._pix,
-                             proj.pixel_voxel.reshape(-1), point_voxel)
-
-
-def _run_voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_voxel):
-    """Call :func:`_voxel_kernel` with this thread's lattice scratch buffers."""
     n_words = (n_cells + 63) // 64
-    bits = scratch('occupied_bits', n_words, np.uint64, zero=True)
-    prefix = scratch('bit_prefix', n_words, np.int64)
-    return _voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_voxel,
-                         bits, prefix)
-
-
-def voxel_downsample(points: np.ndarray, voxel_size_m: tuple[float, float, float]
-                     ) -> tuple:
-    """Return the VoxelGrid fields of ``pipeline.voxel.voxel_downsample``, compiled.
-
-    ValueError for another dtype, no point, an index beyond 2**40 or NaN, or too large a lattice.
-    """
-    if points.dtype not in (np.float32, np.float64) or points.shape[0] == 0:
-        raise ValueError(f'need float32/64 points, at least one; got {points.dtype} '
-                         f'{points.shape}')
-    cols = np.ascontiguousarray(points.T)
-    size = np.asarray(voxel_size_m, np.float64).astype(cols.dtype)
-    ijk = np.empty(cols.shape, np.int64)
-    if not _index_kernel(cols, size, ijk, cols.dtype.type(_MAX_INDEX)):
-        raise ValueError('a voxel index is NaN or beyond 2**40')
-    low = ijk.min(axis=1)
-    dims = ijk.max(axis=1) - low + 1
-    n_cells = int(dims[0]) * int(dims[1]) * int(dims[2])
-    if n_cells > _DENSE_LIMIT:
-        raise ValueError(f'{n_cells} lattice cells > {_DENSE_LIMIT}')
-    keys = ijk[0] - low[0]
-    keys *= dims[1]
-    keys += ijk[1] - low[1]
-    keys *= dims[2]
-    keys += ijk[2] - low[2]
-    return _run_voxel_kernel(cols, keys, n_cells, dims, low, np.zeros(0, np.int64),
-                             np.zeros(0, np.int32), np.empty(keys.size, np.int64))
+    return _voxel_kernel(proj.cols, proj.keys, n_cells, proj.dims, proj.low, proj.pixel_index,
+                         proj.pixel_voxel.reshape(-1), point_voxel,
+                         scratch('occupied_bits', n_words, np.uint64, zero=True),
+                         scratch('bit_prefix', n_words, np.int64))
 
 
 def label_pixels(labels: np.ndarray, pixel_voxel: np.ndarray, is_obstacle: np.ndarray) -> None:
