@@ -1,19 +1,10 @@
 #!/usr/bin/env python3
 """Score the obstacle detector against ground truth: per scenario and overall.
 
-Scores a committed scenario suite (``--suite seed``: the seed's slope-only truth; ``--suite
-robot``: the robot-level truth, with a table of objects found, passable surfaces left free and
-one-cell-tolerance scores) and/or labelled folders (``depth/*.png``, ``labels/*.png``,
-``intrinsics.yaml``); prints a table and one JSON line (the last line of stdout, or ``--json
-FILE``). ``--real DIR`` scores unlabelled real frames by their height above the floor;
-``--sequence NAME`` the fused costmap over a scene sequence beside the per-frame one::
-
-    python tools/evaluate.py --preset table_4_3 --scene corridor --scene people
-    python tools/evaluate.py --suite robot --params-file params/corridor.yaml --workers 2
-    python tools/evaluate.py --real ../shared/data/real --set K=17
-    python tools/evaluate.py --sequence person_crossing --no-odometry
-
-With Dask installed the scenarios run on a local cluster (``--workers 0``: in this process).
+Scores a scenario suite (``--suite seed|robot``) and/or labelled folders; ``--real DIR`` scores
+unlabelled real frames by their height above the floor, ``--sequence NAME`` the fused costmap
+over a scene sequence. Prints a table and one JSON line (the last line of stdout, or ``--json
+FILE``); docs/accuracy.md has the examples. ``--workers``/``--scheduler`` run it on Dask.
 """
 
 from __future__ import annotations
@@ -98,8 +89,9 @@ def build_parser() -> argparse.ArgumentParser:
                        help='a FusionParams field (size_m, resolution_m, hit_log_odds, '
                             'miss_log_odds, min_log_odds, max_log_odds, occupied_log_odds, '
                             'free_log_odds, max_jump_m, max_jump_deg); repeatable')
-    video.add_argument('--seed', type=int, default=0, help='sequence seed [default: 0]')
-    video.add_argument('--frames', type=int, metavar='N',
+    video.add_argument('--seed', type=tool_support.int_in(0), default=0,
+                       help='sequence seed [default: 0]')
+    video.add_argument('--frames', type=tool_support.int_in(1), metavar='N',
                        help='only the first N frames of each sequence')
     video.add_argument('--no-odometry', action='store_true',
                        help='fuse every frame in place (as without odometry)')
@@ -107,7 +99,7 @@ def build_parser() -> argparse.ArgumentParser:
                        help='odometry without drift or noise (the true poses)')
     video.add_argument('--sheet', type=Path, metavar='PNG',
                        help='write a contact sheet of per-frame and fused grids over time')
-    video.add_argument('--sheet-frames', type=int, default=4, metavar='N',
+    video.add_argument('--sheet-frames', type=tool_support.int_in(1), default=4, metavar='N',
                        help='moments per sequence on the sheet [default: 4]')
     return parser
 
@@ -157,7 +149,7 @@ def _evaluate(args: Any, params: DetectorParams, sources: Any, refiner: Any,
         callbacks.append(lambda frame, result, score: causes.setdefault(
             frame.scenario, Counter()).update(false_alarm_causes(frame, result, params)))
     frames = itertools.chain.from_iterable(frames for _, _, frames in sources)
-    label = args.preset + ''.join(f' + {path}' for path in args.params_file)
+    label = _label(args)
     refiner_name = str(args.refiner) if args.refiner else None
     if fleet.distributed:
         print(f'evaluate: {len(sources)} sequences on {fleet.description}',
@@ -199,11 +191,6 @@ def _score_sequences(args: Any, params: DetectorParams) -> int:
     from obstacle_detection.pipeline.fusion import FusionParams
     from obstacle_detection.sim.sequences import PERFECT_ODOMETRY, OdometryModel, SceneSequence
 
-    for name, value, low in (('--frames', args.frames, 1), ('--seed', args.seed, 0),
-                             ('--sheet-frames', args.sheet_frames, 1)):
-        if value is not None and value < low:
-            raise tool_support.ToolError(f'argument {name}: {value} must be >= {low}',
-                                         usage=True)
     try:
         fusion = FusionParams(**{key: float(value) for key, value in args.fusion})
     except (TypeError, ValueError) as exc:
@@ -223,9 +210,8 @@ def _score_sequences(args: Any, params: DetectorParams) -> int:
             sequence, params, fusion, stop=args.frames, use_odometry=not args.no_odometry,
             sheet_frames=args.sheet_frames if args.sheet is not None else 0,
             on_frame=progress))
-    label = args.preset + ''.join(f' + {path}' for path in args.params_file)
     out = sys.stderr if args.json == '-' else sys.stdout
-    print(f'parameters: {label}; fusion: {fusion}', file=out)
+    print(f'parameters: {_label(args)}; fusion: {fusion}', file=out)
     print(video.format_table(reports), file=out)
     if args.sheet is not None:
         from obstacle_detection.viz import pictures
@@ -235,6 +221,10 @@ def _score_sequences(args: Any, params: DetectorParams) -> int:
     _write_json(args.json, {'fusion': fusion.__dict__,
                             'sequences': [r.as_dict() for r in reports]})
     return 0
+
+
+def _label(args: Any) -> str:
+    return args.preset + ''.join(f' + {path}' for path in args.params_file)
 
 
 def _write_json(path: str | None, data: dict) -> None:
