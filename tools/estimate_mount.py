@@ -51,11 +51,8 @@ def build_parser() -> argparse.ArgumentParser:
                         metavar='FX,FY,CX,CY', help='pinhole intrinsics of the depth image [px]')
     parser.add_argument('--max-range', type=float, default=4.0, metavar='M',
                         help='ignore points deeper than this [m, default: 4]')
-    parser.add_argument('--inlier', type=float, default=0.02, metavar='M',
-                        help='distance to the plane of a floor point [m, default: 0.02]')
     parser.add_argument('--prior-pitch-deg', type=float, metavar='DEG',
                         help='expected pitch, for a camera looking down more than ~60 deg')
-    parser.add_argument('--seed', type=int, default=0, help='RANSAC seed [default: 0]')
     parser.add_argument('--params-out', type=Path, metavar='YAML',
                         help='write a node parameter file fragment with the mount')
     parser.add_argument('--camera-yaml-out', type=Path, metavar='YAML',
@@ -78,7 +75,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         prior = None if args.prior_pitch_deg is None else math.radians(args.prior_pitch_deg)
         try:
             estimate = estimate_mount(depth_m, args.intrinsics, max_range_m=args.max_range,
-                                      inlier_m=args.inlier, seed=args.seed,
                                       prior_pitch_rad=prior)
         except ValueError as exc:
             if unit_warning is None:   # the depth may be in range only at another scale

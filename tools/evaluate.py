@@ -19,8 +19,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from obstacle_detection.cli.evaluation_args import (add_common_arguments, base_params,
-                                                   frame_sources, parse_assignment,
+from obstacle_detection.cli.evaluation_args import (REAL_FRAMES, add_common_arguments,
+                                                   base_params, frame_sources, parse_assignment,
                                                    report_error)
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.evaluation import runner as evaluation
@@ -32,14 +32,6 @@ from obstacle_detection.labels import (CELL_FREE, CELL_OCCUPIED, GT_NO_RETURN, G
 from obstacle_detection.pipeline.params import DetectorParams, Intrinsics
 from obstacle_detection.sim.sequences import SEQUENCE_NAMES
 
-#: The frames of ../shared/data/real/README.md: (folder, files, units per metre, intrinsics).
-REAL_FRAMES = (
-    ('tum_office', ('depth.png',), 5000.0, Intrinsics(535.4, 539.2, 320.1, 247.6)),
-    ('tum_fr2_desk', ('depth_1.png', 'depth_2.png'), 5000.0,
-     Intrinsics(520.9, 521.0, 325.1, 249.7)),
-    ('dining_room', tuple(f'depth_{i}.pgm' for i in range(1, 6)), 1000.0,
-     Intrinsics(518.0, 519.0, 325.5, 253.5)),
-)
 #: Real frames: floor pixels lie within FLOOR_BAND_M of the fitted floor; standing pixels
 #: STANDING_M above it up to the robot height.
 FLOOR_BAND_M = 0.02

@@ -21,7 +21,7 @@ from obstacle_detection.evaluation import runner as evaluation
 from obstacle_detection.evaluation.metrics import Confusion, format_score
 from obstacle_detection.pipeline.refine import LogisticRefiner
 from obstacle_detection.cli.evaluation_args import (add_common_arguments, base_params,
-                                                   frame_sources)
+                                                   frame_sources, report_error)
 
 
 def split_frames(frames: Sequence[evaluation.LabelledFrame], train_count: int,
@@ -70,7 +70,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point; returns the exit code (0 ok, 2 bad input)."""
+    """Entry point; returns the exit code (0 ok, 1 bad input, 2 bad usage)."""
     args = build_parser().parse_args(argv)
     try:
         params = base_params(args)
@@ -90,8 +90,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                                 refiner_name=str(args.out),
                                                 on_frame=lambda *_: bar.update())
     except (ValueError, OSError) as exc:
-        print(f'train_refiner: error: {exc}', file=sys.stderr)
-        return 2
+        return report_error('train_refiner', exc)
     overall = report.overall
     print(f'parameters: {args.preset}; trained on {len(train)} frames '
           f'({y.size} pixels, {int(y.sum())} obstacle); model: {args.out}')
