@@ -4,8 +4,7 @@
 Starts the node and a camera publisher process on loopback DDS in a domain of its own, streams
 pre-rendered depth frames of a scene at ``--rate`` Hz, and measures per frame the depth stamp
 -> costmap latency, the node's processing time, frames without a costmap, and the node's memory
-and CPU. Prints a table and one ``JSON`` line; exit code 0 when the run completed, 1 when it
-could not run, 2 for bad usage.
+and CPU. Prints a table and one ``JSON`` line.
 """
 
 from __future__ import annotations
