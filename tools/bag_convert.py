@@ -13,9 +13,8 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from obstacle_detection.cli import support as tool_support
-from obstacle_detection.evaluation.datasets import (DIML_DEPTH_KINDS, TUM_CAMERAS, EvaluationError,
-                                                    diml_frames, diml_sample_frames, folder_frames,
-                                                    tum_frames)
+from obstacle_detection.evaluation.datasets import (DIML_DEPTH_KINDS, TUM_CAMERAS, diml_frames,
+                                                    diml_sample_frames, folder_frames, tum_frames)
 from obstacle_detection.cli.bag_writer import STORAGES, BagOptions, convert_ros1, write_frames
 
 
@@ -99,6 +98,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@tool_support.command('bag_convert')
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the converter; return the exit code (0 success, 1 bad input, 2 bad usage)."""
     args = build_parser().parse_args(argv)
@@ -106,15 +106,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     options = {key: value for key, value in vars(args).items() if key not in (
         'source', 'read', 'path', 'output', 'storage', 'quiet')
         and (key, args.source) != ('with_color', 'folder')}
-    try:
-        if args.source == 'ros1':
-            summary = convert_ros1(args.path, args.output, storage=args.storage,
-                                   progress=not args.quiet, **options)
-        else:
-            summary = write_frames(args.read(args.path, **options), args.output, BagOptions(
-                args.storage, with_color=args.with_color, progress=not args.quiet))
-    except EvaluationError as err:
-        return tool_support.report_error('bag_convert', err)
+    if args.source == 'ros1':
+        summary = convert_ros1(args.path, args.output, storage=args.storage,
+                               progress=not args.quiet, **options)
+    else:
+        summary = write_frames(args.read(args.path, **options), args.output, BagOptions(
+            args.storage, with_color=args.with_color, progress=not args.quiet))
     print('\n'.join(summary.lines()))
     return 0
 

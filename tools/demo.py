@@ -309,18 +309,16 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@tool_support.command('demo')
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the demo; return the exit code (0 success, 1 failure, 2 bad usage)."""
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.rate is not None and not args.rate > 0:
         parser.error(f'--rate must be > 0, got {args.rate:g}')
-    try:
-        if not args.params.is_file():
-            raise ToolError(args.params, 'params file not found')
-        return run_demo(args)
-    except (ToolError, datasets.EvaluationError) as err:
-        return tool_support.report_error('demo', err)
+    if not args.params.is_file():
+        raise ToolError(args.params, 'params file not found')
+    return run_demo(args)
 
 
 if __name__ == '__main__':

@@ -20,8 +20,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from obstacle_detection.cli.evaluation_args import (REAL_FRAMES, add_common_arguments,
-                                                   base_params, frame_sources, parse_assignment,
-                                                   report_error)
+                                                   base_params, frame_sources, parse_assignment)
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.evaluation import runner as evaluation
 from obstacle_detection.fleet import scoring
@@ -96,35 +95,27 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@tool_support.command('evaluate')
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (0 ok, 1 bad input, 2 bad usage)."""
     args = build_parser().parse_args(argv)
-    try:
-        params = base_params(args)
-        if args.real is not None:
-            return _score_real_frames(args.real, params)
-        if args.sequence:
-            return _score_sequences(args, params)
-        sources = frame_sources(args)
-        refiner = None
-        if args.refiner is not None:
-            from obstacle_detection.pipeline.refine import LogisticRefiner
-            refiner = LogisticRefiner.load(args.refiner)
-        if args.pictures is not None or args.causes:
-            if args.workers or args.scheduler:
-                raise tool_support.ToolError('--pictures and --causes work in this process: '
-                                             'leave out --workers/--scheduler', usage=True)
-            args.workers = 0
-    except (ValueError, OSError) as exc:
-        return report_error('evaluate', exc)
-    try:
-        with open_fleet(**fleet_options(args), tasks=len(sources)) as fleet:
-            return _evaluate(args, params, sources, refiner, fleet)
-    except (ValueError, OSError) as exc:   # FleetError: Dask missing, no scheduler
-        return report_error('evaluate', exc)
-    except KeyboardInterrupt:   # nothing is written before the end
-        print('evaluate.py: interrupted', file=sys.stderr)
-        return 130
+    params = base_params(args)
+    if args.real is not None:
+        return _score_real_frames(args.real, params)
+    if args.sequence:
+        return _score_sequences(args, params)
+    sources = frame_sources(args)
+    refiner = None
+    if args.refiner is not None:
+        from obstacle_detection.pipeline.refine import LogisticRefiner
+        refiner = LogisticRefiner.load(args.refiner)
+    if args.pictures is not None or args.causes:
+        if args.workers or args.scheduler:
+            raise tool_support.ToolError('--pictures and --causes work in this process: '
+                                         'leave out --workers/--scheduler', usage=True)
+        args.workers = 0
+    with open_fleet(**fleet_options(args), tasks=len(sources)) as fleet:
+        return _evaluate(args, params, sources, refiner, fleet)
 
 
 def _evaluate(args: Any, params: DetectorParams, sources: Any, refiner: Any,
@@ -280,8 +271,8 @@ def _score_real_frames(folder: Path, params: DetectorParams) -> int:
                 depth = decode_depth(read_depth_png(path), depth_scale=scale)
                 *counts, mount = real_frame_counts(depth, intrinsics, params)
             except (OSError, ValueError) as exc:   # named with its path
-                text = str(exc) if str(path) in str(exc) else f'{path}: {exc}'
-                return report_error('evaluate', tool_support.ToolError(text))
+                raise tool_support.ToolError(
+                    str(exc) if str(path) in str(exc) else f'{path}: {exc}') from None
             totals += counts
             print(f'{name}/{file}: floor marked {counts[1]}/{counts[0]} '
                   f'({100.0 * counts[1] / max(counts[0], 1):.2f} %), standing marked '

@@ -256,6 +256,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@tool_support.command('latency_bench')
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the benchmark; return the exit code (0 done, 1 could not run, 2 bad usage)."""
     parser = build_parser()
@@ -264,12 +265,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error('--duration, --rate (<= 1000) and --frames must be positive')
     if not 0 <= args.warmup < args.duration:
         parser.error('--warmup must be in [0, --duration)')
-    try:
-        if not args.params.is_file():
-            raise ToolError(args.params, 'params file not found')
-        figures = run(args)
-    except ToolError as error:
-        return tool_support.report_error('latency_bench', error)
+    if not args.params.is_file():
+        raise ToolError(args.params, 'params file not found')
+    figures = run(args)
     print(format_table(figures))
     print('JSON ' + json.dumps(figures))
     return 0

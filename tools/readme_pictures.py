@@ -92,6 +92,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@tool_support.command('readme_pictures')
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (0 ok, 1 a picture could not be made)."""
     args = build_parser().parse_args(argv)
@@ -100,21 +101,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not real:
         tool_support.warn(f'no real frames in {args.real_dir}; the real-frame pictures '
                           f'({", ".join(REAL)}) are left as they are')
-    try:
-        for name, options in SYNTHETIC.items():
-            out = args.out_dir / name
-            print(picture_jobs.write_pictures(parser.parse_args([*options, '--out', str(out)])))
-            recompress(out)
-        for name, panels in real.items():
-            missing = sorted({p[0] for p in panels if not (args.real_dir / p[0]).is_file()})
-            if missing:
-                tool_support.warn(f'{name} skipped, missing in {args.real_dir}: '
-                                  f'{", ".join(missing)}')
-                continue
-            pictures.write_png(args.out_dir / name, real_picture(panels, args.real_dir))
-            recompress(args.out_dir / name)
-    except (ValueError, OSError, KeyError) as exc:
-        return tool_support.report_error('readme_pictures', exc)
+    for name, options in SYNTHETIC.items():
+        out = args.out_dir / name
+        print(picture_jobs.write_pictures(parser.parse_args([*options, '--out', str(out)])))
+        recompress(out)
+    for name, panels in real.items():
+        missing = sorted({p[0] for p in panels if not (args.real_dir / p[0]).is_file()})
+        if missing:
+            tool_support.warn(f'{name} skipped, missing in {args.real_dir}: '
+                              f'{", ".join(missing)}')
+            continue
+        pictures.write_png(args.out_dir / name, real_picture(panels, args.real_dir))
+        recompress(args.out_dir / name)
     return 0
 
 

@@ -28,8 +28,9 @@ from obstacle_detection.fleet.cluster import add_fleet_arguments, fleet_options,
 from obstacle_detection.evaluation.sweep import (METRICS, SweepResult, format_grid, grid_shape,
                                                  parse_axis, run_sweep, sweep_points)
 from obstacle_detection.pipeline.params import DetectorParams
+from obstacle_detection.cli import support as tool_support
 from obstacle_detection.cli.evaluation_args import (add_common_arguments, base_params,
-                                                   frame_sources, report_error)
+                                                   frame_sources)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -118,30 +119,22 @@ def _json(args: argparse.Namespace, result: SweepResult, frame_count: int) -> di
                      for s in result.grids}}
 
 
+@tool_support.command('sweep')
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (0 ok, 1 bad input, 2 bad usage)."""
     args = build_parser().parse_args(argv)
     also = tuple(args.also)
-    try:
-        base = base_params(args)
-        for _, point in sweep_points(base, args.x, args.y, also):
-            if getattr(point, 'usage', False):   # an unknown name now, a bad value per cell
-                raise point
-        result, frame_count = _sweep(args, base, also)
-    except (ValueError, OSError) as exc:
-        return report_error('sweep', exc)
-    except KeyboardInterrupt:   # nothing is written before the grid is complete
-        print('sweep.py: interrupted', file=sys.stderr)
-        return 130
+    base = base_params(args)
+    for _, point in sweep_points(base, args.x, args.y, also):
+        if getattr(point, 'usage', False):   # an unknown name now, a bad value per cell
+            raise point
+    result, frame_count = _sweep(args, base, also)
     _print_result(args, result, frame_count)
-    try:
-        _write_heatmaps(args, result)
-        print(f'heatmap: {args.out}')
-        if args.json:
-            args.json.write_text(json.dumps(_json(args, result, frame_count)) + '\n',
-                                 encoding='utf-8')
-    except (ValueError, OSError) as exc:
-        return report_error('sweep', exc)
+    _write_heatmaps(args, result)
+    print(f'heatmap: {args.out}')
+    if args.json:
+        args.json.write_text(json.dumps(_json(args, result, frame_count)) + '\n',
+                             encoding='utf-8')
     return 0
 
 

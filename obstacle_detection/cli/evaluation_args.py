@@ -77,10 +77,6 @@ def base_params(args: argparse.Namespace) -> DetectorParams:
     return params
 
 
-#: Print the error line; an unknown scenario, parameter or metric is a usage error (2).
-report_error = tool_support.report_error
-
-
 def frame_sources(args: argparse.Namespace,
                   ) -> list[tuple[str, int, Iterable[evaluation.LabelledFrame]]]:
     """(name, frame count, lazy frames) for each scenario and folder selected by the options."""
