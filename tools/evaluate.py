@@ -80,9 +80,8 @@ def build_parser() -> argparse.ArgumentParser:
                        help='a FusionParams field (size_m, resolution_m, hit_log_odds, '
                             'miss_log_odds, min_log_odds, max_log_odds, occupied_log_odds, '
                             'free_log_odds, max_jump_m, max_jump_deg); repeatable')
-    video.add_argument('--seed', type=tool_support.int_in(0), default=0,
-                       help='sequence seed [default: 0]')
-    video.add_argument('--frames', type=tool_support.int_in(1), metavar='N',
+    video.add_argument('--seed', type=int, default=0, help='sequence seed [default: 0]')
+    video.add_argument('--frames', type=int, metavar='N',
                        help='only the first N frames of each sequence')
     video.add_argument('--no-odometry', action='store_true',
                        help='fuse every frame in place (as without odometry)')
@@ -90,7 +89,7 @@ def build_parser() -> argparse.ArgumentParser:
                        help='odometry without drift or noise (the true poses)')
     video.add_argument('--sheet', type=Path, metavar='PNG',
                        help='write a contact sheet of per-frame and fused grids over time')
-    video.add_argument('--sheet-frames', type=tool_support.int_in(1), default=4, metavar='N',
+    video.add_argument('--sheet-frames', type=int, default=4, metavar='N',
                        help='moments per sequence on the sheet [default: 4]')
     return parser
 
@@ -174,6 +173,11 @@ def _score_sequences(args: Any, params: DetectorParams) -> int:
     from obstacle_detection.pipeline.fusion import FusionParams
     from obstacle_detection.sim.sequences import PERFECT_ODOMETRY, OdometryModel, SceneSequence
 
+    for name, value, low in (('--frames', args.frames, 1), ('--seed', args.seed, 0),
+                             ('--sheet-frames', args.sheet_frames, 1)):
+        if value is not None and value < low:   # one error line, no usage block
+            raise tool_support.ToolError(f'argument {name}: {value} must be >= {low}',
+                                         usage=True)
     try:
         fusion = FusionParams(**{key: float(value) for key, value in args.fusion})
     except (TypeError, ValueError) as exc:
