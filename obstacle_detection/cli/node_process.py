@@ -55,26 +55,6 @@ def start_node(command: list[str], env: dict[str, str], log: Path) -> subprocess
                                 stderr=subprocess.STDOUT)
 
 
-def stop_node(process: subprocess.Popen) -> None:
-    """Stop the node with Ctrl-C, as a user would; kill it if it does not stop."""
-    if process.poll() is not None:
-        return
-    process.send_signal(signal.SIGINT)
-    try:
-        process.wait(timeout=15)
-    except subprocess.TimeoutExpired:
-        process.kill()
-        process.wait(timeout=5)
-
-
-def status_qos() -> Any:
-    """Return the QoS of the node's latched ``~/status`` topic (late subscribers get it)."""
-    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-
-    return QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
-
-
 def log_tail(path: Path, lines: int = 15) -> str:
     """Return the last ``lines`` lines of a log file, or ``(no log)``."""
     try:
@@ -87,10 +67,11 @@ def log_tail(path: Path, lines: int = 15) -> str:
 def probe_node(name: str, node: subprocess.Popen) -> Iterator[tuple[Any, Any, list[str]]]:
     """Yield a ROS node beside the detector ``node``: (probe, executor, status lines).
 
-    On exit the probe is shut down and the detector stopped.
+    On exit the probe is shut down and the detector stopped with Ctrl-C, as a user would.
     """
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from std_msgs.msg import String
 
     context = rclpy.Context()
@@ -99,15 +80,23 @@ def probe_node(name: str, node: subprocess.Popen) -> Iterator[tuple[Any, Any, li
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(probe)
     status: list[str] = []
+    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)   # as the node's ~/status
     probe.create_subscription(String, '/obstacle_detector/status',
-                              lambda msg: status.append(msg.data), status_qos())
+                              lambda msg: status.append(msg.data), latched)
     try:
         yield probe, executor, status
     finally:
         executor.shutdown()
         probe.destroy_node()
         context.try_shutdown()
-        stop_node(node)
+        if node.poll() is None:
+            node.send_signal(signal.SIGINT)
+            try:
+                node.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                node.kill()
+                node.wait(timeout=5)
 
 
 def wait_ready(executor: Any, node: subprocess.Popen, status: list[str], timeout_s: float,
