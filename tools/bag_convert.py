@@ -9,13 +9,12 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 
 from obstacle_detection.cli import support as tool_support
-from obstacle_detection.evaluation.datasets import (DIML_DEPTH_KINDS, TUM_CAMERAS, EvaluationError,
-                                                    FrameSource, diml_frames, diml_sample_frames,
-                                                    folder_frames, tum_frames)
+from obstacle_detection.evaluation.datasets import (DIML_DEPTH_KINDS, TUM_CAMERAS, diml_frames,
+                                                    diml_sample_frames, folder_frames, tum_frames)
 from obstacle_detection.cli.bag_writer import STORAGES, BagOptions, convert_ros1, write_frames
 
 
@@ -33,94 +32,86 @@ def build_parser() -> argparse.ArgumentParser:
     common.add_argument('--quiet', action='store_true', help='no progress bar')
 
     frames = argparse.ArgumentParser(add_help=False)
-    frames.add_argument('--no-color', action='store_true', help='write depth and camera info only')
-    frames.add_argument('--intrinsics', type=Path, metavar='FILE',
+    frames.add_argument('--no-color', dest='with_color', action='store_false',
+                        help='write depth and camera info only')
+    frames.add_argument('--intrinsics', dest='intrinsics_path', type=Path, metavar='FILE',
                         help='YAML with fx, fy, cx, cy[, width, height], a ROS camera_info YAML '
                              'or an ETH3D calibration.txt; else Kinect v2 defaults (tum: '
                              '--camera), with a warning')
 
     timed = argparse.ArgumentParser(add_help=False)
-    timed.add_argument('--rate', type=float, default=30.0, help='frame rate [Hz] used to stamp '
-                       'frames (default %(default)s)')
-    timed.add_argument('--start-time', type=float, default=0.0,
+    timed.add_argument('--rate', dest='rate_hz', type=float, default=30.0, metavar='RATE',
+                       help='frame rate [Hz] used to stamp frames (default %(default)s)')
+    timed.add_argument('--start-time', dest='start_s', type=float, default=0.0, metavar='S',
                        help='stamp of frame 0 [s since the epoch] (default %(default)s)')
 
     p = sub.add_parser('tum', parents=[common, frames], help='TUM RGB-D format '
                        '(TUM, ETH3D SLAM, Bonn, ICL-NUIM)', description=tum_frames.__doc__)
-    p.add_argument('sequence', type=Path, help='folder with depth.txt and rgb.txt (or depth/ and '
-                   'rgb/ of <seconds>.png)')
+    p.add_argument('path', metavar='sequence', type=Path, help='folder with depth.txt and rgb.txt '
+                   '(or depth/ and rgb/ of <seconds>.png)')
     p.add_argument('output', type=Path, help='rosbag2 folder to create (must not exist)')
+    p.set_defaults(read=tum_frames)
     p.add_argument('--camera', choices=sorted(TUM_CAMERAS),
                    help='TUM camera intrinsics (fr1, fr2, fr3, or ros = 525/525/319.5/239.5)')
-    p.add_argument('--max-difference', type=float, default=0.02,
+    p.add_argument('--max-difference', dest='max_difference_s', type=float, default=0.02,
+                   metavar='S',
                    help='largest depth-colour time difference to pair [s] (%(default)s)')
 
     p = sub.add_parser('diml', parents=[common, frames, timed],
                        help='DIML/CVL indoor sequence folder <scene>/<date>/<n>',
                        description=diml_frames.__doc__)
-    p.add_argument('sequence', type=Path, help='folder holding col/ and raw_png/ (up, warp)')
+    p.add_argument('path', metavar='sequence', type=Path,
+                   help='folder holding col/ and raw_png/ (up, warp)')
     p.add_argument('output', type=Path, help='rosbag2 folder to create (must not exist)')
-    p.add_argument('--depth', choices=sorted(DIML_DEPTH_KINDS), default='raw',
+    p.set_defaults(read=diml_frames)
+    p.add_argument('--depth', dest='depth_kind', choices=sorted(DIML_DEPTH_KINDS), default='raw',
                    help='raw (_rd), up (_ud, upsampled) or warp (_wd, in the colour view) '
                         'depth (default %(default)s)')
 
     p = sub.add_parser('diml-sample', parents=[common, frames, timed],
                        help='DIML sample subset <split>/{HR,LR}/<scene>/{color,depth_filled}',
                        description=diml_sample_frames.__doc__)
-    p.add_argument('root', type=Path, help='split, resolution or scene folder')
+    p.add_argument('path', metavar='root', type=Path, help='split, resolution or scene folder')
     p.add_argument('output', type=Path, help='rosbag2 folder to create (must not exist)')
+    p.set_defaults(read=diml_sample_frames)
     p.add_argument('--resolution', choices=('HR', 'LR'), default='LR',
                    help='which resolution to take when both exist (default %(default)s)')
 
     p = sub.add_parser('folder', parents=[common, frames, timed],
                        help='a folder of 16-bit depth PNGs (+ a colour folder)',
                        description=folder_frames.__doc__)
-    p.add_argument('depth_dir', type=Path, help='folder of 16-bit depth PNGs')
+    p.add_argument('path', metavar='depth_dir', type=Path, help='folder of 16-bit depth PNGs')
     p.add_argument('output', type=Path, help='rosbag2 folder to create (must not exist)')
+    p.set_defaults(read=folder_frames)
     p.add_argument('--color-dir', type=Path, help='folder with as many colour images')
-    p.add_argument('--depth-scale', type=float, metavar='UNITS',
+    p.add_argument('--depth-scale', dest='depth_units_per_m', type=float, metavar='UNITS',
                    help='depth units per metre of the PNGs (default: 1000, millimetres; '
                         'TUM RGB-D: 5000)')
 
     p = sub.add_parser('ros1', parents=[common], help='a ROS 1 bag (e.g. iai_kinect2)',
                        description=convert_ros1.__doc__)
-    p.add_argument('bag', type=Path, help='ROS 1 .bag file')
+    p.add_argument('path', metavar='bag', type=Path, help='ROS 1 .bag file')
     p.add_argument('output', type=Path, help='rosbag2 folder to create (must not exist)')
+    p.set_defaults(read=convert_ros1)
     p.add_argument('--topics', nargs='+', default=(), metavar='TOPIC',
                    help='convert only these topics (default: all)')
     return parser
 
 
+@tool_support.command('bag_convert')
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the converter; return the exit code (0 success, 1 bad input, 2 bad usage)."""
     args = build_parser().parse_args(argv)
-    sources: dict[str, Callable[[], FrameSource]] = {
-        'tum': lambda: tum_frames(args.sequence, camera=args.camera,
-                                  intrinsics_path=args.intrinsics,
-                                  max_difference_s=args.max_difference,
-                                  with_color=not args.no_color),
-        'diml': lambda: diml_frames(args.sequence, depth_kind=args.depth,
-                                    intrinsics_path=args.intrinsics, rate_hz=args.rate,
-                                    start_s=args.start_time, with_color=not args.no_color),
-        'diml-sample': lambda: diml_sample_frames(args.root, resolution=args.resolution,
-                                                  intrinsics_path=args.intrinsics,
-                                                  rate_hz=args.rate, start_s=args.start_time,
-                                                  with_color=not args.no_color),
-        'folder': lambda: folder_frames(args.depth_dir, color_dir=args.color_dir,
-                                        intrinsics_path=args.intrinsics, rate_hz=args.rate,
-                                        start_s=args.start_time,
-                                        depth_units_per_m=args.depth_scale),
-    }
-    try:
-        if args.source == 'ros1':
-            summary = convert_ros1(args.bag, args.output, storage=args.storage,
-                                   topics=args.topics, progress=not args.quiet)
-        else:
-            source = sources[args.source]()
-            summary = write_frames(source, args.output, BagOptions(
-                args.storage, with_color=not args.no_color, progress=not args.quiet))
-    except EvaluationError as err:
-        return tool_support.report_error('bag_convert', err)
+    # the options named as the reader's keywords; folder_frames has no with_color (its folders)
+    options = {key: value for key, value in vars(args).items() if key not in (
+        'source', 'read', 'path', 'output', 'storage', 'quiet')
+        and (key, args.source) != ('with_color', 'folder')}
+    if args.source == 'ros1':
+        summary = convert_ros1(args.path, args.output, storage=args.storage,
+                               progress=not args.quiet, **options)
+    else:
+        summary = write_frames(args.read(args.path, **options), args.output, BagOptions(
+            args.storage, with_color=args.with_color, progress=not args.quiet))
     print('\n'.join(summary.lines()))
     return 0
 

@@ -21,8 +21,7 @@ from obstacle_detection.ros import RosInputError
 from obstacle_detection.ros.parameters import read_params_files
 from obstacle_detection.cli.bag_writer import STORAGES
 from obstacle_detection.fleet import bags as fleet_bags
-from obstacle_detection.fleet.cluster import (FleetError, add_fleet_arguments, fleet_options,
-                                              open_fleet)
+from obstacle_detection.fleet.cluster import add_fleet_arguments, fleet_options, open_fleet
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -67,28 +66,26 @@ def _sets_mount(files: Sequence[Path]) -> bool:
         return False
 
 
+@tool_support.command('bag_process')
 def main(argv: Sequence[str] | None = None) -> int:
     """Process a bag (or many); return the exit code (0 success, 1 bad input, 2 bad usage)."""
     args = build_parser().parse_args(argv)
-    try:
-        values = node_param_values(args.params_file)
-        origin = ', '.join(str(p) for p in args.params_file) or 'defaults'
-        config = config_from_values(values, origin)
-        mount_origin = (origin if _sets_mount(args.params_file)
-                        else "the node's defaults: no params file sets it")
-        if fleet_bags.is_many(args.bag) or args.scheduler or args.workers:
-            return _process_many(args, values, origin, mount_origin)
-        summary = process_bag(
-            Path(args.bag), args.output, config, depth_topic=args.depth_topic,
-            info_topic=args.info_topic, namespace=args.namespace,
-            with_ground=args.ground or config.publish_ground,
-            with_overlay=args.overlay or config.publish_overlay, storage=args.storage,
-            # the bar only when per-frame lines are off, and never into a redirected log
-            progress=args.quiet and sys.stderr.isatty(),
-            on_frame=None if args.quiet else lambda r: print(format_report(r), flush=True),
-            mount_origin=mount_origin)
-    except (tool_support.ToolError, FleetError) as err:
-        return tool_support.report_error('bag_process', err)
+    values = node_param_values(args.params_file)
+    origin = ', '.join(str(p) for p in args.params_file) or 'defaults'
+    config = config_from_values(values, origin)
+    mount_origin = (origin if _sets_mount(args.params_file)
+                    else "the node's defaults: no params file sets it")
+    if fleet_bags.is_many(args.bag) or args.scheduler or args.workers:
+        return _process_many(args, values, origin, mount_origin)
+    summary = process_bag(
+        Path(args.bag), args.output, config, depth_topic=args.depth_topic,
+        info_topic=args.info_topic, namespace=args.namespace,
+        with_ground=args.ground or config.publish_ground,
+        with_overlay=args.overlay or config.publish_overlay, storage=args.storage,
+        # the bar only when per-frame lines are off, and never into a redirected log
+        progress=args.quiet and sys.stderr.isatty(),
+        on_frame=None if args.quiet else lambda r: print(format_report(r), flush=True),
+        mount_origin=mount_origin)
     print('\n'.join(summary.lines()))
     return 0
 

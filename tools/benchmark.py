@@ -1,16 +1,11 @@
 #!/usr/bin/env python3
 """Benchmark the detection pipeline: per-stage and total milliseconds, frames per second.
 
-Frames are rendered scenes (rendered before timing), cycled over for every frame size x median
-kernel K. One thread pinned to one CPU unless ``--threads N`` > 1; ``--rate HZ`` paces the
-frames as a camera does; ``--fusion`` times the fused costmap instead, ``--fleet N``
-bag_process over many bags in one process and on local Dask clusters of 1..N workers; peak
-memory is the maximum resident set size; ``OBSTACLE_DETECTION_NO_JIT=1`` times the numpy/scipy
-path. Prints a table and one line starting with ``JSON `` (docs/speed.md, docs/fleet.md).
+Rendered scenes, cycled over for every frame size x median kernel K, one thread pinned to one
+CPU unless ``--threads N``; ``--fusion`` times the fused costmap, ``--fleet N`` bag_process on
+Dask. Prints a table and one line starting with ``JSON `` (docs/speed.md, docs/fleet.md)::
 
     python tools/benchmark.py --frames 300 --preset table_4_2   # the seed method exactly
-    python tools/benchmark.py --fusion        # FusedGrid.update + to_costmap per frame
-    python tools/benchmark.py --fleet 2 --frames 300    # 8 bags of 300 frames, 0-2 workers
 """
 
 from __future__ import annotations

@@ -182,66 +182,43 @@ def _replay(args: argparse.Namespace, out: Path, failed: Path, node: Any, rate: 
 
     Returns (recorder, the node's status lines, depth frames sent).
     """
-    import rclpy
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.node import Node
-    from std_msgs.msg import String
-
-    context = rclpy.context.Context()
-    rclpy.init(context=context)
-    probe = Node('demo_recorder', context=context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(probe)
     player = thread = None
     stop = threading.Event()
     stats: list[bag_player.PlayStats] = []
-    try:
-        recorder = Recorder(probe, OUTPUT_TOPICS)
-        status: list[str] = []
-        probe.create_subscription(String, '/obstacle_detector/status',
-                                  lambda msg: status.append(msg.data), node_process.status_qos())
-        player = bag_player.Player(probe, out / 'input_bag', bag_player.PlayOptions(
-            rate=rate, reliable=True, progress=False))
-        deadline = time.monotonic() + args.timeout
-        # until the node's ~/status says ready and it subscribes to the depth and camera info
-        while not (status and status[-1].startswith('ready')
-                   and player.subscription_count() >= 2):
-            if node.poll() is not None or time.monotonic() > deadline:
-                why = (f'exited with code {node.returncode} before it was ready'
-                       if node.poll() is not None else
-                       f'did not say it was ready within {args.timeout:g} s (--timeout)')
-                raise ToolError(failed / 'node.log', f'the detector node {why}; the end of its '
-                                'log:\n' + node_process.log_tail(out / 'node.log'))
-            executor.spin_once(timeout_sec=0.05)
-        print(f'      node {status[-1]}')
-        settle = time.monotonic() + 0.5  # let the node's side of the match settle too
-        while time.monotonic() < settle:
-            executor.spin_once(timeout_sec=0.05)
-        print(f'[4/5] replaying {frames} frames at {bag_hz * rate:g} Hz into the node')
-        thread = threading.Thread(target=lambda: stats.append(player.play(stop)), daemon=True)
-        thread.start()
-        while thread.is_alive():
-            executor.spin_once(timeout_sec=0.05)
-            if node.poll() is not None:
-                stop.set()
-        # Let the last frames come out: until every output of every frame arrived, or nothing
-        # new came for 3 s after the replay ended (counted from the replay's end too: the
-        # recorder's clock starts before the node is ready).
-        played = time.monotonic()
-        while (min(map(recorder.count, OUTPUT_TOPICS)) < frames
-               and time.monotonic() - max(recorder.last_arrival, played) < 3.0
-               and node.poll() is None):
-            executor.spin_once(timeout_sec=0.05)
-    finally:
-        stop.set()
-        if thread is not None:
-            thread.join(timeout=5)
-        if player is not None:
-            player.close()
-        executor.shutdown()
-        probe.destroy_node()
-        context.try_shutdown()
-        node_process.stop_node(node)
+    with node_process.probe_node('demo_recorder', node) as (probe, executor, status):
+        try:
+            recorder = Recorder(probe, OUTPUT_TOPICS)
+            player = bag_player.Player(probe, out / 'input_bag', bag_player.PlayOptions(
+                rate=rate, reliable=True, progress=False))
+            # until it says ready and subscribes to the depth and camera info
+            ready = node_process.wait_ready(
+                executor, node, status, args.timeout, out / 'node.log',
+                lambda _: player.subscription_count() >= 2, shown_log=failed / 'node.log')
+            print(f'      node {ready}')
+            settle = time.monotonic() + 0.5  # let the node's side of the match settle too
+            while time.monotonic() < settle:
+                executor.spin_once(timeout_sec=0.05)
+            print(f'[4/5] replaying {frames} frames at {bag_hz * rate:g} Hz into the node')
+            thread = threading.Thread(target=lambda: stats.append(player.play(stop)),
+                                      daemon=True)
+            thread.start()
+            while thread.is_alive():
+                executor.spin_once(timeout_sec=0.05)
+                if node.poll() is not None:
+                    stop.set()
+            # Until every output of every frame arrived, or nothing new came for 3 s after the
+            # replay ended (the recorder's clock starts before the node is ready).
+            played = time.monotonic()
+            while (min(map(recorder.count, OUTPUT_TOPICS)) < frames
+                   and time.monotonic() - max(recorder.last_arrival, played) < 3.0
+                   and node.poll() is None):
+                executor.spin_once(timeout_sec=0.05)
+        finally:
+            stop.set()
+            if thread is not None:
+                thread.join(timeout=5)
+            if player is not None:
+                player.close()
     sent = stats[0].published.get(bag_writer.DEFAULT_DEPTH_TOPIC, 0) if stats else 0
     return recorder, status, sent
 
@@ -332,18 +309,16 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@tool_support.command('demo')
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the demo; return the exit code (0 success, 1 failure, 2 bad usage)."""
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.rate is not None and not args.rate > 0:
         parser.error(f'--rate must be > 0, got {args.rate:g}')
-    try:
-        if not args.params.is_file():
-            raise ToolError(args.params, 'params file not found')
-        return run_demo(args)
-    except (ToolError, datasets.EvaluationError) as err:
-        return tool_support.report_error('demo', err)
+    if not args.params.is_file():
+        raise ToolError(args.params, 'params file not found')
+    return run_demo(args)
 
 
 if __name__ == '__main__':

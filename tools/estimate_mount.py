@@ -51,11 +51,8 @@ def build_parser() -> argparse.ArgumentParser:
                         metavar='FX,FY,CX,CY', help='pinhole intrinsics of the depth image [px]')
     parser.add_argument('--max-range', type=float, default=4.0, metavar='M',
                         help='ignore points deeper than this [m, default: 4]')
-    parser.add_argument('--inlier', type=float, default=0.02, metavar='M',
-                        help='distance to the plane of a floor point [m, default: 0.02]')
     parser.add_argument('--prior-pitch-deg', type=float, metavar='DEG',
                         help='expected pitch, for a camera looking down more than ~60 deg')
-    parser.add_argument('--seed', type=int, default=0, help='RANSAC seed [default: 0]')
     parser.add_argument('--params-out', type=Path, metavar='YAML',
                         help='write a node parameter file fragment with the mount')
     parser.add_argument('--camera-yaml-out', type=Path, metavar='YAML',
@@ -64,39 +61,35 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@tool_support.command('estimate_mount')
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (0 ok, 1 bad input or no floor found, 2 bad usage)."""
     args = build_parser().parse_args(argv)
     if not (math.isfinite(args.depth_scale) and args.depth_scale > 0.0):
-        return tool_support.report_error('estimate_mount', tool_support.ToolError(
-            f'argument --depth-scale: {args.depth_scale} must be > 0', usage=True))
-    unit_warning = None
+        raise tool_support.ToolError(f'argument --depth-scale: {args.depth_scale} must be > 0',
+                                     usage=True)
+    raw = read_depth_png(args.depth)
+    unit_warning = tool_support.depth_unit_warning(raw, args.depth_scale)
+    depth_m = decode_depth(raw, depth_scale=args.depth_scale)
+    prior = None if args.prior_pitch_deg is None else math.radians(args.prior_pitch_deg)
     try:
-        raw = read_depth_png(args.depth)
-        unit_warning = tool_support.depth_unit_warning(raw, args.depth_scale)
-        depth_m = decode_depth(raw, depth_scale=args.depth_scale)
-        prior = None if args.prior_pitch_deg is None else math.radians(args.prior_pitch_deg)
-        try:
-            estimate = estimate_mount(depth_m, args.intrinsics, max_range_m=args.max_range,
-                                      inlier_m=args.inlier, seed=args.seed,
-                                      prior_pitch_rad=prior)
-        except ValueError as exc:
-            if unit_warning is None:   # the depth may be in range only at another scale
-                unit_warning = tool_support.depth_unit_warning(
-                    raw, args.depth_scale, out_of_range_m=args.max_range)
-            reason = f'{exc}; {unit_warning}' if unit_warning else str(exc)
-            raise ValueError(f'{args.depth}: cannot estimate the mount: {reason}') from None
-        camera = camera_yaml_text(
-            args.intrinsics, comment='intrinsics [px] and the camera mount estimated from the '
-            'floor', depth_scale=args.depth_scale, height_m=estimate.height_m,
-            pitch_deg=estimate.pitch_deg, roll_deg=estimate.roll_deg)
-        outputs = {args.params_out: params_yaml(estimate), args.camera_yaml_out: camera}
-        for path, text in outputs.items():
-            if path is not None:
-                path.parent.mkdir(parents=True, exist_ok=True)
-                path.write_text(text, encoding='utf-8')
-    except (ValueError, OSError) as exc:
-        return tool_support.report_error('estimate_mount', exc)
+        estimate = estimate_mount(depth_m, args.intrinsics, max_range_m=args.max_range,
+                                  prior_pitch_rad=prior)
+    except ValueError as exc:
+        if unit_warning is None:   # the depth may be in range only at another scale
+            unit_warning = tool_support.depth_unit_warning(
+                raw, args.depth_scale, out_of_range_m=args.max_range)
+        reason = f'{exc}; {unit_warning}' if unit_warning else str(exc)
+        raise ValueError(f'{args.depth}: cannot estimate the mount: {reason}') from None
+    camera = camera_yaml_text(
+        args.intrinsics, comment='intrinsics [px] and the camera mount estimated from the '
+        'floor', depth_scale=args.depth_scale, height_m=estimate.height_m,
+        pitch_deg=estimate.pitch_deg, roll_deg=estimate.roll_deg)
+    outputs = {args.params_out: params_yaml(estimate), args.camera_yaml_out: camera}
+    for path, text in outputs.items():
+        if path is not None:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_text(text, encoding='utf-8')
     if unit_warning:
         tool_support.warn(f'{args.depth}: {unit_warning}')
     print(f'{args.depth}: height {estimate.height_m:.3f} m, pitch {estimate.pitch_deg:.2f} deg, '

@@ -1,19 +1,10 @@
 #!/usr/bin/env python3
 """Score the obstacle detector against ground truth: per scenario and overall.
 
-Scores a committed scenario suite (``--suite seed``: the seed's slope-only truth; ``--suite
-robot``: the robot-level truth, with a table of objects found, passable surfaces left free and
-one-cell-tolerance scores) and/or labelled folders (``depth/*.png``, ``labels/*.png``,
-``intrinsics.yaml``); prints a table and one JSON line (the last line of stdout, or ``--json
-FILE``). ``--real DIR`` scores unlabelled real frames by their height above the floor;
-``--sequence NAME`` the fused costmap over a scene sequence beside the per-frame one::
-
-    python tools/evaluate.py --preset table_4_3 --scene corridor --scene people
-    python tools/evaluate.py --suite robot --params-file params/corridor.yaml --workers 2
-    python tools/evaluate.py --real ../shared/data/real --set K=17
-    python tools/evaluate.py --sequence person_crossing --no-odometry
-
-With Dask installed the scenarios run on a local cluster (``--workers 0``: in this process).
+Scores a scenario suite (``--suite seed|robot``) and/or labelled folders; ``--real DIR`` scores
+unlabelled real frames by their height above the floor, ``--sequence NAME`` the fused costmap
+over a scene sequence. Prints a table and one JSON line (the last line of stdout, or ``--json
+FILE``); docs/accuracy.md has the examples. ``--workers``/``--scheduler`` run it on Dask.
 """
 
 from __future__ import annotations
@@ -28,9 +19,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from obstacle_detection.cli.evaluation_args import (add_common_arguments, base_params,
-                                                   frame_sources, parse_assignment,
-                                                   report_error)
+from obstacle_detection.cli.evaluation_args import (REAL_FRAMES, add_common_arguments,
+                                                   base_params, frame_sources, parse_assignment)
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.evaluation import runner as evaluation
 from obstacle_detection.fleet import scoring
@@ -41,14 +31,6 @@ from obstacle_detection.labels import (CELL_FREE, CELL_OCCUPIED, GT_NO_RETURN, G
 from obstacle_detection.pipeline.params import DetectorParams, Intrinsics
 from obstacle_detection.sim.sequences import SEQUENCE_NAMES
 
-#: The frames of ../shared/data/real/README.md: (folder, files, units per metre, intrinsics).
-REAL_FRAMES = (
-    ('tum_office', ('depth.png',), 5000.0, Intrinsics(535.4, 539.2, 320.1, 247.6)),
-    ('tum_fr2_desk', ('depth_1.png', 'depth_2.png'), 5000.0,
-     Intrinsics(520.9, 521.0, 325.1, 249.7)),
-    ('dining_room', tuple(f'depth_{i}.pgm' for i in range(1, 6)), 1000.0,
-     Intrinsics(518.0, 519.0, 325.5, 253.5)),
-)
 #: Real frames: floor pixels lie within FLOOR_BAND_M of the fitted floor; standing pixels
 #: STANDING_M above it up to the robot height.
 FLOOR_BAND_M = 0.02
@@ -112,35 +94,27 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@tool_support.command('evaluate')
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (0 ok, 1 bad input, 2 bad usage)."""
     args = build_parser().parse_args(argv)
-    try:
-        params = base_params(args)
-        if args.real is not None:
-            return _score_real_frames(args.real, params)
-        if args.sequence:
-            return _score_sequences(args, params)
-        sources = frame_sources(args)
-        refiner = None
-        if args.refiner is not None:
-            from obstacle_detection.pipeline.refine import LogisticRefiner
-            refiner = LogisticRefiner.load(args.refiner)
-        if args.pictures is not None or args.causes:
-            if args.workers or args.scheduler:
-                raise tool_support.ToolError('--pictures and --causes work in this process: '
-                                             'leave out --workers/--scheduler', usage=True)
-            args.workers = 0
-    except (ValueError, OSError) as exc:
-        return report_error('evaluate', exc)
-    try:
-        with open_fleet(**fleet_options(args), tasks=len(sources)) as fleet:
-            return _evaluate(args, params, sources, refiner, fleet)
-    except (ValueError, OSError) as exc:   # FleetError: Dask missing, no scheduler
-        return report_error('evaluate', exc)
-    except KeyboardInterrupt:   # nothing is written before the end
-        print('evaluate.py: interrupted', file=sys.stderr)
-        return 130
+    params = base_params(args)
+    if args.real is not None:
+        return _score_real_frames(args.real, params)
+    if args.sequence:
+        return _score_sequences(args, params)
+    sources = frame_sources(args)
+    refiner = None
+    if args.refiner is not None:
+        from obstacle_detection.pipeline.refine import LogisticRefiner
+        refiner = LogisticRefiner.load(args.refiner)
+    if args.pictures is not None or args.causes:
+        if args.workers or args.scheduler:
+            raise tool_support.ToolError('--pictures and --causes work in this process: '
+                                         'leave out --workers/--scheduler', usage=True)
+        args.workers = 0
+    with open_fleet(**fleet_options(args), tasks=len(sources)) as fleet:
+        return _evaluate(args, params, sources, refiner, fleet)
 
 
 def _evaluate(args: Any, params: DetectorParams, sources: Any, refiner: Any,
@@ -157,7 +131,7 @@ def _evaluate(args: Any, params: DetectorParams, sources: Any, refiner: Any,
         callbacks.append(lambda frame, result, score: causes.setdefault(
             frame.scenario, Counter()).update(false_alarm_causes(frame, result, params)))
     frames = itertools.chain.from_iterable(frames for _, _, frames in sources)
-    label = args.preset + ''.join(f' + {path}' for path in args.params_file)
+    label = _label(args)
     refiner_name = str(args.refiner) if args.refiner else None
     if fleet.distributed:
         print(f'evaluate: {len(sources)} sequences on {fleet.description}',
@@ -201,7 +175,7 @@ def _score_sequences(args: Any, params: DetectorParams) -> int:
 
     for name, value, low in (('--frames', args.frames, 1), ('--seed', args.seed, 0),
                              ('--sheet-frames', args.sheet_frames, 1)):
-        if value is not None and value < low:
+        if value is not None and value < low:   # one error line, no usage block
             raise tool_support.ToolError(f'argument {name}: {value} must be >= {low}',
                                          usage=True)
     try:
@@ -223,9 +197,8 @@ def _score_sequences(args: Any, params: DetectorParams) -> int:
             sequence, params, fusion, stop=args.frames, use_odometry=not args.no_odometry,
             sheet_frames=args.sheet_frames if args.sheet is not None else 0,
             on_frame=progress))
-    label = args.preset + ''.join(f' + {path}' for path in args.params_file)
     out = sys.stderr if args.json == '-' else sys.stdout
-    print(f'parameters: {label}; fusion: {fusion}', file=out)
+    print(f'parameters: {_label(args)}; fusion: {fusion}', file=out)
     print(video.format_table(reports), file=out)
     if args.sheet is not None:
         from obstacle_detection.viz import pictures
@@ -235,6 +208,10 @@ def _score_sequences(args: Any, params: DetectorParams) -> int:
     _write_json(args.json, {'fusion': fusion.__dict__,
                             'sequences': [r.as_dict() for r in reports]})
     return 0
+
+
+def _label(args: Any) -> str:
+    return args.preset + ''.join(f' + {path}' for path in args.params_file)
 
 
 def _write_json(path: str | None, data: dict) -> None:
@@ -298,8 +275,8 @@ def _score_real_frames(folder: Path, params: DetectorParams) -> int:
                 depth = decode_depth(read_depth_png(path), depth_scale=scale)
                 *counts, mount = real_frame_counts(depth, intrinsics, params)
             except (OSError, ValueError) as exc:   # named with its path
-                text = str(exc) if str(path) in str(exc) else f'{path}: {exc}'
-                return report_error('evaluate', tool_support.ToolError(text))
+                raise tool_support.ToolError(
+                    str(exc) if str(path) in str(exc) else f'{path}: {exc}') from None
             totals += counts
             print(f'{name}/{file}: floor marked {counts[1]}/{counts[0]} '
                   f'({100.0 * counts[1] / max(counts[0], 1):.2f} %), standing marked '

@@ -4,8 +4,7 @@
 Starts the node and a camera publisher process on loopback DDS in a domain of its own, streams
 pre-rendered depth frames of a scene at ``--rate`` Hz, and measures per frame the depth stamp
 -> costmap latency, the node's processing time, frames without a costmap, and the node's memory
-and CPU. Prints a table and one ``JSON`` line; exit code 0 when the run completed, 1 when it
-could not run, 2 for bad usage.
+and CPU. Prints a table and one ``JSON`` line.
 """
 
 from __future__ import annotations
@@ -101,15 +100,14 @@ def _percentiles(values: Sequence[float]) -> dict[str, float]:
     return dict(zip(('median', 'p90', 'p99', 'max'), map(float, found)))
 
 
-def _probe(executor: Any, node: Any) -> tuple[dict[int, int], list, list[str]]:
-    """Subscribe to the node's costmap, processing time and status; return their records."""
+def _probe(node: Any) -> tuple[dict[int, int], list]:
+    """Subscribe to the node's costmap and processing time; return their records."""
     from nav_msgs.msg import OccupancyGrid
     from rclpy.qos import QoSProfile, ReliabilityPolicy
-    from std_msgs.msg import Float64, String
+    from std_msgs.msg import Float64
 
     arrivals: dict[int, int] = {}   # costmap stamp -> arrival [ns]
     times_ms: list[tuple[int, float]] = []
-    status: list[str] = []
     reliable = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
     node.create_subscription(
         OccupancyGrid, 'obstacles/costmap',
@@ -117,10 +115,7 @@ def _probe(executor: Any, node: Any) -> tuple[dict[int, int], list, list[str]]:
                                       time.time_ns()), reliable)
     node.create_subscription(Float64, f'{NODE}/processing_time_ms',
                              lambda m: times_ms.append((time.time_ns(), m.data)), reliable)
-    node.create_subscription(String, f'{NODE}/status', lambda m: status.append(m.data),
-                             node_process.status_qos())
-    executor.add_node(node)
-    return arrivals, times_ms, status
+    return arrivals, times_ms
 
 
 def _stream(args: argparse.Namespace, executor: Any, node: Any, publisher: Any,
@@ -149,9 +144,6 @@ def _stream(args: argparse.Namespace, executor: Any, node: Any, publisher: Any,
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
     """Run the node, the camera process and the probe; return the figures."""
-    import rclpy
-    from rclpy.executors import SingleThreadedExecutor
-
     from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE
     from obstacle_detection.sim.scenes import render_scene
 
@@ -164,46 +156,35 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     overrides = ['stats_period_s:=10.0', *node_process.mount_overrides(frames[0], args.reliable),
                  *args.set]
     node = node_process.start_node(node_process.node_command(args.params, overrides), env, log)
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    probe = rclpy.create_node('latency_bench_probe', context=context)
-    executor = SingleThreadedExecutor(context=context)
-    arrivals, times_ms, status = _probe(executor, probe)
     spawn = multiprocessing.get_context('spawn')
     reports = spawn.Queue()
     publisher = spawn.Process(target=_publish, args=(
         np.stack([f.depth_mm for f in frames]), args.rate, args.duration, args.reliable, reports))
-    try:
-        deadline = time.monotonic() + args.start_timeout
-        while not (status and status[-1] == 'ready: compiled numba kernels'
-                   or status and 'numpy path (' in status[-1]):
-            if node.poll() is not None or time.monotonic() > deadline:
-                raise ToolError(log, 'the node did not become ready: '
-                                + (status[-1] if status else 'no status'))
-            executor.spin_once(timeout_sec=0.1)
-        print(f'node {status[-1]}; publishing {args.scene} at {args.rate:g} Hz for '
-              f'{args.duration:g} s ({"reliable" if args.reliable else "sensor-data"} QoS)',
-              file=sys.stderr)
-        publisher.start()
-        rss0, cpu0 = _proc_stats(node.pid)
-        began = time.monotonic()
-        rss_warm = _stream(args, executor, node, publisher, log)
-        rss1, cpu1 = _proc_stats(node.pid)
-        elapsed = time.monotonic() - began
+    with node_process.probe_node('latency_bench_probe', node) as (probe, executor, status):
         try:
-            report = reports.get(timeout=10.0)
-        except queue.Empty:
-            raise ToolError(f'the camera process failed (exit code {publisher.exitcode})') \
-                from None
-        if 'error' in report:
-            raise ToolError(log, report['error'])
-    finally:
-        if publisher.is_alive():
-            publisher.kill()
-        executor.shutdown()
-        probe.destroy_node()
-        context.try_shutdown()
-        node_process.stop_node(node)
+            arrivals, times_ms = _probe(probe)
+            ready = node_process.wait_ready(   # compiled, or the numpy path for good
+                executor, node, status, args.timeout, log,
+                lambda text: text.endswith('compiled numba kernels') or 'numpy path (' in text)
+            print(f'node {ready}; publishing {args.scene} at {args.rate:g} Hz for '
+                  f'{args.duration:g} s ({"reliable" if args.reliable else "sensor-data"} QoS)',
+                  file=sys.stderr)
+            publisher.start()
+            rss0, cpu0 = _proc_stats(node.pid)
+            began = time.monotonic()
+            rss_warm = _stream(args, executor, node, publisher, log)
+            rss1, cpu1 = _proc_stats(node.pid)
+            elapsed = time.monotonic() - began
+            try:
+                report = reports.get(timeout=10.0)
+            except queue.Empty:
+                raise ToolError(f'the camera process failed (exit code {publisher.exitcode})') \
+                    from None
+            if 'error' in report:
+                raise ToolError(log, report['error'])
+        finally:
+            if publisher.is_alive():
+                publisher.kill()
     # the first costmap's stamp starts the warm-up, which is not counted
     cut = min(arrivals, default=0) + int(args.warmup * 1e9)
     latencies = [(arrival - stamp) / 1e6 for stamp, arrival in sorted(arrivals.items())
@@ -267,7 +248,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help='reliable QoS instead of the camera sensor-data (best effort)')
     parser.add_argument('--warmup', type=float, default=5.0,
                         help='seconds at the start not counted (default %(default)s)')
-    parser.add_argument('--start-timeout', type=float, default=300.0,
+    parser.add_argument('--timeout', type=float, default=300.0,
                         help='seconds to wait for the node to be ready (default %(default)s)')
     tool_support.add_domain_id_option(
         parser, 'ROS_DOMAIN_ID, 0-232 (default: 100-200 from the process id)')
@@ -275,6 +256,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@tool_support.command('latency_bench')
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the benchmark; return the exit code (0 done, 1 could not run, 2 bad usage)."""
     parser = build_parser()
@@ -283,12 +265,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error('--duration, --rate (<= 1000) and --frames must be positive')
     if not 0 <= args.warmup < args.duration:
         parser.error('--warmup must be in [0, --duration)')
-    try:
-        if not args.params.is_file():
-            raise ToolError(args.params, 'params file not found')
-        figures = run(args)
-    except ToolError as error:
-        return tool_support.report_error('latency_bench', error)
+    if not args.params.is_file():
+        raise ToolError(args.params, 'params file not found')
+    figures = run(args)
     print(format_table(figures))
     print('JSON ' + json.dumps(figures))
     return 0

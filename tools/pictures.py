@@ -13,14 +13,10 @@ from obstacle_detection.cli import support as tool_support
 from obstacle_detection.cli.picture_jobs import build_parser, write_pictures
 
 
+@tool_support.command('pictures')
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (0 ok, 1 bad input, 2 bad usage)."""
-    args = build_parser().parse_args(argv)
-    try:
-        done = write_pictures(args)
-    except (ValueError, OSError, KeyError) as exc:
-        return tool_support.report_error('pictures', exc)
-    print(done)
+    print(write_pictures(build_parser().parse_args(argv)))
     return 0
 
 

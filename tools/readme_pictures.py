@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import astuple
 from pathlib import Path
 from typing import Sequence
 
@@ -18,6 +19,7 @@ import numpy as np
 from obstacle_detection.viz import pictures
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.cli import picture_jobs
+from obstacle_detection.cli.evaluation_args import REAL_FRAMES
 
 REPOSITORY = tool_support.PACKAGE_ROOT
 DEFAULT_OUT_DIR = REPOSITORY / 'tools' / 'readme'
@@ -32,10 +34,9 @@ SYNTHETIC = {
                                  '--no-truth', '--thumb-width', '600', '--columns', '2'],
 }
 
-#: Each real frame's camera: intrinsics fx,fy,cx,cy [px] and depth units per metre (their README).
-_TUM_FR3 = ('--intrinsics', '535.4,539.2,320.1,247.6', '--depth-scale', '5000')
-_TUM_FR2 = ('--intrinsics', '520.9,521.0,325.1,249.7', '--depth-scale', '5000')
-_DINING = ('--intrinsics', '518.0,519.0,325.5,253.5', '--depth-scale', '1000')
+#: Each real frame folder's camera options: intrinsics [px] and depth units per metre.
+_CAMERA = {name: ('--intrinsics', ','.join(f'{v:g}' for v in astuple(intrinsics)),
+                  '--depth-scale', f'{scale:g}') for name, _, scale, intrinsics in REAL_FRAMES}
 _FAR = ('--set', 'max_range_m=4.0', '--set', 'costmap_length_m=4.0')
 #: The two methods drawn: (caption, tools/pictures.py parameter options).
 _SEED = ('the seed method (Table 4.2, K=5), range 4 m',
@@ -44,12 +45,12 @@ _ROBOT = ('the default, corridor.yaml (robot level), range 4 m', ('--preset', 'c
 #: The real-frame pictures: file name -> panels top to bottom (depth under --real-dir, camera
 #: options, name, method), each drawn with its mount estimated from the floor.
 REAL = {
-    'real_tum_office.png': [('tum_office/depth.png', _TUM_FR3, 'TUM fr3 office', method)
-                            for method in (_SEED, _ROBOT)],
-    'real_tum_fr2_desk.png': [('tum_fr2_desk/depth_1.png', _TUM_FR2, 'TUM fr2 desk', method)
-                              for method in (_SEED, _ROBOT)],
-    'real_dining_room.png': [(f'dining_room/depth_{i}.pgm', _DINING, f'dining room {i}', _ROBOT)
-                             for i in (1, 4)],
+    'real_tum_office.png': [('tum_office/depth.png', _CAMERA['tum_office'], 'TUM fr3 office',
+                             method) for method in (_SEED, _ROBOT)],
+    'real_tum_fr2_desk.png': [('tum_fr2_desk/depth_1.png', _CAMERA['tum_fr2_desk'],
+                               'TUM fr2 desk', method) for method in (_SEED, _ROBOT)],
+    'real_dining_room.png': [(f'dining_room/depth_{i}.pgm', _CAMERA['dining_room'],
+                              f'dining room {i}', _ROBOT) for i in (1, 4)],
 }
 
 
@@ -91,6 +92,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@tool_support.command('readme_pictures')
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (0 ok, 1 a picture could not be made)."""
     args = build_parser().parse_args(argv)
@@ -99,21 +101,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not real:
         tool_support.warn(f'no real frames in {args.real_dir}; the real-frame pictures '
                           f'({", ".join(REAL)}) are left as they are')
-    try:
-        for name, options in SYNTHETIC.items():
-            out = args.out_dir / name
-            print(picture_jobs.write_pictures(parser.parse_args([*options, '--out', str(out)])))
-            recompress(out)
-        for name, panels in real.items():
-            missing = sorted({p[0] for p in panels if not (args.real_dir / p[0]).is_file()})
-            if missing:
-                tool_support.warn(f'{name} skipped, missing in {args.real_dir}: '
-                                  f'{", ".join(missing)}')
-                continue
-            pictures.write_png(args.out_dir / name, real_picture(panels, args.real_dir))
-            recompress(args.out_dir / name)
-    except (ValueError, OSError, KeyError) as exc:
-        return tool_support.report_error('readme_pictures', exc)
+    for name, options in SYNTHETIC.items():
+        out = args.out_dir / name
+        print(picture_jobs.write_pictures(parser.parse_args([*options, '--out', str(out)])))
+        recompress(out)
+    for name, panels in real.items():
+        missing = sorted({p[0] for p in panels if not (args.real_dir / p[0]).is_file()})
+        if missing:
+            tool_support.warn(f'{name} skipped, missing in {args.real_dir}: '
+                              f'{", ".join(missing)}')
+            continue
+        pictures.write_png(args.out_dir / name, real_picture(panels, args.real_dir))
+        recompress(args.out_dir / name)
     return 0
 
 

@@ -26,10 +26,11 @@ from obstacle_detection.evaluation import runner as evaluation
 from obstacle_detection.fleet import scoring
 from obstacle_detection.fleet.cluster import add_fleet_arguments, fleet_options, open_fleet
 from obstacle_detection.evaluation.sweep import (METRICS, SweepResult, format_grid, grid_shape,
-                                                 parse_axis, run_sweep)
+                                                 parse_axis, run_sweep, sweep_points)
 from obstacle_detection.pipeline.params import DetectorParams
+from obstacle_detection.cli import support as tool_support
 from obstacle_detection.cli.evaluation_args import (add_common_arguments, base_params,
-                                                   frame_sources, report_error)
+                                                   frame_sources)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -50,8 +51,6 @@ def build_parser() -> argparse.ArgumentParser:
                              '[default: cell_f1]')
     add_common_arguments(parser)
     parser.set_defaults(max_frames=1)
-    parser.add_argument('--per-scene', action='store_true',
-                        help='print the grid of every scenario, not only the overall one')
     parser.add_argument('--out', type=Path, default=Path('sweep.png'),
                         help='heatmap PNG (one panel per scenario + overall) '
                              '[default: sweep.png]')
@@ -64,38 +63,25 @@ def _log(text: str) -> None:
     print(text, file=sys.stderr, flush=True)
 
 
-def _check_axes(base: DetectorParams, axes: Sequence) -> None:
-    """Raise for an unknown axis name now, not per cell (a bad value is said for its cell)."""
-    for axis in axes:
-        if axis is not None:
-            try:
-                evaluation.apply_overrides(base, {axis.name: axis.values[0]})
-            except ValueError as exc:
-                if getattr(exc, 'usage', False):
-                    raise
-
-
 def _sweep(args: argparse.Namespace, base: DetectorParams, also: tuple,
            ) -> tuple[SweepResult, int]:
     """Score the grid (on a cluster or here); return (result, frames)."""
     started = time.perf_counter()
     sources = frame_sources(args)
+    frame_count = sum(count for _, count, _ in sources)
+    if frame_count == 0:
+        raise ValueError('no frames selected')
     settings = int(np.prod(grid_shape(args.x, args.y, also)))
     with open_fleet(**fleet_options(args), tasks=settings * len(sources)) as fleet:
         if fleet.distributed:
-            if sum(count for _, count, _ in sources) == 0:
-                raise ValueError('no frames selected')
             _log(f'{settings} settings x {len(sources)} scenarios on {fleet.description}')
-            result = scoring.sweep_on_fleet(fleet, sources, base, args.x, args.y,
-                                            args.metric, also=also, log=_log)
-            return result, sum(count for _, count, _ in sources)
+            return scoring.sweep_on_fleet(fleet, sources, base, args.x, args.y, args.metric,
+                                          also=also, log=_log), frame_count
         frames = [f for _, _, source in sources for f in source]
-        if not frames:
-            raise ValueError('no frames selected')
         _log(f'rendered {len(frames)} frames in {time.perf_counter() - started:.1f} s;'
              f' {settings} settings')
-        result = run_sweep(frames, base, args.x, args.y, args.metric, also=also, log=_log)
-        return result, len(frames)
+        return run_sweep(frames, base, args.x, args.y, args.metric, also=also,
+                         log=_log), frame_count
 
 
 def _print_result(args: argparse.Namespace, result: SweepResult, frame_count: int) -> None:
@@ -103,9 +89,8 @@ def _print_result(args: argparse.Namespace, result: SweepResult, frame_count: in
     scenes = list(result.grids)
     print(f'parameters: {args.preset}; {frame_count} frames; '
           f'{"higher" if METRICS[args.metric][2] else "lower"} is better; * = best')
-    for scene in scenes if args.per_scene else ['overall']:
-        print(format_grid(result, scene))
-        print()
+    print(format_grid(result, 'overall'))
+    print()
     print('best setting per scenario:')
     width = max(len(s) for s in scenes)
     for scene in scenes:
@@ -134,28 +119,22 @@ def _json(args: argparse.Namespace, result: SweepResult, frame_count: int) -> di
                      for s in result.grids}}
 
 
+@tool_support.command('sweep')
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (0 ok, 1 bad input, 2 bad usage)."""
     args = build_parser().parse_args(argv)
     also = tuple(args.also)
-    try:
-        base = base_params(args)
-        _check_axes(base, (args.x, args.y, *also))
-        result, frame_count = _sweep(args, base, also)
-    except (ValueError, OSError) as exc:
-        return report_error('sweep', exc)
-    except KeyboardInterrupt:   # nothing is written before the grid is complete
-        print('sweep.py: interrupted', file=sys.stderr)
-        return 130
+    base = base_params(args)
+    for _, point in sweep_points(base, args.x, args.y, also):
+        if getattr(point, 'usage', False):   # an unknown name now, a bad value per cell
+            raise point
+    result, frame_count = _sweep(args, base, also)
     _print_result(args, result, frame_count)
-    try:
-        _write_heatmaps(args, result)
-        print(f'heatmap: {args.out}')
-        if args.json:
-            args.json.write_text(json.dumps(_json(args, result, frame_count)) + '\n',
-                                 encoding='utf-8')
-    except (ValueError, OSError) as exc:
-        return report_error('sweep', exc)
+    _write_heatmaps(args, result)
+    print(f'heatmap: {args.out}')
+    if args.json:
+        args.json.write_text(json.dumps(_json(args, result, frame_count)) + '\n',
+                             encoding='utf-8')
     return 0
 
 

@@ -20,6 +20,7 @@ from obstacle_detection.cli.progress import Progress
 from obstacle_detection.evaluation import runner as evaluation
 from obstacle_detection.evaluation.metrics import Confusion, format_score
 from obstacle_detection.pipeline.refine import LogisticRefiner
+from obstacle_detection.cli import support as tool_support
 from obstacle_detection.cli.evaluation_args import (add_common_arguments, base_params,
                                                    frame_sources)
 
@@ -69,29 +70,25 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@tool_support.command('train_refiner')
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point; returns the exit code (0 ok, 2 bad input)."""
+    """Entry point; returns the exit code (0 ok, 1 bad input, 2 bad usage)."""
     args = build_parser().parse_args(argv)
-    try:
-        params = base_params(args)
-        started = time.perf_counter()
-        frames = [f for _, _, source in frame_sources(args) for f in source]
-        train, held_out = split_frames(frames, args.train_frames)
-        print(f'{len(frames)} frames rendered in {time.perf_counter() - started:.1f} s: '
-              f'{len(train)} for training, {len(held_out)} held out', file=sys.stderr)
-        x, y = evaluation.collect_training_samples(
-            train, params, max_pixels_per_frame=args.max_pixels, seed=args.seed)
-        model = LogisticRefiner.fit(
-            x, y, l2=args.l2, preset=args.preset, train_frames=len(train),
-            train_scenarios=sorted({f.scenario for f in train}))
-        model.save(args.out)
-        with Progress(len(held_out), 'scoring the held-out frames') as bar:
-            report = evaluation.evaluate_frames(held_out, params, refiner=model,
-                                                refiner_name=str(args.out),
-                                                on_frame=lambda *_: bar.update())
-    except (ValueError, OSError) as exc:
-        print(f'train_refiner: error: {exc}', file=sys.stderr)
-        return 2
+    params = base_params(args)
+    started = time.perf_counter()
+    frames = [f for _, _, source in frame_sources(args) for f in source]
+    train, held_out = split_frames(frames, args.train_frames)
+    print(f'{len(frames)} frames rendered in {time.perf_counter() - started:.1f} s: '
+          f'{len(train)} for training, {len(held_out)} held out', file=sys.stderr)
+    x, y = evaluation.collect_training_samples(
+        train, params, max_pixels_per_frame=args.max_pixels, seed=args.seed)
+    model = LogisticRefiner.fit(x, y, l2=args.l2, preset=args.preset, train_frames=len(train),
+                                train_scenarios=sorted({f.scenario for f in train}))
+    model.save(args.out)
+    with Progress(len(held_out), 'scoring the held-out frames') as bar:
+        report = evaluation.evaluate_frames(held_out, params, refiner=model,
+                                            refiner_name=str(args.out),
+                                            on_frame=lambda *_: bar.update())
     overall = report.overall
     print(f'parameters: {args.preset}; trained on {len(train)} frames '
           f'({y.size} pixels, {int(y.sum())} obstacle); model: {args.out}')

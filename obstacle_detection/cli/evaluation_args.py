@@ -8,9 +8,17 @@ from typing import Any, Iterable
 
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.evaluation import runner as evaluation
-from obstacle_detection.pipeline.params import PRESETS, DetectorParams
+from obstacle_detection.pipeline.params import PRESETS, DetectorParams, Intrinsics
 
 SUITES = evaluation.SUITES
+#: The frames of ../shared/data/real/README.md: (folder, files, units per metre, intrinsics).
+REAL_FRAMES = (
+    ('tum_office', ('depth.png',), 5000.0, Intrinsics(535.4, 539.2, 320.1, 247.6)),
+    ('tum_fr2_desk', ('depth_1.png', 'depth_2.png'), 5000.0,
+     Intrinsics(520.9, 521.0, 325.1, 249.7)),
+    ('dining_room', tuple(f'depth_{i}.pgm' for i in range(1, 6)), 1000.0,
+     Intrinsics(518.0, 519.0, 325.5, 253.5)),
+)
 
 
 def parse_assignment(text: str) -> tuple[str, str]:
@@ -67,10 +75,6 @@ def base_params(args: argparse.Namespace) -> DetectorParams:
         except ValueError as exc:
             raise tool_support.ToolError(f'argument --set: {exc}', usage=True) from None
     return params
-
-
-#: Print the error line; an unknown scenario, parameter or metric is a usage error (2).
-report_error = tool_support.report_error
 
 
 def frame_sources(args: argparse.Namespace,

@@ -2,16 +2,18 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import signal
 import subprocess
 import sys
-from collections.abc import Sequence
+import time
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-from obstacle_detection.cli.support import PACKAGE_ROOT
+from obstacle_detection.cli.support import PACKAGE_ROOT, ToolError
 from obstacle_detection.ros.dds_env import CONFLICTING, loopback_env
 
 
@@ -53,29 +55,64 @@ def start_node(command: list[str], env: dict[str, str], log: Path) -> subprocess
                                 stderr=subprocess.STDOUT)
 
 
-def stop_node(process: subprocess.Popen) -> None:
-    """Stop the node with Ctrl-C, as a user would; kill it if it does not stop."""
-    if process.poll() is not None:
-        return
-    process.send_signal(signal.SIGINT)
-    try:
-        process.wait(timeout=15)
-    except subprocess.TimeoutExpired:
-        process.kill()
-        process.wait(timeout=5)
-
-
-def status_qos() -> Any:
-    """Return the QoS of the node's latched ``~/status`` topic (late subscribers get it)."""
-    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-
-    return QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
-
-
 def log_tail(path: Path, lines: int = 15) -> str:
     """Return the last ``lines`` lines of a log file, or ``(no log)``."""
     try:
         return '\n'.join(path.read_text(errors='replace').splitlines()[-lines:])
     except OSError:
         return '(no log)'
+
+
+@contextlib.contextmanager
+def probe_node(name: str, node: subprocess.Popen) -> Iterator[tuple[Any, Any, list[str]]]:
+    """Yield a ROS node beside the detector ``node``: (probe, executor, status lines).
+
+    On exit the probe is shut down and the detector stopped with Ctrl-C, as a user would.
+    """
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import String
+
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    probe = rclpy.create_node(name, context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(probe)
+    status: list[str] = []
+    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)   # as the node's ~/status
+    probe.create_subscription(String, '/obstacle_detector/status',
+                              lambda msg: status.append(msg.data), latched)
+    try:
+        yield probe, executor, status
+    finally:
+        executor.shutdown()
+        probe.destroy_node()
+        context.try_shutdown()
+        if node.poll() is None:
+            node.send_signal(signal.SIGINT)
+            try:
+                node.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                node.kill()
+                node.wait(timeout=5)
+
+
+def wait_ready(executor: Any, node: subprocess.Popen, status: list[str], timeout_s: float,
+               log: Path, ready: Callable[[str], bool] = lambda text: True,
+               shown_log: Path | None = None) -> str:
+    """Spin until the node's status says ``ready`` (and ``ready(status)``); return the status.
+
+    ToolError with the end of ``log`` (named ``shown_log``) if the node exits or times out.
+    """
+    deadline = time.monotonic() + timeout_s
+    while not (status and status[-1].startswith('ready') and ready(status[-1])):
+        if node.poll() is not None or time.monotonic() > deadline:
+            why = (f'exited with code {node.returncode} before it was ready'
+                   if node.poll() is not None else
+                   f'was not ready within {timeout_s:g} s (--timeout)')
+            raise ToolError(shown_log or log, f'the detector node {why}; the end of its '
+                            'log:\n' + log_tail(log))
+        executor.spin_once(timeout_sec=0.05)
+    return status[-1]

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import math
 import os
 import sys
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -75,6 +77,22 @@ def report_error(prog: str, error: BaseException) -> int:
         text = str(error.args[0])
     print(f'error: {text}', file=sys.stderr)
     return EXIT_BAD_INPUT
+
+
+def command(prog: str) -> Callable[[Callable[..., int]], Callable[..., int]]:
+    """Decorate a tool's ``main(argv)``: bad input -> ``report_error``, Ctrl-C -> exit 130."""
+    def decorate(main: Callable[..., int]) -> Callable[..., int]:
+        @functools.wraps(main)
+        def run(argv: Any = None) -> int:
+            try:
+                return main(argv)
+            except (ValueError, OSError, KeyError) as exc:   # KeyError: an unknown name
+                return report_error(prog, exc)
+            except KeyboardInterrupt:   # the tools write their outputs whole or not at all
+                print(f'{prog}: interrupted', file=sys.stderr)
+                return 130
+        return run
+    return decorate
 
 
 def warn(text: str) -> None:
