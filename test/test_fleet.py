@@ -6,6 +6,7 @@ Dask cluster of two worker processes and compare what it gives with one process.
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import signal
@@ -14,6 +15,7 @@ import sys
 import threading
 import time
 from collections.abc import Iterator
+from typing import Any
 from pathlib import Path
 
 import numpy as np
@@ -264,13 +266,19 @@ def test_chunks_merged_equal_the_one_task_bag(tmp_path: Path, depths: list[np.nd
     assert not any(p.output.exists() for p in parts)
 
 
-def test_sweep_and_evaluate_tasks_in_one_process_equal_the_plain_run() -> None:
+def score_here(frames: list) -> Any:
+    """Return a scorer that evaluates the points on ``frames`` with plain evaluate_frames."""
+    return lambda points: [evaluation.evaluate_frames(frames, p).frames for p in points]
+
+
+def test_sweep_tasks_in_one_process_equal_the_plain_run() -> None:
     sources = sequence_sources()
     frames_ = [f for _, _, lazy in sources for f in lazy]
     x, y = grid_search.Axis('theta_deg', ('20', '60')), grid_search.Axis('K', ('4', '5'))
     fleet = cluster.Fleet(None, 'this process', 1)
-    got = scoring.sweep_on_fleet(fleet, sources, table_4_2(), x, y, progress=False)
-    want = grid_search.run_sweep(frames_, table_4_2(), x, y)
+    got = grid_search.grid_sweep(functools.partial(scoring.score_points, fleet, sources,
+                                                   progress=False), table_4_2(), x, y)
+    want = grid_search.grid_sweep(score_here(frames_), table_4_2(), x, y)
     assert list(got.grids) == list(want.grids) == ['corridor', 'people', 'overall']
     for scene in want.grids:
         np.testing.assert_array_equal(got.grids[scene], want.grids[scene])
@@ -428,11 +436,10 @@ def test_ctrl_c_on_a_cluster_stops_cleanly_and_leaves_no_partial_bag(
 def test_sweep_on_two_workers_equals_one_process(two_workers: cluster.Fleet) -> None:
     sources = sequence_sources()
     frames_ = [f for _, _, lazy in sources for f in lazy]
-    x = grid_search.Axis('theta_deg', ('10', '30', '80'))
-    also = (grid_search.Axis('N1', ('0', '12')),)
-    got = scoring.sweep_on_fleet(two_workers, sources, table_4_2(), x, None, 'cell_f1',
-                                 also=also, progress=False)
-    want = grid_search.run_sweep(frames_, table_4_2(), x, None, 'cell_f1', also=also)
+    x, y = grid_search.Axis('theta_deg', ('10', '30', '80')), grid_search.Axis('N1', ('0', '12'))
+    got = grid_search.grid_sweep(functools.partial(scoring.score_points, two_workers, sources,
+                                                   progress=False), table_4_2(), x, y)
+    want = grid_search.grid_sweep(score_here(frames_), table_4_2(), x, y)
     assert list(got.grids) == list(want.grids)
     for scene in want.grids:
         np.testing.assert_array_equal(got.grids[scene], want.grids[scene])

@@ -131,18 +131,17 @@ def test_point_cells_bins_like_the_truth_grid():
         metrics.point_cells(points, (0.0, 0.0), 0.0, (2, 3))
 
 
-def test_occupied_and_free_share_with_and_without_tolerance():
+def test_cell_share_counts_the_cells_hit_with_and_without_tolerance():
     grid = np.full((3, 4), CELL_UNKNOWN, np.int8)
     grid[0, 0] = CELL_OCCUPIED
     grid[2, 3] = CELL_FREE
     cells = np.zeros((3, 4), bool)
     cells[0, 0] = cells[1, 1] = cells[2, 3] = True
-    assert metrics.occupied_share(grid, cells) == (1, 3)
-    assert metrics.occupied_share(grid, cells, tolerance_cells=1) == (2, 3)   # (1, 1) touches
-    assert metrics.occupied_share(grid, cells, tolerance_cells=3) == (3, 3)
-    assert metrics.free_share(grid, cells) == (1, 3)
-    with pytest.raises(ValueError, match='differs'):
-        metrics.free_share(grid, cells[:2])
+    occupied = grid == CELL_OCCUPIED
+    assert metrics.cell_share(occupied, cells) == (1, 3)
+    assert metrics.cell_share(metrics.grow_cells(occupied, 1), cells) == (2, 3)   # (1, 1)
+    assert metrics.cell_share(metrics.grow_cells(occupied, 3), cells) == (3, 3)
+    assert metrics.cell_share(grid == CELL_FREE, cells) == (1, 3)
 
 
 def test_surface_gap_points_fill_sparse_samples_of_one_surface_only():

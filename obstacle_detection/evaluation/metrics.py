@@ -171,21 +171,8 @@ def grow_cells(mask: np.ndarray, cells: int) -> np.ndarray:
     return cv2.dilate(mask.astype(np.uint8), kernel).astype(bool)
 
 
-def occupied_share(predicted_grid: np.ndarray, cells: np.ndarray, *,
-                   tolerance_cells: int = 0) -> tuple[int, int]:
-    """(cells marked, cells): how many are occupied, within ``tolerance_cells`` (Chebyshev)."""
-    return _share(grow_cells(np.asarray(predicted_grid) == CELL_OCCUPIED, tolerance_cells),
-                  cells)
-
-
-def free_share(predicted_grid: np.ndarray, cells: np.ndarray) -> tuple[int, int]:
-    """(cells free, cells) of a set of cells: how many are ``CELL_FREE`` in the grid."""
-    return _share(np.asarray(predicted_grid) == CELL_FREE, cells)
-
-
-def _share(hit: np.ndarray, cells: np.ndarray) -> tuple[int, int]:
-    cells = np.asarray(cells, dtype=bool)
-    _same_shape(hit, cells)
+def cell_share(hit: np.ndarray, cells: np.ndarray) -> tuple[int, int]:
+    """(cells hit, cells): how many of a set of cells are True in ``hit`` (both (ny, nx))."""
     return int(np.count_nonzero(hit & cells)), int(np.count_nonzero(cells))
 
 

@@ -434,14 +434,15 @@ def robot_score(frame: LabelledFrame, predicted_grid: np.ndarray, params: Detect
     seen = roi & (frame.truth_labels != GT_NO_RETURN)
     edge = frame.drop_edge if frame.drop_edge is not None else np.zeros(seen.shape, bool)
     names = frame.object_names
+    occupied = predicted_grid == CELL_OCCUPIED
     for name in dict.fromkeys(n for n in names if n):
         ids = [i for i, n in enumerate(names) if n == name]
         everywhere = np.isin(frame.object_ids, ids)
         mine = seen & everywhere
         if (edge & everywhere).any():   # a drop, even with its edge out of range
             cells = metrics.point_cells(frame.truth_points[edge & mine], origin, res, (ny, nx))
-            hits, total = metrics.occupied_share(predicted_grid, cells,
-                                                 tolerance_cells=DROP_TOLERANCE_CELLS)
+            hits, total = metrics.cell_share(
+                metrics.grow_cells(occupied, DROP_TOLERANCE_CELLS), cells)
             if total >= MIN_OBJECT_CELLS:
                 score.drops.append((name, hits, total))
             continue
@@ -449,13 +450,13 @@ def robot_score(frame: LabelledFrame, predicted_grid: np.ndarray, params: Detect
         traversable = mine & (frame.truth_labels == GT_TRAVERSABLE)
         if np.count_nonzero(obstacle) >= np.count_nonzero(traversable):
             cells = metrics.point_cells(frame.truth_points[obstacle], origin, res, (ny, nx))
-            hits, total = metrics.occupied_share(predicted_grid, cells)
+            hits, total = metrics.cell_share(occupied, cells)
             if total >= MIN_OBJECT_CELLS:
                 score.objects.append((name, hits, total))
         else:
             cells = metrics.point_cells(frame.truth_points[traversable], origin, res, (ny, nx))
             cells &= truth_grid == CELL_FREE
-            hits, total = metrics.free_share(predicted_grid, cells)
+            hits, total = metrics.cell_share(predicted_grid == CELL_FREE, cells)
             if total >= MIN_OBJECT_CELLS:
                 score.passable.append((name, hits, total))
     return score
