@@ -3,8 +3,10 @@
 
 Scores a scenario suite (``--suite seed|robot``) and/or labelled folders; ``--real DIR`` scores
 unlabelled real frames by their height above the floor, ``--sequence NAME`` the fused costmap
-over a scene sequence. Prints a table and one JSON line (the last line of stdout, or ``--json
-FILE``); docs/accuracy.md has the examples. ``--workers``/``--scheduler`` run it on Dask.
+over a scene sequence; ``--train-refiner OUT`` fits the seed's section 4.5 logistic refiner on
+some frames and scores it on the others. Prints a table and one JSON line (the last line of
+stdout, or ``--json FILE``); docs/accuracy.md has the examples. ``--workers``/``--scheduler``
+run it on Dask.
 """
 
 from __future__ import annotations
@@ -54,9 +56,22 @@ def build_parser() -> argparse.ArgumentParser:
         prog='evaluate', description=__doc__.split('\n\n')[0],
         epilog=evaluation.SCORE_DEFINITIONS, formatter_class=argparse.RawTextHelpFormatter)
     add_common_arguments(parser)
-    parser.add_argument('--refiner', type=Path, metavar='MODEL',
-                        help='also score the seed-4.5 logistic refinement of this model '
-                             '(JSON from tools/train_refiner.py)')
+    refiner = parser.add_mutually_exclusive_group()
+    refiner.add_argument('--refiner', type=Path, metavar='MODEL',
+                         help='also score the seed-4.5 logistic refinement of this model '
+                              '(JSON from --train-refiner)')
+    refiner.add_argument('--train-refiner', type=Path, metavar='OUT',
+                         help='fit the seed-4.5 refiner on --train-frames frames spread evenly, '
+                              'save it to OUT (JSON), score it on the other frames')
+    parser.add_argument('--train-frames', type=int, default=10, metavar='N',
+                        help='frames the refiner is fitted on (the seed: 10) [default: 10]')
+    parser.add_argument('--max-pixels', type=int, default=20000, metavar='M',
+                        help='training pixels drawn per frame [default: 20000]')
+    parser.add_argument('--l2', type=float, default=1e-3,
+                        help='L2 penalty on the standardised coefficients [default: 1e-3]')
+    parser.add_argument('--seed', type=int, default=0,
+                        help='seed of the scene sequences (--sequence) or of the training '
+                             'pixels drawn (--train-refiner) [default: 0]')
     parser.add_argument('--json', metavar='FILE',
                         help="write the JSON report to FILE instead of printing it as the last "
                              "line ('-': print only the JSON line, table to stderr)")
@@ -80,7 +95,6 @@ def build_parser() -> argparse.ArgumentParser:
                        help='a FusionParams field (size_m, resolution_m, hit_log_odds, '
                             'miss_log_odds, min_log_odds, max_log_odds, occupied_log_odds, '
                             'free_log_odds, max_jump_m, max_jump_deg); repeatable')
-    video.add_argument('--seed', type=int, default=0, help='sequence seed [default: 0]')
     video.add_argument('--frames', type=int, metavar='N',
                        help='only the first N frames of each sequence')
     video.add_argument('--no-odometry', action='store_true',
@@ -108,11 +122,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.refiner is not None:
         from obstacle_detection.pipeline.refine import LogisticRefiner
         refiner = LogisticRefiner.load(args.refiner)
-    if args.pictures is not None or args.causes:
+    if args.pictures is not None or args.causes or args.train_refiner is not None:
         if args.workers or args.scheduler:
-            raise tool_support.ToolError('--pictures and --causes work in this process: '
-                                         'leave out --workers/--scheduler', usage=True)
+            raise tool_support.ToolError('--pictures, --causes and --train-refiner work in this '
+                                         'process: leave out --workers/--scheduler', usage=True)
         args.workers = 0
+    if args.train_refiner is not None:
+        sources, refiner = _train_refiner(args, params, sources)
     with open_fleet(**fleet_options(args), tasks=len(sources)) as fleet:
         return _evaluate(args, params, sources, refiner, fleet)
 
@@ -132,7 +148,7 @@ def _evaluate(args: Any, params: DetectorParams, sources: Any, refiner: Any,
             frame.scenario, Counter()).update(false_alarm_causes(frame, result, params)))
     frames = itertools.chain.from_iterable(frames for _, _, frames in sources)
     label = _label(args)
-    refiner_name = str(args.refiner) if args.refiner else None
+    refiner_name = str(args.refiner or args.train_refiner) if refiner is not None else None
     if fleet.distributed:
         print(f'evaluate: {len(sources)} sequences on {fleet.description}',
               file=sys.stderr, flush=True)
@@ -154,7 +170,7 @@ def _evaluate(args: Any, params: DetectorParams, sources: Any, refiner: Any,
         print('\nrobot level (issue 9):', file=out)
         print(evaluation.format_robot_table(report), file=out)
     if refiner is not None:
-        print(f'\nrefined by {args.refiner} (seed 4.5 logistic regression):', file=out)
+        print(f'\nrefined by {refiner_name} (seed 4.5 logistic regression):', file=out)
         print(evaluation.format_table(report, refined=True), file=out)
     if args.causes:
         causes['overall'] = sum(causes.values(), Counter())
@@ -165,6 +181,36 @@ def _evaluate(args: Any, params: DetectorParams, sources: Any, refiner: Any,
                       file=out)
     _write_json(args.json, report.as_dict())
     return 0
+
+
+def _train_refiner(args: Any, params: DetectorParams, sources: Any) -> tuple[list, Any]:
+    """Fit the refiner on ``--train-frames`` frames spread evenly, save it, print it.
+
+    Return the other frames (held out) as the one source to score, and the model.
+    """
+    from obstacle_detection.pipeline.refine import LogisticRefiner
+
+    frames = [f for _, _, source in sources for f in source]
+    if not 1 <= args.train_frames < len(frames) or args.max_pixels < 1:
+        raise tool_support.ToolError(f'--train-frames={args.train_frames} must be in 1..'
+                                     f'{len(frames) - 1} (the frames less one), --max-pixels='
+                                     f'{args.max_pixels} >= 1', usage=True)
+    chosen = {id(f) for f in evaluation.subsample(frames, args.train_frames)}
+    train = [f for f in frames if id(f) in chosen]
+    held_out = [f for f in frames if id(f) not in chosen]
+    x, y = evaluation.collect_training_samples(
+        train, params, max_pixels_per_frame=args.max_pixels, seed=args.seed)
+    model = LogisticRefiner.fit(x, y, l2=args.l2, preset=args.preset, train_frames=len(train),
+                                train_scenarios=sorted({f.scenario for f in train}))
+    model.save(args.train_refiner)
+    data = model.to_dict()
+    out = sys.stderr if args.json == '-' else sys.stdout
+    print(f'refiner fitted on {len(train)} frames ({y.size} pixels, {int(y.sum())} obstacle), '
+          f'saved to {args.train_refiner}; scored on the {len(held_out)} others', file=out)
+    print('coefficients (standardised slope and gradient; e_k are 0/1): '
+          f'intercept {data["intercept"]:+.3f}, ' + ', '.join(
+              f'{name} {value:+.3f}' for name, value in data['coefficients'].items()), file=out)
+    return [('held out', len(held_out), held_out)], model
 
 
 def _score_sequences(args: Any, params: DetectorParams) -> int:

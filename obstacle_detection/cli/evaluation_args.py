@@ -1,4 +1,4 @@
-"""Command-line options shared by evaluate, sweep, train_refiner and pictures."""
+"""Command-line options shared by evaluate, sweep and pictures."""
 
 from __future__ import annotations
 
@@ -30,7 +30,7 @@ def parse_assignment(text: str) -> tuple[str, str]:
 
 
 def add_common_arguments(parser: argparse.ArgumentParser) -> None:
-    """Frame-source and parameter options shared by evaluate, sweep and train_refiner."""
+    """Frame-source and parameter options shared by evaluate and sweep."""
     parser.add_argument('--suite', choices=sorted(SUITES), default='seed',
                         help="committed scenario suite: 'seed' (scenarios.json, the "
                              "seed's slope-only truth) or 'robot' (scenarios_robot.json, "
