@@ -116,16 +116,6 @@ def test_a_one_frame_false_alarm_flickers_per_frame_but_not_fused():
     assert report.fused_view.fp == 0 and report.per_frame.fp == 1
 
 
-def test_without_odometry_a_static_robot_scores_the_same_in_place():
-    obstacle = box(1.40625, 0.28125)
-    observations = [observe(i, (0.0, 0.0, 0.0), obstacle) for i in range(8)]
-    with_odom = score_sequence('static', observations, FUSION)
-    in_place = score_sequence('static', observations, FUSION, use_odometry=False)
-    assert in_place.in_place == 8 and with_odom.in_place == 0
-    assert in_place.fused_area == with_odom.fused_area
-    assert in_place.fused_view == with_odom.fused_view
-
-
 def test_the_report_is_json_and_the_sheet_an_image():
     observations = [observe(i, (RES * i, 0.0, 0.0), box(1.59375, 0.03125)) for i in range(6)]
     report = score_sequence('drive', observations, FUSION, sheet_frames=3)

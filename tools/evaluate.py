@@ -12,10 +12,8 @@ run it on Dask.
 from __future__ import annotations
 
 import argparse
-import itertools
 import json
 import sys
-from collections import Counter
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -26,10 +24,8 @@ from obstacle_detection.cli.evaluation_args import (REAL_FRAMES, add_common_argu
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.evaluation import runner as evaluation
 from obstacle_detection.fleet import scoring
-from obstacle_detection.fleet.cluster import (Fleet, add_fleet_arguments, fleet_options,
-                                              open_fleet)
-from obstacle_detection.labels import (CELL_FREE, CELL_OCCUPIED, GT_NO_RETURN, GT_OBSTACLE,
-                                       GT_TRAVERSABLE, LABEL_OBSTACLE)
+from obstacle_detection.fleet.cluster import add_fleet_arguments, fleet_options, open_fleet
+from obstacle_detection.labels import LABEL_OBSTACLE
 from obstacle_detection.pipeline.params import DetectorParams, Intrinsics
 from obstacle_detection.sim.sequences import SEQUENCE_NAMES
 
@@ -37,17 +33,6 @@ from obstacle_detection.sim.sequences import SEQUENCE_NAMES
 #: STANDING_M above it up to the robot height.
 FLOOR_BAND_M = 0.02
 STANDING_M = 0.05
-
-
-def _progress(total: int, label: str) -> Any:
-    done = itertools.count(1)
-
-    def on_frame(frame: evaluation.LabelledFrame, result: Any,
-                 score: evaluation.FrameScore) -> None:
-        print(f'{label} [{next(done)}/{total}] {frame.scenario} {frame.frame_id}: '
-              f'cell F1 {evaluation.format_score(score.cell.f1)}, '
-              f'{score.total_ms:.0f} ms', file=sys.stderr, flush=True)
-    return on_frame
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -75,12 +60,6 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--json', metavar='FILE',
                         help="write the JSON report to FILE instead of printing it as the last "
                              "line ('-': print only the JSON line, table to stderr)")
-    parser.add_argument('--pictures', type=Path, metavar='DIR',
-                        help='also save one PNG per frame (depth + obstacles, costmap, '
-                             'comparison with the truth)')
-    parser.add_argument('--causes', action='store_true',
-                        help='also count the false-alarm cells of each scenario by cause '
-                             '(docs/accuracy.md)')
     parser.add_argument('--real', type=Path, metavar='DIR',
                         help='instead, score the real frames of DIR (tum_office/, '
                              'tum_fr2_desk/, dining_room/) by height above the fitted floor')
@@ -97,8 +76,6 @@ def build_parser() -> argparse.ArgumentParser:
                             'free_log_odds, max_jump_m, max_jump_deg); repeatable')
     video.add_argument('--frames', type=int, metavar='N',
                        help='only the first N frames of each sequence')
-    video.add_argument('--no-odometry', action='store_true',
-                       help='fuse every frame in place (as without odometry)')
     video.add_argument('--exact-odometry', action='store_true',
                        help='odometry without drift or noise (the true poses)')
     video.add_argument('--sheet', type=Path, metavar='PNG',
@@ -122,46 +99,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.refiner is not None:
         from obstacle_detection.pipeline.refine import LogisticRefiner
         refiner = LogisticRefiner.load(args.refiner)
-    if args.pictures is not None or args.causes or args.train_refiner is not None:
-        if args.workers or args.scheduler:
-            raise tool_support.ToolError('--pictures, --causes and --train-refiner work in this '
-                                         'process: leave out --workers/--scheduler', usage=True)
-        args.workers = 0
     if args.train_refiner is not None:
         sources, refiner = _train_refiner(args, params, sources)
-    with open_fleet(**fleet_options(args), tasks=len(sources)) as fleet:
-        return _evaluate(args, params, sources, refiner, fleet)
-
-
-def _evaluate(args: Any, params: DetectorParams, sources: Any, refiner: Any,
-              fleet: Fleet) -> int:
-    """Score, print the tables and the JSON line (main's work, where ``fleet`` says)."""
-    total = sum(count for _, count, _ in sources)
-    callbacks = []
-    if not args.quiet:
-        callbacks.append(_progress(total, 'evaluate'))
-    if args.pictures is not None:
-        callbacks.append(_picture_writer(args.pictures, params))
-    causes: dict[str, Counter] = {}
-    if args.causes:
-        callbacks.append(lambda frame, result, score: causes.setdefault(
-            frame.scenario, Counter()).update(false_alarm_causes(frame, result, params)))
-    frames = itertools.chain.from_iterable(frames for _, _, frames in sources)
     label = _label(args)
     refiner_name = str(args.refiner or args.train_refiner) if refiner is not None else None
-    if fleet.distributed:
-        print(f'evaluate: {len(sources)} sequences on {fleet.description}',
-              file=sys.stderr, flush=True)
+    with open_fleet(**fleet_options(args), tasks=len(sources)) as fleet:
+        if not args.quiet:
+            print(f'evaluate: {len(sources)} sequences in {fleet.description}', file=sys.stderr,
+                  flush=True)
         report = scoring.evaluate_on_fleet(fleet, sources, params, label=label,
                                            refiner=refiner, refiner_name=refiner_name,
                                            progress=not args.quiet)
-    else:
-        def on_frame(*frame_result_score: Any) -> None:
-            for callback in callbacks:
-                callback(*frame_result_score)
-
-        report = evaluation.evaluate_frames(frames, params, label=label, refiner=refiner,
-                                            refiner_name=refiner_name, on_frame=on_frame)
     out = sys.stderr if args.json == '-' else sys.stdout
     print(f'parameters: {label}; {report.overall.frames} frames in {report.seconds:.1f} s',
           file=out)
@@ -172,13 +120,6 @@ def _evaluate(args: Any, params: DetectorParams, sources: Any, refiner: Any,
     if refiner is not None:
         print(f'\nrefined by {refiner_name} (seed 4.5 logistic regression):', file=out)
         print(evaluation.format_table(report, refined=True), file=out)
-    if args.causes:
-        causes['overall'] = sum(causes.values(), Counter())
-        print('\nfalse-alarm cells by cause:', file=out)
-        for name, counts in causes.items():
-            if counts:
-                print(f'{name:<24} ' + ', '.join(f'{n} {k}' for k, n in counts.most_common()),
-                      file=out)
     _write_json(args.json, report.as_dict())
     return 0
 
@@ -240,7 +181,7 @@ def _score_sequences(args: Any, params: DetectorParams) -> int:
         sequence = SceneSequence(name, seed=args.seed, odometry=PERFECT_ODOMETRY
                                  if args.exact_odometry else OdometryModel())
         reports.append(video.evaluate_sequence(
-            sequence, params, fusion, stop=args.frames, use_odometry=not args.no_odometry,
+            sequence, params, fusion, stop=args.frames,
             sheet_frames=args.sheet_frames if args.sheet is not None else 0,
             on_frame=progress))
     out = sys.stderr if args.json == '-' else sys.stdout
@@ -267,45 +208,6 @@ def _write_json(path: str | None, data: dict) -> None:
         print(line)
     else:
         Path(path).write_text(line + '\n', encoding='utf-8')
-
-
-def false_alarm_causes(frame: evaluation.LabelledFrame, result: Any,
-                       base: DetectorParams) -> Counter:
-    """Count the false-alarm cells of one frame by what marked them (docs/accuracy.md).
-
-    A voxel more than a step above its local ground (``high``), below the step down (``low``),
-    a ``ledge`` or a ``drop`` edge; with the truth of its pixels: obstacle ``O``, traversable
-    ``F``, no return ``X``; `` far``: no true obstacle within one cell.
-    """
-    from obstacle_detection.evaluation.metrics import grow_cells
-    from obstacle_detection.pipeline import traversal
-    from obstacle_detection.pipeline.normals import slope_obstacles
-
-    params = frame.params(base)
-    truth = evaluation.truth_costmap(frame, params)
-    steep = slope_obstacles(result.voxel_normals, params.cos_max_slope)
-    trav = traversal.traversable_ground(result.voxel_points, steep, params)
-    kind = np.where(trav.ledge & ~trav.is_obstacle, 'ledge',
-                    np.where(result.voxel_height_m < -params.max_step_down_m, 'low', 'high'))
-    pixel_voxel, labels = result.pixel_voxel.reshape(-1), frame.truth_labels.reshape(-1)
-    tags = np.full(kind.shape, '', object)
-    for tag, label in (('O', GT_OBSTACLE), ('F', GT_TRAVERSABLE), ('X', GT_NO_RETURN)):
-        has = np.zeros(kind.shape, bool)
-        has[pixel_voxel[(pixel_voxel >= 0) & (labels == label)]] = True
-        tags[has] += tag
-    alarm = (result.costmap.data == CELL_OCCUPIED) & (truth == CELL_FREE)
-    near = grow_cells(truth == CELL_OCCUPIED, 1)
-    marked = result.voxel_is_obstacle
-    causes: dict[tuple[int, int], set] = {}
-    for points, names in ((result.voxel_points[marked],
-                           [f'{k}/{t}' for k, t in zip(kind[marked], tags[marked])]),
-                          (result.drop_points, ['drop'] * result.drop_points.shape[0])):
-        row, col, inside = result.costmap.cell_of(points)
-        for r, c, ok, name in zip(row, col, inside, names):
-            if ok and alarm[r, c]:
-                causes.setdefault((r, c), set()).add(name)
-    return Counter('+'.join(sorted(names)) + ('' if near[cell] else ' far')
-                   for cell, names in causes.items())
 
 
 def _score_real_frames(folder: Path, params: DetectorParams) -> int:
@@ -361,21 +263,6 @@ def real_frame_counts(depth_m: np.ndarray, intrinsics: Intrinsics, params: Detec
              f'roll {est.roll_deg:.1f} deg; {result.floor.summary()}')
     return (int(on_floor.sum()), int((on_floor & marked).sum()), int(standing.sum()),
             int((standing & marked).sum()), mount)
-
-
-def _picture_writer(folder: Path, base: DetectorParams) -> Any:
-    from obstacle_detection.viz import pictures
-
-    def on_frame(frame: evaluation.LabelledFrame, result: Any,
-                 score: evaluation.FrameScore) -> None:
-        name = f'{frame.scenario}_{frame.frame_id}'.replace(' ', '_').replace('/', '_')
-        caption = (f'{frame.scenario} {frame.frame_id}: cell F1 '
-                   f'{evaluation.format_score(score.cell.f1)}, pixel F1 '
-                   f'{evaluation.format_score(score.pixel.f1)}')
-        pictures.write_png(folder / f'{name}.png', pictures.side_by_side(
-            result, caption=caption, truth_labels=frame.truth_labels,
-            params=frame.params(base)))
-    return on_frame
 
 
 if __name__ == '__main__':

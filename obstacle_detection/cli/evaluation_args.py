@@ -35,10 +35,6 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
                         help="committed scenario suite: 'seed' (scenarios.json, the "
                              "seed's slope-only truth) or 'robot' (scenarios_robot.json, "
                              'robot-level truth, time-of-flight noise) [default: seed]')
-    parser.add_argument('--scenarios', type=Path, default=None,
-                        help='scenario list (JSON) instead of the suite\'s')
-    parser.add_argument('--truth', choices=sorted(evaluation.TRUTH_KINDS),
-                        help="score against this truth instead of the scenarios' own")
     parser.add_argument('--scene', action='append', metavar='NAME',
                         help='evaluate only this scenario (repeatable) [default: all]')
     parser.add_argument('--folder', action='append', type=Path, metavar='DIR',
@@ -84,15 +80,14 @@ def frame_sources(args: argparse.Namespace,
     if args.max_frames is not None and args.max_frames < 1:
         raise tool_support.ToolError(f'--max-frames={args.max_frames} must be >= 1', usage=True)
     if args.scene or not args.folder:
-        path = args.scenarios if args.scenarios is not None else SUITES[args.suite]
-        scenarios = evaluation.select_scenarios(evaluation.load_scenarios(path), args.scene)
+        scenarios = evaluation.select_scenarios(evaluation.load_scenarios(SUITES[args.suite]),
+                                                args.scene)
         rules = base_params(args)
         for scenario in scenarios:
             count = min(scenario.frame_count, args.max_frames or scenario.frame_count)
             sources.append((scenario.name, count,
                             LazyFrames(evaluation.scenario_frames, scenario,
-                                  max_frames=args.max_frames, rules=rules,
-                                  truth=args.truth)))
+                                  max_frames=args.max_frames, rules=rules)))
     for folder in args.folder or []:
         count = len(evaluation.subsample(sorted((folder / 'depth').glob('*.png')),
                                          args.max_frames))

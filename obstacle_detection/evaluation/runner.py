@@ -6,7 +6,6 @@ labelled folder on disk (layout in docs/accuracy.md). What counts: :mod:`.metric
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import json
 import math
@@ -30,17 +29,9 @@ from .metrics import Confusion, TolerantCells, format_score
 from obstacle_detection.pipeline.params import (KINECT_V2_SD, KINECT_V2_SD_SIZE, PRESETS,
                                                 DetectorParams, Intrinsics)
 
-#: Version of the scenario-list format read by :func:`load_scenarios`.
-SCENARIO_FORMAT_VERSION = 1
-
 #: The committed suites: the seed's (slope-only truth) and the robot-level one (issue 9).
 SUITES = {'seed': Path(__file__).resolve().parent / 'scenarios.json',
           'robot': Path(__file__).resolve().parent / 'scenarios_robot.json'}
-
-_MOUNT_KEYS = ('height_m', 'pitch_deg', 'roll_deg')
-#: Ground truths a scenario is scored against: the seed's slope-only labels
-#: (``SceneFrame.labels_seed``) or the robot-level ones (``SceneFrame.labels``, issue 9).
-TRUTH_KINDS = ('seed', 'robot')
 
 
 # --------------------------------------------------------------------------------------------
@@ -88,16 +79,6 @@ class Scenario:
     truth: str = 'seed'
     noise: str = 'kinect_v2'
 
-    def __post_init__(self) -> None:
-        if not self.name or not self.seeds:
-            raise ValueError(f'scenario {self.name!r}: name and seeds must not be empty')
-        for key, given, allowed in (('truth', {self.truth}, TRUTH_KINDS),
-                                    ('noise', {self.noise}, NOISE_MODELS),
-                                    ('mount', {k for k, _ in self.mount}, _MOUNT_KEYS)):
-            if given - set(allowed):
-                raise ValueError(f'scenario {self.name!r}: {key}={", ".join(sorted(given))!r} '
-                                 f'(allowed: {", ".join(allowed)})')
-
     @property
     def is_sequence(self) -> bool:
         """True when the scenario is a time sequence (frame indices given)."""
@@ -118,46 +99,24 @@ class Scenario:
         return out
 
 
-def scenario_from_dict(entry: dict[str, Any], defaults: dict[str, Any] | None = None,
-                       ) -> Scenario:
-    """Build a :class:`Scenario` from one JSON entry (raises ValueError naming the problem).
+def scenario_from_dict(entry: dict[str, Any]) -> Scenario:
+    """Build a :class:`Scenario` from one entry of a scenario list (JSON).
 
-    ``frames``: a list or ``{"start", "stop", "step"}``; ``defaults``: the list's truth and noise.
+    ``frames``: a list or ``{"start", "stop", "step"}``; ``mount``: an object.
     """
-    if not isinstance(entry, dict):
-        raise ValueError(f'scenario entry {entry!r} is not an object')
-    unknown = set(entry) - {f.name for f in dataclasses.fields(Scenario)}
-    if unknown:
-        raise ValueError(f'scenario {entry.get("name")!r}: unknown key(s) '
-                         f'{", ".join(sorted(unknown))}')
-    if 'name' not in entry or 'scene' not in entry:
-        raise ValueError(f'scenario entry {entry!r} needs "name" and "scene"')
-    frames, defaults = entry.get('frames'), defaults or {}
+    frames = entry.get('frames')
     if isinstance(frames, dict):
-        frames = range(int(frames.get('start', 0)), int(frames['stop']),
-                       int(frames.get('step', 1)))
-    return Scenario(
-        name=str(entry['name']), scene=str(entry['scene']),
-        seeds=tuple(int(s) for s in entry.get('seeds', [0])),
-        frames=None if frames is None else tuple(int(f) for f in frames),
-        mount=tuple(sorted((str(k), float(v)) for k, v in entry.get('mount', {}).items())),
-        description=str(entry.get('description', '')),
-        truth=str(entry.get('truth', defaults.get('truth', 'seed'))),
-        noise=str(entry.get('noise', defaults.get('noise', 'kinect_v2'))))
+        frames = range(frames.get('start', 0), frames['stop'], frames.get('step', 1))
+    return Scenario(**{**entry, 'seeds': tuple(entry.get('seeds', [0])),
+                       'frames': None if frames is None else tuple(frames),
+                       'mount': tuple(sorted(entry.get('mount', {}).items()))})
 
 
 def load_scenarios(path: str | Path) -> list[Scenario]:
-    """Read a scenario list (JSON ``{"version": 1, "scenarios": [...]}``)."""
+    """Read a scenario list: ``{"scenarios": [...]}`` with the default truth and noise."""
     data = json.loads(Path(path).read_text(encoding='utf-8'))
-    if not isinstance(data, dict) or data.get('version') != SCENARIO_FORMAT_VERSION:
-        raise ValueError(f'{path}: not a version {SCENARIO_FORMAT_VERSION} scenario list')
     defaults = {k: data[k] for k in ('truth', 'noise') if k in data}
-    scenarios = [scenario_from_dict(e, defaults) for e in data.get('scenarios', [])]
-    names = [s.name for s in scenarios]
-    duplicates = sorted({n for n in names if names.count(n) > 1})
-    if duplicates:
-        raise ValueError(f'{path}: duplicate scenario name(s) {", ".join(duplicates)}')
-    return scenarios
+    return [scenario_from_dict({**defaults, **e}) for e in data['scenarios']]
 
 
 def select_scenarios(scenarios: Sequence[Scenario], names: Iterable[str] | None,
@@ -173,18 +132,16 @@ def select_scenarios(scenarios: Sequence[Scenario], names: Iterable[str] | None,
 
 def scenario_frames(scenario: Scenario, *, max_frames: int | None = None,
                     size: tuple[int, int] | None = None, rules: Any = None,
-                    truth: str | None = None) -> Iterator[LabelledFrame]:
+                    ) -> Iterator[LabelledFrame]:
     """Render the frames of one scenario with the scene generator.
 
     max_frames: at most this many, evenly spread; size: (width, height) [px] with the Kinect v2
-    intrinsics scaled; rules: the robot-level truth's; truth: None = the scenario's own.
+    intrinsics scaled; rules: the robot-level truth's.
     """
     # the generator is only needed for synthetic frames
     from obstacle_detection.sim import scenes
 
-    truth = scenario.truth if truth is None else truth
-    if truth not in TRUTH_KINDS:
-        raise ValueError(f'truth={truth!r} (allowed: {", ".join(TRUTH_KINDS)})')
+    truth = scenario.truth
     jobs = [(seed, index) for seed in scenario.seeds
             for index in (scenario.frames if scenario.frames is not None else (0,))]
     jobs = subsample(jobs, max_frames)
@@ -612,12 +569,8 @@ def detect_frames(frames: Iterable[LabelledFrame], base: DetectorParams,
 
 def evaluate_frames(frames: Iterable[LabelledFrame], base: DetectorParams, *,
                     label: str = '', refiner: Any = None, refiner_name: str | None = None,
-                    on_frame: Callable[[LabelledFrame, Any, FrameScore], None] | None = None,
                     ) -> Report:
-    """Run the detector (and optionally a refiner) over frames and pool the scores.
-
-    on_frame(frame, result, score) is called after each frame.
-    """
+    """Run the detector (and optionally a refiner) over frames and pool the scores."""
     from obstacle_detection.pipeline import refine
 
     started = time.perf_counter()
@@ -637,8 +590,6 @@ def evaluate_frames(frames: Iterable[LabelledFrame], base: DetectorParams, *,
             score.refined_pixel = metrics.pixel_confusion(refined.labels, frame.truth_labels)
             score.refined_cell = metrics.cell_confusion(refined.costmap.data, grid)
         scores.append(score)
-        if on_frame is not None:
-            on_frame(frame, result, score)
     return pool_scores(scores, base, label=label, refiner_name=refiner_name,
                        seconds=time.perf_counter() - started)
 
@@ -756,7 +707,6 @@ Details: docs/accuracy.md.
 
 def collect_training_samples(frames: Iterable[LabelledFrame], base: DetectorParams, *,
                              max_pixels_per_frame: int | None = 20000, seed: int = 0,
-                             on_frame: Callable[[LabelledFrame], None] | None = None,
                              ) -> tuple[np.ndarray, np.ndarray]:
     """Refiner features and targets ``(X (M, 9), y (M,) bool)`` of labelled frames.
 
@@ -773,8 +723,4 @@ def collect_training_samples(frames: Iterable[LabelledFrame], base: DetectorPara
             x, y = x[pick], y[pick]
         xs.append(x)
         ys.append(y)
-        if on_frame is not None:
-            on_frame(frame)
-    if not xs:
-        raise ValueError('no training frames')
     return np.concatenate(xs), np.concatenate(ys)
