@@ -58,11 +58,6 @@ def test_pixel_confusion_excludes_no_return_and_unpredicted_pixels():
     assert metrics.pixel_confusion(pipeline, truth) == Confusion(tp=2, fp=1, fn=2, tn=1)
 
 
-def test_pixel_confusion_shape_mismatch():
-    with pytest.raises(ValueError, match=r'\(2, 2\)'):
-        metrics.pixel_confusion(np.zeros((2, 2), np.uint8), np.zeros((2, 3), np.uint8))
-
-
 def test_cell_confusion_on_hand_made_grids():
     o, f, u = CELL_OCCUPIED, CELL_FREE, CELL_UNKNOWN
     truth = np.array([[o, o, f, u],
@@ -127,8 +122,6 @@ def test_point_cells_bins_like_the_truth_grid():
     expected = np.zeros((2, 3), bool)
     expected[0, 0] = expected[1, 2] = True
     np.testing.assert_array_equal(cells, expected)
-    with pytest.raises(ValueError, match='resolution_m'):
-        metrics.point_cells(points, (0.0, 0.0), 0.0, (2, 3))
 
 
 def test_cell_share_counts_the_cells_hit_with_and_without_tolerance():
@@ -156,8 +149,6 @@ def test_surface_gap_points_fill_sparse_samples_of_one_surface_only():
     ids[0, 1] = 5   # another object: no surface between them
     assert metrics.surface_gap_points(points, ids, mask, step_m=0.05,
                                       max_gap_m=0.5).shape == (0, 3)
-    with pytest.raises(ValueError, match='step_m'):
-        metrics.surface_gap_points(points, ids, mask, step_m=0.0, max_gap_m=0.5)
 
 
 def test_tolerant_cells_count_a_mark_one_cell_off_and_not_two():
@@ -177,8 +168,3 @@ def test_tolerant_cells_count_a_mark_one_cell_off_and_not_two():
     assert strict.hit_truth == 0 and strict.far_alarms == 2
     pooled = tol + tol
     assert pooled.truth == 2 and pooled.far_alarm_rate == tol.far_alarm_rate
-
-
-def test_tolerant_cells_reject_grids_of_two_shapes():
-    with pytest.raises(ValueError, match='shape'):
-        metrics.tolerant_cells(np.zeros((2, 2), np.int8), np.zeros((3, 2), np.int8))

@@ -11,6 +11,7 @@ from obstacle_detection.evaluation import runner as evaluation
 from obstacle_detection.pipeline import geometry, mount
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.pipeline.params import KINECT_V2_SD, Intrinsics, table_4_2
+from obstacle_detection.evaluation.camera import read_camera_yaml
 from obstacle_detection.evaluation.datasets import read_depth_png
 from obstacle_detection.pipeline.detector import Detector
 from obstacle_detection.sim.primitives import Box, Floor, Wall
@@ -187,7 +188,7 @@ def test_cli_prints_the_mount_and_writes_a_params_file(tmp_path, capsys, tilted_
     params = evaluation.load_params_file(params_out)
     assert (params.camera_height_m, math.degrees(params.camera_pitch_rad),
             math.degrees(params.camera_roll_rad)) == pytest.approx((0.75, 20.0, -4.0), abs=0.02)
-    camera = evaluation.folder_camera(camera_out)
+    camera = read_camera_yaml(camera_out)
     assert camera.intrinsics == tilted_frame.intrinsics
     assert camera.depth_scale == scale
     assert camera.mount[0] == pytest.approx(params.camera_height_m, abs=1e-4)

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Score the obstacle detector against ground truth: per scenario and overall.
 
-Scores a scenario suite (``--suite seed|robot``) and/or labelled folders; ``--real DIR`` scores
+Scores a scenario suite (``--suite seed|robot``); ``--real DIR`` scores
 unlabelled real frames by their height above the floor, ``--sequence NAME`` the fused costmap
 over a scene sequence; ``--train-refiner OUT`` fits the seed's section 4.5 logistic refiner on
 some frames and scores it on the others. Prints a table and one JSON line (the last line of
@@ -39,7 +39,8 @@ def build_parser() -> argparse.ArgumentParser:
     """Return the command-line interface."""
     parser = argparse.ArgumentParser(
         prog='evaluate', description=__doc__.split('\n\n')[0],
-        epilog=evaluation.SCORE_DEFINITIONS, formatter_class=argparse.RawTextHelpFormatter)
+        epilog='what the scores count: docs/accuracy.md',
+        formatter_class=argparse.RawTextHelpFormatter)
     add_common_arguments(parser)
     refiner = parser.add_mutually_exclusive_group()
     refiner.add_argument('--refiner', type=Path, metavar='MODEL',

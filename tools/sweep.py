@@ -35,7 +35,7 @@ from obstacle_detection.cli.evaluation_args import (add_common_arguments, base_p
 def build_parser() -> argparse.ArgumentParser:
     """Return the command-line interface."""
     parser = argparse.ArgumentParser(prog='sweep', description=__doc__.split('\n\n')[0],
-                                     epilog=evaluation.SCORE_DEFINITIONS,
+                                     epilog='what the scores count: docs/accuracy.md',
                                      formatter_class=argparse.RawTextHelpFormatter)
     parser.add_argument('--x', type=parse_axis, required=True, metavar='NAME=V1,V2,...',
                         help='first axis (columns), e.g. theta_deg=15,20,30,45')

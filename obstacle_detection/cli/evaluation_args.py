@@ -37,11 +37,8 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
                              'robot-level truth, time-of-flight noise) [default: seed]')
     parser.add_argument('--scene', action='append', metavar='NAME',
                         help='evaluate only this scenario (repeatable) [default: all]')
-    parser.add_argument('--folder', action='append', type=Path, metavar='DIR',
-                        help='a labelled folder (depth/, labels/, intrinsics.yaml); '
-                             'repeatable; given alone, the suite is skipped unless --scene')
     parser.add_argument('--max-frames', type=int, metavar='N',
-                        help='at most N frames per scenario/folder, evenly spread')
+                        help='at most N frames per scenario, evenly spread')
     add_parameter_arguments(parser)
 
 
@@ -75,26 +72,15 @@ def base_params(args: argparse.Namespace) -> DetectorParams:
 
 def frame_sources(args: argparse.Namespace,
                   ) -> list[tuple[str, int, Iterable[evaluation.LabelledFrame]]]:
-    """(name, frame count, lazy frames) for each scenario and folder selected by the options."""
-    sources: list[tuple[str, int, Iterable[evaluation.LabelledFrame]]] = []
+    """(name, frame count, lazy frames) for each scenario selected by the options."""
     if args.max_frames is not None and args.max_frames < 1:
         raise tool_support.ToolError(f'--max-frames={args.max_frames} must be >= 1', usage=True)
-    if args.scene or not args.folder:
-        scenarios = evaluation.select_scenarios(evaluation.load_scenarios(SUITES[args.suite]),
-                                                args.scene)
-        rules = base_params(args)
-        for scenario in scenarios:
-            count = min(scenario.frame_count, args.max_frames or scenario.frame_count)
-            sources.append((scenario.name, count,
-                            LazyFrames(evaluation.scenario_frames, scenario,
-                                  max_frames=args.max_frames, rules=rules)))
-    for folder in args.folder or []:
-        count = len(evaluation.subsample(sorted((folder / 'depth').glob('*.png')),
-                                         args.max_frames))
-        sources.append((folder.name, count,
-                        LazyFrames(evaluation.load_labelled_folder, folder,
-                              max_frames=args.max_frames)))
-    return sources
+    scenarios = evaluation.select_scenarios(evaluation.load_scenarios(SUITES[args.suite]),
+                                            args.scene)
+    rules = base_params(args)
+    return [(s.name, min(s.frame_count, args.max_frames or s.frame_count),
+             LazyFrames(evaluation.scenario_frames, s, max_frames=args.max_frames, rules=rules))
+            for s in scenarios]
 
 
 class LazyFrames:

@@ -163,11 +163,8 @@ def diml_frames(sequence: Path, *, depth_kind: str = 'raw', intrinsics_path: Pat
     if not sequence.is_dir():
         raise EvaluationError(f'{sequence}: DIML sequence folder not found')
     if not depth_dir.is_dir():
-        found = sorted(p.parent for p in sequence.rglob(folder) if p.is_dir())
-        hint = (f'; sequence folders below it: {", ".join(map(str, found[:5]))}'
-                + (' ...' if len(found) > 5 else '')) if found else ''
         raise EvaluationError(f'{depth_dir}: DIML {depth_kind} depth folder not found '
-                              f'(pass a <scene>/<date>/<n> folder){hint}')
+                              '(pass a <scene>/<date>/<n> folder)')
     depth = _files_with_suffix(depth_dir, suffix)
     if not depth:
         raise EvaluationError(f'{depth_dir}: no *{suffix} depth images')
@@ -356,8 +353,9 @@ def tum_frames(root: Path, *, camera: str | None = None, intrinsics_path: Path |
             origin = f'from {calibration}'
         else:
             intr, origin = TUM_CAMERAS['ros'], 'ROS default camera'
-            _warn(f'no intrinsics for {root}: using the ROS default camera fx=fy=525 '
-                  'cx=319.5 cy=239.5; pass --camera fr1|fr2|fr3 or --intrinsics FILE')
+            print(f'warning: no intrinsics for {root}: using the ROS default camera fx=fy=525 '
+                  'cx=319.5 cy=239.5; pass --camera fr1|fr2|fr3 or --intrinsics FILE',
+                  file=sys.stderr)
     return FrameSource(frames, intr, origin, size, depth_units_per_m=TUM_DEPTH_UNITS_PER_M,
                        depth_units_origin='the TUM format', dropped=dropped, notes=notes)
 
@@ -375,20 +373,10 @@ def stamps_from_names(root: Path, kind: str) -> list[tuple[float, str]]:
                if (m := TUM_STAMP_NAME.match(name))]
     if found and len(stamped) == len(found):
         return sorted(stamped)
-    # name the files the list should hold: those of the sub-folder, else the PNGs beside it
-    # whose names say what they are
-    files = [f'{kind}/{name}' for name in found] or sorted(
-        p.name for p in root.glob('*.png')
-        if (kind == 'depth') == ('depth' in p.name.lower()))
-    lines = ''.join(f'{k / 30.0:.6f} {name}\\n' for k, name in enumerate(files[:3]))
-    example = (f"e.g. printf '{lines}' > {listed}" + (' (one line per file)' if len(files) > 3
-                                                      else '')) if files else \
-        f'no {kind} PNG found in {root}'
-    other = ('; rgb.txt likewise for the colour images' if kind == 'depth' else '') + \
-        ', or --no-color to leave colour out'
     raise EvaluationError(f'{listed}: not found, and no {folder}/<seconds>.png names give the '
-                          f'stamps: write it, one "timestamp filename" line per {kind} image, '
-                          f'{example}{other}')
+                          f'stamps: write it, one "timestamp filename" line per {kind} image'
+                          f'{" (rgb.txt likewise)" if kind == "depth" else ""}, or leave '
+                          'colour out with --no-color')
 
 
 def read_depth_png(path: str | Path, *,
@@ -428,7 +416,3 @@ def read_color(path: Path, encoding: str) -> np.ndarray:
         image = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
     return image
 
-
-def _warn(text: str) -> None:
-    """Print a ``warning: ...`` line on stderr, as the tools do (a default chosen, ...)."""
-    print(f'warning: {text}', file=sys.stderr)

@@ -1,7 +1,7 @@
 """Run the detector over labelled frames and score it: the scenario suite runner of the tools.
 
-Frames come from the scene generator (``scenarios.json``, ``scenarios_robot.json``) or a
-labelled folder on disk (layout in docs/accuracy.md). What counts: :mod:`.metrics`.
+Frames come from the scene generator (``scenarios.json``, ``scenarios_robot.json``). What
+counts: :mod:`.metrics`.
 """
 
 from __future__ import annotations
@@ -14,17 +14,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator, Sequence
 
-import cv2
 import numpy as np
 
-from obstacle_detection.labels import (CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN, GT_ABOVE_ROBOT,
-                                       GT_NO_RETURN, GT_OBSTACLE, GT_TRAVERSABLE)
+from obstacle_detection.labels import (CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN, GT_NO_RETURN,
+                                       GT_OBSTACLE, GT_TRAVERSABLE)
 from obstacle_detection.pipeline import geometry
 from obstacle_detection.sim.noise import NOISE_MODELS
-from . import EvaluationError, camera as camera_file
+from . import EvaluationError
 from . import metrics
 from .camera import scaled_intrinsics
-from .datasets import read_depth_png
 from .metrics import Confusion, TolerantCells, format_score
 from obstacle_detection.pipeline.params import (KINECT_V2_SD, KINECT_V2_SD_SIZE, PRESETS,
                                                 DetectorParams, Intrinsics)
@@ -51,7 +49,6 @@ class LabelledFrame:
     height_m: float
     pitch_rad: float
     roll_rad: float
-    depth_scale: float | None = None
     sequence_key: str | None = None  # frames sharing a key form a time sequence, in order
     truth: str = 'seed'  # 'seed': slope-only labels; 'robot': robot-level labels (issue 9)
     object_ids: np.ndarray | None = None   # (H, W) int16 primitive hit, -1 none (generator)
@@ -177,59 +174,6 @@ def subsample(items: Sequence[Any], max_items: int | None) -> list[Any]:
         raise ValueError(f'max_items={max_items} must be >= 1')
     picks = np.unique(np.linspace(0, len(items) - 1, max_items).round().astype(int))
     return [items[i] for i in picks]
-
-
-# --------------------------------------------------------------------------------------------
-# Labelled folders
-
-
-def folder_camera(path: str | Path) -> camera_file.CameraFile:
-    """Return the camera of a labelled folder's ``intrinsics.yaml`` (EvaluationError: no mount)."""
-    camera = camera_file.read_camera_yaml(path)
-    if camera.mount is None:
-        raise EvaluationError('missing camera_height_m (the mount height above ground)', path)
-    return camera
-
-
-def load_labelled_folder(path: str | Path, *, max_frames: int | None = None,
-                         ) -> Iterator[LabelledFrame]:
-    """Frames of a labelled folder, in file-name order (a time sequence).
-
-    The true points are the frame's own depth back-projected through the mount.
-    """
-    root = Path(path)
-    camera = folder_camera(root / 'intrinsics.yaml')
-    depth_files = sorted((root / 'depth').glob('*.png'))
-    if not depth_files:
-        raise ValueError(f'{root}: no depth/*.png')
-    missing = [f.name for f in depth_files if not (root / 'labels' / f.name).is_file()]
-    if missing:
-        raise ValueError(f'{root}: no labels/ file for depth/{missing[0]} '
-                         f'({len(missing)} missing)')
-    scale = camera.depth_scale if camera.depth_scale is not None else 0.001
-    height_m, pitch_rad, roll_rad = camera.mount
-    params = DetectorParams(camera_height_m=height_m, camera_pitch_rad=pitch_rad,
-                            camera_roll_rad=roll_rad)
-    for depth_file in subsample(depth_files, max_frames):
-        depth = read_depth_png(depth_file)
-        label_file = root / 'labels' / depth_file.name
-        labels = cv2.imread(str(label_file), cv2.IMREAD_UNCHANGED)
-        if labels is None or labels.dtype != np.uint8 or labels.shape != depth.shape:
-            raise ValueError(f'{label_file}: not an 8-bit PNG of the depth size '
-                             f'{depth.shape[::-1]}')
-        if labels.max(initial=0) > GT_ABOVE_ROBOT:
-            raise ValueError(f'{label_file}: label value {int(labels.max())} '
-                             '(allowed 0, 1, 2, 3)')
-        points, index = geometry.back_project(depth.astype(np.float32) * np.float32(scale),
-                                              camera.intrinsics)
-        truth_points = np.full((depth.size, 3), np.nan, dtype=np.float32)
-        truth_points[index] = geometry.to_ground(points, params)
-        yield LabelledFrame(
-            scenario=root.name, frame_id=depth_file.stem, depth=depth,
-            intrinsics=camera.intrinsics, truth_labels=labels,
-            truth_points=truth_points.reshape(depth.shape + (3,)), height_m=height_m,
-            pitch_rad=pitch_rad, roll_rad=roll_rad, depth_scale=camera.depth_scale,
-            sequence_key=root.name)
 
 
 # --------------------------------------------------------------------------------------------
@@ -560,8 +504,7 @@ def detect_frames(frames: Iterable[LabelledFrame], base: DetectorParams,
     mask: np.ndarray | None = None
     for frame in frames:
         params = frame.params(base)
-        result = detector(params).process(frame.depth, frame.intrinsics,
-                                          depth_scale=frame.depth_scale)
+        result = detector(params).process(frame.depth, frame.intrinsics)
         same = frame.sequence_key is not None and key == frame.sequence_key
         yield frame, params, result, mask if same else None
         key, mask = frame.sequence_key, refine.obstacle_mask(result)
@@ -686,19 +629,6 @@ def format_robot_table(report: Report) -> str:
     lines.append('targets: ' + ', '.join(f'{name} {"yes" if ok else "NO"}'
                                          for name, ok in checks))
     return '\n'.join(lines)
-
-
-#: The short form of docs/accuracy.md, "What the scores count" (the tools' --help).
-SCORE_DEFINITIONS = """\
-What counts (obstacle = positive class; a row pools the counts of its frames):
-  pixel: pixels where the truth saw a surface and the pipeline called ground or obstacle;
-  cell:  the costmap's cells against a truth grid of the noise-free points (unknown cells are
-         not scored). P precision, R recall, F1, IoU, FA false-alarm rate fp/(fp+tn): the
-         share of traversable truth marked obstacle. '-' = undefined.
-Robot-level suite (--suite robot): objects found (>= 50 % of their cells occupied) / seen,
-  pass %: passable surfaces left free; drops marked; 1-cell: a mark within one cell counts.
-Details: docs/accuracy.md.
-"""
 
 
 # --------------------------------------------------------------------------------------------
