@@ -80,9 +80,8 @@ def build_parser() -> argparse.ArgumentParser:
     video.add_argument('--exact-odometry', action='store_true',
                        help='odometry without drift or noise (the true poses)')
     video.add_argument('--sheet', type=Path, metavar='PNG',
-                       help='write a contact sheet of per-frame and fused grids over time')
-    video.add_argument('--sheet-frames', type=int, default=4, metavar='N',
-                       help='moments per sequence on the sheet [default: 4]')
+                       help='write a contact sheet of per-frame and fused grids at 8 moments '
+                            'of each sequence')
     return parser
 
 
@@ -161,8 +160,7 @@ def _score_sequences(args: Any, params: DetectorParams) -> int:
     from obstacle_detection.pipeline.fusion import FusionParams
     from obstacle_detection.sim.sequences import PERFECT_ODOMETRY, OdometryModel, SceneSequence
 
-    for name, value, low in (('--frames', args.frames, 1), ('--seed', args.seed, 0),
-                             ('--sheet-frames', args.sheet_frames, 1)):
+    for name, value, low in (('--frames', args.frames, 1), ('--seed', args.seed, 0)):
         if value is not None and value < low:   # one error line, no usage block
             raise tool_support.ToolError(f'argument {name}: {value} must be >= {low}',
                                          usage=True)
@@ -183,7 +181,7 @@ def _score_sequences(args: Any, params: DetectorParams) -> int:
                                  if args.exact_odometry else OdometryModel())
         reports.append(video.evaluate_sequence(
             sequence, params, fusion, stop=args.frames,
-            sheet_frames=args.sheet_frames if args.sheet is not None else 0,
+            sheet_frames=8 if args.sheet is not None else 0,
             on_frame=progress))
     out = sys.stderr if args.json == '-' else sys.stdout
     print(f'parameters: {_label(args)}; fusion: {fusion}', file=out)

@@ -88,12 +88,8 @@ class Scenario:
 
     def render_kwargs(self) -> dict[str, float]:
         """Keyword arguments of ``scenes.render_scene`` for the mount overrides."""
-        mount = dict(self.mount)
-        out = {'height_m': float(mount['height_m'])} if 'height_m' in mount else {}
-        for key in ('pitch_deg', 'roll_deg'):
-            if key in mount:
-                out[key.replace('_deg', '_rad')] = math.radians(mount[key])
-        return out
+        return {k.replace('_deg', '_rad'): math.radians(v) if k.endswith('_deg') else float(v)
+                for k, v in self.mount}
 
 
 def scenario_from_dict(entry: dict[str, Any]) -> Scenario:
@@ -170,8 +166,6 @@ def subsample(items: Sequence[Any], max_items: int | None) -> list[Any]:
     items = list(items)
     if max_items is None or max_items >= len(items):
         return items
-    if max_items <= 0:
-        raise ValueError(f'max_items={max_items} must be >= 1')
     picks = np.unique(np.linspace(0, len(items) - 1, max_items).round().astype(int))
     return [items[i] for i in picks]
 
@@ -282,7 +276,7 @@ def truth_costmap(frame: LabelledFrame, params: DetectorParams,
     grid = build_costmap(obstacle, traversable, params).data
     origin, nx, ny = costmap_geometry(params)
     res = params.costmap_resolution_m
-    if frame.truth == 'robot' and frame.object_ids is not None:
+    if frame.truth == 'robot':
         # A surface seen at a grazing angle (a table's underside) is sampled in sparse rows:
         # the cells between its samples are neither known free nor sampled: not scored.
         gaps = metrics.surface_gap_points(
@@ -291,7 +285,6 @@ def truth_costmap(frame: LabelledFrame, params: DetectorParams,
             max_gap_m=MAX_SURFACE_GAP_M)
         covered = metrics.point_cells(gaps, origin, res, (ny, nx))
         grid[covered & (grid != CELL_OCCUPIED)] = CELL_UNKNOWN
-    if frame.truth == 'robot' and frame.hit_labels is not None:
         # an obstacle in view whose pixels returned no depth still stands in its cells
         hidden = roi & (frame.hit_labels == GT_OBSTACLE) & (frame.truth_labels == GT_NO_RETURN)
         cells = metrics.point_cells(frame.truth_points[hidden], origin, res, (ny, nx))
@@ -328,38 +321,28 @@ def robot_score(frame: LabelledFrame, predicted_grid: np.ndarray, params: Detect
     from obstacle_detection.pipeline.costmap import costmap_geometry
 
     score = RobotScore(tolerant=metrics.tolerant_cells(predicted_grid, truth_grid, cells=1))
-    if frame.object_ids is None or not frame.object_names:
-        return score
     origin, nx, ny = costmap_geometry(params)
     res = params.costmap_resolution_m
     seen = roi & (frame.truth_labels != GT_NO_RETURN)
-    edge = frame.drop_edge if frame.drop_edge is not None else np.zeros(seen.shape, bool)
     names = frame.object_names
     occupied = predicted_grid == CELL_OCCUPIED
+    near_occupied = metrics.grow_cells(occupied, DROP_TOLERANCE_CELLS)
     for name in dict.fromkeys(n for n in names if n):
-        ids = [i for i, n in enumerate(names) if n == name]
-        everywhere = np.isin(frame.object_ids, ids)
+        everywhere = np.isin(frame.object_ids, [i for i, n in enumerate(names) if n == name])
         mine = seen & everywhere
-        if (edge & everywhere).any():   # a drop, even with its edge out of range
-            cells = metrics.point_cells(frame.truth_points[edge & mine], origin, res, (ny, nx))
-            hits, total = metrics.cell_share(
-                metrics.grow_cells(occupied, DROP_TOLERANCE_CELLS), cells)
-            if total >= MIN_OBJECT_CELLS:
-                score.drops.append((name, hits, total))
-            continue
         obstacle = mine & (frame.truth_labels == GT_OBSTACLE)
         traversable = mine & (frame.truth_labels == GT_TRAVERSABLE)
-        if np.count_nonzero(obstacle) >= np.count_nonzero(traversable):
-            cells = metrics.point_cells(frame.truth_points[obstacle], origin, res, (ny, nx))
-            hits, total = metrics.cell_share(occupied, cells)
-            if total >= MIN_OBJECT_CELLS:
-                score.objects.append((name, hits, total))
-        else:
-            cells = metrics.point_cells(frame.truth_points[traversable], origin, res, (ny, nx))
-            cells &= truth_grid == CELL_FREE
-            hits, total = metrics.cell_share(predicted_grid == CELL_FREE, cells)
-            if total >= MIN_OBJECT_CELLS:
-                score.passable.append((name, hits, total))
+        if (frame.drop_edge & everywhere).any():   # a drop, even with its edge out of range
+            entries, pixels, hit, known = score.drops, frame.drop_edge & mine, near_occupied, True
+        elif np.count_nonzero(obstacle) >= np.count_nonzero(traversable):
+            entries, pixels, hit, known = score.objects, obstacle, occupied, True
+        else:   # passable: its free truth cells left free
+            entries, pixels = score.passable, traversable
+            hit, known = predicted_grid == CELL_FREE, truth_grid == CELL_FREE
+        cells = metrics.point_cells(frame.truth_points[pixels], origin, res, (ny, nx)) & known
+        hits, total = metrics.cell_share(hit, cells)
+        if total >= MIN_OBJECT_CELLS:
+            entries.append((name, hits, total))
     return score
 
 

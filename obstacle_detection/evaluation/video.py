@@ -187,8 +187,6 @@ class _Lattice:
         """(rows, cols) of a fused window with that origin cell and side."""
         c0 = origin_cell[0] - self.origin_cell[0]
         r0 = origin_cell[1] - self.origin_cell[1]
-        if c0 < 0 or r0 < 0 or c0 + n > self.shape[1] or r0 + n > self.shape[0]:
-            raise ValueError('the fused window left the evaluation lattice')
         return slice(r0, r0 + n), slice(c0, c0 + n)
 
     def evidence_grid(self, costmap: Costmap, pose: tuple[float, float, float]) -> np.ndarray:
@@ -432,8 +430,6 @@ def score_sequence(name: str, observations: Sequence[Observation],
     sheet_frames: when > 0, draw a contact sheet of that many moments.
     """
     fusion = fusion if fusion is not None else FusionParams()
-    if not observations:
-        raise ValueError(f'{name}: no frame to score')
     scorer = _Scorer(observations, fusion, sheet_frames)
     for step, obs in enumerate(observations):
         scorer.add(step, obs, rate_hz)
