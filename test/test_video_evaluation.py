@@ -48,7 +48,7 @@ def observe(index, pose, obstacles, *, false_hits=()):
         row, col, inside = truth.cell_of(np.array([[x, y]]))
         detected[row[0], col[0]] = 100
     costmap = type(truth)(detected, truth.resolution_m, truth.origin_xy_m)
-    return Observation(index=index, stamp_s=index / 30, pose_true=pose, pose_odom=pose,
+    return Observation(index=index, pose_true=pose, pose_odom=pose,
                        costmap=costmap, truth_obstacle=obstacle, truth_traversable=ground,
                        truth_costmap=truth.data)
 
@@ -145,8 +145,6 @@ def test_tool_scores_a_few_frames_and_draws_the_sheet(tmp_path):
 
 @pytest.mark.parametrize('args, code, words', [
     (['--frames', '0'], 2, 'argument --frames'),
-    (['--fusion', 'hit_log_odds=-1'], 2, 'hit_log_odds'),
-    (['--fusion', 'colour=1'], 2, 'colour'),
     (['--params-file', 'no/such.yaml'], 1, 'error: .*no/such.yaml'),
     (['--sheet', 'out.jpg'], 1, 'error: out.jpg: .*png'),
 ])

@@ -20,7 +20,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from obstacle_detection.cli.evaluation_args import (REAL_FRAMES, add_common_arguments,
-                                                   base_params, frame_sources, parse_assignment)
+                                                   base_params, frame_sources)
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.evaluation import runner as evaluation
 from obstacle_detection.fleet import scoring
@@ -70,11 +70,6 @@ def build_parser() -> argparse.ArgumentParser:
     video.add_argument('--sequence', action='append', choices=(*SEQUENCE_NAMES, 'all'),
                        help='instead, score the fused costmap over this scene sequence '
                             "(repeatable; 'all': every one); docs/accuracy.md says what counts")
-    video.add_argument('--fusion', action='append', type=parse_assignment, default=[],
-                       metavar='KEY=NUMBER',
-                       help='a FusionParams field (size_m, resolution_m, hit_log_odds, '
-                            'miss_log_odds, min_log_odds, max_log_odds, occupied_log_odds, '
-                            'free_log_odds, max_jump_m, max_jump_deg); repeatable')
     video.add_argument('--frames', type=int, metavar='N',
                        help='only the first N frames of each sequence')
     video.add_argument('--exact-odometry', action='store_true',
@@ -129,7 +124,7 @@ def _train_refiner(args: Any, params: DetectorParams, sources: Any) -> tuple[lis
 
     Return the other frames (held out) as the one source to score, and the model.
     """
-    from obstacle_detection.pipeline.refine import LogisticRefiner
+    from obstacle_detection.pipeline.refine import LogisticRefiner, training_samples
 
     frames = [f for _, _, source in sources for f in source]
     if not 1 <= args.train_frames < len(frames) or args.max_pixels < 1:
@@ -139,8 +134,15 @@ def _train_refiner(args: Any, params: DetectorParams, sources: Any) -> tuple[lis
     chosen = {id(f) for f in evaluation.subsample(frames, args.train_frames)}
     train = [f for f in frames if id(f) in chosen]
     held_out = [f for f in frames if id(f) not in chosen]
-    x, y = evaluation.collect_training_samples(
-        train, params, max_pixels_per_frame=args.max_pixels, seed=args.seed)
+    rng, xs, ys = np.random.default_rng(args.seed), [], []
+    for frame, _, result, prev_mask in evaluation.detect_frames(train, params):
+        x, y = training_samples(result, frame.truth_labels, prev_mask)
+        if y.size > args.max_pixels:   # drawn without replacement
+            pick = rng.choice(y.size, size=args.max_pixels, replace=False)
+            x, y = x[pick], y[pick]
+        xs.append(x)
+        ys.append(y)
+    x, y = np.concatenate(xs), np.concatenate(ys)
     model = LogisticRefiner.fit(x, y, l2=args.l2, preset=args.preset, train_frames=len(train),
                                 train_scenarios=sorted({f.scenario for f in train}))
     model.save(args.train_refiner)
@@ -164,10 +166,7 @@ def _score_sequences(args: Any, params: DetectorParams) -> int:
         if value is not None and value < low:   # one error line, no usage block
             raise tool_support.ToolError(f'argument {name}: {value} must be >= {low}',
                                          usage=True)
-    try:
-        fusion = FusionParams(**{key: float(value) for key, value in args.fusion})
-    except (TypeError, ValueError) as exc:
-        raise tool_support.ToolError(f'argument --fusion: {exc}', usage=True) from None
+    fusion = FusionParams()
     if args.sheet is not None and args.sheet.suffix.lower() != '.png':
         raise tool_support.ToolError(args.sheet, 'the contact sheet must be a .png file')
     reports = []

@@ -327,14 +327,9 @@ def tum_frames(root: Path, *, camera: str | None = None, intrinsics_path: Path |
         paired = np.abs(rgb_t[best] - depth_t) <= max_difference_s
         for k in np.flatnonzero(paired):
             color_for[k] = root / rgb[best[k]][1]
-        used = set(best[paired].tolist())
         if rgb and not paired.all():
             dropped[f'no colour frame within {max_difference_s:g} s of the depth frame '
                     '(kept without colour)'] = int(np.count_nonzero(~paired))
-        if len(rgb) > len(used):
-            notes.append(f'{len(rgb) - len(used)} colour frames not nearest to any depth frame '
-                         'were not written')
-        notes.append('colour is stamped with the stamp of the depth frame it is paired with')
     elif with_color:
         notes.append(f'{rgb_list} not found: no colour written')
     frames = [Frame(stamp_ns(t), root / name, color_for[k]) for k, (t, name) in enumerate(depth)]

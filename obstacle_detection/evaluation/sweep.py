@@ -49,14 +49,11 @@ def parse_axis(text: str) -> Axis:
 
 def best_of_grid(scores: np.ndarray, *, higher_is_better: bool = True,
                  ) -> tuple[int, ...] | None:
-    """Index of the best finite score (first in row-major order), None when none is finite."""
+    """Index of the best score, NaN aside (first in row-major order); None when all are NaN."""
     grid = np.asarray(scores, dtype=np.float64)
-    finite = np.isfinite(grid)
-    if not finite.any():
+    if np.isnan(grid).all():
         return None
-    fill = -np.inf if higher_is_better else np.inf
-    masked = np.where(finite, grid, fill)
-    flat = int(np.argmax(masked) if higher_is_better else np.argmin(masked))
+    flat = np.nanargmax(grid) if higher_is_better else np.nanargmin(grid)
     return tuple(int(i) for i in np.unravel_index(flat, grid.shape))
 
 

@@ -245,7 +245,6 @@ class Observation:
     """One frame of a sequence: true and odometry poses, the costmap, the truth."""
 
     index: int
-    stamp_s: float
     pose_true: tuple[float, float, float]
     pose_odom: tuple[float, float, float] | None
     costmap: Costmap
@@ -271,7 +270,7 @@ def observe_sequence(sequence: SceneSequence, base: DetectorParams, *,
         obstacle, traversable = metrics.truth_points(points, sf.frame.labels,
                                                      points_roi(points, params))
         truth = build_costmap(obstacle, traversable, params).data
-        yield Observation(index=index, stamp_s=sf.stamp_s, pose_true=sf.pose_true,
+        yield Observation(index=index, pose_true=sf.pose_true,
                           pose_odom=sf.pose_odom, costmap=result.costmap,
                           truth_obstacle=obstacle, truth_traversable=traversable,
                           truth_costmap=truth)
