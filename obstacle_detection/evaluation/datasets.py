@@ -42,9 +42,6 @@ DIML_DEPTH_KINDS = {  # --depth choice -> (folder, file suffix)
     'up': ('up_png', '_ud.png'),
     'warp': ('warp_png', '_wd.png'),
 }
-DIML_COLOR = ('col', '_c.png')
-DIML_SAMPLE_COLOR = ('color', '_c.png')
-DIML_SAMPLE_DEPTH = ('depth_filled', '_depth_filled.png')
 
 
 @dataclasses.dataclass(frozen=True)
@@ -176,9 +173,9 @@ def diml_frames(sequence: Path, *, depth_kind: str = 'raw', intrinsics_path: Pat
             raise EvaluationError(f'{path}: no frame number before {suffix} in the file name')
         frames_index[key] = int(match.group(1))
     color: dict[str, Path] = {}
-    color_dir = sequence / DIML_COLOR[0]
+    color_dir = sequence / 'col'
     if with_color and color_dir.is_dir():
-        color = _files_with_suffix(color_dir, DIML_COLOR[1])
+        color = _files_with_suffix(color_dir, '_c.png')
         _pair_by_key(depth, color, depth_dir, color_dir)
     intr, origin, size = _optional_intrinsics(intrinsics_path)
     start_ns = stamp_ns(start_s)
@@ -203,7 +200,7 @@ def diml_sample_frames(root: Path, *, resolution: str = 'LR',
     _check_rate(rate_hz)
     if not root.is_dir():
         raise EvaluationError(f'{root}: DIML sample folder not found')
-    name = DIML_SAMPLE_DEPTH[0]
+    name = 'depth_filled'
     depth_dirs = sorted({p for p in [root / name, *root.rglob(name)] if p.is_dir()})
     # Below a split folder both HR and LR exist: keep the chosen one.
     parts = {part for p in depth_dirs for part in p.relative_to(root).parts}
@@ -212,18 +209,18 @@ def diml_sample_frames(root: Path, *, resolution: str = 'LR',
         if not depth_dirs:
             raise EvaluationError(f'{root}: no {resolution}/ folder below it')
     if not depth_dirs:
-        raise EvaluationError(f'{root}: no {DIML_SAMPLE_DEPTH[0]}/ folder below it '
+        raise EvaluationError(f'{root}: no {name}/ folder below it '
                               f'(expected <split>/{{HR,LR}}/<scene>/{{color,depth_filled}})')
     frames: list[Frame] = []
     for depth_dir in depth_dirs:
-        depth = _files_with_suffix(depth_dir, DIML_SAMPLE_DEPTH[1])
+        depth = _files_with_suffix(depth_dir, '_depth_filled.png')
         if not depth:
-            raise EvaluationError(f'{depth_dir}: no *{DIML_SAMPLE_DEPTH[1]} depth images')
+            raise EvaluationError(f'{depth_dir}: no *_depth_filled.png depth images')
         color: dict[str, Path] = {}
         if with_color:
-            color_dir = depth_dir.parent / DIML_SAMPLE_COLOR[0]
+            color_dir = depth_dir.parent / 'color'
             _require_dir(color_dir, 'DIML sample colour')
-            color = _files_with_suffix(color_dir, DIML_SAMPLE_COLOR[1])
+            color = _files_with_suffix(color_dir, '_c.png')
             _pair_by_key(depth, color, depth_dir, color_dir)
         for key, path in depth.items():
             stamp = stamp_ns(start_s) + stamp_ns(len(frames) / rate_hz)

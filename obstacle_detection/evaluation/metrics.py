@@ -35,11 +35,6 @@ class Confusion:
                          self.tn + other.tn)
 
     @property
-    def total(self) -> int:
-        """Number of evaluated samples."""
-        return self.tp + self.fp + self.fn + self.tn
-
-    @property
     def precision(self) -> float:
         """Precision tp / (tp + fp); NaN when nothing was predicted positive."""
         return _ratio(self.tp, self.tp + self.fp)
@@ -67,7 +62,7 @@ class Confusion:
     @property
     def accuracy(self) -> float:
         """(tp + tn) / total."""
-        return _ratio(self.tp + self.tn, self.total)
+        return _ratio(self.tp + self.tn, self.tp + self.fp + self.fn + self.tn)
 
     def as_dict(self) -> dict[str, float]:
         """Return the counts and every ratio in one flat dict (NaN stays NaN)."""

@@ -134,7 +134,6 @@ def scenario_frames(scenario: Scenario, *, max_frames: int | None = None,
     # the generator is only needed for synthetic frames
     from obstacle_detection.sim import scenes
 
-    truth = scenario.truth
     jobs = [(seed, index) for seed in scenario.seeds
             for index in (scenario.frames if scenario.frames is not None else (0,))]
     jobs = subsample(jobs, max_frames)
@@ -150,13 +149,13 @@ def scenario_frames(scenario: Scenario, *, max_frames: int | None = None,
         yield LabelledFrame(
             scenario=scenario.name, frame_id=frame_id, depth=frame.depth_mm,
             intrinsics=frame.intrinsics,
-            truth_labels=frame.labels if truth == 'robot' else frame.labels_seed,
+            truth_labels=frame.labels if scenario.truth == 'robot' else frame.labels_seed,
             truth_points=frame.points_ground, height_m=frame.height_m,
             pitch_rad=frame.pitch_rad, roll_rad=frame.roll_rad,
             sequence_key=f'{scenario.name}/{seed}' if scenario.is_sequence else None,
-            truth=truth, object_ids=frame.object_ids, object_names=frame.object_names,
+            truth=scenario.truth, object_ids=frame.object_ids, object_names=frame.object_names,
             drop_edge=frame.drop_edge,
-            hit_labels=frame.hit_labels if truth == 'robot' else None)
+            hit_labels=frame.hit_labels if scenario.truth == 'robot' else None)
 
 
 
@@ -544,17 +543,13 @@ def _score_column(head: str, kind: str, attr: str, refined: bool = False, width:
     return head, width, cell
 
 
-def _frames(summary: SceneSummary) -> str:
-    return str(summary.frames)
-
-
 def _percent(value: float, digits: int = 2) -> str:
     return '-' if math.isnan(value) else f'{100 * value:.{digits}f}'
 
 
 def format_table(report: Report, *, refined: bool = False) -> str:
     """Return a fixed-width table: one row per scenario and an 'overall' row."""
-    columns = [('frames', 6, _frames)] + [
+    columns = [('frames', 6, lambda s: str(s.frames))] + [
         _score_column(head, kind, attr, refined) for head, kind, attr in (
             ('px P', 'pixel', 'precision'), ('px R', 'pixel', 'recall'),
             ('px F1', 'pixel', 'f1'), ('px FA', 'pixel', 'false_alarm_rate'),
@@ -579,7 +574,7 @@ def format_robot_table(report: Report) -> str:
         return summary.robot.tolerant if summary.robot else TolerantCells()
 
     lines = _table(report, [
-        ('frames', 6, _frames), _score_column('cell F1', 'cell', 'f1'),
+        ('frames', 6, lambda s: str(s.frames)), _score_column('cell F1', 'cell', 'f1'),
         ('F1 1-cell', 9, lambda s: format_score(tolerant(s).f1)),
         ('FA %', 6, lambda s: _percent(s.cell.false_alarm_rate)),
         ('FA>1 cell %', 11, lambda s: _percent(tolerant(s).far_alarm_rate)),

@@ -96,13 +96,10 @@ class SweepResult:
         return best_of_grid(grid, higher_is_better=higher)
 
 
-#: Scores parameter points: each point's frame scores, in the order of the points.
-Scorer = Callable[[list[DetectorParams]], list[list[evaluation.FrameScore]]]
-
-
-def grid_sweep(score: Scorer, base: DetectorParams, x: Axis, y: Axis | None,
-               metric: str = 'cell_f1', *, log: Callable[[str], None] = print) -> SweepResult:
-    """Score every setting of the grid on ``base`` with ``score`` (one call, valid points).
+def grid_sweep(score: Callable[[list[DetectorParams]], list[list[evaluation.FrameScore]]],
+               base: DetectorParams, x: Axis, y: Axis | None, metric: str = 'cell_f1', *,
+               log: Callable[[str], None] = print) -> SweepResult:
+    """Score every setting of the grid on ``base``: ``score(points)`` gives their frame scores.
 
     A value DetectorParams refuses leaves its cell NaN; an unknown name raises (usage).
     """
