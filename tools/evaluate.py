@@ -64,7 +64,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--real', type=Path, metavar='DIR',
                         help='instead, score the real frames of DIR (tum_office/, '
                              'tum_fr2_desk/, dining_room/) by height above the fitted floor')
-    parser.add_argument('--quiet', action='store_true', help='no per-frame progress lines')
+    parser.add_argument('--quiet', action='store_true', help='no progress lines')
     add_fleet_arguments(parser)
     video = parser.add_argument_group('the fused costmap over scene sequences (--sequence)')
     video.add_argument('--sequence', action='append', choices=(*SEQUENCE_NAMES, 'all'),
