@@ -478,7 +478,7 @@ def test_floor_samples_ignore_no_return():
     depth = frame.depth_m
     depth[:, :256] = np.nan
     depth[:, 256:300] = 0.0
-    rays = geometry.ground_rays(depth.shape, frame.intrinsics, params)
+    rays = geometry.ray_model(depth.shape, frame.intrinsics, params)
     pts = floor.floor_samples(depth, floor.sample_rays(rays, depth.shape), params)
     assert pts.shape[1] > 100 and np.isfinite(pts).all()
     assert np.abs(pts[2]).max() < 0.05
@@ -516,10 +516,13 @@ def test_drop_pixels_kernel_equals_the_numpy_mask(shape, both_paths):
     depth = rng.uniform(0.5, 2.5, size=shape).astype(np.float32)
     depth[rng.random(shape) < 0.1] = 0.0
     depth.reshape(-1)[::17] = np.nan
-    rz = rng.uniform(-0.6, 0.1, size=shape).astype(np.float32)
-    pixels, offsets = both_paths(traversal._drop_pixels, depth, rz.reshape(-1), 0.6, 0.05,
-                                 0.05, 3)
-    mask = traversal.drop_edge_mask(depth, rz, 0.6, 0.05, 0.05, 3)
+    rot = np.eye(3)
+    rot[2] = (0.3, 0.3, -0.25)                            # the rays' z between -0.6 and 0.1
+    rays = geometry.GroundRays(rng.uniform(-0.6, 0.6, shape[1]),
+                               rng.uniform(-0.5, 0.5, shape[0]), rot)
+    pixels, offsets = both_paths(traversal._drop_pixels, depth, rays.ru, rays.rv, rays.rot,
+                                 0.6, 0.05, 0.05, 3)
+    mask = traversal.drop_edge_mask(depth, rays.table()[2], 0.6, 0.05, 0.05, 3)
     np.testing.assert_array_equal(pixels, np.flatnonzero(mask))
     np.testing.assert_array_equal(offsets, mask.reshape(-1)[np.flatnonzero(mask)])
     assert pixels.dtype == np.int64

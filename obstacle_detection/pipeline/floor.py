@@ -82,14 +82,9 @@ def configured(params: DetectorParams, reason: str) -> FloorFit:
                     params.camera_roll_rad, reason=reason)
 
 
-def sample_rays(rays: np.ndarray | GroundRays, shape: tuple[int, int]) -> np.ndarray:
-    """Return (3, M) float32: the rays (a table or GroundRays) of the sampled pixel grid."""
-    step = sample_step(shape)
-    if isinstance(rays, GroundRays):
-        return np.ascontiguousarray(rays.subsampled(step).table())
-    height, width = shape
-    sub = rays.reshape(3, height, width)[:, ::step, ::step]
-    return np.ascontiguousarray(sub.reshape(3, -1))
+def sample_rays(rays: GroundRays, shape: tuple[int, int]) -> np.ndarray:
+    """Return (3, M) float32: the rays of the sampled pixel grid."""
+    return np.ascontiguousarray(rays.subsampled(sample_step(shape)).table())
 
 
 def floor_samples(depth_m: np.ndarray, sub_rays: np.ndarray,
@@ -149,8 +144,7 @@ def _lstsq_plane(pts: np.ndarray) -> np.ndarray:
     return np.array([a, b, mean[2] - a * mean[0] - b * mean[1]])
 
 
-def _reference_in_band(pts: np.ndarray, a: float, b: float, c: float,
-                       band_m: float) -> np.ndarray:
+def _in_band(pts: np.ndarray, a: float, b: float, c: float, band_m: float) -> np.ndarray:
     """(3, m) float64: the samples pts (3, M) within band_m of z = a x + b y + c."""
     resid = pts[2] - (a * pts[0] + b * pts[1] + c)
     return pts[:, np.abs(resid) <= band_m]
@@ -161,8 +155,7 @@ def _same(a: np.ndarray, b: np.ndarray) -> bool:
     return a.shape == b.shape and a.tobytes() == b.tobytes()
 
 
-def _reference_count_in_band(pts: np.ndarray, a: float, b: float, c: float,
-                             band_m: float) -> int:
+def _count_in_band(pts: np.ndarray, a: float, b: float, c: float, band_m: float) -> int:
     """How many samples pts (3, M) lie within band_m of z = a x + b y + c."""
     resid = pts[2] - (a * pts[0] + b * pts[1] + c)
     return int(np.count_nonzero(np.abs(resid) <= band_m))
@@ -209,8 +202,6 @@ def _reference_ransac_plane(pts: np.ndarray, picks: np.ndarray, tan_tilt2: float
     return np.stack((a[best], b[best], c[best]), axis=1)
 
 
-_in_band = jit.choose(_reference_in_band, jit_traversal.in_band)
-_count_in_band = jit.choose(_reference_count_in_band, jit_traversal.count_in_band)
 _ransac = jit.choose(_reference_ransac_plane, jit_traversal.ransac_plane)
 
 

@@ -161,11 +161,6 @@ def ground_rays(shape: tuple[int, int], intrinsics: Intrinsics, params: Detector
     return ray_model(shape, intrinsics, params).table(out)
 
 
-def rays_at(rays: np.ndarray | GroundRays, pixels: np.ndarray) -> np.ndarray:
-    """Return the (3, D) float32 rays of the flat pixel indices, from a table or a model."""
-    return rays.at(pixels) if isinstance(rays, GroundRays) else rays[:, pixels]
-
-
 def roi_mask(points_ground: np.ndarray, params: DetectorParams) -> np.ndarray:
     """Seed 4.3.3 region of interest: (M,) bool, the ground points within the bounds."""
     x, y, z = points_ground[:, 0], points_ground[:, 1], points_ground[:, 2]

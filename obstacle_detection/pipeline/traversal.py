@@ -16,7 +16,7 @@ from scipy.sparse.csgraph import breadth_first_order
 from . import jit
 from ._compiled import ledges as jit_ledges
 from ._compiled import traversal as jit_traversal
-from .geometry import GroundRays, rays_at
+from .geometry import GroundRays
 from .params import DetectorParams
 
 #: The 8 neighbours of a cell as (dx, dy); the search adds both directions of each pair.
@@ -413,14 +413,12 @@ def drop_edge_mask(depth_m: np.ndarray, rz: np.ndarray, height_m: float, step_do
     return edge
 
 
-def _reference_drop_pixels(depth_m: np.ndarray, rz: np.ndarray | None, height_m: float,
-                           step_down_m: float, step_up_m: float, rows: int,
-                           model: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+def _reference_drop_pixels(depth_m: np.ndarray, ru: np.ndarray, rv: np.ndarray, rot: np.ndarray,
+                           height_m: float, step_down_m: float, step_up_m: float, rows: int,
                            ) -> tuple[np.ndarray, np.ndarray]:
-    """(flat pixels, int8 offsets) of :func:`drop_edge_mask`'s marks; or model: (ru, rv, rot)."""
-    if model is not None:
-        rz = GroundRays(*model).table()[2]
-    edge = drop_edge_mask(depth_m, rz, height_m, step_down_m, step_up_m, rows)
+    """(flat pixels, int8 offsets) of :func:`drop_edge_mask`'s marks under GroundRays' factors."""
+    edge = drop_edge_mask(depth_m, GroundRays(ru, rv, rot).table()[2], height_m, step_down_m,
+                          step_up_m, rows)
     pixels = np.flatnonzero(edge)
     return pixels, edge.reshape(-1)[pixels]
 
@@ -428,20 +426,17 @@ def _reference_drop_pixels(depth_m: np.ndarray, rz: np.ndarray | None, height_m:
 _drop_pixels = jit.choose(_reference_drop_pixels, jit_traversal.drop_pixels)
 
 
-def drop_edges(depth_m: np.ndarray, rays: np.ndarray | GroundRays, height_m: float,
+def drop_edges(depth_m: np.ndarray, rays: GroundRays, height_m: float,
                params: DetectorParams) -> tuple[np.ndarray, np.ndarray]:
     """Where the floor ends at a drop: ((D, 3) float32 floor points, (D,) edge pixels)."""
-    down, up = params.max_step_down_m, params.max_step_height_m
-    if isinstance(rays, GroundRays):   # the compiled path computes them row by row
-        rz, model = None, (rays.ru, rays.rv, rays.rot)
-    else:
-        rz, model = rays[2], None
-    pixels, offsets = _drop_pixels(depth_m, rz, height_m, down, up, DROP_EDGE_ROWS, model)
+    pixels, offsets = _drop_pixels(depth_m, rays.ru, rays.rv, rays.rot, height_m,
+                                   params.max_step_down_m, params.max_step_height_m,
+                                   DROP_EDGE_ROWS)
     if pixels.size == 0:
         return np.zeros((0, 3), np.float32), pixels
     floor_px = pixels + offsets.astype(np.int64) * depth_m.shape[1]
     d = depth_m.reshape(-1)[floor_px]
-    ray = rays_at(rays, floor_px)
+    ray = rays.at(floor_px)
     x = d * ray[0]
     y = d * ray[1]
     z = d * ray[2] + np.float32(height_m)
