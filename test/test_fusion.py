@@ -352,11 +352,3 @@ def test_yaw_from_quaternion():
 def test_bad_parameters_are_refused_with_their_name(field, value, words):
     with pytest.raises(ValueError, match=words):
         FusionParams(**{field: value})
-
-
-def test_a_bad_costmap_is_refused():
-    grid = FusedGrid()
-    with pytest.raises(ValueError, match='int8'):
-        grid.update(Costmap(np.zeros((4, 4), np.float32), 0.05, (0.0, 0.0)), None)
-    with pytest.raises(ValueError, match='resolution'):
-        grid.update(Costmap(np.zeros((4, 4), np.int8), 0.0, (0.0, 0.0)), None)

@@ -66,13 +66,8 @@ def _reference_rasterise(flat: np.ndarray, points: np.ndarray, value: int,
     flat[row[inside] * nx + col[inside]] = value
 
 
-def _float_points(flat: np.ndarray, points: np.ndarray, *args: object) -> bool:
-    """Return True for the points the compiled rasterisation takes: (M, >= 2) float32/64."""
-    return points.dtype in (np.float32, np.float64) and points.ndim == 2 and points.shape[1] >= 2
-
-
 # compiled: the same cells, 0.3 ms of numpy temporaries less
-rasterise = jit.choose(_reference_rasterise, jit_costmap.rasterise, accepts=_float_points)
+rasterise = jit.choose(_reference_rasterise, jit_costmap.rasterise)
 
 
 def build_costmap(obstacle_points: np.ndarray, ground_points: np.ndarray,
@@ -121,14 +116,8 @@ def _reference_halo_voxels(points: np.ndarray, counts: np.ndarray,
     return inside & weak.reshape(-1)[cell]
 
 
-def _voxel_points(points: np.ndarray, counts: np.ndarray, *args: object) -> bool:
-    """Return True for what the compiled halo takes: (V, >= 2) float32/64 points, (V,) counts."""
-    return (_float_points(None, points) and counts.ndim == 1
-            and counts.shape[0] == points.shape[0])
-
-
 # compiled: only the cells of the voxels, not 8 passes over the whole grid
-_halo_voxels = jit.choose(_reference_halo_voxels, jit_costmap.halo_voxels, accepts=_voxel_points)
+_halo_voxels = jit.choose(_reference_halo_voxels, jit_costmap.halo_voxels)
 
 
 def warm_up() -> None:

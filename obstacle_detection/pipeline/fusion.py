@@ -19,6 +19,8 @@ from .costmap import Costmap
 #: Largest window side [cells]: 2000 x 2000 float32 log-odds are 16 MB.
 MAX_CELLS_PER_SIDE = 2000
 
+#: Odometry poses a PoseBuffer keeps.
+POSE_CAPACITY = 256
 #: A pose: base frame in odom, (x [m], y [m], yaw [rad]).
 Pose = tuple[float, float, float]
 
@@ -249,14 +251,8 @@ class FusedGrid:
                pose_stamp_s: float | None = None, no_pose_reason: str = '') -> FusionUpdate:
         """Fuse one frame's costmap (base frame) taken at base pose ``pose`` (x, y, yaw) in odom.
 
-        Without a usable pose, or an older one: fused in place. ValueError for a bad costmap.
+        Without a usable pose, or an older one: fused in place.
         """
-        data = np.asarray(costmap.data)
-        if data.ndim != 2 or data.dtype != np.int8:
-            raise ValueError(f'costmap data must be a 2-D int8 grid, got {data.dtype} '
-                             f'{data.shape}')
-        if not (math.isfinite(costmap.resolution_m) and costmap.resolution_m > 0.0):
-            raise ValueError(f'costmap resolution_m={costmap.resolution_m!r} must be > 0')
         p = self.params
         if pose is None:
             kind, reason = 'missing', no_pose_reason or 'no odometry'
@@ -312,13 +308,9 @@ class FusedGrid:
 class PoseBuffer:
     """Recent odometry poses by time (thread-safe); the pose at a frame's stamp."""
 
-    def __init__(self, max_age_s: float = 0.2, capacity: int = 256) -> None:
-        if not (math.isfinite(max_age_s) and max_age_s >= 0.0):
-            raise ValueError(f'PoseBuffer: max_age_s={max_age_s!r} must be a number >= 0')
-        if capacity < 2:
-            raise ValueError(f'PoseBuffer: capacity={capacity!r} must be >= 2')
-        self.max_age_s = float(max_age_s)
-        self._items: deque[tuple[float, Pose]] = deque(maxlen=int(capacity))
+    def __init__(self, max_age_s: float = 0.2) -> None:
+        self.max_age_s = max_age_s
+        self._items: deque[tuple[float, Pose]] = deque(maxlen=POSE_CAPACITY)
         self._lock = threading.Lock()
 
     def __len__(self) -> int:

@@ -216,9 +216,6 @@ class DetectorParams:
 
         For the pipeline's per-frame changes only (values kept in range by the floor fit).
         """
-        allowed = {'camera_height_m', 'camera_pitch_rad', 'camera_roll_rad', 'tdbg_m'}
-        if not set(changes) <= allowed:
-            raise ValueError(f'with_frame_mount changes only {", ".join(sorted(allowed))}')
         out = object.__new__(DetectorParams)
         out.__dict__.update(self.__dict__)
         out.__dict__.update({name: float(value) for name, value in changes.items()})

@@ -337,15 +337,8 @@ def _reference_unbias_holes(filtered: np.ndarray, raw: np.ndarray, kernel: int,
     return cv2.copyTo(np.zeros_like(raw), hole, filtered)
 
 
-def _one_float32_image(filtered: np.ndarray, raw: np.ndarray, kernel: int, most: int) -> bool:
-    """Return True for what the compiled pass takes: C-contiguous float32, kernel <= 181."""
-    return (filtered.flags.c_contiguous and filtered.dtype == np.float32
-            and filtered.shape == raw.shape and raw.ndim == 2 and kernel <= 181)
-
-
 # compiled: one pass with a sliding window count, instead of six image-sized passes
-_unbias_holes = jit.choose(_reference_unbias_holes, jit_traversal.unbias_holes,
-                           accepts=_one_float32_image)
+_unbias_holes = jit.choose(_reference_unbias_holes, jit_traversal.unbias_holes)
 
 
 def _reference_drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float,

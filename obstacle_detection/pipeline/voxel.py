@@ -29,22 +29,10 @@ def voxel_downsample(points: np.ndarray, voxel_size_m: tuple[float, float, float
                      ) -> VoxelGrid:
     """Replace the points (M, 3) of every voxel ``floor(p / size)`` by their centroid."""
     size = np.asarray(voxel_size_m, dtype=np.float64)
-    if size.shape != (3,) or np.any(size <= 0.0):
-        raise ValueError(f'voxel size {voxel_size_m!r} must be three positive numbers')
-    pts = np.asarray(points)
-    if pts.ndim != 2 or pts.shape[1] != 3:
-        raise ValueError(f'points must have shape (M, 3), got {pts.shape}')
-    return VoxelGrid(*_downsample(pts, voxel_size_m))
-
-
-def _downsample(points: np.ndarray, voxel_size_m: tuple[float, float, float],
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Return the fields of :func:`voxel_downsample`'s :class:`VoxelGrid` (numpy)."""
-    size = np.asarray(voxel_size_m, dtype=np.float64)
     pts = np.asarray(points)
     if pts.shape[0] == 0:
-        return (np.zeros((0, 3), np.float32), np.zeros(0, np.int64), np.zeros(0, np.int64),
-                np.zeros((0, 3), np.int64))
+        return VoxelGrid(np.zeros((0, 3), np.float32), np.zeros(0, np.int64),
+                         np.zeros(0, np.int64), np.zeros((0, 3), np.int64))
 
     cols = np.ascontiguousarray(pts.T)
     ijk = [np.floor(cols[a] / cols.dtype.type(size[a])).astype(np.int64) for a in range(3)]
@@ -68,7 +56,7 @@ def _downsample(points: np.ndarray, voxel_size_m: tuple[float, float, float],
     rest, vox_ijk[:, 2] = np.divmod(cell_keys, dims[2])
     vox_ijk[:, 0], vox_ijk[:, 1] = np.divmod(rest, dims[1])
     vox_ijk += low
-    return centroids, point_voxel, counts, vox_ijk
+    return VoxelGrid(centroids, point_voxel, counts, vox_ijk)
 
 
 # --------------------------------------------------------------------------- the frame stage

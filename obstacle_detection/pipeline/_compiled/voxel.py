@@ -240,10 +240,8 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarra
 
 
 def voxelise(proj: Projection) -> tuple:
-    """Return the VoxelGrid fields of a keyed :class:`Projection`; fill its pixel_voxel."""
+    """Return the VoxelGrid fields of a keyed :class:`Projection` (points); fill pixel_voxel."""
     m = proj.pixel_index.size
-    if proj.keys is None or m == 0:
-        raise ValueError('the projection has no voxel keys or no point')
     n_cells = int(proj.dims[0] * proj.dims[1] * proj.dims[2])
     point_voxel = scratch('point_voxel', m, np.int64)[:m] if proj.reuse else np.empty(m,
                                                                                       np.int64)
