@@ -431,9 +431,6 @@ def test_traversal_kernels_equal_numpy(both_paths):
     raw = depth.copy()
     filtered = raw + rng.normal(0, 0.05, raw.shape).astype(np.float32)
     both_paths(traversal.drop_smeared, filtered, raw, 0.03)   # raw with a NaN: not fused
-    intr = frame_intrinsics()
-    params = corridor(camera_pitch_rad=0.2, camera_roll_rad=-0.05)
-    both_paths(geometry.ground_rays, (424, 512), intr, params)
 
 
 def test_ledge_kernel_equals_numpy(both_paths):
@@ -450,12 +447,6 @@ def test_ledge_kernel_equals_numpy(both_paths):
                           traversal.LEDGE_SHADOW_CELLS)
         marked += int(want.sum())
     assert marked > 100
-
-
-def frame_intrinsics():
-    """Kinect v2 SD intrinsics of the generator."""
-    from obstacle_detection.pipeline.params import KINECT_V2_SD
-    return KINECT_V2_SD
 
 
 def test_drop_edge_needs_a_jump_and_seen_floor():

@@ -22,23 +22,6 @@ def ray_row(ru, rv_i, r0, r1, r2, out):  # pragma: no cover - compiled
 
 
 @_jit
-def _rays_kernel(ru, rv, rot, out):  # pragma: no cover - compiled
-    """Fill out (3, H, W) float32 = rot[a, 0] * ru[j] + rot[a, 1] * rv[i] + rot[a, 2]."""
-    for a in range(3):
-        for i in range(rv.size):
-            ray_row(ru, rv[i], rot[a, 0], rot[a, 1], rot[a, 2], out[a, i])
-
-
-def ground_rays(ru: np.ndarray, rv: np.ndarray, rot: np.ndarray,
-                out: np.ndarray | None = None) -> np.ndarray:
-    """(3, H*W) float32 ground rays of the slopes ru, rv and the mount rot; out: to fill."""
-    if out is None or out.shape != (3, rv.size * ru.size) or out.dtype != np.float32:
-        out = np.empty((3, rv.size * ru.size), np.float32)
-    _rays_kernel(ru, rv, rot, out.reshape(3, rv.size, ru.size))
-    return out
-
-
-@_jit
 def grid_cells(points, size):  # pragma: no cover - compiled
     """(ix, iy, nx, ny, ox, oy): each point's cell ``floor(p / size) - (ox, oy)``, grid nx x ny."""
     n = points.shape[0]
@@ -657,7 +640,6 @@ def floor_samples(depth_m: np.ndarray, step: int, sub_rays: np.ndarray, height_m
 
 def warm_up() -> None:
     """Compile (or load from the disk cache) the kernels on tiny inputs (numba must import)."""
-    ground_rays(np.zeros(2, np.float32), np.zeros(2, np.float32), np.eye(3, dtype=np.float32))
     pts = np.array([[0.1, 0.0, 0.0], [0.2, 0.1, 0.3]], np.float32)
     traverse(pts, np.array([False, True]), 0.05, 0.05, 0.05, 1.0, 0.025)
     drop_pixels(np.ones((4, 2), np.float32), np.zeros(2, np.float32), np.zeros(4, np.float32),
