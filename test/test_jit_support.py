@@ -54,10 +54,10 @@ def test_other_threads_take_the_numpy_path_while_compiling(fresh_gate: threading
         assert seen_inside == [True]          # the compiling thread uses the kernels
         assert not jit_support.enabled()      # everybody else: numpy, no waiting on a lock
         assert jit_support.compiling()
-        assert not job.done()
+        assert job.seconds is None            # not done
     finally:
         release.set()
-    assert job.wait(10.0)
+    job.join(10.0)
     assert job.error is None and job.seconds is not None and job.seconds >= 0.0
     assert jit_support.enabled()
     assert not jit_support.compiling()
@@ -72,7 +72,8 @@ def test_a_failed_compilation_keeps_the_numpy_path_and_says_why(
         raise RuntimeError('no LLVM today')
 
     job = jit_support.compile_in_background(warm_up, on_done=finished.append)
-    assert job is not None and job.wait(10.0)
+    assert job is not None
+    job.join(10.0)
     assert finished == [job]
     assert isinstance(job.error, RuntimeError) and 'no LLVM today' in str(job.error)
     assert not jit_support.enabled()

@@ -88,15 +88,6 @@ class BackgroundCompile(threading.Thread):
             if self._on_done is not None:
                 self._on_done(self)
 
-    def done(self) -> bool:
-        """Return True once the compilation finished (or failed)."""
-        return self.seconds is not None
-
-    def wait(self, timeout: float | None = None) -> bool:
-        """Wait for the end of the compilation; return True if it ended."""
-        self.join(timeout)
-        return not self.is_alive()
-
 
 def compile_in_background(warm_up: Callable[[], Any], *,
                           on_done: Callable[[BackgroundCompile], None] | None = None
