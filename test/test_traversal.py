@@ -15,7 +15,6 @@ import pytest
 from obstacle_detection.labels import CELL_OCCUPIED, CELL_UNKNOWN, LABEL_GROUND, LABEL_OBSTACLE
 from obstacle_detection.evaluation import runner as evaluation
 from obstacle_detection.pipeline import floor, geometry, traversal
-from obstacle_detection.pipeline._compiled import traversal as jit_traversal
 from obstacle_detection.pipeline.params import corridor, table_4_2
 from obstacle_detection.pipeline.detector import Detector
 from obstacle_detection.sim.primitives import Box, Floor, Ramp, StepDown, Wall
@@ -489,15 +488,6 @@ def test_fused_smear_kernel_equals_numpy(shape, both_paths):
     filtered = raw + rng.normal(0.0, 0.08, shape).astype(np.float32)
     filtered[rng.random(shape) < 0.1] = 0.0
     both_paths(traversal.drop_smeared, filtered, raw, 0.03)
-
-
-@pytest.mark.numba
-def test_a_nan_keeps_the_smear_pass_off_the_fused_kernel():
-    # the fused kernel's window range would differ from OpenCV's on NaN: the stage checks
-    raw = np.ones((6, 6), np.float32)
-    assert not jit_traversal.has_nan(raw)
-    raw[2, 2] = np.nan
-    assert jit_traversal.has_nan(raw)
 
 
 @pytest.mark.numba

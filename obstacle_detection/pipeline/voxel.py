@@ -79,10 +79,10 @@ def roi_bounds(params: DetectorParams) -> np.ndarray:
                      params.camera_height_m, params.tdbg_m, params.max_height_m], np.float32)
 
 
-def _reference_points_in_roi(depth_m: np.ndarray, rays: np.ndarray | geometry.GroundRays,
+def _reference_points_in_roi(depth_m: np.ndarray, rays: geometry.GroundRays,
                              params: DetectorParams) -> RoiPoints:
     """:func:`points_in_roi` in numpy: the ROI of :func:`geometry.roi_mask` on the image."""
-    rays = rays.table() if isinstance(rays, geometry.GroundRays) else rays
+    rays = rays.table()
     z = depth_m.reshape(-1)
     valid = z > 0.0
     gx = z * rays[0]
@@ -105,19 +105,18 @@ def _reference_points_in_roi(depth_m: np.ndarray, rays: np.ndarray | geometry.Gr
     return RoiPoints(cols.T, pix, labels, pixel_voxel, params.voxel_size_m)
 
 
-def _compiled_points_in_roi(depth_m: np.ndarray, rays: np.ndarray | geometry.GroundRays,
+def _compiled_points_in_roi(depth_m: np.ndarray, rays: geometry.GroundRays,
                             params: DetectorParams) -> RoiPoints:
     """:func:`points_in_roi` by :func:`._compiled.voxel.project_roi`, its buffers reused."""
-    factors = (rays.ru, rays.rv, rays.rot) if isinstance(rays, geometry.GroundRays) else rays
-    proj = jit_voxel.project_roi(depth_m, factors, roi_bounds(params), params.voxel_size_m,
-                                 reuse=True)
+    proj = jit_voxel.project_roi(depth_m, (rays.ru, rays.rv, rays.rot), roi_bounds(params),
+                                 params.voxel_size_m, reuse=True)
     keyed = proj.keys is not None and proj.keys.size
     return RoiPoints(proj.points, proj.pixel_index, proj.labels, proj.pixel_voxel,
                      params.voxel_size_m, proj if keyed else None)
 
 
-#: Back-project a depth image (0 = no return) through its ground rays (a table or
-#: :class:`geometry.GroundRays`) and keep the region of interest: :class:`RoiPoints`.
+#: Back-project a depth image (0 = no return) through its :class:`geometry.GroundRays` and
+#: keep the region of interest: :class:`RoiPoints`.
 points_in_roi = jit.choose(_reference_points_in_roi, _compiled_points_in_roi)
 
 
@@ -157,7 +156,6 @@ def warm_up() -> None:
     depth = np.full((6, 8), 1.0, np.float32)
     depth[0, 0] = 0.0
     rays = geometry.ray_model(depth.shape, Intrinsics(fx=5.0, fy=5.0, cx=4.0, cy=3.0), params)
-    points_in_roi(depth, rays, params)
-    roi = points_in_roi(depth, rays.table(), params)
+    roi = points_in_roi(depth, rays, params)
     grid = voxel_grid(roi)
     pixel_labels(roi, grid, np.zeros(grid.counts.size, bool))

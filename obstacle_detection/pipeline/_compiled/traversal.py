@@ -245,16 +245,6 @@ def drop_pixels(depth_m: np.ndarray, ru: np.ndarray, rv: np.ndarray, rot: np.nda
 
 
 @_jit
-def has_nan(raw):  # pragma: no cover - compiled
-    """Return True when raw holds a NaN."""
-    flat = raw.reshape(-1)
-    found = False
-    for k in range(flat.size):
-        found |= flat[k] != flat[k]
-    return found
-
-
-@_jit
 def _inverse_row(row, out):  # pragma: no cover - compiled
     """Fill out with 1 / row where row > 0 (1 elsewhere: such a pixel is never planar)."""
     one = np.float32(1.0)
@@ -647,7 +637,6 @@ def warm_up() -> None:
     one = np.ones((6, 6), np.float32)
     drop_smeared(one.copy(), one, 0.03, 0.05, 0.02)
     unbias_holes(one.copy(), one, 5, 20)
-    has_nan(one)
     rng = np.random.default_rng(0)
     depth = rng.uniform(0.5, 3.0, (12, 12)).astype(np.float32)
     rays = rng.uniform(-1.0, 1.0, (3, 36)).astype(np.float32)

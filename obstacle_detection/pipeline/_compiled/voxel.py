@@ -23,7 +23,7 @@ _U0 = np.uint64(0)
 _U1 = np.uint64(1)
 #: Label of a pixel inside the region of interest until :func:`label_pixels` decides.
 _LABEL_KEPT = LABEL_GROUND
-#: Pixels whose rays are computed at once when not read from a table (96 kB, cache resident).
+#: Pixels whose rays are computed at once (96 kB, cache resident).
 _RAY_BAND_PX = 8192
 
 
@@ -192,29 +192,21 @@ def roi_lattice(bounds: np.ndarray, size: np.ndarray) -> tuple[np.ndarray, np.nd
     return low, dims
 
 
-def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarray,
+def project_roi(depth_m: np.ndarray, rays: tuple, bounds: np.ndarray,
                 voxel_size_m: tuple[float, float, float], *, reuse: bool = False,
                 ) -> Projection:
     """Back-project a depth image through ground rays, keep the ROI, key the voxels.
 
-    rays: (3, H*W) float32, or GroundRays' factors (ru, rv, rot), computed on the fly; bounds:
+    rays: GroundRays' factors (ru, rv, rot) of the image, computed on the fly; bounds:
     ``voxel.roi_bounds``. reuse: per-thread buffers that the thread's next call overwrites.
     """
     shape = depth_m.shape
     depth = np.ascontiguousarray(depth_m, np.float32).reshape(-1)
     n = depth.size
-    if isinstance(rays, tuple):   # factors: computed on the fly, the same values as the table
-        ru, rv, rot = (np.ascontiguousarray(a, np.float32) for a in rays)
-        if (rv.size, ru.size) != shape:
-            raise ValueError(f'rays are for a {(rv.size, ru.size)} image, the depth is {shape}')
-        band = max(1, _RAY_BAND_PX // shape[1]) * shape[1]   # whole rows
-        chunk = scratch('ray_band', 3 * band, np.float32)[:3 * band].reshape(3, band)
-        kernel = functools.partial(_project_rays_kernel, depth, ru, rv, rot, chunk)
-    else:
-        rays = np.ascontiguousarray(rays, np.float32)
-        if rays.shape != (3, n):
-            raise ValueError(f'rays must have shape (3, {n}), got {rays.shape}')
-        kernel = functools.partial(_project_kernel, depth, rays, 0)
+    ru, rv, rot = rays
+    band = max(1, _RAY_BAND_PX // shape[1]) * shape[1]   # whole rows
+    chunk = scratch('ray_band', 3 * band, np.float32)[:3 * band].reshape(3, band)
+    kernel = functools.partial(_project_rays_kernel, depth, ru, rv, rot, chunk)
     size = np.asarray(voxel_size_m, np.float32)
     low, dims = roi_lattice(bounds, size)
     labels = np.empty(shape, np.uint8)
