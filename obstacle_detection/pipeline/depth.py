@@ -43,23 +43,16 @@ def units_per_metre(depth_scale: float | None) -> float:
     return scale
 
 
-def check_image(depth: np.ndarray, what: str) -> np.ndarray:
-    """Return ``depth`` as an ndarray after checking it is a non-empty 2-D image."""
-    arr = np.asarray(depth)
-    if arr.ndim != 2 or arr.size == 0:
-        raise DepthFormatError(
-            f'{what} must be a non-empty 2-D (H, W) array, got shape {arr.shape} '
-            f'(dtype {arr.dtype})')
-    return arr
-
-
 def decode_depth(depth: np.ndarray, *, depth_scale: float | None = None) -> np.ndarray:
     """Convert a raw (H, W) depth frame to a new C-contiguous float32 array in metres.
 
     depth: uint16 in 1/``depth_scale`` m (None: mm) or float32/64 in m; no return becomes 0.0.
     Raises DepthFormatError for another dtype or shape, or a scale with float input.
     """
-    arr = check_image(depth, 'depth image')
+    arr = np.asarray(depth)
+    if arr.ndim != 2 or arr.size == 0:
+        raise DepthFormatError(f'depth image must be a non-empty 2-D (H, W) array, got shape '
+                               f'{arr.shape} (dtype {arr.dtype})')
     kind, size = arr.dtype.kind, arr.dtype.itemsize
     if kind == 'u' and size == 2:
         scale = units_per_metre(depth_scale)

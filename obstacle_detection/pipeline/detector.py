@@ -130,8 +130,6 @@ class Detector:
         normals = estimate_normals(centroids, neighbours[:, :n_cols])
         clock.lap('normals')
         steep = slope_obstacles(normals, p.cos_max_slope)
-        if p.max_ground_height_m > 0.0 and not p.robot_level:
-            steep |= centroids[:, 2] > np.float32(p.max_ground_height_m)
         clock.lap('slope')
         candidates, heights, trav, drop_points, drop_pixels = self._robot_level(
             depth_m, rays, run, centroids, steep, clock)

@@ -111,11 +111,6 @@ class DetectorParams:
     validation_neighbours: int = field(default=12, metadata=_describe(
         'N1: an obstacle point stays one only if its N1 nearest neighbours (itself excluded) are '
         'obstacles too; 0 = no validation (seed Table 4.2: 12)', min=0, max=400))
-    max_ground_height_m: float = field(default=0.0, metadata=_describe(
-        'Not in the seed, slope-only mode (robot_level false; robot level supersedes it): '
-        'flat voxels higher than this above the ground are obstacles too (box and table tops, '
-        'which the slope test calls ground); it also marks the high part of a passable ramp. '
-        '0 = off, the seed method [m]', min=0.0, max=5.0))
     # -- robot level (not in the seed): traversability by connectivity, step height and drops
     robot_level: bool = field(default=True, metadata=_describe(
         'Not in the seed: robot-level traversability. Ground is grown from the floor plane '
