@@ -79,13 +79,6 @@ def scene_points():
     return points
 
 
-def test_warm_up_compiles_the_kernels_a_frame_uses():
-    """After warm_up the k-NN and normals kernels hold compiled signatures (both layouts)."""
-    jit_knn.warm_up()
-    assert len(jit_knn._knn_queries.signatures) >= 1
-    assert len(jit_knn._normals_kernel.signatures) >= 2   # a whole and a column-sliced k-NN
-
-
 @pytest.mark.parametrize('name', list(small_clouds()))
 @pytest.mark.parametrize('k', [1, 2, 3, 7, 13, 20])
 def test_knn_equals_brute_force_order(name, k):

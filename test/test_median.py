@@ -7,7 +7,6 @@ compiled kernel ('compiled', skipped without numba) and with the numpy / OpenCV 
 import numpy as np
 import pytest
 
-from obstacle_detection.pipeline import median
 from obstacle_detection.pipeline.depth import decode_depth, depth_lut
 from obstacle_detection.pipeline.median import median_filter, median_of_codes, reference_median
 from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE
@@ -133,8 +132,3 @@ def test_median_does_not_modify_input(kernel_path) -> None:
         median_filter(img, k)
         median_filter(decode_depth(img), k)
     np.testing.assert_array_equal(img, before)
-
-
-def test_warm_up(kernel_path) -> None:
-    seconds = median.warm_up()
-    assert seconds >= 0.0 and (seconds > 0.0) is (kernel_path == 'compiled')

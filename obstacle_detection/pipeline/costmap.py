@@ -104,10 +104,3 @@ def _reference_halo_voxels(points: np.ndarray, counts: np.ndarray,
 
 # compiled: only the cells of the voxels, not 8 passes over the whole grid
 _halo_voxels = jit.choose(_reference_halo_voxels, jit_costmap.halo_voxels)
-
-
-def warm_up() -> None:
-    """Compile (or load from numba's disk cache) the costmap's kernel, if it runs."""
-    if jit.enabled():
-        jit_costmap.halo_voxels(np.zeros((1, 3), np.float32), np.ones(1, np.int64), (0.0, 0.0),
-                                1.0, 2, 2, HALO_SHARE)

@@ -11,9 +11,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..labels import LABEL_OBSTACLE
-from . import clearing, geometry, median, traversal, voxel
+from . import clearing, geometry, jit, traversal, voxel
 from . import costmap as costmap_stage   # a frame's local `costmap` is its grid
-from . import normals as normals_stage   # a frame's local `normals` are vectors
 from .costmap import Costmap, build_costmap
 from .depth import crop_borders, decode_depth, depth_lut, units_per_metre
 from .floor import FloorFit, fit_floor, sample_rays
@@ -87,14 +86,25 @@ class Detector:
         self._sub_rays: np.ndarray | None = None
 
     def warm_up(self) -> float:
-        """Compile (or load from numba's disk cache) the JIT kernels; return the seconds."""
+        """Compile (or load from numba's disk cache) the JIT kernels; return the seconds.
+
+        Runs these parameters on a made-up frame (a floor, a box), as uint16 and as metres,
+        mounted so that every kernel a frame can reach runs; and the node's clearing cloud.
+        """
         start = time.perf_counter()
-        median.warm_up()
-        clearing.warm_up()   # the node's clearing cloud
-        normals_stage.warm_up()
-        voxel.warm_up()
-        traversal.warm_up()
-        costmap_stage.warm_up()
+        if jit.enabled():
+            intr = Intrinsics(fx=365.0, fy=365.0, cx=256.0, cy=212.0)
+            mounted = Detector(self.params.replace(camera_height_m=0.6, camera_pitch_rad=0.3,
+                                                   camera_roll_rad=0.0))
+            x, y, z = geometry.ground_rays((424, 512), intr, mounted.params)
+            depth = np.where(z < -0.05, -0.6 / np.minimum(z, -0.05), 0.0)   # the floor
+            face = 0.8 / np.maximum(x, 1e-3)   # a box 0.3 m high, its face 0.8 m ahead
+            box = (depth * x > 0.8) & (np.abs(face * y) < 0.3) & (0.6 + face * z < 0.3)
+            depth = np.where(box, face, np.where(depth < 4.0, depth, 0.0)).reshape(424, 512)
+            mm = np.round(depth * 1000.0).astype(np.uint16)
+            mounted.process(mm, intr)
+            mounted.process(mm.astype(np.float32) / np.float32(1000.0), intr)
+            clearing.warm_up()   # the node's clearing cloud
         return time.perf_counter() - start
 
     def _rays(self, shape: tuple[int, int], intr: Intrinsics) -> geometry.GroundRays:

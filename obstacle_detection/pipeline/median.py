@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import time
-
 import cv2
 import numpy as np
 from scipy import ndimage
@@ -11,7 +9,7 @@ from scipy import ndimage
 from . import jit
 from ._compiled import _numba
 from ._compiled import median as compiled
-from .depth import MM_PER_M, depth_lut, lookup
+from .depth import lookup
 
 #: Border mode of :func:`median_filter`: edge pixels repeated (no fake zeros = no return).
 MEDIAN_MODE = 'nearest'
@@ -57,15 +55,3 @@ def _opencv_median(image: np.ndarray, k: int) -> np.ndarray:
         padded = cv2.copyMakeBorder(image, r, r, r, r, cv2.BORDER_REPLICATE)
         return np.ascontiguousarray(cv2.medianBlur(padded, k)[r:r + h, r:r + w])
     return cv2.medianBlur(image, k)
-
-
-def warm_up() -> float:
-    """Compile (or load from numba's disk cache) the median kernel; return the seconds."""
-    if not jit.enabled():
-        return 0.0
-    start = time.perf_counter()
-    millimetres = np.random.default_rng(0).integers(0, 4000, (24, 40)).astype(np.uint16)
-    metres = lookup(depth_lut(MM_PER_M), millimetres)
-    compiled.median_filter(millimetres, 7)
-    compiled.median_filter(metres, 7)
-    return time.perf_counter() - start

@@ -162,9 +162,3 @@ def _reference_validate(is_obstacle: np.ndarray, neighbours: np.ndarray, n1: int
 
 # compiled: the same flags without the (V, N1) gather (0.3 ms)
 _validate = jit.choose(_reference_validate, jit_knn.validate)
-
-
-def warm_up() -> None:
-    """Compile (or load from numba's disk cache) the k-NN and normals kernels, if they run."""
-    if jit.enabled():   # not when switched off, or while another thread compiles
-        jit_knn.warm_up()

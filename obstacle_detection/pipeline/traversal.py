@@ -435,14 +435,3 @@ def drop_edges(depth_m: np.ndarray, rays: GroundRays, height_m: float,
     keep &= np.abs(y) <= np.float32(params.lateral_limit_m)
     pts = np.stack((x[keep], y[keep], z[keep]), axis=1)
     return pts.astype(np.float32), pixels[keep]
-
-
-def warm_up() -> None:
-    """Compile (or load from the disk cache) the robot-level kernels, if they run."""
-    if jit.enabled():
-        jit_traversal.warm_up()
-        pts = np.zeros((2, 3), np.float32)
-        flags = np.zeros(2, bool)
-        ledges(pts, flags, flags, flags, 0.05, 0.05, 0.05, LEDGE_SHADOW_CELLS)
-        jit_ledges.lone_voxels(pts, 0.025, 0.025, 0.025)
-        jit_ledges.feet(pts, flags, flags, 0.025, 0.025, 0.025, FOOT_VOXELS)

@@ -9,7 +9,7 @@ import numpy as np
 from ..labels import LABEL_GROUND, LABEL_NO_RETURN, LABEL_OBSTACLE, LABEL_OUTSIDE_ROI
 from . import geometry, jit
 from ._compiled import voxel as jit_voxel
-from .params import DetectorParams, Intrinsics
+from .params import DetectorParams
 
 #: Largest voxel lattice [cells] the compiled grid takes; larger extents run the numpy path.
 _DENSE_LIMIT = 16_000_000
@@ -146,16 +146,3 @@ def pixel_labels(roi: RoiPoints, grid: VoxelGrid, is_obstacle: np.ndarray,
     """Return (labels, pixel_voxel) with the voxels' decision ``is_obstacle`` (V,) written in."""
     _label_pixels(roi.labels, roi.pixel_voxel, is_obstacle)
     return roi.labels, roi.pixel_voxel
-
-
-def warm_up() -> None:
-    """Compile (or load from the on-disk cache) the voxel kernels on a tiny frame, if they run."""
-    if not jit.enabled():
-        return
-    params = DetectorParams()
-    depth = np.full((6, 8), 1.0, np.float32)
-    depth[0, 0] = 0.0
-    rays = geometry.ray_model(depth.shape, Intrinsics(fx=5.0, fy=5.0, cx=4.0, cy=3.0), params)
-    roi = points_in_roi(depth, rays, params)
-    grid = voxel_grid(roi)
-    pixel_labels(roi, grid, np.zeros(grid.counts.size, bool))

@@ -570,13 +570,3 @@ def validate(is_obstacle: np.ndarray, neighbours: np.ndarray, n1: int) -> np.nda
     """Return ``normals.validate_obstacles`` for 1 <= n1 < the neighbour columns."""
     return _validate_kernel(np.ascontiguousarray(is_obstacle, np.bool_),
                             neighbours.astype(np.int64, copy=False), int(n1))
-
-
-def warm_up() -> None:
-    """Compile (or load from the disk cache) every kernel on a tiny cloud."""
-    rng = np.random.default_rng(0)
-    pts = rng.uniform(0.0, 0.1, (40, 3)).astype(np.float32)
-    nb = knn_grid(pts, 13)
-    normals_from_neighbours(pts, nb, 10)
-    normals_from_neighbours(pts, nb[:, :10], 10)   # a column slice compiles a second layout
-    validate(np.ones(pts.shape[0], np.bool_), nb, 12)

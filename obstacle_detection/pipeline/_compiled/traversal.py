@@ -626,20 +626,3 @@ def floor_samples(depth_m: np.ndarray, step: int, sub_rays: np.ndarray, height_m
                               float(tan_tilt), float(band0_m), float(min_x_m), float(max_x_m),
                               float(max_y_m), float(facing_cos2), buf)
     return buf[:, :m].copy()
-
-
-def warm_up() -> None:
-    """Compile (or load from the disk cache) the kernels on tiny inputs (numba must import)."""
-    pts = np.array([[0.1, 0.0, 0.0], [0.2, 0.1, 0.3]], np.float32)
-    traverse(pts, np.array([False, True]), 0.05, 0.05, 0.05, 1.0, 0.025)
-    drop_pixels(np.ones((4, 2), np.float32), np.zeros(2, np.float32), np.zeros(4, np.float32),
-                np.eye(3, dtype=np.float32), 0.5, 0.05, 0.05, 3)
-    one = np.ones((6, 6), np.float32)
-    drop_smeared(one.copy(), one, 0.03, 0.05, 0.02)
-    unbias_holes(one.copy(), one, 5, 20)
-    rng = np.random.default_rng(0)
-    depth = rng.uniform(0.5, 3.0, (12, 12)).astype(np.float32)
-    rays = rng.uniform(-1.0, 1.0, (3, 36)).astype(np.float32)
-    pts = floor_samples(depth, 2, rays, 0.5, 0.1, 0.12, 0.0, 3.0, 2.0, 0.75)
-    pts = rng.uniform(-0.05, 0.05, (3, 30))
-    ransac_plane(pts, rng.random((3, 4)), 0.01, 0.1, 0.03, 2000, 2)
