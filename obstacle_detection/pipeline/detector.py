@@ -51,14 +51,6 @@ class DetectionResult:
     drop_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
 
 
-def _uint16_codes(depth: np.ndarray) -> np.ndarray | None:
-    """Return a uint16 depth image in native byte order, C-contiguous; None for other input."""
-    arr = np.asarray(depth)
-    if arr.dtype.kind != 'u' or arr.dtype.itemsize != 2 or arr.ndim != 2:
-        return None
-    return np.ascontiguousarray(arr, dtype=np.uint16)
-
-
 class _Clock:
     """Accumulates per-stage wall times [ms]."""
 
@@ -183,11 +175,11 @@ class Detector:
                         clock: _Clock) -> np.ndarray:
         """Decode, crop, median-filter and (robot level) un-smear a frame: (H, W) float32 [m]."""
         p = self.params
-        # uint16 input: the median runs on its codes (the same result, see median_of_codes)
-        codes = _uint16_codes(depth) if p.median_kernel > 1 else None
         crop = (p.crop_top_px, p.crop_bottom_px, p.crop_left_px, p.crop_right_px)
         depth_m = decode_depth(depth, depth_scale=depth_scale)
         clock.lap('decode')
+        # uint16 input (decoded: 2-D): the median runs on its codes (see median_of_codes)
+        codes = depth if p.median_kernel > 1 and np.asarray(depth).dtype.kind == 'u' else None
         if any(crop):
             depth_m = crop_borders(depth_m, *crop)
             if codes is not None:

@@ -11,9 +11,6 @@ from . import geometry, jit
 from ._compiled import voxel as jit_voxel
 from .params import DetectorParams
 
-#: Largest voxel lattice [cells] the compiled grid takes; larger extents run the numpy path.
-_DENSE_LIMIT = 16_000_000
-
 
 @dataclass(frozen=True)
 class VoxelGrid:

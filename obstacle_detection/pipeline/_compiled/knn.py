@@ -419,8 +419,6 @@ def knn_grid(points: np.ndarray, k: int) -> np.ndarray:
     k = min(int(k), n)
     if n == 0 or k <= 0:
         return np.zeros((n, max(k, 0)), dtype=np.int64)
-    if k == 1:
-        return np.arange(n, dtype=np.int64).reshape(n, 1)
     out = np.empty((n, k), dtype=np.int64)
     pts = np.ascontiguousarray(pts, dtype=np.float64)
     lo, cell, slack = _knn_setup(pts, k)
