@@ -111,12 +111,6 @@ def test_bad_arguments_are_named(kwargs, match):
         mount.estimate_mount(depth, SMALL, **kwargs)
 
 
-def test_integer_depth_is_refused():
-    with pytest.raises(ValueError, match='float metres'):
-        mount.estimate_mount(np.ones((10, 10), np.uint16),
-                             SMALL)
-
-
 def test_with_the_estimated_mount_the_pipeline_sees_only_ground():
     pitch, roll = math.radians(35.0), math.radians(6.0)
     frame = render_scene('flat_floor', seed=4, height_m=0.9, pitch_rad=pitch, roll_rad=roll)

@@ -64,17 +64,6 @@ def mount_from_plane(normal_optical: np.ndarray, offset_m: float) -> tuple[float
     return float(offset_m) / norm, pitch, roll
 
 
-def _check_depth(depth_m: np.ndarray) -> np.ndarray:
-    arr = np.asarray(depth_m)
-    if arr.ndim != 2 or arr.size == 0:
-        raise ValueError(f'depth_m must be a non-empty (H, W) array, got shape {arr.shape}')
-    if not np.issubdtype(arr.dtype, np.floating):
-        raise ValueError(f'depth_m must be float metres, got dtype {arr.dtype} '
-                         '(decode integer depth with depth.decode_depth first)')
-    arr = arr.astype(np.float32, copy=False)
-    return np.where(np.isfinite(arr) & (arr > 0.0), arr, np.float32(0.0))
-
-
 def _triplets(pixel_index: np.ndarray, shape: tuple[int, int], n: int,
               rng: np.random.Generator) -> np.ndarray:
     """(k, 3) int64 point indices: n // 2 triplets anywhere, the others in a pixel window."""
@@ -133,8 +122,7 @@ def estimate_mount(depth_m: np.ndarray, intrinsics: Intrinsics, *, max_range_m: 
         raise ValueError(f'max_range_m={max_range_m!r} must be a finite number > 0')
     if prior_pitch_rad is not None and not abs(prior_pitch_rad) < math.pi / 2:
         raise ValueError(f'prior_pitch_rad={prior_pitch_rad!r} must be in (-pi/2, pi/2)')
-    depth = _check_depth(depth_m)
-    depth[depth > max_range_m] = 0.0
+    depth = np.where(depth_m <= max_range_m, depth_m, 0.0).astype(np.float32)   # NaN: 0
     points, pixel_index = back_project(depth, intrinsics)
     n_points = int(points.shape[0])
     if n_points < MIN_POINTS:

@@ -5,7 +5,6 @@ Bit-identical to the numpy path: the same float32 operations, float64 sums in po
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,8 +32,8 @@ def _project_kernel(depth, rays, offset, bounds, size, low, dims, labels, pixel_
     """Back-project, keep the region of interest, key the kept points' voxels.
 
     offset: the image index of depth[0]; bounds: as :func:`project_roi`. Writes labels,
-    pixel_voxel (-1) and the kept points' cols, pix, keys; returns their number, or -1 when
-    a key falls outside the lattice (low, dims).
+    pixel_voxel (-1) and the kept points' cols, pix, keys (on the lattice low, dims, which
+    holds the region of interest: :func:`roi_lattice`); returns their number.
     """
     min_x, max_x, lateral = bounds[0], bounds[1], bounds[2]
     height, min_z, max_z = bounds[3], bounds[4], bounds[5]
@@ -54,8 +53,6 @@ def _project_kernel(depth, rays, offset, bounds, size, low, dims, labels, pixel_
             i = np.int64(np.floor(gx / size[0])) - low[0]
             j = np.int64(np.floor(gy / size[1])) - low[1]
             k = np.int64(np.floor(gz / size[2])) - low[2]
-            if i < 0 or i >= dims[0] or j < 0 or j >= dims[1] or k < 0 or k >= dims[2]:
-                return -1
             labels[p] = _LABEL_KEPT
             cols[0, m] = gx
             cols[1, m] = gy
@@ -86,8 +83,6 @@ def _project_rays_kernel(depth, ru, rv, rot, chunk, bounds, size, low, dims, lab
         got = _project_kernel(depth[p0:p1], chunk[:, :p1 - p0], p0, bounds, size, low, dims,
                               labels[p0:p1], pixel_voxel[p0:p1], cols[:, m:], pix[m:],
                               keys[m:])
-        if got < 0:
-            return -1
         m += got
     return m
 
@@ -203,10 +198,8 @@ def project_roi(depth_m: np.ndarray, rays: tuple, bounds: np.ndarray,
     shape = depth_m.shape
     depth = np.ascontiguousarray(depth_m, np.float32).reshape(-1)
     n = depth.size
-    ru, rv, rot = rays
     band = max(1, _RAY_BAND_PX // shape[1]) * shape[1]   # whole rows
     chunk = scratch('ray_band', 3 * band, np.float32)[:3 * band].reshape(3, band)
-    kernel = functools.partial(_project_rays_kernel, depth, ru, rv, rot, chunk)
     size = np.asarray(voxel_size_m, np.float32)
     low, dims = roi_lattice(bounds, size)
     labels = np.empty(shape, np.uint8)
@@ -221,12 +214,8 @@ def project_roi(depth_m: np.ndarray, rays: tuple, bounds: np.ndarray,
         keys = np.empty(n, np.int64)
     keyed = int(dims[0]) * int(dims[1]) * int(dims[2]) <= _DENSE_LIMIT
     unkeyed = np.full(3, 1 << 62, np.int64)   # a lattice no key leaves: points only
-    m = kernel(bounds, size, low, dims if keyed else unkeyed, labels.reshape(-1),
-               pixel_voxel.reshape(-1), cols, pix, keys)
-    if m < 0:   # a key outside the lattice: points only, numpy numbers the voxels
-        keyed = False
-        m = kernel(bounds, size, low, unkeyed, labels.reshape(-1), pixel_voxel.reshape(-1),
-                   cols, pix, keys)
+    m = _project_rays_kernel(depth, *rays, chunk, bounds, size, low, dims if keyed else unkeyed,
+                             labels.reshape(-1), pixel_voxel.reshape(-1), cols, pix, keys)
     return Projection(cols[:, :m].T, pix[:m], keys[:m] if keyed else None, labels, pixel_voxel,
                       low, dims, reuse, cols)
 
