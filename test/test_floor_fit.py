@@ -85,7 +85,7 @@ def test_skipping_repeated_refits_keeps_the_fit(kernel_path):
         coef, used = floor._best_plane(pts, params)
         assert used == best[2] and _same_plane(coef, best[1]), name
         first, second = floor._ransac_plane(pts, params)
-        skipped += floor._same(floor._in_band(pts, *first, floor.REFIT_BANDS_M[0]),
+        skipped += _same_plane(floor._in_band(pts, *first, floor.REFIT_BANDS_M[0]),
                                floor._in_band(pts, *second, floor.REFIT_BANDS_M[0]))
     assert skipped >= 1   # some frame does take the shortcut
 

@@ -5,7 +5,6 @@ A bounded RANSAC plane fit on upward-facing samples; the method: docs/method.md.
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass
 
@@ -150,11 +149,6 @@ def _in_band(pts: np.ndarray, a: float, b: float, c: float, band_m: float) -> np
     return pts[:, np.abs(resid) <= band_m]
 
 
-def _same(a: np.ndarray, b: np.ndarray) -> bool:
-    """Return True when a and b hold the same values, bit for bit, in the same shape."""
-    return a.shape == b.shape and a.tobytes() == b.tobytes()
-
-
 def _count_in_band(pts: np.ndarray, a: float, b: float, c: float, band_m: float) -> int:
     """How many samples pts (3, M) lie within band_m of z = a x + b y + c."""
     resid = pts[2] - (a * pts[0] + b * pts[1] + c)
@@ -239,7 +233,8 @@ def _best_plane(pts: np.ndarray, params: DetectorParams) -> tuple[np.ndarray, in
                 break
             # the same inliers as an earlier hypothesis at this stage: the same refits follow,
             # the same plane and support, which did not beat the best (skipped, same result)
-            repeated = any(len(done) > stage and _same(done[stage], inliers) for done in refits)
+            repeated = any(len(done) > stage and done[stage].shape == inliers.shape
+                           and done[stage].tobytes() == inliers.tobytes() for done in refits)
             if repeated:
                 break
             stages.append(inliers)
@@ -287,14 +282,6 @@ def _floor_beneath(pts: np.ndarray, coef: np.ndarray, used: int,
     return lower, lower_in.shape[1]
 
 
-@functools.lru_cache(maxsize=16)
-def _mount_rotation(pitch_rad: float, roll_rad: float) -> np.ndarray:
-    """:func:`.geometry.mount_rotation`, kept per configured mount (read-only)."""
-    rot = mount_rotation(pitch_rad, roll_rad)
-    rot.flags.writeable = False
-    return rot
-
-
 def _corrected_mount(params: DetectorParams, a: float, b: float, c: float,
                      samples: int) -> FloorFit:
     """Return the mount whose ground frame has the plane z = a x + b y + c as z = 0."""
@@ -311,7 +298,7 @@ def _corrected_mount(params: DetectorParams, a: float, b: float, c: float,
         k = axis / s
         kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
         rot_c = rot_c + s * kx + (1.0 - cos_angle) * (kx @ kx)
-    total = rot_c @ _mount_rotation(params.camera_pitch_rad, params.camera_roll_rad)
+    total = rot_c @ mount_rotation(params.camera_pitch_rad, params.camera_roll_rad)
     roll, pitch, _ = mount_angles(total)
     return FloorFit(True, height, pitch, roll, d_height_m=height - params.camera_height_m,
                     d_pitch_deg=math.degrees(pitch - params.camera_pitch_rad),
