@@ -101,11 +101,6 @@ class GroundRays:
         self.rot = np.ascontiguousarray(rot, np.float32)
         self._table: np.ndarray | None = None
 
-    @property
-    def shape(self) -> tuple[int, int]:
-        """(H, W) of the image the rays belong to."""
-        return self.rv.size, self.ru.size
-
     def table(self) -> np.ndarray:
         """Return the (3, H*W) float32 rays of every flat pixel index (made once)."""
         if self._table is None:

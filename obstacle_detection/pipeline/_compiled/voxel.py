@@ -20,8 +20,6 @@ _DENSE_LIMIT = 16_000_000
 #: uint64 0 and 1 (numba turns uint64 mixed with an int literal into float64).
 _U0 = np.uint64(0)
 _U1 = np.uint64(1)
-#: Label of a pixel inside the region of interest until :func:`label_pixels` decides.
-_LABEL_KEPT = LABEL_GROUND
 #: Pixels whose rays are computed at once (96 kB, cache resident).
 _RAY_BAND_PX = 8192
 
@@ -53,7 +51,7 @@ def _project_kernel(depth, rays, offset, bounds, size, low, dims, labels, pixel_
             i = np.int64(np.floor(gx / size[0])) - low[0]
             j = np.int64(np.floor(gy / size[1])) - low[1]
             k = np.int64(np.floor(gz / size[2])) - low[2]
-            labels[p] = _LABEL_KEPT
+            labels[p] = LABEL_GROUND   # inside the region of interest until label_pixels
             cols[0, m] = gx
             cols[1, m] = gy
             cols[2, m] = gz
