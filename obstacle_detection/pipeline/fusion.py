@@ -86,8 +86,6 @@ class FusionUpdate:
 
     pose: Pose
     in_place: bool
-    shift_cells: tuple[int, int]
-    cells_forgotten: int
     reset: bool
     reason: str = ''
     message: str = ''
@@ -214,18 +212,15 @@ class FusedGrid:
         out[inside] = self.cell_states()[row[inside], col[inside]]
         return out
 
-    def _scroll_to(self, origin: tuple[int, int]) -> tuple[tuple[int, int], int]:
-        """Move the window's origin to ``origin``; return (shift, cells with evidence lost)."""
+    def _scroll_to(self, origin: tuple[int, int]) -> None:
+        """Move the window's origin to ``origin``; the cells that leave it are forgotten."""
         d_col = origin[0] - self._origin_cell[0]
         d_row = origin[1] - self._origin_cell[1]
-        if d_col == 0 and d_row == 0:
-            return (0, 0), 0
-        before = int(np.count_nonzero(self._log_odds))
-        # whole cells: new[r, c] = old[r + d_row, c + d_col], 0 from outside the old window
-        self._log_odds = ndimage.shift(self._log_odds, (-d_row, -d_col), order=0, cval=0.0,
-                                       prefilter=False)
-        self._origin_cell = origin
-        return (d_col, d_row), before - int(np.count_nonzero(self._log_odds))
+        if d_col or d_row:
+            # whole cells: new[r, c] = old[r + d_row, c + d_col], 0 from outside the old window
+            self._log_odds = ndimage.shift(self._log_odds, (-d_row, -d_col), order=0, cval=0.0,
+                                           prefilter=False)
+            self._origin_cell = origin
 
     def _reanchor(self, old: Pose, new: Pose) -> int:
         """Re-express the map with the robot at ``new`` (was ``old``, not moved); cells lost."""
@@ -263,7 +258,7 @@ class FusedGrid:
             kind = 'old'
             reason = (f'odometry pose {self._pose_stamp_s - pose_stamp_s:.3f} s older than '
                       f'the last one used')
-        message, warning, reset, forgotten = '', False, False, 0
+        message, warning, reset = '', False, False
         if reason:   # fuse in place; say so once per kind of cause
             used = self._pose if self._pose is not None else (0.0, 0.0, 0.0)
             if kind != self._in_place_kind:
@@ -290,9 +285,8 @@ class FusedGrid:
                     warning = True
             if pose_stamp_s is not None:
                 self._pose_stamp_s = float(pose_stamp_s)
-        shift, scrolled_out = (0, 0), 0
         if not reset:
-            shift, scrolled_out = self._scroll_to(self._centred_origin(used[0], used[1]))
+            self._scroll_to(self._centred_origin(used[0], used[1]))
         self._pose = used
         n = p.cells
         hit, miss = frame_evidence(costmap, used, self._origin_cell, (n, n), p.resolution_m)
@@ -300,8 +294,7 @@ class FusedGrid:
         grid[hit] += np.float32(p.hit_log_odds)
         grid[miss] += np.float32(p.miss_log_odds)
         np.clip(grid, np.float32(p.min_log_odds), np.float32(p.max_log_odds), out=grid)
-        return FusionUpdate(pose=used, in_place=bool(reason) and not reset, shift_cells=shift,
-                            cells_forgotten=forgotten + scrolled_out, reset=reset,
+        return FusionUpdate(pose=used, in_place=bool(reason) and not reset, reset=reset,
                             reason=reason, message=message, warning=warning)
 
 
