@@ -105,11 +105,3 @@ def test_choose_runs_the_compiled_twin_only_when_the_switch_is_on(monkeypatch) -
     assert both(3) == 6
     monkeypatch.setenv(jit_support.NO_JIT_ENV, '0')
     assert both(3) == (1006 if jit_support.AVAILABLE else 6)
-
-
-@pytest.mark.numba
-def test_choose_asks_accepts_before_calling_the_compiled_twin(monkeypatch) -> None:
-    monkeypatch.setenv(jit_support.NO_JIT_ENV, '0')
-    small = jit_support.choose(_twice, _twice_compiled, accepts=lambda x: x < 10)
-    assert small(3) == 1006
-    assert small(30) == 60

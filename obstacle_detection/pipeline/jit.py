@@ -43,15 +43,14 @@ def enabled() -> bool:
     return _kernels_ready.is_set() or getattr(_compiling, 'active', False)
 
 
-def choose(reference: Callable[..., Any], compiled: Callable[..., Any], *,
-           accepts: Callable[..., bool] | None = None) -> Callable[..., Any]:
-    """Return a dispatcher: ``compiled`` when :func:`enabled` and ``accepts``, else ``reference``.
+def choose(reference: Callable[..., Any], compiled: Callable[..., Any]) -> Callable[..., Any]:
+    """Return a dispatcher: ``compiled`` when :func:`enabled`, else ``reference``.
 
     The result keeps both as ``.reference`` and ``.compiled`` (tests compare them).
     """
     @functools.wraps(reference)
     def dispatch(*args: Any, **kwargs: Any) -> Any:
-        if enabled() and (accepts is None or accepts(*args, **kwargs)):
+        if enabled():
             return compiled(*args, **kwargs)
         return reference(*args, **kwargs)
 

@@ -312,7 +312,9 @@ def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float, *,
     if max_shift <= 0.0:
         return filtered
     raw = np.ascontiguousarray(raw, np.float32)
-    _drop_smeared(filtered, raw, max_shift, FLYING_JUMP, PLANAR_TOLERANCE, raw_no_nan)
+    # the compiled pass's window range orders NaN its own way: raw with NaN takes numpy's
+    smear = _drop_smeared if raw_no_nan or not np.isnan(raw).any() else _drop_smeared.reference
+    smear(filtered, raw, max_shift, FLYING_JUMP, PLANAR_TOLERANCE)
     return filtered
 
 
@@ -342,8 +344,7 @@ _unbias_holes = jit.choose(_reference_unbias_holes, jit_traversal.unbias_holes)
 
 
 def _reference_drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float,
-                            jump: float, planar_tolerance: float,
-                            raw_no_nan: bool = False) -> None:
+                            jump: float, planar_tolerance: float) -> None:
     """In place: :func:`drop_smeared`'s rules with the flying-pixel ``jump`` (numpy)."""
     kernel = np.ones((FLYING_WINDOW_PX, FLYING_WINDOW_PX), np.uint8)   # nearest, farthest
     near = cv2.erode(np.where(raw > 0.0, raw, np.float32(np.inf)), kernel,
@@ -371,14 +372,7 @@ def _reference_drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: fl
     filtered[bad] = 0.0
 
 
-def _fusable(filtered: np.ndarray, raw: np.ndarray, max_shift: float, jump: float,
-             planar_tolerance: float, raw_no_nan: bool = False) -> bool:
-    """Return True for what the compiled smear pass takes: no NaN in raw."""
-    return raw_no_nan or not np.isnan(raw).any()
-
-
-_drop_smeared = jit.choose(_reference_drop_smeared, jit_traversal.drop_smeared,
-                           accepts=_fusable)
+_drop_smeared = jit.choose(_reference_drop_smeared, jit_traversal.drop_smeared)
 
 
 def drop_edge_mask(depth_m: np.ndarray, rz: np.ndarray, height_m: float, step_down_m: float,

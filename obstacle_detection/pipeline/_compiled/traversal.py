@@ -408,11 +408,11 @@ def _smear_kernel(filtered, raw, ratio, jump, tol_ratio, rows, planar,
 
 
 def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float, jump: float,
-                 planar_tolerance: float, raw_no_nan: bool = False) -> None:
+                 planar_tolerance: float) -> None:
     """In place: traversal's drop_smeared, its 5 x 5 window range computed on the way.
 
-    filtered, raw: (H, W) float32 C-contiguous; raw without NaN (the stage's ``accepts``
-    checks it, or takes ``raw_no_nan``: OpenCV's window range orders NaN its own way).
+    filtered, raw: (H, W) float32 C-contiguous; raw without NaN (OpenCV's window range, the
+    numpy path's, orders NaN its own way).
     """
     width = raw.shape[1]
     rows = scratch('smear_rows', 9 * (width + 4), np.float32)[:9 * (width + 4)]
