@@ -142,10 +142,6 @@ class LogisticRefiner:
     training_info: tuple[tuple[str, Any], ...] = ()
 
     def __post_init__(self) -> None:
-        n = len(FEATURE_NAMES)
-        sizes = (len(self.coefficients), len(self.feature_mean), len(self.feature_scale))
-        if sizes != (n + 1, n, n):
-            raise ValueError(f'{sizes} coefficients, means, scales: expected {(n + 1, n, n)}')
         values = (*self.coefficients, *self.feature_mean, *self.feature_scale, self.threshold)
         if not all(math.isfinite(v) for v in values) or min(self.feature_scale) <= 0.0 \
                 or not 0.0 < self.threshold < 1.0:
@@ -185,8 +181,7 @@ class LogisticRefiner:
         features, pixel_index = pixel_features(result, previous_mask)
         shape = np.asarray(result.pixel_voxel).shape
         out = np.zeros(shape[0] * shape[1], dtype=bool)
-        if pixel_index.size:
-            out[pixel_index] = self.predict(features)
+        out[pixel_index] = self.predict(features)
         return out.reshape(shape)
 
     def to_dict(self) -> dict[str, Any]:

@@ -14,12 +14,11 @@ from .params import DetectorParams
 
 @dataclass(frozen=True)
 class VoxelGrid:
-    """Voxels: centroids (V, 3) float32, point_voxel (M,), counts (V,), voxel_ijk (V, 3)."""
+    """Voxels in key order: centroids (V, 3) float32, point_voxel (M,), counts (V,)."""
 
     centroids: np.ndarray
     point_voxel: np.ndarray
     counts: np.ndarray
-    voxel_ijk: np.ndarray
 
 
 def voxel_downsample(points: np.ndarray, voxel_size_m: tuple[float, float, float],
@@ -29,7 +28,7 @@ def voxel_downsample(points: np.ndarray, voxel_size_m: tuple[float, float, float
     pts = np.asarray(points)
     if pts.shape[0] == 0:
         return VoxelGrid(np.zeros((0, 3), np.float32), np.zeros(0, np.int64),
-                         np.zeros(0, np.int64), np.zeros((0, 3), np.int64))
+                         np.zeros(0, np.int64))
 
     cols = np.ascontiguousarray(pts.T)
     ijk = [np.floor(cols[a] / cols.dtype.type(size[a])).astype(np.int64) for a in range(3)]
@@ -49,11 +48,7 @@ def voxel_downsample(points: np.ndarray, voxel_size_m: tuple[float, float, float
     for axis in range(3):
         sums = np.bincount(point_voxel, weights=cols[axis], minlength=n_vox)
         centroids[:, axis] = sums / counts
-    vox_ijk = np.empty((n_vox, 3), dtype=np.int64)
-    rest, vox_ijk[:, 2] = np.divmod(cell_keys, dims[2])
-    vox_ijk[:, 0], vox_ijk[:, 1] = np.divmod(rest, dims[1])
-    vox_ijk += low
-    return VoxelGrid(centroids, point_voxel, counts, vox_ijk)
+    return VoxelGrid(centroids, point_voxel, counts)
 
 
 # --------------------------------------------------------------------------- the frame stage

@@ -96,12 +96,12 @@ def _popcount(x):  # pragma: no cover - compiled
 
 
 @_jit
-def _voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_voxel, bits,
+def _voxel_kernel(cols, keys, n_cells, pixels, pixel_voxel, point_voxel, bits,
                   prefix):  # pragma: no cover - compiled
     """Give the occupied cells numbers in key order (a bitmap, bits; prefix: counts per word).
 
     Writes point_voxel (m,) and pixel_voxel at each point's pixel; bits must be all zero and
-    are left so. Returns (centroids, point_voxel, counts, voxel_ijk).
+    are left so. Returns (centroids, point_voxel, counts).
     """
     n_words = (n_cells + 63) // 64
     m = point_voxel.shape[0]
@@ -112,19 +112,6 @@ def _voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_vox
     for w in range(n_words):
         prefix[w] = n_vox
         n_vox += _popcount(bits[w])
-    voxel_ijk = np.empty((n_vox, 3), np.int64)
-    for w in range(n_words):
-        word = bits[w]
-        v = prefix[w]
-        while word != _U0:
-            lowest = word & (~word + _U1)          # the lowest set bit: cells in key order
-            c = w * 64 + _popcount(lowest - _U1)
-            rest = c // dims[2]
-            voxel_ijk[v, 2] = c - rest * dims[2] + low[2]
-            voxel_ijk[v, 1] = rest % dims[1] + low[1]
-            voxel_ijk[v, 0] = rest // dims[1] + low[0]
-            v += 1
-            word ^= lowest
     counts = np.zeros(n_vox, np.int64)
     sums = np.zeros((n_vox, 3), np.float64)
     for q in range(m):
@@ -144,7 +131,7 @@ def _voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_vox
         n = np.float64(counts[v])
         for a in range(3):
             centroids[v, a] = np.float32(sums[v, a] / n)
-    return centroids, point_voxel, counts, voxel_ijk
+    return centroids, point_voxel, counts
 
 
 @_jit
@@ -225,7 +212,7 @@ def voxelise(proj: Projection) -> tuple:
     point_voxel = scratch('point_voxel', m, np.int64)[:m] if proj.reuse else np.empty(m,
                                                                                       np.int64)
     n_words = (n_cells + 63) // 64
-    return _voxel_kernel(proj.cols, proj.keys, n_cells, proj.dims, proj.low, proj.pixel_index,
+    return _voxel_kernel(proj.cols, proj.keys, n_cells, proj.pixel_index,
                          proj.pixel_voxel.reshape(-1), point_voxel,
                          scratch('occupied_bits', n_words, np.uint64, zero=True),
                          scratch('bit_prefix', n_words, np.int64))
