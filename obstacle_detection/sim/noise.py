@@ -2,13 +2,10 @@
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
-
-from .primitives import check
 
 
 @dataclass(frozen=True)
@@ -33,19 +30,6 @@ class NoiseModel:
     flying_jump_m: float = 0.05
     flying_jump_ratio: float = 0.08
     dark_blob_px: float = 0.0
-
-    def __post_init__(self) -> None:
-        if isinstance(self.border_px, bool) or not isinstance(self.border_px, int) or \
-                self.border_px < 0:
-            raise ValueError(f'NoiseModel: border_px={self.border_px!r} must be an int >= 0')
-        fields = dataclasses.asdict(self)
-        rates = {name: fields.pop(name) for name in ('dropout_rate', 'dark_dropout_rate',
-                                                     'far_dropout_rate', 'flying_pixel_rate')}
-        check('NoiseModel', 'within [0, 1]', lambda v: 0.0 <= v <= 1.0, **rates)
-        check('NoiseModel', 'a finite number >= 0', lambda v: v >= 0.0, **fields)
-        if not 0.0 <= self.min_range_m < self.max_range_m <= 65.535:
-            raise ValueError(f'NoiseModel: need 0 <= min_range_m={self.min_range_m!r} < '
-                             f'max_range_m={self.max_range_m!r} <= 65.535')
 
 
 #: The default sensor model (``noise=True``) and the exact one (``noise=False``). The default

@@ -12,7 +12,7 @@ from obstacle_detection.pipeline.params import (DetectorParams, Intrinsics, KINE
                                                 KINECT_V2_SD_SIZE)
 
 from .noise import NoiseModel
-from .primitives import Box, Cylinder, Floor, Ramp, RampSide, StepDown, Wall, check_positive
+from .primitives import Box, Cylinder, Floor, Ramp, RampSide, StepDown, Wall
 from .render import Scene, SceneFrame, check_render_args, render
 from .truth import TruthRules
 
@@ -118,36 +118,25 @@ def _person_walking(rng: np.random.Generator, frame_index: int) -> Scene:
 # -- issue 9 scenes: robot-level obstacles (flat tops, overhangs, drops, steps)
 
 def table(x_m: float, y_m: float, size_x_m: float, size_y_m: float, height_m: float, *,
-          top_m: float = 0.03, leg_m: float = 0.04, name: str = 'table',
-          dark: bool = False) -> tuple[Box, ...]:
-    """Return a table centred on (x_m, y_m): a top with its upper face ``height_m`` up, legs."""
-    check_positive('table', size_x_m=size_x_m, size_y_m=size_y_m, height_m=height_m,
-                    top_m=top_m, leg_m=leg_m)
-    if not (top_m < height_m and 2 * leg_m < min(size_x_m, size_y_m)):
-        raise ValueError(f'table {name!r}: top_m={top_m!r} must be below height_m='
-                         f'{height_m!r} and two legs of {leg_m!r} narrower than the top')
-    hx, hy = size_x_m / 2, size_y_m / 2
-    parts = [Box((x_m - hx, y_m - hy, height_m - top_m), (x_m + hx, y_m + hy, height_m),
-                 dark=dark, name=name)]
+          leg_m: float = 0.04, name: str = 'table', dark: bool = False) -> tuple[Box, ...]:
+    """Return a table centred on (x_m, y_m): a 3 cm top, its upper face ``height_m`` up, legs."""
+    hx, hy, under = size_x_m / 2, size_y_m / 2, height_m - 0.03
+    parts = [Box((x_m - hx, y_m - hy, under), (x_m + hx, y_m + hy, height_m), dark=dark,
+                 name=name)]
     for sx in (-1.0, 1.0):
         for sy in (-1.0, 1.0):
             cx, cy = x_m + sx * (hx - leg_m / 2), y_m + sy * (hy - leg_m / 2)
             parts.append(Box((cx - leg_m / 2, cy - leg_m / 2, 0.0),
-                             (cx + leg_m / 2, cy + leg_m / 2, height_m - top_m),
-                             dark=dark, name=name))
+                             (cx + leg_m / 2, cy + leg_m / 2, under), dark=dark, name=name))
     return tuple(parts)
 
 
-def chair(x_m: float, y_m: float, *, seat_m: float = 0.42, seat_height_m: float = 0.46,
-          back_height_m: float = 0.9, name: str = 'chair', dark: bool = False,
-          leg_m: float = 0.03) -> tuple[Box, ...]:
-    """Return a chair centred on (x_m, y_m): a square seat on four legs, its back at +x."""
-    parts = table(x_m, y_m, seat_m, seat_m, seat_height_m, top_m=0.03, leg_m=leg_m, name=name,
-                  dark=dark)
-    half = seat_m / 2
-    back = Box((x_m + half - 0.03, y_m - half, seat_height_m),
-               (x_m + half, y_m + half, back_height_m), dark=dark, name=name)
-    return parts + (back,)
+def chair(x_m: float, y_m: float, *, leg_m: float = 0.03, name: str = 'chair',
+          dark: bool = False) -> tuple[Box, ...]:
+    """Return a chair centred on (x_m, y_m): a 0.42 m seat 0.46 m up, its back at +x to 0.9 m."""
+    back = Box((x_m + 0.21 - 0.03, y_m - 0.21, 0.46), (x_m + 0.21, y_m + 0.21, 0.9), dark=dark,
+               name=name)
+    return table(x_m, y_m, 0.42, 0.42, 0.46, leg_m=leg_m, name=name, dark=dark) + (back,)
 
 
 def _jitter(rng: np.random.Generator) -> Callable[[], float]:

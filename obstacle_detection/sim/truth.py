@@ -11,7 +11,7 @@ import numpy as np
 
 from obstacle_detection.labels import GT_ABOVE_ROBOT, GT_OBSTACLE, GT_TRAVERSABLE
 
-from .primitives import Patch, Primitive, check, check_positive, check_slope
+from .primitives import Patch, Primitive
 
 #: Two drivable patches whose rectangles are closer than this touch (connectivity) [m].
 TOUCH_M = 1e-3
@@ -30,19 +30,10 @@ class TruthRules:
     max_step_down_m: float = 0.05
     robot_height_m: float = 1.0
 
-    def __post_init__(self) -> None:
-        check_slope('TruthRules', max_slope_rad=self.max_slope_rad)
-        check('TruthRules', 'a finite number >= 0', lambda v: v >= 0.0,
-              max_step_height_m=self.max_step_height_m, max_step_down_m=self.max_step_down_m)
-        check_positive('TruthRules', robot_height_m=self.robot_height_m)
-
     @classmethod
     def from_params(cls, params: Any) -> 'TruthRules':
-        """Rules from detector parameters; fields they lack (older params) keep the defaults."""
-        default = cls()
-        return cls(**{name: float(getattr(params, name, getattr(default, name)))
-                      for name in ('max_slope_rad', 'max_step_height_m', 'max_step_down_m',
-                                   'robot_height_m')})
+        """Rules from detector parameters (or other rules): their fields of these names."""
+        return cls(**{f.name: float(getattr(params, f.name)) for f in dataclasses.fields(cls)})
 
 
 def _rise(a: Patch, b: Patch) -> np.ndarray | None:
