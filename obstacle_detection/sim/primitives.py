@@ -33,11 +33,6 @@ class Rays:
         """Return the rays of an image window (views of 2-D direction arrays)."""
         return Rays(self.origin, self.dx[rows, cols], self.dy[rows, cols], self.dz[rows, cols])
 
-    def flat(self, index: np.ndarray) -> 'Rays':
-        """Return the rays at flat indices ``index`` (copies, 1-D)."""
-        return Rays(self.origin, self.dx.reshape(-1)[index], self.dy.reshape(-1)[index],
-                    self.dz.reshape(-1)[index])
-
 
 #: A primitive's hit labels: one label for every hit, or an array of one per ray.
 LabelValue = Union[int, np.ndarray]
@@ -161,8 +156,8 @@ class Floor(Primitive):
         # rays that go down and enter the band |z| <= amp early enough
         active = np.flatnonzero((dz_all < 0.0) & (t_enter < BUMPY_TRACE_M))
         # float32 from here: sin/cos are many times faster, and 1e-6 relative is plenty
-        sub = rays.flat(active)
-        dx, dy, dz = (d.astype(np.float32) for d in (sub.dx, sub.dy, sub.dz))
+        dx, dy, dz = (d.reshape(-1)[active].astype(np.float32)
+                      for d in (rays.dx, rays.dy, rays.dz))
         t_end = np.minimum((oz + amp) / -dz, BUMPY_TRACE_M)   # below every bump from here on
         step = 0.1 * self.bump_wavelength_m / np.maximum(np.hypot(dx, dy), 1e-6)
 

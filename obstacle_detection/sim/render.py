@@ -70,16 +70,6 @@ class SceneFrame:
     truth_rules: TruthRules
 
     @property
-    def size(self) -> tuple[int, int]:
-        """(width, height) [px]."""
-        return self.depth_mm.shape[1], self.depth_mm.shape[0]
-
-    @property
-    def depth_m(self) -> np.ndarray:
-        """(H, W) float32 measured depth [m], 0 = no return."""
-        return self.depth_mm.astype(np.float32) * np.float32(1e-3)
-
-    @property
     def object_names(self) -> tuple[str, ...]:
         """Name of each primitive ('' = unnamed); primitives of one name form one object."""
         return tuple(p.name for p in self.primitives)
@@ -143,8 +133,6 @@ def _posed_rays(rays: Rays, rot: np.ndarray, pose: tuple[float, float, float],
                 ) -> tuple[Rays, np.ndarray]:
     """Move base-frame rays and rotation to a robot at ``pose`` (x, y, yaw) in the scene."""
     x, y, yaw = (float(v) for v in pose)
-    if not all(math.isfinite(v) for v in (x, y, yaw)):
-        raise ValueError(f'pose={pose!r} must be finite (x [m], y [m], yaw [rad])')
     c, s = math.cos(yaw), math.sin(yaw)
     ox, oy, oz = rays.origin
     yaw_rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
