@@ -36,15 +36,8 @@ SIZES = {
     '960x540': ((960, 540), Intrinsics(fx=540.7, fy=540.7, cx=479.75, cy=269.75)),
 }
 DEFAULT_SCENES = ('corridor', 'people', 'ramps', 'farm_row')
-#: Seeds rendered per scene (frames cycle over them).
-SEEDS = 3
 #: Row of the per-frame sum of the stages that are not the seed's (robot level, floor fit).
 NEW_TOTAL = 'new stages'
-
-
-def _stats(per_row: dict[str, list[float]]) -> dict[str, dict[str, float]]:
-    return {row: {'median_ms': float(np.median(v)), 'p90_ms': float(np.percentile(v, 90))}
-            for row, v in per_row.items()}
 
 
 def run_config(scenes: tuple[str, ...], size_label: str, kernel: int, frames: int,
@@ -57,14 +50,14 @@ def run_config(scenes: tuple[str, ...], size_label: str, kernel: int, frames: in
     (width, height), intr = SIZES[size_label]
     rendered = []
     for name in scenes:
-        for seed in range(SEEDS):
+        for seed in range(3):   # frames cycle over three seeds per scene
             frame = render_scene(name, seed=seed, intrinsics=intr, size=(width, height))
             params = scene_params(frame, PRESETS[preset](median_kernel=kernel))
             rendered.append((frame, Detector(params)))
     rendered[0][1].warm_up()  # numba kernels compiled or loaded before timing
     rendered[0][1].process(rendered[0][0].depth_mm, rendered[0][0].intrinsics)
     per_stage = {stage: [] for stage in (*STAGES, NEW_TOTAL, 'total')}
-    voxels, obstacles = [], []
+    voxels = []
     period_s = 1.0 / rate_hz if rate_hz > 0.0 else 0.0
     wall_start = next_start = time.perf_counter()
     for i in range(frames):
@@ -77,14 +70,14 @@ def run_config(scenes: tuple[str, ...], size_label: str, kernel: int, frames: in
             per_stage[stage].append(ms)
         per_stage[NEW_TOTAL].append(sum(result.timings_ms[s] for s in NEW_STAGES))
         voxels.append(result.voxel_points.shape[0])
-        obstacles.append(result.obstacle_points.shape[0])
     wall = time.perf_counter() - wall_start
+    stats = {row: {'median_ms': float(np.median(v)), 'p90_ms': float(np.percentile(v, 90))}
+             for row, v in per_stage.items()}
     return {
         'label': f'{size_label} K={kernel}', 'size': size_label, 'kernel': kernel,
-        'preset': preset, 'frames': frames, 'scenes': list(scenes), 'stages': _stats(per_stage),
+        'preset': preset, 'frames': frames, 'scenes': list(scenes), 'stages': stats,
         'fps': frames / wall, 'rate_hz': rate_hz,
         'voxels_median': float(np.median(voxels)),
-        'obstacle_points_median': float(np.median(obstacles)),
     }
 
 

@@ -120,8 +120,7 @@ def measure(depth_true: np.ndarray, hit_index: np.ndarray, dark: np.ndarray,
         offset = measured_m.astype(np.float32) - np.float32(model.depth_sigma_ref_m)
         sigma_mm = np.float32(model.depth_sigma_quad_mm_per_m2) * offset * offset
         sigma_mm += np.float32(model.depth_sigma_base_mm)
-        if model.dark_sigma_factor != 1.0:
-            sigma_mm[on_dark] *= np.float32(model.dark_sigma_factor)
+        sigma_mm[on_dark] *= np.float32(model.dark_sigma_factor)
         sigma_mm *= gauss
         measured_mm += sigma_mm
     np.rint(measured_mm, out=measured_mm)
@@ -132,19 +131,16 @@ def measure(depth_true: np.ndarray, hit_index: np.ndarray, dark: np.ndarray,
         dark_rate = model.dropout_rate if blobs else model.dark_dropout_rate
         rates = np.where(dark, dark_rate, model.dropout_rate).astype(np.float32)
         rate = rates[hit_index]
-        if model.far_dropout_rate > 0.0:   # rising from far_dropout_start_m to max_range_m
-            span = max(model.max_range_m - model.far_dropout_start_m, 1e-9)
-            ramp = np.clip((depth_true - model.far_dropout_start_m) / span, 0.0, 1.0)
-            rate += (model.far_dropout_rate * ramp).astype(np.float32)
+        span = model.max_range_m - model.far_dropout_start_m   # far dropouts rise over it
+        ramp = np.clip((depth_true - model.far_dropout_start_m) / span, 0.0, 1.0)
+        rate += (model.far_dropout_rate * ramp).astype(np.float32)
         valid &= dropout_draw >= rate
         if blobs and model.dark_dropout_rate > 0.0:
             valid &= ~blob_dropouts(hit_index, dark, model.dark_dropout_rate,
                                     model.dark_blob_px, key)
     b = model.border_px
-    if b:
-        valid[:b, :] = False
-        valid[-b:, :] = False
-        valid[:, :b] = False
-        valid[:, -b:] = False
+    border = np.ones_like(valid)
+    border[b:height - b, b:width - b] = False
+    valid[border] = False
     depth_mm = np.where(valid, measured_mm, 0.0).astype(np.uint16)
     return depth_mm, valid, flying

@@ -29,10 +29,6 @@ class Rays:
     dy: np.ndarray
     dz: np.ndarray
 
-    def window(self, rows: slice, cols: slice) -> 'Rays':
-        """Return the rays of an image window (views of 2-D direction arrays)."""
-        return Rays(self.origin, self.dx[rows, cols], self.dy[rows, cols], self.dz[rows, cols])
-
 
 #: A primitive's hit labels: one label for every hit, or an array of one per ray.
 LabelValue = Union[int, np.ndarray]
@@ -129,9 +125,7 @@ class Floor(Primitive):
                       tolerance_m=self.bump_amplitude_m),)
 
     def height(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """Ground height z(x, y) [m], shaped like x and y."""
-        if self.bump_amplitude_m == 0.0:
-            return np.zeros(np.broadcast(x, y).shape)
+        """Ground height z(x, y) [m] of a bumpy floor, shaped like x and y."""
         k = 2.0 * math.pi / self.bump_wavelength_m
         p0, p1, p2 = self.bump_phase_rad
         pattern = np.sin(k * x + p0)

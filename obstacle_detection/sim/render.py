@@ -16,8 +16,6 @@ from .noise import EXACT, KINECT_V2_NOISE, NoiseModel, measure
 from .primitives import MAX_TRACE_M, Bounds, Primitive, Rays, check, label_of
 from .truth import TruthRules, robot_labels
 
-#: Default camera height of the named scenes [m].
-DEFAULT_HEIGHT_M = 0.6
 #: Near plane [m] for projecting a primitive's bounding box into the image.
 _NEAR_M = 0.05
 
@@ -27,7 +25,7 @@ class Scene:
 
     name: str
     primitives: tuple[Primitive, ...]
-    height_m: float = DEFAULT_HEIGHT_M
+    height_m: float = 0.6
     pitch_rad: float = 0.0
     roll_rad: float = 0.0
 
@@ -35,8 +33,6 @@ class Scene:
         check('Scene', 'a finite number > 0', lambda v: v > 0.0, height_m=self.height_m)
         check('Scene', 'within (-pi/2, pi/2)', lambda v: abs(v) < math.pi / 2,
               pitch_rad=self.pitch_rad, roll_rad=self.roll_rad)
-        if not self.primitives:
-            raise ValueError(f'Scene {self.name!r} has no primitives')
 
 
 @dataclass(frozen=True)
@@ -58,22 +54,17 @@ class SceneFrame:
     height_m: float
     pitch_rad: float
     roll_rad: float
-    name: str
-    seed: int
-    frame_index: int
     hit_labels: np.ndarray
     hit_index: np.ndarray
     primitives: tuple[Primitive, ...]
     labels_seed: np.ndarray
     flying: np.ndarray
     drop_edge: np.ndarray
-    truth_rules: TruthRules
 
     @property
     def object_names(self) -> tuple[str, ...]:
         """Name of each primitive ('' = unnamed); primitives of one name form one object."""
         return tuple(p.name for p in self.primitives)
-
 
 
 def camera_rays(intrinsics: Intrinsics, size: tuple[int, int], height_m: float,
@@ -153,7 +144,8 @@ def _nearest_hits(scene: Scene, rays: Rays, rot: np.ndarray, intrinsics: Intrins
         window = _image_window(primitive.bounds(), rays, rot, intrinsics, size)
         if window is None:
             continue
-        t, label = primitive.intersect(rays.window(*window))
+        t, label = primitive.intersect(Rays(rays.origin, rays.dx[window], rays.dy[window],
+                                            rays.dz[window]))
         closer = t < best_t[window]
         np.copyto(best_t[window], t, where=closer)
         np.copyto(hit_index[window], i, where=closer)
@@ -219,7 +211,6 @@ def render(scene: Scene, *, seed: int = 0, intrinsics: Intrinsics = KINECT_V2_SD
     return SceneFrame(
         depth_mm=depth_mm, depth_true_m=depth_true.astype(np.float32), labels=labels,
         points_ground=points, intrinsics=intrinsics, height_m=scene.height_m,
-        pitch_rad=scene.pitch_rad, roll_rad=scene.roll_rad, name=scene.name, seed=int(seed),
-        frame_index=int(frame_index), hit_labels=hit_labels, hit_index=hit_index,
-        primitives=scene.primitives, labels_seed=labels_seed, flying=flying, drop_edge=drop_edge,
-        truth_rules=rules)
+        pitch_rad=scene.pitch_rad, roll_rad=scene.roll_rad, hit_labels=hit_labels,
+        hit_index=hit_index, primitives=scene.primitives, labels_seed=labels_seed,
+        flying=flying, drop_edge=drop_edge)

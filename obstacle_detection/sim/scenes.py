@@ -217,10 +217,10 @@ OPEN_RAMP_RISE_M = 0.18
 
 
 def open_ramp(x_m: float, y_center_m: float, width_m: float, platform_m: float, *,
-              sides: tuple[float, ...] = ()) -> tuple:
+              side_y: float | None = None) -> tuple:
     """Return an open-sided ramp up to a platform, the ramp's foot at x_m [m].
 
-    ``sides``: the y [m] of the open sides modelled as their own primitives (listed first).
+    ``side_y``: the y [m] of an open side modelled as its own primitives (listed first).
     """
     slope = math.radians(OPEN_RAMP_SLOPE_DEG)
     run = OPEN_RAMP_RISE_M / math.tan(slope)
@@ -230,19 +230,18 @@ def open_ramp(x_m: float, y_center_m: float, width_m: float, platform_m: float, 
     platform = Box((x_m + run, y_center_m - half, 0.0),
                    (x_m + run + platform_m, y_center_m + half, OPEN_RAMP_RISE_M),
                    name='platform')
-    faces: list = []
-    for y in sides:
-        faces.append(RampSide(x_m, y, run, slope, name='ramp_side'))
-        faces.append(Wall(x_m + run, y, x_m + run + platform_m, y, 0.0, OPEN_RAMP_RISE_M,
-                          name='platform_side'))
-    return tuple(faces) + (ramp, platform)
+    if side_y is None:
+        return ramp, platform
+    return (RampSide(x_m, side_y, run, slope, name='ramp_side'),
+            Wall(x_m + run, side_y, x_m + run + platform_m, side_y, 0.0, OPEN_RAMP_RISE_M,
+                 name='platform_side'), ramp, platform)
 
 
 def _open_ramp(rng: np.random.Generator, frame_index: int) -> Scene:
     x0 = 1.0 + rng.uniform(-0.05, 0.05)
     yc = 0.65 + rng.uniform(-0.05, 0.05)
     box = Box.on_floor(1.3 + rng.uniform(-0.05, 0.05), -0.5, 0.3, 0.3, 0.3, name='box')
-    return Scene('open_ramp', (Floor(),) + open_ramp(x0, yc, 0.8, 1.2, sides=(yc - 0.4,))
+    return Scene('open_ramp', (Floor(),) + open_ramp(x0, yc, 0.8, 1.2, side_y=yc - 0.4)
                  + (box,))
 
 

@@ -109,7 +109,8 @@ def robot_labels(points: np.ndarray, owner: np.ndarray, primitives: tuple[Primit
         if not a_ok:
             continue
         for b, b_ok in zip(patches, reached):
-            if b_ok or not _is_drop(a, b, rules):
+            dz = None if b_ok else _rise(a, b)
+            if dz is None or dz.max() >= -rules.max_step_down_m:   # b is no drop beside a
                 continue
             near = Patch(max(a.x0_m, b.x0_m) - DROP_EDGE_BAND_M,
                          min(a.x1_m, b.x1_m) + DROP_EDGE_BAND_M,
@@ -175,9 +176,3 @@ def _ledges(x: np.ndarray, y: np.ndarray, z: np.ndarray, owner: np.ndarray,
                 np.maximum(beyond, np.where(fits, plane, -np.inf), out=beyond)
             out |= band & np.isfinite(beyond) & (z_here - beyond > rules.max_step_down_m)
     return out
-
-
-def _is_drop(a: Patch, b: Patch, rules: TruthRules) -> bool:
-    """Return True when b touches a and lies lower than it by more than a step down."""
-    dz = _rise(a, b)
-    return dz is not None and bool(dz.max() < -rules.max_step_down_m)
