@@ -376,7 +376,7 @@ class Cylinder(Primitive):
 class StepDown(Primitive):
     """Floor at z = 0 for x < x_m, a drop of depth_m there, lower floor at z = -depth_m beyond.
 
-    Use it instead of ``Floor``; its seed label: the lower floor is an obstacle below 0.1 m.
+    Use it instead of ``Floor``; the seed's label: the lower floor is an obstacle past 0.1 m.
     """
 
     x_m: float
