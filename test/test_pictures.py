@@ -170,6 +170,15 @@ def test_tool_draws_a_contact_sheet_of_a_bag(tmp_path, corridor):
     assert cv2.imread(str(out)).shape[1] == 2 * (picture_jobs.SHEET_THUMB_PX + 6)
 
 
+def test_tool_says_when_frames_selects_none(tmp_path, corridor, capsys):
+    _write_bag(tmp_path / 'bag', corridor[0], 2)
+    assert pictures_tool.main(['--bag', str(tmp_path / 'bag'), '--depth-topic', '/depth',
+                               '--info-topic', '/info', '--frames', '5:9',
+                               '--out', str(tmp_path / 'x.png')]) == 1
+    assert capsys.readouterr().err.startswith('error: no frames to draw: --frames selects none')
+    assert not (tmp_path / 'x.png').exists()
+
+
 def test_tool_reports_a_missing_topic(tmp_path, corridor, capsys):
     _write_bag(tmp_path / 'bag', corridor[0], 1)
     assert pictures_tool.main(['--bag', str(tmp_path / 'bag'), '--depth-topic', '/nope',

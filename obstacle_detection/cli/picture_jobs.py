@@ -48,10 +48,10 @@ def parse_frames(text: str) -> range:
     try:
         parts = [int(p) for p in text.split(':')]
         frames = range(parts[0], parts[0] + 1) if len(parts) == 1 else range(*parts)
-        if frames.step < 1:
-            raise ValueError(frames)
-    except (ValueError, TypeError):
-        raise argparse.ArgumentTypeError(f'expected start:stop[:step], got {text!r}') from None
+    except (ValueError, TypeError):   # not integers, a zero step or more than three parts
+        frames = None
+    if frames is None or frames.step < 1:
+        raise argparse.ArgumentTypeError(f'expected start:stop[:step], got {text!r}')
     return frames
 
 
@@ -197,7 +197,8 @@ def detect(args: argparse.Namespace) -> list[tuple[_Job, Any]]:
                 print(line if line.startswith('warning: ') else f'  {line}', file=sys.stderr)
                 said.add(line)
     if not detected:
-        raise ValueError('no frames to draw')
+        raise ValueError('no frames to draw: --frames selects none (a bag\'s frames before its '
+                         'first CameraInfo are left out)')
     return detected
 
 
