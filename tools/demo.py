@@ -59,12 +59,12 @@ def _replace(folder: Path, by: Path | None = None) -> None:
         by.rename(folder)
 
 
-def save_pictures(folder: Path, recorder: Recorder, every: int, params: Any,
-                  intrinsics: Any, poses: dict[tuple[int, int], Any]) -> list[Path]:
+def save_pictures(folder: Path, recorder: Recorder, every: int,
+                  poses: dict[tuple[int, int], Any]) -> list[Path]:
     """Save a picture of every ``every``-th frame the node published, and a contact sheet.
 
-    Frames are matched across topics by header stamp; ``params`` and ``intrinsics`` draw the
-    camera and region of interest, ``poses`` (by stamp) the robot on the fused costmap.
+    Frames are matched across topics by header stamp; ``poses`` (by stamp) draw the robot on
+    the fused costmap.
     """
     from nav_msgs.msg import OccupancyGrid
     from rclpy.serialization import deserialize_message
@@ -95,10 +95,10 @@ def save_pictures(folder: Path, recorder: Recorder, every: int, params: Any,
 
         def draw(**options: Any) -> np.ndarray:
             return pictures.node_outputs(
-                image_to_rgb(overlays[stamp]), costmap, caption=caption, params=params,
-                intrinsics=intrinsics, robot_pose=poses.get(stamp, (0.0, 0.0, 0.0)),
+                image_to_rgb(overlays[stamp]), costmap, caption=caption,
+                robot_pose=poses.get(stamp, (0.0, 0.0, 0.0)),
                 fused=occupancy_grid_to_costmap(fused[stamp]) if stamp in fused else None,
-                **options)[0]
+                **options)
 
         saved.append(folder / 'pictures' / f'frame_{k:04d}.png')
         pictures.write_png(saved[-1], pictures.titled(
@@ -106,7 +106,7 @@ def save_pictures(folder: Path, recorder: Recorder, every: int, params: Any,
         thumbs.append(pictures.fit_width(
             lambda scale: draw(image_scale=scale, with_legend=False), SHEET_THUMB_PX))
     if thumbs:
-        sheet = pictures.contact_sheet(thumbs, columns=2, thumb_width=SHEET_THUMB_PX)
+        sheet = pictures.tile(thumbs, columns=2)
         panels = 3 if fused else 2
         legend = pictures.node_outputs_legend([(sheet.shape[1] - 6 * (panels - 1)) // panels]
                                               * panels)
@@ -228,8 +228,6 @@ def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
     from rclpy.serialization import deserialize_message
     from std_msgs.msg import Float64
 
-    from obstacle_detection.evaluation.runner import load_params_file
-
     summary, first, pose_by_stamp, bag_hz = _write_input(args, out)
     rate = args.rate if args.rate is not None else DEMO_FPS / bag_hz
     env = node_process.use_loopback(args.domain_id, out / 'ros_log')
@@ -253,11 +251,7 @@ def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
     print(f'[5/5] writing what the node published: {out / "results_bag"}; pictures: '
           f'{out / "pictures"}')
     write_bag(out / 'results_bag', recorder)
-    params = load_params_file(args.params).replace(  # with the rendered scene's mount
-        camera_height_m=float(first.height_m), camera_pitch_rad=float(first.pitch_rad),
-        camera_roll_rad=float(first.roll_rad))
-    saved = save_pictures(out, recorder, args.save_every, params, first.intrinsics,
-                          pose_by_stamp)
+    saved = save_pictures(out, recorder, args.save_every, pose_by_stamp)
     times = [deserialize_message(raw, Float64).data
              for _, raw in recorder.messages['/obstacle_detector/processing_time_ms']]
     report = [f'  depth frames sent: {sent}, results received: {received} costmaps, '
