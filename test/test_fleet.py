@@ -27,8 +27,7 @@ from obstacle_detection.fleet import bags as fleet_bags
 from obstacle_detection.fleet import cluster, scoring
 from obstacle_detection.pipeline.params import table_4_2
 from obstacle_detection.tools import bag_process, sweep
-from test_bag_process import (INFO, OUTPUT_TOPICS, frame_messages, output_messages,
-                              read_raw, write_bag)
+from test_bag_process import OUTPUT_TOPICS, frame_messages, output_messages, write_bag
 
 REPO = Path(__file__).resolve().parents[1]
 SMALL = (128, 106)
@@ -242,28 +241,6 @@ def test_ctrl_c_leaves_complete_outputs_and_no_partial_one(tmp_path: Path,
     assert no_partial_left(tmp_path / 'out')
 
 
-def test_chunks_merged_equal_the_one_task_bag(tmp_path: Path, depths: list[np.ndarray],
-                                              params_file: Path) -> None:
-    # one CameraInfo, at the start: the later chunks take it from before their window
-    items = frame_messages(depths * 3)
-    items = [item for k, item in enumerate(items) if item[0] != INFO or k == 0]
-    write_bag(tmp_path / 'long', items)
-    values = bag_processor.node_param_values(params_file)
-    job = fleet_bags.BagJob(tmp_path / 'long', tmp_path / 'out' / 'long', values, 'test',
-                            'test', chunk_frames=4)
-    windows = fleet_bags.plan_chunks(job)
-    assert len(windows) == 3   # 9 frames in chunks of about 4
-    parts = [fleet_bags.process_chunk(job, k, w, 'run') for k, w in enumerate(windows)]
-    assert [p.processed for p in parts] == [3, 3, 3]
-    outcome = fleet_bags.finish_bag(job, *parts)
-    assert outcome.error is None and (outcome.frames, outcome.processed) == (9, 9)
-    want = one_process_outputs(tmp_path, [tmp_path / 'long'], params_file)['long']
-    assert output_messages(tmp_path / 'out' / 'long') == want
-    got, source = read_raw(tmp_path / 'out' / 'long'), read_raw(tmp_path / 'long')
-    assert {topic: got[topic] for topic in source} == source   # the inputs, unchanged
-    assert not any(p.output.exists() for p in parts)
-
-
 def test_sweep_and_evaluate_tasks_in_one_process_equal_the_plain_run() -> None:
     sources = sequence_sources()
     frames_ = [f for _, _, lazy in sources for f in lazy]
@@ -335,23 +312,6 @@ def test_bags_on_two_workers_equal_one_process(tmp_path: Path, depths: list[np.n
 
 
 @pytest.mark.integration
-def test_chunked_bags_on_two_workers_equal_one_process(tmp_path: Path, depths: list[np.ndarray],
-                                                       params_file: Path,
-                                                       two_workers: cluster.Fleet) -> None:
-    folder = make_bags(tmp_path, depths, 2, repeat=4)   # 12 frames a bag
-    values = bag_processor.node_param_values(params_file)
-    jobs = [fleet_bags.BagJob(bag, tmp_path / 'out' / name, values, 'test', 'test',
-                              chunk_frames=5)
-            for bag, name in fleet_bags.find_bags(folder)]
-    outcomes = fleet_bags.process_bags(jobs, two_workers, progress=False)
-    assert [(o.error, o.processed) for o in outcomes] == [(None, 12), (None, 12)]
-    want = one_process_outputs(tmp_path, [folder / 'bag0', folder / 'bag1'], params_file)
-    for name, messages in want.items():
-        assert output_messages(tmp_path / 'out' / name) == messages, name
-    assert sorted(p.name for p in (tmp_path / 'out').iterdir()) == ['bag0', 'bag1']
-
-
-@pytest.mark.integration
 def test_a_worker_killed_mid_task_costs_a_retry_not_the_run(
         tmp_path: Path, depths: list[np.ndarray], params_file: Path,
         two_workers: cluster.Fleet) -> None:
@@ -366,12 +326,12 @@ def test_a_worker_killed_mid_task_costs_a_retry_not_the_run(
     def kill_a_busy_worker() -> None:   # the first worker seen running a bag's task
         while not done.is_set():
             busy = {w: keys for w, keys in client.processing().items()
-                    if any('finish_bag' in str(k) for k in keys)}
+                    if any('process_one' in str(k) for k in keys)}
             if busy:
                 worker, keys = next(iter(busy.items()))
                 pid = client.run(os.getpid, workers=[worker])[worker]
                 os.kill(pid, signal.SIGKILL)
-                killed.append(str(next(k for k in keys if 'finish_bag' in str(k))))
+                killed.append(str(next(k for k in keys if 'process_one' in str(k))))
                 return
             time.sleep(0.01)
     killer = threading.Thread(target=kill_a_busy_worker)

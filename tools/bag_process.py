@@ -50,9 +50,6 @@ def build_parser() -> argparse.ArgumentParser:
                         help='output storage (default %(default)s)')
     parser.add_argument('--quiet', action='store_true',
                         help='no per-frame lines (a progress bar on a terminal instead)')
-    parser.add_argument('--chunk-frames', type=tool_support.int_in(1), metavar='N',
-                        help='on a cluster, cut a bag of more than N depth frames into tasks '
-                             'of about N frames [default: one task per bag]')
     add_fleet_arguments(parser)
     return parser
 
@@ -104,7 +101,7 @@ def _process_many(args: argparse.Namespace, values: Mapping[str, Any], origin: s
     jobs = [fleet_bags.BagJob(
         bag, output, values, origin, mount_origin, depth_topic=args.depth_topic,
         info_topic=args.info_topic, namespace=args.namespace, with_ground=args.ground,
-        with_overlay=args.overlay, storage=args.storage, chunk_frames=args.chunk_frames)
+        with_overlay=args.overlay, storage=args.storage)
         for bag, output in outputs]
     began = time.perf_counter()
     try:

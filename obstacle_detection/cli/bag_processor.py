@@ -159,8 +159,7 @@ def process_bag(src: Path, output: Path, config: NodeConfig, *,
                 namespace: str = DEFAULT_NAMESPACE, with_ground: bool = False,
                 with_overlay: bool = False, storage: str = 'sqlite3', progress: bool = True,
                 on_frame: Callable[[FrameReport], None] | None = None,
-                mount_origin: str = 'the parameters', start_ns: int | None = None,
-                stop_ns: int | None = None) -> ProcessSummary:
+                mount_origin: str = 'the parameters') -> ProcessSummary:
     """Process every depth frame of ``src`` and write inputs + outputs to ``output``."""
     import time
 
@@ -176,26 +175,19 @@ def process_bag(src: Path, output: Path, config: NodeConfig, *,
             outputs = {key: namespace + '/' + OUTPUTS[key][0] for key in wanted}
             depth_class = _check_topics(reader, src, depth_topic, info_topic, outputs, summary)
             n_depth = sum(c.msgcount for c in reader.connections if c.topic == depth_topic)
-            window = start_ns is not None or stop_ns is not None
             with staged_output(output) as staging, \
                     Writer(staging, version=BAG_VERSION, storage_plugin=STORAGES[storage]) \
                     as writer, \
-                    Progress(None if window else n_depth, 'processing',
+                    Progress(n_depth, 'processing',
                              stream=None if progress else io.StringIO()) as bar:
                 typestore = get_typestore(Stores.ROS2_JAZZY)
                 copies = copy_connections(reader.connections, writer, typestore)
                 out_conns = {key: writer.add_connection(outputs[key], OUTPUTS[key][1],
                                                         typestore=typestore) for key in wanted}
                 cameras: deque[CameraState] = deque(maxlen=frame_gate.CAMERA_INFO_HISTORY)
-                if start_ns is not None and summary.info_topic is not None:
-                    for _, _, raw in reader.messages(
-                            [c for c in reader.connections if c.topic == summary.info_topic],
-                            stop=start_ns):
-                        frame_gate.keep_camera(cameras, CameraState.from_camera_info(
-                            deserialize_message(bytes(raw), CameraInfo)))
                 counts: Counter[str] = Counter()
                 for conn, timestamp, raw in _grouped_by_timestamp(
-                        reader.messages(start=start_ns, stop=stop_ns), summary.info_topic):
+                        reader.messages(), summary.info_topic):
                     writer.write(copies[conn.id], timestamp, raw)
                     counts[conn.topic] += 1
                     if conn.topic == summary.info_topic:

@@ -1,4 +1,4 @@
-"""``bag_process`` over many bags: one task per bag (or chunk), a summary table and a JSON line."""
+"""``bag_process`` over many bags: one task per bag, a summary table and a JSON line."""
 
 from __future__ import annotations
 
@@ -9,7 +9,6 @@ import io
 import json
 import math
 import shutil
-import uuid
 from collections import Counter
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -17,9 +16,8 @@ from typing import Any
 
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.cli.bag_processor import (DEFAULT_NAMESPACE, config_from_values,
-                                                  copy_connections, process_bag)
-from obstacle_detection.cli.bag_writer import (BAG_VERSION, DEFAULT_DEPTH_TOPIC, STORAGES,
-                                               staged_output)
+                                                  process_bag)
+from obstacle_detection.cli.bag_writer import DEFAULT_DEPTH_TOPIC
 from .cluster import Fleet, TaskError, limit_threads, run_tasks
 
 #: Suffixes of a list file of bags (anything else that is a file is refused).
@@ -96,7 +94,6 @@ class BagJob:
     with_ground: bool = False
     with_overlay: bool = False
     storage: str = 'sqlite3'
-    chunk_frames: int | None = None
 
 
 @dataclasses.dataclass
@@ -130,7 +127,7 @@ class BagOutcome:
 
 
 def merged(bag: Path, output: Path, parts: Sequence[BagOutcome]) -> BagOutcome:
-    """Return the outcome of ``parts`` together (a chunked bag's, or a table's total)."""
+    """Return the outcome of ``parts`` together (a table's total)."""
     return BagOutcome(
         bag, output, frames=sum(p.frames for p in parts),
         processed=sum(p.processed for p in parts),
@@ -140,82 +137,21 @@ def merged(bag: Path, output: Path, parts: Sequence[BagOutcome]) -> BagOutcome:
         warning=next((p.warning for p in parts if p.warning), None))
 
 
-def process_one(job: BagJob, window: tuple[int | None, int | None] = (None, None),
-                output: Path | None = None) -> BagOutcome:
-    """Process one bag, or the chunk ``window`` of it into ``output`` (a task)."""
+def process_one(job: BagJob) -> BagOutcome:
+    """Process one bag (a task)."""
     limit_threads()
-    output = job.output if output is None else output
     points: list[int] = []
     config = config_from_values(job.values, job.origin)
     with contextlib.redirect_stderr(io.StringIO()):
         summary = process_bag(
-            job.bag, output, config, depth_topic=job.depth_topic, info_topic=job.info_topic,
+            job.bag, job.output, config, depth_topic=job.depth_topic, info_topic=job.info_topic,
             namespace=job.namespace, with_ground=job.with_ground or config.publish_ground,
             with_overlay=job.with_overlay or config.publish_overlay, storage=job.storage,
             progress=False, on_frame=lambda report: points.append(report.obstacle_points),
-            mount_origin=job.mount_origin, start_ns=window[0], stop_ns=window[1])
-    return BagOutcome(job.bag, output, summary.frames, summary.processed,
+            mount_origin=job.mount_origin)
+    return BagOutcome(job.bag, job.output, summary.frames, summary.processed,
                       dict(summary.skipped), sum(points), float(sum(summary.total_ms)),
                       summary.wall_s, summary.mount_warning)
-
-
-def plan_chunks(job: BagJob) -> list[tuple[int, int]]:
-    """Return the [start, stop) bag-time windows [ns] of ``job``'s chunks; [] for one task."""
-    from rosbags.rosbag2 import Reader
-
-    if not job.chunk_frames:
-        return []
-    try:
-        with Reader(job.bag) as reader:
-            frames = sum(c.msgcount for c in reader.connections if c.topic == job.depth_topic)
-            start, stop = reader.start_time, reader.end_time
-    except Exception:   # noqa: BLE001 - the bag's own task reports it
-        return []
-    count = math.ceil(frames / job.chunk_frames)
-    if count < 2:
-        return []
-    edges = [start + (stop - start) * k // count for k in range(count + 1)]
-    return list(zip(edges[:-1], edges[1:]))
-
-
-def chunks_path(output: Path) -> Path:
-    """Return the folder of an output bag's chunk bags while they are made and merged."""
-    return output.parent / f'.{output.name}.chunks'
-
-
-def process_chunk(job: BagJob, index: int, window: tuple[int, int], run: str) -> BagOutcome:
-    """Process chunk ``index`` of a bag into its part bag (a task)."""
-    return process_one(job, window, chunks_path(job.output) / run / f'part{index:04d}')
-
-
-def finish_bag(job: BagJob, *parts: BagOutcome) -> BagOutcome:
-    """Return the bag's outcome: process it (no parts) or merge its chunks' parts (a task)."""
-    if not parts:
-        return process_one(job)
-    from rosbags.rosbag2 import Reader, Writer
-    from rosbags.typesys import Stores, get_typestore
-
-    typestore = get_typestore(Stores.ROS2_JAZZY)
-    try:
-        with staged_output(job.output) as staging, \
-                Writer(staging, version=BAG_VERSION, storage_plugin=STORAGES[job.storage]) \
-                as writer:
-            connections: dict[tuple[str, str], Any] = {}
-            for part in parts:
-                with Reader(part.output) as reader:
-                    ids = {}
-                    for conn in reader.connections:
-                        key = (conn.topic, conn.msgtype)
-                        if key not in connections:
-                            connections[key] = copy_connections([conn], writer,
-                                                                typestore)[conn.id]
-                        ids[conn.id] = connections[key]
-                    for conn, timestamp, raw in reader.messages():
-                        writer.write(ids[conn.id], timestamp, raw)
-    finally:
-        for part in parts:
-            shutil.rmtree(part.output, ignore_errors=True)
-    return merged(job.bag, job.output, parts)
 
 
 def process_bags(jobs: Sequence[BagJob], fleet: Fleet, *, progress: bool = True
@@ -225,16 +161,8 @@ def process_bags(jobs: Sequence[BagJob], fleet: Fleet, *, progress: bool = True
     On KeyboardInterrupt the tasks are cancelled and it propagates (then
     :func:`remove_stale_staging`).
     """
-    items: list[tuple[Any, ...]] = [(job,) for job in jobs]
-    if fleet.distributed:
-        run = uuid.uuid4().hex[:8]
-        items = [(job, *(fleet.submit(process_chunk, job, k, window, run)
-                         for k, window in enumerate(plan_chunks(job))))
-                 for job in jobs]
-    results = run_tasks(fleet, finish_bag, items, label='bags', progress=progress,
-                        return_errors=True)
-    for job in jobs:
-        shutil.rmtree(chunks_path(job.output), ignore_errors=True)
+    results = run_tasks(fleet, process_one, [(job,) for job in jobs], label='bags',
+                        progress=progress, return_errors=True)
     return [BagOutcome(job.bag, job.output, error=_named(result, job))
             if isinstance(result, TaskError) else result
             for job, result in zip(jobs, results)]
@@ -250,9 +178,8 @@ def _named(failure: TaskError, job: BagJob) -> str:
 
 def remove_stale_staging(jobs: Sequence[BagJob]) -> None:
     """Remove the temporary folders a stopped run left (after its cluster is closed)."""
-    for job in jobs:   # the names of bag_writer.staged_output and chunks_path
+    for job in jobs:   # the name of bag_writer.staged_output
         shutil.rmtree(job.output.parent / f'.{job.output.name}.partial', ignore_errors=True)
-        shutil.rmtree(chunks_path(job.output), ignore_errors=True)
 
 
 def format_table(outcomes: Sequence[BagOutcome]) -> str:
