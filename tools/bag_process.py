@@ -16,7 +16,7 @@ from typing import Any
 
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.cli.bag_processor import (DEFAULT_NAMESPACE, config_from_values,
-                                                  format_report, node_param_values, process_bag)
+                                                  node_param_values, process_bag)
 from obstacle_detection.ros import RosInputError
 from obstacle_detection.ros.parameters import read_params_files
 from obstacle_detection.cli.bag_writer import STORAGES
@@ -48,8 +48,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help='also write overlay images (or publish_overlay in the params)')
     parser.add_argument('--storage', choices=sorted(STORAGES), default='sqlite3',
                         help='output storage (default %(default)s)')
-    parser.add_argument('--quiet', action='store_true',
-                        help='no per-frame lines (a progress bar on a terminal instead)')
+    parser.add_argument('--quiet', action='store_true', help='no progress bar')
     add_fleet_arguments(parser)
     return parser
 
@@ -79,10 +78,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         info_topic=args.info_topic, namespace=args.namespace,
         with_ground=args.ground or config.publish_ground,
         with_overlay=args.overlay or config.publish_overlay, storage=args.storage,
-        # the bar only when per-frame lines are off, and never into a redirected log
-        progress=args.quiet and sys.stderr.isatty(),
-        on_frame=None if args.quiet else lambda r: print(format_report(r), flush=True),
-        mount_origin=mount_origin)
+        progress=not args.quiet, mount_origin=mount_origin)
     print('\n'.join(summary.lines()))
     return 0
 

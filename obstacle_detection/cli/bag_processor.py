@@ -6,7 +6,7 @@ import dataclasses
 import io
 import statistics
 from collections import Counter, deque
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -61,23 +61,13 @@ def config_from_values(values: Mapping[str, Any], origin: str) -> NodeConfig:
 
 
 @dataclasses.dataclass
-class FrameReport:
-    """One processed (or skipped) depth frame."""
-
-    index: int
-    stamp_ns: int
-    obstacle_points: int = 0
-    timings_ms: dict[str, float] = dataclasses.field(default_factory=dict)
-    skipped: str | None = None
-
-
-@dataclasses.dataclass
 class ProcessSummary:
     """What an offline run did."""
 
     output: Path
     frames: int = 0
     processed: int = 0
+    obstacle_points: int = 0
     skipped: Counter[str] = dataclasses.field(default_factory=Counter)
     total_ms: list[float] = dataclasses.field(default_factory=list)
     wall_s: float = 0.0
@@ -158,7 +148,6 @@ def process_bag(src: Path, output: Path, config: NodeConfig, *,
                 depth_topic: str = DEFAULT_DEPTH_TOPIC, info_topic: str | None = None,
                 namespace: str = DEFAULT_NAMESPACE, with_ground: bool = False,
                 with_overlay: bool = False, storage: str = 'sqlite3', progress: bool = True,
-                on_frame: Callable[[FrameReport], None] | None = None,
                 mount_origin: str = 'the parameters') -> ProcessSummary:
     """Process every depth frame of ``src`` and write inputs + outputs to ``output``."""
     import time
@@ -197,17 +186,14 @@ def process_bag(src: Path, output: Path, config: NodeConfig, *,
                         _note(summary, None if camera.note is None else
                               f'CameraInfo on {summary.info_topic}: {camera.note}')
                     elif conn.topic == depth_topic:
-                        report = FrameReport(summary.frames, timestamp)
                         messages = _frame(deserialize_message(bytes(raw), depth_class),
-                                          list(cameras), config, summary, report,
+                                          list(cameras), config, summary,
                                           with_ground=with_ground, with_overlay=with_overlay)
                         for key in wanted if messages is not None else ():
                             writer.write(out_conns[key], timestamp,
                                          serialize_message(messages[key]))
                             counts[outputs[key]] += 1
                         bar.update()
-                        if on_frame is not None:
-                            on_frame(report)
     except EvaluationError as err:
         raise ToolError(str(err)) from err
     except ReaderError as err:
@@ -249,21 +235,19 @@ def _note(summary: ProcessSummary, note: str | None) -> None:
 
 
 def _frame(depth: Any, cameras: Sequence[CameraState], config: NodeConfig,
-           summary: ProcessSummary, report: FrameReport, *, with_ground: bool,
-           with_overlay: bool) -> dict[str, Any] | None:
-    """Process one depth message, counting it in ``summary`` and ``report``; its messages."""
+           summary: ProcessSummary, *, with_ground: bool, with_overlay: bool
+           ) -> dict[str, Any] | None:
+    """Process one depth message, counting it in ``summary``; its messages."""
     summary.frames += 1
     messages, result, reason, note = process_frame(
         depth, cameras, config, with_ground=with_ground, with_overlay=with_overlay)
     _note(summary, note)
     if messages is None:
-        report.skipped = reason
         summary.skipped[reason] += 1
         return None
     if summary.processed == 0:
         _check_first_mount(result, config, summary)
-    report.obstacle_points = int(result.obstacle_points.shape[0])
-    report.timings_ms = dict(result.timings_ms)
+    summary.obstacle_points += int(result.obstacle_points.shape[0])
     summary.processed += 1
     summary.total_ms.append(result.timings_ms.get('total', 0.0))
     return messages
@@ -295,12 +279,3 @@ def _check_first_mount(result: Any, config: NodeConfig, summary: ProcessSummary)
         summary.mount_warning = f'first frame: {check.warning}'
         tool_support.warn(summary.mount_warning)
 
-
-def format_report(report: FrameReport) -> str:
-    """One line of per-frame timing."""
-    stamp = f'{report.stamp_ns // 1_000_000_000}.{report.stamp_ns % 1_000_000_000:09d}'
-    if report.skipped:
-        return f'frame {report.index:5d} @ {stamp}: skipped ({report.skipped})'
-    stages = ' '.join(f'{k}={v:.1f}' for k, v in report.timings_ms.items() if k != 'total')
-    return (f'frame {report.index:5d} @ {stamp}: {report.obstacle_points:6d} obstacle points, '
-            f'{report.timings_ms.get("total", 0.0):6.1f} ms ({stages})')

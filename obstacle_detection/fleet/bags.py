@@ -140,17 +140,15 @@ def merged(bag: Path, output: Path, parts: Sequence[BagOutcome]) -> BagOutcome:
 def process_one(job: BagJob) -> BagOutcome:
     """Process one bag (a task)."""
     limit_threads()
-    points: list[int] = []
     config = config_from_values(job.values, job.origin)
     with contextlib.redirect_stderr(io.StringIO()):
         summary = process_bag(
             job.bag, job.output, config, depth_topic=job.depth_topic, info_topic=job.info_topic,
             namespace=job.namespace, with_ground=job.with_ground or config.publish_ground,
             with_overlay=job.with_overlay or config.publish_overlay, storage=job.storage,
-            progress=False, on_frame=lambda report: points.append(report.obstacle_points),
-            mount_origin=job.mount_origin)
+            progress=False, mount_origin=job.mount_origin)
     return BagOutcome(job.bag, job.output, summary.frames, summary.processed,
-                      dict(summary.skipped), sum(points), float(sum(summary.total_ms)),
+                      dict(summary.skipped), summary.obstacle_points, float(sum(summary.total_ms)),
                       summary.wall_s, summary.mount_warning)
 
 
