@@ -2,7 +2,7 @@
 """Run the obstacle detector over a whole rosbag2 bag offline, as fast as the machine allows.
 
 Each depth frame goes through the node's code; the output bag holds the input and the node's
-outputs. Many bags (a folder, a quoted glob or a ``.txt`` list) run as Dask tasks (docs/fleet.md).
+outputs. Many bags (a folder or a quoted glob) run as Dask tasks (docs/fleet.md).
 """
 
 from __future__ import annotations
@@ -31,8 +31,8 @@ def build_parser() -> argparse.ArgumentParser:
         epilog='Examples: python tools/bag_process.py in_bag out_bag --params-file '
                "params/corridor.yaml --overlay; python tools/bag_process.py 'bags/*' out/ "
                '--workers 2')
-    parser.add_argument('bag', help='input rosbag2 folder; or many: a folder of bags, a glob '
-                                    'pattern (quoted) or a list file (.txt, one bag a line)')
+    parser.add_argument('bag', help='input rosbag2 folder; or many: a folder of bags or a glob '
+                                    'pattern (quoted)')
     parser.add_argument('output', type=Path,
                         help='rosbag2 folder to create (must not exist); for many bags the '
                              'folder of the output bags (one per input, named after it)')
@@ -113,8 +113,7 @@ def _process_many(args: argparse.Namespace, values: Mapping[str, Any], origin: s
     wall_s = time.perf_counter() - began
     print(fleet_bags.format_table(outcomes))
     print(fleet_bags.summary_json(outcomes, wall_s=wall_s, where=fleet.description))
-    return tool_support.EXIT_OK if all(o.error is None for o in outcomes) else \
-        tool_support.EXIT_BAD_INPUT
+    return 0 if all(o.error is None for o in outcomes) else 1
 
 
 if __name__ == '__main__':

@@ -16,10 +16,6 @@ import numpy as np
 
 from obstacle_detection.pipeline.params import DetectorParams, Intrinsics
 
-EXIT_OK = 0
-EXIT_BAD_INPUT = 1
-EXIT_USAGE = 2
-
 #: One set of default topic names for every tool: the iai_kinect2 driver's SD (512x424) topics.
 DEFAULT_DEPTH_TOPIC = '/kinect2/sd/image_depth_rect'
 DEFAULT_INFO_TOPIC = '/kinect2/sd/camera_info'
@@ -69,14 +65,14 @@ def report_error(prog: str, error: BaseException) -> int:
     """Print the one error line of ``error``; return its exit code (2 when ``error.usage``)."""
     if getattr(error, 'usage', False):
         print(f'{prog}: error: {error}', file=sys.stderr)
-        return EXIT_USAGE
+        return 2
     text = str(error)
     if isinstance(error, OSError) and error.filename is not None and error.strerror:
         text = f'{error.filename}: {error.strerror}'
     elif isinstance(error, KeyError) and error.args:
         text = str(error.args[0])
     print(f'error: {text}', file=sys.stderr)
-    return EXIT_BAD_INPUT
+    return 1
 
 
 def command(prog: str) -> Callable[[Callable[..., int]], Callable[..., int]]:

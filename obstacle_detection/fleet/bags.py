@@ -20,19 +20,15 @@ from obstacle_detection.cli.bag_processor import (DEFAULT_NAMESPACE, config_from
 from obstacle_detection.cli.bag_writer import DEFAULT_DEPTH_TOPIC
 from .cluster import Fleet, TaskError, limit_threads, run_tasks
 
-#: Suffixes of a list file of bags (anything else that is a file is refused).
-LIST_SUFFIXES = ('.txt', '.list')
 _GLOB_CHARS = frozenset('*?[')
 
 
 def is_many(spec: str | Path) -> bool:
-    """Tell whether ``spec`` names several bags (a folder of bags, a glob, a list file)."""
+    """Tell whether ``spec`` names several bags (a folder of bags or a glob)."""
     text = str(spec)
     if _GLOB_CHARS & set(text):
         return True
     path = Path(text)
-    if path.is_file():
-        return path.suffix in LIST_SUFFIXES
     return (path.is_dir() and not (path / 'metadata.yaml').is_file()
             and any(path.rglob('metadata.yaml')))
 
@@ -52,23 +48,11 @@ def find_bags(spec: str | Path) -> list[tuple[Path, Path]]:
         # a bag inside another bag's folder is not a bag of its own
         bags = [b for b in bags if not any(o in b.parents for o in bags)]
         return [(bag, bag.relative_to(path)) for bag in bags]
-    if _GLOB_CHARS & set(text):
-        matches = [Path(m) for m in sorted(glob.glob(text))]
-        if not matches:
-            raise tool_support.ToolError(text, 'the pattern matches nothing')
-        entries = matches
-    elif path.is_file() and path.suffix in LIST_SUFFIXES:
-        try:
-            lines = path.read_text(encoding='utf-8').splitlines()
-        except (OSError, UnicodeDecodeError) as err:
-            raise tool_support.ToolError(path, f'cannot read the list ({err})') from err
-        entries = [path.parent / line.strip() for line in lines
-                   if line.strip() and not line.lstrip().startswith('#')]
-        if not entries:
-            raise tool_support.ToolError(path, 'the list names no bag')
-    else:
-        raise tool_support.ToolError(path, 'not a folder of bags, a glob pattern or a list '
-                                           f'file ({", ".join(LIST_SUFFIXES)})')
+    if not _GLOB_CHARS & set(text):
+        raise tool_support.ToolError(path, 'not a folder of bags or a glob pattern')
+    entries = [Path(m) for m in sorted(glob.glob(text))]
+    if not entries:
+        raise tool_support.ToolError(text, 'the pattern matches nothing')
     for entry in entries:
         tool_support.check_bag_path(entry, ros1=False)
     names = [Path(entry.name) for entry in entries]

@@ -25,11 +25,6 @@ ALLOWED_FAILURES = 3
 #: The environment of a local cluster's worker processes: one thread per worker.
 ONE_THREAD_ENV = {'NUMBA_NUM_THREADS': '1', 'OMP_NUM_THREADS': '1', 'MKL_NUM_THREADS': '1',
                   'OPENBLAS_NUM_THREADS': '1'}
-INSTALL_HINT = "pip install 'dask[distributed]' (or pip install .[fleet])"
-
-
-class FleetError(ValueError):
-    """The cluster asked for cannot be used (Dask missing, no scheduler at the address)."""
 
 
 @dataclasses.dataclass
@@ -73,20 +68,21 @@ def open_fleet(*, workers: int | None = None, scheduler: str | None = None,
                tasks: int = 2) -> Iterator[Fleet]:
     """Yield where to run ``tasks`` tasks; close it afterwards.
 
-    Raises FleetError when Dask is missing or the scheduler cannot be reached for a cluster asked
+    Raises ToolError when Dask is missing or the scheduler cannot be reached for a cluster asked
     for, or for ``workers`` and ``scheduler`` together.
     """
     if scheduler is not None and workers is not None:
-        raise FleetError('--workers starts a local cluster, --scheduler uses another one: '
-                         'give one of them')
+        raise tool_support.ToolError('--workers starts a local cluster, --scheduler uses '
+                                     'another one: give one of them')
     if scheduler is None and workers is None:
         scheduler = os.environ.get(SCHEDULER_ENV) or None
     wanted = scheduler is not None or (workers is not None and workers > 0)
     if wanted and not DASK_AVAILABLE:
         what = f'--scheduler {scheduler}' if scheduler else f'--workers {workers}'
-        raise FleetError(f'{what} needs dask.distributed, which is not installed: '
-                         f'{INSTALL_HINT}, or leave out --workers/--scheduler (and unset '
-                         f'{SCHEDULER_ENV}) to run in this process')
+        raise tool_support.ToolError(
+            f"{what} needs dask.distributed, which is not installed: pip install "
+            f"'dask[distributed]' (or pip install .[fleet]), or leave out --workers/--scheduler "
+            f'(and unset {SCHEDULER_ENV}) to run in this process')
     cores = len(os.sched_getaffinity(0))
     if not wanted and (workers == 0 or not DASK_AVAILABLE or tasks < 2 or cores < 2):
         yield Fleet(None, 'this process', 1)
@@ -103,7 +99,8 @@ def open_fleet(*, workers: int | None = None, scheduler: str | None = None,
             try:
                 client = Client(scheduler, timeout='10s')
             except (OSError, TimeoutError) as err:
-                raise FleetError(f'{scheduler}: no Dask scheduler answers ({err})') from err
+                raise tool_support.ToolError(scheduler, f'no Dask scheduler answers ({err})') \
+                    from err
             with client:
                 count = len(client.scheduler_info().get('workers', {}))
                 yield Fleet(client, f'the Dask cluster at {scheduler} ({count} workers)',
@@ -164,7 +161,7 @@ def run_tasks(fleet: Fleet, function: Callable[..., Any], items: Sequence[tuple[
                 except Exception as err:   # noqa: BLE001 - the task's failure
                     if not return_errors:
                         raise
-                    results[index] = TaskError(_task_reason(err), err)
+                    results[index] = TaskError(f'{type(err).__name__}: {err}', err)
                 bar.update()
         except BaseException:
             if futures:
@@ -172,11 +169,3 @@ def run_tasks(fleet: Fleet, function: Callable[..., Any], items: Sequence[tuple[
             raise
     return results
 
-
-def _task_reason(err: BaseException) -> str:
-    """One line on why a task failed."""
-    kind = type(err).__name__
-    if kind == 'KilledWorker':
-        return (f'its worker died {ALLOWED_FAILURES} times while running it (out of memory, '
-                'a crash in native code?)')
-    return f'{kind}: {err}'
