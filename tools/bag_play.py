@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """Replay a rosbag2 bag on ROS 2 topics with its recorded timing (``ros2 bag play`` stand-in).
 
-Messages go out as recorded (compressed depth too), with the sensor-data QoS unless --reliable.
+Every topic's messages go out as recorded (compressed depth too), with the sensor-data QoS unless
+--reliable.
 """
 
 from __future__ import annotations
@@ -23,13 +24,9 @@ def build_parser() -> argparse.ArgumentParser:
                'detector started with -r depth/image_raw:=/kinect2/sd/image_depth_rect '
                '-r depth/camera_info:=/kinect2/sd/camera_info)')
     parser.add_argument('bag', type=Path, help='rosbag2 folder (sqlite3 or mcap)')
-    parser.add_argument('--topics', nargs='+', default=(), metavar='TOPIC',
-                        help='publish only these topics (default: all)')
     parser.add_argument('--rate', type=float, default=1.0,
                         help='speed factor, 2 = twice as fast (default %(default)s)')
     parser.add_argument('--loop', action='store_true', help='play again and again until Ctrl-C')
-    parser.add_argument('--start-offset', type=float, default=0.0, metavar='SECONDS',
-                        help='start this many seconds into the bag (default %(default)s)')
     parser.add_argument('--reliable', action='store_true',
                         help='publish with reliable QoS (default: sensor data, best effort); '
                              'the subscriber must then be reliable too')
@@ -44,11 +41,9 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Play a bag; return the exit code (0 done, 1 bad bag, 2 bad usage, 130 Ctrl-C)."""
     args = build_parser().parse_args(argv)
-    options = PlayOptions(
-        topics=tuple(args.topics), rate=args.rate, loop=args.loop,
-        start_offset_s=args.start_offset, reliable=args.reliable,
-        wait_for_subscribers=args.wait_for_subscribers, progress=not args.quiet)
-    open_bag(args.bag, options)[0].close()  # bad input fails before DDS starts
+    options = PlayOptions(rate=args.rate, loop=args.loop, reliable=args.reliable,
+                          wait_for_subscribers=args.wait_for_subscribers, progress=not args.quiet)
+    open_bag(args.bag).close()  # bad input fails before DDS starts
 
     import rclpy
     from rclpy.node import Node

@@ -27,10 +27,8 @@ _POLL_S = 0.05
 class PlayOptions:
     """How to play a bag."""
 
-    topics: tuple[str, ...] = ()
     rate: float = 1.0
     loop: bool = False
-    start_offset_s: float = 0.0
     reliable: bool = False
     wait_for_subscribers: int = 0
     progress: bool = True
@@ -39,9 +37,6 @@ class PlayOptions:
         """Validate the values, naming the bad one."""
         if not (math.isfinite(self.rate) and self.rate > 0):
             raise ToolError(f'--rate must be a positive factor, got {self.rate}', usage=True)
-        if not (math.isfinite(self.start_offset_s) and self.start_offset_s >= 0):
-            raise ToolError(f'--start-offset must be >= 0 s, got {self.start_offset_s}',
-                            usage=True)
 
 
 @dataclasses.dataclass
@@ -69,30 +64,18 @@ def message_class(msgtype: str) -> type:
         raise ToolError(f'message type {msgtype} is not installed ({err})') from err
 
 
-def open_bag(bag: Path, options: PlayOptions) -> tuple[Reader, list[Any]]:
-    """Open ``bag`` and pick the connections to play; the caller closes the reader."""
+def open_bag(bag: Path) -> Reader:
+    """Open ``bag``, a rosbag2 bag with messages; the caller closes the reader."""
     tool_support.check_bag_path(bag, ros1=False)
     try:
         reader = Reader(bag)
         reader.open()
     except ReaderError as err:
         raise ToolError(f'{bag}: cannot read bag ({err})') from err
-    try:
-        known = {c.topic for c in reader.connections}
-        if missing := sorted(set(options.topics) - known):
-            raise ToolError(f'{bag}: has no topic {", ".join(missing)} '
-                            f'(it has {", ".join(sorted(known))})')
-        connections = [c for c in reader.connections
-                       if not options.topics or c.topic in options.topics]
-        offset_ns = int(round(options.start_offset_s * 1e9))
-        if not any(c.msgcount for c in connections) or (
-                reader.start_time + offset_ns > reader.end_time):
-            raise ToolError(f'{bag}: no messages to play after {options.start_offset_s:g} s '
-                            f'(the bag lasts {(reader.end_time - reader.start_time) / 1e9:g} s)')
-    except BaseException:
+    if not reader.message_count:
         reader.close()
-        raise
-    return reader, connections
+        raise ToolError(f'{bag}: has no messages to play')
+    return reader
 
 
 class Player:
@@ -104,19 +87,18 @@ class Player:
 
         self.options = options
         self.node = node
-        self.reader, self.connections = open_bag(bag, options)
+        self.reader = open_bag(bag)
         qos = (QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
                if options.reliable else qos_profile_sensor_data)
         self.publishers: dict[str, Any] = {}
         try:
-            for conn in self.connections:
+            for conn in self.reader.connections:
                 if conn.topic not in self.publishers:
                     self.publishers[conn.topic] = node.create_publisher(
                         message_class(conn.msgtype), conn.topic, qos)
         except BaseException:
             self.close()
             raise
-        self.start_ns = self.reader.start_time + int(round(options.start_offset_s * 1e9))
 
     def close(self, ack_timeout_s: float = 3.0) -> None:
         """Close the bag and destroy the publishers."""
@@ -148,9 +130,8 @@ class Player:
         """Publish the messages with their recorded spacing; return what was published."""
         stats = PlayStats()
         began = time.monotonic()
-        total = None if self.options.loop or self.options.start_offset_s else sum(
-            c.msgcount for c in self.connections)
-        most = max(c.msgcount for c in self.connections)  # its mean spacing: the loop seam's
+        total = None if self.options.loop else self.reader.message_count
+        most = max(c.msgcount for c in self.reader.connections)  # its mean spacing: the seam's
         gap_s = self.reader.duration / 1e9 / (most - 1) if most > 1 else 0.0
         bar = Progress(total, 'playing', stream=None if self.options.progress else io.StringIO())
         with bar:
@@ -160,8 +141,7 @@ class Player:
                     break  # keep one frame's spacing across the loop seam
                 loop_start = time.monotonic()
                 first_t = None
-                for conn, timestamp, raw in self.reader.messages(connections=self.connections,
-                                                                 start=self.start_ns):
+                for conn, timestamp, raw in self.reader.messages():
                     first_t = timestamp if first_t is None else first_t
                     due = loop_start + (timestamp - first_t) / 1e9 / self.options.rate
                     if not _sleep_until(due, stop):
