@@ -90,15 +90,9 @@ class Player:
         self.reader = open_bag(bag)
         qos = (QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
                if options.reliable else qos_profile_sensor_data)
-        self.publishers: dict[str, Any] = {}
-        try:
-            for conn in self.reader.connections:
-                if conn.topic not in self.publishers:
-                    self.publishers[conn.topic] = node.create_publisher(
-                        message_class(conn.msgtype), conn.topic, qos)
-        except BaseException:
-            self.close()
-            raise
+        self.publishers = {conn.topic: node.create_publisher(message_class(conn.msgtype),
+                                                             conn.topic, qos)
+                           for conn in self.reader.connections}
 
     def close(self, ack_timeout_s: float = 3.0) -> None:
         """Close the bag and destroy the publishers."""

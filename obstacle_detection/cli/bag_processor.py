@@ -20,8 +20,7 @@ from obstacle_detection.cli.support import ToolError
 from obstacle_detection.cli.bag_writer import (BAG_VERSION, DEFAULT_DEPTH_TOPIC, STORAGES,
                                                staged_output)
 from obstacle_detection.cli.progress import Progress
-from obstacle_detection.evaluation.datasets import EvaluationError
-from obstacle_detection.ros import RosInputError, frame_gate
+from obstacle_detection.ros import frame_gate
 from obstacle_detection.ros.compressed_depth import COMPRESSED_IMAGE_TYPE, raw_topic
 from obstacle_detection.ros.config import NodeConfig, build_config
 from obstacle_detection.ros.conversions import result_to_messages
@@ -45,10 +44,7 @@ def node_param_values(path: Path | Sequence[Path]) -> dict[str, Any]:
     """All node parameter values: defaults updated with one or more ``--params-file`` YAMLs."""
     values: dict[str, Any] = {spec.name: spec.default for spec in ALL_PARAMS}
     paths = [path] if isinstance(path, (str, Path)) else list(path)
-    try:
-        values.update(read_params_files(paths))
-    except RosInputError as err:
-        raise ToolError(str(err)) from err
+    values.update(read_params_files(paths))   # RosInputError: a ValueError, one line
     return values
 
 
@@ -194,8 +190,6 @@ def process_bag(src: Path, output: Path, config: NodeConfig, *,
                                          serialize_message(messages[key]))
                             counts[outputs[key]] += 1
                         bar.update()
-    except EvaluationError as err:
-        raise ToolError(str(err)) from err
     except ReaderError as err:
         raise ToolError(f'{src}: cannot read bag ({err})') from err
     except WriterError as err:

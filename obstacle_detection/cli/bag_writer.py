@@ -76,12 +76,8 @@ def staged_output(output: Path) -> Iterator[Path]:
     if output.exists() or output.is_symlink():
         raise EvaluationError(f'{output}: output already exists; remove it or choose another name')
     staging = output.parent / f'.{output.name}.partial'
-    try:
-        shutil.rmtree(staging, ignore_errors=True)
-        staging.mkdir(parents=True)
-    except OSError as err:
-        raise EvaluationError(f'{output.parent}: cannot create the output ({err.strerror})') \
-            from err
+    shutil.rmtree(staging, ignore_errors=True)
+    staging.mkdir(parents=True)   # an OSError names the folder: one line of the tool
     try:
         yield staging / output.name
         (staging / output.name).rename(output)

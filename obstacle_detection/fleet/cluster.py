@@ -20,8 +20,6 @@ from obstacle_detection.cli.progress import Progress
 DASK_AVAILABLE = importlib.util.find_spec('distributed') is not None
 #: The environment variable Dask itself reads for the scheduler's address.
 SCHEDULER_ENV = 'DASK_SCHEDULER_ADDRESS'
-#: How often the scheduler restarts a task whose worker died before giving up on it.
-ALLOWED_FAILURES = 3
 #: The environment of a local cluster's worker processes: one thread per worker.
 ONE_THREAD_ENV = {'NUMBA_NUM_THREADS': '1', 'OMP_NUM_THREADS': '1', 'MKL_NUM_THREADS': '1',
                   'OPENBLAS_NUM_THREADS': '1'}
@@ -91,8 +89,7 @@ def open_fleet(*, workers: int | None = None, scheduler: str | None = None,
     from distributed import Client, LocalCluster
 
     # glibc's own mmap threshold, no profiler, slower ticks: docs/fleet.md, Speed
-    with dask.config.set({'distributed.scheduler.allowed-failures': ALLOWED_FAILURES,
-                          'distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_': None,
+    with dask.config.set({'distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_': None,
                           'distributed.worker.profile.enabled': False,
                           'distributed.admin.tick.interval': '500ms'}):
         if scheduler is not None:
