@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -85,7 +84,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _process_many(args: argparse.Namespace, values: Mapping[str, Any], origin: str,
                   mount_origin: str) -> int:
-    """Every bag one task (fleet.bags): the table and the JSON line; 1 when a bag failed."""
+    """Every bag one task (fleet.bags): the table; 1 when a bag failed."""
     if fleet_bags.is_many(args.bag):
         found = fleet_bags.find_bags(args.bag)
         outputs = [(bag, args.output / name) for bag, name in found]
@@ -99,7 +98,6 @@ def _process_many(args: argparse.Namespace, values: Mapping[str, Any], origin: s
         info_topic=args.info_topic, namespace=args.namespace, with_ground=args.ground,
         with_overlay=args.overlay, storage=args.storage)
         for bag, output in outputs]
-    began = time.perf_counter()
     try:
         with open_fleet(**fleet_options(args), tasks=len(jobs)) as fleet:
             print(f'{len(jobs)} bag{"s" if len(jobs) != 1 else ""} on {fleet.description}',
@@ -110,9 +108,7 @@ def _process_many(args: argparse.Namespace, values: Mapping[str, Any], origin: s
         print('bag_process.py: interrupted; the output bags not complete were removed',
               file=sys.stderr)
         return 130
-    wall_s = time.perf_counter() - began
     print(fleet_bags.format_table(outcomes))
-    print(fleet_bags.summary_json(outcomes, wall_s=wall_s, where=fleet.description))
     return 0 if all(o.error is None for o in outcomes) else 1
 
 

@@ -1,4 +1,4 @@
-"""``bag_process`` over many bags: one task per bag, a summary table and a JSON line."""
+"""``bag_process`` over many bags: one task per bag, and a summary table."""
 
 from __future__ import annotations
 
@@ -6,7 +6,6 @@ import contextlib
 import dataclasses
 import glob
 import io
-import json
 import math
 import shutil
 from collections import Counter
@@ -100,15 +99,6 @@ class BagOutcome:
         """Mean pipeline time of the processed frames [ms] (NaN: none)."""
         return self.pipeline_ms / self.processed if self.processed else math.nan
 
-    def as_dict(self) -> dict[str, Any]:
-        """JSON-ready (NaN becomes None)."""
-        ms = self.ms_per_frame
-        return {'bag': str(self.bag), 'output': str(self.output), 'frames': self.frames,
-                'processed': self.processed, 'skipped': dict(self.skipped),
-                'obstacle_points': self.obstacle_points,
-                'ms_per_frame': None if math.isnan(ms) else round(ms, 2),
-                'wall_s': round(self.wall_s, 3), 'warning': self.warning, 'error': self.error}
-
 
 def merged(bag: Path, output: Path, parts: Sequence[BagOutcome]) -> BagOutcome:
     """Return the outcome of ``parts`` together (a table's total)."""
@@ -196,14 +186,3 @@ def format_table(outcomes: Sequence[BagOutcome]) -> str:
                                    f'{len(done)} ok, {len(outcomes) - len(done)} failed')]
     return '\n'.join(lines + notes)
 
-
-def summary_json(outcomes: Sequence[BagOutcome], *, wall_s: float, where: str) -> str:
-    """Return the one JSON line of a many-bag run: per bag, totals, the run's wall time."""
-    done = [o for o in outcomes if o.error is None]
-    total = merged(Path('total'), Path(), done)
-    return json.dumps({
-        'bags': [o.as_dict() for o in outcomes], 'ok': len(done),
-        'failed': len(outcomes) - len(done), 'frames': total.frames,
-        'processed': total.processed, 'wall_s': round(wall_s, 3),
-        'frames_per_s': round(total.processed / wall_s, 2) if wall_s > 0 else None,
-        'where': where}, sort_keys=True)
