@@ -418,7 +418,8 @@ def test_camera_info_is_found_by_type(tmp_path: Path, depths: list[np.ndarray],
     out = capsys.readouterr().out
     assert 'depth frames: 2, processed 2, skipped 0' in out
     assert 'intrinsics: CameraInfo on /cam/camera_info (found by type' in out
-    assert "camera mount: height 0.60 m, pitch 0.0 deg, roll 0.0 deg (the node's defaults" in out
+    assert ("camera mount: height 0.60 m, pitch 0.0 deg, roll 0.0 deg (the node's defaults: no "
+            'params file changes it)') in out
     # an --info-topic that is not a CameraInfo is refused, naming the bag
     assert bag_process.main([str(tmp_path / 'in'), str(tmp_path / 'out2'), '--info-topic',
                              DEPTH]) == 1

@@ -16,8 +16,6 @@ from typing import Any
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.cli.bag_processor import (DEFAULT_NAMESPACE, config_from_values,
                                                   node_param_values, process_bag)
-from obstacle_detection.ros import RosInputError
-from obstacle_detection.ros.parameters import read_params_files
 from obstacle_detection.cli.bag_writer import STORAGES
 from obstacle_detection.fleet import bags as fleet_bags
 from obstacle_detection.fleet.cluster import add_fleet_arguments, fleet_options, open_fleet
@@ -52,15 +50,6 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _sets_mount(files: Sequence[Path]) -> bool:
-    """Tell whether one of the params files sets a camera mount parameter."""
-    names = ('camera_height_m', 'camera_pitch_deg', 'camera_roll_deg')
-    try:
-        return any(name in read_params_files(list(files)) for name in names)
-    except RosInputError:
-        return False
-
-
 @tool_support.command('bag_process')
 def main(argv: Sequence[str] | None = None) -> int:
     """Process a bag (or many); return the exit code (0 success, 1 bad input, 2 bad usage)."""
@@ -68,8 +57,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     values = node_param_values(args.params_file)
     origin = ', '.join(str(p) for p in args.params_file) or 'defaults'
     config = config_from_values(values, origin)
-    mount_origin = (origin if _sets_mount(args.params_file)
-                    else "the node's defaults: no params file sets it")
+    defaults = node_param_values([])
+    mount_origin = (origin if any(values[name] != defaults[name] for name in (
+        'camera_height_m', 'camera_pitch_deg', 'camera_roll_deg'))
+        else "the node's defaults: no params file changes it")
     if fleet_bags.is_many(args.bag) or args.scheduler or args.workers:
         return _process_many(args, values, origin, mount_origin)
     summary = process_bag(

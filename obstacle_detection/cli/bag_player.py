@@ -19,10 +19,6 @@ from obstacle_detection.cli import support as tool_support
 from obstacle_detection.cli.support import ToolError
 from obstacle_detection.cli.progress import Progress
 
-#: How long to sleep at most between checks for a stop request [s].
-_POLL_S = 0.05
-
-
 @dataclasses.dataclass(frozen=True)
 class PlayOptions:
     """How to play a bag."""
@@ -117,7 +113,7 @@ class Player:
     def wait_for_subscribers(self) -> None:
         """Block until ``options.wait_for_subscribers`` subscriptions are matched."""
         while self.subscription_count() < self.options.wait_for_subscribers:
-            time.sleep(_POLL_S)
+            time.sleep(0.05)
 
     def play(self, stop: threading.Event | None = None,
              on_publish: Callable[[str, int], None] | None = None) -> PlayStats:
@@ -125,19 +121,13 @@ class Player:
         stats = PlayStats()
         began = time.monotonic()
         total = None if self.options.loop else self.reader.message_count
-        most = max(c.msgcount for c in self.reader.connections)  # its mean spacing: the seam's
-        gap_s = self.reader.duration / 1e9 / (most - 1) if most > 1 else 0.0
-        bar = Progress(total, 'playing', stream=None if self.options.progress else io.StringIO())
-        with bar:
+        rate = self.options.rate
+        with Progress(total, 'playing',
+                      stream=None if self.options.progress else io.StringIO()) as bar:
             while self.options.loop or not stats.loops:
-                if stats.loops and not _sleep_until(
-                        time.monotonic() + gap_s / self.options.rate, stop):
-                    break  # keep one frame's spacing across the loop seam
                 loop_start = time.monotonic()
-                first_t = None
                 for conn, timestamp, raw in self.reader.messages():
-                    first_t = timestamp if first_t is None else first_t
-                    due = loop_start + (timestamp - first_t) / 1e9 / self.options.rate
+                    due = loop_start + (timestamp - self.reader.start_time) / 1e9 / rate
                     if not _sleep_until(due, stop):
                         stats.wall_s = time.monotonic() - began
                         return stats

@@ -135,17 +135,9 @@ def process_bags(jobs: Sequence[BagJob], fleet: Fleet, *, progress: bool = True
     """
     results = run_tasks(fleet, process_one, [(job,) for job in jobs], label='bags',
                         progress=progress, return_errors=True)
-    return [BagOutcome(job.bag, job.output, error=_named(result, job))
+    return [BagOutcome(job.bag, job.output, error=str(result.error))   # the table names the bag
             if isinstance(result, TaskError) else result
             for job, result in zip(jobs, results)]
-
-
-def _named(failure: TaskError, job: BagJob) -> str:
-    """Return a failed bag's reason: its error's message if it names the bag, else with it."""
-    text = str(failure.error)
-    if failure.error is not None and text.startswith((str(job.bag), str(job.output))):
-        return text
-    return f'{job.bag}: {failure.reason}'
 
 
 def remove_stale_staging(jobs: Sequence[BagJob]) -> None:

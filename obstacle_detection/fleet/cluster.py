@@ -18,8 +18,6 @@ from obstacle_detection.cli.progress import Progress
 
 #: Whether dask.distributed can be imported (the optional ``fleet`` extra).
 DASK_AVAILABLE = importlib.util.find_spec('distributed') is not None
-#: The environment variable Dask itself reads for the scheduler's address.
-SCHEDULER_ENV = 'DASK_SCHEDULER_ADDRESS'
 #: The environment of a local cluster's worker processes: one thread per worker.
 ONE_THREAD_ENV = {'NUMBA_NUM_THREADS': '1', 'OMP_NUM_THREADS': '1', 'MKL_NUM_THREADS': '1',
                   'OPENBLAS_NUM_THREADS': '1'}
@@ -52,8 +50,7 @@ def add_fleet_arguments(parser: argparse.ArgumentParser) -> None:
                             '0 = this process, no Dask [default: one per core when Dask is '
                             'installed and there is more than one task]')
     group.add_argument('--scheduler', metavar='ADDRESS',
-                       help=f'run on the Dask cluster of this scheduler, e.g. '
-                            f'tcp://host:8786 [default: ${SCHEDULER_ENV} if set]')
+                       help='run on the Dask cluster of this scheduler, e.g. tcp://host:8786')
 
 
 def fleet_options(args: argparse.Namespace) -> dict[str, Any]:
@@ -72,15 +69,13 @@ def open_fleet(*, workers: int | None = None, scheduler: str | None = None,
     if scheduler is not None and workers is not None:
         raise tool_support.ToolError('--workers starts a local cluster, --scheduler uses '
                                      'another one: give one of them')
-    if scheduler is None and workers is None:
-        scheduler = os.environ.get(SCHEDULER_ENV) or None
     wanted = scheduler is not None or (workers is not None and workers > 0)
     if wanted and not DASK_AVAILABLE:
         what = f'--scheduler {scheduler}' if scheduler else f'--workers {workers}'
         raise tool_support.ToolError(
             f"{what} needs dask.distributed, which is not installed: pip install "
             f"'dask[distributed]' (or pip install .[fleet]), or leave out --workers/--scheduler "
-            f'(and unset {SCHEDULER_ENV}) to run in this process')
+            'to run in this process')
     cores = len(os.sched_getaffinity(0))
     if not wanted and (workers == 0 or not DASK_AVAILABLE or tasks < 2 or cores < 2):
         yield Fleet(None, 'this process', 1)
