@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import signal
 import subprocess
 import sys
 import threading
@@ -99,26 +100,36 @@ def stamps_s(messages: list) -> list[float]:
     return [m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in messages]
 
 
-def test_cli_replays_every_frame_in_order(bag: Path, env: dict[str, str],
-                                           context: rclpy.context.Context) -> None:
+def wait_matched(player: bag_player.Player) -> None:
+    """Wait until the test's subscriber is matched (the player itself does not wait)."""
+    deadline = time.monotonic() + 20.0
+    while player.subscription_count() < 1 and time.monotonic() < deadline:
+        time.sleep(0.05)
+
+
+def test_cli_loops_every_frame_in_order_until_ctrl_c(bag: Path, env: dict[str, str],
+                                                     context: rclpy.context.Context) -> None:
     recorder = Recorder(context, {DEPTH: Image, INFO: CameraInfo}, RELIABLE)
     try:
         player = subprocess.Popen(
             [sys.executable, str(REPO / 'tools' / 'bag_play.py'), str(bag), '--reliable',
-             '--quiet', '--wait-for-subscribers', '2'],
+             '--quiet', '--loop'],
             env=env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        recorder.spin_until(lambda: player.poll() is not None, 30.0)
-        recorder.spin_until(lambda: len(recorder.received[DEPTH]) >= N_FRAMES, 2.0)
-        out, err = player.communicate(timeout=10)
-        assert player.returncode == 0, err
-        assert f'{DEPTH}: {N_FRAMES}' in out
+        # the first frames may go out before the subscriber is matched: two loops more
+        recorder.spin_until(lambda: len(recorder.received[DEPTH]) >= 3 * N_FRAMES, 30.0)
+        player.send_signal(signal.SIGINT)
+        _, err = player.communicate(timeout=10)
+        assert player.returncode == 130, err
+        assert err.endswith('bag_play: interrupted\n')
         depth = recorder.received[DEPTH]
-        assert len(depth) == N_FRAMES
-        assert len(recorder.received[INFO]) == N_FRAMES
-        for k, msg in enumerate(depth):
+        frames = [int(image_to_array(m)[0, 0]) - 1000 for m in depth]
+        start = frames.index(0)
+        assert frames[start:start + 2 * N_FRAMES] == list(range(N_FRAMES)) * 2
+        for k, msg in enumerate(depth[start:start + N_FRAMES]):
             np.testing.assert_array_equal(image_to_array(msg), frame_depth(k))
-        np.testing.assert_allclose(stamps_s(depth), 50.0 + np.arange(N_FRAMES) / RATE_HZ,
-                                   atol=1e-9)
+        np.testing.assert_allclose(stamps_s(depth[start:start + N_FRAMES]),
+                                   50.0 + np.arange(N_FRAMES) / RATE_HZ, atol=1e-9)
+        assert len(recorder.received[INFO]) >= 2 * N_FRAMES
     finally:
         recorder.close()
 
@@ -129,8 +140,7 @@ def test_library_loop_and_timing(bag: Path, context: rclpy.context.Context,
     arrivals: list[float] = []
     topics: list[str] = []
     publisher_node = Node('player_under_test', context=context)
-    options = bag_player.PlayOptions(rate=0.5, loop=True, reliable=True,
-                                     wait_for_subscribers=1, progress=False)
+    options = bag_player.PlayOptions(rate=0.5, loop=True, reliable=True, progress=False)
     player = bag_player.Player(publisher_node, bag, options)
     stats: list[bag_player.PlayStats] = []
     stop = threading.Event()   # set after the last message of the second loop
@@ -150,7 +160,7 @@ def test_library_loop_and_timing(bag: Path, context: rclpy.context.Context,
             stop.set()
 
     def run() -> None:
-        player.wait_for_subscribers()
+        wait_matched(player)
         stats.append(player.play(stop, on_publish=published))
 
     thread = threading.Thread(target=run)
@@ -243,9 +253,9 @@ def test_compressed_depth_topic_is_played_and_decodes(tmp_path: Path,
     recorder = Recorder(context, {topic: CompressedImage}, RELIABLE)
     node = Node('compressed_player', context=context)
     player = bag_player.Player(node, tmp_path / 'bag', bag_player.PlayOptions(
-        reliable=True, wait_for_subscribers=1, progress=False))
+        reliable=True, progress=False))
     try:
-        player.wait_for_subscribers()
+        wait_matched(player)
         stats = player.play()
         recorder.spin_until(lambda: len(recorder.received[topic]) >= 3, 10.0)
         assert stats.published[topic] == 3

@@ -30,9 +30,6 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--reliable', action='store_true',
                         help='publish with reliable QoS (default: sensor data, best effort); '
                              'the subscriber must then be reliable too')
-    parser.add_argument('--wait-for-subscribers', type=tool_support.int_in(0), default=0,
-                        metavar='N', help='wait until N subscriptions (over all topics) are '
-                                          'matched')
     parser.add_argument('--quiet', action='store_true', help='no progress bar')
     return parser
 
@@ -42,7 +39,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Play a bag; return the exit code (0 done, 1 bad bag, 2 bad usage, 130 Ctrl-C)."""
     args = build_parser().parse_args(argv)
     options = PlayOptions(rate=args.rate, loop=args.loop, reliable=args.reliable,
-                          wait_for_subscribers=args.wait_for_subscribers, progress=not args.quiet)
+                          progress=not args.quiet)
     open_bag(args.bag).close()  # bad input fails before DDS starts
 
     import rclpy
@@ -53,10 +50,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         node = Node('bag_player')
         player = Player(node, args.bag, options)
-        if options.wait_for_subscribers:
-            print(f'waiting for {options.wait_for_subscribers} subscription(s) ...',
-                  file=sys.stderr)
-            player.wait_for_subscribers()
         print('\n'.join(player.play().lines()))
     finally:
         if player is not None:

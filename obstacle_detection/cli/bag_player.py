@@ -26,7 +26,6 @@ class PlayOptions:
     rate: float = 1.0
     loop: bool = False
     reliable: bool = False
-    wait_for_subscribers: int = 0
     progress: bool = True
 
     def __post_init__(self) -> None:
@@ -109,11 +108,6 @@ class Player:
     def subscription_count(self) -> int:
         """Return matched subscriptions summed over the played topics."""
         return sum(p.get_subscription_count() for p in self.publishers.values())
-
-    def wait_for_subscribers(self) -> None:
-        """Block until ``options.wait_for_subscribers`` subscriptions are matched."""
-        while self.subscription_count() < self.options.wait_for_subscribers:
-            time.sleep(0.05)
 
     def play(self, stop: threading.Event | None = None,
              on_publish: Callable[[str, int], None] | None = None) -> PlayStats:

@@ -70,14 +70,13 @@ class ProcessSummary:
     topics: dict[str, int] = dataclasses.field(default_factory=dict)
     info_topic: str | None = None
     info_how: str = ''
-    depth: str = ''
     mount: str = ''
     mount_warning: str | None = None
     notes: list[str] = dataclasses.field(default_factory=list)
 
     def lines(self) -> list[str]:
         """Return the summary as printable lines."""
-        out = [f'wrote {self.output}', *([f'  depth: {self.depth}'] if self.depth else []),
+        out = [f'wrote {self.output}',
                f'  intrinsics: CameraInfo on {self.info_topic} ({self.info_how})'
                if self.info_topic else f'  intrinsics: none recorded ({self.info_how})',
                f'  camera mount: {self.mount}',
@@ -210,9 +209,6 @@ def _check_topics(reader: Reader, src: Path, depth_topic: str, info_topic: str |
                         f'{", ".join(images) or "none"}; use --depth-topic)')
     if topics[depth_topic] not in DEPTH_TYPES:
         raise ToolError(f'{src}: {depth_topic} has type {topics[depth_topic]}, not {kinds}')
-    depth_class = DEPTH_TYPES[topics[depth_topic]]
-    summary.depth = f'{depth_topic} ({topics[depth_topic]}' + (
-        ', decoded by compressed_depth)' if depth_class is CompressedImage else ')')
     try:
         summary.info_topic, summary.info_how = tool_support.choose_info_topic(
             topics, raw_topic(depth_topic), info_topic)
@@ -220,7 +216,7 @@ def _check_topics(reader: Reader, src: Path, depth_topic: str, info_topic: str |
         raise ToolError(f'{src}: {err}') from err
     if clash := sorted(set(outputs.values()) & set(topics)):
         raise ToolError(f'{src}: already has {", ".join(clash)}; choose another --namespace')
-    return depth_class
+    return DEPTH_TYPES[topics[depth_topic]]
 
 
 def _note(summary: ProcessSummary, note: str | None) -> None:

@@ -61,29 +61,26 @@ def package_file(relative: str) -> Path:
     return next((path for path in candidates if path.exists()), candidates[0])
 
 
-def report_error(prog: str, error: BaseException) -> int:
-    """Print the one error line of ``error``; return its exit code (2 when ``error.usage``)."""
-    if getattr(error, 'usage', False):
-        print(f'{prog}: error: {error}', file=sys.stderr)
-        return 2
-    text = str(error)
-    if isinstance(error, OSError) and error.filename is not None and error.strerror:
-        text = f'{error.filename}: {error.strerror}'
-    elif isinstance(error, KeyError) and error.args:
-        text = str(error.args[0])
-    print(f'error: {text}', file=sys.stderr)
-    return 1
-
-
 def command(prog: str) -> Callable[[Callable[..., int]], Callable[..., int]]:
-    """Decorate a tool's ``main(argv)``: bad input -> ``report_error``, Ctrl-C -> exit 130."""
+    """Decorate a tool's ``main(argv)``: bad input -> one error line, Ctrl-C -> exit 130.
+
+    The error line is ``error: <message>`` (exit 1), or ``<prog>: error: <message>`` for an error
+    with ``usage`` set (exit 2, as argparse).
+    """
     def decorate(main: Callable[..., int]) -> Callable[..., int]:
         @functools.wraps(main)
         def run(argv: Any = None) -> int:
             try:
                 return main(argv)
             except (ValueError, OSError, KeyError) as exc:   # KeyError: an unknown name
-                return report_error(prog, exc)
+                if getattr(exc, 'usage', False):
+                    print(f'{prog}: error: {exc}', file=sys.stderr)
+                    return 2
+                text = str(exc.args[0]) if isinstance(exc, KeyError) and exc.args else str(exc)
+                if isinstance(exc, OSError) and exc.filename is not None and exc.strerror:
+                    text = f'{exc.filename}: {exc.strerror}'
+                print(f'error: {text}', file=sys.stderr)
+                return 1
             except KeyboardInterrupt:   # the tools write their outputs whole or not at all
                 print(f'{prog}: interrupted', file=sys.stderr)
                 return 130

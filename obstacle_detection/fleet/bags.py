@@ -33,7 +33,7 @@ def is_many(spec: str | Path) -> bool:
 
 
 def find_bags(spec: str | Path) -> list[tuple[Path, Path]]:
-    """Return ``(bag, output name)`` of every bag ``spec`` names, in a stable order.
+    """Return ``(bag, output name)`` of every bag ``spec`` (see is_many) names, in order.
 
     Raises tool_support.ToolError naming the spec or the entry that is not a bag.
     """
@@ -41,14 +41,9 @@ def find_bags(spec: str | Path) -> list[tuple[Path, Path]]:
     path = Path(text)
     if path.is_dir() and not (_GLOB_CHARS & set(text)):
         bags = sorted(p.parent for p in path.rglob('metadata.yaml'))
-        if not bags:
-            raise tool_support.ToolError(path, 'no bag in the folder (no metadata.yaml below '
-                                               'it)')
         # a bag inside another bag's folder is not a bag of its own
         bags = [b for b in bags if not any(o in b.parents for o in bags)]
         return [(bag, bag.relative_to(path)) for bag in bags]
-    if not _GLOB_CHARS & set(text):
-        raise tool_support.ToolError(path, 'not a folder of bags or a glob pattern')
     entries = [Path(m) for m in sorted(glob.glob(text))]
     if not entries:
         raise tool_support.ToolError(text, 'the pattern matches nothing')
