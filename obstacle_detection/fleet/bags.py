@@ -143,33 +143,25 @@ def remove_stale_staging(jobs: Sequence[BagJob]) -> None:
 
 def format_table(outcomes: Sequence[BagOutcome]) -> str:
     """Return the per-bag table, then skip reasons, warnings and failures per bag."""
-    names = [str(o.bag) for o in outcomes]
-    width = max(len(name) for name in [*names, 'total']) + 1
-    widths = (7, 9, 7, 12, 8, 7)
+    done = [o for o in outcomes if o.error is None]
+    total = merged(Path('total'), Path(), done)
+    width = max(len(str(o.bag)) for o in [*outcomes, total]) + 1
+    heads = ('frames', 'processed', 'skipped', 'obstacle pts', 'ms/frame', 's')
 
-    def row(name: str, outcome: BagOutcome, status: str) -> str:
-        ms = outcome.ms_per_frame
-        cells = (['-'] * 6 if outcome.error is not None else
-                 [outcome.frames, outcome.processed, sum(outcome.skipped.values()),
-                  outcome.obstacle_points, '-' if math.isnan(ms) else f'{ms:.1f}',
-                  f'{outcome.wall_s:.1f}'])
-        return f'{name:<{width}} ' + ' '.join(f'{c:>{w}}' for c, w in zip(cells, widths)) + \
-            f'  {status}'
-    head = f'{"bag":<{width}} ' + ' '.join(
-        f'{h:>{w}}' for h, w in zip(('frames', 'processed', 'skipped', 'obstacle pts',
-                                     'ms/frame', 's'), widths)) + '  status'
+    def row(o: BagOutcome, status: str) -> str:
+        ms = o.ms_per_frame
+        cells = (['-'] * 6 if o.error is not None else
+                 [o.frames, o.processed, sum(o.skipped.values()), o.obstacle_points,
+                  '-' if math.isnan(ms) else f'{ms:.1f}', f'{o.wall_s:.1f}'])
+        return f'{str(o.bag):<{width}} ' + ' '.join(
+            f'{c:>{max(len(h), 7)}}' for c, h in zip(cells, heads)) + f'  {status}'
+    head = f'{"bag":<{width}} ' + ' '.join(f'{h:>7}' for h in heads) + '  status'
     lines = [head, '-' * len(head)]
     notes: list[str] = []
-    for name, outcome in zip(names, outcomes):
-        lines.append(row(name, outcome, 'ok' if outcome.error is None else 'FAILED'))
-        if outcome.error is not None:
-            notes.append(f'  {name}: failed: {outcome.error}')
-        notes.extend(f'  {name}: skipped {count}: {reason}'
-                     for reason, count in outcome.skipped.items())
-        if outcome.warning:
-            notes.append(f'  {name}: warning: {outcome.warning}')
-    done = [o for o in outcomes if o.error is None]
-    lines += ['-' * len(head), row('total', merged(Path('total'), Path(), done),
-                                   f'{len(done)} ok, {len(outcomes) - len(done)} failed')]
+    for o in outcomes:
+        lines.append(row(o, 'ok' if o.error is None else 'FAILED'))
+        notes += [f'  {o.bag}: failed: {o.error}'] if o.error is not None else []
+        notes += [f'  {o.bag}: skipped {count}: {reason}' for reason, count in o.skipped.items()]
+        notes += [f'  {o.bag}: warning: {o.warning}'] if o.warning else []
+    lines += ['-' * len(head), row(total, f'{len(done)} ok, {len(outcomes) - len(done)} failed')]
     return '\n'.join(lines + notes)
-
