@@ -19,6 +19,7 @@ from obstacle_detection.cli import support as tool_support
 from obstacle_detection.cli.support import ToolError
 from obstacle_detection.cli.progress import Progress
 
+
 @dataclasses.dataclass(frozen=True)
 class PlayOptions:
     """How to play a bag."""

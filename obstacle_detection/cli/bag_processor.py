@@ -6,7 +6,7 @@ import dataclasses
 import io
 import statistics
 from collections import Counter, deque
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -165,7 +165,15 @@ def process_bag(src: Path, output: Path, config: NodeConfig, *,
                     Progress(n_depth, 'processing',
                              stream=None if progress else io.StringIO()) as bar:
                 typestore = get_typestore(Stores.ROS2_JAZZY)
-                copies = copy_connections(reader.connections, writer, typestore)
+                copies = {}   # the inputs, copied: {reader's connection id: writer's}
+                for conn in reader.connections:
+                    known = bool(conn.msgdef.data and conn.digest)
+                    copies[conn.id] = writer.add_connection(
+                        conn.topic, conn.msgtype, msgdef=conn.msgdef.data if known else None,
+                        rihs01=conn.digest if known else None,
+                        typestore=None if known else typestore,
+                        serialization_format=getattr(conn.ext, 'serialization_format', 'cdr'),
+                        offered_qos_profiles=getattr(conn.ext, 'offered_qos_profiles', ()))
                 out_conns = {key: writer.add_connection(outputs[key], OUTPUTS[key][1],
                                                         typestore=typestore) for key in wanted}
                 cameras: deque[CameraState] = deque(maxlen=frame_gate.CAMERA_INFO_HISTORY)
@@ -235,37 +243,16 @@ def _frame(depth: Any, cameras: Sequence[CameraState], config: NodeConfig,
     if messages is None:
         summary.skipped[reason] += 1
         return None
-    if summary.processed == 0:
-        _check_first_mount(result, config, summary)
+    if summary.processed == 0:   # the floor of the first frame against the mount
+        check = tool_support.check_mount(
+            result.depth_m, result.intrinsics, config.detector.params,
+            fix='a --params-file setting camera_height_m, camera_pitch_deg and camera_roll_deg '
+                '(tools/estimate_mount.py --params-out writes one from a depth frame)')
+        if check.warning:
+            summary.mount_warning = f'first frame: {check.warning}'
+            tool_support.warn(summary.mount_warning)
     summary.obstacle_points += int(result.obstacle_points.shape[0])
     summary.processed += 1
     summary.total_ms.append(result.timings_ms.get('total', 0.0))
     return messages
-
-
-def copy_connections(connections: Iterable[Any], writer: Writer, typestore: Any
-                     ) -> dict[int, Any]:
-    """Add a reader's ``connections`` to ``writer``; return {reader's id: writer's connection}."""
-    copies = {}
-    for conn in connections:
-        known = bool(conn.msgdef.data and conn.digest)
-        copies[conn.id] = writer.add_connection(
-            conn.topic, conn.msgtype,
-            msgdef=conn.msgdef.data if known else None,
-            rihs01=conn.digest if known else None,
-            typestore=None if known else typestore,
-            serialization_format=getattr(conn.ext, 'serialization_format', 'cdr'),
-            offered_qos_profiles=getattr(conn.ext, 'offered_qos_profiles', ()))
-    return copies
-
-
-def _check_first_mount(result: Any, config: NodeConfig, summary: ProcessSummary) -> None:
-    """Compare the floor of the first processed frame with the mount; warn on stderr."""
-    check = tool_support.check_mount(
-        result.depth_m, result.intrinsics, config.detector.params,
-        fix='a --params-file setting camera_height_m, camera_pitch_deg and camera_roll_deg '
-            '(tools/estimate_mount.py --params-out writes one from a depth frame)')
-    if check.warning:
-        summary.mount_warning = f'first frame: {check.warning}'
-        tool_support.warn(summary.mount_warning)
 

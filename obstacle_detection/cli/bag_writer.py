@@ -191,8 +191,6 @@ def convert_ros1(src: Path, output: Path, *, storage: str = 'sqlite3',
     with staged_output(output) as staging:
         try:
             with AnyReader([src], default_typestore=get_typestore(Stores.ROS1_NOETIC)) as reader:
-                if reader.is2:
-                    raise EvaluationError(f'{src}: not a ROS 1 bag (expected a .bag file)')
                 connections = [c for c in reader.connections if not topics or c.topic in topics]
                 if missing := sorted(set(topics) - {c.topic for c in reader.connections}):
                     raise EvaluationError(f'{src}: has no topic {", ".join(missing)}')
@@ -218,6 +216,5 @@ def convert_ros1(src: Path, output: Path, *, storage: str = 'sqlite3',
             raise EvaluationError(f'{output}: cannot write bag ({err})') from err
     summary.topics = Counter(dict(sorted(summary.topics.items())))
     summary.messages = sum(summary.topics.values())
-    summary.frames = max(summary.topics.values(), default=0)
     return summary
 
