@@ -46,16 +46,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     from rclpy.node import Node
 
     rclpy.init(args=None)
-    node = player = None
+    node = Node('bag_player')
+    player = None
     try:
-        node = Node('bag_player')
         player = Player(node, args.bag, options)
         print('\n'.join(player.play().lines()))
     finally:
         if player is not None:
             player.close()
-        if node is not None:
-            node.destroy_node()
+        node.destroy_node()
         rclpy.try_shutdown()
     return 0
 

@@ -77,10 +77,8 @@ def _process_many(args: argparse.Namespace, values: Mapping[str, Any], origin: s
                   mount_origin: str) -> int:
     """Every bag one task (fleet.bags): the table; 1 when a bag failed."""
     if fleet_bags.is_many(args.bag):
-        found = fleet_bags.find_bags(args.bag)
-        outputs = [(bag, args.output / name) for bag, name in found]
+        outputs = [(bag, args.output / name) for bag, name in fleet_bags.find_bags(args.bag)]
     else:   # one bag on a cluster (--workers / --scheduler): the output is the one named
-        tool_support.check_bag_path(args.bag, ros1=False)
         outputs = [(Path(args.bag), args.output)]
     # one thread per task: the workers are the parallelism (same results: compare=False)
     values = {**values, 'compute_threads': 1}
