@@ -22,7 +22,6 @@ def build_parser() -> argparse.ArgumentParser:
     """Return the command-line parser."""
     parser = argparse.ArgumentParser(
         prog='bag_convert', description=__doc__.split('\n\n')[0],
-        formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog='Run "bag_convert SOURCE -h" for the options of one source.')
     sub = parser.add_subparsers(dest='source', required=True, metavar='SOURCE')
 

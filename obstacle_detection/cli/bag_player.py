@@ -15,8 +15,7 @@ from typing import Any
 
 from rosbags.rosbag2 import Reader, ReaderError
 
-from obstacle_detection.cli import support as tool_support
-from obstacle_detection.cli.support import ToolError
+from obstacle_detection.cli.support import ToolError, check_bag_path
 from obstacle_detection.cli.progress import Progress
 
 
@@ -62,7 +61,7 @@ def message_class(msgtype: str) -> type:
 
 def open_bag(bag: Path) -> Reader:
     """Open ``bag``, a rosbag2 bag with messages; the caller closes the reader."""
-    tool_support.check_bag_path(bag, ros1=False)
+    check_bag_path(bag, ros1=False)
     try:
         reader = Reader(bag)
         reader.open()

@@ -25,7 +25,7 @@ from obstacle_detection.evaluation.datasets import (EvaluationError, FrameSource
 
 DEFAULT_DEPTH_TOPIC = tool_support.DEFAULT_DEPTH_TOPIC
 DEFAULT_INFO_TOPIC = tool_support.DEFAULT_INFO_TOPIC
-DEFAULT_COLOR_TOPIC = tool_support.DEFAULT_COLOR_TOPIC
+DEFAULT_COLOR_TOPIC = '/kinect2/sd/image_color_rect'
 DEFAULT_FRAME_ID = 'kinect2_ir_optical_frame'
 #: Odometry of frames that carry a pose (nav_msgs/Odometry, base_footprint in odom).
 DEFAULT_ODOM_TOPIC = '/odom'

@@ -19,7 +19,6 @@ from obstacle_detection.pipeline.params import DetectorParams, Intrinsics
 #: One set of default topic names for every tool: the iai_kinect2 driver's SD (512x424) topics.
 DEFAULT_DEPTH_TOPIC = '/kinect2/sd/image_depth_rect'
 DEFAULT_INFO_TOPIC = '/kinect2/sd/camera_info'
-DEFAULT_COLOR_TOPIC = '/kinect2/sd/image_color_rect'
 IMAGE_TYPE = 'sensor_msgs/msg/Image'
 CAMERA_INFO_TYPE = 'sensor_msgs/msg/CameraInfo'
 
@@ -62,11 +61,7 @@ def package_file(relative: str) -> Path:
 
 
 def command(prog: str) -> Callable[[Callable[..., int]], Callable[..., int]]:
-    """Decorate a tool's ``main(argv)``: bad input -> one error line, Ctrl-C -> exit 130.
-
-    The error line is ``error: <message>`` (exit 1), or ``<prog>: error: <message>`` for an error
-    with ``usage`` set (exit 2, as argparse).
-    """
+    """Decorate a tool's ``main(argv)``: bad input -> one error line (exit 1, 2 if usage)."""
     def decorate(main: Callable[..., int]) -> Callable[..., int]:
         @functools.wraps(main)
         def run(argv: Any = None) -> int:

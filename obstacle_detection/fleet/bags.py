@@ -24,12 +24,10 @@ _GLOB_CHARS = frozenset('*?[')
 
 def is_many(spec: str | Path) -> bool:
     """Tell whether ``spec`` names several bags (a folder of bags or a glob)."""
-    text = str(spec)
-    if _GLOB_CHARS & set(text):
-        return True
-    path = Path(text)
-    return (path.is_dir() and not (path / 'metadata.yaml').is_file()
-            and any(path.rglob('metadata.yaml')))
+    path = Path(spec)
+    return bool(_GLOB_CHARS & set(str(spec))) or (
+        path.is_dir() and not (path / 'metadata.yaml').is_file()
+        and any(path.rglob('metadata.yaml')))
 
 
 def find_bags(spec: str | Path) -> list[tuple[Path, Path]]:
@@ -125,8 +123,7 @@ def process_bags(jobs: Sequence[BagJob], fleet: Fleet, *, progress: bool = True
                  ) -> list[BagOutcome]:
     """Run every job where ``fleet`` says; outcomes in ``jobs`` order (a failed one's error set).
 
-    On KeyboardInterrupt the tasks are cancelled and it propagates (then
-    :func:`remove_stale_staging`).
+    Ctrl-C cancels the tasks and propagates (then call :func:`remove_stale_staging`).
     """
     results = run_tasks(fleet, process_one, [(job,) for job in jobs], label='bags',
                         progress=progress, return_errors=True)

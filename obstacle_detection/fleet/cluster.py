@@ -63,8 +63,7 @@ def open_fleet(*, workers: int | None = None, scheduler: str | None = None,
                tasks: int = 2) -> Iterator[Fleet]:
     """Yield where to run ``tasks`` tasks; close it afterwards.
 
-    Raises ToolError when Dask is missing or the scheduler cannot be reached for a cluster asked
-    for, or for ``workers`` and ``scheduler`` together.
+    Raises ToolError for a cluster that cannot be used, or ``workers`` and ``scheduler`` both.
     """
     if scheduler is not None and workers is not None:
         raise tool_support.ToolError('--workers starts a local cluster, --scheduler uses '
