@@ -85,9 +85,9 @@ class Player:
         self.reader = open_bag(bag)
         qos = (QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
                if options.reliable else qos_profile_sensor_data)
-        self.publishers = {conn.topic: node.create_publisher(message_class(conn.msgtype),
-                                                             conn.topic, qos)
-                           for conn in self.reader.connections}
+        types = {conn.topic: conn.msgtype for conn in self.reader.connections}   # one per topic
+        self.publishers = {topic: node.create_publisher(message_class(msgtype), topic, qos)
+                           for topic, msgtype in types.items()}
 
     def close(self, ack_timeout_s: float = 3.0) -> None:
         """Close the bag and destroy the publishers."""
