@@ -26,6 +26,11 @@ ANGLE_TOL_DEG = 0.5
 SMALL = Intrinsics(365.0, 365.0, 5.0, 5.0)
 
 
+def depth_m(frame) -> np.ndarray:
+    """Return the rendered frame's measured depth [m], float32, 0 = no return."""
+    return frame.depth_mm * np.float32(1e-3)
+
+
 def assert_mount(estimate, height_m, pitch_rad, roll_rad):
     assert estimate.height_m == pytest.approx(height_m, abs=HEIGHT_TOL_M)
     assert estimate.pitch_deg == pytest.approx(math.degrees(pitch_rad), abs=ANGLE_TOL_DEG)
@@ -57,21 +62,21 @@ def test_mount_from_plane_refuses_a_camera_below_the_plane():
 def test_recovers_the_mount_of_a_rendered_scene(scene, height_m, pitch_deg, roll_deg):
     pitch, roll = math.radians(pitch_deg), math.radians(roll_deg)
     frame = render_scene(scene, seed=1, height_m=height_m, pitch_rad=pitch, roll_rad=roll)
-    estimate = mount.estimate_mount(frame.depth_m, frame.intrinsics)
+    estimate = mount.estimate_mount(depth_m(frame), frame.intrinsics)
     assert_mount(estimate, height_m, pitch, roll)
     assert estimate.offset_m == pytest.approx(estimate.height_m)
     np.testing.assert_allclose(estimate.normal_optical, geometry.mount_rotation(pitch, roll)[2],
                                atol=0.01)
     floor = frame.hit_index == 0
     assert estimate.inlier_fraction == pytest.approx(
-        np.count_nonzero(floor & (frame.depth_mm > 0) & (frame.depth_m <= 4.0))
+        np.count_nonzero(floor & (frame.depth_mm > 0) & (depth_m(frame) <= 4.0))
         / estimate.n_points, abs=0.02)
 
 
 def test_same_seed_gives_the_same_estimate():
     frame = render_scene('corridor', seed=2, height_m=0.7, pitch_rad=0.3)
-    assert mount.estimate_mount(frame.depth_m, frame.intrinsics, seed=5) == \
-        mount.estimate_mount(frame.depth_m, frame.intrinsics, seed=5)
+    assert mount.estimate_mount(depth_m(frame), frame.intrinsics, seed=5) == \
+        mount.estimate_mount(depth_m(frame), frame.intrinsics, seed=5)
 
 
 def test_a_table_top_filling_most_of_the_view_is_not_the_floor():
@@ -83,7 +88,7 @@ def test_a_table_top_filling_most_of_the_view_is_not_the_floor():
     frame = render(scene, seed=3)
     valid = frame.depth_mm > 0
     assert np.mean(frame.hit_index[valid] == 1) > 0.8
-    estimate = mount.estimate_mount(frame.depth_m, frame.intrinsics)
+    estimate = mount.estimate_mount(depth_m(frame), frame.intrinsics)
     assert_mount(estimate, 1.2, scene.pitch_rad, scene.roll_rad)
 
 
@@ -91,7 +96,7 @@ def test_a_wall_filling_the_view_has_no_floor():
     scene = Scene('wall', (Wall(1.0, 5.0, 1.0, -5.0, -5.0, 5.0),), height_m=0.6)
     frame = render(scene, seed=0)
     with pytest.raises(ValueError, match='no plausible floor'):
-        mount.estimate_mount(frame.depth_m, frame.intrinsics)
+        mount.estimate_mount(depth_m(frame), frame.intrinsics)
 
 
 def test_a_frame_without_depth_has_too_few_points():
@@ -102,8 +107,8 @@ def test_a_frame_without_depth_has_too_few_points():
 def test_a_steep_camera_needs_the_prior_pitch():
     frame = render_scene('flat_floor', height_m=0.5, pitch_rad=math.radians(70.0))
     with pytest.raises(ValueError, match='prior_pitch_rad'):
-        mount.estimate_mount(frame.depth_m, frame.intrinsics)
-    estimate = mount.estimate_mount(frame.depth_m, frame.intrinsics,
+        mount.estimate_mount(depth_m(frame), frame.intrinsics)
+    estimate = mount.estimate_mount(depth_m(frame), frame.intrinsics,
                                     prior_pitch_rad=math.radians(65.0))
     assert_mount(estimate, 0.5, math.radians(70.0), 0.0)
 
@@ -130,7 +135,7 @@ def test_integer_depth_is_refused():
 def test_with_the_estimated_mount_the_pipeline_sees_only_ground():
     pitch, roll = math.radians(35.0), math.radians(6.0)
     frame = render_scene('flat_floor', seed=4, height_m=0.9, pitch_rad=pitch, roll_rad=roll)
-    estimate = mount.estimate_mount(frame.depth_m, frame.intrinsics)
+    estimate = mount.estimate_mount(depth_m(frame), frame.intrinsics)
     params = table_4_2(median_kernel=5, camera_height_m=estimate.height_m,
                        camera_pitch_rad=estimate.pitch_rad, camera_roll_rad=estimate.roll_rad)
     result = Detector(params).process(frame.depth_mm, frame.intrinsics)

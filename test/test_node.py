@@ -165,7 +165,7 @@ def _depth_image(frame: SceneFrame) -> Image:
 
 
 def _camera_info(frame: SceneFrame) -> CameraInfo:
-    width, height = frame.size
+    height, width = frame.depth_mm.shape
     return intrinsics_to_camera_info(frame.intrinsics, width, height, stamp=Time(),
                                      frame_id='depth_optical')
 

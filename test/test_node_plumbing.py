@@ -70,7 +70,7 @@ def scene() -> SceneFrame:
 
 
 def _camera_info(frame: SceneFrame, stamp: Time = Time()) -> CameraInfo:
-    width, height = frame.size
+    height, width = frame.depth_mm.shape
     return intrinsics_to_camera_info(frame.intrinsics, width, height, stamp=stamp,
                                      frame_id='depth_optical')
 
