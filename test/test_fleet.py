@@ -7,6 +7,7 @@ Dask cluster of two worker processes and compare what it gives with one process.
 from __future__ import annotations
 
 import json
+import re
 import os
 import signal
 import subprocess
@@ -179,6 +180,7 @@ def test_many_bags_in_one_process_equal_one_bag_runs(tmp_path: Path, depths: lis
     total = next(line for line in out.splitlines() if line.startswith('total ')).split()
     assert total[:3] == ['total', '9', '9'] and total[-4:] == ['3', 'ok,', '0', 'failed']
     assert '3 bags on this process' in err
+    assert re.fullmatch(r'9 frames in \d+\.\d s: \d+\.\d frames/s overall', out.splitlines()[-1])
 
 
 def test_a_corrupt_bag_fails_alone_with_its_reason(tmp_path: Path, depths: list[np.ndarray],

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -75,7 +76,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _process_many(args: argparse.Namespace, values: Mapping[str, Any], origin: str,
                   mount_origin: str) -> int:
-    """Every bag one task (fleet.bags): the table; 1 when a bag failed."""
+    """Every bag one task (fleet.bags): the table and the run's speed; 1 when a bag failed."""
     if fleet_bags.is_many(args.bag):
         outputs = [(bag, args.output / name) for bag, name in fleet_bags.find_bags(args.bag)]
     else:   # one bag on a cluster (--workers / --scheduler): the output is the one named
@@ -87,6 +88,7 @@ def _process_many(args: argparse.Namespace, values: Mapping[str, Any], origin: s
         info_topic=args.info_topic, namespace=args.namespace, with_ground=args.ground,
         with_overlay=args.overlay, storage=args.storage)
         for bag, output in outputs]
+    began = time.perf_counter()
     try:
         with open_fleet(**fleet_options(args), tasks=len(jobs)) as fleet:
             print(f'{len(jobs)} bag{"s" if len(jobs) != 1 else ""} on {fleet.description}',
@@ -98,6 +100,9 @@ def _process_many(args: argparse.Namespace, values: Mapping[str, Any], origin: s
               file=sys.stderr)
         return 130
     print(fleet_bags.format_table(outcomes))
+    wall_s = time.perf_counter() - began
+    frames = sum(o.processed for o in outcomes)
+    print(f'{frames} frames in {wall_s:.1f} s: {frames / wall_s:.1f} frames/s overall')
     return 0 if all(o.error is None for o in outcomes) else 1
 
 

@@ -6,7 +6,6 @@ import contextlib
 import dataclasses
 import glob
 import io
-import math
 import shutil
 from collections import Counter
 from collections.abc import Mapping, Sequence
@@ -87,22 +86,6 @@ class BagOutcome:
     warning: str | None = None
     error: str | None = None
 
-    @property
-    def ms_per_frame(self) -> float:
-        """Mean pipeline time of the processed frames [ms] (NaN: none)."""
-        return self.pipeline_ms / self.processed if self.processed else math.nan
-
-
-def merged(bag: Path, output: Path, parts: Sequence[BagOutcome]) -> BagOutcome:
-    """Return the outcome of ``parts`` together (a table's total)."""
-    return BagOutcome(
-        bag, output, frames=sum(p.frames for p in parts),
-        processed=sum(p.processed for p in parts),
-        skipped=dict(sum((Counter(p.skipped) for p in parts), Counter())),
-        obstacle_points=sum(p.obstacle_points for p in parts),
-        pipeline_ms=sum(p.pipeline_ms for p in parts), wall_s=sum(p.wall_s for p in parts),
-        warning=next((p.warning for p in parts if p.warning), None))
-
 
 def process_one(job: BagJob) -> BagOutcome:
     """Process one bag (a task)."""
@@ -141,15 +124,19 @@ def remove_stale_staging(jobs: Sequence[BagJob]) -> None:
 def format_table(outcomes: Sequence[BagOutcome]) -> str:
     """Return the per-bag table, then skip reasons, warnings and failures per bag."""
     done = [o for o in outcomes if o.error is None]
-    total = merged(Path('total'), Path(), done)
+    total = BagOutcome(
+        Path('total'), Path(), sum(o.frames for o in done), sum(o.processed for o in done),
+        dict(sum((Counter(o.skipped) for o in done), Counter())),
+        sum(o.obstacle_points for o in done), sum(o.pipeline_ms for o in done),
+        sum(o.wall_s for o in done))
     width = max(len(str(o.bag)) for o in [*outcomes, total]) + 1
     heads = ('frames', 'processed', 'skipped', 'obstacle pts', 'ms/frame', 's')
 
     def row(o: BagOutcome, status: str) -> str:
-        ms = o.ms_per_frame
+        ms = f'{o.pipeline_ms / o.processed:.1f}' if o.processed else '-'
         cells = (['-'] * 6 if o.error is not None else
-                 [o.frames, o.processed, sum(o.skipped.values()), o.obstacle_points,
-                  '-' if math.isnan(ms) else f'{ms:.1f}', f'{o.wall_s:.1f}'])
+                 [o.frames, o.processed, sum(o.skipped.values()), o.obstacle_points, ms,
+                  f'{o.wall_s:.1f}'])
         return f'{str(o.bag):<{width}} ' + ' '.join(
             f'{c:>{max(len(h), 7)}}' for c, h in zip(cells, heads)) + f'  {status}'
     head = f'{"bag":<{width}} ' + ' '.join(f'{h:>7}' for h in heads) + '  status'
