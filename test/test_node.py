@@ -471,22 +471,12 @@ def test_malformed_parameter_requests_are_refused_and_the_node_goes_on(
     _assert_matches(out, Detector(corridor_params).process(scene.depth_mm, scene.intrinsics))
 
 
-def test_absurd_combinations_are_refused_with_the_reason_in_the_users_names(
+def test_a_bad_value_is_refused_with_the_reason_in_the_users_names(
         detector: NodeUnderTest) -> None:
-    big = [Parameter(name, value=value).to_parameter_msg() for name, value in
-           (('costmap_length_m', 50.0), ('costmap_width_m', 50.0),
-            ('costmap_resolution_m', 0.005))]
-    reply = detector.call(detector.atomic_client, SetParametersAtomically.Request(
-        parameters=big)).result
-    assert not reply.successful and '100,000,000 cells' in reply.reason
-    assert detector.get_parameter('costmap_length_m') == pytest.approx(2.0)
-
     slope = detector.set_parameter('max_slope_deg', 90.0)
     assert not slope.successful
     assert slope.reason == 'max_slope_deg=90.0 out of range: must be in (0, 90) [deg]'
-    chatty = detector.set_parameter('stats_period_s', 1e-6)
-    assert not chatty.successful and 'stats_period_s=1e-06' in chatty.reason
-    assert detector.get_parameter('stats_period_s') == pytest.approx(1.0)
+    assert detector.get_parameter('max_slope_deg') == pytest.approx(30.0)
 
 
 def test_even_median_kernel_is_refused_and_the_old_value_kept(

@@ -219,19 +219,6 @@ def pipeline_params_to_ros(params: DetectorParams) -> dict[str, ParamValue]:
     return values
 
 
-#: Resource limits of one parameter set, checked on the combination (README, Parameters).
-#: Costmap cells (e.g. 20 m x 20 m at 1 cm).
-MAX_COSTMAP_CELLS = 4_000_000
-#: Cells of the voxel lattice over the region of interest (its volume / one voxel's).
-MAX_VOXEL_LATTICE = 1_000_000_000
-#: k-NN entries per frame: max(N, N1 + 1) x the voxels a frame can have, at most
-#: min(lattice, FRAME_VOXELS_BOUND) (a 512 x 424 frame without downsampling has 217,088).
-MAX_NEIGHBOUR_ENTRIES = 16_000_000
-FRAME_VOXELS_BOUND = 250_000
-#: Shortest statistics period: at most ten info lines a second [s].
-MIN_STATS_PERIOD_S = 0.1
-
-
 def _range_problem(spec: ParamSpec, value: Any) -> str | None:
     """Say why a value is outside its parameter's range, in the user's units, or None."""
     if spec.low is None or spec.high is None or isinstance(value, (bool, str)):
@@ -243,43 +230,6 @@ def _range_problem(spec: ParamSpec, value: Any) -> str | None:
     if low_bad or high_bad:
         unit = ' [deg]' if spec.degrees else ''
         return f'{spec.name}={value!r} out of range: must be in {spec.range_text}{unit}'
-    return None
-
-
-def budget_problem(values: Mapping[str, Any]) -> str | None:
-    """Say which resource limit a set of ROS parameter values exceeds, or None."""
-    def get(name: str) -> Any:
-        return values[name] if name in values else SPECS_BY_NAME[name].default
-
-    res = float(get('costmap_resolution_m'))
-    cells = (math.ceil(float(get('costmap_length_m')) / res)
-             * math.ceil(float(get('costmap_width_m')) / res))
-    if cells > MAX_COSTMAP_CELLS:
-        return (f'costmap_length_m={get("costmap_length_m")!r}, costmap_width_m='
-                f'{get("costmap_width_m")!r} at costmap_resolution_m={res!r} make {cells:,} '
-                f'cells, above the limit of {MAX_COSTMAP_CELLS:,}')
-    depth = float(get('max_range_m')) - float(get('min_range_m'))
-    width = 2.0 * float(get('lateral_limit_m'))
-    height = float(get('camera_height_m')) + float(get('smar_m')) - float(get('tdbg_m'))
-    voxel = float(get('voxel_x_m')) * float(get('voxel_y_m')) * float(get('voxel_z_m'))
-    lattice = max(depth, 0.0) * width * max(height, 0.0) / voxel
-    if lattice > MAX_VOXEL_LATTICE:
-        return (f'voxel_x_m/voxel_y_m/voxel_z_m={get("voxel_x_m")!r}/{get("voxel_y_m")!r}/'
-                f'{get("voxel_z_m")!r} over the region of interest ({depth:g} x {width:g} x '
-                f'{height:g} m) make {lattice:.3g} voxel cells, above the limit of '
-                f'{MAX_VOXEL_LATTICE:.0e}')
-    k = max(int(get('normal_neighbours')), int(get('validation_neighbours')) + 1)
-    entries = k * min(lattice, FRAME_VOXELS_BOUND)
-    if entries > MAX_NEIGHBOUR_ENTRIES:
-        return (f'normal_neighbours={get("normal_neighbours")!r} and validation_neighbours='
-                f'{get("validation_neighbours")!r} ask {k} neighbours for up to '
-                f'{min(lattice, FRAME_VOXELS_BOUND):,.0f} voxels a frame: {entries:,.0f} k-NN '
-                f'entries, above the limit of {MAX_NEIGHBOUR_ENTRIES:,} (fewer neighbours or '
-                'larger voxels)')
-    period = float(get('stats_period_s'))
-    if 0.0 < period < MIN_STATS_PERIOD_S:
-        return (f'stats_period_s={period!r} would log more than {1 / MIN_STATS_PERIOD_S:g} '
-                f'lines a second: use 0 (off) or >= {MIN_STATS_PERIOD_S:g}')
     return None
 
 
@@ -301,9 +251,6 @@ def detector_params_from_ros(values: Mapping[str, Any]) -> DetectorParams:
             problem = _range_problem(spec, values[spec.name])
             if problem is not None:
                 raise ValueError(problem)
-    problem = budget_problem(values)
-    if problem is not None:
-        raise ValueError(problem)
     fields = {spec.field: math.radians(values[spec.name]) if spec.degrees else values[spec.name]
               for spec in PIPELINE_PARAMS if spec.name in values}
     try:
