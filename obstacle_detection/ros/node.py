@@ -15,7 +15,6 @@ import rclpy.logging
 import rclpy.utilities
 from nav_msgs.msg import OccupancyGrid, Odometry
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.clock import Clock, ClockType
 from rclpy.duration import Duration
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.exceptions import ParameterException
@@ -83,8 +82,6 @@ DEPTH_TRANSPORTS = {name: (Image if name == 'raw' else CompressedImage, topic)
 _ODOM_QOS = _qos(20, reliable=False)
 #: OccupancyGrids: latched, depth 1 (as map_server): a late display gets the last grid.
 _GRID_QOS = _qos(1, latched=True)
-#: How often the node looks for a latched CameraInfo publisher until it finds one [s].
-LATCHED_INFO_WATCH_S = 0.5
 #: First word of every ~/status message once the node processes frames.
 STATUS_READY = 'ready'
 #: Depth frames that may wait for the worker (see FrameMailbox): one may wait behind another.
@@ -197,10 +194,6 @@ class DetectorNode(Node):
                 message_lost=lambda event: self.stats.count('missing', event.total_count_change)))
         self._info_sub = self.create_subscription(CameraInfo, 'depth/camera_info',
                                                   self._on_camera_info, in_qos)
-        self._latched_info_sub: Any = None
-        self._latched_info_watch: Any = self.create_timer(
-            LATCHED_INFO_WATCH_S, self._watch_for_latched_camera_info,
-            clock=Clock(clock_type=ClockType.STEADY_TIME))   # also before /clock runs
         self._say_ready(reliable)
         self._publish_status()
 
@@ -208,8 +201,7 @@ class DetectorNode(Node):
         outputs = [pub.topic_name for pub in self._pubs.values()]
         self.get_logger().info(
             f'ready: {self._depth_sub.topic_name} + {self._info_sub.topic_name} '
-            f'({"reliable" if reliable else "sensor-data"} QoS; a latched CameraInfo too, '
-            'once its publisher shows up)'
+            f'({"reliable" if reliable else "sensor-data"} QoS)'
             + (f' + {self._odom_sub.topic_name}' if self._odom_sub is not None else '')
             + f' -> {", ".join(outputs)}; '
             f'frames {self._config.cloud_frame_id!r}/{self._config.costmap_frame_id!r}; '
@@ -442,36 +434,7 @@ class DetectorNode(Node):
             self._throttled_logger('camera_info_note').info(
                 f'CameraInfo on {self._info_sub.topic_name}: {camera.note}',
                 throttle_duration_sec=WARN_THROTTLE_S)
-        # A latched camera's CameraInfo comes through both subscriptions: kept once.
         frame_gate.keep_camera(self._cameras, camera)
-
-    def _watch_for_latched_camera_info(self) -> None:
-        """Subscribe transient local as well once a latched CameraInfo publisher shows up.
-
-        Only then: a volatile publisher (most drivers) would warn of "incompatible QoS".
-        """
-        latched = [info for info in self.get_publishers_info_by_topic(self._info_sub.topic_name)
-                   if info.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL]
-        if not latched:
-            return
-        reliable = all(info.qos_profile.reliability == ReliabilityPolicy.RELIABLE
-                       for info in latched)
-        qos = _qos(1, reliable=reliable, latched=True)
-        self.destroy_timer(self._latched_info_watch)
-        self._latched_info_watch = None
-        self._latched_info_sub = self.create_subscription(
-            CameraInfo, 'depth/camera_info', self._on_camera_info, qos,
-            event_callbacks=SubscriptionEventCallbacks(
-                incompatible_qos=self._on_unlatched_camera_info_publisher))
-        self.get_logger().info(
-            f'a latched CameraInfo publisher on {self._info_sub.topic_name}: subscribed '
-            f'{"reliable" if reliable else "best effort"} + transient local too')
-
-    def _on_unlatched_camera_info_publisher(self, event: Any) -> None:
-        """Note quietly a volatile CameraInfo publisher beside a latched one."""
-        self.get_logger().debug(
-            f'a CameraInfo publisher on {self._info_sub.topic_name} is not latched '
-            f'({event.last_policy_kind}): received by the first subscription')
 
     def _on_odometry(self, msg: Odometry) -> None:
         pose = msg.pose.pose

@@ -145,7 +145,7 @@ NODE_PARAMS: tuple[ParamSpec, ...] = (
               'read at start-up (the topic is advertised only when on)', read_only=True),
     ParamSpec('reliable_input', False,
               'Subscribe to depth and camera_info with reliable QoS instead of sensor-data '
-              '(best effort; a latched CameraInfo is received either way); read at start-up',
+              '(best effort); read at start-up',
               read_only=True),
     ParamSpec('use_fallback_intrinsics', False,
               'Use fallback_fx/fy/cx/cy while no CameraInfo has arrived (else frames are '
