@@ -444,29 +444,35 @@ def test_degree_parameter_reaches_the_pipeline_in_radians(
         assert detector.set_parameter('max_slope_deg', 30.0).successful
 
 
-@pytest.mark.parametrize('name, value_type, reason', [
-    ('median_kernel', 200, 'ParameterValue.type 200 is not a parameter type'),
-    ('max_slope_deg', 10, 'ParameterValue.type 10 is not a parameter type'),
-    ('', 2, "parameter '' is not declared by this node"),
-    ('no_such_parameter', 2, "parameter 'no_such_parameter' is not declared by this node"),
-])
-def test_malformed_parameter_requests_are_refused_and_the_node_goes_on(
-        detector: NodeUnderTest, scene: SceneFrame, corridor_params: Any, name: str,
-        value_type: int, reason: str) -> None:
-    """These requests made rclpy's parameter service raise, and the node exit."""
-    msg = ParameterMsg(name=name, value=ParameterValue(type=value_type, integer_value=5))
+@pytest.mark.parametrize('name', ['', 'no_such_parameter'])
+def test_undeclared_parameters_are_refused_and_nothing_is_created(
+        detector: NodeUnderTest, name: str) -> None:
+    msg = Parameter(name, value=5).to_parameter_msg()
 
     single = detector.call(detector.set_client, SetParameters.Request(parameters=[msg]))
     atomic = detector.call(detector.atomic_client,
                            SetParametersAtomically.Request(parameters=[msg]))
 
     assert [r.successful for r in single.results] == [False]
-    assert reason in single.results[0].reason
-    assert not atomic.result.successful and reason in atomic.result.reason
-    assert detector.process.poll() is None
+    assert 'undeclared parameter' in single.results[0].reason
+    assert not atomic.result.successful and 'undeclared parameter' in atomic.result.reason
     listed = detector.call(detector.list_client, ListParameters.Request()).result.names
-    assert '' not in listed and 'no_such_parameter' not in listed   # nothing was created
+    assert '' not in listed and 'no_such_parameter' not in listed
     assert {spec.name for spec in ALL_PARAMS} <= set(listed)
+
+
+def test_a_malformed_parameter_type_does_not_end_the_node(
+        detector: NodeUnderTest, scene: SceneFrame, corridor_params: Any) -> None:
+    """An unknown type makes rclpy's parameter service raise; the spin loop logs it, goes on."""
+    msg = ParameterMsg(name='median_kernel', value=ParameterValue(type=200, integer_value=5))
+    for client, kind in ((detector.set_client, SetParameters),
+                         (detector.atomic_client, SetParametersAtomically)):
+        assert detector.spin_until(client.service_is_ready, REPLY_TIMEOUT_S)
+        client.call_async(kind.Request(parameters=[msg]))   # no reply comes
+    detector.spin_until(lambda: False, 1.0)
+
+    assert detector.process.poll() is None
+    assert detector.get_parameter('median_kernel') == 5
     out = _good_frame(detector, scene)   # the next frame is answered, as before
     _assert_matches(out, Detector(corridor_params).process(scene.depth_mm, scene.intrinsics))
 

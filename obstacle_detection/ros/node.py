@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import collections
-import functools
 import sys
 import threading
 import time
@@ -70,8 +69,6 @@ WARN_THROTTLE_S = 5.0
 _RELIABLE_QOS = _qos(5)
 #: ~/status: latched (transient local), so a late subscriber still gets the last state.
 _STATUS_QOS = _qos(1, latched=True)
-#: rcl_interfaces/ParameterType values (NOT_SET .. STRING_ARRAY).
-_PARAMETER_TYPES = frozenset(range(0, 10))
 #: /diagnostics: reliable, as diagnostic_updater publishes it, about once a second.
 _DIAGNOSTICS_QOS = _qos(10)
 DIAGNOSTICS_PERIOD_S = 1.0
@@ -134,7 +131,6 @@ class DetectorNode(Node):
         super().__init__(NODE_NAME, **kwargs)
         for spec in ALL_PARAMS:
             self.declare_parameter(spec.name, spec.default, spec.descriptor())
-        self._guard_parameter_services()
         try:
             self._config = build_config(self._parameter_values())
         except ValueError:
@@ -206,50 +202,6 @@ class DetectorNode(Node):
             + f' -> {", ".join(outputs)}; '
             f'frames {self._config.cloud_frame_id!r}/{self._config.costmap_frame_id!r}; '
             f'{self.compute_path()}')
-
-    # -- parameter services: no request may kill the node ------------------------------------
-    def _guard_parameter_services(self) -> None:
-        """Answer set requests here: rclpy's services raise (and end the node) on a bad type."""
-        for service in self.services:
-            name = service.srv_name.rsplit('/', 1)[-1]
-            if name in ('set_parameters', 'set_parameters_atomically'):
-                service.callback = functools.partial(self._set_parameters_service, name)
-
-    def _parameter_msg_problem(self, msg: Any) -> str | None:
-        """Return why a ``rcl_interfaces/Parameter`` cannot be applied, or None."""
-        if not msg.name or not self.has_parameter(msg.name):
-            return (f'parameter {msg.name!r} is not declared by this node '
-                    '(detector --help lists the parameters)')
-        if self.describe_parameter(msg.name).read_only:
-            return (f'parameter {msg.name!r} is read-only: the node reads it at start-up '
-                    f'(restart it with -p {msg.name}:=<value>)')
-        if msg.value.type not in _PARAMETER_TYPES:
-            return (f'parameter {msg.name!r}: ParameterValue.type {msg.value.type} is not a '
-                    f'parameter type (valid: {min(_PARAMETER_TYPES)}..{max(_PARAMETER_TYPES)})')
-        return None
-
-    def _set_parameters_service(self, service: str, request: Any, response: Any) -> Any:
-        """Set each message (atomically: all at once); refuse, with the reason, what cannot be."""
-        atomic = service == 'set_parameters_atomically'
-        results = []
-        for msgs in [request.parameters] if atomic else [[msg] for msg in request.parameters]:
-            problems = [p for p in map(self._parameter_msg_problem, msgs) if p]
-            if not problems:
-                try:
-                    results.append(self.set_parameters_atomically(
-                        [Parameter.from_parameter_msg(msg) for msg in msgs]))
-                    continue
-                except Exception as error:  # noqa: BLE001 - refused, with rclpy's reason
-                    problems = [f'{type(error).__name__}: {error}']
-            self._throttled_logger(f'service:{service}').warning(
-                f'refused a {service} request: {"; ".join(problems)}',
-                throttle_duration_sec=WARN_THROTTLE_S)
-            results.append(SetParametersResult(successful=False, reason='; '.join(problems)))
-        if atomic:
-            response.result = results[0]
-        else:
-            response.results = results
-        return response
 
     # -- start-up: compiled kernels -----------------------------------------------------------
     def compute_path(self) -> str:
