@@ -934,8 +934,8 @@ def test_params_file_sections_are_matched_as_rcl_does(tmp_path: Path, key: str, 
     problems = params_file_problems(path, node_fqn)
 
     assert problems == ([] if applies else [
-        f"{path}: section '{key}' does not name this node ({node_fqn}); its 1 "
-        'parameter(s) are ignored (use "/**/obstacle_detector:" or "/**:")'])
+        f"{path}: section '{key}' does not name this node ({node_fqn}) and is ignored "
+        '(use "/**/obstacle_detector:" or "/**:")'])
 
 
 def test_rclpys_own_parameters_in_a_params_file_are_not_unknown(tmp_path: Path) -> None:
@@ -981,7 +981,7 @@ def test_node_warns_about_a_params_file_it_would_ignore(tmp_path: Path) -> None:
         process.send_signal(signal.SIGINT)
         process.wait(timeout=15)
     log = ''.join(lines)
-    assert "section 'detector' does not name this node (/obstacle_detector); its 1 " in log
+    assert "section 'detector' does not name this node (/obstacle_detector) and is" in log
     assert "unknown parameter 'max_slope' is ignored (did you mean 'max_slope_deg'?)" in log
 
 

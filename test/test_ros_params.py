@@ -11,7 +11,6 @@ from obstacle_detection.pipeline.params import DetectorParams
 from obstacle_detection.ros import RosInputError
 from obstacle_detection.ros.parameters import (
     detector_params_from_ros,
-    params_file_reason,
     pipeline_params_to_ros,
     read_params_file,
 )
@@ -90,14 +89,3 @@ def test_an_integer_for_a_float_says_how_to_write_it(tmp_path: Path) -> None:
 
     with pytest.raises(RosInputError, match=r"'max_range_m' must be a float, got 3: write 3\.0"):
         read_params_file(path)
-
-
-def test_a_refused_start_names_the_file_and_the_value(tmp_path: Path) -> None:
-    good, bad = tmp_path / 'good.yaml', tmp_path / 'bad.yaml'
-    good.write_text('/**/obstacle_detector:\n  ros__parameters:\n    max_range_m: 3.0\n'
-                    '    no_such_thing: 1\n')   # unknown names are warned about, not the cause
-    bad.write_text('/**/obstacle_detector:\n  ros__parameters:\n    max_range_m: 0.0\n')
-
-    assert params_file_reason([str(good)]) is None
-    reason = params_file_reason([str(good), str(bad)])
-    assert reason == f'{bad}: max_range_m=0.0 out of range: must be in (0, 20]'

@@ -52,7 +52,7 @@ from .mount_source import MountSource
 from obstacle_detection.pipeline.params import Intrinsics
 from . import RosInputError
 from .parameters import (ALL_PARAMS, NODE_NAME, PARAMS_FILE_KEY, load_params_yaml,
-                         params_file_problems, params_file_reason, params_files_in_args)
+                         params_file_problems, params_files_in_args)
 
 
 def _qos(depth: int, *, reliable: bool = True, latched: bool = False) -> QoSProfile:
@@ -639,8 +639,7 @@ def main(args: list[str] | None = None) -> int:
         try:
             node = DetectorNode()
         except (ValueError, ParameterException) as error:
-            reason = params_file_reason(files) or str(error)
-            rclpy.logging.get_logger(NODE_NAME).fatal(f'invalid parameters: {reason}')
+            rclpy.logging.get_logger(NODE_NAME).fatal(f'invalid parameters: {error}')
             return 1
         for path in files:
             for problem in params_file_problems(path, node.get_fully_qualified_name()):

@@ -297,32 +297,29 @@ def load_params_yaml(path: Path) -> dict[Any, Any]:
     return data
 
 
+def _read_sections(path: Path, node_fqn: str) -> tuple[dict[str, Any], list[str]]:
+    """Return the parameter messages of the sections naming the node, and the other keys."""
+    from rclpy.parameter import parameter_dict_from_yaml_file
+
+    data = load_params_yaml(path)
+    keys = [key for key in data if _section_applies(str(key), node_fqn)]
+    ignored = [str(key) for key in data if key not in keys]
+    if not keys:
+        return {}, ignored
+    try:   # the keys in the order given, each once
+        return parameter_dict_from_yaml_file(str(path), target_nodes=keys), ignored
+    except (RuntimeError, ValueError, TypeError) as error:
+        raise RosInputError(f'{path}: {error}') from None
+
+
 def params_file_problems(path: str | Path, node_fqn: str = f'/{NODE_NAME}') -> list[str]:
     """Return what the node would silently ignore in a params file, one sentence each."""
     path = Path(path)
-    try:
-        data = load_params_yaml(path)
-    except RosInputError as error:
-        return [str(error)]
-    problems, applied = [], 0
-    for key, section in data.items():
-        params = section.get('ros__parameters') if isinstance(section, dict) else None
-        if not _section_applies(str(key), node_fqn):
-            count = len(params) if isinstance(params, dict) else 0
-            problems.append(f'{path}: section {key!r} does not name this node ({node_fqn}); '
-                            f'its {count} parameter(s) are ignored (use "{PARAMS_FILE_KEY}:" '
-                            'or "/**:")')
-            continue
-        applied += 1
-        if not isinstance(params, dict):
-            problems.append(f'{path}: section {key!r} lacks "ros__parameters"')
-            continue
-        for name in params:
-            if name not in SPECS_BY_NAME and name not in RCLPY_PARAMETERS:
-                problems.append(_unknown_name(path, name, ' is ignored'))
-    if not applied and not problems:
-        problems.append(f'{path}: no section for this node ({node_fqn})')
-    return problems
+    messages, ignored = _read_sections(path, node_fqn)
+    return [*(f'{path}: section {key!r} does not name this node ({node_fqn}) and is ignored '
+              f'(use "{PARAMS_FILE_KEY}:" or "/**:")' for key in ignored),
+            *(_unknown_name(path, name, ' is ignored') for name in messages
+              if name not in SPECS_BY_NAME and name not in RCLPY_PARAMETERS)]
 
 
 def _unknown_name(path: Path, name: str, outcome: str = '') -> str:
@@ -333,30 +330,22 @@ def _unknown_name(path: Path, name: str, outcome: str = '') -> str:
             'parameters')
 
 
-def read_params_file(path: str | Path, *, unknown_is_error: bool = True
-                     ) -> dict[str, ParamValue]:
+def read_params_file(path: str | Path) -> dict[str, ParamValue]:
     """Return the parameter values a node parameter file sets: ``{ros_name: value}``."""
-    from rclpy.parameter import Parameter, parameter_dict_from_yaml_file
+    from rclpy.parameter import Parameter
 
     path = Path(path)
-    data = load_params_yaml(path)
-    keys = [key for key in data if _section_applies(str(key), f'/{NODE_NAME}')]
-    if not keys:
+    messages, _ = _read_sections(path, f'/{NODE_NAME}')
+    if not messages:
         raise RosInputError(f'{path}: no section naming the node (e.g. '
                             f'"{PARAMS_FILE_KEY}:" or "/**:")')
-    try:   # the keys in the order given, each once
-        messages = parameter_dict_from_yaml_file(str(path), target_nodes=keys)
-    except (RuntimeError, ValueError, TypeError) as error:
-        raise RosInputError(f'{path}: {error}') from None
     values: dict[str, ParamValue] = {}
     for name, message in messages.items():
         if name in RCLPY_PARAMETERS:
             continue
         spec = SPECS_BY_NAME.get(name)
         if spec is None:
-            if unknown_is_error:
-                raise RosInputError(_unknown_name(path, name))
-            continue
+            raise RosInputError(_unknown_name(path, name))
         value = Parameter.from_parameter_msg(message).value
         want = type(spec.default)   # as rcl refuses it
         if type(value) is not want:
@@ -365,20 +354,6 @@ def read_params_file(path: str | Path, *, unknown_is_error: bool = True
                                 f'{value!r}{fix}')
         values[name] = value
     return values
-
-
-def params_file_reason(paths: list[str] | tuple[str, ...]) -> str | None:
-    """Name the file and the value behind a refused start-up, or None if none is to blame."""
-    for path in paths:
-        try:
-            values = read_params_file(path, unknown_is_error=False)
-        except RosInputError as error:
-            return str(error)
-        for name, value in values.items():
-            problem = _range_problem(SPECS_BY_NAME[name], value)
-            if problem is not None:
-                return f'{path}: {problem}'
-    return None
 
 
 def read_params_files(paths: list[str | Path] | tuple[str | Path, ...]
