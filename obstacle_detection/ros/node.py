@@ -15,7 +15,6 @@ import rclpy.utilities
 from nav_msgs.msg import OccupancyGrid, Odometry
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.duration import Duration
-from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.experimental import EventsExecutor
@@ -170,7 +169,6 @@ class DetectorNode(Node):
         self._restart_stats_timer(self._config.stats_period_s)
         self._started = time.monotonic()
         self._last_frame_id = ''
-        self._floor_text = ''
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics',
                                                       _DIAGNOSTICS_QOS)
         self._diagnostics_timer = self.create_timer(DIAGNOSTICS_PERIOD_S,
@@ -184,10 +182,8 @@ class DetectorNode(Node):
         # Subscribe last: a publisher that sees the match finds a node able to process.
         transport = str(self.get_parameter('depth_transport').value)
         depth_type, depth_topic = DEPTH_TRANSPORTS[transport]
-        self._depth_sub = self.create_subscription(
-            depth_type, depth_topic, self._on_depth, in_qos,
-            event_callbacks=SubscriptionEventCallbacks(   # frames the transport lost on the way
-                message_lost=lambda event: self.stats.count('missing', event.total_count_change)))
+        self._depth_sub = self.create_subscription(depth_type, depth_topic, self._on_depth,
+                                                   in_qos)
         self._info_sub = self.create_subscription(CameraInfo, 'depth/camera_info',
                                                   self._on_camera_info, in_qos)
         self._say_ready(reliable)
@@ -291,34 +287,25 @@ class DetectorNode(Node):
             return None
 
     # -- diagnostics ---------------------------------------------------------------------------
-    def _camera_info_text(self) -> tuple[str, bool]:
-        """Describe the intrinsics source for /diagnostics; True when frames can use it."""
-        config = self._config
-        cameras = list(self._cameras)
-        if cameras:
-            camera = cameras[-1]
-            if camera.intrinsics is None:
-                return f'CameraInfo on {self._info_sub.topic_name} unusable: {camera.error}', \
-                    config.use_fallback_intrinsics
+    def _camera_info_text(self) -> str:
+        """Describe the intrinsics source for /diagnostics."""
+        if self._cameras:
+            camera = self._cameras[-1]
             intr = camera.intrinsics
             return (f'CameraInfo on {self._info_sub.topic_name}: {camera.width}x{camera.height}'
-                    f', fx={intr.fx:g} fy={intr.fy:g} cx={intr.cx:g} cy={intr.cy:g}'), True
-        if config.use_fallback_intrinsics:
-            intr = config.fallback_intrinsics
-            return (f'fallback parameters (no CameraInfo yet): fx={intr.fx:g} fy={intr.fy:g} '
-                    f'cx={intr.cx:g} cy={intr.cy:g}'), True
-        return f'none: no CameraInfo received on {self._info_sub.topic_name}', False
-
+                    + (f', fx={intr.fx:g} fy={intr.fy:g} cx={intr.cx:g} cy={intr.cy:g}'
+                       if intr is not None else f' unusable: {camera.error}'))
+        if self._config.use_fallback_intrinsics:
+            return 'fallback parameters (no CameraInfo yet)'
+        return f'none: no CameraInfo received on {self._info_sub.topic_name}'
 
     def _publish_diagnostics(self) -> None:
-        camera_info, usable = self._camera_info_text()
         path = self.compute_path()
         context = DiagnosticsContext(
             uptime_s=time.monotonic() - self._started, depth_topic=self._depth_sub.topic_name,
-            camera_info=camera_info, camera_info_usable=usable, code_path=path,
+            camera_info=self._camera_info_text(), code_path=path,
             compiled=path == 'compiled numba kernels',
-            mount=self._mount_said or f'parameters: {self._config.mount().describe()}',
-            floor_correction=self._floor_text)
+            mount=self._mount_said or f'parameters: {self._config.mount().describe()}')
         # hardware_id: the frames' frame_id once one is processed, the depth topic before
         status = health_status(self.stats.take(), context,
                                name=status_name(self.get_fully_qualified_name()),
@@ -443,9 +430,7 @@ class DetectorNode(Node):
             f'{period.processed} frames processed in {period.seconds:.1f} s '
             f'({period.processed / period.seconds:.1f} fps), mean {mean_ms:.1f} ms/frame; '
             f'{period.dropped} dropped (a newer frame came first), '
-            f'{period.missing} missing (lost by the transport on the way), '
-            f'{sum(period.skipped.values())} skipped (bad input), {period.errors} errors'
-            + (f'; last {self._floor_text}' if self._floor_text else ''))
+            f'{sum(period.skipped.values())} skipped (bad input), {period.errors} errors')
 
     # -- worker thread ------------------------------------------------------------------------
     def _work(self) -> None:
@@ -540,14 +525,6 @@ class DetectorNode(Node):
             return False
         self.stats.processed(elapsed_ms)
         self._last_frame_id = msg.header.frame_id
-        floor = getattr(result, 'floor', None)
-        self._floor_text = floor.summary() if floor is not None else ''
-        stages = ', '.join(f'{k} {v:.1f}' for k, v in result.timings_ms.items()
-                           if k != 'total')
-        self.get_logger().debug(
-            f'frame {msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d}: '
-            f'{result.obstacle_points.shape[0]} obstacle points, {elapsed_ms:.1f} ms '
-            f'(pipeline {result.timings_ms.get("total", 0.0):.1f} ms: {stages})')
         return True
 
     def close(self) -> None:
