@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import array
-import functools
 import math
 from typing import TYPE_CHECKING, Any
 
@@ -191,27 +190,9 @@ def depth_sample(depth: np.ndarray) -> np.ndarray:
     return depth[::DEPTH_SAMPLE_ROWS]
 
 
-@functools.lru_cache(maxsize=1)
-def _plausible_codes() -> tuple[int, int]:
-    """Return the first and last uint16 millimetre code within PLAUSIBLE_DEPTH_M."""
-    metres = np.arange(1 << 16, dtype=np.float64) * 1e-3
-    near, far = PLAUSIBLE_DEPTH_M
-    inside = np.flatnonzero((metres >= near) & (metres <= far))
-    return int(inside[0]), int(inside[-1])
-
-
 def depth_problem(depth: np.ndarray) -> str | None:
     """Say why a decoded depth frame cannot be real depth, or None."""
     sample = depth_sample(depth)
-    if sample.dtype == np.uint16:
-        # the usual case, in integers (no float copy): accepted when enough codes lie in
-        # lo..hi (uint16 wrap-around puts the codes below lo above hi - lo); a refusal and
-        # its message come from the rule in metres below
-        lo, hi = _plausible_codes()
-        valid = np.count_nonzero(sample)
-        if valid == 0 or (np.count_nonzero((sample - np.uint16(lo)) <= np.uint16(hi - lo))
-                          >= PLAUSIBLE_SHARE * valid):
-            return None
     if sample.dtype.kind == 'f':
         metres = sample[np.isfinite(sample) & (sample > 0)].astype(np.float64)
         unit = '32FC1 [m]'
