@@ -25,7 +25,7 @@ def run_demo(tmp_path: Path, *args: str, timeout: float = 240.0,
         env['NUMBA_CACHE_DIR'] = str(numba_cache)
     env['PYTHONPATH'] = os.pathsep.join(p for p in (str(REPO), env.get('PYTHONPATH')) if p)
     return subprocess.run(
-        [sys.executable, str(REPO / 'tools' / 'demo.py'), '--quiet',
+        [sys.executable, str(REPO / 'tools' / 'demo.py'),
          '--domain-id', env['ROS_DOMAIN_ID'], *args],
         cwd=tmp_path, env=env, capture_output=True, text=True, timeout=timeout)
 
@@ -76,7 +76,7 @@ def test_a_failed_run_leaves_the_previous_result_in_place(tmp_path: Path) -> Non
     params = tmp_path / 'bad.yaml'
     params.write_text('obstacle_detector:\n  ros__parameters:\n    median_kernel: 4\n')
 
-    failed = run_demo(tmp_path, '--frames', '2', '--params', str(params), '--timeout', '20')
+    failed = run_demo(tmp_path, '--frames', '2', '--params', str(params))
 
     assert failed.returncode == 1
     assert sorted(p.relative_to(out) for p in out.rglob('*')) == before
@@ -89,7 +89,7 @@ def test_a_failed_run_leaves_the_previous_result_in_place(tmp_path: Path) -> Non
 def test_demo_fails_clearly_when_the_node_does_not_run(tmp_path: Path) -> None:
     params = tmp_path / 'bad.yaml'
     params.write_text('obstacle_detector:\n  ros__parameters:\n    median_kernel: 4\n')
-    done = run_demo(tmp_path, '--frames', '2', '--params', str(params), '--timeout', '20')
+    done = run_demo(tmp_path, '--frames', '2', '--params', str(params))
     assert done.returncode == 1
     assert 'the detector node exited with code' in done.stderr
     assert 'median_kernel' in done.stderr  # the node's own message, from its log

@@ -37,8 +37,12 @@ OUTPUT_TOPICS = {
     '/obstacle_detector/processing_time_ms': 'std_msgs/msg/Float64',
     '/obstacles/fused_costmap': 'nav_msgs/msg/OccupancyGrid',
 }
-#: Frames a second the demo replays at, unless --rate says otherwise.
+#: Frames a second the demo replays at.
 DEMO_FPS = 7.5
+#: Every this many-th frame of the sequence (30 Hz) is taken.
+STEP = 10
+#: Seconds to wait for the node to be ready.
+READY_TIMEOUT_S = 60.0
 #: Width of a frame in the contact sheet [px]: two columns, about as wide as the README's text.
 SHEET_THUMB_PX = 600
 
@@ -151,33 +155,31 @@ def _write_input(args: argparse.Namespace, out: Path) -> tuple[Any, Any, dict, f
     from obstacle_detection.sim.sequences import SEQUENCE_RATE_HZ, SceneSequence
 
     depth_dir = out / 'input' / 'depth'
-    print(f'[1/5] rendering {args.frames} frames of {args.scene!r} (every {args.step}th, with '
+    print(f'[1/5] rendering {args.frames} frames of {args.scene!r} (every {STEP}th, with '
           f'odometry) into {depth_dir}')
     depth_dir.mkdir(parents=True)
-    sequence = SceneSequence(args.scene, seed=args.seed)
-    items = [sequence.frame(i)
-             for i in range(0, min(len(sequence), args.frames * args.step), args.step)]
+    sequence = SceneSequence(args.scene, seed=0)
+    items = [sequence.frame(i) for i in range(0, min(len(sequence), args.frames * STEP), STEP)]
     for k, item in enumerate(items):
         if not cv2.imwrite(str(depth_dir / f'{args.scene}_{k:04d}.png'), item.frame.depth_mm):
             raise ToolError(depth_dir, 'cannot write depth PNGs')
     camera = out / 'input' / 'camera.yaml'
     camera.write_text(camera_yaml_text(KINECT_V2_SD, size=KINECT_V2_SD_SIZE,
                                        comment='Kinect v2 SD camera of the rendered scene'))
-    bag_hz = SEQUENCE_RATE_HZ / args.step
+    bag_hz = SEQUENCE_RATE_HZ / STEP
     print(f'[2/5] converting them to a rosbag2: {out / "input_bag"}')
     source = datasets.folder_frames(depth_dir, intrinsics_path=camera, rate_hz=bag_hz,
                                     start_s=float(int(time.time())))
     source.frames = [dataclasses.replace(f, pose=item.pose_odom)
                      for f, item in zip(source.frames, items)]
-    summary = bag_writer.write_frames(source, out / 'input_bag',
-                                      bag_writer.BagOptions(progress=not args.quiet))
+    summary = bag_writer.write_frames(source, out / 'input_bag', bag_writer.BagOptions())
     print('\n'.join('      ' + line for line in summary.lines()[1:4]))
     pose_by_stamp = {divmod(f.stamp_ns, 1_000_000_000): f.pose for f in source.frames}
     return summary, items[0].frame, pose_by_stamp, bag_hz
 
 
-def _replay(args: argparse.Namespace, out: Path, failed: Path, node: Any, rate: float,
-            bag_hz: float, frames: int) -> tuple[Recorder, list[str], int]:
+def _replay(out: Path, failed: Path, node: Any, bag_hz: float,
+            frames: int) -> tuple[Recorder, list[str], int]:
     """Wait for the node, replay the bag into it, record what it publishes (steps 3, 4).
 
     Returns (recorder, the node's status lines, depth frames sent).
@@ -189,16 +191,16 @@ def _replay(args: argparse.Namespace, out: Path, failed: Path, node: Any, rate: 
         try:
             recorder = Recorder(probe, OUTPUT_TOPICS)
             player = bag_player.Player(probe, out / 'input_bag', bag_player.PlayOptions(
-                rate=rate, reliable=True, progress=False))
+                rate=DEMO_FPS / bag_hz, reliable=True, progress=False))
             # until it says ready and subscribes to the depth and camera info
             ready = node_process.wait_ready(
-                executor, node, status, args.timeout, out / 'node.log',
+                executor, node, status, READY_TIMEOUT_S, out / 'node.log',
                 lambda _: player.subscription_count() >= 2, shown_log=failed / 'node.log')
             print(f'      node {ready}')
             settle = time.monotonic() + 0.5  # let the node's side of the match settle too
             while time.monotonic() < settle:
                 executor.spin_once(timeout_sec=0.05)
-            print(f'[4/5] replaying {frames} frames at {bag_hz * rate:g} Hz into the node')
+            print(f'[4/5] replaying {frames} frames at {DEMO_FPS:g} Hz into the node')
             thread = threading.Thread(target=lambda: stats.append(player.play(stop)),
                                       daemon=True)
             thread.start()
@@ -231,19 +233,18 @@ def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
     from obstacle_detection.evaluation.runner import load_params_file
 
     summary, first, pose_by_stamp, bag_hz = _write_input(args, out)
-    rate = args.rate if args.rate is not None else DEMO_FPS / bag_hz
     env = node_process.use_loopback(args.domain_id, out / 'ros_log')
     # the fused costmap is on, moved by the bag's odometry
     command = node_process.node_command(
         args.params, ['publish_overlay:=true', 'stats_period_s:=1.0',
-                      *node_process.mount_overrides(first, True), 'fuse:=true',
+                      *node_process.mount_overrides(first), 'reliable_input:=true', 'fuse:=true',
                       f'odom_topic:={bag_writer.DEFAULT_ODOM_TOPIC}'],
         [f'depth/image_raw:={bag_writer.DEFAULT_DEPTH_TOPIC}',
          f'depth/camera_info:={bag_writer.DEFAULT_INFO_TOPIC}'])
     print(f'[3/5] starting the detector node (ROS_DOMAIN_ID={args.domain_id}, loopback only; '
           f'log: {out / "node.log"}):\n      {" ".join(command[1:])}')
     node = node_process.start_node(command, env, out / 'node.log')
-    recorder, status, sent = _replay(args, out, failed, node, rate, bag_hz, summary.frames)
+    recorder, status, sent = _replay(out, failed, node, bag_hz, summary.frames)
 
     received = recorder.count('/obstacles/costmap')
     if received == 0:
@@ -270,7 +271,7 @@ def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
         report.append(f'  the node ended on the {status[-1].split(": ", 1)[-1]}')
     if received < sent:
         report.append(f'  {sent - received} frame(s) had no output: skipped by the node or '
-                      f'dropped while it was busy (see node.log; a lower --rate helps)')
+                      'dropped while it was busy (see node.log)')
     report.append(f'  pictures: {len(saved)} side-by-side frames in {out / "pictures"}, '
                   f'contact sheet {out / "demo_sheet.png"}')
     report.append(f'  bags: {out / "input_bag"} (input), {out / "results_bag"} (node output)')
@@ -288,24 +289,15 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--scene', choices=SEQUENCE_NAMES, default='drive_past_boxes',
                         help='a scene sequence with odometry (the fused costmap follows it; '
                              'default %(default)s)')
-    parser.add_argument('--step', type=tool_support.int_in(1), default=10,
-                        help='take every N-th frame of a sequence (default %(default)s)')
     parser.add_argument('--frames', type=tool_support.int_in(1), default=30,
                         help='frames (default %(default)s)')
-    parser.add_argument('--seed', type=int, default=0, help='scene seed (default %(default)s)')
     parser.add_argument('--params', type=Path, default=DEFAULT_PARAMS,
                         help='node params file (default params/corridor.yaml); the camera '
                              'mount is set to the rendered scene\'s')
-    parser.add_argument('--rate', type=float, default=None,
-                        help='replay speed factor of the recorded timing (default: frames at '
-                             f'{DEMO_FPS:g} Hz)')
     parser.add_argument('--save-every', type=tool_support.int_in(1), default=5,
                         help='save pictures of one frame in N (default %(default)s)')
     tool_support.add_domain_id_option(
         parser, 'ROS_DOMAIN_ID of the demo, 0-232 (default: 100-200 from the process id)')
-    parser.add_argument('--timeout', type=float, default=30.0,
-                        help='seconds to wait for the node to be ready (default %(default)s)')
-    parser.add_argument('--quiet', action='store_true', help='no progress bars')
     return parser
 
 
@@ -314,8 +306,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the demo; return the exit code (0 success, 1 failure, 2 bad usage)."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    if args.rate is not None and not args.rate > 0:
-        parser.error(f'--rate must be > 0, got {args.rate:g}')
     if not args.params.is_file():
         raise ToolError(args.params, 'params file not found')
     return run_demo(args)

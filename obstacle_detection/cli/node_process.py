@@ -28,12 +28,11 @@ def use_loopback(domain_id: int, log_dir: Path) -> dict[str, str]:
                 ROS_LOG_DIR=str(log_dir))
 
 
-def mount_overrides(frame: Any, reliable: bool) -> list[str]:
-    """Node parameters ``name:=value`` for a rendered frame's camera mount and the input QoS."""
+def mount_overrides(frame: Any) -> list[str]:
+    """Node parameters ``name:=value`` for a rendered frame's camera mount."""
     return [f'camera_height_m:={float(frame.height_m)!r}',
             f'camera_pitch_deg:={round(math.degrees(frame.pitch_rad), 9)!r}',
-            f'camera_roll_deg:={round(math.degrees(frame.roll_rad), 9)!r}',
-            f'reliable_input:={"true" if reliable else "false"}']
+            f'camera_roll_deg:={round(math.degrees(frame.roll_rad), 9)!r}']
 
 
 def node_command(params: Path, overrides: Sequence[str], remaps: Sequence[str] = ()
@@ -111,7 +110,7 @@ def wait_ready(executor: Any, node: subprocess.Popen, status: list[str], timeout
         if node.poll() is not None or time.monotonic() > deadline:
             why = (f'exited with code {node.returncode} before it was ready'
                    if node.poll() is not None else
-                   f'was not ready within {timeout_s:g} s (--timeout)')
+                   f'was not ready within {timeout_s:g} s')
             raise ToolError(shown_log or log, f'the detector node {why}; the end of its '
                             'log:\n' + log_tail(log))
         executor.spin_once(timeout_sec=0.05)
