@@ -2,8 +2,8 @@
 """The bundled demo: a recorded-looking depth sequence through the running detector node.
 
 It renders a scene sequence, converts it to a rosbag2, replays it into the node on loopback DDS,
-records what the node publishes and draws it, in ``<output>.partial``, moved to ``<output>`` on
-success (``<output>.failed`` otherwise). Exit code 0 when the node produced output, else 1.
+records what the node publishes and draws it, all in ``--output``. Exit code 0 when the node
+produced output, else 1.
 """
 
 from __future__ import annotations
@@ -45,22 +45,6 @@ STEP = 10
 READY_TIMEOUT_S = 60.0
 #: Width of a frame in the contact sheet [px]: two columns, about as wide as the README's text.
 SHEET_THUMB_PX = 600
-
-
-def _check(folder: Path) -> None:
-    """Refuse ``folder`` if it exists, holds something and was not made by the demo."""
-    if folder.exists() and not (folder / MARKER).exists() and (
-            not folder.is_dir() or any(folder.iterdir())):
-        raise ToolError(folder, 'exists and was not made by the demo; choose another --output')
-
-
-def _replace(folder: Path, by: Path | None = None) -> None:
-    """Remove ``folder`` (a demo folder, or absent), then move ``by`` (if any) to its place."""
-    _check(folder)
-    if folder.exists():
-        shutil.rmtree(folder)
-    if by is not None:
-        by.rename(folder)
 
 
 def save_pictures(folder: Path, recorder: Recorder, every: int, params: Any,
@@ -121,27 +105,19 @@ def save_pictures(folder: Path, recorder: Recorder, every: int, params: Any,
 
 
 def run_demo(args: argparse.Namespace) -> int:
-    """Run every step into ``<output>.partial``, moved to ``<output>`` only on success."""
+    """Run every step into ``--output``, emptied first (only a folder the demo made)."""
     began = time.monotonic()
-    final: Path = args.output.resolve()  # absolute: the node runs with another working directory
-    work = final.with_name(final.name + '.partial')
-    failed = final.with_name(final.name + '.failed')
-    _check(final)
-    _replace(work)
-    work.mkdir(parents=True)
-    (work / MARKER).write_text('made by tools/demo.py; emptied when the demo runs again\n')
-    try:
-        report = _run_steps(args, work, failed)
-    except BaseException:
-        _replace(failed, work)
-        raise
-    _replace(final, work)
-    if failed.exists():
-        _replace(failed)   # an older failure, now superseded
+    out: Path = args.output.resolve()  # absolute: the node runs with another working directory
+    if out.exists() and not (out / MARKER).exists() and (
+            not out.is_dir() or any(out.iterdir())):
+        raise ToolError(out, 'exists and was not made by the demo; choose another --output')
+    shutil.rmtree(out, ignore_errors=True)
+    out.mkdir(parents=True)
+    (out / MARKER).write_text('made by tools/demo.py; emptied when the demo runs again\n')
+    report = _run_steps(args, out)
     print()
     print(f'demo done in {time.monotonic() - began:.1f} s; everything is in {args.output}/')
-    for line in report:
-        print(line.replace(str(work), str(final)))
+    print('\n'.join(report))
     return 0
 
 
@@ -178,7 +154,7 @@ def _write_input(args: argparse.Namespace, out: Path) -> tuple[Any, Any, dict, f
     return summary, items[0].frame, pose_by_stamp, bag_hz
 
 
-def _replay(out: Path, failed: Path, node: Any, bag_hz: float,
+def _replay(out: Path, node: Any, bag_hz: float,
             frames: int) -> tuple[Recorder, list[str], int]:
     """Wait for the node, replay the bag into it, record what it publishes (steps 3, 4).
 
@@ -195,7 +171,7 @@ def _replay(out: Path, failed: Path, node: Any, bag_hz: float,
             # until it says ready and subscribes to the depth and camera info
             ready = node_process.wait_ready(
                 executor, node, status, READY_TIMEOUT_S, out / 'node.log',
-                lambda _: player.subscription_count() >= 2, shown_log=failed / 'node.log')
+                lambda _: player.subscription_count() >= 2)
             print(f'      node {ready}')
             settle = time.monotonic() + 0.5  # let the node's side of the match settle too
             while time.monotonic() < settle:
@@ -225,7 +201,7 @@ def _replay(out: Path, failed: Path, node: Any, bag_hz: float,
     return recorder, status, sent
 
 
-def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
+def _run_steps(args: argparse.Namespace, out: Path) -> list[str]:
     """Run the demo's steps into ``out``; return the summary lines to print."""
     from rclpy.serialization import deserialize_message
     from std_msgs.msg import Float64
@@ -244,11 +220,11 @@ def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
     print(f'[3/5] starting the detector node (ROS_DOMAIN_ID={args.domain_id}, loopback only; '
           f'log: {out / "node.log"}):\n      {" ".join(command[1:])}')
     node = node_process.start_node(command, env, out / 'node.log')
-    recorder, status, sent = _replay(out, failed, node, bag_hz, summary.frames)
+    recorder, status, sent = _replay(out, node, bag_hz, summary.frames)
 
     received = recorder.count('/obstacles/costmap')
     if received == 0:
-        raise ToolError(failed / 'node.log', f'the detector node published nothing for '
+        raise ToolError(out / 'node.log', f'the detector node published nothing for '
                         f'{summary.frames} frames; the end of its log:\n'
                         + node_process.log_tail(out / 'node.log'))
     print(f'[5/5] writing what the node published: {out / "results_bag"}; pictures: '
@@ -284,8 +260,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     parser = argparse.ArgumentParser(prog='demo', description=__doc__.split('\n\n')[0])
     parser.add_argument('--output', type=Path, default=Path('out/demo'),
-                        help='folder for everything the demo writes (default %(default)s); '
-                             'replaced only when the demo succeeds')
+                        help='folder for everything the demo writes (default %(default)s), '
+                             'emptied first')
     parser.add_argument('--scene', choices=SEQUENCE_NAMES, default='drive_past_boxes',
                         help='a scene sequence with odometry (the fused costmap follows it; '
                              'default %(default)s)')

@@ -99,11 +99,10 @@ def probe_node(name: str, node: subprocess.Popen) -> Iterator[tuple[Any, Any, li
 
 
 def wait_ready(executor: Any, node: subprocess.Popen, status: list[str], timeout_s: float,
-               log: Path, ready: Callable[[str], bool] = lambda text: True,
-               shown_log: Path | None = None) -> str:
+               log: Path, ready: Callable[[str], bool] = lambda text: True) -> str:
     """Spin until the node's status says ``ready`` (and ``ready(status)``); return the status.
 
-    ToolError with the end of ``log`` (named ``shown_log``) if the node exits or times out.
+    ToolError with the end of ``log`` if the node exits or times out.
     """
     deadline = time.monotonic() + timeout_s
     while not (status and status[-1].startswith('ready') and ready(status[-1])):
@@ -111,7 +110,7 @@ def wait_ready(executor: Any, node: subprocess.Popen, status: list[str], timeout
             why = (f'exited with code {node.returncode} before it was ready'
                    if node.poll() is not None else
                    f'was not ready within {timeout_s:g} s')
-            raise ToolError(shown_log or log, f'the detector node {why}; the end of its '
+            raise ToolError(log, f'the detector node {why}; the end of its '
                             'log:\n' + log_tail(log))
         executor.spin_once(timeout_sec=0.05)
     return status[-1]
