@@ -675,38 +675,6 @@ def test_fused_costmap_follows_the_odometry_and_keeps_what_it_saw(
         node.destroy_node()
 
 
-def test_fused_costmap_moves_with_tf_when_no_odometry_comes(
-        local_context: rclpy.Context, monkeypatch: pytest.MonkeyPatch) -> None:
-    """use_tf and no nav_msgs/Odometry: the fused window follows TF odom <- base_footprint."""
-    from test_mount_source import _transform
-
-    class Frames:
-        def __init__(self) -> None:
-            self.odom = _transform(np.eye(3), (0.0, 0.0, 0.0))
-
-        def lookup_transform(self, target: str, source: str, time: Any, timeout: Any) -> Any:
-            if (target, source) == ('odom', 'base_footprint'):
-                return self.odom
-            raise LookupError(f'no {target} <- {source}')   # the mount: from the parameters
-
-    frames = Frames()
-    node = DetectorNode(context=local_context, tf_buffer=frames, cli_args=[
-        '--ros-args', '--params-file', str(CORRIDOR_YAML), '-p', 'use_tf:=true',
-        '-p', 'fuse:=true'])
-    fused: list[OccupancyGrid] = []
-    monkeypatch.setattr(node._pubs['fused'], 'publish', fused.append)
-    frame = render_scene('corridor', seed=3)
-    try:
-        _publish_frame(node, frame, monkeypatch)
-        assert fused[-1].info.origin.position.x == pytest.approx(-2.0)    # 4 m window at 0
-        frames.odom = _transform(np.eye(3), (0.5, 0.0, 0.0))              # the robot moved
-        _publish_frame(node, frame, monkeypatch)
-        assert fused[-1].info.origin.position.x == pytest.approx(0.5 - 2.0)
-    finally:
-        node.close()
-        node.destroy_node()
-
-
 def test_set_parameters_applies_to_the_next_frame(local_node: DetectorNode) -> None:
     result = local_node.set_parameters([Parameter('max_slope_deg', value=45.0),
                                         Parameter('validation_neighbours', value=3)])

@@ -152,7 +152,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                            frame_index=k) for k in range(FRAMES)]
     env = node_process.use_loopback(args.domain_id, work / 'ros_log')
     os.environ['ROS_LOG_DIR'] = env['ROS_LOG_DIR']   # the camera process's too
-    overrides = ['stats_period_s:=10.0', *node_process.mount_overrides(frames[0]), *args.set]
+    overrides = [*node_process.mount_overrides(frames[0]), *args.set]
     node = node_process.start_node(node_process.node_command(PARAMS, overrides), env, log)
     spawn = multiprocessing.get_context('spawn')
     reports = spawn.Queue()

@@ -165,8 +165,9 @@ class DetectorNode(Node):
         self._poses = PoseBuffer()
         self._fused: FusedGrid | None = None
 
-        self._stats_timer = None
-        self._restart_stats_timer(self._config.stats_period_s)
+        stats_period_s = float(self.get_parameter('stats_period_s').value)
+        if stats_period_s > 0.0:
+            self.create_timer(stats_period_s, self._log_stats)
         self._started = time.monotonic()
         self._last_frame_id = ''
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics',
@@ -336,7 +337,6 @@ class DetectorNode(Node):
         return SetParametersResult(successful=True)
 
     def _apply_parameters(self, parameters: list[Parameter]) -> None:
-        old_period = self._config.stats_period_s
         config = build_config(self._parameter_values())  # validated just before
         # A new median K compiles its kernel (seconds for a K never used before) on a thread
         # of its own, not in this callback nor in a frame: frames take the numpy path
@@ -348,18 +348,8 @@ class DetectorNode(Node):
                 self._compile = job
                 self._publish_status()
         self._config = config
-        if self._config.stats_period_s != old_period:
-            self._restart_stats_timer(self._config.stats_period_s)
         changed = ', '.join(f'{p.name}={p.value!r}' for p in parameters)
         self.get_logger().info(f'parameters updated, next frame uses: {changed}')
-
-    def _restart_stats_timer(self, period_s: float) -> None:
-        if self._stats_timer is not None:
-            self.destroy_timer(self._stats_timer)
-            self._stats_timer = None
-        if period_s > 0.0:
-            self.stats.take(reader='log')
-            self._stats_timer = self.create_timer(period_s, self._log_stats)
 
     # -- callbacks (executor thread): store only --------------------------------------------
     def _on_depth(self, msg: Image) -> None:
@@ -394,8 +384,6 @@ class DetectorNode(Node):
             self._fused = FusedGrid(config.fusion)
         stamp_s = _stamp_ns(msg.header.stamp) * 1e-9
         pose, why = self._poses.pose_at(stamp_s)
-        if pose is None and len(self._poses) == 0 and self._mount_source.buffer is not None:
-            pose, why = self._odom_pose_from_tf(msg, config)
         if pose is None and not why:
             why = f'no odometry on {self._odom_sub.topic_name}'
         update = self._fused.update(result.costmap, pose, pose_stamp_s=stamp_s,
@@ -408,20 +396,6 @@ class DetectorNode(Node):
             self.get_logger().info(update.message)
         return costmap_to_occupancy_grid(self._fused.to_costmap(), stamp=msg.header.stamp,
                                          frame_id=config.odom_frame)
-
-    def _odom_pose_from_tf(self, msg: Any, config: NodeConfig) -> tuple[Any, str]:
-        """Return the base pose in odom from TF (odom_frame <- cloud_frame_id), and why not."""
-        source = self._mount_source
-        try:
-            transform = source.buffer.lookup_transform(
-                config.odom_frame, config.cloud_frame_id, RclpyTime.from_msg(msg.header.stamp),
-                source.timeout)
-            t, q = transform.transform.translation, transform.transform.rotation
-            return (float(t.x), float(t.y), yaw_from_quaternion(q.x, q.y, q.z, q.w)), ''
-        except Exception as error:  # noqa: BLE001 - tf2's exceptions are not importable here
-            return None, (f'no odometry on {self._odom_sub.topic_name} and no TF '
-                          f'{config.odom_frame} <- {config.cloud_frame_id} '
-                          f'({type(error).__name__})')
 
     def _log_stats(self) -> None:
         period = self.stats.take(reader='log')

@@ -153,9 +153,8 @@ NODE_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec('fuse', False,
               'Also publish obstacles/fused_costmap: the per-frame costmaps fused over time '
               '(log-odds) in a rolling window centred on the robot in odom_frame, moved by the '
-              'odometry on odom_topic, or by TF odom_frame <- cloud_frame_id when use_tf and '
-              'no odometry comes (neither: fused in place, said once); read at start-up (the '
-              'topic and the odometry subscription exist only when on)', read_only=True),
+              'odometry on odom_topic (without it: fused in place, said once); read at start-up '
+              '(the topic and the odometry subscription exist only when on)', read_only=True),
     ParamSpec('odom_topic', 'odom',
               'nav_msgs/Odometry of the robot base in odom_frame, for the fused costmap '
               '(subscribed best effort, so reliable and best-effort publishers both connect); '
@@ -203,7 +202,7 @@ NODE_PARAMS: tuple[ParamSpec, ...] = (
               "frame's obstacles) refines each frame; '' = rule-based only"),
     ParamSpec('stats_period_s', 10.0,
               'Period of the info log with frames processed, dropped, mean time and fps; '
-              '0 = off [s]', 0.0, 3600.0),
+              '0 = off; read at start-up [s]', 0.0, 3600.0, read_only=True),
 )
 
 ALL_PARAMS: tuple[ParamSpec, ...] = PIPELINE_PARAMS + NODE_PARAMS
