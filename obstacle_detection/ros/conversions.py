@@ -65,13 +65,10 @@ def image_to_array(msg: Any, *, copy: bool = True) -> np.ndarray:
 
 
 def image_to_rgb(msg: Any) -> np.ndarray:
-    """Decode an ``rgb8`` or ``bgr8`` Image message (the node's overlay) into (H, W, 3) RGB."""
-    encoding = str(msg.encoding)
-    if encoding not in ('rgb8', 'bgr8'):
-        raise RosInputError(f'unsupported colour encoding {encoding!r}: expected rgb8 or '
-                            'bgr8')
-    rgb = _pixels(msg, *IMAGE_ENCODINGS[encoding])
-    return np.ascontiguousarray(rgb[:, :, ::-1]) if encoding == 'bgr8' else rgb
+    """Decode an ``rgb8`` Image message (the node's overlay) into (H, W, 3) RGB."""
+    if str(msg.encoding) != 'rgb8':
+        raise RosInputError(f'unsupported colour encoding {msg.encoding!r}: expected rgb8')
+    return _pixels(msg, *IMAGE_ENCODINGS['rgb8'])
 
 
 def _pixels(msg: Any, base: np.dtype, channels: int, copy: bool = True) -> np.ndarray:
@@ -277,20 +274,11 @@ def costmap_to_occupancy_grid(costmap: Costmap, *, stamp: Time,
 
 
 def occupancy_grid_to_costmap(grid: Any) -> Costmap:
-    """Read an OccupancyGrid back into a Costmap (the inverse of costmap_to_occupancy_grid)."""
+    """Read a grid the node published back into a Costmap (axis-aligned, as it publishes)."""
     from obstacle_detection.pipeline.costmap import Costmap
 
     info = grid.info
-    orientation = info.origin.orientation
-    if (orientation.x, orientation.y, orientation.z) != (0.0, 0.0, 0.0):
-        raise ValueError('OccupancyGrid origin is rotated; only an axis-aligned grid is read')
-    try:
-        cells = np.frombuffer(grid.data, dtype=np.int8)
-    except TypeError:  # a plain sequence of ints
-        cells = np.asarray(grid.data, dtype=np.int8).reshape(-1)
-    if cells.size != int(info.width) * int(info.height):
-        raise ValueError(f'OccupancyGrid has {cells.size} cells, expected width * height = '
-                         f'{info.width} * {info.height}')
+    cells = byte_view(grid.data).view(np.int8)
     return Costmap(data=cells.reshape(int(info.height), int(info.width)).copy(),
                    resolution_m=float(info.resolution),
                    origin_xy_m=(float(info.origin.position.x), float(info.origin.position.y)))
