@@ -13,7 +13,6 @@ from obstacle_detection.pipeline.geometry import OPTICAL_TO_BODY, mount_rotation
 from obstacle_detection.ros.mount_source import (
     Mount,
     MountSource,
-    mount_from_rotation,
     mount_from_transform,
 )
 
@@ -38,7 +37,7 @@ def _transform(mount_rotation_matrix: np.ndarray, xyz: tuple[float, float, float
 
 
 def test_a_level_forward_camera_is_the_optical_to_body_rotation() -> None:
-    mount = mount_from_rotation(OPTICAL_TO_BODY, (0.2, 0.1, 0.6))
+    mount = mount_from_transform(_transform(OPTICAL_TO_BODY, (0.2, 0.1, 0.6)))
     assert mount == Mount(0.2, 0.1, 0.6, 0.0, 0.0, 0.0)
 
 

@@ -232,17 +232,6 @@ def _range_problem(spec: ParamSpec, value: Any) -> str | None:
     return None
 
 
-def _user_names(text: str) -> str:
-    """Write a DetectorParams message in the user's names: radians fields in degrees."""
-    def degrees(match: re.Match[str]) -> str:
-        return f'{DEGREE_FIELDS[match.group(1)]}={_degrees(float(match.group(2)))!r}'
-
-    text = re.sub(r'\b(' + '|'.join(DEGREE_FIELDS) + r')=([-+0-9.e]+)', degrees, text)
-    for field_name, ros_name in DEGREE_FIELDS.items():
-        text = text.replace(field_name, ros_name)
-    return text
-
-
 def detector_params_from_ros(values: Mapping[str, Any]) -> DetectorParams:
     """DetectorParams from ROS parameter values; missing names take the dataclass defaults."""
     for spec in PIPELINE_PARAMS:
@@ -252,10 +241,7 @@ def detector_params_from_ros(values: Mapping[str, Any]) -> DetectorParams:
                 raise ValueError(problem)
     fields = {spec.field: math.radians(values[spec.name]) if spec.degrees else values[spec.name]
               for spec in PIPELINE_PARAMS if spec.name in values}
-    try:
-        return DetectorParams(**fields)
-    except ValueError as error:
-        raise ValueError(_user_names(str(error))) from error
+    return DetectorParams(**fields)   # the range checks above name every degree field
 
 
 def params_files_in_args(args: list[str]) -> list[str]:
