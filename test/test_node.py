@@ -793,7 +793,6 @@ def test_diagnostics_report_each_fault_at_its_level(tmp_path: Path, scene: Scene
         assert node.spin_until(lambda: reports[-1].level == OK, 10.0), reports[-1].message
         assert reports[-1].message.endswith('frames/s processed')
         values = {kv.key: kv.value for kv in reports[-1].values}
-        assert values['intrinsics'].startswith('CameraInfo on /depth/camera_info: 512x424')
         assert values['code path'] == 'compiled numba kernels'
         assert reports[-1].hardware_id == 'depth_optical'
         bad = _depth_image(scene)

@@ -12,6 +12,8 @@ from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 NO_FRAME_ERROR_S = 2.0
 SKIPPED_ERROR_SHARE = 0.5
 DROPPED_WARN_SHARE = 0.2
+#: The node's compute_path() when the compiled kernels run.
+COMPILED = 'compiled numba kernels'
 #: What the status is about, after the node's name (diagnostic_updater's "node: task" form).
 STATUS_TASK = 'depth obstacle detection'
 
@@ -81,9 +83,7 @@ class Context:
 
     uptime_s: float
     depth_topic: str
-    camera_info: str           #: e.g. 'CameraInfo 512x424 fx=365 ...', 'none yet', 'fallback'
     code_path: str             #: the node's compute_path()
-    compiled: bool
     mount: str                 #: where the camera mount comes from, and its values
 
 
@@ -107,7 +107,7 @@ def _level_and_message(period: Period, ctx: Context) -> tuple[int, str]:
     if frames and period.dropped > DROPPED_WARN_SHARE * frames:
         return WARN, (f'{period.dropped} of {frames} frames replaced before processing: the '
                       'node does not keep up with the camera')
-    if not ctx.compiled:
+    if ctx.code_path != COMPILED:
         return WARN, ctx.code_path
     return OK, f'{period.processed / period.seconds:.1f} frames/s processed'
 
@@ -129,9 +129,6 @@ def health_status(period: Period, ctx: Context, *, name: str,
         'dropped (newer frame came first)': str(period.dropped),
         'skipped (bad input)': str(sum(period.skipped.values())),
         'errors': str(period.errors),
-        'seconds since the last frame': (f'{period.since_last_frame_s:.1f}'
-                                         if period.since_last_frame_s is not None else 'never'),
-        'intrinsics': ctx.camera_info,
         'mount': ctx.mount,
         'code path': ctx.code_path,
     }

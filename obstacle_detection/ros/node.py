@@ -44,7 +44,7 @@ from .diagnostics import Context as DiagnosticsContext
 from .frame_gate import CameraState as _CameraState
 from .frame_gate import stamp_ns as _stamp_ns
 from obstacle_detection.viz.overlay import render_overlay
-from .diagnostics import HealthWindow, health_status, status_name
+from .diagnostics import COMPILED, HealthWindow, health_status, status_name
 from obstacle_detection.pipeline.fusion import FusedGrid, PoseBuffer
 from obstacle_detection.pipeline.geometry import yaw_from_quaternion
 from .mount_source import MountSource
@@ -187,18 +187,10 @@ class DetectorNode(Node):
                                                    in_qos)
         self._info_sub = self.create_subscription(CameraInfo, 'depth/camera_info',
                                                   self._on_camera_info, in_qos)
-        self._say_ready(reliable)
-        self._publish_status()
-
-    def _say_ready(self, reliable: bool) -> None:
-        outputs = [pub.topic_name for pub in self._pubs.values()]
         self.get_logger().info(
-            f'ready: {self._depth_sub.topic_name} + {self._info_sub.topic_name} '
-            f'({"reliable" if reliable else "sensor-data"} QoS)'
-            + (f' + {self._odom_sub.topic_name}' if self._odom_sub is not None else '')
-            + f' -> {", ".join(outputs)}; '
-            f'frames {self._config.cloud_frame_id!r}/{self._config.costmap_frame_id!r}; '
-            f'{self.compute_path()}')
+            f'ready: {self._depth_sub.topic_name} -> '
+            f'{", ".join(pub.topic_name for pub in self._pubs.values())}; {self.compute_path()}')
+        self._publish_status()
 
     # -- start-up: compiled kernels -----------------------------------------------------------
     def compute_path(self) -> str:
@@ -214,7 +206,7 @@ class DetectorNode(Node):
         if jit_support.compiling():
             return ('numpy path while the numba kernels compile or load in the background '
                     '(a first compilation takes about 20-40 s; same results, slower)')
-        return 'compiled numba kernels'
+        return COMPILED
 
     def _warm_up(self) -> None:
         """Compile or load the kernels frames will need: the pipeline's, RVL's if compressed."""
@@ -288,24 +280,10 @@ class DetectorNode(Node):
             return None
 
     # -- diagnostics ---------------------------------------------------------------------------
-    def _camera_info_text(self) -> str:
-        """Describe the intrinsics source for /diagnostics."""
-        if self._cameras:
-            camera = self._cameras[-1]
-            intr = camera.intrinsics
-            return (f'CameraInfo on {self._info_sub.topic_name}: {camera.width}x{camera.height}'
-                    + (f', fx={intr.fx:g} fy={intr.fy:g} cx={intr.cx:g} cy={intr.cy:g}'
-                       if intr is not None else f' unusable: {camera.error}'))
-        if self._config.use_fallback_intrinsics:
-            return 'fallback parameters (no CameraInfo yet)'
-        return f'none: no CameraInfo received on {self._info_sub.topic_name}'
-
     def _publish_diagnostics(self) -> None:
-        path = self.compute_path()
         context = DiagnosticsContext(
             uptime_s=time.monotonic() - self._started, depth_topic=self._depth_sub.topic_name,
-            camera_info=self._camera_info_text(), code_path=path,
-            compiled=path == 'compiled numba kernels',
+            code_path=self.compute_path(),
             mount=self._mount_said or f'parameters: {self._config.mount().describe()}')
         # hardware_id: the frames' frame_id once one is processed, the depth topic before
         status = health_status(self.stats.take(), context,
