@@ -302,15 +302,15 @@ def test_encoder_refuses_an_array_that_is_not_depth() -> None:
 
 
 @pytest.mark.parametrize(('fmt', 'expected'), [
-    ('16UC1; compressedDepth png', ('16UC1', True, False)),
-    ('32FC1; compressedDepth png', ('32FC1', True, False)),
-    ('16UC1; compressedDepth rvl', ('16UC1', True, True)),
-    ('32FC1; compressedDepth rvl', ('32FC1', True, True)),
-    ('16UC1; compressedDepth', ('16UC1', True, False)),
-    ('mono16', ('mono16', True, False)),
-    ('16UC1; tiff compressed', ('16UC1', False, False)),
+    ('16UC1; compressedDepth png', ('16UC1', False)),
+    ('32FC1; compressedDepth png', ('32FC1', False)),
+    ('16UC1; compressedDepth rvl', ('16UC1', True)),
+    ('32FC1; compressedDepth rvl', ('32FC1', True)),
+    ('16UC1; compressedDepth', ('16UC1', False)),
+    ('mono16', ('mono16', False)),
+    ('16UC1; tiff compressed', ('16UC1', False)),
 ])
-def test_parse_format(fmt: str, expected: tuple[str, bool, bool]) -> None:
+def test_parse_format(fmt: str, expected: tuple[str, bool]) -> None:
     assert parse_format(fmt) == expected
 
 

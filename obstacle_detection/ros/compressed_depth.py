@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import struct
-from typing import Any, NamedTuple
+from typing import Any
 
 import cv2
 import numpy as np
@@ -43,16 +43,8 @@ def raw_topic(topic: str) -> str:
     return parent if last in TRANSPORT_SUFFIXES and parent else topic
 
 
-class DepthFormat(NamedTuple):
-    """A compressed depth ``format`` read: its encoding, and which codec it names."""
-
-    encoding: str          #: '16UC1', 'mono16' or '32FC1'
-    compressed_depth: bool  #: names compressedDepth (or is an older, bare format)
-    rvl: bool = False      #: ``compressedDepth rvl``
-
-
-def parse_format(fmt: str) -> DepthFormat:
-    """Read a CompressedImage ``format``: ``(depth encoding, names compressedDepth, is RVL)``."""
+def parse_format(fmt: str) -> tuple[str, bool]:
+    """Read a CompressedImage ``format``: ``(depth encoding, is RVL)``."""
     text = str(fmt)
     encoding, sep, rest = text.partition(';')
     encoding, rest = encoding.strip(), rest.strip()
@@ -61,17 +53,15 @@ def parse_format(fmt: str) -> DepthFormat:
             f'unknown compressed depth format {text!r}: the part before ";" must be '
             f'a depth encoding ({", ".join(DEPTH_ENCODINGS)}), got {encoding!r}')
     if not sep or rest in ('', 'compressedDepth'):
-        return DepthFormat(encoding, True)  # older compressedDepth releases, iai_kinect2
+        return encoding, False  # older compressedDepth releases, iai_kinect2
     words = rest.split()
     if words[0] == 'compressedDepth':
-        if words[1:] == ['png']:
-            return DepthFormat(encoding, True)
-        if words[1:] == ['rvl']:
-            return DepthFormat(encoding, True, rvl=True)
+        if words[1:] in (['png'], ['rvl']):
+            return encoding, words[1] == 'rvl'
         raise RosInputError(f'unknown compressed depth format {text!r}: '
                             'compressedDepth names neither png nor rvl')
     if words[0] in ('png', 'tiff', 'tif') and words[1:2] == ['compressed']:
-        return DepthFormat(encoding, False)
+        return encoding, False
     if words[0] in ('jpeg', 'jpg'):
         raise RosInputError(f'compressed depth format {text!r}: JPEG is '
                             'lossy and cannot carry depth')
@@ -144,7 +134,7 @@ def _decode_rvl(payload: bytes) -> np.ndarray:
 
 def compressed_depth_to_array(msg: Any) -> np.ndarray:
     """Decode a compressed depth CompressedImage into the array the raw Image would give."""
-    encoding, _, is_rvl = parse_format(msg.format)
+    encoding, is_rvl = parse_format(msg.format)
     data = byte_view(msg.data).tobytes()
     container = None if is_rvl else _container(data, 0)
     quant: tuple[float, float] | None = None

@@ -528,12 +528,9 @@ def help_text() -> str:
     ]
     for spec in ALL_PARAMS:
         default = repr(spec.default) if isinstance(spec.default, str) else str(spec.default)
-        head = f'  {spec.name}  {spec.type_name}  {default}'
-        if spec.range_text:
-            head += f'  {spec.range_text}'
-        if spec.read_only:
-            head += '  read-only'
-        lines += [head, f'      {spec.description}']
+        head = [spec.name, spec.type_name, default, spec.range_text,
+                'read-only' if spec.read_only else '']
+        lines += ['  ' + '  '.join(filter(None, head)), f'      {spec.description}']
     lines += ['', 'example: detector --ros-args --params-file params/corridor.yaml '
               '-r depth/image_raw:=/kinect2/sd/image_depth_rect '
               '-r depth/camera_info:=/kinect2/sd/camera_info']
