@@ -18,8 +18,8 @@ def test_short_run_measures_every_frame_it_sent(tmp_path: Path) -> None:
     env = ros_env.loopback_env('test_latency_bench', log_dir=tmp_path / 'ros_log')
     env['PYTHONPATH'] = os.pathsep.join(p for p in (str(REPO), env.get('PYTHONPATH')) if p)
     done = subprocess.run(
-        [sys.executable, str(REPO / 'tools' / 'latency_bench.py'), '--duration', '4',
-         '--rate', '10', '--warmup', '1', '--set', 'median_kernel:=5',
+        [sys.executable, str(REPO / 'tools' / 'latency_bench.py'), '--duration', '8',
+         '--rate', '10', '--set', 'median_kernel:=5',
          '--domain-id', env['ROS_DOMAIN_ID']],
         cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stdout + done.stderr
