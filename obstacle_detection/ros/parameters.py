@@ -245,16 +245,8 @@ def detector_params_from_ros(values: Mapping[str, Any]) -> DetectorParams:
 
 
 def params_files_in_args(args: list[str]) -> list[str]:
-    """Return the ``--params-file`` paths of a command line's ``--ros-args`` blocks, in order."""
-    files, in_ros = [], False
-    for i, token in enumerate(args):
-        if token == '--ros-args':
-            in_ros = True
-        elif token == '--':
-            in_ros = False
-        elif in_ros and token == '--params-file' and i + 1 < len(args):
-            files.append(args[i + 1])
-    return files
+    """Return the ``--params-file`` paths of a command line, in order."""
+    return [args[i + 1] for i in range(len(args) - 1) if args[i] == '--params-file']
 
 
 def _section_applies(key: str, node_fqn: str) -> bool:
