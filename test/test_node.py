@@ -348,7 +348,7 @@ def _bad_cases(scene: SceneFrame) -> list[tuple[str, Image, CameraInfo, str]]:
     wrong_order = _depth_image(scene)
     wrong_order.is_bigendian = not wrong_order.is_bigendian
     return [
-        ('unknown encoding', rgb, good_info, "unsupported encoding 'rgb8'"),
+        ('unknown encoding', rgb, good_info, "unsupported depth encoding 'rgb8'"),
         ('odd byte count', odd, good_info, f'data has {2 * width * height - 1} bytes'),
         ('size differs from CameraInfo', small, good_info,
          f'image is {width // 2}x{height // 2} but CameraInfo is {width}x{height}'),
@@ -799,7 +799,7 @@ def test_diagnostics_report_each_fault_at_its_level(tmp_path: Path, scene: Scene
         bad.encoding = 'rgb8'
         stream(bad, _camera_info(scene), 2.5)
         level, message = level_after('skipped for bad input', 1.0)
-        assert level == ERROR and '(encoding ' in message
+        assert level == ERROR and '(image ' in message
         assert level_after('no depth frame for', 5.0)[0] == ERROR
     finally:
         node.close()

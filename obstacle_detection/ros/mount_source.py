@@ -56,10 +56,6 @@ class MountSource:
         if self.buffer is None:
             self.source = 'parameters'
             return fallback
-        if not frame_id:
-            self.last_problem = 'the depth image has no frame_id to look up in TF'
-            self.source = 'parameters'
-            return fallback
         if self.static and frame_id in self._cache:
             self.source = f'TF {self.base_frame} <- {frame_id} (static, cached)'
             return self._cache[frame_id]
