@@ -66,8 +66,9 @@ def _qos(depth: int, *, reliable: bool = True, latched: bool = False) -> QoSProf
 WARN_THROTTLE_S = 5.0
 #: Outputs, and the inputs with reliable_input: reliable, depth 5.
 _RELIABLE_QOS = _qos(5)
-#: ~/status: latched (transient local), so a late subscriber still gets the last state.
-_STATUS_QOS = _qos(1, latched=True)
+#: ~/status and the OccupancyGrids: latched, depth 1 (as map_server), so a late subscriber
+#: (RViz's map display) still gets the last state or grid.
+_LATCHED_QOS = _qos(1, latched=True)
 #: /diagnostics: reliable, as diagnostic_updater publishes it, about once a second.
 _DIAGNOSTICS_QOS = _qos(10)
 DIAGNOSTICS_PERIOD_S = 1.0
@@ -76,8 +77,6 @@ DEPTH_TRANSPORTS = {name: (Image if name == 'raw' else CompressedImage, topic)
                     for name, topic in DEPTH_TRANSPORT_TOPICS.items()}
 #: Odometry: best effort, which reliable and best-effort publishers both match.
 _ODOM_QOS = _qos(20, reliable=False)
-#: OccupancyGrids: latched, depth 1 (as map_server): a late display gets the last grid.
-_GRID_QOS = _qos(1, latched=True)
 #: First word of every ~/status message once the node processes frames.
 STATUS_READY = 'ready'
 #: Depth frames that may wait for the worker (see FrameMailbox): one may wait behind another.
@@ -143,7 +142,7 @@ class DetectorNode(Node):
             maxlen=frame_gate.CAMERA_INFO_HISTORY)
         self._warn_loggers: dict[str, Any] = {}
 
-        self._status_pub = self.create_publisher(String, '~/status', _STATUS_QOS)
+        self._status_pub = self.create_publisher(String, '~/status', _LATCHED_QOS)
         # Compiling (20-40 s) or loading the kernels runs on a thread of its own; frames take
         # the numpy path meanwhile (same results), so no frame waits for it.
         self._compile = jit_support.compile_in_background(self._warm_up,
@@ -153,7 +152,7 @@ class DetectorNode(Node):
         # What is switched off is neither advertised nor subscribed.
         self._pubs = {
             key: self.create_publisher(kind, topic,
-                                       _GRID_QOS if kind is OccupancyGrid else _RELIABLE_QOS)
+                                       _LATCHED_QOS if kind is OccupancyGrid else _RELIABLE_QOS)
             for key, (kind, topic, switch) in OUTPUTS.items()
             if switch is None or self.get_parameter(switch).value}
         self._odom_sub: Any = None
