@@ -118,7 +118,9 @@ def decode(msg: Any) -> np.ndarray | Skip:
         return (compressed_depth_to_array(msg) if compressed
                 else image_to_array(msg, copy=False))
     except RosInputError as error:
-        return Skip('compressed' if compressed else 'image', str(error))
+        # each kind of problem (encoding, size, ...) is throttled on its own
+        return Skip('compressed' if compressed else problem_kind('image', str(error)),
+                    str(error))
 
 
 def choose_intrinsics(camera: CameraState | None, shape: tuple[int, ...], *,

@@ -307,6 +307,10 @@ class DetectorNode(Node):
 
     def _validate_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
         # No side effect here: another callback may still refuse the set.
+        undeclared = [p.name for p in parameters if not self.has_parameter(p.name)]
+        if undeclared:   # rclpy lets an empty name through, and would create it
+            return SetParametersResult(successful=False,
+                                       reason=f'undeclared parameter(s): {undeclared}')
         try:
             build_config(self._parameter_values(parameters))
         except ValueError as error:
