@@ -31,15 +31,12 @@ DEPTH_ENCODINGS: dict[str, tuple[np.dtype, int]] = {
 #: Every encoding ``array_to_image`` writes -> (numpy base dtype, channels).
 IMAGE_ENCODINGS: dict[str, tuple[np.dtype, int]] = {
     **DEPTH_ENCODINGS,
-    'mono8': (np.dtype(np.uint8), 1),
     'rgb8': (np.dtype(np.uint8), 3),
     'bgr8': (np.dtype(np.uint8), 3),
 }
 
 #: Default encoding per (dtype, channels) for ``array_to_image``: the first listed above.
 _DEFAULT_ENCODING = {kind: name for name, kind in reversed(IMAGE_ENCODINGS.items())}
-
-_XYZ_FIELDS = ('x', 'y', 'z')
 
 
 def byte_view(data: Any) -> np.ndarray:
@@ -234,7 +231,7 @@ def points_to_pointcloud2(points: np.ndarray, *, stamp: Time, frame_id: str) -> 
         raise ValueError(f'points must have shape (N, 3), got {points.shape}')
     xyz = np.ascontiguousarray(points, dtype='<f4')
     fields = [PointField(name=name, offset=i * 4, datatype=PointField.FLOAT32, count=1)
-              for i, name in enumerate(_XYZ_FIELDS)]
+              for i, name in enumerate('xyz')]
     count = xyz.shape[0]
     # filled in place: the constructor builds a default header anyway, copies data=bytes twice
     msg = PointCloud2(height=1, width=count, fields=fields, is_bigendian=False, point_step=12,

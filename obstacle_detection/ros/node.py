@@ -69,16 +69,13 @@ _RELIABLE_QOS = _qos(5)
 #: ~/status and the OccupancyGrids: latched, depth 1 (as map_server), so a late subscriber
 #: (RViz's map display) still gets the last state or grid.
 _LATCHED_QOS = _qos(1, latched=True)
-#: /diagnostics: reliable, as diagnostic_updater publishes it, about once a second.
+#: /diagnostics: reliable, as diagnostic_updater publishes it, once a second.
 _DIAGNOSTICS_QOS = _qos(10)
-DIAGNOSTICS_PERIOD_S = 1.0
 #: depth_transport -> (message type, topic): image_transport's names for the depth stream.
 DEPTH_TRANSPORTS = {name: (Image if name == 'raw' else CompressedImage, topic)
                     for name, topic in DEPTH_TRANSPORT_TOPICS.items()}
 #: Odometry: best effort, which reliable and best-effort publishers both match.
 _ODOM_QOS = _qos(20, reliable=False)
-#: First word of every ~/status message once the node processes frames.
-STATUS_READY = 'ready'
 #: Depth frames that may wait for the worker (see FrameMailbox): one may wait behind another.
 MAILBOX_FRAMES = 2
 #: Output key (as result_to_messages names it) -> message type, topic, parameter switching it on.
@@ -171,8 +168,7 @@ class DetectorNode(Node):
         self._last_frame_id = ''
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics',
                                                       _DIAGNOSTICS_QOS)
-        self._diagnostics_timer = self.create_timer(DIAGNOSTICS_PERIOD_S,
-                                                    self._publish_diagnostics)
+        self.create_timer(1.0, self._publish_diagnostics)
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
 
@@ -229,7 +225,7 @@ class DetectorNode(Node):
     def _publish_status(self) -> None:
         """Publish the latched ~/status line: 'ready: <which code processes the frames>'."""
         if self.context.ok():
-            self._status_pub.publish(String(data=f'{STATUS_READY}: {self.compute_path()}'))
+            self._status_pub.publish(String(data=f'ready: {self.compute_path()}'))
 
     # -- the camera mount: parameters or TF ------------------------------------------------------
     def _make_mount_source(self, tf_buffer: Any) -> MountSource:
