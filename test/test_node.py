@@ -458,18 +458,21 @@ def test_undeclared_parameters_are_refused_and_nothing_is_created(
     assert {spec.name for spec in ALL_PARAMS} <= set(listed)
 
 
-def test_a_malformed_parameter_type_does_not_end_the_node(
+def test_a_malformed_parameter_type_is_refused_and_the_node_goes_on(
         detector: NodeUnderTest, scene: SceneFrame, corridor_params: Any) -> None:
-    """An unknown type makes rclpy's parameter service raise; the spin loop logs it, goes on."""
+    """An unknown type made rclpy's parameter service raise: no reply, or the node's end."""
+    good = Parameter('max_slope_deg', value=20.0).to_parameter_msg()
     msg = ParameterMsg(name='median_kernel', value=ParameterValue(type=200, integer_value=5))
-    for client, kind in ((detector.set_client, SetParameters),
-                         (detector.atomic_client, SetParametersAtomically)):
-        assert detector.spin_until(client.service_is_ready, REPLY_TIMEOUT_S)
-        client.call_async(kind.Request(parameters=[msg]))   # no reply comes
-    detector.spin_until(lambda: False, 1.0)
 
+    single = detector.call(detector.set_client, SetParameters.Request(parameters=[good, msg]))
+    atomic = detector.call(detector.atomic_client,
+                           SetParametersAtomically.Request(parameters=[msg]))
+
+    assert [r.successful for r in single.results] == [False, False]
+    assert "unknown ParameterValue.type for [('median_kernel', 200)]" in single.results[1].reason
+    assert not atomic.result.successful and 'median_kernel' in atomic.result.reason
     assert detector.process.poll() is None
-    assert detector.get_parameter('median_kernel') == 5
+    assert detector.get_parameter('max_slope_deg') == pytest.approx(30.0)   # nothing set
     out = _good_frame(detector, scene)   # the next frame is answered, as before
     _assert_matches(out, Detector(corridor_params).process(scene.depth_mm, scene.intrinsics))
 

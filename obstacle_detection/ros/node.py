@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import collections
+import functools
 import sys
 import threading
 import time
@@ -170,6 +171,9 @@ class DetectorNode(Node):
                                                       _DIAGNOSTICS_QOS)
         self.create_timer(1.0, self._publish_diagnostics)
         self.add_on_set_parameters_callback(self._validate_parameters)
+        for service in self.services:   # rclpy's set services raise on an unknown value type
+            if service.srv_name.endswith(('/set_parameters', '/set_parameters_atomically')):
+                service.callback = functools.partial(self._refuse_unknown_types, service.callback)
         self.add_post_set_parameters_callback(self._apply_parameters)
 
         self._worker = threading.Thread(target=self._work, name='obstacle_detector_worker',
@@ -312,6 +316,22 @@ class DetectorNode(Node):
         except ValueError as error:
             return SetParametersResult(successful=False, reason=str(error))
         return SetParametersResult(successful=True)
+
+    def _refuse_unknown_types(self, callback: Any, request: Any, response: Any) -> Any:
+        """Refuse, with the reason, a set request holding a ParameterValue.type rclpy lacks."""
+        bad = [(p.name, p.value.type) for p in request.parameters
+               if p.value.type not in {t.value for t in Parameter.Type}]
+        if not bad:
+            return callback(request, response)
+        reason = f'unknown ParameterValue.type for {bad}; nothing set'
+        self.get_logger().warning(f'refused a parameter request: {reason}',
+                                  throttle_duration_sec=WARN_THROTTLE_S)
+        refused = SetParametersResult(successful=False, reason=reason)
+        if hasattr(response, 'result'):
+            response.result = refused
+        else:
+            response.results = [refused] * len(request.parameters)
+        return response
 
     def _apply_parameters(self, parameters: list[Parameter]) -> None:
         config = build_config(self._parameter_values())  # validated just before
