@@ -465,7 +465,7 @@ def test_drop_edge_needs_a_jump_and_seen_floor():
 def test_floor_samples_ignore_no_return():
     frame = render_scene('flat_floor', seed=0)
     params = scene_params(frame, corridor())
-    depth = frame.depth_m
+    depth = frame.depth_mm * np.float32(1e-3)
     depth[:, :256] = np.nan
     depth[:, 256:300] = 0.0
     rays = geometry.ray_model(depth.shape, frame.intrinsics, params)

@@ -327,8 +327,7 @@ def _picture_writer(folder: Path, base: DetectorParams) -> Any:
                    f'{evaluation.format_score(score.cell.f1)}, pixel F1 '
                    f'{evaluation.format_score(score.pixel.f1)}')
         pictures.write_png(folder / f'{name}.png', pictures.side_by_side(
-            result, caption=caption, truth_labels=frame.truth_labels,
-            params=frame.params(base)))
+            result, frame.params(base), caption=caption, truth_labels=frame.truth_labels))
     return on_frame
 
 
