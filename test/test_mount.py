@@ -46,11 +46,6 @@ def test_mount_from_plane_inverts_the_mount_rotation(pitch_deg, roll_deg):
     assert (height, pitch_back, roll_back) == pytest.approx((0.7, pitch, roll), abs=1e-12)
 
 
-def test_mount_from_plane_refuses_a_camera_below_the_plane():
-    with pytest.raises(ValueError, match='not above the plane'):
-        mount.mount_from_plane(geometry.mount_rotation(0.2, 0.0)[2], -0.5)
-
-
 @pytest.mark.parametrize('scene, height_m, pitch_deg, roll_deg', [
     ('flat_floor', 0.3, 0.0, 0.0),
     ('flat_floor', 1.2, 45.0, 10.0),
@@ -64,19 +59,16 @@ def test_recovers_the_mount_of_a_rendered_scene(scene, height_m, pitch_deg, roll
     frame = render_scene(scene, seed=1, height_m=height_m, pitch_rad=pitch, roll_rad=roll)
     estimate = mount.estimate_mount(depth_m(frame), frame.intrinsics)
     assert_mount(estimate, height_m, pitch, roll)
-    assert estimate.offset_m == pytest.approx(estimate.height_m)
-    np.testing.assert_allclose(estimate.normal_optical, geometry.mount_rotation(pitch, roll)[2],
-                               atol=0.01)
     floor = frame.hit_index == 0
     assert estimate.inlier_fraction == pytest.approx(
         np.count_nonzero(floor & (frame.depth_mm > 0) & (depth_m(frame) <= 4.0))
         / estimate.n_points, abs=0.02)
 
 
-def test_same_seed_gives_the_same_estimate():
+def test_the_same_frame_gives_the_same_estimate():
     frame = render_scene('corridor', seed=2, height_m=0.7, pitch_rad=0.3)
-    assert mount.estimate_mount(depth_m(frame), frame.intrinsics, seed=5) == \
-        mount.estimate_mount(depth_m(frame), frame.intrinsics, seed=5)
+    assert mount.estimate_mount(depth_m(frame), frame.intrinsics) == \
+        mount.estimate_mount(depth_m(frame), frame.intrinsics)
 
 
 def test_a_table_top_filling_most_of_the_view_is_not_the_floor():
@@ -114,22 +106,14 @@ def test_a_steep_camera_needs_the_prior_pitch():
 
 
 @pytest.mark.parametrize('kwargs, match', [
-    ({'inlier_m': 0.0}, 'inlier_m'),
     ({'max_range_m': float('nan')}, 'max_range_m'),
-    ({'iterations': 0}, 'iterations'),
-    ({'max_tilt_rad': 2.0}, 'max_tilt_rad'),
-    ({'min_inlier_fraction': 1.5}, 'min_inlier_fraction'),
+    ({'max_range_m': 0.0}, 'max_range_m'),
+    ({'prior_pitch_rad': 2.0}, 'prior_pitch_rad'),
 ])
 def test_bad_arguments_are_named(kwargs, match):
     depth = np.ones((10, 10), np.float32)
     with pytest.raises(ValueError, match=match):
         mount.estimate_mount(depth, SMALL, **kwargs)
-
-
-def test_integer_depth_is_refused():
-    with pytest.raises(ValueError, match='float metres'):
-        mount.estimate_mount(np.ones((10, 10), np.uint16),
-                             SMALL)
 
 
 def test_with_the_estimated_mount_the_pipeline_sees_only_ground():
