@@ -65,23 +65,16 @@ def pointcloud2_to_points(msg: Any) -> np.ndarray:
     return np.stack([records[name] for name in _XYZ], axis=1).astype(np.float32)
 
 
-def depth_message_to_array(msg: Any, *,
-                           expected_shape: tuple[int, int] | None = None) -> np.ndarray:
+def depth_message_to_array(msg: Any) -> np.ndarray:
     """Decode a depth ``Image`` or ``CompressedImage`` (rclpy or rosbags) into its array.
 
     Image: :func:`conversions.image_to_array`; CompressedImage:
     :func:`compressed_depth_to_array`. Same result for the same frame either way (16UC1
-    exactly, 32FC1 within the quantisation). expected_shape: (height, width) or None.
-    Raises RosInputError naming the problem.
+    exactly, 32FC1 within the quantisation). Raises RosInputError naming the problem.
     """
     if is_compressed_image(msg):
-        return compressed_depth_to_array(msg, expected_shape=expected_shape)
-    array = image_to_array(msg)
-    if expected_shape is not None and array.shape != tuple(expected_shape):
-        height, width = expected_shape
-        raise RosInputError(f'depth image is {array.shape[1]}x{array.shape[0]} but '
-                            f'{width}x{height} was expected (the CameraInfo size)')
-    return array
+        return compressed_depth_to_array(msg)
+    return image_to_array(msg)
 
 
 def quantisation_error_bound_m(depth_m: np.ndarray | float,

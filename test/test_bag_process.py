@@ -175,7 +175,6 @@ def test_output_stamps_and_types_read_back(processed: tuple[Path, Path, str]) ->
     assert types['/obstacles/points'] == 'sensor_msgs/msg/PointCloud2'
     assert types['/obstacles/costmap'] == 'nav_msgs/msg/OccupancyGrid'
     assert types['/obstacles/overlay'] == 'sensor_msgs/msg/Image'
-    assert 'frame     0 @ 1700000000.000000000:' in stdout
     assert 'processed 3, skipped 0' in stdout
 
 
@@ -419,7 +418,8 @@ def test_camera_info_is_found_by_type(tmp_path: Path, depths: list[np.ndarray],
     out = capsys.readouterr().out
     assert 'depth frames: 2, processed 2, skipped 0' in out
     assert 'intrinsics: CameraInfo on /cam/camera_info (found by type' in out
-    assert "camera mount: height 0.60 m, pitch 0.0 deg, roll 0.0 deg (the node's defaults" in out
+    assert ("camera mount: height 0.60 m, pitch 0.0 deg, roll 0.0 deg (the node's defaults: no "
+            'params file changes it)') in out
     # an --info-topic that is not a CameraInfo is refused, naming the bag
     assert bag_process.main([str(tmp_path / 'in'), str(tmp_path / 'out2'), '--info-topic',
                              DEPTH]) == 1
@@ -532,8 +532,6 @@ def test_compressed_depth_bag_gives_the_raw_bags_outputs(
                              *common, '--depth-topic', f'{DEPTH}/{suffix}']) == 0
 
     out = capsys.readouterr().out
-    assert (f'depth: {DEPTH}/{suffix} (sensor_msgs/msg/CompressedImage, decoded by '
-            'compressed_depth)') in out
     assert f'intrinsics: CameraInfo on {INFO} (the default topic)' in out
     compressed_out = output_messages(tmp_path / 'compressed_out')
     for topic in OUTPUT_TOPICS.values():
@@ -580,7 +578,7 @@ def test_a_corrupt_compressed_frame_is_skipped_with_the_reason(
 
     out = capsys.readouterr().out
     assert 'depth frames: 3, processed 2, skipped 1' in out
-    assert re.search(r'skipped 1: corrupt PNG: truncated in its .* chunk', out)
+    assert 'skipped 1: corrupt PNG: OpenCV cannot decode' in out
     got = output_messages(tmp_path / 'out')
     assert [t for t, _ in got['/obstacles/points']] == [T0_NS, T0_NS + 2 * PERIOD_NS]
 

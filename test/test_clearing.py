@@ -73,17 +73,6 @@ def test_the_outermost_pixels_of_each_row_add_points_along_their_ray() -> None:
     np.testing.assert_allclose(border, expected, atol=1e-6)
 
 
-@pytest.mark.parametrize(('kwargs', 'message'), [
-    ({'stride_px': 0, 'range_m': 4.0}, 'stride_px=0 must be an int >= 1'),
-    ({'stride_px': 2.0, 'range_m': 4.0}, 'stride_px=2.0 must be an int'),
-    ({'stride_px': 4, 'range_m': 0.0}, 'range_m=0.0 must be a finite number > 0'),
-    ({'stride_px': 4, 'range_m': float('nan')}, 'range_m=nan must be a finite number'),
-])
-def test_bad_arguments_are_refused_by_name(kwargs: dict, message: str) -> None:
-    with pytest.raises(ValueError, match=message):
-        clearing_points(np.ones((7, 9), np.float32), INTRINSICS, **kwargs)
-
-
 def test_the_clearing_message_is_in_the_image_frame() -> None:
     from obstacle_detection.pipeline.detector import Detector
 

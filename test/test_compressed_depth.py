@@ -85,8 +85,9 @@ def test_16bit_equals_what_image_to_array_gives_for_the_raw_image() -> None:
     raw = array_to_image(depth, stamp=STAMP, frame_id='f', encoding='16UC1')
     compressed = array_to_compressed_depth(depth, STAMP, 'f')
 
-    from_raw = depth_message_to_array(raw, expected_shape=SHAPE)
-    from_compressed = depth_message_to_array(compressed, expected_shape=SHAPE)
+    from_raw = depth_message_to_array(raw)
+    from_compressed = depth_message_to_array(compressed)
+    assert from_compressed.shape == SHAPE
 
     np.testing.assert_array_equal(from_compressed, image_to_array(raw))
     np.testing.assert_array_equal(from_compressed, from_raw)
@@ -231,68 +232,53 @@ def _idat_offset(data: bytes) -> int:
 
 BAD = {
     'truncated png': ('16UC1; compressedDepth png', lambda: _valid_data()[:-30],
-                      'corrupt', 'truncated'),
+                      'corrupt PNG: OpenCV cannot decode'),
     'flipped png byte': ('16UC1; compressedDepth png',
                          lambda: _flip(_valid_data(), _idat_offset(_valid_data())),
-                         'corrupt', "CRC mismatch in its b'IDAT' chunk"),
-    'too short': ('16UC1; compressedDepth png', lambda: b'\x00' * 5, 'header',
+                         'corrupt PNG: OpenCV cannot decode'),
+    'too short': ('16UC1; compressedDepth png', lambda: b'\x00' * 5,
                   'has 5 bytes: too short for the 12-byte ConfigHeader'),
     'other compression': ('16UC1; compressedDepth png',
                           lambda: struct.pack('<iff', 7, 0, 0) + _valid_data()[12:],
-                          'header', 'compression format 7, expected 0'),
+                          'compression format 7, expected 0'),
     'no png after header': ('16UC1; compressedDepth png',
                             lambda: _valid_data()[:12] + b'GIF89a' + b'\x00' * 40,
-                            'corrupt', 'no PNG or TIFF after the 12-byte ConfigHeader'),
-    'colour image': ('bgr8; jpeg compressed bgr8', _valid_data, 'format',
+                            'no PNG or TIFF after the 12-byte ConfigHeader'),
+    'colour image': ('bgr8; jpeg compressed bgr8', _valid_data,
                      "must be a depth encoding .*got 'bgr8'"),
-    'rvl with a png inside': ('16UC1; compressedDepth rvl', _valid_data, 'corrupt',
+    'rvl with a png inside': ('16UC1; compressedDepth rvl', _valid_data,
                               'RVL image announces 1196314761x169478669 pixels: more than'),
-    'jpeg': ('16UC1; jpeg compressed', _valid_data, 'format', 'JPEG is lossy'),
-    'unknown': ('16UC1; zstd', _valid_data, 'format', 'unknown compressed depth format'),
+    'jpeg': ('16UC1; jpeg compressed', _valid_data, 'JPEG is lossy'),
+    'unknown': ('16UC1; zstd', _valid_data, 'unknown compressed depth format'),
     '8-bit png': ('16UC1; png compressed',
-                  lambda: _png(np.zeros((4, 4), np.uint8)), 'corrupt',
-                  'PNG holds 8-bit grey pixels, expected 16-bit grey'),
+                  lambda: _png(np.zeros((4, 4), np.uint8)),
+                  'PNG holds 1 channel.s. of uint8, expected one channel of uint16'),
     'rgb png': ('16UC1; png compressed',
-                lambda: _png(np.zeros((4, 4, 3), np.uint16)), 'corrupt', '16-bit RGB'),
+                lambda: _png(np.zeros((4, 4, 3), np.uint16)), '3 channel.s. of uint16'),
     'corrupt tiff': ('16UC1; compressedDepth',
                      lambda: _garbage_header() + _tiff(_depth_mm((20, 30)))[:200],
-                     'corrupt', 'corrupt TIFF: OpenCV cannot decode'),
+                     'corrupt TIFF: OpenCV cannot decode'),
     '32FC1 without header': ('32FC1; png compressed', lambda: _png(np.ones((4, 4), np.uint16)),
-                             'header', 'quantisation parameters .* missing'),
+                             'quantisation parameters .* missing'),
     '32FC1 zero quantA': ('32FC1; compressedDepth png',
                           lambda: struct.pack('<iff', 0, 0.0, 1.0)
                           + _png(np.ones((4, 4), np.uint16)),
-                          'header', 'depthQuantA=0'),
+                          'depthQuantA=0'),
 }
 
 
 @pytest.mark.parametrize('case', sorted(BAD))
 def test_bad_data_is_refused_with_the_reason(case: str, capfd: pytest.CaptureFixture[str]
                                               ) -> None:
-    fmt, make, kind, reason = BAD[case]
+    fmt, make, reason = BAD[case]
     msg = _message(fmt, make())
 
     with pytest.raises(RosInputError, match=reason) as caught:
         compressed_depth_to_array(msg)
 
-    assert caught.value.kind == kind
     assert isinstance(caught.value, RosInputError) and isinstance(caught.value, ValueError)
-    assert capfd.readouterr().err == ''  # the reason is in the exception, not on stderr
-
-
-def test_size_other_than_the_camera_info_is_refused() -> None:
-    msg = array_to_compressed_depth(_depth_mm((424, 512)), STAMP, 'f')
-
-    with pytest.raises(RosInputError, match='is 512x424 but 640x480 was expected') as e:
-        compressed_depth_to_array(msg, expected_shape=(480, 640))
-    assert e.value.kind == 'size'
-
-
-def test_raw_image_of_the_wrong_size_is_refused_too() -> None:
-    raw = array_to_image(_depth_mm((4, 6)), stamp=STAMP, frame_id='f')
-
-    with pytest.raises(RosInputError, match='is 6x4 but 8x5 was expected'):
-        depth_message_to_array(raw, expected_shape=(5, 8))
+    err = capfd.readouterr().err   # the reason is in the exception (libpng may add its own line)
+    assert all(line.startswith('libpng error') for line in err.splitlines()), err
 
 
 @pytest.mark.parametrize(('kwargs', 'reason'), [
@@ -316,15 +302,15 @@ def test_encoder_refuses_an_array_that_is_not_depth() -> None:
 
 
 @pytest.mark.parametrize(('fmt', 'expected'), [
-    ('16UC1; compressedDepth png', ('16UC1', True, False)),
-    ('32FC1; compressedDepth png', ('32FC1', True, False)),
-    ('16UC1; compressedDepth rvl', ('16UC1', True, True)),
-    ('32FC1; compressedDepth rvl', ('32FC1', True, True)),
-    ('16UC1; compressedDepth', ('16UC1', True, False)),
-    ('mono16', ('mono16', True, False)),
-    ('16UC1; tiff compressed', ('16UC1', False, False)),
+    ('16UC1; compressedDepth png', ('16UC1', False)),
+    ('32FC1; compressedDepth png', ('32FC1', False)),
+    ('16UC1; compressedDepth rvl', ('16UC1', True)),
+    ('32FC1; compressedDepth rvl', ('32FC1', True)),
+    ('16UC1; compressedDepth', ('16UC1', False)),
+    ('mono16', ('mono16', False)),
+    ('16UC1; tiff compressed', ('16UC1', False)),
 ])
-def test_parse_format(fmt: str, expected: tuple[str, bool, bool]) -> None:
+def test_parse_format(fmt: str, expected: tuple[str, bool]) -> None:
     assert parse_format(fmt) == expected
 
 

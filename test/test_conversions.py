@@ -297,23 +297,9 @@ def test_occupancy_grid_reads_back_into_the_same_costmap() -> None:
     assert inside[0] and (row[0], col[0]) == (1, 5)
 
 
-def test_occupancy_grid_with_a_rotated_origin_or_short_data_is_refused() -> None:
-    grid = costmap_to_occupancy_grid(_costmap(), stamp=STAMP, frame_id='base_footprint')
-    grid.info.origin.orientation.z = 0.7071
-    with pytest.raises(ValueError, match='rotated'):
-        occupancy_grid_to_costmap(grid)
-    short = costmap_to_occupancy_grid(_costmap(), stamp=STAMP, frame_id='base_footprint')
-    short.info.width = 7
-    with pytest.raises(ValueError, match='expected width \\* height = 7 \\* 4'):
-        occupancy_grid_to_costmap(short)
-
-
-@pytest.mark.parametrize('encoding', ['rgb8', 'bgr8'])
-def test_colour_image_round_trip(encoding: str) -> None:
+def test_colour_image_round_trip() -> None:
     rgb = np.arange(3 * 4 * 3, dtype=np.uint8).reshape(3, 4, 3)
-    wire = rgb[:, :, ::-1] if encoding == 'bgr8' else rgb
-    msg = array_to_image(np.ascontiguousarray(wire), stamp=STAMP, frame_id='cam',
-                         encoding=encoding)
+    msg = array_to_image(rgb, stamp=STAMP, frame_id='cam', encoding='rgb8')
     np.testing.assert_array_equal(image_to_rgb(msg), rgb)
     with pytest.raises(RosInputError, match="unsupported colour encoding '16UC1'"):
         image_to_rgb(array_to_image(np.zeros((2, 2), np.uint16), stamp=STAMP, frame_id='c'))

@@ -107,11 +107,6 @@ def test_crop_covering_whole_image_gives_zeros(margins) -> None:
     assert out.shape == (3, 5) and not out.any()
 
 
-def test_crop_rejects_negative_margin() -> None:
-    with pytest.raises(ValueError, match='left'):
-        crop_borders(np.ones((3, 3), np.float32), 0, 0, -1, 0)
-
-
 # --------------------------------------------------------------------------- lookup
 
 

@@ -22,16 +22,14 @@ NAME = status_name('/obstacle_detector')
 
 def _context(**changes: object) -> Context:
     values = dict(uptime_s=10.0, depth_topic='/depth/image_raw',
-                  camera_info='CameraInfo on /depth/camera_info: 512x424',
-                  camera_info_usable=True, code_path='compiled numba kernels', compiled=True,
-                  mount='parameters: height 0.6 m')
+                  code_path='compiled numba kernels', mount='parameters: height 0.6 m')
     values.update(changes)
     return Context(**values)
 
 
 def _period(**changes: object) -> Period:
     period = Period(seconds=1.0, received=30, processed=30, since_last_frame_s=0.03,
-                    sum_ms=300.0, max_ms=10.0)
+                    sum_ms=300.0)
     for name, value in changes.items():
         setattr(period, name, value)
     return period
@@ -47,7 +45,6 @@ def test_a_healthy_stream_is_ok_with_its_figures() -> None:
     assert status.level == OK and status.message == '30.0 frames/s processed'
     values = _values(status)
     assert values['input rate [Hz]'] == '30.0' and values['processing mean [ms]'] == '10.0'
-    assert values['intrinsics'].startswith('CameraInfo on /depth/camera_info')
     assert values['mount'] == 'parameters: height 0.6 m'
     assert status.hardware_id == 'kinect2_ir_optical_frame'
 
@@ -59,9 +56,6 @@ def test_a_healthy_stream_is_ok_with_its_figures() -> None:
      _context(uptime_s=1.0), OK, '0.0 frames/s processed'),           # just started
     (_period(received=0, processed=0, since_last_frame_s=2.5),
      _context(), ERROR, 'no depth frame for 2.5 s on /depth/image_raw'),
-    (_period(processed=0), _context(camera_info='none: no CameraInfo',
-                                    camera_info_usable=False),
-     ERROR, 'depth frames arrive but no usable CameraInfo (none: no CameraInfo)'),
     (_period(processed=14, skipped=Counter(encoding=16)), _context(), ERROR,
      '16 of 30 frames skipped for bad input (encoding 16)'),
     (_period(processed=15, skipped=Counter(encoding=15)), _context(), WARN,   # exactly half
@@ -70,20 +64,13 @@ def test_a_healthy_stream_is_ok_with_its_figures() -> None:
     (_period(processed=23, dropped=7), _context(), WARN,
      '7 of 30 frames replaced before processing: the node does not keep up with the camera'),
     (_period(processed=24, dropped=6), _context(), OK, '24.0 frames/s processed'),   # 20 %
-    (_period(), _context(code_path='numpy path while ...', compiled=False), WARN,
+    (_period(), _context(code_path='numpy path while ...'), WARN,
      'numpy path while ...'),
 ])
 def test_levels_follow_the_thresholds(period: Period, context: Context, level: int,
                                       message: str) -> None:
     status = health_status(period, context, name=NAME, hardware_id='/depth/image_raw')
     assert (status.level, status.message) == (level, message)
-
-
-def test_skip_reasons_are_listed_one_by_one() -> None:
-    values = _values(health_status(_period(skipped=Counter(size=2, encoding=1)), _context(),
-                                   name=NAME, hardware_id='f'))
-    assert values['skipped: size'] == '2' and values['skipped: encoding'] == '1'
-    assert values['skipped (bad input)'] == '3'
 
 
 def test_window_counts_one_period_then_starts_again() -> None:

@@ -353,13 +353,13 @@ def test_robot_truth_marks_the_cells_of_an_obstacle_that_returned_no_depth():
     shot = render(Scene('t', (Floor(), top, *legs)), size=SMALL,
                   intrinsics=scaled_intrinsics(KINECT_V2_SD, 0.5),
                   noise=replace(EXACT, dark_dropout_rate=1.0))
-    dropped = shot.object_ids == 1
+    dropped = shot.hit_index == 1
     assert dropped.sum() > 50 and np.all(shot.depth_mm[dropped] == 0)
     assert np.all(shot.labels[dropped] == evaluation.GT_NO_RETURN)
     frame = evaluation.LabelledFrame(
         't', '0', shot.depth_mm, shot.intrinsics, shot.labels, shot.points_ground,
         shot.height_m, shot.pitch_rad, shot.roll_rad, truth='robot',
-        object_ids=shot.object_ids, object_names=shot.object_names,
+        object_ids=shot.hit_index, object_names=shot.object_names,
         drop_edge=shot.drop_edge, hit_labels=shot.hit_labels)
     params = frame.params(table_4_2())
     roi = evaluation.truth_roi(frame, params)

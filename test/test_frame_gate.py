@@ -53,7 +53,7 @@ def test_decode_refuses_a_colour_encoding() -> None:
                             encoding='rgb8')
     skip = frame_gate.decode(colour)
     assert isinstance(skip, frame_gate.Skip)
-    assert skip.kind == 'encoding' and "unsupported encoding 'rgb8'" in skip.reason
+    assert skip.kind.startswith('image:') and "unsupported depth encoding 'rgb8'" in skip.reason
 
 
 def test_camera_info_gives_its_intrinsics_at_its_size() -> None:

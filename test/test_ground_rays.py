@@ -10,8 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from obstacle_detection.pipeline import floor, geometry, traversal, voxel
-from obstacle_detection.pipeline._compiled import voxel as jit_voxel
+from obstacle_detection.pipeline import floor, geometry, voxel
 from obstacle_detection.pipeline.params import KINECT_V2_SD, Intrinsics, corridor
 
 SHAPE = (424, 512)
@@ -38,8 +37,9 @@ def test_model_table_and_pixels_agree_with_the_geometry():
 
 def test_sample_rays_from_the_model_equal_those_from_the_table():
     model = geometry.ray_model(SHAPE, KINECT_V2_SD, corridor(**MOUNT))
-    np.testing.assert_array_equal(floor.sample_rays(model, SHAPE),
-                                  floor.sample_rays(model.table(), SHAPE))
+    step = floor.sample_step(SHAPE)
+    table = model.table().reshape(3, *SHAPE)[:, ::step, ::step].reshape(3, -1)
+    np.testing.assert_array_equal(floor.sample_rays(model, SHAPE), table)
 
 
 def _frame():
@@ -52,7 +52,7 @@ def _frame():
 
 @pytest.mark.numba
 @pytest.mark.parametrize('shape', [SHAPE, (7, 9000), (1, 3)])
-def test_projection_from_the_model_equals_the_table(shape):
+def test_projection_from_the_model_equals_the_table(shape, both_paths):
     # the rays are computed a band of rows at a time: a partial last band, rows wider than
     # a band, a tiny image
     params = corridor(**MOUNT)
@@ -60,29 +60,9 @@ def test_projection_from_the_model_equals_the_table(shape):
     model = geometry.ray_model(shape, intr, params)
     depth = _frame()[:shape[0], :shape[1]] if shape == SHAPE else np.full(shape, 2.0,
                                                                            np.float32)
-    bounds, size = voxel.roi_bounds(params), params.voxel_size_m
-    want = jit_voxel.project_roi(depth, model.table(), bounds, size)
-    got = jit_voxel.project_roi(depth, (model.ru, model.rv, model.rot), bounds, size)
-    assert want.points.shape[0] > (1000 if shape == SHAPE else 0)
-    for name in ('points', 'pixel_index', 'labels', 'pixel_voxel', 'keys'):
-        np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=name)
-    with pytest.raises(ValueError, match='rays are for a'):
-        jit_voxel.project_roi(np.zeros((shape[0] + 1, shape[1]), np.float32),
-                              (model.ru, model.rv, model.rot), bounds, size)
-    # the stage passes a GroundRays on as its factors: the same projection as the table
-    staged = voxel.points_in_roi(depth, model, params)
-    np.testing.assert_array_equal(staged.points, want.points)
+    # the numpy path reads the table, the compiled one computes the rays from the factors
+    def stage():
+        roi = voxel.points_in_roi(depth, model, params)
+        return roi.points, roi.pixel_index, roi.labels, roi.pixel_voxel
 
-
-def test_drop_edges_from_the_model_equal_the_table(kernel_path):
-    params = corridor(**MOUNT)
-    model = geometry.ray_model(SHAPE, KINECT_V2_SD, params)
-    # a floor 0.62 m down whose lower half (rows beyond 300) is 0.3 m lower: a drop
-    rz = model.table()[2].reshape(SHAPE)
-    depth = np.where(rz < 0, -0.62 / np.minimum(rz, -1e-3), 0).astype(np.float32)
-    depth[:300] = np.where(rz[:300] < 0, -0.92 / np.minimum(rz[:300], -1e-3), 0)
-    want = traversal.drop_edges(depth, model.table(), 0.62, params)
-    got = traversal.drop_edges(depth, model, 0.62, params)
-    assert want[1].size > 100
-    for a, b in zip(got, want):
-        np.testing.assert_array_equal(a, b)
+    assert both_paths(stage)[0].shape[0] > (1000 if shape == SHAPE else 0)

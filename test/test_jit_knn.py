@@ -79,13 +79,6 @@ def scene_points():
     return points
 
 
-def test_warm_up_compiles_the_kernels_a_frame_uses():
-    """After warm_up the k-NN and normals kernels hold compiled signatures (both layouts)."""
-    jit_knn.warm_up()
-    assert len(jit_knn._knn_queries.signatures) >= 1
-    assert len(jit_knn._normals_kernel.signatures) >= 2   # a whole and a column-sliced k-NN
-
-
 @pytest.mark.parametrize('name', list(small_clouds()))
 @pytest.mark.parametrize('k', [1, 2, 3, 7, 13, 20])
 def test_knn_equals_brute_force_order(name, k):
@@ -137,13 +130,7 @@ def test_knn_result_does_not_depend_on_grid(cell_m):
     np.testing.assert_array_equal(out, brute_force_knn(points, 9))
 
 
-def test_knn_rejects_bad_points():
-    with pytest.raises(ValueError, match='shape'):
-        jit_knn.knn_grid(np.zeros((4, 2), np.float32), 3)
-    bad = np.zeros((5, 3), np.float32)
-    bad[2, 1] = np.nan
-    with pytest.raises(ValueError, match='finite'):
-        jit_knn.knn_grid(bad, 3)
+def test_knn_of_no_points_is_empty():
     assert jit_knn.knn_grid(np.zeros((0, 3), np.float32), 5).shape == (0, 0)
 
 
@@ -182,13 +169,3 @@ def test_normals_of_degenerate_neighbourhoods_are_unit_and_orthogonal():
     direction = np.array([1.0, 2.0, 0.0]) / np.sqrt(5.0)
     line_normals = jit_knn.normals_from_neighbours(line, jit_knn.knn_grid(line, 10), 10)
     np.testing.assert_allclose(line_normals @ direction, 0.0, atol=1e-5)
-
-
-def test_normals_reject_bad_neighbours():
-    points = np.zeros((4, 3), np.float32)
-    with pytest.raises(ValueError, match='must lie in'):
-        jit_knn.normals_from_neighbours(points, np.array([[0, 1], [1, 2], [2, 3], [3, 4]]), 2)
-    with pytest.raises(ValueError, match='between 1 and'):
-        jit_knn.normals_from_neighbours(points, np.zeros((4, 2), np.int64), 3)
-    with pytest.raises(ValueError, match='shape'):
-        jit_knn.normals_from_neighbours(points, np.zeros((3, 2), np.int64), 2)

@@ -54,10 +54,10 @@ def test_other_threads_take_the_numpy_path_while_compiling(fresh_gate: threading
         assert seen_inside == [True]          # the compiling thread uses the kernels
         assert not jit_support.enabled()      # everybody else: numpy, no waiting on a lock
         assert jit_support.compiling()
-        assert not job.done()
+        assert job.seconds is None            # not done
     finally:
         release.set()
-    assert job.wait(10.0)
+    job.join(10.0)
     assert job.error is None and job.seconds is not None and job.seconds >= 0.0
     assert jit_support.enabled()
     assert not jit_support.compiling()
@@ -72,7 +72,8 @@ def test_a_failed_compilation_keeps_the_numpy_path_and_says_why(
         raise RuntimeError('no LLVM today')
 
     job = jit_support.compile_in_background(warm_up, on_done=finished.append)
-    assert job is not None and job.wait(10.0)
+    assert job is not None
+    job.join(10.0)
     assert finished == [job]
     assert isinstance(job.error, RuntimeError) and 'no LLVM today' in str(job.error)
     assert not jit_support.enabled()
@@ -104,11 +105,3 @@ def test_choose_runs_the_compiled_twin_only_when_the_switch_is_on(monkeypatch) -
     assert both(3) == 6
     monkeypatch.setenv(jit_support.NO_JIT_ENV, '0')
     assert both(3) == (1006 if jit_support.AVAILABLE else 6)
-
-
-@pytest.mark.numba
-def test_choose_asks_accepts_before_calling_the_compiled_twin(monkeypatch) -> None:
-    monkeypatch.setenv(jit_support.NO_JIT_ENV, '0')
-    small = jit_support.choose(_twice, _twice_compiled, accepts=lambda x: x < 10)
-    assert small(3) == 1006
-    assert small(30) == 60

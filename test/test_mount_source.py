@@ -13,7 +13,6 @@ from obstacle_detection.pipeline.geometry import OPTICAL_TO_BODY, mount_rotation
 from obstacle_detection.ros.mount_source import (
     Mount,
     MountSource,
-    mount_from_rotation,
     mount_from_transform,
 )
 
@@ -38,7 +37,7 @@ def _transform(mount_rotation_matrix: np.ndarray, xyz: tuple[float, float, float
 
 
 def test_a_level_forward_camera_is_the_optical_to_body_rotation() -> None:
-    mount = mount_from_rotation(OPTICAL_TO_BODY, (0.2, 0.1, 0.6))
+    mount = mount_from_transform(_transform(OPTICAL_TO_BODY, (0.2, 0.1, 0.6)))
     assert mount == Mount(0.2, 0.1, 0.6, 0.0, 0.0, 0.0)
 
 
@@ -110,8 +109,5 @@ def test_a_failed_lookup_falls_back_and_says_why_then_a_late_transform_is_taken(
     assert late == Mount(0.3, 0.0, 0.4, 0.0, 0.0, 0.0) and source.last_problem is None
 
 
-def test_without_a_buffer_or_a_frame_id_the_parameters_are_used() -> None:
+def test_without_a_buffer_the_parameters_are_used() -> None:
     assert MountSource(None, 'base_footprint').mount_for('cam', None, FALLBACK) is FALLBACK
-    source = MountSource(StandInBuffer(_transform(OPTICAL_TO_BODY, (0, 0, 1))), 'base')
-    assert source.mount_for('', None, FALLBACK) is FALLBACK
-    assert 'no frame_id' in source.last_problem

@@ -131,7 +131,7 @@ def _run_sequence(harness: Harness, name: str, values: dict[str, Any]) -> list[A
     clouds = None
     for index, sf in _rendered(sequence, indices):
         if info is None:
-            width, height = sf.frame.size
+            height, width = sf.frame.depth_mm.shape
             info = intrinsics_to_camera_info(sf.frame.intrinsics, width, height, stamp=Time(),
                                              frame_id=FRAME_ID)
         stamp = Time(sec=1000 + index // 30, nanosec=int((index % 30) * 1e9 / 30))

@@ -1,5 +1,6 @@
-"""Side-by-side pictures, contact sheets, heatmaps, tools/pictures.py, tools/readme_pictures.py."""
+"""Side-by-side pictures, contact sheets, tools/pictures.py (and its --readme)."""
 
+import argparse
 import math
 import re
 
@@ -14,7 +15,7 @@ from obstacle_detection.labels import (CELL_OCCUPIED, CELL_UNKNOWN, LABEL_GROUND
 from obstacle_detection.evaluation import runner as evaluation
 from obstacle_detection.viz import pictures
 from obstacle_detection.pipeline.costmap import Costmap, costmap_geometry
-from obstacle_detection.viz.overlay import (MIN_GREY, NO_RETURN_RGB, OBSTACLE_ALPHA, OBSTACLE_RGB,
+from obstacle_detection.viz.overlay import (NO_RETURN_RGB, OBSTACLE_ALPHA, OBSTACLE_RGB,
                                        OCCUPIED_RGB, ROBOT_RGB, UNKNOWN_RGB, render_overlay)
 from obstacle_detection.pipeline.params import (KINECT_V2_SD, KINECT_V2_SD_SIZE, PRESETS,
                                                table_4_2)
@@ -23,10 +24,10 @@ from obstacle_detection.sim.scenes import render_scene
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.cli import picture_jobs
 from obstacle_detection.cli import bag_writer
-from obstacle_detection.tools import bag_process, readme_pictures
+from obstacle_detection.tools import bag_process
 from obstacle_detection.tools import pictures as pictures_tool
 
-from eval_helpers import MIN_TEXT_PX, is_obstacle_rgb, text_height_px, write_camera_yaml
+from eval_helpers import MIN_TEXT_PX, is_obstacle_rgb, text_height_px
 
 SIZE = (160, 132)
 
@@ -41,7 +42,7 @@ def corridor():
 
 def test_overlay_half_has_the_frame_size_and_marks_obstacles(corridor):
     frame, result = corridor
-    image = pictures.side_by_side(result, caption='corridor seed 0')
+    image = pictures.side_by_side(result, frame.params(table_4_2()), caption='corridor seed 0')
     height, width = frame.depth.shape
     assert image.dtype == np.uint8 and image.shape[0] > height and image.shape[1] > width
     overlay = image[:height, :width]
@@ -70,44 +71,48 @@ def test_truth_panel_colours_hits_false_alarms_and_misses():
 
 
 def test_png_written_and_read_back(tmp_path, corridor):
-    _, result = corridor
-    image = pictures.side_by_side(result, caption='x', truth_labels=corridor[0].truth_labels)
+    frame, result = corridor
+    image = pictures.side_by_side(result, frame.params(table_4_2()), caption='x',
+                                  truth_labels=frame.truth_labels)
     path = tmp_path / 'sub' / 'frame.png'
     pictures.write_png(path, image)
     back = cv2.cvtColor(cv2.imread(str(path)), cv2.COLOR_BGR2RGB)
     np.testing.assert_array_equal(back, image)
 
 
-def test_contact_sheet_grid_size():
-    images = [np.full((50, 100, 3), i * 40, np.uint8) for i in range(5)]
-    sheet = pictures.contact_sheet(images, labels=[f'#{i}' for i in range(5)], columns=3,
-                                   thumb_width=60)
-    assert sheet.shape[1] == 3 * (60 + 6)
-    assert sheet.shape[0] % 2 == 0 and sheet.shape[0] >= 2 * 30
-
-
-def test_heatmap_refuses_mismatched_labels():
-    with pytest.raises(ValueError, match='2 y labels'):
-        pictures.heatmap(np.zeros((3, 2)), ['a', 'b'], ['1', '2'])
+def test_labelled_tile_grid_size():
+    images = [np.full((50, 100 - 10 * (i % 2), 3), i * 40, np.uint8) for i in range(5)]
+    sheet = pictures.tile(images, labels=[f'#{i}' for i in range(5)], columns=3)
+    assert sheet.shape[1] == 3 * (100 + 6)
+    assert sheet.shape[0] % 2 == 0 and sheet.shape[0] >= 2 * (50 + 6 + 12)
+    # a narrower image is padded white, not stretched; its label under it
+    assert (sheet[:50, 106 + 90:106 + 100] == 255).all() and (sheet[50:70, :100] < 128).any()
 
 
 def test_tool_draws_a_scene_frame(tmp_path, capsys):
     out = tmp_path / 'corridor.png'
-    assert pictures_tool.main(['--scene', 'ramps', '--out', str(out), '--no-truth']) == 0
+    assert pictures_tool.main(['--scene', 'ramps', '--out', str(out)]) == 0
     image = cv2.imread(str(out))
     assert image is not None and image.shape[0] > 424 and image.shape[1] > 512
 
 
-def test_tool_draws_a_depth_png_with_intrinsics(tmp_path, corridor):
+def test_tool_draws_a_depth_png_with_intrinsics_and_a_mount(tmp_path, corridor, capsys):
     frame, _ = corridor
     cv2.imwrite(str(tmp_path / 'd.png'), frame.depth)
-    write_camera_yaml(tmp_path / 'intrinsics.yaml', frame.intrinsics,
-                                 frame.height_m, frame.pitch_rad, frame.roll_rad)
+    intr = frame.intrinsics
     out = tmp_path / 'd_out.png'
     assert pictures_tool.main(['--depth', str(tmp_path / 'd.png'), '--intrinsics',
-                               str(tmp_path / 'intrinsics.yaml'), '--out', str(out)]) == 0
+                               f'{intr.fx},{intr.fy},{intr.cx},{intr.cy}', '--set',
+                               f'camera_height_m={frame.height_m}', '--out', str(out)]) == 0
     image = cv2.imread(str(out))
     assert image.shape[1] > SIZE[0]
+    assert f'mount: height {frame.height_m:.2f} m' in capsys.readouterr().err
+
+
+def test_tool_needs_out_or_readme(capsys):
+    assert pictures_tool.main(['--scene', 'ramps']) == 2
+    assert capsys.readouterr().err == ('pictures: error: argument --out is required (except '
+                                       'with --readme)\n')
 
 
 def _write_bag(path, frame, count, depth_topic='/depth', info_topic='/info'):
@@ -142,10 +147,17 @@ def _write_bag(path, frame, count, depth_topic='/depth', info_topic='/info'):
 def test_bag_frames_carry_depth_and_camera_info(tmp_path, corridor):
     frame, _ = corridor
     _write_bag(tmp_path / 'bag', frame, 3)
-    frames = list(picture_jobs.bag_frames(tmp_path / 'bag', '/depth', '/info', every=2))
-    assert len(frames) == 2
-    np.testing.assert_array_equal(frames[0].depth, frame.depth)
-    assert frames[0].intrinsics.fx == pytest.approx(frame.intrinsics.fx)
+    frames = list(picture_jobs.bag_frames(tmp_path / 'bag', '/depth', '/info',
+                                          picture_jobs.parse_frames('0:3:2')))
+    assert [name.split(' ')[1] for name, *_ in frames] == ['#0', '#2']
+    np.testing.assert_array_equal(frames[0][1], frame.depth)
+    assert frames[0][2].fx == pytest.approx(frame.intrinsics.fx)
+
+
+@pytest.mark.parametrize('text', ['0:4:0', '0:4:-1', 'a:b', '1:2:3:4', ''])
+def test_frames_option_refuses_what_is_not_a_range(text):
+    with pytest.raises(argparse.ArgumentTypeError, match='expected start:stop'):
+        picture_jobs.parse_frames(text)
 
 
 def test_tool_draws_a_contact_sheet_of_a_bag(tmp_path, corridor):
@@ -153,9 +165,18 @@ def test_tool_draws_a_contact_sheet_of_a_bag(tmp_path, corridor):
     _write_bag(tmp_path / 'bag', frame, 2)
     out = tmp_path / 'sheet.png'
     assert pictures_tool.main(['--bag', str(tmp_path / 'bag'), '--depth-topic', '/depth',
-                               '--info-topic', '/info', '--height', str(frame.height_m),
-                               '--out', str(out), '--thumb-width', '200']) == 0
-    assert cv2.imread(str(out)).shape[1] == 2 * (200 + 6)
+                               '--info-topic', '/info', '--set',
+                               f'camera_height_m={frame.height_m}', '--out', str(out)]) == 0
+    assert cv2.imread(str(out)).shape[1] == 2 * (picture_jobs.SHEET_THUMB_PX + 6)
+
+
+def test_tool_says_when_frames_selects_none(tmp_path, corridor, capsys):
+    _write_bag(tmp_path / 'bag', corridor[0], 2)
+    assert pictures_tool.main(['--bag', str(tmp_path / 'bag'), '--depth-topic', '/depth',
+                               '--info-topic', '/info', '--frames', '5:9',
+                               '--out', str(tmp_path / 'x.png')]) == 1
+    assert capsys.readouterr().err.startswith('error: no frames to draw: --frames selects none')
+    assert not (tmp_path / 'x.png').exists()
 
 
 def test_tool_reports_a_missing_topic(tmp_path, corridor, capsys):
@@ -187,15 +208,14 @@ def test_tool_bag_defaults_are_the_bag_tools_and_camera_info_is_found_by_type(
         args.depth_topic == tool_support.DEFAULT_DEPTH_TOPIC
 
 
-def test_tool_bag_without_camera_info_says_it_uses_the_fallback(tmp_path, corridor, capsys):
+def test_tool_refuses_a_bag_without_camera_info(tmp_path, corridor, capsys):
     frame, _ = corridor
     _write_bag(tmp_path / 'bag', frame, 1, info_topic=None)
     assert pictures_tool.main(['--bag', str(tmp_path / 'bag'), '--depth-topic', '/depth',
-                               '--height', str(frame.height_m), '--out',
-                               str(tmp_path / 'x.png')]) == 0
-    err = capsys.readouterr().err
-    assert ("warning: no intrinsics (none: the bag has no CameraInfo topic): using the seed's "
-            'Table 4.1 fallback (fx 580 fy 580 cx 200 cy 130 px)') in err
+                               '--out', str(tmp_path / 'x.png')]) == 1
+    assert capsys.readouterr().err == (f"error: {tmp_path / 'bag'}: no intrinsics: the bag has "
+                                       'no CameraInfo topic\n')
+    assert not (tmp_path / 'x.png').exists()
 
 
 def test_tool_bag_path_that_is_not_a_bag_is_one_line(tmp_path, capsys):
@@ -223,7 +243,8 @@ def tilted_floor(tmp_path_factory):
 
 def _red_pixels(path, height, width):
     rgb = cv2.cvtColor(cv2.imread(str(path)), cv2.COLOR_BGR2RGB)
-    top = pictures.title_band('title', width).shape[0]   # a one-line title above the panels
+    # a one-line title above the panels
+    top = pictures.caption_band(['title'], width, scale=pictures.TITLE_SCALE, bold=True).shape[0]
     return int(np.count_nonzero(is_obstacle_rgb(rgb[top:top + height, :width]))), rgb
 
 
@@ -240,9 +261,10 @@ def test_tool_estimates_the_mount_of_a_depth_png(tmp_path, tilted_floor, capsys)
     assert re.search(r'warning: the floor in view \(\d+% of the points\) puts the camera at '
                      r'height 0\.90 m, pitch 30\.0 deg, roll 4\.0 deg, but the mount used is '
                      r'height 0\.60 m, pitch 0\.0 deg, roll 0\.0 deg', err)
-    assert f'python tools/estimate_mount.py --depth {depth} --depth-scale 1000' in err
-    assert "mount: height 0.60 m, pitch 0.0 deg, roll 0.0 deg (the corridor preset's " \
-        'default: no mount given); depth 1000 units/m (millimetres, the default' in err
+    assert 'python tools/estimate_mount.py --params-out mount.yaml, then --params-file' in err
+    assert "mount: height 0.60 m, pitch 0.0 deg, roll 0.0 deg (the parameters' " \
+        '--preset corridor, --params-file, --set); depth 1000 units/m (millimetres, the default' \
+        in err
     assert pictures_tool.main(['--depth', str(depth), '--intrinsics', intrinsics,
                                '--estimate-mount', '--out', str(tmp_path / 'est.png')]) == 0
     red, estimated = _red_pixels(tmp_path / 'est.png', height, width)
@@ -252,25 +274,23 @@ def test_tool_estimates_the_mount_of_a_depth_png(tmp_path, tilted_floor, capsys)
     assert 'mount estimated from the floor: h 0.90 m, pitch 30.0 deg, roll 4.0 deg' in err
 
 
-def test_tool_estimate_is_in_the_caption_and_explicit_mount_wins(tilted_floor):
+def test_tool_estimate_is_used_and_in_the_caption(tilted_floor):
     depth, intrinsics = tilted_floor
     args = picture_jobs.build_parser().parse_args(
         ['--depth', str(depth), '--intrinsics', intrinsics, '--estimate-mount',
-         '--depth-scale', '1000', '--height', '1.2', '--out', 'x.png'])
+         '--depth-scale', '1000', '--set', 'camera_height_m=1.2', '--out', 'x.png'])
     job = picture_jobs.depth_job(args, table_4_2())
-    assert job.params.camera_height_m == 1.2
+    assert job.params.camera_height_m == pytest.approx(0.9, abs=0.01)
     assert job.params.camera_pitch_rad == pytest.approx(math.radians(30), abs=0.01)
     assert job.params.camera_roll_rad == pytest.approx(math.radians(4), abs=0.01)
     assert job.depth_scale == 1000.0
     assert job.extra_lines[0].startswith('mount estimated from the floor: h 0.90 m')
-    assert '--height given instead' in job.extra_lines[0]
 
 
-def test_tool_estimate_mount_needs_intrinsics(tmp_path, tilted_floor, capsys):
+def test_tool_depth_needs_intrinsics(tmp_path, tilted_floor, capsys):
     depth, _ = tilted_floor
-    assert pictures_tool.main(['--depth', str(depth), '--estimate-mount',
-                               '--out', str(tmp_path / 'x.png')]) == 2
-    assert '--estimate-mount needs the intrinsics' in capsys.readouterr().err
+    assert pictures_tool.main(['--depth', str(depth), '--out', str(tmp_path / 'x.png')]) == 2
+    assert '--depth needs --intrinsics FX,FY,CX,CY' in capsys.readouterr().err
     assert not (tmp_path / 'x.png').exists()
 
 
@@ -286,31 +306,28 @@ def test_tool_reports_a_frame_without_a_floor(tmp_path, tilted_floor, capsys):
 
 def test_readme_pictures_are_made_again(tmp_path, capsys):
     out = tmp_path / 'out'
-    assert readme_pictures.main(['--out-dir', str(out),
-                                 '--real-dir', str(tmp_path / 'no_such_dir')]) == 0
+    assert pictures_tool.main(['--readme', str(out),
+                               '--real-dir', str(tmp_path / 'no_such_dir')]) == 0
     corridor = cv2.imread(str(out / 'corridor.png'))
-    sheet = cv2.imread(str(out / 'person_walking_sheet.png'))
     width, height = KINECT_V2_SD_SIZE
     # overlay, costmap and truth panels over a caption band
     assert corridor.shape[0] > height and corridor.shape[1] > 2 * width + 2 * 6
-    assert sheet.shape[1] == 2 * (600 + 6)  # frames 0, 15, ..., 75: three rows of two
-    assert sheet.shape[0] > 2 * 400 * height / (2 * width)
-    assert sorted(p.name for p in out.iterdir()) == ['corridor.png', 'person_walking_sheet.png']
+    assert [p.name for p in out.iterdir()] == ['corridor.png']
     assert 'no real frames' in capsys.readouterr().err
 
 
 def test_readme_real_pictures_skip_missing_frames(tmp_path, tilted_floor, capsys, monkeypatch):
-    monkeypatch.setattr(readme_pictures, 'SYNTHETIC', {})
+    monkeypatch.setattr(pictures_tool, 'SYNTHETIC', {})
     real = tmp_path / 'real'
     (real / 'tum_office').mkdir(parents=True)
     depth_mm = cv2.imread(str(tilted_floor[0]), cv2.IMREAD_UNCHANGED)
     tum = np.minimum(depth_mm.astype(np.uint32) * 5, 65535).astype(np.uint16)  # 1/5000 m
     assert cv2.imwrite(str(real / 'tum_office' / 'depth.png'), tum)
     out = tmp_path / 'out'
-    assert readme_pictures.main(['--out-dir', str(out), '--real-dir', str(real)]) == 0
+    assert pictures_tool.main(['--readme', str(out), '--real-dir', str(real)]) == 0
     assert [p.name for p in out.iterdir()] == ['real_tum_office.png']
     image = cv2.imread(str(out / 'real_tum_office.png'))
-    assert image.shape[1] == readme_pictures.REAL_WIDTH_PX
+    assert image.shape[1] == pictures_tool.REAL_WIDTH_PX
     err = capsys.readouterr().err
     assert 'real_tum_fr2_desk.png skipped' in err and 'real_dining_room.png skipped' in err
     assert 'mount estimated from the floor' in err
@@ -370,61 +387,19 @@ def test_costmap_panel_axes_are_in_metres_from_the_camera():
     assert grid_left + 50 not in set(ticks)
 
 
-def test_floor_in_view_starts_where_the_lowest_ray_meets_the_floor():
-    params = table_4_2()  # level camera 0.6 m up
-    costmap = _empty_costmap(params)
-    intr = KINECT_V2_SD
-    width, height = KINECT_V2_SD_SIZE
-    seen = pictures.floor_in_view(costmap, params, intr, (height, width))
-    xs, ys = costmap.cell_centres()
-    # the lowest pixel row sees the floor at x = h * fy / (H - cy); straight ahead (y ~ 0)
-    near_x = params.camera_height_m * intr.fy / (height - intr.cy)
-    centre = np.argmin(np.abs(ys))
-    np.testing.assert_array_equal(seen[centre], xs >= near_x)
-    # at 1.9 m the view is as wide as the image: |y| < x (u - cx) / fx at the borders
-    column = np.argmin(np.abs(xs - 1.9))
-    half_left, half_right = xs[column] * intr.cx / intr.fx, xs[column] * (width - intr.cx) / \
-        intr.fx
-    inside = (ys < half_left - 0.03) & (ys > -half_right + 0.03)
-    outside = (ys > half_left + 0.03) | (ys < -half_right - 0.03)
-    assert seen[inside, column].all() and not seen[outside, column].any()
-
-
-def test_costmap_panel_hatches_cells_outside_the_region_of_interest():
-    params = table_4_2(max_range_m=1.0)  # the grid still reaches 2 m: its far half is outside
-    costmap = _empty_costmap(params)
-    plain = pictures.costmap_panel(costmap, scale=4)
-    hatched = pictures.costmap_panel(costmap, scale=4, params=params)
-    changed = np.argwhere((plain != hatched).any(axis=-1))
-    robot = np.argwhere((plain == ROBOT_RGB).all(axis=-1))
-    apex_row = robot[:, 0].min()
-    # 80 px per metre: only rows more than 1 m ahead of the camera change
-    assert changed.size and (changed[:, 0] < apex_row - 80).all()
-    assert ((hatched[changed[:, 0], changed[:, 1]] == pictures.HATCH_RGB).all(axis=-1)).all()
-
-
-def test_depth_colour_bar_grows_brighter_with_depth():
-    bar = pictures.depth_colour_bar(4.0, 400)
-    row = bar[10, :, 0].astype(int)
-    first = np.flatnonzero((bar[5:15, :, 0] == MIN_GREY).all(axis=0))[0]  # the bar, not text
-    ramp = row[first:first + 300]
-    assert (np.diff(ramp) >= 0).all() and ramp[-1] > ramp[0] + 150
-
-
 def test_picture_has_a_legend_for_every_colour(corridor):
     frame, result = corridor
     params = frame.params(table_4_2())
-    bare = pictures.side_by_side(result, params=params, with_legend=False,
+    bare = pictures.side_by_side(result, params, with_legend=False,
                                  truth_labels=frame.truth_labels)
-    image = pictures.side_by_side(result, params=params, truth_labels=frame.truth_labels)
+    image = pictures.side_by_side(result, params, truth_labels=frame.truth_labels)
     height = frame.depth.shape[0]
     assert image.shape[0] > bare.shape[0]
     below = image[height:]
     for colour in (pictures.over_grey(OBSTACLE_RGB, OBSTACLE_ALPHA),
                    pictures.over_grey(pictures.GROUND_RGB, pictures.GROUND_TINT), NO_RETURN_RGB,
-                   OCCUPIED_RGB,
-                   UNKNOWN_RGB, ROBOT_RGB, pictures.VIEW_EDGE_RGB, pictures.HATCH_RGB,
-                   pictures.HIT_RGB, pictures.FALSE_ALARM_RGB, pictures.MISS_RGB):
+                   OCCUPIED_RGB, UNKNOWN_RGB, ROBOT_RGB, pictures.HIT_RGB,
+                   pictures.FALSE_ALARM_RGB, pictures.MISS_RGB):
         assert (below == colour).all(axis=-1).any(), colour
 
 
@@ -432,31 +407,32 @@ def test_contact_sheet_has_one_legend_under_the_thumbnails(tmp_path):
     out = tmp_path / 'sheet.png'
     # the seed method's legend (the robot-level one has more lines, so its swatches start
     # higher up the sheet)
-    assert pictures_tool.main(['--scene', 'person_walking', '--frames', '0:2', '--no-truth',
-                               '--thumb-width', '300', '--columns', '2', '--out',
+    assert pictures_tool.main(['--scene', 'person_walking', '--frames', '0:2', '--out',
                                str(out), '--preset', 'table_4_2']) == 0
     sheet = cv2.cvtColor(cv2.imread(str(out)), cv2.COLOR_BGR2RGB)
-    rows = np.flatnonzero((sheet == pictures.VIEW_EDGE_RGB).all(axis=-1).any(axis=1))
     ground = pictures.over_grey(pictures.GROUND_RGB, pictures.GROUND_TINT)
     legend_rows = np.flatnonzero((sheet == ground).all(axis=-1).any(axis=1))
-    # the full-size legend (its swatches exactly coloured) lies below every thumbnail
-    assert sheet.shape[1] == 2 * 306 and legend_rows.size and rows.size
+    # the full-size legend (its swatches exactly coloured) lies below every thumbnail; no
+    # truth panel, though the scene has a truth
+    assert sheet.shape[1] == 2 * (picture_jobs.SHEET_THUMB_PX + 6) and legend_rows.size
     assert legend_rows.max() > 0.6 * sheet.shape[0]
+    assert not (sheet == pictures.MISS_RGB).all(axis=-1).any()
 
 
 def test_text_is_at_least_11_px_high_as_drawn():
     # capitals of every text (ticks, legends, captions) are MIN_TEXT_PX high, and the sheets
-    # draw their text at the size they are shown (contact_sheet pads, fit_width scales rasters)
+    # draw their text at the size they are shown (tile pads, fit_width scales rasters)
     assert text_height_px(pictures.TEXT_SCALE) >= MIN_TEXT_PX == 11
     assert text_height_px(pictures.TITLE_SCALE) > MIN_TEXT_PX
     narrow = np.zeros((10, 50, 3), np.uint8)
-    assert pictures.contact_sheet([narrow], thumb_width=80)[:10, :50].sum() == 0
+    assert pictures.tile([narrow, np.zeros((10, 80, 3), np.uint8)])[:10, :50].sum() == 0
 
 
 def test_fit_width_scales_the_images_not_the_text(corridor):
     frame, result = corridor
-    full = pictures.side_by_side(result, caption='corridor')
-    fitted = pictures.fit_width(lambda s: pictures.side_by_side(result, caption='corridor',
+    params = frame.params(table_4_2())
+    full = pictures.side_by_side(result, params, caption='corridor')
+    fitted = pictures.fit_width(lambda s: pictures.side_by_side(result, params, caption='corridor',
                                                                 image_scale=s),
                                 full.shape[1] - 60)
     assert fitted.shape[1] == full.shape[1] - 60

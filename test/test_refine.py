@@ -31,11 +31,6 @@ def test_fit_stays_finite_on_separable_data():
     assert np.isfinite(w).all() and w[1] > 0
 
 
-def test_fit_rejects_mismatched_input():
-    with pytest.raises(ValueError, match=r'features shape \(3, 2\)'):
-        refine.fit_logistic(np.zeros((3, 2)), np.zeros(4))
-
-
 def _fake_result(rng, height=12, width=16):
     """Return a DetectionResult-like object: a voxel per 2x2 block, random normals and depth."""
     rows, cols = np.mgrid[0:height, 0:width]
@@ -89,7 +84,6 @@ def test_model_file_round_trip(tmp_path):
     prev = rng.random(result.labels.shape) < 0.5
     np.testing.assert_array_equal(loaded.predict_labels(result, prev),
                                   model.predict_labels(result, prev))
-    np.testing.assert_array_equal(loaded.predict_proba(features), model.predict_proba(features))
 
 
 def test_model_file_with_other_features_is_refused(tmp_path):
@@ -126,8 +120,8 @@ def _small_scene_result(name='corridor', seed=0):
 
 def test_refining_with_the_rule_based_mask_gives_the_rule_based_costmap():
     _, params, result = _small_scene_result()
-    refined = refine.refine_result(result, refine.obstacle_mask(result), params,
-                                   validate=False)
+    refined = refine.refine_result(result, refine.obstacle_mask(result),
+                                   params.replace(validation_neighbours=0))
     np.testing.assert_array_equal(refined.voxel_is_obstacle, result.voxel_is_obstacle)
     np.testing.assert_array_equal(refined.costmap.data, result.costmap.data)
     np.testing.assert_array_equal(refined.labels, result.labels)
@@ -169,7 +163,7 @@ def test_validation_drops_isolated_refined_voxels():
     ground_pixels = np.flatnonzero((result.pixel_voxel >= 0).reshape(-1) & ~rule.reshape(-1))
     lonely_voxel = result.pixel_voxel.reshape(-1)[ground_pixels[len(ground_pixels) // 2]]
     speckled[result.pixel_voxel == lonely_voxel] = True  # one floor voxel turned obstacle
-    plain = refine.refine_result(result, speckled, params, validate=False)
+    plain = refine.refine_result(result, speckled, params.replace(validation_neighbours=0))
     checked = refine.refine_result(result, speckled, params)
     assert plain.voxel_is_obstacle[lonely_voxel]
     assert not checked.voxel_is_obstacle[lonely_voxel]
@@ -194,23 +188,3 @@ def test_refined_detector_uses_the_previous_rule_based_mask():
     out3 = stream.process(frame.depth, frame.intrinsics)  # previous mask: the empty frame's
     assert not (out3.labels == LABEL_OBSTACLE).any()
     assert out3.obstacle_points.shape[0] == 0
-
-
-def test_refined_validation_reuses_the_pipeline_neighbours(monkeypatch):
-    _, params, result = _small_scene_result()
-    import dataclasses
-
-    from obstacle_detection.pipeline import normals
-    mask = refine.obstacle_mask(result)
-    # without the pipeline's neighbours, refine_result queries them itself
-    bare = dataclasses.replace(result, voxel_neighbours=np.zeros((len(result.voxel_points), 0),
-                                                                 dtype=np.int64))
-    expected = refine.refine_result(bare, mask, params)
-
-    def no_second_query(*args, **kwargs):
-        raise AssertionError('the pipeline already queried the neighbours')
-
-    monkeypatch.setattr(normals, 'nearest_neighbours', no_second_query)
-    again = refine.refine_result(result, mask, params)
-    np.testing.assert_array_equal(again.voxel_is_obstacle, expected.voxel_is_obstacle)
-    np.testing.assert_array_equal(again.costmap.data, expected.costmap.data)

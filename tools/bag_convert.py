@@ -14,7 +14,7 @@ from pathlib import Path
 
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.evaluation.datasets import (DIML_DEPTH_KINDS, TUM_CAMERAS, diml_frames,
-                                                    diml_sample_frames, folder_frames, tum_frames)
+                                                    folder_frames, tum_frames)
 from obstacle_detection.cli.bag_writer import STORAGES, BagOptions, convert_ros1, write_frames
 
 
@@ -22,7 +22,6 @@ def build_parser() -> argparse.ArgumentParser:
     """Return the command-line parser."""
     parser = argparse.ArgumentParser(
         prog='bag_convert', description=__doc__.split('\n\n')[0],
-        formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog='Run "bag_convert SOURCE -h" for the options of one source.')
     sub = parser.add_subparsers(dest='source', required=True, metavar='SOURCE')
 
@@ -53,9 +52,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(read=tum_frames)
     p.add_argument('--camera', choices=sorted(TUM_CAMERAS),
                    help='TUM camera intrinsics (fr1, fr2, fr3, or ros = 525/525/319.5/239.5)')
-    p.add_argument('--max-difference', dest='max_difference_s', type=float, default=0.02,
-                   metavar='S',
-                   help='largest depth-colour time difference to pair [s] (%(default)s)')
 
     p = sub.add_parser('diml', parents=[common, frames, timed],
                        help='DIML/CVL indoor sequence folder <scene>/<date>/<n>',
@@ -67,15 +63,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--depth', dest='depth_kind', choices=sorted(DIML_DEPTH_KINDS), default='raw',
                    help='raw (_rd), up (_ud, upsampled) or warp (_wd, in the colour view) '
                         'depth (default %(default)s)')
-
-    p = sub.add_parser('diml-sample', parents=[common, frames, timed],
-                       help='DIML sample subset <split>/{HR,LR}/<scene>/{color,depth_filled}',
-                       description=diml_sample_frames.__doc__)
-    p.add_argument('path', metavar='root', type=Path, help='split, resolution or scene folder')
-    p.add_argument('output', type=Path, help='rosbag2 folder to create (must not exist)')
-    p.set_defaults(read=diml_sample_frames)
-    p.add_argument('--resolution', choices=('HR', 'LR'), default='LR',
-                   help='which resolution to take when both exist (default %(default)s)')
 
     p = sub.add_parser('folder', parents=[common, frames, timed],
                        help='a folder of 16-bit depth PNGs (+ a colour folder)',

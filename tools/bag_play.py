@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """Replay a rosbag2 bag on ROS 2 topics with its recorded timing (``ros2 bag play`` stand-in).
 
-Messages go out as recorded (compressed depth too), with the sensor-data QoS unless --reliable.
+Every topic's messages go out as recorded (compressed depth too), with the sensor-data QoS unless
+--reliable.
 """
 
 from __future__ import annotations
@@ -11,80 +12,50 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-
 from obstacle_detection.cli import support as tool_support
-from obstacle_detection.cli.bag_player import (PlayOptions, Player, message_class, open_bag,
-                                               parse_remap)
-from obstacle_detection.cli.support import ToolError
+from obstacle_detection.cli.bag_player import PlayOptions, Player, open_bag
 
 
 def build_parser() -> argparse.ArgumentParser:
     """Return the command-line parser."""
     parser = argparse.ArgumentParser(
         prog='bag_play', description=__doc__.split('\n\n')[0],
-        epilog='Example (into a detector started with default topic names): python '
-               'tools/bag_play.py out/demo/input_bag --rate 0.5 --loop '
-               '--remap /kinect2/sd/image_depth_rect:=/depth/image_raw '
-               '--remap /kinect2/sd/camera_info:=/depth/camera_info')
+        epilog='Example: python tools/bag_play.py out/demo/input_bag --rate 0.5 --loop (into a '
+               'detector started with -r depth/image_raw:=/kinect2/sd/image_depth_rect '
+               '-r depth/camera_info:=/kinect2/sd/camera_info)')
     parser.add_argument('bag', type=Path, help='rosbag2 folder (sqlite3 or mcap)')
-    parser.add_argument('--topics', nargs='+', default=(), metavar='TOPIC',
-                        help='publish only these topics (default: all)')
     parser.add_argument('--rate', type=float, default=1.0,
                         help='speed factor, 2 = twice as fast (default %(default)s)')
     parser.add_argument('--loop', action='store_true', help='play again and again until Ctrl-C')
-    parser.add_argument('--loops', type=int, default=1, metavar='N',
-                        help='play N times (default %(default)s; 0 = like --loop)')
-    parser.add_argument('--start-offset', type=float, default=0.0, metavar='SECONDS',
-                        help='start this many seconds into the bag (default %(default)s)')
     parser.add_argument('--reliable', action='store_true',
                         help='publish with reliable QoS (default: sensor data, best effort); '
                              'the subscriber must then be reliable too')
-    parser.add_argument('--remap', action='append', default=[], metavar='OLD:=NEW',
-                        help='publish topic OLD as NEW (repeatable)')
-    parser.add_argument('--wait-for-subscribers', type=int, default=0, metavar='N',
-                        help='wait until N subscriptions (over all topics) are matched')
-    parser.add_argument('--wait-timeout', type=float, default=30.0, metavar='SECONDS',
-                        help='give up waiting for subscribers after this long (%(default)s)')
     parser.add_argument('--quiet', action='store_true', help='no progress bar')
     return parser
 
 
+@tool_support.command('bag_play')
 def main(argv: Sequence[str] | None = None) -> int:
-    """Play a bag; return the exit code (0 done or interrupted, 1 bad bag, 2 bad usage)."""
+    """Play a bag; return the exit code (0 done, 1 bad bag, 2 bad usage, 130 Ctrl-C)."""
     args = build_parser().parse_args(argv)
-    node = player = None
+    options = PlayOptions(rate=args.rate, loop=args.loop, reliable=args.reliable,
+                          progress=not args.quiet)
+    open_bag(args.bag).close()  # bad input fails before DDS starts
+
+    import rclpy
+    from rclpy.node import Node
+
+    rclpy.init(args=None)
+    node = Node('bag_player')
+    player = None
     try:
-        options = PlayOptions(
-            topics=tuple(args.topics), rate=args.rate, loops=0 if args.loop else args.loops,
-            start_offset_s=args.start_offset, reliable=args.reliable,
-            remap=parse_remap(args.remap), wait_for_subscribers=args.wait_for_subscribers,
-            wait_timeout_s=args.wait_timeout, progress=not args.quiet)
-        reader, connections = open_bag(args.bag, options)  # bad input fails before DDS starts
-        reader.close()
-        for conn in connections:
-            message_class(conn.msgtype)
-
-        import rclpy
-        from rclpy.node import Node
-
-        rclpy.init(args=None)
-        node = Node('bag_player')
         player = Player(node, args.bag, options)
-        if options.wait_for_subscribers:
-            print(f'waiting for {options.wait_for_subscribers} subscription(s) ...',
-                  file=sys.stderr)
-            player.wait_for_subscribers()
         print('\n'.join(player.play().lines()))
-    except ToolError as err:
-        return tool_support.report_error('bag_play', err)
-    except KeyboardInterrupt:
-        print('interrupted', file=sys.stderr)
     finally:
         if player is not None:
             player.close()
-        if node is not None:
-            node.destroy_node()
-            rclpy.try_shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown()
     return 0
 
 

@@ -2,7 +2,7 @@
 """Run the obstacle detector over a whole rosbag2 bag offline, as fast as the machine allows.
 
 Each depth frame goes through the node's code; the output bag holds the input and the node's
-outputs. Many bags (a folder, a quoted glob or a ``.txt`` list) run as Dask tasks (docs/fleet.md).
+outputs. Many bags (a folder or a quoted glob) run as Dask tasks (docs/fleet.md).
 """
 
 from __future__ import annotations
@@ -16,9 +16,7 @@ from typing import Any
 
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.cli.bag_processor import (DEFAULT_NAMESPACE, config_from_values,
-                                                  format_report, node_param_values, process_bag)
-from obstacle_detection.ros import RosInputError
-from obstacle_detection.ros.parameters import read_params_files
+                                                  node_param_values, process_bag)
 from obstacle_detection.cli.bag_writer import STORAGES
 from obstacle_detection.fleet import bags as fleet_bags
 from obstacle_detection.fleet.cluster import add_fleet_arguments, fleet_options, open_fleet
@@ -31,8 +29,8 @@ def build_parser() -> argparse.ArgumentParser:
         epilog='Examples: python tools/bag_process.py in_bag out_bag --params-file '
                "params/corridor.yaml --overlay; python tools/bag_process.py 'bags/*' out/ "
                '--workers 2')
-    parser.add_argument('bag', help='input rosbag2 folder; or many: a folder of bags, a glob '
-                                    'pattern (quoted) or a list file (.txt, one bag a line)')
+    parser.add_argument('bag', help='input rosbag2 folder; or many: a folder of bags or a glob '
+                                    'pattern (quoted)')
     parser.add_argument('output', type=Path,
                         help='rosbag2 folder to create (must not exist); for many bags the '
                              'folder of the output bags (one per input, named after it)')
@@ -48,22 +46,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help='also write overlay images (or publish_overlay in the params)')
     parser.add_argument('--storage', choices=sorted(STORAGES), default='sqlite3',
                         help='output storage (default %(default)s)')
-    parser.add_argument('--quiet', action='store_true',
-                        help='no per-frame lines (a progress bar on a terminal instead)')
-    parser.add_argument('--chunk-frames', type=tool_support.int_in(1), metavar='N',
-                        help='on a cluster, cut a bag of more than N depth frames into tasks '
-                             'of about N frames [default: one task per bag]')
+    parser.add_argument('--quiet', action='store_true', help='no progress bar')
     add_fleet_arguments(parser)
     return parser
-
-
-def _sets_mount(files: Sequence[Path]) -> bool:
-    """Tell whether one of the params files sets a camera mount parameter."""
-    names = ('camera_height_m', 'camera_pitch_deg', 'camera_roll_deg')
-    try:
-        return any(name in read_params_files(list(files)) for name in names)
-    except RosInputError:
-        return False
 
 
 @tool_support.command('bag_process')
@@ -73,8 +58,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     values = node_param_values(args.params_file)
     origin = ', '.join(str(p) for p in args.params_file) or 'defaults'
     config = config_from_values(values, origin)
-    mount_origin = (origin if _sets_mount(args.params_file)
-                    else "the node's defaults: no params file sets it")
+    defaults = node_param_values([])
+    mount_origin = (origin if any(values[name] != defaults[name] for name in (
+        'camera_height_m', 'camera_pitch_deg', 'camera_roll_deg'))
+        else "the node's defaults: no params file changes it")
     if fleet_bags.is_many(args.bag) or args.scheduler or args.workers:
         return _process_many(args, values, origin, mount_origin)
     summary = process_bag(
@@ -82,29 +69,24 @@ def main(argv: Sequence[str] | None = None) -> int:
         info_topic=args.info_topic, namespace=args.namespace,
         with_ground=args.ground or config.publish_ground,
         with_overlay=args.overlay or config.publish_overlay, storage=args.storage,
-        # the bar only when per-frame lines are off, and never into a redirected log
-        progress=args.quiet and sys.stderr.isatty(),
-        on_frame=None if args.quiet else lambda r: print(format_report(r), flush=True),
-        mount_origin=mount_origin)
+        progress=not args.quiet, mount_origin=mount_origin)
     print('\n'.join(summary.lines()))
     return 0
 
 
 def _process_many(args: argparse.Namespace, values: Mapping[str, Any], origin: str,
                   mount_origin: str) -> int:
-    """Every bag one task (fleet.bags): the table and the JSON line; 1 when a bag failed."""
+    """Every bag one task (fleet.bags): the table and the run's speed; 1 when a bag failed."""
     if fleet_bags.is_many(args.bag):
-        found = fleet_bags.find_bags(args.bag)
-        outputs = [(bag, args.output / name) for bag, name in found]
+        outputs = [(bag, args.output / name) for bag, name in fleet_bags.find_bags(args.bag)]
     else:   # one bag on a cluster (--workers / --scheduler): the output is the one named
-        tool_support.check_bag_path(args.bag, ros1=False)
         outputs = [(Path(args.bag), args.output)]
     # one thread per task: the workers are the parallelism (same results: compare=False)
     values = {**values, 'compute_threads': 1}
     jobs = [fleet_bags.BagJob(
         bag, output, values, origin, mount_origin, depth_topic=args.depth_topic,
         info_topic=args.info_topic, namespace=args.namespace, with_ground=args.ground,
-        with_overlay=args.overlay, storage=args.storage, chunk_frames=args.chunk_frames)
+        with_overlay=args.overlay, storage=args.storage)
         for bag, output in outputs]
     began = time.perf_counter()
     try:
@@ -117,11 +99,11 @@ def _process_many(args: argparse.Namespace, values: Mapping[str, Any], origin: s
         print('bag_process.py: interrupted; the output bags not complete were removed',
               file=sys.stderr)
         return 130
-    wall_s = time.perf_counter() - began
     print(fleet_bags.format_table(outcomes))
-    print(fleet_bags.summary_json(outcomes, wall_s=wall_s, where=fleet.description))
-    return tool_support.EXIT_OK if all(o.error is None for o in outcomes) else \
-        tool_support.EXIT_BAD_INPUT
+    wall_s = time.perf_counter() - began
+    frames = sum(o.processed for o in outcomes)
+    print(f'{frames} frames in {wall_s:.1f} s: {frames / wall_s:.1f} frames/s overall')
+    return 0 if all(o.error is None for o in outcomes) else 1
 
 
 if __name__ == '__main__':

@@ -2,8 +2,8 @@
 """The bundled demo: a recorded-looking depth sequence through the running detector node.
 
 It renders a scene sequence, converts it to a rosbag2, replays it into the node on loopback DDS,
-records what the node publishes and draws it, in ``<output>.partial``, moved to ``<output>`` on
-success (``<output>.failed`` otherwise). Exit code 0 when the node produced output, else 1.
+records what the node publishes and draws it, all in ``--output``. Exit code 0 when the node
+produced output, else 1.
 """
 
 from __future__ import annotations
@@ -37,34 +37,22 @@ OUTPUT_TOPICS = {
     '/obstacle_detector/processing_time_ms': 'std_msgs/msg/Float64',
     '/obstacles/fused_costmap': 'nav_msgs/msg/OccupancyGrid',
 }
-#: Frames a second the demo replays at, unless --rate says otherwise.
+#: Frames a second the demo replays at.
 DEMO_FPS = 7.5
+#: Every this many-th frame of the sequence (30 Hz) is taken.
+STEP = 10
+#: Seconds to wait for the node to be ready.
+READY_TIMEOUT_S = 60.0
 #: Width of a frame in the contact sheet [px]: two columns, about as wide as the README's text.
 SHEET_THUMB_PX = 600
 
 
-def _check(folder: Path) -> None:
-    """Refuse ``folder`` if it exists, holds something and was not made by the demo."""
-    if folder.exists() and not (folder / MARKER).exists() and (
-            not folder.is_dir() or any(folder.iterdir())):
-        raise ToolError(folder, 'exists and was not made by the demo; choose another --output')
-
-
-def _replace(folder: Path, by: Path | None = None) -> None:
-    """Remove ``folder`` (a demo folder, or absent), then move ``by`` (if any) to its place."""
-    _check(folder)
-    if folder.exists():
-        shutil.rmtree(folder)
-    if by is not None:
-        by.rename(folder)
-
-
-def save_pictures(folder: Path, recorder: Recorder, every: int, params: Any,
-                  intrinsics: Any, poses: dict[tuple[int, int], Any]) -> list[Path]:
+def save_pictures(folder: Path, recorder: Recorder, every: int,
+                  poses: dict[tuple[int, int], Any]) -> list[Path]:
     """Save a picture of every ``every``-th frame the node published, and a contact sheet.
 
-    Frames are matched across topics by header stamp; ``params`` and ``intrinsics`` draw the
-    camera and region of interest, ``poses`` (by stamp) the robot on the fused costmap.
+    Frames are matched across topics by header stamp; ``poses`` (by stamp) draw the robot on
+    the fused costmap.
     """
     from nav_msgs.msg import OccupancyGrid
     from rclpy.serialization import deserialize_message
@@ -95,10 +83,10 @@ def save_pictures(folder: Path, recorder: Recorder, every: int, params: Any,
 
         def draw(**options: Any) -> np.ndarray:
             return pictures.node_outputs(
-                image_to_rgb(overlays[stamp]), costmap, caption=caption, params=params,
-                intrinsics=intrinsics, robot_pose=poses.get(stamp, (0.0, 0.0, 0.0)),
+                image_to_rgb(overlays[stamp]), costmap, caption=caption,
+                robot_pose=poses.get(stamp, (0.0, 0.0, 0.0)),
                 fused=occupancy_grid_to_costmap(fused[stamp]) if stamp in fused else None,
-                **options)[0]
+                **options)
 
         saved.append(folder / 'pictures' / f'frame_{k:04d}.png')
         pictures.write_png(saved[-1], pictures.titled(
@@ -106,7 +94,7 @@ def save_pictures(folder: Path, recorder: Recorder, every: int, params: Any,
         thumbs.append(pictures.fit_width(
             lambda scale: draw(image_scale=scale, with_legend=False), SHEET_THUMB_PX))
     if thumbs:
-        sheet = pictures.contact_sheet(thumbs, columns=2, thumb_width=SHEET_THUMB_PX)
+        sheet = pictures.tile(thumbs, columns=2)
         panels = 3 if fused else 2
         legend = pictures.node_outputs_legend([(sheet.shape[1] - 6 * (panels - 1)) // panels]
                                               * panels)
@@ -117,27 +105,19 @@ def save_pictures(folder: Path, recorder: Recorder, every: int, params: Any,
 
 
 def run_demo(args: argparse.Namespace) -> int:
-    """Run every step into ``<output>.partial``, moved to ``<output>`` only on success."""
+    """Run every step into ``--output``, emptied first (only a folder the demo made)."""
     began = time.monotonic()
-    final: Path = args.output.resolve()  # absolute: the node runs with another working directory
-    work = final.with_name(final.name + '.partial')
-    failed = final.with_name(final.name + '.failed')
-    _check(final)
-    _replace(work)
-    work.mkdir(parents=True)
-    (work / MARKER).write_text('made by tools/demo.py; emptied when the demo runs again\n')
-    try:
-        report = _run_steps(args, work, failed)
-    except BaseException:
-        _replace(failed, work)
-        raise
-    _replace(final, work)
-    if failed.exists():
-        _replace(failed)   # an older failure, now superseded
+    out: Path = args.output.resolve()  # absolute: the node runs with another working directory
+    if out.exists() and not (out / MARKER).exists() and (
+            not out.is_dir() or any(out.iterdir())):
+        raise ToolError(out, 'exists and was not made by the demo; choose another --output')
+    shutil.rmtree(out, ignore_errors=True)
+    out.mkdir(parents=True)
+    (out / MARKER).write_text('made by tools/demo.py; emptied when the demo runs again\n')
+    report = _run_steps(args, out)
     print()
     print(f'demo done in {time.monotonic() - began:.1f} s; everything is in {args.output}/')
-    for line in report:
-        print(line.replace(str(work), str(final)))
+    print('\n'.join(report))
     return 0
 
 
@@ -151,33 +131,31 @@ def _write_input(args: argparse.Namespace, out: Path) -> tuple[Any, Any, dict, f
     from obstacle_detection.sim.sequences import SEQUENCE_RATE_HZ, SceneSequence
 
     depth_dir = out / 'input' / 'depth'
-    print(f'[1/5] rendering {args.frames} frames of {args.scene!r} (every {args.step}th, with '
+    print(f'[1/5] rendering {args.frames} frames of {args.scene!r} (every {STEP}th, with '
           f'odometry) into {depth_dir}')
     depth_dir.mkdir(parents=True)
-    sequence = SceneSequence(args.scene, seed=args.seed)
-    items = [sequence.frame(i)
-             for i in range(0, min(len(sequence), args.frames * args.step), args.step)]
+    sequence = SceneSequence(args.scene, seed=0)
+    items = [sequence.frame(i) for i in range(0, min(len(sequence), args.frames * STEP), STEP)]
     for k, item in enumerate(items):
         if not cv2.imwrite(str(depth_dir / f'{args.scene}_{k:04d}.png'), item.frame.depth_mm):
             raise ToolError(depth_dir, 'cannot write depth PNGs')
     camera = out / 'input' / 'camera.yaml'
     camera.write_text(camera_yaml_text(KINECT_V2_SD, size=KINECT_V2_SD_SIZE,
                                        comment='Kinect v2 SD camera of the rendered scene'))
-    bag_hz = SEQUENCE_RATE_HZ / args.step
+    bag_hz = SEQUENCE_RATE_HZ / STEP
     print(f'[2/5] converting them to a rosbag2: {out / "input_bag"}')
     source = datasets.folder_frames(depth_dir, intrinsics_path=camera, rate_hz=bag_hz,
                                     start_s=float(int(time.time())))
     source.frames = [dataclasses.replace(f, pose=item.pose_odom)
                      for f, item in zip(source.frames, items)]
-    summary = bag_writer.write_frames(source, out / 'input_bag',
-                                      bag_writer.BagOptions(progress=not args.quiet))
+    summary = bag_writer.write_frames(source, out / 'input_bag', bag_writer.BagOptions())
     print('\n'.join('      ' + line for line in summary.lines()[1:4]))
     pose_by_stamp = {divmod(f.stamp_ns, 1_000_000_000): f.pose for f in source.frames}
     return summary, items[0].frame, pose_by_stamp, bag_hz
 
 
-def _replay(args: argparse.Namespace, out: Path, failed: Path, node: Any, rate: float,
-            bag_hz: float, frames: int) -> tuple[Recorder, list[str], int]:
+def _replay(out: Path, node: Any, bag_hz: float,
+            frames: int) -> tuple[Recorder, list[str], int]:
     """Wait for the node, replay the bag into it, record what it publishes (steps 3, 4).
 
     Returns (recorder, the node's status lines, depth frames sent).
@@ -189,16 +167,16 @@ def _replay(args: argparse.Namespace, out: Path, failed: Path, node: Any, rate: 
         try:
             recorder = Recorder(probe, OUTPUT_TOPICS)
             player = bag_player.Player(probe, out / 'input_bag', bag_player.PlayOptions(
-                rate=rate, reliable=True, progress=False))
+                rate=DEMO_FPS / bag_hz, reliable=True, progress=False))
             # until it says ready and subscribes to the depth and camera info
             ready = node_process.wait_ready(
-                executor, node, status, args.timeout, out / 'node.log',
-                lambda _: player.subscription_count() >= 2, shown_log=failed / 'node.log')
+                executor, node, status, READY_TIMEOUT_S, out / 'node.log',
+                lambda _: player.subscription_count() >= 2)
             print(f'      node {ready}')
             settle = time.monotonic() + 0.5  # let the node's side of the match settle too
             while time.monotonic() < settle:
                 executor.spin_once(timeout_sec=0.05)
-            print(f'[4/5] replaying {frames} frames at {bag_hz * rate:g} Hz into the node')
+            print(f'[4/5] replaying {frames} frames at {DEMO_FPS:g} Hz into the node')
             thread = threading.Thread(target=lambda: stats.append(player.play(stop)),
                                       daemon=True)
             thread.start()
@@ -223,41 +201,34 @@ def _replay(args: argparse.Namespace, out: Path, failed: Path, node: Any, rate: 
     return recorder, status, sent
 
 
-def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
+def _run_steps(args: argparse.Namespace, out: Path) -> list[str]:
     """Run the demo's steps into ``out``; return the summary lines to print."""
     from rclpy.serialization import deserialize_message
     from std_msgs.msg import Float64
 
-    from obstacle_detection.evaluation.runner import load_params_file
-
     summary, first, pose_by_stamp, bag_hz = _write_input(args, out)
-    rate = args.rate if args.rate is not None else DEMO_FPS / bag_hz
     env = node_process.use_loopback(args.domain_id, out / 'ros_log')
     # the fused costmap is on, moved by the bag's odometry
     command = node_process.node_command(
         args.params, ['publish_overlay:=true', 'stats_period_s:=1.0',
-                      *node_process.mount_overrides(first, True), 'fuse:=true',
+                      *node_process.mount_overrides(first), 'reliable_input:=true', 'fuse:=true',
                       f'odom_topic:={bag_writer.DEFAULT_ODOM_TOPIC}'],
         [f'depth/image_raw:={bag_writer.DEFAULT_DEPTH_TOPIC}',
          f'depth/camera_info:={bag_writer.DEFAULT_INFO_TOPIC}'])
     print(f'[3/5] starting the detector node (ROS_DOMAIN_ID={args.domain_id}, loopback only; '
           f'log: {out / "node.log"}):\n      {" ".join(command[1:])}')
     node = node_process.start_node(command, env, out / 'node.log')
-    recorder, status, sent = _replay(args, out, failed, node, rate, bag_hz, summary.frames)
+    recorder, status, sent = _replay(out, node, bag_hz, summary.frames)
 
     received = recorder.count('/obstacles/costmap')
     if received == 0:
-        raise ToolError(failed / 'node.log', f'the detector node published nothing for '
+        raise ToolError(out / 'node.log', f'the detector node published nothing for '
                         f'{summary.frames} frames; the end of its log:\n'
                         + node_process.log_tail(out / 'node.log'))
     print(f'[5/5] writing what the node published: {out / "results_bag"}; pictures: '
           f'{out / "pictures"}')
     write_bag(out / 'results_bag', recorder)
-    params = load_params_file(args.params).replace(  # with the rendered scene's mount
-        camera_height_m=float(first.height_m), camera_pitch_rad=float(first.pitch_rad),
-        camera_roll_rad=float(first.roll_rad))
-    saved = save_pictures(out, recorder, args.save_every, params, first.intrinsics,
-                          pose_by_stamp)
+    saved = save_pictures(out, recorder, args.save_every, pose_by_stamp)
     times = [deserialize_message(raw, Float64).data
              for _, raw in recorder.messages['/obstacle_detector/processing_time_ms']]
     report = [f'  depth frames sent: {sent}, results received: {received} costmaps, '
@@ -270,7 +241,7 @@ def _run_steps(args: argparse.Namespace, out: Path, failed: Path) -> list[str]:
         report.append(f'  the node ended on the {status[-1].split(": ", 1)[-1]}')
     if received < sent:
         report.append(f'  {sent - received} frame(s) had no output: skipped by the node or '
-                      f'dropped while it was busy (see node.log; a lower --rate helps)')
+                      'dropped while it was busy (see node.log)')
     report.append(f'  pictures: {len(saved)} side-by-side frames in {out / "pictures"}, '
                   f'contact sheet {out / "demo_sheet.png"}')
     report.append(f'  bags: {out / "input_bag"} (input), {out / "results_bag"} (node output)')
@@ -283,29 +254,20 @@ def build_parser() -> argparse.ArgumentParser:
 
     parser = argparse.ArgumentParser(prog='demo', description=__doc__.split('\n\n')[0])
     parser.add_argument('--output', type=Path, default=Path('out/demo'),
-                        help='folder for everything the demo writes (default %(default)s); '
-                             'replaced only when the demo succeeds')
+                        help='folder for everything the demo writes (default %(default)s), '
+                             'emptied first')
     parser.add_argument('--scene', choices=SEQUENCE_NAMES, default='drive_past_boxes',
                         help='a scene sequence with odometry (the fused costmap follows it; '
                              'default %(default)s)')
-    parser.add_argument('--step', type=tool_support.int_in(1), default=10,
-                        help='take every N-th frame of a sequence (default %(default)s)')
     parser.add_argument('--frames', type=tool_support.int_in(1), default=30,
                         help='frames (default %(default)s)')
-    parser.add_argument('--seed', type=int, default=0, help='scene seed (default %(default)s)')
     parser.add_argument('--params', type=Path, default=DEFAULT_PARAMS,
                         help='node params file (default params/corridor.yaml); the camera '
                              'mount is set to the rendered scene\'s')
-    parser.add_argument('--rate', type=float, default=None,
-                        help='replay speed factor of the recorded timing (default: frames at '
-                             f'{DEMO_FPS:g} Hz)')
     parser.add_argument('--save-every', type=tool_support.int_in(1), default=5,
                         help='save pictures of one frame in N (default %(default)s)')
     tool_support.add_domain_id_option(
         parser, 'ROS_DOMAIN_ID of the demo, 0-232 (default: 100-200 from the process id)')
-    parser.add_argument('--timeout', type=float, default=30.0,
-                        help='seconds to wait for the node to be ready (default %(default)s)')
-    parser.add_argument('--quiet', action='store_true', help='no progress bars')
     return parser
 
 
@@ -314,8 +276,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the demo; return the exit code (0 success, 1 failure, 2 bad usage)."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    if args.rate is not None and not args.rate > 0:
-        parser.error(f'--rate must be > 0, got {args.rate:g}')
     if not args.params.is_file():
         raise ToolError(args.params, 'params file not found')
     return run_demo(args)

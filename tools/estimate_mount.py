@@ -1,8 +1,8 @@
 #!/usr/bin/env python3
 r"""Estimate the camera mount (height, pitch, roll) of a depth frame from the floor in view.
 
-Prints the mount and the floor's share of the points; writes it as a node parameter file
-(``--params-out``) and as a camera YAML with the intrinsics (``--camera-yaml-out``)::
+Prints the mount and the floor's share of the points (within 4 m); writes it as a node
+parameter file (``--params-out``)::
 
     python tools/estimate_mount.py --depth depth.png --depth-scale 5000 \
         --intrinsics 535.4,539.2,320.1,247.6 --params-out mount.yaml
@@ -20,7 +20,6 @@ from typing import Sequence
 
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.cli.support import parse_intrinsics
-from obstacle_detection.evaluation.camera import camera_yaml_text
 from obstacle_detection.pipeline.depth import decode_depth
 from obstacle_detection.pipeline.mount import MountEstimate, estimate_mount
 from obstacle_detection.evaluation.datasets import read_depth_png
@@ -41,23 +40,16 @@ def params_yaml(estimate: MountEstimate) -> str:
 def build_parser() -> argparse.ArgumentParser:
     """Return the command-line parser."""
     parser = argparse.ArgumentParser(prog='estimate_mount',
-                                     description=__doc__.split('\n\n')[0],
-                                     formatter_class=argparse.RawTextHelpFormatter)
+                                     description=__doc__.split('\n\n')[0])
     parser.add_argument('--depth', type=Path, required=True, metavar='FILE',
                         help='16-bit depth PNG or PGM')
     parser.add_argument('--depth-scale', type=float, default=1000.0, metavar='UNITS',
                         help='depth units per metre [default: 1000, mm; TUM: 5000]')
     parser.add_argument('--intrinsics', type=parse_intrinsics, required=True,
                         metavar='FX,FY,CX,CY', help='pinhole intrinsics of the depth image [px]')
-    parser.add_argument('--max-range', type=float, default=4.0, metavar='M',
-                        help='ignore points deeper than this [m, default: 4]')
-    parser.add_argument('--prior-pitch-deg', type=float, metavar='DEG',
-                        help='expected pitch, for a camera looking down more than ~60 deg')
     parser.add_argument('--params-out', type=Path, metavar='YAML',
-                        help='write a node parameter file fragment with the mount')
-    parser.add_argument('--camera-yaml-out', type=Path, metavar='YAML',
-                        help='write intrinsics, depth scale and mount (pictures.py '
-                             '--intrinsics)')
+                        help='write a node parameter file fragment with the mount (for the '
+                             'node, bag_process.py and pictures.py --params-file)')
     return parser
 
 
@@ -70,34 +62,24 @@ def main(argv: Sequence[str] | None = None) -> int:
                                      usage=True)
     raw = read_depth_png(args.depth)
     unit_warning = tool_support.depth_unit_warning(raw, args.depth_scale)
-    depth_m = decode_depth(raw, depth_scale=args.depth_scale)
-    prior = None if args.prior_pitch_deg is None else math.radians(args.prior_pitch_deg)
     try:
-        estimate = estimate_mount(depth_m, args.intrinsics, max_range_m=args.max_range,
-                                  prior_pitch_rad=prior)
+        estimate = estimate_mount(decode_depth(raw, depth_scale=args.depth_scale),
+                                  args.intrinsics)
     except ValueError as exc:
-        if unit_warning is None:   # the depth may be in range only at another scale
-            unit_warning = tool_support.depth_unit_warning(
-                raw, args.depth_scale, out_of_range_m=args.max_range)
-        reason = f'{exc}; {unit_warning}' if unit_warning else str(exc)
+        # the depth may be in range only at another scale
+        hint = unit_warning or tool_support.depth_unit_warning(raw, args.depth_scale,
+                                                               out_of_range_m=4.0)
+        reason = f'{exc}; {hint}' if hint else str(exc)
         raise ValueError(f'{args.depth}: cannot estimate the mount: {reason}') from None
-    camera = camera_yaml_text(
-        args.intrinsics, comment='intrinsics [px] and the camera mount estimated from the '
-        'floor', depth_scale=args.depth_scale, height_m=estimate.height_m,
-        pitch_deg=estimate.pitch_deg, roll_deg=estimate.roll_deg)
-    outputs = {args.params_out: params_yaml(estimate), args.camera_yaml_out: camera}
-    for path, text in outputs.items():
-        if path is not None:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            path.write_text(text, encoding='utf-8')
     if unit_warning:
         tool_support.warn(f'{args.depth}: {unit_warning}')
     print(f'{args.depth}: height {estimate.height_m:.3f} m, pitch {estimate.pitch_deg:.2f} deg, '
           f'roll {estimate.roll_deg:.2f} deg; floor holds {estimate.inlier_fraction:.1%} of '
-          f'{estimate.n_points} points within {args.max_range:g} m')
-    for path in outputs:
-        if path is not None:
-            print(f'wrote {path}')
+          f'{estimate.n_points} points within 4 m')
+    if args.params_out is not None:
+        args.params_out.parent.mkdir(parents=True, exist_ok=True)
+        args.params_out.write_text(params_yaml(estimate), encoding='utf-8')
+        print(f'wrote {args.params_out}')
     return 0
 
 

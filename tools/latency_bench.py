@@ -1,8 +1,9 @@
 #!/usr/bin/env python3
 """Latency and throughput of the running detector node through DDS, as a camera would feed it.
 
-Starts the node and a camera publisher process on loopback DDS in a domain of its own, streams
-pre-rendered depth frames of a scene at ``--rate`` Hz, and measures per frame the depth stamp
+Starts the node (``params/corridor.yaml``) and a camera publisher process on loopback DDS in a
+domain of its own, streams 30 pre-rendered depth frames of the ``person_walking`` scene round
+robin at ``--rate`` Hz (sensor-data QoS), and measures per frame the depth stamp
 -> costmap latency, the node's processing time, frames without a costmap, and the node's memory
 and CPU. Prints a table and one ``JSON`` line.
 """
@@ -10,7 +11,6 @@ and CPU. Prints a table and one ``JSON`` line.
 from __future__ import annotations
 
 import argparse
-import io
 import json
 import math
 import multiprocessing
@@ -29,17 +29,21 @@ from obstacle_detection.cli import node_process
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.cli.support import ToolError
 
-DEFAULT_PARAMS = tool_support.package_file('params/corridor.yaml')
+PARAMS = tool_support.package_file('params/corridor.yaml')
 NODE = '/obstacle_detector'
+SCENE, FRAMES = 'person_walking', 30
+#: Seconds to wait for the node to be ready.
+READY_TIMEOUT_S = 300.0
+#: Seconds at the start of the stream not counted.
+WARMUP_S = 5.0
 
 
-def _publish(depth: np.ndarray, rate_hz: float, duration_s: float, reliable: bool,
-             report: Any) -> None:
+def _publish(depth: np.ndarray, rate_hz: float, duration_s: float, report: Any) -> None:
     """Publish the frames ``depth`` round robin; put a summary dict on ``report``."""
     import rclpy
     import rclpy.time
     from builtin_interfaces.msg import Time
-    from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+    from rclpy.qos import qos_profile_sensor_data
     from sensor_msgs.msg import CameraInfo, Image
 
     from obstacle_detection.pipeline.params import KINECT_V2_SD
@@ -47,10 +51,8 @@ def _publish(depth: np.ndarray, rate_hz: float, duration_s: float, reliable: boo
 
     rclpy.init()
     node = rclpy.create_node('latency_bench_camera')
-    qos = (QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE) if reliable
-           else qos_profile_sensor_data)
-    depth_pub = node.create_publisher(Image, 'depth/image_raw', qos)
-    info_pub = node.create_publisher(CameraInfo, 'depth/camera_info', qos)
+    depth_pub = node.create_publisher(Image, 'depth/image_raw', qos_profile_sensor_data)
+    info_pub = node.create_publisher(CameraInfo, 'depth/camera_info', qos_profile_sensor_data)
     images = [array_to_image(frame, stamp=Time(), frame_id='depth_optical') for frame in depth]
     info = intrinsics_to_camera_info(KINECT_V2_SD, depth.shape[2], depth.shape[1], stamp=Time(),
                                      frame_id='depth_optical')
@@ -63,13 +65,11 @@ def _publish(depth: np.ndarray, rate_hz: float, duration_s: float, reliable: boo
     time.sleep(0.5)
     period = 1.0 / rate_hz
     start = time.monotonic()
-    sent, late = 0, 0
+    sent = 0
     while sent * period < duration_s:
         wait = start + sent * period - time.monotonic()
         if wait > 0:
             time.sleep(wait)
-        elif wait < -period:
-            late += 1
         stamp = rclpy.time.Time(nanoseconds=time.time_ns()).to_msg()
         info.header.stamp = stamp
         image = images[sent % len(images)]
@@ -77,7 +77,7 @@ def _publish(depth: np.ndarray, rate_hz: float, duration_s: float, reliable: boo
         info_pub.publish(info)
         depth_pub.publish(image)
         sent += 1
-    report.put({'sent': sent, 'late': late})
+    report.put({'sent': sent})
     time.sleep(1.0)
     node.destroy_node()
     rclpy.try_shutdown()
@@ -125,12 +125,11 @@ def _stream(args: argparse.Namespace, executor: Any, node: Any, publisher: Any,
 
     began = time.monotonic()
     rss_warm = math.nan
-    with Progress(int(args.duration), 'streaming [s]',
-                  stream=io.StringIO() if args.quiet else None) as bar:
+    with Progress(int(args.duration), 'streaming [s]') as bar:
         while publisher.is_alive():
             executor.spin_once(timeout_sec=0.01)
             elapsed = time.monotonic() - began
-            if math.isnan(rss_warm) and elapsed >= args.warmup:
+            if math.isnan(rss_warm) and elapsed >= WARMUP_S:
                 rss_warm = _proc_stats(node.pid)[0]
             if bar.count < min(int(elapsed), int(args.duration)):
                 bar.update()
@@ -149,26 +148,24 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 
     work = Path(tempfile.mkdtemp(prefix='latency_bench_'))
     log = work / 'node.log'
-    frames = [render_scene(args.scene, seed=0, intrinsics=KINECT_V2_SD,
-                           size=KINECT_V2_SD_SIZE, frame_index=k) for k in range(args.frames)]
+    frames = [render_scene(SCENE, seed=0, intrinsics=KINECT_V2_SD, size=KINECT_V2_SD_SIZE,
+                           frame_index=k) for k in range(FRAMES)]
     env = node_process.use_loopback(args.domain_id, work / 'ros_log')
     os.environ['ROS_LOG_DIR'] = env['ROS_LOG_DIR']   # the camera process's too
-    overrides = ['stats_period_s:=10.0', *node_process.mount_overrides(frames[0], args.reliable),
-                 *args.set]
-    node = node_process.start_node(node_process.node_command(args.params, overrides), env, log)
+    overrides = [*node_process.mount_overrides(frames[0]), *args.set]
+    node = node_process.start_node(node_process.node_command(PARAMS, overrides), env, log)
     spawn = multiprocessing.get_context('spawn')
     reports = spawn.Queue()
     publisher = spawn.Process(target=_publish, args=(
-        np.stack([f.depth_mm for f in frames]), args.rate, args.duration, args.reliable, reports))
+        np.stack([f.depth_mm for f in frames]), args.rate, args.duration, reports))
     with node_process.probe_node('latency_bench_probe', node) as (probe, executor, status):
         try:
             arrivals, times_ms = _probe(probe)
             ready = node_process.wait_ready(   # compiled, or the numpy path for good
-                executor, node, status, args.timeout, log,
+                executor, node, status, READY_TIMEOUT_S, log,
                 lambda text: text.endswith('compiled numba kernels') or 'numpy path (' in text)
-            print(f'node {ready}; publishing {args.scene} at {args.rate:g} Hz for '
-                  f'{args.duration:g} s ({"reliable" if args.reliable else "sensor-data"} QoS)',
-                  file=sys.stderr)
+            print(f'node {ready}; publishing {SCENE} at {args.rate:g} Hz for '
+                  f'{args.duration:g} s', file=sys.stderr)
             publisher.start()
             rss0, cpu0 = _proc_stats(node.pid)
             began = time.monotonic()
@@ -186,18 +183,16 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             if publisher.is_alive():
                 publisher.kill()
     # the first costmap's stamp starts the warm-up, which is not counted
-    cut = min(arrivals, default=0) + int(args.warmup * 1e9)
+    cut = min(arrivals, default=0) + int(WARMUP_S * 1e9)
     latencies = [(arrival - stamp) / 1e6 for stamp, arrival in sorted(arrivals.items())
                  if stamp >= cut]
-    sent = max(report['sent'] - round(args.warmup * args.rate), 0)
+    sent = max(report['sent'] - round(WARMUP_S * args.rate), 0)
     rss_warm = rss0 if math.isnan(rss_warm) else rss_warm
     return {
-        'scene': args.scene, 'rate_hz': args.rate, 'duration_s': args.duration,
-        'params': str(args.params), 'overrides': list(args.set),
-        'qos': 'reliable' if args.reliable else 'sensor_data',
+        'rate_hz': args.rate, 'duration_s': args.duration, 'overrides': list(args.set),
         'frames_sent': sent, 'costmaps_received': len(latencies),
         'frames_without_output': max(sent - len(latencies), 0),
-        'publisher_late': report['late'], 'latency_ms': _percentiles(latencies),
+        'latency_ms': _percentiles(latencies),
         'processing_ms': _percentiles([ms for t, ms in times_ms if t >= cut]),
         'node_cpu_share': (cpu1 - cpu0) / elapsed, 'node_rss_mib': {
             'start': rss0, 'after_warmup': rss_warm, 'end': rss1,
@@ -220,10 +215,9 @@ def format_table(fig: dict[str, Any]) -> str:
         ('node CPU [share of one core]', f'{fig["node_cpu_share"]:.2f}'),
         ('node memory [MiB] after warm-up -> end (growth)',
          f'{mem["after_warmup"]:.0f} -> {mem["end"]:.0f} ({mem["growth_after_warmup"]:+.1f})'),
-        ('publisher frames late by a period or more', str(fig['publisher_late'])),
     ]
-    head = (f'{fig["scene"]} at {fig["rate_hz"]:g} Hz for {fig["duration_s"]:g} s, '
-            f'{fig["qos"]} QoS, {Path(fig["params"]).name} {" ".join(fig["overrides"])}')
+    head = (f'{SCENE} at {fig["rate_hz"]:g} Hz for {fig["duration_s"]:g} s, sensor-data QoS, '
+            f'{PARAMS.name} {" ".join(fig["overrides"])}')
     lines = [head, '', '| figure | value |', '| --- | --- |']
     lines += [f'| {name} | {value} |' for name, value in rows]
     return '\n'.join(lines)
@@ -236,23 +230,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--duration', type=float, default=600.0,
                         help='seconds of streaming (default %(default)s: 10 minutes)')
     parser.add_argument('--rate', type=float, default=30.0, help='frames per second (30)')
-    parser.add_argument('--params', type=Path, default=DEFAULT_PARAMS,
-                        help='node params file (default params/corridor.yaml)')
     parser.add_argument('--set', action='append', default=[], metavar='NAME:=VALUE',
                         help='node parameter override, e.g. median_kernel:=5 (repeatable)')
-    parser.add_argument('--scene', default='person_walking',
-                        help='scene of the generator (default %(default)s)')
-    parser.add_argument('--frames', type=int, default=30,
-                        help='distinct frames, sent round robin (default %(default)s)')
-    parser.add_argument('--reliable', action='store_true',
-                        help='reliable QoS instead of the camera sensor-data (best effort)')
-    parser.add_argument('--warmup', type=float, default=5.0,
-                        help='seconds at the start not counted (default %(default)s)')
-    parser.add_argument('--timeout', type=float, default=300.0,
-                        help='seconds to wait for the node to be ready (default %(default)s)')
     tool_support.add_domain_id_option(
         parser, 'ROS_DOMAIN_ID, 0-232 (default: 100-200 from the process id)')
-    parser.add_argument('--quiet', action='store_true', help='no progress bar')
     return parser
 
 
@@ -261,12 +242,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the benchmark; return the exit code (0 done, 1 could not run, 2 bad usage)."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    if not args.duration > 0 or not 0 < args.rate <= 1000 or args.frames < 1:
-        parser.error('--duration, --rate (<= 1000) and --frames must be positive')
-    if not 0 <= args.warmup < args.duration:
-        parser.error('--warmup must be in [0, --duration)')
-    if not args.params.is_file():
-        raise ToolError(args.params, 'params file not found')
+    if not args.duration > WARMUP_S or not 0 < args.rate <= 1000:
+        parser.error(f'--duration must exceed the {WARMUP_S:g} s of warm-up, --rate be in '
+                     '(0, 1000]')
     figures = run(args)
     print(format_table(figures))
     print('JSON ' + json.dumps(figures))

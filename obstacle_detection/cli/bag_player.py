@@ -9,47 +9,29 @@ import math
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from rosbags.rosbag2 import Reader, ReaderError
 
-from obstacle_detection.cli import support as tool_support
-from obstacle_detection.cli.support import ToolError
+from obstacle_detection.cli.support import ToolError, check_bag_path
 from obstacle_detection.cli.progress import Progress
-
-#: How long to sleep at most between checks for a stop request [s].
-_POLL_S = 0.05
 
 
 @dataclasses.dataclass(frozen=True)
 class PlayOptions:
     """How to play a bag."""
 
-    topics: tuple[str, ...] = ()
     rate: float = 1.0
-    loops: int = 1
-    start_offset_s: float = 0.0
+    loop: bool = False
     reliable: bool = False
-    remap: dict[str, str] = dataclasses.field(default_factory=dict)
-    wait_for_subscribers: int = 0
-    wait_timeout_s: float = 30.0
     progress: bool = True
 
     def __post_init__(self) -> None:
         """Validate the values, naming the bad one."""
         if not (math.isfinite(self.rate) and self.rate > 0):
             raise ToolError(f'--rate must be a positive factor, got {self.rate}', usage=True)
-        if self.loops < 0:
-            raise ToolError(f'--loops must be >= 0 (0 = until stopped), got {self.loops}',
-                            usage=True)
-        if not (math.isfinite(self.start_offset_s) and self.start_offset_s >= 0):
-            raise ToolError(f'--start-offset must be >= 0 s, got {self.start_offset_s}',
-                            usage=True)
-        if self.wait_for_subscribers < 0:
-            raise ToolError('--wait-for-subscribers must be >= 0, got '
-                            f'{self.wait_for_subscribers}', usage=True)
 
 
 @dataclasses.dataclass
@@ -68,17 +50,6 @@ class PlayStats:
         return out
 
 
-def parse_remap(items: Sequence[str]) -> dict[str, str]:
-    """Parse ``old:=new`` strings into a mapping."""
-    remap = {}
-    for item in items:
-        old, sep, new = item.partition(':=')
-        if not sep or not old or not new:
-            raise ToolError(f'--remap expects old:=new, got {item!r}', usage=True)
-        remap[old] = new
-    return remap
-
-
 def message_class(msgtype: str) -> type:
     """Return the rclpy message class for a bag type name like ``sensor_msgs/msg/Image``."""
     package, _, name = msgtype.rpartition('/')
@@ -88,32 +59,18 @@ def message_class(msgtype: str) -> type:
         raise ToolError(f'message type {msgtype} is not installed ({err})') from err
 
 
-def open_bag(bag: Path, options: PlayOptions) -> tuple[Reader, list[Any]]:
-    """Open ``bag`` and pick the connections to play; the caller closes the reader."""
-    tool_support.check_bag_path(bag, ros1=False)
+def open_bag(bag: Path) -> Reader:
+    """Open ``bag``, a rosbag2 bag with messages; the caller closes the reader."""
+    check_bag_path(bag, ros1=False)
     try:
         reader = Reader(bag)
         reader.open()
     except ReaderError as err:
         raise ToolError(f'{bag}: cannot read bag ({err})') from err
-    try:
-        known = {c.topic for c in reader.connections}
-        if missing := sorted(set(options.topics) - known):
-            raise ToolError(f'{bag}: has no topic {", ".join(missing)} '
-                            f'(it has {", ".join(sorted(known))})')
-        connections = [c for c in reader.connections
-                       if not options.topics or c.topic in options.topics]
-        if unknown := sorted(set(options.remap) - {c.topic for c in connections}):
-            raise ToolError(f'{bag}: --remap of {", ".join(unknown)}, which is not played')
-        offset_ns = int(round(options.start_offset_s * 1e9))
-        if not any(c.msgcount for c in connections) or (
-                reader.start_time + offset_ns > reader.end_time):
-            raise ToolError(f'{bag}: no messages to play after {options.start_offset_s:g} s '
-                            f'(the bag lasts {(reader.end_time - reader.start_time) / 1e9:g} s)')
-    except BaseException:
+    if not reader.message_count:
         reader.close()
-        raise
-    return reader, connections
+        raise ToolError(f'{bag}: has no messages to play')
+    return reader
 
 
 class Player:
@@ -123,25 +80,14 @@ class Player:
         """Open the bag and create one publisher per played topic."""
         from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
-        self.bag = bag
         self.options = options
         self.node = node
-        self.reader, self.connections = open_bag(bag, options)
+        self.reader = open_bag(bag)
         qos = (QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
                if options.reliable else qos_profile_sensor_data)
-        self.publishers: dict[str, Any] = {}
-        try:
-            for conn in self.connections:
-                if conn.topic not in self.publishers:
-                    self.publishers[conn.topic] = node.create_publisher(
-                        message_class(conn.msgtype), options.remap.get(conn.topic, conn.topic),
-                        qos)
-        except BaseException:
-            self.close()
-            raise
-        self.start_ns = self.reader.start_time + int(round(options.start_offset_s * 1e9))
-        self.total = sum(c.msgcount for c in self.connections) if not options.start_offset_s \
-            else None
+        types = {conn.topic: conn.msgtype for conn in self.reader.connections}   # one per topic
+        self.publishers = {topic: node.create_publisher(message_class(msgtype), topic, qos)
+                           for topic, msgtype in types.items()}
 
     def close(self, ack_timeout_s: float = 3.0) -> None:
         """Close the bag and destroy the publishers."""
@@ -163,47 +109,27 @@ class Player:
         """Return matched subscriptions summed over the played topics."""
         return sum(p.get_subscription_count() for p in self.publishers.values())
 
-    def wait_for_subscribers(self) -> None:
-        """Block until ``options.wait_for_subscribers`` subscriptions are matched."""
-        want = self.options.wait_for_subscribers
-        deadline = time.monotonic() + self.options.wait_timeout_s
-        while self.subscription_count() < want:
-            if time.monotonic() > deadline:
-                raise ToolError(f'{self.bag}: only {self.subscription_count()} of {want} '
-                                f'subscriptions matched after {self.options.wait_timeout_s:g} s')
-            time.sleep(_POLL_S)
-
     def play(self, stop: threading.Event | None = None,
              on_publish: Callable[[str, int], None] | None = None) -> PlayStats:
         """Publish the messages with their recorded spacing; return what was published."""
         stats = PlayStats()
         began = time.monotonic()
-        loops = self.options.loops
-        total = self.total * loops if self.total and loops else None
-        most = max(c.msgcount for c in self.connections)  # its mean spacing: the loop seam's
-        gap_s = self.reader.duration / 1e9 / (most - 1) if most > 1 else 0.0
-        bar = Progress(total, 'playing', stream=None if self.options.progress else io.StringIO())
-        with bar:
-            while not loops or stats.loops < loops:
-                if stats.loops and not _sleep_until(
-                        time.monotonic() + gap_s / self.options.rate, stop):
-                    break  # keep one frame's spacing across the loop seam
+        total = None if self.options.loop else self.reader.message_count
+        rate = self.options.rate
+        with Progress(total, 'playing',
+                      stream=None if self.options.progress else io.StringIO()) as bar:
+            while self.options.loop or not stats.loops:
                 loop_start = time.monotonic()
-                first_t = None
-                for conn, timestamp, raw in self.reader.messages(connections=self.connections,
-                                                                 start=self.start_ns):
-                    first_t = timestamp if first_t is None else first_t
-                    due = loop_start + (timestamp - first_t) / 1e9 / self.options.rate
+                for conn, timestamp, raw in self.reader.messages():
+                    due = loop_start + (timestamp - self.reader.start_time) / 1e9 / rate
                     if not _sleep_until(due, stop):
                         stats.wall_s = time.monotonic() - began
                         return stats
-                    publisher = self.publishers[conn.topic]
-                    publisher.publish(bytes(raw))
-                    topic = publisher.topic_name
-                    stats.published[topic] += 1
+                    self.publishers[conn.topic].publish(bytes(raw))
+                    stats.published[conn.topic] += 1
                     bar.update()
                     if on_publish is not None:
-                        on_publish(topic, timestamp)
+                        on_publish(conn.topic, timestamp)
                 stats.loops += 1
         stats.wall_s = time.monotonic() - began
         return stats

@@ -6,7 +6,7 @@ import dataclasses
 import io
 import statistics
 from collections import Counter, deque
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -20,8 +20,7 @@ from obstacle_detection.cli.support import ToolError
 from obstacle_detection.cli.bag_writer import (BAG_VERSION, DEFAULT_DEPTH_TOPIC, STORAGES,
                                                staged_output)
 from obstacle_detection.cli.progress import Progress
-from obstacle_detection.evaluation.datasets import EvaluationError
-from obstacle_detection.ros import RosInputError, frame_gate
+from obstacle_detection.ros import frame_gate
 from obstacle_detection.ros.compressed_depth import COMPRESSED_IMAGE_TYPE, raw_topic
 from obstacle_detection.ros.config import NodeConfig, build_config
 from obstacle_detection.ros.conversions import result_to_messages
@@ -45,10 +44,7 @@ def node_param_values(path: Path | Sequence[Path]) -> dict[str, Any]:
     """All node parameter values: defaults updated with one or more ``--params-file`` YAMLs."""
     values: dict[str, Any] = {spec.name: spec.default for spec in ALL_PARAMS}
     paths = [path] if isinstance(path, (str, Path)) else list(path)
-    try:
-        values.update(read_params_files(paths))
-    except RosInputError as err:
-        raise ToolError(str(err)) from err
+    values.update(read_params_files(paths))   # RosInputError: a ValueError, one line
     return values
 
 
@@ -61,37 +57,26 @@ def config_from_values(values: Mapping[str, Any], origin: str) -> NodeConfig:
 
 
 @dataclasses.dataclass
-class FrameReport:
-    """One processed (or skipped) depth frame."""
-
-    index: int
-    stamp_ns: int
-    obstacle_points: int = 0
-    timings_ms: dict[str, float] = dataclasses.field(default_factory=dict)
-    skipped: str | None = None
-
-
-@dataclasses.dataclass
 class ProcessSummary:
     """What an offline run did."""
 
     output: Path
     frames: int = 0
     processed: int = 0
+    obstacle_points: int = 0
     skipped: Counter[str] = dataclasses.field(default_factory=Counter)
     total_ms: list[float] = dataclasses.field(default_factory=list)
     wall_s: float = 0.0
     topics: dict[str, int] = dataclasses.field(default_factory=dict)
     info_topic: str | None = None
     info_how: str = ''
-    depth: str = ''
     mount: str = ''
     mount_warning: str | None = None
     notes: list[str] = dataclasses.field(default_factory=list)
 
     def lines(self) -> list[str]:
         """Return the summary as printable lines."""
-        out = [f'wrote {self.output}', *([f'  depth: {self.depth}'] if self.depth else []),
+        out = [f'wrote {self.output}',
                f'  intrinsics: CameraInfo on {self.info_topic} ({self.info_how})'
                if self.info_topic else f'  intrinsics: none recorded ({self.info_how})',
                f'  camera mount: {self.mount}',
@@ -158,9 +143,7 @@ def process_bag(src: Path, output: Path, config: NodeConfig, *,
                 depth_topic: str = DEFAULT_DEPTH_TOPIC, info_topic: str | None = None,
                 namespace: str = DEFAULT_NAMESPACE, with_ground: bool = False,
                 with_overlay: bool = False, storage: str = 'sqlite3', progress: bool = True,
-                on_frame: Callable[[FrameReport], None] | None = None,
-                mount_origin: str = 'the parameters', start_ns: int | None = None,
-                stop_ns: int | None = None) -> ProcessSummary:
+                mount_origin: str = 'the parameters') -> ProcessSummary:
     """Process every depth frame of ``src`` and write inputs + outputs to ``output``."""
     import time
 
@@ -176,26 +159,27 @@ def process_bag(src: Path, output: Path, config: NodeConfig, *,
             outputs = {key: namespace + '/' + OUTPUTS[key][0] for key in wanted}
             depth_class = _check_topics(reader, src, depth_topic, info_topic, outputs, summary)
             n_depth = sum(c.msgcount for c in reader.connections if c.topic == depth_topic)
-            window = start_ns is not None or stop_ns is not None
             with staged_output(output) as staging, \
                     Writer(staging, version=BAG_VERSION, storage_plugin=STORAGES[storage]) \
                     as writer, \
-                    Progress(None if window else n_depth, 'processing',
+                    Progress(n_depth, 'processing',
                              stream=None if progress else io.StringIO()) as bar:
                 typestore = get_typestore(Stores.ROS2_JAZZY)
-                copies = copy_connections(reader.connections, writer, typestore)
+                copies = {}   # the inputs, copied: {reader's connection id: writer's}
+                for conn in reader.connections:
+                    known = bool(conn.msgdef.data and conn.digest)
+                    copies[conn.id] = writer.add_connection(
+                        conn.topic, conn.msgtype, msgdef=conn.msgdef.data if known else None,
+                        rihs01=conn.digest if known else None,
+                        typestore=None if known else typestore,
+                        serialization_format=getattr(conn.ext, 'serialization_format', 'cdr'),
+                        offered_qos_profiles=getattr(conn.ext, 'offered_qos_profiles', ()))
                 out_conns = {key: writer.add_connection(outputs[key], OUTPUTS[key][1],
                                                         typestore=typestore) for key in wanted}
                 cameras: deque[CameraState] = deque(maxlen=frame_gate.CAMERA_INFO_HISTORY)
-                if start_ns is not None and summary.info_topic is not None:
-                    for _, _, raw in reader.messages(
-                            [c for c in reader.connections if c.topic == summary.info_topic],
-                            stop=start_ns):
-                        frame_gate.keep_camera(cameras, CameraState.from_camera_info(
-                            deserialize_message(bytes(raw), CameraInfo)))
                 counts: Counter[str] = Counter()
                 for conn, timestamp, raw in _grouped_by_timestamp(
-                        reader.messages(start=start_ns, stop=stop_ns), summary.info_topic):
+                        reader.messages(), summary.info_topic):
                     writer.write(copies[conn.id], timestamp, raw)
                     counts[conn.topic] += 1
                     if conn.topic == summary.info_topic:
@@ -205,19 +189,14 @@ def process_bag(src: Path, output: Path, config: NodeConfig, *,
                         _note(summary, None if camera.note is None else
                               f'CameraInfo on {summary.info_topic}: {camera.note}')
                     elif conn.topic == depth_topic:
-                        report = FrameReport(summary.frames, timestamp)
                         messages = _frame(deserialize_message(bytes(raw), depth_class),
-                                          list(cameras), config, summary, report,
+                                          list(cameras), config, summary,
                                           with_ground=with_ground, with_overlay=with_overlay)
                         for key in wanted if messages is not None else ():
                             writer.write(out_conns[key], timestamp,
                                          serialize_message(messages[key]))
                             counts[outputs[key]] += 1
                         bar.update()
-                        if on_frame is not None:
-                            on_frame(report)
-    except EvaluationError as err:
-        raise ToolError(str(err)) from err
     except ReaderError as err:
         raise ToolError(f'{src}: cannot read bag ({err})') from err
     except WriterError as err:
@@ -238,9 +217,6 @@ def _check_topics(reader: Reader, src: Path, depth_topic: str, info_topic: str |
                         f'{", ".join(images) or "none"}; use --depth-topic)')
     if topics[depth_topic] not in DEPTH_TYPES:
         raise ToolError(f'{src}: {depth_topic} has type {topics[depth_topic]}, not {kinds}')
-    depth_class = DEPTH_TYPES[topics[depth_topic]]
-    summary.depth = f'{depth_topic} ({topics[depth_topic]}' + (
-        ', decoded by compressed_depth)' if depth_class is CompressedImage else ')')
     try:
         summary.info_topic, summary.info_how = tool_support.choose_info_topic(
             topics, raw_topic(depth_topic), info_topic)
@@ -248,7 +224,7 @@ def _check_topics(reader: Reader, src: Path, depth_topic: str, info_topic: str |
         raise ToolError(f'{src}: {err}') from err
     if clash := sorted(set(outputs.values()) & set(topics)):
         raise ToolError(f'{src}: already has {", ".join(clash)}; choose another --namespace')
-    return depth_class
+    return DEPTH_TYPES[topics[depth_topic]]
 
 
 def _note(summary: ProcessSummary, note: str | None) -> None:
@@ -257,58 +233,26 @@ def _note(summary: ProcessSummary, note: str | None) -> None:
 
 
 def _frame(depth: Any, cameras: Sequence[CameraState], config: NodeConfig,
-           summary: ProcessSummary, report: FrameReport, *, with_ground: bool,
-           with_overlay: bool) -> dict[str, Any] | None:
-    """Process one depth message, counting it in ``summary`` and ``report``; its messages."""
+           summary: ProcessSummary, *, with_ground: bool, with_overlay: bool
+           ) -> dict[str, Any] | None:
+    """Process one depth message, counting it in ``summary``; its messages."""
     summary.frames += 1
     messages, result, reason, note = process_frame(
         depth, cameras, config, with_ground=with_ground, with_overlay=with_overlay)
     _note(summary, note)
     if messages is None:
-        report.skipped = reason
         summary.skipped[reason] += 1
         return None
-    if summary.processed == 0:
-        _check_first_mount(result, config, summary)
-    report.obstacle_points = int(result.obstacle_points.shape[0])
-    report.timings_ms = dict(result.timings_ms)
+    if summary.processed == 0:   # the floor of the first frame against the mount
+        check = tool_support.check_mount(
+            result.depth_m, result.intrinsics, config.detector.params,
+            fix='a --params-file setting camera_height_m, camera_pitch_deg and camera_roll_deg '
+                '(tools/estimate_mount.py --params-out writes one from a depth frame)')
+        if check.warning:
+            summary.mount_warning = f'first frame: {check.warning}'
+            tool_support.warn(summary.mount_warning)
+    summary.obstacle_points += int(result.obstacle_points.shape[0])
     summary.processed += 1
     summary.total_ms.append(result.timings_ms.get('total', 0.0))
     return messages
 
-
-def copy_connections(connections: Iterable[Any], writer: Writer, typestore: Any
-                     ) -> dict[int, Any]:
-    """Add a reader's ``connections`` to ``writer``; return {reader's id: writer's connection}."""
-    copies = {}
-    for conn in connections:
-        known = bool(conn.msgdef.data and conn.digest)
-        copies[conn.id] = writer.add_connection(
-            conn.topic, conn.msgtype,
-            msgdef=conn.msgdef.data if known else None,
-            rihs01=conn.digest if known else None,
-            typestore=None if known else typestore,
-            serialization_format=getattr(conn.ext, 'serialization_format', 'cdr'),
-            offered_qos_profiles=getattr(conn.ext, 'offered_qos_profiles', ()))
-    return copies
-
-
-def _check_first_mount(result: Any, config: NodeConfig, summary: ProcessSummary) -> None:
-    """Compare the floor of the first processed frame with the mount; warn on stderr."""
-    check = tool_support.check_mount(
-        result.depth_m, result.intrinsics, config.detector.params,
-        fix='a --params-file setting camera_height_m, camera_pitch_deg and camera_roll_deg '
-            '(tools/estimate_mount.py --params-out writes one from a depth frame)')
-    if check.warning:
-        summary.mount_warning = f'first frame: {check.warning}'
-        tool_support.warn(summary.mount_warning)
-
-
-def format_report(report: FrameReport) -> str:
-    """One line of per-frame timing."""
-    stamp = f'{report.stamp_ns // 1_000_000_000}.{report.stamp_ns % 1_000_000_000:09d}'
-    if report.skipped:
-        return f'frame {report.index:5d} @ {stamp}: skipped ({report.skipped})'
-    stages = ' '.join(f'{k}={v:.1f}' for k, v in report.timings_ms.items() if k != 'total')
-    return (f'frame {report.index:5d} @ {stamp}: {report.obstacle_points:6d} obstacle points, '
-            f'{report.timings_ms.get("total", 0.0):6.1f} ms ({stages})')

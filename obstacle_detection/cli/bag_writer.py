@@ -18,8 +18,6 @@ from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 from rosbags.typesys import Stores, get_typestore
 
 from obstacle_detection.cli import support as tool_support
-from obstacle_detection.ros import RosInputError
-from obstacle_detection.ros.compressed_depth import COMPRESSED_IMAGE_TYPE, parse_format
 from obstacle_detection.ros.conversions import array_to_image, intrinsics_to_camera_info
 from obstacle_detection.cli.progress import Progress
 from obstacle_detection.evaluation.datasets import (EvaluationError, FrameSource,
@@ -27,7 +25,7 @@ from obstacle_detection.evaluation.datasets import (EvaluationError, FrameSource
 
 DEFAULT_DEPTH_TOPIC = tool_support.DEFAULT_DEPTH_TOPIC
 DEFAULT_INFO_TOPIC = tool_support.DEFAULT_INFO_TOPIC
-DEFAULT_COLOR_TOPIC = tool_support.DEFAULT_COLOR_TOPIC
+DEFAULT_COLOR_TOPIC = '/kinect2/sd/image_color_rect'
 DEFAULT_FRAME_ID = 'kinect2_ir_optical_frame'
 #: Odometry of frames that carry a pose (nav_msgs/Odometry, base_footprint in odom).
 DEFAULT_ODOM_TOPIC = '/odom'
@@ -78,16 +76,10 @@ def staged_output(output: Path) -> Iterator[Path]:
     if output.exists() or output.is_symlink():
         raise EvaluationError(f'{output}: output already exists; remove it or choose another name')
     staging = output.parent / f'.{output.name}.partial'
-    try:
-        shutil.rmtree(staging, ignore_errors=True)
-        staging.mkdir(parents=True)
-    except OSError as err:
-        raise EvaluationError(f'{output.parent}: cannot create the output ({err.strerror})') \
-            from err
+    shutil.rmtree(staging, ignore_errors=True)
+    staging.mkdir(parents=True)   # an OSError names the folder: one line of the tool
     try:
         yield staging / output.name
-        if output.exists():
-            raise EvaluationError(f'{output}: appeared while converting; not overwriting it')
         (staging / output.name).rename(output)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
@@ -173,14 +165,9 @@ def write_frames(source: FrameSource, output: Path, options: BagOptions) -> Summ
                     write(DEFAULT_DEPTH_TOPIC, frame.stamp_ns, array_to_image(
                         depth, stamp=time, frame_id=DEFAULT_FRAME_ID, encoding='16UC1'))
                     if options.with_color and frame.color_path is not None:
-                        color = read_color(frame.color_path, 'bgr8')
-                        if color.shape[:2] != shape and summary.topics[DEFAULT_COLOR_TOPIC] == 0:
-                            summary.notes.append('colour images differ in size from depth: '
-                                                 'the colour topic is not registered to the '
-                                                 'depth image')
                         write(DEFAULT_COLOR_TOPIC, frame.stamp_ns, array_to_image(
-                            color, stamp=time, frame_id=DEFAULT_FRAME_ID,
-                            encoding='bgr8'))
+                            read_color(frame.color_path, 'bgr8'), stamp=time,
+                            frame_id=DEFAULT_FRAME_ID, encoding='bgr8'))
                     summary.frames += 1
                     bar.update()
         except WriterError as err:
@@ -192,8 +179,8 @@ def convert_ros1(src: Path, output: Path, *, storage: str = 'sqlite3',
                  topics: Sequence[str] = (), progress: bool = True) -> Summary:
     """Convert a ROS 1 bag to rosbag2, every message to its ROS 2 Jazzy type (EvaluationError).
 
-    Compressed depth topics are kept as recorded and named in the notes (the node, with its
-    ``depth_transport``, and ``bag_process.py --depth-topic`` read them).
+    Compressed depth topics are kept as recorded (the node, with its ``depth_transport``, and
+    ``bag_process.py --depth-topic`` read them).
     """
     from rosbags.convert.converter import create_connections_converters
     from rosbags.highlevel import AnyReader, AnyReaderError
@@ -201,20 +188,14 @@ def convert_ros1(src: Path, output: Path, *, storage: str = 'sqlite3',
     if not src.is_file():
         raise EvaluationError(f'{src}: ROS 1 bag not found')
     summary = Summary(output=output)
-    noetic = get_typestore(Stores.ROS1_NOETIC)
     with staged_output(output) as staging:
         try:
-            with AnyReader([src], default_typestore=noetic) as reader:
-                if reader.is2:
-                    raise EvaluationError(f'{src}: not a ROS 1 bag (expected a .bag file)')
+            with AnyReader([src], default_typestore=get_typestore(Stores.ROS1_NOETIC)) as reader:
                 connections = [c for c in reader.connections if not topics or c.topic in topics]
                 if missing := sorted(set(topics) - {c.topic for c in reader.connections}):
                     raise EvaluationError(f'{src}: has no topic {", ".join(missing)}')
                 if not connections:
                     raise EvaluationError(f'{src}: contains no messages')
-                for topic, fmt in _compressed_depth_topics(reader, connections, noetic):
-                    summary.notes.append(f'{topic}: compressed depth ({fmt!r}); '
-                                         f'bag_process.py --depth-topic {topic} reads it')
                 with Writer(staging, version=BAG_VERSION,
                             storage_plugin=STORAGES[storage]) as writer, \
                         Progress(sum(c.msgcount for c in connections), 'converting',
@@ -235,22 +216,5 @@ def convert_ros1(src: Path, output: Path, *, storage: str = 'sqlite3',
             raise EvaluationError(f'{output}: cannot write bag ({err})') from err
     summary.topics = Counter(dict(sorted(summary.topics.items())))
     summary.messages = sum(summary.topics.values())
-    summary.frames = max(summary.topics.values(), default=0)
     return summary
 
-
-def _compressed_depth_topics(reader: Any, connections: Sequence[Any],
-                             typestore: Any) -> list[tuple[str, str]]:
-    """Return (topic, first message's format) of each CompressedImage topic holding depth."""
-    found = []
-    for conn in connections:
-        if conn.msgtype != COMPRESSED_IMAGE_TYPE or conn.msgcount == 0:
-            continue
-        _, _, data = next(iter(reader.messages(connections=[conn])))
-        fmt = str(typestore.deserialize_ros1(data, COMPRESSED_IMAGE_TYPE).format)
-        try:
-            parse_format(fmt)
-        except RosInputError:
-            continue  # colour (jpeg, png of bgr8, ...): not depth
-        found.append((conn.topic, fmt))
-    return sorted(set(found))

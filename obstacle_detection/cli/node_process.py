@@ -28,12 +28,11 @@ def use_loopback(domain_id: int, log_dir: Path) -> dict[str, str]:
                 ROS_LOG_DIR=str(log_dir))
 
 
-def mount_overrides(frame: Any, reliable: bool) -> list[str]:
-    """Node parameters ``name:=value`` for a rendered frame's camera mount and the input QoS."""
+def mount_overrides(frame: Any) -> list[str]:
+    """Node parameters ``name:=value`` for a rendered frame's camera mount."""
     return [f'camera_height_m:={float(frame.height_m)!r}',
             f'camera_pitch_deg:={round(math.degrees(frame.pitch_rad), 9)!r}',
-            f'camera_roll_deg:={round(math.degrees(frame.roll_rad), 9)!r}',
-            f'reliable_input:={"true" if reliable else "false"}']
+            f'camera_roll_deg:={round(math.degrees(frame.roll_rad), 9)!r}']
 
 
 def node_command(params: Path, overrides: Sequence[str], remaps: Sequence[str] = ()
@@ -100,19 +99,18 @@ def probe_node(name: str, node: subprocess.Popen) -> Iterator[tuple[Any, Any, li
 
 
 def wait_ready(executor: Any, node: subprocess.Popen, status: list[str], timeout_s: float,
-               log: Path, ready: Callable[[str], bool] = lambda text: True,
-               shown_log: Path | None = None) -> str:
+               log: Path, ready: Callable[[str], bool] = lambda text: True) -> str:
     """Spin until the node's status says ``ready`` (and ``ready(status)``); return the status.
 
-    ToolError with the end of ``log`` (named ``shown_log``) if the node exits or times out.
+    ToolError with the end of ``log`` if the node exits or times out.
     """
     deadline = time.monotonic() + timeout_s
     while not (status and status[-1].startswith('ready') and ready(status[-1])):
         if node.poll() is not None or time.monotonic() > deadline:
             why = (f'exited with code {node.returncode} before it was ready'
                    if node.poll() is not None else
-                   f'was not ready within {timeout_s:g} s (--timeout)')
-            raise ToolError(shown_log or log, f'the detector node {why}; the end of its '
+                   f'was not ready within {timeout_s:g} s')
+            raise ToolError(log, f'the detector node {why}; the end of its '
                             'log:\n' + log_tail(log))
         executor.spin_once(timeout_sec=0.05)
     return status[-1]

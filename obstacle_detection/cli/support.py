@@ -16,14 +16,9 @@ import numpy as np
 
 from obstacle_detection.pipeline.params import DetectorParams, Intrinsics
 
-EXIT_OK = 0
-EXIT_BAD_INPUT = 1
-EXIT_USAGE = 2
-
 #: One set of default topic names for every tool: the iai_kinect2 driver's SD (512x424) topics.
 DEFAULT_DEPTH_TOPIC = '/kinect2/sd/image_depth_rect'
 DEFAULT_INFO_TOPIC = '/kinect2/sd/camera_info'
-DEFAULT_COLOR_TOPIC = '/kinect2/sd/image_color_rect'
 IMAGE_TYPE = 'sensor_msgs/msg/Image'
 CAMERA_INFO_TYPE = 'sensor_msgs/msg/CameraInfo'
 
@@ -65,29 +60,22 @@ def package_file(relative: str) -> Path:
     return next((path for path in candidates if path.exists()), candidates[0])
 
 
-def report_error(prog: str, error: BaseException) -> int:
-    """Print the one error line of ``error``; return its exit code (2 when ``error.usage``)."""
-    if getattr(error, 'usage', False):
-        print(f'{prog}: error: {error}', file=sys.stderr)
-        return EXIT_USAGE
-    text = str(error)
-    if isinstance(error, OSError) and error.filename is not None and error.strerror:
-        text = f'{error.filename}: {error.strerror}'
-    elif isinstance(error, KeyError) and error.args:
-        text = str(error.args[0])
-    print(f'error: {text}', file=sys.stderr)
-    return EXIT_BAD_INPUT
-
-
 def command(prog: str) -> Callable[[Callable[..., int]], Callable[..., int]]:
-    """Decorate a tool's ``main(argv)``: bad input -> ``report_error``, Ctrl-C -> exit 130."""
+    """Decorate a tool's ``main(argv)``: bad input -> one error line (exit 1, 2 if usage)."""
     def decorate(main: Callable[..., int]) -> Callable[..., int]:
         @functools.wraps(main)
         def run(argv: Any = None) -> int:
             try:
                 return main(argv)
             except (ValueError, OSError, KeyError) as exc:   # KeyError: an unknown name
-                return report_error(prog, exc)
+                if getattr(exc, 'usage', False):
+                    print(f'{prog}: error: {exc}', file=sys.stderr)
+                    return 2
+                text = str(exc.args[0]) if isinstance(exc, KeyError) and exc.args else str(exc)
+                if isinstance(exc, OSError) and exc.filename is not None and exc.strerror:
+                    text = f'{exc.filename}: {exc.strerror}'
+                print(f'error: {text}', file=sys.stderr)
+                return 1
             except KeyboardInterrupt:   # the tools write their outputs whole or not at all
                 print(f'{prog}: interrupted', file=sys.stderr)
                 return 130

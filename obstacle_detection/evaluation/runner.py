@@ -153,7 +153,7 @@ def scenario_frames(scenario: Scenario, *, max_frames: int | None = None,
             truth_points=frame.points_ground, height_m=frame.height_m,
             pitch_rad=frame.pitch_rad, roll_rad=frame.roll_rad,
             sequence_key=f'{scenario.name}/{seed}' if scenario.is_sequence else None,
-            truth=scenario.truth, object_ids=frame.object_ids, object_names=frame.object_names,
+            truth=scenario.truth, object_ids=frame.hit_index, object_names=frame.object_names,
             drop_edge=frame.drop_edge,
             hit_labels=frame.hit_labels if scenario.truth == 'robot' else None)
 

@@ -224,7 +224,7 @@ def _panel(grid: np.ndarray, truth: np.ndarray, pose: tuple[float, float, float]
     from obstacle_detection.viz.overlay import ROBOT_RGB, costmap_pixel_of, render_costmap
 
     costmap = Costmap(grid, res, origin_xy_m)
-    image = render_costmap(costmap, scale=scale, draw_robot=False)
+    image = render_costmap(costmap, scale=scale)
     mask = (truth == CELL_OCCUPIED).T[::-1, ::-1]
     mask = np.repeat(np.repeat(mask, scale, axis=0), scale, axis=1).astype(np.uint8)
     contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
@@ -411,9 +411,8 @@ class _Scorer:
         self.clear.finish(total)
         sheet = None
         if self.thumbs:
-            from obstacle_detection.viz.pictures import contact_sheet
-            sheet = contact_sheet(self.thumbs, labels=self.labels, columns=4,
-                                  thumb_width=self.thumbs[0].shape[1])
+            from obstacle_detection.viz.pictures import tile
+            sheet = tile(self.thumbs, columns=4, labels=self.labels)
         return SequenceReport(
             name=name, frames=total, **self.conf, flicker_fused=self.flicker['fused'],
             flicker_per_frame=self.flicker['per_frame'], mark=self.mark.report(),

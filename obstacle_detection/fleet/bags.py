@@ -1,4 +1,4 @@
-"""``bag_process`` over many bags: one task per bag (or chunk), a summary table and a JSON line."""
+"""``bag_process`` over many bags: one task per bag, and a summary table."""
 
 from __future__ import annotations
 
@@ -6,10 +6,7 @@ import contextlib
 import dataclasses
 import glob
 import io
-import json
-import math
 import shutil
-import uuid
 from collections import Counter
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -17,30 +14,23 @@ from typing import Any
 
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.cli.bag_processor import (DEFAULT_NAMESPACE, config_from_values,
-                                                  copy_connections, process_bag)
-from obstacle_detection.cli.bag_writer import (BAG_VERSION, DEFAULT_DEPTH_TOPIC, STORAGES,
-                                               staged_output)
+                                                  process_bag)
+from obstacle_detection.cli.bag_writer import DEFAULT_DEPTH_TOPIC
 from .cluster import Fleet, TaskError, limit_threads, run_tasks
 
-#: Suffixes of a list file of bags (anything else that is a file is refused).
-LIST_SUFFIXES = ('.txt', '.list')
 _GLOB_CHARS = frozenset('*?[')
 
 
 def is_many(spec: str | Path) -> bool:
-    """Tell whether ``spec`` names several bags (a folder of bags, a glob, a list file)."""
-    text = str(spec)
-    if _GLOB_CHARS & set(text):
-        return True
-    path = Path(text)
-    if path.is_file():
-        return path.suffix in LIST_SUFFIXES
-    return (path.is_dir() and not (path / 'metadata.yaml').is_file()
-            and any(path.rglob('metadata.yaml')))
+    """Tell whether ``spec`` names several bags (a folder of bags or a glob)."""
+    path = Path(spec)
+    return bool(_GLOB_CHARS & set(str(spec))) or (
+        path.is_dir() and not (path / 'metadata.yaml').is_file()
+        and any(path.rglob('metadata.yaml')))
 
 
 def find_bags(spec: str | Path) -> list[tuple[Path, Path]]:
-    """Return ``(bag, output name)`` of every bag ``spec`` names, in a stable order.
+    """Return ``(bag, output name)`` of every bag ``spec`` (see is_many) names, in order.
 
     Raises tool_support.ToolError naming the spec or the entry that is not a bag.
     """
@@ -48,29 +38,12 @@ def find_bags(spec: str | Path) -> list[tuple[Path, Path]]:
     path = Path(text)
     if path.is_dir() and not (_GLOB_CHARS & set(text)):
         bags = sorted(p.parent for p in path.rglob('metadata.yaml'))
-        if not bags:
-            raise tool_support.ToolError(path, 'no bag in the folder (no metadata.yaml below '
-                                               'it)')
         # a bag inside another bag's folder is not a bag of its own
         bags = [b for b in bags if not any(o in b.parents for o in bags)]
         return [(bag, bag.relative_to(path)) for bag in bags]
-    if _GLOB_CHARS & set(text):
-        matches = [Path(m) for m in sorted(glob.glob(text))]
-        if not matches:
-            raise tool_support.ToolError(text, 'the pattern matches nothing')
-        entries = matches
-    elif path.is_file() and path.suffix in LIST_SUFFIXES:
-        try:
-            lines = path.read_text(encoding='utf-8').splitlines()
-        except (OSError, UnicodeDecodeError) as err:
-            raise tool_support.ToolError(path, f'cannot read the list ({err})') from err
-        entries = [path.parent / line.strip() for line in lines
-                   if line.strip() and not line.lstrip().startswith('#')]
-        if not entries:
-            raise tool_support.ToolError(path, 'the list names no bag')
-    else:
-        raise tool_support.ToolError(path, 'not a folder of bags, a glob pattern or a list '
-                                           f'file ({", ".join(LIST_SUFFIXES)})')
+    entries = [Path(m) for m in sorted(glob.glob(text))]
+    if not entries:
+        raise tool_support.ToolError(text, 'the pattern matches nothing')
     for entry in entries:
         tool_support.check_bag_path(entry, ros1=False)
     names = [Path(entry.name) for entry in entries]
@@ -96,7 +69,6 @@ class BagJob:
     with_ground: bool = False
     with_overlay: bool = False
     storage: str = 'sqlite3'
-    chunk_frames: int | None = None
 
 
 @dataclasses.dataclass
@@ -114,187 +86,66 @@ class BagOutcome:
     warning: str | None = None
     error: str | None = None
 
-    @property
-    def ms_per_frame(self) -> float:
-        """Mean pipeline time of the processed frames [ms] (NaN: none)."""
-        return self.pipeline_ms / self.processed if self.processed else math.nan
 
-    def as_dict(self) -> dict[str, Any]:
-        """JSON-ready (NaN becomes None)."""
-        ms = self.ms_per_frame
-        return {'bag': str(self.bag), 'output': str(self.output), 'frames': self.frames,
-                'processed': self.processed, 'skipped': dict(self.skipped),
-                'obstacle_points': self.obstacle_points,
-                'ms_per_frame': None if math.isnan(ms) else round(ms, 2),
-                'wall_s': round(self.wall_s, 3), 'warning': self.warning, 'error': self.error}
-
-
-def merged(bag: Path, output: Path, parts: Sequence[BagOutcome]) -> BagOutcome:
-    """Return the outcome of ``parts`` together (a chunked bag's, or a table's total)."""
-    return BagOutcome(
-        bag, output, frames=sum(p.frames for p in parts),
-        processed=sum(p.processed for p in parts),
-        skipped=dict(sum((Counter(p.skipped) for p in parts), Counter())),
-        obstacle_points=sum(p.obstacle_points for p in parts),
-        pipeline_ms=sum(p.pipeline_ms for p in parts), wall_s=sum(p.wall_s for p in parts),
-        warning=next((p.warning for p in parts if p.warning), None))
-
-
-def process_one(job: BagJob, window: tuple[int | None, int | None] = (None, None),
-                output: Path | None = None) -> BagOutcome:
-    """Process one bag, or the chunk ``window`` of it into ``output`` (a task)."""
+def process_one(job: BagJob) -> BagOutcome:
+    """Process one bag (a task)."""
     limit_threads()
-    output = job.output if output is None else output
-    points: list[int] = []
     config = config_from_values(job.values, job.origin)
     with contextlib.redirect_stderr(io.StringIO()):
         summary = process_bag(
-            job.bag, output, config, depth_topic=job.depth_topic, info_topic=job.info_topic,
+            job.bag, job.output, config, depth_topic=job.depth_topic, info_topic=job.info_topic,
             namespace=job.namespace, with_ground=job.with_ground or config.publish_ground,
             with_overlay=job.with_overlay or config.publish_overlay, storage=job.storage,
-            progress=False, on_frame=lambda report: points.append(report.obstacle_points),
-            mount_origin=job.mount_origin, start_ns=window[0], stop_ns=window[1])
-    return BagOutcome(job.bag, output, summary.frames, summary.processed,
-                      dict(summary.skipped), sum(points), float(sum(summary.total_ms)),
+            progress=False, mount_origin=job.mount_origin)
+    return BagOutcome(job.bag, job.output, summary.frames, summary.processed,
+                      dict(summary.skipped), summary.obstacle_points, float(sum(summary.total_ms)),
                       summary.wall_s, summary.mount_warning)
-
-
-def plan_chunks(job: BagJob) -> list[tuple[int, int]]:
-    """Return the [start, stop) bag-time windows [ns] of ``job``'s chunks; [] for one task."""
-    from rosbags.rosbag2 import Reader
-
-    if not job.chunk_frames:
-        return []
-    try:
-        with Reader(job.bag) as reader:
-            frames = sum(c.msgcount for c in reader.connections if c.topic == job.depth_topic)
-            start, stop = reader.start_time, reader.end_time
-    except Exception:   # noqa: BLE001 - the bag's own task reports it
-        return []
-    count = math.ceil(frames / job.chunk_frames)
-    if count < 2:
-        return []
-    edges = [start + (stop - start) * k // count for k in range(count + 1)]
-    return list(zip(edges[:-1], edges[1:]))
-
-
-def chunks_path(output: Path) -> Path:
-    """Return the folder of an output bag's chunk bags while they are made and merged."""
-    return output.parent / f'.{output.name}.chunks'
-
-
-def process_chunk(job: BagJob, index: int, window: tuple[int, int], run: str) -> BagOutcome:
-    """Process chunk ``index`` of a bag into its part bag (a task)."""
-    return process_one(job, window, chunks_path(job.output) / run / f'part{index:04d}')
-
-
-def finish_bag(job: BagJob, *parts: BagOutcome) -> BagOutcome:
-    """Return the bag's outcome: process it (no parts) or merge its chunks' parts (a task)."""
-    if not parts:
-        return process_one(job)
-    from rosbags.rosbag2 import Reader, Writer
-    from rosbags.typesys import Stores, get_typestore
-
-    typestore = get_typestore(Stores.ROS2_JAZZY)
-    try:
-        with staged_output(job.output) as staging, \
-                Writer(staging, version=BAG_VERSION, storage_plugin=STORAGES[job.storage]) \
-                as writer:
-            connections: dict[tuple[str, str], Any] = {}
-            for part in parts:
-                with Reader(part.output) as reader:
-                    ids = {}
-                    for conn in reader.connections:
-                        key = (conn.topic, conn.msgtype)
-                        if key not in connections:
-                            connections[key] = copy_connections([conn], writer,
-                                                                typestore)[conn.id]
-                        ids[conn.id] = connections[key]
-                    for conn, timestamp, raw in reader.messages():
-                        writer.write(ids[conn.id], timestamp, raw)
-    finally:
-        for part in parts:
-            shutil.rmtree(part.output, ignore_errors=True)
-    return merged(job.bag, job.output, parts)
 
 
 def process_bags(jobs: Sequence[BagJob], fleet: Fleet, *, progress: bool = True
                  ) -> list[BagOutcome]:
     """Run every job where ``fleet`` says; outcomes in ``jobs`` order (a failed one's error set).
 
-    On KeyboardInterrupt the tasks are cancelled and it propagates (then
-    :func:`remove_stale_staging`).
+    Ctrl-C cancels the tasks and propagates (then call :func:`remove_stale_staging`).
     """
-    items: list[tuple[Any, ...]] = [(job,) for job in jobs]
-    if fleet.distributed:
-        run = uuid.uuid4().hex[:8]
-        items = [(job, *(fleet.submit(process_chunk, job, k, window, run)
-                         for k, window in enumerate(plan_chunks(job))))
-                 for job in jobs]
-    results = run_tasks(fleet, finish_bag, items, label='bags', progress=progress,
-                        return_errors=True)
-    for job in jobs:
-        shutil.rmtree(chunks_path(job.output), ignore_errors=True)
-    return [BagOutcome(job.bag, job.output, error=_named(result, job))
+    results = run_tasks(fleet, process_one, [(job,) for job in jobs], label='bags',
+                        progress=progress, return_errors=True)
+    return [BagOutcome(job.bag, job.output, error=str(result.error))   # the table names the bag
             if isinstance(result, TaskError) else result
             for job, result in zip(jobs, results)]
 
 
-def _named(failure: TaskError, job: BagJob) -> str:
-    """Return a failed bag's reason: its error's message if it names the bag, else with it."""
-    text = str(failure.error)
-    if failure.error is not None and text.startswith((str(job.bag), str(job.output))):
-        return text
-    return f'{job.bag}: {failure.reason}'
-
-
 def remove_stale_staging(jobs: Sequence[BagJob]) -> None:
     """Remove the temporary folders a stopped run left (after its cluster is closed)."""
-    for job in jobs:   # the names of bag_writer.staged_output and chunks_path
+    for job in jobs:   # the name of bag_writer.staged_output
         shutil.rmtree(job.output.parent / f'.{job.output.name}.partial', ignore_errors=True)
-        shutil.rmtree(chunks_path(job.output), ignore_errors=True)
 
 
 def format_table(outcomes: Sequence[BagOutcome]) -> str:
     """Return the per-bag table, then skip reasons, warnings and failures per bag."""
-    names = [str(o.bag) for o in outcomes]
-    width = max(len(name) for name in [*names, 'total']) + 1
-    widths = (7, 9, 7, 12, 8, 7)
+    done = [o for o in outcomes if o.error is None]
+    total = BagOutcome(
+        Path('total'), Path(), sum(o.frames for o in done), sum(o.processed for o in done),
+        dict(sum((Counter(o.skipped) for o in done), Counter())),
+        sum(o.obstacle_points for o in done), sum(o.pipeline_ms for o in done),
+        sum(o.wall_s for o in done))
+    width = max(len(str(o.bag)) for o in [*outcomes, total]) + 1
+    heads = ('frames', 'processed', 'skipped', 'obstacle pts', 'ms/frame', 's')
 
-    def row(name: str, outcome: BagOutcome, status: str) -> str:
-        ms = outcome.ms_per_frame
-        cells = (['-'] * 6 if outcome.error is not None else
-                 [outcome.frames, outcome.processed, sum(outcome.skipped.values()),
-                  outcome.obstacle_points, '-' if math.isnan(ms) else f'{ms:.1f}',
-                  f'{outcome.wall_s:.1f}'])
-        return f'{name:<{width}} ' + ' '.join(f'{c:>{w}}' for c, w in zip(cells, widths)) + \
-            f'  {status}'
-    head = f'{"bag":<{width}} ' + ' '.join(
-        f'{h:>{w}}' for h, w in zip(('frames', 'processed', 'skipped', 'obstacle pts',
-                                     'ms/frame', 's'), widths)) + '  status'
+    def row(o: BagOutcome, status: str) -> str:
+        ms = f'{o.pipeline_ms / o.processed:.1f}' if o.processed else '-'
+        cells = (['-'] * 6 if o.error is not None else
+                 [o.frames, o.processed, sum(o.skipped.values()), o.obstacle_points, ms,
+                  f'{o.wall_s:.1f}'])
+        return f'{str(o.bag):<{width}} ' + ' '.join(
+            f'{c:>{max(len(h), 7)}}' for c, h in zip(cells, heads)) + f'  {status}'
+    head = f'{"bag":<{width}} ' + ' '.join(f'{h:>7}' for h in heads) + '  status'
     lines = [head, '-' * len(head)]
     notes: list[str] = []
-    for name, outcome in zip(names, outcomes):
-        lines.append(row(name, outcome, 'ok' if outcome.error is None else 'FAILED'))
-        if outcome.error is not None:
-            notes.append(f'  {name}: failed: {outcome.error}')
-        notes.extend(f'  {name}: skipped {count}: {reason}'
-                     for reason, count in outcome.skipped.items())
-        if outcome.warning:
-            notes.append(f'  {name}: warning: {outcome.warning}')
-    done = [o for o in outcomes if o.error is None]
-    lines += ['-' * len(head), row('total', merged(Path('total'), Path(), done),
-                                   f'{len(done)} ok, {len(outcomes) - len(done)} failed')]
+    for o in outcomes:
+        lines.append(row(o, 'ok' if o.error is None else 'FAILED'))
+        notes += [f'  {o.bag}: failed: {o.error}'] if o.error is not None else []
+        notes += [f'  {o.bag}: skipped {count}: {reason}' for reason, count in o.skipped.items()]
+        notes += [f'  {o.bag}: warning: {o.warning}'] if o.warning else []
+    lines += ['-' * len(head), row(total, f'{len(done)} ok, {len(outcomes) - len(done)} failed')]
     return '\n'.join(lines + notes)
-
-
-def summary_json(outcomes: Sequence[BagOutcome], *, wall_s: float, where: str) -> str:
-    """Return the one JSON line of a many-bag run: per bag, totals, the run's wall time."""
-    done = [o for o in outcomes if o.error is None]
-    total = merged(Path('total'), Path(), done)
-    return json.dumps({
-        'bags': [o.as_dict() for o in outcomes], 'ok': len(done),
-        'failed': len(outcomes) - len(done), 'frames': total.frames,
-        'processed': total.processed, 'wall_s': round(wall_s, 3),
-        'frames_per_s': round(total.processed / wall_s, 2) if wall_s > 0 else None,
-        'where': where}, sort_keys=True)

@@ -18,18 +18,9 @@ from obstacle_detection.cli.progress import Progress
 
 #: Whether dask.distributed can be imported (the optional ``fleet`` extra).
 DASK_AVAILABLE = importlib.util.find_spec('distributed') is not None
-#: The environment variable Dask itself reads for the scheduler's address.
-SCHEDULER_ENV = 'DASK_SCHEDULER_ADDRESS'
-#: How often the scheduler restarts a task whose worker died before giving up on it.
-ALLOWED_FAILURES = 3
 #: The environment of a local cluster's worker processes: one thread per worker.
 ONE_THREAD_ENV = {'NUMBA_NUM_THREADS': '1', 'OMP_NUM_THREADS': '1', 'MKL_NUM_THREADS': '1',
                   'OPENBLAS_NUM_THREADS': '1'}
-INSTALL_HINT = "pip install 'dask[distributed]' (or pip install .[fleet])"
-
-
-class FleetError(ValueError):
-    """The cluster asked for cannot be used (Dask missing, no scheduler at the address)."""
 
 
 @dataclasses.dataclass
@@ -59,8 +50,7 @@ def add_fleet_arguments(parser: argparse.ArgumentParser) -> None:
                             '0 = this process, no Dask [default: one per core when Dask is '
                             'installed and there is more than one task]')
     group.add_argument('--scheduler', metavar='ADDRESS',
-                       help=f'run on the Dask cluster of this scheduler, e.g. '
-                            f'tcp://host:8786 [default: ${SCHEDULER_ENV} if set]')
+                       help='run on the Dask cluster of this scheduler, e.g. tcp://host:8786')
 
 
 def fleet_options(args: argparse.Namespace) -> dict[str, Any]:
@@ -73,20 +63,18 @@ def open_fleet(*, workers: int | None = None, scheduler: str | None = None,
                tasks: int = 2) -> Iterator[Fleet]:
     """Yield where to run ``tasks`` tasks; close it afterwards.
 
-    Raises FleetError when Dask is missing or the scheduler cannot be reached for a cluster asked
-    for, or for ``workers`` and ``scheduler`` together.
+    Raises ToolError for a cluster that cannot be used, or ``workers`` and ``scheduler`` both.
     """
     if scheduler is not None and workers is not None:
-        raise FleetError('--workers starts a local cluster, --scheduler uses another one: '
-                         'give one of them')
-    if scheduler is None and workers is None:
-        scheduler = os.environ.get(SCHEDULER_ENV) or None
+        raise tool_support.ToolError('--workers starts a local cluster, --scheduler uses '
+                                     'another one: give one of them')
     wanted = scheduler is not None or (workers is not None and workers > 0)
     if wanted and not DASK_AVAILABLE:
         what = f'--scheduler {scheduler}' if scheduler else f'--workers {workers}'
-        raise FleetError(f'{what} needs dask.distributed, which is not installed: '
-                         f'{INSTALL_HINT}, or leave out --workers/--scheduler (and unset '
-                         f'{SCHEDULER_ENV}) to run in this process')
+        raise tool_support.ToolError(
+            f"{what} needs dask.distributed, which is not installed: pip install "
+            f"'dask[distributed]' (or pip install .[fleet]), or leave out --workers/--scheduler "
+            'to run in this process')
     cores = len(os.sched_getaffinity(0))
     if not wanted and (workers == 0 or not DASK_AVAILABLE or tasks < 2 or cores < 2):
         yield Fleet(None, 'this process', 1)
@@ -95,15 +83,15 @@ def open_fleet(*, workers: int | None = None, scheduler: str | None = None,
     from distributed import Client, LocalCluster
 
     # glibc's own mmap threshold, no profiler, slower ticks: docs/fleet.md, Speed
-    with dask.config.set({'distributed.scheduler.allowed-failures': ALLOWED_FAILURES,
-                          'distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_': None,
+    with dask.config.set({'distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_': None,
                           'distributed.worker.profile.enabled': False,
                           'distributed.admin.tick.interval': '500ms'}):
         if scheduler is not None:
             try:
                 client = Client(scheduler, timeout='10s')
             except (OSError, TimeoutError) as err:
-                raise FleetError(f'{scheduler}: no Dask scheduler answers ({err})') from err
+                raise tool_support.ToolError(scheduler, f'no Dask scheduler answers ({err})') \
+                    from err
             with client:
                 count = len(client.scheduler_info().get('workers', {}))
                 yield Fleet(client, f'the Dask cluster at {scheduler} ({count} workers)',
@@ -164,7 +152,7 @@ def run_tasks(fleet: Fleet, function: Callable[..., Any], items: Sequence[tuple[
                 except Exception as err:   # noqa: BLE001 - the task's failure
                     if not return_errors:
                         raise
-                    results[index] = TaskError(_task_reason(err), err)
+                    results[index] = TaskError(f'{type(err).__name__}: {err}', err)
                 bar.update()
         except BaseException:
             if futures:
@@ -172,11 +160,3 @@ def run_tasks(fleet: Fleet, function: Callable[..., Any], items: Sequence[tuple[
             raise
     return results
 
-
-def _task_reason(err: BaseException) -> str:
-    """One line on why a task failed."""
-    kind = type(err).__name__
-    if kind == 'KilledWorker':
-        return (f'its worker died {ALLOWED_FAILURES} times while running it (out of memory, '
-                'a crash in native code?)')
-    return f'{kind}: {err}'

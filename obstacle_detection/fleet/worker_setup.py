@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 import signal
-from typing import Any
 
 
-def dask_setup(worker: Any) -> None:
+def dask_setup(worker: object) -> None:
     """Ignore SIGINT in this worker process (called by Dask in its main thread)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)

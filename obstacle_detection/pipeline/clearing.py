@@ -20,18 +20,10 @@ def clearing_points(depth_m: np.ndarray, intrinsics: Intrinsics, *, stride_px: i
                     range_m: float) -> np.ndarray:
     """Return (N, 3) float32 optical-frame clearing ray ends: every stride_px-th pixel, borders.
 
-    A surface farther than range_m gives the point at that distance. ValueError: bad argument.
+    A surface farther than range_m gives the point at that distance.
     """
-    if isinstance(stride_px, bool) or not isinstance(stride_px, (int, np.integer)) \
-            or stride_px < 1:
-        raise ValueError(f'stride_px={stride_px!r} must be an int >= 1')
-    if not np.isfinite(range_m) or range_m <= 0.0:
-        raise ValueError(f'range_m={range_m!r} must be a finite number > 0')
-    depth = np.asarray(depth_m)
-    if depth.ndim != 2:
-        raise ValueError(f'depth_m must be a 2-D image, got shape {depth.shape}')
-    ru, rv, rows, cols = _rays_and_samples(depth.shape, intrinsics, int(stride_px))
-    return _clearing_points(depth, ru, rv, rows, cols, range_m, BORDER_FRACTIONS)
+    ru, rv, rows, cols = _rays_and_samples(depth_m.shape, intrinsics, int(stride_px))
+    return _clearing_points(depth_m, ru, rv, rows, cols, range_m, BORDER_FRACTIONS)
 
 
 # once per camera and stride, not per frame: a third of the clearing cloud's time in the node
@@ -68,8 +60,7 @@ def _reference_clearing_points(depth: np.ndarray, ru: np.ndarray, rv: np.ndarray
 
 
 # compiled: one pass over the kept rows instead of a dozen numpy calls (0.7 -> 0.1 ms)
-_clearing_points = jit.choose(_reference_clearing_points, compiled.clearing_points,
-                              accepts=lambda depth, *_: depth.dtype == np.float32)
+_clearing_points = jit.choose(_reference_clearing_points, compiled.clearing_points)
 
 
 def _points(z: np.ndarray, x_per_z: np.ndarray, y_per_z: np.ndarray,

@@ -61,18 +61,12 @@ def _reference_rasterise(flat: np.ndarray, points: np.ndarray, value: int,
                          origin_xy_m: tuple[float, float], resolution_m: float, nx: int,
                          ny: int) -> None:
     """Write ``value`` into the cells of ``flat`` ((ny * nx,) int8) that ``points`` hit."""
-    grid = Costmap(flat.reshape(ny, nx), resolution_m, origin_xy_m)
-    row, col, inside = grid.cell_of(points)
+    row, col, inside = Costmap(flat.reshape(ny, nx), resolution_m, origin_xy_m).cell_of(points)
     flat[row[inside] * nx + col[inside]] = value
 
 
-def _float_points(flat: np.ndarray, points: np.ndarray, *args: object) -> bool:
-    """Return True for the points the compiled rasterisation takes: (M, >= 2) float32/64."""
-    return points.dtype in (np.float32, np.float64) and points.ndim == 2 and points.shape[1] >= 2
-
-
-# compiled: the same cells, 0.3 ms of numpy temporaries less
-rasterise = jit.choose(_reference_rasterise, jit_costmap.rasterise, accepts=_float_points)
+# compiled: the same cells, 0.1 ms of numpy temporaries less a frame in the pipeline
+rasterise = jit.choose(_reference_rasterise, jit_costmap.rasterise)
 
 
 def build_costmap(obstacle_points: np.ndarray, ground_points: np.ndarray,
@@ -81,10 +75,10 @@ def build_costmap(obstacle_points: np.ndarray, ground_points: np.ndarray,
     origin, nx, ny = costmap_geometry(params)
     grid = Costmap(np.full((ny, nx), CELL_UNKNOWN, dtype=np.int8),
                    params.costmap_resolution_m, origin)
-    flat = grid.data.reshape(-1)
     for points, value in ((ground_points, CELL_FREE), (obstacle_points, CELL_OCCUPIED)):
         if points.shape[0]:
-            rasterise(flat, points, value, origin, params.costmap_resolution_m, nx, ny)
+            rasterise(grid.data.reshape(-1), points, value, origin, params.costmap_resolution_m,
+                      nx, ny)
     return grid
 
 
@@ -121,20 +115,5 @@ def _reference_halo_voxels(points: np.ndarray, counts: np.ndarray,
     return inside & weak.reshape(-1)[cell]
 
 
-def _voxel_points(points: np.ndarray, counts: np.ndarray, *args: object) -> bool:
-    """Return True for what the compiled halo takes: (V, >= 2) float32/64 points, (V,) counts."""
-    return (_float_points(None, points) and counts.ndim == 1
-            and counts.shape[0] == points.shape[0])
-
-
 # compiled: only the cells of the voxels, not 8 passes over the whole grid
-_halo_voxels = jit.choose(_reference_halo_voxels, jit_costmap.halo_voxels, accepts=_voxel_points)
-
-
-def warm_up() -> None:
-    """Compile (or load from numba's disk cache) the costmap's kernels, if they run."""
-    rasterise(np.zeros(4, np.int8), np.zeros((1, 3), np.float32), CELL_FREE, (0.0, 0.0), 1.0,
-              2, 2)
-    if jit.enabled():
-        jit_costmap.halo_voxels(np.zeros((1, 3), np.float32), np.ones(1, np.int64), (0.0, 0.0),
-                                1.0, 2, 2, HALO_SHARE)
+_halo_voxels = jit.choose(_reference_halo_voxels, jit_costmap.halo_voxels)

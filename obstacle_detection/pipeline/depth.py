@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import functools
-import operator
 
 import numpy as np
 
@@ -44,23 +43,16 @@ def units_per_metre(depth_scale: float | None) -> float:
     return scale
 
 
-def check_image(depth: np.ndarray, what: str) -> np.ndarray:
-    """Return ``depth`` as an ndarray after checking it is a non-empty 2-D image."""
-    arr = np.asarray(depth)
-    if arr.ndim != 2 or arr.size == 0:
-        raise DepthFormatError(
-            f'{what} must be a non-empty 2-D (H, W) array, got shape {arr.shape} '
-            f'(dtype {arr.dtype})')
-    return arr
-
-
 def decode_depth(depth: np.ndarray, *, depth_scale: float | None = None) -> np.ndarray:
     """Convert a raw (H, W) depth frame to a new C-contiguous float32 array in metres.
 
     depth: uint16 in 1/``depth_scale`` m (None: mm) or float32/64 in m; no return becomes 0.0.
     Raises DepthFormatError for another dtype or shape, or a scale with float input.
     """
-    arr = check_image(depth, 'depth image')
+    arr = np.asarray(depth)
+    if arr.ndim != 2 or arr.size == 0:
+        raise DepthFormatError(f'depth image must be a non-empty 2-D (H, W) array, got shape '
+                               f'{arr.shape} (dtype {arr.dtype})')
     kind, size = arr.dtype.kind, arr.dtype.itemsize
     if kind == 'u' and size == 2:
         scale = units_per_metre(depth_scale)
@@ -81,17 +73,11 @@ def decode_depth(depth: np.ndarray, *, depth_scale: float | None = None) -> np.n
 
 def crop_borders(depth_m: np.ndarray, top: int, bottom: int, left: int,
                  right: int) -> np.ndarray:
-    """Return a C-contiguous copy of ``depth_m`` with its border rows/columns set to 0 [px]."""
-    arr = check_image(depth_m, 'depth image')
-    margins = {'top': top, 'bottom': bottom, 'left': left, 'right': right}
-    for name, value in margins.items():
-        margins[name] = operator.index(value)
-        if margins[name] < 0:
-            raise ValueError(f'crop margin {name}={value} must be >= 0')
-    h, w = arr.shape
-    out = np.array(arr, order='C', copy=True)
-    out[:min(margins['top'], h)] = 0
-    out[max(h - margins['bottom'], 0):] = 0
-    out[:, :min(margins['left'], w)] = 0
-    out[:, max(w - margins['right'], 0):] = 0
+    """Return a C-contiguous copy of ``depth_m`` with its border rows/columns (>= 0) set to 0."""
+    h, w = depth_m.shape
+    out = np.array(depth_m, order='C', copy=True)
+    out[:min(top, h)] = 0
+    out[max(h - bottom, 0):] = 0
+    out[:, :min(left, w)] = 0
+    out[:, max(w - right, 0):] = 0
     return out

@@ -11,9 +11,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..labels import LABEL_OBSTACLE
-from . import clearing, geometry, median, traversal, voxel
+from . import clearing, geometry, jit, traversal, voxel
 from . import costmap as costmap_stage   # a frame's local `costmap` is its grid
-from . import normals as normals_stage   # a frame's local `normals` are vectors
 from .costmap import Costmap, build_costmap
 from .depth import crop_borders, decode_depth, depth_lut, units_per_metre
 from .floor import FloorFit, fit_floor, sample_rays
@@ -52,14 +51,6 @@ class DetectionResult:
     drop_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
 
 
-def _uint16_codes(depth: np.ndarray) -> np.ndarray | None:
-    """Return a uint16 depth image in native byte order, C-contiguous; None for other input."""
-    arr = np.asarray(depth)
-    if arr.dtype.kind != 'u' or arr.dtype.itemsize != 2 or arr.ndim != 2:
-        return None
-    return np.ascontiguousarray(arr, dtype=np.uint16)
-
-
 class _Clock:
     """Accumulates per-stage wall times [ms]."""
 
@@ -87,14 +78,27 @@ class Detector:
         self._sub_rays: np.ndarray | None = None
 
     def warm_up(self) -> float:
-        """Compile (or load from numba's disk cache) the JIT kernels; return the seconds."""
+        """Compile (or load from numba's disk cache) the JIT kernels; return the seconds.
+
+        Runs these parameters on a made-up frame (a floor, a box), as uint16 and as metres,
+        with a mount and region of interest that see both, so that every kernel a frame can
+        reach runs (the kernels depend on the types, not the values); and the clearing cloud.
+        """
         start = time.perf_counter()
-        median.warm_up()
-        clearing.warm_up()   # the node's clearing cloud
-        normals_stage.warm_up()
-        voxel.warm_up()
-        traversal.warm_up()
-        costmap_stage.warm_up()
+        if jit.enabled():
+            intr = Intrinsics(fx=365.0, fy=365.0, cx=256.0, cy=212.0)
+            mounted = Detector(self.params.replace(
+                camera_height_m=0.6, camera_pitch_rad=0.3, camera_roll_rad=0.0, min_range_m=0.0,
+                max_range_m=2.0, lateral_limit_m=2.0, tdbg_m=-0.1, smar_m=0.8))
+            x, y, z = geometry.ground_rays((424, 512), intr, mounted.params)
+            depth = np.where(z < -0.05, -0.6 / np.minimum(z, -0.05), 0.0)   # the floor
+            face = 0.8 / np.maximum(x, 1e-3)   # a box 0.3 m high, its face 0.8 m ahead
+            box = (depth * x > 0.8) & (np.abs(face * y) < 0.3) & (0.6 + face * z < 0.3)
+            depth = np.where(box, face, np.where(depth < 4.0, depth, 0.0)).reshape(424, 512)
+            mm = np.round(depth * 1000.0).astype(np.uint16)
+            mounted.process(mm, intr)
+            mounted.process(mm.astype(np.float32) / np.float32(1000.0), intr)
+            clearing.warm_up()   # the node's clearing cloud
         return time.perf_counter() - start
 
     def _rays(self, shape: tuple[int, int], intr: Intrinsics) -> geometry.GroundRays:
@@ -130,8 +134,6 @@ class Detector:
         normals = estimate_normals(centroids, neighbours[:, :n_cols])
         clock.lap('normals')
         steep = slope_obstacles(normals, p.cos_max_slope)
-        if p.max_ground_height_m > 0.0 and not p.robot_level:
-            steep |= centroids[:, 2] > np.float32(p.max_ground_height_m)
         clock.lap('slope')
         candidates, heights, trav, drop_points, drop_pixels = self._robot_level(
             depth_m, rays, run, centroids, steep, clock)
@@ -175,11 +177,11 @@ class Detector:
                         clock: _Clock) -> np.ndarray:
         """Decode, crop, median-filter and (robot level) un-smear a frame: (H, W) float32 [m]."""
         p = self.params
-        # uint16 input: the median runs on its codes (the same result, see median_of_codes)
-        codes = _uint16_codes(depth) if p.median_kernel > 1 else None
         crop = (p.crop_top_px, p.crop_bottom_px, p.crop_left_px, p.crop_right_px)
         depth_m = decode_depth(depth, depth_scale=depth_scale)
         clock.lap('decode')
+        # uint16 input (decoded: 2-D): the median runs on its codes (see median_of_codes)
+        codes = depth if p.median_kernel > 1 and np.asarray(depth).dtype.kind == 'u' else None
         if any(crop):
             depth_m = crop_borders(depth_m, *crop)
             if codes is not None:

@@ -5,7 +5,6 @@ A bounded RANSAC plane fit on upward-facing samples; the method: docs/method.md.
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass
 
@@ -82,14 +81,9 @@ def configured(params: DetectorParams, reason: str) -> FloorFit:
                     params.camera_roll_rad, reason=reason)
 
 
-def sample_rays(rays: np.ndarray | GroundRays, shape: tuple[int, int]) -> np.ndarray:
-    """Return (3, M) float32: the rays (a table or GroundRays) of the sampled pixel grid."""
-    step = sample_step(shape)
-    if isinstance(rays, GroundRays):
-        return np.ascontiguousarray(rays.subsampled(step).table())
-    height, width = shape
-    sub = rays.reshape(3, height, width)[:, ::step, ::step]
-    return np.ascontiguousarray(sub.reshape(3, -1))
+def sample_rays(rays: GroundRays, shape: tuple[int, int]) -> np.ndarray:
+    """Return (3, M) float32: the rays of the sampled pixel grid."""
+    return np.ascontiguousarray(rays.subsampled(sample_step(shape)).table())
 
 
 def floor_samples(depth_m: np.ndarray, sub_rays: np.ndarray,
@@ -149,20 +143,13 @@ def _lstsq_plane(pts: np.ndarray) -> np.ndarray:
     return np.array([a, b, mean[2] - a * mean[0] - b * mean[1]])
 
 
-def _reference_in_band(pts: np.ndarray, a: float, b: float, c: float,
-                       band_m: float) -> np.ndarray:
+def _in_band(pts: np.ndarray, a: float, b: float, c: float, band_m: float) -> np.ndarray:
     """(3, m) float64: the samples pts (3, M) within band_m of z = a x + b y + c."""
     resid = pts[2] - (a * pts[0] + b * pts[1] + c)
     return pts[:, np.abs(resid) <= band_m]
 
 
-def _same(a: np.ndarray, b: np.ndarray) -> bool:
-    """Return True when a and b hold the same values, bit for bit, in the same shape."""
-    return a.shape == b.shape and a.tobytes() == b.tobytes()
-
-
-def _reference_count_in_band(pts: np.ndarray, a: float, b: float, c: float,
-                             band_m: float) -> int:
+def _count_in_band(pts: np.ndarray, a: float, b: float, c: float, band_m: float) -> int:
     """How many samples pts (3, M) lie within band_m of z = a x + b y + c."""
     resid = pts[2] - (a * pts[0] + b * pts[1] + c)
     return int(np.count_nonzero(np.abs(resid) <= band_m))
@@ -209,8 +196,6 @@ def _reference_ransac_plane(pts: np.ndarray, picks: np.ndarray, tan_tilt2: float
     return np.stack((a[best], b[best], c[best]), axis=1)
 
 
-_in_band = jit.choose(_reference_in_band, jit_traversal.in_band)
-_count_in_band = jit.choose(_reference_count_in_band, jit_traversal.count_in_band)
 _ransac = jit.choose(_reference_ransac_plane, jit_traversal.ransac_plane)
 
 
@@ -248,7 +233,8 @@ def _best_plane(pts: np.ndarray, params: DetectorParams) -> tuple[np.ndarray, in
                 break
             # the same inliers as an earlier hypothesis at this stage: the same refits follow,
             # the same plane and support, which did not beat the best (skipped, same result)
-            repeated = any(len(done) > stage and _same(done[stage], inliers) for done in refits)
+            repeated = any(len(done) > stage and done[stage].shape == inliers.shape
+                           and done[stage].tobytes() == inliers.tobytes() for done in refits)
             if repeated:
                 break
             stages.append(inliers)
@@ -296,14 +282,6 @@ def _floor_beneath(pts: np.ndarray, coef: np.ndarray, used: int,
     return lower, lower_in.shape[1]
 
 
-@functools.lru_cache(maxsize=16)
-def _mount_rotation(pitch_rad: float, roll_rad: float) -> np.ndarray:
-    """:func:`.geometry.mount_rotation`, kept per configured mount (read-only)."""
-    rot = mount_rotation(pitch_rad, roll_rad)
-    rot.flags.writeable = False
-    return rot
-
-
 def _corrected_mount(params: DetectorParams, a: float, b: float, c: float,
                      samples: int) -> FloorFit:
     """Return the mount whose ground frame has the plane z = a x + b y + c as z = 0."""
@@ -320,7 +298,7 @@ def _corrected_mount(params: DetectorParams, a: float, b: float, c: float,
         k = axis / s
         kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
         rot_c = rot_c + s * kx + (1.0 - cos_angle) * (kx @ kx)
-    total = rot_c @ _mount_rotation(params.camera_pitch_rad, params.camera_roll_rad)
+    total = rot_c @ mount_rotation(params.camera_pitch_rad, params.camera_roll_rad)
     roll, pitch, _ = mount_angles(total)
     return FloorFit(True, height, pitch, roll, d_height_m=height - params.camera_height_m,
                     d_pitch_deg=math.degrees(pitch - params.camera_pitch_rad),

@@ -19,6 +19,8 @@ from .costmap import Costmap
 #: Largest window side [cells]: 2000 x 2000 float32 log-odds are 16 MB.
 MAX_CELLS_PER_SIDE = 2000
 
+#: Odometry poses a PoseBuffer keeps.
+POSE_CAPACITY = 256
 #: A pose: base frame in odom, (x [m], y [m], yaw [rad]).
 Pose = tuple[float, float, float]
 
@@ -84,8 +86,6 @@ class FusionUpdate:
 
     pose: Pose
     in_place: bool
-    shift_cells: tuple[int, int]
-    cells_forgotten: int
     reset: bool
     reason: str = ''
     message: str = ''
@@ -212,18 +212,15 @@ class FusedGrid:
         out[inside] = self.cell_states()[row[inside], col[inside]]
         return out
 
-    def _scroll_to(self, origin: tuple[int, int]) -> tuple[tuple[int, int], int]:
-        """Move the window's origin to ``origin``; return (shift, cells with evidence lost)."""
+    def _scroll_to(self, origin: tuple[int, int]) -> None:
+        """Move the window's origin to ``origin``; the cells that leave it are forgotten."""
         d_col = origin[0] - self._origin_cell[0]
         d_row = origin[1] - self._origin_cell[1]
-        if d_col == 0 and d_row == 0:
-            return (0, 0), 0
-        before = int(np.count_nonzero(self._log_odds))
-        # whole cells: new[r, c] = old[r + d_row, c + d_col], 0 from outside the old window
-        self._log_odds = ndimage.shift(self._log_odds, (-d_row, -d_col), order=0, cval=0.0,
-                                       prefilter=False)
-        self._origin_cell = origin
-        return (d_col, d_row), before - int(np.count_nonzero(self._log_odds))
+        if d_col or d_row:
+            # whole cells: new[r, c] = old[r + d_row, c + d_col], 0 from outside the old window
+            self._log_odds = ndimage.shift(self._log_odds, (-d_row, -d_col), order=0, cval=0.0,
+                                           prefilter=False)
+            self._origin_cell = origin
 
     def _reanchor(self, old: Pose, new: Pose) -> int:
         """Re-express the map with the robot at ``new`` (was ``old``, not moved); cells lost."""
@@ -249,14 +246,8 @@ class FusedGrid:
                pose_stamp_s: float | None = None, no_pose_reason: str = '') -> FusionUpdate:
         """Fuse one frame's costmap (base frame) taken at base pose ``pose`` (x, y, yaw) in odom.
 
-        Without a usable pose, or an older one: fused in place. ValueError for a bad costmap.
+        Without a usable pose, or an older one: fused in place.
         """
-        data = np.asarray(costmap.data)
-        if data.ndim != 2 or data.dtype != np.int8:
-            raise ValueError(f'costmap data must be a 2-D int8 grid, got {data.dtype} '
-                             f'{data.shape}')
-        if not (math.isfinite(costmap.resolution_m) and costmap.resolution_m > 0.0):
-            raise ValueError(f'costmap resolution_m={costmap.resolution_m!r} must be > 0')
         p = self.params
         if pose is None:
             kind, reason = 'missing', no_pose_reason or 'no odometry'
@@ -267,7 +258,7 @@ class FusedGrid:
             kind = 'old'
             reason = (f'odometry pose {self._pose_stamp_s - pose_stamp_s:.3f} s older than '
                       f'the last one used')
-        message, warning, reset, forgotten = '', False, False, 0
+        message, warning, reset = '', False, False
         if reason:   # fuse in place; say so once per kind of cause
             used = self._pose if self._pose is not None else (0.0, 0.0, 0.0)
             if kind != self._in_place_kind:
@@ -294,9 +285,8 @@ class FusedGrid:
                     warning = True
             if pose_stamp_s is not None:
                 self._pose_stamp_s = float(pose_stamp_s)
-        shift, scrolled_out = (0, 0), 0
         if not reset:
-            shift, scrolled_out = self._scroll_to(self._centred_origin(used[0], used[1]))
+            self._scroll_to(self._centred_origin(used[0], used[1]))
         self._pose = used
         n = p.cells
         hit, miss = frame_evidence(costmap, used, self._origin_cell, (n, n), p.resolution_m)
@@ -304,21 +294,16 @@ class FusedGrid:
         grid[hit] += np.float32(p.hit_log_odds)
         grid[miss] += np.float32(p.miss_log_odds)
         np.clip(grid, np.float32(p.min_log_odds), np.float32(p.max_log_odds), out=grid)
-        return FusionUpdate(pose=used, in_place=bool(reason) and not reset, shift_cells=shift,
-                            cells_forgotten=forgotten + scrolled_out, reset=reset,
+        return FusionUpdate(pose=used, in_place=bool(reason) and not reset, reset=reset,
                             reason=reason, message=message, warning=warning)
 
 
 class PoseBuffer:
     """Recent odometry poses by time (thread-safe); the pose at a frame's stamp."""
 
-    def __init__(self, max_age_s: float = 0.2, capacity: int = 256) -> None:
-        if not (math.isfinite(max_age_s) and max_age_s >= 0.0):
-            raise ValueError(f'PoseBuffer: max_age_s={max_age_s!r} must be a number >= 0')
-        if capacity < 2:
-            raise ValueError(f'PoseBuffer: capacity={capacity!r} must be >= 2')
-        self.max_age_s = float(max_age_s)
-        self._items: deque[tuple[float, Pose]] = deque(maxlen=int(capacity))
+    def __init__(self, max_age_s: float = 0.2) -> None:
+        self.max_age_s = max_age_s
+        self._items: deque[tuple[float, Pose]] = deque(maxlen=POSE_CAPACITY)
         self._lock = threading.Lock()
 
     def __len__(self) -> int:

@@ -11,8 +11,6 @@ import math
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from . import jit
-from ._compiled import traversal as jit_traversal
 from .params import DetectorParams, Intrinsics
 
 #: Optical frame (x right, y down, z forward) -> level body frame (x forward, y left, z up).
@@ -103,15 +101,14 @@ class GroundRays:
         self.rot = np.ascontiguousarray(rot, np.float32)
         self._table: np.ndarray | None = None
 
-    @property
-    def shape(self) -> tuple[int, int]:
-        """(H, W) of the image the rays belong to."""
-        return self.rv.size, self.ru.size
-
-    def table(self, out: np.ndarray | None = None) -> np.ndarray:
-        """Return the (3, H*W) float32 rays of every flat pixel index (made once; out: to fill)."""
+    def table(self) -> np.ndarray:
+        """Return the (3, H*W) float32 rays of every flat pixel index (made once)."""
         if self._table is None:
-            self._table = _ray_table(self.ru, self.rv, self.rot, out)
+            rays = np.empty((3, self.rv.size, self.ru.size), np.float32)
+            for axis in range(3):
+                rays[axis] = (self.rot[axis, 0] * self.ru[None, :]
+                              + self.rot[axis, 1] * self.rv[:, None] + self.rot[axis, 2])
+            self._table = rays.reshape(3, -1)
         return self._table
 
     def at(self, pixels: np.ndarray) -> np.ndarray:
@@ -133,21 +130,6 @@ class GroundRays:
         return GroundRays(self.ru[::step], self.rv[::step], self.rot)
 
 
-def _reference_ground_rays(ru: np.ndarray, rv: np.ndarray, rot: np.ndarray,
-                           out: np.ndarray | None = None) -> np.ndarray:
-    """(3, H*W) float32 rays ``rot[a, 0] * ru[j] + rot[a, 1] * rv[i] + rot[a, 2]`` (numpy)."""
-    if out is None or out.shape != (3, rv.size * ru.size) or out.dtype != np.float32:
-        out = np.empty((3, rv.size * ru.size), np.float32)
-    rays = out.reshape(3, rv.size, ru.size)
-    for axis in range(3):
-        rays[axis] = rot[axis, 0] * ru[None, :] + rot[axis, 1] * rv[:, None] + rot[axis, 2]
-    return out
-
-
-# compiled: the same float32 operations
-_ray_table = jit.choose(_reference_ground_rays, jit_traversal.ground_rays)
-
-
 def ray_model(shape: tuple[int, int], intrinsics: Intrinsics,
               params: DetectorParams) -> GroundRays:
     """Return the :class:`GroundRays` of an (H, W) image under the params' mount."""
@@ -156,14 +138,9 @@ def ray_model(shape: tuple[int, int], intrinsics: Intrinsics,
 
 
 def ground_rays(shape: tuple[int, int], intrinsics: Intrinsics, params: DetectorParams,
-                out: np.ndarray | None = None) -> np.ndarray:
-    """(3, H*W) float32 table of :func:`ray_model`'s rays (out: an array to fill)."""
-    return ray_model(shape, intrinsics, params).table(out)
-
-
-def rays_at(rays: np.ndarray | GroundRays, pixels: np.ndarray) -> np.ndarray:
-    """Return the (3, D) float32 rays of the flat pixel indices, from a table or a model."""
-    return rays.at(pixels) if isinstance(rays, GroundRays) else rays[:, pixels]
+                ) -> np.ndarray:
+    """(3, H*W) float32 table of :func:`ray_model`'s rays."""
+    return ray_model(shape, intrinsics, params).table()
 
 
 def roi_mask(points_ground: np.ndarray, params: DetectorParams) -> np.ndarray:

@@ -43,15 +43,14 @@ def enabled() -> bool:
     return _kernels_ready.is_set() or getattr(_compiling, 'active', False)
 
 
-def choose(reference: Callable[..., Any], compiled: Callable[..., Any], *,
-           accepts: Callable[..., bool] | None = None) -> Callable[..., Any]:
-    """Return a dispatcher: ``compiled`` when :func:`enabled` and ``accepts``, else ``reference``.
+def choose(reference: Callable[..., Any], compiled: Callable[..., Any]) -> Callable[..., Any]:
+    """Return a dispatcher: ``compiled`` when :func:`enabled`, else ``reference``.
 
     The result keeps both as ``.reference`` and ``.compiled`` (tests compare them).
     """
     @functools.wraps(reference)
     def dispatch(*args: Any, **kwargs: Any) -> Any:
-        if enabled() and (accepts is None or accepts(*args, **kwargs)):
+        if enabled():
             return compiled(*args, **kwargs)
         return reference(*args, **kwargs)
 
@@ -87,15 +86,6 @@ class BackgroundCompile(threading.Thread):
                 _kernels_ready.set()
             if self._on_done is not None:
                 self._on_done(self)
-
-    def done(self) -> bool:
-        """Return True once the compilation finished (or failed)."""
-        return self.seconds is not None
-
-    def wait(self, timeout: float | None = None) -> bool:
-        """Wait for the end of the compilation; return True if it ended."""
-        self.join(timeout)
-        return not self.is_alive()
 
 
 def compile_in_background(warm_up: Callable[[], Any], *,

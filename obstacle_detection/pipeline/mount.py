@@ -19,22 +19,28 @@ MIN_POINTS = 500
 SCORE_POINTS = 4000
 #: Most least-squares refinement rounds on the chosen plane's inliers (stops when they settle).
 REFINE_ROUNDS = 12
-#: A point more than this many ``inlier_m`` below a candidate counts against it (step 3).
+#: A point more than this many ``INLIER_M`` below a candidate counts against it (step 3).
 BELOW_MARGIN_INLIERS = 2.5
 #: A candidate floor may have at most this many points below it per inlier.
 MAX_BELOW_PER_INLIER = 0.1
+#: Distance of a point to the plane that makes it an inlier [m].
+INLIER_M = 0.02
+#: Candidate planes (point triplets) of the RANSAC, drawn with a fixed seed.
+ITERATIONS = 2000
+#: Largest angle between the floor's normal and the expected up (60 deg).
+MAX_TILT_RAD = math.radians(60.0)
+#: Least share of the points the floor must hold.
+MIN_INLIER_FRACTION = 0.03
 
 
 @dataclass(frozen=True)
 class MountEstimate:
-    """The camera mount found from the floor plane ``normal_optical . p + offset_m = 0``."""
+    """The camera mount found from the floor plane; n_points: the valid points within range."""
 
     height_m: float
     pitch_rad: float
     roll_rad: float
     inlier_fraction: float
-    normal_optical: tuple[float, float, float]
-    offset_m: float
     n_points: int
 
     @property
@@ -52,29 +58,10 @@ def mount_from_plane(normal_optical: np.ndarray, offset_m: float) -> tuple[float
     """(height [m], pitch, roll [rad]) of the camera above the plane ``n . p + d = 0`` (n up)."""
     n = np.asarray(normal_optical, dtype=np.float64)
     norm = float(np.linalg.norm(n))
-    if not (math.isfinite(norm) and norm > 0.0):
-        raise ValueError(f'plane normal {n.tolist()} is not a finite non-zero vector')
     n = n / norm
-    d = float(offset_m) / norm
-    if not d > 0.0:
-        raise ValueError(f'the camera is not above the plane (offset {d:.4g} m <= 0)')
-    horizontal = math.hypot(n[0], n[1])
-    if horizontal == 0.0:
-        raise ValueError('the plane is perpendicular to the optical axis: pitch would be 90 deg')
-    pitch = math.atan2(-n[2], horizontal)
+    pitch = math.atan2(-n[2], math.hypot(n[0], n[1]))
     roll = math.atan2(-n[0], -n[1])
-    return d, pitch, roll
-
-
-def _check_depth(depth_m: np.ndarray) -> np.ndarray:
-    arr = np.asarray(depth_m)
-    if arr.ndim != 2 or arr.size == 0:
-        raise ValueError(f'depth_m must be a non-empty (H, W) array, got shape {arr.shape}')
-    if not np.issubdtype(arr.dtype, np.floating):
-        raise ValueError(f'depth_m must be float metres, got dtype {arr.dtype} '
-                         '(decode integer depth with depth.decode_depth first)')
-    arr = arr.astype(np.float32, copy=False)
-    return np.where(np.isfinite(arr) & (arr > 0.0), arr, np.float32(0.0))
+    return float(offset_m) / norm, pitch, roll
 
 
 def _triplets(pixel_index: np.ndarray, shape: tuple[int, int], n: int,
@@ -125,89 +112,63 @@ def _fit_plane(points: np.ndarray) -> np.ndarray:
 
 
 def estimate_mount(depth_m: np.ndarray, intrinsics: Intrinsics, *, max_range_m: float = 4.0,
-                   inlier_m: float = 0.02, iterations: int = 2000, seed: int = 0,
-                   prior_pitch_rad: float | None = None,
-                   max_tilt_rad: float = math.radians(60.0),
-                   min_inlier_fraction: float = 0.03) -> MountEstimate:
+                   prior_pitch_rad: float | None = None) -> MountEstimate:
     """Find the floor in a depth frame (H, W) [m] and return the camera mount above it.
 
     prior_pitch_rad: the expected pitch whose up the floor normal is sought around (else
     optical -y). Raises ValueError for a bad argument or no plausible floor.
     """
-    _check_arguments(max_range_m, inlier_m, iterations, max_tilt_rad, min_inlier_fraction,
-                     prior_pitch_rad)
-    depth = _check_depth(depth_m)
-    depth[depth > max_range_m] = 0.0
+    if not 0.0 < max_range_m < math.inf:
+        raise ValueError(f'max_range_m={max_range_m!r} must be a finite number > 0')
+    if prior_pitch_rad is not None and not abs(prior_pitch_rad) < math.pi / 2:
+        raise ValueError(f'prior_pitch_rad={prior_pitch_rad!r} must be in (-pi/2, pi/2)')
+    depth = np.where(depth_m <= max_range_m, depth_m, 0.0).astype(np.float32)   # NaN: 0
     points, pixel_index = back_project(depth, intrinsics)
     n_points = int(points.shape[0])
     if n_points < MIN_POINTS:
         raise ValueError(f'too few points to find the floor: {n_points} valid pixels within '
                          f'{max_range_m} m, need {MIN_POINTS}')
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(0)
     up = mount_rotation(prior_pitch_rad or 0.0, 0.0)[2]   # the floor's up, optical frame
-    plane = _best_candidate(points, pixel_index, depth.shape, up, rng, inlier_m, iterations,
-                            max_tilt_rad, min_inlier_fraction)
+    plane = _best_candidate(points, pixel_index, depth.shape, up, rng)
     previous = None
     for _ in range(REFINE_ROUNDS):
-        near = np.abs(points @ plane[:3].astype(np.float32) + np.float32(plane[3])) <= inlier_m
+        near = np.abs(points @ plane[:3].astype(np.float32) + np.float32(plane[3])) <= INLIER_M
         if np.count_nonzero(near) < 3 or (previous is not None and np.array_equal(near,
                                                                                   previous)):
             break
         plane, previous = _fit_plane(points[near]), near
     residual = points @ plane[:3].astype(np.float32) + np.float32(plane[3])
-    fraction = float(np.count_nonzero(np.abs(residual) <= inlier_m)) / n_points
+    fraction = float(np.count_nonzero(np.abs(residual) <= INLIER_M)) / n_points
     tilt = math.degrees(math.acos(min(1.0, float(plane[:3] @ up))))
-    if tilt > math.degrees(max_tilt_rad):
+    if tilt > math.degrees(MAX_TILT_RAD):
         raise ValueError(f'no plausible floor: the refined plane is tilted {tilt:.0f} deg from '
-                         f'the expected up, more than max_tilt_rad '
-                         f'({math.degrees(max_tilt_rad):.0f} deg); give prior_pitch_rad for a '
-                         'camera looking steeply down')
-    if fraction < min_inlier_fraction:
+                         f'the expected up, more than {math.degrees(MAX_TILT_RAD):.0f} deg; '
+                         'give prior_pitch_rad for a camera looking steeply down')
+    if fraction < MIN_INLIER_FRACTION:
         raise ValueError(f'no plausible floor: the refined plane holds {fraction:.1%} of the '
-                         f'points, less than min_inlier_fraction={min_inlier_fraction}')
+                         f'points, less than {MIN_INLIER_FRACTION:.0%}')
     height, pitch, roll = mount_from_plane(plane[:3], plane[3])
     return MountEstimate(height_m=height, pitch_rad=pitch, roll_rad=roll,
-                         inlier_fraction=fraction,
-                         normal_optical=tuple(float(v) for v in plane[:3]),
-                         offset_m=float(plane[3]), n_points=n_points)
-
-
-def _check_arguments(max_range_m: float, inlier_m: float, iterations: int,
-                     max_tilt_rad: float, min_inlier_fraction: float,
-                     prior_pitch_rad: float | None) -> None:
-    """Raise ValueError for a bad argument of :func:`estimate_mount`."""
-    integer = isinstance(iterations, int) and not isinstance(iterations, bool)
-    for name, value, ok, rule in (
-            ('max_range_m', max_range_m, 0.0 < max_range_m < math.inf, 'a finite number > 0'),
-            ('inlier_m', inlier_m, 0.0 < inlier_m < math.inf, 'a finite number > 0'),
-            ('iterations', iterations, integer and iterations >= 1, 'an int >= 1'),
-            ('max_tilt_rad', max_tilt_rad, 0.0 < max_tilt_rad < math.pi / 2, 'in (0, pi/2)'),
-            ('min_inlier_fraction', min_inlier_fraction, 0.0 < min_inlier_fraction < 1.0,
-             'in (0, 1)'),
-            ('prior_pitch_rad', prior_pitch_rad,
-             prior_pitch_rad is None or abs(prior_pitch_rad) < math.pi / 2, 'in (-pi/2, pi/2)')):
-        if not ok:
-            raise ValueError(f'{name}={value!r} must be {rule}')
+                         inlier_fraction=fraction, n_points=n_points)
 
 
 def _best_candidate(points: np.ndarray, pixel_index: np.ndarray, shape: tuple[int, int],
-                    up: np.ndarray, rng: np.random.Generator, inlier_m: float,
-                    iterations: int, max_tilt_rad: float,
-                    min_inlier_fraction: float) -> np.ndarray:
+                    up: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """(4,) the best supported RANSAC plane near ``up`` with next to nothing below it."""
     n_points = points.shape[0]
     score = points[rng.choice(n_points, size=min(SCORE_POINTS, n_points), replace=False)]
     score_h = np.column_stack([score, np.ones(len(score), dtype=np.float32)])
-    planes = _candidate_planes(points, _triplets(pixel_index, shape, iterations, rng))
-    planes = planes[planes[:, :3] @ up >= math.cos(max_tilt_rad)]
+    planes = _candidate_planes(points, _triplets(pixel_index, shape, ITERATIONS, rng))
+    planes = planes[planes[:, :3] @ up >= math.cos(MAX_TILT_RAD)]
     if planes.shape[0] == 0:
         raise ValueError('no plausible floor: no horizontal-ish plane below the camera (normal '
-                         f'within {math.degrees(max_tilt_rad):.0f} deg of up)')
+                         f'within {math.degrees(MAX_TILT_RAD):.0f} deg of up)')
     # signed distance of every scoring point to every candidate, > 0 towards the camera
     dist = planes.astype(np.float32) @ score_h.T
-    below = np.count_nonzero(dist < -BELOW_MARGIN_INLIERS * inlier_m, axis=1)
-    inliers = np.count_nonzero(np.abs(dist, out=dist) <= inlier_m, axis=1)
-    min_count = max(min_inlier_fraction * len(score), 3.0)
+    below = np.count_nonzero(dist < -BELOW_MARGIN_INLIERS * INLIER_M, axis=1)
+    inliers = np.count_nonzero(np.abs(dist, out=dist) <= INLIER_M, axis=1)
+    min_count = max(MIN_INLIER_FRACTION * len(score), 3.0)
     # a plane with as many points below it as a floor needs is a table or box top
     plausible = (inliers >= min_count) & (below < min_count)
     plausible &= below <= MAX_BELOW_PER_INLIER * inliers
@@ -215,7 +176,7 @@ def _best_candidate(points: np.ndarray, pixel_index: np.ndarray, shape: tuple[in
         best = int(np.argmax(inliers))
         raise ValueError(
             'no plausible floor: no horizontal-ish plane with at least '
-            f'{min_inlier_fraction:.0%} of the points and nothing below it (the best '
+            f'{MIN_INLIER_FRACTION:.0%} of the points and nothing below it (the best '
             f'horizontal-ish candidate holds {inliers[best] / len(score):.1%} of the points, '
             f'{below[best] / len(score):.1%} lie below it)')
     return planes[int(np.argmax(np.where(plausible, inliers, -1)))]

@@ -135,11 +135,9 @@ def estimate_normals(points: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
     return _normals_from_neighbours(points, neighbours, neighbours.shape[1])
 
 
-def slope_obstacles(normals: np.ndarray, cos_max_slope: float,
-                    up: tuple[float, float, float] = (0.0, 0.0, 1.0)) -> np.ndarray:
+def slope_obstacles(normals: np.ndarray, cos_max_slope: float) -> np.ndarray:
     """Seed slope test: (V,) bool, True where ``|n . up| < cos(theta)`` (too steep)."""
-    up_vec = np.asarray(up, dtype=np.float32)
-    return np.abs(normals @ up_vec) < np.float32(cos_max_slope)
+    return np.abs(normals[:, 2]) < np.float32(cos_max_slope)
 
 
 def validate_obstacles(is_obstacle: np.ndarray, neighbours: np.ndarray, n1: int) -> np.ndarray:
@@ -162,9 +160,3 @@ def _reference_validate(is_obstacle: np.ndarray, neighbours: np.ndarray, n1: int
 
 # compiled: the same flags without the (V, N1) gather (0.3 ms)
 _validate = jit.choose(_reference_validate, jit_knn.validate)
-
-
-def warm_up() -> None:
-    """Compile (or load from numba's disk cache) the k-NN and normals kernels, if they run."""
-    if jit.enabled():   # not when switched off, or while another thread compiles
-        jit_knn.warm_up()

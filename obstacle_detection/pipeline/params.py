@@ -111,11 +111,6 @@ class DetectorParams:
     validation_neighbours: int = field(default=12, metadata=_describe(
         'N1: an obstacle point stays one only if its N1 nearest neighbours (itself excluded) are '
         'obstacles too; 0 = no validation (seed Table 4.2: 12)', min=0, max=400))
-    max_ground_height_m: float = field(default=0.0, metadata=_describe(
-        'Not in the seed, slope-only mode (robot_level false; robot level supersedes it): '
-        'flat voxels higher than this above the ground are obstacles too (box and table tops, '
-        'which the slope test calls ground); it also marks the high part of a passable ramp. '
-        '0 = off, the seed method [m]', min=0.0, max=5.0))
     # -- robot level (not in the seed): traversability by connectivity, step height and drops
     robot_level: bool = field(default=True, metadata=_describe(
         'Not in the seed: robot-level traversability. Ground is grown from the floor plane '
@@ -216,9 +211,6 @@ class DetectorParams:
 
         For the pipeline's per-frame changes only (values kept in range by the floor fit).
         """
-        allowed = {'camera_height_m', 'camera_pitch_rad', 'camera_roll_rad', 'tdbg_m'}
-        if not set(changes) <= allowed:
-            raise ValueError(f'with_frame_mount changes only {", ".join(sorted(allowed))}')
         out = object.__new__(DetectorParams)
         out.__dict__.update(self.__dict__)
         out.__dict__.update({name: float(value) for name, value in changes.items()})

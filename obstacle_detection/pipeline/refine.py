@@ -109,12 +109,10 @@ def training_samples(result: Any, truth_labels: np.ndarray,
 def fit_logistic(features: np.ndarray, targets: np.ndarray, *, l2: float = 1e-3) -> np.ndarray:
     """Coefficients (D + 1,), intercept first, of an L2-penalised logistic fit (L-BFGS).
 
-    features: (M, D); targets: (M,) bool. ValueError on empty, mismatched or non-finite input.
+    features: (M, D); targets: (M,) bool. ValueError on empty or non-finite input.
     """
     x = np.asarray(features, dtype=np.float64)
     y = np.asarray(targets, dtype=np.float64).reshape(-1)
-    if x.ndim != 2 or x.shape[0] != y.size:
-        raise ValueError(f'features shape {x.shape} does not match targets shape {y.shape}')
     if y.size == 0 or not np.isfinite(x).all() or not 0.0 <= l2 < math.inf:
         raise ValueError(f'a fit needs samples ({y.size} rows), finite features and a finite '
                          f'l2 >= 0 (l2={l2!r})')
@@ -133,14 +131,6 @@ def fit_logistic(features: np.ndarray, targets: np.ndarray, *, l2: float = 1e-3)
     return fit.x
 
 
-def _checked_features(features: np.ndarray) -> np.ndarray:
-    """Return the raw features as (M, 9) float64; ValueError for another shape."""
-    x = np.asarray(features, dtype=np.float64)
-    if x.ndim != 2 or x.shape[1] != len(FEATURE_NAMES):
-        raise ValueError(f'features shape {x.shape}, expected (M, {len(FEATURE_NAMES)})')
-    return x
-
-
 @dataclass(frozen=True)
 class LogisticRefiner:
     """A fitted model: ``P(obstacle) = sigma(w0 + sum_j w_j (x_j - mean_j) / scale_j)``."""
@@ -152,10 +142,6 @@ class LogisticRefiner:
     training_info: tuple[tuple[str, Any], ...] = ()
 
     def __post_init__(self) -> None:
-        n = len(FEATURE_NAMES)
-        sizes = (len(self.coefficients), len(self.feature_mean), len(self.feature_scale))
-        if sizes != (n + 1, n, n):
-            raise ValueError(f'{sizes} coefficients, means, scales: expected {(n + 1, n, n)}')
         values = (*self.coefficients, *self.feature_mean, *self.feature_scale, self.threshold)
         if not all(math.isfinite(v) for v in values) or min(self.feature_scale) <= 0.0 \
                 or not 0.0 < self.threshold < 1.0:
@@ -165,7 +151,7 @@ class LogisticRefiner:
     def fit(cls, features: np.ndarray, targets: np.ndarray, *, l2: float = 1e-3,
             threshold: float = 0.5, **info: Any) -> 'LogisticRefiner':
         """Standardise slope and gradient and fit; ``info`` is stored in the model file."""
-        x = _checked_features(features)
+        x = np.asarray(features, dtype=np.float64)
         mean = np.zeros(x.shape[1])
         scale = np.ones(x.shape[1])
         if x.shape[0]:
@@ -181,14 +167,9 @@ class LogisticRefiner:
 
     def _log_odds(self, features: np.ndarray) -> np.ndarray:
         """(M,) float64 linear predictor a0 + sum a_j x_j of raw features (M, 9)."""
-        x = _checked_features(features)
         w = np.asarray(self.coefficients)
-        scaled = (x - np.asarray(self.feature_mean)) / np.asarray(self.feature_scale)
+        scaled = (features - np.asarray(self.feature_mean)) / np.asarray(self.feature_scale)
         return w[0] + scaled @ w[1:]
-
-    def predict_proba(self, features: np.ndarray) -> np.ndarray:
-        """(M,) float64 probability of obstacle for raw features (M, 9)."""
-        return expit(self._log_odds(features))
 
     def predict(self, features: np.ndarray) -> np.ndarray:
         """(M,) bool obstacle decision for raw features (M, 9): z > logit(threshold)."""
@@ -200,8 +181,7 @@ class LogisticRefiner:
         features, pixel_index = pixel_features(result, previous_mask)
         shape = np.asarray(result.pixel_voxel).shape
         out = np.zeros(shape[0] * shape[1], dtype=bool)
-        if pixel_index.size:
-            out[pixel_index] = self.predict(features)
+        out[pixel_index] = self.predict(features)
         return out.reshape(shape)
 
     def to_dict(self) -> dict[str, Any]:
@@ -279,13 +259,13 @@ def voxel_votes(pixel_voxel: np.ndarray, mask: np.ndarray, n_voxels: int) -> np.
     return 2.0 * positive > total
 
 
-def refine_result(result: Any, refined_mask: np.ndarray, params: DetectorParams, *,
-                  validate: bool = True) -> RefinedResult:
+def refine_result(result: Any, refined_mask: np.ndarray, params: DetectorParams,
+                  ) -> RefinedResult:
     """Refined obstacle pixels -> labels, voxels (majority vote, N1 check) and a costmap."""
     # Imported here: the fit and the model file need neither the costmap nor the k-NN.
     from .costmap import build_costmap
     from .geometry import to_base_frame
-    from .normals import nearest_neighbours, validate_obstacles
+    from .normals import validate_obstacles
 
     pixel_voxel = np.asarray(result.pixel_voxel)
     mask = np.asarray(refined_mask, dtype=bool) & (pixel_voxel >= 0)
@@ -294,14 +274,9 @@ def refine_result(result: Any, refined_mask: np.ndarray, params: DetectorParams,
     labels[has] = np.where(mask[has], LABEL_OBSTACLE, LABEL_GROUND)
     voxel_points = np.asarray(result.voxel_points, dtype=np.float32).reshape(-1, 3)
     is_obstacle = voxel_votes(pixel_voxel, mask, voxel_points.shape[0])
-    n1 = params.validation_neighbours
-    if validate and n1 > 0 and is_obstacle.any():
-        # the pipeline's own k-NN query serves when it asked for enough neighbours
-        neighbours = getattr(result, 'voxel_neighbours', None)
-        wanted = min(n1 + 1, voxel_points.shape[0])
-        if neighbours is None or neighbours.shape[1] < wanted:
-            neighbours = nearest_neighbours(voxel_points, wanted)
-        is_obstacle = validate_obstacles(is_obstacle, neighbours, n1)
+    # the pipeline's own k-NN query: max(N, N1 + 1) neighbours
+    is_obstacle = validate_obstacles(is_obstacle, result.voxel_neighbours,
+                                     params.validation_neighbours)
     obstacle_points = to_base_frame(voxel_points[is_obstacle], params)
     ground_points = to_base_frame(voxel_points[~is_obstacle], params)
     costmap = build_costmap(obstacle_points, ground_points, params)

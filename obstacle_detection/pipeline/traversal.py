@@ -16,7 +16,7 @@ from scipy.sparse.csgraph import breadth_first_order
 from . import jit
 from ._compiled import ledges as jit_ledges
 from ._compiled import traversal as jit_traversal
-from .geometry import GroundRays, rays_at
+from .geometry import GroundRays
 from .params import DetectorParams
 
 #: The 8 neighbours of a cell as (dx, dy); the search adds both directions of each pair.
@@ -312,7 +312,9 @@ def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float, *,
     if max_shift <= 0.0:
         return filtered
     raw = np.ascontiguousarray(raw, np.float32)
-    _drop_smeared(filtered, raw, max_shift, FLYING_JUMP, PLANAR_TOLERANCE, raw_no_nan)
+    # the compiled pass's window range orders NaN its own way: raw with NaN takes numpy's
+    smear = _drop_smeared if raw_no_nan or not np.isnan(raw).any() else _drop_smeared.reference
+    smear(filtered, raw, max_shift, FLYING_JUMP, PLANAR_TOLERANCE)
     return filtered
 
 
@@ -337,20 +339,12 @@ def _reference_unbias_holes(filtered: np.ndarray, raw: np.ndarray, kernel: int,
     return cv2.copyTo(np.zeros_like(raw), hole, filtered)
 
 
-def _one_float32_image(filtered: np.ndarray, raw: np.ndarray, kernel: int, most: int) -> bool:
-    """Return True for what the compiled pass takes: C-contiguous float32, kernel <= 181."""
-    return (filtered.flags.c_contiguous and filtered.dtype == np.float32
-            and filtered.shape == raw.shape and raw.ndim == 2 and kernel <= 181)
-
-
 # compiled: one pass with a sliding window count, instead of six image-sized passes
-_unbias_holes = jit.choose(_reference_unbias_holes, jit_traversal.unbias_holes,
-                           accepts=_one_float32_image)
+_unbias_holes = jit.choose(_reference_unbias_holes, jit_traversal.unbias_holes)
 
 
 def _reference_drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float,
-                            jump: float, planar_tolerance: float,
-                            raw_no_nan: bool = False) -> None:
+                            jump: float, planar_tolerance: float) -> None:
     """In place: :func:`drop_smeared`'s rules with the flying-pixel ``jump`` (numpy)."""
     kernel = np.ones((FLYING_WINDOW_PX, FLYING_WINDOW_PX), np.uint8)   # nearest, farthest
     near = cv2.erode(np.where(raw > 0.0, raw, np.float32(np.inf)), kernel,
@@ -378,16 +372,7 @@ def _reference_drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: fl
     filtered[bad] = 0.0
 
 
-def _fusable(filtered: np.ndarray, raw: np.ndarray, max_shift: float, jump: float,
-             planar_tolerance: float, raw_no_nan: bool = False) -> bool:
-    """Return True for what the compiled smear pass takes: float32, C order, no NaN in raw."""
-    return (FLYING_WINDOW_PX == 5 and filtered.flags.c_contiguous
-            and filtered.dtype == np.float32 and filtered.shape == raw.shape
-            and (raw_no_nan or not jit_traversal.has_nan(raw)))
-
-
-_drop_smeared = jit.choose(_reference_drop_smeared, jit_traversal.drop_smeared,
-                           accepts=_fusable)
+_drop_smeared = jit.choose(_reference_drop_smeared, jit_traversal.drop_smeared)
 
 
 def drop_edge_mask(depth_m: np.ndarray, rz: np.ndarray, height_m: float, step_down_m: float,
@@ -413,14 +398,12 @@ def drop_edge_mask(depth_m: np.ndarray, rz: np.ndarray, height_m: float, step_do
     return edge
 
 
-def _reference_drop_pixels(depth_m: np.ndarray, rz: np.ndarray | None, height_m: float,
-                           step_down_m: float, step_up_m: float, rows: int,
-                           model: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+def _reference_drop_pixels(depth_m: np.ndarray, ru: np.ndarray, rv: np.ndarray, rot: np.ndarray,
+                           height_m: float, step_down_m: float, step_up_m: float, rows: int,
                            ) -> tuple[np.ndarray, np.ndarray]:
-    """(flat pixels, int8 offsets) of :func:`drop_edge_mask`'s marks; or model: (ru, rv, rot)."""
-    if model is not None:
-        rz = GroundRays(*model).table()[2]
-    edge = drop_edge_mask(depth_m, rz, height_m, step_down_m, step_up_m, rows)
+    """(flat pixels, int8 offsets) of :func:`drop_edge_mask`'s marks under GroundRays' factors."""
+    edge = drop_edge_mask(depth_m, GroundRays(ru, rv, rot).table()[2], height_m, step_down_m,
+                          step_up_m, rows)
     pixels = np.flatnonzero(edge)
     return pixels, edge.reshape(-1)[pixels]
 
@@ -428,20 +411,17 @@ def _reference_drop_pixels(depth_m: np.ndarray, rz: np.ndarray | None, height_m:
 _drop_pixels = jit.choose(_reference_drop_pixels, jit_traversal.drop_pixels)
 
 
-def drop_edges(depth_m: np.ndarray, rays: np.ndarray | GroundRays, height_m: float,
+def drop_edges(depth_m: np.ndarray, rays: GroundRays, height_m: float,
                params: DetectorParams) -> tuple[np.ndarray, np.ndarray]:
     """Where the floor ends at a drop: ((D, 3) float32 floor points, (D,) edge pixels)."""
-    down, up = params.max_step_down_m, params.max_step_height_m
-    if isinstance(rays, GroundRays):   # the compiled path computes them row by row
-        rz, model = None, (rays.ru, rays.rv, rays.rot)
-    else:
-        rz, model = rays[2], None
-    pixels, offsets = _drop_pixels(depth_m, rz, height_m, down, up, DROP_EDGE_ROWS, model)
+    pixels, offsets = _drop_pixels(depth_m, rays.ru, rays.rv, rays.rot, height_m,
+                                   params.max_step_down_m, params.max_step_height_m,
+                                   DROP_EDGE_ROWS)
     if pixels.size == 0:
         return np.zeros((0, 3), np.float32), pixels
     floor_px = pixels + offsets.astype(np.int64) * depth_m.shape[1]
     d = depth_m.reshape(-1)[floor_px]
-    ray = rays_at(rays, floor_px)
+    ray = rays.at(floor_px)
     x = d * ray[0]
     y = d * ray[1]
     z = d * ray[2] + np.float32(height_m)
@@ -449,14 +429,3 @@ def drop_edges(depth_m: np.ndarray, rays: np.ndarray | GroundRays, height_m: flo
     keep &= np.abs(y) <= np.float32(params.lateral_limit_m)
     pts = np.stack((x[keep], y[keep], z[keep]), axis=1)
     return pts.astype(np.float32), pixels[keep]
-
-
-def warm_up() -> None:
-    """Compile (or load from the disk cache) the robot-level kernels, if they run."""
-    if jit.enabled():
-        jit_traversal.warm_up()
-        pts = np.zeros((2, 3), np.float32)
-        flags = np.zeros(2, bool)
-        ledges(pts, flags, flags, flags, 0.05, 0.05, 0.05, LEDGE_SHADOW_CELLS)
-        jit_ledges.lone_voxels(pts, 0.025, 0.025, 0.025)
-        jit_ledges.feet(pts, flags, flags, 0.025, 0.025, 0.025, FOOT_VOXELS)

@@ -9,42 +9,26 @@ import numpy as np
 from ..labels import LABEL_GROUND, LABEL_NO_RETURN, LABEL_OBSTACLE, LABEL_OUTSIDE_ROI
 from . import geometry, jit
 from ._compiled import voxel as jit_voxel
-from .params import DetectorParams, Intrinsics
-
-#: Largest voxel lattice [cells] the compiled grid takes; larger extents run the numpy path.
-_DENSE_LIMIT = 16_000_000
+from .params import DetectorParams
 
 
 @dataclass(frozen=True)
 class VoxelGrid:
-    """Voxels: centroids (V, 3) float32, point_voxel (M,), counts (V,), voxel_ijk (V, 3)."""
+    """Voxels in key order: centroids (V, 3) float32, point_voxel (M,), counts (V,)."""
 
     centroids: np.ndarray
     point_voxel: np.ndarray
     counts: np.ndarray
-    voxel_ijk: np.ndarray
 
 
 def voxel_downsample(points: np.ndarray, voxel_size_m: tuple[float, float, float],
                      ) -> VoxelGrid:
     """Replace the points (M, 3) of every voxel ``floor(p / size)`` by their centroid."""
     size = np.asarray(voxel_size_m, dtype=np.float64)
-    if size.shape != (3,) or np.any(size <= 0.0):
-        raise ValueError(f'voxel size {voxel_size_m!r} must be three positive numbers')
-    pts = np.asarray(points)
-    if pts.ndim != 2 or pts.shape[1] != 3:
-        raise ValueError(f'points must have shape (M, 3), got {pts.shape}')
-    return VoxelGrid(*_downsample(pts, voxel_size_m))
-
-
-def _downsample(points: np.ndarray, voxel_size_m: tuple[float, float, float],
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Return the fields of :func:`voxel_downsample`'s :class:`VoxelGrid` (numpy)."""
-    size = np.asarray(voxel_size_m, dtype=np.float64)
     pts = np.asarray(points)
     if pts.shape[0] == 0:
-        return (np.zeros((0, 3), np.float32), np.zeros(0, np.int64), np.zeros(0, np.int64),
-                np.zeros((0, 3), np.int64))
+        return VoxelGrid(np.zeros((0, 3), np.float32), np.zeros(0, np.int64),
+                         np.zeros(0, np.int64))
 
     cols = np.ascontiguousarray(pts.T)
     ijk = [np.floor(cols[a] / cols.dtype.type(size[a])).astype(np.int64) for a in range(3)]
@@ -64,11 +48,7 @@ def _downsample(points: np.ndarray, voxel_size_m: tuple[float, float, float],
     for axis in range(3):
         sums = np.bincount(point_voxel, weights=cols[axis], minlength=n_vox)
         centroids[:, axis] = sums / counts
-    vox_ijk = np.empty((n_vox, 3), dtype=np.int64)
-    rest, vox_ijk[:, 2] = np.divmod(cell_keys, dims[2])
-    vox_ijk[:, 0], vox_ijk[:, 1] = np.divmod(rest, dims[1])
-    vox_ijk += low
-    return centroids, point_voxel, counts, vox_ijk
+    return VoxelGrid(centroids, point_voxel, counts)
 
 
 # --------------------------------------------------------------------------- the frame stage
@@ -91,10 +71,10 @@ def roi_bounds(params: DetectorParams) -> np.ndarray:
                      params.camera_height_m, params.tdbg_m, params.max_height_m], np.float32)
 
 
-def _reference_points_in_roi(depth_m: np.ndarray, rays: np.ndarray | geometry.GroundRays,
+def _reference_points_in_roi(depth_m: np.ndarray, rays: geometry.GroundRays,
                              params: DetectorParams) -> RoiPoints:
     """:func:`points_in_roi` in numpy: the ROI of :func:`geometry.roi_mask` on the image."""
-    rays = rays.table() if isinstance(rays, geometry.GroundRays) else rays
+    rays = rays.table()
     z = depth_m.reshape(-1)
     valid = z > 0.0
     gx = z * rays[0]
@@ -117,19 +97,18 @@ def _reference_points_in_roi(depth_m: np.ndarray, rays: np.ndarray | geometry.Gr
     return RoiPoints(cols.T, pix, labels, pixel_voxel, params.voxel_size_m)
 
 
-def _compiled_points_in_roi(depth_m: np.ndarray, rays: np.ndarray | geometry.GroundRays,
+def _compiled_points_in_roi(depth_m: np.ndarray, rays: geometry.GroundRays,
                             params: DetectorParams) -> RoiPoints:
     """:func:`points_in_roi` by :func:`._compiled.voxel.project_roi`, its buffers reused."""
-    factors = (rays.ru, rays.rv, rays.rot) if isinstance(rays, geometry.GroundRays) else rays
-    proj = jit_voxel.project_roi(depth_m, factors, roi_bounds(params), params.voxel_size_m,
-                                 reuse=True)
+    proj = jit_voxel.project_roi(depth_m, (rays.ru, rays.rv, rays.rot), roi_bounds(params),
+                                 params.voxel_size_m, reuse=True)
     keyed = proj.keys is not None and proj.keys.size
     return RoiPoints(proj.points, proj.pixel_index, proj.labels, proj.pixel_voxel,
                      params.voxel_size_m, proj if keyed else None)
 
 
-#: Back-project a depth image (0 = no return) through its ground rays (a table or
-#: :class:`geometry.GroundRays`) and keep the region of interest: :class:`RoiPoints`.
+#: Back-project a depth image (0 = no return) through its :class:`geometry.GroundRays` and
+#: keep the region of interest: :class:`RoiPoints`.
 points_in_roi = jit.choose(_reference_points_in_roi, _compiled_points_in_roi)
 
 
@@ -159,17 +138,3 @@ def pixel_labels(roi: RoiPoints, grid: VoxelGrid, is_obstacle: np.ndarray,
     """Return (labels, pixel_voxel) with the voxels' decision ``is_obstacle`` (V,) written in."""
     _label_pixels(roi.labels, roi.pixel_voxel, is_obstacle)
     return roi.labels, roi.pixel_voxel
-
-
-def warm_up() -> None:
-    """Compile (or load from the on-disk cache) the voxel kernels on a tiny frame, if they run."""
-    if not jit.enabled():
-        return
-    params = DetectorParams()
-    depth = np.full((6, 8), 1.0, np.float32)
-    depth[0, 0] = 0.0
-    rays = geometry.ray_model(depth.shape, Intrinsics(fx=5.0, fy=5.0, cx=4.0, cy=3.0), params)
-    points_in_roi(depth, rays, params)
-    roi = points_in_roi(depth, rays.table(), params)
-    grid = voxel_grid(roi)
-    pixel_labels(roi, grid, np.zeros(grid.counts.size, bool))

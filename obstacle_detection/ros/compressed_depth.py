@@ -3,8 +3,7 @@
 from __future__ import annotations
 
 import struct
-import zlib
-from typing import Any, NamedTuple
+from typing import Any
 
 import cv2
 import numpy as np
@@ -44,42 +43,31 @@ def raw_topic(topic: str) -> str:
     return parent if last in TRANSPORT_SUFFIXES and parent else topic
 
 
-class DepthFormat(NamedTuple):
-    """A compressed depth ``format`` read: its encoding, and which codec it names."""
-
-    encoding: str          #: '16UC1', 'mono16' or '32FC1'
-    compressed_depth: bool  #: names compressedDepth (or is an older, bare format)
-    rvl: bool = False      #: ``compressedDepth rvl``
-
-
-def parse_format(fmt: str) -> DepthFormat:
-    """Read a CompressedImage ``format``: ``(depth encoding, names compressedDepth, is RVL)``."""
+def parse_format(fmt: str) -> tuple[str, bool]:
+    """Read a CompressedImage ``format``: ``(depth encoding, is RVL)``."""
     text = str(fmt)
     encoding, sep, rest = text.partition(';')
     encoding, rest = encoding.strip(), rest.strip()
     if encoding not in DEPTH_ENCODINGS:
         raise RosInputError(
             f'unknown compressed depth format {text!r}: the part before ";" must be '
-            f'a depth encoding ({", ".join(DEPTH_ENCODINGS)}), got {encoding!r}', kind='format')
+            f'a depth encoding ({", ".join(DEPTH_ENCODINGS)}), got {encoding!r}')
     if not sep or rest in ('', 'compressedDepth'):
-        return DepthFormat(encoding, True)  # older compressedDepth releases, iai_kinect2
+        return encoding, False  # older compressedDepth releases, iai_kinect2
     words = rest.split()
     if words[0] == 'compressedDepth':
-        if words[1:] == ['png']:
-            return DepthFormat(encoding, True)
-        if words[1:] == ['rvl']:
-            return DepthFormat(encoding, True, rvl=True)
+        if words[1:] in (['png'], ['rvl']):
+            return encoding, words[1] == 'rvl'
         raise RosInputError(f'unknown compressed depth format {text!r}: '
-                            'compressedDepth names neither png nor rvl', kind='format')
+                            'compressedDepth names neither png nor rvl')
     if words[0] in ('png', 'tiff', 'tif') and words[1:2] == ['compressed']:
-        return DepthFormat(encoding, False)
+        return encoding, False
     if words[0] in ('jpeg', 'jpg'):
         raise RosInputError(f'compressed depth format {text!r}: JPEG is '
-                            'lossy and cannot carry depth', kind='format')
+                            'lossy and cannot carry depth')
     raise RosInputError(
         f'unknown compressed depth format {text!r}: expected "{encoding}; '
-        f'compressedDepth png", "{encoding}; compressedDepth" or "{encoding}; png compressed"',
-        kind='format')
+        f'compressedDepth png", "{encoding}; compressedDepth" or "{encoding}; png compressed"')
 
 
 def _container(data: bytes, offset: int) -> str | None:
@@ -91,44 +79,8 @@ def _container(data: bytes, offset: int) -> str | None:
     return None
 
 
-def _check_png(png: bytes) -> tuple[int, int, int, int]:
-    """Walk a PNG's chunks and check their CRCs; return (width, height, bit depth, colour type)."""
-    pos, size = len(PNG_SIGNATURE), len(png)
-    header = None
-    while True:
-        if pos + 8 > size:
-            raise RosInputError(f'corrupt PNG: truncated after {size} bytes '
-                                '(no IEND chunk)', kind='corrupt')
-        length, kind = struct.unpack_from('>I4s', png, pos)
-        end = pos + 8 + length + 4
-        if end > size:
-            raise RosInputError(
-                f'corrupt PNG: truncated in its {kind!r} chunk at byte {pos} '
-                f'({length} data bytes announced, {size - pos - 12} present)', kind='corrupt')
-        (crc,) = struct.unpack_from('>I', png, end - 4)
-        if zlib.crc32(png[pos + 4:end - 4]) != crc:
-            raise RosInputError(
-                f'corrupt PNG: CRC mismatch in its {kind!r} chunk at byte {pos}', kind='corrupt')
-        if header is None:
-            if kind != b'IHDR' or length != 13:
-                raise RosInputError('corrupt PNG: does not start with IHDR', kind='corrupt')
-            header = struct.unpack_from('>IIBB', png, pos + 8)
-        if kind == b'IEND':
-            return header
-        pos = end
-
-
 def _decode_image(payload: bytes, container: str) -> np.ndarray:
     """Decode the PNG or TIFF ``payload`` into a (H, W) uint16 array, naming any problem."""
-    if container == 'png':
-        width, height, bit_depth, colour = _check_png(payload)
-        if bit_depth != 16 or colour != 0:
-            what = {0: 'grey', 2: 'RGB', 3: 'palette', 4: 'grey+alpha', 6: 'RGBA'}.get(colour)
-            raise RosInputError(
-                f'PNG holds {bit_depth}-bit {what or f"colour type {colour}"} '
-                'pixels, expected 16-bit grey (one channel of depth)', kind='corrupt')
-        if width == 0 or height == 0:
-            raise RosInputError(f'PNG is empty ({width}x{height})', kind='corrupt')
     level = cv2.utils.logging.getLogLevel()
     cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)  # we name the problem
     try:
@@ -142,12 +94,12 @@ def _decode_image(payload: bytes, container: str) -> np.ndarray:
     name = container.upper()
     if image is None:
         raise RosInputError(f'corrupt {name}: OpenCV cannot decode its '
-                            f'{len(payload)} bytes{reason}', kind='corrupt')
+                            f'{len(payload)} bytes{reason}')
     if image.ndim != 2 or image.dtype != np.uint16:
         channels = 1 if image.ndim == 2 else image.shape[2]
         raise RosInputError(
             f'{name} holds {channels} channel(s) of {image.dtype}, expected one '
-            'channel of uint16 depth', kind='corrupt')
+            'channel of uint16 depth')
     return image
 
 
@@ -156,39 +108,33 @@ def _config_header(data: bytes, after: int, what: str) -> tuple[float, float]:
     if len(data) < CONFIG_HEADER_SIZE + after:
         raise RosInputError(
             f'compressed depth data has {len(data)} bytes: too short for the '
-            f'{CONFIG_HEADER_SIZE}-byte ConfigHeader and {what}', kind='header')
+            f'{CONFIG_HEADER_SIZE}-byte ConfigHeader and {what}')
     fmt_code, quant_a, quant_b = CONFIG_HEADER.unpack_from(data, 0)
     if fmt_code != INV_DEPTH:
         raise RosInputError(
             f'bad ConfigHeader: compression format {fmt_code}, expected '
             f'{INV_DEPTH} (INV_DEPTH); the data is not compressedDepth (first bytes '
-            f'{data[:CONFIG_HEADER_SIZE].hex()})', kind='header')
+            f'{data[:CONFIG_HEADER_SIZE].hex()})')
     return quant_a, quant_b
 
 
-def _decode_rvl(payload: bytes, expected_shape: tuple[int, int] | None) -> np.ndarray:
+def _decode_rvl(payload: bytes) -> np.ndarray:
     """Decode the RVL part of compressedDepth (width, height, stream) into (H, W) uint16."""
     width, height = RVL_SIZE.unpack_from(payload, 0)
     if width == 0 or height == 0 or width * height > MAX_RVL_PIXELS:
         raise RosInputError(
             f'RVL image announces {width}x{height} pixels: '
-            + ('empty' if width * height == 0 else f'more than {MAX_RVL_PIXELS:,}'),
-            kind='corrupt')
-    if expected_shape is not None and (height, width) != tuple(expected_shape):
-        raise RosInputError(
-            f'compressed depth image is {width}x{height} but {expected_shape[1]}x'
-            f'{expected_shape[0]} was expected (the CameraInfo size)', kind='size')
+            + ('empty' if width * height == 0 else f'more than {MAX_RVL_PIXELS:,}'))
     try:
         pixels = rvl.decode_rvl(payload[RVL_SIZE.size:], width * height)
     except RosInputError as error:
-        raise RosInputError(f'{error} ({width}x{height} image)', kind='corrupt') from error
+        raise RosInputError(f'{error} ({width}x{height} image)') from error
     return pixels.reshape(height, width)
 
 
-def compressed_depth_to_array(msg: Any, *,
-                              expected_shape: tuple[int, int] | None = None) -> np.ndarray:
+def compressed_depth_to_array(msg: Any) -> np.ndarray:
     """Decode a compressed depth CompressedImage into the array the raw Image would give."""
-    encoding, _, is_rvl = parse_format(msg.format)
+    encoding, is_rvl = parse_format(msg.format)
     data = byte_view(msg.data).tobytes()
     container = None if is_rvl else _container(data, 0)
     quant: tuple[float, float] | None = None
@@ -201,8 +147,7 @@ def compressed_depth_to_array(msg: Any, *,
         if container is None:
             raise RosInputError(
                 f'no PNG or TIFF after the {CONFIG_HEADER_SIZE}-byte ConfigHeader '
-                f'(it starts with {data[CONFIG_HEADER_SIZE:CONFIG_HEADER_SIZE + 8].hex()})',
-                kind='corrupt')
+                f'(it starts with {data[CONFIG_HEADER_SIZE:CONFIG_HEADER_SIZE + 8].hex()})')
         payload = data[CONFIG_HEADER_SIZE:]
     else:
         payload = data
@@ -210,19 +155,13 @@ def compressed_depth_to_array(msg: Any, *,
         if quant is None:
             raise RosInputError(
                 '32FC1 compressed depth without the ConfigHeader: the quantisation '
-                'parameters needed to invert the depth are missing', kind='header')
+                'parameters needed to invert the depth are missing')
         quant_a, quant_b = quant
         if not (np.isfinite(quant_a) and np.isfinite(quant_b) and quant_a > 0):
             raise RosInputError(
                 f'bad ConfigHeader: depthQuantA={quant_a:g}, depthQuantB={quant_b:g} '
-                'cannot invert the 32FC1 depth (A must be finite and positive)', kind='header')
-    image = (_decode_rvl(payload, expected_shape) if is_rvl
-             else _decode_image(payload, container))
-    if expected_shape is not None and image.shape != tuple(expected_shape):
-        height, width = expected_shape
-        raise RosInputError(
-            f'compressed depth image is {image.shape[1]}x{image.shape[0]} but '
-            f'{width}x{height} was expected (the CameraInfo size)', kind='size')
+                'cannot invert the 32FC1 depth (A must be finite and positive)')
+    image = _decode_rvl(payload) if is_rvl else _decode_image(payload, container)
     if encoding != '32FC1':
         return np.ascontiguousarray(image, dtype=np.uint16)
     quant_a32, quant_b32 = np.float32(quant[0]), np.float32(quant[1])

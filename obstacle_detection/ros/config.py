@@ -34,7 +34,6 @@ class NodeConfig:
     publish_overlay: bool
     use_fallback_intrinsics: bool
     fallback_intrinsics: Intrinsics
-    stats_period_s: float
     camera_info_tolerance_ns: int
     fusion: FusionParams | None      #: None: no fused costmap
     odom_frame: str
@@ -95,7 +94,6 @@ def build_config(values: dict[str, Any]) -> NodeConfig:
         fallback_intrinsics=Intrinsics(
             fx=float(values['fallback_fx']), fy=float(values['fallback_fy']),
             cx=float(values['fallback_cx']), cy=float(values['fallback_cy'])),
-        stats_period_s=float(values['stats_period_s']),
         camera_info_tolerance_ns=round(float(values['camera_info_tolerance_s']) * 1e9),
         fusion=(FusionParams(size_m=float(values['fused_size_m']),
                              resolution_m=float(values['fused_resolution_m']))

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import array
-import functools
 import math
 from typing import TYPE_CHECKING, Any
 
@@ -32,15 +31,12 @@ DEPTH_ENCODINGS: dict[str, tuple[np.dtype, int]] = {
 #: Every encoding ``array_to_image`` writes -> (numpy base dtype, channels).
 IMAGE_ENCODINGS: dict[str, tuple[np.dtype, int]] = {
     **DEPTH_ENCODINGS,
-    'mono8': (np.dtype(np.uint8), 1),
     'rgb8': (np.dtype(np.uint8), 3),
     'bgr8': (np.dtype(np.uint8), 3),
 }
 
 #: Default encoding per (dtype, channels) for ``array_to_image``: the first listed above.
 _DEFAULT_ENCODING = {kind: name for name, kind in reversed(IMAGE_ENCODINGS.items())}
-
-_XYZ_FIELDS = ('x', 'y', 'z')
 
 
 def byte_view(data: Any) -> np.ndarray:
@@ -66,13 +62,10 @@ def image_to_array(msg: Any, *, copy: bool = True) -> np.ndarray:
 
 
 def image_to_rgb(msg: Any) -> np.ndarray:
-    """Decode an ``rgb8`` or ``bgr8`` Image message (the node's overlay) into (H, W, 3) RGB."""
-    encoding = str(msg.encoding)
-    if encoding not in ('rgb8', 'bgr8'):
-        raise RosInputError(f'unsupported colour encoding {encoding!r}: expected rgb8 or '
-                            'bgr8')
-    rgb = _pixels(msg, *IMAGE_ENCODINGS[encoding])
-    return np.ascontiguousarray(rgb[:, :, ::-1]) if encoding == 'bgr8' else rgb
+    """Decode an ``rgb8`` Image message (the node's overlay) into (H, W, 3) RGB."""
+    if str(msg.encoding) != 'rgb8':
+        raise RosInputError(f'unsupported colour encoding {msg.encoding!r}: expected rgb8')
+    return _pixels(msg, *IMAGE_ENCODINGS['rgb8'])
 
 
 def _pixels(msg: Any, base: np.dtype, channels: int, copy: bool = True) -> np.ndarray:
@@ -191,27 +184,9 @@ def depth_sample(depth: np.ndarray) -> np.ndarray:
     return depth[::DEPTH_SAMPLE_ROWS]
 
 
-@functools.lru_cache(maxsize=1)
-def _plausible_codes() -> tuple[int, int]:
-    """Return the first and last uint16 millimetre code within PLAUSIBLE_DEPTH_M."""
-    metres = np.arange(1 << 16, dtype=np.float64) * 1e-3
-    near, far = PLAUSIBLE_DEPTH_M
-    inside = np.flatnonzero((metres >= near) & (metres <= far))
-    return int(inside[0]), int(inside[-1])
-
-
 def depth_problem(depth: np.ndarray) -> str | None:
     """Say why a decoded depth frame cannot be real depth, or None."""
     sample = depth_sample(depth)
-    if sample.dtype == np.uint16:
-        # the usual case, in integers (no float copy): accepted when enough codes lie in
-        # lo..hi (uint16 wrap-around puts the codes below lo above hi - lo); a refusal and
-        # its message come from the rule in metres below
-        lo, hi = _plausible_codes()
-        valid = np.count_nonzero(sample)
-        if valid == 0 or (np.count_nonzero((sample - np.uint16(lo)) <= np.uint16(hi - lo))
-                          >= PLAUSIBLE_SHARE * valid):
-            return None
     if sample.dtype.kind == 'f':
         metres = sample[np.isfinite(sample) & (sample > 0)].astype(np.float64)
         unit = '32FC1 [m]'
@@ -256,7 +231,7 @@ def points_to_pointcloud2(points: np.ndarray, *, stamp: Time, frame_id: str) -> 
         raise ValueError(f'points must have shape (N, 3), got {points.shape}')
     xyz = np.ascontiguousarray(points, dtype='<f4')
     fields = [PointField(name=name, offset=i * 4, datatype=PointField.FLOAT32, count=1)
-              for i, name in enumerate(_XYZ_FIELDS)]
+              for i, name in enumerate('xyz')]
     count = xyz.shape[0]
     # filled in place: the constructor builds a default header anyway, copies data=bytes twice
     msg = PointCloud2(height=1, width=count, fields=fields, is_bigendian=False, point_step=12,
@@ -296,20 +271,11 @@ def costmap_to_occupancy_grid(costmap: Costmap, *, stamp: Time,
 
 
 def occupancy_grid_to_costmap(grid: Any) -> Costmap:
-    """Read an OccupancyGrid back into a Costmap (the inverse of costmap_to_occupancy_grid)."""
+    """Read a grid the node published back into a Costmap (axis-aligned, as it publishes)."""
     from obstacle_detection.pipeline.costmap import Costmap
 
     info = grid.info
-    orientation = info.origin.orientation
-    if (orientation.x, orientation.y, orientation.z) != (0.0, 0.0, 0.0):
-        raise ValueError('OccupancyGrid origin is rotated; only an axis-aligned grid is read')
-    try:
-        cells = np.frombuffer(grid.data, dtype=np.int8)
-    except TypeError:  # a plain sequence of ints
-        cells = np.asarray(grid.data, dtype=np.int8).reshape(-1)
-    if cells.size != int(info.width) * int(info.height):
-        raise ValueError(f'OccupancyGrid has {cells.size} cells, expected width * height = '
-                         f'{info.width} * {info.height}')
+    cells = byte_view(grid.data).view(np.int8)
     return Costmap(data=cells.reshape(int(info.height), int(info.width)).copy(),
                    resolution_m=float(info.resolution),
                    origin_xy_m=(float(info.origin.position.x), float(info.origin.position.y)))

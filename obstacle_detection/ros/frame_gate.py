@@ -13,9 +13,8 @@ from obstacle_detection.pipeline.params import Intrinsics
 
 from .compressed_depth import compressed_depth_to_array, is_compressed_image
 from . import RosInputError
-from .conversions import (DEPTH_ENCODINGS, K_FALLBACK_NOTE, camera_info_to_intrinsics,
-                          depth_problem, depth_sample, image_to_array,
-                          intrinsics_come_from_k, intrinsics_problem)
+from .conversions import (K_FALLBACK_NOTE, camera_info_to_intrinsics, depth_problem,
+                          depth_sample, image_to_array, intrinsics_come_from_k, intrinsics_problem)
 
 
 @dataclass(frozen=True)
@@ -113,16 +112,15 @@ def has_valid_depth(depth: np.ndarray) -> bool:
 def decode(msg: Any) -> np.ndarray | Skip:
     """Return the depth array of a raw or compressed depth message, or why not (a Skip)."""
     compressed = is_compressed_image(msg)
-    if not compressed and msg.encoding not in DEPTH_ENCODINGS:
-        return Skip('encoding', f'unsupported encoding {msg.encoding!r} (expected '
-                                f'{", ".join(DEPTH_ENCODINGS)})')
     try:
         # raw: a view of the message's pixels when they need no copy (the pipeline only
         # reads them)
         return (compressed_depth_to_array(msg) if compressed
                 else image_to_array(msg, copy=False))
     except RosInputError as error:
-        return Skip('compressed' if compressed else 'layout', str(error))
+        # each kind of problem (encoding, size, ...) is throttled on its own
+        return Skip('compressed' if compressed else problem_kind('image', str(error)),
+                    str(error))
 
 
 def choose_intrinsics(camera: CameraState | None, shape: tuple[int, ...], *,

@@ -6,7 +6,6 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
 
 from obstacle_detection.pipeline.geometry import mount_angles, quaternion_matrix
 
@@ -30,18 +29,12 @@ class Mount:
                 f'{math.degrees(self.yaw_rad):.2f} deg')
 
 
-def mount_from_rotation(rotation: np.ndarray, translation: Any) -> Mount:
-    """Return the Mount of ``p_base = rotation @ p_optical + translation``."""
-    roll, pitch, yaw = mount_angles(rotation)
-    tx, ty, tz = (float(v) for v in translation)
-    return Mount(tx, ty, tz, roll, pitch, yaw)
-
-
 def mount_from_transform(transform: Any) -> Mount:
     """Return the Mount of a ``geometry_msgs/Transform`` (or TransformStamped), base <- optical."""
     transform = getattr(transform, 'transform', transform)
     q, t = transform.rotation, transform.translation
-    return mount_from_rotation(quaternion_matrix(q.x, q.y, q.z, q.w), (t.x, t.y, t.z))
+    roll, pitch, yaw = mount_angles(quaternion_matrix(q.x, q.y, q.z, q.w))
+    return Mount(float(t.x), float(t.y), float(t.z), roll, pitch, yaw)
 
 
 class MountSource:
@@ -61,10 +54,6 @@ class MountSource:
         """Return the mount for an image of ``frame_id`` at ``stamp`` (a rclpy Time)."""
         self.last_problem = None
         if self.buffer is None:
-            self.source = 'parameters'
-            return fallback
-        if not frame_id:
-            self.last_problem = 'the depth image has no frame_id to look up in TF'
             self.source = 'parameters'
             return fallback
         if self.static and frame_id in self._cache:

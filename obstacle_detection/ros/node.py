@@ -15,9 +15,7 @@ import rclpy.logging
 import rclpy.utilities
 from nav_msgs.msg import OccupancyGrid, Odometry
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.clock import Clock, ClockType
 from rclpy.duration import Duration
-from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.experimental import EventsExecutor
@@ -47,14 +45,14 @@ from .diagnostics import Context as DiagnosticsContext
 from .frame_gate import CameraState as _CameraState
 from .frame_gate import stamp_ns as _stamp_ns
 from obstacle_detection.viz.overlay import render_overlay
-from .diagnostics import HealthWindow, health_status, status_name
+from .diagnostics import COMPILED, HealthWindow, health_status, status_name
 from obstacle_detection.pipeline.fusion import FusedGrid, PoseBuffer
 from obstacle_detection.pipeline.geometry import yaw_from_quaternion
 from .mount_source import MountSource
 from obstacle_detection.pipeline.params import Intrinsics
 from . import RosInputError
 from .parameters import (ALL_PARAMS, NODE_NAME, PARAMS_FILE_KEY, load_params_yaml,
-                         params_file_problems, params_file_reason, params_files_in_args)
+                         params_file_problems, params_files_in_args)
 
 
 def _qos(depth: int, *, reliable: bool = True, latched: bool = False) -> QoSProfile:
@@ -69,24 +67,16 @@ def _qos(depth: int, *, reliable: bool = True, latched: bool = False) -> QoSProf
 WARN_THROTTLE_S = 5.0
 #: Outputs, and the inputs with reliable_input: reliable, depth 5.
 _RELIABLE_QOS = _qos(5)
-#: ~/status: latched (transient local), so a late subscriber still gets the last state.
-_STATUS_QOS = _qos(1, latched=True)
-#: rcl_interfaces/ParameterType values (NOT_SET .. STRING_ARRAY).
-_PARAMETER_TYPES = frozenset(range(0, 10))
-#: /diagnostics: reliable, as diagnostic_updater publishes it, about once a second.
+#: ~/status and the OccupancyGrids: latched, depth 1 (as map_server), so a late subscriber
+#: (RViz's map display) still gets the last state or grid.
+_LATCHED_QOS = _qos(1, latched=True)
+#: /diagnostics: reliable, as diagnostic_updater publishes it, once a second.
 _DIAGNOSTICS_QOS = _qos(10)
-DIAGNOSTICS_PERIOD_S = 1.0
 #: depth_transport -> (message type, topic): image_transport's names for the depth stream.
 DEPTH_TRANSPORTS = {name: (Image if name == 'raw' else CompressedImage, topic)
                     for name, topic in DEPTH_TRANSPORT_TOPICS.items()}
 #: Odometry: best effort, which reliable and best-effort publishers both match.
 _ODOM_QOS = _qos(20, reliable=False)
-#: OccupancyGrids: latched, depth 1 (as map_server): a late display gets the last grid.
-_GRID_QOS = _qos(1, latched=True)
-#: How often the node looks for a latched CameraInfo publisher until it finds one [s].
-LATCHED_INFO_WATCH_S = 0.5
-#: First word of every ~/status message once the node processes frames.
-STATUS_READY = 'ready'
 #: Depth frames that may wait for the worker (see FrameMailbox): one may wait behind another.
 MAILBOX_FRAMES = 2
 #: Output key (as result_to_messages names it) -> message type, topic, parameter switching it on.
@@ -137,7 +127,6 @@ class DetectorNode(Node):
         super().__init__(NODE_NAME, **kwargs)
         for spec in ALL_PARAMS:
             self.declare_parameter(spec.name, spec.default, spec.descriptor())
-        self._guard_parameter_services()
         try:
             self._config = build_config(self._parameter_values())
         except ValueError:
@@ -151,7 +140,7 @@ class DetectorNode(Node):
             maxlen=frame_gate.CAMERA_INFO_HISTORY)
         self._warn_loggers: dict[str, Any] = {}
 
-        self._status_pub = self.create_publisher(String, '~/status', _STATUS_QOS)
+        self._status_pub = self.create_publisher(String, '~/status', _LATCHED_QOS)
         # Compiling (20-40 s) or loading the kernels runs on a thread of its own; frames take
         # the numpy path meanwhile (same results), so no frame waits for it.
         self._compile = jit_support.compile_in_background(self._warm_up,
@@ -161,7 +150,7 @@ class DetectorNode(Node):
         # What is switched off is neither advertised nor subscribed.
         self._pubs = {
             key: self.create_publisher(kind, topic,
-                                       _GRID_QOS if kind is OccupancyGrid else _RELIABLE_QOS)
+                                       _LATCHED_QOS if kind is OccupancyGrid else _RELIABLE_QOS)
             for key, (kind, topic, switch) in OUTPUTS.items()
             if switch is None or self.get_parameter(switch).value}
         self._odom_sub: Any = None
@@ -173,16 +162,18 @@ class DetectorNode(Node):
         self._poses = PoseBuffer()
         self._fused: FusedGrid | None = None
 
-        self._stats_timer = None
-        self._restart_stats_timer(self._config.stats_period_s)
+        stats_period_s = float(self.get_parameter('stats_period_s').value)
+        if stats_period_s > 0.0:
+            self.create_timer(stats_period_s, self._log_stats)
         self._started = time.monotonic()
         self._last_frame_id = ''
-        self._floor_text = ''
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics',
                                                       _DIAGNOSTICS_QOS)
-        self._diagnostics_timer = self.create_timer(DIAGNOSTICS_PERIOD_S,
-                                                    self._publish_diagnostics)
+        self.create_timer(1.0, self._publish_diagnostics)
         self.add_on_set_parameters_callback(self._validate_parameters)
+        for service in self.services:   # rclpy's set services raise on an unknown value type
+            if service.srv_name.endswith(('/set_parameters', '/set_parameters_atomically')):
+                service.callback = functools.partial(self._refuse_unknown_types, service.callback)
         self.add_post_set_parameters_callback(self._apply_parameters)
 
         self._worker = threading.Thread(target=self._work, name='obstacle_detector_worker',
@@ -191,73 +182,14 @@ class DetectorNode(Node):
         # Subscribe last: a publisher that sees the match finds a node able to process.
         transport = str(self.get_parameter('depth_transport').value)
         depth_type, depth_topic = DEPTH_TRANSPORTS[transport]
-        self._depth_sub = self.create_subscription(
-            depth_type, depth_topic, self._on_depth, in_qos,
-            event_callbacks=SubscriptionEventCallbacks(   # frames the transport lost on the way
-                message_lost=lambda event: self.stats.count('missing', event.total_count_change)))
+        self._depth_sub = self.create_subscription(depth_type, depth_topic, self._on_depth,
+                                                   in_qos)
         self._info_sub = self.create_subscription(CameraInfo, 'depth/camera_info',
                                                   self._on_camera_info, in_qos)
-        self._latched_info_sub: Any = None
-        self._latched_info_watch: Any = self.create_timer(
-            LATCHED_INFO_WATCH_S, self._watch_for_latched_camera_info,
-            clock=Clock(clock_type=ClockType.STEADY_TIME))   # also before /clock runs
-        self._say_ready(reliable)
-        self._publish_status()
-
-    def _say_ready(self, reliable: bool) -> None:
-        outputs = [pub.topic_name for pub in self._pubs.values()]
         self.get_logger().info(
-            f'ready: {self._depth_sub.topic_name} + {self._info_sub.topic_name} '
-            f'({"reliable" if reliable else "sensor-data"} QoS; a latched CameraInfo too, '
-            'once its publisher shows up)'
-            + (f' + {self._odom_sub.topic_name}' if self._odom_sub is not None else '')
-            + f' -> {", ".join(outputs)}; '
-            f'frames {self._config.cloud_frame_id!r}/{self._config.costmap_frame_id!r}; '
-            f'{self.compute_path()}')
-
-    # -- parameter services: no request may kill the node ------------------------------------
-    def _guard_parameter_services(self) -> None:
-        """Answer set requests here: rclpy's services raise (and end the node) on a bad type."""
-        for service in self.services:
-            name = service.srv_name.rsplit('/', 1)[-1]
-            if name in ('set_parameters', 'set_parameters_atomically'):
-                service.callback = functools.partial(self._set_parameters_service, name)
-
-    def _parameter_msg_problem(self, msg: Any) -> str | None:
-        """Return why a ``rcl_interfaces/Parameter`` cannot be applied, or None."""
-        if not msg.name or not self.has_parameter(msg.name):
-            return (f'parameter {msg.name!r} is not declared by this node '
-                    '(detector --help lists the parameters)')
-        if self.describe_parameter(msg.name).read_only:
-            return (f'parameter {msg.name!r} is read-only: the node reads it at start-up '
-                    f'(restart it with -p {msg.name}:=<value>)')
-        if msg.value.type not in _PARAMETER_TYPES:
-            return (f'parameter {msg.name!r}: ParameterValue.type {msg.value.type} is not a '
-                    f'parameter type (valid: {min(_PARAMETER_TYPES)}..{max(_PARAMETER_TYPES)})')
-        return None
-
-    def _set_parameters_service(self, service: str, request: Any, response: Any) -> Any:
-        """Set each message (atomically: all at once); refuse, with the reason, what cannot be."""
-        atomic = service == 'set_parameters_atomically'
-        results = []
-        for msgs in [request.parameters] if atomic else [[msg] for msg in request.parameters]:
-            problems = [p for p in map(self._parameter_msg_problem, msgs) if p]
-            if not problems:
-                try:
-                    results.append(self.set_parameters_atomically(
-                        [Parameter.from_parameter_msg(msg) for msg in msgs]))
-                    continue
-                except Exception as error:  # noqa: BLE001 - refused, with rclpy's reason
-                    problems = [f'{type(error).__name__}: {error}']
-            self._throttled_logger(f'service:{service}').warning(
-                f'refused a {service} request: {"; ".join(problems)}',
-                throttle_duration_sec=WARN_THROTTLE_S)
-            results.append(SetParametersResult(successful=False, reason='; '.join(problems)))
-        if atomic:
-            response.result = results[0]
-        else:
-            response.results = results
-        return response
+            f'ready: {self._depth_sub.topic_name} -> '
+            f'{", ".join(pub.topic_name for pub in self._pubs.values())}; {self.compute_path()}')
+        self._publish_status()
 
     # -- start-up: compiled kernels -----------------------------------------------------------
     def compute_path(self) -> str:
@@ -273,7 +205,7 @@ class DetectorNode(Node):
         if jit_support.compiling():
             return ('numpy path while the numba kernels compile or load in the background '
                     '(a first compilation takes about 20-40 s; same results, slower)')
-        return 'compiled numba kernels'
+        return COMPILED
 
     def _warm_up(self) -> None:
         """Compile or load the kernels frames will need: the pipeline's, RVL's if compressed."""
@@ -297,7 +229,7 @@ class DetectorNode(Node):
     def _publish_status(self) -> None:
         """Publish the latched ~/status line: 'ready: <which code processes the frames>'."""
         if self.context.ok():
-            self._status_pub.publish(String(data=f'{STATUS_READY}: {self.compute_path()}'))
+            self._status_pub.publish(String(data=f'ready: {self.compute_path()}'))
 
     # -- the camera mount: parameters or TF ------------------------------------------------------
     def _make_mount_source(self, tf_buffer: Any) -> MountSource:
@@ -347,34 +279,11 @@ class DetectorNode(Node):
             return None
 
     # -- diagnostics ---------------------------------------------------------------------------
-    def _camera_info_text(self) -> tuple[str, bool]:
-        """Describe the intrinsics source for /diagnostics; True when frames can use it."""
-        config = self._config
-        cameras = list(self._cameras)
-        if cameras:
-            camera = cameras[-1]
-            if camera.intrinsics is None:
-                return f'CameraInfo on {self._info_sub.topic_name} unusable: {camera.error}', \
-                    config.use_fallback_intrinsics
-            intr = camera.intrinsics
-            return (f'CameraInfo on {self._info_sub.topic_name}: {camera.width}x{camera.height}'
-                    f', fx={intr.fx:g} fy={intr.fy:g} cx={intr.cx:g} cy={intr.cy:g}'), True
-        if config.use_fallback_intrinsics:
-            intr = config.fallback_intrinsics
-            return (f'fallback parameters (no CameraInfo yet): fx={intr.fx:g} fy={intr.fy:g} '
-                    f'cx={intr.cx:g} cy={intr.cy:g}'), True
-        return f'none: no CameraInfo received on {self._info_sub.topic_name}', False
-
-
     def _publish_diagnostics(self) -> None:
-        camera_info, usable = self._camera_info_text()
-        path = self.compute_path()
         context = DiagnosticsContext(
             uptime_s=time.monotonic() - self._started, depth_topic=self._depth_sub.topic_name,
-            camera_info=camera_info, camera_info_usable=usable, code_path=path,
-            compiled=path == 'compiled numba kernels',
-            mount=self._mount_said or f'parameters: {self._config.mount().describe()}',
-            floor_correction=self._floor_text)
+            code_path=self.compute_path(),
+            mount=self._mount_said or f'parameters: {self._config.mount().describe()}')
         # hardware_id: the frames' frame_id once one is processed, the depth topic before
         status = health_status(self.stats.take(), context,
                                name=status_name(self.get_fully_qualified_name()),
@@ -398,14 +307,33 @@ class DetectorNode(Node):
 
     def _validate_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
         # No side effect here: another callback may still refuse the set.
+        undeclared = [p.name for p in parameters if not self.has_parameter(p.name)]
+        if undeclared:   # rclpy lets an empty name through, and would create it
+            return SetParametersResult(successful=False,
+                                       reason=f'undeclared parameter(s): {undeclared}')
         try:
             build_config(self._parameter_values(parameters))
         except ValueError as error:
             return SetParametersResult(successful=False, reason=str(error))
         return SetParametersResult(successful=True)
 
+    def _refuse_unknown_types(self, callback: Any, request: Any, response: Any) -> Any:
+        """Refuse, with the reason, a set request holding a ParameterValue.type rclpy lacks."""
+        bad = [(p.name, p.value.type) for p in request.parameters
+               if p.value.type not in {t.value for t in Parameter.Type}]
+        if not bad:
+            return callback(request, response)
+        reason = f'unknown ParameterValue.type for {bad}; nothing set'
+        self.get_logger().warning(f'refused a parameter request: {reason}',
+                                  throttle_duration_sec=WARN_THROTTLE_S)
+        refused = SetParametersResult(successful=False, reason=reason)
+        if hasattr(response, 'result'):
+            response.result = refused
+        else:
+            response.results = [refused] * len(request.parameters)
+        return response
+
     def _apply_parameters(self, parameters: list[Parameter]) -> None:
-        old_period = self._config.stats_period_s
         config = build_config(self._parameter_values())  # validated just before
         # A new median K compiles its kernel (seconds for a K never used before) on a thread
         # of its own, not in this callback nor in a frame: frames take the numpy path
@@ -417,18 +345,8 @@ class DetectorNode(Node):
                 self._compile = job
                 self._publish_status()
         self._config = config
-        if self._config.stats_period_s != old_period:
-            self._restart_stats_timer(self._config.stats_period_s)
         changed = ', '.join(f'{p.name}={p.value!r}' for p in parameters)
         self.get_logger().info(f'parameters updated, next frame uses: {changed}')
-
-    def _restart_stats_timer(self, period_s: float) -> None:
-        if self._stats_timer is not None:
-            self.destroy_timer(self._stats_timer)
-            self._stats_timer = None
-        if period_s > 0.0:
-            self.stats.take(reader='log')
-            self._stats_timer = self.create_timer(period_s, self._log_stats)
 
     # -- callbacks (executor thread): store only --------------------------------------------
     def _on_depth(self, msg: Image) -> None:
@@ -442,36 +360,7 @@ class DetectorNode(Node):
             self._throttled_logger('camera_info_note').info(
                 f'CameraInfo on {self._info_sub.topic_name}: {camera.note}',
                 throttle_duration_sec=WARN_THROTTLE_S)
-        # A latched camera's CameraInfo comes through both subscriptions: kept once.
         frame_gate.keep_camera(self._cameras, camera)
-
-    def _watch_for_latched_camera_info(self) -> None:
-        """Subscribe transient local as well once a latched CameraInfo publisher shows up.
-
-        Only then: a volatile publisher (most drivers) would warn of "incompatible QoS".
-        """
-        latched = [info for info in self.get_publishers_info_by_topic(self._info_sub.topic_name)
-                   if info.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL]
-        if not latched:
-            return
-        reliable = all(info.qos_profile.reliability == ReliabilityPolicy.RELIABLE
-                       for info in latched)
-        qos = _qos(1, reliable=reliable, latched=True)
-        self.destroy_timer(self._latched_info_watch)
-        self._latched_info_watch = None
-        self._latched_info_sub = self.create_subscription(
-            CameraInfo, 'depth/camera_info', self._on_camera_info, qos,
-            event_callbacks=SubscriptionEventCallbacks(
-                incompatible_qos=self._on_unlatched_camera_info_publisher))
-        self.get_logger().info(
-            f'a latched CameraInfo publisher on {self._info_sub.topic_name}: subscribed '
-            f'{"reliable" if reliable else "best effort"} + transient local too')
-
-    def _on_unlatched_camera_info_publisher(self, event: Any) -> None:
-        """Note quietly a volatile CameraInfo publisher beside a latched one."""
-        self.get_logger().debug(
-            f'a CameraInfo publisher on {self._info_sub.topic_name} is not latched '
-            f'({event.last_policy_kind}): received by the first subscription')
 
     def _on_odometry(self, msg: Odometry) -> None:
         pose = msg.pose.pose
@@ -492,8 +381,6 @@ class DetectorNode(Node):
             self._fused = FusedGrid(config.fusion)
         stamp_s = _stamp_ns(msg.header.stamp) * 1e-9
         pose, why = self._poses.pose_at(stamp_s)
-        if pose is None and len(self._poses) == 0 and self._mount_source.buffer is not None:
-            pose, why = self._odom_pose_from_tf(msg, config)
         if pose is None and not why:
             why = f'no odometry on {self._odom_sub.topic_name}'
         update = self._fused.update(result.costmap, pose, pose_stamp_s=stamp_s,
@@ -507,20 +394,6 @@ class DetectorNode(Node):
         return costmap_to_occupancy_grid(self._fused.to_costmap(), stamp=msg.header.stamp,
                                          frame_id=config.odom_frame)
 
-    def _odom_pose_from_tf(self, msg: Any, config: NodeConfig) -> tuple[Any, str]:
-        """Return the base pose in odom from TF (odom_frame <- cloud_frame_id), and why not."""
-        source = self._mount_source
-        try:
-            transform = source.buffer.lookup_transform(
-                config.odom_frame, config.cloud_frame_id, RclpyTime.from_msg(msg.header.stamp),
-                source.timeout)
-            t, q = transform.transform.translation, transform.transform.rotation
-            return (float(t.x), float(t.y), yaw_from_quaternion(q.x, q.y, q.z, q.w)), ''
-        except Exception as error:  # noqa: BLE001 - tf2's exceptions are not importable here
-            return None, (f'no odometry on {self._odom_sub.topic_name} and no TF '
-                          f'{config.odom_frame} <- {config.cloud_frame_id} '
-                          f'({type(error).__name__})')
-
     def _log_stats(self) -> None:
         period = self.stats.take(reader='log')
         mean_ms = period.sum_ms / period.processed if period.processed else 0.0
@@ -528,9 +401,7 @@ class DetectorNode(Node):
             f'{period.processed} frames processed in {period.seconds:.1f} s '
             f'({period.processed / period.seconds:.1f} fps), mean {mean_ms:.1f} ms/frame; '
             f'{period.dropped} dropped (a newer frame came first), '
-            f'{period.missing} missing (lost by the transport on the way), '
-            f'{sum(period.skipped.values())} skipped (bad input), {period.errors} errors'
-            + (f'; last {self._floor_text}' if self._floor_text else ''))
+            f'{sum(period.skipped.values())} skipped (bad input), {period.errors} errors')
 
     # -- worker thread ------------------------------------------------------------------------
     def _work(self) -> None:
@@ -625,14 +496,6 @@ class DetectorNode(Node):
             return False
         self.stats.processed(elapsed_ms)
         self._last_frame_id = msg.header.frame_id
-        floor = getattr(result, 'floor', None)
-        self._floor_text = floor.summary() if floor is not None else ''
-        stages = ', '.join(f'{k} {v:.1f}' for k, v in result.timings_ms.items()
-                           if k != 'total')
-        self.get_logger().debug(
-            f'frame {msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d}: '
-            f'{result.obstacle_points.shape[0]} obstacle points, {elapsed_ms:.1f} ms '
-            f'(pipeline {result.timings_ms.get("total", 0.0):.1f} ms: {stages})')
         return True
 
     def close(self) -> None:
@@ -684,12 +547,9 @@ def help_text() -> str:
     ]
     for spec in ALL_PARAMS:
         default = repr(spec.default) if isinstance(spec.default, str) else str(spec.default)
-        head = f'  {spec.name}  {spec.type_name}  {default}'
-        if spec.range_text:
-            head += f'  {spec.range_text}'
-        if spec.read_only:
-            head += '  read-only'
-        lines += [head, f'      {spec.description}']
+        head = [spec.name, spec.type_name, default, spec.range_text,
+                'read-only' if spec.read_only else '']
+        lines += ['  ' + '  '.join(filter(None, head)), f'      {spec.description}']
     lines += ['', 'example: detector --ros-args --params-file params/corridor.yaml '
               '-r depth/image_raw:=/kinect2/sd/image_depth_rect '
               '-r depth/camera_info:=/kinect2/sd/camera_info']
@@ -724,8 +584,7 @@ def main(args: list[str] | None = None) -> int:
         try:
             node = DetectorNode()
         except (ValueError, ParameterException) as error:
-            reason = params_file_reason(files) or str(error)
-            rclpy.logging.get_logger(NODE_NAME).fatal(f'invalid parameters: {reason}')
+            rclpy.logging.get_logger(NODE_NAME).fatal(f'invalid parameters: {error}')
             return 1
         for path in files:
             for problem in params_file_problems(path, node.get_fully_qualified_name()):

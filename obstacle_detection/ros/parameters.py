@@ -145,7 +145,7 @@ NODE_PARAMS: tuple[ParamSpec, ...] = (
               'read at start-up (the topic is advertised only when on)', read_only=True),
     ParamSpec('reliable_input', False,
               'Subscribe to depth and camera_info with reliable QoS instead of sensor-data '
-              '(best effort; a latched CameraInfo is received either way); read at start-up',
+              '(best effort); read at start-up',
               read_only=True),
     ParamSpec('use_fallback_intrinsics', False,
               'Use fallback_fx/fy/cx/cy while no CameraInfo has arrived (else frames are '
@@ -153,9 +153,8 @@ NODE_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec('fuse', False,
               'Also publish obstacles/fused_costmap: the per-frame costmaps fused over time '
               '(log-odds) in a rolling window centred on the robot in odom_frame, moved by the '
-              'odometry on odom_topic, or by TF odom_frame <- cloud_frame_id when use_tf and '
-              'no odometry comes (neither: fused in place, said once); read at start-up (the '
-              'topic and the odometry subscription exist only when on)', read_only=True),
+              'odometry on odom_topic (without it: fused in place, said once); read at start-up '
+              '(the topic and the odometry subscription exist only when on)', read_only=True),
     ParamSpec('odom_topic', 'odom',
               'nav_msgs/Odometry of the robot base in odom_frame, for the fused costmap '
               '(subscribed best effort, so reliable and best-effort publishers both connect); '
@@ -203,7 +202,7 @@ NODE_PARAMS: tuple[ParamSpec, ...] = (
               "frame's obstacles) refines each frame; '' = rule-based only"),
     ParamSpec('stats_period_s', 10.0,
               'Period of the info log with frames processed, dropped, mean time and fps; '
-              '0 = off [s]', 0.0, 3600.0),
+              '0 = off; read at start-up [s]', 0.0, 3600.0, read_only=True),
 )
 
 ALL_PARAMS: tuple[ParamSpec, ...] = PIPELINE_PARAMS + NODE_PARAMS
@@ -217,19 +216,6 @@ def pipeline_params_to_ros(params: DetectorParams) -> dict[str, ParamValue]:
         value = getattr(params, spec.field)
         values[spec.name] = _degrees(value) if spec.degrees else value
     return values
-
-
-#: Resource limits of one parameter set, checked on the combination (README, Parameters).
-#: Costmap cells (e.g. 20 m x 20 m at 1 cm).
-MAX_COSTMAP_CELLS = 4_000_000
-#: Cells of the voxel lattice over the region of interest (its volume / one voxel's).
-MAX_VOXEL_LATTICE = 1_000_000_000
-#: k-NN entries per frame: max(N, N1 + 1) x the voxels a frame can have, at most
-#: min(lattice, FRAME_VOXELS_BOUND) (a 512 x 424 frame without downsampling has 217,088).
-MAX_NEIGHBOUR_ENTRIES = 16_000_000
-FRAME_VOXELS_BOUND = 250_000
-#: Shortest statistics period: at most ten info lines a second [s].
-MIN_STATS_PERIOD_S = 0.1
 
 
 def _range_problem(spec: ParamSpec, value: Any) -> str | None:
@@ -246,54 +232,6 @@ def _range_problem(spec: ParamSpec, value: Any) -> str | None:
     return None
 
 
-def budget_problem(values: Mapping[str, Any]) -> str | None:
-    """Say which resource limit a set of ROS parameter values exceeds, or None."""
-    def get(name: str) -> Any:
-        return values[name] if name in values else SPECS_BY_NAME[name].default
-
-    res = float(get('costmap_resolution_m'))
-    cells = (math.ceil(float(get('costmap_length_m')) / res)
-             * math.ceil(float(get('costmap_width_m')) / res))
-    if cells > MAX_COSTMAP_CELLS:
-        return (f'costmap_length_m={get("costmap_length_m")!r}, costmap_width_m='
-                f'{get("costmap_width_m")!r} at costmap_resolution_m={res!r} make {cells:,} '
-                f'cells, above the limit of {MAX_COSTMAP_CELLS:,}')
-    depth = float(get('max_range_m')) - float(get('min_range_m'))
-    width = 2.0 * float(get('lateral_limit_m'))
-    height = float(get('camera_height_m')) + float(get('smar_m')) - float(get('tdbg_m'))
-    voxel = float(get('voxel_x_m')) * float(get('voxel_y_m')) * float(get('voxel_z_m'))
-    lattice = max(depth, 0.0) * width * max(height, 0.0) / voxel
-    if lattice > MAX_VOXEL_LATTICE:
-        return (f'voxel_x_m/voxel_y_m/voxel_z_m={get("voxel_x_m")!r}/{get("voxel_y_m")!r}/'
-                f'{get("voxel_z_m")!r} over the region of interest ({depth:g} x {width:g} x '
-                f'{height:g} m) make {lattice:.3g} voxel cells, above the limit of '
-                f'{MAX_VOXEL_LATTICE:.0e}')
-    k = max(int(get('normal_neighbours')), int(get('validation_neighbours')) + 1)
-    entries = k * min(lattice, FRAME_VOXELS_BOUND)
-    if entries > MAX_NEIGHBOUR_ENTRIES:
-        return (f'normal_neighbours={get("normal_neighbours")!r} and validation_neighbours='
-                f'{get("validation_neighbours")!r} ask {k} neighbours for up to '
-                f'{min(lattice, FRAME_VOXELS_BOUND):,.0f} voxels a frame: {entries:,.0f} k-NN '
-                f'entries, above the limit of {MAX_NEIGHBOUR_ENTRIES:,} (fewer neighbours or '
-                'larger voxels)')
-    period = float(get('stats_period_s'))
-    if 0.0 < period < MIN_STATS_PERIOD_S:
-        return (f'stats_period_s={period!r} would log more than {1 / MIN_STATS_PERIOD_S:g} '
-                f'lines a second: use 0 (off) or >= {MIN_STATS_PERIOD_S:g}')
-    return None
-
-
-def _user_names(text: str) -> str:
-    """Write a DetectorParams message in the user's names: radians fields in degrees."""
-    def degrees(match: re.Match[str]) -> str:
-        return f'{DEGREE_FIELDS[match.group(1)]}={_degrees(float(match.group(2)))!r}'
-
-    text = re.sub(r'\b(' + '|'.join(DEGREE_FIELDS) + r')=([-+0-9.e]+)', degrees, text)
-    for field_name, ros_name in DEGREE_FIELDS.items():
-        text = text.replace(field_name, ros_name)
-    return text
-
-
 def detector_params_from_ros(values: Mapping[str, Any]) -> DetectorParams:
     """DetectorParams from ROS parameter values; missing names take the dataclass defaults."""
     for spec in PIPELINE_PARAMS:
@@ -301,28 +239,14 @@ def detector_params_from_ros(values: Mapping[str, Any]) -> DetectorParams:
             problem = _range_problem(spec, values[spec.name])
             if problem is not None:
                 raise ValueError(problem)
-    problem = budget_problem(values)
-    if problem is not None:
-        raise ValueError(problem)
     fields = {spec.field: math.radians(values[spec.name]) if spec.degrees else values[spec.name]
               for spec in PIPELINE_PARAMS if spec.name in values}
-    try:
-        return DetectorParams(**fields)
-    except ValueError as error:
-        raise ValueError(_user_names(str(error))) from error
+    return DetectorParams(**fields)   # the range checks above name every degree field
 
 
 def params_files_in_args(args: list[str]) -> list[str]:
-    """Return the ``--params-file`` paths of a command line's ``--ros-args`` blocks, in order."""
-    files, in_ros = [], False
-    for i, token in enumerate(args):
-        if token == '--ros-args':
-            in_ros = True
-        elif token == '--':
-            in_ros = False
-        elif in_ros and token == '--params-file' and i + 1 < len(args):
-            files.append(args[i + 1])
-    return files
+    """Return the ``--params-file`` paths of a command line, in order."""
+    return [args[i + 1] for i in range(len(args) - 1) if args[i] == '--params-file']
 
 
 def _section_applies(key: str, node_fqn: str) -> bool:
@@ -350,32 +274,29 @@ def load_params_yaml(path: Path) -> dict[Any, Any]:
     return data
 
 
+def _read_sections(path: Path, node_fqn: str) -> tuple[dict[str, Any], list[str]]:
+    """Return the parameter messages of the sections naming the node, and the other keys."""
+    from rclpy.parameter import parameter_dict_from_yaml_file
+
+    data = load_params_yaml(path)
+    keys = [key for key in data if _section_applies(str(key), node_fqn)]
+    ignored = [str(key) for key in data if key not in keys]
+    if not keys:
+        return {}, ignored
+    try:   # the keys in the order given, each once
+        return parameter_dict_from_yaml_file(str(path), target_nodes=keys), ignored
+    except (RuntimeError, ValueError, TypeError) as error:
+        raise RosInputError(f'{path}: {error}') from None
+
+
 def params_file_problems(path: str | Path, node_fqn: str = f'/{NODE_NAME}') -> list[str]:
     """Return what the node would silently ignore in a params file, one sentence each."""
     path = Path(path)
-    try:
-        data = load_params_yaml(path)
-    except RosInputError as error:
-        return [str(error)]
-    problems, applied = [], 0
-    for key, section in data.items():
-        params = section.get('ros__parameters') if isinstance(section, dict) else None
-        if not _section_applies(str(key), node_fqn):
-            count = len(params) if isinstance(params, dict) else 0
-            problems.append(f'{path}: section {key!r} does not name this node ({node_fqn}); '
-                            f'its {count} parameter(s) are ignored (use "{PARAMS_FILE_KEY}:" '
-                            'or "/**:")')
-            continue
-        applied += 1
-        if not isinstance(params, dict):
-            problems.append(f'{path}: section {key!r} lacks "ros__parameters"')
-            continue
-        for name in params:
-            if name not in SPECS_BY_NAME and name not in RCLPY_PARAMETERS:
-                problems.append(_unknown_name(path, name, ' is ignored'))
-    if not applied and not problems:
-        problems.append(f'{path}: no section for this node ({node_fqn})')
-    return problems
+    messages, ignored = _read_sections(path, node_fqn)
+    return [*(f'{path}: section {key!r} does not name this node ({node_fqn}) and is ignored '
+              f'(use "{PARAMS_FILE_KEY}:" or "/**:")' for key in ignored),
+            *(_unknown_name(path, name, ' is ignored') for name in messages
+              if name not in SPECS_BY_NAME and name not in RCLPY_PARAMETERS)]
 
 
 def _unknown_name(path: Path, name: str, outcome: str = '') -> str:
@@ -386,30 +307,22 @@ def _unknown_name(path: Path, name: str, outcome: str = '') -> str:
             'parameters')
 
 
-def read_params_file(path: str | Path, *, unknown_is_error: bool = True
-                     ) -> dict[str, ParamValue]:
+def read_params_file(path: str | Path) -> dict[str, ParamValue]:
     """Return the parameter values a node parameter file sets: ``{ros_name: value}``."""
-    from rclpy.parameter import Parameter, parameter_dict_from_yaml_file
+    from rclpy.parameter import Parameter
 
     path = Path(path)
-    data = load_params_yaml(path)
-    keys = [key for key in data if _section_applies(str(key), f'/{NODE_NAME}')]
-    if not keys:
+    messages, _ = _read_sections(path, f'/{NODE_NAME}')
+    if not messages:
         raise RosInputError(f'{path}: no section naming the node (e.g. '
                             f'"{PARAMS_FILE_KEY}:" or "/**:")')
-    try:   # the keys in the order given, each once
-        messages = parameter_dict_from_yaml_file(str(path), target_nodes=keys)
-    except (RuntimeError, ValueError, TypeError) as error:
-        raise RosInputError(f'{path}: {error}') from None
     values: dict[str, ParamValue] = {}
     for name, message in messages.items():
         if name in RCLPY_PARAMETERS:
             continue
         spec = SPECS_BY_NAME.get(name)
         if spec is None:
-            if unknown_is_error:
-                raise RosInputError(_unknown_name(path, name))
-            continue
+            raise RosInputError(_unknown_name(path, name))
         value = Parameter.from_parameter_msg(message).value
         want = type(spec.default)   # as rcl refuses it
         if type(value) is not want:
@@ -418,20 +331,6 @@ def read_params_file(path: str | Path, *, unknown_is_error: bool = True
                                 f'{value!r}{fix}')
         values[name] = value
     return values
-
-
-def params_file_reason(paths: list[str] | tuple[str, ...]) -> str | None:
-    """Name the file and the value behind a refused start-up, or None if none is to blame."""
-    for path in paths:
-        try:
-            values = read_params_file(path, unknown_is_error=False)
-        except RosInputError as error:
-            return str(error)
-        for name, value in values.items():
-            problem = _range_problem(SPECS_BY_NAME[name], value)
-            if problem is not None:
-                return f'{path}: {problem}'
-    return None
 
 
 def read_params_files(paths: list[str | Path] | tuple[str | Path, ...]

@@ -2,13 +2,10 @@
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
-
-from .primitives import check
 
 
 @dataclass(frozen=True)
@@ -33,19 +30,6 @@ class NoiseModel:
     flying_jump_m: float = 0.05
     flying_jump_ratio: float = 0.08
     dark_blob_px: float = 0.0
-
-    def __post_init__(self) -> None:
-        if isinstance(self.border_px, bool) or not isinstance(self.border_px, int) or \
-                self.border_px < 0:
-            raise ValueError(f'NoiseModel: border_px={self.border_px!r} must be an int >= 0')
-        fields = dataclasses.asdict(self)
-        rates = {name: fields.pop(name) for name in ('dropout_rate', 'dark_dropout_rate',
-                                                     'far_dropout_rate', 'flying_pixel_rate')}
-        check('NoiseModel', 'within [0, 1]', lambda v: 0.0 <= v <= 1.0, **rates)
-        check('NoiseModel', 'a finite number >= 0', lambda v: v >= 0.0, **fields)
-        if not 0.0 <= self.min_range_m < self.max_range_m <= 65.535:
-            raise ValueError(f'NoiseModel: need 0 <= min_range_m={self.min_range_m!r} < '
-                             f'max_range_m={self.max_range_m!r} <= 65.535')
 
 
 #: The default sensor model (``noise=True``) and the exact one (``noise=False``). The default
@@ -136,8 +120,7 @@ def measure(depth_true: np.ndarray, hit_index: np.ndarray, dark: np.ndarray,
         offset = measured_m.astype(np.float32) - np.float32(model.depth_sigma_ref_m)
         sigma_mm = np.float32(model.depth_sigma_quad_mm_per_m2) * offset * offset
         sigma_mm += np.float32(model.depth_sigma_base_mm)
-        if model.dark_sigma_factor != 1.0:
-            sigma_mm[on_dark] *= np.float32(model.dark_sigma_factor)
+        sigma_mm[on_dark] *= np.float32(model.dark_sigma_factor)
         sigma_mm *= gauss
         measured_mm += sigma_mm
     np.rint(measured_mm, out=measured_mm)
@@ -148,19 +131,16 @@ def measure(depth_true: np.ndarray, hit_index: np.ndarray, dark: np.ndarray,
         dark_rate = model.dropout_rate if blobs else model.dark_dropout_rate
         rates = np.where(dark, dark_rate, model.dropout_rate).astype(np.float32)
         rate = rates[hit_index]
-        if model.far_dropout_rate > 0.0:   # rising from far_dropout_start_m to max_range_m
-            span = max(model.max_range_m - model.far_dropout_start_m, 1e-9)
-            ramp = np.clip((depth_true - model.far_dropout_start_m) / span, 0.0, 1.0)
-            rate += (model.far_dropout_rate * ramp).astype(np.float32)
+        span = model.max_range_m - model.far_dropout_start_m   # far dropouts rise over it
+        ramp = np.clip((depth_true - model.far_dropout_start_m) / span, 0.0, 1.0)
+        rate += (model.far_dropout_rate * ramp).astype(np.float32)
         valid &= dropout_draw >= rate
         if blobs and model.dark_dropout_rate > 0.0:
             valid &= ~blob_dropouts(hit_index, dark, model.dark_dropout_rate,
                                     model.dark_blob_px, key)
     b = model.border_px
-    if b:
-        valid[:b, :] = False
-        valid[-b:, :] = False
-        valid[:, :b] = False
-        valid[:, -b:] = False
+    border = np.ones_like(valid)
+    border[b:height - b, b:width - b] = False
+    valid[border] = False
     depth_mm = np.where(valid, measured_mm, 0.0).astype(np.uint16)
     return depth_mm, valid, flying

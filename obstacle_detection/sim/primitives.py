@@ -29,15 +29,6 @@ class Rays:
     dy: np.ndarray
     dz: np.ndarray
 
-    def window(self, rows: slice, cols: slice) -> 'Rays':
-        """Return the rays of an image window (views of 2-D direction arrays)."""
-        return Rays(self.origin, self.dx[rows, cols], self.dy[rows, cols], self.dz[rows, cols])
-
-    def flat(self, index: np.ndarray) -> 'Rays':
-        """Return the rays at flat indices ``index`` (copies, 1-D)."""
-        return Rays(self.origin, self.dx.reshape(-1)[index], self.dy.reshape(-1)[index],
-                    self.dz.reshape(-1)[index])
-
 
 #: A primitive's hit labels: one label for every hit, or an array of one per ray.
 LabelValue = Union[int, np.ndarray]
@@ -85,18 +76,6 @@ def check(owner: str, rule: str, ok: Callable[[float], bool], **values: float) -
             raise ValueError(f'{owner}: {name}={value!r} must be {rule}')
 
 
-def check_positive(owner: str, **values: float) -> None:
-    check(owner, 'a finite number > 0', lambda v: v > 0.0, **values)
-
-
-def _check_finite(owner: str, **values: float) -> None:
-    check(owner, 'finite', lambda v: True, **values)
-
-
-def check_slope(owner: str, **values: float) -> None:
-    check(owner, 'in (0, pi/2)', lambda v: 0.0 < v < math.pi / 2, **values)
-
-
 def _plane_t(offset: float, rate: np.ndarray) -> np.ndarray:
     """Return t solving ``offset + t * rate = 0``; inf if parallel or behind the camera."""
     with np.errstate(divide='ignore', invalid='ignore'):
@@ -140,21 +119,13 @@ class Floor(Primitive):
     bump_phase_rad: tuple[float, float, float] = (0.0, 0.0, 0.0)
     traversable: bool = True
 
-    def __post_init__(self) -> None:
-        check('Floor', '>= 0', lambda v: v >= 0.0, bump_amplitude_m=self.bump_amplitude_m)
-        check_positive('Floor', bump_wavelength_m=self.bump_wavelength_m)
-        if len(self.bump_phase_rad) != 3:
-            raise ValueError(f'Floor: bump_phase_rad={self.bump_phase_rad!r} needs 3 phases')
-
     def walk_patches(self, max_slope_rad: float) -> tuple[Patch, ...]:
         """Return the whole plane z = 0, within the bump amplitude (gentler than theta)."""
         return (Patch(-math.inf, math.inf, -math.inf, math.inf, 0.0,
                       tolerance_m=self.bump_amplitude_m),)
 
     def height(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """Ground height z(x, y) [m], shaped like x and y."""
-        if self.bump_amplitude_m == 0.0:
-            return np.zeros(np.broadcast(x, y).shape)
+        """Ground height z(x, y) [m] of a bumpy floor, shaped like x and y."""
         k = 2.0 * math.pi / self.bump_wavelength_m
         p0, p1, p2 = self.bump_phase_rad
         pattern = np.sin(k * x + p0)
@@ -179,8 +150,8 @@ class Floor(Primitive):
         # rays that go down and enter the band |z| <= amp early enough
         active = np.flatnonzero((dz_all < 0.0) & (t_enter < BUMPY_TRACE_M))
         # float32 from here: sin/cos are many times faster, and 1e-6 relative is plenty
-        sub = rays.flat(active)
-        dx, dy, dz = (d.astype(np.float32) for d in (sub.dx, sub.dy, sub.dz))
+        dx, dy, dz = (d.reshape(-1)[active].astype(np.float32)
+                      for d in (rays.dx, rays.dy, rays.dz))
         t_end = np.minimum((oz + amp) / -dz, BUMPY_TRACE_M)   # below every bump from here on
         step = 0.1 * self.bump_wavelength_m / np.maximum(np.hypot(dx, dy), 1e-6)
 
@@ -231,19 +202,10 @@ class Box(Primitive):
     max_m: tuple[float, float, float]
     traversable: bool = False
 
-    def __post_init__(self) -> None:
-        if len(self.min_m) != 3 or len(self.max_m) != 3:
-            raise ValueError(f'Box: min_m={self.min_m!r}, max_m={self.max_m!r} need 3 values')
-        for axis, lo, hi in zip('xyz', self.min_m, self.max_m):
-            _check_finite('Box', **{f'min_{axis}': lo, f'max_{axis}': hi})
-            if not lo < hi:
-                raise ValueError(f'Box: min_{axis}={lo!r} must be below max_{axis}={hi!r}')
-
     @classmethod
     def on_floor(cls, x_m: float, y_m: float, size_x_m: float, size_y_m: float,
                  size_z_m: float, **kwargs: Any) -> 'Box':
         """Return a box standing on z = 0, centred on (x_m, y_m), of the given sizes [m]."""
-        check_positive('Box', size_x_m=size_x_m, size_y_m=size_y_m, size_z_m=size_z_m)
         return cls((x_m - size_x_m / 2, y_m - size_y_m / 2, 0.0),
                    (x_m + size_x_m / 2, y_m + size_y_m / 2, size_z_m), **kwargs)
 
@@ -282,15 +244,6 @@ class Wall(Primitive):
     z_max_m: float = 2.5
     traversable: bool = False
 
-    def __post_init__(self) -> None:
-        _check_finite('Wall', x0_m=self.x0_m, y0_m=self.y0_m, x1_m=self.x1_m, y1_m=self.y1_m,
-                      z_min_m=self.z_min_m, z_max_m=self.z_max_m)
-        if self.x0_m == self.x1_m and self.y0_m == self.y1_m:
-            raise ValueError(f'Wall: end points ({self.x0_m}, {self.y0_m}) coincide')
-        if not self.z_min_m < self.z_max_m:
-            raise ValueError(f'Wall: z_min_m={self.z_min_m!r} must be below '
-                             f'z_max_m={self.z_max_m!r}')
-
     def bounds(self) -> Bounds:
         return ((min(self.x0_m, self.x1_m), min(self.y0_m, self.y1_m), self.z_min_m),
                 (max(self.x0_m, self.x1_m), max(self.y0_m, self.y1_m), self.z_max_m))
@@ -318,17 +271,11 @@ class Ramp(Primitive):
     width_m: float
     length_m: float
     slope_rad: float
-    max_passable_slope_rad: float = math.pi / 6
-
-    def __post_init__(self) -> None:
-        _check_finite('Ramp', x_start_m=self.x_start_m, y_center_m=self.y_center_m)
-        check_positive('Ramp', width_m=self.width_m, length_m=self.length_m)
-        check_slope('Ramp', slope_rad=self.slope_rad)
 
     @property
     def traversable(self) -> bool:
-        """True when the slope is passable."""
-        return self.slope_rad <= self.max_passable_slope_rad
+        """True when the slope is passable: no steeper than the seed's theta, pi/6."""
+        return self.slope_rad <= math.pi / 6
 
     @property
     def top_height_m(self) -> float:
@@ -370,11 +317,6 @@ class RampSide(Primitive):
     slope_rad: float
     traversable: bool = False
 
-    def __post_init__(self) -> None:
-        _check_finite('RampSide', x_start_m=self.x_start_m, y_m=self.y_m)
-        check_positive('RampSide', length_m=self.length_m)
-        check_slope('RampSide', slope_rad=self.slope_rad)
-
     def bounds(self) -> Bounds:
         top = self.length_m * math.tan(self.slope_rad)
         return ((self.x_start_m, self.y_m, 0.0),
@@ -401,20 +343,10 @@ class Cylinder(Primitive):
     base_z_m: float = 0.0
     traversable: bool = False
 
-    def __post_init__(self) -> None:
-        _check_finite('Cylinder', x_m=self.x_m, y_m=self.y_m, base_z_m=self.base_z_m)
-        check_positive('Cylinder', radius_m=self.radius_m, height_m=self.height_m)
-
     def bounds(self) -> Bounds:
         r = self.radius_m
         return ((self.x_m - r, self.y_m - r, self.base_z_m),
                 (self.x_m + r, self.y_m + r, self.base_z_m + self.height_m))
-
-    def walk_patches(self, max_slope_rad: float) -> tuple[Patch, ...]:
-        """Return the top cap, as its bounding square (for connectivity)."""
-        r = self.radius_m
-        return (Patch(self.x_m - r, self.x_m + r, self.y_m - r, self.y_m + r,
-                      self.base_z_m + self.height_m),)
 
     def intersect(self, rays: Rays) -> tuple[np.ndarray, LabelValue]:
         ox, oy, oz = rays.origin
@@ -444,21 +376,16 @@ class Cylinder(Primitive):
 class StepDown(Primitive):
     """Floor at z = 0 for x < x_m, a drop of depth_m there, lower floor at z = -depth_m beyond.
 
-    Use it instead of ``Floor``; the lower floor is an obstacle when ``depth_m > max_drop_m``.
+    Use it instead of ``Floor``; the seed's label: the lower floor is an obstacle past 0.1 m.
     """
 
     x_m: float
     depth_m: float
-    max_drop_m: float = 0.1
-
-    def __post_init__(self) -> None:
-        _check_finite('StepDown', x_m=self.x_m, max_drop_m=self.max_drop_m)
-        check_positive('StepDown', depth_m=self.depth_m)
 
     @property
     def traversable(self) -> bool:
         """Label of the lower floor: True when the drop is small enough to drive down."""
-        return self.depth_m <= self.max_drop_m
+        return self.depth_m <= 0.1
 
     def walk_patches(self, max_slope_rad: float) -> tuple[Patch, ...]:
         """Return the upper (x <= x_m, z = 0) and lower floor (x >= x_m, z = -depth_m)."""

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -13,12 +13,9 @@ from obstacle_detection.pipeline.params import (DetectorParams, Intrinsics, KINE
                                                 KINECT_V2_SD_SIZE)
 
 from .noise import EXACT, KINECT_V2_NOISE, NoiseModel, measure
-from .primitives import (MAX_TRACE_M, Bounds, Primitive, Rays, check, check_positive,
-                         label_of)
+from .primitives import MAX_TRACE_M, Bounds, Primitive, Rays, check, label_of
 from .truth import TruthRules, robot_labels
 
-#: Default camera height of the named scenes [m].
-DEFAULT_HEIGHT_M = 0.6
 #: Near plane [m] for projecting a primitive's bounding box into the image.
 _NEAR_M = 0.05
 
@@ -28,16 +25,14 @@ class Scene:
 
     name: str
     primitives: tuple[Primitive, ...]
-    height_m: float = DEFAULT_HEIGHT_M
+    height_m: float = 0.6
     pitch_rad: float = 0.0
     roll_rad: float = 0.0
 
     def __post_init__(self) -> None:
-        check_positive('Scene', height_m=self.height_m)
+        check('Scene', 'a finite number > 0', lambda v: v > 0.0, height_m=self.height_m)
         check('Scene', 'within (-pi/2, pi/2)', lambda v: abs(v) < math.pi / 2,
               pitch_rad=self.pitch_rad, roll_rad=self.roll_rad)
-        if not self.primitives:
-            raise ValueError(f'Scene {self.name!r} has no primitives')
 
 
 @dataclass(frozen=True)
@@ -47,7 +42,7 @@ class SceneFrame:
     depth_mm: measured [mm], 0 = no return; depth_true_m: noise-free depth, 0 where no hit;
     labels / labels_seed: robot-level / seed truth ``GT_*``, ``GT_NO_RETURN`` where depth_mm is 0
     or the pixel flies; points_ground: true hit points, base frame [m], NaN where no hit;
-    hit_labels(_seed): the hit surface's labels; hit_index / object_ids: primitive hit, -1 none;
+    hit_labels: the hit surface's robot-level label; hit_index: primitive hit (int16), -1 none;
     flying: mixed pixels; drop_edge: reachable ground at a drop's edge.
     """
 
@@ -59,38 +54,17 @@ class SceneFrame:
     height_m: float
     pitch_rad: float
     roll_rad: float
-    name: str
-    seed: int
-    frame_index: int = 0
-    hit_labels: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), np.uint8))
-    hit_index: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), np.int16))
-    primitives: tuple[Primitive, ...] = ()
-    labels_seed: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), np.uint8))
-    hit_labels_seed: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), np.uint8))
-    flying: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), bool))
-    drop_edge: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), bool))
-    truth_rules: TruthRules = field(default_factory=lambda: TruthRules())
-
-    @property
-    def size(self) -> tuple[int, int]:
-        """(width, height) [px]."""
-        return self.depth_mm.shape[1], self.depth_mm.shape[0]
-
-    @property
-    def depth_m(self) -> np.ndarray:
-        """(H, W) float32 measured depth [m], 0 = no return."""
-        return self.depth_mm.astype(np.float32) * np.float32(1e-3)
-
-    @property
-    def object_ids(self) -> np.ndarray:
-        """(H, W) int16 index of the primitive hit, -1 where none (``hit_index``)."""
-        return self.hit_index
+    hit_labels: np.ndarray
+    hit_index: np.ndarray
+    primitives: tuple[Primitive, ...]
+    labels_seed: np.ndarray
+    flying: np.ndarray
+    drop_edge: np.ndarray
 
     @property
     def object_names(self) -> tuple[str, ...]:
         """Name of each primitive ('' = unnamed); primitives of one name form one object."""
         return tuple(p.name for p in self.primitives)
-
 
 
 def camera_rays(intrinsics: Intrinsics, size: tuple[int, int], height_m: float,
@@ -150,8 +124,6 @@ def _posed_rays(rays: Rays, rot: np.ndarray, pose: tuple[float, float, float],
                 ) -> tuple[Rays, np.ndarray]:
     """Move base-frame rays and rotation to a robot at ``pose`` (x, y, yaw) in the scene."""
     x, y, yaw = (float(v) for v in pose)
-    if not all(math.isfinite(v) for v in (x, y, yaw)):
-        raise ValueError(f'pose={pose!r} must be finite (x [m], y [m], yaw [rad])')
     c, s = math.cos(yaw), math.sin(yaw)
     ox, oy, oz = rays.origin
     yaw_rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
@@ -172,7 +144,8 @@ def _nearest_hits(scene: Scene, rays: Rays, rot: np.ndarray, intrinsics: Intrins
         window = _image_window(primitive.bounds(), rays, rot, intrinsics, size)
         if window is None:
             continue
-        t, label = primitive.intersect(rays.window(*window))
+        t, label = primitive.intersect(Rays(rays.origin, rays.dx[window], rays.dy[window],
+                                            rays.dz[window]))
         closer = t < best_t[window]
         np.copyto(best_t[window], t, where=closer)
         np.copyto(hit_index[window], i, where=closer)
@@ -199,10 +172,7 @@ def render(scene: Scene, *, seed: int = 0, intrinsics: Intrinsics = KINECT_V2_SD
     """
     check_render_args(seed, size, frame_index)
     model = noise if isinstance(noise, NoiseModel) else (KINECT_V2_NOISE if noise else EXACT)
-    if rules is None:
-        rules = TruthRules()
-    elif not isinstance(rules, TruthRules):
-        rules = TruthRules.from_params(rules)
+    rules = TruthRules() if rules is None else TruthRules.from_params(rules)
     width, height = size
     size = (int(width), int(height))
     rays, rot = camera_rays(intrinsics, size, scene.height_m, scene.pitch_rad, scene.roll_rad)
@@ -241,7 +211,6 @@ def render(scene: Scene, *, seed: int = 0, intrinsics: Intrinsics = KINECT_V2_SD
     return SceneFrame(
         depth_mm=depth_mm, depth_true_m=depth_true.astype(np.float32), labels=labels,
         points_ground=points, intrinsics=intrinsics, height_m=scene.height_m,
-        pitch_rad=scene.pitch_rad, roll_rad=scene.roll_rad, name=scene.name, seed=int(seed),
-        frame_index=int(frame_index), hit_labels=hit_labels, hit_index=hit_index,
-        primitives=scene.primitives, labels_seed=labels_seed, hit_labels_seed=hit_labels_seed,
-        flying=flying, drop_edge=drop_edge, truth_rules=rules)
+        pitch_rad=scene.pitch_rad, roll_rad=scene.roll_rad, hit_labels=hit_labels,
+        hit_index=hit_index, primitives=scene.primitives, labels_seed=labels_seed,
+        flying=flying, drop_edge=drop_edge)

@@ -12,7 +12,7 @@ from obstacle_detection.pipeline.params import (DetectorParams, Intrinsics, KINE
                                                 KINECT_V2_SD_SIZE)
 
 from .noise import NoiseModel
-from .primitives import Box, Cylinder, Floor, Ramp, RampSide, StepDown, Wall, check_positive
+from .primitives import Box, Cylinder, Floor, Ramp, RampSide, StepDown, Wall
 from .render import Scene, SceneFrame, check_render_args, render
 from .truth import TruthRules
 
@@ -118,36 +118,25 @@ def _person_walking(rng: np.random.Generator, frame_index: int) -> Scene:
 # -- issue 9 scenes: robot-level obstacles (flat tops, overhangs, drops, steps)
 
 def table(x_m: float, y_m: float, size_x_m: float, size_y_m: float, height_m: float, *,
-          top_m: float = 0.03, leg_m: float = 0.04, name: str = 'table',
-          dark: bool = False) -> tuple[Box, ...]:
-    """Return a table centred on (x_m, y_m): a top with its upper face ``height_m`` up, legs."""
-    check_positive('table', size_x_m=size_x_m, size_y_m=size_y_m, height_m=height_m,
-                    top_m=top_m, leg_m=leg_m)
-    if not (top_m < height_m and 2 * leg_m < min(size_x_m, size_y_m)):
-        raise ValueError(f'table {name!r}: top_m={top_m!r} must be below height_m='
-                         f'{height_m!r} and two legs of {leg_m!r} narrower than the top')
-    hx, hy = size_x_m / 2, size_y_m / 2
-    parts = [Box((x_m - hx, y_m - hy, height_m - top_m), (x_m + hx, y_m + hy, height_m),
-                 dark=dark, name=name)]
+          leg_m: float = 0.04, name: str = 'table', dark: bool = False) -> tuple[Box, ...]:
+    """Return a table centred on (x_m, y_m): a 3 cm top, its upper face ``height_m`` up, legs."""
+    hx, hy, under = size_x_m / 2, size_y_m / 2, height_m - 0.03
+    parts = [Box((x_m - hx, y_m - hy, under), (x_m + hx, y_m + hy, height_m), dark=dark,
+                 name=name)]
     for sx in (-1.0, 1.0):
         for sy in (-1.0, 1.0):
             cx, cy = x_m + sx * (hx - leg_m / 2), y_m + sy * (hy - leg_m / 2)
             parts.append(Box((cx - leg_m / 2, cy - leg_m / 2, 0.0),
-                             (cx + leg_m / 2, cy + leg_m / 2, height_m - top_m),
-                             dark=dark, name=name))
+                             (cx + leg_m / 2, cy + leg_m / 2, under), dark=dark, name=name))
     return tuple(parts)
 
 
-def chair(x_m: float, y_m: float, *, seat_m: float = 0.42, seat_height_m: float = 0.46,
-          back_height_m: float = 0.9, name: str = 'chair', dark: bool = False,
-          leg_m: float = 0.03) -> tuple[Box, ...]:
-    """Return a chair centred on (x_m, y_m): a square seat on four legs, its back at +x."""
-    parts = table(x_m, y_m, seat_m, seat_m, seat_height_m, top_m=0.03, leg_m=leg_m, name=name,
-                  dark=dark)
-    half = seat_m / 2
-    back = Box((x_m + half - 0.03, y_m - half, seat_height_m),
-               (x_m + half, y_m + half, back_height_m), dark=dark, name=name)
-    return parts + (back,)
+def chair(x_m: float, y_m: float, *, leg_m: float = 0.03, name: str = 'chair',
+          dark: bool = False) -> tuple[Box, ...]:
+    """Return a chair centred on (x_m, y_m): a 0.42 m seat 0.46 m up, its back at +x to 0.9 m."""
+    back = Box((x_m + 0.21 - 0.03, y_m - 0.21, 0.46), (x_m + 0.21, y_m + 0.21, 0.9), dark=dark,
+               name=name)
+    return table(x_m, y_m, 0.42, 0.42, 0.46, leg_m=leg_m, name=name, dark=dark) + (back,)
 
 
 def _jitter(rng: np.random.Generator) -> Callable[[], float]:
@@ -228,10 +217,10 @@ OPEN_RAMP_RISE_M = 0.18
 
 
 def open_ramp(x_m: float, y_center_m: float, width_m: float, platform_m: float, *,
-              sides: tuple[float, ...] = ()) -> tuple:
+              side_y: float | None = None) -> tuple:
     """Return an open-sided ramp up to a platform, the ramp's foot at x_m [m].
 
-    ``sides``: the y [m] of the open sides modelled as their own primitives (listed first).
+    ``side_y``: the y [m] of an open side modelled as its own primitives (listed first).
     """
     slope = math.radians(OPEN_RAMP_SLOPE_DEG)
     run = OPEN_RAMP_RISE_M / math.tan(slope)
@@ -241,19 +230,18 @@ def open_ramp(x_m: float, y_center_m: float, width_m: float, platform_m: float, 
     platform = Box((x_m + run, y_center_m - half, 0.0),
                    (x_m + run + platform_m, y_center_m + half, OPEN_RAMP_RISE_M),
                    name='platform')
-    faces: list = []
-    for y in sides:
-        faces.append(RampSide(x_m, y, run, slope, name='ramp_side'))
-        faces.append(Wall(x_m + run, y, x_m + run + platform_m, y, 0.0, OPEN_RAMP_RISE_M,
-                          name='platform_side'))
-    return tuple(faces) + (ramp, platform)
+    if side_y is None:
+        return ramp, platform
+    return (RampSide(x_m, side_y, run, slope, name='ramp_side'),
+            Wall(x_m + run, side_y, x_m + run + platform_m, side_y, 0.0, OPEN_RAMP_RISE_M,
+                 name='platform_side'), ramp, platform)
 
 
 def _open_ramp(rng: np.random.Generator, frame_index: int) -> Scene:
     x0 = 1.0 + rng.uniform(-0.05, 0.05)
     yc = 0.65 + rng.uniform(-0.05, 0.05)
     box = Box.on_floor(1.3 + rng.uniform(-0.05, 0.05), -0.5, 0.3, 0.3, 0.3, name='box')
-    return Scene('open_ramp', (Floor(),) + open_ramp(x0, yc, 0.8, 1.2, sides=(yc - 0.4,))
+    return Scene('open_ramp', (Floor(),) + open_ramp(x0, yc, 0.8, 1.2, side_y=yc - 0.4)
                  + (box,))
 
 

@@ -9,7 +9,7 @@ import numpy as np
 
 from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE, Intrinsics
 from .noise import NoiseModel
-from .primitives import Box, Cylinder, Floor, Primitive, Wall, check
+from .primitives import Box, Cylinder, Floor, Primitive, Wall
 from .render import render, Scene, SceneFrame, check_count
 
 #: A pose: base frame in odom, (x [m], y [m], yaw [rad]).
@@ -26,12 +26,6 @@ class OdometryModel:
     distance_scale: float = 0.02
     yaw_scale: float = -0.01
     noise_fraction: float = 0.05
-
-    def __post_init__(self) -> None:
-        check('OdometryModel', 'finite, |.| < 1', lambda v: abs(v) < 1.0,
-              distance_scale=self.distance_scale, yaw_scale=self.yaw_scale)
-        check('OdometryModel', 'in [0, 1)', lambda v: 0.0 <= v < 1.0,
-              noise_fraction=self.noise_fraction)
 
 
 #: Odometry without error (the odometry pose is the true pose).

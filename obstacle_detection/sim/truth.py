@@ -11,7 +11,7 @@ import numpy as np
 
 from obstacle_detection.labels import GT_ABOVE_ROBOT, GT_OBSTACLE, GT_TRAVERSABLE
 
-from .primitives import Patch, Primitive, check, check_positive, check_slope
+from .primitives import Patch, Primitive
 
 #: Two drivable patches whose rectangles are closer than this touch (connectivity) [m].
 TOUCH_M = 1e-3
@@ -30,19 +30,10 @@ class TruthRules:
     max_step_down_m: float = 0.05
     robot_height_m: float = 1.0
 
-    def __post_init__(self) -> None:
-        check_slope('TruthRules', max_slope_rad=self.max_slope_rad)
-        check('TruthRules', 'a finite number >= 0', lambda v: v >= 0.0,
-              max_step_height_m=self.max_step_height_m, max_step_down_m=self.max_step_down_m)
-        check_positive('TruthRules', robot_height_m=self.robot_height_m)
-
     @classmethod
     def from_params(cls, params: Any) -> 'TruthRules':
-        """Rules from detector parameters; fields they lack (older params) keep the defaults."""
-        default = cls()
-        return cls(**{name: float(getattr(params, name, getattr(default, name)))
-                      for name in ('max_slope_rad', 'max_step_height_m', 'max_step_down_m',
-                                   'robot_height_m')})
+        """Rules from detector parameters (or other rules): their fields of these names."""
+        return cls(**{f.name: float(getattr(params, f.name)) for f in dataclasses.fields(cls)})
 
 
 def _rise(a: Patch, b: Patch) -> np.ndarray | None:
@@ -118,7 +109,8 @@ def robot_labels(points: np.ndarray, owner: np.ndarray, primitives: tuple[Primit
         if not a_ok:
             continue
         for b, b_ok in zip(patches, reached):
-            if b_ok or not _is_drop(a, b, rules):
+            dz = None if b_ok else _rise(a, b)
+            if dz is None or dz.max() >= -rules.max_step_down_m:   # b is no drop beside a
                 continue
             near = Patch(max(a.x0_m, b.x0_m) - DROP_EDGE_BAND_M,
                          min(a.x1_m, b.x1_m) + DROP_EDGE_BAND_M,
@@ -184,9 +176,3 @@ def _ledges(x: np.ndarray, y: np.ndarray, z: np.ndarray, owner: np.ndarray,
                 np.maximum(beyond, np.where(fits, plane, -np.inf), out=beyond)
             out |= band & np.isfinite(beyond) & (z_here - beyond > rules.max_step_down_m)
     return out
-
-
-def _is_drop(a: Patch, b: Patch, rules: TruthRules) -> bool:
-    """Return True when b touches a and lies lower than it by more than a step down."""
-    dz = _rise(a, b)
-    return dz is not None and bool(dz.max() < -rules.max_step_down_m)

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-import cv2
+from typing import Any
+
 import numpy as np
 
 from obstacle_detection.labels import CELL_UNKNOWN, LABEL_OBSTACLE
@@ -34,22 +35,16 @@ def render_overlay(depth_m: np.ndarray, labels: np.ndarray, *,
     No return is black. Returns (H, W, 3) uint8 RGB.
     """
     depth = np.asarray(depth_m, dtype=np.float32)
-    labels = np.asarray(labels)
-    if depth.ndim != 2 or labels.shape != depth.shape:
-        raise ValueError(f'depth_m {depth.shape} and labels {labels.shape} must be the same '
-                         f'(H, W) shape')
     valid = np.isfinite(depth) & (depth > 0.0)
     if max_depth_m is None:
         max_depth_m = float(depth[valid].max()) if valid.any() else 1.0
-    if not max_depth_m > 0.0:
-        raise ValueError(f'max_depth_m={max_depth_m} must be > 0')
     scaled = np.clip(np.where(valid, depth, 0.0) / np.float32(max_depth_m), 0.0, 1.0)
     grey = (MIN_GREY + scaled * (255 - MIN_GREY)).round().astype(np.uint8)
     grey[~valid] = 0
     rgb = np.repeat(grey[:, :, np.newaxis], 3, axis=2)
     rgb[~valid] = NO_RETURN_RGB
-    obstacle = labels == LABEL_OBSTACLE
-    rgb[obstacle] = obstacle_colours(grey[obstacle])
+    obstacle = np.asarray(labels) == LABEL_OBSTACLE
+    rgb[obstacle] = blend(OBSTACLE_RGB, rgb[obstacle], OBSTACLE_ALPHA)
     return rgb
 
 
@@ -59,11 +54,10 @@ def top_view(cells_yx: np.ndarray, scale: int) -> np.ndarray:
     return np.ascontiguousarray(np.repeat(np.repeat(view, scale, axis=0), scale, axis=1))
 
 
-def obstacle_colours(grey: np.ndarray) -> np.ndarray:
-    """(N, 3) uint8 RGB of obstacle pixels of depth grey ``grey`` (N,) uint8: red over grey."""
-    grey = np.asarray(grey, np.float32)[:, None]
-    red = np.asarray(OBSTACLE_RGB, np.float32)[None, :]
-    return (red * OBSTACLE_ALPHA + grey * (1.0 - OBSTACLE_ALPHA)).round().astype(np.uint8)
+def blend(colour: Any, base: Any, share: Any) -> np.ndarray:
+    """uint8 RGB: ``colour`` over ``base`` (RGB arrays or values, broadcast), ``share`` of it."""
+    return (np.asarray(colour, np.float32) * share
+            + np.asarray(base, np.float32) * (1.0 - share)).round().astype(np.uint8)
 
 
 def costmap_pixel_of(costmap: Costmap, x_m: float, y_m: float, *,
@@ -74,23 +68,10 @@ def costmap_pixel_of(costmap: Costmap, x_m: float, y_m: float, *,
     return (col_cells / costmap.resolution_m * scale, row_cells / costmap.resolution_m * scale)
 
 
-def render_costmap(costmap: Costmap, *, scale: int = 4, draw_robot: bool = True) -> np.ndarray:
-    """Draw the costmap from above (x forward up, y left to the left), ``scale`` px a cell.
-
-    ``draw_robot``: a disc at the origin, clamped into the image. Returns RGB uint8.
-    """
-    if scale < 1:
-        raise ValueError(f'scale={scale} must be >= 1')
+def render_costmap(costmap: Costmap, *, scale: int = 4) -> np.ndarray:
+    """Draw the costmap from above (x forward up, y left to the left), ``scale`` px a cell."""
     data = np.asarray(costmap.data)
     cost = np.clip(data.astype(np.float32), 0.0, 100.0)[:, :, np.newaxis] / 100.0
-    cells = (np.asarray(FREE_RGB, np.float32) * (1.0 - cost)
-             + np.asarray(OCCUPIED_RGB, np.float32) * cost).round().astype(np.uint8)
+    cells = blend(OCCUPIED_RGB, FREE_RGB, cost)
     cells[data <= CELL_UNKNOWN] = UNKNOWN_RGB
-    image = top_view(cells, scale)
-    if draw_robot:
-        col, row = costmap_pixel_of(costmap, 0.0, 0.0, scale=scale)
-        height, width = image.shape[:2]
-        centre = (int(np.clip(np.floor(col), 0, width - 1)),
-                  int(np.clip(np.floor(row), 0, height - 1)))
-        cv2.circle(image, centre, max(2, scale), ROBOT_RGB, thickness=-1)
-    return image
+    return top_view(cells, scale)

@@ -13,12 +13,10 @@ from typing import Any, Sequence
 import cv2
 import numpy as np
 
-from obstacle_detection.labels import (CELL_OCCUPIED, GT_NO_RETURN, GT_OBSTACLE, LABEL_GROUND,
-                                       LABEL_OBSTACLE)
-from .overlay import (MIN_GREY, NO_RETURN_RGB, OBSTACLE_ALPHA, OBSTACLE_RGB, OCCUPIED_RGB,
-                      FREE_RGB, ROBOT_RGB, UNKNOWN_RGB, render_costmap,
-                      render_overlay, top_view)
-from obstacle_detection.pipeline.params import Intrinsics
+from obstacle_detection.labels import GT_NO_RETURN, GT_OBSTACLE, LABEL_GROUND, LABEL_OBSTACLE
+from .overlay import (NO_RETURN_RGB, OBSTACLE_ALPHA, OBSTACLE_RGB, OCCUPIED_RGB,
+                      FREE_RGB, ROBOT_RGB, UNKNOWN_RGB, blend, render_costmap,
+                      render_overlay)
 
 #: Background of the caption band and the padding, and its text colour.
 BACKGROUND_RGB = (255, 255, 255)
@@ -44,18 +42,14 @@ def _text_size(text: str, scale: float) -> tuple[int, int]:
     return width, height + baseline
 
 
-def title_band(title: str, width: int) -> np.ndarray:
-    """(h, width, 3) uint8 RGB: the title in bold on white, wrapped to the width."""
-    return caption_band(_wrap([title], width, TITLE_SCALE), width, scale=TITLE_SCALE, bold=True)
-
-
 def titled(image: np.ndarray, title: str, *, below: np.ndarray | None = None) -> np.ndarray:
-    """Return ``image`` under a title band (and over ``below``, e.g. its legend), padded white."""
+    """Return ``image`` under a bold title (and over ``below``, e.g. its legend), padded white."""
     parts = [image] if below is None else [image, below]
     width = max(part.shape[1] for part in parts)
     parts = [np.pad(part, ((0, 0), (0, width - part.shape[1]), (0, 0)), constant_values=255)
              for part in parts]
-    return np.vstack([title_band(title, width), *parts])
+    band = caption_band(_wrap([title], width, TITLE_SCALE), width, scale=TITLE_SCALE, bold=True)
+    return np.vstack([band, *parts])
 
 
 def fit_width(render: Any, width: int, *, smallest: float = 0.2) -> np.ndarray:
@@ -87,12 +81,9 @@ def caption_band(lines: Sequence[str], width: int, *, scale: float = 0.5,
 def join_panels(panels: Sequence[np.ndarray], *, gap_px: int = _GAP_PX) -> np.ndarray:
     """Return RGB panels side by side, top-aligned on a white background, ``gap_px`` apart."""
     height = max(panel.shape[0] for panel in panels)
-    row: list[np.ndarray] = []
-    for panel in panels:
-        pad = np.full((height - panel.shape[0], panel.shape[1], 3), BACKGROUND_RGB, np.uint8)
-        row.extend([np.vstack([panel, pad]),
-                    np.full((height, gap_px, 3), BACKGROUND_RGB, np.uint8)])
-    return np.hstack(row[:-1])
+    return np.hstack([cv2.copyMakeBorder(panel, 0, height - panel.shape[0], 0, gap_px,
+                                         cv2.BORDER_CONSTANT, value=BACKGROUND_RGB)
+                      for panel in panels])[:, :-gap_px]
 
 
 def truth_comparison(labels: np.ndarray, truth_labels: np.ndarray,
@@ -116,10 +107,7 @@ GROUND_TINT = 0.45
 #: Depth panel, robot level: surfaces higher than the robot above the ground under them (not
 #: obstacles; the pipeline labels them ground) are the depth grey blended with this blue.
 ABOVE_ROBOT_RGB = (0, 150, 255)
-#: Costmap panel: hatching over cells outside the region of interest, the edge of the floor
-#: the camera can see, axis and tick ink.
-HATCH_RGB = (70, 70, 70)
-VIEW_EDGE_RGB = (200, 0, 200)
+#: Costmap panel: axis and tick ink.
 AXIS_RGB = (60, 60, 60)
 
 
@@ -131,16 +119,14 @@ def depth_overlay(depth_m: np.ndarray, labels: np.ndarray, *,
     ground = np.asarray(labels) == LABEL_GROUND
     above = np.zeros_like(ground) if above_robot is None else ground & above_robot
     for mask, colour in ((ground & ~above, GROUND_RGB), (above, ABOVE_ROBOT_RGB)):
-        tinted = rgb[mask].astype(np.float32) * (1.0 - GROUND_TINT) + \
-            np.asarray(colour, np.float32) * GROUND_TINT
-        rgb[mask] = tinted.round().astype(np.uint8)
+        rgb[mask] = blend(colour, rgb[mask], GROUND_TINT)
     return rgb
 
 
 def above_robot_pixels(result: Any, params: Any) -> np.ndarray | None:
     """(H, W) bool: ground pixels whose voxel is higher than the robot (robot level, else None)."""
-    heights = getattr(result, 'voxel_height_m', None)
-    if params is None or not getattr(params, 'robot_level', False) or heights is None:
+    heights = result.voxel_height_m
+    if not params.robot_level or heights is None:
         return None
     pixel_voxel = np.asarray(result.pixel_voxel)
     has = pixel_voxel >= 0
@@ -149,15 +135,10 @@ def above_robot_pixels(result: Any, params: Any) -> np.ndarray | None:
     return above & (np.asarray(result.labels) == LABEL_GROUND)
 
 
-def _nice_step(span_m: float, px_per_m: float, min_px: float) -> float:
-    """Smallest of 0.1, 0.2, 0.25, 0.5, 1, 2, 5, 10 m whose ticks are >= min_px apart."""
-    for step in (0.1, 0.2, 0.25, 0.5, 1.0, 2.0, 5.0, 10.0):
-        if step * px_per_m >= min_px:
-            return step
-    return max(span_m, 10.0)
-
-
-def _ticks(low: float, high: float, step: float) -> np.ndarray:
+def _ticks(low: float, high: float, px_per_m: float, min_px: float) -> np.ndarray:
+    """Ticks [m] from low to high: the first step of 0.1, 0.2, 0.25 ... 10 m >= min_px apart."""
+    step = next((step for step in (0.1, 0.2, 0.25, 0.5, 1.0, 2.0, 5.0, 10.0)
+                 if step * px_per_m >= min_px), max(high - low, 10.0))
     first = math.ceil(low / step - 1e-9) * step
     return np.round(np.arange(first, high + 1e-9, step), 6)
 
@@ -170,53 +151,11 @@ def _put(image: np.ndarray, text: str, org: tuple[int, int], *, scale: float = T
     cv2.putText(image, text, (int(x), int(org[1])), _FONT, scale, colour, 1, cv2.LINE_AA)
 
 
-def floor_in_view(costmap: Any, params: Any, intrinsics: Intrinsics,
-                  image_shape: tuple[int, int]) -> np.ndarray:
-    """(ny, nx) bool: cells whose centre, on the ground, the camera sees (inside the image)."""
-    from obstacle_detection.pipeline.geometry import mount_transform
-
-    xs, ys = costmap.cell_centres()
-    grid_x, grid_y = np.meshgrid(xs, ys)  # (ny, nx)
-    rot, trans = mount_transform(params.camera_height_m, params.camera_pitch_rad,
-                                 params.camera_roll_rad)
-    ground = np.stack([grid_x, grid_y, np.zeros_like(grid_x)], axis=-1) - trans
-    optical = ground @ rot  # R^T applied to row vectors
-    z = optical[..., 2]
-    with np.errstate(divide='ignore', invalid='ignore'):
-        u = intrinsics.fx * optical[..., 0] / z + intrinsics.cx
-        v = intrinsics.fy * optical[..., 1] / z + intrinsics.cy
-    height, width = image_shape
-    return (z > 0) & (u >= 0) & (u < width) & (v >= 0) & (v < height)
-
-
-def roi_cells(costmap: Any, params: Any) -> np.ndarray:
-    """(ny, nx) bool: cells whose centre is inside the region of interest's ground footprint."""
-    xs, ys = costmap.cell_centres()
-    inside_x = (xs >= params.min_range_m) & (xs <= params.max_range_m)
-    inside_y = np.abs(ys) <= params.lateral_limit_m
-    return inside_y[:, None] & inside_x[None, :]
-
-
-def costmap_panel(costmap: Any, *, scale: int = 4, params: Any = None,
-                  intrinsics: Intrinsics | None = None,
-                  image_shape: tuple[int, int] | None = None,
+def costmap_panel(costmap: Any, *, scale: int = 4,
                   robot_pose: tuple[float, float, float] = (0.0, 0.0, 0.0),
                   axis_names: tuple[str, str] = ('x forward [m]', 'y left [m]')) -> np.ndarray:
-    """Return the costmap seen from above with metre axes, the camera and its view (RGB).
-
-    With ``params`` cells outside the region of interest are hatched; with ``intrinsics`` and
-    ``image_shape`` too, a magenta line bounds the floor in view. robot_pose: (x, y, yaw).
-    """
-    grid = render_costmap(costmap, scale=scale, draw_robot=False)
-    if params is not None:
-        outside = top_view(~roi_cells(costmap, params), scale)
-        rows, cols = np.indices(outside.shape)
-        grid[outside & ((rows + cols) % 6 == 0)] = HATCH_RGB
-        if intrinsics is not None and image_shape is not None:
-            seen = top_view(floor_in_view(costmap, params, intrinsics, image_shape), scale)
-            contours, _ = cv2.findContours(seen.astype(np.uint8), cv2.RETR_EXTERNAL,
-                                           cv2.CHAIN_APPROX_SIMPLE)
-            cv2.drawContours(grid, contours, -1, VIEW_EDGE_RGB, 2 if scale >= 3 else 1)
+    """Return the costmap seen from above with metre axes, the camera at robot_pose (x, y, yaw)."""
+    grid = render_costmap(costmap, scale=scale)
     grid_h, grid_w = grid.shape[:2]
     line_h = _text_size('Ag', TEXT_SCALE)[1]
     tick_w = _text_size('-10.0', TEXT_SCALE)[0]
@@ -233,12 +172,12 @@ def costmap_panel(costmap: Any, *, scale: int = 4, params: Any = None,
     x0, y0 = costmap.origin_xy_m
     x1, y1 = x0 + costmap.width * res, y0 + costmap.height * res
     _put(panel, axis_names[0], (2, line_h + 2))
-    for x in _ticks(x0, x1, _nice_step(x1 - x0, px_per_m, 2.5 * line_h)):
+    for x in _ticks(x0, x1, px_per_m, 2.5 * line_h):
         row = top + round((x1 - x) * px_per_m)
         cv2.line(panel, (left - 5, row), (left - 1, row), AXIS_RGB, 1)
         _put(panel, f'{x:g}', (left - 7, row + line_h // 2 - 1), anchor='right')
     tick_y = top + grid_h + marker + line_h + 4
-    for y in _ticks(y0, y1, _nice_step(y1 - y0, px_per_m, 2 * tick_w)):
+    for y in _ticks(y0, y1, px_per_m, 2 * tick_w):
         col = left + round((y1 - y) * px_per_m)
         cv2.line(panel, (col, top + grid_h), (col, top + grid_h + 4), AXIS_RGB, 1)
         _put(panel, f'{y:g}', (col, tick_y), anchor='centre')
@@ -263,12 +202,6 @@ def _swatch(image: np.ndarray, x: int, y: int, size: int, kind: str,
     """Draw a legend symbol with its top-left corner at (x, y)."""
     if kind == 'box':
         cv2.rectangle(image, (x, y), (x + size, y + size), colour, -1)
-        cv2.rectangle(image, (x, y), (x + size, y + size), AXIS_RGB, 1)
-    elif kind == 'hatch':
-        cv2.rectangle(image, (x, y), (x + size, y + size), UNKNOWN_RGB, -1)
-        for k in range(-size, size, 6):
-            cv2.line(image, (x + max(k, 0), y + max(-k, 0)),
-                     (x + min(size, size + k), y + min(size, size - k)), HATCH_RGB, 1)
         cv2.rectangle(image, (x, y), (x + size, y + size), AXIS_RGB, 1)
     elif kind == 'line':
         cv2.line(image, (x, y + size // 2), (x + size, y + size // 2), colour, 2)
@@ -296,33 +229,14 @@ def legend(title: str, items: Sequence[tuple[str, tuple[int, int, int], str]],
             rows[-1].append((kind if k == 0 else 'none', colour, line.strip()))
             used += need if len(lines) == 1 else width   # nothing after a wrapped item
     band = np.full((line_h * (len(rows) + 1) + 4, width, 3), BACKGROUND_RGB, dtype=np.uint8)
-    _put(band, title, (4, line_h - 5), scale=TEXT_SCALE)
-    _put(band, title, (5, line_h - 5), scale=TEXT_SCALE)
+    for dx in (4, 5):   # bold: drawn twice, a pixel apart
+        _put(band, title, (dx, line_h - 5))
     for r, row in enumerate(rows):
         x, y = 4, line_h * (r + 1) + 3
         for kind, colour, text in row:
             _swatch(band, x, y, size, kind, colour)
             _put(band, text, (x + size + 6, y + size))
             x += size + 6 + _text_size(text, TEXT_SCALE)[0] + 14
-    return band
-
-
-def depth_colour_bar(max_depth_m: float, width: int) -> np.ndarray:
-    """(h, width, 3) RGB: the depth grey ramp of ``render_overlay`` ticked in metres."""
-    line_h = _text_size('Ag', TEXT_SCALE)[1]
-    label = 'depth [m]'
-    left = _text_size(label, TEXT_SCALE)[0] + 12
-    bar_w = max(8, width - left - 16)
-    band = np.full((line_h * 2 + 20, width, 3), BACKGROUND_RGB, dtype=np.uint8)
-    ramp = (MIN_GREY + np.linspace(0.0, 1.0, bar_w) * (255 - MIN_GREY)).round()
-    band[4:16, left:left + bar_w] = ramp.astype(np.uint8)[None, :, None]
-    cv2.rectangle(band, (left - 1, 3), (left + bar_w, 16), AXIS_RGB, 1)
-    _put(band, label, (4, 15))
-    px_per_m = bar_w / max_depth_m
-    for d in _ticks(0.0, max_depth_m, _nice_step(max_depth_m, px_per_m, 40)):
-        col = left + min(bar_w - 1, round(d * px_per_m))
-        cv2.line(band, (col, 16), (col, 20), AXIS_RGB, 1)
-        _put(band, f'{d:g}', (col, 20 + line_h + 2), anchor='centre')
     return band
 
 
@@ -342,43 +256,29 @@ def _wrap(lines: Sequence[str], width: int, scale: float = 0.5) -> list[str]:
     return out
 
 
-def side_by_side(result: Any, *, caption: str = '', truth_labels: np.ndarray | None = None,
-                 max_depth_m: float | None = None, labels: np.ndarray | None = None,
-                 costmap: Any = None, extra_lines: Sequence[str] = (), params: Any = None,
-                 with_legend: bool = True, image_scale: float = 1.0) -> np.ndarray:
+def side_by_side(result: Any, params: Any, *, caption: str = '',
+                 truth_labels: np.ndarray | None = None, max_depth_m: float | None = None,
+                 extra_lines: Sequence[str] = (), with_legend: bool = True,
+                 image_scale: float = 1.0) -> np.ndarray:
     """Return the panel picture of one ``DetectionResult``: depth, costmap, truth, caption.
 
-    The depth panel occupies rows ``0:H`` and columns ``0:W`` at image_scale 1. labels / costmap:
-    draw these instead of the result's; params: show the region of interest and the view.
+    The depth panel occupies rows ``0:H`` and columns ``0:W`` at image_scale 1.
     """
-    labels = result.labels if labels is None else labels
-    costmap = result.costmap if costmap is None else costmap
+    labels, costmap = result.labels, result.costmap
     depth_m = np.asarray(result.depth_m)
-    valid = np.isfinite(depth_m) & (depth_m > 0)
-    shown_max = max_depth_m if max_depth_m is not None else (
-        float(depth_m[valid].max()) if valid.any() else 1.0)
-    above = above_robot_pixels(result, params) if labels is result.labels else None
-    panels = [depth_overlay(depth_m, labels, max_depth_m=shown_max, above_robot=above)]
+    above = above_robot_pixels(result, params)
+    panels = [depth_overlay(depth_m, labels, max_depth_m=max_depth_m, above_robot=above)]
     if truth_labels is not None:
-        panels.append(truth_comparison(labels, truth_labels, depth_m, max_depth_m=shown_max))
+        panels.append(truth_comparison(labels, truth_labels, depth_m, max_depth_m=max_depth_m))
     panels = [_scaled(panel, image_scale) for panel in panels]
     height, width = panels[0].shape[:2]
-    intrinsics = getattr(result, 'intrinsics', None)
-    panels.insert(1, costmap_panel(costmap, scale=_grid_scale(costmap, height, width),
-                                   params=params, intrinsics=intrinsics,
-                                   image_shape=depth_m.shape))
+    panels.insert(1, costmap_panel(costmap, scale=_grid_scale(costmap, height, width)))
     top = join_panels(panels)
     parts = [top]
     if with_legend:
-        parts.append(legend_row([p.shape[1] for p in panels], shown_max,
-                                truth=truth_labels is not None, params=params,
-                                above_robot=above is not None))
-    n_pixels = int(np.count_nonzero(labels == LABEL_OBSTACLE))
-    occupied = int(np.count_nonzero(np.asarray(costmap.data) == CELL_OCCUPIED))
-    total_ms = float(result.timings_ms.get('total', float('nan')))
-    stats = (f'{n_pixels} obstacle px, {int(result.obstacle_points.shape[0])} obstacle voxels, '
-             f'{occupied} occupied cells, {total_ms:.0f} ms')
-    lines = [line for line in (caption, stats, *extra_lines) if line]
+        parts.append(legend_row([p.shape[1] for p in panels], params,
+                                truth=truth_labels is not None, above_robot=above is not None))
+    lines = [line for line in (caption, *extra_lines) if line]
     parts.append(caption_band(_wrap(lines, top.shape[1]), top.shape[1]))
     return np.vstack(parts)
 
@@ -397,35 +297,24 @@ def _grid_scale(costmap: Any, height: int, width: int) -> int:
                       height // max(costmap.width, 1)))
 
 
-def _roi_text(params: Any) -> str:
-    if params is None:
-        return 'outside the region of interest'
-    return (f'outside the region of interest (x {params.min_range_m:g}-'
-            f'{params.max_range_m:g} m, |y| <= {params.lateral_limit_m:g} m, z '
-            f'{params.tdbg_m:g} to {params.max_height_m:.2g} m)')
-
-
-def legend_row(widths: Sequence[int], max_depth_m: float, *, truth: bool,
-               params: Any = None, above_robot: bool = False) -> np.ndarray:
+def legend_row(widths: Sequence[int], params: Any, *, truth: bool,
+               above_robot: bool) -> np.ndarray:
     """Return the legends of the panels (``widths`` [px]) side by side, padded to one height."""
-    roi_text = _roi_text(params)
     depth_items = [('box', over_grey(OBSTACLE_RGB, OBSTACLE_ALPHA), 'obstacle'),
                    ('box', over_grey(GROUND_RGB, GROUND_TINT), 'ground (passable)')]
     if above_robot:
-        height = getattr(params, 'robot_height_m', None)
         depth_items.append(('box', over_grey(ABOVE_ROBOT_RGB, GROUND_TINT),
-                            'above the robot' + (f' (> {height:g} m over the ground)'
-                                                 if height is not None else '')
-                            + ': not an obstacle'))
-    depth = np.vstack([
-        legend('depth image (camera view)', [
-            *depth_items,
-            ('box', (150, 150, 150), roi_text + ': depth grey'),
-            ('box', NO_RETURN_RGB, 'no return')], widths[0]),
-        depth_colour_bar(max_depth_m, widths[0])])
+                            f'above the robot (> {params.robot_height_m:g} m over the ground): '
+                            'not an obstacle'))
+    roi_text = (f'outside the region of interest (x {params.min_range_m:g}-'
+                f'{params.max_range_m:g} m, |y| <= {params.lateral_limit_m:g} m, z '
+                f'{params.tdbg_m:g} to {params.max_height_m:.2g} m): depth grey')
+    depth = legend('depth image (camera view)', [
+        *depth_items, ('box', (150, 150, 150), roi_text),
+        ('box', NO_RETURN_RGB, 'no return')], widths[0])
     cells = legend('costmap, top view', _grid_items(
         ('occupied', 'free (ground seen)', 'unknown (not seen)'),
-        'camera (x = y = 0), facing +x', view=params is not None), widths[1])
+        'camera (x = y = 0), facing +x'), widths[1])
     blocks = [depth, cells]
     if truth:
         blocks.append(legend('obstacle pixels vs ground truth', [
@@ -434,41 +323,16 @@ def legend_row(widths: Sequence[int], max_depth_m: float, *, truth: bool,
     return join_panels(blocks)
 
 
-def _grid_items(cells: tuple[str, str, str], robot: str, *, view: bool = True) -> list:
-    """Legend items of a costmap panel: occupied, free, unknown, (the view), the robot."""
-    items = [('box', colour, text) for colour, text in
-             zip((OCCUPIED_RGB, FREE_RGB, UNKNOWN_RGB), cells)]
-    if view:
-        items += [('hatch', HATCH_RGB, 'outside the region of interest'),
-                  ('line', VIEW_EDGE_RGB, "edge of the floor in the camera's view")]
-    return items + [('triangle', ROBOT_RGB, robot)]
+def _grid_items(cells: tuple[str, str, str], robot: str) -> list:
+    """Legend items of a costmap panel: occupied, free, unknown, the robot."""
+    return [*(('box', colour, text) for colour, text in
+              zip((OCCUPIED_RGB, FREE_RGB, UNKNOWN_RGB), cells)), ('triangle', ROBOT_RGB, robot)]
 
 
 def over_grey(colour: tuple[int, int, int], share: float,
               grey: int = 150) -> tuple[int, int, int]:
     """Return ``colour`` over a mid depth grey, as the depth panel draws it (legend swatches)."""
-    return tuple(int(round(c * share + grey * (1.0 - share))) for c in colour)
-
-
-def contact_sheet(images: Sequence[np.ndarray], *, labels: Sequence[str] | None = None,
-                  columns: int = 4, thumb_width: int = 400) -> np.ndarray:
-    """Return a grid of RGB thumbnails ``thumb_width`` wide (wider ones scaled), labels below."""
-    if not images:
-        raise ValueError('contact sheet of no images')
-    if columns < 1 or thumb_width < 8:
-        raise ValueError(f'columns={columns} must be >= 1 and thumb_width={thumb_width} >= 8')
-    thumbs = []
-    for i, image in enumerate(images):
-        h, w = image.shape[:2]
-        if w > thumb_width:
-            thumb = cv2.resize(image, (thumb_width, max(1, round(h * thumb_width / w))),
-                               interpolation=cv2.INTER_AREA)
-        else:
-            thumb = np.pad(image, ((0, 0), (0, thumb_width - w), (0, 0)), constant_values=255)
-        if labels is not None:
-            thumb = np.vstack([thumb, caption_band([labels[i]], thumb_width, scale=TEXT_SCALE)])
-        thumbs.append(thumb)
-    return tile(thumbs, columns=columns)
+    return tuple(int(v) for v in blend(colour, grey, share))
 
 
 def write_png(path: str | Path, rgb: np.ndarray) -> None:
@@ -480,40 +344,35 @@ def write_png(path: str | Path, rgb: np.ndarray) -> None:
 
 
 def heatmap(scores: np.ndarray, x_labels: Sequence[str], y_labels: Sequence[str], *,
-            title: str = '', x_name: str = '', y_name: str = '', vmin: float = 0.0,
-            vmax: float = 1.0, best: tuple[int, int] | None = None,
-            values: np.ndarray | None = None, cell_px: int = 64) -> np.ndarray:
-    """Return a score grid (ny, nx) as a coloured table with the value in each cell (RGB).
+            title: str = '', x_name: str = '', y_name: str = '',
+            best: tuple[int, int] | None = None, values: np.ndarray | None = None,
+            cell_px: int = 64) -> np.ndarray:
+    """Return a score grid (ny, nx) in 0..1 as a coloured table with a value in each cell (RGB).
 
-    NaN: grey '-'; viridis from ``vmin`` to ``vmax``; best: (row, col) outlined in red; values:
-    numbers to write instead of ``scores``.
+    NaN: grey '-'; viridis; best: (row, col) outlined in red; values: numbers to write instead
+    of ``scores``.
     """
     scores = np.asarray(scores, dtype=np.float64)
     values = scores if values is None else np.asarray(values, dtype=np.float64)
-    if scores.ndim != 2 or scores.shape != (len(y_labels), len(x_labels)):
-        raise ValueError(f'scores shape {scores.shape} does not match {len(y_labels)} y labels '
-                         f'and {len(x_labels)} x labels')
-    if not vmax > vmin:
-        raise ValueError(f'vmax={vmax} must be above vmin={vmin}')
     ny, nx = scores.shape
-    scaled = np.clip((np.nan_to_num(scores, nan=vmin) - vmin) / (vmax - vmin), 0.0, 1.0)
+    scaled = np.clip(np.nan_to_num(scores, nan=0.0), 0.0, 1.0)
     grey = (scaled * 255).round().astype(np.uint8)
     colours = cv2.cvtColor(cv2.applyColorMap(grey, cv2.COLORMAP_VIRIDIS), cv2.COLOR_BGR2RGB)
+    colours[np.isnan(scores)] = 170
     label_w = max(_text_size(s, TEXT_SCALE)[0] for s in [*y_labels, y_name])
     left = label_w + 12
     line_h = _text_size('Ag', TEXT_SCALE)[1]
     top = 2 * (line_h + 6)   # and as much below the grid
     image = np.full((2 * top + ny * cell_px, max(left + nx * cell_px + 8, 160), 3),
                     BACKGROUND_RGB, dtype=np.uint8)
+    image[top:top + ny * cell_px, left:left + nx * cell_px] = \
+        np.repeat(np.repeat(colours, cell_px, axis=0), cell_px, axis=1)
     for r in range(ny):
         for c in range(nx):
             y0, x0 = top + r * cell_px, left + c * cell_px
-            value = scores[r, c]
-            colour = (170, 170, 170) if np.isnan(value) else tuple(int(v) for v in colours[r, c])
-            cv2.rectangle(image, (x0, y0), (x0 + cell_px - 1, y0 + cell_px - 1), colour, -1)
             text = '-' if np.isnan(values[r, c]) else f'{values[r, c]:.2f}'
             tw, th = _text_size(text, TEXT_SCALE)
-            ink = (0, 0, 0) if np.isnan(value) or scaled[r, c] > 0.6 else (255, 255, 255)
+            ink = (0, 0, 0) if np.isnan(scores[r, c]) or scaled[r, c] > 0.6 else (255, 255, 255)
             _put(image, text, (x0 + (cell_px - tw) // 2, y0 + (cell_px + th) // 2 - 3), colour=ink)
         th = _text_size(y_labels[r], TEXT_SCALE)[1]
         _put(image, y_labels[r], (left - 6, top + r * cell_px + (cell_px + th) // 2),
@@ -533,10 +392,14 @@ def heatmap(scores: np.ndarray, x_labels: Sequence[str], y_labels: Sequence[str]
     return image
 
 
-def tile(images: Sequence[np.ndarray], *, columns: int = 3) -> np.ndarray:
-    """Images (RGB) placed on a grid without scaling, white padding; for heatmap pages."""
-    if not images:
-        raise ValueError('tile of no images')
+def tile(images: Sequence[np.ndarray], *, columns: int = 3,
+         labels: Sequence[str] | None = None) -> np.ndarray:
+    """Images (RGB) placed on a grid without scaling, white padding, ``labels`` under them."""
+    if labels is not None:
+        width = max(i.shape[1] for i in images)
+        images = [np.vstack([np.pad(image, ((0, 0), (0, width - image.shape[1]), (0, 0)),
+                                    constant_values=255), caption_band([label], width)])
+                  for image, label in zip(images, labels)]
     columns = max(1, min(columns, len(images)))
     cell_h = max(i.shape[0] for i in images) + _GAP_PX
     cell_w = max(i.shape[1] for i in images) + _GAP_PX
@@ -549,46 +412,33 @@ def tile(images: Sequence[np.ndarray], *, columns: int = 3) -> np.ndarray:
     return page
 
 
-def overlay_legend(width: int) -> np.ndarray:
-    """Return the legend of the node's ``obstacles/overlay`` image, ``width`` px wide."""
-    return legend('obstacles/overlay (camera view)', [
-        ('box', over_grey(OBSTACLE_RGB, OBSTACLE_ALPHA), 'obstacle pixel'),
-        ('box', (160, 160, 160), 'other depth: dark near, white far'),
-        ('box', NO_RETURN_RGB, 'no return')], width)
-
-
-def costmap_legend(width: int) -> np.ndarray:
-    """Return the legend of a costmap panel (:func:`costmap_panel` with params), ``width`` px."""
-    return legend('obstacles/costmap, top view [m]', _grid_items(
-        ('occupied (100)', 'free (0)', 'unknown (-1)'), 'camera foot point, facing +x'), width)
-
-
 def node_outputs_legend(widths: Sequence[int]) -> np.ndarray:
     """Return the legend row under :func:`node_outputs` (panel widths [px])."""
-    parts = [overlay_legend(widths[0]), costmap_legend(widths[1])]
+    parts = [legend('obstacles/overlay (camera view)', [
+        ('box', over_grey(OBSTACLE_RGB, OBSTACLE_ALPHA), 'obstacle pixel'),
+        ('box', (160, 160, 160), 'other depth: dark near, white far'),
+        ('box', NO_RETURN_RGB, 'no return')], widths[0]),
+        legend('obstacles/costmap, top view [m]', _grid_items(
+            ('occupied (100)', 'free (0)', 'unknown (-1)'), 'camera foot point, facing +x'),
+            widths[1])]
     if len(widths) > 2:
         parts.append(legend('obstacles/fused_costmap, odom [m]', _grid_items(
             ('occupied: seen often enough', 'free', 'unknown / not sure'),
-            'robot at its odometry pose', view=False), widths[2]))
+            'robot at its odometry pose'), widths[2]))
     return join_panels(parts)
 
 
 def node_outputs(overlay: np.ndarray, costmap: Any, *, caption: Sequence[str],
-                 params: Any = None, intrinsics: Intrinsics | None = None,
                  fused: Any = None,
                  robot_pose: tuple[float, float, float] = (0.0, 0.0, 0.0),
-                 image_scale: float = 1.0, with_legend: bool = True,
-                 ) -> tuple[np.ndarray, np.ndarray]:
-    """Return the picture of one frame of the node's outputs, and its costmap panel alone.
+                 image_scale: float = 1.0, with_legend: bool = True) -> np.ndarray:
+    """Return the picture of one frame of the node's outputs.
 
     image_scale: the overlay scaled by it, the grids drawn to its height, the text not.
     """
-    image_shape = overlay.shape[:2]
     overlay = _scaled(overlay, image_scale)
     height, width = overlay.shape[:2]
-    grid_rgb = costmap_panel(costmap, scale=_grid_scale(costmap, height, width), params=params,
-                             intrinsics=intrinsics, image_shape=image_shape)
-    panels = [overlay, grid_rgb]
+    panels = [overlay, costmap_panel(costmap, scale=_grid_scale(costmap, height, width))]
     if fused is not None:
         panels.append(costmap_panel(fused, scale=_grid_scale(fused, height, width),
                                     robot_pose=robot_pose,
@@ -597,4 +447,4 @@ def node_outputs(overlay: np.ndarray, costmap: Any, *, caption: Sequence[str],
     parts = [row, caption_band(_wrap(caption, row.shape[1]), row.shape[1])]
     if with_legend:
         parts.append(node_outputs_legend([p.shape[1] for p in panels]))
-    return np.vstack(parts), grid_rgb
+    return np.vstack(parts)

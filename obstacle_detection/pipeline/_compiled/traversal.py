@@ -22,23 +22,6 @@ def ray_row(ru, rv_i, r0, r1, r2, out):  # pragma: no cover - compiled
 
 
 @_jit
-def _rays_kernel(ru, rv, rot, out):  # pragma: no cover - compiled
-    """Fill out (3, H, W) float32 = rot[a, 0] * ru[j] + rot[a, 1] * rv[i] + rot[a, 2]."""
-    for a in range(3):
-        for i in range(rv.size):
-            ray_row(ru, rv[i], rot[a, 0], rot[a, 1], rot[a, 2], out[a, i])
-
-
-def ground_rays(ru: np.ndarray, rv: np.ndarray, rot: np.ndarray,
-                out: np.ndarray | None = None) -> np.ndarray:
-    """(3, H*W) float32 ground rays of the slopes ru, rv and the mount rot; out: to fill."""
-    if out is None or out.shape != (3, rv.size * ru.size) or out.dtype != np.float32:
-        out = np.empty((3, rv.size * ru.size), np.float32)
-    _rays_kernel(ru, rv, rot, out.reshape(3, rv.size, ru.size))
-    return out
-
-
-@_jit
 def grid_cells(points, size):  # pragma: no cover - compiled
     """(ix, iy, nx, ny, ox, oy): each point's cell ``floor(p / size) - (ox, oy)``, grid nx x ny."""
     n = points.shape[0]
@@ -207,26 +190,21 @@ def _z_row(depth_row, rz_row, h, down, out):  # pragma: no cover - compiled
 
 
 @_jit
-def _drop_pixels_kernel(depth, rz, ru, rv, rot, h, down, up, rows, zring, rz_row, passed,
+def _drop_pixels_kernel(depth, ru, rv, rot, h, down, up, rows, zring, rz_row, passed,
                         pix_out, k_out):  # pragma: no cover - compiled
     """Fill pix_out/k_out with drop_edge_mask's marked pixels and offsets; return how many.
 
-    The heights of rows i to i + rows rotate through zring (rows + 1, W); only rows with a
-    pixel below the floor (passed) are searched. rz: (H, W), or (0, 0) and each row's rays
-    computed into rz_row from ru, rv and rot.
+    The heights of rows i to i + rows rotate through zring (rows + 1, W), each row's rays
+    computed into rz_row; only rows with a pixel below the floor (passed) are searched.
     """
     height, width = depth.shape
     ring = rows + 1
-    from_model = rz.shape[0] == 0
     m = 0
     for i in range(-rows, height):
         r = i + rows                  # the row that enters the ring
         if r < height:
-            if from_model:
-                ray_row(ru, rv[r], rot[2, 0], rot[2, 1], rot[2, 2], rz_row)
-                passed[r] = _z_row(depth[r], rz_row, h, down, zring[r % ring])
-            else:
-                passed[r] = _z_row(depth[r], rz[r], h, down, zring[r % ring])
+            ray_row(ru, rv[r], rot[2, 0], rot[2, 1], rot[2, 2], rz_row)
+            passed[r] = _z_row(depth[r], rz_row, h, down, zring[r % ring])
         if i < 0 or passed[i] == 0:
             continue
         zp = zring[i % ring]
@@ -246,42 +224,24 @@ def _drop_pixels_kernel(depth, rz, ru, rv, rot, h, down, up, rows, zring, rz_row
     return m
 
 
-def drop_pixels(depth_m: np.ndarray, rz: np.ndarray | None, height_m: float,
-                step_down_m: float, step_up_m: float, rows: int,
-                model: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+def drop_pixels(depth_m: np.ndarray, ru: np.ndarray, rv: np.ndarray, rot: np.ndarray,
+                height_m: float, step_down_m: float, step_up_m: float, rows: int,
                 ) -> tuple[np.ndarray, np.ndarray]:
     """(flat pixel indices int64, offsets int8) of drop_edge_mask's marks, in order.
 
-    rz: the rays' z, (H*W,) or (H, W); or None and model: GroundRays' (ru, rv, rot).
+    ru, rv, rot: the GroundRays whose z the heights are computed with.
     """
     height, width = depth_m.shape
     pix = scratch('drop_pix', height * width, np.int64)[:height * width]
     offsets = scratch('drop_k', height * width, np.int8)[:height * width]
     ring = (int(rows) + 1) * width
-    if model is None:
-        rz = np.ascontiguousarray(rz, np.float32).reshape(depth_m.shape)
-        empty = np.zeros(0, np.float32)
-        ru, rv, rot = empty, empty, np.zeros((3, 3), np.float32)
-    else:
-        ru, rv, rot = model
-        rz = np.zeros((0, 0), np.float32)
-    m = _drop_pixels_kernel(np.ascontiguousarray(depth_m, np.float32), rz, ru, rv, rot,
+    m = _drop_pixels_kernel(np.ascontiguousarray(depth_m, np.float32), ru, rv, rot,
                             np.float32(height_m), np.float32(step_down_m),
                             np.float32(step_up_m), int(rows),
                             scratch('drop_z', ring, np.float32)[:ring].reshape(-1, width),
                             scratch('drop_rz', width, np.float32)[:width],
                             scratch('drop_passed', height, np.int64)[:height], pix, offsets)
     return pix[:m].copy(), offsets[:m].copy()
-
-
-@_jit
-def has_nan(raw):  # pragma: no cover - compiled
-    """Return True when raw holds a NaN."""
-    flat = raw.reshape(-1)
-    found = False
-    for k in range(flat.size):
-        found |= flat[k] != flat[k]
-    return found
 
 
 @_jit
@@ -448,11 +408,11 @@ def _smear_kernel(filtered, raw, ratio, jump, tol_ratio, rows, planar,
 
 
 def drop_smeared(filtered: np.ndarray, raw: np.ndarray, max_shift: float, jump: float,
-                 planar_tolerance: float, raw_no_nan: bool = False) -> None:
+                 planar_tolerance: float) -> None:
     """In place: traversal's drop_smeared, its 5 x 5 window range computed on the way.
 
-    filtered, raw: (H, W) float32 C-contiguous; raw without NaN (the stage's ``accepts``
-    checks it, or takes ``raw_no_nan``: OpenCV's window range orders NaN its own way).
+    filtered, raw: (H, W) float32 C-contiguous; raw without NaN (OpenCV's window range, the
+    numpy path's, orders NaN its own way).
     """
     width = raw.shape[1]
     rows = scratch('smear_rows', 9 * (width + 4), np.float32)[:9 * (width + 4)]
@@ -653,30 +613,6 @@ def ransac_plane(pts, picks, tan_tilt2, offset, band, score_points,
     return planes[np.argsort(-score, kind='mergesort')[:k]]
 
 
-@_jit
-def _band_kernel(pts, a, b, c, band, out):  # pragma: no cover - compiled
-    """Copy the samples within band of z = a x + b y + c into out[:m] (M, 3); return m."""
-    m = 0
-    for i in range(pts.shape[1]):
-        resid = pts[2, i] - (a * pts[0, i] + b * pts[1, i] + c)
-        if abs(resid) <= band:
-            out[m, 0] = pts[0, i]
-            out[m, 1] = pts[1, i]
-            out[m, 2] = pts[2, i]
-            m += 1
-    return m
-
-
-@_jit
-def count_in_band(pts, a, b, c, band):  # pragma: no cover - compiled
-    """Return how many samples pts (3, M) lie within band of z = a x + b y + c."""
-    m = 0
-    for i in range(pts.shape[1]):
-        resid = pts[2, i] - (a * pts[0, i] + b * pts[1, i] + c)
-        m += abs(resid) <= band
-    return m
-
-
 def floor_samples(depth_m: np.ndarray, step: int, sub_rays: np.ndarray, height_m: float,
                   tan_tilt: float, band0_m: float, min_x_m: float, max_x_m: float,
                   max_y_m: float, facing_cos2: float) -> np.ndarray:
@@ -690,36 +626,3 @@ def floor_samples(depth_m: np.ndarray, step: int, sub_rays: np.ndarray, height_m
                               float(tan_tilt), float(band0_m), float(min_x_m), float(max_x_m),
                               float(max_y_m), float(facing_cos2), buf)
     return buf[:, :m].copy()
-
-
-def in_band(pts: np.ndarray, a: float, b: float, c: float, band_m: float) -> np.ndarray:
-    """(3, m) float64: the samples pts (3, M) within band_m of z = a x + b y + c (a copy).
-
-    Laid out as numpy's ``pts[:, mask]`` (the transpose of an (m, 3) C array): the same sums.
-    """
-    size = 3 * pts.shape[1]
-    buf = scratch('floor_band', size, np.float64)[:size].reshape(-1, 3)
-    m = _band_kernel(pts, float(a), float(b), float(c), float(band_m), buf)
-    return buf[:m].copy().T
-
-
-def warm_up() -> None:
-    """Compile (or load from the disk cache) the kernels on tiny inputs (numba must import)."""
-    ground_rays(np.zeros(2, np.float32), np.zeros(2, np.float32), np.eye(3, dtype=np.float32))
-    pts = np.array([[0.1, 0.0, 0.0], [0.2, 0.1, 0.3]], np.float32)
-    traverse(pts, np.array([False, True]), 0.05, 0.05, 0.05, 1.0, 0.025)
-    drop_pixels(np.ones((4, 2), np.float32), -np.ones(8, np.float32), 0.5, 0.05, 0.05, 3)
-    drop_pixels(np.ones((4, 2), np.float32), None, 0.5, 0.05, 0.05, 3,
-                (np.zeros(2, np.float32), np.zeros(4, np.float32), np.eye(3, dtype=np.float32)))
-    one = np.ones((6, 6), np.float32)
-    drop_smeared(one.copy(), one, 0.03, 0.05, 0.02)
-    unbias_holes(one.copy(), one, 5, 20)
-    has_nan(one)
-    rng = np.random.default_rng(0)
-    depth = rng.uniform(0.5, 3.0, (12, 12)).astype(np.float32)
-    rays = rng.uniform(-1.0, 1.0, (3, 36)).astype(np.float32)
-    pts = floor_samples(depth, 2, rays, 0.5, 0.1, 0.12, 0.0, 3.0, 2.0, 0.75)
-    pts = rng.uniform(-0.05, 0.05, (3, 30))
-    ransac_plane(pts, rng.random((3, 4)), 0.01, 0.1, 0.03, 2000, 2)
-    in_band(pts, 0.0, 0.0, 0.0, 0.03)
-    count_in_band(pts, 0.0, 0.0, 0.0, 0.03)

@@ -5,7 +5,6 @@ Bit-identical to the numpy path: the same float32 operations, float64 sums in po
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,9 +20,7 @@ _DENSE_LIMIT = 16_000_000
 #: uint64 0 and 1 (numba turns uint64 mixed with an int literal into float64).
 _U0 = np.uint64(0)
 _U1 = np.uint64(1)
-#: Label of a pixel inside the region of interest until :func:`label_pixels` decides.
-_LABEL_KEPT = LABEL_GROUND
-#: Pixels whose rays are computed at once when not read from a table (96 kB, cache resident).
+#: Pixels whose rays are computed at once (96 kB, cache resident).
 _RAY_BAND_PX = 8192
 
 
@@ -33,8 +30,8 @@ def _project_kernel(depth, rays, offset, bounds, size, low, dims, labels, pixel_
     """Back-project, keep the region of interest, key the kept points' voxels.
 
     offset: the image index of depth[0]; bounds: as :func:`project_roi`. Writes labels,
-    pixel_voxel (-1) and the kept points' cols, pix, keys; returns their number, or -1 when
-    a key falls outside the lattice (low, dims).
+    pixel_voxel (-1) and the kept points' cols, pix, keys (on the lattice low, dims, which
+    holds the region of interest: :func:`roi_lattice`); returns their number.
     """
     min_x, max_x, lateral = bounds[0], bounds[1], bounds[2]
     height, min_z, max_z = bounds[3], bounds[4], bounds[5]
@@ -54,9 +51,7 @@ def _project_kernel(depth, rays, offset, bounds, size, low, dims, labels, pixel_
             i = np.int64(np.floor(gx / size[0])) - low[0]
             j = np.int64(np.floor(gy / size[1])) - low[1]
             k = np.int64(np.floor(gz / size[2])) - low[2]
-            if i < 0 or i >= dims[0] or j < 0 or j >= dims[1] or k < 0 or k >= dims[2]:
-                return -1
-            labels[p] = _LABEL_KEPT
+            labels[p] = LABEL_GROUND   # inside the region of interest until label_pixels
             cols[0, m] = gx
             cols[1, m] = gy
             cols[2, m] = gz
@@ -86,8 +81,6 @@ def _project_rays_kernel(depth, ru, rv, rot, chunk, bounds, size, low, dims, lab
         got = _project_kernel(depth[p0:p1], chunk[:, :p1 - p0], p0, bounds, size, low, dims,
                               labels[p0:p1], pixel_voxel[p0:p1], cols[:, m:], pix[m:],
                               keys[m:])
-        if got < 0:
-            return -1
         m += got
     return m
 
@@ -103,12 +96,12 @@ def _popcount(x):  # pragma: no cover - compiled
 
 
 @_jit
-def _voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_voxel, bits,
+def _voxel_kernel(cols, keys, n_cells, pixels, pixel_voxel, point_voxel, bits,
                   prefix):  # pragma: no cover - compiled
     """Give the occupied cells numbers in key order (a bitmap, bits; prefix: counts per word).
 
     Writes point_voxel (m,) and pixel_voxel at each point's pixel; bits must be all zero and
-    are left so. Returns (centroids, point_voxel, counts, voxel_ijk).
+    are left so. Returns (centroids, point_voxel, counts).
     """
     n_words = (n_cells + 63) // 64
     m = point_voxel.shape[0]
@@ -119,19 +112,6 @@ def _voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_vox
     for w in range(n_words):
         prefix[w] = n_vox
         n_vox += _popcount(bits[w])
-    voxel_ijk = np.empty((n_vox, 3), np.int64)
-    for w in range(n_words):
-        word = bits[w]
-        v = prefix[w]
-        while word != _U0:
-            lowest = word & (~word + _U1)          # the lowest set bit: cells in key order
-            c = w * 64 + _popcount(lowest - _U1)
-            rest = c // dims[2]
-            voxel_ijk[v, 2] = c - rest * dims[2] + low[2]
-            voxel_ijk[v, 1] = rest % dims[1] + low[1]
-            voxel_ijk[v, 0] = rest // dims[1] + low[0]
-            v += 1
-            word ^= lowest
     counts = np.zeros(n_vox, np.int64)
     sums = np.zeros((n_vox, 3), np.float64)
     for q in range(m):
@@ -151,7 +131,7 @@ def _voxel_kernel(cols, keys, n_cells, dims, low, pixels, pixel_voxel, point_vox
         n = np.float64(counts[v])
         for a in range(3):
             centroids[v, a] = np.float32(sums[v, a] / n)
-    return centroids, point_voxel, counts, voxel_ijk
+    return centroids, point_voxel, counts
 
 
 @_jit
@@ -192,29 +172,19 @@ def roi_lattice(bounds: np.ndarray, size: np.ndarray) -> tuple[np.ndarray, np.nd
     return low, dims
 
 
-def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarray,
+def project_roi(depth_m: np.ndarray, rays: tuple, bounds: np.ndarray,
                 voxel_size_m: tuple[float, float, float], *, reuse: bool = False,
                 ) -> Projection:
     """Back-project a depth image through ground rays, keep the ROI, key the voxels.
 
-    rays: (3, H*W) float32, or GroundRays' factors (ru, rv, rot), computed on the fly; bounds:
+    rays: GroundRays' factors (ru, rv, rot) of the image, computed on the fly; bounds:
     ``voxel.roi_bounds``. reuse: per-thread buffers that the thread's next call overwrites.
     """
     shape = depth_m.shape
     depth = np.ascontiguousarray(depth_m, np.float32).reshape(-1)
     n = depth.size
-    if isinstance(rays, tuple):   # factors: computed on the fly, the same values as the table
-        ru, rv, rot = (np.ascontiguousarray(a, np.float32) for a in rays)
-        if (rv.size, ru.size) != shape:
-            raise ValueError(f'rays are for a {(rv.size, ru.size)} image, the depth is {shape}')
-        band = max(1, _RAY_BAND_PX // shape[1]) * shape[1]   # whole rows
-        chunk = scratch('ray_band', 3 * band, np.float32)[:3 * band].reshape(3, band)
-        kernel = functools.partial(_project_rays_kernel, depth, ru, rv, rot, chunk)
-    else:
-        rays = np.ascontiguousarray(rays, np.float32)
-        if rays.shape != (3, n):
-            raise ValueError(f'rays must have shape (3, {n}), got {rays.shape}')
-        kernel = functools.partial(_project_kernel, depth, rays, 0)
+    band = max(1, _RAY_BAND_PX // shape[1]) * shape[1]   # whole rows
+    chunk = scratch('ray_band', 3 * band, np.float32)[:3 * band].reshape(3, band)
     size = np.asarray(voxel_size_m, np.float32)
     low, dims = roi_lattice(bounds, size)
     labels = np.empty(shape, np.uint8)
@@ -229,26 +199,20 @@ def project_roi(depth_m: np.ndarray, rays: np.ndarray | tuple, bounds: np.ndarra
         keys = np.empty(n, np.int64)
     keyed = int(dims[0]) * int(dims[1]) * int(dims[2]) <= _DENSE_LIMIT
     unkeyed = np.full(3, 1 << 62, np.int64)   # a lattice no key leaves: points only
-    m = kernel(bounds, size, low, dims if keyed else unkeyed, labels.reshape(-1),
-               pixel_voxel.reshape(-1), cols, pix, keys)
-    if m < 0:   # a key outside the lattice: points only, numpy numbers the voxels
-        keyed = False
-        m = kernel(bounds, size, low, unkeyed, labels.reshape(-1), pixel_voxel.reshape(-1),
-                   cols, pix, keys)
+    m = _project_rays_kernel(depth, *rays, chunk, bounds, size, low, dims if keyed else unkeyed,
+                             labels.reshape(-1), pixel_voxel.reshape(-1), cols, pix, keys)
     return Projection(cols[:, :m].T, pix[:m], keys[:m] if keyed else None, labels, pixel_voxel,
                       low, dims, reuse, cols)
 
 
 def voxelise(proj: Projection) -> tuple:
-    """Return the VoxelGrid fields of a keyed :class:`Projection`; fill its pixel_voxel."""
+    """Return the VoxelGrid fields of a keyed :class:`Projection` (points); fill pixel_voxel."""
     m = proj.pixel_index.size
-    if proj.keys is None or m == 0:
-        raise ValueError('the projection has no voxel keys or no point')
     n_cells = int(proj.dims[0] * proj.dims[1] * proj.dims[2])
     point_voxel = scratch('point_voxel', m, np.int64)[:m] if proj.reuse else np.empty(m,
                                                                                       np.int64)
     n_words = (n_cells + 63) // 64
-    return _voxel_kernel(proj.cols, proj.keys, n_cells, proj.dims, proj.low, proj.pixel_index,
+    return _voxel_kernel(proj.cols, proj.keys, n_cells, proj.pixel_index,
                          proj.pixel_voxel.reshape(-1), point_voxel,
                          scratch('occupied_bits', n_words, np.uint64, zero=True),
                          scratch('bit_prefix', n_words, np.int64))
