@@ -10,7 +10,6 @@ from obstacle_detection.cli import support as tool_support
 from obstacle_detection.evaluation import runner as evaluation
 from obstacle_detection.pipeline.params import PRESETS, DetectorParams, Intrinsics
 
-SUITES = evaluation.SUITES
 #: The frames of ../shared/data/real/README.md: (folder, files, units per metre, intrinsics).
 REAL_FRAMES = (
     ('tum_office', ('depth.png',), 5000.0, Intrinsics(535.4, 539.2, 320.1, 247.6)),
@@ -31,7 +30,7 @@ def parse_assignment(text: str) -> tuple[str, str]:
 
 def add_common_arguments(parser: argparse.ArgumentParser) -> None:
     """Frame-source and parameter options shared by evaluate and sweep."""
-    parser.add_argument('--suite', choices=sorted(SUITES), default='seed',
+    parser.add_argument('--suite', choices=sorted(evaluation.SUITES), default='seed',
                         help="committed scenario suite: 'seed' (scenarios.json, the "
                              "seed's slope-only truth) or 'robot' (scenarios_robot.json, "
                              'robot-level truth, time-of-flight noise) [default: seed]')
@@ -75,8 +74,8 @@ def frame_sources(args: argparse.Namespace,
     """(name, frame count, lazy frames) for each scenario selected by the options."""
     if args.max_frames is not None and args.max_frames < 1:
         raise tool_support.ToolError(f'--max-frames={args.max_frames} must be >= 1', usage=True)
-    scenarios = evaluation.select_scenarios(evaluation.load_scenarios(SUITES[args.suite]),
-                                            args.scene)
+    scenarios = evaluation.select_scenarios(
+        evaluation.load_scenarios(evaluation.SUITES[args.suite]), args.scene)
     rules = base_params(args)
     return [(s.name, min(s.frame_count, args.max_frames or s.frame_count),
              LazyFrames(evaluation.scenario_frames, s, max_frames=args.max_frames, rules=rules))
