@@ -188,49 +188,6 @@ def diml_frames(sequence: Path, *, depth_kind: str = 'raw', intrinsics_path: Pat
                        default_view='depth' if depth_kind == 'raw' else 'color', notes=notes)
 
 
-def diml_sample_frames(root: Path, *, resolution: str = 'LR',
-                       intrinsics_path: Path | None = None, rate_hz: float = 30.0,
-                       start_s: float = 0.0, with_color: bool = True) -> FrameSource:
-    """List the frames of the DIML sample subset below ``root``.
-
-    ``root`` is a split folder (``.../test``), a resolution folder (``.../test/LR``) or one
-    scene folder holding ``color/`` and ``depth_filled/``. Frames are sorted by scene folder
-    and id and stamped ``start_s + k / rate_hz``.
-    """
-    _check_rate(rate_hz)
-    if not root.is_dir():
-        raise EvaluationError(f'{root}: DIML sample folder not found')
-    name = 'depth_filled'
-    depth_dirs = sorted({p for p in [root / name, *root.rglob(name)] if p.is_dir()})
-    # Below a split folder both HR and LR exist: keep the chosen one.
-    parts = {part for p in depth_dirs for part in p.relative_to(root).parts}
-    if {'HR', 'LR'} & parts:
-        depth_dirs = [p for p in depth_dirs if resolution in p.relative_to(root).parts]
-        if not depth_dirs:
-            raise EvaluationError(f'{root}: no {resolution}/ folder below it')
-    if not depth_dirs:
-        raise EvaluationError(f'{root}: no {name}/ folder below it '
-                              f'(expected <split>/{{HR,LR}}/<scene>/{{color,depth_filled}})')
-    frames: list[Frame] = []
-    for depth_dir in depth_dirs:
-        depth = _files_with_suffix(depth_dir, '_depth_filled.png')
-        if not depth:
-            raise EvaluationError(f'{depth_dir}: no *_depth_filled.png depth images')
-        color: dict[str, Path] = {}
-        if with_color:
-            color_dir = depth_dir.parent / 'color'
-            _require_dir(color_dir, 'DIML sample colour')
-            color = _files_with_suffix(color_dir, '_c.png')
-            _pair_by_key(depth, color, depth_dir, color_dir)
-        for key, path in depth.items():
-            stamp = stamp_ns(start_s) + stamp_ns(len(frames) / rate_hz)
-            frames.append(Frame(stamp, path, color.get(key)))
-    intr, origin, size = _optional_intrinsics(intrinsics_path)
-    notes = [f'DIML samples have no timestamps: stamped in file order at {rate_hz:g} Hz']
-    return FrameSource(frames, intr, origin, size, depth_units_origin='DIML: millimetres',
-                       default_view='color', notes=notes)
-
-
 def folder_frames(depth_dir: Path, *, color_dir: Path | None = None,
                   intrinsics_path: Path | None = None, rate_hz: float = 30.0,
                   start_s: float = 0.0, depth_units_per_m: float | None = None) -> FrameSource:
@@ -292,8 +249,6 @@ def tum_frames(root: Path, *, camera: str | None = None, intrinsics_path: Path |
     """List the depth frames of a TUM-format sequence, each with its nearest colour frame."""
     if not root.is_dir():
         raise EvaluationError(f'{root}: sequence folder not found')
-    if not (math.isfinite(max_difference_s) and max_difference_s >= 0):
-        raise EvaluationError(f'--max-difference must be >= 0 s, got {max_difference_s}')
     notes: list[str] = []
     depth_list = root / 'depth.txt'
     if depth_list.is_file():
