@@ -1,16 +1,14 @@
-"""Test-only helpers of the evaluation and pictures: labelled folders, obstacle colours, text."""
+"""Test-only helpers of the pictures: a camera YAML with its mount, obstacle colours, text."""
 
 from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Iterable
 
 import cv2
 import numpy as np
 
 from obstacle_detection.evaluation import camera as camera_file
-from obstacle_detection.evaluation.runner import LabelledFrame
 from obstacle_detection.pipeline.params import Intrinsics
 from obstacle_detection.viz.overlay import OBSTACLE_ALPHA
 from obstacle_detection.viz.pictures import TEXT_SCALE
@@ -21,30 +19,10 @@ MIN_TEXT_PX = 11
 
 def write_camera_yaml(path: str | Path, intrinsics: Intrinsics, height_m: float,
                       pitch_rad: float, roll_rad: float) -> None:
-    """Write ``intrinsics.yaml`` of a labelled folder (angles in degrees)."""
+    """Write a camera YAML with the intrinsics and the mount (angles in degrees)."""
     Path(path).write_text(camera_file.camera_yaml_text(
-        intrinsics, comment='obstacle_detection labelled folder: pinhole intrinsics [px] and '
-        'camera mount', height_m=height_m, pitch_deg=math.degrees(pitch_rad),
-        roll_deg=math.degrees(roll_rad)), encoding='utf-8')
-
-
-def save_labelled_folder(frames: Iterable[LabelledFrame], path: str | Path) -> int:
-    """Write frames as a labelled folder; returns the frame count."""
-    root = Path(path)
-    (root / 'depth').mkdir(parents=True, exist_ok=True)
-    (root / 'labels').mkdir(parents=True, exist_ok=True)
-    count = 0
-    for count, frame in enumerate(frames, start=1):
-        if count == 1:
-            write_camera_yaml(root / 'intrinsics.yaml', frame.intrinsics, frame.height_m,
-                              frame.pitch_rad, frame.roll_rad)
-        depth = frame.depth
-        if depth.dtype != np.uint16:
-            depth = np.clip(np.nan_to_num(depth * 1000.0), 0, 65535).round().astype(np.uint16)
-        cv2.imwrite(str(root / 'depth' / f'{count - 1:06d}.png'), depth)
-        cv2.imwrite(str(root / 'labels' / f'{count - 1:06d}.png'),
-                    frame.truth_labels.astype(np.uint8))
-    return count
+        intrinsics, comment='pinhole intrinsics [px] and camera mount', height_m=height_m,
+        pitch_deg=math.degrees(pitch_rad), roll_deg=math.degrees(roll_rad)), encoding='utf-8')
 
 
 def is_obstacle_rgb(rgb: np.ndarray) -> np.ndarray:

@@ -1,10 +1,10 @@
 """The scenario suite runner and tools/evaluate.py on small frames."""
 
+import dataclasses
 import json
 import math
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 
@@ -16,7 +16,6 @@ from obstacle_detection.evaluation.metrics import Confusion
 from obstacle_detection.pipeline.params import table_4_2, table_4_3
 from obstacle_detection.tools import evaluate
 
-from eval_helpers import save_labelled_folder
 
 REPO = Path(__file__).resolve().parents[1]
 SUITE = evaluation.SUITES['seed']
@@ -45,11 +44,6 @@ def test_scenario_frame_range_and_mount_in_degrees():
         'frames': {'start': 0, 'stop': 10, 'step': 5}, 'mount': {'pitch_deg': 30.0}})
     assert s.frames == (0, 5) and s.frame_count == 4
     assert s.render_kwargs() == {'pitch_rad': pytest.approx(math.radians(30.0))}
-
-
-def test_scenario_with_unknown_key_is_refused():
-    with pytest.raises(ValueError, match='seed'):
-        evaluation.scenario_from_dict({'name': 'a', 'scene': 'corridor', 'seed': 3})
 
 
 def test_overrides_accept_seed_names_degrees_and_voxel_size():
@@ -110,31 +104,6 @@ def test_truth_grid_uses_the_costmap_binning():
     assert np.count_nonzero(grid == CELL_OCCUPIED) > 20
 
 
-def test_labelled_folder_round_trip(tmp_path):
-    frame = _corridor_frame((128, 106))
-    assert save_labelled_folder([frame, frame], tmp_path / 'seq') == 2
-    loaded = list(evaluation.load_labelled_folder(tmp_path / 'seq'))
-    assert [f.frame_id for f in loaded] == ['000000', '000001']
-    np.testing.assert_array_equal(loaded[0].depth, frame.depth)
-    np.testing.assert_array_equal(loaded[0].truth_labels, frame.truth_labels)
-    assert loaded[0].intrinsics.fx == pytest.approx(frame.intrinsics.fx)
-    assert loaded[0].pitch_rad == pytest.approx(frame.pitch_rad)
-    # A folder's true points are its own (noisy) depth back-projected: close to the truth.
-    valid = frame.depth > 0
-    error = np.abs(loaded[0].truth_points[valid] - frame.truth_points[valid])
-    assert np.nanmedian(error) < 0.01 and np.nanmax(error) < 0.15
-
-
-def test_labelled_folder_with_bad_label_value(tmp_path):
-    import cv2
-    frame = _corridor_frame((64, 53))
-    save_labelled_folder([frame], tmp_path / 'seq')
-    cv2.imwrite(str(tmp_path / 'seq' / 'labels' / '000000.png'),
-                np.full(frame.truth_labels.shape, 7, np.uint8))
-    with pytest.raises(ValueError, match='label value 7'):
-        list(evaluation.load_labelled_folder(tmp_path / 'seq'))
-
-
 class _RecordingRefiner:
     """A stand-in LogisticRefiner: predicts the rule-based mask and logs its inputs."""
 
@@ -157,7 +126,8 @@ def test_sequence_frames_pass_the_previous_rule_based_mask():
     # The stand-in reproduces the rule-based pixel labels, so the pixel scores agree (the
     # refined costmap differs: its voxels go through the N1 validation a second time).
     assert report.overall.refined_pixel == report.overall.pixel
-    assert report.overall.refined_cell.total == report.overall.cell.total
+    assert sum(dataclasses.astuple(report.overall.refined_cell)) == \
+        sum(dataclasses.astuple(report.overall.cell))
 
 
 def test_report_pools_counts_and_serialises_nan_as_null():
@@ -186,18 +156,6 @@ def test_evaluate_one_corridor_frame_scores_above_a_floor(tmp_path, capsys):
     assert corridor['cell']['f1'] > 0.45
     assert corridor['pixel']['f1'] > 0.85
     assert corridor['cell']['false_alarm_rate'] < 0.2
-
-
-def test_evaluate_pictures_saves_one_picture_per_frame_with_the_truth(tmp_path, capsys):
-    pics = tmp_path / 'pics'
-    code = evaluate.main(['--scene', 'corridor', '--max-frames', '2', '--quiet',
-                          '--pictures', str(pics)])
-    assert code == 0
-    names = sorted(p.name for p in pics.glob('*.png'))
-    assert len(names) == 2 and all(n.startswith('corridor_') for n in names)
-    image = cv2.imread(str(pics / names[0]))
-    # Three panels side by side (depth, costmap, truth comparison): wider than high.
-    assert image is not None and image.shape[1] > 2 * image.shape[0]
 
 
 def test_evaluate_reports_bad_input_with_exit_code_2(capsys):
@@ -268,16 +226,9 @@ def test_seed_suite_frames_carry_the_slope_only_truth():
     np.testing.assert_array_equal(frame.truth_labels, rendered.labels_seed)
     assert frame.truth == 'seed'
     assert not (frame.truth_labels == GT_ABOVE_ROBOT).any()
-    robot = next(evaluation.scenario_frames(evaluation.Scenario('corridor', 'corridor'),
-                                            size=SMALL, truth='robot'))
+    robot = next(evaluation.scenario_frames(
+        evaluation.Scenario('corridor', 'corridor', truth='robot'), size=SMALL))
     np.testing.assert_array_equal(robot.truth_labels, rendered.labels)
-
-
-def test_scenario_with_unknown_truth_or_noise_is_refused():
-    with pytest.raises(ValueError, match="truth='both'"):
-        evaluation.scenario_from_dict({'name': 'a', 'scene': 'corridor', 'truth': 'both'})
-    with pytest.raises(ValueError, match="noise='loud'"):
-        evaluation.scenario_from_dict({'name': 'a', 'scene': 'corridor', 'noise': 'loud'})
 
 
 def test_robot_truth_grid_marks_the_drop_edge_and_the_lower_floor():
@@ -338,11 +289,11 @@ def test_robot_summary_pools_found_objects_passable_cells_and_drops():
 def test_evaluate_robot_suite_prints_the_robot_table(tmp_path, capsys):
     out = tmp_path / 'report.json'
     code = evaluate.main(['--suite', 'robot', '--scene', 'dock_edge', '--scene', 'curb_sill',
-                          '--json', str(out), '--quiet', '--causes'])
+                          '--json', str(out), '--quiet', '--workers', '0'])
     assert code == 0
     table = capsys.readouterr().out
-    assert 'robot level' in table and 'objects' in table and 'targets:' in table
-    assert 'F1 1-cell' in table and 'false-alarm cells by cause' in table
+    assert 'robot level' in table and 'objects' in table
+    assert 'F1 1-cell' in table
     report = json.loads(out.read_text())
     assert report['scenes']['dock_edge']['robot']['drops'] == 1
     assert report['scenes']['curb_sill']['robot']['objects'] == 1     # the curb
@@ -374,15 +325,6 @@ def test_robot_truth_leaves_the_gaps_of_a_grazing_underside_unscored():
     cols_sum = (under == CELL_OCCUPIED).any(axis=0)
     assert 0 < cols_sum.sum() < cols_sum.size        # sampled rows only
     assert not (under == CELL_FREE).all(axis=0).any()   # no column known free
-
-
-def test_truth_option_scores_the_seed_suite_at_robot_level(tmp_path, capsys):
-    out = tmp_path / 'report.json'
-    assert evaluate.main(['--scene', 'step_down', '--max-frames', '1', '--truth', 'robot',
-                          '--json', str(out), '--quiet']) == 0
-    assert 'robot level' in capsys.readouterr().out
-    robot = json.loads(out.read_text())['scenes']['step_down']['robot']
-    assert robot['drops'] == 1 and robot['objects'] == 1      # the drop and the box
 
 
 def test_the_tools_default_to_the_navigation_default(tmp_path, capsys):

@@ -6,6 +6,7 @@ Dask cluster of two worker processes and compare what it gives with one process.
 
 from __future__ import annotations
 
+import functools
 import json
 import re
 import os
@@ -15,6 +16,7 @@ import sys
 import threading
 import time
 from collections.abc import Iterator
+from typing import Any
 from pathlib import Path
 
 import numpy as np
@@ -233,13 +235,19 @@ def test_ctrl_c_leaves_complete_outputs_and_no_partial_one(tmp_path: Path,
     assert no_partial_left(tmp_path / 'out')
 
 
-def test_sweep_and_evaluate_tasks_in_one_process_equal_the_plain_run() -> None:
+def score_here(frames: list) -> Any:
+    """Return a scorer that evaluates the points on ``frames`` with plain evaluate_frames."""
+    return lambda points: [evaluation.evaluate_frames(frames, p).frames for p in points]
+
+
+def test_sweep_tasks_in_one_process_equal_the_plain_run() -> None:
     sources = sequence_sources()
     frames_ = [f for _, _, lazy in sources for f in lazy]
     x, y = grid_search.Axis('theta_deg', ('20', '60')), grid_search.Axis('K', ('4', '5'))
     fleet = cluster.Fleet(None, 'this process', 1)
-    got = scoring.sweep_on_fleet(fleet, sources, table_4_2(), x, y, progress=False)
-    want = grid_search.run_sweep(frames_, table_4_2(), x, y)
+    got = grid_search.grid_sweep(functools.partial(scoring.score_points, fleet, sources,
+                                                   progress=False), table_4_2(), x, y)
+    want = grid_search.grid_sweep(score_here(frames_), table_4_2(), x, y)
     assert list(got.grids) == list(want.grids) == ['corridor', 'people', 'overall']
     for scene in want.grids:
         np.testing.assert_array_equal(got.grids[scene], want.grids[scene])
@@ -380,11 +388,10 @@ def test_ctrl_c_on_a_cluster_stops_cleanly_and_leaves_no_partial_bag(
 def test_sweep_on_two_workers_equals_one_process(two_workers: cluster.Fleet) -> None:
     sources = sequence_sources()
     frames_ = [f for _, _, lazy in sources for f in lazy]
-    x = grid_search.Axis('theta_deg', ('10', '30', '80'))
-    also = (grid_search.Axis('N1', ('0', '12')),)
-    got = scoring.sweep_on_fleet(two_workers, sources, table_4_2(), x, None, 'cell_f1',
-                                 also=also, progress=False)
-    want = grid_search.run_sweep(frames_, table_4_2(), x, None, 'cell_f1', also=also)
+    x, y = grid_search.Axis('theta_deg', ('10', '30', '80')), grid_search.Axis('N1', ('0', '12'))
+    got = grid_search.grid_sweep(functools.partial(scoring.score_points, two_workers, sources,
+                                                   progress=False), table_4_2(), x, y)
+    want = grid_search.grid_sweep(score_here(frames_), table_4_2(), x, y)
     assert list(got.grids) == list(want.grids)
     for scene in want.grids:
         np.testing.assert_array_equal(got.grids[scene], want.grids[scene])
@@ -414,7 +421,7 @@ def test_evaluate_on_two_workers_equals_one_process(two_workers: cluster.Fleet) 
 @pytest.mark.integration
 def test_the_sweep_command_on_two_workers_writes_the_one_process_json(tmp_path: Path) -> None:
     common = ['--x', 'theta_deg=20,60', '--y', 'N1=0,12', '--scene', 'ramps', '--scene',
-              'corridor', '--out', str(tmp_path / 'heat.png')]
+              'corridor']
     assert sweep.main([*common, '--json', str(tmp_path / 'one.json'), '--workers', '0']) == 0
     assert sweep.main([*common, '--json', str(tmp_path / 'two.json'), '--workers', '2']) == 0
     assert json.loads((tmp_path / 'two.json').read_text()) == \

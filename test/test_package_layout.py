@@ -25,8 +25,7 @@ REPO = ros_env.REPO_ROOT
 PACKAGE = 'obstacle_detection'
 #: The command lines (tools/<name>.py), installed as ``<name>`` beside ``detector``.
 TOOLS = ('bag_convert', 'bag_play', 'bag_process', 'benchmark', 'demo', 'estimate_mount',
-         'evaluate', 'latency_bench', 'param_table', 'pictures', 'sweep',
-         'train_refiner')
+         'evaluate', 'latency_bench', 'param_table', 'pictures', 'sweep')
 EXEC_DEPENDS = {'rclpy', 'sensor_msgs', 'nav_msgs', 'std_msgs', 'geometry_msgs',
                 'python3-numpy', 'python3-scipy', 'python3-opencv'}
 

@@ -137,17 +137,23 @@ def test_refined_costmap_follows_the_refined_pixels():
     assert not (refined.labels == LABEL_OBSTACLE).any()
 
 
-def test_train_tool_prints_rule_based_and_refined_scores(tmp_path, capsys):
-    from obstacle_detection.tools import train_refiner
+def test_evaluate_trains_the_refiner_and_scores_it_on_the_held_out_frames(tmp_path, capsys):
+    import json
+
+    from obstacle_detection.tools import evaluate
     out = tmp_path / 'model.json'
-    code = train_refiner.main(['--scene', 'corridor', '--scene', 'people', '--scene', 'ramps',
-                               '--max-frames', '1', '--train-frames', '1',
-                               '--max-pixels', '5000', '--out', str(out)])
+    code = evaluate.main(['--scene', 'corridor', '--scene', 'people', '--scene', 'ramps',
+                          '--max-frames', '1', '--train-frames', '1', '--quiet',
+                          '--max-pixels', '5000', '--train-refiner', str(out)])
     assert code == 0
     text = capsys.readouterr().out
-    assert 'rule-based' in text and 'refined' in text and 'accuracy' in text
+    assert 'refiner fitted on 1 frames' in text and f'refined by {out}' in text
+    report = json.loads(text.splitlines()[-1])
+    assert report['overall']['frames'] == 2 and 'refined' in report['overall']
     model = LogisticRefiner.load(out)
     assert model.coefficients[1] < 0  # steeper surface (smaller |n.up|) -> more likely obstacle
+    assert evaluate.main(['--scene', 'corridor', '--max-frames', '1', '--train-frames', '1',
+                          '--train-refiner', str(out)]) == 2   # nothing left to score
 
 
 def test_validation_drops_isolated_refined_voxels():

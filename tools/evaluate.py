@@ -1,33 +1,31 @@
 #!/usr/bin/env python3
 """Score the obstacle detector against ground truth: per scenario and overall.
 
-Scores a scenario suite (``--suite seed|robot``) and/or labelled folders; ``--real DIR`` scores
+Scores a scenario suite (``--suite seed|robot``); ``--real DIR`` scores
 unlabelled real frames by their height above the floor, ``--sequence NAME`` the fused costmap
-over a scene sequence. Prints a table and one JSON line (the last line of stdout, or ``--json
-FILE``); docs/accuracy.md has the examples. ``--workers``/``--scheduler`` run it on Dask.
+over a scene sequence; ``--train-refiner OUT`` fits the seed's section 4.5 logistic refiner on
+some frames and scores it on the others. Prints a table and one JSON line (the last line of
+stdout, or ``--json FILE``); docs/accuracy.md has the examples. ``--workers``/``--scheduler``
+run it on Dask.
 """
 
 from __future__ import annotations
 
 import argparse
-import itertools
 import json
 import sys
-from collections import Counter
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
 
 from obstacle_detection.cli.evaluation_args import (REAL_FRAMES, add_common_arguments,
-                                                   base_params, frame_sources, parse_assignment)
+                                                   base_params, frame_sources)
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.evaluation import runner as evaluation
 from obstacle_detection.fleet import scoring
-from obstacle_detection.fleet.cluster import (Fleet, add_fleet_arguments, fleet_options,
-                                              open_fleet)
-from obstacle_detection.labels import (CELL_FREE, CELL_OCCUPIED, GT_NO_RETURN, GT_OBSTACLE,
-                                       GT_TRAVERSABLE, LABEL_OBSTACLE)
+from obstacle_detection.fleet.cluster import add_fleet_arguments, fleet_options, open_fleet
+from obstacle_detection.labels import LABEL_OBSTACLE
 from obstacle_detection.pipeline.params import DetectorParams, Intrinsics
 from obstacle_detection.sim.sequences import SEQUENCE_NAMES
 
@@ -37,60 +35,48 @@ FLOOR_BAND_M = 0.02
 STANDING_M = 0.05
 
 
-def _progress(total: int, label: str) -> Any:
-    done = itertools.count(1)
-
-    def on_frame(frame: evaluation.LabelledFrame, result: Any,
-                 score: evaluation.FrameScore) -> None:
-        print(f'{label} [{next(done)}/{total}] {frame.scenario} {frame.frame_id}: '
-              f'cell F1 {evaluation.format_score(score.cell.f1)}, '
-              f'{score.total_ms:.0f} ms', file=sys.stderr, flush=True)
-    return on_frame
-
-
 def build_parser() -> argparse.ArgumentParser:
     """Return the command-line interface."""
     parser = argparse.ArgumentParser(
         prog='evaluate', description=__doc__.split('\n\n')[0],
-        epilog=evaluation.SCORE_DEFINITIONS, formatter_class=argparse.RawTextHelpFormatter)
+        epilog='what the scores count: docs/accuracy.md',
+        formatter_class=argparse.RawTextHelpFormatter)
     add_common_arguments(parser)
-    parser.add_argument('--refiner', type=Path, metavar='MODEL',
-                        help='also score the seed-4.5 logistic refinement of this model '
-                             '(JSON from tools/train_refiner.py)')
+    refiner = parser.add_mutually_exclusive_group()
+    refiner.add_argument('--refiner', type=Path, metavar='MODEL',
+                         help='also score the seed-4.5 logistic refinement of this model '
+                              '(JSON from --train-refiner)')
+    refiner.add_argument('--train-refiner', type=Path, metavar='OUT',
+                         help='fit the seed-4.5 refiner on --train-frames frames spread evenly, '
+                              'save it to OUT (JSON), score it on the other frames')
+    parser.add_argument('--train-frames', type=int, default=10, metavar='N',
+                        help='frames the refiner is fitted on (the seed: 10) [default: 10]')
+    parser.add_argument('--max-pixels', type=int, default=20000, metavar='M',
+                        help='training pixels drawn per frame [default: 20000]')
+    parser.add_argument('--l2', type=float, default=1e-3,
+                        help='L2 penalty on the standardised coefficients [default: 1e-3]')
+    parser.add_argument('--seed', type=int, default=0,
+                        help='seed of the scene sequences (--sequence) or of the training '
+                             'pixels drawn (--train-refiner) [default: 0]')
     parser.add_argument('--json', metavar='FILE',
                         help="write the JSON report to FILE instead of printing it as the last "
                              "line ('-': print only the JSON line, table to stderr)")
-    parser.add_argument('--pictures', type=Path, metavar='DIR',
-                        help='also save one PNG per frame (depth + obstacles, costmap, '
-                             'comparison with the truth)')
-    parser.add_argument('--causes', action='store_true',
-                        help='also count the false-alarm cells of each scenario by cause '
-                             '(docs/accuracy.md)')
     parser.add_argument('--real', type=Path, metavar='DIR',
                         help='instead, score the real frames of DIR (tum_office/, '
                              'tum_fr2_desk/, dining_room/) by height above the fitted floor')
-    parser.add_argument('--quiet', action='store_true', help='no per-frame progress lines')
+    parser.add_argument('--quiet', action='store_true', help='no progress lines')
     add_fleet_arguments(parser)
     video = parser.add_argument_group('the fused costmap over scene sequences (--sequence)')
     video.add_argument('--sequence', action='append', choices=(*SEQUENCE_NAMES, 'all'),
                        help='instead, score the fused costmap over this scene sequence '
                             "(repeatable; 'all': every one); docs/accuracy.md says what counts")
-    video.add_argument('--fusion', action='append', type=parse_assignment, default=[],
-                       metavar='KEY=NUMBER',
-                       help='a FusionParams field (size_m, resolution_m, hit_log_odds, '
-                            'miss_log_odds, min_log_odds, max_log_odds, occupied_log_odds, '
-                            'free_log_odds, max_jump_m, max_jump_deg); repeatable')
-    video.add_argument('--seed', type=int, default=0, help='sequence seed [default: 0]')
     video.add_argument('--frames', type=int, metavar='N',
                        help='only the first N frames of each sequence')
-    video.add_argument('--no-odometry', action='store_true',
-                       help='fuse every frame in place (as without odometry)')
     video.add_argument('--exact-odometry', action='store_true',
                        help='odometry without drift or noise (the true poses)')
     video.add_argument('--sheet', type=Path, metavar='PNG',
-                       help='write a contact sheet of per-frame and fused grids over time')
-    video.add_argument('--sheet-frames', type=int, default=4, metavar='N',
-                       help='moments per sequence on the sheet [default: 4]')
+                       help='write a contact sheet of per-frame and fused grids at 8 moments '
+                            'of each sequence')
     return parser
 
 
@@ -108,44 +94,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.refiner is not None:
         from obstacle_detection.pipeline.refine import LogisticRefiner
         refiner = LogisticRefiner.load(args.refiner)
-    if args.pictures is not None or args.causes:
-        if args.workers or args.scheduler:
-            raise tool_support.ToolError('--pictures and --causes work in this process: '
-                                         'leave out --workers/--scheduler', usage=True)
-        args.workers = 0
-    with open_fleet(**fleet_options(args), tasks=len(sources)) as fleet:
-        return _evaluate(args, params, sources, refiner, fleet)
-
-
-def _evaluate(args: Any, params: DetectorParams, sources: Any, refiner: Any,
-              fleet: Fleet) -> int:
-    """Score, print the tables and the JSON line (main's work, where ``fleet`` says)."""
-    total = sum(count for _, count, _ in sources)
-    callbacks = []
-    if not args.quiet:
-        callbacks.append(_progress(total, 'evaluate'))
-    if args.pictures is not None:
-        callbacks.append(_picture_writer(args.pictures, params))
-    causes: dict[str, Counter] = {}
-    if args.causes:
-        callbacks.append(lambda frame, result, score: causes.setdefault(
-            frame.scenario, Counter()).update(false_alarm_causes(frame, result, params)))
-    frames = itertools.chain.from_iterable(frames for _, _, frames in sources)
+    if args.train_refiner is not None:
+        sources, refiner = _train_refiner(args, params, sources)
     label = _label(args)
-    refiner_name = str(args.refiner) if args.refiner else None
-    if fleet.distributed:
-        print(f'evaluate: {len(sources)} sequences on {fleet.description}',
-              file=sys.stderr, flush=True)
+    refiner_name = str(args.refiner or args.train_refiner) if refiner is not None else None
+    with open_fleet(**fleet_options(args), tasks=len(sources)) as fleet:
+        if not args.quiet:
+            print(f'evaluate: {len(sources)} sequences in {fleet.description}', file=sys.stderr,
+                  flush=True)
         report = scoring.evaluate_on_fleet(fleet, sources, params, label=label,
                                            refiner=refiner, refiner_name=refiner_name,
                                            progress=not args.quiet)
-    else:
-        def on_frame(*frame_result_score: Any) -> None:
-            for callback in callbacks:
-                callback(*frame_result_score)
-
-        report = evaluation.evaluate_frames(frames, params, label=label, refiner=refiner,
-                                            refiner_name=refiner_name, on_frame=on_frame)
     out = sys.stderr if args.json == '-' else sys.stdout
     print(f'parameters: {label}; {report.overall.frames} frames in {report.seconds:.1f} s',
           file=out)
@@ -154,17 +113,47 @@ def _evaluate(args: Any, params: DetectorParams, sources: Any, refiner: Any,
         print('\nrobot level (issue 9):', file=out)
         print(evaluation.format_robot_table(report), file=out)
     if refiner is not None:
-        print(f'\nrefined by {args.refiner} (seed 4.5 logistic regression):', file=out)
+        print(f'\nrefined by {refiner_name} (seed 4.5 logistic regression):', file=out)
         print(evaluation.format_table(report, refined=True), file=out)
-    if args.causes:
-        causes['overall'] = sum(causes.values(), Counter())
-        print('\nfalse-alarm cells by cause:', file=out)
-        for name, counts in causes.items():
-            if counts:
-                print(f'{name:<24} ' + ', '.join(f'{n} {k}' for k, n in counts.most_common()),
-                      file=out)
     _write_json(args.json, report.as_dict())
     return 0
+
+
+def _train_refiner(args: Any, params: DetectorParams, sources: Any) -> tuple[list, Any]:
+    """Fit the refiner on ``--train-frames`` frames spread evenly, save it, print it.
+
+    Return the other frames (held out) as the one source to score, and the model.
+    """
+    from obstacle_detection.pipeline.refine import LogisticRefiner, training_samples
+
+    frames = [f for _, _, source in sources for f in source]
+    if not 1 <= args.train_frames < len(frames) or args.max_pixels < 1:
+        raise tool_support.ToolError(f'--train-frames={args.train_frames} must be in 1..'
+                                     f'{len(frames) - 1} (the frames less one), --max-pixels='
+                                     f'{args.max_pixels} >= 1', usage=True)
+    chosen = {id(f) for f in evaluation.subsample(frames, args.train_frames)}
+    train = [f for f in frames if id(f) in chosen]
+    held_out = [f for f in frames if id(f) not in chosen]
+    rng, xs, ys = np.random.default_rng(args.seed), [], []
+    for frame, _, result, prev_mask in evaluation.detect_frames(train, params):
+        x, y = training_samples(result, frame.truth_labels, prev_mask)
+        if y.size > args.max_pixels:   # drawn without replacement
+            pick = rng.choice(y.size, size=args.max_pixels, replace=False)
+            x, y = x[pick], y[pick]
+        xs.append(x)
+        ys.append(y)
+    x, y = np.concatenate(xs), np.concatenate(ys)
+    model = LogisticRefiner.fit(x, y, l2=args.l2, preset=args.preset, train_frames=len(train),
+                                train_scenarios=sorted({f.scenario for f in train}))
+    model.save(args.train_refiner)
+    data = model.to_dict()
+    out = sys.stderr if args.json == '-' else sys.stdout
+    print(f'refiner fitted on {len(train)} frames ({y.size} pixels, {int(y.sum())} obstacle), '
+          f'saved to {args.train_refiner}; scored on the {len(held_out)} others', file=out)
+    print('coefficients (standardised slope and gradient; e_k are 0/1): '
+          f'intercept {data["intercept"]:+.3f}, ' + ', '.join(
+              f'{name} {value:+.3f}' for name, value in data['coefficients'].items()), file=out)
+    return [('held out', len(held_out), held_out)], model
 
 
 def _score_sequences(args: Any, params: DetectorParams) -> int:
@@ -173,15 +162,11 @@ def _score_sequences(args: Any, params: DetectorParams) -> int:
     from obstacle_detection.pipeline.fusion import FusionParams
     from obstacle_detection.sim.sequences import PERFECT_ODOMETRY, OdometryModel, SceneSequence
 
-    for name, value, low in (('--frames', args.frames, 1), ('--seed', args.seed, 0),
-                             ('--sheet-frames', args.sheet_frames, 1)):
+    for name, value, low in (('--frames', args.frames, 1), ('--seed', args.seed, 0)):
         if value is not None and value < low:   # one error line, no usage block
             raise tool_support.ToolError(f'argument {name}: {value} must be >= {low}',
                                          usage=True)
-    try:
-        fusion = FusionParams(**{key: float(value) for key, value in args.fusion})
-    except (TypeError, ValueError) as exc:
-        raise tool_support.ToolError(f'argument --fusion: {exc}', usage=True) from None
+    fusion = FusionParams()
     if args.sheet is not None and args.sheet.suffix.lower() != '.png':
         raise tool_support.ToolError(args.sheet, 'the contact sheet must be a .png file')
     reports = []
@@ -194,8 +179,8 @@ def _score_sequences(args: Any, params: DetectorParams) -> int:
         sequence = SceneSequence(name, seed=args.seed, odometry=PERFECT_ODOMETRY
                                  if args.exact_odometry else OdometryModel())
         reports.append(video.evaluate_sequence(
-            sequence, params, fusion, stop=args.frames, use_odometry=not args.no_odometry,
-            sheet_frames=args.sheet_frames if args.sheet is not None else 0,
+            sequence, params, fusion, stop=args.frames,
+            sheet_frames=8 if args.sheet is not None else 0,
             on_frame=progress))
     out = sys.stderr if args.json == '-' else sys.stdout
     print(f'parameters: {_label(args)}; fusion: {fusion}', file=out)
@@ -221,45 +206,6 @@ def _write_json(path: str | None, data: dict) -> None:
         print(line)
     else:
         Path(path).write_text(line + '\n', encoding='utf-8')
-
-
-def false_alarm_causes(frame: evaluation.LabelledFrame, result: Any,
-                       base: DetectorParams) -> Counter:
-    """Count the false-alarm cells of one frame by what marked them (docs/accuracy.md).
-
-    A voxel more than a step above its local ground (``high``), below the step down (``low``),
-    a ``ledge`` or a ``drop`` edge; with the truth of its pixels: obstacle ``O``, traversable
-    ``F``, no return ``X``; `` far``: no true obstacle within one cell.
-    """
-    from obstacle_detection.evaluation.metrics import grow_cells
-    from obstacle_detection.pipeline import traversal
-    from obstacle_detection.pipeline.normals import slope_obstacles
-
-    params = frame.params(base)
-    truth = evaluation.truth_costmap(frame, params)
-    steep = slope_obstacles(result.voxel_normals, params.cos_max_slope)
-    trav = traversal.traversable_ground(result.voxel_points, steep, params)
-    kind = np.where(trav.ledge & ~trav.is_obstacle, 'ledge',
-                    np.where(result.voxel_height_m < -params.max_step_down_m, 'low', 'high'))
-    pixel_voxel, labels = result.pixel_voxel.reshape(-1), frame.truth_labels.reshape(-1)
-    tags = np.full(kind.shape, '', object)
-    for tag, label in (('O', GT_OBSTACLE), ('F', GT_TRAVERSABLE), ('X', GT_NO_RETURN)):
-        has = np.zeros(kind.shape, bool)
-        has[pixel_voxel[(pixel_voxel >= 0) & (labels == label)]] = True
-        tags[has] += tag
-    alarm = (result.costmap.data == CELL_OCCUPIED) & (truth == CELL_FREE)
-    near = grow_cells(truth == CELL_OCCUPIED, 1)
-    marked = result.voxel_is_obstacle
-    causes: dict[tuple[int, int], set] = {}
-    for points, names in ((result.voxel_points[marked],
-                           [f'{k}/{t}' for k, t in zip(kind[marked], tags[marked])]),
-                          (result.drop_points, ['drop'] * result.drop_points.shape[0])):
-        row, col, inside = result.costmap.cell_of(points)
-        for r, c, ok, name in zip(row, col, inside, names):
-            if ok and alarm[r, c]:
-                causes.setdefault((r, c), set()).add(name)
-    return Counter('+'.join(sorted(names)) + ('' if near[cell] else ' far')
-                   for cell, names in causes.items())
 
 
 def _score_real_frames(folder: Path, params: DetectorParams) -> int:
@@ -315,20 +261,6 @@ def real_frame_counts(depth_m: np.ndarray, intrinsics: Intrinsics, params: Detec
              f'roll {est.roll_deg:.1f} deg; {result.floor.summary()}')
     return (int(on_floor.sum()), int((on_floor & marked).sum()), int(standing.sum()),
             int((standing & marked).sum()), mount)
-
-
-def _picture_writer(folder: Path, base: DetectorParams) -> Any:
-    from obstacle_detection.viz import pictures
-
-    def on_frame(frame: evaluation.LabelledFrame, result: Any,
-                 score: evaluation.FrameScore) -> None:
-        name = f'{frame.scenario}_{frame.frame_id}'.replace(' ', '_').replace('/', '_')
-        caption = (f'{frame.scenario} {frame.frame_id}: cell F1 '
-                   f'{evaluation.format_score(score.cell.f1)}, pixel F1 '
-                   f'{evaluation.format_score(score.pixel.f1)}')
-        pictures.write_png(folder / f'{name}.png', pictures.side_by_side(
-            result, frame.params(base), caption=caption, truth_labels=frame.truth_labels))
-    return on_frame
 
 
 if __name__ == '__main__':

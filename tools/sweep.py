@@ -1,12 +1,12 @@
 #!/usr/bin/env python3
-"""Parameter sweep: score a grid of settings on the scenario suite and draw it as a heatmap.
+"""Parameter sweep: score a grid of settings on the scenario suite, print the best per scene.
 
-One or two axes (``--also`` adds more, shown as the best over them); every other parameter stays
-at the preset. Axis names: any DetectorParams field, a ``..._deg`` variant of a ``..._rad``
-field, the seed's theta_deg, N, N1, K, TDBG, SMAR, and voxel_m (all three voxel sizes)::
+One or two axes; every other parameter stays at the preset. Axis names: any DetectorParams
+field, a ``..._deg`` variant of a ``..._rad`` field, the seed's theta_deg, N, N1, K, TDBG, SMAR,
+and voxel_m (all three voxel sizes)::
 
     python tools/sweep.py --x theta_deg=15,20,30,45 --y N=3,5,10,20
-    python tools/sweep.py --x N1=0,4,8,12 --y K=1,5,9,17 --metric pixel_f1 --out n1_k.png
+    python tools/sweep.py --x N1=0,4,8,12 --y K=1,5,9,17 --metric pixel_f1 --json n1_k.json
 
 With Dask installed the grid runs on a local cluster (``--workers 0``: in this process).
 """
@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
 from pathlib import Path
 from typing import Sequence
 
@@ -25,8 +24,8 @@ import numpy as np
 from obstacle_detection.evaluation import runner as evaluation
 from obstacle_detection.fleet import scoring
 from obstacle_detection.fleet.cluster import add_fleet_arguments, fleet_options, open_fleet
-from obstacle_detection.evaluation.sweep import (METRICS, SweepResult, format_grid, grid_shape,
-                                                 parse_axis, run_sweep, sweep_points)
+from obstacle_detection.evaluation.sweep import (METRICS, SweepResult, format_grid, grid_sweep,
+                                                 parse_axis)
 from obstacle_detection.pipeline.params import DetectorParams
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.cli.evaluation_args import (add_common_arguments, base_params,
@@ -36,52 +35,25 @@ from obstacle_detection.cli.evaluation_args import (add_common_arguments, base_p
 def build_parser() -> argparse.ArgumentParser:
     """Return the command-line interface."""
     parser = argparse.ArgumentParser(prog='sweep', description=__doc__.split('\n\n')[0],
-                                     epilog=evaluation.SCORE_DEFINITIONS,
+                                     epilog='what the scores count: docs/accuracy.md',
                                      formatter_class=argparse.RawTextHelpFormatter)
     parser.add_argument('--x', type=parse_axis, required=True, metavar='NAME=V1,V2,...',
                         help='first axis (columns), e.g. theta_deg=15,20,30,45')
     parser.add_argument('--y', type=parse_axis, metavar='NAME=V1,V2,...',
                         help='second axis (rows), e.g. N=3,5,10,20 [default: none]')
-    parser.add_argument('--also', type=parse_axis, action='append', default=[],
-                        metavar='NAME=V1,V2,...',
-                        help='more axes for a full grid (repeatable); the printed grid and '
-                             'the heatmap show the best over them, the best settings name them')
     parser.add_argument('--metric', choices=sorted(METRICS), default='cell_f1',
                         help='score to grid and maximise (false alarms: minimise) '
                              '[default: cell_f1]')
     add_common_arguments(parser)
     parser.set_defaults(max_frames=1)
-    parser.add_argument('--out', type=Path, default=Path('sweep.png'),
-                        help='heatmap PNG (one panel per scenario + overall) '
-                             '[default: sweep.png]')
-    parser.add_argument('--json', type=Path, metavar='FILE', help='also write the grids as JSON')
+    parser.add_argument('--json', type=Path, metavar='FILE',
+                        help="also write every scene's grid as JSON")
     add_fleet_arguments(parser)
     return parser
 
 
 def _log(text: str) -> None:
     print(text, file=sys.stderr, flush=True)
-
-
-def _sweep(args: argparse.Namespace, base: DetectorParams, also: tuple,
-           ) -> tuple[SweepResult, int]:
-    """Score the grid (on a cluster or here); return (result, frames)."""
-    started = time.perf_counter()
-    sources = frame_sources(args)
-    frame_count = sum(count for _, count, _ in sources)
-    if frame_count == 0:
-        raise ValueError('no frames selected')
-    settings = int(np.prod(grid_shape(args.x, args.y, also)))
-    with open_fleet(**fleet_options(args), tasks=settings * len(sources)) as fleet:
-        if fleet.distributed:
-            _log(f'{settings} settings x {len(sources)} scenarios on {fleet.description}')
-            return scoring.sweep_on_fleet(fleet, sources, base, args.x, args.y, args.metric,
-                                          also=also, log=_log), frame_count
-        frames = [f for _, _, source in sources for f in source]
-        _log(f'rendered {len(frames)} frames in {time.perf_counter() - started:.1f} s;'
-             f' {settings} settings')
-        return run_sweep(frames, base, args.x, args.y, args.metric, also=also,
-                         log=_log), frame_count
 
 
 def _print_result(args: argparse.Namespace, result: SweepResult, frame_count: int) -> None:
@@ -106,13 +78,10 @@ def _print_result(args: argparse.Namespace, result: SweepResult, frame_count: in
 
 
 def _json(args: argparse.Namespace, result: SweepResult, frame_count: int) -> dict:
-    """Return the grids and best settings as the ``--json`` document."""
-    also = tuple(args.also)
+    """Return the grids (rows y, columns x) and best settings as the ``--json`` document."""
     return {'metric': args.metric, 'preset': args.preset, 'frames': frame_count,
-            'axes': ['y', 'x'] + [f'also[{i}]' for i in range(len(also))],
             'x': {'name': args.x.name, 'values': list(args.x.values)},
             'y': {'name': args.y.name, 'values': list(args.y.values)} if args.y else None,
-            'also': [{'name': a.name, 'values': list(a.values)} for a in also],
             'grids': {s: np.where(np.isnan(g), None, g).tolist()
                       for s, g in result.grids.items()},
             'best': {s: result.setting(*b) if (b := result.best(s)) else None
@@ -123,36 +92,20 @@ def _json(args: argparse.Namespace, result: SweepResult, frame_count: int) -> di
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (0 ok, 1 bad input, 2 bad usage)."""
     args = build_parser().parse_args(argv)
-    also = tuple(args.also)
-    base = base_params(args)
-    for _, point in sweep_points(base, args.x, args.y, also):
-        if getattr(point, 'usage', False):   # an unknown name now, a bad value per cell
-            raise point
-    result, frame_count = _sweep(args, base, also)
+    sources = frame_sources(args)
+
+    def score(points: list[DetectorParams]) -> list[list[evaluation.FrameScore]]:
+        with open_fleet(**fleet_options(args), tasks=len(points) * len(sources)) as fleet:
+            _log(f'{len(points)} settings x {len(sources)} scenarios on {fleet.description}')
+            return scoring.score_points(fleet, sources, points, label='sweep')
+
+    result = grid_sweep(score, base_params(args), args.x, args.y, args.metric, log=_log)
+    frame_count = sum(count for _, count, _ in sources)
     _print_result(args, result, frame_count)
-    _write_heatmaps(args, result)
-    print(f'heatmap: {args.out}')
     if args.json:
         args.json.write_text(json.dumps(_json(args, result, frame_count)) + '\n',
                              encoding='utf-8')
     return 0
-
-
-def _write_heatmaps(args: argparse.Namespace, result: SweepResult) -> None:
-    """One heatmap panel per scenario and overall, tiled into ``args.out``."""
-    from obstacle_detection.viz import pictures
-
-    panels = []
-    for scene in result.grids:
-        flat, _, higher, title = result.view(scene)
-        best = result.best(scene)
-        title += '' if higher else ' (colour: 1 - value)'
-        panels.append(pictures.heatmap(
-            flat if higher else 1.0 - flat, list(args.x.values),
-            list(args.y.values) if args.y else [''], title=title, x_name=args.x.name,
-            y_name=args.y.name if args.y else '', best=best[:2] if best else None,
-            values=flat))
-    pictures.write_png(args.out, pictures.tile(panels, columns=3))
 
 
 if __name__ == '__main__':

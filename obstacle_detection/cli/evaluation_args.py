@@ -1,4 +1,4 @@
-"""Command-line options shared by evaluate, sweep, train_refiner and pictures."""
+"""Command-line options shared by evaluate, sweep and pictures."""
 
 from __future__ import annotations
 
@@ -10,7 +10,6 @@ from obstacle_detection.cli import support as tool_support
 from obstacle_detection.evaluation import runner as evaluation
 from obstacle_detection.pipeline.params import PRESETS, DetectorParams, Intrinsics
 
-SUITES = evaluation.SUITES
 #: The frames of ../shared/data/real/README.md: (folder, files, units per metre, intrinsics).
 REAL_FRAMES = (
     ('tum_office', ('depth.png',), 5000.0, Intrinsics(535.4, 539.2, 320.1, 247.6)),
@@ -30,22 +29,15 @@ def parse_assignment(text: str) -> tuple[str, str]:
 
 
 def add_common_arguments(parser: argparse.ArgumentParser) -> None:
-    """Frame-source and parameter options shared by evaluate, sweep and train_refiner."""
-    parser.add_argument('--suite', choices=sorted(SUITES), default='seed',
+    """Frame-source and parameter options shared by evaluate and sweep."""
+    parser.add_argument('--suite', choices=sorted(evaluation.SUITES), default='seed',
                         help="committed scenario suite: 'seed' (scenarios.json, the "
                              "seed's slope-only truth) or 'robot' (scenarios_robot.json, "
                              'robot-level truth, time-of-flight noise) [default: seed]')
-    parser.add_argument('--scenarios', type=Path, default=None,
-                        help='scenario list (JSON) instead of the suite\'s')
-    parser.add_argument('--truth', choices=sorted(evaluation.TRUTH_KINDS),
-                        help="score against this truth instead of the scenarios' own")
     parser.add_argument('--scene', action='append', metavar='NAME',
                         help='evaluate only this scenario (repeatable) [default: all]')
-    parser.add_argument('--folder', action='append', type=Path, metavar='DIR',
-                        help='a labelled folder (depth/, labels/, intrinsics.yaml); '
-                             'repeatable; given alone, the suite is skipped unless --scene')
     parser.add_argument('--max-frames', type=int, metavar='N',
-                        help='at most N frames per scenario/folder, evenly spread')
+                        help='at most N frames per scenario, evenly spread')
     add_parameter_arguments(parser)
 
 
@@ -79,27 +71,15 @@ def base_params(args: argparse.Namespace) -> DetectorParams:
 
 def frame_sources(args: argparse.Namespace,
                   ) -> list[tuple[str, int, Iterable[evaluation.LabelledFrame]]]:
-    """(name, frame count, lazy frames) for each scenario and folder selected by the options."""
-    sources: list[tuple[str, int, Iterable[evaluation.LabelledFrame]]] = []
+    """(name, frame count, lazy frames) for each scenario selected by the options."""
     if args.max_frames is not None and args.max_frames < 1:
         raise tool_support.ToolError(f'--max-frames={args.max_frames} must be >= 1', usage=True)
-    if args.scene or not args.folder:
-        path = args.scenarios if args.scenarios is not None else SUITES[args.suite]
-        scenarios = evaluation.select_scenarios(evaluation.load_scenarios(path), args.scene)
-        rules = base_params(args)
-        for scenario in scenarios:
-            count = min(scenario.frame_count, args.max_frames or scenario.frame_count)
-            sources.append((scenario.name, count,
-                            LazyFrames(evaluation.scenario_frames, scenario,
-                                  max_frames=args.max_frames, rules=rules,
-                                  truth=args.truth)))
-    for folder in args.folder or []:
-        count = len(evaluation.subsample(sorted((folder / 'depth').glob('*.png')),
-                                         args.max_frames))
-        sources.append((folder.name, count,
-                        LazyFrames(evaluation.load_labelled_folder, folder,
-                              max_frames=args.max_frames)))
-    return sources
+    scenarios = evaluation.select_scenarios(
+        evaluation.load_scenarios(evaluation.SUITES[args.suite]), args.scene)
+    rules = base_params(args)
+    return [(s.name, min(s.frame_count, args.max_frames or s.frame_count),
+             LazyFrames(evaluation.scenario_frames, s, max_frames=args.max_frames, rules=rules))
+            for s in scenarios]
 
 
 class LazyFrames:

@@ -30,9 +30,6 @@ def scaled_intrinsics(intrinsics: Intrinsics, sx: float, sy: float | None = None
                       ) -> Intrinsics:
     """Intrinsics of the camera with images resized by ``sx`` (and ``sy``), pixel-centre aware."""
     sy = sx if sy is None else sy
-    for name, factor in (('sx', sx), ('sy', sy)):
-        if not factor > 0.0:
-            raise ValueError(f'scale factor {name}={factor!r} must be > 0')
     return Intrinsics(fx=intrinsics.fx * sx, fy=intrinsics.fy * sy,
                       cx=(intrinsics.cx + 0.5) * sx - 0.5,
                       cy=(intrinsics.cy + 0.5) * sy - 0.5)
@@ -49,9 +46,6 @@ def camera_from_mapping(data: Any) -> CameraFile:
     """Return the camera a parsed camera YAML describes; ValueError saying what is bad."""
     if not isinstance(data, dict):
         raise ValueError('not a YAML mapping (expected fx, fy, cx, cy, ...)')
-    for key in ('intrinsics', 'camera'):
-        if isinstance(data.get(key), dict):
-            data = {**data, **data[key]}
     if 'camera_matrix' in data:
         try:
             k = [float(v) for v in data['camera_matrix']['data']]

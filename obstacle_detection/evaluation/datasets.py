@@ -42,9 +42,6 @@ DIML_DEPTH_KINDS = {  # --depth choice -> (folder, file suffix)
     'up': ('up_png', '_ud.png'),
     'warp': ('warp_png', '_wd.png'),
 }
-DIML_COLOR = ('col', '_c.png')
-DIML_SAMPLE_COLOR = ('color', '_c.png')
-DIML_SAMPLE_DEPTH = ('depth_filled', '_depth_filled.png')
 
 
 @dataclasses.dataclass(frozen=True)
@@ -163,11 +160,8 @@ def diml_frames(sequence: Path, *, depth_kind: str = 'raw', intrinsics_path: Pat
     if not sequence.is_dir():
         raise EvaluationError(f'{sequence}: DIML sequence folder not found')
     if not depth_dir.is_dir():
-        found = sorted(p.parent for p in sequence.rglob(folder) if p.is_dir())
-        hint = (f'; sequence folders below it: {", ".join(map(str, found[:5]))}'
-                + (' ...' if len(found) > 5 else '')) if found else ''
         raise EvaluationError(f'{depth_dir}: DIML {depth_kind} depth folder not found '
-                              f'(pass a <scene>/<date>/<n> folder){hint}')
+                              '(pass a <scene>/<date>/<n> folder)')
     depth = _files_with_suffix(depth_dir, suffix)
     if not depth:
         raise EvaluationError(f'{depth_dir}: no *{suffix} depth images')
@@ -179,9 +173,9 @@ def diml_frames(sequence: Path, *, depth_kind: str = 'raw', intrinsics_path: Pat
             raise EvaluationError(f'{path}: no frame number before {suffix} in the file name')
         frames_index[key] = int(match.group(1))
     color: dict[str, Path] = {}
-    color_dir = sequence / DIML_COLOR[0]
+    color_dir = sequence / 'col'
     if with_color and color_dir.is_dir():
-        color = _files_with_suffix(color_dir, DIML_COLOR[1])
+        color = _files_with_suffix(color_dir, '_c.png')
         _pair_by_key(depth, color, depth_dir, color_dir)
     intr, origin, size = _optional_intrinsics(intrinsics_path)
     start_ns = stamp_ns(start_s)
@@ -192,49 +186,6 @@ def diml_frames(sequence: Path, *, depth_kind: str = 'raw', intrinsics_path: Pat
         notes.append(f'{color_dir} not found: no colour written')
     return FrameSource(frames, intr, origin, size, depth_units_origin='DIML: millimetres',
                        default_view='depth' if depth_kind == 'raw' else 'color', notes=notes)
-
-
-def diml_sample_frames(root: Path, *, resolution: str = 'LR',
-                       intrinsics_path: Path | None = None, rate_hz: float = 30.0,
-                       start_s: float = 0.0, with_color: bool = True) -> FrameSource:
-    """List the frames of the DIML sample subset below ``root``.
-
-    ``root`` is a split folder (``.../test``), a resolution folder (``.../test/LR``) or one
-    scene folder holding ``color/`` and ``depth_filled/``. Frames are sorted by scene folder
-    and id and stamped ``start_s + k / rate_hz``.
-    """
-    _check_rate(rate_hz)
-    if not root.is_dir():
-        raise EvaluationError(f'{root}: DIML sample folder not found')
-    name = DIML_SAMPLE_DEPTH[0]
-    depth_dirs = sorted({p for p in [root / name, *root.rglob(name)] if p.is_dir()})
-    # Below a split folder both HR and LR exist: keep the chosen one.
-    parts = {part for p in depth_dirs for part in p.relative_to(root).parts}
-    if {'HR', 'LR'} & parts:
-        depth_dirs = [p for p in depth_dirs if resolution in p.relative_to(root).parts]
-        if not depth_dirs:
-            raise EvaluationError(f'{root}: no {resolution}/ folder below it')
-    if not depth_dirs:
-        raise EvaluationError(f'{root}: no {DIML_SAMPLE_DEPTH[0]}/ folder below it '
-                              f'(expected <split>/{{HR,LR}}/<scene>/{{color,depth_filled}})')
-    frames: list[Frame] = []
-    for depth_dir in depth_dirs:
-        depth = _files_with_suffix(depth_dir, DIML_SAMPLE_DEPTH[1])
-        if not depth:
-            raise EvaluationError(f'{depth_dir}: no *{DIML_SAMPLE_DEPTH[1]} depth images')
-        color: dict[str, Path] = {}
-        if with_color:
-            color_dir = depth_dir.parent / DIML_SAMPLE_COLOR[0]
-            _require_dir(color_dir, 'DIML sample colour')
-            color = _files_with_suffix(color_dir, DIML_SAMPLE_COLOR[1])
-            _pair_by_key(depth, color, depth_dir, color_dir)
-        for key, path in depth.items():
-            stamp = stamp_ns(start_s) + stamp_ns(len(frames) / rate_hz)
-            frames.append(Frame(stamp, path, color.get(key)))
-    intr, origin, size = _optional_intrinsics(intrinsics_path)
-    notes = [f'DIML samples have no timestamps: stamped in file order at {rate_hz:g} Hz']
-    return FrameSource(frames, intr, origin, size, depth_units_origin='DIML: millimetres',
-                       default_view='color', notes=notes)
 
 
 def folder_frames(depth_dir: Path, *, color_dir: Path | None = None,
@@ -298,8 +249,6 @@ def tum_frames(root: Path, *, camera: str | None = None, intrinsics_path: Path |
     """List the depth frames of a TUM-format sequence, each with its nearest colour frame."""
     if not root.is_dir():
         raise EvaluationError(f'{root}: sequence folder not found')
-    if not (math.isfinite(max_difference_s) and max_difference_s >= 0):
-        raise EvaluationError(f'--max-difference must be >= 0 s, got {max_difference_s}')
     notes: list[str] = []
     depth_list = root / 'depth.txt'
     if depth_list.is_file():
@@ -330,14 +279,9 @@ def tum_frames(root: Path, *, camera: str | None = None, intrinsics_path: Path |
         paired = np.abs(rgb_t[best] - depth_t) <= max_difference_s
         for k in np.flatnonzero(paired):
             color_for[k] = root / rgb[best[k]][1]
-        used = set(best[paired].tolist())
         if rgb and not paired.all():
             dropped[f'no colour frame within {max_difference_s:g} s of the depth frame '
                     '(kept without colour)'] = int(np.count_nonzero(~paired))
-        if len(rgb) > len(used):
-            notes.append(f'{len(rgb) - len(used)} colour frames not nearest to any depth frame '
-                         'were not written')
-        notes.append('colour is stamped with the stamp of the depth frame it is paired with')
     elif with_color:
         notes.append(f'{rgb_list} not found: no colour written')
     frames = [Frame(stamp_ns(t), root / name, color_for[k]) for k, (t, name) in enumerate(depth)]
@@ -356,8 +300,9 @@ def tum_frames(root: Path, *, camera: str | None = None, intrinsics_path: Path |
             origin = f'from {calibration}'
         else:
             intr, origin = TUM_CAMERAS['ros'], 'ROS default camera'
-            _warn(f'no intrinsics for {root}: using the ROS default camera fx=fy=525 '
-                  'cx=319.5 cy=239.5; pass --camera fr1|fr2|fr3 or --intrinsics FILE')
+            print(f'warning: no intrinsics for {root}: using the ROS default camera fx=fy=525 '
+                  'cx=319.5 cy=239.5; pass --camera fr1|fr2|fr3 or --intrinsics FILE',
+                  file=sys.stderr)
     return FrameSource(frames, intr, origin, size, depth_units_per_m=TUM_DEPTH_UNITS_PER_M,
                        depth_units_origin='the TUM format', dropped=dropped, notes=notes)
 
@@ -375,20 +320,10 @@ def stamps_from_names(root: Path, kind: str) -> list[tuple[float, str]]:
                if (m := TUM_STAMP_NAME.match(name))]
     if found and len(stamped) == len(found):
         return sorted(stamped)
-    # name the files the list should hold: those of the sub-folder, else the PNGs beside it
-    # whose names say what they are
-    files = [f'{kind}/{name}' for name in found] or sorted(
-        p.name for p in root.glob('*.png')
-        if (kind == 'depth') == ('depth' in p.name.lower()))
-    lines = ''.join(f'{k / 30.0:.6f} {name}\\n' for k, name in enumerate(files[:3]))
-    example = (f"e.g. printf '{lines}' > {listed}" + (' (one line per file)' if len(files) > 3
-                                                      else '')) if files else \
-        f'no {kind} PNG found in {root}'
-    other = ('; rgb.txt likewise for the colour images' if kind == 'depth' else '') + \
-        ', or --no-color to leave colour out'
     raise EvaluationError(f'{listed}: not found, and no {folder}/<seconds>.png names give the '
-                          f'stamps: write it, one "timestamp filename" line per {kind} image, '
-                          f'{example}{other}')
+                          f'stamps: write it, one "timestamp filename" line per {kind} image'
+                          f'{" (rgb.txt likewise)" if kind == "depth" else ""}, or leave '
+                          'colour out with --no-color')
 
 
 def read_depth_png(path: str | Path, *,
@@ -428,7 +363,3 @@ def read_color(path: Path, encoding: str) -> np.ndarray:
         image = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
     return image
 
-
-def _warn(text: str) -> None:
-    """Print a ``warning: ...`` line on stderr, as the tools do (a default chosen, ...)."""
-    print(f'warning: {text}', file=sys.stderr)

@@ -21,11 +21,6 @@ def _ratio(num: int, den: int) -> float:
     return num / den if den > 0 else math.nan
 
 
-def _same_shape(a: np.ndarray, b: np.ndarray) -> None:
-    if a.shape != b.shape:
-        raise ValueError(f'shape {a.shape} differs from shape {b.shape}')
-
-
 @dataclass(frozen=True)
 class Confusion:
     """Binary confusion counts, obstacle = positive. Add two with ``+`` to pool frames."""
@@ -38,11 +33,6 @@ class Confusion:
     def __add__(self, other: 'Confusion') -> 'Confusion':
         return Confusion(self.tp + other.tp, self.fp + other.fp, self.fn + other.fn,
                          self.tn + other.tn)
-
-    @property
-    def total(self) -> int:
-        """Number of evaluated samples."""
-        return self.tp + self.fp + self.fn + self.tn
 
     @property
     def precision(self) -> float:
@@ -72,7 +62,7 @@ class Confusion:
     @property
     def accuracy(self) -> float:
         """(tp + tn) / total."""
-        return _ratio(self.tp + self.tn, self.total)
+        return _ratio(self.tp + self.tn, self.tp + self.fp + self.fn + self.tn)
 
     def as_dict(self) -> dict[str, float]:
         """Return the counts and every ratio in one flat dict (NaN stays NaN)."""
@@ -86,7 +76,6 @@ def confusion(predicted: np.ndarray, truth: np.ndarray,
     """Confusion counts of two bool arrays of one shape over ``evaluated`` (None = all)."""
     predicted = np.asarray(predicted, dtype=bool)
     truth = np.asarray(truth, dtype=bool)
-    _same_shape(predicted, truth)
     if evaluated is not None:
         predicted, truth = predicted[evaluated], truth[evaluated]
     tp = int(np.count_nonzero(predicted & truth))
@@ -101,7 +90,6 @@ def pixel_confusion(pipeline_labels: np.ndarray, truth_labels: np.ndarray) -> Co
     Counted: pixels where the truth saw a surface and the pipeline called ground or obstacle.
     """
     pipeline_labels, truth_labels = np.asarray(pipeline_labels), np.asarray(truth_labels)
-    _same_shape(pipeline_labels, truth_labels)
     called = (pipeline_labels == LABEL_GROUND) | (pipeline_labels == LABEL_OBSTACLE)
     return confusion(pipeline_labels == LABEL_OBSTACLE, truth_labels == GT_OBSTACLE,
                      called & (truth_labels != GT_NO_RETURN))
@@ -134,8 +122,6 @@ def truth_points(points_ground: np.ndarray, truth_labels: np.ndarray, roi: np.nd
 def point_cells(points: np.ndarray, origin_xy_m: tuple[float, float], resolution_m: float,
                 shape: tuple[int, int]) -> np.ndarray:
     """(ny, nx) bool: the grid cells that points (M, 3) or (M, 2) [m] fall in."""
-    if resolution_m <= 0.0 or not math.isfinite(resolution_m):
-        raise ValueError(f'resolution_m={resolution_m!r} must be a positive number')
     ny, nx = shape
     cells = np.zeros((ny, nx), dtype=bool)
     points = np.asarray(points, dtype=np.float64)
@@ -171,21 +157,8 @@ def grow_cells(mask: np.ndarray, cells: int) -> np.ndarray:
     return cv2.dilate(mask.astype(np.uint8), kernel).astype(bool)
 
 
-def occupied_share(predicted_grid: np.ndarray, cells: np.ndarray, *,
-                   tolerance_cells: int = 0) -> tuple[int, int]:
-    """(cells marked, cells): how many are occupied, within ``tolerance_cells`` (Chebyshev)."""
-    return _share(grow_cells(np.asarray(predicted_grid) == CELL_OCCUPIED, tolerance_cells),
-                  cells)
-
-
-def free_share(predicted_grid: np.ndarray, cells: np.ndarray) -> tuple[int, int]:
-    """(cells free, cells) of a set of cells: how many are ``CELL_FREE`` in the grid."""
-    return _share(np.asarray(predicted_grid) == CELL_FREE, cells)
-
-
-def _share(hit: np.ndarray, cells: np.ndarray) -> tuple[int, int]:
-    cells = np.asarray(cells, dtype=bool)
-    _same_shape(hit, cells)
+def cell_share(hit: np.ndarray, cells: np.ndarray) -> tuple[int, int]:
+    """(cells hit, cells): how many of a set of cells are True in ``hit`` (both (ny, nx))."""
     return int(np.count_nonzero(hit & cells)), int(np.count_nonzero(cells))
 
 
@@ -231,7 +204,6 @@ def tolerant_cells(predicted_grid: np.ndarray, truth_grid: np.ndarray, *,
     """Cell counts where a mark within ``cells`` cells of a true obstacle counts (and back)."""
     predicted = np.asarray(predicted_grid) == CELL_OCCUPIED
     truth_grid = np.asarray(truth_grid)
-    _same_shape(predicted, truth_grid)
     occupied = truth_grid == CELL_OCCUPIED
     free = truth_grid == CELL_FREE
     near_truth = grow_cells(occupied, cells)
@@ -252,8 +224,6 @@ def surface_gap_points(points_ground: np.ndarray, object_ids: np.ndarray, mask: 
     Neighbour pixels in ``mask`` on the same object, more than ``step_m`` and at most
     ``max_gap_m`` apart, get the segment between them sampled ``step_m`` apart.
     """
-    if not (0.0 < step_m <= max_gap_m and math.isfinite(max_gap_m)):
-        raise ValueError(f'need 0 < step_m={step_m!r} <= max_gap_m={max_gap_m!r}')
     points = np.asarray(points_ground, dtype=np.float64)
     ids = np.asarray(object_ids)
     mask = np.asarray(mask, dtype=bool) & (ids >= 0)

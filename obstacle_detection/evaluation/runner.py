@@ -1,12 +1,11 @@
 """Run the detector over labelled frames and score it: the scenario suite runner of the tools.
 
-Frames come from the scene generator (``scenarios.json``, ``scenarios_robot.json``) or a
-labelled folder on disk (layout in docs/accuracy.md). What counts: :mod:`.metrics`.
+Frames come from the scene generator (``scenarios.json``, ``scenarios_robot.json``). What
+counts: :mod:`.metrics`.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import json
 import math
@@ -15,32 +14,22 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator, Sequence
 
-import cv2
 import numpy as np
 
-from obstacle_detection.labels import (CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN, GT_ABOVE_ROBOT,
-                                       GT_NO_RETURN, GT_OBSTACLE, GT_TRAVERSABLE)
+from obstacle_detection.labels import (CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN, GT_NO_RETURN,
+                                       GT_OBSTACLE, GT_TRAVERSABLE)
 from obstacle_detection.pipeline import geometry
 from obstacle_detection.sim.noise import NOISE_MODELS
-from . import EvaluationError, camera as camera_file
+from . import EvaluationError
 from . import metrics
 from .camera import scaled_intrinsics
-from .datasets import read_depth_png
 from .metrics import Confusion, TolerantCells, format_score
 from obstacle_detection.pipeline.params import (KINECT_V2_SD, KINECT_V2_SD_SIZE, PRESETS,
                                                 DetectorParams, Intrinsics)
 
-#: Version of the scenario-list format read by :func:`load_scenarios`.
-SCENARIO_FORMAT_VERSION = 1
-
 #: The committed suites: the seed's (slope-only truth) and the robot-level one (issue 9).
 SUITES = {'seed': Path(__file__).resolve().parent / 'scenarios.json',
           'robot': Path(__file__).resolve().parent / 'scenarios_robot.json'}
-
-_MOUNT_KEYS = ('height_m', 'pitch_deg', 'roll_deg')
-#: Ground truths a scenario is scored against: the seed's slope-only labels
-#: (``SceneFrame.labels_seed``) or the robot-level ones (``SceneFrame.labels``, issue 9).
-TRUTH_KINDS = ('seed', 'robot')
 
 
 # --------------------------------------------------------------------------------------------
@@ -60,7 +49,6 @@ class LabelledFrame:
     height_m: float
     pitch_rad: float
     roll_rad: float
-    depth_scale: float | None = None
     sequence_key: str | None = None  # frames sharing a key form a time sequence, in order
     truth: str = 'seed'  # 'seed': slope-only labels; 'robot': robot-level labels (issue 9)
     object_ids: np.ndarray | None = None   # (H, W) int16 primitive hit, -1 none (generator)
@@ -88,16 +76,6 @@ class Scenario:
     truth: str = 'seed'
     noise: str = 'kinect_v2'
 
-    def __post_init__(self) -> None:
-        if not self.name or not self.seeds:
-            raise ValueError(f'scenario {self.name!r}: name and seeds must not be empty')
-        for key, given, allowed in (('truth', {self.truth}, TRUTH_KINDS),
-                                    ('noise', {self.noise}, NOISE_MODELS),
-                                    ('mount', {k for k, _ in self.mount}, _MOUNT_KEYS)):
-            if given - set(allowed):
-                raise ValueError(f'scenario {self.name!r}: {key}={", ".join(sorted(given))!r} '
-                                 f'(allowed: {", ".join(allowed)})')
-
     @property
     def is_sequence(self) -> bool:
         """True when the scenario is a time sequence (frame indices given)."""
@@ -110,54 +88,28 @@ class Scenario:
 
     def render_kwargs(self) -> dict[str, float]:
         """Keyword arguments of ``scenes.render_scene`` for the mount overrides."""
-        mount = dict(self.mount)
-        out = {'height_m': float(mount['height_m'])} if 'height_m' in mount else {}
-        for key in ('pitch_deg', 'roll_deg'):
-            if key in mount:
-                out[key.replace('_deg', '_rad')] = math.radians(mount[key])
-        return out
+        return {k.replace('_deg', '_rad'): math.radians(v) if k.endswith('_deg') else float(v)
+                for k, v in self.mount}
 
 
-def scenario_from_dict(entry: dict[str, Any], defaults: dict[str, Any] | None = None,
-                       ) -> Scenario:
-    """Build a :class:`Scenario` from one JSON entry (raises ValueError naming the problem).
+def scenario_from_dict(entry: dict[str, Any]) -> Scenario:
+    """Build a :class:`Scenario` from one entry of a scenario list (JSON).
 
-    ``frames``: a list or ``{"start", "stop", "step"}``; ``defaults``: the list's truth and noise.
+    ``frames``: a list or ``{"start", "stop", "step"}``; ``mount``: an object.
     """
-    if not isinstance(entry, dict):
-        raise ValueError(f'scenario entry {entry!r} is not an object')
-    unknown = set(entry) - {f.name for f in dataclasses.fields(Scenario)}
-    if unknown:
-        raise ValueError(f'scenario {entry.get("name")!r}: unknown key(s) '
-                         f'{", ".join(sorted(unknown))}')
-    if 'name' not in entry or 'scene' not in entry:
-        raise ValueError(f'scenario entry {entry!r} needs "name" and "scene"')
-    frames, defaults = entry.get('frames'), defaults or {}
+    frames = entry.get('frames')
     if isinstance(frames, dict):
-        frames = range(int(frames.get('start', 0)), int(frames['stop']),
-                       int(frames.get('step', 1)))
-    return Scenario(
-        name=str(entry['name']), scene=str(entry['scene']),
-        seeds=tuple(int(s) for s in entry.get('seeds', [0])),
-        frames=None if frames is None else tuple(int(f) for f in frames),
-        mount=tuple(sorted((str(k), float(v)) for k, v in entry.get('mount', {}).items())),
-        description=str(entry.get('description', '')),
-        truth=str(entry.get('truth', defaults.get('truth', 'seed'))),
-        noise=str(entry.get('noise', defaults.get('noise', 'kinect_v2'))))
+        frames = range(frames.get('start', 0), frames['stop'], frames.get('step', 1))
+    return Scenario(**{**entry, 'seeds': tuple(entry.get('seeds', [0])),
+                       'frames': None if frames is None else tuple(frames),
+                       'mount': tuple(sorted(entry.get('mount', {}).items()))})
 
 
 def load_scenarios(path: str | Path) -> list[Scenario]:
-    """Read a scenario list (JSON ``{"version": 1, "scenarios": [...]}``)."""
+    """Read a scenario list: ``{"scenarios": [...]}`` with the default truth and noise."""
     data = json.loads(Path(path).read_text(encoding='utf-8'))
-    if not isinstance(data, dict) or data.get('version') != SCENARIO_FORMAT_VERSION:
-        raise ValueError(f'{path}: not a version {SCENARIO_FORMAT_VERSION} scenario list')
     defaults = {k: data[k] for k in ('truth', 'noise') if k in data}
-    scenarios = [scenario_from_dict(e, defaults) for e in data.get('scenarios', [])]
-    names = [s.name for s in scenarios]
-    duplicates = sorted({n for n in names if names.count(n) > 1})
-    if duplicates:
-        raise ValueError(f'{path}: duplicate scenario name(s) {", ".join(duplicates)}')
-    return scenarios
+    return [scenario_from_dict({**defaults, **e}) for e in data['scenarios']]
 
 
 def select_scenarios(scenarios: Sequence[Scenario], names: Iterable[str] | None,
@@ -173,18 +125,15 @@ def select_scenarios(scenarios: Sequence[Scenario], names: Iterable[str] | None,
 
 def scenario_frames(scenario: Scenario, *, max_frames: int | None = None,
                     size: tuple[int, int] | None = None, rules: Any = None,
-                    truth: str | None = None) -> Iterator[LabelledFrame]:
+                    ) -> Iterator[LabelledFrame]:
     """Render the frames of one scenario with the scene generator.
 
     max_frames: at most this many, evenly spread; size: (width, height) [px] with the Kinect v2
-    intrinsics scaled; rules: the robot-level truth's; truth: None = the scenario's own.
+    intrinsics scaled; rules: the robot-level truth's.
     """
     # the generator is only needed for synthetic frames
     from obstacle_detection.sim import scenes
 
-    truth = scenario.truth if truth is None else truth
-    if truth not in TRUTH_KINDS:
-        raise ValueError(f'truth={truth!r} (allowed: {", ".join(TRUTH_KINDS)})')
     jobs = [(seed, index) for seed in scenario.seeds
             for index in (scenario.frames if scenario.frames is not None else (0,))]
     jobs = subsample(jobs, max_frames)
@@ -200,13 +149,13 @@ def scenario_frames(scenario: Scenario, *, max_frames: int | None = None,
         yield LabelledFrame(
             scenario=scenario.name, frame_id=frame_id, depth=frame.depth_mm,
             intrinsics=frame.intrinsics,
-            truth_labels=frame.labels if truth == 'robot' else frame.labels_seed,
+            truth_labels=frame.labels if scenario.truth == 'robot' else frame.labels_seed,
             truth_points=frame.points_ground, height_m=frame.height_m,
             pitch_rad=frame.pitch_rad, roll_rad=frame.roll_rad,
             sequence_key=f'{scenario.name}/{seed}' if scenario.is_sequence else None,
-            truth=truth, object_ids=frame.hit_index, object_names=frame.object_names,
+            truth=scenario.truth, object_ids=frame.hit_index, object_names=frame.object_names,
             drop_edge=frame.drop_edge,
-            hit_labels=frame.hit_labels if truth == 'robot' else None)
+            hit_labels=frame.hit_labels if scenario.truth == 'robot' else None)
 
 
 
@@ -216,63 +165,8 @@ def subsample(items: Sequence[Any], max_items: int | None) -> list[Any]:
     items = list(items)
     if max_items is None or max_items >= len(items):
         return items
-    if max_items <= 0:
-        raise ValueError(f'max_items={max_items} must be >= 1')
     picks = np.unique(np.linspace(0, len(items) - 1, max_items).round().astype(int))
     return [items[i] for i in picks]
-
-
-# --------------------------------------------------------------------------------------------
-# Labelled folders
-
-
-def folder_camera(path: str | Path) -> camera_file.CameraFile:
-    """Return the camera of a labelled folder's ``intrinsics.yaml`` (EvaluationError: no mount)."""
-    camera = camera_file.read_camera_yaml(path)
-    if camera.mount is None:
-        raise EvaluationError('missing camera_height_m (the mount height above ground)', path)
-    return camera
-
-
-def load_labelled_folder(path: str | Path, *, max_frames: int | None = None,
-                         ) -> Iterator[LabelledFrame]:
-    """Frames of a labelled folder, in file-name order (a time sequence).
-
-    The true points are the frame's own depth back-projected through the mount.
-    """
-    root = Path(path)
-    camera = folder_camera(root / 'intrinsics.yaml')
-    depth_files = sorted((root / 'depth').glob('*.png'))
-    if not depth_files:
-        raise ValueError(f'{root}: no depth/*.png')
-    missing = [f.name for f in depth_files if not (root / 'labels' / f.name).is_file()]
-    if missing:
-        raise ValueError(f'{root}: no labels/ file for depth/{missing[0]} '
-                         f'({len(missing)} missing)')
-    scale = camera.depth_scale if camera.depth_scale is not None else 0.001
-    height_m, pitch_rad, roll_rad = camera.mount
-    params = DetectorParams(camera_height_m=height_m, camera_pitch_rad=pitch_rad,
-                            camera_roll_rad=roll_rad)
-    for depth_file in subsample(depth_files, max_frames):
-        depth = read_depth_png(depth_file)
-        label_file = root / 'labels' / depth_file.name
-        labels = cv2.imread(str(label_file), cv2.IMREAD_UNCHANGED)
-        if labels is None or labels.dtype != np.uint8 or labels.shape != depth.shape:
-            raise ValueError(f'{label_file}: not an 8-bit PNG of the depth size '
-                             f'{depth.shape[::-1]}')
-        if labels.max(initial=0) > GT_ABOVE_ROBOT:
-            raise ValueError(f'{label_file}: label value {int(labels.max())} '
-                             '(allowed 0, 1, 2, 3)')
-        points, index = geometry.back_project(depth.astype(np.float32) * np.float32(scale),
-                                              camera.intrinsics)
-        truth_points = np.full((depth.size, 3), np.nan, dtype=np.float32)
-        truth_points[index] = geometry.to_ground(points, params)
-        yield LabelledFrame(
-            scenario=root.name, frame_id=depth_file.stem, depth=depth,
-            intrinsics=camera.intrinsics, truth_labels=labels,
-            truth_points=truth_points.reshape(depth.shape + (3,)), height_m=height_m,
-            pitch_rad=pitch_rad, roll_rad=roll_rad, depth_scale=camera.depth_scale,
-            sequence_key=root.name)
 
 
 # --------------------------------------------------------------------------------------------
@@ -381,7 +275,7 @@ def truth_costmap(frame: LabelledFrame, params: DetectorParams,
     grid = build_costmap(obstacle, traversable, params).data
     origin, nx, ny = costmap_geometry(params)
     res = params.costmap_resolution_m
-    if frame.truth == 'robot' and frame.object_ids is not None:
+    if frame.truth == 'robot':
         # A surface seen at a grazing angle (a table's underside) is sampled in sparse rows:
         # the cells between its samples are neither known free nor sampled: not scored.
         gaps = metrics.surface_gap_points(
@@ -390,7 +284,6 @@ def truth_costmap(frame: LabelledFrame, params: DetectorParams,
             max_gap_m=MAX_SURFACE_GAP_M)
         covered = metrics.point_cells(gaps, origin, res, (ny, nx))
         grid[covered & (grid != CELL_OCCUPIED)] = CELL_UNKNOWN
-    if frame.truth == 'robot' and frame.hit_labels is not None:
         # an obstacle in view whose pixels returned no depth still stands in its cells
         hidden = roi & (frame.hit_labels == GT_OBSTACLE) & (frame.truth_labels == GT_NO_RETURN)
         cells = metrics.point_cells(frame.truth_points[hidden], origin, res, (ny, nx))
@@ -427,37 +320,28 @@ def robot_score(frame: LabelledFrame, predicted_grid: np.ndarray, params: Detect
     from obstacle_detection.pipeline.costmap import costmap_geometry
 
     score = RobotScore(tolerant=metrics.tolerant_cells(predicted_grid, truth_grid, cells=1))
-    if frame.object_ids is None or not frame.object_names:
-        return score
     origin, nx, ny = costmap_geometry(params)
     res = params.costmap_resolution_m
     seen = roi & (frame.truth_labels != GT_NO_RETURN)
-    edge = frame.drop_edge if frame.drop_edge is not None else np.zeros(seen.shape, bool)
     names = frame.object_names
+    occupied = predicted_grid == CELL_OCCUPIED
+    near_occupied = metrics.grow_cells(occupied, DROP_TOLERANCE_CELLS)
     for name in dict.fromkeys(n for n in names if n):
-        ids = [i for i, n in enumerate(names) if n == name]
-        everywhere = np.isin(frame.object_ids, ids)
+        everywhere = np.isin(frame.object_ids, [i for i, n in enumerate(names) if n == name])
         mine = seen & everywhere
-        if (edge & everywhere).any():   # a drop, even with its edge out of range
-            cells = metrics.point_cells(frame.truth_points[edge & mine], origin, res, (ny, nx))
-            hits, total = metrics.occupied_share(predicted_grid, cells,
-                                                 tolerance_cells=DROP_TOLERANCE_CELLS)
-            if total >= MIN_OBJECT_CELLS:
-                score.drops.append((name, hits, total))
-            continue
         obstacle = mine & (frame.truth_labels == GT_OBSTACLE)
         traversable = mine & (frame.truth_labels == GT_TRAVERSABLE)
-        if np.count_nonzero(obstacle) >= np.count_nonzero(traversable):
-            cells = metrics.point_cells(frame.truth_points[obstacle], origin, res, (ny, nx))
-            hits, total = metrics.occupied_share(predicted_grid, cells)
-            if total >= MIN_OBJECT_CELLS:
-                score.objects.append((name, hits, total))
-        else:
-            cells = metrics.point_cells(frame.truth_points[traversable], origin, res, (ny, nx))
-            cells &= truth_grid == CELL_FREE
-            hits, total = metrics.free_share(predicted_grid, cells)
-            if total >= MIN_OBJECT_CELLS:
-                score.passable.append((name, hits, total))
+        if (frame.drop_edge & everywhere).any():   # a drop, even with its edge out of range
+            entries, pixels, hit, known = score.drops, frame.drop_edge & mine, near_occupied, True
+        elif np.count_nonzero(obstacle) >= np.count_nonzero(traversable):
+            entries, pixels, hit, known = score.objects, obstacle, occupied, True
+        else:   # passable: its free truth cells left free
+            entries, pixels = score.passable, traversable
+            hit, known = predicted_grid == CELL_FREE, truth_grid == CELL_FREE
+        cells = metrics.point_cells(frame.truth_points[pixels], origin, res, (ny, nx)) & known
+        hits, total = metrics.cell_share(hit, cells)
+        if total >= MIN_OBJECT_CELLS:
+            entries.append((name, hits, total))
     return score
 
 
@@ -602,8 +486,7 @@ def detect_frames(frames: Iterable[LabelledFrame], base: DetectorParams,
     mask: np.ndarray | None = None
     for frame in frames:
         params = frame.params(base)
-        result = detector(params).process(frame.depth, frame.intrinsics,
-                                          depth_scale=frame.depth_scale)
+        result = detector(params).process(frame.depth, frame.intrinsics)
         same = frame.sequence_key is not None and key == frame.sequence_key
         yield frame, params, result, mask if same else None
         key, mask = frame.sequence_key, refine.obstacle_mask(result)
@@ -611,12 +494,8 @@ def detect_frames(frames: Iterable[LabelledFrame], base: DetectorParams,
 
 def evaluate_frames(frames: Iterable[LabelledFrame], base: DetectorParams, *,
                     label: str = '', refiner: Any = None, refiner_name: str | None = None,
-                    on_frame: Callable[[LabelledFrame, Any, FrameScore], None] | None = None,
                     ) -> Report:
-    """Run the detector (and optionally a refiner) over frames and pool the scores.
-
-    on_frame(frame, result, score) is called after each frame.
-    """
+    """Run the detector (and optionally a refiner) over frames and pool the scores."""
     from obstacle_detection.pipeline import refine
 
     started = time.perf_counter()
@@ -636,8 +515,6 @@ def evaluate_frames(frames: Iterable[LabelledFrame], base: DetectorParams, *,
             score.refined_pixel = metrics.pixel_confusion(refined.labels, frame.truth_labels)
             score.refined_cell = metrics.cell_confusion(refined.costmap.data, grid)
         scores.append(score)
-        if on_frame is not None:
-            on_frame(frame, result, score)
     return pool_scores(scores, base, label=label, refiner_name=refiner_name,
                        seconds=time.perf_counter() - started)
 
@@ -666,17 +543,13 @@ def _score_column(head: str, kind: str, attr: str, refined: bool = False, width:
     return head, width, cell
 
 
-def _frames(summary: SceneSummary) -> str:
-    return str(summary.frames)
-
-
 def _percent(value: float, digits: int = 2) -> str:
     return '-' if math.isnan(value) else f'{100 * value:.{digits}f}'
 
 
 def format_table(report: Report, *, refined: bool = False) -> str:
     """Return a fixed-width table: one row per scenario and an 'overall' row."""
-    columns = [('frames', 6, _frames)] + [
+    columns = [('frames', 6, lambda s: str(s.frames))] + [
         _score_column(head, kind, attr, refined) for head, kind, attr in (
             ('px P', 'pixel', 'precision'), ('px R', 'pixel', 'recall'),
             ('px F1', 'pixel', 'f1'), ('px FA', 'pixel', 'false_alarm_rate'),
@@ -685,10 +558,6 @@ def format_table(report: Report, *, refined: bool = False) -> str:
             ('cell FA', 'cell', 'false_alarm_rate'))]
     columns.append(('ms', 7, lambda s: f'{s.mean_ms:.1f}'))
     return '\n'.join(_table(report, columns))
-
-
-#: Issue 9's targets for the robot-level suite (``params/corridor.yaml``).
-ROBOT_TARGETS = {'cell_f1': 0.9, 'false_alarm_rate': 0.01, 'passable_free': 0.97}
 
 
 def _share(reached: tuple[int, int, list[str]]) -> str:
@@ -705,7 +574,7 @@ def format_robot_table(report: Report) -> str:
         return summary.robot.tolerant if summary.robot else TolerantCells()
 
     lines = _table(report, [
-        ('frames', 6, _frames), _score_column('cell F1', 'cell', 'f1'),
+        ('frames', 6, lambda s: str(s.frames)), _score_column('cell F1', 'cell', 'f1'),
         ('F1 1-cell', 9, lambda s: format_score(tolerant(s).f1)),
         ('FA %', 6, lambda s: _percent(s.cell.false_alarm_rate)),
         ('FA>1 cell %', 11, lambda s: _percent(tolerant(s).far_alarm_rate)),
@@ -714,66 +583,9 @@ def format_robot_table(report: Report) -> str:
         ('drops', 6, lambda s: _share(s.drops_marked())),
         _score_column('px F1', 'pixel', 'f1', width=6),
         ('ms', 6, lambda s: f'{s.mean_ms:.1f}')])
-    overall = report.overall
-    found, counted, missed = overall.objects_found()
-    marked, drops, unmarked = overall.drops_marked()
+    missed, unmarked = report.overall.objects_found()[2], report.overall.drops_marked()[2]
     if missed:
         lines.append('missed objects: ' + ', '.join(missed))
     if unmarked:
         lines.append('unmarked drops: ' + ', '.join(unmarked))
-    passable = overall.passable_free()
-    checks = (
-        (f'cell F1 >= {ROBOT_TARGETS["cell_f1"]}',
-         overall.cell.f1 >= ROBOT_TARGETS['cell_f1']),
-        (f'FA <= {100 * ROBOT_TARGETS["false_alarm_rate"]:g} %',
-         overall.cell.false_alarm_rate <= ROBOT_TARGETS['false_alarm_rate']),
-        ('every object found', found == counted),
-        (f'pass >= {100 * ROBOT_TARGETS["passable_free"]:g} %',
-         math.isnan(passable) or passable >= ROBOT_TARGETS['passable_free']),
-        ('every drop marked', marked == drops))
-    lines.append('targets: ' + ', '.join(f'{name} {"yes" if ok else "NO"}'
-                                         for name, ok in checks))
     return '\n'.join(lines)
-
-
-#: The short form of docs/accuracy.md, "What the scores count" (the tools' --help).
-SCORE_DEFINITIONS = """\
-What counts (obstacle = positive class; a row pools the counts of its frames):
-  pixel: pixels where the truth saw a surface and the pipeline called ground or obstacle;
-  cell:  the costmap's cells against a truth grid of the noise-free points (unknown cells are
-         not scored). P precision, R recall, F1, IoU, FA false-alarm rate fp/(fp+tn): the
-         share of traversable truth marked obstacle. '-' = undefined.
-Robot-level suite (--suite robot): objects found (>= 50 % of their cells occupied) / seen,
-  pass %: passable surfaces left free; drops marked; 1-cell: a mark within one cell counts.
-Details: docs/accuracy.md.
-"""
-
-
-# --------------------------------------------------------------------------------------------
-# Training data for the seed-4.5 refiner
-
-
-def collect_training_samples(frames: Iterable[LabelledFrame], base: DetectorParams, *,
-                             max_pixels_per_frame: int | None = 20000, seed: int = 0,
-                             on_frame: Callable[[LabelledFrame], None] | None = None,
-                             ) -> tuple[np.ndarray, np.ndarray]:
-    """Refiner features and targets ``(X (M, 9), y (M,) bool)`` of labelled frames.
-
-    At most ``max_pixels_per_frame`` samples per frame, drawn without replacement (seeded).
-    """
-    from obstacle_detection.pipeline import refine
-
-    rng = np.random.default_rng(seed)
-    xs, ys = [], []
-    for frame, _, result, prev_mask in detect_frames(frames, base):
-        x, y = refine.training_samples(result, frame.truth_labels, prev_mask)
-        if max_pixels_per_frame is not None and y.size > max_pixels_per_frame:
-            pick = rng.choice(y.size, size=max_pixels_per_frame, replace=False)
-            x, y = x[pick], y[pick]
-        xs.append(x)
-        ys.append(y)
-        if on_frame is not None:
-            on_frame(frame)
-    if not xs:
-        raise ValueError('no training frames')
-    return np.concatenate(xs), np.concatenate(ys)

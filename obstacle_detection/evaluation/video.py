@@ -20,7 +20,7 @@ from obstacle_detection.pipeline.costmap import Costmap, build_costmap
 from obstacle_detection.pipeline.fusion import FusedGrid, FusionParams, frame_evidence
 from .metrics import Confusion
 from .runner import points_roi
-from obstacle_detection.pipeline.params import KINECT_V2_SD, KINECT_V2_SD_SIZE, DetectorParams
+from obstacle_detection.pipeline.params import DetectorParams
 from obstacle_detection.pipeline.detector import Detector
 from obstacle_detection.sim.scenes import scene_params
 from obstacle_detection.sim.sequences import SceneSequence
@@ -187,8 +187,6 @@ class _Lattice:
         """(rows, cols) of a fused window with that origin cell and side."""
         c0 = origin_cell[0] - self.origin_cell[0]
         r0 = origin_cell[1] - self.origin_cell[1]
-        if c0 < 0 or r0 < 0 or c0 + n > self.shape[1] or r0 + n > self.shape[0]:
-            raise ValueError('the fused window left the evaluation lattice')
         return slice(r0, r0 + n), slice(c0, c0 + n)
 
     def evidence_grid(self, costmap: Costmap, pose: tuple[float, float, float]) -> np.ndarray:
@@ -247,7 +245,6 @@ class Observation:
     """One frame of a sequence: true and odometry poses, the costmap, the truth."""
 
     index: int
-    stamp_s: float
     pose_true: tuple[float, float, float]
     pose_odom: tuple[float, float, float] | None
     costmap: Costmap
@@ -257,20 +254,14 @@ class Observation:
 
 
 def observe_sequence(sequence: SceneSequence, base: DetectorParams, *,
-                     stop: int | None = None, size: tuple[int, int] | None = None,
+                     stop: int | None = None,
                      on_frame: Callable[[int, int], None] | None = None,
                      ) -> Iterator[Observation]:
     """Render the frames [0, stop) of ``sequence`` and run the detector on each."""
-    from .camera import scaled_intrinsics
-
     total = len(sequence) if stop is None else max(1, min(stop, len(sequence)))
-    intrinsics, render_size = KINECT_V2_SD, KINECT_V2_SD_SIZE
-    if size is not None:
-        render_size = (int(size[0]), int(size[1]))
-        intrinsics = scaled_intrinsics(KINECT_V2_SD, size[0] / KINECT_V2_SD_SIZE[0])
     detector: Detector | None = None
     for index in range(total):
-        sf = sequence.frame(index, intrinsics=intrinsics, size=render_size)
+        sf = sequence.frame(index)
         params = scene_params(sf.frame, base)
         if detector is None or detector.params != params:
             detector = Detector(params)
@@ -279,7 +270,7 @@ def observe_sequence(sequence: SceneSequence, base: DetectorParams, *,
         obstacle, traversable = metrics.truth_points(points, sf.frame.labels,
                                                      points_roi(points, params))
         truth = build_costmap(obstacle, traversable, params).data
-        yield Observation(index=index, stamp_s=sf.stamp_s, pose_true=sf.pose_true,
+        yield Observation(index=index, pose_true=sf.pose_true,
                           pose_odom=sf.pose_odom, costmap=result.costmap,
                           truth_obstacle=obstacle, truth_traversable=traversable,
                           truth_costmap=truth)
@@ -315,11 +306,11 @@ class _Scorer:
         self.thumbs: list[np.ndarray] = []
         self.labels: list[str] = []
 
-    def add(self, step: int, obs: Observation, use_odometry: bool, rate_hz: float) -> None:
+    def add(self, step: int, obs: Observation, rate_hz: float) -> None:
         """Fuse one observation and score both grids on it."""
         lattice, grid = self.lattice, self.grid
         start = time.perf_counter()
-        update = grid.update(obs.costmap, obs.pose_odom if use_odometry else None)
+        update = grid.update(obs.costmap, obs.pose_odom)
         self.fusion_ms.append((time.perf_counter() - start) * 1e3)
         self.resets += update.reset
         self.in_place += update.in_place
@@ -431,30 +422,26 @@ class _Scorer:
 
 def score_sequence(name: str, observations: Sequence[Observation],
                    fusion: FusionParams | None = None, *, rate_hz: float = 30.0,
-                   use_odometry: bool = True, sheet_frames: int = 0) -> SequenceReport:
+                   sheet_frames: int = 0) -> SequenceReport:
     """Fuse the observations' costmaps in order and score per-frame and fused grids.
 
     sheet_frames: when > 0, draw a contact sheet of that many moments.
     """
     fusion = fusion if fusion is not None else FusionParams()
-    if not observations:
-        raise ValueError(f'{name}: no frame to score')
     scorer = _Scorer(observations, fusion, sheet_frames)
     for step, obs in enumerate(observations):
-        scorer.add(step, obs, use_odometry, rate_hz)
+        scorer.add(step, obs, rate_hz)
     return scorer.report(name, len(observations))
 
 
 def evaluate_sequence(sequence: SceneSequence, base: DetectorParams,
                       fusion: FusionParams | None = None, *, stop: int | None = None,
-                      size: tuple[int, int] | None = None, sheet_frames: int = 0,
-                      use_odometry: bool = True,
+                      sheet_frames: int = 0,
                       on_frame: Callable[[int, int], None] | None = None) -> SequenceReport:
     """Observe ``sequence`` (:func:`observe_sequence`) and score it (:func:`score_sequence`)."""
-    observations = list(observe_sequence(sequence, base, stop=stop, size=size,
-                                         on_frame=on_frame))
+    observations = list(observe_sequence(sequence, base, stop=stop, on_frame=on_frame))
     return score_sequence(sequence.name, observations, fusion, rate_hz=sequence.rate_hz,
-                          use_odometry=use_odometry, sheet_frames=sheet_frames)
+                          sheet_frames=sheet_frames)
 
 
 def contact_sheet(reports: Sequence[SequenceReport], fusion: FusionParams) -> np.ndarray:

@@ -7,7 +7,6 @@ from collections.abc import Iterable, Sequence
 from typing import Any
 
 from obstacle_detection.evaluation import runner as evaluation
-from obstacle_detection.evaluation import sweep as grid_search
 from obstacle_detection.pipeline.params import DetectorParams
 from .cluster import Fleet, limit_threads, run_tasks
 
@@ -54,30 +53,3 @@ def evaluate_on_fleet(fleet: Fleet, sources: Sequence[Source], params: DetectorP
     return evaluation.pool_scores(scores, params, label=label, refiner_name=refiner_name,
                                   seconds=time.perf_counter() - started)
 
-
-def sweep_on_fleet(fleet: Fleet, sources: Sequence[Source], base: DetectorParams,
-                   x: grid_search.Axis, y: grid_search.Axis | None, metric: str = 'cell_f1',
-                   *, also: Sequence[grid_search.Axis] = (), log: Any = None,
-                   progress: bool = True) -> grid_search.SweepResult:
-    """``sweep.run_sweep`` with one task per (valid grid point, source); same SweepResult."""
-    also = tuple(also)
-    grid_search.check_sweep(x, y, metric, also)
-    points = grid_search.sweep_points(base, x, y, also)
-    valid = [(index, params) for index, params in points
-             if not isinstance(params, ValueError)]
-    scores = score_points(fleet, sources, [params for _, params in valid], label='sweep',
-                          progress=progress)
-    scenes = [s.scenario for s in scores[0]] if scores else [name for name, _, _ in sources]
-    result = grid_search.empty_result(x, y, metric, scenes, also)
-    reports = dict(zip((index for index, _ in valid), scores))
-    for i, (index, params) in enumerate(points, start=1):
-        label = grid_search.point_label(result, index)
-        if isinstance(params, ValueError):
-            if log:
-                log(f'[{i}/{len(points)}] {label}: invalid ({params})')
-            continue
-        grid_search.record_report(result, index, evaluation.pool_scores(reports[index], params))
-        if log:
-            log(f'[{i}/{len(points)}] {label}: {metric} '
-                f'{evaluation.format_score(result.grids["overall"][index])}')
-    return result

@@ -197,7 +197,7 @@ NODE_PARAMS: tuple[ParamSpec, ...] = (
               'Fallback principal point cy (seed Table 4.1: Centery = 130) [px]',
               -100000.0, 100000.0),
     ParamSpec('refiner_model_file', '',
-              'Not in the seed as a default: a model file from tools/train_refiner.py (seed '
+              'Not in the seed as a default: a model file from evaluate --train-refiner (seed '
               'section 4.5 logistic regression on slope, depth gradient and the previous '
               "frame's obstacles) refines each frame; '' = rule-based only"),
     ParamSpec('stats_period_s', 10.0,
