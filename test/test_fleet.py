@@ -288,7 +288,7 @@ def test_the_local_cluster_binds_loopback_and_runs_one_thread_per_worker(
         import numba
 
         cluster.limit_threads()
-        return os.environ.get('NUMBA_NUM_THREADS', ''), numba.get_num_threads()
+        return os.environ.get('OMP_NUM_THREADS', ''), numba.get_num_threads()
     assert set(client.run(threads).values()) == {('1', 1)}
 
 

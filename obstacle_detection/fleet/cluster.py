@@ -18,9 +18,10 @@ from obstacle_detection.cli.progress import Progress
 
 #: Whether dask.distributed can be imported (the optional ``fleet`` extra).
 DASK_AVAILABLE = importlib.util.find_spec('distributed') is not None
-#: The environment of a local cluster's worker processes: one thread per worker.
-ONE_THREAD_ENV = {'NUMBA_NUM_THREADS': '1', 'OMP_NUM_THREADS': '1', 'MKL_NUM_THREADS': '1',
-                  'OPENBLAS_NUM_THREADS': '1'}
+#: The environment of a local cluster's worker processes: one thread per worker. Not
+#: NUMBA_NUM_THREADS: a worker's environment is not yet set when numba reads it, and numba
+#: refuses to compile once the two differ; limit_threads sets numba's count instead.
+ONE_THREAD_ENV = {'OMP_NUM_THREADS': '1', 'MKL_NUM_THREADS': '1', 'OPENBLAS_NUM_THREADS': '1'}
 
 
 @dataclasses.dataclass

@@ -7,6 +7,7 @@ from collections.abc import Iterable, Sequence
 from typing import Any
 
 from obstacle_detection.evaluation import runner as evaluation
+from obstacle_detection.pipeline.detector import Detector
 from obstacle_detection.pipeline.params import DetectorParams
 from .cluster import Fleet, limit_threads, run_tasks
 
@@ -24,8 +25,9 @@ def score_sequence(frames: Sequence[evaluation.LabelledFrame], params: DetectorP
                    refiner: Any = None) -> list[evaluation.FrameScore]:
     """Per-frame scores of one sequence with one parameter point (a task)."""
     limit_threads()
-    return evaluation.evaluate_frames(frames, params.replace(compute_threads=1),
-                                      refiner=refiner).frames
+    params = params.replace(compute_threads=1)
+    Detector(params).warm_up()   # compile first: the frames' times are the pipeline's alone
+    return evaluation.evaluate_frames(frames, params, refiner=refiner).frames
 
 
 def score_points(fleet: Fleet, sources: Sequence[Source], points: Sequence[DetectorParams],
