@@ -421,7 +421,7 @@ def test_evaluate_on_two_workers_equals_one_process(two_workers: cluster.Fleet) 
 @pytest.mark.integration
 def test_the_sweep_command_on_two_workers_writes_the_one_process_json(tmp_path: Path) -> None:
     common = ['--x', 'theta_deg=20,60', '--y', 'N1=0,12', '--scene', 'ramps', '--scene',
-              'corridor']
+              'corridor', '--out', str(tmp_path / 'heat.png')]
     assert sweep.main([*common, '--json', str(tmp_path / 'one.json'), '--workers', '0']) == 0
     assert sweep.main([*common, '--json', str(tmp_path / 'two.json'), '--workers', '2']) == 0
     assert json.loads((tmp_path / 'two.json').read_text()) == \

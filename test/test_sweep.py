@@ -3,6 +3,7 @@
 import argparse
 import json
 
+import cv2
 import numpy as np
 import pytest
 
@@ -68,10 +69,11 @@ def test_invalid_setting_is_nan_not_an_error(small_frames):
                                grid_search.Axis('K', ('4', '6')), None)
 
 
-def test_command_prints_grid_names_best_and_writes_the_grids(tmp_path, capsys):
+def test_command_prints_grid_names_best_and_saves_heatmap(tmp_path, capsys):
+    out = tmp_path / 'heat.png'
     data = tmp_path / 'grid.json'
     code = sweep.main(['--x', 'theta_deg=20,60', '--y', 'N1=0,12', '--scene', 'ramps',
-                       '--json', str(data), '--workers', '0'])
+                       '--out', str(out), '--json', str(data), '--workers', '0'])
     assert code == 0
     text = capsys.readouterr().out
     assert 'best setting per scenario' in text and 'ramps' in text
@@ -79,6 +81,7 @@ def test_command_prints_grid_names_best_and_writes_the_grids(tmp_path, capsys):
     grid = np.array(saved['grids']['ramps'], dtype=float)
     row, col = np.unravel_index(np.nanargmax(grid), grid.shape)
     assert saved['best']['ramps'] == {'theta_deg': ['20', '60'][col], 'N1': ['0', '12'][row]}
+    assert cv2.imread(str(out)) is not None
 
 
 def test_command_refuses_an_unknown_axis(capsys):

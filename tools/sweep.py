@@ -1,12 +1,12 @@
 #!/usr/bin/env python3
-"""Parameter sweep: score a grid of settings on the scenario suite, print the best per scene.
+"""Parameter sweep: score a grid of settings on the scenario suite and draw it as a heatmap.
 
 One or two axes; every other parameter stays at the preset. Axis names: any DetectorParams
 field, a ``..._deg`` variant of a ``..._rad`` field, the seed's theta_deg, N, N1, K, TDBG, SMAR,
 and voxel_m (all three voxel sizes)::
 
     python tools/sweep.py --x theta_deg=15,20,30,45 --y N=3,5,10,20
-    python tools/sweep.py --x N1=0,4,8,12 --y K=1,5,9,17 --metric pixel_f1 --json n1_k.json
+    python tools/sweep.py --x N1=0,4,8,12 --y K=1,5,9,17 --metric pixel_f1 --out n1_k.png
 
 With Dask installed the grid runs on a local cluster (``--workers 0``: in this process).
 """
@@ -46,8 +46,10 @@ def build_parser() -> argparse.ArgumentParser:
                              '[default: cell_f1]')
     add_common_arguments(parser)
     parser.set_defaults(max_frames=1)
-    parser.add_argument('--json', type=Path, metavar='FILE',
-                        help="also write every scene's grid as JSON")
+    parser.add_argument('--out', type=Path, default=Path('sweep.png'),
+                        help='heatmap PNG (one panel per scenario + overall) '
+                             '[default: sweep.png]')
+    parser.add_argument('--json', type=Path, metavar='FILE', help='also write the grids as JSON')
     add_fleet_arguments(parser)
     return parser
 
@@ -102,10 +104,29 @@ def main(argv: Sequence[str] | None = None) -> int:
     result = grid_sweep(score, base_params(args), args.x, args.y, args.metric, log=_log)
     frame_count = sum(count for _, count, _ in sources)
     _print_result(args, result, frame_count)
+    _write_heatmaps(args, result)
+    print(f'heatmap: {args.out}')
     if args.json:
         args.json.write_text(json.dumps(_json(args, result, frame_count)) + '\n',
                              encoding='utf-8')
     return 0
+
+
+def _write_heatmaps(args: argparse.Namespace, result: SweepResult) -> None:
+    """One heatmap panel per scenario and overall, tiled into ``args.out``."""
+    from obstacle_detection.viz import pictures
+
+    panels = []
+    for scene in result.grids:
+        flat, metric, higher = result.ranking(scene)
+        best = result.best(scene)
+        title = f'{scene}: {metric}' + ('' if higher else ' (colour: 1 - value)')
+        panels.append(pictures.heatmap(
+            flat if higher else 1.0 - flat, list(args.x.values),
+            list(args.y.values) if args.y else [''], title=title, x_name=args.x.name,
+            y_name=args.y.name if args.y else '', best=best,
+            values=flat))
+    pictures.write_png(args.out, pictures.tile(panels, columns=3))
 
 
 if __name__ == '__main__':
