@@ -107,6 +107,19 @@ def rclpy_context(salt: str) -> Iterator[Any]:
         restore(old)
 
 
+def sent(node: Any, topic: str, monkeypatch: Any) -> list[Any]:
+    """Return the list the messages ``node`` publishes on ``topic`` (resolved) now go to."""
+    messages: list[Any] = []
+    publisher = next(p for p in node.publishers if p.topic_name == topic)
+    monkeypatch.setattr(publisher, 'publish', messages.append)
+    return messages
+
+
+def deliver(node: Any, topic: str, msg: Any) -> None:
+    """Hand ``msg`` to ``node``'s subscription on ``topic`` (resolved), as its executor would."""
+    next(s for s in node.subscriptions if s.topic_name == topic).callback(msg)
+
+
 def udp_sockets_of(pid: int) -> list[str] | None:
     """Local addresses (``ip:port``) of the UDP sockets of process ``pid``; None without ss."""
     if shutil.which('ss') is None:

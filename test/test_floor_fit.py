@@ -44,9 +44,15 @@ def test_compiled_floor_fit_equals_numpy_on_the_robot_suite(both_paths):
     for _, depth, sub_rays, params in suite_inputs():
         pts = both_paths(floor.floor_samples, depth, sub_rays, params)
         if pts.shape[1] >= params.floor_min_points:
-            both_paths(floor._ransac_plane, pts, params)
+            both_paths(floor.ransac_plane, pts, params)
         refined += both_paths(floor.fit_floor, depth, sub_rays, params).refined
     assert refined >= 10   # the suite's frames do fit a floor: the comparison has teeth
+
+
+def in_band(pts, coef, band):
+    """Return the samples pts (3, M) within band of the plane coef (a, b, c): z = a x + b y + c."""
+    resid = pts[2] - (coef[0] * pts[0] + coef[1] * pts[1] + coef[2])
+    return pts[:, np.abs(resid) <= band]
 
 
 def fit_every_hypothesis(depth, sub_rays, params):
@@ -55,15 +61,14 @@ def fit_every_hypothesis(depth, sub_rays, params):
     if pts.shape[1] < params.floor_min_points:
         return None
     best = None
-    for coef in floor._ransac_plane(pts, params):
+    for coef in floor.ransac_plane(pts, params):
         used = 0
         for band in floor.REFIT_BANDS_M:
-            resid = pts[2] - (coef[0] * pts[0] + coef[1] * pts[1] + coef[2])
-            inliers = pts[:, np.abs(resid) <= band]
+            inliers = in_band(pts, coef, band)
             used = inliers.shape[1]
             if used < 3:
                 break
-            coef = floor._lstsq_plane(inliers)
+            coef = floor.lstsq_plane(inliers)
         resid = pts[2] - (coef[0] * pts[0] + coef[1] * pts[1] + coef[2])
         support = int(np.count_nonzero(np.abs(resid) <= floor.REFIT_BANDS_M[-1]))
         if best is None or support > best[0]:
@@ -82,11 +87,11 @@ def test_skipping_repeated_refits_keeps_the_fit(kernel_path):
         if best is None:
             continue
         pts = floor.floor_samples(depth, sub_rays, params)
-        coef, used = floor._best_plane(pts, params)
+        coef, used = floor.best_plane(pts, params)
         assert used == best[2] and _same_plane(coef, best[1]), name
-        first, second = floor._ransac_plane(pts, params)
-        skipped += _same_plane(floor._in_band(pts, *first, floor.REFIT_BANDS_M[0]),
-                               floor._in_band(pts, *second, floor.REFIT_BANDS_M[0]))
+        first, second = floor.ransac_plane(pts, params)
+        skipped += _same_plane(in_band(pts, first, floor.REFIT_BANDS_M[0]),
+                               in_band(pts, second, floor.REFIT_BANDS_M[0]))
     assert skipped >= 1   # some frame does take the shortcut
 
 
@@ -95,7 +100,7 @@ def test_corrected_mount_of_a_known_plane():
     from obstacle_detection.pipeline.params import corridor
     params = corridor(camera_height_m=0.6, camera_pitch_rad=math.radians(10.0),
                       camera_roll_rad=0.0)
-    fit = floor._corrected_mount(params, 0.1, 0.0, -0.05, 500)
+    fit = floor.corrected_mount(params, 0.1, 0.0, -0.05, 500)
     norm = math.sqrt(1.01)
     assert fit.refined and fit.samples == 500
     assert fit.height_m == pytest.approx(0.65 / norm, abs=1e-12)
@@ -117,10 +122,10 @@ def test_the_floor_beneath_a_plane_run_through_a_platform():
     pts = _platform_samples()
     # a plane tilted 3.9 deg in roll through the platform and the floor on one side, as the
     # RANSAC found on the scene open_ramp_ahead: the floor under it is found
-    coef, used = floor._floor_beneath(pts, np.array([0.0, -0.068, 0.044]), 100, params)
+    coef, used = floor.floor_beneath(pts, np.array([0.0, -0.068, 0.044]), 100, params)
     assert np.allclose(coef, 0.0, atol=1e-9) and used == np.count_nonzero(pts[2] == 0.0)
     # the floor itself has nothing beneath it: kept
-    same, _ = floor._floor_beneath(pts, np.zeros(3), 100, params)
+    same, _ = floor.floor_beneath(pts, np.zeros(3), 100, params)
     assert np.array_equal(same, np.zeros(3))
 
 
@@ -129,7 +134,7 @@ def test_a_lower_floor_beyond_a_drop_is_not_the_floor():
     params = corridor()
     pts = _platform_samples()
     pts[2] = np.where(pts[0] > 1.6, -0.3, 0.0)   # the floor drops 0.3 m 1.6 m ahead
-    coef, _ = floor._floor_beneath(pts, np.zeros(3), 100, params)
+    coef, _ = floor.floor_beneath(pts, np.zeros(3), 100, params)
     assert np.array_equal(coef, np.zeros(3))
 
 

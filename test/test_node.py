@@ -14,6 +14,7 @@ import math
 import re
 import signal
 import subprocess
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -555,11 +556,17 @@ def _tf_node(context: rclpy.Context, buffer: Any) -> DetectorNode:
 
 def _publish_frame(node: DetectorNode, frame: SceneFrame,
                    monkeypatch: pytest.MonkeyPatch) -> list[OccupancyGrid]:
-    grids: list[OccupancyGrid] = []
-    monkeypatch.setattr(node._pubs['costmap'], 'publish', grids.append)
-    node._on_camera_info(_camera_info(frame))
+    grids = ros_env.sent(node, '/obstacles/costmap', monkeypatch)
+    ros_env.deliver(node, '/depth/camera_info', _camera_info(frame))
     assert node.handle_frame(_depth_image(frame))
     return grids
+
+
+def _mount_reported(node: DetectorNode, monkeypatch: pytest.MonkeyPatch) -> str:
+    """Return the camera mount the node's next /diagnostics report gives."""
+    reports = ros_env.sent(node, '/diagnostics', monkeypatch)
+    node.publish_diagnostics()
+    return next(v.value for v in reports[0].status[0].values if v.key == 'mount')
 
 
 def test_use_tf_takes_the_mount_from_the_transform(
@@ -586,7 +593,7 @@ def test_use_tf_takes_the_mount_from_the_transform(
         np.testing.assert_array_equal(cells, expected.costmap.data)
         assert grids[0].info.origin.position.x == pytest.approx(0.2)
         assert buffer.calls == [('base_footprint', 'depth_optical')]
-        assert node._mount_said.startswith(
+        assert _mount_reported(node, monkeypatch).startswith(
             'TF base_footprint <- depth_optical: x 0.200 m, y 0.100 m')
     finally:
         node.close()
@@ -594,8 +601,8 @@ def test_use_tf_takes_the_mount_from_the_transform(
 
 
 def test_use_tf_falls_back_to_the_parameters_then_takes_a_late_transform(
-        local_context: rclpy.Context, corridor_params: Any,
-        monkeypatch: pytest.MonkeyPatch) -> None:
+        local_context: rclpy.Context, corridor_params: Any, monkeypatch: pytest.MonkeyPatch,
+        capfd: pytest.CaptureFixture[str]) -> None:
     from test_mount_source import StandInBuffer, _transform
 
     frame = render_scene('corridor', seed=3, height_m=0.6)
@@ -607,8 +614,9 @@ def test_use_tf_falls_back_to_the_parameters_then_takes_a_late_transform(
         np.testing.assert_array_equal(
             np.asarray(grids[0].data, np.int8).reshape(level.costmap.data.shape),
             level.costmap.data)
-        assert 'using the mount parameters' in node._mount_source.last_problem
-        assert node._mount_source.source == 'parameters (TF lookup failed)'
+        assert 'using the mount parameters' in capfd.readouterr().err   # the warning
+        assert _mount_reported(node, monkeypatch).startswith(
+            'parameters (TF lookup failed): ')
 
         buffer.transform = _transform(mount_rotation(math.radians(10.0), 0.0), (0, 0, 0.7))
         grids = _publish_frame(node, frame, monkeypatch)
@@ -618,23 +626,23 @@ def test_use_tf_falls_back_to_the_parameters_then_takes_a_late_transform(
         np.testing.assert_array_equal(
             np.asarray(grids[0].data, np.int8).reshape(tilted.costmap.data.shape),
             tilted.costmap.data)
-        assert node._mount_source.last_problem is None
+        assert _mount_reported(node, monkeypatch).startswith(
+            'TF base_footprint <- depth_optical: ')
     finally:
         node.close()
         node.destroy_node()
 
 
 def test_use_tf_without_tf2_says_so_and_uses_the_parameters(
-        local_context: rclpy.Context) -> None:
-    try:
-        import tf2_ros  # noqa: F401
-        pytest.skip('tf2_ros is installed here: the real Buffer is used')
-    except ImportError:
-        pass
+        local_context: rclpy.Context, monkeypatch: pytest.MonkeyPatch,
+        capfd: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.setitem(sys.modules, 'tf2_ros', None)   # not importable
     node = DetectorNode(context=local_context, cli_args=[
         '--ros-args', '--params-file', str(CORRIDOR_YAML), '-p', 'use_tf:=true'])
     try:
-        assert node._mount_source.buffer is None
+        assert 'use_tf is set but tf2_ros is not importable' in capfd.readouterr().err
+        _publish_frame(node, render_scene('corridor', seed=3), monkeypatch)
+        assert _mount_reported(node, monkeypatch).startswith('parameters: ')
     finally:
         node.close()
         node.destroy_node()
@@ -648,8 +656,7 @@ def test_fused_costmap_follows_the_odometry_and_keeps_what_it_saw(
     node = DetectorNode(context=local_context, cli_args=[
         '--ros-args', '--params-file', str(CORRIDOR_YAML), '-p', 'fuse:=true',
         '-p', 'fused_size_m:=6.0'])
-    fused: list[OccupancyGrid] = []
-    monkeypatch.setattr(node._pubs['fused'], 'publish', fused.append)
+    fused = ros_env.sent(node, '/obstacles/fused_costmap', monkeypatch)
     frame = render_scene('corridor', seed=3)
     try:
         grids = _publish_frame(node, frame, monkeypatch)    # no odometry yet: in place
@@ -663,12 +670,12 @@ def test_fused_costmap_follows_the_odometry_and_keeps_what_it_saw(
             odom.header.stamp = Time(sec=sec)
             odom.pose.pose.position.x = x
             odom.pose.pose.orientation.w = 1.0
-            node._on_odometry(odom)
+            ros_env.deliver(node, '/odom', odom)
         image = _depth_image(frame)
         image.header.stamp = Time(sec=201)
         info = _camera_info(frame)
         info.header.stamp = Time(sec=201)
-        node._on_camera_info(info)
+        ros_env.deliver(node, '/depth/camera_info', info)
         assert node.handle_frame(image)
         moved = fused[-1]
         assert moved.info.origin.position.x == pytest.approx(1.0 - 3.0)   # centred on x = 1 m

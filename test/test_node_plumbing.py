@@ -271,9 +271,9 @@ def test_two_nodes_report_under_two_names(local_context: rclpy.Context,
     reports: list[Any] = []
     try:
         for node in nodes:
-            monkeypatch.setattr(node._diagnostics_pub, 'publish',
-                                lambda msg: reports.extend(msg.status))
-            node._publish_diagnostics()
+            sent = ros_env.sent(node, '/diagnostics', monkeypatch)
+            node.publish_diagnostics()
+            reports += [status for msg in sent for status in msg.status]
         assert [(r.name, r.hardware_id) for r in reports] == [
             ('/front/obstacle_detector: depth obstacle detection', '/front/depth/image_raw'),
             ('/rear/obstacle_detector: depth obstacle detection', '/rear/depth/image_raw')]
@@ -317,10 +317,9 @@ def test_rvl_frames_give_the_raw_frames_outputs_and_a_broken_one_is_skipped(
     node = DetectorNode(context=local_context, cli_args=[
         '--ros-args', '--params-file', str(CORRIDOR_YAML),
         '-p', 'depth_transport:=compressedDepth'])
-    grids: list[OccupancyGrid] = []
     try:
-        monkeypatch.setattr(node._pubs['costmap'], 'publish', grids.append)
-        node._on_camera_info(_camera_info(scene))
+        grids = ros_env.sent(node, '/obstacles/costmap', monkeypatch)
+        ros_env.deliver(node, '/depth/camera_info', _camera_info(scene))
         assert node.handle_frame(array_to_image(scene.depth_mm, stamp=Time(),
                                                 frame_id='depth_optical'))
         assert node.handle_frame(rvl_message(scene.depth_mm, Time(), 'depth_optical'))

@@ -65,7 +65,7 @@ def test_threaded_detector_refuses_what_the_decode_refuses() -> None:
     assert tum.depth_m.max() == np.float32(1500 / 5000.0)
 
 
-def _compiled_signatures() -> dict:
+def compiled_signatures() -> dict:
     """Every numba dispatcher of the pipeline's kernels -> its number of compiled signatures."""
     from obstacle_detection.pipeline import _compiled
     from obstacle_detection.pipeline._compiled import costmap as jit_costmap
@@ -93,11 +93,11 @@ frame = render_scene('person_walking', seed=1, intrinsics=KINECT_V2_SD, size=KIN
 detector = Detector(corridor(compute_threads=2, camera_height_m=float(frame.height_m),
                              camera_pitch_rad=float(frame.pitch_rad)))
 detector.warm_up()
-before = t._compiled_signatures()
+before = t.compiled_signatures()
 assert len(before) > 20, len(before)
 detector.process(frame.depth_mm, KINECT_V2_SD)
 detector.process(decode_depth(frame.depth_mm), KINECT_V2_SD)
-after = t._compiled_signatures()
+after = t.compiled_signatures()
 print(sorted(k.py_func.__name__ for k, n in after.items() if n != before.get(k, 0)))
 """
 

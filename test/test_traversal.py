@@ -421,7 +421,8 @@ def test_traversal_kernels_equal_numpy(both_paths):
     pts = rng.uniform([0.0, -1.0, -0.4], [2.0, 1.0, 1.5], size=(3000, 3)).astype(np.float32)
     pts[:1500, 2] = rng.normal(0.0, 0.01, 1500)                 # a floor
     steep = rng.random(3000) < 0.3
-    both_paths(traversal._traverse, pts, steep, 0.05, 0.05, 0.04, 1.0, 0.025)
+    # cells of 5 cm (2 x 2 voxels), steps up to 5 cm, down to 4 cm, the robot 1 m tall
+    both_paths(traversal.traversable_ground, pts, steep, corridor(max_step_down_m=0.04))
     depth = rng.uniform(0.5, 4.0, size=(60, 80)).astype(np.float32)
     depth[rng.random(depth.shape) < 0.1] = 0.0
     depth[5, 5] = np.nan
@@ -501,7 +502,7 @@ def test_drop_pixels_kernel_equals_the_numpy_mask(shape, both_paths):
     rot[2] = (0.3, 0.3, -0.25)                            # the rays' z between -0.6 and 0.1
     rays = geometry.GroundRays(rng.uniform(-0.6, 0.6, shape[1]),
                                rng.uniform(-0.5, 0.5, shape[0]), rot)
-    pixels, offsets = both_paths(traversal._drop_pixels, depth, rays.ru, rays.rv, rays.rot,
+    pixels, offsets = both_paths(traversal.drop_pixels, depth, rays.ru, rays.rv, rays.rot,
                                  0.6, 0.05, 0.05, 3)
     mask = traversal.drop_edge_mask(depth, rays.table()[2], 0.6, 0.05, 0.05, 3)
     np.testing.assert_array_equal(pixels, np.flatnonzero(mask))
@@ -559,7 +560,7 @@ def test_lone_voxel_kernel_equals_numpy(both_paths):
     rng = np.random.default_rng(3)
     pts = rng.uniform([0.0, -1.0, -0.4], [2.0, 1.0, 1.5], size=(4000, 3)).astype(np.float32)
     pts[:2000, 2] = 0.3   # a board: neighbours
-    assert both_paths(traversal._lone_voxels, pts, 0.025, 0.025, 0.025).sum() > 100
+    assert both_paths(traversal.lone_voxels, pts, 0.025, 0.025, 0.025).sum() > 100
 
 
 def test_mixed_pixels_scattered_in_the_air_are_not_marked():
@@ -613,7 +614,7 @@ def test_foot_kernel_equals_numpy(both_paths):
     pts[:2000, :2] = np.round(pts[:2000, :2] / 0.1) * 0.1   # columns
     candidates = rng.random(4000) < 0.6
     marked = candidates & (rng.random(4000) < 0.5)
-    assert both_paths(traversal._feet, pts, candidates, marked, 0.025, 0.025, 0.025, 3).any()
+    assert both_paths(traversal.feet, pts, candidates, marked, 0.025, 0.025, 0.025).any()
 
 
 def test_the_foot_of_a_box_is_marked():

@@ -39,7 +39,7 @@ FACING_UP_COS2 = math.cos(math.radians(30.0)) ** 2
 #: floor only far away).
 FIT_RANGE_MARGIN_M = 1.0
 #: Samples this far below a fitted plane are lower ground: the floor, when the plane ran
-#: through a raised surface (see _floor_beneath) [m].
+#: through a raised surface (see floor_beneath) [m].
 BENEATH_M = 0.05
 
 
@@ -129,7 +129,7 @@ def _reference_floor_samples(depth_m: np.ndarray, step: int, sub_rays: np.ndarra
 _floor_samples = jit.choose(_reference_floor_samples, jit_traversal.floor_samples)
 
 
-def _lstsq_plane(pts: np.ndarray) -> np.ndarray:
+def lstsq_plane(pts: np.ndarray) -> np.ndarray:
     """Return (a, b, c) of the least-squares plane z = a x + b y + c of pts (3, M) (centred)."""
     mean = np.add.reduce(pts, axis=1) / pts.shape[1]   # pts.mean(axis=1), its overhead spared
     c = pts - mean[:, None]
@@ -155,7 +155,7 @@ def _count_in_band(pts: np.ndarray, a: float, b: float, c: float, band_m: float)
     return int(np.count_nonzero(np.abs(resid) <= band_m))
 
 
-def _ransac_plane(pts: np.ndarray, params: DetectorParams) -> np.ndarray:
+def ransac_plane(pts: np.ndarray, params: DetectorParams) -> np.ndarray:
     """Return (k, 3): (a, b, c) of the bounded hypotheses with most samples in the band."""
     return _ransac(pts, _PICKS, math.tan(params.floor_max_tilt_rad) ** 2,
                    params.floor_max_offset_m, INLIER_BAND_M, SCORE_POINTS, REFINED_HYPOTHESES)
@@ -207,22 +207,22 @@ def fit_floor(depth_m: np.ndarray, sub_rays: np.ndarray, params: DetectorParams)
     if pts.shape[1] < params.floor_min_points:
         return configured(params, f'{pts.shape[1]} floor samples < floor_min_points='
                                   f'{params.floor_min_points}')
-    coef, used = _best_plane(pts, params)
+    coef, used = best_plane(pts, params)
     if used < params.floor_min_points:
         return configured(params, f'{used} floor inliers < floor_min_points='
                                   f'{params.floor_min_points}')
     reason = _out_of_bounds(coef, params)
     if reason:
         return configured(params, reason)
-    coef, used = _floor_beneath(pts, coef, used, params)
-    return _corrected_mount(params, *(float(v) for v in coef), used)
+    coef, used = floor_beneath(pts, coef, used, params)
+    return corrected_mount(params, *(float(v) for v in coef), used)
 
 
-def _best_plane(pts: np.ndarray, params: DetectorParams) -> tuple[np.ndarray, int]:
+def best_plane(pts: np.ndarray, params: DetectorParams) -> tuple[np.ndarray, int]:
     """Return ((a, b, c), inliers of its last refit): the refined plane most samples support."""
     best = None   # (inliers in the last band, coefficients, samples of the last refit)
     refits: list[list[np.ndarray]] = []   # the inliers of each refit of the earlier hypotheses
-    for coef in _ransac_plane(pts, params):   # each refined on narrowing bands
+    for coef in ransac_plane(pts, params):   # each refined on narrowing bands
         used = 0
         stages: list[np.ndarray] = []
         repeated = False
@@ -238,7 +238,7 @@ def _best_plane(pts: np.ndarray, params: DetectorParams) -> tuple[np.ndarray, in
             if repeated:
                 break
             stages.append(inliers)
-            coef = _lstsq_plane(inliers)
+            coef = lstsq_plane(inliers)
         refits.append(stages)
         if repeated:
             continue
@@ -259,7 +259,7 @@ def _out_of_bounds(coef: np.ndarray, params: DetectorParams) -> str:
     return ''
 
 
-def _floor_beneath(pts: np.ndarray, coef: np.ndarray, used: int,
+def floor_beneath(pts: np.ndarray, coef: np.ndarray, used: int,
                    params: DetectorParams) -> tuple[np.ndarray, int]:
     """Return the floor under a raised surface the fit took for it: ((a, b, c), inliers)."""
     resid = pts[2] - (coef[0] * pts[0] + coef[1] * pts[1] + coef[2])
@@ -268,12 +268,12 @@ def _floor_beneath(pts: np.ndarray, coef: np.ndarray, used: int,
     beneath = np.ascontiguousarray(pts[:, low])   # the kernels' layout
     if beneath.shape[1] < params.floor_min_points:
         return coef, used
-    lower, _ = _best_plane(beneath, params)
+    lower, _ = best_plane(beneath, params)
     for band in REFIT_BANDS_M:   # refined on all samples (the floor on the plane's other side)
         lower_in = _in_band(pts, *lower, band)
         if lower_in.shape[1] < params.floor_min_points:
             return coef, used
-        lower = _lstsq_plane(lower_in)
+        lower = lstsq_plane(lower_in)
     if _out_of_bounds(lower, params):
         return coef, used
     band = REFIT_BANDS_M[-1]
@@ -282,7 +282,7 @@ def _floor_beneath(pts: np.ndarray, coef: np.ndarray, used: int,
     return lower, lower_in.shape[1]
 
 
-def _corrected_mount(params: DetectorParams, a: float, b: float, c: float,
+def corrected_mount(params: DetectorParams, a: float, b: float, c: float,
                      samples: int) -> FloorFit:
     """Return the mount whose ground frame has the plane z = a x + b y + c as z = 0."""
     norm = math.sqrt(a * a + b * b + 1.0)

@@ -408,13 +408,13 @@ def _reference_drop_pixels(depth_m: np.ndarray, ru: np.ndarray, rv: np.ndarray, 
     return pixels, edge.reshape(-1)[pixels]
 
 
-_drop_pixels = jit.choose(_reference_drop_pixels, jit_traversal.drop_pixels)
+drop_pixels = jit.choose(_reference_drop_pixels, jit_traversal.drop_pixels)
 
 
 def drop_edges(depth_m: np.ndarray, rays: GroundRays, height_m: float,
                params: DetectorParams) -> tuple[np.ndarray, np.ndarray]:
     """Where the floor ends at a drop: ((D, 3) float32 floor points, (D,) edge pixels)."""
-    pixels, offsets = _drop_pixels(depth_m, rays.ru, rays.rv, rays.rot, height_m,
+    pixels, offsets = drop_pixels(depth_m, rays.ru, rays.rv, rays.rot, height_m,
                                    params.max_step_down_m, params.max_step_height_m,
                                    DROP_EDGE_ROWS)
     if pixels.size == 0:

@@ -169,7 +169,7 @@ class DetectorNode(Node):
         self._last_frame_id = ''
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics',
                                                       _DIAGNOSTICS_QOS)
-        self.create_timer(1.0, self._publish_diagnostics)
+        self.create_timer(1.0, self.publish_diagnostics)
         self.add_on_set_parameters_callback(self._validate_parameters)
         for service in self.services:   # rclpy's set services raise on an unknown value type
             if service.srv_name.endswith(('/set_parameters', '/set_parameters_atomically')):
@@ -279,7 +279,8 @@ class DetectorNode(Node):
             return None
 
     # -- diagnostics ---------------------------------------------------------------------------
-    def _publish_diagnostics(self) -> None:
+    def publish_diagnostics(self) -> None:
+        """Publish the health of the period since the last report on /diagnostics (1 Hz)."""
         context = DiagnosticsContext(
             uptime_s=time.monotonic() - self._started, depth_topic=self._depth_sub.topic_name,
             code_path=self.compute_path(),

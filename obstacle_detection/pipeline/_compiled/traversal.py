@@ -601,7 +601,7 @@ def _scores(pts, planes, score_points, band32):  # pragma: no cover - compiled
 @_jit
 def ransac_plane(pts, picks, tan_tilt2, offset, band, score_points,
                  k):  # pragma: no cover - compiled
-    """(k, 3) float64: floor._ransac_plane's best k hypotheses (the same float operations).
+    """(k, 3) float64: floor.ransac_plane's best k hypotheses (the same float operations).
 
     The hypotheses: the triplets' planes, the configured floor and the level plane through
     the most common sample height; the best first, ties: the earlier hypothesis.
