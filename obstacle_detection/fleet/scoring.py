@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Iterable, Sequence
 from typing import Any
@@ -26,8 +27,14 @@ def score_sequence(frames: Sequence[evaluation.LabelledFrame], params: DetectorP
     """Per-frame scores of one sequence with one parameter point (a task)."""
     limit_threads()
     params = params.replace(compute_threads=1)
-    Detector(params).warm_up()   # compile first: the frames' times are the pipeline's alone
+    _warm_up(params)
     return evaluation.evaluate_frames(frames, params, refiner=refiner).frames
+
+
+@functools.lru_cache(maxsize=64)
+def _warm_up(params: DetectorParams) -> None:
+    """Compile first, once per process and point: the frames' times are the pipeline's alone."""
+    Detector(params).warm_up()
 
 
 def score_points(fleet: Fleet, sources: Sequence[Source], points: Sequence[DetectorParams],
