@@ -52,7 +52,9 @@ class UpdateInput:
     truth_person (P, 3): the true obstacle points on the person (a moving object: a cell it
     was last seen in, not seen since, has no known truth: the person may have left it);
     person_disc: the person's true footprint now, (x [m], y [m], radius [m]) in odom (the
-    cells under it that the frame does not see have no known truth: it hides them).
+    cells under it that the frame does not see have no known truth: it hides them);
+    mount: (R, t) of the optical frame in base_footprint that TF gives at this instant (a
+    TF following the body's true pitch); None: the replay's static URDF mount.
     """
 
     index: int
@@ -64,6 +66,7 @@ class UpdateInput:
     person_in_view: bool | None = None
     truth_person: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     person_disc: tuple[float, float, float] | None = None
+    mount: tuple[np.ndarray, np.ndarray] | None = None
 
 
 def rotation_z(yaw_rad: float) -> np.ndarray:
@@ -167,8 +170,9 @@ class Replay:
         """Put the clouds through 'TF': base_footprint and the optical frame into odom."""
         base_rot = rotation_z(inp.pose[2])
         base_t = np.array([inp.pose[0], inp.pose[1], 0.0])
-        cam_rot = base_rot @ self.mount[0]
-        cam_t = base_t + base_rot @ self.mount[1]
+        mount = self.mount if inp.mount is None else inp.mount
+        cam_rot = base_rot @ mount[0]
+        cam_t = base_t + base_rot @ mount[1]
         out = {}
         for name, source in self.sources.items():
             if source.topic.lstrip('/') == 'obstacles/points':
