@@ -339,7 +339,9 @@ def frame_truth(sequence_frame: object, params: object,
     The pixels the sensor returned whose true point lies in the detector's region of interest
     (``params``): obstacle points (``GT_OBSTACLE``), traversable floor (``GT_TRAVERSABLE``;
     surfaces above the robot are left out: a wall whose foot is hidden behind a table is not
-    free floor), and the obstacle points on the person (a Cylinder), if any.
+    free floor; so is floor under a Box lower than the robot, the floor under a table top: its
+    column holds an obstacle whether or not the frame sees it), and the obstacle points on the
+    person (a Cylinder), if any.
     """
     from obstacle_detection.labels import GT_OBSTACLE, GT_TRAVERSABLE
     from obstacle_detection.pipeline import geometry
@@ -355,5 +357,28 @@ def frame_truth(sequence_frame: object, params: object,
     if index:
         person = frame.hit_index.reshape(-1) == index[0]
     obstacle = keep & (labels == GT_OBSTACLE)
-    return (points[obstacle], points[keep & (labels == GT_TRAVERSABLE)],
-            points[obstacle & person])
+    free = keep & (labels == GT_TRAVERSABLE)
+    free[np.flatnonzero(free)[under_boxes(points[free], sequence_frame.pose_true,
+                                          frame.primitives, params.robot_height_m)]] = False
+    return points[obstacle], points[free], points[obstacle & person]
+
+
+def under_boxes(points: np.ndarray, pose: tuple[float, float, float], primitives: tuple,
+                robot_height_m: float) -> np.ndarray:
+    """Return (N,) bool: the base-frame points under an obstacle Box lower than the robot.
+
+    The column of such a point (a table top over the floor) holds an obstacle in the scene.
+    """
+    from obstacle_detection.sim.scenes import Box
+
+    x, y, yaw = pose
+    c, s = math.cos(yaw), math.sin(yaw)
+    px, py = points[:, 0].astype(np.float64), points[:, 1].astype(np.float64)
+    wx, wy = x + c * px - s * py, y + s * px + c * py      # in the scene frame (odom)
+    covered = np.zeros(wx.shape, bool)
+    for primitive in primitives:
+        if isinstance(primitive, Box) and not primitive.traversable and \
+                primitive.min_m[2] < robot_height_m:
+            (x0, y0, _), (x1, y1, _) = primitive.min_m, primitive.max_m
+            covered |= (wx >= x0) & (wx <= x1) & (wy >= y0) & (wy <= y1)
+    return covered

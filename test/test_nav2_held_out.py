@@ -16,7 +16,7 @@ params/nav2_costmap.yaml, scored by test/nav2_replay.py.
 
 - every frame (30 Hz) is a costmap update: the node's messages are made in this process by the
   node's own code path (``bag_processor.process_frame``, the one ``tools/bag_process.py`` runs,
-  and the clearing cloud function the node calls);
+  and ``NodeConfig.nav2_clouds``, which the node calls for its marks and rays);
 - at the yaml's 5 Hz (every 6th frame) the frames go through the node started as the README
   starts it, over loopback DDS, and its clouds must equal the in-process ones.
 
@@ -41,7 +41,6 @@ from message_helpers import pointcloud2_to_points
 from test_nav2_sequences import CORRIDOR, FRAME_ID, NAV2_YAML, START_TIMEOUT_S, Harness
 
 from obstacle_detection.cli import bag_processor
-from obstacle_detection.pipeline import clearing
 from obstacle_detection.ros.conversions import array_to_image, intrinsics_to_camera_info
 from obstacle_detection.ros.frame_gate import CameraState
 from obstacle_detection.sim.scenes import scene_params
@@ -101,14 +100,13 @@ def _rendered(sequence: SceneSequence) -> Iterator[Any]:
 
 def node_clouds(depth_mm: np.ndarray, info: Any, stamp: Time, config: Any,
                 ) -> tuple[np.ndarray, np.ndarray]:
-    """The node's obstacles/points and obstacles/clearing_points of one frame, in process."""
+    """Return the node's obstacles/points and obstacles/clearing_points of a frame."""
     msg = array_to_image(depth_mm, stamp=stamp, frame_id=FRAME_ID)
     messages, result, reason, _ = bag_processor.process_frame(
         msg, [CameraState.from_camera_info(info)], config, with_ground=False,
         with_overlay=False)
     assert messages is not None, reason
-    cloud = clearing.clearing_cloud(result, stride_px=config.clearing_stride_px,
-                                    range_m=config.clearing_range_m)
+    _, cloud = config.nav2_clouds(result, config.detector.params)   # the node's call
     return pointcloud2_to_points(messages['obstacles']), cloud
 
 
@@ -213,7 +211,7 @@ def figures(tmp_path_factory: pytest.TempPathFactory) -> dict[tuple[str, str], A
 
 
 def format_held_out(reports: dict) -> str:
-    """The README's table: one row per run, every-frame and 5 Hz figures side by side."""
+    """Return the README's table: a row per run, every-frame and 5 Hz figures."""
     def cell(f: replay.SequenceFigures) -> str:
         def num(value: float, fmt: str) -> str:
             return '-' if value != value else format(value, fmt)
