@@ -10,6 +10,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from obstacle_detection.pipeline import params as pipeline_params
 from obstacle_detection.pipeline.params import table_4_3
 from obstacle_detection.ros.parameters import ALL_PARAMS, ParamSpec, pipeline_params_to_ros
 
@@ -36,10 +37,25 @@ def _row(spec: ParamSpec, seed: dict[str, object]) -> str:
             f'{description} |')
 
 
+def budget_note() -> str:
+    """Return the paragraph on the frame budget's limits (pipeline.params, docs/budget.md)."""
+    width, height = pipeline_params.BUDGET_FRAME_SIZE
+    return (f'\n**Frame budget.** Each value must be within its range, and the set as a whole '
+            f'within the frame budget: a {width} x {height} frame estimated at most '
+            f'{pipeline_params.MAX_FRAME_MS:g} ms and {pipeline_params.MAX_FRAME_MIB:g} MiB '
+            'from the costmap cells (per frame and fused), the voxels the region of interest '
+            'can hold at the voxel size and their lattice, the neighbours searched '
+            '(`normal_neighbours`, `validation_neighbours`), the median kernel and the '
+            'clearing rays. A set beyond it is refused, at start-up, on a set request and in '
+            'the tools, with one line naming the parameters, the estimate and the limits; the '
+            'estimate and its measurements: [budget.md](budget.md).\n')
+
+
 def parameter_table() -> str:
     """Return the Markdown table of every ROS parameter of the node, one row each."""
     seed = pipeline_params_to_ros(table_4_3())
-    return '\n'.join([HEADER, *(_row(spec, seed) for spec in ALL_PARAMS)]) + '\n'
+    return ('\n'.join([HEADER, *(_row(spec, seed) for spec in ALL_PARAMS)]) + '\n'
+            + budget_note())
 
 
 #: The table of docs/parameters.md stands between these two lines.
