@@ -3,13 +3,13 @@
 
 Each point runs in a fresh process: the node's configuration is built from the ROS values
 (``ros.config.build_config``, the budget check bypassed), the kernels are compiled or loaded
-at the defaults (same median K), then three frames of each scene go through what the node does
-with a frame: the pipeline, the output messages (with the clearing cloud), the fused costmap,
-and their serialisation (what a publish does). Time: the median over the frames of the CPU
-time of the thread running them (wall time is in the JSON; on a shared machine it is that
-plus waiting for a CPU); memory: the
-process's peak resident memory during the frames above what it held before them (VmHWM reset
-through /proc/self/clear_refs). The heavier of the scenes is kept. Prints one ``JSON`` line
+at the defaults (same median K), then three frames (``--frames``) of each scene go through
+what the node does with a frame: the pipeline, the output messages (with the clearing cloud),
+the fused costmap, and their serialisation (what a publish does). Time: the median over the
+frames of the CPU time of the thread running them (wall time is in the JSON; on a shared
+machine it is that plus waiting for a CPU); memory: the process's peak resident memory during
+the frames above what it held before them (VmHWM reset through /proc/self/clear_refs). The
+heavier of the scenes is kept. Prints one ``JSON`` line
 per point; ``--fit`` finds the coefficients of ``pipeline.params.frame_budget`` from saved
 output, ``--table`` prints docs/budget.md's table (measure beside this tree's estimate)::
 
@@ -82,7 +82,7 @@ GRID: tuple[dict, ...] = (
 )
 
 
-def _child(point: dict) -> dict:
+def _child(point: dict, frames: int = FRAMES) -> dict:
     """Measure one point in this process (see the module docstring)."""
     import ctypes
     import gc
@@ -106,7 +106,7 @@ def _child(point: dict) -> dict:
     config = build_config(values, check_budget=False)
     detector = config.detector
     Detector(DetectorParams(median_kernel=detector.params.median_kernel)).warm_up()
-    frames = [render_scene(name, seed=0) for name in SCENES]
+    rendered = [render_scene(name, seed=0) for name in SCENES]
     stamp = None
     from builtin_interfaces.msg import Time
     stamp = Time(sec=1, nanosec=0)
@@ -118,7 +118,7 @@ def _child(point: dict) -> dict:
         raise KeyError(key)
 
     out = {'point': point, 'scenes': {}}
-    for name, frame in zip(SCENES, frames):
+    for name, frame in zip(SCENES, rendered):
         params = detector.params.replace(camera_height_m=frame.height_m,
                                          camera_pitch_rad=frame.pitch_rad,
                                          camera_roll_rad=frame.roll_rad)
@@ -129,7 +129,7 @@ def _child(point: dict) -> dict:
         base = status('VmRSS')
         Path('/proc/self/clear_refs').write_text('5')
         times, walls, voxels = [], [], 0
-        for _ in range(FRAMES):
+        for _ in range(frames):
             start, cpu = time.perf_counter(), time.thread_time()
             result = det.process(frame.depth_mm, frame.intrinsics)
             msgs = result_to_messages(
@@ -160,10 +160,11 @@ def _child(point: dict) -> dict:
     return out
 
 
-def measure(point: dict) -> dict:
-    """Measure one point in a fresh process; return its row."""
+def measure(point: dict, frames: int = FRAMES) -> dict:
+    """Measure one point in a fresh process (``frames`` frames a scene); return its row."""
     env = dict(os.environ, OMP_NUM_THREADS='1', OPENBLAS_NUM_THREADS='1')
-    proc = subprocess.run([sys.executable, __file__, '--child', json.dumps(point)],
+    proc = subprocess.run([sys.executable, __file__, '--child', json.dumps(point),
+                           '--frames', str(frames)],
                           capture_output=True, text=True, env=env, cwd=REPO, check=False)
     for line in proc.stdout.splitlines():
         if line.startswith('JSON '):
@@ -251,10 +252,12 @@ def main(argv: list[str] | None = None) -> int:
                         help="fit the coefficients to the JSON lines of earlier runs' output")
     parser.add_argument('--table', nargs='+', metavar='OUTPUT',
                         help="print docs/budget.md's table from earlier runs' output")
+    parser.add_argument('--frames', type=int, default=FRAMES,
+                        help=f'frames a scene and point [default: {FRAMES}]')
     parser.add_argument('--child', help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.child is not None:
-        print('JSON ' + json.dumps(_child(json.loads(args.child))))
+        print('JSON ' + json.dumps(_child(json.loads(args.child), args.frames)))
         return 0
     if args.fit or args.table:
         (fit if args.fit else table)(args.fit or args.table)
@@ -262,7 +265,7 @@ def main(argv: list[str] | None = None) -> int:
     points = [dict((k, _value(v)) for k, v in (kv.split('=', 1) for kv in text.split(',')))
               for text in args.point] or list(GRID)
     for point in points:
-        print('JSON ' + json.dumps(measure(point)), flush=True)
+        print('JSON ' + json.dumps(measure(point, args.frames)), flush=True)
     return 0
 
 

@@ -272,7 +272,7 @@ def test_the_node_refuses_each_issue_set_and_answers_the_next_frame_light(node: 
 
 
 def test_an_accepted_heavy_set_gives_its_memory_back_when_restored(node: _Node) -> None:
-    # the heaviest costmap within the budget, and fusion's window is read-only: a big grid
+    # a large costmap within the budget (fusion is switched at start-up only)
     heavy = {'costmap_length_m': 15.0, 'costmap_width_m': 15.0, 'costmap_resolution_m': 0.01}
     assert frame_budget(DetectorParams(**heavy)).problem() is None
     node.frame()
