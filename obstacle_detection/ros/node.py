@@ -469,8 +469,8 @@ class DetectorNode(Node):
                 with_ground=config.publish_ground,
                 overlay_rgb=(render_overlay(result.depth_m, result.labels)
                              if config.publish_overlay else None),
-                clearing_points=(clearing.clearing_points(
-                    result.depth_m, result.intrinsics, stride_px=config.clearing_stride_px,
+                clearing_points=(clearing.clearing_cloud(
+                    result, stride_px=config.clearing_stride_px,
                     range_m=config.clearing_range_m)
                     if config.publish_clearing else None))
             fused = self._fuse(result, msg, config)
