@@ -96,13 +96,14 @@ def test_a_moving_mount_is_looked_up_per_frame() -> None:
     assert len(buffer.calls) == 2
 
 
-def test_a_failed_lookup_falls_back_and_says_why_then_a_late_transform_is_taken() -> None:
+def test_a_failed_lookup_gives_no_mount_and_says_why_then_a_late_transform_is_taken() -> None:
     buffer = StandInBuffer(None)
     source = MountSource(buffer, 'base_footprint')
-    assert source.mount_for('cam', None, FALLBACK) is FALLBACK
-    assert source.source == 'parameters (TF lookup failed)'
-    assert 'no TF base_footprint <- cam (LookupError' in source.last_problem
-    assert 'using the mount parameters' in source.last_problem
+    assert source.mount_for('cam', None, FALLBACK) is None    # never the parameters
+    assert source.source == 'TF base_footprint <- cam: none (frames dropped)'
+    assert source.last_problem == (
+        "no transform base_footprint <- 'cam' from TF (LookupError: \"base_footprint\" passed "
+        'to lookupTransform argument target_frame does not exist)')
 
     buffer.transform = _transform(OPTICAL_TO_BODY, (0.3, 0.0, 0.4))   # the TF arrives late
     late = source.mount_for('cam', None, FALLBACK)

@@ -85,6 +85,9 @@ class Context:
     depth_topic: str
     code_path: str             #: the node's compute_path()
     mount: str                 #: where the camera mount comes from, and its values
+    #: the mount against the floor in view (ros.mount_check): key/values, and a warning or ''
+    mount_check: dict[str, str] = field(default_factory=dict)
+    mount_warning: str = ''
 
 
 def _level_and_message(period: Period, ctx: Context) -> tuple[int, str]:
@@ -104,6 +107,8 @@ def _level_and_message(period: Period, ctx: Context) -> tuple[int, str]:
         return ERROR, f'the pipeline failed on {period.errors} frame(s) (see the log)'
     if skipped:
         return WARN, skipped_text
+    if ctx.mount_warning:
+        return WARN, ctx.mount_warning
     if frames and period.dropped > DROPPED_WARN_SHARE * frames:
         return WARN, (f'{period.dropped} of {frames} frames replaced before processing: the '
                       'node does not keep up with the camera')
@@ -130,6 +135,7 @@ def health_status(period: Period, ctx: Context, *, name: str,
         'skipped (bad input)': str(sum(period.skipped.values())),
         'errors': str(period.errors),
         'mount': ctx.mount,
+        **ctx.mount_check,
         'code path': ctx.code_path,
     }
     return DiagnosticStatus(level=level, name=name, message=message,

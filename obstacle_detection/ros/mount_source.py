@@ -38,7 +38,12 @@ def mount_from_transform(transform: Any) -> Mount:
 
 
 class MountSource:
-    """Give each frame its mount: TF's transform when it has one, else the parameters."""
+    """Give each frame its mount: the parameters, or TF's transform (none while TF has none).
+
+    With a buffer (use_tf) a frame whose transform is missing gets no mount: the node drops it
+    and says why (``last_problem``) rather than place it with the parameters, which Nav2,
+    placing the clearing cloud through TF, would not agree with.
+    """
 
     def __init__(self, buffer: Any, base_frame: str, *, static: bool = True,
                  timeout: Any = None) -> None:
@@ -48,14 +53,17 @@ class MountSource:
         self.timeout = timeout   #: of a lookup: a rclpy Duration
         self._cache: dict[str, Mount] = {}
         self.last_problem: str | None = None
-        self.source = 'parameters'
+        self.source = 'parameters' if buffer is None else f'TF {base_frame} <- ?'
 
-    def mount_for(self, frame_id: str, stamp: Any, fallback: Mount) -> Mount:
-        """Return the mount for an image of ``frame_id`` at ``stamp`` (a rclpy Time)."""
+    def mount_for(self, frame_id: str, stamp: Any, parameters: Mount) -> Mount | None:
+        """Return the mount for an image of ``frame_id`` at ``stamp`` (a rclpy Time).
+
+        None when TF has no transform (``last_problem`` says which frames and tf2's error).
+        """
         self.last_problem = None
         if self.buffer is None:
             self.source = 'parameters'
-            return fallback
+            return parameters
         if self.static and frame_id in self._cache:
             self.source = f'TF {self.base_frame} <- {frame_id} (static, cached)'
             return self._cache[frame_id]
@@ -64,11 +72,10 @@ class MountSource:
                                                      self.timeout)
             mount = mount_from_transform(transform)
         except Exception as error:  # noqa: BLE001 - tf2's exceptions are not importable here
-            self.last_problem = (f'no TF {self.base_frame} <- {frame_id} '
-                                 f'({type(error).__name__}: {error}); using the mount '
-                                 'parameters')
-            self.source = 'parameters (TF lookup failed)'
-            return fallback
+            self.last_problem = (f'no transform {self.base_frame} <- {frame_id!r} from TF '
+                                 f'({type(error).__name__}: {error})')
+            self.source = f'TF {self.base_frame} <- {frame_id}: none (frames dropped)'
+            return None
         self._cache[frame_id] = mount
         self.source = f'TF {self.base_frame} <- {frame_id}'
         return mount
