@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from types import SimpleNamespace
 from typing import Any
 
+import numpy as np
+from scipy.spatial.transform import Rotation
 
 from obstacle_detection.pipeline.geometry import mount_angles, quaternion_matrix
 
@@ -79,3 +82,55 @@ class MountSource:
         self._cache[frame_id] = mount
         self.source = f'TF {self.base_frame} <- {frame_id}'
         return mount
+
+
+class StaticTransforms:
+    """The part of ``tf2_ros.Buffer`` a MountSource uses, from recorded static transforms.
+
+    For tools that read a bag (no TF listener): ``add`` each ``geometry_msgs/TransformStamped``
+    of its ``/tf_static``; ``lookup_transform`` composes them along the tree (stamps ignored:
+    static transforms hold at every time) or raises LookupError naming the missing link.
+    """
+
+    def __init__(self) -> None:
+        self._parent: dict[str, tuple[str, np.ndarray]] = {}   # child -> (parent, 4x4)
+
+    def __len__(self) -> int:
+        return len(self._parent)
+
+    def add(self, transform: Any) -> None:
+        """Add one TransformStamped (parent header.frame_id, child child_frame_id)."""
+        t, q = transform.transform.translation, transform.transform.rotation
+        matrix = np.eye(4)
+        matrix[:3, :3] = quaternion_matrix(q.x, q.y, q.z, q.w)
+        matrix[:3, 3] = (t.x, t.y, t.z)
+        self._parent[str(transform.child_frame_id).lstrip('/')] = (
+            str(transform.header.frame_id).lstrip('/'), matrix)
+
+    def _to_root(self, frame: str) -> tuple[list[str], list[np.ndarray]]:
+        """Return the frames from ``frame`` up to its root, and frame's pose in each of them."""
+        chain, poses, pose = [frame], [np.eye(4)], np.eye(4)
+        while frame in self._parent and len(chain) <= len(self._parent):
+            frame, matrix = self._parent[frame]
+            pose = matrix @ pose
+            chain.append(frame)
+            poses.append(pose)
+        return chain, poses
+
+    def lookup_transform(self, target: str, source: str, time: Any = None,
+                         timeout: Any = None) -> Any:
+        """Return the transform target <- source (``.transform.translation/.rotation``)."""
+        source_chain, source_poses = self._to_root(source.lstrip('/'))
+        target_chain, target_poses = self._to_root(target.lstrip('/'))
+        common = next((f for f in source_chain if f in target_chain), None)
+        if common is None:
+            raise LookupError(f'"{target}" and "{source}" are not connected by the static '
+                              f'transforms ({len(self._parent)} recorded: '
+                              f'{", ".join(sorted(self._parent)) or "none"})')
+        # poses[i]: the frame's pose in chain[i]; target <- common <- source
+        matrix = (np.linalg.inv(target_poses[target_chain.index(common)])
+                  @ source_poses[source_chain.index(common)])
+        x, y, z, w = Rotation.from_matrix(matrix[:3, :3]).as_quat()
+        return SimpleNamespace(transform=SimpleNamespace(
+            translation=SimpleNamespace(x=matrix[0, 3], y=matrix[1, 3], z=matrix[2, 3]),
+            rotation=SimpleNamespace(x=x, y=y, z=z, w=w)))
