@@ -610,6 +610,8 @@ def test_use_tf_drops_a_frame_without_a_transform_then_takes_a_late_transform(
     buffer = StandInBuffer(None)
     node = _tf_node(local_context, buffer)
     try:
+        assert _mount_reported(node, monkeypatch) == \
+            'TF base_footprint <- the depth image frame: no frame yet'
         grids = ros_env.sent(node, '/obstacles/costmap', monkeypatch)
         ros_env.deliver(node, '/depth/camera_info', _camera_info(frame))
         assert not node.handle_frame(_depth_image(frame))
@@ -665,6 +667,7 @@ def test_a_wrong_urdf_is_reported_with_its_angle_and_offset(
         ros_env.deliver(node, '/depth/camera_info', _camera_info(render_scene('corridor')))
         for seed in range(12):
             frame = render_scene('corridor', seed=seed, height_m=0.6, pitch_rad=0.0)
+            node.stats.count('received')   # as the subscription's callback counts it
             assert node.handle_frame(_depth_image(frame))
         reports = ros_env.sent(node, '/diagnostics', monkeypatch)
         node.publish_diagnostics()

@@ -56,7 +56,7 @@ class MountSource:
         self.timeout = timeout   #: of a lookup: a rclpy Duration
         self._cache: dict[str, Mount] = {}
         self.last_problem: str | None = None
-        self.source = 'parameters' if buffer is None else f'TF {base_frame} <- ?'
+        self.source = 'parameters'
 
     def mount_for(self, frame_id: str, stamp: Any, parameters: Mount) -> Mount | None:
         """Return the mount for an image of ``frame_id`` at ``stamp`` (a rclpy Time).

@@ -308,7 +308,10 @@ class DetectorNode(Node):
         context = DiagnosticsContext(
             uptime_s=time.monotonic() - self._started, depth_topic=self._depth_sub.topic_name,
             code_path=self.compute_path(),
-            mount=self._mount_said or f'parameters: {self._config.mount().describe()}',
+            mount=self._mount_said or (
+                f'parameters: {self._config.mount().describe()}'
+                if self._mount_source.buffer is None else
+                f'TF {self._mount_source.base_frame} <- the depth image frame: no frame yet'),
             mount_check=agreement.values(), mount_warning=agreement.warning)
         # hardware_id: the frames' frame_id once one is processed, the depth topic before
         status = health_status(self.stats.take(), context,
