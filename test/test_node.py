@@ -653,7 +653,8 @@ def test_use_tf_without_tf2_refuses_to_start(local_context: rclpy.Context,
 
 
 def test_a_wrong_urdf_is_reported_with_its_angle_and_offset(
-        local_context: rclpy.Context, monkeypatch: pytest.MonkeyPatch) -> None:
+        local_context: rclpy.Context, monkeypatch: pytest.MonkeyPatch,
+        capfd: pytest.CaptureFixture[str]) -> None:
     """The camera is level at 0.6 m; the URDF says 1.5 deg down and 3 cm higher.
 
     The floor fit corrects every frame (the costmap stays right), and /diagnostics says WARN
@@ -681,6 +682,7 @@ def test_a_wrong_urdf_is_reported_with_its_angle_and_offset(
         assert float(values['floor minus mount: pitch [deg]']) == pytest.approx(-1.5, abs=0.2)
         assert float(values['floor minus mount: height [cm]']) == pytest.approx(-3.0, abs=0.5)
         assert f"pitch {values['floor minus mount: pitch [deg]'][:4]}" in status.message
+        assert status.message in capfd.readouterr().err   # and in the log
     finally:
         node.close()
         node.destroy_node()

@@ -66,6 +66,8 @@ def _qos(depth: int, *, reliable: bool = True, latched: bool = False) -> QoSProf
 
 #: Minimum interval between two warnings about the same kind of bad input [s].
 WARN_THROTTLE_S = 5.0
+#: Minimum interval between two log lines saying the mount disagrees with the floor [s].
+MOUNT_WARN_THROTTLE_S = 60.0
 #: Outputs, and the inputs with reliable_input: reliable, depth 5.
 _RELIABLE_QOS = _qos(5)
 #: ~/status and the OccupancyGrids: latched, depth 1 (as map_server), so a late subscriber
@@ -305,6 +307,9 @@ class DetectorNode(Node):
     def publish_diagnostics(self) -> None:
         """Publish the health of the period since the last report on /diagnostics (1 Hz)."""
         agreement = self._mount_check.agreement(*self._mount_cause())
+        if agreement.warning:   # also in the log, for a robot without a diagnostics monitor
+            self._throttled_logger('mount_check').warning(
+                agreement.warning, throttle_duration_sec=MOUNT_WARN_THROTTLE_S)
         context = DiagnosticsContext(
             uptime_s=time.monotonic() - self._started, depth_topic=self._depth_sub.topic_name,
             code_path=self.compute_path(),
