@@ -285,10 +285,13 @@ def _frame(depth: Any, cameras: Sequence[CameraState], config: NodeConfig,
         if mounts is not None:
             summary.mount = f"{mounts.source} (the bag's {TF_STATIC}): " + \
                 tool_support.mount_text(result.pose.nominal)
-        check = tool_support.check_mount(
-            result.depth_m, result.intrinsics, result.pose.nominal,
-            fix='a --params-file setting camera_height_m, camera_pitch_deg and camera_roll_deg '
-                '(tools/estimate_mount.py --params-out writes one from a depth frame)')
+        fix = ("the camera joint of the URDF the bag's /tf_static was recorded with "
+               '(tools/estimate_mount.py measures the mount from a depth frame)'
+               if mounts is not None else
+               'a --params-file setting camera_height_m, camera_pitch_deg and camera_roll_deg '
+               '(tools/estimate_mount.py --params-out writes one from a depth frame)')
+        check = tool_support.check_mount(result.depth_m, result.intrinsics,
+                                         result.pose.nominal, fix=fix)
         if check.warning:
             summary.mount_warning = f'first frame: {check.warning}'
             tool_support.warn(summary.mount_warning)
