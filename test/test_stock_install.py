@@ -290,3 +290,86 @@ def test_symlink_install_runs_the_tools_from_the_source_folder(
     # found through the build folder's link: an edit of tools/<tool>.py is live, no rebuild
     assert where.stdout.strip().startswith(str(build)), where.stdout + where.stderr
     assert Path(where.stdout.strip()).resolve() == REPO / 'tools' / f'{tool}.py'
+
+
+# --------------------------------------------------------------------------------------------
+# The README's path, step by step, against what the steps rely on
+
+
+def _jazzy_commands() -> list[str]:
+    """Return the commands of the README's 'On a ROS 2 Jazzy system' block, no comments."""
+    readme = (REPO / 'README.md').read_text(encoding='utf-8')
+    section = readme.split('### On a ROS 2 Jazzy system', 1)[1].split('\n### ', 1)[0]
+    block = section.split('```bash\n', 1)[1].split('```', 1)[0]
+    return [line.split(' #')[0].strip() for line in block.splitlines()
+            if line.strip() and not line.lstrip().startswith('#')]
+
+
+def test_readme_jazzy_path_allows_pip_as_rosdep_asks() -> None:
+    """Allow pip beside apt first: rosdep's pip installer refuses it otherwise (PEP 668).
+
+    ros-infrastructure/rosdep, src/rosdep2/platforms/pip.py, externally_managed_installable:
+    true for PIP_BREAK_SYSTEM_PACKAGES in rosdep's environment or ``break-system-packages`` in
+    ``[install]`` of /etc/pip.conf; the pip command runs under ``sudo -H``
+    (installers.py, elevate_priv), which resets the environment on Ubuntu, so the README sets
+    the file (doc/pip_and_pep_668.rst, "Configure using pip.conf").
+    """
+    import configparser
+
+    commands = _jazzy_commands()
+    pip_conf = next(c for c in commands if '/etc/pip.conf' in c)
+    text = pip_conf.split('"')[1].encode().decode('unicode_escape')
+    parser = configparser.ConfigParser()
+    parser.read_string(text)
+
+    assert 'sudo tee -a /etc/pip.conf' in pip_conf
+    assert parser.getboolean('install', 'break-system-packages')
+    install = commands.index(next(c for c in commands if 'rosdep install' in c))
+    assert commands.index(pip_conf) < install        # before rosdep needs pip
+    assert '--from-paths src --ignore-src -y' in commands[install]
+
+
+def test_readme_jazzy_path_installs_the_numba_the_node_names() -> None:
+    commands = _jazzy_commands()
+    numba = next(c for c in commands if 'numba' in c)
+    requirement = numba.split('"')[1]
+    wanted = next(line.split('#')[0].strip() for line in
+                  (REPO / 'requirements.txt').read_text(encoding='utf-8').splitlines()
+                  if line.startswith('numba'))
+    node = (REPO / PACKAGE / 'ros' / 'node.py').read_text(encoding='utf-8')
+
+    assert numba.startswith('sudo -H pip3 install')
+    assert requirement == wanted == 'numba>=0.60'
+    assert f'pip install "{requirement}"' in node      # what ~/status says without it
+    assert 'python3-numba' not in _depends('exec_depend')
+
+
+def test_readme_jazzy_path_builds_launches_and_shows_what_the_node_publishes() -> None:
+    import importlib.util
+
+    import yaml
+
+    commands = _jazzy_commands()
+    build = next(c for c in commands if c.startswith('colcon build'))
+    launch = next(c for c in commands if c.startswith('ros2 launch'))
+    rviz = next(c for c in commands if 'rviz2' in c)
+    spec = importlib.util.spec_from_file_location('detector_launch',
+                                                  REPO / 'launch' / 'detector.launch.py')
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    package, launch_file, *arguments = launch.split()[2:]
+    values = dict(argument.split(':=') for argument in arguments)
+    settings = module.node_settings(values, '/opt/ros/share/obstacle_detection')
+    corridor = yaml.safe_load((REPO / 'params' / 'corridor.yaml').read_text())
+    corridor = next(iter(corridor.values()))['ros__parameters']
+    from obstacle_detection.ros.node import OUTPUTS
+
+    assert '--symlink-install' in build     # the develop install tested above
+    assert (package, launch_file) == (PACKAGE, 'detector.launch.py')
+    assert settings['parameters'][1]['use_tf'] is False      # the bench: mount from the file
+    assert ('depth/image_raw', '/camera/camera/depth/image_rect_raw') in settings['remappings']
+    # RViz's fixed frame is the costmap's frame; the README adds the node's output topics
+    assert rviz.split()[-2:] == ['-f', corridor['costmap_frame_id']]
+    readme = (REPO / 'README.md').read_text(encoding='utf-8')
+    assert f'/{OUTPUTS["costmap"][1]} > Map' in readme
+    assert f'/{OUTPUTS["obstacles"][1]} > PointCloud2' in readme
