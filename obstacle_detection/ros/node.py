@@ -553,7 +553,9 @@ def help_text() -> str:
         '  out  /diagnostics              diagnostic_msgs/DiagnosticArray, 1 Hz',
         '',
         f'parameters (section "{PARAMS_FILE_KEY}:" or "/**:" of a --params-file; name  type  '
-        'default  range; use_sim_time is rclpy\'s own):',
+        'default  range; use_sim_time is rclpy\'s own, diagnostic_updater.use_fqn (bool, false: '
+        '/diagnostics names the status "obstacle_detector: ...", true: after the full name) '
+        'diagnostic_updater\'s):',
     ]
     for spec in ALL_PARAMS:
         default = repr(spec.default) if isinstance(spec.default, str) else str(spec.default)
