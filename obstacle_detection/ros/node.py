@@ -14,7 +14,7 @@ import rclpy
 import rclpy.logging
 import rclpy.utilities
 from nav_msgs.msg import OccupancyGrid, Odometry
-from rcl_interfaces.msg import SetParametersResult
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.duration import Duration
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
@@ -45,7 +45,8 @@ from .diagnostics import Context as DiagnosticsContext
 from .frame_gate import CameraState as _CameraState
 from .frame_gate import stamp_ns as _stamp_ns
 from obstacle_detection.viz.overlay import render_overlay
-from .diagnostics import COMPILED, HealthWindow, health_status, status_name
+from .diagnostics import (COMPILED, USE_FQN_PARAMETER, HealthWindow, health_status,
+                          status_name)
 from obstacle_detection.pipeline.fusion import FusedGrid, PoseBuffer
 from obstacle_detection.pipeline.geometry import yaw_from_quaternion
 from .mount_check import MountCheck
@@ -140,6 +141,7 @@ class DetectorNode(Node):
         self._mailbox = FrameMailbox(MAILBOX_FRAMES)
         self._mount_said = ''
         self._tf_mount: Any = None   # the last mount TF gave
+        self._image_frame = ''       # the frame_id of the last frame processed
         self._mount_check = MountCheck()
         self._cameras: collections.deque[_CameraState] = collections.deque(
             maxlen=frame_gate.CAMERA_INFO_HISTORY)
@@ -171,7 +173,11 @@ class DetectorNode(Node):
         if stats_period_s > 0.0:
             self.create_timer(stats_period_s, self._log_stats)
         self._started = time.monotonic()
-        self._last_frame_id = ''
+        use_fqn = self.declare_parameter(USE_FQN_PARAMETER, False, ParameterDescriptor(
+            description="diagnostic_updater's: name the /diagnostics status after the node's "
+                        'fully qualified name, not its name', read_only=True)).value
+        self._diagnostics_name = status_name(
+            self.get_fully_qualified_name() if use_fqn else self.get_name())
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics',
                                                       _DIAGNOSTICS_QOS)
         self.create_timer(1.0, self.publish_diagnostics)
@@ -200,7 +206,8 @@ class DetectorNode(Node):
     def compute_path(self) -> str:
         """Say which code processes the frames now (numba kernels or numpy) and why."""
         if not jit_support.AVAILABLE:
-            return 'numpy path (numba is not installed; see README, Dependencies)'
+            return ('numpy path (numba is not installed: pip install "numba>=0.60"; README, '
+                    'Install)')
         if jit_support.switched_off():
             return f'numpy path ({jit_support.NO_JIT_ENV} is set)'
         job = self._compile
@@ -297,7 +304,7 @@ class DetectorNode(Node):
     def _mount_cause(self) -> tuple[str, str]:
         """(where the mount comes from, how to correct it), for the mount check's warning."""
         if self._mount_source.buffer is not None:
-            frame = self._last_frame_id or 'the depth image frame'
+            frame = self._image_frame or 'the depth image frame'
             return (f'the URDF (TF {self._mount_source.base_frame} <- {frame})',
                     "correct the camera joint's origin in the URDF")
         return ('the mount parameters (camera_height_m, camera_pitch_deg, camera_roll_deg)',
@@ -310,6 +317,7 @@ class DetectorNode(Node):
         if agreement.warning:   # also in the log, for a robot without a diagnostics monitor
             self._throttled_logger('mount_check').warning(
                 agreement.warning, throttle_duration_sec=MOUNT_WARN_THROTTLE_S)
+        fallback = self._config.fallback_intrinsics
         context = DiagnosticsContext(
             uptime_s=time.monotonic() - self._started, depth_topic=self._depth_sub.topic_name,
             code_path=self.compute_path(),
@@ -317,11 +325,13 @@ class DetectorNode(Node):
                 f'parameters: {self._config.mount().describe()}'
                 if self._mount_source.buffer is None else
                 f'TF {self._mount_source.base_frame} <- the depth image frame: no frame yet'),
+            camera_info_topic=self._info_sub.topic_name,
+            fallback_intrinsics=(f'fx={fallback.fx:g} fy={fallback.fy:g} cx={fallback.cx:g} '
+                                 f'cy={fallback.cy:g}'),
             mount_check=agreement.values(), mount_warning=agreement.warning)
-        # hardware_id: the frames' frame_id once one is processed, the depth topic before
-        status = health_status(self.stats.take(), context,
-                               name=status_name(self.get_fully_qualified_name()),
-                               hardware_id=self._last_frame_id or self._depth_sub.topic_name)
+        # hardware_id: one string for the node's life (diagnostic_updater's setHardwareID)
+        status = health_status(self.stats.take(), context, name=self._diagnostics_name,
+                               hardware_id=self._depth_sub.topic_name)
         if self.context.ok():
             msg = DiagnosticArray(status=[status])
             msg.header.stamp = self.get_clock().now().to_msg()
@@ -458,12 +468,13 @@ class DetectorNode(Node):
                                              throttle_duration_sec=WARN_THROTTLE_S)
 
     def _frame_intrinsics(self, msg: Any, shape: tuple[int, ...],
-                          config: NodeConfig) -> Intrinsics | None:
+                          config: NodeConfig) -> tuple[Intrinsics | None, bool]:
+        """Return the frame's intrinsics (None: skipped) and whether they are the fallback."""
         camera = frame_gate.camera_for(list(self._cameras), _stamp_ns(msg.header.stamp),
                                        config.camera_info_tolerance_ns)
         if isinstance(camera, frame_gate.Skip):
             self._warn_skip(camera.kind, camera.reason)
-            return None
+            return None, False
         verdict = frame_gate.choose_intrinsics(
             camera, shape, use_fallback=config.use_fallback_intrinsics,
             fallback=config.fallback_intrinsics,
@@ -475,7 +486,7 @@ class DetectorNode(Node):
                                                     throttle_duration_sec=WARN_THROTTLE_S)
         if verdict.skip is not None:
             self._warn_skip(verdict.skip.kind, verdict.skip.reason)
-        return verdict.intrinsics
+        return verdict.intrinsics, camera is None
 
     def handle_frame(self, msg: Image) -> bool:
         """Process one depth Image and publish its outputs; False if the frame was skipped."""
@@ -485,7 +496,7 @@ class DetectorNode(Node):
         if isinstance(depth, frame_gate.Skip):
             self._warn_skip(depth.kind, depth.reason)
             return False
-        intrinsics = self._frame_intrinsics(msg, depth.shape, config)
+        intrinsics, fallback = self._frame_intrinsics(msg, depth.shape, config)
         if intrinsics is None:
             return False
         skip = frame_gate.check_depth(depth, msg)
@@ -529,9 +540,9 @@ class DetectorNode(Node):
                 self.get_logger().error(f'publishing failed: {type(error).__name__}: {error}',
                                         throttle_duration_sec=WARN_THROTTLE_S)
             return False
-        self.stats.processed(elapsed_ms)
+        self.stats.processed(elapsed_ms, fallback=fallback)
         self._mount_check.add(result.floor)
-        self._last_frame_id = msg.header.frame_id
+        self._image_frame = msg.header.frame_id
         return True
 
     def close(self) -> None:
@@ -579,7 +590,9 @@ def help_text() -> str:
         '  out  /diagnostics              diagnostic_msgs/DiagnosticArray, 1 Hz',
         '',
         f'parameters (section "{PARAMS_FILE_KEY}:" or "/**:" of a --params-file; name  type  '
-        'default  range; use_sim_time is rclpy\'s own):',
+        'default  range; use_sim_time is rclpy\'s own, diagnostic_updater.use_fqn (bool, false: '
+        '/diagnostics names the status "obstacle_detector: ...", true: after the full name) '
+        'diagnostic_updater\'s):',
     ]
     for spec in ALL_PARAMS:
         default = repr(spec.default) if isinstance(spec.default, str) else str(spec.default)
