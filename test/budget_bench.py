@@ -135,8 +135,8 @@ def _child(point: dict, frames: int = FRAMES) -> dict:
             msgs = result_to_messages(
                 result, stamp=stamp, cloud_frame_id='b', costmap_frame_id='b',
                 image_frame_id='c', with_ground=config.publish_ground,
-                clearing_points=clearing.clearing_points(
-                    result.depth_m, result.intrinsics, stride_px=config.clearing_stride_px,
+                clearing_points=clearing.clearing_cloud(
+                    result, stride_px=config.clearing_stride_px,
                     range_m=config.clearing_range_m) if config.publish_clearing else None)
             if fused is not None:
                 fused.update(result.costmap, (0.0, 0.0, 0.0), pose_stamp_s=1.0)
