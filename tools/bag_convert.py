@@ -16,6 +16,22 @@ from obstacle_detection.cli import support as tool_support
 from obstacle_detection.evaluation.datasets import (DIML_DEPTH_KINDS, TUM_CAMERAS, diml_frames,
                                                     folder_frames, tum_frames)
 from obstacle_detection.cli.bag_writer import STORAGES, BagOptions, convert_ros1, write_frames
+from obstacle_detection.pipeline.params import Intrinsics
+
+
+def intrinsics_or_file(text: str) -> Path | Intrinsics:
+    """``--intrinsics``: ``fx,fy,cx,cy`` [px] as four numbers, else a file path."""
+    if text.count(',') == 3:
+        return tool_support.parse_intrinsics(text)
+    return Path(text)
+
+
+FOLDER_HELP = '''Convert a folder of 16-bit depth images (PNG or PGM), in name order, stamped at --rate.
+
+Colour comes from --color-dir (as many images, in name order) or from the same folder: color_N.png
+(or colour_N, rgb_N) beside depth_N.png / depth_N.pgm, as the real frames of ../shared/data/real
+ship. Depth is read in millimetres unless --depth-scale says otherwise (TUM frames: 5000); a first
+frame that looks like another unit is refused with the scale that fits.'''
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -33,10 +49,12 @@ def build_parser() -> argparse.ArgumentParser:
     frames = argparse.ArgumentParser(add_help=False)
     frames.add_argument('--no-color', dest='with_color', action='store_false',
                         help='write depth and camera info only')
-    frames.add_argument('--intrinsics', dest='intrinsics_path', type=Path, metavar='FILE',
-                        help='YAML with fx, fy, cx, cy[, width, height], a ROS camera_info YAML '
-                             'or an ETH3D calibration.txt; else Kinect v2 defaults (tum: '
-                             '--camera), with a warning')
+    frames.add_argument('--intrinsics', dest='intrinsics_path', type=intrinsics_or_file,
+                        metavar='FILE|FX,FY,CX,CY',
+                        help='the depth camera [px]: four numbers, a YAML with fx, fy, cx, cy[, '
+                             'width, height], a ROS camera_info YAML or an ETH3D '
+                             'calibration.txt; else Kinect v2 defaults (tum: --camera), with a '
+                             'warning')
 
     timed = argparse.ArgumentParser(add_help=False)
     timed.add_argument('--rate', dest='rate_hz', type=float, default=30.0, metavar='RATE',
@@ -65,14 +83,17 @@ def build_parser() -> argparse.ArgumentParser:
                         'depth (default %(default)s)')
 
     p = sub.add_parser('folder', parents=[common, frames, timed],
-                       help='a folder of 16-bit depth PNGs (+ a colour folder)',
-                       description=folder_frames.__doc__)
-    p.add_argument('path', metavar='depth_dir', type=Path, help='folder of 16-bit depth PNGs')
+                       help='a folder of 16-bit depth PNG/PGM images (colour beside or in '
+                            '--color-dir)', description=FOLDER_HELP,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument('path', metavar='depth_dir', type=Path,
+                   help='folder of 16-bit depth images (PNG or PGM), colour images beside them '
+                        'allowed')
     p.add_argument('output', type=Path, help='rosbag2 folder to create (must not exist)')
     p.set_defaults(read=folder_frames)
     p.add_argument('--color-dir', type=Path, help='folder with as many colour images')
     p.add_argument('--depth-scale', dest='depth_units_per_m', type=float, metavar='UNITS',
-                   help='depth units per metre of the PNGs (default: 1000, millimetres; '
+                   help='depth units per metre of the images (default: 1000, millimetres; '
                         'TUM RGB-D: 5000)')
 
     p = sub.add_parser('ros1', parents=[common], help='a ROS 1 bag (e.g. iai_kinect2)',
@@ -89,10 +110,9 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the converter; return the exit code (0 success, 1 bad input, 2 bad usage)."""
     args = build_parser().parse_args(argv)
-    # the options named as the reader's keywords; folder_frames has no with_color (its folders)
+    # the options named as the reader's keywords
     options = {key: value for key, value in vars(args).items() if key not in (
-        'source', 'read', 'path', 'output', 'storage', 'quiet')
-        and (key, args.source) != ('with_color', 'folder')}
+        'source', 'read', 'path', 'output', 'storage', 'quiet')}
     if args.source == 'ros1':
         summary = convert_ros1(args.path, args.output, storage=args.storage,
                                progress=not args.quiet, **options)

@@ -120,7 +120,8 @@ def write_frames(source: FrameSource, output: Path, options: BagOptions) -> Summ
     intr, origin = source.intrinsics, source.intrinsics_origin
     if intr is None:
         intr, origin = default_intrinsics(source.default_view, size)
-        tool_support.warn(f'no intrinsics given (--intrinsics FILE): using {origin}, '
+        tool_support.warn(f'no intrinsics given (--intrinsics FILE or FX,FY,CX,CY): using '
+                          f'{origin}, '
                           f'fx={intr.fx:.2f} fy={intr.fy:.2f} cx={intr.cx:.2f} '
                           f'cy={intr.cy:.2f}. Obstacle positions are only as right as these '
                           'values.')
