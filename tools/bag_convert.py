@@ -26,7 +26,7 @@ def intrinsics_or_file(text: str) -> Path | Intrinsics:
     return Path(text)
 
 
-FOLDER_HELP = '''Convert a folder of 16-bit depth images (PNG or PGM), in name order, stamped at --rate.
+FOLDER_HELP = '''Convert a folder of 16-bit depth images (PNG or PGM), in name order, at --rate.
 
 Colour comes from --color-dir (as many images, in name order) or from the same folder: color_N.png
 (or colour_N, rgb_N) beside depth_N.png / depth_N.pgm, as the real frames of ../shared/data/real

@@ -384,7 +384,7 @@ def stamps_from_names(root: Path, kind: str) -> list[tuple[float, str]]:
 
 
 def _loose_frames_hint(root: Path, kind: str) -> str:
-    """A pointer to ``bag_convert folder`` when ``root`` holds depth images without stamps."""
+    """Return a pointer to ``bag_convert folder`` when ``root`` holds unstamped depth images."""
     if kind != 'depth' or not split_depth_and_color(root)[0]:
         return ''
     return (f'; depth images without stamps (as depth_N.png beside color_N.png) convert with '
