@@ -435,7 +435,7 @@ def test_a_mount_far_from_the_floor_is_a_warning(tmp_path: Path,
     write_bag(tmp_path / 'in', frame_messages([floor]))
     assert bag_process.main([str(tmp_path / 'in'), str(tmp_path / 'out'), '--quiet']) == 0
     err = capsys.readouterr().err
-    assert re.search(r'warning: first frame: the floor in view .* puts the camera at height '
+    assert re.search(r'warning: frame 1: the floor in view .* puts the camera at height '
                      r'1\.2\d m, pitch 2[45]\.\d deg', err)
     assert 'but the mount used is height 0.60 m, pitch 0.0 deg' in err
     mount = tmp_path / 'mount.yaml'
@@ -447,6 +447,27 @@ def test_a_mount_far_from_the_floor_is_a_warning(tmp_path: Path,
     assert 'warning' not in captured.err
     assert f'camera mount: height 1.20 m, pitch 25.0 deg, roll 0.0 deg ({mount})' in \
         captured.out
+
+
+def test_a_later_frame_off_the_mount_is_a_warning(tmp_path: Path,
+                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    # the mount fits frames 1-3 (1.2 m, pitch 25 deg, level); in frame 4 the camera rolled 8 deg
+    # (a bump): the mount was checked on frame 1 only and the floor of frame 4 went unsaid
+    depths = [render_scene('flat_floor', seed=k, intrinsics=INTR, size=SIZE, height_m=1.2,
+                           pitch_rad=np.radians(25.0),
+                           roll_rad=np.radians(8.0 if k == 3 else 0.0)).depth_mm
+              for k in range(4)]
+    write_bag(tmp_path / 'in', frame_messages(depths))
+    mount = tmp_path / 'mount.yaml'
+    mount.write_text('obstacle_detector:\n  ros__parameters:\n    camera_height_m: 1.2\n'
+                     '    camera_pitch_deg: 25.0\n')
+    assert bag_process.main([str(tmp_path / 'in'), str(tmp_path / 'out'), '--quiet',
+                             '--params-file', str(mount)]) == 0
+    out, err = capsys.readouterr()
+    assert re.fullmatch(r'warning: frame 4: the floor in view .* roll [78]\.\d deg, but the '
+                        r'mount used is height 1\.20 m, pitch 25\.0 deg, roll 0\.0 deg: .*\n',
+                        err)
+    assert '  warning: the floor did not fit the mount in 1 of the checked frames: frame 4' in out
 
 
 # --------------------------------------------------------------------------------------------

@@ -29,6 +29,13 @@ from obstacle_detection.ros.parameters import ALL_PARAMS, read_params_files
 from obstacle_detection.viz.overlay import render_overlay
 
 DEFAULT_NAMESPACE = '/obstacles'
+#: The floor of every this many processed frames is checked against the mount (a RANSAC fit of
+#: 0.1-0.4 s a 640x480 frame); with refine_floor on, every frame whose floor the per-frame fit
+#: found beyond its bounds is checked too, so a camera that tilts mid-recording is reported.
+MOUNT_CHECK_EVERY = 60
+#: Fix named by a mount warning.
+MOUNT_FIX = ('a --params-file setting camera_height_m, camera_pitch_deg and camera_roll_deg '
+             '(tools/estimate_mount.py --params-out writes one from a depth frame)')
 #: result_to_messages key -> (topic below the namespace, message type).
 OUTPUTS = {
     'obstacles': ('points', 'sensor_msgs/msg/PointCloud2'),
@@ -72,6 +79,9 @@ class ProcessSummary:
     info_how: str = ''
     mount: str = ''
     mount_warning: str | None = None
+    #: frames (1-based) whose floor was checked against the mount, and those it did not fit
+    mount_checked: list[int] = dataclasses.field(default_factory=list)
+    mount_off: list[int] = dataclasses.field(default_factory=list)
     notes: list[str] = dataclasses.field(default_factory=list)
 
     def lines(self) -> list[str]:
@@ -85,6 +95,12 @@ class ProcessSummary:
         out.extend(f'    skipped {count}: {reason}' for reason, count in self.skipped.items())
         if self.mount_warning:
             out.append(f'  warning: {self.mount_warning}')
+        if self.mount_off:
+            shown = ', '.join(str(k) for k in self.mount_off[:10])
+            more = ', ...' if len(self.mount_off) > 10 else ''
+            out.append(f'  warning: the floor did not fit the mount in {len(self.mount_off)} of '
+                       f'the checked frames: frame{"s" if len(self.mount_off) > 1 else ""} '
+                       f'{shown}{more} ({len(self.mount_checked)} checked)')
         out.extend(f'  note: {note}' for note in self.notes)
         if self.total_ms:
             rate = self.processed / self.wall_s if self.wall_s > 0 else 0.0
@@ -232,6 +248,11 @@ def _note(summary: ProcessSummary, note: str | None) -> None:
         summary.notes.append(note)
 
 
+def _floor_out_of_bounds(floor: Any) -> bool:
+    """Whether the per-frame floor fit found the floor too far from the mount to use it."""
+    return floor is not None and not floor.refined and floor.reason.startswith('fitted floor')
+
+
 def _frame(depth: Any, cameras: Sequence[CameraState], config: NodeConfig,
            summary: ProcessSummary, *, with_ground: bool, with_overlay: bool
            ) -> dict[str, Any] | None:
@@ -243,14 +264,16 @@ def _frame(depth: Any, cameras: Sequence[CameraState], config: NodeConfig,
     if messages is None:
         summary.skipped[reason] += 1
         return None
-    if summary.processed == 0:   # the floor of the first frame against the mount
-        check = tool_support.check_mount(
-            result.depth_m, result.intrinsics, config.detector.params,
-            fix='a --params-file setting camera_height_m, camera_pitch_deg and camera_roll_deg '
-                '(tools/estimate_mount.py --params-out writes one from a depth frame)')
+    if summary.processed % MOUNT_CHECK_EVERY == 0 or _floor_out_of_bounds(result.floor):
+        number = summary.processed + 1
+        check = tool_support.check_mount(result.depth_m, result.intrinsics,
+                                         config.detector.params, fix=MOUNT_FIX)
+        summary.mount_checked.append(number)
         if check.warning:
-            summary.mount_warning = f'first frame: {check.warning}'
-            tool_support.warn(summary.mount_warning)
+            summary.mount_off.append(number)
+            if summary.mount_warning is None:   # said once; the summary counts the others
+                summary.mount_warning = f'frame {number}: {check.warning}'
+                tool_support.warn(summary.mount_warning)
     summary.obstacle_points += int(result.obstacle_points.shape[0])
     summary.processed += 1
     summary.total_ms.append(result.timings_ms.get('total', 0.0))
