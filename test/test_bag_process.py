@@ -470,6 +470,43 @@ def test_a_later_frame_off_the_mount_is_a_warning(tmp_path: Path,
     assert '  warning: the floor did not fit the mount in 1 of the checked frames: frame 4' in out
 
 
+def test_an_interrupted_many_bag_run_resumes(tmp_path: Path, depths: list[np.ndarray],
+                                             monkeypatch: pytest.MonkeyPatch,
+                                             capsys: pytest.CaptureFixture[str]) -> None:
+    # Ctrl-C during the second bag: the first is kept and said so; the same command again with
+    # --skip-existing processes the rest (it used to say FAILED ... output already exists)
+    for i in range(2):
+        write_bag(tmp_path / 'bags' / f'bag{i}', frame_messages(depths))
+    command = [str(tmp_path / 'bags'), str(tmp_path / 'out'), '--workers', '0', '--quiet']
+    real = bag_processor.process_frame
+    calls = []
+
+    def interrupted(*args: object, **kwargs: object) -> object:
+        calls.append(1)
+        if len(calls) == len(depths) + 2:   # the second frame of the second bag
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+    monkeypatch.setattr(bag_processor, 'process_frame', interrupted)
+    assert bag_process.main(command) == 130
+    err = capsys.readouterr().err
+    assert f'kept 1 finished output bag: {tmp_path / "out" / "bag0"}' in err
+    assert 'the same command with --skip-existing processes the other 1' in err
+    monkeypatch.setattr(bag_processor, 'process_frame', real)
+    kept = read_raw(tmp_path / 'out' / 'bag0')
+
+    assert bag_process.main(command) == 1   # without the option: one line, nothing done
+    out, err = capsys.readouterr()
+    assert out == '' and err == (f'error: {tmp_path / "out" / "bag0"}: output already exists '
+                                 '(1 of 2); --skip-existing keeps them and processes the rest, '
+                                 'or remove them\n')
+    assert bag_process.main([*command, '--skip-existing']) == 0
+    out, err = capsys.readouterr()
+    assert f'kept 1 output bag from an earlier run: {tmp_path / "out" / "bag0"}' in err
+    assert '1 ok, 0 failed' in out and str(tmp_path / 'bags' / 'bag1') in out
+    assert read_raw(tmp_path / 'out' / 'bag0') == kept
+    assert set(read_raw(tmp_path / 'out' / 'bag1')) == set(kept)
+
+
 # --------------------------------------------------------------------------------------------
 # Compressed depth topics: the same outputs as the raw depth of the same frames
 

@@ -47,6 +47,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--storage', choices=sorted(STORAGES), default='sqlite3',
                         help='output storage (default %(default)s)')
     parser.add_argument('--quiet', action='store_true', help='no progress bar')
+    parser.add_argument('--skip-existing', action='store_true',
+                        help='many bags: keep the output bags an earlier (interrupted) run '
+                             'finished and process the rest')
     add_fleet_arguments(parser)
     return parser
 
@@ -81,6 +84,18 @@ def _process_many(args: argparse.Namespace, values: Mapping[str, Any], origin: s
         outputs = [(bag, args.output / name) for bag, name in fleet_bags.find_bags(args.bag)]
     else:   # one bag on a cluster (--workers / --scheduler): the output is the one named
         outputs = [(Path(args.bag), args.output)]
+    # an output bag is written whole or not at all (staged, renamed): one that exists is complete
+    done = [output for _, output in outputs if output.exists()]
+    if done and not args.skip_existing:
+        raise tool_support.ToolError(
+            done[0], f'output already exists ({len(done)} of {len(outputs)}); --skip-existing '
+                     'keeps them and processes the rest, or remove them')
+    if done:
+        print(f'kept {len(done)} output bag{"s" if len(done) != 1 else ""} from an earlier run: '
+              f'{", ".join(str(p) for p in done)}', file=sys.stderr)
+        outputs = [(bag, output) for bag, output in outputs if output not in done]
+        if not outputs:
+            return 0
     # one thread per task: the workers are the parallelism (same results: compare=False)
     values = {**values, 'compute_threads': 1}
     jobs = [fleet_bags.BagJob(
@@ -96,8 +111,13 @@ def _process_many(args: argparse.Namespace, values: Mapping[str, Any], origin: s
             outcomes = fleet_bags.process_bags(jobs, fleet)
     except KeyboardInterrupt:
         fleet_bags.remove_stale_staging(jobs)
+        kept = [job.output for job in jobs if job.output.exists()]
         print('bag_process.py: interrupted; the output bags not complete were removed',
               file=sys.stderr)
+        if kept:
+            print(f'kept {len(kept)} finished output bag{"s" if len(kept) != 1 else ""}: '
+                  f'{", ".join(str(p) for p in kept)}; the same command with --skip-existing '
+                  f'processes the other {len(jobs) - len(kept)}', file=sys.stderr)
         return 130
     print(fleet_bags.format_table(outcomes))
     wall_s = time.perf_counter() - began
