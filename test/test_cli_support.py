@@ -20,8 +20,30 @@ def test_domain_ids_in_range_are_taken(value: str) -> None:
     assert _parser().parse_args(['--domain-id', value]).domain_id == int(value)
 
 
-def test_the_default_domain_is_one_of_the_runs_own() -> None:
+def test_the_default_domain_is_one_of_the_runs_own(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.delenv('ROS_DOMAIN_ID', raising=False)
     assert 100 <= _parser().parse_args([]).domain_id <= 200
+
+
+@pytest.mark.parametrize('tool', ['demo', 'latency_bench'])
+def test_an_exported_domain_is_the_default(tool: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    # a user working in their own domain sees the demo's topics there
+    import importlib
+
+    module = importlib.import_module(f'obstacle_detection.tools.{tool}')
+    monkeypatch.setenv('ROS_DOMAIN_ID', '37')
+    assert module.build_parser().parse_args([]).domain_id == 37
+    assert module.build_parser().parse_args(['--domain-id', '12']).domain_id == 12
+
+
+def test_a_bad_exported_domain_is_named(monkeypatch: pytest.MonkeyPatch,
+                                        capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.setenv('ROS_DOMAIN_ID', '300')
+    with pytest.raises(SystemExit) as exit_info:
+        _parser().parse_args([])
+    assert exit_info.value.code == 2
+    assert "ROS_DOMAIN_ID='300' (from the environment) must be in 0..232" in \
+        capsys.readouterr().err
 
 
 @pytest.mark.parametrize('value, message', [('233', 'must be in 0..232, got 233'),

@@ -267,7 +267,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--save-every', type=tool_support.int_in(1), default=5,
                         help='save pictures of one frame in N (default %(default)s)')
     tool_support.add_domain_id_option(
-        parser, 'ROS_DOMAIN_ID of the demo, 0-232 (default: 100-200 from the process id)')
+        parser, 'ROS_DOMAIN_ID of the demo, 0-232')
     return parser
 
 
