@@ -2,6 +2,7 @@
 
 import argparse
 import json
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -82,6 +83,20 @@ def test_command_prints_grid_names_best_and_saves_heatmap(tmp_path, capsys):
     row, col = np.unravel_index(np.nanargmax(grid), grid.shape)
     assert saved['best']['ramps'] == {'theta_deg': ['20', '60'][col], 'N1': ['0', '12'][row]}
     assert cv2.imread(str(out)) is not None
+
+
+def test_command_says_its_suite_and_frames_and_writes_into_out(tmp_path, capsys, monkeypatch):
+    # sweep scores one frame per scenario by default: said, with evaluate's all-frames score
+    # beside it not the same number; the heatmap goes to out/ (ignored by git), not the cwd
+    monkeypatch.chdir(tmp_path)
+    code = sweep.main(['--x', 'theta_deg=20,60', '--scene', 'ramps', '--workers', '0'])
+    assert code == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith('suite: seed (scenarios.json, the seed\'s slope-only truth), '
+                               '1 frame per scenario (--max-frames 1, the default of sweep; '
+                               'evaluate scores every frame); parameters: corridor; 1 frames;')
+    assert lines[-1] == f'heatmap: {Path("out") / "sweep.png"}'
+    assert (tmp_path / 'out' / 'sweep.png').is_file() and not (tmp_path / 'sweep.png').exists()
 
 
 def test_command_refuses_an_unknown_axis(capsys):

@@ -19,8 +19,9 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from obstacle_detection.cli.evaluation_args import (REAL_FRAMES, add_common_arguments,
-                                                   base_params, frame_sources)
+from obstacle_detection.cli.evaluation_args import (REAL_FRAMES, SUITE_TEXT,
+                                                   add_common_arguments, base_params,
+                                                   frame_sources)
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.evaluation import runner as evaluation
 from obstacle_detection.fleet import scoring
@@ -106,11 +107,11 @@ def main(argv: Sequence[str] | None = None) -> int:
                                            refiner=refiner, refiner_name=refiner_name,
                                            progress=not args.quiet)
     out = sys.stderr if args.json == '-' else sys.stdout
-    print(f'parameters: {label}; {report.overall.frames} frames in {report.seconds:.1f} s',
-          file=out)
+    print(f'suite: {SUITE_TEXT[args.suite]}; parameters: {label}; {report.overall.frames} '
+          f'frames in {report.seconds:.1f} s', file=out)
     print(evaluation.format_table(report), file=out)
     if report.overall.robot is not None:
-        print('\nrobot level (issue 9):', file=out)
+        print('\nrobot table (objects found, drops, passable free, 1-cell F1):', file=out)
         print(evaluation.format_robot_table(report), file=out)
     if refiner is not None:
         print(f'\nrefined by {refiner_name} (seed 4.5 logistic regression):', file=out)

@@ -28,16 +28,24 @@ def parse_assignment(text: str) -> tuple[str, str]:
     return key.strip(), value.strip()
 
 
-def add_common_arguments(parser: argparse.ArgumentParser) -> None:
-    """Frame-source and parameter options shared by evaluate and sweep."""
-    parser.add_argument('--suite', choices=sorted(evaluation.SUITES), default='seed',
+#: What each suite is, as the tools' headers name it.
+SUITE_TEXT = {'seed': "seed (scenarios.json, the seed's slope-only truth)",
+              'robot': 'robot (scenarios_robot.json, robot-level truth)'}
+
+
+def add_common_arguments(parser: argparse.ArgumentParser, *, suite: str = 'robot',
+                         max_frames: int | None = None) -> None:
+    """Frame-source and parameter options shared by evaluate and sweep, with their defaults."""
+    parser.add_argument('--suite', choices=sorted(evaluation.SUITES), default=suite,
                         help="committed scenario suite: 'seed' (scenarios.json, the "
                              "seed's slope-only truth) or 'robot' (scenarios_robot.json, "
-                             'robot-level truth, time-of-flight noise) [default: seed]')
+                             'robot-level truth, time-of-flight noise, the README\'s table) '
+                             f'[default: {suite}]')
     parser.add_argument('--scene', action='append', metavar='NAME',
                         help='evaluate only this scenario (repeatable) [default: all]')
-    parser.add_argument('--max-frames', type=int, metavar='N',
-                        help='at most N frames per scenario, evenly spread')
+    parser.add_argument('--max-frames', type=int, metavar='N', default=max_frames,
+                        help='at most N frames per scenario, evenly spread '
+                             f'[default: {max_frames or "every frame"}]')
     add_parameter_arguments(parser)
 
 
