@@ -153,8 +153,9 @@ def test_evaluate_trains_the_refiner_and_scores_it_on_the_held_out_frames(tmp_pa
     assert report['overall']['frames'] == 2 and 'refined' in report['overall']
     model = LogisticRefiner.load(out)
     assert model.coefficients[1] < 0  # steeper surface (smaller |n.up|) -> more likely obstacle
+    # nothing left to score
     assert evaluate.main(['--suite', 'seed', '--scene', 'corridor', '--max-frames', '1',
-                          '--train-frames', '1', '--train-refiner', str(out)]) == 2   # nothing left to score
+                          '--train-frames', '1', '--train-refiner', str(out)]) == 2
 
 
 def test_validation_drops_isolated_refined_voxels():
