@@ -759,3 +759,54 @@ def test_tum_on_a_folder_of_loose_frames_points_to_folder(
     code, out, err = run(['tum', str(root), str(tmp_path / 'out')], capsys)
     assert code == 1 and err.count('\n') == 1
     assert f'bag_convert folder {root} OUTPUT --depth-scale 5000' in err
+
+
+# --- ros1 given a rosbag2 bag ----------------------------------------------------------------
+
+
+@pytest.fixture()
+def rosbag2(tmp_path: Path, depths: list[np.ndarray]) -> Path:
+    """A converted rosbag2 bag (sqlite3) of two frames."""
+    folder = make_folder(tmp_path / 'frames', depths[:2], with_color=False)
+    code = bag_convert.main(['folder', str(folder / 'depth'), str(tmp_path / 'bag2'), '--quiet',
+                             '--intrinsics', str(write_intrinsics(tmp_path / 'k.yaml'))])
+    assert code == 0
+    return tmp_path / 'bag2'
+
+
+def test_ros1_given_a_rosbag2_folder_says_it_needs_no_conversion(
+        rosbag2: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, err = run(['ros1', str(rosbag2), str(tmp_path / 'out')], capsys)
+    assert code == 1 and out == ''
+    assert err == (f'error: {rosbag2}: a rosbag2 bag, not a ROS 1 bag: it needs no conversion '
+                   '(bag_play, bag_process and pictures --bag read it)\n')
+    assert not (tmp_path / 'out').exists()
+
+
+def test_ros1_given_a_rosbag2_storage_file_is_refused(
+        rosbag2: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    db3 = next(rosbag2.glob('*.db3'))
+    code, out, err = run(['ros1', str(db3), str(tmp_path / 'out')], capsys)
+    assert code == 1 and out == ''
+    assert err == (f'error: {db3}: a rosbag2 storage file, not a ROS 1 bag: its folder '
+                   f'{rosbag2} is a rosbag2 bag already and needs no conversion (bag_play, '
+                   'bag_process and pictures --bag read it)\n')
+    assert not (tmp_path / 'out').exists()
+
+
+def test_ros1_given_another_file_is_refused(tmp_path: Path,
+                                            capsys: pytest.CaptureFixture[str]) -> None:
+    (tmp_path / 'notes.bag').write_text('hello')
+    code, out, err = run(['ros1', str(tmp_path / 'notes.bag'), str(tmp_path / 'out')], capsys)
+    assert code == 1
+    assert err == (f'error: {tmp_path / "notes.bag"}: not a ROS 1 bag (no "#ROSBAG V2.0" '
+                   'header)\n')
+
+
+def test_help_texts_hold_no_internal_words(capsys: pytest.CaptureFixture[str]) -> None:
+    for source in ('tum', 'diml', 'folder', 'ros1'):
+        with pytest.raises(SystemExit):
+            bag_convert.main([source, '-h'])
+        text = capsys.readouterr().out
+        for word in (':func:', 'Error)', 'EvaluationError', '``', 'issue '):
+            assert word not in text, (source, word)

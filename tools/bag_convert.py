@@ -26,6 +26,23 @@ def intrinsics_or_file(text: str) -> Path | Intrinsics:
     return Path(text)
 
 
+TUM_HELP = '''Convert a sequence in the TUM RGB-D layout (TUM, ETH3D SLAM, Bonn, ICL-NUIM).
+
+Depth frames listed in depth.txt (or named depth/<seconds>.png), 5000 units per metre, each with
+the colour frame nearest in time (within 0.02 s; rgb.txt or rgb/<seconds>.png). Loose frames
+without stamps (depth_N.png beside color_N.png): use "bag_convert folder".'''
+
+DIML_HELP = '''Convert one DIML/CVL indoor sequence folder (<scene>/<date>/<n>).
+
+The release has no stamps: frame i (the number before the file suffix) is stamped
+--start-time + i / --rate. Depth in millimetres; colour from col/.'''
+
+ROS1_HELP = '''Convert a ROS 1 bag (.bag, e.g. recorded with iai_kinect2) to a rosbag2 bag.
+
+Every message is converted to its ROS 2 Jazzy type. Compressed depth topics are kept as recorded
+(the node, with its depth_transport parameter, and bag_process --depth-topic read them). A rosbag2
+bag needs no conversion: bag_play, bag_process and pictures --bag read it.'''
+
 FOLDER_HELP = '''Convert a folder of 16-bit depth images (PNG or PGM), in name order, at --rate.
 
 Colour comes from --color-dir (as many images, in name order) or from the same folder: color_N.png
@@ -63,7 +80,8 @@ def build_parser() -> argparse.ArgumentParser:
                        help='stamp of frame 0 [s since the epoch] (default %(default)s)')
 
     p = sub.add_parser('tum', parents=[common, frames], help='TUM RGB-D format '
-                       '(TUM, ETH3D SLAM, Bonn, ICL-NUIM)', description=tum_frames.__doc__)
+                       '(TUM, ETH3D SLAM, Bonn, ICL-NUIM)', description=TUM_HELP,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument('path', metavar='sequence', type=Path, help='folder with depth.txt and rgb.txt '
                    '(or depth/ and rgb/ of <seconds>.png)')
     p.add_argument('output', type=Path, help='rosbag2 folder to create (must not exist)')
@@ -73,7 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser('diml', parents=[common, frames, timed],
                        help='DIML/CVL indoor sequence folder <scene>/<date>/<n>',
-                       description=diml_frames.__doc__)
+                       description=DIML_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument('path', metavar='sequence', type=Path,
                    help='folder holding col/ and raw_png/ (up, warp)')
     p.add_argument('output', type=Path, help='rosbag2 folder to create (must not exist)')
@@ -97,7 +115,7 @@ def build_parser() -> argparse.ArgumentParser:
                         'TUM RGB-D: 5000)')
 
     p = sub.add_parser('ros1', parents=[common], help='a ROS 1 bag (e.g. iai_kinect2)',
-                       description=convert_ros1.__doc__)
+                       description=ROS1_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument('path', metavar='bag', type=Path, help='ROS 1 .bag file')
     p.add_argument('output', type=Path, help='rosbag2 folder to create (must not exist)')
     p.set_defaults(read=convert_ros1)
