@@ -766,7 +766,7 @@ def test_tum_on_a_folder_of_loose_frames_points_to_folder(
 
 @pytest.fixture()
 def rosbag2(tmp_path: Path, depths: list[np.ndarray]) -> Path:
-    """A converted rosbag2 bag (sqlite3) of two frames."""
+    """Return a converted rosbag2 bag (sqlite3) of two frames."""
     folder = make_folder(tmp_path / 'frames', depths[:2], with_color=False)
     code = bag_convert.main(['folder', str(folder / 'depth'), str(tmp_path / 'bag2'), '--quiet',
                              '--intrinsics', str(write_intrinsics(tmp_path / 'k.yaml'))])
