@@ -76,3 +76,21 @@ def test_int_in_parses_integers_in_range_and_names_the_bound() -> None:
             at_least_one(text)
     with pytest.raises(argparse.ArgumentTypeError, match=r'must be in 0\.\.232, got 233'):
         support.domain_id('233')
+
+
+#: Words of the code, not of a user: reST markup, exception class names, issue numbers.
+INTERNAL = (':func:', ':class:', '``', 'Error)', 'issue ', 'FusionParams(')
+
+
+@pytest.mark.parametrize('tool', ['bag_convert', 'bag_play', 'bag_process', 'demo',
+                                  'estimate_mount', 'evaluate', 'latency_bench', 'sweep'])
+def test_help_holds_no_internal_words(tool: str) -> None:
+    import importlib
+
+    parser = importlib.import_module(f'obstacle_detection.tools.{tool}').build_parser()
+    texts = [parser.format_help()]
+    for action in parser._actions:   # sub-commands (bag_convert SOURCE -h)
+        if isinstance(action, argparse._SubParsersAction):
+            texts += [sub.format_help() for sub in action.choices.values()]
+    for text in texts:
+        assert not [word for word in INTERNAL if word in text], text

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Replay a rosbag2 bag on ROS 2 topics with its recorded timing (``ros2 bag play`` stand-in).
+"""Replay a rosbag2 bag on ROS 2 topics with its recorded timing (in place of ros2 bag play).
 
 Every topic's messages go out as recorded (compressed depth too), with the sensor-data QoS unless
 --reliable.

@@ -184,7 +184,7 @@ def _score_sequences(args: Any, params: DetectorParams) -> int:
             sheet_frames=8 if args.sheet is not None else 0,
             on_frame=progress))
     out = sys.stderr if args.json == '-' else sys.stdout
-    print(f'parameters: {_label(args)}; fusion: {fusion}', file=out)
+    print(f'parameters: {_label(args)}; fusion: {_fusion_text(fusion)}', file=out)
     print(video.format_table(reports), file=out)
     if args.sheet is not None:
         from obstacle_detection.viz import pictures
@@ -194,6 +194,16 @@ def _score_sequences(args: Any, params: DetectorParams) -> int:
     _write_json(args.json, {'fusion': fusion.__dict__,
                             'sequences': [r.as_dict() for r in reports]})
     return 0
+
+
+def _fusion_text(fusion: Any) -> str:
+    """The fused costmap's settings in words (FusionParams, docs/fused_costmap.md)."""
+    return (f'a {fusion.size_m:g} m window at {fusion.resolution_m:g} m a cell; log-odds '
+            f'{fusion.hit_log_odds:+g} a hit, {fusion.miss_log_odds:+g} a miss, kept in '
+            f'[{fusion.min_log_odds:g}, {fusion.max_log_odds:g}]; occupied from '
+            f'{fusion.occupied_log_odds:g}, free below {fusion.free_log_odds:g}; an odometry '
+            f'jump over {fusion.max_jump_m:g} m or {fusion.max_jump_deg:g} deg in one frame '
+            're-anchors the map')
 
 
 def _label(args: Any) -> str:
