@@ -197,7 +197,7 @@ def _score_sequences(args: Any, params: DetectorParams) -> int:
 
 
 def _fusion_text(fusion: Any) -> str:
-    """The fused costmap's settings in words (FusionParams, docs/fused_costmap.md)."""
+    """Return the fused costmap's settings in words (FusionParams, docs/fused_costmap.md)."""
     return (f'a {fusion.size_m:g} m window at {fusion.resolution_m:g} m a cell; log-odds '
             f'{fusion.hit_log_odds:+g} a hit, {fusion.miss_log_odds:+g} a miss, kept in '
             f'[{fusion.min_log_odds:g}, {fusion.max_log_odds:g}]; occupied from '
