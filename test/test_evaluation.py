@@ -81,8 +81,17 @@ def test_node_parameter_file(tmp_path):
     assert p.normal_neighbours == 5
     assert evaluation.load_params_file(path, table_4_3()).median_kernel == 7   # on the base
     path.write_text('/**:\n  ros__parameters:\n    depth_topic: /camera/depth\n')
-    with pytest.raises(ValueError, match="unknown parameter 'depth_topic'"):
-        evaluation.load_params_file(path)
+    # not the node's either: ignored as the node ignores it (the tools warn, as the node does)
+    assert evaluation.load_params_file(path) == table_4_2()
+
+
+def test_evaluate_warns_about_a_misspelt_parameter_as_the_node(tmp_path, capsys):
+    path = tmp_path / 'typo.yaml'
+    path.write_text('/**:\n  ros__parameters:\n    max_slope_dg: 20.0\n')
+    assert evaluate.main(['--params-file', str(path), '--scene', 'curb_sill', '--max-frames',
+                          '1', '--quiet', '--workers', '0']) == 0
+    assert (f"warning: {path}: unknown parameter 'max_slope_dg' is ignored (did you mean "
+            "'max_slope_deg'?)") in capsys.readouterr().err
 
 
 def test_truth_grid_uses_the_costmap_binning():

@@ -760,6 +760,22 @@ def test_every_parameter_has_a_description_and_numbers_a_range(
     assert local_node.describe_parameter('reliable_input').read_only
 
 
+def test_an_integer_for_a_float_stops_the_node_with_file_name_and_fix(tmp_path: Path) -> None:
+    # rcl said "invalid parameters: Trying to set parameter ... INTEGER, expecting DOUBLE"
+    # without the file or the fix; the tools say "write 30.0": now the node says it too
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text('obstacle_detector:\n  ros__parameters:\n    max_range_m: 3\n')
+    env = ros_env.loopback_env(__name__ + ':int-file', log_dir=tmp_path / 'ros_log')
+
+    done = subprocess.run(ros_env.detector_command() + ['--ros-args', '--params-file', str(bad)],
+                          env=env, cwd=tmp_path, capture_output=True, text=True, timeout=60,
+                          check=False)
+
+    assert done.returncode == 1
+    assert done.stderr == (f"detector: error: {bad}: parameter 'max_range_m' must be a float, "
+                           'got 3: write 3.0\n')
+
+
 def test_invalid_params_file_stops_the_node_with_the_message(tmp_path: Path) -> None:
     bad = tmp_path / 'bad.yaml'
     bad.write_text(CORRIDOR_YAML.read_text().replace('median_kernel: 5 ', 'median_kernel: 4 '))

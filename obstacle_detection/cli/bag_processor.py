@@ -25,7 +25,8 @@ from obstacle_detection.ros.compressed_depth import COMPRESSED_IMAGE_TYPE, raw_t
 from obstacle_detection.ros.config import NodeConfig, build_config
 from obstacle_detection.ros.conversions import result_to_messages
 from obstacle_detection.ros.frame_gate import CameraState
-from obstacle_detection.ros.parameters import ALL_PARAMS, read_params_files
+from obstacle_detection.ros.parameters import (ALL_PARAMS, params_file_problems,
+                                               read_params_files)
 from obstacle_detection.viz.overlay import render_overlay
 
 DEFAULT_NAMESPACE = '/obstacles'
@@ -52,6 +53,9 @@ def node_param_values(path: Path | Sequence[Path]) -> dict[str, Any]:
     values: dict[str, Any] = {spec.name: spec.default for spec in ALL_PARAMS}
     paths = [path] if isinstance(path, (str, Path)) else list(path)
     values.update(read_params_files(paths))   # RosInputError: a ValueError, one line
+    for path in paths:   # what the node would ignore, said as the node says it
+        for problem in params_file_problems(path):
+            tool_support.warn(problem)
     return values
 
 

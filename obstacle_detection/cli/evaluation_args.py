@@ -9,6 +9,7 @@ from typing import Any, Iterable
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.evaluation import runner as evaluation
 from obstacle_detection.pipeline.params import PRESETS, DetectorParams, Intrinsics
+from obstacle_detection.ros.parameters import params_file_problems
 
 #: The frames of ../shared/data/real/README.md: (folder, files, units per metre, intrinsics).
 REAL_FRAMES = (
@@ -69,6 +70,8 @@ def base_params(args: argparse.Namespace) -> DetectorParams:
     params = PRESETS[args.preset]()
     for path in args.params_file:  # several files apply in order, as ROS merges them
         params = evaluation.load_params_file(path, params)
+        for problem in params_file_problems(path):   # what the node would ignore, as it says
+            tool_support.warn(problem)
     if args.set:
         try:
             params = evaluation.apply_overrides(params, dict(args.set))

@@ -51,7 +51,7 @@ from obstacle_detection.pipeline.geometry import yaw_from_quaternion
 from .mount_source import MountSource
 from obstacle_detection.pipeline.params import Intrinsics
 from . import RosInputError
-from .parameters import (ALL_PARAMS, NODE_NAME, PARAMS_FILE_KEY, load_params_yaml,
+from .parameters import (ALL_PARAMS, NODE_NAME, PARAMS_FILE_KEY, check_params_file,
                          params_file_problems, params_files_in_args)
 
 
@@ -562,8 +562,8 @@ def main(args: list[str] | None = None) -> int:
     argv = list(sys.argv if args is None else args)
     files = params_files_in_args(argv)
     try:
-        for path in files:   # rcl would end in a raw RCLError traceback
-            load_params_yaml(Path(path))
+        for path in files:   # rcl would end in a raw RCLError traceback, or refuse an
+            check_params_file(Path(path))   # integer for a float naming neither file nor fix
     except RosInputError as error:
         print(f'detector: error: {error}', file=sys.stderr)
         return 1
