@@ -99,6 +99,30 @@ def test_command_says_its_suite_and_frames_and_writes_into_out(tmp_path, capsys,
     assert (tmp_path / 'out' / 'sweep.png').is_file() and not (tmp_path / 'sweep.png').exists()
 
 
+def test_heatmap_has_a_title_and_one_colour_scale(tmp_path, monkeypatch):
+    # sweep.png had no title and no colour scale, and false-alarm panels coloured 1 - value
+    # without a word on the picture
+    from obstacle_detection.viz import pictures
+
+    titles: list[str] = []
+    titled = pictures.titled
+
+    def recorded(image, title, **kwargs):
+        titles.append(title)
+        return titled(image, title, **kwargs)
+    monkeypatch.setattr(pictures, 'titled', recorded)
+    out = tmp_path / 'heat.png'
+    assert sweep.main(['--x', 'theta_deg=20,60', '--scene', 'ramps', '--scene',
+                       'pitched_floor', '--out', str(out), '--workers', '0']) == 0
+    assert titles == ['sweep of theta_deg: cell_f1 per scenario (seed suite, 1 frame per '
+                      'scenario, preset corridor); red box: the best setting']
+    image = cv2.cvtColor(cv2.imread(str(out)), cv2.COLOR_BGR2RGB)
+    for level in (0, 255):   # both ends of the one colour scale are drawn
+        colour = cv2.cvtColor(cv2.applyColorMap(np.uint8([[level]]), cv2.COLORMAP_VIRIDIS),
+                              cv2.COLOR_BGR2RGB)[0, 0]
+        assert (image == colour).all(axis=-1).any(), level
+
+
 def test_command_refuses_an_unknown_axis(capsys):
     assert sweep.main(['--x', 'Q=1,2', '--scene', 'corridor']) == 2
     assert "unknown parameter 'Q'" in capsys.readouterr().err

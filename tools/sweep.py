@@ -129,14 +129,23 @@ def _write_heatmaps(args: argparse.Namespace, result: SweepResult) -> None:
     for scene in result.grids:
         flat, metric, higher = result.ranking(scene)
         best = result.best(scene)
-        title = f'{scene}: {metric}' + ('' if higher else ' (colour: 1 - value)')
+        title = f'{scene}: {metric}' + ('' if higher else ' (colour: 1 - it)')
         panels.append(pictures.heatmap(
             flat if higher else 1.0 - flat, list(args.x.values),
             list(args.y.values) if args.y else [''], title=title, x_name=args.x.name,
             y_name=args.y.name if args.y else '', best=best,
             values=flat))
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    pictures.write_png(args.out, pictures.tile(panels, columns=3))
+    grid = pictures.tile(panels, columns=3)
+    axes = args.x.name + (f' x {args.y.name}' if args.y else '')
+    frames = ('every frame' if args.max_frames is None else
+              f'{args.max_frames} frame{"s" if args.max_frames != 1 else ""} per scenario')
+    scale = pictures.colour_bar(grid.shape[1], 'colour: the score, on one scale 0 to 1 in every '
+                                'panel; a rate to minimise (false alarms) as 1 - it, so yellow is '
+                                'better everywhere')
+    pictures.write_png(args.out, pictures.titled(
+        grid, f'sweep of {axes}: {args.metric} per scenario ({args.suite} suite, {frames}, '
+              f'preset {args.preset}); red box: the best setting', below=scale))
 
 
 if __name__ == '__main__':

@@ -155,6 +155,14 @@ def mount_text(params: DetectorParams) -> str:
             f'{math.degrees(params.camera_roll_rad):.1f} deg')
 
 
+def time_text(stamp_ns: int, first_ns: int) -> str:
+    """Return ``t = 1.667 s``, a message's time after the first of its recording.
+
+    A stamp read as a date (1796279833.666666667) says nothing at a glance.
+    """
+    return f't = {(stamp_ns - first_ns) / 1e9:.3f} s'
+
+
 def intrinsics_warning(intrinsics: Intrinsics, shape: tuple[int, int]) -> str | None:
     """Why these intrinsics do not fit an (H, W) image (principal point off centre), or None."""
     height, width = shape
