@@ -497,17 +497,26 @@ def test_the_legend_shows_the_reds_the_overlay_draws(which, corridor):
         assert (legend == colour).all(axis=-1).any(), (grey, colour)
 
 
-def test_the_fused_grid_is_drawn_as_tall_as_the_overlay():
-    # a 4 m fused window of 80 cells beside a 145 px overlay was drawn 80 px wide, one tick
+def test_the_fused_grid_is_drawn_at_the_costmaps_scale():
+    # a 4 m fused window of 80 cells beside the costmap's 4 m was drawn half as wide (80 px,
+    # one tick): both grids are in metres, at one scale
     params = table_4_2()
     costmap = _empty_costmap(params)
-    costmap = Costmap(np.zeros_like(costmap.data), costmap.resolution_m, costmap.origin_xy_m)
+    costmap = Costmap(np.full_like(costmap.data, CELL_OCCUPIED), costmap.resolution_m,
+                      costmap.origin_xy_m)
     fused = Costmap(np.full((80, 80), CELL_UNKNOWN, np.int8), 0.05, (-2.0, -2.0))
     overlay = np.full((145, 176, 3), 200, np.uint8)
     image = pictures.node_outputs(overlay, costmap, caption=['x'], fused=fused,
                                   with_legend=False)
-    grey = np.argwhere((image == UNKNOWN_RGB).all(axis=-1))   # the fused grid only
-    assert np.ptp(grey[:, 0]) + 1 >= 145
+    occupied = np.argwhere((image == OCCUPIED_RGB).all(axis=-1))   # the costmap only
+    grey = np.argwhere((image == UNKNOWN_RGB).all(axis=-1))
+    grey = grey[grey[:, 1] > occupied[:, 1].max()]                 # the fused grid (text aside)
+    for axis in (0, 1):   # the rows and columns of the grid, not stray text pixels
+        values, counts = np.unique(grey[:, axis], return_counts=True)
+        grey = grey[np.isin(grey[:, axis], values[counts > 50])]
+    assert np.ptp(grey[:, 1]) == np.ptp(occupied[:, 1]) > 100      # 4 m across each
+    ticks = np.flatnonzero((image[grey[:, 0].max() + 3] == pictures.AXIS_RGB).all(axis=-1))
+    assert np.count_nonzero(ticks >= grey[:, 1].min() - 1) >= 3    # -2, 0, 2 m across
 
 
 def test_bag_frames_are_named_by_their_time_in_the_bag(tmp_path, corridor):

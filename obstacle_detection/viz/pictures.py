@@ -151,16 +151,25 @@ def _put(image: np.ndarray, text: str, org: tuple[int, int], *, scale: float = T
     cv2.putText(image, text, (int(x), int(org[1])), _FONT, scale, colour, 1, cv2.LINE_AA)
 
 
-def costmap_panel(costmap: Any, *, scale: int = 4,
+def costmap_panel(costmap: Any, *, scale: float = 4,
                   robot_pose: tuple[float, float, float] = (0.0, 0.0, 0.0),
                   axis_names: tuple[str, str] = ('x forward [m]', 'y left [m]')) -> np.ndarray:
-    """Return the costmap seen from above with metre axes, the camera at robot_pose (x, y, yaw)."""
-    grid = render_costmap(costmap, scale=scale)
+    """Return the costmap seen from above with metre axes, the camera at robot_pose (x, y, yaw).
+
+    scale: pixels a cell; a fraction draws the cells to the nearest pixel.
+    """
+    if float(scale).is_integer():
+        grid = render_costmap(costmap, scale=int(scale))
+    else:
+        cells = render_costmap(costmap, scale=1)
+        size = (round(cells.shape[1] * scale), round(cells.shape[0] * scale))
+        grid = cv2.resize(cells, size, interpolation=cv2.INTER_NEAREST)
+        scale = size[1] / cells.shape[0]   # the drawn pixels a cell, for the axes
     grid_h, grid_w = grid.shape[:2]
     line_h = _text_size('Ag', TEXT_SCALE)[1]
     tick_w = _text_size('-10.0', TEXT_SCALE)[0]
     left, top = tick_w + 12, line_h + 8
-    marker = max(6, scale * 2)
+    marker = max(6, round(scale * 2))
     bottom = marker + 2 * line_h + 12
     right = _text_size('-10.0', TEXT_SCALE)[0] // 2 + 4
     panel = np.full((top + grid_h + bottom, left + grid_w + right, 3), BACKGROUND_RGB,
@@ -177,7 +186,8 @@ def costmap_panel(costmap: Any, *, scale: int = 4,
         cv2.line(panel, (left - 5, row), (left - 1, row), AXIS_RGB, 1)
         _put(panel, f'{x:g}', (left - 7, row + line_h // 2 - 1), anchor='right')
     tick_y = top + grid_h + marker + line_h + 4
-    for y in _ticks(y0, y1, px_per_m, 2 * tick_w):
+    # across: 1.5 labels apart (a 4 m grid 100 px wide gets -2, 0, 2; it had 2 labels: 0)
+    for y in _ticks(y0, y1, px_per_m, 1.5 * tick_w):
         col = left + round((y1 - y) * px_per_m)
         cv2.line(panel, (col, top + grid_h), (col, top + grid_h + 4), AXIS_RGB, 1)
         _put(panel, f'{y:g}', (col, tick_y), anchor='centre')
@@ -483,10 +493,15 @@ def node_outputs(overlay: np.ndarray, costmap: Any, *, caption: Sequence[str],
     """
     overlay = _scaled(overlay, image_scale)
     height, width = overlay.shape[:2]
-    panels = [overlay, costmap_panel(costmap, scale=_grid_scale(costmap, height, width))]
+    # pixels a cell, a fraction too: the grids grow with the overlay, not in whole steps; each
+    # grid 0.8 of the overlay's width, so that three panels share a row evenly
+    scale = max(1.0, min(0.8 * width / max(costmap.height, 1), height / max(costmap.width, 1)))
+    panels = [overlay, costmap_panel(costmap, scale=scale)]
     if fused is not None:
-        # as tall as the overlay at least (a 4 m window of 5 cm cells was 80 px, one tick)
-        panels.append(costmap_panel(fused, scale=max(1, -(-height // max(fused.width, 1))),
+        # at the costmap's metres per pixel: a 4 m window is as wide as the costmap's 4 m (it
+        # was fitted to the overlay's height: 80 px, one tick)
+        panels.append(costmap_panel(fused, scale=scale * costmap.resolution_m
+                                    / fused.resolution_m,
                                     robot_pose=robot_pose,
                                     axis_names=('x [m], odom', 'y [m], odom')))
     row = join_panels(panels)
