@@ -522,6 +522,21 @@ def test_an_interrupted_many_bag_run_resumes(tmp_path: Path, depths: list[np.nda
     assert set(read_raw(tmp_path / 'out' / 'bag1')) == set(kept)
 
 
+def test_many_bags_say_their_intrinsics_and_mount_as_one_bag_does(
+        tmp_path: Path, depths: list[np.ndarray], capsys: pytest.CaptureFixture[str]) -> None:
+    # docs/bags.md: bag_process prints the intrinsics (which CameraInfo topic) and the mount it
+    # used; run on many bags (Dask or --workers 0) it printed neither
+    for i in range(2):
+        write_bag(tmp_path / 'bags' / f'bag{i}', frame_messages(depths[:1]))
+    assert bag_process.main([str(tmp_path / 'bags'), str(tmp_path / 'out'), '--workers', '0',
+                             '--quiet']) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert (f'intrinsics: CameraInfo on {INFO} (the default topic): {tmp_path / "bags" / "bag0"}, '
+            f'{tmp_path / "bags" / "bag1"}') in out
+    assert ("camera mount: height 0.60 m, pitch 0.0 deg, roll 0.0 deg (the node's defaults: no "
+            'params file changes it)') in out
+
+
 # --------------------------------------------------------------------------------------------
 # Compressed depth topics: the same outputs as the raw depth of the same frames
 
