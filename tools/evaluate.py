@@ -19,8 +19,9 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from obstacle_detection.cli.evaluation_args import (REAL_FRAMES, add_common_arguments,
-                                                   base_params, frame_sources)
+from obstacle_detection.cli.evaluation_args import (REAL_FRAMES, SUITE_TEXT,
+                                                   add_common_arguments, base_params,
+                                                   frame_sources)
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.evaluation import runner as evaluation
 from obstacle_detection.fleet import scoring
@@ -106,11 +107,11 @@ def main(argv: Sequence[str] | None = None) -> int:
                                            refiner=refiner, refiner_name=refiner_name,
                                            progress=not args.quiet)
     out = sys.stderr if args.json == '-' else sys.stdout
-    print(f'parameters: {label}; {report.overall.frames} frames in {report.seconds:.1f} s',
-          file=out)
+    print(f'suite: {SUITE_TEXT[args.suite]}; parameters: {label}; {report.overall.frames} '
+          f'frames in {report.seconds:.1f} s', file=out)
     print(evaluation.format_table(report), file=out)
     if report.overall.robot is not None:
-        print('\nrobot level (issue 9):', file=out)
+        print('\nrobot table (objects found, drops, passable free, 1-cell F1):', file=out)
         print(evaluation.format_robot_table(report), file=out)
     if refiner is not None:
         print(f'\nrefined by {refiner_name} (seed 4.5 logistic regression):', file=out)
@@ -183,7 +184,7 @@ def _score_sequences(args: Any, params: DetectorParams) -> int:
             sheet_frames=8 if args.sheet is not None else 0,
             on_frame=progress))
     out = sys.stderr if args.json == '-' else sys.stdout
-    print(f'parameters: {_label(args)}; fusion: {fusion}', file=out)
+    print(f'parameters: {_label(args)}; fusion: {_fusion_text(fusion)}', file=out)
     print(video.format_table(reports), file=out)
     if args.sheet is not None:
         from obstacle_detection.viz import pictures
@@ -193,6 +194,16 @@ def _score_sequences(args: Any, params: DetectorParams) -> int:
     _write_json(args.json, {'fusion': fusion.__dict__,
                             'sequences': [r.as_dict() for r in reports]})
     return 0
+
+
+def _fusion_text(fusion: Any) -> str:
+    """Return the fused costmap's settings in words (FusionParams, docs/fused_costmap.md)."""
+    return (f'a {fusion.size_m:g} m window at {fusion.resolution_m:g} m a cell; log-odds '
+            f'{fusion.hit_log_odds:+g} a hit, {fusion.miss_log_odds:+g} a miss, kept in '
+            f'[{fusion.min_log_odds:g}, {fusion.max_log_odds:g}]; occupied from '
+            f'{fusion.occupied_log_odds:g}, free below {fusion.free_log_odds:g}; an odometry '
+            f'jump over {fusion.max_jump_m:g} m or {fusion.max_jump_deg:g} deg in one frame '
+            're-anchors the map')
 
 
 def _label(args: Any) -> str:

@@ -120,7 +120,8 @@ def write_frames(source: FrameSource, output: Path, options: BagOptions) -> Summ
     intr, origin = source.intrinsics, source.intrinsics_origin
     if intr is None:
         intr, origin = default_intrinsics(source.default_view, size)
-        tool_support.warn(f'no intrinsics given (--intrinsics FILE): using {origin}, '
+        tool_support.warn(f'no intrinsics given (--intrinsics FILE or FX,FY,CX,CY): using '
+                          f'{origin}, '
                           f'fx={intr.fx:.2f} fy={intr.fy:.2f} cx={intr.cx:.2f} '
                           f'cy={intr.cy:.2f}. Obstacle positions are only as right as these '
                           'values.')
@@ -175,9 +176,32 @@ def write_frames(source: FrameSource, output: Path, options: BagOptions) -> Summ
     return summary
 
 
+#: The first line of a ROS 1 bag file.
+ROS1_MAGIC = b'#ROSBAG V2.0'
+_NO_CONVERSION = 'needs no conversion (bag_play, bag_process and pictures --bag read it)'
+
+
+def check_ros1_bag(src: Path) -> None:
+    """Raise EvaluationError unless ``src`` is a ROS 1 bag file, saying what it is instead."""
+    if src.is_dir():
+        if (src / 'metadata.yaml').is_file():
+            raise EvaluationError(f'{src}: a rosbag2 bag, not a ROS 1 bag: it {_NO_CONVERSION}')
+        raise EvaluationError(f'{src}: a folder, not a ROS 1 .bag file')
+    if not src.is_file():
+        raise EvaluationError(f'{src}: ROS 1 bag not found')
+    with open(src, 'rb') as stream:
+        head = stream.read(len(ROS1_MAGIC))
+    if head == ROS1_MAGIC:
+        return
+    if src.suffix in ('.db3', '.mcap') and (src.parent / 'metadata.yaml').is_file():
+        raise EvaluationError(f'{src}: a rosbag2 storage file, not a ROS 1 bag: its folder '
+                              f'{src.parent} is a rosbag2 bag already and {_NO_CONVERSION}')
+    raise EvaluationError(f'{src}: not a ROS 1 bag (no "{ROS1_MAGIC.decode()}" header)')
+
+
 def convert_ros1(src: Path, output: Path, *, storage: str = 'sqlite3',
                  topics: Sequence[str] = (), progress: bool = True) -> Summary:
-    """Convert a ROS 1 bag to rosbag2, every message to its ROS 2 Jazzy type (EvaluationError).
+    """Convert a ROS 1 bag to rosbag2, every message to its ROS 2 Jazzy type.
 
     Compressed depth topics are kept as recorded (the node, with its ``depth_transport``, and
     ``bag_process.py --depth-topic`` read them).
@@ -185,8 +209,7 @@ def convert_ros1(src: Path, output: Path, *, storage: str = 'sqlite3',
     from rosbags.convert.converter import create_connections_converters
     from rosbags.highlevel import AnyReader, AnyReaderError
 
-    if not src.is_file():
-        raise EvaluationError(f'{src}: ROS 1 bag not found')
+    check_ros1_bag(src)
     summary = Summary(output=output)
     with staged_output(output) as staging:
         try:
