@@ -148,13 +148,15 @@ def open_fleet(*, workers: int | None = None, scheduler: str | None = None,
             yield fleet
 
 
-def probe_scheduler(address: str, timeout: float = CONNECT_TIMEOUT_S) -> None:
+def probe_scheduler(address: str, timeout: float | None = None) -> None:
     """Check that a Dask scheduler answers at ``address`` (``tcp://`` or ``tls://``).
 
     Dask's client waits for ever for the first message of a listener that accepts and never
     speaks (a dashboard's HTTP port, a stuck process): a scheduler sends its handshake at once,
-    so this waits ``timeout`` s for it. Raises ToolError saying what answers instead.
+    so this waits ``timeout`` s (CONNECT_TIMEOUT_S) for it. Raises ToolError saying what
+    answers instead.
     """
+    timeout = CONNECT_TIMEOUT_S if timeout is None else timeout
     scheme, sep, rest = address.rpartition('://')
     scheme = scheme if sep else 'tcp'
     host, _, port = rest.rpartition(':')
