@@ -53,9 +53,11 @@ def add_fleet_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument('--workers', type=tool_support.int_in(0), metavar='N',
                        help='a local Dask cluster of N worker processes (one thread each); '
                             '0 = this process, no Dask [default: one per core when Dask is '
-                            'installed and there is more than one task]')
+                            'installed and the work pays for starting them, else this '
+                            'process; the first line says which]')
     group.add_argument('--scheduler', metavar='ADDRESS',
-                       help='run on the Dask cluster of this scheduler, e.g. tcp://host:8786')
+                       help='run on the Dask cluster of this scheduler, e.g. tcp://host:8786 '
+                            '(its workers must see the files at the same paths)')
 
 
 def fleet_options(args: argparse.Namespace) -> dict[str, Any]:
