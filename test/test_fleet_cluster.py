@@ -12,6 +12,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import shutil
 import signal
 import socket
@@ -387,5 +388,34 @@ def test_a_worker_that_does_not_share_the_output_folder_fails_loudly(
         report = capsys.readouterr().out
         assert '0 ok, 2 failed' in report
         assert f'wrote {out / "bag0"}, but this machine does not see it there' in report
+    finally:
+        stop_worker(processes, bare, run)
+
+
+def test_a_cluster_that_loses_its_last_worker_stops_the_run(
+        bare: dict[str, Any], processes: Processes, tmp_path: Path, depths: list[np.ndarray],
+        quick: None, capsys: pytest.CaptureFixture[str]) -> None:
+    run = start_worker(processes, bare, tmp_path / 'worker')
+    try:
+        folder = make_bags(tmp_path, depths, 2, repeat=20)   # 60 frames a bag
+        out = tmp_path / 'out'
+        result: list[int] = []
+        tool = threading.Thread(target=lambda: result.append(bag_process.main(
+            [str(folder), str(out), '--quiet', '--scheduler', bare['address']])), daemon=True)
+        tool.start()
+        deadline = time.monotonic() + START_S
+        while not (out.exists() and list(out.glob('.*.partial'))):   # a bag being written
+            assert tool.is_alive() and time.monotonic() < deadline, capsys.readouterr()
+            time.sleep(0.05)
+        os.killpg(run.pid, signal.SIGKILL)   # the machine is lost: worker and nanny
+        tool.join(120)
+        assert not tool.is_alive(), 'still waiting for a worker'
+        assert result == [1]
+        err = capsys.readouterr().err
+        assert re.fullmatch(rf'error: the Dask cluster at {bare["address"]} \(1 worker\): no '
+                            r'worker left for 3 s with [12] tasks to run; the run stops',
+                            err.splitlines()[-1]), err
+        assert 'Traceback' not in err
+        assert not list(out.glob('.*.partial'))
     finally:
         stop_worker(processes, bare, run)

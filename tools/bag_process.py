@@ -100,6 +100,9 @@ def _process_many(args: argparse.Namespace, values: Mapping[str, Any], origin: s
             print(f'{len(jobs)} bag{"s" if len(jobs) != 1 else ""} on {fleet.description}',
                   file=sys.stderr, flush=True)
             outcomes = fleet_bags.process_bags(jobs, fleet)
+    except tool_support.ToolError:   # e.g. the cluster lost its workers: none half-written
+        fleet_bags.remove_stale_staging(jobs)
+        raise
     except KeyboardInterrupt:
         fleet_bags.remove_stale_staging(jobs)
         print('bag_process.py: interrupted; the output bags not complete were removed',

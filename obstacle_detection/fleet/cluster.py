@@ -12,6 +12,7 @@ import logging
 import os
 import socket
 import sys
+import time
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
@@ -308,6 +309,36 @@ class TaskError:
     error: BaseException | None = dataclasses.field(default=None, compare=False)
 
 
+#: Seconds between two looks at a cluster's workers while its tasks run.
+WATCH_S = 2.0
+
+
+def _as_completed(fleet: Fleet, futures: Sequence[Any]) -> Iterator[Any]:
+    """Yield ``futures`` as they complete; ToolError when the cluster keeps no worker.
+
+    Dask keeps the tasks of a cluster whose every worker left waiting for a new one, for ever;
+    after WORKERS_TIMEOUT_S without a worker this stops the run instead.
+    """
+    from distributed import wait
+
+    order = {future.key: index for index, future in enumerate(futures)}
+    pending, alone_since = set(futures), None
+    while pending:
+        try:
+            done, pending = wait(pending, timeout=WATCH_S, return_when='FIRST_COMPLETED')
+        except TimeoutError:
+            if fleet.client.scheduler_info().get('workers'):
+                alone_since = None
+            elif alone_since is None:
+                alone_since = time.monotonic()
+            elif time.monotonic() - alone_since > WORKERS_TIMEOUT_S:
+                raise tool_support.ToolError(
+                    f'{fleet.description}: no worker left for {WORKERS_TIMEOUT_S:.0f} s with '
+                    f'{len(pending)} tasks to run; the run stops') from None
+            continue
+        yield from sorted(done, key=lambda future: order[future.key])
+
+
 def run_tasks(fleet: Fleet, function: Callable[..., Any], items: Sequence[tuple[Any, ...]],
               *, label: str, progress: bool = True, return_errors: bool = False) -> list[Any]:
     """Return ``[function(*item) for item in items]``, computed where ``fleet`` says.
@@ -317,11 +348,10 @@ def run_tasks(fleet: Fleet, function: Callable[..., Any], items: Sequence[tuple[
     results: list[Any] = [None] * len(items)
     futures: list[Any] = []
     if fleet.distributed:
-        from distributed import as_completed
-
         futures = [fleet.submit(function, *item) for item in items]
         position = {future.key: index for index, future in enumerate(futures)}
-        done = ((position[future.key], future.result) for future in as_completed(futures))
+        done = ((position[future.key], future.result)
+                for future in _as_completed(fleet, futures))
     else:
         done = ((index, functools.partial(function, *item)) for index, item in enumerate(items))
     with Progress(len(items), label, stream=None if progress else io.StringIO()) as bar:
