@@ -112,15 +112,9 @@ def open_fleet(*, workers: int | None = None, scheduler: str | None = None,
             f"'dask[distributed]' (or pip install .[fleet]), or leave out --workers/--scheduler "
             'to run in this process')
     cores = len(os.sched_getaffinity(0))
-    if not wanted:
-        reason = ('' if workers == 0 else 'dask.distributed is not installed'
-                  if not DASK_AVAILABLE else 'one task' if tasks < 2 else 'one core'
-                  if cores < 2 else f'about {work_s:.0f} s of work: a local cluster of {cores} '
-                  f'workers would not pay its start-up of about {LOCAL_CLUSTER_START_S:.0f} s'
-                  if work_s is not None and not local_cluster_pays(work_s, cores) else None)
-        if reason is not None:
-            yield Fleet(None, f'this process ({reason})' if reason else 'this process', 1)
-            return
+    if not wanted and (reason := _why_this_process(workers, tasks, cores, work_s)) is not None:
+        yield Fleet(None, f'this process ({reason})' if reason else 'this process', 1)
+        return
     import dask
     from distributed import Client, LocalCluster
 
@@ -149,6 +143,23 @@ def open_fleet(*, workers: int | None = None, scheduler: str | None = None,
                           f'{"es" if count != 1 else ""} (1 thread each{why})', count)
             prepare_workers(fleet, log)
             yield fleet
+
+
+def _why_this_process(workers: int | None, tasks: int, cores: int, work_s: float | None
+                      ) -> str | None:
+    """Say why the tasks run in this process ('' for --workers 0), or None: a local cluster."""
+    if workers == 0:
+        return ''
+    if not DASK_AVAILABLE:
+        return 'dask.distributed is not installed'
+    if tasks < 2:
+        return 'one task'
+    if cores < 2:
+        return 'one core'
+    if work_s is not None and not local_cluster_pays(work_s, cores):
+        return (f'about {work_s:.0f} s of work: a local cluster of {cores} workers would not '
+                f'pay its start-up of about {LOCAL_CLUSTER_START_S:.0f} s')
+    return None
 
 
 def probe_scheduler(address: str, timeout: float | None = None) -> None:
