@@ -8,6 +8,7 @@ outputs. Many bags (a folder or a quoted glob) run as Dask tasks (docs/fleet.md)
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from collections.abc import Mapping, Sequence
@@ -80,10 +81,13 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _process_many(args: argparse.Namespace, values: Mapping[str, Any], origin: str,
                   mount_origin: str) -> int:
     """Every bag one task (fleet.bags): the table and the run's speed; 1 when a bag failed."""
+    # absolute: a worker resolves a relative path in its own folder, not in this one
+    output = Path(os.path.abspath(args.output))
     if fleet_bags.is_many(args.bag):
-        outputs = [(bag, args.output / name) for bag, name in fleet_bags.find_bags(args.bag)]
+        outputs = [(Path(os.path.abspath(bag)), output / name)
+                   for bag, name in fleet_bags.find_bags(args.bag)]
     else:   # one bag on a cluster (--workers / --scheduler): the output is the one named
-        outputs = [(Path(args.bag), args.output)]
+        outputs = [(Path(os.path.abspath(args.bag)), output)]
     # an output bag is written whole or not at all (staged, renamed): one that exists is complete
     done = [output for _, output in outputs if output.exists()]
     if done and not args.skip_existing:
@@ -105,10 +109,15 @@ def _process_many(args: argparse.Namespace, values: Mapping[str, Any], origin: s
         for bag, output in outputs]
     began = time.perf_counter()
     try:
-        with open_fleet(**fleet_options(args), tasks=len(jobs)) as fleet:
+        auto = args.workers is None and args.scheduler is None
+        work_s = fleet_bags.work_seconds(jobs, enough=60.0) if auto else None
+        with open_fleet(**fleet_options(args), tasks=len(jobs), work_s=work_s) as fleet:
             print(f'{len(jobs)} bag{"s" if len(jobs) != 1 else ""} on {fleet.description}',
                   file=sys.stderr, flush=True)
             outcomes = fleet_bags.process_bags(jobs, fleet)
+    except tool_support.ToolError:   # e.g. the cluster lost its workers: none half-written
+        fleet_bags.remove_stale_staging(jobs)
+        raise
     except KeyboardInterrupt:
         fleet_bags.remove_stale_staging(jobs)
         kept = [job.output for job in jobs if job.output.exists()]

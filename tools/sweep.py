@@ -106,7 +106,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     sources = frame_sources(args)
 
     def score(points: list[DetectorParams]) -> list[list[evaluation.FrameScore]]:
-        with open_fleet(**fleet_options(args), tasks=len(points) * len(sources)) as fleet:
+        with open_fleet(**fleet_options(args), tasks=len(points) * len(sources),
+                        work_s=scoring.work_seconds(sources, len(points))) as fleet:
             _log(f'{len(points)} settings x {len(sources)} scenarios on {fleet.description}')
             return scoring.score_points(fleet, sources, points, label='sweep')
 

@@ -10,7 +10,7 @@ from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from rclpy.serialization import deserialize_message, serialize_message
+from rclpy.serialization import deserialize_message
 from rosbags.rosbag2 import Reader, ReaderError, Writer, WriterError
 from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
@@ -18,7 +18,7 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.cli.support import ToolError
 from obstacle_detection.cli.bag_writer import (BAG_VERSION, DEFAULT_DEPTH_TOPIC, STORAGES,
-                                               staged_output)
+                                               cdr_bytes, staged_output)
 from obstacle_detection.cli.progress import Progress
 from obstacle_detection.ros import frame_gate
 from obstacle_detection.ros.compressed_depth import COMPRESSED_IMAGE_TYPE, raw_topic
@@ -238,8 +238,7 @@ def process_bag(src: Path, output: Path, config: NodeConfig, *,
                                           list(cameras), config, summary, mounts=mounts,
                                           with_ground=with_ground, with_overlay=with_overlay)
                         for key in wanted if messages is not None else ():
-                            writer.write(out_conns[key], timestamp,
-                                         serialize_message(messages[key]))
+                            writer.write(out_conns[key], timestamp, cdr_bytes(messages[key]))
                             counts[outputs[key]] += 1
                         bar.update()
     except ReaderError as err:

@@ -31,6 +31,7 @@ DEFAULT_FRAME_ID = 'kinect2_ir_optical_frame'
 DEFAULT_ODOM_TOPIC = '/odom'
 BAG_VERSION = 9
 STORAGES = {'sqlite3': StoragePlugin.SQLITE3, 'mcap': StoragePlugin.MCAP}
+_JAZZY = get_typestore(Stores.ROS2_JAZZY)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -68,6 +69,19 @@ class Summary:
             out.extend(f'    {count}: {reason}' for reason, count in self.dropped.items())
         out.extend(f'  note: {note}' for note in self.notes)
         return out
+
+
+def cdr_bytes(msg: Any) -> bytes:
+    """Serialize an rclpy message as ``serialize_message`` does, with its padding bytes zeroed.
+
+    rmw's CDR serializer leaves the alignment padding inside a message (after PointField's
+    datatype, before a uint32 after a bool...) uninitialised, so equal messages gave different
+    bytes from run to run. rosbags' serializer writes zeros there: one round trip through it
+    keeps every field (rclpy reads the result back equal) and makes the bytes reproducible.
+    """
+    msgtype = f'{type(msg).__module__.split(".")[0]}/msg/{type(msg).__name__}'
+    return bytes(_JAZZY.serialize_cdr(_JAZZY.deserialize_cdr(serialize_message(msg), msgtype),
+                                      msgtype))
 
 
 @contextlib.contextmanager
@@ -148,7 +162,7 @@ def write_frames(source: FrameSource, output: Path, options: BagOptions) -> Summ
                         msgtype = f'{type(msg).__module__.split(".")[0]}/msg/{type(msg).__name__}'
                         connections[topic] = writer.add_connection(topic, msgtype,
                                                                    typestore=typestore)
-                    writer.write(connections[topic], stamp, serialize_message(msg))
+                    writer.write(connections[topic], stamp, cdr_bytes(msg))
                     summary.topics[topic] += 1
                     summary.messages += 1
 
