@@ -225,7 +225,6 @@ def test_node_param_values_match_the_node_format(params_file: Path) -> None:
 
 @pytest.mark.parametrize(('text', 'match'), [
     ('obstacle_detector:\n  ros__parameters:\n    voxel_x_m: 1\n', "voxel_x_m.*float"),
-    ('obstacle_detector:\n  ros__parameters:\n    no_such: 1\n', "unknown parameter 'no_such'"),
     ('other_node:\n  ros__parameters: {}\n', 'no section naming the node'),
     ('obstacle_detector:\n  ros__parameters:\n    median_kernel: 4\n', 'median_kernel'),
 ])
@@ -241,6 +240,22 @@ def test_bad_params_file(tmp_path: Path, text: str, match: str, depths: list[np.
     assert str(bad) in err
     assert re.search(match, err)
     assert not (tmp_path / 'out').exists()
+
+
+def test_a_misspelt_parameter_is_the_nodes_warning(tmp_path: Path, depths: list[np.ndarray],
+                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    # the node ignores it with a did-you-mean warning; bag_process refused the file: now the
+    # same warning, and the run goes on with the other values
+    write_bag(tmp_path / 'in', frame_messages(depths[:1]))
+    typo = tmp_path / 'typo.yaml'
+    typo.write_text('obstacle_detector:\n  ros__parameters:\n    max_rnge_m: 3.0\n'
+                    '    median_kernel: 5\n')
+    code = bag_process.main([str(tmp_path / 'in'), str(tmp_path / 'out'), '--params-file',
+                             str(typo), '--quiet'])
+    err = capsys.readouterr().err
+    assert code == 0
+    assert (f"warning: {typo}: unknown parameter 'max_rnge_m' is ignored (did you mean "
+            "'max_range_m'?); `detector --help` lists the parameters\n") in err
 
 
 def test_bad_bags(tmp_path: Path, depths: list[np.ndarray],
@@ -436,7 +451,7 @@ def test_a_mount_far_from_the_floor_is_a_warning(tmp_path: Path,
     write_bag(tmp_path / 'in', frame_messages([floor]))
     assert bag_process.main([str(tmp_path / 'in'), str(tmp_path / 'out'), '--quiet']) == 0
     err = capsys.readouterr().err
-    assert re.search(r'warning: first frame: the floor in view .* puts the camera at height '
+    assert re.search(r'warning: frame 1: the floor in view .* puts the camera at height '
                      r'1\.2\d m, pitch 2[45]\.\d deg', err)
     assert 'but the mount used is height 0.60 m, pitch 0.0 deg' in err
     mount = tmp_path / 'mount.yaml'
@@ -449,6 +464,78 @@ def test_a_mount_far_from_the_floor_is_a_warning(tmp_path: Path,
     assert f'camera mount: height 1.20 m, pitch 25.0 deg, roll 0.0 deg ({mount})' in \
         captured.out
 
+
+def test_a_later_frame_off_the_mount_is_a_warning(tmp_path: Path,
+                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    # the mount fits frames 1-3 (1.2 m, pitch 25 deg, level); in frame 4 the camera rolled 8 deg
+    # (a bump): the mount was checked on frame 1 only and the floor of frame 4 went unsaid
+    depths = [render_scene('flat_floor', seed=k, intrinsics=INTR, size=SIZE, height_m=1.2,
+                           pitch_rad=np.radians(25.0),
+                           roll_rad=np.radians(8.0 if k == 3 else 0.0)).depth_mm
+              for k in range(4)]
+    write_bag(tmp_path / 'in', frame_messages(depths))
+    mount = tmp_path / 'mount.yaml'
+    mount.write_text('obstacle_detector:\n  ros__parameters:\n    camera_height_m: 1.2\n'
+                     '    camera_pitch_deg: 25.0\n')
+    assert bag_process.main([str(tmp_path / 'in'), str(tmp_path / 'out'), '--quiet',
+                             '--params-file', str(mount)]) == 0
+    out, err = capsys.readouterr()
+    assert re.fullmatch(r'warning: frame 4: the floor in view .* roll [78]\.\d deg, but the '
+                        r'mount used is height 1\.20 m, pitch 25\.0 deg, roll 0\.0 deg: .*\n',
+                        err)
+    assert '  warning: the floor did not fit the mount in 1 of the checked frames: frame 4' in out
+
+
+def test_an_interrupted_many_bag_run_resumes(tmp_path: Path, depths: list[np.ndarray],
+                                             monkeypatch: pytest.MonkeyPatch,
+                                             capsys: pytest.CaptureFixture[str]) -> None:
+    # Ctrl-C during the second bag: the first is kept and said so; the same command again with
+    # --skip-existing processes the rest (it used to say FAILED ... output already exists)
+    for i in range(2):
+        write_bag(tmp_path / 'bags' / f'bag{i}', frame_messages(depths))
+    command = [str(tmp_path / 'bags'), str(tmp_path / 'out'), '--workers', '0', '--quiet']
+    real = bag_processor.process_frame
+    calls = []
+
+    def interrupted(*args: object, **kwargs: object) -> object:
+        calls.append(1)
+        if len(calls) == len(depths) + 2:   # the second frame of the second bag
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+    monkeypatch.setattr(bag_processor, 'process_frame', interrupted)
+    assert bag_process.main(command) == 130
+    err = capsys.readouterr().err
+    assert f'kept 1 finished output bag: {tmp_path / "out" / "bag0"}' in err
+    assert 'the same command with --skip-existing processes the other 1' in err
+    monkeypatch.setattr(bag_processor, 'process_frame', real)
+    kept = read_raw(tmp_path / 'out' / 'bag0')
+
+    assert bag_process.main(command) == 1   # without the option: one line, nothing done
+    out, err = capsys.readouterr()
+    assert out == '' and err == (f'error: {tmp_path / "out" / "bag0"}: output already exists '
+                                 '(1 of 2); --skip-existing keeps them and processes the rest, '
+                                 'or remove them\n')
+    assert bag_process.main([*command, '--skip-existing']) == 0
+    out, err = capsys.readouterr()
+    assert f'kept 1 output bag from an earlier run: {tmp_path / "out" / "bag0"}' in err
+    assert '1 ok, 0 failed' in out and str(tmp_path / 'bags' / 'bag1') in out
+    assert read_raw(tmp_path / 'out' / 'bag0') == kept
+    assert set(read_raw(tmp_path / 'out' / 'bag1')) == set(kept)
+
+
+def test_many_bags_say_their_intrinsics_and_mount_as_one_bag_does(
+        tmp_path: Path, depths: list[np.ndarray], capsys: pytest.CaptureFixture[str]) -> None:
+    # docs/bags.md: bag_process prints the intrinsics (which CameraInfo topic) and the mount it
+    # used; run on many bags (Dask or --workers 0) it printed neither
+    for i in range(2):
+        write_bag(tmp_path / 'bags' / f'bag{i}', frame_messages(depths[:1]))
+    assert bag_process.main([str(tmp_path / 'bags'), str(tmp_path / 'out'), '--workers', '0',
+                             '--quiet']) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert (f'intrinsics: CameraInfo on {INFO} (the default topic): {tmp_path / "bags" / "bag0"}, '
+            f'{tmp_path / "bags" / "bag1"}') in out
+    assert ("camera mount: height 0.60 m, pitch 0.0 deg, roll 0.0 deg (the node's defaults: no "
+            'params file changes it)') in out
 
 def _tf_static(parent: str, child: str, xyz: tuple[float, float, float],
                quaternion: tuple[float, float, float, float]) -> bytes:

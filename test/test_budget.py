@@ -82,6 +82,13 @@ def test_the_estimate_grows_with_each_term_and_the_limit_falls_between() -> None
     assert many_rays.mib > frame_budget(base, clearing_stride_px=4).mib
 
 
+def test_the_parameter_docs_state_the_limits_in_force() -> None:
+    doc = (REPO / 'docs' / 'parameters.md').read_text(encoding='utf-8')
+    width, height = pipeline_params.BUDGET_FRAME_SIZE
+    assert (f'a {width} x {height} frame estimated at most {pipeline_params.MAX_FRAME_MS:g} ms '
+            f'and {pipeline_params.MAX_FRAME_MIB:g} MiB') in ' '.join(doc.split())
+
+
 def _shipped_params_files() -> list[Path]:
     """Return the node's params files (params/nav2_costmap.yaml is Nav2's)."""
     return sorted(path for path in (REPO / 'params').glob('*.yaml')

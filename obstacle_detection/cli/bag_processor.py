@@ -10,7 +10,7 @@ from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from rclpy.serialization import deserialize_message, serialize_message
+from rclpy.serialization import deserialize_message
 from rosbags.rosbag2 import Reader, ReaderError, Writer, WriterError
 from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
@@ -18,7 +18,7 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.cli.support import ToolError
 from obstacle_detection.cli.bag_writer import (BAG_VERSION, DEFAULT_DEPTH_TOPIC, STORAGES,
-                                               staged_output)
+                                               cdr_bytes, staged_output)
 from obstacle_detection.cli.progress import Progress
 from obstacle_detection.ros import frame_gate
 from obstacle_detection.ros.compressed_depth import COMPRESSED_IMAGE_TYPE, raw_topic
@@ -26,12 +26,22 @@ from obstacle_detection.ros.config import NodeConfig, build_config
 from obstacle_detection.ros.conversions import result_to_messages
 from obstacle_detection.ros.frame_gate import CameraState
 from obstacle_detection.ros.mount_source import MountSource, StaticTransforms
-from obstacle_detection.ros.parameters import ALL_PARAMS, read_params_files
+from obstacle_detection.ros.parameters import (ALL_PARAMS, params_file_problems,
+                                               read_params_files)
 from obstacle_detection.viz.overlay import render_overlay
 
 DEFAULT_NAMESPACE = '/obstacles'
 #: With use_tf, the camera mount comes from this topic's transforms (tf2_msgs/TFMessage).
 TF_STATIC = '/tf_static'
+#: The floor of every this many processed frames is checked against the mount (a RANSAC fit of
+#: 0.1-0.4 s a 640x480 frame); with refine_floor on, every frame whose floor the per-frame fit
+#: found beyond its bounds is checked too, so a camera that tilts mid-recording is reported.
+MOUNT_CHECK_EVERY = 60
+#: Fix named by a mount warning: of the parameters, or (use_tf) of the bag's /tf_static.
+MOUNT_FIX = ('a --params-file setting camera_height_m, camera_pitch_deg and camera_roll_deg '
+             '(tools/estimate_mount.py --params-out writes one from a depth frame)')
+MOUNT_FIX_TF = ("the camera joint of the URDF the bag's /tf_static was recorded with "
+                '(tools/estimate_mount.py measures the mount from a depth frame)')
 #: result_to_messages key -> (topic below the namespace, message type).
 OUTPUTS = {
     'obstacles': ('points', 'sensor_msgs/msg/PointCloud2'),
@@ -48,6 +58,9 @@ def node_param_values(path: Path | Sequence[Path]) -> dict[str, Any]:
     values: dict[str, Any] = {spec.name: spec.default for spec in ALL_PARAMS}
     paths = [path] if isinstance(path, (str, Path)) else list(path)
     values.update(read_params_files(paths))   # RosInputError: a ValueError, one line
+    for path in paths:   # what the node would ignore, said as the node says it
+        for problem in params_file_problems(path):
+            tool_support.warn(problem)
     return values
 
 
@@ -75,6 +88,9 @@ class ProcessSummary:
     info_how: str = ''
     mount: str = ''
     mount_warning: str | None = None
+    #: frames (1-based) whose floor was checked against the mount, and those it did not fit
+    mount_checked: list[int] = dataclasses.field(default_factory=list)
+    mount_off: list[int] = dataclasses.field(default_factory=list)
     notes: list[str] = dataclasses.field(default_factory=list)
 
     def lines(self) -> list[str]:
@@ -88,6 +104,12 @@ class ProcessSummary:
         out.extend(f'    skipped {count}: {reason}' for reason, count in self.skipped.items())
         if self.mount_warning:
             out.append(f'  warning: {self.mount_warning}')
+        if self.mount_off:
+            shown = ', '.join(str(k) for k in self.mount_off[:10])
+            more = ', ...' if len(self.mount_off) > 10 else ''
+            out.append(f'  warning: the floor did not fit the mount in {len(self.mount_off)} of '
+                       f'the checked frames: frame{"s" if len(self.mount_off) > 1 else ""} '
+                       f'{shown}{more} ({len(self.mount_checked)} checked)')
         out.extend(f'  note: {note}' for note in self.notes)
         if self.total_ms:
             rate = self.processed / self.wall_s if self.wall_s > 0 else 0.0
@@ -216,8 +238,7 @@ def process_bag(src: Path, output: Path, config: NodeConfig, *,
                                           list(cameras), config, summary, mounts=mounts,
                                           with_ground=with_ground, with_overlay=with_overlay)
                         for key in wanted if messages is not None else ():
-                            writer.write(out_conns[key], timestamp,
-                                         serialize_message(messages[key]))
+                            writer.write(out_conns[key], timestamp, cdr_bytes(messages[key]))
                             counts[outputs[key]] += 1
                         bar.update()
     except ReaderError as err:
@@ -269,6 +290,11 @@ def _note(summary: ProcessSummary, note: str | None) -> None:
         summary.notes.append(note)
 
 
+def _floor_out_of_bounds(floor: Any) -> bool:
+    """Whether the per-frame floor fit found the floor too far from the mount to use it."""
+    return floor is not None and not floor.refined and floor.reason.startswith('fitted floor')
+
+
 def _frame(depth: Any, cameras: Sequence[CameraState], config: NodeConfig,
            summary: ProcessSummary, *, with_ground: bool, with_overlay: bool,
            mounts: MountSource | None = None) -> dict[str, Any] | None:
@@ -281,20 +307,20 @@ def _frame(depth: Any, cameras: Sequence[CameraState], config: NodeConfig,
     if messages is None:
         summary.skipped[reason] += 1
         return None
-    if summary.processed == 0:   # the floor of the first frame against the mount
-        if mounts is not None:
-            summary.mount = f"{mounts.source} (the bag's {TF_STATIC}): " + \
-                tool_support.mount_text(result.pose.nominal)
-        fix = ("the camera joint of the URDF the bag's /tf_static was recorded with "
-               '(tools/estimate_mount.py measures the mount from a depth frame)'
-               if mounts is not None else
-               'a --params-file setting camera_height_m, camera_pitch_deg and camera_roll_deg '
-               '(tools/estimate_mount.py --params-out writes one from a depth frame)')
+    if summary.processed == 0 and mounts is not None:
+        summary.mount = f"{mounts.source} (the bag's {TF_STATIC}): " + \
+            tool_support.mount_text(result.pose.nominal)
+    if summary.processed % MOUNT_CHECK_EVERY == 0 or _floor_out_of_bounds(result.floor):
+        number = summary.processed + 1
         check = tool_support.check_mount(result.depth_m, result.intrinsics,
-                                         result.pose.nominal, fix=fix)
+                                         result.pose.nominal,
+                                         fix=MOUNT_FIX if mounts is None else MOUNT_FIX_TF)
+        summary.mount_checked.append(number)
         if check.warning:
-            summary.mount_warning = f'first frame: {check.warning}'
-            tool_support.warn(summary.mount_warning)
+            summary.mount_off.append(number)
+            if summary.mount_warning is None:   # said once; the summary counts the others
+                summary.mount_warning = f'frame {number}: {check.warning}'
+                tool_support.warn(summary.mount_warning)
     summary.obstacle_points += int(result.obstacle_points.shape[0])
     summary.processed += 1
     summary.total_ms.append(result.timings_ms.get('total', 0.0))

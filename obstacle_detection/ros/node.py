@@ -53,7 +53,7 @@ from .mount_check import MountCheck
 from .mount_source import MountSource
 from obstacle_detection.pipeline.params import Intrinsics
 from . import RosInputError
-from .parameters import (ALL_PARAMS, NODE_NAME, PARAMS_FILE_KEY, load_params_yaml,
+from .parameters import (ALL_PARAMS, NODE_NAME, PARAMS_FILE_KEY, check_params_file,
                          params_file_problems, params_files_in_args)
 
 
@@ -148,8 +148,9 @@ class DetectorNode(Node):
         self._warn_loggers: dict[str, Any] = {}
 
         self._status_pub = self.create_publisher(String, '~/status', _LATCHED_QOS)
-        # Compiling (20-40 s) or loading the kernels runs on a thread of its own; frames take
+        # Compiling (a minute) or loading the kernels runs on a thread of its own; frames take
         # the numpy path meanwhile (same results), so no frame waits for it.
+        self._cache_filled = jit_support.cache_filled()   # load (a second) or compile?
         self._compile = jit_support.compile_in_background(self._warm_up,
                                                           on_done=self._on_compiled)
         reliable = bool(self.get_parameter('reliable_input').value)
@@ -214,9 +215,12 @@ class DetectorNode(Node):
         if job is not None and job.error is not None:
             return (f'numpy path (compiling the numba kernels failed: '
                     f'{type(job.error).__name__}: {job.error})')
+        if jit_support.compiling() and self._cache_filled:
+            return ('numpy path while the numba kernels load from the cache in the background '
+                    '(about a second; same results, slower)')
         if jit_support.compiling():
-            return ('numpy path while the numba kernels compile or load in the background '
-                    '(a first compilation takes about 20-40 s; same results, slower)')
+            return ('numpy path while the numba kernels compile in the background (numba\'s '
+                    'cache is empty: about a minute on two cores; same results, slower)')
         return COMPILED
 
     def _warm_up(self) -> None:
@@ -231,9 +235,9 @@ class DetectorNode(Node):
             if job.error is not None:
                 self.get_logger().error(f'now on the {self.compute_path()}')
             else:
-                self.get_logger().info(
-                    f'numba kernels compiled or loaded from the cache in {job.seconds:.1f} s; '
-                    'frames now take the compiled path')
+                how = 'loaded from the cache' if self._cache_filled else 'compiled'
+                self.get_logger().info(f'numba kernels {how} in {job.seconds:.1f} s; frames '
+                                       'now take the compiled path')
             self._publish_status()
         except Exception:  # noqa: BLE001 - a node destroyed meanwhile has no logger or publisher
             pass
@@ -615,8 +619,8 @@ def main(args: list[str] | None = None) -> int:
     argv = list(sys.argv if args is None else args)
     files = params_files_in_args(argv)
     try:
-        for path in files:   # rcl would end in a raw RCLError traceback
-            load_params_yaml(Path(path))
+        for path in files:   # rcl would end in a raw RCLError traceback, or refuse an
+            check_params_file(Path(path))   # integer for a float naming neither file nor fix
     except RosInputError as error:
         print(f'detector: error: {error}', file=sys.stderr)
         return 1
