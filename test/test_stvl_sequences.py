@@ -1,0 +1,184 @@
+"""Nav2's SpatioTemporalVoxelLayer on the node's clouds, over rendered sequences with truth.
+
+Every frame of each sequence goes through the node's own frame path in-process
+(``bag_processor.process_frame``: the frame gate, the pipeline and the messages the node
+publishes; test_bag_process checks they equal the node's) with params/corridor.yaml. Its
+``obstacles/points`` go into the port of STVL 2.5.5 (test/stvl_layer.py) configured by
+params/nav2_stvl.yaml, with TF from the sequence's true poses and corridor.yaml's mount; the
+frustum is posed by the clearing cloud's frame (the optical frame). Two costmaps run side by
+side: one updated at every frame (30 Hz) and one at the file's ``update_frequency`` (5 Hz,
+every 6th frame; with ``observation_persistence: 0`` an update reads the newest cloud).
+test/nav2_replay.py defines the figures; ``pytest -s`` prints them (README, Use with Nav2).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any
+
+import nav2_layers as nav2
+import nav2_replay as replay
+import numpy as np
+import pytest
+import ros_env
+import stvl_layer as stvl
+from builtin_interfaces.msg import Time
+from message_helpers import pointcloud2_to_points
+
+from obstacle_detection.cli import bag_processor
+from obstacle_detection.ros.conversions import array_to_image, intrinsics_to_camera_info
+from obstacle_detection.ros.frame_gate import CameraState
+from obstacle_detection.sim.scenes import scene_params
+from obstacle_detection.sim.sequences import PERFECT_ODOMETRY, SEQUENCE_NAMES, SceneSequence
+
+REPO = ros_env.REPO_ROOT
+CORRIDOR = REPO / 'params' / 'corridor.yaml'
+STVL_YAML = REPO / 'params' / 'nav2_stvl.yaml'
+FRAME_ID = 'camera_depth_optical_frame'
+OBSTACLES, FRUSTUM = 'detector_obstacles', 'detector_frustum'
+
+
+class STVLReplay(replay.Replay):
+    """Replay's scoring around the STVL port: each update buffers the frame's clouds first.
+
+    The scoring (truth lattice, figures) is Replay's; the costmap is
+    :class:`stvl_layer.STVLCostmap`.
+    """
+
+    def __init__(self, name: str, config: nav2.CostmapConfig,
+                 mount: tuple[np.ndarray, np.ndarray], poses: list[Any], layer: str) -> None:
+        super().__init__(name, config, mount, poses, layer_name=layer)
+        self.costmap = stvl.STVLCostmap(config)
+        self.layers = self.costmap.layers
+        self.topics = {s.name: s.topic.lstrip('/') for s in stvl.source_settings(config).values()}
+
+    def step(self, inp: replay.UpdateInput) -> np.ndarray:
+        """Buffer the frame's clouds through 'TF' (true pose, mount), then update and score."""
+        now_s = inp.index / replay.RATE_HZ
+        base_rot = replay.rotation_z(inp.pose[2])
+        base_t = np.array([inp.pose[0], inp.pose[1], 0.0])
+        frames = {'obstacles/points': (inp.obstacle_points, (base_rot, base_t)),
+                  'obstacles/clearing_points': (inp.clearing_points,
+                                                (base_rot @ self.mount[0],
+                                                 base_t + base_rot @ self.mount[1]))}
+        for source, topic in self.topics.items():
+            if topic not in frames:
+                raise ValueError(f'{source}: topic {topic!r} is not a cloud of the node')
+            points, pose = frames[topic]
+            self.costmap.buffer(source, points, pose, now_s, now_s)
+        return super().step(inp)
+
+    def _observations(self, inp: replay.UpdateInput) -> float:
+        """Return the time of the update [s] (:meth:`step` buffered the clouds)."""
+        return inp.index / replay.RATE_HZ
+
+
+def _rendered(sequence: SceneSequence) -> Iterator[Any]:
+    """Yield every frame of a sequence, rendering two ahead (the machine's two cores)."""
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        pending = [pool.submit(sequence.frame, i) for i in range(min(2, len(sequence)))]
+        for index in range(len(sequence)):
+            frame = pending.pop(0).result()
+            if index + 2 < len(sequence):
+                pending.append(pool.submit(sequence.frame, index + 2))
+            yield frame
+
+
+def run_sequence(name: str, config: nav2.CostmapConfig, values: dict[str, Any],
+                 periods: dict[str, int]) -> list[replay.SequenceFigures]:
+    """Play a sequence into one STVL costmap per update period [frames]; their figures."""
+    node = bag_processor.config_from_values(values, str(CORRIDOR))
+    sequence = SceneSequence(name, odometry=PERFECT_ODOMETRY)
+    mount = replay.camera_mount(values)
+    poses = [sequence.pose_true(i) for i in range(len(sequence))]
+    replays = {label: STVLReplay(name, config, mount, poses, f'STVL {label}')
+               for label in periods}
+    cameras: list[CameraState] = []
+    obstacles = np.zeros((0, 3))
+    for sf in _rendered(sequence):
+        index = sf.index
+        stamp = Time(sec=1000 + index // 30, nanosec=int((index % 30) * 1e9 / 30))
+        if not cameras:
+            height, width = sf.frame.depth_mm.shape
+            cameras.append(CameraState.from_camera_info(intrinsics_to_camera_info(
+                sf.frame.intrinsics, width, height, stamp=stamp, frame_id=FRAME_ID)))
+        image = array_to_image(sf.frame.depth_mm, stamp=stamp, frame_id=FRAME_ID)
+        messages, _, reason, _ = bag_processor.process_frame(
+            image, cameras, node, with_ground=False, with_overlay=False)
+        # a frame with no valid pixel (the 0.5 m blind zone) publishes nothing: the buffers
+        # keep the newest cloud they have
+        if messages is not None:
+            assert messages['obstacles'].header.frame_id == node.cloud_frame_id
+            obstacles = pointcloud2_to_points(messages['obstacles'])
+        elif not reason.startswith('no valid depth pixel'):
+            raise AssertionError(f'{name} frame {index}: {reason}')
+        due = [label for label, period in periods.items() if index % period == 0]
+        if not due:
+            continue
+        truth_obstacle, truth_floor, truth_person = replay.frame_truth(
+            sf, scene_params(sf.frame, node.detector.params))
+        update = replay.UpdateInput(
+            index=index, pose=sf.pose_true, obstacle_points=obstacles,
+            clearing_points=np.zeros((0, 3), np.float32), truth_obstacle=truth_obstacle,
+            truth_free=truth_floor, person_in_view=replay.person_in_view(sf.frame),
+            truth_person=truth_person, person_disc=replay.person_disc(sf))
+        for label in due:
+            replays[label].step(update)
+    return [r.report() for r in replays.values()]
+
+
+def update_periods(config: nav2.CostmapConfig) -> dict[str, int]:
+    """Update periods [frames]: every frame, and the file's update_frequency."""
+    step = round(replay.RATE_HZ / config.update_frequency_hz)
+    return {'30 Hz': 1, f'{config.update_frequency_hz:g} Hz': step}
+
+
+@pytest.fixture(scope='module')
+def figures() -> dict[tuple[str, str], replay.SequenceFigures]:
+    config = stvl.read_stvl_costmap(STVL_YAML)
+    values = bag_processor.node_param_values(CORRIDOR)
+    reports = [f for name in SEQUENCE_NAMES
+               for f in run_sequence(name, config, values, update_periods(config))]
+    print(f'\n{replay.format_table(reports)}')
+    return {(f.name, f.layer): f for f in reports}
+
+
+RATES = list(update_periods(stvl.read_stvl_costmap(STVL_YAML)))
+CASES = [(name, rate) for name in SEQUENCE_NAMES for rate in RATES]
+
+
+@pytest.mark.parametrize(('name', 'rate'), CASES)
+def test_no_ghost_10_frames_after_the_person_left(figures: dict, name: str, rate: str) -> None:
+    got = figures[(name, f'STVL {rate}')]
+    if got.leave_frame is None:
+        pytest.skip(f'{name} has no person that leaves the view')
+
+    assert got.ghost_after_10 == 0
+    assert got.frames_to_clear <= replay.CLEAR_BUDGET_FRAMES
+
+
+@pytest.mark.parametrize(('name', 'rate'), CASES)
+def test_costmap_f1_with_one_cell_tolerance(figures: dict, name: str, rate: str) -> None:
+    assert figures[(name, f'STVL {rate}')].f1 >= 0.97
+
+
+@pytest.mark.parametrize(('name', 'rate'), CASES)
+def test_no_seen_free_floor_left_lethal_after_10_frames(figures: dict, name: str,
+                                                        rate: str) -> None:
+    assert figures[(name, f'STVL {rate}')].stale_lethal_max == 0
+
+
+@pytest.mark.parametrize(('name', 'rate'), CASES)
+def test_no_unknown_cell_in_the_seen_area(figures: dict, name: str, rate: str) -> None:
+    assert figures[(name, f'STVL {rate}')].unknown_seen_max == 0
+
+
+@pytest.mark.parametrize(('name', 'rate'), CASES)
+def test_obstacles_stay_marked_after_leaving_the_view(figures: dict, name: str,
+                                                      rate: str) -> None:
+    got = figures[(name, f'STVL {rate}')]
+    if got.kept_cells < 100:
+        pytest.skip(f'{name}: too few obstacle cells left the view ({got.kept_cells})')
+
+    assert got.kept >= 0.95
