@@ -8,16 +8,17 @@ from setuptools import find_packages, setup
 PACKAGE = 'obstacle_detection'
 #: The command lines: tools/<name>.py is installed as the module obstacle_detection.tools.<name>
 #: and as the command <name> (lib/obstacle_detection/<name> for ``ros2 run``, .venv/bin/<name>).
-TOOLS = sorted(Path(path).stem for path in glob('tools/*.py')
+#: Read through the package's link, which a symlink install's build folder also has.
+TOOLS = sorted(Path(path).stem for path in glob(f'{PACKAGE}/tools/*.py')
                if not Path(path).name.startswith('_'))
 
 setup(
     name=PACKAGE,
     version='0.1.0',
-    packages=[*find_packages(include=[PACKAGE, f'{PACKAGE}.*']), f'{PACKAGE}.tools'],
-    # the command lines stay in tools/ at the top of the package (the package card puts them
-    # there) and install inside the package: no top-level module named `tools`
-    package_dir={f'{PACKAGE}.tools': 'tools'},
+    # obstacle_detection/tools is a symbolic link to the top-level tools/ (the command lines stay
+    # there): every install, plain, `colcon build --symlink-install` (setup.py develop) or
+    # `pip install -e`, finds obstacle_detection.tools through it; no top-level module `tools`
+    packages=find_packages(include=[PACKAGE, f'{PACKAGE}.*']),
     # the loopback Fast DDS profile and the committed scenario suites
     package_data={f'{PACKAGE}.ros': ['fastdds_loopback.xml'],
                   f'{PACKAGE}.evaluation': ['scenarios.json', 'scenarios_robot.json']},

@@ -804,7 +804,7 @@ def test_diagnostics_report_each_fault_at_its_level(tmp_path: Path, scene: Scene
         assert reports[-1].message.endswith('frames/s processed')
         values = {kv.key: kv.value for kv in reports[-1].values}
         assert values['code path'] == 'compiled numba kernels'
-        assert reports[-1].hardware_id == 'depth_optical'
+        assert reports[-1].hardware_id == '/depth/image_raw'
         bad = _depth_image(scene)
         bad.encoding = 'rgb8'
         stream(bad, _camera_info(scene), 2.5)

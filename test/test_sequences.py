@@ -10,8 +10,9 @@ from obstacle_detection.labels import GT_NO_RETURN, GT_OBSTACLE
 from obstacle_detection.pipeline.params import KINECT_V2_SD
 from obstacle_detection.sim.primitives import Box, Floor
 from obstacle_detection.sim.render import render, Scene
-from obstacle_detection.sim.sequences import (PERFECT_ODOMETRY, SEQUENCE_NAMES, OdometryModel,
-                                          SceneSequence, odometry_poses, person_y_at)
+from obstacle_detection.sim.sequences import (PERFECT_ODOMETRY, SEQUENCE_NAMES, BodyPitch,
+                                          OdometryModel, SceneSequence, edge_person_y_at,
+                                          odometry_poses, person_y_at)
 
 SMALL = (128, 106)
 SMALL_K = scaled_intrinsics(KINECT_V2_SD, 128 / 512)
@@ -111,9 +112,45 @@ def test_frames_are_seeded_and_carry_stamps():
 def test_bad_arguments_are_refused():
     with pytest.raises(ValueError, match='unknown sequence .*drive_past_boxes'):
         SceneSequence('parking_lot')
-    assert set(SEQUENCE_NAMES) == {'drive_past_boxes', 'person_crossing'}
+    assert set(SEQUENCE_NAMES) == {'drive_past_boxes', 'person_crossing', 'drive_by_table',
+                                   'person_leaving_edge'}
     seq = SceneSequence('person_crossing')
     with pytest.raises(ValueError, match='frame index 177'):
         seq.pose_true(177)
     with pytest.raises(ValueError, match='seed'):
         SceneSequence('person_crossing', seed=-1)
+
+
+def test_the_held_out_person_stops_near_the_edge_of_the_view_and_leaves_on_that_side():
+    assert edge_person_y_at(0.0) == pytest.approx(-1.6)
+    assert edge_person_y_at(2.0) == pytest.approx(0.9) and edge_person_y_at(2.8) == 0.9
+    assert edge_person_y_at(10.0) == pytest.approx(2.2)
+    seq = SceneSequence('person_leaving_edge')
+    person = len(seq.scene_at(0).primitives) - 1
+    standing = small_frame(seq, 75)
+    hit = standing.frame.hit_index == person
+    bearing = np.degrees(np.arctan2(standing.frame.points_ground[hit][:, 1],
+                                    standing.frame.points_ground[hit][:, 0]))
+    assert hit.sum() > 100 and 20.0 < np.median(bearing) < 30.0
+    assert not (small_frame(seq, len(seq) - 1).frame.hit_index == person).any()
+
+
+def test_the_body_pitch_moves_the_camera_but_not_the_truth_in_base_footprint():
+    level = SceneSequence('drive_by_table', odometry=PERFECT_ODOMETRY)
+    rocking = SceneSequence('drive_by_table', odometry=PERFECT_ODOMETRY,
+                            body_pitch=BodyPitch(amplitude_deg=2.0, period_s=1.2,
+                                                 phase_deg=90.0))
+    assert rocking.body_pitch_rad(0) == pytest.approx(math.radians(2.0))
+    assert rocking.body_pitch_rad(18) == pytest.approx(math.radians(-2.0))   # half a period
+    a, b = small_frame(level, 0), small_frame(rocking, 0)
+    assert b.frame.pitch_rad == pytest.approx(math.radians(2.0))
+    assert b.frame.height_m == pytest.approx(0.6 * math.cos(math.radians(2.0)))
+    assert b.pose_true == a.pose_true and b.pose_odom == a.pose_odom
+    assert np.mean(a.frame.depth_mm != b.frame.depth_mm) > 0.5      # another view
+    # the same world in base_footprint: floor at z = 0, box_right's front face where it is
+    for f in (a, b):
+        pts, names = f.frame.points_ground, f.frame.object_names
+        floor = f.frame.hit_index == 0
+        assert np.abs(pts[floor][:, 2]).max() < 1e-4
+        box = f.frame.hit_index == names.index('box_right')
+        assert np.percentile(pts[box][:, 0], 1) == pytest.approx(0.9625, abs=2e-3)

@@ -14,7 +14,7 @@ import rclpy
 import rclpy.logging
 import rclpy.utilities
 from nav_msgs.msg import OccupancyGrid, Odometry
-from rcl_interfaces.msg import SetParametersResult
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.duration import Duration
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
@@ -45,7 +45,8 @@ from .diagnostics import Context as DiagnosticsContext
 from .frame_gate import CameraState as _CameraState
 from .frame_gate import stamp_ns as _stamp_ns
 from obstacle_detection.viz.overlay import render_overlay
-from .diagnostics import COMPILED, HealthWindow, health_status, status_name
+from .diagnostics import (COMPILED, USE_FQN_PARAMETER, HealthWindow, health_status,
+                          status_name)
 from obstacle_detection.pipeline.fusion import FusedGrid, PoseBuffer
 from obstacle_detection.pipeline.geometry import yaw_from_quaternion
 from .mount_source import MountSource
@@ -166,7 +167,11 @@ class DetectorNode(Node):
         if stats_period_s > 0.0:
             self.create_timer(stats_period_s, self._log_stats)
         self._started = time.monotonic()
-        self._last_frame_id = ''
+        use_fqn = self.declare_parameter(USE_FQN_PARAMETER, False, ParameterDescriptor(
+            description="diagnostic_updater's: name the /diagnostics status after the node's "
+                        'fully qualified name, not its name', read_only=True)).value
+        self._diagnostics_name = status_name(
+            self.get_fully_qualified_name() if use_fqn else self.get_name())
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics',
                                                       _DIAGNOSTICS_QOS)
         self.create_timer(1.0, self.publish_diagnostics)
@@ -195,7 +200,8 @@ class DetectorNode(Node):
     def compute_path(self) -> str:
         """Say which code processes the frames now (numba kernels or numpy) and why."""
         if not jit_support.AVAILABLE:
-            return 'numpy path (numba is not installed; see README, Dependencies)'
+            return ('numpy path (numba is not installed: pip install "numba>=0.60"; README, '
+                    'Install)')
         if jit_support.switched_off():
             return f'numpy path ({jit_support.NO_JIT_ENV} is set)'
         job = self._compile
@@ -281,14 +287,17 @@ class DetectorNode(Node):
     # -- diagnostics ---------------------------------------------------------------------------
     def publish_diagnostics(self) -> None:
         """Publish the health of the period since the last report on /diagnostics (1 Hz)."""
+        fallback = self._config.fallback_intrinsics
         context = DiagnosticsContext(
             uptime_s=time.monotonic() - self._started, depth_topic=self._depth_sub.topic_name,
             code_path=self.compute_path(),
-            mount=self._mount_said or f'parameters: {self._config.mount().describe()}')
-        # hardware_id: the frames' frame_id once one is processed, the depth topic before
-        status = health_status(self.stats.take(), context,
-                               name=status_name(self.get_fully_qualified_name()),
-                               hardware_id=self._last_frame_id or self._depth_sub.topic_name)
+            mount=self._mount_said or f'parameters: {self._config.mount().describe()}',
+            camera_info_topic=self._info_sub.topic_name,
+            fallback_intrinsics=(f'fx={fallback.fx:g} fy={fallback.fy:g} cx={fallback.cx:g} '
+                                 f'cy={fallback.cy:g}'))
+        # hardware_id: one string for the node's life (diagnostic_updater's setHardwareID)
+        status = health_status(self.stats.take(), context, name=self._diagnostics_name,
+                               hardware_id=self._depth_sub.topic_name)
         if self.context.ok():
             msg = DiagnosticArray(status=[status])
             msg.header.stamp = self.get_clock().now().to_msg()
@@ -424,12 +433,13 @@ class DetectorNode(Node):
                                              throttle_duration_sec=WARN_THROTTLE_S)
 
     def _frame_intrinsics(self, msg: Any, shape: tuple[int, ...],
-                          config: NodeConfig) -> Intrinsics | None:
+                          config: NodeConfig) -> tuple[Intrinsics | None, bool]:
+        """Return the frame's intrinsics (None: skipped) and whether they are the fallback."""
         camera = frame_gate.camera_for(list(self._cameras), _stamp_ns(msg.header.stamp),
                                        config.camera_info_tolerance_ns)
         if isinstance(camera, frame_gate.Skip):
             self._warn_skip(camera.kind, camera.reason)
-            return None
+            return None, False
         verdict = frame_gate.choose_intrinsics(
             camera, shape, use_fallback=config.use_fallback_intrinsics,
             fallback=config.fallback_intrinsics,
@@ -441,7 +451,7 @@ class DetectorNode(Node):
                                                     throttle_duration_sec=WARN_THROTTLE_S)
         if verdict.skip is not None:
             self._warn_skip(verdict.skip.kind, verdict.skip.reason)
-        return verdict.intrinsics
+        return verdict.intrinsics, camera is None
 
     def handle_frame(self, msg: Image) -> bool:
         """Process one depth Image and publish its outputs; False if the frame was skipped."""
@@ -451,7 +461,7 @@ class DetectorNode(Node):
         if isinstance(depth, frame_gate.Skip):
             self._warn_skip(depth.kind, depth.reason)
             return False
-        intrinsics = self._frame_intrinsics(msg, depth.shape, config)
+        intrinsics, fallback = self._frame_intrinsics(msg, depth.shape, config)
         if intrinsics is None:
             return False
         skip = frame_gate.check_depth(depth, msg)
@@ -495,8 +505,7 @@ class DetectorNode(Node):
                 self.get_logger().error(f'publishing failed: {type(error).__name__}: {error}',
                                         throttle_duration_sec=WARN_THROTTLE_S)
             return False
-        self.stats.processed(elapsed_ms)
-        self._last_frame_id = msg.header.frame_id
+        self.stats.processed(elapsed_ms, fallback=fallback)
         return True
 
     def close(self) -> None:
@@ -544,7 +553,9 @@ def help_text() -> str:
         '  out  /diagnostics              diagnostic_msgs/DiagnosticArray, 1 Hz',
         '',
         f'parameters (section "{PARAMS_FILE_KEY}:" or "/**:" of a --params-file; name  type  '
-        'default  range; use_sim_time is rclpy\'s own):',
+        'default  range; use_sim_time is rclpy\'s own, diagnostic_updater.use_fqn (bool, false: '
+        '/diagnostics names the status "obstacle_detector: ...", true: after the full name) '
+        'diagnostic_updater\'s):',
     ]
     for spec in ALL_PARAMS:
         default = repr(spec.default) if isinstance(spec.default, str) else str(spec.default)

@@ -28,8 +28,10 @@ NODE_NAME = 'obstacle_detector'
 #: when the node runs in a namespace).
 PARAMS_FILE_KEY = f'/**/{NODE_NAME}'
 #: Parameters every rclpy node declares itself (rclpy's TimeSource and type description
-#: service): a params file may set them; they are not the node's own.
-RCLPY_PARAMETERS = ('use_sim_time', 'start_type_description_service')
+#: service), and diagnostic_updater's use_fqn (declared as the Updater does, see
+#: diagnostics.py): a params file may set them; they are not the node's own.
+RCLPY_PARAMETERS = ('use_sim_time', 'start_type_description_service',
+                    'diagnostic_updater.use_fqn')
 
 #: DetectorParams fields exposed in degrees -> their ROS parameter name.
 DEGREE_FIELDS = {

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -132,18 +133,101 @@ _CROSSING_STATIC: tuple[Primitive, ...] = (
 )
 
 
+# --- held-out sequences: other layouts, speeds and seeds than the two above, so that what is
+# tuned on those is measured on these (issue 29)
+
+#: The person of 'person_leaving_edge': walks in from the right at x [m], stops near the left
+#: edge of the view, leaves on the left.
+EDGE_PERSON_X_M = 1.9
+EDGE_PERSON_START_Y_M = -1.6
+EDGE_PERSON_STOP_Y_M = 0.9
+EDGE_PERSON_END_Y_M = 2.2
+EDGE_PERSON_SPEED_M_S = 1.25
+EDGE_PERSON_STOP_S = 0.8
+_EDGE_FRAMES = 150
+
+
+def edge_person_y_at(t_s: float) -> float:
+    """Lateral position [m] of the person of 'person_leaving_edge' at time t [s]."""
+    walk_in = (EDGE_PERSON_STOP_Y_M - EDGE_PERSON_START_Y_M) / EDGE_PERSON_SPEED_M_S
+    if t_s <= walk_in:
+        return EDGE_PERSON_START_Y_M + EDGE_PERSON_SPEED_M_S * t_s
+    if t_s <= walk_in + EDGE_PERSON_STOP_S:
+        return EDGE_PERSON_STOP_Y_M
+    return min(EDGE_PERSON_END_Y_M, EDGE_PERSON_STOP_Y_M
+               + EDGE_PERSON_SPEED_M_S * (t_s - walk_in - EDGE_PERSON_STOP_S))
+
+
+_EDGE_STATIC: tuple[Primitive, ...] = (
+    Floor(),
+    Box((1.4375, 0.6375, 0.0), (1.6875, 0.8875, 0.25), name='low_box'),
+    Box((2.4375, -1.1125, 0.0), (2.7375, -0.7125, 0.6), name='cabinet'),
+    Wall(3.4125, -3.0, 3.4125, 3.0),
+)
+
+#: 'drive_by_table': low boxes on both sides, a table on the right passed close by, a gentle
+#: left arc at the end (no stop on the spot).
+_TABLE_WORLD: tuple[Primitive, ...] = (
+    Floor(),
+    Box((0.9625, -0.7375, 0.0), (1.2625, -0.4875, 0.2), name='box_right'),
+    Box((1.3625, 0.4625, 0.0), (1.6625, 0.8125, 0.35), name='box_left'),
+    *(dataclasses.replace(part, name='table')
+      for part in _table(1.9125, -1.2125, 2.6125, -0.5625, top_z=0.72)),
+    Box((2.6125, 1.0125, 0.0), (2.9125, 1.3125, 0.25), name='box_after_arc'),
+    Wall(-0.8, -2.0125, 3.8125, -2.0125),
+    Wall(3.8125, -2.0125, 3.8125, 2.6125),
+    Wall(3.8125, 2.6125, -0.8, 2.6125),
+    Wall(-0.8, 2.6125, -0.8, -2.0125),
+)
+_TABLE_SEGMENTS = ((0.3, 0.0, 0.0), (4.0, 0.45, 0.0), (2.0, 0.35, math.radians(30.0)),
+                   (0.5, 0.0, 0.0))
+
+
+@dataclass(frozen=True)
+class BodyPitch:
+    """The robot body (and the camera on it) rocking about the wheel axis under base_footprint.
+
+    pitch(t) = amplitude * sin(2 pi t / period + phase), positive nose down; the URDF and the
+    wheel odometry do not see it: the camera really sits at height h cos(pitch), h sin(pitch)
+    ahead of its mount, pitched by the body's pitch.
+    """
+
+    amplitude_deg: float = 2.0
+    period_s: float = 1.2
+    phase_deg: float = 0.0
+
+    def pitch_rad(self, t_s: float) -> float:
+        """Return the body's pitch [rad] at time t [s]."""
+        return math.radians(self.amplitude_deg) * math.sin(
+            2.0 * math.pi * t_s / self.period_s + math.radians(self.phase_deg))
+
+
+#: The held-out pitching runs: +-2 deg, these phases (a sequence each).
+PITCH_PHASES_DEG = (0.0, 90.0, 180.0, 270.0)
+
+
 class SceneSequence:
-    """A named sequence: the world at each frame, the true and odometry poses, renderings."""
+    """A named sequence: the world at each frame, the true and odometry poses, renderings.
+
+    body_pitch: the body rocking under the camera (rendered from the pitched camera; the
+    poses and odometry stay those of base_footprint on the floor); None: a rigid level body.
+    """
 
     def __init__(self, name: str, *, seed: int = 0,
-                 odometry: OdometryModel = OdometryModel()) -> None:
+                 odometry: OdometryModel = OdometryModel(),
+                 body_pitch: BodyPitch | None = None) -> None:
         if name not in SEQUENCE_NAMES:
             raise ValueError(f'unknown sequence {name!r}; known: {", ".join(SEQUENCE_NAMES)}')
         self.name = name
         self.seed = check_count('seed', seed)
         self.rate_hz = SEQUENCE_RATE_HZ
+        self.body_pitch = body_pitch
         if name == 'drive_past_boxes':
             self._poses = _integrate(_DRIVE_SEGMENTS, self.rate_hz)
+        elif name == 'drive_by_table':
+            self._poses = _integrate(_TABLE_SEGMENTS, self.rate_hz)
+        elif name == 'person_leaving_edge':
+            self._poses = np.zeros((_EDGE_FRAMES, 3))
         else:
             self._poses = np.zeros((_CROSSING_FRAMES, 3))
         self._odometry = odometry_poses(self._poses, odometry, self.seed)
@@ -170,9 +254,20 @@ class SceneSequence:
         index = self._check_index(index)
         if self.name == 'drive_past_boxes':
             return Scene(self.name, _DRIVE_WORLD)
+        if self.name == 'drive_by_table':
+            return Scene(self.name, _TABLE_WORLD)
+        if self.name == 'person_leaving_edge':
+            y = edge_person_y_at(index / self.rate_hz)
+            person = Cylinder(EDGE_PERSON_X_M, y, radius_m=0.22, height_m=1.7, name='person')
+            return Scene(self.name, _EDGE_STATIC + (person,))
         y = person_y_at(index / self.rate_hz)
         person = Cylinder(PERSON_X_M, y, radius_m=0.2, height_m=1.75)
         return Scene(self.name, _CROSSING_STATIC + (person,))
+
+    def body_pitch_rad(self, index: int) -> float:
+        """Return the body's true pitch [rad] at frame ``index`` (0 without body_pitch)."""
+        index = self._check_index(index)
+        return 0.0 if self.body_pitch is None else self.body_pitch.pitch_rad(index / self.rate_hz)
 
     def frame(self, index: int, *, noise: bool | NoiseModel = True,
               intrinsics: Intrinsics = KINECT_V2_SD,
@@ -180,11 +275,26 @@ class SceneSequence:
         """Render frame ``index`` from the true pose (noise seeded by (seed, index))."""
         index = self._check_index(index)
         pose = self.pose_true(index)
-        rendered = render(self.scene_at(index), seed=self.seed, intrinsics=intrinsics,
-                          size=size, noise=noise, frame_index=index, pose=pose)
+        scene = self.scene_at(index)
+        pitch = self.body_pitch_rad(index)
+        camera_pose = pose
+        ahead_m = 0.0
+        if pitch:   # the camera swung about the wheel axis: lower, ahead, pitched
+            ahead_m = scene.height_m * math.sin(pitch)
+            scene = dataclasses.replace(scene, height_m=scene.height_m * math.cos(pitch),
+                                        pitch_rad=scene.pitch_rad + pitch)
+            camera_pose = (pose[0] + ahead_m * math.cos(pose[2]),
+                           pose[1] + ahead_m * math.sin(pose[2]), pose[2])
+        rendered = render(scene, seed=self.seed, intrinsics=intrinsics,
+                          size=size, noise=noise, frame_index=index, pose=camera_pose)
+        if ahead_m:   # truth points from under the camera to base_footprint
+            rendered.points_ground[..., 0] += np.float32(ahead_m)
         return SequenceFrame(index=index, stamp_s=index / self.rate_hz, pose_true=pose,
                              pose_odom=self.pose_odom(index), frame=rendered)
 
 
 #: Names accepted by :class:`SceneSequence`.
-SEQUENCE_NAMES: tuple[str, ...] = ('drive_past_boxes', 'person_crossing')
+SEQUENCE_NAMES: tuple[str, ...] = ('drive_past_boxes', 'person_crossing', 'drive_by_table',
+                                   'person_leaving_edge')
+#: The held-out ones (issue 29): not to tune on.
+HELD_OUT_SEQUENCES: tuple[str, ...] = ('drive_by_table', 'person_leaving_edge')
