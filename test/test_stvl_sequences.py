@@ -31,7 +31,8 @@ from obstacle_detection.cli import bag_processor
 from obstacle_detection.ros.conversions import array_to_image, intrinsics_to_camera_info
 from obstacle_detection.ros.frame_gate import CameraState
 from obstacle_detection.sim.scenes import scene_params
-from obstacle_detection.sim.sequences import PERFECT_ODOMETRY, SEQUENCE_NAMES, SceneSequence
+from obstacle_detection.sim.sequences import (PERFECT_ODOMETRY, PITCH_PHASES_DEG, SEQUENCE_NAMES,
+                                              BodyPitch, SceneSequence)
 
 REPO = ros_env.REPO_ROOT
 CORRIDOR = REPO / 'params' / 'corridor.yaml'
@@ -85,15 +86,45 @@ def _rendered(sequence: SceneSequence) -> Iterator[Any]:
             yield frame
 
 
-def run_sequence(name: str, config: nav2.CostmapConfig, values: dict[str, Any],
-                 periods: dict[str, int]) -> list[replay.SequenceFigures]:
-    """Play a sequence into one STVL costmap per update period [frames]; their figures."""
+@dataclasses.dataclass(frozen=True)
+class Run:
+    """One scored run: a rendered sequence and the URDF the emulated TF uses.
+
+    body_pitch: the body rocking under the camera (rendered pitched; the URDF, odometry and
+    truth do not see it); urdf_error: mount errors of the URDF (nav2_replay.urdf_off) while
+    the rendering and the node's parameters keep the true mount.
+    """
+
+    name: str
+    sequence: str
+    body_pitch: BodyPitch | None = None
+    urdf_error: dict | None = None
+
+
+#: Every sequence; the held-out drive also with the body pitching +-2 deg (one phase of
+#: PITCH_PHASES_DEG: test_nav2_held_out runs all four for the VoxelLayer) and with a URDF
+#: 1.5 deg / 3 cm off (the same frames).
+RUNS: tuple[Run, ...] = (
+    *(Run(name, name) for name in SEQUENCE_NAMES),
+    Run('drive_by_table, pitching', 'drive_by_table',
+        body_pitch=BodyPitch(amplitude_deg=2.0, period_s=1.2, phase_deg=PITCH_PHASES_DEG[0])),
+    Run('drive_by_table, URDF off', 'drive_by_table', urdf_error=replay.URDF_ERROR),
+)
+
+
+def play_runs(runs: list[Run], config: nav2.CostmapConfig, values: dict[str, Any],
+              periods: dict[str, int]) -> list[replay.SequenceFigures]:
+    """Render the frames the runs share once; one STVL costmap per run and update period."""
     node = bag_processor.config_from_values(values, str(CORRIDOR))
-    sequence = SceneSequence(name, odometry=PERFECT_ODOMETRY)
-    mount = replay.camera_mount(values)
+    first = runs[0]
+    sequence = SceneSequence(first.sequence, odometry=PERFECT_ODOMETRY,
+                             body_pitch=first.body_pitch)
     poses = [sequence.pose_true(i) for i in range(len(sequence))]
-    replays = {label: STVLReplay(name, config, mount, poses, f'STVL {label}')
-               for label in periods}
+    replays = []
+    for run in runs:
+        urdf = values if run.urdf_error is None else replay.urdf_off(values, run.urdf_error)
+        replays += [(period, STVLReplay(run.name, config, replay.camera_mount(urdf), poses,
+                                        f'STVL {label}')) for label, period in periods.items()]
     cameras: list[CameraState] = []
     obstacles = np.zeros((0, 3))
     for sf in _rendered(sequence):
@@ -112,15 +143,14 @@ def run_sequence(name: str, config: nav2.CostmapConfig, values: dict[str, Any],
             assert messages['obstacles'].header.frame_id == node.cloud_frame_id
             obstacles = pointcloud2_to_points(messages['obstacles'])
         elif not reason.startswith('no valid depth pixel'):
-            raise AssertionError(f'{name} frame {index}: {reason}')
+            raise AssertionError(f'{first.sequence} frame {index}: {reason}')
         update = replay.UpdateInput(
             index=index, pose=sf.pose_true, obstacle_points=obstacles,
             clearing_points=np.zeros((0, 3), np.float32), truth_obstacle=np.zeros((0, 3)),
             truth_free=np.zeros((0, 3)))
-        for r in replays.values():
+        for _, r in replays:
             r.receive(update)
-        due = [label for label, period in periods.items() if index % period == 0]
-        if not due:
+        if all(index % period for period, _ in replays):
             continue
         truth_obstacle, truth_floor, truth_person = replay.frame_truth(
             sf, scene_params(sf.frame, node.detector.params))
@@ -128,9 +158,10 @@ def run_sequence(name: str, config: nav2.CostmapConfig, values: dict[str, Any],
             update, truth_obstacle=truth_obstacle, truth_free=truth_floor,
             person_in_view=replay.person_in_view(sf.frame), truth_person=truth_person,
             person_disc=replay.person_disc(sf))
-        for label in due:
-            replays[label].step(update)
-    return [r.report() for r in replays.values()]
+        for period, r in replays:
+            if index % period == 0:
+                r.step(update)
+    return [r.report() for _, r in replays]
 
 
 def update_periods(config: nav2.CostmapConfig) -> dict[str, int]:
@@ -143,29 +174,44 @@ def update_periods(config: nav2.CostmapConfig) -> dict[str, int]:
 def figures() -> dict[tuple[str, str], replay.SequenceFigures]:
     config = stvl.read_stvl_costmap(STVL_YAML)
     values = bag_processor.node_param_values(CORRIDOR)
-    reports = [f for name in SEQUENCE_NAMES
-               for f in run_sequence(name, config, values, update_periods(config))]
+    groups: dict[tuple, list[Run]] = {}
+    for run in RUNS:        # runs that share their frames are played together
+        groups.setdefault((run.sequence, run.body_pitch), []).append(run)
+    reports = [f for runs in groups.values()
+               for f in play_runs(runs, config, values, update_periods(config))]
     print(f'\n{replay.format_table(reports)}')
     return {(f.name, f.layer): f for f in reports}
 
 
 RATES = list(update_periods(stvl.read_stvl_costmap(STVL_YAML)))
-#: Measured misses at 5 Hz, all from STVL's order (updateBounds: ClearFrustums builds the
-#: column counts, Mark comes after, UpdateROSCostmap reads the counts): a mark reaches the
-#: costmap one update later (upstream issue #284), 0.2 s at 5 Hz. New cells appear late while
-#: driving (F1 0.963) and the person is drawn where it stood 0.2 s before (F1 0.939; a noisy
-#: mark at its edge lands on floor seen free since the start: 1 stale cell).
+#: Measured misses, expected to fail (strict: a pass is reported too).
+#: At 5 Hz, from STVL's order (updateBounds: ClearFrustums builds the column counts, Mark comes
+#: after, UpdateROSCostmap reads the counts): a mark reaches the costmap one update later
+#: (upstream issue #284), 0.2 s at 5 Hz. New cells appear late while driving (F1 0.963) and a
+#: walking person is drawn where it stood 0.2 s before (F1 0.939 and 0.903; a noisy mark at its
+#: edge lands on floor seen free since the start: 1 stale cell).
 LATE_AT_5_HZ = pytest.mark.xfail(strict=True, reason='STVL marks after it fills the costmap: '
                                  'one update late (spatio_temporal_voxel_layer issue #284)')
-KNOWN_MISSES = {('f1', 'drive_past_boxes', '5 Hz'), ('f1', 'person_crossing', '5 Hz'),
-                ('stale', 'person_crossing', '5 Hz')}
+#: drive_by_table at every frame: a few frames see the far part of the table top (0.72 m, in
+#: the robot's band) at the edge of the view; those voxels leave the frustum and stay 15 s (up
+#: to 22 cells), over cells whose last view saw the floor under the top, which the replay's
+#: truth then calls free (F1 0.964; 0.961 with the URDF off; 0.983 pitching). At 5 Hz those
+#: frames are not sampled.
+TABLE_TOP = pytest.mark.xfail(strict=True, reason='the table top kept over floor seen beneath '
+                              'it, which the truth calls free')
+KNOWN_MISSES = {('f1', 'drive_past_boxes', '5 Hz'): LATE_AT_5_HZ,
+                ('f1', 'person_crossing', '5 Hz'): LATE_AT_5_HZ,
+                ('stale', 'person_crossing', '5 Hz'): LATE_AT_5_HZ,
+                ('f1', 'person_leaving_edge', '5 Hz'): LATE_AT_5_HZ,
+                ('f1', 'drive_by_table', '30 Hz'): TABLE_TOP,
+                ('f1', 'drive_by_table, URDF off', '30 Hz'): TABLE_TOP}
 
 
 def cases(figure: str) -> list[Any]:
-    """(sequence, rate) pairs; those in KNOWN_MISSES marked as expected to fail."""
-    return [pytest.param(name, rate, marks=[LATE_AT_5_HZ]
+    """(run, rate) pairs; those in KNOWN_MISSES marked as expected to fail."""
+    return [pytest.param(name, rate, marks=[KNOWN_MISSES[(figure, name, rate)]]
                          if (figure, name, rate) in KNOWN_MISSES else [])
-            for name in SEQUENCE_NAMES for rate in RATES]
+            for name in (run.name for run in RUNS) for rate in RATES]
 
 
 CASES = cases('')
