@@ -188,10 +188,10 @@ def _checked_source(source: SourceConfig, layer: str) -> SourceConfig:
         raise nav2.Nav2ConfigError(f'{where}: model_type {source.model_type}: only the depth '
                                    'camera frustum (0) is ported')
     if source.clearing and not source.marking and source.observation_persistence > 0.0:
-        # BufferROSCloud stores no cloud for a clearing-only source; RemoveStaleObservations
-        # reads the stamp of that cloud when observation_persistence > 0
+        # a clearing-only reading keeps an empty cloud stamped 0 (BufferROSCloud), which
+        # RemoveStaleObservations finds older than any persistence: no frustum, no clearing
         raise nav2.Nav2ConfigError(f'{where}: observation_persistence > 0 on a clearing-only '
-                                   'source reads a cloud the buffer never stored')
+                                   'source never clears (its readings are stamped 0)')
     return source
 
 
@@ -205,7 +205,8 @@ class Reading:
 
     origin (3,), rotation (3, 3): the pose of ``sensor_frame`` (else the cloud's frame) in the
     global frame; points (N, 3) float64 global frame [m] (empty for a clearing-only source);
-    stamp_s: the cloud's stamp [s]; source: its settings.
+    stamp_s: the cloud's stamp [s] (0 for a clearing-only source: its default cloud);
+    source: its settings.
     """
 
     origin: np.ndarray
@@ -234,12 +235,12 @@ class MeasurementBuffer:
         src = self.source
         frame_rot, frame_t = sensor_pose if sensor_pose is not None else (rotation, translation)
         if src.clearing and not src.marking:
-            # "no need to buffer points": the reading keeps the pose only, and
-            # _last_updated is not refreshed (the return comes before it)
+            # "no need to buffer points": the reading keeps the pose and its default cloud
+            # (MeasurementReading(): an empty PointCloud2, stamp 0), and _last_updated is not
+            # refreshed (the return comes before it)
             self.readings.insert(0, Reading(np.asarray(frame_t, np.float64),
                                             np.asarray(frame_rot, np.float64),
-                                            np.zeros((0, 3)), stamp_s, src))
-            self._remove_stale(now_s)
+                                            np.zeros((0, 3)), 0.0, src))
             return
         pts = np.asarray(points, np.float64).reshape(-1, 3)
         # tf2::doTransform of a PointCloud2 writes float32 coordinates

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -73,7 +74,7 @@ def test_the_shipped_example_reads_as_the_plugin_declares_it() -> None:
     ({'voxel_decay': 15}, 'voxel_decay=15 must be a float'),
     ({'detector_frustum.decay_acceleration': 1000}, 'decay_acceleration=1000 must be a float'),
     ({'detector_obstacles.obstacle_max_range': 3.2}, "'obstacle_max_range' is not a param"),
-    ({'detector_frustum.observation_persistence': 0.5}, 'clearing-only source reads a cloud'),
+    ({'detector_frustum.observation_persistence': 0.5}, 'clearing-only source never clears'),
     ({'detector_frustum.model_type': 1}, 'only the depth camera frustum'),
     ({'detector_obstacles.filter': 'voxel'}, 'passthrough or none are ported'),
 ])
@@ -143,6 +144,27 @@ def test_in_the_frustum_a_voxel_not_seen_again_decays_faster(tmp_path: Path) -> 
 
     assert _lethal_at(costmap, shown, 1.22, 0.02)
     assert not _lethal_at(costmap, gone, 1.22, 0.02)
+
+
+def test_a_clearing_only_source_with_persistence_never_clears() -> None:
+    config = stvl.read_stvl_costmap(STVL_YAML)
+    layer = config.layers[0]
+    sources = tuple(dataclasses.replace(s, observation_persistence=0.5) if s.clearing else s
+                    for s in layer.sources)
+    persistent = stvl.STVLCostmap(dataclasses.replace(
+        config, layers=(dataclasses.replace(layer, sources=sources),)))
+    shipped = stvl.STVLCostmap(config)
+    ahead = np.array([[1.22, 0.02, 0.3]])
+    now = 1000.0                                        # a clock far from 0, as a node's
+
+    for costmap in (persistent, shipped):
+        _update(costmap, ahead, now)
+        _update(costmap, np.zeros((0, 3)), now + 0.2)
+    kept = _update(persistent, np.zeros((0, 3)), now + 0.4)
+    gone = _update(shipped, np.zeros((0, 3)), now + 0.4)
+
+    assert _lethal_at(persistent, kept, 1.22, 0.02)
+    assert not _lethal_at(shipped, gone, 1.22, 0.02)
 
 
 def test_a_clearing_only_source_with_an_expected_rate_is_never_current(tmp_path: Path) -> None:
