@@ -4,10 +4,13 @@ Every frame of each sequence goes through the node's own frame path in-process
 (``bag_processor.process_frame``: the frame gate, the pipeline and the messages the node
 publishes; test_bag_process checks they equal the node's) with params/corridor.yaml. Its
 ``obstacles/points`` go into the port of STVL 2.5.5 (test/stvl_layer.py) configured by
-params/nav2_stvl.yaml, with TF from the sequence's true poses and corridor.yaml's mount; the
-frustum is posed by the clearing cloud's frame (the optical frame). Two costmaps run side by
-side: one updated at every frame (30 Hz) and one at the file's ``update_frequency`` (5 Hz,
-every 6th frame; with ``observation_persistence: 0`` an update reads the newest cloud).
+params/nav2_stvl.yaml, with TF from the sequence's true poses (exact odometry) and the URDF's
+mount (corridor.yaml's, or one 1.5 deg / 3 cm off for the URDF-off run); the frustum is posed
+by the clearing cloud's frame (the optical frame), never by the floor fit. The runs (``RUNS``):
+every sequence of ``SEQUENCE_NAMES``, and the held-out drive with the body pitching +-2 deg and
+with the URDF off. Per run two costmaps run side by side: one updated at every frame (30 Hz)
+and one at the file's ``update_frequency`` (5 Hz, every 6th frame). Clouds are buffered as they
+come (30 Hz); an update reads the newest (``observation_persistence: 0``).
 test/nav2_replay.py defines the figures; ``pytest -s`` prints them (README, Use with Nav2).
 """
 
