@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import subprocess
@@ -447,6 +448,66 @@ def test_a_mount_far_from_the_floor_is_a_warning(tmp_path: Path,
     assert 'warning' not in captured.err
     assert f'camera mount: height 1.20 m, pitch 25.0 deg, roll 0.0 deg ({mount})' in \
         captured.out
+
+
+def _tf_static(parent: str, child: str, xyz: tuple[float, float, float],
+               quaternion: tuple[float, float, float, float]) -> bytes:
+    """Return one transform as a serialized tf2_msgs/TFMessage (robot_state_publisher's)."""
+    t = JAZZY.types
+    header = t['std_msgs/msg/Header'](stamp=t['builtin_interfaces/msg/Time'](sec=0, nanosec=0),
+                                      frame_id=parent)
+    transform = t['geometry_msgs/msg/Transform'](
+        translation=t['geometry_msgs/msg/Vector3'](x=xyz[0], y=xyz[1], z=xyz[2]),
+        rotation=t['geometry_msgs/msg/Quaternion'](*quaternion))
+    msg = t['tf2_msgs/msg/TFMessage'](transforms=[t['geometry_msgs/msg/TransformStamped'](
+        header=header, child_frame_id=child, transform=transform)])
+    return bytes(JAZZY.serialize_cdr(msg, 'tf2_msgs/msg/TFMessage'))
+
+
+def test_use_tf_takes_the_mount_from_the_bags_tf_static(
+        tmp_path: Path, depths: list[np.ndarray], capsys: pytest.CaptureFixture[str]) -> None:
+    """As the node with TF: the mount from the recorded /tf_static; no transform, no output."""
+    from scipy.spatial.transform import Rotation
+
+    from obstacle_detection.pipeline.geometry import mount_rotation
+
+    pitch = math.radians(20.0)
+    quaternion = tuple(Rotation.from_matrix(mount_rotation(pitch, 0.0)).as_quat())
+    floor = render_scene('corridor', seed=1, intrinsics=INTR, size=SIZE, height_m=0.8,
+                         pitch_rad=pitch).depth_mm
+    write_bag(tmp_path / 'plain', frame_messages([floor]))
+    with Reader(tmp_path / 'plain') as reader, Writer(tmp_path / 'in', version=9) as writer:
+        tf_conn = writer.add_connection('/tf_static', 'tf2_msgs/msg/TFMessage',
+                                        typestore=JAZZY)
+        writer.write(tf_conn, T0_NS - 1, _tf_static('base_link', FRAME_ID, (0.0, 0.0, 0.8),
+                                                    quaternion))
+        conns = {c.id: writer.add_connection(c.topic, c.msgtype, typestore=JAZZY)
+                 for c in reader.connections}
+        for conn, timestamp, raw in reader.messages():
+            writer.write(conns[conn.id], timestamp, raw)
+    params = tmp_path / 'tf.yaml'
+    params.write_text(PARAMS_YAML + '    use_tf: true\n')
+
+    assert bag_process.main([str(tmp_path / 'in'), str(tmp_path / 'out'), '--quiet',
+                             '--params-file', str(params)]) == 0
+    out = capsys.readouterr().out
+    assert "camera mount: TF base_link <- kinect2_ir_optical_frame (the bag's /tf_static): " \
+        'height 0.80 m, pitch 20.0 deg' in out
+    expected = Detector(detector_params_from_ros(dict(
+        PARAM_VALUES, camera_height_m=0.8, camera_pitch_deg=20.0))).process(floor, INTR)
+    grid = decoded('/obstacles/costmap', read_raw(tmp_path / 'out')['/obstacles/costmap'][0][1])
+    np.testing.assert_array_equal(
+        np.asarray(grid.data, np.int8).reshape(expected.costmap.data.shape),
+        expected.costmap.data)
+
+    # the same frames without /tf_static: skipped with the reason, never the parameters
+    assert bag_process.main([str(tmp_path / 'plain'), str(tmp_path / 'out2'), '--quiet',
+                             '--params-file', str(params)]) == 0
+    out = capsys.readouterr().out
+    assert 'depth frames: 1, processed 0, skipped 1' in out
+    assert "skipped 1: no transform base_link <- 'kinect2_ir_optical_frame' from TF" in out
+    assert 'use_tf is set but the bag has no /tf_static' in out
+    assert '/obstacles/costmap' not in read_raw(tmp_path / 'out2')
 
 
 # --------------------------------------------------------------------------------------------

@@ -289,6 +289,7 @@ def test_the_launch_files_settings_keep_the_file_and_pass_use_sim_time(
         local_context: rclpy.Context, tmp_path: Path) -> None:
     """As launch_ros starts the node: its dict of parameters becomes a '/**' params file."""
     from test_launch_and_nav2 import _launch_module
+    from test_mount_source import StandInBuffer
 
     settings = _launch_module().node_settings(
         {'namespace': 'x', 'use_sim_time': 'true', 'params_file': str(CORRIDOR_YAML)}, '/s')
@@ -299,8 +300,9 @@ def test_the_launch_files_settings_keep_the_file_and_pass_use_sim_time(
             path.write_text(yaml.safe_dump({'/**': {'ros__parameters': parameters}}))
             parameters = str(path)
         files += ['--params-file', parameters]
+    # use_tf (the launch default) needs tf2, which a robot's ROS 2 has: a stand-in here
     node = DetectorNode(context=local_context, namespace=settings['namespace'],
-                        cli_args=['--ros-args', *files])
+                        cli_args=['--ros-args', *files], tf_buffer=StandInBuffer(None))
     try:
         fqn = node.get_fully_qualified_name()
         assert fqn == NODE

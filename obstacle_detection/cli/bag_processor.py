@@ -25,10 +25,13 @@ from obstacle_detection.ros.compressed_depth import COMPRESSED_IMAGE_TYPE, raw_t
 from obstacle_detection.ros.config import NodeConfig, build_config
 from obstacle_detection.ros.conversions import result_to_messages
 from obstacle_detection.ros.frame_gate import CameraState
+from obstacle_detection.ros.mount_source import MountSource, StaticTransforms
 from obstacle_detection.ros.parameters import ALL_PARAMS, read_params_files
 from obstacle_detection.viz.overlay import render_overlay
 
 DEFAULT_NAMESPACE = '/obstacles'
+#: With use_tf, the camera mount comes from this topic's transforms (tf2_msgs/TFMessage).
+TF_STATIC = '/tf_static'
 #: result_to_messages key -> (topic below the namespace, message type).
 OUTPUTS = {
     'obstacles': ('points', 'sensor_msgs/msg/PointCloud2'),
@@ -97,9 +100,14 @@ class ProcessSummary:
 
 
 def process_frame(depth: Image | CompressedImage, cameras: Sequence[CameraState],
-                  config: NodeConfig, *, with_ground: bool, with_overlay: bool
+                  config: NodeConfig, *, with_ground: bool, with_overlay: bool,
+                  mounts: MountSource | None = None,
                   ) -> tuple[dict[str, Any] | None, Any, str, str | None]:
-    """Run one depth message (raw or compressed) through the node's gate and pipeline."""
+    """Run one depth message (raw or compressed) through the node's gate and pipeline.
+
+    mounts: with use_tf, the mount from the bag's static transforms (as the node's from TF):
+    a frame they do not place is skipped, never placed by the mount parameters.
+    """
     array = frame_gate.decode(depth)
     if isinstance(array, frame_gate.Skip):
         return None, None, array.reason, None
@@ -115,8 +123,18 @@ def process_frame(depth: Image | CompressedImage, cameras: Sequence[CameraState]
     skip = frame_gate.check_depth(array, depth)
     if skip is not None:
         return None, None, skip.reason, None
+    detector = config.detector
+    if mounts is not None:
+        parameters = config.mount()
+        mount = mounts.mount_for(depth.header.frame_id, None, parameters)
+        if mount is None:
+            return None, None, f"{mounts.last_problem}, the bag's {TF_STATIC}", None
+        try:
+            detector = detector if mount == parameters else config.detector_for(mount)
+        except ValueError as err:
+            return None, None, f'the mount from TF cannot be used: {err}', None
     try:
-        result = config.detector.process(array, verdict.intrinsics)
+        result = detector.process(array, verdict.intrinsics)
     except ValueError as err:
         return None, None, str(err), None
     messages = result_to_messages(
@@ -178,11 +196,16 @@ def process_bag(src: Path, output: Path, config: NodeConfig, *,
                                                         typestore=typestore) for key in wanted}
                 cameras: deque[CameraState] = deque(maxlen=frame_gate.CAMERA_INFO_HISTORY)
                 counts: Counter[str] = Counter()
+                mounts = _tf_mounts(reader, config, summary)
                 for conn, timestamp, raw in _grouped_by_timestamp(
                         reader.messages(), summary.info_topic):
                     writer.write(copies[conn.id], timestamp, raw)
                     counts[conn.topic] += 1
-                    if conn.topic == summary.info_topic:
+                    if conn.topic == TF_STATIC and mounts is not None:
+                        for transform in typestore.deserialize_cdr(
+                                bytes(raw), conn.msgtype).transforms:
+                            mounts.buffer.add(transform)
+                    elif conn.topic == summary.info_topic:
                         camera = CameraState.from_camera_info(
                             deserialize_message(bytes(raw), CameraInfo))
                         frame_gate.keep_camera(cameras, camera)
@@ -190,7 +213,7 @@ def process_bag(src: Path, output: Path, config: NodeConfig, *,
                               f'CameraInfo on {summary.info_topic}: {camera.note}')
                     elif conn.topic == depth_topic:
                         messages = _frame(deserialize_message(bytes(raw), depth_class),
-                                          list(cameras), config, summary,
+                                          list(cameras), config, summary, mounts=mounts,
                                           with_ground=with_ground, with_overlay=with_overlay)
                         for key in wanted if messages is not None else ():
                             writer.write(out_conns[key], timestamp,
@@ -227,27 +250,48 @@ def _check_topics(reader: Reader, src: Path, depth_topic: str, info_topic: str |
     return DEPTH_TYPES[topics[depth_topic]]
 
 
+def _tf_mounts(reader: Reader, config: NodeConfig, summary: ProcessSummary,
+               ) -> MountSource | None:
+    """With use_tf, the mount source fed by the bag's static transforms; else None."""
+    if not config.values['use_tf']:
+        return None
+    if not any(c.topic == TF_STATIC and c.msgtype == 'tf2_msgs/msg/TFMessage'
+               for c in reader.connections):
+        _note(summary, f'use_tf is set but the bag has no {TF_STATIC} (tf2_msgs/TFMessage): '
+                       'no frame can be placed (record it, or set use_tf: false to use the '
+                       'mount parameters)')
+    summary.mount = f"from the bag's {TF_STATIC}: {config.cloud_frame_id} <- the frames' frame_id"
+    return MountSource(StaticTransforms(), config.cloud_frame_id, static=True)
+
+
 def _note(summary: ProcessSummary, note: str | None) -> None:
     if note is not None and note not in summary.notes:
         summary.notes.append(note)
 
 
 def _frame(depth: Any, cameras: Sequence[CameraState], config: NodeConfig,
-           summary: ProcessSummary, *, with_ground: bool, with_overlay: bool
-           ) -> dict[str, Any] | None:
+           summary: ProcessSummary, *, with_ground: bool, with_overlay: bool,
+           mounts: MountSource | None = None) -> dict[str, Any] | None:
     """Process one depth message, counting it in ``summary``; its messages."""
     summary.frames += 1
     messages, result, reason, note = process_frame(
-        depth, cameras, config, with_ground=with_ground, with_overlay=with_overlay)
+        depth, cameras, config, with_ground=with_ground, with_overlay=with_overlay,
+        mounts=mounts)
     _note(summary, note)
     if messages is None:
         summary.skipped[reason] += 1
         return None
     if summary.processed == 0:   # the floor of the first frame against the mount
-        check = tool_support.check_mount(
-            result.depth_m, result.intrinsics, config.detector.params,
-            fix='a --params-file setting camera_height_m, camera_pitch_deg and camera_roll_deg '
-                '(tools/estimate_mount.py --params-out writes one from a depth frame)')
+        if mounts is not None:
+            summary.mount = f"{mounts.source} (the bag's {TF_STATIC}): " + \
+                tool_support.mount_text(result.pose.nominal)
+        fix = ("the camera joint of the URDF the bag's /tf_static was recorded with "
+               '(tools/estimate_mount.py measures the mount from a depth frame)'
+               if mounts is not None else
+               'a --params-file setting camera_height_m, camera_pitch_deg and camera_roll_deg '
+               '(tools/estimate_mount.py --params-out writes one from a depth frame)')
+        check = tool_support.check_mount(result.depth_m, result.intrinsics,
+                                         result.pose.nominal, fix=fix)
         if check.warning:
             summary.mount_warning = f'first frame: {check.warning}'
             tool_support.warn(summary.mount_warning)

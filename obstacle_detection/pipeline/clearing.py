@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+from typing import Any
 
 import numpy as np
 
@@ -24,6 +25,17 @@ def clearing_points(depth_m: np.ndarray, intrinsics: Intrinsics, *, stride_px: i
     """
     ru, rv, rows, cols = _rays_and_samples(depth_m.shape, intrinsics, int(stride_px))
     return _clearing_points(depth_m, ru, rv, rows, cols, range_m, BORDER_FRACTIONS)
+
+
+def clearing_cloud(result: Any, *, stride_px: int, range_m: float) -> np.ndarray:
+    """Return a frame's clearing cloud (N, 3) float32 as the node publishes it (optical frame).
+
+    Re-expressed through the frame's pose (``result.pose``): Nav2, placing the camera by the
+    nominal mount, puts every point where the frame's marks put the same surface.
+    """
+    points = clearing_points(result.depth_m, result.intrinsics, stride_px=stride_px,
+                             range_m=range_m)
+    return result.pose.to_nominal_optical(points)
 
 
 # once per camera and stride, not per frame: a third of the clearing cloud's time in the node

@@ -103,6 +103,9 @@ class Context:
     mount: str                 #: where the camera mount comes from, and its values
     camera_info_topic: str = 'depth/camera_info'
     fallback_intrinsics: str = ''   #: the fallback_fx/fy/cx/cy values, 'fx=.. fy=.. ...'
+    #: the mount against the floor in view (ros.mount_check): key/values, and a warning or ''
+    mount_check: dict[str, str] = field(default_factory=dict)
+    mount_warning: str = ''
 
 
 def intrinsics_text(period: Period, ctx: Context) -> str:
@@ -136,6 +139,8 @@ def _level_and_message(period: Period, ctx: Context) -> tuple[int, str]:
         return ERROR, f'the pipeline failed on {period.errors} frame(s) (see the log)'
     if skipped:
         return WARN, skipped_text
+    if ctx.mount_warning:
+        return WARN, ctx.mount_warning
     if period.fallback:
         return WARN, (f'{period.fallback} of {period.processed} frames used the fallback '
                       f'intrinsics {ctx.fallback_intrinsics}: no CameraInfo on '
@@ -168,6 +173,7 @@ def health_status(period: Period, ctx: Context, *, name: str,
         'skipped (bad input)': str(sum(period.skipped.values())),
         'errors': str(period.errors),
         'mount': ctx.mount,
+        **ctx.mount_check,
         'code path': ctx.code_path,
     }
     return DiagnosticStatus(level=level, name=name, message=message,

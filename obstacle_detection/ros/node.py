@@ -49,6 +49,7 @@ from .diagnostics import (COMPILED, USE_FQN_PARAMETER, HealthWindow, health_stat
                           status_name)
 from obstacle_detection.pipeline.fusion import FusedGrid, PoseBuffer
 from obstacle_detection.pipeline.geometry import yaw_from_quaternion
+from .mount_check import MountCheck
 from .mount_source import MountSource
 from obstacle_detection.pipeline.params import Intrinsics
 from . import RosInputError
@@ -66,6 +67,8 @@ def _qos(depth: int, *, reliable: bool = True, latched: bool = False) -> QoSProf
 
 #: Minimum interval between two warnings about the same kind of bad input [s].
 WARN_THROTTLE_S = 5.0
+#: Minimum interval between two log lines saying the mount disagrees with the floor [s].
+MOUNT_WARN_THROTTLE_S = 60.0
 #: Outputs, and the inputs with reliable_input: reliable, depth 5.
 _RELIABLE_QOS = _qos(5)
 #: ~/status and the OccupancyGrids: latched, depth 1 (as map_server), so a late subscriber
@@ -130,13 +133,16 @@ class DetectorNode(Node):
             self.declare_parameter(spec.name, spec.default, spec.descriptor())
         try:
             self._config = build_config(self._parameter_values())
+            self._mount_source = self._make_mount_source(tf_buffer)
         except ValueError:
             self.destroy_node()
             raise
         self.stats = HealthWindow(readers=('diagnostics', 'log'))
         self._mailbox = FrameMailbox(MAILBOX_FRAMES)
-        self._mount_source = self._make_mount_source(tf_buffer)
         self._mount_said = ''
+        self._tf_mount: Any = None   # the last mount TF gave
+        self._image_frame = ''       # the frame_id of the last frame processed
+        self._mount_check = MountCheck()
         self._cameras: collections.deque[_CameraState] = collections.deque(
             maxlen=frame_gate.CAMERA_INFO_HISTORY)
         self._warn_loggers: dict[str, Any] = {}
@@ -239,16 +245,21 @@ class DetectorNode(Node):
 
     # -- the camera mount: parameters or TF ------------------------------------------------------
     def _make_mount_source(self, tf_buffer: Any) -> MountSource:
+        """Return where the mount comes from; ValueError if use_tf is set and tf2 is missing."""
         target = str(self.get_parameter('cloud_frame_id').value)
         params = f'the parameters ({self._config.mount().describe()})'
         use_tf = bool(self.get_parameter('use_tf').value)
         if use_tf and tf_buffer is None:
             try:
                 import tf2_ros
-            except ImportError:
-                self.get_logger().warning('use_tf is set but tf2_ros is not importable (no ROS 2 '
-                                          f'installation?): the camera mount comes from {params}')
-                return MountSource(None, target)
+            except ImportError as error:
+                # refused, not run on the parameters: Nav2 places the clearing cloud through
+                # TF, so outputs placed otherwise would disagree with it unseen
+                raise ValueError(
+                    f'use_tf is true but tf2_ros cannot be imported ({error}): source the ROS 2 '
+                    'setup (/opt/ros/jazzy/setup.bash) or install ros-jazzy-tf2-ros; or set '
+                    'use_tf:=false to take the camera mount from the camera_* parameters, '
+                    'which the URDF must then equal') from error
             tf_buffer = tf2_ros.Buffer()
             self._tf_listener = tf2_ros.TransformListener(tf_buffer, self)
         if not use_tf:
@@ -256,27 +267,33 @@ class DetectorNode(Node):
             return MountSource(None, target)
         static = bool(self.get_parameter('tf_static_mount').value)
         self.get_logger().info(f'camera mount from TF: {target} <- the depth image frame_id'
-                               f'{" (static: looked up once)" if static else ""}; until '
-                               'then from the parameters')
+                               f'{" (static: looked up once)" if static else ""}; frames are '
+                               'dropped while TF has no transform')
         return MountSource(tf_buffer, target, static=static, timeout=Duration(
             seconds=float(self.get_parameter('tf_timeout_s').value)))
 
     def _detector_for(self, msg: Any, config: NodeConfig) -> Any:
-        """Return the frame's detector: the configured one, or one mounted where TF says."""
+        """Return the frame's detector: the configured one, or one mounted where TF says.
+
+        None (the frame dropped, said) when TF has no transform for the frame.
+        """
         source = self._mount_source
         if source.buffer is None:
             return config.detector
-        fallback = config.mount()
+        parameters = config.mount()
         mount = source.mount_for(msg.header.frame_id, RclpyTime.from_msg(msg.header.stamp),
-                                 fallback)
-        if source.last_problem is not None:
-            self._throttled_logger('mount').warning(source.last_problem,
-                                                    throttle_duration_sec=WARN_THROTTLE_S)
-        said = f'{source.source}: {mount.describe()}'
-        if said != self._mount_said and source.last_problem is None:
-            self.get_logger().info(f'camera mount from {said}')
-        self._mount_said = said
-        if mount == fallback:
+                                 parameters)
+        if mount is None:
+            self._mount_said = source.source
+            self._warn_skip('tf', f'{source.last_problem}; not published with the mount '
+                                  'parameters (Nav2 places the clearing cloud through TF)')
+            return None
+        self._mount_said = f'{source.source}: {mount.describe()}'
+        if mount != self._tf_mount:
+            self.get_logger().info(f'camera mount from {self._mount_said}')
+            self._mount_check.clear()   # a new mount: its own agreement with the floor
+            self._tf_mount = mount
+        if mount == parameters:
             return config.detector
         try:
             return config.detector_for(mount)
@@ -284,17 +301,34 @@ class DetectorNode(Node):
             self._warn_skip('mount', f'the mount from TF cannot be used: {error}')
             return None
 
+    def _mount_cause(self) -> tuple[str, str]:
+        """(where the mount comes from, how to correct it), for the mount check's warning."""
+        if self._mount_source.buffer is not None:
+            frame = self._image_frame or 'the depth image frame'
+            return (f'the URDF (TF {self._mount_source.base_frame} <- {frame})',
+                    "correct the camera joint's origin in the URDF")
+        return ('the mount parameters (camera_height_m, camera_pitch_deg, camera_roll_deg)',
+                'set them (its --params-out writes them)')
+
     # -- diagnostics ---------------------------------------------------------------------------
     def publish_diagnostics(self) -> None:
         """Publish the health of the period since the last report on /diagnostics (1 Hz)."""
+        agreement = self._mount_check.agreement(*self._mount_cause())
+        if agreement.warning:   # also in the log, for a robot without a diagnostics monitor
+            self._throttled_logger('mount_check').warning(
+                agreement.warning, throttle_duration_sec=MOUNT_WARN_THROTTLE_S)
         fallback = self._config.fallback_intrinsics
         context = DiagnosticsContext(
             uptime_s=time.monotonic() - self._started, depth_topic=self._depth_sub.topic_name,
             code_path=self.compute_path(),
-            mount=self._mount_said or f'parameters: {self._config.mount().describe()}',
+            mount=self._mount_said or (
+                f'parameters: {self._config.mount().describe()}'
+                if self._mount_source.buffer is None else
+                f'TF {self._mount_source.base_frame} <- the depth image frame: no frame yet'),
             camera_info_topic=self._info_sub.topic_name,
             fallback_intrinsics=(f'fx={fallback.fx:g} fy={fallback.fy:g} cx={fallback.cx:g} '
-                                 f'cy={fallback.cy:g}'))
+                                 f'cy={fallback.cy:g}'),
+            mount_check=agreement.values(), mount_warning=agreement.warning)
         # hardware_id: one string for the node's life (diagnostic_updater's setHardwareID)
         status = health_status(self.stats.take(), context, name=self._diagnostics_name,
                                hardware_id=self._depth_sub.topic_name)
@@ -355,6 +389,7 @@ class DetectorNode(Node):
                 self._compile = job
                 self._publish_status()
         self._config = config
+        self._mount_check.clear()   # the mount parameters may have changed
         changed = ', '.join(f'{p.name}={p.value!r}' for p in parameters)
         self.get_logger().info(f'parameters updated, next frame uses: {changed}')
 
@@ -479,8 +514,8 @@ class DetectorNode(Node):
                 with_ground=config.publish_ground,
                 overlay_rgb=(render_overlay(result.depth_m, result.labels)
                              if config.publish_overlay else None),
-                clearing_points=(clearing.clearing_points(
-                    result.depth_m, result.intrinsics, stride_px=config.clearing_stride_px,
+                clearing_points=(clearing.clearing_cloud(
+                    result, stride_px=config.clearing_stride_px,
                     range_m=config.clearing_range_m)
                     if config.publish_clearing else None))
             fused = self._fuse(result, msg, config)
@@ -506,6 +541,8 @@ class DetectorNode(Node):
                                         throttle_duration_sec=WARN_THROTTLE_S)
             return False
         self.stats.processed(elapsed_ms, fallback=fallback)
+        self._mount_check.add(result.floor)
+        self._image_frame = msg.header.frame_id
         return True
 
     def close(self) -> None:

@@ -167,13 +167,13 @@ NODE_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec('fused_resolution_m', 0.05, 'Cell size of the fused costmap [m/cell]', 0.01,
               1.0),
     ParamSpec('use_tf', False,
-              'Take the camera mount from TF: the transform cloud_frame_id <- the depth '
-              "image's frame_id, at the image stamp; the mount parameters are the fallback "
-              '(said in a throttled warning). Needs tf2_ros (a ROS 2 installation); read at '
-              'start-up', read_only=True),
+              'Take the camera mount from TF (the robot use; the launch file sets it): the '
+              "transform cloud_frame_id <- the depth image's frame_id, at the image stamp; a "
+              'frame without one is dropped (a throttled warning, counted on /diagnostics), '
+              'never placed by the mount parameters. Needs tf2_ros (a ROS 2 installation): '
+              'without it the node refuses to start; read at start-up', read_only=True),
     ParamSpec('tf_timeout_s', 0.05,
-              'Longest wait for a TF lookup before a frame falls back to the mount parameters '
-              '[s]', 0.0, 1.0),
+              'Longest wait for a TF lookup before the frame is dropped [s]', 0.0, 1.0),
     ParamSpec('tf_static_mount', True,
               'The camera is bolted to the robot: look its transform up once and keep it '
               '(false: look it up for every frame, e.g. a pan-tilt head)'),
