@@ -26,10 +26,12 @@ setup(
         # ament index marker: lets `ros2 run` / `ros2 pkg` find the package.
         ('share/ament_index/resource_index/packages', [f'resource/{PACKAGE}']),
         (f'share/{PACKAGE}', ['package.xml']),
-        # node parameter files, the trained refiners and the Nav2 costmap example
+        # node parameter files, the trained refiners and the Nav2 examples
         (f'share/{PACKAGE}/params', sorted(glob('params/*.yaml') + glob('params/*.json'))),
         # `ros2 launch obstacle_detection detector.launch.py`
         (f'share/{PACKAGE}/launch', sorted(glob('launch/*.launch.py'))),
+        # `rviz2 -d $(ros2 pkg prefix obstacle_detection)/share/obstacle_detection/rviz/...`
+        (f'share/{PACKAGE}/rviz', sorted(glob('rviz/*.rviz'))),
     ],
     # ROS convention: runtime dependencies come from package.xml (rosdep), not from pip, so a
     # colcon build against system numpy/scipy/OpenCV keeps working.

@@ -374,11 +374,17 @@ def test_ctrl_c_on_a_cluster_stops_cleanly_and_leaves_no_partial_bag(
         if run.poll() is None:
             os.killpg(run.pid, signal.SIGKILL)
     assert run.returncode == 130
-    assert err.splitlines()[-1] == ('bag_process.py: interrupted; the output bags not '
-                                    'complete were removed')
+    lines = err.splitlines()
+    interrupted = lines.index('bag_process.py: interrupted; the output bags not complete '
+                              'were removed')
+    done = sorted(p.name for p in out.iterdir())
+    # then, when some finished, one line naming them and how to resume
+    assert lines[interrupted + 1:] == ([] if not done else [
+        f'kept {len(done)} finished output bag{"s" if len(done) != 1 else ""}: '
+        f'{", ".join(str(out / name) for name in done)}; the same command with '
+        f'--skip-existing processes the other {4 - len(done)}'])
     assert 'Traceback' not in err
     assert no_partial_left(out)
-    done = sorted(p.name for p in out.iterdir())
     want = one_process_outputs(tmp_path, [folder / name for name in done], params_file)
     for name in done:   # what is there is complete
         assert output_messages(out / name) == want[name], name

@@ -64,6 +64,9 @@ def _site_packages(prefix: Path) -> Path:
     'share/obstacle_detection/package.xml',
     'share/obstacle_detection/params/corridor.yaml',
     'share/obstacle_detection/params/corridor_video.yaml',
+    'share/obstacle_detection/params/nav2_stvl.yaml',
+    'share/obstacle_detection/params/nav2_collision_monitor.yaml',
+    'share/obstacle_detection/rviz/obstacle_detection.rviz',
     'share/ament_index/resource_index/packages/obstacle_detection',
 ])
 def test_installed_where_ros2_run_looks(prefix: Path, relative: str) -> None:
