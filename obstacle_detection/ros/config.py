@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
-import math
+import ctypes
 import functools
+import gc
+import math
 from dataclasses import dataclass
 from typing import Any
 
 from obstacle_detection.pipeline.detector import Detector
 from obstacle_detection.pipeline.fusion import FusionParams
-from obstacle_detection.pipeline.params import Intrinsics
+from obstacle_detection.pipeline.params import Intrinsics, frame_budget
 from obstacle_detection.pipeline.refine import LogisticRefiner, RefinedDetector
 
 from .mount_source import Mount
@@ -75,8 +77,12 @@ def build_detector(values: dict[str, Any]) -> Detector | RefinedDetector:
     return RefinedDetector(detector, refiner)
 
 
-def build_config(values: dict[str, Any]) -> NodeConfig:
-    """NodeConfig from ``{ros_name: value}`` of every parameter; ValueError naming a bad one."""
+def build_config(values: dict[str, Any], *, check_budget: bool = True) -> NodeConfig:
+    """NodeConfig from ``{ros_name: value}`` of every parameter; ValueError naming a bad one.
+
+    check_budget: refuse a set whose frame would take more time or memory than the limits of
+    ``pipeline.params.frame_budget`` (docs/budget.md).
+    """
     for name in ('cloud_frame_id', 'costmap_frame_id', 'odom_frame'):
         if not str(values[name]).strip():
             raise ValueError(f'{name} must not be empty')
@@ -84,8 +90,16 @@ def build_config(values: dict[str, Any]) -> NodeConfig:
     if transport not in DEPTH_TRANSPORT_TOPICS:
         raise ValueError(f'depth_transport={transport!r} must be one of '
                          f'{", ".join(map(repr, DEPTH_TRANSPORT_TOPICS))}')
+    detector = build_detector(values)
+    fusion = (FusionParams(size_m=float(values['fused_size_m']),
+                           resolution_m=float(values['fused_resolution_m']))
+              if values['fuse'] else None)
+    if check_budget:   # a combination of in-range values beyond a frame's budget
+        problem = frame_budget(detector.params, **node_budget(values)).problem()
+        if problem is not None:
+            raise ValueError(problem)
     return NodeConfig(
-        detector=build_detector(values),
+        detector=detector,
         cloud_frame_id=str(values['cloud_frame_id']),
         costmap_frame_id=str(values['costmap_frame_id']),
         publish_ground=bool(values['publish_ground']),
@@ -95,11 +109,30 @@ def build_config(values: dict[str, Any]) -> NodeConfig:
             fx=float(values['fallback_fx']), fy=float(values['fallback_fy']),
             cx=float(values['fallback_cx']), cy=float(values['fallback_cy'])),
         camera_info_tolerance_ns=round(float(values['camera_info_tolerance_s']) * 1e9),
-        fusion=(FusionParams(size_m=float(values['fused_size_m']),
-                             resolution_m=float(values['fused_resolution_m']))
-                if values['fuse'] else None),
+        fusion=fusion,
         odom_frame=str(values['odom_frame']),
         publish_clearing=bool(values['publish_clearing']),
         clearing_range_m=float(values['clearing_range_m']),
         clearing_stride_px=int(values['clearing_stride_px']),
         values=dict(values))
+
+
+def node_budget(values: dict[str, Any]) -> dict[str, Any]:
+    """Return the node's own terms of ``frame_budget``: the fused costmap, the clearing cloud."""
+    return {'fused_size_m': float(values['fused_size_m']) if values['fuse'] else 0.0,
+            'fused_resolution_m': float(values['fused_resolution_m']),
+            'clearing_stride_px': (int(values['clearing_stride_px'])
+                                   if values['publish_clearing'] else 0)}
+
+
+def release_memory() -> None:
+    """Hand the heap memory freed by a heavier configuration's frames back to the system.
+
+    glibc keeps freed blocks below its (growing) mmap threshold in its arenas, one a thread;
+    ``malloc_trim(0)`` returns their free pages (docs/budget.md). Elsewhere: nothing to do.
+    """
+    gc.collect()
+    try:
+        ctypes.CDLL('libc.so.6').malloc_trim(0)
+    except (OSError, AttributeError):   # not glibc
+        pass

@@ -40,7 +40,7 @@ from .conversions import (
     result_to_messages,
 )
 from . import frame_gate, rvl
-from .config import DEPTH_TRANSPORT_TOPICS, NodeConfig, build_config
+from .config import DEPTH_TRANSPORT_TOPICS, NodeConfig, build_config, release_memory
 from .diagnostics import Context as DiagnosticsContext
 from .frame_gate import CameraState as _CameraState
 from .frame_gate import stamp_ns as _stamp_ns
@@ -394,6 +394,7 @@ class DetectorNode(Node):
                 self._publish_status()
         self._config = config
         self._mount_check.clear()   # the mount parameters may have changed
+        release_memory()   # a heavier configuration's last frame may be done already
         changed = ', '.join(f'{p.name}={p.value!r}' for p in parameters)
         self.get_logger().info(f'parameters updated, next frame uses: {changed}')
 
@@ -454,7 +455,11 @@ class DetectorNode(Node):
 
     # -- worker thread ------------------------------------------------------------------------
     def _work(self) -> None:
+        config = self._config
         while (msg := self._mailbox.take()) is not None:
+            if self._config is not config:   # the old parameters' last frame is done
+                config = self._config
+                release_memory()   # what a heavier configuration held goes back (budget.md)
             self.handle_frame(msg)
 
     def _throttled_logger(self, kind: str) -> Any:
