@@ -8,16 +8,17 @@ from setuptools import find_packages, setup
 PACKAGE = 'obstacle_detection'
 #: The command lines: tools/<name>.py is installed as the module obstacle_detection.tools.<name>
 #: and as the command <name> (lib/obstacle_detection/<name> for ``ros2 run``, .venv/bin/<name>).
-TOOLS = sorted(Path(path).stem for path in glob('tools/*.py')
+#: Read through the package's link, which a symlink install's build folder also has.
+TOOLS = sorted(Path(path).stem for path in glob(f'{PACKAGE}/tools/*.py')
                if not Path(path).name.startswith('_'))
 
 setup(
     name=PACKAGE,
     version='0.1.0',
-    packages=[*find_packages(include=[PACKAGE, f'{PACKAGE}.*']), f'{PACKAGE}.tools'],
-    # the command lines stay in tools/ at the top of the package (the package card puts them
-    # there) and install inside the package: no top-level module named `tools`
-    package_dir={f'{PACKAGE}.tools': 'tools'},
+    # obstacle_detection/tools is a symbolic link to the top-level tools/ (the command lines stay
+    # there): every install, plain, `colcon build --symlink-install` (setup.py develop) or
+    # `pip install -e`, finds obstacle_detection.tools through it; no top-level module `tools`
+    packages=find_packages(include=[PACKAGE, f'{PACKAGE}.*']),
     # the loopback Fast DDS profile and the committed scenario suites
     package_data={f'{PACKAGE}.ros': ['fastdds_loopback.xml'],
                   f'{PACKAGE}.evaluation': ['scenarios.json', 'scenarios_robot.json']},
@@ -25,10 +26,12 @@ setup(
         # ament index marker: lets `ros2 run` / `ros2 pkg` find the package.
         ('share/ament_index/resource_index/packages', [f'resource/{PACKAGE}']),
         (f'share/{PACKAGE}', ['package.xml']),
-        # node parameter files, the trained refiners and the Nav2 costmap example
+        # node parameter files, the trained refiners and the Nav2 examples
         (f'share/{PACKAGE}/params', sorted(glob('params/*.yaml') + glob('params/*.json'))),
         # `ros2 launch obstacle_detection detector.launch.py`
         (f'share/{PACKAGE}/launch', sorted(glob('launch/*.launch.py'))),
+        # `rviz2 -d $(ros2 pkg prefix obstacle_detection)/share/obstacle_detection/rviz/...`
+        (f'share/{PACKAGE}/rviz', sorted(glob('rviz/*.rviz'))),
     ],
     # ROS convention: runtime dependencies come from package.xml (rosdep), not from pip, so a
     # colcon build against system numpy/scipy/OpenCV keeps working.

@@ -690,3 +690,123 @@ def test_tum_without_lists_or_stamped_names_says_what_to_write(
     assert 'one "timestamp filename" line per depth image' in err
     assert 'rgb.txt likewise' in err and '--no-color' in err
     assert not (tmp_path / 'out').exists()
+
+
+# --- The real frames of ../shared/data/real, converted as they ship -------------------------
+
+#: ../shared/data/real beside the clone (CI keeps a copy of shared/ there).
+REAL_DIR = Path(__file__).resolve().parents[2] / 'shared' / 'data' / 'real'
+#: folder -> (depth files, colour files, extra options): the README of the real frames.
+REAL = {
+    'tum_office': (['depth.png'], ['color.png'],
+                   ['--depth-scale', '5000', '--intrinsics', '535.4,539.2,320.1,247.6']),
+    'tum_fr2_desk': (['depth_1.png', 'depth_2.png'], ['color_1.png', 'color_2.png'],
+                     ['--depth-scale', '5000', '--intrinsics', '520.9,521.0,325.1,249.7']),
+    'dining_room': ([f'depth_{i}.pgm' for i in range(1, 6)],
+                    [f'color_{i}.png' for i in range(1, 6)],
+                    ['--intrinsics', '518.0,519.0,325.5,253.5']),
+}
+
+
+@pytest.mark.parametrize('name', sorted(REAL))
+def test_the_real_frames_convert_as_they_ship(name: str, tmp_path: Path,
+                                              capsys: pytest.CaptureFixture[str]) -> None:
+    # depth and colour side by side in one folder, PNG (TUM units) or PGM (mm): no splitting,
+    # no converting by hand
+    if not (REAL_DIR / name).is_dir():
+        pytest.skip(f'no real frames at {REAL_DIR / name} (../shared beside the clone)')
+    depth_files, color_files, options = REAL[name]
+    code, out, err = run(['folder', str(REAL_DIR / name), str(tmp_path / 'out'), *options],
+                         capsys)
+    assert code == 0, err
+    units = 5000.0 if '--depth-scale' in options else 1000.0
+    depths = [cv2.imread(str(REAL_DIR / name / f), cv2.IMREAD_UNCHANGED) for f in depth_files]
+    want = [np.floor(d * (1000.0 / units) + 0.5).astype(np.uint16) for d in depths]
+    colors = [cv2.imread(str(REAL_DIR / name / f), cv2.IMREAD_COLOR) for f in color_files]
+    fx, fy, cx, cy = (float(v) for v in options[options.index('--intrinsics') + 1].split(','))
+    check_frames(tmp_path / 'out', want, [round(k * 1e9 / 30) for k in range(len(want))],
+                 colors=colors, intr=Intrinsics(fx, fy, cx, cy))
+    assert f'frames: {len(want)} depth (640x480' in out
+
+
+def test_a_folder_mixing_depth_and_colour_pairs_them_by_name(
+        tmp_path: Path, depths: list[np.ndarray], capsys: pytest.CaptureFixture[str]) -> None:
+    folder = write_pngs(tmp_path / 'rec', depths[:3], 'depth_{}.pgm')
+    colors = [fake_color(d, k) for k, d in enumerate(depths[:3])]
+    for k, color in enumerate(colors):
+        cv2.imwrite(str(folder / f'color_{k}.png'), color)
+    code, out, err = run(['folder', str(folder), str(tmp_path / 'out'), '--intrinsics',
+                          str(write_intrinsics(tmp_path / 'k.yaml'))], capsys)
+    assert code == 0, err
+    check_frames(tmp_path / 'out', depths[:3], [0, 33_333_333, 66_666_667], colors=colors)
+
+
+def test_a_colour_image_given_as_depth_says_what_the_folder_must_hold(
+        tmp_path: Path, depths: list[np.ndarray], capsys: pytest.CaptureFixture[str]) -> None:
+    folder = write_pngs(tmp_path / 'rgb', [fake_color(depths[0], 0)])
+    code, out, err = run(['folder', str(folder), str(tmp_path / 'out')], capsys)
+    assert code == 1 and out == ''
+    assert err.count('\n') == 1
+    assert err.startswith(f'error: {folder / "frame_0000.png"}: a colour image (8-bit, 3 '
+                          'channels), not 16-bit depth')
+    assert 'depth_N.png' in err and '--color-dir' in err
+    assert not (tmp_path / 'out').exists()
+
+
+def test_tum_on_a_folder_of_loose_frames_points_to_folder(
+        tmp_path: Path, depths: list[np.ndarray], capsys: pytest.CaptureFixture[str]) -> None:
+    root = write_pngs(tmp_path / 'desk', [tum_units(d) for d in depths[:2]], 'depth_{}.png')
+    code, out, err = run(['tum', str(root), str(tmp_path / 'out')], capsys)
+    assert code == 1 and err.count('\n') == 1
+    assert f'bag_convert folder {root} OUTPUT --depth-scale 5000' in err
+
+
+# --- ros1 given a rosbag2 bag ----------------------------------------------------------------
+
+
+@pytest.fixture()
+def rosbag2(tmp_path: Path, depths: list[np.ndarray]) -> Path:
+    """Return a converted rosbag2 bag (sqlite3) of two frames."""
+    folder = make_folder(tmp_path / 'frames', depths[:2], with_color=False)
+    code = bag_convert.main(['folder', str(folder / 'depth'), str(tmp_path / 'bag2'), '--quiet',
+                             '--intrinsics', str(write_intrinsics(tmp_path / 'k.yaml'))])
+    assert code == 0
+    return tmp_path / 'bag2'
+
+
+def test_ros1_given_a_rosbag2_folder_says_it_needs_no_conversion(
+        rosbag2: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, err = run(['ros1', str(rosbag2), str(tmp_path / 'out')], capsys)
+    assert code == 1 and out == ''
+    assert err == (f'error: {rosbag2}: a rosbag2 bag, not a ROS 1 bag: it needs no conversion '
+                   '(bag_play, bag_process and pictures --bag read it)\n')
+    assert not (tmp_path / 'out').exists()
+
+
+def test_ros1_given_a_rosbag2_storage_file_is_refused(
+        rosbag2: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    db3 = next(rosbag2.glob('*.db3'))
+    code, out, err = run(['ros1', str(db3), str(tmp_path / 'out')], capsys)
+    assert code == 1 and out == ''
+    assert err == (f'error: {db3}: a rosbag2 storage file, not a ROS 1 bag: its folder '
+                   f'{rosbag2} is a rosbag2 bag already and needs no conversion (bag_play, '
+                   'bag_process and pictures --bag read it)\n')
+    assert not (tmp_path / 'out').exists()
+
+
+def test_ros1_given_another_file_is_refused(tmp_path: Path,
+                                            capsys: pytest.CaptureFixture[str]) -> None:
+    (tmp_path / 'notes.bag').write_text('hello')
+    code, out, err = run(['ros1', str(tmp_path / 'notes.bag'), str(tmp_path / 'out')], capsys)
+    assert code == 1
+    assert err == (f'error: {tmp_path / "notes.bag"}: not a ROS 1 bag (no "#ROSBAG V2.0" '
+                   'header)\n')
+
+
+def test_help_texts_hold_no_internal_words(capsys: pytest.CaptureFixture[str]) -> None:
+    for source in ('tum', 'diml', 'folder', 'ros1'):
+        with pytest.raises(SystemExit):
+            bag_convert.main([source, '-h'])
+        text = capsys.readouterr().out
+        for word in (':func:', 'Error)', 'EvaluationError', '``', 'issue '):
+            assert word not in text, (source, word)

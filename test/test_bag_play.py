@@ -134,6 +134,51 @@ def test_cli_loops_every_frame_in_order_until_ctrl_c(bag: Path, env: dict[str, s
         recorder.close()
 
 
+@pytest.fixture(scope='module')
+def slow_bag_with_odometry(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Return a 3 Hz bag of depth, camera info and odometry (three messages a stamp)."""
+    import dataclasses
+
+    import cv2
+
+    root = tmp_path_factory.mktemp('play_slow')
+    (root / 'depth').mkdir()
+    for k in range(N_FRAMES):
+        cv2.imwrite(str(root / 'depth' / f'{k:03d}.png'), frame_depth(k))
+    (root / 'k.yaml').write_text('fx: 30.0\nfy: 30.0\ncx: 16.0\ncy: 12.0\n')
+    source = datasets.folder_frames(root / 'depth', intrinsics_path=root / 'k.yaml',
+                                    rate_hz=3.0, start_s=50.0)
+    source.frames = [dataclasses.replace(f, pose=(0.1 * k, 0.0, 0.0))
+                     for k, f in enumerate(source.frames)]
+    bag_writer.write_frames(source, root / 'bag', bag_writer.BagOptions(progress=False))
+    return root / 'bag'
+
+
+def test_ctrl_c_is_one_line_when_sigint_was_ignored_at_start(
+        slow_bag_with_odometry: Path, env: dict[str, str],
+        context: rclpy.context.Context) -> None:
+    # A shell starts a background job (`bag_play ... &` in a script) with SIGINT ignored; Python
+    # then leaves SIGINT alone and only rclpy's handler sees it: it shut the context down and
+    # the next publish died with "RCLError: publisher's context is invalid", exit 1.
+    recorder = Recorder(context, {DEPTH: Image}, qos_profile_sensor_data)
+    player = None
+    try:
+        player = subprocess.Popen(
+            [sys.executable, str(REPO / 'tools' / 'bag_play.py'), str(slow_bag_with_odometry),
+             '--quiet', '--loop'], env=env, cwd=REPO, stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE, text=True,
+            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
+        recorder.spin_until(lambda: len(recorder.received[DEPTH]) >= 2, 30.0)
+        assert recorder.received[DEPTH], 'bag_play published nothing'
+        player.send_signal(signal.SIGINT)
+        _, err = player.communicate(timeout=20)
+        assert (player.returncode, err) == (130, 'bag_play: interrupted\n')
+    finally:
+        if player is not None and player.poll() is None:
+            player.kill()
+        recorder.close()
+
+
 def test_library_loop_and_timing(bag: Path, context: rclpy.context.Context,
                                  monkeypatch: pytest.MonkeyPatch) -> None:
     recorder = Recorder(context, {DEPTH: Image}, RELIABLE)

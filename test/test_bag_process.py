@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import subprocess
@@ -115,7 +116,7 @@ def expected_outputs(depth: np.ndarray, intr: Intrinsics, t: int) -> dict[str, o
     # the marks the node sends with publish_clearing (on by default): matched to its rays
     config = bag_processor.config_from_values(
         {spec.name: spec.default for spec in ALL_PARAMS} | PARAM_VALUES, 'test')
-    marks, _ = config.nav2_clouds(result, detector.params)
+    marks, _ = config.nav2_clouds(result)
     messages = result_to_messages(
         result, stamp=to_time(t), cloud_frame_id='base_link',
         costmap_frame_id='base_footprint', image_frame_id=FRAME_ID, with_ground=True,
@@ -228,7 +229,6 @@ def test_node_param_values_match_the_node_format(params_file: Path) -> None:
 
 @pytest.mark.parametrize(('text', 'match'), [
     ('obstacle_detector:\n  ros__parameters:\n    voxel_x_m: 1\n', "voxel_x_m.*float"),
-    ('obstacle_detector:\n  ros__parameters:\n    no_such: 1\n', "unknown parameter 'no_such'"),
     ('other_node:\n  ros__parameters: {}\n', 'no section naming the node'),
     ('obstacle_detector:\n  ros__parameters:\n    median_kernel: 4\n', 'median_kernel'),
 ])
@@ -244,6 +244,22 @@ def test_bad_params_file(tmp_path: Path, text: str, match: str, depths: list[np.
     assert str(bad) in err
     assert re.search(match, err)
     assert not (tmp_path / 'out').exists()
+
+
+def test_a_misspelt_parameter_is_the_nodes_warning(tmp_path: Path, depths: list[np.ndarray],
+                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    # the node ignores it with a did-you-mean warning; bag_process refused the file: now the
+    # same warning, and the run goes on with the other values
+    write_bag(tmp_path / 'in', frame_messages(depths[:1]))
+    typo = tmp_path / 'typo.yaml'
+    typo.write_text('obstacle_detector:\n  ros__parameters:\n    max_rnge_m: 3.0\n'
+                    '    median_kernel: 5\n')
+    code = bag_process.main([str(tmp_path / 'in'), str(tmp_path / 'out'), '--params-file',
+                             str(typo), '--quiet'])
+    err = capsys.readouterr().err
+    assert code == 0
+    assert (f"warning: {typo}: unknown parameter 'max_rnge_m' is ignored (did you mean "
+            "'max_range_m'?); `detector --help` lists the parameters\n") in err
 
 
 def test_bad_bags(tmp_path: Path, depths: list[np.ndarray],
@@ -439,7 +455,7 @@ def test_a_mount_far_from_the_floor_is_a_warning(tmp_path: Path,
     write_bag(tmp_path / 'in', frame_messages([floor]))
     assert bag_process.main([str(tmp_path / 'in'), str(tmp_path / 'out'), '--quiet']) == 0
     err = capsys.readouterr().err
-    assert re.search(r'warning: first frame: the floor in view .* puts the camera at height '
+    assert re.search(r'warning: frame 1: the floor in view .* puts the camera at height '
                      r'1\.2\d m, pitch 2[45]\.\d deg', err)
     assert 'but the mount used is height 0.60 m, pitch 0.0 deg' in err
     mount = tmp_path / 'mount.yaml'
@@ -451,6 +467,138 @@ def test_a_mount_far_from_the_floor_is_a_warning(tmp_path: Path,
     assert 'warning' not in captured.err
     assert f'camera mount: height 1.20 m, pitch 25.0 deg, roll 0.0 deg ({mount})' in \
         captured.out
+
+
+def test_a_later_frame_off_the_mount_is_a_warning(tmp_path: Path,
+                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    # the mount fits frames 1-3 (1.2 m, pitch 25 deg, level); in frame 4 the camera rolled 8 deg
+    # (a bump): the mount was checked on frame 1 only and the floor of frame 4 went unsaid
+    depths = [render_scene('flat_floor', seed=k, intrinsics=INTR, size=SIZE, height_m=1.2,
+                           pitch_rad=np.radians(25.0),
+                           roll_rad=np.radians(8.0 if k == 3 else 0.0)).depth_mm
+              for k in range(4)]
+    write_bag(tmp_path / 'in', frame_messages(depths))
+    mount = tmp_path / 'mount.yaml'
+    mount.write_text('obstacle_detector:\n  ros__parameters:\n    camera_height_m: 1.2\n'
+                     '    camera_pitch_deg: 25.0\n')
+    assert bag_process.main([str(tmp_path / 'in'), str(tmp_path / 'out'), '--quiet',
+                             '--params-file', str(mount)]) == 0
+    out, err = capsys.readouterr()
+    assert re.fullmatch(r'warning: frame 4: the floor in view .* roll [78]\.\d deg, but the '
+                        r'mount used is height 1\.20 m, pitch 25\.0 deg, roll 0\.0 deg: .*\n',
+                        err)
+    assert '  warning: the floor did not fit the mount in 1 of the checked frames: frame 4' in out
+
+
+def test_an_interrupted_many_bag_run_resumes(tmp_path: Path, depths: list[np.ndarray],
+                                             monkeypatch: pytest.MonkeyPatch,
+                                             capsys: pytest.CaptureFixture[str]) -> None:
+    # Ctrl-C during the second bag: the first is kept and said so; the same command again with
+    # --skip-existing processes the rest (it used to say FAILED ... output already exists)
+    for i in range(2):
+        write_bag(tmp_path / 'bags' / f'bag{i}', frame_messages(depths))
+    command = [str(tmp_path / 'bags'), str(tmp_path / 'out'), '--workers', '0', '--quiet']
+    real = bag_processor.process_frame
+    calls = []
+
+    def interrupted(*args: object, **kwargs: object) -> object:
+        calls.append(1)
+        if len(calls) == len(depths) + 2:   # the second frame of the second bag
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+    monkeypatch.setattr(bag_processor, 'process_frame', interrupted)
+    assert bag_process.main(command) == 130
+    err = capsys.readouterr().err
+    assert f'kept 1 finished output bag: {tmp_path / "out" / "bag0"}' in err
+    assert 'the same command with --skip-existing processes the other 1' in err
+    monkeypatch.setattr(bag_processor, 'process_frame', real)
+    kept = read_raw(tmp_path / 'out' / 'bag0')
+
+    assert bag_process.main(command) == 1   # without the option: one line, nothing done
+    out, err = capsys.readouterr()
+    assert out == '' and err == (f'error: {tmp_path / "out" / "bag0"}: output already exists '
+                                 '(1 of 2); --skip-existing keeps them and processes the rest, '
+                                 'or remove them\n')
+    assert bag_process.main([*command, '--skip-existing']) == 0
+    out, err = capsys.readouterr()
+    assert f'kept 1 output bag from an earlier run: {tmp_path / "out" / "bag0"}' in err
+    assert '1 ok, 0 failed' in out and str(tmp_path / 'bags' / 'bag1') in out
+    assert read_raw(tmp_path / 'out' / 'bag0') == kept
+    assert set(read_raw(tmp_path / 'out' / 'bag1')) == set(kept)
+
+
+def test_many_bags_say_their_intrinsics_and_mount_as_one_bag_does(
+        tmp_path: Path, depths: list[np.ndarray], capsys: pytest.CaptureFixture[str]) -> None:
+    # docs/bags.md: bag_process prints the intrinsics (which CameraInfo topic) and the mount it
+    # used; run on many bags (Dask or --workers 0) it printed neither
+    for i in range(2):
+        write_bag(tmp_path / 'bags' / f'bag{i}', frame_messages(depths[:1]))
+    assert bag_process.main([str(tmp_path / 'bags'), str(tmp_path / 'out'), '--workers', '0',
+                             '--quiet']) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert (f'intrinsics: CameraInfo on {INFO} (the default topic): {tmp_path / "bags" / "bag0"}, '
+            f'{tmp_path / "bags" / "bag1"}') in out
+    assert ("camera mount: height 0.60 m, pitch 0.0 deg, roll 0.0 deg (the node's defaults: no "
+            'params file changes it)') in out
+
+def _tf_static(parent: str, child: str, xyz: tuple[float, float, float],
+               quaternion: tuple[float, float, float, float]) -> bytes:
+    """Return one transform as a serialized tf2_msgs/TFMessage (robot_state_publisher's)."""
+    t = JAZZY.types
+    header = t['std_msgs/msg/Header'](stamp=t['builtin_interfaces/msg/Time'](sec=0, nanosec=0),
+                                      frame_id=parent)
+    transform = t['geometry_msgs/msg/Transform'](
+        translation=t['geometry_msgs/msg/Vector3'](x=xyz[0], y=xyz[1], z=xyz[2]),
+        rotation=t['geometry_msgs/msg/Quaternion'](*quaternion))
+    msg = t['tf2_msgs/msg/TFMessage'](transforms=[t['geometry_msgs/msg/TransformStamped'](
+        header=header, child_frame_id=child, transform=transform)])
+    return bytes(JAZZY.serialize_cdr(msg, 'tf2_msgs/msg/TFMessage'))
+
+
+def test_use_tf_takes_the_mount_from_the_bags_tf_static(
+        tmp_path: Path, depths: list[np.ndarray], capsys: pytest.CaptureFixture[str]) -> None:
+    """As the node with TF: the mount from the recorded /tf_static; no transform, no output."""
+    from scipy.spatial.transform import Rotation
+
+    from obstacle_detection.pipeline.geometry import mount_rotation
+
+    pitch = math.radians(20.0)
+    quaternion = tuple(Rotation.from_matrix(mount_rotation(pitch, 0.0)).as_quat())
+    floor = render_scene('corridor', seed=1, intrinsics=INTR, size=SIZE, height_m=0.8,
+                         pitch_rad=pitch).depth_mm
+    write_bag(tmp_path / 'plain', frame_messages([floor]))
+    with Reader(tmp_path / 'plain') as reader, Writer(tmp_path / 'in', version=9) as writer:
+        tf_conn = writer.add_connection('/tf_static', 'tf2_msgs/msg/TFMessage',
+                                        typestore=JAZZY)
+        writer.write(tf_conn, T0_NS - 1, _tf_static('base_link', FRAME_ID, (0.0, 0.0, 0.8),
+                                                    quaternion))
+        conns = {c.id: writer.add_connection(c.topic, c.msgtype, typestore=JAZZY)
+                 for c in reader.connections}
+        for conn, timestamp, raw in reader.messages():
+            writer.write(conns[conn.id], timestamp, raw)
+    params = tmp_path / 'tf.yaml'
+    params.write_text(PARAMS_YAML + '    use_tf: true\n')
+
+    assert bag_process.main([str(tmp_path / 'in'), str(tmp_path / 'out'), '--quiet',
+                             '--params-file', str(params)]) == 0
+    out = capsys.readouterr().out
+    assert "camera mount: TF base_link <- kinect2_ir_optical_frame (the bag's /tf_static): " \
+        'height 0.80 m, pitch 20.0 deg' in out
+    expected = Detector(detector_params_from_ros(dict(
+        PARAM_VALUES, camera_height_m=0.8, camera_pitch_deg=20.0))).process(floor, INTR)
+    grid = decoded('/obstacles/costmap', read_raw(tmp_path / 'out')['/obstacles/costmap'][0][1])
+    np.testing.assert_array_equal(
+        np.asarray(grid.data, np.int8).reshape(expected.costmap.data.shape),
+        expected.costmap.data)
+
+    # the same frames without /tf_static: skipped with the reason, never the parameters
+    assert bag_process.main([str(tmp_path / 'plain'), str(tmp_path / 'out2'), '--quiet',
+                             '--params-file', str(params)]) == 0
+    out = capsys.readouterr().out
+    assert 'depth frames: 1, processed 0, skipped 1' in out
+    assert "skipped 1: no transform base_link <- 'kinect2_ir_optical_frame' from TF" in out
+    assert 'use_tf is set but the bag has no /tf_static' in out
+    assert '/obstacles/costmap' not in read_raw(tmp_path / 'out2')
 
 
 # --------------------------------------------------------------------------------------------

@@ -20,8 +20,30 @@ def test_domain_ids_in_range_are_taken(value: str) -> None:
     assert _parser().parse_args(['--domain-id', value]).domain_id == int(value)
 
 
-def test_the_default_domain_is_one_of_the_runs_own() -> None:
+def test_the_default_domain_is_one_of_the_runs_own(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.delenv('ROS_DOMAIN_ID', raising=False)
     assert 100 <= _parser().parse_args([]).domain_id <= 200
+
+
+@pytest.mark.parametrize('tool', ['demo', 'latency_bench'])
+def test_an_exported_domain_is_the_default(tool: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    # a user working in their own domain sees the demo's topics there
+    import importlib
+
+    module = importlib.import_module(f'obstacle_detection.tools.{tool}')
+    monkeypatch.setenv('ROS_DOMAIN_ID', '37')
+    assert module.build_parser().parse_args([]).domain_id == 37
+    assert module.build_parser().parse_args(['--domain-id', '12']).domain_id == 12
+
+
+def test_a_bad_exported_domain_is_named(monkeypatch: pytest.MonkeyPatch,
+                                        capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.setenv('ROS_DOMAIN_ID', '300')
+    with pytest.raises(SystemExit) as exit_info:
+        _parser().parse_args([])
+    assert exit_info.value.code == 2
+    assert "ROS_DOMAIN_ID='300' (from the environment) must be in 0..232" in \
+        capsys.readouterr().err
 
 
 @pytest.mark.parametrize('value, message', [('233', 'must be in 0..232, got 233'),
@@ -54,3 +76,21 @@ def test_int_in_parses_integers_in_range_and_names_the_bound() -> None:
             at_least_one(text)
     with pytest.raises(argparse.ArgumentTypeError, match=r'must be in 0\.\.232, got 233'):
         support.domain_id('233')
+
+
+#: Words of the code, not of a user: reST markup, exception class names, issue numbers.
+INTERNAL = (':func:', ':class:', '``', 'Error)', 'issue ', 'FusionParams(')
+
+
+@pytest.mark.parametrize('tool', ['bag_convert', 'bag_play', 'bag_process', 'demo',
+                                  'estimate_mount', 'evaluate', 'latency_bench', 'sweep'])
+def test_help_holds_no_internal_words(tool: str) -> None:
+    import importlib
+
+    parser = importlib.import_module(f'obstacle_detection.tools.{tool}').build_parser()
+    texts = [parser.format_help()]
+    for action in parser._actions:   # sub-commands (bag_convert SOURCE -h)
+        if isinstance(action, argparse._SubParsersAction):
+            texts += [sub.format_help() for sub in action.choices.values()]
+    for text in texts:
+        assert not [word for word in INTERNAL if word in text], text

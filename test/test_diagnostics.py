@@ -17,12 +17,16 @@ from obstacle_detection.ros.diagnostics import (
     status_name,
 )
 
+#: the fallback_fx/fy/cx/cy defaults (the seed's Table 4.1), as the node writes them
+FALLBACK = 'fx=580 fy=580 cx=200 cy=130'
+
 NAME = status_name('/obstacle_detector')
 
 
 def _context(**changes: object) -> Context:
     values = dict(uptime_s=10.0, depth_topic='/depth/image_raw',
-                  code_path='compiled numba kernels', mount='parameters: height 0.6 m')
+                  code_path='compiled numba kernels', mount='parameters: height 0.6 m',
+                  camera_info_topic='/depth/camera_info', fallback_intrinsics=FALLBACK)
     values.update(changes)
     return Context(**values)
 
@@ -46,6 +50,7 @@ def test_a_healthy_stream_is_ok_with_its_figures() -> None:
     values = _values(status)
     assert values['input rate [Hz]'] == '30.0' and values['processing mean [ms]'] == '10.0'
     assert values['mount'] == 'parameters: height 0.6 m'
+    assert values['intrinsics'] == 'CameraInfo on /depth/camera_info'
     assert status.hardware_id == 'kinect2_ir_optical_frame'
 
 
@@ -73,6 +78,43 @@ def test_levels_follow_the_thresholds(period: Period, context: Context, level: i
     assert (status.level, status.message) == (level, message)
 
 
+@pytest.mark.parametrize(('fallback', 'intrinsics'), [
+    (30, f'fallback {FALLBACK} (no CameraInfo on /depth/camera_info)'),
+    (3, f'CameraInfo on /depth/camera_info; 3 frame(s): fallback {FALLBACK} '
+        '(no CameraInfo on /depth/camera_info)'),
+])
+def test_frames_on_the_fallback_intrinsics_warn_and_say_which(fallback: int,
+                                                             intrinsics: str) -> None:
+    status = health_status(_period(fallback=fallback), _context(), name=NAME,
+                           hardware_id='/depth/image_raw')
+
+    assert status.level == WARN
+    assert status.message == (f'{fallback} of 30 frames used the fallback intrinsics '
+                              f'{FALLBACK}: no CameraInfo on /depth/camera_info')
+    assert _values(status)['intrinsics'] == intrinsics
+
+
+def test_a_period_without_a_processed_frame_names_no_intrinsics_nor_times() -> None:
+    values = _values(health_status(_period(received=0, processed=0, sum_ms=0.0), _context(),
+                                   name=NAME, hardware_id='/depth/image_raw'))
+
+    assert values['intrinsics'] == values['processing max [ms]'] == '-'
+
+
+def test_the_slowest_frame_of_the_period_is_reported_beside_the_mean() -> None:
+    window = HealthWindow(now=0.0)
+    for elapsed_ms in (9.0, 11.0, 250.0, 10.0):
+        window.count('received', now=0.5)
+        window.processed(elapsed_ms, fallback=elapsed_ms > 100.0)
+    period = window.take(now=1.0)
+
+    values = _values(health_status(period, _context(), name=NAME, hardware_id='/d'))
+
+    assert (values['processing mean [ms]'], values['processing max [ms]']) == ('70.0', '250.0')
+    assert period.fallback == 1
+    assert window.take(now=2.0).max_ms == 0.0   # a new period starts from nothing
+
+
 def test_window_counts_one_period_then_starts_again() -> None:
     window = HealthWindow(now=100.0)
     window.count('received', now=100.2)
@@ -86,6 +128,11 @@ def test_window_counts_one_period_then_starts_again() -> None:
     assert period.skipped == {'size': 1} and period.since_last_frame_s == pytest.approx(0.6)
     later = window.take(now=103.0)
     assert later.received == 0 and later.since_last_frame_s == pytest.approx(2.6)
+
+
+def test_the_status_is_named_as_diagnostic_updater_names_a_task() -> None:
+    # Updater.publish: stat.name = self.node_name + ': ' + stat.name
+    assert status_name('obstacle_detector') == 'obstacle_detector: depth obstacle detection'
 
 
 def test_the_status_is_named_after_the_node_that_reports_it() -> None:

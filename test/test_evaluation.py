@@ -81,8 +81,17 @@ def test_node_parameter_file(tmp_path):
     assert p.normal_neighbours == 5
     assert evaluation.load_params_file(path, table_4_3()).median_kernel == 7   # on the base
     path.write_text('/**:\n  ros__parameters:\n    depth_topic: /camera/depth\n')
-    with pytest.raises(ValueError, match="unknown parameter 'depth_topic'"):
-        evaluation.load_params_file(path)
+    # not the node's either: ignored as the node ignores it (the tools warn, as the node does)
+    assert evaluation.load_params_file(path) == table_4_2()
+
+
+def test_evaluate_warns_about_a_misspelt_parameter_as_the_node(tmp_path, capsys):
+    path = tmp_path / 'typo.yaml'
+    path.write_text('/**:\n  ros__parameters:\n    max_slope_dg: 20.0\n')
+    assert evaluate.main(['--params-file', str(path), '--scene', 'curb_sill', '--max-frames',
+                          '1', '--quiet', '--workers', '0']) == 0
+    assert (f"warning: {path}: unknown parameter 'max_slope_dg' is ignored (did you mean "
+            "'max_slope_deg'?)") in capsys.readouterr().err
 
 
 def test_truth_grid_uses_the_costmap_binning():
@@ -144,8 +153,8 @@ def test_report_pools_counts_and_serialises_nan_as_null():
 
 def test_evaluate_one_corridor_frame_scores_above_a_floor(tmp_path, capsys):
     out = tmp_path / 'report.json'
-    code = evaluate.main(['--scene', 'corridor', '--max-frames', '1', '--json', str(out),
-                          '--quiet', '--preset', 'table_4_2'])
+    code = evaluate.main(['--suite', 'seed', '--scene', 'corridor', '--max-frames', '1',
+                          '--json', str(out), '--quiet', '--preset', 'table_4_2'])
     assert code == 0
     table = capsys.readouterr().out
     assert 'corridor' in table and 'overall' in table and 'cell F1' in table
@@ -286,14 +295,26 @@ def test_robot_summary_pools_found_objects_passable_cells_and_drops():
     assert data['objects_found'] == 2 and data['unmarked'] == ['drop (x 1)']
 
 
+def test_evaluate_without_suite_scores_the_readmes_robot_suite(capsys):
+    # the README's accuracy table is the robot suite with corridor.yaml: the defaults
+    code = evaluate.main(['--scene', 'curb_sill', '--max-frames', '1', '--quiet',
+                          '--workers', '0'])
+    assert code == 0
+    table = capsys.readouterr().out
+    assert table.startswith('suite: robot (scenarios_robot.json, robot-level truth); '
+                            'parameters: corridor; 1 frames in ')
+    assert 'robot table (objects found' in table
+
+
 def test_evaluate_robot_suite_prints_the_robot_table(tmp_path, capsys):
     out = tmp_path / 'report.json'
     code = evaluate.main(['--suite', 'robot', '--scene', 'dock_edge', '--scene', 'curb_sill',
                           '--json', str(out), '--quiet', '--workers', '0'])
     assert code == 0
     table = capsys.readouterr().out
-    assert 'robot level' in table and 'objects' in table
-    assert 'F1 1-cell' in table
+    assert 'robot table (objects found, drops, passable free, 1-cell F1):' in table
+    assert 'objects' in table and 'F1 1-cell' in table
+    assert 'issue 9' not in table
     report = json.loads(out.read_text())
     assert report['scenes']['dock_edge']['robot']['drops'] == 1
     assert report['scenes']['curb_sill']['robot']['objects'] == 1     # the curb

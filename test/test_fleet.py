@@ -374,11 +374,17 @@ def test_ctrl_c_on_a_cluster_stops_cleanly_and_leaves_no_partial_bag(
         if run.poll() is None:
             os.killpg(run.pid, signal.SIGKILL)
     assert run.returncode == 130
-    assert err.splitlines()[-1] == ('bag_process.py: interrupted; the output bags not '
-                                    'complete were removed')
+    lines = err.splitlines()
+    interrupted = lines.index('bag_process.py: interrupted; the output bags not complete '
+                              'were removed')
+    done = sorted(p.name for p in out.iterdir())
+    # then, when some finished, one line naming them and how to resume
+    assert lines[interrupted + 1:] == ([] if not done else [
+        f'kept {len(done)} finished output bag{"s" if len(done) != 1 else ""}: '
+        f'{", ".join(str(out / name) for name in done)}; the same command with '
+        f'--skip-existing processes the other {4 - len(done)}'])
     assert 'Traceback' not in err
     assert no_partial_left(out)
-    done = sorted(p.name for p in out.iterdir())
     want = one_process_outputs(tmp_path, [folder / name for name in done], params_file)
     for name in done:   # what is there is complete
         assert output_messages(out / name) == want[name], name
@@ -426,3 +432,113 @@ def test_the_sweep_command_on_two_workers_writes_the_one_process_json(tmp_path: 
     assert sweep.main([*common, '--json', str(tmp_path / 'two.json'), '--workers', '2']) == 0
     assert json.loads((tmp_path / 'two.json').read_text()) == \
         json.loads((tmp_path / 'one.json').read_text())
+
+
+# --------------------------------------------------------------------------------------------
+# One process or a cluster, when neither --workers nor --scheduler is given
+
+
+def test_a_local_cluster_only_when_the_work_pays_its_start() -> None:
+    start = cluster.LOCAL_CLUSTER_START_S
+    assert not cluster.local_cluster_pays(1.9 * start, 2)   # 4 + 3.8 s > 7.6 s
+    assert cluster.local_cluster_pays(2.1 * start, 2)
+    assert not cluster.local_cluster_pays(1000.0, 1)
+    with cluster.open_fleet(tasks=10, work_s=start) as fleet:
+        assert not fleet.distributed
+        if len(os.sched_getaffinity(0)) > 1:
+            assert fleet.description.startswith(f'this process (about {start:.0f} s of work: a '
+                                                'local cluster of ')
+
+
+def test_small_bags_run_in_this_process_and_say_why(tmp_path: Path, depths: list[np.ndarray],
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    folder = make_bags(tmp_path, depths, 3)
+    jobs = [fleet_bags.BagJob(bag, tmp_path / 'out' / name, {}, 'test', 'test')
+            for bag, name in fleet_bags.find_bags(folder)]
+    work_s = fleet_bags.work_seconds(jobs)   # 3 bags of 3 frames of 128 x 106
+    assert work_s == pytest.approx(3 * (fleet_bags.BAG_S + 3 * (
+        fleet_bags.FRAME_S + fleet_bags.PIXEL_S * SMALL[0] * SMALL[1])))
+    assert bag_process.main([str(folder), str(tmp_path / 'out'), '--quiet']) == 0
+    err = capsys.readouterr().err
+    if len(os.sched_getaffinity(0)) > 1:
+        assert f'3 bags on this process (about {work_s:.0f} s of work: a local cluster' in err
+
+
+# --------------------------------------------------------------------------------------------
+# Reproducible output bags
+
+
+def test_equal_messages_serialize_to_equal_bytes() -> None:
+    from rclpy.serialization import deserialize_message, serialize_message
+    from sensor_msgs.msg import PointCloud2
+
+    from builtin_interfaces.msg import Time
+
+    from obstacle_detection.cli.bag_writer import cdr_bytes
+    from obstacle_detection.ros.conversions import points_to_pointcloud2
+
+    points = np.arange(30, dtype=np.float32).reshape(10, 3)
+    one, two = (points_to_pointcloud2(points.copy(), stamp=Time(sec=1), frame_id='base_link')
+                for _ in range(2))
+    ours, rmw = cdr_bytes(one), serialize_message(one)
+    assert ours == cdr_bytes(two) and len(ours) == len(rmw)
+    assert deserialize_message(ours, PointCloud2) == deserialize_message(rmw, PointCloud2)
+    # what differs from rmw's bytes is padding: zero in ours, whatever rmw left in its
+    assert all(ours[i] == 0 for i in range(len(ours)) if ours[i] != rmw[i])
+
+
+def test_the_same_input_gives_the_same_bag_files(tmp_path: Path, depths: list[np.ndarray],
+                                                 params_file: Path) -> None:
+    import hashlib
+
+    folder = make_bags(tmp_path, depths, 1)
+    for run in ('a', 'b'):
+        assert bag_process.main([str(folder / 'bag0'), str(tmp_path / run / 'out'), '--quiet',
+                                 '--params-file', str(params_file), '--ground',
+                                 '--overlay']) == 0
+
+    def digests(bag: Path) -> dict[str, str]:
+        return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in bag.iterdir()}
+    assert digests(tmp_path / 'a' / 'out') == digests(tmp_path / 'b' / 'out')
+
+
+# --------------------------------------------------------------------------------------------
+# evaluate --real: the JSON report, and --scheduler honoured
+
+
+def write_real_frames(folder: Path) -> None:
+    """Write the files of evaluation_args.REAL_FRAMES: a rendered corridor in their units."""
+    import cv2
+
+    from obstacle_detection.cli.evaluation_args import REAL_FRAMES
+    from obstacle_detection.sim.scenes import render_scene
+
+    for name, files, scale, intrinsics in REAL_FRAMES:
+        (folder / name).mkdir(parents=True)
+        for k, file in enumerate(files):
+            depth_m = render_scene('corridor', seed=k, intrinsics=intrinsics,
+                                   size=(640, 480)).depth_mm / 1000.0
+            units = np.minimum(np.round(depth_m * scale), 65535).astype(np.uint16)
+            assert cv2.imwrite(str(folder / name / file), units)
+
+
+def test_evaluate_real_writes_its_json_and_honours_the_scheduler(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from obstacle_detection.tools import evaluate
+
+    write_real_frames(tmp_path / 'real')
+    report = tmp_path / 'real.json'
+    assert evaluate.main(['--real', str(tmp_path / 'real'), '--json', str(report), '--quiet',
+                          '--workers', '0']) == 0
+    out = capsys.readouterr().out
+    data = json.loads(report.read_text())
+    assert [row['frame'] for row in data['frames']] == [
+        'tum_office/depth.png', 'tum_fr2_desk/depth_1.png', 'tum_fr2_desk/depth_2.png',
+        *(f'dining_room/depth_{i}.pgm' for i in range(1, 6))]
+    for row in data['frames']:
+        assert f"{row['frame']}: floor marked {row['floor_marked']}/{row['floor']} " in out
+    assert data['total']['floor'] == sum(row['floor'] for row in data['frames']) > 0
+    assert data['total']['standing_marked'] == sum(r['standing_marked'] for r in data['frames'])
+    assert evaluate.main(['--real', str(tmp_path / 'real'), '--quiet', '--scheduler',
+                          'tcp://127.0.0.1:9']) == 1
+    assert 'tcp://127.0.0.1:9: no Dask scheduler answers' in capsys.readouterr().err

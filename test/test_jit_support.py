@@ -24,6 +24,23 @@ def test_the_switch_follows_the_environment(value, on, monkeypatch) -> None:
     assert jit_support.switched_off() is not on
 
 
+@pytest.mark.skipif(not jit_support.AVAILABLE, reason='numba is not installed')
+def test_cache_filled_tells_a_load_from_a_compilation(tmp_path) -> None:
+    """The node says "load" or "compile" by it: the venv's cache is filled by setup_venv.sh."""
+    import os
+    import subprocess
+    import sys
+
+    code = ('from obstacle_detection.pipeline import detector, jit; '
+            'print(jit.cache_filled(), len(jit.CACHED_KERNELS) > 5)')
+    env = {**os.environ, 'NUMBA_CACHE_DIR': str(tmp_path / 'empty')}
+    empty = subprocess.run([sys.executable, '-c', code], env=env, capture_output=True,
+                           text=True, check=True).stdout.split()
+    assert empty == ['False', 'True']
+    from obstacle_detection.pipeline import detector  # noqa: F401 - defines the kernels
+    assert jit_support.cache_filled(), 'run tools/setup_venv.sh: it fills numba\'s cache'
+
+
 @pytest.fixture
 def fresh_gate(monkeypatch: pytest.MonkeyPatch) -> threading.Event:
     """Give this test a gate of its own, so a failed compilation cannot leak out.

@@ -24,12 +24,13 @@ import numpy as np
 import pytest
 import yaml
 
+import ros_env
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.ros.compressed_depth import TRANSPORT_SUFFIXES
 from obstacle_detection.ros.parameters import NODE_NAME, PARAMS_FILE_KEY
 from obstacle_detection.sim.scenes import render_scene
 from obstacle_detection.cli import bag_processor
-from obstacle_detection.pipeline.clearing import clearing_points
+from obstacle_detection.pipeline.clearing import clearing_cloud
 
 REPO = Path(__file__).resolve().parents[1]
 LAUNCH = REPO / 'launch' / 'detector.launch.py'
@@ -105,63 +106,104 @@ def test_launch_arguments_and_their_choices() -> None:
     arguments = {name: (default, choices) for name, default, choices, _ in launch.ARGUMENTS}
 
     assert {'params_file', 'use_tf', 'camera', 'publish_ground', 'use_sim_time',
-            'namespace'} <= set(arguments)
-    assert arguments['use_sim_time'] == ('false', ['true', 'false'])   # as Nav2's bringup
-    assert set(arguments['camera'][1]) == set(launch.CAMERA_PRESETS) == {'kinect2', 'generic'}
+            'namespace', 'log_level'} <= set(arguments)
+    # booleans carry no choices: DeclareLaunchArgument.execute (launch/actions/
+    # declare_launch_argument.py) compares choices as exact strings, refusing Nav2's 'True'
+    for name in ('use_sim_time', 'use_tf', 'publish_ground'):
+        assert arguments[name][1] is None, name
+    assert arguments['use_sim_time'][0] == ''       # not passed unless given
+    assert arguments['use_tf'][0] == 'true'         # on a robot the mount comes from TF
+    assert arguments['camera'][0] == 'generic'
+    assert set(arguments['camera'][1]) == set(launch.CAMERA_PRESETS) == {
+        'generic', 'realsense', 'kinect2'}
     for name, (default, choices) in arguments.items():
         assert choices is None or default in choices, name
 
 
-def test_kinect2_default_remaps_the_node_inputs_to_kinect2_bridge() -> None:
+def test_default_launch_keeps_the_node_topics_and_takes_the_mount_from_tf() -> None:
     launch = _launch_module()
     subscriptions = _node_topics('subscription')
-    depth, info = tool_support.DEFAULT_DEPTH_TOPIC, tool_support.DEFAULT_INFO_TOPIC
 
     settings = launch.node_settings({}, '/opt/share/obstacle_detection')
 
     assert subscriptions == {'depth/image_raw': 'Image', 'depth/camera_info': 'CameraInfo'}
     assert sorted(settings['remappings']) == sorted(
-        [('depth/image_raw', depth), ('depth/camera_info', info)]
-        + [(f'depth/image_raw/{suffix}', f'{depth}/{suffix}') for suffix in TRANSPORT_SUFFIXES])
+        [(topic, topic) for topic in subscriptions]
+        + [(f'depth/image_raw/{suffix}', f'depth/image_raw/{suffix}')
+           for suffix in TRANSPORT_SUFFIXES])
     assert settings['parameters'] == ['/opt/share/obstacle_detection/params/corridor.yaml',
-                                      {'use_sim_time': False}]
+                                      {'use_tf': True}]
+    assert settings['ros_arguments'] == ['--log-level', 'info']
     assert (settings['package'], settings['executable'], settings['name'],
             settings['namespace']) == (PACKAGE, 'detector', NODE_NAME, '')
 
 
-def test_generic_camera_keeps_the_node_names_unless_topics_are_given() -> None:
+@pytest.mark.parametrize(('camera', 'depth', 'info'), [
+    ('kinect2', tool_support.DEFAULT_DEPTH_TOPIC, tool_support.DEFAULT_INFO_TOPIC),
+    # realsense2_camera (ros2-master): rs_launch.py's camera_namespace and camera_name both
+    # default to 'camera'; its README lists /camera/camera/depth/image_rect_raw and
+    # /camera/camera/depth/camera_info
+    ('realsense', '/camera/camera/depth/image_rect_raw', '/camera/camera/depth/camera_info'),
+])
+def test_camera_presets_remap_the_inputs_and_their_transports(camera: str, depth: str,
+                                                              info: str) -> None:
+    settings = _launch_module().node_settings({'camera': camera}, '/s')
+
+    assert sorted(settings['remappings']) == sorted(
+        [('depth/image_raw', depth), ('depth/camera_info', info)]
+        + [(f'depth/image_raw/{suffix}', f'{depth}/{suffix}') for suffix in TRANSPORT_SUFFIXES])
+
+
+def test_given_topics_override_the_preset() -> None:
     launch = _launch_module()
 
-    plain = launch.node_settings({'camera': 'generic'}, '/s')
-    given = launch.node_settings({'camera': 'generic', 'depth_topic': '/cam/depth',
+    given = launch.node_settings({'camera': 'realsense', 'depth_topic': '/cam/depth',
                                   'camera_info_topic': '/cam/info'}, '/s')
 
-    assert ('depth/image_raw', 'depth/image_raw') in plain['remappings']
-    assert ('depth/camera_info', 'depth/camera_info') in plain['remappings']
     assert ('depth/image_raw', '/cam/depth') in given['remappings']
     assert ('depth/image_raw/compressedDepth', '/cam/depth/compressedDepth') in \
         given['remappings']
     assert ('depth/camera_info', '/cam/info') in given['remappings']
 
 
-@pytest.mark.parametrize(('values', 'parameters'), [
-    ({}, ['mine.yaml', {'use_sim_time': False}]),
-    ({'use_tf': 'true'}, ['mine.yaml', {'use_sim_time': False, 'use_tf': True}]),
-    ({'publish_ground': 'true'}, ['mine.yaml', {'use_sim_time': False, 'publish_ground': True}]),
-    ({'publish_ground': 'false', 'use_tf': 'true'},
-     ['mine.yaml', {'use_sim_time': False, 'use_tf': True, 'publish_ground': False}]),
-    ({'use_sim_time': 'true'}, ['mine.yaml', {'use_sim_time': True}]),
+@pytest.mark.parametrize(('values', 'overrides'), [
+    ({}, {'use_tf': True}),
+    ({'use_tf': 'false'}, {'use_tf': False}),
+    ({'use_tf': 'False', 'publish_ground': 'True'}, {'use_tf': False, 'publish_ground': True}),
+    ({'publish_ground': 'false'}, {'use_tf': True, 'publish_ground': False}),
+    # nav2_bringup's launch files pass 'True' / 'False' (tb3_simulation_launch.py declares
+    # use_sim_time 'true', bringup_launch.py 'false', both handed on as given)
+    ({'use_sim_time': 'True'}, {'use_tf': True, 'use_sim_time': True}),
+    ({'use_sim_time': 'False'}, {'use_tf': True, 'use_sim_time': False}),
+    ({'use_sim_time': ' true '}, {'use_tf': True, 'use_sim_time': True}),
+    ({'use_sim_time': '1', 'use_tf': '0'}, {'use_tf': False, 'use_sim_time': True}),
 ])
-def test_use_sim_time_is_always_passed_use_tf_and_publish_ground_only_when_given(
-        values: dict[str, str], parameters: list) -> None:
+def test_booleans_read_as_launch_reads_a_condition(values: dict[str, str],
+                                                   overrides: dict[str, bool]) -> None:
     settings = _launch_module().node_settings({'params_file': 'mine.yaml', **values}, '/s')
 
-    assert settings['parameters'] == parameters
+    assert settings['parameters'] == ['mine.yaml', overrides]
+
+
+@pytest.mark.parametrize(('name', 'value'), [('use_sim_time', 'yes'), ('use_tf', 'on'),
+                                             ('publish_ground', 'TRUE!')])
+def test_a_bad_boolean_is_refused_by_name(name: str, value: str) -> None:
+    with pytest.raises(ValueError, match=f'{name}:={value} is not a boolean'):
+        _launch_module().node_settings({name: value}, '/s')
+
+
+def test_log_level_reaches_the_node_arguments_and_a_bad_one_is_refused() -> None:
+    launch = _launch_module()
+
+    assert launch.node_settings({'log_level': 'DEBUG'}, '/s')['ros_arguments'] == [
+        '--log-level', 'debug']
+    with pytest.raises(ValueError, match='log_level:=loud is not a level'):
+        launch.node_settings({'log_level': 'loud'}, '/s')
 
 
 def test_an_unknown_camera_preset_is_refused_by_name() -> None:
-    with pytest.raises(ValueError, match='camera:=realsense is not a preset'):
-        _launch_module().node_settings({'camera': 'realsense'}, '/s')
+    with pytest.raises(ValueError, match='camera:=zed is not a preset'):
+        _launch_module().node_settings({'camera': 'zed'}, '/s')
 
 
 def test_launch_node_name_is_the_params_files_section() -> None:
@@ -180,6 +222,156 @@ def test_everything_the_launch_file_names_is_installed(prefix: Path) -> None:
     assert (share / 'params' / NAV2.name).read_bytes() == NAV2.read_bytes()
     relative = Path(sysconfig.get_path('purelib')).relative_to(sysconfig.get_path('data'))
     assert (prefix / relative / PACKAGE / 'ros' / 'compressed_depth.py').is_file()
+
+
+# --------------------------------------------------------------------------------------------
+# What the node gets: launch_ros's command line, resolved by rcl
+#
+# launch_ros (jazzy) turns a Node action into a command line; rcl (through rclpy.init) then
+# resolves the node's name, namespace and parameters from it. The command line is ported from
+# launch_ros/actions/node.py: Node.__init__ (executable, then ``ros_arguments`` after their own
+# ``--ros-args``, then ``--ros-args -r __node:=NAME``), Node._perform_substitutions (``-r
+# __ns:=NS`` from prefix_namespace and make_namespace_absolute of
+# launch_ros/utilities/namespace_utils.py; the group's SetParameter values, the
+# ``global_params`` of launch_ros/actions/set_parameter.py SetParameter.execute, as ``-p
+# name:=value`` FIRST, "so they can be overridden with specific parameters of this Node"; then
+# each parameters entry, a dict written by Node._create_params_file_from_dict under the node's
+# full name; then ``-r from:=to``). The resolution is rclpy's own, on a probe node.
+
+
+def _prefix_namespace(base: str | None, ns: str | None) -> str | None:
+    """launch_ros.utilities.namespace_utils.prefix_namespace."""
+    if base is None and ns is None:
+        return None
+    if ns is None:
+        combined = base
+    elif not base or ns.startswith('/'):
+        combined = ns
+    else:
+        combined = ('' if base == '/' else base) + '/' + ns
+    return combined if combined == '/' else combined.rstrip('/')
+
+
+def _launch_ros_arguments(settings: dict[str, Any], tmp_path: Path, *,
+                          global_params: tuple[tuple[str, str], ...] = (),
+                          pushed_namespace: str | None = None) -> tuple[list[str], str]:
+    """Return (the node's arguments after its executable, its full name) as launch_ros does."""
+    namespace = _prefix_namespace(pushed_namespace, settings['namespace'])
+    namespace = '/' + namespace if not namespace.startswith('/') else namespace
+    full_name = _prefix_namespace(namespace, settings['name'])
+    args = ['--ros-args', *settings['ros_arguments'],
+            '--ros-args', '-r', f'__node:={settings["name"]}', '-r', f'__ns:={namespace}']
+    for name, value in global_params:
+        args += ['-p', f'{name}:={value}']
+    for entry in settings['parameters']:
+        if isinstance(entry, dict):   # a new file each time, as NamedTemporaryFile
+            path = tmp_path / f'launch_params_{len(list(tmp_path.glob("launch_params_*")))}.yaml'
+            path.write_text(yaml.dump({full_name: {'ros__parameters': entry}}))
+            entry = str(path)
+        args += ['--params-file', entry]
+    for source, target in settings['remappings']:
+        args += ['-r', f'{source}:={target}']
+    return args, full_name
+
+
+def _resolved(args: list[str]) -> dict[str, Any]:
+    """Return what rcl gives a node started with ``args``: name, parameters, topics, level."""
+    import rclpy
+    from rclpy.node import Node
+    from rclpy.signals import SignalHandlerOptions
+
+    env = ros_env.loopback_env('test_launch_and_nav2')
+    old = ros_env.apply(env)
+    context = rclpy.Context()
+    try:
+        rclpy.init(args=['detector', *args], context=context,
+                   domain_id=int(env['ROS_DOMAIN_ID']),
+                   signal_handler_options=SignalHandlerOptions.NO)
+        node = Node('probe', context=context, start_parameter_services=False,
+                    automatically_declare_parameters_from_overrides=True)
+        try:
+            return {'name': node.get_fully_qualified_name(),
+                    'parameters': {name: p.value for name, p in
+                                   node.get_parameters_by_prefix('').items()},
+                    'depth': node.resolve_topic_name('depth/image_raw'),
+                    'info': node.resolve_topic_name('depth/camera_info'),
+                    'log_level': node.get_logger().get_effective_level()}
+        finally:
+            node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=context)
+        ros_env.restore(old)
+
+
+@pytest.mark.parametrize(('given', 'clock'), [('True', True), ('False', False),
+                                              ('true', True), ('false', False)])
+def test_use_sim_time_given_reaches_the_node(given: str, clock: bool, tmp_path: Path) -> None:
+    settings = _launch_module().node_settings(
+        {'params_file': str(CORRIDOR), 'use_sim_time': given}, '/s')
+    args, _ = _launch_ros_arguments(settings, tmp_path)
+
+    assert _resolved(args)['parameters']['use_sim_time'] is clock
+
+
+@pytest.mark.parametrize('parent', ['True', 'False'])
+def test_a_parents_set_parameter_use_sim_time_reaches_the_node(parent: str,
+                                                               tmp_path: Path) -> None:
+    """GroupAction([SetParameter('use_sim_time', use_sim_time), IncludeLaunchDescription(...)])."""
+    launch = _launch_module()
+    given = launch.node_settings({'params_file': str(CORRIDOR)}, '/s')
+    # what this launch file passed before: use_sim_time always, false unless given
+    always = launch.node_settings({'params_file': str(CORRIDOR)}, '/s')
+    always['parameters'][1]['use_sim_time'] = False
+
+    args, _ = _launch_ros_arguments(given, tmp_path, global_params=(('use_sim_time', parent),))
+    old_args, _ = _launch_ros_arguments(always, tmp_path,
+                                        global_params=(('use_sim_time', parent),))
+
+    assert 'use_sim_time' not in given['parameters'][1]
+    assert _resolved(args)['parameters']['use_sim_time'] is (parent == 'True')
+    assert _resolved(old_args)['parameters']['use_sim_time'] is False   # the parent was lost
+
+
+@pytest.mark.parametrize(('pushed', 'namespace', 'full_name'), [
+    (None, '', f'/{NODE_NAME}'),
+    (None, 'front', f'/front/{NODE_NAME}'),
+    ('robot1', 'front', f'/robot1/front/{NODE_NAME}'),   # PushROSNamespace in the parent
+    ('robot1', '', f'/robot1/{NODE_NAME}'),
+])
+def test_in_a_namespace_the_params_file_and_overrides_still_apply(
+        pushed: str | None, namespace: str, full_name: str, tmp_path: Path) -> None:
+    launch = _launch_module()
+    settings = launch.node_settings({'params_file': str(CORRIDOR), 'namespace': namespace,
+                                     'use_sim_time': 'True', 'use_tf': 'false',
+                                     'camera': 'realsense', 'log_level': 'debug'}, '/s')
+    args, expected_name = _launch_ros_arguments(settings, tmp_path, pushed_namespace=pushed)
+    from rclpy.logging import LoggingSeverity
+
+    node = _resolved(args)
+
+    assert node['name'] == expected_name == full_name
+    parameters = node['parameters']
+    corridor = _corridor()
+    # the file's section /**/obstacle_detector matches in any namespace
+    assert parameters['camera_height_m'] == corridor['camera_height_m']
+    assert parameters['median_kernel'] == corridor['median_kernel']
+    # the launch's overrides, keyed by the full name, too
+    assert (parameters['use_sim_time'], parameters['use_tf']) == (True, False)
+    assert (node['depth'], node['info']) == ('/camera/camera/depth/image_rect_raw',
+                                             '/camera/camera/depth/camera_info')
+    assert node['log_level'] == LoggingSeverity.DEBUG
+
+
+def test_generic_topics_follow_the_namespace(tmp_path: Path) -> None:
+    settings = _launch_module().node_settings({'params_file': str(CORRIDOR),
+                                               'namespace': 'front'}, '/s')
+    args, _ = _launch_ros_arguments(settings, tmp_path, pushed_namespace='robot1')
+
+    node = _resolved(args)
+
+    assert (node['depth'], node['info']) == ('/robot1/front/depth/image_raw',
+                                             '/robot1/front/depth/camera_info')
+    assert (node['parameters']['use_tf'], node['parameters']['use_sim_time']) == (True, False)
 
 
 # --------------------------------------------------------------------------------------------
@@ -281,9 +473,8 @@ def test_every_detector_point_passes_the_voxel_layer_filters(scene: str) -> None
     result = config.detector.process(frame.depth_mm, frame.intrinsics)
     layer, source = _layer(), _sources()['/obstacles/points']
     points = result.obstacle_points.astype(np.float64)
-    clearing = clearing_points(result.depth_m, result.intrinsics,
-                               stride_px=config.clearing_stride_px,
-                               range_m=config.clearing_range_m)
+    clearing = clearing_cloud(result, stride_px=config.clearing_stride_px,
+                              range_m=config.clearing_range_m)
 
     assert points.shape[0] > 100 and clearing.shape[0] > 1000
     z = points[:, 2]

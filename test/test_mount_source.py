@@ -13,6 +13,7 @@ from obstacle_detection.pipeline.geometry import OPTICAL_TO_BODY, mount_rotation
 from obstacle_detection.ros.mount_source import (
     Mount,
     MountSource,
+    StaticTransforms,
     mount_from_transform,
 )
 
@@ -96,13 +97,14 @@ def test_a_moving_mount_is_looked_up_per_frame() -> None:
     assert len(buffer.calls) == 2
 
 
-def test_a_failed_lookup_falls_back_and_says_why_then_a_late_transform_is_taken() -> None:
+def test_a_failed_lookup_gives_no_mount_and_says_why_then_a_late_transform_is_taken() -> None:
     buffer = StandInBuffer(None)
     source = MountSource(buffer, 'base_footprint')
-    assert source.mount_for('cam', None, FALLBACK) is FALLBACK
-    assert source.source == 'parameters (TF lookup failed)'
-    assert 'no TF base_footprint <- cam (LookupError' in source.last_problem
-    assert 'using the mount parameters' in source.last_problem
+    assert source.mount_for('cam', None, FALLBACK) is None    # never the parameters
+    assert source.source == 'TF base_footprint <- cam: none (frames dropped)'
+    assert source.last_problem == (
+        "no transform base_footprint <- 'cam' from TF (LookupError: \"base_footprint\" passed "
+        'to lookupTransform argument target_frame does not exist)')
 
     buffer.transform = _transform(OPTICAL_TO_BODY, (0.3, 0.0, 0.4))   # the TF arrives late
     late = source.mount_for('cam', None, FALLBACK)
@@ -111,3 +113,46 @@ def test_a_failed_lookup_falls_back_and_says_why_then_a_late_transform_is_taken(
 
 def test_without_a_buffer_the_parameters_are_used() -> None:
     assert MountSource(None, 'base_footprint').mount_for('cam', None, FALLBACK) is FALLBACK
+
+
+def _stamped(parent: str, child: str, rotation: np.ndarray, xyz: tuple) -> Any:
+    stamped = _transform(rotation, xyz)
+    stamped.header = SimpleNamespace(frame_id=parent)
+    stamped.child_frame_id = child
+    return stamped
+
+
+def test_recorded_static_transforms_compose_along_the_urdf_chain() -> None:
+    """A URDF's chain as robot_state_publisher sends it.
+
+    base_footprint -> base_link (up 0.1) -> camera_link (x 0.2, up 0.5, yaw 10 deg, pitch
+    20 deg) -> camera_optical (the optical axes).
+    """
+    yaw, pitch = math.radians(10.0), math.radians(20.0)
+    ry = np.array([[math.cos(pitch), 0, math.sin(pitch)], [0, 1, 0],
+                   [-math.sin(pitch), 0, math.cos(pitch)]])
+    buffer = StaticTransforms()
+    buffer.add(_stamped('base_link', 'camera_link', _rz(yaw) @ ry, (0.2, 0.0, 0.5)))
+    buffer.add(_stamped('camera_link', 'camera_optical', OPTICAL_TO_BODY, (0.0, 0.0, 0.0)))
+    buffer.add(_stamped('base_footprint', 'base_link', np.eye(3), (0.0, 0.0, 0.1)))
+    buffer.add(_stamped('base_link', 'wheel', np.eye(3), (0.0, 0.3, 0.0)))   # another branch
+
+    mount = MountSource(buffer, 'base_footprint').mount_for('camera_optical', None, FALLBACK)
+    assert (mount.x_m, mount.y_m, mount.z_m) == pytest.approx((0.2, 0.0, 0.6))
+    assert (mount.yaw_rad, mount.pitch_rad, mount.roll_rad) == pytest.approx(
+        (yaw, pitch, 0.0), abs=1e-9)
+    # between two branches: the camera seen from the wheel
+    wheel = mount_from_transform(buffer.lookup_transform('wheel', 'camera_optical'))
+    assert (wheel.x_m, wheel.y_m, wheel.z_m) == pytest.approx((0.2, -0.3, 0.5))
+
+
+def test_a_frame_the_static_transforms_do_not_reach_is_a_lookup_error() -> None:
+    buffer = StaticTransforms()
+    buffer.add(_stamped('base_link', 'camera_link', np.eye(3), (0.0, 0.0, 0.5)))
+    source = MountSource(buffer, 'base_footprint')
+
+    assert source.mount_for('camera_optical', None, FALLBACK) is None
+    assert source.last_problem == (
+        "no transform base_footprint <- 'camera_optical' from TF (LookupError: "
+        '"base_footprint" and "camera_optical" are not connected by the static transforms '
+        '(1 recorded: camera_link))')

@@ -106,7 +106,7 @@ def node_clouds(depth_mm: np.ndarray, info: Any, stamp: Time, config: Any,
         msg, [CameraState.from_camera_info(info)], config, with_ground=False,
         with_overlay=False)
     assert messages is not None, reason
-    _, cloud = config.nav2_clouds(result, config.detector.params)   # the node's call
+    _, cloud = config.nav2_clouds(result)   # the node's call
     return pointcloud2_to_points(messages['obstacles']), cloud
 
 

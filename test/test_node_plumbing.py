@@ -227,12 +227,13 @@ def test_a_switch_cannot_change_at_run_time_and_says_why(graph: Graph) -> None:
 def test_diagnostics_are_named_after_the_node_and_say_what_before_a_frame(
         graph: Graph) -> None:
     first = graph.first_report
-    assert first.name == f'{NODE}: depth obstacle detection'
+    # diagnostic_updater's name: the node's name (its namespace with diagnostic_updater.use_fqn)
+    assert first.name == 'obstacle_detector: depth obstacle detection'
     assert first.hardware_id == f'{NAMESPACE}/depth/image_raw'   # no frame yet
     graph.frame()
     start = len(graph.reports)
     assert graph.spin_until(lambda: len(graph.reports) > start, REPLY_TIMEOUT_S)
-    assert graph.reports[-1].hardware_id == 'depth_optical'     # the frames' frame_id
+    assert graph.reports[-1].hardware_id == f'{NAMESPACE}/depth/image_raw'   # stays put
 
 
 # -- in-process nodes ---------------------------------------------------------------------
@@ -266,7 +267,8 @@ def test_the_tools_read_a_params_file_as_rclpy_gives_it_to_the_node(
 def test_two_nodes_report_under_two_names(local_context: rclpy.Context,
                                           monkeypatch: pytest.MonkeyPatch) -> None:
     nodes = [DetectorNode(context=local_context, namespace=ns,
-                          cli_args=['--ros-args', '--params-file', str(CORRIDOR_YAML)])
+                          cli_args=['--ros-args', '--params-file', str(CORRIDOR_YAML),
+                                    '-p', 'diagnostic_updater.use_fqn:=true'])
              for ns in ('front', 'rear')]
     reports: list[Any] = []
     try:
@@ -287,6 +289,7 @@ def test_the_launch_files_settings_keep_the_file_and_pass_use_sim_time(
         local_context: rclpy.Context, tmp_path: Path) -> None:
     """As launch_ros starts the node: its dict of parameters becomes a '/**' params file."""
     from test_launch_and_nav2 import _launch_module
+    from test_mount_source import StandInBuffer
 
     settings = _launch_module().node_settings(
         {'namespace': 'x', 'use_sim_time': 'true', 'params_file': str(CORRIDOR_YAML)}, '/s')
@@ -297,13 +300,15 @@ def test_the_launch_files_settings_keep_the_file_and_pass_use_sim_time(
             path.write_text(yaml.safe_dump({'/**': {'ros__parameters': parameters}}))
             parameters = str(path)
         files += ['--params-file', parameters]
+    # use_tf (the launch default) needs tf2, which a robot's ROS 2 has: a stand-in here
     node = DetectorNode(context=local_context, namespace=settings['namespace'],
-                        cli_args=['--ros-args', *files])
+                        cli_args=['--ros-args', *files], tf_buffer=StandInBuffer(None))
     try:
         fqn = node.get_fully_qualified_name()
         assert fqn == NODE
         assert node.get_parameter('use_sim_time').value is True
-        file_values = _yaml_values(CORRIDOR_YAML)
+        # the file's values, but the mount from TF: the launch file's use_tf default
+        file_values = _yaml_values(CORRIDOR_YAML) | {'use_tf': True}
         assert {name: node.get_parameter(name).value for name in file_values} == file_values
         assert [p for f in files[1::2] for p in params_file_problems(f, fqn)] == []
     finally:

@@ -64,6 +64,9 @@ def _site_packages(prefix: Path) -> Path:
     'share/obstacle_detection/package.xml',
     'share/obstacle_detection/params/corridor.yaml',
     'share/obstacle_detection/params/corridor_video.yaml',
+    'share/obstacle_detection/params/nav2_stvl.yaml',
+    'share/obstacle_detection/params/nav2_collision_monitor.yaml',
+    'share/obstacle_detection/rviz/obstacle_detection.rviz',
     'share/ament_index/resource_index/packages/obstacle_detection',
 ])
 def test_installed_where_ros2_run_looks(prefix: Path, relative: str) -> None:
@@ -145,7 +148,8 @@ def test_editable_install_maps_the_tools_into_the_package(tmp_path: Path) -> Non
     package = done.stdout.splitlines()[0] if done.returncode == 0 else ''
     if not package.startswith(str(REPO)):
         pytest.skip('obstacle_detection is not installed editable from this checkout')
-    assert done.stdout.splitlines()[1] == str(REPO / 'tools' / 'evaluate.py')
+    # through the package's link obstacle_detection/tools -> ../tools
+    assert Path(done.stdout.splitlines()[1]).resolve() == REPO / 'tools' / 'evaluate.py'
     command = Path(sys.executable).parent / 'evaluate'
     assert command.is_file(), 'the venv has no evaluate command: bash tools/setup_venv.sh'
 

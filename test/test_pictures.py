@@ -149,7 +149,7 @@ def test_bag_frames_carry_depth_and_camera_info(tmp_path, corridor):
     _write_bag(tmp_path / 'bag', frame, 3)
     frames = list(picture_jobs.bag_frames(tmp_path / 'bag', '/depth', '/info',
                                           picture_jobs.parse_frames('0:3:2')))
-    assert [name.split(' ')[1] for name, *_ in frames] == ['#0', '#2']
+    assert [name.split(" ")[1].rstrip(",") for name, *_ in frames] == ["#0", "#2"]
     np.testing.assert_array_equal(frames[0][1], frame.depth)
     assert frames[0][2].fx == pytest.approx(frame.intrinsics.fx)
 
@@ -396,7 +396,7 @@ def test_picture_has_a_legend_for_every_colour(corridor):
     height = frame.depth.shape[0]
     assert image.shape[0] > bare.shape[0]
     below = image[height:]
-    for colour in (pictures.over_grey(OBSTACLE_RGB, OBSTACLE_ALPHA),
+    for colour in (*pictures.depth_shades(OBSTACLE_RGB, OBSTACLE_ALPHA),
                    pictures.over_grey(pictures.GROUND_RGB, pictures.GROUND_TINT), NO_RETURN_RGB,
                    OCCUPIED_RGB, UNKNOWN_RGB, ROBOT_RGB, pictures.HIT_RGB,
                    pictures.FALSE_ALARM_RGB, pictures.MISS_RGB):
@@ -463,3 +463,87 @@ def test_above_robot_surfaces_have_their_own_colour(corridor):
     np.testing.assert_array_equal(rgb[~above], plain[~above])
     # the seed's slope test knows no robot height: nothing is called above the robot
     assert pictures.above_robot_pixels(result, table_4_2()) is None
+
+
+# --- What a picture says is what it draws (issue 32) ------------------------------------------
+
+
+def _red_shape_aspect(image: np.ndarray) -> float:
+    """Width over height of the ROBOT_RGB pixels' bounding box."""
+    red = np.argwhere((image == ROBOT_RGB).all(axis=-1))
+    return (np.ptp(red[:, 1]) + 1) / (np.ptp(red[:, 0]) + 1)
+
+
+def test_the_robot_swatch_is_the_shape_drawn_on_the_grid():
+    panel = pictures.costmap_panel(_empty_costmap(table_4_2()), scale=8)   # facing up (+x)
+    legend = pictures.node_outputs_legend([300, 300])   # one robot swatch
+    assert _red_shape_aspect(legend) == pytest.approx(_red_shape_aspect(panel), rel=0.1)
+
+
+@pytest.mark.parametrize('which', ['node outputs', 'side by side'])
+def test_the_legend_shows_the_reds_the_overlay_draws(which, corridor):
+    # an obstacle pixel is red over its depth grey: dark red near, light red far; the legend
+    # showed one red
+    from obstacle_detection.viz.overlay import MIN_GREY, blend
+
+    if which == 'node outputs':
+        legend = pictures.node_outputs_legend([300, 300])
+    else:
+        frame, _ = corridor
+        legend = pictures.legend_row([300, 300], frame.params(table_4_2()), truth=False,
+                                     above_robot=False)
+    for grey in (MIN_GREY, 255):
+        colour = tuple(int(v) for v in blend(OBSTACLE_RGB, grey, OBSTACLE_ALPHA))
+        assert (legend == colour).all(axis=-1).any(), (grey, colour)
+
+
+def test_the_fused_grid_is_drawn_at_the_costmaps_scale():
+    # a 4 m fused window of 80 cells beside the costmap's 4 m was drawn half as wide (80 px,
+    # one tick): both grids are in metres, at one scale
+    params = table_4_2()
+    costmap = _empty_costmap(params)
+    costmap = Costmap(np.full_like(costmap.data, CELL_OCCUPIED), costmap.resolution_m,
+                      costmap.origin_xy_m)
+    fused = Costmap(np.full((80, 80), CELL_UNKNOWN, np.int8), 0.05, (-2.0, -2.0))
+    overlay = np.full((145, 176, 3), 200, np.uint8)
+    image = pictures.node_outputs(overlay, costmap, caption=['x'], fused=fused,
+                                  with_legend=False)
+    occupied = np.argwhere((image == OCCUPIED_RGB).all(axis=-1))   # the costmap only
+    grey = np.argwhere((image == UNKNOWN_RGB).all(axis=-1))
+    grey = grey[grey[:, 1] > occupied[:, 1].max()]                 # the fused grid (text aside)
+    for axis in (0, 1):   # the rows and columns of the grid, not stray text pixels
+        values, counts = np.unique(grey[:, axis], return_counts=True)
+        grey = grey[np.isin(grey[:, axis], values[counts > 50])]
+    assert np.ptp(grey[:, 1]) == np.ptp(occupied[:, 1]) > 100      # 4 m across each
+    ticks = np.flatnonzero((image[grey[:, 0].max() + 3] == pictures.AXIS_RGB).all(axis=-1))
+    assert np.count_nonzero(ticks >= grey[:, 1].min() - 1) >= 3    # -2, 0, 2 m across
+
+
+def test_bag_frames_are_named_by_their_time_in_the_bag(tmp_path, corridor):
+    # "t=1796623475.000000000" read as a date; a frame's seconds since the first one read
+    frame, _ = corridor
+    _write_bag(tmp_path / 'bag', frame, 3)
+    names = [name for name, *_ in picture_jobs.bag_frames(tmp_path / 'bag', '/depth', '/info')]
+    assert names == ['/depth #0, t = 0.000 s', '/depth #1, t = 1.000 s',
+                     '/depth #2, t = 2.000 s']
+    assert tool_support.time_text(1_796_279_833_666_666_667, 1_796_279_832_000_000_000) == \
+        't = 1.667 s'
+
+
+def test_a_contact_sheet_says_the_shared_lines_once(tmp_path, corridor, monkeypatch):
+    # every thumbnail repeated the same mount and intrinsics lines (a 30-frame sheet 5,498 px)
+    frame, _ = corridor
+    _write_bag(tmp_path / 'bag', frame, 3)
+    drawn: list[str] = []
+    band = pictures.caption_band
+
+    def recorded(lines, *args, **kwargs):
+        drawn.extend(lines)
+        return band(lines, *args, **kwargs)
+    monkeypatch.setattr(pictures, 'caption_band', recorded)
+    assert pictures_tool.main(['--bag', str(tmp_path / 'bag'), '--depth-topic', '/depth',
+                               '--info-topic', '/info', '--set',
+                               f'camera_height_m={frame.height_m}', '--out',
+                               str(tmp_path / 'sheet.png')]) == 0
+    shared = [line for line in drawn if line.startswith(('mount', 'intrinsics'))]
+    assert shared and len(shared) == len(set(shared))

@@ -22,6 +22,30 @@ def test_with_table_replaces_only_between_the_markers():
     assert out == f'intro\n{param_table.DOC_BEGIN}\n| new |\n{param_table.DOC_END}\nrest\n'
 
 
+def test_param_table_doc_with_a_missing_file_is_one_line(tmp_path: Path,
+                                                        capsys: pytest.CaptureFixture[str]):
+    assert param_table.main(['--doc', str(tmp_path / 'none.md')]) == 1
+    out, err = capsys.readouterr()
+    assert out == '' and err == f'error: {tmp_path / "none.md"}: No such file or directory\n'
+
+
+def test_param_table_doc_says_what_it_wrote(tmp_path: Path, capsys: pytest.CaptureFixture[str]):
+    doc = tmp_path / 'parameters.md'
+    doc.write_text(f'intro\n{param_table.DOC_BEGIN}\nold\n{param_table.DOC_END}\n')
+    assert param_table.main(['--doc', str(doc)]) == 0
+    rows = len(param_table.parameter_table().splitlines()) - 2
+    assert capsys.readouterr().out == f'{doc}: wrote the table of {rows} parameters\n'
+    assert param_table.main(['--doc', str(doc)]) == 0
+    assert capsys.readouterr().out == f'{doc}: the table of {rows} parameters is current\n'
+
+
+def test_param_table_doc_outside_the_repository_is_the_repositorys(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]):
+    monkeypatch.chdir(tmp_path)   # (the table is current: test_parameter_table_is_...)
+    assert param_table.main(['--doc']) == 0
+    assert capsys.readouterr().out.startswith(f'{REPO / "docs" / "parameters.md"}: ')
+
+
 def test_ci_runs_the_readme_test_command():
     readme = (REPO / 'README.md').read_text(encoding='utf-8')
     ci = (REPO / '.ci' / 'run').read_text(encoding='utf-8')

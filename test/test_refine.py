@@ -142,7 +142,8 @@ def test_evaluate_trains_the_refiner_and_scores_it_on_the_held_out_frames(tmp_pa
 
     from obstacle_detection.tools import evaluate
     out = tmp_path / 'model.json'
-    code = evaluate.main(['--scene', 'corridor', '--scene', 'people', '--scene', 'ramps',
+    code = evaluate.main(['--suite', 'seed', '--scene', 'corridor', '--scene', 'people',
+                          '--scene', 'ramps',
                           '--max-frames', '1', '--train-frames', '1', '--quiet',
                           '--max-pixels', '5000', '--train-refiner', str(out)])
     assert code == 0
@@ -152,8 +153,9 @@ def test_evaluate_trains_the_refiner_and_scores_it_on_the_held_out_frames(tmp_pa
     assert report['overall']['frames'] == 2 and 'refined' in report['overall']
     model = LogisticRefiner.load(out)
     assert model.coefficients[1] < 0  # steeper surface (smaller |n.up|) -> more likely obstacle
-    assert evaluate.main(['--scene', 'corridor', '--max-frames', '1', '--train-frames', '1',
-                          '--train-refiner', str(out)]) == 2   # nothing left to score
+    # nothing left to score
+    assert evaluate.main(['--suite', 'seed', '--scene', 'corridor', '--max-frames', '1',
+                          '--train-frames', '1', '--train-refiner', str(out)]) == 2
 
 
 def test_validation_drops_isolated_refined_voxels():

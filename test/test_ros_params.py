@@ -10,7 +10,9 @@ import pytest
 from obstacle_detection.pipeline.params import DetectorParams
 from obstacle_detection.ros import RosInputError
 from obstacle_detection.ros.parameters import (
+    check_params_file,
     detector_params_from_ros,
+    params_file_problems,
     pipeline_params_to_ros,
     read_params_file,
 )
@@ -75,12 +77,18 @@ def test_every_kind_of_section_applies_in_file_order(tmp_path: Path) -> None:
                                       'lateral_limit_m': 1.0}
 
 
-def test_a_typo_is_refused_by_the_tools_with_the_nearest_name(tmp_path: Path) -> None:
+def test_a_typo_is_ignored_by_the_tools_as_by_the_node(tmp_path: Path) -> None:
+    # One behaviour for node and tools: a name the node does not declare is ignored with a
+    # did-you-mean warning (params_file_problems), as ROS ignores undeclared overrides: a
+    # robot's params file shared by many nodes under "/**:" must not stop this one.
     path = tmp_path / 'p.yaml'
-    path.write_text('/**/obstacle_detector:\n  ros__parameters:\n    max_rnge_m: 3.0\n')
+    path.write_text('/**/obstacle_detector:\n  ros__parameters:\n    max_rnge_m: 3.0\n'
+                    '    median_kernel: 5\n')
 
-    with pytest.raises(RosInputError, match="'max_rnge_m' .*did you mean 'max_range_m'"):
-        read_params_file(path)
+    assert read_params_file(path) == {'median_kernel': 5}
+    assert params_file_problems(path) == [
+        f"{path}: unknown parameter 'max_rnge_m' is ignored (did you mean 'max_range_m'?); "
+        '`detector --help` lists the parameters']
 
 
 def test_an_integer_for_a_float_says_how_to_write_it(tmp_path: Path) -> None:
@@ -89,3 +97,15 @@ def test_an_integer_for_a_float_says_how_to_write_it(tmp_path: Path) -> None:
 
     with pytest.raises(RosInputError, match=r"'max_range_m' must be a float, got 3: write 3\.0"):
         read_params_file(path)
+
+
+def test_the_node_checks_an_integer_for_a_float_as_the_tools_do(tmp_path: Path) -> None:
+    # the node's start-up check (ros.node.main) and the tools' reading say the same line
+    path = tmp_path / 'p.yaml'
+    path.write_text('obstacle_detector:\n  ros__parameters:\n    max_range_m: 3\n')
+    with pytest.raises(RosInputError) as node_side:
+        check_params_file(path)
+    with pytest.raises(RosInputError) as tool_side:
+        read_params_file(path)
+    assert str(node_side.value) == str(tool_side.value) == (
+        f"{path}: parameter 'max_range_m' must be a float, got 3: write 3.0")

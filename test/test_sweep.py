@@ -2,6 +2,7 @@
 
 import argparse
 import json
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -82,6 +83,44 @@ def test_command_prints_grid_names_best_and_saves_heatmap(tmp_path, capsys):
     row, col = np.unravel_index(np.nanargmax(grid), grid.shape)
     assert saved['best']['ramps'] == {'theta_deg': ['20', '60'][col], 'N1': ['0', '12'][row]}
     assert cv2.imread(str(out)) is not None
+
+
+def test_command_says_its_suite_and_frames_and_writes_into_out(tmp_path, capsys, monkeypatch):
+    # sweep scores one frame per scenario by default: said, with evaluate's all-frames score
+    # beside it not the same number; the heatmap goes to out/ (ignored by git), not the cwd
+    monkeypatch.chdir(tmp_path)
+    code = sweep.main(['--x', 'theta_deg=20,60', '--scene', 'ramps', '--workers', '0'])
+    assert code == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith('suite: seed (scenarios.json, the seed\'s slope-only truth), '
+                               '1 frame per scenario (--max-frames 1, the default of sweep; '
+                               'evaluate scores every frame); parameters: corridor; 1 frames;')
+    assert lines[-1] == f'heatmap: {Path("out") / "sweep.png"}'
+    assert (tmp_path / 'out' / 'sweep.png').is_file() and not (tmp_path / 'sweep.png').exists()
+
+
+def test_heatmap_has_a_title_and_one_colour_scale(tmp_path, monkeypatch):
+    # sweep.png had no title and no colour scale, and false-alarm panels coloured 1 - value
+    # without a word on the picture
+    from obstacle_detection.viz import pictures
+
+    titles: list[str] = []
+    titled = pictures.titled
+
+    def recorded(image, title, **kwargs):
+        titles.append(title)
+        return titled(image, title, **kwargs)
+    monkeypatch.setattr(pictures, 'titled', recorded)
+    out = tmp_path / 'heat.png'
+    assert sweep.main(['--x', 'theta_deg=20,60', '--scene', 'ramps', '--scene',
+                       'pitched_floor', '--out', str(out), '--workers', '0']) == 0
+    assert titles == ['sweep of theta_deg: cell_f1 per scenario (seed suite, 1 frame per '
+                      'scenario, preset corridor); red box: the best setting']
+    image = cv2.cvtColor(cv2.imread(str(out)), cv2.COLOR_BGR2RGB)
+    for level in (0, 255):   # both ends of the one colour scale are drawn
+        colour = cv2.cvtColor(cv2.applyColorMap(np.uint8([[level]]), cv2.COLORMAP_VIRIDIS),
+                              cv2.COLOR_BGR2RGB)[0, 0]
+        assert (image == colour).all(axis=-1).any(), level
 
 
 def test_command_refuses_an_unknown_axis(capsys):

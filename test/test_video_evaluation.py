@@ -141,6 +141,10 @@ def test_tool_scores_a_few_frames_and_draws_the_sheet(tmp_path):
     assert report['sequences'][0]['frames'] == 4
     assert '| person_crossing | cell F1, area seen so far |' in run.stdout
     assert sheet.stat().st_size > 1000
+    # the fusion settings read as words, not as a dataclass repr
+    assert 'FusionParams(' not in run.stdout
+    assert ('fusion: a 4 m window at 0.05 m a cell; log-odds +1 a hit, -0.4 a miss, kept in '
+            '[-1, 2.4]; occupied from 0.5, free below -0.2') in run.stdout
 
 
 @pytest.mark.parametrize('args, code, words', [

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Replay a rosbag2 bag on ROS 2 topics with its recorded timing (``ros2 bag play`` stand-in).
+"""Replay a rosbag2 bag on ROS 2 topics with its recorded timing (in place of ros2 bag play).
 
 Every topic's messages go out as recorded (compressed depth too), with the sensor-data QoS unless
 --reliable.
@@ -8,6 +8,7 @@ Every topic's messages go out as recorded (compressed depth too), with the senso
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -44,8 +45,13 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     import rclpy
     from rclpy.node import Node
+    from rclpy.signals import SignalHandlerOptions
 
-    rclpy.init(args=None)
+    # Ctrl-C is Python's KeyboardInterrupt, even in a job started with SIGINT ignored (a
+    # script's `bag_play ... &`): rclpy's own handler would shut the context down under the
+    # playing loop, whose next publish then dies with "publisher's context is invalid".
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    rclpy.init(args=None, signal_handler_options=SignalHandlerOptions.NO)
     node = Node('bag_player')
     player = None
     try:

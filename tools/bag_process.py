@@ -8,6 +8,7 @@ outputs. Many bags (a folder or a quoted glob) run as Dask tasks (docs/fleet.md)
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from collections.abc import Mapping, Sequence
@@ -47,6 +48,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--storage', choices=sorted(STORAGES), default='sqlite3',
                         help='output storage (default %(default)s)')
     parser.add_argument('--quiet', action='store_true', help='no progress bar')
+    parser.add_argument('--skip-existing', action='store_true',
+                        help='many bags: keep the output bags an earlier (interrupted) run '
+                             'finished and process the rest')
     add_fleet_arguments(parser)
     return parser
 
@@ -77,10 +81,25 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _process_many(args: argparse.Namespace, values: Mapping[str, Any], origin: str,
                   mount_origin: str) -> int:
     """Every bag one task (fleet.bags): the table and the run's speed; 1 when a bag failed."""
+    # absolute: a worker resolves a relative path in its own folder, not in this one
+    output = Path(os.path.abspath(args.output))
     if fleet_bags.is_many(args.bag):
-        outputs = [(bag, args.output / name) for bag, name in fleet_bags.find_bags(args.bag)]
+        outputs = [(Path(os.path.abspath(bag)), output / name)
+                   for bag, name in fleet_bags.find_bags(args.bag)]
     else:   # one bag on a cluster (--workers / --scheduler): the output is the one named
-        outputs = [(Path(args.bag), args.output)]
+        outputs = [(Path(os.path.abspath(args.bag)), output)]
+    # an output bag is written whole or not at all (staged, renamed): one that exists is complete
+    done = [output for _, output in outputs if output.exists()]
+    if done and not args.skip_existing:
+        raise tool_support.ToolError(
+            done[0], f'output already exists ({len(done)} of {len(outputs)}); --skip-existing '
+                     'keeps them and processes the rest, or remove them')
+    if done:
+        print(f'kept {len(done)} output bag{"s" if len(done) != 1 else ""} from an earlier run: '
+              f'{", ".join(str(p) for p in done)}', file=sys.stderr)
+        outputs = [(bag, output) for bag, output in outputs if output not in done]
+        if not outputs:
+            return 0
     # one thread per task: the workers are the parallelism (same results: compare=False)
     values = {**values, 'compute_threads': 1}
     jobs = [fleet_bags.BagJob(
@@ -90,20 +109,57 @@ def _process_many(args: argparse.Namespace, values: Mapping[str, Any], origin: s
         for bag, output in outputs]
     began = time.perf_counter()
     try:
-        with open_fleet(**fleet_options(args), tasks=len(jobs)) as fleet:
+        auto = args.workers is None and args.scheduler is None
+        work_s = fleet_bags.work_seconds(jobs, enough=60.0) if auto else None
+        with open_fleet(**fleet_options(args), tasks=len(jobs), work_s=work_s) as fleet:
             print(f'{len(jobs)} bag{"s" if len(jobs) != 1 else ""} on {fleet.description}',
                   file=sys.stderr, flush=True)
             outcomes = fleet_bags.process_bags(jobs, fleet)
+    except tool_support.ToolError:   # e.g. the cluster lost its workers: none half-written
+        fleet_bags.remove_stale_staging(jobs)
+        raise
     except KeyboardInterrupt:
         fleet_bags.remove_stale_staging(jobs)
+        kept = [job.output for job in jobs if job.output.exists()]
         print('bag_process.py: interrupted; the output bags not complete were removed',
               file=sys.stderr)
+        if kept:
+            print(f'kept {len(kept)} finished output bag{"s" if len(kept) != 1 else ""}: '
+                  f'{", ".join(str(p) for p in kept)}; the same command with --skip-existing '
+                  f'processes the other {len(jobs) - len(kept)}', file=sys.stderr)
         return 130
     print(fleet_bags.format_table(outcomes))
+    print('\n'.join(_used_lines(outcomes, args, values, mount_origin)))
     wall_s = time.perf_counter() - began
     frames = sum(o.processed for o in outcomes)
     print(f'{frames} frames in {wall_s:.1f} s: {frames / wall_s:.1f} frames/s overall')
     return 0 if all(o.error is None for o in outcomes) else 1
+
+
+def _used_lines(outcomes: Sequence[Any], args: argparse.Namespace, values: Mapping[str, Any],
+                mount_origin: str) -> list[str]:
+    """Say what the bags were processed with, as one bag's summary does: intrinsics, mount."""
+    from rosbags.rosbag2 import Reader, ReaderError
+
+    from obstacle_detection.ros.compressed_depth import raw_topic
+
+    found: dict[str, list[str]] = {}
+    for outcome in outcomes:
+        if outcome.error is not None:
+            continue
+        try:
+            with Reader(outcome.bag) as reader:
+                topics = {c.topic: c.msgtype for c in reader.connections}
+            topic, how = tool_support.choose_info_topic(topics, raw_topic(args.depth_topic),
+                                                        args.info_topic)
+            text = f'CameraInfo on {topic} ({how})' if topic else f'none recorded ({how})'
+        except (ReaderError, ValueError) as err:   # the task read it: not expected
+            text = f'not found again ({err})'
+        found.setdefault(text, []).append(str(outcome.bag))
+    config = config_from_values(values, 'the parameters')
+    return ([f'intrinsics: {text}: {", ".join(bags)}' for text, bags in found.items()]
+            + [f'camera mount: {tool_support.mount_text(config.detector.params)} '
+               f'({mount_origin})'])
 
 
 if __name__ == '__main__':

@@ -71,13 +71,14 @@ def save_pictures(folder: Path, recorder: Recorder, every: int,
     fused = by_stamp('/obstacles/fused_costmap', OccupancyGrid)
     saved: list[Path] = []
     thumbs: list[np.ndarray] = []
+    first_ns = min((sec * 10**9 + nsec for sec, nsec in grids), default=0)
     for k, stamp in enumerate(sorted(grids)):
         if k % every or stamp not in overlays:
             continue
         costmap = occupancy_grid_to_costmap(grids[stamp])
         cloud = clouds.get(stamp)
         points = int(cloud.width * cloud.height) if cloud is not None else 0
-        when = f'frame {k}, t = {stamp[0]}.{stamp[1]:09d} s'
+        when = f'frame {k}, {tool_support.time_text(stamp[0] * 10**9 + stamp[1], first_ns)}'
         caption = [f'{when}: {points} obstacle points, '
                    f'{int(np.count_nonzero(costmap.data == 100))} occupied cells']
 
@@ -267,7 +268,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--save-every', type=tool_support.int_in(1), default=5,
                         help='save pictures of one frame in N (default %(default)s)')
     tool_support.add_domain_id_option(
-        parser, 'ROS_DOMAIN_ID of the demo, 0-232 (default: 100-200 from the process id)')
+        parser, 'ROS_DOMAIN_ID of the demo, 0-232')
     return parser
 
 

@@ -12,6 +12,7 @@ run it on Dask.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import sys
 from pathlib import Path
@@ -19,20 +20,22 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from obstacle_detection.cli.evaluation_args import (REAL_FRAMES, add_common_arguments,
-                                                   base_params, frame_sources)
+from obstacle_detection.cli.evaluation_args import (REAL_FRAMES, SUITE_TEXT,
+                                                   add_common_arguments, base_params,
+                                                   frame_sources)
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.evaluation import runner as evaluation
 from obstacle_detection.fleet import scoring
-from obstacle_detection.fleet.cluster import add_fleet_arguments, fleet_options, open_fleet
-from obstacle_detection.labels import LABEL_OBSTACLE
-from obstacle_detection.pipeline.params import DetectorParams, Intrinsics
+from obstacle_detection.fleet.cluster import (TaskError, add_fleet_arguments, fleet_options,
+                                              open_fleet, run_tasks)
+from obstacle_detection.pipeline.params import DetectorParams
 from obstacle_detection.sim.sequences import SEQUENCE_NAMES
 
-#: Real frames: floor pixels lie within FLOOR_BAND_M of the fitted floor; standing pixels
-#: STANDING_M above it up to the robot height.
-FLOOR_BAND_M = 0.02
-STANDING_M = 0.05
+#: Real frames (``--real``), scored by scoring.real_frame_counts: floor pixels lie within
+#: FLOOR_BAND_M of the fitted floor; standing pixels STANDING_M above it up to the robot height.
+FLOOR_BAND_M = scoring.FLOOR_BAND_M
+STANDING_M = scoring.STANDING_M
+real_frame_counts = scoring.real_frame_counts
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -86,7 +89,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     params = base_params(args)
     if args.real is not None:
-        return _score_real_frames(args.real, params)
+        return _score_real_frames(args, params)
     if args.sequence:
         return _score_sequences(args, params)
     sources = frame_sources(args)
@@ -98,7 +101,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         sources, refiner = _train_refiner(args, params, sources)
     label = _label(args)
     refiner_name = str(args.refiner or args.train_refiner) if refiner is not None else None
-    with open_fleet(**fleet_options(args), tasks=len(sources)) as fleet:
+    with open_fleet(**fleet_options(args), tasks=len(sources),
+                    work_s=scoring.work_seconds(sources)) as fleet:
         if not args.quiet:
             print(f'evaluate: {len(sources)} sequences in {fleet.description}', file=sys.stderr,
                   flush=True)
@@ -106,11 +110,11 @@ def main(argv: Sequence[str] | None = None) -> int:
                                            refiner=refiner, refiner_name=refiner_name,
                                            progress=not args.quiet)
     out = sys.stderr if args.json == '-' else sys.stdout
-    print(f'parameters: {label}; {report.overall.frames} frames in {report.seconds:.1f} s',
-          file=out)
+    print(f'suite: {SUITE_TEXT[args.suite]}; parameters: {label}; {report.overall.frames} '
+          f'frames in {report.seconds:.1f} s', file=out)
     print(evaluation.format_table(report), file=out)
     if report.overall.robot is not None:
-        print('\nrobot level (issue 9):', file=out)
+        print('\nrobot table (objects found, drops, passable free, 1-cell F1):', file=out)
         print(evaluation.format_robot_table(report), file=out)
     if refiner is not None:
         print(f'\nrefined by {refiner_name} (seed 4.5 logistic regression):', file=out)
@@ -160,7 +164,7 @@ def _score_sequences(args: Any, params: DetectorParams) -> int:
     """Print the fused and per-frame scores of the sequences, the JSON line; the sheet."""
     from obstacle_detection.evaluation import video
     from obstacle_detection.pipeline.fusion import FusionParams
-    from obstacle_detection.sim.sequences import PERFECT_ODOMETRY, OdometryModel, SceneSequence
+    from obstacle_detection.sim.sequences import SceneSequence
 
     for name, value, low in (('--frames', args.frames, 1), ('--seed', args.seed, 0)):
         if value is not None and value < low:   # one error line, no usage block
@@ -169,21 +173,24 @@ def _score_sequences(args: Any, params: DetectorParams) -> int:
     fusion = FusionParams()
     if args.sheet is not None and args.sheet.suffix.lower() != '.png':
         raise tool_support.ToolError(args.sheet, 'the contact sheet must be a .png file')
-    reports = []
-    for name in SEQUENCE_NAMES if 'all' in args.sequence else args.sequence:
-        def progress(index: int, total: int, name: str = name) -> None:
-            if not args.quiet and (index + 1 == total or (index + 1) % 30 == 0):
-                print(f'evaluate: {name} frame {index + 1}/{total}', file=sys.stderr,
-                      flush=True)
-
-        sequence = SceneSequence(name, seed=args.seed, odometry=PERFECT_ODOMETRY
-                                 if args.exact_odometry else OdometryModel())
-        reports.append(video.evaluate_sequence(
-            sequence, params, fusion, stop=args.frames,
-            sheet_frames=8 if args.sheet is not None else 0,
-            on_frame=progress))
+    names = SEQUENCE_NAMES if 'all' in args.sequence else args.sequence
+    tasks = [(name, args.seed, args.exact_odometry, params, fusion, args.frames,
+              8 if args.sheet is not None else 0) for name in names]
+    frames = sum(min(len(SceneSequence(name)), args.frames or len(SceneSequence(name)))
+                 for name in names)
+    with open_fleet(**fleet_options(args), tasks=len(tasks),
+                    work_s=frames * scoring.SEQUENCE_FRAME_S) as fleet:
+        if not args.quiet:
+            print(f'evaluate: {len(tasks)} sequence{"s" if len(tasks) != 1 else ""} '
+                  f'({frames} frames) in {fleet.description}', file=sys.stderr, flush=True)
+        if fleet.distributed:   # one task per sequence
+            reports = run_tasks(fleet, scoring.score_video_sequence, tasks, label='sequences',
+                                progress=not args.quiet)
+        else:   # here, with a line every 30 frames
+            reports = [scoring.score_video_sequence(*task, on_frame=functools.partial(
+                _sequence_progress, args.quiet, task[0])) for task in tasks]
     out = sys.stderr if args.json == '-' else sys.stdout
-    print(f'parameters: {_label(args)}; fusion: {fusion}', file=out)
+    print(f'parameters: {_label(args)}; fusion: {_fusion_text(fusion)}', file=out)
     print(video.format_table(reports), file=out)
     if args.sheet is not None:
         from obstacle_detection.viz import pictures
@@ -193,6 +200,21 @@ def _score_sequences(args: Any, params: DetectorParams) -> int:
     _write_json(args.json, {'fusion': fusion.__dict__,
                             'sequences': [r.as_dict() for r in reports]})
     return 0
+
+
+def _fusion_text(fusion: Any) -> str:
+    """Return the fused costmap's settings in words (FusionParams, docs/fused_costmap.md)."""
+    return (f'a {fusion.size_m:g} m window at {fusion.resolution_m:g} m a cell; log-odds '
+            f'{fusion.hit_log_odds:+g} a hit, {fusion.miss_log_odds:+g} a miss, kept in '
+            f'[{fusion.min_log_odds:g}, {fusion.max_log_odds:g}]; occupied from '
+            f'{fusion.occupied_log_odds:g}, free below {fusion.free_log_odds:g}; an odometry '
+            f'jump over {fusion.max_jump_m:g} m or {fusion.max_jump_deg:g} deg in one frame '
+            're-anchors the map')
+
+
+def _sequence_progress(quiet: bool, name: str, index: int, total: int) -> None:
+    if not quiet and (index + 1 == total or (index + 1) % 30 == 0):
+        print(f'evaluate: {name} frame {index + 1}/{total}', file=sys.stderr, flush=True)
 
 
 def _label(args: Any) -> str:
@@ -208,59 +230,57 @@ def _write_json(path: str | None, data: dict) -> None:
         Path(path).write_text(line + '\n', encoding='utf-8')
 
 
-def _score_real_frames(folder: Path, params: DetectorParams) -> int:
-    """Print per real frame the floor pixels marked (lower is better), standing ones marked."""
+def _score_real_frames(args: Any, params: DetectorParams) -> int:
+    """Print per real frame the floor pixels marked (lower is better), standing ones marked.
+
+    The frames are read here and scored as tasks (``--workers``/``--scheduler``); the JSON
+    report holds the counts per frame and in total.
+    """
     from obstacle_detection.evaluation.datasets import read_depth_png
     from obstacle_detection.pipeline.depth import decode_depth
 
-    totals = np.zeros(4, np.int64)
+    frames = []
     for name, files, scale, intrinsics in REAL_FRAMES:
         for file in files:
-            path = folder / name / file
+            path = args.real / name / file
             try:
-                depth = decode_depth(read_depth_png(path), depth_scale=scale)
-                *counts, mount = real_frame_counts(depth, intrinsics, params)
+                frames.append((f'{name}/{file}', path, decode_depth(read_depth_png(path),
+                                                                    depth_scale=scale),
+                               intrinsics))
             except (OSError, ValueError) as exc:   # named with its path
                 raise tool_support.ToolError(
                     str(exc) if str(path) in str(exc) else f'{path}: {exc}') from None
-            totals += counts
-            print(f'{name}/{file}: floor marked {counts[1]}/{counts[0]} '
-                  f'({100.0 * counts[1] / max(counts[0], 1):.2f} %), standing marked '
-                  f'{counts[3]}/{counts[2]} ({100.0 * counts[3] / max(counts[2], 1):.1f} %)'
-                  f'  [{mount}]')
-    print(f'total: floor marked {100.0 * totals[1] / max(totals[0], 1):.2f} % of '
-          f'{totals[0]} px, standing marked {100.0 * totals[3] / max(totals[2], 1):.1f} % of '
-          f'{totals[2]} px')
+    with open_fleet(**fleet_options(args), tasks=len(frames),
+                    work_s=len(frames) * scoring.REAL_FRAME_S) as fleet:
+        if not args.quiet:
+            print(f'evaluate: {len(frames)} real frames in {fleet.description}',
+                  file=sys.stderr, flush=True)
+        results = run_tasks(fleet, scoring.real_frame_counts,
+                            [(depth, intrinsics, params) for _, _, depth, intrinsics in frames],
+                            label='real frames', progress=not args.quiet, return_errors=True)
+    out = sys.stderr if args.json == '-' else sys.stdout
+    totals = np.zeros(4, np.int64)
+    rows = []
+    for (name, path, _, _), result in zip(frames, results):
+        if isinstance(result, TaskError):
+            raise tool_support.ToolError(path, result.reason)
+        *counts, mount = result
+        totals += counts
+        rows.append({'frame': name, 'floor': counts[0], 'floor_marked': counts[1],
+                     'standing': counts[2], 'standing_marked': counts[3], 'mount': mount})
+        print(f'{name}: floor marked {counts[1]}/{counts[0]} '
+              f'({100.0 * counts[1] / max(counts[0], 1):.2f} %), standing marked '
+              f'{counts[3]}/{counts[2]} ({100.0 * counts[3] / max(counts[2], 1):.1f} %)'
+              f'  [{mount}]', file=out)
+    floor_pct = 100.0 * totals[1] / max(totals[0], 1)
+    standing_pct = 100.0 * totals[3] / max(totals[2], 1)
+    print(f'total: floor marked {floor_pct:.2f} % of {totals[0]} px, standing marked '
+          f'{standing_pct:.1f} % of {totals[2]} px', file=out)
+    _write_json(args.json, {'parameters': _label(args), 'frames': rows, 'total': {
+        'floor': int(totals[0]), 'floor_marked': int(totals[1]), 'standing': int(totals[2]),
+        'standing_marked': int(totals[3]), 'floor_marked_pct': round(floor_pct, 4),
+        'standing_marked_pct': round(standing_pct, 4)}})
     return 0
-
-
-def real_frame_counts(depth_m: np.ndarray, intrinsics: Intrinsics, params: DetectorParams,
-                      ) -> tuple[int, int, int, int, str]:
-    """Return (floor, floor marked, standing, standing marked, mount text) of one frame.
-
-    The mount is fitted to the floor; only pixels inside the region of interest count.
-    """
-    from obstacle_detection.pipeline import geometry
-    from obstacle_detection.pipeline.detector import Detector
-    from obstacle_detection.pipeline.mount import estimate_mount
-
-    est = estimate_mount(depth_m, intrinsics)
-    p = params.replace(camera_height_m=est.height_m, camera_pitch_rad=est.pitch_rad,
-                       camera_roll_rad=est.roll_rad)
-    result = Detector(p).process(depth_m, intrinsics)
-    rays = geometry.ground_rays(depth_m.shape, intrinsics, p)
-    d = depth_m.reshape(-1)
-    x, y = d * rays[0], d * rays[1]
-    z = d * rays[2] + np.float32(p.camera_height_m)
-    inside = (d > 0) & (x >= p.min_range_m) & (x <= p.max_range_m) & (
-        np.abs(y) <= p.lateral_limit_m)
-    marked = result.labels.reshape(-1) == LABEL_OBSTACLE
-    on_floor = inside & (np.abs(z) <= FLOOR_BAND_M)
-    standing = inside & (z >= STANDING_M) & (z <= p.robot_height_m)
-    mount = (f'h {est.height_m:.2f} m, pitch {est.pitch_deg:.1f} deg, '
-             f'roll {est.roll_deg:.1f} deg; {result.floor.summary()}')
-    return (int(on_floor.sum()), int((on_floor & marked).sum()), int(standing.sum()),
-            int((standing & marked).sum()), mount)
 
 
 if __name__ == '__main__':

@@ -233,7 +233,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--set', action='append', default=[], metavar='NAME:=VALUE',
                         help='node parameter override, e.g. median_kernel:=5 (repeatable)')
     tool_support.add_domain_id_option(
-        parser, 'ROS_DOMAIN_ID, 0-232 (default: 100-200 from the process id)')
+        parser, 'ROS_DOMAIN_ID, 0-232')
     return parser
 
 

@@ -23,7 +23,7 @@ if [ ! -f "$stamp" ]; then
   .venv/bin/python -m pip install --quiet --no-deps -e .
   # Fill numba's cache once, so the node's first start already runs compiled. Not required:
   # a node with an empty cache answers on the numpy path while it compiles in the background.
-  echo "setup_venv.sh: compiling the optional numba kernels once (about 20-40 s)..." >&2
+  echo "setup_venv.sh: compiling the optional numba kernels once (about a minute on two cores)..." >&2
   .venv/bin/python -c 'from obstacle_detection.pipeline import Detector
 print(f"setup_venv.sh: numba kernels ready in {Detector().warm_up():.1f} s")' >&2 \
     || echo "setup_venv.sh: warning: compiling the numba kernels failed; the node will" \

@@ -28,8 +28,11 @@ from obstacle_detection.evaluation.sweep import (METRICS, SweepResult, format_gr
                                                  parse_axis)
 from obstacle_detection.pipeline.params import DetectorParams
 from obstacle_detection.cli import support as tool_support
-from obstacle_detection.cli.evaluation_args import (add_common_arguments, base_params,
-                                                   frame_sources)
+from obstacle_detection.cli.evaluation_args import (SUITE_TEXT, add_common_arguments,
+                                                   base_params, frame_sources)
+
+#: Frames per scenario unless --max-frames says otherwise (a grid scores every frame per point).
+DEFAULT_MAX_FRAMES = 1
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -44,11 +47,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--metric', choices=sorted(METRICS), default='cell_f1',
                         help='score to grid and maximise (false alarms: minimise) '
                              '[default: cell_f1]')
-    add_common_arguments(parser)
-    parser.set_defaults(max_frames=1)
-    parser.add_argument('--out', type=Path, default=Path('sweep.png'),
+    # the seed suite: the sweeps tune the seed's parameters, as its figures 4.18 and 4.19 do
+    add_common_arguments(parser, suite='seed', max_frames=DEFAULT_MAX_FRAMES)
+    parser.add_argument('--out', type=Path, default=Path('out') / 'sweep.png',
                         help='heatmap PNG (one panel per scenario + overall) '
-                             '[default: sweep.png]')
+                             '[default: out/sweep.png]')
     parser.add_argument('--json', type=Path, metavar='FILE', help='also write the grids as JSON')
     add_fleet_arguments(parser)
     return parser
@@ -61,7 +64,13 @@ def _log(text: str) -> None:
 def _print_result(args: argparse.Namespace, result: SweepResult, frame_count: int) -> None:
     """Print the grids and the best setting per scenario."""
     scenes = list(result.grids)
-    print(f'parameters: {args.preset}; {frame_count} frames; '
+    frames = ('every frame' if args.max_frames is None else
+              f'{args.max_frames} frame{"s" if args.max_frames != 1 else ""} per scenario '
+              f'(--max-frames {args.max_frames}'
+              + (', the default of sweep; evaluate scores every frame)'
+                 if args.max_frames == DEFAULT_MAX_FRAMES else ')'))
+    print(f'suite: {SUITE_TEXT[args.suite]}, {frames}; parameters: {args.preset}; '
+          f'{frame_count} frames; '
           f'{"higher" if METRICS[args.metric][2] else "lower"} is better; * = best')
     print(format_grid(result, 'overall'))
     print()
@@ -97,7 +106,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     sources = frame_sources(args)
 
     def score(points: list[DetectorParams]) -> list[list[evaluation.FrameScore]]:
-        with open_fleet(**fleet_options(args), tasks=len(points) * len(sources)) as fleet:
+        with open_fleet(**fleet_options(args), tasks=len(points) * len(sources),
+                        work_s=scoring.work_seconds(sources, len(points))) as fleet:
             _log(f'{len(points)} settings x {len(sources)} scenarios on {fleet.description}')
             return scoring.score_points(fleet, sources, points, label='sweep')
 
@@ -120,13 +130,23 @@ def _write_heatmaps(args: argparse.Namespace, result: SweepResult) -> None:
     for scene in result.grids:
         flat, metric, higher = result.ranking(scene)
         best = result.best(scene)
-        title = f'{scene}: {metric}' + ('' if higher else ' (colour: 1 - value)')
+        title = f'{scene}: {metric}' + ('' if higher else ' (colour: 1 - it)')
         panels.append(pictures.heatmap(
             flat if higher else 1.0 - flat, list(args.x.values),
             list(args.y.values) if args.y else [''], title=title, x_name=args.x.name,
             y_name=args.y.name if args.y else '', best=best,
             values=flat))
-    pictures.write_png(args.out, pictures.tile(panels, columns=3))
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    grid = pictures.tile(panels, columns=3)
+    axes = args.x.name + (f' x {args.y.name}' if args.y else '')
+    frames = ('every frame' if args.max_frames is None else
+              f'{args.max_frames} frame{"s" if args.max_frames != 1 else ""} per scenario')
+    scale = pictures.colour_bar(grid.shape[1], 'colour: the score, on one scale 0 to 1 in every '
+                                'panel; a rate to minimise (false alarms) as 1 - it, so yellow is '
+                                'better everywhere')
+    pictures.write_png(args.out, pictures.titled(
+        grid, f'sweep of {axes}: {args.metric} per scenario ({args.suite} suite, {frames}, '
+              f'preset {args.preset}); red box: the best setting', below=scale))
 
 
 if __name__ == '__main__':

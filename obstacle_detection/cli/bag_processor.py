@@ -10,7 +10,7 @@ from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from rclpy.serialization import deserialize_message, serialize_message
+from rclpy.serialization import deserialize_message
 from rosbags.rosbag2 import Reader, ReaderError, Writer, WriterError
 from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
@@ -18,17 +18,30 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.cli.support import ToolError
 from obstacle_detection.cli.bag_writer import (BAG_VERSION, DEFAULT_DEPTH_TOPIC, STORAGES,
-                                               staged_output)
+                                               cdr_bytes, staged_output)
 from obstacle_detection.cli.progress import Progress
 from obstacle_detection.ros import frame_gate
 from obstacle_detection.ros.compressed_depth import COMPRESSED_IMAGE_TYPE, raw_topic
 from obstacle_detection.ros.config import NodeConfig, build_config
 from obstacle_detection.ros.conversions import result_to_messages
 from obstacle_detection.ros.frame_gate import CameraState
-from obstacle_detection.ros.parameters import ALL_PARAMS, read_params_files
+from obstacle_detection.ros.mount_source import MountSource, StaticTransforms
+from obstacle_detection.ros.parameters import (ALL_PARAMS, params_file_problems,
+                                               read_params_files)
 from obstacle_detection.viz.overlay import render_overlay
 
 DEFAULT_NAMESPACE = '/obstacles'
+#: With use_tf, the camera mount comes from this topic's transforms (tf2_msgs/TFMessage).
+TF_STATIC = '/tf_static'
+#: The floor of every this many processed frames is checked against the mount (a RANSAC fit of
+#: 0.1-0.4 s a 640x480 frame); with refine_floor on, every frame whose floor the per-frame fit
+#: found beyond its bounds is checked too, so a camera that tilts mid-recording is reported.
+MOUNT_CHECK_EVERY = 60
+#: Fix named by a mount warning: of the parameters, or (use_tf) of the bag's /tf_static.
+MOUNT_FIX = ('a --params-file setting camera_height_m, camera_pitch_deg and camera_roll_deg '
+             '(tools/estimate_mount.py --params-out writes one from a depth frame)')
+MOUNT_FIX_TF = ("the camera joint of the URDF the bag's /tf_static was recorded with "
+                '(tools/estimate_mount.py measures the mount from a depth frame)')
 #: result_to_messages key -> (topic below the namespace, message type).
 OUTPUTS = {
     'obstacles': ('points', 'sensor_msgs/msg/PointCloud2'),
@@ -45,6 +58,9 @@ def node_param_values(path: Path | Sequence[Path]) -> dict[str, Any]:
     values: dict[str, Any] = {spec.name: spec.default for spec in ALL_PARAMS}
     paths = [path] if isinstance(path, (str, Path)) else list(path)
     values.update(read_params_files(paths))   # RosInputError: a ValueError, one line
+    for path in paths:   # what the node would ignore, said as the node says it
+        for problem in params_file_problems(path):
+            tool_support.warn(problem)
     return values
 
 
@@ -72,6 +88,9 @@ class ProcessSummary:
     info_how: str = ''
     mount: str = ''
     mount_warning: str | None = None
+    #: frames (1-based) whose floor was checked against the mount, and those it did not fit
+    mount_checked: list[int] = dataclasses.field(default_factory=list)
+    mount_off: list[int] = dataclasses.field(default_factory=list)
     notes: list[str] = dataclasses.field(default_factory=list)
 
     def lines(self) -> list[str]:
@@ -85,6 +104,12 @@ class ProcessSummary:
         out.extend(f'    skipped {count}: {reason}' for reason, count in self.skipped.items())
         if self.mount_warning:
             out.append(f'  warning: {self.mount_warning}')
+        if self.mount_off:
+            shown = ', '.join(str(k) for k in self.mount_off[:10])
+            more = ', ...' if len(self.mount_off) > 10 else ''
+            out.append(f'  warning: the floor did not fit the mount in {len(self.mount_off)} of '
+                       f'the checked frames: frame{"s" if len(self.mount_off) > 1 else ""} '
+                       f'{shown}{more} ({len(self.mount_checked)} checked)')
         out.extend(f'  note: {note}' for note in self.notes)
         if self.total_ms:
             rate = self.processed / self.wall_s if self.wall_s > 0 else 0.0
@@ -97,9 +122,14 @@ class ProcessSummary:
 
 
 def process_frame(depth: Image | CompressedImage, cameras: Sequence[CameraState],
-                  config: NodeConfig, *, with_ground: bool, with_overlay: bool
+                  config: NodeConfig, *, with_ground: bool, with_overlay: bool,
+                  mounts: MountSource | None = None,
                   ) -> tuple[dict[str, Any] | None, Any, str, str | None]:
-    """Run one depth message (raw or compressed) through the node's gate and pipeline."""
+    """Run one depth message (raw or compressed) through the node's gate and pipeline.
+
+    mounts: with use_tf, the mount from the bag's static transforms (as the node's from TF):
+    a frame they do not place is skipped, never placed by the mount parameters.
+    """
     array = frame_gate.decode(depth)
     if isinstance(array, frame_gate.Skip):
         return None, None, array.reason, None
@@ -115,11 +145,21 @@ def process_frame(depth: Image | CompressedImage, cameras: Sequence[CameraState]
     skip = frame_gate.check_depth(array, depth)
     if skip is not None:
         return None, None, skip.reason, None
+    detector = config.detector
+    if mounts is not None:
+        parameters = config.mount()
+        mount = mounts.mount_for(depth.header.frame_id, None, parameters)
+        if mount is None:
+            return None, None, f"{mounts.last_problem}, the bag's {TF_STATIC}", None
+        try:
+            detector = detector if mount == parameters else config.detector_for(mount)
+        except ValueError as err:
+            return None, None, f'the mount from TF cannot be used: {err}', None
     try:
-        result = config.detector.process(array, verdict.intrinsics)
+        result = detector.process(array, verdict.intrinsics)
     except ValueError as err:
         return None, None, str(err), None
-    marks, _ = config.nav2_clouds(result, config.detector.params)   # the node's marks
+    marks, _ = config.nav2_clouds(result)   # the node's marks
     messages = result_to_messages(
         result, stamp=depth.header.stamp, cloud_frame_id=config.cloud_frame_id,
         costmap_frame_id=config.costmap_frame_id, image_frame_id=depth.header.frame_id,
@@ -179,11 +219,16 @@ def process_bag(src: Path, output: Path, config: NodeConfig, *,
                                                         typestore=typestore) for key in wanted}
                 cameras: deque[CameraState] = deque(maxlen=frame_gate.CAMERA_INFO_HISTORY)
                 counts: Counter[str] = Counter()
+                mounts = _tf_mounts(reader, config, summary)
                 for conn, timestamp, raw in _grouped_by_timestamp(
                         reader.messages(), summary.info_topic):
                     writer.write(copies[conn.id], timestamp, raw)
                     counts[conn.topic] += 1
-                    if conn.topic == summary.info_topic:
+                    if conn.topic == TF_STATIC and mounts is not None:
+                        for transform in typestore.deserialize_cdr(
+                                bytes(raw), conn.msgtype).transforms:
+                            mounts.buffer.add(transform)
+                    elif conn.topic == summary.info_topic:
                         camera = CameraState.from_camera_info(
                             deserialize_message(bytes(raw), CameraInfo))
                         frame_gate.keep_camera(cameras, camera)
@@ -191,11 +236,10 @@ def process_bag(src: Path, output: Path, config: NodeConfig, *,
                               f'CameraInfo on {summary.info_topic}: {camera.note}')
                     elif conn.topic == depth_topic:
                         messages = _frame(deserialize_message(bytes(raw), depth_class),
-                                          list(cameras), config, summary,
+                                          list(cameras), config, summary, mounts=mounts,
                                           with_ground=with_ground, with_overlay=with_overlay)
                         for key in wanted if messages is not None else ():
-                            writer.write(out_conns[key], timestamp,
-                                         serialize_message(messages[key]))
+                            writer.write(out_conns[key], timestamp, cdr_bytes(messages[key]))
                             counts[outputs[key]] += 1
                         bar.update()
     except ReaderError as err:
@@ -228,30 +272,56 @@ def _check_topics(reader: Reader, src: Path, depth_topic: str, info_topic: str |
     return DEPTH_TYPES[topics[depth_topic]]
 
 
+def _tf_mounts(reader: Reader, config: NodeConfig, summary: ProcessSummary,
+               ) -> MountSource | None:
+    """With use_tf, the mount source fed by the bag's static transforms; else None."""
+    if not config.values['use_tf']:
+        return None
+    if not any(c.topic == TF_STATIC and c.msgtype == 'tf2_msgs/msg/TFMessage'
+               for c in reader.connections):
+        _note(summary, f'use_tf is set but the bag has no {TF_STATIC} (tf2_msgs/TFMessage): '
+                       'no frame can be placed (record it, or set use_tf: false to use the '
+                       'mount parameters)')
+    summary.mount = f"from the bag's {TF_STATIC}: {config.cloud_frame_id} <- the frames' frame_id"
+    return MountSource(StaticTransforms(), config.cloud_frame_id, static=True)
+
+
 def _note(summary: ProcessSummary, note: str | None) -> None:
     if note is not None and note not in summary.notes:
         summary.notes.append(note)
 
 
+def _floor_out_of_bounds(floor: Any) -> bool:
+    """Whether the per-frame floor fit found the floor too far from the mount to use it."""
+    return floor is not None and not floor.refined and floor.reason.startswith('fitted floor')
+
+
 def _frame(depth: Any, cameras: Sequence[CameraState], config: NodeConfig,
-           summary: ProcessSummary, *, with_ground: bool, with_overlay: bool
-           ) -> dict[str, Any] | None:
+           summary: ProcessSummary, *, with_ground: bool, with_overlay: bool,
+           mounts: MountSource | None = None) -> dict[str, Any] | None:
     """Process one depth message, counting it in ``summary``; its messages."""
     summary.frames += 1
     messages, result, reason, note = process_frame(
-        depth, cameras, config, with_ground=with_ground, with_overlay=with_overlay)
+        depth, cameras, config, with_ground=with_ground, with_overlay=with_overlay,
+        mounts=mounts)
     _note(summary, note)
     if messages is None:
         summary.skipped[reason] += 1
         return None
-    if summary.processed == 0:   # the floor of the first frame against the mount
-        check = tool_support.check_mount(
-            result.depth_m, result.intrinsics, config.detector.params,
-            fix='a --params-file setting camera_height_m, camera_pitch_deg and camera_roll_deg '
-                '(tools/estimate_mount.py --params-out writes one from a depth frame)')
+    if summary.processed == 0 and mounts is not None:
+        summary.mount = f"{mounts.source} (the bag's {TF_STATIC}): " + \
+            tool_support.mount_text(result.pose.nominal)
+    if summary.processed % MOUNT_CHECK_EVERY == 0 or _floor_out_of_bounds(result.floor):
+        number = summary.processed + 1
+        check = tool_support.check_mount(result.depth_m, result.intrinsics,
+                                         result.pose.nominal,
+                                         fix=MOUNT_FIX if mounts is None else MOUNT_FIX_TF)
+        summary.mount_checked.append(number)
         if check.warning:
-            summary.mount_warning = f'first frame: {check.warning}'
-            tool_support.warn(summary.mount_warning)
+            summary.mount_off.append(number)
+            if summary.mount_warning is None:   # said once; the summary counts the others
+                summary.mount_warning = f'frame {number}: {check.warning}'
+                tool_support.warn(summary.mount_warning)
     summary.obstacle_points += int(result.obstacle_points.shape[0])
     summary.processed += 1
     summary.total_ms.append(result.timings_ms.get('total', 0.0))

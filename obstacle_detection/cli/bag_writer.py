@@ -31,6 +31,7 @@ DEFAULT_FRAME_ID = 'kinect2_ir_optical_frame'
 DEFAULT_ODOM_TOPIC = '/odom'
 BAG_VERSION = 9
 STORAGES = {'sqlite3': StoragePlugin.SQLITE3, 'mcap': StoragePlugin.MCAP}
+_JAZZY = get_typestore(Stores.ROS2_JAZZY)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -68,6 +69,19 @@ class Summary:
             out.extend(f'    {count}: {reason}' for reason, count in self.dropped.items())
         out.extend(f'  note: {note}' for note in self.notes)
         return out
+
+
+def cdr_bytes(msg: Any) -> bytes:
+    """Serialize an rclpy message as ``serialize_message`` does, with its padding bytes zeroed.
+
+    rmw's CDR serializer leaves the alignment padding inside a message (after PointField's
+    datatype, before a uint32 after a bool...) uninitialised, so equal messages gave different
+    bytes from run to run. rosbags' serializer writes zeros there: one round trip through it
+    keeps every field (rclpy reads the result back equal) and makes the bytes reproducible.
+    """
+    msgtype = f'{type(msg).__module__.split(".")[0]}/msg/{type(msg).__name__}'
+    return bytes(_JAZZY.serialize_cdr(_JAZZY.deserialize_cdr(serialize_message(msg), msgtype),
+                                      msgtype))
 
 
 @contextlib.contextmanager
@@ -120,7 +134,8 @@ def write_frames(source: FrameSource, output: Path, options: BagOptions) -> Summ
     intr, origin = source.intrinsics, source.intrinsics_origin
     if intr is None:
         intr, origin = default_intrinsics(source.default_view, size)
-        tool_support.warn(f'no intrinsics given (--intrinsics FILE): using {origin}, '
+        tool_support.warn(f'no intrinsics given (--intrinsics FILE or FX,FY,CX,CY): using '
+                          f'{origin}, '
                           f'fx={intr.fx:.2f} fy={intr.fy:.2f} cx={intr.cx:.2f} '
                           f'cy={intr.cy:.2f}. Obstacle positions are only as right as these '
                           'values.')
@@ -147,7 +162,7 @@ def write_frames(source: FrameSource, output: Path, options: BagOptions) -> Summ
                         msgtype = f'{type(msg).__module__.split(".")[0]}/msg/{type(msg).__name__}'
                         connections[topic] = writer.add_connection(topic, msgtype,
                                                                    typestore=typestore)
-                    writer.write(connections[topic], stamp, serialize_message(msg))
+                    writer.write(connections[topic], stamp, cdr_bytes(msg))
                     summary.topics[topic] += 1
                     summary.messages += 1
 
@@ -175,9 +190,32 @@ def write_frames(source: FrameSource, output: Path, options: BagOptions) -> Summ
     return summary
 
 
+#: The first line of a ROS 1 bag file.
+ROS1_MAGIC = b'#ROSBAG V2.0'
+_NO_CONVERSION = 'needs no conversion (bag_play, bag_process and pictures --bag read it)'
+
+
+def check_ros1_bag(src: Path) -> None:
+    """Raise EvaluationError unless ``src`` is a ROS 1 bag file, saying what it is instead."""
+    if src.is_dir():
+        if (src / 'metadata.yaml').is_file():
+            raise EvaluationError(f'{src}: a rosbag2 bag, not a ROS 1 bag: it {_NO_CONVERSION}')
+        raise EvaluationError(f'{src}: a folder, not a ROS 1 .bag file')
+    if not src.is_file():
+        raise EvaluationError(f'{src}: ROS 1 bag not found')
+    with open(src, 'rb') as stream:
+        head = stream.read(len(ROS1_MAGIC))
+    if head == ROS1_MAGIC:
+        return
+    if src.suffix in ('.db3', '.mcap') and (src.parent / 'metadata.yaml').is_file():
+        raise EvaluationError(f'{src}: a rosbag2 storage file, not a ROS 1 bag: its folder '
+                              f'{src.parent} is a rosbag2 bag already and {_NO_CONVERSION}')
+    raise EvaluationError(f'{src}: not a ROS 1 bag (no "{ROS1_MAGIC.decode()}" header)')
+
+
 def convert_ros1(src: Path, output: Path, *, storage: str = 'sqlite3',
                  topics: Sequence[str] = (), progress: bool = True) -> Summary:
-    """Convert a ROS 1 bag to rosbag2, every message to its ROS 2 Jazzy type (EvaluationError).
+    """Convert a ROS 1 bag to rosbag2, every message to its ROS 2 Jazzy type.
 
     Compressed depth topics are kept as recorded (the node, with its ``depth_transport``, and
     ``bag_process.py --depth-topic`` read them).
@@ -185,8 +223,7 @@ def convert_ros1(src: Path, output: Path, *, storage: str = 'sqlite3',
     from rosbags.convert.converter import create_connections_converters
     from rosbags.highlevel import AnyReader, AnyReaderError
 
-    if not src.is_file():
-        raise EvaluationError(f'{src}: ROS 1 bag not found')
+    check_ros1_bag(src)
     summary = Summary(output=output)
     with staged_output(output) as staging:
         try:

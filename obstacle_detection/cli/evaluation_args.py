@@ -8,7 +8,8 @@ from typing import Any, Iterable
 
 from obstacle_detection.cli import support as tool_support
 from obstacle_detection.evaluation import runner as evaluation
-from obstacle_detection.pipeline.params import PRESETS, DetectorParams, Intrinsics
+from obstacle_detection.pipeline.params import PRESETS, DetectorParams, Intrinsics, frame_budget
+from obstacle_detection.ros.parameters import params_file_problems
 
 #: The frames of ../shared/data/real/README.md: (folder, files, units per metre, intrinsics).
 REAL_FRAMES = (
@@ -28,16 +29,24 @@ def parse_assignment(text: str) -> tuple[str, str]:
     return key.strip(), value.strip()
 
 
-def add_common_arguments(parser: argparse.ArgumentParser) -> None:
-    """Frame-source and parameter options shared by evaluate and sweep."""
-    parser.add_argument('--suite', choices=sorted(evaluation.SUITES), default='seed',
+#: What each suite is, as the tools' headers name it.
+SUITE_TEXT = {'seed': "seed (scenarios.json, the seed's slope-only truth)",
+              'robot': 'robot (scenarios_robot.json, robot-level truth)'}
+
+
+def add_common_arguments(parser: argparse.ArgumentParser, *, suite: str = 'robot',
+                         max_frames: int | None = None) -> None:
+    """Frame-source and parameter options shared by evaluate and sweep, with their defaults."""
+    parser.add_argument('--suite', choices=sorted(evaluation.SUITES), default=suite,
                         help="committed scenario suite: 'seed' (scenarios.json, the "
                              "seed's slope-only truth) or 'robot' (scenarios_robot.json, "
-                             'robot-level truth, time-of-flight noise) [default: seed]')
+                             'robot-level truth, time-of-flight noise, the README\'s table) '
+                             f'[default: {suite}]')
     parser.add_argument('--scene', action='append', metavar='NAME',
                         help='evaluate only this scenario (repeatable) [default: all]')
-    parser.add_argument('--max-frames', type=int, metavar='N',
-                        help='at most N frames per scenario, evenly spread')
+    parser.add_argument('--max-frames', type=int, metavar='N', default=max_frames,
+                        help='at most N frames per scenario, evenly spread '
+                             f'[default: {max_frames or "every frame"}]')
     add_parameter_arguments(parser)
 
 
@@ -57,13 +66,26 @@ def add_parameter_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def base_params(args: argparse.Namespace) -> DetectorParams:
-    """Preset, then parameter file, then ``--set`` overrides (ValueError on a bad one)."""
+    """Preset, then parameter file, then ``--set`` overrides (ValueError on a bad one).
+
+    A set beyond a frame's budget (``frame_budget``, docs/budget.md) is refused: from the
+    parameter files, bad input (exit 1); from ``--set``, a usage error (exit 2).
+    """
     params = PRESETS[args.preset]()
     for path in args.params_file:  # several files apply in order, as ROS merges them
         params = evaluation.load_params_file(path, params)
+        for problem in params_file_problems(path):   # what the node would ignore, as it says
+            tool_support.warn(problem)
+    problem = frame_budget(params).problem()   # a combination beyond a frame's budget
+    if problem is not None:
+        raise tool_support.ToolError(
+            ', '.join(map(str, args.params_file)) or f'--preset {args.preset}', problem)
     if args.set:
         try:
             params = evaluation.apply_overrides(params, dict(args.set))
+            problem = frame_budget(params).problem()
+            if problem is not None:
+                raise ValueError(problem)
         except ValueError as exc:
             raise tool_support.ToolError(f'argument --set: {exc}', usage=True) from None
     return params

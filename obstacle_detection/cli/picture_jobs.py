@@ -204,8 +204,8 @@ def detect(args: argparse.Namespace) -> list[tuple[_Job, Any]]:
 
 def draw(job: _Job, result: Any, **options: Any) -> np.ndarray:
     """Return the picture of one detected frame (``pictures.side_by_side``), without title."""
-    return pictures.side_by_side(result, job.params, caption=job.name,
-                                 extra_lines=job.extra_lines, **options)
+    options.setdefault('extra_lines', job.extra_lines)
+    return pictures.side_by_side(result, job.params, caption=job.name, **options)
 
 
 def rule_text(params: DetectorParams) -> str:
@@ -217,15 +217,23 @@ def sheet(detected: Sequence[tuple[_Job, Any]]) -> np.ndarray:
     """Return the contact sheet of several frames, with one full-size legend underneath."""
     depths = [np.asarray(result.depth_m) for _, result in detected]
     farthest = max(float(d[np.isfinite(d) & (d > 0)].max(initial=0.0)) for d in depths) or 1.0
+    # the lines every frame shares (mount, intrinsics) once under the sheet, not per thumbnail
+    shared = [line for line in detected[0][0].extra_lines
+              if all(line in job.extra_lines for job, _ in detected)]
     images = [pictures.fit_width(
-        lambda scale, job=job, result=result: draw(job, result, with_legend=False,
-                                                   max_depth_m=farthest, image_scale=scale),
+        lambda scale, job=job, result=result: draw(
+            job, result, with_legend=False, max_depth_m=farthest, image_scale=scale,
+            extra_lines=[line for line in job.extra_lines if line not in shared]),
         SHEET_THUMB_PX) for job, result in detected]
     grid = pictures.tile(images, columns=SHEET_COLUMNS)
     job, result = detected[0]
     legend = pictures.legend_row([(grid.shape[1] - 6) // 2] * 2, job.params,
                                  truth=False, above_robot=pictures.above_robot_pixels(
                                      result, job.params) is not None)
+    if shared:
+        legend = np.vstack([legend, pictures.caption_band(
+            pictures.wrap(shared, legend.shape[1]),
+            legend.shape[1])])
     return pictures.titled(grid, f'{len(detected)} frames: obstacles in the depth image and '
                                  f'the costmap ({rule_text(job.params)})', below=legend)
 
@@ -278,16 +286,18 @@ def bag_frames(path: str | Path, depth_topic: str, info_topic: str | None = None
         wanted = [c for c in reader.connections if c.topic in (depth_topic, info_topic)]
         intrinsics: Intrinsics | None = None
         index = -1
+        first_ns: int | None = None
         for connection, _, raw in reader.messages(connections=wanted):
             msg = reader.deserialize(raw, connection.msgtype)
             if connection.topic != depth_topic:
                 intrinsics = camera_info_to_intrinsics(msg)
                 continue
             index += 1
+            stamp_ns = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+            first_ns = stamp_ns if first_ns is None else first_ns
             if frames is not None and index >= frames.stop:
                 return
             if intrinsics is None or (frames is not None and index not in frames):
                 continue
-            stamp = msg.header.stamp
-            yield (f'{depth_topic} #{index} t={stamp.sec}.{stamp.nanosec:09d}',
+            yield (f'{depth_topic} #{index}, {tool_support.time_text(stamp_ns, first_ns)}',
                    image_to_array(msg), intrinsics, f'CameraInfo on {info_topic} ({how})')

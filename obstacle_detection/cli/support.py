@@ -155,6 +155,14 @@ def mount_text(params: DetectorParams) -> str:
             f'{math.degrees(params.camera_roll_rad):.1f} deg')
 
 
+def time_text(stamp_ns: int, first_ns: int) -> str:
+    """Return ``t = 1.667 s``, a message's time after the first of its recording.
+
+    A stamp read as a date (1796279833.666666667) says nothing at a glance.
+    """
+    return f't = {(stamp_ns - first_ns) / 1e9:.3f} s'
+
+
 def intrinsics_warning(intrinsics: Intrinsics, shape: tuple[int, int]) -> str | None:
     """Why these intrinsics do not fit an (H, W) image (principal point off centre), or None."""
     height, width = shape
@@ -258,9 +266,26 @@ domain_id = int_in(0, 232)
 
 
 def add_domain_id_option(parser: argparse.ArgumentParser, help_text: str) -> None:
-    """Add ``--domain-id`` (a ROS domain of the run's own, default 100-200 from the pid)."""
-    parser.add_argument('--domain-id', type=domain_id, default=100 + os.getpid() % 101,
-                        metavar='ID', help=help_text)
+    """Add ``--domain-id``: default an exported ROS_DOMAIN_ID, else 100-200 from the pid.
+
+    A user in a domain of their own sees the run's topics there; without one, the run gets a
+    domain of its own so that two runs on a machine do not mix.
+    """
+    exported = os.environ.get('ROS_DOMAIN_ID', '').strip()
+
+    def parse(text: str) -> int:
+        try:
+            return domain_id(text)
+        except argparse.ArgumentTypeError as err:
+            if exported and text == exported:
+                raise argparse.ArgumentTypeError(
+                    f'ROS_DOMAIN_ID={exported!r} (from the environment) {err}') from None
+            raise
+
+    parser.add_argument('--domain-id', type=parse,
+                        default=exported or str(100 + os.getpid() % 101), metavar='ID',
+                        help=f'{help_text} (default: ROS_DOMAIN_ID when exported, else 100-200 '
+                             'from the process id)')
 
 
 def add_topic_options(parser: argparse.ArgumentParser) -> None:

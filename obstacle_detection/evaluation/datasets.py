@@ -116,10 +116,12 @@ def _require_dir(path: Path, what: str) -> None:
         raise EvaluationError(f'{path}: {what} folder not found')
 
 
-def _optional_intrinsics(path: Path | None
+def _optional_intrinsics(path: Path | Intrinsics | None
                          ) -> tuple[Intrinsics | None, str, tuple[int, int] | None]:
     if path is None:
         return None, '', None
+    if isinstance(path, Intrinsics):
+        return path, 'given (--intrinsics)', None
     intr, size = load_intrinsics(path)
     return intr, f'from {path}', size
 
@@ -147,7 +149,8 @@ def _pair_by_key(depth: dict[str, Path], color: dict[str, Path], depth_dir: Path
             raise EvaluationError(f'{path}: no colour image for this depth image in {color_dir}')
 
 
-def diml_frames(sequence: Path, *, depth_kind: str = 'raw', intrinsics_path: Path | None = None,
+def diml_frames(sequence: Path, *, depth_kind: str = 'raw',
+                intrinsics_path: Path | Intrinsics | None = None,
                 rate_hz: float = 30.0, start_s: float = 0.0,
                 with_color: bool = True) -> FrameSource:
     """List the frames of one DIML/CVL indoor sequence folder (``<scene>/<date>/<n>``).
@@ -188,14 +191,61 @@ def diml_frames(sequence: Path, *, depth_kind: str = 'raw', intrinsics_path: Pat
                        default_view='depth' if depth_kind == 'raw' else 'color', notes=notes)
 
 
-def folder_frames(depth_dir: Path, *, color_dir: Path | None = None,
-                  intrinsics_path: Path | None = None, rate_hz: float = 30.0,
-                  start_s: float = 0.0, depth_units_per_m: float | None = None) -> FrameSource:
-    """List a folder of depth PNGs (and a colour folder), sorted by name, stamped by rate.
+#: File endings of depth images a folder may hold (16-bit PNG or PGM) and of colour images.
+DEPTH_SUFFIXES = ('.png', '.pgm')
+COLOR_SUFFIXES = ('.png', '.jpg', '.jpeg', '.ppm')
+#: The word naming a colour image beside a depth image (``color_1.png`` beside ``depth_1.pgm``).
+_COLOR_WORD = re.compile(r'colou?r|rgb', re.IGNORECASE)
+_DEPTH_WORD = re.compile(r'depth', re.IGNORECASE)
 
-    depth_units_per_m: of the PNGs (``--depth-scale``; 5000 for TUM frames); None: 1000
-    (millimetres), the default, and a first frame that looks like another unit is refused
-    (:func:`obstacle_detection.cli.bag_writer.write_frames`).
+
+def natural_key(path: Path) -> list[object]:
+    """Sort key of a file name with its numbers as numbers (``depth_2`` before ``depth_10``)."""
+    return [int(part) if part.isdigit() else part.lower()
+            for part in re.split(r'(\d+)', path.name)]
+
+
+def split_depth_and_color(folder: Path) -> tuple[list[Path], dict[Path, Path]]:
+    """Return the depth images of ``folder`` in name order, and the colour named beside each.
+
+    When some file names hold "depth", those are the depth images and the images named the same
+    with "color", "colour" or "rgb" in its place are their colour (as the real frames ship:
+    ``depth_1.pgm`` and ``color_1.png``); otherwise every PNG or PGM is depth.
+    """
+    images = sorted((p for p in folder.iterdir() if p.is_file()
+                     and p.suffix.lower() in DEPTH_SUFFIXES + COLOR_SUFFIXES), key=natural_key)
+    named = [p for p in images if _DEPTH_WORD.search(p.stem)]
+    if not named:
+        return [p for p in images if p.suffix.lower() in DEPTH_SUFFIXES], {}
+    colors = {_COLOR_WORD.sub('#', p.stem, count=1).lower(): p for p in images
+              if p not in named and _COLOR_WORD.search(p.stem)}
+    depth = [p for p in named if p.suffix.lower() in DEPTH_SUFFIXES]
+    pairs = {d: colors[key] for d in depth
+             if (key := _DEPTH_WORD.sub('#', d.stem, count=1).lower()) in colors}
+    return depth, pairs
+
+
+def _check_is_depth(path: Path) -> None:
+    """Raise when the first image of a depth folder is not 16-bit single-channel depth."""
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image is not None and (image.dtype != np.uint16 or image.ndim != 2):
+        kind = (f'a colour image ({image.dtype.itemsize * 8}-bit, {image.shape[2]} channels)'
+                if image.ndim == 3 else f'a {image.dtype.itemsize * 8}-bit image')
+        raise EvaluationError(f'{path}: {kind}, not 16-bit depth; the folder must hold 16-bit '
+                              'depth images (PNG or PGM), alone or named depth_N.png beside '
+                              'color_N.png, or give the colour images with --color-dir')
+
+
+def folder_frames(depth_dir: Path, *, color_dir: Path | None = None,
+                  intrinsics_path: Path | Intrinsics | None = None, rate_hz: float = 30.0,
+                  start_s: float = 0.0, depth_units_per_m: float | None = None,
+                  with_color: bool = True) -> FrameSource:
+    """List a folder of 16-bit depth images, PNG or PGM, in name order, stamped by rate.
+
+    Colour comes from ``color_dir`` (as many images, in name order) or from the same folder:
+    ``color_N.png`` (or ``colour``, ``rgb``) beside ``depth_N.pgm``. depth_units_per_m: of the
+    images (``--depth-scale``; 5000 for TUM frames); None: 1000 (millimetres), the default, and a
+    first frame that looks like another unit is refused.
     """
     _check_rate(rate_hz)
     if depth_units_per_m is not None and not (math.isfinite(depth_units_per_m)
@@ -203,25 +253,31 @@ def folder_frames(depth_dir: Path, *, color_dir: Path | None = None,
         raise EvaluationError(f'--depth-scale must be a positive number of depth units per metre, '
                               f'got {depth_units_per_m:g}')
     _require_dir(depth_dir, 'depth')
-    depth = sorted(p for p in depth_dir.iterdir() if p.is_file() and p.suffix.lower() == '.png')
+    depth, beside = split_depth_and_color(depth_dir)
     if not depth:
-        raise EvaluationError(f'{depth_dir}: no .png depth images')
+        raise EvaluationError(f'{depth_dir}: no depth images (16-bit .png or .pgm)')
+    _check_is_depth(depth[0])
+    notes: list[str] = []
     color: list[Path | None] = [None] * len(depth)
-    if color_dir is not None:
+    if color_dir is not None and with_color:
         _require_dir(color_dir, 'colour')
-        found = sorted(p for p in color_dir.iterdir()
-                       if p.is_file() and p.suffix.lower() in ('.png', '.jpg', '.jpeg'))
+        found = sorted((p for p in color_dir.iterdir()
+                        if p.is_file() and p.suffix.lower() in COLOR_SUFFIXES), key=natural_key)
         if len(found) != len(depth):
             raise EvaluationError(f'{depth_dir} holds {len(depth)} depth images but {color_dir} '
                                   f'holds {len(found)} colour images; they must match one to one')
         color = list(found)
+    elif beside and with_color:
+        color = [beside.get(d) for d in depth]
+        notes.append(f'colour paired by name in {depth_dir} ({len(beside)} of {len(depth)} depth '
+                     'images have one)')
     intr, origin, size = _optional_intrinsics(intrinsics_path)
     frames = [Frame(stamp_ns(start_s) + stamp_ns(k / rate_hz), d, c)
               for k, (d, c) in enumerate(zip(depth, color))]
     if depth_units_per_m is None:
-        return FrameSource(frames, intr, origin, size)
+        return FrameSource(frames, intr, origin, size, notes=notes)
     return FrameSource(frames, intr, origin, size, depth_units_per_m=depth_units_per_m,
-                       depth_units_origin='--depth-scale')
+                       depth_units_origin='--depth-scale', notes=notes)
 
 
 def read_timestamp_list(path: Path) -> list[tuple[float, str]]:
@@ -244,7 +300,8 @@ def read_timestamp_list(path: Path) -> list[tuple[float, str]]:
     return sorted(entries)
 
 
-def tum_frames(root: Path, *, camera: str | None = None, intrinsics_path: Path | None = None,
+def tum_frames(root: Path, *, camera: str | None = None,
+               intrinsics_path: Path | Intrinsics | None = None,
                max_difference_s: float = 0.02, with_color: bool = True) -> FrameSource:
     """List the depth frames of a TUM-format sequence, each with its nearest colour frame."""
     if not root.is_dir():
@@ -323,7 +380,15 @@ def stamps_from_names(root: Path, kind: str) -> list[tuple[float, str]]:
     raise EvaluationError(f'{listed}: not found, and no {folder}/<seconds>.png names give the '
                           f'stamps: write it, one "timestamp filename" line per {kind} image'
                           f'{" (rgb.txt likewise)" if kind == "depth" else ""}, or leave '
-                          'colour out with --no-color')
+                          f'colour out with --no-color{_loose_frames_hint(root, kind)}')
+
+
+def _loose_frames_hint(root: Path, kind: str) -> str:
+    """Return a pointer to ``bag_convert folder`` when ``root`` holds unstamped depth images."""
+    if kind != 'depth' or not split_depth_and_color(root)[0]:
+        return ''
+    return (f'; depth images without stamps (as depth_N.png beside color_N.png) convert with '
+            f'bag_convert folder {root} OUTPUT --depth-scale 5000')
 
 
 def read_depth_png(path: str | Path, *,

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import runner as evaluation
-from obstacle_detection.pipeline.params import DetectorParams
+from obstacle_detection.pipeline.params import DetectorParams, frame_budget
 
 #: metric name -> (confusion kind, score attribute, higher is better)
 METRICS: dict[str, tuple[str, str, bool]] = {
@@ -101,7 +101,8 @@ def grid_sweep(score: Callable[[list[DetectorParams]], list[list[evaluation.Fram
                log: Callable[[str], None] = print) -> SweepResult:
     """Score every setting of the grid on ``base``: ``score(points)`` gives their frame scores.
 
-    A value DetectorParams refuses leaves its cell NaN; an unknown name raises (usage).
+    A value DetectorParams refuses, or a setting beyond a frame's budget, leaves its cell NaN;
+    an unknown name raises (usage).
     """
     if y is not None and y.name == x.name:
         raise evaluation.EvaluationError(f'--x and --y both name {x.name!r}', usage=True)
@@ -113,7 +114,11 @@ def grid_sweep(score: Callable[[list[DetectorParams]], list[list[evaluation.Fram
     points: dict[tuple[int, ...], DetectorParams] = {}
     for index in np.ndindex(*result.shape):
         try:
-            points[index] = evaluation.apply_overrides(base, result.setting(*index))
+            point = evaluation.apply_overrides(base, result.setting(*index))
+            problem = frame_budget(point).problem()   # docs/budget.md
+            if problem is not None:
+                raise ValueError(problem)
+            points[index] = point
         except ValueError as exc:
             if getattr(exc, 'usage', False):
                 raise

@@ -28,9 +28,14 @@ def clearing_points(depth_m: np.ndarray, intrinsics: Intrinsics, *, stride_px: i
 
 
 def clearing_cloud(result: Any, *, stride_px: int, range_m: float) -> np.ndarray:
-    """Return a frame's clearing cloud (N, 3) float32 as the node publishes it (optical frame)."""
-    return clearing_points(result.depth_m, result.intrinsics, stride_px=stride_px,
-                           range_m=range_m)
+    """Return a frame's clearing cloud (N, 3) float32 as the node publishes it (optical frame).
+
+    Re-expressed through the frame's pose (``result.pose``): Nav2, placing the camera by the
+    nominal mount, puts every point where the frame's marks put the same surface.
+    """
+    points = clearing_points(result.depth_m, result.intrinsics, stride_px=stride_px,
+                             range_m=range_m)
+    return result.pose.to_nominal_optical(points)
 
 
 # once per camera and stride, not per frame: a third of the clearing cloud's time in the node

@@ -49,6 +49,8 @@ class DetectionResult:
     floor: FloorFit | None = None
     voxel_height_m: np.ndarray | None = None
     drop_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
+    #: the frame's camera pose, which every output goes through (the default mount if none)
+    pose: geometry.FramePose = field(default_factory=lambda: geometry.FramePose(DetectorParams()))
 
 
 class _Clock:
@@ -121,6 +123,7 @@ class Detector:
         clock = _Clock()
         depth_m = self._filtered_depth(depth, depth_scale, clock)
         rays, fit, run = self._frame_mount(depth_m, intr)
+        pose = geometry.FramePose(p, run)   # the one transform of this frame's outputs
         clock.lap('floor')
         roi = voxel.points_in_roi(depth_m, rays, run)
         clock.lap('back_project')
@@ -148,7 +151,7 @@ class Detector:
             is_obstacle &= ~traversal.lone_voxels(centroids, p.voxel_x_m, p.voxel_y_m,
                                                   p.voxel_z_m)   # mixed pixels kept
             marked = np.flatnonzero(is_obstacle)
-            halo = costmap_stage.halo_voxels(geometry.to_base_frame(centroids[marked], p),
+            halo = costmap_stage.halo_voxels(pose.ground_to_base(centroids[marked]),
                                              grid.counts[marked], p)
             is_obstacle[marked[halo & ~trav.ledge[marked]]] = False
         clock.lap('validation')
@@ -157,8 +160,8 @@ class Detector:
             obstacle_points = np.concatenate((obstacle_points, drop_points))
         ground_points = centroids[~is_obstacle]
         # outputs in the robot's base frame (the camera's x, y and yaw on the robot)
-        obstacle_points = geometry.to_base_frame(obstacle_points, p)
-        ground_points = geometry.to_base_frame(ground_points, p)
+        obstacle_points = pose.ground_to_base(obstacle_points)
+        ground_points = pose.ground_to_base(ground_points)
         costmap = build_costmap(obstacle_points, ground_points, p)
         clock.lap('costmap')
 
@@ -171,7 +174,7 @@ class Detector:
             costmap=costmap, timings_ms=clock.finish(), voxel_points=centroids,
             voxel_normals=normals, voxel_slope_obstacle=candidates, voxel_is_obstacle=is_obstacle,
             voxel_neighbours=neighbours, pixel_voxel=pixel_voxel, depth_m=depth_m, intrinsics=intr,
-            floor=fit, voxel_height_m=heights, drop_points=drop_points)
+            floor=fit, voxel_height_m=heights, drop_points=drop_points, pose=pose)
 
     def _filtered_depth(self, depth: np.ndarray, depth_scale: float | None,
                         clock: _Clock) -> np.ndarray:

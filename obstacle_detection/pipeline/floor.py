@@ -38,6 +38,8 @@ FACING_UP_COS2 = math.cos(math.radians(30.0)) ** 2
 #: Floor samples are taken up to this far beyond the forward range [m] (a high camera sees the
 #: floor only far away).
 FIT_RANGE_MARGIN_M = 1.0
+#: How FloorFit.reason starts when the plane found lies beyond the fit's bounds.
+BEYOND_BOUNDS = 'fitted floor'
 #: Samples this far below a fitted plane are lower ground: the floor, when the plane ran
 #: through a raised surface (see floor_beneath) [m].
 BENEATH_M = 0.05
@@ -64,6 +66,11 @@ class FloorFit:
     d_roll_deg: float = 0.0
     samples: int = 0
     reason: str = ''
+
+    @property
+    def beyond_bounds(self) -> bool:
+        """Whether the floor was found but farther from the mount than the fit may correct."""
+        return not self.refined and self.reason.startswith(BEYOND_BOUNDS)
 
     def summary(self) -> str:
         """One line for a log: the correction, or why there is none."""
@@ -253,9 +260,9 @@ def _out_of_bounds(coef: np.ndarray, params: DetectorParams) -> str:
     a, b, c = (float(v) for v in coef)
     tilt = math.atan(math.hypot(a, b))
     if tilt > params.floor_max_tilt_rad:
-        return f'fitted floor tilted {math.degrees(tilt):.1f} deg > floor_max_tilt_deg'
+        return f'{BEYOND_BOUNDS} tilted {math.degrees(tilt):.1f} deg > floor_max_tilt_deg'
     if abs(c) > params.floor_max_offset_m:
-        return f'fitted floor offset {c:+.3f} m beyond floor_max_offset_m'
+        return f'{BEYOND_BOUNDS} offset {c:+.3f} m beyond floor_max_offset_m'
     return ''
 
 

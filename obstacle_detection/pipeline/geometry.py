@@ -143,16 +143,89 @@ def roi_mask(points_ground: np.ndarray, params: DetectorParams) -> np.ndarray:
     return keep
 
 
-def to_base_frame(points: np.ndarray, params: DetectorParams) -> np.ndarray:
-    """Ground-frame points (M, 3) -> base frame: ``R_z(yaw) p + (x, y, 0)`` of the camera."""
-    x, y, yaw = params.camera_x_m, params.camera_y_m, params.camera_yaw_rad
-    if x == 0.0 and y == 0.0 and yaw == 0.0:
-        return points
-    c, s = math.cos(yaw), math.sin(yaw)
-    out = np.empty_like(points)
-    px, py = points[:, 0].astype(np.float64), points[:, 1].astype(np.float64)
-    out[:, 0] = c * px - s * py + x
-    out[:, 1] = s * px + c * py + y
-    out[:, 2] = points[:, 2]
-    return out
+def _base_rotation(params: DetectorParams) -> np.ndarray:
+    """Rotation optical -> base of a mount: ``R_z(yaw) @ mount_rotation(pitch, roll)``."""
+    c, s = math.cos(params.camera_yaw_rad), math.sin(params.camera_yaw_rad)
+    r_z = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return r_z @ mount_rotation(params.camera_pitch_rad, params.camera_roll_rad)
 
+
+def _mount_key(params: DetectorParams) -> tuple[float, ...]:
+    return (params.camera_x_m, params.camera_y_m, params.camera_height_m, params.camera_roll_rad,
+            params.camera_pitch_rad, params.camera_yaw_rad)
+
+
+class FramePose:
+    """One frame's camera pose in the base frame: every output of the frame goes through it.
+
+    Two poses, each ``p_base = R @ p_optical + t``:
+
+    - used: the pose the frame is processed with, the mount with the floor fit's height, pitch
+      and roll when the fit refined them (x, y and yaw are always the mount's);
+    - nominal: the mount itself, as Nav2 places the camera (TF's with use_tf, else the mount
+      parameters, which the robot's URDF must then equal).
+
+    The obstacle and ground clouds and the costmap are placed by the used pose
+    (:meth:`ground_to_base`); the clearing cloud keeps the optical frame for Nav2's ray origin
+    and is re-expressed (:meth:`to_nominal_optical`) so that, placed by the nominal pose, its
+    points land where the used pose puts them: marks and clearing rays agree under TF.
+    """
+
+    __slots__ = ('nominal', 'used')
+
+    def __init__(self, nominal: DetectorParams, used: DetectorParams | None = None) -> None:
+        self.nominal = nominal
+        self.used = nominal if used is None else used
+
+    @property
+    def corrected(self) -> bool:
+        """Whether the used pose differs from the nominal one (the floor fit corrected it)."""
+        return _mount_key(self.used) != _mount_key(self.nominal)
+
+    def rotation(self, *, nominal: bool = False) -> np.ndarray:
+        """(3, 3) float64 rotation optical -> base of the used (or nominal) pose."""
+        return _base_rotation(self.nominal if nominal else self.used)
+
+    def translation(self, *, nominal: bool = False) -> np.ndarray:
+        """(3,) float64 position of the camera in the base frame, used (or nominal) pose [m]."""
+        p = self.nominal if nominal else self.used
+        return np.array([p.camera_x_m, p.camera_y_m, p.camera_height_m])
+
+    def optical_to_base(self, points: np.ndarray, *, nominal: bool = False) -> np.ndarray:
+        """Optical-frame points (M, 3) -> (M, 3) float64 base-frame points of a pose."""
+        return (np.asarray(points, np.float64) @ self.rotation(nominal=nominal).T
+                + self.translation(nominal=nominal))
+
+    def ground_to_base(self, points: np.ndarray) -> np.ndarray:
+        """Ground-frame points (M, 3) -> base frame: ``R_z(yaw) p + (x, y, 0)`` of the camera.
+
+        The ground frame (the pipeline's) is the base frame turned by the camera's yaw, its
+        origin on the floor under the camera: the used pose up to x, y and yaw.
+        """
+        p = self.used
+        x, y, yaw = p.camera_x_m, p.camera_y_m, p.camera_yaw_rad
+        if x == 0.0 and y == 0.0 and yaw == 0.0:
+            return points
+        c, s = math.cos(yaw), math.sin(yaw)
+        out = np.empty_like(points)
+        px, py = points[:, 0].astype(np.float64), points[:, 1].astype(np.float64)
+        out[:, 0] = c * px - s * py + x
+        out[:, 1] = s * px + c * py + y
+        out[:, 2] = points[:, 2]
+        return out
+
+    def to_nominal_optical(self, points: np.ndarray) -> np.ndarray:
+        """Optical points (M, 3) -> float32 points the nominal pose places as the used one does.
+
+        ``p' = R_n^T (R_u p + t_u - t_n)``; the points themselves when the pose was not
+        corrected.
+        """
+        if not self.corrected:
+            return points
+        r_n = self.rotation(nominal=True)
+        rotation = r_n.T @ self.rotation()
+        shift = r_n.T @ (self.translation() - self.translation(nominal=True))
+        # float32 (0.1 ms for 13,700 points, a third of float64's; within 1 um at 4 m)
+        out = np.asarray(points, np.float32) @ rotation.T.astype(np.float32)
+        out += shift.astype(np.float32)
+        return out

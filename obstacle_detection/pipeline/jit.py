@@ -12,7 +12,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from ._compiled._numba import AVAILABLE
+from ._compiled._numba import AVAILABLE, CACHED_KERNELS
 
 #: Environment variable that, set to anything but '' or '0', turns the compiled path off (for
 #: tests and comparisons); it is read on every call.
@@ -34,6 +34,19 @@ def switched_off() -> bool:
 def compiling() -> bool:
     """Return True while a background compilation keeps the other threads on numpy."""
     return not _kernels_ready.is_set()
+
+
+def cache_filled() -> bool:
+    """Return True when numba's cache holds an index for every cached kernel defined so far.
+
+    Then a warm-up loads the kernels (about a second) rather than compiling them (about a
+    minute on two cores). False when one lacks it, or numba's cache layout is not the one known.
+    """
+    try:
+        return bool(CACHED_KERNELS) and all(os.path.exists(kernel._cache._cache_file._index_path)
+                                            for kernel in CACHED_KERNELS)
+    except AttributeError:   # numba's internal layout changed: not known to be filled
+        return False
 
 
 def enabled() -> bool:

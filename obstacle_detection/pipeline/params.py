@@ -272,3 +272,143 @@ def corridor(**overrides: Any) -> DetectorParams:
 
 
 PRESETS = {'table_4_2': table_4_2, 'table_4_3': table_4_3, 'corridor': corridor}
+
+
+# -- the frame budget (docs/budget.md) ---------------------------------------------------------
+#: The frame the budget is computed for: Kinect v2 SD depth, 512 x 424 pixels, its intrinsics.
+BUDGET_FRAME_SIZE = KINECT_V2_SD_SIZE
+#: Limits of one frame's estimated time [ms] and peak memory [MiB] (docs/budget.md).
+MAX_FRAME_MS = 100.0
+MAX_FRAME_MIB = 256.0
+#: Surface a frame sees in the region of interest, per square root of its depth [m^2 / m^0.5],
+#: and the share of the pixels that can fall in it: the voxel estimate (docs/budget.md).
+SEEN_SURFACE_M2 = 3.2
+ROI_PIXEL_SHARE = 0.78
+#: Milliseconds and MiB per unit of each term of :func:`frame_budget`, fitted on the
+#: measurements of docs/budget.md (tools/budget_bench.py, CPU time of one thread).
+BUDGET_MS = {'frame': 2.3, 'median': 2.8e-06, 'voxels': 0.00047, 'knn': 0.0, 'knn2': 2.2e-07,
+             'lattice': 4.5e-07, 'ground_cells': 0.0, 'costmap_cells': 1.4e-05,
+             'fused_cells': 3.5e-05, 'clearing_rays': 0.0}
+BUDGET_MIB = {'frame': 7.1, 'median': 0.0, 'voxels': 0.00021, 'knn': 3.6e-06, 'knn2': 2.1e-08,
+              'lattice': 3.1e-07, 'ground_cells': 8.8e-06, 'costmap_cells': 2e-05,
+              'fused_cells': 3.4e-05, 'clearing_rays': 3.1e-05}
+#: The parameters behind each term, named when it makes up most of a refused estimate.
+_TERM_PARAMETERS = {
+    'frame': (),
+    'median': ('median_kernel',),
+    'voxels': ('voxel_x_m', 'voxel_y_m', 'voxel_z_m', 'max_range_m'),
+    'knn': ('normal_neighbours', 'validation_neighbours', 'voxel_x_m', 'voxel_y_m',
+            'voxel_z_m'),
+    'knn2': ('normal_neighbours', 'validation_neighbours', 'voxel_x_m', 'voxel_y_m',
+             'voxel_z_m'),
+    'lattice': ('voxel_x_m', 'voxel_y_m', 'voxel_z_m', 'max_range_m', 'lateral_limit_m'),
+    'ground_cells': ('voxel_x_m', 'voxel_y_m', 'max_range_m', 'lateral_limit_m'),
+    'costmap_cells': ('costmap_length_m', 'costmap_width_m', 'costmap_resolution_m'),
+    'fused_cells': ('fused_size_m', 'fused_resolution_m'),
+    'clearing_rays': ('clearing_stride_px',),
+}
+
+
+@dataclass(frozen=True)
+class FrameBudget:
+    """One frame's time and peak memory estimated from the parameters (docs/budget.md)."""
+
+    terms: dict[str, float]    #: the sizes the estimate is made of (BUDGET_MS's keys)
+    values: dict[str, Any]     #: the parameter values it was made from, by ROS name
+
+    @property
+    def ms(self) -> float:
+        """Estimated time of a frame on the machine of docs/budget.md [ms]."""
+        return sum(BUDGET_MS[name] * size for name, size in self.terms.items())
+
+    @property
+    def mib(self) -> float:
+        """Estimated memory a frame adds at its peak [MiB]."""
+        return sum(BUDGET_MIB[name] * size for name, size in self.terms.items())
+
+    def problem(self) -> str | None:
+        """One line naming the parameters, the estimate and the limits; None within them."""
+        if self.ms <= MAX_FRAME_MS and self.mib <= MAX_FRAME_MIB:
+            return None
+        coefficients = BUDGET_MS if self.ms / MAX_FRAME_MS >= self.mib / MAX_FRAME_MIB \
+            else BUDGET_MIB
+        parts = sorted(((coefficients[name] * size, name) for name, size in self.terms.items()),
+                       reverse=True)
+        total, covered, causes, names = sum(part for part, _ in parts), 0.0, [], []
+        for part, name in parts:   # the terms that make up most of the estimate
+            if covered > 0.5 * total or not _TERM_PARAMETERS[name]:
+                break
+            covered += part
+            causes.append(self._describe(name))
+            names += [n for n in _TERM_PARAMETERS[name] if n not in names]
+        named = ', '.join(f'{name}={self.values[name]!r}' for name in names)
+        return (f'{named} ({"; ".join(causes)}) would make a frame take about '
+                f'{_amount(self.ms, "ms")} and {_amount(self.mib, "MiB")}, above the limits of '
+                f'{MAX_FRAME_MS:g} ms and {MAX_FRAME_MIB:g} MiB a frame (docs/budget.md)')
+
+    def _describe(self, term: str) -> str:
+        t = self.terms
+        k = max(self.values['normal_neighbours'], self.values['validation_neighbours'] + 1)
+        return {
+            'median': f'a {self.values["median_kernel"]} x {self.values["median_kernel"]} '
+                      f'median over {BUDGET_FRAME_SIZE[0]} x {BUDGET_FRAME_SIZE[1]} pixels',
+            'voxels': f'about {t["voxels"]:,.0f} voxels a frame',
+            'knn': f'{k} neighbours for about {t["voxels"]:,.0f} voxels',
+            'knn2': f'{k} neighbours for about {t["voxels"]:,.0f} voxels',
+            'lattice': f'a lattice of {t["lattice"]:.3g} voxels over the region of interest',
+            'ground_cells': f'{t["ground_cells"]:,} ground cells',
+            'costmap_cells': f'{t["costmap_cells"]:,} costmap cells',
+            'fused_cells': f'{t["fused_cells"]:,} fused costmap cells',
+            'clearing_rays': f'{t["clearing_rays"]:,} clearing rays',
+        }[term]
+
+
+def _amount(value: float, unit: str) -> str:
+    """'3.2 s' / '85 ms', '2.3 GiB' / '310 MiB'."""
+    if value >= 1000.0:
+        return f'{value / 1024.0 if unit == "MiB" else value / 1000.0:.3g} ' \
+               f'{"GiB" if unit == "MiB" else "s"}'
+    return f'{value:.3g} {unit}'
+
+
+def frame_budget(params: DetectorParams, *, fused_size_m: float = 0.0,
+                 fused_resolution_m: float = 0.05, clearing_stride_px: int = 0) -> FrameBudget:
+    """Estimate a frame's time and peak memory (frame of ``BUDGET_FRAME_SIZE``, docs/budget.md).
+
+    The node's own outputs: the fused costmap (``fused_size_m`` > 0 when on) and the clearing
+    cloud (``clearing_stride_px`` > 0 when on).
+    """
+    p = params
+    width, height = BUDGET_FRAME_SIZE
+    pixels = width * height
+    depth = p.max_range_m - p.min_range_m
+    # the width the camera sees at the far end of the ROI, at most the ROI's
+    across = min(2.0 * p.lateral_limit_m,
+                 p.max_range_m * width / KINECT_V2_SD.fx)
+    low_z = min(p.tdbg_m, -p.drop_view_m) if p.robot_level else p.tdbg_m
+    lattice = (math.ceil(depth / p.voxel_x_m) * math.ceil(across / p.voxel_y_m)
+               * math.ceil((p.max_height_m - low_z) / p.voxel_z_m))
+    # voxels: the surface seen at the voxels' size, at most one a pixel in the ROI
+    face_m2 = (p.voxel_x_m * p.voxel_y_m * p.voxel_z_m) ** (2.0 / 3.0)
+    voxels = 1.0 / (face_m2 / (SEEN_SURFACE_M2 * math.sqrt(depth))
+                    + 1.0 / (ROI_PIXEL_SHARE * pixels))
+    k = max(p.normal_neighbours, p.validation_neighbours + 1)
+    cell = 2.0 * max(p.voxel_x_m, p.voxel_y_m)   # the robot level's ground cells
+    res = p.costmap_resolution_m
+    fused = math.ceil(fused_size_m / fused_resolution_m - 1e-9) if fused_size_m > 0.0 else 0
+    stride = clearing_stride_px
+    terms = {
+        'frame': 1,
+        'median': pixels * p.median_kernel if p.median_kernel > 1 else 0,
+        'voxels': voxels, 'knn': voxels * k, 'knn2': voxels * k * k,
+        'lattice': lattice if p.robot_level else 0,
+        'ground_cells': (math.ceil(depth / cell) * math.ceil(across / cell)
+                         if p.robot_level else 0),
+        'costmap_cells': (math.ceil(p.costmap_length_m / res - 1e-9)
+                          * math.ceil(p.costmap_width_m / res - 1e-9)),
+        'fused_cells': fused * fused,
+        'clearing_rays': math.ceil(width / stride) * math.ceil(height / stride) if stride else 0,
+    }
+    values = {**p.as_dict(), 'fused_size_m': fused_size_m,
+              'fused_resolution_m': fused_resolution_m, 'clearing_stride_px': stride}
+    return FrameBudget(terms, values)

@@ -264,7 +264,6 @@ def refine_result(result: Any, refined_mask: np.ndarray, params: DetectorParams,
     """Refined obstacle pixels -> labels, voxels (majority vote, N1 check) and a costmap."""
     # Imported here: the fit and the model file need neither the costmap nor the k-NN.
     from .costmap import build_costmap
-    from .geometry import to_base_frame
     from .normals import validate_obstacles
 
     pixel_voxel = np.asarray(result.pixel_voxel)
@@ -277,8 +276,8 @@ def refine_result(result: Any, refined_mask: np.ndarray, params: DetectorParams,
     # the pipeline's own k-NN query: max(N, N1 + 1) neighbours
     is_obstacle = validate_obstacles(is_obstacle, result.voxel_neighbours,
                                      params.validation_neighbours)
-    obstacle_points = to_base_frame(voxel_points[is_obstacle], params)
-    ground_points = to_base_frame(voxel_points[~is_obstacle], params)
+    obstacle_points = result.pose.ground_to_base(voxel_points[is_obstacle])
+    ground_points = result.pose.ground_to_base(voxel_points[~is_obstacle])
     costmap = build_costmap(obstacle_points, ground_points, params)
     return RefinedResult(labels, is_obstacle, obstacle_points, ground_points, costmap)
 

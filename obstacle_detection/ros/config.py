@@ -2,17 +2,19 @@
 
 from __future__ import annotations
 
-import math
+import ctypes
 import functools
+import gc
+import math
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from obstacle_detection.pipeline import clearing, geometry
+from obstacle_detection.pipeline import clearing
 from obstacle_detection.pipeline.detector import DetectionResult, Detector
 from obstacle_detection.pipeline.fusion import FusionParams
-from obstacle_detection.pipeline.params import Intrinsics
+from obstacle_detection.pipeline.params import Intrinsics, frame_budget
 from obstacle_detection.pipeline.refine import LogisticRefiner, RefinedDetector
 
 from .mount_source import Mount
@@ -55,25 +57,22 @@ class NodeConfig:
                      pitch_rad=math.radians(float(values['camera_pitch_deg'])),
                      yaw_rad=math.radians(float(values['camera_yaw_deg'])))
 
-    def nav2_clouds(self, result: DetectionResult, params: Any,
-                    ) -> tuple[np.ndarray, np.ndarray | None]:
+    def nav2_clouds(self, result: DetectionResult) -> tuple[np.ndarray, np.ndarray | None]:
         """(obstacles/points, obstacles/clearing_points or None) of a frame, as the node sends.
 
-        params: the detector parameters the frame ran with (their mount: where TF or the
-        parameters put the camera). With publish_clearing the marks and rays are matched
-        for a voxel layer (pipeline.clearing.nav2_clouds); without, the marks are the result's.
+        With publish_clearing the marks and rays are matched for a voxel layer placing the
+        camera by the frame's nominal pose (pipeline.clearing.nav2_clouds); without, the
+        marks are the result's.
         """
         if not self.publish_clearing:
             return result.obstacle_points, None
         points = clearing.clearing_cloud(result, stride_px=self.clearing_stride_px,
                                          range_m=self.clearing_range_m)
-        c, s = math.cos(params.camera_yaw_rad), math.sin(params.camera_yaw_rad)
-        rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ \
-            geometry.mount_rotation(params.camera_pitch_rad, params.camera_roll_rad)
-        translation = np.array([params.camera_x_m, params.camera_y_m, params.camera_height_m])
-        return clearing.nav2_clouds(result.obstacle_points, points, rotation, translation,
-                                    cell_m=params.costmap_resolution_m,
-                                    voxel_m=self.clearing_voxel_m)
+        pose = result.pose
+        return clearing.nav2_clouds(
+            result.obstacle_points, points, pose.rotation(nominal=True),
+            pose.translation(nominal=True), cell_m=pose.nominal.costmap_resolution_m,
+            voxel_m=self.clearing_voxel_m)
 
     @functools.lru_cache(maxsize=1)   # TF's mount changes rarely: its detector is kept
     def detector_for(self, mount: Mount) -> Detector | RefinedDetector:
@@ -99,8 +98,12 @@ def build_detector(values: dict[str, Any]) -> Detector | RefinedDetector:
     return RefinedDetector(detector, refiner)
 
 
-def build_config(values: dict[str, Any]) -> NodeConfig:
-    """NodeConfig from ``{ros_name: value}`` of every parameter; ValueError naming a bad one."""
+def build_config(values: dict[str, Any], *, check_budget: bool = True) -> NodeConfig:
+    """NodeConfig from ``{ros_name: value}`` of every parameter; ValueError naming a bad one.
+
+    check_budget: refuse a set whose frame would take more time or memory than the limits of
+    ``pipeline.params.frame_budget`` (docs/budget.md).
+    """
     for name in ('cloud_frame_id', 'costmap_frame_id', 'odom_frame'):
         if not str(values[name]).strip():
             raise ValueError(f'{name} must not be empty')
@@ -108,8 +111,16 @@ def build_config(values: dict[str, Any]) -> NodeConfig:
     if transport not in DEPTH_TRANSPORT_TOPICS:
         raise ValueError(f'depth_transport={transport!r} must be one of '
                          f'{", ".join(map(repr, DEPTH_TRANSPORT_TOPICS))}')
+    detector = build_detector(values)
+    fusion = (FusionParams(size_m=float(values['fused_size_m']),
+                           resolution_m=float(values['fused_resolution_m']))
+              if values['fuse'] else None)
+    if check_budget:   # a combination of in-range values beyond a frame's budget
+        problem = frame_budget(detector.params, **node_budget(values)).problem()
+        if problem is not None:
+            raise ValueError(problem)
     return NodeConfig(
-        detector=build_detector(values),
+        detector=detector,
         cloud_frame_id=str(values['cloud_frame_id']),
         costmap_frame_id=str(values['costmap_frame_id']),
         publish_ground=bool(values['publish_ground']),
@@ -119,12 +130,31 @@ def build_config(values: dict[str, Any]) -> NodeConfig:
             fx=float(values['fallback_fx']), fy=float(values['fallback_fy']),
             cx=float(values['fallback_cx']), cy=float(values['fallback_cy'])),
         camera_info_tolerance_ns=round(float(values['camera_info_tolerance_s']) * 1e9),
-        fusion=(FusionParams(size_m=float(values['fused_size_m']),
-                             resolution_m=float(values['fused_resolution_m']))
-                if values['fuse'] else None),
+        fusion=fusion,
         odom_frame=str(values['odom_frame']),
         publish_clearing=bool(values['publish_clearing']),
         clearing_range_m=float(values['clearing_range_m']),
         clearing_stride_px=int(values['clearing_stride_px']),
         clearing_voxel_m=float(values['clearing_voxel_m']),
         values=dict(values))
+
+
+def node_budget(values: dict[str, Any]) -> dict[str, Any]:
+    """Return the node's own terms of ``frame_budget``: the fused costmap, the clearing cloud."""
+    return {'fused_size_m': float(values['fused_size_m']) if values['fuse'] else 0.0,
+            'fused_resolution_m': float(values['fused_resolution_m']),
+            'clearing_stride_px': (int(values['clearing_stride_px'])
+                                   if values['publish_clearing'] else 0)}
+
+
+def release_memory() -> None:
+    """Hand the heap memory freed by a heavier configuration's frames back to the system.
+
+    glibc keeps freed blocks below its (growing) mmap threshold in its arenas, one a thread;
+    ``malloc_trim(0)`` returns their free pages (docs/budget.md). Elsewhere: nothing to do.
+    """
+    gc.collect()
+    try:
+        ctypes.CDLL('libc.so.6').malloc_trim(0)
+    except (OSError, AttributeError):   # not glibc
+        pass

@@ -1,4 +1,12 @@
-"""The node's health on ``/diagnostics``: counters per period and the level they mean."""
+"""The node's health on ``/diagnostics``: counters per period and the level they mean.
+
+Named and identified as diagnostic_updater (ros/diagnostics, ros2-jazzy,
+diagnostic_updater/_diagnostic_updater.py) publishes a task: ``Updater.publish`` names each
+status ``<node name>: <task>``, the node's name (``Node.get_name()``), or its fully qualified name
+when the node's parameter ``diagnostic_updater.use_fqn`` is true (``Updater.__init__``, as the
+C++ updater); ``hardware_id`` is one string set once (``Updater.setHardwareID``), here the
+resolved depth topic.
+"""
 
 from __future__ import annotations
 
@@ -16,6 +24,10 @@ DROPPED_WARN_SHARE = 0.2
 COMPILED = 'compiled numba kernels'
 #: What the status is about, after the node's name (diagnostic_updater's "node: task" form).
 STATUS_TASK = 'depth obstacle detection'
+#: diagnostic_updater's own parameter (``Updater.__init__`` declares it, default false): true
+#: names the status after the node's fully qualified name, so that detectors in two namespaces
+#: report under two names.
+USE_FQN_PARAMETER = 'diagnostic_updater.use_fqn'
 
 OK, WARN, ERROR = DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR
 
@@ -31,6 +43,8 @@ class Period:
     errors: int = 0
     skipped: Counter = field(default_factory=Counter)
     sum_ms: float = 0.0
+    max_ms: float = 0.0        #: the slowest frame of the period
+    fallback: int = 0          #: frames processed with the fallback intrinsics
     since_last_frame_s: float | None = None   #: None: no frame since the node started
 
 
@@ -52,12 +66,14 @@ class HealthWindow:
             if name == 'received':
                 self._last_frame = time.monotonic() if now is None else now
 
-    def processed(self, elapsed_ms: float) -> None:
-        """Count one frame processed and published in ``elapsed_ms``."""
+    def processed(self, elapsed_ms: float, fallback: bool = False) -> None:
+        """Count one frame processed and published in ``elapsed_ms``; ``fallback`` intrinsics."""
         with self._lock:
             for period in self._periods.values():
                 period.processed += 1
                 period.sum_ms += elapsed_ms
+                period.max_ms = max(period.max_ms, elapsed_ms)
+                period.fallback += bool(fallback)
 
     def skipped(self, reason: str) -> None:
         """Count one frame skipped for bad input, by reason (a short key)."""
@@ -85,6 +101,25 @@ class Context:
     depth_topic: str
     code_path: str             #: the node's compute_path()
     mount: str                 #: where the camera mount comes from, and its values
+    camera_info_topic: str = 'depth/camera_info'
+    fallback_intrinsics: str = ''   #: the fallback_fx/fy/cx/cy values, 'fx=.. fy=.. ...'
+    #: the mount against the floor in view (ros.mount_check): key/values, and a warning or ''
+    mount_check: dict[str, str] = field(default_factory=dict)
+    mount_warning: str = ''
+
+
+def intrinsics_text(period: Period, ctx: Context) -> str:
+    """Say which intrinsics the period's frames used: CameraInfo, or the fallback values."""
+    if not period.processed:
+        return '-'
+    fallback = (f'fallback {ctx.fallback_intrinsics} (no CameraInfo on '
+                f'{ctx.camera_info_topic})')
+    if period.fallback == period.processed:
+        return fallback
+    camera_info = f'CameraInfo on {ctx.camera_info_topic}'
+    if period.fallback:
+        return f'{camera_info}; {period.fallback} frame(s): {fallback}'
+    return camera_info
 
 
 def _level_and_message(period: Period, ctx: Context) -> tuple[int, str]:
@@ -104,6 +139,12 @@ def _level_and_message(period: Period, ctx: Context) -> tuple[int, str]:
         return ERROR, f'the pipeline failed on {period.errors} frame(s) (see the log)'
     if skipped:
         return WARN, skipped_text
+    if ctx.mount_warning:
+        return WARN, ctx.mount_warning
+    if period.fallback:
+        return WARN, (f'{period.fallback} of {period.processed} frames used the fallback '
+                      f'intrinsics {ctx.fallback_intrinsics}: no CameraInfo on '
+                      f'{ctx.camera_info_topic}')
     if frames and period.dropped > DROPPED_WARN_SHARE * frames:
         return WARN, (f'{period.dropped} of {frames} frames replaced before processing: the '
                       'node does not keep up with the camera')
@@ -112,9 +153,9 @@ def _level_and_message(period: Period, ctx: Context) -> tuple[int, str]:
     return OK, f'{period.processed / period.seconds:.1f} frames/s processed'
 
 
-def status_name(node_fqn: str) -> str:
-    """Return the status name of a node: its fully qualified name and the task."""
-    return f'{node_fqn}: {STATUS_TASK}'
+def status_name(node_name: str) -> str:
+    """Return the status name: ``node_name`` (name, or fully qualified with use_fqn), task."""
+    return f'{node_name}: {STATUS_TASK}'
 
 
 def health_status(period: Period, ctx: Context, *, name: str,
@@ -126,10 +167,13 @@ def health_status(period: Period, ctx: Context, *, name: str,
         'processed rate [Hz]': f'{period.processed / period.seconds:.1f}',
         'processing mean [ms]': (f'{period.sum_ms / period.processed:.1f}'
                                  if period.processed else '-'),
+        'processing max [ms]': f'{period.max_ms:.1f}' if period.processed else '-',
+        'intrinsics': intrinsics_text(period, ctx),
         'dropped (newer frame came first)': str(period.dropped),
         'skipped (bad input)': str(sum(period.skipped.values())),
         'errors': str(period.errors),
         'mount': ctx.mount,
+        **ctx.mount_check,
         'code path': ctx.code_path,
     }
     return DiagnosticStatus(level=level, name=name, message=message,

@@ -14,7 +14,7 @@ import rclpy
 import rclpy.logging
 import rclpy.utilities
 from nav_msgs.msg import OccupancyGrid, Odometry
-from rcl_interfaces.msg import SetParametersResult
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.duration import Duration
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
@@ -39,18 +39,20 @@ from .conversions import (
     result_to_messages,
 )
 from . import frame_gate, rvl
-from .config import DEPTH_TRANSPORT_TOPICS, NodeConfig, build_config
+from .config import DEPTH_TRANSPORT_TOPICS, NodeConfig, build_config, release_memory
 from .diagnostics import Context as DiagnosticsContext
 from .frame_gate import CameraState as _CameraState
 from .frame_gate import stamp_ns as _stamp_ns
 from obstacle_detection.viz.overlay import render_overlay
-from .diagnostics import COMPILED, HealthWindow, health_status, status_name
+from .diagnostics import (COMPILED, USE_FQN_PARAMETER, HealthWindow, health_status,
+                          status_name)
 from obstacle_detection.pipeline.fusion import FusedGrid, PoseBuffer
 from obstacle_detection.pipeline.geometry import yaw_from_quaternion
+from .mount_check import MountCheck
 from .mount_source import MountSource
 from obstacle_detection.pipeline.params import Intrinsics
 from . import RosInputError
-from .parameters import (ALL_PARAMS, NODE_NAME, PARAMS_FILE_KEY, load_params_yaml,
+from .parameters import (ALL_PARAMS, NODE_NAME, PARAMS_FILE_KEY, check_params_file,
                          params_file_problems, params_files_in_args)
 
 
@@ -64,6 +66,8 @@ def _qos(depth: int, *, reliable: bool = True, latched: bool = False) -> QoSProf
 
 #: Minimum interval between two warnings about the same kind of bad input [s].
 WARN_THROTTLE_S = 5.0
+#: Minimum interval between two log lines saying the mount disagrees with the floor [s].
+MOUNT_WARN_THROTTLE_S = 60.0
 #: Outputs, and the inputs with reliable_input: reliable, depth 5.
 _RELIABLE_QOS = _qos(5)
 #: ~/status and the OccupancyGrids: latched, depth 1 (as map_server), so a late subscriber
@@ -128,20 +132,24 @@ class DetectorNode(Node):
             self.declare_parameter(spec.name, spec.default, spec.descriptor())
         try:
             self._config = build_config(self._parameter_values())
+            self._mount_source = self._make_mount_source(tf_buffer)
         except ValueError:
             self.destroy_node()
             raise
         self.stats = HealthWindow(readers=('diagnostics', 'log'))
         self._mailbox = FrameMailbox(MAILBOX_FRAMES)
-        self._mount_source = self._make_mount_source(tf_buffer)
         self._mount_said = ''
+        self._tf_mount: Any = None   # the last mount TF gave
+        self._image_frame = ''       # the frame_id of the last frame processed
+        self._mount_check = MountCheck()
         self._cameras: collections.deque[_CameraState] = collections.deque(
             maxlen=frame_gate.CAMERA_INFO_HISTORY)
         self._warn_loggers: dict[str, Any] = {}
 
         self._status_pub = self.create_publisher(String, '~/status', _LATCHED_QOS)
-        # Compiling (20-40 s) or loading the kernels runs on a thread of its own; frames take
+        # Compiling (a minute) or loading the kernels runs on a thread of its own; frames take
         # the numpy path meanwhile (same results), so no frame waits for it.
+        self._cache_filled = jit_support.cache_filled()   # load (a second) or compile?
         self._compile = jit_support.compile_in_background(self._warm_up,
                                                           on_done=self._on_compiled)
         reliable = bool(self.get_parameter('reliable_input').value)
@@ -165,7 +173,11 @@ class DetectorNode(Node):
         if stats_period_s > 0.0:
             self.create_timer(stats_period_s, self._log_stats)
         self._started = time.monotonic()
-        self._last_frame_id = ''
+        use_fqn = self.declare_parameter(USE_FQN_PARAMETER, False, ParameterDescriptor(
+            description="diagnostic_updater's: name the /diagnostics status after the node's "
+                        'fully qualified name, not its name', read_only=True)).value
+        self._diagnostics_name = status_name(
+            self.get_fully_qualified_name() if use_fqn else self.get_name())
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics',
                                                       _DIAGNOSTICS_QOS)
         self.create_timer(1.0, self.publish_diagnostics)
@@ -194,16 +206,20 @@ class DetectorNode(Node):
     def compute_path(self) -> str:
         """Say which code processes the frames now (numba kernels or numpy) and why."""
         if not jit_support.AVAILABLE:
-            return 'numpy path (numba is not installed; see README, Dependencies)'
+            return ('numpy path (numba is not installed: pip install "numba>=0.60"; README, '
+                    'Install)')
         if jit_support.switched_off():
             return f'numpy path ({jit_support.NO_JIT_ENV} is set)'
         job = self._compile
         if job is not None and job.error is not None:
             return (f'numpy path (compiling the numba kernels failed: '
                     f'{type(job.error).__name__}: {job.error})')
+        if jit_support.compiling() and self._cache_filled:
+            return ('numpy path while the numba kernels load from the cache in the background '
+                    '(about a second; same results, slower)')
         if jit_support.compiling():
-            return ('numpy path while the numba kernels compile or load in the background '
-                    '(a first compilation takes about 20-40 s; same results, slower)')
+            return ('numpy path while the numba kernels compile in the background (numba\'s '
+                    'cache is empty: about a minute on two cores; same results, slower)')
         return COMPILED
 
     def _warm_up(self) -> None:
@@ -218,9 +234,9 @@ class DetectorNode(Node):
             if job.error is not None:
                 self.get_logger().error(f'now on the {self.compute_path()}')
             else:
-                self.get_logger().info(
-                    f'numba kernels compiled or loaded from the cache in {job.seconds:.1f} s; '
-                    'frames now take the compiled path')
+                how = 'loaded from the cache' if self._cache_filled else 'compiled'
+                self.get_logger().info(f'numba kernels {how} in {job.seconds:.1f} s; frames '
+                                       'now take the compiled path')
             self._publish_status()
         except Exception:  # noqa: BLE001 - a node destroyed meanwhile has no logger or publisher
             pass
@@ -232,16 +248,21 @@ class DetectorNode(Node):
 
     # -- the camera mount: parameters or TF ------------------------------------------------------
     def _make_mount_source(self, tf_buffer: Any) -> MountSource:
+        """Return where the mount comes from; ValueError if use_tf is set and tf2 is missing."""
         target = str(self.get_parameter('cloud_frame_id').value)
         params = f'the parameters ({self._config.mount().describe()})'
         use_tf = bool(self.get_parameter('use_tf').value)
         if use_tf and tf_buffer is None:
             try:
                 import tf2_ros
-            except ImportError:
-                self.get_logger().warning('use_tf is set but tf2_ros is not importable (no ROS 2 '
-                                          f'installation?): the camera mount comes from {params}')
-                return MountSource(None, target)
+            except ImportError as error:
+                # refused, not run on the parameters: Nav2 places the clearing cloud through
+                # TF, so outputs placed otherwise would disagree with it unseen
+                raise ValueError(
+                    f'use_tf is true but tf2_ros cannot be imported ({error}): source the ROS 2 '
+                    'setup (/opt/ros/jazzy/setup.bash) or install ros-jazzy-tf2-ros; or set '
+                    'use_tf:=false to take the camera mount from the camera_* parameters, '
+                    'which the URDF must then equal') from error
             tf_buffer = tf2_ros.Buffer()
             self._tf_listener = tf2_ros.TransformListener(tf_buffer, self)
         if not use_tf:
@@ -249,27 +270,33 @@ class DetectorNode(Node):
             return MountSource(None, target)
         static = bool(self.get_parameter('tf_static_mount').value)
         self.get_logger().info(f'camera mount from TF: {target} <- the depth image frame_id'
-                               f'{" (static: looked up once)" if static else ""}; until '
-                               'then from the parameters')
+                               f'{" (static: looked up once)" if static else ""}; frames are '
+                               'dropped while TF has no transform')
         return MountSource(tf_buffer, target, static=static, timeout=Duration(
             seconds=float(self.get_parameter('tf_timeout_s').value)))
 
     def _detector_for(self, msg: Any, config: NodeConfig) -> Any:
-        """Return the frame's detector: the configured one, or one mounted where TF says."""
+        """Return the frame's detector: the configured one, or one mounted where TF says.
+
+        None (the frame dropped, said) when TF has no transform for the frame.
+        """
         source = self._mount_source
         if source.buffer is None:
             return config.detector
-        fallback = config.mount()
+        parameters = config.mount()
         mount = source.mount_for(msg.header.frame_id, RclpyTime.from_msg(msg.header.stamp),
-                                 fallback)
-        if source.last_problem is not None:
-            self._throttled_logger('mount').warning(source.last_problem,
-                                                    throttle_duration_sec=WARN_THROTTLE_S)
-        said = f'{source.source}: {mount.describe()}'
-        if said != self._mount_said and source.last_problem is None:
-            self.get_logger().info(f'camera mount from {said}')
-        self._mount_said = said
-        if mount == fallback:
+                                 parameters)
+        if mount is None:
+            self._mount_said = source.source
+            self._warn_skip('tf', f'{source.last_problem}; not published with the mount '
+                                  'parameters (Nav2 places the clearing cloud through TF)')
+            return None
+        self._mount_said = f'{source.source}: {mount.describe()}'
+        if mount != self._tf_mount:
+            self.get_logger().info(f'camera mount from {self._mount_said}')
+            self._mount_check.clear()   # a new mount: its own agreement with the floor
+            self._tf_mount = mount
+        if mount == parameters:
             return config.detector
         try:
             return config.detector_for(mount)
@@ -277,17 +304,37 @@ class DetectorNode(Node):
             self._warn_skip('mount', f'the mount from TF cannot be used: {error}')
             return None
 
+    def _mount_cause(self) -> tuple[str, str]:
+        """(where the mount comes from, how to correct it), for the mount check's warning."""
+        if self._mount_source.buffer is not None:
+            frame = self._image_frame or 'the depth image frame'
+            return (f'the URDF (TF {self._mount_source.base_frame} <- {frame})',
+                    "correct the camera joint's origin in the URDF")
+        return ('the mount parameters (camera_height_m, camera_pitch_deg, camera_roll_deg)',
+                'set them (its --params-out writes them)')
+
     # -- diagnostics ---------------------------------------------------------------------------
     def publish_diagnostics(self) -> None:
         """Publish the health of the period since the last report on /diagnostics (1 Hz)."""
+        agreement = self._mount_check.agreement(*self._mount_cause())
+        if agreement.warning:   # also in the log, for a robot without a diagnostics monitor
+            self._throttled_logger('mount_check').warning(
+                agreement.warning, throttle_duration_sec=MOUNT_WARN_THROTTLE_S)
+        fallback = self._config.fallback_intrinsics
         context = DiagnosticsContext(
             uptime_s=time.monotonic() - self._started, depth_topic=self._depth_sub.topic_name,
             code_path=self.compute_path(),
-            mount=self._mount_said or f'parameters: {self._config.mount().describe()}')
-        # hardware_id: the frames' frame_id once one is processed, the depth topic before
-        status = health_status(self.stats.take(), context,
-                               name=status_name(self.get_fully_qualified_name()),
-                               hardware_id=self._last_frame_id or self._depth_sub.topic_name)
+            mount=self._mount_said or (
+                f'parameters: {self._config.mount().describe()}'
+                if self._mount_source.buffer is None else
+                f'TF {self._mount_source.base_frame} <- the depth image frame: no frame yet'),
+            camera_info_topic=self._info_sub.topic_name,
+            fallback_intrinsics=(f'fx={fallback.fx:g} fy={fallback.fy:g} cx={fallback.cx:g} '
+                                 f'cy={fallback.cy:g}'),
+            mount_check=agreement.values(), mount_warning=agreement.warning)
+        # hardware_id: one string for the node's life (diagnostic_updater's setHardwareID)
+        status = health_status(self.stats.take(), context, name=self._diagnostics_name,
+                               hardware_id=self._depth_sub.topic_name)
         if self.context.ok():
             msg = DiagnosticArray(status=[status])
             msg.header.stamp = self.get_clock().now().to_msg()
@@ -345,6 +392,8 @@ class DetectorNode(Node):
                 self._compile = job
                 self._publish_status()
         self._config = config
+        self._mount_check.clear()   # the mount parameters may have changed
+        release_memory()   # a heavier configuration's last frame may be done already
         changed = ', '.join(f'{p.name}={p.value!r}' for p in parameters)
         self.get_logger().info(f'parameters updated, next frame uses: {changed}')
 
@@ -405,7 +454,11 @@ class DetectorNode(Node):
 
     # -- worker thread ------------------------------------------------------------------------
     def _work(self) -> None:
+        config = self._config
         while (msg := self._mailbox.take()) is not None:
+            if self._config is not config:   # the old parameters' last frame is done
+                config = self._config
+                release_memory()   # what a heavier configuration held goes back (budget.md)
             self.handle_frame(msg)
 
     def _throttled_logger(self, kind: str) -> Any:
@@ -423,12 +476,13 @@ class DetectorNode(Node):
                                              throttle_duration_sec=WARN_THROTTLE_S)
 
     def _frame_intrinsics(self, msg: Any, shape: tuple[int, ...],
-                          config: NodeConfig) -> Intrinsics | None:
+                          config: NodeConfig) -> tuple[Intrinsics | None, bool]:
+        """Return the frame's intrinsics (None: skipped) and whether they are the fallback."""
         camera = frame_gate.camera_for(list(self._cameras), _stamp_ns(msg.header.stamp),
                                        config.camera_info_tolerance_ns)
         if isinstance(camera, frame_gate.Skip):
             self._warn_skip(camera.kind, camera.reason)
-            return None
+            return None, False
         verdict = frame_gate.choose_intrinsics(
             camera, shape, use_fallback=config.use_fallback_intrinsics,
             fallback=config.fallback_intrinsics,
@@ -440,7 +494,7 @@ class DetectorNode(Node):
                                                     throttle_duration_sec=WARN_THROTTLE_S)
         if verdict.skip is not None:
             self._warn_skip(verdict.skip.kind, verdict.skip.reason)
-        return verdict.intrinsics
+        return verdict.intrinsics, camera is None
 
     def handle_frame(self, msg: Image) -> bool:
         """Process one depth Image and publish its outputs; False if the frame was skipped."""
@@ -450,7 +504,7 @@ class DetectorNode(Node):
         if isinstance(depth, frame_gate.Skip):
             self._warn_skip(depth.kind, depth.reason)
             return False
-        intrinsics = self._frame_intrinsics(msg, depth.shape, config)
+        intrinsics, fallback = self._frame_intrinsics(msg, depth.shape, config)
         if intrinsics is None:
             return False
         skip = frame_gate.check_depth(depth, msg)
@@ -462,7 +516,7 @@ class DetectorNode(Node):
             return False
         try:
             result = detector.process(depth, intrinsics)
-            marks, clearing_points = config.nav2_clouds(result, detector.params)
+            marks, clearing_points = config.nav2_clouds(result)
             messages = result_to_messages(
                 result, stamp=msg.header.stamp, cloud_frame_id=config.cloud_frame_id,
                 costmap_frame_id=config.costmap_frame_id, image_frame_id=msg.header.frame_id,
@@ -492,8 +546,9 @@ class DetectorNode(Node):
                 self.get_logger().error(f'publishing failed: {type(error).__name__}: {error}',
                                         throttle_duration_sec=WARN_THROTTLE_S)
             return False
-        self.stats.processed(elapsed_ms)
-        self._last_frame_id = msg.header.frame_id
+        self.stats.processed(elapsed_ms, fallback=fallback)
+        self._mount_check.add(result.floor)
+        self._image_frame = msg.header.frame_id
         return True
 
     def close(self) -> None:
@@ -541,7 +596,9 @@ def help_text() -> str:
         '  out  /diagnostics              diagnostic_msgs/DiagnosticArray, 1 Hz',
         '',
         f'parameters (section "{PARAMS_FILE_KEY}:" or "/**:" of a --params-file; name  type  '
-        'default  range; use_sim_time is rclpy\'s own):',
+        'default  range; use_sim_time is rclpy\'s own, diagnostic_updater.use_fqn (bool, false: '
+        '/diagnostics names the status "obstacle_detector: ...", true: after the full name) '
+        'diagnostic_updater\'s):',
     ]
     for spec in ALL_PARAMS:
         default = repr(spec.default) if isinstance(spec.default, str) else str(spec.default)
@@ -559,8 +616,8 @@ def main(args: list[str] | None = None) -> int:
     argv = list(sys.argv if args is None else args)
     files = params_files_in_args(argv)
     try:
-        for path in files:   # rcl would end in a raw RCLError traceback
-            load_params_yaml(Path(path))
+        for path in files:   # rcl would end in a raw RCLError traceback, or refuse an
+            check_params_file(Path(path))   # integer for a float naming neither file nor fix
     except RosInputError as error:
         print(f'detector: error: {error}', file=sys.stderr)
         return 1

@@ -28,8 +28,10 @@ NODE_NAME = 'obstacle_detector'
 #: when the node runs in a namespace).
 PARAMS_FILE_KEY = f'/**/{NODE_NAME}'
 #: Parameters every rclpy node declares itself (rclpy's TimeSource and type description
-#: service): a params file may set them; they are not the node's own.
-RCLPY_PARAMETERS = ('use_sim_time', 'start_type_description_service')
+#: service), and diagnostic_updater's use_fqn (declared as the Updater does, see
+#: diagnostics.py): a params file may set them; they are not the node's own.
+RCLPY_PARAMETERS = ('use_sim_time', 'start_type_description_service',
+                    'diagnostic_updater.use_fqn')
 
 #: DetectorParams fields exposed in degrees -> their ROS parameter name.
 DEGREE_FIELDS = {
@@ -172,13 +174,13 @@ NODE_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec('fused_resolution_m', 0.05, 'Cell size of the fused costmap [m/cell]', 0.01,
               1.0),
     ParamSpec('use_tf', False,
-              'Take the camera mount from TF: the transform cloud_frame_id <- the depth '
-              "image's frame_id, at the image stamp; the mount parameters are the fallback "
-              '(said in a throttled warning). Needs tf2_ros (a ROS 2 installation); read at '
-              'start-up', read_only=True),
+              'Take the camera mount from TF (the robot use; the launch file sets it): the '
+              "transform cloud_frame_id <- the depth image's frame_id, at the image stamp; a "
+              'frame without one is dropped (a throttled warning, counted on /diagnostics), '
+              'never placed by the mount parameters. Needs tf2_ros (a ROS 2 installation): '
+              'without it the node refuses to start; read at start-up', read_only=True),
     ParamSpec('tf_timeout_s', 0.05,
-              'Longest wait for a TF lookup before a frame falls back to the mount parameters '
-              '[s]', 0.0, 1.0),
+              'Longest wait for a TF lookup before the frame is dropped [s]', 0.0, 1.0),
     ParamSpec('tf_static_mount', True,
               'The camera is bolted to the robot: look its transform up once and keep it '
               '(false: look it up for every frame, e.g. a pan-tilt head)'),
@@ -314,30 +316,51 @@ def _unknown_name(path: Path, name: str, outcome: str = '') -> str:
             'parameters')
 
 
-def read_params_file(path: str | Path) -> dict[str, ParamValue]:
-    """Return the parameter values a node parameter file sets: ``{ros_name: value}``."""
+def _checked_values(path: Path, messages: Mapping[str, Any]) -> dict[str, ParamValue]:
+    """Return the values of the node's parameters in ``messages``; RosInputError on a type.
+
+    One behaviour for the node and the tools. A name the node does not declare is left out (as
+    ROS ignores overrides a node does not declare: a robot's params file shared by many nodes
+    under "/**:" must not stop this one); params_file_problems says it, with the nearest name.
+    A value of another type is refused with the file, the name and the fix, as rcl refuses it.
+    """
     from rclpy.parameter import Parameter
 
-    path = Path(path)
-    messages, _ = _read_sections(path, f'/{NODE_NAME}')
-    if not messages:
-        raise RosInputError(f'{path}: no section naming the node (e.g. '
-                            f'"{PARAMS_FILE_KEY}:" or "/**:")')
     values: dict[str, ParamValue] = {}
     for name, message in messages.items():
-        if name in RCLPY_PARAMETERS:
-            continue
         spec = SPECS_BY_NAME.get(name)
-        if spec is None:
-            raise RosInputError(_unknown_name(path, name))
+        if spec is None:   # rclpy's own (use_sim_time) or unknown: see params_file_problems
+            continue
         value = Parameter.from_parameter_msg(message).value
-        want = type(spec.default)   # as rcl refuses it
+        want = type(spec.default)
         if type(value) is not want:
             fix = f': write {value}.0' if want is float and type(value) is int else ''
             raise RosInputError(f'{path}: parameter {name!r} must be a {want.__name__}, got '
                                 f'{value!r}{fix}')
         values[name] = value
     return values
+
+
+def check_params_file(path: str | Path, node_fqn: str = f'/{NODE_NAME}') -> None:
+    """Raise RosInputError, naming file, parameter and fix, for a file the node cannot start on.
+
+    The node's start-up check (before rcl, whose refusal names neither file nor fix).
+    """
+    path = Path(path)
+    _checked_values(path, _read_sections(path, node_fqn)[0])
+
+
+def read_params_file(path: str | Path) -> dict[str, ParamValue]:
+    """Return the parameter values a node parameter file sets: ``{ros_name: value}``.
+
+    Names the node does not declare are left out (params_file_problems says them).
+    """
+    path = Path(path)
+    messages, _ = _read_sections(path, f'/{NODE_NAME}')
+    if not messages:
+        raise RosInputError(f'{path}: no section naming the node (e.g. '
+                            f'"{PARAMS_FILE_KEY}:" or "/**:")')
+    return _checked_values(path, messages)
 
 
 def read_params_files(paths: list[str | Path] | tuple[str | Path, ...]

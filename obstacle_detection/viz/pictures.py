@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 
 from obstacle_detection.labels import GT_NO_RETURN, GT_OBSTACLE, LABEL_GROUND, LABEL_OBSTACLE
-from .overlay import (NO_RETURN_RGB, OBSTACLE_ALPHA, OBSTACLE_RGB, OCCUPIED_RGB,
+from .overlay import (MIN_GREY, NO_RETURN_RGB, OBSTACLE_ALPHA, OBSTACLE_RGB, OCCUPIED_RGB,
                       FREE_RGB, ROBOT_RGB, UNKNOWN_RGB, blend, render_costmap,
                       render_overlay)
 
@@ -48,7 +48,7 @@ def titled(image: np.ndarray, title: str, *, below: np.ndarray | None = None) ->
     width = max(part.shape[1] for part in parts)
     parts = [np.pad(part, ((0, 0), (0, width - part.shape[1]), (0, 0)), constant_values=255)
              for part in parts]
-    band = caption_band(_wrap([title], width, TITLE_SCALE), width, scale=TITLE_SCALE, bold=True)
+    band = caption_band(wrap([title], width, TITLE_SCALE), width, scale=TITLE_SCALE, bold=True)
     return np.vstack([band, *parts])
 
 
@@ -151,16 +151,25 @@ def _put(image: np.ndarray, text: str, org: tuple[int, int], *, scale: float = T
     cv2.putText(image, text, (int(x), int(org[1])), _FONT, scale, colour, 1, cv2.LINE_AA)
 
 
-def costmap_panel(costmap: Any, *, scale: int = 4,
+def costmap_panel(costmap: Any, *, scale: float = 4,
                   robot_pose: tuple[float, float, float] = (0.0, 0.0, 0.0),
                   axis_names: tuple[str, str] = ('x forward [m]', 'y left [m]')) -> np.ndarray:
-    """Return the costmap seen from above with metre axes, the camera at robot_pose (x, y, yaw)."""
-    grid = render_costmap(costmap, scale=scale)
+    """Return the costmap seen from above with metre axes, the camera at robot_pose (x, y, yaw).
+
+    scale: pixels a cell; a fraction draws the cells to the nearest pixel.
+    """
+    if float(scale).is_integer():
+        grid = render_costmap(costmap, scale=int(scale))
+    else:
+        cells = render_costmap(costmap, scale=1)
+        size = (round(cells.shape[1] * scale), round(cells.shape[0] * scale))
+        grid = cv2.resize(cells, size, interpolation=cv2.INTER_NEAREST)
+        scale = size[1] / cells.shape[0]   # the drawn pixels a cell, for the axes
     grid_h, grid_w = grid.shape[:2]
     line_h = _text_size('Ag', TEXT_SCALE)[1]
     tick_w = _text_size('-10.0', TEXT_SCALE)[0]
     left, top = tick_w + 12, line_h + 8
-    marker = max(6, scale * 2)
+    marker = max(6, round(scale * 2))
     bottom = marker + 2 * line_h + 12
     right = _text_size('-10.0', TEXT_SCALE)[0] // 2 + 4
     panel = np.full((top + grid_h + bottom, left + grid_w + right, 3), BACKGROUND_RGB,
@@ -177,7 +186,8 @@ def costmap_panel(costmap: Any, *, scale: int = 4,
         cv2.line(panel, (left - 5, row), (left - 1, row), AXIS_RGB, 1)
         _put(panel, f'{x:g}', (left - 7, row + line_h // 2 - 1), anchor='right')
     tick_y = top + grid_h + marker + line_h + 4
-    for y in _ticks(y0, y1, px_per_m, 2 * tick_w):
+    # across: 1.5 labels apart (a 4 m grid 100 px wide gets -2, 0, 2; it had 2 labels: 0)
+    for y in _ticks(y0, y1, px_per_m, 1.5 * tick_w):
         col = left + round((y1 - y) * px_per_m)
         cv2.line(panel, (col, top + grid_h), (col, top + grid_h + 4), AXIS_RGB, 1)
         _put(panel, f'{y:g}', (col, tick_y), anchor='centre')
@@ -185,16 +195,27 @@ def costmap_panel(costmap: Any, *, scale: int = 4,
     # the camera's foot point (or the robot), its tip pointing along its heading (x forward is
     # up, y left is left); below the grid when x = 0 is its edge
     rx, ry, yaw = robot_pose
-    col = left + (y1 - ry) * px_per_m
-    row = top + (x1 - rx) * px_per_m
+    robot_marker(panel, (left + (y1 - ry) * px_per_m, top + (x1 - rx) * px_per_m), yaw, marker)
+    return panel
+
+
+#: Half the width of the robot marker over its length.
+_MARKER_HALF_WIDTH = 0.6
+
+
+def robot_marker(image: np.ndarray, tip: tuple[float, float], yaw: float, length: float,
+                 colour: tuple[int, int, int] = ROBOT_RGB) -> None:
+    """Draw the robot (or camera foot point): a triangle with its tip at (col, row) [px].
+
+    yaw 0 points up the image (x forward is up, y left is left); the legend draws the same.
+    """
     ahead = np.array([-math.sin(yaw), -math.cos(yaw)])      # (d col, d row) of the heading
     side = np.array([ahead[1], -ahead[0]])
-    tip = np.array([col, row])
-    base = tip - marker * ahead
-    triangle = np.array([tip, base + 0.6 * marker * side,
-                         base - 0.6 * marker * side]).round().astype(np.int32)
-    cv2.fillPoly(panel, [triangle], ROBOT_RGB, cv2.LINE_AA)
-    return panel
+    tip_px = np.array(tip, dtype=np.float64)
+    base = tip_px - length * ahead
+    triangle = np.array([tip_px, base + _MARKER_HALF_WIDTH * length * side,
+                         base - _MARKER_HALF_WIDTH * length * side]).round().astype(np.int32)
+    cv2.fillPoly(image, [triangle], colour, cv2.LINE_AA)
 
 
 def _swatch(image: np.ndarray, x: int, y: int, size: int, kind: str,
@@ -205,9 +226,14 @@ def _swatch(image: np.ndarray, x: int, y: int, size: int, kind: str,
         cv2.rectangle(image, (x, y), (x + size, y + size), AXIS_RGB, 1)
     elif kind == 'line':
         cv2.line(image, (x, y + size // 2), (x + size, y + size // 2), colour, 2)
-    elif kind == 'triangle':
-        pts = np.array([[x + size // 2, y], [x, y + size], [x + size, y + size]], np.int32)
-        cv2.fillPoly(image, [pts], colour, cv2.LINE_AA)
+    elif kind == 'robot':   # the marker the grids draw, facing up
+        length = size / (2 * _MARKER_HALF_WIDTH)
+        robot_marker(image, (x + size / 2, y + (size - length) / 2), 0.0, length, colour)
+    elif kind == 'shades':   # a colour over the depth grey: near (dark) left, far right
+        near, far = colour
+        cv2.rectangle(image, (x, y), (x + size // 2, y + size), near, -1)
+        cv2.rectangle(image, (x + size // 2 + 1, y), (x + size, y + size), far, -1)
+        cv2.rectangle(image, (x, y), (x + size, y + size), AXIS_RGB, 1)
 
 
 def legend(title: str, items: Sequence[tuple[str, tuple[int, int, int], str]],
@@ -219,7 +245,7 @@ def legend(title: str, items: Sequence[tuple[str, tuple[int, int, int], str]],
     used = 4
     for kind, colour, text in items:
         # an item wider than the legend goes on rows of its own, its text wrapped
-        lines = _wrap([text], width - size - 6, TEXT_SCALE) if \
+        lines = wrap([text], width - size - 6, TEXT_SCALE) if \
             size + 20 + _text_size(text, TEXT_SCALE)[0] > width else [text]
         for k, line in enumerate(lines):
             need = size + 6 + _text_size(line, TEXT_SCALE)[0] + 14
@@ -240,7 +266,7 @@ def legend(title: str, items: Sequence[tuple[str, tuple[int, int, int], str]],
     return band
 
 
-def _wrap(lines: Sequence[str], width: int, scale: float = 0.5) -> list[str]:
+def wrap(lines: Sequence[str], width: int, scale: float = 0.5) -> list[str]:
     """Split lines at spaces so that each fits ``width`` px (continuations indented)."""
     out: list[str] = []
     for line in lines:
@@ -279,7 +305,7 @@ def side_by_side(result: Any, params: Any, *, caption: str = '',
         parts.append(legend_row([p.shape[1] for p in panels], params,
                                 truth=truth_labels is not None, above_robot=above is not None))
     lines = [line for line in (caption, *extra_lines) if line]
-    parts.append(caption_band(_wrap(lines, top.shape[1]), top.shape[1]))
+    parts.append(caption_band(wrap(lines, top.shape[1]), top.shape[1]))
     return np.vstack(parts)
 
 
@@ -300,7 +326,8 @@ def _grid_scale(costmap: Any, height: int, width: int) -> int:
 def legend_row(widths: Sequence[int], params: Any, *, truth: bool,
                above_robot: bool) -> np.ndarray:
     """Return the legends of the panels (``widths`` [px]) side by side, padded to one height."""
-    depth_items = [('box', over_grey(OBSTACLE_RGB, OBSTACLE_ALPHA), 'obstacle'),
+    depth_items = [('shades', depth_shades(OBSTACLE_RGB, OBSTACLE_ALPHA),
+                    'obstacle (over its depth: dark near, light far)'),
                    ('box', over_grey(GROUND_RGB, GROUND_TINT), 'ground (passable)')]
     if above_robot:
         depth_items.append(('box', over_grey(ABOVE_ROBOT_RGB, GROUND_TINT),
@@ -326,7 +353,14 @@ def legend_row(widths: Sequence[int], params: Any, *, truth: bool,
 def _grid_items(cells: tuple[str, str, str], robot: str) -> list:
     """Legend items of a costmap panel: occupied, free, unknown, the robot."""
     return [*(('box', colour, text) for colour, text in
-              zip((OCCUPIED_RGB, FREE_RGB, UNKNOWN_RGB), cells)), ('triangle', ROBOT_RGB, robot)]
+              zip((OCCUPIED_RGB, FREE_RGB, UNKNOWN_RGB), cells)), ('robot', ROBOT_RGB, robot)]
+
+
+def depth_shades(colour: tuple[int, int, int], share: float
+                 ) -> tuple[tuple[int, int, int], tuple[int, int, int]]:
+    """Return ``colour`` over the nearest and the farthest depth grey, as the overlay draws it."""
+    return (tuple(int(v) for v in blend(colour, MIN_GREY, share)),
+            tuple(int(v) for v in blend(colour, 255, share)))
 
 
 def over_grey(colour: tuple[int, int, int], share: float,
@@ -363,7 +397,8 @@ def heatmap(scores: np.ndarray, x_labels: Sequence[str], y_labels: Sequence[str]
     left = label_w + 12
     line_h = _text_size('Ag', TEXT_SCALE)[1]
     top = 2 * (line_h + 6)   # and as much below the grid
-    image = np.full((2 * top + ny * cell_px, max(left + nx * cell_px + 8, 160), 3),
+    image = np.full((2 * top + ny * cell_px, max(left + nx * cell_px + 8, 160,
+                                                 _text_size(title, TEXT_SCALE)[0] + 8), 3),
                     BACKGROUND_RGB, dtype=np.uint8)
     image[top:top + ny * cell_px, left:left + nx * cell_px] = \
         np.repeat(np.repeat(colours, cell_px, axis=0), cell_px, axis=1)
@@ -392,6 +427,25 @@ def heatmap(scores: np.ndarray, x_labels: Sequence[str], y_labels: Sequence[str]
     return image
 
 
+def colour_bar(width: int, text: str, *, low: str = '0', high: str = '1') -> np.ndarray:
+    """Return the heatmaps' one colour scale (viridis, 0 to 1) with its labels and ``text``."""
+    line_h = _text_size('Ag', TEXT_SCALE)[1]
+    bar_w = min(256, width - 16 - _text_size(low, TEXT_SCALE)[0] - _text_size(high,
+                                                                               TEXT_SCALE)[0])
+    ramp = np.linspace(0, 255, max(bar_w, 2)).round().astype(np.uint8)[np.newaxis, :]
+    colours = cv2.cvtColor(cv2.applyColorMap(ramp, cv2.COLORMAP_VIRIDIS), cv2.COLOR_BGR2RGB)
+    lines = wrap([text], width)
+    band = np.full((line_h * 2 + 12 + (line_h + 6) * len(lines), width, 3), BACKGROUND_RGB,
+                   dtype=np.uint8)
+    x0 = 8 + _text_size(low, TEXT_SCALE)[0]
+    band[4:4 + line_h * 2, x0:x0 + colours.shape[1]] = colours
+    _put(band, low, (4, 4 + line_h + line_h // 2))
+    _put(band, high, (x0 + colours.shape[1] + 4, 4 + line_h + line_h // 2))
+    for k, line in enumerate(lines):
+        _put(band, line, (4, line_h * 2 + 10 + (line_h + 6) * (k + 1) - 4))
+    return band
+
+
 def tile(images: Sequence[np.ndarray], *, columns: int = 3,
          labels: Sequence[str] | None = None) -> np.ndarray:
     """Images (RGB) placed on a grid without scaling, white padding, ``labels`` under them."""
@@ -415,7 +469,8 @@ def tile(images: Sequence[np.ndarray], *, columns: int = 3,
 def node_outputs_legend(widths: Sequence[int]) -> np.ndarray:
     """Return the legend row under :func:`node_outputs` (panel widths [px])."""
     parts = [legend('obstacles/overlay (camera view)', [
-        ('box', over_grey(OBSTACLE_RGB, OBSTACLE_ALPHA), 'obstacle pixel'),
+        ('shades', depth_shades(OBSTACLE_RGB, OBSTACLE_ALPHA),
+         'obstacle pixel (over its depth: dark near, light far)'),
         ('box', (160, 160, 160), 'other depth: dark near, white far'),
         ('box', NO_RETURN_RGB, 'no return')], widths[0]),
         legend('obstacles/costmap, top view [m]', _grid_items(
@@ -438,13 +493,19 @@ def node_outputs(overlay: np.ndarray, costmap: Any, *, caption: Sequence[str],
     """
     overlay = _scaled(overlay, image_scale)
     height, width = overlay.shape[:2]
-    panels = [overlay, costmap_panel(costmap, scale=_grid_scale(costmap, height, width))]
+    # pixels a cell, a fraction too: the grids grow with the overlay, not in whole steps; each
+    # grid 0.8 of the overlay's width, so that three panels share a row evenly
+    scale = max(1.0, min(0.8 * width / max(costmap.height, 1), height / max(costmap.width, 1)))
+    panels = [overlay, costmap_panel(costmap, scale=scale)]
     if fused is not None:
-        panels.append(costmap_panel(fused, scale=_grid_scale(fused, height, width),
+        # at the costmap's metres per pixel: a 4 m window is as wide as the costmap's 4 m (it
+        # was fitted to the overlay's height: 80 px, one tick)
+        panels.append(costmap_panel(fused, scale=scale * costmap.resolution_m
+                                    / fused.resolution_m,
                                     robot_pose=robot_pose,
                                     axis_names=('x [m], odom', 'y [m], odom')))
     row = join_panels(panels)
-    parts = [row, caption_band(_wrap(caption, row.shape[1]), row.shape[1])]
+    parts = [row, caption_band(wrap(caption, row.shape[1]), row.shape[1])]
     if with_legend:
         parts.append(node_outputs_legend([p.shape[1] for p in panels]))
     return np.vstack(parts)

@@ -24,6 +24,8 @@ AVAILABLE: bool = numba is not None
 prange = numba.prange if numba is not None else range
 
 _SCRATCH = threading.local()
+#: The kernels cached on disk, in definition order (jit.cache_filled looks for their files).
+CACHED_KERNELS: list[Any] = []
 
 
 def jit(func: Callable[..., Any] | None = None, **options: Any) -> Any:
@@ -37,9 +39,12 @@ def jit(func: Callable[..., Any] | None = None, **options: Any) -> Any:
     if numba is None:
         return func
     try:
-        return numba.njit(cache=True, nogil=True, boundscheck=False, **options)(func)
+        kernel = numba.njit(cache=True, nogil=True, boundscheck=False, **options)(func)
     except RuntimeError:   # no writable cache directory: compiled in memory at each start
         return numba.njit(cache=False, nogil=True, boundscheck=False, **options)(func)
+    if options.get('inline') != 'always':   # an inlined one lives in its callers' files
+        CACHED_KERNELS.append(kernel)
+    return kernel
 
 
 def set_threads(threads: int) -> None:
