@@ -337,7 +337,8 @@ def frame_truth(sequence_frame: object, params: object,
     """(obstacle (O, 3), floor (T, 3), person (P, 3)) true base-frame points of a frame.
 
     The pixels the sensor returned whose true point lies in the detector's region of interest
-    (``params``): obstacle points (``GT_OBSTACLE``), traversable floor (``GT_TRAVERSABLE``;
+    (``params``): obstacle points (``GT_OBSTACLE``, up to a cell beyond the far and side
+    edges), traversable floor (``GT_TRAVERSABLE``;
     surfaces above the robot are left out: a wall whose foot is hidden behind a table is not
     free floor; so is floor under a Box lower than the robot, the floor under a table top: its
     column holds an obstacle whether or not the frame sees it), and the obstacle points on the
@@ -350,13 +351,21 @@ def frame_truth(sequence_frame: object, params: object,
     frame = sequence_frame.frame
     points = frame.points_ground.reshape(-1, 3)
     labels = frame.labels.reshape(-1)
-    keep = np.isfinite(points).all(axis=1)
-    keep[keep] = geometry.roi_mask(points[keep], params)
+    finite = np.isfinite(points).all(axis=1)
+    keep = finite.copy()
+    keep[finite] = geometry.roi_mask(points[finite], params)
+    # obstacles a cell beyond the region's far and side edges count too: the node's region is
+    # measured from where it believes the camera is (a pitching body moves it 2 cm ahead), and
+    # the wall it marks at its edge is no ghost
+    cell = params.costmap_resolution_m
+    wide = finite.copy()
+    wide[finite] = geometry.roi_mask(points[finite], params.replace(
+        max_range_m=params.max_range_m + cell, lateral_limit_m=params.lateral_limit_m + cell))
     person = np.zeros(labels.shape, bool)
     index = [i for i, p in enumerate(frame.primitives) if isinstance(p, Cylinder)]
     if index:
         person = frame.hit_index.reshape(-1) == index[0]
-    obstacle = keep & (labels == GT_OBSTACLE)
+    obstacle = wide & (labels == GT_OBSTACLE)
     free = keep & (labels == GT_TRAVERSABLE)
     free[np.flatnonzero(free)[under_boxes(points[free], sequence_frame.pose_true,
                                           frame.primitives, params.robot_height_m)]] = False
