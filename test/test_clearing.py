@@ -280,3 +280,16 @@ def test_on_a_body_pitching_2_deg_the_clearing_cloud_lies_on_the_true_surfaces()
 
     assert np.median(np.concatenate(errors['published'])) < 0.003
     assert np.median(np.concatenate(errors['as seen'])) > 0.02
+
+
+def test_a_ray_over_a_tall_column_passes_and_one_through_it_stops() -> None:
+    # a box face 5-40 cm up in the cell x 1.00-1.05: over it a ray clears its top voxel only
+    face = np.array([[1.01, 0.01, z] for z in (0.05, 0.15, 0.25, 0.40)])
+    rays = _optical([[2.0, 0.02, 0.30],      # passes x = 1.0 at 0.45: over the column
+                     [2.0, 0.02, 0.0]])      # passes x = 0.95 at 0.315: into it
+
+    out = clearing.guarded(rays, face, *LEVEL, cell_m=0.05, voxel_m=0.1)
+
+    np.testing.assert_allclose(out[0], rays[0], atol=1e-6)
+    rot, t = LEVEL
+    assert (out[1].astype(np.float64) @ rot.T + t)[0] == pytest.approx(0.95, abs=1e-5)
