@@ -60,14 +60,16 @@ class NodeConfig:
     def nav2_clouds(self, result: DetectionResult) -> tuple[np.ndarray, np.ndarray | None]:
         """(obstacles/points, obstacles/clearing_points or None) of a frame, as the node sends.
 
-        With publish_clearing the marks and rays are matched for a voxel layer placing the
-        camera by the frame's nominal pose (pipeline.clearing.nav2_clouds); without, the
-        marks are the result's.
+        With publish_clearing and clearing_voxel_m > 0 the marks and rays are matched for a
+        voxel layer placing the camera by the frame's nominal pose
+        (pipeline.clearing.nav2_clouds); otherwise the marks are the result's.
         """
         if not self.publish_clearing:
             return result.obstacle_points, None
         points = clearing.clearing_cloud(result, stride_px=self.clearing_stride_px,
                                          range_m=self.clearing_range_m)
+        if self.clearing_voxel_m == 0.0:
+            return result.obstacle_points, points
         pose = result.pose
         return clearing.nav2_clouds(
             result.obstacle_points, points, pose.rotation(nominal=True),
