@@ -293,3 +293,27 @@ def test_a_ray_over_a_tall_column_passes_and_one_through_it_stops() -> None:
     np.testing.assert_allclose(out[0], rays[0], atol=1e-6)
     rot, t = LEVEL
     assert (out[1].astype(np.float64) @ rot.T + t)[0] == pytest.approx(0.95, abs=1e-5)
+
+
+@pytest.mark.parametrize('voxel_m', [0.1, 0.0])
+def test_the_node_matches_its_marks_unless_clearing_voxel_m_is_0(voxel_m: float) -> None:
+    from obstacle_detection.cli import bag_processor
+    from obstacle_detection.sim.scenes import render_scene
+
+    corridor = REPO / 'params' / 'corridor.yaml'
+    values = bag_processor.node_param_values(corridor) | {'clearing_voxel_m': voxel_m}
+    config = bag_processor.config_from_values(values, str(corridor))
+    frame = render_scene('corridor', seed=1)
+    result = config.detector.process(frame.depth_mm, frame.intrinsics)
+
+    marks, points = config.nav2_clouds(result)
+
+    seen = clearing.clearing_cloud(result, stride_px=4, range_m=4.0)
+    if voxel_m == 0.0:     # STVL: the clouds as seen
+        assert marks is result.obstacle_points
+        np.testing.assert_array_equal(points, seen)
+    else:                  # the walls run out of the view: their edge marks are left out
+        sent = {tuple(p) for p in marks.tolist()}
+        left_out = [p for p in result.obstacle_points.tolist() if tuple(p) not in sent]
+        assert 0 < len(left_out) < 0.2 * result.obstacle_points.shape[0]
+        assert points.shape[0] == seen.shape[0] and not np.array_equal(points, seen)
