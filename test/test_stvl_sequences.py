@@ -176,7 +176,9 @@ def update_periods(config: nav2.CostmapConfig) -> dict[str, int]:
 @pytest.fixture(scope='module')
 def figures() -> dict[tuple[str, str], replay.SequenceFigures]:
     config = stvl.read_stvl_costmap(STVL_YAML)
-    values = bag_processor.node_param_values(CORRIDOR)
+    # with STVL the node sends the clouds as seen: no marks matched to a raytracing layer's
+    # cells and voxels (clearing_voxel_m 0, params/nav2_stvl.yaml says so)
+    values = bag_processor.node_param_values(CORRIDOR) | {'clearing_voxel_m': 0.0}
     groups: dict[tuple, list[Run]] = {}
     for run in RUNS:        # runs that share their frames are played together
         groups.setdefault((run.sequence, run.body_pitch), []).append(run)
@@ -195,19 +197,10 @@ RATES = list(update_periods(stvl.read_stvl_costmap(STVL_YAML)))
 #: edge lands on floor seen free since the start: 1 stale cell).
 LATE_AT_5_HZ = pytest.mark.xfail(strict=True, reason='STVL marks after it fills the costmap: '
                                  'one update late (spatio_temporal_voxel_layer issue #284)')
-#: drive_by_table at every frame: a few frames see the far part of the table top (0.72 m, in
-#: the robot's band) at the edge of the view; those voxels leave the frustum and stay 15 s (up
-#: to 22 cells), over cells whose last view saw the floor under the top, which the replay's
-#: truth then calls free (F1 0.964; 0.961 with the URDF off; 0.983 pitching). At 5 Hz those
-#: frames are not sampled.
-TABLE_TOP = pytest.mark.xfail(strict=True, reason='the table top kept over floor seen beneath '
-                              'it, which the truth calls free')
 KNOWN_MISSES = {('f1', 'drive_past_boxes', '5 Hz'): LATE_AT_5_HZ,
                 ('f1', 'person_crossing', '5 Hz'): LATE_AT_5_HZ,
                 ('stale', 'person_crossing', '5 Hz'): LATE_AT_5_HZ,
-                ('f1', 'person_leaving_edge', '5 Hz'): LATE_AT_5_HZ,
-                ('f1', 'drive_by_table', '30 Hz'): TABLE_TOP,
-                ('f1', 'drive_by_table, URDF off', '30 Hz'): TABLE_TOP}
+                ('f1', 'person_leaving_edge', '5 Hz'): LATE_AT_5_HZ}
 
 
 def cases(figure: str) -> list[Any]:
