@@ -52,7 +52,9 @@ class UpdateInput:
     truth_person (P, 3): the true obstacle points on the person (a moving object: a cell it
     was last seen in, not seen since, has no known truth: the person may have left it);
     person_disc: the person's true footprint now, (x [m], y [m], radius [m]) in odom (the
-    cells under it that the frame does not see have no known truth: it hides them).
+    cells under it that the frame does not see have no known truth: it hides them);
+    mount: (R, t) of the optical frame in base_footprint that TF gives at this instant (a
+    TF following the body's true pitch); None: the replay's static URDF mount.
     """
 
     index: int
@@ -64,6 +66,7 @@ class UpdateInput:
     person_in_view: bool | None = None
     truth_person: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     person_disc: tuple[float, float, float] | None = None
+    mount: tuple[np.ndarray, np.ndarray] | None = None
 
 
 def rotation_z(yaw_rad: float) -> np.ndarray:
@@ -167,8 +170,9 @@ class Replay:
         """Put the clouds through 'TF': base_footprint and the optical frame into odom."""
         base_rot = rotation_z(inp.pose[2])
         base_t = np.array([inp.pose[0], inp.pose[1], 0.0])
-        cam_rot = base_rot @ self.mount[0]
-        cam_t = base_t + base_rot @ self.mount[1]
+        mount = self.mount if inp.mount is None else inp.mount
+        cam_rot = base_rot @ mount[0]
+        cam_t = base_t + base_rot @ mount[1]
         out = {}
         for name, source in self.sources.items():
             if source.topic.lstrip('/') == 'obstacles/points':
@@ -335,7 +339,9 @@ def frame_truth(sequence_frame: object, params: object,
     The pixels the sensor returned whose true point lies in the detector's region of interest
     (``params``): obstacle points (``GT_OBSTACLE``), traversable floor (``GT_TRAVERSABLE``;
     surfaces above the robot are left out: a wall whose foot is hidden behind a table is not
-    free floor), and the obstacle points on the person (a Cylinder), if any.
+    free floor; so is floor under a Box lower than the robot, the floor under a table top: its
+    column holds an obstacle whether or not the frame sees it), and the obstacle points on the
+    person (a Cylinder), if any.
     """
     from obstacle_detection.labels import GT_OBSTACLE, GT_TRAVERSABLE
     from obstacle_detection.pipeline import geometry
@@ -351,5 +357,28 @@ def frame_truth(sequence_frame: object, params: object,
     if index:
         person = frame.hit_index.reshape(-1) == index[0]
     obstacle = keep & (labels == GT_OBSTACLE)
-    return (points[obstacle], points[keep & (labels == GT_TRAVERSABLE)],
-            points[obstacle & person])
+    free = keep & (labels == GT_TRAVERSABLE)
+    free[np.flatnonzero(free)[under_boxes(points[free], sequence_frame.pose_true,
+                                          frame.primitives, params.robot_height_m)]] = False
+    return points[obstacle], points[free], points[obstacle & person]
+
+
+def under_boxes(points: np.ndarray, pose: tuple[float, float, float], primitives: tuple,
+                robot_height_m: float) -> np.ndarray:
+    """Return (N,) bool: the base-frame points under an obstacle Box lower than the robot.
+
+    The column of such a point (a table top over the floor) holds an obstacle in the scene.
+    """
+    from obstacle_detection.sim.scenes import Box
+
+    x, y, yaw = pose
+    c, s = math.cos(yaw), math.sin(yaw)
+    px, py = points[:, 0].astype(np.float64), points[:, 1].astype(np.float64)
+    wx, wy = x + c * px - s * py, y + s * px + c * py      # in the scene frame (odom)
+    covered = np.zeros(wx.shape, bool)
+    for primitive in primitives:
+        if isinstance(primitive, Box) and not primitive.traversable and \
+                primitive.min_m[2] < robot_height_m:
+            (x0, y0, _), (x1, y1, _) = primitive.min_m, primitive.max_m
+            covered |= (wx >= x0) & (wx <= x1) & (wy >= y0) & (wy <= y1)
+    return covered

@@ -27,7 +27,7 @@ from obstacle_detection.ros.conversions import (array_to_image, image_to_array,
                                             intrinsics_to_camera_info, result_to_messages)
 from obstacle_detection.pipeline.params import KINECT_V2_SD, Intrinsics
 from obstacle_detection.pipeline.detector import Detector
-from obstacle_detection.ros.parameters import detector_params_from_ros
+from obstacle_detection.ros.parameters import ALL_PARAMS, detector_params_from_ros
 from obstacle_detection.sim.scenes import render_scene
 from obstacle_detection.cli import bag_writer
 from obstacle_detection.cli import bag_processor
@@ -113,10 +113,14 @@ def expected_outputs(depth: np.ndarray, intr: Intrinsics, t: int) -> dict[str, o
     """
     detector = Detector(detector_params_from_ros(PARAM_VALUES))
     result = detector.process(depth, intr)
+    # the marks the node sends with publish_clearing (on by default): matched to its rays
+    config = bag_processor.config_from_values(
+        {spec.name: spec.default for spec in ALL_PARAMS} | PARAM_VALUES, 'test')
+    marks, _ = config.nav2_clouds(result, detector.params)
     messages = result_to_messages(
         result, stamp=to_time(t), cloud_frame_id='base_link',
         costmap_frame_id='base_footprint', image_frame_id=FRAME_ID, with_ground=True,
-        overlay_rgb=render_overlay(result.depth_m, result.labels))
+        overlay_rgb=render_overlay(result.depth_m, result.labels), obstacle_points=marks)
     return {key: deserialize_message(serialize_message(msg), type(msg))
             for key, msg in messages.items()}
 

@@ -176,3 +176,107 @@ def test_on_a_body_pitching_2_deg_the_clearing_cloud_lies_on_the_true_surfaces()
 
     assert np.median(np.concatenate(errors['published'])) < 0.003
     assert np.median(np.concatenate(errors['as seen'])) > 0.02
+
+
+# --- marks and rays matched to a voxel layer (clearing.nav2_clouds), level camera 0.6 m up ----
+#: optical -> base of a level camera 0.6 m above base_footprint's origin
+LEVEL = (clearing.OPTICAL_TO_BODY, np.array([0.0, 0.0, 0.6]))
+
+
+def _optical(base_points: list[list[float]]) -> np.ndarray:
+    """Return base-frame points of the level camera in its optical frame, float32."""
+    rot, t = LEVEL
+    return ((np.array(base_points, np.float64) - t) @ rot).astype(np.float32)
+
+
+def test_marks_less_than_a_cell_inside_the_outermost_rays_are_not_reachable() -> None:
+    # the outermost rays run at 45 degrees left and right (optical x / z = -1 and +1)
+    rays = _optical([[3.0, 3.0, 0.0], [3.0, -3.0, 0.0], [3.0, 0.0, 0.0]])
+    marks = np.array([[2.0, 1.98, 0.3],      # 0.014 m inside the left ray: dropped
+                      [2.0, 1.90, 0.3],      # 0.07 m inside: kept
+                      [2.0, -1.96, 0.3],     # 0.028 m inside the right ray: dropped
+                      [2.0, 0.0, 0.3],
+                      [-1.0, 0.0, 0.3]])     # behind the camera: dropped
+
+    keep = clearing.reachable_marks(marks, rays, *LEVEL, margin_m=0.05)
+
+    assert keep.tolist() == [False, True, False, True, False]
+    assert not clearing.reachable_marks(marks, rays[:0], *LEVEL, margin_m=0.05).any()
+
+
+def test_a_column_marked_only_within_a_voxel_is_filled_two_voxels_down() -> None:
+    top = [[1.01, 0.01, 0.30], [1.02, 0.02, 0.33]]             # a box top: one cell, 3 cm
+    face = [[1.51, 0.01, 0.05], [1.51, 0.01, 0.30]]            # a face: 25 cm, left alone
+    low = [[2.01, 0.01, 0.04]]                                  # 4 cm up: filled down to 0
+
+    out = clearing.filled_marks(np.array(top + face + low), cell_m=0.05, voxel_m=0.1)
+
+    assert out.dtype == np.float32 and out[:5].tolist() == np.float32(top + face + low).tolist()
+    filled = out[5:]
+    np.testing.assert_allclose(sorted(filled[np.isclose(filled[:, 0], 1.01), 2]),
+                               [0.10, 0.15, 0.20, 0.25], atol=1e-6)
+    np.testing.assert_allclose(sorted(filled[np.isclose(filled[:, 0], 1.02), 2]),
+                               [0.13, 0.18, 0.23, 0.28], atol=1e-6)
+    np.testing.assert_allclose(filled[np.isclose(filled[:, 0], 2.01), 2], 0.0, atol=1e-7)
+    assert not np.isclose(filled[:, 0], 1.51).any()
+
+
+def test_a_ray_stops_where_it_enters_a_guarded_column() -> None:
+    # a mark 0.25 m up in the cell x 1.00-1.05: its column is x 0.95-1.10, z 0.15-0.35
+    mark = np.array([[1.01, 0.01, 0.25]])
+    rays = _optical([[2.0, 0.02, 0.0],       # to the floor behind: passes x = 0.95 at 0.315
+                     [2.0, 0.02, 0.6],       # level, far above: untouched
+                     [0.8, 0.02, 0.0]])      # ends before the column: untouched
+
+    out = clearing.guarded(rays, mark, *LEVEL, cell_m=0.05, voxel_m=0.1)
+
+    rot, t = LEVEL
+    ends = out.astype(np.float64) @ rot.T + t
+    assert ends[0, 0] == pytest.approx(0.95, abs=1e-5)          # the column's grown near side
+    assert ends[0, 2] == pytest.approx(0.6 * (1 - 0.95 / 2.0), abs=1e-5)
+    np.testing.assert_allclose(out[1:], rays[1:], atol=1e-6)
+
+
+def test_a_ray_from_inside_a_guarded_column_is_dropped() -> None:
+    rays = _optical([[2.0, 0.0, 0.0], [2.0, 1.0, 0.0]])
+    mark = np.array([[0.0, 0.0, 0.6]])       # the camera's own column
+
+    out = clearing.guarded(rays, mark, *LEVEL, cell_m=0.05, voxel_m=0.1)
+
+    assert out.shape == (0, 3)
+
+
+def test_nav2_clouds_leave_out_edge_marks_and_stop_the_rays_before_them() -> None:
+    # rays fan out to 45 degrees; a person's edge at the left one, 2 m ahead
+    fan = [[3.0, y, 0.0] for y in np.linspace(-3.0, 3.0, 61)]
+    rays = _optical(fan)
+    edge = [[2.0, 1.985, z] for z in (0.1, 0.5, 0.9)]
+    inside = [[2.0, 0.5, z] for z in (0.1, 0.5, 0.9)]
+
+    marks, points = clearing.nav2_clouds(np.array(edge + inside, np.float32), rays, *LEVEL,
+                                         cell_m=0.05, voxel_m=0.1)
+
+    np.testing.assert_allclose(marks, np.float32(inside))
+    rot, t = LEVEL
+    ends = points.astype(np.float64) @ rot.T + t
+    slope = ends[:, 1] / ends[:, 0]
+    # the edge column (x 2.00-2.05, y 1.95-2.00) grown by a cell: the 45 deg ray enters it at
+    # x = 1.95, its two neighbours (y / x = 0.967, 0.933) at y = 1.90; the others pass it by
+    assert ends[np.isclose(slope, 1.0), 0] == pytest.approx([1.95], abs=1e-5)
+    near = (slope > 0.92) & (slope < 0.99)
+    assert ends[near, 1] == pytest.approx([1.90, 1.90], abs=1e-5)
+    assert np.isclose(ends[slope < 0.92, 0], 3.0, atol=1e-4).all()
+
+
+def test_the_compiled_ray_guard_equals_the_reference(both_paths) -> None:
+    rng = np.random.default_rng(7)
+    rays = _optical(np.column_stack((rng.uniform(0.5, 4.0, 3000), rng.uniform(-2, 2, 3000),
+                                     rng.uniform(-0.2, 1.5, 3000))).tolist())
+    marks = np.column_stack((rng.uniform(0.5, 2.0, 300), rng.uniform(-1, 1, 300),
+                             rng.uniform(0.0, 1.0, 300)))
+
+    out = both_paths(clearing.guarded, rays, marks, *LEVEL, cell_m=0.05, voxel_m=0.1)
+
+    assert 0 < out.shape[0] <= rays.shape[0]
+    assert (np.linalg.norm(out, axis=1) < np.linalg.norm(rays[:out.shape[0]], axis=1)
+            - 1e-6).any() or out.shape[0] < rays.shape[0]

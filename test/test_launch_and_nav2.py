@@ -459,6 +459,8 @@ def test_nav2_ranges_and_window_cover_the_corridor_region_of_interest() -> None:
     assert min(costmap['width'], costmap['height']) / 2 >= reach
     assert costmap['resolution'] == pytest.approx(float(params['costmap_resolution_m']))
     assert costmap['robot_base_frame'] == params['cloud_frame_id']
+    # the node matches its marks and rays to the layer's cell and voxel (clearing.nav2_clouds)
+    assert _layer()['z_resolution'] == pytest.approx(float(params['clearing_voxel_m']))
 
 
 @pytest.mark.parametrize('scene', ['corridor', 'step_down'])

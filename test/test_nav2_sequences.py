@@ -60,8 +60,8 @@ LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
 class Harness(ros_env.NodeProcess):
     """The node process (as the README starts it) and a probe node talking to it."""
 
-    def __init__(self, tmp: Path) -> None:
-        super().__init__(tmp, __name__, 'nav2_sequence_probe', spin_step_s=0.02)
+    def __init__(self, tmp: Path, salt: str = __name__) -> None:
+        super().__init__(tmp, salt, 'nav2_sequence_probe', spin_step_s=0.02)
         self.depth_pub = self.node.create_publisher(Image, 'depth/image_raw', RELIABLE)
         self.info_pub = self.node.create_publisher(CameraInfo, 'depth/camera_info', LATCHED)
         self.subs = [self.by_stamp(topic, PointCloud2, topic, RELIABLE)

@@ -9,7 +9,7 @@ import numpy as np
 
 from . import jit
 from ._compiled import clearing as compiled
-from .geometry import pixel_rays
+from .geometry import OPTICAL_TO_BODY, pixel_rays
 from .params import Intrinsics
 
 #: Points added along the rays of the outermost valid pixels of each row, as fractions of the
@@ -86,7 +86,173 @@ def _points(z: np.ndarray, x_per_z: np.ndarray, y_per_z: np.ndarray,
 
 
 def warm_up() -> None:
-    """Compile (or load from numba's disk cache) the clearing kernel, if it runs."""
+    """Compile (or load from numba's disk cache) the clearing kernels, if they run."""
     if jit.enabled():
-        clearing_points(np.ones((6, 8), np.float32), Intrinsics(fx=4.0, fy=4.0, cx=4.0, cy=3.0),
-                        stride_px=2, range_m=1.0)
+        points = clearing_points(np.ones((6, 8), np.float32),
+                                 Intrinsics(fx=4.0, fy=4.0, cx=4.0, cy=3.0), stride_px=2,
+                                 range_m=1.0)
+        guarded(points, np.array([[1.0, 0.0, 0.5]]), OPTICAL_TO_BODY, np.array([0.0, 0.0, 0.5]),
+                cell_m=0.05, voxel_m=0.1)
+
+
+
+# --- what the node sends Nav2's VoxelLayer (issue 29; docs/node.md, "Marks and rays for Nav2")
+
+def nav2_clouds(marks: np.ndarray, points: np.ndarray, rotation: np.ndarray,
+                translation: np.ndarray, *, cell_m: float, voxel_m: float,
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Return (marks (M', 3), clearing points (N', 3)) float32 for a voxel layer like Nav2's.
+
+    marks: the frame's obstacle points, base frame; points: its clearing cloud, optical frame;
+    rotation (3, 3), translation (3,): the optical frame in the base frame as the consumer
+    places the cloud (the nominal mount); cell_m, voxel_m: the consumer's cell and voxel size.
+    Nav2 raytraces between whole cells (up to a cell beside the true ray) and clears whole
+    voxels, then frees a column whose voxels are all clear. So: marks less than a cell inside
+    the outermost clearing rays are not sent (no ray could clear them once their obstacle left),
+    and the rays stop before those marks' columns (they are obstacles the camera still sees);
+    a column whose marks span less than a voxel (a box top seen alone) is filled two voxels
+    down, so that a ray grazing its voxel does not free it.
+    """
+    keep = reachable_marks(marks, points, rotation, translation, margin_m=cell_m)
+    if not keep.all():
+        points = guarded(points, marks[~keep], rotation, translation, cell_m=cell_m,
+                         voxel_m=voxel_m)
+    return filled_marks(marks[keep], cell_m=cell_m, voxel_m=voxel_m), points
+
+
+def reachable_marks(marks: np.ndarray, points: np.ndarray, rotation: np.ndarray,
+                    translation: np.ndarray, *, margin_m: float) -> np.ndarray:
+    """(M,) bool: the marks at least margin_m inside the outermost clearing rays (left, right).
+
+    marks (M, 3): base frame; points (N, 3): the clearing cloud, optical frame; rotation,
+    translation: the optical frame in the base frame. Without clearing points no mark is.
+    """
+    m = np.asarray(marks, np.float64).reshape(-1, 3)
+    if m.shape[0] == 0 or points.shape[0] == 0:
+        return np.zeros(m.shape[0], bool)
+    slope = points[:, 0] / points[:, 2]          # optical x / z: left-right in the image
+    q = (m - np.asarray(translation, np.float64)) @ np.asarray(rotation, np.float64)
+    ahead = q[:, 2] > 0.0
+    qs = np.where(ahead, q[:, 0] / np.where(ahead, q[:, 2], 1.0), 0.0)
+    inside = np.minimum(qs - slope.min(), slope.max() - qs) * q[:, 2]
+    return ahead & (inside >= margin_m)
+
+
+def filled_marks(marks: np.ndarray, *, cell_m: float, voxel_m: float,
+                 depth_voxels: int = 2) -> np.ndarray:
+    """Return the marks, those of thin columns also copied lower: (M', 3) float32.
+
+    A column (cell_m square cells) whose marks span less than voxel_m gets copies of each of
+    its marks above z = 0 at half-voxel steps down to depth_voxels voxels lower (not below 0).
+    """
+    m = np.asarray(marks, np.float32).reshape(-1, 3)
+    if m.shape[0] == 0:
+        return m
+    cells = np.floor(m[:, :2] / np.float32(cell_m)).astype(np.int64)
+    _, inverse = np.unique(cells, axis=0, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    z_lo = np.full(inverse.max() + 1, np.inf, np.float32)
+    z_hi = np.full(inverse.max() + 1, -np.inf, np.float32)
+    np.minimum.at(z_lo, inverse, m[:, 2])
+    np.maximum.at(z_hi, inverse, m[:, 2])
+    src = m[(z_hi - z_lo < voxel_m)[inverse] & (m[:, 2] > 0.0)]
+    if src.shape[0] == 0:
+        return m
+    steps = np.arange(1, 2 * depth_voxels + 1, dtype=np.float32) * np.float32(voxel_m / 2)
+    fill = np.repeat(src, steps.size, axis=0)
+    fill[:, 2] = np.maximum(fill[:, 2] - np.tile(steps, src.shape[0]), np.float32(0.0))
+    return np.concatenate((m, fill))
+
+
+#: Bins [rad of tan] of the ray directions: a column's image footprint picks its rays by bin.
+_BIN = 0.01
+
+
+def guarded(points: np.ndarray, marks: np.ndarray, rotation: np.ndarray,
+            translation: np.ndarray, *, cell_m: float, voxel_m: float) -> np.ndarray:
+    """Return the clearing points, each ray ending where it enters a column of ``marks``.
+
+    A column: the cell_m cell of marks grown by a cell on each side, from a voxel below its
+    lowest mark to a voxel above its highest (a consumer's line may run a cell beside the true
+    one). points (N, 3) optical frame; marks (M, 3) base frame. A ray starting inside one is
+    dropped.
+    """
+    pts = np.asarray(points, np.float64)
+    m = np.asarray(marks, np.float64).reshape(-1, 3)
+    if pts.shape[0] == 0 or m.shape[0] == 0:
+        return points
+    rot = np.asarray(rotation, np.float64)
+    origin = np.asarray(translation, np.float64)
+    keys, inverse = np.unique(np.floor(m[:, :2] / cell_m).astype(np.int64), axis=0,
+                              return_inverse=True)
+    inverse = inverse.reshape(-1)
+    z_lo = np.full(len(keys), np.inf)
+    z_hi = np.full(len(keys), -np.inf)
+    np.minimum.at(z_lo, inverse, m[:, 2])
+    np.maximum.at(z_hi, inverse, m[:, 2])
+    lo = np.column_stack((keys * cell_m - cell_m, z_lo - voxel_m))
+    hi = np.column_stack(((keys + 1) * cell_m + cell_m, z_hi + voxel_m))
+    # each column's footprint in the image plane (tangents), from its 8 corners
+    corners = np.stack([np.stack([np.where(c & 1, hi[:, 0], lo[:, 0]),
+                                  np.where(c & 2, hi[:, 1], lo[:, 1]),
+                                  np.where(c & 4, hi[:, 2], lo[:, 2])], axis=1)
+                        for c in range(8)], axis=1)                       # (B, 8, 3)
+    optical = (corners - origin) @ rot                                     # R^T (c - t)
+    ahead = (optical[..., 2] > 1e-3).all(axis=1)
+    z = np.where(ahead[:, None], optical[..., 2], 1.0)
+    tx, ty = optical[..., 0] / z, optical[..., 1] / z
+    # the rays' bins; a column reaching behind the camera covers them all
+    rx = np.floor(pts[:, 0] / pts[:, 2] / _BIN).astype(np.int64)
+    ry = np.floor(pts[:, 1] / pts[:, 2] / _BIN).astype(np.int64)
+    rx0, ry0 = int(rx.min()), int(ry.min())
+    nbx, nby = int(rx.max()) - rx0 + 1, int(ry.max()) - ry0 + 1
+    bins = (ry - ry0) * nbx + (rx - rx0)
+    order = np.argsort(bins, kind='stable')
+    starts = np.searchsorted(bins[order], np.arange(nbx * nby + 1))
+    window = np.stack([
+        np.where(ahead, np.clip(np.floor(tx.min(axis=1) / _BIN) - rx0, 0, nbx), 0),
+        np.where(ahead, np.clip(np.floor(tx.max(axis=1) / _BIN) - rx0 + 1, 0, nbx), nbx),
+        np.where(ahead, np.clip(np.floor(ty.min(axis=1) / _BIN) - ry0, 0, nby), 0),
+        np.where(ahead, np.clip(np.floor(ty.max(axis=1) / _BIN) - ry0 + 1, 0, nby), nby),
+    ], axis=1).astype(np.int64)
+    scale = _ray_scales(pts @ rot.T, origin, lo, hi, window, order, starts, nbx)
+    keep = scale > 0.0
+    return (pts[keep] * scale[keep, None]).astype(np.float32)
+
+
+def _reference_ray_scales(d: np.ndarray, origin: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                          window: np.ndarray, order: np.ndarray, starts: np.ndarray,
+                          nbx: int) -> np.ndarray:
+    """Per ray (d: its end minus origin, base frame), the fraction of it before any box.
+
+    The boxes [lo, hi] are tested against the rays of the bins in their window (x0, x1, y0,
+    y1); a ray that enters one before its end is cut there (0: it starts inside).
+    """
+    w = window[:, 1] - window[:, 0]
+    n = np.maximum(w, 0) * np.maximum(window[:, 3] - window[:, 2], 0)
+    box = np.repeat(np.arange(len(n)), n)
+    k = np.arange(box.size) - np.repeat(np.cumsum(n) - n, n)
+    wb = np.maximum(w[box], 1)
+    bin_id = (window[box, 2] + k // wb) * nbx + window[box, 0] + k % wb
+    count = starts[bin_id + 1] - starts[bin_id]
+    pair_box = np.repeat(box, count)
+    k = np.arange(pair_box.size) - np.repeat(np.cumsum(count) - count, count)
+    pair_ray = order[np.repeat(starts[bin_id], count) + k]
+    t_in = np.zeros(pair_ray.size)
+    t_out = np.ones(pair_ray.size)
+    for axis in range(3):
+        da = d[pair_ray, axis]
+        a, b = lo[pair_box, axis] - origin[axis], hi[pair_box, axis] - origin[axis]
+        flat = da == 0.0
+        safe = np.where(flat, 1.0, da)
+        t0, t1 = a / safe, b / safe
+        t_in = np.where(flat, np.where((a <= 0.0) & (b >= 0.0), t_in, 2.0),
+                        np.maximum(t_in, np.minimum(t0, t1)))
+        t_out = np.where(flat, t_out, np.minimum(t_out, np.maximum(t0, t1)))
+    hit = (t_in <= t_out) & (t_in < 1.0)
+    scale = np.ones(d.shape[0])
+    np.minimum.at(scale, pair_ray[hit], t_in[hit])
+    return scale
+
+
+_ray_scales = jit.choose(_reference_ray_scales, compiled.ray_scales)

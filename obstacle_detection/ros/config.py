@@ -9,7 +9,10 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from obstacle_detection.pipeline.detector import Detector
+import numpy as np
+
+from obstacle_detection.pipeline import clearing, geometry
+from obstacle_detection.pipeline.detector import DetectionResult, Detector
 from obstacle_detection.pipeline.fusion import FusionParams
 from obstacle_detection.pipeline.params import Intrinsics, frame_budget
 from obstacle_detection.pipeline.refine import LogisticRefiner, RefinedDetector
@@ -42,6 +45,7 @@ class NodeConfig:
     publish_clearing: bool      #: obstacles/clearing_points (pipeline.clearing)
     clearing_range_m: float
     clearing_stride_px: int
+    clearing_voxel_m: float     #: the consumer's voxel height (pipeline.clearing.nav2_clouds)
     values: dict[str, Any]   #: the ROS values it was built from
 
     def mount(self) -> Mount:
@@ -52,6 +56,26 @@ class NodeConfig:
                      roll_rad=math.radians(float(values['camera_roll_deg'])),
                      pitch_rad=math.radians(float(values['camera_pitch_deg'])),
                      yaw_rad=math.radians(float(values['camera_yaw_deg'])))
+
+    def nav2_clouds(self, result: DetectionResult, params: Any,
+                    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """(obstacles/points, obstacles/clearing_points or None) of a frame, as the node sends.
+
+        params: the detector parameters the frame ran with (their mount: where TF or the
+        parameters put the camera). With publish_clearing the marks and rays are matched
+        for a voxel layer (pipeline.clearing.nav2_clouds); without, the marks are the result's.
+        """
+        if not self.publish_clearing:
+            return result.obstacle_points, None
+        points = clearing.clearing_cloud(result, stride_px=self.clearing_stride_px,
+                                         range_m=self.clearing_range_m)
+        c, s = math.cos(params.camera_yaw_rad), math.sin(params.camera_yaw_rad)
+        rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ \
+            geometry.mount_rotation(params.camera_pitch_rad, params.camera_roll_rad)
+        translation = np.array([params.camera_x_m, params.camera_y_m, params.camera_height_m])
+        return clearing.nav2_clouds(result.obstacle_points, points, rotation, translation,
+                                    cell_m=params.costmap_resolution_m,
+                                    voxel_m=self.clearing_voxel_m)
 
     @functools.lru_cache(maxsize=1)   # TF's mount changes rarely: its detector is kept
     def detector_for(self, mount: Mount) -> Detector | RefinedDetector:
@@ -114,6 +138,7 @@ def build_config(values: dict[str, Any], *, check_budget: bool = True) -> NodeCo
         publish_clearing=bool(values['publish_clearing']),
         clearing_range_m=float(values['clearing_range_m']),
         clearing_stride_px=int(values['clearing_stride_px']),
+        clearing_voxel_m=float(values['clearing_voxel_m']),
         values=dict(values))
 
 

@@ -284,14 +284,16 @@ def occupancy_grid_to_costmap(grid: Any) -> Costmap:
 def result_to_messages(result: DetectionResult, *, stamp: Time, cloud_frame_id: str,
                        costmap_frame_id: str, image_frame_id: str, with_ground: bool = False,
                        overlay_rgb: np.ndarray | None = None,
-                       clearing_points: np.ndarray | None = None) -> dict[str, Any]:
+                       clearing_points: np.ndarray | None = None,
+                       obstacle_points: np.ndarray | None = None) -> dict[str, Any]:
     """All output messages of one pipeline result, stamped with the input's stamp.
 
     Keys: 'obstacles', 'costmap', and 'ground', 'overlay', 'clearing' when asked for.
+    obstacle_points: the cloud of 'obstacles' (None: the result's obstacle points).
     """
+    marks = result.obstacle_points if obstacle_points is None else obstacle_points
     messages: dict[str, Any] = {
-        'obstacles': points_to_pointcloud2(result.obstacle_points, stamp=stamp,
-                                           frame_id=cloud_frame_id),
+        'obstacles': points_to_pointcloud2(marks, stamp=stamp, frame_id=cloud_frame_id),
         'costmap': costmap_to_occupancy_grid(result.costmap, stamp=stamp,
                                              frame_id=costmap_frame_id),
     }

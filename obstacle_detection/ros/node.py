@@ -33,7 +33,6 @@ from diagnostic_msgs.msg import DiagnosticArray
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 from std_msgs.msg import Float64, String
 
-from obstacle_detection.pipeline import clearing
 from obstacle_detection.pipeline import jit as jit_support
 from .conversions import (
     costmap_to_occupancy_grid,
@@ -517,16 +516,14 @@ class DetectorNode(Node):
             return False
         try:
             result = detector.process(depth, intrinsics)
+            marks, clearing_points = config.nav2_clouds(result, detector.params)
             messages = result_to_messages(
                 result, stamp=msg.header.stamp, cloud_frame_id=config.cloud_frame_id,
                 costmap_frame_id=config.costmap_frame_id, image_frame_id=msg.header.frame_id,
                 with_ground=config.publish_ground,
                 overlay_rgb=(render_overlay(result.depth_m, result.labels)
                              if config.publish_overlay else None),
-                clearing_points=(clearing.clearing_cloud(
-                    result, stride_px=config.clearing_stride_px,
-                    range_m=config.clearing_range_m)
-                    if config.publish_clearing else None))
+                clearing_points=clearing_points, obstacle_points=marks)
             fused = self._fuse(result, msg, config)
         except ValueError as error:
             self._warn_skip('pipeline', str(error))

@@ -142,6 +142,13 @@ NODE_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec('clearing_stride_px', 4,
               'obstacles/clearing_points keeps every this many-th row and column of the '
               'filtered depth image (4: about 13,000 rays of a 512 x 424 frame) [px]', 1, 64),
+    ParamSpec('clearing_voxel_m', 0.1,
+              'Voxel height of the 3-D layer the clouds feed (Nav2 VoxelLayer z_resolution; '
+              'its cell is costmap_resolution_m): with publish_clearing, obstacles/points '
+              'leaves out marks less than a cell inside the outermost clearing rays (no ray '
+              'would clear them) and the rays stop before their columns; a column whose marks '
+              'span less than a voxel is filled two voxels down, so a ray grazing its voxel '
+              'does not free it [m]', 0.01, 1.0),
     ParamSpec('publish_overlay', False,
               'Also publish obstacles/overlay: rgb8 depth frame with obstacle pixels in red; '
               'read at start-up (the topic is advertised only when on)', read_only=True),

@@ -1,4 +1,4 @@
-"""Compiled (numba) clearing points: the twin of ``clearing._reference_clearing_points``."""
+"""Compiled (numba) twins of ``clearing._reference_clearing_points`` and ``_ray_scales``."""
 
 from __future__ import annotations
 
@@ -54,3 +54,32 @@ def clearing_points(depth, ru, rv, rows, cols, range_m, fractions):  # pragma: n
     for f in range(len(fractions)):
         out[kept + f * n_edge:kept + (f + 1) * n_edge] = edge * np.float32(fractions[f])
     return out
+
+
+@jit
+def ray_scales(d, origin, lo, hi, window, order, starts, nbx):  # pragma: no cover - compiled
+    """Per ray, the fraction of it before any box: the twin of the reference, box by box."""
+    scale = np.ones(d.shape[0])
+    for b in range(lo.shape[0]):
+        for by in range(window[b, 2], window[b, 3]):
+            for bx in range(window[b, 0], window[b, 1]):
+                cell = by * nbx + bx
+                for j in range(starts[cell], starts[cell + 1]):
+                    r = order[j]
+                    t_in = 0.0
+                    t_out = 1.0
+                    for axis in range(3):
+                        da = d[r, axis]
+                        a = lo[b, axis] - origin[axis]
+                        c = hi[b, axis] - origin[axis]
+                        if da == 0.0:
+                            if not (a <= 0.0 and c >= 0.0):
+                                t_in = 2.0
+                        else:
+                            t0 = a / da
+                            t1 = c / da
+                            t_in = max(t_in, min(t0, t1))
+                            t_out = min(t_out, max(t0, t1))
+                    if t_in <= t_out and t_in < 1.0 and t_in < scale[r]:
+                        scale[r] = t_in
+    return scale
