@@ -145,7 +145,7 @@ _WORKER: dict[Any, Any] = {}
 
 def _one_per_cell(points: np.ndarray, pose: tuple[float, float, float],
                   origin: tuple[float, float], res: float) -> np.ndarray:
-    """The first point of each lattice cell, placed as Replay places them (same cells)."""
+    """Return the first point of each lattice cell, placed as Replay places them."""
     if points.shape[0] == 0:
         return points
     rot, t = replay.rotation_z(pose[2]), np.array([pose[0], pose[1], 0.0])
