@@ -1,17 +1,21 @@
 """Nav2's SpatioTemporalVoxelLayer on the node's clouds, over rendered sequences with truth.
 
-Every frame of each sequence goes through the node's own frame path in-process
-(``bag_processor.process_frame``: the frame gate, the pipeline and the messages the node
-publishes; test_bag_process checks they equal the node's) with params/corridor.yaml. Its
-``obstacles/points`` go into the port of STVL 2.5.5 (test/stvl_layer.py) configured by
-params/nav2_stvl.yaml, with TF from the sequence's true poses (exact odometry) and the URDF's
-mount (corridor.yaml's, or one 1.5 deg / 3 cm off for the URDF-off run); the frustum is posed
-by the clearing cloud's frame (the optical frame), never by the floor fit. The runs (``RUNS``):
-every sequence of ``SEQUENCE_NAMES``, and the held-out drive with the body pitching +-2 deg and
-with the URDF off. Per run two costmaps run side by side: one updated at every frame (30 Hz)
-and one at the file's ``update_frequency`` (5 Hz, every 6th frame). Clouds are buffered as they
-come (30 Hz); an update reads the newest (``observation_persistence: 0``).
-test/nav2_replay.py defines the figures; ``pytest -s`` prints them (README, Use with Nav2).
+Every frame of each sequence goes through the node's own frame path (``bag_processor.
+process_frame``: the frame gate, the pipeline and the messages the node publishes;
+test_bag_process checks they equal the node's) with params/corridor.yaml and
+``publish_clearing: false`` (``NODE_VALUES``), in two worker processes that also render the
+frames and take their truth. The node's ``obstacles/points`` go into the port of STVL 2.5.5
+(test/stvl_layer.py) configured by params/nav2_stvl.yaml, with TF from the sequence's true
+poses (exact odometry) and the URDF's mount (corridor.yaml's, or one 1.5 deg / 3 cm off for
+the URDF-off run); the frustum is posed by its source's ``sensor_frame`` (the optical frame,
+placed by the URDF), never by the floor fit. The runs (``RUNS``): every sequence of
+``SEQUENCE_NAMES``, the held-out drive with the body pitching +-2 deg (the four phases
+test_nav2_held_out plays) and with the URDF off. Per run two costmaps run side by side: one
+updated at every frame (30 Hz) and one at the file's ``update_frequency`` (5 Hz, every 6th
+frame). Clouds are buffered as they come (30 Hz); an update reads the newest
+(``observation_persistence: 0``). test/nav2_replay.py defines the figures; ``pytest -s`` prints
+them (README, Use with Nav2). The worker processes make the module ``integration``
+(test/conftest.py).
 """
 
 from __future__ import annotations
@@ -254,13 +258,17 @@ RATES = list(update_periods(stvl.read_stvl_costmap(STVL_YAML)))
 #: At 5 Hz, from STVL's order (updateBounds: ClearFrustums builds the column counts, Mark comes
 #: after, UpdateROSCostmap reads the counts): a mark reaches the costmap one update later
 #: (upstream issue #284), 0.2 s at 5 Hz. New cells appear late while driving past the boxes
-#: (F1 0.965; 0.98 with the marks shown in their own update, docs/stvl.md); a mark at the
-#: walking person's edge on floor seen free 10 frames is shown where the person was 0.2 s
-#: before (1 cell).
+#: (F1 0.965; 0.983 with the marks shown in their own update, docs/stvl.md).
 LATE_AT_5_HZ = pytest.mark.xfail(strict=True, reason='STVL marks after it fills the costmap: '
                                  'one update late (spatio_temporal_voxel_layer issue #284)')
+#: At 5 Hz a voxel in the frustum survives its first unmarked update (decay_acceleration
+#: 1000; above 11,100 it would go at the first, and with the late marks nothing in view would
+#: be shown): the walking person is drawn where it stood 0.2 s before, lag or not; one cell at
+#: its edge was seen free at the two updates before (docs/stvl.md).
+PERSON_DRAWN_LATE = pytest.mark.xfail(strict=True, reason='at 5 Hz STVL shows a voxel one '
+                                      'update after its last mark: the person 0.2 s late')
 KNOWN_MISSES = {('f1', 'drive_past_boxes', '5 Hz'): LATE_AT_5_HZ,
-                ('stale', 'person_crossing', '5 Hz'): LATE_AT_5_HZ}
+                ('stale', 'person_crossing', '5 Hz'): PERSON_DRAWN_LATE}
 
 
 def cases(figure: str, names: list[str] | None = None) -> list[Any]:
