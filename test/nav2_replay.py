@@ -337,12 +337,12 @@ def frame_truth(sequence_frame: object, params: object,
     """(obstacle (O, 3), floor (T, 3), person (P, 3)) true base-frame points of a frame.
 
     The pixels the sensor returned whose true point lies in the detector's region of interest
-    (``params``): obstacle points (``GT_OBSTACLE``), traversable floor (``GT_TRAVERSABLE``;
+    (``params``): obstacle points (``GT_OBSTACLE``, up to a cell beyond the far and side
+    edges), traversable floor (``GT_TRAVERSABLE``;
     surfaces above the robot are left out: a wall whose foot is hidden behind a table is not
     free floor; so is floor under a Box lower than the robot, the floor under a table top: its
-    column holds an obstacle whether or not the frame sees it; so is floor within a cell of an
-    obstacle point just past the region's range or side: :func:`beside_cut_obstacles`), and the
-    obstacle points on the person (a Cylinder), if any.
+    column holds an obstacle whether or not the frame sees it), and the obstacle points on the
+    person (a Cylinder), if any.
     """
     from obstacle_detection.labels import GT_OBSTACLE, GT_TRAVERSABLE
     from obstacle_detection.pipeline import geometry
@@ -351,52 +351,25 @@ def frame_truth(sequence_frame: object, params: object,
     frame = sequence_frame.frame
     points = frame.points_ground.reshape(-1, 3)
     labels = frame.labels.reshape(-1)
-    keep = np.isfinite(points).all(axis=1)
-    keep[keep] = geometry.roi_mask(points[keep], params)
+    finite = np.isfinite(points).all(axis=1)
+    keep = finite.copy()
+    keep[finite] = geometry.roi_mask(points[finite], params)
+    # obstacles a cell beyond the region's far and side edges count too: the node's region is
+    # measured from where it believes the camera is (a pitching body moves it 2 cm ahead), and
+    # the wall it marks at its edge is no ghost
+    cell = params.costmap_resolution_m
+    wide = finite.copy()
+    wide[finite] = geometry.roi_mask(points[finite], params.replace(
+        max_range_m=params.max_range_m + cell, lateral_limit_m=params.lateral_limit_m + cell))
     person = np.zeros(labels.shape, bool)
     index = [i for i, p in enumerate(frame.primitives) if isinstance(p, Cylinder)]
     if index:
         person = frame.hit_index.reshape(-1) == index[0]
-    obstacle = keep & (labels == GT_OBSTACLE)
+    obstacle = wide & (labels == GT_OBSTACLE)
     free = keep & (labels == GT_TRAVERSABLE)
     free[np.flatnonzero(free)[under_boxes(points[free], sequence_frame.pose_true,
                                           frame.primitives, params.robot_height_m)]] = False
-    free[np.flatnonzero(free)[beside_cut_obstacles(points, labels, keep, free, params)]] = False
     return points[obstacle], points[free], points[obstacle & person]
-
-
-def beside_cut_obstacles(points: np.ndarray, labels: np.ndarray, keep: np.ndarray,
-                         free: np.ndarray, params: object) -> np.ndarray:
-    """Return (F,) bool over ``points[free]``: floor within a cell of an obstacle the ROI cut.
-
-    An obstacle point less than a cell (``costmap_resolution_m``) beyond the region of
-    interest's range or side is not in the truth, yet the cell it shares with the floor in front
-    of it holds an obstacle: a face 1 cm past ``max_range_m``, seen 1 cm nearer (a body
-    pitching), is marked inside the range. Such floor is not called free.
-    """
-    from scipy.spatial import cKDTree
-
-    from obstacle_detection.labels import GT_OBSTACLE
-
-    cell = float(params.costmap_resolution_m)
-    out = np.zeros(int(np.count_nonzero(free)), bool)
-    finite = np.isfinite(points).all(axis=1)
-    x, y, z = (np.where(finite, points[:, i], np.nan) for i in range(3))
-    with np.errstate(invalid='ignore'):
-        band = finite & (z >= params.tdbg_m) & (z <= params.max_height_m)
-        band &= (x >= params.min_range_m - cell) & (x <= params.max_range_m + cell)
-        band &= np.abs(y) <= params.lateral_limit_m + cell
-    cut = band & ~keep & (labels == GT_OBSTACLE)
-    if not cut.any() or not out.size:
-        return out
-    floor = points[free]
-    near_edge = (floor[:, 0] > params.max_range_m - cell) | \
-        (floor[:, 0] < params.min_range_m + cell) | \
-        (np.abs(floor[:, 1]) > params.lateral_limit_m - cell)
-    dist, _ = cKDTree(points[cut][:, :2]).query(floor[near_edge][:, :2],
-                                                distance_upper_bound=cell, p=np.inf)
-    out[np.flatnonzero(near_edge)[np.isfinite(dist)]] = True
-    return out
 
 
 def under_boxes(points: np.ndarray, pose: tuple[float, float, float], primitives: tuple,

@@ -116,7 +116,7 @@ def expected_outputs(depth: np.ndarray, intr: Intrinsics, t: int) -> dict[str, o
     # the marks the node sends with publish_clearing (on by default): matched to its rays
     config = bag_processor.config_from_values(
         {spec.name: spec.default for spec in ALL_PARAMS} | PARAM_VALUES, 'test')
-    marks, _ = config.nav2_clouds(result, detector.params)
+    marks, _ = config.nav2_clouds(result)
     messages = result_to_messages(
         result, stamp=to_time(t), cloud_frame_id='base_link',
         costmap_frame_id='base_footprint', image_frame_id=FRAME_ID, with_ground=True,

@@ -108,76 +108,6 @@ def test_the_compiled_clearing_points_equal_the_reference(both_paths, stride: in
     assert points.shape[0] > 3 * 2 * (40 // stride)
 
 
-def test_a_pitched_camera_marks_and_clears_a_box_top_at_the_same_height() -> None:
-    """The body pitches the camera 2 deg down; the mount (Nav2's TF) stays level.
-
-    Placed by that mount, the clearing cloud's floor lies on z = 0 and its box tops where the
-    marks are (3-6 cm higher without the frame's pose: rays cutting the boxes' voxels).
-    """
-    import math
-
-    from obstacle_detection.pipeline.detector import Detector
-    from obstacle_detection.pipeline.params import corridor
-    from obstacle_detection.sim.scenes import build_scene, render_scene
-
-    frame = render_scene('corridor', seed=3, height_m=0.6, pitch_rad=math.radians(2.0),
-                         noise=False)
-    result = Detector(corridor()).process(frame.depth_mm, frame.intrinsics)
-    assert result.floor.d_pitch_deg == pytest.approx(2.0, abs=0.1)
-    nominal = result.pose.optical_to_base(
-        clearing.clearing_cloud(result, stride_px=4, range_m=4.0), nominal=True)
-    as_seen = result.pose.optical_to_base(
-        clearing_points(result.depth_m, result.intrinsics, stride_px=4, range_m=4.0),
-        nominal=True)
-
-    floor = nominal[(nominal[:, 0] > 1.5) & (nominal[:, 0] < 2.5) & (np.abs(nominal[:, 2]) < 0.15)]
-    assert np.median(np.abs(floor[:, 2])) < 0.005
-    boxes = [p for p in build_scene('corridor', seed=3).primitives if p.name.startswith('box')]
-    for box in boxes:
-        def top(points: np.ndarray) -> np.ndarray:
-            (x0, y0, _), (x1, y1, z1) = box.min_m, box.max_m
-            inside = (points[:, 0] > x0 + 0.03) & (points[:, 0] < x1 - 0.03)
-            inside &= (points[:, 1] > y0 + 0.03) & (points[:, 1] < y1 - 0.03)
-            return points[inside & (np.abs(points[:, 2] - z1) < 0.1), 2]
-        marks, cleared, raw = top(result.obstacle_points), top(nominal), top(as_seen)
-        assert marks.size > 10 and cleared.size > 10
-        assert np.median(cleared) == pytest.approx(np.median(marks), abs=0.003)
-        assert np.median(raw) - np.median(marks) > 0.025
-
-
-def test_on_a_body_pitching_2_deg_the_clearing_cloud_lies_on_the_true_surfaces() -> None:
-    """The held-out drive past boxes, the body rocking +-2 deg under a static URDF.
-
-    Placed by the URDF (the nominal mount), the clearing points of the stride grid lie on the
-    true surfaces within 2.5 m (median 0.04 cm; 3.4 cm without the frame's pose).
-    """
-    from obstacle_detection.cli import bag_processor
-    from obstacle_detection.sim.sequences import BodyPitch, SceneSequence
-
-    config = bag_processor.config_from_values(
-        bag_processor.node_param_values(REPO / 'params' / 'corridor.yaml'), 'corridor')
-    sequence = SceneSequence('drive_past_boxes', body_pitch=BodyPitch(phase_deg=90.0))
-    errors: dict[str, list[np.ndarray]] = {'published': [], 'as seen': []}
-    for index in (8, 40, 72, 104):
-        frame = sequence.frame(index, noise=False).frame
-        result = config.detector.process(frame.depth_mm, frame.intrinsics)
-        # the grid points come first, row by row: their pixels give their true positions
-        _, _, rows, cols = clearing._rays_and_samples(result.depth_m.shape, result.intrinsics, 4)
-        band = result.depth_m[rows][:, cols]
-        kept_r, kept_c = np.nonzero(np.isfinite(band) & (band > 0.0))
-        truth = frame.points_ground[rows[kept_r], cols[kept_c]]
-        near = np.isfinite(truth).all(axis=1) & (truth[:, 0] < 2.5)
-        for key, points in (
-                ('published', clearing.clearing_cloud(result, stride_px=4, range_m=4.0)),
-                ('as seen', clearing_points(result.depth_m, result.intrinsics, stride_px=4,
-                                            range_m=4.0))):
-            placed = result.pose.optical_to_base(points[:kept_r.size], nominal=True)
-            errors[key].append(np.abs(placed[near, 2] - truth[near, 2]))
-
-    assert np.median(np.concatenate(errors['published'])) < 0.003
-    assert np.median(np.concatenate(errors['as seen'])) > 0.02
-
-
 # --- marks and rays matched to a voxel layer (clearing.nav2_clouds), level camera 0.6 m up ----
 #: optical -> base of a level camera 0.6 m above base_footprint's origin
 LEVEL = (clearing.OPTICAL_TO_BODY, np.array([0.0, 0.0, 0.6]))
@@ -280,3 +210,110 @@ def test_the_compiled_ray_guard_equals_the_reference(both_paths) -> None:
     assert 0 < out.shape[0] <= rays.shape[0]
     assert (np.linalg.norm(out, axis=1) < np.linalg.norm(rays[:out.shape[0]], axis=1)
             - 1e-6).any() or out.shape[0] < rays.shape[0]
+
+
+def test_a_pitched_camera_marks_and_clears_a_box_top_at_the_same_height() -> None:
+    """The body pitches the camera 2 deg down; the mount (Nav2's TF) stays level.
+
+    Placed by that mount, the clearing cloud's floor lies on z = 0 and its box tops where the
+    marks are (3-6 cm higher without the frame's pose: rays cutting the boxes' voxels).
+    """
+    import math
+
+    from obstacle_detection.pipeline.detector import Detector
+    from obstacle_detection.pipeline.params import corridor
+    from obstacle_detection.sim.scenes import build_scene, render_scene
+
+    frame = render_scene('corridor', seed=3, height_m=0.6, pitch_rad=math.radians(2.0),
+                         noise=False)
+    result = Detector(corridor()).process(frame.depth_mm, frame.intrinsics)
+    assert result.floor.d_pitch_deg == pytest.approx(2.0, abs=0.1)
+    nominal = result.pose.optical_to_base(
+        clearing.clearing_cloud(result, stride_px=4, range_m=4.0), nominal=True)
+    as_seen = result.pose.optical_to_base(
+        clearing_points(result.depth_m, result.intrinsics, stride_px=4, range_m=4.0),
+        nominal=True)
+
+    floor = nominal[(nominal[:, 0] > 1.5) & (nominal[:, 0] < 2.5) & (np.abs(nominal[:, 2]) < 0.15)]
+    assert np.median(np.abs(floor[:, 2])) < 0.005
+    boxes = [p for p in build_scene('corridor', seed=3).primitives if p.name.startswith('box')]
+    for box in boxes:
+        def top(points: np.ndarray) -> np.ndarray:
+            (x0, y0, _), (x1, y1, z1) = box.min_m, box.max_m
+            inside = (points[:, 0] > x0 + 0.03) & (points[:, 0] < x1 - 0.03)
+            inside &= (points[:, 1] > y0 + 0.03) & (points[:, 1] < y1 - 0.03)
+            return points[inside & (np.abs(points[:, 2] - z1) < 0.1), 2]
+        marks, cleared, raw = top(result.obstacle_points), top(nominal), top(as_seen)
+        assert marks.size > 10 and cleared.size > 10
+        assert np.median(cleared) == pytest.approx(np.median(marks), abs=0.003)
+        assert np.median(raw) - np.median(marks) > 0.025
+
+
+def test_on_a_body_pitching_2_deg_the_clearing_cloud_lies_on_the_true_surfaces() -> None:
+    """The held-out drive past boxes, the body rocking +-2 deg under a static URDF.
+
+    Placed by the URDF (the nominal mount), the clearing points of the stride grid lie on the
+    true surfaces within 2.5 m (median 0.04 cm; 3.4 cm without the frame's pose).
+    """
+    from obstacle_detection.cli import bag_processor
+    from obstacle_detection.sim.sequences import BodyPitch, SceneSequence
+
+    config = bag_processor.config_from_values(
+        bag_processor.node_param_values(REPO / 'params' / 'corridor.yaml'), 'corridor')
+    sequence = SceneSequence('drive_past_boxes', body_pitch=BodyPitch(phase_deg=90.0))
+    errors: dict[str, list[np.ndarray]] = {'published': [], 'as seen': []}
+    for index in (8, 40, 72, 104):
+        frame = sequence.frame(index, noise=False).frame
+        result = config.detector.process(frame.depth_mm, frame.intrinsics)
+        # the grid points come first, row by row: their pixels give their true positions
+        _, _, rows, cols = clearing._rays_and_samples(result.depth_m.shape, result.intrinsics, 4)
+        band = result.depth_m[rows][:, cols]
+        kept_r, kept_c = np.nonzero(np.isfinite(band) & (band > 0.0))
+        truth = frame.points_ground[rows[kept_r], cols[kept_c]]
+        near = np.isfinite(truth).all(axis=1) & (truth[:, 0] < 2.5)
+        for key, points in (
+                ('published', clearing.clearing_cloud(result, stride_px=4, range_m=4.0)),
+                ('as seen', clearing_points(result.depth_m, result.intrinsics, stride_px=4,
+                                            range_m=4.0))):
+            placed = result.pose.optical_to_base(points[:kept_r.size], nominal=True)
+            errors[key].append(np.abs(placed[near, 2] - truth[near, 2]))
+
+    assert np.median(np.concatenate(errors['published'])) < 0.003
+    assert np.median(np.concatenate(errors['as seen'])) > 0.02
+
+
+def test_a_ray_over_a_tall_column_passes_and_one_through_it_stops() -> None:
+    # a box face 5-40 cm up in the cell x 1.00-1.05: over it a ray clears its top voxel only
+    face = np.array([[1.01, 0.01, z] for z in (0.05, 0.15, 0.25, 0.40)])
+    rays = _optical([[2.0, 0.02, 0.30],      # passes x = 1.0 at 0.45: over the column
+                     [2.0, 0.02, 0.0]])      # passes x = 0.95 at 0.315: into it
+
+    out = clearing.guarded(rays, face, *LEVEL, cell_m=0.05, voxel_m=0.1)
+
+    np.testing.assert_allclose(out[0], rays[0], atol=1e-6)
+    rot, t = LEVEL
+    assert (out[1].astype(np.float64) @ rot.T + t)[0] == pytest.approx(0.95, abs=1e-5)
+
+
+@pytest.mark.parametrize('voxel_m', [0.1, 0.0])
+def test_the_node_matches_its_marks_unless_clearing_voxel_m_is_0(voxel_m: float) -> None:
+    from obstacle_detection.cli import bag_processor
+    from obstacle_detection.sim.scenes import render_scene
+
+    corridor = REPO / 'params' / 'corridor.yaml'
+    values = bag_processor.node_param_values(corridor) | {'clearing_voxel_m': voxel_m}
+    config = bag_processor.config_from_values(values, str(corridor))
+    frame = render_scene('corridor', seed=1)
+    result = config.detector.process(frame.depth_mm, frame.intrinsics)
+
+    marks, points = config.nav2_clouds(result)
+
+    seen = clearing.clearing_cloud(result, stride_px=4, range_m=4.0)
+    if voxel_m == 0.0:     # STVL: the clouds as seen
+        assert marks is result.obstacle_points
+        np.testing.assert_array_equal(points, seen)
+    else:                  # the walls run out of the view: their edge marks are left out
+        sent = {tuple(p) for p in marks.tolist()}
+        left_out = [p for p in result.obstacle_points.tolist() if tuple(p) not in sent]
+        assert 0 < len(left_out) < 0.2 * result.obstacle_points.shape[0]
+        assert points.shape[0] == seen.shape[0] and not np.array_equal(points, seen)

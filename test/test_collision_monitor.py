@@ -28,6 +28,7 @@ import yaml
 
 from message_helpers import pointcloud2_to_points
 from obstacle_detection.cli import bag_processor
+from obstacle_detection.pipeline import clearing
 from obstacle_detection.ros.conversions import array_to_image, intrinsics_to_camera_info
 from obstacle_detection.ros.frame_gate import CameraState
 from obstacle_detection.sim.scenes import render_scene
@@ -113,7 +114,7 @@ def pointcloud_data(points: np.ndarray, rotation: np.ndarray, translation: np.nd
 
 
 def _node_cloud(scene: str) -> tuple[np.ndarray, np.ndarray, str]:
-    """(obstacles/points (N, 3), the detector's drop points (D, 3), the cloud's frame)."""
+    """(obstacles/points (N, 3), the drop points it should hold (D, 3), the cloud's frame)."""
     values = bag_processor.node_param_values(CORRIDOR)
     config = bag_processor.config_from_values(values, str(CORRIDOR))
     frame = render_scene(scene, seed=0)
@@ -126,7 +127,15 @@ def _node_cloud(scene: str) -> tuple[np.ndarray, np.ndarray, str]:
         image, [camera], config, with_ground=False, with_overlay=False)
     assert messages is not None, reason
     cloud = messages['obstacles']
-    return pointcloud2_to_points(cloud), result.drop_points, cloud.header.frame_id
+    # the node leaves out marks less than a cell inside the left and right edges of the view
+    # (no Nav2 clearing ray reaches them: clearing.nav2_clouds); the others are all sent
+    pose = result.pose
+    rays = clearing.clearing_cloud(result, stride_px=config.clearing_stride_px,
+                                   range_m=config.clearing_range_m)
+    reachable = clearing.reachable_marks(
+        result.drop_points, rays, pose.rotation(nominal=True), pose.translation(nominal=True),
+        margin_m=pose.nominal.costmap_resolution_m)
+    return pointcloud2_to_points(cloud), result.drop_points[reachable], cloud.header.frame_id
 
 
 def test_the_shipped_monitor_reads_as_nav2_declares_it() -> None:

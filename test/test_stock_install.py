@@ -71,6 +71,7 @@ OPTIONAL = {
     'numba': 'python3-numba is apt-only and noble has no python3-numba: pip (README, Install)',
     'dask': 'no rosdep key; pip install .[fleet] (README, Offline work at scale)',
     'distributed': 'no rosdep key; pip install .[fleet] (README, Offline work at scale)',
+    'cloudpickle': "dask's own dependency, imported only beside it (fleet/probe.py)",
 }
 #: rclpy.experimental.EventsExecutor came to Jazzy with rclpy 7.1.4 (ros/rosdistro pull
 #: request 44956, "rclpy: 7.1.4-1 in 'jazzy/distribution.yaml'": "Backport of the Events

@@ -58,14 +58,12 @@ def _lethal_at(costmap: stvl.STVLCostmap, master: np.ndarray, x: float, y: float
 def test_the_shipped_example_reads_as_the_plugin_declares_it() -> None:
     config = stvl.read_stvl_costmap(STVL_YAML)
     (layer,) = config.layers
-    sources = {s.name: s for s in layer.sources}
-    marks, frustum = sources['detector_obstacles'], sources['detector_frustum']
+    sources = {s.topic: s for s in layer.sources}
 
     assert layer.plugin == stvl.STVL_PLUGIN
-    assert marks.topic == frustum.topic == '/obstacles/points'    # publish_clearing: false
-    assert marks.marking and not marks.clearing and marks.sensor_frame == ''
-    assert frustum.clearing and not frustum.marking
-    assert frustum.sensor_frame == 'camera_depth_optical_frame'   # poses the frustum
+    assert sources['/obstacles/points'].marking and not sources['/obstacles/points'].clearing
+    frustum = sources['/obstacles/clearing_points']
+    assert frustum.clearing and not frustum.marking and frustum.sensor_frame == ''
     assert frustum.expected_update_rate == 0.0 and frustum.observation_persistence == 0.0
     assert layer.voxel_decay > 0.0 and layer.decay_model == stvl.LINEAR
 

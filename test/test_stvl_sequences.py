@@ -3,18 +3,18 @@
 Every frame of each sequence goes through the node's own frame path (``bag_processor.
 process_frame``: the frame gate, the pipeline and the messages the node publishes;
 test_bag_process checks they equal the node's) with params/corridor.yaml and
-``publish_clearing: false`` (``NODE_VALUES``), in two worker processes that also render the
-frames and take their truth. The node's ``obstacles/points`` go into the port of STVL 2.5.5
-(test/stvl_layer.py) configured by params/nav2_stvl.yaml, with TF from the sequence's true
-poses (exact odometry) and the URDF's mount (corridor.yaml's, or one 1.5 deg / 3 cm off for
-the URDF-off run); the frustum is posed by its source's ``sensor_frame`` (the optical frame,
-placed by the URDF), never by the floor fit. The runs (``RUNS``): every sequence of
-``SEQUENCE_NAMES``, the held-out drive with the body pitching +-2 deg (the four phases
-test_nav2_held_out plays) and with the URDF off. Per run two costmaps run side by side: one
-updated at every frame (30 Hz) and one at the file's ``update_frequency`` (5 Hz, every 6th
-frame). Clouds are buffered as they come (30 Hz); an update reads the newest
-(``observation_persistence: 0``). test/nav2_replay.py defines the figures; ``pytest -s`` prints
-them (README, Use with Nav2). The worker processes make the module ``integration``
+``clearing_voxel_m: 0`` (``NODE_VALUES``: the clouds as seen), in two worker processes that
+also render the frames and take their truth. The node's ``obstacles/points`` go into the port
+of STVL 2.5.5 (test/stvl_layer.py) configured by params/nav2_stvl.yaml, with TF from the
+sequence's true poses (exact odometry) and the URDF's mount (corridor.yaml's, or one 1.5 deg /
+3 cm off for the URDF-off run); the frustum is posed by the clearing cloud's frame (the
+optical frame, placed by the URDF), never by the floor fit. The runs (``RUNS``): every
+sequence of ``SEQUENCE_NAMES``, the held-out drive with the body pitching +-2 deg (the four
+phases test_nav2_held_out plays) and with the URDF off. Per run two costmaps run side by
+side: one updated at every frame (30 Hz) and one at the file's ``update_frequency`` (5 Hz,
+every 6th frame). Clouds are buffered as they come (30 Hz); an update reads the newest
+(``observation_persistence: 0``). test/nav2_replay.py defines the figures; ``pytest -s``
+prints them (README, Use with Nav2). The worker processes make the module ``integration``
 (test/conftest.py).
 """
 
@@ -49,14 +49,12 @@ FRAME_ID = 'camera_depth_optical_frame'
 OBSTACLES, FRUSTUM = 'detector_obstacles', 'detector_frustum'
 
 
-#: The node's parameters for STVL (README, Use with Nav2): corridor.yaml without the clearing
-#: cloud. Its marks are then the detector's own (NodeConfig.nav2_clouds): with
-#: publish_clearing the node drops the marks within a cell of the view's side, which no ray of
-#: the VoxelLayer could clear; STVL's frustum decays a voxel not marked again in 4 updates at
-#: 30 Hz, so a box leaving the view at the side went before it left (kept 0.27-0.38 at 30 Hz on
-#: drive_by_table, docs/stvl.md). The frustum source reads obstacles/points and is posed by
-#: its sensor_frame, the optical frame (params/nav2_stvl.yaml).
-NODE_VALUES = {'publish_clearing': False}
+#: The node's parameters for STVL (README, Use with Nav2): corridor.yaml with the clouds as
+#: seen (clearing_voxel_m 0). By default the node drops the marks within a cell of the view's
+#: side, which no ray of the VoxelLayer could clear; STVL's frustum decays a voxel not marked
+#: again in 4 updates at 30 Hz, so a box leaving the view at the side went before it left
+#: (kept 0.27-0.38 at 30 Hz on drive_by_table, docs/stvl.md).
+NODE_VALUES = {'clearing_voxel_m': 0.0}
 
 
 class STVLReplay(replay.Replay):
@@ -73,21 +71,27 @@ class STVLReplay(replay.Replay):
         self.layers = self.costmap.layers
         self.stvl_sources = stvl.source_settings(config)
         for source in self.stvl_sources.values():
-            if source.topic.lstrip('/') != 'obstacles/points':
-                raise ValueError(f'{source.name}: topic {source.topic!r}: the node sends STVL '
-                                 'obstacles/points only (publish_clearing false)')
+            if source.topic.lstrip('/') not in ('obstacles/points', 'obstacles/clearing_points'):
+                raise ValueError(f'{source.name}: topic {source.topic!r} is not a cloud of '
+                                 'the node')
             if source.sensor_frame not in ('', FRAME_ID):
                 raise ValueError(f'{source.name}: sensor_frame {source.sensor_frame!r}: the '
                                  f'replay knows {FRAME_ID!r} only')
 
     def receive(self, inp: replay.UpdateInput) -> None:
-        """Buffer a frame's obstacles/points as they arrive, through 'TF' (true pose, URDF)."""
+        """Buffer a frame's clouds as they arrive, through 'TF' (true pose, URDF mount).
+
+        STVL reads no clearing points: a clearing cloud comes with each obstacles/points and
+        only its frame (the optical frame) counts.
+        """
         now_s = inp.index / replay.RATE_HZ
         base_rot = replay.rotation_z(inp.pose[2])
         base_t = np.array([inp.pose[0], inp.pose[1], 0.0])
         camera = (base_rot @ self.mount[0], base_t + base_rot @ self.mount[1])
         for name, source in self.stvl_sources.items():
-            self.costmap.buffer(name, inp.obstacle_points, (base_rot, base_t), now_s, now_s,
+            on_points = source.topic.lstrip('/') == 'obstacles/points'
+            self.costmap.buffer(name, inp.obstacle_points if on_points else inp.clearing_points,
+                                (base_rot, base_t) if on_points else camera, now_s, now_s,
                                 camera if source.sensor_frame else None)
 
     def _observations(self, inp: replay.UpdateInput) -> float:

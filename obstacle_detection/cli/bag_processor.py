@@ -159,7 +159,7 @@ def process_frame(depth: Image | CompressedImage, cameras: Sequence[CameraState]
         result = detector.process(array, verdict.intrinsics)
     except ValueError as err:
         return None, None, str(err), None
-    marks, _ = config.nav2_clouds(result, config.detector.params)   # the node's marks
+    marks, _ = config.nav2_clouds(result)   # the node's marks
     messages = result_to_messages(
         result, stamp=depth.header.stamp, cloud_frame_id=config.cloud_frame_id,
         costmap_frame_id=config.costmap_frame_id, image_frame_id=depth.header.frame_id,

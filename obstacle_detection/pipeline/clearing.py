@@ -172,10 +172,11 @@ def guarded(points: np.ndarray, marks: np.ndarray, rotation: np.ndarray,
             translation: np.ndarray, *, cell_m: float, voxel_m: float) -> np.ndarray:
     """Return the clearing points, each ray ending where it enters a column of ``marks``.
 
-    A column: the cell_m cell of marks grown by a cell on each side, from a voxel below its
-    lowest mark to a voxel above its highest (a consumer's line may run a cell beside the true
-    one). points (N, 3) optical frame; marks (M, 3) base frame. A ray starting inside one is
-    dropped.
+    A column: the cell_m cell of marks grown by a cell on each side (a consumer's line may run
+    a cell beside the true one), from its lowest to its highest mark, and a voxel more below
+    and above when they span less than a voxel (a ray within that voxel frees it whole; over
+    a taller column it clears the top voxel only). points (N, 3) optical frame; marks (M, 3)
+    base frame. A ray starting inside one is dropped.
     """
     pts = np.asarray(points, np.float64)
     m = np.asarray(marks, np.float64).reshape(-1, 3)
@@ -190,8 +191,11 @@ def guarded(points: np.ndarray, marks: np.ndarray, rotation: np.ndarray,
     z_hi = np.full(len(keys), -np.inf)
     np.minimum.at(z_lo, inverse, m[:, 2])
     np.maximum.at(z_hi, inverse, m[:, 2])
-    lo = np.column_stack((keys * cell_m - cell_m, z_lo - voxel_m))
-    hi = np.column_stack(((keys + 1) * cell_m + cell_m, z_hi + voxel_m))
+    grow = cell_m
+    # a ray over a thick column clears its top voxel only; a thin one it frees within a voxel
+    dz = np.where(z_hi - z_lo < voxel_m, voxel_m, 0.0)
+    lo = np.column_stack((keys * cell_m - grow, z_lo - dz))
+    hi = np.column_stack(((keys + 1) * cell_m + grow, z_hi + dz))
     # each column's footprint in the image plane (tangents), from its 8 corners
     corners = np.stack([np.stack([np.where(c & 1, hi[:, 0], lo[:, 0]),
                                   np.where(c & 2, hi[:, 1], lo[:, 1]),

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from obstacle_detection.pipeline import clearing, geometry
+from obstacle_detection.pipeline import clearing
 from obstacle_detection.pipeline.detector import DetectionResult, Detector
 from obstacle_detection.pipeline.fusion import FusionParams
 from obstacle_detection.pipeline.params import Intrinsics, frame_budget
@@ -57,25 +57,24 @@ class NodeConfig:
                      pitch_rad=math.radians(float(values['camera_pitch_deg'])),
                      yaw_rad=math.radians(float(values['camera_yaw_deg'])))
 
-    def nav2_clouds(self, result: DetectionResult, params: Any,
-                    ) -> tuple[np.ndarray, np.ndarray | None]:
+    def nav2_clouds(self, result: DetectionResult) -> tuple[np.ndarray, np.ndarray | None]:
         """(obstacles/points, obstacles/clearing_points or None) of a frame, as the node sends.
 
-        params: the detector parameters the frame ran with (their mount: where TF or the
-        parameters put the camera). With publish_clearing the marks and rays are matched
-        for a voxel layer (pipeline.clearing.nav2_clouds); without, the marks are the result's.
+        With publish_clearing and clearing_voxel_m > 0 the marks and rays are matched for a
+        voxel layer placing the camera by the frame's nominal pose
+        (pipeline.clearing.nav2_clouds); otherwise the marks are the result's.
         """
         if not self.publish_clearing:
             return result.obstacle_points, None
         points = clearing.clearing_cloud(result, stride_px=self.clearing_stride_px,
                                          range_m=self.clearing_range_m)
-        c, s = math.cos(params.camera_yaw_rad), math.sin(params.camera_yaw_rad)
-        rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ \
-            geometry.mount_rotation(params.camera_pitch_rad, params.camera_roll_rad)
-        translation = np.array([params.camera_x_m, params.camera_y_m, params.camera_height_m])
-        return clearing.nav2_clouds(result.obstacle_points, points, rotation, translation,
-                                    cell_m=params.costmap_resolution_m,
-                                    voxel_m=self.clearing_voxel_m)
+        if self.clearing_voxel_m == 0.0:
+            return result.obstacle_points, points
+        pose = result.pose
+        return clearing.nav2_clouds(
+            result.obstacle_points, points, pose.rotation(nominal=True),
+            pose.translation(nominal=True), cell_m=pose.nominal.costmap_resolution_m,
+            voxel_m=self.clearing_voxel_m)
 
     @functools.lru_cache(maxsize=1)   # TF's mount changes rarely: its detector is kept
     def detector_for(self, mount: Mount) -> Detector | RefinedDetector:

@@ -516,7 +516,7 @@ class DetectorNode(Node):
             return False
         try:
             result = detector.process(depth, intrinsics)
-            marks, clearing_points = config.nav2_clouds(result, detector.params)
+            marks, clearing_points = config.nav2_clouds(result)
             messages = result_to_messages(
                 result, stamp=msg.header.stamp, cloud_frame_id=config.cloud_frame_id,
                 costmap_frame_id=config.costmap_frame_id, image_frame_id=msg.header.frame_id,

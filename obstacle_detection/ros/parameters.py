@@ -148,7 +148,8 @@ NODE_PARAMS: tuple[ParamSpec, ...] = (
               'leaves out marks less than a cell inside the outermost clearing rays (no ray '
               'would clear them) and the rays stop before their columns; a column whose marks '
               'span less than a voxel is filled two voxels down, so a ray grazing its voxel '
-              'does not free it [m]', 0.01, 1.0),
+              'does not free it; 0 = off, the clouds as seen (STVL, which forgets by its '
+              'frustum, not by rays: params/nav2_stvl.yaml) [m]', 0.0, 1.0),
     ParamSpec('publish_overlay', False,
               'Also publish obstacles/overlay: rgb8 depth frame with obstacle pixels in red; '
               'read at start-up (the topic is advertised only when on)', read_only=True),
