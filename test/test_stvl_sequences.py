@@ -262,7 +262,7 @@ RATES = list(update_periods(stvl.read_stvl_costmap(STVL_YAML)))
 #: At 5 Hz, from STVL's order (updateBounds: ClearFrustums builds the column counts, Mark comes
 #: after, UpdateROSCostmap reads the counts): a mark reaches the costmap one update later
 #: (upstream issue #284), 0.2 s at 5 Hz. New cells appear late while driving past the boxes
-#: (F1 0.965; 0.983 with the marks shown in their own update, docs/stvl.md).
+#: (F1 0.963; 0.981 with the marks shown in their own update, docs/stvl.md).
 LATE_AT_5_HZ = pytest.mark.xfail(strict=True, reason='STVL marks after it fills the costmap: '
                                  'one update late (spatio_temporal_voxel_layer issue #284)')
 #: At 5 Hz a voxel in the frustum survives its first unmarked update (decay_acceleration
