@@ -148,8 +148,7 @@ def filled_marks(marks: np.ndarray, *, cell_m: float, voxel_m: float,
     m = np.asarray(marks, np.float32).reshape(-1, 3)
     if m.shape[0] == 0:
         return m
-    cells = np.floor(m[:, :2] / np.float32(cell_m)).astype(np.int64)
-    _, inverse = np.unique(cells, axis=0, return_inverse=True)
+    _, inverse = np.unique(_cell_keys(m, cell_m), return_inverse=True)
     inverse = inverse.reshape(-1)
     z_lo = np.full(inverse.max() + 1, np.inf, np.float32)
     z_hi = np.full(inverse.max() + 1, -np.inf, np.float32)
@@ -168,6 +167,12 @@ def filled_marks(marks: np.ndarray, *, cell_m: float, voxel_m: float,
 _BIN = 0.01
 
 
+def _cell_keys(points: np.ndarray, cell_m: float) -> np.ndarray:
+    """(N,) int64: one key per cell_m cell of the points' x, y (within +-2^31 cells)."""
+    cells = np.floor(points[:, :2] / cell_m).astype(np.int64)
+    return (cells[:, 0] << 32) + cells[:, 1]
+
+
 def guarded(points: np.ndarray, marks: np.ndarray, rotation: np.ndarray,
             translation: np.ndarray, *, cell_m: float, voxel_m: float) -> np.ndarray:
     """Return the clearing points, each ray ending where it enters a column of ``marks``.
@@ -184,8 +189,9 @@ def guarded(points: np.ndarray, marks: np.ndarray, rotation: np.ndarray,
         return points
     rot = np.asarray(rotation, np.float64)
     origin = np.asarray(translation, np.float64)
-    keys, inverse = np.unique(np.floor(m[:, :2] / cell_m).astype(np.int64), axis=0,
-                              return_inverse=True)
+    _, first, inverse = np.unique(_cell_keys(m, cell_m), return_index=True,
+                                  return_inverse=True)
+    keys = np.floor(m[first, :2] / cell_m)
     inverse = inverse.reshape(-1)
     z_lo = np.full(len(keys), np.inf)
     z_hi = np.full(len(keys), -np.inf)
@@ -212,7 +218,8 @@ def guarded(points: np.ndarray, marks: np.ndarray, rotation: np.ndarray,
     nbx, nby = int(rx.max()) - rx0 + 1, int(ry.max()) - ry0 + 1
     bins = (ry - ry0) * nbx + (rx - rx0)
     order = np.argsort(bins, kind='stable')
-    starts = np.searchsorted(bins[order], np.arange(nbx * nby + 1))
+    starts = np.zeros(nbx * nby + 1, np.int64)
+    np.cumsum(np.bincount(bins, minlength=nbx * nby), out=starts[1:])
     window = np.stack([
         np.where(ahead, np.clip(np.floor(tx.min(axis=1) / _BIN) - rx0, 0, nbx), 0),
         np.where(ahead, np.clip(np.floor(tx.max(axis=1) / _BIN) - rx0 + 1, 0, nbx), nbx),
