@@ -551,11 +551,16 @@ class STVLCostmap:
         self.master = np.full_like(self.layers[0].costmap, self.default_value)
 
     def buffer(self, source: str, points: np.ndarray, pose: tuple[np.ndarray, np.ndarray],
-               stamp_s: float, now_s: float) -> None:
-        """Buffer a cloud that arrived on ``source`` (its frame's pose in the global frame)."""
+               stamp_s: float, now_s: float,
+               sensor_pose: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+        """Buffer a cloud that arrived on ``source`` (its frame's pose in the global frame).
+
+        sensor_pose: the pose of the source's ``sensor_frame`` when it names one.
+        """
         for layer in self.layers:
             if source in layer.buffers:
-                layer.buffers[source].buffer_cloud(points, pose[0], pose[1], stamp_s, now_s)
+                layer.buffers[source].buffer_cloud(points, pose[0], pose[1], stamp_s, now_s,
+                                                   sensor_pose)
 
     def update(self, robot_pose: tuple[float, float, float], now_s: float) -> np.ndarray:
         """One update; returns the master grid (ny, nx) uint8, window origin as the layers'."""

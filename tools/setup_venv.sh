@@ -24,8 +24,11 @@ if [ ! -f "$stamp" ]; then
   # Fill numba's cache once, so the node's first start already runs compiled. Not required:
   # a node with an empty cache answers on the numpy path while it compiles in the background.
   echo "setup_venv.sh: compiling the optional numba kernels once (about a minute on two cores)..." >&2
-  .venv/bin/python -c 'from obstacle_detection.pipeline import Detector
-print(f"setup_venv.sh: numba kernels ready in {Detector().warm_up():.1f} s")' >&2 \
+  .venv/bin/python -c 'import time; start = time.perf_counter()
+from obstacle_detection.pipeline import Detector
+from obstacle_detection.ros import rvl
+Detector().warm_up(); rvl.warm_up()
+print(f"setup_venv.sh: numba kernels ready in {time.perf_counter() - start:.1f} s")' >&2 \
     || echo "setup_venv.sh: warning: compiling the numba kernels failed; the node will" \
             "run on the numpy path (same results, slower)" >&2
   rm -f .venv/.installed-*

@@ -224,10 +224,13 @@ class DetectorNode(Node):
         return COMPILED
 
     def _warm_up(self) -> None:
-        """Compile or load the kernels frames will need: the pipeline's, RVL's if compressed."""
+        """Compile or load every cached kernel: the pipeline's and RVL's.
+
+        RVL's too on raw input, so that numba's cache holds every kernel the node imports and
+        the next start's cache check (jit.cache_filled) says "load", not "compile".
+        """
         self._config.detector.warm_up()
-        if self.get_parameter('depth_transport').value == 'compressedDepth':
-            rvl.warm_up()
+        rvl.warm_up()
 
     def _on_compiled(self, job: jit_support.BackgroundCompile) -> None:
         # Runs on the compile thread; the node may already be shutting down.
