@@ -175,7 +175,8 @@ class Replay:
         cam_t = base_t + base_rot @ mount[1]
         out = {}
         for name, source in self.sources.items():
-            if source.topic.lstrip('/') == 'obstacles/points':
+            # marks: the VoxelLayer's obstacles/marking_points, or obstacles/points as seen
+            if source.topic.lstrip('/') in ('obstacles/marking_points', 'obstacles/points'):
                 out[name] = nav2.buffer_cloud(inp.obstacle_points, base_rot, base_t, source)
             elif source.topic.lstrip('/') == 'obstacles/clearing_points':
                 out[name] = nav2.buffer_cloud(inp.clearing_points, cam_rot, cam_t, source)

@@ -27,7 +27,7 @@ from obstacle_detection.ros.conversions import (array_to_image, image_to_array,
                                             intrinsics_to_camera_info, result_to_messages)
 from obstacle_detection.pipeline.params import KINECT_V2_SD, Intrinsics
 from obstacle_detection.pipeline.detector import Detector
-from obstacle_detection.ros.parameters import ALL_PARAMS, detector_params_from_ros
+from obstacle_detection.ros.parameters import detector_params_from_ros
 from obstacle_detection.sim.scenes import render_scene
 from obstacle_detection.cli import bag_writer
 from obstacle_detection.cli import bag_processor
@@ -113,14 +113,10 @@ def expected_outputs(depth: np.ndarray, intr: Intrinsics, t: int) -> dict[str, o
     """
     detector = Detector(detector_params_from_ros(PARAM_VALUES))
     result = detector.process(depth, intr)
-    # the marks the node sends with publish_clearing (on by default): matched to its rays
-    config = bag_processor.config_from_values(
-        {spec.name: spec.default for spec in ALL_PARAMS} | PARAM_VALUES, 'test')
-    marks, _ = config.nav2_clouds(result)
     messages = result_to_messages(
         result, stamp=to_time(t), cloud_frame_id='base_link',
         costmap_frame_id='base_footprint', image_frame_id=FRAME_ID, with_ground=True,
-        overlay_rgb=render_overlay(result.depth_m, result.labels), obstacle_points=marks)
+        overlay_rgb=render_overlay(result.depth_m, result.labels))
     return {key: deserialize_message(serialize_message(msg), type(msg))
             for key, msg in messages.items()}
 
@@ -406,10 +402,8 @@ def test_merged_params_files_reach_the_output(tmp_path: Path, depths: list[np.nd
     points = decoded('/obstacles/points', got['/obstacles/points'][0][1])
     values = dict(PARAM_VALUES, max_range_m=1.5)
     result = Detector(detector_params_from_ros(values)).process(depths[0], INTR)
-    marks, _ = bag_processor.config_from_values(   # the node's marks, matched to its rays
-        {spec.name: spec.default for spec in ALL_PARAMS} | values, 'test').nav2_clouds(result)
     cloud = np.frombuffer(bytes(points.data), np.float32).reshape(-1, 3)
-    assert cloud.shape[0] == marks.shape[0] > 0
+    assert cloud.shape[0] == result.obstacle_points.shape[0] > 0
     assert cloud[:, 0].max() <= 1.5 + 1e-6
 
 

@@ -28,7 +28,6 @@ import yaml
 
 from message_helpers import pointcloud2_to_points
 from obstacle_detection.cli import bag_processor
-from obstacle_detection.pipeline import clearing
 from obstacle_detection.ros.conversions import array_to_image, intrinsics_to_camera_info
 from obstacle_detection.ros.frame_gate import CameraState
 from obstacle_detection.sim.scenes import render_scene
@@ -127,15 +126,9 @@ def _node_cloud(scene: str) -> tuple[np.ndarray, np.ndarray, str]:
         image, [camera], config, with_ground=False, with_overlay=False)
     assert messages is not None, reason
     cloud = messages['obstacles']
-    # the node leaves out marks less than a cell inside the left and right edges of the view
-    # (no Nav2 clearing ray reaches them: clearing.nav2_clouds); the others are all sent
-    pose = result.pose
-    rays = clearing.clearing_cloud(result, stride_px=config.clearing_stride_px,
-                                   range_m=config.clearing_range_m)
-    reachable = clearing.reachable_marks(
-        result.drop_points, rays, pose.rotation(nominal=True), pose.translation(nominal=True),
-        margin_m=pose.nominal.costmap_resolution_m)
-    return pointcloud2_to_points(cloud), result.drop_points[reachable], cloud.header.frame_id
+    # every drop point is sent on obstacles/points, those at the edges of the view included
+    # (only the VoxelLayer's obstacles/marking_points leaves those out: clearing.nav2_clouds)
+    return pointcloud2_to_points(cloud), result.drop_points, cloud.header.frame_id
 
 
 def test_the_shipped_monitor_reads_as_nav2_declares_it() -> None:

@@ -37,15 +37,6 @@ from test_fleet import make_bags, one_process_outputs
 pytestmark = pytest.mark.integration
 REPO = Path(__file__).resolve().parents[1]
 DASK = Path(sys.executable).parent / 'dask'
-PARAMS_YAML = """\
-obstacle_detector:
-  ros__parameters:
-    median_kernel: 5
-    normal_neighbours: 8
-    validation_neighbours: 6
-    max_range_m: 2.5
-    costmap_length_m: 2.5
-"""
 #: Bound of every wait for a process of the cluster.
 START_S = 120.0
 #: sitecustomize of a worker without obstacle_detection: this venv's editable install is a

@@ -382,12 +382,13 @@ def test_nav2_sources_are_the_nodes_clouds() -> None:
     clouds = {name for name, kind in _node_topics('publisher').items() if kind == 'PointCloud2'}
     sources = _sources()
 
-    assert {topic.lstrip('/') for topic in sources} == {'obstacles/points',
+    assert {topic.lstrip('/') for topic in sources} == {'obstacles/marking_points',
                                                         'obstacles/clearing_points'}
     assert {topic.lstrip('/') for topic in sources} <= clouds
     assert all(topic.startswith('/') for topic in sources)  # the node runs without namespace
     assert all(source['data_type'] == 'PointCloud2' for source in sources.values())
-    points, clearing = sources['/obstacles/points'], sources['/obstacles/clearing_points']
+    points = sources['/obstacles/marking_points']
+    clearing = sources['/obstacles/clearing_points']
     assert (points['marking'], points['clearing']) == (True, False)
     assert (clearing['marking'], clearing['clearing']) == (False, True)
     # rays start at the cloud frame's origin: the camera for the clearing cloud (its frame is
@@ -426,7 +427,7 @@ def test_nav2_heights_agree_with_the_corridor_region_of_interest() -> None:
     params = _corridor()
     top = float(params['camera_height_m']) + float(params['smar_m'])
     layer = _layer()
-    points = _sources()['/obstacles/points']
+    points = _sources()['/obstacles/marking_points']
 
     for settings in (layer, points):
         assert settings['max_obstacle_height'] == pytest.approx(top)
@@ -449,7 +450,7 @@ def test_nav2_ranges_and_window_cover_the_corridor_region_of_interest() -> None:
     costmap = _costmap()
     reach = math.hypot(float(params['max_range_m']), float(params['lateral_limit_m']))
     top = float(params['camera_height_m']) + float(params['smar_m'])
-    points = _sources()['/obstacles/points']
+    points = _sources()['/obstacles/marking_points']
 
     # the voxel layer measures the marking range in 3-D from the cloud frame's origin
     assert points['obstacle_max_range'] > math.hypot(reach, top)
@@ -471,7 +472,7 @@ def test_every_detector_point_passes_the_voxel_layer_filters(scene: str) -> None
     frame = render_scene(scene, seed=1, height_m=params.camera_height_m,
                          pitch_rad=params.camera_pitch_rad, roll_rad=params.camera_roll_rad)
     result = config.detector.process(frame.depth_mm, frame.intrinsics)
-    layer, source = _layer(), _sources()['/obstacles/points']
+    layer, source = _layer(), _sources()['/obstacles/marking_points']
     points = result.obstacle_points.astype(np.float64)
     clearing = clearing_cloud(result, stride_px=config.clearing_stride_px,
                               range_m=config.clearing_range_m)

@@ -101,14 +101,14 @@ def _rendered(sequence: SceneSequence) -> Iterator[Any]:
 
 def node_clouds(depth_mm: np.ndarray, info: Any, stamp: Time, config: Any,
                 ) -> tuple[np.ndarray, np.ndarray]:
-    """Return the node's obstacles/points and obstacles/clearing_points of a frame."""
+    """Return the node's obstacles/marking_points and obstacles/clearing_points of a frame."""
     msg = array_to_image(depth_mm, stamp=stamp, frame_id=FRAME_ID)
     messages, result, reason, _ = bag_processor.process_frame(
         msg, [CameraState.from_camera_info(info)], config, with_ground=False,
         with_overlay=False)
     assert messages is not None, reason
-    _, cloud = config.nav2_clouds(result)   # the node's call
-    return pointcloud2_to_points(messages['obstacles']), cloud
+    marks, cloud = config.nav2_clouds(result)   # the node's call
+    return marks, cloud
 
 
 def _play(sequence: SceneSequence, config: Any, step: int) -> list[Played]:

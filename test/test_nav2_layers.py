@@ -350,5 +350,5 @@ def test_the_shipped_example_uses_only_names_nav2_jazzy_reads() -> None:
                                / 'nav2_costmap.yaml')
 
     assert [layer.plugin for layer in config.layers] == [nav2.VOXEL_PLUGIN]
-    assert {s.topic for s in config.layers[0].sources} == {'/obstacles/points',
+    assert {s.topic for s in config.layers[0].sources} == {'/obstacles/marking_points',
                                                           '/obstacles/clearing_points'}

@@ -4,10 +4,11 @@ The node runs as the README starts it (``detector --ros-args --params-file
 params/corridor.yaml``, loopback DDS). A probe publishes the frames of two sequences
 (``person_crossing``: a person walks across and leaves; ``drive_past_boxes``: the robot
 drives past low boxes and along a table) as 16UC1 depth with a CameraInfo, and receives
-``obstacles/points`` and ``obstacles/clearing_points``. The frames sent are those at the
-costmap's update instants: with ``observation_persistence: 0`` Nav2 reads only the newest
-cloud of each source at each update (``update_frequency`` of params/nav2_costmap.yaml: every
-6th frame of 30). The clouds go into the port of Nav2's layers (test/nav2_layers.py),
+``obstacles/marking_points`` and ``obstacles/clearing_points``, the clouds the VoxelLayer of
+params/nav2_costmap.yaml reads. The frames sent are those at the costmap's update
+instants: with ``observation_persistence: 0`` Nav2 reads only the newest cloud of each
+source at each update (``update_frequency`` of params/nav2_costmap.yaml: every 6th frame of
+30). The clouds go into the port of Nav2's layers (test/nav2_layers.py),
 configured by params/nav2_costmap.yaml, with TF from the sequence's true poses (exact
 odometry) and corridor.yaml's camera mount; the same clouds also go into an ObstacleLayer
 (2-D clearing) built from the same file, for comparison. test/nav2_replay.py defines the
@@ -64,14 +65,14 @@ class Harness(ros_env.NodeProcess):
         self.depth_pub = self.node.create_publisher(Image, 'depth/image_raw', RELIABLE)
         self.info_pub = self.node.create_publisher(CameraInfo, 'depth/camera_info', LATCHED)
         self.subs = [self.by_stamp(topic, PointCloud2, topic, RELIABLE)
-                     for topic in ('obstacles/points', 'obstacles/clearing_points')]
+                     for topic in ('obstacles/marking_points', 'obstacles/clearing_points')]
         self.start(['--ros-args', '--params-file', str(CORRIDOR)])
 
     def send(self, depth_mm: np.ndarray, info: CameraInfo, stamp: Time,
              ) -> tuple[PointCloud2, PointCloud2]:
         """Publish one frame; return its obstacle and clearing clouds (one resend if lost)."""
         key = ros_env.stamp_key(stamp)
-        topics = ('obstacles/points', 'obstacles/clearing_points')
+        topics = ('obstacles/marking_points', 'obstacles/clearing_points')
         for _ in range(2):
             info.header.stamp = stamp
             self.info_pub.publish(info)
@@ -233,16 +234,17 @@ def test_the_2d_obstacle_layer_keeps_fewer_obstacles_out_of_view(figures: dict) 
 
 
 @pytest.mark.parametrize(('setting', 'publishers'), [('true', 1), ('false', 0)])
-def test_the_clearing_publisher_exists_only_when_on(setting: str, publishers: int) -> None:
+def test_the_voxel_layer_publishers_exist_only_when_on(setting: str, publishers: int) -> None:
     from obstacle_detection.ros.node import DetectorNode
 
     with ros_env.rclpy_context(f'{__name__}:clearing-{setting}') as context:
         node = DetectorNode(context=context, cli_args=[
             '--ros-args', '--params-file', str(CORRIDOR), '-p', f'publish_clearing:={setting}'])
         try:
-            found = node.get_publishers_info_by_topic('/obstacles/clearing_points')
+            found = [len(node.get_publishers_info_by_topic(f'/obstacles/{name}'))
+                     for name in ('clearing_points', 'marking_points', 'points')]
         finally:
             node.close()
             node.destroy_node()
 
-    assert len(found) == publishers
+    assert found == [publishers, publishers, 1]

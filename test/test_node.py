@@ -43,7 +43,6 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 from std_msgs.msg import Float64, String
 
 from obstacle_detection.labels import CELL_OCCUPIED, GT_OBSTACLE
-from obstacle_detection.cli import bag_processor
 from obstacle_detection.pipeline import jit as jit_support
 from message_helpers import array_to_compressed_depth, pointcloud2_to_points
 from obstacle_detection.ros.conversions import (
@@ -212,11 +211,8 @@ def _good_frame(detector: NodeUnderTest, scene: SceneFrame,
 
 def _assert_matches(out: dict[str, Any], expected: DetectionResult) -> None:
     points = pointcloud2_to_points(out['obstacles'])
-    # corridor.yaml publishes the clearing cloud: the marks are matched to it for Nav2
-    marks, _ = bag_processor.config_from_values(
-        bag_processor.node_param_values(CORRIDOR_YAML), str(CORRIDOR_YAML)).nav2_clouds(expected)
-    assert points.shape == marks.shape
-    np.testing.assert_array_equal(_sorted_rows(points), _sorted_rows(marks))
+    assert points.shape == expected.obstacle_points.shape
+    np.testing.assert_array_equal(_sorted_rows(points), _sorted_rows(expected.obstacle_points))
     grid = out['costmap']
     cells = np.asarray(grid.data, np.int8).reshape(grid.info.height, grid.info.width)
     np.testing.assert_array_equal(cells, expected.costmap.data)

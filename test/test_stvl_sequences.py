@@ -2,9 +2,11 @@
 
 Every frame of each sequence goes through the node's own frame path (``bag_processor.
 process_frame``: the frame gate, the pipeline and the messages the node publishes;
-test_bag_process checks they equal the node's) with params/corridor.yaml and
-``clearing_voxel_m: 0`` (``NODE_VALUES``: the clouds as seen), in two worker processes that
-also render the frames and take their truth. The node's ``obstacles/points`` go into the port
+test_bag_process checks they equal the node's) with params/corridor.yaml, in two worker
+processes that also render the frames and take their truth. The node's ``obstacles/points``
+(the obstacles as seen; not the VoxelLayer's ``obstacles/marking_points``, which leave out the
+marks within a cell of the view's side: STVL's frustum would decay a box passing there before
+it left the view, kept 0.27-0.38 at 30 Hz on drive_by_table, docs/stvl.md) go into the port
 of STVL 2.5.5 (test/stvl_layer.py) configured by params/nav2_stvl.yaml, with TF from the
 sequence's true poses (exact odometry) and the URDF's mount (corridor.yaml's, or one 1.5 deg /
 3 cm off for the URDF-off run); the frustum is posed by the clearing cloud's frame (the
@@ -48,13 +50,6 @@ STVL_YAML = REPO / 'params' / 'nav2_stvl.yaml'
 FRAME_ID = 'camera_depth_optical_frame'
 OBSTACLES, FRUSTUM = 'detector_obstacles', 'detector_frustum'
 
-
-#: The node's parameters for STVL (README, Use with Nav2): corridor.yaml with the clouds as
-#: seen (clearing_voxel_m 0). By default the node drops the marks within a cell of the view's
-#: side, which no ray of the VoxelLayer could clear; STVL's frustum decays a voxel not marked
-#: again in 4 updates at 30 Hz, so a box leaving the view at the side went before it left
-#: (kept 0.27-0.38 at 30 Hz on drive_by_table, docs/stvl.md).
-NODE_VALUES = {'clearing_voxel_m': 0.0}
 
 
 class STVLReplay(replay.Replay):
@@ -168,7 +163,7 @@ def play_frame(sequence: str, body_pitch: BodyPitch | None, index: int,
                origin: tuple[float, float], res: float) -> Played:
     """Render one frame, run the node's frame path on it; its marks and truth (a worker)."""
     if 'node' not in _WORKER:
-        values = {**bag_processor.node_param_values(CORRIDOR), **NODE_VALUES}
+        values = bag_processor.node_param_values(CORRIDOR)
         _WORKER['node'] = bag_processor.config_from_values(values, str(CORRIDOR))
     node = _WORKER['node']
     key = (sequence, body_pitch)
@@ -244,7 +239,7 @@ def update_periods(config: nav2.CostmapConfig) -> dict[str, int]:
 @pytest.fixture(scope='module')
 def figures() -> dict[tuple[str, str], replay.SequenceFigures]:
     config = stvl.read_stvl_costmap(STVL_YAML)
-    values = {**bag_processor.node_param_values(CORRIDOR), **NODE_VALUES}
+    values = bag_processor.node_param_values(CORRIDOR)
     groups: dict[tuple, list[Run]] = {}
     for run in RUNS:        # runs that share their frames are played together
         groups.setdefault((run.sequence, run.body_pitch), []).append(run)

@@ -159,11 +159,10 @@ def process_frame(depth: Image | CompressedImage, cameras: Sequence[CameraState]
         result = detector.process(array, verdict.intrinsics)
     except ValueError as err:
         return None, None, str(err), None
-    marks, _ = config.nav2_clouds(result)   # the node's marks
     messages = result_to_messages(
         result, stamp=depth.header.stamp, cloud_frame_id=config.cloud_frame_id,
         costmap_frame_id=config.costmap_frame_id, image_frame_id=depth.header.frame_id,
-        with_ground=with_ground, obstacle_points=marks,
+        with_ground=with_ground,
         overlay_rgb=render_overlay(result.depth_m, result.labels) if with_overlay else None)
     return messages, result, '', verdict.note
 

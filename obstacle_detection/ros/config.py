@@ -57,15 +57,17 @@ class NodeConfig:
                      pitch_rad=math.radians(float(values['camera_pitch_deg'])),
                      yaw_rad=math.radians(float(values['camera_yaw_deg'])))
 
-    def nav2_clouds(self, result: DetectionResult) -> tuple[np.ndarray, np.ndarray | None]:
-        """(obstacles/points, obstacles/clearing_points or None) of a frame, as the node sends.
+    def nav2_clouds(self, result: DetectionResult
+                    ) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """(obstacles/marking_points, obstacles/clearing_points) of a frame, as the node sends.
 
-        With publish_clearing and clearing_voxel_m > 0 the marks and rays are matched for a
-        voxel layer placing the camera by the frame's nominal pose
-        (pipeline.clearing.nav2_clouds); otherwise the marks are the result's.
+        Both None without publish_clearing. With clearing_voxel_m > 0 the marks and rays are
+        matched for a voxel layer placing the camera by the frame's nominal pose
+        (pipeline.clearing.nav2_clouds); with 0 the marks are the result's obstacle points.
+        obstacles/points always carries the result's obstacle points, for every other consumer.
         """
         if not self.publish_clearing:
-            return result.obstacle_points, None
+            return None, None
         points = clearing.clearing_cloud(result, stride_px=self.clearing_stride_px,
                                          range_m=self.clearing_range_m)
         if self.clearing_voxel_m == 0.0:

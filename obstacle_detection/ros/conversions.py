@@ -285,15 +285,16 @@ def result_to_messages(result: DetectionResult, *, stamp: Time, cloud_frame_id: 
                        costmap_frame_id: str, image_frame_id: str, with_ground: bool = False,
                        overlay_rgb: np.ndarray | None = None,
                        clearing_points: np.ndarray | None = None,
-                       obstacle_points: np.ndarray | None = None) -> dict[str, Any]:
+                       marking_points: np.ndarray | None = None) -> dict[str, Any]:
     """All output messages of one pipeline result, stamped with the input's stamp.
 
-    Keys: 'obstacles', 'costmap', and 'ground', 'overlay', 'clearing' when asked for.
-    obstacle_points: the cloud of 'obstacles' (None: the result's obstacle points).
+    Keys: 'obstacles', 'costmap', and 'ground', 'overlay', 'clearing', 'marking' when asked
+    for. clearing_points: (N, 3) in the image's optical frame; marking_points: (M, 3), the
+    marks matched to them for a voxel layer (NodeConfig.nav2_clouds), in cloud_frame_id.
     """
-    marks = result.obstacle_points if obstacle_points is None else obstacle_points
     messages: dict[str, Any] = {
-        'obstacles': points_to_pointcloud2(marks, stamp=stamp, frame_id=cloud_frame_id),
+        'obstacles': points_to_pointcloud2(result.obstacle_points, stamp=stamp,
+                                           frame_id=cloud_frame_id),
         'costmap': costmap_to_occupancy_grid(result.costmap, stamp=stamp,
                                              frame_id=costmap_frame_id),
     }
@@ -303,6 +304,9 @@ def result_to_messages(result: DetectionResult, *, stamp: Time, cloud_frame_id: 
     if clearing_points is not None:
         messages['clearing'] = points_to_pointcloud2(clearing_points, stamp=stamp,
                                                      frame_id=image_frame_id)
+    if marking_points is not None:
+        messages['marking'] = points_to_pointcloud2(marking_points, stamp=stamp,
+                                                    frame_id=cloud_frame_id)
     if overlay_rgb is not None:
         messages['overlay'] = array_to_image(overlay_rgb, stamp=stamp, frame_id=image_frame_id,
                                              encoding='rgb8')

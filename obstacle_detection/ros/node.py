@@ -88,6 +88,7 @@ OUTPUTS = {
     'costmap': (OccupancyGrid, 'obstacles/costmap', None),
     'ground': (PointCloud2, 'obstacles/ground_points', 'publish_ground'),
     'clearing': (PointCloud2, 'obstacles/clearing_points', 'publish_clearing'),
+    'marking': (PointCloud2, 'obstacles/marking_points', 'publish_clearing'),
     'overlay': (Image, 'obstacles/overlay', 'publish_overlay'),
     'fused': (OccupancyGrid, 'obstacles/fused_costmap', 'fuse'),
 }
@@ -526,7 +527,7 @@ class DetectorNode(Node):
                 with_ground=config.publish_ground,
                 overlay_rgb=(render_overlay(result.depth_m, result.labels)
                              if config.publish_overlay else None),
-                clearing_points=clearing_points, obstacle_points=marks)
+                clearing_points=clearing_points, marking_points=marks)
             fused = self._fuse(result, msg, config)
         except ValueError as error:
             self._warn_skip('pipeline', str(error))

@@ -144,12 +144,12 @@ NODE_PARAMS: tuple[ParamSpec, ...] = (
               'filtered depth image (4: about 13,000 rays of a 512 x 424 frame) [px]', 1, 64),
     ParamSpec('clearing_voxel_m', 0.1,
               'Voxel height of the 3-D layer the clouds feed (Nav2 VoxelLayer z_resolution; '
-              'its cell is costmap_resolution_m): with publish_clearing, obstacles/points '
-              'leaves out marks less than a cell inside the outermost clearing rays (no ray '
-              'would clear them) and the rays stop before their columns; a column whose marks '
-              'span less than a voxel is filled two voxels down, so a ray grazing its voxel '
-              'does not free it; 0 = off, the clouds as seen (STVL, which forgets by its '
-              'frustum, not by rays: params/nav2_stvl.yaml) [m]', 0.0, 1.0),
+              'its cell is costmap_resolution_m): with publish_clearing, '
+              'obstacles/marking_points leaves out marks less than a cell inside the outermost '
+              'clearing rays (no ray would clear them) and the rays stop before their columns; '
+              'a column whose marks span less than a voxel is filled two voxels down, so a ray '
+              'grazing its voxel does not free it; 0 = off, the marks as seen. '
+              'obstacles/points is never changed [m]', 0.0, 1.0),
     ParamSpec('publish_overlay', False,
               'Also publish obstacles/overlay: rgb8 depth frame with obstacle pixels in red; '
               'read at start-up (the topic is advertised only when on)', read_only=True),
