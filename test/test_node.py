@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import re
 import signal
 import subprocess
@@ -283,6 +284,12 @@ def test_cold_numba_cache_answers_at_once_then_switches_to_the_kernels(
     finally:
         cold.close()
     assert list((tmp_path / 'empty_numba_cache').rglob('*.nbi'))   # the cache was filled
+    # with every kernel the node imports: its next start says "load", not "compile"
+    check = subprocess.run(
+        [sys.executable, '-c', 'import obstacle_detection.ros.node; from obstacle_detection.'
+         'pipeline import jit; print(jit.cache_filled())'], capture_output=True, text=True,
+        env={**os.environ, 'NUMBA_CACHE_DIR': str(tmp_path / 'empty_numba_cache')}, check=True)
+    assert check.stdout.strip() == 'True', check.stderr
 
 
 def test_occupied_cells_are_where_the_boxes_and_walls_are(

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..labels import LABEL_OBSTACLE
-from . import clearing, geometry, jit, traversal, voxel
+from . import clearing, geometry, jit, median, traversal, voxel
 from . import costmap as costmap_stage   # a frame's local `costmap` is its grid
 from .costmap import Costmap, build_costmap
 from .depth import crop_borders, decode_depth, depth_lut, units_per_metre
@@ -101,6 +101,7 @@ class Detector:
             mounted.process(mm, intr)
             mounted.process(mm.astype(np.float32) / np.float32(1000.0), intr)
             clearing.warm_up()   # the node's clearing cloud
+            median.warm_up()     # K > 5, which these parameters may not reach
         return time.perf_counter() - start
 
     def _rays(self, shape: tuple[int, int], intr: Intrinsics) -> geometry.GroundRays:

@@ -55,3 +55,14 @@ def _opencv_median(image: np.ndarray, k: int) -> np.ndarray:
         padded = cv2.copyMakeBorder(image, r, r, r, r, cv2.BORDER_REPLICATE)
         return np.ascontiguousarray(cv2.medianBlur(padded, k)[r:r + h, r:r + w])
     return cv2.medianBlur(image, k)
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's disk cache) the exact median of K > 5, if it runs.
+
+    The default K = 5 runs OpenCV, so without this a node on the default never compiles the
+    kernel and its start-up check (jit.cache_filled) would call numba's cache empty for ever.
+    """
+    if jit.enabled():
+        for dtype in (np.uint16, np.float32):
+            median_filter(np.arange(64, dtype=dtype).reshape(8, 8), 7)
