@@ -32,7 +32,8 @@ from obstacle_detection.fleet import bags as fleet_bags
 from obstacle_detection.fleet import cluster
 from obstacle_detection.tools import bag_process, evaluate
 from test_bag_process import output_messages
-from test_fleet import make_bags, one_process_outputs
+# PARAMS_YAML: conftest's params_file fixture reads it from this module
+from test_fleet import PARAMS_YAML, make_bags, one_process_outputs  # noqa: F401
 
 pytestmark = pytest.mark.integration
 REPO = Path(__file__).resolve().parents[1]
