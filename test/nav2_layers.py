@@ -199,6 +199,12 @@ def read_costmap(path: str | Path, section: str = 'local_costmap') -> CostmapCon
                 settings.pop(key, None)
         layers.append(LayerConfig(name=name, plugin=plugin, sources=tuple(sources),
                                   **settings))
+    return costmap_config(values, plugins, layers, section)
+
+
+def costmap_config(values: Mapping[str, Any], plugins: list[str], layers: list[Any],
+                   section: str) -> CostmapConfig:
+    """Return the CostmapConfig of a section's ``values`` and layers; refuse keys Nav2 ignores."""
     unknown = set(values) - COSTMAP_KEYS - set(plugins)
     if unknown:
         raise Nav2ConfigError(f'{section}: {sorted(unknown)} not read by Nav2 Jazzy')

@@ -159,18 +159,7 @@ def read_stvl_costmap(path: str | Path, section: str = 'local_costmap') -> nav2.
             raise nav2.Nav2ConfigError(f'{name}: mapping_mode saves maps and never clears: '
                                        'not a navigation costmap')
         layers.append(config)
-    unknown = set(values) - nav2.COSTMAP_KEYS - set(plugins)
-    if unknown:
-        raise nav2.Nav2ConfigError(f'{section}: {sorted(unknown)} not read by Nav2 Jazzy')
-    return nav2.CostmapConfig(
-        global_frame=str(values['global_frame']),
-        robot_base_frame=str(values['robot_base_frame']),
-        rolling_window=bool(values['rolling_window']), width_m=float(values['width']),
-        height_m=float(values['height']), resolution_m=float(values['resolution']),
-        robot_radius_m=float(values.get('robot_radius', 0.1)),
-        track_unknown_space=bool(values.get('track_unknown_space', False)),
-        update_frequency_hz=float(values.get('update_frequency', 5.0)),
-        layers=tuple(layers), values=dict(values))
+    return nav2.costmap_config(values, plugins, layers, section)
 
 
 def _checked_source(source: SourceConfig, layer: str) -> SourceConfig:
