@@ -13,7 +13,11 @@ origin). Figures (``Replay.report``):
   true obstacle as found when a lethal cell does; pooled over the updates;
 - ``ghost``: per update, lethal cells where the truth is free floor, not within one cell of a
   true obstacle (what a planner would swerve around for nothing); ``stale_lethal``: those of
-  them seen free in every frame of the last 10 at 30 Hz (seen free floor left lethal);
+  them seen free, with no true obstacle within one cell, in every frame of the last 10 at
+  30 Hz (seen free floor left lethal 10 frames after its obstacle left; the one cell is the
+  tolerance above: a mark beside the person counts as right, so the person standing beside
+  a cell is not that cell seen free). With updates slower than the frames, :meth:`Replay.see`
+  takes the frames between them;
 - ``frames_to_clear``: after the person left the view (``person_in_view`` false), the frames
   at 30 Hz until no ghost is left, and ``ghost_after_10``: ghosts at the first update 10
   frames or more after;
@@ -147,6 +151,7 @@ class Replay:
         self.marked_in_view = np.zeros(self.shape, bool)
         self.person_cells = np.zeros(self.shape, bool)
         self.free_since = np.full(self.shape, np.iinfo(np.int64).max, np.int64)
+        self.free_noted = -1    # the frame free_since was last updated with
         self.counts = _Counts()
         self.counts_person = _Counts()
         self.ghost: list[int] = []
@@ -197,6 +202,19 @@ class Replay:
             raise ValueError('the costmap window left the scoring lattice')
         return slice(r0, r0 + ny), slice(c0, c0 + nx)
 
+    def _note_free(self, frame_truth: np.ndarray, index: int) -> np.ndarray:
+        """Update since when each cell is seen free with no true obstacle within one cell."""
+        free_now = (frame_truth == CELL_FREE) & ~_grow(frame_truth == CELL_OCCUPIED)
+        if index != self.free_noted:
+            self.free_since = np.where(free_now, np.minimum(self.free_since, index),
+                                       np.iinfo(np.int64).max)
+            self.free_noted = index
+        return free_now
+
+    def see(self, inp: UpdateInput) -> None:
+        """Take a frame between updates into the seen-free history (no costmap update)."""
+        self._note_free(self._truth_grid(inp)[0], inp.index)
+
     def step(self, inp: UpdateInput) -> np.ndarray:
         """Run one costmap update and score it; returns the master grid (window, Nav2 costs)."""
         master = self.costmap.update(inp.pose, self._observations(inp))
@@ -228,9 +246,7 @@ class Replay:
         ghost = lethal & free
         self.ghost.append(int(np.count_nonzero(ghost)))
         self.ghost_frames.append(inp.index)
-        free_now = frame_truth == CELL_FREE
-        self.free_since = np.where(free_now, np.minimum(self.free_since, inp.index),
-                                   np.iinfo(np.int64).max)
+        free_now = self._note_free(frame_truth, inp.index)
         seen_free_long = free_now & (inp.index - self.free_since >= CLEAR_BUDGET_FRAMES)
         self.stale_max = max(self.stale_max, int(np.count_nonzero(ghost & seen_free_long)))
         window_unknown = np.zeros(self.shape, bool)

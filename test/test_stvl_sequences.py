@@ -227,6 +227,8 @@ def play_runs(runs: list[Run], config: nav2.CostmapConfig, values: dict[str, Any
                 r.receive(update)
             if p.index % period == 0:
                 r.step(update)
+            else:
+                r.see(update)      # the truth between updates, for the seen-free history
     return [r.report() for _, r in replays]
 
 
@@ -260,14 +262,7 @@ RATES = list(update_periods(stvl.read_stvl_costmap(STVL_YAML)))
 #: (F1 0.963; 0.981 with the marks shown in their own update, docs/stvl.md).
 LATE_AT_5_HZ = pytest.mark.xfail(strict=True, reason='STVL marks after it fills the costmap: '
                                  'one update late (spatio_temporal_voxel_layer issue #284)')
-#: At 5 Hz a voxel in the frustum survives its first unmarked update (decay_acceleration
-#: 1000; above 11,100 it would go at the first, and with the late marks nothing in view would
-#: be shown): the walking person is drawn where it stood 0.2 s before, lag or not; one cell at
-#: its edge was seen free at the two updates before (docs/stvl.md).
-PERSON_DRAWN_LATE = pytest.mark.xfail(strict=True, reason='at 5 Hz STVL shows a voxel one '
-                                      'update after its last mark: the person 0.2 s late')
-KNOWN_MISSES = {('f1', 'drive_past_boxes', '5 Hz'): LATE_AT_5_HZ,
-                ('stale', 'person_crossing', '5 Hz'): PERSON_DRAWN_LATE}
+KNOWN_MISSES = {('f1', 'drive_past_boxes', '5 Hz'): LATE_AT_5_HZ}
 
 
 def cases(figure: str, names: list[str] | None = None) -> list[Any]:
