@@ -16,8 +16,9 @@ origin). Figures (``Replay.report``):
   them seen free, with no true obstacle within one cell, in every frame of the last 10 at
   30 Hz (seen free floor left lethal 10 frames after its obstacle left; the one cell is the
   tolerance above: a mark beside the person counts as right, so the person standing beside
-  a cell is not that cell seen free). With updates slower than the frames, :meth:`Replay.see`
-  takes the frames between them;
+  a cell is not that cell seen free). A caller that updates slower than the frames can give
+  the frames between to :meth:`Replay.see` (the STVL replays do; the VoxelLayer's 5 Hz runs
+  send the node every 6th frame only and score the update frames, which is stricter);
 - ``frames_to_clear``: after the person left the view (``person_in_view`` false), the frames
   at 30 Hz until no ghost is left, and ``ghost_after_10``: ghosts at the first update 10
   frames or more after;

@@ -333,8 +333,8 @@ class DepthCameraFrustum:
     def is_inside(self, points: np.ndarray) -> np.ndarray:
         """IsInside for (N, 3) points: outside once (p - plane point) . normal > 0 for a plane.
 
-        Upstream normalises p - plane point first (the sign is the same; a point on a plane
-        corner gives NaN, which compares false: inside).
+        Upstream normalises p - plane point first (the sign is the same; Eigen leaves a zero
+        vector, a point on a plane's corner, as it is: 0, inside).
         """
         pts = np.asarray(points, np.float64).reshape(-1, 3)
         if not self.valid:
@@ -437,11 +437,8 @@ class SpatioTemporalVoxelGrid:
 
         A point counts within obstacle_range of its reading's origin (3-D), not within 1 cm.
 
-        Index: a coordinate less one voxel size where negative, over the voxel size,
-        truncated toward zero (openvdb::Coord from a Vec3d). As released (grid
-        ``operator()``, since upstream #256), z is shifted when *y* is negative, not z: a
-        point with y < 0 falls one voxel lower than its height says, a point below the floor
-        with y >= 0 one voxel higher.
+        Index: a negative coordinate less one voxel size, over the voxel size, truncated
+        toward zero (openvdb::Coord from a Vec3d).
         """
         vs = self.voxel_size
         for r in readings:
@@ -451,9 +448,7 @@ class SpatioTemporalVoxelGrid:
             d2 = ((p - r.origin) ** 2).sum(axis=1).astype(np.float32)
             keep = ~((d2 > np.float32(r.source.obstacle_range ** 2)) | (d2 < 0.0001))
             p = p[keep]
-            shifted = p.astype(np.float64)
-            shifted[:, :2] = np.where(p[:, :2] < 0, p[:, :2] - vs, p[:, :2])
-            shifted[:, 2] = np.where(p[:, 1] < 0, p[:, 2] - vs, p[:, 2])    # y's sign
+            shifted = np.where(p < 0, p - vs, p)
             index = np.trunc(shifted / vs).astype(np.int64)
             new = np.unique(_pack(index))
             pos = np.searchsorted(self.keys, new)

@@ -194,16 +194,18 @@ def test_marking_heights_and_range_filter_the_cloud(tmp_path: Path) -> None:
     assert not _lethal_at(costmap, master, 3.02, 1.52)
 
 
-def test_a_mark_is_lowered_a_voxel_where_y_is_negative_as_released(tmp_path: Path) -> None:
-    # grid operator() (src/spatio_temporal_voxel_grid.cpp, since upstream #256): z takes the
-    # voxel-size shift when *y* is negative: "double z = *iter_y < 0 ? *iter_z - ..."
+
+def test_a_mark_takes_each_coordinate_s_own_sign_as_2_5_5_does(tmp_path: Path) -> None:
+    # grid operator() in 2.5.5 (release/jazzy/spatio_temporal_voxel_layer/2.5.5-1,
+    # src/spatio_temporal_voxel_grid.cpp): "double z = *iter_z < 0 ? *iter_z - _voxel_size";
+    # the ros2 branch's head (403d9ed) tests *iter_y there instead, Jazzy does not ship it
     costmap = _costmap(tmp_path)
-    points = np.array([[1.02, 0.32, 0.07],     # y >= 0: voxel 0.05-0.10, centre 0.075
-                       [1.02, -0.32, 0.07],    # y < 0: 0.07 - 0.05 -> voxel 0, centre 0.025
-                       [1.22, 0.32, -0.03]])   # below the floor, y >= 0: truncated to voxel 0
+    points = np.array([[1.02, 0.32, 0.07],     # voxel 0.05-0.10, centre 0.075
+                       [1.02, -0.32, 0.07],    # y < 0 leaves z alone: centre 0.075
+                       [1.22, 0.32, -0.03]])   # below the floor: voxel -0.05-0, centre -0.025
 
     _update(costmap, points, 0.0)
 
     centres = costmap.layers[0].grid.centres()
     by_xy = {(round(x, 3), round(y, 3)): round(z, 3) for x, y, z in centres}
-    assert by_xy == {(1.025, 0.325): 0.075, (1.025, -0.325): 0.025, (1.225, 0.325): 0.025}
+    assert by_xy == {(1.025, 0.325): 0.075, (1.025, -0.325): 0.075, (1.225, 0.325): -0.025}
