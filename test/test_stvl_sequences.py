@@ -15,9 +15,9 @@ sequence of ``SEQUENCE_NAMES``, the held-out drive with the body pitching +-2 de
 phases test_nav2_held_out plays) and with the URDF off. Per run three costmaps run side by
 side: updated at every frame (30 Hz), at the file's ``update_frequency`` (15 Hz, every 2nd
 frame) and at nav2_bringup's 5 Hz (every 6th frame). Clouds are buffered as they come (30 Hz);
-an update reads the newest (``observation_persistence: 0``). test/nav2_replay.py defines the figures; ``pytest -s``
-prints them (README, Use with Nav2). The worker processes make the module ``integration``
-(test/conftest.py).
+an update reads the newest (``observation_persistence: 0``). test/nav2_replay.py defines the
+figures; ``pytest -s`` prints them (README, Use with Nav2). The worker processes make the
+module ``integration`` (test/conftest.py).
 """
 
 from __future__ import annotations
