@@ -658,6 +658,21 @@ def make_layer(layer: LayerConfig, costmap: CostmapConfig) -> ObstacleLayer:
         else ObstacleLayer(layer, costmap)
 
 
+def combine(master: np.ndarray, cost: np.ndarray, combination_method: int) -> None:
+    """Write a layer's costs into the master grid in place, as its updateCosts does.
+
+    1: CostmapLayer::updateWithMax (a known cost over an unknown or lower one); 0:
+    updateWithOverwrite (every cell); anything else leaves the master alone ("default: break").
+    """
+    if combination_method == 1:
+        take = (cost != NO_INFORMATION) & ((master == NO_INFORMATION) | (master < cost))
+    elif combination_method == 0:
+        take = np.ones(cost.shape, bool)
+    else:
+        return
+    master[take] = cost[take]
+
+
 class LayeredCostmap:
     """The master grid over the ported layers (LayeredCostmap::updateMap, Max combination)."""
 
@@ -687,9 +702,7 @@ class LayeredCostmap:
         # resetMap to the default, then CostmapLayer::updateWithMax of each layer
         master = np.full_like(self.layers[0].costmap, self.default_value)
         for layer in self.layers:
-            cost = layer.costmap
-            take = (cost != NO_INFORMATION) & ((master == NO_INFORMATION) | (master < cost))
-            master[take] = cost[take]
+            combine(master, layer.costmap, layer.layer.combination_method)
         self.master = master
         return master
 

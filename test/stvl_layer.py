@@ -519,15 +519,6 @@ class SpatioTemporalVoxelLayer(nav2.ObstacleLayer):
         if self.layer.update_footprint_enabled:     # updateCosts: setConvexPolygonCost
             self.clear_footprint(robot_pose)
 
-    def marked_cells(self) -> np.ndarray:
-        """(ny, nx) bool: the cells whose column holds a voxel now (after this update's marks)."""
-        out = np.zeros(self.costmap.shape, bool)
-        if self.grid.keys.size:
-            c = self.grid.centres()
-            mx, my, inside = self.world_to_map(c[:, 0], c[:, 1])
-            out[my[inside], mx[inside]] = True
-        return out
-
 
 class STVLCostmap:
     """The master grid over STVL layers (LayeredCostmap::updateMap, Max or Overwrite)."""
@@ -556,15 +547,7 @@ class STVLCostmap:
         master = np.full_like(self.layers[0].costmap, self.default_value)
         for layer in self.layers:
             layer.update_stvl(robot_pose, now_s)
-            cost = layer.costmap
-            if layer.layer.combination_method == 1:       # CostmapLayer::updateWithMax
-                take = (cost != nav2.NO_INFORMATION) & ((master == nav2.NO_INFORMATION)
-                                                        | (master < cost))
-            elif layer.layer.combination_method == 0:     # updateWithOverwrite
-                take = np.ones(cost.shape, bool)
-            else:
-                continue                                  # "default: break"
-            master[take] = cost[take]
+            nav2.combine(master, layer.costmap, layer.layer.combination_method)
         self.master = master
         return master
 

@@ -39,18 +39,23 @@ def frame_depth(k: int) -> np.ndarray:
     return np.full((24, 32), 1000 + k, dtype=np.uint16) + np.arange(32, dtype=np.uint16)
 
 
-@pytest.fixture(scope='module')
-def bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """Return a converted bag of N_FRAMES depth + camera-info frames at 30 Hz."""
+def folder_source(root: Path, rate_hz: float) -> datasets.FrameSource:
+    """Write N_FRAMES depth PNGs (frame_depth) and intrinsics under root; their frame source."""
     import cv2
 
-    root = tmp_path_factory.mktemp('play')
     (root / 'depth').mkdir()
     for k in range(N_FRAMES):
         cv2.imwrite(str(root / 'depth' / f'{k:03d}.png'), frame_depth(k))
     (root / 'k.yaml').write_text('fx: 30.0\nfy: 30.0\ncx: 16.0\ncy: 12.0\n')
-    source = datasets.folder_frames(root / 'depth', intrinsics_path=root / 'k.yaml',
-                                       rate_hz=RATE_HZ, start_s=50.0)
+    return datasets.folder_frames(root / 'depth', intrinsics_path=root / 'k.yaml',
+                                  rate_hz=rate_hz, start_s=50.0)
+
+
+@pytest.fixture(scope='module')
+def bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Return a converted bag of N_FRAMES depth + camera-info frames at 30 Hz."""
+    root = tmp_path_factory.mktemp('play')
+    source = folder_source(root, RATE_HZ)
     bag_writer.write_frames(source, root / 'bag', bag_writer.BagOptions(progress=False))
     return root / 'bag'
 
@@ -139,15 +144,8 @@ def slow_bag_with_odometry(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Return a 3 Hz bag of depth, camera info and odometry (three messages a stamp)."""
     import dataclasses
 
-    import cv2
-
     root = tmp_path_factory.mktemp('play_slow')
-    (root / 'depth').mkdir()
-    for k in range(N_FRAMES):
-        cv2.imwrite(str(root / 'depth' / f'{k:03d}.png'), frame_depth(k))
-    (root / 'k.yaml').write_text('fx: 30.0\nfy: 30.0\ncx: 16.0\ncy: 12.0\n')
-    source = datasets.folder_frames(root / 'depth', intrinsics_path=root / 'k.yaml',
-                                    rate_hz=3.0, start_s=50.0)
+    source = folder_source(root, 3.0)
     source.frames = [dataclasses.replace(f, pose=(0.1 * k, 0.0, 0.0))
                      for k, f in enumerate(source.frames)]
     bag_writer.write_frames(source, root / 'bag', bag_writer.BagOptions(progress=False))
