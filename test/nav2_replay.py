@@ -152,7 +152,6 @@ class Replay:
         self.marked_in_view = np.zeros(self.shape, bool)
         self.person_cells = np.zeros(self.shape, bool)
         self.free_since = np.full(self.shape, np.iinfo(np.int64).max, np.int64)
-        self.free_noted = -1    # the frame free_since was last updated with
         self.counts = _Counts()
         self.counts_person = _Counts()
         self.ghost: list[int] = []
@@ -206,10 +205,8 @@ class Replay:
     def _note_free(self, frame_truth: np.ndarray, index: int) -> np.ndarray:
         """Update since when each cell is seen free with no true obstacle within one cell."""
         free_now = (frame_truth == CELL_FREE) & ~_grow(frame_truth == CELL_OCCUPIED)
-        if index != self.free_noted:
-            self.free_since = np.where(free_now, np.minimum(self.free_since, index),
-                                       np.iinfo(np.int64).max)
-            self.free_noted = index
+        self.free_since = np.where(free_now, np.minimum(self.free_since, index),
+                                   np.iinfo(np.int64).max)
         return free_now
 
     def see(self, inp: UpdateInput) -> None:
