@@ -31,12 +31,6 @@ from obstacle_detection.fleet.cluster import (TaskError, add_fleet_arguments, fl
 from obstacle_detection.pipeline.params import DetectorParams
 from obstacle_detection.sim.sequences import SEQUENCE_NAMES
 
-#: Real frames (``--real``), scored by scoring.real_frame_counts: floor pixels lie within
-#: FLOOR_BAND_M of the fitted floor; standing pixels STANDING_M above it up to the robot height.
-FLOOR_BAND_M = scoring.FLOOR_BAND_M
-STANDING_M = scoring.STANDING_M
-real_frame_counts = scoring.real_frame_counts
-
 
 def build_parser() -> argparse.ArgumentParser:
     """Return the command-line interface."""

@@ -290,11 +290,6 @@ def _note(summary: ProcessSummary, note: str | None) -> None:
         summary.notes.append(note)
 
 
-def _floor_out_of_bounds(floor: Any) -> bool:
-    """Whether the per-frame floor fit found the floor too far from the mount to use it."""
-    return floor is not None and not floor.refined and floor.reason.startswith('fitted floor')
-
-
 def _frame(depth: Any, cameras: Sequence[CameraState], config: NodeConfig,
            summary: ProcessSummary, *, with_ground: bool, with_overlay: bool,
            mounts: MountSource | None = None) -> dict[str, Any] | None:
@@ -310,7 +305,8 @@ def _frame(depth: Any, cameras: Sequence[CameraState], config: NodeConfig,
     if summary.processed == 0 and mounts is not None:
         summary.mount = f"{mounts.source} (the bag's {TF_STATIC}): " + \
             tool_support.mount_text(result.pose.nominal)
-    if summary.processed % MOUNT_CHECK_EVERY == 0 or _floor_out_of_bounds(result.floor):
+    beyond_bounds = result.floor is not None and result.floor.beyond_bounds
+    if summary.processed % MOUNT_CHECK_EVERY == 0 or beyond_bounds:
         number = summary.processed + 1
         check = tool_support.check_mount(result.depth_m, result.intrinsics,
                                          result.pose.nominal,

@@ -218,7 +218,7 @@ def split_depth_and_color(folder: Path) -> tuple[list[Path], dict[Path, Path]]:
     if not named:
         return [p for p in images if p.suffix.lower() in DEPTH_SUFFIXES], {}
     colors = {_COLOR_WORD.sub('#', p.stem, count=1).lower(): p for p in images
-              if p not in named and _COLOR_WORD.search(p.stem)}
+              if not _DEPTH_WORD.search(p.stem) and _COLOR_WORD.search(p.stem)}
     depth = [p for p in named if p.suffix.lower() in DEPTH_SUFFIXES]
     pairs = {d: colors[key] for d in depth
              if (key := _DEPTH_WORD.sub('#', d.stem, count=1).lower()) in colors}
