@@ -129,33 +129,22 @@ def _process_many(args: argparse.Namespace, values: Mapping[str, Any], origin: s
                   f'processes the other {len(jobs) - len(kept)}', file=sys.stderr)
         return 130
     print(fleet_bags.format_table(outcomes))
-    print('\n'.join(_used_lines(outcomes, args, values, mount_origin)))
+    print('\n'.join(_used_lines(outcomes, values, mount_origin)))
     wall_s = time.perf_counter() - began
     frames = sum(o.processed for o in outcomes)
     print(f'{frames} frames in {wall_s:.1f} s: {frames / wall_s:.1f} frames/s overall')
     return 0 if all(o.error is None for o in outcomes) else 1
 
 
-def _used_lines(outcomes: Sequence[Any], args: argparse.Namespace, values: Mapping[str, Any],
+def _used_lines(outcomes: Sequence[Any], values: Mapping[str, Any],
                 mount_origin: str) -> list[str]:
     """Say what the bags were processed with, as one bag's summary does: intrinsics, mount."""
-    from rosbags.rosbag2 import Reader, ReaderError
-
-    from obstacle_detection.ros.compressed_depth import raw_topic
-
     found: dict[str, list[str]] = {}
     for outcome in outcomes:
-        if outcome.error is not None:
-            continue
-        try:
-            with Reader(outcome.bag) as reader:
-                topics = {c.topic: c.msgtype for c in reader.connections}
-            topic, how = tool_support.choose_info_topic(topics, raw_topic(args.depth_topic),
-                                                        args.info_topic)
-            text = f'CameraInfo on {topic} ({how})' if topic else f'none recorded ({how})'
-        except (ReaderError, ValueError) as err:   # the task read it: not expected
-            text = f'not found again ({err})'
-        found.setdefault(text, []).append(str(outcome.bag))
+        if outcome.error is None:
+            text = (f'CameraInfo on {outcome.info_topic} ({outcome.info_how})'
+                    if outcome.info_topic else f'none recorded ({outcome.info_how})')
+            found.setdefault(text, []).append(str(outcome.bag))
     config = config_from_values(values, 'the parameters')
     return ([f'intrinsics: {text}: {", ".join(bags)}' for text, bags in found.items()]
             + [f'camera mount: {tool_support.mount_text(config.detector.params)} '

@@ -93,6 +93,8 @@ class BagOutcome:
     warning: str | None = None
     error: str | None = None
     where: str = 'this process'   # the worker that ran it
+    info_topic: str | None = None   # the CameraInfo topic it used (None: none recorded)
+    info_how: str = ''              # how that topic was chosen
 
 
 def process_one(job: BagJob) -> BagOutcome:
@@ -113,7 +115,8 @@ def process_one(job: BagJob) -> BagOutcome:
             progress=False, mount_origin=job.mount_origin)
     return BagOutcome(job.bag, job.output, summary.frames, summary.processed,
                       dict(summary.skipped), summary.obstacle_points, float(sum(summary.total_ms)),
-                      summary.wall_s, summary.mount_warning, where=where)
+                      summary.wall_s, summary.mount_warning, where=where,
+                      info_topic=summary.info_topic, info_how=summary.info_how)
 
 
 def process_bags(jobs: Sequence[BagJob], fleet: Fleet, *, progress: bool = True
