@@ -86,11 +86,12 @@ def restore(old: dict[str, str | None]) -> None:
 
 
 @contextmanager
-def rclpy_context(salt: str) -> Iterator[Any]:
+def rclpy_context(salt: str, args: list[str] | None = None) -> Iterator[Any]:
     """Yield an rclpy context of this process on loopback DDS, in the domain of ``salt``.
 
-    The DDS variables are applied while it lives (restored after); rclpy's signal handlers
-    are left alone, so pytest keeps its own.
+    args: the command line rcl parses (``--ros-args`` ...), as a node's process gets it. The
+    DDS variables are applied while it lives (restored after, also when rcl refuses the
+    arguments); rclpy's signal handlers are left alone, so pytest keeps its own.
     """
     import rclpy
     from rclpy.signals import SignalHandlerOptions
@@ -98,9 +99,9 @@ def rclpy_context(salt: str) -> Iterator[Any]:
     env = loopback_env(salt)
     old = apply(env)
     context = rclpy.Context()
-    rclpy.init(context=context, domain_id=int(env['ROS_DOMAIN_ID']),
-               signal_handler_options=SignalHandlerOptions.NO)
     try:
+        rclpy.init(args=args, context=context, domain_id=int(env['ROS_DOMAIN_ID']),
+                   signal_handler_options=SignalHandlerOptions.NO)
         yield context
     finally:
         rclpy.try_shutdown(context=context)

@@ -35,7 +35,6 @@ mapping mode, services.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -560,8 +559,3 @@ class STVLCostmap:
     def current(self) -> bool:
         """Layer::isCurrent of every layer."""
         return all(layer.current for layer in self.layers)
-
-
-def source_settings(config: nav2.CostmapConfig) -> Mapping[str, SourceConfig]:
-    """Source name -> its settings, over the STVL layers."""
-    return {s.name: s for layer in config.layers for s in layer.sources}

@@ -276,17 +276,9 @@ def _launch_ros_arguments(settings: dict[str, Any], tmp_path: Path, *,
 
 def _resolved(args: list[str]) -> dict[str, Any]:
     """Return what rcl gives a node started with ``args``: name, parameters, topics, level."""
-    import rclpy
     from rclpy.node import Node
-    from rclpy.signals import SignalHandlerOptions
 
-    env = ros_env.loopback_env('test_launch_and_nav2')
-    old = ros_env.apply(env)
-    context = rclpy.Context()
-    try:
-        rclpy.init(args=['detector', *args], context=context,
-                   domain_id=int(env['ROS_DOMAIN_ID']),
-                   signal_handler_options=SignalHandlerOptions.NO)
+    with ros_env.rclpy_context('test_launch_and_nav2', ['detector', *args]) as context:
         node = Node('probe', context=context, start_parameter_services=False,
                     automatically_declare_parameters_from_overrides=True)
         try:
@@ -298,9 +290,6 @@ def _resolved(args: list[str]) -> dict[str, Any]:
                     'log_level': node.get_logger().get_effective_level()}
         finally:
             node.destroy_node()
-    finally:
-        rclpy.try_shutdown(context=context)
-        ros_env.restore(old)
 
 
 @pytest.mark.parametrize(('given', 'clock'), [('True', True), ('False', False),

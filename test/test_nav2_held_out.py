@@ -28,8 +28,6 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Iterator
-from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import nav2_layers as nav2
@@ -39,7 +37,7 @@ import pytest
 from builtin_interfaces.msg import Time
 from message_helpers import pointcloud2_to_points
 from test_nav2_sequences import (CORRIDOR, FRAME_ID, NAV2_YAML, START_TIMEOUT_S, Harness,
-                                 nav2_clouds_cost_ms)
+                                 nav2_clouds_cost_ms, rendered)
 
 from obstacle_detection.cli import bag_processor
 from obstacle_detection.ros.conversions import array_to_image, intrinsics_to_camera_info
@@ -88,17 +86,6 @@ class Played:
     stamp: Time
 
 
-def _rendered(sequence: SceneSequence) -> Iterator[Any]:
-    """Yield the frames of a sequence, rendering the next one while this one is used."""
-    with ThreadPoolExecutor(max_workers=1) as pool:
-        ahead = pool.submit(sequence.frame, 0)
-        for index in range(len(sequence)):
-            frame = ahead.result()
-            if index + 1 < len(sequence):
-                ahead = pool.submit(sequence.frame, index + 1)
-            yield frame
-
-
 def node_clouds(depth_mm: np.ndarray, info: Any, stamp: Time, config: Any,
                 ) -> tuple[np.ndarray, np.ndarray]:
     """Return the node's obstacles/marking_points and obstacles/clearing_points of a frame."""
@@ -116,7 +103,7 @@ def _play(sequence: SceneSequence, config: Any, step: int) -> list[Played]:
     base = config.detector.params
     info = None
     out = []
-    for sf in _rendered(sequence):
+    for _, sf in rendered(sequence, range(len(sequence))):
         if info is None:
             height, width = sf.frame.depth_mm.shape
             info = intrinsics_to_camera_info(sf.frame.intrinsics, width, height, stamp=Time(),

@@ -106,7 +106,7 @@ def _costmap_configs() -> list[nav2.CostmapConfig]:
     return [shipped, dataclasses.replace(shipped, layers=(flat,))]
 
 
-def _rendered(sequence: SceneSequence, indices: range) -> Iterator[tuple[int, Any]]:
+def rendered(sequence: SceneSequence, indices: range) -> Iterator[tuple[int, Any]]:
     """Yield (index, frame) of a sequence, rendering the next frame while this one is used."""
     with ThreadPoolExecutor(max_workers=1) as pool:
         ahead = pool.submit(sequence.frame, indices[0]) if len(indices) else None
@@ -129,7 +129,7 @@ def _run_sequence(harness: Harness, name: str, values: dict[str, Any]) -> list[A
     base = bag_processor.config_from_values(values, str(CORRIDOR)).detector.params
     info = None
     clouds = None
-    for index, sf in _rendered(sequence, indices):
+    for index, sf in rendered(sequence, indices):
         if info is None:
             height, width = sf.frame.depth_mm.shape
             info = intrinsics_to_camera_info(sf.frame.intrinsics, width, height, stamp=Time(),

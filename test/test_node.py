@@ -820,11 +820,9 @@ def test_an_integer_for_a_float_stops_the_node_with_file_name_and_fix(tmp_path: 
     # without the file or the fix; the tools say "write 30.0": now the node says it too
     bad = tmp_path / 'bad.yaml'
     bad.write_text('obstacle_detector:\n  ros__parameters:\n    max_range_m: 3\n')
-    env = ros_env.loopback_env(__name__ + ':int-file', log_dir=tmp_path / 'ros_log')
 
-    done = subprocess.run(ros_env.detector_command() + ['--ros-args', '--params-file', str(bad)],
-                          env=env, cwd=tmp_path, capture_output=True, text=True, timeout=60,
-                          check=False)
+    done = ros_env.run_detector(tmp_path, '--ros-args', '--params-file', str(bad),
+                                salt=__name__ + ':int-file')
 
     assert done.returncode == 1
     assert done.stderr == (f"detector: error: {bad}: parameter 'max_range_m' must be a float, "
@@ -834,11 +832,9 @@ def test_an_integer_for_a_float_stops_the_node_with_file_name_and_fix(tmp_path: 
 def test_invalid_params_file_stops_the_node_with_the_message(tmp_path: Path) -> None:
     bad = tmp_path / 'bad.yaml'
     bad.write_text(CORRIDOR_YAML.read_text().replace('median_kernel: 5 ', 'median_kernel: 4 '))
-    env = ros_env.loopback_env(__name__ + ':bad-file', log_dir=tmp_path / 'ros_log')
 
-    done = subprocess.run(ros_env.detector_command() + ['--ros-args', '--params-file', str(bad)],
-                          env=env, cwd=tmp_path, capture_output=True, text=True, timeout=60,
-                          check=False)
+    done = ros_env.run_detector(tmp_path, '--ros-args', '--params-file', str(bad),
+                                salt=__name__ + ':bad-file')
 
     assert done.returncode == 1
     assert 'invalid parameters: median_kernel=4 must be odd' in done.stdout + done.stderr
@@ -846,11 +842,8 @@ def test_invalid_params_file_stops_the_node_with_the_message(tmp_path: Path) -> 
 
 def test_use_tf_without_tf2_stops_the_node_with_the_fix(tmp_path: Path) -> None:
     """This venv has no tf2_ros: use_tf:=true exits 1 saying how to get TF or do without."""
-    env = ros_env.loopback_env(__name__ + ':no-tf2', log_dir=tmp_path / 'ros_log')
-
-    done = subprocess.run(ros_env.detector_command() + [
-        '--ros-args', '--params-file', str(CORRIDOR_YAML), '-p', 'use_tf:=true'],
-        env=env, cwd=tmp_path, capture_output=True, text=True, timeout=60, check=False)
+    done = ros_env.run_detector(tmp_path, '--ros-args', '--params-file', str(CORRIDOR_YAML),
+                                '-p', 'use_tf:=true', salt=__name__ + ':no-tf2')
 
     assert done.returncode == 1
     assert 'use_tf is true but tf2_ros cannot be imported' in done.stdout + done.stderr

@@ -346,24 +346,18 @@ def test_readme_jazzy_path_installs_the_numba_the_node_names() -> None:
 
 
 def test_readme_jazzy_path_builds_launches_and_shows_what_the_node_publishes() -> None:
-    import importlib.util
+    from test_launch_and_nav2 import _corridor, _launch_module
 
-    import yaml
+    from obstacle_detection.ros.node import OUTPUTS
 
     commands = _jazzy_commands()
     build = next(c for c in commands if c.startswith('colcon build'))
     launch = next(c for c in commands if c.startswith('ros2 launch'))
     rviz = next(c for c in commands if 'rviz2' in c)
-    spec = importlib.util.spec_from_file_location('detector_launch',
-                                                  REPO / 'launch' / 'detector.launch.py')
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
     package, launch_file, *arguments = launch.split()[2:]
     values = dict(argument.split(':=') for argument in arguments)
-    settings = module.node_settings(values, '/opt/ros/share/obstacle_detection')
-    corridor = yaml.safe_load((REPO / 'params' / 'corridor.yaml').read_text())
-    corridor = next(iter(corridor.values()))['ros__parameters']
-    from obstacle_detection.ros.node import OUTPUTS
+    settings = _launch_module().node_settings(values, '/opt/ros/share/obstacle_detection')
+    corridor = _corridor()
 
     assert '--symlink-install' in build     # the develop install tested above
     assert (package, launch_file) == (PACKAGE, 'detector.launch.py')

@@ -48,8 +48,6 @@ REPO = ros_env.REPO_ROOT
 CORRIDOR = REPO / 'params' / 'corridor.yaml'
 STVL_YAML = REPO / 'params' / 'nav2_stvl.yaml'
 FRAME_ID = 'camera_depth_optical_frame'
-OBSTACLES, FRUSTUM = 'detector_obstacles', 'detector_frustum'
-
 
 
 class STVLReplay(replay.Replay):
@@ -64,8 +62,7 @@ class STVLReplay(replay.Replay):
         super().__init__(name, config, mount, poses, layer_name=layer)
         self.costmap = stvl.STVLCostmap(config)
         self.layers = self.costmap.layers
-        self.stvl_sources = stvl.source_settings(config)
-        for source in self.stvl_sources.values():
+        for source in self.sources.values():
             if source.topic.lstrip('/') not in ('obstacles/points', 'obstacles/clearing_points'):
                 raise ValueError(f'{source.name}: topic {source.topic!r} is not a cloud of '
                                  'the node')
@@ -83,7 +80,7 @@ class STVLReplay(replay.Replay):
         base_rot = replay.rotation_z(inp.pose[2])
         base_t = np.array([inp.pose[0], inp.pose[1], 0.0])
         camera = (base_rot @ self.mount[0], base_t + base_rot @ self.mount[1])
-        for name, source in self.stvl_sources.items():
+        for name, source in self.sources.items():
             on_points = source.topic.lstrip('/') == 'obstacles/points'
             self.costmap.buffer(name, inp.obstacle_points if on_points else inp.clearing_points,
                                 (base_rot, base_t) if on_points else camera, now_s, now_s,
