@@ -148,12 +148,7 @@ def filled_marks(marks: np.ndarray, *, cell_m: float, voxel_m: float,
     m = np.asarray(marks, np.float32).reshape(-1, 3)
     if m.shape[0] == 0:
         return m
-    _, inverse = np.unique(_cell_keys(m, cell_m), return_inverse=True)
-    inverse = inverse.reshape(-1)
-    z_lo = np.full(inverse.max() + 1, np.inf, np.float32)
-    z_hi = np.full(inverse.max() + 1, -np.inf, np.float32)
-    np.minimum.at(z_lo, inverse, m[:, 2])
-    np.maximum.at(z_hi, inverse, m[:, 2])
+    _, inverse, z_lo, z_hi = _columns(m, cell_m)
     src = m[(z_hi - z_lo < voxel_m)[inverse] & (m[:, 2] > 0.0)]
     if src.shape[0] == 0:
         return m
@@ -173,6 +168,22 @@ def _cell_keys(points: np.ndarray, cell_m: float) -> np.ndarray:
     return (cells[:, 0] << 32) + cells[:, 1]
 
 
+def _columns(points: np.ndarray, cell_m: float
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Group points by cell_m column: (first point, each point's column, lowest z, highest z).
+
+    One entry per column in the first and the heights, which keep the points' dtype.
+    """
+    _, first, inverse = np.unique(_cell_keys(points, cell_m), return_index=True,
+                                  return_inverse=True)
+    inverse = inverse.reshape(-1)
+    z_lo = np.full(first.size, np.inf, points.dtype)
+    z_hi = np.full(first.size, -np.inf, points.dtype)
+    np.minimum.at(z_lo, inverse, points[:, 2])
+    np.maximum.at(z_hi, inverse, points[:, 2])
+    return first, inverse, z_lo, z_hi
+
+
 def guarded(points: np.ndarray, marks: np.ndarray, rotation: np.ndarray,
             translation: np.ndarray, *, cell_m: float, voxel_m: float) -> np.ndarray:
     """Return the clearing points, each ray ending where it enters a column of ``marks``.
@@ -189,14 +200,8 @@ def guarded(points: np.ndarray, marks: np.ndarray, rotation: np.ndarray,
         return points
     rot = np.asarray(rotation, np.float64)
     origin = np.asarray(translation, np.float64)
-    _, first, inverse = np.unique(_cell_keys(m, cell_m), return_index=True,
-                                  return_inverse=True)
+    first, inverse, z_lo, z_hi = _columns(m, cell_m)
     keys = np.floor(m[first, :2] / cell_m)
-    inverse = inverse.reshape(-1)
-    z_lo = np.full(len(keys), np.inf)
-    z_hi = np.full(len(keys), -np.inf)
-    np.minimum.at(z_lo, inverse, m[:, 2])
-    np.maximum.at(z_hi, inverse, m[:, 2])
     grow = cell_m
     # a ray over a thick column clears its top voxel only; a thin one it frees within a voxel
     dz = np.where(z_hi - z_lo < voxel_m, voxel_m, 0.0)
