@@ -39,6 +39,7 @@ import numpy as np
 
 from obstacle_detection.evaluation import metrics
 from obstacle_detection.labels import CELL_FREE, CELL_OCCUPIED, CELL_UNKNOWN
+from obstacle_detection.sim.sequences import PITCH_PHASES_DEG, BodyPitch
 
 #: Sequence frame rate [Hz] and the ghost budget after the person left [frames].
 RATE_HZ = 30.0
@@ -325,6 +326,36 @@ URDF_ERROR = {'camera_pitch_deg': 1.5, 'camera_height_m': 0.03}
 def urdf_off(values: dict, error: dict = URDF_ERROR) -> dict:
     """Return mount parameter values with ``error`` added (a URDF slightly off)."""
     return {**values, **{k: float(values[k]) + v for k, v in error.items()}}
+
+
+@dataclass(frozen=True)
+class Run:
+    """One scored run: a rendered sequence and the URDF the emulated TF uses.
+
+    body_pitch: the body rocking under the camera (rendered pitched; the URDF, odometry and
+    truth do not see it); urdf_error: mount errors of the URDF (:func:`urdf_off`) while the
+    rendering and the node's parameters keep the true mount.
+    """
+
+    name: str
+    sequence: str
+    body_pitch: BodyPitch | None = None
+    urdf_error: dict | None = None
+
+    @property
+    def frames_key(self) -> tuple[str, BodyPitch | None]:
+        """What its frames depend on: runs with the same key play the same frames."""
+        return (self.sequence, self.body_pitch)
+
+
+#: The held-out drive with the body pitching +-2 deg (each phase of PITCH_PHASES_DEG) and with
+#: a URDF 1.5 deg / 3 cm off (the level drive's frames).
+HELD_OUT_DRIVES: tuple[Run, ...] = (
+    *(Run(f'drive_by_table, pitching phase {phase:.0f}', 'drive_by_table',
+          body_pitch=BodyPitch(amplitude_deg=2.0, period_s=1.2, phase_deg=phase))
+      for phase in PITCH_PHASES_DEG),
+    Run('drive_by_table, URDF 1.5 deg / 3 cm off', 'drive_by_table', urdf_error=URDF_ERROR),
+)
 
 
 def person_in_view(frame: object) -> bool | None:

@@ -30,7 +30,6 @@ from obstacle_detection.ros.compressed_depth import TRANSPORT_SUFFIXES
 from obstacle_detection.ros.parameters import NODE_NAME, PARAMS_FILE_KEY
 from obstacle_detection.sim.scenes import render_scene
 from obstacle_detection.cli import bag_processor
-from obstacle_detection.pipeline.clearing import clearing_cloud
 
 REPO = Path(__file__).resolve().parents[1]
 LAUNCH = REPO / 'launch' / 'detector.launch.py'
@@ -462,9 +461,8 @@ def test_every_detector_point_passes_the_voxel_layer_filters(scene: str) -> None
                          pitch_rad=params.camera_pitch_rad, roll_rad=params.camera_roll_rad)
     result = config.detector.process(frame.depth_mm, frame.intrinsics)
     layer, source = _layer(), _sources()['/obstacles/marking_points']
-    points = result.obstacle_points.astype(np.float64)
-    clearing = clearing_cloud(result, stride_px=config.clearing_stride_px,
-                              range_m=config.clearing_range_m)
+    marks, clearing = config.nav2_clouds(result)     # what the node sends the voxel layer
+    points = marks.astype(np.float64)
 
     assert points.shape[0] > 100 and clearing.shape[0] > 1000
     z = points[:, 2]

@@ -43,36 +43,16 @@ from obstacle_detection.cli import bag_processor
 from obstacle_detection.ros.conversions import array_to_image, intrinsics_to_camera_info
 from obstacle_detection.ros.frame_gate import CameraState
 from obstacle_detection.sim.scenes import scene_params
-from obstacle_detection.sim.sequences import (PERFECT_ODOMETRY, PITCH_PHASES_DEG, BodyPitch,
-                                              SceneSequence)
+from obstacle_detection.sim.sequences import PERFECT_ODOMETRY, SceneSequence
 
 #: Costmap updates at 30 Hz (every frame) and at the yaml's update_frequency.
 EVERY_FRAME = 'every frame'
 YAML_RATE = '5 Hz'
 
-
-@dataclasses.dataclass(frozen=True)
-class Run:
-    """One scored run: a rendered sequence and the URDF the emulated TF uses."""
-
-    name: str
-    sequence: str
-    body_pitch: BodyPitch | None = None
-    urdf_error: dict | None = None
-
-    @property
-    def frames_key(self) -> tuple[str, BodyPitch | None]:
-        return (self.sequence, self.body_pitch)
-
-
-RUNS: tuple[Run, ...] = (
-    Run('person_leaving_edge', 'person_leaving_edge'),
-    Run('drive_by_table', 'drive_by_table'),
-    *(Run(f'drive_by_table, pitching phase {phase:.0f}', 'drive_by_table',
-          body_pitch=BodyPitch(amplitude_deg=2.0, period_s=1.2, phase_deg=phase))
-      for phase in PITCH_PHASES_DEG),
-    Run('drive_by_table, URDF 1.5 deg / 3 cm off', 'drive_by_table',
-        urdf_error=replay.URDF_ERROR),
+RUNS: tuple[replay.Run, ...] = (
+    replay.Run('person_leaving_edge', 'person_leaving_edge'),
+    replay.Run('drive_by_table', 'drive_by_table'),
+    *replay.HELD_OUT_DRIVES,
 )
 DRIVES = [run.name for run in RUNS if run.sequence == 'drive_by_table']
 
@@ -125,7 +105,7 @@ def _play(sequence: SceneSequence, config: Any, step: int) -> list[Played]:
     return out
 
 
-def _replays(run: Run, values: dict, poses: list) -> replay.Replay:
+def _replays(run: replay.Run, values: dict, poses: list) -> replay.Replay:
     urdf = values if run.urdf_error is None else replay.urdf_off(values, run.urdf_error)
     return replay.Replay(run.name, nav2.read_costmap(NAV2_YAML), replay.camera_mount(urdf),
                          poses)

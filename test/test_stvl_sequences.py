@@ -41,7 +41,7 @@ from obstacle_detection.cli import bag_processor
 from obstacle_detection.ros.conversions import array_to_image, intrinsics_to_camera_info
 from obstacle_detection.ros.frame_gate import CameraState
 from obstacle_detection.sim.scenes import scene_params
-from obstacle_detection.sim.sequences import (PERFECT_ODOMETRY, PITCH_PHASES_DEG, SEQUENCE_NAMES,
+from obstacle_detection.sim.sequences import (PERFECT_ODOMETRY, SEQUENCE_NAMES,
                                               BodyPitch, SceneSequence)
 
 REPO = ros_env.REPO_ROOT
@@ -91,30 +91,11 @@ class STVLReplay(replay.Replay):
         return inp.index / replay.RATE_HZ
 
 
-@dataclasses.dataclass(frozen=True)
-class Run:
-    """One scored run: a rendered sequence and the URDF the emulated TF uses.
-
-    body_pitch: the body rocking under the camera (rendered pitched; the URDF, odometry and
-    truth do not see it); urdf_error: mount errors of the URDF (nav2_replay.urdf_off) while
-    the rendering and the node's parameters keep the true mount.
-    """
-
-    name: str
-    sequence: str
-    body_pitch: BodyPitch | None = None
-    urdf_error: dict | None = None
-
-
-#: Every sequence; the held-out drive also with the body pitching +-2 deg (each phase of
-#: PITCH_PHASES_DEG, as test_nav2_held_out) and with a URDF 1.5 deg / 3 cm off (the same
-#: frames as the level drive).
-RUNS: tuple[Run, ...] = (
-    *(Run(name, name) for name in SEQUENCE_NAMES),
-    *(Run(f'drive_by_table, pitching phase {phase:.0f}', 'drive_by_table',
-          body_pitch=BodyPitch(amplitude_deg=2.0, period_s=1.2, phase_deg=phase))
-      for phase in PITCH_PHASES_DEG),
-    Run('drive_by_table, URDF off', 'drive_by_table', urdf_error=replay.URDF_ERROR),
+#: Every sequence; the held-out drive also with the body pitching +-2 deg and with a URDF
+#: 1.5 deg / 3 cm off, as test_nav2_held_out plays it.
+RUNS: tuple[replay.Run, ...] = (
+    *(replay.Run(name, name) for name in SEQUENCE_NAMES),
+    *replay.HELD_OUT_DRIVES,
 )
 #: The runs the F1 target is for: the drives (issue 29), not the person sequences.
 DRIVES = [run.name for run in RUNS if run.sequence.startswith('drive')]
@@ -186,7 +167,7 @@ def play_frame(sequence: str, body_pitch: BodyPitch | None, index: int,
                   replay.person_in_view(sf.frame), replay.person_disc(sf))
 
 
-def play_runs(runs: list[Run], config: nav2.CostmapConfig, values: dict[str, Any],
+def play_runs(runs: list[replay.Run], config: nav2.CostmapConfig, values: dict[str, Any],
               periods: dict[str, int], pool: ProcessPoolExecutor) -> list[replay.SequenceFigures]:
     """Play the runs that share their frames: one STVL costmap per run and update period.
 
@@ -243,9 +224,9 @@ def update_periods(config: nav2.CostmapConfig) -> dict[str, int]:
 def figures() -> dict[tuple[str, str], replay.SequenceFigures]:
     config = stvl.read_stvl_costmap(STVL_YAML)
     values = bag_processor.node_param_values(CORRIDOR)
-    groups: dict[tuple, list[Run]] = {}
+    groups: dict[tuple, list[replay.Run]] = {}
     for run in RUNS:        # runs that share their frames are played together
-        groups.setdefault((run.sequence, run.body_pitch), []).append(run)
+        groups.setdefault(run.frames_key, []).append(run)
     start = time.perf_counter()
     with ProcessPoolExecutor(max_workers=2, mp_context=multiprocessing.get_context('spawn')) \
             as pool:
