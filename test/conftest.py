@@ -10,7 +10,7 @@ import re
 import subprocess
 import sys
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -55,6 +55,15 @@ def params_file(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPat
     path = tmp_path_factory.mktemp('params') / 'params.yaml'
     path.write_text(request.module.PARAMS_YAML)
     return path
+
+
+@pytest.fixture(scope='module')
+def local_context(request: pytest.FixtureRequest) -> Iterator[Any]:
+    """Yield an rclpy context for in-process nodes: loopback DDS, the test module's domain."""
+    import ros_env
+
+    with ros_env.rclpy_context(request.module.__name__ + ':in-process') as context:
+        yield context
 
 
 # -- the numpy/scipy reference and the compiled (numba) path -----------------------------------

@@ -518,12 +518,6 @@ def test_out_of_range_value_is_refused_by_the_descriptor(detector: NodeUnderTest
 
 
 # -- in-process node, in a ROS domain of its own ----------------------------------------------
-@pytest.fixture(scope='module')
-def local_context() -> Iterator[rclpy.Context]:
-    with ros_env.rclpy_context(__name__ + ':in-process') as context:
-        yield context
-
-
 @pytest.fixture
 def local_node(local_context: rclpy.Context) -> Iterator[DetectorNode]:
     node = DetectorNode(context=local_context,

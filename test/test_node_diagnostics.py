@@ -9,7 +9,6 @@ hardware_id); it says which intrinsics the frames used and the slowest frame of 
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
 from typing import Any
 
 import pytest
@@ -26,12 +25,6 @@ from obstacle_detection.sim.scenes import SceneFrame, render_scene
 CORRIDOR_YAML = ros_env.REPO_ROOT / 'params' / 'corridor.yaml'
 TASK = 'depth obstacle detection'
 SLOW_S = 0.25
-
-
-@pytest.fixture(scope='module')
-def context() -> Iterator[rclpy.Context]:
-    with ros_env.rclpy_context(__name__) as context:
-        yield context
 
 
 @pytest.fixture(scope='module')
@@ -62,8 +55,8 @@ def _frame(scene: SceneFrame) -> Any:
 
 
 def test_fallback_intrinsics_warn_and_the_slow_frame_is_reported(
-        context: rclpy.Context, scene: SceneFrame, monkeypatch: pytest.MonkeyPatch) -> None:
-    node = _node(context, '-p', 'use_fallback_intrinsics:=true')
+        local_context: rclpy.Context, scene: SceneFrame, monkeypatch: pytest.MonkeyPatch) -> None:
+    node = _node(local_context, '-p', 'use_fallback_intrinsics:=true')
     try:
         assert node.handle_frame(_frame(scene))           # no CameraInfo: the fallback
         process = node.config.detector.process
@@ -102,8 +95,8 @@ def test_fallback_intrinsics_warn_and_the_slow_frame_is_reported(
 
 
 def test_name_and_hardware_id_are_diagnostic_updaters_and_stay_put(
-        context: rclpy.Context, scene: SceneFrame, monkeypatch: pytest.MonkeyPatch) -> None:
-    node = _node(context, '-r', 'depth/image_raw:=/camera/camera/depth/image_rect_raw',
+        local_context: rclpy.Context, scene: SceneFrame, monkeypatch: pytest.MonkeyPatch) -> None:
+    node = _node(local_context, '-r', 'depth/image_raw:=/camera/camera/depth/image_rect_raw',
                  namespace='front')
     try:
         before = _report(node, monkeypatch)
@@ -128,9 +121,9 @@ def test_name_and_hardware_id_are_diagnostic_updaters_and_stay_put(
      [f'/front/obstacle_detector: {TASK}', f'/rear/obstacle_detector: {TASK}']),
 ])
 def test_two_namespaced_nodes_need_use_fqn_for_two_names(
-        context: rclpy.Context, monkeypatch: pytest.MonkeyPatch, args: tuple[str, ...],
+        local_context: rclpy.Context, monkeypatch: pytest.MonkeyPatch, args: tuple[str, ...],
         names: list[str]) -> None:
-    nodes = [_node(context, *args, namespace=ns) for ns in ('front', 'rear')]
+    nodes = [_node(local_context, *args, namespace=ns) for ns in ('front', 'rear')]
     try:
         reports = [_report(node, monkeypatch) for node in nodes]
         use_fqn = [node.get_parameter('diagnostic_updater.use_fqn').value for node in nodes]

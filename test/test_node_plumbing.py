@@ -237,12 +237,6 @@ def test_diagnostics_are_named_after_the_node_and_say_what_before_a_frame(
 
 
 # -- in-process nodes ---------------------------------------------------------------------
-@pytest.fixture(scope='module')
-def local_context() -> Iterator[rclpy.Context]:
-    with ros_env.rclpy_context(__name__ + ':in-process') as context:
-        yield context
-
-
 @pytest.mark.parametrize('order', [('obstacle_detector', '/**/obstacle_detector', '/**'),
                                    ('/**', '/**/obstacle_detector', 'obstacle_detector'),
                                    ('/**/obstacle_detector', 'obstacle_detector', '/**')])
