@@ -107,7 +107,6 @@ def _child(point: dict, frames: int = FRAMES) -> dict:
     detector = config.detector
     Detector(DetectorParams(median_kernel=detector.params.median_kernel)).warm_up()
     rendered = [render_scene(name, seed=0) for name in SCENES]
-    stamp = None
     from builtin_interfaces.msg import Time
     stamp = Time(sec=1, nanosec=0)
 
