@@ -62,6 +62,7 @@ class STVLReplay(replay.Replay):
         super().__init__(name, config, mount, poses, layer_name=layer)
         self.costmap = stvl.STVLCostmap(config)
         self.layers = self.costmap.layers
+        self.max_voxels = 0     # the most voxels the grids held after an update
         for source in self.sources.values():
             if source.topic.lstrip('/') not in ('obstacles/points', 'obstacles/clearing_points'):
                 raise ValueError(f'{source.name}: topic {source.topic!r} is not a cloud of '
@@ -89,6 +90,19 @@ class STVLReplay(replay.Replay):
     def _observations(self, inp: replay.UpdateInput) -> float:
         """Return the time of the update [s] (:meth:`receive` buffered the clouds)."""
         return inp.index / replay.RATE_HZ
+
+    def step(self, inp: replay.UpdateInput) -> np.ndarray:
+        """Replay.step, noting how many voxels the grids hold (what an update walks over)."""
+        master = super().step(inp)
+        self.max_voxels = max(self.max_voxels,
+                              sum(layer.grid.keys.size for layer in self.costmap.layers))
+        return master
+
+    def report(self) -> replay.SequenceFigures:
+        """Replay.report, with ``extra['max_voxels']``."""
+        figures = super().report()
+        figures.extra['max_voxels'] = self.max_voxels
+        return figures
 
 
 #: Every sequence; the held-out drive also with the body pitching +-2 deg and with a URDF
